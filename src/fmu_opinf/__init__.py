@@ -1,0 +1,8 @@
+"""fmu-opinf: stable second-order reduced models of constrained mechanical systems.
+
+Pipeline, one module per stage::
+
+    source -> snapshots -> basis -> inference -> rom -> compare / export
+"""
+
+__version__ = "0.1.0"
