@@ -1,0 +1,268 @@
+"""Input signals and their textual form.
+
+A signal maps times to input values, ``sample(t) -> (m, k)``.  Simulators hold the input
+constant over each step at its value at the start of the step (zero-order hold, spec
+section 4), so a signal is only ever evaluated at the step starts.
+
+Textual form (used by the command line), one spec per input separated by ``;`` (a single
+spec drives every input)::
+
+    impulse:amplitude=100,t0=2,width=0.5     raised-cosine pulse centred at t0, total width `width`
+    harmonic:amplitude=1,omega=0.2           amplitude * sin(omega t + phase) (+ offset)
+    step:amplitude=1,t0=0                    amplitude for t >= t0, 0 before
+    chirp:amplitude=1,omega0=0.01,omega1=1   sine sweeping linearly from omega0 to omega1 over `duration`
+    path/to/table.csv                        time column plus one column per input, held between rows
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .errors import DimensionError, InputSpecError
+
+__all__ = [
+    "Signal", "ParametricSignal", "TableSignal", "StackedSignal",
+    "impulse", "harmonic", "step", "chirp", "table", "parse_signal",
+]
+
+
+class Signal:
+    """Base class: an input signal with ``n_inputs`` channels and a textual ``spec``."""
+
+    n_inputs: int = 1
+    spec: str = ""
+    #: Times outside this closed interval cannot be sampled.
+    t_range: tuple[float, float] = (-math.inf, math.inf)
+
+    def sample(self, t: np.ndarray | float) -> np.ndarray:
+        """Input values at times ``t``, shape ``(n_inputs, len(t))``."""
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        lo, hi = self.t_range
+        tol = 1e-9 * max(1.0, abs(hi) if math.isfinite(hi) else 1.0)
+        if t.size and (t.min() < lo - tol or t.max() > hi + tol):
+            raise InputSpecError(
+                f"input {self.spec!r} is defined on [{lo:g}, {hi:g}] but the simulation needs "
+                f"[{t.min():g}, {t.max():g}]; extend the table or shorten --t-end")
+        return self._values(t)
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.spec!r})"
+
+
+@dataclass(repr=False)
+class ParametricSignal(Signal):
+    """A scalar signal given by a formula and its named parameters."""
+
+    kind: str
+    params: dict[str, float]
+    formula: Callable[..., np.ndarray] = field(compare=False)
+
+    def __post_init__(self) -> None:
+        self.n_inputs = 1
+        self.spec = self.kind + ":" + ",".join(f"{k}={v:g}" for k, v in self.params.items())
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        return np.asarray(self.formula(t, **self.params), dtype=float).reshape(1, -1)
+
+
+def _impulse(t, amplitude, t0, width):
+    phase = 2.0 * np.pi * (t - t0) / width
+    return np.where(np.abs(t - t0) <= width / 2, amplitude * 0.5 * (1.0 + np.cos(phase)), 0.0)
+
+
+def _harmonic(t, amplitude, omega, phase, offset):
+    return offset + amplitude * np.sin(omega * t + phase)
+
+
+def _step(t, amplitude, t0):
+    return np.where(t >= t0, amplitude, 0.0)
+
+
+def _chirp(t, amplitude, omega0, omega1, duration, t0):
+    s = np.clip(t - t0, 0.0, None)
+    sweep = np.minimum(s, duration)
+    angle = omega0 * sweep + (omega1 - omega0) * sweep**2 / (2.0 * duration) + omega1 * (s - sweep)
+    return np.where(t >= t0, amplitude * np.sin(angle), 0.0)
+
+
+# name -> (formula, default parameters, parameters that must be > 0)
+_KINDS: dict[str, tuple[Callable[..., np.ndarray], dict[str, float], tuple[str, ...]]] = {
+    "impulse": (_impulse, {"amplitude": 1.0, "t0": 1.0, "width": 0.5}, ("width",)),
+    "harmonic": (_harmonic, {"amplitude": 1.0, "omega": 1.0, "phase": 0.0, "offset": 0.0}, ()),
+    "step": (_step, {"amplitude": 1.0, "t0": 0.0}, ()),
+    "chirp": (_chirp, {"amplitude": 1.0, "omega0": 0.01, "omega1": 1.0, "duration": 100.0, "t0": 0.0},
+              ("duration",)),
+}
+
+
+def _make(kind: str, **params: float) -> ParametricSignal:
+    formula, defaults, positive = _KINDS[kind]
+    unknown = set(params) - set(defaults)
+    if unknown:
+        raise InputSpecError(f"unknown key {sorted(unknown)[0]!r} for {kind} input; "
+                             f"valid keys: {', '.join(defaults)}")
+    values = {**defaults, **{k: float(v) for k, v in params.items()}}
+    for key, value in values.items():
+        if not math.isfinite(value):
+            raise InputSpecError(f"{kind} input: {key}={value} is not a finite number")
+    for key in positive:
+        if values[key] <= 0:
+            raise InputSpecError(f"{kind} input: {key} must be positive, got {values[key]:g}")
+    return ParametricSignal(kind, values, formula)
+
+
+def impulse(amplitude: float = 1.0, t0: float = 1.0, width: float = 0.5) -> ParametricSignal:
+    """Impulse-like pulse: a raised cosine of peak ``amplitude`` centred at ``t0``, total ``width``.
+
+    Smooth and short, it excites the system's own dynamics (the paper's training input).
+    Keep ``t0`` on the time grid and ``dt <= width`` so the sampled pulse is not missed.
+    """
+    return _make("impulse", amplitude=amplitude, t0=t0, width=width)
+
+
+def harmonic(amplitude: float = 1.0, omega: float = 1.0, phase: float = 0.0,
+             offset: float = 0.0) -> ParametricSignal:
+    """Harmonic wave ``offset + amplitude * sin(omega t + phase)`` (the paper's test input)."""
+    return _make("harmonic", amplitude=amplitude, omega=omega, phase=phase, offset=offset)
+
+
+def step(amplitude: float = 1.0, t0: float = 0.0) -> ParametricSignal:
+    """Step of height ``amplitude`` switched on at ``t0``."""
+    return _make("step", amplitude=amplitude, t0=t0)
+
+
+def chirp(amplitude: float = 1.0, omega0: float = 0.01, omega1: float = 1.0,
+          duration: float = 100.0, t0: float = 0.0) -> ParametricSignal:
+    """Linear chirp: instantaneous frequency from ``omega0`` at ``t0`` to ``omega1`` at ``t0 + duration``."""
+    return _make("chirp", amplitude=amplitude, omega0=omega0, omega1=omega1, duration=duration, t0=t0)
+
+
+class TableSignal(Signal):
+    """Input read from a table: times ``(k,)`` and values ``(m, k)``, held between rows."""
+
+    def __init__(self, times: np.ndarray, values: np.ndarray, names: Sequence[str], spec: str) -> None:
+        self.times = np.asarray(times, dtype=float)
+        self.values = np.atleast_2d(np.asarray(values, dtype=float))
+        self.names = list(names)
+        self.n_inputs = self.values.shape[0]
+        self.spec = spec
+        self.t_range = (float(self.times[0]), float(self.times[-1]))
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        tol = 1e-9 * max(1.0, abs(self.times[-1]))
+        index = np.searchsorted(self.times, t + tol, side="right") - 1
+        return self.values[:, np.clip(index, 0, self.times.size - 1)]
+
+
+def table(path: str | os.PathLike) -> TableSignal:
+    """Read a CSV input table: a header row, a time column first, then one column per input.
+
+    Times must increase strictly; every value must be a finite number.  Between rows the
+    value of the earlier row holds (zero-order hold).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputSpecError(f"input table {path} not found; give an existing .csv file")
+    try:
+        with open(path, newline="") as f:
+            rows = [row for row in csv.reader(f) if row and any(c.strip() for c in row)]
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputSpecError(f"cannot read input table {path}: {exc}") from None
+    if len(rows) < 3:
+        raise InputSpecError(f"input table {path} needs a header row and at least two data rows")
+    header = [c.strip() for c in rows[0]]
+    if len(header) < 2:
+        raise InputSpecError(f"input table {path} needs a time column and at least one input column")
+    data = np.empty((len(rows) - 1, len(header)))
+    for line, row in enumerate(rows[1:], start=2):
+        if len(row) != len(header):
+            raise InputSpecError(f"{path}:{line}: {len(row)} columns, header has {len(header)}")
+        try:
+            data[line - 2] = [float(c) for c in row]
+        except ValueError:
+            raise InputSpecError(f"{path}:{line}: not a number in {row!r}") from None
+    if not np.all(np.isfinite(data)):
+        bad = int(np.argwhere(~np.isfinite(data))[0, 0]) + 2
+        raise InputSpecError(f"{path}:{bad}: NaN or infinite value; every entry must be finite")
+    if np.any(np.diff(data[:, 0]) <= 0):
+        bad = int(np.argmax(np.diff(data[:, 0]) <= 0)) + 3
+        raise InputSpecError(f"{path}:{bad}: time does not increase; sort the rows by time")
+    return TableSignal(data[:, 0], data[:, 1:].T, header[1:], spec=str(path))
+
+
+class StackedSignal(Signal):
+    """Several signals side by side, one block of inputs each."""
+
+    def __init__(self, parts: Sequence[Signal]) -> None:
+        self.parts = list(parts)
+        self.n_inputs = sum(p.n_inputs for p in self.parts)
+        self.spec = ";".join(p.spec for p in self.parts)
+        self.t_range = (max(p.t_range[0] for p in self.parts), min(p.t_range[1] for p in self.parts))
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        return np.vstack([p.sample(t) for p in self.parts])
+
+
+class _Broadcast(Signal):
+    """One scalar signal driving ``n_inputs`` inputs alike."""
+
+    def __init__(self, base: Signal, n_inputs: int) -> None:
+        self.base, self.n_inputs, self.spec, self.t_range = base, n_inputs, base.spec, base.t_range
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        return np.repeat(self.base.sample(t), self.n_inputs, axis=0)
+
+
+def _parse_one(spec: str) -> Signal:
+    spec = spec.strip()
+    if not spec:
+        raise InputSpecError("empty input specification; e.g. 'impulse:amplitude=100,t0=2,width=0.5'")
+    if spec.lower().endswith(".csv"):
+        return table(spec)
+    kind, _, body = spec.partition(":")
+    kind = kind.strip().lower()
+    if kind not in _KINDS:
+        raise InputSpecError(f"unknown input kind {kind!r}; use one of {', '.join(_KINDS)} "
+                             "or a path to a .csv table")
+    params: dict[str, float] = {}
+    for item in filter(None, (s.strip() for s in body.split(","))):
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise InputSpecError(f"malformed {kind} parameter {item!r}; write key=value, "
+                                 f"e.g. {kind}:{next(iter(_KINDS[kind][1]))}=1")
+        if key in params:
+            raise InputSpecError(f"{kind} parameter {key!r} given twice")
+        try:
+            params[key] = float(value)
+        except ValueError:
+            raise InputSpecError(f"{kind} parameter {key}={value.strip()!r} is not a number") from None
+    return _make(kind, **params)
+
+
+def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
+    """Signal from its textual form (see module docstring), checked against ``n_inputs``.
+
+    A single scalar spec drives all ``n_inputs`` inputs; ``;`` separates one spec per input.
+    """
+    signal = spec if isinstance(spec, Signal) else _stack([_parse_one(s) for s in str(spec).split(";")])
+    if n_inputs is None or signal.n_inputs == n_inputs:
+        return signal
+    if signal.n_inputs == 1:
+        return _Broadcast(signal, n_inputs)
+    raise DimensionError(f"input {signal.spec!r} has {signal.n_inputs} channels but the model has "
+                         f"{n_inputs} inputs; give one spec per input separated by ';'")
+
+
+def _stack(parts: list[Signal]) -> Signal:
+    return parts[0] if len(parts) == 1 else StackedSignal(parts)
