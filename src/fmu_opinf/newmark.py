@@ -8,6 +8,16 @@ acceleration level and scaled as Bottasso, Dopico & Trainelli (2008), spec secti
     c = -G xp / (beta h^2)  (position constraint),  c = -G vp / (gamma h)  (velocity constraint)
     x+ = xp + beta h^2 a+,                     v+ = vp + gamma h a+
 
+Input timing (spec section 4): the input is held over each step at its value at the start
+of the step.  Force and acceleration are linked instantaneously, so when a new input value is
+applied at the start of a step the current acceleration is first made consistent with it,
+``a += Z (u_new - u_old)`` with ``[M G^T; G 0] [Z; L] = [B; 0]`` (exact for a linear system),
+and the step then integrates a force that is constant over the step.  This keeps the scheme
+second-order accurate for the piecewise-constant (zero-order-hold) input; using the stale
+acceleration instead would lose half a step of impulse whenever the input changes (first order).
+The recorded acceleration at ``t_{k+1}`` is the one consistent with the input held over the
+step that ends there.
+
 The saddle-point system is solved through S (factored once per step size, sparse LU for
 sparse matrices, dense LU for small ROMs) and the nc x nc Schur complement ``G S^-1 G^T``, so a
 step costs one sparse solve and a few sparse products: linear in n for the benchmarks.
@@ -106,8 +116,11 @@ class NewmarkStepper:
         self.x = np.zeros(self.n)
         self.v = np.zeros(self.n)
         self.a = np.zeros(self.n)
+        self.u = np.zeros(B.shape[1])
         self.t = 0.0
         self.h = 0.0
+        self._mass_solver: _ConstrainedSolver | None = None
+        self._input_response: np.ndarray | None = None
         self.set_step(h)
 
     def set_step(self, h: float) -> None:
@@ -136,15 +149,35 @@ class NewmarkStepper:
                 raise DataError(f"initial state violates the constraint (|G x|, |G v| up to "
                                 f"{violation:.2e}); start from a state in ker G")
         rhs = self._force(u0) - self.D @ self.v - self.K @ self.x
-        self.a = _ConstrainedSolver(self.M, self.G).solve(rhs)
+        self.a = self._mass_factor().solve(rhs)
+        self.u = np.array(u0, dtype=float).reshape(-1)
         self.t = float(t0)
+
+    def apply_input(self, u: np.ndarray) -> None:
+        """Hold input ``u`` from now on: update the acceleration to be consistent with it."""
+        u = np.asarray(u, dtype=float).reshape(-1)
+        change = u - self.u
+        if not np.all(np.isfinite(change)):
+            raise DataError(f"input at t={self.t:g} is NaN or infinite; check the input signal")
+        if np.any(change != 0.0):
+            if self._input_response is None:
+                B = self.B.toarray() if sp.issparse(self.B) else np.asarray(self.B, dtype=float)
+                self._input_response = self._mass_factor().solve(B.reshape(self.n, -1))
+            self.a = self.a + self._input_response @ change
+            self.u = u
+
+    def _mass_factor(self) -> _ConstrainedSolver:
+        if self._mass_solver is None:
+            self._mass_solver = _ConstrainedSolver(self.M, self.G)
+        return self._mass_solver
 
     def step(self, u: np.ndarray) -> None:
         """Advance one step of size h with the input ``u`` held over the step."""
+        self.apply_input(u)
         h = self.h
         xp = self.x + h * self.v + (h * h * (0.5 - BETA)) * self.a
         vp = self.v + (h * (1.0 - GAMMA)) * self.a
-        rhs = self._force(u) - self.D @ vp - self.K @ xp
+        rhs = self._force(self.u) - self.D @ vp - self.K @ xp
         c = None
         if self.constraint == "position":
             c = -(self.G @ xp) / (BETA * h * h)

@@ -1,0 +1,34 @@
+"""Shared fixtures: small reference systems and simulations reused across test modules."""
+
+import numpy as np
+import pytest
+
+from fmu_opinf import newmark, systems
+
+
+@pytest.fixture(scope="session")
+def anchored():
+    """The anchored chain at its default size g = 600 (position constraint)."""
+    return systems.anchored_msd()
+
+
+@pytest.fixture(scope="session")
+def triple():
+    """The triple chain at its default size n = 301 (velocity constraint)."""
+    return systems.triple_chain()
+
+
+@pytest.fixture(scope="session")
+def rng():
+    return np.random.default_rng(20251121)
+
+
+def relative(a, b):
+    """Max-norm difference of a and b relative to the max norm of b."""
+    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(np.asarray(b)).max()
+
+
+@pytest.fixture(scope="session")
+def anchored_impulse_run(anchored):
+    """Anchored chain, impulse-like input, dt = 0.5 to t = 300 (the paper's training shape)."""
+    return newmark.simulate(anchored, "impulse:amplitude=100,t0=2,width=0.5", 0.5, 300.0)
