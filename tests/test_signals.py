@@ -1,0 +1,87 @@
+"""Input signals: values, textual form, tables, and clear errors for bad specifications."""
+
+import numpy as np
+import pytest
+
+from fmu_opinf import signals
+from fmu_opinf.errors import DimensionError, InputSpecError
+
+
+def test_impulse_is_a_smooth_pulse_centred_at_t0():
+    s = signals.parse_signal("impulse:amplitude=100,t0=2,width=0.5")
+    values = s.sample(np.array([0.0, 1.75, 1.875, 2.0, 2.125, 2.25, 3.0]))[0]
+    assert np.allclose(values, [0, 0, 50, 100, 50, 0, 0], atol=1e-12)
+
+
+def test_harmonic_step_chirp_values():
+    t = np.linspace(0, 10, 11)
+    assert np.allclose(signals.parse_signal("harmonic:amplitude=2,omega=0.2").sample(t)[0], 2 * np.sin(0.2 * t))
+    assert np.array_equal(signals.parse_signal("step:amplitude=3,t0=4").sample(t)[0], np.where(t >= 4, 3.0, 0.0))
+    chirp = signals.parse_signal("chirp:amplitude=1,omega0=0.5,omega1=2,duration=10")
+    # instantaneous frequency sweeps linearly: phase 0.5 t + 1.5 t^2 / 20
+    assert np.allclose(chirp.sample(t)[0], np.sin(0.5 * t + 0.075 * t**2))
+
+
+def test_spec_round_trips_through_its_text():
+    s = signals.parse_signal("harmonic:omega=0.2,amplitude=1")
+    again = signals.parse_signal(s.spec)
+    t = np.linspace(0, 50, 101)
+    assert np.array_equal(s.sample(t), again.sample(t))
+
+
+def test_one_spec_per_input_and_broadcast():
+    two = signals.parse_signal("step:amplitude=1;harmonic:omega=1", n_inputs=2)
+    assert two.sample(np.array([1.0])).shape == (2, 1)
+    broadcast = signals.parse_signal("step:amplitude=2", n_inputs=3)
+    assert np.array_equal(broadcast.sample(np.array([1.0]))[:, 0], [2.0, 2.0, 2.0])
+    with pytest.raises(DimensionError, match="2 channels but the model has 3 inputs"):
+        signals.parse_signal("step;step", n_inputs=3)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("pulse:amplitude=1", "unknown input kind 'pulse'"),
+    ("impulse:height=3", "unknown key 'height' for impulse input"),
+    ("impulse:amplitude", "malformed impulse parameter 'amplitude'"),
+    ("harmonic:omega=fast", "omega='fast' is not a number"),
+    ("step:t0=1,t0=2", "given twice"),
+    ("impulse:width=-1", "width must be positive"),
+    ("harmonic:omega=nan", "not a finite number"),
+    ("", "empty input specification"),
+    ("missing.csv", "not found"),
+])
+def test_bad_specs_give_one_line_errors(spec, message):
+    with pytest.raises(InputSpecError, match=message) as info:
+        signals.parse_signal(spec)
+    assert "\n" not in str(info.value)
+
+
+def _write(tmp_path, text, name="u.csv"):
+    path = tmp_path / name
+    path.write_text(text)
+    return str(path)
+
+
+def test_table_is_held_between_rows(tmp_path):
+    s = signals.parse_signal(_write(tmp_path, "time,F1,F2\n0,1,10\n1.5,2,20\n3,3,30\n"))
+    assert s.n_inputs == 2
+    values = s.sample(np.array([0.0, 1.0, 1.5, 2.9, 3.0]))
+    assert np.array_equal(values, [[1, 1, 2, 2, 3], [10, 10, 20, 20, 30]])
+
+
+def test_table_outside_its_time_range_is_an_error(tmp_path):
+    s = signals.parse_signal(_write(tmp_path, "t,u\n0,1\n10,2\n"))
+    with pytest.raises(InputSpecError, match=r"defined on \[0, 10\]"):
+        s.sample(np.array([0.0, 12.0]))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("t,u\n0,1\n", "at least two data rows"),
+    ("t\n0\n1\n", "time column and at least one input column"),
+    ("t,u\n0,1\n1,abc\n", ":3: not a number"),
+    ("t,u\n0,1\n1,2,3\n", ":3: 3 columns, header has 2"),
+    ("t,u\n0,1\n0,2\n", ":3: time does not increase"),
+    ("t,u\n0,1\n1,nan\n", ":3: NaN or infinite"),
+])
+def test_bad_tables_give_one_line_errors(tmp_path, text, message):
+    with pytest.raises(InputSpecError, match=message):
+        signals.parse_signal(_write(tmp_path, text))
