@@ -1,0 +1,540 @@
+"""POD basis from position or velocity snapshots (paper eqs. 6-10, 14, 18), dense or streamed.
+
+The basis is the leading left singular vectors of the snapshot matrix of all runs side by side,
+``X = [X_run1, X_run2, ...]`` of shape ``(n, k)`` with ``k`` the total number of columns.
+
+* ``kind="positions"``: SVD of the displacement snapshots ``X`` (eq. 7), for position constraints
+  ``G x = 0``; then ``G V_r = 0`` (eq. 8).
+* ``kind="velocities"``: SVD of the velocity snapshots ``X'`` (eq. 9), for velocity constraints
+  ``G x' = 0``; then ``G V_r = 0`` (eq. 10).
+* ``kind="auto"``: velocities if the snapshot metadata say ``constraint == "velocity"``, positions otherwise.
+  A black-box FMU usually does not declare its constraint kind; positions are then used, which is right for
+  position constraints and for unconstrained systems.  For a system with velocity constraints and zero initial
+  state the position snapshots obey the constraint too (``G x = 0`` follows from ``G x' = 0``), so the
+  position basis is admissible there as well, only usually a little less rich than the velocity basis.
+
+Two ways to compute the singular values and vectors, chosen from the data size (``max_memory``):
+
+* **dense**: one ``numpy.linalg.svd`` of the stacked ``(n, k)`` matrix.
+* **streamed**: the matrix is read in column chunks (any array with ``a[:, j0:j1]`` slicing, e.g. an h5py
+  dataset) and only a Gram matrix is kept: the ``(n, n)`` correlation ``X X^T`` (one pass) when ``n <= k``,
+  otherwise the ``(k, k)`` method-of-snapshots matrix ``X^T X`` (blocks ``X_i^T X_j`` of chunk pairs) followed by
+  a second pass forming ``V_r = X W_r diag(1/sigma_r)``.  A Gram matrix squares the condition number:
+  eigenvalues below about ``size * eps * lambda_max`` are round-off, i.e. singular values below about
+  ``sqrt(size * eps) * sigma_1`` (~1e-7 relative for a few thousand columns; dense SVD resolves ~1e-13) are not
+  resolved.  The streamed path therefore reports such singular values as 0, counts only the resolved ones in
+  the numerical rank, and computes the cumulative energy (eq. 18) from the resolved values.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+import scipy.linalg
+
+from .errors import DataError, DimensionError, FileFormatError, NotFittedError
+
+__all__ = [
+    "PODBasis",
+    "cumulative_energy",
+    "energy_order",
+    "svdvals",
+    "resolve_kind",
+    "as_runs",
+    "project",
+    "read_columns",
+    "snapshot_attrs",
+    "DEFAULT_ENERGY_TAIL",
+]
+
+#: Default saturation criterion: the order is the smallest ``r`` with ``1 - E_r <= DEFAULT_ENERGY_TAIL``.
+DEFAULT_ENERGY_TAIL = 1e-6
+
+_KINDS = {"positions": "x", "velocities": "xdot"}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Access to run-like objects
+# ----------------------------------------------------------------------------------------------------------
+def as_runs(data: Any) -> list:
+    """Return the list of runs of a ``Snapshots``-like object, a list of runs, or a single run.
+
+    Parameters
+    ----------
+    data : object with ``.runs``, sequence of run-like objects, or one run-like object
+        A run-like object has ``t (k,)``, ``u (m, k)``, ``x, xdot, xddot (n, k)`` and ``y (p, k)``.
+
+    Returns
+    -------
+    list
+        The runs, in order.
+    """
+    if hasattr(data, "runs"):
+        runs = list(data.runs)
+    elif hasattr(data, "x") and hasattr(data, "t"):
+        runs = [data]
+    else:
+        runs = list(data)
+    if not runs:
+        raise DataError("no snapshot runs given; record at least one run")
+    return runs
+
+
+def snapshot_attrs(data: Any) -> dict:
+    """Metadata dict of a ``Snapshots``-like object (empty for plain lists of runs)."""
+    attrs = getattr(data, "attrs", None)
+    return dict(attrs) if isinstance(attrs, dict) else {}
+
+
+def resolve_kind(kind: str, attrs: dict | None = None) -> str:
+    """Resolve ``"auto"`` / ``"positions"`` / ``"velocities"`` to the snapshot kind used for the basis.
+
+    Parameters
+    ----------
+    kind : {"auto", "positions", "velocities"}
+        Requested basis kind.
+    attrs : dict, optional
+        Snapshot metadata; its ``"constraint"`` entry (``"position"``, ``"velocity"``, ``"none"`` or
+        unknown) decides ``"auto"``.
+
+    Returns
+    -------
+    str
+        ``"positions"`` or ``"velocities"``.
+    """
+    if kind in _KINDS:
+        return kind
+    if kind != "auto":
+        raise ValueError(f"basis={kind!r} is not known; use 'auto', 'positions' or 'velocities'")
+    constraint = str((attrs or {}).get("constraint", "")).lower()
+    return "velocities" if constraint.startswith("velocit") else "positions"
+
+
+def _n_cols(run: Any, name: str) -> tuple[int, int]:
+    shape = getattr(run, name).shape
+    if len(shape) != 2:
+        raise DimensionError(f"snapshot array {name} has shape {tuple(shape)}; expected (n, k)")
+    return int(shape[0]), int(shape[1])
+
+
+def _check_shapes(runs: Sequence, name: str) -> tuple[int, list[int]]:
+    """Common row count ``n`` and per-run column counts of array ``name``."""
+    ns, ks = set(), []
+    for i, run in enumerate(runs):
+        n, k = _n_cols(run, name)
+        kt = int(np.shape(run.t)[0]) if getattr(run, "t", None) is not None else k
+        if kt != k:
+            raise DimensionError(f"run {i}: {name} has {k} columns but t has {kt} entries; the file is inconsistent")
+        ns.add(n)
+        ks.append(k)
+    if len(ns) != 1:
+        raise DimensionError(f"runs disagree in the number of states: {sorted(ns)}; use runs of one system")
+    return ns.pop(), ks
+
+
+def _read(run: Any, name: str, j0: int, j1: int, run_index: int) -> np.ndarray:
+    """Columns ``j0:j1`` of ``run.<name>`` as a float64 array, checked for NaN/Inf."""
+    return read_columns(getattr(run, name), j0, j1, f"{name} of run {run_index}")
+
+
+def read_columns(array: Any, j0: int, j1: int, label: str) -> np.ndarray:
+    """Columns ``j0:j1`` of an ``(n, k)`` array-like as float64, with read and NaN/Inf checks.
+
+    Parameters
+    ----------
+    array : (n, k) ndarray or array-like with ``[:, j0:j1]`` slicing (e.g. h5py dataset)
+    j0, j1 : int
+        Column range.
+    label : str
+        Name used in error messages, e.g. ``"x of run 0"``.
+
+    Returns
+    -------
+    (n, j1 - j0) ndarray
+    """
+    try:
+        block = np.asarray(array[:, j0:j1], dtype=np.float64)
+    except (OSError, KeyError, ValueError, RuntimeError) as exc:
+        raise FileFormatError(f"cannot read columns {j0}:{j1} of {label} ({exc}); the file may be truncated") from exc
+    if not np.all(np.isfinite(block)):
+        bad = j0 + int(np.argwhere(~np.isfinite(block))[0, 1])
+        raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
+    return block
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    run: int
+    j0: int
+    j1: int
+    g0: int  # global column offset
+
+
+def _chunks(ks: Sequence[int], chunk_size: int) -> list[_Chunk]:
+    out, g = [], 0
+    for i, k in enumerate(ks):
+        for j0 in range(0, k, chunk_size):
+            j1 = min(j0 + chunk_size, k)
+            out.append(_Chunk(i, j0, j1, g))
+            g += j1 - j0
+    return out
+
+
+def iter_blocks(runs: Sequence, name: str, chunk_size: int) -> Iterator[tuple[_Chunk, np.ndarray]]:
+    """Yield ``(chunk, X[:, j0:j1])`` over all runs, ``chunk_size`` columns at a time."""
+    _, ks = _check_shapes(runs, name)
+    for c in _chunks(ks, chunk_size):
+        yield c, _read(runs[c.run], name, c.j0, c.j1, c.run)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Singular values, energy, order
+# ----------------------------------------------------------------------------------------------------------
+def cumulative_energy(sigma: np.ndarray) -> np.ndarray:
+    """Cumulative energy ``E_i = sum_{j<=i} sigma_j / sum_j sigma_j`` (paper eq. 18).
+
+    Parameters
+    ----------
+    sigma : (N,) ndarray
+        Singular values, non-increasing.
+
+    Returns
+    -------
+    (N,) ndarray
+        ``E_1, ..., E_N``; ``E_N = 1``.
+    """
+    sigma = np.asarray(sigma, dtype=float)
+    total = sigma.sum()
+    if total <= 0:
+        raise DataError("all snapshots are zero; excite the system with a non-zero input")
+    return np.cumsum(sigma) / total
+
+
+def energy_order(sigma: np.ndarray, tail: float = DEFAULT_ENERGY_TAIL) -> int:
+    """Reduced order at the saturation point of the cumulative energy (eq. 18).
+
+    The saturation point is the smallest ``r`` whose neglected energy is at most ``tail``:
+    ``1 - E_r <= tail``.  The neglected energy is computed as ``sum_{j>r} sigma_j / sum_j sigma_j``
+    (not as ``1 - E_r``) so that tails far below machine precision are resolved.
+
+    Parameters
+    ----------
+    sigma : (N,) ndarray
+        Singular values, non-increasing.
+    tail : float, default=DEFAULT_ENERGY_TAIL
+        Admissible neglected energy, ``0 < tail < 1``.
+
+    Returns
+    -------
+    int
+        The order ``r >= 1``.
+    """
+    if not 0 < tail < 1:
+        raise ValueError(f"energy tail {tail} must lie in (0, 1), e.g. 1e-6")
+    sigma = np.asarray(sigma, dtype=float)
+    total = sigma.sum()
+    if total <= 0:
+        raise DataError("all snapshots are zero; excite the system with a non-zero input")
+    neglected = np.concatenate([np.cumsum(sigma[::-1])[::-1][1:], [0.0]]) / total
+    return int(np.argmax(neglected <= tail)) + 1
+
+
+def _rank(sigma: np.ndarray, rel_tol: float) -> int:
+    if sigma.size == 0 or sigma[0] <= 0:
+        return 0
+    return int(np.count_nonzero(sigma > rel_tol * sigma[0]))
+
+
+def _stacked(runs: Sequence, name: str) -> np.ndarray:
+    _, ks = _check_shapes(runs, name)
+    return np.hstack([_read(run, name, 0, k, i) for i, (run, k) in enumerate(zip(runs, ks))])
+
+
+def _gram_eigh(gram: np.ndarray, size_for_tol: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Eigenpairs of a Gram matrix, descending; sigma = sqrt(lambda) with unresolved values set to 0."""
+    lam, vecs = scipy.linalg.eigh(gram)
+    lam, vecs = lam[::-1], vecs[:, ::-1]
+    floor = size_for_tol * np.finfo(float).eps * max(lam[0], 0.0)
+    sigma = np.sqrt(np.where(lam > floor, lam, 0.0))
+    rel_tol = np.sqrt(size_for_tol * np.finfo(float).eps)
+    return sigma, vecs, rel_tol
+
+
+def _correlation(runs: Sequence, name: str, chunk_size: int) -> np.ndarray:
+    """``X X^T`` accumulated over column chunks, ``(n, n)``."""
+    n, _ = _check_shapes(runs, name)
+    corr = np.zeros((n, n))
+    for _, block in iter_blocks(runs, name, chunk_size):
+        corr += block @ block.T
+    return corr
+
+
+def _snapshot_gram(runs: Sequence, name: str, chunk_size: int) -> np.ndarray:
+    """Method-of-snapshots matrix ``X^T X``, ``(k, k)``, from pairs of column chunks."""
+    _, ks = _check_shapes(runs, name)
+    chunks = _chunks(ks, chunk_size)
+    k = sum(ks)
+    gram = np.empty((k, k))
+    for a, ca in enumerate(chunks):
+        xa = _read(runs[ca.run], name, ca.j0, ca.j1, ca.run)
+        sa = slice(ca.g0, ca.g0 + ca.j1 - ca.j0)
+        gram[sa, sa] = xa.T @ xa
+        for cb in chunks[a + 1 :]:
+            xb = _read(runs[cb.run], name, cb.j0, cb.j1, cb.run)
+            sb = slice(cb.g0, cb.g0 + cb.j1 - cb.j0)
+            gram[sa, sb] = xa.T @ xb
+            gram[sb, sa] = gram[sa, sb].T
+    return gram
+
+
+def _fix_signs(vecs: np.ndarray) -> np.ndarray:
+    """Make the largest-magnitude entry of each column positive (deterministic signs)."""
+    idx = np.argmax(np.abs(vecs), axis=0)
+    signs = np.sign(vecs[idx, np.arange(vecs.shape[1])])
+    signs[signs == 0] = 1.0
+    return vecs * signs
+
+
+def svdvals(
+    data: Any,
+    kind: str = "positions",
+    *,
+    max_memory: float = 1e9,
+    chunk_size: int | None = None,
+    streamed: bool | None = None,
+) -> np.ndarray:
+    """Singular values of the stacked position or velocity snapshot matrix (for Figs. 4a/6a).
+
+    Parameters
+    ----------
+    data : Snapshots-like, list of runs, or run
+        Snapshot runs.
+    kind : {"positions", "velocities"}, default="positions"
+        ``X`` (eq. 7) or ``X'`` (eq. 9).
+    max_memory, chunk_size, streamed
+        As for :class:`PODBasis`.
+
+    Returns
+    -------
+    (min(n, k),) ndarray
+        Non-increasing singular values (unresolved ones are 0 on the streamed path).
+    """
+    pod = PODBasis(r=1, kind=kind, max_memory=max_memory, chunk_size=chunk_size, streamed=streamed)
+    return pod._singular(as_runs(data), _KINDS[resolve_kind(kind)], vectors=False)[0]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The POD basis
+# ----------------------------------------------------------------------------------------------------------
+class PODBasis:
+    """Proper orthogonal decomposition basis ``V_r`` of the snapshot data (eqs. 7, 9) and projection (eq. 14).
+
+    Parameters
+    ----------
+    r : int, optional
+        Reduced order.  If not given, it is chosen from the cumulative energy (eq. 18), see ``energy``.
+    energy : float, optional
+        Neglected-energy threshold of the saturation criterion: ``r`` is the smallest order with
+        ``1 - E_r <= energy`` (:func:`energy_order`).  Default :data:`DEFAULT_ENERGY_TAIL` when ``r`` is None.
+        Mutually exclusive with ``r``.
+    kind : {"auto", "positions", "velocities"}, default="auto"
+        Which snapshots span the basis; see the module docstring for ``"auto"``.
+    max_memory : float, default=1e9
+        Bytes the dense SVD may use; larger data (or ``streamed=True``) use the streamed Gram path.
+    chunk_size : int, optional
+        Columns read per chunk on the streamed paths (default: as many as fit in ``max_memory / 8``).
+    streamed : bool, optional
+        Force (True) or forbid (False) the streamed path; None chooses from ``max_memory``.
+
+    Attributes
+    ----------
+    basis_ : (n, r) ndarray
+        Orthonormal POD modes ``V_r``.
+    svdvals_ : (min(n, k),) ndarray
+        All singular values of the snapshot matrix (unresolved ones 0 on the streamed path).
+    energy_ : (min(n, k),) ndarray
+        Cumulative energy ``E_i`` (eq. 18).
+    rank_ : int
+        Numerical rank of the snapshot matrix.
+    r_ : int
+        Chosen order.
+    kind_ : str
+        ``"positions"`` or ``"velocities"``.
+    method_ : str
+        ``"dense"``, ``"streamed-correlation"`` (``(n, n)``) or ``"streamed-snapshots"`` (``(k, k)``).
+    """
+
+    def __init__(
+        self,
+        r: int | None = None,
+        energy: float | None = None,
+        kind: str = "auto",
+        max_memory: float = 1e9,
+        chunk_size: int | None = None,
+        streamed: bool | None = None,
+    ) -> None:
+        self.r = r
+        self.energy = energy
+        self.kind = kind
+        self.max_memory = max_memory
+        self.chunk_size = chunk_size
+        self.streamed = streamed
+
+    # --- fitting -------------------------------------------------------------------------------------------
+    def fit(self, data: Any, attrs: dict | None = None) -> "PODBasis":
+        """Compute the basis from snapshot runs.
+
+        Parameters
+        ----------
+        data : Snapshots-like, list of runs, or run
+            Snapshot runs; arrays may be lazily read h5py datasets.
+        attrs : dict, optional
+            Snapshot metadata (defaults to ``data.attrs``), used to resolve ``kind="auto"``.
+
+        Returns
+        -------
+        PODBasis
+            ``self``.
+        """
+        if self.r is not None and self.energy is not None:
+            raise ValueError("give either r or energy, not both")
+        runs = as_runs(data)
+        self.kind_ = resolve_kind(self.kind, attrs if attrs is not None else snapshot_attrs(data))
+        name = _KINDS[self.kind_]
+        sigma, vecs, rank, method = self._singular(runs, name, vectors=True)
+        self.svdvals_, self.rank_, self.method_ = sigma, rank, method
+        self.energy_ = cumulative_energy(sigma)
+        self.r_ = self._order(sigma, rank)
+        self.basis_ = self._modes(runs, name, sigma, vecs, method)
+        return self
+
+    def _order(self, sigma: np.ndarray, rank: int) -> int:
+        if self.r is None:
+            tail = DEFAULT_ENERGY_TAIL if self.energy is None else self.energy
+            return min(energy_order(sigma, tail), rank)
+        r = int(self.r)
+        if r < 1:
+            raise DataError(f"r={r} is not a positive order; choose 1 <= r <= {rank}")
+        if r > rank:
+            raise DataError(f"r={r} exceeds the snapshot rank {rank}; choose r <= {rank}")
+        return r
+
+    def _use_streamed(self, n: int, k: int) -> bool:
+        if self.streamed is not None:
+            return bool(self.streamed)
+        return 3 * 8 * n * k > self.max_memory
+
+    def _chunk(self, n: int) -> int:
+        if self.chunk_size is not None:
+            if int(self.chunk_size) < 1:
+                raise ValueError(f"chunk_size={self.chunk_size} must be a positive number of columns")
+            return int(self.chunk_size)
+        return max(1, int(self.max_memory / 8 / (8 * n)))
+
+    def _singular(self, runs: Sequence, name: str, vectors: bool):
+        """Singular values (+ vectors or Gram eigenvectors), numerical rank and method name."""
+        n, ks = _check_shapes(runs, name)
+        k = sum(ks)
+        eps = np.finfo(float).eps
+        if not self._use_streamed(n, k):
+            X = _stacked(runs, name)
+            if vectors:
+                left, sigma, _ = scipy.linalg.svd(X, full_matrices=False, lapack_driver="gesdd")
+            else:
+                left, sigma = None, scipy.linalg.svdvals(X)
+            return sigma, left, _rank(sigma, max(n, k) * eps), "dense"
+        chunk = self._chunk(n)
+        if n <= k:
+            sigma, vecs, rel = _gram_eigh(_correlation(runs, name, chunk), n)
+            method = "streamed-correlation"
+        else:
+            sigma, vecs, rel = _gram_eigh(_snapshot_gram(runs, name, chunk), k)
+            method = "streamed-snapshots"
+        return sigma, vecs, _rank(sigma, rel), method
+
+    def _modes(self, runs: Sequence, name: str, sigma: np.ndarray, vecs: np.ndarray, method: str) -> np.ndarray:
+        r = self.r_
+        if method in ("dense", "streamed-correlation"):
+            return _fix_signs(vecs[:, :r].copy())
+        # method of snapshots: V_r = X W_r diag(1/sigma_r), accumulated chunk by chunk, then re-orthonormalized
+        n, _ = _check_shapes(runs, name)
+        modes = np.zeros((n, r))
+        weights = vecs[:, :r] / sigma[:r]
+        for c, block in iter_blocks(runs, name, self._chunk(n)):
+            modes += block @ weights[c.g0 : c.g0 + c.j1 - c.j0]
+        q, _ = np.linalg.qr(modes)
+        return _fix_signs(q)
+
+    # --- using the basis -----------------------------------------------------------------------------------
+    def _check_fitted(self) -> None:
+        if not hasattr(self, "basis_"):
+            raise NotFittedError("the POD basis is not fitted; call fit(snapshots) first")
+
+    def project(self, array: Any, chunk_size: int | None = None) -> np.ndarray:
+        """Reduced coordinates ``V_r^T A`` (eq. 14), reading ``A`` in column chunks.
+
+        Parameters
+        ----------
+        array : (n, k) array-like
+            Full-order snapshots (ndarray or any array with ``[:, j0:j1]`` slicing).
+        chunk_size : int, optional
+            Columns per chunk; defaults to the basis' chunk size.
+
+        Returns
+        -------
+        (r, k) ndarray
+        """
+        self._check_fitted()
+        return project(self.basis_, array, chunk_size or self._chunk(self.basis_.shape[0]))
+
+    def reconstruct(self, q: np.ndarray) -> np.ndarray:
+        """Full-order states ``V_r q``.
+
+        Parameters
+        ----------
+        q : (r,) or (r, k) ndarray
+
+        Returns
+        -------
+        (n,) or (n, k) ndarray
+        """
+        self._check_fitted()
+        return self.basis_ @ np.asarray(q)
+
+    def __str__(self) -> str:
+        if not hasattr(self, "basis_"):
+            return "PODBasis (not fitted)"
+        n = self.basis_.shape[0]
+        return (
+            f"PODBasis: n={n}, r={self.r_}, kind={self.kind_}, rank={self.rank_}, method={self.method_}, "
+            f"E_r={self.energy_[self.r_ - 1]:.12f}"
+        )
+
+
+def project(basis: np.ndarray, array: Any, chunk_size: int, label: str = "snapshots") -> np.ndarray:
+    """``basis^T A`` for an ``(n, k)`` array read in column chunks (eq. 14).
+
+    Parameters
+    ----------
+    basis : (n, r) ndarray
+    array : (n, k) array-like with ``[:, j0:j1]`` slicing
+    chunk_size : int
+        Columns per chunk.
+    label : str
+        Name used in error messages.
+
+    Returns
+    -------
+    (r, k) ndarray
+    """
+    shape = array.shape
+    if len(shape) != 2 or shape[0] != basis.shape[0]:
+        raise DimensionError(f"{label} has shape {tuple(shape)}; expected ({basis.shape[0]}, k) to match the basis")
+    k = int(shape[1])
+    out = np.empty((basis.shape[1], k))
+    for j0 in range(0, k, chunk_size):
+        j1 = min(j0 + chunk_size, k)
+        out[:, j0:j1] = basis.T @ read_columns(array, j0, j1, label)
+    return out

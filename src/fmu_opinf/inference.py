@@ -1,0 +1,402 @@
+"""Operator inference: SPD-constrained fit of the reduced operators (eq. 16) and the output map (eq. 17).
+
+The state operators solve the semidefinite program (paper eq. 16)
+
+    minimize  || Mr Xr'' + Dr Xr' + Kr Xr - Br U ||_F^2   over   Mr, Dr, Kr symmetric PSD,  Br free,
+
+with reduced data ``Xr'', Xr', Xr`` of shape ``(r, k)`` and inputs ``U`` of shape ``(m, k)``; column ``i`` of
+``U`` is the input in effect for snapshot ``i`` (see docs/design.md).
+
+How the problem is made small and well conditioned
+--------------------------------------------------
+1. *Block scaling.*  Each block of the stacked data ``Z = [U; Xr''; Xr'; Xr]`` is divided by its RMS value
+   ``s_b``.  The unknowns become ``Br s_u, Mr s_a, Dr s_v, Kr s_x``: positive scalar multiples, so PSD-ness is
+   unchanged and the solution maps back exactly.
+2. *Compression.*  With ``Z^T = Q R`` (``R`` upper triangular, ``(3r+m, 3r+m)``) the residual norm equals
+   ``|| Theta R^T ||_F`` for ``Theta = [-Br, Mr, Dr, Kr]``: the cost no longer depends on ``k``.
+3. *Eliminating Br.*  Partition ``R = [[R11, R12], [0, R22]]`` with the input block first.  Then
+   ``||Theta R^T||^2 = ||Br R11^T - Ts R12^T||^2 + ||Ts R22^T||^2`` with ``Ts = [Mr, Dr, Kr]``; the first term is
+   zeroed by ``Br = Ts R12^T R11^{-T}`` whatever ``Ts`` is, so the SDP only involves ``Ts`` and ``R22``.
+4. *Quadratic objective on the free entries.*  ``||Ts R22^T||^2 = sum_i t_i^T G t_i`` (``t_i`` row ``i`` of
+   ``Ts``, ``G = R22^T R22``) is handed to Clarabel as a sparse quadratic form in the ``3 r (r+1) / 2`` upper
+   triangular entries, with three PSD cones.  No auxiliary residual variables are created.
+
+Normalization
+-------------
+The problem is homogeneous: ``Theta = 0`` is a minimizer, and ``c * Theta`` (``c > 0``) describes the same
+input-output behaviour as ``Theta``.  We fix the scale with the linear constraint ``trace(Mr) = const``:
+
+* it keeps the problem a convex SDP (a norm constraint such as ``||Theta||_F = 1`` would not);
+* it is always feasible for the true operators: the reduced mass ``V^T M V`` is SPD, so its trace is positive and
+  a positive multiple of it meets any positive constant; hence for consistent data the exact operators (up to the
+  common scale) are still the minimizer -- the constraint introduces no bias (tested);
+* it excludes exactly the degenerate solutions (``Mr = 0`` gives no second-order model at all);
+* it is invariant under an orthogonal change of the reduced coordinates (``trace(Q^T Mr Q) = trace(Mr)``), so the
+  fit does not depend on sign flips or rotations of POD modes;
+* the constant only sets the common scale: the problem is solved with ``trace`` of the *scaled* mass equal to
+  ``r`` (well scaled for the solver) and the result is then multiplied by one positive scalar so that
+  ``trace(Mr) = mass_trace`` (default ``r``).
+
+Solution path
+-------------
+``method="sdp"`` always calls Clarabel through cvxpy.  ``method="auto"`` (default) first solves the same problem
+without the cone constraints (one equality-constrained least-squares solve); if that minimizer already has
+``Mr`` positive definite and ``Dr, Kr`` positive semidefinite, it is feasible for the SDP and its objective is a
+lower bound of the SDP's, so it *is* the SDP optimum (exactly, not approximately).  Otherwise Clarabel solves the
+SDP.  ``fit_info["method"]`` records which path produced the result.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
+
+__all__ = ["OperatorFit", "fit_operators", "fit_outputs", "compressed_factor", "psd_report"]
+
+
+@dataclass
+class OperatorFit:
+    """Result of :func:`fit_operators`.
+
+    Attributes
+    ----------
+    Mr, Dr, Kr : (r, r) ndarray
+        Symmetric positive (semi)definite reduced mass, damping and stiffness.
+    Br : (r, m) ndarray
+        Reduced input matrix.
+    info : dict
+        Solver report: ``method``, ``status``, ``setup_time``, ``solve_time``, ``iterations``, ``objective``,
+        ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``.
+    """
+
+    Mr: np.ndarray
+    Dr: np.ndarray
+    Kr: np.ndarray
+    Br: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Data compression
+# ----------------------------------------------------------------------------------------------------------
+def _check_data(xddot_r: np.ndarray, xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray) -> tuple[int, int, int]:
+    arrays = {"xddot_r": xddot_r, "xdot_r": xdot_r, "x_r": x_r, "u": u}
+    for name, a in arrays.items():
+        if a.ndim != 2:
+            raise DimensionError(f"{name} has shape {a.shape}; expected a 2-d array (rows, k)")
+        if not np.all(np.isfinite(a)):
+            raise DataError(f"{name} contains NaN/Inf; check the snapshot data")
+    r, k = x_r.shape
+    for name in ("xddot_r", "xdot_r"):
+        if arrays[name].shape != (r, k):
+            raise DimensionError(f"{name} has shape {arrays[name].shape}; expected {(r, k)} like x_r")
+    if u.shape[1] != k:
+        raise DimensionError(f"u has {u.shape[1]} columns; expected {k} like x_r (one input per snapshot)")
+    return r, u.shape[0], k
+
+
+def _rms(a: np.ndarray) -> float:
+    value = float(np.sqrt(np.mean(a * a))) if a.size else 0.0
+    return value if value > 0 else 1.0
+
+
+def compressed_factor(
+    xddot_r: np.ndarray, xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray
+) -> tuple[np.ndarray, dict[str, float]]:
+    """Triangular factor of the block-scaled stacked data ``[U; Xr''; Xr'; Xr]`` (steps 1-2 of the module doc).
+
+    Parameters
+    ----------
+    xddot_r, xdot_r, x_r : (r, k) ndarray
+        Reduced accelerations, velocities, positions (eq. 14).
+    u : (m, k) ndarray
+        Inputs in effect at each snapshot.
+
+    Returns
+    -------
+    R : (m + 3r, m + 3r) ndarray
+        Upper triangular with ``R^T R = Zs Zs^T`` for the scaled data ``Zs``.
+    scales : dict
+        RMS scale of each block: keys ``u, xddot, xdot, x``.
+    """
+    r, m, k = _check_data(xddot_r, xdot_r, x_r, u)
+    scales = {"u": _rms(u), "xddot": _rms(xddot_r), "xdot": _rms(xdot_r), "x": _rms(x_r)}
+    zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"], x_r / scales["x"]])
+    R = scipy.linalg.qr(zs.T, mode="r", check_finite=False)[0]
+    size = m + 3 * r
+    if R.shape[0] < size:  # fewer snapshots than unknowns per row: pad with zero rows
+        R = np.vstack([R, np.zeros((size - R.shape[0], size))])
+    return R[:size], scales
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Quadratic form on the upper-triangular entries
+# ----------------------------------------------------------------------------------------------------------
+def _sym_index(r: int) -> np.ndarray:
+    """``(r, r)`` int array: position of entry (i, j) in the upper-triangular (row-major) vector."""
+    iu = np.triu_indices(r)
+    idx = np.empty((r, r), dtype=int)
+    idx[iu] = np.arange(iu[0].size)
+    idx[iu[1], iu[0]] = np.arange(iu[0].size)
+    return idx
+
+
+def _hessian(G: np.ndarray, r: int) -> np.ndarray:
+    """Dense ``H`` with ``sum_i t_i^T G t_i = w^T H w``, ``w`` the upper entries of ``Mr, Dr, Kr`` stacked."""
+    ns = r * (r + 1) // 2
+    sym = _sym_index(r)
+    rows = np.hstack([sym, sym + ns, sym + 2 * ns])  # (r, 3r): variable index of Ts[i, c]
+    H = np.zeros((3 * ns, 3 * ns))
+    for i in range(r):
+        np.add.at(H, (rows[i][:, None], rows[i][None, :]), G)
+    return H
+
+
+def _unpack(w: np.ndarray, r: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ns = r * (r + 1) // 2
+    sym = _sym_index(r)
+    return tuple(w[b * ns : (b + 1) * ns][sym] for b in range(3))  # type: ignore[return-value]
+
+
+def _mass_indicator(r: int) -> np.ndarray:
+    """Vector ``a`` with ``a @ w = trace(Mr)``."""
+    a = np.zeros(3 * r * (r + 1) // 2)
+    a[np.diag(_sym_index(r))] = 1.0
+    return a
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Solution paths
+# ----------------------------------------------------------------------------------------------------------
+def _solve_unconstrained(H: np.ndarray, a: np.ndarray, trace: float) -> np.ndarray | None:
+    """Minimizer of ``w^T H w`` subject to ``a^T w = trace`` (None if ``H`` is not positive definite)."""
+    try:
+        factor = scipy.linalg.cho_factor(H, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    h_inv_a = scipy.linalg.cho_solve(factor, a, check_finite=False)
+    return trace * h_inv_a / float(a @ h_inv_a)
+
+
+def _clarabel_settings(tol: float, verbose: bool) -> dict[str, Any]:
+    return dict(tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol, tol_ktratio=1e-7, verbose=verbose)
+
+
+def _solve_sdp_compressed(H: np.ndarray, r: int, trace: float, tol: float, verbose: bool) -> tuple[np.ndarray, dict]:
+    import cvxpy as cp
+
+    t0 = time.perf_counter()
+    ns = r * (r + 1) // 2
+    sym = _sym_index(r)
+    select = sp.csr_matrix((np.ones(r * r), (np.arange(r * r), sym.ravel(order="F"))), shape=(r * r, ns))
+    w = cp.Variable(3 * ns)
+    mats = [cp.reshape(select @ w[b * ns : (b + 1) * ns], (r, r), order="F") for b in range(3)]
+    constraints = [mat >> 0 for mat in mats] + [cp.trace(mats[0]) == trace]
+    problem = cp.Problem(cp.Minimize(cp.quad_form(w, cp.psd_wrap(sp.csc_matrix(H)))), constraints)
+    report = _run(problem, t0, tol, verbose)
+    return np.asarray(w.value), report
+
+
+def _run(problem: Any, t0: float, tol: float, verbose: bool) -> dict:
+    import cvxpy as cp
+
+    try:
+        problem.solve(solver=cp.CLARABEL, **_clarabel_settings(tol, verbose))
+    except cp.error.SolverError as exc:
+        raise SolverError(f"clarabel failed on the operator-inference SDP ({exc}); try a smaller r") from exc
+    total = time.perf_counter() - t0
+    stats = problem.solver_stats
+    status = str(problem.status)
+    if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        raise SolverError(f"clarabel returned status '{status}' for the operator-inference SDP; try a smaller r")
+    if status == cp.OPTIMAL_INACCURATE:
+        warnings.warn("clarabel reached only reduced accuracy on the SDP", FmuOpinfWarning, stacklevel=3)
+    solve = float(stats.solve_time or 0.0)
+    return {
+        "status": status,
+        "solver": "CLARABEL",
+        "setup_time": total - solve,
+        "solve_time": solve,
+        "iterations": stats.num_iters,
+    }
+
+
+def _solve_sdp_direct(zs: np.ndarray, r: int, m: int, trace: float, tol: float, verbose: bool) -> tuple:
+    """Uncompressed formulation: the full scaled data matrix goes to cvxpy (benchmark baseline)."""
+    import cvxpy as cp
+
+    t0 = time.perf_counter()
+    mats = [cp.Variable((r, r), PSD=True) for _ in range(3)]
+    b = cp.Variable((r, m)) if m else None
+    resid = mats[0] @ zs[m : m + r] + mats[1] @ zs[m + r : m + 2 * r] + mats[2] @ zs[m + 2 * r :]
+    if m:
+        resid = resid - b @ zs[:m]
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(resid)), [cp.trace(mats[0]) == trace])
+    report = _run(problem, t0, tol, verbose)
+    values = [np.asarray(mat.value) for mat in mats]
+    return values, (np.asarray(b.value) if m else np.zeros((r, 0))), report
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Reporting and clean-up
+# ----------------------------------------------------------------------------------------------------------
+def psd_report(mats: dict[str, np.ndarray]) -> dict[str, float]:
+    """Smallest and largest eigenvalue of each symmetric matrix, as ``{name}_eig_min/max``."""
+    out: dict[str, float] = {}
+    for name, mat in mats.items():
+        eigs = np.linalg.eigvalsh(mat)
+        out[f"{name}_eig_min"], out[f"{name}_eig_max"] = float(eigs[0]), float(eigs[-1])
+    return out
+
+
+def _symmetric_psd(mat: np.ndarray) -> np.ndarray:
+    """Symmetrize and clip round-off negative eigenvalues (the solver's interior iterate may sit at -1e-13)."""
+    mat = 0.5 * (mat + mat.T)
+    eigs, vecs = np.linalg.eigh(mat)
+    if eigs[0] >= 0:
+        return mat
+    return (vecs * np.maximum(eigs, 0.0)) @ vecs.T
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Public entry points
+# ----------------------------------------------------------------------------------------------------------
+def fit_operators(
+    xddot_r: np.ndarray,
+    xdot_r: np.ndarray,
+    x_r: np.ndarray,
+    u: np.ndarray,
+    *,
+    method: str = "auto",
+    compressed: bool = True,
+    mass_trace: float | None = None,
+    tol: float = 1e-9,
+    verbose: bool = False,
+) -> OperatorFit:
+    """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
+
+    Parameters
+    ----------
+    xddot_r, xdot_r, x_r : (r, k) ndarray
+        Reduced accelerations, velocities and positions (eq. 14), all runs side by side.
+    u : (m, k) ndarray
+        Input in effect at each snapshot.
+    method : {"auto", "sdp"}, default="auto"
+        ``"sdp"``: always solve with Clarabel.  ``"auto"``: accept the cone-free minimizer when it is already
+        PSD (then it is the exact SDP optimum, see module docstring), else Clarabel.
+    compressed : bool, default=True
+        Use the ``(3r+m)``-square triangular factor (fast).  False hands the full ``(3r+m, k)`` scaled data to
+        cvxpy (same optimum, for benchmarking).
+    mass_trace : float, optional
+        Normalization ``trace(Mr) = mass_trace``; default ``r``.  Only the common scale of the result
+        depends on it.
+    tol : float, default=1e-9
+        Clarabel feasibility and gap tolerances.
+    verbose : bool, default=False
+        Print the solver log.
+
+    Returns
+    -------
+    OperatorFit
+        ``Mr, Dr, Kr (r, r)``, ``Br (r, m)`` and the solver report ``info``.
+    """
+    if method not in ("auto", "sdp"):
+        raise ValueError(f"method={method!r} is not known; use 'auto' or 'sdp'")
+    xddot_r, xdot_r, x_r, u = (np.asarray(a, dtype=float) for a in (xddot_r, xdot_r, x_r, u))
+    r, m, k = _check_data(xddot_r, xdot_r, x_r, u)
+    target = float(r if mass_trace is None else mass_trace)
+    if not target > 0:
+        raise ValueError(f"mass_trace={mass_trace} must be positive")
+    t0 = time.perf_counter()
+    R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
+    if compressed:
+        Ms, Ds, Ks, info = _fit_compressed(R, r, m, method, tol, verbose)
+        Bs = _input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
+    else:
+        zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"], x_r / scales["x"]])
+        (Ms, Ds, Ks), Bs, info = _solve_sdp_direct(zs, r, m, float(r), tol, verbose)
+        info["method"] = "sdp-direct"
+    Mr, Dr, Kr = Ms / scales["xddot"], Ds / scales["xdot"], Ks / scales["x"]
+    Br = Bs / scales["u"]
+    Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
+    common = target / np.trace(Mr)
+    Mr, Dr, Kr, Br = Mr * common, Dr * common, Kr * common, Br * common
+    info.update(_residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u))
+    info.update(psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}))
+    info.update(total_time=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
+    if info["Mr_eig_min"] <= 1e-12 * info["Mr_eig_max"]:
+        warnings.warn("the learned reduced mass matrix is singular; choose a smaller r", FmuOpinfWarning, stacklevel=2)
+    return OperatorFit(Mr, Dr, Kr, Br, info)
+
+
+def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool) -> tuple:
+    """Steps 3-4 of the module docstring; returns scaled ``Ms, Ds, Ks`` and the report."""
+    R22 = R[m:, m:]
+    R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
+    H = _hessian(R22.T @ R22, r)
+    t0 = time.perf_counter()
+    if method == "auto":
+        w = _solve_unconstrained(H, _mass_indicator(r), float(r))
+        if w is not None:
+            mats = _unpack(w, r)
+            eig_min = [np.linalg.eigvalsh(a)[0] for a in mats]
+            if eig_min[0] > 0 and min(eig_min[1:]) >= 0:
+                info = {"method": "lstsq-certified", "status": "optimal", "solver": "none (cone constraints inactive)",
+                        "setup_time": 0.0, "solve_time": time.perf_counter() - t0, "iterations": 0}
+                return (*mats, info)
+    w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose)
+    info["method"] = "sdp"
+    return (*_unpack(w, r), info)
+
+
+def _input_matrix(R: np.ndarray, m: int, Ts: np.ndarray) -> np.ndarray:
+    """``Br`` (scaled) minimizing the input part of the residual: ``Br R11^T = Ts R12^T`` (step 3)."""
+    r = Ts.shape[0]
+    if m == 0:
+        return np.zeros((r, 0))
+    R11, R12 = R[:m, :m], R[:m, m:]
+    bt, *_ = np.linalg.lstsq(R11, R12 @ Ts.T, rcond=None)
+    return bt.T
+
+
+def _residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u) -> dict[str, float]:
+    resid = Mr @ xddot_r + Dr @ xdot_r + Kr @ x_r - Br @ u
+    ref = np.linalg.norm(Br @ u) or 1.0
+    return {"objective": float(np.sum(resid**2)), "relative_residual": float(np.linalg.norm(resid) / ref)}
+
+
+def fit_outputs(xdot_r: np.ndarray, x_r: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Reduced output matrices by least squares (paper eq. 17).
+
+    Parameters
+    ----------
+    xdot_r, x_r : (r, k) ndarray
+        Reduced velocities and positions.
+    y : (p, k) ndarray
+        Measured outputs.
+
+    Returns
+    -------
+    Cpr, Cvr : (p, r) ndarray
+        ``y ~ Cpr x_r + Cvr xdot_r``.
+    """
+    xdot_r, x_r, y = (np.asarray(a, dtype=float) for a in (xdot_r, x_r, y))
+    r, k = x_r.shape
+    if xdot_r.shape != (r, k) or y.ndim != 2 or y.shape[1] != k:
+        raise DimensionError(f"output data shapes {xdot_r.shape}, {x_r.shape}, {y.shape} do not match (r, k), (p, k)")
+    for name, a in (("xdot_r", xdot_r), ("x_r", x_r), ("y", y)):
+        if not np.all(np.isfinite(a)):
+            raise DataError(f"{name} contains NaN/Inf; check the snapshot data")
+    sv, sx = _rms(xdot_r), _rms(x_r)
+    A = np.vstack([xdot_r / sv, x_r / sx]).T
+    coef, *_ = np.linalg.lstsq(A, y.T, rcond=None)
+    Cvr, Cpr = coef[:r].T / sv, coef[r:].T / sx
+    return Cpr, Cvr
