@@ -1,0 +1,72 @@
+/*
+ * Hook interface between the shared FMI glue / Newmark kernel and one model.
+ *
+ * A model is a linear second-order system with optional linear constraints
+ *
+ *     M a + D v + K x + G^T mu = B u,      y = Cp x + Cv v,
+ *     G x = 0 (ConstraintPosition, index 3)  or  G v = 0 (ConstraintVelocity, index 2).
+ *
+ * The generated config.h fixes the sizes, the constraint kind, the identifier and the
+ * instantiation token.  A model only implements assembleSystem(): it adds the matrix
+ * entries, computed from the parameter values, through addEntry().  The glue calls it
+ * twice (once to count the entries, once to store them), so it must be deterministic.
+ */
+#ifndef MODEL_H
+#define MODEL_H
+
+#include <stddef.h>
+
+#include "config.h"
+
+/* Sizes fixed at generation time by config.h:
+ *   N_DOF (n), N_INPUTS (m), N_OUTPUTS (p), N_CONSTRAINTS (nc), N_PARAMETERS,
+ *   CONSTRAINT_KIND, MODEL_IDENTIFIER, INSTANTIATION_TOKEN, PARAMETER_DEFAULTS */
+
+#define ARRAY_LENGTH(count) ((count) > 0 ? (count) : 1)
+
+/* Value references (contiguous blocks, in this order). */
+#define VR_INPUTS      1
+#define VR_OUTPUTS     (VR_INPUTS + N_INPUTS)
+#define VR_PARAMETERS  (VR_OUTPUTS + N_OUTPUTS)
+#define VR_POSITIONS   (VR_PARAMETERS + N_PARAMETERS)
+#define VR_VELOCITIES  (VR_POSITIONS + N_DOF)
+#define VR_ACCELERATIONS (VR_VELOCITIES + N_DOF)
+#define VR_END         (VR_ACCELERATIONS + N_DOF)
+
+/* Internal status values equal the fmi2Status values. */
+typedef enum {
+    OK,
+    Warning,
+    Discard,
+    Error,
+    Fatal
+} Status;
+
+typedef enum {
+    ConstraintNone = 0,
+    ConstraintPosition = 1,
+    ConstraintVelocity = 2
+} ConstraintKind;
+
+typedef enum {
+    MatrixM,
+    MatrixD,
+    MatrixK,
+    MatrixG,
+    MatrixB,
+    MatrixCp,
+    MatrixCv,
+    MatrixCount
+} MatrixId;
+
+typedef struct Assembly Assembly;
+
+/* Provided by the kernel: add value at (row, col), both 0-based.  Entries at the same
+ * position are summed.  M, D and K must be symmetric and given in full. */
+void addEntry(Assembly *assembly, MatrixId id, int row, int col, double value);
+
+/* Implemented by every model: add all matrix entries for the given parameters.
+ * Returns OK, or Error with *message pointing to a static explanation. */
+Status assembleSystem(const double parameters[], Assembly *assembly, const char **message);
+
+#endif /* MODEL_H */

@@ -1,0 +1,597 @@
+"""Benchmark FMUs and a generic builder of FMI 2.0 co-simulation FMUs for linear
+second-order systems (the C sources live in the repository's ``fmus/`` folder).
+
+Every FMU built here shares one FMI glue (``fmus/src/fmi2Functions.c``) and one Newmark
+kernel (``fmus/src/newmark.c``); a model only contributes a ``model.c`` that assembles
+``M, D, K, G, B, Cp, Cv`` from its parameters.  The generated ``config.h`` fixes the
+sizes, the constraint kind and the GUID; the FMU keeps all sources in ``sources/`` and
+is compiled with FMPy's CMake project (:mod:`fmpy.build`).
+
+Value references (fixed by ``fmus/include/model.h``): inputs ``1..m``, outputs
+``m+1..m+p``, parameters next, then positions, velocities and accelerations of the
+``n`` degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+import uuid
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.sax.saxutils import escape, quoteattr
+
+from .errors import FMUError
+
+__all__ = [
+    "FmuBuildError",
+    "Parameter",
+    "SecondOrderFmuSpec",
+    "anchored_msd_spec",
+    "triple_chain_spec",
+    "build_second_order_fmu",
+    "build_fmus",
+    "bundled_fmu",
+    "find_build_tools",
+    "value_references",
+    "BENCHMARK_MODELS",
+]
+
+BENCHMARK_MODELS = ("AnchoredMSD", "TripleChainMSD")
+
+#: largest n for which the x, v, a variables are listed in modelDescription.xml by default
+EXPOSE_STATES_LIMIT = 20_000
+
+_FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+_GLUE_SOURCES = ("src/fmi2Functions.c", "src/newmark.c")
+_GLUE_HEADERS = ("include/model.h", "include/newmark.h")
+_GUID_PLACEHOLDER = "@GUID@"
+_GUID_NAMESPACE = uuid.UUID("5f0c2b52-8f7e-4a43-9d55-2f1f3c6c8a10")
+_CONSTRAINT_CODES = {None: 0, "position": 1, "velocity": 2}
+_STRUCTURED_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
+                              r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*$")
+
+
+class FmuBuildError(FMUError):
+    """An FMU could not be generated or compiled (missing tools, compiler error)."""
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A scalar model parameter (FMI causality ``parameter``, variability ``fixed``).
+
+    Parameters
+    ----------
+    name : str
+        Variable name; also the C macro ``PAR_<NAME>`` (upper case) indexing it.
+    default : float
+        Start value.
+    description : str, default=""
+        One-line description for modelDescription.xml.
+    """
+
+    name: str
+    default: float
+    description: str = ""
+
+
+@dataclass
+class SecondOrderFmuSpec:
+    """Everything needed to generate one second-order co-simulation FMU.
+
+    Parameters
+    ----------
+    identifier : str
+        Model identifier (C identifier; also the binary's name).
+    model_source : str
+        Text of ``model.c`` implementing ``assembleSystem`` (see ``fmus/include/model.h``).
+    n, m, p : int
+        Numbers of degrees of freedom, inputs and outputs.
+    nc : int, default=0
+        Number of constraint rows.
+    constraint : {None, "position", "velocity"}, default=None
+        Kind of constraint (index 3 or index 2).
+    input_names, output_names : list of str, default=None
+        Variable names; default ``u`` (or ``u[1]..u[m]``) and ``y[1]..y[p]``.
+    state_names : tuple of 3 str, default=("x", "v", "a")
+        Base names of positions, velocities and accelerations (``x[1]`` ...).
+    parameters : list of Parameter, default=()
+        Scalar parameters passed to ``assembleSystem``.
+    defines : dict of str to int, default={}
+        Extra integer macros for ``config.h`` (e.g. ``CHAIN_LENGTH``).
+    description : str, default=""
+        Model description (the ``description`` attribute).
+    default_experiment : tuple of 3 float, default=None
+        ``(startTime, stopTime, stepSize)`` for the DefaultExperiment element.
+    expose_states : bool, default=None
+        List ``x, v, a`` in modelDescription.xml; default: only if ``n <= 20000``.
+        The value references work in any case.
+    extra_files : dict of str to str, default={}
+        More files for ``sources/`` (e.g. ``readme.md``).
+    """
+
+    identifier: str
+    model_source: str
+    n: int
+    m: int
+    p: int
+    nc: int = 0
+    constraint: str | None = None
+    input_names: list[str] | None = None
+    output_names: list[str] | None = None
+    state_names: tuple[str, str, str] = ("x", "v", "a")
+    parameters: list[Parameter] = field(default_factory=list)
+    defines: dict[str, int] = field(default_factory=dict)
+    description: str = ""
+    default_experiment: tuple[float, float, float] | None = None
+    expose_states: bool | None = None
+    extra_files: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", self.identifier):
+            raise FmuBuildError(f"model identifier {self.identifier!r} is not a C identifier; "
+                                "use letters, digits and underscores")
+        if min(self.n, self.m, self.p) < 1 or self.nc < 0:
+            raise FmuBuildError(f"sizes n={self.n}, m={self.m}, p={self.p}, nc={self.nc} are "
+                                "invalid; n, m, p must be >= 1 and nc >= 0")
+        if self.constraint not in _CONSTRAINT_CODES:
+            raise FmuBuildError(f"constraint {self.constraint!r} is unknown; use None, "
+                                "'position' or 'velocity'")
+        if (self.constraint is None) != (self.nc == 0):
+            raise FmuBuildError(f"constraint {self.constraint!r} does not fit nc={self.nc}; "
+                                "nc must be 0 exactly when constraint is None")
+        if self.input_names is None:
+            self.input_names = ["u"] if self.m == 1 else [f"u[{i}]" for i in range(1, self.m + 1)]
+        if self.output_names is None:
+            self.output_names = [f"y[{i}]" for i in range(1, self.p + 1)]
+        if len(self.input_names) != self.m or len(self.output_names) != self.p:
+            raise FmuBuildError(f"got {len(self.input_names)} input and {len(self.output_names)} "
+                                f"output names for m={self.m}, p={self.p}; give one name each")
+        if self.expose_states is None:
+            self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+
+
+def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:
+    """Value references of an FMU generated from ``spec``.
+
+    Parameters
+    ----------
+    spec : SecondOrderFmuSpec
+        The FMU's specification.
+
+    Returns
+    -------
+    dict
+        Keys ``"u"`` (m,), ``"y"`` (p,), ``"parameters"``, ``"x"``, ``"v"``, ``"a"`` (n,),
+        each a list of value references (the layout of ``fmus/include/model.h``).
+    """
+    first_u = 1
+    first_y = first_u + spec.m
+    first_par = first_y + spec.p
+    first_x = first_par + len(spec.parameters)
+    first_v = first_x + spec.n
+    first_a = first_v + spec.n
+    return {
+        "u": list(range(first_u, first_y)),
+        "y": list(range(first_y, first_par)),
+        "parameters": list(range(first_par, first_x)),
+        "x": list(range(first_x, first_v)),
+        "v": list(range(first_v, first_a)),
+        "a": list(range(first_a, first_a + spec.n)),
+    }
+
+
+# ----------------------------------------------------------------- the two benchmarks
+
+def _c_sources_dir() -> Path:
+    """The repository's ``fmus/`` folder with the C sources."""
+    root = Path(__file__).resolve().parents[2] / "fmus"
+    if not (root / "src" / "newmark.c").is_file():
+        raise FmuBuildError(f"C sources not found in {root}; run from a source checkout of "
+                            "fmu-opinf (pip install -e .)")
+    return root
+
+
+def _model_files(name: str) -> tuple[str, dict[str, str]]:
+    folder = _c_sources_dir() / name
+    source = (folder / "model.c").read_text()
+    extra = {}
+    if (folder / "readme.md").is_file():
+        extra["readme.md"] = (folder / "readme.md").read_text()
+    return source, extra
+
+
+def anchored_msd_spec(g: int = 600) -> SecondOrderFmuSpec:
+    """Specification of the anchored chain with a rigid bar (spec section 1).
+
+    Parameters
+    ----------
+    g : int, default=600
+        Number of masses (n = g, nc = 1 position constraint, m = 1, p = 3).
+
+    Returns
+    -------
+    SecondOrderFmuSpec
+    """
+    if int(g) != g or g < 3:
+        raise FmuBuildError(f"g={g} is invalid for AnchoredMSD; use an integer g >= 3")
+    source, extra = _model_files("AnchoredMSD")
+    parameters = [
+        Parameter("mass", 100.0, "mass m_i of every body"),
+        Parameter("k1", 2.0, "stiffness k1_i of the springs between neighbours"),
+        Parameter("d1", 5.0, "damping d1_i of the dampers between neighbours"),
+        Parameter("k2", 2.0, "stiffness k2_i of the ground springs of masses 2..g-1"),
+        Parameter("d2", 5.0, "damping d2_i of the ground dampers of masses 2..g-1"),
+        Parameter("k2_end", 4.0, "stiffness of the ground springs of masses 1 and g"),
+        Parameter("d2_end", 10.0, "damping of the ground dampers of masses 1 and g"),
+    ]
+    return SecondOrderFmuSpec(
+        identifier="AnchoredMSD", model_source=source, n=int(g), m=1, p=3, nc=1,
+        constraint="position", parameters=parameters, defines={"CHAIN_LENGTH": int(g)},
+        description=(f"Anchored mass-spring-damper chain of g={g} masses with a rigid bar "
+                     "x_1 = x_g (Mehrmann & Stykel 2005), index-3 Newmark co-simulation"),
+        default_experiment=(0.0, 400.0, 0.5), extra_files=extra,
+    )
+
+
+def triple_chain_spec(n1: int = 100) -> SecondOrderFmuSpec:
+    """Specification of the triple chain with velocity constraints (spec section 2).
+
+    Parameters
+    ----------
+    n1 : int, default=100
+        Masses per chain (even, >= 4); n = 3 n1 + 1, nc = 6, m = 1, p = 1.
+
+    Returns
+    -------
+    SecondOrderFmuSpec
+    """
+    if int(n1) != n1 or n1 < 4 or n1 % 2:
+        raise FmuBuildError(f"n1={n1} is invalid for TripleChainMSD; use an even integer >= 4")
+    source, extra = _model_files("TripleChainMSD")
+    parameters = [
+        Parameter("m1", 1.0, "mass of the bodies of chain 1"),
+        Parameter("m2", 2.0, "mass of the bodies of chain 2"),
+        Parameter("m3", 3.0, "mass of the bodies of chain 3"),
+        Parameter("m0", 10.0, "mass of the common body"),
+        Parameter("k1", 10.0, "spring stiffness of chain 1"),
+        Parameter("k2", 20.0, "spring stiffness of chain 2"),
+        Parameter("k3", 1.0, "spring stiffness of chain 3"),
+        Parameter("k0", 50.0, "stiffness of the spring of the common body"),
+        Parameter("alpha", 0.01, "Rayleigh damping factor of M"),
+        Parameter("beta", 0.01, "Rayleigh damping factor of K"),
+        Parameter("v", 5.0, "viscosity of the three external dampers"),
+    ]
+    return SecondOrderFmuSpec(
+        identifier="TripleChainMSD", model_source=source, n=3 * int(n1) + 1, m=1, p=1, nc=6,
+        constraint="velocity", parameters=parameters, defines={"CHAIN_LENGTH": int(n1)},
+        description=(f"Triple mass-spring-damper chain with n1={n1} (Truhar & Veselic 2009, "
+                     "Example 2) and six velocity constraints, index-2 Newmark co-simulation"),
+        default_experiment=(0.0, 300.0, 0.1), extra_files=extra,
+    )
+
+
+_SPEC_FACTORIES = {
+    "AnchoredMSD": lambda g, n1: anchored_msd_spec(g),
+    "TripleChainMSD": lambda g, n1: triple_chain_spec(n1),
+}
+
+
+# --------------------------------------------------------------------- generation
+
+def _variable(name: str, vr: int, causality: str, variability: str, description: str = "",
+              initial: str | None = None, start: float | None = None) -> str:
+    attributes = f'name={quoteattr(name)} valueReference="{vr}"'
+    if description:
+        attributes += f" description={quoteattr(description)}"
+    attributes += f' causality="{causality}" variability="{variability}"'
+    if initial:
+        attributes += f' initial="{initial}"'
+    real = "<Real/>" if start is None else f'<Real start="{float(start)!r}"/>'
+    return f"    <ScalarVariable {attributes}>\n      {real}\n    </ScalarVariable>\n"
+
+
+def _naming_convention(spec: SecondOrderFmuSpec) -> str:
+    names = list(spec.input_names) + list(spec.output_names)
+    return "structured" if all(_STRUCTURED_NAME.match(s) for s in names) else "flat"
+
+
+def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) -> str:
+    refs = value_references(spec)
+    variables = []
+    for name, vr in zip(spec.input_names, refs["u"]):
+        variables.append(_variable(name, vr, "input", "continuous", "input (held over each "
+                                   "communication step)", start=0.0))
+    for name, vr in zip(spec.output_names, refs["y"]):
+        variables.append(_variable(name, vr, "output", "continuous", "output y = Cp x + Cv v"))
+    for par, vr in zip(spec.parameters, refs["parameters"]):
+        variables.append(_variable(par.name, vr, "parameter", "fixed", par.description,
+                                   initial="exact", start=par.default))
+    if spec.expose_states:
+        kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
+        for base, what, key in kinds:
+            for i, vr in enumerate(refs[key], start=1):
+                variables.append(_variable(f"{base}[{i}]", vr, "local", "continuous",
+                                           f"{what} of degree of freedom {i}"))
+    output_indices = range(spec.m + 1, spec.m + spec.p + 1)
+    outputs = "".join(f'      <Unknown index="{i}"/>\n' for i in output_indices)
+    files = "".join(f'        <File name="{s}"/>\n' for s in sources)
+    experiment = ""
+    if spec.default_experiment is not None:
+        start, stop, step = (float(v) for v in spec.default_experiment)
+        experiment = (f'  <DefaultExperiment startTime="{start!r}" stopTime="{stop!r}" '
+                      f'stepSize="{step!r}"/>\n')
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        f'<fmiModelDescription fmiVersion="2.0" modelName="{spec.identifier}" guid="{guid}"\n'
+        f"  description={quoteattr(spec.description)}\n"
+        '  generationTool="fmu-opinf" '
+        f'variableNamingConvention="{_naming_convention(spec)}" '
+        'numberOfEventIndicators="0">\n'
+        f'  <CoSimulation modelIdentifier="{spec.identifier}" needsExecutionTool="false"\n'
+        '    canHandleVariableCommunicationStepSize="true" canInterpolateInputs="false"\n'
+        '    maxOutputDerivativeOrder="0" canRunAsynchronuously="false"\n'
+        '    canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"\n'
+        '    canGetAndSetFMUstate="true" canSerializeFMUstate="true"\n'
+        '    providesDirectionalDerivative="false">\n'
+        "    <SourceFiles>\n"
+        f"{files}"
+        "    </SourceFiles>\n"
+        "  </CoSimulation>\n"
+        "  <LogCategories>\n"
+        '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
+        '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
+        "  </LogCategories>\n"
+        f"{experiment}"
+        "  <ModelVariables>\n"
+        f"{''.join(variables)}"
+        "  </ModelVariables>\n"
+        "  <ModelStructure>\n"
+        "    <Outputs>\n"
+        f"{outputs}"
+        "    </Outputs>\n"
+        "    <InitialUnknowns>\n"
+        f"{outputs.replace('      ', '      ')}"
+        "    </InitialUnknowns>\n"
+        "  </ModelStructure>\n"
+        "</fmiModelDescription>\n"
+    )
+
+
+def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
+    lines = [
+        f"/* Generated by fmu-opinf for {spec.identifier}; do not edit. */",
+        "#ifndef CONFIG_H",
+        "#define CONFIG_H",
+        "",
+        f'#define MODEL_IDENTIFIER "{spec.identifier}"',
+        f'#define INSTANTIATION_TOKEN "{guid}"',
+        f"#define N_DOF {spec.n}",
+        f"#define N_INPUTS {spec.m}",
+        f"#define N_OUTPUTS {spec.p}",
+        f"#define N_CONSTRAINTS {spec.nc}",
+        f"#define CONSTRAINT_KIND {_CONSTRAINT_CODES[spec.constraint]}",
+        f"#define N_PARAMETERS {len(spec.parameters)}",
+    ]
+    lines += [f"#define {name} {int(value)}" for name, value in spec.defines.items()]
+    lines += [f"#define PAR_{p.name.upper()} {i}" for i, p in enumerate(spec.parameters)]
+    defaults = ", ".join(repr(float(p.default)) for p in spec.parameters) or "0.0"
+    lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}", "", "#endif /* CONFIG_H */", ""]
+    return "\n".join(lines)
+
+
+def _fmi_header_dir() -> Path:
+    import fmpy
+
+    return Path(fmpy.__file__).parent / "c-code"
+
+
+def _source_tree(spec: SecondOrderFmuSpec) -> tuple[dict[str, bytes], str]:
+    """All files of the FMU except the binary, and the content-derived GUID."""
+    root = _c_sources_dir()
+    files: dict[str, bytes] = {}
+    for relative in _GLUE_SOURCES + _GLUE_HEADERS:
+        files["sources/" + Path(relative).name] = (root / relative).read_bytes()
+    for header in _FMI2_HEADERS:
+        files["sources/" + header] = (_fmi_header_dir() / header).read_bytes()
+    files["sources/model.c"] = spec.model_source.encode()
+    for name, text in spec.extra_files.items():
+        files["sources/" + name] = text.encode()
+    sources = [Path(s).name for s in _GLUE_SOURCES] + ["model.c"]
+    templates = {
+        "sources/config.h": _config_header(spec, _GUID_PLACEHOLDER),
+        "modelDescription.xml": _model_description(spec, _GUID_PLACEHOLDER, sources),
+    }
+    digest = hashlib.sha256()
+    for name in sorted(files):
+        digest.update(name.encode() + b"\0" + files[name] + b"\0")
+    for name in sorted(templates):
+        digest.update(name.encode() + b"\0" + templates[name].encode() + b"\0")
+    guid = "{" + str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest())) + "}"
+    for name, text in templates.items():
+        files[name] = text.replace(_GUID_PLACEHOLDER, guid).encode()
+    return files, guid
+
+
+# ------------------------------------------------------------------------ building
+
+def find_build_tools() -> tuple[str, str] | None:
+    """Locate CMake and a C compiler.
+
+    Returns
+    -------
+    tuple of str or None
+        ``(cmake, compiler)`` paths, or None if either is missing.
+    """
+    cmake = shutil.which("cmake")
+    compiler = os.environ.get("CC") or next(
+        (c for c in (shutil.which(name) for name in ("cc", "gcc", "clang")) if c), None)
+    if cmake is None or compiler is None or shutil.which(compiler) is None:
+        return None
+    return cmake, compiler
+
+
+def _require_build_tools() -> str:
+    tools = find_build_tools()
+    if tools is None:
+        raise FmuBuildError("cannot compile the FMU: CMake and a C compiler (cc, gcc or clang) "
+                            "are needed; install them (e.g. apt-get install cmake gcc) or "
+                            "pip install cmake")
+    return tools[0]
+
+
+def _run(command: list[str], what: str) -> None:
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        log = (result.stdout + result.stderr).strip().splitlines()
+        tail = " | ".join(line.strip() for line in log[-8:])
+        raise FmuBuildError(f"{what} failed (exit code {result.returncode}): {tail}")
+
+
+def _compile(unzipdir: Path, build_dir: Path, cmake: str) -> None:
+    from fmpy.build import create_cmake_settings
+
+    options = {
+        "CMAKE_C_STANDARD_LIBRARIES:STRING": "-lm",
+        "CMAKE_C_VISIBILITY_PRESET:STRING": "hidden",
+        "CMAKE_POLICY_VERSION_MINIMUM:STRING": "3.15",
+    }
+    create_cmake_settings(unzipdir, build_dir, configuration="Release", cmake_options=options)
+    source_dir = _fmi_header_dir().as_posix()
+    _run([cmake, "-S", source_dir, "-B", build_dir.as_posix()], "CMake configuration")
+    _run([cmake, "--build", build_dir.as_posix(), "--target", "install", "--config", "Release"],
+         "compilation")
+
+
+def _write_zip(unzipdir: Path, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, tmp = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
+    os.close(handle)
+    try:
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+            for file in sorted(unzipdir.rglob("*")):
+                if file.is_file():
+                    archive.write(file, file.relative_to(unzipdir).as_posix())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def build_second_order_fmu(spec: SecondOrderFmuSpec, path: str | os.PathLike,
+                           compile: bool = True) -> Path:
+    """Generate an FMI 2.0 co-simulation FMU for a linear second-order system.
+
+    Parameters
+    ----------
+    spec : SecondOrderFmuSpec
+        Sizes, names, parameters and ``model.c`` of the model.
+    path : str or PathLike
+        The ``.fmu`` file to write (replaced atomically if it exists).
+    compile : bool, default=True
+        Compile the binary with FMPy's CMake project; if False the FMU holds sources only.
+
+    Returns
+    -------
+    Path
+        The written FMU.
+
+    Raises
+    ------
+    FmuBuildError
+        If CMake or a C compiler is missing, or the compilation fails.
+    """
+    path = Path(path)
+    cmake = _require_build_tools() if compile else None
+    files, _ = _source_tree(spec)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise FmuBuildError(f"cannot create the output folder {path.parent}: "
+                            f"{error.strerror}; choose a writable path") from error
+    with tempfile.TemporaryDirectory(prefix="fmu-opinf-build-") as tmp:
+        unzipdir = Path(tmp) / "fmu"
+        for name, content in files.items():
+            target = unzipdir / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            target.write_bytes(content)
+        if compile:
+            build_dir = Path(tmp) / "build"
+            build_dir.mkdir()
+            _compile(unzipdir, build_dir, cmake)
+        try:
+            _write_zip(unzipdir, path)
+        except OSError as error:
+            raise FmuBuildError(f"cannot write {path}: {error.strerror}; choose a writable "
+                                "path") from error
+    return path
+
+
+def build_fmus(out_dir: str | os.PathLike = "fmus",
+               models: tuple[str, ...] | list[str] = BENCHMARK_MODELS, g: int = 600,
+               n1: int = 100, expose_states: bool | None = None) -> list[Path]:
+    """Build the benchmark FMUs ``AnchoredMSD.fmu`` and ``TripleChainMSD.fmu``.
+
+    Parameters
+    ----------
+    out_dir : str or PathLike, default="fmus"
+        Folder that receives ``<model>.fmu``.
+    models : sequence of str, default=("AnchoredMSD", "TripleChainMSD")
+        Which benchmarks to build.
+    g : int, default=600
+        Number of masses of AnchoredMSD (n = g).
+    n1 : int, default=100
+        Masses per chain of TripleChainMSD (n = 3 n1 + 1).
+    expose_states : bool, default=None
+        List ``x[i], v[i], a[i]`` in modelDescription.xml; default: only if n <= 20000.
+
+    Returns
+    -------
+    list of Path
+        The written FMUs, in the order of ``models``.
+
+    Raises
+    ------
+    FmuBuildError
+        Unknown model name, invalid size, missing build tools, or a compilation error.
+    """
+    unknown = [name for name in models if name not in _SPEC_FACTORIES]
+    if unknown:
+        raise FmuBuildError(f"unknown benchmark model(s) {', '.join(unknown)}; choose from "
+                            f"{', '.join(BENCHMARK_MODELS)}")
+    _require_build_tools()
+    paths = []
+    for name in models:
+        spec = _SPEC_FACTORIES[name](g, n1)
+        if expose_states is not None:
+            spec.expose_states = expose_states
+        paths.append(build_second_order_fmu(spec, Path(out_dir) / f"{name}.fmu"))
+    return paths
+
+
+def bundled_fmu(name: str) -> Path:
+    """Path of a benchmark FMU in the repository's ``fmus/`` folder, built if missing.
+
+    Parameters
+    ----------
+    name : {"AnchoredMSD", "TripleChainMSD"}
+        The benchmark (default sizes g = 600, n1 = 100).
+
+    Returns
+    -------
+    Path
+        ``fmus/<name>.fmu``.
+    """
+    if name not in _SPEC_FACTORIES:
+        raise FmuBuildError(f"unknown benchmark model {name!r}; choose from "
+                            f"{', '.join(BENCHMARK_MODELS)}")
+    path = _c_sources_dir() / f"{name}.fmu"
+    if not path.is_file():
+        build_fmus(path.parent, models=(name,))
+    return path
