@@ -1,0 +1,400 @@
+"""Tests of the benchmark FMUs (fmus/ C sources, fmu_opinf.fmus builder) driven by FMPy."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+from ctypes import byref
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+
+from fmpy import calloc, extract, free, read_model_description  # noqa: E402
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import (  # noqa: E402
+    FMU2Slave,
+    fmi2CallbackAllocateMemoryTYPE,
+    fmi2CallbackFreeMemoryTYPE,
+    fmi2CallbackFunctions,
+    fmi2CallbackLoggerTYPE,
+    fmi2CoSimulation,
+    fmi2Error,
+)
+from fmpy.validation import validate_fmu  # noqa: E402
+
+from fmu_opinf import fmus, newmark, signals, systems  # noqa: E402
+from fmu_opinf.errors import FmuOpinfError  # noqa: E402
+
+pytestmark = pytest.mark.fmu
+
+if fmus.find_build_tools() is None:
+    pytest.skip("CMake and a C compiler are needed to build FMUs", allow_module_level=True)
+
+IMPULSE = "impulse:amplitude=100,t0=2,width=0.5"
+HARMONIC = "harmonic:amplitude=2,omega=0.3"
+CASES = {
+    # name: (reference system, spec, step, end time)
+    "AnchoredMSD": (systems.anchored_msd(600), fmus.anchored_msd_spec(600), 0.5, 60.0),
+    "TripleChainMSD": (systems.triple_chain(100), fmus.triple_chain_spec(100), 0.1, 12.0),
+}
+
+
+# --------------------------------------------------------------------------- fixtures
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory) -> dict[str, tuple[Path, Path]]:
+    """Build both FMUs once: name -> (fmu path, extracted folder)."""
+    out = tmp_path_factory.mktemp("fmus")
+    paths = fmus.build_fmus(out)
+    return {path.stem: (path, Path(extract(str(path), str(out / path.stem)))) for path in paths}
+
+
+class Driver:
+    """An FMPy co-simulation instance whose log messages are captured."""
+
+    def __init__(self, folder: Path, spec: fmus.SecondOrderFmuSpec, name: str = "test") -> None:
+        md = read_model_description(str(folder))
+        self.spec = spec
+        self.vr = fmus.value_references(spec)
+        self.messages: list[tuple[int, str]] = []
+        self._logger = fmi2CallbackLoggerTYPE(self._log)
+        self.callbacks = fmi2CallbackFunctions()
+        self.callbacks.logger = self._logger
+        self.callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        self.callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(callbacks=self.callbacks)
+
+    def _log(self, env, instance, status, category, message) -> None:
+        self.messages.append((status, message.decode()))
+
+    def start(self, t0: float = 0.0) -> None:
+        self.fmu.setupExperiment(startTime=t0)
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+
+    def get(self, key: str) -> np.ndarray:
+        return np.array(self.fmu.getReal(self.vr[key]))
+
+    def set_input(self, u: np.ndarray) -> None:
+        self.fmu.setReal(self.vr["u"], [float(value) for value in np.ravel(u)])
+
+    def record(self) -> tuple[np.ndarray, ...]:
+        return tuple(self.get(key) for key in ("x", "v", "a", "y"))
+
+    def free(self) -> None:
+        self.fmu.freeInstance()
+
+
+def run(driver: Driver, signal, t: np.ndarray) -> dict[str, np.ndarray]:
+    """Drive the FMU on grid t, setting u(t_k) at each step start (fmpy's convention)."""
+    columns = {key: [] for key in ("x", "v", "a", "y")}
+    u = signal.sample(t)
+    driver.set_input(u[:, 0])
+    for i in range(t.size):
+        if i > 0:
+            driver.set_input(u[:, i - 1])
+            driver.fmu.doStep(t[i - 1], t[i] - t[i - 1])
+        for key, value in zip(columns, driver.record()):
+            columns[key].append(value)
+    return {key: np.array(value).T for key, value in columns.items()}
+
+
+def relative_error(actual: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.abs(actual - reference).max() / np.abs(reference).max())
+
+
+@pytest.fixture
+def driver_factory(built):
+    drivers = []
+
+    def make(name: str, instance: str = "test") -> Driver:
+        driver = Driver(built[name][1], CASES[name][1], instance)
+        drivers.append(driver)
+        return driver
+
+    yield make
+    for driver in drivers:
+        driver.free()
+
+
+# ------------------------------------------------------------------------ the files
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_validate_fmu_reports_no_problem(built, name):
+    assert validate_fmu(str(built[name][0])) == []
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_binary_links_only_libc_and_libm(built, name):
+    binary = built[name][1] / "binaries" / "linux64" / f"{name}.so"
+    libraries = subprocess.run(["ldd", str(binary)], capture_output=True, text=True, check=True).stdout
+    assert "python" not in libraries
+    needed = set(re.findall(r"^\s*(lib\S+)", libraries, flags=re.M))
+    assert needed <= {"libc.so.6", "libm.so.6"}, needed
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_fmu_keeps_sources_and_description(built, name):
+    folder = built[name][1]
+    md = read_model_description(str(folder))
+    for file in ("fmi2Functions.c", "newmark.c", "model.c", "config.h", "model.h", "newmark.h",
+                 "fmi2Functions.h", "readme.md"):
+        assert (folder / "sources" / file).is_file()
+    assert md.guid in (folder / "sources" / "config.h").read_text()
+    assert md.coSimulation.canHandleVariableCommunicationStepSize
+    assert md.coSimulation.canGetAndSetFMUstate
+    names = [v.name for v in md.modelVariables]
+    n = CASES[name][1].n
+    assert names[0] == "u" and f"x[{n}]" in names and f"a[{n}]" in names
+
+
+def test_guid_derives_from_content():
+    first = fmus._source_tree(fmus.anchored_msd_spec(600))[1]
+    again = fmus._source_tree(fmus.anchored_msd_spec(600))[1]
+    other = fmus._source_tree(fmus.anchored_msd_spec(601))[1]
+    assert first == again != other
+
+
+# ------------------------------------------------------------------------- numerics
+
+@pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.parametrize("spec", [IMPULSE, HARMONIC])
+def test_fmu_matches_reference_simulator(driver_factory, name, spec):
+    system, _, dt, t_end = CASES[name]
+    reference = newmark.simulate(system, spec, dt, t_end)
+    driver = driver_factory(name)
+    driver.start()
+    got = run(driver, signals.parse_signal(spec), reference.t)
+    for key, expected in (("x", reference.x), ("v", reference.xdot), ("a", reference.xddot),
+                          ("y", reference.y)):
+        assert relative_error(got[key], expected) < 1e-10, key
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_constraint_holds_inside_fmu(driver_factory, name):
+    system, _, dt, t_end = CASES[name]
+    driver = driver_factory(name)
+    driver.start()
+    got = run(driver, signals.parse_signal(IMPULSE), np.arange(0.0, t_end + dt / 2, dt))
+    level = got["x"] if system.constraint == "position" else got["v"]
+    assert np.abs(level).max() > 1e-3
+    assert np.abs(system.G @ level).max() < 1e-12 * np.abs(level).max()
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_step_size_change_mid_run(driver_factory, name):
+    system, _, dt, _ = CASES[name]
+    steps = [dt] * 20 + [dt / 3] * 15 + [2 * dt] * 10
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    signal = signals.parse_signal(HARMONIC)
+    u = signal.sample(t)
+    stepper = newmark.NewmarkStepper(system.M, system.D, system.K, system.B, dt, G=system.G,
+                                     constraint=system.constraint)
+    stepper.start(u[:, 0])
+    driver = driver_factory(name)
+    driver.start()
+    got = run(driver, signal, t)
+    expected = [stepper.x.copy()]
+    for i, h in enumerate(steps, start=1):
+        stepper.set_step(h)
+        stepper.step(u[:, i - 1])
+        expected.append(stepper.x.copy())
+    assert relative_error(got["x"], np.array(expected).T) < 1e-10
+
+
+def test_parameters_are_used(driver_factory):
+    heavy = systems.anchored_msd(600, mass=50.0, k1=3.0)
+    reference = newmark.simulate(heavy, IMPULSE, 0.5, 20.0)
+    driver = driver_factory("AnchoredMSD")
+    mass, k1 = driver.vr["parameters"][:2]
+    driver.fmu.setReal([mass, k1], [50.0, 3.0])
+    driver.start()
+    got = run(driver, signals.parse_signal(IMPULSE), reference.t)
+    assert relative_error(got["x"], reference.x) < 1e-10
+
+
+# ------------------------------------------------------------- state, reset, restart
+
+def advance(driver: Driver, t0: float, h: float, steps: int, amplitude: float) -> np.ndarray:
+    outputs = []
+    for i in range(steps):
+        driver.set_input([amplitude * np.sin(0.3 * (t0 + i * h))])
+        driver.fmu.doStep(t0 + i * h, h)
+        outputs.append(np.concatenate(driver.record()))
+    return np.array(outputs)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_get_set_and_serialize_fmu_state(driver_factory, name):
+    h = CASES[name][2]
+    driver = driver_factory(name)
+    driver.start()
+    advance(driver, 0.0, h, 10, 5.0)
+    state = driver.fmu.getFMUstate()
+    first = advance(driver, 10 * h, h, 10, 5.0)
+    driver.fmu.setFMUstate(state)
+    assert np.array_equal(advance(driver, 10 * h, h, 10, 5.0), first)
+
+    blob = driver.fmu.serializeFMUstate(state)
+    driver.fmu.freeFMUstate(state)
+    other = driver_factory(name, "other")
+    other.start()
+    restored = other.fmu.deSerializeFMUstate(blob)
+    other.fmu.setFMUstate(restored)
+    assert np.array_equal(advance(other, 10 * h, h, 10, 5.0), first)
+    other.fmu.freeFMUstate(restored)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_reset_restarts_from_scratch(driver_factory, name):
+    h = CASES[name][2]
+    driver = driver_factory(name)
+    driver.start()
+    first = advance(driver, 0.0, h, 15, 3.0)
+    driver.fmu.reset()
+    driver.start()
+    assert np.array_equal(advance(driver, 0.0, h, 15, 3.0), first)
+
+
+def test_input_set_before_first_step_gives_consistent_acceleration(driver_factory):
+    system = CASES["TripleChainMSD"][0]
+    driver = driver_factory("TripleChainMSD")
+    driver.start()
+    driver.set_input([4.0])
+    stepper = newmark.NewmarkStepper(system.M, system.D, system.K, system.B, 0.1, G=system.G,
+                                     constraint=system.constraint)
+    stepper.start(np.array([4.0]))
+    assert relative_error(driver.get("a"), stepper.a) < 1e-12
+
+
+# ------------------------------------------------------------------------- bad calls
+
+def expect_error(driver: Driver, call, *args, pattern: str) -> None:
+    driver.messages.clear()
+    with pytest.raises(FMICallException) as info:
+        call(*args)
+    assert info.value.status == fmi2Error
+    assert any(status == fmi2Error and re.search(pattern, text) for status, text in driver.messages), \
+        driver.messages
+
+
+@pytest.mark.parametrize("value, pattern", [(float("nan"), "not finite"), (float("inf"), "not finite")])
+def test_non_finite_input_is_an_error(driver_factory, value, pattern):
+    driver = driver_factory("AnchoredMSD")
+    driver.start()
+    expect_error(driver, driver.set_input, [value], pattern=pattern)
+    driver.fmu.reset()
+    driver.start()
+    driver.fmu.doStep(0.0, 0.5)
+
+
+@pytest.mark.parametrize("h", [0.0, -0.5, float("nan")])
+def test_non_positive_step_is_an_error(driver_factory, h):
+    driver = driver_factory("TripleChainMSD")
+    driver.start()
+    expect_error(driver, driver.fmu.doStep, 0.0, h, pattern="must be positive")
+
+
+def test_wrong_communication_point_is_an_error(driver_factory):
+    driver = driver_factory("TripleChainMSD")
+    driver.start()
+    driver.fmu.doStep(0.0, 0.1)
+    expect_error(driver, driver.fmu.doStep, 0.5, 0.1, pattern="communication point")
+
+
+def test_step_past_stop_time_is_an_error(driver_factory):
+    driver = driver_factory("TripleChainMSD")
+    driver.fmu.setupExperiment(startTime=0.0, stopTime=0.15)
+    driver.fmu.enterInitializationMode()
+    driver.fmu.exitInitializationMode()
+    driver.fmu.doStep(0.0, 0.1)
+    expect_error(driver, driver.fmu.doStep, 0.1, 0.1, pattern="stop time")
+
+
+def test_calls_out_of_order_are_errors(driver_factory):
+    driver = driver_factory("AnchoredMSD")
+    expect_error(driver, driver.fmu.doStep, 0.0, 0.5, pattern="fmi2DoStep must not be called")
+    driver.fmu.reset()
+    expect_error(driver, driver.fmu.exitInitializationMode, pattern="must not be called")
+    driver.fmu.reset()
+    driver.start()
+    expect_error(driver, driver.fmu.enterInitializationMode, pattern="must not be called")
+
+
+def test_setting_outputs_states_or_fixed_parameters_is_an_error(driver_factory):
+    driver = driver_factory("AnchoredMSD")
+    driver.start()
+    expect_error(driver, driver.fmu.setReal, driver.vr["y"][:1], [1.0], pattern="cannot be set")
+    driver.fmu.reset()
+    driver.start()
+    expect_error(driver, driver.fmu.setReal, driver.vr["parameters"][:1], [1.0], pattern="fixed")
+    driver.fmu.reset()
+    driver.start()
+    expect_error(driver, driver.fmu.getReal, [10**7], pattern="unknown value reference")
+
+
+def test_invalid_parameter_is_an_error(driver_factory):
+    driver = driver_factory("AnchoredMSD")
+    driver.fmu.setReal(driver.vr["parameters"][:1], [-1.0])
+    driver.fmu.setupExperiment(startTime=0.0)
+    driver.fmu.enterInitializationMode()
+    expect_error(driver, driver.fmu.exitInitializationMode, pattern="mass must be positive")
+
+
+def test_wrong_guid_is_refused_with_a_message(built):
+    folder = built["AnchoredMSD"][1]
+    md = read_model_description(str(folder))
+    driver = Driver(folder, CASES["AnchoredMSD"][1])
+    try:
+        component = driver.fmu.fmi2Instantiate(b"bad", fmi2CoSimulation, b"{not-the-guid}",
+                                               b"file:///", byref(driver.callbacks), 0, 0)
+        assert component is None
+        assert any("wrong GUID" in text for _, text in driver.messages)
+        assert md.guid
+    finally:
+        driver.free()
+
+
+def test_unsupported_functions_are_errors(driver_factory):
+    driver = driver_factory("AnchoredMSD")
+    driver.start()
+    expect_error(driver, driver.fmu.getDirectionalDerivative, driver.vr["y"], driver.vr["u"], [1.0],
+                 pattern="not supported")
+
+
+# --------------------------------------------------------------------------- builder
+
+def test_missing_build_tools_is_a_clear_error(monkeypatch, tmp_path):
+    monkeypatch.setattr(fmus.shutil, "which", lambda name: None)
+    monkeypatch.delenv("CC", raising=False)
+    with pytest.raises(fmus.FmuBuildError, match="CMake and a C compiler") as info:
+        fmus.build_fmus(tmp_path)
+    assert isinstance(info.value, FmuOpinfError)
+
+
+def test_unknown_model_and_bad_size_are_clear_errors(tmp_path):
+    with pytest.raises(fmus.FmuBuildError, match="unknown benchmark"):
+        fmus.build_fmus(tmp_path, models=("Pendulum",))
+    with pytest.raises(fmus.FmuBuildError, match="even"):
+        fmus.build_fmus(tmp_path, models=("TripleChainMSD",), n1=7)
+
+
+def test_compile_error_is_reported(tmp_path):
+    spec = fmus.anchored_msd_spec(10)
+    spec.model_source = "this is not C;"
+    with pytest.raises(fmus.FmuBuildError, match="compilation failed"):
+        fmus.build_second_order_fmu(spec, tmp_path / "Broken.fmu")
+    assert not (tmp_path / "Broken.fmu").exists()
+
+
+def test_source_only_fmu_has_no_binary(tmp_path):
+    import zipfile
+
+    path = fmus.build_second_order_fmu(fmus.triple_chain_spec(4), tmp_path / "T.fmu", compile=False)
+    names = zipfile.ZipFile(path).namelist()
+    assert "sources/model.c" in names and not any(n.startswith("binaries/") for n in names)
