@@ -1,0 +1,192 @@
+"""The ``fmu-opinf`` command line: a thin layer over the Python API, one verb per stage.
+
+    fmu-opinf snapshots SOURCE -o snapshots.h5 --input SPEC [--dt H] [--t-end T | --auto-window]
+    fmu-opinf fit snapshots.h5 -o rom.h5 [--r N | --energy E] [--basis positions|velocities]
+    fmu-opinf compare rom.h5 SOURCE --input SPEC [--dt H] [--t-end T] -o report/
+    fmu-opinf export rom.h5 -o rom.fmu [--reconstruct 'x[1],x[300]']
+    fmu-opinf demo -o out/ [--model anchored-msd|triple-chain|all] [--quick]
+    fmu-opinf build-fmus [-o fmus/] [--g 600] [--n1 100]
+
+Every error the tool can diagnose is printed as one line ``fmu-opinf: error: ...`` with exit
+code 2; anything else keeps its traceback (a bug to report).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from . import __version__
+from .errors import FmuOpinfError
+
+__all__ = ["main", "build_parser"]
+
+
+def _add_source_options(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("source variables and sizes")
+    group.add_argument("--positions", help="name patterns of the positions, e.g. 'x[*]'")
+    group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
+    group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
+    group.add_argument("--inputs", help="name patterns of the inputs")
+    group.add_argument("--outputs", help="name patterns of the outputs")
+    group.add_argument("--constraint", choices=["position", "velocity", "none", "unknown"],
+                       help="constraint kind of a black-box FMU (chooses the POD data in fit)")
+    group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
+    group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
+
+
+def _source_options(args: argparse.Namespace) -> dict:
+    keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "g", "n1")
+    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of all verbs (exposed for documentation and tests)."""
+    parser = argparse.ArgumentParser(
+        prog="fmu-opinf",
+        description="Learn stable reduced second-order models of constrained mechanical systems from FMUs "
+                    "by operator inference.")
+    parser.add_argument("--version", action="version", version=f"fmu-opinf {__version__}")
+    verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
+
+    p = verbs.add_parser("snapshots", help="simulate a source and record snapshots into an HDF5 file")
+    p.add_argument("source", help="path to a co-simulation FMU, or builtin:anchored-msd / builtin:triple-chain")
+    p.add_argument("-o", "--output", required=True, help="snapshot file to write (.h5)")
+    p.add_argument("--input", dest="input_spec", action="append", required=True,
+                   help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table; "
+                        "repeat for several training runs")
+    p.add_argument("--dt", type=float, help="communication step")
+    p.add_argument("--t-end", type=float, help="end time")
+    p.add_argument("--auto-window", action="store_true",
+                   help="choose dt and t-end from an impulse response (the paper's procedure)")
+    p.add_argument("--in-process", action="store_true",
+                   help="run the FMU inside this process (faster start; a crashing FMU then ends the tool)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_source_options(p)
+
+    p = verbs.add_parser("fit", help="learn a reduced model from a snapshot file")
+    p.add_argument("snapshots", help="snapshot file from 'fmu-opinf snapshots'")
+    p.add_argument("-o", "--output", required=True, help="ROM file to write (.h5)")
+    order = p.add_mutually_exclusive_group()
+    order.add_argument("--r", type=int, help="reduced order")
+    order.add_argument("--energy", type=float,
+                       help="choose r where the cumulative energy (eq. 18) saturates at this threshold")
+    p.add_argument("--basis", choices=["auto", "positions", "velocities"], default="auto",
+                   help="POD data: positions (position constraints) or velocities (velocity constraints); "
+                        "auto follows the constraint kind recorded in the file")
+    p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("-q", "--quiet", action="store_true")
+
+    p = verbs.add_parser("compare", help="validate a ROM against its source on a new input; write a report")
+    p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
+    p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
+    p.add_argument("--input", dest="input_spec", required=True, help="test input signal")
+    p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
+    p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
+    p.add_argument("-o", "--output", required=True, help="report directory")
+    p.add_argument("-q", "--quiet", action="store_true")
+    _add_source_options(p)
+
+    p = verbs.add_parser("export", help="export a ROM as a self-contained co-simulation FMU")
+    p.add_argument("rom", help="ROM file (.h5)")
+    p.add_argument("-o", "--output", required=True, help="FMU to write (.fmu)")
+    p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
+    p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
+
+    p = verbs.add_parser("demo", help="the whole chain on the bundled benchmark FMUs, with reports")
+    p.add_argument("-o", "--output", default="demo-out", help="output directory (default demo-out)")
+    p.add_argument("--model", choices=["anchored-msd", "triple-chain", "all"], default="all")
+    p.add_argument("--quick", action="store_true", help="smaller, faster variant (used by the tests)")
+    p.add_argument("-q", "--quiet", action="store_true")
+
+    p = verbs.add_parser("build-fmus", help="build the benchmark FMUs from their C sources")
+    p.add_argument("-o", "--output", default=None, help="directory for the FMUs (default: the fmus/ folder)")
+    p.add_argument("--g", type=int, default=600, help="anchored chain size")
+    p.add_argument("--n1", type=int, default=100, help="triple chain masses per chain")
+    return parser
+
+
+def _run_snapshots(args: argparse.Namespace) -> None:
+    from .snapshots import record_to_file
+
+    path = record_to_file(args.source, args.output, args.input_spec, dt=args.dt, t_end=args.t_end,
+                          auto_window=args.auto_window, overwrite=args.force, quiet=args.quiet,
+                          isolate=not args.in_process, **_source_options(args))
+    print(f"wrote {path}")
+
+
+def _run_fit(args: argparse.Namespace) -> None:
+    from .rom import fit_rom_file
+
+    rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
+                       figures=args.figures, overwrite=args.force, quiet=args.quiet)
+    info = rom.fit_info
+    print(f"wrote {args.output}: r={rom.r}, solver {info.get('status')} in {info.get('solve_seconds', 0):.2f}s, "
+          f"stable={rom.is_stable()}")
+
+
+def _run_compare(args: argparse.Namespace) -> None:
+    from .compare import compare, summary_table, write_report
+
+    result = compare(args.rom, args.source, args.input_spec, dt=args.dt, t_end=args.t_end, quiet=args.quiet,
+                     source_options=_source_options(args))
+    page = write_report(result, args.output)
+    print(summary_table([(Path(str(args.rom)).name, result.metrics())]))
+    print(f"report: {page}")
+
+
+def _run_export(args: argparse.Namespace) -> None:
+    from .export import export_fmu
+    from .rom import SecondOrderROM
+
+    reconstruct = [s.strip() for s in args.reconstruct.split(",")] if args.reconstruct else None
+    rom = SecondOrderROM.load(args.rom)
+    path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
+                      overwrite=args.force)
+    print(f"wrote {path}")
+
+
+def _run_demo(args: argparse.Namespace) -> None:
+    from .demo import run_demo
+
+    run_demo(args.output, model=args.model, quick=args.quick, quiet=args.quiet)
+
+
+def _run_build_fmus(args: argparse.Namespace) -> None:
+    from .fmus import build_fmus
+
+    kwargs = {"g": args.g, "n1": args.n1}
+    if args.output:
+        kwargs["out_dir"] = args.output
+    for path in build_fmus(**kwargs):
+        print(f"built {path}")
+
+
+_VERBS = {"snapshots": _run_snapshots, "fit": _run_fit, "compare": _run_compare, "export": _run_export,
+          "demo": _run_demo, "build-fmus": _run_build_fmus}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``fmu-opinf`` console script; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    try:
+        _VERBS[args.verb](args)
+    except FmuOpinfError as exc:
+        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
+        return 2
+    except FileExistsError as exc:
+        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fmu-opinf: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
