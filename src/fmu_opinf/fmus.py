@@ -100,14 +100,17 @@ class SecondOrderFmuSpec:
         Variable names; default ``u`` (or ``u[1]..u[m]``) and ``y[1]..y[p]``.
     state_names : tuple of 3 str, default=("x", "v", "a")
         Base names of positions, velocities and accelerations (``x[1]`` ...).
+    state_label : str, default="degree of freedom"
+        What one state index is, for the variable descriptions.
     parameters : list of Parameter, default=()
         Scalar parameters passed to ``assembleSystem``.
     defines : dict of str to int, default={}
         Extra integer macros for ``config.h`` (e.g. ``CHAIN_LENGTH``).
     description : str, default=""
         Model description (the ``description`` attribute).
-    default_experiment : tuple of 3 float, default=None
-        ``(startTime, stopTime, stepSize)`` for the DefaultExperiment element.
+    default_experiment : tuple of 3 float or None, default=None
+        ``(startTime, stopTime, stepSize)`` for the DefaultExperiment element; an entry
+        None leaves that attribute out.
     expose_states : bool, default=None
         List ``x, v, a`` in modelDescription.xml; default: only if ``n <= 20000``.
         The value references work in any case.
@@ -125,10 +128,11 @@ class SecondOrderFmuSpec:
     input_names: list[str] | None = None
     output_names: list[str] | None = None
     state_names: tuple[str, str, str] = ("x", "v", "a")
+    state_label: str = "degree of freedom"
     parameters: list[Parameter] = field(default_factory=list)
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
-    default_experiment: tuple[float, float, float] | None = None
+    default_experiment: tuple[float | None, float | None, float | None] | None = None
     expose_states: bool | None = None
     extra_files: dict[str, str] = field(default_factory=dict)
 
@@ -317,15 +321,17 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         for base, what, key in kinds:
             for i, vr in enumerate(refs[key], start=1):
                 variables.append(_variable(f"{base}[{i}]", vr, "local", "continuous",
-                                           f"{what} of degree of freedom {i}"))
+                                           f"{what} of {spec.state_label} {i}"))
     output_indices = range(spec.m + 1, spec.m + spec.p + 1)
     outputs = "".join(f'      <Unknown index="{i}"/>\n' for i in output_indices)
     files = "".join(f'        <File name="{s}"/>\n' for s in sources)
     experiment = ""
     if spec.default_experiment is not None:
-        start, stop, step = (float(v) for v in spec.default_experiment)
-        experiment = (f'  <DefaultExperiment startTime="{start!r}" stopTime="{stop!r}" '
-                      f'stepSize="{step!r}"/>\n')
+        keys = ("startTime", "stopTime", "stepSize")
+        attributes = " ".join(f'{key}="{float(value)!r}"'
+                              for key, value in zip(keys, spec.default_experiment)
+                              if value is not None)
+        experiment = f"  <DefaultExperiment {attributes}/>\n"
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         f'<fmiModelDescription fmiVersion="2.0" modelName="{spec.identifier}" guid="{guid}"\n'
@@ -356,7 +362,7 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         f"{outputs}"
         "    </Outputs>\n"
         "    <InitialUnknowns>\n"
-        f"{outputs.replace('      ', '      ')}"
+        f"{outputs}"
         "    </InitialUnknowns>\n"
         "  </ModelStructure>\n"
         "</fmiModelDescription>\n"

@@ -1,0 +1,314 @@
+"""Export a learned second-order ROM as a self-contained FMI 2.0 co-simulation FMU.
+
+The FMU embeds the reduced matrices in a generated ``model.c`` and reuses the benchmark
+FMUs' FMI glue and Newmark kernel unchanged (``fmus/src``; constraint kind none), so it
+steps exactly like :meth:`SecondOrderROM.simulate`: classical Newmark (beta = 1/4,
+gamma = 1/2), input held over each communication step at the value set before ``doStep``.
+Inputs and outputs keep the source FMU's names and order; optional extra outputs
+reconstruct chosen full-order positions through the basis (``x_i = V[i, :] q``).
+The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import warnings
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
+from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
+
+__all__ = ["export_fmu", "rom_fmu_spec"]
+
+_POSITION_NAME = re.compile(r"^x\[(\d+)\]$")
+
+
+# ----------------------------------------------------------------------- the ROM
+
+def _load_rom(rom: Any) -> Any:
+    """Return the ROM object; load it first if ``rom`` is a path."""
+    if not isinstance(rom, (str, os.PathLike)):
+        return rom
+    path = Path(rom)
+    if not path.is_file():
+        raise FileFormatError(f"ROM file {path} does not exist; pass the file written by "
+                              "'fmu-opinf fit'")
+    from .rom import SecondOrderROM
+
+    try:
+        return SecondOrderROM.load(path)
+    except FileFormatError:
+        raise
+    except Exception as error:  # noqa: BLE001 - any reader failure means a bad file
+        raise FileFormatError(f"cannot read ROM file {path}: {error}; pass a file written by "
+                              "'fmu-opinf fit'") from error
+
+
+def _matrix(rom: Any, name: str, shape: tuple[int, int]) -> np.ndarray:
+    value = getattr(rom, name, None)
+    if value is None:
+        raise DimensionError(f"the ROM has no {name}; fit the ROM before exporting it")
+    array = np.asarray(value.toarray() if hasattr(value, "toarray") else value, dtype=float)
+    if array.shape != shape:
+        raise DimensionError(f"ROM matrix {name} has shape {array.shape}, expected {shape}")
+    if not np.all(np.isfinite(array)):
+        raise DataError(f"ROM matrix {name} has NaN or infinite entries; refit the ROM")
+    return array
+
+
+def _symmetric(matrix: np.ndarray, name: str) -> np.ndarray:
+    scale = max(np.abs(matrix).max(), np.finfo(float).tiny)
+    if np.abs(matrix - matrix.T).max() > 1e-10 * scale:
+        raise DataError(f"ROM matrix {name} is not symmetric; the exporter needs the "
+                        "symmetric operators of a second-order ROM")
+    return matrix
+
+
+def _check_definite(matrices: dict[str, np.ndarray], dt: float) -> None:
+    M, D, K = matrices["Mr"], matrices["Dr"], matrices["Kr"]
+    for label, S in (("Mr", M), ("Mr + dt/2 Dr + dt^2/4 Kr", M + dt / 2 * D + dt * dt / 4 * K)):
+        try:
+            np.linalg.cholesky((S + S.T) / 2)
+        except np.linalg.LinAlgError:
+            raise DataError(f"{label} is not positive definite; the ROM is not a stable "
+                            "second-order model, refit it") from None
+
+
+def _sizes(rom: Any) -> tuple[int, int, int]:
+    """(r, m, p) read from the shapes of Mr, Br and Cpr."""
+    shapes = {}
+    for name in ("Mr", "Br", "Cpr"):
+        value = getattr(rom, name, None)
+        shape = np.shape(value) if value is not None else ()
+        if len(shape) != 2 or min(shape) < 1:
+            raise DimensionError(f"ROM matrix {name} has shape {shape}, expected a 2-d array; "
+                                 "fit the ROM before exporting it")
+        shapes[name] = shape
+    return shapes["Mr"][0], shapes["Br"][1], shapes["Cpr"][0]
+
+
+def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
+                         r: int) -> tuple[list[str], np.ndarray]:
+    """Names and (len, r) rows of the basis for the reconstructed positions."""
+    if not reconstruct:
+        return [], np.zeros((0, r))
+    basis = getattr(rom, "basis", None)
+    if basis is None:
+        raise DimensionError("reconstruct needs the ROM's basis, but this ROM has none; refit "
+                             "with the basis kept or drop reconstruct")
+    basis = np.asarray(basis, dtype=float)
+    n = basis.shape[0]
+    if basis.ndim != 2 or basis.shape[1] != r:
+        raise DimensionError(f"ROM basis has shape {basis.shape}, expected (n, {r})")
+    names, rows = [], []
+    for item in reconstruct:
+        match = _POSITION_NAME.match(item) if isinstance(item, str) else None
+        index = int(match.group(1)) if match else (item if isinstance(item, int) else None)
+        if index is None or not 1 <= index <= n:
+            raise DimensionError(f"cannot reconstruct {item!r}: give full-order positions as "
+                                 f"'x[i]' (or i) with 1 <= i <= {n}")
+        names.append(f"x[{index}]")
+        rows.append(basis[index - 1])
+    if len(set(names)) != len(names):
+        raise DimensionError(f"reconstruct lists a position twice: {list(reconstruct)}")
+    return names, np.array(rows)
+
+
+# ------------------------------------------------------------------- C generation
+
+def _c_array(name: str, values: np.ndarray) -> str:
+    flat = [repr(float(v)) for v in np.ravel(values, order="C")] or ["0.0"]
+    lines = [", ".join(flat[i:i + 4]) for i in range(0, len(flat), 4)]
+    body = ",\n    ".join(lines)
+    return f"static const double {name}[{len(flat)}] = {{\n    {body}\n}};\n"
+
+
+def _model_source(matrices: dict[str, np.ndarray], summary: str) -> str:
+    arrays = "\n".join(_c_array(name, value) for name, value in matrices.items())
+    return f"""/*
+ * Generated by fmu-opinf: {summary}
+ * Reduced second-order model  Mr q'' + Dr q' + Kr q = Br u,  y = Cpr q + Cvr q'.
+ * Matrices are stored row-major; reconstructed positions are extra rows of Cpr.
+ */
+#include "model.h"
+
+{arrays}
+static void addDense(Assembly *assembly, MatrixId id, const double values[], int rows, int cols) {{
+    int i, j;
+
+    for (i = 0; i < rows; i++) {{
+        for (j = 0; j < cols; j++) {{
+            addEntry(assembly, id, i, j, values[i * cols + j]);
+        }}
+    }}
+}}
+
+Status assembleSystem(const double parameters[], Assembly *assembly, const char **message) {{
+    (void)parameters;
+    (void)message;
+
+    addDense(assembly, MatrixM, reducedMass, N_DOF, N_DOF);
+    addDense(assembly, MatrixD, reducedDamping, N_DOF, N_DOF);
+    addDense(assembly, MatrixK, reducedStiffness, N_DOF, N_DOF);
+    addDense(assembly, MatrixB, reducedInput, N_DOF, N_INPUTS);
+    addDense(assembly, MatrixCp, reducedOutputPosition, N_OUTPUTS, N_DOF);
+    addDense(assembly, MatrixCv, reducedOutputVelocity, N_OUTPUTS, N_DOF);
+
+    return OK;
+}}
+"""
+
+
+def _identifier(path: Path) -> str:
+    name = re.sub(r"[^A-Za-z0-9_]", "_", path.name[:-4] if path.suffix == ".fmu" else path.name)
+    return name if re.match(r"^[A-Za-z_]", name) else "ROM_" + name
+
+
+def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
+    provenance = dict(getattr(rom, "provenance", None) or {})
+
+    def pick(*keys: str) -> str:
+        for key in keys:
+            if provenance.get(key) not in (None, ""):
+                return str(provenance[key])
+        return "unknown"
+
+    text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis) "
+            f"learned by operator inference from {pick('source', 'source_path', 'fmu', 'path')} "
+            f"(GUID {pick('guid', 'source_guid', 'fmu_guid')}); training input "
+            f"{pick('training_input', 'signal', 'input', 'train_input')}; fitted "
+            f"{pick('fit_date', 'date', 'created')}; training step dt={float(rom.dt)!r}")
+    if reconstructed:
+        text += f"; reconstructed positions {', '.join(reconstructed)}"
+    return text
+
+
+def rom_fmu_spec(rom: Any, identifier: str = "ROM",
+                 reconstruct: Sequence[str | int] | None = None) -> SecondOrderFmuSpec:
+    """Generator specification of the FMU of a reduced second-order model.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM
+        Fitted ROM with ``Mr, Dr, Kr (r, r)``, ``Br (r, m)``, ``Cpr, Cvr (p, r)``, ``dt``,
+        ``input_names``, ``output_names``, ``basis`` and ``provenance``.
+    identifier : str, default="ROM"
+        FMI model identifier.
+    reconstruct : sequence of str or int, default=None
+        Full-order positions (``"x[i]"`` or 1-based ``i``) added as outputs ``V[i, :] q``.
+
+    Returns
+    -------
+    SecondOrderFmuSpec
+    """
+    r, m, p = _sizes(rom)
+    matrices = {
+        "Mr": _symmetric(_matrix(rom, "Mr", (r, r)), "Mr"),
+        "Dr": _symmetric(_matrix(rom, "Dr", (r, r)), "Dr"),
+        "Kr": _symmetric(_matrix(rom, "Kr", (r, r)), "Kr"),
+        "Br": _matrix(rom, "Br", (r, m)),
+        "Cpr": _matrix(rom, "Cpr", (p, r)),
+        "Cvr": _matrix(rom, "Cvr", (p, r)),
+    }
+    dt = float(rom.dt)
+    if not (np.isfinite(dt) and dt > 0):
+        raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
+    _check_definite(matrices, dt)
+    names, rows = _reconstruction_rows(rom, reconstruct, r)
+    input_names = [str(s) for s in (getattr(rom, "input_names", None) or [])] or None
+    output_names = [str(s) for s in (getattr(rom, "output_names", None) or [])]
+    if len(output_names) != p:
+        output_names = [f"y[{i}]" for i in range(1, p + 1)]
+    clash = set(names) & (set(output_names) | set(input_names or []))
+    if clash:
+        raise DimensionError(f"reconstructed position(s) {sorted(clash)} already name an input "
+                             "or output of the ROM; drop them from reconstruct")
+    description = _description(rom, r, names)
+    c_matrices = {
+        "reducedMass": matrices["Mr"], "reducedDamping": matrices["Dr"],
+        "reducedStiffness": matrices["Kr"], "reducedInput": matrices["Br"],
+        "reducedOutputPosition": np.vstack([matrices["Cpr"], rows]),
+        "reducedOutputVelocity": np.vstack([matrices["Cvr"], np.zeros_like(rows)]),
+    }
+    provenance = dict(getattr(rom, "provenance", None) or {})
+    return SecondOrderFmuSpec(
+        identifier=identifier, model_source=_model_source(c_matrices, description),
+        n=r, m=m, p=p + len(names), input_names=input_names,
+        output_names=output_names + names, state_names=("q", "qdot", "qddot"),
+        state_label="reduced coordinate", description=description,
+        default_experiment=(0.0, None, dt), expose_states=True,
+        extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
+                                                   default=str) + "\n"},
+    )
+
+
+# ------------------------------------------------------------------------- export
+
+def _check_output_path(path: Path, overwrite: bool) -> None:
+    if path.suffix != ".fmu":
+        raise FMUError(f"output path {path} must end in .fmu")
+    if path.is_dir():
+        raise FMUError(f"output path {path} is a directory; give a file name ending in .fmu")
+    if path.exists() and not overwrite:
+        raise FMUError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    parent = path.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise FMUError(f"cannot create the output folder {parent}: {error.strerror}; choose a "
+                       "writable path") from error
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise FMUError(f"output folder {parent} is not writable; choose a writable path")
+
+
+def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
+               reconstruct: Sequence[str | int] | None = None, overwrite: bool = False) -> Path:
+    """Export a reduced second-order model as a co-simulation FMU.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM or str or PathLike
+        The fitted ROM, or the path of a ROM file (``SecondOrderROM.load``).
+    path : str or PathLike
+        The ``.fmu`` file to write; its stem becomes the model identifier.
+    fmi_version : {"2.0"}, default="2.0"
+        FMI version (only 2.0 is implemented).
+    reconstruct : sequence of str or int, default=None
+        Full-order positions to add as outputs, e.g. ``["x[1]", "x[300]"]``, computed
+        through the basis as ``x_i = V[i, :] q``.
+    overwrite : bool, default=False
+        Replace an existing file.
+
+    Returns
+    -------
+    Path
+        The written FMU.  Without a C compiler or CMake the FMU holds sources only and a
+        :class:`~fmu_opinf.errors.FmuOpinfWarning` says that it still needs compiling.
+
+    Raises
+    ------
+    FileFormatError
+        Missing or unreadable ROM file.
+    DimensionError, DataError
+        Inconsistent shapes, non-finite or non-definite matrices, bad ``reconstruct``.
+    FMUError
+        Unsupported FMI version, existing file without ``overwrite``, unwritable path,
+        compilation failure.
+    """
+    if str(fmi_version) != "2.0":
+        raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with fmi_version='2.0'")
+    path = Path(path)
+    _check_output_path(path, overwrite)
+    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct)
+    if find_build_tools() is None:
+        build_second_order_fmu(spec, path, compile=False)
+        warnings.warn(f"{path} holds C sources only and still needs compiling: no C compiler or "
+                      "CMake was found (install them and export again, or run "
+                      "'fmpy compile' on the FMU)", FmuOpinfWarning, stacklevel=2)
+        return path
+    return build_second_order_fmu(spec, path)

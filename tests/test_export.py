@@ -1,0 +1,303 @@
+"""Tests of the ROM -> FMU exporter (fmu_opinf.export)."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import warnings
+import zipfile
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from fmpy.validation import validate_fmu  # noqa: E402
+
+from fmu_opinf import export, fmus, newmark, signals, systems  # noqa: E402
+from fmu_opinf.errors import (  # noqa: E402
+    DataError,
+    DimensionError,
+    FileFormatError,
+    FMUError,
+    FmuOpinfWarning,
+)
+
+pytestmark = pytest.mark.fmu
+
+TRAIN = "impulse:amplitude=10,t0=1,width=0.5"
+TEST = "harmonic:amplitude=3,omega=0.8,phase=0.2"
+RECONSTRUCT = ["x[1]", "x[17]"]
+
+
+class StandInROM:
+    """Small intrusive POD-Galerkin ROM of a triple chain, with the SecondOrderROM surface."""
+
+    def __init__(self, r: int = 6, dt: float = 0.1) -> None:
+        full = systems.triple_chain(n1=10)
+        snapshots = newmark.simulate(full, TRAIN, dt, 30.0)
+        V = np.linalg.svd(snapshots.xdot, full_matrices=False)[0][:, :r]
+        project = lambda A: V.T @ (A @ V)  # noqa: E731
+        self.Mr, self.Dr, self.Kr = (project(A) for A in (full.M, full.D, full.K))
+        self.Mr, self.Dr, self.Kr = ((A + A.T) / 2 for A in (self.Mr, self.Dr, self.Kr))
+        self.Br = np.asarray(V.T @ full.B.toarray())
+        self.Cpr = np.asarray(full.Cp @ V)
+        self.Cvr = np.zeros_like(self.Cpr)
+        self.basis, self.basis_kind = V, "velocities"
+        self.input_names, self.output_names = ["u"], ["y"]
+        self.dt = dt
+        self.provenance = {"source": "TripleChainMSD.fmu", "guid": "{1234-abcd}",
+                           "training_input": TRAIN, "fit_date": "2026-11-21T05:00:00Z"}
+
+    r = property(lambda self: self.Mr.shape[0])
+    m = property(lambda self: self.Br.shape[1])
+    p = property(lambda self: self.Cpr.shape[0])
+
+    def simulate(self, signal, dt: float, t_end: float) -> SimpleNamespace:
+        r = self.r
+        reduced = SimpleNamespace(M=self.Mr, D=self.Dr, K=self.Kr, B=self.Br, Cp=self.Cpr,
+                                  Cv=self.Cvr, G=np.zeros((0, r)), constraint=None)
+        run = newmark.simulate(reduced, signal, dt, t_end)
+        return SimpleNamespace(t=run.t, u=run.u, y=run.y, q=run.x, qdot=run.xdot, qddot=run.xddot)
+
+
+@pytest.fixture(scope="module")
+def rom() -> StandInROM:
+    return StandInROM()
+
+
+@pytest.fixture(scope="module")
+def exported(rom, tmp_path_factory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("rom")
+    path = export.export_fmu(rom, out / "TripleChainROM.fmu", reconstruct=RECONSTRUCT)
+    return path, Path(extract(str(path), str(out / "unzipped")))
+
+
+def drive(folder: Path, signal, t: np.ndarray, r: int) -> dict[str, np.ndarray]:
+    """Run the FMU with FMPy, setting u(t_k) before each step; record y, q, qdot, qddot."""
+    md = read_model_description(str(folder))
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    states = {key: [refs[f"{key}[{i}]"] for i in range(1, r + 1)] for key in ("q", "qdot", "qddot")}
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="rom")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=float(t[0]))
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    u = signal.sample(t)
+    record = {key: [] for key in ("y", "q", "qdot", "qddot")}
+    for i in range(t.size):
+        fmu.setReal([refs["u"]], [float(u[0, max(i - 1, 0)])])
+        if i > 0:
+            fmu.doStep(t[i - 1], t[i] - t[i - 1])
+        record["y"].append(fmu.getReal(outputs))
+        for key, vrs in states.items():
+            record[key].append(fmu.getReal(vrs))
+    fmu.terminate()
+    fmu.freeInstance()
+    return {key: np.array(value).T for key, value in record.items()}
+
+
+def relative_error(actual: np.ndarray, reference: np.ndarray) -> float:
+    return float(np.abs(actual - reference).max() / np.abs(reference).max())
+
+
+# ------------------------------------------------------------------------ the file
+
+def test_exported_fmu_validates(exported):
+    assert validate_fmu(str(exported[0])) == []
+
+
+def test_binary_needs_no_python(exported):
+    binary = exported[1] / "binaries" / "linux64" / "TripleChainROM.so"
+    libraries = subprocess.run(["ldd", str(binary)], capture_output=True, text=True, check=True).stdout
+    assert "python" not in libraries
+    assert set(re.findall(r"^\s*(lib\S+)", libraries, flags=re.M)) <= {"libc.so.6", "libm.so.6"}
+
+
+def test_model_description_keeps_names_and_provenance(exported, rom):
+    md = read_model_description(str(exported[1]))
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    assert inputs == ["u"] and outputs == ["y", "x[1]", "x[17]"]
+    assert float(md.defaultExperiment.stepSize) == rom.dt
+    for fact in ("r=6", "TripleChainMSD.fmu", "{1234-abcd}", TRAIN, "2026-11-21T05:00:00Z"):
+        assert fact in md.description
+    names = zipfile.ZipFile(exported[0]).namelist()
+    for file in ("model.c", "fmi2Functions.c", "newmark.c", "provenance.json"):
+        assert f"sources/{file}" in names
+
+
+def test_exported_fmu_matches_rom_simulation(exported, rom):
+    dt, t_end = rom.dt, 25.0
+    expected = rom.simulate(TEST, dt, t_end)
+    got = drive(exported[1], signals.parse_signal(TEST), expected.t, rom.r)
+    assert relative_error(got["y"][:1], expected.y) < 1e-12
+    for key in ("q", "qdot", "qddot"):
+        assert relative_error(got[key], getattr(expected, key)) < 1e-12, key
+    rows = rom.basis[[0, 16]]
+    assert relative_error(got["y"][1:], rows @ expected.q) < 1e-12
+
+
+def test_variable_step_matches_classical_newmark(exported, rom):
+    steps = [0.1] * 10 + [0.05] * 10 + [0.3] * 5
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    signal = signals.parse_signal(TEST)
+    u = signal.sample(t)
+    stepper = newmark.NewmarkStepper(rom.Mr, rom.Dr, rom.Kr, rom.Br, steps[0])
+    stepper.start(u[:, 0])
+    expected = [stepper.x.copy()]
+    for i, h in enumerate(steps, start=1):
+        stepper.set_step(h)
+        stepper.step(u[:, i - 1])
+        expected.append(stepper.x.copy())
+    got = drive(exported[1], signal, t, rom.r)
+    assert relative_error(got["q"], np.array(expected).T) < 1e-12
+
+
+C_IMPORTER = r"""
+#include <dlfcn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include "fmi2Functions.h"
+
+static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status,
+                   fmi2String category, fmi2String message, ...) {
+    (void)env; (void)name; (void)category;
+    fprintf(stderr, "[%d] %s\n", (int)status, message);
+}
+
+#define LOAD(name) name##TYPE *name = (name##TYPE *)dlsym(library, #name); if (!name) return 2;
+
+int main(int argc, char *argv[]) {
+    void *library;
+    fmi2CallbackFunctions callbacks = { logger, calloc, free, NULL, NULL };
+    fmi2ValueReference input = 1, outputs[3] = { 2, 3, 4 };
+    fmi2Real u, y[3], t = 0.0, h = atof(argv[3]);
+    fmi2Component c;
+    int k;
+
+    if (argc != 4 || !(library = dlopen(argv[1], RTLD_NOW | RTLD_LOCAL))) return 1;
+    LOAD(fmi2Instantiate) LOAD(fmi2SetupExperiment) LOAD(fmi2EnterInitializationMode)
+    LOAD(fmi2ExitInitializationMode) LOAD(fmi2SetReal) LOAD(fmi2GetReal) LOAD(fmi2DoStep)
+    LOAD(fmi2Terminate) LOAD(fmi2FreeInstance)
+
+    c = fmi2Instantiate("c", fmi2CoSimulation, argv[2], "", &callbacks, fmi2False, fmi2False);
+    if (!c || fmi2SetupExperiment(c, fmi2False, 0.0, 0.0, fmi2False, 0.0) != fmi2OK ||
+        fmi2EnterInitializationMode(c) != fmi2OK || fmi2ExitInitializationMode(c) != fmi2OK) return 3;
+    for (k = 0; k < 100; k++) {
+        if (scanf("%lf", &u) != 1 || fmi2SetReal(c, &input, 1, &u) != fmi2OK) return 4;
+        if (fmi2DoStep(c, t, h, fmi2True) != fmi2OK) return 5;
+        t += h;
+        if (fmi2GetReal(c, outputs, 3, y) != fmi2OK) return 6;
+        printf("%.17g %.17g %.17g\n", y[0], y[1], y[2]);
+    }
+    fmi2Terminate(c);
+    fmi2FreeInstance(c);
+    dlclose(library);
+    return 0;
+}
+"""
+
+
+def test_c_program_runs_exported_fmu(exported, rom, tmp_path):
+    compiler = fmus.find_build_tools()[1]
+    source = tmp_path / "importer.c"
+    source.write_text(C_IMPORTER)
+    program = tmp_path / "importer"
+    headers = Path(fmpy.__file__).parent / "c-code"
+    subprocess.run([compiler, "-std=c99", "-O1", "-I", str(headers), str(source), "-o", str(program),
+                    "-ldl"], check=True, capture_output=True, text=True)
+    expected = rom.simulate(TEST, rom.dt, 100 * rom.dt)
+    inputs = "\n".join(repr(float(v)) for v in signals.parse_signal(TEST).sample(expected.t[:-1])[0])
+    guid = read_model_description(str(exported[1])).guid
+    binary = exported[1] / "binaries" / "linux64" / "TripleChainROM.so"
+    result = subprocess.run([str(program), str(binary), guid, repr(rom.dt)], input=inputs,
+                            capture_output=True, text=True, check=True)
+    got = np.array([[float(v) for v in line.split()] for line in result.stdout.splitlines()]).T
+    assert got.shape == (3, 100)
+    reference = np.vstack([expected.y, rom.basis[[0, 16]] @ expected.q])[:, 1:]
+    assert relative_error(got, reference) < 1e-12
+
+
+# ---------------------------------------------------------------------- bad input
+
+def test_missing_rom_file_is_a_clear_error(tmp_path):
+    with pytest.raises(FileFormatError, match="does not exist"):
+        export.export_fmu(tmp_path / "nothing.h5", tmp_path / "rom.fmu")
+
+
+def test_corrupt_rom_file_is_a_clear_error(tmp_path):
+    pytest.importorskip("fmu_opinf.rom")
+    bad = tmp_path / "rom.h5"
+    bad.write_bytes(b"this is not an HDF5 ROM file")
+    with pytest.raises(FileFormatError):
+        export.export_fmu(bad, tmp_path / "rom.fmu")
+    assert not (tmp_path / "rom.fmu").exists()
+
+
+def test_unwritable_output_path_is_a_clear_error(rom, tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("a file, not a folder")
+    with pytest.raises(FMUError, match="cannot create the output folder"):
+        export.export_fmu(rom, blocker / "sub" / "rom.fmu")
+    with pytest.raises(FMUError, match="must end in .fmu"):
+        export.export_fmu(rom, tmp_path / "rom.zip")
+
+
+def test_existing_file_needs_overwrite(rom, tmp_path):
+    target = tmp_path / "rom.fmu"
+    target.write_bytes(b"old")
+    with pytest.raises(FMUError, match="overwrite=True"):
+        export.export_fmu(rom, target)
+    export.export_fmu(rom, target, overwrite=True)
+    assert validate_fmu(str(target)) == []
+
+
+def test_unsupported_fmi_version(rom, tmp_path):
+    with pytest.raises(FMUError, match="not supported"):
+        export.export_fmu(rom, tmp_path / "rom.fmu", fmi_version="3.0")
+
+
+@pytest.mark.parametrize("reconstruct, pattern", [(["x[0]"], "1 <= i <= 31"), (["x[99]"], "1 <= i <= 31"),
+                                                  (["v[1]"], "x\\[i\\]"), (["x[2]", 2], "twice")])
+def test_bad_reconstruct_is_a_clear_error(rom, tmp_path, reconstruct, pattern):
+    with pytest.raises(DimensionError, match=pattern):
+        export.export_fmu(rom, tmp_path / "rom.fmu", reconstruct=reconstruct)
+
+
+def test_reconstruct_without_basis_is_an_error(rom, tmp_path):
+    no_basis = StandInROM.__new__(StandInROM)
+    no_basis.__dict__.update(rom.__dict__, basis=None)
+    with pytest.raises(DimensionError, match="basis"):
+        export.export_fmu(no_basis, tmp_path / "rom.fmu", reconstruct=["x[1]"])
+
+
+@pytest.mark.parametrize("field, value, error, pattern", [
+    ("Mr", -np.eye(6), DataError, "not positive definite"),
+    ("Kr", np.full((6, 6), np.nan), DataError, "NaN"),
+    ("Dr", np.triu(np.ones((6, 6))), DataError, "not symmetric"),
+    ("Br", np.ones((5, 1)), DimensionError, "expected \\(6, 1\\)"),
+])
+def test_bad_matrices_are_clear_errors(rom, tmp_path, field, value, error, pattern):
+    broken = StandInROM.__new__(StandInROM)
+    broken.__dict__.update(rom.__dict__, **{field: value})
+    with pytest.raises(error, match=pattern):
+        export.export_fmu(broken, tmp_path / "rom.fmu")
+    assert not (tmp_path / "rom.fmu").exists()
+
+
+def test_without_compiler_writes_sources_and_warns(rom, tmp_path, monkeypatch):
+    monkeypatch.setattr(export, "find_build_tools", lambda: None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        path = export.export_fmu(rom, tmp_path / "rom.fmu")
+    assert any(issubclass(w.category, FmuOpinfWarning) and "still needs compiling" in str(w.message)
+               for w in caught)
+    names = zipfile.ZipFile(path).namelist()
+    assert "sources/model.c" in names and not any(n.startswith("binaries/") for n in names)
