@@ -47,6 +47,7 @@ typedef struct {
     int *first;
     size_t *start;      /* n + 1 */
     double *values;
+    double *inverseDiagonal;  /* 1 / L(i,i): multiply instead of divide in the solves */
 } EnvelopeFactor;
 
 /* Factorization of [S G^T; G 0] with S = M + coefD D + coefK K. */

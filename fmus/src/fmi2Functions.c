@@ -196,9 +196,8 @@ static Status ensureInitialAcceleration(ModelInstance *instance) {
         }
         memcpy(instance->current.uApplied, instance->current.u, sizeof(instance->current.u));
         instance->current.accelerationPending = 0;
+        computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->y);
     }
-
-    computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->y);
 
 END:
     return status;
@@ -699,7 +698,7 @@ static Status restoreState(ModelInstance *instance, const DynamicState *state) {
 
     copyDynamicState(&instance->current, state);
 
-    if (instance->current.state & (StepComplete | StepFailed | Terminated | ErrorState)) {
+    if (instance->current.state != Instantiated) {
         Status status = ensureSystem(instance);
         if (status > Warning) {
             return status;

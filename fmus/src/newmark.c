@@ -200,16 +200,50 @@ void freeSecondOrderSystem(SecondOrderSystem *system, const Allocator *allocator
 
 /* ---------------------------------------------------------- sparse kernels */
 
+/* Dot product with four partial sums (independent chains keep long rows fast). */
+static inline double dot(const double a[], const double b[], int count) {
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int k = 0;
+
+    for (; k + 4 <= count; k += 4) {
+        s0 += a[k] * b[k];
+        s1 += a[k + 1] * b[k + 1];
+        s2 += a[k + 2] * b[k + 2];
+        s3 += a[k + 3] * b[k + 3];
+    }
+    for (; k < count; k++) {
+        s0 += a[k] * b[k];
+    }
+
+    return (s0 + s1) + (s2 + s3);
+}
+
+/* Sparse row times vector: sum_k values[k] x[index[k]], four partial sums. */
+static inline double sparseDot(const double values[], const int index[], const double x[], int count) {
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    int k = 0;
+
+    for (; k + 4 <= count; k += 4) {
+        s0 += values[k] * x[index[k]];
+        s1 += values[k + 1] * x[index[k + 1]];
+        s2 += values[k + 2] * x[index[k + 2]];
+        s3 += values[k + 3] * x[index[k + 3]];
+    }
+    for (; k < count; k++) {
+        s0 += values[k] * x[index[k]];
+    }
+
+    return (s0 + s1) + (s2 + s3);
+}
+
 /* y = alpha A x + y */
 static void addProduct(const SparseMatrix *A, double alpha, const double x[], double y[]) {
-    int i, k;
+    int i;
 
     for (i = 0; i < A->rows; i++) {
-        double sum = 0.0;
-        for (k = A->rowStart[i]; k < A->rowStart[i + 1]; k++) {
-            sum += A->values[k] * x[A->colIndex[k]];
-        }
-        y[i] += alpha * sum;
+        int begin = A->rowStart[i];
+        y[i] += alpha * sparseDot(A->values + begin, A->colIndex + begin, x,
+                                  A->rowStart[i + 1] - begin);
     }
 }
 
@@ -219,9 +253,11 @@ static void freeEnvelope(EnvelopeFactor *envelope, const Allocator *allocator) {
     allocator->release(envelope->first);
     allocator->release(envelope->start);
     allocator->release(envelope->values);
+    allocator->release(envelope->inverseDiagonal);
     envelope->first = NULL;
     envelope->start = NULL;
     envelope->values = NULL;
+    envelope->inverseDiagonal = NULL;
 }
 
 /* Row envelope of the lower triangle of the union of the patterns of M, D, K. */
@@ -234,8 +270,9 @@ static Status allocateEnvelope(EnvelopeFactor *envelope, const SecondOrderSystem
     envelope->n = n;
     envelope->first = (int *)allocator->allocate((size_t)n, sizeof(int));
     envelope->start = (size_t *)allocator->allocate((size_t)n + 1, sizeof(size_t));
+    envelope->inverseDiagonal = (double *)allocator->allocate((size_t)n, sizeof(double));
 
-    if (!envelope->first || !envelope->start) {
+    if (!envelope->first || !envelope->start || !envelope->inverseDiagonal) {
         return Error;
     }
 
@@ -305,23 +342,18 @@ static int factorEnvelope(EnvelopeFactor *envelope) {
         for (j = fi; j < i; j++) {
             int fj = envelope->first[j];
             const double *rowJ = envelope->values + envelope->start[j] - fj;
-            double sum = rowI[j];
-            for (k = fi > fj ? fi : fj; k < j; k++) {
-                sum -= rowI[k] * rowJ[k];
-            }
-            rowI[j] = sum / rowJ[j];
+            k = fi > fj ? fi : fj;
+            rowI[j] = (rowI[j] - dot(rowI + k, rowJ + k, j - k)) * envelope->inverseDiagonal[j];
         }
 
-        diagonal = rowI[i];
-        for (k = fi; k < i; k++) {
-            diagonal -= rowI[k] * rowI[k];
-        }
+        diagonal = rowI[i] - dot(rowI + fi, rowI + fi, i - fi);
 
         if (!(diagonal > 0.0) || !isfinite(diagonal)) {
             return i + 1;
         }
 
         rowI[i] = sqrt(diagonal);
+        envelope->inverseDiagonal[i] = 1.0 / rowI[i];
     }
 
     return 0;
@@ -334,17 +366,13 @@ static void solveEnvelope(const EnvelopeFactor *envelope, double b[]) {
     for (i = 0; i < envelope->n; i++) {
         int fi = envelope->first[i];
         const double *rowI = envelope->values + envelope->start[i] - fi;
-        double sum = b[i];
-        for (k = fi; k < i; k++) {
-            sum -= rowI[k] * b[k];
-        }
-        b[i] = sum / rowI[i];
+        b[i] = (b[i] - dot(rowI + fi, b + fi, i - fi)) * envelope->inverseDiagonal[i];
     }
 
     for (i = envelope->n - 1; i >= 0; i--) {
         int fi = envelope->first[i];
         const double *rowI = envelope->values + envelope->start[i] - fi;
-        double value = b[i] / rowI[i];
+        double value = b[i] * envelope->inverseDiagonal[i];
         b[i] = value;
         for (k = fi; k < i; k++) {
             b[k] -= rowI[k] * value;
