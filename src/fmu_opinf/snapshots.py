@@ -11,6 +11,8 @@ child process, so that a crashing FMU binary is reported as an error instead of 
 from __future__ import annotations
 
 import dataclasses
+import datetime
+import functools
 import json
 import math
 import multiprocessing as mp
@@ -326,7 +328,7 @@ def _write_run(runs: h5py.Group, index: int, run: Run) -> None:
         k = array.shape[-1]
         step = max(1, ds.chunks[-1] * 64) if ds.chunks else k
         for j0 in range(0, k, step):
-            ds[..., j0:j0 + step] = array[..., j0:j0 + step]
+            ds[..., j0:j0 + step] = np.ascontiguousarray(array[..., j0:j0 + step])
     write_attrs(g, run.attrs)
 
 
@@ -419,89 +421,102 @@ def newmark_rates(x: np.ndarray, h: float) -> np.ndarray:
 
 
 # =============================================================================================
-# Sinks: where the recorded blocks go
+# Sinks: where the samples go
 # =============================================================================================
 
 
 class _Sink:
-    """Receives time-major sample blocks and assembles a :class:`Run`."""
+    """Provides row buffers for the source to fill (one sample per row) and assembles a :class:`Run`.
+
+    ``rows(i0, count)`` is where samples ``i0 ..`` are written; ``commit(i0, count)`` marks them
+    valid.  ``block`` is the largest ``count`` the sink accepts at once.
+    """
 
     def __init__(self, source: Source, t: np.ndarray, u: np.ndarray) -> None:
         self.layout = source.layout
+        self.width = source.width
         self.n, self.p, self.k = source.n, source.p, len(t)
         self.derived = source.derived
         self.t, self.u = t, u
         self.count = 0
+        self.block = _block_rows(self.width, self.k)
 
-    def _targets(self) -> dict[str, Any]:
+    def rows(self, i0: int, count: int) -> np.ndarray:
         raise NotImplementedError
 
-    def write(self, rows: np.ndarray, i0: int) -> None:
-        """Store samples ``i0 .. i0 + len(rows) - 1``."""
-        i1 = i0 + len(rows)
-        for name, target in self._targets().items():
-            part = self.layout[name]
-            if part.stop > part.start:
-                target[:, i0:i1] = rows[:, part].T
-        self.count = i1
+    def commit(self, i0: int, count: int) -> None:
+        self.count = i0 + count
 
     def finish(self, attrs: dict[str, Any]) -> Run:
         raise NotImplementedError
+
+    def _h(self) -> float:
+        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1.0
 
 
 class _MemorySink(_Sink):
+    """All samples in one (k, width) array, filled in place by the source (no copies).
+
+    The run's ``x, xdot, xddot, y`` are ``(n, k)`` views of it (column ``i`` = sample ``i``).
+    """
+
     def __init__(self, source: Source, t: np.ndarray, u: np.ndarray) -> None:
         super().__init__(source, t, u)
-        self.arrays = {name: np.empty((rows, self.k)) for name, rows in
-                       (("x", self.n), ("xdot", self.n), ("xddot", self.n), ("y", self.p))}
+        self.samples = np.empty((self.k, self.width))
+        self.block = max(self.block, 1)
 
-    def _targets(self) -> dict[str, Any]:
-        return self.arrays
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        return self.samples[i0:i0 + count]
 
     def finish(self, attrs: dict[str, Any]) -> Run:
         c = self.count
-        a = {name: np.ascontiguousarray(arr[:, :c]) for name, arr in self.arrays.items()}
-        h = float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1.0
+        view = self.samples[:c].T
+        arrays = {name: view[self.layout[name]] for name in ("x", "xdot", "xddot", "y")}
         if self.derived["xdot"]:
-            a["xdot"] = newmark_rates(a["x"], h)
+            arrays["xdot"] = newmark_rates(arrays["x"], self._h())
         if self.derived["xddot"]:
-            a["xddot"] = newmark_rates(a["xdot"], h)
-        return Run(t=self.t[:c].copy(), u=np.ascontiguousarray(self.u[:, :c]), **a, attrs=attrs)
+            arrays["xddot"] = newmark_rates(arrays["xdot"], self._h())
+        return Run(t=self.t[:c].copy(), u=np.ascontiguousarray(self.u[:, :c]), **arrays, attrs=attrs)
 
 
 class _H5Sink(_Sink):
-    """Streams blocks into the datasets of one run group."""
+    """Streams blocks into the (chunked, compressed) datasets of one run group."""
 
     def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group) -> None:
         super().__init__(source, t, u)
         self.group = group
+        self.scratch = np.empty((self.block, self.width))
         self.ds = {name: _create(group, name, (rows, self.k)) for name, rows in
                    (("x", self.n), ("xdot", self.n), ("xddot", self.n), ("y", self.p))}
 
-    def _targets(self) -> dict[str, Any]:
-        return self.ds
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        return self.scratch[:count]
+
+    def commit(self, i0: int, count: int) -> None:
+        for name, ds in self.ds.items():
+            part = self.layout[name]
+            if part.stop > part.start and count:
+                ds[:, i0:i0 + count] = np.ascontiguousarray(self.scratch[:count, part].T)
+        super().commit(i0, count)
 
     def finish(self, attrs: dict[str, Any]) -> Run:
         c = self.count
         for ds in self.ds.values():
             ds.resize(c, axis=1)
-        h = float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1.0
         if self.derived["xdot"]:
-            self._derive("x", "xdot", h)
+            self._derive("x", "xdot")
         if self.derived["xddot"]:
-            self._derive("xdot", "xddot", h)
+            self._derive("xdot", "xddot")
         for name, array in (("t", self.t[:c]), ("u", self.u[:, :c])):
-            ds = _create(self.group, name, array.shape)
-            ds[...] = array
+            _create(self.group, name, array.shape)[...] = array
         write_attrs(self.group, attrs)
         return Run(**{a: self.group[a] for a in ARRAYS}, attrs=attrs)
 
-    def _derive(self, src: str, dst: str, h: float) -> None:
-        """Row blocks are independent (one DOF each): derive without loading the whole run."""
-        c = max(self.count, 1)
-        block = max(1, (64 * 2**20) // (8 * c))
+    def _derive(self, src: str, dst: str) -> None:
+        """Rows (DOFs) are independent: derive in row blocks without loading the whole run."""
+        block = max(1, (64 * 2**20) // (8 * max(self.count, 1)))
         for r0 in range(0, self.n, block):
-            self.ds[dst][r0:r0 + block, :] = newmark_rates(self.ds[src][r0:r0 + block, :], h)
+            self.ds[dst][r0:r0 + block, :] = newmark_rates(self.ds[src][r0:r0 + block, :], self._h())
 
 
 # =============================================================================================
@@ -513,23 +528,25 @@ def _block_rows(width: int, k: int) -> int:
     return int(max(1, min(k, max(16, _BLOCK_BYTES // (8 * max(width, 1))))))
 
 
-def _produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
-    """Yield ``(rows, i0)`` blocks; a :class:`StepError` is raised after the valid rows are yielded."""
+def _produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+    """Fill the sink's rows block by block, yielding ``(i0, count)`` of each filled block.
+
+    A :class:`StepError` is raised after the block holding the valid samples before it is yielded.
+    """
     k = len(t)
-    buf = np.empty((_block_rows(source.width, k), source.width))
     source.start(t, U)
     try:
         i = 0
         while i < k:
-            count = min(len(buf), k - i)
+            count = min(sink.block, k - i)
             try:
-                source.advance(buf, i, count)
+                source.advance(sink.rows(i, count), i, count)
             except StepError as exc:
                 valid = max(0, exc.step - i) if exc.step >= 0 else 0
                 if valid:
-                    yield buf[:valid], i
+                    yield i, valid
                 raise
-            yield buf[:count], i
+            yield i, count
             i += count
     finally:
         source.close()
@@ -541,9 +558,9 @@ _HEADER = 64  # bytes before the row buffer in shared memory: int64 count of val
 def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray) -> None:
     """Child process: run the source, fill the shared buffer, report through ``conn``."""
     shm = shared_memory.SharedMemory(name=shm_name)
+    count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
+    rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     try:
-        count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
-        rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
         _child_loop(conn, source, t, U, count, rows)
     finally:
         del count, rows
@@ -551,11 +568,12 @@ def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarra
 
 
 def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: np.ndarray, rows: np.ndarray) -> None:
+    """Steps in sub-blocks of 8 samples, publishing the number of valid rows after each."""
     k, cap, sub = len(t), len(rows), 8
     try:
         source.start(t, U)
     except FmuOpinfError as exc:
-        conn.send(("fail", type(exc).__name__, str(exc), getattr(exc, "step", 0), getattr(exc, "time", t[0])))
+        conn.send(("fail", str(exc), getattr(exc, "step", 0), getattr(exc, "time", float(t[0]))))
         return
     i = filled = 0
     try:
@@ -565,7 +583,7 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
                 source.advance(rows[filled:], i, c)
             except StepError as exc:
                 count[0] = filled + max(0, exc.step - i)
-                conn.send(("fail", type(exc).__name__, str(exc), exc.step, exc.time))
+                conn.send(("fail", str(exc), exc.step, exc.time))
                 return
             filled += c
             i += c
@@ -580,40 +598,40 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
         source.close()
 
 
-def _produce_isolated(source: Source, t: np.ndarray, U: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
-    """Like :func:`_produce_inprocess`, with the source running in a spawned child process."""
+def _produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+    """Like :func:`_produce_inprocess`, with the source in a spawned child process.
+
+    The child writes samples into shared memory and publishes how many rows are valid, so when it
+    dies (a crashing binary) the samples it finished are still taken over.
+    """
     k, width = len(t), source.width
-    cap = _block_rows(width, k)
+    cap = sink.block
     shm = shared_memory.SharedMemory(create=True, size=_HEADER + 8 * cap * max(width, 1))
-    ctx = mp.get_context("spawn")
-    here, there = ctx.Pipe()
-    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     count[0] = 0
+    ctx = mp.get_context("spawn")
+    here, there = ctx.Pipe()
+    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
     i0 = 0
     try:
         proc.start()
         there.close()
         while True:
             message = _receive(here, proc)
-            if message is None:  # the child died
-                valid = int(count[0])
-                if valid:
-                    yield rows[:valid], i0
+            valid = int(count[0]) if message is None or message[0] == "fail" else message[1] if message[0] == "block" else 0
+            if valid:
+                sink.rows(i0, valid)[:] = rows[:valid]
+                yield i0, valid
+            if message is None:  # the child died without a word
                 i = i0 + valid
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
-            if message[0] == "block":
-                yield rows[:message[1]], i0
-                i0 += message[1]
-                here.send("ack")
-            elif message[0] == "done":
+            if message[0] == "fail":
+                raise StepError(message[1], message[2], message[3])
+            if message[0] == "done":
                 return
-            else:  # ("fail", class name, text, step, time)
-                valid = int(count[0])
-                if valid:
-                    yield rows[:valid], i0
-                raise StepError(message[2], message[3], message[4])
+            i0 += valid
+            here.send("ack")
     finally:
         if proc.is_alive():
             proc.kill()
@@ -647,10 +665,8 @@ def _crash_text(source: Source, exitcode: int | None, i: int, t: np.ndarray) -> 
             how = f"signal {-exitcode}"
     else:
         how = f"exit code {exitcode}"
-    name = getattr(source, "path", None)
-    what = Path(name).name if name else type(source).__name__
     when = f"t={t[i - 1]:g} -> {t[i]:g}" if 0 < i < len(t) else f"t={t[min(i, len(t) - 1)]:g}"
-    return f"{what} crashed the simulation process ({how}) at step {i} ({when})"
+    return f"{_source_label(source)} crashed the simulation process ({how}) at step {i} ({when})"
 
 
 # =============================================================================================
@@ -659,11 +675,16 @@ def _crash_text(source: Source, exitcode: int | None, i: int, t: np.ndarray) -> 
 
 
 def _signal_spec(signal: Any) -> str:
-    for attr in ("spec", "text"):
-        value = getattr(signal, attr, None)
-        if isinstance(value, str):
-            return value
-    return repr(signal)
+    value = getattr(signal, "spec", None)
+    return value if isinstance(value, str) and value else repr(signal)
+
+
+def _first_bad_row(rows: np.ndarray) -> int | None:
+    """Index of the first row with a NaN/inf, or None (fast path: one sum over the block)."""
+    if math.isfinite(float(rows.sum())):
+        return None
+    bad = ~np.isfinite(rows).all(axis=1)
+    return int(np.argmax(bad)) if bad.any() else None
 
 
 def _record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
@@ -672,20 +693,19 @@ def _record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, q
     u = inputs_in_effect(signal, t, source.m)
     U = np.ascontiguousarray(u.T)
     sink = sink_factory(source, t, u)
-    producer = (_produce_isolated if isolate else _produce_inprocess)(source, t, U)
+    producer = (_produce_isolated if isolate else _produce_inprocess)(source, t, U, sink)
     failure: StepError | None = None
     started = _time.perf_counter()
     with Progress(len(t), "recording", quiet=quiet) as bar:
         try:
-            for rows, i0 in producer:
-                bad = ~np.isfinite(rows).all(axis=1)
-                if bad.any():
-                    first = int(np.argmax(bad))
-                    sink.write(rows[:first], i0)
+            for i0, count in producer:
+                first = _first_bad_row(sink.rows(i0, count)[:count])
+                if first is not None:
+                    sink.commit(i0, first)
                     i = i0 + first
                     raise StepError(f"{_source_label(source)} produced non-finite values at step {i} "
                                     f"(t={t[i]:g})", i, float(t[i]))
-                sink.write(rows, i0)
+                sink.commit(i0, count)
                 bar.update(sink.count)
         except StepError as exc:
             failure = exc
@@ -717,7 +737,7 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
         if any(sink.derived.values()) else "",
         "isolated": bool(isolate),
         "wall_seconds": round(seconds, 6),
-        "versions": tool_versions(),
+        "versions": _versions(),
     })
     attrs["created"] = attrs["versions"]["created"]
     if failure is not None:
@@ -725,9 +745,21 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
     return attrs
 
 
+@functools.lru_cache(maxsize=1)
+def _library_versions() -> tuple[tuple[str, str], ...]:
+    return tuple((k, v) for k, v in tool_versions().items() if k != "created")
+
+
+def _versions() -> dict[str, str]:
+    """Tool and library versions (looked up once per process) and the creation time (now)."""
+    versions = dict(_library_versions())
+    versions["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    return versions
+
+
 def _file_attrs(source: Source) -> dict[str, Any]:
     attrs = source.description()
-    attrs.update({"kind": FILE_KIND, "layout_version": LAYOUT_VERSION, "versions": tool_versions()})
+    attrs.update({"kind": FILE_KIND, "layout_version": LAYOUT_VERSION, "versions": _versions()})
     attrs["created"] = attrs["versions"]["created"]
     attrs["derived_xdot"] = bool(source.derived["xdot"])
     attrs["derived_xddot"] = bool(source.derived["xddot"])
@@ -989,21 +1021,25 @@ class Window:
 def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
     """Smallest frequency below which a fraction ``energy`` of the output's spectral energy lies.
 
+    The spectrum is that of the Hann-windowed, mean-free outputs (summed over outputs); the window
+    removes the leakage of cutting the response at both ends, which would otherwise put spurious
+    energy at high frequencies.
+
     Parameters
     ----------
     t : (k,) ndarray
         Uniform times.
     y : (p, k) ndarray
-        Output response (its mean over time is removed per output).
+        Output response.
     energy : float, default=0.999
 
     Returns
     -------
     float
-        Frequency in cycles per time unit.
+        Frequency in cycles per time unit (0 for a constant output).
     """
     y = np.atleast_2d(y)
-    r = y - y.mean(axis=1, keepdims=True)
+    r = (y - y.mean(axis=1, keepdims=True)) * np.hanning(y.shape[1])
     power = (np.abs(np.fft.rfft(r, axis=1)) ** 2).sum(axis=0)
     freqs = np.fft.rfftfreq(y.shape[1], d=float(t[1] - t[0]))
     total = power.sum()
@@ -1052,6 +1088,7 @@ def auto_window(
     pilot_dt: float | None = None,
     pilot_t_end: float | None = None,
     min_pilot_points: float = 8.0,
+    growth: float = 4.0,
     max_pilots: int = 8,
     max_steps: int = 400_000,
     isolate: bool = False,
@@ -1063,12 +1100,15 @@ def auto_window(
     ``points_per_period`` samples and the end time is when the vibrations have faded out:
 
     * ``f_max``: smallest frequency below which a fraction ``energy`` of the spectral energy of the
-      outputs lies (FFT of the pilot response, :func:`significant_frequency`);
+      outputs lies (Hann-windowed FFT of the pilot's free response, from when the input pulse has
+      died out to ``t_fade``, :func:`significant_frequency`);
     * ``t_fade``: the envelope ``max_{s >= t} ||y(s) - y_rest||_2`` stays below ``fade`` times its
       peak afterwards (:func:`fade_time`).
 
     A pilot is refined (step / 4) while ``f_max`` has fewer than ``min_pilot_points`` samples per
-    period, and extended (end time x 2) until ``t_fade`` lies in its first half.
+    period, and extended (same step, so that the input pulse stays resolved) until ``t_fade`` lies
+    in its first half: to twice the fade-out time extrapolated from the envelope's exponential decay,
+    at least doubled and at most ``growth**2`` times longer.
 
     Parameters
     ----------
@@ -1081,6 +1121,8 @@ def auto_window(
     pilot_dt, pilot_t_end : float, optional
         First pilot grid; default: the FMU's default experiment, else ``t_end=100``, ``dt=t_end/1000``.
     min_pilot_points : float, default=8
+    growth : float, default=4
+        Without a decaying envelope a pilot is extended ``growth`` times; never more than ``growth**2``.
     max_pilots : int, default=8
     max_steps : int, default=400000
         Largest pilot run.
@@ -1109,15 +1151,17 @@ def auto_window(
         run, failure = _record_run(source, signal, t, _MemorySink, quiet, isolate)
         if failure is not None:
             raise _incomplete_error(failure, run, None)
-        y = run.y
-        f_max = significant_frequency(t, y, energy)
-        t_fade, peak = fade_time(t, y, fade)
+        t_fade, peak = fade_time(t, run.y, fade)
+        free = _free_response(t, run.u)
+        faded = int(np.searchsorted(t, t_fade, side="right")) if math.isfinite(t_fade) else len(t)
+        segment = slice(free, faded) if faded - free >= 16 else slice(0, len(t))
+        f_max = significant_frequency(t[segment], run.y[:, segment], energy)
         if peak == 0.0:
             raise DataError("the outputs do not respond to the input; use an impulse-like input that excites the system")
         if f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
         elif not t_fade <= t[0] + 0.5 * (T - t[0]):
-            T = t[0] + 2.0 * (T - t[0])
+            T = t[0] + _next_length(t, run.y, fade, growth)
         else:
             f_use = max(f_max, 1.0 / max(t_fade - t[0], dt))
             step = _nice_floor(1.0 / (points_per_period * f_use))
@@ -1126,6 +1170,38 @@ def auto_window(
                           pilot_t_end=T, pilots=pilot, points_per_period=points_per_period, energy=energy, fade=fade)
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
                     f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end")
+
+
+def _next_length(t: np.ndarray, y: np.ndarray, fade: float, growth: float) -> float:
+    """Length of the next pilot: twice the fade-out time extrapolated from the exponential decay of
+    the envelope over the second half of this pilot, between 2 and ``growth**2`` times this length."""
+    length = float(t[-1] - t[0])
+    y = np.atleast_2d(y)
+    rest = y[:, -max(1, y.shape[1] // 20):].mean(axis=1, keepdims=True)
+    e = np.linalg.norm(y - rest, axis=0)
+    envelope = np.maximum.accumulate(e[::-1])[::-1]
+    half = slice(len(t) // 2, len(t) - max(1, len(t) // 20))
+    tt, ee = t[half], envelope[half]
+    keep = ee > 0
+    if keep.sum() < 8 or e.max() == 0:
+        return growth * length
+    slope, intercept = np.polyfit(tt[keep], np.log(ee[keep]), 1)
+    if slope >= 0:
+        return growth * length
+    t_fade = (math.log(fade * e.max()) - intercept) / slope
+    return float(min(max(2.0 * (t_fade - t[0]), 2.0 * length), growth**2 * length))
+
+
+def _free_response(t: np.ndarray, u: np.ndarray) -> int:
+    """Index from which the input has died out (below 1e-3 of its peak), so the output shows the
+    system's own vibrations; 0 if the input never dies out (then the whole pilot is analysed)."""
+    magnitude = np.abs(u).max(axis=0) if u.size else np.zeros(len(t))
+    top = magnitude.max() if magnitude.size else 0.0
+    active = np.nonzero(magnitude > 1e-3 * top)[0] if top > 0 else np.array([], dtype=int)
+    if active.size == 0:
+        return 0
+    start = int(active[-1]) + 1
+    return start if len(t) - start >= max(16, len(t) // 4) else 0
 
 
 def _pilot_start(source: Source, pilot_dt: float | None, pilot_t_end: float | None) -> tuple[float, float]:

@@ -27,6 +27,7 @@ import fnmatch  # noqa: F401  (documented pattern style; matching is implemented
 import os
 import re
 import shutil
+import weakref
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -608,17 +609,10 @@ class FMUSource(Source):
             raise
 
     def _open_binary(self) -> None:
-        from fmpy import extract
-
-        if self.path.is_dir():
-            self._unzipdir = None
-            unzipdir = str(self.path)
-        else:
-            unzipdir = self._unzipdir = extract(str(self.path))
         cls, kwargs = self._fmpy_class()
         try:
-            self._fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir, modelIdentifier=self.model_identifier,
-                            instanceName="fmu_opinf")
+            self._fmu = cls(guid=self.md.guid, unzipDirectory=self._extracted(),
+                            modelIdentifier=self.model_identifier, instanceName="fmu_opinf")
         except Exception as exc:
             raise FMUError(f"cannot load the binary of {self.path.name}: {str(exc).splitlines()[0]}") from None
         self._log: list[str] = []
@@ -626,7 +620,19 @@ class FMUSource(Source):
         try:
             self._instantiate(**kwargs)
         except Exception as exc:
+            self._fmu = None
             raise FMUError(f"{self.path.name} failed to instantiate ({self._last_log() or exc})") from None
+
+    def _extracted(self) -> str:
+        """The unpacked FMU, extracted once per source object and removed with it."""
+        if self.path.is_dir():
+            return str(self.path)
+        if self._unzipdir is None:
+            from fmpy import extract
+
+            self._unzipdir = str(extract(str(self.path)))
+            weakref.finalize(self, shutil.rmtree, self._unzipdir, True)
+        return self._unzipdir
 
     def _fmpy_class(self) -> tuple[type, dict[str, Any]]:
         if self.fmi_version.startswith("2"):
@@ -777,13 +783,13 @@ class FMUSource(Source):
         out_vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
         rbase, rstride = rows.ctypes.data, rows.strides[0]
         ubase, ustride = self._U.ctypes.data, self._U.strides[0]
-        t = self._t_list
+        t, h, changed = self._t_list, self._h_list, self._changed
         for j in range(count):
             i = i0 + j
             if i:
-                if m and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
+                if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-                if c_step(comp, t[i - 1], t[i] - t[i - 1], 1) > 1:
+                if c_step(comp, t[i - 1], h[i], 1) > 1:
                     raise StepError(self._fail_text("in fmi2DoStep", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
                 raise StepError(self._fail_text("in fmi2GetReal", i), i, t[i])
@@ -795,20 +801,28 @@ class FMUSource(Source):
         rbase, rstride = rows.ctypes.data, rows.strides[0]
         ubase, ustride = self._U.ctypes.data, self._U.strides[0]
         f = self._flags.ctypes.data
-        t = self._t_list
+        t, h, changed = self._t_list, self._h_list, self._changed
         for j in range(count):
             i = i0 + j
             if i:
-                if m and c_set(comp, in_vr, m, ubase + i * ustride, m) > 1:
+                if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride, m) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-                if c_step(comp, t[i - 1], t[i] - t[i - 1], True, f, f + 1, f + 2, f + 8) > 1:
+                if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride, nv) > 1:
                 raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
 
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
-        self._t_list = [float(v) for v in self._t]
+        self._t_list = self._t.tolist()
+        self._h_list = [0.0] + np.diff(self._t).tolist()
+        # inputs keep their values between steps: set them only when they change
+        changed = np.ones(len(self._t), dtype=bool)
+        if self.m:
+            changed[1:] = np.any(self._U[1:] != self._U[:-1], axis=1)
+        else:
+            changed[:] = False
+        self._changed = changed.tolist()
 
     def close(self) -> None:
         fmu, self._fmu = self._fmu, None
@@ -821,9 +835,6 @@ class FMUSource(Source):
                 fmu.freeInstance()
             except Exception:
                 pass
-        if self._unzipdir:
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-            self._unzipdir = None
 
 
 # ---------------------------------------------------------------------------------------------

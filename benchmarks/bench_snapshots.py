@@ -1,0 +1,115 @@
+"""Benchmark: cost of recording all x, v, a (+ y) of the 600-mass FMU against the FMU's own doStep.
+
+Measures, per communication step (best of ``--repeats`` runs, so that noise from other processes on a
+shared machine only ever makes the figures worse):
+
+* ``doStep``        the bare ``fmi2DoStep`` loop through ctypes (the FMU's own work);
+* ``record``        :func:`fmu_opinf.snapshots.record` in memory: set input + doStep + one
+                    ``fmi2GetReal`` of all 3n + p values per step, finite check, assembling the run;
+* ``record (h5)``   the same, streamed chunk by chunk into a compressed HDF5 file;
+* ``record (iso)``  the same in a child process (the command line's default; includes process start);
+* ``simulate_fmu``  ``fmpy.simulate_fmu`` with the same step, input and output variables.
+
+Run: ``python benchmarks/bench_snapshots.py [--g 600] [--t-end 2000] [--dt 0.5] [--repeats 5]``.
+Exit status 1 if recording costs more than 1.5 times the doStep loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def best_of(repeats: int, func) -> float:
+    """Smallest wall time of ``repeats`` calls."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        func()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def dostep_loop(source, t: np.ndarray, U: np.ndarray) -> float:
+    """Time of the bare doStep loop (inputs set once before; the FMU's own stepping cost)."""
+    source.start(t, U)
+    try:
+        step, comp, times = source._c_step, source._comp, [float(v) for v in t]
+        h = times[1] - times[0]
+        start = time.perf_counter()
+        for i in range(1, len(times)):
+            step(comp, times[i - 1], h, 1)
+        return time.perf_counter() - start
+    finally:
+        source.close()
+
+
+def run_simulate_fmu(path: Path, names: list[str], signal, dt: float, t_end: float) -> None:
+    """fmpy's own driver with the same outputs (input given as a table at the grid points)."""
+    import fmpy
+
+    t = np.arange(0.0, t_end + dt / 2, dt)
+    table = np.zeros(len(t), dtype=[("time", np.float64), ("u", np.float64)])
+    table["time"] = t
+    table["u"] = signal.sample(t)[0]
+    fmpy.simulate_fmu(str(path), start_time=0.0, stop_time=t_end, step_size=dt, output_interval=dt,
+                      input=table, output=names, fmi_type="CoSimulation", validate=False)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--g", type=int, default=600, help="masses of the anchored chain (n = g)")
+    parser.add_argument("--dt", type=float, default=0.5)
+    parser.add_argument("--t-end", type=float, default=2000.0)
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--fmu", help="use this FMU instead of building AnchoredMSD")
+    args = parser.parse_args(argv)
+
+    from fmu_opinf import fmus, signals, snapshots
+    from fmu_opinf.source import FMUSource
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.fmu:
+            path = Path(args.fmu)
+        elif args.g == 600:
+            path = fmus.bundled_fmu("AnchoredMSD")
+        else:
+            path = fmus.build_fmus(tmp, models=("AnchoredMSD",), g=args.g)[0]
+        source = FMUSource(path)
+        signal = signals.parse_signal("impulse:amplitude=100,t0=2,width=0.5")
+        t = snapshots.time_grid(args.dt, args.t_end)
+        U = np.ascontiguousarray(snapshots.inputs_in_effect(signal, t, source.m).T)
+        steps = len(t) - 1
+        names = source.position_names + source.velocity_names + source.acceleration_names + source.output_names
+
+        dostep = min(dostep_loop(source, t, U) for _ in range(args.repeats))
+        record = best_of(args.repeats, lambda: snapshots.record(source, signal, args.dt, args.t_end, quiet=True))
+        h5file = Path(tmp) / "bench.h5"
+        streamed = best_of(args.repeats, lambda: snapshots.record(
+            source, signal, args.dt, args.t_end, path=h5file, quiet=True, overwrite=True, stream=True).close())
+        isolated = best_of(max(1, args.repeats // 2), lambda: snapshots.record(
+            source, signal, args.dt, args.t_end, quiet=True, isolate=True))
+        fmpy_time = best_of(max(1, args.repeats // 2),
+                            lambda: run_simulate_fmu(path, names, signal, args.dt, args.t_end))
+
+    us = 1e6 / steps
+    print(f"FMU {path.name}: n={source.n}, {len(names)} recorded values per step, {steps} steps "
+          f"(dt={args.dt:g}, t_end={args.t_end:g}); best of {args.repeats}")
+    rows = [("doStep loop only", dostep), ("record, in memory", record), ("record, streamed to HDF5", streamed),
+            ("record, isolated child process", isolated), ("fmpy.simulate_fmu, same outputs", fmpy_time)]
+    for label, seconds in rows:
+        print(f"  {label:34s} {seconds:8.3f} s  {seconds * us:8.1f} us/step  {seconds / dostep:6.2f} x doStep")
+    ratio = record / dostep
+    print(f"recording (in memory) / doStep = {ratio:.2f} (target <= 1.5); "
+          f"recording overhead = {(record - dostep) / dostep:.2f} x doStep; "
+          f"simulate_fmu / record = {fmpy_time / record:.1f}")
+    return 0 if ratio <= 1.5 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
