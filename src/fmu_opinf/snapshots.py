@@ -10,6 +10,7 @@ child process, so that a crashing FMU binary is reported as an error instead of 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import functools
@@ -210,7 +211,7 @@ class Snapshots:
         Path
         """
         path = Path(path)
-        with atomic_h5(path, overwrite=overwrite) as f:
+        with _atomic(path, overwrite) as f:
             _write_file_attrs(f, self.attrs)
             runs = f.create_group("runs")
             for index, run in enumerate(self.runs):
@@ -245,6 +246,7 @@ class Snapshots:
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "Snapshots":
         attrs = _decode(read_attrs(f))
+        attrs.pop("n_runs", None)  # structural: len(runs)
         if attrs.get("kind") != FILE_KIND or "layout_version" not in attrs:
             raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (no kind/layout_version attributes)")
         if int(attrs["layout_version"]) > LAYOUT_VERSION:
@@ -289,6 +291,15 @@ def _short(value: Any) -> str:
 # =============================================================================================
 # HDF5 helpers
 # =============================================================================================
+
+
+@contextlib.contextmanager
+def _atomic(path: Path, overwrite: bool) -> Iterator[h5py.File]:
+    """:func:`atomic_h5` with an existing file reported as a one-line :class:`FileFormatError`."""
+    if path.exists() and not overwrite:
+        raise FileFormatError(f"{path} exists; pass overwrite=True (--force) to replace it")
+    with atomic_h5(path, overwrite=overwrite) as f:
+        yield f
 
 
 def _decode(attrs: dict[str, Any]) -> dict[str, Any]:
@@ -842,7 +853,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
     """Stream every signal's run into one new file; stop at the first failing run (kept, incomplete)."""
     failure: StepError | None = None
     summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window)
-    with atomic_h5(path, overwrite=overwrite) as f:
+    with _atomic(path, overwrite) as f:
         attrs = _file_attrs(source)
         if window is not None:
             attrs["auto_window"] = window.as_dict()
@@ -900,6 +911,7 @@ def record_to_file(
     inputs: str | None = None,
     outputs: str | None = None,
     constraint: str | None = None,
+    parameters: dict[str, float] | None = None,
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
@@ -926,6 +938,8 @@ def record_to_file(
         Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
     constraint : {"position", "velocity", "none", "unknown"}, optional
         Constraint kind of an FMU (stored for the later stages).
+    parameters : dict of str to float, optional
+        FMU start values set before initialization.
     points_per_period, energy, fade : float
         Thresholds of :func:`auto_window`.
     overwrite : bool, default=False
@@ -938,7 +952,7 @@ def record_to_file(
     RecordSummary
     """
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
-                         inputs=inputs, outputs=outputs, constraint=constraint)
+                         inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters)
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec)
     if not specs:
         raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training)")

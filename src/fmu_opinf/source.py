@@ -394,6 +394,31 @@ def _read_description(path: Path) -> Any:
         raise FMUError(f"{path}: cannot read modelDescription.xml ({first})") from None
 
 
+def _annotated_constraint(path: Path) -> str | None:
+    """Constraint kind declared by the exporter, if any.
+
+    Read from ``<VendorAnnotations><Tool name="fmu-opinf"><... constraint="position|velocity|none"/>``;
+    FMUs from other tools do not say, so the kind is then "unknown" unless the user gives it.
+    """
+    import xml.etree.ElementTree as ET
+
+    try:
+        if path.is_dir():
+            root = ET.parse(path / "modelDescription.xml").getroot()
+        else:
+            with zipfile.ZipFile(path) as zf:
+                root = ET.fromstring(zf.read("modelDescription.xml"))
+    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile):
+        return None
+    for tool in root.iter("Tool"):
+        if tool.get("name") == "fmu-opinf":
+            for element in tool.iter():
+                kind = element.get("constraint")
+                if kind in _CONSTRAINTS:
+                    return kind
+    return None
+
+
 def _binary_platform(fmi_version: str) -> str:
     import fmpy
 
@@ -482,8 +507,8 @@ class FMUSource(Source):
             "constraint": constraint,
             "parameters": dict(parameters) if parameters else None,
         }
-        self.constraint = _check_constraint(constraint, "unknown")
         md = _read_description(self.path)
+        self.constraint = _check_constraint(constraint, _annotated_constraint(self.path) or "unknown")
         self._check_interface(md)
         self.md = md
         self.fmi_version = str(md.fmiVersion)
@@ -564,7 +589,7 @@ class FMUSource(Source):
         causal = {v.name: v.causality for v in md.modelVariables}
         bad = [n for n in names if causal[n] not in ("input", "parameter")]
         if bad:
-            raise FMUError(f"{bad[0]} is a {causal[bad[0]]} variable of {self.path.name}, not an input; "
+            raise FMUError(f"{bad[0]} has causality {causal[bad[0]]!r} in {self.path.name}, not 'input'; "
                            "pass --inputs with input variables")
         return names
 

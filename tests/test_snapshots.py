@@ -1,0 +1,285 @@
+"""Tests of fmu_opinf.snapshots: recording, the HDF5 layout, failures that keep data, auto window."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from fmu_opinf import newmark, snapshots
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.errors import DimensionError, FileFormatError, FmuOpinfError, InputSpecError
+from fmu_opinf.snapshots import Snapshots, auto_window, newmark_rates, record, record_to_file, time_grid
+from fmu_opinf.source import BuiltinSource, FMUSource, StepError
+from test_source import TOY_D, TOY_K, SignalStub, toys  # noqa: F401  (toys is a fixture)
+
+ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
+
+
+def relative(a, b) -> float:
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.abs(a - b).max() / max(np.abs(b).max(), np.finfo(float).tiny))
+
+
+@pytest.fixture(scope="module")
+def bundled():
+    """The benchmark FMUs (built with CMake on first use; skipped without build tools)."""
+    from fmu_opinf import fmus
+
+    if fmus.find_build_tools() is None and not all(
+            (fmus._c_sources_dir() / f"{name}.fmu").is_file() for name in fmus.BENCHMARK_MODELS):
+        pytest.skip("no CMake / C compiler to build the benchmark FMUs")
+    return {name: fmus.bundled_fmu(name) for name in fmus.BENCHMARK_MODELS}
+
+
+# ------------------------------------------------------------------------------- equality with the reference
+
+
+@pytest.mark.parametrize("model, builtin, dt, t_end", [
+    ("AnchoredMSD", "anchored-msd", 0.5, 100.0),
+    ("TripleChainMSD", "triple-chain", 0.1, 30.0),
+])
+def test_bundled_fmu_snapshots_equal_the_reference_simulator(bundled, model, builtin, dt, t_end):
+    spec = "impulse:amplitude=100,t0=2,width=0.5"
+    fmu_run = record(FMUSource(bundled[model]), spec, dt, t_end, quiet=True).runs[0]
+    builtin_source = BuiltinSource(builtin)
+    reference = newmark.simulate(builtin_source.system, spec, dt, t_end)
+    for name in ARRAYS:
+        assert getattr(fmu_run, name).shape == getattr(reference, name).shape
+        assert relative(getattr(fmu_run, name), getattr(reference, name)) <= 1e-10, name
+    builtin_run = record(builtin_source, spec, dt, t_end, quiet=True).runs[0]
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(builtin_run, name), getattr(reference, name))
+
+
+# ------------------------------------------------------------------------------- files
+
+
+def small_snapshots() -> Snapshots:
+    source = BuiltinSource("anchored-msd", g=12)
+    snaps = record(source, "impulse:amplitude=10,t0=1,width=0.5", 0.5, 30.0, quiet=True)
+    return snaps.append(record(source, "harmonic:amplitude=2,omega=0.3", 0.5, 20.0, quiet=True))
+
+
+def assert_same(a: Snapshots, b: Snapshots) -> None:
+    assert a.attrs == b.attrs
+    assert len(a.runs) == len(b.runs)
+    for ra, rb in zip(a.runs, b.runs):
+        assert ra.attrs == rb.attrs
+        for name in ARRAYS:
+            np.testing.assert_array_equal(np.asarray(getattr(ra, name)[()]), np.asarray(getattr(rb, name)[()]))
+
+
+def test_round_trip_keeps_arrays_and_attributes(tmp_path):
+    snaps = small_snapshots()
+    assert (snaps.n, snaps.m, snaps.p, len(snaps.runs)) == (12, 1, 3, 2)
+    assert [r.k for r in snaps.runs] == [61, 41]
+    path = snaps.save(tmp_path / "s.h5")
+    loaded = Snapshots.load(path)
+    assert_same(snaps, loaded)
+    assert loaded.attrs["constraint"] == "position" and loaded.attrs["layout_version"] == snapshots.LAYOUT_VERSION
+    assert loaded.runs[1].attrs["input_spec"] == parse_signal("harmonic:amplitude=2,omega=0.3").spec
+    assert loaded.runs[0].attrs["complete"] is True
+    assert loaded.runs[0].attrs["versions"]["fmu-opinf"] == snaps.runs[0].attrs["versions"]["fmu-opinf"]
+    with Snapshots.open(path) as lazy:
+        x = lazy.runs[0].x
+        assert isinstance(x, h5py.Dataset) and x.compression == "gzip" and x.chunks is not None
+        np.testing.assert_array_equal(x[:, 10:20], snaps.runs[0].x[:, 10:20])
+        np.testing.assert_array_equal(lazy.concatenate("x"), np.hstack([r.x for r in snaps.runs]))
+    assert not x.id.valid  # closed by the context manager
+
+
+def test_save_never_clobbers_and_overwrite_is_atomic(tmp_path):
+    snaps = small_snapshots()
+    path = snaps.save(tmp_path / "s.h5")
+    with pytest.raises(FileFormatError, match="exists; pass overwrite=True"):
+        snaps.save(path)
+    before = path.read_bytes()
+    source = BuiltinSource("anchored-msd", g=12)
+    with pytest.raises(DimensionError):  # fails inside the write: the old file must survive untouched
+        record_to_file(source, path, "impulse:amplitude=1,t0=1,width=0.5;step:amplitude=1", dt=0.5, t_end=5.0,
+                       overwrite=True, quiet=True)
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+def test_streamed_recording_equals_in_memory_recording(tmp_path):
+    source = BuiltinSource("anchored-msd", g=12)
+    spec = "impulse:amplitude=10,t0=1,width=0.5"
+    memory = record(source, spec, 0.5, 30.0, quiet=True)
+    with record(source, spec, 0.5, 30.0, path=tmp_path / "s.h5", quiet=True, stream=True) as streamed:
+        assert isinstance(streamed.runs[0].x, h5py.Dataset)
+        for name in ARRAYS:
+            np.testing.assert_array_equal(getattr(streamed.runs[0], name)[()], getattr(memory.runs[0], name))
+        assert streamed.attrs["position_names"] == memory.attrs["position_names"]
+
+
+def test_merging_requires_the_same_system():
+    snaps = small_snapshots()
+    other = record(BuiltinSource("anchored-msd", g=10), "step:amplitude=1", 0.5, 5.0, quiet=True)
+    with pytest.raises(DimensionError, match="n differs"):
+        snaps.append(other)
+    assert len(snaps.runs) == 2
+
+
+@pytest.mark.parametrize("content", ["text", "foreign-h5", "newer"])
+def test_open_rejects_files_of_another_kind(tmp_path, content):
+    path = tmp_path / "f.h5"
+    if content == "text":
+        path.write_text("hello")
+    else:
+        with h5py.File(path, "w") as f:
+            if content == "newer":
+                f.attrs["kind"] = snapshots.FILE_KIND
+                f.attrs["layout_version"] = snapshots.LAYOUT_VERSION + 1
+    with pytest.raises(FileFormatError) as info:
+        Snapshots.load(path)
+    assert "\n" not in str(info.value)
+    with pytest.raises(FileFormatError, match="does not exist"):
+        Snapshots.open(tmp_path / "missing.h5")
+
+
+# ------------------------------------------------------------------------------- derived rates
+
+
+def test_newmark_rates_recover_velocities_of_newmark_data():
+    run = record(BuiltinSource("anchored-msd", g=12), "impulse:amplitude=10,t0=1,width=0.5", 0.5, 150.0,
+                 quiet=True).runs[0]
+    h = 0.5
+    v = newmark_rates(run.x, h)
+    trapezoid = run.x[:, 1:] - run.x[:, :-1] - h / 2 * (v[:, 1:] + v[:, :-1])
+    assert np.abs(trapezoid).max() <= 1e-13 * np.abs(run.x).max()
+    # the free alternating mode is fixed by least roughness: close to the true velocities
+    assert relative(v, run.xdot) < 1e-2
+
+
+def test_fmu_without_rates_gets_derived_rates_marked_in_the_file(toys, tmp_path):
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    full = record(FMUSource(toys["full"]), signal, 0.05, 20.0, quiet=True).runs[0]
+    derived = record(FMUSource(toys["positions-only"]), signal, 0.05, 20.0, path=tmp_path / "d.h5", quiet=True)
+    run, h = derived.runs[0], 0.05
+    np.testing.assert_array_equal(run.x, full.x)
+    x, v, a = run.x, run.xdot, run.xddot
+    newmark_x = x[:, 1:] - x[:, :-1] - h * v[:, :-1] - h * h / 4 * (a[:, :-1] + a[:, 1:])
+    newmark_v = v[:, 1:] - v[:, :-1] - h / 2 * (a[:, :-1] + a[:, 1:])
+    assert np.abs(newmark_x).max() <= 1e-12 * np.abs(x).max()
+    assert np.abs(newmark_v).max() <= 1e-12 * np.abs(v).max()
+    assert relative(v, full.xdot) < 1e-2
+    loaded = Snapshots.load(tmp_path / "d.h5")
+    assert loaded.runs[0].attrs["derived_xdot"] is True and loaded.runs[0].attrs["derived_xddot"] is True
+    assert loaded.attrs["velocity_names"] == [] and loaded.attrs["derived_xddot"] is True
+    with record(FMUSource(toys["positions-only"]), signal, 0.05, 20.0, path=tmp_path / "s.h5", quiet=True,
+                stream=True) as streamed:
+        np.testing.assert_allclose(streamed.runs[0].xddot[()], run.xddot, rtol=0, atol=1e-12 * np.abs(a).max())
+
+
+# ------------------------------------------------------------------------------- failures keep data
+
+
+@pytest.mark.parametrize("fault, text", [(1, "returned an error in fmi2DoStep at step 5 \\(t=0.4 -> 0.5\\)"),
+                                         (2, "produced non-finite values at step 5 \\(t=0.5\\)")])
+def test_error_mid_run_keeps_the_samples_so_far(toys, tmp_path, fault, text):
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    clean = record(FMUSource(toys["full"]), signal, 0.1, 3.0, quiet=True).runs[0]
+    failing = FMUSource(toys["full"], parameters={"fault": fault, "fault_threshold": 0.5})
+    path = tmp_path / "partial.h5"
+    with pytest.raises(StepError, match=text) as info:
+        record(failing, signal, 0.1, 3.0, path=path, quiet=True)
+    assert "\n" not in str(info.value) and "the 5 samples before it are kept" in str(info.value)
+    kept = Snapshots.load(path)
+    run = kept.runs[0]
+    assert run.attrs["complete"] is False and run.k == 5 and run.attrs["k_planned"] == 31
+    assert "step 5" in run.attrs["error"]
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :5])
+
+
+def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):
+    """The toy dereferences NULL in doStep once its input exceeds the threshold (at step 40)."""
+    signal = SignalStub(amplitude=1.0, t0=3.95)
+    clean = record(FMUSource(toys["full"]), signal, 0.1, 6.0, quiet=True).runs[0]
+    path = tmp_path / "crash.h5"
+    with pytest.raises(StepError, match="crashed the simulation process \\(signal SIGSEGV\\) at step") as info:
+        record_to_file(str(toys["full"]), path, [signal.spec], dt=0.1, t_end=6.0, quiet=True, isolate=True,
+                       parameters={"fault": 3, "fault_threshold": 0.5})
+    assert isinstance(info.value, FmuOpinfError) and "\n" not in str(info.value)
+    run = Snapshots.load(path).runs[0]
+    assert run.attrs["complete"] is False and run.attrs["isolated"] is True
+    assert 40 - 8 <= run.k <= 40  # samples are published to the parent every 8 steps
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :run.k])
+
+
+def test_isolated_recording_equals_in_process_recording(toys):
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    inproc = record(FMUSource(toys["fmi3"]), signal, 0.01, 3.0, quiet=True).runs[0]
+    child = record(FMUSource(toys["fmi3"]), signal, 0.01, 3.0, quiet=True, isolate=True).runs[0]
+    assert child.attrs["isolated"] is True and child.k == 301
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(child, name), getattr(inproc, name))
+
+
+# ------------------------------------------------------------------------------- command-line entry, auto window
+
+
+def test_record_to_file_writes_one_run_per_input_with_provenance(toys, tmp_path):
+    summary = record_to_file(str(toys["full"]), tmp_path / "two.h5",
+                             ["step:amplitude=1,t0=0.35", "harmonic:amplitude=1,omega=2"], dt=0.1, t_end=2.0,
+                             constraint="none", quiet=True, isolate=False)
+    assert [k for k, _, _ in summary.runs] == [21, 21] and "2 run(s)" in str(summary)
+    snaps = Snapshots.load(tmp_path / "two.h5")
+    assert snaps.attrs["constraint"] == "none" and snaps.attrs["fmi_version"] == "2.0"
+    assert snaps.attrs["fmu_guid"] == "{toy-0001}" and len(snaps.attrs["fmu_sha256"]) == 64
+    assert snaps.attrs["input_names"] == ["u"] and snaps.attrs["output_names"] == ["y[1]", "y[2]"]
+    assert [r.attrs["input_spec"] for r in snaps.runs] == [parse_signal("step:amplitude=1,t0=0.35").spec,
+                                                           parse_signal("harmonic:amplitude=1,omega=2").spec]
+    assert all(r.complete and r.attrs["dt"] == 0.1 and r.attrs["t_end"] == 2.0 for r in snaps.runs)
+    np.testing.assert_allclose(snaps.runs[1].u[0, 1:], np.sin(2.0 * snaps.runs[1].t[:-1]), rtol=0, atol=1e-15)
+
+
+def test_record_to_file_without_a_window_says_what_to_pass(tmp_path):
+    with pytest.raises(InputSpecError, match="no --dt and --t-end given.*--auto-window"):
+        record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "step:amplitude=1", quiet=True)
+
+
+def test_auto_window_resolves_the_response_and_waits_for_the_fade_out(bundled, tmp_path):
+    spec = "impulse:amplitude=100,t0=2,width=0.5"
+    source = FMUSource(bundled["AnchoredMSD"])
+    window = auto_window(source, spec)
+    assert window.dt * window.f_max * window.points_per_period <= 1.0
+    assert window.t_end >= window.t_fade and window.t_end - window.t_fade < window.dt
+    # check against a long run: after t_end the output stays below fade x its peak
+    long_run = record(source, spec, window.dt, 4 * window.t_end, quiet=True).runs[0]
+    e = np.linalg.norm(long_run.y, axis=0)
+    assert e[long_run.t > window.t_end].max() <= window.fade * e.max() * 1.05
+    assert e[long_run.t > 0.5 * window.t_end].max() > window.fade * e.max()  # ... and not much earlier
+    summary = record_to_file(source, tmp_path / "auto.h5", spec, auto_window=True, quiet=True)
+    stored = Snapshots.load(tmp_path / "auto.h5")
+    assert stored.attrs["auto_window"] == window.as_dict() == stored.runs[0].attrs["auto_window"]
+    assert stored.runs[0].attrs["dt"] == window.dt and summary.window == window
+
+
+def test_auto_window_rejects_bad_thresholds():
+    source = BuiltinSource("anchored-msd", g=12)
+    for kwargs, text in (({"energy": 1.0}, "energy=1.0 must lie strictly between"),
+                         ({"fade": 0.0}, "fade=0.0 must lie strictly between"),
+                         ({"points_per_period": 1}, "at least 2")):
+        with pytest.raises(InputSpecError, match=text):
+            auto_window(source, "impulse:amplitude=1", **kwargs)
+
+
+def test_time_grid_and_inputs_in_effect():
+    t = time_grid(0.25, 1.0)
+    np.testing.assert_array_equal(t, [0.0, 0.25, 0.5, 0.75, 1.0])
+    u = snapshots.inputs_in_effect(SignalStub(amplitude=2.0, t0=0.5), t, 1)
+    np.testing.assert_array_equal(u, [[0.0, 0.0, 0.0, 2.0, 2.0]])  # u[:, i] = u(t_{i-1})
+    for dt, t_end, text in ((0.0, 1.0, "must be positive"), (2.0, 1.0, "longer than the time window"),
+                            (0.1, -1.0, "after the start time")):
+        with pytest.raises(InputSpecError, match=text):
+            time_grid(dt, t_end)
+
+
+def test_recording_is_silent_when_quiet_or_not_a_terminal(capsys):
+    record(BuiltinSource("anchored-msd", g=12), "step:amplitude=1", 0.5, 10.0, quiet=False)
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err == ""
