@@ -48,8 +48,8 @@ BENCHMARK_MODELS = ("AnchoredMSD", "TripleChainMSD")
 EXPOSE_STATES_LIMIT = 20_000
 
 _FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-_GLUE_SOURCES = ("src/fmi2Functions.c", "src/newmark.c")
-_GLUE_HEADERS = ("include/model.h", "include/newmark.h")
+_GLUE_SOURCES = ("src/fmi2Functions.c", "src/instance.c", "src/newmark.c")
+_GLUE_HEADERS = ("include/model.h", "include/newmark.h", "include/instance.h")
 _GUID_PLACEHOLDER = "@GUID@"
 _GUID_NAMESPACE = uuid.UUID("5f0c2b52-8f7e-4a43-9d55-2f1f3c6c8a10")
 _CONSTRAINT_CODES = {None: 0, "position": 1, "velocity": 2}
