@@ -46,11 +46,11 @@ __all__ = [
     "project",
     "read_columns",
     "snapshot_attrs",
-    "DEFAULT_ENERGY_TAIL",
+    "DEFAULT_ENERGY",
 ]
 
-#: Default saturation criterion: the order is the smallest ``r`` with ``1 - E_r <= DEFAULT_ENERGY_TAIL``.
-DEFAULT_ENERGY_TAIL = 1e-6
+#: Default saturation threshold: the order is the smallest ``r`` with ``E_r >= DEFAULT_ENERGY`` (eq. 18).
+DEFAULT_ENERGY = 0.99
 
 _KINDS = {"positions": "x", "velocities": "xdot"}
 
@@ -212,27 +212,33 @@ def cumulative_energy(sigma: np.ndarray) -> np.ndarray:
     return np.cumsum(sigma) / total
 
 
-def energy_order(sigma: np.ndarray, tail: float = DEFAULT_ENERGY_TAIL) -> int:
+def energy_order(sigma: np.ndarray, energy: float = DEFAULT_ENERGY) -> int:
     """Reduced order at the saturation point of the cumulative energy (eq. 18).
 
-    The saturation point is the smallest ``r`` whose neglected energy is at most ``tail``:
-    ``1 - E_r <= tail``.  The neglected energy is computed as ``sum_{j>r} sigma_j / sum_j sigma_j``
-    (not as ``1 - E_r``) so that tails far below machine precision are resolved.
+    The saturation point is the smallest ``r`` with ``E_r >= energy``.  The test is made on the neglected
+    energy ``sum_{j>r} sigma_j / sum_j sigma_j <= 1 - energy`` so that thresholds very close to 1 are resolved.
+
+    The paper reads the saturation point off the plotted curve (r = 5 for the anchored chain, r = 35 for the
+    triple chain).  On this project's reference data those orders sit at ``E_5 ~ 0.977`` (anchored chain) and
+    ``E_35 ~ 0.950`` (triple chain, whose singular values decay much more slowly than in the paper's Fig. 4a),
+    so no single threshold reproduces both; the default 0.99 is a little more conservative than either
+    (``r = 6`` for the anchored chain).  Pass ``r`` explicitly to reproduce the paper's orders.
 
     Parameters
     ----------
     sigma : (N,) ndarray
         Singular values, non-increasing.
-    tail : float, default=DEFAULT_ENERGY_TAIL
-        Admissible neglected energy, ``0 < tail < 1``.
+    energy : float, default=DEFAULT_ENERGY
+        Threshold ``0 < energy < 1``.
 
     Returns
     -------
     int
         The order ``r >= 1``.
     """
-    if not 0 < tail < 1:
-        raise ValueError(f"energy tail {tail} must lie in (0, 1), e.g. 1e-6")
+    if not 0 < energy < 1:
+        raise ValueError(f"energy threshold {energy} must lie in (0, 1), e.g. 0.99")
+    tail = 1.0 - energy
     sigma = np.asarray(sigma, dtype=float)
     total = sigma.sum()
     if total <= 0:
@@ -336,9 +342,8 @@ class PODBasis:
     r : int, optional
         Reduced order.  If not given, it is chosen from the cumulative energy (eq. 18), see ``energy``.
     energy : float, optional
-        Neglected-energy threshold of the saturation criterion: ``r`` is the smallest order with
-        ``1 - E_r <= energy`` (:func:`energy_order`).  Default :data:`DEFAULT_ENERGY_TAIL` when ``r`` is None.
-        Mutually exclusive with ``r``.
+        Saturation threshold: ``r`` is the smallest order with ``E_r >= energy`` (:func:`energy_order`).
+        Default :data:`DEFAULT_ENERGY` when ``r`` is None.  Mutually exclusive with ``r``.
     kind : {"auto", "positions", "velocities"}, default="auto"
         Which snapshots span the basis; see the module docstring for ``"auto"``.
     max_memory : float, default=1e9
@@ -412,8 +417,8 @@ class PODBasis:
 
     def _order(self, sigma: np.ndarray, rank: int) -> int:
         if self.r is None:
-            tail = DEFAULT_ENERGY_TAIL if self.energy is None else self.energy
-            return min(energy_order(sigma, tail), rank)
+            threshold = DEFAULT_ENERGY if self.energy is None else self.energy
+            return min(energy_order(sigma, threshold), rank)
         r = int(self.r)
         if r < 1:
             raise DataError(f"r={r} is not a positive order; choose 1 <= r <= {rank}")

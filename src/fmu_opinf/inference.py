@@ -73,8 +73,8 @@ class OperatorFit:
     Br : (r, m) ndarray
         Reduced input matrix.
     info : dict
-        Solver report: ``method``, ``status``, ``setup_time``, ``solve_time``, ``iterations``, ``objective``,
-        ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``.
+        Solver report: ``method``, ``status``, ``setup_seconds``, ``solve_seconds``, ``total_seconds``,
+        ``iterations``, ``objective``, ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``.
     """
 
     Mr: np.ndarray
@@ -155,8 +155,8 @@ def _hessian(G: np.ndarray, r: int) -> np.ndarray:
     sym = _sym_index(r)
     rows = np.hstack([sym, sym + ns, sym + 2 * ns])  # (r, 3r): variable index of Ts[i, c]
     H = np.zeros((3 * ns, 3 * ns))
-    for i in range(r):
-        np.add.at(H, (rows[i][:, None], rows[i][None, :]), G)
+    for i in range(r):  # within one row the 3r indices are distinct, so fancy-index += is exact
+        H[np.ix_(rows[i], rows[i])] += G
     return H
 
 
@@ -223,8 +223,8 @@ def _run(problem: Any, t0: float, tol: float, verbose: bool) -> dict:
     return {
         "status": status,
         "solver": "CLARABEL",
-        "setup_time": total - solve,
-        "solve_time": solve,
+        "setup_seconds": total - solve,
+        "solve_seconds": solve,
         "iterations": stats.num_iters,
     }
 
@@ -331,7 +331,7 @@ def fit_operators(
     Mr, Dr, Kr, Br = Mr * common, Dr * common, Kr * common, Br * common
     info.update(_residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u))
     info.update(psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}))
-    info.update(total_time=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
+    info.update(total_seconds=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
     if info["Mr_eig_min"] <= 1e-12 * info["Mr_eig_max"]:
         warnings.warn("the learned reduced mass matrix is singular; choose a smaller r", FmuOpinfWarning, stacklevel=2)
     return OperatorFit(Mr, Dr, Kr, Br, info)
@@ -350,7 +350,7 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
             eig_min = [np.linalg.eigvalsh(a)[0] for a in mats]
             if eig_min[0] > 0 and min(eig_min[1:]) >= 0:
                 info = {"method": "lstsq-certified", "status": "optimal", "solver": "none (cone constraints inactive)",
-                        "setup_time": 0.0, "solve_time": time.perf_counter() - t0, "iterations": 0}
+                        "setup_seconds": 0.0, "solve_seconds": time.perf_counter() - t0, "iterations": 0}
                 return (*mats, info)
     w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose)
     info["method"] = "sdp"

@@ -1,0 +1,131 @@
+"""POD figures (paper Figs. 4 and 6): singular value decay of X and X', cumulative energy with the chosen r.
+
+Figures are drawn with matplotlib's Agg backend and written to files; nothing is shown on screen.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .basis import cumulative_energy, svdvals
+
+__all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures"]
+
+_LABELS = {"positions": r"$\sigma_i(X)$", "velocities": r"$\sigma_i(\dot X)$"}
+_ELABELS = {"positions": r"$E^i_{\mathrm{cum}}(X)$", "velocities": r"$E^i_{\mathrm{cum}}(\dot X)$"}
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: str | os.PathLike) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    _pyplot().close(fig)
+    return path
+
+
+def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
+    """Singular value decay on a log axis (Figs. 4a, 6a).
+
+    Parameters
+    ----------
+    sigmas : dict
+        ``{"positions": (N,) ndarray, "velocities": (N,) ndarray}`` (either may be missing).
+    path : str or PathLike
+        Image file to write (format from the suffix, e.g. ``.png``).
+    r : int, optional
+        Chosen order, marked by a vertical line.
+
+    Returns
+    -------
+    Path
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for kind, sigma in sigmas.items():
+        sigma = np.asarray(sigma, dtype=float)
+        positive = sigma > 0  # unresolved (streamed) values are 0: not drawable on a log axis
+        idx = np.arange(1, sigma.size + 1)
+        ax.semilogy(idx[positive], sigma[positive], "o", ms=3, fillstyle="none", label=_LABELS.get(kind, kind))
+    if r is not None:
+        ax.axvline(r, color="k", lw=0.8, ls="--")
+    ax.set_xlabel("i")
+    ax.set_ylabel(r"$\sigma_i$")
+    ax.set_title("singular value decay")
+    ax.legend()
+    return _save(fig, path)
+
+
+def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
+    """Cumulative energy ``E_i`` (eq. 18) with the chosen order marked (Figs. 4b, 6b).
+
+    Parameters
+    ----------
+    sigmas : dict
+        ``{"positions": (N,) ndarray, "velocities": (N,) ndarray}``.
+    path : str or PathLike
+        Image file to write.
+    r : int, optional
+        Chosen order (vertical line).
+
+    Returns
+    -------
+    Path
+    """
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for kind, sigma in sigmas.items():
+        energy = cumulative_energy(sigma)
+        ax.plot(np.arange(1, energy.size + 1), energy, "o", ms=3, fillstyle="none", label=_ELABELS.get(kind, kind))
+    if r is not None:
+        ax.axvline(r, color="k", lw=0.8, ls="--", label=f"r = {r}")
+    ax.set_xlabel("i")
+    ax.set_ylabel(r"$E_{\mathrm{cum}}$")
+    ax.set_ylim(0, 1.05)
+    ax.set_title("cumulative energy (eq. 18)")
+    ax.legend()
+    return _save(fig, path)
+
+
+def pod_figures(snapshots: Any, rom: Any, out_dir: str | os.PathLike, max_memory: float = 1e9) -> dict[str, Path]:
+    """Write both POD figures for a fitted ROM: ``singular_values.png`` and ``cumulative_energy.png``.
+
+    Parameters
+    ----------
+    snapshots : Snapshots, list of runs, or run
+        Training data (both X and X' are analysed, as in the paper).
+    rom : SecondOrderROM
+        The fitted model (its ``r`` is marked; its stored singular values are reused).
+    out_dir : str or PathLike
+        Directory (created if missing).
+    max_memory : float, default=1e9
+        Dense/streamed switch for the singular values, see :class:`fmu_opinf.basis.PODBasis`.
+
+    Returns
+    -------
+    dict
+        ``{"singular_values": Path, "cumulative_energy": Path}``.
+    """
+    out_dir = Path(out_dir)
+    sigmas = {}
+    for kind in ("positions", "velocities"):
+        if kind == rom.basis_kind and rom.singular_values is not None:
+            sigmas[kind] = rom.singular_values
+        else:
+            sigmas[kind] = svdvals(snapshots, kind, max_memory=max_memory)
+    return {
+        "singular_values": plot_singular_values(sigmas, out_dir / "singular_values.png", rom.r),
+        "cumulative_energy": plot_cumulative_energy(sigmas, out_dir / "cumulative_energy.png", rom.r),
+    }
