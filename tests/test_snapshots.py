@@ -96,7 +96,10 @@ def test_save_never_clobbers_and_overwrite_is_atomic(tmp_path):
         snaps.save(path)
     before = path.read_bytes()
     source = BuiltinSource("anchored-msd", g=12)
-    with pytest.raises(DimensionError):  # fails inside the write: the old file must survive untouched
+    with pytest.raises(InputSpecError, match="non-finite"):  # fails inside the write: the old file survives
+        record_to_file(source, path, ["step:amplitude=1", SignalStub(amplitude=float("nan"))], dt=0.5, t_end=5.0,
+                       overwrite=True, quiet=True)
+    with pytest.raises(DimensionError, match="2"):
         record_to_file(source, path, "impulse:amplitude=1,t0=1,width=0.5;step:amplitude=1", dt=0.5, t_end=5.0,
                        overwrite=True, quiet=True)
     assert path.read_bytes() == before

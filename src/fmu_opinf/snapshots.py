@@ -822,7 +822,7 @@ def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str
         and :class:`~fmu_opinf.source.StepError` is raised afterwards.
     """
     source = open_source(source)
-    signal = _as_signal(signal)
+    signal = _as_signal(signal, source.m)
     t = time_grid(dt, t_end, t0)
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
@@ -838,11 +838,12 @@ def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str
     return Snapshots.open(path)
 
 
-def _as_signal(signal: Any) -> Any:
+def _as_signal(signal: Any, m: int | None = None) -> Any:
+    """A signal object from a spec (one spec drives every one of the ``m`` inputs) or as is."""
     if isinstance(signal, str):
         from .signals import parse_signal
 
-        return parse_signal(signal)
+        return parse_signal(signal, m) if m else parse_signal(signal)
     if not hasattr(signal, "sample"):
         raise InputSpecError(f"input {signal!r} is neither a signal nor a signal specification")
     return signal
@@ -928,7 +929,8 @@ def record_to_file(
     output : str or path-like
         HDF5 file to create (atomically).
     input_spec : str or sequence of str
-        Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`); one run each.
+        Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`; a single-channel
+        spec drives every input) or signal objects; one run each.
     dt, t_end : float, optional
         Step and end time; default: from ``auto_window`` or the FMU's default experiment.
     auto_window : bool, default=False
@@ -956,7 +958,7 @@ def record_to_file(
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec)
     if not specs:
         raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training)")
-    signals = [_as_signal(s) for s in specs]
+    signals = [_as_signal(s, source.m) for s in specs]
     isolate = isolate and source.kind == "fmu"
     window = None
     if auto_window:
@@ -1149,7 +1151,7 @@ def auto_window(
     Window
     """
     source = open_source(source)
-    signal = _as_signal(signal)
+    signal = _as_signal(signal, source.m)
     for name, value, low, high in (("energy", energy, 0.0, 1.0), ("fade", fade, 0.0, 1.0)):
         if not low < value < high:
             raise InputSpecError(f"{name}={value} must lie strictly between {low:g} and {high:g}")
