@@ -301,3 +301,44 @@ def test_without_compiler_writes_sources_and_warns(rom, tmp_path, monkeypatch):
                for w in caught)
     names = zipfile.ZipFile(path).namelist()
     assert "sources/model.c" in names and not any(n.startswith("binaries/") for n in names)
+
+
+def test_saved_second_order_rom_exports_and_matches(rom, tmp_path):
+    """The project's SecondOrderROM, saved and exported from its file, matches its own simulate."""
+    rom_module = pytest.importorskip("fmu_opinf.rom")
+    real = rom_module.SecondOrderROM(
+        rom.Mr, rom.Dr, rom.Kr, rom.Br, rom.Cpr, rom.Cvr, basis=rom.basis, basis_kind="velocities",
+        input_names=["force"], output_names=["sum_x"], dt=rom.dt,
+        provenance={"snapshots": {"source": "/data/TripleChainMSD.fmu", "fmu_guid": "{feed-beef}",
+                                  "input_spec": TRAIN},
+                    "fit_date": "2026-11-21T06:00:00+00:00"})
+    saved = real.save(tmp_path / "rom.h5")
+    path = export.export_fmu(saved, tmp_path / "Saved.fmu", reconstruct=["x[5]"])
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    assert [v.name for v in md.modelVariables if v.causality in ("input", "output")] == \
+        ["force", "sum_x", "x[5]"]
+    for fact in ("TripleChainMSD.fmu", "{feed-beef}", TRAIN, "2026-11-21T06:00:00+00:00", "r=6"):
+        assert fact in md.description
+    signal = "chirp:amplitude=2,omega0=0.1,omega1=2,duration=20"
+    expected = real.simulate(signal, 0.05, 20.0)
+    folder = Path(extract(str(path), str(tmp_path / "saved")))
+    md_refs = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = [md_refs["sum_x"], md_refs["x[5]"]]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="saved")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    got = []
+    for i, t in enumerate(expected.t):
+        if i > 0:
+            fmu.setReal([md_refs["force"]], [float(expected.u[0, i])])
+            fmu.doStep(expected.t[i - 1], t - expected.t[i - 1])
+        got.append(fmu.getReal(outputs))
+    fmu.terminate()
+    fmu.freeInstance()
+    got = np.array(got).T
+    assert relative_error(got[0], expected.y[0]) < 1e-12
+    assert relative_error(got[1], rom.basis[4] @ expected.q) < 1e-12

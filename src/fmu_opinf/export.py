@@ -69,9 +69,12 @@ def _symmetric(matrix: np.ndarray, name: str) -> np.ndarray:
     return matrix
 
 
-def _check_definite(matrices: dict[str, np.ndarray], dt: float) -> None:
+def _check_definite(matrices: dict[str, np.ndarray], dt: float | None) -> None:
     M, D, K = matrices["Mr"], matrices["Dr"], matrices["Kr"]
-    for label, S in (("Mr", M), ("Mr + dt/2 Dr + dt^2/4 Kr", M + dt / 2 * D + dt * dt / 4 * K)):
+    checks = [("Mr", M)]
+    if dt is not None:
+        checks.append(("Mr + dt/2 Dr + dt^2/4 Kr", M + dt / 2 * D + dt * dt / 4 * K))
+    for label, S in checks:
         try:
             np.linalg.cholesky((S + S.T) / 2)
         except np.linalg.LinAlgError:
@@ -169,20 +172,32 @@ def _identifier(path: Path) -> str:
     return name if re.match(r"^[A-Za-z_]", name) else "ROM_" + name
 
 
+def _lookup(provenance: dict, keys: tuple[str, ...]) -> str:
+    """First non-empty value of any of ``keys``, searching nested dicts breadth-first."""
+    queue = [provenance]
+    while queue:
+        level = queue.pop(0)
+        for key in keys:
+            if level.get(key) not in (None, "", [], {}):
+                value = level[key]
+                return ", ".join(map(str, value)) if isinstance(value, (list, tuple)) else str(value)
+        queue.extend(value for value in level.values() if isinstance(value, dict))
+    return "unknown"
+
+
 def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     provenance = dict(getattr(rom, "provenance", None) or {})
 
     def pick(*keys: str) -> str:
-        for key in keys:
-            if provenance.get(key) not in (None, ""):
-                return str(provenance[key])
-        return "unknown"
+        return _lookup(provenance, keys)
 
+    dt = getattr(rom, "dt", None)
     text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis) "
-            f"learned by operator inference from {pick('source', 'source_path', 'fmu', 'path')} "
-            f"(GUID {pick('guid', 'source_guid', 'fmu_guid')}); training input "
-            f"{pick('training_input', 'signal', 'input', 'train_input')}; fitted "
-            f"{pick('fit_date', 'date', 'created')}; training step dt={float(rom.dt)!r}")
+            f"learned by operator inference from {pick('source', 'fmu_name', 'source_path')} "
+            f"(GUID {pick('fmu_guid', 'guid', 'source_guid')}); training input "
+            f"{pick('input_spec', 'training_input', 'signal')}; fitted "
+            f"{pick('fit_date', 'date', 'created')}; training step dt="
+            f"{'unknown' if dt is None else repr(float(dt))}")
     if reconstructed:
         text += f"; reconstructed positions {', '.join(reconstructed)}"
     return text
@@ -215,8 +230,8 @@ def rom_fmu_spec(rom: Any, identifier: str = "ROM",
         "Cpr": _matrix(rom, "Cpr", (p, r)),
         "Cvr": _matrix(rom, "Cvr", (p, r)),
     }
-    dt = float(rom.dt)
-    if not (np.isfinite(dt) and dt > 0):
+    dt = None if getattr(rom, "dt", None) is None else float(rom.dt)
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
     _check_definite(matrices, dt)
     names, rows = _reconstruction_rows(rom, reconstruct, r)
