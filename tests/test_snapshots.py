@@ -229,9 +229,10 @@ def test_record_to_file_writes_one_run_per_input_with_provenance(toys, tmp_path)
     summary = record_to_file(str(toys["full"]), tmp_path / "two.h5",
                              ["step:amplitude=1,t0=0.35", "harmonic:amplitude=1,omega=2"], dt=0.1, t_end=2.0,
                              constraint="none", quiet=True, isolate=False)
-    assert [k for k, _, _ in summary.runs] == [21, 21] and "2 run(s)" in str(summary)
+    assert [k for k, _, _ in summary.runs] == [21, 21] and "2 run(s)" in summary.describe()
+    assert str(summary) == str(tmp_path / "two.h5")
     snaps = Snapshots.load(tmp_path / "two.h5")
-    assert snaps.attrs["constraint"] == "none" and snaps.attrs["fmi_version"] == "2.0"
+    assert snaps.attrs["constraint"] == "none" and snaps.attrs["fmi_version"] == "2.0" and snaps.attrs["dt"] == 0.1
     assert snaps.attrs["fmu_guid"] == "{toy-0001}" and len(snaps.attrs["fmu_sha256"]) == 64
     assert snaps.attrs["input_names"] == ["u"] and snaps.attrs["output_names"] == ["y[1]", "y[2]"]
     assert [r.attrs["input_spec"] for r in snaps.runs] == [parse_signal("step:amplitude=1,t0=0.35").spec,

@@ -523,6 +523,11 @@ def test_bad_builtin_specs():
     _one_line_error(InputSpecError, open_source, "builtin:pendulum", match="unknown builtin system")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", positions="x[*]",
                     match="--positions applies to fmu sources")
+    _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", n1=10, match="bad option for builtin")
+
+
+def test_size_options_do_not_apply_to_fmus(toys):
+    _one_line_error(InputSpecError, open_source, str(toys["full"]), g=10, match="--g applies to builtin sources")
 
 
 def test_input_with_wrong_number_of_channels(toys):

@@ -827,7 +827,7 @@ def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
         run, failure = _record_run(source, signal, t, _MemorySink, quiet, isolate)
-        snaps = Snapshots([run], _file_attrs(source))
+        snaps = Snapshots([run], {**_file_attrs(source), "dt": float(t[1] - t[0])})
         if path is not None:
             snaps.save(path, overwrite=overwrite)
         if failure is not None:
@@ -856,6 +856,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
     summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window)
     with _atomic(path, overwrite) as f:
         attrs = _file_attrs(source)
+        attrs["dt"] = float(t[1] - t[0])
         if window is not None:
             attrs["auto_window"] = window.as_dict()
         _write_file_attrs(f, attrs)
@@ -881,7 +882,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
 
 @dataclasses.dataclass
 class RecordSummary:
-    """What :func:`record_to_file` wrote (printed by the command line)."""
+    """What :func:`record_to_file` wrote: ``str()`` is the file name, :meth:`describe` the details."""
 
     path: Path
     n: int
@@ -891,7 +892,14 @@ class RecordSummary:
     runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
 
     def __str__(self) -> str:
-        lines = [f"wrote {self.path}: n={self.n}, m={self.m}, p={self.p}, {len(self.runs)} run(s)"]
+        return str(self.path)
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def describe(self) -> str:
+        """Several lines: sizes, one line per run, the automatic window."""
+        lines = [f"{self.path}: n={self.n}, m={self.m}, p={self.p}, {len(self.runs)} run(s)"]
         for index, (k, complete, spec) in enumerate(self.runs):
             lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)"))
         if self.window is not None:
@@ -919,6 +927,7 @@ def record_to_file(
     overwrite: bool = False,
     quiet: bool = False,
     isolate: bool = True,
+    **size_options: Any,
 ) -> RecordSummary:
     """Command-line entry: record one run per input specification into ``output``.
 
@@ -948,13 +957,17 @@ def record_to_file(
     quiet : bool, default=False
     isolate : bool, default=True
         Run FMUs in a child process so that a crashing binary cannot take the data with it.
+    **size_options
+        Sizes of a builtin system (``g`` for anchored-msd; ``n1, alpha, beta, v`` for triple-chain).
 
     Returns
     -------
     RecordSummary
+        ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
-                         inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters)
+                         inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
+                         **size_options)
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec)
     if not specs:
         raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training)")

@@ -888,8 +888,14 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     text = os.fspath(spec)
     if text.startswith("builtin:"):
         name = text.split(":", 1)[1]
-        for key in ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters"):
+        for key in _FMU_OPTIONS:
             if key in options:
                 raise InputSpecError(f"--{key} applies to fmu sources, not to {text}")
         return BuiltinSource(name, **options)
+    unknown = sorted(set(options) - set(_FMU_OPTIONS))
+    if unknown:
+        raise InputSpecError(f"--{unknown[0]} applies to builtin sources, not to the fmu {text}")
     return FMUSource(text, **options)
+
+
+_FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters")
