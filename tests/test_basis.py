@@ -1,0 +1,151 @@
+"""POD basis: dense vs streamed Gram paths, order selection (eq. 18), kind resolution, bad data."""
+
+from types import SimpleNamespace
+
+import h5py
+import numpy as np
+import pytest
+import scipy.linalg
+
+from fmu_opinf.basis import PODBasis, cumulative_energy, energy_order, resolve_kind, svdvals
+from fmu_opinf.errors import DataError, DimensionError, NotFittedError
+
+
+def _low_rank_runs(rng, n, ks, rank=8, decay=0.5):
+    """Runs whose stacked x has exactly ``rank`` well separated singular values."""
+    modes = np.linalg.qr(rng.standard_normal((n, rank)))[0]
+    runs = []
+    for k in ks:
+        coeff = rng.standard_normal((rank, k)) * (decay ** np.arange(rank))[:, None]
+        x = modes @ coeff
+        runs.append(SimpleNamespace(t=np.arange(k, dtype=float), x=x, xdot=2.0 * x, attrs={}))
+    return runs
+
+
+def _max_angle(a, b):
+    return float(np.max(scipy.linalg.subspace_angles(a, b)))
+
+
+@pytest.mark.parametrize("n, ks", [(40, [150, 110]), (300, [30, 25])], ids=["correlation", "snapshots"])
+def test_streamed_equals_dense(rng, n, ks):
+    runs = _low_rank_runs(rng, n, ks)
+    dense = PODBasis(r=6, streamed=False).fit(runs)
+    streamed = PODBasis(r=6, streamed=True, chunk_size=17).fit(runs)
+    assert dense.method_ == "dense"
+    assert streamed.method_ == ("streamed-correlation" if n <= sum(ks) else "streamed-snapshots")
+    assert _max_angle(dense.basis_, streamed.basis_) < 1e-10
+    np.testing.assert_allclose(streamed.svdvals_[:8], dense.svdvals_[:8], rtol=1e-10)
+    assert streamed.rank_ == dense.rank_ == 8
+    assert np.allclose(streamed.basis_.T @ streamed.basis_, np.eye(6), atol=1e-12)
+
+
+def test_memory_limit_selects_streamed_path(rng):
+    runs = _low_rank_runs(rng, 30, [200])
+    assert PODBasis(r=3, max_memory=1e9).fit(runs).method_ == "dense"
+    assert PODBasis(r=3, max_memory=1e4).fit(runs).method_ == "streamed-correlation"
+
+
+def test_streamed_reads_h5py_datasets_in_chunks(tmp_path, rng):
+    runs = _low_rank_runs(rng, 300, [40])
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        f.create_dataset("x", data=runs[0].x)
+    with h5py.File(tmp_path / "x.h5", "r") as f:
+        lazy = SimpleNamespace(t=runs[0].t, x=f["x"], xdot=f["x"], attrs={})
+        pod = PODBasis(r=5, streamed=True, chunk_size=7).fit([lazy])
+        projected = pod.project(f["x"], chunk_size=3)
+    dense = PODBasis(r=5).fit(runs)
+    assert _max_angle(pod.basis_, dense.basis_) < 1e-10
+    np.testing.assert_allclose(projected, pod.basis_.T @ runs[0].x, atol=1e-12)
+
+
+def test_projection_chunked_matches_dense(rng):
+    runs = _low_rank_runs(rng, 25, [53])
+    pod = PODBasis(r=4).fit(runs)
+    np.testing.assert_allclose(pod.project(runs[0].x, chunk_size=5), pod.basis_.T @ runs[0].x, atol=1e-13)
+    q = pod.project(runs[0].x)
+    assert pod.reconstruct(q).shape == runs[0].x.shape
+
+
+def test_singular_values_of_position_and_velocity_snapshots(rng):
+    runs = _low_rank_runs(rng, 20, [60])
+    sx = svdvals(runs, "positions")
+    sv = svdvals(runs, "velocities")
+    np.testing.assert_allclose(sv, 2.0 * sx, rtol=1e-12, atol=1e-12 * sx[0])
+
+
+def test_cumulative_energy_and_order():
+    sigma = np.array([4.0, 3.0, 2.0, 1.0])
+    np.testing.assert_allclose(cumulative_energy(sigma), [0.4, 0.7, 0.9, 1.0])
+    assert energy_order(sigma, 0.7) == 2
+    assert energy_order(sigma, 0.71) == 3
+    assert energy_order(sigma, 0.95) == 4
+    with pytest.raises(ValueError, match="must lie in"):
+        energy_order(sigma, 1.0)
+
+
+def test_energy_threshold_resolves_tails_below_round_off():
+    sigma = np.array([1.0, 1e-13, 1e-20])
+    assert energy_order(sigma, 1 - 1e-12) == 1
+    assert energy_order(sigma, 1 - 1e-14) == 2
+
+
+def test_order_from_energy_is_capped_by_rank(rng):
+    runs = _low_rank_runs(rng, 30, [100], rank=3)
+    pod = PODBasis(energy=1 - 1e-15).fit(runs)
+    assert pod.r_ == pod.rank_ == 3
+
+
+def test_kind_resolution():
+    assert resolve_kind("auto", {"constraint": "velocity"}) == "velocities"
+    assert resolve_kind("auto", {"constraint": "position"}) == "positions"
+    assert resolve_kind("auto", {}) == "positions"  # black box: unknown constraint kind
+    assert resolve_kind("velocities", {"constraint": "position"}) == "velocities"
+    with pytest.raises(ValueError, match="not known"):
+        resolve_kind("modal")
+
+
+def test_auto_kind_follows_snapshot_metadata(rng):
+    runs = _low_rank_runs(rng, 20, [50])
+    snaps = SimpleNamespace(runs=runs, attrs={"constraint": "velocity"})
+    assert PODBasis(r=2).fit(snaps).kind_ == "velocities"
+
+
+def test_r_above_rank_is_rejected(rng):
+    runs = _low_rank_runs(rng, 30, [100], rank=5)
+    with pytest.raises(DataError, match=r"^r=9 exceeds the snapshot rank 5; choose r <= 5$"):
+        PODBasis(r=9).fit(runs)
+    with pytest.raises(DataError, match="r=9 exceeds the snapshot rank 5"):
+        PODBasis(r=9, streamed=True, chunk_size=13).fit(runs)
+
+
+def test_nan_snapshots_are_rejected(rng):
+    runs = _low_rank_runs(rng, 10, [30])
+    runs[0].x[3, 17] = np.nan
+    with pytest.raises(DataError, match="snapshot array x of run 0 has NaN/Inf at column 17"):
+        PODBasis(r=2).fit(runs)
+    with pytest.raises(DataError, match="at column 17"):
+        PODBasis(r=2, streamed=True, chunk_size=4).fit(runs)
+
+
+def test_inconsistent_runs_are_rejected(rng):
+    runs = _low_rank_runs(rng, 10, [30, 30])
+    runs[1].x = runs[1].x[:8]
+    with pytest.raises(DimensionError, match="runs disagree in the number of states"):
+        PODBasis(r=2).fit(runs)
+    short = _low_rank_runs(rng, 10, [30])
+    short[0].t = short[0].t[:20]
+    with pytest.raises(DimensionError, match="t has 20 entries"):
+        PODBasis(r=2).fit(short)
+
+
+def test_zero_data_and_no_runs_are_rejected():
+    zero = SimpleNamespace(t=np.arange(5.0), x=np.zeros((4, 5)), xdot=np.zeros((4, 5)))
+    with pytest.raises(DataError, match="all snapshots are zero"):
+        PODBasis().fit([zero])
+    with pytest.raises(DataError, match="no snapshot runs"):
+        PODBasis().fit([])
+
+
+def test_use_before_fit_is_an_error():
+    with pytest.raises(NotFittedError, match="not fitted"):
+        PODBasis().project(np.zeros((3, 3)))
