@@ -1,0 +1,161 @@
+"""Operator inference SDP (eq. 16) and output least squares (eq. 17)."""
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from fmu_opinf.errors import DataError, DimensionError, SolverError
+from fmu_opinf.inference import compressed_factor, fit_operators, fit_outputs
+
+
+def _spd(rng, r, shift):
+    a = rng.standard_normal((r, r))
+    return a @ a.T / r + shift * np.eye(r)
+
+
+def _exact_data(rng, r=6, m=2, k=400):
+    """Snapshots satisfying M a + D v + K x = B u exactly (random states, consistent accelerations)."""
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.1), _spd(rng, r, 2.0)
+    B = rng.standard_normal((r, m))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((m, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x)
+    return (M, D, K, B), (a, v, x, u)
+
+
+def _active_data(rng, r=5, k=300, noise=0.3):
+    """Noisy data of a system whose damping is singular: the cone-free fit is indefinite, PSD bounds bind."""
+    M, K = _spd(rng, r, 1.0), _spd(rng, r, 1.0)
+    w = rng.standard_normal((r, 1))
+    D = w @ w.T  # rank one: PSD with r-1 zero eigenvalues
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x) + noise * rng.standard_normal((r, k))
+    return a, v, x, u
+
+
+def _relative_to_scale(fit, truth):
+    scale = np.trace(fit.Mr) / np.trace(truth[0])
+    got = (fit.Mr, fit.Dr, fit.Kr, fit.Br)
+    return max(np.abs(g - scale * t).max() / np.abs(t).max() for g, t in zip(got, truth))
+
+
+@pytest.mark.parametrize("method", ["auto", "sdp"])
+@pytest.mark.parametrize("compressed", [True, False])
+def test_exact_data_recover_the_operators_up_to_scale(rng, method, compressed):
+    truth, data = _exact_data(rng)
+    fit = fit_operators(*data, method=method, compressed=compressed)
+    assert _relative_to_scale(fit, truth) < 1e-7
+    assert fit.info["status"] == "optimal"
+
+
+def test_auto_path_is_certified_or_falls_back(rng):
+    _, data = _exact_data(rng)
+    assert fit_operators(*data).info["method"] == "lstsq-certified"
+    assert fit_operators(*_active_data(rng)).info["method"] == "sdp"
+
+
+def test_learned_operators_are_symmetric_psd_when_constraints_bind(rng):
+    fit = fit_operators(*_active_data(rng), method="sdp")
+    for name in ("Mr", "Dr", "Kr"):
+        mat = getattr(fit, name)
+        eigs = np.linalg.eigvalsh(mat)
+        assert np.array_equal(mat, mat.T)
+        assert eigs[0] >= -1e-10 * eigs[-1]
+        assert fit.info[f"{name}_eig_min"] == pytest.approx(eigs[0], abs=1e-12 * eigs[-1])
+    assert fit.info["Dr_eig_min"] < 1e-6 * fit.info["Dr_eig_max"]  # a bound is active: the SDP did work
+
+
+def test_compressed_and_direct_formulations_agree_with_active_constraints(rng):
+    data = _active_data(rng)
+    small = fit_operators(*data, method="sdp", compressed=True)
+    full = fit_operators(*data, method="sdp", compressed=False)
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        a, b = getattr(small, name), getattr(full, name)
+        assert np.abs(a - b).max() < 1e-5 * np.abs(b).max()
+    assert small.info["objective"] == pytest.approx(full.info["objective"], rel=1e-7)
+
+
+def test_normalization_constant_only_scales_the_result(rng):
+    data = _active_data(rng)
+    one = fit_operators(*data, method="sdp", mass_trace=1.0)
+    big = fit_operators(*data, method="sdp", mass_trace=250.0)
+    assert np.trace(one.Mr) == pytest.approx(1.0) and np.trace(big.Mr) == pytest.approx(250.0)
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        np.testing.assert_allclose(250.0 * getattr(one, name), getattr(big, name), atol=1e-6 * np.abs(big.Kr).max())
+
+
+def test_fit_is_invariant_to_units_and_equivariant_to_rotations(rng):
+    """Changing data units (block scales) or rotating the reduced coordinates gives the same model."""
+    a, v, x, u = _active_data(rng)
+    base = fit_operators(a, v, x, u, method="sdp")
+    units = fit_operators(1e3 * a, 1e-2 * v, 5e-4 * x, 7.0 * u, method="sdp")
+    # same model in the new units: M' = M / 1e3 etc. up to the common scale fixed by trace(M') = r
+    c = np.trace(base.Mr) / np.trace(base.Mr / 1e3)
+    for new, old in ((units.Mr, base.Mr / 1e3), (units.Dr, base.Dr / 1e-2), (units.Kr, base.Kr / 5e-4),
+                     (units.Br, base.Br / 7.0)):
+        assert np.abs(new - c * old).max() < 1e-5 * np.abs(c * old).max()
+    Q = np.linalg.qr(rng.standard_normal((5, 5)))[0]
+    rotated = fit_operators(Q.T @ a, Q.T @ v, Q.T @ x, u, method="sdp")  # q = Q q'
+    for new, old in ((rotated.Mr, Q.T @ base.Mr @ Q), (rotated.Kr, Q.T @ base.Kr @ Q), (rotated.Br, Q.T @ base.Br)):
+        assert np.abs(new - old).max() < 1e-5 * np.abs(old).max()
+
+
+def test_compressed_factor_reproduces_the_gram_matrix(rng):
+    _, (a, v, x, u) = _exact_data(rng, r=3, m=1, k=50)
+    R, s = compressed_factor(a, v, x, u)
+    zs = np.vstack([u / s["u"], a / s["xddot"], v / s["xdot"], x / s["x"]])
+    assert R.shape == (10, 10) and np.allclose(np.tril(R, -1), 0)
+    np.testing.assert_allclose(R.T @ R, zs @ zs.T, atol=1e-10 * np.abs(zs @ zs.T).max())
+    R_few, _ = compressed_factor(a[:, :4], v[:, :4], x[:, :4], u[:, :4])  # k < 3r + m: zero-padded
+    assert R_few.shape == (10, 10)
+
+
+def test_solver_report_contents(rng):
+    fit = fit_operators(*_active_data(rng), method="sdp")
+    for key in ("status", "solver", "setup_seconds", "solve_seconds", "iterations", "relative_residual",
+                "Mr_eig_min", "Mr_eig_max", "Dr_eig_min", "Kr_eig_max"):
+        assert key in fit.info
+    assert fit.info["solver"] == "CLARABEL" and fit.info["solve_seconds"] > 0
+
+
+def test_solver_failure_raises_solver_error(rng, monkeypatch):
+    def broken(self, *args, **kwargs):
+        raise cp.error.SolverError("numerical trouble")
+
+    monkeypatch.setattr(cp.Problem, "solve", broken)
+    with pytest.raises(SolverError, match="clarabel failed on the operator-inference SDP"):
+        fit_operators(*_active_data(rng), method="sdp")
+
+
+def test_bad_status_raises_solver_error(rng, monkeypatch):
+    def infeasible(self, *args, **kwargs):
+        self._status = cp.INFEASIBLE
+
+    monkeypatch.setattr(cp.Problem, "solve", infeasible)
+    with pytest.raises(SolverError, match="status 'infeasible'"):
+        fit_operators(*_active_data(rng), method="sdp")
+
+
+def test_bad_data_is_rejected(rng):
+    _, (a, v, x, u) = _exact_data(rng, r=3, m=1, k=20)
+    bad = a.copy()
+    bad[1, 4] = np.nan
+    with pytest.raises(DataError, match="xddot_r contains NaN/Inf"):
+        fit_operators(bad, v, x, u)
+    with pytest.raises(DimensionError, match="xdot_r has shape"):
+        fit_operators(a, v[:, :10], x, u)
+    with pytest.raises(DimensionError, match="u has 10 columns"):
+        fit_operators(a, v, x, u[:, :10])
+    with pytest.raises(ValueError, match="method='qp' is not known"):
+        fit_operators(a, v, x, u, method="qp")
+
+
+def test_outputs_by_least_squares(rng):
+    r, p, k = 4, 3, 60
+    Cp, Cv = rng.standard_normal((p, r)), rng.standard_normal((p, r))
+    x, v = rng.standard_normal((r, k)), 1e-3 * rng.standard_normal((r, k))
+    Cpr, Cvr = fit_outputs(v, x, Cp @ x + Cv @ v)
+    np.testing.assert_allclose(Cpr, Cp, atol=1e-10)
+    np.testing.assert_allclose(Cvr, Cv, atol=1e-8)
+    with pytest.raises(DataError, match="y contains NaN"):
+        fit_outputs(v, x, np.full((p, k), np.nan))
