@@ -8,10 +8,10 @@ import pytest
 
 from fmu_opinf import newmark, snapshots
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.errors import DimensionError, FileFormatError, FmuOpinfError, InputSpecError
+from fmu_opinf.errors import DimensionError, FileFormatError, FMUError, FmuOpinfError, InputSpecError
 from fmu_opinf.snapshots import Snapshots, auto_window, newmark_rates, record, record_to_file, time_grid
 from fmu_opinf.source import BuiltinSource, FMUSource, StepError
-from test_source import TOY_D, TOY_K, SignalStub, toys  # noqa: F401  (toys is a fixture)
+from test_source import SignalStub, toys  # noqa: F401  (toys is a fixture)
 
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
 
@@ -211,6 +211,20 @@ def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):
     assert 40 - 8 <= run.k <= 40  # samples are published to the parent every 8 steps
     for name in ARRAYS:
         np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :run.k])
+
+
+def test_binary_failing_to_load_in_the_child_is_reported_without_a_file(toys, tmp_path):
+    import fmpy
+
+    from test_source import pack_fmu, toy_xml2
+
+    garbage = tmp_path / "garbage.so"
+    garbage.write_bytes(b"not a shared library")
+    fmu = pack_fmu(tmp_path / "garbage.fmu", toy_xml2(), garbage, fmpy.platform)
+    with pytest.raises(FMUError, match="cannot load the binary of garbage.fmu") as info:
+        record_to_file(str(fmu), tmp_path / "none.h5", "step:amplitude=1", dt=0.1, t_end=1.0, quiet=True)
+    assert not isinstance(info.value, StepError) and "\n" not in str(info.value)
+    assert not (tmp_path / "none.h5").exists()
 
 
 def test_isolated_recording_equals_in_process_recording(toys):

@@ -519,6 +519,17 @@ def test_input_names_not_in_the_fmu(toys):
     _one_line_error(FMUError, FMUSource, toys["full"], inputs="y[1]", match="y\\[1\\] has causality 'output'")
 
 
+def test_binary_that_does_not_load(tmp_path, toys):
+    import fmpy
+
+    garbage = tmp_path / "garbage.so"
+    garbage.write_bytes(b"\x7fELF not really")
+    fmu = pack_fmu(tmp_path / "garbage.fmu", toy_xml2(), garbage, fmpy.platform)
+    source = FMUSource(fmu)  # the description is fine; the binary fails when the run starts
+    t, U = planned(source)
+    _one_line_error(FMUError, source.start, t, U, match="cannot load the binary of garbage.fmu")
+
+
 def test_bad_builtin_specs():
     _one_line_error(InputSpecError, open_source, "builtin:pendulum", match="unknown builtin system")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", positions="x[*]",

@@ -30,7 +30,7 @@ import numpy as np
 
 from ._hdf5 import atomic_h5, read_attrs, tool_versions, write_attrs
 from ._progress import Progress
-from .errors import DataError, DimensionError, FileFormatError, FmuOpinfError, FMUError, InputSpecError
+from .errors import DataError, DimensionError, FileFormatError, FmuOpinfError, InputSpecError
 from .source import Source, StepError, open_source
 
 __all__ = [
@@ -303,9 +303,13 @@ def _atomic(path: Path, overwrite: bool) -> Iterator[h5py.File]:
 
 
 def _decode(attrs: dict[str, Any]) -> dict[str, Any]:
+    """Parse the JSON-valued attributes back into dicts."""
     for key in _JSON_ATTRS:
         if isinstance(attrs.get(key), str):
-            attrs[key] = json.loads(attrs[key])
+            try:
+                attrs[key] = json.loads(attrs[key])
+            except ValueError:
+                raise FileFormatError(f"attribute {key!r} is not valid JSON; the file is damaged") from None
     return attrs
 
 
@@ -583,8 +587,11 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
     k, cap, sub = len(t), len(rows), 8
     try:
         source.start(t, U)
-    except FmuOpinfError as exc:
-        conn.send(("fail", str(exc), getattr(exc, "step", 0), getattr(exc, "time", float(t[0]))))
+    except StepError as exc:
+        conn.send(("fail", str(exc), exc.step, exc.time))
+        return
+    except FmuOpinfError as exc:  # nothing recorded yet: the parent raises the same kind of error
+        conn.send(("error", type(exc).__name__, str(exc)))
         return
     i = filled = 0
     try:
@@ -630,15 +637,18 @@ def _produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
         there.close()
         while True:
             message = _receive(here, proc)
-            valid = int(count[0]) if message is None or message[0] == "fail" else message[1] if message[0] == "block" else 0
+            valid = _valid_rows(message, int(count[0]))
             if valid:
                 sink.rows(i0, valid)[:] = rows[:valid]
                 yield i0, valid
             if message is None:  # the child died without a word
+                proc.join(5)  # reap it, so that its exit code (the signal) is known
                 i = i0 + valid
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
             if message[0] == "fail":
                 raise StepError(message[1], message[2], message[3])
+            if message[0] == "error":
+                raise _error_class(message[1])(message[2])
             if message[0] == "done":
                 return
             i0 += valid
@@ -652,6 +662,21 @@ def _produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
         del count, rows
         shm.close()
         shm.unlink()
+
+
+def _error_class(name: str) -> type:
+    """The fmu-opinf error class called ``name`` (FMUError if unknown)."""
+    from . import errors, source
+
+    cls = getattr(errors, name, None) or getattr(source, name, None)
+    return cls if isinstance(cls, type) and issubclass(cls, FmuOpinfError) else errors.FMUError
+
+
+def _valid_rows(message: tuple | None, published: int) -> int:
+    """Rows of the shared buffer to take over: a full block, or what was published before a failure."""
+    if message is None or message[0] == "fail":
+        return published
+    return message[1] if message[0] == "block" else 0
 
 
 def _receive(conn: Any, proc: Any) -> tuple | None:
@@ -1186,7 +1211,8 @@ def auto_window(
         segment = slice(free, faded) if faded - free >= 16 else slice(0, len(t))
         f_max = significant_frequency(t[segment], run.y[:, segment], energy)
         if peak == 0.0:
-            raise DataError("the outputs do not respond to the input; use an impulse-like input that excites the system")
+            raise DataError("the outputs do not respond to the input; use an impulse-like input that excites "
+                            "the system")
         if f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
         elif not t_fade <= t[0] + 0.5 * (T - t[0]):

@@ -23,7 +23,6 @@ already in ``rows``.
 from __future__ import annotations
 
 import ctypes
-import fnmatch  # noqa: F401  (documented pattern style; matching is implemented in _pattern_regex)
 import os
 import re
 import shutil
@@ -587,7 +586,7 @@ class FMUSource(Source):
             raise FMUError(f"input {_show(patterns)} is not a real variable of {self.path.name} "
                            f"(its inputs: {', '.join(available) or 'none'}); pass --inputs with an input name")
         causal = {v.name: v.causality for v in md.modelVariables}
-        bad = [n for n in names if causal[n] not in ("input", "parameter")]
+        bad = [n for n in names if causal[n] != "input"]
         if bad:
             raise FMUError(f"{bad[0]} has causality {causal[bad[0]]!r} in {self.path.name}, not 'input'; "
                            "pass --inputs with input variables")
@@ -705,7 +704,8 @@ class FMUSource(Source):
             from fmpy.logging import addLoggerProxy
 
             cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(lambda c, inst, status, cat, msg: self._logger(c, inst, status, cat, msg))
+            cb.logger = fmi2CallbackLoggerTYPE(
+                lambda env, name, status, category, message: self._logger(env, name, status, category, message))
             cb.allocateMemory = defaultCallbacks.allocateMemory
             cb.freeMemory = defaultCallbacks.freeMemory
             addLoggerProxy(ctypes.byref(cb))
