@@ -261,7 +261,7 @@ def test_existing_file_needs_overwrite(rom, tmp_path):
 
 def test_unsupported_fmi_version(rom, tmp_path):
     with pytest.raises(FMUError, match="not supported"):
-        export.export_fmu(rom, tmp_path / "rom.fmu", fmi_version="3.0")
+        export.export_fmu(rom, tmp_path / "rom.fmu", fmi_version="1.0")
 
 
 @pytest.mark.parametrize("reconstruct, pattern", [(["x[0]"], "1 <= i <= 31"), (["x[99]"], "1 <= i <= 31"),
@@ -342,3 +342,34 @@ def test_saved_second_order_rom_exports_and_matches(rom, tmp_path):
     got = np.array(got).T
     assert relative_error(got[0], expected.y[0]) < 1e-12
     assert relative_error(got[1], rom.basis[4] @ expected.q) < 1e-12
+
+
+def test_fmi3_export_validates_and_matches_rom_simulation(rom, tmp_path):
+    from fmpy.fmi3 import FMU3Slave
+
+    path = export.export_fmu(rom, tmp_path / "Rom3.fmu", fmi_version="3.0", reconstruct=["x[3]"])
+    assert validate_fmu(str(path)) == []
+    folder = Path(extract(str(path), str(tmp_path / "rom3")))
+    libraries = subprocess.run(["ldd", str(folder / "binaries" / "x86_64-linux" / "Rom3.so")],
+                               capture_output=True, text=True, check=True).stdout
+    assert "python" not in libraries
+    md = read_model_description(str(folder))
+    assert md.fmiVersion == "3.0" and float(md.defaultExperiment.stepSize) == rom.dt
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    expected = rom.simulate(TEST, rom.dt, 15.0)
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=str(folder),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="rom3")
+    fmu.instantiate()
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    got = []
+    for i, t in enumerate(expected.t):
+        if i > 0:
+            fmu.setFloat64([refs["u"]], [float(expected.u[0, i])])
+            fmu.doStep(expected.t[i - 1], t - expected.t[i - 1])
+        got.append(fmu.getFloat64([refs["y"], refs["x[3]"]]))
+    fmu.terminate()
+    fmu.freeInstance()
+    got = np.array(got).T
+    assert relative_error(got[0], expected.y[0]) < 1e-12
+    assert relative_error(got[1], rom.basis[2] @ expected.q) < 1e-12

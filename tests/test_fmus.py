@@ -421,3 +421,37 @@ def test_states_can_be_left_out_of_the_model_description(tmp_path):
     assert validate_fmu(str(path)) == []
     names = [v.name for v in read_model_description(str(path)).modelVariables]
     assert "x[1]" not in names and names[:4] == ["u", "y[1]", "y[2]", "y[3]"]
+
+
+def test_fmi3_benchmark_fmu_matches_reference_and_rejects_bad_calls(tmp_path):
+    from fmpy.fmi3 import FMU3Slave
+
+    path = fmus.build_fmus(tmp_path, models=("TripleChainMSD",), n1=20, fmi_version="3.0")[0]
+    assert validate_fmu(str(path)) == []
+    system = systems.triple_chain(20)
+    reference = newmark.simulate(system, HARMONIC, 0.1, 10.0)
+    folder = extract(str(path), str(tmp_path / "fmi3"))
+    md = read_model_description(folder)
+    spec = fmus.triple_chain_spec(20)
+    vr = fmus.value_references(spec)
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmi3")
+    fmu.instantiate()
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    u = signals.parse_signal(HARMONIC).sample(reference.t)
+    x = [fmu.getFloat64(vr["x"])]
+    for i in range(1, reference.t.size):
+        fmu.setFloat64(vr["u"], [float(u[0, i - 1])])
+        fmu.doStep(reference.t[i - 1], reference.t[i] - reference.t[i - 1])
+        x.append(fmu.getFloat64(vr["x"]))
+    assert relative_error(np.array(x).T, reference.x) < 1e-10
+    assert fmu.getFloat64([0]) == [pytest.approx(10.0)]
+    with pytest.raises(FMICallException):
+        fmu.setFloat64(vr["u"], [float("nan")])
+    fmu.reset()
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fmu.doStep(0.0, -1.0)
+    fmu.freeInstance()

@@ -204,7 +204,8 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
 
 
 def rom_fmu_spec(rom: Any, identifier: str = "ROM",
-                 reconstruct: Sequence[str | int] | None = None) -> SecondOrderFmuSpec:
+                 reconstruct: Sequence[str | int] | None = None,
+                 fmi_version: str = "2.0") -> SecondOrderFmuSpec:
     """Generator specification of the FMU of a reduced second-order model.
 
     Parameters
@@ -216,6 +217,8 @@ def rom_fmu_spec(rom: Any, identifier: str = "ROM",
         FMI model identifier.
     reconstruct : sequence of str or int, default=None
         Full-order positions (``"x[i]"`` or 1-based ``i``) added as outputs ``V[i, :] q``.
+    fmi_version : {"2.0", "3.0"}, default="2.0"
+        FMI version of the FMU.
 
     Returns
     -------
@@ -259,6 +262,7 @@ def rom_fmu_spec(rom: Any, identifier: str = "ROM",
         default_experiment=(0.0, None, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
+        fmi_version=fmi_version,
     )
 
 
@@ -291,8 +295,8 @@ def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
         The fitted ROM, or the path of a ROM file (``SecondOrderROM.load``).
     path : str or PathLike
         The ``.fmu`` file to write; its stem becomes the model identifier.
-    fmi_version : {"2.0"}, default="2.0"
-        FMI version (only 2.0 is implemented).
+    fmi_version : {"2.0", "3.0"}, default="2.0"
+        FMI version of the co-simulation FMU.
     reconstruct : sequence of str or int, default=None
         Full-order positions to add as outputs, e.g. ``["x[1]", "x[300]"]``, computed
         through the basis as ``x_i = V[i, :] q``.
@@ -312,14 +316,15 @@ def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
     DimensionError, DataError
         Inconsistent shapes, non-finite or non-definite matrices, bad ``reconstruct``.
     FMUError
-        Unsupported FMI version, existing file without ``overwrite``, unwritable path,
+        Unsupported FMI version (not 2.0 or 3.0), existing file without ``overwrite``, unwritable path,
         compilation failure.
     """
-    if str(fmi_version) != "2.0":
-        raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with fmi_version='2.0'")
+    if str(fmi_version) not in ("2.0", "3.0"):
+        raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with "
+                       "fmi_version='2.0' or '3.0'")
     path = Path(path)
     _check_output_path(path, overwrite)
-    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct)
+    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version))
     if find_build_tools() is None:
         build_second_order_fmu(spec, path, compile=False)
         warnings.warn(f"{path} holds C sources only and still needs compiling: no C compiler or "

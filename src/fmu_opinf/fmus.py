@@ -47,8 +47,12 @@ BENCHMARK_MODELS = ("AnchoredMSD", "TripleChainMSD")
 #: largest n for which the x, v, a variables are listed in modelDescription.xml by default
 EXPOSE_STATES_LIMIT = 20_000
 
-_FMI2_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
-_GLUE_SOURCES = ("src/fmi2Functions.c", "src/instance.c", "src/newmark.c")
+_FMI_HEADERS = {
+    "2.0": ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"),
+    "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
+}
+_API_SOURCES = {"2.0": "src/fmi2Functions.c", "3.0": "src/fmi3Functions.c"}
+_GLUE_SOURCES = ("src/instance.c", "src/newmark.c")
 _GLUE_HEADERS = ("include/model.h", "include/newmark.h", "include/instance.h")
 _GUID_PLACEHOLDER = "@GUID@"
 _GUID_NAMESPACE = uuid.UUID("5f0c2b52-8f7e-4a43-9d55-2f1f3c6c8a10")
@@ -116,6 +120,8 @@ class SecondOrderFmuSpec:
         The value references work in any case.
     extra_files : dict of str to str, default={}
         More files for ``sources/`` (e.g. ``readme.md``).
+    fmi_version : {"2.0", "3.0"}, default="2.0"
+        FMI version of the generated FMU (co-simulation only).
     """
 
     identifier: str
@@ -135,8 +141,12 @@ class SecondOrderFmuSpec:
     default_experiment: tuple[float | None, float | None, float | None] | None = None
     expose_states: bool | None = None
     extra_files: dict[str, str] = field(default_factory=dict)
+    fmi_version: str = "2.0"
 
     def __post_init__(self) -> None:
+        if self.fmi_version not in _API_SOURCES:
+            raise FmuBuildError(f"fmi_version {self.fmi_version!r} is not supported; use "
+                                "'2.0' or '3.0'")
         if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", self.identifier):
             raise FmuBuildError(f"model identifier {self.identifier!r} is not a C identifier; "
                                 "use letters, digits and underscores")
@@ -369,6 +379,90 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
     )
 
 
+def _variable3(name: str, vr: int, causality: str, variability: str, description: str = "",
+               initial: str | None = None, start: float | None = None) -> str:
+    attributes = f'name={quoteattr(name)} valueReference="{vr}"'
+    if description:
+        attributes += f" description={quoteattr(description)}"
+    attributes += f' causality="{causality}" variability="{variability}"'
+    if initial:
+        attributes += f' initial="{initial}"'
+    if start is not None:
+        attributes += f' start="{float(start)!r}"'
+    return f"    <Float64 {attributes}/>\n"
+
+
+def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
+    refs = value_references(spec)
+    variables = [_variable3("time", 0, "independent", "continuous", "simulation time")]
+    for name, vr in zip(spec.input_names, refs["u"]):
+        variables.append(_variable3(name, vr, "input", "continuous", "input (held over each "
+                                    "communication step)", start=0.0))
+    for name, vr in zip(spec.output_names, refs["y"]):
+        variables.append(_variable3(name, vr, "output", "continuous", "output y = Cp x + Cv v"))
+    for par, vr in zip(spec.parameters, refs["parameters"]):
+        variables.append(_variable3(par.name, vr, "parameter", "fixed", par.description,
+                                    initial="exact", start=par.default))
+    if spec.expose_states:
+        kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
+        for base, what, key in kinds:
+            for i, vr in enumerate(refs[key], start=1):
+                variables.append(_variable3(f"{base}[{i}]", vr, "local", "continuous",
+                                            f"{what} of {spec.state_label} {i}"))
+    outputs = "".join(f'    <Output valueReference="{vr}"/>\n' for vr in refs["y"])
+    unknowns = "".join(f'    <InitialUnknown valueReference="{vr}"/>\n' for vr in refs["y"])
+    experiment = ""
+    if spec.default_experiment is not None:
+        keys = ("startTime", "stopTime", "stepSize")
+        attributes = " ".join(f'{key}="{float(value)!r}"'
+                              for key, value in zip(keys, spec.default_experiment)
+                              if value is not None)
+        experiment = f"  <DefaultExperiment {attributes}/>\n"
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        f'<fmiModelDescription fmiVersion="3.0" modelName="{spec.identifier}"\n'
+        f'  instantiationToken="{guid}"\n'
+        f"  description={quoteattr(spec.description)}\n"
+        '  generationTool="fmu-opinf" '
+        f'variableNamingConvention="{_naming_convention(spec)}">\n'
+        f'  <CoSimulation modelIdentifier="{spec.identifier}" needsExecutionTool="false"\n'
+        '    canBeInstantiatedOnlyOncePerProcess="false" canGetAndSetFMUState="true"\n'
+        '    canSerializeFMUState="true" providesDirectionalDerivatives="false"\n'
+        '    providesAdjointDerivatives="false" providesPerElementDependencies="false"\n'
+        '    canHandleVariableCommunicationStepSize="true" maxOutputDerivativeOrder="0"\n'
+        '    providesIntermediateUpdate="false" mightReturnEarlyFromDoStep="false"\n'
+        '    canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"\n'
+        '    providesEvaluateDiscreteStates="false"/>\n'
+        "  <LogCategories>\n"
+        '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
+        '    <Category name="logStatusError" description="calls that return fmi3Error"/>\n'
+        "  </LogCategories>\n"
+        f"{experiment}"
+        "  <ModelVariables>\n"
+        f"{''.join(variables)}"
+        "  </ModelVariables>\n"
+        "  <ModelStructure>\n"
+        f"{outputs}"
+        f"{unknowns}"
+        "  </ModelStructure>\n"
+        "</fmiModelDescription>\n"
+    )
+
+
+def _build_description3(spec: SecondOrderFmuSpec, sources: list[str]) -> str:
+    files = "".join(f'      <SourceFile name="{s}"/>\n' for s in sources)
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n'
+        '<fmiBuildDescription fmiVersion="3.0">\n'
+        f'  <BuildConfiguration modelIdentifier="{spec.identifier}">\n'
+        '    <SourceFileSet language="C99">\n'
+        f"{files}"
+        "    </SourceFileSet>\n"
+        "  </BuildConfiguration>\n"
+        "</fmiBuildDescription>\n"
+    )
+
+
 def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
     lines = [
         f"/* Generated by fmu-opinf for {spec.identifier}; do not edit. */",
@@ -401,18 +495,21 @@ def _source_tree(spec: SecondOrderFmuSpec) -> tuple[dict[str, bytes], str]:
     """All files of the FMU except the binary, and the content-derived GUID."""
     root = _c_sources_dir()
     files: dict[str, bytes] = {}
-    for relative in _GLUE_SOURCES + _GLUE_HEADERS:
+    glue = (_API_SOURCES[spec.fmi_version],) + _GLUE_SOURCES
+    for relative in glue + _GLUE_HEADERS:
         files["sources/" + Path(relative).name] = (root / relative).read_bytes()
-    for header in _FMI2_HEADERS:
+    for header in _FMI_HEADERS[spec.fmi_version]:
         files["sources/" + header] = (_fmi_header_dir() / header).read_bytes()
     files["sources/model.c"] = spec.model_source.encode()
     for name, text in spec.extra_files.items():
         files["sources/" + name] = text.encode()
-    sources = [Path(s).name for s in _GLUE_SOURCES] + ["model.c"]
-    templates = {
-        "sources/config.h": _config_header(spec, _GUID_PLACEHOLDER),
-        "modelDescription.xml": _model_description(spec, _GUID_PLACEHOLDER, sources),
-    }
+    sources = [Path(s).name for s in glue] + ["model.c"]
+    templates = {"sources/config.h": _config_header(spec, _GUID_PLACEHOLDER)}
+    if spec.fmi_version == "2.0":
+        templates["modelDescription.xml"] = _model_description(spec, _GUID_PLACEHOLDER, sources)
+    else:
+        templates["modelDescription.xml"] = _model_description3(spec, _GUID_PLACEHOLDER)
+        files["sources/buildDescription.xml"] = _build_description3(spec, sources).encode()
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name] + b"\0")
@@ -541,7 +638,8 @@ def build_second_order_fmu(spec: SecondOrderFmuSpec, path: str | os.PathLike,
 
 def build_fmus(out_dir: str | os.PathLike = "fmus",
                models: tuple[str, ...] | list[str] = BENCHMARK_MODELS, g: int = 600,
-               n1: int = 100, expose_states: bool | None = None) -> list[Path]:
+               n1: int = 100, expose_states: bool | None = None,
+               fmi_version: str = "2.0") -> list[Path]:
     """Build the benchmark FMUs ``AnchoredMSD.fmu`` and ``TripleChainMSD.fmu``.
 
     Parameters
@@ -556,6 +654,8 @@ def build_fmus(out_dir: str | os.PathLike = "fmus",
         Masses per chain of TripleChainMSD (n = 3 n1 + 1).
     expose_states : bool, default=None
         List ``x[i], v[i], a[i]`` in modelDescription.xml; default: only if n <= 20000.
+    fmi_version : {"2.0", "3.0"}, default="2.0"
+        FMI version of the co-simulation FMUs.
 
     Returns
     -------
@@ -577,6 +677,8 @@ def build_fmus(out_dir: str | os.PathLike = "fmus",
         spec = _SPEC_FACTORIES[name](g, n1)
         if expose_states is not None:
             spec.expose_states = expose_states
+        spec.fmi_version = fmi_version
+        spec.__post_init__()
         paths.append(build_second_order_fmu(spec, Path(out_dir) / f"{name}.fmu"))
     return paths
 
