@@ -1,12 +1,31 @@
-"""Validation of a ROM against the model it replaces: the paper's error measure and reports."""
+"""Validation of a ROM against the model it replaces: the paper's error measure and the report.
+
+``compare`` runs the full-order source (FMU or builtin simulator) and the ROM (a ``rom.h5`` or an
+exported ROM FMU) on the same input and time grid, computes eq. (19) and relative L2 / max
+errors per output, times both, and ``write_report`` writes ``metrics.json``, the paper's figures
+(Figs. 7-10: outputs of FOM and ROM, eps_y over time on a log axis) and one self-contained
+``index.html``.
+"""
 
 from __future__ import annotations
 
+import base64
+import html
+import json
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
-from .errors import DimensionError
+from .errors import DimensionError, FileFormatError
 
-__all__ = ["output_error"]
+__all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
+           "summary_table"]
 
 
 def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -31,3 +50,484 @@ def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
     if scale == 0:
         raise DimensionError("the reference output is identically zero; eq. (19) is undefined")
     return np.sum((y_ref - y) ** 2, axis=0) / scale
+
+
+def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | None = None) -> dict[str, Any]:
+    """All error figures of a comparison.
+
+    Returns
+    -------
+    dict
+        ``max_error`` (max over time of eq. 19), ``l2_error`` (``||Y_ref - Y||_F / ||Y_ref||_F``)
+        and ``per_output``: for each output its relative L2 error and its max absolute error
+        relative to the output's peak.
+    """
+    eps = output_error(y_ref, y)
+    y_ref = np.atleast_2d(y_ref)
+    y = np.atleast_2d(y)
+    names = output_names or [f"y[{j + 1}]" for j in range(y_ref.shape[0])]
+    per_output = {}
+    for j, name in enumerate(names):
+        peak = np.abs(y_ref[j]).max()
+        diff = y_ref[j] - y[j]
+        per_output[name] = {
+            "relative_l2": float(np.linalg.norm(diff) / np.linalg.norm(y_ref[j])) if peak > 0 else math.nan,
+            "relative_max": float(np.abs(diff).max() / peak) if peak > 0 else math.nan,
+        }
+    return {
+        "max_error": float(eps.max()),
+        "l2_error": float(np.linalg.norm(y_ref - y) / np.linalg.norm(y_ref)),
+        "per_output": per_output,
+    }
+
+
+@dataclass
+class Comparison:
+    """Outputs of the full-order model and of the ROM on one input, with timings and provenance.
+
+    Attributes
+    ----------
+    t : (k,) ndarray
+    y_fom, y_rom : (p, k) ndarray
+    output_names : list of str
+    input_spec : str
+    fom_seconds, rom_seconds : float
+        Wall time of each simulation (the FOM's includes only stepping and reading outputs).
+    r : int
+        Reduced order.
+    fom_provenance, rom_provenance : dict
+    t_train_end : float or None
+        Last training snapshot time, marked on the error plot when known.
+    """
+
+    t: np.ndarray
+    y_fom: np.ndarray
+    y_rom: np.ndarray
+    output_names: list[str]
+    input_spec: str
+    fom_seconds: float
+    rom_seconds: float
+    r: int
+    fom_provenance: dict[str, Any] = field(default_factory=dict)
+    rom_provenance: dict[str, Any] = field(default_factory=dict)
+    t_train_end: float | None = None
+    title: str = "ROM validation"
+
+    @property
+    def eps(self) -> np.ndarray:
+        """eq. (19) over time."""
+        return output_error(self.y_fom, self.y_rom)
+
+    def metrics(self) -> dict[str, Any]:
+        """The content of ``metrics.json``."""
+        out = error_metrics(self.y_fom, self.y_rom, self.output_names)
+        out.update({
+            "r": int(self.r),
+            "fom_seconds": self.fom_seconds,
+            "rom_seconds": self.rom_seconds,
+            "speedup": self.fom_seconds / self.rom_seconds if self.rom_seconds > 0 else math.inf,
+            "input": self.input_spec,
+            "dt": float(self.t[1] - self.t[0]) if self.t.size > 1 else None,
+            "t_end": float(self.t[-1]),
+            "steps": int(self.t.size - 1),
+            "t_train_end": self.t_train_end,
+            "fom": _jsonable(self.fom_provenance),
+            "rom": _jsonable(self.rom_provenance),
+        })
+        return out
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+# ---------------------------------------------------------------------------------------------
+# Running both sides
+# ---------------------------------------------------------------------------------------------
+
+
+def _load_rom_side(rom: Any):
+    """A ROM object, a ROM file, or an exported ROM FMU (path ending in .fmu)."""
+    from .rom import SecondOrderROM
+
+    if isinstance(rom, SecondOrderROM):
+        return rom
+    path = Path(rom)
+    if path.suffix.lower() == ".fmu":
+        return path
+    return SecondOrderROM.load(path)
+
+
+def simulate_outputs(source: Any, signal: Any, t: np.ndarray, quiet: bool = True,
+                     **options: Any) -> tuple[np.ndarray, float, dict[str, Any], list[str]]:
+    """Outputs of any model on the grid ``t`` under the zero-order-hold input convention.
+
+    Parameters
+    ----------
+    source : SecondOrderROM, or str / path
+        A ROM object or ROM file (``.h5``), ``builtin:NAME``, or a co-simulation FMU (a full-order
+        model or an exported ROM).  Only inputs and outputs are touched, so any FMU works.
+    signal : Signal
+    t : (k,) ndarray
+        Uniform time grid.
+    **options
+        ``g``/``n1`` for builtin sources; ``inputs``/``outputs`` name patterns for FMUs.
+
+    Returns
+    -------
+    y : (p, k) ndarray
+    seconds : float
+        Wall time of the simulation loop alone (no loading or compilation).
+    provenance : dict
+    output_names : list of str
+    """
+    from .rom import SecondOrderROM
+
+    if isinstance(source, SecondOrderROM) or (not str(source).startswith("builtin:")
+                                             and Path(str(source)).suffix.lower() in (".h5", ".hdf5")):
+        rom = source if isinstance(source, SecondOrderROM) else SecondOrderROM.load(source)
+        start = time.perf_counter()
+        y = rom.simulate(signal, float(t[1] - t[0]), float(t[-1])).y
+        return np.atleast_2d(y), time.perf_counter() - start, dict(rom.provenance), list(rom.output_names)
+    if str(source).startswith("builtin:"):
+        return _builtin_outputs(str(source), signal, t, quiet, **options)
+    return _source_outputs(source, signal, t, quiet, **options)
+
+
+def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
+                    **options: Any) -> tuple[np.ndarray, float, dict[str, Any], list[str]]:
+    """Drive an FMU through :mod:`fmu_opinf.source` and keep only its outputs."""
+    from ._progress import Progress
+    from .newmark import applied_inputs
+    from .source import open_source
+
+    options = {k: v for k, v in options.items() if k not in ("g", "n1", "alpha", "beta", "v")}
+    source = open_source(spec, **options)
+    u = applied_inputs(signal, t)
+    if u.shape[0] != source.m:
+        raise DimensionError(f"the input has {u.shape[0]} channels but {Path(str(spec)).name} has {source.m} "
+                             "inputs; compare a ROM with the model it was learned from")
+    block = 256
+    rows = np.empty((block, source.width))
+    y = np.empty((source.p, t.size))
+    columns = source.layout["y"]
+    start = time.perf_counter()
+    source.start(t, u.T)
+    try:
+        with Progress(t.size, f"simulating {Path(str(spec)).name}", quiet=quiet) as progress:
+            for i0 in range(0, t.size, block):
+                count = min(block, t.size - i0)
+                source.advance(rows, i0, count)
+                y[:, i0:i0 + count] = rows[:count, columns].T
+                progress.update(i0 + count)
+    finally:
+        source.close()
+    seconds = time.perf_counter() - start
+    return y, seconds, source.provenance(), list(source.output_names)
+
+
+def _builtin_outputs(spec: str, signal: Any, t: np.ndarray, quiet: bool,
+                     **options: Any) -> tuple[np.ndarray, float, dict[str, Any], list[str]]:
+    from ._progress import Progress
+    from .newmark import NewmarkStepper, applied_inputs
+    from .systems import builtin_system
+
+    name = spec.split(":", 1)[1]
+    sizes = {k: v for k, v in options.items() if k in ("g", "n1", "alpha", "beta", "v") and v is not None}
+    system = builtin_system(name, **sizes)
+    u = applied_inputs(signal, t)
+    y = np.empty((system.p, t.size))
+    start = time.perf_counter()
+    stepper = NewmarkStepper(system.M, system.D, system.K, system.B, float(t[1] - t[0]),
+                             G=system.G, constraint=system.constraint)
+    stepper.start(u[:, 0])
+    with Progress(t.size - 1, f"simulating {spec}", quiet=quiet) as progress:
+        for i in range(t.size):
+            if i:
+                stepper.step(u[:, i])
+                progress.update(i)
+            y[:, i] = system.Cp @ stepper.x + system.Cv @ stepper.v
+    seconds = time.perf_counter() - start
+    names = [f"y[{j + 1}]" for j in range(system.p)]
+    return y, seconds, {"source_kind": "builtin", "source": spec, "system_options": sizes}, names
+
+
+def compare(rom: Any, source: Any, input_spec: str, dt: float | None = None, t_end: float | None = None,
+            quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
+    """Simulate the full-order ``source`` and the ROM on the same input and grid.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM, or path to a ROM ``.h5`` file or an exported ROM ``.fmu``
+    source : str or path
+        An FMU path or ``builtin:anchored-msd`` / ``builtin:triple-chain``; an exported ROM FMU
+        may also stand here (e.g. to compare a ROM with its own export).
+    input_spec : str
+        Test input (see :mod:`fmu_opinf.signals`).
+    dt, t_end : float, optional
+        Grid; defaults: the ROM's training step and four times the training end time.
+    source_options : dict, optional
+        Variable patterns or builtin size options for the source.
+
+    Returns
+    -------
+    Comparison
+    """
+    from .newmark import time_grid
+    from .signals import parse_signal
+
+    rom_side = _load_rom_side(rom)
+    rom_info = _rom_side_info(rom_side)
+    dt = float(dt if dt is not None else rom_info["dt"])
+    if t_end is None:
+        t_train = rom_info.get("t_train_end")
+        if not t_train:
+            raise DimensionError("no --t-end given and the ROM does not record its training end time; pass --t-end")
+        t_end = dt * round(4 * float(t_train) / dt)
+    t = time_grid(dt, float(t_end))
+    signal = parse_signal(input_spec, rom_info["m"])
+
+    y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
+                                                                 **(source_options or {}))
+    rom_options = ROM_FMU_VARIABLES if isinstance(rom_side, Path) else {}
+    if len(fom_outputs) != rom_info["p"]:
+        raise DimensionError(f"the source has {len(fom_outputs)} outputs but the ROM has {rom_info['p']}; "
+                             "compare a ROM with the model it was learned from")
+    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
+    return Comparison(
+        t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
+        input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
+        fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
+    )
+
+
+def _rom_side_info(rom_side: Any) -> dict[str, Any]:
+    """Sizes, step, training end and provenance of a ROM object or exported ROM FMU."""
+    if isinstance(rom_side, Path):
+        from .source import FMUSource
+
+        fmu = FMUSource(rom_side, **ROM_FMU_VARIABLES)
+        meta = _rom_fmu_metadata(rom_side)
+        return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"),
+                "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
+    prov = dict(getattr(rom_side, "provenance", {}) or {})
+    return {"m": rom_side.m, "p": rom_side.p, "r": rom_side.r, "dt": rom_side.dt,
+            "t_train_end": _training_end(prov), "provenance": prov}
+
+
+#: Variable patterns of an exported ROM FMU (its reduced coordinates stand where positions would).
+ROM_FMU_VARIABLES = {"positions": "q[*]", "velocities": "qdot[*]", "accelerations": "qddot[*]"}
+
+
+def _training_end(provenance: dict[str, Any]) -> float | None:
+    """Last training time recorded in a ROM's provenance, if any."""
+    for key in ("t_train_end", "t_end"):
+        if provenance.get(key) is not None:
+            return float(provenance[key])
+    snaps = provenance.get("snapshots")
+    if isinstance(snaps, dict):
+        return _training_end(snaps)
+    return None
+
+
+def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
+    """Step and training end of an exported ROM FMU (default experiment, bundled provenance.json)."""
+    import zipfile
+
+    from fmpy import read_model_description
+
+    md = read_model_description(str(path), validate=False)
+    meta: dict[str, Any] = {"rom_fmu": str(path), "rom_fmu_guid": md.guid}
+    if md.defaultExperiment is not None and md.defaultExperiment.stepSize:
+        meta["dt"] = float(md.defaultExperiment.stepSize)
+    with zipfile.ZipFile(path) as archive:
+        names = [n for n in archive.namelist() if n.endswith("provenance.json")]
+        if names:
+            meta["t_train_end"] = _training_end(json.loads(archive.read(names[0])))
+    return meta
+
+
+# ---------------------------------------------------------------------------------------------
+# Report
+# ---------------------------------------------------------------------------------------------
+
+
+def _figure_outputs(comparison: Comparison, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = comparison.y_fom.shape[0]
+    fig, axes = plt.subplots(p, 1, figsize=(8, 2.2 * p + 0.6), sharex=True, squeeze=False)
+    for j, ax in enumerate(axes[:, 0]):
+        ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
+        ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
+        ax.set_ylabel(comparison.output_names[j])
+        _mark_training_end(ax, comparison.t_train_end)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right")
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle(f"Outputs, input {comparison.input_spec}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _figure_error(comparison: Comparison, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eps = comparison.eps
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    floor = max(eps[eps > 0].min() if np.any(eps > 0) else 1e-300, 1e-300)
+    ax.semilogy(comparison.t, np.maximum(eps, floor), "C0-", lw=1.2)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel(r"$\varepsilon_y(t)$, eq. (19)")
+    ax.set_title(f"Relative output error, max {eps.max():.2e}")
+    _mark_training_end(ax, comparison.t_train_end)
+    ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _mark_training_end(ax, t_train_end: float | None) -> None:
+    if t_train_end is not None and math.isfinite(t_train_end):
+        ax.axvline(t_train_end, color="0.4", ls=":", lw=1.0, label="last training snapshot")
+
+
+def _prepare_directory(out_dir: Path) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise FileFormatError(f"report directory {out_dir} is an existing file; choose another -o path")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FileFormatError(f"cannot create report directory {out_dir}: {exc.strerror}") from None
+
+
+def _atomic_write_bytes(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figures: dict[str, Path] | None = None,
+                 notes: dict[str, Any] | None = None) -> Path:
+    """Write ``metrics.json``, ``outputs.png``, ``error.png`` and ``index.html`` into ``out_dir``.
+
+    Each file is written to a temporary name and renamed, so a report is never half-replaced.
+
+    Parameters
+    ----------
+    comparison : Comparison
+    out_dir : path
+        Created if missing; must not be an existing file.
+    extra_figures : dict, optional
+        Caption -> PNG path of further figures to embed (e.g. singular values from the fit).
+    notes : dict, optional
+        Extra settings shown on the page and stored under ``notes`` in metrics.json.
+
+    Returns
+    -------
+    Path
+        The report's ``index.html``.
+    """
+    out_dir = Path(out_dir)
+    _prepare_directory(out_dir)
+    metrics = comparison.metrics()
+    if notes:
+        metrics["notes"] = _jsonable(notes)
+    with tempfile.TemporaryDirectory() as tmp:
+        figures = {"Outputs of full-order model and ROM (paper Figs. 9-10 a-c)": Path(tmp) / "outputs.png",
+                   "Relative output error eq. (19) over time (paper Figs. 9-10 d)": Path(tmp) / "error.png"}
+        _figure_outputs(comparison, figures["Outputs of full-order model and ROM (paper Figs. 9-10 a-c)"])
+        _figure_error(comparison, figures["Relative output error eq. (19) over time (paper Figs. 9-10 d)"])
+        for png in figures.values():
+            _atomic_write_bytes(out_dir / png.name, png.read_bytes())
+        all_figures = {**figures, **(extra_figures or {})}
+        page = _html_page(comparison, metrics, all_figures)
+    _atomic_write_bytes(out_dir / "metrics.json", json.dumps(metrics, indent=2).encode())
+    _atomic_write_bytes(out_dir / "index.html", page.encode())
+    return out_dir / "index.html"
+
+
+def _html_table(rows: list[tuple[str, Any]]) -> str:
+    cells = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
+    return f"<table>{cells}</table>"
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.3e}" if (value != 0 and (abs(value) < 1e-2 or abs(value) >= 1e4)) else f"{value:.4g}"
+    return str(value)
+
+
+def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[str, Path]) -> str:
+    headline = [
+        ("max over time of eps_y, eq. (19)", _fmt(metrics["max_error"])),
+        ("relative L2 error", _fmt(metrics["l2_error"])),
+        ("reduced order r", metrics["r"]),
+        ("full-order simulation [s]", _fmt(metrics["fom_seconds"])),
+        ("ROM simulation [s]", _fmt(metrics["rom_seconds"])),
+        ("speed-up", _fmt(metrics["speedup"])),
+    ]
+    settings = [("test input", metrics["input"]), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
+                ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
+    per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}, relative max {_fmt(v['relative_max'])}")
+                  for name, v in metrics["per_output"].items()]
+    provenance = [(f"FOM {k}", v) for k, v in comparison.fom_provenance.items() if not isinstance(v, (list, dict))]
+    provenance += [(f"ROM {k}", v) for k, v in comparison.rom_provenance.items() if not isinstance(v, (list, dict))]
+    images = "".join(
+        f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,'
+        f'{base64.b64encode(Path(png).read_bytes()).decode()}"><figcaption>{html.escape(caption)}</figcaption></figure>'
+        for caption, png in figures.items())
+    notes = _html_table([(k, v) for k, v in metrics.get("notes", {}).items()]) if metrics.get("notes") else ""
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>{html.escape(comparison.title)}</title>
+<style>
+body {{ font-family: sans-serif; max-width: 960px; margin: 2em auto; color: #222; }}
+table {{ border-collapse: collapse; margin: 0.5em 0 1.5em; }}
+th, td {{ border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; font-size: 0.92em; }}
+th {{ background: #f4f4f4; font-weight: normal; }}
+figure {{ margin: 1em 0; }} img {{ max-width: 100%; }} figcaption {{ color: #555; font-size: 0.9em; }}
+</style></head><body>
+<h1>{html.escape(comparison.title)}</h1>
+<p>A reduced second-order model learned by operator inference (Benner, Filanova, Pontes Duff, Saak, 2025) compared
+with the full-order model on an input it was not trained on. The error measure is the paper's eq. (19):
+eps_y(t) = |y(t) - y_rom(t)|^2 / max_t |y(t)|^2.</p>
+<h2>Result</h2>{_html_table(headline)}
+<h2>Per output</h2>{_html_table(per_output)}
+<h2>Figures</h2>{images}
+<h2>Settings</h2>{_html_table(settings)}{notes}
+<h2>Provenance</h2>{_html_table(provenance)}
+</body></html>
+"""
+
+
+def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
+    """A plain-text table of named metrics dicts (max eq. 19 error, L2 error, r, times, speed-up)."""
+    header = f"{'case':<28} {'r':>3} {'max eps_y':>10} {'L2 error':>10} {'FOM [s]':>9} {'ROM [s]':>9} {'speed-up':>9}"
+    lines = [header, "-" * len(header)]
+    for name, m in rows:
+        lines.append(f"{name:<28} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
+                     f"{m['fom_seconds']:>9.3f} {m['rom_seconds']:>9.4f} {m['speedup']:>9.1f}")
+    return "\n".join(lines)

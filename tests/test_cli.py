@@ -1,0 +1,35 @@
+"""The command line: verbs exist, user errors are one line with a non-zero exit code."""
+
+import subprocess
+import sys
+
+import pytest
+
+from fmu_opinf import cli
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fmu_opinf.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+def test_every_verb_has_help():
+    for verb in ("snapshots", "fit", "compare", "export", "demo", "build-fmus"):
+        with pytest.raises(SystemExit) as info:
+            cli.main([verb, "--help"])
+        assert info.value.code == 0
+
+
+@pytest.mark.parametrize("args, message", [
+    (["snapshots", "missing.fmu", "-o", "s.h5", "--input", "step"], "does not exist"),
+    (["snapshots", "builtin:anchored-msd", "-o", "s.h5", "--input", "pulse:x=1", "--dt", "1", "--t-end", "2"],
+     "unknown input kind 'pulse'"),
+    (["fit", "missing.h5", "-o", "rom.h5"], "missing.h5"),
+    (["export", "missing.h5", "-o", "rom.fmu"], "missing.h5"),
+    (["compare", "missing.h5", "builtin:anchored-msd", "--input", "step", "-o", "report"], "missing.h5"),
+])
+def test_user_errors_are_one_line_with_nonzero_exit(tmp_path, args, message):
+    result = run_cli(*args, cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fmu-opinf: error:"), result.stderr
+    assert message in lines[0]
