@@ -455,3 +455,22 @@ def test_fmi3_benchmark_fmu_matches_reference_and_rejects_bad_calls(tmp_path):
     with pytest.raises(FMICallException):
         fmu.doStep(0.0, -1.0)
     fmu.freeInstance()
+
+
+def test_bundled_fmu_builds_once_and_rebuilds_when_sources_change(tmp_path, monkeypatch):
+    import shutil
+
+    root = Path(fmus.__file__).resolve().parents[2] / "fmus"
+    copy = tmp_path / "fmus"
+    for folder in ("include", "src", "AnchoredMSD", "TripleChainMSD"):
+        shutil.copytree(root / folder, copy / folder, ignore=shutil.ignore_patterns("*.fmu"))
+    monkeypatch.setattr(fmus, "_c_sources_dir", lambda: copy)
+    path = fmus.bundled_fmu("TripleChainMSD")
+    assert path == copy / "TripleChainMSD.fmu" and validate_fmu(str(path)) == []
+    built = path.stat().st_mtime_ns
+    assert fmus.bundled_fmu("TripleChainMSD").stat().st_mtime_ns == built
+    first_guid = fmus._fmu_guid(path)
+    model = copy / "TripleChainMSD" / "model.c"
+    model.write_text(model.read_text() + "\n/* changed */\n")
+    fmus.bundled_fmu("TripleChainMSD")
+    assert fmus._fmu_guid(path) != first_guid

@@ -683,8 +683,22 @@ def build_fmus(out_dir: str | os.PathLike = "fmus",
     return paths
 
 
+def _fmu_guid(path: Path) -> str | None:
+    """GUID of an FMI 2.0 FMU file, or None if it cannot be read."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            text = archive.read("modelDescription.xml").decode("utf-8", "replace")
+    except (OSError, KeyError, zipfile.BadZipFile):
+        return None
+    match = re.search(r'\bguid="([^"]*)"', text)
+    return match.group(1) if match else None
+
+
 def bundled_fmu(name: str) -> Path:
-    """Path of a benchmark FMU in the repository's ``fmus/`` folder, built if missing.
+    """Path of a benchmark FMU in the repository's ``fmus/`` folder, built if missing or stale.
+
+    The FMU is rebuilt when its GUID (derived from the C sources and the generated files)
+    differs from the one the current sources give, e.g. after the C code changed.
 
     Parameters
     ----------
@@ -700,6 +714,7 @@ def bundled_fmu(name: str) -> Path:
         raise FmuBuildError(f"unknown benchmark model {name!r}; choose from "
                             f"{', '.join(BENCHMARK_MODELS)}")
     path = _c_sources_dir() / f"{name}.fmu"
-    if not path.is_file():
+    expected = _source_tree(_SPEC_FACTORIES[name](600, 100))[1]
+    if not path.is_file() or _fmu_guid(path) != expected:
         build_fmus(path.parent, models=(name,))
     return path
