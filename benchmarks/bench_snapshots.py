@@ -4,6 +4,8 @@ Measures, per communication step (best of ``--repeats`` runs, so that noise from
 shared machine only ever makes the figures worse):
 
 * ``doStep``        the bare ``fmi2DoStep`` loop through ctypes (the FMU's own work);
+* ``GetReal``       one ``fmi2GetReal`` of all recorded values per step, no stepping (the FMU's getter);
+* ``loop``          the recording loop alone into already touched memory (no allocation, no checks);
 * ``record``        :func:`fmu_opinf.snapshots.record` in memory: set input + doStep + one
                     ``fmi2GetReal`` of all 3n + p values per step, finite check, assembling the run;
 * ``record (h5)``   the same, streamed chunk by chunk into a compressed HDF5 file;
@@ -49,6 +51,32 @@ def dostep_loop(source, t: np.ndarray, U: np.ndarray) -> float:
         source.close()
 
 
+def getreal_loop(source, t: np.ndarray, U: np.ndarray) -> float:
+    """Time of one fmi2GetReal of all recorded values per step, without stepping (the FMU's getter)."""
+    row = np.empty(source.width)
+    source.start(t, U)
+    try:
+        get, comp, vr, nv, out = source._c_get, source._comp, source._out_vr_arr.ctypes.data, source.width, \
+            row.ctypes.data
+        start = time.perf_counter()
+        for _ in range(1, len(t)):
+            get(comp, vr, nv, out)
+        return time.perf_counter() - start
+    finally:
+        source.close()
+
+
+def advance_loop(source, t: np.ndarray, U: np.ndarray, rows: np.ndarray) -> float:
+    """Time of the recording loop alone (set input if changed + doStep + GetReal) into touched memory."""
+    source.start(t, U)
+    try:
+        start = time.perf_counter()
+        source.advance(rows, 0, len(t))
+        return time.perf_counter() - start
+    finally:
+        source.close()
+
+
 def run_simulate_fmu(path: Path, names: list[str], signal, dt: float, t_end: float) -> None:
     """fmpy's own driver with the same outputs (input given as a table at the grid points)."""
     import fmpy
@@ -87,22 +115,39 @@ def main(argv: list[str] | None = None) -> int:
         steps = len(t) - 1
         names = source.position_names + source.velocity_names + source.acceleration_names + source.output_names
 
-        dostep = min(dostep_loop(source, t, U) for _ in range(args.repeats))
-        record = best_of(args.repeats, lambda: snapshots.record(source, signal, args.dt, args.t_end, quiet=True))
+        rows = np.ones((len(t), source.width))
+        times: dict[str, list[float]] = {}
+
+        def timed(label: str, func) -> None:
+            start = time.perf_counter()
+            func()
+            times.setdefault(label, []).append(time.perf_counter() - start)
+
         h5file = Path(tmp) / "bench.h5"
-        streamed = best_of(args.repeats, lambda: snapshots.record(
-            source, signal, args.dt, args.t_end, path=h5file, quiet=True, overwrite=True, stream=True).close())
-        isolated = best_of(max(1, args.repeats // 2), lambda: snapshots.record(
-            source, signal, args.dt, args.t_end, quiet=True, isolate=True))
-        fmpy_time = best_of(max(1, args.repeats // 2),
-                            lambda: run_simulate_fmu(path, names, signal, args.dt, args.t_end))
+        for _ in range(args.repeats):  # interleaved, so that load from other processes hits all alike
+            times.setdefault("dostep", []).append(dostep_loop(source, t, U))
+            times.setdefault("getreal", []).append(getreal_loop(source, t, U))
+            times.setdefault("advance", []).append(advance_loop(source, t, U, rows))
+            timed("record", lambda: snapshots.record(source, signal, args.dt, args.t_end, quiet=True))
+            timed("streamed", lambda: snapshots.record(source, signal, args.dt, args.t_end, path=h5file, quiet=True,
+                                                        overwrite=True, stream=True).close())
+        for _ in range(max(1, args.repeats // 2)):
+            timed("isolated", lambda: snapshots.record(source, signal, args.dt, args.t_end, quiet=True, isolate=True))
+            timed("fmpy", lambda: run_simulate_fmu(path, names, signal, args.dt, args.t_end))
+        best = {label: min(values) for label, values in times.items()}
+        dostep, record, fmpy_time = best["dostep"], best["record"], best["fmpy"]
 
     us = 1e6 / steps
     print(f"FMU {path.name}: n={source.n}, {len(names)} recorded values per step, {steps} steps "
           f"(dt={args.dt:g}, t_end={args.t_end:g}); best of {args.repeats}")
-    rows = [("doStep loop only", dostep), ("record, in memory", record), ("record, streamed to HDF5", streamed),
-            ("record, isolated child process", isolated), ("fmpy.simulate_fmu, same outputs", fmpy_time)]
-    for label, seconds in rows:
+    table = [("doStep loop only", dostep),
+             ("  fmi2GetReal of all values only", best["getreal"]),
+             ("  recording loop, touched memory", best["advance"]),
+             ("record, in memory", record),
+             ("record, streamed to HDF5 (gzip)", best["streamed"]),
+             ("record, isolated child process", best["isolated"]),
+             ("fmpy.simulate_fmu, same outputs", fmpy_time)]
+    for label, seconds in table:
         print(f"  {label:34s} {seconds:8.3f} s  {seconds * us:8.1f} us/step  {seconds / dostep:6.2f} x doStep")
     ratio = record / dostep
     print(f"recording (in memory) / doStep = {ratio:.2f} (target <= 1.5); "

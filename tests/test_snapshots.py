@@ -117,6 +117,16 @@ def test_streamed_recording_equals_in_memory_recording(tmp_path):
         assert streamed.attrs["position_names"] == memory.attrs["position_names"]
 
 
+def test_large_runs_are_streamed_to_disk_automatically(tmp_path, monkeypatch):
+    source = BuiltinSource("anchored-msd", g=12)
+    small = record(source, "step:amplitude=1", 0.5, 10.0, path=tmp_path / "small.h5", quiet=True)
+    assert isinstance(small.runs[0].x, np.ndarray)
+    monkeypatch.setattr(snapshots, "STREAM_THRESHOLD", 8 * 21 * (3 * 12 + 3 + 1 + 1) - 1)
+    with record(source, "step:amplitude=1", 0.5, 10.0, path=tmp_path / "large.h5", quiet=True) as large:
+        assert isinstance(large.runs[0].x, h5py.Dataset)
+        np.testing.assert_array_equal(large.runs[0].xddot[()], small.runs[0].xddot)
+
+
 def test_merging_requires_the_same_system():
     snaps = small_snapshots()
     other = record(BuiltinSource("anchored-msd", g=10), "step:amplitude=1", 0.5, 5.0, quiet=True)

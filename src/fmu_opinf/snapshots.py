@@ -43,7 +43,11 @@ __all__ = [
     "record_to_file",
     "auto_window",
     "time_grid",
+    "inputs_in_effect",
     "newmark_rates",
+    "significant_frequency",
+    "fade_time",
+    "STREAM_THRESHOLD",
 ]
 
 #: Version of the HDF5 layout written by this module (docs/file-format.md).
