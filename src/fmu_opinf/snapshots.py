@@ -166,6 +166,13 @@ class Snapshots:
     def append(self, other: "Snapshots | Run") -> "Snapshots":
         """Add the runs of ``other`` (same system: sizes and variable names must agree).
 
+        Runs are taken over as they are: runs of an :meth:`open` file stay backed by that file, so
+        keep it open until the merged snapshots are saved (or :meth:`Run.load` them first).
+
+        Parameters
+        ----------
+        other : Snapshots or Run
+
         Returns
         -------
         Snapshots

@@ -268,14 +268,23 @@ class Source:
 
     def __reduce__(self) -> tuple[Any, ...]:
         cls, kwargs = self.recipe()
-        return (_rebuild, (cls, kwargs))
+        return (_rebuild, (cls, kwargs, self._shared_state()))
+
+    def _shared_state(self) -> dict[str, Any]:
+        """Resources a copy in another process may borrow (not own), e.g. an unpacked FMU."""
+        return {}
+
+    def _borrow(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`_shared_state` of the original."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(n={self.n}, m={self.m}, p={self.p}, constraint={self.constraint!r})"
 
 
-def _rebuild(cls: type, kwargs: dict[str, Any]) -> "Source":
-    return cls(**kwargs)
+def _rebuild(cls: type, kwargs: dict[str, Any], state: dict[str, Any] | None = None) -> "Source":
+    source = cls(**kwargs)
+    source._borrow(state or {})
+    return source
 
 
 def _check_constraint(constraint: str | None, default: str) -> str:
@@ -646,6 +655,16 @@ class FMUSource(Source):
         except Exception as exc:
             self._fmu = None
             raise FMUError(f"{self.path.name} failed to instantiate ({self._last_log() or exc})") from None
+
+    def _shared_state(self) -> dict[str, Any]:
+        # unpack here, so that a copy in a child process neither unpacks again nor leaves a
+        # temporary folder behind when its binary crashes
+        return {"unzipdir": self._extracted()}
+
+    def _borrow(self, state: dict[str, Any]) -> None:
+        unzipdir = state.get("unzipdir")
+        if unzipdir and Path(unzipdir).is_dir() and self._unzipdir is None and not self.path.is_dir():
+            self._unzipdir = unzipdir  # owned (and removed) by the original
 
     def _extracted(self) -> str:
         """The unpacked FMU, extracted once per source object and removed with it."""
