@@ -1,15 +1,16 @@
-"""Benchmark FMUs and a generic builder of FMI 2.0 co-simulation FMUs for linear
-second-order systems (the C sources live in the repository's ``fmus/`` folder).
+"""Benchmark FMUs and a generic builder of co-simulation FMUs (FMI 2.0 or 3.0) for linear
+second-order systems; the C sources live in the repository's ``fmus/`` folder.
 
-Every FMU built here shares one FMI glue (``fmus/src/fmi2Functions.c``) and one Newmark
-kernel (``fmus/src/newmark.c``); a model only contributes a ``model.c`` that assembles
-``M, D, K, G, B, Cp, Cv`` from its parameters.  The generated ``config.h`` fixes the
-sizes, the constraint kind and the GUID; the FMU keeps all sources in ``sources/`` and
-is compiled with FMPy's CMake project (:mod:`fmpy.build`).
+Every FMU built here shares one FMI glue (``fmus/src/fmi2Functions.c`` or
+``fmi3Functions.c`` over ``instance.c``) and one Newmark kernel (``fmus/src/newmark.c``);
+a model only contributes a ``model.c`` that assembles ``M, D, K, G, B, Cp, Cv`` from its
+parameters.  The generated ``config.h`` fixes the sizes, the constraint kind and the GUID
+(derived from the content); the FMU keeps all sources in ``sources/`` and is compiled with
+FMPy's CMake project (:mod:`fmpy.build`).
 
-Value references (fixed by ``fmus/include/model.h``): inputs ``1..m``, outputs
-``m+1..m+p``, parameters next, then positions, velocities and accelerations of the
-``n`` degrees of freedom.
+Value references (fixed by ``fmus/include/model.h``): ``0`` time, inputs ``1..m``, outputs
+``m+1..m+p``, parameters next, then positions, velocities and accelerations of the ``n``
+degrees of freedom.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from xml.sax.saxutils import escape, quoteattr
+from xml.sax.saxutils import quoteattr
 
 from .errors import FMUError
 
@@ -298,16 +299,62 @@ _SPEC_FACTORIES = {
 
 # --------------------------------------------------------------------- generation
 
-def _variable(name: str, vr: int, causality: str, variability: str, description: str = "",
-              initial: str | None = None, start: float | None = None) -> str:
-    attributes = f'name={quoteattr(name)} valueReference="{vr}"'
-    if description:
-        attributes += f" description={quoteattr(description)}"
-    attributes += f' causality="{causality}" variability="{variability}"'
-    if initial:
-        attributes += f' initial="{initial}"'
-    real = "<Real/>" if start is None else f'<Real start="{float(start)!r}"/>'
-    return f"    <ScalarVariable {attributes}>\n      {real}\n    </ScalarVariable>\n"
+@dataclass(frozen=True)
+class _Variable:
+    name: str
+    vr: int
+    causality: str
+    variability: str = "continuous"
+    description: str = ""
+    initial: str | None = None
+    start: float | None = None
+
+    def attributes(self) -> str:
+        text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
+        if self.description:
+            text += f" description={quoteattr(self.description)}"
+        text += f' causality="{self.causality}" variability="{self.variability}"'
+        if self.initial:
+            text += f' initial="{self.initial}"'
+        return text
+
+
+def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
+    """The model variables in value-reference order (time not included)."""
+    refs = value_references(spec)
+    held = "input (held over each communication step)"
+    rows = [_Variable(name, vr, "input", description=held, start=0.0)
+            for name, vr in zip(spec.input_names, refs["u"])]
+    rows += [_Variable(name, vr, "output", description="output y = Cp x + Cv v")
+             for name, vr in zip(spec.output_names, refs["y"])]
+    rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
+             for par, vr in zip(spec.parameters, refs["parameters"])]
+    if spec.expose_states:
+        kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
+        for base, what, key in kinds:
+            rows += [_Variable(f"{base}[{i}]", vr, "local",
+                               description=f"{what} of {spec.state_label} {i}")
+                     for i, vr in enumerate(refs[key], start=1)]
+    return rows
+
+
+def _experiment(spec: SecondOrderFmuSpec) -> str:
+    if spec.default_experiment is None:
+        return ""
+    keys = ("startTime", "stopTime", "stepSize")
+    attributes = " ".join(f'{key}="{float(value)!r}"'
+                          for key, value in zip(keys, spec.default_experiment) if value is not None)
+    return f"  <DefaultExperiment {attributes}/>\n"
+
+
+def _variable2(variable: _Variable) -> str:
+    real = "<Real/>" if variable.start is None else f'<Real start="{float(variable.start)!r}"/>'
+    return f"    <ScalarVariable {variable.attributes()}>\n      {real}\n    </ScalarVariable>\n"
+
+
+def _variable3(variable: _Variable) -> str:
+    start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
+    return f"    <Float64 {variable.attributes()}{start}/>\n"
 
 
 def _naming_convention(spec: SecondOrderFmuSpec) -> str:
@@ -316,32 +363,12 @@ def _naming_convention(spec: SecondOrderFmuSpec) -> str:
 
 
 def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) -> str:
-    refs = value_references(spec)
-    variables = []
-    for name, vr in zip(spec.input_names, refs["u"]):
-        variables.append(_variable(name, vr, "input", "continuous", "input (held over each "
-                                   "communication step)", start=0.0))
-    for name, vr in zip(spec.output_names, refs["y"]):
-        variables.append(_variable(name, vr, "output", "continuous", "output y = Cp x + Cv v"))
-    for par, vr in zip(spec.parameters, refs["parameters"]):
-        variables.append(_variable(par.name, vr, "parameter", "fixed", par.description,
-                                   initial="exact", start=par.default))
-    if spec.expose_states:
-        kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
-        for base, what, key in kinds:
-            for i, vr in enumerate(refs[key], start=1):
-                variables.append(_variable(f"{base}[{i}]", vr, "local", "continuous",
-                                           f"{what} of {spec.state_label} {i}"))
+    """FMI 2.0 modelDescription.xml."""
+    variables = [_variable2(v) for v in _variables(spec)]
     output_indices = range(spec.m + 1, spec.m + spec.p + 1)
     outputs = "".join(f'      <Unknown index="{i}"/>\n' for i in output_indices)
     files = "".join(f'        <File name="{s}"/>\n' for s in sources)
-    experiment = ""
-    if spec.default_experiment is not None:
-        keys = ("startTime", "stopTime", "stepSize")
-        attributes = " ".join(f'{key}="{float(value)!r}"'
-                              for key, value in zip(keys, spec.default_experiment)
-                              if value is not None)
-        experiment = f"  <DefaultExperiment {attributes}/>\n"
+    experiment = _experiment(spec)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         f'<fmiModelDescription fmiVersion="2.0" modelName="{spec.identifier}" guid="{guid}"\n'
@@ -379,45 +406,14 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
     )
 
 
-def _variable3(name: str, vr: int, causality: str, variability: str, description: str = "",
-               initial: str | None = None, start: float | None = None) -> str:
-    attributes = f'name={quoteattr(name)} valueReference="{vr}"'
-    if description:
-        attributes += f" description={quoteattr(description)}"
-    attributes += f' causality="{causality}" variability="{variability}"'
-    if initial:
-        attributes += f' initial="{initial}"'
-    if start is not None:
-        attributes += f' start="{float(start)!r}"'
-    return f"    <Float64 {attributes}/>\n"
-
-
 def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
+    """FMI 3.0 modelDescription.xml (time is the independent variable, value reference 0)."""
+    time = _Variable("time", 0, "independent", description="simulation time")
+    variables = [_variable3(v) for v in [time] + _variables(spec)]
     refs = value_references(spec)
-    variables = [_variable3("time", 0, "independent", "continuous", "simulation time")]
-    for name, vr in zip(spec.input_names, refs["u"]):
-        variables.append(_variable3(name, vr, "input", "continuous", "input (held over each "
-                                    "communication step)", start=0.0))
-    for name, vr in zip(spec.output_names, refs["y"]):
-        variables.append(_variable3(name, vr, "output", "continuous", "output y = Cp x + Cv v"))
-    for par, vr in zip(spec.parameters, refs["parameters"]):
-        variables.append(_variable3(par.name, vr, "parameter", "fixed", par.description,
-                                    initial="exact", start=par.default))
-    if spec.expose_states:
-        kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
-        for base, what, key in kinds:
-            for i, vr in enumerate(refs[key], start=1):
-                variables.append(_variable3(f"{base}[{i}]", vr, "local", "continuous",
-                                            f"{what} of {spec.state_label} {i}"))
     outputs = "".join(f'    <Output valueReference="{vr}"/>\n' for vr in refs["y"])
     unknowns = "".join(f'    <InitialUnknown valueReference="{vr}"/>\n' for vr in refs["y"])
-    experiment = ""
-    if spec.default_experiment is not None:
-        keys = ("startTime", "stopTime", "stepSize")
-        attributes = " ".join(f'{key}="{float(value)!r}"'
-                              for key, value in zip(keys, spec.default_experiment)
-                              if value is not None)
-        experiment = f"  <DefaultExperiment {attributes}/>\n"
+    experiment = _experiment(spec)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         f'<fmiModelDescription fmiVersion="3.0" modelName="{spec.identifier}"\n'
