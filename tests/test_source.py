@@ -230,14 +230,24 @@ def toy_xml2(variant: str = "full") -> str:
             '<InitialUnknowns/></ModelStructure></fmiModelDescription>')
 
 
-def toy_xml3() -> str:
-    """FMI 3.0 model description of the toy binary (x, v, a exposed)."""
+def toy_xml3(variant: str = "full") -> str:
+    """FMI 3.0 model description of the toy binary: x, v, a exposed, or Modelica-style states."""
     rows = ['<Float64 name="u" valueReference="0" causality="input" start="0"/>',
             '<Float64 name="y[1]" valueReference="1" causality="output"/>',
             '<Float64 name="y[2]" valueReference="2" causality="output"/>']
-    for base, letter in ((10, "x"), (20, "v"), (30, "a")):
-        rows += [f'<Float64 name="{letter}[{i}]" valueReference="{base + i - 1}" causality="local"/>'
+    structure = ""
+    if variant == "modelica":  # FMI 3 links a derivative to its state by value reference
+        rows += [f'<Float64 name="q[{i}]" valueReference="{9 + i}" causality="local"/>' for i in range(1, TOY_N + 1)]
+        rows += [f'<Float64 name="qd[{i}]" valueReference="{19 + i}" causality="local" derivative="{9 + i}"/>'
                  for i in range(1, TOY_N + 1)]
+        rows += [f'<Float64 name="der(qd[{i}])" valueReference="{29 + i}" causality="local" derivative="{19 + i}"/>'
+                 for i in range(1, TOY_N + 1)]
+        structure = "".join(f'<ContinuousStateDerivative valueReference="{vr}"/>'
+                            for vr in list(range(20, 20 + TOY_N)) + list(range(30, 30 + TOY_N)))
+    else:
+        for base, letter in ((10, "x"), (20, "v"), (30, "a")):
+            rows += [f'<Float64 name="{letter}[{i}]" valueReference="{base + i - 1}" causality="local"/>'
+                     for i in range(1, TOY_N + 1)]
     rows += ['<Int32 name="fault" valueReference="40" causality="parameter" variability="fixed" start="0"/>',
              '<Float64 name="fault_threshold" valueReference="41" causality="parameter" variability="fixed" '
              'start="1e300"/>',
@@ -246,7 +256,7 @@ def toy_xml3() -> str:
             '<fmiModelDescription fmiVersion="3.0" modelName="Toy3" instantiationToken="{toy-0001}">'
             '<CoSimulation modelIdentifier="toy" canHandleVariableCommunicationStepSize="true"/>'
             f'<ModelVariables>{"".join(rows)}</ModelVariables>'
-            '<ModelStructure><Output valueReference="1"/><Output valueReference="2"/></ModelStructure>'
+            f'<ModelStructure><Output valueReference="1"/><Output valueReference="2"/>{structure}</ModelStructure>'
             '</fmiModelDescription>')
 
 
@@ -289,6 +299,8 @@ def build_toys(directory: Path) -> dict[str, Path]:
     for variant in ("full", "positions-only", "no-accelerations", "modelica", "me-only"):
         out[variant] = pack_fmu(directory / f"toy-{variant}.fmu", toy_xml2(variant), library, fmpy.platform)
     out["fmi3"] = pack_fmu(directory / "toy3.fmu", toy_xml3(), library, fmpy.platform_tuple)
+    out["fmi3-modelica"] = pack_fmu(directory / "toy3-modelica.fmu", toy_xml3("modelica"), library,
+                                    fmpy.platform_tuple)
     out["no-binary"] = pack_fmu(directory / "toy-nobinary.fmu", toy_xml2(), None, None)
     out["win-only"] = pack_fmu(directory / "toy-win.fmu", toy_xml2(), library, "win64")
     return out
@@ -354,8 +366,9 @@ def test_default_names_of_the_toy_fmu(toys):
     assert FMUSource(toys["full"], constraint="position").constraint == "position"
 
 
-def test_modelica_style_states_are_found_through_derivative_links(toys):
-    source = FMUSource(toys["modelica"])
+@pytest.mark.parametrize("variant", ["modelica", "fmi3-modelica"])
+def test_modelica_style_states_are_found_through_derivative_links(toys, variant):
+    source = FMUSource(toys[variant])
     assert source.position_names == ["q[1]", "q[2]", "q[3]"]
     assert source.velocity_names == ["qd[1]", "qd[2]", "qd[3]"]
     assert source.acceleration_names == ["der(qd[1])", "der(qd[2])", "der(qd[3])"]
