@@ -1227,7 +1227,7 @@ def auto_window(
         if f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
         elif not t_fade <= t[0] + 0.5 * (T - t[0]):
-            T = t[0] + _next_length(t, run.y, fade, growth)
+            T = float(f"{t[0] + _next_length(t, run.y, fade, growth):.6g}")
         else:
             f_use = max(f_max, 1.0 / max(t_fade - t[0], dt))
             step = _nice_floor(1.0 / (points_per_period * f_use))
