@@ -474,3 +474,24 @@ def test_bundled_fmu_builds_once_and_rebuilds_when_sources_change(tmp_path, monk
     model.write_text(model.read_text() + "\n/* changed */\n")
     fmus.bundled_fmu("TripleChainMSD")
     assert fmus._fmu_guid(path) != first_guid
+
+
+def test_round_off_changes_of_the_step_do_not_refactor(driver_factory):
+    h = 0.1
+    exact = driver_factory("TripleChainMSD", "exact")
+    exact.start()
+    noisy = driver_factory("TripleChainMSD", "noisy")
+    noisy.fmu.setDebugLogging(True, ["logEvents"])
+    noisy.start()
+    t = 0.0
+    for k in range(20):
+        step = h * (1.0 + (-1) ** k * 3e-16 * k)
+        for driver, size in ((exact, h), (noisy, step)):
+            driver.set_input([np.sin(t)])
+            driver.fmu.doStep(t if driver is noisy else k * h, size)
+        t += step
+    factorizations = [text for _, text in noisy.messages if "factored the step matrix" in text]
+    assert len(factorizations) == 1
+    assert np.array_equal(noisy.get("x"), exact.get("x"))
+    noisy.fmu.doStep(t, 0.05)
+    assert len([text for _, text in noisy.messages if "factored the step matrix" in text]) == 2

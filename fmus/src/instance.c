@@ -9,6 +9,7 @@
 #include "instance.h"
 
 #define MESSAGE_LENGTH 512
+#define STEP_SIZE_TOLERANCE 1e-12
 
 static const double parameterDefaults[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_DEFAULTS;
 
@@ -453,6 +454,12 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
 
     CALL(checkStepArguments(instance, function, point, h));
     CALL(ensureInputApplied(instance));
+
+    /* Importers compute h as a difference of times; a step within round-off of the factored
+     * one is that step (avoids refactoring S for every last-bit change of h). */
+    if (fabs(h - instance->solver.stepSize) <= STEP_SIZE_TOLERANCE * instance->solver.stepSize) {
+        h = instance->solver.stepSize;
+    }
 
     if (instance->solver.stepSize != h) {
         status = prepareStep(&instance->solver, &instance->system, h, &instance->allocator, &message);
