@@ -495,3 +495,10 @@ def test_round_off_changes_of_the_step_do_not_refactor(driver_factory):
     assert np.array_equal(noisy.get("x"), exact.get("x"))
     noisy.fmu.doStep(t, 0.05)
     assert len([text for _, text in noisy.messages if "factored the step matrix" in text]) == 2
+
+
+def test_duplicate_variable_names_are_refused():
+    with pytest.raises(fmus.FmuBuildError, match="used twice"):
+        fmus.SecondOrderFmuSpec("Dup", "", n=2, m=1, p=1, input_names=["y"], output_names=["y"])
+    with pytest.raises(fmus.FmuBuildError, match="x\\[1\\]"):
+        fmus.SecondOrderFmuSpec("Dup", "", n=2, m=1, p=1, output_names=["x[1]"])

@@ -169,6 +169,17 @@ class SecondOrderFmuSpec:
                                 f"output names for m={self.m}, p={self.p}; give one name each")
         if self.expose_states is None:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+        self._check_unique_names()
+
+    def _check_unique_names(self) -> None:
+        names = list(self.input_names) + list(self.output_names) + [p.name for p in self.parameters]
+        if self.fmi_version == "3.0":
+            names.append("time")
+        states = tuple(f"{base}[" for base in self.state_names) if self.expose_states else ()
+        clashes = sorted({name for name in names if names.count(name) > 1 or name.startswith(states)})
+        if clashes:
+            raise FmuBuildError(f"variable name(s) {', '.join(clashes)} are used twice; give the "
+                                "inputs, outputs and parameters distinct names")
 
 
 def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:
