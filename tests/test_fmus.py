@@ -502,3 +502,100 @@ def test_duplicate_variable_names_are_refused():
         fmus.SecondOrderFmuSpec("Dup", "", n=2, m=1, p=1, input_names=["y"], output_names=["y"])
     with pytest.raises(fmus.FmuBuildError, match="x\\[1\\]"):
         fmus.SecondOrderFmuSpec("Dup", "", n=2, m=1, p=1, output_names=["x[1]"])
+
+
+VALGRIND_HARNESS = r"""
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include "fmi2Functions.h"
+
+static void logger(fmi2ComponentEnvironment e, fmi2String n, fmi2Status s, fmi2String c,
+                   fmi2String m, ...) {
+    (void)e; (void)n; (void)s; (void)c; (void)m;
+}
+
+int main(void) {
+    fmi2CallbackFunctions cb = { logger, calloc, free, NULL, NULL };
+    const char *categories[] = { "logEvents" };
+    fmi2ValueReference input = 1, parameter = 3;
+    fmi2FMUstate state = NULL, copy = NULL;
+    double u, y, t = 0.0, h;
+    size_t size;
+    char *buffer;
+    int k;
+    fmi2Component c = fmi2Instantiate("h", fmi2CoSimulation, INSTANTIATION_TOKEN, "", &cb, 0, 1);
+
+    fmi2SetDebugLogging(c, 1, 1, categories);
+    fmi2SetupExperiment(c, 0, 0.0, 0.0, 0, 0.0);
+    fmi2EnterInitializationMode(c);
+    u = 2.0;
+    fmi2SetReal(c, &parameter, 1, &u);
+    fmi2ExitInitializationMode(c);
+    for (k = 0; k < 50; k++) {
+        h = k < 25 ? 0.1 : 0.05;
+        u = sin(0.3 * t);
+        fmi2SetReal(c, &input, 1, &u);
+        fmi2DoStep(c, t, h, 1);
+        t += h;
+    }
+    fmi2GetFMUstate(c, &state);
+    fmi2SerializedFMUstateSize(c, state, &size);
+    buffer = malloc(size);
+    fmi2SerializeFMUstate(c, state, buffer, size);
+    fmi2DeSerializeFMUstate(c, buffer, size, &copy);
+    fmi2SetFMUstate(c, copy);
+    fmi2GetReal(c, &input, 1, &y);
+    u = NAN;
+    fmi2SetReal(c, &input, 1, &u);
+    fmi2Reset(c);
+    fmi2SetupExperiment(c, 0, 0.0, 0.0, 0, 0.0);
+    fmi2EnterInitializationMode(c);
+    fmi2ExitInitializationMode(c);
+    fmi2DoStep(c, 0.0, 0.1, 1);
+    fmi2DoStep(c, 5.0, 0.1, 1);
+    fmi2FreeFMUstate(c, &state);
+    fmi2FreeFMUstate(c, &copy);
+    free(buffer);
+    fmi2FreeInstance(c);
+    printf("done\n");
+    return 0;
+}
+"""
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_sources_compile_without_warnings(tmp_path, version):
+    spec = fmus.triple_chain_spec(10)
+    spec.fmi_version = version
+    path = fmus.build_second_order_fmu(spec, tmp_path / "T.fmu", compile=False)
+    import zipfile
+
+    zipfile.ZipFile(path).extractall(tmp_path / "T")
+    sources = sorted(str(p) for p in (tmp_path / "T" / "sources").glob("*.c"))
+    compiler = fmus.find_build_tools()[1]
+    result = subprocess.run([compiler, "-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Werror", "-O2",
+                             "-shared", "-fPIC", "-I", str(tmp_path / "T" / "sources"), *sources,
+                             "-o", str(tmp_path / "T.so"), "-lm"], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+def test_no_leaks_or_memory_errors_under_valgrind(tmp_path):
+    import shutil
+    import zipfile
+
+    if shutil.which("valgrind") is None:
+        pytest.skip("valgrind is not installed")
+    path = fmus.build_second_order_fmu(fmus.triple_chain_spec(10), tmp_path / "T.fmu", compile=False)
+    zipfile.ZipFile(path).extractall(tmp_path / "T")
+    src = tmp_path / "T" / "sources"
+    (tmp_path / "harness.c").write_text(VALGRIND_HARNESS)
+    program = tmp_path / "harness"
+    compiler = fmus.find_build_tools()[1]
+    subprocess.run([compiler, "-std=c99", "-g", "-O1", "-I", str(src), "-include", "config.h",
+                    *(str(src / f) for f in ("fmi2Functions.c", "instance.c", "newmark.c", "model.c")),
+                    str(tmp_path / "harness.c"), "-o", str(program), "-lm"], check=True)
+    result = subprocess.run(["valgrind", "--leak-check=full", "--error-exitcode=9", str(program)],
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "All heap blocks were freed" in result.stderr and result.stdout.strip() == "done"
