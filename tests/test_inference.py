@@ -51,7 +51,19 @@ def test_exact_data_recover_the_operators_up_to_scale(rng, method, compressed):
 def test_auto_path_is_certified_or_falls_back(rng):
     _, data = _exact_data(rng)
     assert fit_operators(*data).info["method"] == "lstsq-certified"
-    assert fit_operators(*_active_data(rng)).info["method"] == "sdp"
+    screened = fit_operators(*_active_data(rng)).info
+    assert screened["method"] == "sdp-screened" and screened["cones"] == ["Dr"]
+
+
+def test_cone_screening_gives_the_full_sdp_optimum(rng):
+    data = _active_data(rng)
+    screened = fit_operators(*data, method="auto")
+    full = fit_operators(*data, method="sdp")
+    assert full.info["cones"] == ["Mr", "Dr", "Kr"]
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        a, b = getattr(screened, name), getattr(full, name)
+        assert np.abs(a - b).max() < 1e-6 * np.abs(b).max()
+    assert screened.info["objective"] == pytest.approx(full.info["objective"], rel=1e-8)
 
 
 def test_learned_operators_are_symmetric_psd_when_constraints_bind(rng):
