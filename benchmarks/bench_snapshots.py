@@ -13,7 +13,9 @@ shared machine only ever makes the figures worse):
 * ``simulate_fmu``  ``fmpy.simulate_fmu`` with the same step, input and output variables.
 
 Run: ``python benchmarks/bench_snapshots.py [--g 600] [--t-end 2000] [--dt 0.5] [--repeats 5]``.
-Exit status 1 if recording costs more than 1.5 times the doStep loop.
+Exit status 1 if recording costs more than 1.5 times the doStep loop (best of each, the usual estimate of
+the intrinsic cost; on a loaded machine compare also the "loop" and "GetReal" lines, which show where the
+time goes).
 """
 
 from __future__ import annotations
@@ -149,8 +151,11 @@ def main(argv: list[str] | None = None) -> int:
              ("fmpy.simulate_fmu, same outputs", fmpy_time)]
     for label, seconds in table:
         print(f"  {label:34s} {seconds:8.3f} s  {seconds * us:8.1f} us/step  {seconds / dostep:6.2f} x doStep")
+    paired = sorted(r / d for r, d in zip(times["record"], times["dostep"]))
+    print(f"paired record/doStep ratios (each repeat back to back; spread shows machine load): "
+          f"median {float(np.median(paired)):.2f}, range {paired[0]:.2f} .. {paired[-1]:.2f}")
     ratio = record / dostep
-    print(f"recording (in memory) / doStep = {ratio:.2f} (target <= 1.5); "
+    print(f"recording (in memory) / doStep = {ratio:.2f} (best of each; target <= 1.5); "
           f"recording overhead = {(record - dostep) / dostep:.2f} x doStep; "
           f"simulate_fmu / record = {fmpy_time / record:.1f}")
     return 0 if ratio <= 1.5 else 1
