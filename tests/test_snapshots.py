@@ -208,17 +208,19 @@ def test_error_mid_run_keeps_the_samples_so_far(toys, tmp_path, fault, text):
 
 
 def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):
-    """The toy dereferences NULL in doStep once its input exceeds the threshold (at step 40)."""
+    """The toy dereferences NULL in doStep once its input exceeds the threshold: u(4.0) = 1 is in
+    effect for the step from t=4.0 to sample 41, so samples 0..40 exist when the process dies."""
     signal = SignalStub(amplitude=1.0, t0=3.95)
     clean = record(FMUSource(toys["full"]), signal, 0.1, 6.0, quiet=True).runs[0]
     path = tmp_path / "crash.h5"
-    with pytest.raises(StepError, match="crashed the simulation process \\(signal SIGSEGV\\) at step") as info:
+    with pytest.raises(StepError, match="crashed the simulation process \\(signal SIGSEGV\\) at step 41 "
+                                         "\\(t=4 -> 4.1\\); the 41 samples before it are kept") as info:
         record_to_file(str(toys["full"]), path, [signal.spec], dt=0.1, t_end=6.0, quiet=True, isolate=True,
                        parameters={"fault": 3, "fault_threshold": 0.5})
     assert isinstance(info.value, FmuOpinfError) and "\n" not in str(info.value)
     run = Snapshots.load(path).runs[0]
     assert run.attrs["complete"] is False and run.attrs["isolated"] is True
-    assert 40 - 8 <= run.k <= 40  # samples are published to the parent every 8 steps
+    assert run.k == 41 and run.attrs["k_planned"] == 61
     for name in ARRAYS:
         np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :run.k])
 

@@ -594,8 +594,8 @@ def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarra
 
 
 def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: np.ndarray, rows: np.ndarray) -> None:
-    """Steps in sub-blocks of 8 samples, publishing the number of valid rows after each."""
-    k, cap, sub = len(t), len(rows), 8
+    """Fill the shared buffer block by block, publishing the number of finished rows after every sample."""
+    k, cap = len(t), len(rows)
     try:
         source.start(t, U)
     except StepError as exc:
@@ -604,24 +604,19 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
     except FmuOpinfError as exc:  # nothing recorded yet: the parent raises the same kind of error
         conn.send(("error", type(exc).__name__, str(exc)))
         return
-    i = filled = 0
+    i = 0
     try:
         while i < k:
-            c = min(sub, cap - filled, k - i)
+            c = min(cap, k - i)
+            count[0] = 0
             try:
-                source.advance(rows[filled:], i, c)
+                source.advance(rows, i, c, published=count)
             except StepError as exc:
-                count[0] = filled + max(0, exc.step - i)
                 conn.send(("fail", str(exc), exc.step, exc.time))
                 return
-            filled += c
             i += c
-            count[0] = filled
-            if filled == cap or i == k:
-                conn.send(("block", filled))
-                conn.recv()
-                filled = 0
-                count[0] = 0
+            conn.send(("block", c))
+            conn.recv()
         conn.send(("done",))
     finally:
         source.close()
@@ -630,8 +625,8 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
 def _produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
     """Like :func:`_produce_inprocess`, with the source in a spawned child process.
 
-    The child writes samples into shared memory and publishes how many rows are valid, so when it
-    dies (a crashing binary) the samples it finished are still taken over.
+    The child writes samples into shared memory and publishes after each sample how many rows are
+    complete, so when it dies (a crashing binary) every sample it finished is still taken over.
     """
     k, width = len(t), source.width
     cap = sink.block

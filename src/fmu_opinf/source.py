@@ -232,7 +232,8 @@ class Source:
     def close(self) -> None:
         """Release the model; safe to call twice."""
 
-    def advance(self, rows: np.ndarray, i0: int, count: int) -> None:
+    def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
+                offset: int = 0) -> None:
         """Fill ``rows[:count]`` with the samples ``i0 .. i0+count-1`` of the planned run.
 
         Parameters
@@ -243,6 +244,10 @@ class Source:
             Index of the first sample; sample 0 is the start state.
         count : int
             Number of samples to produce.
+        published : (1,) int64 ndarray, optional
+            Set to ``offset + j + 1`` as soon as row ``j`` is complete (crash-safe recording: a
+            process watching shared memory knows every finished sample even if this one dies).
+        offset : int, default=0
         """
         t, U = self._t, self._U
         for j in range(count):
@@ -250,6 +255,8 @@ class Source:
             if i:
                 self.step(float(t[i - 1]), float(t[i] - t[i - 1]), U[i])
             self.read(rows[j])
+            if published is not None:
+                published[0] = offset + j + 1
 
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         """Check and keep the run plan (shared by subclasses' :meth:`start`)."""
@@ -813,15 +820,15 @@ class FMUSource(Source):
         f = self._flags.ctypes.data
         return self._c_step(self._comp, t, h, True, f, f + 1, f + 2, f + 8)
 
-    def advance(self, rows: np.ndarray, i0: int, count: int) -> None:
+    def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
+                offset: int = 0) -> None:
         if rows.dtype != np.float64 or not rows.flags.c_contiguous or rows.shape[1] != len(self._out_vrs):
             raise DimensionError(f"advance needs a C-contiguous float64 (c, {len(self._out_vrs)}) buffer")
-        if self.fmi_version.startswith("2"):
-            self._advance2(rows, i0, count)
-        else:
-            self._advance3(rows, i0, count)
+        loop = self._advance2 if self.fmi_version.startswith("2") else self._advance3
+        loop(rows, i0, count, published, offset)
 
-    def _advance2(self, rows: np.ndarray, i0: int, count: int) -> None:
+    def _advance2(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None,
+                   offset: int) -> None:
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
         in_vr, m = self._in_vr_arr.ctypes.data, self.m
         out_vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
@@ -837,8 +844,11 @@ class FMUSource(Source):
                     raise StepError(self._fail_text("in fmi2DoStep", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
                 raise StepError(self._fail_text("in fmi2GetReal", i), i, t[i])
+            if published is not None:
+                published[0] = offset + j + 1
 
-    def _advance3(self, rows: np.ndarray, i0: int, count: int) -> None:
+    def _advance3(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None,
+                   offset: int) -> None:
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
         in_vr, m = self._in_vr_arr.ctypes.data, self.m
         out_vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
@@ -855,6 +865,8 @@ class FMUSource(Source):
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride, nv) > 1:
                 raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
+            if published is not None:
+                published[0] = offset + j + 1
 
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
