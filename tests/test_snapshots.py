@@ -239,6 +239,28 @@ def test_binary_failing_to_load_in_the_child_is_reported_without_a_file(toys, tm
     assert not (tmp_path / "none.h5").exists()
 
 
+@pytest.mark.parametrize("isolate", [False, True])
+@pytest.mark.parametrize("stream", [False, True])
+def test_runs_spanning_many_blocks(toys, tmp_path, monkeypatch, isolate, stream):
+    """16-sample blocks: block boundaries, a failure in a later block, streaming and isolation."""
+    signal = SignalStub(amplitude=1.0, t0=2.25)  # u(2.3) = 1 is in effect from the step ending at sample 24
+    clean = record(FMUSource(toys["full"]), signal, 0.1, 6.0, quiet=True).runs[0]
+    monkeypatch.setattr(snapshots, "_BLOCK_BYTES", 1)
+    whole = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True,
+                   isolate=isolate, path=tmp_path / "whole.h5", stream=stream)
+    reference = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True).runs[0]
+    for name in ARRAYS:
+        np.testing.assert_array_equal(np.asarray(getattr(whole.runs[0], name)[()]), getattr(reference, name))
+    whole.close()
+    failing = FMUSource(toys["full"], parameters={"fault": 1, "fault_threshold": 0.5})
+    with pytest.raises(StepError, match="at step 24 \\(t=2.3 -> 2.4\\)"):
+        record(failing, signal, 0.1, 6.0, path=tmp_path / "part.h5", quiet=True, isolate=isolate, stream=stream)
+    run = Snapshots.load(tmp_path / "part.h5").runs[0]
+    assert run.k == 24 and not run.complete
+    for name in ARRAYS:
+        np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :24])
+
+
 def test_isolated_recording_equals_in_process_recording(toys):
     signal = SignalStub(amplitude=1.0, t0=0.35)
     inproc = record(FMUSource(toys["fmi3"]), signal, 0.01, 3.0, quiet=True).runs[0]
