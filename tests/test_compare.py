@@ -1,0 +1,124 @@
+"""compare and the report: error measures against independent computations, files, bad input."""
+
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from fmu_opinf import compare, newmark, rom, snapshots, systems
+from fmu_opinf.errors import DimensionError, FileFormatError, InputSpecError
+
+TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
+TEST = "harmonic:amplitude=1,omega=0.2"
+
+
+@pytest.fixture(scope="module")
+def anchored_rom(tmp_path_factory):
+    """A ROM of the builtin anchored chain (r = 5), saved to a file."""
+    snaps = snapshots.record("builtin:anchored-msd", TRAIN, 0.5, 100.0, quiet=True)
+    model = rom.fit_rom(snaps, r=5)
+    path = tmp_path_factory.mktemp("rom") / "rom.h5"
+    model.save(path)
+    return model, path
+
+
+def test_error_measure_is_eq19():
+    y_ref = np.array([[0.0, 2.0, -1.0], [0.0, 0.0, 1.0]])
+    y = np.array([[0.0, 1.0, -1.0], [1.0, 0.0, 1.0]])
+    assert np.allclose(compare.output_error(y_ref, y), np.array([1.0, 1.0, 0.0]) / 4.0)
+    with pytest.raises(DimensionError, match="identically zero"):
+        compare.output_error(np.zeros((1, 3)), np.zeros((1, 3)))
+
+
+def test_rom_against_itself_has_zero_error(anchored_rom):
+    model, path = anchored_rom
+    result = compare.compare(path, str(path), TEST, dt=0.5, t_end=50.0, quiet=True)
+    metrics = result.metrics()
+    assert metrics["max_error"] == 0.0 and metrics["l2_error"] == 0.0
+
+
+def test_rom_against_fom_matches_an_independent_computation(anchored_rom):
+    model, path = anchored_rom
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=400.0, quiet=True)
+    fom = newmark.simulate(systems.anchored_msd(), TEST, 0.5, 400.0)
+    reduced = model.simulate(TEST, 0.5, 400.0)
+    expected = compare.output_error(fom.y, reduced.y).max()
+    assert result.metrics()["max_error"] == pytest.approx(expected, rel=1e-12)
+    assert 0 < expected < 1e-4
+    assert result.metrics()["l2_error"] == pytest.approx(
+        np.linalg.norm(fom.y - reduced.y) / np.linalg.norm(fom.y), rel=1e-12)
+
+
+def test_report_files(anchored_rom, tmp_path):
+    model, path = anchored_rom
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=200.0, quiet=True)
+    page = compare.write_report(result, tmp_path / "report")
+    metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
+    for key in ("max_error", "l2_error", "r", "fom_seconds", "rom_seconds", "speedup", "input", "fom", "rom"):
+        assert key in metrics
+    assert metrics["r"] == 5 and metrics["input"].startswith("harmonic")
+    assert metrics["fom"]["source"] == "builtin:anchored-msd"
+    text = page.read_text()
+    assert text.count("data:image/png;base64,") == 2
+    assert "eq. (19)" in text
+    for png in ("outputs.png", "error.png"):
+        assert (tmp_path / "report" / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_report_directory_that_is_a_file_is_refused(anchored_rom, tmp_path):
+    model, path = anchored_rom
+    result = compare.compare(model, "builtin:anchored-msd", TEST, dt=0.5, t_end=10.0, quiet=True)
+    target = tmp_path / "report"
+    target.write_text("keep me")
+    with pytest.raises(FileFormatError, match="is an existing file"):
+        compare.write_report(result, target)
+    assert target.read_text() == "keep me"
+
+
+def test_rom_and_source_that_disagree_are_refused(anchored_rom):
+    model, path = anchored_rom
+    with pytest.raises(DimensionError, match="the source has 1 outputs but the ROM has 3"):
+        compare.compare(path, "builtin:triple-chain", TEST, dt=0.5, t_end=10.0, quiet=True)
+
+
+def test_input_beyond_its_table_is_refused(anchored_rom, tmp_path):
+    model, path = anchored_rom
+    table = tmp_path / "u.csv"
+    table.write_text("t,u\n0,1\n20,0\n")
+    with pytest.raises(InputSpecError, match=r"defined on \[0, 20\]"):
+        compare.compare(path, "builtin:anchored-msd", str(table), dt=0.5, t_end=40.0, quiet=True)
+
+
+def _chromium():
+    return shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+
+
+CHECK_IMAGES = """
+<script>
+window.addEventListener("load", () => {
+  const images = Array.from(document.images);
+  const ok = images.filter(i => i.complete && i.naturalWidth > 0).length;
+  document.body.setAttribute("data-images", ok + "/" + images.length);
+});
+</script>
+"""
+
+
+@pytest.mark.skipif(_chromium() is None, reason="no chromium installed (.ci/run installs Debian's chromium)")
+def test_report_page_renders_in_headless_chromium(anchored_rom, tmp_path):
+    model, path = anchored_rom
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=200.0, quiet=True)
+    page = compare.write_report(result, tmp_path / "report")
+    probe = page.with_name("probe.html")
+    probe.write_text(page.read_text().replace("</body>", CHECK_IMAGES + "</body>"))
+    command = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+               "--disable-background-networking", "--disable-component-update", "--disable-sync",
+               f"--user-data-dir={tmp_path / 'profile'}", "--enable-logging=stderr", "--v=0",
+               "--virtual-time-budget=5000", "--dump-dom", probe.as_uri()]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert 'data-images="2/2"' in done.stdout, done.stdout[-500:]
+    console_errors = [line for line in done.stderr.splitlines() if "CONSOLE" in line and "ERROR" in line]
+    assert not console_errors, console_errors
