@@ -114,10 +114,10 @@ def build_parser() -> argparse.ArgumentParser:
 def _run_snapshots(args: argparse.Namespace) -> None:
     from .snapshots import record_to_file
 
-    path = record_to_file(args.source, args.output, args.input_spec, dt=args.dt, t_end=args.t_end,
-                          auto_window=args.auto_window, overwrite=args.force, quiet=args.quiet,
-                          isolate=not args.in_process, **_source_options(args))
-    print(f"wrote {path}")
+    summary = record_to_file(args.source, args.output, args.input_spec, dt=args.dt, t_end=args.t_end,
+                             auto_window=args.auto_window, overwrite=args.force, quiet=args.quiet,
+                             isolate=not args.in_process, **_source_options(args))
+    print(f"wrote {summary.describe()}")
 
 
 def _run_fit(args: argparse.Namespace) -> None:

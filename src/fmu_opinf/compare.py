@@ -211,8 +211,8 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     from .newmark import applied_inputs
     from .source import open_source
 
-    options = {k: v for k, v in options.items() if k not in ("g", "n1", "alpha", "beta", "v")}
-    source = open_source(spec, **options)
+    options = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters")}
+    source = open_source(spec, positions="", **options)
     u = applied_inputs(signal, t)
     if u.shape[0] != source.m:
         raise DimensionError(f"the input has {u.shape[0]} channels but {Path(str(spec)).name} has {source.m} "
@@ -299,11 +299,10 @@ def compare(rom: Any, source: Any, input_spec: str, dt: float | None = None, t_e
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **(source_options or {}))
-    rom_options = ROM_FMU_VARIABLES if isinstance(rom_side, Path) else {}
     if len(fom_outputs) != rom_info["p"]:
         raise DimensionError(f"the source has {len(fom_outputs)} outputs but the ROM has {rom_info['p']}; "
                              "compare a ROM with the model it was learned from")
-    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
+    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True)
     return Comparison(
         t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],

@@ -487,7 +487,8 @@ class FMUSource(Source):
     positions : str, optional
         Name patterns of the positions (``*`` wildcard, comma lists, brackets literal).  Default:
         ``x[*]`` if it matches, else the states whose derivative is a state (Modelica-style
-        ``der(...)`` links of the model structure).
+        ``der(...)`` links of the model structure).  An empty string reads no states at all
+        (inputs and outputs only, as :func:`fmu_opinf.compare.compare` does).
     velocities, accelerations : str, optional
         Name patterns; default: the derivatives of the positions (velocities) if the model
         structure links them, else ``v[*]`` / ``a[*]``, else derived from the data.
@@ -557,17 +558,20 @@ class FMUSource(Source):
     def _resolve(self, md: Any, positions: str | None, velocities: str | None, accelerations: str | None,
                  inputs: str | None, outputs: str | None) -> None:
         sel = _VariableSelection(md, self.path)
-        if positions is not None:
+        if positions == "":  # outputs only (validation runs): no states are read
+            pos, vel, acc = [], [], []
+        elif positions is not None:
             pos = sel.pattern("positions", positions, required=True)
         else:
             pos = sel.pattern("positions", "x[*]", required=False) or sel.structural_positions()
             if not pos:
                 raise FMUError(f"{self.path.name} has no x[*] variables and no second-order states; "
                                "pass --positions with the position variables' names")
-        vel = self._second(sel, "velocities", velocities, pos, "v[*]")
-        acc = self._second(sel, "accelerations", accelerations, vel, "a[*]") if (vel or accelerations) else []
-        if not vel and accelerations is None:
-            acc = []
+        if pos:
+            vel = self._second(sel, "velocities", velocities, pos, "v[*]")
+            acc = self._second(sel, "accelerations", accelerations, vel, "a[*]") if (vel or accelerations) else []
+            if not vel and accelerations is None:
+                acc = []
         for what, names in (("velocities", vel), ("accelerations", acc)):
             if names and len(names) != len(pos):
                 raise FMUError(f"{len(pos)} positions but {len(names)} {what} in {self.path.name}; "
