@@ -69,30 +69,68 @@ def sha256_of(path: str | os.PathLike) -> str:
     return digest.hexdigest()
 
 
+#: Values larger than this go into datasets: HDF5 object headers hold at most 64 KiB of attributes.
+LARGE_ATTRIBUTE_BYTES = 16 * 1024
+_LARGE_GROUP = "_attrs"
+
+
+def _encode(value: Any) -> Any:
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        return np.array(value, dtype=h5py.string_dtype())
+    if isinstance(value, dict):
+        import json
+
+        return json.dumps(value)
+    return value
+
+
+def _nbytes(value: Any) -> int:
+    if isinstance(value, str):
+        return len(value.encode())
+    if isinstance(value, np.ndarray) and value.dtype.kind == "O":
+        return sum(len(str(v)) + 16 for v in value.flat)
+    return int(np.asarray(value).nbytes)
+
+
 def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
-    """Store a flat dict as HDF5 attributes; ``None`` is skipped, lists of str kept as str arrays."""
+    """Store a flat dict as HDF5 attributes; ``None`` is skipped, lists of str become str arrays,
+    dicts become JSON text.
+
+    A value too large for an object header (e.g. the names of a million variables) is stored
+    as a dataset in the group's ``_attrs`` subgroup instead; :func:`read_attrs` merges it back.
+    """
     for key, value in attrs.items():
         if value is None:
             continue
-        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
-            obj.attrs[key] = np.array(value, dtype=h5py.string_dtype())
-        elif isinstance(value, dict):
-            import json
-
-            obj.attrs[key] = json.dumps(value)
+        encoded = _encode(value)
+        if isinstance(obj, h5py.Group) and _nbytes(encoded) > LARGE_ATTRIBUTE_BYTES:
+            large = obj.require_group(_LARGE_GROUP)
+            if key in large:
+                del large[key]
+            if isinstance(encoded, str):
+                large.create_dataset(key, data=encoded, dtype=h5py.string_dtype())
+            else:
+                large.create_dataset(key, data=encoded, compression="gzip", compression_opts=1)
         else:
-            obj.attrs[key] = value
+            obj.attrs[key] = encoded
+
+
+def _decode(value: Any) -> Any:
+    if isinstance(value, bytes):
+        return value.decode()
+    if isinstance(value, np.ndarray) and value.dtype.kind in "OS":
+        if value.ndim == 0:
+            return _decode(value[()])
+        return [v.decode() if isinstance(v, bytes) else str(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
 
 
 def read_attrs(obj: h5py.HLObject) -> dict[str, Any]:
-    """Read HDF5 attributes back into plain Python values (str arrays become lists)."""
-    out: dict[str, Any] = {}
-    for key, value in obj.attrs.items():
-        if isinstance(value, bytes):
-            value = value.decode()
-        elif isinstance(value, np.ndarray) and value.dtype.kind in "OS":
-            value = [v.decode() if isinstance(v, bytes) else str(v) for v in value]
-        elif isinstance(value, np.generic):
-            value = value.item()
-        out[key] = value
+    """Read HDF5 attributes (and large values kept as datasets) back into plain Python values."""
+    out = {key: _decode(value) for key, value in obj.attrs.items()}
+    if isinstance(obj, h5py.Group) and isinstance(obj.get(_LARGE_GROUP), h5py.Group):
+        for key, dataset in obj[_LARGE_GROUP].items():
+            out[key] = _decode(dataset[()])
     return out
