@@ -215,15 +215,16 @@ def _reduced_quadratic(H: np.ndarray, a: np.ndarray, trace: float, keep: tuple[i
     idx_a = np.concatenate([np.arange(b * ns, (b + 1) * ns) for b in keep])
     idx_f = np.concatenate([np.arange(b * ns, (b + 1) * ns) for b in range(3) if b not in keep])
     H_ff, H_fa = H[np.ix_(idx_f, idx_f)], H[np.ix_(idx_f, idx_a)]
+    factor = scipy.linalg.cho_factor(H_ff, check_finite=False)
+    Y = scipy.linalg.cho_solve(factor, H_fa, check_finite=False)
     if 0 in keep:
-        X = -scipy.linalg.solve(H_ff, H_fa, assume_a="pos")
-        x0 = np.zeros(idx_f.size)
-    else:
-        a_f = a[idx_f][:, None]
-        kkt = np.block([[H_ff, a_f], [a_f.T, np.zeros((1, 1))]])
-        rhs = np.hstack([np.vstack([-H_fa, np.zeros((1, idx_a.size))]), np.r_[np.zeros(idx_f.size), trace][:, None]])
-        sol = scipy.linalg.solve(kkt, rhs, assume_a="sym")
-        X, x0 = sol[:-1, :-1], sol[:-1, -1]
+        X, x0 = -Y, np.zeros(idx_f.size)
+    else:  # w_F = -Y w_A - z mu with the multiplier mu of a_F^T w_F = trace
+        a_f = a[idx_f]
+        z = scipy.linalg.cho_solve(factor, a_f, check_finite=False)
+        beta = float(a_f @ z)
+        X = -Y + np.outer(z, a_f @ Y) / beta
+        x0 = z * (trace / beta)
     S = H[np.ix_(idx_a, idx_a)] + H_fa.T @ X
     return idx_a, idx_f, 0.5 * (S + S.T), H_fa.T @ x0, X, x0
 
