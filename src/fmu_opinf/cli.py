@@ -158,12 +158,10 @@ def _run_demo(args: argparse.Namespace) -> None:
 
 
 def _run_build_fmus(args: argparse.Namespace) -> None:
-    from .fmus import build_fmus
+    from .fmus import build_fmus, bundled_fmu_dir
 
-    kwargs = {"g": args.g, "n1": args.n1}
-    if args.output:
-        kwargs["out_dir"] = args.output
-    for path in build_fmus(**kwargs):
+    out_dir = args.output if args.output else bundled_fmu_dir()
+    for path in build_fmus(out_dir=out_dir, g=args.g, n1=args.n1):
         print(f"built {path}")
 
 

@@ -223,6 +223,11 @@ def _c_sources_dir() -> Path:
     return root
 
 
+def bundled_fmu_dir() -> Path:
+    """The folder where :func:`bundled_fmu` and ``fmu-opinf build-fmus`` put the benchmark FMUs."""
+    return _c_sources_dir()
+
+
 def _model_files(name: str) -> tuple[str, dict[str, str]]:
     folder = _c_sources_dir() / name
     source = (folder / "model.c").read_text()
