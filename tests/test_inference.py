@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf.errors import DataError, DimensionError, SolverError
-from fmu_opinf.inference import compressed_factor, fit_operators, fit_outputs
+from fmu_opinf.inference import compressed_factor, fit_operators, fit_outputs, lowpass_filter
 
 
 def _spd(rng, r, shift):
@@ -53,6 +53,19 @@ def test_auto_path_is_certified_or_falls_back(rng):
     assert fit_operators(*data).info["method"] == "lstsq-certified"
     screened = fit_operators(*_active_data(rng)).info
     assert screened["method"] == "sdp-screened" and screened["cones"] == ["Dr"]
+
+
+def test_two_indefinite_blocks_fall_back_to_the_full_sdp():
+    rng = np.random.default_rng(5)
+    r, k = 5, 300
+    M = _spd(rng, r, 1.0)
+    D, K = (w @ w.T for w in rng.standard_normal((2, r, 1)))  # both singular
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x) + 0.3 * rng.standard_normal((r, k))
+    auto = fit_operators(a, v, x, u)
+    assert auto.info["method"] == "sdp" and auto.info["cones"] == ["Mr", "Dr", "Kr"]
+    assert auto.info["objective"] == pytest.approx(fit_operators(a, v, x, u, method="sdp").info["objective"])
 
 
 def test_cone_screening_gives_the_full_sdp_optimum(rng):
@@ -171,3 +184,16 @@ def test_outputs_by_least_squares(rng):
     np.testing.assert_allclose(Cvr, Cv, atol=1e-8)
     with pytest.raises(DataError, match="y contains NaN"):
         fit_outputs(v, x, np.full((p, k), np.nan))
+
+
+def test_lowpass_weighting_keeps_exact_relations(rng):
+    truth, data = _exact_data(rng, k=400)
+    filtered = lowpass_filter(list(data), dt=0.1, cutoff=3.0)
+    assert np.abs(filtered[0] - data[0]).max() > 0.1 * np.abs(data[0]).max()  # the data did change
+    M, D, K, B = truth
+    a, v, x, u = filtered
+    resid = M @ a + D @ v + K @ x - B @ u
+    assert np.abs(resid).max() < 1e-12 * np.abs(B @ u).max()
+    assert _relative_to_scale(fit_operators(*filtered), truth) < 1e-7
+    with pytest.raises(ValueError, match="must lie in"):
+        lowpass_filter(list(data), dt=0.1, cutoff=40.0)

@@ -46,9 +46,10 @@ iteration then factors a KKT matrix whose Schur complement in the ``3 r (r+1) / 
 ``method="auto"`` (default) solves the same problem by *cone screening*, which is exact, not a heuristic:
 
 1. drop all cones: one equality-constrained least-squares solve;
-2. if some of ``Mr, Dr, Kr`` come out indefinite, keep the cones of exactly those blocks, eliminate the other
-   blocks (and the trace constraint, if the mass block is eliminated) by a Schur complement, and let Clarabel
-   solve the smaller SDP; repeat while a dropped block is indefinite (at worst all three cones: the full SDP).
+2. if exactly one of ``Mr, Dr, Kr`` comes out indefinite, keep its cone only, eliminate the other two blocks
+   (and the trace constraint, if the mass block is eliminated) by a Schur complement, and let Clarabel solve
+   this SDP in a third of the unknowns;
+3. if a dropped block is still indefinite, or two blocks were indefinite to begin with, solve the full SDP.
 
 Each round is a relaxation of eq. (16) (fewer constraints, same objective), so its optimum is a lower bound;
 once the dropped blocks are PSD it is feasible for eq. (16) and therefore optimal.  ``fit_info["method"]``
@@ -70,7 +71,7 @@ import scipy.sparse as sp
 
 from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
 
-__all__ = ["OperatorFit", "fit_operators", "fit_outputs", "compressed_factor", "psd_report"]
+__all__ = ["OperatorFit", "fit_operators", "fit_outputs", "compressed_factor", "psd_report", "lowpass_filter"]
 
 
 @dataclass
@@ -403,43 +404,44 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
     return _fit_screened(H, r, tol, verbose)
 
 
-def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool) -> tuple:
-    """Cone screening: solve with only the cones that the previous relaxation violated (exact, see module doc).
+def _indefinite(mats: tuple, blocks: Any) -> list[int]:
+    """Indices of the blocks among ``blocks`` with a negative eigenvalue."""
+    return [b for b in blocks if np.linalg.eigvalsh(mats[b])[0] < 0]
 
-    Round 0 drops all cones (one linear solve).  Each later round keeps the cones of every block found
-    indefinite so far and eliminates the other blocks; a relaxation whose dropped blocks come out PSD is
-    optimal for the full SDP.  At worst all three cones are kept (the full SDP).
+
+def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool) -> tuple:
+    """Cone screening: solve with only the cones that a relaxation violates (exact, see module docstring).
+
+    Round 0 drops all cones (one linear solve).  If one block comes out indefinite, its cone alone is kept and
+    the other two blocks are eliminated (a dense but three times smaller SDP); a relaxation whose dropped blocks
+    come out PSD is optimal for the full SDP.  Otherwise the full SDP is solved: with two cones, eliminating
+    the third block would turn the sparse quadratic form dense and cost more than keeping it.
     """
     t0 = time.perf_counter()
-    keep: list[int] = []
-    seconds = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
-    info: dict[str, Any] = {"status": "optimal", "solver": "none (cone constraints inactive)"}
-    while True:
-        w = None
-        if not keep:
-            w = _solve_unconstrained(H, _mass_indicator(r), float(r))
-        elif len(keep) < 3:
-            try:
-                w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, tuple(keep))
-            except np.linalg.LinAlgError:
-                w = None
-        else:
-            w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose)
-        if w is None:  # singular data matrix: only the full SDP is well posed
-            keep = [0, 1, 2]
-            continue
-        for key in ("setup_seconds", "solve_seconds", "iterations"):
-            seconds[key] += info.get(key, 0.0)
+    spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
+    w = _solve_unconstrained(H, _mass_indicator(r), float(r))
+    if w is not None:
         mats = _unpack(w, r)
-        violated = [b for b in range(3) if b not in keep and np.linalg.eigvalsh(mats[b])[0] < 0]
-        if not violated:
-            break
-        keep = sorted(keep + violated)
-    if not keep:
-        seconds["solve_seconds"] = time.perf_counter() - t0
-    method = "lstsq-certified" if not keep else ("sdp" if len(keep) == 3 else "sdp-screened")
-    info.update(seconds, method=method, cones=[_BLOCKS[b] for b in keep])
-    return (*mats, info)
+        bad = _indefinite(mats, range(3))
+        if not bad:
+            info = {"status": "optimal", "solver": "none (cone constraints inactive)", "setup_seconds": 0.0,
+                    "solve_seconds": time.perf_counter() - t0, "iterations": 0}
+            return (*mats, dict(info, method="lstsq-certified", cones=[]))
+        if len(bad) == 1:
+            try:
+                w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, tuple(bad))
+            except np.linalg.LinAlgError:  # singular block: only the full SDP is well posed
+                info = {}
+            else:
+                mats = _unpack(w, r)
+                if not _indefinite(mats, [b for b in range(3) if b != bad[0]]):
+                    return (*mats, dict(info, method="sdp-screened", cones=[_BLOCKS[bad[0]]]))
+            for key in spent:
+                spent[key] += info.get(key, 0)
+    w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose)
+    for key in spent:
+        info[key] += spent[key]
+    return (*_unpack(w, r), dict(info, method="sdp", cones=list(_BLOCKS)))
 
 
 def _input_matrix(R: np.ndarray, m: int, Ts: np.ndarray) -> np.ndarray:
@@ -456,6 +458,41 @@ def _residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u) -> dict[str, float]:
     resid = Mr @ xddot_r + Dr @ xdot_r + Kr @ x_r - Br @ u
     ref = np.linalg.norm(Br @ u) or 1.0
     return {"objective": float(np.sum(resid**2)), "relative_residual": float(np.linalg.norm(resid) / ref)}
+
+
+def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: int = 4) -> list[np.ndarray]:
+    """Zero-phase Butterworth low-pass along time, applied identically to every row of every array.
+
+    Filtering all of ``Xr'', Xr', Xr, U`` with the same linear time-invariant filter multiplies the stacked
+    data by one fixed matrix from the right, ``Z -> Z F``, so an exact relation ``Theta Z = 0`` is kept
+    exactly; the residual of eq. (16) is only *weighted* in frequency.  Used to keep the closure error of
+    truncated high-frequency modes out of the fit (:func:`fmu_opinf.rom.fit_rom`, ``lowpass=``).
+
+    Parameters
+    ----------
+    arrays : list of (rows, k) ndarray
+        Data of one run (e.g. ``[xddot_r, xdot_r, x_r, u]``).
+    dt : float
+        Sampling step of the run.
+    cutoff : float
+        Angular cutoff frequency in rad/s; must lie below the Nyquist frequency ``pi / dt``.
+    order : int, default=4
+        Butterworth order (applied forward and backward).
+
+    Returns
+    -------
+    list of (rows, k) ndarray
+    """
+    import scipy.signal
+
+    if not 0 < cutoff < np.pi / dt:
+        raise ValueError(f"lowpass cutoff {cutoff} rad/s must lie in (0, pi/dt = {np.pi / dt:.4g}) rad/s")
+    sos = scipy.signal.butter(order, cutoff / (2 * np.pi), btype="low", fs=1.0 / dt, output="sos")
+    k = arrays[0].shape[1]
+    padlen = min(k - 1, 3 * (2 * sos.shape[0] + 1))
+    if k < 2 * padlen + 1:
+        raise DataError(f"a run of {k} samples is too short to low-pass filter; record a longer run")
+    return [scipy.signal.sosfiltfilt(sos, a, axis=1, padlen=padlen) for a in arrays]
 
 
 def fit_outputs(xdot_r: np.ndarray, x_r: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

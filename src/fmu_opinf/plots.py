@@ -15,6 +15,7 @@ from .basis import cumulative_energy, svdvals
 
 __all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures"]
 
+_ROUND_OFF = 1e-15
 _LABELS = {"positions": r"$\sigma_i(X)$", "velocities": r"$\sigma_i(\dot X)$"}
 _ELABELS = {"positions": r"$E^i_{\mathrm{cum}}(X)$", "velocities": r"$E^i_{\mathrm{cum}}(\dot X)$"}
 
@@ -37,7 +38,7 @@ def _save(fig: Any, path: str | os.PathLike) -> Path:
 
 
 def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
-    """Singular value decay on a log axis (Figs. 4a, 6a).
+    """Singular value decay on a log axis (Figs. 4a, 6a); values below ``1e-15 sigma_1`` (round-off) are omitted.
 
     Parameters
     ----------
@@ -56,9 +57,10 @@ def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike,
     fig, ax = plt.subplots(figsize=(5, 3.5))
     for kind, sigma in sigmas.items():
         sigma = np.asarray(sigma, dtype=float)
-        positive = sigma > 0  # unresolved (streamed) values are 0: not drawable on a log axis
+        # values below round-off of the largest one carry no information (and unresolved streamed ones are 0)
+        shown = sigma > _ROUND_OFF * sigma.max()
         idx = np.arange(1, sigma.size + 1)
-        ax.semilogy(idx[positive], sigma[positive], "o", ms=3, fillstyle="none", label=_LABELS.get(kind, kind))
+        ax.semilogy(idx[shown], sigma[shown], "o", ms=3, fillstyle="none", label=_LABELS.get(kind, kind))
     if r is not None:
         ax.axvline(r, color="k", lw=0.8, ls="--")
     ax.set_xlabel("i")

@@ -25,7 +25,7 @@ import scipy.linalg
 from ._hdf5 import atomic_h5, read_attrs, tool_versions, write_attrs
 from .basis import PODBasis, as_runs, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
-from .inference import fit_operators, fit_outputs
+from .inference import fit_operators, fit_outputs, lowpass_filter
 
 __all__ = ["SecondOrderROM", "ROMTrajectory", "fit_rom", "fit_rom_file", "LAYOUT_VERSION"]
 
@@ -319,29 +319,42 @@ def _jsonable(value: Any) -> Any:
 # ----------------------------------------------------------------------------------------------------------
 # The pipeline
 # ----------------------------------------------------------------------------------------------------------
-def _reduced_data(runs: list, pod: PODBasis) -> dict[str, np.ndarray]:
-    """Reduced states (eq. 14) of all runs side by side, plus inputs and outputs; checks shapes and values."""
-    chunk = pod._chunk(pod.basis_.shape[0])
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in ("xddot", "xdot", "x", "u", "y")}
-    for i, run in enumerate(runs):
-        if not bool(getattr(run, "attrs", {}).get("complete", True)):
-            raise DataError(f"run {i} is incomplete (the recording stopped early); re-record it or drop it")
-        k = int(np.shape(run.t)[0])
-        for name in ("xddot", "xdot", "x"):
-            parts[name].append(project(pod.basis_, getattr(run, name), chunk, label=f"{name} of run {i}"))
-        for name in ("u", "y"):
-            array = getattr(run, name)
-            if len(array.shape) != 2 or array.shape[1] != k:
-                raise DimensionError(f"{name} of run {i} has shape {tuple(array.shape)}; expected ({name[0]}, {k})")
-            parts[name].append(read_columns(array, 0, k, f"{name} of run {i}"))
-        for name in ("xddot", "xdot", "x"):
-            if parts[name][-1].shape[1] != k:
-                raise DimensionError(f"{name} of run {i} has {parts[name][-1].shape[1]} columns; t has {k}")
-    widths = {name: {p.shape[0] for p in arrays} for name, arrays in parts.items()}
+def _run_data(run: Any, i: int, basis: np.ndarray, chunk: int) -> dict[str, np.ndarray]:
+    """Reduced states (eq. 14), inputs and outputs of one run, with completeness, shape and value checks."""
+    if not bool(getattr(run, "attrs", {}).get("complete", True)):
+        raise DataError(f"run {i} is incomplete (the recording stopped early); re-record it or drop it")
+    k = int(np.shape(run.t)[0])
+    out = {name: project(basis, getattr(run, name), chunk, label=f"{name} of run {i}")
+           for name in ("xddot", "xdot", "x")}
+    for name, array in out.items():
+        if array.shape[1] != k:
+            raise DimensionError(f"{name} of run {i} has {array.shape[1]} columns; t has {k}")
     for name in ("u", "y"):
-        if len(widths[name]) != 1:
-            raise DimensionError(f"runs disagree in the number of rows of {name}: {sorted(widths[name])}")
-    return {name: np.hstack(arrays) for name, arrays in parts.items()}
+        array = getattr(run, name)
+        if len(array.shape) != 2 or array.shape[1] != k:
+            raise DimensionError(f"{name} of run {i} has shape {tuple(array.shape)}; expected ({name[0]}, {k})")
+        out[name] = read_columns(array, 0, k, f"{name} of run {i}")
+    return out
+
+
+def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> dict[str, np.ndarray]:
+    """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``.
+
+    With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
+    run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).
+    """
+    chunk = pod._chunk(pod.basis_.shape[0])
+    per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
+    for name in ("u", "y"):
+        rows = sorted({d[name].shape[0] for d in per_run})
+        if len(rows) != 1:
+            raise DimensionError(f"runs disagree in the number of rows of {name}: {rows}")
+    if lowpass is not None:
+        names = ("xddot", "xdot", "x", "u")
+        for run, d in zip(runs, per_run):
+            step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
+            d.update(zip(("f_" + n for n in names), lowpass_filter([d[n] for n in names], step, lowpass)))
+    return {name: np.hstack([d[name] for d in per_run]) for name in per_run[0]}
 
 
 def _training_dt(runs: list, attrs: dict) -> float | None:
@@ -360,6 +373,7 @@ def fit_rom(
     method: str = "auto",
     mass_trace: float | None = None,
     tol: float = 1e-9,
+    lowpass: float | None = None,
     keep_basis: bool = True,
     max_memory: float = 1e9,
     chunk_size: int | None = None,
@@ -382,6 +396,11 @@ def fit_rom(
         on velocities (unknown, e.g. a black-box FMU: positions).
     method, mass_trace, tol
         Passed to :func:`fmu_opinf.inference.fit_operators`.
+    lowpass : float, optional
+        Cutoff (rad/s) of a zero-phase low-pass filter applied to the reduced data and inputs of each run before
+        the SDP (:func:`fmu_opinf.inference.lowpass_filter`): a frequency weighting of the residual of eq. (16)
+        that keeps exact relations exact but keeps the closure error of truncated high-frequency modes out of
+        the fit.  Default None: the paper's unweighted eq. (16).  Set it above the band the ROM must serve.
     keep_basis : bool, default=True
         Store ``V`` in the ROM (needed for :meth:`SecondOrderROM.reconstruct`).
     max_memory, chunk_size, streamed
@@ -395,15 +414,17 @@ def fit_rom(
     attrs = snapshot_attrs(snapshots)
     pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size,
                    streamed=streamed).fit(runs, attrs)
-    data = _reduced_data(runs, pod)
-    ops = fit_operators(data["xddot"], data["xdot"], data["x"], data["u"], method=method,
+    data = _reduced_data(runs, pod, lowpass)
+    sdp = "f_" if lowpass is not None else ""
+    ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"], method=method,
                         mass_trace=mass_trace, tol=tol)
     Cpr, Cvr = fit_outputs(data["xdot"], data["x"], data["y"])
     info = dict(ops.info)
     info.update(r=pod.r_, basis_kind=pod.kind_, pod_method=pod.method_, snapshot_rank=pod.rank_,
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
-                n_runs=len(runs), output_relative_residual=_output_residual(Cpr, Cvr, data))
-    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol}
+                n_runs=len(runs), output_relative_residual=_output_residual(Cpr, Cvr, data), lowpass=lowpass)
+    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
+                "lowpass": lowpass}
     provenance = {
         "snapshots": _jsonable(attrs),
         "fit_settings": settings,
