@@ -47,7 +47,7 @@ def main() -> None:
     parser.add_argument("--orders", default="5,20,35,50", help="comma-separated reduced orders")
     parser.add_argument("--repeats", type=int, default=3, help="runs per measurement (median)")
     parser.add_argument("--direct-repeats", type=int, default=1, help="runs of the slow direct formulation")
-    parser.add_argument("--direct-max-r", type=int, default=50, help="skip the direct formulation above this r")
+    parser.add_argument("--direct-max-r", type=int, default=35, help="skip the direct formulation above this r")
     args = parser.parse_args()
     orders = [int(v) for v in args.orders.split(",")]
     V, data, u = reduced_data(max(orders))
