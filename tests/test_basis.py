@@ -11,6 +11,12 @@ from fmu_opinf.basis import PODBasis, cumulative_energy, energy_order, resolve_k
 from fmu_opinf.errors import DataError, DimensionError, NotFittedError
 
 
+@pytest.fixture()
+def rng():
+    """A fresh generator per test, so results do not depend on which tests ran before."""
+    return np.random.default_rng(20251121)
+
+
 def _low_rank_runs(rng, n, ks, rank=8, decay=0.5):
     """Runs whose stacked x has exactly ``rank`` well separated singular values."""
     modes = np.linalg.qr(rng.standard_normal((n, rank)))[0]

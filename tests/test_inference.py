@@ -8,6 +8,12 @@ from fmu_opinf.errors import DataError, DimensionError, SolverError
 from fmu_opinf.inference import compressed_factor, fit_operators, fit_outputs, lowpass_filter
 
 
+@pytest.fixture()
+def rng():
+    """A fresh generator per test, so results do not depend on which tests ran before."""
+    return np.random.default_rng(20251121)
+
+
 def _spd(rng, r, shift):
     a = rng.standard_normal((r, r))
     return a @ a.T / r + shift * np.eye(r)

@@ -189,9 +189,13 @@ def _mass_indicator(r: int) -> np.ndarray:
 # Solution paths
 # ----------------------------------------------------------------------------------------------------------
 def _solve_unconstrained(H: np.ndarray, a: np.ndarray, trace: float) -> np.ndarray | None:
-    """Minimizer of ``w^T H w`` subject to ``a^T w = trace`` (None if ``H`` is not positive definite)."""
+    """Minimizer of ``w^T H w`` subject to ``a^T w = trace`` (None if it is not unique).
+
+    ``(a^T w)^2`` is constant on the constraint set, so ``H + a a^T`` gives the same minimizer; unlike ``H`` it
+    stays positive definite for exact data, where ``H`` is singular along the true operators.
+    """
     try:
-        factor = scipy.linalg.cho_factor(H, check_finite=False)
+        factor = scipy.linalg.cho_factor(H + np.outer(a, a), check_finite=False)
     except np.linalg.LinAlgError:
         return None
     h_inv_a = scipy.linalg.cho_solve(factor, a, check_finite=False)
@@ -216,6 +220,8 @@ def _reduced_quadratic(H: np.ndarray, a: np.ndarray, trace: float, keep: tuple[i
     idx_a = np.concatenate([np.arange(b * ns, (b + 1) * ns) for b in keep])
     idx_f = np.concatenate([np.arange(b * ns, (b + 1) * ns) for b in range(3) if b not in keep])
     H_ff, H_fa = H[np.ix_(idx_f, idx_f)], H[np.ix_(idx_f, idx_a)]
+    if 0 not in keep:  # same minimizer on a_F^T w_F = trace, but positive definite for exact data
+        H_ff = H_ff + np.outer(a[idx_f], a[idx_f])
     factor = scipy.linalg.cho_factor(H_ff, check_finite=False)
     Y = scipy.linalg.cho_solve(factor, H_fa, check_finite=False)
     if 0 in keep:
