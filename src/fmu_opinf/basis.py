@@ -432,7 +432,8 @@ class PODBasis:
             return bool(self.streamed)
         return 3 * 8 * n * k > self.max_memory
 
-    def _chunk(self, n: int) -> int:
+    def columns_per_chunk(self, n: int) -> int:
+        """Columns read per chunk for ``n`` rows: ``chunk_size`` if given, else what fits in ``max_memory / 8``."""
         if self.chunk_size is not None:
             if int(self.chunk_size) < 1:
                 raise ValueError(f"chunk_size={self.chunk_size} must be a positive number of columns")
@@ -451,7 +452,7 @@ class PODBasis:
             else:
                 left, sigma = None, scipy.linalg.svdvals(X)
             return sigma, left, _rank(sigma, max(n, k) * eps), "dense"
-        chunk = self._chunk(n)
+        chunk = self.columns_per_chunk(n)
         if n <= k:
             sigma, vecs, rel = _gram_eigh(_correlation(runs, name, chunk), n)
             method = "streamed-correlation"
@@ -468,7 +469,7 @@ class PODBasis:
         n, _ = _check_shapes(runs, name)
         modes = np.zeros((n, r))
         weights = vecs[:, :r] / sigma[:r]
-        for c, block in iter_blocks(runs, name, self._chunk(n)):
+        for c, block in iter_blocks(runs, name, self.columns_per_chunk(n)):
             modes += block @ weights[c.g0 : c.g0 + c.j1 - c.j0]
         q, _ = np.linalg.qr(modes)
         return _fix_signs(q)
@@ -493,7 +494,7 @@ class PODBasis:
         (r, k) ndarray
         """
         self._check_fitted()
-        return project(self.basis_, array, chunk_size or self._chunk(self.basis_.shape[0]))
+        return project(self.basis_, array, chunk_size or self.columns_per_chunk(self.basis_.shape[0]))
 
     def reconstruct(self, q: np.ndarray) -> np.ndarray:
         """Full-order states ``V_r q``.

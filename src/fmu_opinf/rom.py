@@ -343,7 +343,7 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
     With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
     run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).
     """
-    chunk = pod._chunk(pod.basis_.shape[0])
+    chunk = pod.columns_per_chunk(pod.basis_.shape[0])
     per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
     for name in ("u", "y"):
         rows = sorted({d[name].shape[0] for d in per_run})
