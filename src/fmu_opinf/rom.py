@@ -425,19 +425,24 @@ def fit_rom(
                 n_runs=len(runs), output_relative_residual=_output_residual(Cpr, Cvr, data), lowpass=lowpass)
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "lowpass": lowpass}
-    provenance = {
-        "snapshots": _jsonable(attrs),
-        "fit_settings": settings,
-        "fit_date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        "versions": tool_versions(),
-    }
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, ops.Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
         input_names=_names(attrs.get("input_names"), data["u"].shape[0]),
         output_names=_names(attrs.get("output_names"), data["y"].shape[0]),
-        dt=_training_dt(runs, attrs), provenance=provenance, fit_info=info, singular_values=pod.svdvals_,
+        dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings), fit_info=info,
+        singular_values=pod.svdvals_,
     )
+
+
+def _provenance(attrs: dict, settings: dict) -> dict:
+    """Snapshot provenance + fit settings + fit date + tool versions."""
+    return {
+        "snapshots": _jsonable(attrs),
+        "fit_settings": settings,
+        "fit_date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "versions": tool_versions(),
+    }
 
 
 def _names(names: Any, count: int) -> list[str] | None:
