@@ -252,6 +252,16 @@ def test_bad_snapshot_files(tmp_path, snapshot_file):
         f["x"] = np.zeros((3, 3))
     with pytest.raises(FileFormatError):
         fit_rom_file(tmp_path / "foreign.h5", tmp_path / "rom.h5", r=2)
+    (tmp_path / "future.h5").write_bytes(data)
+    with h5py.File(tmp_path / "future.h5", "a") as f:
+        f.attrs["layout_version"] = 99
+    with pytest.raises(FileFormatError, match="layout 99"):
+        fit_rom_file(tmp_path / "future.h5", tmp_path / "rom.h5", r=2)
+    (tmp_path / "partial.h5").write_bytes(data)
+    with h5py.File(tmp_path / "partial.h5", "a") as f:
+        del f["runs/0000/xddot"]
+    with pytest.raises(FileFormatError, match="lacks xddot"):
+        fit_rom_file(tmp_path / "partial.h5", tmp_path / "rom.h5", r=2)
     assert not (tmp_path / "rom.h5").exists()
 
 
