@@ -54,6 +54,20 @@ def test_exact_data_recover_the_operators_up_to_scale(rng, method, compressed):
     assert fit.info["status"] == "optimal"
 
 
+@pytest.mark.parametrize("method", ["auto", "sdp"])
+def test_mass_eigenvalue_normalization_is_unbiased_on_exact_data(rng, method):
+    truth, data = _exact_data(rng)
+    fit = fit_operators(*data, method=method, normalization="mass-eigenvalue")
+    assert fit.info["normalization"] == "mass-eigenvalue"
+    assert _relative_to_scale(fit, truth) < 1e-6
+
+
+def test_unknown_normalization_is_rejected(rng):
+    _, data = _exact_data(rng)
+    with pytest.raises(ValueError, match="normalization='unit'"):
+        fit_operators(*data, normalization="unit")
+
+
 def test_auto_path_is_certified_or_falls_back(rng):
     _, data = _exact_data(rng)
     assert fit_operators(*data).info["method"] == "lstsq-certified"

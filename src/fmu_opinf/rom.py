@@ -378,6 +378,7 @@ def fit_rom(
     max_memory: float = 1e9,
     chunk_size: int | None = None,
     streamed: bool | None = None,
+    normalization: str = "auto",
 ) -> SecondOrderROM:
     """Learn a reduced second-order model from snapshots: POD (eqs. 7/9), projection (eq. 14), SDP (eq. 16),
     output least squares (eq. 17).
@@ -394,7 +395,7 @@ def fit_rom(
     basis : {"auto", "positions", "velocities"}, default="auto"
         Snapshots spanning the basis; ``"auto"`` uses velocities only if the metadata say the constraint is
         on velocities (unknown, e.g. a black-box FMU: positions).
-    method, mass_trace, tol
+    method, mass_trace, tol, normalization
         Passed to :func:`fmu_opinf.inference.fit_operators`.
     lowpass : float, optional
         Cutoff (rad/s) of a zero-phase low-pass filter applied to the reduced data and inputs of each run before
@@ -417,13 +418,13 @@ def fit_rom(
     data = _reduced_data(runs, pod, lowpass)
     sdp = "f_" if lowpass is not None else ""
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"], method=method,
-                        mass_trace=mass_trace, tol=tol)
+                        mass_trace=mass_trace, tol=tol, normalization=normalization)
     Cpr, Cvr = fit_outputs(data["xdot"], data["x"], data["y"])
     info = dict(ops.info)
     info.update(r=pod.r_, basis_kind=pod.kind_, pod_method=pod.method_, snapshot_rank=pod.rank_,
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
                 n_runs=len(runs), output_relative_residual=_output_residual(Cpr, Cvr, data), lowpass=lowpass)
-    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
+    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol, "normalization": normalization,
                 "lowpass": lowpass}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, ops.Br, Cpr, Cvr,
