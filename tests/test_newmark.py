@@ -144,3 +144,19 @@ def test_step_size_change_refactors():
     for _ in range(20):
         c.step(np.ones(1))
     assert np.allclose(a.x, c.x, rtol=0, atol=1e-15) and abs(a.t - 2.0) < 1e-12
+
+
+def test_step_matrices_reproduce_the_stepper(rng):
+    r, m = 4, 2
+    A = rng.standard_normal((r, r))
+    M, K = A @ A.T + r * np.eye(r), np.diag(rng.uniform(1, 3, r))
+    D, B = 0.1 * K, rng.standard_normal((r, m))
+    u = rng.standard_normal((m, 30))
+    stepper = newmark.NewmarkStepper(M, D, K, B, 0.2)
+    stepper.start(u[:, 0])
+    state = np.concatenate([stepper.x, stepper.v, stepper.a])
+    phi, gamma_new, gamma_old = newmark.step_matrices(M, D, K, B, 0.2)
+    for i in range(1, u.shape[1]):
+        stepper.step(u[:, i])
+        state = phi @ state + gamma_new @ u[:, i] + gamma_old @ u[:, i - 1]
+        assert np.allclose(state, np.concatenate([stepper.x, stepper.v, stepper.a]), rtol=0, atol=1e-12)

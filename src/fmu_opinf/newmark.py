@@ -38,7 +38,8 @@ from ._progress import Progress
 from .errors import DataError, DimensionError
 from .signals import Signal, parse_signal
 
-__all__ = ["BETA", "GAMMA", "NewmarkStepper", "Trajectory", "time_grid", "applied_inputs", "simulate"]
+__all__ = ["BETA", "GAMMA", "NewmarkStepper", "Trajectory", "time_grid", "applied_inputs", "simulate",
+           "step_matrices"]
 
 BETA = 0.25
 GAMMA = 0.5
@@ -193,6 +194,41 @@ class NewmarkStepper:
         if not np.all(np.isfinite(u)):
             raise DataError(f"input at t={self.t:g} is NaN or infinite; check the input signal")
         return np.asarray(self.B @ u).reshape(-1)
+
+
+def step_matrices(M: np.ndarray, D: np.ndarray, K: np.ndarray, B: np.ndarray,
+                  h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The classical Newmark step of a small dense ODE as one linear map.
+
+    For constant h the step of :class:`NewmarkStepper` (input update included) is linear:
+    ``s+ = Phi s + Gamma_new u + Gamma_old u_old`` with ``s = [x; v; a]`` (3r,), ``u`` the input held over the
+    step and ``u_old`` the one held over the previous step.  The matrices are built by applying the stepper's
+    own formulas to unit vectors, so the map is the same scheme, evaluated as three matrix products.
+
+    Returns
+    -------
+    Phi : (3r, 3r) ndarray
+    Gamma_new, Gamma_old : (3r, m) ndarray
+    """
+    r, m = M.shape[0], B.shape[1]
+    S = M + (GAMMA * h) * D + (BETA * h * h) * K
+    lu_S = scipy.linalg.lu_factor(S)
+    Z = scipy.linalg.solve(M, B)
+
+    def step(x, v, a, u, u_old):
+        a = a + Z @ (u - u_old)
+        xp = x + h * v + (h * h * (0.5 - BETA)) * a
+        vp = v + (h * (1.0 - GAMMA)) * a
+        a_new = scipy.linalg.lu_solve(lu_S, B @ u - D @ vp - K @ xp)
+        return np.vstack([xp + (BETA * h * h) * a_new, vp + (GAMMA * h) * a_new, a_new])
+
+    unit = np.eye(3 * r)
+    no_input = np.zeros((m, 3 * r))
+    Phi = step(unit[:r], unit[r:2 * r], unit[2 * r:], no_input, no_input)
+    rest = np.zeros((r, m))
+    gamma_new = step(rest, rest, rest, np.eye(m), np.zeros((m, m)))
+    gamma_old = step(rest, rest, rest, np.zeros((m, m)), np.eye(m))
+    return Phi, gamma_new, gamma_old
 
 
 @dataclass
