@@ -77,6 +77,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--basis", choices=["auto", "positions", "velocities"], default="auto",
                    help="POD data: positions (position constraints) or velocities (velocity constraints); "
                         "auto follows the constraint kind recorded in the file")
+    p.add_argument("--normalization", choices=["auto", "trace", "mass-eigenvalue"], default="auto",
+                   help="how the homogeneous SDP is normalized: trace(Mr) fixed, Mr >= I, or auto (trace, "
+                        "falling back to Mr >= I when the mass matrix collapses)")
+    p.add_argument("--lowpass", type=float,
+                   help="optional frequency weighting: cutoff in rad/s of a zero-phase low-pass filter applied to "
+                        "the reduced data before the fit (beyond the paper; default off)")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true")
@@ -124,10 +130,14 @@ def _run_fit(args: argparse.Namespace) -> None:
     from .rom import fit_rom_file
 
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
-                       figures=args.figures, overwrite=args.force, quiet=args.quiet)
+                       figures=args.figures, overwrite=args.force, quiet=args.quiet,
+                       normalization=args.normalization, lowpass=args.lowpass)
     info = rom.fit_info
-    print(f"wrote {args.output}: r={rom.r}, solver {info.get('status')} in {info.get('solve_seconds', 0):.2f}s, "
-          f"stable={rom.is_stable()}")
+    print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
+          f"[{info.get('normalization')} normalization, cones {', '.join(info.get('cones') or []) or 'none'}] "
+          f"{info.get('status')} in {info.get('total_seconds', 0):.2f}s; eigenvalues min Mr "
+          f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
+          f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}")
 
 
 def _run_compare(args: argparse.Namespace) -> None:

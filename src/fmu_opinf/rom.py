@@ -434,16 +434,17 @@ def fit_rom(
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
         input_names=_names(attrs.get("input_names"), data["u"].shape[0]),
         output_names=_names(attrs.get("output_names"), data["y"].shape[0]),
-        dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings), fit_info=info,
+        dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings, runs), fit_info=info,
         singular_values=pod.svdvals_,
     )
 
 
-def _provenance(attrs: dict, settings: dict) -> dict:
-    """Snapshot provenance + fit settings + fit date + tool versions."""
+def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
+    """Snapshot provenance + fit settings + last training time + fit date + tool versions."""
     return {
         "snapshots": _jsonable(attrs),
         "fit_settings": settings,
+        "t_train_end": max(float(np.asarray(run.t)[-1]) for run in runs),
         "fit_date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "versions": tool_versions(),
     }
