@@ -332,6 +332,21 @@ def svdvals(
     return pod._singular(as_runs(data), _KINDS[resolve_kind(kind)], vectors=False)[0]
 
 
+def _thin_svd(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left singular vectors and values of a dense ``(n, k)`` matrix.
+
+    For tall matrices a Householder QR first (``X = Q R``, then the SVD of the small ``R``) gives the same
+    factors to round-off and is several times faster than a direct divide-and-conquer SVD of ``X``.
+    """
+    n, k = X.shape
+    if n > 2 * k:
+        Q, R = scipy.linalg.qr(X, mode="economic", check_finite=False)
+        left_r, sigma, _ = scipy.linalg.svd(R, lapack_driver="gesdd", check_finite=False)
+        return Q @ left_r, sigma
+    left, sigma, _ = scipy.linalg.svd(X, full_matrices=False, lapack_driver="gesdd", check_finite=False)
+    return left, sigma
+
+
 # ----------------------------------------------------------------------------------------------------------
 # The POD basis
 # ----------------------------------------------------------------------------------------------------------
@@ -448,7 +463,7 @@ class PODBasis:
         if not self._use_streamed(n, k):
             X = _stacked(runs, name)
             if vectors:
-                left, sigma, _ = scipy.linalg.svd(X, full_matrices=False, lapack_driver="gesdd")
+                left, sigma = _thin_svd(X)
             else:
                 left, sigma = None, scipy.linalg.svdvals(X)
             return sigma, left, _rank(sigma, max(n, k) * eps), "dense"
