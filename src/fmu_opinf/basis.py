@@ -279,21 +279,35 @@ def _correlation(runs: Sequence, name: str, chunk_size: int) -> np.ndarray:
 
 
 def _snapshot_gram(runs: Sequence, name: str, chunk_size: int) -> np.ndarray:
-    """Method-of-snapshots matrix ``X^T X``, ``(k, k)``, from pairs of column chunks."""
-    _, ks = _check_shapes(runs, name)
-    chunks = _chunks(ks, chunk_size)
+    """Method-of-snapshots matrix ``X^T X``, ``(k, k)``, accumulated over row blocks of ``X``.
+
+    Each block holds all ``k`` columns of a range of rows (as many values as ``chunk_size`` full columns), so
+    every stored value is read once; blocks follow the row chunking of HDF5 datasets when it is coarser.
+    """
+    n, ks = _check_shapes(runs, name)
     k = sum(ks)
-    gram = np.empty((k, k))
-    for a, ca in enumerate(chunks):
-        xa = _read(runs[ca.run], name, ca.j0, ca.j1, ca.run)
-        sa = slice(ca.g0, ca.g0 + ca.j1 - ca.j0)
-        gram[sa, sa] = xa.T @ xa
-        for cb in chunks[a + 1 :]:
-            xb = _read(runs[cb.run], name, cb.j0, cb.j1, cb.run)
-            sb = slice(cb.g0, cb.g0 + cb.j1 - cb.j0)
-            gram[sa, sb] = xa.T @ xb
-            gram[sb, sa] = gram[sa, sb].T
+    rows = max(1, (chunk_size * n) // max(k, 1))
+    stored = getattr(getattr(runs[0], name), "chunks", None)
+    if stored and stored[0] > rows:
+        rows = stored[0]
+    gram = np.zeros((k, k))
+    for i0 in range(0, n, rows):
+        block = np.hstack([_read_rows(run, name, i0, min(i0 + rows, n), index) for index, run in enumerate(runs)])
+        gram += block.T @ block
     return gram
+
+
+def _read_rows(run: Any, name: str, i0: int, i1: int, run_index: int) -> np.ndarray:
+    """Rows ``i0:i1`` (all columns) of ``run.<name>`` as float64, with read and NaN/Inf checks."""
+    label = f"{name} of run {run_index}"
+    try:
+        block = np.asarray(getattr(run, name)[i0:i1, :], dtype=np.float64)
+    except (OSError, KeyError, ValueError, RuntimeError) as exc:
+        raise FileFormatError(f"cannot read rows {i0}:{i1} of {label} ({exc}); the file may be truncated") from exc
+    if not np.all(np.isfinite(block)):
+        bad = int(np.argwhere(~np.isfinite(block))[0, 1])
+        raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
+    return block
 
 
 def _fix_signs(vecs: np.ndarray) -> np.ndarray:
