@@ -31,7 +31,7 @@ BENCHMARKS = [
     ("Snapshot recording overhead (600-mass FMU, all x, v, a) and fmpy.simulate_fmu",
      "bench_snapshots.py", []),
     ("POD time and peak memory vs n", "bench_pod.py", []),
-    ("SDP fit time vs r (6000 snapshots), compressed vs direct formulation", "bench_fit.py", []),
+    ("SDP fit time vs r (6000 snapshots), compressed vs direct formulation", "bench_fit.py", ["--direct-max-r", "20"]),
     ("ROM FMU vs full-order FMU, time per step", "bench_export.py", []),
     ("Demo wall time (both models, paper sizes)", None, ["demo"]),
     ("Large model: anchored chain g = 250000 through the whole pipeline", "bench_large.py", []),
