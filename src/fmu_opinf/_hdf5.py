@@ -16,7 +16,7 @@ import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "tool_versions", "sha256_of", "write_attrs", "read_attrs"]
+__all__ = ["atomic_h5", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager
@@ -134,3 +134,20 @@ def read_attrs(obj: h5py.HLObject) -> dict[str, Any]:
         for key, dataset in obj[_LARGE_GROUP].items():
             out[key] = _decode(dataset[()])
     return out
+
+
+def jsonable(value: Any) -> Any:
+    """Plain JSON types for nested dicts/lists of numpy scalars and arrays (non-finite floats as text)."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return jsonable(value.item())
+    if isinstance(value, float) and not np.isfinite(value):
+        return str(value)
+    if isinstance(value, (str, int, float, bool)) or value is None:
+        return value
+    return str(value)

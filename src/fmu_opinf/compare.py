@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from ._hdf5 import jsonable
 from .errors import DimensionError, FileFormatError
 
 __all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
@@ -131,24 +132,12 @@ class Comparison:
             "t_end": float(self.t[-1]),
             "steps": int(self.t.size - 1),
             "t_train_end": self.t_train_end,
-            "fom": _jsonable(self.fom_provenance),
-            "rom": _jsonable(self.rom_provenance),
+            "fom": jsonable(self.fom_provenance),
+            "rom": jsonable(self.rom_provenance),
         })
         return out
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return str(value)
-    return value
 
 
 # ---------------------------------------------------------------------------------------------
@@ -454,7 +443,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
     _prepare_directory(out_dir)
     metrics = comparison.metrics()
     if notes:
-        metrics["notes"] = _jsonable(notes)
+        metrics["notes"] = jsonable(notes)
     with tempfile.TemporaryDirectory() as tmp:
         figures = {"Outputs of full-order model and ROM (paper Figs. 9-10 a-c)": Path(tmp) / "outputs.png",
                    "Relative output error eq. (19) over time (paper Figs. 9-10 d)": Path(tmp) / "error.png"}

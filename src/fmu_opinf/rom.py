@@ -22,7 +22,7 @@ import h5py
 import numpy as np
 import scipy.linalg
 
-from ._hdf5 import atomic_h5, read_attrs, tool_versions, write_attrs
+from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from .basis import PODBasis, as_runs, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import fit_operators, fit_outputs, lowpass_filter
@@ -249,8 +249,8 @@ class SecondOrderROM:
                 "dt": self.dt,
                 "input_names": self.input_names,
                 "output_names": self.output_names,
-                "provenance": json.dumps(_jsonable(self.provenance)),
-                "fit_info": json.dumps(_jsonable(self.fit_info)),
+                "provenance": json.dumps(jsonable(self.provenance)),
+                "fit_info": json.dumps(jsonable(self.fit_info)),
             })
         return path
 
@@ -304,19 +304,6 @@ class SecondOrderROM:
             raise FileFormatError(f"{path}: inconsistent ROM data ({exc})") from None
 
 
-def _jsonable(value: Any) -> Any:
-    """Plain JSON types for nested dicts/lists of numpy scalars and arrays."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, (str, int, float, bool)) or value is None:
-        return value
-    return str(value)
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -442,7 +429,7 @@ def fit_rom(
 def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
     """Snapshot provenance + fit settings + last training time + fit date + tool versions."""
     return {
-        "snapshots": _jsonable(attrs),
+        "snapshots": jsonable(attrs),
         "fit_settings": settings,
         "t_train_end": max(float(np.asarray(run.t)[-1]) for run in runs),
         "fit_date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
