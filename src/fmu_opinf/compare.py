@@ -362,7 +362,7 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
         ax.set_ylabel(comparison.output_names[j])
-        _mark_training_end(ax, comparison.t_train_end)
+        _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
     axes[0, 0].legend(loc="upper right")
     axes[-1, 0].set_xlabel("t [s]")
@@ -385,15 +385,16 @@ def _figure_error(comparison: Comparison, path: Path) -> None:
     ax.set_xlabel("t [s]")
     ax.set_ylabel(r"$\varepsilon_y(t)$, eq. (19)")
     ax.set_title(f"Relative output error, max {eps.max():.2e}")
-    _mark_training_end(ax, comparison.t_train_end)
+    _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def _mark_training_end(ax, t_train_end: float | None) -> None:
-    if t_train_end is not None and math.isfinite(t_train_end):
+def _mark_training_end(ax, t_train_end: float | None, t_last: float) -> None:
+    """Dotted line at the last training snapshot (paper Figs. 7-8), if it lies inside the plotted window."""
+    if t_train_end is not None and math.isfinite(t_train_end) and t_train_end <= t_last:
         ax.axvline(t_train_end, color="0.4", ls=":", lw=1.0, label="last training snapshot")
 
 
