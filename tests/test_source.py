@@ -567,3 +567,15 @@ def test_sources_pickle_as_recipes(toys):
     clone = pickle.loads(pickle.dumps(source))
     assert clone.description() == source.description()
     assert clone.recipe() == source.recipe()
+
+
+def test_failed_binary_load_keeps_the_working_directory(toys):
+    import os
+
+    before = os.getcwd()
+    source = FMUSource(toys["full"])
+    for library in Path(source._extracted()).rglob("*.so"):  # break the binary in the unpacked copy
+        library.write_bytes(b"not a shared library")
+    with pytest.raises(FMUError, match="cannot load the binary"):
+        source.start(np.array([0.0, 0.1]), np.zeros((2, 1)))
+    assert os.getcwd() == before

@@ -654,11 +654,16 @@ class FMUSource(Source):
 
     def _open_binary(self) -> None:
         cls, kwargs = self._fmpy_class()
+        cwd = os.getcwd()
         try:
             self._fmu = cls(guid=self.md.guid, unzipDirectory=self._extracted(),
                             modelIdentifier=self.model_identifier, instanceName="fmu_opinf")
         except Exception as exc:
             raise FMUError(f"cannot load the binary of {self.path.name}: {str(exc).splitlines()[0]}") from None
+        finally:
+            # fmpy changes into the binary's folder to load it and stays there when loading fails; that
+            # folder is deleted with the extraction, which would leave the process without a working directory
+            os.chdir(cwd)
         self._log: list[str] = []
         self._bind_raw_functions()
         try:
