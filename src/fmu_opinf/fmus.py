@@ -407,6 +407,7 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
         "  </LogCategories>\n"
         f"{experiment}"
+        f"{_vendor_annotations(spec)}"
         "  <ModelVariables>\n"
         f"{''.join(variables)}"
         "  </ModelVariables>\n"
@@ -420,6 +421,17 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         "  </ModelStructure>\n"
         "</fmiModelDescription>\n"
     )
+
+
+def _vendor_annotations(spec: SecondOrderFmuSpec) -> str:
+    """Tell importers (``fmu_opinf.source``) the constraint kind, which an FMU cannot otherwise express."""
+    if spec.constraint is None:
+        return ""
+    return ("  <VendorAnnotations>\n"
+            '    <Tool name="fmu-opinf">\n'
+            f'      <Constraint constraint="{spec.constraint}"/>\n'
+            "    </Tool>\n"
+            "  </VendorAnnotations>\n")
 
 
 def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
