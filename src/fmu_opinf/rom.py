@@ -14,9 +14,11 @@ from __future__ import annotations
 import datetime
 import json
 import os
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import h5py
 import numpy as np
@@ -369,6 +371,7 @@ def fit_rom(
     chunk_size: int | None = None,
     streamed: bool | None = None,
     normalization: str = "auto",
+    log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
     """Learn a reduced second-order model from snapshots: POD (eqs. 7/9), projection (eq. 14), SDP (eq. 16),
     output least squares (eq. 17).
@@ -387,6 +390,8 @@ def fit_rom(
         on velocities (unknown, e.g. a black-box FMU: positions).
     method, mass_trace, tol, normalization
         Passed to :func:`fmu_opinf.inference.fit_operators`.
+    log : callable, optional
+        Called with one line per stage (POD, SDP start, SDP result), e.g. ``print``; the CLI shows them.
     lowpass : float, optional
         Cutoff (rad/s) of a zero-phase low-pass filter applied to the reduced data and inputs of each run before
         the SDP (:func:`fmu_opinf.inference.lowpass_filter`): a frequency weighting of the residual of eq. (16)
@@ -403,12 +408,20 @@ def fit_rom(
     """
     runs = as_runs(snapshots)
     attrs = snapshot_attrs(snapshots)
+    say = log or (lambda line: None)
+    start = time.perf_counter()
     pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size,
                    streamed=streamed).fit(runs, attrs)
+    say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
+        f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(runs, pod, lowpass)
     sdp = "f_" if lowpass is not None else ""
+    say(f"SDP (eq. 16): {3 * pod.r_ * (pod.r_ + 1) // 2} unknowns in Mr, Dr, Kr from {data['u'].shape[1]} "
+        "snapshots; solving ...")
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"], method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization)
+    say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
+        f"normalization) in {ops.info.get('total_seconds', 0):.2f}s")
     Cpr, Cvr = fit_outputs(data["xdot"], data["x"], data["y"])
     info = dict(ops.info)
     info.update(r=pod.r_, basis_kind=pod.kind_, pod_method=pod.method_, snapshot_rank=pod.rank_,
@@ -472,7 +485,7 @@ def fit_rom_file(
     figures : path, optional
         Directory for the singular-value and cumulative-energy figures (paper Figs. 4, 6).
     overwrite, quiet : bool
-        Replace an existing ROM file; (unused, no progress output yet).
+        Replace an existing ROM file; no stage lines on stderr.
     **options
         Further keywords of :func:`fit_rom`.
 
@@ -485,8 +498,9 @@ def fit_rom_file(
     output = Path(output)
     if output.exists() and not overwrite:
         raise FileExistsError(f"{output} exists; pass overwrite=True (--force) to replace it")
+    log = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     with Snapshots.open(snapshots) as snaps:
-        rom = fit_rom(snaps, r=r, energy=energy, basis=basis, **options)
+        rom = fit_rom(snaps, r=r, energy=energy, basis=basis, log=log, **options)
         rom.provenance["snapshot_file"] = str(Path(snapshots).resolve())
         if figures is not None:
             from .plots import pod_figures
