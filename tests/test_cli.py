@@ -33,3 +33,11 @@ def test_user_errors_are_one_line_with_nonzero_exit(tmp_path, args, message):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("fmu-opinf: error:"), result.stderr
     assert message in lines[0]
+
+
+def test_report_path_that_is_a_file_fails_before_simulating(tmp_path):
+    (tmp_path / "report").write_text("keep me")
+    result = run_cli("compare", "rom.h5", "builtin:anchored-msd", "--input", "step", "-o", "report", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "report directory report is an existing file" in result.stderr
+    assert (tmp_path / "report").read_text() == "keep me"

@@ -141,8 +141,9 @@ def _run_fit(args: argparse.Namespace) -> None:
 
 
 def _run_compare(args: argparse.Namespace) -> None:
-    from .compare import compare, summary_table, write_report
+    from .compare import compare, prepare_report_directory, summary_table, write_report
 
+    prepare_report_directory(args.output)  # fail before simulating, not after
     result = compare(args.rom, args.source, args.input_spec, dt=args.dt, t_end=args.t_end, quiet=args.quiet,
                      source_options=_source_options(args))
     page = write_report(result, args.output)

@@ -26,7 +26,7 @@ from ._hdf5 import jsonable
 from .errors import DimensionError, FileFormatError
 
 __all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
-           "summary_table"]
+           "prepare_report_directory", "summary_table"]
 
 
 def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -398,7 +398,9 @@ def _mark_training_end(ax, t_train_end: float | None, t_last: float) -> None:
         ax.axvline(t_train_end, color="0.4", ls=":", lw=1.0, label="last training snapshot")
 
 
-def _prepare_directory(out_dir: Path) -> None:
+def prepare_report_directory(out_dir: str | os.PathLike) -> None:
+    """Create the report directory, or fail with a one-line error if the path is an existing file."""
+    out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise FileFormatError(f"report directory {out_dir} is an existing file; choose another -o path")
     try:
@@ -441,7 +443,7 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
         The report's ``index.html``.
     """
     out_dir = Path(out_dir)
-    _prepare_directory(out_dir)
+    prepare_report_directory(out_dir)
     metrics = comparison.metrics()
     if notes:
         metrics["notes"] = jsonable(notes)

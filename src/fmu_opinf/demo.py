@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .compare import _atomic_write_bytes, _prepare_directory, summary_table
+from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
 
 __all__ = ["DemoCase", "CASES", "run_demo"]
 
@@ -75,7 +75,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False)
     from .source import FMUSource
 
     case = CASES[name]
-    _prepare_directory(out_dir)
+    prepare_report_directory(out_dir)
     timings: dict[str, float] = {}
 
     start = time.perf_counter()
@@ -158,7 +158,7 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
         Per model: r, window, timings, and the metrics of the ROM and of the exported ROM FMU.
     """
     out_dir = Path(out_dir)
-    _prepare_directory(out_dir)
+    prepare_report_directory(out_dir)
     names = list(CASES) if model == "all" else [model]
     start = time.perf_counter()
     rows = [run_case(name, out_dir / name, quick=quick, quiet=quiet) for name in names]
