@@ -46,7 +46,8 @@ misses the test bound by orders of magnitude (tests/test_rom.py pins this).
 always feasible for the true operators (scaled by ``1 / lambda_min``), exact for consistent data (tested), and
 it penalizes an ill-conditioned mass: the optimum minimizes ``||Theta Z||^2 / lambda_min(Mr)^2``, so a collapsing
 mass is never cheap.  It needs the mass cone in every solve (Clarabel, not a linear solve), hence it is the
-fallback, used when the trace solution has ``lambda_min / lambda_max < min_mass_ratio`` (default 1e-3);
+fallback, used when the trace solution -- or already its cone-free relaxation, which costs one linear solve --
+has ``lambda_min / lambda_max < min_mass_ratio`` (default 1e-3);
 ``fit_info["normalization"]`` says which one produced the ROM.
 
 Either way the result is finally multiplied by one positive scalar so that ``trace(Mr) = mass_trace``
@@ -389,8 +390,8 @@ def fit_operators(
     normalization : {"auto", "trace", "mass-eigenvalue"}, default="auto"
         How the homogeneous problem is made definite (module docstring, *Normalization*): ``"trace"`` fixes
         ``trace(Mr)``; ``"mass-eigenvalue"`` requires ``Mr >= mu I``; ``"auto"`` uses the trace and switches to
-        the eigenvalue bound when the trace solution's mass matrix collapses (``lambda_min / lambda_max``
-        below ``min_mass_ratio``).
+        the eigenvalue bound when the trace solution's mass matrix (or already that of its cone-free
+        relaxation) collapses (``lambda_min / lambda_max`` below ``min_mass_ratio``).
     min_mass_ratio : float, default=1e-3
         Collapse threshold of ``"auto"``.
 
@@ -438,6 +439,17 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
     H = _hessian(R22.T @ R22, r)
     if normalization == "mass-eigenvalue":
         return _fit_mass_eigenvalue(H, r, tol, verbose, full=(method == "sdp"))
+    if normalization == "auto" and method == "auto":
+        # the cone-free trace solution (milliseconds) already shows a collapsing mass: go straight to the
+        # eigenvalue bound, keeping from the start the cones that this relaxation violates
+        w = _solve_unconstrained(H, _mass_indicator(r), float(r))
+        if w is not None:
+            relaxed = _unpack(w, r)
+            ratio = _mass_ratio(relaxed[0])
+            if ratio < min_mass_ratio:
+                Ms, Ds, Ks, info = _fit_mass_eigenvalue(H, r, tol, verbose, keep=(0, *_indefinite(relaxed, (1, 2))))
+                info["trace_mass_ratio"] = ratio
+                return Ms, Ds, Ks, info
     if method == "sdp":
         w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose)
         info.update(method="sdp", cones=list(_BLOCKS))
@@ -461,14 +473,15 @@ def _mass_ratio(mass: np.ndarray) -> float:
     return float(eigs[0] / eigs[-1]) if eigs[-1] > 0 else 0.0
 
 
-def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full: bool = False) -> tuple:
+def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full: bool = False,
+                         keep: tuple[int, ...] = (0,)) -> tuple:
     """Eq. (16) normalized by ``Mr >= I`` (scaled units), with the same exact cone screening.
 
-    The mass cone is always kept (it carries the normalization); the damping and stiffness blocks are first
-    eliminated without their cones and kept only if they come out indefinite.
+    The mass cone is always kept (it carries the normalization); the damping and stiffness blocks not in
+    ``keep`` are eliminated without their cones and added only if they come out indefinite.
     """
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
-    keep: tuple[int, ...] = (0, 1, 2) if full else (0,)
+    keep = (0, 1, 2) if full else tuple(sorted(set(keep) | {0}))
     while True:
         w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, keep, normalization="mass-eigenvalue")
         for key in spent:
