@@ -121,7 +121,7 @@ def test_large_runs_are_streamed_to_disk_automatically(tmp_path, monkeypatch):
     source = BuiltinSource("anchored-msd", g=12)
     small = record(source, "step:amplitude=1", 0.5, 10.0, path=tmp_path / "small.h5", quiet=True)
     assert isinstance(small.runs[0].x, np.ndarray)
-    monkeypatch.setattr(snapshots, "STREAM_THRESHOLD", 8 * 21 * (3 * 12 + 3 + 1 + 1) - 1)
+    monkeypatch.setattr(snapshots._record, "STREAM_THRESHOLD", 8 * 21 * (3 * 12 + 3 + 1 + 1) - 1)
     with record(source, "step:amplitude=1", 0.5, 10.0, path=tmp_path / "large.h5", quiet=True) as large:
         assert isinstance(large.runs[0].x, h5py.Dataset)
         np.testing.assert_array_equal(large.runs[0].xddot[()], small.runs[0].xddot)
@@ -245,7 +245,7 @@ def test_runs_spanning_many_blocks(toys, tmp_path, monkeypatch, isolate, stream)
     """16-sample blocks: block boundaries, a failure in a later block, streaming and isolation."""
     signal = SignalStub(amplitude=1.0, t0=2.25)  # u(2.3) = 1 is in effect from the step ending at sample 24
     clean = record(FMUSource(toys["full"]), signal, 0.1, 6.0, quiet=True).runs[0]
-    monkeypatch.setattr(snapshots, "_BLOCK_BYTES", 1)
+    monkeypatch.setattr(snapshots._record, "_BLOCK_BYTES", 1)
     whole = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True,
                    isolate=isolate, path=tmp_path / "whole.h5", stream=stream)
     reference = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True).runs[0]

@@ -1,0 +1,44 @@
+"""Recording snapshots from a source into self-describing HDF5 files (layout: docs/file-format.md).
+
+Modules, one job each:
+
+:mod:`._data`
+    :class:`Run` and :class:`Snapshots`, the data model.
+:mod:`._file`
+    The HDF5 layout (attributes, chunked datasets, atomic writes).
+:mod:`._record`
+    :func:`record` / :func:`record_to_file`: drive a source into memory or a file.
+:mod:`._isolation`
+    Run the source in this process or in a child process (a crashing FMU binary becomes an error).
+:mod:`._rates`
+    Time grid, inputs in effect, rates derived from recorded samples.
+:mod:`._window`
+    The automatic snapshot window (:func:`auto_window`).
+"""
+
+from __future__ import annotations
+
+from ._data import Run, Snapshots
+from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION
+from ._rates import inputs_in_effect, newmark_rates, time_grid
+from ._record import STREAM_THRESHOLD, RecordSummary, record, record_to_file
+from ._window import Window, auto_window, fade_time, significant_frequency
+
+__all__ = [
+    "LAYOUT_VERSION",
+    "Run",
+    "Snapshots",
+    "Window",
+    "RecordSummary",
+    "record",
+    "record_to_file",
+    "auto_window",
+    "time_grid",
+    "inputs_in_effect",
+    "newmark_rates",
+    "significant_frequency",
+    "fade_time",
+    "STREAM_THRESHOLD",
+    "FILE_KIND",
+    "ARRAYS",
+]

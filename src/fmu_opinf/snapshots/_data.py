@@ -1,0 +1,252 @@
+"""The snapshot data model: runs of ``t, u, x, xdot, xddot, y`` plus provenance."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from .._hdf5 import read_attrs
+from ..errors import DataError, DimensionError, FileFormatError
+from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
+
+__all__ = ["Run", "Snapshots"]
+
+
+@dataclasses.dataclass
+class Run:
+    """One recorded trajectory; arrays are ndarrays or (lazy) h5py datasets.
+
+    Attributes
+    ----------
+    t : (k,) array
+    u : (m, k) array
+        Inputs in effect: ``u[:, 0] = u(t_0)``, ``u[:, i] = u(t_{i-1})``.
+    x, xdot, xddot : (n, k) array
+    y : (p, k) array
+    attrs : dict
+        Provenance of the run (input, step, completeness, derived flags, ...).
+    """
+
+    t: Any
+    u: Any
+    x: Any
+    xdot: Any
+    xddot: Any
+    y: Any
+    attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        """Number of time samples."""
+        return int(self.t.shape[0])
+
+    @property
+    def complete(self) -> bool:
+        """False if the run stopped early (error, non-finite values, crash)."""
+        return bool(self.attrs.get("complete", True))
+
+    def arrays(self) -> dict[str, Any]:
+        """The six arrays by name."""
+        return {name: getattr(self, name) for name in ARRAYS}
+
+    def load(self) -> "Run":
+        """An in-memory copy (reads lazy datasets)."""
+        return Run(**{n: np.array(a[()]) for n, a in self.arrays().items()}, attrs=dict(self.attrs))
+
+
+class Snapshots:
+    """Snapshot runs of one system plus file-level provenance.
+
+    Parameters
+    ----------
+    runs : list of Run
+    attrs : dict
+        File-level attributes: sizes, variable names, constraint kind, source provenance.
+
+    Notes
+    -----
+    ``Snapshots.load(path)`` reads everything into memory; ``Snapshots.open(path)`` keeps the file
+    open and backs each run by h5py datasets (slice them, e.g. ``run.x[:, j0:j1]``); use it as a
+    context manager or call :meth:`close`.
+    """
+
+    def __init__(self, runs: Sequence[Run] | None = None, attrs: dict[str, Any] | None = None) -> None:
+        self.runs: list[Run] = list(runs or [])
+        self.attrs: dict[str, Any] = dict(attrs or {})
+        self._file: h5py.File | None = None
+
+    # -- sizes -----------------------------------------------------------------------------
+    def _size(self, key: str, array: str, axis: int) -> int:
+        if key in self.attrs:
+            return int(self.attrs[key])
+        if self.runs:
+            return int(getattr(self.runs[0], array).shape[axis])
+        raise DataError(f"snapshots have no runs and no {key!r} attribute")
+
+    @property
+    def n(self) -> int:
+        """Number of positions."""
+        return self._size("n", "x", 0)
+
+    @property
+    def m(self) -> int:
+        """Number of inputs."""
+        return self._size("m", "u", 0)
+
+    @property
+    def p(self) -> int:
+        """Number of outputs."""
+        return self._size("p", "y", 0)
+
+    @property
+    def complete(self) -> bool:
+        """True if every run is complete."""
+        return all(r.complete for r in self.runs)
+
+    def concatenate(self, name: str) -> np.ndarray:
+        """All runs' array ``name`` side by side along time, e.g. ``(n, sum k)`` for ``"x"``."""
+        if name not in ARRAYS:
+            raise DataError(f"unknown array {name!r}; choose one of {', '.join(ARRAYS)}")
+        return np.concatenate([np.asarray(getattr(r, name)[()]) for r in self.runs], axis=-1)
+
+    # -- merging ---------------------------------------------------------------------------
+    def append(self, other: "Snapshots | Run") -> "Snapshots":
+        """Add the runs of ``other`` (same system: sizes and variable names must agree).
+
+        Runs are taken over as they are: runs of an :meth:`open` file stay backed by that file, so
+        keep it open until the merged snapshots are saved (or :meth:`Run.load` them first).
+
+        Parameters
+        ----------
+        other : Snapshots or Run
+
+        Returns
+        -------
+        Snapshots
+            ``self``.
+        """
+        runs = [other] if isinstance(other, Run) else other.runs
+        if isinstance(other, Snapshots):
+            self._check_compatible(other.attrs)
+            if not self.attrs:
+                self.attrs = dict(other.attrs)
+        for run in runs:
+            self._check_run(run)
+            self.runs.append(run)
+        return self
+
+    def _check_compatible(self, attrs: dict[str, Any]) -> None:
+        keys = ("n", "m", "p", "position_names", "input_names", "output_names")
+        for key in keys:
+            if key in self.attrs and key in attrs and self.attrs[key] != attrs[key]:
+                raise DimensionError(f"cannot merge snapshots: {key} differs ({_short(self.attrs[key])} vs "
+                                     f"{_short(attrs[key])}); record both from the same system")
+        mine, theirs = self.attrs.get("constraint"), attrs.get("constraint")
+        if mine and theirs and mine != theirs and "unknown" not in (mine, theirs):
+            raise DimensionError(f"cannot merge snapshots: constraint {mine} vs {theirs}")
+
+    def _check_run(self, run: Run) -> None:
+        if not self.runs and not self.attrs:
+            return
+        want = {"x": self.n, "xdot": self.n, "xddot": self.n, "u": self.m, "y": self.p}
+        for name, rows in want.items():
+            shape = getattr(run, name).shape
+            if shape[0] != rows or shape[-1] != run.k:
+                raise DimensionError(f"run array {name} has shape {shape}, expected ({rows}, {run.k})")
+
+    # -- files -----------------------------------------------------------------------------
+    def save(self, path: str | os.PathLike, overwrite: bool = False) -> Path:
+        """Write all runs atomically to ``path`` (layout :data:`LAYOUT_VERSION`).
+
+        Parameters
+        ----------
+        path : str or path-like
+        overwrite : bool, default=False
+            Replace an existing file (the old one stays intact until the new one is complete).
+
+        Returns
+        -------
+        Path
+        """
+        path = Path(path)
+        with atomic(path, overwrite) as f:
+            write_file_attrs(f, self.attrs)
+            runs = f.create_group("runs")
+            for index, run in enumerate(self.runs):
+                write_run(runs, index, run)
+            f.attrs["n_runs"] = len(self.runs)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Snapshots":
+        """Read a snapshot file completely into memory."""
+        with cls.open(path) as lazy:
+            return cls([r.load() for r in lazy.runs], dict(lazy.attrs))
+
+    @classmethod
+    def open(cls, path: str | os.PathLike) -> "Snapshots":
+        """Open a snapshot file lazily: runs are backed by h5py datasets until :meth:`close`."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileFormatError(f"snapshot file {path} does not exist")
+        try:
+            f = h5py.File(path, "r")
+        except OSError:
+            raise FileFormatError(f"{path} is not an HDF5 file; give a file written by 'fmu-opinf snapshots'") from None
+        try:
+            snaps = cls._from_h5(f, path)
+        except BaseException:
+            f.close()
+            raise
+        snaps._file = f
+        return snaps
+
+    @classmethod
+    def _from_h5(cls, f: h5py.File, path: Path) -> "Snapshots":
+        attrs = decode(read_attrs(f))
+        attrs.pop("n_runs", None)  # structural: len(runs)
+        if attrs.get("kind") != FILE_KIND or "layout_version" not in attrs:
+            raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (no kind/layout_version attributes)")
+        if int(attrs["layout_version"]) > LAYOUT_VERSION:
+            raise FileFormatError(f"{path} has snapshot layout {attrs['layout_version']}, newer than this tool's "
+                                  f"{LAYOUT_VERSION}; upgrade fmu-opinf")
+        runs = []
+        group = f.get("runs")
+        for name in sorted(group or {}):
+            g = group[name]
+            missing = [a for a in ARRAYS if a not in g]
+            if missing:
+                raise FileFormatError(f"{path}: run {name} lacks {', '.join(missing)}; the file is truncated")
+            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=decode(read_attrs(g))))
+        return cls(runs, attrs)
+
+    def close(self) -> None:
+        """Close the backing file of :meth:`open` (no-op for in-memory snapshots)."""
+        if self._file is not None:
+            self._file.close()
+            self._file = None
+
+    def __enter__(self) -> "Snapshots":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        ks = ", ".join(str(r.k) + ("" if r.complete else " (incomplete)") for r in self.runs)
+        try:
+            sizes = f"n={self.n}, m={self.m}, p={self.p}"
+        except DataError:
+            sizes = "empty"
+        return f"Snapshots({sizes}, runs k=[{ks}], constraint={self.attrs.get('constraint', 'unknown')!r})"
+
+
+def _short(value: Any) -> str:
+    text = str(value)
+    return text if len(text) < 60 else text[:57] + "..."

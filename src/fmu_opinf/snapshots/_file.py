@@ -1,0 +1,81 @@
+"""The HDF5 layout of snapshot files (docs/file-format.md): attributes, chunked datasets, atomic writes."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+from .._hdf5 import atomic_h5, write_attrs
+from ..errors import FileFormatError
+
+if TYPE_CHECKING:
+    from ._data import Run
+
+__all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "atomic", "decode", "write_file_attrs", "create_dataset",
+           "write_run"]
+
+#: Version of the HDF5 layout written by this package (docs/file-format.md).
+LAYOUT_VERSION = 1
+FILE_KIND = "fmu-opinf snapshots"
+ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
+_JSON_ATTRS = ("system_options", "fmu_parameters", "versions", "auto_window")
+
+
+@contextlib.contextmanager
+def atomic(path: Path, overwrite: bool) -> Iterator[h5py.File]:
+    """:func:`atomic_h5` with an existing file reported as a one-line :class:`FileFormatError`."""
+    if path.exists() and not overwrite:
+        raise FileFormatError(f"{path} exists; pass overwrite=True (--force) to replace it")
+    with atomic_h5(path, overwrite=overwrite) as f:
+        yield f
+
+
+def decode(attrs: dict[str, Any]) -> dict[str, Any]:
+    """Parse the JSON-valued attributes back into dicts."""
+    for key in _JSON_ATTRS:
+        if isinstance(attrs.get(key), str):
+            try:
+                attrs[key] = json.loads(attrs[key])
+            except ValueError:
+                raise FileFormatError(f"attribute {key!r} is not valid JSON; the file is damaged") from None
+    return attrs
+
+
+def write_file_attrs(f: h5py.File, attrs: dict[str, Any]) -> None:
+    attrs = dict(attrs)
+    attrs["kind"] = FILE_KIND
+    attrs["layout_version"] = LAYOUT_VERSION
+    write_attrs(f, attrs)
+
+
+def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
+    """About 1 MiB chunks holding whole columns (time samples) when possible."""
+    shape = tuple(max(int(d), 1) for d in shape)
+    if len(shape) == 1:
+        return (min(shape[0], 131072),)
+    rows, k = shape
+    cols = max(1, min(k, 2**20 // (8 * rows)))
+    return (min(rows, max(1, 2**20 // (8 * cols))), cols)
+
+
+def create_dataset(group: h5py.Group, name: str, shape: tuple[int, ...]) -> h5py.Dataset:
+    """A chunked, gzip-compressed float64 dataset resizable along time."""
+    return group.create_dataset(name, shape=shape, dtype="f8", maxshape=shape[:-1] + (None,), chunks=_chunks(shape),
+                                compression="gzip", compression_opts=1, shuffle=True)
+
+
+def write_run(runs: h5py.Group, index: int, run: Run) -> None:
+    g = runs.create_group(f"{index:04d}")
+    for name, array in run.arrays().items():
+        ds = create_dataset(g, name, tuple(array.shape))
+        k = array.shape[-1]
+        step = max(1, ds.chunks[-1] * 64) if ds.chunks else k
+        for j0 in range(0, k, step):
+            ds[..., j0:j0 + step] = np.ascontiguousarray(array[..., j0:j0 + step])
+    write_attrs(g, run.attrs)

@@ -1,0 +1,186 @@
+"""Producers driving a source block by block: in this process, or in a child process with shared memory.
+
+A producer fills the rows a sink provides and yields ``(i0, count)`` per filled block; a failing
+step is raised as :class:`~fmu_opinf.sources.StepError` after the valid samples before it were yielded.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import signal as _signal
+from collections.abc import Iterator
+from multiprocessing import shared_memory
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import FmuOpinfError
+from ..sources import Source, StepError
+
+if TYPE_CHECKING:
+    from ._record import _Sink
+
+__all__ = ["produce_inprocess", "produce_isolated", "source_label"]
+
+
+def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+    """Fill the sink's rows block by block, yielding ``(i0, count)`` of each filled block.
+
+    A :class:`StepError` is raised after the block holding the valid samples before it is yielded.
+    """
+    k = len(t)
+    source.start(t, U)
+    try:
+        i = 0
+        while i < k:
+            count = min(sink.block, k - i)
+            try:
+                source.advance(sink.rows(i, count), i, count)
+            except StepError as exc:
+                valid = max(0, exc.step - i) if exc.step >= 0 else 0
+                if valid:
+                    yield i, valid
+                raise
+            yield i, count
+            i += count
+    finally:
+        source.close()
+
+
+_HEADER = 64  # bytes before the row buffer in shared memory: int64 count of valid rows
+
+
+def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray) -> None:
+    """Child process: run the source, fill the shared buffer, report through ``conn``."""
+    shm = shared_memory.SharedMemory(name=shm_name)
+    count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
+    rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
+    try:
+        _child_loop(conn, source, t, U, count, rows)
+    finally:
+        del count, rows
+        shm.close()
+
+
+def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: np.ndarray, rows: np.ndarray) -> None:
+    """Fill the shared buffer block by block, publishing the number of finished rows after every sample."""
+    k, cap = len(t), len(rows)
+    try:
+        source.start(t, U)
+    except StepError as exc:
+        conn.send(("fail", str(exc), exc.step, exc.time))
+        return
+    except FmuOpinfError as exc:  # nothing recorded yet: the parent raises the same kind of error
+        conn.send(("error", type(exc).__name__, str(exc)))
+        return
+    i = 0
+    try:
+        while i < k:
+            c = min(cap, k - i)
+            count[0] = 0
+            try:
+                source.advance(rows, i, c, published=count)
+            except StepError as exc:
+                conn.send(("fail", str(exc), exc.step, exc.time))
+                return
+            i += c
+            conn.send(("block", c))
+            conn.recv()
+        conn.send(("done",))
+    finally:
+        source.close()
+
+
+def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+    """Like :func:`produce_inprocess`, with the source in a spawned child process.
+
+    The child writes samples into shared memory and publishes after each sample how many rows are
+    complete, so when it dies (a crashing binary) every sample it finished is still taken over.
+    """
+    k, width = len(t), source.width
+    cap = sink.block
+    shm = shared_memory.SharedMemory(create=True, size=_HEADER + 8 * cap * max(width, 1))
+    count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
+    rows = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf[_HEADER:])
+    count[0] = 0
+    ctx = mp.get_context("spawn")
+    here, there = ctx.Pipe()
+    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
+    i0 = 0
+    try:
+        proc.start()
+        there.close()
+        while True:
+            message = _receive(here, proc)
+            valid = _valid_rows(message, int(count[0]))
+            if valid:
+                sink.rows(i0, valid)[:] = rows[:valid]
+                yield i0, valid
+            if message is None:  # the child died without a word
+                proc.join(5)  # reap it, so that its exit code (the signal) is known
+                i = i0 + valid
+                raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
+            if message[0] == "fail":
+                raise StepError(message[1], message[2], message[3])
+            if message[0] == "error":
+                raise _error_class(message[1])(message[2])
+            if message[0] == "done":
+                return
+            i0 += valid
+            here.send("ack")
+    finally:
+        if proc.is_alive():
+            proc.kill()
+        if proc.pid is not None:
+            proc.join(5)
+        here.close()
+        del count, rows
+        shm.close()
+        shm.unlink()
+
+
+def _error_class(name: str) -> type:
+    """The fmu-opinf error class called ``name`` (FMUError if unknown)."""
+    from .. import errors, sources
+
+    cls = getattr(errors, name, None) or getattr(sources, name, None)
+    return cls if isinstance(cls, type) and issubclass(cls, FmuOpinfError) else errors.FMUError
+
+
+def _valid_rows(message: tuple | None, published: int) -> int:
+    """Rows of the shared buffer to take over: a full block, or what was published before a failure."""
+    if message is None or message[0] == "fail":
+        return published
+    return message[1] if message[0] == "block" else 0
+
+
+def _receive(conn: Any, proc: Any) -> tuple | None:
+    """Next message from the child, or None once it has exited without one."""
+    while True:
+        if conn.poll(0.05):
+            try:
+                return conn.recv()
+            except (EOFError, OSError):
+                return None
+        if not proc.is_alive():
+            if conn.poll(0):
+                continue
+            return None
+
+
+def _crash_text(source: Source, exitcode: int | None, i: int, t: np.ndarray) -> str:
+    if exitcode is not None and exitcode < 0:
+        try:
+            how = f"signal {_signal.Signals(-exitcode).name}"
+        except ValueError:
+            how = f"signal {-exitcode}"
+    else:
+        how = f"exit code {exitcode}"
+    when = f"t={t[i - 1]:g} -> {t[i]:g}" if 0 < i < len(t) else f"t={t[min(i, len(t) - 1)]:g}"
+    return f"{source_label(source)} crashed the simulation process ({how}) at step {i} ({when})"
+
+
+def source_label(source: Source) -> str:
+    path = getattr(source, "path", None)
+    return Path(path).name if path else type(source).__name__

@@ -1,0 +1,435 @@
+"""Recording runs of a source into memory or straight into a snapshot file.
+
+``record`` steps a :class:`~fmu_opinf.sources.Source` on a uniform grid with the input held over each
+step (design.md input timing), keeps ``t, u, x, xdot, xddot, y`` per run, derives velocities or
+accelerations the source does not expose (:mod:`._rates`), and writes atomically.  A failing step or
+non-finite values end the run with a one-line error *after* the samples so far have been stored
+with ``complete=False``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import functools
+import json
+import math
+import os
+import time as _time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+from .._hdf5 import tool_versions, write_attrs
+from .._progress import Progress
+from ..errors import InputSpecError
+from ..sources import Source, StepError, open_source
+from ._data import Run, Snapshots
+from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs
+from ._isolation import produce_inprocess, produce_isolated, source_label
+from ._rates import inputs_in_effect, newmark_rates, time_grid
+
+if TYPE_CHECKING:
+    from ._window import Window
+
+__all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD"]
+
+#: Bytes of one run above which ``record(..., path=...)`` streams blocks to disk instead of memory.
+STREAM_THRESHOLD = 256 * 2**20
+_BLOCK_BYTES = 4 * 2**20
+
+
+class _Sink:
+    """Provides row buffers for the source to fill (one sample per row) and assembles a :class:`Run`.
+
+    ``rows(i0, count)`` is where samples ``i0 ..`` are written; ``commit(i0, count)`` marks them
+    valid.  ``block`` is the largest ``count`` the sink accepts at once.
+    """
+
+    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray) -> None:
+        self.layout = source.layout
+        self.width = source.width
+        self.n, self.p, self.k = source.n, source.p, len(t)
+        self.derived = source.derived
+        self.t, self.u = t, u
+        self.count = 0
+        self.block = _block_rows(self.width, self.k)
+
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def commit(self, i0: int, count: int) -> None:
+        self.count = i0 + count
+
+    def finish(self, attrs: dict[str, Any]) -> Run:
+        raise NotImplementedError
+
+    def _h(self) -> float:
+        return float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1.0
+
+
+class MemorySink(_Sink):
+    """All samples in one (k, width) array, filled in place by the source (no copies).
+
+    The run's ``x, xdot, xddot, y`` are ``(n, k)`` views of it (column ``i`` = sample ``i``).
+    """
+
+    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray) -> None:
+        super().__init__(source, t, u)
+        self.samples = np.empty((self.k, self.width))
+        self.block = max(self.block, 1)
+
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        return self.samples[i0:i0 + count]
+
+    def finish(self, attrs: dict[str, Any]) -> Run:
+        c = self.count
+        view = self.samples[:c].T
+        arrays = {name: view[self.layout[name]] for name in ("x", "xdot", "xddot", "y")}
+        if self.derived["xdot"]:
+            arrays["xdot"] = newmark_rates(arrays["x"], self._h())
+        if self.derived["xddot"]:
+            arrays["xddot"] = newmark_rates(arrays["xdot"], self._h())
+        return Run(t=self.t[:c].copy(), u=np.ascontiguousarray(self.u[:, :c]), **arrays, attrs=attrs)
+
+
+class _H5Sink(_Sink):
+    """Streams blocks into the (chunked, compressed) datasets of one run group."""
+
+    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group) -> None:
+        super().__init__(source, t, u)
+        self.group = group
+        self.scratch = np.empty((self.block, self.width))
+        self.ds = {name: create_dataset(group, name, (rows, self.k)) for name, rows in
+                   (("x", self.n), ("xdot", self.n), ("xddot", self.n), ("y", self.p))}
+
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        return self.scratch[:count]
+
+    def commit(self, i0: int, count: int) -> None:
+        for name, ds in self.ds.items():
+            part = self.layout[name]
+            if part.stop > part.start and count:
+                ds[:, i0:i0 + count] = np.ascontiguousarray(self.scratch[:count, part].T)
+        super().commit(i0, count)
+
+    def finish(self, attrs: dict[str, Any]) -> Run:
+        c = self.count
+        for ds in self.ds.values():
+            ds.resize(c, axis=1)
+        if self.derived["xdot"]:
+            self._derive("x", "xdot")
+        if self.derived["xddot"]:
+            self._derive("xdot", "xddot")
+        for name, array in (("t", self.t[:c]), ("u", self.u[:, :c])):
+            create_dataset(self.group, name, array.shape)[...] = array
+        write_attrs(self.group, attrs)
+        return Run(**{a: self.group[a] for a in ARRAYS}, attrs=attrs)
+
+    def _derive(self, src: str, dst: str) -> None:
+        """Rows (DOFs) are independent: derive in row blocks without loading the whole run."""
+        block = max(1, (64 * 2**20) // (8 * max(self.count, 1)))
+        for r0 in range(0, self.n, block):
+            self.ds[dst][r0:r0 + block, :] = newmark_rates(self.ds[src][r0:r0 + block, :], self._h())
+
+
+def _block_rows(width: int, k: int) -> int:
+    return int(max(1, min(k, max(16, _BLOCK_BYTES // (8 * max(width, 1))))))
+
+
+def _signal_spec(signal: Any) -> str:
+    value = getattr(signal, "spec", None)
+    return value if isinstance(value, str) and value else repr(signal)
+
+
+def _first_bad_row(rows: np.ndarray) -> int | None:
+    """Index of the first row with a NaN/inf, or None (fast path: one sum over the block)."""
+    if math.isfinite(float(rows.sum())):
+        return None
+    bad = ~np.isfinite(rows).all(axis=1)
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
+                isolate: bool) -> tuple[Run, StepError | None]:
+    """Drive one run into a sink; return the run and the error that ended it early (if any)."""
+    u = inputs_in_effect(signal, t, source.m)
+    U = np.ascontiguousarray(u.T)
+    sink = sink_factory(source, t, u)
+    producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
+    failure: StepError | None = None
+    started = _time.perf_counter()
+    with Progress(len(t), "recording", quiet=quiet) as bar:
+        try:
+            for i0, count in producer:
+                first = _first_bad_row(sink.rows(i0, count)[:count])
+                if first is not None:
+                    sink.commit(i0, first)
+                    i = i0 + first
+                    raise StepError(f"{source_label(source)} produced non-finite values at step {i} "
+                                    f"(t={t[i]:g})", i, float(t[i]))
+                sink.commit(i0, count)
+                bar.update(sink.count)
+        except StepError as exc:
+            failure = exc
+        finally:
+            producer.close()
+    attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
+    return sink.finish(attrs), failure
+
+
+def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure: StepError | None,
+               seconds: float, isolate: bool) -> dict[str, Any]:
+    attrs = dict(source.provenance())
+    attrs.update({
+        "input_spec": _signal_spec(signal),
+        "dt": float(t[1] - t[0]),
+        "t0": float(t[0]),
+        "t_end": float(t[-1]),
+        "k_planned": len(t),
+        "k": sink.count,
+        "complete": failure is None and sink.count == len(t),
+        "derived_xdot": bool(sink.derived["xdot"]),
+        "derived_xddot": bool(sink.derived["xddot"]),
+        "derived_method": "newmark_rates (beta=1/4, gamma=1/2; alternating mode by least roughness)"
+        if any(sink.derived.values()) else "",
+        "isolated": bool(isolate),
+        "wall_seconds": round(seconds, 6),
+        "versions": _versions(),
+    })
+    attrs["created"] = attrs["versions"]["created"]
+    if failure is not None:
+        attrs["error"] = str(failure)
+    return attrs
+
+
+@functools.lru_cache(maxsize=1)
+def _library_versions() -> tuple[tuple[str, str], ...]:
+    return tuple((k, v) for k, v in tool_versions().items() if k != "created")
+
+
+def _versions() -> dict[str, str]:
+    """Tool and library versions (looked up once per process) and the creation time (now)."""
+    versions = dict(_library_versions())
+    versions["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    return versions
+
+
+def _file_attrs(source: Source) -> dict[str, Any]:
+    attrs = source.description()
+    attrs.update({"kind": FILE_KIND, "layout_version": LAYOUT_VERSION, "versions": _versions()})
+    attrs["created"] = attrs["versions"]["created"]
+    attrs["derived_xdot"] = bool(source.derived["xdot"])
+    attrs["derived_xddot"] = bool(source.derived["xddot"])
+    return attrs
+
+
+def incomplete_error(failure: StepError, run: Run, path: Path | None) -> StepError:
+    where = f" in {path}" if path else ""
+    text = f"{failure}; the {run.k} samples before it are kept{where} (complete=False)"
+    return StepError(text, failure.step, failure.time)
+
+
+def _run_bytes(source: Source, k: int) -> int:
+    return 8 * k * (3 * source.n + source.p + source.m + 1)
+
+
+def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str | os.PathLike | None = None,
+           quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float = 0.0,
+           stream: bool | None = None) -> Snapshots:
+    """Record one run of ``source`` driven by ``signal`` on the grid ``t0, t0+dt, ..., <= t_end``.
+
+    Parameters
+    ----------
+    source : Source or str
+        A source or a spec for :func:`~fmu_opinf.source.open_source`.
+    signal : Signal or str
+        Input (``sample(t) -> (m, k)``) or a spec for :func:`fmu_opinf.signals.parse_signal`.
+    dt : float
+        Communication step.
+    t_end : float
+        End time.
+    path : str or path-like, optional
+        Also write the snapshots there (atomically).
+    quiet : bool, default=False
+        No progress bar.
+    overwrite : bool, default=False
+        Replace an existing ``path``.
+    isolate : bool, default=False
+        Run the source in a child process (a crash becomes an :class:`~fmu_opinf.errors.FMUError`).
+    t0 : float, default=0.0
+    stream : bool, optional
+        Write blocks to ``path`` during the run instead of keeping them in memory; default: when the
+        run exceeds :data:`STREAM_THRESHOLD` bytes.  Streamed snapshots are returned opened lazily.
+
+    Returns
+    -------
+    Snapshots
+        One run.  If the run stopped early, the samples so far are stored (``complete=False``)
+        and :class:`~fmu_opinf.source.StepError` is raised afterwards.
+    """
+    source = open_source(source)
+    signal = as_signal(signal, source.m)
+    t = time_grid(dt, t_end, t0)
+    streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
+    if not streaming:
+        run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
+        snaps = Snapshots([run], {**_file_attrs(source), "dt": float(t[1] - t[0])})
+        if path is not None:
+            snaps.save(path, overwrite=overwrite)
+        if failure is not None:
+            raise incomplete_error(failure, run, Path(path) if path else None)
+        return snaps
+    summary = _record_file(source, [signal], t, Path(path), quiet, isolate, overwrite, None)
+    del summary
+    return Snapshots.open(path)
+
+
+def as_signal(signal: Any, m: int | None = None) -> Any:
+    """A signal object from a spec (one spec drives every one of the ``m`` inputs) or as is."""
+    if isinstance(signal, str):
+        from ..signals import parse_signal
+
+        return parse_signal(signal, m) if m else parse_signal(signal)
+    if not hasattr(signal, "sample"):
+        raise InputSpecError(f"input {signal!r} is neither a signal nor a signal specification")
+    return signal
+
+
+def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Path, quiet: bool, isolate: bool,
+                 overwrite: bool, window: "Window | None") -> "RecordSummary":
+    """Stream every signal's run into one new file; stop at the first failing run (kept, incomplete)."""
+    failure: StepError | None = None
+    summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window)
+    with atomic(path, overwrite) as f:
+        attrs = _file_attrs(source)
+        attrs["dt"] = float(t[1] - t[0])
+        if window is not None:
+            attrs["auto_window"] = window.as_dict()
+        write_file_attrs(f, attrs)
+        runs = f.create_group("runs")
+        for index, signal in enumerate(signals):
+            group = runs.create_group(f"{index:04d}")
+
+            def factory(src: Source, tt: np.ndarray, uu: np.ndarray, g: h5py.Group = group) -> _H5Sink:
+                return _H5Sink(src, tt, uu, g)
+
+            run, failure = record_run(source, signal, t, factory, quiet, isolate)
+            if window is not None:
+                group.attrs["auto_window"] = json.dumps(window.as_dict())
+            summary.runs.append((run.k, run.complete, run.attrs["input_spec"]))
+            if failure is not None:
+                failure = incomplete_error(failure, run, path)
+                break
+        f.attrs["n_runs"] = len(summary.runs)
+    if failure is not None:
+        raise failure
+    return summary
+
+
+@dataclasses.dataclass
+class RecordSummary:
+    """What :func:`record_to_file` wrote: ``str()`` is the file name, :meth:`describe` the details."""
+
+    path: Path
+    n: int
+    m: int
+    p: int
+    window: "Window | None" = None
+    runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+    def __fspath__(self) -> str:
+        return str(self.path)
+
+    def describe(self) -> str:
+        """Several lines: sizes, one line per run, the automatic window."""
+        lines = [f"{self.path}: n={self.n}, m={self.m}, p={self.p}, {len(self.runs)} run(s)"]
+        for index, (k, complete, spec) in enumerate(self.runs):
+            lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)"))
+        if self.window is not None:
+            lines.append(f"  auto window: {self.window}")
+        return "\n".join(lines)
+
+
+def record_to_file(
+    source_spec: str | os.PathLike | Source,
+    output: str | os.PathLike,
+    input_spec: str | Sequence[str],
+    dt: float | None = None,
+    t_end: float | None = None,
+    auto_window: bool = False,
+    positions: str | None = None,
+    velocities: str | None = None,
+    accelerations: str | None = None,
+    inputs: str | None = None,
+    outputs: str | None = None,
+    constraint: str | None = None,
+    parameters: dict[str, float] | None = None,
+    points_per_period: float = 20.0,
+    energy: float = 0.999,
+    fade: float = 0.01,
+    overwrite: bool = False,
+    quiet: bool = False,
+    isolate: bool = True,
+    **size_options: Any,
+) -> RecordSummary:
+    """Command-line entry: record one run per input specification into ``output``.
+
+    Parameters
+    ----------
+    source_spec : str, path-like or Source
+        ``builtin:anchored-msd``, ``builtin:triple-chain`` or an ``.fmu`` path.
+    output : str or path-like
+        HDF5 file to create (atomically).
+    input_spec : str or sequence of str
+        Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`; a single-channel
+        spec drives every input) or signal objects; one run each.
+    dt, t_end : float, optional
+        Step and end time; default: from ``auto_window`` or the FMU's default experiment.
+    auto_window : bool, default=False
+        Choose ``dt`` and ``t_end`` from a pilot run with the first input (:func:`auto_window`);
+        an explicitly given ``dt``/``t_end`` wins over the automatic choice.
+    positions, velocities, accelerations, inputs, outputs : str, optional
+        Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
+    constraint : {"position", "velocity", "none", "unknown"}, optional
+        Constraint kind of an FMU (stored for the later stages).
+    parameters : dict of str to float, optional
+        FMU start values set before initialization.
+    points_per_period, energy, fade : float
+        Thresholds of :func:`auto_window`.
+    overwrite : bool, default=False
+    quiet : bool, default=False
+    isolate : bool, default=True
+        Run FMUs in a child process so that a crashing binary cannot take the data with it.
+    **size_options
+        Sizes of a builtin system (``g`` for anchored-msd; ``n1, alpha, beta, v`` for triple-chain).
+
+    Returns
+    -------
+    RecordSummary
+        ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
+    """
+    from ._window import auto_window as choose_window, default_window
+
+    source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
+                         inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
+                         **size_options)
+    specs = [input_spec] if isinstance(input_spec, str) else list(input_spec)
+    if not specs:
+        raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training)")
+    signals = [as_signal(s, source.m) for s in specs]
+    isolate = isolate and source.kind == "fmu"
+    window = None
+    if auto_window:
+        window = choose_window(source, signals[0], points_per_period=points_per_period, energy=energy,
+                               fade=fade, isolate=isolate, quiet=quiet)
+        dt = window.dt if dt is None else dt
+        t_end = window.t_end if t_end is None else t_end
+    dt, t_end = default_window(source, dt, t_end)
+    return _record_file(source, signals, time_grid(dt, t_end), Path(output), quiet, isolate, overwrite, window)

@@ -1,0 +1,257 @@
+"""The common source interface: description, stepping protocol, step errors, name patterns.
+
+See :mod:`fmu_opinf.sources` for the stepping protocol every source implements.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ..errors import DimensionError, FMUError, InputSpecError
+
+__all__ = ["Source", "StepError", "match_names", "natural_key", "CONSTRAINTS", "check_constraint"]
+
+#: Constraint kinds a source may declare.
+CONSTRAINTS = ("position", "velocity", "none", "unknown")
+
+
+class StepError(FMUError):
+    """A step failed or produced non-finite values; ``step`` and ``time`` say where."""
+
+    def __init__(self, message: str, step: int, time: float) -> None:
+        super().__init__(message)
+        self.step = int(step)
+        self.time = float(time)
+
+
+def natural_key(name: str) -> list[Any]:
+    """Sort key ordering embedded numbers numerically (``x[2]`` before ``x[10]``)."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]
+
+
+def _pattern_regex(pattern: str) -> re.Pattern[str]:
+    """Translate a name pattern: ``*`` any text, ``?`` one character, everything else literal.
+
+    Unlike :func:`fnmatch.fnmatch`, brackets are literal, so ``x[*]`` means "x[ anything ]".
+    """
+    body = "".join(".*" if c == "*" else "." if c == "?" else re.escape(c) for c in pattern)
+    return re.compile(body + r"\Z")
+
+
+def match_names(patterns: str | Sequence[str], names: Sequence[str]) -> list[str]:
+    """Names matching the patterns, each pattern's hits in natural order, without repeats.
+
+    Parameters
+    ----------
+    patterns : str or sequence of str
+        Comma-separated patterns (``"x[*]"``, ``"u1,u2"``); ``*`` and ``?`` are wildcards,
+        brackets are literal.
+    names : sequence of str
+        Candidate names.
+
+    Returns
+    -------
+    list of str
+        Matches; empty if nothing matched.
+    """
+    if isinstance(patterns, str):
+        patterns = [p for p in patterns.split(",")]
+    found: list[str] = []
+    seen: set[str] = set()
+    for pattern in (p.strip() for p in patterns):
+        if not pattern:
+            continue
+        regex = _pattern_regex(pattern)
+        for name in sorted((n for n in names if regex.match(n)), key=natural_key):
+            if name not in seen:
+                seen.add(name)
+                found.append(name)
+    return found
+
+
+class Source:
+    """Common description and stepping interface of every snapshot source.
+
+    Subclasses set the attributes below in their constructor (without loading any model) and
+    implement :meth:`start`, :meth:`read`, :meth:`step` and :meth:`close`; :meth:`advance` has a
+    generic implementation that fast sources override.
+
+    Attributes
+    ----------
+    kind : str
+        ``"builtin"`` or ``"fmu"``.
+    position_names, velocity_names, acceleration_names : list of str
+        Names of the recorded x, xdot, xddot; velocity/acceleration lists are empty when the
+        source does not expose them (the recorder then derives them, see :attr:`derived`).
+    input_names, output_names : list of str
+    constraint : str
+        ``"position"``, ``"velocity"``, ``"none"`` or ``"unknown"``.
+    """
+
+    kind = "abstract"
+    position_names: list[str]
+    velocity_names: list[str]
+    acceleration_names: list[str]
+    input_names: list[str]
+    output_names: list[str]
+    constraint: str
+
+    # -- description ------------------------------------------------------------------------
+    @property
+    def n(self) -> int:
+        """Number of positions (full order)."""
+        return len(self.position_names)
+
+    @property
+    def m(self) -> int:
+        """Number of inputs."""
+        return len(self.input_names)
+
+    @property
+    def p(self) -> int:
+        """Number of outputs."""
+        return len(self.output_names)
+
+    @property
+    def derived(self) -> dict[str, bool]:
+        """Which of ``xdot``/``xddot`` the source does not provide (so they are derived)."""
+        return {"xdot": not self.velocity_names, "xddot": not self.acceleration_names}
+
+    @property
+    def layout(self) -> dict[str, slice]:
+        """Where ``x, xdot, xddot, y`` sit in one sample row (absent ones are empty slices)."""
+        n, out, pos = self.n, {}, 0
+        for name, size in (
+            ("x", n),
+            ("xdot", 0 if self.derived["xdot"] else n),
+            ("xddot", 0 if self.derived["xddot"] else n),
+            ("y", self.p),
+        ):
+            out[name] = slice(pos, pos + size)
+            pos += size
+        return out
+
+    @property
+    def width(self) -> int:
+        """Number of values in one sample row."""
+        return self.layout["y"].stop
+
+    def description(self) -> dict[str, Any]:
+        """Names, sizes and provenance, as stored in the snapshot file's attributes."""
+        desc = {
+            "n": self.n,
+            "m": self.m,
+            "p": self.p,
+            "constraint": self.constraint,
+            "position_names": list(self.position_names),
+            "velocity_names": list(self.velocity_names),
+            "acceleration_names": list(self.acceleration_names),
+            "input_names": list(self.input_names),
+            "output_names": list(self.output_names),
+        }
+        desc.update(self.provenance())
+        return desc
+
+    def provenance(self) -> dict[str, Any]:
+        """Where the data come from (source kind, path, checksums, ...)."""
+        raise NotImplementedError
+
+    def recipe(self) -> tuple[type, dict[str, Any]]:
+        """Class and keywords that rebuild this source in another process."""
+        raise NotImplementedError
+
+    # -- stepping ---------------------------------------------------------------------------
+    def start(self, t: np.ndarray, U: np.ndarray) -> None:
+        """Load the model and bring it to ``t[0]`` with input ``U[0]`` (consistent acceleration).
+
+        Parameters
+        ----------
+        t : (k,) ndarray
+            Time grid of the run.
+        U : (k, m) ndarray
+            Inputs in effect, time-major (``U[i]`` produced the state at ``t[i]``).
+        """
+        raise NotImplementedError
+
+    def read(self, out: np.ndarray) -> None:
+        """Write the current sample ``[x, xdot, xddot, y]`` into ``out`` (width,)."""
+        raise NotImplementedError
+
+    def step(self, t: float, h: float, u: np.ndarray) -> None:
+        """Hold input ``u`` (m,) and advance from ``t`` to ``t + h``."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the model; safe to call twice."""
+
+    def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
+                offset: int = 0) -> None:
+        """Fill ``rows[:count]`` with the samples ``i0 .. i0+count-1`` of the planned run.
+
+        Parameters
+        ----------
+        rows : (c, width) ndarray
+            C-contiguous float64 buffer, one sample per row, ``c >= count``.
+        i0 : int
+            Index of the first sample; sample 0 is the start state.
+        count : int
+            Number of samples to produce.
+        published : (1,) int64 ndarray, optional
+            Set to ``offset + j + 1`` as soon as row ``j`` is complete (crash-safe recording: a
+            process watching shared memory knows every finished sample even if this one dies).
+        offset : int, default=0
+        """
+        t, U = self._t, self._U
+        for j in range(count):
+            i = i0 + j
+            if i:
+                self.step(float(t[i - 1]), float(t[i] - t[i - 1]), U[i])
+            self.read(rows[j])
+            if published is not None:
+                published[0] = offset + j + 1
+
+    def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
+        """Check and keep the run plan (shared by subclasses' :meth:`start`)."""
+        t = np.ascontiguousarray(t, dtype=float)
+        U = np.ascontiguousarray(U, dtype=float).reshape(len(t), -1) if self.m else np.zeros((len(t), 0))
+        if U.shape != (len(t), self.m):
+            raise DimensionError(f"input has {U.shape[1]} channels but the source has m={self.m} inputs "
+                                 f"({', '.join(self.input_names)}); give a signal with {self.m} channels")
+        self._t, self._U = t, U
+
+    def __enter__(self) -> "Source":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        cls, kwargs = self.recipe()
+        return (_rebuild, (cls, kwargs, self._shared_state()))
+
+    def _shared_state(self) -> dict[str, Any]:
+        """Resources a copy in another process may borrow (not own), e.g. an unpacked FMU."""
+        return {}
+
+    def _borrow(self, state: dict[str, Any]) -> None:
+        """Take over :meth:`_shared_state` of the original."""
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(n={self.n}, m={self.m}, p={self.p}, constraint={self.constraint!r})"
+
+
+def _rebuild(cls: type, kwargs: dict[str, Any], state: dict[str, Any] | None = None) -> "Source":
+    source = cls(**kwargs)
+    source._borrow(state or {})
+    return source
+
+
+def check_constraint(constraint: str | None, default: str) -> str:
+    value = default if constraint is None else str(constraint).lower()
+    if value not in CONSTRAINTS:
+        raise InputSpecError(f"constraint {constraint!r} is not one of {', '.join(CONSTRAINTS)}")
+    return value
