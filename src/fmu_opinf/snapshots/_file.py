@@ -24,7 +24,7 @@ __all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "atomic", "decode", "write_f
 LAYOUT_VERSION = 1
 FILE_KIND = "fmu-opinf snapshots"
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
-_JSON_ATTRS = ("system_options", "fmu_parameters", "versions", "auto_window")
+_JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window")
 
 
 @contextlib.contextmanager

@@ -77,4 +77,5 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     return FMUSource(text, **options)
 
 
-_FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters")
+_FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
+                "settings")

@@ -13,9 +13,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionError, FMUError
-from ._base import Source, StepError, check_constraint, match_names, natural_key
-from ._variables import (REAL_TYPES, VariableSelection, annotated_constraint, binary_platform, read_description,
-                         show_patterns)
+from ._base import Source, StepError, check_constraint
+from ._settings import parse_assignments, resolve_settings
+from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, discover,
+                         nonzero_start, read_description, select_inputs, select_outputs)
 
 __all__ = ["FMUSource"]
 
@@ -32,19 +33,27 @@ class FMUSource(Source):
     path : str or path-like
         The ``.fmu`` file (or an extracted FMU directory).
     positions : str, optional
-        Name patterns of the positions (``*`` wildcard, comma lists, brackets literal).  Default:
-        ``x[*]`` if it matches, else the states whose derivative is a state (Modelica-style
-        ``der(...)`` links of the model structure).  An empty string reads no states at all
-        (inputs and outputs only, as :func:`fmu_opinf.compare.compare` does).
+        Name patterns of the positions (``*`` wildcard, comma lists, brackets literal, index ranges
+        ``x[1:30]``; wildcards and ranges match only continuous-time variables).  Default: found
+        from the model structure (:func:`~fmu_opinf.sources._variables.discover`: derivative links
+        and aliases, else first-order states split in halves, else ``x[*]``).  An empty string reads
+        no states at all (inputs and outputs only, as :func:`fmu_opinf.compare.compare` does).
     velocities, accelerations : str, optional
-        Name patterns; default: the derivatives of the positions (velocities) if the model
-        structure links them, else ``v[*]`` / ``a[*]``, else derived from the data.
-    inputs, outputs : str, optional
-        Name patterns; default: all real variables with causality input / output.
+        Name patterns; default: from the derivative links, else ``v[*]`` / ``a[*]``, else derived
+        from the data (also with ``"none"``).
+    inputs : str, optional
+        Name patterns of the force inputs; default: every real continuous input.  Other inputs are
+        held at their start (or ``settings``) values; ``"none"`` drives no input (m = 0).
+    outputs : str, optional
+        Name patterns; default: all real variables with causality output.
     constraint : {"position", "velocity", "none", "unknown"}, default="unknown"
         Constraint kind, stored for the later stages (an FMU does not say).
-    parameters : dict of str to float, optional
-        Start values set before initialization (real or integer variables).
+    parameters : dict, optional
+        The ``--set`` values: ``{name: value}`` for parameters, start values, held inputs and (FMI 3)
+        structural parameters; values may be strings (typed by the variable), numbers, booleans or
+        sequences for arrays; ``"x[2]"`` sets one element of an array.
+    settings : dict, optional
+        Same as ``parameters`` (merged after it).
     """
 
     kind = "fmu"
@@ -58,7 +67,8 @@ class FMUSource(Source):
         inputs: str | None = None,
         outputs: str | None = None,
         constraint: str | None = None,
-        parameters: dict[str, float] | None = None,
+        parameters: dict[str, Any] | None = None,
+        settings: dict[str, Any] | None = None,
     ) -> None:
         self.path = Path(path)
         self._options = {
@@ -68,7 +78,7 @@ class FMUSource(Source):
             "inputs": inputs,
             "outputs": outputs,
             "constraint": constraint,
-            "parameters": dict(parameters) if parameters else None,
+            "parameters": {**parse_assignments(parameters), **parse_assignments(settings)} or None,
         }
         md = read_description(self.path)
         self.constraint = check_constraint(constraint, annotated_constraint(self.path) or "unknown")
@@ -76,8 +86,8 @@ class FMUSource(Source):
         self.md = md
         self.fmi_version = str(md.fmiVersion)
         self.model_identifier = md.coSimulation.modelIdentifier
-        self._resolve(md, positions, velocities, accelerations, inputs, outputs)
-        self._parameters = self._resolve_parameters(md, parameters or {})
+        self.model = ModelInfo.from_path(self.path)
+        self._resolve(positions, velocities, accelerations, inputs, outputs, self._options["parameters"] or {})
         self._fmu: Any = None
         self._unzipdir: str | None = None
         self._sha256: str | None = None
@@ -102,71 +112,67 @@ class FMUSource(Source):
             raise FMUError(f"{self.path.name} has no binary for this platform ({plat}; it has: "
                            f"{', '.join(have) or 'none'}); export or compile it for {plat}")
 
-    def _resolve(self, md: Any, positions: str | None, velocities: str | None, accelerations: str | None,
-                 inputs: str | None, outputs: str | None) -> None:
-        sel = VariableSelection(md, self.path)
-        if positions == "":  # outputs only (validation runs): no states are read
-            pos, vel, acc = [], [], []
-        elif positions is not None:
-            pos = sel.pattern("positions", positions, required=True)
-        else:
-            pos = sel.pattern("positions", "x[*]", required=False) or sel.structural_positions()
-            if not pos:
-                raise FMUError(f"{self.path.name} has no x[*] variables and no second-order states; "
-                               "pass --positions with the position variables' names")
-        if pos:
-            vel = self._second(sel, "velocities", velocities, pos, "v[*]")
-            acc = self._second(sel, "accelerations", accelerations, vel, "a[*]") if (vel or accelerations) else []
-            if not vel and accelerations is None:
-                acc = []
-        for what, names in (("velocities", vel), ("accelerations", acc)):
-            if names and len(names) != len(pos):
-                raise FMUError(f"{len(pos)} positions but {len(names)} {what} in {self.path.name}; "
-                               f"give --positions/--{what} patterns that match the same number of variables")
-        if acc and not vel:
-            raise FMUError("accelerations without velocities are not supported; pass --velocities too")
-        self.position_names, self.velocity_names, self.acceleration_names = pos, vel, acc
-        if inputs is None:
-            self.input_names = sorted((v.name for v in md.modelVariables
-                                       if v.causality == "input" and v.type in REAL_TYPES), key=natural_key)
-        else:
-            self.input_names = self._inputs(sel, md, inputs)
-        if outputs is None:
-            self.output_names = sorted((v.name for v in md.modelVariables
-                                        if v.causality == "output" and v.type in REAL_TYPES), key=natural_key)
-        else:
-            self.output_names = sel.pattern("outputs", outputs, required=True)
-        refs = {v.name: v.valueReference for v in md.modelVariables}
-        self._in_vrs = [refs[n] for n in self.input_names]
-        self._out_vrs = [refs[n] for n in pos + vel + acc + self.output_names]
+    def _resolve(self, positions: str | None, velocities: str | None, accelerations: str | None,
+                 inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:
+        """Type the settings, expand arrays (sizes may depend on settings), find the recorded variables."""
+        model = self.model
+        self._settings, structural = resolve_settings(model, settings)
+        elements = model.elements(structural)
+        selection = discover(model, elements, positions, velocities, accelerations)
+        forces, held = select_inputs(model, elements, inputs)
+        out_elements = select_outputs(model, elements, outputs)
+        self.selection = selection
+        self.position_names = [c.name for c in selection.positions]
+        self.velocity_names = [c.name for c in selection.velocities]
+        self.acceleration_names = [c.name for c in selection.accelerations]
+        self.input_names = [e.name for e in forces]
+        self.held_input_names = [e.name for e in held]
+        self.output_names = [e.name for e in out_elements]
+        columns = selection.positions + selection.velocities + selection.accelerations
+        columns += [Column(e, e.sign) for e in out_elements]
+        self._read = ReadPlan(model, columns, structural)
+        self._write = ReadPlan(model, [Column(e, 1.0) for e in forces], structural, settings=self._settings)
+        self._parameter_like = [e.name for e in forces if nonzero_start(e)]
 
-    @staticmethod
-    def _second(sel: VariableSelection, what: str, patterns: str | None, base: list[str], default: str) -> list[str]:
-        if patterns is not None:
-            return sel.pattern(what, patterns, required=True)
-        return sel.derivatives_of(base) or sel.pattern(what, default, required=False)
+    def _settings_provenance(self) -> dict[str, Any]:
+        from .._hdf5 import jsonable
 
-    def _inputs(self, sel: VariableSelection, md: Any, patterns: str) -> list[str]:
-        names = match_names(patterns, sel.names)
-        if not names:
-            available = [v.name for v in md.modelVariables if v.causality == "input"]
-            raise FMUError(f"input {show_patterns(patterns)} is not a real variable of {self.path.name} "
-                           f"(its inputs: {', '.join(available) or 'none'}); pass --inputs with an input name")
-        causal = {v.name: v.causality for v in md.modelVariables}
-        bad = [n for n in names if causal[n] != "input"]
-        if bad:
-            raise FMUError(f"{bad[0]} has causality {causal[bad[0]]!r} in {self.path.name}, not 'input'; "
-                           "pass --inputs with input variables")
-        return names
+        return jsonable(dict(self._options["parameters"] or {}))
 
-    def _resolve_parameters(self, md: Any, parameters: dict[str, float]) -> list[tuple[Any, float]]:
-        variables = {v.name: v for v in md.modelVariables}
-        out = []
-        for name, value in parameters.items():
-            if name not in variables:
-                raise FMUError(f"parameter {name!r} is not a variable of {self.path.name}")
-            out.append((variables[name], value))
-        return out
+    def selection_text(self) -> str:
+        """One line: what is recorded and how it was chosen (printed by the recorder)."""
+        how = self.selection.how
+        parts = []
+        for what, names in (("positions", self.position_names), ("velocities", self.velocity_names),
+                            ("accelerations", self.acceleration_names)):
+            shown = _few(names) if names else "none"
+            parts.append(f"{what} {shown} ({how.get(what, '')})")
+        parts.append(f"force inputs {_few(self.input_names) if self.input_names else 'none'}")
+        if self.held_input_names:
+            parts.append(f"held inputs {_few(self.held_input_names)}")
+        return f"{self.path.name}: " + "; ".join(parts)
+
+    def description(self) -> dict[str, Any]:
+        desc = super().description()
+        desc["variable_selection"] = dict(self.selection.how)
+        desc["held_input_names"] = list(self.held_input_names)
+        negated = [c.name for c in self._read.columns if c.sign < 0]
+        if negated:
+            desc["negated_columns"] = negated
+        return desc
+
+    def failure_hint(self, U: np.ndarray, step: int) -> str:
+        """Why a step may have failed: force inputs with non-zero start values set to 0 look like parameters."""
+        if not self._parameter_like or U is None or not len(U):
+            return ""
+        row = U[min(max(step, 0), len(U) - 1)]
+        zeroed = [n for n in self._parameter_like if row[self.input_names.index(n)] == 0.0]
+        if not zeroed:
+            return ""
+        forces = [n for n in self.input_names if n not in zeroed]
+        fix = f"--inputs {','.join(forces)}" if forces else "--input none (or --inputs none)"
+        return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
+                f"as inputs?): exclude them with {fix} and give their values with --set")
 
     def provenance(self) -> dict[str, Any]:
         from .._hdf5 import sha256_of
@@ -182,7 +188,7 @@ class FMUSource(Source):
             "fmu_sha256": self._sha256,
             "fmi_version": self.fmi_version,
             "fmu_generation_tool": self.md.generationTool or "",
-            "fmu_parameters": {v.name: value for v, value in self._parameters},
+            "fmu_settings": self._settings_provenance(),
         }
 
     def recipe(self) -> tuple[type, dict[str, Any]]:
@@ -266,8 +272,6 @@ class FMUSource(Source):
             f.argtypes, f.restype = argtypes, ctypes.c_int
             funcs.append(f)
         self._c_set, self._c_get, self._c_step = funcs
-        self._in_vr_arr = np.array(self._in_vrs, dtype=np.uint32)
-        self._out_vr_arr = np.array(self._out_vrs, dtype=np.uint32)
         self._flags = np.zeros(4, dtype=np.float64)  # fmi3DoStep out-arguments (3 booleans + 1 double)
 
     def _logger(self, *args: Any) -> None:
@@ -303,12 +307,16 @@ class FMUSource(Source):
         try:
             if self.fmi_version.startswith("2"):
                 fmu.setupExperiment(startTime=t0, stopTime=t_stop)
-                self._set_parameters()
+                self._apply_settings(structural=False)
                 fmu.enterInitializationMode()
                 self._set_inputs(0)
                 fmu.exitInitializationMode()
             else:
-                self._set_parameters()
+                if any(s.structural for s in self._settings):
+                    fmu.enterConfigurationMode()
+                    self._apply_settings(structural=True)
+                    fmu.exitConfigurationMode()
+                self._apply_settings(structural=False)
                 fmu.enterInitializationMode(startTime=t0, stopTime=t_stop)
                 self._set_inputs(0)
                 fmu.exitInitializationMode()
@@ -319,30 +327,36 @@ class FMUSource(Source):
                             0, t0) from None
         self._set_inputs(0)
 
-    def _set_parameters(self) -> None:
-        for var, value in self._parameters:
-            if var.type in REAL_TYPES:
-                (self._fmu.setReal if self.fmi_version.startswith("2") else self._fmu.setFloat64)(
-                    [var.valueReference], [float(value)])
-            elif self.fmi_version.startswith("2"):
-                self._fmu.setInteger([var.valueReference], [int(value)])
-            else:
-                setter = getattr(self._fmu, "set" + var.type)
-                setter([var.valueReference], [int(value)])
+    def _apply_settings(self, structural: bool) -> None:
+        """Set the user's values (structural parameters: in configuration mode, FMI 3 only)."""
+        for setting in self._settings:
+            if setting.structural != structural:
+                continue
+            kind = setting.var.type
+            if self.fmi_version.startswith("2"):
+                kind = {"Real": "Real", "Boolean": "Boolean", "String": "String"}.get(kind, "Integer")
+            elif kind == "Enumeration":
+                kind = "Int64"
+            try:
+                getattr(self._fmu, "set" + kind)([setting.var.vr], list(setting.values))
+            except Exception as exc:
+                raise FMUError(f"{self.path.name} refused --set {setting.var.name} "
+                               f"({self._last_log() or str(exc).splitlines()[0]})") from None
 
     def _set_inputs(self, i: int) -> None:
         if not self.m:
             return
-        row = self._U[i]
+        row = self._Uraw[i]
         status = self._call_set(row.ctypes.data)
         if status > 1:
             raise StepError(self._fail_text("setting the input", i), i, float(self._t[i]))
 
     def _call_set(self, address: int) -> int:
-        vr = self._in_vr_arr.ctypes.data
+        plan = self._write
+        vr, nvr = plan.vrs.ctypes.data, len(plan.vrs)
         if self.fmi_version.startswith("2"):
-            return self._c_set(self._comp, vr, self.m, address)
-        return self._c_set(self._comp, vr, self.m, address, self.m)
+            return self._c_set(self._comp, vr, nvr, address)
+        return self._c_set(self._comp, vr, nvr, address, plan.nvalues)
 
     def _fail_text(self, what: str, i: int) -> str:
         t = self._t
@@ -352,19 +366,24 @@ class FMUSource(Source):
 
     # -- stepping ---------------------------------------------------------------------------
     def read(self, out: np.ndarray) -> None:
-        if out.dtype != np.float64 or not out.flags.c_contiguous or out.size < len(self._out_vrs):
-            raise DimensionError(f"read needs a contiguous float64 buffer of {len(self._out_vrs)} values")
-        if self._get(out.ctypes.data) > 1:
+        plan = self._read
+        if out.dtype != np.float64 or not out.flags.c_contiguous or out.size < len(plan):
+            raise DimensionError(f"read needs a contiguous float64 buffer of {len(plan)} values")
+        target = out if plan.identity else self._raw
+        if self._get(target.ctypes.data) > 1:
             raise StepError(f"{self.path.name} returned an error reading values", -1, float("nan"))
+        if not plan.identity:
+            np.multiply(self._raw[plan.gather], plan.signs, out=out[:len(plan)])
 
     def _get(self, address: int) -> int:
-        vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
+        plan = self._read
+        vr, nvr = plan.vrs.ctypes.data, len(plan.vrs)
         if self.fmi_version.startswith("2"):
-            return self._c_get(self._comp, vr, nv, address)
-        return self._c_get(self._comp, vr, nv, address, nv)
+            return self._c_get(self._comp, vr, nvr, address)
+        return self._c_get(self._comp, vr, nvr, address, plan.nvalues)
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
-        u = np.ascontiguousarray(u, dtype=float)
+        u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
         if self.m and self._call_set(u.ctypes.data) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
         if self._do_step(t, h) > 1:
@@ -378,18 +397,20 @@ class FMUSource(Source):
 
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
-        if rows.dtype != np.float64 or not rows.flags.c_contiguous or rows.shape[1] != len(self._out_vrs):
-            raise DimensionError(f"advance needs a C-contiguous float64 (c, {len(self._out_vrs)}) buffer")
+        if rows.dtype != np.float64 or not rows.flags.c_contiguous or rows.shape[1] != len(self._read):
+            raise DimensionError(f"advance needs a C-contiguous float64 (c, {len(self._read)}) buffer")
         loop = self._advance2 if self.fmi_version.startswith("2") else self._advance3
         loop(rows, i0, count, published, offset)
 
     def _advance2(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None,
                    offset: int) -> None:
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
-        in_vr, m = self._in_vr_arr.ctypes.data, self.m
-        out_vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
-        rbase, rstride = rows.ctypes.data, rows.strides[0]
-        ubase, ustride = self._U.ctypes.data, self._U.strides[0]
+        read, write = self._read, self._write
+        in_vr, m = write.vrs.ctypes.data, len(write.vrs)  # FMI 2: scalars only, one value per reference
+        out_vr, nv = read.vrs.ctypes.data, len(read.vrs)
+        direct, raw, gather, signs = read.identity, self._raw, read.gather, read.signs
+        rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
+        ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
         t, h, changed = self._t_list, self._h_list, self._changed
         for j in range(count):
             i = i0 + j
@@ -400,27 +421,33 @@ class FMUSource(Source):
                     raise StepError(self._fail_text("in fmi2DoStep", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
                 raise StepError(self._fail_text("in fmi2GetReal", i), i, t[i])
+            if not direct:
+                np.multiply(raw[gather], signs, out=rows[j])
             if published is not None:
                 published[0] = offset + j + 1
 
     def _advance3(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None,
                    offset: int) -> None:
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
-        in_vr, m = self._in_vr_arr.ctypes.data, self.m
-        out_vr, nv = self._out_vr_arr.ctypes.data, len(self._out_vrs)
-        rbase, rstride = rows.ctypes.data, rows.strides[0]
-        ubase, ustride = self._U.ctypes.data, self._U.strides[0]
+        read, write = self._read, self._write
+        in_vr, m, m_values = write.vrs.ctypes.data, len(write.vrs), write.nvalues
+        out_vr, nv, n_values = read.vrs.ctypes.data, len(read.vrs), read.nvalues
+        direct, raw, gather, signs = read.identity, self._raw, read.gather, read.signs
+        rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
+        ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
         f = self._flags.ctypes.data
         t, h, changed = self._t_list, self._h_list, self._changed
         for j in range(count):
             i = i0 + j
             if i:
-                if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride, m) > 1:
+                if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
-            if c_get(comp, out_vr, nv, rbase + j * rstride, nv) > 1:
+            if c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1:
                 raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
+            if not direct:
+                np.multiply(raw[gather], signs, out=rows[j])
             if published is not None:
                 published[0] = offset + j + 1
 
@@ -435,6 +462,17 @@ class FMUSource(Source):
         else:
             changed[:] = False
         self._changed = changed.tolist()
+        self._Uraw = self._raw_inputs(self._U)
+        self._raw = np.zeros(max(self._read.nvalues, 1))
+
+    def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
+        """Inputs as the values of one set call: array inputs carry their held elements too."""
+        plan = self._write
+        if plan.identity:
+            return np.ascontiguousarray(U)
+        raw = np.tile(plan.base, (len(U), 1))
+        raw[:, plan.gather] = U * plan.signs
+        return raw
 
     def close(self) -> None:
         fmu, self._fmu = self._fmu, None
@@ -447,3 +485,10 @@ class FMUSource(Source):
                 fmu.freeInstance()
             except Exception:
                 pass
+
+
+def _few(names: list[str], limit: int = 4) -> str:
+    """``a, b, c, d, ... (n)`` for long lists."""
+    if len(names) <= limit:
+        return ", ".join(names)
+    return ", ".join(names[:limit - 1]) + f", ..., {names[-1]} ({len(names)})"

@@ -1,19 +1,88 @@
-"""Reading an FMU's model description and resolving which variables are recorded."""
+"""Reading an FMU's model description and finding the variables to record.
+
+fmpy's parser gives the interface data (model identifier, default experiment); the variables are
+read here from the XML itself, because discovery needs what fmpy does not keep: FMI 2 ``alias`` /
+``negatedAlias`` attributes of older exporters, value references shared by aliases, FMI 3 array
+dimensions given by structural parameters, and the order of the model structure's state derivatives.
+
+Discovery (:func:`discover`) works on *elements*: a scalar variable is one element, an FMI 3 array
+``x`` of size n is the elements ``x[1] .. x[n]`` (one value reference, n values).  Each recorded
+column is an element read with a sign (-1 for a negated alias).
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
+import re
+import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..errors import FMUError
+from ..errors import FMUError, InputSpecError
 from ._base import CONSTRAINTS, match_names, natural_key
 
-__all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "VariableSelection",
-           "show_patterns"]
+__all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
+           "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
+           "show_patterns", "nonzero_start"]
 
 REAL_TYPES = ("Real", "Float64")
+_PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
+_TYPE_TAGS = ("Real", "Integer", "Boolean", "String", "Enumeration", "Float32", "Float64", "Int8", "UInt8",
+              "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Binary", "Clock")
+
+
+@dataclasses.dataclass
+class Variable:
+    """One model variable as declared (arrays not expanded)."""
+
+    name: str
+    vr: int
+    type: str
+    causality: str
+    variability: str
+    initial: str | None
+    start: str | None
+    derivative: str | None = None  # name of the variable this one is the derivative of
+    negated: bool = False  # FMI 2 alias="negatedAlias": value = -(value behind vr)
+    dims: list[int | str] = dataclasses.field(default_factory=list)  # size, or name of a structural parameter
+    min: str | None = None
+    max: str | None = None
+
+    @property
+    def is_real(self) -> bool:
+        return self.type in REAL_TYPES
+
+    @property
+    def is_parameter(self) -> bool:
+        return self.causality in _PARAMETER_CAUSALITIES or self.variability in ("constant", "fixed", "tunable")
+
+
+@dataclasses.dataclass(frozen=True)
+class Element:
+    """One scalar value of a variable: ``offset`` is its index in the variable's values (0 for scalars)."""
+
+    name: str
+    var: Variable
+    offset: int
+
+    @property
+    def sign(self) -> float:
+        return -1.0 if self.var.negated else 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class Column:
+    """A recorded value: the element's raw value times ``sign`` (negated aliases, negated velocities)."""
+
+    element: Element
+    sign: float = 1.0
+
+    @property
+    def name(self) -> str:
+        return self.element.name
 
 
 def read_description(path: Path) -> Any:
@@ -69,34 +138,527 @@ def binary_platform(fmi_version: str) -> str:
     return fmpy.platform if fmi_version.startswith("2") else fmpy.platform_tuple
 
 
-class VariableSelection:
-    """Resolve positions/velocities/accelerations/inputs/outputs of a model description."""
+def model_xml(path: Path) -> ET.Element:
+    """The root element of ``modelDescription.xml`` in an FMU, an extracted FMU or the XML file itself."""
+    try:
+        if path.is_dir():
+            return ET.parse(path / "modelDescription.xml").getroot()
+        if path.suffix.lower() == ".xml":
+            return ET.parse(path).getroot()
+        with zipfile.ZipFile(path) as zf:
+            return ET.fromstring(zf.read("modelDescription.xml"))
+    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile) as exc:
+        raise FMUError(f"{path.name}: cannot read modelDescription.xml ({exc})") from None
 
-    def __init__(self, md: Any, path: Path) -> None:
-        self.path = path
-        self.reals = {v.name: v for v in md.modelVariables if v.type in REAL_TYPES}
-        self.names = list(self.reals)
-        # derivative links: state name -> its derivative variable
-        self.der = {v.derivative.name: v for v in md.modelVariables if getattr(v, "derivative", None) is not None}
 
-    def pattern(self, what: str, patterns: str | Sequence[str], required: bool) -> list[str]:
-        names = match_names(patterns, self.names)
-        if not names and required:
-            examples = ", ".join(sorted(self.names, key=natural_key)[:6]) or "none"
-            raise FMUError(f"{what} pattern {show_patterns(patterns)} matches no real variable of {self.path.name} "
-                           f"(variables: {examples}, ...); pass --{what} with a matching pattern")
+class ModelInfo:
+    """The variables and state derivatives of a model description (FMI 2.0 or 3.0).
+
+    Parameters
+    ----------
+    root : xml.etree.ElementTree.Element
+        ``fmiModelDescription`` element.
+    label : str
+        Name used in messages (the FMU's file name).
+    """
+
+    def __init__(self, root: ET.Element, label: str) -> None:
+        self.label = label
+        self.fmi_version = root.get("fmiVersion", "")
+        self.fmi3 = self.fmi_version.startswith("3")
+        node = root.find("ModelVariables")
+        self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
+        self.by_name = {v.name: v for v in self.variables}
+        self.state_derivatives = self._structure_derivatives(root)
+
+    @classmethod
+    def from_path(cls, path: str | Path) -> "ModelInfo":
+        """Read the model description of an ``.fmu``, an extracted FMU directory or a ``.xml`` file."""
+        path = Path(path)
+        return cls(model_xml(path), path.name)
+
+    # -- parsing ------------------------------------------------------------------------------
+    def _read2(self, node: ET.Element) -> list[Variable]:
+        out = []
+        for sv in node.findall("ScalarVariable"):
+            typed = next((c for c in sv if c.tag in _TYPE_TAGS), None)
+            kind = typed.tag if typed is not None else "Real"
+            attrs = typed.attrib if typed is not None else {}
+            var = Variable(name=sv.get("name", ""), vr=int(sv.get("valueReference", -1)), type=kind,
+                           causality=sv.get("causality", "local"),
+                           variability=sv.get("variability", "continuous" if kind == "Real" else "discrete"),
+                           initial=sv.get("initial"), start=attrs.get("start"), derivative=attrs.get("derivative"),
+                           negated=sv.get("alias") == "negatedAlias", min=attrs.get("min"), max=attrs.get("max"))
+            out.append(var)
+        for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
+            if var.derivative is not None:
+                index = int(var.derivative)
+                var.derivative = out[index - 1].name if 0 < index <= len(out) else None
+        return out
+
+    def _read3(self, node: ET.Element) -> list[Variable]:
+        out, dim_refs = [], []
+        for el in node:
+            if el.tag not in _TYPE_TAGS:
+                continue
+            refs = [(dim.get("start"), dim.get("valueReference")) for dim in el.findall("Dimension")]
+            out.append(Variable(name=el.get("name", ""), vr=int(el.get("valueReference", -1)), type=el.tag,
+                                causality=el.get("causality", "local"),
+                                variability=el.get("variability", "continuous" if el.tag.startswith("Float")
+                                                   else "discrete"),
+                                initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
+                                min=el.get("min"), max=el.get("max")))
+            dim_refs.append(refs)
+        by_vr = {v.vr: v for v in reversed(out)}  # the first declared variable of a value reference
+        for var, refs in zip(out, dim_refs):
+            if var.derivative is not None:
+                target = by_vr.get(int(var.derivative))
+                var.derivative = target.name if target is not None else None
+            for start, vr in refs:  # a fixed size, or the structural parameter holding it
+                if start is not None:
+                    var.dims.append(int(start))
+                elif vr is not None and int(vr) in by_vr:
+                    var.dims.append(by_vr[int(vr)].name)
+                else:
+                    raise FMUError(f"{self.label}: array {var.name} has a dimension without start or a known "
+                                   "valueReference; the model description is invalid")
+        return out
+
+    def _structure_derivatives(self, root: ET.Element) -> list[str]:
+        structure = root.find("ModelStructure")
+        if structure is None:
+            return []
+        names: list[str] = []
+        if self.fmi3:
+            by_vr = {v.vr: v for v in reversed(self.variables)}
+            for unknown in structure.findall("ContinuousStateDerivative"):
+                var = by_vr.get(int(unknown.get("valueReference", -1)))
+                if var is not None:
+                    names.append(var.name)
+        else:
+            derivatives = structure.find("Derivatives")
+            for unknown in (derivatives.findall("Unknown") if derivatives is not None else []):
+                index = int(unknown.get("index", 0))
+                if 0 < index <= len(self.variables):
+                    names.append(self.variables[index - 1].name)
         return names
 
-    def derivatives_of(self, names: list[str]) -> list[str]:
-        """Derivative names of ``names`` if every one of them is a state, else []."""
-        if names and all(n in self.der for n in names):
-            return [self.der[n].name for n in names]
-        return []
 
-    def structural_positions(self) -> list[str]:
-        """States whose derivative is itself a state (Modelica: q with der(q) = qd, qd a state)."""
-        return sorted((s for s, d in self.der.items() if d.name in self.der), key=natural_key)
+    # -- sizes and elements -------------------------------------------------------------------
+    def structural_value(self, name: str, overrides: dict[str, Any]) -> int:
+        """Value of a structural parameter: the user's setting, else its start value."""
+        if name in overrides:
+            return int(overrides[name])
+        start = self.by_name[name].start
+        try:
+            return int(float(start))
+        except (TypeError, ValueError):
+            raise FMUError(f"{self.label}: structural parameter {name} has no start value; set it with "
+                           f"--set {name}=N") from None
+
+    def shape(self, var: Variable, overrides: dict[str, Any] | None = None) -> tuple[int, ...]:
+        """Array shape of ``var`` (``()`` for a scalar), sizes from structural parameters and ``overrides``."""
+        return tuple(d if isinstance(d, int) else self.structural_value(d, overrides or {}) for d in var.dims)
+
+    def elements(self, overrides: dict[str, Any] | None = None) -> dict[str, Element]:
+        """Every scalar value by name; arrays expand to ``x[1] .. x[n]`` (``x[i,j]`` row-major)."""
+        out: dict[str, Element] = {}
+        for var in self.variables:
+            if not var.dims:
+                out.setdefault(var.name, Element(var.name, var, 0))
+                continue
+            shape = self.shape(var, overrides)
+            for offset, index in enumerate(itertools.product(*(range(1, s + 1) for s in shape))):
+                name = f"{var.name}[{','.join(map(str, index))}]"
+                out.setdefault(name, Element(name, var, offset))
+        return out
+
+
+# =============================================================================================
+# Discovery of positions, velocities, accelerations
+# =============================================================================================
+
+
+@dataclasses.dataclass
+class Selection:
+    """Recorded positions, velocities, accelerations and how each was chosen."""
+
+    positions: list[Column]
+    velocities: list[Column]
+    accelerations: list[Column]
+    how: dict[str, str]
+
+
+_LINKS = "from derivative links"
+_HALVES = "from derivative links, first-order states split in halves [positions; velocities]"
+
+
+class _States:
+    """The continuous states (element-wise) and their derivative elements."""
+
+    def __init__(self, model: ModelInfo, elements: dict[str, Element]) -> None:
+        listed = set(model.state_derivatives)
+        derivs = [v for v in model.variables if v.derivative is not None and v.is_real
+                  and (not listed or v.name in listed)]
+        by_var: dict[str, list[Element]] = {}
+        for element in elements.values():
+            by_var.setdefault(element.var.name, []).append(element)
+        self.der: dict[str, Element] = {}
+        self.states: list[Element] = []
+        for dvar in derivs:
+            state_elems, der_elems = by_var.get(dvar.derivative, []), by_var.get(dvar.name, [])
+            if len(state_elems) != len(der_elems):
+                raise FMUError(f"{model.label}: {dvar.name} is the derivative of {dvar.derivative} but their sizes "
+                               f"differ ({len(der_elems)} vs {len(state_elems)})")
+            for state, der in zip(state_elems, der_elems):
+                if state.name not in self.der:
+                    self.states.append(state)
+                self.der[state.name] = der
+        self.at = {}
+        for state in self.states:  # raw location -> state (aliases share a value reference)
+            self.at.setdefault((state.var.vr, state.offset), state)
+
+    def alias_state(self, element: Element) -> tuple[Element, float] | None:
+        """The state ``element`` is (an alias of) and the factor ``element = factor * state``."""
+        if element.name in self.der:
+            return element, 1.0
+        state = self.at.get((element.var.vr, element.offset))
+        if state is None or not element.var.is_real:
+            return None
+        return state, element.sign * state.sign
+
+    def rate_columns(self, base: list[Column]) -> list[Column] | None:
+        """Columns of the time derivatives of ``base`` (which must all be states), else None."""
+        out = []
+        for column in base:
+            der = self.der.get(column.name)
+            if der is None:
+                return None
+            factor = column.sign * column.element.sign  # base column = factor * value(state)
+            aliased = self.alias_state(der)
+            if aliased is not None and aliased[0].name != column.name:
+                state, rel = aliased
+                out.append(Column(state, factor * rel * state.sign))
+            else:
+                out.append(Column(der, factor * der.sign))
+        return out
+
+
+def discover(model: ModelInfo, elements: dict[str, Element], positions: str | None = None,
+             velocities: str | None = None, accelerations: str | None = None) -> Selection:
+    """Positions, velocities and accelerations to record.
+
+    Defaults (``None``): from the model structure's derivative links (positions are the states whose
+    derivative is an alias of another state, velocities those states, accelerations the derivatives
+    of the velocities); else, for first-order states not linked by aliases (generated ``x1 .. xn``,
+    FMI 3 array states), the first half of the states are positions and the second half velocities;
+    else the names ``x[*]``, ``v[*]``, ``a[*]``.  Patterns select explicitly (wildcards and index
+    ranges match only continuous-time variables, exact names any real variable); an empty string
+    selects nothing (positions) or derives the rate from the data (velocities, accelerations).
+    """
+    states = _States(model, elements)
+    how: dict[str, str] = {}
+    if positions == "":
+        return Selection([], [], [], {"positions": "none requested"})
+    if positions is None:
+        pos, vel, acc, rule = _default_positions(model, states, elements)
+        how["positions"] = rule
+        if velocities is None:
+            how["velocities"] = rule
+        else:
+            vel, acc = _rate_by_pattern(model, elements, "velocities", velocities, how), None
+        if accelerations is not None:
+            acc = _rate_by_pattern(model, elements, "accelerations", accelerations, how)
+        elif vel and acc is None:
+            acc = _default_rate(states, elements, vel, "a[*]", "accelerations", how)
+        elif acc:
+            how["accelerations"] = "derivatives of the velocity states"
+
+    else:
+        pos = [Column(e, e.sign) for e in _match(model, elements, "positions", positions, required=True)]
+        how["positions"] = "pattern"
+        vel = (_rate_by_pattern(model, elements, "velocities", velocities, how) if velocities is not None
+               else _default_rate(states, elements, pos, "v[*]", "velocities", how))
+        acc = (_rate_by_pattern(model, elements, "accelerations", accelerations, how) if accelerations is not None
+               else _default_rate(states, elements, vel, "a[*]", "accelerations", how) if vel else [])
+    vel = vel or []
+    acc = acc or []
+    if not vel:
+        how["velocities"] = "derived from the data"
+        if accelerations is None:
+            acc = []
+    if not acc:
+        how["accelerations"] = "derived from the data"
+    for what, names in (("velocities", vel), ("accelerations", acc)):
+        if names and len(names) != len(pos):
+            raise FMUError(f"{len(pos)} positions but {len(names)} {what} in {model.label}; "
+                           f"give --positions/--{what} patterns that match the same number of variables")
+    if acc and not vel:
+        raise FMUError("accelerations without velocities are not supported; pass --velocities too")
+    return Selection(pos, vel, acc, how)
+
+
+def _default_positions(model: ModelInfo, states: _States, elements: dict[str, Element]
+                       ) -> tuple[list[Column], list[Column], list[Column] | None, str]:
+    linked = _linked(model, states)
+    if linked is not None:
+        return (*linked, _LINKS)
+    if states.states:
+        return (*_halves(model, states), _HALVES)
+    pos = _named(elements, "x[*]")
+    if pos:
+        return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
+    raise FMUError(f"{model.label} declares no continuous states and has no x[*] variables; pass --positions "
+                   "with the position variables' names")
+
+
+def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """Positions = states whose derivative is (an alias of) another state."""
+    pairs = []
+    for state in states.states:
+        aliased = states.alias_state(states.der[state.name])
+        if aliased is not None and aliased[0].name != state.name:
+            pairs.append((state, aliased))
+    if not pairs:
+        return None
+    pairs.sort(key=lambda pair: natural_key(pair[0].name))
+    pos_names = {p.name for p, _ in pairs}
+    vel_names = [v.name for _, (v, _) in pairs]
+    chained = sorted(pos_names & set(vel_names), key=natural_key)
+    if chained or len(set(vel_names)) != len(vel_names):
+        shown = ", ".join(f"der({p.name})={v.name}" for p, (v, _) in pairs[:6])
+        raise FMUError(f"{model.label}: the derivative links do not split the states into positions and "
+                       f"velocities ({shown}{', ...' if len(pairs) > 6 else ''}); pass --positions and --velocities")
+    pos = [Column(p, p.sign) for p, _ in pairs]
+    vel = [Column(v, rel * v.sign) for _, (v, rel) in pairs]
+    return pos, vel, states.rate_columns(vel)
+
+
+def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None]:
+    """First-order states ``[positions; velocities]`` whose derivatives are not aliases."""
+    ordered = states.states  # declaration order, array elements in index order
+    if len(ordered) % 2:
+        names = ", ".join(s.name for s in ordered[:8]) + (", ..." if len(ordered) > 8 else "")
+        raise FMUError(f"{model.label}: cannot tell positions from velocities among its {len(ordered)} continuous "
+                       f"states ({names}): an odd number and no derivative is an alias of a state; pass "
+                       "--positions and --velocities")
+    half = len(ordered) // 2
+    pos = [Column(s, s.sign) for s in ordered[:half]]
+    vel = [Column(s, s.sign) for s in ordered[half:]]
+    return pos, vel, states.rate_columns(vel)
+
+
+def _default_rate(states: _States, elements: dict[str, Element], base: list[Column], pattern: str, what: str,
+                  how: dict[str, str]) -> list[Column]:
+    linked = states.rate_columns(base)
+    if linked:
+        how[what] = _LINKS
+        return linked
+    named = _named(elements, pattern)
+    if named:
+        how[what] = f"pattern {pattern}"
+    return named
+
+
+def _rate_by_pattern(model: ModelInfo, elements: dict[str, Element], what: str, patterns: str,
+                     how: dict[str, str]) -> list[Column]:
+    if patterns.strip().lower() in ("", "none"):
+        how[what] = "derived from the data"
+        return []
+    how[what] = "pattern"
+    return [Column(e, e.sign) for e in _match(model, elements, what, patterns, required=True)]
+
+
+def _named(elements: dict[str, Element], pattern: str) -> list[Column]:
+    """Convention names (``x[*]`` ...): continuous real non-parameter variables only."""
+    candidates = [n for n, e in elements.items() if _is_signal(e)]
+    return [Column(elements[n], elements[n].sign) for n in match_names(pattern, candidates)]
+
+
+def _is_signal(element: Element) -> bool:
+    var = element.var
+    return var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
+
+
+_RANGE = re.compile(r"\[(\d+):(\d+)\]")
+
+
+def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: str | Sequence[str],
+           required: bool) -> list[Element]:
+    """Elements matching comma-separated patterns: exact names any real variable, wildcards and index ranges
+    (``x[1:30]``, inclusive) only continuous-time signals."""
+    pieces = [p.strip() for p in (patterns.split(",") if isinstance(patterns, str) else patterns) if p.strip()]
+    reals = [n for n, e in elements.items() if e.var.is_real]
+    signals = [n for n in reals if _is_signal(elements[n])]
+    found: list[str] = []
+    for piece in pieces:
+        if _RANGE.search(piece):
+            names = [n for n in _expand_range(piece) if n in set(signals)]
+        elif "*" in piece or "?" in piece:
+            names = match_names(piece, signals)
+        else:
+            names = match_names(piece, reals)
+        found += [n for n in names if n not in found]
+    if not found and required:
+        examples = ", ".join(sorted(signals, key=natural_key)[:6]) or "none"
+        raise FMUError(f"{what} pattern {show_patterns(patterns)} matches no real variable of {model.label} "
+                       f"(continuous-time variables: {examples}, ...; wildcards skip parameters); pass --{what} "
+                       "with a matching pattern")
+    return [elements[n] for n in found]
+
+
+def _expand_range(pattern: str) -> list[str]:
+    match = _RANGE.search(pattern)
+    if match is None:
+        return [pattern]
+    low, high = int(match[1]), int(match[2])
+    if high < low:
+        raise InputSpecError(f"index range [{low}:{high}] in {pattern!r} is empty; write [low:high] with low <= high")
+    out: list[str] = []
+    for i in range(low, high + 1):
+        out += _expand_range(pattern[:match.start()] + f"[{i}]" + pattern[match.end():])
+    return out
 
 
 def show_patterns(patterns: str | Sequence[str]) -> str:
     return repr(patterns if isinstance(patterns, str) else ",".join(patterns))
+
+
+# =============================================================================================
+# Inputs and outputs
+# =============================================================================================
+
+
+def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None
+                  ) -> tuple[list[Element], list[Element]]:
+    """Force inputs and the other inputs (held at their start or ``--set`` values).
+
+    Default: every real input of continuous variability is a force.  ``""``/``"none"``: no forces.
+    """
+    inputs = [e for e in elements.values() if e.var.causality == "input"]
+    if patterns is None:
+        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"),
+                        key=lambda e: natural_key(e.name))
+    elif patterns.strip().lower() in ("", "none"):
+        forces = []
+    else:
+        pieces = [p.strip() for p in patterns.split(",") if p.strip()]
+        names: list[str] = []
+        reals = [n for n, e in elements.items() if e.var.is_real]
+        for piece in pieces:
+            expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+            names += [n for p in expanded for n in match_names(p, reals) if n not in names]
+        if not names:
+            available = [e.name for e in inputs]
+            raise FMUError(f"input {show_patterns(patterns)} is not a real variable of {model.label} "
+                           f"(its inputs: {', '.join(available) or 'none'}); pass --inputs with an input name")
+        bad = [n for n in names if elements[n].var.causality != "input"]
+        if bad:
+            raise FMUError(f"{bad[0]} has causality {elements[bad[0]].var.causality!r} in {model.label}, not "
+                           "'input'; pass --inputs with input variables")
+        forces = [elements[n] for n in names]
+    chosen = {e.name for e in forces}
+    return forces, [e for e in inputs if e.name not in chosen]
+
+
+def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
+    """Outputs: default every real output; patterns match real variables."""
+    if patterns is None:
+        return sorted((e for e in elements.values() if e.var.causality == "output" and e.var.is_real),
+                      key=lambda e: natural_key(e.name))
+    if patterns.strip().lower() in ("", "none"):
+        return []
+    reals = [n for n, e in elements.items() if e.var.is_real]
+    names: list[str] = []
+    for piece in (p.strip() for p in patterns.split(",") if p.strip()):
+        expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+        names += [n for p in expanded for n in match_names(p, reals) if n not in names]
+    if not names:
+        examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
+        raise FMUError(f"outputs pattern {show_patterns(patterns)} matches no real variable of {model.label} "
+                       f"(variables: {examples}, ...); pass --outputs with a matching pattern")
+    return [elements[n] for n in names]
+
+
+# =============================================================================================
+# Raw value layout of one get/set call
+# =============================================================================================
+
+
+class ReadPlan:
+    """Value references for one ``fmiGet``/``fmiSet`` call and where each column sits in its values.
+
+    Scalars take one value each (a column per value reference, repeats allowed); an FMI 3 array
+    takes all its values once, however many of its elements are columns.  ``identity`` is true when
+    the raw values are the columns themselves (no array, no sign flip): then the C call writes
+    straight into the caller's row.
+
+    Parameters
+    ----------
+    model : ModelInfo
+    columns : list of Column
+    structural : dict
+        Structural parameter values (array sizes).
+    settings : list of Setting, optional
+        Values of array variables that are only partly columns (inputs held at their settings).
+    """
+
+    def __init__(self, model: ModelInfo, columns: list[Column], structural: dict[str, Any],
+                 settings: Sequence[Any] = ()) -> None:
+        import numpy as np
+
+        self.columns = list(columns)
+        vrs: list[int] = []
+        base: list[float] = []
+        array_at: dict[int, int] = {}
+        gather: list[int] = []
+        given = {s.var.name: s.values for s in settings}
+        for column in self.columns:
+            var = column.element.var
+            if not var.dims:
+                gather.append(len(base))
+                vrs.append(var.vr)
+                base.append(0.0)
+                continue
+            if var.vr not in array_at:
+                array_at[var.vr] = len(base)
+                vrs.append(var.vr)
+                size = 1
+                for s in model.shape(var, structural):
+                    size *= s
+                values = given.get(var.name) or _float_starts(var, size)
+                base += [float(v) for v in values]
+            gather.append(array_at[var.vr] + column.element.offset)
+        self.vrs = np.array(vrs, dtype=np.uint32)
+        self.nvalues = len(base)
+        self.base = np.array(base, dtype=float)
+        self.gather = np.array(gather, dtype=np.intp)
+        self.signs = np.array([c.sign for c in self.columns], dtype=float)
+        self.identity = (self.nvalues == len(self.columns) and bool(np.all(self.gather == np.arange(len(gather))))
+                         and bool(np.all(self.signs == 1.0)))
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+
+def _float_starts(var: Variable, size: int) -> list[float]:
+    parts = (var.start or "").split()
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) == size:
+        return values
+    return [values[0] if len(values) == 1 else 0.0] * size
+
+
+def nonzero_start(element: Element) -> bool:
+    """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
+    parts = (element.var.start or "").split()
+    if not parts:
+        return False
+    text = parts[element.offset] if element.offset < len(parts) else parts[0]
+    try:
+        return float(text) != 0.0
+    except ValueError:
+        return False

@@ -1,0 +1,212 @@
+"""Values given by the user (``--set NAME=VALUE``): parameters, start values, held inputs, structural parameters.
+
+A setting names a variable (``k``, ``mass.s``), a whole FMI 3 array (``x0=[1,2,3]``) or one element
+of it (``x0[2]=1.5``).  Values are typed by the variable's declared type (real, integer, boolean,
+string) and checked against its ``min``/``max``; structural parameters (FMI 3) are applied in
+configuration mode, everything else before initialization.  Every problem is a one-line error.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+import re
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from ..errors import InputSpecError
+from ._variables import ModelInfo, Variable
+
+__all__ = ["Setting", "parse_assignments", "resolve_settings"]
+
+_INTEGER_TYPES = ("Integer", "Enumeration", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64",
+                  "UInt64")
+_FLOAT_TYPES = ("Real", "Float32", "Float64")
+_ELEMENT = re.compile(r"^(.+)\[(\d+(?:\s*,\s*\d+)*)\]$")
+
+
+@dataclasses.dataclass
+class Setting:
+    """The values to set for one variable (all its elements for an array)."""
+
+    var: Variable
+    values: list[Any]
+    structural: bool
+
+
+def parse_assignments(items: Iterable[str] | Mapping[str, Any] | None) -> dict[str, Any]:
+    """``["k=4", "x0=[1,2]"]`` (command line) or a mapping, as an ordered ``{name: value}``."""
+    if items is None:
+        return {}
+    if isinstance(items, Mapping):
+        return dict(items)
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, value = str(item).partition("=")
+        if not sep or not name.strip():
+            raise InputSpecError(f"--set {item!r} is not NAME=VALUE; write e.g. --set k=1000 or --set x0=[1,2,3]")
+        out[name.strip()] = value.strip()
+    return out
+
+
+def resolve_settings(model: ModelInfo, settings: Mapping[str, Any]) -> tuple[list[Setting], dict[str, int]]:
+    """Check and type the settings against the model description.
+
+    Returns
+    -------
+    settings : list of Setting
+        One per variable, structural parameters first.
+    structural : dict of str to int
+        Values of the structural parameters that were set (array sizes depend on them).
+    """
+    targets = [(name, value, *_target(model, name)) for name, value in settings.items()]
+    structural: dict[str, int] = {}
+    merged: dict[str, Setting] = {}
+    order = sorted(targets, key=lambda item: item[2].causality != "structuralParameter")
+    for name, value, var, index in order:
+        _check_settable(model, name, var)
+        shape = model.shape(var, structural)
+        setting = merged.get(var.name) or Setting(var, _start_values(model, var, shape),
+                                                  var.causality == "structuralParameter")
+        if index is None:
+            setting.values = _whole(model, name, var, value, shape)
+        else:
+            setting.values[_flat_index(model, name, index, shape)] = _typed(model, name, var, value)
+        merged[var.name] = setting
+        if setting.structural and not shape:
+            structural[var.name] = int(setting.values[0])
+    return list(merged.values()), structural
+
+
+def _target(model: ModelInfo, name: str) -> tuple[Variable, tuple[int, ...] | None]:
+    if name in model.by_name:
+        return model.by_name[name], None
+    match = _ELEMENT.match(name)
+    if match and match[1] in model.by_name and model.by_name[match[1]].dims:
+        return model.by_name[match[1]], tuple(int(i) for i in match[2].split(","))
+    close = difflib.get_close_matches(name, list(model.by_name), n=3)
+    hint = f" (did you mean {', '.join(close)}?)" if close else ""
+    raise InputSpecError(f"--set {name}: {model.label} has no variable {name!r}{hint}; check the name")
+
+
+def _check_settable(model: ModelInfo, name: str, var: Variable) -> None:
+    if var.variability == "constant":
+        raise InputSpecError(f"--set {name}: {var.name} is a constant of {model.label} and cannot be set")
+    if var.causality in ("calculatedParameter", "independent"):
+        raise InputSpecError(f"--set {name}: {var.name} is a {var.causality} of {model.label} and cannot be set")
+    if var.causality in ("parameter", "structuralParameter", "input"):
+        return
+    if var.initial == "calculated" or (var.initial is None and var.start is None):
+        raise InputSpecError(f"--set {name}: {var.name} has no start value in {model.label} (it is calculated) "
+                             "and cannot be set")
+
+
+def _start_values(model: ModelInfo, var: Variable, shape: tuple[int, ...]) -> list[Any]:
+    size = 1
+    for s in shape:
+        size *= s
+    parts = (var.start or "").split()
+    if len(parts) == size:
+        try:
+            return [_convert(var, p) for p in parts]
+        except ValueError:
+            pass
+    if len(parts) == 1 and size > 1:  # one start value for the whole array
+        try:
+            return [_convert(var, parts[0])] * size
+        except ValueError:
+            pass
+    default: Any = "" if var.type == "String" else False if var.type == "Boolean" else 0
+    return [default] * size
+
+
+def _whole(model: ModelInfo, name: str, var: Variable, value: Any, shape: tuple[int, ...]) -> list[Any]:
+    if not shape:
+        return [_typed(model, name, var, value)]
+    items = _as_list(value)
+    size = 1
+    for s in shape:
+        size *= s
+    if items is None or len(items) != size:
+        got = "a scalar" if items is None else f"{len(items)} values"
+        raise InputSpecError(f"--set {name}: {var.name} is an array of {size} values in {model.label} but got "
+                             f"{got}; write {name}=[v1,...,v{size}] or {name}[i]=v")
+    return [_typed(model, name, var, item) for item in items]
+
+
+def _as_list(value: Any) -> list[Any] | None:
+    if isinstance(value, (list, tuple)):
+        return list(value)
+    if hasattr(value, "tolist") and getattr(value, "ndim", 0) > 0:
+        return list(value.tolist())
+    if isinstance(value, str) and value.strip().startswith("["):
+        try:
+            parsed = json.loads(value)
+        except ValueError:
+            parsed = [p.strip() for p in value.strip()[1:-1].split(",")] if value.strip().endswith("]") else None
+        return list(parsed) if isinstance(parsed, list) else None
+    return None
+
+
+def _flat_index(model: ModelInfo, name: str, index: tuple[int, ...], shape: tuple[int, ...]) -> int:
+    if len(index) != len(shape) or any(not 1 <= i <= s for i, s in zip(index, shape)):
+        raise InputSpecError(f"--set {name}: index out of range; {name.split('[')[0]} has shape "
+                             f"{'x'.join(map(str, shape))} in {model.label} (indices start at 1)")
+    flat = 0
+    for i, s in zip(index, shape):
+        flat = flat * s + (i - 1)
+    return flat
+
+
+def _typed(model: ModelInfo, name: str, var: Variable, value: Any) -> Any:
+    try:
+        typed = _convert(var, value)
+    except (ValueError, TypeError):
+        kind = ("a number" if var.type in _FLOAT_TYPES else "an integer" if var.type in _INTEGER_TYPES
+                else "true or false" if var.type == "Boolean" else "a string")
+        raise InputSpecError(f"--set {name}={value}: {var.name} is a {var.type} variable of {model.label}; "
+                             f"give {kind}") from None
+    _check_bounds(model, name, var, typed)
+    return typed
+
+
+def _convert(var: Variable, value: Any) -> Any:
+    text = value.strip() if isinstance(value, str) else value
+    if var.type in _FLOAT_TYPES:
+        if isinstance(text, bool):
+            raise ValueError(text)
+        return float(text)
+    if var.type in _INTEGER_TYPES:
+        if isinstance(text, bool):
+            raise ValueError(text)
+        if isinstance(text, float):
+            if not text.is_integer():
+                raise ValueError(text)
+            return int(text)
+        number = int(str(text), 10)
+        if var.type.startswith("UInt") and number < 0:
+            raise ValueError(text)
+        return number
+    if var.type == "Boolean":
+        if isinstance(text, bool):
+            return text
+        lowered = str(text).lower()
+        if lowered in ("true", "1"):
+            return True
+        if lowered in ("false", "0"):
+            return False
+        raise ValueError(text)
+    return str(text)
+
+
+def _check_bounds(model: ModelInfo, name: str, var: Variable, value: Any) -> None:
+    if isinstance(value, (bool, str)):
+        return
+    low = float(var.min) if var.min not in (None, "") else None
+    high = float(var.max) if var.max not in (None, "") else None
+    if (low is not None and value < low) or (high is not None and value > high):
+        bounds = f"[{var.min if low is not None else '-inf'}, {var.max if high is not None else 'inf'}]"
+        what = "structural parameter" if var.causality == "structuralParameter" else "variable"
+        raise InputSpecError(f"--set {name}={value:g}: outside the bounds {bounds} of the {what} {var.name} in "
+                             f"{model.label}; give a value within them")
