@@ -29,17 +29,26 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--positions", help="name patterns of the positions, e.g. 'x[*]'")
     group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
     group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
-    group.add_argument("--inputs", help="name patterns of the inputs")
+    group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input; "
+                                        "'none': no force input); other inputs are held at their start values")
     group.add_argument("--outputs", help="name patterns of the outputs")
     group.add_argument("--constraint", choices=["position", "velocity", "none", "unknown"],
                        help="constraint kind of a black-box FMU (chooses the POD data in fit)")
+    group.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
+                       help="set a parameter, start value, held input or (FMI 3) structural parameter before the "
+                            "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable")
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
 
 def _source_options(args: argparse.Namespace) -> dict:
+    from .sources import parse_assignments
+
     keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "g", "n1")
-    return {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    options = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
+    if getattr(args, "settings", None):
+        options["parameters"] = parse_assignments(args.settings)  # the FMU keyword of the --set values
+    return options
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,9 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("snapshots", help="simulate a source and record snapshots into an HDF5 file")
     p.add_argument("source", help="path to a co-simulation FMU, or builtin:anchored-msd / builtin:triple-chain")
     p.add_argument("-o", "--output", required=True, help="snapshot file to write (.h5)")
-    p.add_argument("--input", dest="input_spec", action="append", required=True,
-                   help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table; "
-                        "repeat for several training runs")
+    p.add_argument("--input", dest="input_spec", action="append",
+                   help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table, or 'none' for "
+                        "the free response from the initial state (every input held at its start value); repeat "
+                        "for several training runs; may be omitted for a model without inputs")
     p.add_argument("--dt", type=float, help="communication step")
     p.add_argument("--t-end", type=float, help="end time")
     p.add_argument("--auto-window", action="store_true",

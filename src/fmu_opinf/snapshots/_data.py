@@ -13,7 +13,7 @@ import numpy as np
 
 from .._hdf5 import read_attrs
 from ..errors import DataError, DimensionError, FileFormatError
-from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
+from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
 
 __all__ = ["Run", "Snapshots"]
 
@@ -31,6 +31,9 @@ class Run:
     y : (p, k) array
     attrs : dict
         Provenance of the run (input, step, completeness, derived flags, ...).
+    x0, v0 : (n,) ndarray
+        The source's initial state (positions and velocities at ``t[0]``, not necessarily at rest or
+        at equilibrium); default: the first samples of ``x`` and ``xdot``.  Layout 2 stores them.
     """
 
     t: Any
@@ -40,6 +43,12 @@ class Run:
     xddot: Any
     y: Any
     attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    x0: Any = None
+    v0: Any = None
+
+    def __post_init__(self) -> None:
+        self.x0 = _initial(self.x0, self.x)
+        self.v0 = _initial(self.v0, self.xdot)
 
     @property
     def k(self) -> int:
@@ -57,7 +66,8 @@ class Run:
 
     def load(self) -> "Run":
         """An in-memory copy (reads lazy datasets)."""
-        return Run(**{n: np.array(a[()]) for n, a in self.arrays().items()}, attrs=dict(self.attrs))
+        return Run(**{n: np.array(a[()]) for n, a in self.arrays().items()}, attrs=dict(self.attrs),
+                   x0=np.array(self.x0), v0=np.array(self.v0))
 
 
 class Snapshots:
@@ -223,7 +233,8 @@ class Snapshots:
             missing = [a for a in ARRAYS if a not in g]
             if missing:
                 raise FileFormatError(f"{path}: run {name} lacks {', '.join(missing)}; the file is truncated")
-            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=decode(read_attrs(g))))
+            initial = {a: np.array(g[a][()]) for a in INITIAL if a in g}  # layout 1 has none: first samples
+            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=decode(read_attrs(g)), **initial))
         return cls(runs, attrs)
 
     def close(self) -> None:
@@ -250,3 +261,11 @@ class Snapshots:
 def _short(value: Any) -> str:
     text = str(value)
     return text if len(text) < 60 else text[:57] + "..."
+
+
+def _initial(value: Any, samples: Any) -> np.ndarray:
+    """The given initial values, else the first column of ``samples`` (zeros for an empty run)."""
+    if value is not None:
+        return np.asarray(value, dtype=float).reshape(-1)
+    rows, k = samples.shape[0], samples.shape[-1]
+    return np.array(samples[:, 0], dtype=float) if k and rows else np.zeros(rows)

@@ -17,13 +17,15 @@ from ..errors import FileFormatError
 if TYPE_CHECKING:
     from ._data import Run
 
-__all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "atomic", "decode", "write_file_attrs", "create_dataset",
+__all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "INITIAL", "write_initial_state", "atomic", "decode", "write_file_attrs", "create_dataset",
            "write_run"]
 
 #: Version of the HDF5 layout written by this package (docs/file-format.md).
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2
 FILE_KIND = "fmu-opinf snapshots"
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
+#: Per-run initial state datasets (layout 2; layout 1 files take the first samples instead).
+INITIAL = ("x0", "v0")
 _JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window")
 
 
@@ -66,8 +68,16 @@ def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
 
 def create_dataset(group: h5py.Group, name: str, shape: tuple[int, ...]) -> h5py.Dataset:
     """A chunked, gzip-compressed float64 dataset resizable along time."""
-    return group.create_dataset(name, shape=shape, dtype="f8", maxshape=shape[:-1] + (None,), chunks=_chunks(shape),
+    # a fixed size of 0 (no inputs: m = 0) cannot hold a chunk of 1; leave such dimensions unlimited
+    maxshape = tuple(None if d == 0 else d for d in shape[:-1]) + (None,)
+    return group.create_dataset(name, shape=shape, dtype="f8", maxshape=maxshape, chunks=_chunks(shape),
                                 compression="gzip", compression_opts=1, shuffle=True)
+
+
+def write_initial_state(group: h5py.Group, x0: Any, v0: Any) -> None:
+    """The run's initial positions and velocities as small datasets ``x0``, ``v0`` (layout 2)."""
+    for name, values in (("x0", x0), ("v0", v0)):
+        group.create_dataset(name, data=np.asarray(values, dtype=float).reshape(-1))
 
 
 def write_run(runs: h5py.Group, index: int, run: Run) -> None:
@@ -78,4 +88,5 @@ def write_run(runs: h5py.Group, index: int, run: Run) -> None:
         step = max(1, ds.chunks[-1] * 64) if ds.chunks else k
         for j0 in range(0, k, step):
             ds[..., j0:j0 + step] = np.ascontiguousarray(array[..., j0:j0 + step])
+    write_initial_state(g, run.x0, run.v0)
     write_attrs(g, run.attrs)

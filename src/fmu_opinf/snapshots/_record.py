@@ -15,6 +15,7 @@ import functools
 import json
 import math
 import os
+import sys
 import time as _time
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,7 +29,7 @@ from .._progress import Progress
 from ..errors import InputSpecError
 from ..sources import Source, StepError, open_source
 from ._data import Run, Snapshots
-from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs
+from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._isolation import produce_inprocess, produce_isolated, source_label
 from ._rates import inputs_in_effect, newmark_rates, time_grid
 
@@ -126,8 +127,11 @@ class _H5Sink(_Sink):
             self._derive("xdot", "xddot")
         for name, array in (("t", self.t[:c]), ("u", self.u[:, :c])):
             create_dataset(self.group, name, array.shape)[...] = array
+        arrays = {a: self.group[a] for a in ARRAYS}
+        run = Run(**arrays, attrs=attrs)  # initial state: the first samples
+        write_initial_state(self.group, run.x0, run.v0)
         write_attrs(self.group, attrs)
-        return Run(**{a: self.group[a] for a in ARRAYS}, attrs=attrs)
+        return run
 
     def _derive(self, src: str, dst: str) -> None:
         """Rows (DOFs) are independent: derive in row blocks without loading the whole run."""
@@ -174,11 +178,18 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
                 sink.commit(i0, count)
                 bar.update(sink.count)
         except StepError as exc:
-            failure = exc
+            failure = _with_hint(source, exc, U)
         finally:
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     return sink.finish(attrs), failure
+
+
+def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
+    """The failure with the source's explanation appended (e.g. inputs that look like parameters)."""
+    hint = getattr(source, "failure_hint", None)
+    text = hint(U, failure.step) if hint is not None else ""
+    return StepError(str(failure) + text, failure.step, failure.time) if text else failure
 
 
 def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure: StepError | None,
@@ -272,7 +283,7 @@ def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str
         and :class:`~fmu_opinf.source.StepError` is raised afterwards.
     """
     source = open_source(source)
-    signal = as_signal(signal, source.m)
+    signal = as_signal(signal, source.m, source)
     t = time_grid(dt, t_end, t0)
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
@@ -288,8 +299,37 @@ def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str
     return Snapshots.open(path)
 
 
-def as_signal(signal: Any, m: int | None = None) -> Any:
-    """A signal object from a spec (one spec drives every one of the ``m`` inputs) or as is."""
+class HeldInputs:
+    """``--input none``: the free response, every force input held at its start (or ``--set``) value.
+
+    With no force inputs (m = 0) it has no channel at all.
+    """
+
+    spec = "none"
+
+    def __init__(self, values: Any) -> None:
+        self.values = np.asarray(values, dtype=float).reshape(-1)
+
+    def sample(self, t: Any) -> np.ndarray:
+        return np.repeat(self.values[:, None], np.size(t), axis=1)
+
+    def __repr__(self) -> str:
+        return "HeldInputs(" + ", ".join(f"{v:g}" for v in self.values) + ")"
+
+
+def is_free_response(spec: Any) -> bool:
+    """True for the input specification ``none`` (or a :class:`HeldInputs`)."""
+    return isinstance(spec, HeldInputs) or (isinstance(spec, str) and spec.strip().lower() == "none")
+
+
+def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -> Any:
+    """A signal object from a spec (one spec drives every one of the ``m`` inputs) or as is.
+
+    ``"none"`` holds every input at the source's start values (zeros without a source).
+    """
+    if is_free_response(signal) and isinstance(signal, str):
+        starts = source.input_starts() if source is not None else np.zeros(m or 0)
+        return HeldInputs(starts)
     if isinstance(signal, str):
         from ..signals import parse_signal
 
@@ -370,7 +410,7 @@ def record_to_file(
     inputs: str | None = None,
     outputs: str | None = None,
     constraint: str | None = None,
-    parameters: dict[str, float] | None = None,
+    parameters: dict[str, Any] | None = None,
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
@@ -417,13 +457,20 @@ def record_to_file(
     """
     from ._window import auto_window as choose_window, default_window
 
+    specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
+    if specs and all(is_free_response(s) for s in specs) and inputs is None:
+        inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
                          **size_options)
-    specs = [input_spec] if isinstance(input_spec, str) else list(input_spec)
+    if not specs and source.m == 0:
+        specs = ["none"]
     if not specs:
-        raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training)")
-    signals = [as_signal(s, source.m) for s in specs]
+        raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training) or "
+                             "--input none (the free response from the initial state)")
+    signals = [as_signal(s, source.m, source) for s in specs]
+    if not quiet and hasattr(source, "selection_text"):
+        print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
     window = None
     if auto_window:

@@ -1,7 +1,8 @@
 """Where snapshot data come from: the reference simulator or a co-simulation FMU, stepped one step at a time.
 
 Modules: :mod:`._base` (the interface), :mod:`._builtin` (reference simulator), :mod:`._variables`
-(model description and variable discovery), :mod:`._cosimulation` (co-simulation FMUs).  A
+(model description and variable discovery), :mod:`._settings` (``--set`` values), :mod:`._resolve`
+(what an FMU records, from its description alone), :mod:`._cosimulation` (co-simulation FMUs).  A
 ``_model_exchange`` driver with the same stepping interface belongs here too.
 
 Both sources describe themselves the same way (sizes ``n, m, p``, variable names, constraint kind,
@@ -33,6 +34,8 @@ from ..errors import InputSpecError
 from ._base import Source, StepError, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
 from ._cosimulation import FMUSource
+from ._resolve import Resolved, resolve_variables
+from ._settings import parse_assignments
 
 __all__ = [
     "Source",
@@ -43,6 +46,9 @@ __all__ = [
     "match_names",
     "natural_key",
     "BUILTIN_SYSTEMS",
+    "parse_assignments",
+    "resolve_variables",
+    "Resolved",
 ]
 
 
@@ -69,7 +75,7 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
         name = text.split(":", 1)[1]
         for key in _FMU_OPTIONS:
             if key in options:
-                raise InputSpecError(f"--{key} applies to fmu sources, not to {text}")
+                raise InputSpecError(f"--{_FLAG.get(key, key)} applies to fmu sources, not to {text}")
         return BuiltinSource(name, **options)
     unknown = sorted(set(options) - set(_FMU_OPTIONS))
     if unknown:
@@ -79,3 +85,4 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
                 "settings")
+_FLAG = {"parameters": "set", "settings": "set"}

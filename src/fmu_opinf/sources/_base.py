@@ -156,6 +156,10 @@ class Source:
         desc.update(self.provenance())
         return desc
 
+    def input_starts(self) -> np.ndarray:
+        """Values the inputs hold when not driven (``--input none``): zeros unless the source knows better."""
+        return np.zeros(self.m)
+
     def provenance(self) -> dict[str, Any]:
         """Where the data come from (source kind, path, checksums, ...)."""
         raise NotImplementedError

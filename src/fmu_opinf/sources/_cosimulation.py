@@ -14,9 +14,10 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError
 from ._base import Source, StepError, check_constraint
-from ._settings import parse_assignments, resolve_settings
-from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, discover,
-                         nonzero_start, read_description, select_inputs, select_outputs)
+from ._resolve import resolve_variables
+from ._settings import parse_assignments
+from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
+                         read_description, start_value)
 
 __all__ = ["FMUSource"]
 
@@ -116,11 +117,9 @@ class FMUSource(Source):
                  inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:
         """Type the settings, expand arrays (sizes may depend on settings), find the recorded variables."""
         model = self.model
-        self._settings, structural = resolve_settings(model, settings)
-        elements = model.elements(structural)
-        selection = discover(model, elements, positions, velocities, accelerations)
-        forces, held = select_inputs(model, elements, inputs)
-        out_elements = select_outputs(model, elements, outputs)
+        resolved = resolve_variables(model, positions, velocities, accelerations, inputs, outputs, settings)
+        self._settings, structural = resolved.settings, resolved.structural
+        selection, forces, held, out_elements = resolved.selection, resolved.forces, resolved.held, resolved.outputs
         self.selection = selection
         self.position_names = [c.name for c in selection.positions]
         self.velocity_names = [c.name for c in selection.velocities]
@@ -160,6 +159,16 @@ class FMUSource(Source):
         if negated:
             desc["negated_columns"] = negated
         return desc
+
+    def input_starts(self) -> np.ndarray:
+        """Start values of the force inputs (their ``--set`` values where given)."""
+        given = {s.var.name: s.values for s in self._settings}
+        out = []
+        for column in self._write.columns:
+            element = column.element
+            values = given.get(element.var.name)
+            out.append(float(values[element.offset]) if values is not None else start_value(element))
+        return np.array(out, dtype=float)
 
     def failure_hint(self, U: np.ndarray, step: int) -> str:
         """Why a step may have failed: force inputs with non-zero start values set to 0 look like parameters."""

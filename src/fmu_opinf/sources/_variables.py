@@ -26,7 +26,7 @@ from ._base import CONSTRAINTS, match_names, natural_key
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start"]
+           "show_patterns", "nonzero_start", "start_value"]
 
 REAL_TYPES = ("Real", "Float64")
 _PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
@@ -364,7 +364,7 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
         pos, vel, acc, rule = _default_positions(model, states, elements)
         how["positions"] = rule
         if velocities is None:
-            how["velocities"] = rule
+            how["velocities"] = "pattern v[*]" if rule.startswith("pattern") else rule
         else:
             vel, acc = _rate_by_pattern(model, elements, "velocities", velocities, how), None
         if accelerations is not None:
@@ -652,13 +652,18 @@ def _float_starts(var: Variable, size: int) -> list[float]:
     return [values[0] if len(values) == 1 else 0.0] * size
 
 
-def nonzero_start(element: Element) -> bool:
-    """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
+def start_value(element: Element) -> float:
+    """The element's declared start value as a float (0 if it has none or it is not a number)."""
     parts = (element.var.start or "").split()
     if not parts:
-        return False
+        return 0.0
     text = parts[element.offset] if element.offset < len(parts) else parts[0]
     try:
-        return float(text) != 0.0
+        return float(text)
     except ValueError:
-        return False
+        return 0.0
+
+
+def nonzero_start(element: Element) -> bool:
+    """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
+    return start_value(element) != 0.0

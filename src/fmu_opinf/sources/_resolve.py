@@ -1,0 +1,57 @@
+"""What an FMU source records, decided from the model description alone (no binary needed).
+
+Shared by every FMU driver (co-simulation here; a model-exchange driver uses the same): the user's
+settings are typed first (array sizes may depend on structural parameters), then arrays are expanded
+and the positions, velocities, accelerations, force inputs, held inputs and outputs are chosen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+from ._settings import Setting, parse_assignments, resolve_settings
+from ._variables import Element, ModelInfo, Selection, discover, select_inputs, select_outputs
+
+__all__ = ["Resolved", "resolve_variables"]
+
+
+@dataclasses.dataclass
+class Resolved:
+    """The recorded variables of a model and the settings to apply."""
+
+    model: ModelInfo
+    settings: list[Setting]
+    structural: dict[str, int]
+    selection: Selection
+    forces: list[Element]
+    held: list[Element]
+    outputs: list[Element]
+
+
+def resolve_variables(model: ModelInfo | str | Path, positions: str | None = None, velocities: str | None = None,
+                      accelerations: str | None = None, inputs: str | None = None, outputs: str | None = None,
+                      settings: Any = None) -> Resolved:
+    """Choose the recorded variables of a model description.
+
+    Parameters
+    ----------
+    model : ModelInfo or path
+        A parsed model description, or an ``.fmu``, extracted FMU directory or ``modelDescription.xml``.
+    positions, velocities, accelerations, inputs, outputs : str, optional
+        Patterns as for :class:`~fmu_opinf.sources.FMUSource`.
+    settings : dict or list of "NAME=VALUE", optional
+        The ``--set`` values.
+
+    Returns
+    -------
+    Resolved
+    """
+    if not isinstance(model, ModelInfo):
+        model = ModelInfo.from_path(model)
+    typed, structural = resolve_settings(model, parse_assignments(settings))
+    elements = model.elements(structural)
+    selection = discover(model, elements, positions, velocities, accelerations)
+    forces, held = select_inputs(model, elements, inputs)
+    return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs))

@@ -1,0 +1,295 @@
+"""Variable discovery and ``--set`` values on model descriptions of real exporters' conventions.
+
+Every case is a small ``modelDescription.xml`` written into a temporary directory (no binary is
+needed: discovery reads the description only).  The expected names and signs follow from the FMI
+semantics of each fixture (derivative links, shared value references, negated aliases, array
+dimensions), written down by hand here, not from the code's output.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_opinf.errors import FMUError, FmuOpinfError, InputSpecError
+from fmu_opinf.sources import parse_assignments, resolve_variables
+
+
+def _fmi2(variables: list[str], derivatives: list[int], name: str = "Model") -> str:
+    """FMI 2.0 description; ``derivatives`` are 1-based indices of the derivative variables."""
+    structure = "".join(f'<Unknown index="{i}"/>' for i in derivatives)
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            f'<fmiModelDescription fmiVersion="2.0" modelName="{name}" guid="{{0}}">'
+            '<CoSimulation modelIdentifier="m"/>'
+            f'<ModelVariables>{"".join(variables)}</ModelVariables>'
+            f'<ModelStructure><Derivatives>{structure}</Derivatives></ModelStructure></fmiModelDescription>')
+
+
+def _sv(name: str, vr: int, causality: str = "local", variability: str = "continuous", body: str = "<Real/>",
+        extra: str = "") -> str:
+    return (f'<ScalarVariable name="{name}" valueReference="{vr}" causality="{causality}" '
+            f'variability="{variability}"{extra}>{body}</ScalarVariable>')
+
+
+def _write(tmp_path: Path, xml: str) -> Path:
+    path = tmp_path / "modelDescription.xml"
+    path.write_text(xml)
+    return path
+
+
+def _names(columns) -> list[str]:
+    return [c.name for c in columns]
+
+
+def _signs(columns) -> list[float]:
+    return [c.sign for c in columns]
+
+
+# ------------------------------------------------------------------------------- FMI 2 conventions
+
+
+def modelica_two_masses() -> str:
+    """OpenModelica-style: states mass1.s, mass1.v, ...; der(mass.s) shares mass.v's value reference;
+    der(mass.v) is a separate variable; mass.a aliases der(mass.v); parameters with start values."""
+    v = [
+        _sv("F", 0, "input", body='<Real start="0"/>'),                          # 1
+        _sv("mass1.s", 1, extra=' initial="exact"', body='<Real start="0.5"/>'),  # 2
+        _sv("mass1.v", 2, extra=' initial="exact"', body='<Real start="0"/>'),    # 3
+        _sv("mass2.s", 3, extra=' initial="exact"', body='<Real start="1"/>'),    # 4
+        _sv("mass2.v", 4, extra=' initial="exact"', body='<Real start="0"/>'),    # 5
+        _sv("der(mass1.s)", 2, body='<Real derivative="2"/>'),                   # 6: alias of mass1.v
+        _sv("der(mass1.v)", 5, body='<Real derivative="3"/>'),                   # 7
+        _sv("der(mass2.s)", 4, body='<Real derivative="4"/>'),                   # 8: alias of mass2.v
+        _sv("der(mass2.v)", 6, body='<Real derivative="5"/>'),                   # 9
+        _sv("mass1.a", 5),                                                        # 10: alias of der(mass1.v)
+        _sv("mass1.m", 7, "parameter", "fixed", '<Real start="1"/>'),             # 11
+        _sv("spring.c", 8, "parameter", "fixed", '<Real start="1000" min="0"/>'),  # 12
+        _sv("spring.s_rel0", 9, "parameter", "fixed", '<Real start="0.5"/>'),     # 13
+        _sv("nsteps", 10, "parameter", "fixed", '<Integer start="3" min="1" max="10"/>'),  # 14
+        _sv("use_damper", 11, "parameter", "fixed", '<Boolean start="true"/>'),   # 15
+        _sv("g", 12, "parameter", "constant", '<Real start="9.81"/>'),           # 16
+        _sv("y", 13, "output", body="<Real/>", extra=' initial="calculated"'),    # 17
+    ]
+    return _fmi2(v, [6, 7, 8, 9])
+
+
+def test_modelica_states_come_from_derivative_links_and_shared_value_references(tmp_path):
+    resolved = resolve_variables(_write(tmp_path, modelica_two_masses()))
+    sel = resolved.selection
+    assert _names(sel.positions) == ["mass1.s", "mass2.s"]
+    assert _names(sel.velocities) == ["mass1.v", "mass2.v"]
+    assert _names(sel.accelerations) == ["der(mass1.v)", "der(mass2.v)"]
+    assert _signs(sel.positions + sel.velocities + sel.accelerations) == [1.0] * 6
+    assert sel.how["positions"] == "from derivative links"
+    assert _names(resolved.forces) == ["F"] and resolved.held == []
+    assert _names(resolved.outputs) == ["y"]
+
+
+def relative_coordinates_negated() -> str:
+    """Relative-coordinate states (damper.s_rel, damper.v_rel) written by an older tool with negated aliases:
+    der(damper.s_rel) = -w (w a state sharing the reference), der(w) a separate variable, and an output
+    that is a negated alias of the position."""
+    v = [
+        _sv("damper.s_rel", 1, extra=' initial="exact"', body='<Real start="0.2"/>'),  # 1
+        _sv("w", 2, extra=' initial="exact"', body='<Real start="0"/>'),               # 2
+        _sv("der(damper.s_rel)", 2, body='<Real derivative="1"/>',
+            extra=' alias="negatedAlias"'),                                              # 3: = -w
+        _sv("der(w)", 3, body='<Real derivative="2"/>'),                                # 4
+        _sv("damper.v_rel", 2, body="<Real/>", extra=' alias="negatedAlias"'),           # 5: = -w
+        _sv("flange_pos", 1, "output", body="<Real/>", extra=' alias="negatedAlias"'),   # 6: = -s_rel
+    ]
+    return _fmi2(v, [3, 4])
+
+
+def test_negated_alias_derivative_flips_the_sign_of_velocity_and_acceleration(tmp_path):
+    resolved = resolve_variables(_write(tmp_path, relative_coordinates_negated()))
+    sel = resolved.selection
+    assert _names(sel.positions) == ["damper.s_rel"] and _names(sel.velocities) == ["w"]
+    assert _names(sel.accelerations) == ["der(w)"]
+    # velocity = der(s_rel) = -w and acceleration = d/dt(-w) = -der(w): both read with a sign flip
+    assert _signs(sel.positions) == [1.0] and _signs(sel.velocities) == [-1.0] and _signs(sel.accelerations) == [-1.0]
+    assert _names(resolved.outputs) == ["flange_pos"] and resolved.outputs[0].sign == -1.0
+    assert resolved.forces == []  # no inputs: m = 0
+
+
+def test_negated_columns_are_read_with_their_sign(tmp_path):
+    from fmu_opinf.sources._variables import Column, ReadPlan
+
+    resolved = resolve_variables(_write(tmp_path, relative_coordinates_negated()))
+    sel = resolved.selection
+    columns = sel.positions + sel.velocities + sel.accelerations + [Column(e, e.sign) for e in resolved.outputs]
+    plan = ReadPlan(resolved.model, columns, resolved.structural)
+    assert not plan.identity
+    raw = {1: 0.3, 2: 2.0, 3: -5.0}  # what the FMU returns per value reference: s_rel, w, der(w)
+    values = np.array([raw[int(vr)] for vr in plan.vrs])[plan.gather] * plan.signs
+    # s_rel, der(s_rel) = -w, der(der(s_rel)) = -der(w), flange_pos = -s_rel
+    np.testing.assert_array_equal(values, [0.3, -2.0, 5.0, -0.3])
+
+
+def generic_lti(n_states: int = 4, alias: bool = True) -> str:
+    """Generated LTI FMU: states x1..xn with start parameters x1_start.., derivatives der_x1.. where
+    der_x_i shares the reference of x_{n/2+i} (alias=True) or is a separate variable."""
+    v, half = [], n_states // 2
+    for i in range(1, n_states + 1):
+        v.append(_sv(f"x{i}", i, extra=' initial="exact"', body='<Real start="0"/>'))
+    for i in range(1, n_states + 1):
+        vr = half + i if (alias and i <= half) else 100 + i
+        v.append(_sv(f"der_x{i}", vr, body=f'<Real derivative="{i}"/>'))
+    for i in range(1, n_states + 1):
+        v.append(_sv(f"x{i}_start", 200 + i, "parameter", "fixed", '<Real start="0"/>'))
+    v.append(_sv("u1", 300, "input", body='<Real start="0"/>'))
+    v.append(_sv("_D_outputAlias_x1", 1, "output"))
+    return _fmi2(v, list(range(n_states + 1, 2 * n_states + 1)))
+
+
+@pytest.mark.parametrize("alias", [True, False])
+def test_generated_first_order_states_split_into_positions_and_velocities(tmp_path, alias):
+    sel = resolve_variables(_write(tmp_path, generic_lti(6, alias))).selection
+    assert _names(sel.positions) == ["x1", "x2", "x3"]
+    assert _names(sel.velocities) == ["x4", "x5", "x6"]
+    assert _names(sel.accelerations) == ["der_x4", "der_x5", "der_x6"]
+    assert ("halves" in sel.how["positions"]) != alias
+
+
+def test_wildcards_never_match_start_parameters(tmp_path):
+    path = _write(tmp_path, generic_lti(4))
+    sel = resolve_variables(path, positions="x*", velocities="none").selection
+    assert _names(sel.positions) == ["x1", "x2", "x3", "x4"]  # not x1_start .. x4_start
+    exact = resolve_variables(path, positions="x1_start", velocities="none").selection
+    assert _names(exact.positions) == ["x1_start"]  # named exactly: the user means it
+
+
+def test_an_odd_number_of_unlinked_states_is_ambiguous(tmp_path):
+    path = _write(tmp_path, generic_lti(3, alias=False))
+    with pytest.raises(FMUError) as info:
+        resolve_variables(path)
+    text = str(info.value)
+    assert "\n" not in text and "x1, x2, x3" in text and "--positions and --velocities" in text
+
+
+def test_chained_derivative_links_are_ambiguous(tmp_path):
+    v = [_sv("a", 1, extra=' initial="exact"', body='<Real start="0"/>'),
+         _sv("b", 2, extra=' initial="exact"', body='<Real start="0"/>'),
+         _sv("c", 3, extra=' initial="exact"', body='<Real start="0"/>'),
+         _sv("der(a)", 2, body='<Real derivative="1"/>'),
+         _sv("der(b)", 3, body='<Real derivative="2"/>'),
+         _sv("der(c)", 4, body='<Real derivative="3"/>')]
+    with pytest.raises(FMUError, match=r"der\(a\)=b, der\(b\)=c.*pass --positions and --velocities"):
+        resolve_variables(_write(tmp_path, _fmi2(v, [4, 5, 6])))
+
+
+def test_parameters_exposed_as_inputs_are_forces_unless_excluded(tmp_path):
+    v = [_sv("F", 0, "input", body='<Real start="0"/>'),
+         _sv("k", 1, "input", body='<Real start="1000"/>'),
+         _sv("mode", 2, "input", "discrete", '<Integer start="1"/>'),
+         _sv("x[1]", 3), _sv("v[1]", 4)]
+    path = _write(tmp_path, _fmi2(v, []))
+    default = resolve_variables(path)
+    assert _names(default.forces) == ["F", "k"] and _names(default.held) == ["mode"]
+    chosen = resolve_variables(path, inputs="F")
+    assert _names(chosen.forces) == ["F"] and _names(chosen.held) == ["k", "mode"]
+    assert resolve_variables(path, inputs="none").forces == []
+
+
+# ------------------------------------------------------------------------------- FMI 3 arrays
+
+
+def fmi3_array() -> str:
+    """FMI 3 first-order array state x of structural size nx (positions then velocities), derivative der_x."""
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<fmiModelDescription fmiVersion="3.0" modelName="Arr" instantiationToken="{0}">'
+            '<CoSimulation modelIdentifier="arr"/><ModelVariables>'
+            '<Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>'
+            '<UInt64 name="nx" valueReference="1" causality="structuralParameter" variability="fixed" start="4" '
+            'min="2" max="20"/>'
+            '<Float64 name="x" valueReference="10" causality="local" variability="continuous" initial="exact" '
+            'start="0.1 0.2 0 0"><Dimension valueReference="1"/></Float64>'
+            '<Float64 name="der_x" valueReference="11" causality="local" variability="continuous" derivative="10">'
+            '<Dimension valueReference="1"/></Float64>'
+            '<Float64 name="u" valueReference="12" causality="input" variability="continuous" start="0 0">'
+            '<Dimension start="2"/></Float64>'
+            '<Float64 name="y" valueReference="13" causality="output" variability="continuous">'
+            '<Dimension start="2"/></Float64>'
+            '<Float64 name="k" valueReference="14" causality="parameter" variability="fixed" start="1"/>'
+            '</ModelVariables><ModelStructure><Output valueReference="13"/>'
+            '<ContinuousStateDerivative valueReference="11"/></ModelStructure></fmiModelDescription>')
+
+
+def test_fmi3_array_states_expand_to_elements_with_one_value_reference(tmp_path):
+    from fmu_opinf.sources._variables import ReadPlan
+
+    resolved = resolve_variables(_write(tmp_path, fmi3_array()))
+    sel = resolved.selection
+    assert _names(sel.positions) == ["x[1]", "x[2]"] and _names(sel.velocities) == ["x[3]", "x[4]"]
+    assert _names(sel.accelerations) == ["der_x[3]", "der_x[4]"]
+    assert _names(resolved.forces) == ["u[1]", "u[2]"] and _names(resolved.outputs) == ["y[1]", "y[2]"]
+    plan = ReadPlan(resolved.model, sel.positions + sel.velocities + sel.accelerations, resolved.structural)
+    # x (4 values) and der_x (4 values) are each read once by their single value reference
+    assert plan.vrs.tolist() == [10, 11] and plan.nvalues == 8
+    assert plan.gather.tolist() == [0, 1, 2, 3, 6, 7]
+
+
+def test_structural_parameter_sets_the_array_size(tmp_path):
+    path = _write(tmp_path, fmi3_array())
+    resolved = resolve_variables(path, settings=["nx=6"])
+    assert _names(resolved.selection.positions) == ["x[1]", "x[2]", "x[3]"]
+    assert resolved.structural == {"nx": 6} and resolved.settings[0].structural
+
+
+def test_index_ranges_select_array_elements(tmp_path):
+    sel = resolve_variables(_write(tmp_path, fmi3_array()), positions="x[1:2]", velocities="x[3:4]",
+                            accelerations="der_x[3:4]").selection
+    assert _names(sel.positions) == ["x[1]", "x[2]"] and _names(sel.accelerations) == ["der_x[3]", "der_x[4]"]
+
+
+def test_array_settings_whole_and_by_element(tmp_path):
+    path = _write(tmp_path, fmi3_array())
+    whole = resolve_variables(path, settings={"x": "[1, 2, 3, 4]"}).settings
+    assert whole[0].values == [1.0, 2.0, 3.0, 4.0]
+    element = resolve_variables(path, settings=["x[2]=5"]).settings
+    assert element[0].values == [0.1, 5.0, 0.0, 0.0]  # the other elements keep their start values
+
+
+# ------------------------------------------------------------------------------- --set values
+
+
+def _bad_setting(tmp_path, xml: str, items: list[str], match: str) -> str:
+    with pytest.raises(InputSpecError, match=match) as info:
+        resolve_variables(_write(tmp_path, xml), settings=items)
+    assert isinstance(info.value, FmuOpinfError) and "\n" not in str(info.value)
+    return str(info.value)
+
+
+def test_settings_are_typed_by_the_variable(tmp_path):
+    settings = resolve_variables(_write(tmp_path, modelica_two_masses()),
+                                 settings=["spring.c=2e3", "nsteps=4", "use_damper=false", "mass1.s=0.7"]).settings
+    values = {s.var.name: s.values for s in settings}
+    assert values == {"spring.c": [2000.0], "nsteps": [4], "use_damper": [False], "mass1.s": [0.7]}
+    assert isinstance(values["nsteps"][0], int) and isinstance(values["use_damper"][0], bool)
+
+
+@pytest.mark.parametrize("items, match", [
+    (["spring.k=3"], r"has no variable 'spring.k' \(did you mean spring.c"),
+    (["spring.c=soft"], "spring.c is a Real variable.*give a number"),
+    (["nsteps=2.5"], "nsteps is a Integer variable.*give an integer"),
+    (["use_damper=maybe"], "give true or false"),
+    (["spring.c=-1"], r"outside the bounds \[0, inf\]"),
+    (["nsteps=11"], r"outside the bounds \[1, 10\]"),
+    (["g=9.8"], "g is a constant"),
+    (["y=1"], "has no start value"),
+    (["mass1.s"], "is not NAME=VALUE"),
+])
+def test_bad_settings_are_one_line_errors(tmp_path, items, match):
+    _bad_setting(tmp_path, modelica_two_masses(), items, match)
+
+
+def test_structural_parameter_outside_its_bounds(tmp_path):
+    _bad_setting(tmp_path, fmi3_array(), ["nx=1"], r"outside the bounds \[2, 20\] of the structural parameter nx")
+    _bad_setting(tmp_path, fmi3_array(), ["x=[1,2,3]"], "array of 4 values .* but got 3 values")
+    _bad_setting(tmp_path, fmi3_array(), ["x[7]=1"], "index out of range")
+
+
+def test_parse_assignments_keeps_order_and_text():
+    assert parse_assignments(["a=1", "b = [1, 2]", "c=x=y"]) == {"a": "1", "b": "[1, 2]", "c": "x=y"}
