@@ -71,6 +71,7 @@ __all__ = [
     "zoh_response",
     "build_corpus",
     "corpus_models",
+    "chain_model",
     "CORPUS_NAMES",
     "find_build_tools",
     "FmuBuildError",
@@ -948,11 +949,12 @@ def _variable3(var: _Var, vr_of: dict[str, int]) -> str:
         attributes += f' start="{" ".join(_number(s) for s in var.start)}"'
     if var.derivative_of:
         attributes += f' derivative="{vr_of[var.derivative_of]}"'
-    children = "".join(f"      <Alias name={quoteattr(alias)}/>\n" for alias in var.aliases)
+    children = ""
     if isinstance(var.dimension, str):
         children += f'      <Dimension valueReference="{vr_of[var.dimension]}"/>\n'
     elif var.dimension is not None:
         children += f'      <Dimension start="{var.dimension}"/>\n'
+    children += "".join(f"      <Alias name={quoteattr(alias)}/>\n" for alias in var.aliases)
     if not children:
         return f"    <Float64 {attributes}/>\n"
     return f"    <Float64 {attributes}>\n{children}    </Float64>\n"
@@ -1357,3 +1359,149 @@ def _default_description(model: LinearMechanicalModel, chain: MassChain | None, 
     if model.G is not None:
         text += f", {model.nc} {model.constraint} constraint(s) reduced to an ODE"
     return text
+
+
+# ------------------------------------------------------------------------ corpus
+
+#: FMUs of :func:`build_corpus`, one per exporter convention of the spec
+CORPUS_NAMES = (
+    "me-only", "cs-euler", "modelica-der-aliases", "generic-lti", "relative-coordinates",
+    "parameters-as-inputs", "fmi3-array-structural", "no-inputs", "no-accelerations",
+    "offset-equilibrium", "start-off-rest", "acceleration-output", "constrained-bar",
+)
+
+
+def chain_model(n: int = 5, *, inputs: Sequence[int] = (-1,), force_offset: float = 0.0,
+                x0=None, v0=None, acceleration_outputs: Sequence[int] = (),
+                output_offset: float = 0.0, name: str = "Chain") -> LinearMechanicalModel:
+    """A fixed-free chain of ``n`` unequal masses with Rayleigh damping, periods of a few seconds.
+
+    Masses ``1 + 0.25 sin(i)``-like values (0.8 .. 1.5 kg), springs of 15 .. 30 N/m,
+    ``D = 0.05 M + 0.01 K`` (modal damping about 1.5 .. 5 %).  Outputs: position of the last
+    mass, velocity of the first, then accelerations of the given masses (direct feedthrough
+    if an input acts there).
+
+    Parameters
+    ----------
+    n : int, default=5
+        Number of masses.
+    inputs : sequence of int, default=(-1,)
+        Masses (Python indices) with a force input; ``()`` for none.
+    force_offset : float, default=0
+        Constant force on every mass (N): equilibrium away from zero.
+    x0, v0 : array_like (n,), optional
+        Start values (default zero).
+    acceleration_outputs : sequence of int, default=()
+        Masses whose acceleration is an output.
+    output_offset : float, default=0
+        Offset added to every output.
+    name : str, default="Chain"
+        Model name.
+
+    Returns
+    -------
+    LinearMechanicalModel
+    """
+    masses = np.array([1.0, 1.5, 0.8, 1.2, 1.0, 0.9, 1.3, 1.1])[np.arange(n) % 8]
+    springs = np.array([30.0, 25.0, 20.0, 25.0, 15.0, 22.0, 18.0, 28.0])[np.arange(n) % 8]
+    K = np.diag(springs + np.r_[springs[1:], 0.0])
+    K -= np.diag(springs[1:], 1) + np.diag(springs[1:], -1)
+    M = np.diag(masses)
+    B = np.zeros((n, len(inputs)))
+    for j, dof in enumerate(inputs):
+        B[dof, j] = 1.0
+    rows = 2 + len(acceleration_outputs)
+    Cp, Cv, Ca = np.zeros((rows, n)), np.zeros((rows, n)), np.zeros((rows, n))
+    Cp[0, -1] = 1.0
+    Cv[1, 0] = 1.0
+    for k, dof in enumerate(acceleration_outputs):
+        Ca[2 + k, dof] = 1.0
+    return LinearMechanicalModel(M=M, D=0.05 * M + 0.01 * K, K=K, B=B,
+                                 f0=force_offset * np.ones(n), Cp=Cp, Cv=Cv, Ca=Ca,
+                                 y0=output_offset * np.ones(rows), x0=x0, v0=v0, name=name)
+
+
+def corpus_models() -> dict[str, tuple[LinearMechanicalModel | MassChain, dict]]:
+    """The model and the :func:`build_lti_fmu` options of each corpus FMU.
+
+    Returns
+    -------
+    dict
+        ``name -> (model, options)`` for every name of :data:`CORPUS_NAMES`.
+    """
+    off_rest = dict(x0=[0.05, -0.02, 0.03, 0.0, 0.04], v0=[0.0, 0.1, 0.0, -0.05, 0.0])
+    bar = np.zeros((1, 5))
+    bar[0, 1], bar[0, 3] = 1.0, -1.0    # masses 2 and 4 tied by a rigid bar: x_2 = x_4
+    both = ("mass_scale", "stiffness_scale")
+    return {
+        "me-only": (chain_model(name="MeOnly"), dict(interfaces=("me",))),
+        "cs-euler": (chain_model(name="CsEuler", **off_rest),
+                     dict(interfaces=("cs",), cs_method="euler")),
+        "modelica-der-aliases": (chain_model(inputs=(1, -1), name="DerAliases", **off_rest), {}),
+        "generic-lti": (chain_model(force_offset=0.5, name="GenericLti", **off_rest),
+                        dict(naming="generic")),
+        "relative-coordinates": (chain_model(name="Relative", **off_rest), dict(relative=True)),
+        "parameters-as-inputs": (chain_model(name="ParameterInputs"),
+                                 dict(parameter_inputs=both)),
+        "fmi3-array-structural": (MassChain(n=5, n_max=64, force_offset=0.2,
+                                            start_position=0.01, acceleration_sensor=True,
+                                            name="ArrayChain"),
+                                  dict(fmi_version="3.0", naming="array")),
+        "no-inputs": (chain_model(inputs=(), name="FreeResponse", **off_rest), {}),
+        "no-accelerations": (chain_model(name="NoAccelerations", **off_rest),
+                             dict(interfaces=("cs",), expose_accelerations=False)),
+        "offset-equilibrium": (chain_model(force_offset=1.0, name="OffsetEquilibrium"),
+                               dict(fmi_version="3.0")),
+        "start-off-rest": (chain_model(name="StartOffRest", **off_rest), {}),
+        "acceleration-output": (chain_model(acceleration_outputs=(-1, 0), output_offset=0.1,
+                                            name="AccelerationOutput"), {}),
+        "constrained-bar": (replace(chain_model(name="RigidBar"), G=bar, constraint="position",
+                                    x0=[0.05, 0.02, 0.0, 0.02, 0.03]), {}),
+    }
+
+
+def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
+                 ) -> dict[str, LtiFmu]:
+    """Build the corpus FMUs ``<out_dir>/<name>.fmu`` (existing up-to-date files are kept).
+
+    =========================  =======  ==========  ================================================
+    name                       FMI      interfaces  convention
+    =========================  =======  ==========  ================================================
+    me-only                    2.0      me          model exchange only
+    cs-euler                   2.0      cs          one explicit Euler step per doStep
+    modelica-der-aliases       2.0      me, cs      der(mass[i].s) alias of mass[i].v, mass[i].a, m=2
+    generic-lti                2.0      me, cs      x1..x10, der_x1.., x1_start.., offset force
+    relative-coordinates       2.0      me, cs      spring[i].s_rel/v_rel states, mass[i].s locals
+    parameters-as-inputs       2.0      me, cs      mass_scale, stiffness_scale with causality input
+    fmi3-array-structural      3.0      me, cs      arrays x, v (size = structural parameter n)
+    no-inputs                  2.0      me, cs      m = 0, free response from start values
+    no-accelerations           2.0      cs          no der() variables, no Derivatives
+    offset-equilibrium         3.0      me, cs      f0 != 0, <Alias> mass[i].a
+    start-off-rest             2.0      me, cs      x0, v0 != 0
+    acceleration-output        2.0      me, cs      outputs a_5, a_1 (feedthrough from F), y0
+    constrained-bar            2.0      me, cs      x_2 = x_4 reduced to an ODE, mass[4] computed
+    =========================  =======  ==========  ================================================
+
+    Parameters
+    ----------
+    out_dir : str or PathLike
+        Target folder.
+    names : sequence of str, optional
+        Subset of :data:`CORPUS_NAMES` (default all).
+
+    Returns
+    -------
+    dict
+        ``name -> LtiFmu`` (with its :class:`LinearMechanicalModel` in ``.model``).
+    """
+    definitions = corpus_models()
+    names = CORPUS_NAMES if names is None else tuple(names)
+    unknown = [name for name in names if name not in definitions]
+    if unknown:
+        raise FmuBuildError(f"unknown corpus FMU(s) {', '.join(unknown)}; choose from "
+                            f"{', '.join(CORPUS_NAMES)}")
+    built = {}
+    for name in names:
+        model, options = definitions[name]
+        built[name] = build_lti_fmu(model, Path(out_dir) / f"{name}.fmu", **options)
+    return built
