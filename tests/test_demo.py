@@ -18,6 +18,7 @@ def demo_dir(tmp_path_factory):
 
 
 @pytest.mark.parametrize("model", ["anchored-msd", "triple-chain"])
+@pytest.mark.slow
 def test_quick_demo_meets_the_error_bound(demo_dir, model):
     for report in ("report", "report-fmu"):
         metrics = json.loads((demo_dir / model / report / "metrics.json").read_text())
@@ -25,6 +26,7 @@ def test_quick_demo_meets_the_error_bound(demo_dir, model):
         assert (demo_dir / model / report / "index.html").is_file()
 
 
+@pytest.mark.slow
 def test_quick_demo_writes_everything(demo_dir):
     summary = json.loads((demo_dir / "summary.json").read_text())
     assert [case["model"] for case in summary["cases"]] == ["anchored-msd", "triple-chain"]

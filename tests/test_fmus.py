@@ -423,6 +423,7 @@ def test_states_can_be_left_out_of_the_model_description(tmp_path):
     assert "x[1]" not in names and names[:4] == ["u", "y[1]", "y[2]", "y[3]"]
 
 
+@pytest.mark.slow
 def test_fmi3_benchmark_fmu_matches_reference_and_rejects_bad_calls(tmp_path):
     from fmpy.fmi3 import FMU3Slave
 
@@ -457,6 +458,7 @@ def test_fmi3_benchmark_fmu_matches_reference_and_rejects_bad_calls(tmp_path):
     fmu.freeInstance()
 
 
+@pytest.mark.slow
 def test_bundled_fmu_builds_once_and_rebuilds_when_sources_change(tmp_path, monkeypatch):
     import shutil
 

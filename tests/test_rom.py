@@ -100,6 +100,7 @@ def test_anchored_chain_reproduces_the_paper(anchored_case):
     assert np.abs(systems.anchored_msd(600).G @ rom.basis).max() < 1e-12
 
 
+@pytest.mark.slow
 def test_energy_criterion_on_the_benchmarks(anchored_case, triple_case):
     """Eq. 18 on the reference data: what the documented thresholds give next to the paper's r = 5 and 35."""
     anchored, triple = anchored_case[0].singular_values, triple_case[0].singular_values
@@ -109,6 +110,7 @@ def test_energy_criterion_on_the_benchmarks(anchored_case, triple_case):
     assert [energy_order(triple, e) for e in (0.95, 0.98, 0.99)] == [36, 55, 67]
 
 
+@pytest.mark.slow
 def test_triple_chain_reaches_the_paper_bound(triple_case):
     rom, eps, eps_intrusive, eps_train = triple_case
     assert eps < 1e-4
@@ -118,6 +120,7 @@ def test_triple_chain_reaches_the_paper_bound(triple_case):
     assert rom.fit_info["trace_mass_ratio"] < 1e-3
 
 
+@pytest.mark.slow
 def test_trace_normalization_alone_collapses_on_the_triple_chain(triple_case):
     """Why the default switches: with only trace(Mr) fixed the fit concentrates the mass in a few directions
     (a near-singular Mr) and the ROM misses the bound; this pins that diagnosis."""
@@ -134,6 +137,7 @@ def test_trace_normalization_alone_collapses_on_the_triple_chain(triple_case):
     assert good[0] / good[-1] > 1e-2
 
 
+@pytest.mark.slow
 def test_triple_chain_with_frequency_weighted_fit_reaches_the_bound(triple_case_lowpass):
     _, eps, _, eps_train = triple_case_lowpass
     assert eps < 1e-4
@@ -141,6 +145,7 @@ def test_triple_chain_with_frequency_weighted_fit_reaches_the_bound(triple_case_
 
 
 @pytest.mark.parametrize("case", ["triple_case", "triple_case_lowpass"])
+@pytest.mark.slow
 def test_triple_chain_rom_is_stable_spd_and_constraint_consistent(case, request):
     rom = request.getfixturevalue(case)[0]
     assert rom.basis_kind == "velocities"

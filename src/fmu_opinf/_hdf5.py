@@ -51,11 +51,17 @@ def tool_versions() -> dict[str, str]:
     import importlib.metadata as md
 
     versions = {"python": platform.python_version(), "platform": platform.platform()}
-    for dist in ("fmu-opinf", "numpy", "scipy", "fmpy", "cvxpy", "clarabel", "h5py"):
-        try:
-            versions[dist] = md.version(dist)
-        except md.PackageNotFoundError:
-            versions[dist] = "not installed"
+    # the cvxpy module comes from the "cvxpy-base" distribution (the dependency) or from "cvxpy"
+    for key, dists in (("fmu-opinf", ("fmu-opinf",)), ("numpy", ("numpy",)), ("scipy", ("scipy",)),
+                       ("fmpy", ("fmpy",)), ("cvxpy", ("cvxpy", "cvxpy-base")), ("clarabel", ("clarabel",)),
+                       ("h5py", ("h5py",))):
+        versions[key] = "not installed"
+        for dist in dists:
+            try:
+                versions[key] = md.version(dist)
+                break
+            except md.PackageNotFoundError:
+                continue
     versions["created"] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     return versions
 

@@ -69,8 +69,13 @@ def _log(message: str, quiet: bool) -> None:
         print(message, flush=True)
 
 
-def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False) -> dict[str, Any]:
-    """Run the chain for one benchmark into ``out_dir``; returns its summary (metrics and timings)."""
+def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
+             compile_fmus: bool = True) -> dict[str, Any]:
+    """Run the chain for one benchmark into ``out_dir``; returns its summary (metrics and timings).
+
+    With ``compile_fmus=False`` (no C compiler) the builtin reference simulator of the same model
+    stands in for the benchmark FMU and the ROM is not exported (``"rom_fmu"`` is None).
+    """
     from . import compare, export, fmus, plots, rom, snapshots
     from .source import FMUSource
 
@@ -79,9 +84,12 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False)
     timings: dict[str, float] = {}
 
     start = time.perf_counter()
-    fmu_path = fmus.bundled_fmu(case.fmu)
+    if compile_fmus:
+        fmu_path: Any = fmus.bundled_fmu(case.fmu)
+        source: Any = FMUSource(fmu_path, constraint=case.constraint)
+    else:
+        fmu_path = source = f"builtin:{name}"
     timings["build_fmu"] = time.perf_counter() - start
-    source = FMUSource(fmu_path, constraint=case.constraint)
 
     start = time.perf_counter()
     if quick:
@@ -109,12 +117,17 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False)
     test_t_end = dt * round(case.test_t_end / dt)
     start = time.perf_counter()
     result = compare.compare(model, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet)
-    result.title = f"{case.fmu}: ROM (r={model.r}) vs FMU on {case.test_input}"
+    reference_name = "FMU" if compile_fmus else "reference simulator"
+    result.title = f"{case.fmu}: ROM (r={model.r}) vs {reference_name} on {case.test_input}"
     timings["compare"] = time.perf_counter() - start
     notes = {"training input": case.training_input, "snapshot window": window_note,
              "basis": model.basis_kind, "fit status": model.fit_info.get("status")}
     compare.write_report(result, out_dir / "report", extra_figures={k.replace("_", " "): v for k, v in figures.items()},
                          notes=notes)
+    summary = {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings,
+               "rom": result.metrics(), "rom_fmu": None}
+    if not compile_fmus:
+        return summary
 
     start = time.perf_counter()
     rom_fmu = export.export_fmu(model, out_dir / f"{case.fmu}ROM.fmu", overwrite=True)
@@ -123,16 +136,22 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False)
     fmu_result.title = f"{case.fmu}: exported ROM FMU vs FMU on {case.test_input}"
     fmu_result.t_train_end = t_end
     compare.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
-    return {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings,
-            "rom": result.metrics(), "rom_fmu": fmu_result.metrics()}
+    summary["rom_fmu"] = fmu_result.metrics()
+    return summary
 
 
 def _summary_page(rows: list[dict[str, Any]], seconds: float) -> str:
+    def fmu_cells(r: dict[str, Any]) -> tuple[str, str]:
+        if r["rom_fmu"] is None:
+            return "not exported (no C compiler)", ""
+        return (f"{r['rom_fmu']['max_error']:.2e}",
+                f", <a href=\"{r['model']}/report-fmu/index.html\">ROM FMU report</a>")
+
     body = "".join(
         f"<tr><td>{html.escape(r['model'])}</td><td>{r['r']}</td><td>{r['dt']:g}</td><td>{r['t_end']:g}</td>"
-        f"<td>{r['rom']['max_error']:.2e}</td><td>{r['rom_fmu']['max_error']:.2e}</td>"
-        f"<td>{r['rom']['speedup']:.1f}</td><td><a href=\"{r['model']}/report/index.html\">ROM report</a>, "
-        f"<a href=\"{r['model']}/report-fmu/index.html\">ROM FMU report</a></td></tr>" for r in rows)
+        f"<td>{r['rom']['max_error']:.2e}</td><td>{fmu_cells(r)[0]}</td>"
+        f"<td>{r['rom']['speedup']:.1f}</td><td><a href=\"{r['model']}/report/index.html\">ROM report</a>"
+        f"{fmu_cells(r)[1]}</td></tr>" for r in rows)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>fmu-opinf demo</title>
 <style>body {{ font-family: sans-serif; max-width: 960px; margin: 2em auto; }}
@@ -150,23 +169,30 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     """Run the demo for ``model`` (``"anchored-msd"``, ``"triple-chain"`` or ``"all"``) into ``out_dir``.
 
     Writes ``<model>/`` folders (snapshots, ROM, figures, reports, exported FMU), ``summary.json``
-    and ``index.html``, and prints a summary table.
+    and ``index.html``, and prints a summary table. Without a C compiler or CMake it says so first,
+    skips the FMU builds and the export, and runs the rest on the builtin reference simulator.
 
     Returns
     -------
     list of dict
         Per model: r, window, timings, and the metrics of the ROM and of the exported ROM FMU.
     """
+    from . import fmus
+
     out_dir = Path(out_dir)
     prepare_report_directory(out_dir)
     names = list(CASES) if model == "all" else [model]
+    compile_fmus = fmus.find_build_tools() is not None
+    if not compile_fmus:
+        _log("no C compiler or CMake found: skipping the benchmark FMU builds and the ROM FMU export; "
+             "the builtin reference simulator (the same models and Newmark scheme) stands in for the FMUs", quiet)
     start = time.perf_counter()
-    rows = [run_case(name, out_dir / name, quick=quick, quiet=quiet) for name in names]
+    rows = [run_case(name, out_dir / name, quick=quick, quiet=quiet, compile_fmus=compile_fmus) for name in names]
     seconds = time.perf_counter() - start
     _atomic_write_bytes(out_dir / "summary.json",
                         json.dumps({"seconds": seconds, "quick": quick, "cases": rows}, indent=2).encode())
     _atomic_write_bytes(out_dir / "index.html", _summary_page(rows, seconds).encode())
     table = summary_table([(f"{r['model']} ROM", r["rom"]) for r in rows]
-                          + [(f"{r['model']} ROM FMU", r["rom_fmu"]) for r in rows])
+                          + [(f"{r['model']} ROM FMU", r["rom_fmu"]) for r in rows if r["rom_fmu"]])
     _log(table + f"\n\ntotal {seconds:.1f} s; open {out_dir / 'index.html'}", quiet)
     return rows

@@ -214,18 +214,58 @@ def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:
 
 # ----------------------------------------------------------------- the two benchmarks
 
-def _c_sources_dir() -> Path:
-    """The repository's ``fmus/`` folder with the C sources."""
+_PACKAGED_C_SOURCES = "_csources"
+
+
+def _packaged_c_sources() -> Path | None:
+    """The copy of ``fmus/`` that a wheel ships as ``fmu_opinf/_csources``, or None (checkout)."""
+    from importlib.resources import files
+
+    root = files(__package__) / _PACKAGED_C_SOURCES
+    if isinstance(root, Path) and (root / "src" / "newmark.c").is_file():
+        return root
+    return None
+
+
+def _checkout_c_sources() -> Path | None:
+    """The repository's top-level ``fmus/`` folder when running from a checkout, else None."""
     root = Path(__file__).resolve().parents[2] / "fmus"
-    if not (root / "src" / "newmark.c").is_file():
-        raise FmuBuildError(f"C sources not found in {root}; run from a source checkout of "
-                            "fmu-opinf (pip install -e .)")
+    return root if (root / "src" / "newmark.c").is_file() else None
+
+
+def _c_sources_dir() -> Path:
+    """The C sources of the FMUs: the installed package's copy first, else the checkout's ``fmus/``."""
+    root = _packaged_c_sources() or _checkout_c_sources()
+    if root is None:
+        raise FmuBuildError("the C sources of the FMUs are missing (neither fmu_opinf/_csources in "
+                            "the installed package nor fmus/ in a checkout); reinstall fmu-opinf "
+                            "from its wheel or sdist, or pip install -e . in a checkout")
     return root
 
 
+def _user_cache_dir() -> Path:
+    """Per-user cache folder: ``$FMU_OPINF_CACHE_DIR``, else the platform's cache folder."""
+    configured = os.environ.get("FMU_OPINF_CACHE_DIR")
+    if configured:
+        return Path(configured)
+    if os.name == "nt":
+        base = os.environ.get("LOCALAPPDATA") or Path.home() / "AppData" / "Local"
+    else:
+        base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "fmu-opinf"
+
+
 def bundled_fmu_dir() -> Path:
-    """The folder where :func:`bundled_fmu` and ``fmu-opinf build-fmus`` put the benchmark FMUs."""
-    return _c_sources_dir()
+    """The folder where :func:`bundled_fmu` and ``fmu-opinf build-fmus`` put the benchmark FMUs.
+
+    In a checkout this is its ``fmus/`` folder, next to the sources; an installed package is not
+    written to, so there it is ``fmus/`` in the per-user cache folder (``$FMU_OPINF_CACHE_DIR``,
+    else e.g. ``~/.cache/fmu-opinf``).
+    """
+    sources = _c_sources_dir()
+    if sources != _packaged_c_sources():
+        return sources
+    return _user_cache_dir() / "fmus"
 
 
 def _model_files(name: str) -> tuple[str, dict[str, str]]:
@@ -510,9 +550,14 @@ def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
 
 
 def _fmi_header_dir() -> Path:
+    """FMPy's ``c-code`` folder: the FMI 2.0/3.0 headers and the CMake project that compiles FMUs."""
     import fmpy
 
-    return Path(fmpy.__file__).parent / "c-code"
+    root = Path(fmpy.__file__).parent / "c-code"
+    if not (root / "CMakeLists.txt").is_file() or not (root / "fmi2Functions.h").is_file():
+        raise FmuBuildError(f"FMPy's C code (FMI headers, CMake project) is missing in {root}; "
+                            "reinstall fmpy (pip install --force-reinstall fmpy)")
+    return root
 
 
 def _source_tree(spec: SecondOrderFmuSpec) -> tuple[dict[str, bytes], str]:
@@ -737,7 +782,7 @@ def bundled_fmu(name: str) -> Path:
     if name not in _SPEC_FACTORIES:
         raise FmuBuildError(f"unknown benchmark model {name!r}; choose from "
                             f"{', '.join(BENCHMARK_MODELS)}")
-    path = _c_sources_dir() / f"{name}.fmu"
+    path = bundled_fmu_dir() / f"{name}.fmu"
     expected = _source_tree(_SPEC_FACTORIES[name](600, 100))[1]
     if not path.is_file() or _fmu_guid(path) != expected:
         build_fmus(path.parent, models=(name,))
