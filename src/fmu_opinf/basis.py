@@ -24,11 +24,24 @@ Two ways to compute the singular values and vectors, chosen from the data size (
   ``sqrt(size * eps) * sigma_1`` (~1e-7 relative for a few thousand columns; dense SVD resolves ~1e-13) are not
   resolved.  The streamed path therefore reports such singular values as 0, counts only the resolved ones in
   the numerical rank, and computes the cumulative energy (eq. 18) from the resolved values.
+
+A third path runs where the data lie, on Dask (``docs/scale-out.md``): when the snapshot arrays are dask arrays
+(:func:`open_snapshot_set` makes them so while a ``distributed`` client is active, e.g. ``fit --scheduler``):
+
+* **distributed-tsqr**: the tall-and-skinny ``X`` is cut into row blocks of all ``k`` columns (size from
+  ``max_memory``); ``dask.array.linalg.tsqr`` reduces the blocks' triangular factors to ``R`` (``k x k``) on the
+  workers, the client takes the SVD ``R = U_R S W^T`` and ``V_r = X W_r S_r^{-1}`` is formed block by block on
+  the workers, then re-orthonormalized.  ``X = Q R`` is backward stable, so singular values and the basis agree
+  with the dense SVD to round-off (unlike a Gram matrix).  The projections ``V_r^T X`` (eq. 14,
+  :func:`project`) of dask arrays are computed on the workers too; only ``(r, k)`` results travel.
 """
 
 from __future__ import annotations
 
+import os
+import weakref
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Iterator, Sequence
 
 import numpy as np
@@ -46,6 +59,9 @@ __all__ = [
     "project",
     "read_columns",
     "snapshot_attrs",
+    "snapshot_files",
+    "open_snapshot_set",
+    "SnapshotSet",
     "DEFAULT_ENERGY",
 ]
 
@@ -398,7 +414,8 @@ class PODBasis:
     kind_ : str
         ``"positions"`` or ``"velocities"``.
     method_ : str
-        ``"dense"``, ``"streamed-correlation"`` (``(n, n)``) or ``"streamed-snapshots"`` (``(k, k)``).
+        ``"dense"``, ``"streamed-correlation"`` (``(n, n)``), ``"streamed-snapshots"`` (``(k, k)``) or
+        ``"distributed-tsqr"`` (dask arrays, see the module docstring).
     """
 
     def __init__(
@@ -474,6 +491,9 @@ class PODBasis:
         n, ks = _check_shapes(runs, name)
         k = sum(ks)
         eps = np.finfo(float).eps
+        if _any_dask(runs, name):
+            sigma, vecs = _tsqr_singular(runs, name, self.max_memory)
+            return sigma, vecs, _rank(sigma, max(n, k) * eps), "distributed-tsqr"
         if not self._use_streamed(n, k):
             X = _stacked(runs, name)
             if vectors:
@@ -494,6 +514,10 @@ class PODBasis:
         r = self.r_
         if method in ("dense", "streamed-correlation"):
             return _fix_signs(vecs[:, :r].copy())
+        if method == "distributed-tsqr":
+            modes = (_dask_matrix(runs, name, self.max_memory) @ (vecs[:, :r] / sigma[:r])).compute()
+            q, _ = np.linalg.qr(np.asarray(modes))
+            return _fix_signs(q)
         # method of snapshots: V_r = X W_r diag(1/sigma_r), accumulated chunk by chunk, then re-orthonormalized
         n, _ = _check_shapes(runs, name)
         modes = np.zeros((n, r))
@@ -568,9 +592,208 @@ def project(basis: np.ndarray, array: Any, chunk_size: int, label: str = "snapsh
     shape = array.shape
     if len(shape) != 2 or shape[0] != basis.shape[0]:
         raise DimensionError(f"{label} has shape {tuple(shape)}; expected ({basis.shape[0]}, k) to match the basis")
+    if _is_dask(array):
+        return np.asarray((_dask_basis(basis, array.chunks[0]).T @ array).compute())
     k = int(shape[1])
     out = np.empty((basis.shape[1], k))
     for j0 in range(0, k, chunk_size):
         j1 = min(j0 + chunk_size, k)
         out[:, j0:j1] = basis.T @ read_columns(array, j0, j1, label)
     return out
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Snapshot sets (several files, a directory) and the distributed path
+# ----------------------------------------------------------------------------------------------------------
+_INCOMPLETE_SUFFIX = ".incomplete.h5"
+
+
+def snapshot_files(spec: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
+    """The snapshot files of a file, a directory (its ``*.h5`` files, sorted) or a list of files.
+
+    A directory's hidden files and ``*.incomplete.h5`` files (runs that stopped early, kept by
+    :func:`fmu_opinf.runs.record_runs` for diagnosis) are not part of the data set.
+    """
+    if isinstance(spec, (str, os.PathLike)):
+        path = Path(spec)
+        if not path.is_dir():
+            return [path]
+        files = sorted(p for p in path.glob("*.h5")
+                       if not p.name.startswith(".") and not p.name.endswith(_INCOMPLETE_SUFFIX))
+        if not files:
+            raise FileFormatError(f"directory {path} holds no snapshot files (*.h5); record runs into it first")
+        return files
+    files = [Path(p) for p in spec]
+    if not files:
+        raise FileFormatError("no snapshot files given; pass at least one")
+    return files
+
+
+class SnapshotSet:
+    """Several snapshot files read as one data set: ``runs`` of all files in order, ``attrs`` of the first.
+
+    Use as a context manager (the files stay open while the runs are used).  With ``dask=True`` the
+    ``x, xdot, xddot`` arrays of each run are dask arrays read in row blocks where the computation runs
+    (the files must be readable there); ``t, u, y`` are small and read at once.
+    """
+
+    def __init__(self, snapshots: list, files: list[Path]) -> None:
+        self._parts = snapshots
+        self.files = files
+        merged = snapshots[0]
+        if len(snapshots) > 1:
+            merged = snapshots[0].__class__()
+            for part in snapshots:
+                merged.append(part)
+        self.runs: list = list(merged.runs)
+        self.attrs: dict = dict(merged.attrs)
+
+    def close(self) -> None:
+        for part in self._parts:
+            part.close()
+
+    def __enter__(self) -> "SnapshotSet":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _client_active() -> bool:
+    try:
+        from distributed import default_client
+
+        default_client()
+    except (ImportError, ValueError):
+        return False
+    return True
+
+
+def open_snapshot_set(
+    spec: str | os.PathLike | Sequence[str | os.PathLike],
+    dask: bool | None = None,
+    max_memory: float = 1e9,
+) -> SnapshotSet:
+    """Open a snapshot file, a directory of snapshot files or a list of files lazily, as one data set.
+
+    Parameters
+    ----------
+    spec : path or list of paths
+        See :func:`snapshot_files`.
+    dask : bool, optional
+        Make ``x, xdot, xddot`` dask arrays (the POD and projections then run on Dask).  Default: when a
+        ``distributed`` client is active.
+    max_memory : float, default=1e9
+        Bytes per row block of the dask arrays (as for :class:`PODBasis`).
+
+    Returns
+    -------
+    SnapshotSet
+    """
+    from .snapshots import Snapshots
+
+    files = snapshot_files(spec)
+    opened: list = []
+    try:
+        for path in files:
+            opened.append(Snapshots.open(path))
+        snaps = SnapshotSet(opened, files)
+        if dask if dask is not None else _client_active():
+            snaps.runs = [_dask_run(run, max_memory) for run in snaps.runs]
+    except BaseException:
+        for part in opened:
+            part.close()
+        raise
+    return snaps
+
+
+def _is_dask(array: Any) -> bool:
+    return hasattr(array, "__dask_graph__") and hasattr(array, "chunks")
+
+
+def _any_dask(runs: Sequence, name: str) -> bool:
+    return any(_is_dask(getattr(run, name)) for run in runs)
+
+
+def _read_h5_rows(path: str, dataset: str, i0: int, i1: int, label: str) -> np.ndarray:
+    """Rows ``i0:i1`` of a dataset in a file (runs on a Dask worker), checked for NaN/Inf."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        block = np.asarray(f[dataset][i0:i1, :], dtype=np.float64)
+    if not np.all(np.isfinite(block)):
+        bad = int(np.argwhere(~np.isfinite(block))[0, 1])
+        raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
+    return block
+
+
+def _rows_per_block(n: int, k: int, max_memory: float) -> int:
+    """Rows per block: a block of all ``k`` columns and its QR factor fit in a quarter of ``max_memory``;
+    at least ``k`` rows so that every block is tall (TSQR)."""
+    return int(min(n, max(k, max_memory / 4 / 8 / max(k, 1), 1)))
+
+
+def _dask_dataset(dataset: Any, label: str, max_memory: float) -> Any:
+    """A dask array reading an h5py dataset in row blocks of all columns (tasks carry only file and name)."""
+    import dask
+    import dask.array as da
+
+    n, k = (int(v) for v in dataset.shape)
+    rows = _rows_per_block(n, k, max_memory)
+    path, name = str(Path(dataset.file.filename).resolve()), dataset.name
+    read = dask.delayed(_read_h5_rows, pure=True)
+    blocks = [da.from_delayed(read(path, name, i0, min(i0 + rows, n), label), shape=(min(i0 + rows, n) - i0, k),
+                              dtype=np.float64) for i0 in range(0, n, rows)]
+    return da.concatenate(blocks, axis=0)
+
+
+def _dask_run(run: Any, max_memory: float) -> Any:
+    """The run with ``x, xdot, xddot`` as dask arrays and ``t, u, y`` in memory."""
+    import dataclasses as _dc
+
+    big = {name: _dask_dataset(getattr(run, name), f"{name} of {Path(getattr(run, name).file.filename).name}",
+                               max_memory) for name in ("x", "xdot", "xddot")}
+    small = {name: np.asarray(getattr(run, name)[()], dtype=np.float64) for name in ("t", "u", "y")}
+    return _dc.replace(run, **big, **small)
+
+
+def _dask_matrix(runs: Sequence, name: str, max_memory: float) -> Any:
+    """``X = [X_run1, X_run2, ...]`` as one dask array of row blocks holding all columns."""
+    import dask.array as da
+
+    n, ks = _check_shapes(runs, name)
+    parts = [getattr(run, name) if _is_dask(getattr(run, name)) else da.from_array(np.asarray(getattr(run, name)))
+             for run in runs]
+    rows = _rows_per_block(n, sum(ks), max_memory)
+    return da.concatenate(parts, axis=1).rechunk((rows, sum(ks)))
+
+
+def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values and right singular vectors ``W`` of ``X`` from the TSQR factor ``R`` (on the workers)."""
+    import dask.array as da
+
+    X = _dask_matrix(runs, name, max_memory)
+    _, R = da.linalg.tsqr(X)
+    R = np.asarray(R.compute())
+    _, sigma, Wt = scipy.linalg.svd(R, full_matrices=False, lapack_driver="gesdd", check_finite=False)
+    return sigma, Wt.T
+
+
+_BASIS_CACHE: dict[tuple, tuple[Any, Any]] = {}
+
+
+def _dask_basis(basis: np.ndarray, row_chunks: tuple) -> Any:
+    """The basis as a dask array with the data's row chunks; made once per basis and chunking (a projection of
+    each run array then sends no copy of ``V``; on a cluster its blocks stay on the workers)."""
+    import dask.array as da
+
+    key = (id(basis), basis.shape, tuple(row_chunks))
+    cached = _BASIS_CACHE.get(key)
+    if cached is not None and cached[0]() is basis:
+        return cached[1]
+    array = da.from_array(basis, chunks=(tuple(row_chunks), basis.shape[1]))
+    if _client_active():
+        array = array.persist()
+    _BASIS_CACHE.clear()
+    _BASIS_CACHE[key] = (weakref.ref(basis), array)
+    return array

@@ -41,6 +41,44 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
 
+def _add_scaleout_options(parser: argparse.ArgumentParser, what: str) -> None:
+    group = parser.add_argument_group("run tables and Dask (docs/scale-out.md)")
+    group.add_argument("--runs", help=f"run table (.csv): one row per run to {what} (input, name, set:NAME, "
+                                      "start:NAME); -o is then a directory with one result per row")
+    group.add_argument("--scheduler", help="with --runs: run the rows on Dask, local[:N] (N worker processes, "
+                                           "default one per core) or tcp://HOST:PORT (a running cluster)")
+
+
+def _scaleout_dispatch(args: argparse.Namespace) -> bool:
+    """Run the --runs/--scheduler forms; False if the verb's plain form applies."""
+    from . import runs
+
+    if args.verb == "fit" and args.scheduler:
+        with runs.dask_client(args.scheduler):
+            _run_fit(args)
+        return True
+    if args.verb not in ("snapshots", "compare"):
+        return False
+    if args.runs is None and args.scheduler is None:
+        return False
+    if args.runs is None:
+        raise runs.RunTableError("--scheduler needs --runs TABLE.csv (one row per run)")
+    if args.input_spec:
+        raise runs.RunTableError("give either --input or --runs; the run table holds each run's input")
+    if args.verb == "snapshots":
+        report = runs.record_runs(args.source, args.runs, args.output, scheduler=args.scheduler, dt=args.dt,
+                                  t_end=args.t_end, auto_window=args.auto_window, isolate=not args.in_process,
+                                  quiet=args.quiet, **_source_options(args))
+        print(report.describe())
+    else:
+        report, table = runs.compare_runs(args.rom, args.source, args.runs, args.output, scheduler=args.scheduler,
+                                          dt=args.dt, t_end=args.t_end, quiet=args.quiet, **_source_options(args))
+        print(table)
+        print(f"report: {Path(args.output) / 'index.html'}")
+    report.raise_for_failures()
+    return True
+
+
 def _source_options(args: argparse.Namespace) -> dict:
     from .sources import parse_assignments
 
@@ -75,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run the FMU inside this process (faster start; a crashing FMU then ends the tool)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    _add_scaleout_options(p, "record")
     _add_source_options(p)
 
     p = verbs.add_parser("fit", help="learn a reduced model from a snapshot file")
@@ -94,17 +133,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="optional frequency weighting: cutoff in rad/s of a zero-phase low-pass filter applied to "
                         "the reduced data before the fit (beyond the paper; default off)")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
+    p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true")
 
     p = verbs.add_parser("compare", help="validate a ROM against its source on a new input; write a report")
     p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
     p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
-    p.add_argument("--input", dest="input_spec", required=True, help="test input signal")
+    p.add_argument("--input", dest="input_spec", help="test input signal (or --runs)")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")
     p.add_argument("-q", "--quiet", action="store_true")
+    _add_scaleout_options(p, "compare")
     _add_source_options(p)
 
     p = verbs.add_parser("export", help="export a ROM as a self-contained co-simulation FMU")
@@ -194,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``fmu-opinf`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     try:
-        _VERBS[args.verb](args)
+        _scaleout_dispatch(args) or _VERBS[args.verb](args)
     except FmuOpinfError as exc:
         print(f"fmu-opinf: error: {exc}", file=sys.stderr)
         return 2

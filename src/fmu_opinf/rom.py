@@ -476,8 +476,9 @@ def fit_rom_file(
 
     Parameters
     ----------
-    snapshots : path
-        Snapshot file written by :meth:`fmu_opinf.snapshots.Snapshots.save`.
+    snapshots : path or list of paths
+        Snapshot file written by :meth:`fmu_opinf.snapshots.Snapshots.save`, a directory of them (one data set,
+        e.g. from a run table) or a list of files (:func:`fmu_opinf.basis.open_snapshot_set`).
     output : path
         ROM file to write (atomic; refuses to overwrite unless ``overwrite``).
     r, energy, basis
@@ -493,15 +494,15 @@ def fit_rom_file(
     -------
     SecondOrderROM
     """
-    from .snapshots import Snapshots
+    from .basis import open_snapshot_set
 
     output = Path(output)
     if output.exists() and not overwrite:
         raise FileExistsError(f"{output} exists; pass overwrite=True (--force) to replace it")
     log = None if quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    with Snapshots.open(snapshots) as snaps:
+    with open_snapshot_set(snapshots, max_memory=options.get("max_memory", 1e9)) as snaps:
         rom = fit_rom(snaps, r=r, energy=energy, basis=basis, log=log, **options)
-        rom.provenance["snapshot_file"] = str(Path(snapshots).resolve())
+        rom.provenance["snapshot_file"] = ", ".join(str(p.resolve()) for p in snaps.files)
         if figures is not None:
             from .plots import pod_figures
 

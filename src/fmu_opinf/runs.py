@@ -1,0 +1,645 @@
+"""Run tables: many training or test runs of one source, recorded or compared sequentially or on Dask.
+
+A run table is a CSV file with a header and one row per run (``docs/scale-out.md``)::
+
+    name,input,set:k,start:x[1]
+    base,impulse:amplitude=100,t0=2,width=0.5,,
+    stiff,impulse:amplitude=100,t0=2,width=0.5,2.5,
+    shifted,loads/case3.csv,,0.01
+
+* ``input`` (required): an input specification (:mod:`fmu_opinf.signals`); a relative ``.csv`` path is
+  relative to the table's folder.
+* ``name`` (optional): the run's name, also its file name ``NAME.h5``; default ``run-NNNN`` (row number).
+* ``set:NAME``: a start value set before initialization (an FMU parameter), ``start:NAME``: an initial-state
+  value (the start value of a state variable).  An empty cell leaves the value at the model's default.
+
+The whole table is read and validated before anything runs; every problem is one line naming the row and
+the column.  Recording writes one snapshot file per run into an output directory (``NAME.h5``, or
+``NAME.incomplete.h5`` for a run that stopped early), each stamped with the row it came from (file and run
+attribute ``run_row``).  A rerun skips every row whose complete file carries the same stamp.
+
+With a scheduler (``local``, ``local:N`` or ``tcp://HOST:PORT``) every row is a Dask task on a worker
+process; without one the rows run one after another in this process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import json
+import math
+import os
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterator, Sequence
+
+import h5py
+
+from .errors import FmuOpinfError, InputSpecError
+
+__all__ = [
+    "RunRow", "RunOutcome", "RunTableReport", "RunTableError", "read_run_table", "validate_rows",
+    "row_source_options", "record_row", "record_runs", "compare_runs", "dask_client", "parse_scheduler",
+]
+
+ROW_ATTR = "run_row"
+INCOMPLETE_SUFFIX = ".incomplete.h5"
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_PREFIXES = ("set:", "start:")
+
+
+class RunTableError(InputSpecError):
+    """A run table is malformed (the message names the row and the column)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunRow:
+    """One row of a run table.
+
+    Attributes
+    ----------
+    number : int
+        Data row number, 1-based (the header is row 0), as named in error messages.
+    name : str
+        Run name (file name stem).
+    input : str
+        Input specification (relative ``.csv`` paths already resolved).
+    set : dict of str to float
+        Start values set before initialization (``set:NAME`` columns).
+    start : dict of str to float
+        Initial-state values (``start:NAME`` columns).
+    """
+
+    number: int
+    name: str
+    input: str
+    set: dict[str, float] = dataclasses.field(default_factory=dict)
+    start: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def provenance(self) -> dict[str, Any]:
+        """The row as a JSON-able dict (stored with its run)."""
+        return {"number": self.number, "name": self.name, "input": self.input, "set": dict(self.set),
+                "start": dict(self.start)}
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading and validating
+# ---------------------------------------------------------------------------------------------
+def read_run_table(path: str | os.PathLike) -> list[RunRow]:
+    """Read and check a run table (CSV, header row, one row per run).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The table; columns ``input`` (required), ``name``, ``set:NAME``, ``start:NAME``.
+
+    Returns
+    -------
+    list of RunRow
+        In table order.
+
+    Raises
+    ------
+    RunTableError
+        One line naming the table, row and column of the first problem.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            lines = [row for row in csv.reader(f) if row and any(c.strip() for c in row)
+                     and not row[0].lstrip().startswith("#")]
+    except FileNotFoundError:
+        raise RunTableError(f"run table {path} not found; give an existing .csv file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise RunTableError(f"cannot read run table {path} ({exc}); give a utf-8 .csv file") from None
+    if len(lines) < 2:
+        raise RunTableError(f"run table {path} has no runs; give a header and one row per run")
+    header = [c.strip() for c in lines[0]]
+    _check_header(path, header)
+    rows = [_parse_row(path, header, cells, number) for number, cells in enumerate(lines[1:], start=1)]
+    _check_unique_names(path, rows)
+    return rows
+
+
+def _check_header(path: Path, header: list[str]) -> None:
+    if "input" not in header:
+        raise RunTableError(f"run table {path} has no 'input' column; the header needs input "
+                            "(and optionally name, set:NAME, start:NAME)")
+    for column in header:
+        if column not in ("input", "name") and not (column.startswith(_PREFIXES) and column.split(":", 1)[1]):
+            raise RunTableError(f"run table {path}: unknown column {column!r}; use input, name, set:NAME or "
+                                "start:NAME")
+    seen = set()
+    for column in header:
+        if column in seen:
+            raise RunTableError(f"run table {path}: column {column!r} appears twice; keep one")
+        seen.add(column)
+
+
+def _parse_row(path: Path, header: list[str], cells: list[str], number: int) -> RunRow:
+    where = f"run table {path} row {number}"
+    if len(cells) != len(header):
+        raise RunTableError(f"{where} has {len(cells)} cells but the header has {len(header)}; quote cells "
+                            "that contain commas (e.g. \"impulse:amplitude=1,t0=2\")")
+    values = {column: cell.strip() for column, cell in zip(header, cells)}
+    spec = values["input"]
+    if not spec:
+        raise RunTableError(f"{where}, column 'input' is empty; give an input specification")
+    name = values.get("name") or f"run-{number:04d}"
+    if not _NAME.match(name) or name.endswith(INCOMPLETE_SUFFIX[:-3]):
+        raise RunTableError(f"{where}, column 'name': {name!r} is not usable as a file name; use letters, "
+                            "digits, '_', '-' and '.'")
+    numbers: dict[str, dict[str, float]] = {"set": {}, "start": {}}
+    for column, cell in values.items():
+        if not column.startswith(_PREFIXES) or not cell:
+            continue
+        kind, variable = column.split(":", 1)
+        try:
+            value = float(cell)
+        except ValueError:
+            raise RunTableError(f"{where}, column {column!r}: {cell!r} is not a number") from None
+        if not math.isfinite(value):
+            raise RunTableError(f"{where}, column {column!r}: {cell!r} is not a finite number")
+        numbers[kind][variable] = value
+    return RunRow(number, name, _resolve_csv_paths(spec, path.parent), numbers["set"], numbers["start"])
+
+
+def _resolve_csv_paths(spec: str, folder: Path) -> str:
+    """Make relative ``.csv`` parts of a specification relative to the table's folder."""
+    parts = [p.strip() for p in spec.split(";")]
+    resolved = [str((folder / p).resolve()) if p.lower().endswith(".csv") and not Path(p).is_absolute() else p
+                for p in parts]
+    return ";".join(resolved)
+
+
+def _check_unique_names(path: Path, rows: list[RunRow]) -> None:
+    first: dict[str, int] = {}
+    for row in rows:
+        if row.name in first:
+            raise RunTableError(f"run table {path} row {row.number}, column 'name': {row.name!r} is already the "
+                                f"name of row {first[row.name]}; names must be unique")
+        first[row.name] = row.number
+
+
+def row_source_options(row: RunRow, options: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Source keywords for one row: ``options`` plus the row's start values.
+
+    This is the one place that maps a row's ``set:`` and ``start:`` values onto the source's keywords
+    (today :class:`fmu_opinf.source.FMUSource` takes them as ``parameters``: start values set before
+    initialization, which covers parameters and initial states alike).
+    """
+    merged = dict(options or {})
+    values = {**row.set, **row.start}
+    if values:
+        merged["parameters"] = {**(merged.get("parameters") or {}), **values}
+    return merged
+
+
+def validate_rows(rows: Sequence[RunRow], source_spec: str | os.PathLike,
+                  source_options: dict[str, Any] | None = None) -> None:
+    """Check every row against the source before anything runs: start-value names and input specifications.
+
+    Raises
+    ------
+    RunTableError
+        One line naming the row and the column of the first problem.
+    """
+    from .signals import parse_signal
+    from .source import open_source
+
+    for row in rows:
+        try:
+            source = open_source(source_spec, **row_source_options(row, source_options))
+        except FmuOpinfError as exc:
+            column = ", ".join([f"set:{k}" for k in row.set] + [f"start:{k}" for k in row.start]) or "source"
+            raise RunTableError(f"row {row.number} ({row.name}), column {column}: {exc}") from None
+        try:
+            parse_signal(row.input, source.m)
+        except FmuOpinfError as exc:
+            raise RunTableError(f"row {row.number} ({row.name}), column 'input': {exc}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# Outcomes
+# ---------------------------------------------------------------------------------------------
+@dataclasses.dataclass
+class RunOutcome:
+    """What happened to one row: ``status`` is ``"recorded"``, ``"skipped"`` (complete already) or ``"failed"``."""
+
+    number: int
+    name: str
+    status: str
+    path: str | None = None
+    k: int = 0
+    seconds: float = 0.0
+    error: str = ""
+    worker: str = ""
+
+    def line(self) -> str:
+        """One line for progress output."""
+        text = f"row {self.number} ({self.name}): {self.status}"
+        if self.status != "failed":
+            return f"{text}, k={self.k} samples, {self.seconds:.2f}s" + (f" on {self.worker}" if self.worker else "")
+        return f"{text}: {self.error}"
+
+
+@dataclasses.dataclass
+class RunTableReport:
+    """Outcomes of all rows, in table order."""
+
+    outcomes: list[RunOutcome]
+    seconds: float = 0.0
+
+    @property
+    def failed(self) -> list[RunOutcome]:
+        return [o for o in self.outcomes if o.status == "failed"]
+
+    def describe(self) -> str:
+        counts = {s: sum(o.status == s for o in self.outcomes) for s in ("recorded", "skipped", "failed")}
+        head = (f"{len(self.outcomes)} run(s) in {self.seconds:.1f}s: {counts['recorded']} recorded, "
+                f"{counts['skipped']} already complete, {counts['failed']} failed")
+        return "\n".join([head] + ["  " + o.line() for o in self.outcomes])
+
+    def raise_for_failures(self) -> None:
+        """Raise one :class:`~fmu_opinf.errors.FmuOpinfError` naming the failed rows (if any)."""
+        if self.failed:
+            names = "; ".join(f"row {o.number} ({o.name}): {o.error}" for o in self.failed)
+            raise FmuOpinfError(f"{len(self.failed)} of {len(self.outcomes)} runs failed, the others are kept: "
+                                f"{names}")
+
+
+# ---------------------------------------------------------------------------------------------
+# Recording one row (runs on a worker, or in this process)
+# ---------------------------------------------------------------------------------------------
+def _stamp(source_spec: Any, row: RunRow, settings: dict[str, Any], options: dict[str, Any]) -> dict[str, Any]:
+    """What must agree for an existing file to count as this row's result."""
+    from ._hdf5 import jsonable
+
+    return jsonable({"source": os.fspath(source_spec), "row": row.provenance(), "settings": settings,
+                     "source_options": options})
+
+
+def _same_stamp(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    def key(stamp: dict[str, Any]) -> str:
+        row = dict(stamp.get("row", {}))
+        row.pop("number", None)  # moving a row within the table keeps its result
+        return json.dumps({**stamp, "row": row}, sort_keys=True)
+
+    return key(a) == key(b)
+
+
+def _is_done(path: Path, stamp: dict[str, Any]) -> tuple[bool, int]:
+    """Whether ``path`` is a complete file of this row (and its sample count)."""
+    if not path.exists():
+        return False, 0
+    try:
+        with h5py.File(path, "r") as f:
+            found = json.loads(f.attrs.get(ROW_ATTR, "{}"))
+            runs = [f["runs"][key] for key in sorted(f["runs"])]
+            complete = bool(runs) and all(bool(g.attrs.get("complete", False)) for g in runs)
+            k = sum(int(g.attrs.get("k", 0)) for g in runs)
+    except (OSError, KeyError, ValueError):
+        return False, 0
+    return complete and _same_stamp(found, stamp), k
+
+
+def _stamp_file(path: Path, stamp: dict[str, Any]) -> int:
+    with h5py.File(path, "r+") as f:
+        text = json.dumps(stamp, sort_keys=True)
+        f.attrs[ROW_ATTR] = text
+        k = 0
+        for key in sorted(f["runs"]):
+            f["runs"][key].attrs[ROW_ATTR] = text
+            k += int(f["runs"][key].attrs.get("k", 0))
+    return k
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return ""
+
+
+def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settings: dict[str, Any] | None = None,
+               source_options: dict[str, Any] | None = None, isolate: bool = True) -> RunOutcome:
+    """Record one row into ``out_dir/NAME.h5`` (skipped when a complete file of the same row is there).
+
+    The file is written as ``.NAME.partial.h5``, stamped with the row (attribute ``run_row``) and renamed into
+    place, so a file with the stamp is always whole.  A run that stops early keeps its samples in
+    ``NAME.incomplete.h5``; errors come back in the outcome instead of being raised.
+
+    Parameters
+    ----------
+    source_spec : str or path-like
+        ``builtin:NAME`` or an FMU path (must be readable where this runs).
+    row : RunRow
+    out_dir : str or path-like
+        Output directory (shared by all workers).
+    settings : dict, optional
+        Keywords of :func:`fmu_opinf.snapshots.record_to_file` common to all rows (``dt``, ``t_end``, ...).
+    source_options : dict, optional
+        Source keywords common to all rows (variable patterns, builtin sizes).
+    isolate : bool, default=True
+        Run an FMU in its own child process (a crashing binary then loses only its step).
+
+    Returns
+    -------
+    RunOutcome
+    """
+    from .snapshots import record_to_file
+
+    settings, options = dict(settings or {}), dict(source_options or {})
+    out_dir = Path(out_dir)
+    final, failed = out_dir / f"{row.name}.h5", out_dir / f"{row.name}{INCOMPLETE_SUFFIX}"
+    stamp = _stamp(source_spec, row, settings, options)
+    done, k = _is_done(final, stamp)
+    if done:
+        return RunOutcome(row.number, row.name, "skipped", str(final), k, worker=_worker_name())
+    partial = out_dir / f".{row.name}.partial.h5"
+    started, error = time.perf_counter(), ""
+    try:
+        record_to_file(source_spec, partial, row.input, overwrite=True, quiet=True, isolate=isolate,
+                       **settings, **row_source_options(row, options))
+    except FmuOpinfError as exc:
+        error = str(exc)
+    seconds = time.perf_counter() - started
+    if not partial.exists():
+        return RunOutcome(row.number, row.name, "failed", None, 0, seconds, error, _worker_name())
+    k = _stamp_file(partial, stamp)
+    target = failed if error else final
+    os.replace(partial, target)
+    error = error.replace(str(partial), str(target))
+    (final if error else failed).unlink(missing_ok=True)
+    return RunOutcome(row.number, row.name, "failed" if error else "recorded", str(target), k, seconds, error,
+                      _worker_name())
+
+
+# ---------------------------------------------------------------------------------------------
+# Schedulers
+# ---------------------------------------------------------------------------------------------
+def parse_scheduler(text: str) -> tuple[str, int | None]:
+    """``"local"`` / ``"local:N"`` -> ``("local", N or None)``; ``"tcp://HOST:PORT"`` -> (address, None)."""
+    text = text.strip()
+    if text == "local":
+        return "local", None
+    if text.startswith("local:"):
+        count = text.split(":", 1)[1]
+        if not count.isdigit() or int(count) < 1:
+            raise InputSpecError(f"--scheduler {text}: {count!r} is not a positive number of workers; "
+                                 "use e.g. local:4")
+        return "local", int(count)
+    if re.match(r"^(tcp|tls|inproc|ucx)://\S+$", text):
+        return text, None
+    raise InputSpecError(f"--scheduler {text!r} is not understood; use local, local:N or tcp://HOST:PORT")
+
+
+def _require_distributed() -> Any:
+    try:
+        import distributed
+    except ImportError:
+        raise FmuOpinfError("--scheduler needs dask and distributed; install them with "
+                            "pip install 'fmu-opinf[dask]'") from None
+    return distributed
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: Any) -> Iterator[Any]:
+    """A ``distributed.Client`` for a scheduler spec (or the given client, left open), closed afterwards.
+
+    ``local[:N]`` starts a local cluster of N single-threaded worker processes (default: one per core).  Its
+    workers are not daemonic, so that a worker can start the recorder's isolated child process for an FMU;
+    workers of a running cluster (``tcp://...``) need the same setting (``DASK_DISTRIBUTED__WORKER__DAEMON=False``
+    in their environment) to record FMUs with isolation.
+    """
+    distributed = _require_distributed()
+    if isinstance(scheduler, distributed.Client):
+        yield scheduler
+        return
+    address, workers = parse_scheduler(str(scheduler))
+    if address != "local":
+        try:
+            client = distributed.Client(address, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise FmuOpinfError(f"cannot reach the dask scheduler at {address} ({exc}); start it or check "
+                                "the address") from None
+        with client:
+            yield client
+        return
+    import dask
+
+    with dask.config.set({"distributed.worker.daemon": False}):
+        cluster = distributed.LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                                           processes=True, dashboard_address=None)
+        with cluster, distributed.Client(cluster) as client:
+            yield client
+
+
+# ---------------------------------------------------------------------------------------------
+# Recording a table
+# ---------------------------------------------------------------------------------------------
+def _progress_printer(quiet: bool) -> Callable[[RunOutcome, int, int], None]:
+    def show(outcome: RunOutcome, done: int, total: int) -> None:
+        if not quiet:
+            print(f"[{done}/{total}] {outcome.line()}", file=sys.stderr, flush=True)
+
+    return show
+
+
+def record_runs(
+    source_spec: str | os.PathLike,
+    runs: str | os.PathLike | Sequence[RunRow],
+    output: str | os.PathLike,
+    *,
+    scheduler: Any = None,
+    dt: float | None = None,
+    t_end: float | None = None,
+    auto_window: bool = False,
+    isolate: bool = True,
+    quiet: bool = False,
+    progress: Callable[[RunOutcome, int, int], None] | None = None,
+    **source_options: Any,
+) -> RunTableReport:
+    """Record every row of a run table into its own snapshot file in ``output`` (a directory).
+
+    Parameters
+    ----------
+    source_spec : str or path-like
+        ``builtin:NAME`` or an FMU path.
+    runs : path or list of RunRow
+        The run table (:func:`read_run_table`) or its rows.
+    output : str or path-like
+        Output directory (created); ``NAME.h5`` per complete run, ``NAME.incomplete.h5`` per failed run.
+        With a cluster it must be on a file system all workers share.
+    scheduler : None, str or distributed.Client
+        None: the rows run one after another in this process.  ``"local"``, ``"local:N"``,
+        ``"tcp://HOST:PORT"`` or a client: one Dask task per row.
+    dt, t_end, auto_window
+        As for :func:`fmu_opinf.snapshots.record_to_file` (the same for every row).
+    isolate : bool, default=True
+        Crash isolation of FMUs (the recorder's child process), on the workers too.
+    quiet : bool, default=False
+        No progress lines on stderr.
+    progress : callable, optional
+        ``progress(outcome, done, total)`` after each row (default: a line on stderr unless quiet).
+    **source_options
+        Source keywords common to all rows (variable patterns, ``constraint``, builtin sizes such as ``g``).
+
+    Returns
+    -------
+    RunTableReport
+        One outcome per row in table order; failed rows do not stop the others (see
+        :meth:`RunTableReport.raise_for_failures`).
+    """
+    rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)
+    source_options = {k: v for k, v in source_options.items() if v is not None}
+    validate_rows(rows, source_spec, source_options)
+    out_dir = _output_directory(output)
+    source_spec = _shared_spec(source_spec)
+    settings = {k: v for k, v in {"dt": dt, "t_end": t_end, "auto_window": auto_window or None}.items()
+                if v is not None}
+    show = progress or _progress_printer(quiet)
+    started = time.perf_counter()
+    if scheduler is None:
+        outcomes = []
+        for i, row in enumerate(rows):
+            outcomes.append(record_row(source_spec, row, out_dir, settings, source_options, isolate))
+            show(outcomes[-1], i + 1, len(rows))
+    else:
+        with dask_client(scheduler) as client:
+            outcomes = _map_rows(client, record_row, rows, show,
+                                 lambda row: (source_spec, row, str(out_dir), settings, source_options, isolate))
+    return RunTableReport(outcomes, time.perf_counter() - started)
+
+
+def _shared_spec(source_spec: Any) -> str:
+    text = os.fspath(source_spec)
+    return text if text.startswith("builtin:") else str(Path(text).resolve())
+
+
+def _output_directory(output: str | os.PathLike) -> Path:
+    out_dir = Path(output).resolve()
+    if out_dir.suffix.lower() in (".h5", ".hdf5") or (out_dir.exists() and not out_dir.is_dir()):
+        raise InputSpecError(f"-o {output}: a run table writes one file per run into a directory; give a "
+                             "directory (fit reads it as one data set)")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def _map_rows(client: Any, function: Callable, rows: Sequence[RunRow], show: Callable,
+              arguments: Callable[[RunRow], tuple]) -> list[RunOutcome]:
+    """One task per row; outcomes in table order, each shown as it arrives; a lost task fails only its row."""
+    from distributed import as_completed
+
+    futures = {client.submit(function, *arguments(row), pure=False, key=f"{function.__name__}-{row.name}-"
+                             f"{time.time_ns()}"): row for row in rows}
+    outcomes: dict[int, RunOutcome] = {}
+    for done, future in enumerate(as_completed(futures), start=1):
+        row = futures[future]
+        try:
+            outcome = future.result()
+        except Exception as exc:  # a crashed worker or an unexpected error: report it with its row
+            outcome = RunOutcome(row.number, row.name, "failed", error=f"{type(exc).__name__}: {exc}")
+        outcomes[row.number] = outcome
+        show(outcome, done, len(rows))
+    return [outcomes[row.number] for row in rows]
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation on many inputs
+# ---------------------------------------------------------------------------------------------
+def compare_row(rom: str, source_spec: str, row: RunRow, out_dir: str, dt: float | None, t_end: float | None,
+                source_options: dict[str, Any] | None = None) -> tuple[RunOutcome, dict[str, Any] | None]:
+    """Compare the ROM with its source on one row's input; write the row's report to ``out_dir/NAME/``."""
+    from .compare import compare, write_report
+
+    started = time.perf_counter()
+    try:
+        result = compare(rom, source_spec, row.input, dt=dt, t_end=t_end, quiet=True,
+                         source_options=row_source_options(row, source_options))
+        page = write_report(result, Path(out_dir) / row.name)
+    except FmuOpinfError as exc:
+        return RunOutcome(row.number, row.name, "failed", seconds=time.perf_counter() - started,
+                          error=str(exc), worker=_worker_name()), None
+    return (RunOutcome(row.number, row.name, "compared", str(page), len(result.t), time.perf_counter() - started,
+                       worker=_worker_name()), result.metrics())
+
+
+def compare_runs(
+    rom: str | os.PathLike,
+    source_spec: str | os.PathLike,
+    runs: str | os.PathLike | Sequence[RunRow],
+    output: str | os.PathLike,
+    *,
+    scheduler: Any = None,
+    dt: float | None = None,
+    t_end: float | None = None,
+    quiet: bool = False,
+    **source_options: Any,
+) -> tuple[RunTableReport, str]:
+    """Validate a ROM on every row of a run table (in parallel with a scheduler); one summary for all.
+
+    Each row's report goes to ``output/NAME/``; ``output/index.html`` and ``output/summary.txt`` hold the
+    summary table (:func:`fmu_opinf.compare.summary_table`) with links to the rows' reports.
+
+    Returns
+    -------
+    (RunTableReport, str)
+        The outcomes and the plain-text summary table.
+    """
+    from .compare import summary_table
+
+    rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)
+    source_options = {k: v for k, v in source_options.items() if v is not None}
+    validate_rows(rows, source_spec, source_options)
+    out_dir = _output_directory(output)
+    rom, source_spec = str(Path(rom).resolve()), _shared_spec(source_spec)
+    metrics: dict[int, dict[str, Any]] = {}
+
+    def task(row: RunRow) -> tuple:
+        return rom, source_spec, row, str(out_dir), dt, t_end, source_options
+
+    def unpack(pair: Any) -> RunOutcome:
+        outcome, values = pair
+        if values is not None:
+            metrics[outcome.number] = values
+        return outcome
+
+    show = _progress_printer(quiet)
+    started = time.perf_counter()
+    if scheduler is None:
+        outcomes = []
+        for i, row in enumerate(rows):
+            outcomes.append(unpack(compare_row(*task(row))))
+            show(outcomes[-1], i + 1, len(rows))
+    else:
+        with dask_client(scheduler) as client:
+            pairs = _map_rows(client, compare_row, rows, lambda *a: None, task)
+        outcomes = []
+        for i, pair in enumerate(pairs):
+            outcomes.append(unpack(pair) if isinstance(pair, tuple) else pair)
+            show(outcomes[-1], i + 1, len(rows))
+    table = summary_table([(row.name, metrics[row.number]) for row in rows if row.number in metrics])
+    _write_summary(out_dir, rows, outcomes, table)
+    return RunTableReport(outcomes, time.perf_counter() - started), table
+
+
+def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[RunOutcome], table: str) -> None:
+    import html
+
+    (out_dir / "summary.txt").write_text(table + "\n", encoding="utf-8")
+    items = []
+    for row, outcome in zip(rows, outcomes):
+        target = f'<a href="{html.escape(row.name)}/index.html">{html.escape(row.name)}</a>' \
+            if outcome.status == "compared" else html.escape(row.name)
+        note = "" if outcome.status == "compared" else f" &mdash; failed: {html.escape(outcome.error)}"
+        items.append(f"<li>{target}: input <code>{html.escape(row.input)}</code>{note}</li>")
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>fmu-opinf run table comparison</title>"
+            "</head><body><h1>ROM vs source on a run table</h1><pre>" + html.escape(table) + "</pre><ul>"
+            + "".join(items) + "</ul></body></html>\n")
+    (out_dir / "index.html").write_text(page, encoding="utf-8")
