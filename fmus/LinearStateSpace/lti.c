@@ -1,0 +1,447 @@
+/*
+ * Kernel of the linear state-space FMUs (see lti.h): storage, evaluation of the ODE right-hand
+ * side and of the computed variables, value-reference access, co-simulation steps.
+ */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "lti.h"
+
+#define DEFAULT_TOLERANCE 1e-4
+#define MAX_SUBSTEPS 10000000.0
+
+static char *copyString(const char *text) {
+    size_t length = strlen(text ? text : "") + 1;
+    char *copy = (char *)malloc(length);
+    if (copy) memcpy(copy, text ? text : "", length);
+    return copy;
+}
+
+void ltiLog(const LtiInstance *inst, LtiStatus status, const char *category, const char *format,
+            ...) {
+    char message[1024];
+    va_list args;
+
+    if (!inst || !inst->log) return;
+    if (!inst->loggingOn && status < LtiError) return;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    inst->log(inst, status, category, message);
+}
+
+static size_t physicalSize(size_t nq) {
+    return LTI_X_FOLLOWS_Q ? nq : LTI_NX_FIXED;
+}
+
+LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *context,
+                       LtiCallback callback, void *environment, int loggingOn) {
+    size_t nq = LTI_NQ_MAX, nx, nu = LTI_NU ? LTI_NU : 1, ny = LTI_NY ? LTI_NY : 1;
+    LtiInstance *inst = (LtiInstance *)calloc(1, sizeof(LtiInstance));
+
+    if (!inst) return NULL;
+    nx = physicalSize(nq);
+    inst->name = copyString(name);
+    inst->log = log;
+    inst->context = context;
+    inst->callback = callback;
+    inst->environment = environment;
+    inst->loggingOn = loggingOn;
+    inst->isCoSimulation = isCoSimulation;
+    inst->Kq = (double *)calloc(nq * nq, sizeof(double));
+    inst->Dq = (double *)calloc(nq * nq, sizeof(double));
+    inst->Bq = (double *)calloc(nq * nu, sizeof(double));
+    inst->fq = (double *)calloc(nq, sizeof(double));
+    inst->T = (double *)calloc(nx * nq, sizeof(double));
+    inst->xoff = (double *)calloc(nx, sizeof(double));
+    inst->Cp = (double *)calloc(ny * nx, sizeof(double));
+    inst->Cv = (double *)calloc(ny * nx, sizeof(double));
+    inst->Ca = (double *)calloc(ny * nx, sizeof(double));
+    inst->y0 = (double *)calloc(ny, sizeof(double));
+    inst->z = (double *)calloc(2 * nq, sizeof(double));
+    inst->zStart = (double *)calloc(2 * nq, sizeof(double));
+    inst->u = (double *)calloc(nu, sizeof(double));
+    inst->qdd = (double *)calloc(nq, sizeof(double));
+    inst->x = (double *)calloc(nx, sizeof(double));
+    inst->v = (double *)calloc(nx, sizeof(double));
+    inst->a = (double *)calloc(nx, sizeof(double));
+    inst->y = (double *)calloc(ny, sizeof(double));
+    inst->work = (double *)calloc(12 * nq, sizeof(double));
+    if (!inst->name || !inst->Kq || !inst->Dq || !inst->Bq || !inst->fq || !inst->T ||
+        !inst->xoff || !inst->Cp || !inst->Cv || !inst->Ca || !inst->y0 || !inst->z ||
+        !inst->zStart || !inst->u || !inst->qdd || !inst->x || !inst->v || !inst->a ||
+        !inst->y || !inst->work) {
+        ltiFree(inst);
+        return NULL;
+    }
+    ltiReset(inst);
+    return inst;
+}
+
+void ltiFree(LtiInstance *inst) {
+    if (!inst) return;
+    free(inst->name); free(inst->Kq); free(inst->Dq); free(inst->Bq); free(inst->fq);
+    free(inst->T); free(inst->xoff); free(inst->Cp); free(inst->Cv); free(inst->Ca);
+    free(inst->y0); free(inst->z); free(inst->zStart); free(inst->u); free(inst->qdd);
+    free(inst->x); free(inst->v); free(inst->a); free(inst->y); free(inst->work);
+    free(inst);
+}
+
+/* Back to the instantiated state with the start values of the current size. */
+void ltiReset(LtiInstance *inst) {
+    size_t i;
+
+    inst->phase = PhaseInstantiated;
+    inst->nq = LTI_NQ_DEFAULT;
+    inst->time = 0.0;
+    inst->tolerance = DEFAULT_TOLERANCE;
+    inst->nqPending = inst->nq;
+    inst->nx = physicalSize(inst->nq);
+    inst->par[PAR_MASS_SCALE] = LTI_PAR_DEFAULTS[PAR_MASS_SCALE];
+    inst->par[PAR_STIFFNESS_SCALE] = LTI_PAR_DEFAULTS[PAR_STIFFNESS_SCALE];
+    for (i = 0; i < LTI_NU; i++) inst->u[i] = 0.0;
+    ltiAssemble(inst);
+    memcpy(inst->z, inst->zStart, 2 * inst->nq * sizeof(double));
+    inst->upToDate = 0;
+}
+
+LtiStatus ltiFail(LtiInstance *inst, LtiStatus status) {
+    if (status >= LtiError) inst->phase = PhaseError;
+    return status;
+}
+
+static const char *phaseName(int phase) {
+    switch (phase) {
+        case PhaseInstantiated: return "instantiated";
+        case PhaseConfiguration: return "configuration mode";
+        case PhaseInitialization: return "initialization mode";
+        case PhaseEvent: return "event mode";
+        case PhaseContinuous: return "continuous-time mode";
+        case PhaseStep: return "step mode";
+        case PhaseTerminated: return "terminated";
+        default: return "error state";
+    }
+}
+
+LtiStatus ltiCheckPhase(LtiInstance *inst, const char *function, int allowed) {
+    if (!inst) return LtiError;
+    if (!(inst->phase & allowed)) {
+        ltiLog(inst, LtiError, "logStatusError", "%s must not be called in %s", function,
+               phaseName(inst->phase));
+        return LtiError;
+    }
+    return LtiOK;
+}
+
+/* y += A x for a row-major rows x cols matrix. */
+static void addProduct(double *y, const double *A, const double *x, size_t rows, size_t cols,
+                       double factor) {
+    size_t i, j;
+    for (i = 0; i < rows; i++) {
+        double sum = 0.0;
+        for (j = 0; j < cols; j++) sum += A[i * cols + j] * x[j];
+        y[i] += factor * sum;
+    }
+}
+
+/* qdd of the state z (2 nq) under the current inputs and parameters. */
+static LtiStatus accelerations(LtiInstance *inst, const char *function, const double *z,
+                               double *qdd) {
+    size_t nq = inst->nq, i;
+    double massScale = inst->par[PAR_MASS_SCALE];
+
+    if (massScale == 0.0 || !isfinite(massScale)) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "%s: division by zero: mass_scale = %g makes the mass matrix singular", function,
+               massScale);
+        return LtiError;
+    }
+    for (i = 0; i < nq; i++) qdd[i] = inst->fq[i];
+    addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
+    addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);
+    addProduct(qdd, inst->Bq, inst->u, nq, LTI_NU, 1.0);
+    for (i = 0; i < nq; i++) qdd[i] /= massScale;
+    return LtiOK;
+}
+
+LtiStatus ltiEvaluate(LtiInstance *inst, const char *function) {
+    size_t nq = inst->nq, nx = inst->nx, i;
+
+    if (inst->upToDate) return LtiOK;
+    if (accelerations(inst, function, inst->z, inst->qdd) != LtiOK) return LtiError;
+    for (i = 0; i < nx; i++) {
+        inst->x[i] = inst->xoff[i];
+        inst->v[i] = 0.0;
+        inst->a[i] = 0.0;
+    }
+    addProduct(inst->x, inst->T, inst->z, nx, nq, 1.0);
+    addProduct(inst->v, inst->T, inst->z + nq, nx, nq, 1.0);
+    addProduct(inst->a, inst->T, inst->qdd, nx, nq, 1.0);
+    for (i = 0; i < LTI_NY; i++) inst->y[i] = inst->y0[i];
+    addProduct(inst->y, inst->Cp, inst->x, LTI_NY, nx, 1.0);
+    addProduct(inst->y, inst->Cv, inst->v, LTI_NY, nx, 1.0);
+    addProduct(inst->y, inst->Ca, inst->a, LTI_NY, nx, 1.0);
+    inst->upToDate = 1;
+    return LtiOK;
+}
+
+/* ----------------------------------------------------------- variable access */
+
+static const LtiSlot *findSlot(LtiInstance *inst, const char *function, unsigned int vr) {
+    if (vr >= LTI_N_SLOTS) {
+        ltiLog(inst, LtiError, "logStatusError", "%s: unknown value reference %u", function, vr);
+        return NULL;
+    }
+    return &LTI_SLOTS[vr];
+}
+
+static size_t slotLength(const LtiInstance *inst, const LtiSlot *slot) {
+    if (!slot->isArray) return 1;
+    switch (slot->kind) {
+        case SlotX: case SlotV: case SlotA: return inst->nx;
+        case SlotY: return LTI_NY;
+        case SlotU: return LTI_NU;
+        default: return inst->nq;
+    }
+}
+
+static int needsEvaluation(int kind) {
+    return kind == SlotQdd || kind == SlotX || kind == SlotV || kind == SlotA || kind == SlotY;
+}
+
+LtiStatus ltiGetReal(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     double values[], size_t nValues) {
+    size_t i, k, offset = 0;
+
+    for (i = 0; i < nvr; i++) {
+        const LtiSlot *slot = findSlot(inst, function, vr[i]);
+        size_t length, first;
+        if (!slot) return LtiError;
+        if (slot->kind == SlotSize) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: value reference %u is not a real",
+                   function, vr[i]);
+            return LtiError;
+        }
+        if (needsEvaluation(slot->kind) && ltiEvaluate(inst, function) != LtiOK) return LtiError;
+        length = slotLength(inst, slot);
+        first = slot->isArray ? 0 : (size_t)slot->index;
+        if (offset + length > nValues) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: %lu values are too few", function,
+                   (unsigned long)nValues);
+            return LtiError;
+        }
+        for (k = 0; k < length; k++) {
+            size_t e = first + k;
+            double value = 0.0;
+            switch (slot->kind) {
+                case SlotTime: value = inst->time; break;
+                case SlotQ: value = inst->z[e]; break;
+                case SlotQd: value = inst->z[inst->nq + e]; break;
+                case SlotQdd: value = inst->qdd[e]; break;
+                case SlotX: value = inst->x[e]; break;
+                case SlotV: value = inst->v[e]; break;
+                case SlotA: value = inst->a[e]; break;
+                case SlotY: value = inst->y[e]; break;
+                case SlotU: value = inst->u[e]; break;
+                case SlotPar: value = inst->par[e]; break;
+                case SlotQStart: value = inst->zStart[e]; break;
+                case SlotQdStart: value = inst->zStart[inst->nq + e]; break;
+                default: break;
+            }
+            values[offset + k] = value;
+        }
+        offset += length;
+    }
+    return LtiOK;
+}
+
+LtiStatus ltiSetReal(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     const double values[], size_t nValues) {
+    size_t i, k, offset = 0;
+
+    for (i = 0; i < nvr; i++) {
+        const LtiSlot *slot = findSlot(inst, function, vr[i]);
+        size_t length, first;
+        if (!slot) return LtiError;
+        if (slot->kind == SlotTime || slot->kind == SlotSize || needsEvaluation(slot->kind)) {
+            ltiLog(inst, LtiError, "logStatusError",
+                   "%s: value reference %u is computed by the FMU and cannot be set", function,
+                   vr[i]);
+            return LtiError;
+        }
+        if (!slot->tunable && !(inst->phase & PHASE_BEFORE_INIT)) {
+            ltiLog(inst, LtiError, "logStatusError",
+                   "%s: value reference %u can only be set before initialization ends",
+                   function, vr[i]);
+            return LtiError;
+        }
+        length = slotLength(inst, slot);
+        first = slot->isArray ? 0 : (size_t)slot->index;
+        if (offset + length > nValues) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: %lu values are too few", function,
+                   (unsigned long)nValues);
+            return LtiError;
+        }
+        for (k = 0; k < length; k++) {
+            size_t e = first + k, nq = inst->nq;
+            double value = values[offset + k];
+            switch (slot->kind) {
+                case SlotQ: inst->z[e] = value; break;
+                case SlotQd: inst->z[nq + e] = value; break;
+                case SlotU: inst->u[e] = value; break;
+                case SlotPar: inst->par[e] = value; break;
+                case SlotQStart: inst->zStart[e] = value; inst->z[e] = value; break;
+                case SlotQdStart: inst->zStart[nq + e] = value; inst->z[nq + e] = value; break;
+                default: break;
+            }
+        }
+        offset += length;
+    }
+    inst->upToDate = 0;
+    return LtiOK;
+}
+
+LtiStatus ltiGetSize(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     unsigned long long values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        const LtiSlot *slot = findSlot(inst, function, vr[i]);
+        if (!slot) return LtiError;
+        if (slot->kind != SlotSize) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: value reference %u is not a UInt64",
+                   function, vr[i]);
+            return LtiError;
+        }
+        values[i] = (unsigned long long)(inst->phase == PhaseConfiguration ? inst->nqPending
+                                                                            : inst->nq);
+    }
+    return LtiOK;
+}
+
+LtiStatus ltiSetSize(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     const unsigned long long values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        const LtiSlot *slot = findSlot(inst, function, vr[i]);
+        if (!slot) return LtiError;
+        if (slot->kind != SlotSize) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: value reference %u is not a UInt64",
+                   function, vr[i]);
+            return LtiError;
+        }
+        if (inst->phase != PhaseConfiguration) {
+            ltiLog(inst, LtiError, "logStatusError",
+                   "%s: the structural parameter (value reference %u) can only be set in "
+                   "configuration mode", function, vr[i]);
+            return LtiError;
+        }
+        if (values[i] < 1 || values[i] > (unsigned long long)LTI_NQ_MAX) {
+            ltiLog(inst, LtiError, "logStatusError",
+                   "%s: size %llu is outside [1, %lu]", function, values[i],
+                   (unsigned long)LTI_NQ_MAX);
+            return LtiError;
+        }
+        inst->nqPending = (size_t)values[i];
+    }
+    return LtiOK;
+}
+
+/* Applies a structural size set in configuration mode: new matrices and start values. */
+LtiStatus ltiExitConfiguration(LtiInstance *inst) {
+    if (inst->nqPending != inst->nq) {
+        inst->nq = inst->nqPending;
+        inst->nx = physicalSize(inst->nq);
+        ltiAssemble(inst);
+        memcpy(inst->z, inst->zStart, 2 * inst->nq * sizeof(double));
+        ltiLog(inst, LtiOK, "logEvents", "resized to %lu masses", (unsigned long)inst->nq);
+    }
+    inst->phase = PhaseInstantiated;
+    inst->upToDate = 0;
+    return LtiOK;
+}
+
+/* ------------------------------------------------------------ time integration */
+
+LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
+    size_t nq = inst->nq;
+    if (accelerations(inst, function, inst->z, dz + nq) != LtiOK) return LtiError;
+    memcpy(dz, inst->z + nq, nq * sizeof(double));
+    return LtiOK;
+}
+
+LtiStatus ltiSetStates(LtiInstance *inst, const double z[], size_t n) {
+    memcpy(inst->z, z, n * sizeof(double));
+    inst->upToDate = 0;
+    return LtiOK;
+}
+
+/* dz = f(z) for a state given explicitly (2 nq values). */
+static LtiStatus rate(LtiInstance *inst, const double *z, double *dz) {
+    size_t nq = inst->nq;
+    if (accelerations(inst, "fmiDoStep", z, dz + nq) != LtiOK) return LtiError;
+    memcpy(dz, z + nq, nq * sizeof(double));
+    return LtiOK;
+}
+
+/* Bound on the modulus of the eigenvalues of the first-order system (frequency scale). */
+static double frequencyScale(const LtiInstance *inst) {
+    size_t nq = inst->nq, i, j;
+    double stiffness = 0.0, damping = 0.0, scale = fabs(inst->par[PAR_MASS_SCALE]);
+    for (i = 0; i < nq; i++) {
+        double k = 0.0, d = 0.0;
+        for (j = 0; j < nq; j++) {
+            k += fabs(inst->Kq[i * nq + j]);
+            d += fabs(inst->Dq[i * nq + j]);
+        }
+        if (k > stiffness) stiffness = k;
+        if (d > damping) damping = d;
+    }
+    stiffness *= fabs(inst->par[PAR_STIFFNESS_SCALE]) / scale;
+    damping /= scale;
+    return sqrt(stiffness) + damping + 1e-12;
+}
+
+LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
+    size_t n = 2 * inst->nq, i, k, steps = 1;
+    double *k1 = inst->work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *zt = k4 + n;
+    double *z = inst->z, dt = h;
+
+    if (h < 0.0 || !isfinite(h)) {
+        ltiLog(inst, LtiError, "logStatusError", "fmiDoStep: step size %g is invalid", h);
+        return LtiError;
+    }
+    if (fabs(t - inst->time) > 1e-9 * (1.0 + fabs(t))) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "fmiDoStep: communication point %.17g differs from the FMU time %.17g", t,
+               inst->time);
+        return LtiError;
+    }
+    if (LTI_CS_METHOD == CsRungeKutta && h > 0.0) {
+        /* RK4 error per unit time ~ (w dt)^4 w: the substep follows the tolerance */
+        double omega = frequencyScale(inst), tol = inst->tolerance > 0 ? inst->tolerance : 1e-4;
+        double count = ceil(h * omega / pow(tol, 0.25));
+        if (count > MAX_SUBSTEPS) count = MAX_SUBSTEPS;
+        steps = count < 1.0 ? 1 : (size_t)count;
+        dt = h / (double)steps;
+    }
+    for (k = 0; k < steps; k++) {
+        if (rate(inst, z, k1) != LtiOK) return LtiError;
+        if (LTI_CS_METHOD == CsEuler) {
+            for (i = 0; i < n; i++) z[i] += dt * k1[i];
+            continue;
+        }
+        for (i = 0; i < n; i++) zt[i] = z[i] + 0.5 * dt * k1[i];
+        if (rate(inst, zt, k2) != LtiOK) return LtiError;
+        for (i = 0; i < n; i++) zt[i] = z[i] + 0.5 * dt * k2[i];
+        if (rate(inst, zt, k3) != LtiOK) return LtiError;
+        for (i = 0; i < n; i++) zt[i] = z[i] + dt * k3[i];
+        if (rate(inst, zt, k4) != LtiOK) return LtiError;
+        for (i = 0; i < n; i++) z[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    }
+    inst->time = t + h;
+    inst->upToDate = 0;
+    return LtiOK;
+}

@@ -1,0 +1,115 @@
+/*
+ * Kernel of the linear state-space FMUs built by fmu_opinf.lti_fmus (imitations of FMUs that
+ * Modelica tools and LTI generators export): the ODE of a linear mechanical system in the
+ * coordinates the "exporter" chose (q = state positions, qd = state velocities),
+ *
+ *     qdd = ( -stiffness_scale Kq q - Dq qd + Bq u + fq ) / mass_scale,
+ *     x = T q + xoff,  v = T qd,  a = T qdd,  y = Cp x + Cv v + Ca a + y0,
+ *
+ * with variable access by value reference, explicit-Euler or RK4 co-simulation steps and the
+ * call-order bookkeeping shared by the FMI 2.0 and FMI 3.0 layers (lti_fmi2.c, lti_fmi3.c).
+ * The generated lti_model.c provides the sizes, the value-reference table and ltiAssemble().
+ */
+#ifndef LTI_H
+#define LTI_H
+
+#include <stddef.h>
+
+typedef enum { LtiOK = 0, LtiWarning = 1, LtiDiscard = 2, LtiError = 3, LtiFatal = 4 } LtiStatus;
+
+/* What a value reference designates. */
+typedef enum {
+    SlotTime, SlotQ, SlotQd, SlotQdd, SlotX, SlotV, SlotA, SlotY, SlotU, SlotPar,
+    SlotQStart, SlotQdStart, SlotSize
+} SlotKind;
+
+typedef struct {
+    int kind;      /* SlotKind */
+    int index;     /* element (0-based); ignored for arrays */
+    int isArray;   /* 1: the value reference holds every element (FMI 3 arrays) */
+    int tunable;   /* 1: may be set after initialization (inputs) */
+} LtiSlot;
+
+/* Phases of the FMI state machines (both versions). */
+typedef enum {
+    PhaseInstantiated = 1 << 0,
+    PhaseConfiguration = 1 << 1,
+    PhaseInitialization = 1 << 2,
+    PhaseEvent = 1 << 3,
+    PhaseContinuous = 1 << 4,
+    PhaseStep = 1 << 5,
+    PhaseTerminated = 1 << 6,
+    PhaseError = 1 << 7
+} LtiPhase;
+
+#define PHASE_BEFORE_INIT (PhaseInstantiated | PhaseConfiguration | PhaseInitialization)
+#define PHASE_RUNNING (PhaseEvent | PhaseContinuous | PhaseStep)
+#define PHASE_ANY (PHASE_BEFORE_INIT | PHASE_RUNNING | PhaseTerminated | PhaseError)
+
+enum { CsEuler = 0, CsRungeKutta = 1 };
+
+typedef struct LtiInstance LtiInstance;
+typedef void (*LtiCallback)(void);  /* any importer callback, cast back by the API layer */
+typedef void (*LtiLogger)(const LtiInstance *inst, LtiStatus status, const char *category,
+                          const char *message);
+
+struct LtiInstance {
+    char *name;
+    LtiLogger log;
+    void *context;       /* FMI 2: the importer's callback functions */
+    LtiCallback callback; /* FMI 3: the importer's logMessage */
+    void *environment;
+    int loggingOn;
+    int isCoSimulation;
+    int phase;
+    double time;
+    double tolerance;    /* relative tolerance of the RK4 co-simulation */
+    /* sizes: nq state coordinates (runtime for structural sizes), nx physical dofs */
+    size_t nq, nx, nqPending;
+    /* model matrices, row-major, allocated for the maximal size */
+    double *Kq, *Dq, *Bq, *fq, *T, *xoff, *Cp, *Cv, *Ca, *y0;
+    double *z, *zStart;  /* 2 nq: q then qd */
+    double *u;           /* force inputs */
+    double par[2];       /* mass_scale, stiffness_scale */
+    double *qdd, *x, *v, *a, *y, *work;
+    int upToDate;
+};
+
+#define PAR_MASS_SCALE 0
+#define PAR_STIFFNESS_SCALE 1
+
+/* ---- provided by the generated lti_model.c */
+extern const char *const LTI_INSTANTIATION_TOKEN;
+extern const int LTI_CS_METHOD;
+extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
+extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
+extern const size_t LTI_N_SLOTS;
+extern const LtiSlot LTI_SLOTS[];
+extern const double LTI_PAR_DEFAULTS[2];
+/* Fills the matrices and start values for the current nq. */
+void ltiAssemble(LtiInstance *inst);
+
+/* ---- kernel */
+LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *context,
+                       LtiCallback callback, void *environment, int loggingOn);
+void ltiFree(LtiInstance *inst);
+void ltiReset(LtiInstance *inst);
+void ltiLog(const LtiInstance *inst, LtiStatus status, const char *category, const char *format,
+            ...);
+LtiStatus ltiCheckPhase(LtiInstance *inst, const char *function, int allowed);
+LtiStatus ltiEvaluate(LtiInstance *inst, const char *function);
+LtiStatus ltiGetReal(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     double values[], size_t nValues);
+LtiStatus ltiSetReal(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     const double values[], size_t nValues);
+LtiStatus ltiGetSize(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     unsigned long long values[]);
+LtiStatus ltiSetSize(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                     const unsigned long long values[]);
+LtiStatus ltiExitConfiguration(LtiInstance *inst);
+LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]);
+LtiStatus ltiSetStates(LtiInstance *inst, const double z[], size_t n);
+LtiStatus ltiDoStep(LtiInstance *inst, double t, double h);
+LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
+
+#endif /* LTI_H */
