@@ -43,6 +43,7 @@ import re
 import tempfile
 import uuid
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal, Sequence
@@ -1467,8 +1468,8 @@ def corpus_models() -> dict[str, tuple[LinearMechanicalModel | MassChain, dict]]
     }
 
 
-def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
-                 ) -> dict[str, LtiFmu]:
+def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None, *,
+                 jobs: int | None = None) -> dict[str, LtiFmu]:
     """Build the corpus FMUs ``<out_dir>/<name>.fmu`` (existing up-to-date files are kept).
 
     =========================  =======  ==========  ================================================
@@ -1495,6 +1496,8 @@ def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
         Target folder.
     names : sequence of str, optional
         Subset of :data:`CORPUS_NAMES` (default all).
+    jobs : int, optional
+        Parallel builds (default: the number of CPUs).
 
     Returns
     -------
@@ -1507,8 +1510,10 @@ def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
     if unknown:
         raise FmuBuildError(f"unknown corpus FMU(s) {', '.join(unknown)}; choose from "
                             f"{', '.join(CORPUS_NAMES)}")
-    built = {}
-    for name in names:
+    def build(name: str) -> LtiFmu:
         model, options = definitions[name]
-        built[name] = build_lti_fmu(model, Path(out_dir) / f"{name}.fmu", **options)
-    return built
+        return build_lti_fmu(model, Path(out_dir) / f"{name}.fmu", **options)
+
+    workers = max(1, min(int(jobs) if jobs else (os.cpu_count() or 1), len(names)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:   # compilers run as subprocesses
+        return dict(zip(names, pool.map(build, names)))
