@@ -33,9 +33,15 @@ T_END = 6.0
 # ----------------------------------------------------------------------- helpers
 
 @pytest.fixture(scope="module")
-def corpus(tmp_path_factory) -> dict[str, lti_fmus.LtiFmu]:
-    """Every corpus FMU, compiled once for the module."""
-    return lti_fmus.build_corpus(tmp_path_factory.mktemp("lti-corpus"))
+def corpus(request, tmp_path_factory) -> dict[str, lti_fmus.LtiFmu]:
+    """Every corpus FMU, compiled once; kept in pytest's cache folder between sessions.
+
+    A cached FMU is reused only if its GUID, a hash of every generated file and C source,
+    is the one the current code generates, so any change of the builder rebuilds it.
+    """
+    cache = getattr(request.config, "cache", None)
+    folder = cache.mkdir("lti-corpus") if cache is not None else tmp_path_factory.mktemp("lti")
+    return lti_fmus.build_corpus(folder)
 
 
 def grid(end: float = T_END, step: float = STEP) -> np.ndarray:
@@ -439,6 +445,25 @@ def test_no_accelerations_fmu_has_no_derivatives(corpus):
     md = read_model_description(str(fmu.path))
     assert md.derivatives == [] and md.modelExchange is None
     assert not any(v.name.startswith("der(") or v.name.endswith(".a") for v in md.modelVariables)
+
+
+def test_velocity_constraint_fmu_built_afresh_keeps_g_x_constant(tmp_path):
+    """A fresh FMI 3.0 build (no cache): G v = 0 reduced to an ODE with a position offset."""
+    base = lti_fmus.chain_model(n=4, force_offset=0.3)
+    G = np.zeros((1, 4))
+    G[0, 0], G[0, 2] = 1.0, -1.0
+    model = replace(base, G=G, constraint="velocity", x0=[0.1, 0.0, 0.05, 0.02],
+                    v0=[0.1, 0.2, 0.1, 0.0], name="VelocityBar")
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "velocity.fmu", fmi_version="3.0",
+                                 reuse=False)
+    assert validate_fmu(str(fmu.path)) == []
+    assert len(fmu.states) == 2 * 3
+    t = grid(end=3.0)
+    u = held_input(1, t, seed=8)
+    data = simulate(fmu, "me", t, u, fmu.positions, relative_tolerance=1e-10)
+    x = np.array([data[n] for n in fmu.positions])
+    assert relative_error(x, lti_fmus.zoh_response(model, t, u).x) < 1e-6
+    assert np.abs(G @ x - 0.05).max() < 1e-14
 
 
 # ------------------------------------------------------------------- bad input

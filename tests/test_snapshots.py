@@ -335,3 +335,114 @@ def test_recording_is_silent_when_quiet_or_not_a_terminal(capsys):
     record(BuiltinSource("anchored-msd", g=12), "step:amplitude=1", 0.5, 10.0, quiet=False)
     captured = capsys.readouterr()
     assert captured.out == "" and captured.err == ""
+
+
+# ------------------------------------------------------------------------------- free response, inputs, layout
+
+
+def _free_reference(x0: np.ndarray, t: np.ndarray, k: float = 1.0) -> np.ndarray:
+    """Exact positions of x'' + 0.1 K x' + K x = 0 (the toy chain) from x(0) = x0, x'(0) = 0."""
+    from scipy.linalg import expm
+
+    from test_source import TOY_K
+
+    K = k * TOY_K
+    n = len(x0)
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-K, -0.1 * K]])
+    z0 = np.concatenate([x0, np.zeros(n)])
+    return np.stack([(expm(A * ti) @ z0)[:n] for ti in t], axis=1)
+
+
+def test_fmu_without_inputs_records_its_free_response_from_the_initial_state(toys, tmp_path):
+    path = tmp_path / "free.h5"
+    summary = record_to_file(toys["no-input"], path, [], dt=0.01, t_end=3.0, parameters={"x[1]": "0.5", "x[3]": "-0.2"},
+                             quiet=True)
+    assert (summary.m, summary.runs[0][2]) == (0, "none")
+    snaps = Snapshots.load(path)
+    run = snaps.runs[0]
+    assert snaps.m == 0 and run.u.shape == (0, run.k) and snaps.attrs["layout_version"] == 2
+    np.testing.assert_array_equal(run.x0, [0.5, 0.0, -0.2])
+    np.testing.assert_array_equal(run.v0, [0.0, 0.0, 0.0])
+    # the toy integrates by Newmark; at dt = 0.01 its error against the exact response is 4.1e-5 of the peak
+    assert relative(run.x, _free_reference(np.array([0.5, 0.0, -0.2]), run.t)) < 1e-4
+
+
+def test_input_none_on_a_model_with_inputs_holds_them_at_their_start_values(toys, tmp_path):
+    only_free = record_to_file(toys["param-input"], tmp_path / "a.h5", "none", dt=0.1, t_end=1.0,
+                               parameters={"x[2]": "0.1"}, quiet=True)
+    assert only_free.m == 0  # every run free: no force inputs at all
+    snaps = Snapshots.load(tmp_path / "a.h5")
+    assert snaps.attrs["held_input_names"] == ["fault_threshold", "u"]
+    assert np.abs(snaps.runs[0].x).max() > 0.05  # it moves: the initial state is off rest
+    mixed = record_to_file(toys["param-input"], tmp_path / "b.h5", ["step:amplitude=1,t0=0.35", "none"], dt=0.1,
+                           t_end=1.0, inputs="u", quiet=True)
+    assert mixed.m == 1
+    runs = Snapshots.load(tmp_path / "b.h5").runs
+    assert runs[0].u.max() == 1.0 and np.all(runs[1].u == 0.0)  # u's start value is 0
+    assert np.abs(runs[1].x).max() == 0.0  # from rest without input nothing moves
+
+
+def test_builtin_free_response_with_input_none():
+    run = record(BuiltinSource("anchored-msd", g=12), "none", 0.5, 5.0, quiet=True).runs[0]
+    assert run.u.shape == (1, 11) and np.all(run.u == 0.0) and run.attrs["input_spec"] == "none"
+    assert np.abs(run.x).max() == 0.0  # the builtin systems start at rest
+
+
+def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path):
+    with pytest.raises(StepError) as info:
+        # one channel per input (fault_threshold, u): the parameter-like input is driven to 0
+        record_to_file(toys["param-input"], tmp_path / "p.h5", "step:amplitude=0;step:amplitude=1,t0=0.35", dt=0.1,
+                       t_end=1.0, parameters={"fault": "1"}, quiet=True)
+    text = str(info.value)
+    assert "\n" not in text and "toy fault" in text
+    assert "inputs fault_threshold were set to 0 but have non-zero start values" in text and "--inputs u" in text
+    fixed = record_to_file(toys["param-input"], tmp_path / "q.h5", "step:amplitude=1,t0=0.35", dt=0.1, t_end=1.0,
+                           parameters={"fault": "1"}, inputs="u", quiet=True)
+    assert fixed.runs[0][1]  # complete: the threshold stays at its start value 1e300
+
+
+def test_layout_1_files_still_load():
+    """tests/data/snapshots-v1.h5 was written by the layout-1 recorder (toy FMU, k=2, a step at 0.35)."""
+    from pathlib import Path
+
+    snaps = Snapshots.load(Path(__file__).parent / "data" / "snapshots-v1.h5")
+    run = snaps.runs[0]
+    assert snaps.attrs["layout_version"] == 1 and (snaps.n, snaps.m, snaps.p) == (3, 1, 2)
+    assert snaps.attrs["fmu_parameters"] == {"k": 2.0}
+    np.testing.assert_array_equal(run.x0, run.x[:, 0])  # layout 1: the initial state is the first sample
+    np.testing.assert_array_equal(run.v0, run.xdot[:, 0])
+    assert run.k == 11 and run.u[0, 5] == 1.0 and run.u[0, 4] == 0.0  # the step at 0.35 acts from t=0.5
+
+
+def test_initial_state_survives_save_and_load(tmp_path):
+    from fmu_opinf.snapshots import Run
+
+    k, t = 5, np.arange(5.0)
+    run = Run(t=t, u=np.zeros((0, k)), x=np.ones((2, k)), xdot=np.zeros((2, k)), xddot=np.zeros((2, k)),
+              y=np.zeros((1, k)), x0=[3.0, 4.0], v0=[5.0, 6.0])
+    Snapshots([run], {"n": 2, "m": 0, "p": 1}).save(tmp_path / "s.h5")
+    back = Snapshots.load(tmp_path / "s.h5").runs[0]
+    np.testing.assert_array_equal(back.x0, [3.0, 4.0])
+    np.testing.assert_array_equal(back.v0, [5.0, 6.0])
+    assert back.u.shape == (0, k)
+
+
+def test_cli_set_and_input_none(toys, tmp_path, capsys):
+    from fmu_opinf.cli import main
+
+    out = tmp_path / "cli.h5"
+    code = main(["snapshots", str(toys["no-input"]), "-o", str(out), "--dt", "0.1", "--t-end", "1", "--set",
+                 "x[2]=0.3", "--set", "k=2", "--in-process"])
+    assert code == 0
+    err = capsys.readouterr().err
+    assert "positions x[1], x[2], x[3]" in err
+    snaps = Snapshots.load(out)
+    assert snaps.attrs["fmu_settings"] == {"x[2]": "0.3", "k": "2"} and snaps.m == 0
+    np.testing.assert_array_equal(snaps.runs[0].x0, [0.0, 0.3, 0.0])
+    code = main(["snapshots", str(toys["no-input"]), "-o", str(tmp_path / "bad.h5"), "--dt", "0.1", "--t-end", "1",
+                 "--set", "k=stiff"])
+    assert code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "k is a Real variable" in err[0]
+    code = main(["snapshots", str(toys["full"]), "-o", str(tmp_path / "none.h5"), "--dt", "0.1", "--t-end", "1"])
+    assert code == 2 and "--input none" in capsys.readouterr().err

@@ -116,6 +116,7 @@ static int setReal(Model *m, unsigned vr, double value) {
     if (vr == 0) { m->u = value; if (!m->started) consistent(m); }
     else if (vr == 41) m->fault_threshold = value;
     else if (vr == 42) m->k = value;
+    else if (vr >= 10 && vr < 10 + N && !m->started) m->x[vr - 10] = value;  /* start values of the positions */
     else return 3;
     return 0;
 }
@@ -191,13 +192,15 @@ def _scalar2(index_of: dict, name: str, vr: int, causality: str, body: str, vari
 def toy_xml2(variant: str = "full") -> str:
     """FMI 2.0 model description of the toy binary; variants change names/exposure/interface."""
     idx: dict = {}
-    rows = [_scalar2(idx, "u", 0, "input", '<Real start="0"/>'),
-            _scalar2(idx, "y[1]", 1, "output", "<Real/>", initial="calculated"),
-            _scalar2(idx, "y[2]", 2, "output", "<Real/>", initial="calculated")]
+    rows = [] if variant == "no-input" else [_scalar2(idx, "u", 0, "input", '<Real start="0"/>')]
+    rows += [_scalar2(idx, "y[1]", 1, "output", "<Real/>", initial="calculated"),
+             _scalar2(idx, "y[2]", 2, "output", "<Real/>", initial="calculated")]
     derivs = []
     for i in range(1, TOY_N + 1):  # reversed creation order would not matter: names are sorted naturally
         if variant == "modelica":
             rows.append(_scalar2(idx, f"q[{i}]", 9 + i, "local", "<Real/>", initial="calculated"))
+        elif variant in ("no-input", "param-input"):  # positions with settable start values
+            rows.append(_scalar2(idx, f"x[{i}]", 9 + i, "local", '<Real start="0"/>', initial="exact"))
         else:
             rows.append(_scalar2(idx, f"x[{i}]", 9 + i, "local", "<Real/>", initial="calculated"))
     for i in range(1, TOY_N + 1):
@@ -215,7 +218,10 @@ def toy_xml2(variant: str = "full") -> str:
         elif variant not in ("positions-only", "no-accelerations"):
             rows.append(_scalar2(idx, f"a[{i}]", 29 + i, "local", "<Real/>", initial="calculated"))
     rows.append(_scalar2(idx, "fault", 40, "parameter", '<Integer start="0"/>', variability="fixed"))
-    rows.append(_scalar2(idx, "fault_threshold", 41, "parameter", '<Real start="1e300"/>', variability="fixed"))
+    if variant == "param-input":  # a parameter exposed as an input, as some exporters do
+        rows.append(_scalar2(idx, "fault_threshold", 41, "input", '<Real start="1e300"/>'))
+    else:
+        rows.append(_scalar2(idx, "fault_threshold", 41, "parameter", '<Real start="1e300"/>', variability="fixed"))
     rows.append(_scalar2(idx, "k", 42, "parameter", '<Real start="1"/>', variability="fixed"))
     interface = ('<ModelExchange modelIdentifier="toy"/>' if variant == "me-only"
                  else '<CoSimulation modelIdentifier="toy" canHandleVariableCommunicationStepSize="true"/>')
@@ -225,7 +231,7 @@ def toy_xml2(variant: str = "full") -> str:
             'generationTool="fmu-opinf tests" numberOfEventIndicators="0">'
             f'{interface}<DefaultExperiment startTime="0" stopTime="10" stepSize="0.1"/>'
             f'<ModelVariables>{"".join(rows)}</ModelVariables>'
-            f'<ModelStructure><Outputs><Unknown index="2"/><Unknown index="3"/></Outputs>'
+            f'<ModelStructure><Outputs><Unknown index="{idx["y[1]"]}"/><Unknown index="{idx["y[2]"]}"/></Outputs>'
             f'{"<Derivatives>" + der_xml + "</Derivatives>" if derivs else ""}'
             '<InitialUnknowns/></ModelStructure></fmiModelDescription>')
 
@@ -296,7 +302,7 @@ def build_toys(directory: Path) -> dict[str, Path]:
         pytest.skip("the toy FMU build is written for Linux")
     library = compile_toy(directory)
     out = {}
-    for variant in ("full", "positions-only", "no-accelerations", "modelica", "me-only"):
+    for variant in ("full", "positions-only", "no-accelerations", "modelica", "me-only", "no-input", "param-input"):
         out[variant] = pack_fmu(directory / f"toy-{variant}.fmu", toy_xml2(variant), library, fmpy.platform)
     out["fmi3"] = pack_fmu(directory / "toy3.fmu", toy_xml3(), library, fmpy.platform_tuple)
     out["fmi3-modelica"] = pack_fmu(directory / "toy3-modelica.fmu", toy_xml3("modelica"), library,
@@ -579,3 +585,44 @@ def test_failed_binary_load_keeps_the_working_directory(toys):
     with pytest.raises(FMUError, match="cannot load the binary"):
         source.start(np.array([0.0, 0.1]), np.zeros((2, 1)))
     assert os.getcwd() == before
+
+
+# ------------------------------------------------------------------------------- settings, inputs, m = 0
+
+
+def test_settings_set_start_values_and_parameters(toys):
+    source = FMUSource(toys["no-input"], parameters={"x[1]": "0.5", "x[3]": -0.25, "k": "4"})
+    assert source.m == 0 and source.input_names == [] and source.held_input_names == []
+    t = np.linspace(0.0, 1.0, 11)
+    rows = drive(source, t, np.zeros((len(t), 0)))
+    np.testing.assert_array_equal(rows[0, :3], [0.5, 0.0, -0.25])  # the initial state is the one set
+    np.testing.assert_array_equal(rows[0, 3:6], [0.0, 0.0, 0.0])
+    # consistent initial acceleration of x'' + 0.1 K x' + K x = 0 with K = 4 * tridiag(-1, 2, -1)
+    np.testing.assert_allclose(rows[0, 6:9], -4.0 * TOY_K @ np.array([0.5, 0.0, -0.25]), rtol=0, atol=1e-15)
+    assert source.provenance()["fmu_settings"] == {"x[1]": "0.5", "x[3]": -0.25, "k": "4"}
+
+
+def test_setting_errors_name_the_variable(toys):
+    _one_line_error(InputSpecError, FMUSource, toys["full"], parameters={"kk": 1}, match="has no variable 'kk'")
+    _one_line_error(InputSpecError, FMUSource, toys["full"], parameters={"fault": "1.5"},
+                    match="fault is a Integer variable.*give an integer")
+    _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", parameters={"k": 1},
+                    match="--set applies to fmu sources")
+
+
+def test_inputs_none_holds_every_input(toys):
+    source = FMUSource(toys["param-input"], inputs="none")
+    assert source.m == 0 and source.held_input_names == ["fault_threshold", "u"]
+    assert FMUSource(toys["param-input"]).input_names == ["fault_threshold", "u"]  # default: every real input
+    chosen = FMUSource(toys["param-input"], inputs="u")
+    assert chosen.input_names == ["u"] and chosen.held_input_names == ["fault_threshold"]
+    assert chosen.description()["held_input_names"] == ["fault_threshold"]
+
+
+def test_selection_is_described(toys):
+    source = FMUSource(toys["modelica"])
+    assert source.description()["variable_selection"] == {
+        "positions": "from derivative links", "velocities": "from derivative links",
+        "accelerations": "derivatives of the velocity states"}
+    text = source.selection_text()
+    assert "\n" not in text and "positions q[1], q[2], q[3] (from derivative links)" in text

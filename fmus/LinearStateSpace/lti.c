@@ -33,20 +33,21 @@ void ltiLog(const LtiInstance *inst, LtiStatus status, const char *category, con
     inst->log(inst, status, category, message);
 }
 
-static size_t physicalSize(const LtiInstance *inst, size_t nq) {
+static size_t physicalSize(size_t nq) {
     return LTI_X_FOLLOWS_Q ? nq : LTI_NX_FIXED;
 }
 
-LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *logger,
-                       void *environment, int loggingOn) {
+LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *context,
+                       LtiCallback callback, void *environment, int loggingOn) {
     size_t nq = LTI_NQ_MAX, nx, nu = LTI_NU ? LTI_NU : 1, ny = LTI_NY ? LTI_NY : 1;
     LtiInstance *inst = (LtiInstance *)calloc(1, sizeof(LtiInstance));
 
     if (!inst) return NULL;
-    nx = physicalSize(inst, nq);
+    nx = physicalSize(nq);
     inst->name = copyString(name);
     inst->log = log;
-    inst->logger = logger;
+    inst->context = context;
+    inst->callback = callback;
     inst->environment = environment;
     inst->loggingOn = loggingOn;
     inst->isCoSimulation = isCoSimulation;
@@ -76,7 +77,6 @@ LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void
         ltiFree(inst);
         return NULL;
     }
-    inst->nq = LTI_NQ_DEFAULT;
     ltiReset(inst);
     return inst;
 }
@@ -95,10 +95,11 @@ void ltiReset(LtiInstance *inst) {
     size_t i;
 
     inst->phase = PhaseInstantiated;
+    inst->nq = LTI_NQ_DEFAULT;
     inst->time = 0.0;
     inst->tolerance = DEFAULT_TOLERANCE;
     inst->nqPending = inst->nq;
-    inst->nx = physicalSize(inst, inst->nq);
+    inst->nx = physicalSize(inst->nq);
     inst->par[PAR_MASS_SCALE] = LTI_PAR_DEFAULTS[PAR_MASS_SCALE];
     inst->par[PAR_STIFFNESS_SCALE] = LTI_PAR_DEFAULTS[PAR_STIFFNESS_SCALE];
     for (i = 0; i < LTI_NU; i++) inst->u[i] = 0.0;
@@ -352,7 +353,7 @@ LtiStatus ltiSetSize(LtiInstance *inst, const char *function, const unsigned int
 LtiStatus ltiExitConfiguration(LtiInstance *inst) {
     if (inst->nqPending != inst->nq) {
         inst->nq = inst->nqPending;
-        inst->nx = physicalSize(inst, inst->nq);
+        inst->nx = physicalSize(inst->nq);
         ltiAssemble(inst);
         memcpy(inst->z, inst->zStart, 2 * inst->nq * sizeof(double));
         ltiLog(inst, LtiOK, "logEvents", "resized to %lu masses", (unsigned long)inst->nq);

@@ -49,13 +49,15 @@ typedef enum {
 enum { CsEuler = 0, CsRungeKutta = 1 };
 
 typedef struct LtiInstance LtiInstance;
+typedef void (*LtiCallback)(void);  /* any importer callback, cast back by the API layer */
 typedef void (*LtiLogger)(const LtiInstance *inst, LtiStatus status, const char *category,
                           const char *message);
 
 struct LtiInstance {
     char *name;
     LtiLogger log;
-    void *logger;        /* the importer's callback (FMI version specific) */
+    void *context;       /* FMI 2: the importer's callback functions */
+    LtiCallback callback; /* FMI 3: the importer's logMessage */
     void *environment;
     int loggingOn;
     int isCoSimulation;
@@ -88,8 +90,8 @@ extern const double LTI_PAR_DEFAULTS[2];
 void ltiAssemble(LtiInstance *inst);
 
 /* ---- kernel */
-LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *logger,
-                       void *environment, int loggingOn);
+LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void *context,
+                       LtiCallback callback, void *environment, int loggingOn);
 void ltiFree(LtiInstance *inst);
 void ltiReset(LtiInstance *inst);
 void ltiLog(const LtiInstance *inst, LtiStatus status, const char *category, const char *format,

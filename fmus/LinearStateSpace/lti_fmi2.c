@@ -24,7 +24,7 @@ typedef struct {
 
 static void forwardLog(const LtiInstance *inst, LtiStatus status, const char *category,
                        const char *message) {
-    const fmi2CallbackFunctions *callbacks = (const fmi2CallbackFunctions *)inst->logger;
+    const fmi2CallbackFunctions *callbacks = (const fmi2CallbackFunctions *)inst->context;
     if (callbacks && callbacks->logger) {
         callbacks->logger(callbacks->componentEnvironment, inst->name, (fmi2Status)status,
                           category, message);
@@ -77,7 +77,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     wrapper = (Fmi2Wrapper *)calloc(1, sizeof(Fmi2Wrapper));
     if (!wrapper) return NULL;
     wrapper->callbacks = *functions;
-    wrapper->inst = ltiCreate(instanceName, cs, forwardLog, &wrapper->callbacks,
+    wrapper->inst = ltiCreate(instanceName, cs, forwardLog, &wrapper->callbacks, NULL,
                               functions->componentEnvironment, loggingOn);
     if (!wrapper->inst) {
         free(wrapper);

@@ -19,7 +19,7 @@ extern const int LTI_HAS_ME, LTI_HAS_CS;
 
 static void forwardLog(const LtiInstance *inst, LtiStatus status, const char *category,
                        const char *message) {
-    fmi3LogMessageCallback logger = (fmi3LogMessageCallback)inst->logger;
+    fmi3LogMessageCallback logger = (fmi3LogMessageCallback)inst->callback;
     if (logger) logger(inst->environment, (fmi3Status)status, category, message);
 }
 
@@ -66,7 +66,8 @@ static fmi3Instance instantiate(fmi3String name, fmi3String token, int cs, fmi3B
                                    "interface");
         return NULL;
     }
-    return ltiCreate(name, cs, forwardLog, (void *)logMessage, environment, loggingOn);
+    return ltiCreate(name, cs, forwardLog, NULL, (LtiCallback)logMessage, environment,
+                     loggingOn);
 }
 
 fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,

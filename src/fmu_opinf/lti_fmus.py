@@ -43,6 +43,7 @@ import re
 import tempfile
 import uuid
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal, Sequence
@@ -414,6 +415,21 @@ def _step_maps(A: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     return E[:size, :size], E[:size, size:]
 
 
+def _held_columns(m: int, count: int, u_held) -> np.ndarray:
+    """Held inputs as an (m, count) array; an (m, count-1) array gets its last column repeated."""
+    if u_held is None:
+        return np.zeros((m, count))
+    u = np.array(u_held, dtype=float)
+    if u.ndim == 1 and m > 0:
+        u = u.reshape(m, -1)
+    if u.ndim != 2 or u.shape[0] != m or u.shape[1] not in (count, count - 1) or u.shape[1] == 0:
+        raise DimensionError(f"u_held has shape {u.shape}, expected ({m}, {count}) or "
+                             f"({m}, {count - 1}); give one column per step")
+    if u.shape[1] == count - 1:
+        u = np.hstack([u, u[:, -1:]])
+    return u
+
+
 def zoh_response(model: LinearMechanicalModel, t: Sequence[float], u_held=None, *,
                  accelerations_from: Literal["previous", "current"] = "previous",
                  mass_scale: float = 1.0, stiffness_scale: float = 1.0) -> ZohResponse:
@@ -451,23 +467,18 @@ def zoh_response(model: LinearMechanicalModel, t: Sequence[float], u_held=None, 
     ZohResponse
         ``t``, ``x``, ``v``, ``a`` (n, N) and ``y`` (p, N).
     """
+    if accelerations_from not in ("previous", "current"):
+        raise DimensionError(f"accelerations_from={accelerations_from!r} is unknown; use "
+                             "'previous' or 'current'")
     model = model.scaled(mass_scale, stiffness_scale)
     t = np.asarray(t, dtype=float).reshape(-1)
     if t.size < 1 or np.any(np.diff(t) <= 0):
         raise DimensionError("t must hold increasing time points; give a strictly increasing "
                              "grid")
-    count = t.size
-    u = np.zeros((model.m, count)) if u_held is None else np.array(u_held, dtype=float)
-    if u.ndim == 1:
-        u = u.reshape(model.m, -1)
-    if u.shape[0] != model.m or u.shape[1] not in (count, count - 1) or u.shape[1] == 0 and count > 1:
-        raise DimensionError(f"u_held has shape {u.shape}, expected ({model.m}, {count}) or "
-                             f"({model.m}, {count - 1}); give one column per step")
-    if u.shape[1] == count - 1:
-        u = np.hstack([u, u[:, -1:] if count > 1 else np.zeros((model.m, 1))])
+    u = _held_columns(model.m, t.size, u_held)
     N, base, A, Bz, c = _first_order(model)
     r = N.shape[1]
-    z = np.zeros((2 * r, count))
+    z = np.zeros((2 * r, t.size))
     z[:r, 0] = N.T @ (model.x0 - base)
     z[r:, 0] = N.T @ model.v0
     maps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
@@ -478,9 +489,6 @@ def zoh_response(model: LinearMechanicalModel, t: Sequence[float], u_held=None, 
         Phi, Gamma = maps[key]
         z[:, i + 1] = Phi @ z[:, i] + Gamma @ (Bz @ u[:, i] + c)
     paired = u if accelerations_from == "current" else np.hstack([u[:, :1], u[:, :-1]])
-    if accelerations_from not in ("previous", "current"):
-        raise DimensionError(f"accelerations_from={accelerations_from!r} is unknown; use "
-                             "'previous' or 'current'")
     zdot = A @ z + Bz @ paired + c[:, None]
     x = base[:, None] + N @ z[:r]
     v = N @ z[r:]
@@ -864,7 +872,7 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
     mass_input = "mass_scale" in parameter_inputs
     stiffness_input = "stiffness_scale" in parameter_inputs
 
-    def names(row_q, row_qd, row_u, stiffness_row) -> list[str]:
+    def names(row_q, row_qd, row_u) -> list[str]:
         deps = [q for q, value in zip(q_names, row_q) if value != 0]
         deps += [q for q, value in zip(qd_names, row_qd) if value != 0]
         deps += [u for u, value in zip(inputs, row_u) if value != 0]
@@ -872,7 +880,7 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
 
     for i in range(nq):
         layout.find(layout.derivatives[i]).dependencies = [qd_names[i]]
-        deps = names(coords.Kq[i], coords.Dq[i], coords.Bq[i], None)
+        deps = names(coords.Kq[i], coords.Dq[i], coords.Bq[i])
         if mass_input:
             deps.append("mass_scale")
         if stiffness_input and np.any(coords.Kq[i] != 0):
@@ -883,7 +891,7 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
     dqd = model.Cv @ coords.T - CaT @ coords.Dq
     du = CaT @ coords.Bq
     for k, name in enumerate(outputs):
-        deps = names(dq[k], dqd[k], du[k], None)
+        deps = names(dq[k], dqd[k], du[k])
         if mass_input and np.any(CaT[k] != 0):
             deps.append("mass_scale")
         if stiffness_input and np.any((CaT @ coords.Kq)[k] != 0):
@@ -1460,8 +1468,8 @@ def corpus_models() -> dict[str, tuple[LinearMechanicalModel | MassChain, dict]]
     }
 
 
-def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
-                 ) -> dict[str, LtiFmu]:
+def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None, *,
+                 jobs: int | None = None) -> dict[str, LtiFmu]:
     """Build the corpus FMUs ``<out_dir>/<name>.fmu`` (existing up-to-date files are kept).
 
     =========================  =======  ==========  ================================================
@@ -1488,6 +1496,8 @@ def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
         Target folder.
     names : sequence of str, optional
         Subset of :data:`CORPUS_NAMES` (default all).
+    jobs : int, optional
+        Parallel builds (default: the number of CPUs).
 
     Returns
     -------
@@ -1500,8 +1510,10 @@ def build_corpus(out_dir: str | os.PathLike, names: Sequence[str] | None = None
     if unknown:
         raise FmuBuildError(f"unknown corpus FMU(s) {', '.join(unknown)}; choose from "
                             f"{', '.join(CORPUS_NAMES)}")
-    built = {}
-    for name in names:
+    def build(name: str) -> LtiFmu:
         model, options = definitions[name]
-        built[name] = build_lti_fmu(model, Path(out_dir) / f"{name}.fmu", **options)
-    return built
+        return build_lti_fmu(model, Path(out_dir) / f"{name}.fmu", **options)
+
+    workers = max(1, min(int(jobs) if jobs else (os.cpu_count() or 1), len(names)))
+    with ThreadPoolExecutor(max_workers=workers) as pool:   # compilers run as subprocesses
+        return dict(zip(names, pool.map(build, names)))

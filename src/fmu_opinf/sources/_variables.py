@@ -558,7 +558,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
                            "'input'; pass --inputs with input variables")
         forces = [elements[n] for n in names]
     chosen = {e.name for e in forces}
-    return forces, [e for e in inputs if e.name not in chosen]
+    return forces, sorted((e for e in inputs if e.name not in chosen), key=lambda e: natural_key(e.name))
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
