@@ -37,6 +37,19 @@ def _save(fig: Any, path: str | os.PathLike) -> Path:
     return path
 
 
+def _mark_order(ax: Any, r: int | None) -> None:
+    """The chosen order as a dashed vertical line with its own legend entry."""
+    if r is not None:
+        ax.axvline(r, color="k", lw=0.8, ls="--", label=f"chosen order r = {r}")
+
+
+def _index_axis(ax: Any, count: int) -> None:
+    """Both POD figures span the same index range 1..count, so they can be read side by side."""
+    ax.set_xlabel("index i")
+    if count:
+        ax.set_xlim(0, count + 1)
+
+
 def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
     """Singular value decay on a log axis (Figs. 4a, 6a); values below ``1e-15 sigma_1`` (round-off) are omitted.
 
@@ -55,15 +68,16 @@ def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike,
     """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.5))
+    count = 0
     for kind, sigma in sigmas.items():
         sigma = np.asarray(sigma, dtype=float)
         # values below round-off of the largest one carry no information (and unresolved streamed ones are 0)
         shown = sigma > _ROUND_OFF * sigma.max()
         idx = np.arange(1, sigma.size + 1)
         ax.semilogy(idx[shown], sigma[shown], "o", ms=3, fillstyle="none", label=_LABELS.get(kind, kind))
-    if r is not None:
-        ax.axvline(r, color="k", lw=0.8, ls="--")
-    ax.set_xlabel("i")
+        count = max(count, sigma.size)
+    _mark_order(ax, r)
+    _index_axis(ax, count)
     ax.set_ylabel(r"$\sigma_i$")
     ax.set_title("singular value decay")
     ax.legend()
@@ -88,12 +102,13 @@ def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLik
     """
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.5))
+    count = 0
     for kind, sigma in sigmas.items():
         energy = cumulative_energy(sigma)
         ax.plot(np.arange(1, energy.size + 1), energy, "o", ms=3, fillstyle="none", label=_ELABELS.get(kind, kind))
-    if r is not None:
-        ax.axvline(r, color="k", lw=0.8, ls="--", label=f"r = {r}")
-    ax.set_xlabel("i")
+        count = max(count, energy.size)
+    _mark_order(ax, r)
+    _index_axis(ax, count)
     ax.set_ylabel(r"$E_{\mathrm{cum}}$")
     ax.set_ylim(0, 1.05)
     ax.set_title("cumulative energy (eq. 18)")
