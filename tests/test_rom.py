@@ -216,7 +216,7 @@ def test_wrong_version_missing_matrix_and_nan(tmp_path, small_rom):
     path = small_rom.save(tmp_path / "rom.h5")
     with h5py.File(path, "a") as f:
         f.attrs["layout_version"] = 99
-    with pytest.raises(FileFormatError, match="layout version 99; this tool reads version 1"):
+    with pytest.raises(FileFormatError, match="layout version 99; this tool reads versions 1, 2"):
         SecondOrderROM.load(path)
     path = small_rom.save(tmp_path / "rom.h5", overwrite=True)
     with h5py.File(path, "a") as f:

@@ -3,7 +3,7 @@
  *
  * A model is a linear second-order system with optional linear constraints
  *
- *     M a + D v + K x + G^T mu = B u,      y = Cp x + Cv v,
+ *     M a + D v + K x + G^T mu = B u + f,      y = Cp x + Cv v + Du u + y0,
  *     G x = 0 (ConstraintPosition, index 3)  or  G v = 0 (ConstraintVelocity, index 2).
  *
  * The generated config.h fixes the sizes, the constraint kind, the identifier and the
@@ -56,6 +56,11 @@ typedef enum {
     MatrixB,
     MatrixCp,
     MatrixCv,
+    MatrixF,    /* n x 1: constant force (equilibrium away from zero); optional */
+    MatrixDu,   /* p x m: direct feedthrough; optional */
+    MatrixY0,   /* p x 1: output offset; optional */
+    MatrixX0,   /* n x 1: initial positions (the start state); optional, default zero */
+    MatrixV0,   /* n x 1: initial velocities; optional, default zero */
     MatrixCount
 } MatrixId;
 

@@ -80,7 +80,10 @@ Status allocateNewmarkSolver(NewmarkSolver *solver, const SecondOrderSystem *sys
                              const Allocator *allocator);
 void freeNewmarkSolver(NewmarkSolver *solver, const Allocator *allocator);
 
-/* Consistent initial acceleration: [M G^T; G 0][a; l] = [B u - D v - K x; 0]. */
+/* The model's start state: x = X0, v = V0 (zero unless the model adds MatrixX0 / MatrixV0 entries). */
+void initialState(const SecondOrderSystem *system, double x[], double v[]);
+
+/* Consistent initial acceleration: [M G^T; G 0][a; l] = [B u + f - D v - K x; 0]. */
 Status initialAcceleration(NewmarkSolver *solver, const SecondOrderSystem *system,
                            const double u[], const double x[], const double v[], double a[],
                            const Allocator *allocator, const char **message);
@@ -99,8 +102,8 @@ Status prepareStep(NewmarkSolver *solver, const SecondOrderSystem *system, doubl
 void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double h,
                  const double u[], double x[], double v[], double a[]);
 
-/* y = Cp x + Cv v */
+/* y = Cp x + Cv v + Du u + y0 */
 void computeOutputs(const SecondOrderSystem *system, const double x[], const double v[],
-                    double y[]);
+                    const double u[], double y[]);
 
 #endif /* NEWMARK_H */

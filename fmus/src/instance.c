@@ -123,6 +123,9 @@ static Status ensureInitialAcceleration(ModelInstance *instance) {
     CALL(ensureSystem(instance));
 
     if (instance->current.accelerationPending) {
+        if (instance->current.stepCount == 0) {
+            initialState(&instance->system, instance->current.x, instance->current.v);
+        }
         status = initialAcceleration(&instance->solver, &instance->system, instance->current.u,
                                      instance->current.x, instance->current.v, instance->current.a,
                                      &instance->allocator, &message);
@@ -132,7 +135,8 @@ static Status ensureInitialAcceleration(ModelInstance *instance) {
         }
         memcpy(instance->current.uApplied, instance->current.u, sizeof(instance->current.u));
         instance->current.accelerationPending = 0;
-        computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->y);
+        computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->current.u,
+                       instance->y);
     }
 
 END:
@@ -484,7 +488,8 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
 
     instance->current.time = point + h;
     instance->current.stepCount++;
-    computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->y);
+    computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->current.u,
+                       instance->y);
 
 END:
     return status;
@@ -574,7 +579,8 @@ Status setState(ModelInstance *instance, const char *function, const void *state
         if (status > Warning) {
             return status;
         }
-        computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->y);
+        computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->current.u,
+                       instance->y);
     }
 
     return OK;

@@ -51,6 +51,11 @@ static void setMatrixShapes(Assembly *assembly, int n, int m, int p, int nc) {
     assembly->rows[MatrixB] = n;  assembly->cols[MatrixB] = m;
     assembly->rows[MatrixCp] = p; assembly->cols[MatrixCp] = n;
     assembly->rows[MatrixCv] = p; assembly->cols[MatrixCv] = n;
+    assembly->rows[MatrixF] = n;  assembly->cols[MatrixF] = 1;
+    assembly->rows[MatrixDu] = p; assembly->cols[MatrixDu] = m;
+    assembly->rows[MatrixY0] = p; assembly->cols[MatrixY0] = 1;
+    assembly->rows[MatrixX0] = n; assembly->cols[MatrixX0] = 1;
+    assembly->rows[MatrixV0] = n; assembly->cols[MatrixV0] = 1;
 }
 
 static void freeTriplets(Assembly *assembly, const Allocator *allocator) {
@@ -563,11 +568,14 @@ void freeNewmarkSolver(NewmarkSolver *solver, const Allocator *allocator) {
     memset(solver, 0, sizeof(*solver));
 }
 
-/* rhs = B u - D v - K x */
+static const double unitColumn[1] = {1.0};
+
+/* rhs = B u + f - D v - K x */
 static void forceResidual(const SecondOrderSystem *system, const double u[], const double x[],
                           const double v[], double rhs[]) {
     memset(rhs, 0, (size_t)system->n * sizeof(double));
     addProduct(&system->matrices[MatrixB], 1.0, u, rhs);
+    addProduct(&system->matrices[MatrixF], 1.0, unitColumn, rhs);
     addProduct(&system->matrices[MatrixD], -1.0, v, rhs);
     addProduct(&system->matrices[MatrixK], -1.0, x, rhs);
 }
@@ -722,9 +730,18 @@ void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double 
     }
 }
 
+void initialState(const SecondOrderSystem *system, double x[], double v[]) {
+    memset(x, 0, (size_t)system->n * sizeof(double));
+    memset(v, 0, (size_t)system->n * sizeof(double));
+    addProduct(&system->matrices[MatrixX0], 1.0, unitColumn, x);
+    addProduct(&system->matrices[MatrixV0], 1.0, unitColumn, v);
+}
+
 void computeOutputs(const SecondOrderSystem *system, const double x[], const double v[],
-                    double y[]) {
+                    const double u[], double y[]) {
     memset(y, 0, (size_t)ARRAY_LENGTH(system->p) * sizeof(double));
     addProduct(&system->matrices[MatrixCp], 1.0, x, y);
     addProduct(&system->matrices[MatrixCv], 1.0, v, y);
+    addProduct(&system->matrices[MatrixDu], 1.0, u, y);
+    addProduct(&system->matrices[MatrixY0], 1.0, unitColumn, y);
 }

@@ -58,6 +58,7 @@ __all__ = [
     "as_runs",
     "project",
     "read_columns",
+    "centred",
     "snapshot_attrs",
     "snapshot_files",
     "open_snapshot_set",
@@ -178,6 +179,40 @@ def read_columns(array: Any, j0: int, j1: int, label: str) -> np.ndarray:
         bad = j0 + int(np.argwhere(~np.isfinite(block))[0, 1])
         raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
     return block
+
+
+class CentredArray:
+    """Read-only view ``A - ref[:, None]`` of an ``(n, k)`` array-like, computed block by block on slicing.
+
+    Lets the POD and projection code read centred positions from lazily read (h5py) datasets without a copy.
+    """
+
+    def __init__(self, array: Any, ref: np.ndarray) -> None:
+        self._array = array
+        self._ref = np.asarray(ref, dtype=np.float64).reshape(-1)
+        self.shape = tuple(int(v) for v in array.shape)
+        if len(self.shape) != 2 or self.shape[0] != self._ref.size:
+            raise DimensionError(f"cannot centre an array of shape {self.shape} by a vector of {self._ref.size}")
+        self.ndim, self.dtype = 2, np.dtype(np.float64)
+        self.chunks = getattr(array, "chunks", None)
+
+    def __getitem__(self, key: Any) -> np.ndarray:
+        rows, cols = key if isinstance(key, tuple) and len(key) == 2 else (key, slice(None))
+        return np.asarray(self._array[rows, cols], dtype=np.float64) - self._ref[rows][:, None]
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        out = self[:, :]
+        return out if dtype is None else out.astype(dtype)
+
+
+def centred(array: Any, ref: np.ndarray) -> Any:
+    """``array - ref[:, None]``: lazily for dask arrays and datasets (:class:`CentredArray`), at once for ndarrays."""
+    ref = np.asarray(ref, dtype=np.float64).reshape(-1)
+    if _is_dask(array):
+        return array - ref[:, None]
+    if isinstance(array, np.ndarray):
+        return np.asarray(array, dtype=np.float64) - ref[:, None]
+    return CentredArray(array, ref)
 
 
 @dataclass(frozen=True)

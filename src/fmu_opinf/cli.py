@@ -132,6 +132,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lowpass", type=float,
                    help="optional frequency weighting: cutoff in rad/s of a zero-phase low-pass filter applied to "
                         "the reduced data before the fit (beyond the paper; default off)")
+    p.add_argument("--terms", default="auto",
+                   help="terms beyond the paper's model: constant force fr, feedthrough Dur, output offset y0; "
+                        "'auto' (default) fits those the data need, 'none' the paper's model, 'all', or a list "
+                        "such as 'fr,y0'")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
@@ -140,7 +144,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("compare", help="validate a ROM against its source on a new input; write a report")
     p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
     p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
-    p.add_argument("--input", dest="input_spec", help="test input signal (or --runs)")
+    p.add_argument("--input", dest="input_spec",
+                   help="test input signal (or --runs); 'none' (the default for a ROM without inputs): the free "
+                        "response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")
@@ -182,13 +188,15 @@ def _run_fit(args: argparse.Namespace) -> None:
 
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,
-                       normalization=args.normalization, lowpass=args.lowpass)
+                       normalization=args.normalization, lowpass=args.lowpass, terms=args.terms)
     info = rom.fit_info
+    extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
           f"[{info.get('normalization')} normalization, cones {', '.join(info.get('cones') or []) or 'none'}] "
           f"{info.get('status')} in {info.get('total_seconds', 0):.2f}s; eigenvalues min Mr "
           f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
-          f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}")
+          f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}; extra terms "
+          f"{', '.join(extra) or 'none'}")
 
 
 def _run_compare(args: argparse.Namespace) -> None:

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ._hdf5 import jsonable
-from .errors import DimensionError, FileFormatError
+from .errors import DimensionError, FileFormatError, InputSpecError
 
 __all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
            "prepare_report_directory", "summary_table"]
@@ -251,7 +251,7 @@ def _builtin_outputs(spec: str, signal: Any, t: np.ndarray, quiet: bool,
     return y, seconds, {"source_kind": "builtin", "source": spec, "system_options": sizes}, names
 
 
-def compare(rom: Any, source: Any, input_spec: str, dt: float | None = None, t_end: float | None = None,
+def compare(rom: Any, source: Any, input_spec: str | None = None, dt: float | None = None, t_end: float | None = None,
             quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
     """Simulate the full-order ``source`` and the ROM on the same input and grid.
 
@@ -261,8 +261,10 @@ def compare(rom: Any, source: Any, input_spec: str, dt: float | None = None, t_e
     source : str or path
         An FMU path or ``builtin:anchored-msd`` / ``builtin:triple-chain``; an exported ROM FMU
         may also stand here (e.g. to compare a ROM with its own export).
-    input_spec : str
-        Test input (see :mod:`fmu_opinf.signals`).
+    input_spec : str, optional
+        Test input (see :mod:`fmu_opinf.signals`); required unless the ROM has no inputs, whose default is
+        ``"none"`` (the free response from the initial state; the source's inputs, if any, held at their start
+        values).  Both sides start from the source's initial state (the ROM from its stored ``q0, qdot0``).
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time.
     source_options : dict, optional
@@ -284,10 +286,16 @@ def compare(rom: Any, source: Any, input_spec: str, dt: float | None = None, t_e
             raise DimensionError("no --t-end given and the ROM does not record its training end time; pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
     t = time_grid(dt, float(t_end))
+    source_options = dict(source_options or {})
+    if rom_info["m"] == 0:
+        input_spec = input_spec or "none"
+        source_options.setdefault("inputs", "none")  # every source input held at its start value
+    if not input_spec:
+        raise InputSpecError("no test input given; pass --input SPEC (e.g. 'harmonic:amplitude=1,omega=0.2')")
     signal = parse_signal(input_spec, rom_info["m"])
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
-                                                                 **(source_options or {}))
+                                                                 **source_options)
     if len(fom_outputs) != rom_info["p"]:
         raise DimensionError(f"the source has {len(fom_outputs)} outputs but the ROM has {rom_info['p']}; "
                              "compare a ROM with the model it was learned from")

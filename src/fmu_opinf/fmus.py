@@ -151,9 +151,9 @@ class SecondOrderFmuSpec:
         if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", self.identifier):
             raise FmuBuildError(f"model identifier {self.identifier!r} is not a C identifier; "
                                 "use letters, digits and underscores")
-        if min(self.n, self.m, self.p) < 1 or self.nc < 0:
+        if min(self.n, self.p) < 1 or min(self.m, self.nc) < 0:
             raise FmuBuildError(f"sizes n={self.n}, m={self.m}, p={self.p}, nc={self.nc} are "
-                                "invalid; n, m, p must be >= 1 and nc >= 0")
+                                "invalid; n, p must be >= 1 and m, nc >= 0")
         if self.constraint not in _CONSTRAINT_CODES:
             raise FmuBuildError(f"constraint {self.constraint!r} is unknown; use None, "
                                 "'position' or 'velocity'")
@@ -169,7 +169,21 @@ class SecondOrderFmuSpec:
                                 f"output names for m={self.m}, p={self.p}; give one name each")
         if self.expose_states is None:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+        self._check_text()
         self._check_unique_names()
+
+    def _check_text(self) -> None:
+        """Names and the description end up in XML: refuse characters XML 1.0 cannot hold (control characters)
+        and empty names; quoting (``quoteattr``) handles everything else."""
+        texts = [("input name", s) for s in self.input_names] + [("output name", s) for s in self.output_names]
+        texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
+        for what, text in texts:
+            if not isinstance(text, str) or (what != "description" and not text.strip()):
+                raise FmuBuildError(f"{what} {text!r} is not a non-empty string; give printable names")
+            bad = _CONTROL_CHARACTERS.search(text)
+            if bad:
+                raise FmuBuildError(f"{what} {text!r} contains the control character {bad.group()!r}, which "
+                                    "an FMU's XML cannot hold; rename it (printable characters only)")
 
     def _check_unique_names(self) -> None:
         names = list(self.input_names) + list(self.output_names) + [p.name for p in self.parameters]
@@ -180,6 +194,10 @@ class SecondOrderFmuSpec:
         if clashes:
             raise FmuBuildError(f"variable name(s) {', '.join(clashes)} are used twice; give the "
                                 "inputs, outputs and parameters distinct names")
+
+
+#: Characters XML 1.0 does not allow (and that have no business in a variable name or description).
+_CONTROL_CHARACTERS = re.compile(r"[\x00-\x1f\x7f\ud800-\udfff\ufffe\uffff]")
 
 
 def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:

@@ -138,7 +138,7 @@ import scipy.sparse as sp
 
 from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
 
-__all__ = ["OperatorFit", "fit_operators", "fit_outputs", "compressed_factor", "psd_report", "lowpass_filter",
+__all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
            "model_poles", "pole_match"]
 
 
@@ -750,3 +750,79 @@ def fit_outputs(xdot_r: np.ndarray, x_r: np.ndarray, y: np.ndarray) -> tuple[np.
     coef, *_ = np.linalg.lstsq(A, y.T, rcond=None)
     Cvr, Cpr = coef[:r].T / sv, coef[r:].T / sx
     return Cpr, Cvr
+
+
+def fit_output_map(
+    xdot_r: np.ndarray, x_r: np.ndarray, y: np.ndarray, u: np.ndarray | None = None, *,
+    feedthrough: bool = False, offset: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Output map ``y ~ Cpr x_r + Cvr xdot_r + Dur u + y0`` by least squares (eq. 17 with the extra terms).
+
+    Parameters
+    ----------
+    xdot_r, x_r : (r, k) ndarray
+        Reduced velocities and positions.
+    y : (p, k) ndarray
+        Measured outputs.
+    u : (m, k) ndarray, optional
+        Inputs in effect at each snapshot (needed with ``feedthrough``).
+    feedthrough, offset : bool, default=False
+        Fit the direct feedthrough ``Dur`` / the constant ``y0``; a term not fitted is exactly zero.
+
+    Returns
+    -------
+    Cpr, Cvr : (p, r) ndarray
+    Dur : (p, m) ndarray
+    y0 : (p,) ndarray
+    """
+    xdot_r, x_r, y = (np.asarray(a, dtype=float) for a in (xdot_r, x_r, y))
+    r, k = x_r.shape
+    u = np.zeros((0, k)) if u is None else np.asarray(u, dtype=float)
+    if xdot_r.shape != (r, k) or y.ndim != 2 or y.shape[1] != k or u.ndim != 2 or u.shape[1] != k:
+        raise DimensionError(f"output data shapes {xdot_r.shape}, {x_r.shape}, {u.shape}, {y.shape} do not match "
+                             "(r, k), (r, k), (m, k), (p, k)")
+    for name, a in (("xdot_r", xdot_r), ("x_r", x_r), ("u", u), ("y", y)):
+        if not np.all(np.isfinite(a)):
+            raise DataError(f"{name} contains NaN/Inf; check the snapshot data")
+    blocks = [xdot_r, x_r] + ([u] if feedthrough else []) + ([np.ones((1, k))] if offset else [])
+    scales = [_rms(b) for b in blocks]
+    A = np.vstack([b / s for b, s in zip(blocks, scales)]).T
+    coef, *_ = np.linalg.lstsq(A, y.T, rcond=None)
+    parts, row = [], 0
+    for block, scale in zip(blocks, scales):
+        parts.append(coef[row:row + block.shape[0]].T / scale)
+        row += block.shape[0]
+    Cvr, Cpr = parts[0], parts[1]
+    p, m = y.shape[0], u.shape[0]
+    Dur = parts[2] if feedthrough else np.zeros((p, m))
+    y0 = parts[-1][:, 0] if offset else np.zeros(p)
+    return Cpr, Cvr, Dur, y0
+
+
+#: A term beyond the paper's model (constant force ``fr``, feedthrough ``Dur``, output offset ``y0``) is fitted
+#: only if it cuts the residual of the unconstrained least-squares fit to at most this fraction.
+TERM_SIGNIFICANCE = 0.5
+
+
+def _lstsq_residual(blocks: list[np.ndarray], target: np.ndarray) -> float:
+    blocks = [b for b in blocks if b.shape[0]]
+    if not blocks:
+        return float(np.linalg.norm(target))
+    A = np.vstack([b / _rms(b) for b in blocks]).T
+    coef, *_ = np.linalg.lstsq(A, target.T, rcond=None)
+    return float(np.linalg.norm(A @ coef - target.T))
+
+
+def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """Least-squares residuals of ``target`` explained by the rows of ``base`` without and with ``extra``.
+
+    Used to decide from the data whether a term is present: it is kept when the second residual is at most
+    :data:`TERM_SIGNIFICANCE` times the first (see :func:`fmu_opinf.rom.fit_rom`, ``terms``).
+
+    Returns
+    -------
+    without, with_term : float
+        Frobenius norms of the residuals, relative to ``||target||``.
+    """
+    scale = float(np.linalg.norm(target)) or 1.0
+    return _lstsq_residual(list(base), target) / scale, _lstsq_residual(list(base) + [extra], target) / scale

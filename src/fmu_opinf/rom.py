@@ -1,12 +1,38 @@
-"""The reduced second-order model (paper eq. 11) learned by operator inference, and the fit pipeline.
+"""The reduced second-order model (paper eq. 11, with an offset force and output terms) learned by operator
+inference, and the fit pipeline.
 
-``Mr q'' + Dr q' + Kr q = Br u``,  ``y = Cpr q + Cvr q'``,  full states ``x ~ V q``.
+    ``Mr q'' + Dr q' + Kr q = Br u + fr``,   ``y = Cpr q + Cvr q' + Dur u + y0``,   full states ``x ~ x_ref + V q``.
+
+The paper's model is the case ``fr = 0, Dur = 0, y0 = 0, x_ref = 0``.  Models exported by real tools need the
+extra terms (``shared/spec/real-fmus.md``): the static equilibrium under zero input is not at zero (unstretched
+spring lengths, fixed flanges away from 0, gravity: ``fr``), acceleration sensors feed the input through
+(``Dur``), outputs carry offsets (``y0``), and the model starts from its own start values, neither at rest nor
+at equilibrium (``q0, qdot0``).
+
+Reference state.  ``x_ref`` is the *initial position of the first training run*.  It is a state the source
+actually takes, so for position constraints ``G x = c`` every recorded ``x - x_ref`` lies in ``ker G`` and the POD
+basis of the centred positions keeps ``G V = 0``; the first run starts exactly at ``q = 0`` (no projection error in
+its initial position); and a model started at the origin (the paper's benchmarks) has ``x_ref = 0``, so nothing
+changes there.  (The mean position would also satisfy the constraint, but depends on the training input and puts
+a projection error into the initial state.)  The basis is computed from ``x - x_ref`` (positions) or from the
+velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.
+
+When the extra terms are fitted (``terms="auto"``, the default): from the data.  Each of ``fr``, ``Dur``,
+``y0`` is added to its least-squares problem -- ``fr`` to the unconstrained fit of ``q''`` from
+``q', q, u``, ``Dur`` and ``y0`` to the output fit -- and kept only if it cuts that residual to at most
+:data:`fmu_opinf.inference.TERM_SIGNIFICANCE` (one half) of the residual without it.  A term the source does not
+have shrinks the residual only by the share of one extra column of noise (a relative change of order 1/k), so it is
+left out and is exactly zero; a term the source has carries an error that no other term can absorb.  The data
+decide rather than the model description because a black-box FMU need not declare output dependencies (and
+declared dependencies do not say whether a constant offset exists).  ``terms="none"`` is the paper's model,
+``terms="all"`` fits every term.  ``fit_info["terms"]`` reports the decision and both residuals.
 
 :func:`fit_rom` is the one-call pipeline (POD basis eqs. 7/9 -> projection eq. 14 -> SDP eq. 16 -> outputs
 eq. 17); :func:`fit_rom_file` is what ``fmu-opinf fit`` runs.  A ROM is saved as one HDF5 file (layout
-:data:`LAYOUT_VERSION`): root attributes ``kind, layout_version, basis_kind, dt, input_names, output_names,
-provenance (JSON), fit_info (JSON)``; datasets ``Mr, Dr, Kr, Br, Cpr, Cvr`` and optionally ``basis (n, r)`` and
-``singular_values``.
+:data:`LAYOUT_VERSION`, ``docs/file-format.md``): root attributes ``kind, layout_version, basis_kind, dt,
+input_names, output_names, provenance (JSON), fit_info (JSON)``; datasets ``Mr, Dr, Kr, Br, Cpr, Cvr, fr, Dur,
+y0, q0, qdot0, x_ref`` and optionally ``basis (n, r)`` and ``singular_values``.  Layout-1 files (no extra terms)
+still load, with the extra terms zero.
 """
 
 from __future__ import annotations
@@ -18,23 +44,28 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import h5py
 import numpy as np
 import scipy.linalg
 
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
-from .basis import PODBasis, as_runs, project, read_columns, snapshot_attrs
+from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
-from .inference import fit_operators, fit_outputs, lowpass_filter
+from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
 
 __all__ = ["SecondOrderROM", "ROMTrajectory", "fit_rom", "fit_rom_file", "LAYOUT_VERSION"]
 
 #: Version of the ROM file layout written by :meth:`SecondOrderROM.save`.
-LAYOUT_VERSION = 1
+LAYOUT_VERSION = 2
+#: Older layouts this version reads (layout 1: no ``fr, Dur, y0, q0, qdot0, x_ref``; they load as zeros).
+READABLE_LAYOUTS = (1, 2)
 FILE_KIND = "fmu-opinf rom"
 _MATRICES = ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr")
+_EXTRA_TERMS = ("fr", "Dur", "y0", "q0", "qdot0", "x_ref")
+#: The terms beyond the paper's model that ``fit_rom(terms=...)`` can fit.
+TERMS = ("fr", "Dur", "y0")
 
 
 @dataclass
@@ -51,16 +82,19 @@ class ROMTrajectory:
 
 
 class SecondOrderROM:
-    """Reduced second-order model ``Mr q'' + Dr q' + Kr q = Br u``, ``y = Cpr q + Cvr q'`` (eq. 11).
+    """Reduced second-order model ``Mr q'' + Dr q' + Kr q = Br u + fr``, ``y = Cpr q + Cvr q' + Dur u + y0``.
+
+    Eq. (11) of the paper plus the terms real models need (module docstring); full states ``x ~ x_ref + V q``.
 
     Parameters
     ----------
     Mr, Dr, Kr : (r, r) ndarray
         Reduced mass, damping and stiffness (symmetric positive (semi)definite when learned by eq. 16).
     Br : (r, m) ndarray
+        Reduced input matrix (``m = 0``: a model without inputs).
     Cpr, Cvr : (p, r) ndarray
     basis : (n, r) ndarray, optional
-        POD modes ``V``; ``x ~ V q`` (or None when not kept).
+        POD modes ``V`` (or None when not kept).
     basis_kind : {"positions", "velocities"}, default="positions"
         Which snapshots spanned the basis.
     input_names, output_names : list of str, optional
@@ -73,6 +107,16 @@ class SecondOrderROM:
         Solver report of the fit.
     singular_values : (N,) ndarray, optional
         Singular values of the training snapshot matrix the basis came from.
+    fr : (r,) ndarray, optional
+        Constant reduced force (equilibrium away from ``x_ref``); default zero.
+    Dur : (p, m) ndarray, optional
+        Direct feedthrough; default zero.
+    y0 : (p,) ndarray, optional
+        Output offset; default zero.
+    q0, qdot0 : (r,) ndarray, optional
+        Initial reduced state: where :meth:`simulate` starts by default (the source's initial state); default rest.
+    x_ref : (n,) ndarray, optional
+        Reference position of the reduced coordinates (needs ``basis`` to be useful); default zero.
     """
 
     def __init__(
@@ -91,13 +135,29 @@ class SecondOrderROM:
         provenance: dict | None = None,
         fit_info: dict | None = None,
         singular_values: np.ndarray | None = None,
+        *,
+        fr: np.ndarray | None = None,
+        Dur: np.ndarray | None = None,
+        y0: np.ndarray | None = None,
+        q0: np.ndarray | None = None,
+        qdot0: np.ndarray | None = None,
+        x_ref: np.ndarray | None = None,
     ) -> None:
         self.Mr, self.Dr, self.Kr = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (Mr, Dr, Kr))
-        self.Br = np.asarray(Br, dtype=float).reshape(self.Mr.shape[0], -1)
+        r = self.Mr.shape[0]
+        self.Br = np.asarray(Br, dtype=float).reshape(r, -1)
         self.Cpr = np.atleast_2d(np.asarray(Cpr, dtype=float))
         self.Cvr = np.atleast_2d(np.asarray(Cvr, dtype=float))
         self.basis = None if basis is None else np.asarray(basis, dtype=float)
         self.basis_kind = basis_kind
+        m, p = self.Br.shape[1], self.Cpr.shape[0]
+        self.fr = _vector(fr, r)
+        Dur = np.zeros((p, m)) if Dur is None else np.asarray(Dur, dtype=float)
+        self.Dur = Dur.reshape(p, m) if Dur.size == p * m else Dur
+        self.y0 = _vector(y0, p)
+        self.q0, self.qdot0 = _vector(q0, r), _vector(qdot0, r)
+        n = self.basis.shape[0] if self.basis is not None and self.basis.ndim == 2 else 0
+        self.x_ref = _vector(x_ref, n) if x_ref is not None or n else np.zeros(0)
         self.input_names = list(input_names) if input_names is not None else [f"u[{i + 1}]" for i in range(self.m)]
         self.output_names = list(output_names) if output_names is not None else [f"y[{i + 1}]" for i in range(self.p)]
         self.dt = None if dt is None else float(dt)
@@ -108,7 +168,8 @@ class SecondOrderROM:
 
     def _check(self) -> None:
         r, m, p = self.r, self.m, self.p
-        expected = {"Mr": (r, r), "Dr": (r, r), "Kr": (r, r), "Br": (r, m), "Cpr": (p, r), "Cvr": (p, r)}
+        expected = {"Mr": (r, r), "Dr": (r, r), "Kr": (r, r), "Br": (r, m), "Cpr": (p, r), "Cvr": (p, r),
+                    "fr": (r,), "Dur": (p, m), "y0": (p,), "q0": (r,), "qdot0": (r,)}
         for name, shape in expected.items():
             value = getattr(self, name)
             if value.shape != shape:
@@ -117,6 +178,10 @@ class SecondOrderROM:
                 raise DataError(f"{name} contains NaN/Inf; the ROM is unusable, refit it")
         if self.basis is not None and (self.basis.ndim != 2 or self.basis.shape[1] != r):
             raise DimensionError(f"basis has shape {self.basis.shape}; expected (n, {r})")
+        if self.basis is not None and self.x_ref.shape != (self.basis.shape[0],):
+            raise DimensionError(f"x_ref has shape {self.x_ref.shape}; expected ({self.basis.shape[0]},) like the basis")
+        if not np.all(np.isfinite(self.x_ref)):
+            raise DataError("x_ref contains NaN/Inf; the ROM is unusable, refit it")
         if len(self.input_names) != m or len(self.output_names) != p:
             raise DimensionError(f"{len(self.input_names)} input / {len(self.output_names)} output names "
                                  f"for m={m} inputs and p={p} outputs")
@@ -140,25 +205,72 @@ class SecondOrderROM:
         return self.Cpr.shape[0]
 
     def __repr__(self) -> str:
-        return f"SecondOrderROM(r={self.r}, m={self.m}, p={self.p}, basis_kind={self.basis_kind!r}, dt={self.dt})"
+        extra = [name for name in TERMS if np.any(getattr(self, name))]
+        terms = f", terms={extra}" if extra else ""
+        return (f"SecondOrderROM(r={self.r}, m={self.m}, p={self.p}, basis_kind={self.basis_kind!r}, "
+                f"dt={self.dt}{terms})")
 
     # --- simulation ----------------------------------------------------------------------------------------
-    def simulate(self, signal: Any, dt: float, t_end: float) -> ROMTrajectory:
-        """Classical Newmark (beta=1/4, gamma=1/2) from rest, input held over each step (zero-order hold).
+    def initial_state(self, x0: np.ndarray | None = None, v0: np.ndarray | None = None,
+                      tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Reduced initial state of a full-order initial state: ``q0 = V^T (x0 - x_ref)``, ``qdot0 = V^T v0``.
+
+        Parameters
+        ----------
+        x0, v0 : (n,) ndarray, optional
+            Full-order initial positions and velocities; each one not given keeps the ROM's own (:attr:`q0`,
+            :attr:`qdot0`, the training source's initial state).
+        tol : float, default=1e-6
+            Largest relative part of ``x0 - x_ref`` (and ``v0``) outside the span of the basis.  A state with
+            more lies off the training data's subspace, e.g. it violates the position constraint, which every
+            basis vector satisfies.
+
+        Returns
+        -------
+        q0, qdot0 : (r,) ndarray
+        """
+        q0, qdot0 = self.q0, self.qdot0
+        for label, value, ref in (("positions", x0, self.x_ref), ("velocities", v0, None)):
+            if value is None:
+                continue
+            if self.basis is None:
+                raise DimensionError("this ROM was saved without its basis; give the reduced initial state instead")
+            value = np.asarray(value, dtype=float).reshape(-1)
+            if value.shape != (self.basis.shape[0],):
+                raise DimensionError(f"initial {label} have {value.size} entries; expected n={self.basis.shape[0]}")
+            shifted = value - ref if ref is not None else value
+            reduced = self.basis.T @ shifted
+            outside = float(np.linalg.norm(shifted - self.basis @ reduced))
+            if outside > tol * max(float(np.linalg.norm(value)), float(np.linalg.norm(shifted)), 1e-300):
+                raise DataError(f"the initial {label} lie off the ROM's subspace (relative part outside "
+                                f"{outside / max(np.linalg.norm(shifted), 1e-300):.1e}): they violate the constraint "
+                                "or were never in the training data; start from a consistent state or retrain")
+            if ref is not None:
+                q0 = reduced
+            else:
+                qdot0 = reduced
+        return q0, qdot0
+
+    def simulate(self, signal: Any, dt: float, t_end: float, q0: np.ndarray | None = None,
+                 qdot0: np.ndarray | None = None) -> ROMTrajectory:
+        """Classical Newmark (beta=1/4, gamma=1/2) from the initial state, input held over each step.
 
         Parameters
         ----------
         signal : fmu_opinf.signals.Signal or str
-            Input; strings are parsed by :func:`fmu_opinf.signals.parse_signal`.
+            Input; strings are parsed by :func:`fmu_opinf.signals.parse_signal` (``"none"``: no forcing).
         dt, t_end : float
             Step and end time (a whole number of steps).
+        q0, qdot0 : (r,) ndarray, optional
+            Reduced initial state; default :attr:`q0`, :attr:`qdot0` (the training source's initial state,
+            rest for the paper's benchmarks).  Use :meth:`initial_state` for a full-order one.
 
         Returns
         -------
         ROMTrajectory
             ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.
         """
-        from .newmark import NewmarkStepper, applied_inputs, step_matrices, time_grid
+        from .newmark import applied_inputs, step_matrices, time_grid
         from .signals import parse_signal
 
         signal = parse_signal(signal, self.m)
@@ -166,21 +278,25 @@ class SecondOrderROM:
             raise DimensionError(f"signal has {signal.n_inputs} inputs; the ROM has m={self.m}")
         t = time_grid(dt, t_end)
         u = applied_inputs(signal, t)
-        stepper = NewmarkStepper(self.Mr, self.Dr, self.Kr, self.Br, dt)
-        stepper.start(u[:, 0])
+        q0 = self.q0 if q0 is None else _vector(q0, self.r)
+        qdot0 = self.qdot0 if qdot0 is None else _vector(qdot0, self.r)
+        # the constant force is one more input column, held at 1
+        B = np.hstack([self.Br, self.fr[:, None]])
+        forced = np.vstack([u, np.ones((1, t.size))])
+        qddot0 = scipy.linalg.solve(self.Mr, B @ forced[:, 0] - self.Dr @ qdot0 - self.Kr @ q0, assume_a="sym")
         # the step is one linear map (newmark.step_matrices): a 3r x 3r product per step instead of solves
-        phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, self.Br, dt)
-        forcing = gamma_new @ u[:, 1:] + gamma_old @ u[:, :-1]
+        phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, B, dt)
+        forcing = gamma_new @ forced[:, 1:] + gamma_old @ forced[:, :-1]
         states = np.empty((3 * self.r, t.size))
-        states[:, 0] = np.concatenate([stepper.x, stepper.v, stepper.a])
+        states[:, 0] = np.concatenate([q0, qdot0, qddot0])
         for i in range(1, t.size):
             states[:, i] = phi @ states[:, i - 1] + forcing[:, i - 1]
         q, qdot, qddot = states[:self.r], states[self.r:2 * self.r], states[2 * self.r:]
-        y = self.Cpr @ q + self.Cvr @ qdot
+        y = self.Cpr @ q + self.Cvr @ qdot + self.Dur @ u + self.y0[:, None]
         return ROMTrajectory(t=t, u=u, y=y, q=q, qdot=qdot, qddot=qddot)
 
     def reconstruct(self, q: np.ndarray) -> np.ndarray:
-        """Full-order states ``V q``.
+        """Full-order positions ``x_ref + V q``.
 
         Parameters
         ----------
@@ -195,7 +311,17 @@ class SecondOrderROM:
         q = np.asarray(q, dtype=float)
         if q.shape[0] != self.r:
             raise DimensionError(f"q has {q.shape[0]} rows; expected r={self.r}")
-        return self.basis @ q
+        shift = self.x_ref if q.ndim == 1 else self.x_ref[:, None]
+        return self.basis @ q + shift
+
+    def equilibrium(self) -> np.ndarray:
+        """Static equilibrium under zero input: ``q_eq = Kr^-1 fr``, in full coordinates ``x_ref + V q_eq`` if the
+        basis is kept (reduced coordinates otherwise).  Raises if ``Kr`` is singular (a mechanism)."""
+        try:
+            q_eq = scipy.linalg.solve(self.Kr, self.fr, assume_a="sym")
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
+            raise DataError("Kr is singular: the ROM has a rigid-body mode and no static equilibrium") from None
+        return q_eq if self.basis is None else self.reconstruct(q_eq)
 
     # --- stability -----------------------------------------------------------------------------------------
     def eigenvalues(self) -> np.ndarray:
@@ -238,7 +364,7 @@ class SecondOrderROM:
         """
         path = Path(path)
         with atomic_h5(path, overwrite=overwrite) as f:
-            for name in _MATRICES:
+            for name in _MATRICES + _EXTRA_TERMS:
                 f.create_dataset(name, data=getattr(self, name))
             if self.basis is not None:
                 f.create_dataset("basis", data=self.basis)
@@ -258,7 +384,7 @@ class SecondOrderROM:
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "SecondOrderROM":
-        """Read a ROM written by :meth:`save`.
+        """Read a ROM written by :meth:`save` (this layout or an older one, :data:`READABLE_LAYOUTS`).
 
         Raises
         ------
@@ -282,30 +408,44 @@ class SecondOrderROM:
         if attrs.get("kind") != FILE_KIND:
             raise FileFormatError(f"{path} is not an fmu-opinf ROM file (kind={attrs.get('kind')!r})")
         version = attrs.get("layout_version")
-        if version != LAYOUT_VERSION:
-            raise FileFormatError(f"{path} has ROM layout version {version}; this tool reads version "
-                                  f"{LAYOUT_VERSION}, refit the ROM or use a matching fmu-opinf")
-        missing = [name for name in _MATRICES if name not in f]
+        if isinstance(version, bool) or version not in READABLE_LAYOUTS:
+            raise FileFormatError(f"{path} has ROM layout version {version!r}; this tool reads versions "
+                                  f"{', '.join(map(str, READABLE_LAYOUTS))}, refit the ROM or use a matching fmu-opinf")
+        required = _MATRICES + (_EXTRA_TERMS if version >= 2 else ())
+        missing = [name for name in required if name not in f]
         if missing:
             raise FileFormatError(f"{path} lacks {', '.join(missing)}; the ROM file is truncated or damaged")
         try:
-            mats = {name: np.array(f[name][()], dtype=float) for name in _MATRICES}
-            basis = np.array(f["basis"][()]) if "basis" in f else None
-            sv = np.array(f["singular_values"][()]) if "singular_values" in f else None
+            mats = {name: np.array(f[name][()], dtype=float) for name in required}
+            basis = np.array(f["basis"][()], dtype=float) if "basis" in f else None
+            sv = np.array(f["singular_values"][()], dtype=float) if "singular_values" in f else None
             provenance, fit_info = (json.loads(attrs.get(key, "{}")) for key in ("provenance", "fit_info"))
         except (OSError, ValueError, TypeError, KeyError) as exc:
             raise FileFormatError(f"cannot read ROM data from {path} ({exc}); the file is damaged") from None
+        if not isinstance(provenance, dict) or not isinstance(fit_info, dict):
+            raise FileFormatError(f"{path}: provenance and fit_info must be JSON objects; the file is damaged")
         for name, value in mats.items():
             if not np.all(np.isfinite(value)):
                 raise DataError(f"{path}: {name} contains NaN/Inf; the ROM is unusable, refit it")
+        extra = {name: mats.pop(name) for name in _EXTRA_TERMS if name in mats}
+        if "x_ref" in extra and extra["x_ref"].size == 0:
+            extra["x_ref"] = None
         try:
             return cls(**mats, basis=basis, basis_kind=attrs.get("basis_kind", "positions"),
                        input_names=attrs.get("input_names"), output_names=attrs.get("output_names"),
-                       dt=attrs.get("dt"), provenance=provenance, fit_info=fit_info, singular_values=sv)
-        except DimensionError as exc:
+                       dt=attrs.get("dt"), provenance=provenance, fit_info=fit_info, singular_values=sv, **extra)
+        except (DimensionError, ValueError) as exc:
             raise FileFormatError(f"{path}: inconsistent ROM data ({exc})") from None
 
 
+def _vector(value: Any, size: int) -> np.ndarray:
+    """``value`` as a float vector of ``size`` entries (zeros for None)."""
+    if value is None:
+        return np.zeros(size)
+    array = np.asarray(value, dtype=float).reshape(-1)
+    if array.shape != (size,):
+        raise DimensionError(f"vector has {array.size} entries; expected {size}")
+    return array
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -327,6 +467,35 @@ def _run_data(run: Any, i: int, basis: np.ndarray, chunk: int) -> dict[str, np.n
             raise DimensionError(f"{name} of run {i} has shape {tuple(array.shape)}; expected ({name[0]}, {k})")
         out[name] = read_columns(array, 0, k, f"{name} of run {i}")
     return out
+
+
+class _CentredRun:
+    """A run whose positions read as ``x - x_ref`` (lazily, block by block); every other attribute as is."""
+
+    def __init__(self, run: Any, x_ref: np.ndarray) -> None:
+        self._run = run
+        self.x = centred(run.x, x_ref)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._run, name)
+
+
+def _reference_position(runs: list) -> np.ndarray:
+    """``x_ref``: the initial position of the first run (module docstring, *Reference state*)."""
+    first = runs[0]
+    x0 = getattr(first, "x0", None)
+    if x0 is None:
+        x0 = read_columns(first.x, 0, 1, "x of run 0")[:, 0]
+    x0 = np.asarray(x0, dtype=float).reshape(-1)
+    if not np.all(np.isfinite(x0)):
+        raise DataError("the initial position of run 0 has NaN/Inf; re-record the data")
+    return x0
+
+
+def _initial_velocity(run: Any) -> np.ndarray:
+    v0 = getattr(run, "v0", None)
+    return np.asarray(read_columns(run.xdot, 0, 1, "xdot of run 0")[:, 0] if v0 is None else v0,
+                      dtype=float).reshape(-1)
 
 
 def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> dict[str, np.ndarray]:
@@ -371,25 +540,32 @@ def fit_rom(
     chunk_size: int | None = None,
     streamed: bool | None = None,
     normalization: str = "auto",
+    terms: str | Sequence[str] = "auto",
     log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
     """Learn a reduced second-order model from snapshots: POD (eqs. 7/9), projection (eq. 14), SDP (eq. 16),
-    output least squares (eq. 17).
+    output least squares (eq. 17), with the offset, feedthrough and initial-state terms of real models.
 
     Parameters
     ----------
     snapshots : Snapshots, list of runs, or one run
-        Runs with ``t (k,)``, ``u (m, k)``, ``x, xdot, xddot (n, k)``, ``y (p, k)`` (ndarrays or h5py datasets);
-        ``snapshots.attrs`` (if any) supplies ``constraint``, ``input_names``, ``output_names``, ``dt``.
+        Runs with ``t (k,)``, ``u (m, k)``, ``x, xdot, xddot (n, k)``, ``y (p, k)`` (ndarrays or h5py datasets)
+        and optionally ``x0, v0 (n,)``; ``snapshots.attrs`` (if any) supplies ``constraint``, ``input_names``,
+        ``output_names``, ``dt``.  Runs may start from different initial states and mix forced and free
+        responses.
     r : int, optional
         Reduced order; else chosen from the cumulative energy with threshold ``energy``.
     energy : float, optional
-        Neglected-energy threshold, see :class:`fmu_opinf.basis.PODBasis`.
+        Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
+        (eq. 18, :class:`fmu_opinf.basis.PODBasis`); default 0.95.
     basis : {"auto", "positions", "velocities"}, default="auto"
         Snapshots spanning the basis; ``"auto"`` uses velocities only if the metadata say the constraint is
         on velocities (unknown, e.g. a black-box FMU: positions).
     method, mass_trace, tol, normalization
         Passed to :func:`fmu_opinf.inference.fit_operators`.
+    terms : {"auto", "none", "all"} or sequence of {"fr", "Dur", "y0"}, default="auto"
+        Which terms beyond the paper's model to fit: ``"auto"`` lets the data decide (module docstring),
+        ``"none"`` is the paper's eq. (11), ``"all"`` or a list forces them.
     log : callable, optional
         Called with one line per stage (POD, SDP start, SDP result), e.g. ``print``; the CLI shows them.
     lowpass : float, optional
@@ -406,37 +582,89 @@ def fit_rom(
     -------
     SecondOrderROM
     """
+    requested = _requested_terms(terms)
     runs = as_runs(snapshots)
     attrs = snapshot_attrs(snapshots)
     say = log or (lambda line: None)
     start = time.perf_counter()
+    x_ref = _reference_position(runs)
+    centred_runs = [_CentredRun(run, x_ref) for run in runs] if np.any(x_ref) else runs
     pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size,
-                   streamed=streamed).fit(runs, attrs)
+                   streamed=streamed).fit(centred_runs, attrs)
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
-    data = _reduced_data(runs, pod, lowpass)
+    data = _reduced_data(centred_runs, pod, lowpass)
+    chosen, term_info = _choose_terms(data, requested)
     sdp = "f_" if lowpass is not None else ""
+    u_fit = data[sdp + "u"]
+    if chosen["fr"]:
+        u_fit = np.vstack([u_fit, np.ones((1, u_fit.shape[1]))])
+    extra = [name for name in TERMS if chosen[name]]
     say(f"SDP (eq. 16): {3 * pod.r_ * (pod.r_ + 1) // 2} unknowns in Mr, Dr, Kr from {data['u'].shape[1]} "
-        "snapshots; solving ...")
-    ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"], method=method,
+        f"snapshots{'; extra terms ' + ', '.join(extra) if extra else ''}; solving ...")
+    ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization)
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization) in {ops.info.get('total_seconds', 0):.2f}s")
-    Cpr, Cvr = fit_outputs(data["xdot"], data["x"], data["y"])
+    m = data["u"].shape[0]
+    Br, fr = ops.Br[:, :m], (ops.Br[:, m] if chosen["fr"] else np.zeros(pod.r_))
+    Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
+                                       feedthrough=chosen["Dur"], offset=chosen["y0"])
+    q0 = np.zeros(pod.r_)  # the first run starts at x_ref
+    qdot0 = pod.basis_.T @ _initial_velocity(runs[0])
     info = dict(ops.info)
     info.update(r=pod.r_, basis_kind=pod.kind_, pod_method=pod.method_, snapshot_rank=pod.rank_,
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
-                n_runs=len(runs), output_relative_residual=_output_residual(Cpr, Cvr, data), lowpass=lowpass)
-    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol, "normalization": normalization,
-                "lowpass": lowpass}
+                n_runs=len(runs), lowpass=lowpass, terms=term_info,
+                output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
+    settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
+                "normalization": normalization, "lowpass": lowpass, "terms": terms if isinstance(terms, str)
+                else list(terms)}
     return SecondOrderROM(
-        ops.Mr, ops.Dr, ops.Kr, ops.Br, Cpr, Cvr,
+        ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
         input_names=_names(attrs.get("input_names"), data["u"].shape[0]),
         output_names=_names(attrs.get("output_names"), data["y"].shape[0]),
         dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings, runs), fit_info=info,
-        singular_values=pod.svdvals_,
+        singular_values=pod.svdvals_, fr=fr, Dur=Dur, y0=y0, q0=q0, qdot0=qdot0,
+        x_ref=x_ref if keep_basis else None,
     )
+
+
+def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
+    """``{"fr": ..., "Dur": ..., "y0": ...}`` with True (fit), False (leave out) or None (the data decide)."""
+    if isinstance(terms, str) and terms in ("auto", "none", "all"):
+        value = {"auto": None, "none": False, "all": True}[terms]
+        return dict.fromkeys(TERMS, value)
+    names = [t.strip() for t in (terms.split(",") if isinstance(terms, str) else terms) if t.strip()]
+    unknown = [t for t in names if t not in TERMS]
+    if unknown:
+        raise ValueError(f"terms {unknown} are not known; use 'auto', 'none', 'all' or a list of {', '.join(TERMS)}")
+    return {name: name in names for name in TERMS}
+
+
+def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None]) -> tuple[dict, dict]:
+    """Decide which extra terms to fit (module docstring): forced ones as requested, the rest by the residual
+    reduction each brings to its least-squares problem."""
+    k = data["u"].shape[1]
+    ones = np.ones((1, k))
+    tests = {
+        "fr": ([data["xdot"], data["x"], data["u"]], ones, data["xddot"]),
+        "Dur": ([data["x"], data["xdot"], ones], data["u"], data["y"]),
+        "y0": ([data["x"], data["xdot"], data["u"]], ones, data["y"]),
+    }
+    chosen, info = {}, {}
+    for name, (base, extra, target) in tests.items():
+        if extra.shape[0] == 0 or target.shape[0] == 0:
+            chosen[name], info[name] = False, {"fitted": False, "reason": "no such term (m = 0 or p = 0)"}
+            continue
+        without, with_term = term_residuals(base, extra, target)
+        significant = with_term <= TERM_SIGNIFICANCE * without and without > 1e3 * np.finfo(float).eps
+        decision = requested[name]
+        chosen[name] = significant if decision is None else decision
+        info[name] = {"fitted": bool(chosen[name]), "decided_by": "data" if decision is None else "request",
+                      "residual_without": without, "residual_with": with_term}
+    return chosen, info
 
 
 def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
@@ -456,8 +684,9 @@ def _names(names: Any, count: int) -> list[str] | None:
     return None
 
 
-def _output_residual(Cpr: np.ndarray, Cvr: np.ndarray, data: dict[str, np.ndarray]) -> float:
-    resid = Cpr @ data["x"] + Cvr @ data["xdot"] - data["y"]
+def _output_residual(maps: tuple, data: dict[str, np.ndarray]) -> float:
+    Cpr, Cvr, Dur, y0 = maps
+    resid = Cpr @ data["x"] + Cvr @ data["xdot"] + Dur @ data["u"] + y0[:, None] - data["y"]
     return float(np.linalg.norm(resid) / (np.linalg.norm(data["y"]) or 1.0))
 
 

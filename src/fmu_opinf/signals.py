@@ -12,6 +12,7 @@ spec drives every input)::
     step:amplitude=1,t0=0                    amplitude for t >= t0, 0 before
     chirp:amplitude=1,omega0=0.01,omega1=1   sine sweeping linearly from omega0 to omega1 over `duration`
     path/to/table.csv                        time column plus one column per input, held between rows
+    none                                     no forcing: every input zero (the free response of a model)
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 from .errors import DimensionError, InputSpecError
 
 __all__ = [
-    "Signal", "ParametricSignal", "TableSignal", "StackedSignal",
+    "Signal", "ParametricSignal", "TableSignal", "StackedSignal", "NoInput",
     "impulse", "harmonic", "step", "chirp", "table", "parse_signal",
 ]
 
@@ -223,6 +224,22 @@ class _Broadcast(Signal):
         return np.repeat(self.base.sample(t), self.n_inputs, axis=0)
 
 
+class NoInput(Signal):
+    """``none``: no forcing, every one of ``n_inputs`` channels zero (``n_inputs = 0``: a model without inputs).
+
+    A ROM simulated with it gives its free response from the initial state.  (An FMU recorded with
+    ``--input none`` holds its inputs at their start values instead, see :mod:`fmu_opinf.snapshots`.)
+    """
+
+    spec = "none"
+
+    def __init__(self, n_inputs: int = 0) -> None:
+        self.n_inputs = int(n_inputs)
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        return np.zeros((self.n_inputs, t.size))
+
+
 def _parse_one(spec: str) -> Signal:
     spec = spec.strip()
     if not spec:
@@ -255,6 +272,8 @@ def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
 
     A single scalar spec drives all ``n_inputs`` inputs; ``;`` separates one spec per input.
     """
+    if not isinstance(spec, Signal) and str(spec).strip().lower() == "none":
+        return NoInput(n_inputs or 0)
     signal = spec if isinstance(spec, Signal) else _stack([_parse_one(s) for s in str(spec).split(";")])
     if n_inputs is None or signal.n_inputs == n_inputs:
         return signal

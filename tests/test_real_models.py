@@ -1,0 +1,121 @@
+"""Real-model terms (issue 11): equilibrium offsets, initial states, free responses, direct feedthrough.
+
+References are independent of the code under test: training data are the exact zero-order-hold solution
+(matrix exponential, :func:`fmu_opinf.lti_fmus.zoh_response`), test outputs come from the full-order model
+stepped by :class:`fmu_opinf.newmark.NewmarkStepper` (not the ROM's step map), equilibria and feedthrough
+from the true matrices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import h5py
+import numpy as np
+import pytest
+
+from fmu_opinf.errors import DataError
+from fmu_opinf.lti_fmus import chain_model, zoh_response
+from fmu_opinf.newmark import NewmarkStepper, applied_inputs, time_grid
+from fmu_opinf.rom import SecondOrderROM, fit_rom
+from fmu_opinf.signals import parse_signal
+
+DT = 0.02
+X0 = [0.05, -0.02, 0.03, 0.0]
+V0 = [0.0, 0.1, 0.0, -0.05]
+
+
+def _run(model, spec: str, t_end: float):
+    """One training run of the exact solution, in the snapshot column convention (u[:, i] = u(t_{i-1}))."""
+    t = time_grid(DT, t_end)
+    signal = parse_signal(spec, model.m)
+    held = signal.sample(t)
+    exact = zoh_response(model, t, held)
+    return SimpleNamespace(t=t, u=applied_inputs(signal, t), x=exact.x, xdot=exact.v, xddot=exact.a, y=exact.y,
+                           x0=exact.x[:, 0], v0=exact.v[:, 0])
+
+
+def _reference_outputs(model, spec: str, t_end: float) -> np.ndarray:
+    """Full-order Newmark outputs ``Cp x + Cv v + Ca a + y0`` (constant force as an extra input held at 1)."""
+    t = time_grid(DT, t_end)
+    u = applied_inputs(parse_signal(spec, model.m), t)
+    forced = np.vstack([u, np.ones((1, t.size))])
+    stepper = NewmarkStepper(model.M, model.D, model.K, np.hstack([model.B, model.f0[:, None]]), DT)
+    stepper.start(forced[:, 0], model.x0, model.v0)
+    y = np.empty((model.p, t.size))
+    for i in range(t.size):
+        if i:
+            stepper.step(forced[:, i])
+        y[:, i] = model.Cp @ stepper.x + model.Cv @ stepper.v + model.Ca @ stepper.a + model.y0
+    return y
+
+
+def _relative(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+@pytest.fixture(scope="module")
+def offset_model():
+    return chain_model(4, force_offset=0.7, x0=X0, v0=V0, acceleration_outputs=(-1,), output_offset=0.1)
+
+
+def test_offset_initial_state_and_feedthrough_are_identified(offset_model):
+    model = offset_model
+    runs = [_run(model, "impulse:amplitude=20,t0=1,width=0.3", 30.0),
+            _run(replace(model, x0=np.zeros(4), v0=np.zeros(4)), "none", 20.0)]  # a second start, free response
+    rom = fit_rom(runs, r=4)
+    assert {name: term["fitted"] for name, term in rom.fit_info["terms"].items()} == {"fr": True, "Dur": True,
+                                                                                     "y0": True}
+    spec = "harmonic:amplitude=3,omega=1.7"
+    assert _relative(rom.simulate(spec, DT, 40.0).y, _reference_outputs(model, spec, 40.0)) < 1e-8
+    assert _relative(rom.equilibrium(), model.equilibrium()) < 1e-8
+    assert _relative(rom.Dur, model.feedthrough) < 1e-8
+    assert np.allclose(rom.reconstruct(rom.q0), model.x0, atol=1e-12)
+
+
+def test_a_rom_trained_without_the_terms_is_wrong(offset_model):
+    """The same data with the paper's model (terms='none'): the check above can fail."""
+    runs = [_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)]
+    rom = fit_rom(runs, r=4, terms="none")
+    spec = "harmonic:amplitude=3,omega=1.7"
+    assert _relative(rom.simulate(spec, DT, 40.0).y, _reference_outputs(offset_model, spec, 40.0)) > 1e-2
+
+
+def test_free_response_rom_without_inputs():
+    model = chain_model(4, inputs=(), force_offset=-0.4, x0=X0, v0=V0)
+    rom = fit_rom([_run(model, "none", 30.0)], r=4)
+    assert rom.m == 0 and rom.fit_info["terms"]["fr"]["fitted"]
+    assert _relative(rom.simulate("none", DT, 60.0).y, _reference_outputs(model, "none", 60.0)) < 1e-8
+
+
+def test_terms_are_exactly_zero_on_the_paper_benchmark(anchored_impulse_run):
+    rom = fit_rom(anchored_impulse_run, r=5)
+    assert not np.any(rom.fr) and not np.any(rom.Dur) and not np.any(rom.y0) and not np.any(rom.x_ref)
+    info = rom.fit_info["terms"]
+    assert all(not term["fitted"] for term in info.values())
+    assert info["fr"]["residual_with"] > 0.9 * info["fr"]["residual_without"]
+
+
+def test_initial_state_off_the_constraint_is_refused():
+    bar = np.zeros((1, 4))
+    bar[0, 1], bar[0, 3] = 1.0, -1.0        # x_2 = x_4
+    model = replace(chain_model(4, force_offset=0.3), G=bar, constraint="position", x0=[0.05, 0.02, 0.0, 0.02])
+    rom = fit_rom([_run(model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=3)
+    q0, _ = rom.initial_state(x0=[0.0, 0.01, 0.02, 0.01])
+    assert np.allclose(rom.reconstruct(q0), [0.0, 0.01, 0.02, 0.01], atol=1e-12)
+    with pytest.raises(DataError, match="violate the constraint"):
+        rom.initial_state(x0=[0.0, 0.01, 0.02, 0.03])
+
+
+def test_rom_file_round_trip_and_layout_1(tmp_path, offset_model):
+    rom = fit_rom([_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=4)
+    loaded = SecondOrderROM.load(rom.save(tmp_path / "rom.h5"))
+    for name in ("fr", "Dur", "y0", "q0", "qdot0", "x_ref", "Mr", "basis"):
+        assert np.array_equal(getattr(loaded, name), getattr(rom, name)), name
+    with h5py.File(tmp_path / "rom.h5", "a") as f:   # what layout 1 wrote: no extra terms
+        for name in ("fr", "Dur", "y0", "q0", "qdot0", "x_ref"):
+            del f[name]
+        f.attrs["layout_version"] = 1
+    old = SecondOrderROM.load(tmp_path / "rom.h5")
+    assert not np.any(old.fr) and not np.any(old.y0) and old.x_ref.shape == (4,) and not np.any(old.q0)
