@@ -119,3 +119,47 @@ def test_rom_file_round_trip_and_layout_1(tmp_path, offset_model):
         f.attrs["layout_version"] = 1
     old = SecondOrderROM.load(tmp_path / "rom.h5")
     assert not np.any(old.fr) and not np.any(old.y0) and old.x_ref.shape == (4,) and not np.any(old.q0)
+
+
+# ----------------------------------------------------------------------------------- FMUs like real exports
+CORPUS_CASES = {   # name -> training input, test input (None: free response over a longer horizon)
+    "offset-equilibrium": ("impulse:amplitude=5,t0=1,width=0.5", "harmonic:amplitude=2,omega=1.3"),
+    "start-off-rest": ("impulse:amplitude=5,t0=1,width=0.5", "harmonic:amplitude=2,omega=1.3"),
+    "acceleration-output": ("impulse:amplitude=5,t0=1,width=0.5", "harmonic:amplitude=2,omega=1.3"),
+    "no-inputs": (None, None),
+}
+
+
+@pytest.fixture(scope="module")
+def real_corpus(request, tmp_path_factory):
+    from fmu_opinf import lti_fmus
+
+    if lti_fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build FMUs")
+    cache = getattr(request.config, "cache", None)
+    folder = cache.mkdir("lti-corpus") if cache is not None else tmp_path_factory.mktemp("lti")
+    return lti_fmus.build_corpus(folder, names=list(CORPUS_CASES))
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("name", list(CORPUS_CASES))
+def test_exporter_style_fmu_through_the_whole_chain(real_corpus, tmp_path, name):
+    """snapshots -> fit -> compare -> export on FMUs with offsets, start values off rest, feedthrough, no input."""
+    from fmu_opinf.cli import main
+    from fmu_opinf.compare import compare, simulate_outputs
+    from fmu_opinf.export import export_fmu
+
+    fmu = str(real_corpus[name].path)
+    train, test = CORPUS_CASES[name]
+    args = ["snapshots", fmu, "-o", str(tmp_path / "train.h5"), "--dt", "0.02", "--t-end", "20", "-q"]
+    assert main(args + (["--input", train] if train else [])) == 0
+    assert main(["fit", str(tmp_path / "train.h5"), "-o", str(tmp_path / "rom.h5"), "--r", "5", "-q"]) == 0
+    rom = SecondOrderROM.load(tmp_path / "rom.h5")
+    assert rom.integrator == "exact"
+    result = compare(rom, fmu, test, t_end=60.0, quiet=True)
+    assert result.metrics()["max_error"] <= 1e-6
+    assert float(np.abs(result.y_rom - result.y_fom).max() / np.abs(result.y_fom).max()) < 1e-6
+    exported = export_fmu(rom, tmp_path / "rom.fmu", fmi_version="3.0" if name == "offset-equilibrium" else "2.0")
+    t = result.t[:1001]
+    y_fmu, *_ = simulate_outputs(exported, parse_signal(test or "none", rom.m), t)
+    assert _relative(y_fmu, result.y_rom[:, :1001]) < 1e-10

@@ -61,6 +61,9 @@ typedef enum {
     MatrixY0,   /* p x 1: output offset; optional */
     MatrixX0,   /* n x 1: initial positions (the start state); optional, default zero */
     MatrixV0,   /* n x 1: initial velocities; optional, default zero */
+    MatrixPhi,  /* 3n x 3n: optional precomputed step map s+ = Phi s + Gamma [u; 1], s = [x; v; a] */
+    MatrixGamma, /* 3n x (m + 1): its input part (last column: the constant 1 of F) */
+    MatrixMapStep, /* 1 x 1: the step size the map belongs to (a map model steps with it only) */
     MatrixCount
 } MatrixId;
 

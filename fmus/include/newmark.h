@@ -98,7 +98,11 @@ Status applyInputChange(NewmarkSolver *solver, const SecondOrderSystem *system,
 Status prepareStep(NewmarkSolver *solver, const SecondOrderSystem *system, double h,
                    const Allocator *allocator, const char **message);
 
-/* One step of size h (after prepareStep): x, v, a at t_k -> t_{k+1}, input u held. */
+/* Step size of the model's precomputed step map (MatrixPhi, MatrixGamma), 0 if it has none. */
+double stepMapSize(const SecondOrderSystem *system);
+
+/* One step of size h (after prepareStep): x, v, a at t_k -> t_{k+1}, input u held.  A model
+ * with a step map takes that map instead (h must then be its step size, see stepMapSize). */
 void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double h,
                  const double u[], double x[], double v[], double a[]);
 

@@ -464,6 +464,15 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
     if (fabs(h - instance->solver.stepSize) <= STEP_SIZE_TOLERANCE * instance->solver.stepSize) {
         h = instance->solver.stepSize;
     }
+    if (stepMapSize(&instance->system) > 0.0) {
+        double mapStep = stepMapSize(&instance->system);
+        if (fabs(h - mapStep) > STEP_SIZE_TOLERANCE * mapStep) {
+            logError(instance, "%s: this model steps with h = %.17g only (its exact step map), got h = %.17g",
+                     function, mapStep, h);
+            return Error;
+        }
+        h = mapStep;
+    }
 
     if (instance->solver.stepSize != h) {
         status = prepareStep(&instance->solver, &instance->system, h, &instance->allocator, &message);

@@ -56,6 +56,9 @@ static void setMatrixShapes(Assembly *assembly, int n, int m, int p, int nc) {
     assembly->rows[MatrixY0] = p; assembly->cols[MatrixY0] = 1;
     assembly->rows[MatrixX0] = n; assembly->cols[MatrixX0] = 1;
     assembly->rows[MatrixV0] = n; assembly->cols[MatrixV0] = 1;
+    assembly->rows[MatrixPhi] = 3 * n; assembly->cols[MatrixPhi] = 3 * n;
+    assembly->rows[MatrixGamma] = 3 * n; assembly->cols[MatrixGamma] = m + 1;
+    assembly->rows[MatrixMapStep] = 1; assembly->cols[MatrixMapStep] = 1;
 }
 
 static void freeTriplets(Assembly *assembly, const Allocator *allocator) {
@@ -693,12 +696,56 @@ Status prepareStep(NewmarkSolver *solver, const SecondOrderSystem *system, doubl
     return status;
 }
 
+double stepMapSize(const SecondOrderSystem *system) {
+    const SparseMatrix *step = &system->matrices[MatrixMapStep];
+    return step->rowStart[1] > 0 ? step->values[0] : 0.0;
+}
+
+/* s+ = Phi s + Gamma [u; 1] with s = [x; v; a]; the three parts of s+ go to rhs, xp, vp first. */
+static void mapStep(NewmarkSolver *solver, const SecondOrderSystem *system, const double u[],
+                    double x[], double v[], double a[]) {
+    const SparseMatrix *phi = &system->matrices[MatrixPhi];
+    const SparseMatrix *gamma = &system->matrices[MatrixGamma];
+    double forced[N_INPUTS + 1];
+    double *parts[3];
+    const double *state[3];
+    int n = system->n;
+    int row, k, j;
+
+    parts[0] = solver->rhs; parts[1] = solver->xp; parts[2] = solver->vp;
+    state[0] = x; state[1] = v; state[2] = a;
+    for (j = 0; j < system->m; j++) {
+        forced[j] = u[j];
+    }
+    forced[system->m] = 1.0;
+
+    for (row = 0; row < 3 * n; row++) {
+        double sum = 0.0;
+        for (k = phi->rowStart[row]; k < phi->rowStart[row + 1]; k++) {
+            int col = phi->colIndex[k];
+            sum += phi->values[k] * state[col / n][col % n];
+        }
+        for (k = gamma->rowStart[row]; k < gamma->rowStart[row + 1]; k++) {
+            sum += gamma->values[k] * forced[gamma->colIndex[k]];
+        }
+        parts[row / n][row % n] = sum;
+    }
+    memcpy(x, parts[0], (size_t)n * sizeof(double));
+    memcpy(v, parts[1], (size_t)n * sizeof(double));
+    memcpy(a, parts[2], (size_t)n * sizeof(double));
+}
+
 void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double h,
                  const double u[], double x[], double v[], double a[]) {
     const SparseMatrix *G = &system->matrices[MatrixG];
     double c[ARRAY_LENGTH(N_CONSTRAINTS)];
     int n = system->n;
     int i, j, k;
+
+    if (stepMapSize(system) > 0.0) {
+        mapStep(solver, system, u, x, v, a);
+        return;
+    }
 
     for (j = 0; j < ARRAY_LENGTH(N_CONSTRAINTS); j++) {
         c[j] = 0.0;

@@ -66,6 +66,8 @@ _MATRICES = ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr")
 _EXTRA_TERMS = ("fr", "Dur", "y0", "q0", "qdot0", "x_ref")
 #: The terms beyond the paper's model that ``fit_rom(terms=...)`` can fit.
 TERMS = ("fr", "Dur", "y0")
+#: Time discretizations of a ROM (:class:`SecondOrderROM`, ``integrator``).
+INTEGRATORS = ("newmark", "exact")
 
 
 @dataclass
@@ -117,6 +119,10 @@ class SecondOrderROM:
         Initial reduced state: where :meth:`simulate` starts by default (the source's initial state); default rest.
     x_ref : (n,) ndarray, optional
         Reference position of the reduced coordinates (needs ``basis`` to be useful); default zero.
+    integrator : {"newmark", "exact"}, default="newmark"
+        Time discretization of :meth:`simulate` (and of the exported FMU): the paper's classical Newmark
+        scheme, which reproduces a Newmark full-order model exactly, or the exact solution of the reduced ODE
+        under zero-order-hold inputs (matrix exponential), for continuous-time sources (see :func:`fit_rom`).
     """
 
     def __init__(
@@ -142,6 +148,7 @@ class SecondOrderROM:
         q0: np.ndarray | None = None,
         qdot0: np.ndarray | None = None,
         x_ref: np.ndarray | None = None,
+        integrator: str = "newmark",
     ) -> None:
         self.Mr, self.Dr, self.Kr = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (Mr, Dr, Kr))
         r = self.Mr.shape[0]
@@ -158,6 +165,9 @@ class SecondOrderROM:
         self.q0, self.qdot0 = _vector(q0, r), _vector(qdot0, r)
         n = self.basis.shape[0] if self.basis is not None and self.basis.ndim == 2 else 0
         self.x_ref = _vector(x_ref, n) if x_ref is not None or n else np.zeros(0)
+        if integrator not in INTEGRATORS:
+            raise DimensionError(f"integrator={integrator!r} is not known; use one of {', '.join(INTEGRATORS)}")
+        self.integrator = integrator
         self.input_names = list(input_names) if input_names is not None else [f"u[{i + 1}]" for i in range(self.m)]
         self.output_names = list(output_names) if output_names is not None else [f"y[{i + 1}]" for i in range(self.p)]
         self.dt = None if dt is None else float(dt)
@@ -284,9 +294,13 @@ class SecondOrderROM:
         B = np.hstack([self.Br, self.fr[:, None]])
         forced = np.vstack([u, np.ones((1, t.size))])
         qddot0 = scipy.linalg.solve(self.Mr, B @ forced[:, 0] - self.Dr @ qdot0 - self.Kr @ q0, assume_a="sym")
-        # the step is one linear map (newmark.step_matrices): a 3r x 3r product per step instead of solves
-        phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, B, dt)
-        forcing = gamma_new @ forced[:, 1:] + gamma_old @ forced[:, :-1]
+        # the step is one linear map: a 3r x 3r product per step instead of solves
+        if self.integrator == "exact":
+            phi, gamma_new = self.step_map(dt)
+            forcing = gamma_new @ forced[:, 1:]
+        else:
+            phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, B, dt)
+            forcing = gamma_new @ forced[:, 1:] + gamma_old @ forced[:, :-1]
         states = np.empty((3 * self.r, t.size))
         states[:, 0] = np.concatenate([q0, qdot0, qddot0])
         for i in range(1, t.size):
@@ -294,6 +308,36 @@ class SecondOrderROM:
         q, qdot, qddot = states[:self.r], states[self.r:2 * self.r], states[2 * self.r:]
         y = self.Cpr @ q + self.Cvr @ qdot + self.Dur @ u + self.y0[:, None]
         return ROMTrajectory(t=t, u=u, y=y, q=q, qdot=qdot, qddot=qddot)
+
+    def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """Exact zero-order-hold step of the reduced ODE (``integrator="exact"``) as one linear map.
+
+        ``s+ = Phi s + Gamma [u; 1]`` for ``s = [q; q'; q'']`` with the input ``u`` held over the step: ``q, q'``
+        from the matrix exponential of the first-order system (Van Loan's block form gives the input integral),
+        ``q''`` from the equation of motion at the end of the step.  ``Phi`` has zero columns for ``q''``, so an
+        input change needs no acceleration update.
+
+        Returns
+        -------
+        Phi : (3r, 3r) ndarray
+        Gamma : (3r, m + 1) ndarray
+            The last column multiplies the constant 1 of the force ``fr``.
+        """
+        r, m = self.r, self.m
+        B = np.hstack([self.Br, self.fr[:, None]])
+        Minv = scipy.linalg.solve(self.Mr, np.hstack([self.Kr, self.Dr, B]), assume_a="sym")
+        A = np.block([[np.zeros((r, r)), np.eye(r)], [-Minv[:, :2 * r]]])
+        block = np.zeros((3 * r + m + 1, 3 * r + m + 1))
+        block[:2 * r, :2 * r] = A * dt
+        block[r:2 * r, 2 * r:2 * r + m + 1] = Minv[:, 2 * r:] * dt
+        expo = scipy.linalg.expm(block[:2 * r + m + 1, :2 * r + m + 1])
+        E, F = expo[:2 * r, :2 * r], expo[:2 * r, 2 * r:]
+        acc = -Minv[:, :2 * r]                      # q'' = acc [q; q'] + Minv_B [u; 1]
+        phi = np.zeros((3 * r, 3 * r))
+        phi[:2 * r, :2 * r] = E
+        phi[2 * r:, :2 * r] = acc @ E
+        gamma = np.vstack([F, acc @ F + Minv[:, 2 * r:]])
+        return phi, gamma
 
     def reconstruct(self, q: np.ndarray) -> np.ndarray:
         """Full-order positions ``x_ref + V q``.
@@ -374,6 +418,7 @@ class SecondOrderROM:
                 "kind": FILE_KIND,
                 "layout_version": LAYOUT_VERSION,
                 "basis_kind": self.basis_kind,
+                "integrator": self.integrator,
                 "dt": self.dt,
                 "input_names": self.input_names,
                 "output_names": self.output_names,
@@ -433,7 +478,8 @@ class SecondOrderROM:
         try:
             return cls(**mats, basis=basis, basis_kind=attrs.get("basis_kind", "positions"),
                        input_names=attrs.get("input_names"), output_names=attrs.get("output_names"),
-                       dt=attrs.get("dt"), provenance=provenance, fit_info=fit_info, singular_values=sv, **extra)
+                       dt=attrs.get("dt"), provenance=provenance, fit_info=fit_info, singular_values=sv,
+                       integrator=attrs.get("integrator", "newmark"), **extra)
         except (DimensionError, ValueError) as exc:
             raise FileFormatError(f"{path}: inconsistent ROM data ({exc})") from None
 
@@ -541,6 +587,7 @@ def fit_rom(
     streamed: bool | None = None,
     normalization: str = "auto",
     terms: str | Sequence[str] = "auto",
+    integrator: str = "auto",
     log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
     """Learn a reduced second-order model from snapshots: POD (eqs. 7/9), projection (eq. 14), SDP (eq. 16),
@@ -566,6 +613,14 @@ def fit_rom(
     terms : {"auto", "none", "all"} or sequence of {"fr", "Dur", "y0"}, default="auto"
         Which terms beyond the paper's model to fit: ``"auto"`` lets the data decide (module docstring),
         ``"none"`` is the paper's eq. (11), ``"all"`` or a list forces them.
+    integrator : {"auto", "newmark", "exact"}, default="auto"
+        Time discretization of the ROM.  ``"newmark"`` (the paper's) reproduces a Newmark full-order model
+        step for step, so it is right for the bundled simulator and the project's benchmark FMUs; for any
+        other source the recording samples a continuous-time model, on which Newmark's own phase error
+        (``~ (omega dt)^2 / 12`` per unit of phase) would dominate the ROM error, so ``"exact"`` integrates the
+        reduced ODE exactly under the held input.  ``"auto"`` picks ``"exact"`` for FMUs not generated by
+        fmu-opinf's Newmark kernel, ``"newmark"`` otherwise (``builtin:`` sources, the benchmark FMUs, data
+        without provenance).
     log : callable, optional
         Called with one line per stage (POD, SDP start, SDP result), e.g. ``print``; the CLI shows them.
     lowpass : float, optional
@@ -619,7 +674,7 @@ def fit_rom(
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "lowpass": lowpass, "terms": terms if isinstance(terms, str)
-                else list(terms)}
+                else list(terms), "integrator": integrator}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
@@ -627,8 +682,18 @@ def fit_rom(
         output_names=_names(attrs.get("output_names"), data["y"].shape[0]),
         dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings, runs), fit_info=info,
         singular_values=pod.svdvals_, fr=fr, Dur=Dur, y0=y0, q0=q0, qdot0=qdot0,
-        x_ref=x_ref if keep_basis else None,
+        x_ref=x_ref if keep_basis else None, integrator=_integrator(integrator, attrs),
     )
+
+
+def _integrator(requested: str, attrs: dict) -> str:
+    """``integrator="auto"``: Newmark for Newmark sources (builtin simulator, fmu-opinf benchmark FMUs)."""
+    if requested != "auto":
+        if requested not in INTEGRATORS:
+            raise ValueError(f"integrator={requested!r} is not known; use 'auto', 'newmark' or 'exact'")
+        return requested
+    continuous_source = attrs.get("source_kind") == "fmu" and attrs.get("fmu_generation_tool") != "fmu-opinf"
+    return "exact" if continuous_source else "newmark"
 
 
 def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
