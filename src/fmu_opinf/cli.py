@@ -24,19 +24,23 @@ from .errors import FmuOpinfError
 __all__ = ["main", "build_parser"]
 
 
-def _add_source_options(parser: argparse.ArgumentParser) -> None:
+def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True) -> None:
     group = parser.add_argument_group("source variables and sizes")
-    group.add_argument("--positions", help="name patterns of the positions, e.g. 'x[*]'")
-    group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
-    group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
+    if recording:
+        group.add_argument("--positions", help="name patterns of the positions, e.g. 'x[*]'")
+        group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
+        group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
+    trained = "" if recording else " (default: those the ROM was trained with)"
     group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input; "
-                                        "'none': no force input); other inputs are held at their start values")
-    group.add_argument("--outputs", help="name patterns of the outputs")
-    group.add_argument("--constraint", choices=["position", "velocity", "none", "unknown"],
-                       help="constraint kind of a black-box FMU (chooses the POD data in fit)")
+                                        "'none': no force input); other inputs are held at their start values"
+                                        + trained)
+    group.add_argument("--outputs", help="name patterns of the outputs" + trained)
+    if recording:
+        group.add_argument("--constraint", choices=["position", "velocity", "none", "unknown"],
+                           help="constraint kind of a black-box FMU (chooses the POD data in fit)")
     group.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                        help="set a parameter, start value, held input or (FMI 3) structural parameter before the "
-                            "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable")
+                            "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable" + trained)
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
@@ -127,8 +131,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="POD data: positions (position constraints) or velocities (velocity constraints); "
                         "auto follows the constraint kind recorded in the file")
     p.add_argument("--normalization", choices=["auto", "trace", "mass-eigenvalue"], default="auto",
-                   help="how the homogeneous SDP is normalized: trace(Mr) fixed, Mr >= I, or auto (trace, "
-                        "falling back to Mr >= I when the mass matrix collapses)")
+                   help="how the homogeneous SDP is normalized: trace(Mr) fixed, Mr >= I, or auto (solves both, "
+                        "keeps the smaller acceleration residual)")
+    p.add_argument("--integrator", choices=["auto", "newmark", "exact"], default="auto",
+                   help="time discretization of the ROM: Newmark (matches Newmark sources: the builtin "
+                        "simulator and benchmark FMUs) or exact under held inputs (continuous-time FMUs); auto "
+                        "chooses from the snapshot provenance")
     p.add_argument("--lowpass", type=float,
                    help="optional frequency weighting: cutoff in rad/s of a zero-phase low-pass filter applied to "
                         "the reduced data before the fit (beyond the paper; default off)")
@@ -139,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no stage lines")
 
     p = verbs.add_parser("compare", help="validate a ROM against its source on a new input; write a report")
     p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
@@ -150,22 +158,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_scaleout_options(p, "compare")
-    _add_source_options(p)
+    _add_source_options(p, recording=False)
 
     p = verbs.add_parser("export", help="export a ROM as a self-contained co-simulation FMU")
     p.add_argument("rom", help="ROM file (.h5)")
     p.add_argument("-o", "--output", required=True, help="FMU to write (.fmu)")
     p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
-    p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0")
+    p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0",
+                   help="FMI version of the exported co-simulation FMU (default 2.0)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
     p = verbs.add_parser("demo", help="the whole chain on the bundled benchmark FMUs, with reports")
     p.add_argument("-o", "--output", default="demo-out", help="output directory (default demo-out)")
-    p.add_argument("--model", choices=["anchored-msd", "triple-chain", "all"], default="all")
+    p.add_argument("--model", choices=["anchored-msd", "triple-chain", "all"], default="all",
+                   help="which benchmark to run (default: both)")
     p.add_argument("--quick", action="store_true", help="smaller, faster variant (used by the tests)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or stage lines")
 
     p = verbs.add_parser("build-fmus", help="build the benchmark FMUs from their C sources")
     p.add_argument("-o", "--output", default=None, help="directory for the FMUs (default: the fmus/ folder)")
@@ -188,7 +199,8 @@ def _run_fit(args: argparse.Namespace) -> None:
 
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,
-                       normalization=args.normalization, lowpass=args.lowpass, terms=args.terms)
+                       normalization=args.normalization, lowpass=args.lowpass, terms=args.terms,
+                       integrator=args.integrator)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
@@ -218,7 +230,8 @@ def _run_export(args: argparse.Namespace) -> None:
     rom = SecondOrderROM.load(args.rom)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
                       overwrite=args.force)
-    print(f"wrote {path}")
+    if not args.quiet:
+        print(f"wrote {path}")
 
 
 def _run_demo(args: argparse.Namespace) -> None:

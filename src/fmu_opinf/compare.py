@@ -18,12 +18,16 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ._hdf5 import jsonable
 from .errors import DimensionError, FileFormatError, InputSpecError
+
+if TYPE_CHECKING:
+    from .rom import SecondOrderROM
+    from .signals import Signal
 
 __all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
            "prepare_report_directory", "summary_table"]
@@ -113,6 +117,10 @@ class Comparison:
     rom_provenance: dict[str, Any] = field(default_factory=dict)
     t_train_end: float | None = None
     title: str = "ROM validation"
+
+    def __repr__(self) -> str:
+        return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
+                f"steps={self.t.size - 1}, max_eps_y={float(self.eps.max()):.3g})")
 
     @property
     def eps(self) -> np.ndarray:
@@ -251,7 +259,8 @@ def _builtin_outputs(spec: str, signal: Any, t: np.ndarray, quiet: bool,
     return y, seconds, {"source_kind": "builtin", "source": spec, "system_options": sizes}, names
 
 
-def compare(rom: Any, source: Any, input_spec: str | None = None, dt: float | None = None, t_end: float | None = None,
+def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike,
+            signal: "Signal | str | None" = None, dt: float | None = None, t_end: float | None = None, *,
             quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
     """Simulate the full-order ``source`` and the ROM on the same input and grid.
 
@@ -261,14 +270,18 @@ def compare(rom: Any, source: Any, input_spec: str | None = None, dt: float | No
     source : str or path
         An FMU path or ``builtin:anchored-msd`` / ``builtin:triple-chain``; an exported ROM FMU
         may also stand here (e.g. to compare a ROM with its own export).
-    input_spec : str, optional
+    signal : Signal or str, optional
         Test input (see :mod:`fmu_opinf.signals`); required unless the ROM has no inputs, whose default is
         ``"none"`` (the free response from the initial state; the source's inputs, if any, held at their start
         values).  Both sides start from the source's initial state (the ROM from its stored ``q0, qdot0``).
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time.
     source_options : dict, optional
-        Variable patterns or builtin size options for the source.
+        Variable patterns, ``--set`` values (``parameters``) or builtin size options for the source.  For an
+        FMU source, what is not given is taken from the ROM's training provenance: the force inputs and
+        outputs by their recorded names and the recorded ``--set`` values, so a comparison drives the FMU
+        the way the training did.  A ROM side with extra outputs (an FMU exported with ``--reconstruct``) is
+        compared on the source's outputs, matched by name.
 
     Returns
     -------
@@ -286,25 +299,52 @@ def compare(rom: Any, source: Any, input_spec: str | None = None, dt: float | No
             raise DimensionError("no --t-end given and the ROM does not record its training end time; pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
     t = time_grid(dt, float(t_end))
-    source_options = dict(source_options or {})
+    source_options = _training_settings(rom_info, source, source_options)
     if rom_info["m"] == 0:
-        input_spec = input_spec or "none"
+        signal = signal or "none"
         source_options.setdefault("inputs", "none")  # every source input held at its start value
-    if not input_spec:
+    if not signal:
         raise InputSpecError("no test input given; pass --input SPEC (e.g. 'harmonic:amplitude=1,omega=0.2')")
-    signal = parse_signal(input_spec, rom_info["m"])
+    signal = parse_signal(signal, rom_info["m"])
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options)
-    if len(fom_outputs) != rom_info["p"]:
-        raise DimensionError(f"the source has {len(fom_outputs)} outputs but the ROM has {rom_info['p']}; "
-                             "compare a ROM with the model it was learned from")
+    rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True)
+    y_rom = np.atleast_2d(y_rom)[rows]
     return Comparison(
         t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
     )
+
+
+def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, Any] | None) -> dict[str, Any]:
+    """Source options for an FMU source: the user's, completed from the ROM's training provenance."""
+    options = dict(given or {})
+    snapshots = rom_info["provenance"].get("snapshots")
+    if str(source).startswith("builtin:") or not isinstance(snapshots, dict) or snapshots.get("source_kind") != "fmu":
+        return options
+    for key, names in (("inputs", snapshots.get("input_names")), ("outputs", snapshots.get("output_names"))):
+        usable = isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set(",*?")
+                                                         for n in names)
+        if key not in options and usable:
+            options[key] = ",".join(names)  # exact names are patterns without wildcards
+    settings = snapshots.get("fmu_settings")
+    if "parameters" not in options and isinstance(settings, dict) and settings:
+        options["parameters"] = dict(settings)
+    return options
+
+
+def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool) -> list[int]:
+    """Rows of the ROM side's outputs that correspond to the source's: by position, or (an exported FMU with
+    extra reconstructed outputs) by name."""
+    if len(fom_names) == len(rom_names):
+        return list(range(len(rom_names)))
+    if by_name and set(fom_names) <= set(rom_names):
+        return [rom_names.index(name) for name in fom_names]
+    raise DimensionError(f"the source has {len(fom_names)} outputs but the ROM has {len(rom_names)}, and their "
+                         "names do not match; compare a ROM with the model it was learned from")
 
 
 def _rom_side_info(rom_side: Any) -> dict[str, Any]:
@@ -314,10 +354,11 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
 
         fmu = FMUSource(rom_side, **ROM_FMU_VARIABLES)
         meta = _rom_fmu_metadata(rom_side)
-        return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"),
+        return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
                 "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
     return {"m": rom_side.m, "p": rom_side.p, "r": rom_side.r, "dt": rom_side.dt,
+            "output_names": list(rom_side.output_names),
             "t_train_end": _training_end(prov), "provenance": prov}
 
 
@@ -349,7 +390,11 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
     with zipfile.ZipFile(path) as archive:
         names = [n for n in archive.namelist() if n.endswith("provenance.json")]
         if names:
-            meta["t_train_end"] = _training_end(json.loads(archive.read(names[0])))
+            provenance = json.loads(archive.read(names[0]))
+            if isinstance(provenance, dict):
+                meta["t_train_end"] = _training_end(provenance)
+                if isinstance(provenance.get("snapshots"), dict):
+                    meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
     return meta
 
 

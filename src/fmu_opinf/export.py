@@ -125,14 +125,18 @@ def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
     n = basis.shape[0]
     if basis.ndim != 2 or basis.shape[1] != r:
         raise DimensionError(f"ROM basis has shape {basis.shape}, expected (n, {r})")
+    own = _position_names(rom, n)
     names, rows = [], []
     for item in reconstruct:
         match = _POSITION_NAME.match(item) if isinstance(item, str) else None
         index = int(match.group(1)) if match else (item if isinstance(item, int) else None)
+        if index is None and isinstance(item, str) and item in own:
+            index = own.index(item) + 1
         if index is None or not 1 <= index <= n:
+            hint = f" or the source's position names ({', '.join(own[:3])}, ...)" if own else ""
             raise DimensionError(f"cannot reconstruct {item!r}: give full-order positions as "
-                                 f"'x[i]' (or i) with 1 <= i <= {n}")
-        names.append(f"x[{index}]")
+                                 f"'x[i]' (or i) with 1 <= i <= {n}{hint}")
+        names.append(item if isinstance(item, str) and item in own else f"x[{index}]")
         rows.append(basis[index - 1])
     if len(set(names)) != len(names):
         raise DimensionError(f"reconstruct lists a position twice: {list(reconstruct)}")
@@ -140,7 +144,15 @@ def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
         raise DataError("the ROM basis has NaN or infinite entries; refit the ROM")
     x_ref = getattr(rom, "x_ref", None)
     x_ref = np.zeros(n) if x_ref is None or np.size(x_ref) == 0 else _vector(rom, "x_ref", n)
-    return names, np.array(rows), x_ref[[int(name[2:-1]) - 1 for name in names]]
+    indices = [own.index(name) if name in own else int(name[2:-1]) - 1 for name in names]
+    return names, np.array(rows), x_ref[indices]
+
+
+def _position_names(rom: Any, n: int) -> list[str]:
+    """The source's own names of the n positions (from the training provenance), if recorded."""
+    snapshots = dict(getattr(rom, "provenance", None) or {}).get("snapshots")
+    names = snapshots.get("position_names") if isinstance(snapshots, dict) else None
+    return [str(name) for name in names] if isinstance(names, list) and len(names) == n else []
 
 
 # ------------------------------------------------------------------- C generation
@@ -223,6 +235,16 @@ def _lookup(provenance: dict, keys: tuple[str, ...]) -> str:
     return "unknown"
 
 
+def _training_inputs(provenance: dict) -> str:
+    """The training runs' inputs, e.g. ``impulse:amplitude=100,t0=2,width=0.5`` (``; `` between runs)."""
+    runs = provenance.get("training_runs")
+    if isinstance(runs, list):
+        specs = [str(run.get("input_spec")) for run in runs if isinstance(run, dict) and run.get("input_spec")]
+        if specs:
+            return "; ".join(dict.fromkeys(specs))
+    return _lookup(provenance, ("input_spec", "training_input", "signal"))
+
+
 def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     provenance = dict(getattr(rom, "provenance", None) or {})
 
@@ -230,11 +252,12 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
         return _lookup(provenance, keys)
 
     dt = getattr(rom, "dt", None)
-    text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis) "
-            f"learned by operator inference from {pick('source', 'fmu_name', 'source_path')} "
-            f"(GUID {pick('fmu_guid', 'guid', 'source_guid')}); training input "
-            f"{pick('input_spec', 'training_input', 'signal')}; fitted "
-            f"{pick('fit_date', 'date', 'created')}; training step dt="
+    source = pick("fmu_name", "source", "source_path")
+    text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis, "
+            f"{getattr(rom, 'integrator', 'newmark')} integrator) learned by operator inference from "
+            f"{Path(source).name if not source.startswith('builtin:') else source} "
+            f"(GUID {pick('fmu_guid', 'guid', 'source_guid')}); training input {_training_inputs(provenance)}; "
+            f"fitted {pick('fit_date', 'date', 'created')}; training step dt="
             f"{'unknown' if dt is None else repr(float(dt))}")
     if reconstructed:
         text += f"; reconstructed positions {', '.join(reconstructed)}"
@@ -288,6 +311,11 @@ def rom_fmu_spec(rom: Any, identifier: str = "ROM",
         raise DimensionError(f"reconstructed position(s) {sorted(clash)} already name an input "
                              "or output of the ROM; drop them from reconstruct")
     description = _description(rom, r, names)
+    provenance = dict(getattr(rom, "provenance", None) or {})
+    t_train_end = provenance.get("t_train_end")
+    stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
+    output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
+                           + [f"reconstructed full-order position {name}: x_ref + V q" for name in names])
     c_matrices = {
         "reducedMass": matrices["Mr"], "reducedDamping": matrices["Dr"],
         "reducedStiffness": matrices["Kr"], "reducedInput": matrices["Br"],
@@ -303,13 +331,12 @@ def rom_fmu_spec(rom: Any, identifier: str = "ROM",
             raise DataError("an exact-integrator ROM needs its training step dt; refit the ROM")
         phi, gamma = rom.step_map(dt)
         c_matrices.update(stepMap=phi, stepMapInput=gamma, stepMapSize=np.array([dt]))
-    provenance = dict(getattr(rom, "provenance", None) or {})
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, m=m, p=p + len(names), input_names=input_names,
         output_names=output_names + names, state_names=("q", "qdot", "qddot"),
         state_label="reduced coordinate", description=description,
-        default_experiment=(0.0, None, dt), expose_states=True,
+        output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
         fmi_version=fmi_version,
@@ -324,7 +351,7 @@ def _check_output_path(path: Path, overwrite: bool) -> None:
     if path.is_dir():
         raise FMUError(f"output path {path} is a directory; give a file name ending in .fmu")
     if path.exists() and not overwrite:
-        raise FMUError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        raise FMUError(f"{path} exists; replace it with overwrite=True (command line: --force)")
     parent = path.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -336,7 +363,7 @@ def _check_output_path(path: Path, overwrite: bool) -> None:
 
 
 def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
-               reconstruct: Sequence[str | int] | None = None, overwrite: bool = False) -> Path:
+               reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False) -> Path:
     """Export a reduced second-order model as a co-simulation FMU.
 
     Parameters
@@ -348,10 +375,13 @@ def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
     fmi_version : {"2.0", "3.0"}, default="2.0"
         FMI version of the co-simulation FMU.
     reconstruct : sequence of str or int, default=None
-        Full-order positions to add as outputs, e.g. ``["x[1]", "x[300]"]``, computed
-        through the basis as ``x_i = V[i, :] q``.
+        Full-order positions to add as outputs, e.g. ``["x[1]", "x[300]"]`` or the source's own
+        names (``"mass[3].s"``, ``"x10"``), computed through the basis as ``x_i = x_ref,i + V[i, :] q``.
     overwrite : bool, default=False
-        Replace an existing file.
+        Replace an existing file (``--force`` on the command line).
+
+    The FMU's default experiment runs over the training horizon (stopTime = last training time) with
+    the training step.
 
     Returns
     -------

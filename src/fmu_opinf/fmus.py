@@ -113,6 +113,8 @@ class SecondOrderFmuSpec:
         Extra integer macros for ``config.h`` (e.g. ``CHAIN_LENGTH``).
     description : str, default=""
         Model description (the ``description`` attribute).
+    output_descriptions : list of str, optional
+        One ``description`` per output (default: ``output y = Cp x + Cv v``).
     default_experiment : tuple of 3 float or None, default=None
         ``(startTime, stopTime, stepSize)`` for the DefaultExperiment element; an entry
         None leaves that attribute out.
@@ -139,6 +141,7 @@ class SecondOrderFmuSpec:
     parameters: list[Parameter] = field(default_factory=list)
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
+    output_descriptions: list[str] | None = None
     default_experiment: tuple[float | None, float | None, float | None] | None = None
     expose_states: bool | None = None
     extra_files: dict[str, str] = field(default_factory=dict)
@@ -177,6 +180,9 @@ class SecondOrderFmuSpec:
         and empty names; quoting (``quoteattr``) handles everything else."""
         texts = [("input name", s) for s in self.input_names] + [("output name", s) for s in self.output_names]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
+        texts += [("description", text) for text in self.output_descriptions or []]
+        if self.output_descriptions is not None and len(self.output_descriptions) != self.p:
+            raise FmuBuildError(f"got {len(self.output_descriptions)} output descriptions for p={self.p} outputs")
         for what, text in texts:
             if not isinstance(text, str) or (what != "description" and not text.strip()):
                 raise FmuBuildError(f"{what} {text!r} is not a non-empty string; give printable names")
@@ -399,8 +405,9 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     held = "input (held over each communication step)"
     rows = [_Variable(name, vr, "input", description=held, start=0.0)
             for name, vr in zip(spec.input_names, refs["u"])]
-    rows += [_Variable(name, vr, "output", description="output y = Cp x + Cv v")
-             for name, vr in zip(spec.output_names, refs["y"])]
+    described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
+    rows += [_Variable(name, vr, "output", description=text)
+             for name, vr, text in zip(spec.output_names, refs["y"], described)]
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:

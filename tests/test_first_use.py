@@ -1,0 +1,68 @@
+"""First use (issue 15): provenance into the exported FMU, compare on a --reconstruct export, CLI help."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from fmu_opinf import compare, export
+from fmu_opinf.cli import build_parser, main
+
+TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
+TEST = "harmonic:amplitude=1,omega=0.2"
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """Anchored chain (g = 40) recorded through the snapshot stage, fitted at r = 5, exported with x[1]."""
+    folder = tmp_path_factory.mktemp("first-use")
+    assert main(["snapshots", "builtin:anchored-msd", "--g", "40", "-o", str(folder / "train.h5"), "--input", TRAIN,
+                 "--dt", "0.5", "--t-end", "100", "-q"]) == 0
+    assert main(["fit", str(folder / "train.h5"), "-o", str(folder / "rom.h5"), "--r", "5", "-q"]) == 0
+    from fmu_opinf.rom import SecondOrderROM
+
+    rom = SecondOrderROM.load(folder / "rom.h5")
+    path = export.export_fmu(rom, folder / "RomX.fmu", reconstruct=["x[1]"])
+    return folder, rom, path
+
+
+@pytest.mark.fmu
+def test_exported_fmu_carries_the_training_provenance(trained):
+    from fmpy import read_model_description
+
+    folder, rom, path = trained
+    md = read_model_description(str(path), validate=False)
+    assert f"training input {TRAIN}" in md.description
+    assert str(folder) not in md.description
+    assert float(md.defaultExperiment.stopTime) == pytest.approx(100.0)
+    with zipfile.ZipFile(path) as archive:
+        provenance = json.loads(archive.read(next(n for n in archive.namelist() if n.endswith("provenance.json"))))
+    assert provenance["training_runs"][0]["input_spec"] == TRAIN
+    assert "/" not in provenance["snapshot_file"] and str(folder) not in json.dumps(provenance)
+    outputs = {v.name: v.description for v in md.modelVariables if v.causality == "output"}
+    assert outputs["x[1]"].startswith("reconstructed full-order position")
+
+
+@pytest.mark.fmu
+def test_compare_on_an_export_with_reconstructed_outputs(trained):
+    folder, rom, path = trained
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=50.0, quiet=True,
+                             source_options={"g": 40})
+    reference = rom.simulate(TEST, 0.5, 50.0).y
+    assert result.y_rom.shape == reference.shape
+    assert np.abs(result.y_rom - reference).max() <= 1e-10 * np.abs(reference).max()
+    assert "max_eps_y" in repr(result) and "array" not in repr(result)
+
+
+def test_cli_help_lists_only_options_that_act():
+    parser = build_parser()
+    verbs = parser._subparsers._group_actions[0].choices
+    compare_options = {o for a in verbs["compare"]._actions for o in a.option_strings}
+    assert not compare_options & {"--constraint", "--positions", "--velocities", "--accelerations"}
+    assert "-q" in {o for a in verbs["export"]._actions for o in a.option_strings}
+    for name, verb in verbs.items():
+        for action in verb._actions:
+            assert action.help, f"{name} {action.option_strings or action.dest} has no help text"
