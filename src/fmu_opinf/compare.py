@@ -103,6 +103,8 @@ class Comparison:
     fom_provenance, rom_provenance : dict
     t_train_end : float or None
         Last training snapshot time, marked on the error plot when known.
+    output_units : list of str, optional
+        Unit of each output where the FMU declares one ("" where not), for the figure labels.
     """
 
     t: np.ndarray
@@ -117,6 +119,7 @@ class Comparison:
     rom_provenance: dict[str, Any] = field(default_factory=dict)
     t_train_end: float | None = None
     title: str = "ROM validation"
+    output_units: list[str] | None = None
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -314,6 +317,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     y_rom = np.atleast_2d(y_rom)[rows]
     return Comparison(
         t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
+        output_units=_declared_units(source, list(fom_outputs)),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
     )
@@ -334,6 +338,27 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
     if "parameters" not in options and isinstance(settings, dict) and settings:
         options["parameters"] = dict(settings)
     return options
+
+
+def _declared_units(source: Any, names: list[str]) -> list[str] | None:
+    """Units the source FMU declares for the named variables (its own or its type's), "" where none."""
+    path = Path(str(source))
+    if str(source).startswith("builtin:") or path.suffix.lower() != ".fmu" or not path.is_file():
+        return None
+    try:
+        from fmpy import read_model_description
+
+        variables = {v.name: v for v in read_model_description(str(path), validate=False).modelVariables}
+    except Exception:  # noqa: BLE001 - units are decoration: an unreadable description just has none
+        return None
+
+    def unit(name: str) -> str:
+        var = variables.get(name)
+        declared = getattr(var, "declaredType", None)
+        value = getattr(var, "unit", None) or getattr(declared, "unit", None) or ""
+        return "".join(c for c in str(value) if c.isprintable())
+
+    return [unit(name) for name in names]
 
 
 def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool) -> list[int]:
@@ -410,17 +435,20 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     p = comparison.y_fom.shape[0]
-    fig, axes = plt.subplots(p, 1, figsize=(8, 2.2 * p + 0.6), sharex=True, squeeze=False)
+    units = comparison.output_units or [""] * p
+    fig, axes = plt.subplots(p, 1, figsize=(8, 2.2 * p + 1.0), sharex=True, squeeze=False)
     for j, ax in enumerate(axes[:, 0]):
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
-        ax.set_ylabel(comparison.output_names[j])
+        ax.set_ylabel(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else ""))
         _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(loc="upper right")
     axes[-1, 0].set_xlabel("t [s]")
-    fig.suptitle(f"Outputs, input {comparison.input_spec}")
-    fig.tight_layout()
+    # the legend sits above the axes, where it cannot cover a curve
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
+    fig.suptitle(f"Outputs, input {comparison.input_spec}", y=1.0 - 0.3 / fig.get_figheight())
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.45 / fig.get_figheight()))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -433,11 +461,13 @@ def _figure_error(comparison: Comparison, path: Path) -> None:
 
     eps = comparison.eps
     fig, ax = plt.subplots(figsize=(8, 3.2))
-    floor = max(eps[eps > 0].min() if np.any(eps > 0) else 1e-300, 1e-300)
+    # twelve decades below the peak are enough to read the error's history (round-off would stretch the axis)
+    floor = max(eps[eps > 0].min() if np.any(eps > 0) else 1e-300, 1e-12 * float(eps.max()), 1e-300)
     ax.semilogy(comparison.t, np.maximum(eps, floor), "C0-", lw=1.2)
     ax.set_xlabel("t [s]")
     ax.set_ylabel(r"$\varepsilon_y(t)$, eq. (19)")
-    ax.set_title(f"Relative output error, max {eps.max():.2e}")
+    ax.set_title(r"squared relative output error $\|y - y_r\|^2 / \max_t \|y\|^2$ (eq. 19), "
+                 f"max {eps.max():.2e}", fontsize=10)
     _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
     ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
@@ -527,7 +557,7 @@ def _fmt(value: Any) -> str:
 
 def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[str, Path]) -> str:
     headline = [
-        ("max over time of eps_y, eq. (19)", _fmt(metrics["max_error"])),
+        ("max over time of eps_y, eq. (19) (squared relative error)", _fmt(metrics["max_error"])),
         ("relative L2 error", _fmt(metrics["l2_error"])),
         ("reduced order r", metrics["r"]),
         ("full-order simulation [s]", _fmt(metrics["fom_seconds"])),
@@ -536,8 +566,8 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
     ]
     settings = [("test input", metrics["input"]), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
-    per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}, relative max {_fmt(v['relative_max'])}")
-                  for name, v in metrics["per_output"].items()]
+    per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
+                         f"max_t |y|) {_fmt(v['relative_max'])}") for name, v in metrics["per_output"].items()]
     provenance = [(f"FOM {k}", v) for k, v in comparison.fom_provenance.items() if not isinstance(v, (list, dict))]
     provenance += [(f"ROM {k}", v) for k, v in comparison.rom_provenance.items() if not isinstance(v, (list, dict))]
     images = "".join(
