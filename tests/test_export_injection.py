@@ -1,0 +1,55 @@
+"""Issue 13 item 1: nothing read from a ROM file becomes code in the exported FMU."""
+
+from __future__ import annotations
+
+import zipfile
+
+import numpy as np
+import pytest
+
+from fmu_opinf.cli import main
+from fmu_opinf.export import export_fmu, rom_fmu_spec
+from fmu_opinf.rom import SecondOrderROM
+
+PAYLOAD = '*/ __attribute__((constructor)) static void pwn(void) { system("touch /tmp/pwned"); } /*'
+
+
+def _rom(**changes) -> SecondOrderROM:
+    options = dict(provenance={"snapshots": {"source": f"/data/{PAYLOAD}/m.fmu", "fmu_guid": PAYLOAD,
+                                             "input_spec": PAYLOAD}, "fit_date": "\n#include <stdlib.h>\n"},
+                   dt=0.1)
+    options.update(changes)
+    return SecondOrderROM(np.eye(2), 0.1 * np.eye(2), np.diag([1.0, 4.0]), np.ones((2, 1)), np.ones((1, 2)),
+                          np.zeros((1, 2)), **options)
+
+
+def test_provenance_text_never_reaches_the_generated_c():
+    spec = rom_fmu_spec(_rom(), "Injected")
+    assert "pwn" not in spec.model_source and "#include <stdlib.h>" not in spec.model_source
+    assert "*/" not in spec.model_source.split("*/", 1)[1]       # the one comment is the fixed header
+    assert "\n" not in spec.description and "pwn" in spec.description   # kept as data, in the XML only
+
+
+@pytest.mark.fmu
+def test_hostile_rom_exports_and_its_xml_is_well_formed(tmp_path):
+    from fmu_opinf.fmus import find_build_tools
+    from xml.etree import ElementTree
+
+    if find_build_tools() is None:
+        pytest.skip("needs a C compiler")
+    path = export_fmu(_rom(), tmp_path / "Injected.fmu")
+    with zipfile.ZipFile(path) as archive:
+        root = ElementTree.fromstring(archive.read("modelDescription.xml"))
+        model_c = archive.read("sources/model.c").decode()
+    assert PAYLOAD in root.get("description")
+    assert "pwn" not in model_c
+
+
+@pytest.mark.parametrize("name", ["u\x01", "y\x7fx", "bad\x1bname"])
+def test_control_characters_in_names_are_one_line_errors(tmp_path, capsys, name):
+    rom = _rom(input_names=[name]) if name.startswith("u") else _rom(output_names=[name])
+    rom.save(tmp_path / "rom.h5")
+    assert main(["export", str(tmp_path / "rom.h5"), "-o", str(tmp_path / "x.fmu")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "control character" in err and "Traceback" not in err
+    assert not (tmp_path / "x.fmu").exists()
