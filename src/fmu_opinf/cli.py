@@ -37,6 +37,13 @@ def _add_source_options(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                        help="set a parameter, start value, held input or (FMI 3) structural parameter before the "
                             "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable")
+    group.add_argument("--interface", choices=["auto", "me", "cs"],
+                       help="FMI interface to drive: me (model exchange, fmu-opinf integrates with --tolerance), "
+                            "cs (co-simulation, the FMU steps itself) or auto (default: model exchange when the FMU "
+                            "offers it, else co-simulation; docs/design.md)")
+    group.add_argument("--tolerance", type=float,
+                       help="relative tolerance of the model-exchange integration, also passed to the FMU "
+                            "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
@@ -82,7 +89,8 @@ def _scaleout_dispatch(args: argparse.Namespace) -> bool:
 def _source_options(args: argparse.Namespace) -> dict:
     from .sources import parse_assignments
 
-    keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "g", "n1")
+    keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "interface", "tolerance",
+            "g", "n1")
     options = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if getattr(args, "settings", None):
         options["parameters"] = parse_assignments(args.settings)  # the FMU keyword of the --set values
@@ -99,7 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
     p = verbs.add_parser("snapshots", help="simulate a source and record snapshots into an HDF5 file")
-    p.add_argument("source", help="path to a co-simulation FMU, or builtin:anchored-msd / builtin:triple-chain")
+    p.add_argument("source", help="path to an FMU (model exchange or co-simulation, FMI 2.0 or 3.0), or "
+                                  "builtin:anchored-msd / builtin:triple-chain")
     p.add_argument("-o", "--output", required=True, help="snapshot file to write (.h5)")
     p.add_argument("--input", dest="input_spec", action="append",
                    help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table, or 'none' for "

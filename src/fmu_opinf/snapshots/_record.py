@@ -411,6 +411,8 @@ def record_to_file(
     outputs: str | None = None,
     constraint: str | None = None,
     parameters: dict[str, Any] | None = None,
+    interface: str | None = None,
+    tolerance: float | None = None,
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
@@ -441,6 +443,10 @@ def record_to_file(
         Constraint kind of an FMU (stored for the later stages).
     parameters : dict of str to float, optional
         FMU start values set before initialization.
+    interface : {"auto", "me", "cs"}, optional
+        FMI interface (:func:`fmu_opinf.sources.choose_interface`; default auto: model exchange when offered).
+    tolerance : float, optional
+        Relative tolerance of the model-exchange integration, also passed to the FMU (default 1e-10).
     points_per_period, energy, fade : float
         Thresholds of :func:`auto_window`.
     overwrite : bool, default=False
@@ -462,7 +468,7 @@ def record_to_file(
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
-                         **size_options)
+                         interface=interface, tolerance=tolerance, **size_options)
     if not specs and source.m == 0:
         specs = ["none"]
     if not specs:
