@@ -289,9 +289,11 @@ def test_record_to_file_writes_one_run_per_input_with_provenance(toys, tmp_path)
     np.testing.assert_allclose(snaps.runs[1].u[0, 1:], np.sin(2.0 * snaps.runs[1].t[:-1]), rtol=0, atol=1e-15)
 
 
-def test_record_to_file_without_a_window_says_what_to_pass(tmp_path):
-    with pytest.raises(InputSpecError, match="no --dt and --t-end given.*--auto-window"):
-        record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "step:amplitude=1", quiet=True)
+def test_record_to_file_without_a_window_chooses_it_automatically(tmp_path):
+    summary = record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "impulse:amplitude=100,t0=2,width=0.5",
+                             quiet=True, g=12)
+    assert summary.window is not None and summary.window.stopped_by == "fade"
+    assert Snapshots.load(tmp_path / "x.h5").runs[0].attrs["dt"] == summary.window.dt
 
 
 def test_auto_window_resolves_the_response_and_waits_for_the_fade_out(bundled, tmp_path):
@@ -445,4 +447,5 @@ def test_cli_set_and_input_none(toys, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "k is a Real variable" in err[0]
     code = main(["snapshots", str(toys["full"]), "-o", str(tmp_path / "none.h5"), "--dt", "0.1", "--t-end", "1"])
-    assert code == 2 and "--input none" in capsys.readouterr().err
+    assert code == 0 and "no --input given: recording the impulse training input" in capsys.readouterr().err
+    assert Snapshots.load(tmp_path / "none.h5").runs[0].attrs["input_spec"].startswith("impulse:amplitude=100")

@@ -1,6 +1,6 @@
 """The ``fmu-opinf`` command line: a thin layer over the Python API, one verb per stage.
 
-    fmu-opinf snapshots SOURCE -o snapshots.h5 --input SPEC [--dt H] [--t-end T | --auto-window]
+    fmu-opinf snapshots SOURCE -o snapshots.h5 [--input SPEC] [--dt H] [--t-end T | --auto-window]
     fmu-opinf fit snapshots.h5 -o rom.h5 [--r N | --energy E] [--basis positions|velocities]
     fmu-opinf compare rom.h5 SOURCE --input SPEC [--dt H] [--t-end T] -o report/
     fmu-opinf export rom.h5 -o rom.fmu [--reconstruct 'x[1],x[300]']
@@ -113,11 +113,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--input", dest="input_spec", action="append",
                    help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table, or 'none' for "
                         "the free response from the initial state (every input held at its start value); repeat "
-                        "for several training runs; may be omitted for a model without inputs")
-    p.add_argument("--dt", type=float, help="communication step")
-    p.add_argument("--t-end", type=float, help="end time")
+                        "for several training runs; default: the paper's impulse training input "
+                        "'impulse:amplitude=100,t0=2,width=0.5' on every input, or the free response of a model "
+                        "without inputs")
+    p.add_argument("--dt", type=float, help="communication step (default: the FMU's default experiment step, "
+                                            "else the automatic window)")
+    p.add_argument("--t-end", type=float, help="end time (default: as --dt; an FMU's stopTime alone is not used)")
     p.add_argument("--auto-window", action="store_true",
-                   help="choose dt and t-end from an impulse response (the paper's procedure)")
+                   help="choose dt and t-end from an impulse response (the paper's procedure; automatic when "
+                        "neither is given and the FMU declares no default step): the step resolves the fastest "
+                        "significant oscillation, the end is when the vibrations have faded out, or 20 periods of "
+                        "the slowest significant oscillation after the input died out if they do not fade by then")
     p.add_argument("--in-process", action="store_true",
                    help="run the FMU inside this process (faster start; a crashing FMU then ends the tool)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")

@@ -36,7 +36,11 @@ from ._rates import inputs_in_effect, newmark_rates, time_grid
 if TYPE_CHECKING:
     from ._window import Window
 
-__all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD"]
+__all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD", "DEFAULT_TRAINING_INPUT"]
+
+#: Training input when none is given for a model with inputs: the paper's impulse-like pulse (the one of
+#: the demo): a raised cosine of 100 (force units) centred at t=2, 0.5 time units wide.
+DEFAULT_TRAINING_INPUT = "impulse:amplitude=100,t0=2,width=0.5"
 
 #: Bytes of one run above which ``record(..., path=...)`` streams blocks to disk instead of memory.
 STREAM_THRESHOLD = 256 * 2**20
@@ -431,12 +435,15 @@ def record_to_file(
         HDF5 file to create (atomically).
     input_spec : str or sequence of str
         Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`; a single-channel
-        spec drives every input) or signal objects; one run each.
+        spec drives every input) or signal objects; one run each.  Default (None or empty):
+        :data:`DEFAULT_TRAINING_INPUT` on every input, or the free response of a model without inputs.
     dt, t_end : float, optional
-        Step and end time; default: from ``auto_window`` or the FMU's default experiment.
+        Step and end time; default: the FMU's ``DefaultExperiment`` when it declares a ``stepSize``,
+        else the automatic window.
     auto_window : bool, default=False
-        Choose ``dt`` and ``t_end`` from a pilot run with the first input (:func:`auto_window`);
-        an explicitly given ``dt``/``t_end`` wins over the automatic choice.
+        Choose ``dt`` and ``t_end`` from pilot runs with the first input (:func:`auto_window`) even
+        when the source has a default experiment; an explicitly given ``dt``/``t_end`` wins over the
+        automatic choice.
     positions, velocities, accelerations, inputs, outputs : str, optional
         Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
     constraint : {"position", "velocity", "none", "unknown"}, optional
@@ -461,7 +468,7 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import auto_window as choose_window, default_window
+    from ._window import auto_window as choose_window, default_window, needs_auto_window
 
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None:
@@ -469,17 +476,18 @@ def record_to_file(
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
                          interface=interface, tolerance=tolerance, **size_options)
-    if not specs and source.m == 0:
-        specs = ["none"]
     if not specs:
-        raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training) or "
-                             "--input none (the free response from the initial state)")
+        specs = [DEFAULT_TRAINING_INPUT if source.m else "none"]
+        if not quiet:
+            what = (f"the impulse training input {DEFAULT_TRAINING_INPUT}" if source.m
+                    else "the free response from the start state (the model has no inputs)")
+            print(f"no --input given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
     if not quiet and hasattr(source, "selection_text"):
         print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
     window = None
-    if auto_window:
+    if auto_window or needs_auto_window(source, dt, t_end):
         window = choose_window(source, signals[0], points_per_period=points_per_period, energy=energy,
                                fade=fade, isolate=isolate, quiet=quiet)
         dt = window.dt if dt is None else dt
