@@ -13,7 +13,8 @@ import pytest
 from fmu_opinf import newmark, systems
 from fmu_opinf.compare import output_error
 from fmu_opinf.rom import fit_rom
-from fmu_opinf.snapshots import Run, Snapshots, newmark_accelerations, newmark_rates
+from fmu_opinf.snapshots import (Run, Snapshots, newmark_accelerations, newmark_rates,
+                                 newmark_velocities_and_accelerations)
 
 IMPULSE = "impulse:amplitude=100,t0=2,width=0.5"
 
@@ -39,6 +40,14 @@ def test_derived_accelerations_match_the_true_ones(case, request):
     assert relative(derived, run.xddot) < 1e-6
     # the trapezoid relation alone is wrong at every input change
     assert relative(newmark_rates(run.xdot, run.t[1] - run.t[0]), run.xddot) > 1e-2
+
+
+@pytest.mark.parametrize("case", ["anchored_run", "triple_run"])
+def test_velocities_and_accelerations_from_positions_alone(case, request):
+    run = request.getfixturevalue(case)
+    v, a = newmark_velocities_and_accelerations(run.x, float(run.t[1] - run.t[0]), run.u)
+    assert relative(v, run.xdot) < 1e-9
+    assert relative(a, run.xddot) < 1e-6
 
 
 def test_several_inputs():

@@ -173,11 +173,9 @@ def test_fmu_without_rates_gets_derived_rates_marked_in_the_file(toys, tmp_path)
     run, h = derived.runs[0], 0.05
     np.testing.assert_array_equal(run.x, full.x)
     x, v, a = run.x, run.xdot, run.xddot
-    newmark_x = x[:, 1:] - x[:, :-1] - h * v[:, :-1] - h * h / 4 * (a[:, :-1] + a[:, 1:])
-    newmark_v = v[:, 1:] - v[:, :-1] - h / 2 * (a[:, :-1] + a[:, 1:])
-    assert np.abs(newmark_x).max() <= 1e-12 * np.abs(x).max()
-    assert np.abs(newmark_v).max() <= 1e-12 * np.abs(v).max()
-    assert relative(v, full.xdot) < 1e-2
+    # against the rates the toy FMU integrates (it exposes them in its "full" variant)
+    assert relative(v, full.xdot) < 1e-10
+    assert relative(a, full.xddot) < 1e-6
     loaded = Snapshots.load(tmp_path / "d.h5")
     assert loaded.runs[0].attrs["derived_xdot"] is True and loaded.runs[0].attrs["derived_xddot"] is True
     assert loaded.attrs["velocity_names"] == [] and loaded.attrs["derived_xddot"] is True

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import DimensionError, InputSpecError
 
-__all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations"]
+__all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations", "newmark_velocities_and_accelerations"]
 
 
 def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
@@ -111,9 +111,10 @@ def newmark_accelerations(xdot: np.ndarray, h: float, x: np.ndarray, u: np.ndarr
     then ``v_{i+1} = v_i + h/2 (a_i^+ + a_{i+1})``.  So ``(2/h)(v_{i+1} - v_i) = a_i + a_{i+1} +
     Z (u_{i+1} - u_i)``: the trapezoid relation of :func:`newmark_rates` breaks at every input change.
     Per degree of freedom this fixes ``a`` up to the alternating sequence ``(-1)^i`` and the unknown row
-    ``Z`` (m values).  Both are chosen so that ``a - Z u`` lies in the span of the recorded time series
-    ``x_j(t)``, ``v_j(t)`` and 1 (least squares), which holds exactly for a linear model
-    ``a = P x + Q v + Z u + c``, constrained or not.  When that span is too large to tell (fewer samples
+    ``Z`` (m values).  Both are chosen so that ``a - Z' u`` lies in the span of the recorded time series
+    ``x_j(t)``, ``v_j(t)`` and 1 for some row ``Z'`` (least squares), which holds exactly for a linear model
+    ``a = P x + Q v + Z' u + c``, constrained or not.  ``Z`` and ``Z'`` are separate unknowns, so data of an
+    integrator without the update (``Z = 0``) are recovered as well.  When that span is too large to tell (fewer samples
     than about twice its dimension), the smoothest solution of :func:`newmark_rates` with the jumps is used.
 
     Parameters
@@ -135,23 +136,66 @@ def newmark_accelerations(xdot: np.ndarray, h: float, x: np.ndarray, u: np.ndarr
     (n, k) ndarray
     """
     xdot = np.asarray(xdot, dtype=float)
-    n, k = xdot.shape
-    if k < 2:
+    if xdot.shape[1] < 2:
         return np.zeros_like(xdot)
+    return _accelerations(xdot, h, np.asarray(x, dtype=float), u, rank_tol, velocity_mode=False)[1]
+
+
+def newmark_velocities_and_accelerations(x: np.ndarray, h: float, u: np.ndarray | None = None,
+                                         rank_tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities and accelerations of Newmark positions (a source exposing positions only).
+
+    The velocities follow from ``x_{i+1} - x_i = h/2 (v_i + v_{i+1})`` up to an alternating sequence
+    per degree of freedom; its size is fixed together with the unknowns of :func:`newmark_accelerations`
+    (an alternating error ``b (-1)^i`` in ``v`` puts ``-(4/h) b i (-1)^i`` into ``a``, far from the
+    span of the states).
+
+    Parameters
+    ----------
+    x : (n, k) ndarray
+    h : float
+    u : (m, k) ndarray, optional
+        Inputs in effect.
+    rank_tol : float, default=1e-9
+
+    Returns
+    -------
+    xdot, xddot : (n, k) ndarray
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape[1] < 2:
+        return np.zeros_like(x), np.zeros_like(x)
+    xdot = _accelerations(newmark_rates(x, h), h, x, u, rank_tol, velocity_mode=True)[0]
+    return xdot, _accelerations(xdot, h, x, u, rank_tol, velocity_mode=False)[1]  # again, on the corrected span
+
+
+def _accelerations(xdot: np.ndarray, h: float, x: np.ndarray, u: np.ndarray | None, rank_tol: float,
+                   velocity_mode: bool) -> tuple[np.ndarray, np.ndarray]:
+    n, k = xdot.shape
     u = np.zeros((0, k)) if u is None else np.asarray(u, dtype=float).reshape(-1, k)
     sign = np.where(np.arange(k) % 2 == 0, 1.0, -1.0)
+    m = u.shape[0]
     c = _alternating_solution((2.0 / h) * np.diff(xdot, axis=1), sign)
-    jumps = _alternating_solution(-np.diff(u, axis=1), sign) if u.shape[0] else np.zeros((0, k))
-    modes = np.column_stack([sign] + [jumps[j] - u[j] for j in range(u.shape[0])])  # (k, 1 + m)
-    span = _time_series_span(np.asarray(x, dtype=float), xdot, rank_tol)
+    columns = [sign]  # unknowns per row: the alternating mode of a, ...
+    if velocity_mode:  # ... the alternating mode of v, ...
+        columns.append(_alternating_solution((2.0 / h) * np.diff(sign)[None, :], sign)[0])
+    jumps = _alternating_solution(-np.diff(u, axis=1), sign) if m else np.zeros((0, k))
+    columns += [jumps[j] for j in range(m)]  # ... the jumps Z in the velocity relation, ...
+    used = len(columns)
+    columns += [-u[j] for j in range(m)]  # ... and the feedthrough Z' of the input in a
+    modes = np.column_stack(columns)
+    span = _time_series_span(x, xdot, rank_tol)
     if span is not None and k - span.shape[1] >= 2 * modes.shape[1] + 8:
         def residual(Y: np.ndarray) -> np.ndarray:
             return Y - span @ (span.T @ Y)
         A, b = residual(modes), -residual(c.T)
     else:  # the smoothest solution: least squares on first differences
         A, b = np.diff(modes, axis=0), -np.diff(c, axis=1).T
-    theta = np.linalg.lstsq(A, b, rcond=None)[0]  # (1 + m, n)
-    return c + (modes @ theta).T + theta[1:].T @ u
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    xddot = c + (modes[:, :used] @ theta[:used]).T
+    if velocity_mode:
+        xdot = xdot + theta[1][:, None] * sign
+    return xdot, xddot
 
 
 def _time_series_span(x: np.ndarray, xdot: np.ndarray, rank_tol: float) -> np.ndarray | None:

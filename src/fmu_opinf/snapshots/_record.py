@@ -31,7 +31,8 @@ from ..sources import Source, StepError, open_source
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._isolation import produce_inprocess, produce_isolated, source_label
-from ._rates import inputs_in_effect, newmark_accelerations, newmark_rates, time_grid
+from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
+                     time_grid)
 
 if TYPE_CHECKING:
     from ._window import Window
@@ -94,10 +95,8 @@ class MemorySink(_Sink):
         c = self.count
         view = self.samples[:c].T
         arrays = {name: view[self.layout[name]] for name in ("x", "xdot", "xddot", "y")}
-        if self.derived["xdot"]:
-            arrays["xdot"] = newmark_rates(arrays["x"], self._h())
-        if self.derived["xddot"]:
-            arrays["xddot"] = newmark_accelerations(arrays["xdot"], self._h(), arrays["x"], self.u[:, :c])
+        arrays["xdot"], arrays["xddot"] = derive_rates(self.derived, self._h(), arrays["x"], arrays["xdot"],
+                                                       arrays["xddot"], self.u[:, :c])
         return Run(t=self.t[:c].copy(), u=np.ascontiguousarray(self.u[:, :c]), **arrays, attrs=attrs)
 
 
@@ -125,10 +124,8 @@ class _H5Sink(_Sink):
         c = self.count
         for ds in self.ds.values():
             ds.resize(c, axis=1)
-        if self.derived["xdot"]:
-            self._derive("x", "xdot")
-        if self.derived["xddot"]:
-            self._derive_accelerations()
+        if any(self.derived.values()):
+            self._derive_rates()
         for name, array in (("t", self.t[:c]), ("u", self.u[:, :c])):
             create_dataset(self.group, name, array.shape)[...] = array
         arrays = {a: self.group[a] for a in ARRAYS}
@@ -137,21 +134,38 @@ class _H5Sink(_Sink):
         write_attrs(self.group, attrs)
         return run
 
-    def _derive_accelerations(self) -> None:
-        """Accelerations need the whole run (:func:`newmark_accelerations`); above 1 GiB of positions and
-        velocities, the smoothest solution is taken row block by row block instead."""
+    def _derive_rates(self) -> None:
+        """Derived rates need the whole run (:func:`derive_rates`); above 1 GiB of states, the smoothest
+        solutions of :func:`newmark_rates` are taken row block by row block instead."""
         c = self.count
         if 16 * self.n * c > 2**30:
-            self._derive("xdot", "xddot")
+            for src, dst in (("x", "xdot"), ("xdot", "xddot")):
+                if self.derived[dst]:
+                    self._derive(src, dst)
             return
-        x, xdot = self.ds["x"][:, :c], self.ds["xdot"][:, :c]
-        self.ds["xddot"][:, :c] = newmark_accelerations(xdot, self._h(), x, self.u[:, :c])
+        x, xdot, xddot = (self.ds[name][:, :c] for name in ("x", "xdot", "xddot"))
+        xdot, xddot = derive_rates(self.derived, self._h(), x, xdot, xddot, self.u[:, :c])
+        for name, values in (("xdot", xdot), ("xddot", xddot)):
+            if self.derived[name]:
+                self.ds[name][:, :c] = values
 
     def _derive(self, src: str, dst: str) -> None:
         """Rows (DOFs) are independent: derive in row blocks without loading the whole run."""
         block = max(1, (64 * 2**20) // (8 * max(self.count, 1)))
         for r0 in range(0, self.n, block):
             self.ds[dst][r0:r0 + block, :] = newmark_rates(self.ds[src][r0:r0 + block, :], self._h())
+
+
+def derive_rates(derived: dict[str, bool], h: float, x: np.ndarray, xdot: np.ndarray, xddot: np.ndarray,
+                 u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The velocities and accelerations a source does not expose, from the recorded samples (:mod:`._rates`)."""
+    if derived["xdot"] and derived["xddot"]:
+        return newmark_velocities_and_accelerations(x, h, u)
+    if derived["xdot"]:
+        return newmark_rates(x, h), xddot
+    if derived["xddot"]:
+        return xdot, newmark_accelerations(xdot, h, x, u)
+    return xdot, xddot
 
 
 def _block_rows(width: int, k: int) -> int:
@@ -232,6 +246,9 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
 
 def _derived_method(derived: dict[str, bool]) -> str:
     parts = []
+    if derived["xdot"] and derived["xddot"]:
+        return ("newmark_velocities_and_accelerations (Newmark with the acceleration update at input changes; "
+                "alternating modes and input jumps by least squares on the span of the recorded states)")
     if derived["xdot"]:
         parts.append("xdot: newmark_rates (trapezoid relation, alternating mode by least roughness)")
     if derived["xddot"]:
