@@ -108,6 +108,8 @@ class ModelExchangeSource(FMUSource):
 
     def _after_initialization(self) -> None:
         """Leave initialization through an event iteration, then read the start state."""
+        import scipy.integrate  # noqa: F401  (loaded here, not inside the first step)
+
         self._event_iteration()
         self._fmu.enterContinuousTimeMode()
         self.nx = self._state_count()
