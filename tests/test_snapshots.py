@@ -173,11 +173,9 @@ def test_fmu_without_rates_gets_derived_rates_marked_in_the_file(toys, tmp_path)
     run, h = derived.runs[0], 0.05
     np.testing.assert_array_equal(run.x, full.x)
     x, v, a = run.x, run.xdot, run.xddot
-    newmark_x = x[:, 1:] - x[:, :-1] - h * v[:, :-1] - h * h / 4 * (a[:, :-1] + a[:, 1:])
-    newmark_v = v[:, 1:] - v[:, :-1] - h / 2 * (a[:, :-1] + a[:, 1:])
-    assert np.abs(newmark_x).max() <= 1e-12 * np.abs(x).max()
-    assert np.abs(newmark_v).max() <= 1e-12 * np.abs(v).max()
-    assert relative(v, full.xdot) < 1e-2
+    # against the rates the toy FMU integrates (it exposes them in its "full" variant)
+    assert relative(v, full.xdot) < 1e-10
+    assert relative(a, full.xddot) < 1e-6
     loaded = Snapshots.load(tmp_path / "d.h5")
     assert loaded.runs[0].attrs["derived_xdot"] is True and loaded.runs[0].attrs["derived_xddot"] is True
     assert loaded.attrs["velocity_names"] == [] and loaded.attrs["derived_xddot"] is True
@@ -289,9 +287,11 @@ def test_record_to_file_writes_one_run_per_input_with_provenance(toys, tmp_path)
     np.testing.assert_allclose(snaps.runs[1].u[0, 1:], np.sin(2.0 * snaps.runs[1].t[:-1]), rtol=0, atol=1e-15)
 
 
-def test_record_to_file_without_a_window_says_what_to_pass(tmp_path):
-    with pytest.raises(InputSpecError, match="no --dt and --t-end given.*--auto-window"):
-        record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "step:amplitude=1", quiet=True)
+def test_record_to_file_without_a_window_chooses_it_automatically(tmp_path):
+    summary = record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "impulse:amplitude=100,t0=2,width=0.5",
+                             quiet=True, g=12)
+    assert summary.window is not None and summary.window.stopped_by == "fade"
+    assert Snapshots.load(tmp_path / "x.h5").runs[0].attrs["dt"] == summary.window.dt
 
 
 def test_auto_window_resolves_the_response_and_waits_for_the_fade_out(bundled, tmp_path):
@@ -445,4 +445,5 @@ def test_cli_set_and_input_none(toys, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "k is a Real variable" in err[0]
     code = main(["snapshots", str(toys["full"]), "-o", str(tmp_path / "none.h5"), "--dt", "0.1", "--t-end", "1"])
-    assert code == 2 and "--input none" in capsys.readouterr().err
+    assert code == 0 and "no --input given: recording the impulse training input" in capsys.readouterr().err
+    assert Snapshots.load(tmp_path / "none.h5").runs[0].attrs["input_spec"].startswith("impulse:amplitude=100")

@@ -1,6 +1,6 @@
 """The ``fmu-opinf`` command line: a thin layer over the Python API, one verb per stage.
 
-    fmu-opinf snapshots SOURCE -o snapshots.h5 --input SPEC [--dt H] [--t-end T | --auto-window]
+    fmu-opinf snapshots SOURCE -o snapshots.h5 [--input SPEC] [--dt H] [--t-end T | --auto-window]
     fmu-opinf fit snapshots.h5 -o rom.h5 [--r N | --energy E] [--basis positions|velocities]
     fmu-opinf compare rom.h5 SOURCE --input SPEC [--dt H] [--t-end T] -o report/
     fmu-opinf export rom.h5 -o rom.fmu [--reconstruct 'x[1],x[300]']
@@ -41,6 +41,13 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
     group.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                        help="set a parameter, start value, held input or (FMI 3) structural parameter before the "
                             "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable" + trained)
+    group.add_argument("--interface", choices=["auto", "me", "cs"],
+                       help="FMI interface to drive: me (model exchange, fmu-opinf integrates with --tolerance), "
+                            "cs (co-simulation, the FMU steps itself) or auto (default: model exchange when the FMU "
+                            "offers it, else co-simulation; docs/design.md)")
+    group.add_argument("--tolerance", type=float,
+                       help="relative tolerance of the model-exchange integration, also passed to the FMU "
+                            "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
@@ -86,7 +93,8 @@ def _scaleout_dispatch(args: argparse.Namespace) -> bool:
 def _source_options(args: argparse.Namespace) -> dict:
     from .sources import parse_assignments
 
-    keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "g", "n1")
+    keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "interface", "tolerance",
+            "g", "n1")
     options = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if getattr(args, "settings", None):
         options["parameters"] = parse_assignments(args.settings)  # the FMU keyword of the --set values
@@ -103,16 +111,23 @@ def build_parser() -> argparse.ArgumentParser:
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
 
     p = verbs.add_parser("snapshots", help="simulate a source and record snapshots into an HDF5 file")
-    p.add_argument("source", help="path to a co-simulation FMU, or builtin:anchored-msd / builtin:triple-chain")
+    p.add_argument("source", help="path to an FMU (model exchange or co-simulation, FMI 2.0 or 3.0), or "
+                                  "builtin:anchored-msd / builtin:triple-chain")
     p.add_argument("-o", "--output", required=True, help="snapshot file to write (.h5)")
     p.add_argument("--input", dest="input_spec", action="append",
                    help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table, or 'none' for "
                         "the free response from the initial state (every input held at its start value); repeat "
-                        "for several training runs; may be omitted for a model without inputs")
-    p.add_argument("--dt", type=float, help="communication step")
-    p.add_argument("--t-end", type=float, help="end time")
+                        "for several training runs; default: the paper's impulse training input "
+                        "'impulse:amplitude=100,t0=2,width=0.5' on every input, or the free response of a model "
+                        "without inputs")
+    p.add_argument("--dt", type=float, help="communication step (default: the FMU's default experiment step, "
+                                            "else the automatic window)")
+    p.add_argument("--t-end", type=float, help="end time (default: as --dt; an FMU's stopTime alone is not used)")
     p.add_argument("--auto-window", action="store_true",
-                   help="choose dt and t-end from an impulse response (the paper's procedure)")
+                   help="choose dt and t-end from an impulse response (the paper's procedure; automatic when "
+                        "neither is given and the FMU declares no default step): the step resolves the fastest "
+                        "significant oscillation, the end is when the vibrations have faded out, or 20 periods of "
+                        "the slowest significant oscillation after the input died out if they do not fade by then")
     p.add_argument("--in-process", action="store_true",
                    help="run the FMU inside this process (faster start; a crashing FMU then ends the tool)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")

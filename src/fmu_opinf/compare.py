@@ -181,7 +181,8 @@ def simulate_outputs(source: Any, signal: Any, t: np.ndarray, quiet: bool = True
     t : (k,) ndarray
         Uniform time grid.
     **options
-        ``g``/``n1`` for builtin sources; ``inputs``/``outputs`` name patterns for FMUs.
+        ``g``/``n1`` for builtin sources; ``inputs``/``outputs`` name patterns, ``parameters`` (``--set``),
+        ``interface`` and ``tolerance`` for FMUs (driven as :func:`fmu_opinf.sources.open_source` does).
 
     Returns
     -------
@@ -211,7 +212,7 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     from .newmark import applied_inputs
     from .source import open_source
 
-    options = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters")}
+    options = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters", "interface", "tolerance")}
     source = open_source(spec, positions="", **options)
     u = applied_inputs(signal, t)
     if u.shape[0] != source.m:

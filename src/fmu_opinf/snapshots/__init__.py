@@ -20,9 +20,10 @@ from __future__ import annotations
 
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION
-from ._rates import inputs_in_effect, newmark_rates, time_grid
-from ._record import STREAM_THRESHOLD, RecordSummary, record, record_to_file
-from ._window import Window, auto_window, fade_time, significant_frequency
+from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
+                     time_grid)
+from ._record import DEFAULT_TRAINING_INPUT, STREAM_THRESHOLD, RecordSummary, record, record_to_file
+from ._window import Window, auto_window, fade_time, input_activity, significant_frequency, slowest_frequency
 
 __all__ = [
     "LAYOUT_VERSION",
@@ -36,7 +37,12 @@ __all__ = [
     "time_grid",
     "inputs_in_effect",
     "newmark_rates",
+    "newmark_accelerations",
+    "newmark_velocities_and_accelerations",
     "significant_frequency",
+    "slowest_frequency",
+    "input_activity",
+    "DEFAULT_TRAINING_INPUT",
     "fade_time",
     "STREAM_THRESHOLD",
     "FILE_KIND",

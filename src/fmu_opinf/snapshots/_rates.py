@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import DimensionError, InputSpecError
 
-__all__ = ["time_grid", "inputs_in_effect", "newmark_rates"]
+__all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations", "newmark_velocities_and_accelerations"]
 
 
 def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
@@ -93,3 +93,121 @@ def newmark_rates(x: np.ndarray, h: float) -> np.ndarray:
     d = np.diff(c, axis=1)
     alpha = (d @ sign[:-1]) / (2.0 * (k - 1))
     return c + alpha[:, None] * sign
+
+
+def _alternating_solution(rhs: np.ndarray, sign: np.ndarray) -> np.ndarray:
+    """The solution of ``r_i + r_{i+1} = rhs_i`` with ``r_0 = 0`` (rows independent)."""
+    out = np.zeros((rhs.shape[0], rhs.shape[1] + 1))
+    out[:, 1:] = -sign[1:] * np.cumsum(sign[:-1] * rhs, axis=1)
+    return out
+
+
+def newmark_accelerations(xdot: np.ndarray, h: float, x: np.ndarray, u: np.ndarray | None = None,
+                          rank_tol: float = 1e-9) -> np.ndarray:
+    """Accelerations of Newmark data (beta=1/4, gamma=1/2) recorded with the project's input convention.
+
+    The recorded ``a_i`` pairs with the input in effect ``u_i`` (design.md); at the start of step
+    ``i -> i+1`` the integrator updates it to ``a_i^+ = a_i + Z (u_{i+1} - u_i)`` for the new input,
+    then ``v_{i+1} = v_i + h/2 (a_i^+ + a_{i+1})``.  So ``(2/h)(v_{i+1} - v_i) = a_i + a_{i+1} +
+    Z (u_{i+1} - u_i)``: the trapezoid relation of :func:`newmark_rates` breaks at every input change.
+    Per degree of freedom this fixes ``a`` up to the alternating sequence ``(-1)^i`` and the unknown row
+    ``Z`` (m values).  Both are chosen so that ``a - Z' u`` lies in the span of the recorded time series
+    ``x_j(t)``, ``v_j(t)`` and 1 for some row ``Z'`` (least squares), which holds exactly for a linear model
+    ``a = P x + Q v + Z' u + c``, constrained or not.  ``Z`` and ``Z'`` are separate unknowns, so data of an
+    integrator without the update (``Z = 0``) are recovered as well.  When that span is too large to tell (fewer samples
+    than about twice its dimension), the smoothest solution of :func:`newmark_rates` with the jumps is used.
+
+    Parameters
+    ----------
+    xdot : (n, k) ndarray
+        Velocities.
+    h : float
+        Uniform step.
+    x : (n, k) ndarray
+        Positions (they span, with the velocities, the time series ``a - Z u`` lies in).
+    u : (m, k) ndarray, optional
+        Inputs in effect (``u[:, i]`` pairs with ``a[:, i]``).
+    rank_tol : float, default=1e-9
+        Singular values of the (block-normalized) time series below ``rank_tol`` times the largest are
+        treated as zero.
+
+    Returns
+    -------
+    (n, k) ndarray
+    """
+    xdot = np.asarray(xdot, dtype=float)
+    if xdot.shape[1] < 2:
+        return np.zeros_like(xdot)
+    return _accelerations(xdot, h, np.asarray(x, dtype=float), u, rank_tol, velocity_mode=False)[1]
+
+
+def newmark_velocities_and_accelerations(x: np.ndarray, h: float, u: np.ndarray | None = None,
+                                         rank_tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Velocities and accelerations of Newmark positions (a source exposing positions only).
+
+    The velocities follow from ``x_{i+1} - x_i = h/2 (v_i + v_{i+1})`` up to an alternating sequence
+    per degree of freedom; its size is fixed together with the unknowns of :func:`newmark_accelerations`
+    (an alternating error ``b (-1)^i`` in ``v`` puts ``-(4/h) b i (-1)^i`` into ``a``, far from the
+    span of the states).
+
+    Parameters
+    ----------
+    x : (n, k) ndarray
+    h : float
+    u : (m, k) ndarray, optional
+        Inputs in effect.
+    rank_tol : float, default=1e-9
+
+    Returns
+    -------
+    xdot, xddot : (n, k) ndarray
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape[1] < 2:
+        return np.zeros_like(x), np.zeros_like(x)
+    xdot = _accelerations(newmark_rates(x, h), h, x, u, rank_tol, velocity_mode=True)[0]
+    return xdot, _accelerations(xdot, h, x, u, rank_tol, velocity_mode=False)[1]  # again, on the corrected span
+
+
+def _accelerations(xdot: np.ndarray, h: float, x: np.ndarray, u: np.ndarray | None, rank_tol: float,
+                   velocity_mode: bool) -> tuple[np.ndarray, np.ndarray]:
+    n, k = xdot.shape
+    u = np.zeros((0, k)) if u is None else np.asarray(u, dtype=float).reshape(-1, k)
+    sign = np.where(np.arange(k) % 2 == 0, 1.0, -1.0)
+    m = u.shape[0]
+    c = _alternating_solution((2.0 / h) * np.diff(xdot, axis=1), sign)
+    columns = [sign]  # unknowns per row: the alternating mode of a, ...
+    if velocity_mode:  # ... the alternating mode of v, ...
+        columns.append(_alternating_solution((2.0 / h) * np.diff(sign)[None, :], sign)[0])
+    jumps = _alternating_solution(-np.diff(u, axis=1), sign) if m else np.zeros((0, k))
+    columns += [jumps[j] for j in range(m)]  # ... the jumps Z in the velocity relation, ...
+    used = len(columns)
+    columns += [-u[j] for j in range(m)]  # ... and the feedthrough Z' of the input in a
+    modes = np.column_stack(columns)
+    span = _time_series_span(x, xdot, rank_tol)
+    if span is not None and k - span.shape[1] >= 2 * modes.shape[1] + 8:
+        def residual(Y: np.ndarray) -> np.ndarray:
+            return Y - span @ (span.T @ Y)
+        A, b = residual(modes), -residual(c.T)
+    else:  # the smoothest solution: least squares on first differences
+        A, b = np.diff(modes, axis=0), -np.diff(c, axis=1).T
+    theta = np.linalg.lstsq(A, b, rcond=None)[0]
+    xddot = c + (modes[:, :used] @ theta[:used]).T
+    if velocity_mode:
+        xdot = xdot + theta[1][:, None] * sign
+    return xdot, xddot
+
+
+def _time_series_span(x: np.ndarray, xdot: np.ndarray, rank_tol: float) -> np.ndarray | None:
+    """Orthonormal basis (k, q) of the span of the rows of x, xdot and a constant (each block scaled to
+    unit norm); None when there is nothing to span."""
+    k = x.shape[1]
+    blocks = [b / np.linalg.norm(b) for b in (x, xdot) if b.size and np.linalg.norm(b) > 0]
+    blocks.append(np.ones((1, k)) / math.sqrt(k))
+    W = np.vstack(blocks)
+    if W.shape[0] <= k:
+        _, s, vt = np.linalg.svd(W, full_matrices=False)
+        return vt[s > rank_tol * s[0]].T
+    values, vectors = np.linalg.eigh(W.T @ W)  # more rows than samples: the k x k Gram
+    keep = values > (rank_tol * math.sqrt(max(values.max(), 0.0))) ** 2
+    return vectors[:, keep]

@@ -31,12 +31,17 @@ from ..sources import Source, StepError, open_source
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._isolation import produce_inprocess, produce_isolated, source_label
-from ._rates import inputs_in_effect, newmark_rates, time_grid
+from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
+                     time_grid)
 
 if TYPE_CHECKING:
     from ._window import Window
 
-__all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD"]
+__all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD", "DEFAULT_TRAINING_INPUT"]
+
+#: Training input when none is given for a model with inputs: the paper's impulse-like pulse (the one of
+#: the demo): a raised cosine of 100 (force units) centred at t=2, 0.5 time units wide.
+DEFAULT_TRAINING_INPUT = "impulse:amplitude=100,t0=2,width=0.5"
 
 #: Bytes of one run above which ``record(..., path=...)`` streams blocks to disk instead of memory.
 STREAM_THRESHOLD = 256 * 2**20
@@ -90,10 +95,8 @@ class MemorySink(_Sink):
         c = self.count
         view = self.samples[:c].T
         arrays = {name: view[self.layout[name]] for name in ("x", "xdot", "xddot", "y")}
-        if self.derived["xdot"]:
-            arrays["xdot"] = newmark_rates(arrays["x"], self._h())
-        if self.derived["xddot"]:
-            arrays["xddot"] = newmark_rates(arrays["xdot"], self._h())
+        arrays["xdot"], arrays["xddot"] = derive_rates(self.derived, self._h(), arrays["x"], arrays["xdot"],
+                                                       arrays["xddot"], self.u[:, :c])
         return Run(t=self.t[:c].copy(), u=np.ascontiguousarray(self.u[:, :c]), **arrays, attrs=attrs)
 
 
@@ -121,10 +124,8 @@ class _H5Sink(_Sink):
         c = self.count
         for ds in self.ds.values():
             ds.resize(c, axis=1)
-        if self.derived["xdot"]:
-            self._derive("x", "xdot")
-        if self.derived["xddot"]:
-            self._derive("xdot", "xddot")
+        if any(self.derived.values()):
+            self._derive_rates()
         for name, array in (("t", self.t[:c]), ("u", self.u[:, :c])):
             create_dataset(self.group, name, array.shape)[...] = array
         arrays = {a: self.group[a] for a in ARRAYS}
@@ -133,11 +134,38 @@ class _H5Sink(_Sink):
         write_attrs(self.group, attrs)
         return run
 
+    def _derive_rates(self) -> None:
+        """Derived rates need the whole run (:func:`derive_rates`); above 1 GiB of states, the smoothest
+        solutions of :func:`newmark_rates` are taken row block by row block instead."""
+        c = self.count
+        if 16 * self.n * c > 2**30:
+            for src, dst in (("x", "xdot"), ("xdot", "xddot")):
+                if self.derived[dst]:
+                    self._derive(src, dst)
+            return
+        x, xdot, xddot = (self.ds[name][:, :c] for name in ("x", "xdot", "xddot"))
+        xdot, xddot = derive_rates(self.derived, self._h(), x, xdot, xddot, self.u[:, :c])
+        for name, values in (("xdot", xdot), ("xddot", xddot)):
+            if self.derived[name]:
+                self.ds[name][:, :c] = values
+
     def _derive(self, src: str, dst: str) -> None:
         """Rows (DOFs) are independent: derive in row blocks without loading the whole run."""
         block = max(1, (64 * 2**20) // (8 * max(self.count, 1)))
         for r0 in range(0, self.n, block):
             self.ds[dst][r0:r0 + block, :] = newmark_rates(self.ds[src][r0:r0 + block, :], self._h())
+
+
+def derive_rates(derived: dict[str, bool], h: float, x: np.ndarray, xdot: np.ndarray, xddot: np.ndarray,
+                 u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The velocities and accelerations a source does not expose, from the recorded samples (:mod:`._rates`)."""
+    if derived["xdot"] and derived["xddot"]:
+        return newmark_velocities_and_accelerations(x, h, u)
+    if derived["xdot"]:
+        return newmark_rates(x, h), xddot
+    if derived["xddot"]:
+        return xdot, newmark_accelerations(xdot, h, x, u)
+    return xdot, xddot
 
 
 def _block_rows(width: int, k: int) -> int:
@@ -205,8 +233,7 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
         "complete": failure is None and sink.count == len(t),
         "derived_xdot": bool(sink.derived["xdot"]),
         "derived_xddot": bool(sink.derived["xddot"]),
-        "derived_method": "newmark_rates (beta=1/4, gamma=1/2; alternating mode by least roughness)"
-        if any(sink.derived.values()) else "",
+        "derived_method": _derived_method(sink.derived) if any(sink.derived.values()) else "",
         "isolated": bool(isolate),
         "wall_seconds": round(seconds, 6),
         "versions": _versions(),
@@ -215,6 +242,19 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
     if failure is not None:
         attrs["error"] = str(failure)
     return attrs
+
+
+def _derived_method(derived: dict[str, bool]) -> str:
+    parts = []
+    if derived["xdot"] and derived["xddot"]:
+        return ("newmark_velocities_and_accelerations (Newmark with the acceleration update at input changes; "
+                "alternating modes and input jumps by least squares on the span of the recorded states)")
+    if derived["xdot"]:
+        parts.append("xdot: newmark_rates (trapezoid relation, alternating mode by least roughness)")
+    if derived["xddot"]:
+        parts.append("xddot: newmark_accelerations (Newmark with the acceleration update at input changes; "
+                     "alternating mode and input jumps by least squares on the span of the recorded states)")
+    return "; ".join(parts)
 
 
 @functools.lru_cache(maxsize=1)
@@ -411,6 +451,8 @@ def record_to_file(
     outputs: str | None = None,
     constraint: str | None = None,
     parameters: dict[str, Any] | None = None,
+    interface: str | None = None,
+    tolerance: float | None = None,
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
@@ -429,18 +471,25 @@ def record_to_file(
         HDF5 file to create (atomically).
     input_spec : str or sequence of str
         Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`; a single-channel
-        spec drives every input) or signal objects; one run each.
+        spec drives every input) or signal objects; one run each.  Default (None or empty):
+        :data:`DEFAULT_TRAINING_INPUT` on every input, or the free response of a model without inputs.
     dt, t_end : float, optional
-        Step and end time; default: from ``auto_window`` or the FMU's default experiment.
+        Step and end time; default: the FMU's ``DefaultExperiment`` when it declares a ``stepSize``,
+        else the automatic window.
     auto_window : bool, default=False
-        Choose ``dt`` and ``t_end`` from a pilot run with the first input (:func:`auto_window`);
-        an explicitly given ``dt``/``t_end`` wins over the automatic choice.
+        Choose ``dt`` and ``t_end`` from pilot runs with the first input (:func:`auto_window`) even
+        when the source has a default experiment; an explicitly given ``dt``/``t_end`` wins over the
+        automatic choice.
     positions, velocities, accelerations, inputs, outputs : str, optional
         Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
     constraint : {"position", "velocity", "none", "unknown"}, optional
         Constraint kind of an FMU (stored for the later stages).
     parameters : dict of str to float, optional
         FMU start values set before initialization.
+    interface : {"auto", "me", "cs"}, optional
+        FMI interface (:func:`fmu_opinf.sources.choose_interface`; default auto: model exchange when offered).
+    tolerance : float, optional
+        Relative tolerance of the model-exchange integration, also passed to the FMU (default 1e-10).
     points_per_period, energy, fade : float
         Thresholds of :func:`auto_window`.
     overwrite : bool, default=False
@@ -455,25 +504,26 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import auto_window as choose_window, default_window
+    from ._window import auto_window as choose_window, default_window, needs_auto_window
 
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None:
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
-                         **size_options)
-    if not specs and source.m == 0:
-        specs = ["none"]
+                         interface=interface, tolerance=tolerance, **size_options)
     if not specs:
-        raise InputSpecError("no input given; pass --input SPEC (an impulse-like input for training) or "
-                             "--input none (the free response from the initial state)")
+        specs = [DEFAULT_TRAINING_INPUT if source.m else "none"]
+        if not quiet:
+            what = (f"the impulse training input {DEFAULT_TRAINING_INPUT}" if source.m
+                    else "the free response from the start state (the model has no inputs)")
+            print(f"no --input given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
     if not quiet and hasattr(source, "selection_text"):
         print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
     window = None
-    if auto_window:
+    if auto_window or needs_auto_window(source, dt, t_end):
         window = choose_window(source, signals[0], points_per_period=points_per_period, energy=energy,
                                fade=fade, isolate=isolate, quiet=quiet)
         dt = window.dt if dt is None else dt

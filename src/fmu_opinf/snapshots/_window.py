@@ -13,10 +13,15 @@ from ..sources import Source, open_source
 from ._rates import time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
-__all__ = ["Window", "auto_window", "significant_frequency", "fade_time", "default_window"]
+__all__ = ["Window", "auto_window", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
+           "needs_auto_window", "input_activity"]
 
 
 def default_window(source: Source, dt: float | None, t_end: float | None) -> tuple[float, float]:
+    """Step and end time from the user and the FMU's ``DefaultExperiment`` (stepSize, stopTime).
+
+    Raises :class:`~fmu_opinf.errors.InputSpecError` when either is still missing.
+    """
     experiment = getattr(getattr(source, "md", None), "defaultExperiment", None)
     if dt is None and experiment is not None and experiment.stepSize is not None:
         dt = float(experiment.stepSize)
@@ -28,6 +33,16 @@ def default_window(source: Source, dt: float | None, t_end: float | None) -> tup
     return float(dt), float(t_end)
 
 
+def needs_auto_window(source: Source, dt: float | None, t_end: float | None) -> bool:
+    """True when the automatic window must choose the grid: ``dt`` or ``t_end`` not given and the
+    source declares no default step (``DefaultExperiment/@stepSize``).  A ``stopTime`` alone is not
+    used: real FMUs carry ``stopTime=1`` unrelated to their dynamics."""
+    if dt is not None and t_end is not None:
+        return False
+    experiment = getattr(getattr(source, "md", None), "defaultExperiment", None)
+    return experiment is None or experiment.stepSize is None
+
+
 @dataclasses.dataclass
 class Window:
     """Step and end time chosen from an impulse response (see :func:`auto_window`).
@@ -37,11 +52,12 @@ class Window:
     dt : float
         Chosen step: ``1 / (points_per_period * f_max)`` rounded down to 1, 2 or 5 times a power of ten.
     t_end : float
-        Chosen end time: the fade-out time rounded up to a multiple of ``dt``.
+        Chosen end time (a multiple of ``dt``): when the response has faded out, or, if it does not
+        fade by then, ``periods`` periods of the slowest significant oscillation after the input died out.
     f_max : float
         Fastest significant frequency of the output response, in Hz (cycles per time unit).
     t_fade : float
-        Time after which the output envelope stays below ``fade`` times its peak.
+        Time after which the output envelope stays below ``fade`` times its peak (``inf`` if not seen).
     peak : float
         Peak of ``||y(t) - y_rest||_2``.
     pilot_dt, pilot_t_end : float
@@ -50,6 +66,14 @@ class Window:
         Number of pilot runs.
     points_per_period, energy, fade : float
         Thresholds used.
+    f_min : float
+        Slowest significant frequency of the free response, in Hz (0 if none was resolved).
+    periods : float
+        Number of periods of ``f_min`` after which a response that does not fade is cut.
+    t_input : float
+        Time from which the input stays constant (the free response starts).
+    stopped_by : str
+        ``"fade"`` (the vibrations faded out) or ``"periods"`` (cut after ``periods`` slow periods).
     """
 
     dt: float
@@ -63,16 +87,27 @@ class Window:
     points_per_period: float
     energy: float
     fade: float
+    f_min: float = 0.0
+    periods: float = 20.0
+    t_input: float = 0.0
+    stopped_by: str = "fade"
 
-    def as_dict(self) -> dict[str, float]:
+    def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
-        return {k: (int(v) if k == "pilots" else float(v)) for k, v in dataclasses.asdict(self).items()}
+        out: dict[str, Any] = {}
+        for key, value in dataclasses.asdict(self).items():
+            out[key] = int(value) if key == "pilots" else value if isinstance(value, str) else float(value)
+        return out
 
     def __str__(self) -> str:
+        if self.stopped_by == "periods":
+            end = (f"the response does not fade, cut after {self.periods:g} periods of the slowest significant "
+                   f"oscillation ({self.f_min:.4g} Hz) from t={self.t_input:.4g}")
+        else:
+            end = f"output below {self.fade:g} of its peak after t={self.t_fade:.4g}"
         return (f"dt={self.dt:g}, t_end={self.t_end:g} (fastest significant frequency {self.f_max:.4g} Hz, "
-                f"{self.points_per_period:g} points per period; output below {self.fade:g} of its peak after "
-                f"t={self.t_fade:.4g}; {self.pilots} pilot run(s), last dt={self.pilot_dt:g}, "
-                f"t_end={self.pilot_t_end:g})")
+                f"{self.points_per_period:g} points per period; {end}; {self.pilots} pilot run(s), last "
+                f"dt={self.pilot_dt:g}, t_end={self.pilot_t_end:g})")
 
 
 def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
@@ -125,6 +160,27 @@ def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01) -> tuple[float, 
     return (float(t[below[0]]) if below.size else math.inf), peak
 
 
+def slowest_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
+    """Slowest significant frequency: the smallest one above which a fraction ``energy`` of the
+    spectral energy of the (mean-free, Hann-windowed) outputs lies.
+
+    Returns 0 when that lies within the lowest three frequency bins (not resolved by this record:
+    a non-oscillating drift, or an oscillation slower than a third of the record).
+    """
+    y = np.atleast_2d(y)
+    if y.shape[1] < 16:
+        return 0.0
+    r = (y - y.mean(axis=1, keepdims=True)) * np.hanning(y.shape[1])
+    power = (np.abs(np.fft.rfft(r, axis=1)) ** 2).sum(axis=0)
+    total = power.sum()
+    if total <= 0:
+        return 0.0
+    index = int(np.searchsorted(np.cumsum(power) / total, 1.0 - energy))
+    if index < 3:
+        return 0.0
+    return float(np.fft.rfftfreq(y.shape[1], d=float(t[1] - t[0]))[index])
+
+
 def _nice_floor(value: float) -> float:
     """Largest 1, 2 or 5 times a power of ten not above ``value``."""
     exponent = math.floor(math.log10(value))
@@ -135,6 +191,18 @@ def _nice_floor(value: float) -> float:
     return float(f"{10.0 ** exponent:.12g}")
 
 
+@dataclasses.dataclass
+class _Pilot:
+    """What one pilot run shows."""
+
+    t_fade: float
+    peak: float
+    f_max: float
+    f_min: float
+    resolved_periods: float  # record length after the input died out, in periods of f_min
+    fade_estimate: float  # fade-out time extrapolated from the envelope's decay (inf if not decaying)
+
+
 def auto_window(
     source: Source | str,
     signal: Any,
@@ -142,11 +210,12 @@ def auto_window(
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
+    periods: float = 20.0,
     pilot_dt: float | None = None,
     pilot_t_end: float | None = None,
     min_pilot_points: float = 8.0,
     growth: float = 4.0,
-    max_pilots: int = 8,
+    max_pilots: int = 12,
     max_steps: int = 400_000,
     isolate: bool = False,
     quiet: bool = True,
@@ -154,33 +223,41 @@ def auto_window(
     """Choose step and end time from the response to an impulse-like input (paper sec. 4.2).
 
     Pilot runs record the outputs; the step resolves the fastest significant oscillation with
-    ``points_per_period`` samples and the end time is when the vibrations have faded out:
+    ``points_per_period`` samples and the end time is when the vibrations have faded out, or, for
+    undamped and lightly damped systems whose vibrations do not fade by then, ``periods`` periods of
+    the slowest significant oscillation after the input has died out:
 
     * ``f_max``: smallest frequency below which a fraction ``energy`` of the spectral energy of the
-      outputs lies (Hann-windowed FFT of the pilot's free response, from when the input pulse has
-      died out to ``t_fade``, :func:`significant_frequency`);
+      outputs lies (Hann-windowed FFT of the pilot's free response, from when the input has died
+      out, :func:`significant_frequency`); ``f_min``: smallest frequency above which that fraction
+      lies (:func:`slowest_frequency`);
     * ``t_fade``: the envelope ``max_{s >= t} ||y(s) - y_rest||_2`` stays below ``fade`` times its
       peak afterwards (:func:`fade_time`).
 
-    A pilot is refined (step / 4) while ``f_max`` has fewer than ``min_pilot_points`` samples per
-    period, and extended (same step, so that the input pulse stays resolved) until ``t_fade`` lies
-    in its first half: to twice the fade-out time extrapolated from the envelope's exponential decay,
-    at least doubled and at most ``growth**2`` times longer.
+    The pilots are independent of the FMU's ``stopTime``: the first one covers the input's active
+    part (found by sampling the signal) and ten times its width, with ten samples across it.  A pilot
+    is refined (step / 4) while ``f_max`` has fewer than ``min_pilot_points`` samples per period,
+    and extended until the response has faded in its first half or ``f_min`` is resolved over four
+    periods and the response will not fade before ``periods`` periods: to twice the fade-out time
+    extrapolated from the envelope's exponential decay, at least doubled and at most ``growth**2``
+    times longer.  An extended pilot is coarsened (step x 4) when ``f_max`` and the input pulse stay
+    resolved, so that slow decays do not hit ``max_steps``.
 
     Parameters
     ----------
     source : Source or str
     signal : Signal or str
-        Impulse-like training input.
+        Impulse-like training input (``"none"``: the free response from the start state).
     points_per_period : float, default=20
     energy : float, default=0.999
     fade : float, default=0.01
+    periods : float, default=20
+        Periods of the slowest significant oscillation after which a non-fading response is cut.
     pilot_dt, pilot_t_end : float, optional
-        First pilot grid; default: the FMU's default experiment, else ``t_end=100``, ``dt=t_end/1000``.
+        First pilot grid (default: from the input, see above).
     min_pilot_points : float, default=8
     growth : float, default=4
-        Without a decaying envelope a pilot is extended ``growth`` times; never more than ``growth**2``.
-    max_pilots : int, default=8
+    max_pilots : int, default=12
     max_steps : int, default=400000
         Largest pilot run.
     isolate : bool, default=False
@@ -192,83 +269,155 @@ def auto_window(
     Window
     """
     source = open_source(source)
-    signal = as_signal(signal, source.m)
+    signal = as_signal(signal, source.m, source)
     for name, value, low, high in (("energy", energy, 0.0, 1.0), ("fade", fade, 0.0, 1.0)):
         if not low < value < high:
             raise InputSpecError(f"{name}={value} must lie strictly between {low:g} and {high:g}")
     if points_per_period < 2:
         raise InputSpecError(f"points_per_period={points_per_period} must be at least 2 (Nyquist)")
+    if not periods > 0:
+        raise InputSpecError(f"periods={periods} must be positive")
     if source.p == 0:
         raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
-    T, dt = _pilot_start(source, pilot_dt, pilot_t_end)
+    t_input, width = input_activity(signal, source.m)
+    T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
             break
-        run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
-        if failure is not None:
-            raise incomplete_error(failure, run, None)
-        t_fade, peak = fade_time(t, run.y, fade)
-        free = _free_response(t, run.u)
-        faded = int(np.searchsorted(t, t_fade, side="right")) if math.isfinite(t_fade) else len(t)
-        segment = slice(free, faded) if faded - free >= 16 else slice(0, len(t))
-        f_max = significant_frequency(t[segment], run.y[:, segment], energy)
-        if peak == 0.0:
-            raise DataError("the outputs do not respond to the input; use an impulse-like input that excites "
-                            "the system")
-        if f_max * dt * min_pilot_points > 1.0:
+        seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate)
+        if seen.f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
-        elif not t_fade <= t[0] + 0.5 * (T - t[0]):
-            T = float(f"{t[0] + _next_length(t, run.y, fade, growth):.6g}")
-        else:
-            f_use = max(f_max, 1.0 / max(t_fade - t[0], dt))
-            step = _nice_floor(1.0 / (points_per_period * f_use))
-            end = t[0] + math.ceil((t_fade - t[0]) / step - 1e-9) * step
-            return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=f_max, t_fade=t_fade, peak=peak, pilot_dt=dt,
-                          pilot_t_end=T, pilots=pilot, points_per_period=points_per_period, energy=energy, fade=fade)
+            continue
+        t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
+        faded = seen.t_fade <= t[0] + 0.5 * (T - t[0])
+        cut = seen.resolved_periods >= 4.0 and not seen.fade_estimate < t_cut
+        if faded or cut:
+            stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
+            return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
+                           periods, t_input, stopped_by)
+        T_next = _next_length(t, seen, growth)
+        while _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, width):
+            dt *= 4.0
+        T = float(f"{T_next:.6g}")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
                     f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end")
 
 
-def _next_length(t: np.ndarray, y: np.ndarray, fade: float, growth: float) -> float:
-    """Length of the next pilot: twice the fade-out time extrapolated from the exponential decay of
-    the envelope over the second half of this pilot, between 2 and ``growth**2`` times this length."""
-    length = float(t[-1] - t[0])
+def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
+            energy: float, fade: float, periods: float, t_input: float, stopped_by: str) -> Window:
+    f_use = max(seen.f_max, 1.0 / max(t_stop - t0, dt))
+    step = _nice_floor(1.0 / (points_per_period * f_use))
+    end = t0 + math.ceil((t_stop - t0) / step - 1e-9) * step
+    return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=seen.f_max, t_fade=seen.t_fade, peak=seen.peak,
+                  pilot_dt=dt, pilot_t_end=T, pilots=pilots, points_per_period=points_per_period, energy=energy,
+                  fade=fade, f_min=seen.f_min, periods=periods, t_input=t_input, stopped_by=stopped_by)
+
+
+def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
+                   growth: float, quiet: bool, isolate: bool) -> _Pilot:
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
+    if failure is not None:
+        raise incomplete_error(failure, run, None)
+    y = np.asarray(run.y)
+    t_fade, peak = fade_time(t, y, fade)
+    if peak == 0.0:
+        raise DataError("the outputs do not respond to the input; use an impulse-like input that excites "
+                        "the system")
+    free = int(np.searchsorted(t, t_input - 1e-12 * max(1.0, abs(t_input))))
+    free = free if len(t) - free >= 16 else 0
+    faded = int(np.searchsorted(t, t_fade, side="right")) if math.isfinite(t_fade) else len(t)
+    segment = slice(free, faded) if faded - free >= 16 else slice(free, len(t))
+    f_max = significant_frequency(t[segment], y[:, segment], energy)
+    f_min = slowest_frequency(t[free:], y[:, free:], energy)
+    resolved = (t[-1] - t[free]) * f_min if f_min > 0 else 0.0
+    return _Pilot(t_fade=t_fade, peak=peak, f_max=f_max, f_min=f_min, resolved_periods=float(resolved),
+                  fade_estimate=_fade_estimate(t, y, fade))
+
+
+def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float | None) -> bool:
+    """A pilot may take step ``dt`` if it resolves ``f_max`` twice over and the input pulse (if any)."""
+    if f_max <= 0 or f_max * dt * 2.0 * min_pilot_points > 1.0:
+        return False
+    return width is None or dt <= width / 4.0
+
+
+def _envelope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     y = np.atleast_2d(y)
     rest = y[:, -max(1, y.shape[1] // 20):].mean(axis=1, keepdims=True)
     e = np.linalg.norm(y - rest, axis=0)
-    envelope = np.maximum.accumulate(e[::-1])[::-1]
+    return np.maximum.accumulate(e[::-1])[::-1], float(e.max())
+
+
+def _fade_estimate(t: np.ndarray, y: np.ndarray, fade: float) -> float:
+    """Fade-out time extrapolated from the exponential decay of the envelope over the second half of
+    the record; ``inf`` if it does not decay."""
+    envelope, peak = _envelope(t, y)
     half = slice(len(t) // 2, len(t) - max(1, len(t) // 20))
     tt, ee = t[half], envelope[half]
     keep = ee > 0
-    if keep.sum() < 8 or e.max() == 0:
-        return growth * length
+    if keep.sum() < 8 or peak == 0:
+        return math.inf
     slope, intercept = np.polyfit(tt[keep], np.log(ee[keep]), 1)
     if slope >= 0:
-        return growth * length
-    t_fade = (math.log(fade * e.max()) - intercept) / slope
-    return float(min(max(2.0 * (t_fade - t[0]), 2.0 * length), growth**2 * length))
+        return math.inf
+    return float((math.log(fade * peak) - intercept) / slope)
 
 
-def _free_response(t: np.ndarray, u: np.ndarray) -> int:
-    """Index from which the input has died out (below 1e-3 of its peak), so the output shows the
-    system's own vibrations; 0 if the input never dies out (then the whole pilot is analysed)."""
-    magnitude = np.abs(u).max(axis=0) if u.size else np.zeros(len(t))
-    top = magnitude.max() if magnitude.size else 0.0
-    active = np.nonzero(magnitude > 1e-3 * top)[0] if top > 0 else np.array([], dtype=int)
-    if active.size == 0:
-        return 0
-    start = int(active[-1]) + 1
-    return start if len(t) - start >= max(16, len(t) // 4) else 0
+def _next_length(t: np.ndarray, seen: _Pilot, growth: float) -> float:
+    """End of the next pilot: twice the extrapolated fade-out time, between 2 and ``growth**2`` times
+    this pilot's length (``growth`` times when the envelope does not decay)."""
+    length = float(t[-1] - t[0])
+    if not math.isfinite(seen.fade_estimate):
+        return t[0] + growth * length
+    return t[0] + float(min(max(2.0 * (seen.fade_estimate - t[0]), 2.0 * length), growth**2 * length))
 
 
-def _pilot_start(source: Source, pilot_dt: float | None, pilot_t_end: float | None) -> tuple[float, float]:
-    experiment = getattr(getattr(source, "md", None), "defaultExperiment", None)
-    T = pilot_t_end
-    if T is None and experiment is not None and experiment.stopTime is not None:
-        T = float(experiment.stopTime)
-    T = 100.0 if T is None else float(T)
-    dt = pilot_dt
-    if dt is None and experiment is not None and experiment.stepSize is not None:
-        dt = float(experiment.stepSize)
-    return T, (T / 1000.0 if dt is None else float(dt))
+def input_activity(signal: Any, m: int, horizon: float = 1000.0, samples: int = 200_001) -> tuple[float, float | None]:
+    """When the input stops changing, and the width of its pulse.
+
+    The signal is sampled on ``[0, horizon]`` (a table: its own time range); the input is still changing
+    where it differs from its final value by more than 1e-3 of the largest difference.
+
+    Returns
+    -------
+    t_input : float
+        Time from which the input stays constant (0 for a constant input or one that never settles).
+    width : float or None
+        Length of the pulse, where the input differs from both its first and its final value (None for a
+        constant input, a step or an input that never settles).
+    """
+    t_range = getattr(signal, "t_range", None)
+    end = float(t_range[1]) if t_range and math.isfinite(float(t_range[1])) and t_range[1] > 0 else horizon
+    t = np.linspace(0.0, end, samples)
+    try:
+        u = np.atleast_2d(np.asarray(signal.sample(t), dtype=float))
+    except Exception:  # a signal that cannot be sampled ahead: analyse the whole pilot
+        return 0.0, None
+    if m == 0 or u.size == 0:
+        return 0.0, None
+    from_end = np.abs(u - u[:, -1:]).max(axis=0)
+    top = float(from_end.max())
+    if top == 0.0:
+        return 0.0, None
+    changing = np.nonzero(from_end > 1e-3 * top)[0]
+    t_off = float(t[min(changing[-1] + 1, len(t) - 1)])
+    if t_off >= 0.99 * end:  # never settles (harmonic, chirp): no free response to wait for
+        return 0.0, None
+    from_start = np.abs(u - u[:, :1]).max(axis=0)
+    pulse = np.nonzero((from_end > 1e-3 * top) & (from_start > 1e-3 * max(float(from_start.max()), 1e-300)))[0]
+    if pulse.size == 0:  # a step: nothing to resolve
+        return t_off, None
+    return t_off, max(float(t[pulse[-1] + 1] - t[pulse[0]]), end / (samples - 1))
+
+
+def _pilot_start(t_input: float, width: float | None, pilot_dt: float | None,
+                 pilot_t_end: float | None) -> tuple[float, float]:
+    """First pilot: the input's active part plus ten widths (at least 10 time units), ten samples
+    across the pulse (no pulse: 1000 samples)."""
+    if width is None:
+        T = max(2.0 * t_input, 10.0) if pilot_t_end is None else float(pilot_t_end)
+        return T, (T / 1000.0 if pilot_dt is None else float(pilot_dt))
+    T = max(t_input + 10.0 * width, 10.0) if pilot_t_end is None else float(pilot_t_end)
+    dt = min(width / 10.0, T / 200.0) if pilot_dt is None else float(pilot_dt)
+    return T, dt

@@ -2,8 +2,9 @@
 
 Modules: :mod:`._base` (the interface), :mod:`._builtin` (reference simulator), :mod:`._variables`
 (model description and variable discovery), :mod:`._settings` (``--set`` values), :mod:`._resolve`
-(what an FMU records, from its description alone), :mod:`._cosimulation` (co-simulation FMUs).  A
-``_model_exchange`` driver with the same stepping interface belongs here too.
+(what an FMU records, from its description alone), :mod:`._cosimulation` (co-simulation FMUs),
+:mod:`._model_exchange` (model-exchange FMUs, integrated by fmu-opinf under the same stepping
+interface).
 
 Both sources describe themselves the same way (sizes ``n, m, p``, variable names, constraint kind,
 provenance) and share one stepping interface, so the recorder in :mod:`fmu_opinf.snapshots` does not
@@ -33,7 +34,8 @@ from typing import Any
 from ..errors import InputSpecError
 from ._base import Source, StepError, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
-from ._cosimulation import FMUSource
+from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
+from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
 
@@ -41,7 +43,12 @@ __all__ = [
     "Source",
     "BuiltinSource",
     "FMUSource",
+    "ModelExchangeSource",
     "StepError",
+    "INTERFACES",
+    "DEFAULT_TOLERANCE",
+    "METHODS",
+    "choose_interface",
     "open_source",
     "match_names",
     "natural_key",
@@ -52,6 +59,57 @@ __all__ = [
 ]
 
 
+#: Values of ``--interface``.
+INTERFACES = ("auto", "me", "cs")
+
+
+def choose_interface(path: str | os.PathLike, interface: str | None = "auto") -> str:
+    """The FMI interface to drive: ``"me"`` or ``"cs"``.
+
+    ``auto`` prefers model exchange when the FMU offers it (with a binary for this platform):
+    fmu-opinf then integrates with its own tolerance, whereas several exporters' co-simulation is one
+    explicit Euler step per communication step.  A co-simulation-only FMU is driven through
+    co-simulation.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.fmu`` (or extracted directory).
+    interface : {"auto", "me", "cs"}, default="auto"
+
+    Returns
+    -------
+    str
+    """
+    from ._variables import binary_platform, read_description
+
+    value = "auto" if interface is None else str(interface).lower()
+    if value not in INTERFACES:
+        raise InputSpecError(f"--interface {interface!r} is not one of {', '.join(INTERFACES)}")
+    if value != "auto":
+        return value
+    from pathlib import Path
+
+    md = read_description(Path(path))
+    if md.modelExchange is None:
+        return "cs"
+    if md.coSimulation is None:
+        return "me"
+    binary = f"binaries/{binary_platform(str(md.fmiVersion))}/{md.modelExchange.modelIdentifier}."
+    return "me" if _has_file(path, binary) else "cs"
+
+
+def _has_file(path: str | os.PathLike, prefix: str) -> bool:
+    import zipfile
+    from pathlib import Path
+
+    root = Path(path)
+    if root.is_dir():
+        return any(str(p.relative_to(root)).replace(os.sep, "/").startswith(prefix) for p in root.rglob("*"))
+    with zipfile.ZipFile(root) as zf:
+        return any(name.startswith(prefix) for name in zf.namelist())
+
+
 def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     """Build a source from ``"builtin:anchored-msd"``, ``"builtin:triple-chain"`` or an FMU path.
 
@@ -59,7 +117,9 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     ----------
     spec : str, path-like or Source
         ``builtin:NAME`` (options: the system's size options) or the path of an ``.fmu``
-        (options: :class:`FMUSource` keywords).  A :class:`Source` is returned as is.
+        (options: :class:`FMUSource` keywords, ``interface`` (``"auto"``, ``"me"``, ``"cs"``, see
+        :func:`choose_interface`) and, for model exchange, ``method``).  A :class:`Source` is
+        returned as is.
     **options
         Keywords for the source; ``None`` values are ignored.
 
@@ -72,14 +132,20 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     options = {k: v for k, v in options.items() if v is not None}
     text = os.fspath(spec)
     if text.startswith("builtin:"):
-        name = text.split(":", 1)[1]
+        options.pop("interface", None)  # a builtin source is exact: no interface and no tolerance to choose
+        options.pop("tolerance", None)
         for key in _FMU_OPTIONS:
             if key in options:
                 raise InputSpecError(f"--{_FLAG.get(key, key)} applies to fmu sources, not to {text}")
-        return BuiltinSource(name, **options)
-    unknown = sorted(set(options) - set(_FMU_OPTIONS))
+        return BuiltinSource(name=text.split(":", 1)[1], **options)
+    unknown = sorted(set(options) - set(_FMU_OPTIONS) - {"interface", "tolerance", "method"})
     if unknown:
         raise InputSpecError(f"--{unknown[0]} applies to builtin sources, not to the fmu {text}")
+    interface = choose_interface(text, options.pop("interface", "auto"))
+    if interface == "me":
+        return ModelExchangeSource(text, **options)
+    if "method" in options:
+        raise InputSpecError("an integrator method applies to model exchange only; use --interface me")
     return FMUSource(text, **options)
 
 

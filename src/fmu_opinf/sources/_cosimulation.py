@@ -12,14 +12,30 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionError, FMUError
+from ..errors import DimensionError, FMUError, InputSpecError
 from ._base import Source, StepError, check_constraint
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
                          read_description, start_value)
 
-__all__ = ["FMUSource"]
+__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance"]
+
+#: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
+DEFAULT_TOLERANCE = 1e-10
+
+
+def check_tolerance(tolerance: float | None) -> float:
+    """The tolerance to use: :data:`DEFAULT_TOLERANCE` for ``None``; ``0`` means "the FMU's default".
+
+    Raises :class:`~fmu_opinf.errors.InputSpecError` unless ``0 <= tolerance < 1``.
+    """
+    if tolerance is None:
+        return DEFAULT_TOLERANCE
+    value = float(tolerance)
+    if not (0.0 <= value < 1.0):
+        raise InputSpecError(f"--tolerance {tolerance} must lie in [0, 1), e.g. 1e-10 (relative)")
+    return value
 
 
 class FMUSource(Source):
@@ -55,9 +71,15 @@ class FMUSource(Source):
         sequences for arrays; ``"x[2]"`` sets one element of an array.
     settings : dict, optional
         Same as ``parameters`` (merged after it).
+    tolerance : float, optional
+        Relative tolerance passed to the FMU (``fmi2SetupExperiment`` / ``fmi3EnterInitializationMode``):
+        co-simulation FMUs with an internal variable-step solver follow it.  Default
+        :data:`DEFAULT_TOLERANCE`; ``0`` passes none (the FMU's own default).
     """
 
     kind = "fmu"
+    #: FMI interface this class drives (``"cs"`` co-simulation, ``"me"`` model exchange).
+    interface = "cs"
 
     def __init__(
         self,
@@ -70,8 +92,10 @@ class FMUSource(Source):
         constraint: str | None = None,
         parameters: dict[str, Any] | None = None,
         settings: dict[str, Any] | None = None,
+        tolerance: float | None = None,
     ) -> None:
         self.path = Path(path)
+        self.tolerance = check_tolerance(tolerance)
         self._options = {
             "positions": positions,
             "velocities": velocities,
@@ -80,13 +104,14 @@ class FMUSource(Source):
             "outputs": outputs,
             "constraint": constraint,
             "parameters": {**parse_assignments(parameters), **parse_assignments(settings)} or None,
+            "tolerance": tolerance,
         }
         md = read_description(self.path)
         self.constraint = check_constraint(constraint, annotated_constraint(self.path) or "unknown")
         self._check_interface(md)
         self.md = md
         self.fmi_version = str(md.fmiVersion)
-        self.model_identifier = md.coSimulation.modelIdentifier
+        self.model_identifier = self._interface_of(md).modelIdentifier
         self.model = ModelInfo.from_path(self.path)
         self._resolve(positions, velocities, accelerations, inputs, outputs, self._options["parameters"] or {})
         self._fmu: Any = None
@@ -94,15 +119,22 @@ class FMUSource(Source):
         self._sha256: str | None = None
 
     # -- description ------------------------------------------------------------------------
+    @staticmethod
+    def _interface_of(md: Any) -> Any:
+        """The model description's entry of the interface this class drives (None if absent)."""
+        return md.coSimulation
+
     def _check_interface(self, md: Any) -> None:
         version = str(md.fmiVersion)
         if not (version.startswith("2") or version.startswith("3")):
             raise FMUError(f"{self.path.name} is an FMI {version} fmu; fmu-opinf supports FMI 2.0 and 3.0")
-        if md.coSimulation is None:
-            raise FMUError(f"{self.path.name} is a model-exchange-only fmu; fmu-opinf needs co-simulation "
-                           "(export the model with co-simulation enabled)")
+        if self._interface_of(md) is None:
+            other = "model exchange" if self.interface == "cs" else "co-simulation"
+            mine = "co-simulation" if self.interface == "cs" else "model exchange"
+            raise FMUError(f"{self.path.name} offers no {mine}, only {other}; use --interface "
+                           f"{'me' if self.interface == 'cs' else 'cs'} (or auto)")
         plat = binary_platform(version)
-        binary = f"binaries/{plat}/{md.coSimulation.modelIdentifier}"
+        binary = f"binaries/{plat}/{self._interface_of(md).modelIdentifier}"
         if self.path.is_dir():
             files = [str(p.relative_to(self.path)).replace(os.sep, "/") for p in self.path.rglob("*")]
         else:
@@ -198,10 +230,12 @@ class FMUSource(Source):
             "fmi_version": self.fmi_version,
             "fmu_generation_tool": self.md.generationTool or "",
             "fmu_settings": self._settings_provenance(),
+            "fmi_interface": self.interface,
+            "tolerance": self.tolerance,
         }
 
     def recipe(self) -> tuple[type, dict[str, Any]]:
-        return FMUSource, {"path": str(self.path), **self._options}
+        return type(self), {"path": str(self.path), **self._options}
 
     # -- loading ----------------------------------------------------------------------------
     def start(self, t: np.ndarray, U: np.ndarray) -> None:
@@ -266,22 +300,31 @@ class FMUSource(Source):
 
     def _bind_raw_functions(self) -> None:
         """Own prototypes of the per-step C functions taking raw addresses (no marshalling)."""
-        dll = self._fmu.dll
         vp, sz = ctypes.c_void_p, ctypes.c_size_t
         if self.fmi_version.startswith("2"):
-            names = ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep")
-            protos = ([vp, vp, sz, vp], [vp, vp, sz, vp], [vp, ctypes.c_double, ctypes.c_double, ctypes.c_int])
+            self._c_set, self._c_get = self._bind(("fmi2SetReal", [vp, vp, sz, vp]), ("fmi2GetReal", [vp, vp, sz, vp]))
         else:
-            names = ("fmi3SetFloat64", "fmi3GetFloat64", "fmi3DoStep")
-            protos = ([vp, vp, sz, vp, sz], [vp, vp, sz, vp, sz],
-                      [vp, ctypes.c_double, ctypes.c_double, ctypes.c_bool, vp, vp, vp, vp])
+            self._c_set, self._c_get = self._bind(("fmi3SetFloat64", [vp, vp, sz, vp, sz]),
+                                                  ("fmi3GetFloat64", [vp, vp, sz, vp, sz]))
+        self._bind_interface_functions()
+
+    def _bind_interface_functions(self) -> None:
+        """The C functions of the interface: ``doStep`` for co-simulation."""
+        vp, dbl = ctypes.c_void_p, ctypes.c_double
+        if self.fmi_version.startswith("2"):
+            (self._c_step,) = self._bind(("fmi2DoStep", [vp, dbl, dbl, ctypes.c_int]))
+        else:
+            (self._c_step,) = self._bind(("fmi3DoStep", [vp, dbl, dbl, ctypes.c_bool, vp, vp, vp, vp]))
+        self._flags = np.zeros(4, dtype=np.float64)  # fmi3DoStep out-arguments (3 booleans + 1 double)
+
+    def _bind(self, *prototypes: tuple[str, list[Any]]) -> list[Any]:
+        """Fresh function objects of the binary with the given argument types, returning int."""
         funcs = []
-        for name, argtypes in zip(names, protos):
-            f = dll[name]  # a fresh function object: fmpy's cached one keeps its own prototype
+        for name, argtypes in prototypes:
+            f = self._fmu.dll[name]  # a fresh function object: fmpy's cached one keeps its own prototype
             f.argtypes, f.restype = argtypes, ctypes.c_int
             funcs.append(f)
-        self._c_set, self._c_get, self._c_step = funcs
-        self._flags = np.zeros(4, dtype=np.float64)  # fmi3DoStep out-arguments (3 booleans + 1 double)
+        return funcs
 
     def _logger(self, *args: Any) -> None:
         status, message = args[-3] if len(args) == 5 else args[1], args[-1]
@@ -313,9 +356,10 @@ class FMUSource(Source):
     def _initialize(self) -> None:
         fmu, t0 = self._fmu, float(self._t[0])
         t_stop = float(self._t[-1])
+        tolerance = self.tolerance or None
         try:
             if self.fmi_version.startswith("2"):
-                fmu.setupExperiment(startTime=t0, stopTime=t_stop)
+                fmu.setupExperiment(tolerance=tolerance, startTime=t0, stopTime=t_stop)
                 self._apply_settings(structural=False)
                 fmu.enterInitializationMode()
                 self._set_inputs(0)
@@ -326,15 +370,19 @@ class FMUSource(Source):
                     self._apply_settings(structural=True)
                     fmu.exitConfigurationMode()
                 self._apply_settings(structural=False)
-                fmu.enterInitializationMode(startTime=t0, stopTime=t_stop)
+                fmu.enterInitializationMode(tolerance=tolerance, startTime=t0, stopTime=t_stop)
                 self._set_inputs(0)
                 fmu.exitInitializationMode()
+            self._after_initialization()
         except StepError:
             raise
         except Exception as exc:
             raise StepError(f"{self.path.name} failed to initialize at t={t0:g} ({self._last_log() or exc})",
                             0, t0) from None
         self._set_inputs(0)
+
+    def _after_initialization(self) -> None:
+        """Hook run right after ``exitInitializationMode`` (model exchange: event iteration)."""
 
     def _apply_settings(self, structural: bool) -> None:
         """Set the user's values (structural parameters: in configuration mode, FMI 3 only)."""

@@ -1,0 +1,197 @@
+"""Model-exchange recording, interface choice and tolerances, against exact zero-order-hold solutions.
+
+The reference is :func:`fmu_opinf.lti_fmus.zoh_response` (matrix exponential of the minimal
+coordinates, independent of the FMU and of the integrator).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fmpy")
+
+from fmu_opinf import lti_fmus  # noqa: E402
+from fmu_opinf.cli import main  # noqa: E402
+from fmu_opinf.errors import FmuOpinfError, InputSpecError  # noqa: E402
+from fmu_opinf.snapshots import record  # noqa: E402
+from fmu_opinf.sources import (DEFAULT_TOLERANCE, FMUSource, ModelExchangeSource, StepError,  # noqa: E402
+                               choose_interface, open_source)
+
+pytestmark = pytest.mark.fmu
+
+if lti_fmus.find_build_tools() is None and not Path("/tmp/corpus/me-only.fmu").is_file():
+    pytest.skip("CMake and a C compiler are needed to build FMUs", allow_module_level=True)
+
+NAMES = ("me-only", "start-off-rest", "offset-equilibrium", "fmi3-array-structural", "no-inputs",
+         "cs-euler", "parameters-as-inputs", "modelica-der-aliases")
+
+
+@pytest.fixture(scope="module")
+def corpus(request, tmp_path_factory) -> dict[str, Path]:
+    """Corpus FMUs: built once into pytest's cache (GUID-checked, so a changed builder rebuilds them)."""
+    cache = getattr(request.config, "cache", None)
+    folder = cache.mkdir("lti-corpus") if cache is not None else tmp_path_factory.mktemp("lti")
+    built = lti_fmus.build_corpus(folder, NAMES)
+    return {name: fmu.path for name, fmu in built.items()}
+
+
+def model_of(name: str) -> lti_fmus.LinearMechanicalModel:
+    model = lti_fmus.corpus_models()[name][0]
+    return model.model() if isinstance(model, lti_fmus.MassChain) else model
+
+
+class Levels:
+    """A piecewise-constant input: random levels, each held for ``hold`` steps of ``dt``."""
+
+    spec = "levels"
+
+    def __init__(self, m: int, dt: float, hold: int = 5, seed: int = 1) -> None:
+        self.m, self.dt, self.hold = m, dt, hold
+        self.levels = np.random.default_rng(seed).normal(size=(m, 10_000))
+
+    def sample(self, t) -> np.ndarray:
+        index = np.floor(np.asarray(t) / (self.dt * self.hold) + 1e-9).astype(int)
+        return self.levels[:, index]
+
+
+def exact(name: str, run) -> lti_fmus.ZohResponse:
+    """The exact response to the run's inputs: ``run.u[:, i+1]`` is held over ``[t_i, t_{i+1}]``."""
+    model = model_of(name)
+    held = np.hstack([run.u[:, 1:], run.u[:, -1:]]) if model.m else None
+    return lti_fmus.zoh_response(model, run.t, held)
+
+
+def relative_errors(run, ref) -> dict[str, float]:
+    pairs = {"x": (run.x, ref.x), "xdot": (run.xdot, ref.v), "xddot": (run.xddot, ref.a), "y": (run.y, ref.y)}
+    out = {}
+    for key, (a, b) in pairs.items():
+        out[key] = float(np.abs(np.asarray(a) - b).max() / max(np.abs(b).max(), 1e-300))
+    return out
+
+
+# ----------------------------------------------------------------------------- accuracy
+
+@pytest.mark.parametrize("name", ["me-only", "start-off-rest", "offset-equilibrium", "fmi3-array-structural"])
+def test_model_exchange_recording_matches_the_exact_zoh_solution(corpus, name):
+    source = open_source(corpus[name])
+    assert isinstance(source, ModelExchangeSource)  # auto prefers model exchange
+    dt = 0.05
+    run = record(source, Levels(source.m, dt), dt, 8.0, quiet=True).runs[0]
+    errors = relative_errors(run, exact(name, run))
+    assert max(errors.values()) < 1e-8, errors
+    assert run.attrs["fmi_interface"] == "me"
+    assert run.attrs["tolerance"] == DEFAULT_TOLERANCE
+    assert "DOP853" in run.attrs["integrator"]
+
+
+def test_free_response_through_model_exchange(corpus):
+    run = record(open_source(corpus["no-inputs"]), "none", 0.1, 10.0, quiet=True).runs[0]
+    errors = relative_errors(run, exact("no-inputs", run))
+    assert max(errors.values()) < 1e-8, errors
+
+
+@pytest.mark.parametrize("method", ["lsoda", "radau"])
+def test_other_integrators_follow_the_tolerance(corpus, method):
+    source = open_source(corpus["start-off-rest"], method=method, tolerance=1e-11)
+    run = record(source, Levels(1, 0.1), 0.1, 4.0, quiet=True).runs[0]
+    assert max(relative_errors(run, exact("start-off-rest", run)).values()) < 1e-7
+    assert method.upper()[:4] in run.attrs["integrator"].upper()
+
+
+def test_accelerations_pair_with_the_input_held_over_the_step_that_ends_there(corpus):
+    """At an input jump, the recorded acceleration is der(v) under the previous input (design.md)."""
+    dt = 0.05
+    run = record(open_source(corpus["me-only"]), Levels(1, dt, hold=1), dt, 1.0, quiet=True).runs[0]
+    model = model_of("me-only")
+    held = np.hstack([run.u[:, 1:], run.u[:, -1:]])
+    current = lti_fmus.zoh_response(model, run.t, held, accelerations_from="current")
+    previous = lti_fmus.zoh_response(model, run.t, held, accelerations_from="previous")
+    assert np.abs(run.xddot - previous.a).max() < 1e-8 * np.abs(previous.a).max()
+    assert np.abs(run.xddot - current.a).max() > 1e-3 * np.abs(current.a).max()
+
+
+# ----------------------------------------------------------------------- interface choice
+
+def test_auto_prefers_model_exchange_and_falls_back_to_cosimulation(corpus):
+    assert choose_interface(corpus["start-off-rest"]) == "me"
+    assert choose_interface(corpus["me-only"], "auto") == "me"
+    assert choose_interface(corpus["cs-euler"]) == "cs"
+    assert choose_interface(corpus["start-off-rest"], "cs") == "cs"
+    assert type(open_source(corpus["cs-euler"])) is FMUSource
+    assert type(open_source(corpus["start-off-rest"], interface="cs")) is FMUSource
+    with pytest.raises(InputSpecError, match="--interface"):
+        choose_interface(corpus["me-only"], "both")
+
+
+def test_an_interface_the_fmu_lacks_is_a_one_line_error(corpus):
+    with pytest.raises(FmuOpinfError, match="offers no co-simulation.*--interface me") as info:
+        open_source(corpus["me-only"], interface="cs")
+    assert "\n" not in str(info.value)
+    with pytest.raises(FmuOpinfError, match="offers no model exchange.*--interface cs"):
+        open_source(corpus["cs-euler"], interface="me")
+
+
+def test_tolerance_is_checked():
+    with pytest.raises(InputSpecError, match="tolerance"):
+        open_source("/tmp/does-not-matter.fmu", tolerance=2.0, interface="cs")
+
+
+# ------------------------------------------------------------------------ co-simulation
+
+def test_cosimulation_error_follows_the_tolerance_passed_to_the_fmu(corpus):
+    """The accurate CS FMU's internal solver follows the tolerance that fmu-opinf now passes."""
+    errors = {}
+    for tolerance in (1e-3, 1e-9):
+        source = open_source(corpus["start-off-rest"], interface="cs", tolerance=tolerance)
+        run = record(source, Levels(1, 0.1), 0.1, 6.0, quiet=True).runs[0]
+        errors[tolerance] = relative_errors(run, exact("start-off-rest", run))["x"]
+        assert run.attrs["fmi_interface"] == "cs" and run.attrs["tolerance"] == tolerance
+    assert errors[1e-9] < 1e-7
+    assert errors[1e-3] > 100 * errors[1e-9], errors
+
+
+# --------------------------------------------------------------------------------- errors
+
+def zero_mass_table(source, folder: Path) -> Path:
+    """Inputs holding every scale at 1, then ``mass_scale = 0`` from t = 0.15 (a division by zero)."""
+    names = source.input_names
+    rows = [[0.0] + [0.0 if n == "F" else 1.0 for n in names], [0.15] + [0.0 if n != "stiffness_scale" else 1.0
+                                                                        for n in names]]
+    rows.append([1.0] + rows[-1][1:])
+    path = folder / "zero-mass.csv"
+    path.write_text("\n".join([",".join(["time"] + names)] + [",".join(map(str, r)) for r in rows]) + "\n")
+    return path
+
+
+def test_integration_failure_is_a_one_line_step_error(corpus, tmp_path):
+    """mass_scale driven to 0 divides by zero inside the derivatives: the integration must stop cleanly."""
+    source = open_source(corpus["parameters-as-inputs"])
+    assert source.interface == "me" and source.m == 3
+    with pytest.raises(StepError, match="model-exchange integration.*failed at step 3 ") as info:
+        record(source, str(zero_mass_table(source, tmp_path)), 0.1, 1.0, quiet=True)
+    assert "\n" not in str(info.value)
+
+
+def test_cli_reports_an_integration_failure_in_one_line(corpus, tmp_path, capsys):
+    table = zero_mass_table(open_source(corpus["parameters-as-inputs"]), tmp_path)
+    code = main(["snapshots", str(corpus["parameters-as-inputs"]), "-o", str(tmp_path / "s.h5"), "--input",
+                 str(table), "--dt", "0.1", "--t-end", "1", "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert err.count("\n") == 0 and "model-exchange integration" in err, err
+
+
+def test_cli_interface_and_tolerance_reach_the_file(corpus, tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    code = main(["snapshots", str(corpus["start-off-rest"]), "-o", str(out), "--input", "none", "--dt", "0.1",
+                 "--t-end", "2", "--interface", "cs", "--tolerance", "1e-8", "-q"])
+    assert code == 0, capsys.readouterr().err
+    from fmu_opinf.snapshots import Snapshots
+
+    snaps = Snapshots.load(out) if hasattr(Snapshots, "load") else Snapshots.open(out)
+    attrs = snaps.runs[0].attrs
+    assert attrs["fmi_interface"] == "cs" and attrs["tolerance"] == 1e-8

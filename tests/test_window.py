@@ -1,0 +1,158 @@
+"""The automatic snapshot window on undamped, lightly damped, damped, overdamped and free responses.
+
+The systems are single oscillators ``x'' + 2 zeta w x' + w^2 x = u`` stepped exactly (matrix
+exponential), so the expected fade-out time and periods are known in closed form.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from fmu_opinf.errors import InputSpecError
+from fmu_opinf.snapshots import auto_window, input_activity, record, record_to_file, slowest_frequency
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.sources import Source
+
+IMPULSE = "impulse:amplitude=100,t0=2,width=0.5"
+
+
+class Oscillator(Source):
+    """One mass, exact zero-order-hold steps; output ``y = x``."""
+
+    kind = "builtin"
+
+    def __init__(self, omega: float, zeta: float, x0: float = 0.0, inputs: int = 1) -> None:
+        self.omega, self.zeta, self.x0 = omega, zeta, x0
+        self.position_names, self.velocity_names, self.acceleration_names = ["x"], ["v"], ["a"]
+        self.input_names = ["u"] * inputs
+        self.output_names = ["y"]
+        self.constraint = "none"
+        self.A = np.array([[0.0, 1.0], [-omega**2, -2.0 * zeta * omega]])
+
+    def provenance(self) -> dict:
+        return {"source_kind": "test-oscillator"}
+
+    def recipe(self):
+        return Oscillator, {"omega": self.omega, "zeta": self.zeta, "x0": self.x0, "inputs": self.m}
+
+    def start(self, t, U) -> None:
+        self._plan(t, U)
+        self.z = np.array([self.x0, 0.0])
+        self.u = float(self._U[0].sum()) if self.m else 0.0
+        self.maps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def step(self, t: float, h: float, u) -> None:
+        key = round(h, 12)
+        if key not in self.maps:
+            block = np.zeros((3, 3))
+            block[:2, :2], block[:2, 2] = self.A * h, np.array([0.0, h])
+            E = scipy.linalg.expm(block)
+            self.maps[key] = (E[:2, :2], E[:2, 2])
+        Phi, gamma = self.maps[key]
+        self.u = float(np.sum(u)) if self.m else 0.0
+        self.z = Phi @ self.z + gamma * self.u
+
+    def read(self, out) -> None:
+        x, v = self.z
+        out[:4] = (x, v, -self.omega**2 * x - 2 * self.zeta * self.omega * v + self.u, x)
+
+
+def period(omega: float) -> float:
+    return 2 * math.pi / omega
+
+
+def check_step(window, f_hz: float) -> None:
+    """The step resolves the oscillation (20 points per period, within a factor 2.5 from rounding)."""
+    assert window.dt <= 1.0 / (20 * f_hz) + 1e-12
+    assert window.dt >= 1.0 / (20 * f_hz) / 2.5
+
+
+def test_undamped_stops_after_the_documented_number_of_periods():
+    omega = math.pi  # period 2
+    window = auto_window(Oscillator(omega, 0.0), IMPULSE)
+    assert window.stopped_by == "periods" and window.periods == 20
+    expected = 2.245 + 20 * period(omega)
+    assert expected * 0.9 <= window.t_end <= expected * 1.15, window
+    check_step(window, omega / (2 * math.pi))
+    assert "cut after 20 periods" in str(window)
+
+
+def test_lightly_damped_is_cut_before_it_fades():
+    omega, zeta = math.pi, 1e-3  # fades to 1 % after ~1466 s, 20 periods are 40 s
+    window = auto_window(Oscillator(omega, zeta), IMPULSE)
+    assert window.stopped_by == "periods"
+    assert 40 <= window.t_end <= 55, window
+    check_step(window, omega / (2 * math.pi))
+
+
+def test_damped_waits_for_the_fade_out():
+    omega, zeta = math.pi, 0.05
+    source = Oscillator(omega, zeta)
+    window = auto_window(source, IMPULSE)
+    assert window.stopped_by == "fade"
+    t_fade = 2.25 + math.log(1 / 0.01) / (zeta * omega)  # envelope exp(-zeta w t) down to 1 %
+    assert 0.8 * t_fade <= window.t_end <= 1.2 * t_fade, (window, t_fade)
+    check_step(window, omega / (2 * math.pi))
+    long = record(source, IMPULSE, window.dt, 3 * window.t_end, quiet=True).runs[0]
+    y = np.abs(long.y[0])
+    assert y[long.t > window.t_end].max() <= 0.0105 * y.max()
+
+
+@pytest.mark.parametrize("zeta", [3.0, 50.0])
+def test_overdamped_waits_for_the_slow_decay(zeta):
+    omega = 1.0
+    slow = omega * (zeta - math.sqrt(zeta**2 - 1))  # the slow real pole
+    window = auto_window(Oscillator(omega, zeta), IMPULSE)
+    assert window.stopped_by == "fade" and window.f_min == 0.0
+    t_fade = 2.25 + math.log(1 / 0.01) / slow
+    assert 0.7 * t_fade <= window.t_end <= 1.3 * t_fade, (window, t_fade)
+    assert window.t_end / window.dt >= 50  # a usable number of samples
+
+
+def test_free_response_from_the_start_state():
+    omega, zeta = 2 * math.pi, 0.05  # fades to 1 % after 14.7 s, before 20 periods (20 s)
+    source = Oscillator(omega, zeta, x0=1.0, inputs=0)
+    window = auto_window(source, "none")
+    t_fade = math.log(1 / 0.01) / (zeta * omega)
+    assert window.stopped_by == "fade" and window.t_input == 0.0
+    assert 0.8 * t_fade <= window.t_end <= 1.2 * t_fade, (window, t_fade)
+    check_step(window, 1.0)
+    undamped = auto_window(Oscillator(omega, 0.0, x0=1.0, inputs=0), "none")
+    assert undamped.stopped_by == "periods" and 20 <= undamped.t_end <= 23
+
+
+def test_input_activity_and_slowest_frequency():
+    assert input_activity(parse_signal(IMPULSE), 1) == pytest.approx((2.25, 0.5), abs=0.02)
+    assert input_activity(parse_signal("step:amplitude=1,t0=3"), 1) == pytest.approx((3.0, None))
+    assert input_activity(parse_signal("harmonic:amplitude=1,omega=2"), 1) == (0.0, None)
+    t = np.linspace(0, 100, 10001)
+    y = np.sin(2 * np.pi * 0.3 * t) + 0.5 * np.sin(2 * np.pi * 2.0 * t)
+    assert slowest_frequency(t, y) == pytest.approx(0.3, abs=0.03)
+    assert slowest_frequency(t, np.exp(-t / 30)) == 0.0  # a non-oscillating drift
+
+
+def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
+    """A corpus FMU (stopTime=1, no step size, pulse at t=2) records with no option at all."""
+    from fmu_opinf.cli import main
+
+    fmu = Path("/tmp/corpus/no-inputs.fmu")
+    if not fmu.is_file():
+        pytest.skip("prebuilt corpus not available")
+    out = tmp_path / "s.h5"
+    assert main(["snapshots", str(fmu), "-o", str(out), "-q"]) == 0
+    from fmu_opinf.snapshots import Snapshots
+
+    snaps = Snapshots.load(out)
+    run = snaps.runs[0]
+    assert run.attrs["input_spec"] == "none" and run.t[-1] > 10 and run.attrs["dt"] <= 0.1
+    assert snaps.attrs["auto_window"]["stopped_by"] in ("fade", "periods")
+
+
+def test_bad_periods():
+    with pytest.raises(InputSpecError, match="periods"):
+        auto_window(Oscillator(1.0, 0.1), IMPULSE, periods=0)
