@@ -179,8 +179,9 @@ def _signal_spec(signal: Any) -> str:
 
 def _first_bad_row(rows: np.ndarray) -> int | None:
     """Index of the first row with a NaN/inf, or None (fast path: one sum over the block)."""
-    if math.isfinite(float(rows.sum())):
-        return None
+    with np.errstate(invalid="ignore", over="ignore"):  # inf - inf in the sum is what we look for
+        if math.isfinite(float(rows.sum())):
+            return None
     bad = ~np.isfinite(rows).all(axis=1)
     return int(np.argmax(bad)) if bad.any() else None
 
@@ -216,7 +217,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
     """The failure with the source's explanation appended (e.g. inputs that look like parameters)."""
     hint = getattr(source, "failure_hint", None)
-    text = hint(U, failure.step) if hint is not None else ""
+    text = hint(U, failure.step, str(failure)) if hint is not None else ""
     return StepError(str(failure) + text, failure.step, failure.time) if text else failure
 
 
