@@ -204,3 +204,16 @@ def test_unstable_explicit_cosimulation_gets_a_hint(corpus):
     with pytest.raises(StepError, match="non-finite values.*explicit step.*smaller --dt") as info:
         record(source, "impulse:amplitude=100,t0=2,width=0.5", 0.2, 2000.0, quiet=True)
     assert "\n" not in str(info.value)
+
+
+def test_structural_parameter_through_model_exchange(corpus):
+    """FMI 3 array states whose size is set in configuration mode, integrated by fmu-opinf."""
+    source = open_source(corpus["fmi3-array-structural"], parameters={"n": 8})
+    assert source.interface == "me" and source.n == 8
+    dt = 0.05
+    run = record(source, Levels(source.m, dt), dt, 4.0, quiet=True).runs[0]
+    chain = lti_fmus.corpus_models()["fmi3-array-structural"][0]
+    model = chain.model(8)
+    held = np.hstack([run.u[:, 1:], run.u[:, -1:]])
+    errors = relative_errors(run, lti_fmus.zoh_response(model, run.t, held))
+    assert max(errors.values()) < 1e-8, errors
