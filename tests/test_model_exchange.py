@@ -6,7 +6,6 @@ coordinates, independent of the FMU and of the integrator).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np

@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg
 
 from fmu_opinf.errors import InputSpecError
-from fmu_opinf.snapshots import auto_window, input_activity, record, record_to_file, slowest_frequency
+from fmu_opinf.snapshots import auto_window, input_activity, record, slowest_frequency
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.sources import Source
 
