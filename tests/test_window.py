@@ -136,6 +136,7 @@ def test_input_activity_and_slowest_frequency():
     assert slowest_frequency(t, np.exp(-t / 30)) == 0.0  # a non-oscillating drift
 
 
+@pytest.mark.slow
 def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
     """A corpus FMU (stopTime=1, no step size, pulse at t=2) records with no option at all."""
     from fmu_opinf.cli import main
