@@ -6,7 +6,6 @@ coordinates, independent of the FMU and of the integrator).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -195,3 +194,25 @@ def test_cli_interface_and_tolerance_reach_the_file(corpus, tmp_path, capsys):
     snaps = Snapshots.load(out) if hasattr(Snapshots, "load") else Snapshots.open(out)
     attrs = snaps.runs[0].attrs
     assert attrs["fmi_interface"] == "cs" and attrs["tolerance"] == 1e-8
+
+
+def test_unstable_explicit_cosimulation_gets_a_hint(corpus):
+    """One explicit Euler step per doStep blows up at a coarse step: the error says why and what to do."""
+    source = open_source(corpus["cs-euler"])
+    assert source.interface == "cs"  # the FMU offers no model exchange
+    with pytest.raises(StepError, match="non-finite values.*explicit step.*smaller --dt") as info:
+        record(source, "impulse:amplitude=100,t0=2,width=0.5", 0.2, 2000.0, quiet=True)
+    assert "\n" not in str(info.value)
+
+
+def test_structural_parameter_through_model_exchange(corpus):
+    """FMI 3 array states whose size is set in configuration mode, integrated by fmu-opinf."""
+    source = open_source(corpus["fmi3-array-structural"], parameters={"n": 8})
+    assert source.interface == "me" and source.n == 8
+    dt = 0.05
+    run = record(source, Levels(source.m, dt), dt, 4.0, quiet=True).runs[0]
+    chain = lti_fmus.corpus_models()["fmi3-array-structural"][0]
+    model = chain.model(8)
+    held = np.hstack([run.u[:, 1:], run.u[:, -1:]])
+    errors = relative_errors(run, lti_fmus.zoh_response(model, run.t, held))
+    assert max(errors.values()) < 1e-8, errors

@@ -14,7 +14,7 @@ import pytest
 import scipy.linalg
 
 from fmu_opinf.errors import InputSpecError
-from fmu_opinf.snapshots import auto_window, input_activity, record, record_to_file, slowest_frequency
+from fmu_opinf.snapshots import auto_window, input_activity, record, slowest_frequency
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.sources import Source
 
@@ -136,6 +136,7 @@ def test_input_activity_and_slowest_frequency():
     assert slowest_frequency(t, np.exp(-t / 30)) == 0.0  # a non-oscillating drift
 
 
+@pytest.mark.slow
 def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
     """A corpus FMU (stopTime=1, no step size, pulse at t=2) records with no option at all."""
     from fmu_opinf.cli import main
@@ -150,7 +151,10 @@ def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
     snaps = Snapshots.load(out)
     run = snaps.runs[0]
     assert run.attrs["input_spec"] == "none" and run.t[-1] > 10 and run.attrs["dt"] <= 0.1
-    assert snaps.attrs["auto_window"]["stopped_by"] in ("fade", "periods")
+    window = snaps.attrs["auto_window"]
+    assert window["stopped_by"] in ("fade", "periods")
+    assert window["points_per_period"] == 40  # model exchange: exact continuous-time data
+    assert window["dt"] * window["f_max"] * 40 <= 1.0
 
 
 def test_bad_periods():

@@ -9,7 +9,8 @@ import numpy as np
 
 from ..errors import DimensionError, InputSpecError
 
-__all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations", "newmark_velocities_and_accelerations"]
+__all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations",
+           "newmark_velocities_and_accelerations"]
 
 
 def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:

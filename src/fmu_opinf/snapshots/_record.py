@@ -179,8 +179,9 @@ def _signal_spec(signal: Any) -> str:
 
 def _first_bad_row(rows: np.ndarray) -> int | None:
     """Index of the first row with a NaN/inf, or None (fast path: one sum over the block)."""
-    if math.isfinite(float(rows.sum())):
-        return None
+    with np.errstate(invalid="ignore", over="ignore"):  # inf - inf in the sum is what we look for
+        if math.isfinite(float(rows.sum())):
+            return None
     bad = ~np.isfinite(rows).all(axis=1)
     return int(np.argmax(bad)) if bad.any() else None
 
@@ -216,7 +217,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
     """The failure with the source's explanation appended (e.g. inputs that look like parameters)."""
     hint = getattr(source, "failure_hint", None)
-    text = hint(U, failure.step) if hint is not None else ""
+    text = hint(U, failure.step, str(failure)) if hint is not None else ""
     return StepError(str(failure) + text, failure.step, failure.time) if text else failure
 
 
@@ -453,7 +454,7 @@ def record_to_file(
     parameters: dict[str, Any] | None = None,
     interface: str | None = None,
     tolerance: float | None = None,
-    points_per_period: float = 20.0,
+    points_per_period: float | None = None,
     energy: float = 0.999,
     fade: float = 0.01,
     overwrite: bool = False,
@@ -491,7 +492,7 @@ def record_to_file(
     tolerance : float, optional
         Relative tolerance of the model-exchange integration, also passed to the FMU (default 1e-10).
     points_per_period, energy, fade : float
-        Thresholds of :func:`auto_window`.
+        Thresholds of :func:`auto_window` (``points_per_period``: its default, 20, or 40 for model exchange).
     overwrite : bool, default=False
     quiet : bool, default=False
     isolate : bool, default=True

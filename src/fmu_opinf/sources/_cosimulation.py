@@ -202,8 +202,17 @@ class FMUSource(Source):
             out.append(float(values[element.offset]) if values is not None else start_value(element))
         return np.array(out, dtype=float)
 
-    def failure_hint(self, U: np.ndarray, step: int) -> str:
-        """Why a step may have failed: force inputs with non-zero start values set to 0 look like parameters."""
+    def failure_hint(self, U: np.ndarray, step: int, message: str = "") -> str:
+        """Why a step may have failed.
+
+        Force inputs with non-zero start values set to 0 look like parameters; non-finite values from a
+        co-simulation FMU are typical of an explicit (Euler) step that is unstable at this step size.
+        """
+        if "non-finite" in message and self.interface == "cs":
+            other = ("drive its model exchange (--interface me)" if self.md.modelExchange is not None
+                     else "pass a smaller --dt")
+            return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
+                    f"that is unstable at this step: {other}")
         if not self._parameter_like or U is None or not len(U):
             return ""
         row = U[min(max(step, 0), len(U) - 1)]

@@ -11,8 +11,9 @@ Runge-Kutta of order 8 with step-size control): on the corpus and benchmark FMUs
 fastest and the most accurate of the candidates measured in ``benchmarks/bench_me.py`` (LSODA
 through :func:`scipy.integrate.odeint`, BDF, Radau; their global error is 100 to 1000 times the
 tolerance, DOP853's below it).  Stiff models (widely separated time scales) are integrated faster
-by the implicit ``"radau"``, ``"bdf"`` or ``"lsoda"`` (Python API ``method=``).  The relative tolerance is the source's ``tolerance``; the absolute
-tolerance is that times each state's largest magnitude so far (floored at 1e-6 of its nominal value).
+by the implicit ``"radau"``, ``"bdf"`` or ``"lsoda"`` (Python API ``method=``).  The relative
+tolerance is the source's ``tolerance``; the absolute tolerance is that times each state's largest
+magnitude so far (floored at 1e-6 of its nominal value).
 """
 
 from __future__ import annotations
