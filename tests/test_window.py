@@ -151,10 +151,7 @@ def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
     snaps = Snapshots.load(out)
     run = snaps.runs[0]
     assert run.attrs["input_spec"] == "none" and run.t[-1] > 10 and run.attrs["dt"] <= 0.1
-    window = snaps.attrs["auto_window"]
-    assert window["stopped_by"] in ("fade", "periods")
-    assert window["points_per_period"] == 40  # model exchange: exact continuous-time data
-    assert window["dt"] * window["f_max"] * 40 <= 1.0
+    assert snaps.attrs["auto_window"]["stopped_by"] in ("fade", "periods")
 
 
 def test_bad_periods():

@@ -454,7 +454,7 @@ def record_to_file(
     parameters: dict[str, Any] | None = None,
     interface: str | None = None,
     tolerance: float | None = None,
-    points_per_period: float | None = None,
+    points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
     overwrite: bool = False,
@@ -492,7 +492,7 @@ def record_to_file(
     tolerance : float, optional
         Relative tolerance of the model-exchange integration, also passed to the FMU (default 1e-10).
     points_per_period, energy, fade : float
-        Thresholds of :func:`auto_window` (``points_per_period``: its default, 20, or 40 for model exchange).
+        Thresholds of :func:`auto_window`.
     overwrite : bool, default=False
     quiet : bool, default=False
     isolate : bool, default=True

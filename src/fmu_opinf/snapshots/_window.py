@@ -207,7 +207,7 @@ def auto_window(
     source: Source | str,
     signal: Any,
     *,
-    points_per_period: float | None = None,
+    points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
     periods: float = 20.0,
@@ -248,12 +248,7 @@ def auto_window(
     source : Source or str
     signal : Signal or str
         Impulse-like training input (``"none"``: the free response from the start state).
-    points_per_period : float, optional
-        Samples per period of ``f_max``.  Default 20 (the paper), and 40 for model-exchange FMUs: their
-        data are the exact continuous-time response, which the ROM's Newmark discretization only matches
-        to ``O((omega h)^2)`` (measured on the ``me-only`` corpus FMU, r = 5: max eps_y 6.9e-6 at 20,
-        4.3e-7 at 40, 2.7e-8 at 80 points per period).  Newmark data (builtin sources, the benchmark
-        co-simulation FMUs) are discretization-consistent and need no more than 20.
+    points_per_period : float, default=20
     energy : float, default=0.999
     fade : float, default=0.01
     periods : float, default=20
@@ -275,8 +270,6 @@ def auto_window(
     """
     source = open_source(source)
     signal = as_signal(signal, source.m, source)
-    if points_per_period is None:
-        points_per_period = 40.0 if getattr(source, "interface", "") == "me" else 20.0
     for name, value, low, high in (("energy", energy, 0.0, 1.0), ("fade", fade, 0.0, 1.0)):
         if not low < value < high:
             raise InputSpecError(f"{name}={value} must lie strictly between {low:g} and {high:g}")
