@@ -46,6 +46,9 @@ def decode(attrs: dict[str, Any]) -> dict[str, Any]:
                 attrs[key] = json.loads(attrs[key])
             except ValueError:
                 raise FileFormatError(f"attribute {key!r} is not valid JSON; the file is damaged") from None
+            if not isinstance(attrs[key], dict):
+                raise FileFormatError(f"attribute {key!r} holds JSON {type(attrs[key]).__name__}, expected an "
+                                      "object; the file is damaged")
     return attrs
 
 
