@@ -307,3 +307,33 @@ def test_output_files_honour_the_umask_and_keep_the_mode_they_replace(files, tmp
         assert _mode(other) == 0o600
     finally:
         os.umask(old)
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 6: declared sizes are checked against the data present and the memory available
+# ------------------------------------------------------------------------------------------------------
+
+
+def test_snapshot_file_claiming_600e9_samples_fails_fast(files, tmp_path, capsys):
+    import time
+
+    def claim(f):
+        for name in ("t", "u", "x", "xdot", "xddot", "y"):
+            f[RUN + "/" + name].resize(6 * 10**11, axis=f[RUN + "/" + name].ndim - 1)
+
+    path = _mutated(files["snapshots"], tmp_path, claim)
+    assert path.stat().st_size < 200_000
+    start = time.perf_counter()
+    code, err = run_main(capsys, "fit", path, "-o", tmp_path / "rom.h5", "--r", "2", "-q")
+    assert_one_line_error(code, err, "holds data for only part of it")
+    assert time.perf_counter() - start < 5
+
+
+def test_sizes_beyond_available_memory_are_refused_before_allocating(files, monkeypatch):
+    import fmu_opinf._validate as validate
+
+    monkeypatch.setattr(validate, "available_memory", lambda: 256)
+    with pytest.raises(DataError, match="of memory but only"):
+        SecondOrderROM.load(files["rom"])
+    with pytest.raises(DataError, match="of memory but only"):
+        Snapshots.load(files["snapshots"])
