@@ -337,3 +337,39 @@ def test_sizes_beyond_available_memory_are_refused_before_allocating(files, monk
         SecondOrderROM.load(files["rom"])
     with pytest.raises(DataError, match="of memory but only"):
         Snapshots.load(files["snapshots"])
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 4: a full disk while recording is one line, the previous file stays, no temporary file
+# ------------------------------------------------------------------------------------------------------
+
+
+def _cli_env() -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    src = str(Path(cli.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+@pytest.mark.parametrize("limit, g, dt", [(20_000, 50, 0.1), (40 * 2**20, 2000, 0.01)],
+                         ids=["at-open", "while-streaming"])
+def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, dt):
+    import resource
+    import signal as _signal
+    import subprocess
+    import sys
+
+    def small_disk():  # a file size limit: writes beyond it fail with EFBIG, as on a full disk
+        _signal.signal(_signal.SIGXFSZ, _signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"previous")
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", "snapshots", "builtin:anchored-msd", "--g",
+                             str(g), "-o", str(out), "--input", "step", "--dt", str(dt), "--t-end", "200", "-q",
+                             "--force"], capture_output=True, text=True, preexec_fn=small_disk, env=_cli_env(),
+                            timeout=120)
+    err = result.stderr.strip().splitlines()
+    assert_one_line_error(result.returncode, err, "the disk is full")
+    assert out.read_bytes() == b"previous"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]

@@ -8,17 +8,23 @@ import errno
 import hashlib
 import os
 import platform
+import shutil
 import stat
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
+
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None  # type: ignore[assignment]
 
 import h5py
 import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager
@@ -36,6 +42,7 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
     if path.is_dir():
         raise FileFormatError(f"{path} is a directory; give a file name ending in .h5")
     with atomic_path(path) as tmp:
+        ensure_space(tmp, 0, path)
         try:
             with h5py.File(tmp, "w") as f:
                 yield f
@@ -77,6 +84,32 @@ def write_error(path: Path, exc: OSError) -> FileFormatError:
     if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
         return FileFormatError(f"cannot write {path}: {exc.strerror}; choose a writable location with -o")
     return FileFormatError(f"cannot write {path} ({text[:200]}); the previous file is unchanged")
+
+
+#: Free bytes kept beyond the next write: HDF5 chunk caches and metadata written when the file is closed.
+SPACE_MARGIN = 16 * 2**20
+
+
+def free_space(path: str | os.PathLike) -> float:
+    """Bytes that can still be written to ``path`` (a file being written): free disk space, and the
+    process's file size limit (``ulimit -f``) minus the file's current size."""
+    path = Path(path)
+    free = float(shutil.disk_usage(path.parent if str(path.parent) else ".").free)
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0] if resource is not None else -1
+    if limit not in (-1, getattr(resource, "RLIM_INFINITY", -1)):
+        size = path.stat().st_size if path.exists() else 0
+        free = min(free, float(limit - size))
+    return free
+
+
+def ensure_space(path: str | os.PathLike, nbytes: float, target: str | os.PathLike | None = None) -> None:
+    """Raise the disk-full :class:`FileFormatError` *before* writing ``nbytes`` more to ``path``.
+
+    HDF5 cannot recover from a failed write (closing such a file may even crash the process), so writers
+    stop while there is still room for the file's metadata.  ``target`` is the name shown to the user.
+    """
+    if free_space(path) < nbytes + SPACE_MARGIN:
+        raise write_error(Path(target or path), OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
 
 
 def _umask() -> int:

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .._hdf5 import tool_versions, write_attrs
+from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import InputSpecError
 from ..sources import Source, StepError, open_source
@@ -100,9 +100,11 @@ class MemorySink(_Sink):
 class _H5Sink(_Sink):
     """Streams blocks into the (chunked, compressed) datasets of one run group."""
 
-    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group) -> None:
+    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group,
+                 target: Path | None = None) -> None:
         super().__init__(source, t, u)
         self.group = group
+        self.target = target  # the file name shown when the disk is full
         self.scratch = np.empty((self.block, self.width))
         self.ds = {name: create_dataset(group, name, (rows, self.k)) for name, rows in
                    (("x", self.n), ("xdot", self.n), ("xddot", self.n), ("y", self.p))}
@@ -111,6 +113,7 @@ class _H5Sink(_Sink):
         return self.scratch[:count]
 
     def commit(self, i0: int, count: int) -> None:
+        ensure_space(self.group.file.filename, 8.0 * count * self.width, self.target)
         for name, ds in self.ds.items():
             part = self.layout[name]
             if part.stop > part.start and count:
@@ -355,7 +358,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             group = runs.create_group(f"{index:04d}")
 
             def factory(src: Source, tt: np.ndarray, uu: np.ndarray, g: h5py.Group = group) -> _H5Sink:
-                return _H5Sink(src, tt, uu, g)
+                return _H5Sink(src, tt, uu, g, path)
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
             if window is not None:
