@@ -373,3 +373,68 @@ def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, d
     assert_one_line_error(result.returncode, err, "the disk is full")
     assert out.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 2: Ctrl-C / SIGTERM during a streamed recording stop it, keep the previous file, leave no temp file
+# ------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def anchored_fmu():
+    from fmu_opinf import fmus
+
+    if fmus.find_build_tools() is None and not (fmus._c_sources_dir() / "AnchoredMSD.fmu").is_file():
+        pytest.skip("no CMake / C compiler to build the benchmark FMUs")
+    return fmus.bundled_fmu("AnchoredMSD")
+
+
+def _wait_for_stream(folder: Path, proc, minimum: int = 4 * 2**20, timeout: float = 60.0) -> None:
+    import time
+
+    start = time.monotonic()
+    while time.monotonic() - start < timeout and proc.poll() is None:
+        temps = list(folder.glob("*.tmp"))
+        if temps and temps[0].stat().st_size >= minimum:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"the recording did not start streaming (exit code {proc.poll()})")
+
+
+@pytest.mark.parametrize("isolation", ["--in-process", "isolated"])
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGINT-to-group"])
+def test_interrupted_streamed_recording_keeps_the_previous_file(anchored_fmu, tmp_path, isolation, how):
+    """A streamed run (data over the in-memory limit) is interrupted while writing its temporary file."""
+    import signal as _signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"the previous, complete snapshot file")
+    before = out.read_bytes()
+    args = [sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o", str(out), "--input",
+            "impulse:amplitude=100,t0=2,width=0.5", "--dt", "0.01", "--t-end", "2000", "--force", "-q"]
+    args += [isolation] if isolation.startswith("--") else []
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_cli_env(),
+                            start_new_session=True)
+    try:
+        _wait_for_stream(tmp_path, proc)
+        signum = _signal.SIGTERM if how == "SIGTERM" else _signal.SIGINT
+        sent = time.monotonic()
+        if how.endswith("group"):  # a terminal's Ctrl-C reaches the tool and its simulation process
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
+        _, err = proc.communicate(timeout=20)
+        elapsed = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, _signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 128 + signum, err
+    assert elapsed < 5, elapsed
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]

@@ -280,9 +280,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except FileExistsError as exc:
         print(f"fmu-opinf: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("fmu-opinf: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM during a recording (snapshots.Interrupted)
+        signum = getattr(exc, "signum", 2)
+        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); no output file was "
+              "written or replaced", file=sys.stderr)
+        return 128 + signum
     return 0
 
 

@@ -30,7 +30,7 @@ from ..errors import InputSpecError
 from ..sources import Source, StepError, open_source
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
-from ._isolation import produce_inprocess, produce_isolated, source_label
+from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._rates import inputs_in_effect, newmark_rates, time_grid
 
 if TYPE_CHECKING:
@@ -169,9 +169,10 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
     failure: StepError | None = None
     started = _time.perf_counter()
-    with Progress(len(t), "recording", quiet=quiet) as bar:
+    with deferred_interrupts(), Progress(len(t), "recording", quiet=quiet) as bar:
         try:
             for i0, count in producer:
+                check_interrupt()
                 first = _first_bad_row(sink.rows(i0, count)[:count])
                 if first is not None:
                     sink.commit(i0, first)
