@@ -22,6 +22,7 @@ from fmu_opinf.errors import DataError, FileFormatError
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.snapshots import Snapshots, record
 from fmu_opinf.source import BuiltinSource
+from test_source import toys  # noqa: F401  (fixture: toy FMUs with a fault switch)
 
 SIGNAL = "impulse:amplitude=10,t0=1,width=0.5"
 
@@ -438,3 +439,42 @@ def test_interrupted_streamed_recording_keeps_the_previous_file(anchored_fmu, tm
     assert len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
     assert out.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 3: compare runs the FMU in a separate process: a crash or a hang is one line
+# ------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def toy_rom(tmp_path_factory):
+    """A one-input, two-output ROM matching the toy FMU of test_source (r = 1)."""
+    path = tmp_path_factory.mktemp("toyrom") / "rom.h5"
+    SecondOrderROM([[1.0]], [[1.0]], [[1.0]], [[1.0]], [[1.0], [0.5]], [[0.0], [0.0]], dt=0.1).save(path)
+    return path
+
+
+def test_compare_with_a_crashing_fmu_is_one_line(toys, toy_rom, tmp_path):
+    """The toy dereferences NULL in doStep once its input exceeds 0.5; on main this killed the tool."""
+    import subprocess
+    import sys
+
+    report = tmp_path / "report"
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", "compare", str(toy_rom), str(toys["full"]),
+                             "--input", "step:amplitude=1,t0=3.95", "--dt", "0.1", "--t-end", "6", "--set", "fault=3",
+                             "--set", "fault_threshold=0.5", "-o", str(report), "-q"],
+                            capture_output=True, text=True, env=_cli_env(), timeout=120)
+    assert_one_line_error(result.returncode, result.stderr.strip().splitlines(),
+                          "crashed the simulation process (signal SIGSEGV) at step 41")
+    assert not report.exists()
+
+
+def test_compare_timeout_stops_a_slow_fmu(anchored_fmu, files, tmp_path, capsys):
+    import time
+
+    start = time.monotonic()
+    code, err = run_main(capsys, "compare", files["rom"], anchored_fmu, "--input", "step", "--dt", "0.01",
+                         "--t-end", "2000", "--timeout", "1", "-o", tmp_path / "report", "-q")
+    assert_one_line_error(code, err, "did not finish within the timeout of 1 s")
+    assert time.monotonic() - start < 10
+    assert not (tmp_path / "report").exists()

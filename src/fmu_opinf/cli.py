@@ -144,6 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")
+    p.add_argument("--timeout", type=float, help="seconds the full-order FMU may run before it is stopped "
+                                                 "(it runs in a separate process; default: no limit)")
     p.add_argument("-q", "--quiet", action="store_true")
     _add_scaleout_options(p, "compare")
     _add_source_options(p)
@@ -195,8 +197,11 @@ def _run_compare(args: argparse.Namespace) -> None:
     from .compare import compare, summary_table, write_report
 
     # the report folder was checked up front (_check_arguments) and is created only once there is a report
+    options = _source_options(args)
+    if args.timeout is not None:
+        options["timeout"] = args.timeout
     result = compare(args.rom, args.source, args.input_spec, dt=args.dt, t_end=args.t_end, quiet=args.quiet,
-                     source_options=_source_options(args))
+                     source_options=options)
     page = write_report(result, args.output)
     print(summary_table([(Path(str(args.rom)).name, result.metrics())]))
     print(f"report: {page}")
@@ -233,7 +238,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
 
     for option in ("positions", "velocities", "accelerations", "inputs", "outputs"):
         v.check_patterns(getattr(args, option, None), "--" + option)
-    for option in ("dt", "t_end", "lowpass"):
+    for option in ("dt", "t_end", "lowpass", "timeout"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
     for option in ("r", "g", "n1"):
         value = getattr(args, option, None)

@@ -12,12 +12,13 @@ import signal as _signal
 from collections.abc import Iterator
 from multiprocessing import shared_memory
 import threading
+import time as _time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import FmuOpinfError
+from ..errors import FMUError, FmuOpinfError
 from ..sources import Source, StepError
 
 if TYPE_CHECKING:
@@ -134,6 +135,7 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
         conn.send(("error", type(exc).__name__, str(exc)))
         return
     i = 0
+    started = _time.perf_counter()
     try:
         while i < k:
             c = min(cap, k - i)
@@ -146,17 +148,21 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
             i += c
             conn.send(("block", c))
             conn.recv()
-        conn.send(("done",))
+        conn.send(("done", _time.perf_counter() - started))  # stepping time without process start-up
     finally:
         source.close()
 
 
-def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
+                     timeout: float | None = None) -> Iterator[tuple[int, int]]:
     """Like :func:`produce_inprocess`, with the source in a spawned child process.
 
     The child writes samples into shared memory and publishes after each sample how many rows are
     complete, so when it dies (a crashing binary) every sample it finished is still taken over.
+    With ``timeout`` (seconds for the whole run) a hanging binary is killed and reported as
+    :class:`~fmu_opinf.errors.FMUError`.
     """
+    deadline = None if timeout is None else _time.monotonic() + timeout
     k, width = len(t), source.width
     cap = sink.block
     shm = shared_memory.SharedMemory(create=True, size=_HEADER + 8 * cap * max(width, 1))
@@ -171,7 +177,12 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) 
         proc.start()
         there.close()
         while True:
-            message = _receive(here, proc)
+            message = _receive(here, proc, deadline)
+            if message == ("timeout",):
+                i = i0 + int(count[0])
+                raise FMUError(f"{source_label(source)} did not finish within the timeout of {timeout:g} s "
+                               f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase --timeout "
+                               "or check the FMU")
             valid = _valid_rows(message, int(count[0]))
             if valid:
                 sink.rows(i0, valid)[:] = rows[:valid]
@@ -186,6 +197,7 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) 
             if message[0] == "error":
                 raise _error_class(message[1])(message[2])
             if message[0] == "done":
+                sink.seconds = message[1] if len(message) > 1 else None
                 return
             i0 += valid
             here.send("ack")
@@ -215,10 +227,12 @@ def _valid_rows(message: tuple | None, published: int) -> int:
     return message[1] if message[0] == "block" else 0
 
 
-def _receive(conn: Any, proc: Any) -> tuple | None:
-    """Next message from the child, or None once it has exited without one."""
+def _receive(conn: Any, proc: Any, deadline: float | None = None) -> tuple | None:
+    """Next message from the child, None once it has exited without one, ``("timeout",)`` after ``deadline``."""
     while True:
         check_interrupt()
+        if deadline is not None and _time.monotonic() > deadline:
+            return ("timeout",)
         if conn.poll(0.05):
             try:
                 return conn.recv()
