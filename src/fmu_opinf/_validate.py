@@ -9,22 +9,23 @@ check raises a one-line :class:`~fmu_opinf.errors.FileFormatError` (structure, t
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import h5py
 import numpy as np
 
-from .errors import DataError, FileFormatError, InputSpecError
+from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
     "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
     "check_writable", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
-    "check_rom_file", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
+    "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
 # -- memory ----------------------------------------------------------------------------------------------
@@ -299,7 +300,7 @@ def _json(text: str) -> Any:
 
 
 def _short(value: Any) -> str:
-    text = repr(value)
+    text = " ".join(repr(value).split())
     text = text if len(text) <= 40 else text[:37] + "..."
     return f"{type(value).__name__} {text}"
 
@@ -354,6 +355,44 @@ def check_rom_file(f: h5py.File, path: Path) -> None:
     and fitting into memory, and that ``Mr`` is a square positive definite matrix and ``Dr``, ``Kr`` are
     positive semidefinite (eq. 16).
     """
+    with damaged_file_errors(path):
+        _check_rom_file(f, path)
+
+
+@contextlib.contextmanager
+def damaged_file_errors(path: Path) -> Iterator[None]:
+    """Report low-level HDF5 failures (corrupt headers, bad addresses) as one-line :class:`FileFormatError`."""
+    try:
+        yield
+    except FmuOpinfError:
+        raise
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
+        text = " ".join(str(exc).split())[:200]
+        raise FileFormatError(f"cannot read {path} ({type(exc).__name__}: {text}); the file is damaged") from None
+
+
+#: Expected shapes of the ROM matrices in terms of ``r``, ``m``, ``p``, ``n`` (None: any).
+_ROM_SHAPES = {"Mr": ("r", "r"), "Dr": ("r", "r"), "Kr": ("r", "r"), "Br": ("r", "m"), "Cpr": ("p", "r"),
+               "Cvr": ("p", "r"), "basis": ("n", "r"), "singular_values": ("N",)}
+
+
+def _check_rom_shapes(mats: dict[str, np.ndarray], path: Path) -> None:
+    """Every known matrix has the dimensions its shape formula and the others' sizes imply."""
+    sizes: dict[str, int] = {}
+    for name, formula in _ROM_SHAPES.items():
+        value = mats.get(name)
+        if value is None:
+            continue
+        if value.ndim != len(formula):
+            raise FileFormatError(f"{path}: {name} has shape {value.shape}, expected {len(formula)} dimensions "
+                                  f"({', '.join(formula)}); the file is damaged")
+        for size, symbol in zip(value.shape, formula):
+            if sizes.setdefault(symbol, size) != size:
+                raise FileFormatError(f"{path}: {name} has shape {value.shape}, inconsistent with {symbol}="
+                                      f"{sizes[symbol]} of the other matrices; the file is damaged")
+
+
+def _check_rom_file(f: h5py.File, path: Path) -> None:
     from ._hdf5 import read_attrs
 
     reject_links(f)
@@ -363,6 +402,7 @@ def check_rom_file(f: h5py.File, path: Path) -> None:
     check_memory(8.0 * sum(ds.size for ds in datasets.values()), f"ROM file {path}",
                  "the file declares more data than this machine holds; it is damaged or not a ROM")
     mats = {name: read_real(ds, f"{path}: {name}") for name, ds in datasets.items()}
+    _check_rom_shapes(mats, path)
     if "Mr" in mats:
         _check_definite(mats, path)
 

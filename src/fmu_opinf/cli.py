@@ -279,11 +279,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         _check_arguments(args)
         _scaleout_dispatch(args) or _VERBS[args.verb](args)
-    except FmuOpinfError as exc:
-        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
-        return 2
-    except FileExistsError as exc:
-        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
+    except (FmuOpinfError, FileExistsError) as exc:
+        print("fmu-opinf: error: " + " ".join(str(exc).split()), file=sys.stderr)  # one line, always
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM during a recording (snapshots.Interrupted)
         signum = getattr(exc, "signum", 2)

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 
 from .._hdf5 import read_attrs
-from .._validate import SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run, reject_links
+from .._validate import SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run, damaged_file_errors, reject_links
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
 
@@ -213,7 +213,8 @@ class Snapshots:
         except OSError:
             raise FileFormatError(f"{path} is not an HDF5 file; give a file written by 'fmu-opinf snapshots'") from None
         try:
-            snaps = cls._from_h5(f, path)
+            with damaged_file_errors(path):
+                snaps = cls._from_h5(f, path)
         except BaseException:
             f.close()
             raise
