@@ -4,19 +4,27 @@ from __future__ import annotations
 
 import contextlib
 import datetime
+import errno
 import hashlib
 import os
 import platform
+import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any, Iterator
+
+try:
+    import resource
+except ImportError:  # not on Windows
+    resource = None  # type: ignore[assignment]
 
 import h5py
 import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager
@@ -25,25 +33,105 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
 
     An existing file at ``path`` is never half-overwritten: until the ``with`` block ends
     without an exception the old file is untouched, and the replacement is one rename.
+    The new file gets the permissions of the file it replaces, else ``0666`` minus the umask.
+    Failing writes (disk full, no permission) are reported as one-line :class:`FileFormatError`.
     """
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--force) to replace it")
     if path.is_dir():
         raise FileFormatError(f"{path} is a directory; give a file name ending in .h5")
+    with atomic_path(path) as tmp:
+        ensure_space(tmp, 0, path)
+        try:
+            with h5py.File(tmp, "w") as f:
+                yield f
+        except OSError as exc:
+            raise write_error(path, exc) from None
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[str]:
+    """A temporary file name next to ``path``, renamed to ``path`` if the block succeeds, else removed.
+
+    Interrupts (Ctrl-C, SIGTERM turned into an exception) remove it too, so no ``.tmp`` file is left.
+    """
     parent = path.parent if str(path.parent) else Path(".")
-    if not parent.exists():
+    if not parent.is_dir():
         raise FileFormatError(f"directory {parent} does not exist; create it first")
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=parent)
+    except OSError as exc:
+        raise write_error(path, exc) from None
     os.close(fd)
     try:
-        with h5py.File(tmp, "w") as f:
-            yield f
+        yield tmp
+        os.chmod(tmp, output_mode(path))
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def write_error(path: Path, exc: OSError) -> FileFormatError:
+    """One line for a failed write: disk full, file size limit, permission, ..."""
+    text = " ".join(str(exc).split())
+    if exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) or "errno = 28" in text or "errno = 27" in text \
+            or "No space" in text or "too large" in text:
+        return FileFormatError(f"cannot write {path}: the disk is full (or a file size limit was reached); "
+                               "free space or choose another -o location, the previous file is unchanged")
+    if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        return FileFormatError(f"cannot write {path}: {exc.strerror}; choose a writable location with -o")
+    return FileFormatError(f"cannot write {path} ({text[:200]}); the previous file is unchanged")
+
+
+#: Free bytes kept beyond the next write: HDF5 chunk caches and metadata written when the file is closed.
+SPACE_MARGIN = 16 * 2**20
+
+
+def free_space(path: str | os.PathLike) -> float:
+    """Bytes that can still be written to ``path`` (a file being written): free disk space, and the
+    process's file size limit (``ulimit -f``) minus the file's current size."""
+    path = Path(path)
+    free = float(shutil.disk_usage(path.parent if str(path.parent) else ".").free)
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0] if resource is not None else -1
+    if limit not in (-1, getattr(resource, "RLIM_INFINITY", -1)):
+        size = path.stat().st_size if path.exists() else 0
+        free = min(free, float(limit - size))
+    return free
+
+
+def ensure_space(path: str | os.PathLike, nbytes: float, target: str | os.PathLike | None = None) -> None:
+    """Raise the disk-full :class:`FileFormatError` *before* writing ``nbytes`` more to ``path``.
+
+    HDF5 cannot recover from a failed write (closing such a file may even crash the process), so writers
+    stop while there is still room for the file's metadata.  ``target`` is the name shown to the user.
+    """
+    if free_space(path) < nbytes + SPACE_MARGIN:
+        raise write_error(Path(target or path), OSError(errno.ENOSPC, os.strerror(errno.ENOSPC)))
+
+
+def _umask() -> int:
+    """The process umask (read from /proc without changing it; else set and restore)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def output_mode(path: Path) -> int:
+    """Permission bits for a new output at ``path``: those of the file it replaces, else 0666 & ~umask."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return 0o666 & ~_umask()
 
 
 def tool_versions() -> dict[str, str]:
@@ -78,6 +166,8 @@ def sha256_of(path: str | os.PathLike) -> str:
 #: Values larger than this go into datasets: HDF5 object headers hold at most 64 KiB of attributes.
 LARGE_ATTRIBUTE_BYTES = 16 * 1024
 _LARGE_GROUP = "_attrs"
+#: Largest attribute value read back (names of ~10 million variables).
+_LARGE_LIMIT = 256 * 2**20
 
 
 def _encode(value: Any) -> Any:
@@ -121,24 +211,52 @@ def write_attrs(obj: h5py.HLObject, attrs: dict[str, Any]) -> None:
             obj.attrs[key] = encoded
 
 
-def _decode(value: Any) -> Any:
+def _decode(value: Any, where: str = "") -> Any:
     if isinstance(value, bytes):
-        return value.decode()
+        try:
+            return value.decode()
+        except UnicodeDecodeError:
+            raise FileFormatError(f"{where} is not UTF-8 text; the file is damaged") from None
+    if isinstance(value, (np.ndarray, np.generic)) and value.dtype.kind in "cV":
+        raise FileFormatError(f"{where} has type {value.dtype}; fmu-opinf writes only text, numbers and "
+                              "booleans, the file is damaged or was not written by fmu-opinf")
     if isinstance(value, np.ndarray) and value.dtype.kind in "OS":
         if value.ndim == 0:
-            return _decode(value[()])
-        return [v.decode() if isinstance(v, bytes) else str(v) for v in value]
+            return _decode(value[()], where)
+        items = [_decode(v, where) for v in value.flat]
+        if not all(isinstance(v, str) for v in items):
+            raise FileFormatError(f"{where} holds non-text objects; the file is damaged")
+        return items
     if isinstance(value, np.generic):
         return value.item()
     return value
 
 
 def read_attrs(obj: h5py.HLObject) -> dict[str, Any]:
-    """Read HDF5 attributes (and large values kept as datasets) back into plain Python values."""
-    out = {key: _decode(value) for key, value in obj.attrs.items()}
-    if isinstance(obj, h5py.Group) and isinstance(obj.get(_LARGE_GROUP), h5py.Group):
-        for key, dataset in obj[_LARGE_GROUP].items():
-            out[key] = _decode(dataset[()])
+    """Read HDF5 attributes (and large values kept as datasets) back into plain Python values.
+
+    Raises
+    ------
+    FileFormatError
+        An attribute of a type fmu-opinf never writes (compound, complex, references, unreadable).
+    """
+    where = f"{obj.file.filename}:{obj.name}"
+    try:
+        out = {key: _decode(obj.attrs[key], f"{where} attribute {key!r}") for key in obj.attrs.keys()}
+        large = obj.get(_LARGE_GROUP, getlink=True) if isinstance(obj, h5py.Group) else None
+        if isinstance(large, h5py.HardLink) and isinstance(obj[_LARGE_GROUP], h5py.Group):
+            for key, dataset in obj[_LARGE_GROUP].items():
+                if not isinstance(dataset, h5py.Dataset):
+                    raise FileFormatError(f"{where}/{_LARGE_GROUP}/{key} is not a dataset; the file is damaged")
+                if dataset.size * dataset.dtype.itemsize > _LARGE_LIMIT:
+                    raise FileFormatError(f"{where} attribute {key!r} declares {dataset.shape} values; "
+                                          "the file is damaged or not an fmu-opinf file")
+                out[key] = _decode(dataset[()], f"{where} attribute {key!r}")
+    except (OSError, TypeError, ValueError, KeyError, RuntimeError) as exc:
+        if isinstance(exc, FileFormatError):
+            raise
+        raise FileFormatError(f"cannot read the attributes of {where} ({' '.join(str(exc).split())[:160]}); "
+                              "the file is damaged") from None
     return out
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Sequence
 
 from . import __version__
-from .errors import FmuOpinfError
+from .errors import FmuOpinfError, InputSpecError
 
 __all__ = ["main", "build_parser"]
 
@@ -173,6 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")
+    p.add_argument("--timeout", type=float, help="seconds the full-order FMU may run before it is stopped "
+                                                 "(it runs in a separate process; default: no limit)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_scaleout_options(p, "compare")
     _add_source_options(p, recording=False)
@@ -227,11 +229,14 @@ def _run_fit(args: argparse.Namespace) -> None:
 
 
 def _run_compare(args: argparse.Namespace) -> None:
-    from .compare import compare, prepare_report_directory, summary_table, write_report
+    from .compare import compare, summary_table, write_report
 
-    prepare_report_directory(args.output)  # fail before simulating, not after
+    # the report folder was checked up front (_check_arguments) and is created only once there is a report
+    options = _source_options(args)
+    if args.timeout is not None:
+        options["timeout"] = args.timeout
     result = compare(args.rom, args.source, args.input_spec, dt=args.dt, t_end=args.t_end, quiet=args.quiet,
-                     source_options=_source_options(args))
+                     source_options=options)
     page = write_report(result, args.output)
     print(summary_table([(Path(str(args.rom)).name, result.metrics())]))
     print(f"report: {page}")
@@ -263,6 +268,43 @@ def _run_build_fmus(args: argparse.Namespace) -> None:
         print(f"built {path}")
 
 
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Validate option values and output locations before any work (one-line errors, exit code 2)."""
+    from . import _validate as v
+
+    for option in ("positions", "velocities", "accelerations", "inputs", "outputs"):
+        v.check_patterns(getattr(args, option, None), "--" + option)
+    for option in ("dt", "t_end", "lowpass", "timeout"):
+        v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
+    for option in ("r", "g", "n1"):
+        value = getattr(args, option, None)
+        if value is not None and value < 1:
+            raise InputSpecError(f"--{option} {value} must be at least 1")
+    v.check_fraction(getattr(args, "energy", None), "--energy")
+    if getattr(args, "dt", None) is not None and getattr(args, "t_end", None) is not None:
+        v.check_grid(args.dt, args.t_end)
+    if args.verb == "snapshots" and not args.runs:
+        _check_output_file(args, [args.source] + list(args.input_spec or []))
+    elif args.verb == "fit":
+        _check_output_file(args, [args.snapshots])
+        if args.figures:
+            v.check_writable(args.figures, "figure directory", directory=True)
+    elif args.verb == "export":
+        _check_output_file(args, [args.rom])
+    elif args.verb == "compare":
+        v.check_not_input(args.output, [args.rom, args.source, args.input_spec], "report directory")
+        v.check_writable(args.output, "report directory", directory=True)
+
+
+def _check_output_file(args: argparse.Namespace, inputs: list) -> None:
+    from . import _validate as v
+
+    v.check_not_input(args.output, inputs, "output")
+    if Path(args.output).exists() and not args.force:
+        raise FileExistsError(f"{args.output} exists; pass --force to replace it")
+    v.check_writable(args.output, "output")
+
+
 _VERBS = {"snapshots": _run_snapshots, "fit": _run_fit, "compare": _run_compare, "export": _run_export,
           "demo": _run_demo, "build-fmus": _run_build_fmus}
 
@@ -271,16 +313,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``fmu-opinf`` console script; returns the exit code."""
     args = build_parser().parse_args(argv)
     try:
+        _check_arguments(args)
         _scaleout_dispatch(args) or _VERBS[args.verb](args)
-    except FmuOpinfError as exc:
-        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
+    except (FmuOpinfError, FileExistsError) as exc:
+        print("fmu-opinf: error: " + " ".join(str(exc).split()), file=sys.stderr)  # one line, always
         return 2
-    except FileExistsError as exc:
-        print(f"fmu-opinf: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("fmu-opinf: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM during a recording (snapshots.Interrupted)
+        signum = getattr(exc, "signum", 2)
+        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); no output file was "
+              "written or replaced", file=sys.stderr)
+        return 128 + signum
     return 0
 
 

@@ -212,29 +212,43 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     from .newmark import applied_inputs
     from .source import open_source
 
+    from .snapshots._isolation import deferred_interrupts, produce_inprocess, produce_isolated
+
+    isolate, timeout = options.get("isolate", True), options.get("timeout")
     options = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters", "interface", "tolerance")}
     source = open_source(spec, positions="", **options)
     u = applied_inputs(signal, t)
     if u.shape[0] != source.m:
         raise DimensionError(f"the input has {u.shape[0]} channels but {Path(str(spec)).name} has {source.m} "
                              "inputs; compare a ROM with the model it was learned from")
-    block = 256
-    rows = np.empty((block, source.width))
+    sink = _RowBuffer(256, source.width)
     y = np.empty((source.p, t.size))
     columns = source.layout["y"]
+    U = np.ascontiguousarray(u.T)
+    # like snapshots: a crashing or hanging FMU binary ends in a one-line error, not in the tool's death
+    producer = produce_isolated(source, t, U, sink, timeout) if isolate else produce_inprocess(source, t, U, sink)
     start = time.perf_counter()
-    source.start(t, u.T)
-    try:
-        with Progress(t.size, f"simulating {Path(str(spec)).name}", quiet=quiet) as progress:
-            for i0 in range(0, t.size, block):
-                count = min(block, t.size - i0)
-                source.advance(rows, i0, count)
-                y[:, i0:i0 + count] = rows[:count, columns].T
+    with deferred_interrupts(), Progress(t.size, f"simulating {Path(str(spec)).name}", quiet=quiet) as progress:
+        try:
+            for i0, count in producer:
+                y[:, i0:i0 + count] = sink.rows(i0, count)[:, columns].T
                 progress.update(i0 + count)
-    finally:
-        source.close()
-    seconds = time.perf_counter() - start
+        finally:
+            producer.close()
+    seconds = getattr(sink, "seconds", None) or time.perf_counter() - start  # the child's own stepping time
     return y, seconds, source.provenance(), list(source.output_names)
+
+
+class _RowBuffer:
+    """Rows the producers of :mod:`fmu_opinf.snapshots._isolation` fill, one sample per row."""
+
+    def __init__(self, block: int, width: int) -> None:
+        self.block = block
+        self.buffer = np.empty((block, width))
+        self.seconds: float | None = None  # set by an isolated producer: the child's stepping time
+
+    def rows(self, i0: int, count: int) -> np.ndarray:
+        return self.buffer[:count]
 
 
 def _builtin_outputs(spec: str, signal: Any, t: np.ndarray, quiet: bool,

@@ -51,6 +51,7 @@ import numpy as np
 import scipy.linalg
 
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
+from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
@@ -449,6 +450,7 @@ class SecondOrderROM:
 
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "SecondOrderROM":
+        check_rom_file(f, path)  # links, attribute types, sizes vs data and memory, finite values, Mr > 0
         attrs = read_attrs(f)
         if attrs.get("kind") != FILE_KIND:
             raise FileFormatError(f"{path} is not an fmu-opinf ROM file (kind={attrs.get('kind')!r})")

@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 
 from .._hdf5 import read_attrs
+from .._validate import SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run, damaged_file_errors, reject_links
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
 
@@ -197,6 +198,8 @@ class Snapshots:
     def load(cls, path: str | os.PathLike) -> "Snapshots":
         """Read a snapshot file completely into memory."""
         with cls.open(path) as lazy:
+            check_memory(8.0 * sum(a.size for r in lazy.runs for a in r.arrays().values()),
+                         f"loading {path} into memory", "open it lazily with Snapshots.open instead")
             return cls([r.load() for r in lazy.runs], dict(lazy.attrs))
 
     @classmethod
@@ -210,7 +213,8 @@ class Snapshots:
         except OSError:
             raise FileFormatError(f"{path} is not an HDF5 file; give a file written by 'fmu-opinf snapshots'") from None
         try:
-            snaps = cls._from_h5(f, path)
+            with damaged_file_errors(path):
+                snaps = cls._from_h5(f, path)
         except BaseException:
             f.close()
             raise
@@ -219,22 +223,27 @@ class Snapshots:
 
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "Snapshots":
+        reject_links(f)
         attrs = decode(read_attrs(f))
         attrs.pop("n_runs", None)  # structural: len(runs)
         if attrs.get("kind") != FILE_KIND or "layout_version" not in attrs:
             raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (no kind/layout_version attributes)")
+        check_attr_types(attrs, SNAPSHOT_FILE_ATTRS, str(path))
         if int(attrs["layout_version"]) > LAYOUT_VERSION:
             raise FileFormatError(f"{path} has snapshot layout {attrs['layout_version']}, newer than this tool's "
                                   f"{LAYOUT_VERSION}; upgrade fmu-opinf")
-        runs = []
         group = f.get("runs")
+        if group is not None and not isinstance(group, h5py.Group):
+            raise FileFormatError(f"{path}: 'runs' is not a group; the file is damaged")
+        sizes = {key: attrs.get(key) for key in ("n", "m", "p")}
+        runs = []
         for name in sorted(group or {}):
             g = group[name]
-            missing = [a for a in ARRAYS if a not in g]
-            if missing:
-                raise FileFormatError(f"{path}: run {name} lacks {', '.join(missing)}; the file is truncated")
+            sizes = check_snapshot_run(g, f"{path}: run {name}", sizes)
+            run_attrs = decode(read_attrs(g))
+            check_attr_types(run_attrs, SNAPSHOT_RUN_ATTRS, f"{path}: run {name}")
             initial = {a: np.array(g[a][()]) for a in INITIAL if a in g}  # layout 1 has none: first samples
-            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=decode(read_attrs(g)), **initial))
+            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=run_attrs, **initial))
         return cls(runs, attrs)
 
     def close(self) -> None:

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .._hdf5 import atomic_h5, write_attrs
+from .._hdf5 import atomic_h5, ensure_space, write_attrs
 from ..errors import FileFormatError
 
 if TYPE_CHECKING:
@@ -46,6 +46,9 @@ def decode(attrs: dict[str, Any]) -> dict[str, Any]:
                 attrs[key] = json.loads(attrs[key])
             except ValueError:
                 raise FileFormatError(f"attribute {key!r} is not valid JSON; the file is damaged") from None
+            if not isinstance(attrs[key], dict):
+                raise FileFormatError(f"attribute {key!r} holds JSON {type(attrs[key]).__name__}, expected an "
+                                      "object; the file is damaged")
     return attrs
 
 
@@ -87,6 +90,7 @@ def write_run(runs: h5py.Group, index: int, run: Run) -> None:
         k = array.shape[-1]
         step = max(1, ds.chunks[-1] * 64) if ds.chunks else k
         for j0 in range(0, k, step):
+            ensure_space(runs.file.filename, 8.0 * ds.size / max(k, 1) * min(step, k - j0))
             ds[..., j0:j0 + step] = np.ascontiguousarray(array[..., j0:j0 + step])
     write_initial_state(g, run.x0, run.v0)
     write_attrs(g, run.attrs)

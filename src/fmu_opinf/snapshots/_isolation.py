@@ -6,22 +6,75 @@ step is raised as :class:`~fmu_opinf.sources.StepError` after the valid samples 
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing as mp
 import signal as _signal
 from collections.abc import Iterator
 from multiprocessing import shared_memory
+import threading
+import time as _time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import FmuOpinfError
+from ..errors import FMUError, FmuOpinfError
 from ..sources import Source, StepError
 
 if TYPE_CHECKING:
     from ._record import _Sink
 
-__all__ = ["produce_inprocess", "produce_isolated", "source_label"]
+__all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted", "deferred_interrupts",
+           "check_interrupt"]
+
+_SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
+_pending: list[int] = []  # signals received inside deferred_interrupts(), not yet acted on
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM during a recording, raised at a safe point (between blocks)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(f"interrupted by {_signal.Signals(signum).name}")
+        self.signum = signum
+
+
+def check_interrupt() -> None:
+    """Raise :class:`Interrupted` if a signal arrived inside :func:`deferred_interrupts`."""
+    if _pending:
+        raise Interrupted(_pending[0])
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Turn SIGINT and SIGTERM into a flag that :func:`check_interrupt` raises at safe points.
+
+    A KeyboardInterrupt raised at an arbitrary bytecode can land in an h5py weakref callback, where
+    Python swallows it, and SIGTERM's default action leaves temporary files behind.  Inside this
+    block the signal only sets a flag; the recording loop stops at the next block, the atomic writer
+    removes its temporary file and the caller sees :class:`Interrupted`.  A second signal of the same
+    kind acts at once.  Outside the main thread, or for a signal the process ignores, nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if signum in _pending:  # pressed twice: stop now
+            raise Interrupted(signum)
+        _pending.append(signum)
+
+    previous = {}
+    for signum in _SIGNALS:
+        if _signal.getsignal(signum) is not _signal.SIG_IGN:
+            previous[signum] = _signal.signal(signum, handler)
+    try:
+        yield
+        check_interrupt()
+    finally:
+        for signum, old in previous.items():
+            _signal.signal(signum, old)
+        _pending.clear()
 
 
 def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
@@ -34,6 +87,7 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
     try:
         i = 0
         while i < k:
+            check_interrupt()
             count = min(sink.block, k - i)
             try:
                 source.advance(sink.rows(i, count), i, count)
@@ -52,7 +106,13 @@ _HEADER = 64  # bytes before the row buffer in shared memory: int64 count of val
 
 
 def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray) -> None:
-    """Child process: run the source, fill the shared buffer, report through ``conn``."""
+    """Child process: run the source, fill the shared buffer, report through ``conn``.
+
+    The child ignores SIGINT and SIGTERM: the parent decides (Ctrl-C reaches the whole process group)
+    and kills the child when it stops.
+    """
+    for signum in _SIGNALS:
+        _signal.signal(signum, _signal.SIG_IGN)
     shm = shared_memory.SharedMemory(name=shm_name)
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
@@ -75,6 +135,7 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
         conn.send(("error", type(exc).__name__, str(exc)))
         return
     i = 0
+    started = _time.perf_counter()
     try:
         while i < k:
             c = min(cap, k - i)
@@ -87,17 +148,21 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
             i += c
             conn.send(("block", c))
             conn.recv()
-        conn.send(("done",))
+        conn.send(("done", _time.perf_counter() - started))  # stepping time without process start-up
     finally:
         source.close()
 
 
-def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
+def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
+                     timeout: float | None = None) -> Iterator[tuple[int, int]]:
     """Like :func:`produce_inprocess`, with the source in a spawned child process.
 
     The child writes samples into shared memory and publishes after each sample how many rows are
     complete, so when it dies (a crashing binary) every sample it finished is still taken over.
+    With ``timeout`` (seconds for the whole run) a hanging binary is killed and reported as
+    :class:`~fmu_opinf.errors.FMUError`.
     """
+    deadline = None if timeout is None else _time.monotonic() + timeout
     k, width = len(t), source.width
     cap = sink.block
     shm = shared_memory.SharedMemory(create=True, size=_HEADER + 8 * cap * max(width, 1))
@@ -112,12 +177,18 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) 
         proc.start()
         there.close()
         while True:
-            message = _receive(here, proc)
+            message = _receive(here, proc, deadline)
+            if message == ("timeout",):
+                i = i0 + int(count[0])
+                raise FMUError(f"{source_label(source)} did not finish within the timeout of {timeout:g} s "
+                               f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase --timeout "
+                               "or check the FMU")
             valid = _valid_rows(message, int(count[0]))
             if valid:
                 sink.rows(i0, valid)[:] = rows[:valid]
                 yield i0, valid
             if message is None:  # the child died without a word
+                check_interrupt()  # killed with us by the same signal: an interrupt, not a crash
                 proc.join(5)  # reap it, so that its exit code (the signal) is known
                 i = i0 + valid
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
@@ -126,6 +197,7 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) 
             if message[0] == "error":
                 raise _error_class(message[1])(message[2])
             if message[0] == "done":
+                sink.seconds = message[1] if len(message) > 1 else None
                 return
             i0 += valid
             here.send("ack")
@@ -155,9 +227,12 @@ def _valid_rows(message: tuple | None, published: int) -> int:
     return message[1] if message[0] == "block" else 0
 
 
-def _receive(conn: Any, proc: Any) -> tuple | None:
-    """Next message from the child, or None once it has exited without one."""
+def _receive(conn: Any, proc: Any, deadline: float | None = None) -> tuple | None:
+    """Next message from the child, None once it has exited without one, ``("timeout",)`` after ``deadline``."""
     while True:
+        check_interrupt()
+        if deadline is not None and _time.monotonic() > deadline:
+            return ("timeout",)
         if conn.poll(0.05):
             try:
                 return conn.recv()

@@ -24,13 +24,13 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .._hdf5 import tool_versions, write_attrs
+from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import InputSpecError
 from ..sources import Source, StepError, open_source
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
-from ._isolation import produce_inprocess, produce_isolated, source_label
+from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
                      time_grid)
 
@@ -103,9 +103,11 @@ class MemorySink(_Sink):
 class _H5Sink(_Sink):
     """Streams blocks into the (chunked, compressed) datasets of one run group."""
 
-    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group) -> None:
+    def __init__(self, source: Source, t: np.ndarray, u: np.ndarray, group: h5py.Group,
+                 target: Path | None = None) -> None:
         super().__init__(source, t, u)
         self.group = group
+        self.target = target  # the file name shown when the disk is full
         self.scratch = np.empty((self.block, self.width))
         self.ds = {name: create_dataset(group, name, (rows, self.k)) for name, rows in
                    (("x", self.n), ("xdot", self.n), ("xddot", self.n), ("y", self.p))}
@@ -114,6 +116,7 @@ class _H5Sink(_Sink):
         return self.scratch[:count]
 
     def commit(self, i0: int, count: int) -> None:
+        ensure_space(self.group.file.filename, 8.0 * count * self.width, self.target)
         for name, ds in self.ds.items():
             part = self.layout[name]
             if part.stop > part.start and count:
@@ -195,9 +198,10 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
     failure: StepError | None = None
     started = _time.perf_counter()
-    with Progress(len(t), "recording", quiet=quiet) as bar:
+    with deferred_interrupts(), Progress(len(t), "recording", quiet=quiet) as bar:
         try:
             for i0, count in producer:
+                check_interrupt()
                 first = _first_bad_row(sink.rows(i0, count)[:count])
                 if first is not None:
                     sink.commit(i0, first)
@@ -396,7 +400,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             group = runs.create_group(f"{index:04d}")
 
             def factory(src: Source, tt: np.ndarray, uu: np.ndarray, g: h5py.Group = group) -> _H5Sink:
-                return _H5Sink(src, tt, uu, g)
+                return _H5Sink(src, tt, uu, g, path)
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
             if window is not None:

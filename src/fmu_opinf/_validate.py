@@ -1,0 +1,426 @@
+"""Validation of untrusted input: command-line values, HDF5 structure, attribute types, array sizes.
+
+Snapshot and ROM files are data from anywhere (docs/security.md).  Everything read from them is checked
+here before it is used: no links into other files, attributes of the expected type, datasets of real
+numbers whose declared size is backed by data actually stored in the file and fits into memory.  Each
+check raises a one-line :class:`~fmu_opinf.errors.FileFormatError` (structure, types) or
+:class:`~fmu_opinf.errors.DataError` (values, sizes) naming the problem and the fix.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any, Iterator
+
+import h5py
+import numpy as np
+
+from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
+
+__all__ = [
+    "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
+    "check_writable", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
+    "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
+]
+
+# -- memory ----------------------------------------------------------------------------------------------
+
+
+def available_memory() -> int:
+    """Bytes of memory available to this process (``MemAvailable``; physical memory as fallback)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return 2**40
+
+
+def _gib(nbytes: float) -> str:
+    return f"{nbytes / 2**30:.3g} GiB"
+
+
+def check_memory(nbytes: float, what: str, fix: str) -> None:
+    """Raise :class:`DataError` if ``nbytes`` exceed the memory available now.
+
+    Parameters
+    ----------
+    nbytes : float
+        Bytes about to be allocated.
+    what : str
+        What needs them (start of the message).
+    fix : str
+        How the user avoids the allocation (end of the message).
+    """
+    free = available_memory()
+    if nbytes > free:
+        raise DataError(f"{what} needs {_gib(nbytes)} of memory but only {_gib(free)} are available; {fix}")
+
+
+# -- command-line values ---------------------------------------------------------------------------------
+
+
+def check_positive(value: float | None, option: str) -> None:
+    """A finite number > 0 (None: not given)."""
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise InputSpecError(f"{option} {value} must be a positive finite number")
+
+
+def check_fraction(value: float | None, option: str) -> None:
+    """A number strictly between 0 and 1 (None: not given)."""
+    if value is not None and not (0.0 < value < 1.0):
+        raise InputSpecError(f"{option} {value} must lie strictly between 0 and 1, e.g. {option} 0.9999")
+
+
+def check_patterns(value: str | None, option: str) -> None:
+    """Name patterns must not be empty (None: not given)."""
+    if value is not None and not value.strip(" ,"):
+        raise InputSpecError(f"{option} is empty; give name patterns such as 'x[*]' or leave the option out")
+
+
+def check_grid(dt: float, t_end: float, t0: float = 0.0, channels: int = 1) -> int:
+    """Number of samples of the grid ``t0, t0 + dt, ..., t_end``, refused if absurd.
+
+    The time grid and ``channels`` input rows of float64 must fit into the available memory.
+
+    Returns
+    -------
+    int
+        The number of samples ``k``.
+    """
+    check_positive(dt, "--dt")
+    if not (math.isfinite(t_end) and t_end > t0):
+        raise InputSpecError(f"end time {t_end} must be finite and after the start time {t0}")
+    samples = (t_end - t0) / dt + 1
+    if not math.isfinite(samples):
+        samples = math.inf
+    nbytes = 8.0 * samples * (1 + max(channels, 1))
+    check_memory(nbytes, f"a grid of {samples:.3g} samples (dt={dt:g}, t_end={t_end:g})",
+                 "increase --dt or decrease --t-end")
+    return int(samples)
+
+
+# -- output paths ----------------------------------------------------------------------------------------
+
+
+def _existing_ancestor(path: Path) -> Path:
+    path = path.absolute()
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_writable(path: str | os.PathLike, what: str, directory: bool = False) -> None:
+    """Fail now, not after the work, if ``path`` (a file, or with ``directory`` a folder) cannot be written.
+
+    A file's folder must exist; a folder may be created later, so its nearest existing ancestor is probed.
+    The probe creates and removes one temporary file (``os.access`` is meaningless for root).
+    """
+    path = Path(path)
+    if directory and path.exists() and not path.is_dir():
+        raise FileFormatError(f"{what} {path} is an existing file; choose another -o path")
+    folder = (path if path.is_dir() else _existing_ancestor(path)) if directory else (path.parent if str(path.parent) else Path("."))
+    if not folder.is_dir():
+        raise FileFormatError(f"cannot write {what} {path}: directory {folder} does not exist; create it first")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".fmu-opinf-probe-", dir=folder)
+    except OSError as exc:
+        raise FileFormatError(f"cannot write {what} {path}: {exc.strerror} in {folder}; "
+                              "choose a writable location with -o") from None
+    os.close(fd)
+    os.unlink(probe)
+
+
+def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> None:
+    """Refuse an output path that is one of the inputs (``--force`` would destroy the input)."""
+    out = Path(output)
+    for item in inputs:
+        if item is None or str(item).startswith("builtin:"):
+            continue
+        source = Path(str(item))
+        same = (out.exists() and source.exists() and os.path.samefile(out, source)) or \
+            out.absolute() == source.absolute()
+        if same:
+            raise FileFormatError(f"{what} {out} is also an input of this command; choose another -o path")
+
+
+# -- HDF5 structure --------------------------------------------------------------------------------------
+
+
+def _where(obj: h5py.HLObject) -> str:
+    return f"{obj.file.filename}:{obj.name}"
+
+
+def reject_links(group: h5py.Group) -> None:
+    """Refuse soft and external links, external storage and virtual datasets anywhere below ``group``.
+
+    fmu-opinf never writes them; following them would read other files than the one the user named.
+    """
+    for key in list(group.keys()):
+        link = group.get(key, getlink=True)
+        if not isinstance(link, h5py.HardLink):
+            raise FileFormatError(f"{group.file.filename}: {group.name.rstrip('/')}/{key} is a "
+                                  f"{type(link).__name__}; fmu-opinf files contain no links, the file was altered")
+        obj = group[key]
+        if isinstance(obj, h5py.Group):
+            reject_links(obj)
+        elif isinstance(obj, h5py.Dataset) and (obj.is_virtual or obj.external):
+            raise FileFormatError(f"{_where(obj)} refers to data in other files; fmu-opinf files are "
+                                  "self-contained, the file was altered")
+
+
+def _data_present(ds: h5py.Dataset) -> bool:
+    """True if every element of ``ds`` is backed by stored data (not HDF5 fill values)."""
+    if ds.size == 0:
+        return True
+    layout = ds.id.get_create_plist().get_layout()
+    if layout == h5py.h5d.CHUNKED:
+        needed = math.prod(-(-s // c) for s, c in zip(ds.shape, ds.chunks))
+        return ds.id.get_num_chunks() >= needed
+    if layout == h5py.h5d.COMPACT:
+        return True
+    return ds.id.get_storage_size() >= ds.size * ds.dtype.itemsize
+
+
+def check_array(ds: Any, label: str, ndim: int | None = None, rows: int | None = None,
+                cols: int | None = None) -> h5py.Dataset:
+    """``ds`` is a dataset of real numbers of the expected shape whose data are stored in the file.
+
+    Parameters
+    ----------
+    ds : object
+        What the file holds under the name.
+    label : str
+        Where it is (for the message).
+    ndim, rows, cols : int, optional
+        Expected number of dimensions, first and last dimension.
+
+    Returns
+    -------
+    h5py.Dataset
+    """
+    if not isinstance(ds, h5py.Dataset):
+        raise FileFormatError(f"{label} is a {type(ds).__name__}, expected a dataset of numbers; the file is damaged")
+    if ds.dtype.kind not in "fiu":
+        raise FileFormatError(f"{label} has type {ds.dtype}, expected real numbers (float64); the file is damaged")
+    if ndim is not None and ds.ndim != ndim:
+        raise FileFormatError(f"{label} has {ds.ndim} dimensions {ds.shape}, expected {ndim}; the file is damaged")
+    if rows is not None and ds.shape[0] != rows:
+        raise FileFormatError(f"{label} has {ds.shape[0]} rows, expected {rows}; the file is damaged")
+    if cols is not None and ds.shape[-1] != cols:
+        raise FileFormatError(f"{label} has {ds.shape[-1]} columns, expected {cols}; the file is damaged")
+    if not _data_present(ds):
+        raise FileFormatError(f"{label} declares shape {ds.shape} but the file holds data for only part of it; "
+                              "the file is truncated or damaged")
+    return ds
+
+
+def read_real(ds: Any, label: str, ndim: int | None = None) -> np.ndarray:
+    """Read a checked dataset into a finite float64 array (memory checked before reading)."""
+    check_array(ds, label, ndim)
+    check_memory(8.0 * ds.size, f"reading {label}", "the file declares more data than this machine holds")
+    try:
+        values = np.array(ds[()], dtype=float)
+    except (OSError, ValueError, TypeError) as exc:
+        raise FileFormatError(f"cannot read {label} ({exc}); the file is damaged") from None
+    if not np.all(np.isfinite(values)):
+        raise DataError(f"{label} contains NaN/Inf; the file is unusable, re-create it")
+    return values
+
+
+# -- attribute types -------------------------------------------------------------------------------------
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def _is_float(v: Any) -> bool:
+    return (_is_int(v) or isinstance(v, (float, np.floating))) and math.isfinite(float(v))
+
+
+_KINDS = {
+    "int": (lambda v: _is_int(v) and v >= 0, "a non-negative integer"),
+    "float": (_is_float, "a finite number"),
+    "positive": (lambda v: _is_float(v) and v > 0, "a positive finite number"),
+    "str": (lambda v: isinstance(v, str), "text"),
+    "bool": (lambda v: isinstance(v, (bool, np.bool_)), "a boolean"),
+    "names": (lambda v: isinstance(v, list) and all(isinstance(s, str) for s in v), "a list of names"),
+    "json": (lambda v: isinstance(v, dict), "a JSON object"),
+    "json_text": (None, "JSON text of an object"),
+}
+
+_NAMES = ("position_names", "velocity_names", "acceleration_names", "input_names", "output_names")
+#: Expected types of the known file-level snapshot attributes.
+SNAPSHOT_FILE_ATTRS = {"kind": "str", "layout_version": "int", "n": "int", "m": "int", "p": "int", "dt": "positive",
+                       "constraint": "str", "source": "str", "source_kind": "str", "model_name": "str",
+                       "derived_xdot": "bool", "derived_xddot": "bool", **{k: "names" for k in _NAMES},
+                       **{k: "json" for k in ("system_options", "fmu_parameters", "fmu_settings",
+                                                  "variable_selection", "versions", "auto_window")}}
+#: Expected types of the known per-run snapshot attributes.
+SNAPSHOT_RUN_ATTRS = {"complete": "bool", "k": "int", "k_planned": "int", "dt": "positive", "t0": "float",
+                      "t_end": "float", "input_spec": "str", "isolated": "bool", "error": "str",
+                      "derived_xdot": "bool", "derived_xddot": "bool"}
+#: Expected types of the ROM file attributes.
+ROM_ATTRS = {"kind": "str", "layout_version": "int", "basis_kind": "str", "dt": "positive",
+             "input_names": "names", "output_names": "names", "provenance": "json_text", "fit_info": "json_text"}
+
+
+def check_attr_types(attrs: dict[str, Any], schema: dict[str, str], where: str) -> None:
+    """Every attribute named in ``schema`` that is present has the expected kind of value."""
+    for key, kind in schema.items():
+        if key not in attrs:
+            continue
+        value = attrs[key]
+        test, text = _KINDS[kind]
+        if kind == "json_text":
+            ok = isinstance(value, str) and isinstance(_json(value), dict)
+        else:
+            ok = test(value)
+        if not ok:
+            raise FileFormatError(f"{where}: attribute {key!r} is {_short(value)}, expected {text}; "
+                                  "the file is damaged or was not written by fmu-opinf")
+
+
+def _json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return None
+
+
+def _short(value: Any) -> str:
+    text = " ".join(repr(value).split())
+    text = text if len(text) <= 40 else text[:37] + "..."
+    return f"{type(value).__name__} {text}"
+
+
+# -- snapshot files --------------------------------------------------------------------------------------
+
+
+def check_snapshot_run(g: Any, label: str, sizes: dict[str, int | None]) -> dict[str, int]:
+    """Check one run group: arrays present, real, of consistent shapes, ``t`` finite and increasing.
+
+    Parameters
+    ----------
+    g : object
+        The run group.
+    label : str
+        ``file: run NAME`` for messages.
+    sizes : dict
+        Declared ``n``, ``m``, ``p`` (None: not declared; then taken from the first run).
+
+    Returns
+    -------
+    dict
+        The sizes ``n, m, p`` of this run.
+    """
+    if not isinstance(g, h5py.Group):
+        raise FileFormatError(f"{label} is not a group; the file is damaged")
+    missing = [a for a in ("t", "u", "x", "xdot", "xddot", "y") if a not in g]
+    if missing:
+        raise FileFormatError(f"{label} lacks {', '.join(missing)}; the file is truncated")
+    t = read_real(g["t"], f"{label} t", ndim=1)
+    if t.size > 1 and not np.all(np.diff(t) > 0):
+        raise DataError(f"{label}: the times t are not strictly increasing; the file is damaged, re-record it")
+    k = t.size
+    n = sizes.get("n") if sizes.get("n") is not None else check_array(g["x"], f"{label} x", 2).shape[0]
+    m = sizes.get("m") if sizes.get("m") is not None else check_array(g["u"], f"{label} u", 2).shape[0]
+    p = sizes.get("p") if sizes.get("p") is not None else check_array(g["y"], f"{label} y", 2).shape[0]
+    for name, rows in (("u", m), ("x", n), ("xdot", n), ("xddot", n), ("y", p)):
+        check_array(g[name], f"{label} {name}", 2, rows, k)
+    for name in ("x0", "v0"):
+        if name in g:
+            read_real(check_array(g[name], f"{label} {name}", 1, n), f"{label} {name}")
+    return {"n": n, "m": m, "p": p}
+
+
+# -- ROM files -------------------------------------------------------------------------------------------
+
+
+def check_rom_file(f: h5py.File, path: Path) -> None:
+    """Validate a ROM file before :meth:`SecondOrderROM._from_h5 <fmu_opinf.rom.SecondOrderROM>` reads it.
+
+    Checks links, attribute types, that every dataset holds finite real numbers actually stored in the file
+    and fitting into memory, and that ``Mr`` is a square positive definite matrix and ``Dr``, ``Kr`` are
+    positive semidefinite (eq. 16).
+    """
+    with damaged_file_errors(path):
+        _check_rom_file(f, path)
+
+
+@contextlib.contextmanager
+def damaged_file_errors(path: Path) -> Iterator[None]:
+    """Report low-level HDF5 failures (corrupt headers, bad addresses) as one-line :class:`FileFormatError`."""
+    try:
+        yield
+    except FmuOpinfError:
+        raise
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
+        text = " ".join(str(exc).split())[:200]
+        raise FileFormatError(f"cannot read {path} ({type(exc).__name__}: {text}); the file is damaged") from None
+
+
+#: Expected shapes of the ROM matrices in terms of ``r``, ``m``, ``p``, ``n`` (None: any).
+_ROM_SHAPES = {"Mr": ("r", "r"), "Dr": ("r", "r"), "Kr": ("r", "r"), "Br": ("r", "m"), "Cpr": ("p", "r"),
+               "Cvr": ("p", "r"), "basis": ("n", "r"), "singular_values": ("N",)}
+
+
+def _check_rom_shapes(mats: dict[str, np.ndarray], path: Path) -> None:
+    """Every known matrix has the dimensions its shape formula and the others' sizes imply."""
+    sizes: dict[str, int] = {}
+    for name, formula in _ROM_SHAPES.items():
+        value = mats.get(name)
+        if value is None:
+            continue
+        if value.ndim != len(formula):
+            raise FileFormatError(f"{path}: {name} has shape {value.shape}, expected {len(formula)} dimensions "
+                                  f"({', '.join(formula)}); the file is damaged")
+        for size, symbol in zip(value.shape, formula):
+            if sizes.setdefault(symbol, size) != size:
+                raise FileFormatError(f"{path}: {name} has shape {value.shape}, inconsistent with {symbol}="
+                                      f"{sizes[symbol]} of the other matrices; the file is damaged")
+
+
+def _check_rom_file(f: h5py.File, path: Path) -> None:
+    from ._hdf5 import read_attrs
+
+    reject_links(f)
+    check_attr_types(read_attrs(f), ROM_ATTRS, str(path))
+    datasets = {name: check_array(obj, f"{path}: {name}") for name, obj in f.items()
+                if isinstance(obj, h5py.Dataset)}
+    check_memory(8.0 * sum(ds.size for ds in datasets.values()), f"ROM file {path}",
+                 "the file declares more data than this machine holds; it is damaged or not a ROM")
+    mats = {name: read_real(ds, f"{path}: {name}") for name, ds in datasets.items()}
+    _check_rom_shapes(mats, path)
+    if "Mr" in mats:
+        _check_definite(mats, path)
+
+
+def _check_definite(mats: dict[str, np.ndarray], path: Path) -> None:
+    Mr = mats["Mr"]
+    if Mr.ndim != 2 or Mr.shape[0] != Mr.shape[1] or Mr.shape[0] == 0:
+        raise FileFormatError(f"{path}: Mr has shape {Mr.shape}, expected a square (r, r) matrix; the file is damaged")
+    for name in ("Mr", "Dr", "Kr"):
+        value = mats.get(name)
+        if value is None or value.shape != Mr.shape:
+            continue
+        sym = 0.5 * (value + value.T)
+        eig = np.linalg.eigvalsh(sym)
+        scale = float(np.abs(eig).max()) if eig.size else 0.0
+        if name == "Mr" and not (scale > 0 and eig.min() > 1e-12 * scale):
+            raise DataError(f"{path}: Mr is not positive definite (eigenvalues {eig.min():.3g} .. {eig.max():.3g}); "
+                            "the ROM is unusable, refit it")
+        if name != "Mr" and eig.min() < -1e-6 * max(scale, 1e-300):
+            raise DataError(f"{path}: {name} has a negative eigenvalue {eig.min():.3g}; a learned {name} is "
+                            "positive semidefinite (eq. 16), the ROM is damaged, refit it")

@@ -1,0 +1,480 @@
+"""Hostile input and faults (issue 13): argument checks, file validation, sizes, permissions, interrupts.
+
+Every bad input must end in one line ``fmu-opinf: error: ...`` with exit code 2, before any work,
+without writing files, and without reading anything but the named files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import stat
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from fmu_opinf import cli
+from fmu_opinf.errors import DataError, FileFormatError
+from fmu_opinf.rom import SecondOrderROM
+from fmu_opinf.snapshots import Snapshots, record
+from fmu_opinf.source import BuiltinSource
+from test_source import toys  # noqa: F401  (fixture: toy FMUs with a fault switch)
+
+SIGNAL = "impulse:amplitude=10,t0=1,width=0.5"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A small valid snapshot file and a ROM fitted from it (anchored chain, g = 12)."""
+    from fmu_opinf.rom import fit_rom_file
+
+    folder = tmp_path_factory.mktemp("valid")
+    snaps = folder / "s.h5"
+    record(BuiltinSource("anchored-msd", g=12), SIGNAL, 0.5, 40.0, path=snaps, quiet=True)
+    rom = folder / "rom.h5"
+    fit_rom_file(snaps, rom, r=3, quiet=True)
+    return {"snapshots": snaps, "rom": rom}
+
+
+def run_main(capsys, *args):
+    """Run the CLI in this process; return (exit code, stderr lines)."""
+    code = cli.main([str(a) for a in args])
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err
+
+
+def assert_one_line_error(code, err, text=""):
+    assert code == 2, err
+    assert len(err) == 1 and err[0].startswith("fmu-opinf: error: "), err
+    assert "Traceback" not in err[0]
+    assert text in err[0], err
+
+
+def read_only_dir(tmp_path: Path) -> Path:
+    """A directory this process cannot create files in (root ignores modes: use /sys then)."""
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        fd, probe = tempfile.mkstemp(dir=folder)
+    except OSError:
+        return folder
+    os.close(fd)
+    os.unlink(probe)
+    try:
+        fd, probe = tempfile.mkstemp(dir="/sys")
+    except OSError:
+        return Path("/sys")
+    os.close(fd)
+    os.unlink(probe)
+    pytest.skip("no unwritable directory available (running as root without /sys)")
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 5: arguments are validated before any work
+# ------------------------------------------------------------------------------------------------------
+
+SNAP = ["snapshots", "builtin:anchored-msd", "--g", "5", "-o", "out.h5", "--input", "step"]
+
+
+@pytest.mark.parametrize("args, text", [
+    (SNAP + ["--positions", "", "--dt", "1", "--t-end", "2"], "--positions is empty"),
+    (SNAP + ["--dt", "1e-300", "--t-end", "2"], "increase --dt"),
+    (SNAP + ["--dt", "1", "--t-end", "1e15"], "decrease --t-end"),
+    (SNAP + ["--dt", "nan", "--t-end", "2"], "--dt nan"),
+    (SNAP + ["--dt", "1", "--t-end", "-3"], "--t-end -3"),
+    (SNAP + ["--g", "0", "--dt", "1", "--t-end", "2"], "--g 0"),
+])
+def test_snapshots_arguments_are_checked_first(tmp_path, monkeypatch, capsys, args, text):
+    monkeypatch.chdir(tmp_path)
+    code, err = run_main(capsys, *args)
+    assert_one_line_error(code, err, text)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("extra, text", [
+    (["--energy", "1.5"], "--energy 1.5"),
+    (["--energy", "0"], "--energy 0"),
+    (["--energy", "nan"], "--energy nan"),
+    (["--lowpass", "-1"], "--lowpass -1"),
+    (["--lowpass", "nan"], "--lowpass nan"),
+    (["--r", "0"], "--r 0"),
+])
+def test_fit_arguments_are_checked_before_the_pod(files, tmp_path, capsys, monkeypatch, extra, text):
+    import fmu_opinf.rom
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the fit started before its arguments were checked")
+
+    monkeypatch.setattr(fmu_opinf.rom, "fit_rom", no_work)
+    code, err = run_main(capsys, "fit", files["snapshots"], "-o", tmp_path / "rom.h5", *extra)
+    assert_one_line_error(code, err, text)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_compare_dt_zero_is_one_line_and_leaves_no_report_folder(files, tmp_path, capsys):
+    report = tmp_path / "report"
+    code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                         "--dt", "0", "-o", report)
+    assert_one_line_error(code, err, "--dt 0")
+    assert not report.exists()
+
+
+def test_compare_error_after_start_leaves_no_empty_report_folder(files, tmp_path, capsys):
+    report = tmp_path / "report"
+    code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                         "--t-end", "0.3", "-o", report)  # 0.3 is no whole number of steps 0.5
+    assert_one_line_error(code, err, "whole number of steps")
+    assert not report.exists()
+
+
+@pytest.mark.parametrize("verb", ["snapshots", "fit", "fit-figures"])
+def test_unwritable_output_folder_fails_before_work(files, tmp_path, capsys, monkeypatch, verb):
+    import fmu_opinf.rom
+    import fmu_opinf.snapshots
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started although the output cannot be written")
+
+    monkeypatch.setattr(fmu_opinf.rom, "fit_rom", no_work)
+    monkeypatch.setattr(fmu_opinf.snapshots, "record_to_file", no_work)
+    folder = read_only_dir(tmp_path)
+    if verb == "snapshots":
+        args = SNAP[:4] + ["-o", folder / "s.h5", "--input", "step", "--dt", "1", "--t-end", "2"]
+    elif verb == "fit":
+        args = ["fit", files["snapshots"], "-o", folder / "rom.h5"]
+    else:
+        args = ["fit", files["snapshots"], "-o", tmp_path / "rom.h5", "--figures", folder / "figs"]
+    code, err = run_main(capsys, *args)
+    assert_one_line_error(code, err, "cannot write")
+
+
+def test_force_does_not_overwrite_the_input(files, tmp_path, capsys):
+    snaps = tmp_path / "s.h5"
+    shutil.copy(files["snapshots"], snaps)
+    before = snaps.read_bytes()
+    code, err = run_main(capsys, "fit", snaps, "-o", snaps, "--force", "--r", "2")
+    assert_one_line_error(code, err, "is also an input")
+    assert snaps.read_bytes() == before
+
+
+# ------------------------------------------------------------------------------------------------------
+# items 5 and 7: files are validated on load
+# ------------------------------------------------------------------------------------------------------
+
+
+def _set_attr(name, value, where="/"):
+    def mutate(f):
+        group = f[where]
+        if "_attrs" in group and name in group["_attrs"]:  # large values live in a dataset
+            del group["_attrs"][name]
+        group.attrs[name] = value
+    return mutate
+
+
+def _replace(name, data=None, **kwargs):
+    def mutate(f):
+        del f[name]
+        if data is not None:
+            f.create_dataset(name, data=data)
+        else:
+            f.create_dataset(name, **kwargs)
+    return mutate
+
+
+def _external_link(name):
+    def mutate(f):
+        other = Path(f.filename).with_name("other.h5")
+        with h5py.File(other, "w") as g:
+            g.create_dataset("x", data=np.zeros(f[name].shape))
+        del f[name]
+        f[name] = h5py.ExternalLink(str(other), "/x")
+    return mutate
+
+
+def _transform(name, func):
+    def mutate(f):
+        data = func(np.array(f[name][()]))
+        del f[name]
+        f.create_dataset(name, data=data)
+    return mutate
+
+
+RUN = "runs/0000"
+SNAPSHOT_DEFECTS = {
+    "layout_version text": _set_attr("layout_version", "one"),
+    "dt as text": _set_attr("dt", "0.5"),
+    "dt NaN": _set_attr("dt", np.nan),
+    "dt negative": _set_attr("dt", -0.5),
+    "dt zero in a run": _set_attr("dt", 0.0, RUN),
+    "bool array as n": _set_attr("n", np.array([True, False])),
+    "compound attribute": _set_attr("complete", np.array([(1, 2.0)], dtype=[("a", "i4"), ("b", "f8")]), RUN),
+    "complex attribute": _set_attr("dt", 0.5 + 1j),
+    "names as integers": _set_attr("position_names", np.arange(12)),
+    "JSON list": _set_attr("system_options", json.dumps([1, 2])),
+    "external link": _external_link(RUN + "/x"),
+    "t NaN": _transform(RUN + "/t", lambda t: np.where(np.arange(t.size) == 5, np.nan, t)),
+    "t decreasing": _transform(RUN + "/t", lambda t: t[::-1].copy()),
+    "u rows != m": _transform(RUN + "/u", lambda u: np.vstack([u, u])),
+    "complex x": _transform(RUN + "/x", lambda x: x + 1j * x),
+    "bool x": _transform(RUN + "/x", lambda x: x > 0),
+    "x of strings": _transform(RUN + "/x", lambda x: np.array([["a"] * x.shape[1]] * x.shape[0], dtype="S1")),
+    "600e9 samples declared": lambda f: [f[RUN + "/" + a].resize(6 * 10**11, axis=1) for a in ("x", "xdot")],
+}
+
+
+def _mutated(src: Path, folder: Path, mutate) -> Path:
+    path = folder / src.name
+    shutil.copy(src, path)
+    with h5py.File(path, "r+") as f:
+        mutate(f)
+    return path
+
+
+@pytest.mark.parametrize("defect", list(SNAPSHOT_DEFECTS))
+def test_damaged_snapshot_file_is_one_line_error(files, tmp_path, capsys, defect):
+    path = _mutated(files["snapshots"], tmp_path, SNAPSHOT_DEFECTS[defect])
+    with pytest.raises((FileFormatError, DataError)):
+        Snapshots.load(path)
+    before = sorted(tmp_path.iterdir())
+    code, err = run_main(capsys, "fit", path, "-o", tmp_path / "rom.h5", "--r", "2", "-q")
+    assert_one_line_error(code, err)
+    assert sorted(tmp_path.iterdir()) == before
+
+
+def _negative(name):
+    return _transform(name, lambda a: -np.eye(a.shape[0]))
+
+
+ROM_DEFECTS = {
+    "layout_version text": _set_attr("layout_version", "one"),
+    "dt as text": _set_attr("dt", "0.5"),
+    "dt NaN": _set_attr("dt", np.nan),
+    "provenance JSON list": _set_attr("provenance", json.dumps(["a", "b"])),
+    "names as integers": _set_attr("output_names", np.arange(3)),
+    "compound attribute": _set_attr("basis_kind", np.array([(1, 2.0)], dtype=[("a", "i4"), ("b", "f8")])),
+    "Mr wrong shape": _replace("Mr", data=np.ones((3, 4))),
+    "Mr zero": _transform("Mr", np.zeros_like),
+    "Kr negative definite": _negative("Kr"),
+    "NaN basis": _transform("basis", lambda v: np.where(v == v.max(), np.nan, v)),
+    "complex Br": _transform("Br", lambda b: b + 1j),
+    "bool Dr": _transform("Dr", lambda d: d > 0),
+    "external link": _external_link("basis"),
+    "200000^2 Mr declared": _replace("Mr", shape=(200000, 200000), dtype="f8"),
+}
+
+
+@pytest.mark.parametrize("defect", list(ROM_DEFECTS))
+def test_damaged_rom_file_is_one_line_error(files, tmp_path, capsys, defect):
+    path = _mutated(files["rom"], tmp_path, ROM_DEFECTS[defect])
+    with pytest.raises((FileFormatError, DataError)):
+        SecondOrderROM.load(path)
+    report = tmp_path / "report"
+    code, err = run_main(capsys, "compare", path, "builtin:anchored-msd", "--g", "12", "--input", "step",
+                         "--t-end", "2", "-o", report, "-q")
+    assert_one_line_error(code, err)
+    assert not report.exists()
+
+
+def test_valid_files_still_load(files):
+    assert Snapshots.load(files["snapshots"]).n == 12
+    assert SecondOrderROM.load(files["rom"]).r == 3
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 8: permissions follow the umask
+# ------------------------------------------------------------------------------------------------------
+
+
+def _mode(path: Path) -> int:
+    return stat.S_IMODE(path.stat().st_mode)
+
+
+def test_output_files_honour_the_umask_and_keep_the_mode_they_replace(files, tmp_path):
+    old = os.umask(0o022)
+    try:
+        snaps = Snapshots.load(files["snapshots"])
+        new = snaps.save(tmp_path / "s.h5")
+        assert _mode(new) == 0o644
+        new.chmod(0o640)
+        snaps.save(new, overwrite=True)
+        assert _mode(new) == 0o640
+        os.umask(0o077)
+        other = snaps.save(tmp_path / "t.h5")
+        assert _mode(other) == 0o600
+    finally:
+        os.umask(old)
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 6: declared sizes are checked against the data present and the memory available
+# ------------------------------------------------------------------------------------------------------
+
+
+def test_snapshot_file_claiming_600e9_samples_fails_fast(files, tmp_path, capsys):
+    import time
+
+    def claim(f):
+        for name in ("t", "u", "x", "xdot", "xddot", "y"):
+            f[RUN + "/" + name].resize(6 * 10**11, axis=f[RUN + "/" + name].ndim - 1)
+
+    path = _mutated(files["snapshots"], tmp_path, claim)
+    assert path.stat().st_size < 200_000
+    start = time.perf_counter()
+    code, err = run_main(capsys, "fit", path, "-o", tmp_path / "rom.h5", "--r", "2", "-q")
+    assert_one_line_error(code, err, "holds data for only part of it")
+    assert time.perf_counter() - start < 5
+
+
+def test_sizes_beyond_available_memory_are_refused_before_allocating(files, monkeypatch):
+    import fmu_opinf._validate as validate
+
+    monkeypatch.setattr(validate, "available_memory", lambda: 256)
+    with pytest.raises(DataError, match="of memory but only"):
+        SecondOrderROM.load(files["rom"])
+    with pytest.raises(DataError, match="of memory but only"):
+        Snapshots.load(files["snapshots"])
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 4: a full disk while recording is one line, the previous file stays, no temporary file
+# ------------------------------------------------------------------------------------------------------
+
+
+def _cli_env() -> dict:
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+    src = str(Path(cli.__file__).resolve().parents[1])
+    env["PYTHONPATH"] = src + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
+@pytest.mark.parametrize("limit, g, dt", [(20_000, 50, 0.1), (40 * 2**20, 2000, 0.01)],
+                         ids=["at-open", "while-streaming"])
+def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, dt):
+    import resource
+    import signal as _signal
+    import subprocess
+    import sys
+
+    def small_disk():  # a file size limit: writes beyond it fail with EFBIG, as on a full disk
+        _signal.signal(_signal.SIGXFSZ, _signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"previous")
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", "snapshots", "builtin:anchored-msd", "--g",
+                             str(g), "-o", str(out), "--input", "step", "--dt", str(dt), "--t-end", "200", "-q",
+                             "--force"], capture_output=True, text=True, preexec_fn=small_disk, env=_cli_env(),
+                            timeout=120)
+    err = result.stderr.strip().splitlines()
+    assert_one_line_error(result.returncode, err, "the disk is full")
+    assert out.read_bytes() == b"previous"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 2: Ctrl-C / SIGTERM during a streamed recording stop it, keep the previous file, leave no temp file
+# ------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def anchored_fmu():
+    from fmu_opinf import fmus
+
+    if fmus.find_build_tools() is None and not (fmus._c_sources_dir() / "AnchoredMSD.fmu").is_file():
+        pytest.skip("no CMake / C compiler to build the benchmark FMUs")
+    return fmus.bundled_fmu("AnchoredMSD")
+
+
+def _wait_for_stream(folder: Path, proc, minimum: int = 4 * 2**20, timeout: float = 60.0) -> None:
+    import time
+
+    start = time.monotonic()
+    while time.monotonic() - start < timeout and proc.poll() is None:
+        temps = list(folder.glob("*.tmp"))
+        if temps and temps[0].stat().st_size >= minimum:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"the recording did not start streaming (exit code {proc.poll()})")
+
+
+@pytest.mark.parametrize("isolation", ["--in-process", "isolated"])
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM", "SIGINT-to-group"])
+def test_interrupted_streamed_recording_keeps_the_previous_file(anchored_fmu, tmp_path, isolation, how):
+    """A streamed run (data over the in-memory limit) is interrupted while writing its temporary file."""
+    import signal as _signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"the previous, complete snapshot file")
+    before = out.read_bytes()
+    args = [sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o", str(out), "--input",
+            "impulse:amplitude=100,t0=2,width=0.5", "--dt", "0.01", "--t-end", "2000", "--force", "-q"]
+    args += [isolation] if isolation.startswith("--") else []
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_cli_env(),
+                            start_new_session=True)
+    try:
+        _wait_for_stream(tmp_path, proc)
+        signum = _signal.SIGTERM if how == "SIGTERM" else _signal.SIGINT
+        sent = time.monotonic()
+        if how.endswith("group"):  # a terminal's Ctrl-C reaches the tool and its simulation process
+            os.killpg(proc.pid, signum)
+        else:
+            proc.send_signal(signum)
+        _, err = proc.communicate(timeout=20)
+        elapsed = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, _signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 128 + signum, err
+    assert elapsed < 5, elapsed
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
+    assert out.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 3: compare runs the FMU in a separate process: a crash or a hang is one line
+# ------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def toy_rom(tmp_path_factory):
+    """A one-input, two-output ROM matching the toy FMU of test_source (r = 1)."""
+    path = tmp_path_factory.mktemp("toyrom") / "rom.h5"
+    SecondOrderROM([[1.0]], [[1.0]], [[1.0]], [[1.0]], [[1.0], [0.5]], [[0.0], [0.0]], dt=0.1).save(path)
+    return path
+
+
+def test_compare_with_a_crashing_fmu_is_one_line(toys, toy_rom, tmp_path):
+    """The toy dereferences NULL in doStep once its input exceeds 0.5; on main this killed the tool."""
+    import subprocess
+    import sys
+
+    report = tmp_path / "report"
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", "compare", str(toy_rom), str(toys["full"]),
+                             "--input", "step:amplitude=1,t0=3.95", "--dt", "0.1", "--t-end", "6", "--set", "fault=3",
+                             "--set", "fault_threshold=0.5", "-o", str(report), "-q"],
+                            capture_output=True, text=True, env=_cli_env(), timeout=120)
+    assert_one_line_error(result.returncode, result.stderr.strip().splitlines(),
+                          "crashed the simulation process (signal SIGSEGV) at step 41")
+    assert not report.exists()
+
+
+def test_compare_timeout_stops_a_slow_fmu(anchored_fmu, files, tmp_path, capsys):
+    import time
+
+    start = time.monotonic()
+    code, err = run_main(capsys, "compare", files["rom"], anchored_fmu, "--input", "step", "--dt", "0.01",
+                         "--t-end", "2000", "--timeout", "1", "-o", tmp_path / "report", "-q")
+    assert_one_line_error(code, err, "did not finish within the timeout of 1 s")
+    assert time.monotonic() - start < 10
+    assert not (tmp_path / "report").exists()
