@@ -138,7 +138,7 @@ def real_corpus(request, tmp_path_factory):
         pytest.skip("CMake and a C compiler are needed to build FMUs")
     cache = getattr(request.config, "cache", None)
     folder = cache.mkdir("lti-corpus") if cache is not None else tmp_path_factory.mktemp("lti")
-    return lti_fmus.build_corpus(folder, names=list(CORPUS_CASES))
+    return lti_fmus.build_corpus(folder, names=list(CORPUS_CASES) + ["no-accelerations"])
 
 
 @pytest.mark.fmu
@@ -172,3 +172,17 @@ def test_report_labels_carry_the_units_the_fmu_declares(real_corpus):
     fmu = str(real_corpus["start-off-rest"].path)
     assert _declared_units(fmu, ["mass[1].s", "mass[2].v", "der(mass[1].v)", "y[1]"]) == ["m", "m/s", "m/s2", ""]
     assert _declared_units("builtin:anchored-msd", ["y[1]"]) is None
+
+
+@pytest.mark.fmu
+def test_positions_and_velocities_by_unit_when_no_states_are_declared(real_corpus):
+    """The no-accelerations FMU declares no states and no der() variables; its mass[i].s / mass[i].v carry units."""
+    from fmu_opinf.sources import open_source
+
+    source = open_source(str(real_corpus["no-accelerations"].path))
+    try:
+        assert source.position_names == [f"mass[{i}].s" for i in range(1, 6)]
+        assert source.velocity_names == [f"mass[{i}].v" for i in range(1, 6)]
+        assert "by unit" in source.selection_text()
+    finally:
+        source.close()

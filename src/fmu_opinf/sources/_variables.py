@@ -50,6 +50,7 @@ class Variable:
     dims: list[int | str] = dataclasses.field(default_factory=list)  # size, or name of a structural parameter
     min: str | None = None
     max: str | None = None
+    unit: str | None = None  # its own unit, else its declared type's
 
     @property
     def is_real(self) -> bool:
@@ -167,6 +168,8 @@ class ModelInfo:
         self.fmi_version = root.get("fmiVersion", "")
         self.fmi3 = self.fmi_version.startswith("3")
         node = root.find("ModelVariables")
+        self._type_units = {t.get("name", ""): (t.get("unit") or next((c.get("unit") for c in t if c.get("unit")), None))
+                            for t in root.iter() if t.tag in _TYPE_DEFINITION_TAGS}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
         self.by_name = {v.name: v for v in self.variables}
         self.state_derivatives = self._structure_derivatives(root)
@@ -188,7 +191,8 @@ class ModelInfo:
                            causality=sv.get("causality", "local"),
                            variability=sv.get("variability", "continuous" if kind == "Real" else "discrete"),
                            initial=sv.get("initial"), start=attrs.get("start"), derivative=attrs.get("derivative"),
-                           negated=sv.get("alias") == "negatedAlias", min=attrs.get("min"), max=attrs.get("max"))
+                           negated=sv.get("alias") == "negatedAlias", min=attrs.get("min"), max=attrs.get("max"),
+                           unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
             if var.derivative is not None:
@@ -207,7 +211,8 @@ class ModelInfo:
                                 variability=el.get("variability", "continuous" if el.tag.startswith("Float")
                                                    else "discrete"),
                                 initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
-                                min=el.get("min"), max=el.get("max")))
+                                min=el.get("min"), max=el.get("max"),
+                                unit=el.get("unit") or self._type_units.get(el.get("declaredType", ""))))
             dim_refs.append(refs)
         by_vr = {v.vr: v for v in reversed(out)}  # the first declared variable of a value reference
         for var, refs in zip(out, dim_refs):
@@ -408,8 +413,33 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     pos = _named(elements, "x[*]")
     if pos:
         return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
-    raise FMUError(f"{model.label} declares no continuous states and has no x[*] variables; pass --positions "
-                   "with the position variables' names")
+    by_unit = _by_units(elements)
+    if by_unit is not None:
+        return (*by_unit, "by unit: local variables in m or rad, m/s or rad/s, m/s2 or rad/s2 (no continuous "
+                          "states declared)")
+    raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
+                   "with units of length and velocity; pass --positions with the position variables' names")
+
+
+#: Units that mark positions, velocities and accelerations when a model declares no states (SI, FMI spelling).
+_UNIT_KINDS = ({"m", "rad"}, {"m/s", "rad/s"}, {"m/s2", "rad/s2"})
+
+
+def _by_units(elements: dict[str, Element]) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """Positions, velocities (and accelerations) of a model without declared states, from the SI units of its
+    continuous local variables; None unless there are as many velocities as positions (a clear pairing)."""
+    found: list[list[Column]] = [[], [], []]
+    for name in sorted(elements, key=natural_key):
+        element = elements[name]
+        if not _is_signal(element) or element.var.causality != "local":
+            continue
+        for kind, units in enumerate(_UNIT_KINDS):
+            if (element.var.unit or "").replace(" ", "") in units:
+                found[kind].append(Column(element, element.sign))
+    pos, vel, acc = found
+    if not pos or len(vel) != len(pos):
+        return None
+    return pos, vel, acc if len(acc) == len(pos) else None
 
 
 def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None] | None:
@@ -479,6 +509,8 @@ def _is_signal(element: Element) -> bool:
     var = element.var
     return var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
 
+
+_TYPE_DEFINITION_TAGS = ("SimpleType", "Float64Type", "Float32Type", "RealType")
 
 _RANGE = re.compile(r"\[(\d+):(\d+)\]")
 
