@@ -66,3 +66,22 @@ def test_cli_help_lists_only_options_that_act():
     for name, verb in verbs.items():
         for action in verb._actions:
             assert action.help, f"{name} {action.option_strings or action.dest} has no help text"
+
+
+def test_warnings_on_the_command_line_are_one_line(monkeypatch, capsys):
+    import warnings
+
+    from fmu_opinf import cli
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    def noisy(args):
+        warnings.warn("first part\n  second part", FmuOpinfWarning)
+
+    monkeypatch.setitem(cli._VERBS, "demo", noisy)
+    before = warnings.showwarning
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.showwarning = before
+        assert main(["demo", "-o", "unused"]) == 0
+    err = capsys.readouterr().err
+    assert err == "fmu-opinf: warning: first part second part\n"

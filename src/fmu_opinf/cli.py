@@ -309,8 +309,24 @@ _VERBS = {"snapshots": _run_snapshots, "fit": _run_fit, "compare": _run_compare,
           "demo": _run_demo, "build-fmus": _run_build_fmus}
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+    """Warnings on the command line are one line each, like errors (no source file or code line)."""
+    text = " ".join(str(message).split())
+    print(f"fmu-opinf: warning: {text}", file=file or sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``fmu-opinf`` console script; returns the exit code."""
+    import warnings
+
+    previous, warnings.showwarning = warnings.showwarning, _one_line_warning
+    try:
+        return _main(argv)
+    finally:
+        warnings.showwarning = previous
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     try:
         _check_arguments(args)

@@ -352,6 +352,14 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
     settings = snapshots.get("fmu_settings")
     if "parameters" not in options and isinstance(settings, dict) and settings:
         options["parameters"] = dict(settings)
+    elif "parameters" in options and options["parameters"] != (settings if isinstance(settings, dict) else {}):
+        import warnings
+
+        from .errors import FmuOpinfWarning
+
+        warnings.warn("the source runs with other --set values than the training did; the ROM still starts from "
+                      "the training run's initial state (if the start values changed, the two start apart)",
+                      FmuOpinfWarning, stacklevel=3)
     return options
 
 
