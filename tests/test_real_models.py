@@ -68,9 +68,10 @@ def test_offset_initial_state_and_feedthrough_are_identified(offset_model):
     assert {name: term["fitted"] for name, term in rom.fit_info["terms"].items()} == {"fr": True, "Dur": True,
                                                                                      "y0": True}
     spec = "harmonic:amplitude=3,omega=1.7"
-    assert _relative(rom.simulate(spec, DT, 40.0).y, _reference_outputs(model, spec, 40.0)) < 1e-8
-    assert _relative(rom.equilibrium(), model.equilibrium()) < 1e-8
-    assert _relative(rom.Dur, model.feedthrough) < 1e-8
+    # achieved: 1.7e-10, 4e-13, 1e-15 (the issue asks for 1e-8)
+    assert _relative(rom.simulate(spec, DT, 40.0).y, _reference_outputs(model, spec, 40.0)) < 1e-9
+    assert _relative(rom.equilibrium(), model.equilibrium()) < 1e-11
+    assert _relative(rom.Dur, model.feedthrough) < 1e-12
     assert np.allclose(rom.reconstruct(rom.q0), model.x0, atol=1e-12)
 
 
@@ -86,7 +87,7 @@ def test_free_response_rom_without_inputs():
     model = chain_model(4, inputs=(), force_offset=-0.4, x0=X0, v0=V0)
     rom = fit_rom([_run(model, "none", 30.0)], r=4)
     assert rom.m == 0 and rom.fit_info["terms"]["fr"]["fitted"]
-    assert _relative(rom.simulate("none", DT, 60.0).y, _reference_outputs(model, "none", 60.0)) < 1e-8
+    assert _relative(rom.simulate("none", DT, 60.0).y, _reference_outputs(model, "none", 60.0)) < 1e-9  # 8e-11
 
 
 def test_terms_are_exactly_zero_on_the_paper_benchmark(anchored_impulse_run):
@@ -157,8 +158,9 @@ def test_exporter_style_fmu_through_the_whole_chain(real_corpus, tmp_path, name)
     rom = SecondOrderROM.load(tmp_path / "rom.h5")
     assert rom.integrator == "exact"
     result = compare(rom, fmu, test, t_end=60.0, quiet=True)
-    assert result.metrics()["max_error"] <= 1e-6
-    assert float(np.abs(result.y_rom - result.y_fom).max() / np.abs(result.y_fom).max()) < 1e-6
+    # the issue asks for max eps_y <= 1e-6; achieved 1e-24 .. 9e-19 (relative max error 1e-12 .. 1e-9)
+    assert result.metrics()["max_error"] <= 1e-17
+    assert float(np.abs(result.y_rom - result.y_fom).max() / np.abs(result.y_fom).max()) < 1e-8
     exported = export_fmu(rom, tmp_path / "rom.fmu", fmi_version="3.0" if name == "offset-equilibrium" else "2.0")
     t = result.t[:1001]
     y_fmu, *_ = simulate_outputs(exported, parse_signal(test or "none", rom.m), t)
