@@ -478,3 +478,21 @@ def test_compare_timeout_stops_a_slow_fmu(anchored_fmu, files, tmp_path, capsys)
     assert_one_line_error(code, err, "did not finish within the timeout of 1 s")
     assert time.monotonic() - start < 10
     assert not (tmp_path / "report").exists()
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 8: messages say what happened to the data
+# ------------------------------------------------------------------------------------------------------
+
+
+def test_crash_in_the_auto_window_pilot_does_not_claim_kept_samples(toys, tmp_path):
+    from fmu_opinf.snapshots import record_to_file
+    from fmu_opinf.sources import StepError
+
+    out = tmp_path / "s.h5"
+    with pytest.raises(StepError) as info:
+        record_to_file(str(toys["full"]), out, ["step:amplitude=1,t0=0.35"], auto_window=True, quiet=True,
+                       isolate=True, parameters={"fault": 3, "fault_threshold": 0.5})
+    assert "crashed the simulation process" in str(info.value)
+    assert "kept" not in str(info.value) and "no file was written" in str(info.value)
+    assert list(tmp_path.iterdir()) == []
