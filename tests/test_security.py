@@ -496,3 +496,15 @@ def test_crash_in_the_auto_window_pilot_does_not_claim_kept_samples(toys, tmp_pa
     assert "crashed the simulation process" in str(info.value)
     assert "kept" not in str(info.value) and "no file was written" in str(info.value)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_report_files_honour_the_umask(files, tmp_path, capsys):
+    old = os.umask(0o022)
+    try:
+        code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                             "--t-end", "5", "-o", tmp_path / "report", "-q")
+    finally:
+        os.umask(old)
+    assert code == 0, err
+    for name in ("index.html", "metrics.json", "outputs.png", "error.png"):
+        assert _mode(tmp_path / "report" / name) == 0o644, name

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ._hdf5 import jsonable
+from ._hdf5 import atomic_path, jsonable, write_error
 from .errors import DimensionError, FileFormatError
 
 __all__ = ["output_error", "error_metrics", "Comparison", "compare", "simulate_outputs", "write_report",
@@ -424,15 +424,12 @@ def prepare_report_directory(out_dir: str | os.PathLike) -> None:
 
 
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to a temporary file renamed to ``path`` (mode from the umask; one-line write errors)."""
+    with atomic_path(path) as tmp:
+        try:
+            Path(tmp).write_bytes(data)
+        except OSError as exc:
+            raise write_error(path, exc) from None
 
 
 def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figures: dict[str, Path] | None = None,

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import FMUError, FmuOpinfError
+from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError
 
 if TYPE_CHECKING:
@@ -29,14 +29,6 @@ __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted
 
 _SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
 _pending: list[int] = []  # signals received inside deferred_interrupts(), not yet acted on
-
-
-class Interrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM during a recording, raised at a safe point (between blocks)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"interrupted by {_signal.Signals(signum).name}")
-        self.signum = signum
 
 
 def check_interrupt() -> None:
