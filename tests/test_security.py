@@ -508,3 +508,18 @@ def test_report_files_honour_the_umask(files, tmp_path, capsys):
     assert code == 0, err
     for name in ("index.html", "metrics.json", "outputs.png", "error.png"):
         assert _mode(tmp_path / "report" / name) == 0o644, name
+
+
+def test_compare_refuses_a_folder_with_other_files_but_replaces_an_earlier_report(files, tmp_path, capsys):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    (folder / "holiday.jpg").write_bytes(b"keep")
+    code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                         "--t-end", "5", "-o", folder, "-q")
+    assert_one_line_error(code, err, "holds other files")
+    assert sorted(p.name for p in folder.iterdir()) == ["holiday.jpg"]
+    report = tmp_path / "report"
+    for _ in range(2):
+        code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                             "--t-end", "5", "-o", report, "-q")
+        assert code == 0, err

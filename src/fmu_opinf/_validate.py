@@ -24,7 +24,7 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
     "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
-    "check_writable", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
+    "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
     "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
@@ -139,6 +139,15 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
                               "choose a writable location with -o") from None
     os.close(fd)
     os.unlink(probe)
+
+
+def check_report_directory(path: str | os.PathLike) -> None:
+    """A report goes into a new or empty folder, or replaces an earlier report (one with ``metrics.json``);
+    a folder holding other files is refused rather than silently mixed with the report."""
+    path = Path(path)
+    if path.is_dir() and any(path.iterdir()) and not (path / "metrics.json").is_file():
+        raise FileFormatError(f"report directory {path} exists and holds other files; choose a new -o path "
+                              "(an earlier report in it would be replaced)")
 
 
 def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> None:
