@@ -523,3 +523,25 @@ def test_compare_refuses_a_folder_with_other_files_but_replaces_an_earlier_repor
         code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
                              "--t-end", "5", "-o", report, "-q")
         assert code == 0, err
+
+
+@pytest.mark.parametrize("verb", ["fit", "compare"])
+def test_disk_full_in_fit_and_compare_is_one_line(files, tmp_path, verb):
+    import resource
+    import signal as _signal
+    import subprocess
+    import sys
+
+    def small_disk():
+        _signal.signal(_signal.SIGXFSZ, _signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (30_000, 30_000))
+
+    if verb == "fit":
+        args = ["fit", str(files["snapshots"]), "-o", str(tmp_path / "rom.h5"), "--r", "2", "-q"]
+    else:
+        args = ["compare", str(files["rom"]), "builtin:anchored-msd", "--g", "12", "--input", "step", "--t-end", "5",
+                "-o", str(tmp_path / "report"), "-q"]
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", *args], capture_output=True, text=True,
+                            preexec_fn=small_disk, env=_cli_env(), timeout=120)
+    assert_one_line_error(result.returncode, result.stderr.strip().splitlines(), "the disk is full")
+    assert list(tmp_path.iterdir()) == []

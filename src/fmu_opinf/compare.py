@@ -454,7 +454,19 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
         The report's ``index.html``.
     """
     out_dir = Path(out_dir)
+    created = not out_dir.exists()
     prepare_report_directory(out_dir)
+    try:
+        return _write_report_files(comparison, out_dir, extra_figures, notes)
+    except OSError as exc:  # e.g. disk full while rendering a figure
+        raise write_error(out_dir, exc) from None
+    finally:
+        if created and out_dir.is_dir() and not any(out_dir.iterdir()):
+            out_dir.rmdir()  # no empty report folder after a failure
+
+
+def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: dict[str, Path] | None,
+                        notes: dict[str, Any] | None) -> Path:
     metrics = comparison.metrics()
     if notes:
         metrics["notes"] = jsonable(notes)
