@@ -545,3 +545,26 @@ def test_disk_full_in_fit_and_compare_is_one_line(files, tmp_path, verb):
                             preexec_fn=small_disk, env=_cli_env(), timeout=120)
     assert_one_line_error(result.returncode, result.stderr.strip().splitlines(), "the disk is full")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("delay", [0.2, 0.7, 1.5])
+def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp_path, delay):
+    """Ctrl-C to the whole process group while the tool or its simulation process is still starting."""
+    import signal as _signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o",
+                             str(tmp_path / "s.h5"), "--input", "step", "--dt", "0.01", "--t-end", "2000", "-q"],
+                            stderr=subprocess.PIPE, text=True, env=_cli_env(), start_new_session=True)
+    time.sleep(delay)
+    os.killpg(proc.pid, _signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, _signal.SIGKILL)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
+    assert list(tmp_path.iterdir()) == []

@@ -166,7 +166,8 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
     i0 = 0
     try:
-        proc.start()
+        with _signals_blocked():  # the child starts with SIGINT/SIGTERM blocked, then ignores them
+            proc.start()
         there.close()
         while True:
             message = _receive(here, proc, deadline)
@@ -202,6 +203,20 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
         del count, rows
         shm.close()
         shm.unlink()
+
+
+@contextlib.contextmanager
+def _signals_blocked() -> Iterator[None]:
+    """Block SIGINT and SIGTERM while a child process is started (the mask is inherited), so that a
+    Ctrl-C during the child's start-up cannot kill it with a traceback before it ignores them."""
+    if not hasattr(_signal, "pthread_sigmask"):
+        yield
+        return
+    old = _signal.pthread_sigmask(_signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        _signal.pthread_sigmask(_signal.SIG_SETMASK, old)
 
 
 def _error_class(name: str) -> type:
