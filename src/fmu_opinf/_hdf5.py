@@ -24,7 +24,8 @@ import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
+           "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager

@@ -24,8 +24,9 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
     "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
-    "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
-    "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
+    "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real",
+    "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS",
+    "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
 # -- memory ----------------------------------------------------------------------------------------------
@@ -129,7 +130,10 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
     path = Path(path)
     if directory and path.exists() and not path.is_dir():
         raise FileFormatError(f"{what} {path} is an existing file; choose another -o path")
-    folder = (path if path.is_dir() else _existing_ancestor(path)) if directory else (path.parent if str(path.parent) else Path("."))
+    if directory:
+        folder = path if path.is_dir() else _existing_ancestor(path)
+    else:
+        folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise FileFormatError(f"cannot write {what} {path}: directory {folder} does not exist; create it first")
     try:
