@@ -568,3 +568,10 @@ def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp
     lines = err.strip().splitlines()
     assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_absurd_grid_from_the_api_is_one_line():
+    from fmu_opinf.snapshots import time_grid
+
+    with pytest.raises(DataError, match="increase --dt"):
+        time_grid(1e-300, 10.0)

@@ -161,6 +161,8 @@ def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> 
         if item is None or str(item).startswith("builtin:"):
             continue
         source = Path(str(item))
+        if not source.exists():  # an input specification, not a file
+            continue
         same = (out.exists() and source.exists() and os.path.samefile(out, source)) or \
             out.absolute() == source.absolute()
         if same:
