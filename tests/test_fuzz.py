@@ -193,8 +193,8 @@ def test_damaged_files_give_one_line_errors(valid_files, tmp_path):
     lines = proc.stdout.splitlines()
     results = [json.loads(line) for line in lines if line.startswith("{")]
     started = [line[6:] for line in lines if line.startswith("START ")]
-    assert proc.returncode == 0, f"the worker died (exit {proc.returncode}) in case {started[-1] if started else '?'}: " \
-                                 f"{proc.stderr[-2000:]}"
+    last = started[-1] if started else "?"
+    assert proc.returncode == 0, f"the worker died (exit {proc.returncode}) in case {last}: {proc.stderr[-2000:]}"
     assert len(results) == len(cases)
     problems = []
     for case, result in zip(cases, results):

@@ -478,3 +478,100 @@ def test_compare_timeout_stops_a_slow_fmu(anchored_fmu, files, tmp_path, capsys)
     assert_one_line_error(code, err, "did not finish within the timeout of 1 s")
     assert time.monotonic() - start < 10
     assert not (tmp_path / "report").exists()
+
+
+# ------------------------------------------------------------------------------------------------------
+# item 8: messages say what happened to the data
+# ------------------------------------------------------------------------------------------------------
+
+
+def test_crash_in_the_auto_window_pilot_does_not_claim_kept_samples(toys, tmp_path):
+    from fmu_opinf.snapshots import record_to_file
+    from fmu_opinf.sources import StepError
+
+    out = tmp_path / "s.h5"
+    with pytest.raises(StepError) as info:
+        record_to_file(str(toys["full"]), out, ["step:amplitude=1,t0=0.35"], auto_window=True, quiet=True,
+                       isolate=True, parameters={"fault": 3, "fault_threshold": 0.5})
+    assert "crashed the simulation process" in str(info.value)
+    assert "kept" not in str(info.value) and "no file was written" in str(info.value)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_report_files_honour_the_umask(files, tmp_path, capsys):
+    old = os.umask(0o022)
+    try:
+        code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                             "--t-end", "5", "-o", tmp_path / "report", "-q")
+    finally:
+        os.umask(old)
+    assert code == 0, err
+    for name in ("index.html", "metrics.json", "outputs.png", "error.png"):
+        assert _mode(tmp_path / "report" / name) == 0o644, name
+
+
+def test_compare_refuses_a_folder_with_other_files_but_replaces_an_earlier_report(files, tmp_path, capsys):
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    (folder / "holiday.jpg").write_bytes(b"keep")
+    code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                         "--t-end", "5", "-o", folder, "-q")
+    assert_one_line_error(code, err, "holds other files")
+    assert sorted(p.name for p in folder.iterdir()) == ["holiday.jpg"]
+    report = tmp_path / "report"
+    for _ in range(2):
+        code, err = run_main(capsys, "compare", files["rom"], "builtin:anchored-msd", "--g", "12", "--input", "step",
+                             "--t-end", "5", "-o", report, "-q")
+        assert code == 0, err
+
+
+@pytest.mark.parametrize("verb", ["fit", "compare"])
+def test_disk_full_in_fit_and_compare_is_one_line(files, tmp_path, verb):
+    import resource
+    import signal as _signal
+    import subprocess
+    import sys
+
+    def small_disk():
+        _signal.signal(_signal.SIGXFSZ, _signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (30_000, 30_000))
+
+    if verb == "fit":
+        args = ["fit", str(files["snapshots"]), "-o", str(tmp_path / "rom.h5"), "--r", "2", "-q"]
+    else:
+        args = ["compare", str(files["rom"]), "builtin:anchored-msd", "--g", "12", "--input", "step", "--t-end", "5",
+                "-o", str(tmp_path / "report"), "-q"]
+    result = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", *args], capture_output=True, text=True,
+                            preexec_fn=small_disk, env=_cli_env(), timeout=120)
+    assert_one_line_error(result.returncode, result.stderr.strip().splitlines(), "the disk is full")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("delay", [0.2, 0.7, 1.5])
+def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp_path, delay):
+    """Ctrl-C to the whole process group while the tool or its simulation process is still starting."""
+    import signal as _signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o",
+                             str(tmp_path / "s.h5"), "--input", "step", "--dt", "0.01", "--t-end", "2000", "-q"],
+                            stderr=subprocess.PIPE, text=True, env=_cli_env(), start_new_session=True)
+    time.sleep(delay)
+    os.killpg(proc.pid, _signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, _signal.SIGKILL)
+    lines = err.strip().splitlines()
+    assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_absurd_grid_from_the_api_is_one_line():
+    from fmu_opinf.snapshots import time_grid
+
+    with pytest.raises(DataError, match="increase --dt"):
+        time_grid(1e-300, 10.0)

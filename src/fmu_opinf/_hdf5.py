@@ -24,7 +24,8 @@ import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs", "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
+           "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager
@@ -65,13 +66,38 @@ def atomic_path(path: Path) -> Iterator[str]:
         raise write_error(path, exc) from None
     os.close(fd)
     try:
-        yield tmp
-        os.chmod(tmp, output_mode(path))
-        os.replace(tmp, path)
+        with _terminate_as_exception():
+            yield tmp
+            os.chmod(tmp, output_mode(path))
+            os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+@contextlib.contextmanager
+def _terminate_as_exception() -> Iterator[None]:
+    """SIGTERM (default action: die on the spot) raises :class:`Interrupted` instead, so ``finally`` blocks
+    run and temporary files are removed.  Only in the main thread and when SIGTERM has its default action."""
+    import signal
+    import threading
+
+    from .errors import Interrupted
+
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Interrupted(signum)
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 def write_error(path: Path, exc: OSError) -> FileFormatError:

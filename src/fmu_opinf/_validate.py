@@ -24,8 +24,9 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
     "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
-    "check_writable", "check_not_input", "reject_links", "check_array", "read_real", "check_attr_types",
-    "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
+    "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real",
+    "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS",
+    "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
 # -- memory ----------------------------------------------------------------------------------------------
@@ -129,7 +130,10 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
     path = Path(path)
     if directory and path.exists() and not path.is_dir():
         raise FileFormatError(f"{what} {path} is an existing file; choose another -o path")
-    folder = (path if path.is_dir() else _existing_ancestor(path)) if directory else (path.parent if str(path.parent) else Path("."))
+    if directory:
+        folder = path if path.is_dir() else _existing_ancestor(path)
+    else:
+        folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise FileFormatError(f"cannot write {what} {path}: directory {folder} does not exist; create it first")
     try:
@@ -141,6 +145,15 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
     os.unlink(probe)
 
 
+def check_report_directory(path: str | os.PathLike) -> None:
+    """A report goes into a new or empty folder, or replaces an earlier report (one with ``metrics.json``);
+    a folder holding other files is refused rather than silently mixed with the report."""
+    path = Path(path)
+    if path.is_dir() and any(path.iterdir()) and not (path / "metrics.json").is_file():
+        raise FileFormatError(f"report directory {path} exists and holds other files; choose a new -o path "
+                              "(an earlier report in it would be replaced)")
+
+
 def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> None:
     """Refuse an output path that is one of the inputs (``--force`` would destroy the input)."""
     out = Path(output)
@@ -148,6 +161,8 @@ def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> 
         if item is None or str(item).startswith("builtin:"):
             continue
         source = Path(str(item))
+        if not source.exists():  # an input specification, not a file
+            continue
         same = (out.exists() and source.exists() and os.path.samefile(out, source)) or \
             out.absolute() == source.absolute()
         if same:

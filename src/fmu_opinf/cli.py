@@ -294,6 +294,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
     elif args.verb == "compare":
         v.check_not_input(args.output, [args.rom, args.source, args.input_spec], "report directory")
         v.check_writable(args.output, "report directory", directory=True)
+        if not args.runs:  # a run table's folder holds one report per row
+            v.check_report_directory(args.output)
 
 
 def _check_output_file(args: argparse.Namespace, inputs: list) -> None:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._hdf5 import jsonable
+from ._hdf5 import atomic_path, jsonable, write_error
 from .errors import DimensionError, FileFormatError, InputSpecError
 
 if TYPE_CHECKING:
@@ -516,15 +516,12 @@ def prepare_report_directory(out_dir: str | os.PathLike) -> None:
 
 
 def _atomic_write_bytes(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` to a temporary file renamed to ``path`` (mode from the umask; one-line write errors)."""
+    with atomic_path(path) as tmp:
+        try:
+            Path(tmp).write_bytes(data)
+        except OSError as exc:
+            raise write_error(path, exc) from None
 
 
 def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figures: dict[str, Path] | None = None,
@@ -549,7 +546,19 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
         The report's ``index.html``.
     """
     out_dir = Path(out_dir)
+    created = not out_dir.exists()
     prepare_report_directory(out_dir)
+    try:
+        return _write_report_files(comparison, out_dir, extra_figures, notes)
+    except OSError as exc:  # e.g. disk full while rendering a figure
+        raise write_error(out_dir, exc) from None
+    finally:
+        if created and out_dir.is_dir() and not any(out_dir.iterdir()):
+            out_dir.rmdir()  # no empty report folder after a failure
+
+
+def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: dict[str, Path] | None,
+                        notes: dict[str, Any] | None) -> Path:
     metrics = comparison.metrics()
     if notes:
         metrics["notes"] = jsonable(notes)

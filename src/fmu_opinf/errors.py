@@ -16,6 +16,7 @@ __all__ = [
     "FileFormatError",
     "DataError",
     "FmuOpinfWarning",
+    "Interrupted",
 ]
 
 
@@ -53,3 +54,16 @@ class DataError(FmuOpinfError, ValueError):
 
 class FmuOpinfWarning(UserWarning):
     """Something worked but deserves the user's attention."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM, raised where the tool can stop cleanly; ``signum`` is the signal's number.
+
+    A ``KeyboardInterrupt`` (not an :class:`FmuOpinfError`): the command line exits with 128 + ``signum``.
+    """
+
+    def __init__(self, signum: int) -> None:
+        import signal
+
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+        self.signum = signum

@@ -12,7 +12,8 @@ import h5py
 import numpy as np
 
 from .._hdf5 import read_attrs
-from .._validate import SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run, damaged_file_errors, reject_links
+from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run,
+                         damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
 

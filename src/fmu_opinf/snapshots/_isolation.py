@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..errors import FMUError, FmuOpinfError
+from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError
 
 if TYPE_CHECKING:
@@ -29,14 +29,6 @@ __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted
 
 _SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
 _pending: list[int] = []  # signals received inside deferred_interrupts(), not yet acted on
-
-
-class Interrupted(KeyboardInterrupt):
-    """Ctrl-C or SIGTERM during a recording, raised at a safe point (between blocks)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(f"interrupted by {_signal.Signals(signum).name}")
-        self.signum = signum
 
 
 def check_interrupt() -> None:
@@ -174,7 +166,8 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
     i0 = 0
     try:
-        proc.start()
+        with _signals_blocked():  # the child starts with SIGINT/SIGTERM blocked, then ignores them
+            proc.start()
         there.close()
         while True:
             message = _receive(here, proc, deadline)
@@ -210,6 +203,20 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
         del count, rows
         shm.close()
         shm.unlink()
+
+
+@contextlib.contextmanager
+def _signals_blocked() -> Iterator[None]:
+    """Block SIGINT and SIGTERM while a child process is started (the mask is inherited), so that a
+    Ctrl-C during the child's start-up cannot kill it with a traceback before it ignores them."""
+    if not hasattr(_signal, "pthread_sigmask"):
+        yield
+        return
+    old = _signal.pthread_sigmask(_signal.SIG_BLOCK, _SIGNALS)
+    try:
+        yield
+    finally:
+        _signal.pthread_sigmask(_signal.SIG_SETMASK, old)
 
 
 def _error_class(name: str) -> type:

@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import check_grid
 from ..errors import DimensionError, InputSpecError
 
 __all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations",
@@ -33,6 +34,7 @@ def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
         raise InputSpecError(f"step dt={dt} must be positive and finite")
     if not (t_end > t0 and math.isfinite(t_end)):
         raise InputSpecError(f"end time {t_end} must be finite and after the start time {t0}")
+    check_grid(dt, t_end, t0)  # e.g. an FMU's default step of 1e-300: one line instead of a MemoryError
     k = int(math.floor((t_end - t0) / dt * (1 + 1e-12) + 1e-9)) + 1
     if k < 2:
         raise InputSpecError(f"step dt={dt} is longer than the time window {t_end - t0}; decrease --dt")

@@ -284,8 +284,10 @@ def _file_attrs(source: Source) -> dict[str, Any]:
 
 
 def incomplete_error(failure: StepError, run: Run, path: Path | None) -> StepError:
-    where = f" in {path}" if path else ""
-    text = f"{failure}; the {run.k} samples before it are kept{where} (complete=False)"
+    """The failure with what became of the samples before it: kept in ``path``, or (no path) not written."""
+    if path is None:
+        return StepError(f"{failure}; no file was written", failure.step, failure.time)
+    text = f"{failure}; the {run.k} samples before it are kept in {path} (complete=False)"
     return StepError(text, failure.step, failure.time)
 
 
