@@ -1,0 +1,107 @@
+"""Blocked evaluation of s+ = Phi s + Gamma u (fmu_opinf._recursion) against the step-by-step loop."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from fmu_opinf._recursion import block_length, linear_recursion
+from fmu_opinf.newmark import step_matrices
+from fmu_opinf.rom import SecondOrderROM
+
+
+@pytest.fixture()
+def rng():
+    return np.random.default_rng(20261123)
+
+
+def _loop(phi, s0, gamma, inputs):
+    """Reference: one matrix-vector product per step (what SecondOrderROM.simulate did before)."""
+    states = np.empty((phi.shape[0], inputs.shape[1] + 1))
+    states[:, 0] = s0
+    for i in range(inputs.shape[1]):
+        states[:, i + 1] = phi @ states[:, i] + gamma @ inputs[:, i]
+    return states
+
+
+def _relative(a, b):
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+def _stable(rng, n, radius=0.98):
+    a = rng.standard_normal((n, n))
+    return radius * a / np.abs(np.linalg.eigvals(a)).max()
+
+
+def _spd(rng, r, shift):
+    a = rng.standard_normal((r, r))
+    return a @ a.T / r + shift * np.eye(r)
+
+
+def _rom(rng, r=35, integrator="newmark"):
+    return SecondOrderROM(_spd(rng, r, 1.0), _spd(rng, r, 0.02), _spd(rng, r, 1.0), rng.standard_normal((r, 1)),
+                          rng.standard_normal((3, r)), rng.standard_normal((3, r)), fr=rng.standard_normal(r),
+                          q0=rng.standard_normal(r), qdot0=rng.standard_normal(r), integrator=integrator)
+
+
+@pytest.mark.parametrize("k", [1, 5, 7, 64, 1001])
+@pytest.mark.parametrize("block", [None, 1, 4, 9])
+def test_matches_loop_any_length_and_block(rng, k, block):
+    phi, gamma = _stable(rng, 12), rng.standard_normal((12, 3))
+    s0, inputs = rng.standard_normal(12), rng.standard_normal((3, k))
+    states = linear_recursion(phi, s0, gamma, inputs, block=block)
+    assert states.shape == (12, k + 1)
+    assert _relative(states, _loop(phi, s0, gamma, inputs)) < 1e-12
+
+
+def test_outputs_only_equal_outputs_of_states(rng):
+    phi, gamma, C = _stable(rng, 20), rng.standard_normal((20, 2)), rng.standard_normal((3, 20))
+    s0, inputs = rng.standard_normal(20), rng.standard_normal((2, 3000))
+    y = linear_recursion(phi, s0, gamma, inputs, C=C)
+    assert y.shape == (3, 3001)
+    assert _relative(y, C @ _loop(phi, s0, gamma, inputs)) < 1e-12
+
+
+def test_defective_zero_and_unit_eigenvalues(rng):
+    """A Jordan block, a nilpotent part and an undamped rotation: no eigendecomposition is needed."""
+    n = 9
+    blocks = [np.array([[0.9, 1.0], [0.0, 0.9]]), np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0]]),
+              np.array([[np.cos(0.3), -np.sin(0.3)], [np.sin(0.3), np.cos(0.3)]]), np.array([[1.0]]),
+              np.array([[-0.5]])]
+    T = rng.standard_normal((n, n)) + 3 * np.eye(n)
+    phi = T @ scipy.linalg.block_diag(*blocks) @ np.linalg.inv(T)
+    gamma, s0, inputs = rng.standard_normal((n, 1)), rng.standard_normal(n), rng.standard_normal((1, 2000))
+    assert _relative(linear_recursion(phi, s0, gamma, inputs), _loop(phi, s0, gamma, inputs)) < 1e-12
+
+
+def test_no_inputs_and_no_steps(rng):
+    phi, s0 = _stable(rng, 5), rng.standard_normal(5)
+    free = linear_recursion(phi, s0, np.zeros((5, 0)), np.zeros((0, 50)))
+    assert _relative(free, _loop(phi, s0, np.zeros((5, 0)), np.zeros((0, 50)))) < 1e-12
+    assert np.array_equal(linear_recursion(phi, s0, np.zeros((5, 1)), np.zeros((1, 0))), s0[:, None])
+
+
+def test_block_length_bounds():
+    assert block_length(105, 4, 105, 100_000) >= 4
+    assert block_length(105, 4, 3, 100_000) > block_length(105, 4, 105, 100_000)  # outputs: longer blocks
+    assert block_length(105, 4, 3, 2) == 2
+
+
+@pytest.mark.parametrize("integrator", ["newmark", "exact"])
+def test_rom_simulate_equals_step_map_loop(rng, integrator):
+    """SecondOrderROM.simulate at r = 35 equals the step map applied step by step, to 1e-12 per block."""
+    rom, dt, k = _rom(rng, integrator=integrator), 0.1, 3000
+    trajectory = rom.simulate("harmonic:amplitude=1,omega=0.3", dt, k * dt)
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    forced = np.vstack([trajectory.u, np.ones((1, k + 1))])
+    if integrator == "exact":
+        phi, gamma = rom.step_map(dt)
+        drive = forced[:, 1:]
+    else:
+        phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, dt)
+        gamma, drive = np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+    s0 = np.concatenate([trajectory.q[:, 0], trajectory.qdot[:, 0], trajectory.qddot[:, 0]])
+    reference = _loop(phi, s0, gamma, drive)
+    r = rom.r
+    for got, part in ((trajectory.q, 0), (trajectory.qdot, 1), (trajectory.qddot, 2)):
+        assert _relative(got, reference[part * r:(part + 1) * r]) < 1e-12
+    assert np.allclose(trajectory.q[:, 0], rom.q0) and np.allclose(trajectory.qdot[:, 0], rom.qdot0)
