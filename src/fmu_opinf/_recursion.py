@@ -19,9 +19,12 @@ per-block interpreter overhead).
 
 from __future__ import annotations
 
-import numpy as np
+from dataclasses import dataclass
 
-__all__ = ["linear_recursion", "block_length"]
+import numpy as np
+import scipy.linalg
+
+__all__ = ["linear_recursion", "block_length", "modal_form", "ModalForm"]
 
 #: Interpreter cost of one block-start step, in multiply-adds of the block product (about 3 us at ~5 GFlop/s).
 _LOOP_COST = 15_000
@@ -135,3 +138,144 @@ def linear_recursion(phi: np.ndarray, s0: np.ndarray, gamma: np.ndarray, inputs:
         packed, W = packed[:, used], W[used]
     np.matmul(packed, W, out=out[1:].reshape(nb, L * rows))
     return out[:k + 1].T
+
+
+@dataclass
+class ModalForm:
+    """Real block-diagonal (modal) form of ``s+ = Phi s + Gamma v``, as the exported C kernel steps it.
+
+    ``w = P s`` (``P = projection``, ``k`` rows, ``k`` even), ``w+ = Lambda w + P Gamma v`` with ``Lambda``
+    block diagonal (2 x 2 blocks: one complex-conjugate pair of eigenvalues, or two real ones), and after a step
+    ``s = shape w + rest v`` (``rest = (I - shape P) Gamma``: the part of the state in the eigenspace of the
+    eigenvalue 0, which depends on the last input only).
+
+    Attributes
+    ----------
+    blocks : (k, 2) ndarray
+        Row ``i``: the entries of ``Lambda`` in row ``i``, columns ``2 (i // 2)`` and ``2 (i // 2) + 1``.
+    shape : (n, k) ndarray
+    projection : (k, n) ndarray
+    complement : (n, n) ndarray
+        ``I - shape @ projection``: the projector onto the eigenspace of the eigenvalue 0.
+    """
+
+    blocks: np.ndarray
+    shape: np.ndarray
+    projection: np.ndarray
+    complement: np.ndarray
+
+    @property
+    def size(self) -> int:
+        """Number of modal coordinates ``k``."""
+        return self.blocks.shape[0]
+
+    def step_matrix(self) -> np.ndarray:
+        """``Lambda`` as a dense (k, k) matrix."""
+        k = self.size
+        out = np.zeros((k, k))
+        for i in range(k):
+            out[i, 2 * (i // 2):2 * (i // 2) + 2] = self.blocks[i]
+        return out
+
+
+def _real_modes(lam: np.ndarray, right: np.ndarray, left: np.ndarray) -> tuple[list, list, list]:
+    """2 x 2 blocks, shape columns and projection rows of the modes with nonzero eigenvalues."""
+    blocks, shape, projection = [], [], []
+    reals = []
+    for j in np.flatnonzero(lam.imag > 0):          # one of each conjugate pair: z = y s, s += 2 Re(v z)
+        a, b = lam[j].real, lam[j].imag
+        blocks.append(np.array([[a, -b], [b, a]]))
+        shape += [2 * right[:, j].real, -2 * right[:, j].imag]
+        projection += [left[j].real, left[j].imag]
+    reals = list(np.flatnonzero(lam.imag == 0))
+    if len(reals) % 2:
+        reals.append(None)                            # pad: a coordinate with no dynamics and no effect
+    n = right.shape[0]
+    for pair in zip(reals[::2], reals[1::2]):
+        blocks.append(np.diag([0.0 if j is None else lam[j].real for j in pair]))
+        for j in pair:
+            shape.append(np.zeros(n) if j is None else right[:, j].real)
+            projection.append(np.zeros(n) if j is None else left[j].real)
+    return blocks, shape, projection
+
+
+def _refined(phi: np.ndarray, lam: np.ndarray, right: np.ndarray,
+             left: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One first-order refinement of ``Phi = V diag(lam) W`` in extended precision (``W = V^-1``).
+
+    With ``R = W Phi V`` (should be diagonal): ``lam = diag(R)`` (two-sided Rayleigh quotients, error second
+    order in the eigenvector errors; an eigenvalue error would grow with the number of steps) and
+    ``V <- V (I + X)``, ``W <- (I - X) W`` with ``X_ij = R_ij / (lam_j - lam_i)`` off the diagonal (pairs within
+    the eigenvalue-0 cluster left alone: that cluster only enters through its projector).  Conjugate pairs stay
+    conjugate because every step is real-equivariant.
+    """
+    wide = phi.astype(np.longdouble)
+    v, w = right.astype(np.clongdouble), left.astype(np.clongdouble)
+    R = w @ (wide @ v)
+    quotient = np.diagonal(R).copy()
+    gap = quotient[None, :] - quotient[:, None]
+    scale = max(float(np.abs(quotient).max()), np.finfo(float).tiny)
+    separated = np.abs(gap) > 1e-8 * scale
+    X = np.where(separated, R / np.where(separated, gap, 1.0), 0.0)
+    np.fill_diagonal(X, 0.0)
+    v, w = v @ (np.eye(len(lam)) + X), (np.eye(len(lam)) - X) @ w
+    out = quotient.astype(complex)
+    out[lam.imag == 0] = out[lam.imag == 0].real
+    return out, v.astype(complex), w.astype(complex)
+
+
+def modal_form(phi: np.ndarray, gamma: np.ndarray, steps: int = 2000, tol: float = 1e-12) -> ModalForm | None:
+    """Real modal form of the step map, or None if it does not reproduce the map to ``tol``.
+
+    Eigenvalues below ``1e-13`` times the largest in magnitude are treated as zero (their part of the state
+    is forgotten in one step); the result is checked by running ``steps`` steps of a random input from a
+    random state both ways (relative difference at most ``tol``), which rejects defective or ill-conditioned
+    eigenvector bases.
+
+    Parameters
+    ----------
+    phi : (n, n) ndarray
+    gamma : (n, q) ndarray
+    steps : int, default=2000
+    tol : float, default=1e-12
+
+    Returns
+    -------
+    ModalForm or None
+    """
+    phi = np.asarray(phi, dtype=float)
+    n = phi.shape[0]
+    lam, right = scipy.linalg.eig(phi)
+    scale = max(float(np.abs(lam).max()), np.finfo(float).tiny)
+    keep = np.abs(lam) > 1e-13 * scale
+    try:
+        left = np.linalg.inv(right)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(left)) or np.linalg.cond(right) > 1e10:
+        return None
+    lam, right, left = _refined(phi, lam, right, left)
+    lam, right, left = lam[keep], right[:, keep], left[keep]
+    blocks, shape, projection = _real_modes(lam, right, left)
+    if not blocks:
+        return None
+    blocks = np.vstack(blocks)
+    shape, projection = np.array(shape).T, np.array(projection)
+    form = ModalForm(blocks=blocks, shape=shape, projection=projection, complement=np.eye(n) - shape @ projection)
+    return form if _reproduces(form, phi, np.asarray(gamma, dtype=float), steps, tol) else None
+
+
+def _reproduces(form: ModalForm, phi: np.ndarray, gamma: np.ndarray, steps: int, tol: float) -> bool:
+    """Random run through the modal form (as the C kernel steps) against :func:`linear_recursion`."""
+    rng = np.random.default_rng(0)
+    n, q = gamma.shape
+    s0, inputs = rng.standard_normal(n), rng.standard_normal((q, steps))
+    reference = linear_recursion(phi, s0, gamma, inputs)
+    lam, rest = form.step_matrix(), form.complement @ gamma
+    w = form.projection @ s0
+    got = np.empty((n, steps))
+    for i in range(steps):
+        w = lam @ w + form.projection @ (gamma @ inputs[:, i])
+        got[:, i] = form.shape @ w + rest @ inputs[:, i]
+    error = np.abs(got - reference[:, 1:]).max() / max(float(np.abs(reference).max()), np.finfo(float).tiny)
+    return bool(np.isfinite(error) and error <= tol)
