@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from fmu_opinf._recursion import block_length, linear_recursion
+from fmu_opinf._recursion import block_length, linear_recursion, modal_form
 from fmu_opinf.newmark import step_matrices
 from fmu_opinf.rom import SecondOrderROM
 
@@ -105,3 +105,107 @@ def test_rom_simulate_equals_step_map_loop(rng, integrator):
     for got, part in ((trajectory.q, 0), (trajectory.qdot, 1), (trajectory.qddot, 2)):
         assert _relative(got, reference[part * r:(part + 1) * r]) < 1e-12
     assert np.allclose(trajectory.q[:, 0], rom.q0) and np.allclose(trajectory.qdot[:, 0], rom.qdot0)
+
+
+# ------------------------------------------------------------------ modal form and the exported FMU
+
+def test_modal_form_refuses_a_defective_map(rng):
+    phi = np.array([[0.9, 1.0], [0.0, 0.9]])
+    assert modal_form(phi, np.ones((2, 1))) is None
+
+
+def test_modal_form_reproduces_the_step_maps(rng):
+    rom = _rom(rng)
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, 0.1)
+    for phi, gamma in ((phi, gamma_new + gamma_old), rom.step_map(0.1)):
+        form = modal_form(phi, gamma)
+        assert form is not None and form.size == 2 * rom.r                # the r zero eigenvalues drop out
+        assert np.abs(form.shape @ form.step_matrix() @ form.projection - phi).max() < 1e-12 * np.abs(phi).max()
+
+
+def _drive(path, u, read_states_at=(), snapshot_at=None):
+    """Outputs after each step (input u[:, i] held over step i); states where asked; optionally replay from a
+    snapshot taken after step ``snapshot_at``."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    folder = extract(str(path))
+    md = read_model_description(folder)
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    states = [v.valueReference for v in md.modelVariables if v.name.startswith(("q[", "qdot[", "qddot["))]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="modal")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    dt, ys, read, snapshot, replay = 0.1, [], {}, None, []
+    for i in range(u.shape[1]):
+        fmu.setReal([refs["u[1]"]], [float(u[0, i])])
+        fmu.doStep(i * dt, dt)
+        ys.append(fmu.getReal(outputs))
+        if i in read_states_at:
+            read[i] = np.array(fmu.getReal(states))
+        if i == snapshot_at:
+            snapshot = fmu.getFMUstate()
+    if snapshot is not None:
+        fmu.setFMUstate(snapshot)
+        for i in range(snapshot_at + 1, u.shape[1]):
+            fmu.setReal([refs["u[1]"]], [float(u[0, i])])
+            fmu.doStep(i * dt, dt)
+            replay.append(fmu.getReal(outputs))
+        fmu.freeFMUstate(snapshot)
+    fmu.terminate()
+    fmu.freeInstance()
+    return np.array(ys).T, read, np.array(replay).T
+
+
+@pytest.fixture(scope="module")
+def modal_fmus(tmp_path_factory):
+    from fmu_opinf.export import export_fmu
+
+    rng = np.random.default_rng(7)
+    out = tmp_path_factory.mktemp("modal")
+    fmus = {}
+    for integrator in ("newmark", "exact"):
+        rom = _rom(rng, integrator=integrator)
+        rom.Dur, rom.y0, rom.dt = rng.standard_normal((3, 1)), rng.standard_normal(3), 0.1
+        fmus[integrator] = rom, export_fmu(rom, out / f"{integrator}.fmu")
+    return fmus
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("integrator", ["newmark", "exact"])
+def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
+    """The exported FMU (modal kernel) against the step map applied step by step, to 1e-12: outputs every step,
+    all states where read (rebuilt from the modal state), and a replay from an FMU state snapshot."""
+    import zipfile
+
+    rom, path = modal_fmus[integrator]
+    assert "MatrixModalSize" in zipfile.ZipFile(path).read("sources/model.c").decode()
+    k = 1500
+    u = np.sin(0.05 * np.arange(k))[None, :] + 0.3 * np.sign(np.sin(0.011 * np.arange(k)))[None, :]
+    y, read, replay = _drive(path, u, read_states_at=(0, 333, 334, 1000), snapshot_at=700)
+    # reference: consistent start, then the step map (input change first for Newmark) step by step
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    forced = np.vstack([np.concatenate([[0.0], u[0]]), np.ones(k + 1)])
+    qddot0 = np.linalg.solve(rom.Mr, B @ forced[:, 0] - rom.Dr @ rom.qdot0 - rom.Kr @ rom.q0)
+    s0 = np.concatenate([rom.q0, rom.qdot0, qddot0])
+    if integrator == "exact":
+        phi, gamma = rom.step_map(0.1)
+        drive = forced[:, 1:]
+    else:
+        phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, 0.1)
+        gamma, drive = np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+    states = _loop(phi, s0, gamma, drive)[:, 1:]
+    r = rom.r
+    expected = rom.Cpr @ states[:r] + rom.Cvr @ states[r:2 * r] + rom.Dur @ u + rom.y0[:, None]
+    assert _relative(y, expected) < 1e-12
+    for i, values in read.items():
+        for part in range(3):
+            block = slice(part * r, (part + 1) * r)
+            assert _relative(values[block], states[block, i]) < 1e-12 * np.abs(states[block]).max() / np.abs(
+                states[block, i]).max()
+    assert _relative(replay, y[:, 701:]) < 1e-12
