@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-__all__ = ["linear_recursion", "block_length", "modal_form", "ModalForm"]
+__all__ = ["linear_recursion", "block_length", "rom_step_map", "modal_form", "ModalForm"]
 
 #: Interpreter cost of one block-start step, in multiply-adds of the block product (about 3 us at ~5 GFlop/s).
 _LOOP_COST = 15_000
@@ -138,6 +138,35 @@ def linear_recursion(phi: np.ndarray, s0: np.ndarray, gamma: np.ndarray, inputs:
         packed, W = packed[:, used], W[used]
     np.matmul(packed, W, out=out[1:].reshape(nb, L * rows))
     return out[:k + 1].T
+
+
+def rom_step_map(rom, dt: float, forced: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ROM's time step as one linear map ``s_{i+1} = Phi s_i + Gamma v_i``, ``s = [q; q'; q'']``.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM
+        Its ``integrator`` picks the map: ``"exact"`` (:meth:`SecondOrderROM.step_map`, ``v_i = [u; 1]`` held over
+        step ``i``) or ``"newmark"`` (:func:`fmu_opinf.newmark.step_matrices`, which also needs the input of the
+        previous step for the acceleration update: ``v_i = [u_{i+1}; 1; u_i; 1]``).
+    dt : float
+    forced : (m + 1, k + 1) ndarray
+        Inputs in effect at the grid times with a last row of ones (the constant force ``fr``).
+
+    Returns
+    -------
+    phi : (3r, 3r) ndarray
+    gamma : (3r, q) ndarray
+    drive : (q, k) ndarray
+    """
+    from .newmark import step_matrices
+
+    if rom.integrator == "exact":
+        phi, gamma = rom.step_map(dt)
+        return phi, gamma, forced[:, 1:]
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, dt)
+    return phi, np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
 
 
 @dataclass

@@ -99,6 +99,9 @@ class Comparison:
     fom_provenance, rom_provenance : dict
     t_train_end : float or None
         Last training snapshot time, marked on the error plot when known.
+    timed : dict
+        What each time measured (``fom``, ``rom``: one sentence each) and whether the speed-up compares like
+        with like (``like_with_like``: both sides FMUs stepped the same way).
     """
 
     t: np.ndarray
@@ -113,6 +116,7 @@ class Comparison:
     rom_provenance: dict[str, Any] = field(default_factory=dict)
     t_train_end: float | None = None
     title: str = "ROM validation"
+    timed: dict[str, Any] = field(default_factory=dict)
 
     @property
     def eps(self) -> np.ndarray:
@@ -127,6 +131,7 @@ class Comparison:
             "fom_seconds": self.fom_seconds,
             "rom_seconds": self.rom_seconds,
             "speedup": self.fom_seconds / self.rom_seconds if self.rom_seconds > 0 else math.inf,
+            "speedup_timed": dict(self.timed),
             "input": self.input_spec,
             "dt": float(self.t[1] - self.t[0]) if self.t.size > 1 else None,
             "t_end": float(self.t[-1]),
@@ -304,7 +309,26 @@ def compare(rom: Any, source: Any, input_spec: str | None = None, dt: float | No
         t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
+        timed=_timed(source, rom_side),
     )
+
+
+def _timed_description(side: Any) -> str:
+    """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up)."""
+    from .rom import SecondOrderROM
+
+    if isinstance(side, SecondOrderROM) or Path(str(side)).suffix.lower() in (".h5", ".hdf5"):
+        return ("ROM simulated in Python (SecondOrderROM.simulate: the whole run at once, step map in blocks "
+                "of steps, states and outputs)")
+    if str(side).startswith("builtin:"):
+        return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
+    return f"FMU {Path(str(side)).name} stepped through FMI from Python (one fmi2DoStep per step, outputs read)"
+
+
+def _timed(source: Any, rom_side: Any) -> dict[str, Any]:
+    fmu = [not str(side).startswith("builtin:") and Path(str(side)).suffix.lower() == ".fmu"
+           for side in (source, rom_side)]
+    return {"fom": _timed_description(source), "rom": _timed_description(rom_side), "like_with_like": all(fmu)}
 
 
 def _rom_side_info(rom_side: Any) -> dict[str, Any]:
@@ -487,8 +511,13 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
         ("reduced order r", metrics["r"]),
         ("full-order simulation [s]", _fmt(metrics["fom_seconds"])),
         ("ROM simulation [s]", _fmt(metrics["rom_seconds"])),
-        ("speed-up", _fmt(metrics["speedup"])),
+        ("speed-up (full-order time / ROM time)", _fmt(metrics["speedup"])),
     ]
+    timed = metrics.get("speedup_timed") or {}
+    if timed:
+        headline += [("full-order time measures", timed["fom"]), ("ROM time measures", timed["rom"]),
+                     ("like with like", "yes: both FMUs, stepped the same way" if timed["like_with_like"]
+                      else "no: the two sides run differently (export the ROM and compare its FMU for that)")]
     settings = [("test input", metrics["input"]), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}, relative max {_fmt(v['relative_max'])}")
@@ -529,4 +558,10 @@ def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     for name, m in rows:
         lines.append(f"{name:<28} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
                      f"{m['fom_seconds']:>9.3f} {m['rom_seconds']:>9.4f} {m['speedup']:>9.1f}")
+    notes = [(name, m["speedup_timed"]) for name, m in rows if m.get("speedup_timed")]
+    if notes:
+        lines.append("speed-up = FOM [s] / ROM [s], wall time of the simulation loops alone:")
+    for name, timed in notes:
+        kind = "like with like" if timed["like_with_like"] else "not like with like"
+        lines.append(f"  {name} ({kind}): FOM = {timed['fom']}; ROM = {timed['rom']}")
     return "\n".join(lines)

@@ -280,8 +280,8 @@ class SecondOrderROM:
         ROMTrajectory
             ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.
         """
-        from ._recursion import linear_recursion
-        from .newmark import applied_inputs, step_matrices, time_grid
+        from ._recursion import linear_recursion, rom_step_map
+        from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
         signal = parse_signal(signal, self.m)
@@ -296,12 +296,7 @@ class SecondOrderROM:
         forced = np.vstack([u, np.ones((1, t.size))])
         qddot0 = scipy.linalg.solve(self.Mr, B @ forced[:, 0] - self.Dr @ qdot0 - self.Kr @ q0, assume_a="sym")
         # the step is one linear map s+ = phi s + gamma v, evaluated in blocks of steps (fmu_opinf._recursion)
-        if self.integrator == "exact":
-            phi, gamma = self.step_map(dt)
-            drive = forced[:, 1:]
-        else:
-            phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, B, dt)
-            gamma, drive = np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+        phi, gamma, drive = rom_step_map(self, dt, forced)
         states = linear_recursion(phi, np.concatenate([q0, qdot0, qddot0]), gamma, drive)
         q, qdot, qddot = states[:self.r], states[self.r:2 * self.r], states[2 * self.r:]
         y = self.Cpr @ q + self.Cvr @ qdot + self.Dur @ u + self.y0[:, None]
