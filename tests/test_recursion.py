@@ -162,6 +162,23 @@ def _drive(path, u, read_states_at=(), snapshot_at=None):
     return np.array(ys).T, read, np.array(replay).T
 
 
+def _reference_states(rom, u):
+    """States after each step: consistent start at rest input, then the step map (for Newmark with the
+    acceleration update for each new input first) applied step by step."""
+    k = u.shape[1]
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    forced = np.vstack([np.concatenate([[0.0], u[0]]), np.ones(k + 1)])
+    qddot0 = np.linalg.solve(rom.Mr, B @ forced[:, 0] - rom.Dr @ rom.qdot0 - rom.Kr @ rom.q0)
+    s0 = np.concatenate([rom.q0, rom.qdot0, qddot0])
+    if rom.integrator == "exact":
+        phi, gamma = rom.step_map(0.1)
+        drive = forced[:, 1:]
+    else:
+        phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, 0.1)
+        gamma, drive = np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+    return _loop(phi, s0, gamma, drive)[:, 1:]
+
+
 @pytest.fixture(scope="module")
 def modal_fmus(tmp_path_factory):
     from fmu_opinf.export import export_fmu
@@ -188,18 +205,7 @@ def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
     k = 1500
     u = np.sin(0.05 * np.arange(k))[None, :] + 0.3 * np.sign(np.sin(0.011 * np.arange(k)))[None, :]
     y, read, replay = _drive(path, u, read_states_at=(0, 333, 334, 1000), snapshot_at=700)
-    # reference: consistent start, then the step map (input change first for Newmark) step by step
-    B = np.hstack([rom.Br, rom.fr[:, None]])
-    forced = np.vstack([np.concatenate([[0.0], u[0]]), np.ones(k + 1)])
-    qddot0 = np.linalg.solve(rom.Mr, B @ forced[:, 0] - rom.Dr @ rom.qdot0 - rom.Kr @ rom.q0)
-    s0 = np.concatenate([rom.q0, rom.qdot0, qddot0])
-    if integrator == "exact":
-        phi, gamma = rom.step_map(0.1)
-        drive = forced[:, 1:]
-    else:
-        phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, 0.1)
-        gamma, drive = np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
-    states = _loop(phi, s0, gamma, drive)[:, 1:]
+    states = _reference_states(rom, u)
     r = rom.r
     expected = rom.Cpr @ states[:r] + rom.Cvr @ states[r:2 * r] + rom.Dur @ u + rom.y0[:, None]
     assert _relative(y, expected) < 1e-12
@@ -209,3 +215,37 @@ def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
             assert _relative(values[block], states[block, i]) < 1e-12 * np.abs(states[block]).max() / np.abs(
                 states[block, i]).max()
     assert _relative(replay, y[:, 701:]) < 1e-12
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("integrator", ["newmark", "exact"])
+def test_modal_fmu_states_follow_an_input_set_between_steps(modal_fmus, integrator):
+    """After steps on the modal path (outputs read, states not), a new input set before the next step shows at
+    once in the acceleration (``q'' += Mr^-1 Br du``, as the Newmark reference and the old kernel do)."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    rom, path = modal_fmus[integrator]
+    folder = extract(str(path))
+    md = read_model_description(folder)
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
+    states = [v.valueReference for v in md.modelVariables if v.name.startswith(("q[", "qdot[", "qddot["))]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="modal")
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    u = np.full((1, 20), 0.5)
+    for i in range(20):
+        fmu.setReal([refs["u[1]"]], [0.5])
+        fmu.doStep(i * 0.1, 0.1)
+        fmu.getReal(outputs)
+    fmu.setReal([refs["u[1]"]], [2.0])
+    got = np.array(fmu.getReal(states))
+    fmu.terminate()
+    fmu.freeInstance()
+    expected = _reference_states(rom, u)[:, -1]
+    expected[2 * rom.r:] += np.linalg.solve(rom.Mr, rom.Br[:, 0] * 1.5)
+    assert _relative(got, expected) < 1e-12
