@@ -5,6 +5,7 @@ import pytest
 import scipy.linalg
 
 from fmu_opinf._recursion import block_length, linear_recursion, modal_form
+from fmu_opinf.fmus import find_build_tools
 from fmu_opinf.newmark import step_matrices
 from fmu_opinf.rom import SecondOrderROM
 
@@ -179,6 +180,12 @@ def _reference_states(rom, u):
     return _loop(phi, s0, gamma, drive)[:, 1:]
 
 
+def needs_compiler(test):
+    """FMU tests: a C compiler and CMake, and about 12 s to build the two FMUs (slow)."""
+    skip = pytest.mark.skipif(find_build_tools() is None, reason="no C compiler or CMake to build FMUs")
+    return pytest.mark.fmu(pytest.mark.slow(skip(test)))
+
+
 @pytest.fixture(scope="module")
 def modal_fmus(tmp_path_factory):
     from fmu_opinf.export import export_fmu
@@ -193,7 +200,7 @@ def modal_fmus(tmp_path_factory):
     return fmus
 
 
-@pytest.mark.fmu
+@needs_compiler
 @pytest.mark.parametrize("integrator", ["newmark", "exact"])
 def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
     """The exported FMU (modal kernel) against the step map applied step by step, to 1e-12: outputs every step,
@@ -217,7 +224,7 @@ def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
     assert _relative(replay, y[:, 701:]) < 1e-12
 
 
-@pytest.mark.fmu
+@needs_compiler
 @pytest.mark.parametrize("integrator", ["newmark", "exact"])
 def test_modal_fmu_states_follow_an_input_set_between_steps(modal_fmus, integrator):
     """After steps on the modal path (outputs read, states not), a new input set before the next step shows at
