@@ -125,6 +125,20 @@ def test_modal_form_reproduces_the_step_maps(rng):
         assert np.abs(form.shape @ form.step_matrix() @ form.projection - phi).max() < 1e-12 * np.abs(phi).max()
 
 
+def test_modal_form_pads_an_odd_number_of_real_eigenvalues(rng):
+    """A rotation pair, three real eigenvalues (one block padded with a dead coordinate) and a zero eigenvalue."""
+    blocks = [np.array([[0.9 * np.cos(0.4), -0.9 * np.sin(0.4)], [0.9 * np.sin(0.4), 0.9 * np.cos(0.4)]]),
+              np.diag([0.5, -0.3, 0.7, 0.0])]
+    T = rng.standard_normal((6, 6)) + 4 * np.eye(6)
+    phi = T @ scipy.linalg.block_diag(*blocks) @ np.linalg.inv(T)
+    form = modal_form(phi, rng.standard_normal((6, 2)))
+    assert form is not None and form.size == 6
+    assert np.abs(form.shape @ form.step_matrix() @ form.projection - phi).max() < 1e-13
+    assert np.abs(form.complement @ phi).max() < 1e-13            # the rest lies in the kernel: gone in one step
+    expected = np.sort_complex(np.linalg.eigvals(scipy.linalg.block_diag(*blocks)))   # the pad is a zero
+    assert np.allclose(np.sort_complex(np.linalg.eigvals(form.step_matrix())), expected, atol=1e-12)
+
+
 def _drive(path, u, read_states_at=(), snapshot_at=None):
     """Outputs after each step (input u[:, i] held over step i); states where asked; optionally replay from a
     snapshot taken after step ``snapshot_at``."""
