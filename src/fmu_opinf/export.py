@@ -5,7 +5,11 @@ FMUs' FMI glue and Newmark kernel unchanged (``fmus/src``; constraint kind none)
 steps exactly like :meth:`SecondOrderROM.simulate`: classical Newmark (beta = 1/4,
 gamma = 1/2), input held over each communication step at the value set before ``doStep``,
 started from the ROM's initial state ``q0, qdot0`` (the source's start values), with the
-constant force ``fr``, the feedthrough ``Dur`` and the output offset ``y0``.
+constant force ``fr``, the feedthrough ``Dur`` and the output offset ``y0``.  At the ROM's step ``dt``
+the kernel steps a real modal (2 x 2 block-diagonal) form of the step map, O(r) per step with the
+outputs through the transformed output matrix and ``q, q', q''`` rebuilt only when read, if that form
+reproduces the step map to 1e-12 (:func:`fmu_opinf._recursion.modal_form`); otherwise, and at other
+step sizes, it solves as before.
 Inputs and outputs keep the source FMU's names and order; optional extra outputs
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
