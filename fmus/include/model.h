@@ -64,6 +64,22 @@ typedef enum {
     MatrixPhi,  /* 3n x 3n: optional precomputed step map s+ = Phi s + Gamma [u; 1], s = [x; v; a] */
     MatrixGamma, /* 3n x (m + 1): its input part (last column: the constant 1 of F) */
     MatrixMapStep, /* 1 x 1: the step size the map belongs to (a map model steps with it only) */
+    /* Optional modal (real block-diagonal) form of the step at one step size, O(n) per step; the
+     * state is then carried as modal coordinates w (k of them, k even, k <= 3n) between steps:
+     *   s = [x; v; a] = Shape w + Rest [u_h; 1] + RestChange du,   w+ = Blocks w + Input [u; 1],
+     *   an input change du before a step: w += InputChange du, where u_h is the input of the last
+     *   step and du the input changes since; outputs after a step: y = Output w + OutputInput [u; 1]
+     *   + Du u + y0. */
+    MatrixModalSize,        /* 1 x 2: [k, the step size the modal form belongs to] */
+    MatrixModalBlocks,      /* 3n x 2: row i holds the 2 x 2 block entries of w+_i (columns 2(i/2), 2(i/2)+1) */
+    MatrixModalInput,       /* 3n x (m + 1) (rows 0..k-1 used) */
+    MatrixModalInputChange, /* 3n x m */
+    MatrixModalShape,       /* 3n x 3n (columns 0..k-1 used) */
+    MatrixModalProjection,  /* 3n x 3n (rows 0..k-1 used): w = Projection s */
+    MatrixModalRest,        /* 3n x (m + 1) */
+    MatrixModalRestChange,  /* 3n x m */
+    MatrixModalOutput,      /* p x 3n (columns 0..k-1 used) */
+    MatrixModalOutputInput, /* p x (m + 1) */
     MatrixCount
 } MatrixId;
 

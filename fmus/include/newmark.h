@@ -60,6 +60,27 @@ typedef struct {
     double *schur;      /* nc x nc lower Cholesky factor of G W (row-major) */
 } SaddleFactor;
 
+/* Dense copy of the model's optional modal step (MatrixModal*, see model.h) and the modal state. */
+typedef struct {
+    int size;           /* k modal coordinates (0: the model has no modal form) */
+    double stepSize;    /* the step size the form belongs to */
+    double *blocks;     /* k x 2 */
+    double *input;      /* k x (m + 1) */
+    double *inputChange;  /* k x m */
+    double *shape;      /* 3n x k */
+    double *projection; /* k x 3n */
+    double *rest;       /* 3n x (m + 1) */
+    double *restChange; /* 3n x m */
+    double *output;     /* p x k */
+    double *outputInput;  /* p x (m + 1) */
+    double *w;          /* k: modal state */
+    double *next;       /* k: work */
+    double *held;       /* m + 1: [u; 1] of the last modal step */
+    double *change;     /* m: input changes since that step */
+    int current;        /* w, held, change describe the state */
+    int stale;          /* x, v, a lag behind w (rebuilt by syncPhysicalState) */
+} ModalStep;
+
 typedef struct {
     double stepSize;    /* step size the factor belongs to (0: none) */
     SaddleFactor factor;
@@ -69,6 +90,7 @@ typedef struct {
     double *xp;         /* n */
     double *vp;         /* n */
     double *mu;         /* nc */
+    ModalStep modal;
 } NewmarkSolver;
 
 /* Assemble the model's matrices (via assembleSystem) into CSR form. */
@@ -105,6 +127,20 @@ double stepMapSize(const SecondOrderSystem *system);
  * with a step map takes that map instead (h must then be its step size, see stepMapSize). */
 void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double h,
                  const double u[], double x[], double v[], double a[]);
+
+/* Modal path (models with MatrixModal*): newmarkStep carries the state as modal coordinates when h is the
+ * modal step size, and x, v, a are rebuilt only on demand.  Call syncPhysicalState before reading x, v, a
+ * (cheap when they are up to date), invalidateModalState after writing them from outside the kernel. */
+void syncPhysicalState(NewmarkSolver *solver, const SecondOrderSystem *system, double x[], double v[],
+                       double a[]);
+void invalidateModalState(NewmarkSolver *solver);
+
+/* Outputs right after newmarkStep: from the modal state if the step was modal, else computeOutputs. */
+void computeStepOutputs(const NewmarkSolver *solver, const SecondOrderSystem *system, const double x[],
+                        const double v[], const double u[], double y[]);
+
+/* 1 if the state after newmarkStep is finite (checks the modal state after a modal step, else a). */
+int stepIsFinite(const NewmarkSolver *solver, const SecondOrderSystem *system, const double a[]);
 
 /* y = Cp x + Cv v + Du u + y0 */
 void computeOutputs(const SecondOrderSystem *system, const double x[], const double v[],

@@ -339,6 +339,13 @@ Status getFloat64(ModelInstance *instance, const char *function, const unsigned 
     if (instance->current.state & (InitializationMode | StepComplete)) {
         CALL(ensureInputApplied(instance));
     }
+    for (i = 0; i < nvr && instance->systemReady; i++) {
+        if (vr[i] >= VR_POSITIONS && vr[i] < VR_END) {  /* states: rebuild them from a modal state */
+            syncPhysicalState(&instance->solver, &instance->system, instance->current.x, instance->current.v,
+                              instance->current.a);
+            break;
+        }
+    }
 
     for (i = 0; i < nvr; i++) {
         unsigned int r = vr[i];
@@ -454,7 +461,6 @@ static Status checkStepArguments(const ModelInstance *instance, const char *func
 Status doStep(ModelInstance *instance, const char *function, double point, double h) {
     const char *message = "unknown problem";
     Status status = OK;
-    int i;
 
     CALL(checkStepArguments(instance, function, point, h));
     CALL(ensureInputApplied(instance));
@@ -487,18 +493,16 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
     newmarkStep(&instance->solver, &instance->system, h, instance->current.u, instance->current.x,
                 instance->current.v, instance->current.a);
 
-    for (i = 0; i < N_DOF; i++) {
-        if (!isfinite(instance->current.a[i])) {
-            logError(instance, "%s: the solution is not finite at t = %g", function, point + h);
-            status = Error;
-            goto END;
-        }
+    if (!stepIsFinite(&instance->solver, &instance->system, instance->current.a)) {
+        logError(instance, "%s: the solution is not finite at t = %g", function, point + h);
+        status = Error;
+        goto END;
     }
 
     instance->current.time = point + h;
     instance->current.stepCount++;
-    computeOutputs(&instance->system, instance->current.x, instance->current.v, instance->current.u,
-                       instance->y);
+    computeStepOutputs(&instance->solver, &instance->system, instance->current.x, instance->current.v,
+                       instance->current.u, instance->y);
 
 END:
     return status;
@@ -555,6 +559,10 @@ Status getState(ModelInstance *instance, const char *function, void **state) {
         }
     }
 
+    if (instance->systemReady) {
+        syncPhysicalState(&instance->solver, &instance->system, instance->current.x, instance->current.v,
+                          instance->current.a);
+    }
     copyDynamicState(snapshot, &instance->current);
     *state = snapshot;
     return OK;
@@ -582,6 +590,7 @@ Status setState(ModelInstance *instance, const char *function, const void *state
     }
 
     copyDynamicState(&instance->current, snapshot);
+    invalidateModalState(&instance->solver);
 
     if (instance->current.state != Instantiated) {
         Status status = ensureSystem(instance);

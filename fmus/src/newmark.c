@@ -59,6 +59,16 @@ static void setMatrixShapes(Assembly *assembly, int n, int m, int p, int nc) {
     assembly->rows[MatrixPhi] = 3 * n; assembly->cols[MatrixPhi] = 3 * n;
     assembly->rows[MatrixGamma] = 3 * n; assembly->cols[MatrixGamma] = m + 1;
     assembly->rows[MatrixMapStep] = 1; assembly->cols[MatrixMapStep] = 1;
+    assembly->rows[MatrixModalSize] = 1; assembly->cols[MatrixModalSize] = 2;
+    assembly->rows[MatrixModalBlocks] = 3 * n; assembly->cols[MatrixModalBlocks] = 2;
+    assembly->rows[MatrixModalInput] = 3 * n; assembly->cols[MatrixModalInput] = m + 1;
+    assembly->rows[MatrixModalInputChange] = 3 * n; assembly->cols[MatrixModalInputChange] = m;
+    assembly->rows[MatrixModalShape] = 3 * n; assembly->cols[MatrixModalShape] = 3 * n;
+    assembly->rows[MatrixModalProjection] = 3 * n; assembly->cols[MatrixModalProjection] = 3 * n;
+    assembly->rows[MatrixModalRest] = 3 * n; assembly->cols[MatrixModalRest] = m + 1;
+    assembly->rows[MatrixModalRestChange] = 3 * n; assembly->cols[MatrixModalRestChange] = m;
+    assembly->rows[MatrixModalOutput] = p; assembly->cols[MatrixModalOutput] = 3 * n;
+    assembly->rows[MatrixModalOutputInput] = p; assembly->cols[MatrixModalOutputInput] = m + 1;
 }
 
 static void freeTriplets(Assembly *assembly, const Allocator *allocator) {
@@ -541,6 +551,176 @@ static void solveSaddle(const SaddleFactor *factor, const SecondOrderSystem *sys
     }
 }
 
+/* ------------------------------------------------------------ modal form */
+
+/* A step within this relative distance of the modal step size takes the modal form (as doStep snaps h). */
+#define MODAL_STEP_TOLERANCE 1e-9
+
+static const double unitColumn[1] = {1.0};
+
+/* Dense rows x cols copy (row-major) of the leading part of a CSR matrix; NULL if out of memory. */
+static double *denseCopy(const SparseMatrix *A, int rows, int cols, const Allocator *allocator) {
+    double *dense = (double *)allocator->allocate((size_t)ARRAY_LENGTH(rows * cols), sizeof(double));
+    int i, k;
+
+    if (!dense) {
+        return NULL;
+    }
+    for (i = 0; i < rows && i < A->rows; i++) {
+        for (k = A->rowStart[i]; k < A->rowStart[i + 1]; k++) {
+            if (A->colIndex[k] < cols) {
+                dense[i * cols + A->colIndex[k]] += A->values[k];
+            }
+        }
+    }
+    return dense;
+}
+
+static void freeModalStep(ModalStep *modal, const Allocator *allocator) {
+    double **arrays[] = { &modal->blocks, &modal->input, &modal->inputChange, &modal->shape,
+                          &modal->projection, &modal->rest, &modal->restChange, &modal->output,
+                          &modal->outputInput, &modal->w, &modal->next, &modal->held, &modal->change };
+    size_t i;
+
+    for (i = 0; i < sizeof(arrays) / sizeof(arrays[0]); i++) {
+        allocator->release(*arrays[i]);
+        *arrays[i] = NULL;
+    }
+    memset(modal, 0, sizeof(*modal));
+}
+
+/* Dense copies of the model's modal form (size 0 if it has none). */
+static Status allocateModalStep(ModalStep *modal, const SecondOrderSystem *system, const Allocator *allocator) {
+    const SparseMatrix *size = &system->matrices[MatrixModalSize];
+    const SparseMatrix *A = system->matrices;
+    int n3 = 3 * system->n, m = system->m, p = system->p, k, j;
+    double entries[2] = {0.0, 0.0};
+
+    memset(modal, 0, sizeof(*modal));
+    for (j = size->rowStart[0]; j < size->rowStart[1]; j++) {
+        entries[size->colIndex[j]] += size->values[j];
+    }
+    k = (int)entries[0];
+    if (k <= 0 || k > n3 || k % 2 != 0 || !(entries[1] > 0.0)) {
+        return OK;
+    }
+    modal->blocks = denseCopy(&A[MatrixModalBlocks], k, 2, allocator);
+    modal->input = denseCopy(&A[MatrixModalInput], k, m + 1, allocator);
+    modal->inputChange = denseCopy(&A[MatrixModalInputChange], k, m, allocator);
+    modal->shape = denseCopy(&A[MatrixModalShape], n3, k, allocator);
+    modal->projection = denseCopy(&A[MatrixModalProjection], k, n3, allocator);
+    modal->rest = denseCopy(&A[MatrixModalRest], n3, m + 1, allocator);
+    modal->restChange = denseCopy(&A[MatrixModalRestChange], n3, m, allocator);
+    modal->output = denseCopy(&A[MatrixModalOutput], p, k, allocator);
+    modal->outputInput = denseCopy(&A[MatrixModalOutputInput], p, m + 1, allocator);
+    modal->w = (double *)allocator->allocate((size_t)k, sizeof(double));
+    modal->next = (double *)allocator->allocate((size_t)k, sizeof(double));
+    modal->held = (double *)allocator->allocate((size_t)m + 1, sizeof(double));
+    modal->change = (double *)allocator->allocate((size_t)ARRAY_LENGTH(m), sizeof(double));
+    if (!modal->blocks || !modal->input || !modal->inputChange || !modal->shape || !modal->projection ||
+        !modal->rest || !modal->restChange || !modal->output || !modal->outputInput || !modal->w ||
+        !modal->next || !modal->held || !modal->change) {
+        freeModalStep(modal, allocator);
+        return Error;
+    }
+    modal->size = k;
+    modal->stepSize = entries[1];
+    return OK;
+}
+
+void invalidateModalState(NewmarkSolver *solver) {
+    solver->modal.current = 0;
+    solver->modal.stale = 0;
+}
+
+void syncPhysicalState(NewmarkSolver *solver, const SecondOrderSystem *system, double x[], double v[],
+                       double a[]) {
+    ModalStep *modal = &solver->modal;
+    int n = system->n, m = system->m, k = modal->size, i, j;
+    double *parts[3];
+
+    if (!modal->current || !modal->stale) {
+        return;
+    }
+    parts[0] = x; parts[1] = v; parts[2] = a;
+    for (i = 0; i < 3 * n; i++) {
+        const double *shape = modal->shape + (size_t)i * (size_t)k;
+        const double *rest = modal->rest + (size_t)i * (size_t)(m + 1);
+        double sum = dot(shape, modal->w, k) + dot(rest, modal->held, m + 1);
+        for (j = 0; j < m; j++) {
+            sum += modal->restChange[i * m + j] * modal->change[j];
+        }
+        parts[i / n][i % n] = sum;
+    }
+    modal->stale = 0;
+}
+
+/* w <- Blocks w + Input [u; 1], projecting [x; v; a] first if w is not current. */
+static void modalStep(NewmarkSolver *solver, const SecondOrderSystem *system, const double u[],
+                      const double x[], const double v[], const double a[]) {
+    ModalStep *modal = &solver->modal;
+    int n = system->n, m = system->m, k = modal->size, i, j;
+    const double *blocks = modal->blocks, *input = modal->input;
+    double *w = modal->w, *next = modal->next;
+
+    if (!modal->current) {
+        for (i = 0; i < k; i++) {
+            const double *row = modal->projection + (size_t)i * (size_t)(3 * n);
+            w[i] = dot(row, x, n) + dot(row + n, v, n) + dot(row + 2 * n, a, n);
+        }
+        modal->current = 1;
+    }
+    for (j = 0; j < m; j++) {
+        modal->held[j] = u[j];
+        modal->change[j] = 0.0;
+    }
+    modal->held[m] = 1.0;
+    for (i = 0; i < k; i += 2) {
+        double w0 = w[i], w1 = w[i + 1];
+        double s0 = blocks[2 * i] * w0 + blocks[2 * i + 1] * w1;
+        double s1 = blocks[2 * i + 2] * w0 + blocks[2 * i + 3] * w1;
+        const double *g0 = input + (size_t)i * (size_t)(m + 1), *g1 = g0 + m + 1;
+        for (j = 0; j <= m; j++) {
+            s0 += g0[j] * modal->held[j];
+            s1 += g1[j] * modal->held[j];
+        }
+        next[i] = s0;
+        next[i + 1] = s1;
+    }
+    memcpy(w, next, (size_t)k * sizeof(double));
+    modal->stale = 1;
+}
+
+void computeStepOutputs(const NewmarkSolver *solver, const SecondOrderSystem *system, const double x[],
+                        const double v[], const double u[], double y[]) {
+    const ModalStep *modal = &solver->modal;
+    int i, k = modal->size, m = system->m;
+
+    if (!modal->current || !modal->stale) {
+        computeOutputs(system, x, v, u, y);
+        return;
+    }
+    for (i = 0; i < system->p; i++) {
+        y[i] = dot(modal->output + (size_t)i * (size_t)k, modal->w, k) +
+               dot(modal->outputInput + (size_t)i * (size_t)(m + 1), modal->held, m + 1);
+    }
+    addProduct(&system->matrices[MatrixDu], 1.0, u, y);
+    addProduct(&system->matrices[MatrixY0], 1.0, unitColumn, y);
+}
+
+int stepIsFinite(const NewmarkSolver *solver, const SecondOrderSystem *system, const double a[]) {
+    const ModalStep *modal = &solver->modal;
+    const double *values = modal->current && modal->stale ? modal->w : a;
+    int count = modal->current && modal->stale ? modal->size : system->n, i;
+
+    for (i = 0; i < count; i++) {
+        if (!isfinite(values[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
 /* ---------------------------------------------------------------- solver */
 
 Status allocateNewmarkSolver(NewmarkSolver *solver, const SecondOrderSystem *system,
@@ -553,7 +733,8 @@ Status allocateNewmarkSolver(NewmarkSolver *solver, const SecondOrderSystem *sys
     solver->vp = (double *)allocator->allocate(n, sizeof(double));
     solver->mu = (double *)allocator->allocate((size_t)ARRAY_LENGTH(system->nc), sizeof(double));
 
-    if (!solver->rhs || !solver->xp || !solver->vp || !solver->mu) {
+    if (!solver->rhs || !solver->xp || !solver->vp || !solver->mu ||
+        allocateModalStep(&solver->modal, system, allocator) != OK) {
         return Error;
     }
 
@@ -563,6 +744,7 @@ Status allocateNewmarkSolver(NewmarkSolver *solver, const SecondOrderSystem *sys
 void freeNewmarkSolver(NewmarkSolver *solver, const Allocator *allocator) {
     freeSaddleFactor(&solver->factor, allocator);
     freeSaddleFactor(&solver->massFactor, allocator);
+    freeModalStep(&solver->modal, allocator);
     allocator->release(solver->inputResponse);
     allocator->release(solver->rhs);
     allocator->release(solver->xp);
@@ -571,7 +753,6 @@ void freeNewmarkSolver(NewmarkSolver *solver, const Allocator *allocator) {
     memset(solver, 0, sizeof(*solver));
 }
 
-static const double unitColumn[1] = {1.0};
 
 /* rhs = B u + f - D v - K x */
 static void forceResidual(const SecondOrderSystem *system, const double u[], const double x[],
@@ -649,6 +830,7 @@ Status initialAcceleration(NewmarkSolver *solver, const SecondOrderSystem *syste
     forceResidual(system, u, x, v, solver->rhs);
     solveSaddle(&solver->massFactor, system, solver->rhs, zeros, solver->mu);
     memcpy(a, solver->rhs, (size_t)system->n * sizeof(double));
+    invalidateModalState(solver);
     return OK;
 }
 
@@ -669,6 +851,17 @@ Status applyInputChange(NewmarkSolver *solver, const SecondOrderSystem *system,
         const double *z = solver->inputResponse + (size_t)j * n;
         if (change == 0.0) {
             continue;
+        }
+        if (solver->modal.current) {
+            /* the modal state takes the change (the acceleration part of w); x, v, a follow on sync */
+            ModalStep *modal = &solver->modal;
+            for (i = 0; i < modal->size; i++) {
+                modal->w[i] += modal->inputChange[i * system->m + j] * change;
+            }
+            modal->change[j] += change;
+            if (modal->stale) {
+                continue;
+            }
         }
         for (i = 0; i < system->n; i++) {
             a[i] += z[i] * change;
@@ -741,6 +934,15 @@ void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double 
     double c[ARRAY_LENGTH(N_CONSTRAINTS)];
     int n = system->n;
     int i, j, k;
+
+    if (solver->modal.size > 0) {
+        if (fabs(h - solver->modal.stepSize) <= MODAL_STEP_TOLERANCE * solver->modal.stepSize) {
+            modalStep(solver, system, u, x, v, a);
+            return;
+        }
+        syncPhysicalState(solver, system, x, v, a);
+        invalidateModalState(solver);
+    }
 
     if (stepMapSize(system) > 0.0) {
         mapStep(solver, system, u, x, v, a);

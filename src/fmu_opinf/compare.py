@@ -105,6 +105,9 @@ class Comparison:
         Last training snapshot time, marked on the error plot when known.
     output_units : list of str, optional
         Unit of each output where the FMU declares one ("" where not), for the figure labels.
+    timed : dict
+        What each time measured (``fom``, ``rom``: one sentence each) and whether the speed-up compares like
+        with like (``like_with_like``: both sides FMUs stepped the same way).
     """
 
     t: np.ndarray
@@ -120,6 +123,7 @@ class Comparison:
     t_train_end: float | None = None
     title: str = "ROM validation"
     output_units: list[str] | None = None
+    timed: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -138,6 +142,7 @@ class Comparison:
             "fom_seconds": self.fom_seconds,
             "rom_seconds": self.rom_seconds,
             "speedup": self.fom_seconds / self.rom_seconds if self.rom_seconds > 0 else math.inf,
+            "speedup_timed": dict(self.timed),
             "input": self.input_spec,
             "dt": float(self.t[1] - self.t[0]) if self.t.size > 1 else None,
             "t_end": float(self.t[-1]),
@@ -335,6 +340,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         output_units=_declared_units(source, list(fom_outputs)),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
+        timed=_timed(source, rom_side),
     )
 
 
@@ -393,6 +399,22 @@ def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool)
         return [rom_names.index(name) for name in fom_names]
     raise DimensionError(f"the source has {len(fom_names)} outputs but the ROM has {len(rom_names)}, and their "
                          "names do not match; compare a ROM with the model it was learned from")
+def _timed_description(side: Any) -> str:
+    """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up)."""
+    from .rom import SecondOrderROM
+
+    if isinstance(side, SecondOrderROM) or Path(str(side)).suffix.lower() in (".h5", ".hdf5"):
+        return ("ROM simulated in Python (SecondOrderROM.simulate: the whole run at once, step map in blocks "
+                "of steps, states and outputs)")
+    if str(side).startswith("builtin:"):
+        return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
+    return f"FMU {Path(str(side)).name} stepped through FMI from Python (one fmi2DoStep per step, outputs read)"
+
+
+def _timed(source: Any, rom_side: Any) -> dict[str, Any]:
+    fmu = [not str(side).startswith("builtin:") and Path(str(side)).suffix.lower() == ".fmu"
+           for side in (source, rom_side)]
+    return {"fom": _timed_description(source), "rom": _timed_description(rom_side), "like_with_like": all(fmu)}
 
 
 def _rom_side_info(rom_side: Any) -> dict[str, Any]:
@@ -594,8 +616,13 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
         ("reduced order r", metrics["r"]),
         ("full-order simulation [s]", _fmt(metrics["fom_seconds"])),
         ("ROM simulation [s]", _fmt(metrics["rom_seconds"])),
-        ("speed-up", _fmt(metrics["speedup"])),
+        ("speed-up (full-order time / ROM time)", _fmt(metrics["speedup"])),
     ]
+    timed = metrics.get("speedup_timed") or {}
+    if timed:
+        headline += [("full-order time measures", timed["fom"]), ("ROM time measures", timed["rom"]),
+                     ("like with like", "yes: both FMUs, stepped the same way" if timed["like_with_like"]
+                      else "no: the two sides run differently (export the ROM and compare its FMU for that)")]
     settings = [("test input", metrics["input"]), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
@@ -636,4 +663,10 @@ def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     for name, m in rows:
         lines.append(f"{name:<28} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
                      f"{m['fom_seconds']:>9.3f} {m['rom_seconds']:>9.4f} {m['speedup']:>9.1f}")
+    notes = [(name, m["speedup_timed"]) for name, m in rows if m.get("speedup_timed")]
+    if notes:
+        lines.append("speed-up = FOM [s] / ROM [s], wall time of the simulation loops alone:")
+    for name, timed in notes:
+        kind = "like with like" if timed["like_with_like"] else "not like with like"
+        lines.append(f"  {name} ({kind}): FOM = {timed['fom']}; ROM = {timed['rom']}")
     return "\n".join(lines)

@@ -281,7 +281,8 @@ class SecondOrderROM:
         ROMTrajectory
             ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.
         """
-        from .newmark import applied_inputs, step_matrices, time_grid
+        from ._recursion import linear_recursion, rom_step_map
+        from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
         signal = parse_signal(signal, self.m)
@@ -295,17 +296,9 @@ class SecondOrderROM:
         B = np.hstack([self.Br, self.fr[:, None]])
         forced = np.vstack([u, np.ones((1, t.size))])
         qddot0 = scipy.linalg.solve(self.Mr, B @ forced[:, 0] - self.Dr @ qdot0 - self.Kr @ q0, assume_a="sym")
-        # the step is one linear map: a 3r x 3r product per step instead of solves
-        if self.integrator == "exact":
-            phi, gamma_new = self.step_map(dt)
-            forcing = gamma_new @ forced[:, 1:]
-        else:
-            phi, gamma_new, gamma_old = step_matrices(self.Mr, self.Dr, self.Kr, B, dt)
-            forcing = gamma_new @ forced[:, 1:] + gamma_old @ forced[:, :-1]
-        states = np.empty((3 * self.r, t.size))
-        states[:, 0] = np.concatenate([q0, qdot0, qddot0])
-        for i in range(1, t.size):
-            states[:, i] = phi @ states[:, i - 1] + forcing[:, i - 1]
+        # the step is one linear map s+ = phi s + gamma v, evaluated in blocks of steps (fmu_opinf._recursion)
+        phi, gamma, drive = rom_step_map(self, dt, forced)
+        states = linear_recursion(phi, np.concatenate([q0, qdot0, qddot0]), gamma, drive)
         q, qdot, qddot = states[:self.r], states[self.r:2 * self.r], states[2 * self.r:]
         y = self.Cpr @ q + self.Cvr @ qdot + self.Dur @ u + self.y0[:, None]
         return ROMTrajectory(t=t, u=u, y=y, q=q, qdot=qdot, qddot=qddot)
