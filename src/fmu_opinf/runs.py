@@ -27,6 +27,8 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import functools
+import hashlib
 import json
 import math
 import os
@@ -278,15 +280,49 @@ def _stamp(source_spec: Any, row: RunRow, settings: dict[str, Any], options: dic
     """What must agree for an existing file to count as this row's result."""
     from ._hdf5 import jsonable
 
-    return jsonable({"source": os.fspath(source_spec), "row": row.provenance(), "settings": settings,
-                     "source_options": options})
+    row_stamp = {**row.provenance(), "input_identity": _input_identity(row.input)}
+    return jsonable({"source": os.fspath(source_spec), "source_identity": _file_identity(source_spec),
+                     "row": row_stamp, "settings": settings, "source_options": options})
+
+
+@functools.lru_cache(maxsize=8)
+def _hash_file(path: str, size: int, mtime_ns: int) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            digest.update(chunk)
+    return "sha256:" + digest.hexdigest()
+
+
+def _file_identity(spec: Any) -> str:
+    """A content hash of a source file (``builtin:`` sources: their name); a rebuilt FMU is a new source."""
+    path = Path(os.fspath(spec))
+    if not path.is_file():
+        return os.fspath(spec)
+    info = path.stat()
+    return _hash_file(str(path), info.st_size, info.st_mtime_ns)
+
+
+def _input_identity(spec: str) -> str:
+    """The input specification with each ``.csv`` part replaced by a hash of its content (an edited input table
+    is a new run; a study folder moved elsewhere is not)."""
+    parts = []
+    for part in spec.split(";"):
+        path = Path(part.strip())
+        if part.strip().lower().endswith(".csv") and path.is_file():
+            part = "csv-" + _file_identity(path)
+        parts.append(part)
+    return ";".join(parts)
 
 
 def _same_stamp(a: dict[str, Any], b: dict[str, Any]) -> bool:
     def key(stamp: dict[str, Any]) -> str:
         row = dict(stamp.get("row", {}))
         row.pop("number", None)  # moving a row within the table keeps its result
-        return json.dumps({**stamp, "row": row}, sort_keys=True)
+        row["input"] = row.get("input_identity", row.get("input", ""))
+        row.pop("input_identity", None)
+        rest = {k: v for k, v in stamp.items() if k != "source"} if "source_identity" in stamp else stamp
+        return json.dumps({**rest, "row": row}, sort_keys=True)
 
     return key(a) == key(b)
 
@@ -562,12 +598,25 @@ def compare_row(rom: str, source_spec: str, row: RunRow, out_dir: str, dt: float
     try:
         result = compare(rom, source_spec, row.input, dt=dt, t_end=t_end, quiet=True,
                          source_options=row_source_options(row, source_options))
+        _check_finite(result)
         page = write_report(result, Path(out_dir) / row.name)
     except FmuOpinfError as exc:
         return RunOutcome(row.number, row.name, "failed", seconds=time.perf_counter() - started,
                           error=str(exc), worker=_worker_name()), None
     return (RunOutcome(row.number, row.name, "compared", str(page), len(result.t), time.perf_counter() - started,
                        worker=_worker_name()), result.metrics())
+
+
+def _check_finite(result: Any) -> None:
+    """A comparison whose source (or ROM) left the finite numbers has no meaningful error: a failed row."""
+    import numpy as np
+
+    for label, y in (("the source", result.y_fom), ("the ROM", result.y_rom)):
+        bad = ~np.isfinite(np.asarray(y)).all(axis=0)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise FmuOpinfError(f"{label} produced non-finite outputs at step {i} (t={result.t[i]:g}); check the "
+                                "input's size and the model on this input")
 
 
 def compare_runs(
