@@ -223,15 +223,25 @@ def test_distributed_pod_wide_data_equals_incore(client, recorded):
     _check_distributed(recorded["par"][1], max_memory=40 * 8 * 4 * 40, method="distributed-tsqr-transposed")
 
 
-def test_distributed_pod_tall_data_equals_incore(client, table, tmp_path):
-    """n = 1500 rows, k = 4 x 61 columns: TSQR of X in row blocks (6 blocks), modes Q U_R on the workers."""
-    good = tmp_path / "good.csv"
+@pytest.fixture(scope="module")
+def tall_set(client, table, tmp_path_factory) -> Path:
+    """n = 1500 rows, k = 4 x 61 columns."""
+    folder = tmp_path_factory.mktemp("tall")
+    good = folder / "good.csv"
     good.write_text("\n".join(line for line in table.read_text().splitlines() if "blowup" not in line) + "\n")
-    (tmp_path / "loads").symlink_to(table.parent / "loads")
-    report = runs.record_runs(SOURCE, good, tmp_path / "tall", scheduler=client, quiet=True, dt=0.1, t_end=6.0,
-                              g=1500)
+    (folder / "loads").symlink_to(table.parent / "loads")
+    report = runs.record_runs(SOURCE, good, folder / "set", scheduler=client, quiet=True, dt=0.1, t_end=6.0, g=1500)
     report.raise_for_failures()
-    _check_distributed(tmp_path / "tall", max_memory=250 * 8 * 4 * 244, method="distributed-tsqr")
+    return folder / "set"
+
+
+@pytest.mark.parametrize("ratio", [0.0, np.inf], ids=["modes-X-W-over-sigma", "modes-Q-U"])
+def test_distributed_pod_tall_data_equals_incore(tall_set, ratio, monkeypatch):
+    """TSQR of X in row blocks (6 blocks); the modes from X W_r / sigma_r and from Q U_R both to 1e-10."""
+    import fmu_opinf.basis as basis_module
+
+    monkeypatch.setattr(basis_module, "TSQR_CHEAP_MODES_RATIO", ratio)
+    _check_distributed(tall_set, max_memory=250 * 8 * 4 * 244, method="distributed-tsqr")
 
 
 # --------------------------------------------------------------------------------------------------------

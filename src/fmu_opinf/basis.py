@@ -30,8 +30,10 @@ A third path runs where the data lie, on Dask (``docs/scale-out.md``): when the 
 
 * **distributed-tsqr** (``n >= k``): the tall-and-skinny ``X`` is cut into row blocks of all ``k`` columns (size
   from ``max_memory``); ``dask.array.linalg.tsqr`` reduces the blocks' triangular factors to ``R`` (``k x k``) on
-  the workers, the client takes the SVD ``R = U_R S W^T``, and ``V_r = Q U_R[:, :r]`` is formed block by block on
-  the workers (a second pass that recomputes each block's ``Q`` factor).
+  the workers, the client takes the SVD ``R = U_R S W^T``, and a second pass forms ``V_r`` block by block on the
+  workers: ``X W_r S_r^{-1}`` re-orthonormalized while ``sigma_r >= 1e-5 sigma_1`` (round-off error
+  ``eps sigma_1 / sigma_r``), else ``Q U_R[:, :r]`` with each block's ``Q`` factor recomputed (round-off accurate
+  at any ratio, ``k / r`` times the flops).
 * **distributed-tsqr-transposed** (``n < k``, many samples of a small model): the same reduction of ``X^T``, cut
   into column blocks of ``X`` of all ``n`` rows, gives ``X^T = Q R`` with ``R`` of size ``n x n``; the SVD of
   ``R^T`` gives ``V_r`` directly (one pass).
@@ -555,7 +557,7 @@ class PODBasis:
         if method in ("dense", "streamed-correlation"):
             return _fix_signs(vecs[:, :r].copy())
         if method.startswith("distributed-tsqr"):
-            return _fix_signs(_tsqr_modes(runs, name, vecs[:, :r], method, self.max_memory))
+            return _fix_signs(_tsqr_modes(runs, name, sigma, vecs, r, method, self.max_memory))
         # method of snapshots: V_r = X W_r diag(1/sigma_r), accumulated chunk by chunk, then re-orthonormalized
         n, _ = _check_shapes(runs, name)
         modes = np.zeros((n, r))
@@ -812,32 +814,45 @@ def _dask_matrix(runs: Sequence, name: str, max_memory: float) -> Any:
     return da.concatenate(parts, axis=1).rechunk(_block_shape(n, sum(ks), max_memory))
 
 
-def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, np.ndarray, str]:
-    """Singular values of ``X`` from the TSQR factor ``R`` reduced on the workers, with the small factor the
-    modes need: ``U_R`` of ``R = U_R S W^T`` (tall ``X``, modes ``Q U_R``) or the left singular vectors of ``X``
-    themselves (wide ``X``, from ``X^T = Q R``)."""
+def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, Any, str]:
+    """Singular values of ``X`` from the TSQR factor ``R`` reduced on the workers, with the small factors the
+    modes need: ``(U_R, W)`` of ``R = U_R S W^T`` (tall ``X``) or the left singular vectors of ``X`` themselves
+    (wide ``X``, from ``X^T = Q R``)."""
     import dask.array as da
 
     X = _dask_matrix(runs, name, max_memory)
     n, k = X.shape
     if n >= k:
         _, R = da.linalg.tsqr(X)
-        left, sigma, _ = scipy.linalg.svd(np.asarray(R.compute()), lapack_driver="gesdd", check_finite=False)
-        return sigma, left, "distributed-tsqr"
+        left, sigma, Wt = scipy.linalg.svd(np.asarray(R.compute()), lapack_driver="gesdd", check_finite=False)
+        return sigma, (left, Wt.T), "distributed-tsqr"
     _, R = da.linalg.tsqr(X.T)
     left, sigma, _ = scipy.linalg.svd(np.asarray(R.compute()).T, lapack_driver="gesdd", check_finite=False)
     return sigma, left, "distributed-tsqr-transposed"
 
 
-def _tsqr_modes(runs: Sequence, name: str, left: np.ndarray, method: str, max_memory: float) -> np.ndarray:
-    """The modes ``V_r`` from the leading columns ``left`` of :func:`_tsqr_singular`'s factor (on the workers for
-    tall data: ``Q`` is recomputed block by block and only ``(rows, r)`` pieces travel)."""
+#: Down to this ``sigma_r / sigma_1`` the modes of tall data are ``X W_r S_r^{-1}`` re-orthonormalized (round-off
+#: error ~ eps sigma_1 / sigma_r, i.e. <= ~1e-11; 2 n k r flops); below it ``Q U_R[:, :r]`` (round-off accurate at
+#: any ratio, but each block's QR is recomputed: ~4 n k^2 flops).
+TSQR_CHEAP_MODES_RATIO = 1e-5
+
+
+def _tsqr_modes(runs: Sequence, name: str, sigma: np.ndarray, vecs: Any, r: int, method: str,
+                max_memory: float) -> np.ndarray:
+    """The modes ``V_r`` from :func:`_tsqr_singular`'s factors, formed on the workers for tall data (only
+    ``(rows, r)`` pieces travel to the client)."""
     import dask.array as da
 
     if method == "distributed-tsqr-transposed":
-        return np.ascontiguousarray(left)
-    Q, _ = da.linalg.tsqr(_dask_matrix(runs, name, max_memory))
-    return np.asarray((Q @ left).compute())
+        return np.ascontiguousarray(vecs[:, :r])
+    left, right = vecs
+    X = _dask_matrix(runs, name, max_memory)
+    if sigma[r - 1] >= TSQR_CHEAP_MODES_RATIO * sigma[0]:
+        modes = np.asarray((X @ (right[:, :r] / sigma[:r])).compute())
+        q, _ = np.linalg.qr(modes)
+        return q
+    Q, _ = da.linalg.tsqr(X)
+    return np.asarray((Q @ left[:, :r]).compute())
 
 
 _BASIS_CACHE: dict[tuple, tuple[Any, Any]] = {}
