@@ -724,7 +724,8 @@ def open_snapshot_set(
         Make ``x, xdot, xddot`` dask arrays (the POD and projections then run on Dask).  Default: when a
         ``distributed`` client is active.
     max_memory : float, default=1e9
-        Bytes per row block of the dask arrays (as for :class:`PODBasis`).
+        Memory budget that sets the blocks of the dask arrays (as for :class:`PODBasis`): row blocks of all columns
+        for tall data, aligned with the files' chunks so that each chunk is decompressed once or a few times.
 
     Returns
     -------
@@ -739,7 +740,9 @@ def open_snapshot_set(
             opened.append(Snapshots.open(path))
         snaps = SnapshotSet(opened, files)
         if dask if dask is not None else _client_active():
-            snaps.runs = [_dask_run(run, max_memory) for run in snaps.runs]
+            n, ks = _check_shapes(snaps.runs, "x")
+            block = _block_shape(n, sum(ks), max_memory)  # of the whole set, as the POD will cut it
+            snaps.runs = [_dask_run(run, block) for run in snaps.runs]
     except BaseException:
         for part in opened:
             part.close()
@@ -777,41 +780,61 @@ def _block_shape(n: int, k: int, max_memory: float) -> tuple[int, int]:
     return n, int(min(k, max(n, budget / max(n, 1), 1)))
 
 
-def _dask_dataset(dataset: Any, label: str, max_memory: float) -> Any:
-    """A dask array reading an h5py dataset in blocks (tasks carry only file and dataset name)."""
+def _aligned_rows(rows: int, chunk_rows: int, n: int) -> int:
+    """Block rows that decompress each of the file's chunks once (a multiple of its chunk rows) or a few times (an
+    even part of a chunk), at most ``rows``; chunks holding whole columns are read whole by any row block."""
+    if chunk_rows >= n or rows >= n:
+        return rows
+    if rows >= chunk_rows:
+        return rows // chunk_rows * chunk_rows
+    parts = -(-chunk_rows // rows)
+    return -(-chunk_rows // parts)
+
+
+def _dask_dataset(dataset: Any, label: str, block: tuple[int, int]) -> Any:
+    """A dask array reading an h5py dataset in blocks of at most ``block`` (tasks carry file and dataset name)."""
     import dask
     import dask.array as da
 
     n, k = (int(v) for v in dataset.shape)
-    rows, cols = _block_shape(n, k, max_memory)
+    rows, cols = min(block[0], n), min(block[1], k)
+    if rows < n and dataset.chunks:
+        rows = _aligned_rows(rows, int(dataset.chunks[0]), n)
     path, name = str(Path(dataset.file.filename).resolve()), dataset.name
     read = dask.delayed(_read_h5_block, pure=True)
 
-    def block(i0: int, j0: int) -> Any:
+    def piece(i0: int, j0: int) -> Any:
         i1, j1 = min(i0 + rows, n), min(j0 + cols, k)
         return da.from_delayed(read(path, name, i0, i1, j0, j1, label), shape=(i1 - i0, j1 - j0), dtype=np.float64)
 
-    return da.block([[block(i0, j0) for j0 in range(0, k, cols)] for i0 in range(0, n, rows)])
+    return da.block([[piece(i0, j0) for j0 in range(0, k, cols)] for i0 in range(0, n, rows)])
 
 
-def _dask_run(run: Any, max_memory: float) -> Any:
-    """The run with ``x, xdot, xddot`` as dask arrays and ``t, u, y`` in memory."""
+def _dask_run(run: Any, block: tuple[int, int]) -> Any:
+    """The run with ``x, xdot, xddot`` as dask arrays in blocks of at most ``block``, ``t, u, y`` in memory."""
     import dataclasses as _dc
 
     big = {name: _dask_dataset(getattr(run, name), f"{name} of {Path(getattr(run, name).file.filename).name}",
-                               max_memory) for name in ("x", "xdot", "xddot")}
+                               block) for name in ("x", "xdot", "xddot")}
     small = {name: np.asarray(getattr(run, name)[()], dtype=np.float64) for name in ("t", "u", "y")}
     return _dc.replace(run, **big, **small)
 
 
 def _dask_matrix(runs: Sequence, name: str, max_memory: float) -> Any:
-    """``X = [X_run1, X_run2, ...]`` as one dask array in the blocks of :func:`_block_shape`."""
+    """``X = [X_run1, X_run2, ...]`` as one dask array in the blocks of :func:`_block_shape` (tall data: the row
+    blocks the runs already have when they agree, so that each output block reads only its own rows)."""
     import dask.array as da
 
     n, ks = _check_shapes(runs, name)
+    rows, cols = _block_shape(n, sum(ks), max_memory)
     parts = [getattr(run, name) if _is_dask(getattr(run, name)) else da.from_array(np.asarray(getattr(run, name)))
              for run in runs]
-    return da.concatenate(parts, axis=1).rechunk(_block_shape(n, sum(ks), max_memory))
+    X = da.concatenate(parts, axis=1)
+    if n < sum(ks):
+        return X.rechunk((n, cols))
+    given = parts[0].chunks[0]
+    same = all(part.chunks[0] == given for part in parts) and max(given) <= rows
+    return X.rechunk((given if same else rows, sum(ks)))
 
 
 def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, Any, str]:
