@@ -97,12 +97,22 @@ import numpy as np
 from fmu_opinf import runs
 from fmu_opinf.basis import open_snapshot_set, _block_shape
 from fmu_opinf.rom import fit_rom_file
+from distributed import get_task_stream
 with runs.dask_client(f"local:{ARGS['workers']}") as client:
     t0 = time.perf_counter()
-    rom = fit_rom_file(OUT / "pod", OUT / "rom.h5", r=5, quiet=True, overwrite=True,
-                       max_memory=ARGS["max_memory"])
+    with get_task_stream(client) as stream:
+        rom = fit_rom_file(OUT / "pod", OUT / "rom.h5", r=5, quiet=True, overwrite=True,
+                           max_memory=ARGS["max_memory"])
     RESULT["fit_seconds"] = time.perf_counter() - t0
     RESULT["worker_peak_gib"] = worker_peaks(client)
+tasks = {}
+for task in stream.data:  # compute time per task kind (read a block, block QR, products, ...)
+    prefix = task["key"][0] if isinstance(task["key"], tuple) else task["key"]
+    prefix = str(prefix).rsplit("-", 1)[0]
+    spent = sum(s["stop"] - s["start"] for s in task["startstops"] if s["action"] == "compute")
+    count, seconds = tasks.get(prefix, (0, 0.0))
+    tasks[prefix] = (count + 1, seconds + spent)
+RESULT["tasks"] = {k: {"count": c, "seconds": round(t, 3)} for k, (c, t) in sorted(tasks.items(), key=lambda kv: -kv[1][1])[:12]}
 info = rom.fit_info
 RESULT.update(pod_method=info["pod_method"], n=info["n"], k=info["k"], r=rom.r, status=info["status"])
 rows, cols = _block_shape(info["n"], info["k"], ARGS["max_memory"])
@@ -180,6 +190,8 @@ def report(results: dict) -> str:
         f"POD: {fit['pod_method']}, n={fit['n']}, k={fit['k']}, {fit['data_gib_per_array']:.2f} GiB per array, "
         f"{fit['blocks']} row blocks of {fit['block_rows']} rows, max_memory={results['max_memory']:.0e}",
     ]
+    lines.append("worker compute time by task kind (count, seconds): " + ", ".join(
+        f"{k} ({v['count']}, {v['seconds']:.1f})" for k, v in list(fit.get("tasks", {}).items())[:6]))
     if "subspace_angle" in fit:
         lines.append(f"distributed vs in-core ({fit['incore_method']}) basis: subspace angle "
                      f"{fit['subspace_angle']:.1e}")

@@ -162,6 +162,20 @@ def test_rerun_skips_complete_runs_and_redoes_changed_rows(client, recorded, tab
     assert [o.status for o in sixth.outcomes] == ["skipped", "skipped", "failed", "skipped", "skipped"]
 
 
+def test_a_changed_row_that_fails_leaves_no_stale_result(tmp_path):
+    """In this process (no scheduler): the old file of a row whose new version fails is not kept as its result."""
+    (tmp_path / "short.csv").write_text("time,u\n0,1\n5,0\n")  # ends before t_end = 20
+    first = tmp_path / "first.csv"
+    first.write_text('name,input\na,"step:amplitude=1"\nb,"step:amplitude=2"\n')
+    runs.record_runs(SOURCE, first, tmp_path / "set", quiet=True, **SETTINGS).raise_for_failures()
+    second = tmp_path / "second.csv"
+    second.write_text('name,input\na,short.csv\nb,"step:amplitude=2"\n')
+    report = runs.record_runs(SOURCE, second, tmp_path / "set", quiet=True, **SETTINGS)
+    assert [o.status for o in report.outcomes] == ["failed", "skipped"]
+    assert "extend the table or shorten --t-end" in report.outcomes[0].error
+    assert [p.name for p in snapshot_files(tmp_path / "set")] == ["b.h5"]
+
+
 def test_cli_records_a_table_on_a_running_cluster(client, table, tmp_path):
     out = tmp_path / "set"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}

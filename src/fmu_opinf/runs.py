@@ -415,6 +415,7 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
         error = str(exc)
     seconds, cpu = time.perf_counter() - started, _cpu_seconds() - cpu
     if not partial.exists():
+        final.unlink(missing_ok=True)  # a result of an earlier version of this row is not this row's result
         return RunOutcome(row.number, row.name, "failed", None, 0, seconds, error, _worker_name(), cpu)
     k = _stamp_file(partial, stamp)
     target = failed if error else final
