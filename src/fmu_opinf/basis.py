@@ -28,12 +28,19 @@ Two ways to compute the singular values and vectors, chosen from the data size (
 A third path runs where the data lie, on Dask (``docs/scale-out.md``): when the snapshot arrays are dask arrays
 (:func:`open_snapshot_set` makes them so while a ``distributed`` client is active, e.g. ``fit --scheduler``):
 
-* **distributed-tsqr**: the tall-and-skinny ``X`` is cut into row blocks of all ``k`` columns (size from
-  ``max_memory``); ``dask.array.linalg.tsqr`` reduces the blocks' triangular factors to ``R`` (``k x k``) on the
-  workers, the client takes the SVD ``R = U_R S W^T`` and ``V_r = X W_r S_r^{-1}`` is formed block by block on
-  the workers, then re-orthonormalized.  ``X = Q R`` is backward stable, so singular values and the basis agree
-  with the dense SVD to round-off (unlike a Gram matrix).  The projections ``V_r^T X`` (eq. 14,
-  :func:`project`) of dask arrays are computed on the workers too; only ``(r, k)`` results travel.
+* **distributed-tsqr** (``n >= k``): the tall-and-skinny ``X`` is cut into row blocks of all ``k`` columns (size
+  from ``max_memory``); ``dask.array.linalg.tsqr`` reduces the blocks' triangular factors to ``R`` (``k x k``) on
+  the workers, the client takes the SVD ``R = U_R S W^T``, and a second pass forms ``V_r`` block by block on the
+  workers: ``X W_r S_r^{-1}`` re-orthonormalized while ``sigma_r >= 1e-5 sigma_1`` (round-off error
+  ``eps sigma_1 / sigma_r``), else ``Q U_R[:, :r]`` with each block's ``Q`` factor recomputed (round-off accurate
+  at any ratio, ``k / r`` times the flops).
+* **distributed-tsqr-transposed** (``n < k``, many samples of a small model): the same reduction of ``X^T``, cut
+  into column blocks of ``X`` of all ``n`` rows, gives ``X^T = Q R`` with ``R`` of size ``n x n``; the SVD of
+  ``R^T`` gives ``V_r`` directly (one pass).
+
+``X = Q R`` is backward stable, so singular values and the basis agree with the dense SVD to round-off (unlike a
+Gram matrix).  The projections ``V_r^T X`` (eq. 14, :func:`project`) of dask arrays are computed on the workers
+too; only ``(r, k)`` results travel.
 """
 
 from __future__ import annotations
@@ -450,7 +457,7 @@ class PODBasis:
         ``"positions"`` or ``"velocities"``.
     method_ : str
         ``"dense"``, ``"streamed-correlation"`` (``(n, n)``), ``"streamed-snapshots"`` (``(k, k)``) or
-        ``"distributed-tsqr"`` (dask arrays, see the module docstring).
+        ``"distributed-tsqr"`` or ``"distributed-tsqr-transposed"`` (dask arrays, see the module docstring).
     """
 
     def __init__(
@@ -527,8 +534,8 @@ class PODBasis:
         k = sum(ks)
         eps = np.finfo(float).eps
         if _any_dask(runs, name):
-            sigma, vecs = _tsqr_singular(runs, name, self.max_memory)
-            return sigma, vecs, _rank(sigma, max(n, k) * eps), "distributed-tsqr"
+            sigma, vecs, method = _tsqr_singular(runs, name, self.max_memory)
+            return sigma, vecs, _rank(sigma, max(n, k) * eps), method
         if not self._use_streamed(n, k):
             X = _stacked(runs, name)
             if vectors:
@@ -549,10 +556,8 @@ class PODBasis:
         r = self.r_
         if method in ("dense", "streamed-correlation"):
             return _fix_signs(vecs[:, :r].copy())
-        if method == "distributed-tsqr":
-            modes = (_dask_matrix(runs, name, self.max_memory) @ (vecs[:, :r] / sigma[:r])).compute()
-            q, _ = np.linalg.qr(np.asarray(modes))
-            return _fix_signs(q)
+        if method.startswith("distributed-tsqr"):
+            return _fix_signs(_tsqr_modes(runs, name, sigma, vecs, r, method, self.max_memory))
         # method of snapshots: V_r = X W_r diag(1/sigma_r), accumulated chunk by chunk, then re-orthonormalized
         n, _ = _check_shapes(runs, name)
         modes = np.zeros((n, r))
@@ -719,7 +724,8 @@ def open_snapshot_set(
         Make ``x, xdot, xddot`` dask arrays (the POD and projections then run on Dask).  Default: when a
         ``distributed`` client is active.
     max_memory : float, default=1e9
-        Bytes per row block of the dask arrays (as for :class:`PODBasis`).
+        Memory budget that sets the blocks of the dask arrays (as for :class:`PODBasis`): row blocks of all columns
+        for tall data, aligned with the files' chunks so that each chunk is decompressed once or a few times.
 
     Returns
     -------
@@ -734,7 +740,9 @@ def open_snapshot_set(
             opened.append(Snapshots.open(path))
         snaps = SnapshotSet(opened, files)
         if dask if dask is not None else _client_active():
-            snaps.runs = [_dask_run(run, max_memory) for run in snaps.runs]
+            n, ks = _check_shapes(snaps.runs, "x")
+            block = _block_shape(n, sum(ks), max_memory)  # of the whole set, as the POD will cut it
+            snaps.runs = [_dask_run(run, block) for run in snaps.runs]
     except BaseException:
         for part in opened:
             part.close()
@@ -750,68 +758,124 @@ def _any_dask(runs: Sequence, name: str) -> bool:
     return any(_is_dask(getattr(run, name)) for run in runs)
 
 
-def _read_h5_rows(path: str, dataset: str, i0: int, i1: int, label: str) -> np.ndarray:
-    """Rows ``i0:i1`` of a dataset in a file (runs on a Dask worker), checked for NaN/Inf."""
+def _read_h5_block(path: str, dataset: str, i0: int, i1: int, j0: int, j1: int, label: str) -> np.ndarray:
+    """Block ``[i0:i1, j0:j1]`` of a dataset in a file (runs on a Dask worker), checked for NaN/Inf."""
     import h5py
 
     with h5py.File(path, "r") as f:
-        block = np.asarray(f[dataset][i0:i1, :], dtype=np.float64)
+        block = np.asarray(f[dataset][i0:i1, j0:j1], dtype=np.float64)
     if not np.all(np.isfinite(block)):
-        bad = int(np.argwhere(~np.isfinite(block))[0, 1])
+        bad = j0 + int(np.argwhere(~np.isfinite(block))[0, 1])
         raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
     return block
 
 
-def _rows_per_block(n: int, k: int, max_memory: float) -> int:
-    """Rows per block: a block of all ``k`` columns and its QR factor fit in a quarter of ``max_memory``;
-    at least ``k`` rows so that every block is tall (TSQR)."""
-    return int(min(n, max(k, max_memory / 4 / 8 / max(k, 1), 1)))
+def _block_shape(n: int, k: int, max_memory: float) -> tuple[int, int]:
+    """Rows and columns of one block of an ``(n, k)`` array, so that a block and its QR factors fit in a quarter of
+    ``max_memory``.  Tall (``n >= k``): row blocks of all columns, at least ``k`` rows (TSQR of ``X``).  Wide:
+    column blocks of all rows, at least ``n`` columns (TSQR of ``X^T``)."""
+    budget = max_memory / 4 / 8
+    if n >= k:
+        return int(min(n, max(k, budget / max(k, 1), 1))), k
+    return n, int(min(k, max(n, budget / max(n, 1), 1)))
 
 
-def _dask_dataset(dataset: Any, label: str, max_memory: float) -> Any:
-    """A dask array reading an h5py dataset in row blocks of all columns (tasks carry only file and name)."""
+def _aligned_rows(rows: int, chunk_rows: int, n: int) -> int:
+    """Block rows that decompress each of the file's chunks once (a multiple of its chunk rows) or a few times (an
+    even part of a chunk), at most ``rows``; chunks holding whole columns are read whole by any row block."""
+    if chunk_rows >= n or rows >= n:
+        return rows
+    if rows >= chunk_rows:
+        return rows // chunk_rows * chunk_rows
+    parts = -(-chunk_rows // rows)
+    return -(-chunk_rows // parts)
+
+
+def _dask_dataset(dataset: Any, label: str, block: tuple[int, int]) -> Any:
+    """A dask array reading an h5py dataset in blocks of at most ``block`` (tasks carry file and dataset name)."""
     import dask
     import dask.array as da
 
     n, k = (int(v) for v in dataset.shape)
-    rows = _rows_per_block(n, k, max_memory)
+    rows, cols = min(block[0], n), min(block[1], k)
+    if rows < n and dataset.chunks:
+        rows = _aligned_rows(rows, int(dataset.chunks[0]), n)
     path, name = str(Path(dataset.file.filename).resolve()), dataset.name
-    read = dask.delayed(_read_h5_rows, pure=True)
-    blocks = [da.from_delayed(read(path, name, i0, min(i0 + rows, n), label), shape=(min(i0 + rows, n) - i0, k),
-                              dtype=np.float64) for i0 in range(0, n, rows)]
-    return da.concatenate(blocks, axis=0)
+    read = dask.delayed(_read_h5_block, pure=True)
+
+    def piece(i0: int, j0: int) -> Any:
+        i1, j1 = min(i0 + rows, n), min(j0 + cols, k)
+        return da.from_delayed(read(path, name, i0, i1, j0, j1, label), shape=(i1 - i0, j1 - j0), dtype=np.float64)
+
+    return da.block([[piece(i0, j0) for j0 in range(0, k, cols)] for i0 in range(0, n, rows)])
 
 
-def _dask_run(run: Any, max_memory: float) -> Any:
-    """The run with ``x, xdot, xddot`` as dask arrays and ``t, u, y`` in memory."""
+def _dask_run(run: Any, block: tuple[int, int]) -> Any:
+    """The run with ``x, xdot, xddot`` as dask arrays in blocks of at most ``block``, ``t, u, y`` in memory."""
     import dataclasses as _dc
 
     big = {name: _dask_dataset(getattr(run, name), f"{name} of {Path(getattr(run, name).file.filename).name}",
-                               max_memory) for name in ("x", "xdot", "xddot")}
+                               block) for name in ("x", "xdot", "xddot")}
     small = {name: np.asarray(getattr(run, name)[()], dtype=np.float64) for name in ("t", "u", "y")}
     return _dc.replace(run, **big, **small)
 
 
 def _dask_matrix(runs: Sequence, name: str, max_memory: float) -> Any:
-    """``X = [X_run1, X_run2, ...]`` as one dask array of row blocks holding all columns."""
+    """``X = [X_run1, X_run2, ...]`` as one dask array in the blocks of :func:`_block_shape` (tall data: the row
+    blocks the runs already have when they agree, so that each output block reads only its own rows)."""
     import dask.array as da
 
     n, ks = _check_shapes(runs, name)
+    rows, cols = _block_shape(n, sum(ks), max_memory)
     parts = [getattr(run, name) if _is_dask(getattr(run, name)) else da.from_array(np.asarray(getattr(run, name)))
              for run in runs]
-    rows = _rows_per_block(n, sum(ks), max_memory)
-    return da.concatenate(parts, axis=1).rechunk((rows, sum(ks)))
+    X = da.concatenate(parts, axis=1)
+    if n < sum(ks):
+        return X.rechunk((n, cols))
+    given = parts[0].chunks[0]
+    same = all(part.chunks[0] == given for part in parts) and max(given) <= rows
+    return X.rechunk((given if same else rows, sum(ks)))
 
 
-def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, np.ndarray]:
-    """Singular values and right singular vectors ``W`` of ``X`` from the TSQR factor ``R`` (on the workers)."""
+def _tsqr_singular(runs: Sequence, name: str, max_memory: float) -> tuple[np.ndarray, Any, str]:
+    """Singular values of ``X`` from the TSQR factor ``R`` reduced on the workers, with the small factors the
+    modes need: ``(U_R, W)`` of ``R = U_R S W^T`` (tall ``X``) or the left singular vectors of ``X`` themselves
+    (wide ``X``, from ``X^T = Q R``)."""
     import dask.array as da
 
     X = _dask_matrix(runs, name, max_memory)
-    _, R = da.linalg.tsqr(X)
-    R = np.asarray(R.compute())
-    _, sigma, Wt = scipy.linalg.svd(R, full_matrices=False, lapack_driver="gesdd", check_finite=False)
-    return sigma, Wt.T
+    n, k = X.shape
+    if n >= k:
+        _, R = da.linalg.tsqr(X)
+        left, sigma, Wt = scipy.linalg.svd(np.asarray(R.compute()), lapack_driver="gesdd", check_finite=False)
+        return sigma, (left, Wt.T), "distributed-tsqr"
+    _, R = da.linalg.tsqr(X.T)
+    left, sigma, _ = scipy.linalg.svd(np.asarray(R.compute()).T, lapack_driver="gesdd", check_finite=False)
+    return sigma, left, "distributed-tsqr-transposed"
+
+
+#: Down to this ``sigma_r / sigma_1`` the modes of tall data are ``X W_r S_r^{-1}`` re-orthonormalized (round-off
+#: error ~ eps sigma_1 / sigma_r, i.e. <= ~1e-11; 2 n k r flops); below it ``Q U_R[:, :r]`` (round-off accurate at
+#: any ratio, but each block's QR is recomputed: ~4 n k^2 flops).
+TSQR_CHEAP_MODES_RATIO = 1e-5
+
+
+def _tsqr_modes(runs: Sequence, name: str, sigma: np.ndarray, vecs: Any, r: int, method: str,
+                max_memory: float) -> np.ndarray:
+    """The modes ``V_r`` from :func:`_tsqr_singular`'s factors, formed on the workers for tall data (only
+    ``(rows, r)`` pieces travel to the client)."""
+    import dask.array as da
+
+    if method == "distributed-tsqr-transposed":
+        return np.ascontiguousarray(vecs[:, :r])
+    left, right = vecs
+    X = _dask_matrix(runs, name, max_memory)
+    if sigma[r - 1] >= TSQR_CHEAP_MODES_RATIO * sigma[0]:
+        modes = np.asarray((X @ (right[:, :r] / sigma[:r])).compute())
+        q, _ = np.linalg.qr(modes)
+        return q
+    Q, _ = da.linalg.tsqr(X)
+    return np.asarray((Q @ left[:, :r]).compute())
 
 
 _BASIS_CACHE: dict[tuple, tuple[Any, Any]] = {}
