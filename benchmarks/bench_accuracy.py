@@ -117,18 +117,17 @@ def lstsq_rom(name: str, r: int) -> SecondOrderROM:
 
 
 def fit_rom_default(name: str, r: int, **options) -> SecondOrderROM:
-    _, data, u, _ = reduced_data(name, r)
-    ops = fit_operators(*data, u, **options)
+    _, data, u, y = reduced_data(name, r)
+    ops = fit_operators(*data, u, y=y, **options)
     return _with_outputs(name, r, ops.Mr, ops.Dr, ops.Kr, ops.Br, ops.info)
 
 
 def fit_options(name: str, method: str) -> dict:
-    """Keyword arguments of ``fit_operators`` for a named variant (``dt`` and ``runs`` for the refinement)."""
-    case = CASES[name]
+    """Keyword arguments of ``fit_operators`` for a named variant (the outputs ``y`` are always passed)."""
     if method == "default":
-        return {"dt": case.dt}
+        return {"dt": CASES[name].dt}
     if method == "sdp-paper":
-        return {"normalization": "trace"}
+        return {"normalization": "trace", "refine": False}
     if method == "equation-error":
         return {"refine": False}
     raise ValueError(f"unknown method {method!r}")
@@ -154,7 +153,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--case", default="both", choices=["both", *CASES])
     parser.add_argument("--orders", default=None, help="comma-separated orders (default: the case's range)")
-    parser.add_argument("--method", default="default", help="default, sdp-paper or equation-error")
+    parser.add_argument("--method", default="default",
+                        help="default (SDP + output-error refinement), sdp-paper (eq. 16, trace normalization) or "
+                             "equation-error (the SDP without refinement)")
     args = parser.parse_args()
     names = list(CASES) if args.case == "both" else [args.case]
     header = (f"{'case':>8} {'r':>3} | {'galerkin':>9} {'lstsq':>9} {'ls stable':>9} | {'fit':>9} {'stable':>6} "

@@ -139,7 +139,7 @@ import scipy.sparse as sp
 from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
-           "model_poles", "pole_match"]
+           "model_poles", "pole_match", "refine_output_error", "newmark_step_map"]
 
 
 @dataclass
@@ -421,6 +421,12 @@ def fit_operators(
     verbose: bool = False,
     normalization: str = "auto",
     min_mass_ratio: float = 1e-3,
+    dt: float | None = None,
+    y: np.ndarray | None = None,
+    output_map: tuple[np.ndarray, np.ndarray] | None = None,
+    run_lengths: list[int] | None = None,
+    refine: bool | str = "auto",
+    refine_iterations: int = 300,
 ) -> OperatorFit:
     """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
 
@@ -450,6 +456,20 @@ def fit_operators(
         solves both and keeps the one with the smaller acceleration residual.
     min_mass_ratio : float, default=1e-3
         Kept for backward compatibility; ``"auto"`` no longer uses a threshold.
+    dt : float, optional
+        Time step of the training runs, which must come from a Newmark (beta = 1/4, gamma = 1/2) simulation or
+        be simulated so by the ROM.  Needed for the output-error refinement.
+    y : (p, k) ndarray, optional
+        Training outputs (minus any fitted feedthrough / offset part).  Needed for the output-error refinement.
+    output_map : (Cpr, Cvr), optional
+        Output map of the ROM; default :func:`fit_outputs` on ``xdot_r, x_r, y`` (eq. 17).
+    run_lengths : list of int, optional
+        Snapshots per run when several runs lie side by side; default one run.
+    refine : {"auto", True, False}, default="auto"
+        Output-error refinement from the SDP solution (module docstring): ``"auto"`` refines when ``dt`` and
+        ``y`` are given.  ``normalization="trace", refine=False`` is the paper's plain eq. (16).
+    refine_iterations : int, default=300
+        L-BFGS iterations of the refinement.
 
     Returns
     -------
@@ -462,6 +482,7 @@ def fit_operators(
         raise ValueError(f"normalization={normalization!r} is not known; use 'auto', 'trace' or 'mass-eigenvalue'")
     xddot_r, xdot_r, x_r, u = (np.asarray(a, dtype=float) for a in (xddot_r, xdot_r, x_r, u))
     r, m, k = _check_data(xddot_r, xdot_r, x_r, u)
+    refine = _refine_requested(refine, dt, y, k)
     target = float(r if mass_trace is None else mass_trace)
     if not target > 0:
         raise ValueError(f"mass_trace={mass_trace} must be positive")
@@ -480,6 +501,11 @@ def fit_operators(
         Br = Bs / scales["u"]
         info.update({f"raw_{key}": value for key, value in psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}).items()})
         Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
+        if refine:
+            units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
+            Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
+                Mr, Dr, Kr, Br, xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), output_map=output_map,
+                run_lengths=run_lengths, max_iterations=refine_iterations, unit_scales=units)
         common = target / np.trace(Mr)
         Mr, Dr, Kr, Br = Mr * common, Dr * common, Kr * common, Br * common
         info.update(_residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u))
@@ -488,6 +514,18 @@ def fit_operators(
     info.update(total_seconds=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
     _report_status(info)
     return OperatorFit(Mr, Dr, Kr, Br, info)
+
+
+def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None, k: int) -> bool:
+    """Whether to run the output-error refinement (``refine="auto"``: when ``dt`` and ``y`` are given)."""
+    if refine not in ("auto", True, False):
+        raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
+    available = dt is not None and y is not None
+    if refine is True and not available:
+        raise ValueError("refine=True needs the training time step dt and the outputs y")
+    if available and (np.ndim(y) != 2 or np.shape(y)[1] != k):
+        raise DimensionError(f"y has shape {np.shape(y)}; expected (p, {k}) like the snapshots")
+    return bool(refine) and available
 
 
 #: Tolerance of the second solve when the first ends ``optimal_inaccurate`` (module docstring, *Solver status*).
@@ -686,6 +724,195 @@ def _residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u) -> dict[str, float]:
     resid = Mr @ xddot_r + Dr @ xdot_r + Kr @ x_r - Br @ u
     ref = np.linalg.norm(Br @ u) or 1.0
     return {"objective": float(np.sum(resid**2)), "relative_residual": float(np.linalg.norm(resid) / ref)}
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Output-error refinement (module docstring, *Output-error refinement*)
+# ----------------------------------------------------------------------------------------------------------
+def newmark_step_map(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
+                     dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The classical Newmark step (beta = 1/4, gamma = 1/2) on ``z = [q; q']`` with the input held over the step.
+
+    Average-acceleration Newmark is the trapezoidal rule of the first-order form, so with ``u_i`` held over the
+    step that ends at ``t_i`` (the convention of the recorded data, see :class:`fmu_opinf.newmark.Trajectory`)
+    ``E z_i = F z_{i-1} + [0; dt Br] u_i`` with ``E = [[I, -dt/2 I], [dt/2 Kr, Mr + dt/2 Dr]]`` and
+    ``F = [[I, dt/2 I], [-dt/2 Kr, Mr - dt/2 Dr]]``: the same trajectory as :meth:`SecondOrderROM.simulate`
+    (tested).
+
+    Returns
+    -------
+    Ad : (2r, 2r) ndarray
+    Bd : (2r, m) ndarray
+        ``z_i = Ad z_{i-1} + Bd u_i``.
+    """
+    return _newmark_discrete(Mr, Dr, Kr, Br, dt)[1:]
+
+
+def _newmark_discrete(Mr, Dr, Kr, Br, dt) -> tuple:
+    r = Mr.shape[0]
+    eye, half = np.eye(r), 0.5 * dt
+    E = np.block([[eye, -half * eye], [half * Kr, Mr + half * Dr]])
+    F = np.block([[eye, half * eye], [-half * Kr, Mr - half * Dr]])
+    lu = scipy.linalg.lu_factor(E, check_finite=False)
+    forcing = np.vstack([np.zeros_like(Br), dt * Br])
+    return lu, scipy.linalg.lu_solve(lu, F, check_finite=False), scipy.linalg.lu_solve(lu, forcing, check_finite=False)
+
+
+def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64) -> np.ndarray:
+    """``z_0 = z0``, ``z_i = A z_{i-1} + f_i`` for ``i = 1 .. k-1`` (``f[:, 0]`` unused), blocked in time.
+
+    Within blocks of ``stride`` steps the forcing is accumulated for all blocks at once, and only the block
+    starts are stepped one by one (with ``A^stride``): ``k / stride`` Python iterations instead of ``k``.
+    """
+    n, k = f.shape
+    steps = k - 1
+    out = np.empty((n, k))
+    out[:, 0] = z0
+    if steps == 0:
+        return out
+    s = max(1, min(stride, steps))
+    nb = -(-steps // s)
+    acc = np.zeros((n, nb * s))
+    acc[:, :steps] = f[:, 1:]
+    acc = np.ascontiguousarray(acc.reshape(n, nb, s).transpose(2, 0, 1))  # (s, n, nb)
+    for j in range(1, s):
+        acc[j] += A @ acc[j - 1]
+    powers = np.empty((s, n, n))
+    powers[0] = A
+    for j in range(1, s):
+        powers[j] = A @ powers[j - 1]
+    starts = np.empty((n, nb))
+    z, last = np.asarray(z0, dtype=float), acc[s - 1]
+    for b in range(nb):
+        starts[:, b] = z
+        z = powers[s - 1] @ z + last[:, b]
+    states = powers @ starts + acc
+    out[:, 1:] = states.transpose(1, 2, 0).reshape(n, nb * s)[:, :steps]
+    return out
+
+
+@dataclass
+class _Trajectories:
+    """Training runs for the output-error objective: states ``z = [q; q']``, inputs, weighted output target."""
+
+    z: list[np.ndarray]
+    u: list[np.ndarray]
+    target: list[np.ndarray]
+    C: np.ndarray
+    dt: float
+    scales: np.ndarray  # physical operator = factor product / scale, for M, D, K, B
+
+    def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
+        """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method)."""
+        (LM, LD, LK), Bs = _split_factors(params, r, m)
+        sa, sv, sx, su = self.scales
+        lu, Ad, Bd = _newmark_discrete(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
+        grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
+        for z_data, u, target in zip(self.z, self.u, self.target):
+            z = _propagate(Ad, Bd @ u, z_data[:, 0])
+            err = self.C @ z - target
+            value += float(np.sum(err * err))
+            g = 2.0 * (self.C.T @ err)
+            lam = _propagate(Ad.T, g[:, ::-1], g[:, -1])[:, ::-1]  # lam_i = Ad^T lam_{i+1} + g_i
+            grad_A += lam[:, 1:] @ z[:, :-1].T
+            grad_B += lam[:, 1:] @ u[:, 1:].T
+        # Ad = E^-1 F, Bd = E^-1 G: back through the solve to E, F, G and on to Mr, Dr, Kr, Br
+        YA = scipy.linalg.lu_solve(lu, grad_A, trans=1, check_finite=False)
+        YB = scipy.linalg.lu_solve(lu, grad_B, trans=1, check_finite=False)
+        WE = YA @ Ad.T + YB @ Bd.T
+        lo, hi, half = slice(0, r), slice(r, 2 * r), 0.5 * self.dt
+        gM = YA[hi, hi] - WE[hi, hi]
+        gD = -half * (YA[hi, hi] + WE[hi, hi])
+        gK = -half * (YA[hi, lo] + WE[hi, lo])
+        gB = self.dt * YB[hi]
+        grads = [((g + g.T) @ L / scale).ravel() for g, L, scale in ((gM, LM, sa), (gD, LD, sv), (gK, LK, sx))]
+        return value, np.concatenate(grads + [(gB / su).ravel()])
+
+
+def _split_factors(params: np.ndarray, r: int, m: int) -> tuple[list[np.ndarray], np.ndarray]:
+    n = r * r
+    return [params[b * n:(b + 1) * n].reshape(r, r) for b in range(3)], params[3 * n:].reshape(r, m)
+
+
+def _psd_factor(mat: np.ndarray) -> np.ndarray:
+    """A square ``L`` with ``L L^T = mat`` (symmetric eigen-square root; works for singular PSD ``mat``)."""
+    eigs, vecs = np.linalg.eigh(0.5 * (mat + mat.T))
+    return vecs * np.sqrt(np.clip(eigs, 0.0, None))
+
+
+def refine_output_error(
+    Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
+    xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
+    output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
+    max_iterations: int = 300, unit_scales: Any = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
+
+    Minimizes ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs simulated with the
+    classical Newmark step (:func:`newmark_step_map`) from each run's recorded initial state, over
+    ``Mr = LM LM^T, Dr = LD LD^T, Kr = LK LK^T`` and ``Br`` (L-BFGS, adjoint gradient): the operators stay
+    symmetric positive semidefinite, so the refined model is stable by construction.
+
+    Parameters
+    ----------
+    Mr, Dr, Kr, Br
+        Starting point (the SDP solution), symmetric PSD.
+    xdot_r, x_r : (r, k) ndarray
+        Reduced velocities and positions of the runs side by side.
+    u : (m, k) ndarray
+        Input in effect at each snapshot (the one held over the step ending there).
+    y : (p, k) ndarray
+        Output target (measured outputs minus any feedthrough / offset part).
+    dt : float
+        Time step of the training data (constant within each run).
+    output_map : (Cpr, Cvr), optional
+        Default: :func:`fit_outputs` on the data (eq. 17).
+    run_lengths : list of int, optional
+        Snapshots per run, summing to ``k``; default one run.
+    max_iterations : int, default=300
+        L-BFGS iterations.
+
+    Returns
+    -------
+    Mr, Dr, Kr, Br : ndarray
+    report : dict
+        ``objective_start``, ``objective`` (relative squared output error on the training runs), ``iterations``,
+        ``evaluations``, ``seconds``, ``status``.
+    """
+    import scipy.optimize
+
+    t0 = time.perf_counter()
+    r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
+    lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]
+    if sum(lengths) != k or min(lengths) < 2:
+        raise DimensionError(f"run_lengths {lengths} must be >= 2 each and sum to the {k} snapshots")
+    if not dt > 0:
+        raise ValueError(f"dt={dt} must be positive")
+    Cpr, Cvr = fit_outputs(xdot_r, x_r, y) if output_map is None else output_map
+    scale_y = float(np.linalg.norm(y)) or 1.0
+    cuts = np.cumsum([0] + lengths)
+    z = np.vstack([x_r, xdot_r])
+    scales = np.ones(4) if unit_scales is None else np.asarray(unit_scales, dtype=float)
+    problem = _Trajectories(
+        z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
+        target=[y[:, a:b] / scale_y for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack([Cpr, Cvr]) / scale_y,
+        dt=float(dt), scales=scales)
+    start = np.concatenate([_psd_factor(A * s).ravel() for A, s in zip((Mr, Dr, Kr), scales[:3])]
+                           + [(Br * scales[3]).ravel()])
+    fun = lambda p: problem.loss(p, r, m)  # noqa: E731
+    value0 = fun(start)[0]
+    result = scipy.optimize.minimize(fun, start, jac=True, method="L-BFGS-B",
+                                     options={"maxiter": max_iterations, "maxcor": 30, "ftol": 1e-14,
+                                              "gtol": 1e-14})
+    (LM, LD, LK), Bs = _split_factors(result.x, r, m)
+    mats = [L @ L.T / s for L, s in zip((LM, LD, LK), scales[:3])]
+    report = {"objective_start": float(value0), "objective": float(result.fun), "iterations": int(result.nit),
+              "evaluations": int(result.nfev), "seconds": time.perf_counter() - t0,
+              "status": "converged" if result.success else "iteration limit"}
+    if not (result.fun < value0 and np.linalg.eigvalsh(mats[0])[0] > 0):
+        report["status"] = "kept start"
+        return Mr, Dr, Kr, Br, report
+    return (*mats, Bs / scales[3], report)
 
 
 def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: int = 4) -> list[np.ndarray]:
