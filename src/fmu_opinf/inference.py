@@ -899,20 +899,24 @@ def refine_output_error(
         dt=float(dt), scales=scales)
     start = np.concatenate([_psd_factor(A * s).ravel() for A, s in zip((Mr, Dr, Kr), scales[:3])]
                            + [(Br * scales[3]).ravel()])
-    fun = lambda p: problem.loss(p, r, m)  # noqa: E731
-    value0 = fun(start)[0]
-    result = scipy.optimize.minimize(fun, start, jac=True, method="L-BFGS-B",
-                                     options={"maxiter": max_iterations, "maxcor": 30, "ftol": 1e-14,
-                                              "gtol": 1e-14})
-    (LM, LD, LK), Bs = _split_factors(result.x, r, m)
-    mats = [L @ L.T / s for L, s in zip((LM, LD, LK), scales[:3])]
-    report = {"objective_start": float(value0), "objective": float(result.fun), "iterations": int(result.nit),
-              "evaluations": int(result.nfev), "seconds": time.perf_counter() - t0,
-              "status": "converged" if result.success else "iteration limit"}
-    if not (result.fun < value0 and np.linalg.eigvalsh(mats[0])[0] > 0):
-        report["status"] = "kept start"
-        return Mr, Dr, Kr, Br, report
-    return (*mats, Bs / scales[3], report)
+    value0 = problem.loss(start, r, m)[0]
+    report = {"objective_start": value0, "objective": value0, "iterations": 0, "evaluations": 1,
+              "status": "exact start"}
+    if value0 > 0:  # L-BFGS-B's stopping tests are absolute below 1: work relative to the start
+        result = scipy.optimize.minimize(lambda p: tuple(v / value0 for v in problem.loss(p, r, m)), start,
+                                         jac=True, method="L-BFGS-B",
+                                         options={"maxiter": max_iterations, "maxcor": 30, "ftol": 1e-13,
+                                                  "gtol": 1e-12})
+        report.update(objective=float(result.fun) * value0, iterations=int(result.nit), evaluations=int(result.nfev),
+                      status="converged" if result.success else "iteration limit")
+        (LM, LD, LK), Bs = _split_factors(result.x, r, m)
+        mats = [L @ L.T / s for L, s in zip((LM, LD, LK), scales[:3])]
+        if report["objective"] < value0 and np.linalg.eigvalsh(mats[0])[0] > 0:
+            Mr, Dr, Kr, Br = (*mats, Bs / scales[3])
+        else:
+            report["status"] = "kept start"
+    report["seconds"] = time.perf_counter() - t0
+    return Mr, Dr, Kr, Br, report
 
 
 def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: int = 4) -> list[np.ndarray]:
