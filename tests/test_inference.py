@@ -325,6 +325,20 @@ def test_same_operators_with_one_and_two_blas_threads(rng):
         assert np.array_equal(getattr(one, name), getattr(two, name))
 
 
+def test_same_refined_operators_with_one_and_two_blas_threads(rng):
+    from threadpoolctl import threadpool_limits
+
+    _, _, (a, v, x, u, y), lengths = _oscillator_runs(rng, r=6, steps=300)
+    noisy = a + 0.02 * np.abs(a).max() * rng.standard_normal(a.shape)
+    fits = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads):
+            fits.append(fit_operators(noisy, v, x, u, dt=0.1, y=y, run_lengths=lengths, refine_iterations=50))
+    assert fits[0].info["refinement"]["iterations"] > 10
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        assert np.array_equal(getattr(fits[0], name), getattr(fits[1], name))
+
+
 def test_solver_output_is_psd_before_clean_up(rng):
     fit = fit_operators(*_active_data(rng), method="sdp")
     for name in ("Mr", "Dr", "Kr"):
