@@ -438,14 +438,18 @@ def test_refinement_gradient_matches_finite_differences(rng):
         assert fd == pytest.approx(grad @ direction, rel=1e-5)
 
 
-def test_refinement_objective_is_zero_at_the_true_operators_with_two_runs(rng):
-    """Each run starts from its own recorded state: at the true model the output error is round-off."""
+@pytest.mark.parametrize("whiten", [False, True])
+def test_refinement_objective_is_zero_at_the_true_operators_with_two_runs(rng, whiten):
+    """Each run starts from its own recorded state: at the true model the output error is round-off, and the
+    operators come back unchanged (also through the modal change of coordinates)."""
     from fmu_opinf.inference import refine_output_error
 
     _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng)
-    *_, report = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
-                                     run_lengths=lengths, max_iterations=1)
+    *mats, report = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                        run_lengths=lengths, max_iterations=1, whiten=whiten)
     assert report["objective_start"] < 1e-24
+    for got, true in zip(mats, (M, D, K, B)):
+        np.testing.assert_allclose(got, true, rtol=0, atol=1e-10 * np.abs(true).max())
     *_, one_run = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
                                       max_iterations=1)
     assert one_run["objective_start"] > 1e-6  # treating the two runs as one trajectory is wrong
