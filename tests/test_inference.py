@@ -497,4 +497,6 @@ def test_refinement_needs_dt_and_outputs(rng):
         fit_operators(a, v, x, u, y=y[:, :10], dt=0.1)
     with pytest.raises(DimensionError, match="run_lengths"):
         fit_operators(a, v, x, u, y=y, dt=0.1, run_lengths=[3, 4])
+    with pytest.raises(DataError, match="y contains NaN"):
+        fit_operators(a, v, x, u, y=np.where(y > 0, np.nan, y), dt=0.1)
     assert "refinement" not in fit_operators(a, v, x, u, dt=0.1).info  # "auto" needs y as well

@@ -204,7 +204,8 @@ class OperatorFit:
         Reduced input matrix.
     info : dict
         Solver report: ``method``, ``status``, ``setup_seconds``, ``solve_seconds``, ``total_seconds``,
-        ``iterations``, ``objective``, ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``.
+        ``iterations``, ``objective``, ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``;
+        ``refinement`` (objective before/after, iterations, seconds, status) when the output-error refinement ran.
     """
 
     Mr: np.ndarray
@@ -575,6 +576,8 @@ def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None
         raise ValueError("refine=True needs the training time step dt and the outputs y")
     if available and (np.ndim(y) != 2 or np.shape(y)[1] != k):
         raise DimensionError(f"y has shape {np.shape(y)}; expected (p, {k}) like the snapshots")
+    if available and not np.all(np.isfinite(np.asarray(y, dtype=float))):
+        raise DataError("y contains NaN/Inf; check the snapshot outputs")
     return bool(refine) and available
 
 
