@@ -325,6 +325,20 @@ def test_same_operators_with_one_and_two_blas_threads(rng):
         assert np.array_equal(getattr(one, name), getattr(two, name))
 
 
+def test_same_refined_operators_with_one_and_two_blas_threads(rng):
+    from threadpoolctl import threadpool_limits
+
+    _, _, (a, v, x, u, y), lengths = _oscillator_runs(rng, r=6, steps=300)
+    noisy = a + 0.02 * np.abs(a).max() * rng.standard_normal(a.shape)
+    fits = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads):
+            fits.append(fit_operators(noisy, v, x, u, dt=0.1, y=y, run_lengths=lengths, refine_iterations=50))
+    assert fits[0].info["refinement"]["iterations"] > 10
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        assert np.array_equal(getattr(fits[0], name), getattr(fits[1], name))
+
+
 def test_solver_output_is_psd_before_clean_up(rng):
     fit = fit_operators(*_active_data(rng), method="sdp")
     for name in ("Mr", "Dr", "Kr"):
@@ -357,3 +371,132 @@ def test_fit_report_carries_the_learned_poles(rng):
 
 def pole_match_ref(poles, reference):
     return np.min(np.abs(poles[:, None] - reference[None, :]) / np.abs(reference[None, :]), axis=1)
+
+
+# --------------------------------------------------------------------------------------------------------
+# Output-error refinement
+# --------------------------------------------------------------------------------------------------------
+def _oscillator_runs(rng, r=4, dt=0.1, steps=400):
+    """A small known system simulated by the reference Newmark stepper: an impulse run from rest and a free
+    run from a non-zero state, side by side."""
+    import scipy.sparse as sp
+
+    from fmu_opinf import newmark, systems
+
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.05), _spd(rng, r, 1.0)
+    B, Cp = rng.standard_normal((r, 1)), rng.standard_normal((2, r))
+    system = systems.SecondOrderSystem(M=sp.csr_matrix(M), D=sp.csr_matrix(D), K=sp.csr_matrix(K),
+                                       G=sp.csr_matrix((0, r)), constraint=None, B=sp.csr_matrix(B),
+                                       Cp=sp.csr_matrix(Cp), Cv=sp.csr_matrix((2, r)), name="oscillators")
+    first = newmark.simulate(system, "impulse:amplitude=5,t0=0.5,width=0.5", dt, steps * dt)
+    second = newmark.simulate(system, "none", dt, steps * dt, x0=rng.standard_normal(r), v0=rng.standard_normal(r))
+    runs = (first, second)
+    data = [np.hstack([getattr(run, name) for run in runs]) for name in ("xddot", "xdot", "x", "u", "y")]
+    return system, (M, D, K, B, Cp), data, [run.t.size for run in runs]
+
+
+def test_newmark_step_map_matches_the_reference_stepper(rng):
+    from fmu_opinf.inference import newmark_step_map
+
+    _, (M, D, K, B, _), (a, v, x, u, _), lengths = _oscillator_runs(rng)
+    Ad, Bd = newmark_step_map(M, D, K, B, 0.1)
+    z = np.vstack([x, v])
+    for i in range(1, lengths[0]):
+        np.testing.assert_allclose(z[:, i], Ad @ z[:, i - 1] + Bd @ u[:, i], rtol=0, atol=1e-12 * np.abs(z).max())
+
+
+def test_blocked_propagation_equals_the_plain_recursion(rng):
+    from fmu_opinf.inference import _propagate
+
+    A = rng.standard_normal((7, 7))
+    A /= 1.05 * np.abs(np.linalg.eigvals(A)).max()
+    f, z0 = rng.standard_normal((7, 203)), rng.standard_normal(7)
+    plain = np.empty((7, 203))
+    plain[:, 0] = z0
+    for i in range(1, 203):
+        plain[:, i] = A @ plain[:, i - 1] + f[:, i]
+    for stride in (1, 16, 64, 500):
+        np.testing.assert_allclose(_propagate(A, f, z0, stride), plain, rtol=0, atol=1e-12 * np.abs(plain).max())
+
+
+def test_refinement_gradient_matches_finite_differences(rng):
+    from fmu_opinf.inference import _psd_factor, _Trajectories
+
+    _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng, r=3, steps=120)
+    cut = lengths[0]
+    C = np.hstack([Cp, np.zeros_like(Cp)])
+    problem = _Trajectories(z=[np.vstack([x, v])[:, :cut], np.vstack([x, v])[:, cut:]], u=[u[:, :cut], u[:, cut:]],
+                            target=[y[:, :cut], y[:, cut:]], C=C, dt=0.1, scales=np.array([2.0, 0.5, 3.0, 1.5]))
+    start = np.concatenate([_psd_factor(A * s).ravel() for A, s in zip((M, D, K), (2.0, 0.5, 3.0))]
+                           + [(1.5 * B).ravel()])
+    point = start + 0.05 * rng.standard_normal(start.size)  # away from the optimum: a non-zero gradient
+    _, grad = problem.loss(point, 3, 1)
+    for _ in range(3):
+        direction = rng.standard_normal(start.size)
+        step = 1e-6
+        fd = (problem.loss(point + step * direction, 3, 1)[0] - problem.loss(point - step * direction, 3, 1)[0]) / (2 * step)
+        assert fd == pytest.approx(grad @ direction, rel=1e-5)
+
+
+@pytest.mark.parametrize("whiten", [False, True])
+def test_refinement_objective_is_zero_at_the_true_operators_with_two_runs(rng, whiten):
+    """Each run starts from its own recorded state: at the true model the output error is round-off, and the
+    operators come back unchanged (also through the modal change of coordinates)."""
+    from fmu_opinf.inference import refine_output_error
+
+    _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng)
+    *mats, report = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                        run_lengths=lengths, max_iterations=1, whiten=whiten)
+    assert report["objective_start"] < 1e-24
+    for got, true in zip(mats, (M, D, K, B)):
+        np.testing.assert_allclose(got, true, rtol=0, atol=1e-10 * np.abs(true).max())
+    *_, one_run = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                      max_iterations=1)
+    assert one_run["objective_start"] > 1e-6  # treating the two runs as one trajectory is wrong
+
+
+def _simulated_outputs(fit, C, u, dt):
+    """Outputs ``C q`` of the fitted operators under the Newmark step map, from rest."""
+    from fmu_opinf.inference import newmark_step_map
+
+    Ad, Bd = newmark_step_map(fit.Mr, fit.Dr, fit.Kr, fit.Br, dt)
+    z = np.zeros((Ad.shape[0], u.shape[1]))
+    for i in range(1, u.shape[1]):
+        z[:, i] = Ad @ z[:, i - 1] + Bd @ u[:, i]
+    return C @ z[:fit.Mr.shape[0]]
+
+
+def test_refinement_recovers_the_system_from_a_perturbed_structured_start(rng):
+    from fmu_opinf import newmark
+
+    system, _, (a, v, x, u, y), lengths = _oscillator_runs(rng)
+    noisy = a + 0.05 * np.abs(a).max() * rng.standard_normal(a.shape)  # the SDP start is biased by the noise
+    start = fit_operators(noisy, v, x, u)
+    fit = fit_operators(noisy, v, x, u, dt=0.1, y=y, run_lengths=lengths, refine_iterations=400)
+    report = fit.info["refinement"]
+    assert report["objective"] < 1e-3 * report["objective_start"]
+    # PSD by construction, checked on the returned operators themselves
+    for name in ("Mr", "Dr", "Kr"):
+        mat = getattr(fit, name)
+        assert np.abs(mat - mat.T).max() <= 1e-14 * np.abs(mat).max()
+        assert np.linalg.eigvalsh(mat)[0] > -1e-12 * np.abs(mat).max()
+    # an input it was not trained on, against the reference simulator of the true system
+    ref = newmark.simulate(system, "harmonic:amplitude=1,omega=0.8", 0.1, 40.0)
+    Cpr = np.linalg.lstsq(x.T, y.T, rcond=None)[0].T  # the true output map has no velocity part
+    err_refined = np.abs(_simulated_outputs(fit, Cpr, ref.u, 0.1) - ref.y).max()
+    err_start = np.abs(_simulated_outputs(start, Cpr, ref.u, 0.1) - ref.y).max()
+    assert err_refined < 0.1 * err_start
+    assert err_refined < 1e-3 * np.abs(ref.y).max()
+
+
+def test_refinement_needs_dt_and_outputs(rng):
+    _, _, (a, v, x, u, y), lengths = _oscillator_runs(rng, steps=50)
+    with pytest.raises(ValueError, match="dt"):
+        fit_operators(a, v, x, u, y=y, refine=True)
+    with pytest.raises(DimensionError, match="y has shape"):
+        fit_operators(a, v, x, u, y=y[:, :10], dt=0.1)
+    with pytest.raises(DimensionError, match="run_lengths"):
+        fit_operators(a, v, x, u, y=y, dt=0.1, run_lengths=[3, 4])
+    with pytest.raises(DataError, match="y contains NaN"):
+        fit_operators(a, v, x, u, y=np.where(y > 0, np.nan, y), dt=0.1)
+    assert "refinement" not in fit_operators(a, v, x, u, dt=0.1).info  # "auto" needs y as well
