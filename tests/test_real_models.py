@@ -1,9 +1,9 @@
 """Real-model terms (issue 11): equilibrium offsets, initial states, free responses, direct feedthrough.
 
-References are independent of the code under test: training data are the exact zero-order-hold solution
-(matrix exponential, :func:`fmu_opinf.lti_fmus.zoh_response`), test outputs come from the full-order model
-stepped by :class:`fmu_opinf.newmark.NewmarkStepper` (not the ROM's step map), equilibria and feedthrough
-from the true matrices.
+References are independent of the code under test: training and test outputs are the exact zero-order-hold
+solution of the full-order model (matrix exponential in its minimal coordinates,
+:func:`fmu_opinf.lti_fmus.zoh_response`), equilibria and feedthrough come from the true matrices.  The data are
+continuous-time, so the ROMs integrate exactly (``integrator="exact"``, what ``fit`` chooses for such FMUs).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import pytest
 
 from fmu_opinf.errors import DataError
 from fmu_opinf.lti_fmus import chain_model, zoh_response
-from fmu_opinf.newmark import NewmarkStepper, applied_inputs, time_grid
+from fmu_opinf.newmark import applied_inputs, time_grid
 from fmu_opinf.rom import SecondOrderROM, fit_rom
 from fmu_opinf.signals import parse_signal
 
@@ -37,18 +37,9 @@ def _run(model, spec: str, t_end: float):
 
 
 def _reference_outputs(model, spec: str, t_end: float) -> np.ndarray:
-    """Full-order Newmark outputs ``Cp x + Cv v + Ca a + y0`` (constant force as an extra input held at 1)."""
+    """Exact full-order outputs ``Cp x + Cv v + Ca a + y0`` under the held input."""
     t = time_grid(DT, t_end)
-    u = applied_inputs(parse_signal(spec, model.m), t)
-    forced = np.vstack([u, np.ones((1, t.size))])
-    stepper = NewmarkStepper(model.M, model.D, model.K, np.hstack([model.B, model.f0[:, None]]), DT)
-    stepper.start(forced[:, 0], model.x0, model.v0)
-    y = np.empty((model.p, t.size))
-    for i in range(t.size):
-        if i:
-            stepper.step(forced[:, i])
-        y[:, i] = model.Cp @ stepper.x + model.Cv @ stepper.v + model.Ca @ stepper.a + model.y0
-    return y
+    return zoh_response(model, t, parse_signal(spec, model.m).sample(t)).y
 
 
 def _relative(a: np.ndarray, b: np.ndarray) -> float:
@@ -64,7 +55,7 @@ def test_offset_initial_state_and_feedthrough_are_identified(offset_model):
     model = offset_model
     runs = [_run(model, "impulse:amplitude=20,t0=1,width=0.3", 30.0),
             _run(replace(model, x0=np.zeros(4), v0=np.zeros(4)), "none", 20.0)]  # a second start, free response
-    rom = fit_rom(runs, r=4)
+    rom = fit_rom(runs, r=4, integrator="exact")
     assert {name: term["fitted"] for name, term in rom.fit_info["terms"].items()} == {"fr": True, "Dur": True,
                                                                                      "y0": True}
     spec = "harmonic:amplitude=3,omega=1.7"
@@ -78,14 +69,14 @@ def test_offset_initial_state_and_feedthrough_are_identified(offset_model):
 def test_a_rom_trained_without_the_terms_is_wrong(offset_model):
     """The same data with the paper's model (terms='none'): the check above can fail."""
     runs = [_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)]
-    rom = fit_rom(runs, r=4, terms="none")
+    rom = fit_rom(runs, r=4, terms="none", integrator="exact")
     spec = "harmonic:amplitude=3,omega=1.7"
     assert _relative(rom.simulate(spec, DT, 40.0).y, _reference_outputs(offset_model, spec, 40.0)) > 1e-2
 
 
 def test_free_response_rom_without_inputs():
     model = chain_model(4, inputs=(), force_offset=-0.4, x0=X0, v0=V0)
-    rom = fit_rom([_run(model, "none", 30.0)], r=4)
+    rom = fit_rom([_run(model, "none", 30.0)], r=4, integrator="exact")
     assert rom.m == 0 and rom.fit_info["terms"]["fr"]["fitted"]
     assert _relative(rom.simulate("none", DT, 60.0).y, _reference_outputs(model, "none", 60.0)) < 1e-9  # 8e-11
 
@@ -102,7 +93,7 @@ def test_initial_state_off_the_constraint_is_refused():
     bar = np.zeros((1, 4))
     bar[0, 1], bar[0, 3] = 1.0, -1.0        # x_2 = x_4
     model = replace(chain_model(4, force_offset=0.3), G=bar, constraint="position", x0=[0.05, 0.02, 0.0, 0.02])
-    rom = fit_rom([_run(model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=3)
+    rom = fit_rom([_run(model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=3, integrator="exact")
     q0, _ = rom.initial_state(x0=[0.0, 0.01, 0.02, 0.01])
     assert np.allclose(rom.reconstruct(q0), [0.0, 0.01, 0.02, 0.01], atol=1e-12)
     with pytest.raises(DataError, match="violate the constraint"):
@@ -110,7 +101,7 @@ def test_initial_state_off_the_constraint_is_refused():
 
 
 def test_rom_file_round_trip_and_layout_1(tmp_path, offset_model):
-    rom = fit_rom([_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=4)
+    rom = fit_rom([_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)], r=4, integrator="exact")
     loaded = SecondOrderROM.load(rom.save(tmp_path / "rom.h5"))
     for name in ("fr", "Dur", "y0", "q0", "qdot0", "x_ref", "Mr", "basis"):
         assert np.array_equal(getattr(loaded, name), getattr(rom, name)), name

@@ -159,6 +159,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="terms beyond the paper's model: constant force fr, feedthrough Dur, output offset y0; "
                         "'auto' (default) fits those the data need, 'none' the paper's model, 'all', or a list "
                         "such as 'fr,y0'")
+    p.add_argument("--no-refine", dest="refine", action="store_false",
+                   help="keep the SDP solution (eq. 16) instead of refining it by output error (the default for "
+                        "Newmark ROMs; see fmu_opinf.inference)")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
@@ -217,7 +220,7 @@ def _run_fit(args: argparse.Namespace) -> None:
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,
                        normalization=args.normalization, lowpass=args.lowpass, terms=args.terms,
-                       integrator=args.integrator)
+                       integrator=args.integrator, refine="auto" if args.refine else False)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
