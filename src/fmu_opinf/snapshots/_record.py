@@ -190,15 +190,18 @@ def _first_bad_row(rows: np.ndarray) -> int | None:
 
 
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
-                isolate: bool) -> tuple[Run, StepError | None]:
-    """Drive one run into a sink; return the run and the error that ended it early (if any)."""
+                isolate: bool, label: str = "recording") -> tuple[Run, StepError | None]:
+    """Drive one run into a sink; return the run and the error that ended it early (if any).
+
+    ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).
+    """
     u = inputs_in_effect(signal, t, source.m)
     U = np.ascontiguousarray(u.T)
     sink = sink_factory(source, t, u)
     producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
     failure: StepError | None = None
     started = _time.perf_counter()
-    with deferred_interrupts(), Progress(len(t), "recording", quiet=quiet) as bar:
+    with deferred_interrupts(), Progress(len(t), label, quiet=quiet) as bar:
         try:
             for i0, count in producer:
                 check_interrupt()

@@ -285,7 +285,8 @@ def auto_window(
         t = time_grid(dt, T)
         if len(t) > max_steps:
             break
-        seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate)
+        seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
+                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})")
         if seen.f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
             continue
@@ -315,8 +316,8 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
 
 
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
-                   growth: float, quiet: bool, isolate: bool) -> _Pilot:
-    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
+                   growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run") -> _Pilot:
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label)
     if failure is not None:
         raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
