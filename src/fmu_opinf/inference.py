@@ -104,19 +104,20 @@ triple   25   5.6e-6        1.2e-6     --                           5.3e-7      
 triple   30   4.5e-6        5.8e-7     --                           2.5e-7                   0.42
 triple   35   1.2e-6        3.7e-7     1.1e-5                       1.6e-7                   0.42
 triple   40   1.0e-6        2.7e-7     --                           4.7e-7                   1.77
-triple   45   1.8e-6        2.6e-7     --                           6.5e-7                   2.49
-triple   50   3.6e-7        1.5e-7     --                           6.4e-7                   4.30
+triple   45   1.8e-6        2.6e-7     --                           1.2e-7 (800 it.)         0.47
+triple   50   3.6e-7        1.5e-7     --                           3.6e-7 (1000 it.)        2.45
 triple   55   2.7e-7        1.7e-7     --                           1.5e-6 (**)              8.8
 triple   60   1.6e-7        1.5e-7 (*) 2.2e-5                       1.5e-6 (**)              9.5
 =======  ===  ============  =========  ===========================  =======================  =====
 
 (*) unstable at r = 60, so the reference there is POD-Galerkin.  (**) measured with 30 L-BFGS correction pairs
-(the others with the default 100).  The SDP start alone takes 170 s at r = 50 and 350 s at r = 60 here.  Reading the table: the goal (``ratio <= 2``,
-stable) is met on the anchored chain for r = 2 .. 10 and on the triple chain for r = 5 .. 40, mostly with the
+and 300 iterations (the others with the defaults).  With 300 iterations r = 45 / 50 ended at 6.5e-7 / 6.4e-7.  The SDP start alone takes 170 s at r = 50 and 350 s at r = 60 here.  Reading the table: the goal (``ratio <= 2``,
+stable) is met on the anchored chain for r = 2 .. 10 and on the triple chain for r = 5 .. 45, mostly with the
 default *better* than both references (2x-2.5x on the triple chain up to r = 35, up to 500x on the anchored
 chain).  It is missed on the anchored chain at r = 11, 12 (errors of 1e-16, where the structured fit's training
-objective stops decreasing while least squares reaches 1e-18) and on the triple chain from r = 45 on with 300
-iterations: there the refinement's objective is still falling.  With 800 iterations r = 45 reaches 1.2e-7 (ratio
+objective stops decreasing while least squares reaches 1e-18) and on the triple chain from r = 50 on (r = 50:
+ratio 2.45 after 1000 iterations, at the POD-Galerkin error; r = 55, 60 measured only with the older settings).
+With 300 iterations the objective is still falling from r = 45 on; 800 iterations bring r = 45 to 1.2e-7 (ratio
 0.47, 78 s of refinement), so above r = 40 the default budget is ``20 r`` iterations (``refine_iterations``).
 L-BFGS keeps 100 correction pairs: with 30, r = 8 / 40 / 50 ended at ratio 2.1 / 2.1 / 13.  Fit times (2 cores
 shared with other jobs): 2-7 s up to r = 20, 22 s at r = 35, 70-130 s at r = 40 .. 50, against 0.1-8 s for the
