@@ -111,10 +111,12 @@ triple   60   1.6e-7        1.5e-7 (*) 2.2e-5                       1.5e-6 (**) 
 =======  ===  ============  =========  ===========================  =======================  =====
 
 (*) unstable at r = 60, so the reference there is POD-Galerkin.  (**) measured with 30 L-BFGS correction pairs
-and 300 iterations (the others with the defaults).  With 300 iterations r = 45 / 50 ended at 6.5e-7 / 6.4e-7.  The SDP start alone takes 170 s at r = 50 and 350 s at r = 60 here.  Reading the table: the goal (``ratio <= 2``,
-stable) is met on the anchored chain for r = 2 .. 10 and on the triple chain for r = 5 .. 45, mostly with the
-default *better* than both references (2x-2.5x on the triple chain up to r = 35, up to 500x on the anchored
-chain).  It is missed on the anchored chain at r = 11, 12 (errors of 1e-16, where the structured fit's training
+and 300 iterations (the others with the defaults).  With 300 iterations r = 45 / 50 ended at 6.5e-7 / 6.4e-7.
+The SDP start alone takes 170 s at r = 50 and 350 s at r = 60 here.
+
+Reading the table: the goal (``ratio <= 2``, stable) is met on the anchored chain for r = 2 .. 10 and on the
+triple chain for r = 5 .. 45, mostly with the default *better* than both references (1.1x-2.6x on the triple
+chain up to r = 35, up to 500x on the anchored chain).  It is missed on the anchored chain at r = 11, 12 (errors of 1e-16, where the structured fit's training
 objective stops decreasing while least squares reaches 1e-18) and on the triple chain from r = 50 on (r = 50:
 ratio 2.45 after 1000 iterations, at the POD-Galerkin error; r = 55, 60 measured only with the older settings).
 With 300 iterations the objective is still falling from r = 45 on; 800 iterations bring r = 45 to 1.2e-7 (ratio
@@ -126,7 +128,9 @@ the default: the refinement in the start's modal coordinates (``refine_output_er
 ``Mr = I, Kr = diag(omega^2)``, factor columns scaled by ``omega``; with 30 correction pairs 3.0e-6 / 6.0e-7 /
 5.3e-7 at r = 10 / 20 / 40 against 4.4e-6 / 4.6e-7 / 5.5e-7 -- a small, mixed gain).  The learned poles stay
 3-36 % off the full model's spectrum (``pole gap`` in the benchmark): the refined ``Mr, Dr, Kr`` reproduce the
-input-output behaviour in the training band, they are not the physical modes.
+input-output behaviour in the training band, they are not the physical modes.  A cheaper start was measured
+too: the ``Mr >= I`` SDP alone at ``tol=1e-5`` gives the same refined error (r = 20 / 35: 1.2e-6 / 1.7e-7) in
+3.0 / 9.6 s instead of 3.2 / 14 s; the trace SDP alone is a bad start at r = 35 (2.3e-6).
 
 Candidates measured for the equation-error fit and *not* kept (triple chain r = 10 / 20 / 35 unless stated;
 before the refinement existed, which supersedes them):
