@@ -12,7 +12,7 @@ Data: the triple chain (n = 301, velocity constraint) excited by the paper's imp
 These three use the trace normalization, so their optima are comparable.  ``default`` is ``fit_operators``
 without outputs (``normalization="auto"``: both normalizations, the smaller acceleration residual kept);
 ``refined`` adds the output-error refinement (``fit_operators(..., dt=, y=)``, one timed run) and ``refine``
-is the part of it spent refining (300 L-BFGS iterations).
+is the part of it spent refining (the default budget: 300 L-BFGS iterations up to r = 40, 20 r above).
 
 Times are wall-clock medians over ``--repeats`` runs and include everything from the reduced data to the
 operators (cvxpy compilation and Clarabel).  Run:  ``python benchmarks/bench_fit.py [--repeats 3]``.
