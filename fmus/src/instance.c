@@ -1,6 +1,7 @@
 /*
  * Version-independent co-simulation instance (see instance.h).
  */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -458,6 +459,11 @@ static Status checkStepArguments(const ModelInstance *instance, const char *func
     return OK;
 }
 
+/* Round-off of a step size h computed as a difference of times near point, around a step size reference. */
+static double stepRoundOff(double point, double h, double reference) {
+    return STEP_SIZE_TOLERANCE * reference + 8.0 * DBL_EPSILON * (fabs(point) + fabs(h));
+}
+
 Status doStep(ModelInstance *instance, const char *function, double point, double h) {
     const char *message = "unknown problem";
     Status status = OK;
@@ -467,12 +473,12 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
 
     /* Importers compute h as a difference of times; a step within round-off of the factored
      * one is that step (avoids refactoring S for every last-bit change of h). */
-    if (fabs(h - instance->solver.stepSize) <= STEP_SIZE_TOLERANCE * instance->solver.stepSize) {
+    if (fabs(h - instance->solver.stepSize) <= stepRoundOff(point, h, instance->solver.stepSize)) {
         h = instance->solver.stepSize;
     }
     if (stepMapSize(&instance->system) > 0.0) {
         double mapStep = stepMapSize(&instance->system);
-        if (fabs(h - mapStep) > STEP_SIZE_TOLERANCE * mapStep) {
+        if (fabs(h - mapStep) > stepRoundOff(point, h, mapStep)) {
             logError(instance, "%s: this model steps with h = %.17g only (its exact step map), got h = %.17g",
                      function, mapStep, h);
             return Error;
