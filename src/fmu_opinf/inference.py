@@ -72,8 +72,10 @@ outputs was also measured and not kept: at r = 10 / 20 it reached 1.3e-4 / 2.4e-
 larger state error than the SDP solution on these data, so state error is not a proxy for output accuracy).
 
 ``fit_operators(..., dt=, y=)`` refines by default (``refine="auto"``); ``refine=False`` returns the SDP
-solution and ``normalization="trace", refine=False`` is the paper's plain eq. (16).  (:func:`fmu_opinf.rom.fit_rom`
-does not pass ``dt`` and ``y`` yet, so until it does the pipeline's ROMs are the SDP solution.)  ``fit_info["refinement"]``
+solution and ``normalization="trace", refine=False`` is the paper's plain eq. (16).  :func:`fmu_opinf.rom.fit_rom`
+passes ``dt``, the outputs net of any fitted feedthrough and offset, the output map and the run lengths for Newmark
+ROMs fitted without ``lowpass`` (``fit_rom(refine=False)``, ``fmu-opinf fit --no-refine`` keep the SDP solution).
+``fit_info["refinement"]``
 reports the objective before and after, iterations and time.  The refinement models the *Newmark* step: pass
 ``dt`` only for ROMs simulated with ``integrator="newmark"``.
 

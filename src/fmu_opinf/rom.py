@@ -665,8 +665,7 @@ def fit_rom(
     time_integrator = _integrator(integrator, attrs)
     refinement = _refinement(refine, time_integrator, lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
     if refinement:
-        say(f"output-error refinement from the SDP solution ({refinement['refine_iterations']} L-BFGS iterations "
-            "at most) ...")
+        say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, **refinement)
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
@@ -718,7 +717,7 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
     if min(lengths) < 2:
         return {}
     return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths,
-            "refine": True, "refine_iterations": 300}
+            "refine": True}
 
 
 def _refinement_summary(report: Any) -> str:
