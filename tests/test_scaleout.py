@@ -270,9 +270,11 @@ def roms(client, recorded, tmp_path_factory):
     one = out / "one.h5"
     record_to_file(SOURCE, one, [_row_input(recorded, name) for name in ("chirp", "harm", "imp", "load")],
                    quiet=True, **SETTINGS)  # the set's files in the set's (sorted) order
-    rom_set = fit_rom_file(recorded["par"][1], out / "set-rom.h5", r=4, quiet=True)
+    # the SDP alone (refine=False): these tests are about the data paths; the output-error refinement's L-BFGS
+    # amplifies round-off differences of the basis into 1e-4 differences of the operators
+    rom_set = fit_rom_file(recorded["par"][1], out / "set-rom.h5", r=4, quiet=True, refine=False)
     with Snapshots.open(one) as snaps:  # the file itself: h5py datasets, in-core POD even with a client active
-        rom_one = fit_rom(snaps, r=4, quiet=True)
+        rom_one = fit_rom(snaps, r=4, quiet=True, refine=False)
     return rom_set, rom_one, out
 
 
@@ -291,7 +293,7 @@ def test_fit_from_run_set_equals_fit_from_one_file(roms, recorded):
     rom_set, rom_one, _ = roms
     assert (rom_set.fit_info["pod_method"], rom_one.fit_info["pod_method"]) == ("distributed-tsqr-transposed", "dense")
     with open_snapshot_set(recorded["par"][1], dask=False) as snaps:
-        rom_incore = fit_rom(snaps, r=4, quiet=True)
+        rom_incore = fit_rom(snaps, r=4, quiet=True, refine=False)
     assert np.max(scipy.linalg.subspace_angles(rom_set.basis, rom_one.basis)) < 1e-10
     for name in ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr"):
         a, b, c = getattr(rom_incore, name), getattr(rom_one, name), getattr(rom_set, name)
