@@ -108,7 +108,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     timings["snapshots"] = time.perf_counter() - start
 
     start = time.perf_counter()
-    model = rom.fit_rom(snaps)
+    model = rom.fit_rom(snaps, quiet=quiet)  # labelled stage lines: POD, SDP, refinement
     timings["fit"] = time.perf_counter() - start
     model.save(out_dir / "rom.h5", overwrite=True)
     figures = plots.pod_figures(snaps, model, out_dir / "fit")
