@@ -139,9 +139,9 @@ def test_modal_form_pads_an_odd_number_of_real_eigenvalues(rng):
     assert np.allclose(np.sort_complex(np.linalg.eigvals(form.step_matrix())), expected, atol=1e-12)
 
 
-def _drive(path, u, read_states_at=(), snapshot_at=None):
-    """Outputs after each step (input u[:, i] held over step i); states where asked; optionally replay from a
-    snapshot taken after step ``snapshot_at``."""
+def _initialized_fmu(path):
+    """An exported ROM FMU instantiated and initialized through fmpy, with its value references:
+    ``(fmu, refs by name, output refs, state refs)``."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
@@ -156,6 +156,13 @@ def _drive(path, u, read_states_at=(), snapshot_at=None):
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     fmu.exitInitializationMode()
+    return fmu, refs, outputs, states
+
+
+def _drive(path, u, read_states_at=(), snapshot_at=None):
+    """Outputs after each step (input u[:, i] held over step i); states where asked; optionally replay from a
+    snapshot taken after step ``snapshot_at``."""
+    fmu, refs, outputs, states = _initialized_fmu(path)
     dt, ys, read, snapshot, replay = 0.1, [], {}, None, []
     for i in range(u.shape[1]):
         fmu.setReal([refs["u[1]"]], [float(u[0, i])])
@@ -243,21 +250,8 @@ def test_modal_fmu_equals_step_map_loop(modal_fmus, integrator):
 def test_modal_fmu_states_follow_an_input_set_between_steps(modal_fmus, integrator):
     """After steps on the modal path (outputs read, states not), a new input set before the next step shows at
     once in the acceleration (``q'' += Mr^-1 Br du``, as the Newmark reference and the old kernel do)."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     rom, path = modal_fmus[integrator]
-    folder = extract(str(path))
-    md = read_model_description(folder)
-    refs = {v.name: v.valueReference for v in md.modelVariables}
-    outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-    states = [v.valueReference for v in md.modelVariables if v.name.startswith(("q[", "qdot[", "qddot["))]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="modal")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
+    fmu, refs, outputs, states = _initialized_fmu(path)
     u = np.full((1, 20), 0.5)
     for i in range(20):
         fmu.setReal([refs["u[1]"]], [0.5])
