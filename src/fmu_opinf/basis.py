@@ -737,7 +737,7 @@ def open_snapshot_set(
     opened: list = []
     try:
         for path in files:
-            opened.append(Snapshots.open(path))
+            opened.append(_share_lists(Snapshots.open(path), opened[0] if opened else None))
         snaps = SnapshotSet(opened, files)
         if dask if dask is not None else _client_active():
             n, ks = _check_shapes(snaps.runs, "x")
@@ -748,6 +748,18 @@ def open_snapshot_set(
             part.close()
         raise
     return snaps
+
+
+def _share_lists(part: Any, first: Any) -> Any:
+    """``part`` with list attributes equal to those of ``first`` replaced by ``first``'s: the per-DOF variable names
+    (3 x n Python strings, ~200 B per DOF and file) are then held once for the whole set, not once per file
+    (measured: 1.6 GB of a client's 2.2 GiB at 1e6 DOF x 8 files)."""
+    if first is not None:
+        for key, value in list(part.attrs.items()):
+            other = first.attrs.get(key)
+            if isinstance(value, list) and isinstance(other, list) and value == other:
+                part.attrs[key] = other
+    return part
 
 
 def _is_dask(array: Any) -> bool:
