@@ -898,13 +898,35 @@ def _dask_basis(basis: np.ndarray, row_chunks: tuple) -> Any:
     each run array then sends no copy of ``V``; on a cluster its blocks stay on the workers)."""
     import dask.array as da
 
-    key = (id(basis), basis.shape, tuple(row_chunks))
+    key = (id(basis), basis.shape, tuple(row_chunks), _client_id())  # scattered blocks belong to one client
     cached = _BASIS_CACHE.get(key)
     if cached is not None and cached[0]() is basis:
         return cached[1]
-    array = da.from_array(basis, chunks=(tuple(row_chunks), basis.shape[1]))
     if _client_active():
-        array = array.persist()
+        array = _scattered(basis, row_chunks)
+    else:
+        array = da.from_array(basis, chunks=(tuple(row_chunks), basis.shape[1]))
     _BASIS_CACHE.clear()
     _BASIS_CACHE[key] = (weakref.ref(basis), array)
     return array
+
+
+def _client_id() -> str | None:
+    try:
+        from distributed import default_client
+
+        return str(default_client().id)
+    except (ImportError, ValueError):
+        return None
+
+
+def _scattered(basis: np.ndarray, row_chunks: tuple) -> Any:
+    """The basis' row blocks sent to the workers as data (not inside a task graph: no "large graph" transfer
+    through the scheduler), as one dask array."""
+    import dask.array as da
+    from distributed import default_client
+
+    bounds = np.cumsum((0,) + tuple(row_chunks))
+    blocks = [np.ascontiguousarray(basis[i0:i1]) for i0, i1 in zip(bounds[:-1], bounds[1:])]
+    futures = default_client().scatter(blocks)
+    return da.concatenate([da.from_delayed(f, shape=b.shape, dtype=b.dtype) for f, b in zip(futures, blocks)])
