@@ -37,6 +37,11 @@ import json, resource, sys, time
 from pathlib import Path
 ARGS = json.loads(sys.argv[1]); OUT = Path(ARGS["workdir"]); RESULT = {}
 
+def rss_gib():
+    import os
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**30
+
 def worker_peaks(client):
     def peak():
         import resource
@@ -93,17 +98,20 @@ with open_snapshot_set(OUT / "seq", dask=False) as a, open_snapshot_set(OUT / "p
 RESULT["max_relative_difference"] = worst
 """,
     "distributed-fit": r"""
-import numpy as np
+import numpy as np, resource
 from fmu_opinf import runs
 from fmu_opinf.basis import open_snapshot_set, _block_shape
 from fmu_opinf.rom import fit_rom_file
 from distributed import get_task_stream
 with runs.dask_client(f"local:{ARGS['workers']}") as client:
+    RESULT["client_rss_at_start_gib"] = rss_gib()
     t0 = time.perf_counter()
     with get_task_stream(client) as stream:
         rom = fit_rom_file(OUT / "pod", OUT / "rom.h5", r=5, quiet=True, overwrite=True,
                            max_memory=ARGS["max_memory"])
     RESULT["fit_seconds"] = time.perf_counter() - t0
+    RESULT["client_rss_after_fit_gib"] = rss_gib()
+    RESULT["client_peak_during_fit_gib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     RESULT["worker_peak_gib"] = worker_peaks(client)
 tasks = {}
 for task in stream.data:  # compute time per task kind (read a block, block QR, products, ...)
@@ -115,16 +123,25 @@ for task in stream.data:  # compute time per task kind (read a block, block QR, 
 RESULT["tasks"] = {k: {"count": c, "seconds": round(t, 3)} for k, (c, t) in sorted(tasks.items(), key=lambda kv: -kv[1][1])[:12]}
 info = rom.fit_info
 RESULT.update(pod_method=info["pod_method"], n=info["n"], k=info["k"], r=rom.r, status=info["status"])
+with open_snapshot_set(OUT / "pod", dask=True, max_memory=ARGS["max_memory"]) as snaps:
+    RESULT["block_rows_aligned"] = int(max(snaps.runs[0].x.chunks[0]))
+import h5py
+with h5py.File(sorted((OUT / "pod").glob("*.h5"))[0], "r") as f:
+    RESULT["file_chunks"] = list(next(iter(f["runs"].values()))["x"].chunks)
 rows, cols = _block_shape(info["n"], info["k"], ARGS["max_memory"])
 RESULT["block_rows"], RESULT["blocks"] = rows, -(-info["n"] // rows)
 RESULT["data_gib_per_array"] = info["n"] * info["k"] * 8 / 2**30
-if ARGS["check"]:
-    from fmu_opinf.basis import PODBasis
-    import scipy.linalg
-    with open_snapshot_set(OUT / "pod", dask=False) as snaps:
-        ref = PODBasis(r=5, kind=rom.basis_kind, max_memory=1e12).fit(snaps)
-    RESULT["incore_method"] = ref.method_
-    RESULT["subspace_angle"] = float(np.max(scipy.linalg.subspace_angles(rom.basis, ref.basis_)))
+RESULT["basis_file"] = str(OUT / "rom.h5")
+""",
+    "incore-check": r"""
+import numpy as np, scipy.linalg
+from fmu_opinf.basis import PODBasis, open_snapshot_set
+from fmu_opinf.rom import SecondOrderROM
+rom = SecondOrderROM.load(OUT / "rom.h5")
+with open_snapshot_set(OUT / "pod", dask=False) as snaps:
+    ref = PODBasis(r=rom.r, kind=rom.basis_kind, max_memory=1e12).fit(snaps)
+RESULT["incore_method"] = ref.method_
+RESULT["subspace_angle"] = float(np.max(scipy.linalg.subspace_angles(rom.basis, ref.basis_)))
 """,
 }
 
@@ -155,7 +172,10 @@ def recording(base: dict, g: int, steps: int) -> dict:
 
 def distributed_pod(base: dict, g: int, steps: int, check: bool) -> dict:
     args = {**base, "g": g, "steps": steps, "target": "pod", "check": check}
-    return {"record": run_stage("record-parallel", args), "fit": run_stage("distributed-fit", args)}
+    out = {"record": run_stage("record-parallel", args), "fit": run_stage("distributed-fit", args)}
+    if check:
+        out["check"] = run_stage("incore-check", args)
+    return out
 
 
 def _mean(values: list) -> float:
@@ -188,13 +208,14 @@ def report(results: dict) -> str:
         f"1-min load average of the machine at the stage starts: "
         + ", ".join(f"{r['load_before']:.1f}" for r in (rec["seq"], rec["par"], pod["record"], fit)),
         f"POD: {fit['pod_method']}, n={fit['n']}, k={fit['k']}, {fit['data_gib_per_array']:.2f} GiB per array, "
-        f"{fit['blocks']} row blocks of {fit['block_rows']} rows, max_memory={results['max_memory']:.0e}",
+        f"row blocks of {fit['block_rows_aligned']} rows (budget {fit['block_rows']}, file chunks "
+        f"{fit['file_chunks']}), max_memory={results['max_memory']:.0e}",
     ]
     lines.append("worker compute time by task kind (count, seconds): " + ", ".join(
         f"{k} ({v['count']}, {v['seconds']:.1f})" for k, v in list(fit.get("tasks", {}).items())[:6]))
-    if "subspace_angle" in fit:
-        lines.append(f"distributed vs in-core ({fit['incore_method']}) basis: subspace angle "
-                     f"{fit['subspace_angle']:.1e}")
+    if "check" in pod:
+        lines.append(f"distributed vs in-core ({pod['check']['incore_method']}) basis: subspace angle "
+                     f"{pod['check']['subspace_angle']:.1e}")
     return "\n".join(lines)
 
 

@@ -303,6 +303,19 @@ def test_fit_from_run_set_equals_fit_from_one_file(roms, recorded):
     np.testing.assert_allclose(poles[0], poles[1], rtol=1e-4)
 
 
+def test_cli_fits_a_per_run_set_on_a_running_cluster(client, recorded, roms, tmp_path):
+    from fmu_opinf.rom import SecondOrderROM
+
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    proc = subprocess.run([sys.executable, "-m", "fmu_opinf.cli", "fit", str(recorded["par"][1]), "-o",
+                           str(tmp_path / "rom.h5"), "--r", "4", "--scheduler", client.scheduler.address, "-q"],
+                          capture_output=True, text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rom = SecondOrderROM.load(tmp_path / "rom.h5")
+    assert rom.fit_info["pod_method"] == "distributed-tsqr-transposed"
+    assert np.max(scipy.linalg.subspace_angles(rom.basis, roms[1].basis)) < 1e-10
+
+
 def test_compare_runs_in_parallel_gives_one_summary(client, roms, table, tmp_path):
     rom_set, _, out = roms
     tests = tmp_path / "tests.csv"

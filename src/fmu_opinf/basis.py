@@ -737,7 +737,7 @@ def open_snapshot_set(
     opened: list = []
     try:
         for path in files:
-            opened.append(Snapshots.open(path))
+            opened.append(_share_lists(Snapshots.open(path), opened[0] if opened else None))
         snaps = SnapshotSet(opened, files)
         if dask if dask is not None else _client_active():
             n, ks = _check_shapes(snaps.runs, "x")
@@ -748,6 +748,18 @@ def open_snapshot_set(
             part.close()
         raise
     return snaps
+
+
+def _share_lists(part: Any, first: Any) -> Any:
+    """``part`` with list attributes equal to those of ``first`` replaced by ``first``'s: the per-DOF variable names
+    (3 x n Python strings, ~200 B per DOF and file) are then held once for the whole set, not once per file
+    (measured: 1.6 GB of a client's 2.2 GiB at 1e6 DOF x 8 files)."""
+    if first is not None:
+        for key, value in list(part.attrs.items()):
+            other = first.attrs.get(key)
+            if isinstance(value, list) and isinstance(other, list) and value == other:
+                part.attrs[key] = other
+    return part
 
 
 def _is_dask(array: Any) -> bool:
@@ -886,13 +898,35 @@ def _dask_basis(basis: np.ndarray, row_chunks: tuple) -> Any:
     each run array then sends no copy of ``V``; on a cluster its blocks stay on the workers)."""
     import dask.array as da
 
-    key = (id(basis), basis.shape, tuple(row_chunks))
+    key = (id(basis), basis.shape, tuple(row_chunks), _client_id())  # scattered blocks belong to one client
     cached = _BASIS_CACHE.get(key)
     if cached is not None and cached[0]() is basis:
         return cached[1]
-    array = da.from_array(basis, chunks=(tuple(row_chunks), basis.shape[1]))
     if _client_active():
-        array = array.persist()
+        array = _scattered(basis, row_chunks)
+    else:
+        array = da.from_array(basis, chunks=(tuple(row_chunks), basis.shape[1]))
     _BASIS_CACHE.clear()
     _BASIS_CACHE[key] = (weakref.ref(basis), array)
     return array
+
+
+def _client_id() -> str | None:
+    try:
+        from distributed import default_client
+
+        return str(default_client().id)
+    except (ImportError, ValueError):
+        return None
+
+
+def _scattered(basis: np.ndarray, row_chunks: tuple) -> Any:
+    """The basis' row blocks sent to the workers as data (not inside a task graph: no "large graph" transfer
+    through the scheduler), as one dask array."""
+    import dask.array as da
+    from distributed import default_client
+
+    bounds = np.cumsum((0,) + tuple(row_chunks))
+    blocks = [np.ascontiguousarray(basis[i0:i1]) for i0, i1 in zip(bounds[:-1], bounds[1:])]
+    futures = default_client().scatter(blocks)
+    return da.concatenate([da.from_delayed(f, shape=b.shape, dtype=b.dtype) for f, b in zip(futures, blocks)])
