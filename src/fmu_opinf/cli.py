@@ -136,7 +136,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_source_options(p)
 
     p = verbs.add_parser("fit", help="learn a reduced model from a snapshot file")
-    p.add_argument("snapshots", help="snapshot file from 'fmu-opinf snapshots'")
+    p.add_argument("snapshots", help="snapshot file from 'fmu-opinf snapshots', or a directory of them (a run "
+                                     "table's output), read as one data set")
     p.add_argument("-o", "--output", required=True, help="ROM file to write (.h5)")
     order = p.add_mutually_exclusive_group()
     order.add_argument("--r", type=int, help="reduced order")
@@ -159,6 +160,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="terms beyond the paper's model: constant force fr, feedthrough Dur, output offset y0; "
                         "'auto' (default) fits those the data need, 'none' the paper's model, 'all', or a list "
                         "such as 'fr,y0'")
+    p.add_argument("--max-memory", type=float, default=1e9,
+                   help="bytes the POD may hold in memory (default 1e9); larger data are streamed, or distributed "
+                        "with --scheduler (docs/scale-out.md)")
     p.add_argument("--no-refine", dest="refine", action="store_false",
                    help="keep the SDP solution (eq. 16) instead of refining it by output error (the default for "
                         "Newmark ROMs; see fmu_opinf.inference)")
@@ -220,7 +224,8 @@ def _run_fit(args: argparse.Namespace) -> None:
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,
                        normalization=args.normalization, lowpass=args.lowpass, terms=args.terms,
-                       integrator=args.integrator, refine="auto" if args.refine else False)
+                       integrator=args.integrator, refine="auto" if args.refine else False,
+                       max_memory=args.max_memory)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
@@ -277,7 +282,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
 
     for option in ("positions", "velocities", "accelerations", "inputs", "outputs"):
         v.check_patterns(getattr(args, option, None), "--" + option)
-    for option in ("dt", "t_end", "lowpass", "timeout"):
+    for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
     for option in ("r", "g", "n1"):
         value = getattr(args, option, None)
