@@ -26,12 +26,15 @@ import os
 import re
 import warnings
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
+
+if TYPE_CHECKING:
+    from .rom import SecondOrderROM
 
 __all__ = ["export_fmu", "rom_fmu_spec"]
 
@@ -319,7 +322,7 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     return re.sub(r"[\x00-\x1f\x7f]", "?", text)  # provenance text is data: no control characters in XML
 
 
-def rom_fmu_spec(rom: Any, identifier: str = "ROM",
+def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                  reconstruct: Sequence[str | int] | None = None,
                  fmi_version: str = "2.0") -> SecondOrderFmuSpec:
     """Generator specification of the FMU of a reduced second-order model.
@@ -418,7 +421,7 @@ def _check_output_path(path: Path, overwrite: bool) -> None:
         raise FMUError(f"output folder {parent} is not writable; choose a writable path")
 
 
-def export_fmu(rom: Any, path: str | os.PathLike, fmi_version: str = "2.0",
+def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike, fmi_version: str = "2.0",
                reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False) -> Path:
     """Export a reduced second-order model as a co-simulation FMU.
 

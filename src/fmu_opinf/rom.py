@@ -44,7 +44,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import h5py
 import numpy as np
@@ -55,6 +55,10 @@ from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
+
+if TYPE_CHECKING:
+    from .signals import Signal
+    from .snapshots import Run, Snapshots
 
 __all__ = ["SecondOrderROM", "ROMTrajectory", "fit_rom", "fit_rom_file", "LAYOUT_VERSION"]
 
@@ -262,7 +266,7 @@ class SecondOrderROM:
                 qdot0 = reduced
         return q0, qdot0
 
-    def simulate(self, signal: Any, dt: float, t_end: float, q0: np.ndarray | None = None,
+    def simulate(self, signal: Signal | str, dt: float, t_end: float, q0: np.ndarray | None = None,
                  qdot0: np.ndarray | None = None) -> ROMTrajectory:
         """Classical Newmark (beta=1/4, gamma=1/2) from the initial state, input held over each step.
 
@@ -567,7 +571,7 @@ def _training_dt(runs: list, attrs: dict) -> float | None:
 
 
 def fit_rom(
-    snapshots: Any,
+    snapshots: Snapshots | Sequence[Run] | Run,
     r: int | None = None,
     energy: float | None = None,
     basis: str = "auto",

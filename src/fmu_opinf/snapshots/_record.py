@@ -35,6 +35,7 @@ from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, new
                      time_grid)
 
 if TYPE_CHECKING:
+    from ..signals import Signal
     from ._window import Window
 
 __all__ = ["record", "record_to_file", "RecordSummary", "STREAM_THRESHOLD", "DEFAULT_TRAINING_INPUT"]
@@ -298,7 +299,7 @@ def _run_bytes(source: Source, k: int) -> int:
     return 8 * k * (3 * source.n + source.p + source.m + 1)
 
 
-def record(source: Source | str, signal: Any, dt: float, t_end: float, path: str | os.PathLike | None = None,
+def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, path: str | os.PathLike | None = None,
            quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float = 0.0,
            stream: bool | None = None) -> Snapshots:
     """Record one run of ``source`` driven by ``signal`` on the grid ``t0, t0+dt, ..., <= t_end``.
