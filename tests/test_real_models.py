@@ -179,3 +179,22 @@ def test_positions_and_velocities_by_unit_when_no_states_are_declared(real_corpu
         assert "by unit" in source.selection_text()
     finally:
         source.close()
+
+
+@pytest.mark.slow
+@pytest.mark.fmu
+@pytest.mark.parametrize("name", ["offset-equilibrium", "no-inputs"])
+def test_exporter_style_fmu_with_cli_defaults_only(real_corpus, tmp_path, name):
+    """Issues 11/12: `snapshots FMU -o`, `fit`, `compare` with nothing else named (model exchange, the paper's
+    impulse or the free response, the automatic window, the default order) reach max eps_y <= 1e-6."""
+    from fmu_opinf.cli import main
+
+    fmu = str(real_corpus[name].path)
+    assert main(["snapshots", fmu, "-o", str(tmp_path / "train.h5"), "-q"]) == 0
+    assert main(["fit", str(tmp_path / "train.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0
+    test = [] if name == "no-inputs" else ["--input", "harmonic:amplitude=1,omega=0.8"]
+    assert main(["compare", str(tmp_path / "rom.h5"), fmu, "-o", str(tmp_path / "report"), "-q"] + test) == 0
+    import json
+
+    metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
+    assert metrics["r"] == 5 and metrics["max_error"] <= 1e-6, metrics["max_error"]

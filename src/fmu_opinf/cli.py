@@ -142,7 +142,8 @@ def build_parser() -> argparse.ArgumentParser:
     order = p.add_mutually_exclusive_group()
     order.add_argument("--r", type=int, help="reduced order")
     order.add_argument("--energy", type=float,
-                       help="choose r where the cumulative energy (eq. 18) saturates at this threshold")
+                       help="choose r where the cumulative energy (eq. 18) saturates at this threshold (default "
+                            "0.95; snapshots of rank <= 10 keep all their modes unless --energy is given)")
     p.add_argument("--basis", choices=["auto", "positions", "velocities"], default="auto",
                    help="POD data: positions (position constraints) or velocities (velocity constraints); "
                         "auto follows the constraint kind recorded in the file")
