@@ -21,7 +21,7 @@ from typing import Sequence
 from . import __version__
 from .errors import FmuOpinfError, InputSpecError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["main", "run", "build_parser"]
 
 
 def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True) -> None:
@@ -333,6 +333,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     previous, warnings.showwarning = warnings.showwarning, _one_line_warning
     try:
         return _main(argv)
+    except KeyboardInterrupt:  # a second Ctrl-C while the first was being reported
+        return 130
     finally:
         warnings.showwarning = previous
 
@@ -353,5 +355,19 @@ def _main(argv: Sequence[str] | None) -> int:
     return 0
 
 
+def run() -> None:
+    """The ``fmu-opinf`` console script: :func:`main`, then exit with its code.
+
+    Once the run is over, a signal that arrives late (Ctrl-C to the whole process group while the simulation
+    process is still starting) must not turn the reported exit code into a death by signal.
+    """
+    import signal
+
+    code = main()
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()
