@@ -1077,17 +1077,7 @@ def fit_outputs(xdot_r: np.ndarray, x_r: np.ndarray, y: np.ndarray) -> tuple[np.
     Cpr, Cvr : (p, r) ndarray
         ``y ~ Cpr x_r + Cvr xdot_r``.
     """
-    xdot_r, x_r, y = (np.asarray(a, dtype=float) for a in (xdot_r, x_r, y))
-    r, k = x_r.shape
-    if xdot_r.shape != (r, k) or y.ndim != 2 or y.shape[1] != k:
-        raise DimensionError(f"output data shapes {xdot_r.shape}, {x_r.shape}, {y.shape} do not match (r, k), (p, k)")
-    for name, a in (("xdot_r", xdot_r), ("x_r", x_r), ("y", y)):
-        if not np.all(np.isfinite(a)):
-            raise DataError(f"{name} contains NaN/Inf; check the snapshot data")
-    sv, sx = _rms(xdot_r), _rms(x_r)
-    A = np.vstack([xdot_r / sv, x_r / sx]).T
-    coef, *_ = np.linalg.lstsq(A, y.T, rcond=None)
-    Cvr, Cpr = coef[:r].T / sv, coef[r:].T / sx
+    Cpr, Cvr, _, _ = fit_output_map(xdot_r, x_r, y)  # eq. 17 is the output map without the extra terms
     return Cpr, Cvr
 
 

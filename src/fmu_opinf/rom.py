@@ -268,7 +268,8 @@ class SecondOrderROM:
 
     def simulate(self, signal: Signal | str, dt: float, t_end: float, q0: np.ndarray | None = None,
                  qdot0: np.ndarray | None = None) -> ROMTrajectory:
-        """Classical Newmark (beta=1/4, gamma=1/2) from the initial state, input held over each step.
+        """Simulate from the initial state, input held over each step, with the ROM's :attr:`integrator`:
+        classical Newmark (beta=1/4, gamma=1/2) or the exact solution under the held input.
 
         Parameters
         ----------
