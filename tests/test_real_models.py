@@ -155,7 +155,7 @@ def test_exporter_style_fmu_through_the_whole_chain(real_corpus, tmp_path, name)
     exported = export_fmu(rom, tmp_path / "rom.fmu", fmi_version="3.0" if name == "offset-equilibrium" else "2.0")
     t = result.t[:1001]
     y_fmu, *_ = simulate_outputs(exported, parse_signal(test or "none", rom.m), t)
-    assert _relative(y_fmu, result.y_rom[:, :1001]) < 1e-10
+    assert _relative(y_fmu, result.y_rom[:, :1001]) < 1e-12  # measured 1e-14 .. 8e-14 (the issue asks 1e-10)
 
 
 @pytest.mark.fmu
@@ -197,4 +197,5 @@ def test_exporter_style_fmu_with_cli_defaults_only(real_corpus, tmp_path, name):
     import json
 
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
-    assert metrics["r"] == 5 and metrics["max_error"] <= 1e-6, metrics["max_error"]
+    # the issue asks for <= 1e-6; measured 8.9e-24 (offset-equilibrium) and 4.8e-21 (no-inputs)
+    assert metrics["r"] == 5 and metrics["max_error"] <= 1e-18, metrics["max_error"]
