@@ -345,6 +345,16 @@ def test_sizes_beyond_available_memory_are_refused_before_allocating(files, monk
 # ------------------------------------------------------------------------------------------------------
 
 
+def _as_from_a_terminal() -> None:
+    """Child set-up for the interrupt tests: Ctrl-C acts as it does for a command typed in a terminal, also when
+    the test run itself was started in the background (a non-interactive shell starts background jobs with
+    SIGINT ignored, and children inherit that)."""
+    import signal as _signal
+
+    _signal.signal(_signal.SIGINT, _signal.SIG_DFL)
+    _signal.signal(_signal.SIGTERM, _signal.SIG_DFL)
+
+
 def _cli_env() -> dict:
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     src = str(Path(cli.__file__).resolve().parents[1])
@@ -418,7 +428,7 @@ def test_interrupted_streamed_recording_keeps_the_previous_file(anchored_fmu, tm
             "impulse:amplitude=100,t0=2,width=0.5", "--dt", "0.01", "--t-end", "2000", "--force", "-q"]
     args += [isolation] if isolation.startswith("--") else []
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_cli_env(),
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_as_from_a_terminal)
     try:
         _wait_for_stream(tmp_path, proc)
         signum = _signal.SIGTERM if how == "SIGTERM" else _signal.SIGINT
@@ -560,7 +570,8 @@ def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp
 
     proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o",
                              str(tmp_path / "s.h5"), "--input", "step", "--dt", "0.01", "--t-end", "2000", "-q"],
-                            stderr=subprocess.PIPE, text=True, env=_cli_env(), start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, env=_cli_env(), start_new_session=True,
+                            preexec_fn=_as_from_a_terminal)
     time.sleep(delay)
     os.killpg(proc.pid, _signal.SIGINT)
     try:
