@@ -6,6 +6,7 @@ for ``"newmark"`` a plain step-by-step Newmark loop written here.
 """
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -172,3 +173,58 @@ def test_outputs_far_faster_than_the_step_loop(rng):
     loop = _cpu(lambda: _loop(phi, s0, gamma, drive, 0.0), repeats=1)
     fast = _cpu(lambda: rom.simulate(SIGNAL, dt, steps * dt).y)
     assert fast * 10 < loop, f"outputs {fast * 1e3:.1f} ms, loop {loop * 1e3:.1f} ms (CPU time)"
+
+
+# ------------------------------------------------------------------ what compare times
+
+
+def test_compare_times_the_outputs_alone(rng, monkeypatch):
+    """simulate_outputs (compare's ROM side) never forms the states: every evaluation is of output rows."""
+    import fmu_opinf._recursion as recursion
+    from fmu_opinf.compare import simulate_outputs
+    from fmu_opinf.newmark import time_grid
+    from fmu_opinf.signals import parse_signal
+
+    rows, evaluate = [], recursion.rom_evaluate
+
+    def recording(step, s0, inputs, C=None):
+        rows.append(None if C is None else np.atleast_2d(C).shape[0])
+        return evaluate(step, s0, inputs, C)
+
+    monkeypatch.setattr(recursion, "rom_evaluate", recording)
+    rom = _rom(rng, 12, 1, 2, "newmark")
+    y, seconds, _, _ = simulate_outputs(rom, parse_signal(SIGNAL, 1), time_grid(0.1, 20.0))
+    assert rows == [2] and y.shape == (2, 201) and seconds > 0
+
+
+def test_speedup_says_what_it_timed(rng):
+    from fmu_opinf.compare import _timed
+
+    rom = _rom(rng, 4, 1, 1, "exact")
+    mixed = _timed("plant.fmu", rom)
+    assert not mixed["like_with_like"] and "outputs only" in mixed["rom"] and "states not formed" in mixed["rom"]
+    assert "plant.fmu" in mixed["fom"] and "separate process" in mixed["fom"] and "wall" in mixed["clock"]
+    both = _timed("plant.fmu", Path("rom.fmu"))
+    assert both["like_with_like"] and "rom.fmu" in both["rom"] and "separate process" in both["rom"]
+    assert "in this process" in _timed("plant.fmu", Path("rom.fmu"), isolate=False)["rom"]
+    assert not _timed("builtin:triple-chain", Path("rom.fmu"))["like_with_like"]
+
+
+def test_rom_fmu_is_driven_like_the_source(monkeypatch):
+    """An exported ROM FMU runs with the source FMU's process isolation, so both times are taken the same way."""
+    import fmu_opinf.compare as compare_module
+
+    calls = {}
+
+    def fake_outputs(side, signal, t, quiet=True, **options):
+        calls[str(side)] = options
+        return np.ones((1, t.size)), 1.0, {}, ["y"]
+
+    info = {"m": 1, "p": 1, "r": 2, "dt": 0.5, "output_names": ["y"], "t_train_end": 10.0, "provenance": {}}
+    monkeypatch.setattr(compare_module, "simulate_outputs", fake_outputs)
+    monkeypatch.setattr(compare_module, "_rom_side_info", lambda side: info)
+    for isolate in (True, False):
+        result = compare_module.compare(Path("rom.fmu"), "plant.fmu", SIGNAL, dt=0.5, t_end=5.0, quiet=True,
+                                        source_options={"isolate": isolate})
+        assert calls["rom.fmu"] == {"isolate": isolate} and calls["plant.fmu"]["isolate"] is isolate
+        assert result.timed["like_with_like"]
