@@ -46,7 +46,7 @@ def _acceleration(rom, q, qdot, u):
 
 
 def _exact_reference(rom, dt, u):
-    """``x_{i+1} = E x_i + (I - E) [K^-1 (B u + fr); 0]``, ``E = expm(A dt)``, input ``u[:, i + 1]`` held over step i."""
+    """``x_{i+1} = E x_i + (I - E) [K^-1 (B u + fr); 0]``, ``E = expm(A dt)``, ``u[:, i + 1]`` held over step i."""
     r = rom.r
     Minv = np.linalg.inv(rom.Mr)
     A = np.block([[np.zeros((r, r)), np.eye(r)], [-Minv @ rom.Kr, -Minv @ rom.Dr]])
@@ -228,3 +228,11 @@ def test_rom_fmu_is_driven_like_the_source(monkeypatch):
                                         source_options={"isolate": isolate})
         assert calls["rom.fmu"] == {"isolate": isolate} and calls["plant.fmu"]["isolate"] is isolate
         assert result.timed["like_with_like"]
+
+
+def test_more_rows_than_states(rng):
+    phi = 0.5 * np.eye(3) + 0.1 * rng.standard_normal((3, 3))
+    gamma, s0, inputs = rng.standard_normal((3, 1)), rng.standard_normal(3), rng.standard_normal((1, 40))
+    C = rng.standard_normal((5, 3))
+    reference = C @ _loop(phi, s0, gamma, inputs, 0.0)
+    assert _relative(linear_recursion(phi, s0, gamma, inputs, C), reference) < TOL

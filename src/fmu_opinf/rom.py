@@ -330,8 +330,8 @@ class SecondOrderROM:
         -------
         ROMTrajectory
             ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.  Only the outputs are computed
-            here; the states are formed on first access of ``q``, ``qdot`` or ``qddot`` (same values, about four
-            times the cost of the outputs at r = 35; ``benchmarks/bench_rom.py``).
+            here; the states are formed on first access of ``q``, ``qdot`` or ``qddot`` (the same values as if
+            formed here; at r = 35 they cost about ten times the outputs, ``benchmarks/bench_rom.py``).
         """
         from ._recursion import rom_evaluate, rom_step
         from .newmark import applied_inputs, time_grid
