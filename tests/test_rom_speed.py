@@ -236,3 +236,13 @@ def test_more_rows_than_states(rng):
     C = rng.standard_normal((5, 3))
     reference = C @ _loop(phi, s0, gamma, inputs, 0.0)
     assert _relative(linear_recursion(phi, s0, gamma, inputs, C), reference) < TOL
+
+
+def test_lazy_trajectory_pickles(rng):
+    import pickle
+
+    rom = _rom(rng, 5, 1, 1, "newmark")
+    trajectory = rom.simulate(SIGNAL, 0.1, 10.0)
+    copy = pickle.loads(pickle.dumps(trajectory))
+    assert not copy.states_formed and np.array_equal(copy.y, trajectory.y)
+    assert np.array_equal(copy.qddot, trajectory.qddot)

@@ -38,6 +38,7 @@ still load, with the extra terms zero.
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import os
 import sys
@@ -351,7 +352,7 @@ class SecondOrderROM:
         step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
         outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
         y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
-        return ROMTrajectory(t=t, u=u, y=y, states=lambda: rom_evaluate(step, s0, u))
+        return ROMTrajectory(t=t, u=u, y=y, states=functools.partial(rom_evaluate, step, s0, u))  # picklable
 
     def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact zero-order-hold step of the reduced ODE (``integrator="exact"``) as one linear map.
