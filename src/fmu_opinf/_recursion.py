@@ -1,20 +1,30 @@
-"""Fast evaluation of the linear recursion ``s_{i+1} = Phi s_i + Gamma u_i`` (a ROM's time stepping).
+"""Fast evaluation of the linear recursion ``s_{i+1} = Phi s_i + Gamma u_i + c`` (a ROM's time stepping).
 
 A Python loop of ``k`` matrix-vector products costs ``k`` interpreter round trips (about 14 us each at
 ``3r = 105``), far more than the arithmetic.  Here the steps are grouped in blocks of ``L``:
 
-* block starts ``s_{bL}``: ``s_{(b+1)L} = Phi^L s_{bL} + sum_j Phi^(L-1-j) Gamma u_{bL+j}`` -- one short loop over
-  ``k / L`` blocks (the input sums of all blocks are one matrix product);
-* the states inside every block at once: ``C s_{bL+l} = C Phi^l s_{bL} + sum_{j<l} C Phi^(l-1-j) Gamma u_{bL+j}``
-  for ``l = 1..L`` -- one matrix product ``[s_{bL}, u_{bL..bL+L-1}] @ W`` over all blocks, with ``W`` made of the
-  powers ``C Phi^l`` and the Markov parameters ``C Phi^d Gamma`` (``d < L``).
+* block starts ``s_{bL}``: ``s_{(b+1)L} = Phi^L s_{bL} + sum_j Phi^(L-1-j) (Gamma u_{bL+j} + c)`` -- one short
+  loop over ``k / L`` blocks (the input sums of all blocks are one matrix product);
+* the states inside every block at once: ``C s_{bL+l} = C Phi^l s_{bL} + sum_{j<l} C Phi^(l-1-j) (Gamma u_{bL+j}
+  + c)`` for ``l = 1..L`` -- one matrix product ``[s_{bL}, u_{bL..bL+L-1}, 1] @ W`` over all blocks, with ``W``
+  made of the powers ``C Phi^l``, the Markov parameters ``C Phi^d Gamma`` (``d < L``, a block-Toeplitz pattern)
+  and the sums of ``C Phi^d c``.
 
-No eigendecomposition is involved: the powers of ``Phi`` are formed by repeated multiplication in the original
+No eigendecomposition is involved: the powers of ``Phi`` are formed by multiplication in the original
 coordinates, so the result equals the step-by-step loop up to rounding for any ``Phi`` (defective, non-normal,
 with zero or unstable eigenvalues alike).  With ``C`` (e.g. the output rows ``[Cp, Cv, 0]``) only ``C s_i`` is
-formed, never the states, which is what makes an output-only evaluation cost ``O((p + q L) k)`` instead of
-``O(n^2 k)``.  The block length is chosen from a cost model (arithmetic of the block product against the
-per-block interpreter overhead).
+formed, never the states, which is what makes an output-only evaluation cost ``O((n + q L) p k)`` instead of
+``O(n^2 k)``.  Components of ``s`` that ``Phi`` never reads (zero columns, e.g. ``q''`` of the exact step map)
+are left out of the block starts.  The block length is chosen from a cost model (arithmetic of the block product
+and of the set-up against the per-block interpreter overhead).
+
+The real modal form (:func:`modal_form`) would make each block start ``O(n)`` instead of ``O(n^2)``, but its
+set-up (eigendecomposition, refinement in extended precision, the reproduction check) takes about 100 ms at
+``r = 35``, ten times a whole output evaluation of 1e5 steps here, whose block starts take about 2 ms; it serves
+the exported C kernel, which steps one step at a time.
+
+:class:`RomStep` writes both time discretizations of a ROM in this form (Newmark reads the inputs of two grid
+points, which a shift of the state by the newest input's share removes), and :func:`rom_evaluate` runs it.
 """
 
 from __future__ import annotations
@@ -24,17 +34,22 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-__all__ = ["linear_recursion", "block_length", "rom_step_map", "modal_form", "ModalForm"]
+__all__ = ["linear_recursion", "block_length", "rom_step_map", "RomStep", "rom_step", "rom_evaluate",
+           "modal_form", "ModalForm"]
 
 #: Interpreter cost of one block-start step, in multiply-adds of the block product (about 2.8 us at ~16 GMAC/s,
 #: measured at n = 105).
 _LOOP_COST = 45_000
 #: Bounds of the block length.
-_MIN_BLOCK, _MAX_BLOCK = 4, 128
+_MIN_BLOCK, _MAX_BLOCK = 4, 256
 
 
 def block_length(n: int, q: int, rows: int, k: int) -> int:
-    """Block length minimizing ``k rows (n + q L) + (k / L) * overhead`` (arithmetic plus interpreter cost).
+    """Block length minimizing the modelled cost of :func:`linear_recursion`.
+
+    Cost in multiply-adds for block length ``L``: the block product ``k rows (n + q L)``, the block starts
+    ``(k / L) (n^2 + overhead)`` (one matrix-vector product and one interpreter round trip per block) and the
+    set-up ``L n^2 (rows + q)`` (powers and Markov parameters).
 
     Parameters
     ----------
@@ -44,33 +59,45 @@ def block_length(n: int, q: int, rows: int, k: int) -> int:
     Returns
     -------
     int
-        Between 4 and 128, never more than ``k``.
+        Between 4 and 256, never more than ``k`` (at least 1).
     """
-    ideal = np.sqrt((_LOOP_COST + n * n) / max(rows * max(q, 1), 1))
-    return int(max(1, min(k, max(_MIN_BLOCK, min(_MAX_BLOCK, round(ideal))))))
+    if k <= _MIN_BLOCK:
+        return max(1, int(k))
+    L = np.arange(_MIN_BLOCK, min(_MAX_BLOCK, k) + 1, dtype=float)
+    cost = (k * rows * (n + max(q, 1) * L) + np.ceil(k / L) * (n * n + _LOOP_COST)
+            + L * n * n * (rows + max(q, 1)))
+    return int(L[np.argmin(cost)])
 
 
-def _powers(phi: np.ndarray, count: int) -> list[np.ndarray]:
-    """``[I, Phi, Phi^2, ..., Phi^count]`` by repeated multiplication."""
-    out = [np.eye(phi.shape[0])]
-    for _ in range(count):
-        out.append(phi @ out[-1])
+def _output_powers(phi: np.ndarray, C: np.ndarray, count: int) -> np.ndarray:
+    """``(count + 1, rows, n)``: ``C, C Phi, ..., C Phi^count`` by repeated multiplication."""
+    out = np.empty((count + 1,) + C.shape)
+    out[0] = C
+    for l in range(count):
+        np.matmul(out[l], phi, out=out[l + 1])
     return out
 
 
-def _block_matrix(powers: list[np.ndarray], gamma: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """``W ((n + q L), L rows)``: column block ``l - 1`` maps ``[s_{bL}; u_{bL}; ...; u_{bL+L-1}]`` to ``C s_{bL+l}``."""
-    n, q = gamma.shape
-    L = len(powers) - 1
-    rows = C.shape[0]
-    markov = [C @ (P @ gamma) for P in powers[:L]]          # C Phi^d Gamma, d = 0..L-1
-    W = np.zeros((n + q * L, L * rows))
-    for l in range(1, L + 1):
-        cols = slice((l - 1) * rows, l * rows)
-        W[:n, cols] = (C @ powers[l]).T
-        for j in range(l):
-            W[n + j * q:n + (j + 1) * q, cols] = markov[l - 1 - j].T
-    return W
+def _input_powers(phi: np.ndarray, gamma: np.ndarray, count: int) -> np.ndarray:
+    """``(count, n, q)``: ``Gamma, Phi Gamma, ..., Phi^(count-1) Gamma`` by repeated multiplication."""
+    out = np.empty((count,) + gamma.shape)
+    if count:
+        out[0] = gamma
+    for d in range(count - 1):
+        np.matmul(phi, out[d], out=out[d + 1])
+    return out
+
+
+def _toeplitz_inputs(markov: np.ndarray) -> np.ndarray:
+    """``(q L, rows L)``: row ``(j, a)``, column ``(l - 1, c)`` holds ``markov[l - 1 - j][c, a]`` (zero if ``j >= l``).
+
+    ``markov`` is ``(L, rows, q)``: ``C Phi^d Gamma`` for ``d = 0..L-1``.
+    """
+    L, rows, q = markov.shape
+    padded = np.concatenate([markov, np.zeros((1, rows, q))])
+    lag = np.arange(L)[None, :] - np.arange(L)[:, None]          # (j, l - 1) -> l - 1 - j
+    lag[lag < 0] = L                                              # the zero block
+    return padded[lag].transpose(0, 3, 1, 2).reshape(L * q, L * rows)
 
 
 def _block_starts(phi_L: np.ndarray, s0: np.ndarray, forcing: np.ndarray) -> np.ndarray:
@@ -86,8 +113,9 @@ def _block_starts(phi_L: np.ndarray, s0: np.ndarray, forcing: np.ndarray) -> np.
 
 
 def linear_recursion(phi: np.ndarray, s0: np.ndarray, gamma: np.ndarray, inputs: np.ndarray,
-                     C: np.ndarray | None = None, block: int | None = None) -> np.ndarray:
-    """States (or ``C`` times the states) of ``s_{i+1} = Phi s_i + Gamma u_i``, ``i = 0..k-1``.
+                     C: np.ndarray | None = None, block: int | None = None, *,
+                     offset: np.ndarray | None = None) -> np.ndarray:
+    """States (or ``C`` times the states) of ``s_{i+1} = Phi s_i + Gamma u_i + c``, ``i = 0..k-1``.
 
     Equal to the step-by-step loop up to rounding (no change of coordinates).
 
@@ -105,6 +133,8 @@ def linear_recursion(phi: np.ndarray, s0: np.ndarray, gamma: np.ndarray, inputs:
         Evaluate only ``C s_i`` (e.g. outputs); default: the states themselves.
     block : int, optional
         Block length (default: :func:`block_length`).
+    offset : (n,) ndarray, optional
+        Constant forcing ``c`` added in every step (default zero).
 
     Returns
     -------
@@ -115,28 +145,41 @@ def linear_recursion(phi: np.ndarray, s0: np.ndarray, gamma: np.ndarray, inputs:
     n = phi.shape[0]
     s0 = np.asarray(s0, dtype=float).reshape(n)
     inputs = np.asarray(inputs, dtype=float)
-    gamma = np.asarray(gamma, dtype=float).reshape(n, inputs.shape[0])
     q, k = inputs.shape
+    gamma = np.asarray(gamma, dtype=float).reshape(n, q)
+    offset = np.zeros(n) if offset is None else np.asarray(offset, dtype=float).reshape(n)
+    if C is not None and np.atleast_2d(C).shape[0] > n:         # more rows than states: form the states
+        states = linear_recursion(phi, s0, gamma, inputs, None, block, offset=offset)
+        return (states.T @ np.atleast_2d(np.asarray(C, dtype=float)).T).T
     C = np.eye(n) if C is None else np.atleast_2d(np.asarray(C, dtype=float))
     rows = C.shape[0]
-    L = block_length(n, q, rows, k) if block is None else int(max(1, min(block, max(k, 1))))
+    live = np.flatnonzero(np.any(phi != 0.0, axis=0))          # the components Phi reads
+    L = block_length(live.size, q, rows, k) if block is None else int(max(1, min(block, max(k, 1))))
     nb = -(-k // L)
     out = np.empty((1 + nb * L, rows))
     out[0] = C @ s0
     if k == 0:
         return out[:1].T
-    # block inputs: row b holds u_{bL}, ..., u_{bL+L-1} (zero-padded after u_{k-1})
+    ext = np.hstack([gamma, offset[:, None]])                   # the offset is one more input, held at 1
+    out_powers = _output_powers(phi, C, L)                      # C Phi^l, l = 0..L
+    in_powers = _input_powers(phi, ext, L)                      # Phi^d [Gamma, c], d = 0..L-1
+    markov = np.matmul(out_powers[:L], ext)                     # C Phi^d [Gamma, c]
+    # packed row b: [s_{bL} (live part), u_{bL}, ..., u_{bL+L-1} (zero-padded after u_{k-1}), 1]
+    nl = live.size
     held = np.zeros((nb * L, q))
     held[:k] = inputs.T
-    packed = np.empty((nb, n + q * L))
-    packed[:, n:] = held.reshape(nb, q * L)
-    powers = _powers(phi, L)
-    drive = np.hstack([powers[L - 1 - j] @ gamma for j in range(L)]) if q else np.zeros((n, 0))
-    packed[:, :n] = _block_starts(powers[L], s0, packed[:, n:] @ drive.T)
-    W = _block_matrix(powers, gamma, C)
-    used = np.flatnonzero(np.any(W != 0.0, axis=1))        # e.g. the q'' columns of an exact step map are zero
-    if used.size < W.shape[0]:
-        packed, W = packed[:, used], W[used]
+    held = held.reshape(nb, L * q)
+    packed = np.empty((nb, nl + q * L + 1))
+    packed[:, nl:nl + q * L] = held
+    packed[:, -1] = 1.0
+    drive = in_powers[::-1][:, live].transpose(1, 0, 2)        # (nl, L, [q + 1]): Phi^(L-1-j) [Gamma, c]
+    forcing = held @ drive[:, :, :q].reshape(nl, L * q).T + drive[:, :, q].sum(axis=1)
+    phi_live = phi[np.ix_(live, live)]
+    packed[:, :nl] = _block_starts(np.linalg.matrix_power(phi_live, L), s0[live], forcing)
+    W = np.empty((nl + q * L + 1, L * rows))
+    W[:nl] = out_powers[1:, :, live].transpose(2, 0, 1).reshape(nl, L * rows)
+    W[nl:nl + q * L] = _toeplitz_inputs(markov[:, :, :q])
+    W[-1] = np.cumsum(markov[:, :, q], axis=0).reshape(L * rows)
     np.matmul(packed, W, out=out[1:].reshape(nb, L * rows))
     return out[:k + 1].T
 
@@ -168,6 +211,88 @@ def rom_step_map(rom, dt: float, forced: np.ndarray) -> tuple[np.ndarray, np.nda
     B = np.hstack([rom.Br, rom.fr[:, None]])
     phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, dt)
     return phi, np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+
+
+@dataclass
+class RomStep:
+    """A ROM's time step ``s_{i+1} = Phi s_i + Gamma_prev u_i + Gamma_next u_{i+1} + c``, ``s = [q; q'; q'']``.
+
+    ``u_i`` is the input in effect at grid time ``t_i`` (:func:`fmu_opinf.newmark.applied_inputs`); ``c`` collects
+    the constant force ``fr``.  The exact step reads ``u_{i+1}`` only (the input held over the step), Newmark
+    both (its acceleration update for the new input).
+
+    Attributes
+    ----------
+    phi : (n, n) ndarray
+    gamma_prev, gamma_next : (n, m) ndarray
+    offset : (n,) ndarray
+    """
+
+    phi: np.ndarray
+    gamma_prev: np.ndarray
+    gamma_next: np.ndarray
+    offset: np.ndarray
+
+
+def rom_step(rom, dt: float) -> RomStep:
+    """The step of ``rom`` (its :attr:`~fmu_opinf.rom.SecondOrderROM.integrator`) with step ``dt``.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM
+    dt : float
+
+    Returns
+    -------
+    RomStep
+        The matrices of :func:`rom_step_map`, with the constant-force column split off.
+    """
+    from .newmark import step_matrices
+
+    m = rom.m
+    if rom.integrator == "exact":
+        phi, gamma = rom.step_map(dt)
+        return RomStep(phi, np.zeros_like(gamma[:, :m]), gamma[:, :m], gamma[:, m].copy())
+    B = np.hstack([rom.Br, rom.fr[:, None]])
+    phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, dt)
+    return RomStep(phi, gamma_old[:, :m], gamma_new[:, :m], gamma_new[:, m] + gamma_old[:, m])
+
+
+def rom_evaluate(step: RomStep, s0: np.ndarray, inputs: np.ndarray, C: np.ndarray | None = None) -> np.ndarray:
+    """``C s_i`` (the states without ``C``) at the grid times, by :func:`linear_recursion`.
+
+    A step reading both ``u_i`` and ``u_{i+1}`` becomes one reading ``u_i`` only in the shifted state
+    ``z_i = s_i - Gamma_next u_i``: ``z_{i+1} = Phi z_i + (Phi Gamma_next + Gamma_prev) u_i + c``, and
+    ``C s_i = C z_i + C Gamma_next u_i`` (an exact identity; the values differ from the unshifted loop by rounding).
+
+    Parameters
+    ----------
+    step : RomStep
+    s0 : (n,) ndarray
+        ``s_0``.
+    inputs : (m, k + 1) ndarray
+        ``u_0 .. u_k`` (inputs in effect at the grid times).
+    C : (rows, n) ndarray, optional
+        Rows to evaluate (e.g. ``[Cp, Cv, 0]`` for outputs); default: the states.
+
+    Returns
+    -------
+    (rows, k + 1) ndarray
+    """
+    inputs = np.asarray(inputs, dtype=float)
+    s0 = np.asarray(s0, dtype=float)
+    if not np.any(step.gamma_prev):
+        return linear_recursion(step.phi, s0, step.gamma_next, inputs[:, 1:], C, offset=step.offset)
+    if not np.any(step.gamma_next):
+        return linear_recursion(step.phi, s0, step.gamma_prev, inputs[:, :-1], C, offset=step.offset)
+    gamma = step.phi @ step.gamma_next + step.gamma_prev
+    z0 = s0 - step.gamma_next @ inputs[:, 0]
+    lead = step.gamma_next if C is None else np.atleast_2d(C) @ step.gamma_next
+    out = linear_recursion(step.phi, z0, gamma, inputs[:, :-1], C, offset=step.offset)
+    rowwise, chunk = out.T, 8192                                 # out is Fortran-ordered: add row-major, in chunks
+    for i in range(0, rowwise.shape[0], chunk):
+        rowwise[i:i + chunk] += inputs[:, i:i + chunk].T @ lead.T
+    return out
 
 
 @dataclass

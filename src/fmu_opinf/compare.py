@@ -106,8 +106,9 @@ class Comparison:
     output_units : list of str, optional
         Unit of each output where the FMU declares one ("" where not), for the figure labels.
     timed : dict
-        What each time measured (``fom``, ``rom``: one sentence each) and whether the speed-up compares like
-        with like (``like_with_like``: both sides FMUs stepped the same way).
+        What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
+        the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:
+        both sides FMUs, stepped the same way in the same kind of process) and the ``clock``.
     """
 
     t: np.ndarray
@@ -333,14 +334,17 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options)
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
-    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True)
+    # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
+    isolate = bool(source_options.get("isolate", True))
+    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True,
+                                                **({"isolate": isolate} if isinstance(rom_side, Path) else {}))
     y_rom = np.atleast_2d(y_rom)[rows]
     return Comparison(
         t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
         output_units=_declared_units(source, list(fom_outputs)),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
-        timed=_timed(source, rom_side),
+        timed=_timed(source, rom_side, isolate),
     )
 
 
@@ -399,22 +403,29 @@ def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool)
         return [rom_names.index(name) for name in fom_names]
     raise DimensionError(f"the source has {len(fom_names)} outputs but the ROM has {len(rom_names)}, and their "
                          "names do not match; compare a ROM with the model it was learned from")
-def _timed_description(side: Any) -> str:
+
+
+def _timed_description(side: Any, isolate: bool = True) -> str:
     """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up)."""
     from .rom import SecondOrderROM
 
     if isinstance(side, SecondOrderROM) or Path(str(side)).suffix.lower() in (".h5", ".hdf5"):
-        return ("ROM simulated in Python (SecondOrderROM.simulate: the whole run at once, step map in blocks "
-                "of steps, states and outputs)")
+        return ("ROM simulated in Python, in this process (SecondOrderROM.simulate, outputs only: the step map "
+                "applied in blocks of steps as matrix products, the reduced states not formed; input sampling "
+                "and step-map set-up included)")
     if str(side).startswith("builtin:"):
         return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
-    return f"FMU {Path(str(side)).name} stepped through FMI from Python (one fmi2DoStep per step, outputs read)"
+    where = "in a separate process, its stepping loop alone" if isolate else "in this process"
+    return (f"FMU {Path(str(side)).name} stepped through FMI from Python {where} (per step: input set when "
+            "changed, one step, outputs read)")
 
 
-def _timed(source: Any, rom_side: Any) -> dict[str, Any]:
+def _timed(source: Any, rom_side: Any, isolate: bool = True) -> dict[str, Any]:
+    """What each side's time measured; like with like when both are FMUs (then driven the same way)."""
     fmu = [not str(side).startswith("builtin:") and Path(str(side)).suffix.lower() == ".fmu"
            for side in (source, rom_side)]
-    return {"fom": _timed_description(source), "rom": _timed_description(rom_side), "like_with_like": all(fmu)}
+    return {"fom": _timed_description(source, isolate), "rom": _timed_description(rom_side, isolate),
+            "like_with_like": all(fmu), "clock": "wall time (time.perf_counter)"}
 
 
 def _rom_side_info(rom_side: Any) -> dict[str, Any]:

@@ -38,11 +38,11 @@ still load, with the extra terms zero.
 from __future__ import annotations
 
 import datetime
+import functools
 import json
 import os
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -75,17 +75,63 @@ TERMS = ("fr", "Dur", "y0")
 INTEGRATORS = ("newmark", "exact")
 
 
-@dataclass
 class ROMTrajectory:
     """A ROM simulation: ``t (k,)``, inputs in effect ``u (m, k)``, outputs ``y (p, k)``, reduced states
-    ``q, qdot, qddot (r, k)`` (same timing convention as :class:`fmu_opinf.newmark.Trajectory`)."""
+    ``q, qdot, qddot (r, k)`` (same timing convention as :class:`fmu_opinf.newmark.Trajectory`).
 
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    q: np.ndarray
-    qdot: np.ndarray
-    qddot: np.ndarray
+    The states may be given, or formed on first access of ``q``, ``qdot`` or ``qddot`` by ``states`` (a
+    function returning the stacked ``[q; qdot; qddot] (3r, k)``, called at most once): :meth:`SecondOrderROM.simulate`
+    computes the outputs alone, which costs a fraction of forming the states.
+
+    Parameters
+    ----------
+    t, u, y : ndarray
+    q, qdot, qddot : (r, k) ndarray, optional
+        The states; when left out, ``states`` forms them.
+    states : callable, optional
+        ``states() -> (3r, k) ndarray``.
+    """
+
+    def __init__(self, t: np.ndarray, u: np.ndarray, y: np.ndarray, q: np.ndarray | None = None,
+                 qdot: np.ndarray | None = None, qddot: np.ndarray | None = None, *,
+                 states: Callable[[], np.ndarray] | None = None) -> None:
+        if (q is None or qdot is None or qddot is None) and states is None:
+            raise DimensionError("ROMTrajectory needs q, qdot and qddot, or states to form them")
+        self.t, self.u, self.y = t, u, y
+        self._parts = None if q is None or qdot is None or qddot is None else (q, qdot, qddot)
+        self._states = states
+
+    def _part(self, i: int) -> np.ndarray:
+        if self._parts is None:
+            stacked = self._states()
+            r = stacked.shape[0] // 3
+            self._parts = (stacked[:r], stacked[r:2 * r], stacked[2 * r:])
+            self._states = None                      # the step map and inputs it holds are no longer needed
+        return self._parts[i]
+
+    @property
+    def q(self) -> np.ndarray:
+        """Reduced positions ``(r, k)``."""
+        return self._part(0)
+
+    @property
+    def qdot(self) -> np.ndarray:
+        """Reduced velocities ``(r, k)``."""
+        return self._part(1)
+
+    @property
+    def qddot(self) -> np.ndarray:
+        """Reduced accelerations ``(r, k)``."""
+        return self._part(2)
+
+    @property
+    def states_formed(self) -> bool:
+        """Whether ``q, qdot, qddot`` exist yet (they are formed on first access)."""
+        return self._parts is not None
+
+    def __repr__(self) -> str:
+        formed = "formed" if self.states_formed else "formed on first access"
+        return f"ROMTrajectory(steps={self.t.size - 1}, m={self.u.shape[0]}, p={self.y.shape[0]}, states {formed})"
 
 
 class SecondOrderROM:
@@ -284,9 +330,11 @@ class SecondOrderROM:
         Returns
         -------
         ROMTrajectory
-            ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.
+            ``t (k,)``, ``u (m, k)``, ``y (p, k)``, ``q, qdot, qddot (r, k)``.  Only the outputs are computed
+            here; the states are formed on first access of ``q``, ``qdot`` or ``qddot`` (the same values as if
+            formed here; at r = 35 they cost about ten times the outputs, ``benchmarks/bench_rom.py``).
         """
-        from ._recursion import linear_recursion, rom_step_map
+        from ._recursion import rom_evaluate, rom_step
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
@@ -297,16 +345,14 @@ class SecondOrderROM:
         u = applied_inputs(signal, t)
         q0 = self.q0 if q0 is None else _vector(q0, self.r)
         qdot0 = self.qdot0 if qdot0 is None else _vector(qdot0, self.r)
-        # the constant force is one more input column, held at 1
-        B = np.hstack([self.Br, self.fr[:, None]])
-        forced = np.vstack([u, np.ones((1, t.size))])
-        qddot0 = scipy.linalg.solve(self.Mr, B @ forced[:, 0] - self.Dr @ qdot0 - self.Kr @ q0, assume_a="sym")
-        # the step is one linear map s+ = phi s + gamma v, evaluated in blocks of steps (fmu_opinf._recursion)
-        phi, gamma, drive = rom_step_map(self, dt, forced)
-        states = linear_recursion(phi, np.concatenate([q0, qdot0, qddot0]), gamma, drive)
-        q, qdot, qddot = states[:self.r], states[self.r:2 * self.r], states[2 * self.r:]
-        y = self.Cpr @ q + self.Cvr @ qdot + self.Dur @ u + self.y0[:, None]
-        return ROMTrajectory(t=t, u=u, y=y, q=q, qdot=qdot, qddot=qddot)
+        qddot0 = scipy.linalg.solve(self.Mr, self.Br @ u[:, 0] + self.fr - self.Dr @ qdot0 - self.Kr @ q0,
+                                    assume_a="sym")
+        # the step is one linear map, evaluated in blocks of steps (fmu_opinf._recursion); the outputs alone
+        # are far cheaper than the states, which are formed only if asked for
+        step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
+        outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
+        y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
+        return ROMTrajectory(t=t, u=u, y=y, states=functools.partial(rom_evaluate, step, s0, u))  # picklable
 
     def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact zero-order-hold step of the reduced ODE (``integrator="exact"``) as one linear map.
