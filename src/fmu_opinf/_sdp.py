@@ -63,7 +63,9 @@ class IPMResult:
     w : ndarray
         Solution (last iterate).
     status : str
-        ``"optimal"`` (gap and residuals below ``tol``) or ``"max_iterations"`` / ``"failed"``.
+        ``"optimal"`` (gap and residuals below ``tol``), ``"max_iterations"``, ``"stalled"`` (step length below
+        1e-10) or ``"singular"`` (Newton matrix not positive definite, typical close to the optimum); ``w`` is then
+        the last interior iterate, which the caller certifies.
     iterations : int
     seconds : float
         CPU seconds (``time.process_time``).
@@ -103,14 +105,16 @@ def _kron_block(Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """Matrix of ``v -> mat^*(sym(Y mat(v) Z))`` for symmetric ``Y, Z`` (the symmetric Kronecker product).
 
     Entry ``(pq, st)`` is ``<E_pq, sym(Y E_st Z)>`` with ``E_pq = e_p e_q^T + e_q e_p^T`` (``e_p e_p^T`` on the
-    diagonal); the four placements are gathered directly (``O(k^4)``, no Kronecker product is formed).
+    diagonal).  Expanding the placements, the eight products reduce to the four entries
+    ``F[pq, st] + F[pq, ts] + F[qp, st] + F[qp, ts]`` of ``F = kron(Y, Z)`` (halved on diagonal pairs).
     """
-    p, q = (idx[:, None] for idx in np.triu_indices(Y.shape[0]))
-    s, t = p.T, q.T
-    block = (Y[p, s] * Z[t, q] + Y[p, t] * Z[s, q] + Y[q, s] * Z[t, p] + Y[q, t] * Z[s, p]
-             + Z[p, s] * Y[t, q] + Z[p, t] * Y[s, q] + Z[q, s] * Y[t, p] + Z[q, t] * Y[s, p]) * 0.5
-    diag = np.where(p == q, 0.5, 1.0)
-    return block * diag * diag.T
+    k = Y.shape[0]
+    p, q = np.triu_indices(k)
+    F = np.kron(Y, Z)
+    rows = F[p * k + q] + F[q * k + p]
+    block = rows[:, p * k + q] + rows[:, q * k + p]
+    half = np.where(p == q, 0.5, 1.0)
+    return block * half[:, None] * half[None, :]
 
 
 def _max_step(X: np.ndarray, dX: np.ndarray) -> float:
@@ -151,8 +155,9 @@ def solve_ipm(
         Constant added to the objective (the full problem's value when ``S, s`` come from an elimination); the
         stopping test is relative to the full objective.
     tol : float, default=1e-9
-        Stop when the complementarity ``sum <X_j, Z_j>`` is below ``tol`` times the objective (floor
-        ``1e-12 ||S||``) and the dual residual below ``tol (1 + ||s||)`` (``S`` scaled to norm 1).
+        Stop when the complementarity ``sum <X_j, Z_j>`` and the dual residual times ``1 + ||w||`` (what it
+        can change the objective by) are below ``tol`` times the objective (floor ``1e-12`` with ``S`` scaled
+        to ``max(diag(S)) = 1``).
     max_iterations : int, default=100
 
     Returns
@@ -162,8 +167,8 @@ def solve_ipm(
     clock = time.process_time()
     n = S.shape[0]
     S = 0.5 * (S + S.T)
-    scale_s = max(float(np.linalg.norm(S, 2)), np.finfo(float).tiny)
-    S, s = S / scale_s, s / scale_s  # same minimizer; the residuals below are relative to ||S|| = 1
+    scale_s = max(float(np.max(np.diag(S), initial=0.0)), np.finfo(float).tiny)
+    S, s = S / scale_s, s / scale_s  # same minimizer; residuals relative to max diag(S) = 1 (~ ||S||, PSD S)
     w = _initial_point(n, cones, a, c)
     Z = [np.eye(cone.k) for cone in cones]
     y = 0.0
@@ -178,15 +183,19 @@ def solve_ipm(
             dual[cone.start:cone.start + cone.k * (cone.k + 1) // 2] -= _adjoint(Zj)
         complementarity = sum(float(np.sum(Xj * Zj)) for Xj, Zj in zip(X, Z))
         objective = float(w @ S @ w + 2.0 * s @ w) + constant / scale_s
-        gap = complementarity / max(abs(objective), 1e-12)
-        dual_norm = float(np.linalg.norm(dual)) / (1.0 + float(np.linalg.norm(s)))
+        floor = max(abs(objective), 1e-12)
+        gap = complementarity / floor
+        dual_norm = float(np.linalg.norm(dual)) * (1.0 + float(np.linalg.norm(w))) / floor
         if gap <= tol and dual_norm <= tol:
             status = "optimal"
             break
         try:
             step = _newton(S, w, X, Z, cones, a, c, dual, complementarity / max(m, 1))
-        except np.linalg.LinAlgError:
-            status = "failed"
+        except np.linalg.LinAlgError:  # numerically singular near the end: the caller certifies the iterate
+            status = "singular"
+            break
+        if step[0] < 1e-10:
+            status = "stalled"
             break
         w, Z, y = w + step[0] * step[1], [Zj + step[0] * dZ for Zj, dZ in zip(Z, step[2])], y + step[0] * step[3]
     objective = float(w @ S @ w + 2.0 * s @ w) * scale_s + constant
@@ -217,7 +226,7 @@ def _newton(S, w, X, Z, cones, a, c, dual, mu):
     for cone, Xi, Zj in zip(cones, Xinv, Z):
         sl = slice(cone.start, cone.start + cone.k * (cone.k + 1) // 2)
         N[sl, sl] += _kron_block(Xi, Zj)
-    factor = scipy.linalg.cho_factor(N, check_finite=False)
+    factor = _regularized_cholesky(N)
     primal = (float(a @ w) - c) if a is not None else 0.0
 
     def direction(target: float, second: list | None) -> tuple:
@@ -258,6 +267,17 @@ def _newton(S, w, X, Z, cones, a, c, dual, mu):
     dw, dX, dZ, dy = direction(sigma * mu, second)
     alpha = min(1.0, 0.99 * step_length(dX, dZ))
     return alpha, dw, dZ, dy
+
+
+def _regularized_cholesky(N: np.ndarray) -> tuple:
+    """Cholesky factor of the Newton matrix; when round-off in ``S`` (a Schur complement, ``||S|| = 1``)
+    makes it indefinite along directions where the barrier term is tiny, shift by 1e-14 .. 1e-8."""
+    for shift in (0.0, 1e-14, 1e-12, 1e-10, 1e-8):
+        try:
+            return scipy.linalg.cho_factor(N + shift * np.eye(N.shape[0]) if shift else N, check_finite=False)
+        except np.linalg.LinAlgError:
+            continue
+    raise np.linalg.LinAlgError("Newton matrix not positive definite")
 
 
 def _sym(a: np.ndarray) -> np.ndarray:
