@@ -30,7 +30,8 @@ Certificate
 primal blocks.  For any feasible ``T'``,
 ``f(T') >= f(T) - sum_b <Z_b, T_b - L_b> + sum_b min(0, lambda_min(Z_b)) trace(T'_b - L_b)``; the reported gap
 is ``sum_b |<Z_b, T_b - L_b>| + max(0, -lambda_min(Z_b)) trace(T_b - L_b)`` (the bound with ``T'`` replaced
-by ``T``) relative to ``f`` (or to ``||G|| ||T||^2 * 1e-12`` when ``f`` is that small, e.g. exact data).
+by ``T``) relative to ``f``, or to ``1e-9 ||G|| ||T||^2`` when ``f`` is smaller (exact data, where ``f = 0``:
+the gap is then an absolute bound, ``f`` below ``1e-15 ||G|| ||T||^2`` at the certification level 1e-6).
 """
 
 from __future__ import annotations
@@ -324,6 +325,6 @@ def certificate(T: np.ndarray, G: np.ndarray, normalization: str, total: float) 
     primal_min = [float(np.linalg.eigvalsh(p)[0]) for p in primal]
     infeasibility = sum(max(0.0, -e) * max(float(np.trace(p)), 0.0) for e, p in zip(dual_min, primal))
     scale = float(np.linalg.norm(G, 2) * np.sum(T * T))
-    gap = (complementarity + infeasibility) / max(objective, 1e-12 * scale, np.finfo(float).tiny)
+    gap = (complementarity + infeasibility) / max(objective, 1e-9 * scale, np.finfo(float).tiny)
     return gap, {"objective": objective, "multiplier": multiplier, "dual_eig_min": dual_min,
                  "primal_eig_min": primal_min, "complementarity": complementarity}
