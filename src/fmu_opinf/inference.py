@@ -762,13 +762,18 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
     keep = (0, *_indefinite(trace_fit[:3], (1, 2)))
     eig_fit = _fit_mass_eigenvalue(H, r, tol, verbose, full=(method == "sdp"), keep=keep, sdp=sdp)
     residuals = {fit[3]["normalization"]: _acceleration_residual(R, m, fit[:3]) for fit in (trace_fit, eig_fit)}
-    chosen = min((trace_fit, eig_fit), key=lambda fit: residuals[fit[3]["normalization"]])
+    # differences below 1e-12 (of a relative residual) are round-off, e.g. both ~1e-15 on exact data: keep trace
+    chosen = eig_fit if residuals["mass-eigenvalue"] < residuals["trace"] - _RESIDUAL_TIE else trace_fit
     info = dict(chosen[3])
     for key in ("setup_seconds", "solve_seconds", "iterations"):
         info[key] = trace_fit[3].get(key, 0) + eig_fit[3].get(key, 0)
     info["acceleration_residual"] = residuals
     info["trace_mass_ratio"] = _mass_ratio(trace_fit[0])
     return (*chosen[:3], info)
+
+
+#: Acceleration residuals closer than this are a tie (round-off), resolved in favour of the trace normalization.
+_RESIDUAL_TIE = 1e-12
 
 
 def _acceleration_residual(R: np.ndarray, m: int, mats: tuple) -> float:
