@@ -19,8 +19,8 @@ How the problem is made small and well conditioned
    ``||Theta R^T||^2 = ||Br R11^T - Ts R12^T||^2 + ||Ts R22^T||^2`` with ``Ts = [Mr, Dr, Kr]``; the first term is
    zeroed by ``Br = Ts R12^T R11^{-T}`` whatever ``Ts`` is, so the SDP only involves ``Ts`` and ``R22``.
 4. *Quadratic objective on the free entries.*  ``||Ts R22^T||^2 = sum_i t_i^T G t_i`` (``t_i`` row ``i`` of
-   ``Ts``, ``G = R22^T R22``) is handed to Clarabel as a sparse quadratic form in the ``3 r (r+1) / 2`` upper
-   triangular entries, with three PSD cones.  No auxiliary residual variables are created.
+   ``Ts``, ``G = R22^T R22``) is handed to the SDP solver (*Solvers* below) as a quadratic form in the
+   ``3 r (r+1) / 2`` upper triangular entries, with three PSD cones.  No auxiliary residual variables are created.
 
 Normalization
 -------------
@@ -37,7 +37,7 @@ exploits that: ``Mr`` comes out nearly singular (``lambda_min / lambda_max`` ~ 1
 ``"mass-eigenvalue"`` -- ``Mr >= I`` in the block-scaled units: the paper's strict definiteness ``Mr > 0`` made
 non-strict (any ``eps`` in ``Mr >= eps I`` only sets the common scale).  Feasible for the true operators, exact
 for consistent data (tested); the optimum minimizes ``||Theta Z||^2 / lambda_min(Mr)^2``, so a collapsing mass is
-never cheap.  It needs the mass cone in every solve (Clarabel, not a linear solve).
+never cheap.  It needs the mass cone in every solve (an SDP, not a linear solve).
 
 ``"auto"`` (default) solves both and keeps the one whose *acceleration residual*
 ``||Xr'' + Mr^-1 (Dr Xr' + Kr Xr - Br U)||_F / ||Xr''||_F`` is smaller.  That is the residual of the explicit
@@ -158,7 +158,7 @@ model's spectrum (:func:`pole_match`, reported by ``benchmarks/bench_accuracy.py
 
 Solver status and threads
 -------------------------
-Clarabel reports ``AlmostSolved`` (cvxpy ``optimal_inaccurate``) on some of these problems at the default
+On the Clarabel path (*Solvers* below), Clarabel reports ``AlmostSolved`` (cvxpy ``optimal_inaccurate``) on some of these problems at the default
 tolerance 1e-9 although the solution does not change; such a solve is repeated once at 1e-8, where it is
 ``optimal``.  cvxpy's own warnings never reach the user: a remaining reduced-accuracy status or a singular mass
 becomes one :class:`~fmu_opinf.errors.FmuOpinfWarning` line and an entry of ``fit_info["warnings"]``.  The fit
@@ -169,16 +169,16 @@ symmetrization and clipping of round-off negative eigenvalues.
 
 Solution path
 -------------
-``method="sdp"`` always hands the full problem (three PSD cones) to Clarabel through cvxpy.  Each interior-point
-iteration then factors a KKT matrix whose Schur complement in the ``3 r (r+1) / 2`` unknowns is dense (about
-2.5 GFlop for r = 35), which is what limits the speed.
+``method="sdp"`` always solves the full problem (three PSD cones).  Each interior-point iteration then factors
+a KKT matrix whose Schur complement in the ``3 r (r+1) / 2`` unknowns is dense (about 2.5 GFlop for r = 35),
+which is what limits the speed.
 
 ``method="auto"`` (default) solves the same problem by *cone screening*, which is exact, not a heuristic:
 
 1. drop all cones: one equality-constrained least-squares solve;
 2. if exactly one of ``Mr, Dr, Kr`` comes out indefinite, keep its cone only, eliminate the other two blocks
-   (and the trace constraint, if the mass block is eliminated) by a Schur complement, and let Clarabel solve
-   this SDP in a third of the unknowns;
+   (and the trace constraint, if the mass block is eliminated) by a Schur complement, and solve this SDP in a
+   third of the unknowns;
 3. if a dropped block is still indefinite, or two blocks were indefinite to begin with, solve the full SDP.
 
 Each round is a relaxation of eq. (16) (fewer constraints, same objective), so its optimum is a lower bound;
@@ -186,6 +186,52 @@ once the dropped blocks are PSD it is feasible for eq. (16) and therefore optima
 records the path (``"lstsq-certified"``, ``"sdp-screened"``, ``"sdp"``) and ``fit_info["cones"]`` the blocks
 whose cones were kept.  Typical data: the anchored chain needs no cone (the least-squares operators are already
 SPD); the triple chain needs only the damping cone, an SDP with a third of the unknowns.
+
+Solvers
+-------
+``fit_operators(solver="auto")`` (default) solves the *screened* SDPs (one or two cones, whose eliminated
+quadratic form is dense) by the dense primal-dual interior-point method of :mod:`fmu_opinf._sdp` (HKM direction,
+Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix, then an exact solve on the identified
+face), and accepts its result only if an independent certificate holds: the dual matrices computed from the
+gradient of ``trace(T G T^T)`` at the returned ``[Mr, Dr, Kr]`` (minus the trace multiplier) are PSD and
+complementary, with a relative gap estimate ``fit_info["gap"] <= 1e-6`` (the accuracy goal of issue 16).
+Otherwise the same SDP goes to Clarabel (``fit_info["fallback"]`` records why).  The full three-cone SDP goes to
+Clarabel directly: its quadratic form is sparse (Kronecker structure), which Clarabel's sparse factorization
+exploits and a dense factorization does not (r = 50: 47 s dense against 29 s).  ``solver="ipm"`` uses the
+interior-point method everywhere without fallback (an uncertified result is status ``"not_certified"`` and a
+warning), ``solver="clarabel"`` is the former path.  ``fit_info["solver"]`` names the solver of the reported
+solve, ``fit_info["sdp_objective"]`` is the SDP's objective in its own units (comparable between solvers).
+
+Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement, CPU seconds on the shared
+2-core machine, one BLAS thread; Clarabel at tol 1e-10 as the reference; ``rel. diff`` is
+``(f_auto - f_clarabel) / f_clarabel``, negative = the certified result is lower):
+
+===  ================  ==========================  =============  ============  ==========
+r    normalization     default (solver, cones)     Clarabel path  rel. diff     gap
+===  ================  ==========================  =============  ============  ==========
+5    mass-eigenvalue   0.02 s (IPM, Mr)            0.81 s         -4.7e-9       6e-10
+10   mass-eigenvalue   0.05 s (IPM, Mr Dr)         0.05 s         -7.4e-10      4e-8
+20   trace             0.07 s (IPM, Dr)            0.10 s         -2.5e-8       9e-8
+20   mass-eigenvalue   0.15 s (IPM, Mr Dr)         0.37 s         -1.4e-9       3e-8
+20   auto (both)       0.22 s                      0.41 s         -1.4e-9
+35   trace             0.74 s (IPM, Dr)            0.87 s         -3.0e-8       5e-8
+35   mass-eigenvalue   2.07 s (IPM, Mr Dr)         5.49 s         -6.2e-9       4e-8
+35   auto (both)       2.32 s                      5.98 s         -6.2e-9
+50   trace             22.2 s (Clarabel, 3 cones)  25.4 s         4.4e-7
+===  ================  ==========================  =============  ============  ==========
+
+(r = 5 and 10 with the trace normalization need no cone: least squares, milliseconds.)  The certified optimum
+is never worse than Clarabel's at 1e-10 in these runs, and 2-3x faster at r = 20 .. 35, but the targets of issue
+16 (r = 35 in 0.3 s, r = 100 in 5 s) are *not* met: the dense Newton matrix has ``k (k+1) / 2`` rows per cone,
+so each iteration costs ``O(r^6)`` (r = 35, two cones: 40 ms per Cholesky, 17-30 iterations), and at r = 100
+the dense Hessian of the screening alone has ``(3 r (r+1) / 2)^2 = 2.3e8`` entries.  Measured and not kept:
+first-order methods on the matrix form (ADMM with ``X = Z`` splitting, ``X``-update one solve with ``2 G + rho I``,
+``Z``-update three eigendecompositions with simplex / clipping projections, adaptive ``rho``, over-relaxation):
+``G`` has a condition number of about 1e30 on the triple chain (``sigma(R22)`` from 7e2 to 2e-15 at r = 100) and
+ADMM was still 77 % above the optimum after 20,000 iterations at r = 10 (63 % at r = 20); an active-face method
+(exact solves on the faces ``T_b = V_b S_b V_b^T``, faces grown along the negative dual eigenvectors and shrunk
+where the face solution is indefinite) cycled, because a PSD face is reached by rotating ``V_b``, not by adding
+or dropping directions.
 """
 
 from __future__ import annotations
