@@ -14,9 +14,13 @@ Method
 Infeasible primal-dual path following with the HKM search direction and Mehrotra's predictor-corrector: each
 iteration forms the dense Newton matrix ``2 S + sum_j (Z_j (x)_s X_j^-1)`` (the symmetric Kronecker products are
 gathered entry by entry, ``O(k^4)``), factors it once by Cholesky (LAPACK, one BLAS thread) and solves it twice.
-Clarabel solves the same problem through cvxpy with a sparse LDL factorization that gains nothing from the
-sparsity here (the screened quadratic form is dense) and with cvxpy's compilation on top; the dense factorization
-is what makes this path faster (figures in ``benchmarks/bench_fit.py`` and the inference module docstring).
+Clarabel solves the same problem through cvxpy, with cvxpy's compilation on top and a sparse LDL factorization
+of a matrix that is dense here (the screened quadratic form); this path avoids both, which is where its speed-up
+comes from (figures in ``benchmarks/bench_fit.py`` and the inference module docstring).
+The iteration ends when the complementarity and the dual residual are below ``tol`` relative to the objective,
+or when the Newton matrix stops being numerically positive definite close to the optimum; :func:`polish` then
+solves the problem exactly on the face the iterate identifies, and the caller keeps whichever point has the
+better :func:`certificate`.
 
 Measured and not kept (triple chain, ``cond(G) ~ 1e30``): ADMM on ``[Mr, Dr, Kr]`` with PSD projections
 (r = 10: objective still 77 % above the optimum after 20,000 iterations) and an active-face method with exact
