@@ -188,6 +188,21 @@ def test_same_ipm_operators_with_one_and_two_blas_threads(rng):
         assert np.array_equal(getattr(one, name), getattr(two, name))
 
 
+def test_two_indefinite_blocks_are_screened_for_the_ipm_with_the_full_sdp_optimum():
+    rng = np.random.default_rng(5)  # the data of test_inference's two-indefinite-blocks test
+    r, k = 5, 300
+    M = _spd(rng, r, 1.0)
+    D, K = (w @ w.T for w in rng.standard_normal((2, r, 1)))
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x) + 0.3 * rng.standard_normal((r, k))
+    fast = fit_operators(a, v, x, u, normalization="trace", refine=False)
+    assert fast.info["solver"] == "IPM" and fast.info["method"] == "sdp-screened"
+    assert fast.info["cones"] == ["Dr", "Kr"]
+    _, r_, _, G = _scaled_problem((a, v, x, u))
+    assert fast.info["sdp_objective"] == pytest.approx(_clarabel_reference(G, r_, "trace"), rel=1e-6)
+
+
 def test_unknown_solver_is_rejected(rng):
     with pytest.raises(ValueError, match="solver="):
         fit_operators(*_active_data(rng), solver="admm")

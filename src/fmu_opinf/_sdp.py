@@ -275,7 +275,7 @@ def _newton(S, w, X, Z, cones, a, c, dual, mu):
     """Mehrotra predictor-corrector HKM step: returns ``(alpha, dw, dZ, dy)``."""
     n = w.size
     N = 2.0 * S.copy()
-    Xinv = [np.linalg.inv(Xj) for Xj in X]
+    Xinv = [_spd_inverse(Xj) for Xj in X]
     for cone, Xi, Zj in zip(cones, Xinv, Z):
         sl = slice(cone.start, cone.start + cone.k * (cone.k + 1) // 2)
         N[sl, sl] += _kron_block(Xi, Zj)
@@ -322,13 +322,23 @@ def _newton(S, w, X, Z, cones, a, c, dual, mu):
     return alpha, dw, dZ, dy
 
 
+def _spd_inverse(X: np.ndarray) -> np.ndarray:
+    """Inverse of a positive definite matrix as ``Li^T Li`` (``Li`` the inverse Cholesky factor): symmetric and
+    PSD by construction even when ``X`` is ill-conditioned near the boundary of the cone."""
+    L = np.linalg.cholesky(X)
+    Li = scipy.linalg.solve_triangular(L, np.eye(X.shape[0]), lower=True, check_finite=False)
+    return Li.T @ Li
+
+
 def _regularized_cholesky(N: np.ndarray) -> tuple:
-    """Cholesky factor of the Newton matrix; when round-off in ``S`` (a Schur complement, ``||S|| = 1``)
-    makes it indefinite along directions where the barrier term is tiny, shift by 1e-14 .. 1e-6 (an inexact
-    Newton step; the certificate judges the result)."""
-    for shift in (0.0, 1e-14, 1e-12, 1e-10, 1e-8, 1e-6):
+    """Cholesky factor of the Newton matrix; when round-off (in the Schur complement ``S`` or in the barrier
+    term, whose entries grow like ``1 / mu`` near the optimum) makes it numerically indefinite, shift the
+    diagonal by 1e-15 .. 1e-11 of its largest entry (an inexact Newton step; the certificate judges the result)."""
+    top = float(np.max(np.diag(N)))
+    for shift in (0.0, 1e-15, 1e-13, 1e-11):
         try:
-            return scipy.linalg.cho_factor(N + shift * np.eye(N.shape[0]) if shift else N, check_finite=False)
+            return scipy.linalg.cho_factor(N + (shift * top) * np.eye(N.shape[0]) if shift else N,
+                                           check_finite=False)
         except np.linalg.LinAlgError:
             continue
     raise np.linalg.LinAlgError("Newton matrix not positive definite")

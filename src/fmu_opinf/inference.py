@@ -894,7 +894,9 @@ def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | 
     Round 0 drops all cones (one linear solve).  If one block comes out indefinite, its cone alone is kept and
     the other two blocks are eliminated (a dense but three times smaller SDP); a relaxation whose dropped blocks
     come out PSD is optimal for the full SDP.  Otherwise the full SDP is solved: with two cones, eliminating
-    the third block would turn the sparse quadratic form dense and cost more than keeping it.
+    the third block would turn the sparse quadratic form dense and cost Clarabel more than keeping it; the dense
+    interior-point method (``solver`` other than ``"clarabel"``) factors a dense matrix anyway, so for it two
+    indefinite blocks are screened too.
     """
     t0 = time.perf_counter()
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
@@ -906,15 +908,16 @@ def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | 
             info = {"status": "optimal", "solver": "none (cone constraints inactive)", "setup_seconds": 0.0,
                     "solve_seconds": time.perf_counter() - t0, "iterations": 0}
             return (*mats, dict(info, method="lstsq-certified", cones=[]))
-        if len(bad) == 1:
+        dense_ipm = (sdp or {}).get("solver", "clarabel") != "clarabel"
+        if len(bad) == 1 or (len(bad) == 2 and dense_ipm):  # module docstring, *Solvers*: two cones for the IPM
             try:
                 w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, tuple(bad), **(sdp or {}))
             except np.linalg.LinAlgError:  # singular block: only the full SDP is well posed
                 info = {}
             else:
                 mats = _unpack(w, r)
-                if not _indefinite(mats, [b for b in range(3) if b != bad[0]]):
-                    return (*mats, dict(info, method="sdp-screened", cones=[_BLOCKS[bad[0]]]))
+                if not _indefinite(mats, [b for b in range(3) if b not in bad]):
+                    return (*mats, dict(info, method="sdp-screened", cones=[_BLOCKS[b] for b in bad]))
             for key in spent:
                 spent[key] += info.get(key, 0)
     w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, **(sdp or {}))
