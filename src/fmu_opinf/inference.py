@@ -204,27 +204,31 @@ solve, ``fit_info["sdp_objective"]`` is the SDP's objective in its own units (co
 
 Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement, CPU seconds on the shared
 2-core machine, one BLAS thread; Clarabel at tol 1e-10 as the reference; ``rel. diff`` is
-``(f_auto - f_clarabel) / f_clarabel``, negative = the certified result is lower):
+``(f_auto - f_clarabel) / f_clarabel`` of ``sdp_objective``, negative = the certified result is lower):
 
 ===  ================  ==========================  =============  ============  ==========
 r    normalization     default (solver, cones)     Clarabel path  rel. diff     gap
 ===  ================  ==========================  =============  ============  ==========
-5    mass-eigenvalue   0.02 s (IPM, Mr)            0.81 s         -4.7e-9       6e-10
-10   mass-eigenvalue   0.05 s (IPM, Mr Dr)         0.05 s         -7.4e-10      4e-8
-20   trace             0.07 s (IPM, Dr)            0.10 s         -2.5e-8       9e-8
-20   mass-eigenvalue   0.15 s (IPM, Mr Dr)         0.37 s         -1.4e-9       3e-8
-20   auto (both)       0.22 s                      0.41 s         -1.4e-9
-35   trace             0.74 s (IPM, Dr)            0.87 s         -3.0e-8       5e-8
-35   mass-eigenvalue   2.07 s (IPM, Mr Dr)         5.49 s         -6.2e-9       4e-8
-35   auto (both)       2.32 s                      5.98 s         -6.2e-9
-50   trace             22.2 s (Clarabel, 3 cones)  25.4 s         4.4e-7
+5    mass-eigenvalue   0.02 s (IPM, Mr)            0.01 s         -4.7e-9       7e-10
+10   mass-eigenvalue   0.04 s (IPM, Mr Dr)         0.05 s         -7.4e-10      2e-10
+20   trace             0.06 s (IPM, Dr)            0.08 s         -2.5e-8       3e-9
+20   mass-eigenvalue   0.14 s (IPM, Mr Dr)         0.30 s         -1.4e-9       5e-10
+20   auto (both)       0.21 s                      0.40 s         -1.4e-9
+35   trace             0.56 s (IPM, Dr)            0.90 s         -3.0e-8       3e-8
+35   mass-eigenvalue   1.58 s (IPM, Mr Dr)         5.40 s         -7.5e-9       3e-10
+35   auto (both)       2.16 s                      5.96 s         -7.5e-9
+50   trace             14.4 s (IPM, Dr Kr)         25.4 s (full)  -2.1e-7       5e-8
+50   mass-eigenvalue   14.8 s (IPM, Mr Dr)         32.9 s         -1.2e-10      2e-9
 ===  ================  ==========================  =============  ============  ==========
 
-(r = 5 and 10 with the trace normalization need no cone: least squares, milliseconds.)  The certified optimum
-is never worse than Clarabel's at 1e-10 in these runs, and 2-3x faster at r = 20 .. 35, but the targets of issue
-16 (r = 35 in 0.3 s, r = 100 in 5 s) are *not* met: the dense Newton matrix has ``k (k+1) / 2`` rows per cone,
-so each iteration costs ``O(r^6)`` (r = 35, two cones: 40 ms per Cholesky, 17-30 iterations), and at r = 100
-the dense Hessian of the screening alone has ``(3 r (r+1) / 2)^2 = 2.3e8`` entries.  Measured and not kept:
+(r = 5 and 10 with the trace normalization need no cone: least squares, milliseconds.  At r = 50 the trace
+normalization has two indefinite blocks: Clarabel solves the full three-cone SDP, the IPM the two-cone screened
+one.)  The certified optimum is never worse than Clarabel's at 1e-10 in these runs (at r = 50 Clarabel's is
+2e-7 higher), 1.5-3.4x faster from r = 20 on, but the targets of issue 16 (r = 35 in 0.3 s, r = 100 in 5 s) are
+*not* met: the dense Newton matrix has ``k (k+1) / 2`` rows per cone, so each iteration costs ``O(r^6)``
+(r = 35, two cones: about 40 ms per Cholesky, 14-18 iterations per solve, and the ``Mr >= I`` fit needs two
+screening rounds), and at r = 100 the dense Hessian of the screening alone has ``(3 r (r+1) / 2)^2 = 2.3e8``
+entries (1.8 GB); r = 75 and 100 were not run.  Measured and not kept:
 first-order methods on the matrix form (ADMM with ``X = Z`` splitting, ``X``-update one solve with ``2 G + rho I``,
 ``Z``-update three eigendecompositions with simplex / clipping projections, adaptive ``rho``, over-relaxation):
 ``G`` has a condition number of about 1e30 on the triple chain (``sigma(R22)`` from 7e2 to 2e-15 at r = 100) and
