@@ -209,7 +209,7 @@ Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement,
 ===  ================  ==========================  =============  ============  ==========
 r    normalization     default (solver, cones)     Clarabel path  rel. diff     gap
 ===  ================  ==========================  =============  ============  ==========
-5    mass-eigenvalue   0.02 s (IPM, Mr)            0.01 s         -4.7e-9       7e-10
+5    mass-eigenvalue   0.02 s (IPM, Mr)            0.66 s (*)     -4.7e-9       7e-10
 10   mass-eigenvalue   0.04 s (IPM, Mr Dr)         0.05 s         -7.4e-10      2e-10
 20   trace             0.06 s (IPM, Dr)            0.08 s         -2.5e-8       3e-9
 20   mass-eigenvalue   0.14 s (IPM, Mr Dr)         0.30 s         -1.4e-9       5e-10
@@ -221,7 +221,8 @@ r    normalization     default (solver, cones)     Clarabel path  rel. diff     
 50   mass-eigenvalue   14.8 s (IPM, Mr Dr)         32.9 s         -1.2e-10      2e-9
 ===  ================  ==========================  =============  ============  ==========
 
-(r = 5 and 10 with the trace normalization need no cone: least squares, milliseconds.  At r = 50 the trace
+(*) the first Clarabel call includes cvxpy's start-up; the ``auto`` row at r = 5 took 0.01 s.  (r = 5 and 10 with
+the trace normalization need no cone: least squares, milliseconds.  At r = 50 the trace
 normalization has two indefinite blocks: Clarabel solves the full three-cone SDP, the IPM the two-cone screened
 one.)  The certified optimum is never worse than Clarabel's at 1e-10 in these runs (at r = 50 Clarabel's is
 2e-7 higher), 1.5-3.4x faster from r = 20 on, but the targets of issue 16 (r = 35 in 0.3 s, r = 100 in 5 s) are
