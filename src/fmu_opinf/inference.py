@@ -229,7 +229,8 @@ one.)  The certified optimum is never worse than Clarabel's at 1e-10 in these ru
 *not* met: the dense Newton matrix has ``k (k+1) / 2`` rows per cone, so each iteration costs ``O(r^6)``
 (r = 35, two cones: about 40 ms per Cholesky, 14-18 iterations per solve, and the ``Mr >= I`` fit needs two
 screening rounds), and at r = 100 the dense Hessian of the screening alone has ``(3 r (r+1) / 2)^2 = 2.3e8``
-entries (1.8 GB); r = 75 and 100 were not run.  Measured and not kept:
+entries (1.8 GB); r = 75 (trace, default path) did not finish within 20 minutes wall on the loaded machine,
+r = 100 was not run.  Measured and not kept:
 first-order methods on the matrix form (ADMM with ``X = Z`` splitting, ``X``-update one solve with ``2 G + rho I``,
 ``Z``-update three eigendecompositions with simplex / clipping projections, adaptive ``rho``, over-relaxation):
 ``G`` has a condition number of about 1e30 on the triple chain (``sigma(R22)`` from 7e2 to 2e-15 at r = 100) and
