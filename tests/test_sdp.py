@@ -1,0 +1,208 @@
+"""Dense interior-point SDP solver (fmu_opinf._sdp) against Clarabel and independent KKT checks (issue 16)."""
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from fmu_opinf import _sdp
+from fmu_opinf.errors import FmuOpinfWarning
+from fmu_opinf.inference import _fit_compressed, compressed_factor, fit_operators
+
+NORMALIZATIONS = ("trace", "mass-eigenvalue")
+
+
+@pytest.fixture()
+def rng():
+    return np.random.default_rng(20261123)
+
+
+def _spd(rng, r, shift):
+    a = rng.standard_normal((r, r))
+    return a @ a.T / r + shift * np.eye(r)
+
+
+def _exact_data(rng, r=6, m=2, k=400):
+    """Snapshots with M a + D v + K x = B u exactly."""
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.1), _spd(rng, r, 2.0)
+    B = rng.standard_normal((r, m))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((m, k))
+    return (M, D, K, B), (np.linalg.solve(M, B @ u - D @ v - K @ x), v, x, u)
+
+
+def _active_data(rng, r=6, k=300, noise=0.5):
+    """Noisy data of a system with rank-one damping and stiffness: several PSD bounds bind (rank-deficient
+    optimum), so the SDP, not a least-squares solve, decides the result."""
+    M = _spd(rng, r, 1.0)
+    wd, wk = rng.standard_normal((r, 1)), rng.standard_normal((r, 1))
+    D, K = wd @ wd.T, wk @ wk.T + 0.05 * np.eye(r)
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x) + noise * rng.standard_normal((r, k))
+    return a, v, x, u
+
+
+def _damping_data(rng, r=5, k=300, noise=0.3):
+    """Rank-one damping, well conditioned mass and stiffness: cone screening keeps the damping cone only, so
+    the default solver path (interior point on screened SDPs) applies."""
+    M, K = _spd(rng, r, 1.0), _spd(rng, r, 1.0)
+    w = rng.standard_normal((r, 1))
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - w @ (w.T @ v) - K @ x) + noise * rng.standard_normal((r, k))
+    return a, v, x, u
+
+
+def _scaled_problem(data):
+    """R, r, m and the scaled Gram matrix G of the objective trace(T G T^T) (as in inference._fit_compressed)."""
+    a, v, x, u = data
+    r, m = x.shape[0], u.shape[0]
+    R, _ = compressed_factor(a, v, x, u)
+    R22 = R[m:, m:]
+    R22 = R22 / (np.linalg.norm(R22) / np.sqrt(3 * r))
+    return R, r, m, R22.T @ R22
+
+
+def _objective(mats, G):
+    T = np.hstack(mats)
+    return float(np.sum((T @ G) * T))
+
+
+def _clarabel_reference(G, r, normalization):
+    """Independent reference: the SDP stated directly in cvxpy with matrix variables, Clarabel at 1e-10."""
+    W = np.linalg.cholesky(G + 1e-14 * np.eye(3 * r))  # G = W W^T up to round-off
+    mats = [cp.Variable((r, r), symmetric=True) for _ in range(3)]
+    T = cp.hstack(mats)
+    constraints = [mats[1] >> 0, mats[2] >> 0]
+    if normalization == "trace":
+        constraints += [mats[0] >> 0, cp.trace(mats[0]) == r]
+    else:
+        constraints += [mats[0] >> np.eye(r)]
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(T @ W)), constraints)
+    problem.solve(solver=cp.CLARABEL, tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10)
+    return problem.value
+
+
+def _kkt(mats, G, normalization):
+    """Independent KKT check: dual matrices from the gradient; returns (min dual eigenvalue, |complementarity|)
+    relative to the gradient scale, and the primal minimum eigenvalue (of M - I for M >= I)."""
+    r = mats[0].shape[0]
+    T = np.hstack(mats)
+    grad = 2 * T @ G
+    duals = [0.5 * (grad[:, b * r:(b + 1) * r] + grad[:, b * r:(b + 1) * r].T) for b in range(3)]
+    primal = [mats[0] - (np.eye(r) if normalization != "trace" else 0), mats[1], mats[2]]
+    if normalization == "trace":  # the multiplier that makes the mass block complementary
+        duals[0] = duals[0] - np.sum(duals[0] * mats[0]) / np.trace(mats[0]) * np.eye(r)
+    scale = np.linalg.norm(grad) + 1e-300
+    dual_min = min(np.linalg.eigvalsh(z)[0] for z in duals) / scale
+    comp = sum(abs(np.sum(z * p)) for z, p in zip(duals, primal)) / (scale * np.linalg.norm(T))
+    primal_min = min(np.linalg.eigvalsh(p)[0] for p in primal)
+    return dual_min, comp, primal_min
+
+
+@pytest.mark.parametrize("normalization", NORMALIZATIONS)
+@pytest.mark.parametrize("method", ["auto", "sdp"])
+def test_ipm_reaches_the_clarabel_optimum_with_active_cones(rng, normalization, method):
+    R, r, m, G = _scaled_problem(_active_data(rng))
+    *mats, info = _fit_compressed(R, r, m, method, 1e-9, False, normalization, "ipm")
+    reference = _clarabel_reference(G, r, normalization)
+    assert info["solver"] == "IPM" and info["status"] == "optimal" and info["gap"] <= 1e-6
+    assert _objective(mats, G) == pytest.approx(reference, rel=1e-6)
+    ranks = [np.sum(np.linalg.eigvalsh(b) > 1e-6 * np.abs(b).max()) for b in mats[1:]]
+    assert min(ranks) < r  # the optimum is rank deficient: the cones bind
+    dual_min, comp, primal_min = _kkt(mats, G, normalization)
+    assert dual_min > -1e-6 and comp < 1e-6 and primal_min > -1e-9
+
+
+@pytest.mark.parametrize("normalization", NORMALIZATIONS)
+def test_exact_data_gives_the_true_operators_and_zero_objective(rng, normalization):
+    truth, data = _exact_data(rng)
+    fit = fit_operators(*data, method="sdp", normalization=normalization, solver="ipm", refine=False)
+    assert fit.info["solver"] == "IPM" and fit.info["status"] == "optimal"
+    scale = np.trace(fit.Mr) / np.trace(truth[0])
+    for got, want in zip((fit.Mr, fit.Dr, fit.Kr, fit.Br), truth):
+        assert np.abs(got - scale * want).max() < 1e-6 * np.abs(want).max()
+    assert fit.info["relative_residual"] < 1e-6
+
+
+def test_certificate_rejects_a_suboptimal_point(rng):
+    R, r, m, G = _scaled_problem(_active_data(rng))
+    *mats, _ = _fit_compressed(R, r, m, "sdp", 1e-9, False, "trace", "ipm")
+    T = np.hstack(mats)
+    assert _sdp.certificate(T, G, "trace", float(r))[0] < 1e-6
+    worse = T.copy()
+    worse[:, r:2 * r] += 0.01 * np.eye(r)  # still feasible, not optimal
+    assert _sdp.certificate(worse, G, "trace", float(r))[0] > 1e-3
+
+
+def test_symmetric_kronecker_block_matches_its_definition(rng):
+    k = 4
+    Y, Z = _spd(rng, k, 0.5), _spd(rng, k, 0.5)
+    n = k * (k + 1) // 2
+    iu, ju = np.triu_indices(k)
+
+    def mat(v):
+        out = np.zeros((k, k))
+        out[iu, ju] = v
+        out[ju, iu] = v
+        return out
+
+    def inner(Ep, W):  # <E_pq, W> with both placements of an off-diagonal entry
+        return np.sum(Ep * W)
+
+    basis = [mat(e) for e in np.eye(n)]
+    want = np.array([[inner(Ep, 0.5 * (Y @ Es @ Z + Z @ Es @ Y)) for Es in basis] for Ep in basis])
+    assert np.abs(_sdp._kron_block(Y, Z) - want).max() < 1e-12
+
+
+def test_failed_certificate_falls_back_to_clarabel(rng, monkeypatch):
+    data = _damping_data(rng)
+    original = _sdp.solve_ipm
+    monkeypatch.setattr(_sdp, "solve_ipm", lambda *a, **k: original(*a, **dict(k, max_iterations=2)))
+    fit = fit_operators(*data, normalization="trace", refine=False)
+    assert fit.info["solver"] == "CLARABEL" and fit.info["status"] == "optimal"
+    assert fit.info["fallback"]["status"] == "not_certified"
+    with pytest.warns(FmuOpinfWarning, match="not certified"):
+        only = fit_operators(*data, normalization="trace", refine=False, solver="ipm")
+    assert only.info["status"] == "not_certified"
+
+
+def test_default_solver_matches_clarabel_and_reports_the_certificate(rng):
+    data = _damping_data(rng)
+    fast = fit_operators(*data, refine=False)
+    slow = fit_operators(*data, refine=False, solver="clarabel")
+    assert fast.info["solver"] == "IPM" and fast.info["gap"] <= 1e-6
+    assert fast.info["objective"] == pytest.approx(slow.info["objective"], rel=1e-6)
+    assert fast.info["normalization"] == slow.info["normalization"]
+    assert len(fast.info["cones"]) < 3
+
+
+def test_same_ipm_operators_with_one_and_two_blas_threads(rng):
+    from threadpoolctl import threadpool_limits
+
+    data = _active_data(rng, r=8, k=1000)
+    with threadpool_limits(limits=1):
+        one = fit_operators(*data, refine=False, solver="ipm")
+    with threadpool_limits(limits=2):
+        two = fit_operators(*data, refine=False, solver="ipm")
+    for name in ("Mr", "Dr", "Kr", "Br"):
+        assert np.array_equal(getattr(one, name), getattr(two, name))
+
+
+def test_two_indefinite_blocks_are_screened_for_the_ipm_with_the_full_sdp_optimum():
+    rng = np.random.default_rng(5)  # the data of test_inference's two-indefinite-blocks test
+    r, k = 5, 300
+    M = _spd(rng, r, 1.0)
+    D, K = (w @ w.T for w in rng.standard_normal((2, r, 1)))
+    B = rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - D @ v - K @ x) + 0.3 * rng.standard_normal((r, k))
+    fast = fit_operators(a, v, x, u, normalization="trace", refine=False)
+    assert fast.info["solver"] == "IPM" and fast.info["method"] == "sdp-screened"
+    assert fast.info["cones"] == ["Dr", "Kr"]
+    _, r_, _, G = _scaled_problem((a, v, x, u))
+    assert fast.info["sdp_objective"] == pytest.approx(_clarabel_reference(G, r_, "trace"), rel=1e-6)
+
+
+def test_unknown_solver_is_rejected(rng):
+    with pytest.raises(ValueError, match="solver="):
+        fit_operators(*_active_data(rng), solver="admm")
