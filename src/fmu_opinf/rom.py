@@ -55,6 +55,7 @@ from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
+from .snapshots._rates import interval_averages
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -548,10 +549,15 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
     """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``.
 
     With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
-    run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).
+    run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).  Runs
+    recorded with ``fit_rates="interval-averages"`` (accelerations derived from a continuous-time recording)
+    give the SDP their interval averages instead (:func:`fmu_opinf.snapshots._rates.interval_averages`).
     """
     chunk = pod.columns_per_chunk(pod.basis_.shape[0])
     per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
+    if any(_averaged(run) for run in runs):
+        for run, d in zip(runs, per_run):
+            d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u"), _sdp_triples(run, d)))
     for name in ("u", "y"):
         rows = sorted({d[name].shape[0] for d in per_run})
         if len(rows) != 1:
@@ -560,8 +566,21 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
         names = ("xddot", "xdot", "x", "u")
         for run, d in zip(runs, per_run):
             step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
-            d.update(zip(("f_" + n for n in names), lowpass_filter([d[n] for n in names], step, lowpass)))
+            d.update(zip(("f_" + n for n in names), lowpass_filter([d.get("f_" + n, d[n]) for n in names],
+                                                                   step, lowpass)))
     return {name: np.hstack([d[name] for d in per_run]) for name in per_run[0]}
+
+
+def _averaged(run: Any) -> bool:
+    return getattr(run, "attrs", {}).get("fit_rates") == "interval-averages"
+
+
+def _sdp_triples(run: Any, d: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """The SDP data of one run: its interval averages if it asks for them, else its samples."""
+    if not _averaged(run) or d["x"].shape[1] < 2:
+        return d["xddot"], d["xdot"], d["x"], d["u"]
+    step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
+    return interval_averages(d["x"], d["xdot"], d["u"], step)
 
 
 def _training_dt(runs: list, attrs: dict) -> float | None:
@@ -657,8 +676,8 @@ def fit_rom(
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
-    chosen, term_info = _choose_terms(data, requested)
-    sdp = "f_" if lowpass is not None else ""
+    chosen, term_info = _choose_terms(data, requested, "f_" if any(_averaged(run) for run in runs) else "")
+    sdp = "f_" if "f_x" in data else ""
     u_fit = data[sdp + "u"]
     if chosen["fr"]:
         u_fit = np.vstack([u_fit, np.ones((1, u_fit.shape[1]))])
@@ -759,13 +778,16 @@ def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
     return {name: name in names for name in TERMS}
 
 
-def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None]) -> tuple[dict, dict]:
+def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None],
+                  sdp: str = "") -> tuple[dict, dict]:
     """Decide which extra terms to fit (module docstring): forced ones as requested, the rest by the residual
-    reduction each brings to its least-squares problem."""
+    reduction each brings to its least-squares problem; the force offset is tested on the data the SDP fits
+    (prefix ``sdp``: ``"f_"`` for interval averages)."""
     k = data["u"].shape[1]
     ones = np.ones((1, k))
     tests = {
-        "fr": ([data["xdot"], data["x"], data["u"]], ones, data["xddot"]),
+        "fr": ([data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"]], np.ones((1, data[sdp + "u"].shape[1])),
+               data[sdp + "xddot"]),
         "Dur": ([data["x"], data["xdot"], ones], data["u"], data["y"]),
         "y0": ([data["x"], data["xdot"], data["u"]], ones, data["y"]),
     }
