@@ -55,7 +55,7 @@ from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
-from .snapshots._rates import interval_averages
+from .snapshots._rates import hermite_rule_corrections, interval_averages
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -557,7 +557,7 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
     per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
     if any(_averaged(run) for run in runs):
         for run, d in zip(runs, per_run):
-            d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u"), _sdp_triples(run, d)))
+            d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u", "f_start", "f_h"), _sdp_triples(run, d)))
     for name in ("u", "y"):
         rows = sorted({d[name].shape[0] for d in per_run})
         if len(rows) != 1:
@@ -576,11 +576,33 @@ def _averaged(run: Any) -> bool:
 
 
 def _sdp_triples(run: Any, d: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
-    """The SDP data of one run: its interval averages if it asks for them, else its samples."""
+    """The SDP data of one run: its interval averages if it asks for them, else its samples; then the state at
+    the start of each interval and the interval length (0 for samples), for :func:`_corrected_averages`."""
     if not _averaged(run) or d["x"].shape[1] < 2:
-        return d["xddot"], d["xdot"], d["x"], d["u"]
+        k = d["x"].shape[1]
+        return d["xddot"], d["xdot"], d["x"], d["u"], np.zeros((2 * d["x"].shape[0], k)), np.zeros((1, k))
     step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
-    return interval_averages(d["x"], d["xdot"], d["u"], step)
+    start = np.vstack([d["x"][:, :-1], d["xdot"][:, :-1]])
+    return (*interval_averages(d["x"], d["xdot"], d["u"], step), start, np.full((1, start.shape[1]), step))
+
+
+#: Refits of a fit from interval averages with the positions' means corrected by the previous fit's model.
+AVERAGE_CORRECTIONS = 2
+
+
+def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray:
+    """The interval means of the positions: the two-point Hermite rule of the data plus what the rule misses
+    of the fitted model's own trajectory from the same start (:func:`hermite_rule_corrections`)."""
+    x_mean = data["f_x"].copy()
+    r = x_mean.shape[0]
+    force = ops.Br @ u_fit
+    for step in np.unique(data["f_h"][0][data["f_h"][0] > 0]):
+        cols = data["f_h"][0] == step
+        x0, v0 = data["f_start"][:r, cols], data["f_start"][r:, cols]
+        x1, v1 = x0 + step * data["f_xdot"][:, cols], v0 + step * data["f_xddot"][:, cols]
+        rule = 0.5 * (x0 + x1) + step / 12.0 * (v0 - v1)
+        x_mean[:, cols] = rule + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
+    return x_mean
 
 
 def _training_dt(runs: list, attrs: dict) -> float | None:
@@ -692,6 +714,10 @@ def fit_rom(
         say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, **refinement)
+    for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
+        ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
+                            method=method, mass_trace=mass_trace, tol=tol, normalization=normalization)
+        ops.info["interval_average_corrections"] = count
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization) in {ops.info.get('total_seconds', 0):.2f}s"
         + _refinement_summary(ops.info.get("refinement")))
