@@ -55,7 +55,6 @@ from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
-from .snapshots._rates import hermite_rule_corrections, interval_averages
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -581,6 +580,8 @@ def _sdp_triples(run: Any, d: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
     if not _averaged(run) or d["x"].shape[1] < 2:
         k = d["x"].shape[1]
         return d["xddot"], d["xdot"], d["x"], d["u"], np.zeros((2 * d["x"].shape[0], k)), np.zeros((1, k))
+    from .snapshots._rates import interval_averages
+
     step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
     start = np.vstack([d["x"][:, :-1], d["xdot"][:, :-1]])
     return (*interval_averages(d["x"], d["xdot"], d["u"], step), start, np.full((1, start.shape[1]), step))
@@ -593,6 +594,8 @@ AVERAGE_CORRECTIONS = 2
 def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray:
     """The interval means of the positions: the two-point Hermite rule of the data plus what the rule misses
     of the fitted model's own trajectory from the same start (:func:`hermite_rule_corrections`)."""
+    from .snapshots._rates import hermite_rule_corrections
+
     x_mean = data["f_x"].copy()
     r = x_mean.shape[0]
     force = ops.Br @ u_fit

@@ -61,10 +61,15 @@ class _Sink:
         self.width = source.width
         self.n, self.p, self.k = source.n, source.p, len(t)
         self.derived = source.derived
-        self.continuous = continuous_recording(source.provenance())
+        self._source = source
         self.t, self.u = t, u
         self.count = 0
         self.block = _block_rows(self.width, self.k)
+
+    @functools.cached_property
+    def continuous(self) -> bool:
+        """Samples of a continuous-time model (:func:`continuous_recording`), asked once the run is over."""
+        return continuous_recording(self._source.provenance())
 
     def rows(self, i0: int, count: int) -> np.ndarray:
         raise NotImplementedError
