@@ -6,7 +6,6 @@ import math
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from .._validate import check_grid
 from ..errors import DimensionError, InputSpecError
@@ -396,6 +395,8 @@ def hermite_rule_corrections(M: np.ndarray, D: np.ndarray, K: np.ndarray, force:
     -------
     (r, q) ndarray
     """
+    import scipy.linalg  # only the fit needs it, not the recorder's start-up
+
     r = M.shape[0]
     A = np.block([[np.zeros((r, r)), np.eye(r)], [-np.linalg.solve(M, K), -np.linalg.solve(M, D)]])
     size = 2 * r
