@@ -216,3 +216,46 @@ def test_structural_parameter_through_model_exchange(corpus):
     held = np.hstack([run.u[:, 1:], run.u[:, -1:]])
     errors = relative_errors(run, lti_fmus.zoh_response(model, run.t, held))
     assert max(errors.values()) < 1e-8, errors
+
+
+# ----------------------------------------------------------------------------- --me-method
+
+def test_cli_me_method_reaches_the_file_and_the_recording_follows_it(corpus, tmp_path, capsys):
+    out = tmp_path / "s.h5"
+    code = main(["snapshots", str(corpus["start-off-rest"]), "-o", str(out), "--input", "step:amplitude=2,t0=1",
+                 "--dt", "0.1", "--t-end", "4", "--me-method", "Radau", "--tolerance", "1e-11", "-q"])
+    assert code == 0, capsys.readouterr().err
+    from fmu_opinf.snapshots import Snapshots
+
+    run = Snapshots.load(out).runs[0]
+    assert run.attrs["fmi_interface"] == "me" and run.attrs["integrator"].startswith("Radau IIA")
+    assert max(relative_errors(run, exact("start-off-rest", run)).values()) < 1e-7
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--me-method", "euler"], "--me-method 'euler' is not an integrator; choose one of dop853"),
+    (["--me-method", "bdf", "--interface", "cs"], "--me-method bdf applies to model exchange"),
+])
+def test_cli_me_method_errors_are_one_line(corpus, tmp_path, capsys, args, expected):
+    code = main(["snapshots", str(corpus["start-off-rest"]), "-o", str(tmp_path / "s.h5"), "--input", "none",
+                 "--dt", "0.1", "--t-end", "1", "-q"] + args)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0 and expected in err, err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_cli_me_method_on_a_builtin_source_is_refused(tmp_path, capsys):
+    code = main(["snapshots", "builtin:anchored-msd", "--g", "10", "-o", str(tmp_path / "s.h5"), "--dt", "0.5",
+                 "--t-end", "5", "--me-method", "lsoda", "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--me-method applies to fmu sources" in err and err.count("\n") == 0, err
+
+
+def test_compare_drives_the_fmu_with_the_given_method(corpus):
+    from fmu_opinf.compare import simulate_outputs
+    from fmu_opinf.signals import parse_signal
+
+    t = np.arange(0, 41) * 0.1
+    y, _, provenance, _ = simulate_outputs(str(corpus["start-off-rest"]), parse_signal("none", 1), t,
+                                           quiet=True, method="bdf")
+    assert provenance["integrator"].startswith("BDF")

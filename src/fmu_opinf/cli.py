@@ -48,6 +48,10 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
     group.add_argument("--tolerance", type=float,
                        help="relative tolerance of the model-exchange integration, also passed to the FMU "
                             "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
+    group.add_argument("--me-method", dest="method", metavar="METHOD",
+                       help="integrator of model exchange: dop853 (default, explicit Runge-Kutta of order 8), "
+                            "radau, bdf, lsoda (for stiff models) or rk45; recorded in the provenance "
+                            "(docs/real-fmus.md)")
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
@@ -94,7 +98,7 @@ def _source_options(args: argparse.Namespace) -> dict:
     from .sources import parse_assignments
 
     keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "interface", "tolerance",
-            "g", "n1")
+            "method", "g", "n1")
     options = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if getattr(args, "settings", None):
         options["parameters"] = parse_assignments(args.settings)  # the FMU keyword of the --set values
@@ -290,6 +294,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
         if value is not None and value < 1:
             raise InputSpecError(f"--{option} {value} must be at least 1")
     v.check_fraction(getattr(args, "energy", None), "--energy")
+    if getattr(args, "method", None) is not None:
+        args.method = _me_method(args.method)
     if getattr(args, "dt", None) is not None and getattr(args, "t_end", None) is not None:
         v.check_grid(args.dt, args.t_end)
     if args.verb == "snapshots" and not args.runs:
@@ -305,6 +311,16 @@ def _check_arguments(args: argparse.Namespace) -> None:
         v.check_writable(args.output, "report directory", directory=True)
         if not args.runs:  # a run table's folder holds one report per row
             v.check_report_directory(args.output)
+
+
+def _me_method(text: str) -> str:
+    """``--me-method``: one of the model-exchange integrators, in lower case."""
+    from .sources import METHODS
+
+    value = text.strip().lower()
+    if value not in METHODS:
+        raise InputSpecError(f"--me-method {text!r} is not an integrator; choose one of {', '.join(METHODS)}")
+    return value
 
 
 def _check_output_file(args: argparse.Namespace, inputs: list) -> None:

@@ -221,7 +221,8 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     from .snapshots._isolation import deferred_interrupts, produce_inprocess, produce_isolated
 
     isolate, timeout = options.get("isolate", True), options.get("timeout")
-    options = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters", "interface", "tolerance")}
+    options = {k: v for k, v in options.items()
+               if k in ("inputs", "outputs", "parameters", "interface", "tolerance", "method")}
     source = open_source(spec, positions="", **options)
     u = applied_inputs(signal, t)
     if u.shape[0] != source.m:

@@ -594,10 +594,15 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
     """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``.
 
     With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
-    run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).
+    run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).  Runs
+    recorded with ``fit_rates="interval-averages"`` (accelerations derived from a continuous-time recording)
+    give the SDP their interval averages instead (:func:`fmu_opinf.snapshots._rates.interval_averages`).
     """
     chunk = pod.columns_per_chunk(pod.basis_.shape[0])
     per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
+    if any(_averaged(run) for run in runs):
+        for run, d in zip(runs, per_run):
+            d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u", "f_start", "f_h"), _sdp_triples(run, d)))
     for name in ("u", "y"):
         rows = sorted({d[name].shape[0] for d in per_run})
         if len(rows) != 1:
@@ -606,8 +611,47 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> di
         names = ("xddot", "xdot", "x", "u")
         for run, d in zip(runs, per_run):
             step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
-            d.update(zip(("f_" + n for n in names), lowpass_filter([d[n] for n in names], step, lowpass)))
+            d.update(zip(("f_" + n for n in names), lowpass_filter([d.get("f_" + n, d[n]) for n in names],
+                                                                   step, lowpass)))
     return {name: np.hstack([d[name] for d in per_run]) for name in per_run[0]}
+
+
+def _averaged(run: Any) -> bool:
+    return getattr(run, "attrs", {}).get("fit_rates") == "interval-averages"
+
+
+def _sdp_triples(run: Any, d: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    """The SDP data of one run: its interval averages if it asks for them, else its samples; then the state at
+    the start of each interval and the interval length (0 for samples), for :func:`_corrected_averages`."""
+    if not _averaged(run) or d["x"].shape[1] < 2:
+        k = d["x"].shape[1]
+        return d["xddot"], d["xdot"], d["x"], d["u"], np.zeros((2 * d["x"].shape[0], k)), np.zeros((1, k))
+    from .snapshots._rates import interval_averages
+
+    step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
+    start = np.vstack([d["x"][:, :-1], d["xdot"][:, :-1]])
+    return (*interval_averages(d["x"], d["xdot"], d["u"], step), start, np.full((1, start.shape[1]), step))
+
+
+#: Refits of a fit from interval averages with the positions' means corrected by the previous fit's model.
+AVERAGE_CORRECTIONS = 2
+
+
+def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray:
+    """The interval means of the positions: the two-point Hermite rule of the data plus what the rule misses
+    of the fitted model's own trajectory from the same start (:func:`hermite_rule_corrections`)."""
+    from .snapshots._rates import hermite_rule_corrections
+
+    x_mean = data["f_x"].copy()
+    r = x_mean.shape[0]
+    force = ops.Br @ u_fit
+    for step in np.unique(data["f_h"][0][data["f_h"][0] > 0]):
+        cols = data["f_h"][0] == step
+        x0, v0 = data["f_start"][:r, cols], data["f_start"][r:, cols]
+        x1, v1 = x0 + step * data["f_xdot"][:, cols], v0 + step * data["f_xddot"][:, cols]
+        rule = 0.5 * (x0 + x1) + step / 12.0 * (v0 - v1)
+        x_mean[:, cols] = rule + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
+    return x_mean
 
 
 def _training_dt(runs: list, attrs: dict) -> float | None:
@@ -703,8 +747,8 @@ def fit_rom(
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
-    chosen, term_info = _choose_terms(data, requested)
-    sdp = "f_" if lowpass is not None else ""
+    chosen, term_info = _choose_terms(data, requested, "f_" if any(_averaged(run) for run in runs) else "")
+    sdp = "f_" if "f_x" in data else ""
     u_fit = data[sdp + "u"]
     if chosen["fr"]:
         u_fit = np.vstack([u_fit, np.ones((1, u_fit.shape[1]))])
@@ -719,6 +763,10 @@ def fit_rom(
         say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, **refinement)
+    for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
+        ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
+                            method=method, mass_trace=mass_trace, tol=tol, normalization=normalization)
+        ops.info["interval_average_corrections"] = count
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization) in {ops.info.get('total_seconds', 0):.2f}s"
         + _refinement_summary(ops.info.get("refinement")))
@@ -805,13 +853,16 @@ def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
     return {name: name in names for name in TERMS}
 
 
-def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None]) -> tuple[dict, dict]:
+def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None],
+                  sdp: str = "") -> tuple[dict, dict]:
     """Decide which extra terms to fit (module docstring): forced ones as requested, the rest by the residual
-    reduction each brings to its least-squares problem."""
+    reduction each brings to its least-squares problem; the force offset is tested on the data the SDP fits
+    (prefix ``sdp``: ``"f_"`` for interval averages)."""
     k = data["u"].shape[1]
     ones = np.ones((1, k))
     tests = {
-        "fr": ([data["xdot"], data["x"], data["u"]], ones, data["xddot"]),
+        "fr": ([data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"]], np.ones((1, data[sdp + "u"].shape[1])),
+               data[sdp + "xddot"]),
         "Dur": ([data["x"], data["xdot"], ones], data["u"], data["y"]),
         "y0": ([data["x"], data["xdot"], data["u"]], ones, data["y"]),
     }

@@ -134,7 +134,7 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     if text.startswith("builtin:"):
         options.pop("interface", None)  # a builtin source is exact: no interface and no tolerance to choose
         options.pop("tolerance", None)
-        for key in _FMU_OPTIONS:
+        for key in _FMU_OPTIONS + ("method",):
             if key in options:
                 raise InputSpecError(f"--{_FLAG.get(key, key)} applies to fmu sources, not to {text}")
         return BuiltinSource(name=text.split(":", 1)[1], **options)
@@ -145,10 +145,12 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     if interface == "me":
         return ModelExchangeSource(text, **options)
     if "method" in options:
-        raise InputSpecError("an integrator method applies to model exchange only; use --interface me")
+        raise InputSpecError(f"--me-method {options['method']} applies to model exchange, but {os.path.basename(text)} "
+                             "is driven through co-simulation; give --interface me (if it offers model exchange) "
+                             "or leave out --me-method")
     return FMUSource(text, **options)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
                 "settings")
-_FLAG = {"parameters": "set", "settings": "set"}
+_FLAG = {"parameters": "set", "settings": "set", "method": "me-method"}
