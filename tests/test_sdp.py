@@ -206,3 +206,16 @@ def test_two_indefinite_blocks_are_screened_for_the_ipm_with_the_full_sdp_optimu
 def test_unknown_solver_is_rejected(rng):
     with pytest.raises(ValueError, match="solver="):
         fit_operators(*_active_data(rng), solver="admm")
+
+
+def test_certificate_rejects_a_runaway_point_on_round_off_negative_data():
+    """A numerically indefinite G (exact data: R22 singular to round-off) lets an iterate run away along the
+    negative direction; its size once made the relative gap tiny (measured on exact continuous-time data:
+    M ~ 1e14, objective -8e12, 'certified' at 7e-8, output error 4e-5 instead of 2e-20)."""
+    r = 3
+    G = np.eye(3 * r)
+    G[0, 0] = -1e-10  # round-off below zero along the mass block's first entry
+    T = np.hstack([np.diag([1e14, 1.0, 1.0]), np.eye(r), np.eye(r)])
+    gap, details = _sdp.certificate(T, G, "mass-eigenvalue", float(r))
+    assert details["objective"] < 0
+    assert gap == float("inf")
