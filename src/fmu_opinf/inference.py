@@ -834,11 +834,22 @@ def _newmark_discrete(Mr, Dr, Kr, Br, dt) -> tuple:
     return lu, scipy.linalg.lu_solve(lu, F, check_finite=False), scipy.linalg.lu_solve(lu, forcing, check_finite=False)
 
 
-def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64) -> np.ndarray:
+def _powers(A: np.ndarray, count: int) -> np.ndarray:
+    """``A, A^2, ..., A^count`` stacked, shape ``(count, n, n)``."""
+    powers = np.empty((max(count, 1), *A.shape))
+    powers[0] = A
+    for j in range(1, count):
+        powers[j] = A @ powers[j - 1]
+    return powers
+
+
+def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64,
+               powers: np.ndarray | None = None) -> np.ndarray:
     """``z_0 = z0``, ``z_i = A z_{i-1} + f_i`` for ``i = 1 .. k-1`` (``f[:, 0]`` unused), blocked in time.
 
     Within blocks of ``stride`` steps the forcing is accumulated for all blocks at once, and only the block
     starts are stepped one by one (with ``A^stride``): ``k / stride`` Python iterations instead of ``k``.
+    ``powers`` (``A, A^2, ...``, at least ``stride`` of them, e.g. from :func:`_powers`) saves recomputing them.
     """
     n, k = f.shape
     steps = k - 1
@@ -853,10 +864,7 @@ def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64) -
     acc = np.ascontiguousarray(acc.reshape(n, nb, s).transpose(2, 0, 1))  # (s, n, nb)
     for j in range(1, s):
         acc[j] += A @ acc[j - 1]
-    powers = np.empty((s, n, n))
-    powers[0] = A
-    for j in range(1, s):
-        powers[j] = A @ powers[j - 1]
+    powers = _powers(A, s) if powers is None else powers[:s]
     starts = np.empty((n, nb))
     z, last = np.asarray(z0, dtype=float), acc[s - 1]
     for b in range(nb):
@@ -865,6 +873,10 @@ def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64) -
     states = powers @ starts + acc
     out[:, 1:] = states.transpose(1, 2, 0).reshape(n, nb * s)[:, :steps]
     return out
+
+
+#: Time steps per block of :func:`_propagate` in the refinement.
+_STRIDE = 64
 
 
 @dataclass
@@ -887,12 +899,14 @@ class _Trajectories:
         sa, sv, sx, su = self.scales
         lu, Ad, Bd = _newmark_discrete(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
         grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
+        powers = _powers(Ad, _STRIDE)  # shared by all runs, transposed for the adjoint
         for z_data, u, target in zip(self.z, self.u, self.target):
-            z = _propagate(Ad, Bd @ u, z_data[:, 0])
+            z = _propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, powers)
             err = self.C @ z - target
             value += float(np.sum(err * err))
             g = 2.0 * (self.C.T @ err)
-            lam = _propagate(Ad.T, g[:, ::-1], g[:, -1])[:, ::-1]  # lam_i = Ad^T lam_{i+1} + g_i
+            # lam_i = Ad^T lam_{i+1} + g_i
+            lam = _propagate(Ad.T, g[:, ::-1], g[:, -1], _STRIDE, powers.transpose(0, 2, 1))[:, ::-1]
             grad_A += lam[:, 1:] @ z[:, :-1].T
             grad_B += lam[:, 1:] @ u[:, 1:].T
         # Ad = E^-1 F, Bd = E^-1 G: back through the solve to E, F, G and on to Mr, Dr, Kr, Br
@@ -907,6 +921,21 @@ class _Trajectories:
         grads = [(((g + g.T) @ L) * c / scale).ravel()
                  for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
         return value, np.concatenate(grads + [(gB / su).ravel()])
+
+
+class _Stagnation:
+    """L-BFGS callback: records the objective and stops once it fell by less than a factor ``1 + rtol`` over the
+    last ``window`` iterations (``rtol = 0``: never)."""
+
+    def __init__(self, history: list[float], window: int, rtol: float) -> None:
+        self.history, self.window, self.rtol, self.stopped = history, int(window), float(rtol), False
+
+    def __call__(self, intermediate_result: Any) -> None:
+        self.history.append(float(intermediate_result.fun))
+        if self.rtol > 0 and len(self.history) > self.window:
+            if self.history[-1 - self.window] <= (1.0 + self.rtol) * self.history[-1]:
+                self.stopped = True
+                raise StopIteration
 
 
 def _split_factors(params: np.ndarray, r: int, m: int) -> tuple[list[np.ndarray], np.ndarray]:
@@ -924,7 +953,8 @@ def refine_output_error(
     Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
-    max_iterations: int = 300, unit_scales: Any = None, whiten: bool = False,
+    max_iterations: int = 300, unit_scales: Any = None, whiten: bool = False, rtol: float = 0.0,
+    window: int = 25,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -995,12 +1025,15 @@ def refine_output_error(
     report = {"objective_start": value0, "objective": value0, "iterations": 0, "evaluations": 1,
               "status": "exact start"}
     if value0 > 0:  # L-BFGS-B's stopping tests are absolute below 1: work relative to the start
+        history = [1.0]
+        stop = _Stagnation(history, window, rtol)
         result = scipy.optimize.minimize(lambda p: tuple(v / value0 for v in problem.loss(p, r, m)), start,
-                                         jac=True, method="L-BFGS-B",
+                                         jac=True, method="L-BFGS-B", callback=stop,
                                          options={"maxiter": max_iterations, "maxcor": 100, "ftol": 1e-13,
                                                   "gtol": 1e-12})
+        status = "stagnated" if stop.stopped else ("converged" if result.success else "iteration limit")
         report.update(objective=float(result.fun) * value0, iterations=int(result.nit), evaluations=int(result.nfev),
-                      status="converged" if result.success else "iteration limit")
+                      status=status, history=np.asarray(history) * value0)
         factors, Bs = _split_factors(result.x, r, m)
         mats = [(L * c) @ (L * c).T / s for L, c, s in zip(factors, cols, scales[:3])]
         if report["objective"] < value0 and np.linalg.eigvalsh(mats[0])[0] > 0:
