@@ -141,3 +141,17 @@ def test_stagnation_stop_fires_exactly_when_the_window_decrease_is_below_rtol():
     for value in values:
         never(SimpleNamespace(fun=value))
     assert not never.stopped
+
+
+@pytest.mark.parametrize("r, expected", [(3, "given"), (41, "modal")])
+def test_refinement_works_in_modal_coordinates_above_order_40(r, expected):
+    from fmu_opinf.inference import refine_output_error
+
+    rng = np.random.default_rng(5)
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.05), _spd(rng, r, 1.0)
+    B, Cp = rng.standard_normal((r, 1)), rng.standard_normal((1, r))
+    x, v, u = rng.standard_normal((r, 20)), rng.standard_normal((r, 20)), rng.standard_normal((1, 20))
+    y = rng.standard_normal((1, 20))
+    *_, report = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                     max_iterations=2)
+    assert report["coordinates"] == expected
