@@ -144,7 +144,7 @@ In the given coordinates, r = 50 / 55 ended at 5.1e-7 / 3.9e-7 (ratio 3.4 / 2.2,
 former table had 9.5 at r = 60 with older settings).  At these orders the refined model fits the training impulse
 run far better than least squares (training objective 5e-10 against 8.5e-8 at r = 50) while its test error can
 be worse: the error of the 1.0 rad/s harmonic swings by 10x between iterates (r = 50, modal: 3.4e-7, 4.4e-8,
-3.9e-7 after 300, 600, 1000 iterations) although the training objective falls monotonically -- the impulse run
+3.9e-7, 6.6e-7 after 300, 600, 1000, 1500 iterations) although the training objective falls monotonically -- the impulse run
 pins the lightly damped modes near that frequency only loosely.  The modal coordinates (``Mr = I``, ``Kr =
 diag(omega^2)``, factor columns scaled by ``omega``) condition the problem better and reach lower objectives in
 the same budget; up to r = 40 their gain was small and mixed (with 30 correction pairs 3.0e-6 / 6.0e-7 / 5.3e-7
