@@ -9,6 +9,7 @@ import importlib.util
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_accuracy.py"
@@ -43,3 +44,114 @@ def test_triple_chain_r10_is_within_2x_of_the_best_reference(bench):
     # the plain SDP (eq. 16 with the Mr >= I normalization) is 20x above least squares here
     plain = bench.max_error("triple", bench.fit_rom_default("triple", 10, refine=False))
     assert plain > 5 * figures["lstsq"]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Refinement machinery (fast): Jacobian of the Levenberg-Marquardt polish, stagnation stop
+# ----------------------------------------------------------------------------------------------------------
+def _spd(rng, r, floor):
+    A = rng.standard_normal((r, r))
+    return A @ A.T / r + floor * np.eye(r)
+
+
+def _two_runs(rng, r=3, dt=0.1, steps=150):
+    """A known system through the reference Newmark stepper (fmu_opinf.newmark): an impulse run from rest and a
+    free run from a non-zero state."""
+    import scipy.sparse as sp
+
+    from fmu_opinf import newmark, systems
+
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.05), _spd(rng, r, 1.0)
+    B, Cp = rng.standard_normal((r, 1)), rng.standard_normal((2, r))
+    system = systems.SecondOrderSystem(M=sp.csr_matrix(M), D=sp.csr_matrix(D), K=sp.csr_matrix(K),
+                                       G=sp.csr_matrix((0, r)), constraint=None, B=sp.csr_matrix(B),
+                                       Cp=sp.csr_matrix(Cp), Cv=sp.csr_matrix((2, r)), name="oscillators")
+    runs = (newmark.simulate(system, "impulse:amplitude=5,t0=0.5,width=0.5", dt, steps * dt),
+            newmark.simulate(system, "none", dt, steps * dt, x0=rng.standard_normal(r), v0=rng.standard_normal(r)))
+    return (M, D, K, B, Cp), runs
+
+
+def _problem(rng, runs, Cp, columns=None):
+    from fmu_opinf.inference import _Trajectories
+
+    C = np.hstack([Cp, np.zeros_like(Cp)])
+    return _Trajectories(z=[np.vstack([run.x, run.xdot]) for run in runs], u=[run.u for run in runs],
+                         target=[run.y for run in runs], C=C, dt=0.1, scales=np.array([2.0, 0.5, 3.0, 1.5]),
+                         columns=columns)
+
+
+def test_output_jacobian_matches_finite_differences_and_the_adjoint_gradient():
+    """Forward sensitivities (Jacobian) against central differences of the simulated residuals, and ``2 J^T e``
+    against the adjoint gradient of the L-BFGS objective: three independent derivations."""
+    from fmu_opinf.inference import _residuals_and_jacobian
+
+    rng = np.random.default_rng(7)
+    (M, D, K, B, Cp), runs = _two_runs(rng, steps=60)
+    problem = _problem(rng, runs, Cp, columns=rng.uniform(0.5, 2.0, size=(3, 3)))
+    point = rng.standard_normal(3 * 9 + 3)
+    e, J = _residuals_and_jacobian(problem, point, 3, 1, chunk=7)  # chunks that do not divide the run length
+    value, grad = problem.loss(point, 3, 1)
+    assert e @ e == pytest.approx(value, rel=1e-12)
+    np.testing.assert_allclose(2.0 * J.T @ e, grad, rtol=0, atol=1e-10 * np.abs(grad).max())
+    step = 1e-6
+    for index in rng.choice(point.size, 6, replace=False):
+        shift = np.zeros_like(point)
+        shift[index] = step
+        fd = (_residuals_and_jacobian(problem, point + shift, 3, 1)[0]
+              - _residuals_and_jacobian(problem, point - shift, 3, 1)[0]) / (2 * step)
+        np.testing.assert_allclose(J[:, index], fd, rtol=0, atol=1e-6 * np.abs(J).max())
+
+
+def test_levenberg_marquardt_polish_recovers_the_outputs_of_the_true_system():
+    """From a perturbed structured start the polish drives the training output error to round-off level; the
+    reference outputs come from fmu_opinf.newmark, not from the refinement's step map."""
+    from fmu_opinf.inference import refine_output_error
+
+    rng = np.random.default_rng(3)
+    (M, D, K, B, Cp), runs = _two_runs(rng)
+    x, v, u, y = (np.hstack([getattr(run, name) for run in runs]) for name in ("x", "xdot", "u", "y"))
+    start = [A + 0.05 * _spd(rng, 3, 0.0) for A in (M, D, K)] + [B * 1.05]
+    lengths = [run.t.size for run in runs]
+    *_, plain = refine_output_error(*start, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                    run_lengths=lengths, max_iterations=30, rtol=0.0)
+    *_, polished = refine_output_error(*start, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                       run_lengths=lengths, max_iterations=30, rtol=0.0, polish_iterations=40)
+    assert polished["objective"] < 1e-3 * plain["objective"]
+    assert polished["objective"] < 1e-12 * polished["objective_start"]
+
+
+def test_stagnation_stop_fires_exactly_when_the_window_decrease_is_below_rtol():
+    from types import SimpleNamespace
+
+    from fmu_opinf.inference import _Stagnation
+
+    history = [1.0]
+    stop = _Stagnation(history, window=5, rtol=0.1)
+    values = [0.5 ** i for i in range(1, 11)] + [0.5 ** 10 * (1 - 0.01 * i) for i in range(1, 30)]
+    calls = 0
+    with pytest.raises(StopIteration):
+        for value in values:
+            calls += 1
+            stop(SimpleNamespace(fun=value))
+    # fast decrease for 10 iterations, then 1 % per iteration: over 5 iterations a factor < 1.1 from call 15 on
+    ratio = [history[i - 5] / history[i] for i in range(5, len(history))]
+    assert stop.stopped and calls == len(history) - 1
+    assert ratio[-1] <= 1.1 and all(value > 1.1 for value in ratio[:-1])
+    never = _Stagnation([1.0], window=5, rtol=0.0)
+    for value in values:
+        never(SimpleNamespace(fun=value))
+    assert not never.stopped
+
+
+@pytest.mark.parametrize("r, expected", [(3, "given"), (41, "modal")])
+def test_refinement_works_in_modal_coordinates_above_order_40(r, expected):
+    from fmu_opinf.inference import refine_output_error
+
+    rng = np.random.default_rng(5)
+    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.05), _spd(rng, r, 1.0)
+    B, Cp = rng.standard_normal((r, 1)), rng.standard_normal((1, r))
+    x, v, u = rng.standard_normal((r, 20)), rng.standard_normal((r, 20)), rng.standard_normal((1, 20))
+    y = rng.standard_normal((1, 20))
+    *_, report = refine_output_error(M, D, K, B, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                     max_iterations=2)
+    assert report["coordinates"] == expected
