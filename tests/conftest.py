@@ -23,6 +23,21 @@ def rng():
     return np.random.default_rng(20251121)
 
 
+def spd(rng, r, shift):
+    """A random symmetric positive definite ``(r, r)`` matrix with eigenvalues above ``shift``."""
+    a = rng.standard_normal((r, r))
+    return a @ a.T / r + shift * np.eye(r)
+
+
+def exact_operator_data(rng, r=6, m=2, k=400):
+    """Random ``M, D, K, B`` and snapshots satisfying ``M a + D v + K x = B u`` exactly (random states,
+    consistent accelerations): ``(M, D, K, B), (a, v, x, u)``."""
+    M, D, K = spd(rng, r, 1.0), spd(rng, r, 0.1), spd(rng, r, 2.0)
+    B = rng.standard_normal((r, m))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((m, k))
+    return (M, D, K, B), (np.linalg.solve(M, B @ u - D @ v - K @ x), v, x, u)
+
+
 def relative(a, b):
     """Max-norm difference of a and b relative to the max norm of b."""
     return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(np.asarray(b)).max()

@@ -4,6 +4,7 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
+from conftest import exact_operator_data, spd
 from fmu_opinf.errors import DataError, DimensionError, SolverError
 from fmu_opinf.inference import compressed_factor, fit_operators, fit_outputs, lowpass_filter
 
@@ -14,23 +15,11 @@ def rng():
     return np.random.default_rng(20251121)
 
 
-def _spd(rng, r, shift):
-    a = rng.standard_normal((r, r))
-    return a @ a.T / r + shift * np.eye(r)
-
-
-def _exact_data(rng, r=6, m=2, k=400):
-    """Snapshots satisfying M a + D v + K x = B u exactly (random states, consistent accelerations)."""
-    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.1), _spd(rng, r, 2.0)
-    B = rng.standard_normal((r, m))
-    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((m, k))
-    a = np.linalg.solve(M, B @ u - D @ v - K @ x)
-    return (M, D, K, B), (a, v, x, u)
 
 
 def _active_data(rng, r=5, k=300, noise=0.3):
     """Noisy data of a system whose damping is singular: the cone-free fit is indefinite, PSD bounds bind."""
-    M, K = _spd(rng, r, 1.0), _spd(rng, r, 1.0)
+    M, K = spd(rng, r, 1.0), spd(rng, r, 1.0)
     w = rng.standard_normal((r, 1))
     D = w @ w.T  # rank one: PSD with r-1 zero eigenvalues
     B = rng.standard_normal((r, 1))
@@ -48,28 +37,28 @@ def _relative_to_scale(fit, truth):
 @pytest.mark.parametrize("method", ["auto", "sdp"])
 @pytest.mark.parametrize("compressed", [True, False])
 def test_exact_data_recover_the_operators_up_to_scale(rng, method, compressed):
-    truth, data = _exact_data(rng)
+    truth, data = exact_operator_data(rng)
     fit = fit_operators(*data, method=method, compressed=compressed)
     assert _relative_to_scale(fit, truth) < 1e-7
     assert fit.info["status"] == "optimal"
 
 
 @pytest.mark.parametrize("method", ["auto", "sdp"])
-def test_mass_eigenvalue_normalization_is_unbiased_on_exact_data(rng, method):
-    truth, data = _exact_data(rng)
+def test_mass_eigenvalue_normalization_is_unbiased_onexact_operator_data(rng, method):
+    truth, data = exact_operator_data(rng)
     fit = fit_operators(*data, method=method, normalization="mass-eigenvalue")
     assert fit.info["normalization"] == "mass-eigenvalue"
     assert _relative_to_scale(fit, truth) < 1e-6
 
 
 def test_unknown_normalization_is_rejected(rng):
-    _, data = _exact_data(rng)
+    _, data = exact_operator_data(rng)
     with pytest.raises(ValueError, match="normalization='unit'"):
         fit_operators(*data, normalization="unit")
 
 
 def test_auto_path_is_certified_or_falls_back(rng):
-    _, data = _exact_data(rng)
+    _, data = exact_operator_data(rng)
     assert fit_operators(*data).info["method"] == "lstsq-certified"
     screened = fit_operators(*_active_data(rng)).info
     assert screened["method"] == "sdp-screened" and screened["cones"] == ["Dr"]
@@ -78,7 +67,7 @@ def test_auto_path_is_certified_or_falls_back(rng):
 def test_two_indefinite_blocks_fall_back_to_the_full_sdp():
     rng = np.random.default_rng(5)
     r, k = 5, 300
-    M = _spd(rng, r, 1.0)
+    M = spd(rng, r, 1.0)
     D, K = (w @ w.T for w in rng.standard_normal((2, r, 1)))  # both singular
     B = rng.standard_normal((r, 1))
     x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
@@ -146,7 +135,7 @@ def test_fit_is_invariant_to_units_and_equivariant_to_rotations(rng):
 
 
 def test_compressed_factor_reproduces_the_gram_matrix(rng):
-    _, (a, v, x, u) = _exact_data(rng, r=3, m=1, k=50)
+    _, (a, v, x, u) = exact_operator_data(rng, r=3, m=1, k=50)
     R, s = compressed_factor(a, v, x, u)
     zs = np.vstack([u / s["u"], a / s["xddot"], v / s["xdot"], x / s["x"]])
     assert R.shape == (10, 10) and np.allclose(np.tril(R, -1), 0)
@@ -182,7 +171,7 @@ def test_bad_status_raises_solver_error(rng, monkeypatch):
 
 
 def test_bad_data_is_rejected(rng):
-    _, (a, v, x, u) = _exact_data(rng, r=3, m=1, k=20)
+    _, (a, v, x, u) = exact_operator_data(rng, r=3, m=1, k=20)
     bad = a.copy()
     bad[1, 4] = np.nan
     with pytest.raises(DataError, match="xddot_r contains NaN/Inf"):
@@ -207,7 +196,7 @@ def test_outputs_by_least_squares(rng):
 
 
 def test_lowpass_weighting_keeps_exact_relations(rng):
-    truth, data = _exact_data(rng, k=400)
+    truth, data = exact_operator_data(rng, k=400)
     filtered = lowpass_filter(list(data), dt=0.1, cutoff=3.0)
     assert np.abs(filtered[0] - data[0]).max() > 0.1 * np.abs(data[0]).max()  # the data did change
     M, D, K, B = truth
@@ -300,7 +289,7 @@ def test_remaining_inaccurate_status_is_one_clear_warning(rng, monkeypatch):
 
 def test_no_inputs_and_a_constant_force_row(rng):
     """m = 0 (free response) and an extra input row of ones (a constant force fitted as a column of Br)."""
-    (M, D, K, B), (a, v, x, u) = _exact_data(rng, m=1)
+    (M, D, K, B), (a, v, x, u) = exact_operator_data(rng, m=1)
     free = np.linalg.solve(M, -D @ v - K @ x)
     fit = fit_operators(free, v, x, np.zeros((0, x.shape[1])))
     assert fit.Br.shape == (6, 0)
@@ -358,7 +347,7 @@ def test_poles_of_an_oscillator_and_their_match():
 
 
 def test_fit_report_carries_the_learned_poles(rng):
-    truth, data = _exact_data(rng)
+    truth, data = exact_operator_data(rng)
     fit = fit_operators(*data)
     M, D, K, _ = truth
     true_poles = np.linalg.eigvals(np.block([[np.zeros((6, 6)), np.eye(6)],
@@ -383,7 +372,7 @@ def _oscillator_runs(rng, r=4, dt=0.1, steps=400):
 
     from fmu_opinf import newmark, systems
 
-    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.05), _spd(rng, r, 1.0)
+    M, D, K = spd(rng, r, 1.0), spd(rng, r, 0.05), spd(rng, r, 1.0)
     B, Cp = rng.standard_normal((r, 1)), rng.standard_normal((2, r))
     system = systems.SecondOrderSystem(M=sp.csr_matrix(M), D=sp.csr_matrix(D), K=sp.csr_matrix(K),
                                        G=sp.csr_matrix((0, r)), constraint=None, B=sp.csr_matrix(B),

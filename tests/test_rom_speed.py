@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from conftest import spd
 from fmu_opinf._recursion import linear_recursion, rom_step_map
 from fmu_opinf.errors import DimensionError
 from fmu_opinf.rom import ROMTrajectory, SecondOrderROM
@@ -27,14 +28,10 @@ def rng():
     return np.random.default_rng(20261123)
 
 
-def _spd(rng, r, shift):
-    a = rng.standard_normal((r, r))
-    return a @ a.T / r + shift * np.eye(r)
-
 
 def _rom(rng, r, m, p, integrator):
     """A random stable ROM with every extra term (constant force, feedthrough, offset, initial state)."""
-    return SecondOrderROM(_spd(rng, r, 1.0), _spd(rng, r, 0.02), _spd(rng, r, 1.0), rng.standard_normal((r, m)),
+    return SecondOrderROM(spd(rng, r, 1.0), spd(rng, r, 0.02), spd(rng, r, 1.0), rng.standard_normal((r, m)),
                           rng.standard_normal((p, r)), rng.standard_normal((p, r)), fr=rng.standard_normal(r),
                           Dur=rng.standard_normal((p, m)), y0=rng.standard_normal(p), q0=rng.standard_normal(r),
                           qdot0=rng.standard_normal(r), integrator=integrator)

@@ -4,6 +4,7 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
+from conftest import exact_operator_data, spd
 from fmu_opinf import _sdp
 from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.inference import _fit_compressed, compressed_factor, fit_operators
@@ -16,23 +17,12 @@ def rng():
     return np.random.default_rng(20261123)
 
 
-def _spd(rng, r, shift):
-    a = rng.standard_normal((r, r))
-    return a @ a.T / r + shift * np.eye(r)
-
-
-def _exact_data(rng, r=6, m=2, k=400):
-    """Snapshots with M a + D v + K x = B u exactly."""
-    M, D, K = _spd(rng, r, 1.0), _spd(rng, r, 0.1), _spd(rng, r, 2.0)
-    B = rng.standard_normal((r, m))
-    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((m, k))
-    return (M, D, K, B), (np.linalg.solve(M, B @ u - D @ v - K @ x), v, x, u)
 
 
 def _active_data(rng, r=6, k=300, noise=0.5):
     """Noisy data of a system with rank-one damping and stiffness: several PSD bounds bind (rank-deficient
     optimum), so the SDP, not a least-squares solve, decides the result."""
-    M = _spd(rng, r, 1.0)
+    M = spd(rng, r, 1.0)
     wd, wk = rng.standard_normal((r, 1)), rng.standard_normal((r, 1))
     D, K = wd @ wd.T, wk @ wk.T + 0.05 * np.eye(r)
     B = rng.standard_normal((r, 1))
@@ -44,7 +34,7 @@ def _active_data(rng, r=6, k=300, noise=0.5):
 def _damping_data(rng, r=5, k=300, noise=0.3):
     """Rank-one damping, well conditioned mass and stiffness: cone screening keeps the damping cone only, so
     the default solver path (interior point on screened SDPs) applies."""
-    M, K = _spd(rng, r, 1.0), _spd(rng, r, 1.0)
+    M, K = spd(rng, r, 1.0), spd(rng, r, 1.0)
     w = rng.standard_normal((r, 1))
     B = rng.standard_normal((r, 1))
     x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
@@ -115,7 +105,7 @@ def test_ipm_reaches_the_clarabel_optimum_with_active_cones(rng, normalization, 
 
 @pytest.mark.parametrize("normalization", NORMALIZATIONS)
 def test_exact_data_gives_the_true_operators_and_zero_objective(rng, normalization):
-    truth, data = _exact_data(rng)
+    truth, data = exact_operator_data(rng)
     fit = fit_operators(*data, method="sdp", normalization=normalization, solver="ipm", refine=False)
     assert fit.info["solver"] == "IPM" and fit.info["status"] == "optimal"
     scale = np.trace(fit.Mr) / np.trace(truth[0])
@@ -136,7 +126,7 @@ def test_certificate_rejects_a_suboptimal_point(rng):
 
 def test_symmetric_kronecker_block_matches_its_definition(rng):
     k = 4
-    Y, Z = _spd(rng, k, 0.5), _spd(rng, k, 0.5)
+    Y, Z = spd(rng, k, 0.5), spd(rng, k, 0.5)
     n = k * (k + 1) // 2
     iu, ju = np.triu_indices(k)
 
@@ -191,7 +181,7 @@ def test_same_ipm_operators_with_one_and_two_blas_threads(rng):
 def test_two_indefinite_blocks_are_screened_for_the_ipm_with_the_full_sdp_optimum():
     rng = np.random.default_rng(5)  # the data of test_inference's two-indefinite-blocks test
     r, k = 5, 300
-    M = _spd(rng, r, 1.0)
+    M = spd(rng, r, 1.0)
     D, K = (w @ w.T for w in rng.standard_normal((2, r, 1)))
     B = rng.standard_normal((r, 1))
     x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
