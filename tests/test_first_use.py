@@ -85,3 +85,21 @@ def test_warnings_on_the_command_line_are_one_line(monkeypatch, capsys):
         assert main(["demo", "-o", "unused"]) == 0
     err = capsys.readouterr().err
     assert err == "fmu-opinf: warning: first part second part\n"
+
+
+def test_fit_solver_option_reaches_the_sdp(trained, tmp_path):
+    """`fit --solver clarabel` and `--solver ipm` solve the same SDP with the named solver (recorded in the
+    ROM) and, without refinement, give the same operators (the IPM optimum equals Clarabel's to 1e-6)."""
+    from fmu_opinf.rom import SecondOrderROM
+
+    folder = trained[0]
+    roms = {}
+    for solver in ("clarabel", "ipm"):
+        out = tmp_path / f"{solver}.h5"
+        assert main(["fit", str(folder / "train.h5"), "-o", str(out), "--r", "5", "--solver", solver,
+                     "--normalization", "mass-eigenvalue", "--no-refine", "-q"]) == 0
+        roms[solver] = SecondOrderROM.load(out)
+        assert roms[solver].fit_info["solver"] == solver.upper()
+        assert roms[solver].provenance["fit_settings"]["solver"] == solver
+    a, b = roms["clarabel"], roms["ipm"]
+    assert np.abs(a.Kr - b.Kr).max() < 1e-4 * np.abs(a.Kr).max()

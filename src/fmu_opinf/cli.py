@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--normalization", choices=["auto", "trace", "mass-eigenvalue"], default="auto",
                    help="how the homogeneous SDP is normalized: trace(Mr) fixed, Mr >= I, or auto (solves both, "
                         "keeps the smaller acceleration residual)")
+    p.add_argument("--solver", choices=["auto", "ipm", "clarabel"], default="auto",
+                   help="SDP solver: auto (dense interior-point method, its result certified, Clarabel when the "
+                        "certificate fails or all three cones bind), ipm, or clarabel")
     p.add_argument("--integrator", choices=["auto", "newmark", "exact"], default="auto",
                    help="time discretization of the ROM: Newmark (matches Newmark sources: the builtin "
                         "simulator and benchmark FMUs) or exact under held inputs (continuous-time FMUs); auto "
@@ -228,13 +231,14 @@ def _run_fit(args: argparse.Namespace) -> None:
 
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,
-                       normalization=args.normalization, lowpass=args.lowpass, terms=args.terms,
+                       normalization=args.normalization, solver=args.solver, lowpass=args.lowpass,
+                       terms=args.terms,
                        integrator=args.integrator, refine="auto" if args.refine else False,
                        max_memory=args.max_memory)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "
-          f"[{info.get('normalization')} normalization, cones {', '.join(info.get('cones') or []) or 'none'}] "
+          f"[{info.get('solver')}, {info.get('normalization')} normalization, cones {', '.join(info.get('cones') or []) or 'none'}] "
           f"{info.get('status')} in {info.get('total_seconds', 0):.2f}s; eigenvalues min Mr "
           f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
           f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}; extra terms "

@@ -676,6 +676,7 @@ def fit_rom(
     chunk_size: int | None = None,
     streamed: bool | None = None,
     normalization: str = "auto",
+    solver: str = "auto",
     terms: str | Sequence[str] = "auto",
     integrator: str = "auto",
     refine: bool | str = "auto",
@@ -700,8 +701,9 @@ def fit_rom(
     basis : {"auto", "positions", "velocities"}, default="auto"
         Snapshots spanning the basis; ``"auto"`` uses velocities only if the metadata say the constraint is
         on velocities (unknown, e.g. a black-box FMU: positions).
-    method, mass_trace, tol, normalization
-        Passed to :func:`fmu_opinf.inference.fit_operators`.
+    method, mass_trace, tol, normalization, solver
+        Passed to :func:`fmu_opinf.inference.fit_operators` (``solver``: ``"auto"`` certified interior-point
+        method with Clarabel as fallback, ``"ipm"``, ``"clarabel"``).
     terms : {"auto", "none", "all"} or sequence of {"fr", "Dur", "y0"}, default="auto"
         Which terms beyond the paper's model to fit: ``"auto"`` lets the data decide (module docstring),
         ``"none"`` is the paper's eq. (11), ``"all"`` or a list forces them.
@@ -762,13 +764,15 @@ def fit_rom(
     if refinement:
         say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
-                        mass_trace=mass_trace, tol=tol, normalization=normalization, **refinement)
+                        mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
+                        **refinement)
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
         ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
-                            method=method, mass_trace=mass_trace, tol=tol, normalization=normalization)
+                            method=method, mass_trace=mass_trace, tol=tol, normalization=normalization,
+                            solver=solver)
         ops.info["interval_average_corrections"] = count
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
-        f"normalization) in {ops.info.get('total_seconds', 0):.2f}s"
+        f"normalization, {ops.info.get('solver')}) in {ops.info.get('total_seconds', 0):.2f}s"
         + _refinement_summary(ops.info.get("refinement")))
     m = data["u"].shape[0]
     Br, fr = ops.Br[:, :m], (ops.Br[:, m] if chosen["fr"] else np.zeros(pod.r_))
@@ -780,7 +784,7 @@ def fit_rom(
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
-                "normalization": normalization, "lowpass": lowpass, "terms": terms if isinstance(terms, str)
+                "normalization": normalization, "solver": solver, "lowpass": lowpass, "terms": terms if isinstance(terms, str)
                 else list(terms), "integrator": integrator, "refine": refine}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
