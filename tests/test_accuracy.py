@@ -72,7 +72,7 @@ def _two_runs(rng, r=3, dt=0.1, steps=150):
 
 
 def _problem(rng, runs, Cp, columns=None):
-    from fmu_opinf.inference import _Trajectories
+    from fmu_opinf.refinement import _Trajectories
 
     C = np.hstack([Cp, np.zeros_like(Cp)])
     return _Trajectories(z=[np.vstack([run.x, run.xdot]) for run in runs], u=[run.u for run in runs],
@@ -83,7 +83,7 @@ def _problem(rng, runs, Cp, columns=None):
 def test_output_jacobian_matches_finite_differences_and_the_adjoint_gradient():
     """Forward sensitivities (Jacobian) against central differences of the simulated residuals, and ``2 J^T e``
     against the adjoint gradient of the L-BFGS objective: three independent derivations."""
-    from fmu_opinf.inference import _residuals_and_jacobian
+    from fmu_opinf.refinement import _residuals_and_jacobian
 
     rng = np.random.default_rng(7)
     (M, D, K, B, Cp), runs = _two_runs(rng, steps=60)
@@ -123,7 +123,7 @@ def test_levenberg_marquardt_polish_recovers_the_outputs_of_the_true_system():
 def test_stagnation_stop_fires_exactly_when_the_window_decrease_is_below_rtol():
     from types import SimpleNamespace
 
-    from fmu_opinf.inference import _Stagnation
+    from fmu_opinf.refinement import _Stagnation
 
     history = [1.0]
     stop = _Stagnation(history, window=5, rtol=0.1)

@@ -395,7 +395,7 @@ def test_newmark_step_map_matches_the_reference_stepper(rng):
 
 
 def test_blocked_propagation_equals_the_plain_recursion(rng):
-    from fmu_opinf.inference import _propagate
+    from fmu_opinf.refinement import _propagate
 
     A = rng.standard_normal((7, 7))
     A /= 1.05 * np.abs(np.linalg.eigvals(A)).max()
@@ -409,7 +409,7 @@ def test_blocked_propagation_equals_the_plain_recursion(rng):
 
 
 def test_refinement_gradient_matches_finite_differences(rng):
-    from fmu_opinf.inference import _psd_factor, _Trajectories
+    from fmu_opinf.refinement import _psd_factor, _Trajectories
 
     _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng, r=3, steps=120)
     cut = lengths[0]
