@@ -640,7 +640,7 @@ AVERAGE_CORRECTIONS = 2
 def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]) -> np.ndarray:
     """The interval means of the positions: the two-point Hermite rule of the data plus what the rule misses
     of the fitted model's own trajectory from the same start (:func:`hermite_rule_corrections`)."""
-    from .snapshots._rates import hermite_rule_corrections
+    from .snapshots._rates import hermite_rule, hermite_rule_corrections
 
     x_mean = data["f_x"].copy()
     r = x_mean.shape[0]
@@ -649,8 +649,7 @@ def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]
         cols = data["f_h"][0] == step
         x0, v0 = data["f_start"][:r, cols], data["f_start"][r:, cols]
         x1, v1 = x0 + step * data["f_xdot"][:, cols], v0 + step * data["f_xddot"][:, cols]
-        rule = 0.5 * (x0 + x1) + step / 12.0 * (v0 - v1)
-        x_mean[:, cols] = rule + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
+        x_mean[:, cols] = hermite_rule(x0, x1, v0, v1, step) + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
     return x_mean
 
 
@@ -784,8 +783,8 @@ def fit_rom(
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
-                "normalization": normalization, "solver": solver, "lowpass": lowpass, "terms": terms if isinstance(terms, str)
-                else list(terms), "integrator": integrator, "refine": refine}
+                "normalization": normalization, "solver": solver, "lowpass": lowpass,
+                "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
