@@ -192,7 +192,7 @@ def rom_step_map(rom, dt: float, forced: np.ndarray) -> tuple[np.ndarray, np.nda
     rom : SecondOrderROM
         Its ``integrator`` picks the map: ``"exact"`` (:meth:`SecondOrderROM.step_map`, ``v_i = [u; 1]`` held over
         step ``i``) or ``"newmark"`` (:func:`fmu_opinf.newmark.step_matrices`, which also needs the input of the
-        previous step for the acceleration update: ``v_i = [u_{i+1}; 1; u_i; 1]``).
+        previous step for the acceleration update: ``v_i = [u_{i+1}; 1; u_i]``).  Built from :func:`rom_step`.
     dt : float
     forced : (m + 1, k + 1) ndarray
         Inputs in effect at the grid times with a last row of ones (the constant force ``fr``).
@@ -203,14 +203,11 @@ def rom_step_map(rom, dt: float, forced: np.ndarray) -> tuple[np.ndarray, np.nda
     gamma : (3r, q) ndarray
     drive : (q, k) ndarray
     """
-    from .newmark import step_matrices
-
+    step = rom_step(rom, dt)
+    gamma = np.hstack([step.gamma_next, step.offset[:, None]])   # v_i starts with [u_{i+1}; 1]
     if rom.integrator == "exact":
-        phi, gamma = rom.step_map(dt)
-        return phi, gamma, forced[:, 1:]
-    B = np.hstack([rom.Br, rom.fr[:, None]])
-    phi, gamma_new, gamma_old = step_matrices(rom.Mr, rom.Dr, rom.Kr, B, dt)
-    return phi, np.hstack([gamma_new, gamma_old]), np.vstack([forced[:, 1:], forced[:, :-1]])
+        return step.phi, gamma, forced[:, 1:]
+    return step.phi, np.hstack([gamma, step.gamma_prev]), np.vstack([forced[:, 1:], forced[:-1, :-1]])
 
 
 @dataclass
@@ -245,7 +242,7 @@ def rom_step(rom, dt: float) -> RomStep:
     Returns
     -------
     RomStep
-        The matrices of :func:`rom_step_map`, with the constant-force column split off.
+        ``Phi``, the input matrices of the new and the previous grid point, and the constant force ``c``.
     """
     from .newmark import step_matrices
 
