@@ -102,4 +102,5 @@ def test_fit_solver_option_reaches_the_sdp(trained, tmp_path):
         assert roms[solver].fit_info["solver"] == solver.upper()
         assert roms[solver].provenance["fit_settings"]["solver"] == solver
     a, b = roms["clarabel"], roms["ipm"]
-    assert np.abs(a.Kr - b.Kr).max() < 1e-4 * np.abs(a.Kr).max()
+    for name in ("Mr", "Dr", "Kr", "Br"):  # measured 1.1e-5 .. 1.7e-5 (the optimum is flat along these)
+        assert np.abs(getattr(a, name) - getattr(b, name)).max() < 5e-5 * np.abs(getattr(a, name)).max(), name
