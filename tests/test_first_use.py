@@ -104,3 +104,26 @@ def test_fit_solver_option_reaches_the_sdp(trained, tmp_path):
     a, b = roms["clarabel"], roms["ipm"]
     for name in ("Mr", "Dr", "Kr", "Br"):  # measured 1.1e-5 .. 1.7e-5 (the optimum is flat along these)
         assert np.abs(getattr(a, name) - getattr(b, name)).max() < 5e-5 * np.abs(getattr(a, name)).max(), name
+
+
+def test_fit_refit_output_map_option_reaches_the_refinement(trained, tmp_path, capsys):
+    """`fit --refit-output-map` makes the refinement re-fit the output map (recorded in the ROM, its map is not
+    eq. 17's and its training objective is lower); with `--no-refine` it is a one-line error, no file."""
+    from fmu_opinf.rom import SecondOrderROM
+
+    folder, default, _ = trained
+    out = tmp_path / "refit.h5"
+    assert main(["fit", str(folder / "train.h5"), "-o", str(out), "--r", "5", "--refit-output-map", "-q"]) == 0
+    rom = SecondOrderROM.load(out)
+    assert rom.provenance["fit_settings"]["refit_output_map"] is True
+    refined, before = rom.fit_info["refinement"], default.fit_info["refinement"]
+    assert refined["output_map"] == "refitted" and before["output_map"] == "fixed"
+    assert np.abs(rom.Cpr - default.Cpr).max() > 1e-6 * np.abs(default.Cpr).max()
+    assert refined["objective"] < before["objective"]
+    capsys.readouterr()
+    bad = tmp_path / "bad.h5"
+    assert main(["fit", str(folder / "train.h5"), "-o", str(bad), "--r", "5", "--refit-output-map",
+                 "--no-refine", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "needs the output-error refinement" in err and "drop the option" in err
+    assert not bad.exists() and not list(tmp_path.glob("bad*"))

@@ -174,6 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-refine", dest="refine", action="store_false",
                    help="keep the SDP solution (eq. 16) instead of refining it by output error (the default for "
                         "Newmark ROMs; see fmu_opinf.inference)")
+    p.add_argument("--refit-output-map", action="store_true",
+                   help="let the refinement re-fit the output map to the ROM's own trajectory (variable projection; "
+                        "much more accurate on some models, less on others: see fmu_opinf.inference, default off)")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
@@ -234,6 +237,7 @@ def _run_fit(args: argparse.Namespace) -> None:
                        normalization=args.normalization, solver=args.solver, lowpass=args.lowpass,
                        terms=args.terms,
                        integrator=args.integrator, refine="auto" if args.refine else False,
+                       refit_output_map=args.refit_output_map,
                        max_memory=args.max_memory)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]

@@ -109,9 +109,14 @@ class _Trajectories:
     dt: float
     scales: np.ndarray  # physical operator = factor product / scale, for M, D, K, B
     columns: np.ndarray | None = None  # (3, r): column scaling of the factors of M, D, K (default ones)
+    free_output_map: bool = False  # C re-fitted to each simulation by least squares (variable projection)
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
-        """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method)."""
+        """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
+
+        With ``free_output_map`` the map ``C`` is first re-fitted to the simulated states; the gradient is then
+        the same expression, since ``C`` is optimal (variable projection).
+        """
         factors, Bs = _split_factors(params, r, m)
         columns = np.ones((3, r)) if self.columns is None else self.columns
         LM, LD, LK = (L * c for L, c in zip(factors, columns))
@@ -119,8 +124,10 @@ class _Trajectories:
         lu, Ad, Bd = _newmark_discrete(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
         grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
         powers = _powers(Ad, _STRIDE)  # shared by all runs, transposed for the adjoint
-        for z_data, u, target in zip(self.z, self.u, self.target):
-            z = _propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, powers)
+        sims = [_propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, powers) for z_data, u in zip(self.z, self.u)]
+        if self.free_output_map:
+            self.C = _least_squares_output_map(sims, self.target, self.C)
+        for z, u, target in zip(sims, self.u, self.target):
             err = self.C @ z - target
             value += float(np.sum(err * err))
             g = 2.0 * (self.C.T @ err)
@@ -140,6 +147,17 @@ class _Trajectories:
         grads = [(((g + g.T) @ L) * c / scale).ravel()
                  for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
         return value, np.concatenate(grads + [(gB / su).ravel()])
+
+
+def _least_squares_output_map(states: list[np.ndarray], targets: list[np.ndarray],
+                              fallback: np.ndarray) -> np.ndarray:
+    """The ``C`` minimizing ``sum_runs ||C z - target||^2`` (QR-based least squares: the simulated states are
+    as ill-conditioned as the data, 1e7 on the anchored chain, so the normal equations would lose 14 digits);
+    ``fallback`` when a simulation diverged."""
+    Z = np.hstack(states).T
+    if not np.all(np.isfinite(Z)):
+        return fallback
+    return scipy.linalg.lstsq(Z, np.hstack(targets).T, check_finite=False, lapack_driver="gelsy")[0].T
 
 
 def _residuals_and_jacobian(problem: _Trajectories, params: np.ndarray, r: int, m: int,
@@ -227,6 +245,26 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
     return x, steps
 
 
+def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int, m: int, max_iterations: int,
+               window: int, rtol: float, report: dict[str, Any]) -> np.ndarray:
+    """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (L-BFGS-B's
+    stopping tests are absolute below 1); fills ``report`` and returns the last iterate."""
+    import scipy.optimize
+
+    history = [1.0]
+    stop = _Stagnation(history, window, rtol)
+    result = scipy.optimize.minimize(lambda p: tuple(v / value0 for v in problem.loss(p, r, m)), start,
+                                     jac=True, method="L-BFGS-B", callback=stop,
+                                     options={"maxiter": max_iterations, "maxcor": 100, "ftol": 1e-13,
+                                              "gtol": 1e-12})
+    if problem.free_output_map:
+        problem.loss(result.x, r, m)  # leaves problem.C at the map of the final iterate
+    status = "stagnated" if stop.stopped else ("converged" if result.success else "iteration limit")
+    report.update(objective=float(result.fun) * value0, iterations=int(result.nit), evaluations=int(result.nfev),
+                  status=status, history=np.asarray(history) * value0)
+    return result.x
+
+
 class _Stagnation:
     """L-BFGS callback: records the objective and stops once it fell by less than a factor ``1 + rtol`` over the
     last ``window`` iterations, tested from iteration ``2 window`` on (``rtol = 0``: never)."""
@@ -258,7 +296,7 @@ def refine_output_error(
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
-    window: int = 25, polish_iterations: int = 0,
+    window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -298,18 +336,23 @@ def refine_output_error(
     polish_iterations : int, default=0
         Levenberg-Marquardt iterations on the output residuals after L-BFGS, with the exact Jacobian by forward
         sensitivities (``O(k r^4)`` per iteration: small orders only; module docstring).
+    refit_output_map : bool, default=False
+        Re-fit ``[Cpr, Cvr]`` to the simulated states by least squares at every evaluation (variable
+        projection) instead of keeping ``output_map``; the refined map is returned in ``report["refitted_map"]``
+        and must replace ``output_map`` in the ROM.  Module docstring of :mod:`fmu_opinf.inference`, *Output
+        map*: far more accurate on the anchored chain, less accurate on the triple chain, so off by default.
 
     Returns
     -------
     Mr, Dr, Kr, Br : ndarray
     report : dict
         ``objective_start``, ``objective`` (relative squared output error on the training runs), ``iterations``,
-        ``evaluations``, ``seconds``, ``coordinates`` (``"modal"`` or ``"given"``), ``status`` (``"converged"``, ``"stagnated"``, ``"iteration limit"`` or
-        ``"kept start"``), ``history`` (objective after each L-BFGS iteration) and, when polishing, ``polish``
-        (objective and damping of each accepted Levenberg-Marquardt step).
+        ``evaluations``, ``seconds``, ``coordinates`` (``"modal"`` or ``"given"``), ``status`` (``"converged"``,
+        ``"stagnated"``, ``"iteration limit"`` or ``"kept start"``), ``history`` (objective after each L-BFGS
+        iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map`` (``(Cpr, Cvr)``, when
+        refitted) and, when polishing, ``polish`` (objective and damping of each accepted Levenberg-Marquardt
+        step).
     """
-    import scipy.optimize
-
     t0 = time.perf_counter()
     r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
     lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]
@@ -339,33 +382,30 @@ def refine_output_error(
     problem = _Trajectories(
         z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
         target=[y[:, a:b] / scale_y for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack([Cpr, Cvr]) / scale_y,
-        dt=float(dt), scales=scales, columns=columns)
+        dt=float(dt), scales=scales, columns=columns, free_output_map=bool(refit_output_map))
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]
                            + [(Br * scales[3]).ravel()])
     value0 = problem.loss(start, r, m)[0]
     report = {"objective_start": value0, "objective": value0, "iterations": 0, "evaluations": 1,
-              "status": "exact start", "coordinates": "modal" if whiten else "given"}
-    if value0 > 0:  # L-BFGS-B's stopping tests are absolute below 1: work relative to the start
-        history = [1.0]
-        stop = _Stagnation(history, window, rtol)
-        result = scipy.optimize.minimize(lambda p: tuple(v / value0 for v in problem.loss(p, r, m)), start,
-                                         jac=True, method="L-BFGS-B", callback=stop,
-                                         options={"maxiter": max_iterations, "maxcor": 100, "ftol": 1e-13,
-                                                  "gtol": 1e-12})
-        status = "stagnated" if stop.stopped else ("converged" if result.success else "iteration limit")
-        report.update(objective=float(result.fun) * value0, iterations=int(result.nit), evaluations=int(result.nfev),
-                      status=status, history=np.asarray(history) * value0)
-        x = result.x
+              "status": "exact start", "coordinates": "modal" if whiten else "given",
+              "output_map": "refitted" if refit_output_map else "fixed"}
+    if value0 > 0:
+        x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report)
         if polish_iterations > 0:
+            problem.free_output_map = False  # the Jacobian holds C fixed: polish with the map L-BFGS ended at
             x, report["polish"] = _levenberg_marquardt(problem, x, r, m, polish_iterations)
             report["objective"] = problem.loss(x, r, m)[0]
         factors, Bs = _split_factors(x, r, m)
         mats = [(L * c) @ (L * c).T / s for L, c, s in zip(factors, cols, scales[:3])]
         if report["objective"] < value0 and np.linalg.eigvalsh(mats[0])[0] > 0:
             Mr, Dr, Kr, Br = (*mats, Bs / scales[3])
+            if refit_output_map:
+                C = problem.C * scale_y  # p = T^-1 q: the map of q is C T^-1
+                report["refitted_map"] = (C[:, :r] @ T_inv, C[:, r:] @ T_inv)
         else:
             report["status"] = "kept start"
+            report["output_map"] = "fixed"
     report["seconds"] = time.perf_counter() - t0
     back = T_inv.T  # q = T p: the operators of q are T^-T (.) T^-1
     Mr, Dr, Kr = (0.5 * (back @ A @ T_inv + (back @ A @ T_inv).T) for A in (Mr, Dr, Kr))

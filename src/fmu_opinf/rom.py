@@ -53,7 +53,7 @@ import scipy.linalg
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
-from .errors import DataError, DimensionError, FileFormatError
+from .errors import DataError, DimensionError, FileFormatError, InputSpecError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
 
 if TYPE_CHECKING:
@@ -679,6 +679,7 @@ def fit_rom(
     terms: str | Sequence[str] = "auto",
     integrator: str = "auto",
     refine: bool | str = "auto",
+    refit_output_map: bool = False,
     quiet: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
@@ -718,6 +719,10 @@ def fit_rom(
         Output-error refinement of the SDP solution over PSD factors (:mod:`fmu_opinf.inference`, issue 14):
         ``"auto"`` refines Newmark ROMs fitted without ``lowpass`` (it models the Newmark step); False keeps the
         SDP solution (the paper's eq. 16 with ``normalization="trace"``).
+    refit_output_map : bool, default=False
+        Let the refinement re-fit ``Cpr, Cvr`` to the ROM's own trajectory instead of keeping eq. 17's map
+        (:mod:`fmu_opinf.inference`, *Output map*: much more accurate on the anchored chain, less on the triple
+        chain).  Only with the refinement; ``Dur`` and ``y0`` stay as eq. 17 fitted them.
     quiet : bool, default=True
         False: print one labelled line per stage (POD, SDP start, SDP result) on stderr, as the CLI does.
     log : callable, optional
@@ -740,6 +745,8 @@ def fit_rom(
     runs = as_runs(snapshots)
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
+    if refit_output_map and (refine is False or lowpass is not None or _integrator(integrator, attrs) != "newmark"):
+        raise _refit_without_refinement()
     start = time.perf_counter()
     x_ref = _reference_position(runs)
     centred_runs = [_CentredRun(run, x_ref) for run in runs] if np.any(x_ref) else runs
@@ -762,9 +769,13 @@ def fit_rom(
     refinement = _refinement(refine, time_integrator, lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
     if refinement:
         say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
+    if refit_output_map and not refinement:
+        raise _refit_without_refinement()
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
-                        **refinement)
+                        refit_output_map=refit_output_map, **refinement)
+    if ops.output_map is not None:
+        Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
         ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
                             method=method, mass_trace=mass_trace, tol=tol, normalization=normalization,
@@ -784,7 +795,8 @@ def fit_rom(
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
-                "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine}
+                "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
+                "refit_output_map": refit_output_map}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
@@ -794,6 +806,12 @@ def fit_rom(
         singular_values=pod.svdvals_, fr=fr, Dur=Dur, y0=y0, q0=q0, qdot0=qdot0,
         x_ref=x_ref if keep_basis else None, integrator=time_integrator,
     )
+
+
+def _refit_without_refinement() -> InputSpecError:
+    return InputSpecError("refit_output_map (--refit-output-map) needs the output-error refinement: a Newmark ROM, "
+                          "no lowpass, one training time step, refine not False; drop the option or enable the "
+                          "refinement")
 
 
 def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs: list, attrs: dict,
