@@ -182,7 +182,10 @@ would pick the variant from the data were measured and failed: the drift ``||C -
 is 0.26-1.3 on the anchored chain and 0.4-6.9 on the triple chain (no threshold separates them); fitting the map
 to the simulated *and* the measured reduced states together keeps the triple chain good (r = 35: ratio 0.13) but
 loses most of the anchored gain (r = 11 / 12: 15 / 67); a trust region around eq. 17's map broke L-BFGS's line
-search.  So the variant is an option, to be checked on validation runs (``fmu-opinf compare``), not the default.
+search.  With less informative data it can fail badly: trained on the first half of the impulse run only
+(0-150 s), the triple chain at r = 20 / 35 reached test errors of 3.8e-2 / 82 against 1.7e-4 / 2.7e-5 with the
+fixed map (anchored r = 11: 9.0e-17 against 7.8e-16).  So the variant is an option, to be checked on
+validation runs (``fmu-opinf compare``), not the default.
 
 Cost of the refinement (CPU seconds, one BLAS thread, machine shared with other jobs): one objective + adjoint
 gradient takes 3.2 / 17 / 40 ms at r = 10 / 35 / 50 (before sharing the powers of the step map: 3.5 / 18 /
