@@ -72,6 +72,12 @@ CASES: dict[str, DemoCase] = {
 }
 
 
+#: The demo's FMUs (benchmarks built from the bundled C sources, ROM FMUs it exports) run in the demo's process, as
+#: its recordings do: a separate process per simulation (compare's default, against crashing third-party
+#: binaries) cost about 0.5 s of interpreter start-up and imports each, six times.
+_IN_PROCESS = {"isolate": False}
+
+
 def _log(message: str, quiet: bool) -> None:
     if not quiet:
         print(message, flush=True)
@@ -129,7 +135,8 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
 
         test_t_end = dt * round(case.test_t_end / dt)
         start = time.perf_counter()
-        result = compare.compare(model, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet)
+        result = compare.compare(model, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet,
+                                 source_options=_IN_PROCESS)
         reference_name = "FMU" if compile_fmus else "reference simulator"
         result.title = f"{case.fmu}: ROM (r={model.r}) vs {reference_name} on {case.test_input}"
         timings["compare"] = time.perf_counter() - start
@@ -142,7 +149,8 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
         if exported is None:
             return summary
         rom_fmu, timings["export"] = exported.result()
-    fmu_result = compare.compare(rom_fmu, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet)
+    fmu_result = compare.compare(rom_fmu, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet,
+                                 source_options=_IN_PROCESS)
     fmu_result.title = f"{case.fmu}: exported ROM FMU vs FMU on {case.test_input}"
     fmu_result.t_train_end = t_end
     compare.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
