@@ -223,6 +223,12 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     return rows
 
 
+#: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked.
+_PRELOAD = ("fmu_opinf.compare", "fmu_opinf.export", "fmu_opinf.fmus", "fmu_opinf.plots", "fmu_opinf.rom",
+            "fmu_opinf.snapshots", "fmu_opinf.source", "fmu_opinf.newmark", "fmu_opinf._sdp", "fmu_opinf._recursion",
+            "scipy.optimize", "fmpy.simulation")
+
+
 def _side_by_side(names: list[str]) -> bool:
     """Run the cases concurrently: more than one, a core for each, and workers can be forked."""
     from ._forked import can_fork
@@ -239,12 +245,15 @@ def _run_cases(names: list[str], out_dir: Path, **options: Any) -> list[dict[str
     """
     if not _side_by_side(names):
         return [run_case(name, out_dir / name, **options) for name in names]
+    import importlib
     import threading
 
-    from . import compare, export, fmus, plots, rom, snapshots, source  # noqa: F401 - imported once, before forking
+    from . import plots
     from ._forked import Worker, labelled_output
 
-    plots._pyplot()
+    for module in _PRELOAD:  # imported once, before forking, instead of once per case
+        importlib.import_module(module)
+    plots._pyplot()  # matplotlib with the Agg backend
     lock = threading.Lock()
     workers = [Worker(f"[{name}] ", run_case, name, out_dir / name, lock=lock, **options) for name in names[1:]]
     try:
