@@ -126,36 +126,42 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     model = rom.fit_rom(snaps, r=order, quiet=quiet)  # labelled stage lines: POD, SDP, refinement
     timings["fit"] = time.perf_counter() - start
     model.save(out_dir / "rom.h5", overwrite=True)
+    test = {"fmu_path": fmu_path, "dt": dt, "t_end": dt * round(case.test_t_end / dt), "quiet": quiet}
+    notes = {"training input": case.training_input, "snapshot window": window_note,
+             "basis": model.basis_kind, "fit status": model.fit_info.get("status")}
+    summary = {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings, "rom": None,
+               "rom_fmu": None}
     with ThreadPoolExecutor(max_workers=1) as background:
         # the C compiler runs in its own process: the ROM FMU is built while this thread draws and compares
         exported = (background.submit(_timed, export.export_fmu, model, out_dir / f"{case.fmu}ROM.fmu",
                                       overwrite=True) if compile_fmus else None)
         figures = plots.pod_figures(snaps, model, out_dir / "fit")
         _log(f"[{name}] ROM r={model.r} fitted in {timings['fit']:.2f}s ({model.fit_info.get('status')})", quiet)
-
-        test_t_end = dt * round(case.test_t_end / dt)
         start = time.perf_counter()
-        result = compare.compare(model, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet,
-                                 source_options=_IN_PROCESS)
         reference_name = "FMU" if compile_fmus else "reference simulator"
-        result.title = f"{case.fmu}: ROM (r={model.r}) vs {reference_name} on {case.test_input}"
+        result = _compare(model, case, test, f"{case.fmu}: ROM (r={model.r}) vs {reference_name}")
         timings["compare"] = time.perf_counter() - start
-        notes = {"training input": case.training_input, "snapshot window": window_note,
-                 "basis": model.basis_kind, "fit status": model.fit_info.get("status")}
         compare.write_report(result, out_dir / "report",
                              extra_figures={k.replace("_", " "): v for k, v in figures.items()}, notes=notes)
-        summary = {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings,
-                   "rom": result.metrics(), "rom_fmu": None}
+        summary["rom"] = result.metrics()
         if exported is None:
             return summary
         rom_fmu, timings["export"] = exported.result()
-    fmu_result = compare.compare(rom_fmu, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet,
-                                 source_options=_IN_PROCESS)
-    fmu_result.title = f"{case.fmu}: exported ROM FMU vs FMU on {case.test_input}"
+    fmu_result = _compare(rom_fmu, case, test, f"{case.fmu}: exported ROM FMU vs FMU")
     fmu_result.t_train_end = t_end
     compare.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
     summary["rom_fmu"] = fmu_result.metrics()
     return summary
+
+
+def _compare(rom: Any, case: DemoCase, test: dict[str, Any], title: str) -> Any:
+    """:func:`fmu_opinf.compare.compare` of ``rom`` with the case's FMU on its test input, titled."""
+    from . import compare
+
+    result = compare.compare(rom, test["fmu_path"], case.test_input, dt=test["dt"], t_end=test["t_end"],
+                             quiet=test["quiet"], source_options=_IN_PROCESS)
+    result.title = f"{title} on {case.test_input}"
+    return result
 
 
 def _timed(function: Callable[..., T], *args: Any, **kwargs: Any) -> tuple[T, float]:
