@@ -17,6 +17,7 @@ import pytest
 from fmu_opinf import cli, demo
 from fmu_opinf._forked import RemoteTraceback, Worker, can_fork
 from fmu_opinf.errors import DataError, Interrupted
+from fmu_opinf.fmus import find_build_tools
 from fmu_opinf.sources import StepError
 
 pytestmark = pytest.mark.skipif(not can_fork(), reason="workers are forked only on Linux")
@@ -188,3 +189,33 @@ def _state(pid: int) -> str:
             return stat.read().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "gone"
+
+
+@pytest.mark.skipif(find_build_tools() is None, reason="no C compiler or CMake to build the FMUs")
+def test_the_rom_fmu_compiles_while_the_figures_are_drawn_and_its_errors_stay_the_same(tmp_path, monkeypatch,
+                                                                                        capsys):
+    from fmu_opinf import export, plots
+    from fmu_opinf.fmus import FmuBuildError
+
+    events = {}
+    pod_figures = plots.pod_figures
+
+    def failing_export(*args, **kwargs):
+        events["export started"] = time.perf_counter()
+        time.sleep(0.5)
+        raise FmuBuildError("compilation failed (exit code 1): model.c:1: error")
+
+    def timed_figures(*args, **kwargs):
+        value = pod_figures(*args, **kwargs)
+        events["figures done"] = time.perf_counter()
+        return value
+
+    monkeypatch.setattr(export, "export_fmu", failing_export)
+    monkeypatch.setattr(plots, "pod_figures", timed_figures)
+    out = tmp_path / "out"
+    assert cli.main(["demo", "-o", str(out), "--quick", "--quiet", "--model", "anchored-msd"]) == 2
+    assert events["export started"] < events["figures done"]
+    assert capsys.readouterr().err == "fmu-opinf: error: compilation failed (exit code 1): model.c:1: error\n"
+    # as before: the ROM's report is written, then the export fails
+    assert (out / "anchored-msd" / "report" / "index.html").is_file()
+    assert not (out / "anchored-msd" / "report-fmu").exists()
