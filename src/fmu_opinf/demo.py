@@ -202,6 +202,10 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     Writes ``<model>/`` folders (snapshots, ROM, figures, reports, exported FMU), ``summary.json``
     and ``index.html``, and prints a summary table. Without a C compiler or CMake it says so first,
     skips the FMU builds and the export, and runs the rest on the builtin reference simulator.
+    With a core per model (on Linux) the models run side by side, each after the first in a forked
+    worker process, and every line printed for a model starts with its name; the results, files, table
+    and errors are those of running them one after the other.  Each model's ROM FMU compiles while its
+    figures are drawn and its ROM is compared.
 
     Returns
     -------
