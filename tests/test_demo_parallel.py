@@ -219,3 +219,16 @@ def test_the_rom_fmu_compiles_while_the_figures_are_drawn_and_its_errors_stay_th
     # as before: the ROM's report is written, then the export fails
     assert (out / "anchored-msd" / "report" / "index.html").is_file()
     assert not (out / "anchored-msd" / "report-fmu").exists()
+
+
+def test_labelled_lines_pass_on_whole_lines_once_labelled():
+    from fmu_opinf._forked import LabelledLines
+
+    emitted = []
+    stream = LabelledLines("[case] ", emitted.append)
+    stream.write("first ")
+    assert emitted == []  # nothing until the line is whole
+    stream.write("line\nsecond\n[case] third\nunfinished")
+    stream.finish()
+    assert "".join(emitted) == "[case] first line\n[case] second\n[case] third\n[case] unfinished\n"
+    assert not stream.isatty()
