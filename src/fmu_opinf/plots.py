@@ -44,7 +44,7 @@ def decade_label(value: float, pos: Any = None) -> str:
     """Tick label of a log axis: ``10⁻⁵`` in Unicode superscripts for powers of ten, else ``%g``.
 
     Looks like matplotlib's default (``$10^{-5}$``) without typesetting each label with mathtext, which took
-    about half of a figure's drawing time.
+    40 % of the singular-value figure's drawing time (25 % of the error figure's in a comparison report).
     """
     if not np.isfinite(value) or value <= 0:
         return ""
