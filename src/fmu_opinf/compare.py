@@ -516,11 +516,16 @@ def _figure_error(comparison: Comparison, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.ticker import FuncFormatter
+
+    from .plots import decade_label
+
     eps = comparison.eps
     fig, ax = plt.subplots(figsize=(8, 3.2))
     # twelve decades below the peak are enough to read the error's history (round-off would stretch the axis)
     floor = max(eps[eps > 0].min() if np.any(eps > 0) else 1e-300, 1e-12 * float(eps.max()), 1e-300)
     ax.semilogy(comparison.t, np.maximum(eps, floor), "C0-", lw=1.2)
+    ax.yaxis.set_major_formatter(FuncFormatter(decade_label))  # 10⁻⁵ without mathtext: a quarter less drawing time
     ax.set_xlabel("t [s]")
     ax.set_ylabel(r"$\varepsilon_y(t)$, eq. (19)")
     ax.set_title(r"squared relative output error $\|y - y_r\|^2 / \max_t \|y\|^2$ (eq. 19), "

@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import html
 import json
+import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, TypeVar
 
 from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
 
 __all__ = ["DemoCase", "CASES", "run_demo"]
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,12 @@ CASES: dict[str, DemoCase] = {
         test_input="harmonic:amplitude=1,omega=0.2",
         window={}, test_t_end=400.0, quick_window=(1.0, 900.0), quick_order=12),
 }
+
+
+#: The demo's FMUs (benchmarks built from the bundled C sources, ROM FMUs it exports) run in the demo's process, as
+#: its recordings do: a separate process per simulation (compare's default, against crashing third-party
+#: binaries) cost about 0.5 s of interpreter start-up and imports each, six times.
+_IN_PROCESS = {"isolate": False}
 
 
 def _log(message: str, quiet: bool) -> None:
@@ -116,33 +126,49 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     model = rom.fit_rom(snaps, r=order, quiet=quiet)  # labelled stage lines: POD, SDP, refinement
     timings["fit"] = time.perf_counter() - start
     model.save(out_dir / "rom.h5", overwrite=True)
-    figures = plots.pod_figures(snaps, model, out_dir / "fit")
-    _log(f"[{name}] ROM r={model.r} fitted in {timings['fit']:.2f}s ({model.fit_info.get('status')})", quiet)
-
-    test_t_end = dt * round(case.test_t_end / dt)
-    start = time.perf_counter()
-    result = compare.compare(model, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet)
-    reference_name = "FMU" if compile_fmus else "reference simulator"
-    result.title = f"{case.fmu}: ROM (r={model.r}) vs {reference_name} on {case.test_input}"
-    timings["compare"] = time.perf_counter() - start
+    test = {"fmu_path": fmu_path, "dt": dt, "t_end": dt * round(case.test_t_end / dt), "quiet": quiet}
     notes = {"training input": case.training_input, "snapshot window": window_note,
              "basis": model.basis_kind, "fit status": model.fit_info.get("status")}
-    compare.write_report(result, out_dir / "report", extra_figures={k.replace("_", " "): v for k, v in figures.items()},
-                         notes=notes)
-    summary = {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings,
-               "rom": result.metrics(), "rom_fmu": None}
-    if not compile_fmus:
-        return summary
-
-    start = time.perf_counter()
-    rom_fmu = export.export_fmu(model, out_dir / f"{case.fmu}ROM.fmu", overwrite=True)
-    timings["export"] = time.perf_counter() - start
-    fmu_result = compare.compare(rom_fmu, fmu_path, case.test_input, dt=dt, t_end=test_t_end, quiet=quiet)
-    fmu_result.title = f"{case.fmu}: exported ROM FMU vs FMU on {case.test_input}"
+    summary = {"model": name, "r": model.r, "dt": dt, "t_end": t_end, "timings": timings, "rom": None,
+               "rom_fmu": None}
+    with ThreadPoolExecutor(max_workers=1) as background:
+        # the C compiler runs in its own process: the ROM FMU is built while this thread draws and compares
+        exported = (background.submit(_timed, export.export_fmu, model, out_dir / f"{case.fmu}ROM.fmu",
+                                      overwrite=True) if compile_fmus else None)
+        figures = plots.pod_figures(snaps, model, out_dir / "fit")
+        _log(f"[{name}] ROM r={model.r} fitted in {timings['fit']:.2f}s ({model.fit_info.get('status')})", quiet)
+        start = time.perf_counter()
+        reference_name = "FMU" if compile_fmus else "reference simulator"
+        result = _compare(model, case, test, f"{case.fmu}: ROM (r={model.r}) vs {reference_name}")
+        timings["compare"] = time.perf_counter() - start
+        compare.write_report(result, out_dir / "report",
+                             extra_figures={k.replace("_", " "): v for k, v in figures.items()}, notes=notes)
+        summary["rom"] = result.metrics()
+        if exported is None:
+            return summary
+        rom_fmu, timings["export"] = exported.result()
+    fmu_result = _compare(rom_fmu, case, test, f"{case.fmu}: exported ROM FMU vs FMU")
     fmu_result.t_train_end = t_end
     compare.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
     summary["rom_fmu"] = fmu_result.metrics()
     return summary
+
+
+def _compare(rom: Any, case: DemoCase, test: dict[str, Any], title: str) -> Any:
+    """:func:`fmu_opinf.compare.compare` of ``rom`` with the case's FMU on its test input, titled."""
+    from . import compare
+
+    result = compare.compare(rom, test["fmu_path"], case.test_input, dt=test["dt"], t_end=test["t_end"],
+                             quiet=test["quiet"], source_options=_IN_PROCESS)
+    result.title = f"{title} on {case.test_input}"
+    return result
+
+
+def _timed(function: Callable[..., T], *args: Any, **kwargs: Any) -> tuple[T, float]:
+    """``function(*args, **kwargs)`` and its wall time in seconds."""
+    start = time.perf_counter()
+    value = function(*args, **kwargs)
+    return value, time.perf_counter() - start
 
 
 def _summary_page(rows: list[dict[str, Any]], seconds: float) -> str:
@@ -176,6 +202,10 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     Writes ``<model>/`` folders (snapshots, ROM, figures, reports, exported FMU), ``summary.json``
     and ``index.html``, and prints a summary table. Without a C compiler or CMake it says so first,
     skips the FMU builds and the export, and runs the rest on the builtin reference simulator.
+    With a core per model (on Linux) the models run side by side, each after the first in a forked
+    worker process, and every line printed for a model starts with its name; the results, files, table
+    and errors are those of running them one after the other.  Each model's ROM FMU compiles while its
+    figures are drawn and its ROM is compared.
 
     Returns
     -------
@@ -192,7 +222,7 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
         _log("no C compiler or CMake found: skipping the benchmark FMU builds and the ROM FMU export; "
              "the builtin reference simulator (the same models and Newmark scheme) stands in for the FMUs", quiet)
     start = time.perf_counter()
-    rows = [run_case(name, out_dir / name, quick=quick, quiet=quiet, compile_fmus=compile_fmus) for name in names]
+    rows = _run_cases(names, out_dir, quick=quick, quiet=quiet, compile_fmus=compile_fmus)
     seconds = time.perf_counter() - start
     _atomic_write_bytes(out_dir / "summary.json",
                         json.dumps({"seconds": seconds, "quick": quick, "cases": rows}, indent=2).encode())
@@ -201,3 +231,45 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
                           + [(f"{r['model']} ROM FMU", r["rom_fmu"]) for r in rows if r["rom_fmu"]])
     _log(table + f"\n\ntotal {seconds:.1f} s; open {out_dir / 'index.html'}", quiet)
     return rows
+
+
+#: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked.
+_PRELOAD = ("fmu_opinf.compare", "fmu_opinf.export", "fmu_opinf.fmus", "fmu_opinf.plots", "fmu_opinf.rom",
+            "fmu_opinf.snapshots", "fmu_opinf.source", "fmu_opinf.newmark", "fmu_opinf._sdp", "fmu_opinf._recursion",
+            "scipy.optimize", "fmpy.simulation")
+
+
+def _side_by_side(names: list[str]) -> bool:
+    """Run the cases concurrently: more than one, a core for each, and workers can be forked."""
+    from ._forked import can_fork
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return len(names) > 1 and cores >= len(names) and can_fork()
+
+
+def _run_cases(names: list[str], out_dir: Path, **options: Any) -> list[dict[str, Any]]:
+    """:func:`run_case` for each name, in order, or side by side (the first one here, the others in workers).
+
+    Side by side, every printed line says its case; the rows, and the first error in case order (raised when
+    the cases before it have finished), are those of running the cases one after the other.
+    """
+    if not _side_by_side(names):
+        return [run_case(name, out_dir / name, **options) for name in names]
+    import importlib
+    import threading
+
+    from . import plots
+    from ._forked import Worker, labelled_output
+
+    for module in _PRELOAD:  # imported once, before forking, instead of once per case
+        importlib.import_module(module)
+    plots._pyplot()  # matplotlib with the Agg backend
+    lock = threading.Lock()
+    workers = [Worker(f"[{name}] ", run_case, name, out_dir / name, lock=lock, **options) for name in names[1:]]
+    try:
+        with labelled_output(f"[{names[0]}] ", lock):
+            first = run_case(names[0], out_dir / names[0], **options)
+        return [first] + [worker.result() for worker in workers]
+    finally:
+        for worker in workers:
+            worker.stop()
