@@ -209,3 +209,40 @@ def test_certificate_rejects_a_runaway_point_on_round_off_negative_data():
     gap, details = _sdp.certificate(T, G, "mass-eigenvalue", float(r))
     assert details["objective"] < 0
     assert gap == float("inf")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Factored start (L-BFGS over PSD factors) for large orders
+# ----------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("data", [_active_data, _damping_data])
+def test_factored_solve_reaches_the_clarabel_optimum_and_stays_feasible(rng, data):
+    """The uncertified factored solve of eq. (16) with Mr >= I ends at the optimum of the SDP stated directly in
+    cvxpy (Clarabel at 1e-10), from above, with Mr - I, Dr, Kr PSD."""
+    from fmu_opinf.inference import _fit_factored
+
+    R, r, m, G = _scaled_problem(data(rng))
+    *mats, info = _fit_factored(R, r, m)
+    reference = _clarabel_reference(G, r, "mass-eigenvalue")
+    value = _objective(mats, G)
+    assert info["method"] == "factored" and info["status"] == "approximate"
+    assert info["sdp_objective"] == pytest.approx(value, rel=1e-12)
+    assert value == pytest.approx(reference, rel=1e-9)  # measured 1.6e-11, 3.7e-11 (in 151, 114 iterations)
+    assert value >= reference * (1 - 1e-9)  # every iterate is feasible: never below the optimum (but for round-off)
+    _, _, primal_min = _kkt(mats, G, "mass-eigenvalue")
+    assert primal_min > -1e-12
+
+
+def test_auto_solver_starts_from_the_factored_solve_only_above_order_40_with_refinement():
+    from fmu_opinf.inference import _factored_start
+
+    assert _factored_start("auto", 41, True, "auto")
+    assert not _factored_start("auto", 40, True, "auto")
+    assert not _factored_start("auto", 60, False, "auto")  # the plain SDP fit stays certified
+    assert not _factored_start("auto", 60, True, "sdp")
+    assert not _factored_start("ipm", 60, True, "auto") and not _factored_start("clarabel", 60, True, "auto")
+    assert _factored_start("factored", 3, False, "auto")
+
+
+def test_factored_solver_with_the_trace_normalization_is_rejected(rng):
+    with pytest.raises(ValueError, match="normalization='auto' or 'mass-eigenvalue'"):
+        fit_operators(*_active_data(rng), solver="factored", normalization="trace")

@@ -154,9 +154,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--normalization", choices=["auto", "trace", "mass-eigenvalue"], default="auto",
                    help="how the homogeneous SDP is normalized: trace(Mr) fixed, Mr >= I, or auto (solves both, "
                         "keeps the smaller acceleration residual)")
-    p.add_argument("--solver", choices=["auto", "ipm", "clarabel"], default="auto",
+    p.add_argument("--solver", choices=["auto", "ipm", "clarabel", "factored"], default="auto",
                    help="SDP solver: auto (dense interior-point method, its result certified, Clarabel when the "
-                        "certificate fails or all three cones bind), ipm, or clarabel")
+                        "certificate fails or all three cones bind; above r = 40 the refinement starts from the "
+                        "factored solve instead), ipm, clarabel, or factored (L-BFGS over PSD factors, not "
+                        "certified, O(r^3) per iteration)")
     p.add_argument("--integrator", choices=["auto", "newmark", "exact"], default="auto",
                    help="time discretization of the ROM: Newmark (matches Newmark sources: the builtin "
                         "simulator and benchmark FMUs) or exact under held inputs (continuous-time FMUs); auto "

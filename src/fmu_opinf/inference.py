@@ -185,10 +185,10 @@ loses most of the anchored gain (r = 11 / 12: 15 / 67); a trust region around eq
 search; choosing by a hold-out (both variants refined on the first half of the run, compared on the second)
 picks right on the half-data fits but not for the full data: on the first half alone the re-fitted map is worse
 on the anchored chain too (r = 10 / 12: test 4.6e-15 / 1.7e-13 against 3.8e-15 / 3.4e-14), so the hold-out
-keeps the fixed map where the full data would have gained 1000x.  With less informative data it can fail badly: trained on the first half of the impulse run only
-(0-150 s), the triple chain at r = 20 / 35 reached test errors of 3.8e-2 / 82 against 1.7e-4 / 2.7e-5 with the
-fixed map (anchored r = 11: 9.0e-17 against 7.8e-16).  So the variant is an option, to be checked on
-validation runs (``fmu-opinf compare``), not the default.
+keeps the fixed map where the full data would have gained 1000x.  With less informative data it can fail
+badly: trained on the first half of the impulse run only (0-150 s), the triple chain at r = 20 / 35 reached test
+errors of 3.8e-2 / 82 against 1.7e-4 / 2.7e-5 with the fixed map (anchored r = 11: 9.0e-17 against 7.8e-16).
+So the variant is an option, to be checked on validation runs (``fmu-opinf compare``), not the default.
 
 Cost of the refinement (CPU seconds, one BLAS thread, machine shared with other jobs): one objective + adjoint
 gradient takes 3.2 / 17 / 40 ms at r = 10 / 35 / 50 (before sharing the powers of the step map: 3.5 / 18 /
@@ -728,11 +728,13 @@ def fit_operators(
         ``y`` are given.  ``normalization="trace", refine=False`` is the paper's plain eq. (16).
     refine_iterations : int, optional
         L-BFGS iterations of the refinement; default 300 up to r = 40 and ``20 r`` above (module docstring).
-    solver : {"auto", "ipm", "clarabel"}, default="auto"
+    solver : {"auto", "ipm", "clarabel", "factored"}, default="auto"
         SDP solver (module docstring, *Solvers*): ``"auto"`` solves screened SDPs (one or two cones) by the dense
         interior-point method of :mod:`fmu_opinf._sdp`, accepts its result only with a certified gap
-        (``info["gap"]``) and otherwise falls back to Clarabel, which also solves the full three-cone SDP;
-        ``"ipm"`` always uses the interior-point method (no fallback); ``"clarabel"`` always uses Clarabel.
+        (``info["gap"]``) and otherwise falls back to Clarabel, which also solves the full three-cone SDP; above
+        r = 40, when the refinement follows, it starts the refinement from the factored solve instead;
+        ``"ipm"`` always uses the interior-point method (no fallback); ``"clarabel"`` always uses Clarabel;
+        ``"factored"`` always uses the factored solve (L-BFGS over PSD factors, ``Mr >= I``, not certified).
     refit_output_map : bool, default=False
         Let the refinement re-fit the output map to the ROM's own trajectory (variable projection, module
         docstring *Output map*); the result is ``OperatorFit.output_map``.
@@ -744,8 +746,11 @@ def fit_operators(
     """
     if method not in ("auto", "sdp"):
         raise ValueError(f"method={method!r} is not known; use 'auto' or 'sdp'")
-    if solver not in ("auto", "ipm", "clarabel"):
-        raise ValueError(f"solver={solver!r} is not known; use 'auto', 'ipm' or 'clarabel'")
+    if solver not in ("auto", "ipm", "clarabel", "factored"):
+        raise ValueError(f"solver={solver!r} is not known; use 'auto', 'ipm', 'clarabel' or 'factored'")
+    if solver == "factored" and normalization == "trace":
+        raise ValueError("solver='factored' solves eq. (16) normalized by Mr >= I; use normalization='auto' or "
+                         "'mass-eigenvalue'")
     if normalization not in ("auto", "trace", "mass-eigenvalue"):
         raise ValueError(f"normalization={normalization!r} is not known; use 'auto', 'trace' or 'mass-eigenvalue'")
     xddot_r, xdot_r, x_r, u = (np.asarray(a, dtype=float) for a in (xddot_r, xdot_r, x_r, u))
@@ -759,7 +764,10 @@ def fit_operators(
     with _single_threaded():
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
         if compressed:
-            Ms, Ds, Ks, info = _fit_compressed(R, r, m, method, tol, verbose, normalization, solver)
+            if _factored_start(solver, r, refine, method):
+                Ms, Ds, Ks, info = _fit_factored(R, r, m)
+            else:
+                Ms, Ds, Ks, info = _fit_compressed(R, r, m, method, tol, verbose, normalization, solver)
             Bs = _input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
         else:
             zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"],
@@ -890,6 +898,74 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
     R22 = R[m:, m:] / max(np.linalg.norm(R[m:, m:]) / np.sqrt(3 * r), np.finfo(float).tiny)
     info["sdp_objective"] = float(np.linalg.norm(np.hstack(mats) @ R22.T) ** 2)
     return (*mats, info)
+
+
+#: ``solver="auto"`` starts the refinement from :func:`_fit_factored` above this order (module docstring,
+#: *Solvers*): there the dense interior-point method's O(r^6) Newton matrices cost more than the start is worth.
+_FACTORED_ABOVE = 40
+
+#: L-BFGS iterations of :func:`_fit_factored` (triple chain: 3000 gave the refined error of the exact SDP start).
+_FACTORED_ITERATIONS = 3000
+
+
+def _factored_start(solver: str, r: int, refine: bool, method: str) -> bool:
+    """Whether :func:`fit_operators` solves eq. (16) by :func:`_fit_factored` instead of the certified SDP."""
+    if solver == "factored":
+        return True
+    return solver == "auto" and method == "auto" and refine and r > _FACTORED_ABOVE
+
+
+def _fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITERATIONS) -> tuple:
+    """Eq. (16) normalized by ``Mr >= I`` (scaled units), by L-BFGS over PSD factors (module docstring, *Solvers*).
+
+    ``Ms = I + LM LM^T``, ``Ds = LD LD^T``, ``Ks = LK LK^T`` are feasible whatever the factors, so every iterate is
+    a stable model; the objective ``trace(T G T^T)`` (``T = [Ms, Ds, Ks]``, ``Br`` eliminated) and its gradient
+    cost ``O(r^3)`` per iteration instead of the interior-point method's ``O(r^6)``.  Not certified: the result
+    is an approximate optimum that serves as the start of the output-error refinement.  Start: least squares with
+    ``Ms = I``, ``Ds, Ks`` symmetrized and clipped to PSD.
+    """
+    import scipy.optimize
+
+    t0 = time.perf_counter()
+    R22 = R[m:, m:]
+    R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
+    G = R22.T @ R22
+    free, *_ = np.linalg.lstsq(G[r:, r:], -G[r:, :r], rcond=None)  # [Ds Ks]^T with Ms = I
+    # full-rank factors: a zero column of a factor has zero gradient and would never move (Burer-Monteiro)
+    start = np.concatenate([(_START_MASS * np.eye(r)).ravel()]
+                           + [_psd_square_root(free[b * r:(b + 1) * r].T) for b in (0, 1)])
+    eye = np.eye(r)
+
+    def objective(params: np.ndarray) -> tuple[float, np.ndarray]:
+        factors = params.reshape(3, r, r)
+        T = np.hstack([eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T])
+        TG = T @ G
+        grads = [(TG[:, b * r:(b + 1) * r] + TG[:, b * r:(b + 1) * r].T) @ factors[b] for b in range(3)]
+        return float(np.sum(TG * T)), 2.0 * np.concatenate([g.ravel() for g in grads])
+
+    result = scipy.optimize.minimize(objective, start, jac=True, method="L-BFGS-B",
+                                     options={"maxiter": iterations, "maxcor": 50, "ftol": 1e-15, "gtol": 1e-14})
+    factors = result.x.reshape(3, r, r)
+    Ms, Ds, Ks = eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T
+    info = {"status": "approximate", "method": "factored", "solver": "L-BFGS (PSD factors, not certified)",
+            "normalization": "mass-eigenvalue", "cones": list(_BLOCKS), "iterations": int(result.nit),
+            "setup_seconds": 0.0, "solve_seconds": time.perf_counter() - t0, "sdp_objective": float(result.fun),
+            "start_objective": objective(start)[0]}
+    return Ms, Ds, Ks, info
+
+
+#: Start of :func:`_fit_factored`: ``LM = _START_MASS I`` and eigenvalues of ``Ds, Ks`` floored at this fraction of
+#: the largest, so that every factor starts with full rank.
+_START_MASS = 0.1
+_START_FLOOR = 1e-3
+
+
+def _psd_square_root(A: np.ndarray) -> np.ndarray:
+    """``(r*r,)`` full-rank factor ``L`` with ``L L^T`` the PSD part of ``sym(A)``, its eigenvalues floored at
+    ``_START_FLOOR`` times the largest magnitude."""
+    eigs, vecs = np.linalg.eigh(0.5 * (A + A.T))
+    floor = _START_FLOOR * max(float(np.abs(eigs).max()), np.finfo(float).tiny)
+    return (vecs * np.sqrt(np.maximum(eigs, floor))).ravel()
 
 
 def _fit_compressed_paths(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool,
