@@ -232,14 +232,14 @@ def test_factored_solve_reaches_the_clarabel_optimum_and_stays_feasible(rng, dat
     assert primal_min > -1e-12
 
 
-def test_auto_solver_starts_from_the_factored_solve_only_above_order_40_with_refinement():
+def test_auto_solver_starts_from_the_factored_solve_only_above_order_60_with_refinement():
     from fmu_opinf.inference import _factored_start
 
-    assert _factored_start("auto", 41, True, "auto")
-    assert not _factored_start("auto", 40, True, "auto")
-    assert not _factored_start("auto", 60, False, "auto")  # the plain SDP fit stays certified
-    assert not _factored_start("auto", 60, True, "sdp")
-    assert not _factored_start("ipm", 60, True, "auto") and not _factored_start("clarabel", 60, True, "auto")
+    assert _factored_start("auto", 61, True, "auto")
+    assert not _factored_start("auto", 60, True, "auto")
+    assert not _factored_start("auto", 75, False, "auto")  # the plain SDP fit stays certified
+    assert not _factored_start("auto", 75, True, "sdp")
+    assert not _factored_start("ipm", 75, True, "auto") and not _factored_start("clarabel", 75, True, "auto")
     assert _factored_start("factored", 3, False, "auto")
 
 

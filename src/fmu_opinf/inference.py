@@ -271,6 +271,31 @@ interior-point method everywhere without fallback (an uncertified result is stat
 warning), ``solver="clarabel"`` is the former path.  ``fit_info["solver"]`` names the solver of the reported
 solve, ``fit_info["sdp_objective"]`` is the SDP's objective in its own units (comparable between solvers).
 
+*Factored start* (``solver="factored"``; ``"auto"`` uses it above r = 60 when the refinement follows, since the
+dense method's ``O(r^6)`` Newton matrices make it impractical there: r = 75 did not finish in 20 minutes).
+Eq. (16) with ``Mr >= I`` is solved by L-BFGS over PSD factors, ``Ms = I + LM LM^T``, ``Ds = LD LD^T``,
+``Ks = LK LK^T`` (``O(r^3)`` per iteration, 3000 iterations), from least squares with ``Ms = I`` and ``Ds, Ks``
+clipped to PSD.  The start must have full rank: a zero column of a factor has zero gradient and never moves
+(with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
+floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  On small noisy
+problems it ends at the SDP's optimum (tests: within 4e-11 of Clarabel); on the triple chain after 3000
+iterations 2.9 % above it at r = 35 (3.3 s against 1.5 s for the interior-point method).  As the start of the
+refinement (``bench_accuracy.py``, triple chain, ``ratio`` as in the refinement table, CPU seconds of the whole
+fit):
+
+===  ======================  =======================================
+r    factored start          certified SDP start (the default)
+===  ======================  =======================================
+45   ratio 0.57, 32 s        ratio 0.34
+50   ratio 2.13, 41 s        ratio 2.63, about 111 s
+55   ratio 2.86, 69 s        ratio 1.18
+60   ratio 5.54, 95 s        ratio 0.08 (the SDP start alone 225 s)
+===  ======================  =======================================
+
+At r = 75 the fit takes 167 s (start 21 s, refinement 152 s) and reaches max eps_y 2.5e-7, 67x POD-Galerkin's
+3.7e-9.  So up to r = 60 the default keeps the certified start, slower but more accurate; above r = 60 the factored start
+makes a fit possible at all, and the accuracy goal is missed there.
+
 Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement, CPU seconds on the shared
 2-core machine, one BLAS thread; Clarabel at tol 1e-10 as the reference; ``rel. diff`` is
 ``(f_auto - f_clarabel) / f_clarabel`` of ``sdp_objective``, negative = the certified result is lower):
@@ -732,7 +757,7 @@ def fit_operators(
         SDP solver (module docstring, *Solvers*): ``"auto"`` solves screened SDPs (one or two cones) by the dense
         interior-point method of :mod:`fmu_opinf._sdp`, accepts its result only with a certified gap
         (``info["gap"]``) and otherwise falls back to Clarabel, which also solves the full three-cone SDP; above
-        r = 40, when the refinement follows, it starts the refinement from the factored solve instead;
+        r = 60, when the refinement follows, it starts the refinement from the factored solve instead;
         ``"ipm"`` always uses the interior-point method (no fallback); ``"clarabel"`` always uses Clarabel;
         ``"factored"`` always uses the factored solve (L-BFGS over PSD factors, ``Mr >= I``, not certified).
     refit_output_map : bool, default=False
@@ -901,8 +926,10 @@ def _fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verb
 
 
 #: ``solver="auto"`` starts the refinement from :func:`_fit_factored` above this order (module docstring,
-#: *Solvers*): there the dense interior-point method's O(r^6) Newton matrices cost more than the start is worth.
-_FACTORED_ABOVE = 40
+#: *Solvers*): up to r = 60 the certified SDP start is slow (225 s CPU at r = 60) but gave far better refined
+#: ROMs (r = 55 / 60: ratio 1.18 / 0.08 against 2.86 / 5.54); above, the dense method's O(r^6) Newton matrices
+#: make it impractical (r = 75 did not finish in 20 minutes).
+_FACTORED_ABOVE = 60
 
 #: L-BFGS iterations of :func:`_fit_factored` (triple chain: 3000 gave the refined error of the exact SDP start).
 _FACTORED_ITERATIONS = 3000

@@ -703,7 +703,7 @@ def fit_rom(
         on velocities (unknown, e.g. a black-box FMU: positions).
     method, mass_trace, tol, normalization, solver
         Passed to :func:`fmu_opinf.inference.fit_operators` (``solver``: ``"auto"`` certified interior-point
-        method with Clarabel as fallback, and above r = 40 with the refinement the factored start; ``"ipm"``,
+        method with Clarabel as fallback, and above r = 60 with the refinement the factored start; ``"ipm"``,
         ``"clarabel"``, ``"factored"``).
     terms : {"auto", "none", "all"} or sequence of {"fr", "Dur", "y0"}, default="auto"
         Which terms beyond the paper's model to fit: ``"auto"`` lets the data decide (module docstring),
