@@ -293,7 +293,8 @@ r    factored start          certified SDP start (the default)
 ===  ======================  =======================================
 
 At r = 75 the fit takes 167 s (start 21 s, refinement 152 s) and reaches max eps_y 2.5e-7, 67x POD-Galerkin's
-3.7e-9.  So up to r = 60 the default keeps the certified start, slower but more accurate; above r = 60 the factored start
+3.7e-9; at r = 100 350 s (start 31 s, refinement 2000 iterations) and 5.1e-7, where POD-Galerkin (n = 301) is
+at 1.0e-12.  So up to r = 60 the default keeps the certified start, slower but more accurate; above r = 60 the factored start
 makes a fit possible at all, and the accuracy goal is missed there.
 
 Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement, CPU seconds on the shared
