@@ -950,7 +950,8 @@ def _fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITE
     a stable model; the objective ``trace(T G T^T)`` (``T = [Ms, Ds, Ks]``, ``Br`` eliminated) and its gradient
     cost ``O(r^3)`` per iteration instead of the interior-point method's ``O(r^6)``.  Not certified: the result
     is an approximate optimum that serves as the start of the output-error refinement.  Start: least squares with
-    ``Ms = I``, ``Ds, Ks`` symmetrized and clipped to PSD.
+    ``Ms = I``, ``Ds, Ks`` symmetrized, their eigenvalues floored at ``_START_FLOOR`` of the largest, and
+    ``LM = _START_MASS I``: every factor has full rank (a zero column has zero gradient and would never move).
     """
     import scipy.optimize
 
@@ -959,7 +960,6 @@ def _fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITE
     R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
     G = R22.T @ R22
     free, *_ = np.linalg.lstsq(G[r:, r:], -G[r:, :r], rcond=None)  # [Ds Ks]^T with Ms = I
-    # full-rank factors: a zero column of a factor has zero gradient and would never move (Burer-Monteiro)
     start = np.concatenate([(_START_MASS * np.eye(r)).ravel()]
                            + [_psd_square_root(free[b * r:(b + 1) * r].T) for b in (0, 1)])
     eye = np.eye(r)
