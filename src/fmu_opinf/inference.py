@@ -480,12 +480,33 @@ def _solve_unconstrained(H: np.ndarray, a: np.ndarray, trace: float) -> np.ndarr
     ``(a^T w)^2`` is constant on the constraint set, so ``H + a a^T`` gives the same minimizer; unlike ``H`` it
     stays positive definite for exact data, where ``H`` is singular along the true operators.
     """
+    bordered = H + np.outer(a, a)
     try:
-        factor = scipy.linalg.cho_factor(H + np.outer(a, a), check_finite=False)
+        factor = scipy.linalg.cho_factor(bordered, check_finite=False)
+        h_inv_a = scipy.linalg.cho_solve(factor, a, check_finite=False)
     except np.linalg.LinAlgError:
+        h_inv_a = _pseudo_solve(bordered, a)
+    if h_inv_a is None or not float(a @ h_inv_a) > 0:
         return None
-    h_inv_a = scipy.linalg.cho_solve(factor, a, check_finite=False)
     return trace * h_inv_a / float(a @ h_inv_a)
+
+
+#: Eigenvalues of a semidefinite system below this fraction of the largest count as zero in :func:`_pseudo_solve`.
+_NULL_LEVEL = 1e-13
+
+
+def _pseudo_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Minimum-norm solution of ``A x = b`` for a symmetric semidefinite ``A`` (None if ``b`` is in its null space).
+
+    Exact data with a degenerate model (e.g. proportional damping: ``S (M, D, K)`` with ``S`` a polynomial in
+    ``M^-1 K`` fits as well as ``(M, D, K)``) leave ``H`` a null space of several dimensions, where the Cholesky
+    factorization breaks down on round-off; the minimum-norm minimizer is the best-conditioned one of that face.
+    """
+    eigs, vecs = np.linalg.eigh(A)
+    kept = eigs > _NULL_LEVEL * max(eigs[-1], np.finfo(float).tiny)
+    if not np.any(kept):
+        return None
+    return vecs[:, kept] @ ((vecs[:, kept].T @ b) / eigs[kept])
 
 
 def _clarabel_settings(tol: float, verbose: bool) -> dict[str, Any]:
