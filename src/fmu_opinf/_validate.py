@@ -388,7 +388,7 @@ def damaged_file_errors(path: Path) -> Iterator[None]:
 
 #: Expected shapes of the ROM matrices in terms of ``r``, ``m``, ``p``, ``n`` (None: any).
 _ROM_SHAPES = {"Mr": ("r", "r"), "Dr": ("r", "r"), "Kr": ("r", "r"), "Br": ("r", "m"), "Cpr": ("p", "r"),
-               "Cvr": ("p", "r"), "basis": ("n", "r"), "singular_values": ("N",)}
+               "Cvr": ("p", "r"), "basis": ("n", "r"), "singular_values": ("N",), "coordinates": ("s", "s")}
 
 
 def _check_rom_shapes(mats: dict[str, np.ndarray], path: Path) -> None:

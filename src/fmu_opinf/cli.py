@@ -179,6 +179,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refit-output-map", action="store_true",
                    help="let the refinement re-fit the output map to the ROM's own trajectory (variable projection; "
                         "much more accurate on some models, less on others: see fmu_opinf.inference, default off)")
+    p.add_argument("--no-lstsq-candidate", dest="least_squares_candidate", action="store_false",
+                   help="keep the refined SDP solution even where the mechanical realization of the unconstrained "
+                        "least-squares fit has the smaller training output error (see fmu_opinf.inference)")
     p.add_argument("--figures", help="directory for singular-value and cumulative-energy figures")
     p.add_argument("--scheduler", help="run the POD and projections on Dask: local[:N] or tcp://HOST:PORT")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
@@ -240,6 +243,7 @@ def _run_fit(args: argparse.Namespace) -> None:
                        terms=args.terms,
                        integrator=args.integrator, refine="auto" if args.refine else False,
                        refit_output_map=args.refit_output_map,
+                       least_squares_candidate=args.least_squares_candidate,
                        max_memory=args.max_memory)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]

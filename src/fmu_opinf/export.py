@@ -11,7 +11,8 @@ outputs through the transformed output matrix and ``q, q', q''`` rebuilt only wh
 reproduces the step map to 1e-12 (:func:`fmu_opinf._recursion.modal_form`); otherwise, and at other
 step sizes, it solves as before.
 Inputs and outputs keep the source FMU's names and order; optional extra outputs
-reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``).
+reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
+modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
 
 Nothing read from the ROM file becomes code: the generated C holds numbers only (written by
@@ -120,10 +121,11 @@ def _vector(rom: Any, name: str, size: int) -> np.ndarray:
 
 
 def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
-                         r: int) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Names, (len, r) rows of the basis and offsets ``x_ref[i]`` of the reconstructed positions."""
+                         r: int) -> tuple[list[str], np.ndarray, np.ndarray, np.ndarray]:
+    """Names, (len, r) rows of ``q`` and of ``q'`` and offsets ``x_ref[i]`` of the reconstructed positions
+    (``x_i = x_ref,i + V[i] q``, or ``V[i] (W_qq q + W_qv q')`` for a ROM in modal coordinates)."""
     if not reconstruct:
-        return [], np.zeros((0, r)), np.zeros(0)
+        return [], np.zeros((0, r)), np.zeros((0, r)), np.zeros(0)
     basis = getattr(rom, "basis", None)
     if basis is None:
         raise DimensionError("reconstruct needs the ROM's basis, but this ROM has none; refit "
@@ -152,7 +154,18 @@ def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
     x_ref = getattr(rom, "x_ref", None)
     x_ref = np.zeros(n) if x_ref is None or np.size(x_ref) == 0 else _vector(rom, "x_ref", n)
     indices = [own.index(name) if name in own else int(name[2:-1]) - 1 for name in names]
-    return names, np.array(rows), x_ref[indices]
+    rows = np.array(rows)
+    W = getattr(rom, "coordinates", None)
+    if W is None:
+        return names, rows, np.zeros_like(rows), x_ref[indices]
+    W = _matrix(rom, "coordinates", (2 * r, 2 * r))
+    return names, rows @ W[:r, :r], rows @ W[:r, r:], x_ref[indices]
+
+
+def _reconstruction_formula(rom: Any) -> str:
+    if getattr(rom, "coordinates", None) is None:
+        return "x_ref + V q"
+    return "x_ref + V (Wqq q + Wqv q') (modal coordinates q, POD coordinates W [q; q'])"
 
 
 def _position_names(rom: Any, n: int) -> list[str]:
@@ -356,7 +369,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
     _check_definite(matrices, dt)
-    names, rows, offsets = _reconstruction_rows(rom, reconstruct, r)
+    names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     extra = {"fr": _vector(rom, "fr", r), "y0": _vector(rom, "y0", p), "q0": _vector(rom, "q0", r),
              "qdot0": _vector(rom, "qdot0", r),
              "Dur": np.zeros((p, m)) if getattr(rom, "Dur", None) is None else _matrix(rom, "Dur", (p, m))}
@@ -373,12 +386,13 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
     output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
-                           + [f"reconstructed full-order position {name}: x_ref + V q" for name in names])
+                           + [f"reconstructed full-order position {name}: " + _reconstruction_formula(rom)
+                              for name in names])
     c_matrices = {
         "reducedMass": matrices["Mr"], "reducedDamping": matrices["Dr"],
         "reducedStiffness": matrices["Kr"], "reducedInput": matrices["Br"],
         "reducedOutputPosition": np.vstack([matrices["Cpr"], rows]),
-        "reducedOutputVelocity": np.vstack([matrices["Cvr"], np.zeros_like(rows)]),
+        "reducedOutputVelocity": np.vstack([matrices["Cvr"], velocity_rows]),
         "reducedForce": extra["fr"],
         "reducedFeedthrough": np.vstack([extra["Dur"], np.zeros((len(names), m))]),
         "outputOffset": np.concatenate([extra["y0"], offsets]),

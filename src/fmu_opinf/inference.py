@@ -347,7 +347,8 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
-from .refinement import newmark_step_map, refine_output_error
+from ._realization import mechanical_realization
+from .refinement import newmark_step_map, output_error_objective, refine_output_error
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
            "model_poles", "pole_match", "refine_output_error", "newmark_step_map"]
@@ -370,8 +371,13 @@ class OperatorFit:
         ``solver`` (``"IPM"``, ``"CLARABEL"`` or none), ``gap`` (certified relative gap of the IPM),
         ``fallback`` (why the IPM result was not used), ``sdp_objective`` (the SDP's objective in its units).
     output_map : (Cpr, Cvr) or None
-        The output map re-fitted by the refinement (``refit_output_map=True``); it replaces the map of eq. 17
-        in the ROM.  None: the ROM keeps the map it passed in (or eq. 17).
+        The output map re-fitted by the refinement (``refit_output_map=True``) or of the least-squares
+        realization; it replaces the map of eq. 17 in the ROM.  None: the ROM keeps the map it passed in (or
+        eq. 17).
+    coordinates : (2r, 2r) ndarray or None
+        Set when the least-squares realization was chosen (module docstring, *Least-squares candidate*): ``W``
+        with ``[q; q'] = W [q_m; q_m']``, the data's reduced coordinates of the model's modal ones.  None: the
+        operators act on the data's coordinates.
     """
 
     Mr: np.ndarray
@@ -380,6 +386,7 @@ class OperatorFit:
     Br: np.ndarray
     info: dict[str, Any] = field(default_factory=dict)
     output_map: tuple[np.ndarray, np.ndarray] | None = None
+    coordinates: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -732,6 +739,7 @@ def fit_operators(
     refine_iterations: int | None = None,
     solver: str = "auto",
     refit_output_map: bool = False,
+    least_squares_candidate: bool = True,
 ) -> OperatorFit:
     """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
 
@@ -785,6 +793,10 @@ def fit_operators(
     refit_output_map : bool, default=False
         Let the refinement re-fit the output map to the ROM's own trajectory (variable projection, module
         docstring *Output map*); the result is ``OperatorFit.output_map``.
+    least_squares_candidate : bool, default=True
+        With the refinement: also build the mechanical realization of the unconstrained least-squares fit and
+        keep it if its training output error is smaller (module docstring, *Least-squares candidate*); the
+        result then has ``output_map`` and ``coordinates`` set.
 
     Returns
     -------
@@ -807,7 +819,7 @@ def fit_operators(
     if not target > 0:
         raise ValueError(f"mass_trace={mass_trace} must be positive")
     t0 = time.perf_counter()
-    refitted_map = None
+    refitted_map = coordinates = None
     with _single_threaded():
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
         if compressed:
@@ -832,6 +844,12 @@ def fit_operators(
                 run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
                 unit_scales=units, refit_output_map=refit_output_map)
             refitted_map = info["refinement"].pop("refitted_map", None)
+            if least_squares_candidate:
+                chosen = _least_squares_candidate(R, scales, r, m, (xdot_r, x_r, u, np.asarray(y, dtype=float)),
+                                                  float(dt), output_map, run_lengths, info)
+                if chosen is not None:
+                    (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
+                    xddot_r, xdot_r, x_r = _modal_data(coordinates, xddot_r, xdot_r, x_r)
         common = target / np.trace(Mr)
         Mr, Dr, Kr, Br = Mr * common, Dr * common, Kr * common, Br * common
         info.update(_residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u))
@@ -839,7 +857,77 @@ def fit_operators(
         info.update(_pole_info(Mr, Dr, Kr))
     info.update(total_seconds=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
     _report_status(info)
-    return OperatorFit(Mr, Dr, Kr, Br, info, refitted_map)
+    return OperatorFit(Mr, Dr, Kr, Br, info, refitted_map, coordinates)
+
+
+#: Training output error (relative, squared) below which the refined model is kept whatever the least-squares
+#: candidate reaches: both are then round-off (1e-12 relative amplitude), and the refined operators are the
+#: structured ones in the data's own coordinates.
+CANDIDATE_FLOOR = 1e-24
+
+
+def unit_mass_least_squares(R: np.ndarray, scales: dict[str, float], r: int,
+                            m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The unconstrained least-squares fit ``Mr = I``, free ``Dr, Kr, Br`` from the compressed factor.
+
+    Minimizes ``|| Xr'' + Dr Xr' + Kr Xr - Br U ||_F`` (the reference fit of issue 14) through ``R`` of
+    :func:`compressed_factor`: with the scaled unknowns ``F = [-Br s_u, Dr s_v, Kr s_x]`` the residual is
+    ``F R_F^T + s_a R_a^T``, one triangular least-squares problem of size ``3r + m``.
+
+    Returns
+    -------
+    Dr, Kr : (r, r) ndarray
+        Not symmetric in general.
+    Br : (r, m) ndarray
+    """
+    accel = slice(m, m + r)
+    free = np.r_[0:m, m + r:m + 3 * r]
+    F = np.linalg.lstsq(R[:, free], -scales["xddot"] * R[:, accel], rcond=None)[0].T
+    return F[:, m:m + r] / scales["xdot"], F[:, m + r:] / scales["x"], -F[:, :m] / scales["u"]
+
+
+def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], r: int, m: int, data: tuple, dt: float,
+                             output_map: tuple[np.ndarray, np.ndarray] | None, run_lengths: list[int] | None,
+                             info: dict[str, Any]) -> tuple | None:
+    """The mechanical realization of the least-squares fit, if it exists and beats the refined model on the
+    training output error (module docstring, *Least-squares candidate*); ``info["least_squares_candidate"]``
+    says what was found.
+
+    Returns
+    -------
+    ((Mr, Dr, Kr, Br), (Cpr, Cvr), W) or None
+    """
+    xdot_r, x_r, u, y = data
+    if output_map is None:
+        output_map = fit_outputs(xdot_r, x_r, y)
+    Dr, Kr, Br = unit_mass_least_squares(R, scales, r, m)
+    realization = mechanical_realization(Dr, Kr, Br, *output_map)
+    report: dict[str, Any] = {"chosen": False}
+    info["least_squares_candidate"] = report
+    if realization is None:
+        stable = bool(np.all(np.isfinite(Dr)) and np.all(np.isfinite(Kr)) and np.max(
+            np.linalg.eigvals(np.block([[np.zeros((r, r)), np.eye(r)], [-Kr, -Dr]])).real) < 0)
+        report["status"] = ("no mechanical realization (an input reaches a pole pair through two directions, or "
+                            "nearly defective)" if stable else "unstable")
+        return None
+    objective = output_error_objective(np.eye(r), Dr, Kr, Br, xdot_r, x_r, u, y, dt, output_map=output_map,
+                                       run_lengths=run_lengths)
+    refined = float(info["refinement"]["objective"])
+    report.update(status="realized", objective=objective, refined_objective=refined)
+    if not (objective <= TERM_SIGNIFICANCE * refined and refined > CANDIDATE_FLOOR):
+        return None
+    report["chosen"] = True
+    operators = (np.eye(r), np.diag(realization.d), np.diag(realization.k), realization.B)
+    return operators, (realization.Cp, realization.Cv), realization.W
+
+
+def _modal_data(W: np.ndarray, xddot_r: np.ndarray, xdot_r: np.ndarray,
+                x_r: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The data in the realization's coordinates: ``[q_m; q_m'] = W^-1 [q; q']``, ``q_m'' = (W^-1)_v [q'; q'']``."""
+    r = x_r.shape[0]
+    S = np.linalg.inv(W)
+    return (S[r:] @ np.vstack([xdot_r, xddot_r]), S[r:] @ np.vstack([x_r, xdot_r]),
+            S[:r] @ np.vstack([x_r, xdot_r]))
 
 
 def _refine_iterations(requested: int | None, r: int) -> int:

@@ -19,7 +19,7 @@ import scipy.linalg
 
 from .errors import DimensionError
 
-__all__ = ["refine_output_error", "newmark_step_map"]
+__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective"]
 
 def newmark_step_map(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -355,18 +355,9 @@ def refine_output_error(
     """
     t0 = time.perf_counter()
     r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
-    lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]
-    if sum(lengths) != k or min(lengths) < 2:
-        raise DimensionError(f"run_lengths {lengths} must be >= 2 each and sum to the {k} snapshots")
-    if not dt > 0:
-        raise ValueError(f"dt={dt} must be positive")
-    if output_map is None:
-        from .inference import fit_outputs  # the output map of eq. 17 (inference imports this module)
-
-        output_map = fit_outputs(xdot_r, x_r, y)
-    Cpr, Cvr = output_map
+    lengths = _run_lengths(run_lengths, k, dt)
+    Cpr, Cvr = _output_map(output_map, xdot_r, x_r, y)
     scale_y = float(np.linalg.norm(y)) or 1.0
-    cuts = np.cumsum([0] + lengths)
     scales = np.ones(4) if unit_scales is None else np.asarray(unit_scales, dtype=float)
     T, T_inv, columns = np.eye(r), np.eye(r), None
     if whiten not in ("auto", True, False):
@@ -378,11 +369,8 @@ def refine_output_error(
         scales = np.ones(4)
         Mr, Dr, Kr, Br = T.T @ Mr @ T, T.T @ Dr @ T, T.T @ Kr @ T, T.T @ Br
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
-    z = np.vstack([x_r, xdot_r])
-    problem = _Trajectories(
-        z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
-        target=[y[:, a:b] / scale_y for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack([Cpr, Cvr]) / scale_y,
-        dt=float(dt), scales=scales, columns=columns, free_output_map=bool(refit_output_map))
+    problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
+    problem.columns, problem.free_output_map = columns, bool(refit_output_map)
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]
                            + [(Br * scales[3]).ravel()])
@@ -410,6 +398,66 @@ def refine_output_error(
     back = T_inv.T  # q = T p: the operators of q are T^-T (.) T^-1
     Mr, Dr, Kr = (0.5 * (back @ A @ T_inv + (back @ A @ T_inv).T) for A in (Mr, Dr, Kr))
     return Mr, Dr, Kr, back @ Br, report
+
+
+def output_error_objective(
+    Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
+    xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
+    output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
+) -> float:
+    """The training objective of :func:`refine_output_error` for any model, structured or not.
+
+    ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs, each simulated with the classical
+    Newmark step from its recorded initial state.  ``Mr, Dr, Kr`` may be any real matrices with ``Mr`` and the
+    Newmark matrix invertible (e.g. the unconstrained least-squares fit), so candidates of different structure
+    are compared on one measure.  Parameters as in :func:`refine_output_error`.
+
+    Returns
+    -------
+    float
+        The relative squared output error (inf if the simulation overflows).
+    """
+    k = x_r.shape[1]
+    problem = _training_problem(xdot_r, x_r, u, y, dt, _output_map(output_map, xdot_r, x_r, y),
+                                _run_lengths(run_lengths, k, dt), np.ones(4))
+    _, Ad, Bd = _newmark_discrete(Mr, Dr, Kr, Br, float(dt))
+    with np.errstate(over="ignore", invalid="ignore"):
+        value = 0.0
+        for z_data, inputs, target in zip(problem.z, problem.u, problem.target):
+            err = problem.C @ _propagate(Ad, Bd @ inputs, z_data[:, 0], _STRIDE) - target
+            value += float(np.sum(err * err))
+    return value if np.isfinite(value) else float("inf")
+
+
+def _run_lengths(run_lengths: list[int] | None, k: int, dt: float) -> list[int]:
+    lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]
+    if sum(lengths) != k or min(lengths) < 2:
+        raise DimensionError(f"run_lengths {lengths} must be >= 2 each and sum to the {k} snapshots")
+    if not dt > 0:
+        raise ValueError(f"dt={dt} must be positive")
+    return lengths
+
+
+def _output_map(output_map: tuple[np.ndarray, np.ndarray] | None, xdot_r: np.ndarray, x_r: np.ndarray,
+                y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    if output_map is None:
+        from .inference import fit_outputs  # the output map of eq. 17 (inference imports this module)
+
+        return fit_outputs(xdot_r, x_r, y)
+    return output_map
+
+
+def _training_problem(xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float,
+                      output_map: tuple[np.ndarray, np.ndarray], lengths: list[int],
+                      scales: np.ndarray) -> _Trajectories:
+    """The runs split at ``lengths``, the output target and the map divided by ``||y||`` (relative objective)."""
+    scale_y = float(np.linalg.norm(y)) or 1.0
+    cuts = np.cumsum([0] + lengths)
+    z = np.vstack([x_r, xdot_r])
+    return _Trajectories(
+        z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
+        target=[y[:, a:b] / scale_y for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack(output_map) / scale_y,
+        dt=float(dt), scales=scales)
 
 
 def _modal_coordinates(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,6 +17,11 @@ changes there.  (The mean position would also satisfy the constraint, but depend
 a projection error into the initial state.)  The basis is computed from ``x - x_ref`` (positions) or from the
 velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.
 
+Coordinates.  A ROM chosen as the mechanical realization of the least-squares fit (:mod:`fmu_opinf.inference`,
+*Least-squares candidate*) lives in modal coordinates ``q_m``: its ``coordinates`` matrix ``W`` (2r x 2r) gives the
+POD coordinates ``[q; q'] = W [q_m; q_m']``, so ``x ~ x_ref + V (W_qq q_m + W_qv q_m')``.  Without ``W`` (every
+other ROM) the ROM's coordinates are the POD ones.
+
 When the extra terms are fitted (``terms="auto"``, the default): from the data.  Each of ``fr``, ``Dur``,
 ``y0`` is added to its least-squares problem -- ``fr`` to the unconstrained fit of ``q''`` from
 ``q', q, u``, ``Dur`` and ``y0`` to the output fit -- and kept only if it cuts that residual to at most
@@ -31,8 +36,8 @@ declared dependencies do not say whether a constant offset exists).  ``terms="no
 eq. 17); :func:`fit_rom_file` is what ``fmu-opinf fit`` runs.  A ROM is saved as one HDF5 file (layout
 :data:`LAYOUT_VERSION`, ``docs/file-format.md``): root attributes ``kind, layout_version, basis_kind, dt,
 input_names, output_names, provenance (JSON), fit_info (JSON)``; datasets ``Mr, Dr, Kr, Br, Cpr, Cvr, fr, Dur,
-y0, q0, qdot0, x_ref`` and optionally ``basis (n, r)`` and ``singular_values``.  Layout-1 files (no extra terms)
-still load, with the extra terms zero.
+y0, q0, qdot0, x_ref`` and optionally ``basis (n, r)``, ``singular_values`` and (layout 3) ``coordinates (2r, 2r)``.
+Layout-1 files (no extra terms) still load, with the extra terms zero; layout-2 files have no ``coordinates``.
 """
 
 from __future__ import annotations
@@ -63,9 +68,10 @@ if TYPE_CHECKING:
 __all__ = ["SecondOrderROM", "ROMTrajectory", "fit_rom", "fit_rom_file", "LAYOUT_VERSION"]
 
 #: Version of the ROM file layout written by :meth:`SecondOrderROM.save`.
-LAYOUT_VERSION = 2
-#: Older layouts this version reads (layout 1: no ``fr, Dur, y0, q0, qdot0, x_ref``; they load as zeros).
-READABLE_LAYOUTS = (1, 2)
+LAYOUT_VERSION = 3
+#: Older layouts this version reads (layout 1: no ``fr, Dur, y0, q0, qdot0, x_ref``; they load as zeros; layout 2:
+#: no ``coordinates``, the POD coordinates).
+READABLE_LAYOUTS = (1, 2, 3)
 FILE_KIND = "fmu-opinf rom"
 _MATRICES = ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr")
 _EXTRA_TERMS = ("fr", "Dur", "y0", "q0", "qdot0", "x_ref")
@@ -174,6 +180,9 @@ class SecondOrderROM:
         Time discretization of :meth:`simulate` (and of the exported FMU): the paper's classical Newmark
         scheme, which reproduces a Newmark full-order model exactly, or the exact solution of the reduced ODE
         under zero-order-hold inputs (matrix exponential), for continuous-time sources (see :func:`fit_rom`).
+    coordinates : (2r, 2r) ndarray, optional
+        ``W`` with ``[q_pod; q_pod'] = W [q; q']``: the POD coordinates of the ROM's state (module docstring,
+        *Coordinates*); default None, the ROM's coordinates are the POD ones.
     """
 
     def __init__(
@@ -200,6 +209,7 @@ class SecondOrderROM:
         qdot0: np.ndarray | None = None,
         x_ref: np.ndarray | None = None,
         integrator: str = "newmark",
+        coordinates: np.ndarray | None = None,
     ) -> None:
         self.Mr, self.Dr, self.Kr = (np.atleast_2d(np.asarray(a, dtype=float)) for a in (Mr, Dr, Kr))
         r = self.Mr.shape[0]
@@ -219,6 +229,7 @@ class SecondOrderROM:
         if integrator not in INTEGRATORS:
             raise DimensionError(f"integrator={integrator!r} is not known; use one of {', '.join(INTEGRATORS)}")
         self.integrator = integrator
+        self.coordinates = None if coordinates is None else np.atleast_2d(np.asarray(coordinates, dtype=float))
         self.input_names = list(input_names) if input_names is not None else [f"u[{i + 1}]" for i in range(self.m)]
         self.output_names = list(output_names) if output_names is not None else [f"y[{i + 1}]" for i in range(self.p)]
         self.dt = None if dt is None else float(dt)
@@ -243,6 +254,11 @@ class SecondOrderROM:
             raise DimensionError(f"x_ref has shape {self.x_ref.shape}; expected ({self.basis.shape[0]},) like the basis")
         if not np.all(np.isfinite(self.x_ref)):
             raise DataError("x_ref contains NaN/Inf; the ROM is unusable, refit it")
+        if self.coordinates is not None:
+            if self.coordinates.shape != (2 * r, 2 * r):
+                raise DimensionError(f"coordinates has shape {self.coordinates.shape}; expected {(2 * r, 2 * r)}")
+            if not np.all(np.isfinite(self.coordinates)) or np.linalg.cond(self.coordinates) > 1e12:
+                raise DataError("coordinates is not a finite invertible map; the ROM is unusable, refit it")
         if len(self.input_names) != m or len(self.output_names) != p:
             raise DimensionError(f"{len(self.input_names)} input / {len(self.output_names)} output names "
                                  f"for m={m} inputs and p={p} outputs")
@@ -289,8 +305,9 @@ class SecondOrderROM:
         Returns
         -------
         q0, qdot0 : (r,) ndarray
+            In the ROM's coordinates (the POD ones mapped by :attr:`coordinates`, if any).
         """
-        q0, qdot0 = self.q0, self.qdot0
+        q0, qdot0 = self._pod_state(self.q0, self.qdot0)
         for label, value, ref in (("positions", x0, self.x_ref), ("velocities", v0, None)):
             if value is None:
                 continue
@@ -310,7 +327,32 @@ class SecondOrderROM:
                 q0 = reduced
             else:
                 qdot0 = reduced
-        return q0, qdot0
+        if self.coordinates is None:
+            return q0, qdot0
+        state = np.linalg.solve(self.coordinates, np.concatenate([q0, qdot0]))
+        return state[:self.r], state[self.r:]
+
+    def _pod_state(self, q: np.ndarray, qdot: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """POD coordinates of the ROM state ``(q, q')`` (the same arrays without :attr:`coordinates`)."""
+        if self.coordinates is None:
+            return q, qdot
+        if qdot is None:
+            raise DimensionError("this ROM lives in modal coordinates (coordinates is set): positions need the "
+                                 "velocities too; pass qdot")
+        W, r = self.coordinates, self.r
+        return W[:r, :r] @ q + W[:r, r:] @ qdot, W[r:, :r] @ q + W[r:, r:] @ qdot
+
+    def position_map(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(Pq, Pv)``, each ``(n, r)``, with full-order positions ``x ~ x_ref + Pq q + Pv q'``.
+
+        ``(V, 0)`` for a ROM in POD coordinates, ``(V W_qq, V W_qv)`` with :attr:`coordinates`.
+        """
+        if self.basis is None:
+            raise DimensionError("this ROM was saved without its basis; refit it to reconstruct full states")
+        if self.coordinates is None:
+            return self.basis, np.zeros_like(self.basis)
+        r = self.r
+        return self.basis @ self.coordinates[:r, :r], self.basis @ self.coordinates[:r, r:]
 
     def simulate(self, signal: Signal | str, dt: float, t_end: float, q0: np.ndarray | None = None,
                  qdot0: np.ndarray | None = None) -> ROMTrajectory:
@@ -384,12 +426,14 @@ class SecondOrderROM:
         gamma = np.vstack([F, acc @ F + Minv[:, 2 * r:]])
         return phi, gamma
 
-    def reconstruct(self, q: np.ndarray) -> np.ndarray:
-        """Full-order positions ``x_ref + V q``.
+    def reconstruct(self, q: np.ndarray, qdot: np.ndarray | None = None) -> np.ndarray:
+        """Full-order positions ``x_ref + V q`` (``x_ref + V (W_qq q + W_qv q')`` with :attr:`coordinates`).
 
         Parameters
         ----------
         q : (r,) or (r, k) ndarray
+        qdot : (r,) or (r, k) ndarray, optional
+            Needed only by a ROM in modal coordinates (:attr:`coordinates` set).
 
         Returns
         -------
@@ -400,8 +444,11 @@ class SecondOrderROM:
         q = np.asarray(q, dtype=float)
         if q.shape[0] != self.r:
             raise DimensionError(f"q has {q.shape[0]} rows; expected r={self.r}")
+        if qdot is not None and np.shape(qdot) != q.shape:
+            raise DimensionError(f"qdot has shape {np.shape(qdot)}; expected {q.shape} like q")
+        q_pod, _ = self._pod_state(q, None if qdot is None else np.asarray(qdot, dtype=float))
         shift = self.x_ref if q.ndim == 1 else self.x_ref[:, None]
-        return self.basis @ q + shift
+        return self.basis @ q_pod + shift
 
     def equilibrium(self) -> np.ndarray:
         """Static equilibrium under zero input: ``q_eq = Kr^-1 fr``, in full coordinates ``x_ref + V q_eq`` if the
@@ -410,7 +457,7 @@ class SecondOrderROM:
             q_eq = scipy.linalg.solve(self.Kr, self.fr, assume_a="sym")
         except (np.linalg.LinAlgError, scipy.linalg.LinAlgError):
             raise DataError("Kr is singular: the ROM has a rigid-body mode and no static equilibrium") from None
-        return q_eq if self.basis is None else self.reconstruct(q_eq)
+        return q_eq if self.basis is None else self.reconstruct(q_eq, np.zeros_like(q_eq))
 
     # --- stability -----------------------------------------------------------------------------------------
     def eigenvalues(self) -> np.ndarray:
@@ -459,6 +506,8 @@ class SecondOrderROM:
                 f.create_dataset("basis", data=self.basis)
             if self.singular_values is not None:
                 f.create_dataset("singular_values", data=self.singular_values)
+            if self.coordinates is not None:
+                f.create_dataset("coordinates", data=self.coordinates)
             write_attrs(f, {
                 "kind": FILE_KIND,
                 "layout_version": LAYOUT_VERSION,
@@ -510,6 +559,7 @@ class SecondOrderROM:
             mats = {name: np.array(f[name][()], dtype=float) for name in required}
             basis = np.array(f["basis"][()], dtype=float) if "basis" in f else None
             sv = np.array(f["singular_values"][()], dtype=float) if "singular_values" in f else None
+            coordinates = np.array(f["coordinates"][()], dtype=float) if "coordinates" in f and version >= 3 else None
             provenance, fit_info = (json.loads(attrs.get(key, "{}")) for key in ("provenance", "fit_info"))
         except (OSError, ValueError, TypeError, KeyError) as exc:
             raise FileFormatError(f"cannot read ROM data from {path} ({exc}); the file is damaged") from None
@@ -525,7 +575,7 @@ class SecondOrderROM:
             return cls(**mats, basis=basis, basis_kind=attrs.get("basis_kind", "positions"),
                        input_names=attrs.get("input_names"), output_names=attrs.get("output_names"),
                        dt=attrs.get("dt"), provenance=provenance, fit_info=fit_info, singular_values=sv,
-                       integrator=attrs.get("integrator", "newmark"), **extra)
+                       integrator=attrs.get("integrator", "newmark"), coordinates=coordinates, **extra)
         except (DimensionError, ValueError) as exc:
             raise FileFormatError(f"{path}: inconsistent ROM data ({exc})") from None
 
@@ -680,6 +730,7 @@ def fit_rom(
     integrator: str = "auto",
     refine: bool | str = "auto",
     refit_output_map: bool = False,
+    least_squares_candidate: bool = True,
     quiet: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
@@ -724,6 +775,11 @@ def fit_rom(
         Let the refinement re-fit ``Cpr, Cvr`` to the ROM's own trajectory instead of keeping eq. 17's map
         (:mod:`fmu_opinf.inference`, *Output map*: much more accurate on the anchored chain, less on the triple
         chain).  Only with the refinement; ``Dur`` and ``y0`` stay as eq. 17 fitted them.
+    least_squares_candidate : bool, default=True
+        With the refinement, also consider the mechanical realization of the unconstrained least-squares fit
+        and keep whichever of the two has the smaller training output error (:mod:`fmu_opinf.inference`,
+        *Least-squares candidate*).  The chosen realization lives in modal coordinates
+        (:attr:`SecondOrderROM.coordinates`).  False keeps the refined SDP solution.
     quiet : bool, default=True
         False: print one labelled line per stage (POD, SDP start, SDP result) on stderr, as the CLI does.
     log : callable, optional
@@ -774,7 +830,8 @@ def fit_rom(
         raise _refit_without_refinement()
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
-                        refit_output_map=refit_output_map, **refinement)
+                        refit_output_map=refit_output_map, least_squares_candidate=least_squares_candidate,
+                        **refinement)
     if ops.output_map is not None:
         Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
@@ -785,19 +842,25 @@ def fit_rom(
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization, {ops.info.get('solver')}) in {ops.info.get('total_seconds', 0):.2f}s"
         + _refinement_summary(ops.info.get("refinement")))
+    candidate = ops.info.get("least_squares_candidate")
+    if candidate:
+        say(_candidate_summary(candidate))
     m = data["u"].shape[0]
     Br, fr = ops.Br[:, :m], (ops.Br[:, m] if chosen["fr"] else np.zeros(pod.r_))
     q0 = np.zeros(pod.r_)  # the first run starts at x_ref
     qdot0 = pod.basis_.T @ _initial_velocity(runs[0])
+    if ops.coordinates is not None:  # the least-squares realization: modal coordinates (module docstring)
+        state = np.linalg.solve(ops.coordinates, np.concatenate([q0, qdot0]))
+        q0, qdot0 = state[:pod.r_], state[pod.r_:]
     info = dict(ops.info)
     info.update(r=pod.r_, basis_kind=pod.kind_, pod_method=pod.method_, snapshot_rank=pod.rank_,
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
-                output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data))
+                output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
-                "refit_output_map": refit_output_map}
+                "refit_output_map": refit_output_map, "least_squares_candidate": least_squares_candidate}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
@@ -805,7 +868,7 @@ def fit_rom(
         output_names=_names(attrs.get("output_names"), data["y"].shape[0]),
         dt=_training_dt(runs, attrs), provenance=_provenance(attrs, settings, runs), fit_info=info,
         singular_values=pod.svdvals_, fr=fr, Dur=Dur, y0=y0, q0=q0, qdot0=qdot0,
-        x_ref=x_ref if keep_basis else None, integrator=time_integrator,
+        x_ref=x_ref if keep_basis else None, integrator=time_integrator, coordinates=ops.coordinates,
     )
 
 
@@ -847,6 +910,15 @@ def _refinement_summary(report: Any) -> str:
     return (f"; output-error refinement: training output error {report.get('objective_start', float('nan')):.2e} "
             f"-> {report['objective']:.2e} in {report.get('iterations', 0)} iterations, "
             f"{report.get('seconds', 0):.1f}s")
+
+
+def _candidate_summary(report: dict) -> str:
+    if report.get("status") != "realized":
+        return f"least-squares candidate: {report.get('status')}; kept the refined SDP solution"
+    kept = ("its mechanical realization (modal coordinates)" if report["chosen"]
+            else "the refined SDP solution")
+    return (f"least-squares candidate: training output error {report['objective']:.2e} against "
+            f"{report['refined_objective']:.2e} refined; kept {kept}")
 
 
 def _integrator(requested: str, attrs: dict) -> str:
@@ -938,8 +1010,13 @@ def _names(names: Any, count: int) -> list[str] | None:
     return None
 
 
-def _output_residual(maps: tuple, data: dict[str, np.ndarray]) -> float:
+def _output_residual(maps: tuple, data: dict[str, np.ndarray], coordinates: np.ndarray | None = None) -> float:
+    """Relative residual of the output map on the training data (in their POD coordinates)."""
     Cpr, Cvr, Dur, y0 = maps
+    if coordinates is not None:  # the map of the modal coordinates, taken back to the POD ones
+        r = Cpr.shape[1]
+        C = np.linalg.solve(coordinates.T, np.hstack([Cpr, Cvr]).T).T
+        Cpr, Cvr = C[:, :r], C[:, r:]
     resid = Cpr @ data["x"] + Cvr @ data["xdot"] + Dur @ data["u"] + y0[:, None] - data["y"]
     return float(np.linalg.norm(resid) / (np.linalg.norm(data["y"]) or 1.0))
 

@@ -1,0 +1,138 @@
+"""Mechanical (symmetric positive definite) realization of a stable linear second-order model.
+
+A model ``q'' + D q' + K q = B u``, ``y = Cp q + Cv q'`` with *arbitrary* real ``D, K`` (for example the
+unconstrained least-squares fit of operator inference, ``Mr = I``) is, in first-order form ``z = [q; q']``,
+
+    z' = A z + [0; B] u,   A = [[0, I], [-K, -D]],   y = [Cp, Cv] z.
+
+If every eigenvalue of ``A`` has a negative real part and the input reaches each pole pair through one
+direction (always so for one input), the same input-output map has a realization
+
+    q_m'' + diag(d) q_m' + diag(k) q_m = Bm u,   y = Cpm q_m + Cvm q_m',   z = W [q_m; q_m'],
+
+with one oscillator per pole pair (``d = -(lambda_1 + lambda_2) > 0``, ``k = lambda_1 lambda_2 > 0``): mass
+``I``, damping and stiffness diagonal and positive definite, so it is stable by the energy argument of the
+structured fit, and it is related to the original model by the similarity ``W`` of the first-order form.  Any
+time discretization that commutes with a change of the first-order state (Newmark's trapezoidal rule, the exact
+zero-order-hold step) therefore gives the same outputs step for step.
+
+Per pair, with ``A_p`` the 2x2 restriction of ``A`` to the pair's real invariant subspace and ``e`` a local
+direction with ``e, A_p e`` independent, the local state ``xi = q (d e + A_p e) + q' e`` turns
+``xi' = A_p xi + e beta^T u`` into ``q'' + d q' + k q = beta^T u`` (Cayley-Hamilton: ``A_p^2 + d A_p + k I = 0``).
+The input must therefore enter the pair along one direction ``e`` (rank one), which is how ``e`` is chosen.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+__all__ = ["MechanicalRealization", "mechanical_realization"]
+
+#: A pair whose input block has a second singular value above this fraction of the first is not rank one.
+_RANK_ONE = 1e-9
+#: Realizations whose similarity is worse conditioned than this are refused (nearly defective models).
+_MAX_CONDITION = 1e10
+
+
+@dataclass
+class MechanicalRealization:
+    """``q_m'' + diag(d) q_m' + diag(k) q_m = B u``, ``y = Cp q_m + Cv q_m'``, original ``z = W [q_m; q_m']``."""
+
+    d: np.ndarray
+    k: np.ndarray
+    B: np.ndarray
+    Cp: np.ndarray
+    Cv: np.ndarray
+    W: np.ndarray
+
+
+def mechanical_realization(D: np.ndarray, K: np.ndarray, B: np.ndarray, Cp: np.ndarray,
+                           Cv: np.ndarray) -> MechanicalRealization | None:
+    """The diagonal SPD realization of ``q'' + D q' + K q = B u``, ``y = Cp q + Cv q'`` (module docstring).
+
+    Parameters
+    ----------
+    D, K : (r, r) ndarray
+        Damping and stiffness of a model with unit mass; need not be symmetric.
+    B : (r, m) ndarray
+        Input matrix (``m = 0`` allowed).
+    Cp, Cv : (p, r) ndarray
+        Output map.
+
+    Returns
+    -------
+    MechanicalRealization or None
+        None when no such realization exists or it would be ill-conditioned: an eigenvalue with a real part
+        >= 0, an input reaching a pole pair through two directions, or a nearly defective model.
+    """
+    r, m = B.shape
+    A = np.block([[np.zeros((r, r)), np.eye(r)], [-K, -D]])
+    if not np.all(np.isfinite(A)):
+        return None
+    lam, X = np.linalg.eig(A)
+    if not np.all(lam.real < 0):
+        return None
+    pairs = _pole_pairs(lam)
+    if pairs is None:
+        return None
+    U = np.hstack([_real_basis(X, pair) for pair in pairs])  # (2r, 2r): two columns per pair
+    if np.linalg.cond(U) > _MAX_CONDITION:
+        return None
+    Y = np.linalg.inv(U)
+    Bf = np.vstack([np.zeros((r, m)), B])
+    d, k, beta = np.empty(r), np.empty(r), np.zeros((r, m))
+    Wq, Wv = np.empty((2 * r, r)), np.empty((2 * r, r))
+    for j, pair in enumerate(pairs):
+        Up, Yp = U[:, 2 * j:2 * j + 2], Y[2 * j:2 * j + 2]
+        Ap, Bp = Yp @ A @ Up, Yp @ Bf
+        d[j], k[j] = -np.trace(Ap), np.linalg.det(Ap)
+        local = _input_direction(Bp, Ap, len(pair) == 1)
+        if local is None:
+            return None
+        e, beta[j] = local
+        position, velocity = Up @ (d[j] * e + Ap @ e), Up @ e
+        scale = 1.0 / np.linalg.norm(position)  # coordinates of the size of the original ones
+        Wq[:, j], Wv[:, j], beta[j] = position * scale, velocity * scale, beta[j] / scale
+    W = np.hstack([Wq, Wv])
+    if not (np.all(d > 0) and np.all(k > 0)) or np.linalg.cond(W) > _MAX_CONDITION:
+        return None
+    C = np.hstack([Cp, Cv]) @ W
+    return MechanicalRealization(d=d, k=k, B=beta, Cp=C[:, :r], Cv=C[:, r:], W=W)
+
+
+def _pole_pairs(lam: np.ndarray) -> list[tuple[int, ...]] | None:
+    """Index groups: ``(i,)`` for a complex pair (upper half plane), ``(i, j)`` for two real poles."""
+    scale = np.abs(lam) + np.finfo(float).tiny
+    real = np.abs(lam.imag) <= 1e-10 * scale
+    upper = [(int(i),) for i in np.flatnonzero(~real & (lam.imag > 0))]
+    reals = sorted(np.flatnonzero(real), key=lambda i: lam[i].real)
+    if len(reals) % 2 or 2 * len(upper) + len(reals) != lam.size:
+        return None
+    return upper + [(int(a), int(b)) for a, b in zip(reals[0::2], reals[1::2])]
+
+
+def _real_basis(X: np.ndarray, pair: tuple[int, ...]) -> np.ndarray:
+    """Two real columns spanning the pair's invariant subspace."""
+    if len(pair) == 1:
+        x = X[:, pair[0]]
+        return np.column_stack([x.real, x.imag])
+    return np.column_stack([X[:, pair[0]].real, X[:, pair[1]].real])
+
+
+def _input_direction(Bp: np.ndarray, Ap: np.ndarray, complex_pair: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """Local direction ``e`` and input gains ``beta`` with ``Bp = e beta^T``; None if the input is not rank one
+    or ``e, Ap e`` are dependent (the input reaches only one of two real modes)."""
+    if Bp.size and np.any(Bp):
+        left, sv, right = scipy.linalg.svd(Bp, full_matrices=False)
+        if sv.size > 1 and sv[1] > _RANK_ONE * sv[0]:
+            return None
+        e, beta = left[:, 0], sv[0] * right[0]
+    else:  # no input reaches the pair: any direction that is not an eigenvector
+        e, beta = (np.array([1.0, 0.0]) if complex_pair else np.array([1.0, 1.0]) / np.sqrt(2.0)), np.zeros(Bp.shape[1])
+    companion = np.column_stack([e, Ap @ e])
+    if abs(np.linalg.det(companion)) <= 1e-8 * np.linalg.norm(Ap) * (e @ e):
+        return None
+    return e, beta
