@@ -19,7 +19,7 @@ import scipy.linalg
 
 from .errors import DimensionError
 
-__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective"]
+__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "zero_order_hold_step"]
 
 def newmark_step_map(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -48,6 +48,29 @@ def _newmark_discrete(Mr, Dr, Kr, Br, dt) -> tuple:
     lu = scipy.linalg.lu_factor(E, check_finite=False)
     forcing = np.vstack([np.zeros_like(Br), dt * Br])
     return lu, scipy.linalg.lu_solve(lu, F, check_finite=False), scipy.linalg.lu_solve(lu, forcing, check_finite=False)
+
+
+def zero_order_hold_step(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
+                         dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The exact step of ``Mr q'' + Dr q' + Kr q = Br u`` on ``z = [q; q']`` with ``u`` held over the step.
+
+    ``z_i = E z_{i-1} + F u_i`` with ``E = exp(A dt)`` and ``F = int_0^dt exp(A s) ds [0; Mr^-1 Br]`` for the
+    first-order matrix ``A = [[0, I], [-Mr^-1 Kr, -Mr^-1 Dr]]``, both from one exponential of Van Loan's block
+    matrix.  ``Dr, Kr`` need not be symmetric.
+
+    Returns
+    -------
+    E : (2r, 2r) ndarray
+    F : (2r, m) ndarray
+    """
+    r, m = Mr.shape[0], Br.shape[1]
+    unit = scipy.linalg.solve(Mr, np.hstack([Kr, Dr, Br]))
+    block = np.zeros((2 * r + m, 2 * r + m))
+    block[:r, r:2 * r] = np.eye(r) * dt
+    block[r:2 * r, :2 * r] = -unit[:, :2 * r] * dt
+    block[r:2 * r, 2 * r:] = unit[:, 2 * r:] * dt
+    expo = scipy.linalg.expm(block)
+    return expo[:2 * r, :2 * r], expo[:2 * r, 2 * r:]
 
 
 def _powers(A: np.ndarray, count: int) -> np.ndarray:
@@ -404,13 +427,15 @@ def output_error_objective(
     Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
+    integrator: str = "newmark",
 ) -> float:
     """The training objective of :func:`refine_output_error` for any model, structured or not.
 
-    ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs, each simulated with the classical
-    Newmark step from its recorded initial state.  ``Mr, Dr, Kr`` may be any real matrices with ``Mr`` and the
-    Newmark matrix invertible (e.g. the unconstrained least-squares fit), so candidates of different structure
-    are compared on one measure.  Parameters as in :func:`refine_output_error`.
+    ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs, each simulated from its recorded
+    initial state with the classical Newmark step (``integrator="newmark"``) or the exact step under the held
+    input (``"exact"``, :func:`zero_order_hold_step`).  ``Mr, Dr, Kr`` may be any real matrices with ``Mr`` and
+    the Newmark matrix invertible (e.g. the unconstrained least-squares fit), so candidates of different structure
+    are compared on one measure.  Other parameters as in :func:`refine_output_error`.
 
     Returns
     -------
@@ -420,7 +445,12 @@ def output_error_objective(
     k = x_r.shape[1]
     problem = _training_problem(xdot_r, x_r, u, y, dt, _output_map(output_map, xdot_r, x_r, y),
                                 _run_lengths(run_lengths, k, dt), np.ones(4))
-    _, Ad, Bd = _newmark_discrete(Mr, Dr, Kr, Br, float(dt))
+    if integrator not in ("newmark", "exact"):
+        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark' or 'exact'")
+    if integrator == "exact":
+        Ad, Bd = zero_order_hold_step(Mr, Dr, Kr, Br, float(dt))
+    else:
+        _, Ad, Bd = _newmark_discrete(Mr, Dr, Kr, Br, float(dt))
     with np.errstate(over="ignore", invalid="ignore"):
         value = 0.0
         for z_data, inputs, target in zip(problem.z, problem.u, problem.target):

@@ -410,15 +410,12 @@ class SecondOrderROM:
         Gamma : (3r, m + 1) ndarray
             The last column multiplies the constant 1 of the force ``fr``.
         """
-        r, m = self.r, self.m
+        from .refinement import zero_order_hold_step
+
+        r = self.r
         B = np.hstack([self.Br, self.fr[:, None]])
         Minv = scipy.linalg.solve(self.Mr, np.hstack([self.Kr, self.Dr, B]), assume_a="sym")
-        A = np.block([[np.zeros((r, r)), np.eye(r)], [-Minv[:, :2 * r]]])
-        block = np.zeros((3 * r + m + 1, 3 * r + m + 1))
-        block[:2 * r, :2 * r] = A * dt
-        block[r:2 * r, 2 * r:2 * r + m + 1] = Minv[:, 2 * r:] * dt
-        expo = scipy.linalg.expm(block[:2 * r + m + 1, :2 * r + m + 1])
-        E, F = expo[:2 * r, :2 * r], expo[:2 * r, 2 * r:]
+        E, F = zero_order_hold_step(self.Mr, self.Dr, self.Kr, B, dt)
         acc = -Minv[:, :2 * r]                      # q'' = acc [q; q'] + Minv_B [u; 1]
         phi = np.zeros((3 * r, 3 * r))
         phi[:2 * r, :2 * r] = E
@@ -824,9 +821,9 @@ def fit_rom(
                                        feedthrough=chosen["Dur"], offset=chosen["y0"])
     time_integrator = _integrator(integrator, attrs)
     refinement = _refinement(refine, time_integrator, lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
-    if refinement:
+    if refinement.get("refine"):
         say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
-    if refit_output_map and not refinement:
+    if refit_output_map and not refinement.get("refine"):
         raise _refit_without_refinement()
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
@@ -880,28 +877,30 @@ def _refit_without_refinement() -> InputSpecError:
 
 def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs: list, attrs: dict,
                 data: dict[str, np.ndarray], maps: tuple) -> dict[str, Any]:
-    """Keywords of :func:`fmu_opinf.inference.fit_operators` for the output-error refinement, or none.
+    """Keywords of :func:`fmu_opinf.inference.fit_operators` for what compares simulated training outputs: the
+    output-error refinement and the least-squares candidate.
 
-    ``refine="auto"`` refines ROMs simulated by Newmark (what the refinement models) from unweighted data
-    (``lowpass`` off) with one training step; the output target excludes the fitted feedthrough and offset.
+    Both need unweighted data (``lowpass`` off) sampled with one training step; the output target excludes the
+    fitted feedthrough and offset.  ``refine="auto"`` refines ROMs simulated by Newmark (what the refinement
+    models); an exact-integrator ROM gets the candidate only, and not from interval averages (their columns are
+    no samples of the states).  ``refine=False`` keeps the SDP solution: neither.
     """
     if refine not in ("auto", True, False):
         raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
     dt = _training_dt(runs, attrs)
     steps = {round(float(np.diff(np.asarray(run.t[:2], dtype=float))[0]), 12) for run in runs
              if int(np.shape(run.t)[0]) > 1}
-    possible = integrator == "newmark" and lowpass is None and dt is not None and len(steps) == 1
+    sampled = lowpass is None and dt is not None and len(steps) == 1
+    possible = integrator == "newmark" and sampled
     if refine is True and not possible:
         raise ValueError("refine=True needs a Newmark ROM, no lowpass and one training step dt")
-    if not (possible and refine in ("auto", True)):
+    lengths = [int(np.shape(run.t)[0]) for run in runs]
+    if refine is False or not sampled or min(lengths) < 2 or (integrator != "newmark" and "f_h" in data):
         return {}
     Cpr, Cvr, Dur, y0 = maps
     target = data["y"] - Dur @ data["u"] - y0[:, None]
-    lengths = [int(np.shape(run.t)[0]) for run in runs]
-    if min(lengths) < 2:
-        return {}
     return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths,
-            "refine": True}
+            "refine": True if possible else "auto", "integrator": integrator}
 
 
 def _refinement_summary(report: Any) -> str:
@@ -914,11 +913,11 @@ def _refinement_summary(report: Any) -> str:
 
 def _candidate_summary(report: dict) -> str:
     if report.get("status") != "realized":
-        return f"least-squares candidate: {report.get('status')}; kept the refined SDP solution"
-    kept = ("its mechanical realization (modal coordinates)" if report["chosen"]
-            else "the refined SDP solution")
+        return f"least-squares candidate: {report.get('status')}; kept the SDP solution"
+    kept = "its mechanical realization (modal coordinates)" if report["chosen"] else "the SDP solution"
     return (f"least-squares candidate: training output error {report['objective']:.2e} against "
-            f"{report['refined_objective']:.2e} refined; kept {kept}")
+            f"{report['kept_objective']:.2e} for the {'refined ' if report.get('integrator') == 'newmark' else ''}SDP "
+            f"solution; kept {kept}")
 
 
 def _integrator(requested: str, attrs: dict) -> str:
