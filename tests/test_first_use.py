@@ -127,3 +127,32 @@ def test_fit_refit_output_map_option_reaches_the_refinement(trained, tmp_path, c
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "needs the output-error refinement" in err and "drop the option" in err
     assert not bad.exists() and not list(tmp_path.glob("bad*"))
+
+
+def test_fit_prints_the_learned_poles_and_no_lstsq_candidate_is_recorded(trained, tmp_path, capsys):
+    """`fit` prints the natural frequencies and damping ratios of the learned poles (checked against the
+    eigenvalues of the saved ROM's first-order matrix); `--no-lstsq-candidate` reaches the fit settings."""
+    import re
+
+    from fmu_opinf.rom import SecondOrderROM
+
+    folder, _, _ = trained
+    out = tmp_path / "plain.h5"
+    capsys.readouterr()
+    assert main(["fit", str(folder / "train.h5"), "-o", str(out), "--r", "5", "--no-lstsq-candidate", "-q"]) == 0
+    printed = capsys.readouterr().out
+    rom = SecondOrderROM.load(out)
+    assert rom.provenance["fit_settings"]["least_squares_candidate"] is False
+    assert "least_squares_candidate" not in rom.fit_info and rom.coordinates is None
+    r = rom.r
+    Minv = np.linalg.inv(rom.Mr)
+    poles = np.linalg.eigvals(np.block([[np.zeros((r, r)), np.eye(r)], [-Minv @ rom.Kr, -Minv @ rom.Dr]]))
+    upper = poles[poles.imag > 0]
+    match = re.search(r"learned poles: (\d+) in the upper half plane, natural frequencies (\S+) \.\. (\S+) rad/s, "
+                      r"damping ratios (\S+) \.\. (\S+)", printed)
+    assert match, printed
+    count, w_lo, w_hi, z_lo, z_hi = (float(v) for v in match.groups())
+    assert count == upper.size
+    assert w_lo == pytest.approx(np.abs(upper).min(), rel=2e-3) and w_hi == pytest.approx(np.abs(upper).max(), rel=2e-3)
+    zeta = -upper.real / np.abs(upper)
+    assert z_lo == pytest.approx(zeta.min(), rel=2e-3) and z_hi == pytest.approx(zeta.max(), rel=2e-3)

@@ -253,6 +253,22 @@ def _run_fit(args: argparse.Namespace) -> None:
           f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
           f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}; extra terms "
           f"{', '.join(extra) or 'none'}")
+    print(_pole_summary(info.get("poles") or []))
+
+
+def _pole_summary(poles: list) -> str:
+    """One line on the learned poles: natural frequencies and damping ratios (what a user checks against the
+    physics they know; the poles reproduce the input-output behaviour and need not be the full model's modes)."""
+    import numpy as np
+
+    values = np.array([complex(re, im) for re, im in poles])
+    values = values[np.abs(values) > 0]
+    if values.size == 0:
+        return "learned poles: none"
+    omega = np.abs(values)
+    zeta = -values.real / omega
+    return (f"learned poles: {values.size} in the upper half plane, natural frequencies {omega.min():.3g} .. "
+            f"{omega.max():.3g} rad/s, damping ratios {zeta.min():.3g} .. {zeta.max():.3g} (fit_info['poles'])")
 
 
 def _run_compare(args: argparse.Namespace) -> None:
