@@ -342,18 +342,6 @@ class SecondOrderROM:
         W, r = self.coordinates, self.r
         return W[:r, :r] @ q + W[:r, r:] @ qdot, W[r:, :r] @ q + W[r:, r:] @ qdot
 
-    def position_map(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(Pq, Pv)``, each ``(n, r)``, with full-order positions ``x ~ x_ref + Pq q + Pv q'``.
-
-        ``(V, 0)`` for a ROM in POD coordinates, ``(V W_qq, V W_qv)`` with :attr:`coordinates`.
-        """
-        if self.basis is None:
-            raise DimensionError("this ROM was saved without its basis; refit it to reconstruct full states")
-        if self.coordinates is None:
-            return self.basis, np.zeros_like(self.basis)
-        r = self.r
-        return self.basis @ self.coordinates[:r, :r], self.basis @ self.coordinates[:r, r:]
-
     def simulate(self, signal: Signal | str, dt: float, t_end: float, q0: np.ndarray | None = None,
                  qdot0: np.ndarray | None = None) -> ROMTrajectory:
         """Simulate from the initial state, input held over each step, with the ROM's :attr:`integrator`:
