@@ -378,10 +378,12 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         found = f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
     else:
         found = f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}"
+    offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
+              "it offers no model exchange: give --dt and --t-end")
     raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
                     f"over t <= {T:g}; one explicit step per doStep?), so no step chosen by the automatic window "
-                    "is accurate: use its model exchange (--interface me) if it offers one, else give --dt and "
-                    "--t-end to record at a step of your choice; no file was written")
+                    f"is accurate; {remedy} to record at a step of your choice; no file was written")
 
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
