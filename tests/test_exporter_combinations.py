@@ -125,6 +125,9 @@ def combinations():
         # 2'. the same with accurate co-simulation (RK4 substeps following the tolerance)
         "generic-accurate": (chain(force_offset=0.5, name="GenericAccurate", **OFF_REST),
                              dict(naming="generic", interfaces=("cs",), expose_accelerations=False), None),
+        # 2''. accurate co-simulation only, parameters exposed as inputs
+        "cs-parameter-inputs": (chain(name="CsParameterInputs", **OFF_REST),
+                                dict(interfaces=("cs",), parameter_inputs=("mass_scale", "stiffness_scale")), None),
         # 3. FMI 3.0 arrays sized by the structural parameter n, no inputs, offset, start off rest,
         #    Dymola's Annotation/@order (fails fmpy's strict validation)
         "array-free": (lti_fmus.MassChain(n=5, force_offset=0.2, start_position=0.01, start_velocity=0.02,
@@ -310,6 +313,16 @@ def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
     finally:
         accurate.close()
         euler.close()
+
+
+def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
+    """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs
+    driven to 0) is reported with its own hint, not as a step dependence."""
+    fmu, _ = fmus["cs-parameter-inputs"]
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "division by zero" in err and "--inputs F and give their values with --set" in err
+    assert "communication step" not in err and not (tmp_path / "train.h5").exists()
 
 
 @pytest.mark.slow
