@@ -233,7 +233,7 @@ def toy_xml2(variant: str = "full") -> str:
             f'<ModelVariables>{"".join(rows)}</ModelVariables>'
             f'<ModelStructure><Outputs><Unknown index="{idx["y[1]"]}"/><Unknown index="{idx["y[2]"]}"/></Outputs>'
             f'{"<Derivatives>" + der_xml + "</Derivatives>" if derivs else ""}'
-            '<InitialUnknowns/></ModelStructure></fmiModelDescription>')
+            '</ModelStructure></fmiModelDescription>')
 
 
 def toy_xml3(variant: str = "full") -> str:

@@ -10,7 +10,8 @@ import numpy as np
 
 from ..errors import DataError, InputSpecError
 from ..sources import Source, open_source
-from ._rates import time_grid
+from ._isolation import source_label
+from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
@@ -241,7 +242,9 @@ def auto_window(
     periods and the response will not fade before ``periods`` periods: to twice the fade-out time
     extrapolated from the envelope's exponential decay, at least doubled and at most ``growth**2``
     times longer.  An extended pilot is coarsened (step x 4) when ``f_max`` and the input pulse stay
-    resolved, so that slow decays do not hit ``max_steps``.
+    resolved, so that slow decays do not hit ``max_steps``.  A co-simulation FMU whose outputs depend on
+    the communication step (one explicit step per ``doStep``) is refused first
+    (:func:`check_step_convergence`).
 
     Parameters
     ----------
@@ -281,6 +284,7 @@ def auto_window(
         raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
     t_input, width = input_activity(signal, source.m)
     T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+    check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
@@ -295,14 +299,93 @@ def auto_window(
         cut = seen.resolved_periods >= 4.0 and not seen.fade_estimate < t_cut
         if faded or cut:
             stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
-            return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                           periods, t_input, stopped_by)
+            window = _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
+                             periods, t_input, stopped_by)
+            first_T, first_dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+            if window.dt > first_dt:   # the first check did not cover the chosen step
+                check_step_convergence(source, signal, window.dt, max(first_T, 20.0 * window.dt), quiet=quiet,
+                                       isolate=isolate)
+            return window
         T_next = _next_length(t, seen, growth)
         while _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, width):
             dt *= 4.0
         T = float(f"{T_next:.6g}")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
                     f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end")
+
+
+#: Largest difference (relative to the peak) between the outputs of a co-simulation run at a step and at half
+#: that step, under the same held input, that counts as converged.  Measured on the first pilot of the impulse
+#: input (tests/test_exporter_combinations.py): RK4 substeps that follow the tolerance 1e-10, 1.9e-14; one explicit
+#: Euler step per communication step, 3.3e3 at the pilot step 0.0485 (unstable) and 0.07 at 0.005.
+STEP_CONVERGENCE = 1e-3
+
+
+class _HeldOn:
+    """``signal`` sampled on the coarse grid ``t`` and held: a finer run sees the coarse run's inputs."""
+
+    def __init__(self, signal: Any, t: np.ndarray) -> None:
+        self.t, self.values = t, np.atleast_2d(np.asarray(signal.sample(t), dtype=float))
+
+    def sample(self, t: Any) -> np.ndarray:
+        h = self.t[1] - self.t[0] if len(self.t) > 1 else 1.0
+        j = np.searchsorted(self.t, np.asarray(t, dtype=float) + 1e-9 * h, side="right") - 1
+        return self.values[:, np.clip(j, 0, len(self.t) - 1)]
+
+
+def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True,
+                           isolate: bool = False, threshold: float = STEP_CONVERGENCE) -> None:
+    """Refuse a co-simulation FMU whose results depend on the communication step.
+
+    Several exporters' co-simulation is one explicit Euler step per ``doStep`` (spec: real FMUs): inaccurate or
+    unstable at the steps the automatic window chooses, and no step makes it accurate.  The outputs of a run on
+    ``[0, T]`` at step ``dt`` are compared with a run at ``dt / 2`` under the same held input.  Sources that are
+    not co-simulation FMUs of continuous-time models (model exchange, fmu-opinf's Newmark FMUs, builtins) are
+    not checked.
+
+    Parameters
+    ----------
+    source : Source
+    signal : Signal
+        The training input (held on the ``dt`` grid for both runs).
+    dt, T : float
+        Step and end of the coarse run.
+    quiet, isolate : bool
+        Progress bar; run in a child process.
+    threshold : float, default=STEP_CONVERGENCE
+        Largest accepted max-norm difference of the outputs relative to their peak.
+
+    Raises
+    ------
+    DataError
+        The outputs differ by more than ``threshold`` or turn non-finite: one line naming the steps, the
+        difference and what to do.
+    """
+    if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()):
+        return
+    coarse = time_grid(dt, T)
+    outputs = []
+    for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
+        run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
+                                  label=f"auto window: step check (dt={t[1] - t[0]:g}, t_end={T:g})")
+        if failure is not None and "non-finite" not in str(failure):
+            raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
+        outputs.append(np.asarray(run.y)[:, :run.k] if failure is None else None)
+    if outputs[0] is not None and outputs[1] is not None:
+        y, y_fine = outputs[0], outputs[1][:, ::2][:, :outputs[0].shape[1]]
+        peak = float(np.abs(y_fine).max())
+        difference = float(np.abs(y - y_fine).max()) / peak if peak > 0 else 0.0
+        if difference <= threshold:
+            return
+        found = f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
+    else:
+        found = f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}"
+    offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
+              "it offers no model exchange: give --dt and --t-end")
+    raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
+                    f"over t <= {T:g}; one explicit step per doStep?), so no step chosen by the automatic window "
+                    f"is accurate; {remedy} to record at a step of your choice; no file was written")
 
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,

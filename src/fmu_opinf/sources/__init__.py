@@ -29,6 +29,7 @@ already in ``rows``.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 from typing import Any
 
 from ..errors import InputSpecError
@@ -38,6 +39,7 @@ from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
 from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
+from ._variables import warn_if_not_strict
 
 __all__ = [
     "Source",
@@ -142,13 +144,13 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     if unknown:
         raise InputSpecError(f"--{unknown[0]} applies to builtin sources, not to the fmu {text}")
     interface = choose_interface(text, options.pop("interface", "auto"))
-    if interface == "me":
-        return ModelExchangeSource(text, **options)
-    if "method" in options:
+    if interface != "me" and "method" in options:
         raise InputSpecError(f"--me-method {options['method']} applies to model exchange, but {os.path.basename(text)} "
                              "is driven through co-simulation; give --interface me (if it offers model exchange) "
                              "or leave out --me-method")
-    return FMUSource(text, **options)
+    source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
+    warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
+    return source
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",

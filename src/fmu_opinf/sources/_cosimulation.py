@@ -162,7 +162,8 @@ class FMUSource(Source):
         columns = selection.positions + selection.velocities + selection.accelerations
         columns += [Column(e, e.sign) for e in out_elements]
         self._read = ReadPlan(model, columns, structural)
-        self._write = ReadPlan(model, [Column(e, 1.0) for e in forces], structural, settings=self._settings)
+        # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
+        self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
         self._parameter_like = [e.name for e in forces if nonzero_start(e)]
 
     def _settings_provenance(self) -> dict[str, Any]:
@@ -403,8 +404,11 @@ class FMUSource(Source):
                 kind = {"Real": "Real", "Boolean": "Boolean", "String": "String"}.get(kind, "Integer")
             elif kind == "Enumeration":
                 kind = "Int64"
+            values = list(setting.values)
+            if setting.var.negated and kind in ("Real", "Integer"):  # the value reference holds -value
+                values = [-value for value in values]
             try:
-                getattr(self._fmu, "set" + kind)([setting.var.vr], list(setting.values))
+                getattr(self._fmu, "set" + kind)([setting.var.vr], values)
             except Exception as exc:
                 raise FMUError(f"{self.path.name} refused --set {setting.var.name} "
                                f"({self._last_log() or str(exc).splitlines()[0]})") from None

@@ -15,13 +15,14 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
+import warnings
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..errors import FMUError, InputSpecError
+from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ._base import CONSTRAINTS, match_names, natural_key
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
@@ -104,8 +105,54 @@ def read_description(path: Path) -> Any:
     try:
         return read_model_description(str(path), validate=False)
     except Exception as exc:  # fmpy raises plain Exception / lxml errors
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise FMUError(f"{path}: cannot read modelDescription.xml ({first})") from None
+        raise FMUError(f"{path}: cannot read modelDescription.xml ({_first_line(exc)})") from None
+
+
+#: Descriptions already reported by :func:`warn_if_not_strict` in this process (resolved path, size, mtime).
+_REPORTED: set[tuple[str, int, int]] = set()
+
+
+def warn_if_not_strict(path: Path) -> None:
+    """Warn once per process if fmpy's strict reading rejects the description; reading goes on without it.
+
+    Called where a source is opened for the user (:func:`fmu_opinf.sources.open_source`), not where a child
+    process rebuilds it, so the warning is printed once.
+    """
+    try:
+        stat = path.stat()
+    except OSError:
+        return
+    key = (str(path.resolve()), stat.st_size, stat.st_mtime_ns)
+    if key in _REPORTED:
+        return
+    _REPORTED.add(key)
+    problem = _schema_problem(path)
+    if problem:
+        warnings.warn(f"{path.name}: modelDescription.xml fails fmpy's strict validation ({problem}); read "
+                      "without it", FmuOpinfWarning, stacklevel=3)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0].strip() if text else type(exc).__name__
+
+
+def _schema_problem(path: Path) -> str | None:
+    """What fmpy's strict reading (schema and model checks) rejects in a readable description, or None.
+
+    Real exports fail it and work (spec: undefined units of old OpenModelica FMUs, ``Annotation/@order`` of
+    Dymola FMI 3 files, FMI 1 ``alias`` attributes): the caller warns and goes on.
+    """
+    from fmpy import read_model_description
+
+    try:
+        read_model_description(str(path), validate=True)
+    except Exception as exc:  # fmpy raises plain Exception ("Failed to validate ...:" then "- ERROR ..." lines)
+        problems = [line.strip()[2:] for line in str(exc).splitlines() if line.strip().startswith("- ")]
+        if not problems:
+            return _first_line(exc)
+        return problems[0] + (f" and {len(problems) - 1} more" if len(problems) > 1 else "")
+    return None
 
 
 def annotated_constraint(path: Path) -> str | None:
@@ -418,7 +465,7 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         return (*by_unit, "by unit: local variables in m or rad, m/s or rad/s, m/s2 or rad/s2 (no continuous "
                           "states declared)")
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
-                   "with units of length and velocity; pass --positions with the position variables' names")
+                   "with units of length and velocity; pass --positions and --velocities with the variables' names")
 
 
 #: Units that mark positions, velocities and accelerations when a model declares no states (SI, FMI spelling).
