@@ -437,7 +437,12 @@ class PODBasis:
     energy : float, optional
         Saturation threshold: ``r`` is the smallest order with ``E_r >= energy`` (:func:`energy_order`).
         Default :data:`DEFAULT_ENERGY` when ``r`` is None, except that snapshots of numerical rank at most
-        :data:`SMALL_RANK` keep all their modes (``r = rank``) unless ``energy`` is given.  Mutually exclusive
+        :data:`SMALL_RANK` keep all their modes (``r = rank``) unless ``energy`` is given.  When the first mode
+        alone meets the threshold, the order is one plus the energy rule on the remaining singular values: such
+        a mode is a static displacement (a model started away from its equilibrium, a step input) that dwarfs
+        the vibrations, and a one-mode ROM would keep none of them (a 12-mass free response with an offset,
+        ``E_1 = 0.988``: r = 3 instead of 1, max eps_y 1.6e-4 instead of 3.6e-4; r = 6 gives 1.8e-7, so the
+        threshold still decides how many vibration modes are kept).  Mutually exclusive
         with ``r``.
     kind : {"auto", "positions", "velocities"}, default="auto"
         Which snapshots span the basis; see the module docstring for ``"auto"``.
@@ -516,7 +521,10 @@ class PODBasis:
             if self.energy is None and rank <= SMALL_RANK:
                 return rank
             threshold = DEFAULT_ENERGY if self.energy is None else self.energy
-            return min(energy_order(sigma, threshold), rank)
+            order = energy_order(sigma, threshold)
+            if order == 1 and rank > 1:  # one mode alone meets the threshold: a static displacement
+                order = 1 + energy_order(sigma[1:rank], threshold)
+            return min(order, rank)
         r = int(self.r)
         if r < 1:
             raise DataError(f"r={r} is not a positive order; choose 1 <= r <= {rank}")
