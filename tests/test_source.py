@@ -31,7 +31,7 @@ typedef struct { Logger2 logger; void *alloc; void *free; void *stepFinished; vo
 typedef void (*Logger3)(void *env, int status, const char *cat, const char *msg);
 
 typedef struct {
-    double x[N], v[N], a[N], u, t, k, fault_threshold;
+    double x[N], v[N], a[N], a_pub[N], u, t, k, fault_threshold;
     int fault, started, fmi3;
     Logger2 log2; void *env2; Logger3 log3; void *env3;
 } Model;
@@ -62,12 +62,15 @@ static void solve(double A[N][N], double b[N]) {  /* Gaussian elimination, SPD s
     }
 }
 
+static void publish(Model *m) { memcpy(m->a_pub, m->a, sizeof(m->a)); }
+
 static void consistent(Model *m) {  /* M = I: a = B u - D v - K x */
     double K[N][N], D[N][N]; mat(m, K, D);
     for (int i = 0; i < N; i++) {
         m->a[i] = (i == 0 ? m->u : 0.0);
         for (int j = 0; j < N; j++) m->a[i] -= D[i][j] * m->v[j] + K[i][j] * m->x[j];
     }
+    publish(m);
 }
 
 static int step(Model *m, double h) {
@@ -96,6 +99,9 @@ static int step(Model *m, double h) {
         m->v[i] = vp[i] + 0.5 * h * r[i];
     }
     m->t += h; m->started = 1;
+#ifndef TOY_STALE  /* -DTOY_STALE: the accelerations read after doStep stay one step old until an input is set */
+    publish(m);
+#endif
     return 0;
 }
 
@@ -106,14 +112,14 @@ static int getReal(Model *m, unsigned vr, double *out) {
     else if (vr == 2) *out = m->x[N - 1];
     else if (vr >= 10 && vr < 10 + N) *out = m->x[vr - 10];
     else if (vr >= 20 && vr < 20 + N) *out = m->v[vr - 20];
-    else if (vr >= 30 && vr < 30 + N) *out = m->a[vr - 30];
+    else if (vr >= 30 && vr < 30 + N) *out = m->a_pub[vr - 30];
     else if (vr == 41) *out = m->fault_threshold;
     else if (vr == 42) *out = m->k;
     else return 3;
     return 0;
 }
 static int setReal(Model *m, unsigned vr, double value) {
-    if (vr == 0) { m->u = value; if (!m->started) consistent(m); }
+    if (vr == 0) { m->u = value; if (!m->started) consistent(m); publish(m); }
     else if (vr == 41) m->fault_threshold = value;
     else if (vr == 42) m->k = value;
     else if (vr >= 10 && vr < 10 + N && !m->started) m->x[vr - 10] = value;  /* start values of the positions */
@@ -266,8 +272,9 @@ def toy_xml3(variant: str = "full") -> str:
             '</fmiModelDescription>')
 
 
-def compile_toy(directory: Path) -> Path:
-    """Compile the toy binary (all FMI functions fmpy loads exist; unused ones return error)."""
+def compile_toy(directory: Path, defines: tuple[str, ...] = (), name: str = "toy.so") -> Path:
+    """Compile the toy binary (all FMI functions fmpy loads exist; unused ones return error); ``defines`` such as
+    ``("TOY_STALE",)`` select variants of its behaviour."""
     from fmpy.fmi2 import FMU2Slave
     from fmpy.fmi3 import FMU3Slave
 
@@ -279,9 +286,9 @@ def compile_toy(directory: Path) -> Path:
                     if n.startswith(("fmi2", "fmi3")) and n not in defined})
     (directory / "toy.c").write_text(TOY_C)
     (directory / "stubs.c").write_text("".join(f"int {n}(void) {{ return 3; }}\n" for n in stubs))
-    library = directory / "toy.so"
-    subprocess.run([compiler, "-O2", "-shared", "-fPIC", "-o", str(library), str(directory / "toy.c"),
-                    str(directory / "stubs.c"), "-lm"], check=True, capture_output=True)
+    library = directory / name
+    subprocess.run([compiler, "-O2", "-shared", "-fPIC", *(f"-D{d}" for d in defines), "-o", str(library),
+                    str(directory / "toy.c"), str(directory / "stubs.c"), "-lm"], check=True, capture_output=True)
     return library
 
 
@@ -308,6 +315,8 @@ def build_toys(directory: Path) -> dict[str, Path]:
     out["fmi3-modelica"] = pack_fmu(directory / "toy3-modelica.fmu", toy_xml3("modelica"), library,
                                     fmpy.platform_tuple)
     out["no-binary"] = pack_fmu(directory / "toy-nobinary.fmu", toy_xml2(), None, None)
+    stale = compile_toy(directory, ("TOY_STALE",), "toy-stale.so")
+    out["stale"] = pack_fmu(directory / "toy-stale.fmu", toy_xml2(), stale, fmpy.platform)
     out["win-only"] = pack_fmu(directory / "toy-win.fmu", toy_xml2(), library, "win64")
     return out
 
@@ -400,7 +409,7 @@ def test_explicit_patterns_select_variables(toys):
 # ------------------------------------------------------------------------------- stepping
 
 
-@pytest.mark.parametrize("variant", ["full", "fmi3"])
+@pytest.mark.parametrize("variant", ["full", "fmi3", "stale"])
 def test_recorded_samples_obey_the_equation_of_motion_with_the_input_in_effect(toys, variant):
     """M a_i + D v_i + K x_i = B u_i exactly, where u_i = u(t_{i-1}): the design.md input timing."""
     source = FMUSource(toys[variant])

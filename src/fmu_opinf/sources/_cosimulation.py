@@ -481,7 +481,7 @@ class FMUSource(Source):
         direct, raw, gather, signs = read.identity, self._raw, read.gather, read.signs
         rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
         ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
-        t, h, changed = self._t_list, self._h_list, self._changed
+        t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
         for j in range(count):
             i = i0 + j
             if i:
@@ -489,6 +489,8 @@ class FMUSource(Source):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 if c_step(comp, t[i - 1], h[i], 1) > 1:
                     raise StepError(self._fail_text("in fmi2DoStep", i), i, t[i])
+                if refresh and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
+                    raise StepError(self._fail_text("setting the input", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
                 raise StepError(self._fail_text("in fmi2GetReal", i), i, t[i])
             if not direct:
@@ -506,7 +508,7 @@ class FMUSource(Source):
         rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
         ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
         f = self._flags.ctypes.data
-        t, h, changed = self._t_list, self._h_list, self._changed
+        t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
         for j in range(count):
             i = i0 + j
             if i:
@@ -514,6 +516,8 @@ class FMUSource(Source):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
+                if refresh and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1:
+                    raise StepError(self._fail_text("setting the input", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1:
                 raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
             if not direct:
@@ -532,6 +536,10 @@ class FMUSource(Source):
         else:
             changed[:] = False
         self._changed = changed.tolist()
+        # Some generated FMUs update what they publish (e.g. their der(x)) only when an input is set, so after
+        # doStep they return the values of the step before (shared/spec/real-fmus.md): set the input in effect
+        # again after each step.  fmu-opinf's own FMUs publish at the end of doStep and are spared the call.
+        self._refresh = bool(self.m) and (self.md.generationTool or "") != "fmu-opinf"
         self._Uraw = self._raw_inputs(self._U)
         self._raw = np.zeros(max(self._read.nvalues, 1))
 
