@@ -418,7 +418,8 @@ def _timed_description(side: Any, isolate: bool = True) -> str:
         return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
     where = "in a separate process, its stepping loop alone" if isolate else "in this process"
     return (f"FMU {Path(str(side)).name} stepped through FMI from Python {where} (per step: input set when "
-            "changed, one step, outputs read)")
+            "changed, one step, outputs read; a co-simulation FMU not made by fmu-opinf gets its input set again "
+            "after the step)")
 
 
 def _timed(source: Any, rom_side: Any, isolate: bool = True) -> dict[str, Any]:
