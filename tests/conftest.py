@@ -1,5 +1,9 @@
 """Shared fixtures: small reference systems and simulations reused across test modules."""
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
@@ -56,3 +60,15 @@ def relative(a, b):
 def anchored_impulse_run(anchored):
     """Anchored chain, impulse-like input, dt = 0.5 to t = 300 (the paper's training shape)."""
     return newmark.simulate(anchored, "impulse:amplitude=100,t0=2,width=0.5", 0.5, 300.0)
+
+
+@pytest.fixture(scope="session")
+def bench():
+    """``benchmarks/bench_accuracy.py`` as a module: its independent references (POD-Galerkin from the true
+    matrices, plain least squares) and its cached benchmark data."""
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_accuracy.py"
+    spec = importlib.util.spec_from_file_location("bench_accuracy", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclass needs the module registered
+    spec.loader.exec_module(module)
+    return module

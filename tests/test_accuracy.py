@@ -5,23 +5,8 @@ The references are independent of the fit: POD-Galerkin uses the true system mat
 normal equations, and all errors are eq. (19) against the reference simulator (benchmarks/bench_accuracy.py).
 """
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_accuracy.py"
-
-
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_accuracy", _PATH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass needs the module registered
-    spec.loader.exec_module(module)
-    return module
 
 
 def _check(figures):

@@ -4,10 +4,6 @@ References are closed-form: the transfer function ``C (sI - A)^-1 B`` of the ori
 similarity identities the realization claims, and the reference Newmark simulator of the full-order model.
 """
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -128,18 +124,6 @@ def test_unit_mass_least_squares_from_the_compressed_factor_equals_plain_least_s
 # ----------------------------------------------------------------------------------------------------------
 # The fit keeps the realization where it halves the training output error: the anchored chain at r = 12
 # ----------------------------------------------------------------------------------------------------------
-_BENCH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_accuracy.py"
-
-
-@pytest.fixture(scope="module")
-def bench():
-    spec = importlib.util.spec_from_file_location("bench_accuracy", _BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclass needs the module registered
-    spec.loader.exec_module(module)
-    return module
-
-
 @pytest.fixture(scope="module")
 def anchored_fit(bench):
     from fmu_opinf.rom import fit_rom
