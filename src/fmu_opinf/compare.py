@@ -417,9 +417,19 @@ def _timed_description(side: Any, isolate: bool = True) -> str:
     if str(side).startswith("builtin:"):
         return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
     where = "in a separate process, its stepping loop alone" if isolate else "in this process"
+    again = "" if _made_by_fmu_opinf(side) else ", input set again"
     return (f"FMU {Path(str(side)).name} stepped through FMI from Python {where} (per step: input set when "
-            "changed, one step, outputs read; a co-simulation FMU not made by fmu-opinf gets its input set again "
-            "after the step)")
+            f"changed, one step{again}, outputs read)")
+
+
+def _made_by_fmu_opinf(path: Any) -> bool:
+    """Whether the FMU's generation tool is fmu-opinf (its co-simulation needs no input set after each step)."""
+    try:
+        from fmpy import read_model_description
+
+        return (read_model_description(str(path), validate=False).generationTool or "") == "fmu-opinf"
+    except Exception:  # noqa: BLE001 - a description fmpy cannot read: describe the general loop
+        return False
 
 
 def _timed(source: Any, rom_side: Any, isolate: bool = True) -> dict[str, Any]:
