@@ -860,8 +860,8 @@ def fit_operators(
         unconstrained least-squares fit and keep it if it halves the training output error (module docstring,
         *Least-squares candidate*); the result then has ``output_map`` and ``coordinates`` set.
     integrator : {"newmark", "exact"}, default="newmark"
-        How the ROM will be simulated: the training output error of the candidates is taken with this step.
-        The refinement models the Newmark step, so ``"exact"`` (a continuous-time source) never refines.
+        How the ROM will be simulated: the refinement and the training output error of the candidates take
+        this step (classical Newmark, or the exact hold step for continuous-time sources).
 
     Returns
     -------
@@ -908,7 +908,7 @@ def fit_operators(
             Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
                 Mr, Dr, Kr, Br, xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), output_map=output_map,
                 run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
-                unit_scales=units, refit_output_map=refit_output_map)
+                unit_scales=units, refit_output_map=refit_output_map, integrator=integrator)
             refitted_map = info["refinement"].pop("refitted_map", None)
         if candidate:
             training = (xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), run_lengths, integrator)
@@ -1012,8 +1012,7 @@ def _refine_iterations(requested: int | None, r: int) -> int:
 
 
 def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None, k: int, integrator: str) -> bool:
-    """Whether to run the output-error refinement (``refine="auto"``: when ``dt`` and ``y`` are given for a
-    Newmark ROM)."""
+    """Whether to run the output-error refinement (``refine="auto"``: when ``dt`` and ``y`` are given)."""
     if refine not in ("auto", True, False):
         raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
     if integrator not in ("newmark", "exact"):
@@ -1021,13 +1020,11 @@ def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None
     available = dt is not None and y is not None
     if refine is True and not available:
         raise ValueError("refine=True needs the training time step dt and the outputs y")
-    if refine is True and integrator != "newmark":
-        raise ValueError("refine=True models the Newmark step; an exact-integrator ROM is not refined")
     if available and (np.ndim(y) != 2 or np.shape(y)[1] != k):
         raise DimensionError(f"y has shape {np.shape(y)}; expected (p, {k}) like the snapshots")
     if available and not np.all(np.isfinite(np.asarray(y, dtype=float))):
         raise DataError("y contains NaN/Inf; check the snapshot outputs")
-    return bool(refine) and available and integrator == "newmark"
+    return bool(refine) and available
 
 
 #: Tolerance of the second solve when the first ends ``optimal_inaccurate`` (module docstring, *Solver status*).

@@ -63,14 +63,8 @@ def zero_order_hold_step(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.
     E : (2r, 2r) ndarray
     F : (2r, m) ndarray
     """
-    r, m = Mr.shape[0], Br.shape[1]
-    unit = scipy.linalg.solve(Mr, np.hstack([Kr, Dr, Br]))
-    block = np.zeros((2 * r + m, 2 * r + m))
-    block[:r, r:2 * r] = np.eye(r) * dt
-    block[r:2 * r, :2 * r] = -unit[:, :2 * r] * dt
-    block[r:2 * r, 2 * r:] = unit[:, 2 * r:] * dt
-    expo = scipy.linalg.expm(block)
-    return expo[:2 * r, :2 * r], expo[:2 * r, 2 * r:]
+    step = _ExactStep(Mr, Dr, Kr, Br, dt)
+    return step.Ad, step.Bd
 
 
 def _powers(A: np.ndarray, count: int) -> np.ndarray:
@@ -133,6 +127,7 @@ class _Trajectories:
     scales: np.ndarray  # physical operator = factor product / scale, for M, D, K, B
     columns: np.ndarray | None = None  # (3, r): column scaling of the factors of M, D, K (default ones)
     free_output_map: bool = False  # C re-fitted to each simulation by least squares (variable projection)
+    integrator: str = "newmark"  # the step simulated: classical Newmark or the exact hold step
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -144,7 +139,8 @@ class _Trajectories:
         columns = np.ones((3, r)) if self.columns is None else self.columns
         LM, LD, LK = (L * c for L, c in zip(factors, columns))
         sa, sv, sx, su = self.scales
-        lu, Ad, Bd = _newmark_discrete(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
+        step = _step(self.integrator)(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
+        Ad, Bd = step.Ad, step.Bd
         grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
         powers = _powers(Ad, _STRIDE)  # shared by all runs, transposed for the adjoint
         sims = [_propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, powers) for z_data, u in zip(self.z, self.u)]
@@ -158,18 +154,70 @@ class _Trajectories:
             lam = _propagate(Ad.T, g[:, ::-1], g[:, -1], _STRIDE, powers.transpose(0, 2, 1))[:, ::-1]
             grad_A += lam[:, 1:] @ z[:, :-1].T
             grad_B += lam[:, 1:] @ u[:, 1:].T
-        # Ad = E^-1 F, Bd = E^-1 G: back through the solve to E, F, G and on to Mr, Dr, Kr, Br
-        YA = scipy.linalg.lu_solve(lu, grad_A, trans=1, check_finite=False)
-        YB = scipy.linalg.lu_solve(lu, grad_B, trans=1, check_finite=False)
-        WE = YA @ Ad.T + YB @ Bd.T
+        gM, gD, gK, gB = step.operator_gradients(grad_A, grad_B)
+        grads = [(((g + g.T) @ L) * c / scale).ravel()
+                 for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
+        return value, np.concatenate(grads + [(gB / su).ravel()])
+
+
+class _NewmarkStep:
+    """``Ad = E^-1 F``, ``Bd = E^-1 G`` of :func:`newmark_step_map` and the way back to ``Mr, Dr, Kr, Br``."""
+
+    def __init__(self, Mr, Dr, Kr, Br, dt: float) -> None:
+        self.dt, self.r = dt, Mr.shape[0]
+        self.lu, self.Ad, self.Bd = _newmark_discrete(Mr, Dr, Kr, Br, dt)
+
+    def operator_gradients(self, grad_A: np.ndarray, grad_B: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Gradients in ``Mr, Dr, Kr, Br`` from those in ``Ad, Bd`` (through the solve to ``E, F, G``)."""
+        YA = scipy.linalg.lu_solve(self.lu, grad_A, trans=1, check_finite=False)
+        YB = scipy.linalg.lu_solve(self.lu, grad_B, trans=1, check_finite=False)
+        WE = YA @ self.Ad.T + YB @ self.Bd.T
+        r = self.r
         lo, hi, half = slice(0, r), slice(r, 2 * r), 0.5 * self.dt
         gM = YA[hi, hi] - WE[hi, hi]
         gD = -half * (YA[hi, hi] + WE[hi, hi])
         gK = -half * (YA[hi, lo] + WE[hi, lo])
-        gB = self.dt * YB[hi]
-        grads = [(((g + g.T) @ L) * c / scale).ravel()
-                 for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
-        return value, np.concatenate(grads + [(gB / su).ravel()])
+        return gM, gD, gK, self.dt * YB[hi]
+
+
+class _ExactStep:
+    """``[Ad, Bd]`` of :func:`zero_order_hold_step`, the top rows of ``expm(X)`` for Van Loan's block ``X = dt
+    [[A, Bc], [0, 0]]`` with ``A = [[0, I], [-Mr^-1 Kr, -Mr^-1 Dr]]``, ``Bc = [0; Mr^-1 Br]``, and the way back:
+    the gradient in ``X`` is the Frechet derivative of the exponential at ``X^T`` applied to the gradient in
+    ``expm(X)`` (the adjoint of ``L(X, .)`` is ``L(X^T, .)``), then the chain rule through ``Mr^-1``."""
+
+    def __init__(self, Mr, Dr, Kr, Br, dt: float) -> None:
+        self.dt, self.r, self.m = dt, Mr.shape[0], Br.shape[1]
+        self.Minv = np.linalg.inv(Mr)
+        self.unit = self.Minv @ np.hstack([Kr, Dr, Br])  # Mr^-1 [Kr, Dr, Br]
+        r = self.r
+        self.X = np.zeros((2 * r + self.m, 2 * r + self.m))
+        self.X[:r, r:2 * r] = np.eye(r) * dt
+        self.X[r:2 * r, :2 * r] = -self.unit[:, :2 * r] * dt
+        self.X[r:2 * r, 2 * r:] = self.unit[:, 2 * r:] * dt
+        expo = scipy.linalg.expm(self.X)
+        self.Ad, self.Bd = expo[:2 * r, :2 * r], expo[:2 * r, 2 * r:]
+
+    def operator_gradients(self, grad_A: np.ndarray, grad_B: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Gradients in ``Mr, Dr, Kr, Br`` from those in ``Ad, Bd``."""
+        r = self.r
+        G = np.zeros_like(self.X)
+        G[:2 * r, :2 * r], G[:2 * r, 2 * r:] = grad_A, grad_B
+        gX = scipy.linalg.expm_frechet(self.X.T, G, compute_expm=False) * self.dt
+        g_unit = np.hstack([-gX[r:2 * r, :2 * r], gX[r:2 * r, 2 * r:]])  # gradient in Mr^-1 [Kr, Dr, Br]
+        gK, gD, gB = (self.Minv.T @ g_unit[:, a:b] for a, b in ((0, r), (r, 2 * r), (2 * r, 2 * r + self.m)))
+        gM = -self.Minv.T @ g_unit @ self.unit.T  # d(Mr^-1) = -Mr^-1 dMr Mr^-1
+        return gM, gD, gK, gB
+
+
+#: The time steps the refinement can model (``integrator`` of :func:`refine_output_error`).
+_STEPS = {"newmark": _NewmarkStep, "exact": _ExactStep}
+
+
+def _step(integrator: str) -> type:
+    if integrator not in _STEPS:
+        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark' or 'exact'")
+    return _STEPS[integrator]
 
 
 def _least_squares_output_map(states: list[np.ndarray], targets: list[np.ndarray],
@@ -319,12 +367,13 @@ def refine_output_error(
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
-    window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False,
+    window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
     Minimizes ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs simulated with the
-    classical Newmark step (:func:`newmark_step_map`) from each run's recorded initial state, over
+    classical Newmark step (:func:`newmark_step_map`) or the exact hold step (:func:`zero_order_hold_step`) from
+    each run's recorded initial state, over
     ``Mr = LM LM^T, Dr = LD LD^T, Kr = LK LK^T`` and ``Br`` (L-BFGS, adjoint gradient): the operators stay
     symmetric positive semidefinite, so the refined model is stable by construction.
 
@@ -364,6 +413,10 @@ def refine_output_error(
         projection) instead of keeping ``output_map``; the refined map is returned in ``report["refitted_map"]``
         and must replace ``output_map`` in the ROM.  Module docstring of :mod:`fmu_opinf.inference`, *Output
         map*: far more accurate on the anchored chain, less accurate on the triple chain, so off by default.
+    integrator : {"newmark", "exact"}, default="newmark"
+        The ROM's time step, which the simulated training runs use: classical Newmark, or the exact solution
+        under the held input (continuous-time sources; the gradient goes through the Frechet derivative of the
+        matrix exponential).  The polish models Newmark only.
 
     Returns
     -------
@@ -378,6 +431,9 @@ def refine_output_error(
     """
     t0 = time.perf_counter()
     r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
+    _step(integrator)
+    if polish_iterations and integrator != "newmark":
+        raise ValueError("polish_iterations needs the Newmark step (its Jacobian models Newmark)")
     lengths = _run_lengths(run_lengths, k, dt)
     Cpr, Cvr = _output_map(output_map, xdot_r, x_r, y)
     scale_y = float(np.linalg.norm(y)) or 1.0
@@ -393,7 +449,7 @@ def refine_output_error(
         Mr, Dr, Kr, Br = T.T @ Mr @ T, T.T @ Dr @ T, T.T @ Kr @ T, T.T @ Br
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
     problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
-    problem.columns, problem.free_output_map = columns, bool(refit_output_map)
+    problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]
                            + [(Br * scales[3]).ravel()])
@@ -445,12 +501,8 @@ def output_error_objective(
     k = x_r.shape[1]
     problem = _training_problem(xdot_r, x_r, u, y, dt, _output_map(output_map, xdot_r, x_r, y),
                                 _run_lengths(run_lengths, k, dt), np.ones(4))
-    if integrator not in ("newmark", "exact"):
-        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark' or 'exact'")
-    if integrator == "exact":
-        Ad, Bd = zero_order_hold_step(Mr, Dr, Kr, Br, float(dt))
-    else:
-        _, Ad, Bd = _newmark_discrete(Mr, Dr, Kr, Br, float(dt))
+    step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
+    Ad, Bd = step.Ad, step.Bd
     with np.errstate(over="ignore", invalid="ignore"):
         value = 0.0
         for z_data, inputs, target in zip(problem.z, problem.u, problem.target):

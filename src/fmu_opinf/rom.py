@@ -754,8 +754,9 @@ def fit_rom(
         without provenance).
     refine : {"auto", True, False}, default="auto"
         Output-error refinement of the SDP solution over PSD factors (:mod:`fmu_opinf.inference`, issue 14):
-        ``"auto"`` refines Newmark ROMs fitted without ``lowpass`` (it models the Newmark step); False keeps the
-        SDP solution (the paper's eq. 16 with ``normalization="trace"``).
+        ``"auto"`` refines ROMs fitted without ``lowpass`` from sampled states, with the ROM's own step (Newmark,
+        or the exact hold step of a continuous-time source); False keeps the SDP solution (the paper's eq. 16
+        with ``normalization="trace"``).
     refit_output_map : bool, default=False
         Let the refinement re-fit ``Cpr, Cvr`` to the ROM's own trajectory instead of keeping eq. 17's map
         (:mod:`fmu_opinf.inference`, *Output map*: much more accurate on the anchored chain, less on the triple
@@ -787,7 +788,7 @@ def fit_rom(
     runs = as_runs(snapshots)
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
-    if refit_output_map and (refine is False or lowpass is not None or _integrator(integrator, attrs) != "newmark"):
+    if refit_output_map and (refine is False or lowpass is not None):
         raise _refit_without_refinement()
     start = time.perf_counter()
     x_ref = _reference_position(runs)
@@ -858,8 +859,8 @@ def fit_rom(
 
 
 def _refit_without_refinement() -> InputSpecError:
-    return InputSpecError("refit_output_map (--refit-output-map) needs the output-error refinement: a Newmark ROM, "
-                          "no lowpass, one training time step, refine not False; drop the option or enable the "
+    return InputSpecError("refit_output_map (--refit-output-map) needs the output-error refinement: no lowpass, one "
+                          "training time step, sampled states, refine not False; drop the option or enable the "
                           "refinement")
 
 
@@ -868,27 +869,27 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
     """Keywords of :func:`fmu_opinf.inference.fit_operators` for what compares simulated training outputs: the
     output-error refinement and the least-squares candidate.
 
-    Both need unweighted data (``lowpass`` off) sampled with one training step; the output target excludes the
-    fitted feedthrough and offset.  ``refine="auto"`` refines ROMs simulated by Newmark (what the refinement
-    models); an exact-integrator ROM gets the candidate only, and not from interval averages (their columns are
-    no samples of the states).  ``refine=False`` keeps the SDP solution: neither.
+    Both need unweighted data (``lowpass`` off) sampled with one training step, and sampled states (interval
+    averages are no samples: their runs keep the SDP solution); the output target excludes the fitted
+    feedthrough and offset.  The refinement simulates the ROM's own step (Newmark, or the exact hold step of a
+    continuous-time source).  ``refine=False`` keeps the SDP solution: neither.
     """
     if refine not in ("auto", True, False):
         raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
     dt = _training_dt(runs, attrs)
     steps = {round(float(np.diff(np.asarray(run.t[:2], dtype=float))[0]), 12) for run in runs
              if int(np.shape(run.t)[0]) > 1}
-    sampled = lowpass is None and dt is not None and len(steps) == 1
-    possible = integrator == "newmark" and sampled
-    if refine is True and not possible:
-        raise ValueError("refine=True needs a Newmark ROM, no lowpass and one training step dt")
     lengths = [int(np.shape(run.t)[0]) for run in runs]
-    if refine is False or not sampled or min(lengths) < 2 or (integrator != "newmark" and "f_h" in data):
+    possible = lowpass is None and dt is not None and len(steps) == 1 and min(lengths) >= 2 and "f_h" not in data
+    if refine is True and not possible:
+        raise ValueError("refine=True needs no lowpass, one training step dt and sampled states (not interval "
+                         "averages)")
+    if refine is False or not possible:
         return {}
     Cpr, Cvr, Dur, y0 = maps
     target = data["y"] - Dur @ data["u"] - y0[:, None]
-    return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths,
-            "refine": True if possible else "auto", "integrator": integrator}
+    return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths, "refine": True,
+            "integrator": integrator}
 
 
 def _refinement_summary(report: Any) -> str:
