@@ -174,8 +174,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="bytes the POD may hold in memory (default 1e9); larger data are streamed, or distributed "
                         "with --scheduler (docs/scale-out.md)")
     p.add_argument("--no-refine", dest="refine", action="store_false",
-                   help="keep the SDP solution (eq. 16) instead of refining it by output error (the default for "
-                        "Newmark ROMs; see fmu_opinf.inference)")
+                   help="keep the SDP solution (eq. 16) instead of refining it by output error with the ROM's own "
+                        "step (the default; see fmu_opinf.inference)")
     p.add_argument("--refit-output-map", action="store_true",
                    help="let the refinement re-fit the output map to the ROM's own trajectory (variable projection; "
                         "much more accurate on some models, less on others: see fmu_opinf.inference, default off)")
