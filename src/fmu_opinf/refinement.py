@@ -3,9 +3,10 @@
 Starting from the SDP operators, ``Mr = LM LM^T``, ``Dr = LD LD^T``, ``Kr = LK LK^T`` and ``Br`` are refined to
 minimize the training runs' output error with the ROM's own step, classical Newmark or the exact hold step
 (L-BFGS with the adjoint gradient; for Newmark an optional Levenberg-Marquardt polish with the exact Jacobian).
-The factors keep the operators symmetric PSD, so the refined ROM is stable by construction.  Why, what was measured and what was not kept: the docstring of
-:mod:`fmu_opinf.inference`, section *Output-error refinement*.  :func:`fmu_opinf.inference.fit_operators` calls
-:func:`refine_output_error`; both public functions are also importable from :mod:`fmu_opinf.inference`.
+The factors keep the operators symmetric PSD, so the refined ROM is stable by construction.  Why, what was
+measured and what was not kept: the docstring of :mod:`fmu_opinf.inference`, section *Output-error refinement*.
+:func:`fmu_opinf.inference.fit_operators` calls :func:`refine_output_error`; both public functions are also
+importable from :mod:`fmu_opinf.inference`.
 """
 
 from __future__ import annotations
