@@ -993,7 +993,8 @@ def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], current: t
                                       run_lengths=run_lengths, integrator=integrator)
 
     candidate, kept = objective((np.eye(r), Dr, Kr, Br), output_map), objective(current, current_map or output_map)
-    report.update(status="realized", objective=candidate, kept_objective=kept, integrator=integrator)
+    report.update(status="realized", objective=candidate, kept_objective=kept, integrator=integrator,
+                  refined="refinement" in info)
     if not (candidate <= TERM_SIGNIFICANCE * kept and kept > CANDIDATE_FLOOR):
         return None
     report["chosen"] = True

@@ -905,8 +905,8 @@ def _candidate_summary(report: dict) -> str:
         return f"least-squares candidate: {report.get('status')}; kept the SDP solution"
     kept = "its mechanical realization (modal coordinates)" if report["chosen"] else "the SDP solution"
     return (f"least-squares candidate: training output error {report['objective']:.2e} against "
-            f"{report['kept_objective']:.2e} for the {'refined ' if report.get('integrator') == 'newmark' else ''}SDP "
-            f"solution; kept {kept}")
+            f"{report['kept_objective']:.2e} for the {'refined ' if report.get('refined') else ''}SDP solution; "
+            f"kept {kept}")
 
 
 def _integrator(requested: str, attrs: dict) -> str:
