@@ -345,7 +345,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         output_units=_declared_units(source, list(fom_outputs)),
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
-        timed=_timed(source, rom_side, isolate),
+        timed=_timed(source, rom_side, isolate, fom_prov),
     )
 
 
@@ -406,8 +406,9 @@ def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool)
                          "names do not match; compare a ROM with the model it was learned from")
 
 
-def _timed_description(side: Any, isolate: bool = True) -> str:
-    """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up)."""
+def _timed_description(side: Any, isolate: bool = True, provenance: dict | None = None) -> str:
+    """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up);
+    ``provenance`` of the run, if known, says how an FMU was driven."""
     from .rom import SecondOrderROM
 
     if isinstance(side, SecondOrderROM) or Path(str(side)).suffix.lower() in (".h5", ".hdf5"):
@@ -417,26 +418,20 @@ def _timed_description(side: Any, isolate: bool = True) -> str:
     if str(side).startswith("builtin:"):
         return f"{side} simulated in Python (the reference Newmark stepper, one sparse solve per step)"
     where = "in a separate process, its stepping loop alone" if isolate else "in this process"
-    again = "" if _made_by_fmu_opinf(side) else ", input set again"
+    provenance = provenance or {}
+    if provenance.get("fmi_interface") == "me":
+        return (f"FMU {Path(str(side)).name} integrated by model exchange from Python {where} (per step: input "
+                f"set, {provenance.get('integrator', 'the ODE integrated')}, outputs read)")
+    again = "" if provenance.get("fmu_generation_tool", "fmu-opinf") == "fmu-opinf" else ", input set again"
     return (f"FMU {Path(str(side)).name} stepped through FMI from Python {where} (per step: input set when "
             f"changed, one step{again}, outputs read)")
 
 
-def _made_by_fmu_opinf(path: Any) -> bool:
-    """Whether the FMU's generation tool is fmu-opinf (its co-simulation needs no input set after each step)."""
-    try:
-        from fmpy import read_model_description
-
-        return (read_model_description(str(path), validate=False).generationTool or "") == "fmu-opinf"
-    except Exception:  # noqa: BLE001 - a description fmpy cannot read: describe the general loop
-        return False
-
-
-def _timed(source: Any, rom_side: Any, isolate: bool = True) -> dict[str, Any]:
+def _timed(source: Any, rom_side: Any, isolate: bool = True, fom_provenance: dict | None = None) -> dict[str, Any]:
     """What each side's time measured; like with like when both are FMUs (then driven the same way)."""
     fmu = [not str(side).startswith("builtin:") and Path(str(side)).suffix.lower() == ".fmu"
            for side in (source, rom_side)]
-    return {"fom": _timed_description(source, isolate), "rom": _timed_description(rom_side, isolate),
+    return {"fom": _timed_description(source, isolate, fom_provenance), "rom": _timed_description(rom_side, isolate),
             "like_with_like": all(fmu), "clock": "wall time (time.perf_counter)"}
 
 
