@@ -201,14 +201,15 @@ def test_refinement_works_in_modal_coordinates_above_order_40(r, expected):
     assert report["coordinates"] == expected
 
 
-def test_exact_step_gradient_matches_finite_differences():
-    """The refinement with the exact hold step (continuous-time ROMs): the adjoint gradient through the Frechet
-    derivative of the matrix exponential against central differences of the objective, in scaled factor
-    coordinates with column scales (all chain-rule paths)."""
+@pytest.mark.parametrize("integrator, state_weight", [("exact", 0.0), ("exact", 0.3), ("newmark", 0.3)])
+def test_refinement_gradient_matches_finite_differences(integrator, state_weight):
+    """The adjoint gradient of the refinement's objective against central differences, in scaled factor
+    coordinates with column scales (all chain-rule paths): with the exact hold step (continuous-time ROMs; through
+    the Frechet derivative of the matrix exponential) and with the state-error term."""
     rng = np.random.default_rng(11)
     (M, D, K, B, Cp), runs = _two_runs(rng, steps=60)
     problem = _problem(rng, runs, Cp, columns=rng.uniform(0.5, 2.0, size=(3, 3)))
-    problem.integrator = "exact"
+    problem.integrator, problem.state_weight = integrator, state_weight
     point = rng.standard_normal(3 * 9 + 3)
     value, grad = problem.loss(point, 3, 1)
     step = 1e-6
