@@ -109,12 +109,6 @@ def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64,
     return out
 
 
-#: Weight of the relative reduced-state error beside the relative output error in the refinement's objective
-#: (module docstring of :mod:`fmu_opinf.inference`, *State-error term*): small enough that the outputs decide,
-#: large enough to pin the directions one output does not see.  Measured at triple r = 35 / 40: 1e-5 best; 1e-4,
-#: 1e-2, 1e-1 worse.
-STATE_WEIGHT = 1e-5
-
 #: Orders above which the refinement works in the start's modal coordinates by default (module docstring).
 _WHITEN_ABOVE = 40
 
@@ -392,7 +386,7 @@ def refine_output_error(
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
-    state_weight: float | None = None,
+    state_weight: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -442,12 +436,11 @@ def refine_output_error(
         The ROM's time step, which the simulated training runs use: classical Newmark, or the exact solution
         under the held input (continuous-time sources; the gradient goes through the Frechet derivative of the
         matrix exponential).  The polish models Newmark only.
-    state_weight : float, optional
+    state_weight : float, default=0
         Weight of the relative error of the simulated reduced states ``[q; q']`` against the data's (positions
-        and velocities each scaled by their RMS) beside the relative output error; 0 fits the outputs alone.
-        Default :data:`STATE_WEIGHT`, and 0 with ``refit_output_map`` (which frees the coordinates the term
-        anchors) or ``polish_iterations`` (whose Jacobian is that of the outputs).  Module docstring of
-        :mod:`fmu_opinf.inference`, *State-error term*.
+        and velocities each scaled by their RMS) beside the relative output error; 0 (default) fits the outputs
+        alone.  Measured with 1e-5 and not made the default (module docstring of :mod:`fmu_opinf.inference`,
+        *State-error term*).  The polish's Jacobian is that of the outputs alone.
 
     Returns
     -------
@@ -481,8 +474,6 @@ def refine_output_error(
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
     problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
     problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
-    if state_weight is None:  # the re-fitted map frees the coordinates the term anchors; the polish fits outputs
-        state_weight = 0.0 if (refit_output_map or polish_iterations) else STATE_WEIGHT
     problem.state_weight = float(state_weight)
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]

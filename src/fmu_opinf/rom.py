@@ -895,7 +895,7 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
 def _refinement_summary(report: Any) -> str:
     if not isinstance(report, dict) or "objective" not in report:
         return ""
-    return (f"; output-error refinement: training objective {report.get('objective_start', float('nan')):.2e} "
+    return (f"; output-error refinement: training output error {report.get('objective_start', float('nan')):.2e} "
             f"-> {report['objective']:.2e} in {report.get('iterations', 0)} iterations, "
             f"{report.get('seconds', 0):.1f}s")
 
