@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-__all__ = ["MechanicalRealization", "mechanical_realization"]
+__all__ = ["MechanicalRealization", "mechanical_realization", "first_order_matrix"]
 
 #: A pair whose input block has a second singular value above this fraction of the first is not rank one.
 _RANK_ONE = 1e-9
@@ -69,7 +69,7 @@ def mechanical_realization(D: np.ndarray, K: np.ndarray, B: np.ndarray, Cp: np.n
         >= 0, an input reaching a pole pair through two directions, or a nearly defective model.
     """
     r, m = B.shape
-    A = np.block([[np.zeros((r, r)), np.eye(r)], [-K, -D]])
+    A = first_order_matrix(D, K)
     if not np.all(np.isfinite(A)):
         return None
     lam, X = np.linalg.eig(A)
@@ -101,6 +101,12 @@ def mechanical_realization(D: np.ndarray, K: np.ndarray, B: np.ndarray, Cp: np.n
         return None
     C = np.hstack([Cp, Cv]) @ W
     return MechanicalRealization(d=d, k=k, B=beta, Cp=C[:, :r], Cv=C[:, r:], W=W)
+
+
+def first_order_matrix(D: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """``[[0, I], [-K, -D]]``: the first-order matrix of the unit-mass model ``q'' + D q' + K q``."""
+    r = D.shape[0]
+    return np.block([[np.zeros((r, r)), np.eye(r)], [-K, -D]])
 
 
 def _pole_pairs(lam: np.ndarray) -> list[tuple[int, ...]] | None:

@@ -429,7 +429,7 @@ import scipy.linalg
 import scipy.sparse as sp
 
 from .errors import DataError, DimensionError, FmuOpinfWarning, SolverError
-from ._realization import mechanical_realization
+from ._realization import first_order_matrix, mechanical_realization
 from .refinement import newmark_step_map, output_error_objective, refine_output_error
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
@@ -997,11 +997,12 @@ def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], current: t
     report: dict[str, Any] = {"chosen": False}
     info["least_squares_candidate"] = report
     if realization is None:
-        stable = bool(np.all(np.isfinite(Dr)) and np.all(np.isfinite(Kr)) and np.max(
-            np.linalg.eigvals(np.block([[np.zeros((r, r)), np.eye(r)], [-Kr, -Dr]])).real) < 0)
+        A = first_order_matrix(Dr, Kr)
+        stable = bool(np.all(np.isfinite(A)) and np.max(np.linalg.eigvals(A).real) < 0)
         report["status"] = ("no mechanical realization (an input reaches a pole pair through two directions, or "
                             "nearly defective)" if stable else "unstable")
         return None
+
     def objective(operators: tuple, outputs: tuple) -> float:
         return output_error_objective(*operators, xdot_r, x_r, u, y, dt, output_map=outputs,
                                       run_lengths=run_lengths, integrator=integrator)
