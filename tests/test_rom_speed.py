@@ -247,3 +247,28 @@ def test_lazy_trajectory_pickles(rng):
     copy = pickle.loads(pickle.dumps(trajectory))
     assert not copy.states_formed and np.array_equal(copy.y, trajectory.y)
     assert np.array_equal(copy.qddot, trajectory.qddot)
+
+
+# ------------------------------------------------------------------ threads
+
+
+def test_simulation_runs_with_one_blas_thread(rng, monkeypatch):
+    """The step map's small products run with one BLAS thread whatever the caller's pools (outputs and the states
+    formed later): two threads collapse under oversubscription (``fmu_opinf._threads``)."""
+    import fmu_opinf._recursion as recursion
+    from threadpoolctl import threadpool_info
+
+    seen, evaluate = [], recursion.rom_evaluate
+
+    def recording(*args, **kwargs):
+        seen.append(max(pool["num_threads"] for pool in threadpool_info()))
+        return evaluate(*args, **kwargs)
+
+    monkeypatch.setattr(recursion, "rom_evaluate", recording)
+    rom = _rom(rng, 6, 1, 1, "exact")
+    with threadpool_limits(limits=2):
+        trajectory = rom.simulate(SIGNAL, 0.1, 5.0)
+        trajectory.q  # forms the states
+        outside = max(pool["num_threads"] for pool in threadpool_info())
+    assert seen == [1, 1]
+    assert outside == 2 or len(threadpool_info()) == 0

@@ -1057,13 +1057,9 @@ _TOL_RETRY = 1e-8
 
 def _single_threaded() -> Any:
     """Limit BLAS/OpenMP pools to one thread for the fit's small dense kernels (module docstring, *Threads*)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
-        import contextlib
+    from ._threads import single_threaded
 
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1)
+    return single_threaded()
 
 
 def _report_status(info: dict) -> None:

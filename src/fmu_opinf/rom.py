@@ -365,6 +365,7 @@ class SecondOrderROM:
             formed here; at r = 35 they cost about ten times the outputs, ``benchmarks/bench_rom.py``).
         """
         from ._recursion import rom_evaluate, rom_step
+        from ._threads import run_single_threaded, single_threaded
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
@@ -378,11 +379,13 @@ class SecondOrderROM:
         qddot0 = scipy.linalg.solve(self.Mr, self.Br @ u[:, 0] + self.fr - self.Dr @ qdot0 - self.Kr @ q0,
                                     assume_a="sym")
         # the step is one linear map, evaluated in blocks of steps (fmu_opinf._recursion); the outputs alone
-        # are far cheaper than the states, which are formed only if asked for
-        step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
-        outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
-        y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
-        return ROMTrajectory(t=t, u=u, y=y, states=functools.partial(rom_evaluate, step, s0, u))  # picklable
+        # are far cheaper than the states, which are formed only if asked for; small matrices: one BLAS thread
+        with single_threaded():
+            step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
+            outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
+            y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
+        states = functools.partial(run_single_threaded, rom_evaluate, step, s0, u)  # picklable
+        return ROMTrajectory(t=t, u=u, y=y, states=states)
 
     def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact zero-order-hold step of the reduced ODE (``integrator="exact"``) as one linear map.
