@@ -122,3 +122,32 @@ def test_report_page_renders_in_headless_chromium(anchored_rom, tmp_path):
     assert 'data-images="2/2"' in done.stdout, done.stdout[-500:]
     console_errors = [line for line in done.stderr.splitlines() if "CONSOLE" in line and "ERROR" in line]
     assert not console_errors, console_errors
+
+
+def test_report_figures_keep_every_label_inside_the_image(anchored_rom, tmp_path, monkeypatch):
+    """The fixed margins (instead of tight layout) leave no tick label, axis label, title or legend cut off, with
+    long output names and units on two outputs, and large tick labels."""
+    import matplotlib.figure
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from fmu_opinf import plots
+
+    model, path = anchored_rom
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=200.0, quiet=True)
+    result.y_fom = np.vstack([result.y_fom[:1] * 1e5, result.y_fom[1:2]])
+    result.y_rom = np.vstack([result.y_rom[:1] * 1e5, result.y_rom[1:2]])
+    result.output_names = ["chain.mass[600].flange_b.s", "sensor.v"]
+    result.output_units = ["mm", "m/s"]
+    figures, save = [], matplotlib.figure.Figure.savefig
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig",
+                        lambda fig, *args, **kwargs: figures.append(fig) or save(fig, *args, **kwargs))
+    compare.write_report(result, tmp_path / "report")
+    plots.pod_figures([newmark.simulate(systems.anchored_msd(), TRAIN, 0.5, 100.0)], model, tmp_path / "fit")
+    assert len(figures) == 4
+    for fig in figures:
+        canvas = FigureCanvasAgg(fig)  # the figures are closed: draw them again on a canvas of their own
+        canvas.draw()
+        drawn = fig.get_tightbbox(canvas.get_renderer())  # inches: every drawn artist, as bbox_inches="tight"
+        width, height = fig.get_size_inches()
+        assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01, (drawn, fig.texts, fig.axes[0].get_title())
+        assert drawn.x1 <= width + 0.01 and drawn.y1 <= height + 0.01, (drawn, fig.axes[0].get_title())

@@ -54,6 +54,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 import scipy.linalg
 
+from ._threads import threads_for
 from .errors import DataError, DimensionError, FileFormatError, NotFittedError
 
 __all__ = [
@@ -555,10 +556,11 @@ class PODBasis:
             return sigma, vecs, _rank(sigma, max(n, k) * eps), method
         if not self._use_streamed(n, k):
             X = _stacked(runs, name)
-            if vectors:
-                left, sigma = _thin_svd(X)
-            else:
-                left, sigma = None, scipy.linalg.svdvals(X)
+            with threads_for(n * k):
+                if vectors:
+                    left, sigma = _thin_svd(X)
+                else:
+                    left, sigma = None, scipy.linalg.svdvals(X)
             return sigma, left, _rank(sigma, max(n, k) * eps), "dense"
         chunk = self.columns_per_chunk(n)
         if n <= k:

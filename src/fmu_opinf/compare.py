@@ -497,6 +497,8 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .plots import fixed_margins
+
     p = comparison.y_fom.shape[0]
     units = comparison.output_units or [""] * p
     fig, axes = plt.subplots(p, 1, figsize=(8, 2.2 * p + 1.0), sharex=True, squeeze=False)
@@ -511,7 +513,8 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
     fig.suptitle(f"Outputs, input {comparison.input_spec}", y=1.0 - 0.3 / fig.get_figheight())
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.45 / fig.get_figheight()))
+    fixed_margins(fig, left=0.95, bottom=0.5, top=0.75)
+    fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -524,7 +527,7 @@ def _figure_error(comparison: Comparison, path: Path) -> None:
 
     from matplotlib.ticker import FuncFormatter
 
-    from .plots import decade_label
+    from .plots import decade_label, fixed_margins
 
     eps = comparison.eps
     fig, ax = plt.subplots(figsize=(8, 3.2))
@@ -538,7 +541,7 @@ def _figure_error(comparison: Comparison, path: Path) -> None:
                  f"max {eps.max():.2e}", fontsize=10)
     _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
     ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
+    fixed_margins(fig, left=0.85, bottom=0.5, top=0.35)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

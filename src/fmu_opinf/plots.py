@@ -13,7 +13,7 @@ import numpy as np
 
 from .basis import cumulative_energy, svdvals
 
-__all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures", "decade_label"]
+__all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures", "decade_label", "fixed_margins"]
 
 _ROUND_OFF = 1e-15
 _LABELS = {"positions": r"$\sigma_i(X)$", "velocities": r"$\sigma_i(\dot X)$"}
@@ -29,10 +29,23 @@ def _pyplot():
     return plt
 
 
+def fixed_margins(fig: Any, left: float = 0.85, right: float = 0.15, bottom: float = 0.55, top: float = 0.4) -> None:
+    """Margins of the axes area in inches, fixed instead of measured.
+
+    ``tight_layout`` and ``bbox_inches="tight"`` draw every text once more to measure it: about 40 % of a
+    figure's time (0.18-0.21 s against 0.11 s for the error figure of a report).  The labels of these figures
+    have known sizes, so fixed margins fit them.
+    """
+    width, height = fig.get_size_inches()
+    fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
+                        top=1.0 - top / height)
+
+
 def _save(fig: Any, path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    fixed_margins(fig)
+    fig.savefig(path, dpi=120)
     _pyplot().close(fig)
     return path
 

@@ -55,6 +55,7 @@ import h5py
 import numpy as np
 import scipy.linalg
 
+from ._threads import single_threaded
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
@@ -801,7 +802,8 @@ def fit_rom(
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
-    chosen, term_info = _choose_terms(data, requested, "f_" if any(_averaged(run) for run in runs) else "")
+    with single_threaded():  # least-squares residuals of r-dimensional data: small kernels
+        chosen, term_info = _choose_terms(data, requested, "f_" if any(_averaged(run) for run in runs) else "")
     sdp = "f_" if "f_x" in data else ""
     u_fit = data[sdp + "u"]
     if chosen["fr"]:
@@ -809,8 +811,9 @@ def fit_rom(
     extra = [name for name in TERMS if chosen[name]]
     say(f"SDP (eq. 16): {3 * pod.r_ * (pod.r_ + 1) // 2} unknowns in Mr, Dr, Kr from {data['u'].shape[1]} "
         f"snapshots{'; extra terms ' + ', '.join(extra) if extra else ''}; solving ...")
-    Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
-                                       feedthrough=chosen["Dur"], offset=chosen["y0"])
+    with single_threaded():
+        Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
+                                           feedthrough=chosen["Dur"], offset=chosen["y0"])
     time_integrator = _integrator(integrator, attrs)
     refinement = _refinement(refine, time_integrator, lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
     if refinement.get("refine"):
