@@ -34,6 +34,7 @@ BENCHMARKS = [
     ("SDP fit time vs r (6000 snapshots), compressed vs direct formulation", "bench_fit.py", ["--direct-max-r", "20"]),
     ("ROM FMU vs full-order FMU, time per step", "bench_export.py", []),
     ("Python ROM evaluation, 1e5 steps at r = 10, 35, 100: loop / outputs / states", "bench_rom.py", []),
+    ("Small dense kernels under oversubscription: machine's BLAS threads vs one", "bench_threads.py", []),
     ("Accuracy: fit vs intrusive POD-Galerkin and least squares (issue 14 table)", "bench_accuracy.py", []),
     ("Model exchange vs co-simulation recording cost per step", "bench_me.py", []),
     ("Dask: run table on a local cluster and distributed POD (quick variant)", "bench_dask.py", ["--quick"]),

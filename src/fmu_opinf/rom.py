@@ -55,7 +55,7 @@ import h5py
 import numpy as np
 import scipy.linalg
 
-from ._threads import single_threaded
+from . import _threads
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
@@ -366,7 +366,6 @@ class SecondOrderROM:
             formed here; at r = 35 they cost about ten times the outputs, ``benchmarks/bench_rom.py``).
         """
         from ._recursion import rom_evaluate, rom_step
-        from ._threads import run_single_threaded, single_threaded
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
@@ -381,11 +380,11 @@ class SecondOrderROM:
                                     assume_a="sym")
         # the step is one linear map, evaluated in blocks of steps (fmu_opinf._recursion); the outputs alone
         # are far cheaper than the states, which are formed only if asked for; small matrices: one BLAS thread
-        with single_threaded():
+        with _threads.single_threaded():
             step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
             outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
             y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
-        states = functools.partial(run_single_threaded, rom_evaluate, step, s0, u)  # picklable
+        states = functools.partial(_threads.run_single_threaded, rom_evaluate, step, s0, u)  # picklable
         return ROMTrajectory(t=t, u=u, y=y, states=states)
 
     def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -802,7 +801,7 @@ def fit_rom(
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
-    with single_threaded():  # least-squares residuals of r-dimensional data: small kernels
+    with _threads.single_threaded():  # least-squares residuals of r-dimensional data: small kernels
         chosen, term_info = _choose_terms(data, requested, "f_" if any(_averaged(run) for run in runs) else "")
     sdp = "f_" if "f_x" in data else ""
     u_fit = data[sdp + "u"]
@@ -811,7 +810,7 @@ def fit_rom(
     extra = [name for name in TERMS if chosen[name]]
     say(f"SDP (eq. 16): {3 * pod.r_ * (pod.r_ + 1) // 2} unknowns in Mr, Dr, Kr from {data['u'].shape[1]} "
         f"snapshots{'; extra terms ' + ', '.join(extra) if extra else ''}; solving ...")
-    with single_threaded():
+    with _threads.single_threaded():
         Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
                                            feedthrough=chosen["Dur"], offset=chosen["y0"])
     time_integrator = _integrator(integrator, attrs)
