@@ -7,7 +7,8 @@ import pytest
 from conftest import exact_operator_data, spd
 from fmu_opinf import _sdp
 from fmu_opinf.errors import FmuOpinfWarning
-from fmu_opinf.inference import _fit_compressed, compressed_factor, fit_operators
+from fmu_opinf._sdp_paths import fit_compressed
+from fmu_opinf.inference import compressed_factor, fit_operators
 
 NORMALIZATIONS = ("trace", "mass-eigenvalue")
 
@@ -43,7 +44,7 @@ def _damping_data(rng, r=5, k=300, noise=0.3):
 
 
 def _scaled_problem(data):
-    """R, r, m and the scaled Gram matrix G of the objective trace(T G T^T) (as in inference._fit_compressed)."""
+    """R, r, m and the scaled Gram matrix G of the objective trace(T G T^T) (as in fmu_opinf._sdp_paths.fit_compressed)."""
     a, v, x, u = data
     r, m = x.shape[0], u.shape[0]
     R, _ = compressed_factor(a, v, x, u)
@@ -93,7 +94,7 @@ def _kkt(mats, G, normalization):
 @pytest.mark.parametrize("method", ["auto", "sdp"])
 def test_ipm_reaches_the_clarabel_optimum_with_active_cones(rng, normalization, method):
     R, r, m, G = _scaled_problem(_active_data(rng))
-    *mats, info = _fit_compressed(R, r, m, method, 1e-9, False, normalization, "ipm")
+    *mats, info = fit_compressed(R, r, m, method, 1e-9, False, normalization, "ipm")
     reference = _clarabel_reference(G, r, normalization)
     assert info["solver"] == "IPM" and info["status"] == "optimal" and info["gap"] <= 1e-6
     assert _objective(mats, G) == pytest.approx(reference, rel=1e-6)
@@ -116,7 +117,7 @@ def test_exact_data_gives_the_true_operators_and_zero_objective(rng, normalizati
 
 def test_certificate_rejects_a_suboptimal_point(rng):
     R, r, m, G = _scaled_problem(_active_data(rng))
-    *mats, _ = _fit_compressed(R, r, m, "sdp", 1e-9, False, "trace", "ipm")
+    *mats, _ = fit_compressed(R, r, m, "sdp", 1e-9, False, "trace", "ipm")
     T = np.hstack(mats)
     assert _sdp.certificate(T, G, "trace", float(r))[0] < 1e-6
     worse = T.copy()
@@ -218,10 +219,10 @@ def test_certificate_rejects_a_runaway_point_on_round_off_negative_data():
 def test_factored_solve_reaches_the_clarabel_optimum_and_stays_feasible(rng, data):
     """The uncertified factored solve of eq. (16) with Mr >= I ends at the optimum of the SDP stated directly in
     cvxpy (Clarabel at 1e-10), from above, with Mr - I, Dr, Kr PSD."""
-    from fmu_opinf.inference import _fit_factored
+    from fmu_opinf._sdp_paths import fit_factored
 
     R, r, m, G = _scaled_problem(data(rng))
-    *mats, info = _fit_factored(R, r, m)
+    *mats, info = fit_factored(R, r, m)
     reference = _clarabel_reference(G, r, "mass-eigenvalue")
     value = _objective(mats, G)
     assert info["method"] == "factored" and info["status"] == "approximate"
@@ -233,14 +234,14 @@ def test_factored_solve_reaches_the_clarabel_optimum_and_stays_feasible(rng, dat
 
 
 def test_auto_solver_starts_from_the_factored_solve_only_above_order_60_with_refinement():
-    from fmu_opinf.inference import _factored_start
+    from fmu_opinf._sdp_paths import factored_start
 
-    assert _factored_start("auto", 61, True, "auto")
-    assert not _factored_start("auto", 60, True, "auto")
-    assert not _factored_start("auto", 75, False, "auto")  # the plain SDP fit stays certified
-    assert not _factored_start("auto", 75, True, "sdp")
-    assert not _factored_start("ipm", 75, True, "auto") and not _factored_start("clarabel", 75, True, "auto")
-    assert _factored_start("factored", 3, False, "auto")
+    assert factored_start("auto", 61, True, "auto")
+    assert not factored_start("auto", 60, True, "auto")
+    assert not factored_start("auto", 75, False, "auto")  # the plain SDP fit stays certified
+    assert not factored_start("auto", 75, True, "sdp")
+    assert not factored_start("ipm", 75, True, "auto") and not factored_start("clarabel", 75, True, "auto")
+    assert factored_start("factored", 3, False, "auto")
 
 
 def test_factored_solver_with_the_trace_normalization_is_rejected(rng):
