@@ -667,6 +667,11 @@ class _Options:
     identifier: str
     description: str
     stop_time: float
+    output_units: bool = False
+    declared_types: bool = False
+    input_sensors: bool = False
+    output_array: bool = False
+    output_aliases: bool = False
 
 
 def _check_options(model, options: _Options) -> None:
@@ -700,6 +705,11 @@ def _check_options(model, options: _Options) -> None:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", options.identifier):
         raise FmuBuildError(f"model identifier {options.identifier!r} is not a C identifier; "
                             "use letters, digits and underscores")
+    if options.output_array and options.fmi_version != "3.0":
+        raise FmuBuildError("an output array needs FMI 3.0; pass fmi_version='3.0'")
+    if options.declared_types and not options.units:
+        raise FmuBuildError("declared_types puts the units on type definitions; it needs "
+                            "units=True")
 
 
 def _indexed(base: str, i: int, count: int, modelica: bool) -> str:
@@ -730,11 +740,52 @@ def _common_inputs(layout: _Layout, model: LinearMechanicalModel, options: _Opti
     return inputs, parameter_inputs
 
 
-def _outputs(layout: _Layout, model: LinearMechanicalModel, modelica: bool) -> list[str]:
+def _sensor_unit(model: LinearMechanicalModel, k: int) -> str | None:
+    """SI unit of output ``k`` if it measures one kind of quantity (positions, velocities or
+    accelerations), else None."""
+    kinds = [unit for unit, C in (("m", model.Cp), ("m/s", model.Cv), ("m/s2", model.Ca))
+             if np.any(C[k] != 0)]
+    return kinds[0] if len(kinds) == 1 else None
+
+
+def _outputs(layout: _Layout, model: LinearMechanicalModel, modelica: bool,
+             options: _Options | None = None) -> list[str]:
+    units = [_sensor_unit(model, k) if options is not None and options.output_units else None
+             for k in range(model.p)]
+    if options is not None and options.output_array:
+        common = units[0] if len(set(units)) == 1 else None
+        var = layout.add("y", "SlotY", array=True, dimension=model.p, causality="output",
+                         unit=common, description="outputs: Cp x + Cv v + Ca a + y0")
+        if options.output_aliases:
+            layout.alias("sensors", var, "the outputs under another name")
+        return [f"y[{k + 1}]" for k in range(model.p)]
     names = []
     for k in range(model.p):
         var = layout.add(_indexed("y", k, model.p, modelica), "SlotY", k, causality="output",
+                         unit=units[k],
                          description=f"output {k + 1}: Cp x + Cv v + Ca a + y0 (row {k + 1})")
+        names.append(var.name)
+        if options is not None and options.output_aliases:
+            alias = f"sensor[{k + 1}].y" if model.p > 1 else "sensor.y"
+            if layout.fmi3:
+                layout.alias(alias, var)
+            else:   # FMI 2: a local variable of the same value reference (Modelica connections)
+                layout.alias(alias, var, f"alias of {var.name}")
+                layout.variables[-1].causality = "local"
+    return names
+
+
+def _input_sensors(layout: _Layout, inputs: list[str], modelica: bool,
+                   options: _Options) -> list[str]:
+    """One output per force input reporting it (a force sensor: direct feedthrough ``y = u``)."""
+    names = []
+    for j, force in enumerate(inputs):
+        name = (f"forceSensor[{j + 1}].f" if len(inputs) > 1 else "forceSensor.f") if modelica \
+            else f"u_meas{j + 1}"
+        var = layout.add(name, "SlotU", j, causality="output",
+                         unit="N" if options.output_units else None,
+                         description=f"measured force {force} (direct feedthrough)")
+        var.dependencies = [force]
         names.append(var.name)
     return names
 
@@ -905,6 +956,36 @@ _UNITS = {"s": {"s": 1}, "m": {"m": 1}, "m/s": {"m": 1, "s": -1},
           "m/s2": {"m": 1, "s": -2}, "N": {"kg": 1, "m": 1, "s": -2}, "1": {}}
 
 
+#: Modelica type of each unit, for ``declared_types`` (units on type definitions, not variables)
+_TYPE_NAMES = {"s": "Modelica.Units.SI.Time", "m": "Modelica.Units.SI.Position",
+               "m/s": "Modelica.Units.SI.Velocity", "m/s2": "Modelica.Units.SI.Acceleration",
+               "N": "Modelica.Units.SI.Force"}
+_QUANTITIES = {"s": "Time", "m": "Length", "m/s": "Velocity", "m/s2": "Acceleration",
+               "N": "Force"}
+
+
+def _type_definitions(layout: _Layout, declared: bool) -> str:
+    used = sorted({v.unit for v in layout.variables if v.unit in _TYPE_NAMES}) if declared else []
+    if not used:
+        return ""
+    if layout.fmi3:
+        rows = "".join(f'    <Float64Type name="{_TYPE_NAMES[u]}" quantity="{_QUANTITIES[u]}" '
+                       f'unit="{u}"/>\n' for u in used)
+    else:
+        rows = "".join(f'    <SimpleType name="{_TYPE_NAMES[u]}">\n      <Real '
+                       f'quantity="{_QUANTITIES[u]}" unit="{u}"/>\n    </SimpleType>\n'
+                       for u in used)
+    return "  <TypeDefinitions>\n" + rows + "  </TypeDefinitions>\n"
+
+
+def _unit_attribute(var: _Var, declared: bool) -> str:
+    if not var.unit:
+        return ""
+    if declared and var.unit in _TYPE_NAMES:
+        return f' declaredType="{_TYPE_NAMES[var.unit]}"'
+    return f' unit="{var.unit}"'
+
+
 def _number(value: float) -> str:
     return repr(float(value))
 
@@ -933,10 +1014,8 @@ def _common_attributes(var: _Var) -> str:
     return text
 
 
-def _variable2(var: _Var, index_of: dict[str, int]) -> str:
-    inner = ""
-    if var.unit:
-        inner += f' unit="{var.unit}"'
+def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> str:
+    inner = _unit_attribute(var, declared)
     if var.start is not None:
         inner += f' start="{_number(var.start[0])}"'
     if var.derivative_of:
@@ -946,13 +1025,12 @@ def _variable2(var: _Var, index_of: dict[str, int]) -> str:
             "    </ScalarVariable>\n")
 
 
-def _variable3(var: _Var, vr_of: dict[str, int]) -> str:
+def _variable3(var: _Var, vr_of: dict[str, int], declared: bool = False) -> str:
     attributes = _common_attributes(var)
     if var.type == "UInt64":
         attributes += f' start="{int(var.start[0])}" min="{var.minimum}" max="{var.maximum}"'
         return f"    <UInt64 {attributes}/>\n"
-    if var.unit:
-        attributes += f' unit="{var.unit}"'
+    attributes += _unit_attribute(var, declared)
     if var.start is not None:
         attributes += f' start="{" ".join(_number(s) for s in var.start)}"'
     if var.derivative_of:
@@ -1029,13 +1107,14 @@ def _model_description2(layout: _Layout, options: _Options, sources: list[str]) 
         f'  generationTool="fmu-opinf lti_fmus" variableNamingConvention="{naming}"'
         ' numberOfEventIndicators="0">\n'
         f"{interfaces}{_unit_definitions(layout)}"
+        f"{_type_definitions(layout, options.declared_types)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="resizing, information"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
         "  </LogCategories>\n"
         f"{_experiment(options)}"
         "  <ModelVariables>\n"
-        f"{''.join(_variable2(v, index_of) for v in layout.variables)}"
+        f"{''.join(_variable2(v, index_of, options.declared_types) for v in layout.variables)}"
         "  </ModelVariables>\n"
         f"{structure}"
         "</fmiModelDescription>\n")
@@ -1076,13 +1155,14 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
         f"  description={quoteattr(options.description)}\n"
         '  generationTool="fmu-opinf lti_fmus" variableNamingConvention="structured">\n'
         f"{interfaces}{_unit_definitions(layout)}"
+        f"{_type_definitions(layout, options.declared_types)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="resizing, information"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi3Error"/>\n'
         "  </LogCategories>\n"
         f"{_experiment(options)}"
         "  <ModelVariables>\n"
-        f"{''.join(_variable3(v, vr_of) for v in layout.variables)}"
+        f"{''.join(_variable3(v, vr_of, options.declared_types) for v in layout.variables)}"
         "  </ModelVariables>\n"
         f"  <ModelStructure>\n{structure}  </ModelStructure>\n"
         "</fmiModelDescription>\n")
@@ -1202,19 +1282,22 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
     if chain is not None:   # the structural parameter comes first, as in the reference FMUs
         names = _array_states(layout, model, chain, options)
         inputs, parameter_inputs = _common_inputs(layout, model, options, False)
-        outputs = _outputs(layout, model, False)
+        outputs = _outputs(layout, model, False, options)
     else:
         inputs, parameter_inputs = _common_inputs(layout, model, options,
                                                   modelica and options.naming != "array")
-        outputs = _outputs(layout, model, modelica and options.naming != "array")
+        outputs = _outputs(layout, model, modelica and options.naming != "array", options)
         if options.naming == "modelica":
             names = _modelica_states(layout, model, coords, options)
         elif options.naming == "generic":
             names = _generic_states(layout, coords, options)
         else:
             names = _array_states(layout, model, None, options)
-    _dependencies(layout, model, coords, inputs, parameter_inputs, outputs)
-    names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs)
+    sensors = (_input_sensors(layout, inputs, options.naming == "modelica", options)
+               if options.input_sensors else [])
+    _dependencies(layout, model, coords, inputs, parameter_inputs,
+                  [] if options.output_array else outputs)
+    names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
 
 
@@ -1262,7 +1345,10 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   relative: bool = False, parameter_inputs: Sequence[str] = (),
                   expose_accelerations: bool = True, units: bool | None = None,
                   identifier: str | None = None, description: str | None = None,
-                  stop_time: float = 1.0, reuse: bool = True) -> LtiFmu:
+                  stop_time: float = 1.0, output_units: bool = False,
+                  declared_types: bool = False, input_sensors: bool = False,
+                  output_array: bool = False, output_aliases: bool = False,
+                  reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1299,6 +1385,23 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Model description.
     stop_time : float, default=1
         ``DefaultExperiment/@stopTime`` (deliberately unrelated to the dynamics; no step size).
+    output_units : bool, default=False
+        Declare the unit of each output that measures one kind of quantity (``m``, ``m/s``,
+        ``m/s2``; ``N`` for force sensors); needs ``units``.
+    declared_types : bool, default=False
+        Modelica style: units sit on type definitions (``Modelica.Units.SI.Position`` ...) that
+        the variables name in ``declaredType``, not on the variables.
+    input_sensors : bool, default=False
+        One more output per force input that reports it (``forceSensor.f``, or ``u_meas1 ..``):
+        a direct feedthrough ``y = u``, listed after the outputs of the model in
+        :attr:`LtiFmu.outputs`.
+    output_array : bool, default=False
+        FMI 3.0: the outputs are one array variable ``y`` of fixed size p (elements
+        ``y[1] .. y[p]``).
+    output_aliases : bool, default=False
+        Every output also has an alias ``sensor[k].y`` (FMI 3: an ``<Alias>`` child; FMI 2: a
+        local variable of the same value reference); an output array gets the alias
+        ``sensors``.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1321,7 +1424,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         units=naming != "generic" if units is None else bool(units),
         identifier=identifier or concrete.name,
         description=description or _default_description(concrete, chain, naming, relative),
-        stop_time=float(stop_time))
+        stop_time=float(stop_time), output_units=bool(output_units),
+        declared_types=bool(declared_types), input_sensors=bool(input_sensors),
+        output_array=bool(output_array), output_aliases=bool(output_aliases))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
