@@ -180,16 +180,25 @@ def test_chained_derivative_links_are_ambiguous(tmp_path):
         resolve_variables(_write(tmp_path, _fmi2(v, [4, 5, 6])))
 
 
-def test_parameters_exposed_as_inputs_are_forces_unless_excluded(tmp_path):
+def test_parameters_exposed_as_inputs_are_held_unless_named(tmp_path):
+    """A real continuous input with a non-zero start value (a parameter exposed as an input) or a --set value is
+    held by default, not driven (driving k = 1000 with the training impulse would change the model); naming it in
+    --inputs drives it."""
     v = [_sv("F", 0, "input", body='<Real start="0"/>'),
          _sv("k", 1, "input", body='<Real start="1000"/>'),
          _sv("mode", 2, "input", "discrete", '<Integer start="1"/>'),
+         _sv("G", 5, "input", body='<Real start="0"/>'),
          _sv("x[1]", 3), _sv("v[1]", 4)]
     path = _write(tmp_path, _fmi2(v, []))
     default = resolve_variables(path)
-    assert _names(default.forces) == ["F", "k"] and _names(default.held) == ["mode"]
+    assert _names(default.forces) == ["F", "G"] and _names(default.held) == ["k", "mode"]
+    assert _names(default.parameter_like) == ["k"]
+    given = resolve_variables(path, settings={"k": 900, "G": 2})     # values given: held, nothing to tell
+    assert _names(given.forces) == ["F"] and _names(given.held) == ["G", "k", "mode"] and given.parameter_like == []
     chosen = resolve_variables(path, inputs="F")
-    assert _names(chosen.forces) == ["F"] and _names(chosen.held) == ["k", "mode"]
+    assert _names(chosen.forces) == ["F"] and _names(chosen.held) == ["G", "k", "mode"] and chosen.parameter_like == []
+    driven = resolve_variables(path, inputs="F,k")
+    assert _names(driven.forces) == ["F", "k"] and driven.parameter_like == []
     assert resolve_variables(path, inputs="none").forces == []
 
 

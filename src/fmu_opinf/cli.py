@@ -31,8 +31,10 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
         group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
         group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
     trained = "" if recording else " (default: those the ROM was trained with)"
-    group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input; "
-                                        "'none': no force input); other inputs are held at their start values"
+    group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input "
+                                        "but those with a non-zero start value or a --set value, which look like "
+                                        "parameters; 'none': no force input); other inputs are held at their start "
+                                        "(or --set) values"
                                         + trained)
     group.add_argument("--outputs", help="name patterns of the outputs" + trained)
     if recording:

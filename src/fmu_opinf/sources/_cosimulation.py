@@ -59,7 +59,8 @@ class FMUSource(Source):
         Name patterns; default: from the derivative links, else ``v[*]`` / ``a[*]``, else derived
         from the data (also with ``"none"``).
     inputs : str, optional
-        Name patterns of the force inputs; default: every real continuous input.  Other inputs are
+        Name patterns of the force inputs; default: every real continuous input except those with a
+        non-zero start value or a ``settings`` value (parameters exposed as inputs).  Other inputs are
         held at their start (or ``settings``) values; ``"none"`` drives no input (m = 0).
     outputs : str, optional
         Name patterns; default: all real variables with causality output.
@@ -158,7 +159,11 @@ class FMUSource(Source):
         self.acceleration_names = [c.name for c in selection.accelerations]
         self.input_names = [e.name for e in forces]
         self.held_input_names = [e.name for e in held]
+        #: held inputs that look like parameters (non-zero start, default selection): open_source warns
+        self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         self.output_names = [e.name for e in out_elements]
+        self.input_units = [e.var.unit or "" for e in forces]
+        self.output_units = [e.var.unit or "" for e in out_elements]
         columns = selection.positions + selection.velocities + selection.accelerations
         columns += [Column(e, e.sign) for e in out_elements]
         self._read = ReadPlan(model, columns, structural)

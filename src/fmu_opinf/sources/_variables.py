@@ -18,7 +18,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ from ._base import CONSTRAINTS, match_names, natural_key
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "start_value"]
+           "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs"]
 
 REAL_TYPES = ("Real", "Float64")
 _PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
@@ -608,15 +608,19 @@ def show_patterns(patterns: str | Sequence[str]) -> str:
 # =============================================================================================
 
 
-def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None
-                  ) -> tuple[list[Element], list[Element]]:
+def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None,
+                  given: Collection[str] = ()) -> tuple[list[Element], list[Element]]:
     """Force inputs and the other inputs (held at their start or ``--set`` values).
 
-    Default: every real input of continuous variability is a force.  ``""``/``"none"``: no forces.
+    Default: every real input of continuous variability is a force, except inputs the user gives a value
+    (``given``: names of variables with a ``--set`` value) and inputs with a non-zero start value (parameters
+    exposed as inputs, shared/spec/real-fmus.md: driving them would change the model, or make it fail at 0);
+    those are held (:func:`parameter_like_inputs` names the second kind).  ``""``/``"none"``: no forces.
     """
     inputs = [e for e in elements.values() if e.var.causality == "input"]
     if patterns is None:
-        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"),
+        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"
+                         and e.var.name not in given and not nonzero_start(e)),
                         key=lambda e: natural_key(e.name))
     elif patterns.strip().lower() in ("", "none"):
         forces = []
@@ -638,6 +642,13 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         forces = [elements[n] for n in names]
     chosen = {e.name for e in forces}
     return forces, sorted((e for e in inputs if e.name not in chosen), key=lambda e: natural_key(e.name))
+
+
+def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
+    """Held inputs that the default selection would have driven but for their non-zero start value (and no
+    ``--set`` value): what the user is told about (:func:`fmu_opinf.sources.open_source`)."""
+    return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
+            and nonzero_start(e)]
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:

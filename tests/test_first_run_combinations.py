@@ -1,0 +1,135 @@
+"""A new user's first run on exporter conventions combined in ways the other suites do not cover.
+
+Each FMU is built by :mod:`fmu_opinf.lti_fmus` and driven through the command line as a new user would (defaults
+first); results are checked against the exact zero-order-hold solution of the model
+(:func:`fmu_opinf.lti_fmus.zoh_response`) and against what the generator declared, not against the tool's output.
+
+* ``stiffness-input``: FMI 2 ME + CS, ``stiffness_scale`` exposed as an input (start 1).  Unlike ``mass_scale``
+  it does not fail at 0, so driving it with the training impulse used to give a silently wrong model (m = 2,
+  a stiffness that follows the impulse) and a comparison that blew up.
+* ``array-outputs``: FMI 3, the outputs one array ``y`` (positions, ``declaredType`` Position: unit on the type
+  definition) with an ``<Alias>``, a force sensor output ``forceSensor.f = F`` (direct feedthrough, unit N), a
+  constant force.  The figures lost the unit of array elements (``y[1]`` is no variable name), and the exported
+  ROM FMU declared no units at all.
+* ``array-structural``: FMI 3 arrays sized by the structural parameter ``n`` (set to 8), outputs with aliases
+  and units (m, m/s, m/s2: an acceleration sensor with feedthrough), a constant force, start off rest.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import zipfile
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fmu_opinf.cli import main
+from fmu_opinf.newmark import time_grid
+from fmu_opinf.rom import SecondOrderROM
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.snapshots import Snapshots
+
+pytestmark = pytest.mark.fmu
+
+HARMONIC = "harmonic:amplitude=1,omega=0.8"
+OFF_REST = dict(x0=[0.05, -0.02, 0.03, 0.0, 0.04], v0=[0.0, 0.1, 0.0, -0.05, 0.0])
+
+
+def _two_position_sensors(model):
+    """Outputs: positions of masses 5 and 3 with offsets (both in m, so an output array has one unit)."""
+    Cp = np.zeros((2, 5))
+    Cp[0, 4] = Cp[1, 2] = 1.0
+    return replace(model, Cp=Cp, Cv=np.zeros((2, 5)), Ca=np.zeros((2, 5)), y0=np.array([0.1, -0.05]))
+
+
+def _definitions():
+    from fmu_opinf import lti_fmus
+
+    return {
+        "stiffness-input": (lti_fmus.chain_model(name="StiffnessInput", **OFF_REST),
+                            dict(parameter_inputs=("stiffness_scale",))),
+        "array-outputs": (_two_position_sensors(lti_fmus.chain_model(name="ArrayOutputs", force_offset=0.3)),
+                          dict(fmi_version="3.0", output_array=True, input_sensors=True, output_units=True,
+                               declared_types=True, output_aliases=True)),
+        "array-structural": (lti_fmus.MassChain(n=5, force_offset=0.2, start_position=0.01, acceleration_sensor=True,
+                                                name="ArrayStructural"),
+                             dict(fmi_version="3.0", naming="array", output_units=True, output_aliases=True)),
+    }
+
+
+@pytest.fixture(scope="module")
+def fmus(request, tmp_path_factory):
+    """``name -> LtiFmu``; built once (cached across sessions like the corpus)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fmu_opinf import lti_fmus
+
+    if lti_fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build FMUs")
+    cache = getattr(request.config, "cache", None)
+    folder = Path(cache.mkdir("lti-first-run") if cache is not None else tmp_path_factory.mktemp("first-run"))
+
+    def build(item):
+        name, (model, options) = item
+        return name, lti_fmus.build_lti_fmu(model, folder / f"{name}.fmu", **options)
+
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        return dict(pool.map(build, _definitions().items()))
+
+
+def max_eps(y: np.ndarray, y_exact: np.ndarray) -> float:
+    """eps_y of the compare metric: ``max_t ||y - y_exact||^2 / max_t ||y_exact||^2``."""
+    return float((((y - y_exact) ** 2).sum(axis=0) / (y_exact ** 2).sum(axis=0).max()).max())
+
+
+def relative(a, b) -> float:
+    return float(np.abs(np.asarray(a) - b).max() / np.abs(b).max())
+
+
+def exact(model, t: np.ndarray, spec: str, **scales):
+    """Exact response on ``t`` under the held input ``spec``, and the input in effect at each sample (the
+    project's column convention: ``u(t_0)``, then the input held over the step that ends there)."""
+    from fmu_opinf.lti_fmus import zoh_response
+
+    held = parse_signal(spec, model.m).sample(t) if model.m else None
+    response = zoh_response(model, t, held, **scales)
+    in_effect = np.hstack([held[:, :1], held[:, :-1]]) if model.m else np.zeros((0, t.size))
+    return response, in_effect
+
+
+# ------------------------------------------------------------------------------ parameters exposed as inputs
+@pytest.mark.slow
+def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, capsys):
+    """stiffness_scale (an input starting at 1) is held at its start value by default, with one warning line;
+    before, the impulse drove it too (m = 2) and the data were those of another model.  A --set value is held
+    as given.  Both recordings are the exact solution with that stiffness scale."""
+    fmu = fmus["stiffness-input"]
+    grid = ["--dt", "0.05", "--t-end", "30", "-q"]
+    train = tmp_path / "train.h5"
+    assert main(["snapshots", str(fmu.path), "-o", str(train), *grid]) == 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.search(r"input\(s\) stiffness_scale start at non-zero values \(parameters "
+                                              r"exposed as inputs\?\) and are held at them", err), err
+    snaps = Snapshots.load(train)
+    assert snaps.m == 1 and snaps.attrs["input_names"] == ["F"]
+    assert snaps.attrs["held_input_names"] == ["stiffness_scale"]
+    run = snaps.runs[0]
+    reference, _ = exact(fmu.model, np.asarray(run.t), snaps.runs[0].attrs["input_spec"])
+    assert relative(run.x, reference.x) < 2e-12 and relative(run.y, reference.y) < 1e-11  # measured 2.1e-13, 1.3e-12
+
+    stiffer = tmp_path / "stiffer.h5"
+    assert main(["snapshots", str(fmu.path), "-o", str(stiffer), "--set", "stiffness_scale=1.5", *grid]) == 0
+    assert "non-zero values" not in capsys.readouterr().err        # the user gave its value: nothing to tell
+    run = Snapshots.load(stiffer).runs[0]
+    reference, _ = exact(fmu.model, np.asarray(run.t), run.attrs["input_spec"], stiffness_scale=1.5)
+    assert relative(run.x, reference.x) < 1e-11                                           # measured 1.2e-12
+
+    # the ROM of the default recording against the exact solution on a new input
+    assert main(["fit", str(train), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0
+    rom = SecondOrderROM.load(tmp_path / "rom.h5")
+    t = time_grid(0.05, 60.0)
+    reference, _ = exact(fmu.model, t, HARMONIC)
+    assert max_eps(rom.simulate(HARMONIC, 0.05, 60.0).y, reference.y) < 3e-22                 # measured 3.1e-23
