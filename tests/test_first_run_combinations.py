@@ -133,3 +133,25 @@ def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, c
     t = time_grid(0.05, 60.0)
     reference, _ = exact(fmu.model, t, HARMONIC)
     assert max_eps(rom.simulate(HARMONIC, 0.05, 60.0).y, reference.y) < 3e-22                 # measured 3.1e-23
+
+
+# ------------------------------------------------------------------------------------------------ units
+def test_units_of_fmi3_array_outputs_and_type_definitions(fmus):
+    """The unit of an element ``y[2]`` is its array's (here from its declaredType), so the figures label it."""
+    from fmu_opinf.compare import _declared_units
+
+    fmu = fmus["array-outputs"]
+    assert fmu.outputs == ["y[1]", "y[2]", "forceSensor.f"]
+    assert _declared_units(fmu.path, ["forceSensor.f", "y[1]", "y[2]", "F", "nothing[3]"]) == ["N", "m", "m", "N",
+                                                                                                  ""]
+
+
+def test_generated_descriptions_pass_strict_validation(fmus):
+    """The builder's new conventions (type definitions, output arrays, aliases, force sensors) are valid FMI."""
+    from fmpy import read_model_description
+
+    for fmu in fmus.values():
+        read_model_description(str(fmu.path), validate=True)
+    declared = {v.name: v for v in read_model_description(str(fmus["array-outputs"].path)).modelVariables}
+    assert declared["y"].declaredType.unit == "m" and [a.name for a in declared["y"].aliases] == ["sensors"]
+    assert declared["forceSensor.f"].causality == "output" and declared["forceSensor.f"].declaredType.unit == "N"
