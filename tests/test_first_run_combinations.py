@@ -146,6 +146,60 @@ def test_units_of_fmi3_array_outputs_and_type_definitions(fmus):
                                                                                                   ""]
 
 
+@pytest.mark.slow
+def test_array_outputs_with_feedthrough_default_chain_and_units(fmus, tmp_path):
+    """Defaults through the whole chain: the force sensor (y = u) and the position array with offsets are exact;
+    the report figure, and the exported ROM FMU (which passes fmpy's strict validation), carry the units."""
+    from fmpy import read_model_description
+
+    from fmu_opinf.compare import compare
+
+    fmu = fmus["array-outputs"]
+    train, rom_file, out = tmp_path / "train.h5", tmp_path / "rom.h5", tmp_path / "rom.fmu"
+    assert main(["snapshots", str(fmu.path), "-o", str(train), "-q"]) == 0
+    assert main(["fit", str(train), "-o", str(rom_file), "-q"]) == 0
+    snaps, rom = Snapshots.load(train), SecondOrderROM.load(rom_file)
+    assert snaps.attrs["output_names"] == ["forceSensor.f", "y[1]", "y[2]"]
+    assert snaps.attrs["output_units"] == ["N", "m", "m"] and snaps.attrs["input_units"] == ["N"]
+    dt = float(snaps.attrs["dt"])
+    t = time_grid(dt, dt * round(4 * float(snaps.runs[0].t[-1]) / dt))
+    reference, u = exact(fmu.model, t, HARMONIC)
+    y_exact = np.vstack([u, reference.y])
+    assert max_eps(rom.simulate(HARMONIC, dt, t[-1]).y, y_exact) < 2e-25                      # measured 1.9e-26
+
+    result = compare(rom_file, fmu.path, HARMONIC, quiet=True)
+    assert result.output_units == ["N", "m", "m"]                      # before: ["N", "", ""]
+    assert max_eps(result.y_fom, y_exact) < 2e-26                  # measured 1.3e-27
+
+    assert main(["export", str(rom_file), "-o", str(out), "-q", "--reconstruct", "mass[3].s"]) == 0
+    described = {v.name: v for v in read_model_description(str(out), validate=True).modelVariables}
+    assert [described[name].unit for name in ("F", "forceSensor.f", "y[1]", "y[2]", "mass[3].s")] == \
+        ["N", "N", "m", "m", "m"]                                     # before: no units
+    assert max_eps(compare(out, fmu.path, HARMONIC, quiet=True).y_rom, y_exact) < 2e-25     # measured 1.9e-26
+
+
+@pytest.mark.slow
+def test_fmi3_structural_size_with_output_aliases_and_units(fmus, tmp_path):
+    """--set n=8 in configuration mode; outputs with <Alias> children and units; the default chain is exact and
+    the comparison knows the units (m, m/s, m/s2)."""
+    from fmu_opinf.compare import compare
+
+    fmu = fmus["array-structural"]
+    model = _definitions()["array-structural"][0].model(8)
+    train, rom_file = tmp_path / "train.h5", tmp_path / "rom.h5"
+    assert main(["snapshots", str(fmu.path), "-o", str(train), "-q", "--set", "n=8"]) == 0
+    assert main(["fit", str(train), "-o", str(rom_file), "-q"]) == 0
+    snaps, rom = Snapshots.load(train), SecondOrderROM.load(rom_file)
+    assert snaps.n == 8 and snaps.attrs["output_units"] == ["m", "m/s", "m/s2"]
+    dt = float(snaps.attrs["dt"])
+    t = time_grid(dt, dt * round(4 * float(snaps.runs[0].t[-1]) / dt))
+    reference, _ = exact(model, t, HARMONIC)
+    assert max_eps(rom.simulate(HARMONIC, dt, t[-1]).y, reference.y) < 1e-19                  # measured 9.8e-21
+    result = compare(rom_file, fmu.path, HARMONIC, quiet=True)
+    assert result.output_units == ["m", "m/s", "m/s2"]
+    assert max_eps(result.y_fom, reference.y) < 2e-17   # measured 2.4e-18: the model exchange integration (tol 1e-10)
+
+
 def test_generated_descriptions_pass_strict_validation(fmus):
     """The builder's new conventions (type definitions, output arrays, aliases, force sensors) are valid FMI."""
     from fmpy import read_model_description

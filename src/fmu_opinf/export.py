@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
+from .fmus import UNIT_PATTERN, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -383,6 +383,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                              "or output of the ROM; drop them from reconstruct")
     description = _description(rom, r, names)
     provenance = dict(getattr(rom, "provenance", None) or {})
+    input_units, output_units = _declared_units(provenance, m, p)
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
     output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
@@ -412,8 +413,31 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
-        fmi_version=fmi_version,
+        fmi_version=fmi_version, input_units=input_units,
+        output_units=output_units + [_position_unit(provenance)] * len(names),
     )
+
+
+def _units(value: Any, count: int) -> list[str]:
+    """A recorded unit list if it is one unit name (or "") per variable, else no units; provenance is data, so
+    anything but a plain unit name is dropped (``fmus.UNIT_PATTERN``)."""
+    if not isinstance(value, list) or len(value) != count:
+        return [""] * count
+    return [u if isinstance(u, str) and UNIT_PATTERN.match(u) else "" for u in value]
+
+
+def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[str]]:
+    """Units of the source's force inputs and outputs as recorded with the training snapshots."""
+    snapshots = provenance.get("snapshots")
+    snapshots = snapshots if isinstance(snapshots, dict) else {}
+    return _units(snapshots.get("input_units"), m), _units(snapshots.get("output_units"), p)
+
+
+def _position_unit(provenance: dict) -> str:
+    """Unit of reconstructed positions: the one unit of all the source's positions if recorded, else none."""
+    snapshots = provenance.get("snapshots")
+    unit = snapshots.get("position_unit") if isinstance(snapshots, dict) else None
+    return _units([unit], 1)[0]
 
 
 # ------------------------------------------------------------------------- export

@@ -193,6 +193,12 @@ class FMUSource(Source):
         desc = super().description()
         desc["variable_selection"] = dict(self.selection.how)
         desc["held_input_names"] = list(self.held_input_names)
+        if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
+            desc["input_units"] = list(self.input_units)
+            desc["output_units"] = list(self.output_units)
+        position_units = {c.element.var.unit or "" for c in self.selection.positions}
+        if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
+            desc["position_unit"] = position_units.pop()
         negated = [c.name for c in self._read.columns if c.sign < 0]
         if negated:
             desc["negated_columns"] = negated
