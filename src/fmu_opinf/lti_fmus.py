@@ -565,6 +565,7 @@ class _Layout:
     slots: list[tuple[str, int, int, int]] = field(default_factory=list)
     states: list[str] = field(default_factory=list)        # state variables in z order
     derivatives: list[str] = field(default_factory=list)   # their derivative variables
+    interleaved: bool = False   # z order (q1, qd1, q2, qd2, ...) instead of (q, qd)
 
     def __post_init__(self) -> None:
         self.slots.append(("SlotTime", 0, 0, 0))
@@ -672,6 +673,9 @@ class _Options:
     input_sensors: bool = False
     output_array: bool = False
     output_aliases: bool = False
+    input_array: bool = False
+    interleaved: bool = False
+    dependencies: bool = True
 
 
 def _check_options(model, options: _Options) -> None:
@@ -705,8 +709,10 @@ def _check_options(model, options: _Options) -> None:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", options.identifier):
         raise FmuBuildError(f"model identifier {options.identifier!r} is not a C identifier; "
                             "use letters, digits and underscores")
-    if options.output_array and options.fmi_version != "3.0":
-        raise FmuBuildError("an output array needs FMI 3.0; pass fmi_version='3.0'")
+    if (options.output_array or options.input_array) and options.fmi_version != "3.0":
+        raise FmuBuildError("input and output arrays need FMI 3.0; pass fmi_version='3.0'")
+    if options.interleaved and (options.naming != "modelica" or not options.expose_accelerations):
+        raise FmuBuildError("an interleaved state vector needs modelica naming with its der() variables")
     if options.declared_types and not options.units:
         raise FmuBuildError("declared_types puts the units on type definitions; it needs "
                             "units=True")
@@ -722,7 +728,11 @@ def _common_inputs(layout: _Layout, model: LinearMechanicalModel, options: _Opti
                    modelica: bool) -> tuple[list[str], list[str]]:
     force = "F" if modelica else "u"
     inputs = []
-    for j in range(model.m):
+    if options.input_array and model.m:
+        layout.add(force, "SlotU", array=True, dimension=model.m, tunable=True, causality="input",
+                   start=[0.0] * model.m, unit="N", description="force inputs (columns of B)")
+        inputs = [f"{force}[{j + 1}]" for j in range(model.m)]
+    for j in range(model.m if not inputs else 0):
         var = layout.add(_indexed(force, j, model.m, modelica), "SlotU", j, tunable=True,
                          causality="input", start=[0.0], unit="N",
                          description=f"force input {j + 1} (column {j + 1} of B)")
@@ -775,6 +785,11 @@ def _outputs(layout: _Layout, model: LinearMechanicalModel, modelica: bool,
     return names
 
 
+def _array_name(element: str) -> str:
+    """The variable of an element ``F[2]`` of an FMI 3 array input (a scalar's own name)."""
+    return re.sub(r"\[\d+\]$", "", element) if re.search(r"^[A-Za-z_]\w*\[\d+\]$", element) else element
+
+
 def _input_sensors(layout: _Layout, inputs: list[str], modelica: bool,
                    options: _Options) -> list[str]:
     """One output per force input reporting it (a force sensor: direct feedthrough ``y = u``)."""
@@ -785,7 +800,7 @@ def _input_sensors(layout: _Layout, inputs: list[str], modelica: bool,
         var = layout.add(name, "SlotU", j, causality="output",
                          unit="N" if options.output_units else None,
                          description=f"measured force {force} (direct feedthrough)")
-        var.dependencies = [force]
+        var.dependencies = [_array_name(force) if options.input_array else force]
         names.append(var.name)
     return names
 
@@ -800,18 +815,30 @@ def _modelica_states(layout: _Layout, model: LinearMechanicalModel, coords: _Coo
     label = (lambda i: f"{body}[{i + 1}]") if n > 1 else (lambda i: body)
     dof_of_state = (list(range(nq)) if relative else [int(d) for d in coords.state_dofs])
     q_vars, qd_vars = [], []
-    for k, dof in enumerate(dof_of_state):
+
+    def position(k: int, dof: int) -> None:
         what = "relative position x_i - x_(i-1)" if relative else "position"
         q_vars.append(layout.add(f"{label(dof)}.{pos}", "SlotQ", k, initial="exact",
                                  start=[coords.q0[k]], unit="m",
                                  description=f"{what} of body {dof + 1} (state)"))
-    for k, dof in enumerate(dof_of_state):
+
+    def velocity(k: int, dof: int) -> None:
         qd_vars.append(layout.add(f"{label(dof)}.{vel}", "SlotQd", k, initial="exact",
                                   start=[coords.qd0[k]], unit="m/s",
                                   description=f"velocity of body {dof + 1} (state)"))
+
+    if layout.interleaved:   # one body after the other, as exporters that sort by component
+        for k, dof in enumerate(dof_of_state):
+            position(k, dof)
+            velocity(k, dof)
+    else:
+        for k, dof in enumerate(dof_of_state):
+            position(k, dof)
+        for k, dof in enumerate(dof_of_state):
+            velocity(k, dof)
     derivatives_q, derivatives_qd = [], []
     if options.expose_accelerations:
-        for k, var in enumerate(q_vars):
+        def position_derivative(k: int, var: _Var) -> None:
             name = f"der({var.name})"
             if layout.fmi3:
                 der = layout.add(name, "SlotQd", k, unit="m/s", derivative_of=var.name,
@@ -820,15 +847,28 @@ def _modelica_states(layout: _Layout, model: LinearMechanicalModel, coords: _Coo
                 der = layout.alias(name, qd_vars[k], f"derivative of {var.name} (alias of "
                                    f"{qd_vars[k].name})", derivative_of=var.name)
             derivatives_q.append(der.name)
-        for k, var in enumerate(qd_vars):
+
+        def velocity_derivative(k: int, var: _Var) -> None:
             der = layout.add(f"der({var.name})", "SlotQdd", k, unit="m/s2",
                              derivative_of=var.name, description=f"derivative of {var.name}")
             derivatives_qd.append(der.name)
             if not relative:
                 layout.alias(f"{label(dof_of_state[k])}.a", der,
                              f"acceleration of body {dof_of_state[k] + 1}")
-        layout.states = [v.name for v in q_vars + qd_vars]
-        layout.derivatives = derivatives_q + derivatives_qd
+
+        if layout.interleaved:
+            for k in range(len(q_vars)):
+                position_derivative(k, q_vars[k])
+                velocity_derivative(k, qd_vars[k])
+            layout.states = [v.name for pair in zip(q_vars, qd_vars) for v in pair]
+            layout.derivatives = [d for pair in zip(derivatives_q, derivatives_qd) for d in pair]
+        else:
+            for k, var in enumerate(q_vars):
+                position_derivative(k, var)
+            for k, var in enumerate(qd_vars):
+                velocity_derivative(k, var)
+            layout.states = [v.name for v in q_vars + qd_vars]
+            layout.derivatives = derivatives_q + derivatives_qd
     positions = {d: v.name for d, v in zip(dof_of_state, q_vars)} if not relative else {}
     velocities = {d: v.name for d, v in zip(dof_of_state, qd_vars)} if not relative else {}
     accelerations = ({d: f"{label(d)}.a" for d in dof_of_state}
@@ -919,24 +959,30 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
     if not layout.states or layout.find(layout.states[0]).dimension is not None:
         return
     nq = coords.Kq.shape[0]
-    q_names, qd_names = layout.states[:nq], layout.states[nq:]
+    order = list(range(2 * nq))
+    if layout.interleaved:   # z index of each (q, qd) entry
+        order = [2 * k for k in range(nq)] + [2 * k + 1 for k in range(nq)]
+    states = [layout.states[i] for i in order]
+    derivatives = [layout.derivatives[i] for i in order]
+    q_names, qd_names = states[:nq], states[nq:]
+    declared = {v.name for v in layout.variables}
     mass_input = "mass_scale" in parameter_inputs
     stiffness_input = "stiffness_scale" in parameter_inputs
 
     def names(row_q, row_qd, row_u) -> list[str]:
         deps = [q for q, value in zip(q_names, row_q) if value != 0]
         deps += [q for q, value in zip(qd_names, row_qd) if value != 0]
-        deps += [u for u, value in zip(inputs, row_u) if value != 0]
-        return deps
+        forces = [u if u in declared else _array_name(u) for u, value in zip(inputs, row_u) if value != 0]
+        return deps + [u for i, u in enumerate(forces) if u not in forces[:i]]
 
     for i in range(nq):
-        layout.find(layout.derivatives[i]).dependencies = [qd_names[i]]
+        layout.find(derivatives[i]).dependencies = [qd_names[i]]
         deps = names(coords.Kq[i], coords.Dq[i], coords.Bq[i])
         if mass_input:
             deps.append("mass_scale")
         if stiffness_input and np.any(coords.Kq[i] != 0):
             deps.append("stiffness_scale")
-        layout.find(layout.derivatives[nq + i]).dependencies = deps
+        layout.find(derivatives[nq + i]).dependencies = deps
     CaT = model.Ca @ coords.T
     dq = model.Cp @ coords.T - CaT @ coords.Kq
     dqd = model.Cv @ coords.T - CaT @ coords.Dq
@@ -1256,6 +1302,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_NQ_MAX = {chain.n_max if chain else nq};\n"
         f"const size_t LTI_NX_FIXED = {model.n};\n"
         f"const int LTI_X_FOLLOWS_Q = {int(chain is not None)};\n"
+        f"const int LTI_INTERLEAVED = {int(layout.interleaved)};\n"
         f"const size_t LTI_NU = {model.m};\n"
         f"const size_t LTI_NY = {model.p};\n"
         "const double LTI_PAR_DEFAULTS[2] = {1.0, 1.0};\n"
@@ -1277,7 +1324,8 @@ def _lti_sources_dir() -> Path:
 
 def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain | None,
             options: _Options) -> tuple[_Layout, dict[str, list[str]]]:
-    layout = _Layout(fmi3=options.fmi_version == "3.0", units=options.units)
+    layout = _Layout(fmi3=options.fmi_version == "3.0", units=options.units,
+                     interleaved=options.interleaved)
     modelica = options.naming != "generic"
     if chain is not None:   # the structural parameter comes first, as in the reference FMUs
         names = _array_states(layout, model, chain, options)
@@ -1295,8 +1343,12 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
             names = _array_states(layout, model, None, options)
     sensors = (_input_sensors(layout, inputs, options.naming == "modelica", options)
                if options.input_sensors else [])
-    _dependencies(layout, model, coords, inputs, parameter_inputs,
-                  [] if options.output_array else outputs)
+    if options.dependencies:
+        _dependencies(layout, model, coords, inputs, parameter_inputs,
+                      [] if options.output_array else outputs)
+    else:
+        for var in layout.variables:
+            var.dependencies = None
     names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
 
@@ -1348,7 +1400,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   stop_time: float = 1.0, output_units: bool = False,
                   declared_types: bool = False, input_sensors: bool = False,
                   output_array: bool = False, output_aliases: bool = False,
-                  reuse: bool = True) -> LtiFmu:
+                  input_array: bool = False, interleaved: bool = False,
+                  dependencies: bool = True, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1402,6 +1455,14 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Every output also has an alias ``sensor[k].y`` (FMI 3: an ``<Alias>`` child; FMI 2: a
         local variable of the same value reference); an output array gets the alias
         ``sensors``.
+    input_array : bool, default=False
+        FMI 3.0: the force inputs are one array variable of fixed size m (elements ``F[1] ..``).
+    interleaved : bool, default=False
+        Modelica naming: the states, their ``der()`` variables and the state vector go body by
+        body (``mass[1].s, mass[1].v, mass[2].s, ...``), as tools that sort states by component.
+    dependencies : bool, default=True
+        Declare the structural ``dependencies`` of outputs and state derivatives (exact zeros);
+        False leaves them out (every unknown may depend on everything).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1426,7 +1487,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         description=description or _default_description(concrete, chain, naming, relative),
         stop_time=float(stop_time), output_units=bool(output_units),
         declared_types=bool(declared_types), input_sensors=bool(input_sensors),
-        output_array=bool(output_array), output_aliases=bool(output_aliases))
+        output_array=bool(output_array), output_aliases=bool(output_aliases),
+        input_array=bool(input_array), interleaved=bool(interleaved),
+        dependencies=bool(dependencies))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
