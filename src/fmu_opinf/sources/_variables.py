@@ -199,6 +199,23 @@ def model_xml(path: Path) -> ET.Element:
         raise FMUError(f"{path.name}: cannot read modelDescription.xml ({exc})") from None
 
 
+def _dependency_names(text: str | None, lookup: Any) -> list[str] | None:
+    """Variable names of a ``dependencies`` attribute (indices or value references through ``lookup``); None
+    when the attribute is absent (the unknown may depend on everything) or names something unknown."""
+    if text is None:
+        return None
+    names = []
+    for token in text.split():
+        try:
+            var = lookup(int(token))
+        except ValueError:
+            return None
+        if var is None:
+            return None
+        names.append(var.name)
+    return names
+
+
 class ModelInfo:
     """The variables and state derivatives of a model description (FMI 2.0 or 3.0).
 
@@ -277,6 +294,9 @@ class ModelInfo:
         return out
 
     def _structure_derivatives(self, root: ET.Element) -> list[str]:
+        """Names of the state derivatives in model-structure order (the state vector's); fills
+        :attr:`derivative_dependencies` (name -> names of the declared dependencies, None if undeclared)."""
+        self.derivative_dependencies: dict[str, list[str] | None] = {}
         structure = root.find("ModelStructure")
         if structure is None:
             return []
@@ -287,14 +307,18 @@ class ModelInfo:
                 var = by_vr.get(int(unknown.get("valueReference", -1)))
                 if var is not None:
                     names.append(var.name)
+                    self.derivative_dependencies[var.name] = _dependency_names(
+                        unknown.get("dependencies"), lambda ref: by_vr.get(ref))
         else:
             derivatives = structure.find("Derivatives")
             for unknown in (derivatives.findall("Unknown") if derivatives is not None else []):
                 index = int(unknown.get("index", 0))
                 if 0 < index <= len(self.variables):
                     names.append(self.variables[index - 1].name)
+                    self.derivative_dependencies[names[-1]] = _dependency_names(
+                        unknown.get("dependencies"),
+                        lambda i: self.variables[i - 1] if 0 < i <= len(self.variables) else None)
         return names
-
 
     # -- sizes and elements -------------------------------------------------------------------
     def structural_value(self, name: str, overrides: dict[str, Any]) -> int:
@@ -352,6 +376,8 @@ class _States:
         listed = set(model.state_derivatives)
         derivs = [v for v in model.variables if v.derivative is not None and v.is_real
                   and (not listed or v.name in listed)]
+        order = {name: i for i, name in enumerate(model.state_derivatives)}
+        derivs.sort(key=lambda v: order.get(v.name, len(order)))  # the state vector's order where listed
         by_var: dict[str, list[Element]] = {}
         for element in elements.values():
             by_var.setdefault(element.var.name, []).append(element)
@@ -456,7 +482,18 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     if linked is not None:
         return (*linked, _LINKS)
     if states.states:
-        return (*_halves(model, states), _HALVES)
+        paired = _paired_by_dependencies(model, states)
+        if paired is not None:
+            return (*paired, _DEPENDENCIES)
+        if not _units_contradict_halves(states):
+            return (*_halves(model, states), _HALVES)
+        paired = _paired_by_units(model, states)
+        if paired is not None:
+            return (*paired, _UNITS)
+        names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
+        raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
+                       "no derivative is an alias of a state, the model structure declares no dependency pairing "
+                       "them, and they are not positions then velocities; pass --positions and --velocities")
     pos = _named(elements, "x[*]")
     if pos:
         return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
@@ -509,6 +546,73 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
     pos = [Column(p, p.sign) for p, _ in pairs]
     vel = [Column(v, rel * v.sign) for _, (v, rel) in pairs]
     return pos, vel, states.rate_columns(vel)
+
+
+_DEPENDENCIES = "from derivative links: der(position) depends on its velocity state alone (model structure)"
+_UNITS = "from derivative links: states paired by unit (m, m/s) and name"
+
+
+def _state_variables(states: _States) -> list[Variable]:
+    """The state variables in state-vector order (an array once)."""
+    out: list[Variable] = []
+    for element in states.states:
+        if element.var not in out:
+            out.append(element.var)
+    return out
+
+
+def _paired_by_dependencies(model: ModelInfo, states: _States
+                            ) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """Positions and velocities of first-order states whose derivatives are no aliases (FMI 3: ``der(mass.s)`` has
+    its own value reference), paired through the model structure: ``der(p)`` depends on exactly one other state
+    variable ``v`` (of p's shape), so ``p`` is a position and ``v`` its velocity.  None unless this splits every
+    state into such pairs."""
+    variables = _state_variables(states)
+    names = {v.name: v for v in variables}
+    der_of = {e.var.name: states.der[e.name].var.name for e in states.states}
+    pairs: dict[str, str] = {}
+    for var in variables:
+        deps = model.derivative_dependencies.get(der_of[var.name])
+        if deps and len(deps) == 1 and deps[0] in names and deps[0] != var.name and names[deps[0]].dims == var.dims:
+            pairs[var.name] = deps[0]
+    velocities = list(pairs.values())
+    if (not pairs or len(set(velocities)) != len(velocities) or set(pairs) & set(velocities)
+            or set(pairs) | set(velocities) != set(names)):
+        return None
+    by_var: dict[str, list[Element]] = {}
+    for element in states.states:
+        by_var.setdefault(element.var.name, []).append(element)
+    pos = [Column(e, e.sign) for name in pairs for e in by_var[name]]
+    vel = [Column(e, e.sign) for name in pairs for e in by_var[pairs[name]]]
+    return pos, vel, states.rate_columns(vel)
+
+
+def _unit_kind(element: Element) -> int | None:
+    unit = (element.var.unit or "").replace(" ", "")
+    return next((kind for kind, units in enumerate(_UNIT_KINDS) if unit in units), None)
+
+
+def _units_contradict_halves(states: _States) -> bool:
+    """True if declared units show that the states are not [positions; velocities] (a velocity unit among the
+    first half or a length unit among the second): the state vector goes body by body, for example."""
+    ordered = states.states
+    half = len(ordered) // 2
+    return (any(_unit_kind(e) == 1 for e in ordered[:half]) or any(_unit_kind(e) == 0 for e in ordered[half:]))
+
+
+def _paired_by_units(model: ModelInfo, states: _States
+                     ) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """States in length units paired with states in velocity units, in state order, when each pair's names differ
+    only after their last dot (``mass[2].s`` / ``mass[2].v``); None otherwise."""
+    pos = [e for e in states.states if _unit_kind(e) == 0]
+    vel = [e for e in states.states if _unit_kind(e) == 1]
+    if not pos or len(pos) != len(vel) or len(pos) + len(vel) != len(states.states):
+        return None
+    for p, v in zip(pos, vel):
+        if "." not in p.name or p.name.rsplit(".", 1)[0] != v.name.rsplit(".", 1)[0]:
+            return None
+    vel_columns = [Column(e, e.sign) for e in vel]
+    return [Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns)
 
 
 def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None]:
