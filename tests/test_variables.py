@@ -15,6 +15,7 @@ import pytest
 
 from fmu_opinf.errors import FMUError, FmuOpinfError, InputSpecError
 from fmu_opinf.sources import parse_assignments, resolve_variables
+from fmu_opinf.sources._variables import Column
 
 
 def _fmi2(variables: list[str], derivatives: list[int], name: str = "Model") -> str:
@@ -352,3 +353,47 @@ def test_fmi3_states_body_by_body_without_structure_or_matching_names_are_refuse
         '"other.s"', '"mount.s"').replace("der(other.s)", "der(mount.s)"))
     with pytest.raises(FMUError, match=r"cannot tell positions from velocities .*pass --positions and --velocities"):
         resolve_variables(path)
+
+
+def fmi3_aliases() -> str:
+    """FMI 3: an output array y (2 values, unit m) with the <Alias> "sensors", an input F with the alias "force";
+    x, v array states (size 2) with der(x), der(v)."""
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<fmiModelDescription fmiVersion="3.0" modelName="Aliases" instantiationToken="{0}">'
+            '<ModelExchange modelIdentifier="aliases"/><ModelVariables>'
+            '<Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>'
+            '<Float64 name="F" valueReference="1" causality="input" variability="continuous" start="0" unit="N">'
+            '<Alias name="force"/></Float64>'
+            '<Float64 name="y" valueReference="2" causality="output" variability="continuous" unit="m">'
+            '<Dimension start="2"/><Alias name="sensors"/></Float64>'
+            '<Float64 name="x" valueReference="3" causality="local" variability="continuous" initial="exact" '
+            'start="0 0"><Dimension start="2"/></Float64>'
+            '<Float64 name="v" valueReference="4" causality="local" variability="continuous" initial="exact" '
+            'start="0 0"><Dimension start="2"/></Float64>'
+            '<Float64 name="der(x)" valueReference="5" causality="local" variability="continuous" derivative="3">'
+            '<Dimension start="2"/></Float64>'
+            '<Float64 name="der(v)" valueReference="6" causality="local" variability="continuous" derivative="4">'
+            '<Dimension start="2"/><Alias name="a"/></Float64>'
+            '</ModelVariables><ModelStructure><Output valueReference="2"/>'
+            '<ContinuousStateDerivative valueReference="5"/><ContinuousStateDerivative valueReference="6"/>'
+            '</ModelStructure></fmiModelDescription>')
+
+
+def test_fmi3_alias_names_and_array_names_select_their_variables(tmp_path):
+    """<Alias> names (what a user sees in a tool) and a bare array name select the variable's values; defaults and
+    wildcards still take each value once (before: 'matches no real variable')."""
+    from fmu_opinf.sources._variables import ReadPlan
+
+    path = _write(tmp_path, fmi3_aliases())
+    default = resolve_variables(path)
+    assert _names(default.outputs) == ["y[1]", "y[2]"] and _names(default.forces) == ["F"]
+    assert _names(default.selection.positions) == ["x[1]", "x[2]"] and _names(default.held) == []
+    named = resolve_variables(path, outputs="sensors", inputs="force", positions="x", velocities="v",
+                              accelerations="a")
+    assert _names(named.outputs) == ["sensors[1]", "sensors[2]"] and _names(named.forces) == ["force"]
+    assert named.held == [] and _names(named.selection.accelerations) == ["a[1]", "a[2]"]
+    plan = ReadPlan(named.model, [Column(e) for e in named.outputs], named.structural)
+    assert plan.vrs.tolist() == [2] and plan.nvalues == 2                 # read as y, by its value reference
+    assert _names(resolve_variables(path, outputs="y").outputs) == ["y[1]", "y[2]"]
+    assert _names(resolve_variables(path, outputs="sensors[2]").outputs) == ["sensors[2]"]
+    assert resolve_variables(path, settings={"force": 2}).settings[0].var.name == "F"

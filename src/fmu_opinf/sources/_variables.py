@@ -64,11 +64,15 @@ class Variable:
 
 @dataclasses.dataclass(frozen=True)
 class Element:
-    """One scalar value of a variable: ``offset`` is its index in the variable's values (0 for scalars)."""
+    """One scalar value of a variable: ``offset`` is its index in the variable's values (0 for scalars).
+
+    ``alias`` marks an element named through an FMI 3 ``<Alias>`` of ``var``: it is read and written as ``var``,
+    found by its exact name only (defaults and wildcards take each value once, under the variable's name)."""
 
     name: str
     var: Variable
     offset: int
+    alias: bool = False
 
     @property
     def sign(self) -> float:
@@ -234,8 +238,12 @@ class ModelInfo:
         node = root.find("ModelVariables")
         self._type_units = {t.get("name", ""): (t.get("unit") or next((c.get("unit") for c in t if c.get("unit")), None))
                             for t in root.iter() if t.tag in _TYPE_DEFINITION_TAGS}
+        #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
+        self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
         self.by_name = {v.name: v for v in self.variables}
+        for alias, target in self.aliases.items():  # an alias designates its variable (settings, units)
+            self.by_name.setdefault(alias, self.by_name[target])
         self.state_derivatives = self._structure_derivatives(root)
 
     @classmethod
@@ -278,6 +286,9 @@ class ModelInfo:
                                 min=el.get("min"), max=el.get("max"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", ""))))
             dim_refs.append(refs)
+            for alias in el.findall("Alias"):
+                if alias.get("name"):
+                    self.aliases.setdefault(alias.get("name", ""), out[-1].name)
         by_vr = {v.vr: v for v in reversed(out)}  # the first declared variable of a value reference
         for var, refs in zip(out, dim_refs):
             if var.derivative is not None:
@@ -339,14 +350,16 @@ class ModelInfo:
     def elements(self, overrides: dict[str, Any] | None = None) -> dict[str, Element]:
         """Every scalar value by name; arrays expand to ``x[1] .. x[n]`` (``x[i,j]`` row-major)."""
         out: dict[str, Element] = {}
-        for var in self.variables:
+        named = [(var.name, var, False) for var in self.variables]
+        named += [(alias, self.by_name[target], True) for alias, target in self.aliases.items()]
+        for label, var, alias in named:
             if not var.dims:
-                out.setdefault(var.name, Element(var.name, var, 0))
+                out.setdefault(label, Element(label, var, 0, alias))
                 continue
             shape = self.shape(var, overrides)
             for offset, index in enumerate(itertools.product(*(range(1, s + 1) for s in shape))):
-                name = f"{var.name}[{','.join(map(str, index))}]"
-                out.setdefault(name, Element(name, var, offset))
+                name = f"{label}[{','.join(map(str, index))}]"
+                out.setdefault(name, Element(name, var, offset, alias))
         return out
 
 
@@ -380,7 +393,8 @@ class _States:
         derivs.sort(key=lambda v: order.get(v.name, len(order)))  # the state vector's order where listed
         by_var: dict[str, list[Element]] = {}
         for element in elements.values():
-            by_var.setdefault(element.var.name, []).append(element)
+            if not element.alias:
+                by_var.setdefault(element.var.name, []).append(element)
         self.der: dict[str, Element] = {}
         self.states: list[Element] = []
         for dvar in derivs:
@@ -658,7 +672,7 @@ def _named(elements: dict[str, Element], pattern: str) -> list[Column]:
 
 def _is_signal(element: Element) -> bool:
     var = element.var
-    return var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
+    return not element.alias and var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
 
 
 _TYPE_DEFINITION_TAGS = ("SimpleType", "Float64Type", "Float32Type", "RealType")
@@ -677,6 +691,8 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
     for piece in pieces:
         if _RANGE.search(piece):
             names = [n for n in _expand_range(piece) if n in set(signals)]
+        elif piece not in elements and f"{piece}[1]" in elements:   # an FMI 3 array by its name: every element
+            names = _array_elements(piece, elements)
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
         else:
@@ -688,6 +704,16 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
                        f"(continuous-time variables: {examples}, ...; wildcards skip parameters); pass --{what} "
                        "with a matching pattern")
     return [elements[n] for n in found]
+
+
+def _array_elements(name: str, elements: dict[str, Element]) -> list[str]:
+    """``[name]``, or the elements ``name[1] .. name[n]`` when ``name`` is an FMI 3 array (or an alias of one)
+    rather than a variable of its own (``--outputs y`` for the array ``y``)."""
+    if name in elements or f"{name}[1]" not in elements or any(c in name for c in "*?"):
+        return [name]
+    first = elements[f"{name}[1]"]
+    return [n for n, e in elements.items() if e.var is first.var and e.alias == first.alias
+            and n.startswith(name + "[")]
 
 
 def _expand_range(pattern: str) -> list[str]:
@@ -721,7 +747,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     exposed as inputs, shared/spec/real-fmus.md: driving them would change the model, or make it fail at 0);
     those are held (:func:`parameter_like_inputs` names the second kind).  ``""``/``"none"``: no forces.
     """
-    inputs = [e for e in elements.values() if e.var.causality == "input"]
+    inputs = [e for e in elements.values() if e.var.causality == "input" and not e.alias]
     if patterns is None:
         forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"
                          and e.var.name not in given and not nonzero_start(e)),
@@ -733,7 +759,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         names: list[str] = []
         reals = [n for n, e in elements.items() if e.var.is_real]
         for piece in pieces:
-            expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+            expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
             names += [n for p in expanded for n in match_names(p, reals) if n not in names]
         if not names:
             available = [e.name for e in inputs]
@@ -744,8 +770,8 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
             raise FMUError(f"{bad[0]} has causality {elements[bad[0]].var.causality!r} in {model.label}, not "
                            "'input'; pass --inputs with input variables")
         forces = [elements[n] for n in names]
-    chosen = {e.name for e in forces}
-    return forces, sorted((e for e in inputs if e.name not in chosen), key=lambda e: natural_key(e.name))
+    chosen = {(e.var.vr, e.offset) for e in forces}   # an alias named in --inputs drives its variable
+    return forces, sorted((e for e in inputs if (e.var.vr, e.offset) not in chosen), key=lambda e: natural_key(e.name))
 
 
 def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
@@ -758,14 +784,14 @@ def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
     """Outputs: default every real output; patterns match real variables."""
     if patterns is None:
-        return sorted((e for e in elements.values() if e.var.causality == "output" and e.var.is_real),
+        return sorted((e for e in elements.values() if e.var.causality == "output" and e.var.is_real and not e.alias),
                       key=lambda e: natural_key(e.name))
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
     names: list[str] = []
     for piece in (p.strip() for p in patterns.split(",") if p.strip()):
-        expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+        expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
         names += [n for p in expanded for n in match_names(p, reals) if n not in names]
     if not names:
         examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
