@@ -256,3 +256,33 @@ def test_states_sorted_by_component_are_recorded_exactly(fmus, tmp_path, name):
     run = snaps.runs[0]
     reference, _ = exact(fmu.model, np.asarray(run.t), run.attrs["input_spec"])
     assert relative(run.x, reference.x) < 1e-12 and relative(run.xddot, reference.a) < 1e-11   # 1.3e-13, 9.6e-13
+
+
+# ------------------------------------------------------------------------ the exported FMU in an importer
+def test_exported_exact_rom_steps_with_multiples_of_its_step(tmp_path):
+    """A ROM of a continuous-time FMU steps by its exact step map: an importer's communication step that is a
+    multiple of the training step is that many map steps (exact; before: refused), another step is refused in
+    one line that names the fix.  Reference: the exact solution of the ROM's own ODE under the held input."""
+    from fmu_opinf.compare import simulate_outputs
+    from fmu_opinf.export import export_fmu
+    from fmu_opinf.fmus import find_build_tools
+    from fmu_opinf.lti_fmus import LinearMechanicalModel, zoh_response
+    from fmu_opinf.sources import StepError
+
+    if find_build_tools() is None:
+        pytest.skip("needs a C compiler")
+    M, D, K = np.diag([1.0, 2.0]), np.array([[0.3, -0.1], [-0.1, 0.2]]), np.array([[5.0, -2.0], [-2.0, 3.0]])
+    B, Cp = np.array([[1.0], [0.0]]), np.array([[0.0, 1.0]])
+    rom = SecondOrderROM(M, D, K, B, Cp, np.zeros((1, 2)), dt=0.05, integrator="exact", fr=np.array([0.1, 0.0]),
+                         y0=np.array([0.2]), q0=np.array([0.01, 0.0]))
+    path = export_fmu(rom, tmp_path / "Exact.fmu")
+    model = LinearMechanicalModel(M=M, D=D, K=K, B=B, f0=np.array([0.1, 0.0]), Cp=Cp, y0=np.array([0.2]),
+                                  x0=np.array([0.01, 0.0]))
+    signal = parse_signal(HARMONIC, 1)
+    t = time_grid(0.15, 30.0)                                       # three map steps per communication step
+    y, *_ = simulate_outputs(path, signal, t)
+    reference = zoh_response(model, t, signal.sample(t)).y
+    assert max_eps(y, reference) < 1e-27                                                     # measured 1.5e-28
+    with pytest.raises(StepError, match=r"steps with multiples of h = 0\.05.* got h = 0\.02; use such a "
+                                        r"communication step, or record the source at the step you need"):
+        simulate_outputs(path, signal, time_grid(0.02, 1.0))
