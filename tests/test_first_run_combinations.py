@@ -284,5 +284,16 @@ def test_exported_exact_rom_steps_with_multiples_of_its_step(tmp_path):
     reference = zoh_response(model, t, signal.sample(t)).y
     assert max_eps(y, reference) < 1e-27                                                     # measured 1.5e-28
     with pytest.raises(StepError, match=r"steps with multiples of h = 0\.05.* got h = 0\.02; use such a "
-                                        r"communication step, or record the source at the step you need"):
+                                        r"communication step, or export the ROM again with --step h"):
         simulate_outputs(path, signal, time_grid(0.02, 1.0))
+    # exported for the importer's step 0.02 (finer than the training step): exact there
+    fine = tmp_path / "fine.fmu"
+    assert main(["export", str(_saved(rom, tmp_path)), "-o", str(fine), "--step", "0.02", "-q"]) == 0
+    t = time_grid(0.02, 30.0)
+    y, *_ = simulate_outputs(fine, signal, t)
+    assert max_eps(y, zoh_response(model, t, signal.sample(t)).y) < 5e-26                      # measured 5.7e-27
+
+
+def _saved(rom: SecondOrderROM, folder: Path) -> Path:
+    rom.save(folder / "rom.h5")
+    return folder / "rom.h5"

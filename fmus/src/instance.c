@@ -483,8 +483,8 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
         double count = floor(h / mapStep + 0.5);
         if (count < 1.0 || count > 1e9 || fabs(h - count * mapStep) > count * stepRoundOff(point, h, mapStep)) {
             logError(instance, "%s: this model steps with multiples of h = %.17g only (its exact step map), got "
-                     "h = %.17g; use such a communication step, or record the source at the step you need and "
-                     "fit again", function, mapStep, h);
+                     "h = %.17g; use such a communication step, or export the ROM again with --step h", function,
+                     mapStep, h);
             return Error;
         }
         substeps = (long)count;

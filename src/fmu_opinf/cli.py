@@ -210,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
     p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0",
                    help="FMI version of the exported co-simulation FMU (default 2.0)")
+    p.add_argument("--step", type=float, default=None,
+                   help="communication step the FMU is made for (default: the training step); a ROM of a "
+                        "continuous-time FMU steps by its exact step map of this step and accepts its multiples")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
@@ -297,7 +300,7 @@ def _run_export(args: argparse.Namespace) -> None:
     reconstruct = [s.strip() for s in args.reconstruct.split(",")] if args.reconstruct else None
     rom = SecondOrderROM.load(args.rom)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
-                      overwrite=args.force)
+                      overwrite=args.force, step=args.step)
     if not args.quiet:
         print(f"wrote {path}")
 

@@ -337,7 +337,7 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
 
 def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                  reconstruct: Sequence[str | int] | None = None,
-                 fmi_version: str = "2.0") -> SecondOrderFmuSpec:
+                 fmi_version: str = "2.0", step: float | None = None) -> SecondOrderFmuSpec:
     """Generator specification of the FMU of a reduced second-order model.
 
     Parameters
@@ -351,6 +351,10 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         Full-order positions (``"x[i]"`` or 1-based ``i``) added as outputs ``V[i, :] q``.
     fmi_version : {"2.0", "3.0"}, default="2.0"
         FMI version of the FMU.
+    step : float, optional
+        Communication step the FMU is made for (default: the training step ``dt``): the default
+        experiment's step and, for an exact-integrator ROM, the step of its exact step map (the FMU then
+        takes multiples of ``step``).
 
     Returns
     -------
@@ -368,6 +372,11 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     dt = None if getattr(rom, "dt", None) is None else float(rom.dt)
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
+    if step is not None:
+        step = float(step)
+        if not (np.isfinite(step) and step > 0):
+            raise DataError(f"export step {step} is not a positive number; give the communication step in seconds")
+        dt = step
     _check_definite(matrices, dt)
     names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     extra = {"fr": _vector(rom, "fr", r), "y0": _vector(rom, "y0", p), "q0": _vector(rom, "q0", r),
@@ -460,7 +469,8 @@ def _check_output_path(path: Path, overwrite: bool) -> None:
 
 
 def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike, fmi_version: str = "2.0",
-               reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False) -> Path:
+               reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False,
+               step: float | None = None) -> Path:
     """Export a reduced second-order model as a co-simulation FMU.
 
     Parameters
@@ -476,6 +486,10 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         names (``"mass[3].s"``, ``"x10"``), computed through the basis as ``x_i = x_ref,i + V[i, :] q``.
     overwrite : bool, default=False
         Replace an existing file (``--force`` on the command line).
+    step : float, optional
+        Communication step the FMU is made for (``--step``; default: the training step).  A ROM of a
+        continuous-time source steps by the exact step map of this step and accepts its multiples only,
+        so an importer that runs at a finer step needs the FMU exported with that step.
 
     The FMU's default experiment runs over the training horizon (stopTime = last training time) with
     the training step.
@@ -501,7 +515,7 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
     _check_output_path(path, overwrite)
-    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version))
+    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
     if find_build_tools() is None:
         build_second_order_fmu(spec, path, compile=False)
         warnings.warn(f"{path} holds C sources only and still needs compiling: no C compiler or "
