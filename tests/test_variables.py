@@ -397,3 +397,14 @@ def test_fmi3_alias_names_and_array_names_select_their_variables(tmp_path):
     assert _names(resolve_variables(path, outputs="y").outputs) == ["y[1]", "y[2]"]
     assert _names(resolve_variables(path, outputs="sensors[2]").outputs) == ["sensors[2]"]
     assert resolve_variables(path, settings={"force": 2}).settings[0].var.name == "F"
+
+
+def test_a_bare_name_is_no_array_in_fmi2(tmp_path):
+    """FMI 2 scalars named F[1], F[2] are separate variables: --inputs F matches none of them (one line), it does
+    not pick F[1] as if F were an FMI 3 array."""
+    v = [_sv("F[1]", 0, "input", body='<Real start="0"/>'), _sv("F[2]", 1, "input", body='<Real start="0"/>'),
+         _sv("x[1]", 3), _sv("v[1]", 4)]
+    path = _write(tmp_path, _fmi2(v, []))
+    with pytest.raises(FMUError, match=r"input 'F' is not a real variable .*its inputs: F\[1\], F\[2\]"):
+        resolve_variables(path, inputs="F")
+    assert _names(resolve_variables(path, inputs="F[*]").forces) == ["F[1]", "F[2]"]

@@ -691,7 +691,7 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
     for piece in pieces:
         if _RANGE.search(piece):
             names = [n for n in _expand_range(piece) if n in set(signals)]
-        elif piece not in elements and f"{piece}[1]" in elements:   # an FMI 3 array by its name: every element
+        elif _array_elements(piece, elements) != [piece]:   # an FMI 3 array by its name: every element
             names = _array_elements(piece, elements)
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
@@ -709,9 +709,9 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
 def _array_elements(name: str, elements: dict[str, Element]) -> list[str]:
     """``[name]``, or the elements ``name[1] .. name[n]`` when ``name`` is an FMI 3 array (or an alias of one)
     rather than a variable of its own (``--outputs y`` for the array ``y``)."""
-    if name in elements or f"{name}[1]" not in elements or any(c in name for c in "*?"):
-        return [name]
-    first = elements[f"{name}[1]"]
+    first = elements.get(f"{name}[1]")
+    if name in elements or first is None or not first.var.dims or any(c in name for c in "*?"):
+        return [name]   # not an array: FMI 2 scalars named F[1], F[2] stay separate variables
     return [n for n, e in elements.items() if e.var is first.var and e.alias == first.alias
             and n.startswith(name + "[")]
 
