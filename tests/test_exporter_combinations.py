@@ -223,9 +223,12 @@ def export_matches(rom_file: Path, tmp_path: Path, spec: str, fmi_version: str) 
 
 # -------------------------------------------------------------------------------------------- tests
 @pytest.mark.slow
-def test_modelica_relative_parameter_inputs_offsets_feedthrough(fmus, tmp_path, capsys):
+def test_modelica_relative_parameter_inputs_offsets_feedthrough(fmus, tmp_path, capsys, monkeypatch):
     """1. The parameters exposed as inputs start at 1: with no option at all they are held there, not driven to
     0 (one warning line names them); the default chain (model exchange, impulse, automatic window) is exact."""
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
     fmu, model = fmus["modelica-combined"]
     snaps, rom, metrics = default_chain(fmu, tmp_path, (), ["--input", HARMONIC])
     err = capsys.readouterr().err

@@ -112,10 +112,13 @@ def exact(model, t: np.ndarray, spec: str, **scales):
 
 # ------------------------------------------------------------------------------ parameters exposed as inputs
 @pytest.mark.slow
-def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, capsys):
+def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, capsys, monkeypatch):
     """stiffness_scale (an input starting at 1) is held at its start value by default, with one warning line;
     before, the impulse drove it too (m = 2) and the data were those of another model.  A --set value is held
     as given.  Both recordings are the exact solution with that stiffness scale."""
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
     fmu = fmus["stiffness-input"]
     grid = ["--dt", "0.05", "--t-end", "30", "-q"]
     train = tmp_path / "train.h5"
@@ -297,3 +300,15 @@ def test_exported_exact_rom_steps_with_multiples_of_its_step(tmp_path):
 def _saved(rom: SecondOrderROM, folder: Path) -> Path:
     rom.save(folder / "rom.h5")
     return folder / "rom.h5"
+
+
+def test_parameter_like_warning_once_for_a_run_table(fmus, tmp_path, capsys, monkeypatch):
+    """A run table opens the source once per row: the warning about held parameter-like inputs is printed once."""
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())
+    table = tmp_path / "runs.csv"
+    table.write_text('input,name\n"impulse:amplitude=100,t0=2,width=0.5",a\n"step:amplitude=1",b\n')
+    assert main(["snapshots", str(fmus["stiffness-input"].path), "-o", str(tmp_path / "out"), "--runs", str(table),
+                 "--dt", "0.05", "--t-end", "5", "-q"]) == 0
+    assert capsys.readouterr().err.count("start at non-zero values") == 1

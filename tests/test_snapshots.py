@@ -388,7 +388,10 @@ def test_builtin_free_response_with_input_none():
     assert np.abs(run.x).max() == 0.0  # the builtin systems start at rest
 
 
-def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path):
+def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path, monkeypatch):
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
     with pytest.raises(StepError) as info:
         # one channel per input (fault_threshold, u), both named as forces: the parameter-like input is driven to 0
         record_to_file(toys["param-input"], tmp_path / "p.h5", "step:amplitude=0;step:amplitude=1,t0=0.35", dt=0.1,

@@ -154,8 +154,13 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     return source
 
 
+#: (FMU, held inputs, force inputs) already reported by :func:`_warn_parameter_like` in this process
+_PARAMETER_LIKE_REPORTED: set[tuple[str, tuple[str, ...], tuple[str, ...]]] = set()
+
+
 def _warn_parameter_like(source: Source) -> None:
-    """One warning naming the inputs the default selection holds for their non-zero start values."""
+    """One warning (once per process and FMU: a run table opens the source per row) naming the inputs the
+    default selection holds for their non-zero start values."""
     import warnings
 
     from ..errors import FmuOpinfWarning
@@ -164,6 +169,10 @@ def _warn_parameter_like(source: Source) -> None:
     if not held:
         return
     forces = list(getattr(source, "input_names", []) or [])
+    key = (os.path.abspath(str(getattr(source, "path", ""))), tuple(held), tuple(forces))
+    if key in _PARAMETER_LIKE_REPORTED:
+        return
+    _PARAMETER_LIKE_REPORTED.add(key)
     shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
     drive = ",".join(forces + held[:6])
     warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: input(s) {shown} start at non-zero values "
