@@ -22,7 +22,11 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
 * physical parameters exposed with causality input (``mass_scale = 0`` makes the FMU fail with a
   division by zero), no inputs at all, outputs with direct feedthrough (acceleration sensors),
   a static equilibrium away from zero (constant force ``f0``) and start values off rest;
-* a ``DefaultExperiment`` with ``stopTime="1"`` and no step size; SI units.
+* a ``DefaultExperiment`` with ``stopTime="1"`` and no step size; SI units, optionally on the
+  outputs too and on Modelica type definitions (``declaredType``);
+* on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
+  outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
+  dependencies.
 
 The system is ``M x'' + D x' + K x = B u + f0`` with outputs ``y = Cp x + Cv x' + Ca x'' + y0``
 (:class:`LinearMechanicalModel`).  The FMU integrates it in the coordinates an exporter would
