@@ -53,3 +53,20 @@ def test_control_characters_in_names_are_one_line_errors(tmp_path, capsys, name)
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "control character" in err and "Traceback" not in err
     assert not (tmp_path / "x.fmu").exists()
+
+
+def test_recorded_units_reach_the_xml_only_as_plain_unit_names():
+    """Units come from the snapshot provenance (data): a plain unit name is declared, anything else (quotes,
+    markup, a wrong count) is dropped, never an error or new XML."""
+    from fmu_opinf.fmus import _model_description3
+
+    from fmu_opinf.export import _position_unit
+
+    snapshots = {"input_units": ['N"/><Evil x="'], "output_units": ["m/s2"], "position_unit": "<m>"}
+    spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
+    assert spec.input_units == [""] and spec.output_units == ["m/s2"]
+    assert _position_unit({"snapshots": snapshots}) == "" and _position_unit({"snapshots": {"position_unit": "m"}}) == "m"
+    xml = _model_description3(spec, "{guid}")
+    assert xml.count('unit="m/s2"') == 1 and '<Unit name="m/s2"/>' in xml and "Evil" not in xml
+    wrong_count = rom_fmu_spec(_rom(provenance={"snapshots": {"output_units": ["m", "m"]}}), "Units")
+    assert wrong_count.output_units == [""]

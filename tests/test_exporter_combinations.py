@@ -223,17 +223,18 @@ def export_matches(rom_file: Path, tmp_path: Path, spec: str, fmi_version: str) 
 
 # -------------------------------------------------------------------------------------------- tests
 @pytest.mark.slow
-def test_modelica_relative_parameter_inputs_offsets_feedthrough(fmus, tmp_path, capsys):
-    """1. Without --set the parameters exposed as inputs would be driven to 0: one line, no file.  With them and
-    --inputs naming the forces, the default chain (model exchange, impulse, automatic window) is exact."""
-    fmu, model = fmus["modelica-combined"]
-    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "bad.h5"), "-q"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "--inputs F[1],F[2]" in err and "--set" in err
-    assert not (tmp_path / "bad.h5").exists()
+def test_modelica_relative_parameter_inputs_offsets_feedthrough(fmus, tmp_path, capsys, monkeypatch):
+    """1. The parameters exposed as inputs start at 1: with no option at all they are held there, not driven to
+    0 (one warning line names them); the default chain (model exchange, impulse, automatic window) is exact."""
+    from fmu_opinf import sources
 
-    given = ["--set", "mass_scale=1", "--set", "stiffness_scale=1", "--inputs", "F[*]"]
-    snaps, rom, metrics = default_chain(fmu, tmp_path, given, ["--input", HARMONIC])
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
+    fmu, model = fmus["modelica-combined"]
+    snaps, rom, metrics = default_chain(fmu, tmp_path, (), ["--input", HARMONIC])
+    err = capsys.readouterr().err
+    assert err.count("start at non-zero values") == 1 and "mass_scale, stiffness_scale" in err, err
+    assert snaps.attrs["input_names"] == ["F[1]", "F[2]"]
+    assert snaps.attrs["held_input_names"] == ["mass_scale", "stiffness_scale"]
     run = snaps.runs[0]
     assert snaps.attrs["position_names"] == [f"spring[{i}].s_rel" for i in range(1, 6)]
     assert run.attrs["fmi_interface"] == "me"
@@ -317,10 +318,11 @@ def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
 
 
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
-    """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs
-    driven to 0) is reported with its own hint, not as a step dependence."""
+    """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs,
+    named as forces, driven to 0) is reported with its own hint, not as a step dependence."""
     fmu, _ = fmus["cs-parameter-inputs"]
-    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "-q"]) == 2
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "-q",
+                 "--inputs", "F,mass_scale,stiffness_scale"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "division by zero" in err and "--inputs F and give their values with --set" in err
     assert "communication step" not in err and not (tmp_path / "train.h5").exists()

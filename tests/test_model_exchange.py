@@ -168,7 +168,7 @@ def zero_mass_table(source, folder: Path) -> Path:
 
 def test_integration_failure_is_a_one_line_step_error(corpus, tmp_path):
     """mass_scale driven to 0 divides by zero inside the derivatives: the integration must stop cleanly."""
-    source = open_source(corpus["parameters-as-inputs"])
+    source = open_source(corpus["parameters-as-inputs"], inputs="F,mass_scale,stiffness_scale")
     assert source.interface == "me" and source.m == 3
     with pytest.raises(StepError, match="model-exchange integration.*failed at step 3 ") as info:
         record(source, str(zero_mass_table(source, tmp_path)), 0.1, 1.0, quiet=True)
@@ -176,9 +176,10 @@ def test_integration_failure_is_a_one_line_step_error(corpus, tmp_path):
 
 
 def test_cli_reports_an_integration_failure_in_one_line(corpus, tmp_path, capsys):
-    table = zero_mass_table(open_source(corpus["parameters-as-inputs"]), tmp_path)
+    table = zero_mass_table(open_source(corpus["parameters-as-inputs"], inputs="F,mass_scale,stiffness_scale"),
+                            tmp_path)
     code = main(["snapshots", str(corpus["parameters-as-inputs"]), "-o", str(tmp_path / "s.h5"), "--input",
-                 str(table), "--dt", "0.1", "--t-end", "1", "-q"])
+                 str(table), "--dt", "0.1", "--t-end", "1", "--inputs", "F,mass_scale,stiffness_scale", "-q"])
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert err.count("\n") == 0 and "model-exchange integration" in err, err

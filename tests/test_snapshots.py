@@ -8,7 +8,7 @@ import pytest
 
 from fmu_opinf import newmark, snapshots
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.errors import DimensionError, FileFormatError, FMUError, FmuOpinfError, InputSpecError
+from fmu_opinf.errors import DimensionError, FileFormatError, FMUError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 from fmu_opinf.snapshots import Snapshots, auto_window, newmark_rates, record, record_to_file, time_grid
 from fmu_opinf.source import BuiltinSource, FMUSource, StepError
 from test_source import SignalStub, toys  # noqa: F401  (toys is a fixture)
@@ -388,17 +388,22 @@ def test_builtin_free_response_with_input_none():
     assert np.abs(run.x).max() == 0.0  # the builtin systems start at rest
 
 
-def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path):
+def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path, monkeypatch):
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
     with pytest.raises(StepError) as info:
-        # one channel per input (fault_threshold, u): the parameter-like input is driven to 0
+        # one channel per input (fault_threshold, u), both named as forces: the parameter-like input is driven to 0
         record_to_file(toys["param-input"], tmp_path / "p.h5", "step:amplitude=0;step:amplitude=1,t0=0.35", dt=0.1,
-                       t_end=1.0, parameters={"fault": "1"}, quiet=True)
+                       t_end=1.0, parameters={"fault": "1"}, inputs="fault_threshold,u", quiet=True)
     text = str(info.value)
     assert "\n" not in text and "toy fault" in text
     assert "inputs fault_threshold were set to 0 but have non-zero start values" in text and "--inputs u" in text
-    fixed = record_to_file(toys["param-input"], tmp_path / "q.h5", "step:amplitude=1,t0=0.35", dt=0.1, t_end=1.0,
-                           parameters={"fault": "1"}, inputs="u", quiet=True)
-    assert fixed.runs[0][1]  # complete: the threshold stays at its start value 1e300
+    with pytest.warns(FmuOpinfWarning, match="input.s. fault_threshold start at non-zero values .* held at them"):
+        fixed = record_to_file(toys["param-input"], tmp_path / "q.h5", "step:amplitude=1,t0=0.35", dt=0.1,
+                               t_end=1.0, parameters={"fault": "1"}, quiet=True)
+    assert fixed.m == 1  # by default the threshold is held at its start value 1e300, not driven
+    assert fixed.runs[0][1]  # complete
 
 
 def test_layout_1_files_still_load():

@@ -622,7 +622,8 @@ def test_setting_errors_name_the_variable(toys):
 def test_inputs_none_holds_every_input(toys):
     source = FMUSource(toys["param-input"], inputs="none")
     assert source.m == 0 and source.held_input_names == ["fault_threshold", "u"]
-    assert FMUSource(toys["param-input"]).input_names == ["fault_threshold", "u"]  # default: every real input
+    default = FMUSource(toys["param-input"])   # default: every real input but those with non-zero starts
+    assert default.input_names == ["u"] and default.parameter_like_input_names == ["fault_threshold"]
     chosen = FMUSource(toys["param-input"], inputs="u")
     assert chosen.input_names == ["u"] and chosen.held_input_names == ["fault_threshold"]
     assert chosen.description()["held_input_names"] == ["fault_threshold"]

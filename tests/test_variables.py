@@ -15,6 +15,7 @@ import pytest
 
 from fmu_opinf.errors import FMUError, FmuOpinfError, InputSpecError
 from fmu_opinf.sources import parse_assignments, resolve_variables
+from fmu_opinf.sources._variables import Column
 
 
 def _fmi2(variables: list[str], derivatives: list[int], name: str = "Model") -> str:
@@ -180,16 +181,25 @@ def test_chained_derivative_links_are_ambiguous(tmp_path):
         resolve_variables(_write(tmp_path, _fmi2(v, [4, 5, 6])))
 
 
-def test_parameters_exposed_as_inputs_are_forces_unless_excluded(tmp_path):
+def test_parameters_exposed_as_inputs_are_held_unless_named(tmp_path):
+    """A real continuous input with a non-zero start value (a parameter exposed as an input) or a --set value is
+    held by default, not driven (driving k = 1000 with the training impulse would change the model); naming it in
+    --inputs drives it."""
     v = [_sv("F", 0, "input", body='<Real start="0"/>'),
          _sv("k", 1, "input", body='<Real start="1000"/>'),
          _sv("mode", 2, "input", "discrete", '<Integer start="1"/>'),
+         _sv("G", 5, "input", body='<Real start="0"/>'),
          _sv("x[1]", 3), _sv("v[1]", 4)]
     path = _write(tmp_path, _fmi2(v, []))
     default = resolve_variables(path)
-    assert _names(default.forces) == ["F", "k"] and _names(default.held) == ["mode"]
+    assert _names(default.forces) == ["F", "G"] and _names(default.held) == ["k", "mode"]
+    assert _names(default.parameter_like) == ["k"]
+    given = resolve_variables(path, settings={"k": 900, "G": 2})     # values given: held, nothing to tell
+    assert _names(given.forces) == ["F"] and _names(given.held) == ["G", "k", "mode"] and given.parameter_like == []
     chosen = resolve_variables(path, inputs="F")
-    assert _names(chosen.forces) == ["F"] and _names(chosen.held) == ["k", "mode"]
+    assert _names(chosen.forces) == ["F"] and _names(chosen.held) == ["G", "k", "mode"] and chosen.parameter_like == []
+    driven = resolve_variables(path, inputs="F,k")
+    assert _names(driven.forces) == ["F", "k"] and driven.parameter_like == []
     assert resolve_variables(path, inputs="none").forces == []
 
 
@@ -293,3 +303,108 @@ def test_structural_parameter_outside_its_bounds(tmp_path):
 
 def test_parse_assignments_keeps_order_and_text():
     assert parse_assignments(["a=1", "b = [1, 2]", "c=x=y"]) == {"a": "1", "b": "[1, 2]", "c": "x=y"}
+
+
+# --------------------------------------------------------------- FMI 3 states body by body (no alias derivatives)
+
+
+def fmi3_body_by_body(dependencies: bool = True, units: bool = True, names=("body1", "body2")) -> str:
+    """FMI 3 Modelica style, states sorted by component: body1.s, body1.v, body2.s, body2.v.  FMI 3 has no shared
+    value references, so der(body1.s) is a variable of its own (equal to body1.v), not an alias; the state vector
+    follows the ContinuousStateDerivative order (body by body).  With ``dependencies`` the model structure says
+    der(bodyK.s) depends on bodyK.v alone."""
+    first, second = names
+    def var(name, vr, unit, extra=""):
+        unit_attribute = f' unit="{unit}"' if units else ""
+        return (f'<Float64 name="{name}" valueReference="{vr}" causality="local" variability="continuous"'
+                f'{unit_attribute}{extra}/>')
+    variables = [var(f"{first}.s", 1, "m", ' initial="exact" start="0.1"'),
+                 var(f"{first}.v", 2, "m/s", ' initial="exact" start="0"'),
+                 var(f"{second}.s", 3, "m", ' initial="exact" start="0.2"'),
+                 var(f"{second}.v", 4, "m/s", ' initial="exact" start="0"'),
+                 var(f"der({first}.s)", 5, "m/s", ' derivative="1"'), var(f"der({first}.v)", 6, "m/s2", ' derivative="2"'),
+                 var(f"der({second}.s)", 7, "m/s", ' derivative="3"'), var(f"der({second}.v)", 8, "m/s2", ' derivative="4"')]
+    deps = {5: "2", 6: "1 2 3 4", 7: "4", 8: "1 2 3 4"} if dependencies else {}
+    listed = [(vr, f' dependencies="{deps[vr]}"' if vr in deps else "") for vr in (5, 6, 7, 8)]
+    structure = "".join(f'<ContinuousStateDerivative valueReference="{vr}"{text}/>' for vr, text in listed)
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<fmiModelDescription fmiVersion="3.0" modelName="Bodies" instantiationToken="{0}">'
+            '<ModelExchange modelIdentifier="bodies"/><ModelVariables>'
+            '<Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>'
+            f'{"".join(variables)}</ModelVariables><ModelStructure>{structure}</ModelStructure>'
+            '</fmiModelDescription>')
+
+
+@pytest.mark.parametrize("dependencies, units, rule", [(True, False, "depends on its velocity state alone"),
+                                                        (False, True, "paired by unit")])
+def test_fmi3_states_body_by_body_are_paired_not_split_in_halves(tmp_path, dependencies, units, rule):
+    """Before, the states were split in halves (positions body1.s, body1.v; velocities body2.s, body2.v): a silently
+    wrong model (max eps_y 0.34 on a chain, against 4.8e-22).  The model structure's dependencies, else the units
+    and names, pair them."""
+    sel = resolve_variables(_write(tmp_path, fmi3_body_by_body(dependencies, units))).selection
+    assert _names(sel.positions) == ["body1.s", "body2.s"] and _names(sel.velocities) == ["body1.v", "body2.v"]
+    assert _names(sel.accelerations) == ["der(body1.v)", "der(body2.v)"] and rule in sel.how["positions"]
+
+
+def test_fmi3_states_body_by_body_without_structure_or_matching_names_are_refused(tmp_path):
+    """Units show that halves are wrong, but the names do not pair (bodyA.s / other.v): one line asking for the
+    variables, no guess."""
+    path = _write(tmp_path, fmi3_body_by_body(False, True, names=("bodyA", "other")).replace(
+        '"other.s"', '"mount.s"').replace("der(other.s)", "der(mount.s)"))
+    with pytest.raises(FMUError, match=r"cannot tell positions from velocities .*pass --positions and --velocities"):
+        resolve_variables(path)
+
+
+def fmi3_aliases() -> str:
+    """FMI 3: an output array y (2 values, unit m) with the <Alias> "sensors", an input F with the alias "force";
+    x, v array states (size 2) with der(x), der(v)."""
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<fmiModelDescription fmiVersion="3.0" modelName="Aliases" instantiationToken="{0}">'
+            '<ModelExchange modelIdentifier="aliases"/><ModelVariables>'
+            '<Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>'
+            '<Float64 name="F" valueReference="1" causality="input" variability="continuous" start="0" unit="N">'
+            '<Alias name="force"/></Float64>'
+            '<Float64 name="y" valueReference="2" causality="output" variability="continuous" unit="m">'
+            '<Dimension start="2"/><Alias name="sensors"/></Float64>'
+            '<Float64 name="x" valueReference="3" causality="local" variability="continuous" initial="exact" '
+            'start="0 0"><Dimension start="2"/></Float64>'
+            '<Float64 name="v" valueReference="4" causality="local" variability="continuous" initial="exact" '
+            'start="0 0"><Dimension start="2"/></Float64>'
+            '<Float64 name="der(x)" valueReference="5" causality="local" variability="continuous" derivative="3">'
+            '<Dimension start="2"/></Float64>'
+            '<Float64 name="der(v)" valueReference="6" causality="local" variability="continuous" derivative="4">'
+            '<Dimension start="2"/><Alias name="a"/></Float64>'
+            '</ModelVariables><ModelStructure><Output valueReference="2"/>'
+            '<ContinuousStateDerivative valueReference="5"/><ContinuousStateDerivative valueReference="6"/>'
+            '</ModelStructure></fmiModelDescription>')
+
+
+def test_fmi3_alias_names_and_array_names_select_their_variables(tmp_path):
+    """<Alias> names (what a user sees in a tool) and a bare array name select the variable's values; defaults and
+    wildcards still take each value once (before: 'matches no real variable')."""
+    from fmu_opinf.sources._variables import ReadPlan
+
+    path = _write(tmp_path, fmi3_aliases())
+    default = resolve_variables(path)
+    assert _names(default.outputs) == ["y[1]", "y[2]"] and _names(default.forces) == ["F"]
+    assert _names(default.selection.positions) == ["x[1]", "x[2]"] and _names(default.held) == []
+    named = resolve_variables(path, outputs="sensors", inputs="force", positions="x", velocities="v",
+                              accelerations="a")
+    assert _names(named.outputs) == ["sensors[1]", "sensors[2]"] and _names(named.forces) == ["force"]
+    assert named.held == [] and _names(named.selection.accelerations) == ["a[1]", "a[2]"]
+    plan = ReadPlan(named.model, [Column(e) for e in named.outputs], named.structural)
+    assert plan.vrs.tolist() == [2] and plan.nvalues == 2                 # read as y, by its value reference
+    assert _names(resolve_variables(path, outputs="y").outputs) == ["y[1]", "y[2]"]
+    assert _names(resolve_variables(path, outputs="sensors[2]").outputs) == ["sensors[2]"]
+    assert resolve_variables(path, settings={"force": 2}).settings[0].var.name == "F"
+
+
+def test_a_bare_name_is_no_array_in_fmi2(tmp_path):
+    """FMI 2 scalars named F[1], F[2] are separate variables: --inputs F matches none of them (one line), it does
+    not pick F[1] as if F were an FMI 3 array."""
+    v = [_sv("F[1]", 0, "input", body='<Real start="0"/>'), _sv("F[2]", 1, "input", body='<Real start="0"/>'),
+         _sv("x[1]", 3), _sv("v[1]", 4)]
+    path = _write(tmp_path, _fmi2(v, []))
+    with pytest.raises(FMUError, match=r"input 'F' is not a real variable .*its inputs: F\[1\], F\[2\]"):
+        resolve_variables(path, inputs="F")
+    assert _names(resolve_variables(path, inputs="F[*]").forces) == ["F[1]", "F[2]"]

@@ -365,17 +365,45 @@ LtiStatus ltiExitConfiguration(LtiInstance *inst) {
 
 /* ------------------------------------------------------------ time integration */
 
+/* The FMI state vector is z = (q, qd), or (q1, qd1, q2, qd2, ...) with LTI_INTERLEAVED (the order of
+   the model structure's state derivatives, as exporters that sort states by component produce). */
+static void toFmiOrder(size_t nq, const double *z, double *out) {
+    size_t i;
+    if (!LTI_INTERLEAVED) {
+        memcpy(out, z, 2 * nq * sizeof(double));
+        return;
+    }
+    for (i = 0; i < nq; i++) {
+        out[2 * i] = z[i];
+        out[2 * i + 1] = z[nq + i];
+    }
+}
+
 LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
     size_t nq = inst->nq;
-    if (accelerations(inst, function, inst->z, dz + nq) != LtiOK) return LtiError;
-    memcpy(dz, inst->z + nq, nq * sizeof(double));
+    double *internal = inst->work + 10 * nq;   /* the RK4 step uses the first 10 nq */
+    if (accelerations(inst, function, inst->z, internal + nq) != LtiOK) return LtiError;
+    memcpy(internal, inst->z + nq, nq * sizeof(double));
+    toFmiOrder(nq, internal, dz);
     return LtiOK;
 }
 
 LtiStatus ltiSetStates(LtiInstance *inst, const double z[], size_t n) {
-    memcpy(inst->z, z, n * sizeof(double));
+    size_t nq = n / 2, i;
+    if (!LTI_INTERLEAVED) {
+        memcpy(inst->z, z, n * sizeof(double));
+    } else {
+        for (i = 0; i < nq; i++) {
+            inst->z[i] = z[2 * i];
+            inst->z[nq + i] = z[2 * i + 1];
+        }
+    }
     inst->upToDate = 0;
     return LtiOK;
+}
+
+void ltiGetStates(const LtiInstance *inst, double z[]) {
+    toFmiOrder(inst->nq, inst->z, z);
 }
 
 /* dz = f(z) for a state given explicitly (2 nq values). */

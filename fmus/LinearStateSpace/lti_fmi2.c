@@ -306,7 +306,7 @@ fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {
                (unsigned long)nx, (unsigned long)(2 * inst->nq));
         return finish(inst, LtiError);
     }
-    memcpy(x, inst->z, nx * sizeof(double));
+    ltiGetStates(inst, x);
     return fmi2OK;
 }
 

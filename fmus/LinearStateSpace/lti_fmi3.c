@@ -488,7 +488,7 @@ fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuous
     CHECK(instance, "fmi3GetContinuousStates", PHASE_ANY);
     if (checkStates(inst, "fmi3GetContinuousStates", nContinuousStates) != LtiOK)
         return finish(inst, LtiError);
-    memcpy(continuousStates, inst->z, nContinuousStates * sizeof(double));
+    ltiGetStates(inst, continuousStates);
     return fmi3OK;
 }
 

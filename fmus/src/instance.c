@@ -467,6 +467,7 @@ static double stepRoundOff(double point, double h, double reference) {
 Status doStep(ModelInstance *instance, const char *function, double point, double h) {
     const char *message = "unknown problem";
     Status status = OK;
+    long substeps = 1, i;
 
     CALL(checkStepArguments(instance, function, point, h));
     CALL(ensureInputApplied(instance));
@@ -477,12 +478,16 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
         h = instance->solver.stepSize;
     }
     if (stepMapSize(&instance->system) > 0.0) {
+        /* the exact step map holds the input over one map step: a multiple of it is that many map steps */
         double mapStep = stepMapSize(&instance->system);
-        if (fabs(h - mapStep) > stepRoundOff(point, h, mapStep)) {
-            logError(instance, "%s: this model steps with h = %.17g only (its exact step map), got h = %.17g",
-                     function, mapStep, h);
+        double count = floor(h / mapStep + 0.5);
+        if (count < 1.0 || count > 1e9 || fabs(h - count * mapStep) > count * stepRoundOff(point, h, mapStep)) {
+            logError(instance, "%s: this model steps with multiples of h = %.17g only (its exact step map), got "
+                     "h = %.17g; use such a communication step, or export the ROM again with --step h", function,
+                     mapStep, h);
             return Error;
         }
+        substeps = (long)count;
         h = mapStep;
     }
 
@@ -496,16 +501,18 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
         logEvent(instance, "factored the step matrix for h = %g", h);
     }
 
-    newmarkStep(&instance->solver, &instance->system, h, instance->current.u, instance->current.x,
-                instance->current.v, instance->current.a);
+    for (i = 0; i < substeps; i++) {
+        newmarkStep(&instance->solver, &instance->system, h, instance->current.u, instance->current.x,
+                    instance->current.v, instance->current.a);
+    }
 
     if (!stepIsFinite(&instance->solver, &instance->system, instance->current.a)) {
-        logError(instance, "%s: the solution is not finite at t = %g", function, point + h);
+        logError(instance, "%s: the solution is not finite at t = %g", function, point + substeps * h);
         status = Error;
         goto END;
     }
 
-    instance->current.time = point + h;
+    instance->current.time = point + substeps * h;
     instance->current.stepCount++;
     computeStepOutputs(&instance->solver, &instance->system, instance->current.x, instance->current.v,
                        instance->current.u, instance->y);

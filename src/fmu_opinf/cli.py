@@ -31,8 +31,10 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
         group.add_argument("--velocities", help="name patterns of the velocities, e.g. 'v[*]'")
         group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
     trained = "" if recording else " (default: those the ROM was trained with)"
-    group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input; "
-                                        "'none': no force input); other inputs are held at their start values"
+    group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input "
+                                        "but those with a non-zero start value or a --set value, which look like "
+                                        "parameters; 'none': no force input); other inputs are held at their start "
+                                        "(or --set) values"
                                         + trained)
     group.add_argument("--outputs", help="name patterns of the outputs" + trained)
     if recording:
@@ -208,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
     p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0",
                    help="FMI version of the exported co-simulation FMU (default 2.0)")
+    p.add_argument("--step", type=float, default=None,
+                   help="communication step the FMU is made for (default: the training step); a ROM of a "
+                        "continuous-time FMU steps by its exact step map of this step and accepts its multiples")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
@@ -295,7 +300,7 @@ def _run_export(args: argparse.Namespace) -> None:
     reconstruct = [s.strip() for s in args.reconstruct.split(",")] if args.reconstruct else None
     rom = SecondOrderROM.load(args.rom)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
-                      overwrite=args.force)
+                      overwrite=args.force, step=args.step)
     if not args.quiet:
         print(f"wrote {path}")
 

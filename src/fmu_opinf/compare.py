@@ -375,21 +375,26 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
 
 
 def _declared_units(source: Any, names: list[str]) -> list[str] | None:
-    """Units the source FMU declares for the named variables (its own or its type's), "" where none."""
+    """Units the source FMU declares for the named variables (its own or its type's), "" where none.
+
+    Names are element names as recorded: an element ``y[2]`` of an FMI 3 array ``y`` has the array's unit.
+    """
     path = Path(str(source))
     if str(source).startswith("builtin:") or path.suffix.lower() != ".fmu" or not path.is_file():
         return None
     try:
-        from fmpy import read_model_description
+        from .sources._variables import ModelInfo
 
-        variables = {v.name: v for v in read_model_description(str(path), validate=False).modelVariables}
+        variables = ModelInfo.from_path(path).by_name
     except Exception:  # noqa: BLE001 - units are decoration: an unreadable description just has none
         return None
 
     def unit(name: str) -> str:
         var = variables.get(name)
-        declared = getattr(var, "declaredType", None)
-        value = getattr(var, "unit", None) or getattr(declared, "unit", None) or ""
+        if var is None and name.endswith("]") and "[" in name:  # an element of an array variable
+            array = variables.get(name[:name.rindex("[")])
+            var = array if array is not None and array.dims else None
+        value = getattr(var, "unit", None) or ""
         return "".join(c for c in str(value) if c.isprintable())
 
     return [unit(name) for name in names]

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
+from .fmus import UNIT_PATTERN, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -337,7 +337,7 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
 
 def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                  reconstruct: Sequence[str | int] | None = None,
-                 fmi_version: str = "2.0") -> SecondOrderFmuSpec:
+                 fmi_version: str = "2.0", step: float | None = None) -> SecondOrderFmuSpec:
     """Generator specification of the FMU of a reduced second-order model.
 
     Parameters
@@ -351,6 +351,10 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         Full-order positions (``"x[i]"`` or 1-based ``i``) added as outputs ``V[i, :] q``.
     fmi_version : {"2.0", "3.0"}, default="2.0"
         FMI version of the FMU.
+    step : float, optional
+        Communication step the FMU is made for (default: the training step ``dt``): the default
+        experiment's step and, for an exact-integrator ROM, the step of its exact step map (the FMU then
+        takes multiples of ``step``).
 
     Returns
     -------
@@ -368,6 +372,11 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     dt = None if getattr(rom, "dt", None) is None else float(rom.dt)
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
+    if step is not None:
+        step = float(step)
+        if not (np.isfinite(step) and step > 0):
+            raise DataError(f"export step {step} is not a positive number; give the communication step in seconds")
+        dt = step
     _check_definite(matrices, dt)
     names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     extra = {"fr": _vector(rom, "fr", r), "y0": _vector(rom, "y0", p), "q0": _vector(rom, "q0", r),
@@ -383,6 +392,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                              "or output of the ROM; drop them from reconstruct")
     description = _description(rom, r, names)
     provenance = dict(getattr(rom, "provenance", None) or {})
+    input_units, output_units = _declared_units(provenance, m, p)
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
     output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
@@ -412,8 +422,31 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
-        fmi_version=fmi_version,
+        fmi_version=fmi_version, input_units=input_units,
+        output_units=output_units + [_position_unit(provenance)] * len(names),
     )
+
+
+def _units(value: Any, count: int) -> list[str]:
+    """A recorded unit list if it is one unit name (or "") per variable, else no units; provenance is data, so
+    anything but a plain unit name is dropped (``fmus.UNIT_PATTERN``)."""
+    if not isinstance(value, list) or len(value) != count:
+        return [""] * count
+    return [u if isinstance(u, str) and UNIT_PATTERN.match(u) else "" for u in value]
+
+
+def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[str]]:
+    """Units of the source's force inputs and outputs as recorded with the training snapshots."""
+    snapshots = provenance.get("snapshots")
+    snapshots = snapshots if isinstance(snapshots, dict) else {}
+    return _units(snapshots.get("input_units"), m), _units(snapshots.get("output_units"), p)
+
+
+def _position_unit(provenance: dict) -> str:
+    """Unit of reconstructed positions: the one unit of all the source's positions if recorded, else none."""
+    snapshots = provenance.get("snapshots")
+    unit = snapshots.get("position_unit") if isinstance(snapshots, dict) else None
+    return _units([unit], 1)[0]
 
 
 # ------------------------------------------------------------------------- export
@@ -436,7 +469,8 @@ def _check_output_path(path: Path, overwrite: bool) -> None:
 
 
 def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike, fmi_version: str = "2.0",
-               reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False) -> Path:
+               reconstruct: Sequence[str | int] | None = None, *, overwrite: bool = False,
+               step: float | None = None) -> Path:
     """Export a reduced second-order model as a co-simulation FMU.
 
     Parameters
@@ -452,6 +486,10 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         names (``"mass[3].s"``, ``"x10"``), computed through the basis as ``x_i = x_ref,i + V[i, :] q``.
     overwrite : bool, default=False
         Replace an existing file (``--force`` on the command line).
+    step : float, optional
+        Communication step the FMU is made for (``--step``; default: the training step).  A ROM of a
+        continuous-time source steps by the exact step map of this step and accepts its multiples only,
+        so an importer that runs at a finer step needs the FMU exported with that step.
 
     The FMU's default experiment runs over the training horizon (stopTime = last training time) with
     the training step.
@@ -477,7 +515,7 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
     _check_output_path(path, overwrite)
-    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version))
+    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
     if find_build_tools() is None:
         build_second_order_fmu(spec, path, compile=False)
         warnings.warn(f"{path} holds C sources only and still needs compiling: no C compiler or "

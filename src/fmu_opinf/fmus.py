@@ -60,6 +60,8 @@ _GUID_NAMESPACE = uuid.UUID("5f0c2b52-8f7e-4a43-9d55-2f1f3c6c8a10")
 _CONSTRAINT_CODES = {None: 0, "position": 1, "velocity": 2}
 _STRUCTURED_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
                               r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*$")
+#: what a unit name in a generated model description may hold (FMI unit names: ``m/s2``, ``N.m``, ``rad/s``)
+UNIT_PATTERN = re.compile(r"^[A-Za-z0-9_./*^()%+\-]{1,40}$")
 
 
 class FmuBuildError(FMUError):
@@ -125,6 +127,9 @@ class SecondOrderFmuSpec:
         More files for ``sources/`` (e.g. ``readme.md``).
     fmi_version : {"2.0", "3.0"}, default="2.0"
         FMI version of the generated FMU (co-simulation only).
+    input_units, output_units : list of str, default=None
+        Unit of each input and output (``""``: none), declared on the variables and in
+        ``UnitDefinitions``; characters are limited to :data:`UNIT_PATTERN`.
     """
 
     identifier: str
@@ -146,6 +151,8 @@ class SecondOrderFmuSpec:
     expose_states: bool | None = None
     extra_files: dict[str, str] = field(default_factory=dict)
     fmi_version: str = "2.0"
+    input_units: list[str] | None = None
+    output_units: list[str] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -172,6 +179,7 @@ class SecondOrderFmuSpec:
                                 f"output names for m={self.m}, p={self.p}; give one name each")
         if self.expose_states is None:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+        self._check_units()
         self._check_text()
         self._check_unique_names()
 
@@ -190,6 +198,18 @@ class SecondOrderFmuSpec:
             if bad:
                 raise FmuBuildError(f"{what} {text!r} contains the control character {bad.group()!r}, which "
                                     "an FMU's XML cannot hold; rename it (printable characters only)")
+
+    def _check_units(self) -> None:
+        for what, units, count in (("input", self.input_units, self.m), ("output", self.output_units, self.p)):
+            if units is None:
+                continue
+            if len(units) != count:
+                raise FmuBuildError(f"got {len(units)} {what} units for {count} {what}s; give one unit each "
+                                    "(an empty string for none)")
+            for unit in units:
+                if not isinstance(unit, str) or (unit and not UNIT_PATTERN.match(unit)):
+                    raise FmuBuildError(f"{what} unit {unit!r} is not a unit name (letters, digits and "
+                                        "'._/*^()%+-', at most 40); give a unit such as 'm/s2' or none")
 
     def _check_unique_names(self) -> None:
         names = list(self.input_names) + list(self.output_names) + [p.name for p in self.parameters]
@@ -388,6 +408,7 @@ class _Variable:
     description: str = ""
     initial: str | None = None
     start: float | None = None
+    unit: str = ""
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -403,11 +424,13 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     """The model variables in value-reference order (time not included)."""
     refs = value_references(spec)
     held = "input (held over each communication step)"
-    rows = [_Variable(name, vr, "input", description=held, start=0.0)
-            for name, vr in zip(spec.input_names, refs["u"])]
+    input_units = spec.input_units or [""] * spec.m
+    output_units = spec.output_units or [""] * spec.p
+    rows = [_Variable(name, vr, "input", description=held, start=0.0, unit=unit)
+            for name, vr, unit in zip(spec.input_names, refs["u"], input_units)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
-    rows += [_Variable(name, vr, "output", description=text)
-             for name, vr, text in zip(spec.output_names, refs["y"], described)]
+    rows += [_Variable(name, vr, "output", description=text, unit=unit)
+             for name, vr, text, unit in zip(spec.output_names, refs["y"], described, output_units)]
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
@@ -429,13 +452,25 @@ def _experiment(spec: SecondOrderFmuSpec) -> str:
 
 
 def _variable2(variable: _Variable) -> str:
-    real = "<Real/>" if variable.start is None else f'<Real start="{float(variable.start)!r}"/>'
-    return f"    <ScalarVariable {variable.attributes()}>\n      {real}\n    </ScalarVariable>\n"
+    unit = f" unit={quoteattr(variable.unit)}" if variable.unit else ""
+    start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
+    return f"    <ScalarVariable {variable.attributes()}>\n      <Real{unit}{start}/>\n    </ScalarVariable>\n"
 
 
 def _variable3(variable: _Variable) -> str:
+    unit = f" unit={quoteattr(variable.unit)}" if variable.unit else ""
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
-    return f"    <Float64 {variable.attributes()}{start}/>\n"
+    return f"    <Float64 {variable.attributes()}{unit}{start}/>\n"
+
+
+def _unit_definitions(spec: SecondOrderFmuSpec) -> str:
+    """``UnitDefinitions`` naming every unit the variables use (by name only: the source's base units are
+    not known), so that the description passes strict validation."""
+    units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) if u})
+    if not units:
+        return ""
+    rows = "".join(f"    <Unit name={quoteattr(u)}/>\n" for u in units)
+    return f"  <UnitDefinitions>\n{rows}  </UnitDefinitions>\n"
 
 
 def _naming_convention(spec: SecondOrderFmuSpec) -> str:
@@ -467,6 +502,7 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         f"{files}"
         "    </SourceFiles>\n"
         "  </CoSimulation>\n"
+        f"{_unit_definitions(spec)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
@@ -522,6 +558,7 @@ def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
         '    providesIntermediateUpdate="false" mightReturnEarlyFromDoStep="false"\n'
         '    canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"\n'
         '    providesEvaluateDiscreteStates="false"/>\n'
+        f"{_unit_definitions(spec)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi3Error"/>\n'

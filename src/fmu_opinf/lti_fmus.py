@@ -22,7 +22,11 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
 * physical parameters exposed with causality input (``mass_scale = 0`` makes the FMU fail with a
   division by zero), no inputs at all, outputs with direct feedthrough (acceleration sensors),
   a static equilibrium away from zero (constant force ``f0``) and start values off rest;
-* a ``DefaultExperiment`` with ``stopTime="1"`` and no step size; SI units.
+* a ``DefaultExperiment`` with ``stopTime="1"`` and no step size; SI units, optionally on the
+  outputs too and on Modelica type definitions (``declaredType``);
+* on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
+  outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
+  dependencies.
 
 The system is ``M x'' + D x' + K x = B u + f0`` with outputs ``y = Cp x + Cv x' + Ca x'' + y0``
 (:class:`LinearMechanicalModel`).  The FMU integrates it in the coordinates an exporter would
@@ -565,6 +569,7 @@ class _Layout:
     slots: list[tuple[str, int, int, int]] = field(default_factory=list)
     states: list[str] = field(default_factory=list)        # state variables in z order
     derivatives: list[str] = field(default_factory=list)   # their derivative variables
+    interleaved: bool = False   # z order (q1, qd1, q2, qd2, ...) instead of (q, qd)
 
     def __post_init__(self) -> None:
         self.slots.append(("SlotTime", 0, 0, 0))
@@ -667,6 +672,14 @@ class _Options:
     identifier: str
     description: str
     stop_time: float
+    output_units: bool = False
+    declared_types: bool = False
+    input_sensors: bool = False
+    output_array: bool = False
+    output_aliases: bool = False
+    input_array: bool = False
+    interleaved: bool = False
+    dependencies: bool = True
 
 
 def _check_options(model, options: _Options) -> None:
@@ -700,6 +713,13 @@ def _check_options(model, options: _Options) -> None:
     if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", options.identifier):
         raise FmuBuildError(f"model identifier {options.identifier!r} is not a C identifier; "
                             "use letters, digits and underscores")
+    if (options.output_array or options.input_array) and options.fmi_version != "3.0":
+        raise FmuBuildError("input and output arrays need FMI 3.0; pass fmi_version='3.0'")
+    if options.interleaved and (options.naming != "modelica" or not options.expose_accelerations):
+        raise FmuBuildError("an interleaved state vector needs modelica naming with its der() variables")
+    if options.declared_types and not options.units:
+        raise FmuBuildError("declared_types puts the units on type definitions; it needs "
+                            "units=True")
 
 
 def _indexed(base: str, i: int, count: int, modelica: bool) -> str:
@@ -712,7 +732,11 @@ def _common_inputs(layout: _Layout, model: LinearMechanicalModel, options: _Opti
                    modelica: bool) -> tuple[list[str], list[str]]:
     force = "F" if modelica else "u"
     inputs = []
-    for j in range(model.m):
+    if options.input_array and model.m:
+        layout.add(force, "SlotU", array=True, dimension=model.m, tunable=True, causality="input",
+                   start=[0.0] * model.m, unit="N", description="force inputs (columns of B)")
+        inputs = [f"{force}[{j + 1}]" for j in range(model.m)]
+    for j in range(model.m if not inputs else 0):
         var = layout.add(_indexed(force, j, model.m, modelica), "SlotU", j, tunable=True,
                          causality="input", start=[0.0], unit="N",
                          description=f"force input {j + 1} (column {j + 1} of B)")
@@ -730,11 +754,57 @@ def _common_inputs(layout: _Layout, model: LinearMechanicalModel, options: _Opti
     return inputs, parameter_inputs
 
 
-def _outputs(layout: _Layout, model: LinearMechanicalModel, modelica: bool) -> list[str]:
+def _sensor_unit(model: LinearMechanicalModel, k: int) -> str | None:
+    """SI unit of output ``k`` if it measures one kind of quantity (positions, velocities or
+    accelerations), else None."""
+    kinds = [unit for unit, C in (("m", model.Cp), ("m/s", model.Cv), ("m/s2", model.Ca))
+             if np.any(C[k] != 0)]
+    return kinds[0] if len(kinds) == 1 else None
+
+
+def _outputs(layout: _Layout, model: LinearMechanicalModel, modelica: bool,
+             options: _Options | None = None) -> list[str]:
+    units = [_sensor_unit(model, k) if options is not None and options.output_units else None
+             for k in range(model.p)]
+    if options is not None and options.output_array:
+        common = units[0] if len(set(units)) == 1 else None
+        var = layout.add("y", "SlotY", array=True, dimension=model.p, causality="output",
+                         unit=common, description="outputs: Cp x + Cv v + Ca a + y0")
+        if options.output_aliases:
+            layout.alias("sensors", var, "the outputs under another name")
+        return [f"y[{k + 1}]" for k in range(model.p)]
     names = []
     for k in range(model.p):
         var = layout.add(_indexed("y", k, model.p, modelica), "SlotY", k, causality="output",
+                         unit=units[k],
                          description=f"output {k + 1}: Cp x + Cv v + Ca a + y0 (row {k + 1})")
+        names.append(var.name)
+        if options is not None and options.output_aliases:
+            alias = f"sensor[{k + 1}].y" if model.p > 1 else "sensor.y"
+            if layout.fmi3:
+                layout.alias(alias, var)
+            else:   # FMI 2: a local variable of the same value reference (Modelica connections)
+                layout.alias(alias, var, f"alias of {var.name}")
+                layout.variables[-1].causality = "local"
+    return names
+
+
+def _array_name(element: str) -> str:
+    """The variable of an element ``F[2]`` of an FMI 3 array input (a scalar's own name)."""
+    return re.sub(r"\[\d+\]$", "", element) if re.search(r"^[A-Za-z_]\w*\[\d+\]$", element) else element
+
+
+def _input_sensors(layout: _Layout, inputs: list[str], modelica: bool,
+                   options: _Options) -> list[str]:
+    """One output per force input reporting it (a force sensor: direct feedthrough ``y = u``)."""
+    names = []
+    for j, force in enumerate(inputs):
+        name = (f"forceSensor[{j + 1}].f" if len(inputs) > 1 else "forceSensor.f") if modelica \
+            else f"u_meas{j + 1}"
+        var = layout.add(name, "SlotU", j, causality="output",
+                         unit="N" if options.output_units else None,
+                         description=f"measured force {force} (direct feedthrough)")
+        var.dependencies = [_array_name(force) if options.input_array else force]
         names.append(var.name)
     return names
 
@@ -749,18 +819,30 @@ def _modelica_states(layout: _Layout, model: LinearMechanicalModel, coords: _Coo
     label = (lambda i: f"{body}[{i + 1}]") if n > 1 else (lambda i: body)
     dof_of_state = (list(range(nq)) if relative else [int(d) for d in coords.state_dofs])
     q_vars, qd_vars = [], []
-    for k, dof in enumerate(dof_of_state):
+
+    def position(k: int, dof: int) -> None:
         what = "relative position x_i - x_(i-1)" if relative else "position"
         q_vars.append(layout.add(f"{label(dof)}.{pos}", "SlotQ", k, initial="exact",
                                  start=[coords.q0[k]], unit="m",
                                  description=f"{what} of body {dof + 1} (state)"))
-    for k, dof in enumerate(dof_of_state):
+
+    def velocity(k: int, dof: int) -> None:
         qd_vars.append(layout.add(f"{label(dof)}.{vel}", "SlotQd", k, initial="exact",
                                   start=[coords.qd0[k]], unit="m/s",
                                   description=f"velocity of body {dof + 1} (state)"))
+
+    if layout.interleaved:   # one body after the other, as exporters that sort by component
+        for k, dof in enumerate(dof_of_state):
+            position(k, dof)
+            velocity(k, dof)
+    else:
+        for k, dof in enumerate(dof_of_state):
+            position(k, dof)
+        for k, dof in enumerate(dof_of_state):
+            velocity(k, dof)
     derivatives_q, derivatives_qd = [], []
     if options.expose_accelerations:
-        for k, var in enumerate(q_vars):
+        def position_derivative(k: int, var: _Var) -> None:
             name = f"der({var.name})"
             if layout.fmi3:
                 der = layout.add(name, "SlotQd", k, unit="m/s", derivative_of=var.name,
@@ -769,15 +851,28 @@ def _modelica_states(layout: _Layout, model: LinearMechanicalModel, coords: _Coo
                 der = layout.alias(name, qd_vars[k], f"derivative of {var.name} (alias of "
                                    f"{qd_vars[k].name})", derivative_of=var.name)
             derivatives_q.append(der.name)
-        for k, var in enumerate(qd_vars):
+
+        def velocity_derivative(k: int, var: _Var) -> None:
             der = layout.add(f"der({var.name})", "SlotQdd", k, unit="m/s2",
                              derivative_of=var.name, description=f"derivative of {var.name}")
             derivatives_qd.append(der.name)
             if not relative:
                 layout.alias(f"{label(dof_of_state[k])}.a", der,
                              f"acceleration of body {dof_of_state[k] + 1}")
-        layout.states = [v.name for v in q_vars + qd_vars]
-        layout.derivatives = derivatives_q + derivatives_qd
+
+        if layout.interleaved:
+            for k in range(len(q_vars)):
+                position_derivative(k, q_vars[k])
+                velocity_derivative(k, qd_vars[k])
+            layout.states = [v.name for pair in zip(q_vars, qd_vars) for v in pair]
+            layout.derivatives = [d for pair in zip(derivatives_q, derivatives_qd) for d in pair]
+        else:
+            for k, var in enumerate(q_vars):
+                position_derivative(k, var)
+            for k, var in enumerate(qd_vars):
+                velocity_derivative(k, var)
+            layout.states = [v.name for v in q_vars + qd_vars]
+            layout.derivatives = derivatives_q + derivatives_qd
     positions = {d: v.name for d, v in zip(dof_of_state, q_vars)} if not relative else {}
     velocities = {d: v.name for d, v in zip(dof_of_state, qd_vars)} if not relative else {}
     accelerations = ({d: f"{label(d)}.a" for d in dof_of_state}
@@ -868,24 +963,30 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
     if not layout.states or layout.find(layout.states[0]).dimension is not None:
         return
     nq = coords.Kq.shape[0]
-    q_names, qd_names = layout.states[:nq], layout.states[nq:]
+    order = list(range(2 * nq))
+    if layout.interleaved:   # z index of each (q, qd) entry
+        order = [2 * k for k in range(nq)] + [2 * k + 1 for k in range(nq)]
+    states = [layout.states[i] for i in order]
+    derivatives = [layout.derivatives[i] for i in order]
+    q_names, qd_names = states[:nq], states[nq:]
+    declared = {v.name for v in layout.variables}
     mass_input = "mass_scale" in parameter_inputs
     stiffness_input = "stiffness_scale" in parameter_inputs
 
     def names(row_q, row_qd, row_u) -> list[str]:
         deps = [q for q, value in zip(q_names, row_q) if value != 0]
         deps += [q for q, value in zip(qd_names, row_qd) if value != 0]
-        deps += [u for u, value in zip(inputs, row_u) if value != 0]
-        return deps
+        forces = [u if u in declared else _array_name(u) for u, value in zip(inputs, row_u) if value != 0]
+        return deps + [u for i, u in enumerate(forces) if u not in forces[:i]]
 
     for i in range(nq):
-        layout.find(layout.derivatives[i]).dependencies = [qd_names[i]]
+        layout.find(derivatives[i]).dependencies = [qd_names[i]]
         deps = names(coords.Kq[i], coords.Dq[i], coords.Bq[i])
         if mass_input:
             deps.append("mass_scale")
         if stiffness_input and np.any(coords.Kq[i] != 0):
             deps.append("stiffness_scale")
-        layout.find(layout.derivatives[nq + i]).dependencies = deps
+        layout.find(derivatives[nq + i]).dependencies = deps
     CaT = model.Ca @ coords.T
     dq = model.Cp @ coords.T - CaT @ coords.Kq
     dqd = model.Cv @ coords.T - CaT @ coords.Dq
@@ -903,6 +1004,36 @@ def _dependencies(layout: _Layout, model: LinearMechanicalModel, coords: _Coordi
 
 _UNITS = {"s": {"s": 1}, "m": {"m": 1}, "m/s": {"m": 1, "s": -1},
           "m/s2": {"m": 1, "s": -2}, "N": {"kg": 1, "m": 1, "s": -2}, "1": {}}
+
+
+#: Modelica type of each unit, for ``declared_types`` (units on type definitions, not variables)
+_TYPE_NAMES = {"s": "Modelica.Units.SI.Time", "m": "Modelica.Units.SI.Position",
+               "m/s": "Modelica.Units.SI.Velocity", "m/s2": "Modelica.Units.SI.Acceleration",
+               "N": "Modelica.Units.SI.Force"}
+_QUANTITIES = {"s": "Time", "m": "Length", "m/s": "Velocity", "m/s2": "Acceleration",
+               "N": "Force"}
+
+
+def _type_definitions(layout: _Layout, declared: bool) -> str:
+    used = sorted({v.unit for v in layout.variables if v.unit in _TYPE_NAMES}) if declared else []
+    if not used:
+        return ""
+    if layout.fmi3:
+        rows = "".join(f'    <Float64Type name="{_TYPE_NAMES[u]}" quantity="{_QUANTITIES[u]}" '
+                       f'unit="{u}"/>\n' for u in used)
+    else:
+        rows = "".join(f'    <SimpleType name="{_TYPE_NAMES[u]}">\n      <Real '
+                       f'quantity="{_QUANTITIES[u]}" unit="{u}"/>\n    </SimpleType>\n'
+                       for u in used)
+    return "  <TypeDefinitions>\n" + rows + "  </TypeDefinitions>\n"
+
+
+def _unit_attribute(var: _Var, declared: bool) -> str:
+    if not var.unit:
+        return ""
+    if declared and var.unit in _TYPE_NAMES:
+        return f' declaredType="{_TYPE_NAMES[var.unit]}"'
+    return f' unit="{var.unit}"'
 
 
 def _number(value: float) -> str:
@@ -933,10 +1064,8 @@ def _common_attributes(var: _Var) -> str:
     return text
 
 
-def _variable2(var: _Var, index_of: dict[str, int]) -> str:
-    inner = ""
-    if var.unit:
-        inner += f' unit="{var.unit}"'
+def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> str:
+    inner = _unit_attribute(var, declared)
     if var.start is not None:
         inner += f' start="{_number(var.start[0])}"'
     if var.derivative_of:
@@ -946,13 +1075,12 @@ def _variable2(var: _Var, index_of: dict[str, int]) -> str:
             "    </ScalarVariable>\n")
 
 
-def _variable3(var: _Var, vr_of: dict[str, int]) -> str:
+def _variable3(var: _Var, vr_of: dict[str, int], declared: bool = False) -> str:
     attributes = _common_attributes(var)
     if var.type == "UInt64":
         attributes += f' start="{int(var.start[0])}" min="{var.minimum}" max="{var.maximum}"'
         return f"    <UInt64 {attributes}/>\n"
-    if var.unit:
-        attributes += f' unit="{var.unit}"'
+    attributes += _unit_attribute(var, declared)
     if var.start is not None:
         attributes += f' start="{" ".join(_number(s) for s in var.start)}"'
     if var.derivative_of:
@@ -1029,13 +1157,14 @@ def _model_description2(layout: _Layout, options: _Options, sources: list[str]) 
         f'  generationTool="fmu-opinf lti_fmus" variableNamingConvention="{naming}"'
         ' numberOfEventIndicators="0">\n'
         f"{interfaces}{_unit_definitions(layout)}"
+        f"{_type_definitions(layout, options.declared_types)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="resizing, information"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
         "  </LogCategories>\n"
         f"{_experiment(options)}"
         "  <ModelVariables>\n"
-        f"{''.join(_variable2(v, index_of) for v in layout.variables)}"
+        f"{''.join(_variable2(v, index_of, options.declared_types) for v in layout.variables)}"
         "  </ModelVariables>\n"
         f"{structure}"
         "</fmiModelDescription>\n")
@@ -1076,13 +1205,14 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
         f"  description={quoteattr(options.description)}\n"
         '  generationTool="fmu-opinf lti_fmus" variableNamingConvention="structured">\n'
         f"{interfaces}{_unit_definitions(layout)}"
+        f"{_type_definitions(layout, options.declared_types)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="resizing, information"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi3Error"/>\n'
         "  </LogCategories>\n"
         f"{_experiment(options)}"
         "  <ModelVariables>\n"
-        f"{''.join(_variable3(v, vr_of) for v in layout.variables)}"
+        f"{''.join(_variable3(v, vr_of, options.declared_types) for v in layout.variables)}"
         "  </ModelVariables>\n"
         f"  <ModelStructure>\n{structure}  </ModelStructure>\n"
         "</fmiModelDescription>\n")
@@ -1176,6 +1306,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_NQ_MAX = {chain.n_max if chain else nq};\n"
         f"const size_t LTI_NX_FIXED = {model.n};\n"
         f"const int LTI_X_FOLLOWS_Q = {int(chain is not None)};\n"
+        f"const int LTI_INTERLEAVED = {int(layout.interleaved)};\n"
         f"const size_t LTI_NU = {model.m};\n"
         f"const size_t LTI_NY = {model.p};\n"
         "const double LTI_PAR_DEFAULTS[2] = {1.0, 1.0};\n"
@@ -1197,24 +1328,32 @@ def _lti_sources_dir() -> Path:
 
 def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain | None,
             options: _Options) -> tuple[_Layout, dict[str, list[str]]]:
-    layout = _Layout(fmi3=options.fmi_version == "3.0", units=options.units)
+    layout = _Layout(fmi3=options.fmi_version == "3.0", units=options.units,
+                     interleaved=options.interleaved)
     modelica = options.naming != "generic"
     if chain is not None:   # the structural parameter comes first, as in the reference FMUs
         names = _array_states(layout, model, chain, options)
         inputs, parameter_inputs = _common_inputs(layout, model, options, False)
-        outputs = _outputs(layout, model, False)
+        outputs = _outputs(layout, model, False, options)
     else:
         inputs, parameter_inputs = _common_inputs(layout, model, options,
                                                   modelica and options.naming != "array")
-        outputs = _outputs(layout, model, modelica and options.naming != "array")
+        outputs = _outputs(layout, model, modelica and options.naming != "array", options)
         if options.naming == "modelica":
             names = _modelica_states(layout, model, coords, options)
         elif options.naming == "generic":
             names = _generic_states(layout, coords, options)
         else:
             names = _array_states(layout, model, None, options)
-    _dependencies(layout, model, coords, inputs, parameter_inputs, outputs)
-    names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs)
+    sensors = (_input_sensors(layout, inputs, options.naming == "modelica", options)
+               if options.input_sensors else [])
+    if options.dependencies:
+        _dependencies(layout, model, coords, inputs, parameter_inputs,
+                      [] if options.output_array else outputs)
+    else:
+        for var in layout.variables:
+            var.dependencies = None
+    names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
 
 
@@ -1262,7 +1401,11 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   relative: bool = False, parameter_inputs: Sequence[str] = (),
                   expose_accelerations: bool = True, units: bool | None = None,
                   identifier: str | None = None, description: str | None = None,
-                  stop_time: float = 1.0, reuse: bool = True) -> LtiFmu:
+                  stop_time: float = 1.0, output_units: bool = False,
+                  declared_types: bool = False, input_sensors: bool = False,
+                  output_array: bool = False, output_aliases: bool = False,
+                  input_array: bool = False, interleaved: bool = False,
+                  dependencies: bool = True, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1299,6 +1442,31 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Model description.
     stop_time : float, default=1
         ``DefaultExperiment/@stopTime`` (deliberately unrelated to the dynamics; no step size).
+    output_units : bool, default=False
+        Declare the unit of each output that measures one kind of quantity (``m``, ``m/s``,
+        ``m/s2``; ``N`` for force sensors); needs ``units``.
+    declared_types : bool, default=False
+        Modelica style: units sit on type definitions (``Modelica.Units.SI.Position`` ...) that
+        the variables name in ``declaredType``, not on the variables.
+    input_sensors : bool, default=False
+        One more output per force input that reports it (``forceSensor.f``, or ``u_meas1 ..``):
+        a direct feedthrough ``y = u``, listed after the outputs of the model in
+        :attr:`LtiFmu.outputs`.
+    output_array : bool, default=False
+        FMI 3.0: the outputs are one array variable ``y`` of fixed size p (elements
+        ``y[1] .. y[p]``).
+    output_aliases : bool, default=False
+        Every output also has an alias ``sensor[k].y`` (FMI 3: an ``<Alias>`` child; FMI 2: a
+        local variable of the same value reference); an output array gets the alias
+        ``sensors``.
+    input_array : bool, default=False
+        FMI 3.0: the force inputs are one array variable of fixed size m (elements ``F[1] ..``).
+    interleaved : bool, default=False
+        Modelica naming: the states, their ``der()`` variables and the state vector go body by
+        body (``mass[1].s, mass[1].v, mass[2].s, ...``), as tools that sort states by component.
+    dependencies : bool, default=True
+        Declare the structural ``dependencies`` of outputs and state derivatives (exact zeros);
+        False leaves them out (every unknown may depend on everything).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1321,7 +1489,11 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         units=naming != "generic" if units is None else bool(units),
         identifier=identifier or concrete.name,
         description=description or _default_description(concrete, chain, naming, relative),
-        stop_time=float(stop_time))
+        stop_time=float(stop_time), output_units=bool(output_units),
+        declared_types=bool(declared_types), input_sensors=bool(input_sensors),
+        output_array=bool(output_array), output_aliases=bool(output_aliases),
+        input_array=bool(input_array), interleaved=bool(interleaved),
+        dependencies=bool(dependencies))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

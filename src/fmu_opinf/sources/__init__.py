@@ -150,7 +150,35 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
                              "or leave out --me-method")
     source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
     warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
+    _warn_parameter_like(source)
     return source
+
+
+#: (FMU, held inputs, force inputs) already reported by :func:`_warn_parameter_like` in this process
+_PARAMETER_LIKE_REPORTED: set[tuple[str, tuple[str, ...], tuple[str, ...]]] = set()
+
+
+def _warn_parameter_like(source: Source) -> None:
+    """One warning (once per process and FMU: a run table opens the source per row) naming the inputs the
+    default selection holds for their non-zero start values."""
+    import warnings
+
+    from ..errors import FmuOpinfWarning
+
+    held = list(getattr(source, "parameter_like_input_names", []) or [])
+    if not held:
+        return
+    forces = list(getattr(source, "input_names", []) or [])
+    key = (os.path.abspath(str(getattr(source, "path", ""))), tuple(held), tuple(forces))
+    if key in _PARAMETER_LIKE_REPORTED:
+        return
+    _PARAMETER_LIKE_REPORTED.add(key)
+    shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
+    drive = ",".join(forces + held[:6])
+    warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: input(s) {shown} start at non-zero values "
+                  "(parameters exposed as inputs?) and are held at them, not driven"
+                  f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
+                  f"values with --set, or drive them with --inputs {drive}", FmuOpinfWarning, stacklevel=3)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",

@@ -59,7 +59,8 @@ class FMUSource(Source):
         Name patterns; default: from the derivative links, else ``v[*]`` / ``a[*]``, else derived
         from the data (also with ``"none"``).
     inputs : str, optional
-        Name patterns of the force inputs; default: every real continuous input.  Other inputs are
+        Name patterns of the force inputs; default: every real continuous input except those with a
+        non-zero start value or a ``settings`` value (parameters exposed as inputs).  Other inputs are
         held at their start (or ``settings``) values; ``"none"`` drives no input (m = 0).
     outputs : str, optional
         Name patterns; default: all real variables with causality output.
@@ -158,7 +159,11 @@ class FMUSource(Source):
         self.acceleration_names = [c.name for c in selection.accelerations]
         self.input_names = [e.name for e in forces]
         self.held_input_names = [e.name for e in held]
+        #: held inputs that look like parameters (non-zero start, default selection): open_source warns
+        self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         self.output_names = [e.name for e in out_elements]
+        self.input_units = [e.var.unit or "" for e in forces]
+        self.output_units = [e.var.unit or "" for e in out_elements]
         columns = selection.positions + selection.velocities + selection.accelerations
         columns += [Column(e, e.sign) for e in out_elements]
         self._read = ReadPlan(model, columns, structural)
@@ -188,6 +193,12 @@ class FMUSource(Source):
         desc = super().description()
         desc["variable_selection"] = dict(self.selection.how)
         desc["held_input_names"] = list(self.held_input_names)
+        if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
+            desc["input_units"] = list(self.input_units)
+            desc["output_units"] = list(self.output_units)
+        position_units = {c.element.var.unit or "" for c in self.selection.positions}
+        if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
+            desc["position_unit"] = position_units.pop()
         negated = [c.name for c in self._read.columns if c.sign < 0]
         if negated:
             desc["negated_columns"] = negated

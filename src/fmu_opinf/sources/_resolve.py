@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from ._settings import Setting, parse_assignments, resolve_settings
-from ._variables import Element, ModelInfo, Selection, discover, select_inputs, select_outputs
+from ._variables import (Element, ModelInfo, Selection, discover, parameter_like_inputs, select_inputs,
+                         select_outputs)
 
 __all__ = ["Resolved", "resolve_variables"]
 
@@ -28,6 +29,9 @@ class Resolved:
     forces: list[Element]
     held: list[Element]
     outputs: list[Element]
+    #: held inputs that the default selection left out for their non-zero start value (parameters exposed as
+    #: inputs?); empty when the force inputs were named
+    parameter_like: list[Element] = dataclasses.field(default_factory=list)
 
 
 def resolve_variables(model: ModelInfo | str | Path, positions: str | None = None, velocities: str | None = None,
@@ -53,5 +57,8 @@ def resolve_variables(model: ModelInfo | str | Path, positions: str | None = Non
     typed, structural = resolve_settings(model, parse_assignments(settings))
     elements = model.elements(structural)
     selection = discover(model, elements, positions, velocities, accelerations)
-    forces, held = select_inputs(model, elements, inputs)
-    return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs))
+    given = {setting.var.name for setting in typed}
+    forces, held = select_inputs(model, elements, inputs, given)
+    parameter_like = parameter_like_inputs(held, given) if inputs is None else []
+    return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs),
+                    parameter_like)

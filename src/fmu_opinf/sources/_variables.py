@@ -18,7 +18,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ from ._base import CONSTRAINTS, match_names, natural_key
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "start_value"]
+           "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs"]
 
 REAL_TYPES = ("Real", "Float64")
 _PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
@@ -64,11 +64,15 @@ class Variable:
 
 @dataclasses.dataclass(frozen=True)
 class Element:
-    """One scalar value of a variable: ``offset`` is its index in the variable's values (0 for scalars)."""
+    """One scalar value of a variable: ``offset`` is its index in the variable's values (0 for scalars).
+
+    ``alias`` marks an element named through an FMI 3 ``<Alias>`` of ``var``: it is read and written as ``var``,
+    found by its exact name only (defaults and wildcards take each value once, under the variable's name)."""
 
     name: str
     var: Variable
     offset: int
+    alias: bool = False
 
     @property
     def sign(self) -> float:
@@ -199,6 +203,23 @@ def model_xml(path: Path) -> ET.Element:
         raise FMUError(f"{path.name}: cannot read modelDescription.xml ({exc})") from None
 
 
+def _dependency_names(text: str | None, lookup: Any) -> list[str] | None:
+    """Variable names of a ``dependencies`` attribute (indices or value references through ``lookup``); None
+    when the attribute is absent (the unknown may depend on everything) or names something unknown."""
+    if text is None:
+        return None
+    names = []
+    for token in text.split():
+        try:
+            var = lookup(int(token))
+        except ValueError:
+            return None
+        if var is None:
+            return None
+        names.append(var.name)
+    return names
+
+
 class ModelInfo:
     """The variables and state derivatives of a model description (FMI 2.0 or 3.0).
 
@@ -217,8 +238,12 @@ class ModelInfo:
         node = root.find("ModelVariables")
         self._type_units = {t.get("name", ""): (t.get("unit") or next((c.get("unit") for c in t if c.get("unit")), None))
                             for t in root.iter() if t.tag in _TYPE_DEFINITION_TAGS}
+        #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
+        self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
         self.by_name = {v.name: v for v in self.variables}
+        for alias, target in self.aliases.items():  # an alias designates its variable (settings, units)
+            self.by_name.setdefault(alias, self.by_name[target])
         self.state_derivatives = self._structure_derivatives(root)
 
     @classmethod
@@ -261,6 +286,9 @@ class ModelInfo:
                                 min=el.get("min"), max=el.get("max"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", ""))))
             dim_refs.append(refs)
+            for alias in el.findall("Alias"):
+                if alias.get("name"):
+                    self.aliases.setdefault(alias.get("name", ""), out[-1].name)
         by_vr = {v.vr: v for v in reversed(out)}  # the first declared variable of a value reference
         for var, refs in zip(out, dim_refs):
             if var.derivative is not None:
@@ -277,6 +305,9 @@ class ModelInfo:
         return out
 
     def _structure_derivatives(self, root: ET.Element) -> list[str]:
+        """Names of the state derivatives in model-structure order (the state vector's); fills
+        :attr:`derivative_dependencies` (name -> names of the declared dependencies, None if undeclared)."""
+        self.derivative_dependencies: dict[str, list[str] | None] = {}
         structure = root.find("ModelStructure")
         if structure is None:
             return []
@@ -287,14 +318,18 @@ class ModelInfo:
                 var = by_vr.get(int(unknown.get("valueReference", -1)))
                 if var is not None:
                     names.append(var.name)
+                    self.derivative_dependencies[var.name] = _dependency_names(
+                        unknown.get("dependencies"), lambda ref: by_vr.get(ref))
         else:
             derivatives = structure.find("Derivatives")
             for unknown in (derivatives.findall("Unknown") if derivatives is not None else []):
                 index = int(unknown.get("index", 0))
                 if 0 < index <= len(self.variables):
                     names.append(self.variables[index - 1].name)
+                    self.derivative_dependencies[names[-1]] = _dependency_names(
+                        unknown.get("dependencies"),
+                        lambda i: self.variables[i - 1] if 0 < i <= len(self.variables) else None)
         return names
-
 
     # -- sizes and elements -------------------------------------------------------------------
     def structural_value(self, name: str, overrides: dict[str, Any]) -> int:
@@ -315,14 +350,16 @@ class ModelInfo:
     def elements(self, overrides: dict[str, Any] | None = None) -> dict[str, Element]:
         """Every scalar value by name; arrays expand to ``x[1] .. x[n]`` (``x[i,j]`` row-major)."""
         out: dict[str, Element] = {}
-        for var in self.variables:
+        named = [(var.name, var, False) for var in self.variables]
+        named += [(alias, self.by_name[target], True) for alias, target in self.aliases.items()]
+        for label, var, alias in named:
             if not var.dims:
-                out.setdefault(var.name, Element(var.name, var, 0))
+                out.setdefault(label, Element(label, var, 0, alias))
                 continue
             shape = self.shape(var, overrides)
             for offset, index in enumerate(itertools.product(*(range(1, s + 1) for s in shape))):
-                name = f"{var.name}[{','.join(map(str, index))}]"
-                out.setdefault(name, Element(name, var, offset))
+                name = f"{label}[{','.join(map(str, index))}]"
+                out.setdefault(name, Element(name, var, offset, alias))
         return out
 
 
@@ -352,9 +389,12 @@ class _States:
         listed = set(model.state_derivatives)
         derivs = [v for v in model.variables if v.derivative is not None and v.is_real
                   and (not listed or v.name in listed)]
+        order = {name: i for i, name in enumerate(model.state_derivatives)}
+        derivs.sort(key=lambda v: order.get(v.name, len(order)))  # the state vector's order where listed
         by_var: dict[str, list[Element]] = {}
         for element in elements.values():
-            by_var.setdefault(element.var.name, []).append(element)
+            if not element.alias:
+                by_var.setdefault(element.var.name, []).append(element)
         self.der: dict[str, Element] = {}
         self.states: list[Element] = []
         for dvar in derivs:
@@ -456,7 +496,18 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     if linked is not None:
         return (*linked, _LINKS)
     if states.states:
-        return (*_halves(model, states), _HALVES)
+        paired = _paired_by_dependencies(model, states)
+        if paired is not None:
+            return (*paired, _DEPENDENCIES)
+        if not _units_contradict_halves(states):
+            return (*_halves(model, states), _HALVES)
+        paired = _paired_by_units(model, states)
+        if paired is not None:
+            return (*paired, _UNITS)
+        names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
+        raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
+                       "no derivative is an alias of a state, the model structure declares no dependency pairing "
+                       "them, and they are not positions then velocities; pass --positions and --velocities")
     pos = _named(elements, "x[*]")
     if pos:
         return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
@@ -511,6 +562,73 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
     return pos, vel, states.rate_columns(vel)
 
 
+_DEPENDENCIES = "from derivative links: der(position) depends on its velocity state alone (model structure)"
+_UNITS = "from derivative links: states paired by unit (m, m/s) and name"
+
+
+def _state_variables(states: _States) -> list[Variable]:
+    """The state variables in state-vector order (an array once)."""
+    out: list[Variable] = []
+    for element in states.states:
+        if element.var not in out:
+            out.append(element.var)
+    return out
+
+
+def _paired_by_dependencies(model: ModelInfo, states: _States
+                            ) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """Positions and velocities of first-order states whose derivatives are no aliases (FMI 3: ``der(mass.s)`` has
+    its own value reference), paired through the model structure: ``der(p)`` depends on exactly one other state
+    variable ``v`` (of p's shape), so ``p`` is a position and ``v`` its velocity.  None unless this splits every
+    state into such pairs."""
+    variables = _state_variables(states)
+    names = {v.name: v for v in variables}
+    der_of = {e.var.name: states.der[e.name].var.name for e in states.states}
+    pairs: dict[str, str] = {}
+    for var in variables:
+        deps = model.derivative_dependencies.get(der_of[var.name])
+        if deps and len(deps) == 1 and deps[0] in names and deps[0] != var.name and names[deps[0]].dims == var.dims:
+            pairs[var.name] = deps[0]
+    velocities = list(pairs.values())
+    if (not pairs or len(set(velocities)) != len(velocities) or set(pairs) & set(velocities)
+            or set(pairs) | set(velocities) != set(names)):
+        return None
+    by_var: dict[str, list[Element]] = {}
+    for element in states.states:
+        by_var.setdefault(element.var.name, []).append(element)
+    pos = [Column(e, e.sign) for name in pairs for e in by_var[name]]
+    vel = [Column(e, e.sign) for name in pairs for e in by_var[pairs[name]]]
+    return pos, vel, states.rate_columns(vel)
+
+
+def _unit_kind(element: Element) -> int | None:
+    unit = (element.var.unit or "").replace(" ", "")
+    return next((kind for kind, units in enumerate(_UNIT_KINDS) if unit in units), None)
+
+
+def _units_contradict_halves(states: _States) -> bool:
+    """True if declared units show that the states are not [positions; velocities] (a velocity unit among the
+    first half or a length unit among the second): the state vector goes body by body, for example."""
+    ordered = states.states
+    half = len(ordered) // 2
+    return (any(_unit_kind(e) == 1 for e in ordered[:half]) or any(_unit_kind(e) == 0 for e in ordered[half:]))
+
+
+def _paired_by_units(model: ModelInfo, states: _States
+                     ) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """States in length units paired with states in velocity units, in state order, when each pair's names differ
+    only after their last dot (``mass[2].s`` / ``mass[2].v``); None otherwise."""
+    pos = [e for e in states.states if _unit_kind(e) == 0]
+    vel = [e for e in states.states if _unit_kind(e) == 1]
+    if not pos or len(pos) != len(vel) or len(pos) + len(vel) != len(states.states):
+        return None
+    for p, v in zip(pos, vel):
+        if "." not in p.name or p.name.rsplit(".", 1)[0] != v.name.rsplit(".", 1)[0]:
+            return None
+    vel_columns = [Column(e, e.sign) for e in vel]
+    return [Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns)
+
+
 def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None]:
     """First-order states ``[positions; velocities]`` whose derivatives are not aliases."""
     ordered = states.states  # declaration order, array elements in index order
@@ -554,7 +672,7 @@ def _named(elements: dict[str, Element], pattern: str) -> list[Column]:
 
 def _is_signal(element: Element) -> bool:
     var = element.var
-    return var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
+    return not element.alias and var.is_real and var.variability == "continuous" and var.causality not in _PARAMETER_CAUSALITIES
 
 
 _TYPE_DEFINITION_TAGS = ("SimpleType", "Float64Type", "Float32Type", "RealType")
@@ -573,6 +691,8 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
     for piece in pieces:
         if _RANGE.search(piece):
             names = [n for n in _expand_range(piece) if n in set(signals)]
+        elif _array_elements(piece, elements) != [piece]:   # an FMI 3 array by its name: every element
+            names = _array_elements(piece, elements)
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
         else:
@@ -584,6 +704,16 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
                        f"(continuous-time variables: {examples}, ...; wildcards skip parameters); pass --{what} "
                        "with a matching pattern")
     return [elements[n] for n in found]
+
+
+def _array_elements(name: str, elements: dict[str, Element]) -> list[str]:
+    """``[name]``, or the elements ``name[1] .. name[n]`` when ``name`` is an FMI 3 array (or an alias of one)
+    rather than a variable of its own (``--outputs y`` for the array ``y``)."""
+    first = elements.get(f"{name}[1]")
+    if name in elements or first is None or not first.var.dims or any(c in name for c in "*?"):
+        return [name]   # not an array: FMI 2 scalars named F[1], F[2] stay separate variables
+    return [n for n, e in elements.items() if e.var is first.var and e.alias == first.alias
+            and n.startswith(name + "[")]
 
 
 def _expand_range(pattern: str) -> list[str]:
@@ -608,15 +738,19 @@ def show_patterns(patterns: str | Sequence[str]) -> str:
 # =============================================================================================
 
 
-def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None
-                  ) -> tuple[list[Element], list[Element]]:
+def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None,
+                  given: Collection[str] = ()) -> tuple[list[Element], list[Element]]:
     """Force inputs and the other inputs (held at their start or ``--set`` values).
 
-    Default: every real input of continuous variability is a force.  ``""``/``"none"``: no forces.
+    Default: every real input of continuous variability is a force, except inputs the user gives a value
+    (``given``: names of variables with a ``--set`` value) and inputs with a non-zero start value (parameters
+    exposed as inputs, shared/spec/real-fmus.md: driving them would change the model, or make it fail at 0);
+    those are held (:func:`parameter_like_inputs` names the second kind).  ``""``/``"none"``: no forces.
     """
-    inputs = [e for e in elements.values() if e.var.causality == "input"]
+    inputs = [e for e in elements.values() if e.var.causality == "input" and not e.alias]
     if patterns is None:
-        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"),
+        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"
+                         and e.var.name not in given and not nonzero_start(e)),
                         key=lambda e: natural_key(e.name))
     elif patterns.strip().lower() in ("", "none"):
         forces = []
@@ -625,7 +759,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         names: list[str] = []
         reals = [n for n, e in elements.items() if e.var.is_real]
         for piece in pieces:
-            expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+            expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
             names += [n for p in expanded for n in match_names(p, reals) if n not in names]
         if not names:
             available = [e.name for e in inputs]
@@ -636,21 +770,28 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
             raise FMUError(f"{bad[0]} has causality {elements[bad[0]].var.causality!r} in {model.label}, not "
                            "'input'; pass --inputs with input variables")
         forces = [elements[n] for n in names]
-    chosen = {e.name for e in forces}
-    return forces, sorted((e for e in inputs if e.name not in chosen), key=lambda e: natural_key(e.name))
+    chosen = {(e.var.vr, e.offset) for e in forces}   # an alias named in --inputs drives its variable
+    return forces, sorted((e for e in inputs if (e.var.vr, e.offset) not in chosen), key=lambda e: natural_key(e.name))
+
+
+def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
+    """Held inputs that the default selection would have driven but for their non-zero start value (and no
+    ``--set`` value): what the user is told about (:func:`fmu_opinf.sources.open_source`)."""
+    return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
+            and nonzero_start(e)]
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
     """Outputs: default every real output; patterns match real variables."""
     if patterns is None:
-        return sorted((e for e in elements.values() if e.var.causality == "output" and e.var.is_real),
+        return sorted((e for e in elements.values() if e.var.causality == "output" and e.var.is_real and not e.alias),
                       key=lambda e: natural_key(e.name))
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
     names: list[str] = []
     for piece in (p.strip() for p in patterns.split(",") if p.strip()):
-        expanded = _expand_range(piece) if _RANGE.search(piece) else [piece]
+        expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
         names += [n for p in expanded for n in match_names(p, reals) if n not in names]
     if not names:
         examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
