@@ -22,6 +22,7 @@ except ImportError:  # not on Windows
 import h5py
 import numpy as np
 
+from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
 __all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
@@ -68,6 +69,7 @@ def atomic_path(path: Path) -> Iterator[str]:
     try:
         with _terminate_as_exception():
             yield tmp
+            check_interrupt()  # a Ctrl-C that Python swallowed in a finalizer: do not replace the previous file
             os.chmod(tmp, output_mode(path))
             os.replace(tmp, path)
     except BaseException:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Sequence
 
 from . import __version__
+from ._interrupts import remembered_interrupts
 from .errors import FmuOpinfError, InputSpecError
 
 __all__ = ["main", "run", "build_parser"]
@@ -396,8 +397,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        _check_arguments(args)
-        _scaleout_dispatch(args) or _VERBS[args.verb](args)
+        with remembered_interrupts():  # a Ctrl-C swallowed in a finalizer is raised again at the next safe point
+            _check_arguments(args)
+            _scaleout_dispatch(args) or _VERBS[args.verb](args)
     except (FmuOpinfError, FileExistsError) as exc:
         print("fmu-opinf: error: " + " ".join(str(exc).split()), file=sys.stderr)  # one line, always
         return 2

@@ -11,13 +11,13 @@ import multiprocessing as mp
 import signal as _signal
 from collections.abc import Iterator
 from multiprocessing import shared_memory
-import threading
 import time as _time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._interrupts import check_interrupt, deferred_interrupts
 from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError
 
@@ -28,45 +28,6 @@ __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted
            "check_interrupt"]
 
 _SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
-_pending: list[int] = []  # signals received inside deferred_interrupts(), not yet acted on
-
-
-def check_interrupt() -> None:
-    """Raise :class:`Interrupted` if a signal arrived inside :func:`deferred_interrupts`."""
-    if _pending:
-        raise Interrupted(_pending[0])
-
-
-@contextlib.contextmanager
-def deferred_interrupts() -> Iterator[None]:
-    """Turn SIGINT and SIGTERM into a flag that :func:`check_interrupt` raises at safe points.
-
-    A KeyboardInterrupt raised at an arbitrary bytecode can land in an h5py weakref callback, where
-    Python swallows it, and SIGTERM's default action leaves temporary files behind.  Inside this
-    block the signal only sets a flag; the recording loop stops at the next block, the atomic writer
-    removes its temporary file and the caller sees :class:`Interrupted`.  A second signal of the same
-    kind acts at once.  Outside the main thread, or for a signal the process ignores, nothing changes.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        if signum in _pending:  # pressed twice: stop now
-            raise Interrupted(signum)
-        _pending.append(signum)
-
-    previous = {}
-    for signum in _SIGNALS:
-        if _signal.getsignal(signum) is not _signal.SIG_IGN:
-            previous[signum] = _signal.signal(signum, handler)
-    try:
-        yield
-        check_interrupt()
-    finally:
-        for signum, old in previous.items():
-            _signal.signal(signum, old)
-        _pending.clear()
 
 
 def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:

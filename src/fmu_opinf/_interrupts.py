@@ -1,0 +1,95 @@
+"""Ctrl-C and SIGTERM as exceptions at safe points, never lost.
+
+Python raises ``KeyboardInterrupt`` at an arbitrary bytecode.  When that bytecode belongs to a finalizer (a
+``ZipFile.__del__`` while an FMU's description is read, an h5py weakref callback), Python prints "Exception
+ignored" and goes on: the run continued to its end although the user pressed Ctrl-C.  Two mechanisms:
+
+* :func:`remembered_interrupts` (the command line, around a whole verb): SIGINT still raises at once, and is also
+  remembered; :func:`check_interrupt` raises it again at the next safe point, so a swallowed one is not lost;
+* :func:`deferred_interrupts` (around a recording or simulation loop): SIGINT and SIGTERM only set the flag, and
+  the loop stops at its next block.
+
+Safe points call :func:`check_interrupt`: every block of a recording and every atomic write before its rename
+(:func:`fmu_opinf._hdf5.atomic_path`), so an interrupted run never replaces the previous file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal as _signal
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+from .errors import Interrupted
+
+__all__ = ["check_interrupt", "deferred_interrupts", "remembered_interrupts"]
+
+_SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
+_pending: list[int] = []  # signals received and not yet acted on by check_interrupt
+
+
+def check_interrupt() -> None:
+    """Raise :class:`~fmu_opinf.errors.Interrupted` if a signal arrived and was not acted on."""
+    if _pending:
+        raise Interrupted(_pending[0])
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextlib.contextmanager
+def remembered_interrupts() -> Iterator[None]:
+    """SIGINT raises :class:`~fmu_opinf.errors.Interrupted` at once and stays pending for :func:`check_interrupt`
+    until the block ends (a raise that Python swallows in a finalizer is raised again at the next safe point).
+
+    Only in the main thread and when SIGINT is not ignored; otherwise nothing changes.
+    """
+    if not _in_main_thread() or _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN:
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if signum not in _pending:
+            _pending.append(signum)
+        raise Interrupted(signum)
+
+    previous = _signal.signal(_signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        _signal.signal(_signal.SIGINT, previous)
+        _pending.clear()
+
+
+@contextlib.contextmanager
+def deferred_interrupts() -> Iterator[None]:
+    """Turn SIGINT and SIGTERM into a flag that :func:`check_interrupt` raises at safe points.
+
+    A KeyboardInterrupt raised at an arbitrary bytecode can land in an h5py weakref callback, where
+    Python swallows it, and SIGTERM's default action leaves temporary files behind.  Inside this
+    block the signal only sets a flag; the recording loop stops at the next block, the atomic writer
+    removes its temporary file and the caller sees :class:`~fmu_opinf.errors.Interrupted`.  A second signal of
+    the same kind acts at once.  Outside the main thread, or for a signal the process ignores, nothing changes.
+    """
+    if not _in_main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        if signum in _pending:  # pressed twice: stop now
+            raise Interrupted(signum)
+        _pending.append(signum)
+
+    previous = {}
+    for signum in _SIGNALS:
+        if _signal.getsignal(signum) is not _signal.SIG_IGN:
+            previous[signum] = _signal.signal(signum, handler)
+    try:
+        yield
+        check_interrupt()
+    finally:
+        for signum, old in previous.items():
+            _signal.signal(signum, old)
+        _pending.clear()
