@@ -109,11 +109,46 @@ def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64,
     return out
 
 
-#: Orders above which the refinement works in the start's modal coordinates by default (module docstring).
-_WHITEN_ABOVE = 40
+#: Order from which on the refinement works in the start's modal coordinates by default (module docstring of
+#: :mod:`fmu_opinf.inference`; until 2026-11-25 it was above 40: r = 40 went from ratio 2.03 to 1.80).
+_WHITEN_FROM = 40
 
 #: Time steps per block of :func:`_propagate` in the refinement.
 _STRIDE = 64
+
+
+class _EquationResidual:
+    """The relative acceleration residual ``E = ||Xr'' + Mr^-1 (Dr Xr' + Kr Xr - Br U)||_F^2 / ||Xr''||_F^2`` of
+    eq. (16) in explicit form, measured in the data's given coordinates, and its gradient in the operators.
+
+    The data enter through the triangular factor ``R`` of ``[Xr''; Xr'; Xr; U]^T = Q R`` (no squared Gram
+    matrix: on the anchored chain the data are ill-conditioned).  ``weight`` is ``T`` of a change of coordinates
+    ``q_given = T q`` when the refinement works in other coordinates (the residual is then ``T`` times the one of
+    the transformed operators and data), else ``None``.
+    """
+
+    def __init__(self, xddot_r: np.ndarray, xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray,
+                 weight: np.ndarray | None = None) -> None:
+        self.R = np.linalg.qr(np.vstack([xddot_r, xdot_r, x_r, u]).T, mode="r")
+        given = xddot_r if weight is None else weight @ xddot_r
+        self.norm = max(float(np.sum(given * given)), 1e-300)
+        self.weight = weight
+
+    def value_and_gradients(self, Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray,
+                            Br: np.ndarray) -> tuple[float, tuple[np.ndarray, ...]]:
+        """``E`` and its gradients in ``Mr, Dr, Kr, Br``."""
+        r = Mr.shape[0]
+        Q = np.hstack([Dr, Kr, -Br])
+        P = np.hstack([np.eye(r), np.linalg.solve(Mr, Q)])  # [I, Mr^-1 Dr, Mr^-1 Kr, -Mr^-1 Br]
+        res = P @ self.R.T
+        if self.weight is not None:
+            res = self.weight @ res
+        value = float(np.sum(res * res)) / self.norm
+        back = res if self.weight is None else self.weight.T @ res
+        gP = 2.0 * (back @ self.R) / self.norm
+        gQ = np.linalg.solve(Mr.T, gP[:, r:])
+        gM = -gQ @ P[:, r:].T  # d(Mr^-1 Q) = -Mr^-1 dMr (Mr^-1 Q)
+        return value, (gM, gQ[:, :r], gQ[:, r:2 * r], -gQ[:, 2 * r:])
 
 
 @dataclass
@@ -130,6 +165,8 @@ class _Trajectories:
     free_output_map: bool = False  # C re-fitted to each simulation by least squares (variable projection)
     integrator: str = "newmark"  # the step simulated: classical Newmark or the exact hold step
     state_weight: float = 0.0  # weight of the relative state error next to the output error
+    equation: _EquationResidual | None = None  # the acceleration residual of eq. (16), for equation_weight
+    equation_weight: float = 0.0  # exponent of the acceleration residual in the log objective
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -166,6 +203,24 @@ class _Trajectories:
                  for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
         return value, np.concatenate(grads + [(gB / su).ravel()])
 
+
+    def log_loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray, float, float]:
+        """``log J + w log E`` (``J`` of :meth:`loss`, ``E`` the acceleration residual, ``w`` the
+        ``equation_weight``) and its gradient, then ``J`` and ``E``: invariant to a common scale of either."""
+        value, grad = self.loss(params, r, m)
+        factors, Bs = _split_factors(params, r, m)
+        columns = np.ones((3, r)) if self.columns is None else self.columns
+        Ls = [L * c for L, c in zip(factors, columns)]
+        sa, sv, sx, su = self.scales
+        E, (gM, gD, gK, gB) = self.equation.value_and_gradients(*(L @ L.T / s for L, s in zip(Ls, (sa, sv, sx))),
+                                                                  Bs / su)
+        grads = [(((g + g.T) @ L) * c / scale).ravel()
+                 for g, L, c, scale in zip((gM, gD, gK), Ls, columns, (sa, sv, sx))]
+        w = self.equation_weight
+        if not (value > 0 and E > 0):
+            return float("inf"), np.zeros_like(grad), value, E
+        grad_E = np.concatenate(grads + [(gB / su).ravel()])
+        return float(np.log(value) + w * np.log(E)), grad / value + w * grad_E / E, value, E
 
     def _state_scaling(self, r: int) -> tuple[np.ndarray, float]:
         """Row scales of the state error (positions and velocities each by their RMS) and its weight ``mu``, so
@@ -337,19 +392,46 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
 def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int, m: int, max_iterations: int,
                window: int, rtol: float, report: dict[str, Any]) -> np.ndarray:
     """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (L-BFGS-B's
-    stopping tests are absolute below 1); fills ``report`` and returns the last iterate."""
+    stopping tests are absolute below 1), or with ``problem.equation_weight`` on ``log(J / J0) + w log(E / E0)``
+    (:meth:`_Trajectories.log_loss`); fills ``report`` (``objective`` and ``history`` are the output error
+    ``J`` either way) and returns the last iterate."""
     import scipy.optimize
 
     history = [1.0]
     stop = _Stagnation(history, window, rtol)
-    result = scipy.optimize.minimize(lambda p: tuple(v / value0 for v in problem.loss(p, r, m)), start,
-                                     jac=True, method="L-BFGS-B", callback=stop,
+    if problem.equation_weight > 0:
+        recent: list[tuple[np.ndarray, float, float]] = []  # (params, J, E) of the last evaluations
+        shift, _, _, equation0 = problem.log_loss(start, r, m)
+
+        def fun(p: np.ndarray) -> tuple[float, np.ndarray]:
+            value, grad, J, E = problem.log_loss(p, r, m)
+            recent.append((p.copy(), J, E))
+            del recent[:-4]
+            return value - shift, grad
+
+        def output_error(p: np.ndarray) -> float:
+            for q, J, _ in reversed(recent):
+                if np.array_equal(q, p):
+                    return J
+            return problem.loss(p, r, m)[0]
+
+        stop.transform = lambda result: output_error(result.x) / value0
+    else:
+        def fun(p: np.ndarray) -> tuple[float, np.ndarray]:
+            return tuple(v / value0 for v in problem.loss(p, r, m))
+
+    result = scipy.optimize.minimize(fun, start, jac=True, method="L-BFGS-B", callback=stop,
                                      options={"maxiter": max_iterations, "maxcor": 100, "ftol": 1e-13,
                                               "gtol": 1e-12})
     if problem.free_output_map:
         problem.loss(result.x, r, m)  # leaves problem.C at the map of the final iterate
     status = "stagnated" if stop.stopped else ("converged" if result.success else "iteration limit")
-    report.update(objective=float(result.fun) * value0, iterations=int(result.nit), evaluations=int(result.nfev),
+    objective = float(result.fun) * value0
+    if problem.equation_weight > 0:
+        objective = output_error(result.x)
+        equation = problem.log_loss(result.x, r, m)[3]
+        report["acceleration_residual"] = (float(np.sqrt(equation0)), float(np.sqrt(equation)))
+    report.update(objective=objective, iterations=int(result.nit), evaluations=int(result.nfev),
                   status=status, history=np.asarray(history) * value0)
     return result.x
 
@@ -360,9 +442,11 @@ class _Stagnation:
 
     def __init__(self, history: list[float], window: int, rtol: float) -> None:
         self.history, self.window, self.rtol, self.stopped = history, int(window), float(rtol), False
+        self.transform = None  # the recorded objective from L-BFGS's intermediate result (default: its fun)
 
     def __call__(self, intermediate_result: Any) -> None:
-        self.history.append(float(intermediate_result.fun))
+        value = intermediate_result.fun if self.transform is None else self.transform(intermediate_result)
+        self.history.append(float(value))
         if self.rtol > 0 and len(self.history) > 2 * self.window:
             if self.history[-1 - self.window] <= (1.0 + self.rtol) * self.history[-1]:
                 self.stopped = True
@@ -386,7 +470,7 @@ def refine_output_error(
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
-    state_weight: float = 0.0,
+    state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -418,8 +502,8 @@ def refine_output_error(
         Units of the factors: ``Mr = LM LM^T / s[0]``, ``Dr = ... / s[1]``, ``Kr = ... / s[2]``, ``Br = Bs / s[3]``
         (:func:`fit_operators` passes the block scales of the SDP); default ones.
     whiten : {"auto", True, False}, default="auto"
-        Refine in the start's modal coordinates (module docstring); ``"auto"``: above r = 40, where it reached the
-        goal at r = 55 / 60 and the plain coordinates did not.
+        Refine in the start's modal coordinates (module docstring); ``"auto"``: from r = 40 on, where it reached
+        the goal at r = 40 / 55 / 60 and the plain coordinates did not.
     rtol, window : float, int, default=0.0, 25
         Stagnation stop: L-BFGS ends once the objective fell by less than a factor ``1 + rtol`` over the last
         ``window`` iterations, tested from iteration ``2 window`` on; ``rtol=0`` (default) runs the full budget
@@ -441,6 +525,15 @@ def refine_output_error(
         and velocities each scaled by their RMS) beside the relative output error; 0 (default) fits the outputs
         alone.  Measured with 1e-5 and not made the default (module docstring of :mod:`fmu_opinf.inference`,
         *State-error term*).  The polish's Jacobian is that of the outputs alone.
+    equation_weight : float, default=0
+        ``w > 0`` minimizes ``log J + w log E`` instead of the output error ``J``, with ``E`` the relative
+        acceleration residual ``||Xr'' + Mr^-1 (Dr Xr' + Kr Xr - Br U)||_F^2 / ||Xr''||_F^2`` of eq. (16) in the
+        data's coordinates (needs ``xddot_r``): a 10x larger equation residual must buy a ``10^w`` times smaller
+        output error.  Invariant to the units of both terms.  Measured and not made the default (module docstring
+        of :mod:`fmu_opinf.inference`, *Candidates against the swing*).  Not with ``refit_output_map``; the
+        polish's Jacobian is that of the outputs alone.
+    xddot_r : (r, k) ndarray, optional
+        Reduced accelerations of the runs, for ``equation_weight``.
 
     Returns
     -------
@@ -451,7 +544,7 @@ def refine_output_error(
         ``"stagnated"``, ``"iteration limit"`` or ``"kept start"``), ``history`` (objective after each L-BFGS
         iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map`` (``(Cpr, Cvr)``, when
         refitted) and, when polishing, ``polish`` (objective and damping of each accepted Levenberg-Marquardt
-        step).
+        step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and at the end).
     """
     t0 = time.perf_counter()
     r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
@@ -459,6 +552,10 @@ def refine_output_error(
     if polish_iterations and integrator != "newmark":
         raise ValueError("polish_iterations needs the Newmark step (its Jacobian models Newmark)")
     lengths = _run_lengths(run_lengths, k, dt)
+    if equation_weight and (xddot_r is None or refit_output_map):
+        raise ValueError("equation_weight needs xddot_r and a fixed output map (refit_output_map=False)")
+    if not equation_weight >= 0:
+        raise ValueError(f"equation_weight={equation_weight} must be >= 0")
     Cpr, Cvr = _output_map(output_map, xdot_r, x_r, y)
     scale_y = float(np.linalg.norm(y)) or 1.0
     scales = np.ones(4) if unit_scales is None else np.asarray(unit_scales, dtype=float)
@@ -466,15 +563,19 @@ def refine_output_error(
     if whiten not in ("auto", True, False):
         raise ValueError(f"whiten={whiten!r} is not known; use 'auto', True or False")
     if whiten == "auto":
-        whiten = r > _WHITEN_ABOVE and np.linalg.eigvalsh(0.5 * (Mr + Mr.T))[0] > 0
+        whiten = r >= _WHITEN_FROM and np.linalg.eigvalsh(0.5 * (Mr + Mr.T))[0] > 0
     if whiten:
         T, T_inv, columns = _modal_coordinates(Mr, Dr, Kr)
         scales = np.ones(4)
         Mr, Dr, Kr, Br = T.T @ Mr @ T, T.T @ Dr @ T, T.T @ Kr @ T, T.T @ Br
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
+        xddot_r = None if xddot_r is None else T_inv @ xddot_r
     problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
     problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
     problem.state_weight = float(state_weight)
+    if equation_weight:
+        problem.equation = _EquationResidual(xddot_r, xdot_r, x_r, u, T if whiten else None)
+        problem.equation_weight = float(equation_weight)
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]
                            + [(Br * scales[3]).ravel()])
