@@ -275,3 +275,34 @@ def test_equation_weight_refines_towards_the_true_system_and_reports_the_residua
     assert report["history"][-1] == pytest.approx(report["objective"])
     with pytest.raises(ValueError, match="xddot_r"):
         refine_output_error(*start, xd, x, u, y, 0.1, equation_weight=0.1, **common)
+
+
+@pytest.mark.parametrize("progress", [True, False])
+def test_refinement_shows_labelled_progress_on_a_terminal_only_when_asked(monkeypatch, progress):
+    """``progress=True`` (what ``fmu-opinf fit`` passes unless ``-q``) draws the iterations on a terminal; the
+    bar's count ends at the iterations the report gives."""
+    import io
+
+    from fmu_opinf import _progress, refinement
+    from fmu_opinf.inference import refine_output_error
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(_progress.sys, "stderr", terminal)
+    monkeypatch.setattr(refinement, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
+                                                                                           delay=0.0))
+    rng = np.random.default_rng(3)
+    (M, D, K, B, Cp), runs = _two_runs(rng)
+    x, v, u, y = (np.hstack([getattr(run, name) for run in runs]) for name in ("x", "xdot", "u", "y"))
+    start = [A + 0.05 * _spd(rng, 3, 0.0) for A in (M, D, K)] + [B * 1.05]
+    *_, report = refine_output_error(*start, v, x, u, y, 0.1, output_map=(Cp, np.zeros_like(Cp)),
+                                     run_lengths=[run.t.size for run in runs], max_iterations=30, progress=progress)
+    if not progress:
+        assert terminal.getvalue() == ""
+        return
+    assert "output-error refinement (L-BFGS iterations)" in terminal.getvalue()
+    assert terminal.getvalue().endswith("\n") and "30/30" in terminal.getvalue().splitlines()[-1]
+    assert report["iterations"] <= 30

@@ -620,6 +620,7 @@ def fit_operators(
     least_squares_candidate: bool = True,
     integrator: str = "newmark",
     equation_weight: float | None = None,
+    progress: bool = False,
 ) -> OperatorFit:
     """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
 
@@ -684,6 +685,8 @@ def fit_operators(
         Exponent ``w`` of the acceleration residual in the refinement's objective ``log J + w log E`` (module
         docstring, *Candidates against the swing*); default :data:`EQUATION_WEIGHT` (0: the output error alone);
         not with ``refit_output_map``.
+    progress : bool, default=False
+        Labelled progress bar of the refinement's iterations on a terminal (:func:`refine_output_error`).
 
     Returns
     -------
@@ -731,7 +734,7 @@ def fit_operators(
                 Mr, Dr, Kr, Br, xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), output_map=output_map,
                 run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
                 unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
-                equation_weight=_equation_weight(equation_weight, refit_output_map))
+                equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress)
             refitted_map = info["refinement"].pop("refitted_map", None)
         if candidate:
             training = (xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), run_lengths, integrator)

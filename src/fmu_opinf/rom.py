@@ -822,7 +822,7 @@ def fit_rom(
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
                         refit_output_map=refit_output_map, least_squares_candidate=least_squares_candidate,
-                        **refinement)
+                        progress=not quiet, **refinement)
     if ops.output_map is not None:
         Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
