@@ -618,3 +618,35 @@ def test_ctrl_c_swallowed_by_a_finalizer_still_stops_the_run(tmp_path):
                 f["x"] = 1.0
     assert reached and target.read_bytes() == b"previous"
     assert list(tmp_path.iterdir()) == [target]
+
+
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # the swallowed first raise
+def test_ctrl_c_swallowed_before_an_fmu_is_written_keeps_the_previous_fmu(tmp_path):
+    """The same for the FMU archives that export and build-fmus write, and for a block that ends without
+    another safe point: the command still ends interrupted."""
+    import signal as _signal
+
+    from fmu_opinf import fmus
+    from fmu_opinf._interrupts import remembered_interrupts
+    from fmu_opinf.errors import Interrupted
+
+    class Finalized:
+        def __del__(self):
+            os.kill(os.getpid(), _signal.SIGINT)
+            for _ in range(1000):
+                pass
+
+    unzipped = tmp_path / "unzipped"
+    unzipped.mkdir()
+    (unzipped / "modelDescription.xml").write_text("<fmiModelDescription/>")
+    target = tmp_path / "out" / "model.fmu"
+    target.parent.mkdir()
+    target.write_bytes(b"previous")
+    with pytest.raises(Interrupted):
+        with remembered_interrupts():
+            Finalized()
+            fmus._write_zip(unzipped, target)
+    assert target.read_bytes() == b"previous" and list(target.parent.iterdir()) == [target]
+    with pytest.raises(Interrupted):
+        with remembered_interrupts():
+            Finalized()  # no safe point after it in the block: its end raises

@@ -9,8 +9,10 @@ ignored" and goes on: the run continued to its end although the user pressed Ctr
 * :func:`deferred_interrupts` (around a recording or simulation loop): SIGINT and SIGTERM only set the flag, and
   the loop stops at its next block.
 
-Safe points call :func:`check_interrupt`: every block of a recording and every atomic write before its rename
-(:func:`fmu_opinf._hdf5.atomic_path`), so an interrupted run never replaces the previous file.
+Safe points call :func:`check_interrupt`: every block of a recording, every atomic write before its rename
+(:func:`fmu_opinf._hdf5.atomic_path`, the FMU archives of :mod:`fmu_opinf.fmus`, the run files of
+:mod:`fmu_opinf.runs`) and the end of the command, so an interrupted run never replaces the previous file and
+never exits 0.
 """
 
 from __future__ import annotations
@@ -58,6 +60,7 @@ def remembered_interrupts() -> Iterator[None]:
     previous = _signal.signal(_signal.SIGINT, handler)
     try:
         yield
+        check_interrupt()  # swallowed in a finalizer after the last safe point: the run still ends interrupted
     finally:
         _signal.signal(_signal.SIGINT, previous)
         _pending.clear()

@@ -44,7 +44,7 @@ class Progress:
         """Finish the line if anything was drawn."""
         if self._drawn:
             self._last_draw = 0.0  # the final state is drawn even right after another draw
-            self.update(self.total)
+            self.update(self.done)
             sys.stderr.write("\n")
             sys.stderr.flush()
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from ._interrupts import check_interrupt
 from .errors import FMUError
 
 __all__ = [
@@ -752,6 +753,7 @@ def _write_zip(unzipdir: Path, path: Path) -> None:
             for file in sorted(unzipdir.rglob("*")):
                 if file.is_file():
                     archive.write(file, file.relative_to(unzipdir).as_posix())
+        check_interrupt()  # a Ctrl-C swallowed in a finalizer: the previous FMU stays
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:

@@ -40,6 +40,7 @@ from typing import Any, Callable, Iterator, Sequence
 
 import h5py
 
+from ._interrupts import check_interrupt
 from .errors import FmuOpinfError, InputSpecError
 
 __all__ = [
@@ -419,6 +420,7 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
         return RunOutcome(row.number, row.name, "failed", None, 0, seconds, error, _worker_name(), cpu)
     k = _stamp_file(partial, stamp)
     target = failed if error else final
+    check_interrupt()  # a Ctrl-C swallowed in an h5py finalizer: the row's previous result stays
     os.replace(partial, target)
     error = error.replace(str(partial), str(target))
     (final if error else failed).unlink(missing_ok=True)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._interrupts import check_interrupt, deferred_interrupts
+from .._interrupts import _SIGNALS, check_interrupt, deferred_interrupts
 from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError
 
@@ -26,8 +26,6 @@ if TYPE_CHECKING:
 
 __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted", "deferred_interrupts",
            "check_interrupt"]
-
-_SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
 
 
 def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
