@@ -62,7 +62,7 @@ def test_recorded_units_reach_the_xml_only_as_plain_unit_names():
 
     from fmu_opinf.export import _position_unit
 
-    snapshots = {"input_units": ['N"/><Evil x="'], "output_units": ["m/s2"], "position_unit": "<m>"}
+    snapshots = {"input_units": ['N"/><Evil x="'], "output_units": ["m/s2"], "position_unit": "m\n"}
     spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
     assert spec.input_units == [""] and spec.output_units == ["m/s2"]
     assert _position_unit({"snapshots": snapshots}) == "" and _position_unit({"snapshots": {"position_unit": "m"}}) == "m"
@@ -70,3 +70,21 @@ def test_recorded_units_reach_the_xml_only_as_plain_unit_names():
     assert xml.count('unit="m/s2"') == 1 and '<Unit name="m/s2"/>' in xml and "Evil" not in xml
     wrong_count = rom_fmu_spec(_rom(provenance={"snapshots": {"output_units": ["m", "m"]}}), "Units")
     assert wrong_count.output_units == [""]
+
+
+@pytest.mark.parametrize("step, problem", [(1e300, r"more than 1e\+06 times away"), (1e-300, r"between 1e-07 and"),
+                                           (float("nan"), "not a positive number")])
+def test_export_step_out_of_range_is_one_line(step, problem):
+    """``export --step`` far from the training step: one line (an overflowing step map was a traceback)."""
+    from fmu_opinf.errors import DataError
+
+    with pytest.raises(DataError, match=problem):
+        rom_fmu_spec(_rom(integrator="exact"), "Steps", step=step)
+
+
+def test_default_experiment_stops_on_a_whole_number_of_steps():
+    """The stop time is the training horizon rounded down to the export step (an importer's last step would
+    otherwise be refused): 30 s at step 0.07 -> 428 steps."""
+    spec = rom_fmu_spec(_rom(provenance={"t_train_end": 30.0}, integrator="exact"), "Stops", step=0.07)
+    start, stop, step = spec.default_experiment
+    assert step == 0.07 and stop == pytest.approx(428 * 0.07, rel=1e-15)

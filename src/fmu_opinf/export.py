@@ -23,6 +23,7 @@ attribute quoting function, and text with control characters is refused.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import warnings
@@ -219,7 +220,10 @@ def _modal_matrices(rom: Any, c_matrices: dict[str, np.ndarray], dt: float | Non
     Br = c_matrices["reducedInput"]
     forced = np.hstack([Br, c_matrices["reducedForce"].reshape(r, 1)])
     if getattr(rom, "integrator", "newmark") == "exact":
-        phi, gamma = rom.step_map(dt)
+        try:
+            phi, gamma = rom.step_map(dt)
+        except (ValueError, np.linalg.LinAlgError):
+            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
     else:
         M, D, K = (c_matrices[name] for name in ("reducedMass", "reducedDamping", "reducedStiffness"))
         phi, gamma_new, gamma_old = step_matrices(M, D, K, forced, dt)
@@ -373,10 +377,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     if dt is not None and not (np.isfinite(dt) and dt > 0):
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
     if step is not None:
-        step = float(step)
-        if not (np.isfinite(step) and step > 0):
-            raise DataError(f"export step {step} is not a positive number; give the communication step in seconds")
-        dt = step
+        dt = _export_step(float(step), dt)
     _check_definite(matrices, dt)
     names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     extra = {"fr": _vector(rom, "fr", r), "y0": _vector(rom, "y0", p), "q0": _vector(rom, "q0", r),
@@ -395,6 +396,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     input_units, output_units = _declared_units(provenance, m, p)
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
+    if stop is not None and dt is not None:  # a whole number of steps: an importer's last step is not refused
+        stop = dt * max(1, math.floor(stop / dt + 1e-9))
     output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
                            + [f"reconstructed full-order position {name}: " + _reconstruction_formula(rom)
                               for name in names])
@@ -411,7 +414,10 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     if getattr(rom, "integrator", "newmark") == "exact":
         if dt is None:
             raise DataError("an exact-integrator ROM needs its training step dt; refit the ROM")
-        phi, gamma = rom.step_map(dt)
+        try:
+            phi, gamma = rom.step_map(dt)
+        except (ValueError, np.linalg.LinAlgError):
+            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
         c_matrices.update(stepMap=phi, stepMapInput=gamma, stepMapSize=np.array([dt]))
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
     return SecondOrderFmuSpec(
@@ -427,12 +433,27 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     )
 
 
+#: ``export --step`` within this factor of the training step (either way): beyond, the step map over- or
+#: underflows, or an importer's step needs more than a billion ROM steps.
+_STEP_RANGE = 1e6
+
+
+def _export_step(step: float, dt: float | None) -> float:
+    """The communication step of ``export --step``, checked against the ROM's training step ``dt``."""
+    if not (np.isfinite(step) and step > 0):
+        raise DataError(f"export step {step} is not a positive number; give the communication step in seconds")
+    if dt is not None and not dt / _STEP_RANGE <= step <= dt * _STEP_RANGE:
+        raise DataError(f"export step {step:g} is more than {_STEP_RANGE:g} times away from the ROM's training "
+                        f"step {dt:g}; give a step between {dt / _STEP_RANGE:g} and {dt * _STEP_RANGE:g}")
+    return step
+
+
 def _units(value: Any, count: int) -> list[str]:
     """A recorded unit list if it is one unit name (or "") per variable, else no units; provenance is data, so
     anything but a plain unit name is dropped (``fmus.UNIT_PATTERN``)."""
     if not isinstance(value, list) or len(value) != count:
         return [""] * count
-    return [u if isinstance(u, str) and UNIT_PATTERN.match(u) else "" for u in value]
+    return [u if isinstance(u, str) and UNIT_PATTERN.fullmatch(u) else "" for u in value]
 
 
 def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[str]]:

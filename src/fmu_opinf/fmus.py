@@ -62,7 +62,7 @@ _CONSTRAINT_CODES = {None: 0, "position": 1, "velocity": 2}
 _STRUCTURED_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
                               r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*$")
 #: what a unit name in a generated model description may hold (FMI unit names: ``m/s2``, ``N.m``, ``rad/s``)
-UNIT_PATTERN = re.compile(r"^[A-Za-z0-9_./*^()%+\-]{1,40}$")
+UNIT_PATTERN = re.compile(r"[A-Za-z0-9_./*^()%+\-]{1,40}")  # whole names only: fullmatch
 
 
 class FmuBuildError(FMUError):
@@ -208,7 +208,7 @@ class SecondOrderFmuSpec:
                 raise FmuBuildError(f"got {len(units)} {what} units for {count} {what}s; give one unit each "
                                     "(an empty string for none)")
             for unit in units:
-                if not isinstance(unit, str) or (unit and not UNIT_PATTERN.match(unit)):
+                if not isinstance(unit, str) or (unit and not UNIT_PATTERN.fullmatch(unit)):
                     raise FmuBuildError(f"{what} unit {unit!r} is not a unit name (letters, digits and "
                                         "'._/*^()%+-', at most 40); give a unit such as 'm/s2' or none")
 
