@@ -408,3 +408,36 @@ def test_a_bare_name_is_no_array_in_fmi2(tmp_path):
     with pytest.raises(FMUError, match=r"input 'F' is not a real variable .*its inputs: F\[1\], F\[2\]"):
         resolve_variables(path, inputs="F")
     assert _names(resolve_variables(path, inputs="F[*]").forces) == ["F[1]", "F[2]"]
+
+
+def test_wildcards_take_each_value_once_and_an_alias_named_with_its_variable_is_refused(tmp_path):
+    """A wildcard matches variables under their own names only (an <Alias> is the same value): 'F*,f*' drives F
+    once (before: m = 2, two training signals written to one input), '*' lists y once; naming an input and its
+    alias is one line."""
+    path = _write(tmp_path, fmi3_aliases())
+    assert _names(resolve_variables(path, inputs="F*,f*").forces) == ["F"]
+    outputs = _names(resolve_variables(path, outputs="y*,s*").outputs)
+    assert outputs == ["y[1]", "y[2]"]
+    with pytest.raises(FMUError, match=r"--inputs names force and F, the same input .* name it once"):
+        resolve_variables(path, inputs="F,force")
+
+
+def test_held_inputs_are_told_apart_by_type_as_well_as_value_reference(tmp_path):
+    """FMI 2 value references are unique per base type: an Integer input with the vr of the Real force is still
+    held (and recorded as held), not taken for the force."""
+    v = [_sv("F", 0, "input", body='<Real start="0"/>'), _sv("mode", 0, "input", "discrete", '<Integer start="1"/>'),
+         _sv("x[1]", 3), _sv("v[1]", 4)]
+    resolved = resolve_variables(_write(tmp_path, _fmi2(v, [])), inputs="F")
+    assert _names(resolved.forces) == ["F"] and _names(resolved.held) == ["mode"]
+
+
+def test_a_bare_name_of_a_two_dimensional_array_selects_its_real_elements(tmp_path):
+    """``--outputs Y`` for an FMI 3 array with two <Dimension>s: its elements Y[i,j] (before: matched nothing)."""
+    xml = fmi3_aliases().replace(
+        '<Float64 name="y" valueReference="2" causality="output" variability="continuous" unit="m">'
+        '<Dimension start="2"/><Alias name="sensors"/></Float64>',
+        '<Float64 name="y" valueReference="2" causality="output" variability="continuous" unit="m">'
+        '<Dimension start="2"/><Dimension start="2"/><Alias name="sensors"/></Float64>')
+    path = _write(tmp_path, xml)
+    assert _names(resolve_variables(path, outputs="y").outputs) == ["y[1,1]", "y[1,2]", "y[2,1]", "y[2,2]"]
+    assert _names(resolve_variables(path, outputs="sensors").outputs)[0] == "sensors[1,1]"

@@ -707,13 +707,35 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
 
 
 def _array_elements(name: str, elements: dict[str, Element]) -> list[str]:
-    """``[name]``, or the elements ``name[1] .. name[n]`` when ``name`` is an FMI 3 array (or an alias of one)
-    rather than a variable of its own (``--outputs y`` for the array ``y``)."""
-    first = elements.get(f"{name}[1]")
-    if name in elements or first is None or not first.var.dims or any(c in name for c in "*?"):
-        return [name]   # not an array: FMI 2 scalars named F[1], F[2] stay separate variables
-    return [n for n, e in elements.items() if e.var is first.var and e.alias == first.alias
-            and n.startswith(name + "[")]
+    """``[name]``, or the real elements ``name[1] .. name[n]`` (``name[i,j]`` for more dimensions) when ``name`` is
+    an FMI 3 array (or an alias of one) rather than a variable of its own (``--outputs y`` for the array ``y``)."""
+    if name in elements or any(c in name for c in "*?"):
+        return [name]
+    members = [n for n, e in elements.items() if e.var.dims and e.var.is_real and n.startswith(name + "[")
+               and n[len(name) + 1:-1].replace(",", "").isdigit() and n.endswith("]")]
+    # not an array: FMI 2 scalars named F[1], F[2] stay separate variables (they have no dims)
+    return members or [name]
+
+
+def _selected_names(pieces: Sequence[str], elements: dict[str, Element]) -> list[str]:
+    """Names the ``--inputs`` / ``--outputs`` pieces select: an exact name (or an alias) any real variable, a
+    wildcard only variables under their own names (an FMI 3 ``<Alias>`` is the same value: taken once), ranges
+    and array names their real elements."""
+    reals = [n for n, e in elements.items() if e.var.is_real]
+    own = [n for n in reals if not elements[n].alias]
+    names: list[str] = []
+    for piece in pieces:
+        expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
+        for p in expanded:
+            exact = p in elements and elements[p].var.is_real   # element names may hold commas: y[1,2]
+            hits = [p] if exact else match_names([p], own if ("*" in p or "?" in p) else reals)
+            names += [n for n in hits if n not in names]
+    return names
+
+
+def _value_key(element: Element) -> tuple[str, int, int]:
+    """What one value is behind its names: FMI 2 value references are unique per base type only."""
+    return element.var.type, element.var.vr, element.offset
 
 
 def _expand_range(pattern: str) -> list[str]:
@@ -755,12 +777,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     elif patterns.strip().lower() in ("", "none"):
         forces = []
     else:
-        pieces = [p.strip() for p in patterns.split(",") if p.strip()]
-        names: list[str] = []
-        reals = [n for n, e in elements.items() if e.var.is_real]
-        for piece in pieces:
-            expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
-            names += [n for p in expanded for n in match_names(p, reals) if n not in names]
+        names = _selected_names([p.strip() for p in patterns.split(",") if p.strip()], elements)
         if not names:
             available = [e.name for e in inputs]
             raise FMUError(f"input {show_patterns(patterns)} is not a real variable of {model.label} "
@@ -770,8 +787,20 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
             raise FMUError(f"{bad[0]} has causality {elements[bad[0]].var.causality!r} in {model.label}, not "
                            "'input'; pass --inputs with input variables")
         forces = [elements[n] for n in names]
-    chosen = {(e.var.vr, e.offset) for e in forces}   # an alias named in --inputs drives its variable
-    return forces, sorted((e for e in inputs if (e.var.vr, e.offset) not in chosen), key=lambda e: natural_key(e.name))
+        _refuse_twice(forces, model)
+    chosen = {_value_key(e) for e in forces}   # an alias named in --inputs drives its variable
+    return forces, sorted((e for e in inputs if _value_key(e) not in chosen), key=lambda e: natural_key(e.name))
+
+
+def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
+    """One line if two names of ``--inputs`` are the same input value (an alias and its variable): two training
+    signals would be written to one input."""
+    seen: dict[tuple[str, int, int], str] = {}
+    for e in forces:
+        if _value_key(e) in seen:
+            raise FMUError(f"--inputs names {e.name} and {seen[_value_key(e)]}, the same input of {model.label} "
+                           "(an alias); name it once")
+        seen[_value_key(e)] = e.name
 
 
 def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
@@ -789,10 +818,7 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
-    names: list[str] = []
-    for piece in (p.strip() for p in patterns.split(",") if p.strip()):
-        expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
-        names += [n for p in expanded for n in match_names(p, reals) if n not in names]
+    names = _selected_names([p.strip() for p in patterns.split(",") if p.strip()], elements)
     if not names:
         examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
         raise FMUError(f"outputs pattern {show_patterns(patterns)} matches no real variable of {model.label} "
