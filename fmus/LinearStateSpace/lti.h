@@ -82,8 +82,8 @@ struct LtiInstance {
 extern const char *const LTI_INSTANTIATION_TOKEN;
 extern const int LTI_CS_METHOD;
 extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
-extern const int LTI_X_FOLLOWS_Q;
-extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
+extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
+extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */
 extern const size_t LTI_N_SLOTS;
 extern const LtiSlot LTI_SLOTS[];
 extern const double LTI_PAR_DEFAULTS[2];

@@ -4,6 +4,10 @@ The matrices of a reduced model are small (a few hundred rows at most): a second
 idle machine and collapses under oversubscription (measured: a 400-step ROM simulation at r = 36 took 1.4 ms
 with one thread and 8-20 ms with two on a shared 2-core machine; inside the demo, where a C compiler and a second
 model run beside it, 170 ms).  With one thread the results also do not depend on the machine's thread count.
+
+threadpoolctl's limits are process-wide: two threads of one process entering and leaving them at once can leave
+the pools at one thread (slower afterwards, never wrong).  The command line and the demo enter them from one
+thread only; a library user running ROM simulations in a thread pool can hold one limit around the whole pool.
 """
 
 from __future__ import annotations

@@ -476,6 +476,7 @@ import scipy.linalg
 
 from .errors import DataError, DimensionError, FmuOpinfWarning
 from ._realization import first_order_matrix, mechanical_realization
+from ._threads import single_threaded
 from ._sdp_paths import factored_start, fit_compressed, fit_factored, input_matrix, solve_sdp_direct
 from .refinement import newmark_step_map, output_error_objective, refine_output_error
 
@@ -711,7 +712,7 @@ def fit_operators(
         raise ValueError(f"mass_trace={mass_trace} must be positive")
     t0 = time.perf_counter()
     refitted_map = coordinates = None
-    with _single_threaded():
+    with single_threaded():  # module docstring, *Threads*
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
         if compressed:
             if factored_start(solver, r, refine, method):
@@ -867,13 +868,6 @@ def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None
     if available and not np.all(np.isfinite(np.asarray(y, dtype=float))):
         raise DataError("y contains NaN/Inf; check the snapshot outputs")
     return bool(refine) and available
-
-
-def _single_threaded() -> Any:
-    """Limit BLAS/OpenMP pools to one thread for the fit's small dense kernels (module docstring, *Threads*)."""
-    from ._threads import single_threaded
-
-    return single_threaded()
 
 
 def _report_status(info: dict) -> None:

@@ -174,7 +174,7 @@ def _warn_parameter_like(source: Source) -> None:
         return
     _PARAMETER_LIKE_REPORTED.add(key)
     shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
-    drive = ",".join(forces + held[:6])
+    drive = ",".join(forces + held)
     warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: input(s) {shown} start at non-zero values "
                   "(parameters exposed as inputs?) and are held at them, not driven"
                   f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
