@@ -72,3 +72,18 @@ def bench():
     sys.modules[spec.name] = module  # its dataclass needs the module registered
     spec.loader.exec_module(module)
     return module
+
+
+def build_fmu_set(request, tmp_path_factory, label: str, build, items) -> dict:
+    """``dict(build(item) for item in items)`` for FMUs built once into a folder kept across sessions (pytest's
+    cache, like the corpus), two builds at a time; skips without CMake and a C compiler."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from fmu_opinf import lti_fmus
+
+    if lti_fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build FMUs")
+    cache = getattr(request.config, "cache", None)
+    folder = Path(cache.mkdir(label) if cache is not None else tmp_path_factory.mktemp(label))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        return dict(pool.map(lambda item: build(folder, item), items))

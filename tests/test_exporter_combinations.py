@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import build_fmu_set
 from fmu_opinf.cli import main
 from fmu_opinf.newmark import time_grid
 from fmu_opinf.rom import SecondOrderROM
@@ -146,24 +147,17 @@ def combinations():
 @pytest.fixture(scope="module")
 def fmus(request, tmp_path_factory):
     """``name -> (path, model)``; built once (cached across sessions like the corpus)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     from fmu_opinf import lti_fmus
 
-    if lti_fmus.find_build_tools() is None:
-        pytest.skip("CMake and a C compiler are needed to build FMUs")
-    cache = getattr(request.config, "cache", None)
-    folder = Path(cache.mkdir("lti-combinations") if cache is not None else tmp_path_factory.mktemp("combos"))
     edited = tmp_path_factory.mktemp("edited")
 
-    def build(item):
+    def build(folder, item):
         name, (model, options, edit) = item
         built = lti_fmus.build_lti_fmu(model, folder / f"{name}.fmu", **options)
         path = rewrite_description(built.path, edited / f"{name}.fmu", edit) if edit else built.path
         return name, (path, model)
 
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        return dict(pool.map(build, combinations().items()))
+    return build_fmu_set(request, tmp_path_factory, "lti-combinations", build, combinations().items())
 
 
 # ---------------------------------------------------------------------------------------- helpers

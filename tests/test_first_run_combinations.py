@@ -21,15 +21,14 @@ first); results are checked against the exact zero-order-hold solution of the mo
 
 from __future__ import annotations
 
-import json
 import re
-import zipfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import build_fmu_set
 from fmu_opinf.cli import main
 from fmu_opinf.newmark import time_grid
 from fmu_opinf.rom import SecondOrderROM
@@ -73,21 +72,13 @@ def _definitions():
 @pytest.fixture(scope="module")
 def fmus(request, tmp_path_factory):
     """``name -> LtiFmu``; built once (cached across sessions like the corpus)."""
-    from concurrent.futures import ThreadPoolExecutor
-
     from fmu_opinf import lti_fmus
 
-    if lti_fmus.find_build_tools() is None:
-        pytest.skip("CMake and a C compiler are needed to build FMUs")
-    cache = getattr(request.config, "cache", None)
-    folder = Path(cache.mkdir("lti-first-run") if cache is not None else tmp_path_factory.mktemp("first-run"))
-
-    def build(item):
+    def build(folder, item):
         name, (model, options) = item
         return name, lti_fmus.build_lti_fmu(model, folder / f"{name}.fmu", **options)
 
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        return dict(pool.map(build, _definitions().items()))
+    return build_fmu_set(request, tmp_path_factory, "lti-first-run", build, _definitions().items())
 
 
 def max_eps(y: np.ndarray, y_exact: np.ndarray) -> float:
