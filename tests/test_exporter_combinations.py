@@ -425,3 +425,23 @@ def test_strict_description_gives_no_warning(fmus, recwarn):
     source = open_source(str(fmus["undamped"][0]))
     source.close()
     assert not [w for w in recwarn if "strict validation" in str(w.message)]
+
+
+def test_user_step_on_euler_co_simulation_warns_and_records(fmus, tmp_path, capsys):
+    """With --dt and --t-end given, the step check is a warning, not a refusal: the user chose the step, but the
+    data then follow the Euler scheme (dt = 0.005: 0.07 of the peak between dt and dt/2).  The accurate
+    co-simulation of the same model records without it."""
+    euler, _ = fmus["generic-euler"]
+    out = tmp_path / "euler.h5"
+    assert main(["snapshots", str(euler), "-o", str(out), "-q", "--dt", "0.005", "--t-end", "100",
+                 *GENERIC_STATES]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    warning = [line for line in err if "depends on the communication step" in line]
+    assert len(warning) == 1 and re.search(r"dt=0\.005 and dt=0\.0025 differ by 0\.0[1-9][0-9]* of their peak over "
+                                           r"t <= 10\): the recording follows the FMU's integrator, not the model; "
+                                           r"record at a smaller --dt", warning[0]), err
+    assert out.exists()
+    accurate, _ = fmus["generic-accurate"]
+    assert main(["snapshots", str(accurate), "-o", str(tmp_path / "accurate.h5"), "-q", "--dt", "0.005",
+                 "--t-end", "100", *GENERIC_STATES]) == 0
+    assert "depends on the communication step" not in capsys.readouterr().err

@@ -551,7 +551,7 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import auto_window as choose_window, default_window, needs_auto_window
+    from ._window import auto_window as choose_window, default_window, needs_auto_window, warn_if_step_dependent
 
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None:
@@ -576,4 +576,6 @@ def record_to_file(
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
+    if window is None:  # the user's own step: the automatic window's step check becomes a warning
+        warn_if_step_dependent(source, signals[0], dt, t_end, quiet=quiet, isolate=isolate)
     return _record_file(source, signals, time_grid(dt, t_end), Path(output), quiet, isolate, overwrite, window)

@@ -15,7 +15,7 @@ from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
-           "needs_auto_window", "input_activity"]
+           "needs_auto_window", "input_activity", "check_step_convergence", "warn_if_step_dependent"]
 
 
 def default_window(source: Source, dt: float | None, t_end: float | None) -> tuple[float, float]:
@@ -361,31 +361,69 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         The outputs differ by more than ``threshold`` or turn non-finite: one line naming the steps, the
         difference and what to do.
     """
-    if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()):
+    found = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    if found is None:
         return
-    coarse = time_grid(dt, T)
-    outputs = []
-    for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
-        run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
-                                  label=f"auto window: step check (dt={t[1] - t[0]:g}, t_end={T:g})")
-        if failure is not None and "non-finite" not in str(failure):
-            raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
-        outputs.append(np.asarray(run.y)[:, :run.k] if failure is None else None)
-    if outputs[0] is not None and outputs[1] is not None:
-        y, y_fine = outputs[0], outputs[1][:, ::2][:, :outputs[0].shape[1]]
-        peak = float(np.abs(y_fine).max())
-        difference = float(np.abs(y - y_fine).max()) / peak if peak > 0 else 0.0
-        if difference <= threshold:
-            return
-        found = f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
-    else:
-        found = f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}"
     offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
     remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
               "it offers no model exchange: give --dt and --t-end")
     raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
                     f"over t <= {T:g}; one explicit step per doStep?), so no step chosen by the automatic window "
                     f"is accurate; {remedy} to record at a step of your choice; no file was written")
+
+
+def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
+                     threshold: float) -> str | None:
+    """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
+    message), or None: within it, or a source that is not a co-simulation FMU of a continuous-time model."""
+    if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()):
+        return None
+    coarse = time_grid(dt, T)
+    outputs = []
+    for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
+        run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
+                                  label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})")
+        if failure is not None and "non-finite" not in str(failure):
+            raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
+        outputs.append(np.asarray(run.y)[:, :run.k] if failure is None else None)
+    if outputs[0] is None or outputs[1] is None:
+        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}"
+    y, y_fine = outputs[0], outputs[1][:, ::2][:, :outputs[0].shape[1]]
+    peak = float(np.abs(y_fine).max())
+    difference = float(np.abs(y - y_fine).max()) / peak if peak > 0 else 0.0
+    if difference <= threshold:
+        return None
+    return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
+
+
+#: Share of a recording that :func:`warn_if_step_dependent` checks (at least 20 steps): its runs at ``dt`` and
+#: ``dt / 2`` cost three times that share of the recording's steps.
+STEP_CHECK_SHARE = 0.1
+
+
+def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float, *, quiet: bool = True,
+                           isolate: bool = False, threshold: float = STEP_CONVERGENCE) -> None:
+    """Warn (one line) when a co-simulation FMU recorded at the user's own ``dt`` depends on that step.
+
+    The automatic window refuses such FMUs (:func:`check_step_convergence`); with ``--dt`` given the user chose
+    the step, so the recording goes on, but the data then follow the FMU's integrator, not the model (an
+    explicit-Euler FMU at dt = 0.002 gave learned damping ratios 15-20 % off).  The check runs on the first
+    :data:`STEP_CHECK_SHARE` of the window (at least 20 steps).
+    """
+    T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
+    found = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    if found is None:
+        return
+    import warnings
+
+    from ..errors import FmuOpinfWarning
+
+    offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    remedy = "record by model exchange (--interface me) or at a smaller --dt" if offers_me else \
+        "record at a smaller --dt (it offers no model exchange)"
+    warnings.warn(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "
+                  f"t <= {T:g}): the recording follows the FMU's integrator, not the model; {remedy}",
+                  FmuOpinfWarning, stacklevel=3)
 
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
