@@ -395,7 +395,7 @@ def test_newmark_step_map_matches_the_reference_stepper(rng):
 
 
 def test_blocked_propagation_equals_the_plain_recursion(rng):
-    from fmu_opinf.refinement import _propagate
+    from fmu_opinf._output_gradient import propagate
 
     A = rng.standard_normal((7, 7))
     A /= 1.05 * np.abs(np.linalg.eigvals(A)).max()
@@ -405,17 +405,19 @@ def test_blocked_propagation_equals_the_plain_recursion(rng):
     for i in range(1, 203):
         plain[:, i] = A @ plain[:, i - 1] + f[:, i]
     for stride in (1, 16, 64, 500):
-        np.testing.assert_allclose(_propagate(A, f, z0, stride), plain, rtol=0, atol=1e-12 * np.abs(plain).max())
+        np.testing.assert_allclose(propagate(A, f, z0, stride), plain, rtol=0, atol=1e-12 * np.abs(plain).max())
 
 
-def test_refinement_gradient_matches_finite_differences(rng):
+@pytest.mark.parametrize("gradient", ["dense", "modal"])
+def test_refinement_gradient_matches_finite_differences(rng, gradient):
     from fmu_opinf.refinement import _psd_factor, _Trajectories
 
     _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng, r=3, steps=120)
     cut = lengths[0]
     C = np.hstack([Cp, np.zeros_like(Cp)])
     problem = _Trajectories(z=[np.vstack([x, v])[:, :cut], np.vstack([x, v])[:, cut:]], u=[u[:, :cut], u[:, cut:]],
-                            target=[y[:, :cut], y[:, cut:]], C=C, dt=0.1, scales=np.array([2.0, 0.5, 3.0, 1.5]))
+                            target=[y[:, :cut], y[:, cut:]], C=C, dt=0.1, scales=np.array([2.0, 0.5, 3.0, 1.5]),
+                            gradient=gradient)
     start = np.concatenate([_psd_factor(A * s).ravel() for A, s in zip((M, D, K), (2.0, 0.5, 3.0))]
                            + [(1.5 * B).ravel()])
     point = start + 0.05 * rng.standard_normal(start.size)  # away from the optimum: a non-zero gradient

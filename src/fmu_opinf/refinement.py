@@ -18,6 +18,8 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from ._output_gradient import (_STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, powers,
+                               propagate)
 from ._progress import Progress
 from .errors import DimensionError
 
@@ -69,53 +71,12 @@ def zero_order_hold_step(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.
     return step.Ad, step.Bd
 
 
-def _powers(A: np.ndarray, count: int) -> np.ndarray:
-    """``A, A^2, ..., A^count`` stacked, shape ``(count, n, n)``."""
-    powers = np.empty((max(count, 1), *A.shape))
-    powers[0] = A
-    for j in range(1, count):
-        powers[j] = A @ powers[j - 1]
-    return powers
-
-
-def _propagate(A: np.ndarray, f: np.ndarray, z0: np.ndarray, stride: int = 64,
-               powers: np.ndarray | None = None) -> np.ndarray:
-    """``z_0 = z0``, ``z_i = A z_{i-1} + f_i`` for ``i = 1 .. k-1`` (``f[:, 0]`` unused), blocked in time.
-
-    Within blocks of ``stride`` steps the forcing is accumulated for all blocks at once, and only the block
-    starts are stepped one by one (with ``A^stride``): ``k / stride`` Python iterations instead of ``k``.
-    ``powers`` (``A, A^2, ...``, at least ``stride`` of them, e.g. from :func:`_powers`) saves recomputing them.
-    """
-    n, k = f.shape
-    steps = k - 1
-    out = np.empty((n, k))
-    out[:, 0] = z0
-    if steps == 0:
-        return out
-    s = max(1, min(stride, steps))
-    nb = -(-steps // s)
-    acc = np.zeros((n, nb * s))
-    acc[:, :steps] = f[:, 1:]
-    acc = np.ascontiguousarray(acc.reshape(n, nb, s).transpose(2, 0, 1))  # (s, n, nb)
-    for j in range(1, s):
-        acc[j] += A @ acc[j - 1]
-    powers = _powers(A, s) if powers is None else powers[:s]
-    starts = np.empty((n, nb))
-    z, last = np.asarray(z0, dtype=float), acc[s - 1]
-    for b in range(nb):
-        starts[:, b] = z
-        z = powers[s - 1] @ z + last[:, b]
-    states = powers @ starts + acc
-    out[:, 1:] = states.transpose(1, 2, 0).reshape(n, nb * s)[:, :steps]
-    return out
-
-
 #: Order from which on the refinement works in the start's modal coordinates by default (module docstring of
 #: :mod:`fmu_opinf.inference`; until 2026-11-25 it was above 40: r = 40 went from ratio 2.03 to 1.80).
 _WHITEN_FROM = 40
 
-#: Time steps per block of :func:`_propagate` in the refinement.
-_STRIDE = 64
+#: How the refinement computes its gradient (``gradient`` of :func:`refine_output_error`).
+_GRADIENTS = ("auto", "modal", "dense")
 
 
 class _EquationResidual:
@@ -168,6 +129,7 @@ class _Trajectories:
     state_weight: float = 0.0  # weight of the relative state error next to the output error
     equation: _EquationResidual | None = None  # the acceleration residual of eq. (16), for equation_weight
     equation_weight: float = 0.0  # exponent of the acceleration residual in the log objective
+    gradient: str = "auto"  # "modal" (through the eigenvalues), "dense" (stepping states) or "auto" (modal if it can)
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -180,13 +142,35 @@ class _Trajectories:
         LM, LD, LK = (L * c for L, c in zip(factors, columns))
         sa, sv, sx, su = self.scales
         step = _step(self.integrator)(LM @ LM.T / sa, LD @ LD.T / sv, LK @ LK.T / sx, Bs / su, self.dt)
-        Ad, Bd = step.Ad, step.Bd
+        value, grad_A, grad_B = self._step_map_gradient(step.Ad, step.Bd, r)
+        gM, gD, gK, gB = step.operator_gradients(grad_A, grad_B)
+        grads = [(((g + g.T) @ L) * c / scale).ravel()
+                 for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
+        return value, np.concatenate(grads + [(gB / su).ravel()])
+
+
+    def _step_map_gradient(self, Ad: np.ndarray, Bd: np.ndarray, r: int) -> tuple[float, np.ndarray, np.ndarray]:
+        """The objective and its gradient in the step map: through the eigenvalues when the output map is fixed
+        and no state error is weighted (:mod:`fmu_opinf._output_gradient`), else by stepping the states."""
+        runs = [(z[:, 0], u, target) for z, u, target in zip(self.z, self.u, self.target)]
+        scale, mu = self._state_scaling(r)
+        outputs, states = self.C.shape
+        wanted = self.gradient == "modal" or (self.gradient == "auto"
+                                              and modal_is_faster(states, outputs, Bd.shape[1]))
+        if wanted and not self.free_output_map and not mu:
+            result = modal_output_gradient(Ad, Bd, self.C, runs)
+            if result is not None:
+                return result
+            if self.gradient == "modal":
+                raise ValueError("gradient='modal' needs a step map with separated eigenvalues and a "
+                                 "well-conditioned eigenvector basis; use gradient='auto'")
+        if not self.free_output_map and not mu:
+            return dense_output_gradient(Ad, Bd, self.C, runs)
         grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
-        powers = _powers(Ad, _STRIDE)  # shared by all runs, transposed for the adjoint
-        sims = [_propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, powers) for z_data, u in zip(self.z, self.u)]
+        power_stack = powers(Ad, _STRIDE)
+        sims = [propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, power_stack) for z_data, u in zip(self.z, self.u)]
         if self.free_output_map:
             self.C = _least_squares_output_map(sims, self.target, self.C)
-        scale, mu = self._state_scaling(r)
         for z, u, target, z_data in zip(sims, self.u, self.target, self.z):
             err = self.C @ z - target
             value += float(np.sum(err * err))
@@ -195,15 +179,10 @@ class _Trajectories:
                 dz = (z - z_data) * scale[:, None]
                 value += mu * float(np.sum(dz * dz))
                 g = g + 2.0 * mu * dz * scale[:, None]
-            # lam_i = Ad^T lam_{i+1} + g_i
-            lam = _propagate(Ad.T, g[:, ::-1], g[:, -1], _STRIDE, powers.transpose(0, 2, 1))[:, ::-1]
+            lam = propagate(Ad.T, g[:, ::-1], g[:, -1], _STRIDE, power_stack.transpose(0, 2, 1))[:, ::-1]
             grad_A += lam[:, 1:] @ z[:, :-1].T
             grad_B += lam[:, 1:] @ u[:, 1:].T
-        gM, gD, gK, gB = step.operator_gradients(grad_A, grad_B)
-        grads = [(((g + g.T) @ L) * c / scale).ravel()
-                 for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
-        return value, np.concatenate(grads + [(gB / su).ravel()])
-
+        return value, grad_A, grad_B
 
     def log_loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray, float, float]:
         """``log J + w log E`` (``J`` of :meth:`loss`, ``E`` the acceleration residual, ``w`` the
@@ -326,7 +305,7 @@ def _residuals_and_jacobian(problem: _Trajectories, params: np.ndarray, r: int, 
     residuals, jacobians = [], []
     for z_data, u, target in zip(problem.z, problem.u, problem.target):
         k = u.shape[1]
-        z = _propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE)
+        z = propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE)
         residuals.append((problem.C @ z - target).T.ravel())  # time-major: (k, p)
         q, v = z[:r], z[r:]
         w = [v[:, :-1] - v[:, 1:], -half * (v[:, :-1] + v[:, 1:]), -half * (q[:, :-1] + q[:, 1:])]
@@ -477,7 +456,7 @@ def refine_output_error(
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
     state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
-    progress: bool = False,
+    progress: bool = False, gradient: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -544,6 +523,14 @@ def refine_output_error(
     progress : bool, default=False
         A labelled progress bar of the L-BFGS iterations on stderr, when it is a terminal and the refinement takes
         over a second (``fmu-opinf fit`` at r = 50: 1000 iterations, about 40 s).
+    gradient : {"auto", "modal", "dense"}, default="auto"
+        How each evaluation computes the objective's gradient in the step map (:mod:`fmu_opinf._output_gradient`):
+        ``"modal"`` through the eigenvalues of the step map without forming a state (``O(k r)`` per evaluation
+        beside one ``O(r^3)`` eigendecomposition), ``"dense"`` by stepping the states and the adjoint
+        (``O(k r^2)``), ``"auto"`` the modal way where it is the faster one (from ``r = 7`` for one input and
+        up to three outputs) and the step map has separated eigenvalues and a well-conditioned eigenvector
+        basis.  Both give the same objective and gradient up to rounding.  With ``refit_output_map`` or ``state_weight`` the states are needed:
+        always dense.
 
     Returns
     -------
@@ -583,6 +570,9 @@ def refine_output_error(
     problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
     problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
     problem.state_weight = float(state_weight)
+    if gradient not in _GRADIENTS:
+        raise ValueError(f"gradient={gradient!r} is not known; use one of {', '.join(_GRADIENTS)}")
+    problem.gradient = gradient
     if equation_weight:
         problem.equation = _EquationResidual(xddot_r, xdot_r, x_r, u, T if whiten else None)
         problem.equation_weight = float(equation_weight)
@@ -642,7 +632,7 @@ def output_error_objective(
     with np.errstate(over="ignore", invalid="ignore"):
         value = 0.0
         for z_data, inputs, target in zip(problem.z, problem.u, problem.target):
-            err = problem.C @ _propagate(Ad, Bd @ inputs, z_data[:, 0], _STRIDE) - target
+            err = problem.C @ propagate(Ad, Bd @ inputs, z_data[:, 0], _STRIDE) - target
             value += float(np.sum(err * err))
     return value if np.isfinite(value) else float("inf")
 

@@ -1,0 +1,91 @@
+"""The refinement's objective and gradient through the eigenvalues of the step map (``_output_gradient``).
+
+References: the objective by a plain step-by-step loop and its derivative by central differences of that loop,
+independent of both the adjoint recursion and the polynomial sums.
+"""
+
+import numpy as np
+import pytest
+
+from fmu_opinf._output_gradient import dense_output_gradient, modal_is_faster, modal_output_gradient
+from fmu_opinf.refinement import newmark_step_map
+
+
+def _plain_objective(A, B, C, runs):
+    """``sum ||C z_i - t_i||^2`` by the step-by-step loop."""
+    total = 0.0
+    for z0, u, target in runs:
+        z = np.asarray(z0, dtype=float)
+        total += float(np.sum((C @ z - target[:, 0]) ** 2))
+        for i in range(1, u.shape[1]):
+            z = A @ z + B @ u[:, i]
+            total += float(np.sum((C @ z - target[:, i]) ** 2))
+    return total
+
+
+def _damped_system(rng, r=6, m=2, p=2, dt=0.1):
+    """A stable Newmark step map with distinct eigenvalues, its output map and two runs from non-zero states."""
+    Q = rng.standard_normal((r, r))
+    K = Q @ Q.T + r * np.eye(r)
+    M = np.eye(r) + 0.1 * np.diag(rng.random(r))
+    A, B = newmark_step_map(M, 0.02 * M + 0.01 * K, K, rng.standard_normal((r, m)), dt)
+    C = rng.standard_normal((p, 2 * r))
+    runs = [(rng.standard_normal(2 * r), rng.standard_normal((m, k)), rng.standard_normal((p, k))) for k in (150, 97)]
+    return A, B, C, runs
+
+
+def test_modal_gradient_equals_finite_differences_of_the_plain_loop(rng):
+    A, B, C, runs = _damped_system(rng)
+    value, grad_A, grad_B = modal_output_gradient(A, B, C, runs)
+    assert value == pytest.approx(_plain_objective(A, B, C, runs), rel=1e-12)
+    step = 1e-6
+    for _ in range(3):
+        dA, dB = rng.standard_normal(A.shape), rng.standard_normal(B.shape)
+        fd = (_plain_objective(A + step * dA, B + step * dB, C, runs)
+              - _plain_objective(A - step * dA, B - step * dB, C, runs)) / (2 * step)
+        assert np.sum(grad_A * dA) + np.sum(grad_B * dB) == pytest.approx(fd, rel=1e-6)
+
+
+def test_modal_and_dense_gradients_agree_to_rounding(rng):
+    A, B, C, runs = _damped_system(rng, r=12, m=1, p=3)
+    modal = modal_output_gradient(A, B, C, runs)
+    dense = dense_output_gradient(A, B, C, runs)
+    assert modal[0] == pytest.approx(dense[0], rel=1e-12)
+    for got, want in zip(modal[1:], dense[1:]):
+        assert np.abs(got - want).max() <= 1e-9 * np.abs(want).max()
+
+
+def test_modal_gradient_declines_repeated_and_defective_eigenvalues(rng):
+    _, B, C, runs = _damped_system(rng, r=2, m=1, p=1)
+    repeated = 0.9 * np.eye(4)                                  # one eigenvalue four times
+    jordan = np.diag([0.9, 0.5, 0.3, 0.2]) + np.diag([1.0, 0, 0], 1) * 1.0
+    jordan[1, 1] = 0.9                                          # a 2 x 2 Jordan block at 0.9
+    for A in (repeated, jordan):
+        assert modal_output_gradient(A, B, C, runs) is None
+        assert dense_output_gradient(A, B, C, runs)[0] == pytest.approx(_plain_objective(A, B, C, runs), rel=1e-12)
+
+
+def test_refinement_falls_back_to_the_dense_gradient_and_refuses_a_forced_modal_one(rng):
+    from fmu_opinf.inference import refine_output_error
+
+    r, k = 8, 300
+    M, D, K = np.eye(r), 0.05 * np.eye(r), np.eye(r)            # eight identical oscillators: repeated poles
+    B = rng.standard_normal((r, 1))
+    x, v = rng.standard_normal((r, k)), rng.standard_normal((r, k))
+    u, y = rng.standard_normal((1, k)), rng.standard_normal((1, k))
+    Cp = rng.standard_normal((1, r))
+    options = dict(output_map=(Cp, 0 * Cp), max_iterations=2)
+    auto = refine_output_error(M, D, K, B, v, x, u, y, 0.1, gradient="auto", **options)[-1]
+    dense = refine_output_error(M, D, K, B, v, x, u, y, 0.1, gradient="dense", **options)[-1]
+    assert auto["objective"] == dense["objective"]
+    with pytest.raises(ValueError, match="gradient='modal'"):
+        refine_output_error(M, D, K, B, v, x, u, y, 0.1, gradient="modal", **options)
+    with pytest.raises(ValueError, match="gradient='fast' is not known"):
+        refine_output_error(M, D, K, B, v, x, u, y, 0.1, gradient="fast", **options)
+
+
+def test_the_modal_way_is_chosen_where_it_was_measured_faster():
+    assert not modal_is_faster(8, 1, 1)       # r = 4: 1.1-1.5x the dense time
+    assert modal_is_faster(20, 1, 1)          # r = 10: 2-3x faster
+    assert modal_is_faster(70, 3, 1)          # r = 35: 3.5x faster
+    assert not modal_is_faster(20, 4, 3)      # many outputs and inputs: dense up to about r = 15
