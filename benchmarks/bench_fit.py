@@ -24,7 +24,13 @@ seconds of the SDP and of the refinement as the fit reports them, the
 refinement's iterations and the max eps_y of eq. (19) on the training run; this is the figure issue 16's target
 (r = 35 in 0.3 s, r = 100 in 5 s) is about.
 
-Run:  ``python benchmarks/bench_fit.py [--orders 5,10,20,35,50] [--clarabel-max-r 50] [--total]``.
+``--evaluation`` times one evaluation of the refinement's objective and gradient in the step map (the Newmark
+step of the SDP solution, above r = 60 of the factored start as in the default fit; the output map of eq. 17), by
+stepping states and adjoints (``dense``) and through the
+eigenvalues of the step map (``modal``, the default where it is faster), CPU milliseconds (best of 5 rounds of
+repeated calls), and the relative difference of the two gradients.
+
+Run:  ``python benchmarks/bench_fit.py [--orders 5,10,20,35,50] [--clarabel-max-r 50] [--total | --evaluation]``.
 """
 
 from __future__ import annotations
@@ -81,15 +87,57 @@ def total_fit(data: list[np.ndarray], u: np.ndarray, y: np.ndarray, V: np.ndarra
               f"{error:15.2e}", flush=True)
 
 
+def evaluation_costs(data: list[np.ndarray], u: np.ndarray, y: np.ndarray, orders: list[int]) -> None:
+    """CPU time of one objective + gradient evaluation of the refinement, both ways (``--evaluation``)."""
+    from fmu_opinf._output_gradient import dense_output_gradient, modal_output_gradient
+    from fmu_opinf._threads import single_threaded
+    from fmu_opinf.inference import fit_outputs, newmark_step_map
+
+    print(f"{'r':>3} | {'dense [ms]':>10} {'modal [ms]':>10} {'speed-up':>8} | {'gradient rel diff':>17}")
+    for r in orders:
+        sub = [a[:r] for a in data]
+        fit = fit_operators(*sub, u, refine=False, solver="factored" if r > 60 else "auto")  # as the default fit
+        A, B = newmark_step_map(fit.Mr, fit.Dr, fit.Kr, fit.Br, DT)
+        C = np.hstack(fit_outputs(sub[1], sub[2], y))
+        runs = [(np.concatenate([sub[2][:, 0], sub[1][:, 0]]), u, y)]
+        with single_threaded():
+            seconds = {way: _best_cpu_seconds(lambda f=f: f(A, B, C, runs))
+                       for way, f in (("dense", dense_output_gradient), ("modal", modal_output_gradient))}
+            dense, modal = dense_output_gradient(A, B, C, runs), modal_output_gradient(A, B, C, runs)
+        if modal is None:
+            print(f"{r:3d} | {1e3 * seconds['dense']:10.2f} {'declined':>10}")
+            continue
+        diff = max(np.linalg.norm(a - b) / np.linalg.norm(a) for a, b in zip(dense[1:], modal[1:]))
+        print(f"{r:3d} | {1e3 * seconds['dense']:10.2f} {1e3 * seconds['modal']:10.2f} "
+              f"{seconds['dense'] / seconds['modal']:8.1f} | {diff:17.1e}", flush=True)
+
+
+def _best_cpu_seconds(call, rounds: int = 5, repeat: int = 5) -> float:
+    call()
+    best = float("inf")
+    for _ in range(rounds):
+        start = time.process_time()
+        for _ in range(repeat):
+            call()
+        best = min(best, (time.process_time() - start) / repeat)
+    return best
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--orders", default="5,10,20,35,50", help="comma-separated reduced orders")
     parser.add_argument("--normalizations", default="trace,mass-eigenvalue,auto")
     parser.add_argument("--clarabel-max-r", type=int, default=50, help="skip Clarabel above this r")
     parser.add_argument("--total", action="store_true", help="time the whole default fit (SDP + refinement)")
+    parser.add_argument("--evaluation", action="store_true",
+                        help="time one objective + gradient evaluation of the refinement, dense and modal")
     args = parser.parse_args()
     orders = [int(v) for v in args.orders.split(",")]
     V, data, u, y = reduced_data(max(orders))
+    if args.evaluation:
+        print(f"triple chain n={V.shape[0]}, k={u.shape[1]} snapshots; one refinement evaluation, CPU ms")
+        evaluation_costs(data, u, y, orders)
+        return
     if args.total:
         print(f"triple chain n={V.shape[0]}, k={u.shape[1]} snapshots, m={u.shape[0]}; default fit, CPU seconds")
         total_fit(data, u, y, V, orders)

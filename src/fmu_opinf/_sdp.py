@@ -273,7 +273,6 @@ def _initial_point(n: int, cones: list[ConeBlock], a: np.ndarray | None, c: floa
 
 def _newton(S, w, X, Z, cones, a, c, dual, mu):
     """Mehrotra predictor-corrector HKM step: returns ``(alpha, dw, dZ, dy)``."""
-    n = w.size
     N = 2.0 * S.copy()
     Xinv = [_spd_inverse(Xj) for Xj in X]
     for cone, Xi, Zj in zip(cones, Xinv, Z):

@@ -99,35 +99,36 @@ case     r    POD-Galerkin  least sq.   SDP alone (``refine=False``)  default   
 =======  ===  ============  ==========  ===========================  ============================  =====
 anchored  2   4.3e-2        1.2e-2      1.2e-2                       1.0e-2                        0.84
 anchored  3   2.3e-3        7.1e-5      --                           3.3e-6                        0.05
-anchored  4   1.7e-4        1.6e-5      --                           3.4e-8                        0.002
-anchored  5   9.2e-6        2.1e-7      2.2e-7                       9.9e-9                        0.05
-anchored  6   4.6e-7        2.4e-9      --                           5.6e-10                       0.23
-anchored  7   2.4e-8        2.5e-10     --                           3.2e-11                       0.13
-anchored  8   1.4e-9        1.4e-12     2.4e-12                      7.2e-13                       0.53
+anchored  4   1.7e-4        1.6e-5      --                           2.9e-8                        0.002
+anchored  5   9.2e-6        2.1e-7      2.2e-7                       1.0e-8                        0.05
+anchored  6   4.6e-7        2.4e-9      --                           5.3e-10                       0.22
+anchored  7   2.4e-8        2.5e-10     --                           2.6e-11                       0.10
+anchored  8   1.4e-9        1.4e-12     2.4e-12                      7.9e-13                       0.58
 anchored  9   7.6e-11       5.1e-14     --                           5.1e-14 (LS realized)         1.00
-anchored 10   3.9e-12       2.5e-15     --                           3.4e-15                       1.33
+anchored 10   3.9e-12       2.5e-15     --                           3.1e-15                       1.25
 anchored 11   2.3e-13       5.5e-18     --                           5.5e-18 (LS realized)         1.00
 anchored 12   1.3e-14       6.6e-19     1.3e-16                      6.6e-19 (LS realized)         1.00
 triple    5   6.7e-4        6.2e-4      --                           5.5e-4                        0.88
 triple   10   2.4e-5        1.1e-5      2.4e-4                       5.3e-6                        0.49
-triple   15   7.1e-6        6.2e-6      --                           2.6e-6                        0.42
-triple   20   7.8e-6        2.4e-6      4.2e-5                       1.2e-6                        0.50
-triple   25   5.6e-6        1.2e-6      --                           5.3e-7                        0.44
-triple   30   4.5e-6        5.8e-7      --                           4.1e-7                        0.72
+triple   15   7.1e-6        6.2e-6      --                           1.2e-6                        0.19
+triple   20   7.8e-6        2.4e-6      4.2e-5                       9.0e-7                        0.38
+triple   25   5.6e-6        1.2e-6      --                           5.7e-7                        0.47
+triple   30   4.5e-6        5.8e-7      --                           3.2e-7                        0.55
 triple   35   1.2e-6        3.7e-7      1.1e-5                       1.6e-7                        0.43
-triple   40   1.0e-6        2.7e-7      --                           4.8e-7 (modal)                1.80
-triple   45   1.8e-6        2.6e-7      --                           7.6e-8 (modal)                0.29
+triple   40   1.0e-6        2.7e-7      --                           4.9e-7 (modal)                1.82
+triple   45   1.8e-6        2.6e-7      --                           1.1e-7 (modal)                0.41
 triple   50   3.6e-7        1.5e-7      --                           5.1e-7 (modal)                3.42
-triple   55   2.7e-7        1.7e-7      --                           1.8e-7 (modal)                1.05
-triple   60   1.6e-7        -- (*)      2.2e-5                       2.9e-8 (modal)                0.18
+triple   55   2.7e-7        1.7e-7      --                           2.1e-7 (modal)                1.25
+triple   60   1.6e-7        -- (*)      2.2e-5                       1.3e-8 (modal)                0.08
 =======  ===  ============  ==========  ===========================  ============================  =====
 
 (*) unstable at r = 60, so the reference there is POD-Galerkin.  "(modal)": from r = 40 on the refinement
 works in the SDP start's modal coordinates (below), with ``20 r`` iterations above r = 40.  "(LS realized)": the
 least-squares candidate was kept (*Least-squares candidate* below).  All "default" and "ratio" figures are one
-full run of ``bench_accuracy.py`` on 2026-11-24 (OpenBLAS 0.3.31, 2 cores shared with other jobs) except r = 40,
-which is from the full run of 2026-11-25 with the modal coordinates from r = 40 on (every other row identical;
-in the given coordinates 5.4e-7, ratio 2.03); the "SDP alone" column is from earlier runs.  The SDP start alone
+full run of ``bench_accuracy.py`` on 2026-11-25 with the gradient through the eigenvalues (*Cost of the
+refinement* below; OpenBLAS 0.3.31, 2 cores shared with other jobs); the run before it (2026-11-24/25, gradient by
+stepping states) differed within the iterates' swing, largest changes r = 15 / 30 / 55 / 60: 0.42 / 0.72 / 1.05 /
+0.18; in the given coordinates r = 40 had 5.4e-7, ratio 2.03.  The "SDP alone" column is from earlier runs.  The SDP start alone
 takes 50 / 140 / 225 s CPU at r = 50 / 55 / 60.
 
 Reading the table: the goal (``ratio <= 2``, stable) is met on the anchored chain for every r = 2 .. 12 and on the
@@ -214,6 +215,9 @@ near the goal's line are within this noise: multi-threaded BLAS alone (same star
 * *A time-weighted output error* (each sample divided by the moving mean square of the target over 10 % of the
   run, floored at 1e-3 of its maximum, to weight the lightly damped tail): anchored r = 8 at 4.27, triple r = 40 /
   50 at 1.95 / 3.74.
+* *A stop on diminishing returns* (``refine_output_error(window=200, rtol=1.0)``: end once the objective fell by
+  less than 2x over the last 200 iterations, tested from iteration 400 on, so only r >= 45 can stop early): triple
+  r = 45 / 50 / 55 at 1.11 / 0.34 / 2.77 (full budget: 0.41 / 3.42 / 1.25).  It moves the miss to r = 55.
 
 Output map (``refit_output_map``, off by default)
 -------------------------------------------------
@@ -319,13 +323,21 @@ Fit time, triple chain r = 35 (wall, machine shared with a test run): 7.3 s with
 against 1.8 s for the SDP and candidate alone.  The exact step's gradient costs one Frechet derivative of a
 ``(2r+m)``-square exponential per evaluation on top of the Newmark case's recursions.
 
-Cost of the refinement (CPU seconds, one BLAS thread, machine shared with other jobs): one objective + adjoint
-gradient takes 3.2 / 17 / 40 ms at r = 10 / 35 / 50 (before sharing the powers of the step map: 3.5 / 18 /
-42 ms); the refinement 2.0 / 7.4 / 61 s at r = 10 / 35 / 50 (300 / 300 / 1000 iterations).  The cost per
-evaluation is two blocked recursions of ``2 n^2 k`` flops each (``n = 2r``) and one ``n^2 k`` gradient product,
-already BLAS-3; a modal (diagonal) recursion would make the recursions ``O(n k)`` but the gradient product stays
-``O(n^2 k)`` (complex), a gain of about 2x at r = 35 that was not implemented.  The issue-16 target (the whole
-fit at r = 35 in about a second) is therefore not reached by the refinement: 300 iterations x 17 ms = 5 s.
+Cost of the refinement (CPU seconds, one BLAS thread).  Stepping states and adjoints, one objective + gradient
+evaluation is two blocked recursions of ``2 n^2 k`` flops each (``n = 2r``) and one ``n^2 k`` gradient product.
+Since 2026-11-25 the evaluation goes through the eigenvalues of the step map instead
+(:mod:`fmu_opinf._output_gradient`): in modal coordinates the adjoint, the input-gradient sum and the output
+sums are polynomials in the eigenvalues whose coefficients are the output errors and their cross-correlation
+with the inputs (one FFT), and the gradient product ``sum_i lam_i z_(i-1)^T`` follows from a Sylvester identity of
+the two recursions without forming a state: ``O(k n (p + p m))`` beside one eigendecomposition.  It needs
+separated eigenvalues (gap >= 1e-6) and a well-conditioned eigenvector basis (1-norm condition <= 1e6); otherwise,
+and where it is not faster (below about ``r = 7``), the evaluation steps states.  Both agree to 1e-10 .. 2e-9
+relative in the gradient, the objective is the same recursion.  Per evaluation (``bench_fit.py --evaluation``,
+6001 steps, machine shared with another session): r = 10 / 35 / 50 / 100: 6.9 / 17.2 / 24.6 / 113 ms stepping
+states, 1.8 / 5.5 / 7.1 / 22.8 ms through the eigenvalues.  What remains per iteration at r = 35: the
+eigendecomposition (1.1 ms), the outputs (1.3 ms) and L-BFGS-B's own work with 100 correction pairs (1.8 ms).
+The accuracy table above was re-measured with it: the same ratios within the iterates' swing (r = 15 / 30 / 55 /
+60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42).
 L-BFGS keeps 100 correction pairs: with 30, r = 8 / 40 / 50 ended at ratio 2.1 / 2.1 / 13.  The learned poles
 stay 3-36 % off the full model's spectrum (``pole gap`` in the benchmark): the refined ``Mr, Dr, Kr`` reproduce
 the input-output behaviour in the training band, they are not the physical modes.  A cheaper start was measured

@@ -2,7 +2,9 @@
 
 Starting from the SDP operators, ``Mr = LM LM^T``, ``Dr = LD LD^T``, ``Kr = LK LK^T`` and ``Br`` are refined to
 minimize the training runs' output error with the ROM's own step, classical Newmark or the exact hold step
-(L-BFGS with the adjoint gradient; for Newmark an optional Levenberg-Marquardt polish with the exact Jacobian).
+(L-BFGS with the adjoint gradient, evaluated through the eigenvalues of the step map where that is possible and
+faster, :mod:`fmu_opinf._output_gradient`; for Newmark an optional Levenberg-Marquardt polish with the exact
+Jacobian).
 The factors keep the operators symmetric PSD, so the refined ROM is stable by construction.  Why, what was
 measured and what was not kept: the docstring of :mod:`fmu_opinf.inference`, section *Output-error refinement*.
 :func:`fmu_opinf.inference.fit_operators` calls :func:`refine_output_error`; both public functions are also
