@@ -110,16 +110,22 @@ def _kron_block(Y: np.ndarray, Z: np.ndarray) -> np.ndarray:
     """Matrix of ``v -> mat^*(sym(Y mat(v) Z))`` for symmetric ``Y, Z`` (the symmetric Kronecker product).
 
     Entry ``(pq, st)`` is ``<E_pq, sym(Y E_st Z)>`` with ``E_pq = e_p e_q^T + e_q e_p^T`` (``e_p e_p^T`` on the
-    diagonal).  Expanding the placements, the eight products reduce to the four entries
-    ``F[pq, st] + F[pq, ts] + F[qp, st] + F[qp, ts]`` of ``F = kron(Y, Z)`` (halved on diagonal pairs).
+    diagonal).  Expanding the placements, the eight products reduce to the four terms
+    ``(Y_ps Z_qt + Y_qs Z_pt) + (Y_pt Z_qs + Y_qt Z_ps)`` (halved on diagonal pairs), gathered from the rows
+    ``p, q`` of ``Y`` and ``Z`` without forming the ``k^2``-square ``kron(Y, Z)``.
     """
     k = Y.shape[0]
     p, q = np.triu_indices(k)
-    F = np.kron(Y, Z)
-    rows = F[p * k + q] + F[q * k + p]
-    block = rows[:, p * k + q] + rows[:, q * k + p]
+    Yp, Yq, Zp, Zq = Y[p], Y[q], Z[p], Z[q]
+    block = Yp[:, p] * Zq[:, q]
+    block += Yq[:, p] * Zp[:, q]
+    swapped = Yp[:, q] * Zq[:, p]
+    swapped += Yq[:, q] * Zp[:, p]
+    block += swapped
     half = np.where(p == q, 0.5, 1.0)
-    return block * half[:, None] * half[None, :]
+    block *= half[:, None]
+    block *= half[None, :]
+    return block
 
 
 def _max_step(X: np.ndarray, dX: np.ndarray) -> float:
