@@ -320,8 +320,9 @@ anchored  12   1.3e-14       6.6e-19     4.6e-17 (69.6)      6.6e-19 (1.00, LS r
 At r = 50 the refined model fits the training run better than least squares and is kept, but its test error is
 3.7x above (as on Newmark data, 3.4x): the candidate alone would have given 1.00 there.
 Fit time, triple chain r = 35 (wall, machine shared with a test run): 7.3 s with the exact-step refinement
-against 1.8 s for the SDP and candidate alone.  The exact step's gradient costs one Frechet derivative of a
-``(2r+m)``-square exponential per evaluation on top of the Newmark case's recursions.
+against 1.8 s for the SDP and candidate alone; with the gradient through the eigenvalues (2026-11-25, machine
+shared with another fit) 4.3 s, at ratio 0.45 (r = 50: 3.60).  The exact step's gradient costs one Frechet
+derivative of a ``(2r+m)``-square exponential per evaluation on top of the Newmark case's (0.8 ms at r = 35).
 
 Cost of the refinement (CPU seconds, one BLAS thread).  Stepping states and adjoints, one objective + gradient
 evaluation is two blocked recursions of ``2 n^2 k`` flops each (``n = 2r``) and one ``n^2 k`` gradient product.
