@@ -137,24 +137,26 @@ def _eps_max(y, reference):
 
 
 @pytest.mark.slow  # about 5 s: the anchored chain (g = 600) at r = 12 and two test runs
-def test_fit_keeps_the_realization_when_it_halves_the_training_output_error(bench, anchored_fit):
-    """Least squares fits the training outputs 1000x better than the refined SDP here (7e-20 against 1e-16), so
-    the fit keeps its realization: unit mass, diagonal SPD damping and stiffness, the test error of least
-    squares on the same basis (computed independently by ``bench_accuracy.lstsq_rom``: numpy's least squares of
-    the projected data, simulated in POD coordinates)."""
+def test_fit_keeps_the_refined_realization_when_it_fits_the_training_outputs_better(bench, anchored_fit):
+    """Least squares fits the training outputs 1000x better than the refined SDP here (7e-20 against 1e-16); the
+    refinement started from its realization keeps that, so the fit keeps it: symmetric positive definite
+    operators in the realization's coordinates, the test error of least squares on the same basis (computed
+    independently by ``bench_accuracy.lstsq_rom``: numpy's least squares of the projected data, simulated in POD
+    coordinates)."""
     rom = anchored_fit
     report = rom.fit_info["least_squares_candidate"]
     assert report["chosen"] and report["objective"] <= 1e-2 * report["kept_objective"]  # measured 1.1e-3
+    assert report["objective"] <= report["objective_unrefined"]
     assert rom.coordinates is not None and rom.is_stable()
-    assert np.allclose(rom.Mr, np.eye(12)) and np.all(np.diag(rom.Dr) > 0) and np.all(np.diag(rom.Kr) > 0)
-    assert np.count_nonzero(rom.Dr - np.diag(np.diag(rom.Dr))) == 0
+    for mat in (rom.Mr, rom.Dr, rom.Kr):
+        assert np.abs(mat - mat.T).max() <= 1e-14 * np.abs(mat).max() and np.linalg.eigvalsh(mat)[0] > 0
     ls = bench.lstsq_rom("anchored", 12)
     case = bench.CASES["anchored"]
     for spec, reference in list(zip(bench.TESTS, bench.references("anchored")))[:2]:
         error = _eps_max(rom.simulate(spec, case.dt, case.t_test).y, reference)
         ls_error = _eps_max(ls.simulate(spec, case.dt, case.t_test).y, reference)
-        assert error <= 1.01 * ls_error  # measured equal to 3 digits
-        assert error <= 2e-18  # measured 6.6e-19 (the refined SDP: 2.2e-16, POD-Galerkin 1.3e-14)
+        assert error <= 1.05 * ls_error  # measured 1.00-1.01
+        assert error <= 2e-18  # measured 6.7e-19 (the refined SDP: 2.2e-16, POD-Galerkin 1.3e-14)
 
 
 def _relative(a, b):

@@ -260,8 +260,8 @@ def _run_fit(args: argparse.Namespace) -> None:
           f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}; extra terms "
           f"{', '.join(extra) or 'none'}")
     if (info.get("least_squares_candidate") or {}).get("chosen"):
-        print("kept the mechanical realization of least squares (Mr = I, Dr, Kr diagonal; modal coordinates): "
-              "its training output error was at most half the SDP model's (fit_info['least_squares_candidate'])")
+        print("kept the model started from the mechanical realization of least squares (modal coordinates): its "
+              "training output error was below the SDP model's (fit_info['least_squares_candidate'])")
     print(_pole_summary(info.get("poles") or []))
 
 

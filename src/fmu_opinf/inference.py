@@ -752,7 +752,11 @@ def fit_operators(
             refitted_map = info["refinement"].pop("refitted_map", None)
         if candidate:
             training = (xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), run_lengths, integrator)
-            chosen = _least_squares_candidate(R, scales, (Mr, Dr, Kr, Br), refitted_map, output_map, training, info)
+            second_start = None
+            if refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
+                second_start = {"max_iterations": _refine_iterations(refine_iterations, r), "progress": progress}
+            chosen = _least_squares_candidate(R, scales, (Mr, Dr, Kr, Br), refitted_map, output_map, training, info,
+                                              second_start)
             if chosen is not None:
                 (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
                 xddot_r, xdot_r, x_r = _modal_data(coordinates, xddot_r, xdot_r, x_r)
@@ -796,11 +800,14 @@ def unit_mass_least_squares(R: np.ndarray, scales: dict[str, float], r: int,
 def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], current: tuple,
                              current_map: tuple[np.ndarray, np.ndarray] | None,
                              output_map: tuple[np.ndarray, np.ndarray] | None, training: tuple,
-                             info: dict[str, Any]) -> tuple | None:
-    """The mechanical realization of the least-squares fit with the output map of eq. 17, if it exists and halves
-    the training output error of the ``current`` model ``(Mr, Dr, Kr, Br)`` with ``current_map`` (default: the
-    same map) (module docstring, *Least-squares candidate*); ``info["least_squares_candidate"]`` says what was
-    found.
+                             info: dict[str, Any], second_start: dict[str, Any] | None = None) -> tuple | None:
+    """The mechanical realization of the least-squares fit with the output map of eq. 17, if it exists, as a
+    second start of the refinement (module docstring, *Least-squares candidate*); ``info["least_squares_candidate"]``
+    says what was found.
+
+    With ``second_start`` (the refinement's ``max_iterations`` and ``progress``) the realization is refined like
+    the SDP solution and kept if its training output error is below that of the ``current`` model ``(Mr, Dr,
+    Kr, Br)`` with ``current_map`` (default: the same map); without, it is kept unrefined if it halves it.
 
     Returns
     -------
@@ -828,11 +835,22 @@ def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], current: t
     candidate, kept = objective((np.eye(r), Dr, Kr, Br), output_map), objective(current, current_map or output_map)
     report.update(status="realized", objective=candidate, kept_objective=kept, integrator=integrator,
                   refined="refinement" in info)
-    if not (candidate <= TERM_SIGNIFICANCE * kept and kept > CANDIDATE_FLOOR):
+    operators = (np.eye(r), np.diag(realization.d), np.diag(realization.k), realization.B)
+    outputs = (realization.Cp, realization.Cv)
+    if second_start is not None and candidate > 0:
+        _, modal_xdot, modal_x = _modal_data(realization.W, np.zeros_like(x_r), xdot_r, x_r)
+        *operators, refinement = refine_output_error(
+            *operators, modal_xdot, modal_x, u, y, dt, output_map=outputs, run_lengths=run_lengths,
+            integrator=integrator, progress_label="output-error refinement from the least-squares start",
+            **second_start)
+        report.update(objective_unrefined=candidate, objective=refinement["objective"], refinement=refinement)
+        better = refinement["objective"] < kept
+    else:
+        better = candidate <= TERM_SIGNIFICANCE * kept
+    if not (better and kept > CANDIDATE_FLOOR):
         return None
     report["chosen"] = True
-    operators = (np.eye(r), np.diag(realization.d), np.diag(realization.k), realization.B)
-    return operators, (realization.Cp, realization.Cv), realization.W
+    return tuple(operators), outputs, realization.W
 
 
 def _modal_data(W: np.ndarray, xddot_r: np.ndarray, xdot_r: np.ndarray,

@@ -372,7 +372,8 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
 
 
 def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int, m: int, max_iterations: int,
-               window: int, rtol: float, report: dict[str, Any], progress: bool = False) -> np.ndarray:
+               window: int, rtol: float, report: dict[str, Any], progress: bool = False,
+               label: str = "output-error refinement") -> np.ndarray:
     """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (L-BFGS-B's
     stopping tests are absolute below 1), or with ``problem.equation_weight`` on ``log(J / J0) + w log(E / E0)``
     (:meth:`_Trajectories.log_loss`); fills ``report`` (``objective`` and ``history`` are the output error
@@ -381,7 +382,7 @@ def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int,
 
     history = [1.0]
     stop = _Stagnation(history, window, rtol)
-    stop.bar = Progress(max_iterations, "output-error refinement (L-BFGS iterations)", quiet=not progress)
+    stop.bar = Progress(max_iterations, f"{label} (L-BFGS iterations)", quiet=not progress)
     if problem.equation_weight > 0:
         recent: list[tuple[np.ndarray, float, float]] = []  # (params, J, E) of the last evaluations
         shift, _, _, equation0 = problem.log_loss(start, r, m)
@@ -458,7 +459,7 @@ def refine_output_error(
     max_iterations: int = 300, unit_scales: Any = None, whiten: bool | str = "auto", rtol: float = 0.0,
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
     state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
-    progress: bool = False, gradient: str = "auto",
+    progress: bool = False, gradient: str = "auto", progress_label: str = "output-error refinement",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -525,6 +526,8 @@ def refine_output_error(
     progress : bool, default=False
         A labelled progress bar of the L-BFGS iterations on stderr, when it is a terminal and the refinement takes
         over a second (``fmu-opinf fit`` at r = 50: 1000 iterations, about 40 s).
+    progress_label : str, default="output-error refinement"
+        What the progress bar calls the refinement.
     gradient : {"auto", "modal", "dense"}, default="auto"
         How each evaluation computes the objective's gradient in the step map (:mod:`fmu_opinf._output_gradient`):
         ``"modal"`` through the eigenvalues of the step map without forming a state (``O(k r)`` per evaluation
@@ -586,7 +589,7 @@ def refine_output_error(
               "status": "exact start", "coordinates": "modal" if whiten else "given",
               "output_map": "refitted" if refit_output_map else "fixed"}
     if value0 > 0:
-        x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress)
+        x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress, progress_label)
         if polish_iterations > 0:
             problem.free_output_map = False  # the Jacobian holds C fixed: polish with the map L-BFGS ended at
             x, report["polish"] = _levenberg_marquardt(problem, x, r, m, polish_iterations)

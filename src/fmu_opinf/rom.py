@@ -908,8 +908,13 @@ def _refinement_summary(report: Any) -> str:
 def _candidate_summary(report: dict) -> str:
     if report.get("status") != "realized":
         return f"least-squares candidate: {report.get('status')}; kept the SDP solution"
-    kept = "its mechanical realization (modal coordinates)" if report["chosen"] else "the SDP solution"
-    return (f"least-squares candidate: training output error {report['objective']:.2e} against "
+    refined = "refinement" in report
+    if report["chosen"]:
+        kept = f"its {'refined ' if refined else ''}mechanical realization (modal coordinates)"
+    else:
+        kept = "the SDP solution"
+    return (f"least-squares candidate{' (refined)' if refined else ''}: training output error "
+            f"{report['objective']:.2e} against "
             f"{report['kept_objective']:.2e} for the {'refined ' if report.get('refined') else ''}SDP solution; "
             f"kept {kept}")
 
