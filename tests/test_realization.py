@@ -122,7 +122,7 @@ def test_unit_mass_least_squares_from_the_compressed_factor_equals_plain_least_s
 
 
 # ----------------------------------------------------------------------------------------------------------
-# The fit keeps the realization where it halves the training output error: the anchored chain at r = 12
+# The fit keeps the refined realization where it fits the training outputs better: the anchored chain, r = 12
 # ----------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def anchored_fit(bench):
