@@ -17,7 +17,7 @@ changes there.  (The mean position would also satisfy the constraint, but depend
 a projection error into the initial state.)  The basis is computed from ``x - x_ref`` (positions) or from the
 velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.
 
-Coordinates.  A ROM chosen as the mechanical realization of the least-squares fit (:mod:`fmu_opinf.inference`,
+Coordinates.  A ROM refined from the mechanical realization of the least-squares fit (:mod:`fmu_opinf.inference`,
 *Least-squares candidate*) lives in modal coordinates ``q_m``: its ``coordinates`` matrix ``W`` (2r x 2r) gives the
 POD coordinates ``[q; q'] = W [q_m; q_m']``, so ``x ~ x_ref + V (W_qq q_m + W_qv q_m')``.  Without ``W`` (every
 other ROM) the ROM's coordinates are the POD ones.
@@ -765,9 +765,9 @@ def fit_rom(
         (:mod:`fmu_opinf.inference`, *Output map*: much more accurate on the anchored chain, less on the triple
         chain).  Only with the refinement; ``Dur`` and ``y0`` stay as eq. 17 fitted them.
     least_squares_candidate : bool, default=True
-        With the refinement, also consider the mechanical realization of the unconstrained least-squares fit
-        and keep whichever of the two has the smaller training output error (:mod:`fmu_opinf.inference`,
-        *Least-squares candidate*).  The chosen realization lives in modal coordinates
+        With the refinement, also refine from the mechanical realization of the unconstrained least-squares fit
+        and keep whichever of the two refined models has the smaller training output error
+        (:mod:`fmu_opinf.inference`, *Least-squares candidate*).  The chosen realization lives in modal coordinates
         (:attr:`SecondOrderROM.coordinates`).  False keeps the refined SDP solution.
     quiet : bool, default=True
         False: print one labelled line per stage (POD, SDP start, SDP result) on stderr, as the CLI does.
