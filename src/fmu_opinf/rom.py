@@ -816,7 +816,9 @@ def fit_rom(
     time_integrator = _integrator(integrator, attrs)
     refinement = _refinement(refine, time_integrator, lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
     if refinement.get("refine"):
-        say("output-error refinement from the SDP solution (L-BFGS over PSD factors) ...")
+        starts = "the SDP solution" + (" and, where it exists, the mechanical realization of least squares"
+                                       if least_squares_candidate else "")
+        say(f"output-error refinement from {starts} (L-BFGS over PSD factors) ...")
     if refit_output_map and not refinement.get("refine"):
         raise _refit_without_refinement()
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
