@@ -31,6 +31,8 @@ Two ways to the same numbers:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.fft
 
@@ -100,20 +102,38 @@ def modal_is_faster(states: int, outputs: int, inputs: int) -> bool:
     return states >= max(_MODAL_MIN_STATES, 2 * outputs * (1 + inputs))
 
 
-def dense_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray,
-                          runs: list[Run]) -> tuple[float, np.ndarray, np.ndarray]:
-    """``J``, ``dJ/dA``, ``dJ/dB`` summed over the runs by stepping states and adjoints (module docstring)."""
-    grad_A, grad_B, value = np.zeros_like(A), np.zeros_like(B), 0.0
+#: An objective of the simulated states: states of each run -> (value, its gradient in each run's states).
+Misfit = Callable[[list[np.ndarray]], tuple[float, list[np.ndarray]]]
+
+
+def dense_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: list[Run],
+                          misfit: Misfit | None = None) -> tuple[float, np.ndarray, np.ndarray]:
+    """``J``, ``dJ/dA``, ``dJ/dB`` summed over the runs by stepping states and adjoints (module docstring).
+
+    ``misfit`` replaces the output error ``J`` by another objective of the simulated states (the refinement's
+    re-fitted output map or state-error term); the adjoint then starts from its gradient in the states.
+    """
     power_stack = powers(A, _STRIDE)  # shared by all runs, transposed for the adjoint
-    for z0, u, target in runs:
-        z = propagate(A, B @ u, z0, _STRIDE, power_stack)
-        err = C @ z - target
-        value += float(np.sum(err * err))
-        g = 2.0 * (C.T @ err)
+    states = [propagate(A, B @ u, z0, _STRIDE, power_stack) for z0, u, _ in runs]
+    value, drives = (misfit or _output_misfit(C, runs))(states)
+    grad_A, grad_B = np.zeros_like(A), np.zeros_like(B)
+    for z, (_, u, _), g in zip(states, runs, drives):
         lam = propagate(A.T, g[:, ::-1], g[:, -1], _STRIDE, power_stack.transpose(0, 2, 1))[:, ::-1]
         grad_A += lam[:, 1:] @ z[:, :-1].T
         grad_B += lam[:, 1:] @ u[:, 1:].T
     return value, grad_A, grad_B
+
+
+def _output_misfit(C: np.ndarray, runs: list[Run]) -> Misfit:
+    """``sum ||C z_i - t_i||^2`` and its gradient ``2 C^T (C z_i - t_i)`` in the states."""
+    def misfit(states: list[np.ndarray]) -> tuple[float, list[np.ndarray]]:
+        value, drives = 0.0, []
+        for z, (_, _, target) in zip(states, runs):
+            err = C @ z - target
+            value += float(np.sum(err * err))
+            drives.append(2.0 * (C.T @ err))
+        return value, drives
+    return misfit
 
 
 def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray,

@@ -357,7 +357,8 @@ relative in the gradient, the objective is the same recursion.  Per evaluation (
 states, 1.8 / 5.5 / 7.1 / 22.8 ms through the eigenvalues.  What remains per iteration at r = 35: the
 eigendecomposition (1.1 ms), the outputs (1.3 ms) and L-BFGS-B's own work with 100 correction pairs (1.8 ms).
 The accuracy table above was re-measured with it: the same ratios within the iterates' swing (r = 15 / 30 / 55 /
-60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42).
+60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42) until the
+second start (*Least-squares candidate* below) brought it to 0.65.
 L-BFGS keeps 100 correction pairs: with 30, r = 8 / 40 / 50 ended at ratio 2.1 / 2.1 / 13.  The learned poles
 stay 3-36 % off the full model's spectrum (``pole gap`` in the benchmark): the refined ``Mr, Dr, Kr`` reproduce
 the input-output behaviour in the training band, they are not the physical modes.  A cheaper start was measured

@@ -20,8 +20,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ._output_gradient import (_STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, powers,
-                               propagate)
+from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, propagate
 from ._progress import Progress
 from .errors import DimensionError
 
@@ -168,23 +167,24 @@ class _Trajectories:
                                  "well-conditioned eigenvector basis; use gradient='auto'")
         if not self.free_output_map and not mu:
             return dense_output_gradient(Ad, Bd, self.C, runs)
-        grad_A, grad_B, value = np.zeros_like(Ad), np.zeros_like(Bd), 0.0
-        power_stack = powers(Ad, _STRIDE)
-        sims = [propagate(Ad, Bd @ u, z_data[:, 0], _STRIDE, power_stack) for z_data, u in zip(self.z, self.u)]
-        if self.free_output_map:
-            self.C = _least_squares_output_map(sims, self.target, self.C)
-        for z, u, target, z_data in zip(sims, self.u, self.target, self.z):
-            err = self.C @ z - target
-            value += float(np.sum(err * err))
-            g = 2.0 * (self.C.T @ err)
-            if mu:
-                dz = (z - z_data) * scale[:, None]
-                value += mu * float(np.sum(dz * dz))
-                g = g + 2.0 * mu * dz * scale[:, None]
-            lam = propagate(Ad.T, g[:, ::-1], g[:, -1], _STRIDE, power_stack.transpose(0, 2, 1))[:, ::-1]
-            grad_A += lam[:, 1:] @ z[:, :-1].T
-            grad_B += lam[:, 1:] @ u[:, 1:].T
-        return value, grad_A, grad_B
+
+        def misfit(sims: list[np.ndarray]) -> tuple[float, list[np.ndarray]]:
+            """The output error with the re-fitted map and / or the weighted state error."""
+            if self.free_output_map:
+                self.C = _least_squares_output_map(sims, self.target, self.C)
+            value, drives = 0.0, []
+            for z, target, z_data in zip(sims, self.target, self.z):
+                err = self.C @ z - target
+                value += float(np.sum(err * err))
+                g = 2.0 * (self.C.T @ err)
+                if mu:
+                    dz = (z - z_data) * scale[:, None]
+                    value += mu * float(np.sum(dz * dz))
+                    g = g + 2.0 * mu * dz * scale[:, None]
+                drives.append(g)
+            return value, drives
+
+        return dense_output_gradient(Ad, Bd, self.C, runs, misfit)
 
     def log_loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray, float, float]:
         """``log J + w log E`` (``J`` of :meth:`loss`, ``E`` the acceleration residual, ``w`` the
