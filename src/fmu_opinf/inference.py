@@ -509,6 +509,7 @@ import scipy.linalg
 
 from .errors import DataError, DimensionError, FmuOpinfWarning
 from ._realization import first_order_matrix, mechanical_realization
+from ._background import Background
 from ._threads import single_threaded
 from ._sdp_paths import factored_start, fit_compressed, fit_factored, input_matrix, solve_sdp_direct
 from .refinement import newmark_step_map, output_error_objective, refine_output_error
@@ -747,41 +748,41 @@ def fit_operators(
         raise ValueError(f"mass_trace={mass_trace} must be positive")
     t0 = time.perf_counter()
     refitted_map = coordinates = None
-    with single_threaded():  # module docstring, *Threads*
+    with single_threaded():  # module docstring, *Threads*; also holds the limit for the background thread
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
-        if compressed:
-            if factored_start(solver, r, refine, method):
-                Ms, Ds, Ks, info = fit_factored(R, r, m)
-            else:
-                Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver)
-            Bs = input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
-        else:
-            zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"],
-                            x_r / scales["x"]])
-            (Ms, Ds, Ks), Bs, info = solve_sdp_direct(zs, r, m, float(r), tol, verbose)
-            info.update(method="sdp-direct", normalization="trace")
-        Mr, Dr, Kr = Ms / scales["xddot"], Ds / scales["xdot"], Ks / scales["x"]
-        Br = Bs / scales["u"]
-        info.update({f"raw_{key}": value for key, value in psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}).items()})
-        Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
-        if refine:
-            units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
-            Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
-                Mr, Dr, Kr, Br, xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), output_map=output_map,
-                run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
-                unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
-                equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress)
-            refitted_map = info["refinement"].pop("refitted_map", None)
-        if candidate:
-            training = (xdot_r, x_r, u, np.asarray(y, dtype=float), float(dt), run_lengths, integrator)
-            second_start = None
-            if refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
-                second_start = {"max_iterations": _refine_iterations(refine_iterations, r), "progress": progress}
-            chosen = _least_squares_candidate(R, scales, (Mr, Dr, Kr, Br), refitted_map, output_map, training, info,
-                                              second_start)
-            if chosen is not None:
-                (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
-                xddot_r, xdot_r, x_r = _modal_data(coordinates, xddot_r, xdot_r, x_r)
+        training = (xdot_r, x_r, u, None if y is None else np.asarray(y, dtype=float), None if dt is None else float(dt),
+                    run_lengths, integrator)
+        second = None
+        if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
+            iterations = _refine_iterations(refine_iterations, r)
+            second = Background(_least_squares_start, R, scales, m, output_map, training,
+                                {"max_iterations": iterations,
+                                 "progress_label": "output-error refinement from the least-squares start"},
+                                label="output-error refinement from the least-squares start (L-BFGS iterations)",
+                                total=iterations)
+        try:
+            Mr, Dr, Kr, Br, info = _sdp_operators(R, scales, (xddot_r, xdot_r, x_r, u), r, m, compressed=compressed,
+                                                  solver=solver, refine=refine, method=method, tol=tol,
+                                                  verbose=verbose, normalization=normalization)
+            if refine:
+                units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
+                Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
+                    Mr, Dr, Kr, Br, xdot_r, x_r, u, training[3], float(dt), output_map=output_map,
+                    run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
+                    unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
+                    equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress)
+                refitted_map = info["refinement"].pop("refitted_map", None)
+            if candidate:
+                found = (second.result(progress) if second is not None
+                         else _least_squares_start(R, scales, m, output_map, training))
+                chosen = _least_squares_candidate(found, (Mr, Dr, Kr, Br), refitted_map, training, info)
+                if chosen is not None:
+                    (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
+                    xddot_r, xdot_r, x_r = _modal_data(coordinates, xddot_r, xdot_r, x_r)
+        except BaseException:
+            if second is not None:
+                second.cancel()
+            raise
         common = target / np.trace(Mr)
         Mr, Dr, Kr, Br = Mr * common, Dr * common, Kr * common, Br * common
         info.update(_residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u))
@@ -790,6 +791,28 @@ def fit_operators(
     info.update(total_seconds=time.perf_counter() - t0, scales=scales, mass_trace=target, r=r, m=m, k=k)
     _report_status(info)
     return OperatorFit(Mr, Dr, Kr, Br, info, refitted_map, coordinates)
+
+
+def _sdp_operators(R: np.ndarray, scales: dict[str, float], data: tuple, r: int, m: int, *, compressed: bool,
+                   solver: str, refine: bool, method: str, tol: float, verbose: bool,
+                   normalization: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """The SDP solution of eq. (16) in physical units (``Mr, Dr, Kr`` made exactly symmetric PSD, ``Br``) and the
+    solver's report; ``data`` are the reduced accelerations, velocities, positions and the inputs."""
+    xddot_r, xdot_r, x_r, u = data
+    if compressed:
+        if factored_start(solver, r, refine, method):
+            Ms, Ds, Ks, info = fit_factored(R, r, m)
+        else:
+            Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver)
+        Bs = input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
+    else:
+        zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"], x_r / scales["x"]])
+        (Ms, Ds, Ks), Bs, info = solve_sdp_direct(zs, r, m, float(r), tol, verbose)
+        info.update(method="sdp-direct", normalization="trace")
+    Mr, Dr, Kr = Ms / scales["xddot"], Ds / scales["xdot"], Ks / scales["x"]
+    info.update({f"raw_{key}": value for key, value in psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}).items()})
+    Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
+    return Mr, Dr, Kr, Bs / scales["u"], info
 
 
 #: Training output error (relative, squared) below which the SDP model is kept whatever the least-squares
@@ -819,60 +842,78 @@ def unit_mass_least_squares(R: np.ndarray, scales: dict[str, float], r: int,
     return F[:, m:m + r] / scales["xdot"], F[:, m + r:] / scales["x"], -F[:, :m] / scales["u"]
 
 
-def _least_squares_candidate(R: np.ndarray, scales: dict[str, float], current: tuple,
-                             current_map: tuple[np.ndarray, np.ndarray] | None,
-                             output_map: tuple[np.ndarray, np.ndarray] | None, training: tuple,
-                             info: dict[str, Any], second_start: dict[str, Any] | None = None) -> tuple | None:
-    """The mechanical realization of the least-squares fit with the output map of eq. 17, if it exists, as a
-    second start of the refinement (module docstring, *Least-squares candidate*); ``info["least_squares_candidate"]``
-    says what was found.
-
-    With ``second_start`` (the refinement's ``max_iterations`` and ``progress``) the realization is refined like
-    the SDP solution and kept if its training output error is below that of the ``current`` model ``(Mr, Dr,
-    Kr, Br)`` with ``current_map`` (default: the same map); without, it is kept unrefined if it halves it.
+def _least_squares_start(R: np.ndarray, scales: dict[str, float], m: int,
+                         output_map: tuple[np.ndarray, np.ndarray] | None, training: tuple,
+                         second_start: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The mechanical realization of the least-squares fit with the output map of eq. 17, if it exists, refined
+    as a second start with ``second_start`` (the refinement's ``max_iterations``), else as it is (module
+    docstring, *Least-squares candidate*).  Independent of the SDP: the fit runs it beside the SDP solve and the
+    first refinement (:mod:`fmu_opinf._background`).
 
     Returns
     -------
-    ((Mr, Dr, Kr, Br), (Cpr, Cvr), W) or None
+    dict
+        ``report`` (what goes to ``info["least_squares_candidate"]``), ``proposal`` (``((Mr, Dr, Kr, Br), (Cpr,
+        Cvr), W)`` or None when there is no realization) and ``output_map`` (that of eq. 17).
     """
     xdot_r, x_r, u, y, dt, run_lengths, integrator = training
-    r, m = current[3].shape
+    r = x_r.shape[0]
     if output_map is None:
         output_map = fit_outputs(xdot_r, x_r, y)
     Dr, Kr, Br = unit_mass_least_squares(R, scales, r, m)
     realization = mechanical_realization(Dr, Kr, Br, *output_map)
     report: dict[str, Any] = {"chosen": False}
-    info["least_squares_candidate"] = report
+    found = {"report": report, "proposal": None, "output_map": output_map}
     if realization is None:
         A = first_order_matrix(Dr, Kr)
         stable = bool(np.all(np.isfinite(A)) and np.max(np.linalg.eigvals(A).real) < 0)
         report["status"] = ("no mechanical realization (an input reaches a pole pair through two directions, or "
                             "nearly defective)" if stable else "unstable")
-        return None
-
-    def objective(operators: tuple, outputs: tuple) -> float:
-        return output_error_objective(*operators, xdot_r, x_r, u, y, dt, output_map=outputs,
-                                      run_lengths=run_lengths, integrator=integrator)
-
-    candidate, kept = objective((np.eye(r), Dr, Kr, Br), output_map), objective(current, current_map or output_map)
-    report.update(status="realized", objective=candidate, kept_objective=kept, integrator=integrator,
-                  refined="refinement" in info)
+        return found
+    candidate = output_error_objective(np.eye(r), Dr, Kr, Br, xdot_r, x_r, u, y, dt, output_map=output_map,
+                                       run_lengths=run_lengths, integrator=integrator)
+    report.update(status="realized", objective=candidate, integrator=integrator)
     operators = (np.eye(r), np.diag(realization.d), np.diag(realization.k), realization.B)
     outputs = (realization.Cp, realization.Cv)
     if second_start is not None and candidate > 0:
         _, modal_xdot, modal_x = _modal_data(realization.W, np.zeros_like(x_r), xdot_r, x_r)
         *operators, refinement = refine_output_error(
             *operators, modal_xdot, modal_x, u, y, dt, output_map=outputs, run_lengths=run_lengths,
-            integrator=integrator, progress_label="output-error refinement from the least-squares start",
-            **second_start)
+            integrator=integrator, **second_start)
         report.update(objective_unrefined=candidate, objective=refinement["objective"], refinement=refinement)
-        better = refinement["objective"] < kept
+    found["proposal"] = (tuple(operators), outputs, realization.W)
+    return found
+
+
+def _least_squares_candidate(found: dict[str, Any], current: tuple,
+                             current_map: tuple[np.ndarray, np.ndarray] | None, training: tuple,
+                             info: dict[str, Any]) -> tuple | None:
+    """The choice between the ``current`` model ``(Mr, Dr, Kr, Br)`` with ``current_map`` (default: the map of
+    eq. 17) and the least-squares start ``found`` by :func:`_least_squares_start`: a refined start is kept if its
+    training output error is below the current model's, an unrefined one only if it halves it, and neither when
+    the current model already reproduces the data (:data:`CANDIDATE_FLOOR`).  Fills
+    ``info["least_squares_candidate"]``.
+
+    Returns
+    -------
+    ((Mr, Dr, Kr, Br), (Cpr, Cvr), W) or None
+    """
+    xdot_r, x_r, u, y, dt, run_lengths, integrator = training
+    report = found["report"]
+    info["least_squares_candidate"] = report
+    if found["proposal"] is None:
+        return None
+    kept = output_error_objective(*current, xdot_r, x_r, u, y, dt, output_map=current_map or found["output_map"],
+                                  run_lengths=run_lengths, integrator=integrator)
+    report.update(kept_objective=kept, refined="refinement" in info)
+    if "refinement" in report:
+        better = report["objective"] < kept
     else:
-        better = candidate <= TERM_SIGNIFICANCE * kept
+        better = report["objective"] <= TERM_SIGNIFICANCE * kept
     if not (better and kept > CANDIDATE_FLOOR):
         return None
     report["chosen"] = True
-    return tuple(operators), outputs, realization.W
+    return found["proposal"]
 
 
 def _modal_data(W: np.ndarray, xddot_r: np.ndarray, xdot_r: np.ndarray,

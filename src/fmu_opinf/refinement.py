@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from ._background import checkpoint
 from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, propagate
 from ._progress import Progress
 from .errors import DimensionError
@@ -433,6 +434,7 @@ class _Stagnation:
     def __call__(self, intermediate_result: Any) -> None:
         value = intermediate_result.fun if self.transform is None else self.transform(intermediate_result)
         self.history.append(float(value))
+        checkpoint(len(self.history) - 1)  # a refinement in a background thread: follow it, stop it on request
         if self.bar is not None:
             self.bar.update(len(self.history) - 1)
         if self.rtol > 0 and len(self.history) > 2 * self.window:
