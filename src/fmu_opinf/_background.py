@@ -6,6 +6,12 @@ products, FFTs, the L-BFGS update) release the GIL; measured at r = 35, two refi
 against 3.3 s one after the other, with the same results (each thread runs its own computation; the BLAS pools
 stay at one thread, process-wide, held by the caller).
 
+Measured and not kept: the SDP's two normalizations side by side (same bits; the SDP alone at r = 50 took 17.2 s
+against 20.1 s, but the whole fit 36.3 s against 35.1 s, since the second start already keeps the other core
+busy).  Large LAPACK calls gain little from threads here anyway: SciPy's OpenBLAS serializes concurrent calls (two
+threads factoring a 2550-square matrix five times each: 1.40 s against 1.48 s one after the other; NumPy's
+OpenBLAS 1.16 s against 1.97 s).
+
 Signals reach the main thread only.  The main thread therefore never leaves a :class:`Background` running: on any
 exception it calls :meth:`Background.cancel`, which asks the worker to stop at its next iteration and waits for
 it.  The worker looks at the request in :func:`checkpoint`, which the refinement's L-BFGS calls every iteration

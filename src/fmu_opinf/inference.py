@@ -395,7 +395,11 @@ tolerance 1e-9 although the solution does not change; such a solve is repeated o
 becomes one :class:`~fmu_opinf.errors.FmuOpinfWarning` line and an entry of ``fit_info["warnings"]``.  The fit
 runs its dense kernels (QR, eigendecompositions, Cholesky) with one BLAS thread (threadpoolctl): the matrices are
 small, several threads only collapse under oversubscription, and the result does not depend on the thread
-count (tested).  The PSD report ``raw_*_eig_min`` is taken on the solver's output before the final
+count (tested).  The refinement of the second start (*Least-squares candidate*) runs in a second thread beside
+the SDP solve and the first refinement (:mod:`fmu_opinf._background`): it does not depend on them, and their
+kernels release the GIL.  The result is the same bits as one after the other (tested); on any error or Ctrl-C
+in the main thread the second start is stopped at its next iteration before the error goes on.  The PSD report
+``raw_*_eig_min`` is taken on the solver's output before the final
 symmetrization and clipping of round-off negative eigenvalues.
 
 Solution path
