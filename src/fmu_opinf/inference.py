@@ -99,47 +99,49 @@ case     r    POD-Galerkin  least sq.   SDP alone (``refine=False``)  default   
 =======  ===  ============  ==========  ===========================  ============================  =====
 anchored  2   4.3e-2        1.2e-2      1.2e-2                       9.4e-3 (LS realized)          0.77
 anchored  3   2.3e-3        7.1e-5      --                           3.3e-6 (LS realized)          0.05
-anchored  4   1.7e-4        1.6e-5      --                           2.9e-8                        0.002
+anchored  4   1.7e-4        1.6e-5      --                           3.0e-8                        0.002
 anchored  5   9.2e-6        2.1e-7      2.2e-7                       1.0e-8                        0.05
-anchored  6   4.6e-7        2.4e-9      --                           5.3e-10                       0.22
-anchored  7   2.4e-8        2.5e-10     --                           2.6e-11                       0.10
-anchored  8   1.4e-9        1.4e-12     2.4e-12                      2.9e-13 (LS realized)         0.21
-anchored  9   7.6e-11       5.1e-14     --                           4.7e-14 (LS realized)         0.92
-anchored 10   3.9e-12       2.5e-15     --                           2.6e-15 (LS realized)         1.04
+anchored  6   4.6e-7        2.4e-9      --                           5.5e-10                       0.23
+anchored  7   2.4e-8        2.5e-10     --                           3.3e-11                       0.13
+anchored  8   1.4e-9        1.4e-12     2.4e-12                      2.6e-13 (LS realized)         0.19
+anchored  9   7.6e-11       5.1e-14     --                           5.0e-14 (LS realized)         0.97
+anchored 10   3.9e-12       2.5e-15     --                           2.5e-15 (LS realized)         1.01
 anchored 11   2.3e-13       5.5e-18     --                           5.5e-18 (LS realized)         1.01
 anchored 12   1.3e-14       6.6e-19     1.3e-16                      6.7e-19 (LS realized)         1.01
 triple    5   6.7e-4        6.2e-4      --                           5.5e-4 (LS realized)          0.88
-triple   10   2.4e-5        1.1e-5      2.4e-4                       5.3e-6                        0.49
-triple   15   7.1e-6        6.2e-6      --                           1.2e-6                        0.19
-triple   20   7.8e-6        2.4e-6      4.2e-5                       9.0e-7                        0.38
-triple   25   5.6e-6        1.2e-6      --                           5.7e-7                        0.47
-triple   30   4.5e-6        5.8e-7      --                           3.2e-7                        0.55
-triple   35   1.2e-6        3.7e-7      1.1e-5                       8.4e-8 (LS realized)          0.23
-triple   40   1.0e-6        2.7e-7      --                           4.9e-7 (modal)                1.82
-triple   45   1.8e-6        2.6e-7      --                           1.9e-7 (LS realized)          0.74
-triple   50   3.6e-7        1.5e-7      --                           9.6e-8 (LS realized)          0.65
-triple   55   2.7e-7        1.7e-7      --                           9.1e-8 (LS realized)          0.53
-triple   60   1.6e-7        -- (*)      2.2e-5                       1.3e-8 (modal)                0.08
+triple   10   2.4e-5        1.1e-5      2.4e-4                       4.5e-6                        0.41
+triple   15   7.1e-6        6.2e-6      --                           2.0e-6                        0.33
+triple   20   7.8e-6        2.4e-6      4.2e-5                       9.4e-7                        0.40
+triple   25   5.6e-6        1.2e-6      --                           4.9e-7                        0.41
+triple   30   4.5e-6        5.8e-7      --                           3.1e-7                        0.54
+triple   35   1.2e-6        3.7e-7      1.1e-5                       9.1e-8 (LS realized)          0.24
+triple   40   1.0e-6        2.7e-7      --                           5.1e-7 (modal)                1.93
+triple   45   1.8e-6        2.6e-7      --                           1.8e-7 (LS realized)          0.70
+triple   50   3.6e-7        1.5e-7      --                           1.0e-7 (LS realized)          0.68
+triple   55   2.7e-7        1.7e-7      --                           9.6e-8 (LS realized)          0.56
+triple   60   1.6e-7        -- (*)      2.2e-5                       3.4e-8 (modal)                0.21
 =======  ===  ============  ==========  ===========================  ============================  =====
 
 (*) unstable at r = 60, so the reference there is POD-Galerkin.  "(modal)": from r = 40 on the refinement
 works in the SDP start's modal coordinates (below), with ``20 r`` iterations above r = 40.  "(LS realized)": the
 refinement started from the realization of least squares fitted the training run better and was kept
 (*Least-squares candidate* below).  All "default" and "ratio" figures are one full run of ``bench_accuracy.py``
-on 2026-11-25 with both starts and the gradient through the eigenvalues (*Cost of the refinement* below;
-OpenBLAS 0.3.31, 2 cores shared with other jobs).  Before the second start (same day): triple r = 35 / 45 / 50 /
-55 at 0.43 / 0.41 / 3.42 / 1.25, anchored r = 2 / 8 / 9 / 10 / 11 / 12 at 0.84 / 0.58 / 1.00 / 1.25 / 1.00 / 1.00
-(r = 9, 11, 12 the unrefined realization); with the gradient by stepping states the rows differed within the
-iterates' swing (r = 15 / 30 / 60: 0.42 / 0.72 / 0.18); in the given coordinates r = 40 had 5.4e-7, ratio 2.03.
-The "SDP alone" column is from earlier runs.  The SDP start alone
-takes 50 / 140 / 225 s CPU at r = 50 / 55 / 60.
+on 2026-11-25 (06:00 UTC) with both starts, the gradient through the eigenvalues and the refinement's own L-BFGS
+(*Cost of the refinement* below; OpenBLAS 0.3.31, idle machine).  With SciPy's L-BFGS-B the same day they were
+within the iterates' swing of these (anchored r = 6 / 7 / 8 / 9 / 10: 0.22 / 0.10 / 0.21 / 0.92 / 1.04; triple
+r = 10 / 15 / 40 / 45 / 60: 0.49 / 0.19 / 1.82 / 0.74 / 0.08).  Before the second start (same day): triple
+r = 35 / 45 / 50 / 55 at 0.43 / 0.41 / 3.42 / 1.25, anchored r = 2 / 8 / 9 / 10 / 11 / 12 at 0.84 / 0.58 / 1.00 /
+1.25 / 1.00 / 1.00 (r = 9, 11, 12 the unrefined realization); with the gradient by stepping states the rows
+differed within the iterates' swing (r = 15 / 30 / 60: 0.42 / 0.72 / 0.18); in the given coordinates r = 40 had
+5.4e-7, ratio 2.03.  The "SDP alone" column is from earlier runs.  The SDP start alone takes 50 / 140 / 225 s
+CPU at r = 50 / 55 / 60.
 
 Reading the table: the goal (``ratio <= 2``, stable) is met on the anchored chain for every r = 2 .. 12 and on the
 triple chain for every r = 5 .. 60; mostly the default is *better* than both references.  Until the second start
 triple r = 50 missed (3.42): the test error of the SDP start's refinement swings between iterates (below, and
 *Candidates against the swing*); the second start does not remove the swing, it offers a second local optimum,
 and at r = 45 .. 55 the least-squares start's is the better training fit.  At r = 8 .. 12 the anchored chain
-keeps the refined realization of least squares (ratio 0.21 .. 1.04; the refined SDP alone gave 0.58 / 1.76 / 1.25
+keeps the refined realization of least squares (ratio 0.19 .. 1.01; the refined SDP alone gave 0.58 / 1.76 / 1.25
 / 57 / 183).  Why the refined SDP
 alone stayed above least squares there (kept for the record): the gap is not round-off of the measure: eq. (19) of
 the full model against itself with ``M, D, K, B`` scaled by 3 (the same trajectory in exact arithmetic) is 3e-30 on
@@ -354,8 +356,14 @@ separated eigenvalues (gap >= 1e-6) and a well-conditioned eigenvector basis (1-
 and where it is not faster (below about ``r = 7``), the evaluation steps states.  Both agree to 1e-10 .. 2e-9
 relative in the gradient, the objective is the same recursion.  Per evaluation (``bench_fit.py --evaluation``,
 6001 steps, machine shared with another session): r = 10 / 35 / 50 / 100: 6.9 / 17.2 / 24.6 / 113 ms stepping
-states, 1.8 / 5.5 / 7.1 / 22.8 ms through the eigenvalues.  What remains per iteration at r = 35: the
-eigendecomposition (1.1 ms), the outputs (1.3 ms) and L-BFGS-B's own work with 100 correction pairs (1.8 ms).
+states, 1.8 / 5.5 / 7.1 / 22.8 ms through the eigenvalues.  What remained per iteration at r = 35: the
+eigendecomposition (1.1 ms), the outputs (1.3 ms) and SciPy's L-BFGS-B's own work with 100 correction pairs (1.5
+ms, holding the GIL).  Since then the refinement runs its own L-BFGS (:mod:`fmu_opinf._lbfgs`: the same direction
+from the compact form of the inverse BFGS matrix in NumPy, the same strong Wolfe conditions and stopping tests):
+0.55 ms per iteration of its own at 3710 unknowns, and two of them run side by side in two threads (the second
+start).  The refinement alone (``refine_output_error``, 300 iterations, CPU seconds) at r = 10 / 20 / 35: 0.73 /
+0.96 / 1.65 s against 0.91 / 1.08 / 2.01 s, objectives 4.25e-7 / 3.10e-8 / 4.63e-9 against 4.30e-7 / 3.10e-8 /
+4.47e-9.
 The accuracy table above was re-measured with it: the same ratios within the iterates' swing (r = 15 / 30 / 55 /
 60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42) until the
 second start (*Least-squares candidate* below) brought it to 0.65.
@@ -754,8 +762,8 @@ def fit_operators(
     refitted_map = coordinates = None
     with single_threaded():  # module docstring, *Threads*; also holds the limit for the background thread
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
-        training = (xdot_r, x_r, u, None if y is None else np.asarray(y, dtype=float), None if dt is None else float(dt),
-                    run_lengths, integrator)
+        training = (xdot_r, x_r, u, None if y is None else np.asarray(y, dtype=float),
+                    None if dt is None else float(dt), run_lengths, integrator)
         second = None
         if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
             iterations = _refine_iterations(refine_iterations, r)

@@ -2,9 +2,9 @@
 
 Starting from the SDP operators, ``Mr = LM LM^T``, ``Dr = LD LD^T``, ``Kr = LK LK^T`` and ``Br`` are refined to
 minimize the training runs' output error with the ROM's own step, classical Newmark or the exact hold step
-(L-BFGS with the adjoint gradient, evaluated through the eigenvalues of the step map where that is possible and
-faster, :mod:`fmu_opinf._output_gradient`; for Newmark an optional Levenberg-Marquardt polish with the exact
-Jacobian).
+(L-BFGS, :mod:`fmu_opinf._lbfgs`, with the adjoint gradient, evaluated through the eigenvalues of the step map
+where that is possible and faster, :mod:`fmu_opinf._output_gradient`; for Newmark an optional Levenberg-Marquardt
+polish with the exact Jacobian).
 The factors keep the operators symmetric PSD, so the refined ROM is stable by construction.  Why, what was
 measured and what was not kept: the docstring of :mod:`fmu_opinf.inference`, section *Output-error refinement*.
 :func:`fmu_opinf.inference.fit_operators` calls :func:`refine_output_error`; both public functions are also
@@ -21,6 +21,7 @@ import numpy as np
 import scipy.linalg
 
 from ._background import checkpoint
+from ._lbfgs import minimize_lbfgs
 from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, propagate
 from ._progress import Progress
 from .errors import DimensionError
@@ -375,12 +376,10 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
 def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int, m: int, max_iterations: int,
                window: int, rtol: float, report: dict[str, Any], progress: bool = False,
                label: str = "output-error refinement") -> np.ndarray:
-    """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (L-BFGS-B's
-    stopping tests are absolute below 1), or with ``problem.equation_weight`` on ``log(J / J0) + w log(E / E0)``
+    """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (the L-BFGS
+    gradient test is absolute), or with ``problem.equation_weight`` on ``log(J / J0) + w log(E / E0)``
     (:meth:`_Trajectories.log_loss`); fills ``report`` (``objective`` and ``history`` are the output error
     ``J`` either way) and returns the last iterate."""
-    import scipy.optimize
-
     history = [1.0]
     stop = _Stagnation(history, window, rtol)
     stop.bar = Progress(max_iterations, f"{label} (L-BFGS iterations)", quiet=not progress)
@@ -406,12 +405,12 @@ def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int,
             return tuple(v / value0 for v in problem.loss(p, r, m))
 
     with stop.bar:
-        result = scipy.optimize.minimize(fun, start, jac=True, method="L-BFGS-B", callback=stop,
-                                         options={"maxiter": max_iterations, "maxcor": 100, "ftol": 1e-13,
-                                                  "gtol": 1e-12})
+        result = minimize_lbfgs(fun, start, max_iterations=max_iterations, memory=100, ftol=1e-13, gtol=1e-12,
+                                callback=stop)
     if problem.free_output_map:
         problem.loss(result.x, r, m)  # leaves problem.C at the map of the final iterate
-    status = "stagnated" if stop.stopped else ("converged" if result.success else "iteration limit")
+    status = ("stagnated" if stop.stopped else "converged" if result.success
+              else "line search failed" if result.message == "line search failed" else "iteration limit")
     objective = float(result.fun) * value0
     if problem.equation_weight > 0:
         objective = output_error(result.x)
@@ -545,10 +544,10 @@ def refine_output_error(
     report : dict
         ``objective_start``, ``objective`` (relative squared output error on the training runs), ``iterations``,
         ``evaluations``, ``seconds``, ``coordinates`` (``"modal"`` or ``"given"``), ``status`` (``"converged"``,
-        ``"stagnated"``, ``"iteration limit"`` or ``"kept start"``), ``history`` (objective after each L-BFGS
-        iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map`` (``(Cpr, Cvr)``, when
-        refitted) and, when polishing, ``polish`` (objective and damping of each accepted Levenberg-Marquardt
-        step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and at the end).
+        ``"stagnated"``, ``"iteration limit"``, ``"line search failed"`` or ``"kept start"``), ``history``
+        (objective after each L-BFGS iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map``
+        (``(Cpr, Cvr)``, when refitted) and, when polishing, ``polish`` (objective and damping of each accepted
+        Levenberg-Marquardt step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and at the end).
     """
     t0 = time.perf_counter()
     r, m, k = Mr.shape[0], Br.shape[1], x_r.shape[1]
