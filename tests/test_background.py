@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from fmu_opinf import _background, inference, newmark, systems
+from fmu_opinf import inference, newmark, systems
 from fmu_opinf._background import Background, Cancelled, checkpoint
 from fmu_opinf.basis import PODBasis
 
@@ -110,30 +110,18 @@ def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeyp
 
 @pytest.mark.skipif(os.name != "posix", reason="process-group signals")
 def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
-    import signal as _signal
-    import subprocess
-    import sys
-
     from fmu_opinf.snapshots import record
 
-    from test_security import _as_from_a_terminal, _cli_env
+    from test_security import ctrl_c_after
 
     record("builtin:triple-chain", "impulse:amplitude=100,t0=2,width=0.5", 0.05, 300.0, tmp_path / "s.h5",
            quiet=True)
     out = tmp_path / "rom.h5"
     out.write_bytes(b"previous")
-    proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", "fit", str(tmp_path / "s.h5"), "-o", str(out),
-                             "--r", "35", "--force"], stderr=subprocess.PIPE, text=True, env=_cli_env(),
-                            start_new_session=True, preexec_fn=_as_from_a_terminal)
-    time.sleep(3.0)  # in the SDP solve or the first refinement, the second start running beside it
-    os.killpg(proc.pid, _signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, _signal.SIGKILL)
+    # after 3 s: in the SDP solve or the first refinement, the second start running beside it
+    returncode, err = ctrl_c_after(["fit", str(tmp_path / "s.h5"), "-o", str(out), "--r", "35", "--force"], 3.0)
     lines = err.strip().splitlines()
-    assert proc.returncode == 130 and lines[-1].startswith("fmu-opinf: interrupted"), err
+    assert returncode == 130 and lines[-1].startswith("fmu-opinf: interrupted"), err
     assert "Traceback" not in err
     assert out.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rom.h5", "s.h5"]

@@ -355,6 +355,26 @@ def _as_from_a_terminal() -> None:
     _signal.signal(_signal.SIGTERM, _signal.SIG_DFL)
 
 
+def ctrl_c_after(arguments: list[str], delay: float) -> tuple[int, str]:
+    """Run ``fmu-opinf *arguments`` as from a terminal, press Ctrl-C (SIGINT to its process group) after
+    ``delay`` seconds; its exit code and standard error."""
+    import signal as _signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", *arguments], stderr=subprocess.PIPE, text=True,
+                            env=_cli_env(), start_new_session=True, preexec_fn=_as_from_a_terminal)
+    time.sleep(delay)
+    os.killpg(proc.pid, _signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, _signal.SIGKILL)
+    return proc.returncode, err
+
+
 def _cli_env() -> dict:
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
     src = str(Path(cli.__file__).resolve().parents[1])
@@ -563,24 +583,10 @@ def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp
 
     Known gap: at 0.2 s (while the simulation process is being spawned) about 1 trial in 20 still prints the
     one line but ends by the signal (exit -2 instead of 130); that delay is left out so that CI is not flaky."""
-    import signal as _signal
-    import subprocess
-    import sys
-    import time
-
-    proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", "snapshots", str(anchored_fmu), "-o",
-                             str(tmp_path / "s.h5"), "--input", "step", "--dt", "0.01", "--t-end", "2000", "-q"],
-                            stderr=subprocess.PIPE, text=True, env=_cli_env(), start_new_session=True,
-                            preexec_fn=_as_from_a_terminal)
-    time.sleep(delay)
-    os.killpg(proc.pid, _signal.SIGINT)
-    try:
-        _, err = proc.communicate(timeout=30)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, _signal.SIGKILL)
+    returncode, err = ctrl_c_after(["snapshots", str(anchored_fmu), "-o", str(tmp_path / "s.h5"), "--input", "step",
+                                    "--dt", "0.01", "--t-end", "2000", "-q"], delay)
     lines = err.strip().splitlines()
-    assert proc.returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
+    assert returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
     assert list(tmp_path.iterdir()) == []
 
 
