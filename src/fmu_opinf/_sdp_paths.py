@@ -18,6 +18,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from ._lbfgs import minimize_lbfgs
 from .errors import SolverError
 
 #: Tolerance of the second solve when the first ends ``optimal_inaccurate`` (inference module docstring, *Solver
@@ -316,8 +317,6 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
     ``Ms = I``, ``Ds, Ks`` symmetrized, their eigenvalues floored at ``_START_FLOOR`` of the largest, and
     ``LM = _START_MASS I``: every factor has full rank (a zero column has zero gradient and would never move).
     """
-    import scipy.optimize
-
     t0 = time.perf_counter()
     R22 = R[m:, m:]
     R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
@@ -334,8 +333,7 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
         grads = [(TG[:, b * r:(b + 1) * r] + TG[:, b * r:(b + 1) * r].T) @ factors[b] for b in range(3)]
         return float(np.sum(TG * T)), 2.0 * np.concatenate([g.ravel() for g in grads])
 
-    result = scipy.optimize.minimize(objective, start, jac=True, method="L-BFGS-B",
-                                     options={"maxiter": iterations, "maxcor": 50, "ftol": 1e-15, "gtol": 1e-14})
+    result = minimize_lbfgs(objective, start, max_iterations=iterations, memory=50, ftol=1e-15, gtol=1e-14)
     factors = result.x.reshape(3, r, r)
     Ms, Ds, Ks = eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T
     info = {"status": "approximate", "method": "factored", "solver": "L-BFGS (PSD factors, not certified)",

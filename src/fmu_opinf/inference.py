@@ -453,7 +453,9 @@ Eq. (16) with ``Mr >= I`` is solved by L-BFGS over PSD factors, ``Ms = I + LM LM
 ``Ks = LK LK^T`` (``O(r^3)`` per iteration, 3000 iterations), from least squares with ``Ms = I`` and ``Ds, Ks``
 clipped to PSD.  The start must have full rank: a zero column of a factor has zero gradient and never moves
 (with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
-floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  On small noisy
+floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  It runs the
+refinement's L-BFGS (:mod:`fmu_opinf._lbfgs`, 50 pairs): on the triple chain the start took 4.7 / 13.3 s CPU at
+r = 75 / 100 against 14.8 / 28.0 s with SciPy's L-BFGS-B (2026-11-25), at 0.4 / 0.6 % lower objectives.  On small noisy
 problems it ends at the SDP's optimum (tests: within 4e-11 of Clarabel); on the triple chain after 3000
 iterations 2.9 % above it at r = 35 (3.3 s against 1.5 s for the interior-point method).  As the start of the
 refinement (``bench_accuracy.py``, triple chain, ``ratio`` as in the refinement table, CPU seconds of the whole
@@ -468,10 +470,12 @@ r    factored start          certified SDP start (the default)
 60   ratio 5.54, 95 s        ratio 0.08 (the SDP start alone 225 s)
 ===  ======================  =======================================
 
-At r = 75 the fit takes 167 s (start 21 s, refinement 152 s) and reaches max eps_y 2.5e-7, 67x POD-Galerkin's
+At r = 75 the fit took 167 s (start 21 s, refinement 152 s) and reached max eps_y 2.5e-7, 67x POD-Galerkin's
 3.7e-9; at r = 100 350 s (start 31 s, refinement 2000 iterations) and 5.1e-7, where POD-Galerkin (n = 301) is
-at 1.0e-12.  So up to r = 60 the default keeps the certified start, slower but more accurate; above r = 60 the factored start
-makes a fit possible at all, and the accuracy goal is missed there.
+at 1.0e-12.  With the gradient through the eigenvalues, the second start and the own L-BFGS (2026-11-25): r = 75
+in 44 s wall, 7.7e-9 (2.1x POD-Galerkin; the least-squares start kept), r = 100 in 88 s, 4.6e-7 (least squares
+unstable, no second start).  So up to r = 60 the default keeps the certified start, slower but more accurate;
+above r = 60 the factored start makes a fit possible at all, and at r = 100 the accuracy goal is missed.
 
 Measured (``benchmarks/bench_fit.py``, triple chain, SDP fit without refinement, CPU seconds on the shared
 2-core machine, one BLAS thread; Clarabel at tol 1e-10 as the reference; ``rel. diff`` is
