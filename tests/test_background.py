@@ -70,7 +70,7 @@ class _Serial:
 @pytest.fixture(scope="module")
 def triple_data():
     run = newmark.simulate(systems.triple_chain(), "impulse:amplitude=100,t0=2,width=0.5", DT, 300.0)
-    V = PODBasis(r=12, kind="velocities").fit([run]).basis_
+    V = PODBasis(r=16, kind="velocities").fit([run]).basis_  # from SIDE_BY_SIDE_FROM = 15 on in a thread
     return [V.T @ a for a in (run.xddot, run.xdot, run.x)], run.u, run.y
 
 
@@ -125,3 +125,14 @@ def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
     assert "Traceback" not in err
     assert out.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rom.h5", "s.h5"]
+
+
+def test_below_side_by_side_from_the_second_start_runs_in_the_main_thread(triple_data, monkeypatch):
+    def no_thread(*args, **kwargs):
+        raise AssertionError("a thread was started")
+
+    data, u, y = triple_data
+    monkeypatch.setattr(inference, "Background", no_thread)
+    small = inference.SIDE_BY_SIDE_FROM - 1
+    fit = inference.fit_operators(*(a[:small] for a in data), u, y=y, dt=DT, refine_iterations=30)
+    assert "refinement" in fit.info["least_squares_candidate"]  # refined all the same, one after the other

@@ -405,9 +405,10 @@ tolerance 1e-9 although the solution does not change; such a solve is repeated o
 becomes one :class:`~fmu_opinf.errors.FmuOpinfWarning` line and an entry of ``fit_info["warnings"]``.  The fit
 runs its dense kernels (QR, eigendecompositions, Cholesky) with one BLAS thread (threadpoolctl): the matrices are
 small, several threads only collapse under oversubscription, and the result does not depend on the thread
-count (tested).  The refinement of the second start (*Least-squares candidate*) runs in a second thread beside
-the SDP solve and the first refinement (:mod:`fmu_opinf._background`): it does not depend on them, and their
-kernels release the GIL.  The result is the same bits as one after the other (tested); on any error or Ctrl-C
+count (tested).  From r = 15 (:data:`SIDE_BY_SIDE_FROM`) the refinement of the second start (*Least-squares
+candidate*) runs in a second thread beside the SDP solve and the first refinement (:mod:`fmu_opinf._background`):
+it does not depend on them, and their kernels release the GIL (below, Python's own work dominates and the two
+threads only wait for each other).  The result is the same bits as one after the other (tested); on any error or Ctrl-C
 in the main thread the second start is stopped at its next iteration before the error goes on.  The PSD report
 ``raw_*_eig_min`` is taken on the solver's output before the final
 symmetrization and clipping of round-off negative eigenvalues.
@@ -770,14 +771,14 @@ def fit_operators(
         R, scales = compressed_factor(xddot_r, xdot_r, x_r, u)
         training = (xdot_r, x_r, u, None if y is None else np.asarray(y, dtype=float),
                     None if dt is None else float(dt), run_lengths, integrator)
-        second = None
+        second = second_start = None
         if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
-            iterations = _refine_iterations(refine_iterations, r)
-            second = Background(_least_squares_start, R, scales, m, output_map, training,
-                                {"max_iterations": iterations,
-                                 "progress_label": "output-error refinement from the least-squares start"},
-                                label="output-error refinement from the least-squares start (L-BFGS iterations)",
-                                total=iterations)
+            second_start = {"max_iterations": _refine_iterations(refine_iterations, r),
+                            "progress_label": "output-error refinement from the least-squares start"}
+            if r >= SIDE_BY_SIDE_FROM:
+                second = Background(_least_squares_start, R, scales, m, output_map, training, second_start,
+                                    label=f"{second_start['progress_label']} (L-BFGS iterations)",
+                                    total=second_start["max_iterations"])
         try:
             Mr, Dr, Kr, Br, info = _sdp_operators(R, scales, (xddot_r, xdot_r, x_r, u), r, m, compressed=compressed,
                                                   solver=solver, refine=refine, method=method, tol=tol,
@@ -792,7 +793,8 @@ def fit_operators(
                 refitted_map = info["refinement"].pop("refitted_map", None)
             if candidate:
                 found = (second.result(progress) if second is not None
-                         else _least_squares_start(R, scales, m, output_map, training))
+                         else _least_squares_start(R, scales, m, output_map, training,
+                                                   second_start and dict(second_start, progress=progress)))
                 chosen = _least_squares_candidate(found, (Mr, Dr, Kr, Br), refitted_map, training, info)
                 if chosen is not None:
                     (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
@@ -831,6 +833,13 @@ def _sdp_operators(R: np.ndarray, scales: dict[str, float], data: tuple, r: int,
     info.update({f"raw_{key}": value for key, value in psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}).items()})
     Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
     return Mr, Dr, Kr, Bs / scales["u"], info
+
+
+#: Order from which the second start is refined in a background thread beside the SDP solve and the first
+#: refinement (module docstring, *Solver status and threads*); below, one after the other.  Measured on the
+#: triple chain (wall seconds, best of two, 2026-11-25): r = 5 / 10 / 20 / 35: 0.93 / 1.34 / 1.79 / 3.76 side by
+#: side against 0.86 / 1.38 / 2.00 / 4.85 one after the other: small kernels leave both threads waiting for the GIL.
+SIDE_BY_SIDE_FROM = 15
 
 
 #: Training output error (relative, squared) below which the SDP model is kept whatever the least-squares
