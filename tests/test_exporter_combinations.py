@@ -24,6 +24,7 @@ import pytest
 
 from conftest import build_fmu_set
 from fmu_opinf.cli import main
+from fmu_opinf.inference import CANDIDATE_FLOOR
 from fmu_opinf.newmark import time_grid
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
@@ -258,11 +259,14 @@ def test_constrained_parameter_input_offsets_feedthrough(fmus, tmp_path):
     for recorded, true in ((run.x, exact.x), (run.xdot, exact.v), (run.xddot, exact.a)):
         assert relative(recorded, true[independent]) < 5e-12
     assert relative(run.y, exact.y) < 1e-12
-    # measured 3.0e-27 / 1.6e-25 (compare against the FMU): the least-squares candidate's realization is kept
-    # (training error 5.8e-27 against 6.2e-16 of the SDP, which ends in the full Clarabel SDP at 4.3e-12 here)
-    assert rom.fit_info["least_squares_candidate"]["chosen"]
-    assert rom_against_exact(snaps, rom, model, HARMONIC) < 3e-26
-    assert metrics["max_error"] < 2e-24
+    # Both starts reproduce the data here (training error 2.5e-27 of the least-squares start against 2.7e-23 of
+    # the refined SDP start, which begins from the full Clarabel SDP at 4.3e-12), so which one is kept depends on
+    # rounding: below CANDIDATE_FLOOR the SDP model is kept.  Measured against the exact solution and the FMU:
+    # 4.0e-19 / 4.0e-19 with the SDP model, 3.0e-27 / 1.6e-25 with the least-squares realization.
+    report = rom.fit_info["least_squares_candidate"]
+    assert report["chosen"] or report["kept_objective"] <= CANDIDATE_FLOOR
+    assert rom_against_exact(snaps, rom, model, HARMONIC) < 1e-18
+    assert metrics["max_error"] < 1e-18
 
 
 def test_explicit_euler_co_simulation_is_refused_in_one_line(fmus, tmp_path, capsys):

@@ -138,14 +138,16 @@ def _eps_max(y, reference):
 
 @pytest.mark.slow  # about 5 s: the anchored chain (g = 600) at r = 12 and two test runs
 def test_fit_keeps_the_refined_realization_when_it_fits_the_training_outputs_better(bench, anchored_fit):
-    """Least squares fits the training outputs 1000x better than the refined SDP here (7e-20 against 1e-16); the
+    """Least squares fits the training outputs 80x better than the refined SDP here (7e-20 against 6e-18); the
     refinement started from its realization keeps that, so the fit keeps it: symmetric positive definite
     operators in the realization's coordinates, the test error of least squares on the same basis (computed
     independently by ``bench_accuracy.lstsq_rom``: numpy's least squares of the projected data, simulated in POD
     coordinates)."""
     rom = anchored_fit
     report = rom.fit_info["least_squares_candidate"]
-    assert report["chosen"] and report["objective"] <= 1e-2 * report["kept_objective"]  # measured 1.1e-3
+    # measured 1.2e-2 (7.2e-20 against 6.0e-18) with the refinement's own L-BFGS, which takes the SDP start
+    # further than SciPy's L-BFGS-B did (1.1e-3 then)
+    assert report["chosen"] and report["objective"] <= 5e-2 * report["kept_objective"]
     assert report["objective"] <= report["objective_unrefined"]
     assert rom.coordinates is not None and rom.is_stable()
     for mat in (rom.Mr, rom.Dr, rom.Kr):
