@@ -129,6 +129,31 @@ def test_fit_refit_output_map_option_reaches_the_refinement(trained, tmp_path, c
     assert not bad.exists() and not list(tmp_path.glob("bad*"))
 
 
+def test_fit_refine_iterations_option_bounds_both_starts(trained, tmp_path, capsys):
+    """`fit --refine-iterations 7` runs at most 7 L-BFGS iterations from each start (the default fit of the same
+    data runs more), records the setting, and leaves a training error between the unrefined and the default
+    one; a negative count is a one-line error and writes nothing."""
+    from fmu_opinf.rom import SecondOrderROM
+
+    folder, default, _ = trained
+    out = tmp_path / "short.h5"
+    assert main(["fit", str(folder / "train.h5"), "-o", str(out), "--r", "5", "--refine-iterations", "7",
+                 "-q"]) == 0
+    rom = SecondOrderROM.load(out)
+    assert rom.provenance["fit_settings"]["refine_iterations"] == 7
+    short, full = rom.fit_info["refinement"], default.fit_info["refinement"]
+    assert short["iterations"] <= 7 < full["iterations"]
+    candidate = rom.fit_info["least_squares_candidate"]
+    assert candidate["refinement"]["iterations"] <= 7
+    assert full["objective"] < short["objective"] < short["objective_start"]
+    capsys.readouterr()
+    bad = tmp_path / "bad.h5"
+    assert main(["fit", str(folder / "train.h5"), "-o", str(bad), "--refine-iterations", "-1", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--refine-iterations -1 must be at least 0" in err
+    assert not bad.exists()
+
+
 def test_fit_prints_the_learned_poles_and_no_lstsq_candidate_is_recorded(trained, tmp_path, capsys):
     """`fit` prints the natural frequencies and damping ratios of the learned poles (checked against the
     eigenvalues of the saved ROM's first-order matrix); `--no-lstsq-candidate` reaches the fit settings."""
