@@ -125,8 +125,10 @@ def test_certificate_rejects_a_suboptimal_point(rng):
     assert _sdp.certificate(worse, G, "trace", float(r))[0] > 1e-3
 
 
-def test_symmetric_kronecker_block_matches_its_definition(rng):
-    k = 4
+@pytest.mark.parametrize("k", [1, 4, 7])
+def test_symmetric_kronecker_block_matches_its_definition(rng, k):
+    """The upper triangle that _add_kron_upper adds (the part the Cholesky factorization of the Newton matrix
+    reads) is the symmetric Kronecker product entry for entry."""
     Y, Z = spd(rng, k, 0.5), spd(rng, k, 0.5)
     n = k * (k + 1) // 2
     iu, ju = np.triu_indices(k)
@@ -142,7 +144,43 @@ def test_symmetric_kronecker_block_matches_its_definition(rng):
 
     basis = [mat(e) for e in np.eye(n)]
     want = np.array([[inner(Ep, 0.5 * (Y @ Es @ Z + Z @ Es @ Y)) for Es in basis] for Ep in basis])
-    assert np.abs(_sdp._kron_block(Y, Z) - want).max() < 1e-12
+    start = rng.standard_normal((n, n))
+    got = start.copy()
+    _sdp._add_kron_upper(got, Y, Z)
+    upper = np.triu_indices(n)
+    assert np.abs((got - start)[upper] - want[upper]).max() < 1e-12
+
+
+@pytest.mark.parametrize("keep", [(0,), (1,), (2,), (0, 1), (0, 2), (1, 2)])
+def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep):
+    """_reduced_quadratic (Schur complement through the triangular factor of H_FF): the recovered entries are the
+    constrained minimizer over the eliminated blocks (KKT system solved directly), and the reduced quadratic
+    form reproduces the full objective up to a constant."""
+    from fmu_opinf._sdp_paths import _hessian, _mass_indicator, _reduced_quadratic
+
+    _, r, _, G = _scaled_problem(_active_data(rng))
+    H, a = _hessian(G, r), _mass_indicator(r)
+    idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a, float(r), keep, r)
+    constrained = 0 not in keep
+    H_ff, H_fa, a_f = H[np.ix_(idx_f, idx_f)], H[np.ix_(idx_f, idx_a)], a[idx_f]
+
+    def full(w_a):
+        w = np.empty(H.shape[0])
+        w[idx_a], w[idx_f] = w_a, recover(w_a)
+        return w
+
+    values, scale = [], 0.0
+    for w_a in rng.standard_normal((3, idx_a.size)):
+        if constrained:  # [H_FF, a_F; a_F^T, 0] [w_F; -mu] = [-H_FA w_A; trace]
+            kkt = np.block([[H_ff, a_f[:, None]], [a_f[None, :], np.zeros((1, 1))]])
+            want = np.linalg.solve(kkt, np.concatenate([-H_fa @ w_a, [r]]))[:-1]
+        else:
+            want = np.linalg.solve(H_ff, -H_fa @ w_a)
+        assert np.abs(recover(w_a) - want).max() <= 1e-8 * np.abs(want).max()
+        w = full(w_a)
+        values.append(w @ H @ w - (w_a @ S @ w_a + 2 * lin @ w_a))
+        scale = max(scale, w @ H @ w)
+    assert np.ptp(values) <= 1e-12 * scale  # the same constant for every w_A
 
 
 def test_failed_certificate_falls_back_to_clarabel(rng, monkeypatch):
