@@ -1,8 +1,10 @@
-"""The second start of the refinement in a background thread (issue 16): same fit as one after the other, and
-never left running after an error or Ctrl-C."""
+"""The second start of the refinement beside the main thread, in a forked process or a thread (issue 16): same fit
+as one after the other, and never left running after an error or Ctrl-C."""
 
 from __future__ import annotations
 
+import functools
+import multiprocessing as mp
 import os
 import threading
 import time
@@ -11,7 +13,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import inference, newmark, systems
-from fmu_opinf._background import Background, Cancelled, checkpoint
+from fmu_opinf._background import Background, Cancelled, can_fork_here, checkpoint
 from fmu_opinf.basis import PODBasis
 
 DT = 0.1
@@ -29,7 +31,7 @@ def _count(limit: int, pause: float = 0.01) -> int:
 
 
 def test_cancel_stops_the_call_at_its_next_checkpoint():
-    call = Background(_count, 10_000, label="counting", total=10_000)  # 100 s if not stopped
+    call = Background(_count, 10_000, label="counting", total=10_000, mode="thread")  # 100 s if not stopped
     time.sleep(0.2)
     start = time.perf_counter()
     call.cancel()
@@ -41,13 +43,63 @@ def test_cancel_stops_the_call_at_its_next_checkpoint():
 
 
 def test_result_returns_the_value_or_raises_the_error_of_the_call():
-    assert Background(_count, 3, pause=0.0).result() == 3
+    assert Background(_count, 3, pause=0.0, mode="thread").result() == 3
 
     def broken() -> None:
         raise np.linalg.LinAlgError("singular")
 
     with pytest.raises(np.linalg.LinAlgError, match="singular"):
-        Background(broken).result()
+        Background(broken, mode="thread").result()
+
+
+needs_fork = pytest.mark.skipif(not can_fork_here(), reason="no fork here (not Linux, or other threads run)")
+
+
+@needs_fork
+def test_a_forked_call_reports_progress_returns_its_value_and_raises_its_error():
+    call = Background(_count, 40, pause=0.01, label="counting", total=40, mode="process")
+    assert call.mode == "process"
+    seen = 0
+    while call._alive():  # the child's checkpoints reach the shared counter
+        seen = max(seen, call.done)
+        time.sleep(0.02)
+    assert call.result() == 40 and 0 < seen <= 40 and call.done == 39
+    assert not mp.active_children()
+
+    def broken() -> None:
+        raise np.linalg.LinAlgError("singular")
+
+    with pytest.raises(np.linalg.LinAlgError, match="singular"):
+        Background(broken, mode="process").result()
+    assert not mp.active_children()
+
+
+@needs_fork
+def test_cancel_kills_a_forked_call_at_once():
+    call = Background(_count, 10_000, label="counting", total=10_000, mode="process")  # 100 s if not stopped
+    time.sleep(0.3)
+    start = time.perf_counter()
+    call.cancel()
+    assert time.perf_counter() - start < 0.5
+    assert not mp.active_children()
+    with pytest.raises(Cancelled):
+        call.result()
+
+
+def test_a_process_is_not_forked_beside_another_thread():
+    """A lock held by another thread at the fork would stay held in the child: with a second thread alive the
+    call runs in a thread, and asking for a process is refused."""
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:
+        assert not can_fork_here()
+        assert Background(_count, 2, pause=0.0).mode == "thread"
+        with pytest.raises(RuntimeError, match="no process can be forked"):
+            Background(_count, 2, mode="process")
+    finally:
+        release.set()
+        other.join()
 
 
 def test_checkpoint_outside_a_background_call_does_nothing():
@@ -70,12 +122,14 @@ class _Serial:
 @pytest.fixture(scope="module")
 def triple_data():
     run = newmark.simulate(systems.triple_chain(), "impulse:amplitude=100,t0=2,width=0.5", DT, 300.0)
-    V = PODBasis(r=16, kind="velocities").fit([run]).basis_  # from SIDE_BY_SIDE_FROM = 15 on in a thread
+    V = PODBasis(r=16, kind="velocities").fit([run]).basis_  # without fork: from SIDE_BY_SIDE_FROM = 15 on
     return [V.T @ a for a in (run.xddot, run.xdot, run.x)], run.u, run.y
 
 
-def test_the_threaded_fit_equals_the_fit_one_start_after_the_other(triple_data, monkeypatch):
+@pytest.mark.parametrize("mode", ["thread", pytest.param("process", marks=needs_fork)])
+def test_the_fit_beside_equals_the_fit_one_start_after_the_other(triple_data, monkeypatch, mode):
     data, u, y = triple_data
+    monkeypatch.setattr(inference, "Background", functools.partial(Background, mode=mode))
     threaded = inference.fit_operators(*data, u, y=y, dt=DT, refine_iterations=60)
     monkeypatch.setattr(inference, "Background", _Serial)
     serial = inference.fit_operators(*data, u, y=y, dt=DT, refine_iterations=60)
@@ -86,15 +140,22 @@ def test_the_threaded_fit_equals_the_fit_one_start_after_the_other(triple_data, 
     assert threaded.info["least_squares_candidate"]["objective"] == serial.info["least_squares_candidate"]["objective"]
 
 
+def _beside() -> list:
+    """The second start's live thread or process, if any."""
+    return [t.name for t in _fmu_opinf_threads()] + [p.pid for p in mp.active_children()]
+
+
+@pytest.mark.parametrize("mode", ["thread", pytest.param("process", marks=needs_fork)])
 @pytest.mark.parametrize("error", [KeyboardInterrupt, ValueError])
-def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeypatch, error):
+def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeypatch, error, mode):
     data, u, y = triple_data
-    seen = {}
+    monkeypatch.setattr(inference, "Background", functools.partial(Background, mode=mode))
+    seen = []
 
     def failing_sdp(*args, **kwargs):
         deadline = time.monotonic() + 30
-        while not seen and time.monotonic() < deadline:  # until the second start iterates
-            seen.update({t.name: t for t in _fmu_opinf_threads()})
+        while not seen and time.monotonic() < deadline:  # until the second start runs
+            seen.extend(_beside())
             time.sleep(0.05)
         time.sleep(0.2)
         raise error("stop")
@@ -103,8 +164,8 @@ def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeyp
     start = time.perf_counter()
     with pytest.raises(error):
         inference.fit_operators(*data, u, y=y, dt=DT, refine_iterations=100_000)
-    assert seen, "the second start did not run in its own thread"
-    assert not _fmu_opinf_threads()
+    assert seen, f"the second start did not run in its own {mode}"
+    assert not _beside()
     assert time.perf_counter() - start < 10  # not the 100 000 iterations
 
 
@@ -118,8 +179,10 @@ def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
            quiet=True)
     out = tmp_path / "rom.h5"
     out.write_bytes(b"previous")
-    # after 3 s: in the SDP solve or the first refinement, the second start running beside it
-    returncode, err = ctrl_c_after(["fit", str(tmp_path / "s.h5"), "-o", str(out), "--r", "35", "--force"], 3.0)
+    # 0.3 s after the fit started: in the SDP solve, the second start running beside it (a process, or a
+    # thread where none can be forked); no process of the command may outlive it
+    returncode, err = ctrl_c_after(["fit", str(tmp_path / "s.h5"), "-o", str(out), "--r", "35", "--force"], 0.3,
+                                   after_line="output-error refinement from")
     lines = err.strip().splitlines()
     assert returncode == 130 and lines[-1].startswith("fmu-opinf: interrupted"), err
     assert "Traceback" not in err
@@ -127,12 +190,35 @@ def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rom.h5", "s.h5"]
 
 
-def test_below_side_by_side_from_the_second_start_runs_in_the_main_thread(triple_data, monkeypatch):
+def test_without_fork_below_side_by_side_from_the_second_start_runs_in_the_main_thread(triple_data, monkeypatch):
     def no_thread(*args, **kwargs):
         raise AssertionError("a thread was started")
 
     data, u, y = triple_data
     monkeypatch.setattr(inference, "Background", no_thread)
+    monkeypatch.setattr(inference, "can_fork_here", lambda: False)
     small = inference.SIDE_BY_SIDE_FROM - 1
     fit = inference.fit_operators(*(a[:small] for a in data), u, y=y, dt=DT, refine_iterations=30)
     assert "refinement" in fit.info["least_squares_candidate"]  # refined all the same, one after the other
+
+
+@needs_fork
+def test_with_fork_the_second_start_runs_beside_at_every_order(triple_data, monkeypatch):
+    """Where a process can be forked, the second start runs in it below SIDE_BY_SIDE_FROM too (no GIL to share),
+    with the same fit as one after the other."""
+    data, u, y = triple_data
+    small = [a[:5] for a in data]
+    modes = []
+
+    def recorded(*args, **kwargs):
+        call = Background(*args, **kwargs)
+        modes.append(call.mode)
+        return call
+
+    monkeypatch.setattr(inference, "Background", recorded)
+    beside = inference.fit_operators(*small, u, y=y, dt=DT, refine_iterations=30)
+    assert modes == ["process"]
+    monkeypatch.setattr(inference, "Background", _Serial)
+    serial = inference.fit_operators(*small, u, y=y, dt=DT, refine_iterations=30)
+    for a, b in zip((beside.Mr, beside.Dr, beside.Kr, beside.Br), (serial.Mr, serial.Dr, serial.Kr, serial.Br)):
+        np.testing.assert_array_equal(a, b)

@@ -355,9 +355,10 @@ def _as_from_a_terminal() -> None:
     _signal.signal(_signal.SIGTERM, _signal.SIG_DFL)
 
 
-def ctrl_c_after(arguments: list[str], delay: float) -> tuple[int, str]:
-    """Run ``fmu-opinf *arguments`` as from a terminal, press Ctrl-C (SIGINT to its process group) after
-    ``delay`` seconds; its exit code and standard error."""
+def ctrl_c_after(arguments: list[str], delay: float, after_line: str | None = None) -> tuple[int, str]:
+    """Run ``fmu-opinf *arguments`` as from a terminal, press Ctrl-C (SIGINT to its process group) ``delay``
+    seconds after its start, or after it printed a line containing ``after_line``; its exit code and standard
+    error, once every process of its group has ended (a forked helper included)."""
     import signal as _signal
     import subprocess
     import sys
@@ -365,14 +366,32 @@ def ctrl_c_after(arguments: list[str], delay: float) -> tuple[int, str]:
 
     proc = subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", *arguments], stderr=subprocess.PIPE, text=True,
                             env=_cli_env(), start_new_session=True, preexec_fn=_as_from_a_terminal)
+    head = ""
+    while after_line is not None and after_line not in head:
+        line = proc.stderr.readline()
+        if not line:
+            break
+        head += line
     time.sleep(delay)
     os.killpg(proc.pid, _signal.SIGINT)
     try:
         _, err = proc.communicate(timeout=30)
+        deadline = time.monotonic() + 5
+        while _group_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _group_alive(proc.pid), "a process of the command outlived it"
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, _signal.SIGKILL)
-    return proc.returncode, err
+    return proc.returncode, head + err
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 def _cli_env() -> dict:

@@ -229,6 +229,14 @@ class Worker:
                 self._outcome = (kind, payload)
                 return
 
+    def running(self) -> bool:
+        """Whether the worker has not yet sent its result (or died)."""
+        return self._relay.is_alive()
+
+    def wait(self, seconds: float) -> None:
+        """Wait at most ``seconds`` for the worker's result."""
+        self._relay.join(seconds)
+
     def result(self) -> Any:
         """Wait for the worker; its function's value, or its exception raised here."""
         while self._relay.is_alive():

@@ -424,11 +424,15 @@ tolerance 1e-9 although the solution does not change; such a solve is repeated o
 becomes one :class:`~fmu_opinf.errors.FmuOpinfWarning` line and an entry of ``fit_info["warnings"]``.  The fit
 runs its dense kernels (QR, eigendecompositions, Cholesky) with one BLAS thread (threadpoolctl): the matrices are
 small, several threads only collapse under oversubscription, and the result does not depend on the thread
-count (tested).  From r = 15 (:data:`SIDE_BY_SIDE_FROM`) the refinement of the second start (*Least-squares
-candidate*) runs in a second thread beside the SDP solve and the first refinement (:mod:`fmu_opinf._background`):
-it does not depend on them, and their kernels release the GIL (below, Python's own work dominates and the two
-threads only wait for each other).  The result is the same bits as one after the other (tested); on any error or Ctrl-C
-in the main thread the second start is stopped at its next iteration before the error goes on.  The PSD report
+count (tested).  The refinement of the second start (*Least-squares candidate*) does not depend on the SDP solve
+and the first refinement, so it runs beside them (:mod:`fmu_opinf._background`): in a forked process where one
+can be forked safely (Linux, no other thread in the process, not a daemon), else from r = 15
+(:data:`SIDE_BY_SIDE_FROM`) in a second thread (below, Python's own work dominates and two threads only wait for
+each other on the GIL).  Measured on the triple chain (wall seconds, 2026-11-26): in a process r = 5 / 10 / 14 /
+20 / 35 took 0.91 / 0.56 / 0.66 / 0.84 / 2.18 s against 1.59 / 1.05 / 1.23 s one after the other and 1.35 /
+2.79 s with the thread.  The result is the same bits as one after the other (tested); on any error or Ctrl-C in
+the main thread the second start is stopped (the process killed, the thread at its next iteration) before the
+error goes on.  The PSD report
 ``raw_*_eig_min`` is taken on the solver's output before the final
 symmetrization and clipping of round-off negative eigenvalues.
 
@@ -547,7 +551,7 @@ import scipy.linalg
 
 from .errors import DataError, DimensionError, FmuOpinfWarning
 from ._realization import first_order_matrix, mechanical_realization
-from ._background import Background
+from ._background import Background, can_fork_here
 from ._threads import single_threaded
 from ._sdp_paths import factored_start, fit_compressed, fit_factored, input_matrix, solve_sdp_direct
 from .refinement import newmark_step_map, output_error_objective, refine_output_error
@@ -794,7 +798,7 @@ def fit_operators(
         if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
             second_start = {"max_iterations": _refine_iterations(refine_iterations, r),
                             "progress_label": "output-error refinement from the least-squares start"}
-            if r >= SIDE_BY_SIDE_FROM:
+            if r >= SIDE_BY_SIDE_FROM or can_fork_here():
                 second = Background(_least_squares_start, R, scales, m, output_map, training, second_start,
                                     label=f"{second_start['progress_label']} (L-BFGS iterations)",
                                     total=second_start["max_iterations"])
@@ -855,7 +859,8 @@ def _sdp_operators(R: np.ndarray, scales: dict[str, float], data: tuple, r: int,
 
 
 #: Order from which the second start is refined in a background thread beside the SDP solve and the first
-#: refinement (module docstring, *Solver status and threads*); below, one after the other.  Measured on the
+#: refinement where no process can be forked (module docstring, *Solver status and threads*); below, one after
+#: the other.  Measured on the
 #: triple chain (wall seconds, best of two, 2026-11-25): r = 5 / 10 / 20 / 35: 0.93 / 1.34 / 1.79 / 3.76 side by
 #: side against 0.86 / 1.38 / 2.00 / 4.85 one after the other: small kernels leave both threads waiting for the GIL.
 SIDE_BY_SIDE_FROM = 15
