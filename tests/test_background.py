@@ -30,60 +30,45 @@ def _count(limit: int, pause: float = 0.01) -> int:
     return limit
 
 
-def test_cancel_stops_the_call_at_its_next_checkpoint():
-    call = Background(_count, 10_000, label="counting", total=10_000, mode="thread")  # 100 s if not stopped
-    time.sleep(0.2)
-    start = time.perf_counter()
-    call.cancel()
-    assert time.perf_counter() - start < 0.5
-    assert not _fmu_opinf_threads()
-    assert 0 < call.done < 100
-    with pytest.raises(Cancelled):
-        call.result()
-
-
-def test_result_returns_the_value_or_raises_the_error_of_the_call():
-    assert Background(_count, 3, pause=0.0, mode="thread").result() == 3
-
-    def broken() -> None:
-        raise np.linalg.LinAlgError("singular")
-
-    with pytest.raises(np.linalg.LinAlgError, match="singular"):
-        Background(broken, mode="thread").result()
-
-
 needs_fork = pytest.mark.skipif(not can_fork_here(), reason="no fork here (not Linux, or other threads run)")
+MODES = ["thread", pytest.param("process", marks=needs_fork)]
 
 
-@needs_fork
-def test_a_forked_call_reports_progress_returns_its_value_and_raises_its_error():
-    call = Background(_count, 40, pause=0.01, label="counting", total=40, mode="process")
-    assert call.mode == "process"
-    seen = 0
-    while call._alive():  # the child's checkpoints reach the shared counter
-        seen = max(seen, call.done)
-        time.sleep(0.02)
-    assert call.result() == 40 and 0 < seen <= 40 and call.done == 39
-    assert not mp.active_children()
-
-    def broken() -> None:
-        raise np.linalg.LinAlgError("singular")
-
-    with pytest.raises(np.linalg.LinAlgError, match="singular"):
-        Background(broken, mode="process").result()
-    assert not mp.active_children()
-
-
-@needs_fork
-def test_cancel_kills_a_forked_call_at_once():
-    call = Background(_count, 10_000, label="counting", total=10_000, mode="process")  # 100 s if not stopped
+@pytest.mark.parametrize("mode", MODES)
+def test_cancel_stops_the_call_at_once(mode):
+    """A thread stops at its next checkpoint, a process is killed; either way nothing is left running."""
+    call = Background(_count, 10_000, label="counting", total=10_000, mode=mode)  # 100 s if not stopped
+    assert call.mode == mode
     time.sleep(0.3)
     start = time.perf_counter()
     call.cancel()
     assert time.perf_counter() - start < 0.5
-    assert not mp.active_children()
+    assert not _fmu_opinf_threads() and not mp.active_children()
+    assert 0 < call.done < 100  # the progress it had reported
     with pytest.raises(Cancelled):
         call.result()
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_result_returns_the_value_or_raises_the_error_of_the_call(mode):
+    assert Background(_count, 3, pause=0.0, mode=mode).result() == 3
+
+    def broken() -> None:
+        raise np.linalg.LinAlgError("singular")
+
+    with pytest.raises(np.linalg.LinAlgError, match="singular"):
+        Background(broken, mode=mode).result()
+    assert not _fmu_opinf_threads() and not mp.active_children()
+
+
+@needs_fork
+def test_a_forked_call_reports_its_progress_through_the_shared_counter():
+    call = Background(_count, 40, pause=0.01, label="counting", total=40, mode="process")
+    seen = 0
+    while call._alive():
+        seen = max(seen, call.done)
+        time.sleep(0.02)
+    assert call.result() == 40 and 0 < seen <= 40 and call.done == 39
 
 
 def test_a_process_is_not_forked_beside_another_thread():
