@@ -339,9 +339,11 @@ def fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verbo
 
 
 #: ``solver="auto"`` starts the refinement from :func:`fit_factored` above this order (inference module docstring,
-#: *Solvers*): up to r = 60 the certified SDP start is slow (225 s CPU at r = 60) but gave far better refined
-#: ROMs (r = 55 / 60: ratio 1.18 / 0.08 against 2.86 / 5.54); above, the dense method's O(r^6) Newton matrices
-#: make it impractical (r = 75 did not finish in 20 minutes).
+#: *Solvers*): up to r = 60 the certified SDP start is slower (r = 60: 20 s CPU, 225 s before 2026-11-26) but
+#: gave far better refined ROMs (r = 55 / 60: ratio 1.18 / 0.08 against 2.86 / 5.54); above, the dense method's
+#: O(r^6) Newton matrices
+#: make it slow (r = 75: 142 s certified since 2026-11-26, before not in 20 minutes; the whole fit 184 s against
+#: 44 s from the factored start, the same ROM since the least-squares start is kept there).
 _FACTORED_ABOVE = 60
 
 #: L-BFGS iterations of :func:`fit_factored` (triple chain: 3000 gave the refined error of the exact SDP start).
