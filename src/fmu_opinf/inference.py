@@ -102,35 +102,36 @@ anchored  3   2.3e-3        7.1e-5      --                           3.3e-6 (LS 
 anchored  4   1.7e-4        1.6e-5      --                           3.4e-8                        0.002
 anchored  5   9.2e-6        2.1e-7      2.2e-7                       1.0e-8                        0.05
 anchored  6   4.6e-7        2.4e-9      --                           6.5e-10                       0.27
-anchored  7   2.4e-8        2.5e-10     --                           3.2e-11                       0.13
-anchored  8   1.4e-9        1.4e-12     2.4e-12                      2.7e-13 (LS realized)         0.20
+anchored  7   2.4e-8        2.5e-10     --                           3.3e-11                       0.13
+anchored  8   1.4e-9        1.4e-12     2.4e-12                      2.4e-13 (LS realized)         0.18
 anchored  9   7.6e-11       5.1e-14     --                           5.0e-14 (LS realized)         0.97
-anchored 10   3.9e-12       2.5e-15     --                           2.5e-15 (LS realized)         1.01
+anchored 10   3.9e-12       2.5e-15     --                           2.6e-15 (LS realized)         1.04
 anchored 11   2.3e-13       5.5e-18     --                           5.5e-18 (LS realized)         1.01
 anchored 12   1.3e-14       6.6e-19     1.3e-16                      6.7e-19 (LS realized)         1.01
 triple    5   6.7e-4        6.2e-4      --                           5.5e-4                        0.88
-triple   10   2.4e-5        1.1e-5      2.4e-4                       4.7e-6                        0.43
-triple   15   7.1e-6        6.2e-6      --                           2.5e-6                        0.40
-triple   20   7.8e-6        2.4e-6      4.2e-5                       1.0e-6                        0.43
-triple   25   5.6e-6        1.2e-6      --                           5.1e-7                        0.42
-triple   30   4.5e-6        5.8e-7      --                           2.8e-7                        0.49
-triple   35   1.2e-6        3.7e-7      1.1e-5                       8.4e-8 (LS realized)          0.23
-triple   40   1.0e-6        2.7e-7      --                           4.9e-7 (modal)                1.85
-triple   45   1.8e-6        2.6e-7      --                           2.0e-7 (LS realized)          0.75
+triple   10   2.4e-5        1.1e-5      2.4e-4                       7.1e-6 (LS realized)          0.65
+triple   15   7.1e-6        6.2e-6      --                           1.8e-6                        0.29
+triple   20   7.8e-6        2.4e-6      4.2e-5                       9.2e-7                        0.39
+triple   25   5.6e-6        1.2e-6      --                           5.0e-7                        0.41
+triple   30   4.5e-6        5.8e-7      --                           3.1e-7                        0.54
+triple   35   1.2e-6        3.7e-7      1.1e-5                       8.3e-8 (LS realized)          0.22
+triple   40   1.0e-6        2.7e-7      --                           5.1e-7 (modal)                1.90
+triple   45   1.8e-6        2.6e-7      --                           2.0e-7 (LS realized)          0.79
 triple   50   3.6e-7        1.5e-7      --                           1.0e-7 (LS realized)          0.67
-triple   55   2.7e-7        1.7e-7      --                           9.3e-8 (LS realized)          0.54
-triple   60   1.6e-7        -- (*)      2.2e-5                       2.4e-8 (modal)                0.15
+triple   55   2.7e-7        1.7e-7      --                           1.0e-7 (LS realized)          0.59
+triple   60   1.6e-7        -- (*)      2.2e-5                       5.0e-8 (modal)                0.31
 =======  ===  ============  ==========  ===========================  ============================  =====
 
 (*) unstable at r = 60, so the reference there is POD-Galerkin.  "(modal)": from r = 40 on the refinement
 works in the SDP start's modal coordinates (below), with ``20 r`` iterations above r = 40.  "(LS realized)": the
 refinement started from the realization of least squares fitted the training run better and was kept
 (*Least-squares candidate* below).  All "default" and "ratio" figures are one full run of ``bench_accuracy.py``
-on 2026-11-26 (10:50 UTC) with both starts, the gradient through the eigenvalues, the refinement's own L-BFGS
-(*Cost of the refinement* below; OpenBLAS 0.3.31) and the faster interior-point method of that day (the same
-certified SDP optimum to 1e-6, but a refinement start that differs in the last digits: the previous run,
-2026-11-25, differed within the iterates' swing, triple r = 15 / 40 / 60 at 0.33 / 1.93 / 0.21, and kept the
-least-squares start at r = 5).  With SciPy's L-BFGS-B on 2026-11-25 they were
+on 2026-11-26 (11:20 UTC) with both starts, the gradient through the eigenvalues, the refinement's own L-BFGS
+(*Cost of the refinement* below; OpenBLAS 0.3.31), the faster interior-point method and the powers of the
+step map by doubling of that day (the same certified SDP optimum to 1e-6 and the same outputs to rounding, but
+refinement paths that differ in the last digits: the previous runs differed within the iterates' swing, triple
+r = 10 / 15 / 40 / 60 at 0.43 / 0.40 / 1.85 / 0.15 earlier that day and 0.41 / 0.33 / 1.93 / 0.21 on
+2026-11-25, which kept the least-squares start at r = 5).  With SciPy's L-BFGS-B on 2026-11-25 they were
 within the iterates' swing of these (anchored r = 6 / 7 / 8 / 9 / 10: 0.22 / 0.10 / 0.21 / 0.92 / 1.04; triple
 r = 10 / 15 / 40 / 45 / 60: 0.49 / 0.19 / 1.82 / 0.74 / 0.08).  Before the second start (same day): triple
 r = 35 / 45 / 50 / 55 at 0.43 / 0.41 / 3.42 / 1.25, anchored r = 2 / 8 / 9 / 10 / 11 / 12 at 0.84 / 0.58 / 1.00 /
