@@ -374,7 +374,8 @@ The accuracy table above was re-measured with it: the same ratios within the ite
 60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42) until the
 second start (*Least-squares candidate* below) brought it to 0.65.
 The budget (``fit_operators(refine_iterations=N)``, ``fmu-opinf fit --refine-iterations N``) trades time for
-accuracy; measured 2026-11-26 (``bench_accuracy.py``'s data, CPU seconds of the whole fit, ratio as in the table):
+accuracy; measured 2026-11-26 with that morning's code (before the faster interior-point method and the second
+start in a process; ``bench_accuracy.py``'s data, CPU seconds of the whole fit, ratio as in the table):
 
 ==========================  =========================  ===========================  ===========================
 case                        300 (default up to r = 40)  150                          100
