@@ -181,11 +181,11 @@ def _solve_sdp_compressed(
 
     ``normalization="trace"`` fixes ``trace(Mr) = trace``; ``"mass-eigenvalue"`` requires ``Mr >= I`` (the mass
     block must then be in ``keep``).  ``solver="ipm"`` uses the dense interior-point method of
-    :mod:`fmu_opinf._sdp` and reports its certificate (``G`` needed); ``"auto"`` does the same for screened
-    problems (fewer than three cones) and falls back to Clarabel when the certificate fails, and leaves the
-    full SDP to Clarabel (inference module docstring, *Solvers*); ``"clarabel"`` goes through cvxpy.
+    :mod:`fmu_opinf._sdp` and reports its certificate (``G`` needed); ``"auto"`` does the same and falls back to
+    Clarabel when the certificate fails (inference module docstring, *Solvers*); ``"clarabel"`` goes through
+    cvxpy.
     """
-    if solver == "ipm" or (solver == "auto" and len(keep) < 3):
+    if solver in ("ipm", "auto"):
         w, report = _solve_sdp_ipm(H, r, trace, tol, keep, normalization, G)
         if report["status"] == "optimal" or solver == "ipm":
             return w, report

@@ -460,15 +460,19 @@ SPD); the triple chain needs only the damping cone, an SDP with a third of the u
 
 Solvers
 -------
-``fit_operators(solver="auto")`` (default) solves the *screened* SDPs (one or two cones, whose eliminated
-quadratic form is dense) by the dense primal-dual interior-point method of :mod:`fmu_opinf._sdp` (HKM direction,
+``fit_operators(solver="auto")`` (default) solves the SDPs (the screened ones with one or two cones, whose
+eliminated quadratic form is dense, and the full three-cone SDP) by the dense primal-dual interior-point method of :mod:`fmu_opinf._sdp` (HKM direction,
 Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix, then an exact solve on the identified
 face), and accepts its result only if an independent certificate holds: the dual matrices computed from the
 gradient of ``trace(T G T^T)`` at the returned ``[Mr, Dr, Kr]`` (minus the trace multiplier) are PSD and
 complementary, with a relative gap estimate ``fit_info["gap"] <= 1e-6`` (the accuracy goal of issue 16).
-Otherwise the same SDP goes to Clarabel (``fit_info["fallback"]`` records why).  The full three-cone SDP goes to
-Clarabel directly: its quadratic form is sparse (Kronecker structure), which Clarabel's sparse factorization
-exploits and a dense factorization does not (r = 50: 47 s dense against 29 s).  ``solver="ipm"`` uses the
+Otherwise the same SDP goes to Clarabel (``fit_info["fallback"]`` records why).  Until 2026-11-26 the full
+three-cone SDP went to Clarabel directly: its quadratic form is sparse (Kronecker structure), which Clarabel's
+sparse factorization exploits and a dense factorization does not (r = 50: 47 s dense against 29 s then).  Since
+the interior-point method stops at its round-off floor and factors only one triangle in place, it is the faster
+one there too (triple chain, trace normalization, full SDP, CPU seconds, certified: r = 20 / 35 / 55: 0.1 / 1.5 /
+18.2 s against 0.6 / 3.2 / 60 s through Clarabel, objectives 5e-9 .. 5e-6 lower; at r = 55 the screening needs
+all three cones, so this is the default path there).  ``solver="ipm"`` uses the
 interior-point method everywhere without fallback (an uncertified result is status ``"not_certified"`` and a
 warning), ``solver="clarabel"`` is the former path.  ``fit_info["solver"]`` names the solver of the reported
 solve, ``fit_info["sdp_objective"]`` is the SDP's objective in its own units (comparable between solvers).
@@ -715,8 +719,8 @@ def fit_operators(
         Input in effect at each snapshot (``m = 0`` allowed: a model without inputs; a row of ones fits a
         constant force as a column of ``Br``).
     method : {"auto", "sdp"}, default="auto"
-        ``"sdp"``: the full SDP with all three cones in Clarabel.  ``"auto"``: exact cone screening (module
-        docstring): least squares first, then Clarabel on the cones that are needed; same optimum.
+        ``"sdp"``: the full SDP with all three cones.  ``"auto"``: exact cone screening (module docstring): least
+        squares first, then the SDP on the cones that are needed; same optimum.
     compressed : bool, default=True
         Use the ``(3r+m)``-square triangular factor (fast).  False hands the full ``(3r+m, k)`` scaled data to
         cvxpy (same optimum, trace normalization, for benchmarking).
@@ -749,8 +753,8 @@ def fit_operators(
         L-BFGS iterations of the refinement; default 300 up to r = 40 and ``20 r`` above (module docstring).
     solver : {"auto", "ipm", "clarabel", "factored"}, default="auto"
         SDP solver (module docstring, *Solvers*): ``"auto"`` solves screened SDPs (one or two cones) by the dense
-        interior-point method of :mod:`fmu_opinf._sdp`, accepts its result only with a certified gap
-        (``info["gap"]``) and otherwise falls back to Clarabel, which also solves the full three-cone SDP; above
+        interior-point method of :mod:`fmu_opinf._sdp` (the full three-cone SDP too), accepts its result only
+        with a certified gap (``info["gap"]``) and otherwise falls back to Clarabel; above
         r = 60, when the refinement follows, it starts the refinement from the factored solve instead;
         ``"ipm"`` always uses the interior-point method (no fallback); ``"clarabel"`` always uses Clarabel;
         ``"factored"`` always uses the factored solve (L-BFGS over PSD factors, ``Mr >= I``, not certified).
