@@ -159,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "keeps the smaller acceleration residual)")
     p.add_argument("--solver", choices=["auto", "ipm", "clarabel", "factored"], default="auto",
                    help="SDP solver: auto (dense interior-point method, its result certified, Clarabel when the "
-                        "certificate fails or all three cones bind; above r = 60 the refinement starts from the "
+                        "certificate fails; above r = 60 the refinement starts from the "
                         "factored solve instead), ipm, clarabel, or factored (L-BFGS over PSD factors, not "
                         "certified, O(r^3) per iteration)")
     p.add_argument("--integrator", choices=["auto", "newmark", "exact"], default="auto",

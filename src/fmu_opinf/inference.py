@@ -461,8 +461,8 @@ SPD); the triple chain needs only the damping cone, an SDP with a third of the u
 Solvers
 -------
 ``fit_operators(solver="auto")`` (default) solves the SDPs (the screened ones with one or two cones, whose
-eliminated quadratic form is dense, and the full three-cone SDP) by the dense primal-dual interior-point method of :mod:`fmu_opinf._sdp` (HKM direction,
-Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix, then an exact solve on the identified
+eliminated quadratic form is dense, and the full three-cone SDP) by the dense primal-dual interior-point method
+of :mod:`fmu_opinf._sdp` (HKM direction, Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix, then an exact solve on the identified
 face), and accepts its result only if an independent certificate holds: the dual matrices computed from the
 gradient of ``trace(T G T^T)`` at the returned ``[Mr, Dr, Kr]`` (minus the trace multiplier) are PSD and
 complementary, with a relative gap estimate ``fit_info["gap"] <= 1e-6`` (the accuracy goal of issue 16).
