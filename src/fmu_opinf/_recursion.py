@@ -15,11 +15,12 @@ coordinates, so the result equals the step-by-step loop up to rounding for any `
 with zero or unstable eigenvalues alike).  They come by doubling: the squarings ``Phi^(2^j)`` give ``Phi^L``
 (its binary digits) and fill the powers ``C Phi^l`` and ``Phi^d Gamma`` ``2^j`` at a time, ``log2 L`` matrix
 products instead of ``2 L`` small ones, which dominated the set-up (one output evaluation at n = 20 / 70 / 200,
-6001 steps: 0.35 / 0.69 / 4.1 ms instead of 0.69 / 1.0 / 4.6 ms; the refinement at r = 35 11 % faster).  With ``C`` (e.g. the output rows ``[Cp, Cv, 0]``) only ``C s_i`` is
-formed, never the states, which is what makes an output-only evaluation cost ``O((n + q L) p k)`` instead of
-``O(n^2 k)``.  Components of ``s`` that ``Phi`` never reads (zero columns, e.g. ``q''`` of the exact step map)
-are left out of the block starts.  The block length is chosen from a cost model (arithmetic of the block product
-and of the set-up against the per-block interpreter overhead).
+6001 steps: 0.35 / 0.69 / 4.1 ms instead of 0.69 / 1.0 / 4.6 ms; the refinement at r = 35 11 % faster).
+With ``C`` (e.g. the output rows ``[Cp, Cv, 0]``) only ``C s_i`` is formed, never the states, which is what makes
+an output-only evaluation cost ``O((n + q L) p k)`` instead of ``O(n^2 k)``. Components of ``s`` that ``Phi``
+never reads (zero columns, e.g. ``q''`` of the exact step map) are left out of the block starts. The block length
+is chosen from a cost model (arithmetic of the block product and of the set-up against the per-block interpreter
+overhead).
 
 The real modal form (:func:`modal_form`) would make each block start ``O(n)`` instead of ``O(n^2)``, but its
 set-up (eigendecomposition, refinement in extended precision, the reproduction check) takes about 100 ms at

@@ -267,8 +267,7 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     w, gap, polished = expand(result.w), float("inf"), False
     if G is not None:
         gap = certificate(np.hstack(_unpack(w, r)), G, normalization, trace)[0]
-        converged = result.status in ("optimal", "floor")
-        for level in _POLISH_LEVELS if gap > (_CERTIFY_GAP if converged else _POLISH_ABOVE) else ():
+        for level in _POLISH_LEVELS if _polish_wanted(gap, result.status) else ():
             candidate = polish(S, lin, cones, result.w, a=a, c=trace, threshold=level)
             if candidate is None:
                 continue
@@ -281,6 +280,12 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     return w, {"status": status, "solver": "IPM", "setup_seconds": seconds - t_solve,
                "solve_seconds": t_solve, "iterations": result.iterations, "tol": tol, "gap": gap,
                "ipm_status": result.status, "polished": polished}
+
+
+def _polish_wanted(gap: float, ipm_status: str) -> bool:
+    """Whether the face polish may improve the interior-point iterate: an iterate from the method's own stopping
+    test only when it is not certified, any other (``singular``, ``max_iterations``) above :data:`_POLISH_ABOVE`."""
+    return gap > (_CERTIFY_GAP if ipm_status in ("optimal", "floor") else _POLISH_ABOVE)
 
 
 def _run(problem: Any, t0: float, tol: float, verbose: bool) -> dict:

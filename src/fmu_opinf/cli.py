@@ -331,13 +331,10 @@ def _check_arguments(args: argparse.Namespace) -> None:
         v.check_patterns(getattr(args, option, None), "--" + option)
     for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
-    for option in ("r", "g", "n1"):
+    for option, least in (("r", 1), ("g", 1), ("n1", 1), ("refine_iterations", 0)):
         value = getattr(args, option, None)
-        if value is not None and value < 1:
-            raise InputSpecError(f"--{option} {value} must be at least 1")
-    iterations = getattr(args, "refine_iterations", None)
-    if iterations is not None and iterations < 0:
-        raise InputSpecError(f"--refine-iterations {iterations} must be at least 0")
+        if value is not None and value < least:
+            raise InputSpecError(f"--{option.replace('_', '-')} {value} must be at least {least}")
     v.check_fraction(getattr(args, "energy", None), "--energy")
     if getattr(args, "method", None) is not None:
         args.method = _me_method(args.method)

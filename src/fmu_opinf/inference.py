@@ -462,20 +462,20 @@ Solvers
 -------
 ``fit_operators(solver="auto")`` (default) solves the SDPs (the screened ones with one or two cones, whose
 eliminated quadratic form is dense, and the full three-cone SDP) by the dense primal-dual interior-point method
-of :mod:`fmu_opinf._sdp` (HKM direction, Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix, then an exact solve on the identified
-face), and accepts its result only if an independent certificate holds: the dual matrices computed from the
-gradient of ``trace(T G T^T)`` at the returned ``[Mr, Dr, Kr]`` (minus the trace multiplier) are PSD and
-complementary, with a relative gap estimate ``fit_info["gap"] <= 1e-6`` (the accuracy goal of issue 16).
-Otherwise the same SDP goes to Clarabel (``fit_info["fallback"]`` records why).  Until 2026-11-26 the full
-three-cone SDP went to Clarabel directly: its quadratic form is sparse (Kronecker structure), which Clarabel's
-sparse factorization exploits and a dense factorization does not (r = 50: 47 s dense against 29 s then).  Since
-the interior-point method stops at its round-off floor and factors only one triangle in place, it is the faster
-one there too (triple chain, trace normalization, full SDP, CPU seconds, certified: r = 20 / 35 / 55: 0.1 / 1.5 /
-18.2 s against 0.6 / 3.2 / 60 s through Clarabel, objectives 5e-9 .. 5e-6 lower; at r = 55 the screening needs
-all three cones, so this is the default path there).  ``solver="ipm"`` uses the
-interior-point method everywhere without fallback (an uncertified result is status ``"not_certified"`` and a
-warning), ``solver="clarabel"`` is the former path.  ``fit_info["solver"]`` names the solver of the reported
-solve, ``fit_info["sdp_objective"]`` is the SDP's objective in its own units (comparable between solvers).
+of :mod:`fmu_opinf._sdp` (HKM direction, Mehrotra predictor-corrector, LAPACK Cholesky of the dense Newton matrix,
+then an exact solve on the identified face), and accepts its result only if an independent certificate holds: the
+dual matrices computed from the gradient of ``trace(T G T^T)`` at the returned ``[Mr, Dr, Kr]`` (minus the trace
+multiplier) are PSD and complementary, with a relative gap estimate ``fit_info["gap"] <= 1e-6`` (the accuracy goal
+of issue 16). Otherwise the same SDP goes to Clarabel (``fit_info["fallback"]`` records why). Until 2026-11-26 the
+full three-cone SDP went to Clarabel directly: its quadratic form is sparse (Kronecker structure), which
+Clarabel's sparse factorization exploits and a dense factorization does not (r = 50: 47 s dense against 29 s
+then). Since the interior-point method stops at its round-off floor and factors only one triangle in place, it is
+the faster one there too (triple chain, trace normalization, full SDP, CPU seconds, certified: r = 20 / 35 / 55:
+0.1 / 1.5 / 18.2 s against 0.6 / 3.2 / 60 s through Clarabel, objectives 5e-9 .. 5e-6 lower; at r = 55 the
+screening needs all three cones, so this is the default path there). ``solver="ipm"`` uses the interior-point
+method everywhere without fallback (an uncertified result is status ``"not_certified"`` and a warning),
+``solver="clarabel"`` is the former path. ``fit_info["solver"]`` names the solver of the reported solve,
+``fit_info["sdp_objective"]`` is the SDP's objective in its own units (comparable between solvers).
 
 *Factored start* (``solver="factored"``; ``"auto"`` uses it above r = 60 when the refinement follows, since the
 dense method's ``O(r^6)`` Newton matrices make it slow there: r = 75 did not finish in 20 minutes before the

@@ -859,7 +859,8 @@ def fit_rom(
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
-                "refine_iterations": refine_iterations, "refit_output_map": refit_output_map, "least_squares_candidate": least_squares_candidate}
+                "refine_iterations": refine_iterations, "refit_output_map": refit_output_map,
+                "least_squares_candidate": least_squares_candidate}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
