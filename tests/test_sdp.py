@@ -285,3 +285,38 @@ def test_auto_solver_starts_from_the_factored_solve_only_above_order_60_with_ref
 def test_factored_solver_with_the_trace_normalization_is_rejected(rng):
     with pytest.raises(ValueError, match="normalization='auto' or 'mass-eigenvalue'"):
         fit_operators(*_active_data(rng), solver="factored", normalization="trace")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Labelled progress of long solves
+# ----------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("progress", [True, False])
+def test_sdp_solves_show_labelled_progress_on_a_terminal_only_when_asked(rng, monkeypatch, progress):
+    """``fit_operators(progress=True)`` (what ``fmu-opinf fit`` passes unless ``-q``) draws each interior-point
+    solve and the factored start's iterations on a terminal, ending at 100 % for a solve that met its own
+    stopping test and at the factored start's iteration count."""
+    import io
+
+    from fmu_opinf import _progress, _sdp_paths
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(_progress.sys, "stderr", terminal)
+    monkeypatch.setattr(_sdp_paths, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
+                                                                                           delay=0.0))
+    data = _active_data(rng)
+    fit = fit_operators(*data, method="sdp", normalization="mass-eigenvalue", solver="ipm", refine=False,
+                        progress=progress)
+    factored = fit_operators(*data, solver="factored", refine=False, progress=progress)
+    if not progress:
+        assert terminal.getvalue() == ""
+        return
+    lines = terminal.getvalue().split("\n")
+    sdp = [line for line in lines if "SDP mass-eigenvalue, cones Mr/Dr/Kr (interior point, % to tol)" in line]
+    assert fit.info["ipm_status"] in ("optimal", "floor") and sdp and "] 100/100 " in sdp[0].split("\r")[-1]
+    steps = [line for line in lines if "factored start (L-BFGS iterations)" in line]
+    assert steps and f"] {factored.info['iterations']}/" in steps[0].split("\r")[-1]
+    assert terminal.getvalue().endswith("\n")

@@ -190,6 +190,7 @@ def solve_ipm(
     constant: float = 0.0,
     tol: float = 1e-9,
     max_iterations: int = 100,
+    callback: Callable[[int, float], None] | None = None,
 ) -> IPMResult:
     """Minimize ``w^T S w + 2 s^T w`` with ``mat(w_j) - lower_j I`` PSD and optionally ``a^T w = c``.
 
@@ -212,6 +213,9 @@ def solve_ipm(
         to ``max(diag(S)) = 1``), or when the complementarity is below it and the dual residual has reached
         its round-off floor (status ``"floor"``, :func:`_dual_at_floor`).
     max_iterations : int, default=100
+    callback : callable, optional
+        ``callback(iteration, measure)`` after each iteration's residuals, ``measure`` the larger of the relative
+        complementarity and dual residual that the stopping test compares with ``tol`` (for progress reports).
 
     Returns
     -------
@@ -242,6 +246,8 @@ def solve_ipm(
         gap = complementarity / floor
         residual = float(np.linalg.norm(dual))
         dual_norm = residual * (1.0 + float(np.linalg.norm(w))) / floor
+        if callback is not None:
+            callback(iteration, max(gap, dual_norm))
         if gap <= tol and dual_norm <= tol:
             status = "optimal"
             break

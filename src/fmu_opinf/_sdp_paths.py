@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
-from ._lbfgs import minimize_lbfgs
+from ._lbfgs import LBFGSResult, minimize_lbfgs
+from ._progress import Progress
 from .errors import SolverError
 
 #: Tolerance of the second solve when the first ends ``optimal_inaccurate`` (inference module docstring, *Solver
@@ -175,7 +177,7 @@ def _blocks(H: np.ndarray, rows: list[int], cols: list[int], ns: int) -> np.ndar
 
 def _solve_sdp_compressed(
     H: np.ndarray, r: int, trace: float, tol: float, verbose: bool, keep: tuple[int, ...] = (0, 1, 2),
-    normalization: str = "trace", solver: str = "clarabel", G: np.ndarray | None = None,
+    normalization: str = "trace", solver: str = "clarabel", G: np.ndarray | None = None, progress: bool = False,
 ) -> tuple[np.ndarray, dict]:
     """SDP over the upper-triangular entries with PSD cones on the blocks in ``keep`` (others eliminated).
 
@@ -183,10 +185,10 @@ def _solve_sdp_compressed(
     block must then be in ``keep``).  ``solver="ipm"`` uses the dense interior-point method of
     :mod:`fmu_opinf._sdp` and reports its certificate (``G`` needed); ``"auto"`` does the same and falls back to
     Clarabel when the certificate fails (inference module docstring, *Solvers*); ``"clarabel"`` goes through
-    cvxpy.
+    cvxpy.  ``progress``: a labelled progress bar of the interior-point iterations on a terminal.
     """
     if solver in ("ipm", "auto"):
-        w, report = _solve_sdp_ipm(H, r, trace, tol, keep, normalization, G)
+        w, report = _solve_sdp_ipm(H, r, trace, tol, keep, normalization, G, progress)
         if report["status"] == "optimal" or solver == "ipm":
             return w, report
         w, fallback = _solve_sdp_compressed(H, r, trace, tol, verbose, keep, normalization)
@@ -237,7 +239,7 @@ _POLISH_ABOVE = 1e-7
 
 
 def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[int, ...], normalization: str,
-                   G: np.ndarray | None) -> tuple[np.ndarray, dict]:
+                   G: np.ndarray | None, progress: bool = False) -> tuple[np.ndarray, dict]:
     """The SDP of :func:`_solve_sdp_compressed` by :func:`fmu_opinf._sdp.solve_ipm`, certified on ``G``."""
     from ._sdp import ConeBlock, certificate, polish, solve_ipm
 
@@ -262,7 +264,12 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
 
     zero = expand(np.zeros(idx_a.size))
     t_solve = time.perf_counter()
-    result = solve_ipm(S, lin, cones, a=a, c=trace, constant=float(zero @ H @ zero), tol=tol)
+    label = f"SDP {normalization}, cones {'/'.join(_BLOCKS[b] for b in keep)} (interior point, % to tol)"
+    with Progress(100, label, quiet=not progress) as bar:
+        result = solve_ipm(S, lin, cones, a=a, c=trace, constant=float(zero @ H @ zero), tol=tol,
+                           callback=_share_of_the_way(bar, tol))
+        if result.status in ("optimal", "floor"):  # its own stopping test held: the whole way
+            bar.update(100)
     t_solve = time.perf_counter() - t_solve
     w, gap, polished = expand(result.w), float("inf"), False
     if G is not None:
@@ -280,6 +287,22 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     return w, {"status": status, "solver": "IPM", "setup_seconds": seconds - t_solve,
                "solve_seconds": t_solve, "iterations": result.iterations, "tol": tol, "gap": gap,
                "ipm_status": result.status, "polished": polished}
+
+
+def _share_of_the_way(bar: Progress, tol: float) -> Callable[[int, float], None]:
+    """Callback of :func:`fmu_opinf._sdp.solve_ipm` that sets ``bar`` to the percentage of the way, on a log scale,
+    from the first iterate's residual measure to ``tol`` (the iteration count is not known in advance; the
+    measure falls roughly geometrically), never moving back."""
+    first = None
+
+    def report(iteration: int, measure: float) -> None:
+        nonlocal first
+        if first is None:
+            first = max(measure, 10.0 * tol)
+        share = np.log(first / max(measure, tol)) / np.log(first / tol)
+        bar.update(max(bar.done, int(100 * min(max(share, 0.0), 1.0))))
+
+    return report
 
 
 def _polish_wanted(gap: float, ipm_status: str) -> bool:
@@ -334,10 +357,11 @@ def solve_sdp_direct(zs: np.ndarray, r: int, m: int, trace: float, tol: float, v
 
 
 def fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool,
-                   normalization: str = "auto", solver: str = "auto") -> tuple:
+                   normalization: str = "auto", solver: str = "auto", progress: bool = False) -> tuple:
     """Steps 3-4 of the inference module docstring; returns scaled ``Ms, Ds, Ks`` and the report (with
-    ``sdp_objective``, the SDP's objective ``trace(T G T^T)`` in its own units, comparable between solvers)."""
-    *mats, info = _fit_compressed_paths(R, r, m, method, tol, verbose, normalization, solver)
+    ``sdp_objective``, the SDP's objective ``trace(T G T^T)`` in its own units, comparable between solvers).
+    ``progress``: labelled progress bars of the interior-point solves on a terminal."""
+    *mats, info = _fit_compressed_paths(R, r, m, method, tol, verbose, normalization, solver, progress)
     R22 = R[m:, m:] / max(np.linalg.norm(R[m:, m:]) / np.sqrt(3 * r), np.finfo(float).tiny)
     info["sdp_objective"] = float(np.linalg.norm(np.hstack(mats) @ R22.T) ** 2)
     return (*mats, info)
@@ -363,7 +387,8 @@ def factored_start(solver: str, r: int, refine: bool, method: str) -> bool:
     return solver == "auto" and method == "auto" and refine and r > _FACTORED_ABOVE
 
 
-def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITERATIONS) -> tuple:
+def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITERATIONS,
+                 progress: bool = False) -> tuple:
     """Eq. (16) normalized by ``Mr >= I`` (scaled units), by L-BFGS over PSD factors (inference module docstring,
     *Solvers*).
 
@@ -373,6 +398,7 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
     is an approximate optimum that serves as the start of the output-error refinement.  Start: least squares with
     ``Ms = I``, ``Ds, Ks`` symmetrized, their eigenvalues floored at ``_START_FLOOR`` of the largest, and
     ``LM = _START_MASS I``: every factor has full rank (a zero column has zero gradient and would never move).
+    ``progress``: a labelled progress bar of the L-BFGS iterations on a terminal.
     """
     t0 = time.perf_counter()
     R22 = R[m:, m:]
@@ -390,7 +416,13 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
         grads = [(TG[:, b * r:(b + 1) * r] + TG[:, b * r:(b + 1) * r].T) @ factors[b] for b in range(3)]
         return float(np.sum(TG * T)), 2.0 * np.concatenate([g.ravel() for g in grads])
 
-    result = minimize_lbfgs(objective, start, max_iterations=iterations, memory=50, ftol=1e-15, gtol=1e-14)
+    label = "SDP Mr >= I, factored start (L-BFGS iterations)"
+    with Progress(iterations, label, quiet=not progress) as bar:
+        def advance(state: LBFGSResult) -> None:
+            bar.update(state.nit)
+
+        result = minimize_lbfgs(objective, start, max_iterations=iterations, memory=50, ftol=1e-15, gtol=1e-14,
+                                callback=advance)
     factors = result.x.reshape(3, r, r)
     Ms, Ds, Ks = eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T
     info = {"status": "approximate", "method": "factored", "solver": "L-BFGS (PSD factors, not certified)",
@@ -415,13 +447,13 @@ def _psd_square_root(A: np.ndarray) -> np.ndarray:
 
 
 def _fit_compressed_paths(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool,
-                          normalization: str, solver: str) -> tuple:
+                          normalization: str, solver: str, progress: bool = False) -> tuple:
     """The normalizations and solution paths of :func:`fit_compressed`."""
     R22 = R[m:, m:]
     R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
     G = R22.T @ R22
     H = _hessian(G, r)
-    sdp = {"solver": solver, "G": G}
+    sdp = {"solver": solver, "G": G, "progress": progress}
     if normalization == "mass-eigenvalue":
         return _fit_mass_eigenvalue(H, r, tol, verbose, full=(method == "sdp"), sdp=sdp)
     if method == "sdp":

@@ -775,7 +775,9 @@ def fit_operators(
         docstring, *Candidates against the swing*); default :data:`EQUATION_WEIGHT` (0: the output error alone);
         not with ``refit_output_map``.
     progress : bool, default=False
-        Labelled progress bar of the refinement's iterations on a terminal (:func:`refine_output_error`).
+        Labelled progress bars on a terminal for work that takes over a second: the interior-point iterations of
+        each SDP solve (share of the way to ``tol``), the factored start's and the refinement's L-BFGS
+        iterations (:func:`refine_output_error`).
 
     Returns
     -------
@@ -815,7 +817,7 @@ def fit_operators(
         try:
             Mr, Dr, Kr, Br, info = _sdp_operators(R, scales, (xddot_r, xdot_r, x_r, u), r, m, compressed=compressed,
                                                   solver=solver, refine=refine, method=method, tol=tol,
-                                                  verbose=verbose, normalization=normalization)
+                                                  verbose=verbose, normalization=normalization, progress=progress)
             if refine:
                 units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
                 Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
@@ -848,15 +850,16 @@ def fit_operators(
 
 def _sdp_operators(R: np.ndarray, scales: dict[str, float], data: tuple, r: int, m: int, *, compressed: bool,
                    solver: str, refine: bool, method: str, tol: float, verbose: bool,
-                   normalization: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+                   normalization: str,
+                   progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """The SDP solution of eq. (16) in physical units (``Mr, Dr, Kr`` made exactly symmetric PSD, ``Br``) and the
     solver's report; ``data`` are the reduced accelerations, velocities, positions and the inputs."""
     xddot_r, xdot_r, x_r, u = data
     if compressed:
         if factored_start(solver, r, refine, method):
-            Ms, Ds, Ks, info = fit_factored(R, r, m)
+            Ms, Ds, Ks, info = fit_factored(R, r, m, progress=progress)
         else:
-            Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver)
+            Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver, progress)
         Bs = input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
     else:
         zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"], x_r / scales["x"]])
