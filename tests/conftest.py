@@ -51,6 +51,25 @@ def exact_operator_data(rng, r=6, m=2, k=400):
     return (M, D, K, B), (np.linalg.solve(M, B @ u - D @ v - K @ x), v, x, u)
 
 
+def fake_terminal(monkeypatch, *modules):
+    """Make stderr a terminal (a ``StringIO`` that says so, returned) and let the ``Progress`` bars of ``modules``
+    draw from their first update (no one-second delay), so that a test sees what a user's terminal would."""
+    import io
+
+    from fmu_opinf import _progress
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    terminal = Terminal()
+    monkeypatch.setattr(_progress.sys, "stderr", terminal)
+    for module in modules:
+        monkeypatch.setattr(module, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
+                                                                                           delay=0.0))
+    return terminal
+
+
 def relative(a, b):
     """Max-norm difference of a and b relative to the max norm of b."""
     return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(np.asarray(b)).max()

@@ -281,19 +281,11 @@ def test_equation_weight_refines_towards_the_true_system_and_reports_the_residua
 def test_refinement_shows_labelled_progress_on_a_terminal_only_when_asked(monkeypatch, progress):
     """``progress=True`` (what ``fmu-opinf fit`` passes unless ``-q``) draws the iterations on a terminal; the
     bar's count ends at the iterations the report gives."""
-    import io
-
-    from fmu_opinf import _progress, refinement
+    from conftest import fake_terminal
+    from fmu_opinf import refinement
     from fmu_opinf.inference import refine_output_error
 
-    class Terminal(io.StringIO):
-        def isatty(self):
-            return True
-
-    terminal = Terminal()
-    monkeypatch.setattr(_progress.sys, "stderr", terminal)
-    monkeypatch.setattr(refinement, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
-                                                                                           delay=0.0))
+    terminal = fake_terminal(monkeypatch, refinement)
     rng = np.random.default_rng(3)
     (M, D, K, B, Cp), runs = _two_runs(rng)
     x, v, u, y = (np.hstack([getattr(run, name) for run in runs]) for name in ("x", "xdot", "u", "y"))

@@ -295,18 +295,10 @@ def test_sdp_solves_show_labelled_progress_on_a_terminal_only_when_asked(rng, mo
     """``fit_operators(progress=True)`` (what ``fmu-opinf fit`` passes unless ``-q``) draws each interior-point
     solve and the factored start's iterations on a terminal, ending at 100 % for a solve that met its own
     stopping test and at the factored start's iteration count."""
-    import io
+    from conftest import fake_terminal
+    from fmu_opinf import _sdp_paths
 
-    from fmu_opinf import _progress, _sdp_paths
-
-    class Terminal(io.StringIO):
-        def isatty(self):
-            return True
-
-    terminal = Terminal()
-    monkeypatch.setattr(_progress.sys, "stderr", terminal)
-    monkeypatch.setattr(_sdp_paths, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
-                                                                                           delay=0.0))
+    terminal = fake_terminal(monkeypatch, _sdp_paths)
     data = _active_data(rng)
     fit = fit_operators(*data, method="sdp", normalization="mass-eigenvalue", solver="ipm", refine=False,
                         progress=progress)
