@@ -17,6 +17,7 @@ import math
 import os
 import sys
 import time as _time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,8 +27,9 @@ import numpy as np
 
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
-from ..errors import InputSpecError
+from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..sources import Source, StepError, open_source
+from ._consistency import Repair, check_rates
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
@@ -222,10 +224,13 @@ def _first_bad_row(rows: np.ndarray) -> int | None:
 
 
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
-                isolate: bool, label: str = "recording") -> tuple[Run, StepError | None]:
+                isolate: bool, label: str = "recording", checked: bool = False) -> tuple[Run, StepError | None]:
     """Drive one run into a sink; return the run and the error that ended it early (if any).
 
-    ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).
+    ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).  A complete
+    run of an FMU is checked for consistent rates (:mod:`._consistency`): a guessed pairing of positions and
+    velocities that the data contradict, or stale accelerations, are repaired on the source and the run is
+    recorded once more (``checked``: this is that second recording; any remaining problem is an error).
     """
     u = inputs_in_effect(signal, t, source.m)
     U = np.ascontiguousarray(u.T)
@@ -250,7 +255,60 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
         finally:
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
-    return sink.finish(attrs), failure
+    run = sink.finish(attrs)
+    if failure is None and not checked:
+        repair = _judge_rates(source, run, t)
+        if repair is not None:
+            if sink_factory is not MemorySink:  # a streamed run is not recorded twice into its file
+                raise FMUError(f"{source_label(source)}: {repair.reason}; record again with {_as_options(repair)}, "
+                               "or with the auto window (its pilot runs repair this)")
+            warnings.warn(f"{source_label(source)}: {repair.reason}; recording again", FmuOpinfWarning,
+                          stacklevel=2)
+            source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
+            return record_run(source, signal, t, sink_factory, quiet, isolate, label, checked=True)
+    elif failure is None:
+        _judge_rates(source, run, t, final=True)
+    return run, failure
+
+
+def _judge_rates(source: Source, run: Run, t: np.ndarray, final: bool = False) -> Repair | None:
+    """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
+    problem it cannot repair (or any after a repair, ``final``) is an :class:`FMUError`, a mismatch of
+    velocities the user chose a warning."""
+    selection = getattr(source, "selection", None)
+    if selection is None or not source.n or len(t) < 3:
+        return None
+    window = slice(None, min(len(t), _CHECKED_SAMPLES))
+    x = np.asarray(run.x[:, window])
+    v = None if source.derived["xdot"] else np.asarray(run.xdot[:, window])
+    a = None if source.derived["xddot"] else np.asarray(run.xddot[:, window])
+    names = {"positions": source.position_names, "velocities": source.velocity_names}
+    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not final,
+                          selection.position_derivatives, np.asarray(run.u[:, window]))
+    if verdict is None:
+        return None
+    if isinstance(verdict, Repair) and not final:
+        return verdict
+    message = verdict.reason if isinstance(verdict, Repair) else verdict
+    if selection.guessed or final:
+        raise FMUError(f"{source_label(source)}: {message}")
+    warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
+                  "the positions' rates", FmuOpinfWarning, stacklevel=3)
+    return None
+
+
+#: Samples of a run that the rate check reads (the first ones).
+_CHECKED_SAMPLES = 4000
+
+
+def _as_options(repair: Repair) -> str:
+    """The command-line options that make the repair."""
+    options = []
+    for flag, value in (("positions", repair.positions), ("velocities", repair.velocities),
+                        ("accelerations", repair.accelerations)):
+        if value is not None:
+            options.append(f'--{flag} "{value if isinstance(value, str) else ",".join(value)}"')
+    return " ".join(options)
 
 
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:

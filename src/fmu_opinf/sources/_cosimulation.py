@@ -171,6 +171,19 @@ class FMUSource(Source):
         self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
         self._parameter_like = [e.name for e in forces if nonzero_start(e)]
 
+    def reselect(self, positions: Any, velocities: Any, accelerations: str | None, reason: str) -> None:
+        """Record other positions, velocities or accelerations from the next run on (the recorder's rate check
+        found the guessed ones inconsistent with the data, :mod:`fmu_opinf.snapshots._consistency`); ``None``
+        keeps a choice's default rule, ``""`` derives the rate from the data.  ``reason`` goes into the
+        selection's provenance (``how``)."""
+        opts = self._options
+        opts.update(positions=positions if positions is not None else opts["positions"],
+                    velocities=velocities if velocities is not None else opts["velocities"],
+                    accelerations=accelerations)
+        self._resolve(opts["positions"], opts["velocities"], opts["accelerations"], opts["inputs"], opts["outputs"],
+                      opts["parameters"] or {})
+        self.selection.how["positions"] = f"rate check on the data: {reason}"
+
     def _settings_provenance(self) -> dict[str, Any]:
         from .._hdf5 import jsonable
 

@@ -370,12 +370,20 @@ class ModelInfo:
 
 @dataclasses.dataclass
 class Selection:
-    """Recorded positions, velocities, accelerations and how each was chosen."""
+    """Recorded positions, velocities, accelerations, how each was chosen, and the name of each position's
+    derivative variable (None where a position is no state)."""
 
     positions: list[Column]
     velocities: list[Column]
     accelerations: list[Column]
     how: dict[str, str]
+    position_derivatives: list[str | None] = dataclasses.field(default_factory=list)
+
+    @property
+    def guessed(self) -> bool:
+        """Whether positions and velocities were paired by a guess (not given, not linked by derivative aliases)."""
+        rule = self.how.get("positions", "")
+        return bool(self.velocities) and rule.startswith("from derivative links") and rule != _LINKS
 
 
 _LINKS = "from derivative links"
@@ -487,7 +495,8 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
                            f"give --positions/--{what} patterns that match the same number of variables")
     if acc and not vel:
         raise FMUError("accelerations without velocities are not supported; pass --velocities too")
-    return Selection(pos, vel, acc, how)
+    derivatives = [states.der[c.name].name if c.name in states.der else None for c in pos]
+    return Selection(pos, vel, acc, how, derivatives)
 
 
 def _default_positions(model: ModelInfo, states: _States, elements: dict[str, Element]
@@ -655,9 +664,9 @@ def _default_rate(states: _States, elements: dict[str, Element], base: list[Colu
     return named
 
 
-def _rate_by_pattern(model: ModelInfo, elements: dict[str, Element], what: str, patterns: str,
+def _rate_by_pattern(model: ModelInfo, elements: dict[str, Element], what: str, patterns: str | Sequence[str],
                      how: dict[str, str]) -> list[Column]:
-    if patterns.strip().lower() in ("", "none"):
+    if isinstance(patterns, str) and patterns.strip().lower() in ("", "none"):
         how[what] = "derived from the data"
         return []
     how[what] = "pattern"

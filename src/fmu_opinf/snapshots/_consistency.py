@@ -1,0 +1,148 @@
+"""Checks that recorded velocities are the rates of the positions and accelerations those of the velocities.
+
+Which states of an FMU are positions and which their velocities is read from the model structure where it says
+so (derivative aliases, dependencies, units), and otherwise guessed (first-order states split in halves).  A
+guess can be wrong (states listed body by body, relative positions with absolute velocities), and a co-simulation
+FMU without inputs can return derivatives one step stale.  Either way the recording looks fine and the fitted
+model is silently wrong.  The data tell: over a step ``h`` a position moves by ``h`` times its velocity
+(trapezoidal rule for an accurate integration; the forward or backward rule for an FMU's explicit Euler steps),
+so a mismatch of order one per step, where a right pairing leaves ``(omega h)^2``, shows a wrong pairing, and
+accelerations that fit the velocities' increments far better when shifted by one sample are stale.
+
+:func:`check_rates` judges one run and proposes a repair: positions and velocities paired by the data (each
+position's increments matched with the state whose average over the step fits them), or the positions'
+derivative variables as velocities (when no other state is their rate) or accelerations derived from the data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Repair", "check_rates", "rate_mismatch", "stale_rates"]
+
+#: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
+#: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
+#: ``omega h / 2`` (explicit Euler, ``omega h < 0.5``), a wrong one about one.
+MISMATCH = 0.25
+#: Accelerations are stale when shifted by one sample they fit the velocities' increments this much better.
+_STALE_GAIN = 0.2
+#: Rows (states) moving less than this fraction of the most moving one are not judged.
+_QUIET = 1e-8
+#: Samples used by the checks (the first ones of a run).
+_SAMPLES = 4000
+#: Largest number of states paired by the data (the search compares every pair).
+_MAX_PAIRED = 2000
+
+
+@dataclass(frozen=True)
+class Repair:
+    """What to record instead: variable names (None: the default rule), ``""`` to derive from the data, and why."""
+
+    positions: list[str] | None
+    velocities: list[str] | str | None
+    accelerations: str | None
+    reason: str
+
+
+def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
+    """Per row: ``min`` over the trapezoidal, forward and backward rule of ``||dx - h v_rule|| / scale`` (0 for a
+    row that hardly moves), ``dx`` the increments of ``x`` and ``v_rule`` the velocity the rule uses."""
+    dx = np.diff(x, axis=1)
+    rules = (0.5 * (v[:, :-1] + v[:, 1:]), v[:, :-1], v[:, 1:])
+    scale = np.maximum(np.linalg.norm(dx, axis=1), h * np.linalg.norm(rules[0], axis=1))
+    residual = np.min([np.linalg.norm(dx - h * rule, axis=1) for rule in rules], axis=0)
+    moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
+    return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
+
+
+def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = None) -> bool:
+    """Whether ``a`` lags ``v``'s rate by one sample: shifted by one, the trapezoidal rule fits the increments of
+    ``v`` at least five times better, and unshifted it misses by more than round-off.  Steps next to a change of
+    the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are not counted."""
+    if v.shape[1] < 4:
+        return False
+    dv = np.diff(v, axis=1)
+    now = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, :-2] + a[:, 1:-1]), axis=0)
+    shifted = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, 1:-1] + a[:, 2:]), axis=0)
+    smooth = np.ones(now.size, dtype=bool)
+    if u is not None and u.size:
+        for change in np.flatnonzero(np.any(np.diff(u[:, :v.shape[1]], axis=1) != 0, axis=0)):
+            smooth[max(change - 2, 0):change + 3] = False
+    now, shifted = np.linalg.norm(now[smooth]), np.linalg.norm(shifted[smooth])
+    return bool(now > 1e-6 * np.linalg.norm(dv) and shifted < _STALE_GAIN * now)
+
+
+def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
+                guessed: bool, derivative_names: list[str | None],
+                u: np.ndarray | None = None) -> Repair | str | None:
+    """Judge one run's rates; None if consistent, a :class:`Repair` to record again, or a one-line problem.
+
+    Parameters
+    ----------
+    x, v, a : (n, k) ndarray
+        Recorded positions, velocities and accelerations (None where derived from the data).
+    h : float
+        Sample step.
+    names : dict
+        ``"positions"`` and ``"velocities"``: the recorded variables' names.
+    guessed : bool
+        Whether the pairing was guessed (split in halves, dependencies, units) rather than given or linked.
+    derivative_names : list
+        Per position, the name of its derivative variable (None where the model has none).
+    u : (m, k) ndarray, optional
+        Inputs in effect (steps next to their changes do not count in :func:`stale_rates`).
+    """
+    x, v = x[:, :_SAMPLES], None if v is None else v[:, :_SAMPLES]
+    if v is not None and x.shape[1] >= 3:
+        mismatch = rate_mismatch(x, v, h)
+        worst = int(np.argmax(mismatch)) if mismatch.size else 0
+        if mismatch.size and mismatch[worst] > MISMATCH:
+            where = (f"{names['velocities'][worst]} is not the rate of {names['positions'][worst]} (relative mismatch "
+                     f"{mismatch[worst]:.2g} per step)")
+            if not guessed:
+                return f"velocities do not match the positions: {where}"
+            return _repair(x, v, h, names, derivative_names, where)
+    if a is not None and v is not None and stale_rates(v, a[:, :_SAMPLES], h, u):
+        return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
+                                      "before the FMU updated them): derived from the data instead")
+    return None
+
+
+def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
+            derivative_names: list[str | None], where: str) -> Repair | str:
+    """Positions and velocities paired by the data among the recorded states, else the positions' derivative
+    variables as velocities, else the problem."""
+    states = names["positions"] + names["velocities"]
+    if len(states) <= _MAX_PAIRED and len(set(states)) == len(states):
+        pairs = _pair_by_data(np.vstack([x, v]), h)
+        if pairs is not None:
+            return Repair([states[i] for i, _ in pairs], [states[j] for _, j in pairs], None,
+                          f"the guessed pairing is wrong ({where}); positions and velocities paired by the data")
+    if all(derivative_names) and not set(derivative_names) & set(states):
+        return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
+                      f"the guessed pairing is wrong ({where}); the positions' derivative variables are the "
+                      "velocities, accelerations derived from the data")
+    return (f"cannot tell positions from velocities: {where}, and the data pair no states; pass --positions and "
+            "--velocities")
+
+
+def _pair_by_data(states: np.ndarray, h: float) -> list[tuple[int, int]] | None:
+    """``(position, velocity)`` row pairs such that every row is in one pair and each velocity row's average over a
+    step times ``h`` matches the position row's increments (trapezoidal rule); None unless that splits all rows."""
+    increments = np.diff(states, axis=1)
+    averages = h * 0.5 * (states[:, :-1] + states[:, 1:])
+    # ||d_i - a_j||^2 for all i, j from one product
+    squared = (np.sum(increments ** 2, axis=1)[:, None] + np.sum(averages ** 2, axis=1)[None, :]
+               - 2.0 * increments @ averages.T)
+    scale = np.maximum(np.linalg.norm(increments, axis=1)[:, None], np.linalg.norm(averages, axis=1)[None, :])
+    relative = np.sqrt(np.maximum(squared, 0.0)) / np.maximum(scale, np.finfo(float).tiny)
+    np.fill_diagonal(relative, np.inf)
+    best = np.argmin(relative, axis=1)
+    pairs = [(i, int(best[i])) for i in range(states.shape[0]) if relative[i, best[i]] <= MISMATCH]
+    positions, velocities = {i for i, _ in pairs}, [j for _, j in pairs]
+    if (2 * len(pairs) != states.shape[0] or len(set(velocities)) != len(velocities)
+            or positions & set(velocities)):
+        return None
+    return pairs
