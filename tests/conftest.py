@@ -2,6 +2,7 @@
 
 import importlib.util
 import sys
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -68,6 +69,17 @@ def fake_terminal(monkeypatch, *modules):
         monkeypatch.setattr(module, "Progress", lambda *args, **kwargs: _progress.Progress(*args, **kwargs,
                                                                                            delay=0.0))
     return terminal
+
+
+def rewrite_description(src, dst, edit) -> Path:
+    """Copy the FMU ``src`` to ``dst`` with its modelDescription.xml passed through ``edit(text) -> text``."""
+    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = edit(data.decode()).encode()
+            zout.writestr(item, data)
+    return dst
 
 
 def relative(a, b):

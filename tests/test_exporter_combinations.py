@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import re
-import zipfile
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import build_fmu_set
+from conftest import build_fmu_set, rewrite_description
 from fmu_opinf.cli import main
 from fmu_opinf.inference import CANDIDATE_FLOOR
 from fmu_opinf.newmark import time_grid
@@ -40,17 +39,6 @@ GENERIC_STATES = ["--positions", "x1,x2,x3,x4,x5", "--velocities", "x6,x7,x8,x9,
 
 
 # ------------------------------------------------------------------------------ editing a built FMU
-def rewrite_description(src: Path, dst: Path, edit) -> Path:
-    """Copy the FMU ``src`` to ``dst`` with its modelDescription.xml passed through ``edit(text) -> text``."""
-    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
-            if item.filename == "modelDescription.xml":
-                data = edit(data.decode()).encode()
-            zout.writestr(item, data)
-    return dst
-
-
 def negated_first_position(text: str) -> str:
     """FMI 2: the state of body 1 becomes ``flange.s = -mass[1].s``, an ``alias="negatedAlias"`` of its value
     reference (start value negated too), with ``der(flange.s) = -mass[1].v`` (another negated alias) in

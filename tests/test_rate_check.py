@@ -3,11 +3,11 @@ accelerations are found from the data and repaired, against exact matrix-exponen
 whose model descriptions list their states as other exporters do."""
 
 import re
-import zipfile
 
 import numpy as np
 import pytest
 
+from conftest import rewrite_description
 from fmu_opinf import lti_fmus
 from fmu_opinf.errors import FMUError, FmuOpinfWarning
 from fmu_opinf.snapshots._consistency import MISMATCH, Repair, check_rates, rate_mismatch, stale_rates
@@ -86,15 +86,6 @@ def test_consistent_data_pass_and_stale_accelerations_are_derived_instead(exact)
 # ----------------------------------------------------------------------------------------------------------
 # FMUs listing their states as other exporters do
 # ----------------------------------------------------------------------------------------------------------
-def _rewrite_description(src, dst, edit):
-    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
-            if item.filename == "modelDescription.xml":
-                data = edit(data.decode()).encode()
-            zout.writestr(item, data)
-
-
 def _interleave_derivatives(text):
     """List the state derivatives body by body (q1, qd1, q2, qd2, ...) without dependencies, as a generic
     exporter may: the state vector's order is then no longer [positions; velocities]."""
@@ -118,7 +109,7 @@ def test_snapshots_of_an_fmu_listing_states_body_by_body_record_the_true_positio
     built = lti_fmus.build_lti_fmu(model, tmp_path / "generic.fmu", naming="generic", interfaces=("cs",),
                                    dependencies=False)
     path = tmp_path / "interleaved.fmu"
-    _rewrite_description(built.path, path, _interleave_derivatives)
+    rewrite_description(built.path, path, _interleave_derivatives)
     source = open_source(str(path), tolerance=1e-10)
     assert source.selection.guessed and source.position_names != [f"x{i}" for i in range(1, 6)]
     with pytest.warns(FmuOpinfWarning, match="guessed pairing is wrong.*paired by the data"):
