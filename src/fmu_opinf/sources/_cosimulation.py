@@ -153,6 +153,12 @@ class FMUSource(Source):
         resolved = resolve_variables(model, positions, velocities, accelerations, inputs, outputs, settings)
         self._settings, structural = resolved.settings, resolved.structural
         selection, forces, held, out_elements = resolved.selection, resolved.forces, resolved.held, resolved.outputs
+        out_columns = [Column(e, e.sign) for e in out_elements]
+        if not out_columns and outputs is None and selection.positions:
+            out_columns = _positions_as_outputs(selection.positions)
+            out_elements = [c.element for c in out_columns]
+            selection.how["outputs"] = (f"{len(out_columns)} of the positions (the FMU declares no outputs; "
+                                        "--outputs chooses others)")
         self.selection = selection
         self.position_names = [c.name for c in selection.positions]
         self.velocity_names = [c.name for c in selection.velocities]
@@ -164,8 +170,7 @@ class FMUSource(Source):
         self.output_names = [e.name for e in out_elements]
         self.input_units = [e.var.unit or "" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]
-        columns = selection.positions + selection.velocities + selection.accelerations
-        columns += [Column(e, e.sign) for e in out_elements]
+        columns = selection.positions + selection.velocities + selection.accelerations + out_columns
         self._read = ReadPlan(model, columns, structural)
         # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
         self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
@@ -198,6 +203,8 @@ class FMUSource(Source):
             shown = _few(names) if names else "none"
             parts.append(f"{what} {shown} ({how.get(what, '')})")
         parts.append(f"force inputs {_few(self.input_names) if self.input_names else 'none'}")
+        if "outputs" in how:
+            parts.append(f"outputs {_few(self.output_names)} ({how['outputs']})")
         if self.held_input_names:
             parts.append(f"held inputs {_few(self.held_input_names)}")
         return f"{self.path.name}: " + "; ".join(parts)
@@ -594,3 +601,17 @@ def _few(names: list[str], limit: int = 4) -> str:
     if len(names) <= limit:
         return ", ".join(names)
     return ", ".join(names[:limit - 1]) + f", ..., {names[-1]} ({len(names)})"
+
+
+#: Most positions that stand in for the outputs of an FMU that declares none (evenly spaced beyond).
+MAX_POSITION_OUTPUTS = 20
+
+
+def _positions_as_outputs(positions: list[Column]) -> list[Column]:
+    """The outputs of an FMU without declared outputs: its positions (at most :data:`MAX_POSITION_OUTPUTS`, evenly
+    spaced), so that the window, the output map, ``compare`` (eq. 19) and the exported FMU have something to
+    measure (Modelica examples often declare no outputs)."""
+    if len(positions) <= MAX_POSITION_OUTPUTS:
+        return list(positions)
+    picks = np.unique(np.linspace(0, len(positions) - 1, MAX_POSITION_OUTPUTS).round().astype(int))
+    return [positions[i] for i in picks]

@@ -1,6 +1,7 @@
-"""The recorder's rate check (fmu_opinf.snapshots._consistency): guessed position/velocity pairings and stale
-accelerations are found from the data and repaired, against exact matrix-exponential responses (lti_fmus) and FMUs
-whose model descriptions list their states as other exporters do."""
+"""Conventions of other exporters found by the 2026-11-26 audit: the recorder's rate check
+(fmu_opinf.snapshots._consistency: guessed position/velocity pairings and stale accelerations found from the data
+and repaired) and FMUs without outputs, against exact matrix-exponential responses (lti_fmus) and FMUs whose model
+descriptions are rewritten as other exporters write them."""
 
 import re
 
@@ -121,3 +122,27 @@ def test_snapshots_of_an_fmu_listing_states_body_by_body_record_the_true_positio
     assert np.abs(run.x - reference.x).max() < 1e-8 * scale       # measured below 1e-10 relative
     assert np.abs(run.xdot - reference.v).max() < 1e-8 * np.abs(reference.v).max()
     assert np.abs(run.xddot - reference.a).max() < 1e-7 * np.abs(reference.a).max()
+
+
+def _no_outputs(text):
+    """Declare the outputs local and drop ModelStructure/Outputs, as Modelica examples without sensors are."""
+    text = re.sub(r'causality="output"', 'causality="local"', text)
+    return re.sub(r"<Outputs>.*?</Outputs>", "", text, flags=re.S)
+
+
+@pytest.mark.slow
+def test_an_fmu_without_outputs_has_its_positions_as_outputs(tmp_path):
+    """No declared outputs: the positions stand in (the automatic window, eq. 17, compare and export need some);
+    before 2026-11-26 the default snapshots stopped ('auto window needs outputs') and compare and export failed."""
+    from fmu_opinf import snapshots
+    from fmu_opinf.sources import open_source
+
+    model = lti_fmus.chain_model(x0=[0.05, -0.02, 0.03, 0.0, 0.04], name="Quiet")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "quiet.fmu")
+    path = rewrite_description(built.path, tmp_path / "no-outputs.fmu", _no_outputs)
+    source = open_source(str(path))
+    assert source.output_names == source.position_names == [f"mass[{i}].s" for i in range(1, 6)]
+    assert "declares no outputs" in source.selection.how["outputs"]
+    run = snapshots.record(source, "impulse:amplitude=100,t0=2,width=0.5", H, 10.0, quiet=True).runs[0]
+    reference = lti_fmus.zoh_response(model, run.t, run.u[:, 1:])
+    assert np.abs(run.y - reference.x).max() < 1e-8 * np.abs(reference.x).max()
