@@ -62,6 +62,41 @@ class Oscillator(Source):
         out[:4] = (x, v, -self.omega**2 * x - 2 * self.zeta * self.omega * v + self.u, x)
 
 
+class FreeBody(Oscillator):
+    """Two unit masses joined by a spring ``omega^2 / 2`` and a light damper, anchored nowhere: after the
+    impulse on mass 1 they drift at constant speed while oscillating at ``omega``; output the position of
+    mass 1 (exact zero-order-hold steps)."""
+
+    def __init__(self, omega: float, zeta: float) -> None:
+        super().__init__(omega, zeta)
+        k, d = omega**2 / 2.0, zeta * omega
+        stiffness, damping = np.array([[k, -k], [-k, k]]), np.array([[d, -d], [-d, d]])
+        self.A = np.block([[np.zeros((2, 2)), np.eye(2)], [-stiffness, -damping]])
+
+    def recipe(self):
+        return FreeBody, {"omega": self.omega, "zeta": self.zeta}
+
+    def start(self, t, U) -> None:
+        self._plan(t, U)
+        self.z, self.u, self.maps = np.zeros(4), 0.0, {}
+
+    def step(self, t: float, h: float, u) -> None:
+        key = round(h, 12)
+        if key not in self.maps:
+            block = np.zeros((5, 5))
+            block[:4, :4], block[2, 4] = self.A * h, h  # the force acts on mass 1
+            E = scipy.linalg.expm(block)
+            self.maps[key] = (E[:4, :4], E[:4, 4])
+        Phi, gamma = self.maps[key]
+        self.u = float(np.sum(u))
+        self.z = Phi @ self.z + gamma * self.u
+
+    def read(self, out) -> None:
+        x, v = self.z[0], self.z[2]
+        a = (self.A @ self.z)[2] + self.u
+        out[:4] = (x, v, a, x)
+
+
 def period(omega: float) -> float:
     return 2 * math.pi / omega
 
@@ -126,6 +161,18 @@ def test_free_response_from_the_start_state():
     assert undamped.stopped_by == "periods" and 20 <= undamped.t_end <= 23
 
 
+def test_a_drifting_free_body_is_cut_after_the_periods_of_its_oscillation():
+    """An unanchored body drifts for ever after an impulse: its window is cut after 20 periods of the oscillation,
+    with a step that resolves it (before 2026-11-26 the drift hid the oscillation from both frequency estimates:
+    12 pilot runs, then an error)."""
+    omega = math.pi  # period 2
+    window = auto_window(FreeBody(omega, 0.002), IMPULSE)
+    assert window.stopped_by == "periods"
+    expected = 2.245 + 20 * period(omega)
+    assert expected * 0.9 <= window.t_end <= expected * 1.15, window
+    check_step(window, omega / (2 * math.pi))
+
+
 def test_input_activity_and_slowest_frequency():
     assert input_activity(parse_signal(IMPULSE), 1) == pytest.approx((2.25, 0.5), abs=0.02)
     assert input_activity(parse_signal("step:amplitude=1,t0=3"), 1) == pytest.approx((3.0, None))
@@ -133,6 +180,7 @@ def test_input_activity_and_slowest_frequency():
     t = np.linspace(0, 100, 10001)
     y = np.sin(2 * np.pi * 0.3 * t) + 0.5 * np.sin(2 * np.pi * 2.0 * t)
     assert slowest_frequency(t, y) == pytest.approx(0.3, abs=0.03)
+    assert slowest_frequency(t, y + 0.5 * t) == pytest.approx(0.3, abs=0.03)  # on a drift 50 times larger
     assert slowest_frequency(t, np.exp(-t / 30)) == 0.0  # a non-oscillating drift
 
 

@@ -7,6 +7,7 @@ import math
 from typing import Any
 
 import numpy as np
+import scipy.signal
 
 from ..errors import DataError, InputSpecError
 from ..sources import Source, open_source
@@ -114,7 +115,8 @@ class Window:
 def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
     """Smallest frequency below which a fraction ``energy`` of the output's spectral energy lies.
 
-    The spectrum is that of the Hann-windowed, mean-free outputs (summed over outputs); the window
+    The spectrum is that of the Hann-windowed outputs without their straight-line trend (summed over outputs;
+    a drifting free body, :func:`slowest_frequency`); the window
     removes the leakage of cutting the response at both ends, which would otherwise put spurious
     energy at high frequencies.
 
@@ -132,7 +134,7 @@ def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -
         Frequency in cycles per time unit (0 for a constant output).
     """
     y = np.atleast_2d(y)
-    r = (y - y.mean(axis=1, keepdims=True)) * np.hanning(y.shape[1])
+    r = scipy.signal.detrend(y, axis=1, type="linear") * np.hanning(y.shape[1])  # drift: slowest_frequency
     power = (np.abs(np.fft.rfft(r, axis=1)) ** 2).sum(axis=0)
     freqs = np.fft.rfftfreq(y.shape[1], d=float(t[1] - t[0]))
     total = power.sum()
@@ -166,12 +168,15 @@ def slowest_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> fl
     spectral energy of the (mean-free, Hann-windowed) outputs lies.
 
     Returns 0 when that lies within the lowest three frequency bins (not resolved by this record:
-    a non-oscillating drift, or an oscillation slower than a third of the record).
+    an oscillation slower than a third of the record).  A straight-line trend is removed first: a free body
+    (an unanchored chain after an impulse) drifts at constant speed while its oscillations die out, and the
+    drift's energy would otherwise sit in the lowest bins and hide them (before 2026-11-26 such a model ran
+    12 pilot runs for 90 s and stopped with an error).
     """
     y = np.atleast_2d(y)
     if y.shape[1] < 16:
         return 0.0
-    r = (y - y.mean(axis=1, keepdims=True)) * np.hanning(y.shape[1])
+    r = scipy.signal.detrend(y, axis=1, type="linear") * np.hanning(y.shape[1])
     power = (np.abs(np.fft.rfft(r, axis=1)) ** 2).sum(axis=0)
     total = power.sum()
     if total <= 0:
