@@ -303,6 +303,9 @@ def test_structural_parameter_outside_its_bounds(tmp_path):
 
 def test_parse_assignments_keeps_order_and_text():
     assert parse_assignments(["a=1", "b = [1, 2]", "c=x=y"]) == {"a": "1", "b": "[1, 2]", "c": "x=y"}
+    # several assignments in one --set (the audit of 2026-11-26 found "give a number" for them), arrays kept whole
+    assert parse_assignments(["x1_start=0.3,x6_start=-0.2", "x0=1,2,3, k[2]=4"]) == {
+        "x1_start": "0.3", "x6_start": "-0.2", "x0": "1,2,3", "k[2]": "4"}
 
 
 # --------------------------------------------------------------- FMI 3 states body by body (no alias derivatives)

@@ -43,7 +43,7 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
                            help="constraint kind of a black-box FMU (chooses the POD data in fit)")
     group.add_argument("--set", dest="settings", action="append", metavar="NAME=VALUE",
                        help="set a parameter, start value, held input or (FMI 3) structural parameter before the "
-                            "run, e.g. --set k=1000, --set x0=[1,2,3], --set x0[2]=1.5; repeatable" + trained)
+                            "run, e.g. --set k=1000,c=0.1, --set x0=[1,2,3], --set x0[2]=1.5; repeatable" + trained)
     group.add_argument("--interface", choices=["auto", "me", "cs"],
                        help="FMI interface to drive: me (model exchange, fmu-opinf integrates with --tolerance), "
                             "cs (co-simulation, the FMU steps itself) or auto (default: model exchange when the FMU "

@@ -35,14 +35,19 @@ class Setting:
     structural: bool
 
 
+#: A comma that starts another ``NAME=`` assignment (``--set a=1,b=2``); commas inside array values
+#: (``x0=[1,2,3]``, ``x0=1,2,3``) are followed by numbers, not by a name and ``=``.
+_NEXT_ASSIGNMENT = re.compile(r",(?=\s*[A-Za-z_][\w.\[\]()]*\s*=)")
+
+
 def parse_assignments(items: Iterable[str] | Mapping[str, Any] | None) -> dict[str, Any]:
-    """``["k=4", "x0=[1,2]"]`` (command line) or a mapping, as an ordered ``{name: value}``."""
+    """``["k=4", "x0=[1,2]"]`` or ``["k=4,c=0.1"]`` (command line) or a mapping, as an ordered ``{name: value}``."""
     if items is None:
         return {}
     if isinstance(items, Mapping):
         return dict(items)
     out: dict[str, Any] = {}
-    for item in items:
+    for item in (piece for given in items for piece in _NEXT_ASSIGNMENT.split(str(given))):
         name, sep, value = str(item).partition("=")
         if not sep or not name.strip():
             raise InputSpecError(f"--set {item!r} is not NAME=VALUE; write e.g. --set k=1000 or --set x0=[1,2,3]")
