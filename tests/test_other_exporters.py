@@ -146,3 +146,28 @@ def test_an_fmu_without_outputs_has_its_positions_as_outputs(tmp_path):
     run = snapshots.record(source, "impulse:amplitude=100,t0=2,width=0.5", H, 10.0, quiet=True).runs[0]
     reference = lti_fmus.zoh_response(model, run.t, run.u[:, 1:])
     assert np.abs(run.y - reference.x).max() < 1e-8 * np.abs(reference.x).max()
+
+
+def test_large_runs_are_judged_on_a_subset_of_positions_and_not_re_paired(exact):
+    """Above 2000 positions the check reads 2000 evenly spaced ones (a run of 1e5 positions is not read whole);
+    a guessed pairing the data contradict is then an error naming the options, not a partial repair."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots import _record
+    from fmu_opinf.sources._variables import Selection
+
+    rows = _record._checked_rows(3000)
+    assert rows.size == 2000 and rows[0] == 0 and rows[-1] == 2999
+    x, v, _ = exact
+    n = 3000
+    X, V = np.tile(x, (n // 5, 1)), np.tile(v[::-1], (n // 5, 1))   # velocities of the wrong bodies
+    names = [f"p{i}" for i in range(n)], [f"q{i}" for i in range(n)]
+    selection = Selection([], [1], [], {"positions": "from derivative links, first-order states split in halves"},
+                          [None] * n)
+    source = SimpleNamespace(selection=selection, n=n, derived={"xdot": False, "xddot": True},
+                             position_names=names[0], velocity_names=names[1], label="big.fmu")
+    run = SimpleNamespace(x=X, xdot=V, xddot=None, u=_impulse(x.shape[1]))
+    t = np.arange(x.shape[1]) * H
+    with pytest.raises(FMUError, match=r"q0 is not the rate of p0.*too many states \(4000\) to pair by the data; "
+                                       "pass --positions and --velocities"):
+        _record._judge_rates(source, run, t)

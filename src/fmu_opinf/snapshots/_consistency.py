@@ -124,8 +124,9 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
         return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
                       f"the guessed pairing is wrong ({where}); the positions' derivative variables are the "
                       "velocities, accelerations derived from the data")
-    return (f"cannot tell positions from velocities: {where}, and the data pair no states; pass --positions and "
-            "--velocities")
+    why = ("the data pair no states" if len(states) <= _MAX_PAIRED else
+           f"too many states ({len(states)}) to pair by the data")
+    return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
 
 
 def _pair_by_data(states: np.ndarray, h: float) -> list[tuple[int, int]] | None:

@@ -279,17 +279,26 @@ def _judge_rates(source: Source, run: Run, t: np.ndarray, final: bool = False) -
     if selection is None or not source.n or len(t) < 3:
         return None
     window = slice(None, min(len(t), _CHECKED_SAMPLES))
-    x = np.asarray(run.x[:, window])
-    v = None if source.derived["xdot"] else np.asarray(run.xdot[:, window])
-    a = None if source.derived["xddot"] else np.asarray(run.xddot[:, window])
-    names = {"positions": source.position_names, "velocities": source.velocity_names}
-    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not final,
-                          selection.position_derivatives, np.asarray(run.u[:, window]))
+    rows = _checked_rows(source.n)
+    x = np.asarray(run.x[rows, window])
+    v = None if source.derived["xdot"] else np.asarray(run.xdot[rows, window])
+    a = None if source.derived["xddot"] else np.asarray(run.xddot[rows, window])
+    picked = np.arange(source.n)[rows]
+    names = {"positions": [source.position_names[i] for i in picked],
+             "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
+    derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
+    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not final, derivatives,
+                          np.asarray(run.u[:, window]))
     if verdict is None:
         return None
-    if isinstance(verdict, Repair) and not final:
+    whole = len(picked) == source.n
+    if isinstance(verdict, Repair) and not final and (whole or verdict.velocities is None):
         return verdict
-    message = verdict.reason if isinstance(verdict, Repair) else verdict
+    message = verdict
+    if isinstance(verdict, Repair):
+        cause = verdict.reason.split("; ")[0]
+        message = (f"{cause}, also after recording again" if final else
+                   f"{cause}; too many positions ({source.n}) to pair by the data") + "; pass --positions and --velocities"
     if selection.guessed or final:
         raise FMUError(f"{source_label(source)}: {message}")
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
@@ -299,6 +308,16 @@ def _judge_rates(source: Source, run: Run, t: np.ndarray, final: bool = False) -
 
 #: Samples of a run that the rate check reads (the first ones).
 _CHECKED_SAMPLES = 4000
+#: Positions the rate check reads at most (evenly spaced beyond): a run of 1e5 positions is not read whole.
+_CHECKED_ROWS = 2000
+
+
+def _checked_rows(n: int) -> slice | np.ndarray:
+    """The rows (positions) the rate check reads: all up to :data:`_CHECKED_ROWS`, else that many evenly
+    spaced (a guessed pairing is then only judged, not re-paired by the data)."""
+    if n <= _CHECKED_ROWS:
+        return slice(None)
+    return np.unique(np.linspace(0, n - 1, _CHECKED_ROWS).round().astype(int))
 
 
 def _as_options(repair: Repair) -> str:
