@@ -72,7 +72,9 @@ struct LtiInstance {
     double *u;           /* force inputs */
     double par[2];       /* mass_scale, stiffness_scale */
     double *qdd, *x, *v, *a, *y, *work;
+    double *qddBefore;   /* LTI_STALE_DERIVATIVES: qdd at the start of the last doStep */
     int upToDate;
+    int stale;           /* LTI_STALE_DERIVATIVES: doStep done, no input set since */
 };
 
 #define PAR_MASS_SCALE 0
@@ -81,6 +83,7 @@ struct LtiInstance {
 /* ---- provided by the generated lti_model.c */
 extern const char *const LTI_INSTANTIATION_TOKEN;
 extern const int LTI_CS_METHOD;
+extern const int LTI_STALE_DERIVATIVES; /* 1: after doStep, der() of the velocities are the values before it */
 extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
 extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
 extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */

@@ -26,7 +26,7 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
   outputs too and on Modelica type definitions (``declaredType``);
 * on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
   outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
-  dependencies.
+  dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``).
 
 The system is ``M x'' + D x' + K x = B u + f0`` with outputs ``y = Cp x + Cv x' + Ca x'' + y0``
 (:class:`LinearMechanicalModel`).  The FMU integrates it in the coordinates an exporter would
@@ -680,6 +680,7 @@ class _Options:
     input_array: bool = False
     interleaved: bool = False
     dependencies: bool = True
+    stale_derivatives: bool = False
 
 
 def _check_options(model, options: _Options) -> None:
@@ -1300,6 +1301,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         "#include <string.h>\n\n#include \"lti.h\"\n\n"
         f'const char *const LTI_INSTANTIATION_TOKEN = "{_GUID_PLACEHOLDER}";\n'
         f"const int LTI_CS_METHOD = {'CsEuler' if options.cs_method == 'euler' else 'CsRungeKutta'};\n"
+        f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
         f"const size_t LTI_NQ_DEFAULT = {nq};\n"
@@ -1405,7 +1407,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   declared_types: bool = False, input_sensors: bool = False,
                   output_array: bool = False, output_aliases: bool = False,
                   input_array: bool = False, interleaved: bool = False,
-                  dependencies: bool = True, reuse: bool = True) -> LtiFmu:
+                  dependencies: bool = True, stale_derivatives: bool = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1467,6 +1469,10 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     dependencies : bool, default=True
         Declare the structural ``dependencies`` of outputs and state derivatives (exact zeros);
         False leaves them out (every unknown may depend on everything).
+    stale_derivatives : bool, default=False
+        Co-simulation: after ``doStep`` the derivative variables of the velocity states return their values
+        from before the step until an input is set (a defect of some generated LTI FMUs, spec
+        ``real-fmus.md``; without inputs nothing refreshes them).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1493,7 +1499,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         declared_types=bool(declared_types), input_sensors=bool(input_sensors),
         output_array=bool(output_array), output_aliases=bool(output_aliases),
         input_array=bool(input_array), interleaved=bool(interleaved),
-        dependencies=bool(dependencies))
+        dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

@@ -224,13 +224,14 @@ def _first_bad_row(rows: np.ndarray) -> int | None:
 
 
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
-                isolate: bool, label: str = "recording", checked: bool = False) -> tuple[Run, StepError | None]:
+                isolate: bool, label: str = "recording", repairs: int = 0) -> tuple[Run, StepError | None]:
     """Drive one run into a sink; return the run and the error that ended it early (if any).
 
     ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).  A complete
     run of an FMU is checked for consistent rates (:mod:`._consistency`): a guessed pairing of positions and
     velocities that the data contradict, or stale accelerations, are repaired on the source and the run is
-    recorded once more (``checked``: this is that second recording; any remaining problem is an error).
+    recorded once more (``repairs``: how many times already; both may be needed, one after the other, and a
+    problem left after :data:`_MAX_REPAIRS` is an error).
     """
     u = inputs_in_effect(signal, t, source.m)
     U = np.ascontiguousarray(u.T)
@@ -256,8 +257,8 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
-    if failure is None and not checked:
-        repair = _judge_rates(source, run, t)
+    if failure is None:
+        repair = _judge_rates(source, run, t, repairs)
         if repair is not None:
             if sink_factory is not MemorySink:  # a streamed run is not recorded twice into its file
                 raise FMUError(f"{source_label(source)}: {repair.reason}; record again with {_as_options(repair)}, "
@@ -265,16 +266,19 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             warnings.warn(f"{source_label(source)}: {repair.reason}; recording again", FmuOpinfWarning,
                           stacklevel=2)
             source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
-            return record_run(source, signal, t, sink_factory, quiet, isolate, label, checked=True)
-    elif failure is None:
-        _judge_rates(source, run, t, final=True)
+            return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1)
     return run, failure
 
 
-def _judge_rates(source: Source, run: Run, t: np.ndarray, final: bool = False) -> Repair | None:
+#: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
+#: states are listed body by body needs both).
+_MAX_REPAIRS = 2
+
+
+def _judge_rates(source: Source, run: Run, t: np.ndarray, repairs: int = 0) -> Repair | None:
     """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
-    problem it cannot repair (or any after a repair, ``final``) is an :class:`FMUError`, a mismatch of
-    velocities the user chose a warning."""
+    problem it cannot repair (any after a repair, or after :data:`_MAX_REPAIRS`) is an :class:`FMUError`, a
+    mismatch of velocities the user chose a warning."""
     selection = getattr(source, "selection", None)
     if selection is None or not source.n or len(t) < 3:
         return None
@@ -287,19 +291,19 @@ def _judge_rates(source: Source, run: Run, t: np.ndarray, final: bool = False) -
     names = {"positions": [source.position_names[i] for i in picked],
              "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
     derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
-    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not final, derivatives,
+    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not repairs, derivatives,
                           np.asarray(run.u[:, window]))
     if verdict is None:
         return None
     whole = len(picked) == source.n
-    if isinstance(verdict, Repair) and not final and (whole or verdict.velocities is None):
+    if isinstance(verdict, Repair) and repairs < _MAX_REPAIRS and (whole or verdict.velocities is None):
         return verdict
     message = verdict
     if isinstance(verdict, Repair):
         cause = verdict.reason.split("; ")[0]
-        message = (f"{cause}, also after recording again" if final else
+        message = (f"{cause}, also after {repairs} repairs" if repairs >= _MAX_REPAIRS else
                    f"{cause}; too many positions ({source.n}) to pair by the data") + "; pass --positions and --velocities"
-    if selection.guessed or final:
+    if selection.guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
                   "the positions' rates", FmuOpinfWarning, stacklevel=3)
