@@ -69,7 +69,8 @@ def test_check_pairs_interleaved_states_by_the_data(exact):
 def test_check_takes_the_derivative_variables_where_no_state_is_the_rate(exact):
     x, v, a = exact
     s_rel = np.diff(np.vstack([np.zeros(x.shape[1]), x]), axis=0)
-    names = {"positions": [f"spring[{i}].s_rel" for i in range(1, 6)], "velocities": [f"mass[{i}].v" for i in range(1, 6)]}
+    names = {"positions": [f"spring[{i}].s_rel" for i in range(1, 6)],
+             "velocities": [f"mass[{i}].v" for i in range(1, 6)]}
     derivatives = [f"der(spring[{i}].s_rel)" for i in range(1, 6)]
     repair = check_rates(s_rel, v, a, H, names, True, derivatives)
     assert isinstance(repair, Repair) and repair.velocities == derivatives and repair.accelerations == ""
@@ -153,10 +154,10 @@ def test_large_runs_are_judged_on_a_subset_of_positions_and_not_re_paired(exact)
     a guessed pairing the data contradict is then an error naming the options, not a partial repair."""
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots import _record
+    from fmu_opinf.snapshots import _consistency
     from fmu_opinf.sources._variables import Selection
 
-    rows = _record._checked_rows(3000)
+    rows = _consistency._checked_rows(3000)
     assert rows.size == 2000 and rows[0] == 0 and rows[-1] == 2999
     x, v, _ = exact
     n = 3000
@@ -170,7 +171,7 @@ def test_large_runs_are_judged_on_a_subset_of_positions_and_not_re_paired(exact)
     t = np.arange(x.shape[1]) * H
     with pytest.raises(FMUError, match=r"q0 is not the rate of p0.*too many states \(4000\) to pair by the data; "
                                        "pass --positions and --velocities"):
-        _record._judge_rates(source, run, t)
+        _consistency.judge_run(source, run, t)
 
 
 @pytest.mark.slow

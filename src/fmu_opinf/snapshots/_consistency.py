@@ -9,18 +9,25 @@ model is silently wrong.  The data tell: over a step ``h`` a position moves by `
 so a mismatch of order one per step, where a right pairing leaves ``(omega h)^2``, shows a wrong pairing, and
 accelerations that fit the velocities' increments far better when shifted by one sample are stale.
 
-:func:`check_rates` judges one run and proposes a repair: positions and velocities paired by the data (each
-position's increments matched with the state whose average over the step fits them), or the positions'
+:func:`check_rates` judges one run's arrays and proposes a repair: positions and velocities paired by the data
+(each position's increments matched with the state whose average over the step fits them), or the positions'
 derivative variables as velocities (when no other state is their rate) or accelerations derived from the data.
+:func:`judge_run` applies it to a recorded run of an FMU source (the recorder then records the run again with the
+repair, :func:`fmu_opinf.snapshots._record.record_run`), or turns what cannot be repaired into an error.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-__all__ = ["Repair", "check_rates", "rate_mismatch", "stale_rates"]
+from ..errors import FMUError, FmuOpinfWarning
+from ._isolation import source_label
+
+__all__ = ["MAX_REPAIRS", "Repair", "check_rates", "judge_run", "rate_mismatch", "stale_rates"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
 #: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
@@ -44,6 +51,15 @@ class Repair:
     velocities: list[str] | str | None
     accelerations: str | None
     reason: str
+
+    def as_options(self) -> str:
+        """The command-line options that make the repair."""
+        options = []
+        for flag, value in (("positions", self.positions), ("velocities", self.velocities),
+                            ("accelerations", self.accelerations)):
+            if value is not None:
+                options.append(f'--{flag} "{value if isinstance(value, str) else ",".join(value)}"')
+        return " ".join(options)
 
 
 def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
@@ -147,3 +163,56 @@ def _pair_by_data(states: np.ndarray, h: float) -> list[tuple[int, int]] | None:
             or positions & set(velocities)):
         return None
     return pairs
+
+
+#: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
+#: states are listed body by body needs both).
+MAX_REPAIRS = 2
+
+
+def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0) -> Repair | None:
+    """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
+    problem it cannot repair (any after a repair, or after :data:`MAX_REPAIRS`) is an :class:`FMUError`, a
+    mismatch of velocities the user chose a warning."""
+    selection = getattr(source, "selection", None)
+    if selection is None or not source.n or len(t) < 3:
+        return None
+    window = slice(None, min(len(t), _SAMPLES))
+    rows = _checked_rows(source.n)
+    x = np.asarray(run.x[rows, window])
+    v = None if source.derived["xdot"] else np.asarray(run.xdot[rows, window])
+    a = None if source.derived["xddot"] else np.asarray(run.xddot[rows, window])
+    picked = np.arange(source.n)[rows]
+    names = {"positions": [source.position_names[i] for i in picked],
+             "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
+    derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
+    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not repairs, derivatives,
+                          np.asarray(run.u[:, window]))
+    if verdict is None:
+        return None
+    whole = len(picked) == source.n
+    if isinstance(verdict, Repair) and repairs < MAX_REPAIRS and (whole or verdict.velocities is None):
+        return verdict
+    message = verdict
+    if isinstance(verdict, Repair):
+        cause = verdict.reason.split("; ")[0]
+        message = (f"{cause}, also after {repairs} repairs" if repairs >= MAX_REPAIRS else
+                   f"{cause}; too many positions ({source.n}) to pair by the data")
+        message += "; pass --positions and --velocities"
+    if selection.guessed or repairs:
+        raise FMUError(f"{source_label(source)}: {message}")
+    warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
+                  "the positions' rates", FmuOpinfWarning, stacklevel=3)
+    return None
+
+
+#: Positions the rate check reads at most (evenly spaced beyond): a run of 1e5 positions is not read whole.
+_CHECKED_ROWS = 2000
+
+
+def _checked_rows(n: int) -> slice | np.ndarray:
+    """The rows (positions) the rate check reads: all up to :data:`_CHECKED_ROWS`, else that many evenly
+    spaced (a guessed pairing is then only judged, not re-paired by the data)."""
+    if n <= _CHECKED_ROWS:
+        return slice(None)
+    return np.unique(np.linspace(0, n - 1, _CHECKED_ROWS).round().astype(int))

@@ -29,7 +29,7 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..sources import Source, StepError, open_source
-from ._consistency import Repair, check_rates
+from ._consistency import judge_run
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
@@ -231,7 +231,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     run of an FMU is checked for consistent rates (:mod:`._consistency`): a guessed pairing of positions and
     velocities that the data contradict, or stale accelerations, are repaired on the source and the run is
     recorded once more (``repairs``: how many times already; both may be needed, one after the other, and a
-    problem left after :data:`_MAX_REPAIRS` is an error).
+    problem left after :data:`~._consistency.MAX_REPAIRS` is an error).
     """
     u = inputs_in_effect(signal, t, source.m)
     U = np.ascontiguousarray(u.T)
@@ -258,80 +258,16 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
     if failure is None:
-        repair = _judge_rates(source, run, t, repairs)
+        repair = judge_run(source, run, t, repairs)
         if repair is not None:
             if sink_factory is not MemorySink:  # a streamed run is not recorded twice into its file
-                raise FMUError(f"{source_label(source)}: {repair.reason}; record again with {_as_options(repair)}, "
+                raise FMUError(f"{source_label(source)}: {repair.reason}; record again with {repair.as_options()}, "
                                "or with the auto window (its pilot runs repair this)")
             warnings.warn(f"{source_label(source)}: {repair.reason}; recording again", FmuOpinfWarning,
                           stacklevel=2)
             source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
             return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1)
     return run, failure
-
-
-#: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
-#: states are listed body by body needs both).
-_MAX_REPAIRS = 2
-
-
-def _judge_rates(source: Source, run: Run, t: np.ndarray, repairs: int = 0) -> Repair | None:
-    """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
-    problem it cannot repair (any after a repair, or after :data:`_MAX_REPAIRS`) is an :class:`FMUError`, a
-    mismatch of velocities the user chose a warning."""
-    selection = getattr(source, "selection", None)
-    if selection is None or not source.n or len(t) < 3:
-        return None
-    window = slice(None, min(len(t), _CHECKED_SAMPLES))
-    rows = _checked_rows(source.n)
-    x = np.asarray(run.x[rows, window])
-    v = None if source.derived["xdot"] else np.asarray(run.xdot[rows, window])
-    a = None if source.derived["xddot"] else np.asarray(run.xddot[rows, window])
-    picked = np.arange(source.n)[rows]
-    names = {"positions": [source.position_names[i] for i in picked],
-             "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
-    derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
-    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not repairs, derivatives,
-                          np.asarray(run.u[:, window]))
-    if verdict is None:
-        return None
-    whole = len(picked) == source.n
-    if isinstance(verdict, Repair) and repairs < _MAX_REPAIRS and (whole or verdict.velocities is None):
-        return verdict
-    message = verdict
-    if isinstance(verdict, Repair):
-        cause = verdict.reason.split("; ")[0]
-        message = (f"{cause}, also after {repairs} repairs" if repairs >= _MAX_REPAIRS else
-                   f"{cause}; too many positions ({source.n}) to pair by the data") + "; pass --positions and --velocities"
-    if selection.guessed or repairs:
-        raise FMUError(f"{source_label(source)}: {message}")
-    warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
-                  "the positions' rates", FmuOpinfWarning, stacklevel=3)
-    return None
-
-
-#: Samples of a run that the rate check reads (the first ones).
-_CHECKED_SAMPLES = 4000
-#: Positions the rate check reads at most (evenly spaced beyond): a run of 1e5 positions is not read whole.
-_CHECKED_ROWS = 2000
-
-
-def _checked_rows(n: int) -> slice | np.ndarray:
-    """The rows (positions) the rate check reads: all up to :data:`_CHECKED_ROWS`, else that many evenly
-    spaced (a guessed pairing is then only judged, not re-paired by the data)."""
-    if n <= _CHECKED_ROWS:
-        return slice(None)
-    return np.unique(np.linspace(0, n - 1, _CHECKED_ROWS).round().astype(int))
-
-
-def _as_options(repair: Repair) -> str:
-    """The command-line options that make the repair."""
-    options = []
-    for flag, value in (("positions", repair.positions), ("velocities", repair.velocities),
-                        ("accelerations", repair.accelerations)):
-        if value is not None:
-            options.append(f'--{flag} "{value if isinstance(value, str) else ",".join(value)}"')
-    return " ".join(options)
 
 
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
