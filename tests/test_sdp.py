@@ -312,3 +312,23 @@ def test_sdp_solves_show_labelled_progress_on_a_terminal_only_when_asked(rng, mo
     steps = [line for line in lines if "factored start (L-BFGS iterations)" in line]
     assert steps and f"] {factored.info['iterations']}/" in steps[0].split("\r")[-1]
     assert terminal.getvalue().endswith("\n")
+
+
+@pytest.mark.parametrize("normalization", ["mass-eigenvalue", "auto"])
+def test_a_singular_eliminated_block_keeps_every_cone(rng, monkeypatch, normalization):
+    """When eliminating a block fails (its Hessian block numerically singular: a stiff two-mass FMU sampled at the
+    automatic window's 0.2 s, found on 2026-11-26, where `fit` stopped with a LinAlgError traceback from the
+    Mr >= I path), the solve keeps every cone, and the result is Clarabel's optimum of the full SDP."""
+    from fmu_opinf import _sdp_paths
+
+    def singular(*args, **kwargs):
+        raise np.linalg.LinAlgError("3-th leading minor of the array is not positive definite")
+
+    monkeypatch.setattr(_sdp_paths, "_reduced_quadratic", singular)
+    data = _active_data(rng)
+    fit = fit_operators(*data, refine=False, normalization=normalization)
+    assert fit.info["cones"] == ["Mr", "Dr", "Kr"] and fit.info["status"] == "optimal"
+    monkeypatch.undo()
+    reference = fit_operators(*data, refine=False, method="sdp", normalization=fit.info["normalization"],
+                              solver="clarabel", tol=1e-10)
+    assert fit.info["sdp_objective"] == pytest.approx(reference.info["sdp_objective"], rel=1e-6)

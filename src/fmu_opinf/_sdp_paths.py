@@ -514,8 +514,14 @@ def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full:
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
     keep = (0, 1, 2) if full else tuple(sorted(set(keep) | {0}))
     while True:
-        w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, keep, normalization="mass-eigenvalue",
-                                        **(sdp or {}))
+        try:
+            w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, keep, normalization="mass-eigenvalue",
+                                            **(sdp or {}))
+        except np.linalg.LinAlgError:  # a singular eliminated block (as in _fit_screened): keep every cone
+            if len(keep) == 3:
+                raise
+            keep = (0, 1, 2)
+            continue
         for key in spent:
             spent[key] += info.get(key, 0)
         mats = _unpack(w, r)
