@@ -66,6 +66,21 @@ def test_check_pairs_interleaved_states_by_the_data(exact):
     assert check_rates(z[:5], z[5:], None, H, names, False, [None] * 5).startswith("velocities do not match")
 
 
+def test_a_right_guess_with_an_unresolved_fast_mode_is_kept():
+    """A mode the step does not resolve (omega h = 2) leaves the right pairing a mismatch of 0.36, above the
+    threshold; the data's best pairing is then the guessed one, which is kept (no repair, no error)."""
+    t = np.arange(0.0, 60.0, 0.2)
+    fast, slow = 10.0, 0.5
+    x = np.vstack([np.cos(fast * t) * np.exp(-0.01 * t), np.sin(slow * t)])
+    v = np.vstack([-fast * np.sin(fast * t) * np.exp(-0.01 * t) - 0.01 * x[0], slow * np.cos(slow * t)])
+    assert rate_mismatch(x, v, 0.2)[0] > MISMATCH
+    names = {"positions": ["p1", "p2"], "velocities": ["v1", "v2"]}
+    assert check_rates(x, v, None, 0.2, names, True, [None, None]) is None
+    swapped = {"positions": ["p1", "p2"], "velocities": ["v2", "v1"]}
+    repair = check_rates(x, v[::-1], None, 0.2, swapped, True, [None, None])
+    assert isinstance(repair, Repair) and repair.velocities == ["v1", "v2"]
+
+
 def test_check_takes_the_derivative_variables_where_no_state_is_the_rate(exact):
     x, v, a = exact
     s_rel = np.diff(np.vstack([np.zeros(x.shape[1]), x]), axis=0)

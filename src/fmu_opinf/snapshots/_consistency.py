@@ -119,7 +119,7 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
                      f"{mismatch[worst]:.2g} per step)")
             if not guessed:
                 return f"velocities do not match the positions: {where}"
-            return _repair(x, v, h, names, derivative_names, where)
+            return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
     if a is not None and v is not None and stale_rates(v, a[:, :_SAMPLES], h, u):
         return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
                                       "before the FMU updated them): derived from the data instead")
@@ -127,13 +127,19 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
 
 
 def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
-            derivative_names: list[str | None], where: str) -> Repair | str:
-    """Positions and velocities paired by the data among the recorded states, else the positions' derivative
-    variables as velocities, else the problem."""
+            derivative_names: list[str | None], where: str, guessed_mismatch: float) -> Repair | str | None:
+    """Positions and velocities paired by the data among the recorded states (within :data:`MISMATCH`, or at
+    least twice better than the guess: a fast mode the step does not resolve raises every mismatch), else the
+    positions' derivative variables as velocities, else the problem; None when the data's best pairing is the
+    guessed one (the mismatch is then the step's own, not a wrong pairing)."""
     states = names["positions"] + names["velocities"]
     if len(states) <= _MAX_PAIRED and len(set(states)) == len(states):
-        pairs = _pair_by_data(np.vstack([x, v]), h)
-        if pairs is not None:
+        found = _pair_by_data(np.vstack([x, v]), h)
+        n = len(names["positions"])
+        if found is not None and sorted(found[0]) == [(i, n + i) for i in range(n)]:
+            return None
+        if found is not None and found[1] <= max(MISMATCH, 0.5 * guessed_mismatch):
+            pairs = found[0]
             return Repair([states[i] for i, _ in pairs], [states[j] for _, j in pairs], None,
                           f"the guessed pairing is wrong ({where}); positions and velocities paired by the data")
     if all(derivative_names) and not set(derivative_names) & set(states):
@@ -145,9 +151,12 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
     return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
 
 
-def _pair_by_data(states: np.ndarray, h: float) -> list[tuple[int, int]] | None:
+def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
     """``(position, velocity)`` row pairs such that every row is in one pair and each velocity row's average over a
-    step times ``h`` matches the position row's increments (trapezoidal rule); None unless that splits all rows."""
+    step times ``h`` matches the position row's increments best (trapezoidal rule), with the largest relative
+    mismatch of a pair; None unless the best matches within :data:`MISMATCH` split all rows.  A pair's rows are
+    positions with increments and velocities: the best match of a velocity row (its increments are ``h``
+    times an acceleration, which matches no state) stays above :data:`MISMATCH` and leaves it unpaired."""
     increments = np.diff(states, axis=1)
     averages = h * 0.5 * (states[:, :-1] + states[:, 1:])
     # ||d_i - a_j||^2 for all i, j from one product
@@ -157,12 +166,17 @@ def _pair_by_data(states: np.ndarray, h: float) -> list[tuple[int, int]] | None:
     relative = np.sqrt(np.maximum(squared, 0.0)) / np.maximum(scale, np.finfo(float).tiny)
     np.fill_diagonal(relative, np.inf)
     best = np.argmin(relative, axis=1)
-    pairs = [(i, int(best[i])) for i in range(states.shape[0]) if relative[i, best[i]] <= MISMATCH]
-    positions, velocities = {i for i, _ in pairs}, [j for _, j in pairs]
-    if (2 * len(pairs) != states.shape[0] or len(set(velocities)) != len(velocities)
-            or positions & set(velocities)):
+    # a position's best match is its velocity; a velocity's increments (h times an acceleration) match no state
+    # as well: of each row and its best match, the row with the better match is the position
+    order = np.argsort(relative[np.arange(best.size), best])
+    pairs, used = [], set()
+    for i in order[: states.shape[0] // 2]:
+        pairs.append((int(i), int(best[i])))
+        used.update((int(i), int(best[i])))
+    if len(used) != states.shape[0]:
         return None
-    return pairs
+    pairs.sort()  # positions in the order the states are listed
+    return pairs, float(max(relative[i, j] for i, j in pairs))
 
 
 #: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
