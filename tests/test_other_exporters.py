@@ -223,3 +223,25 @@ def test_stale_derivatives_of_a_model_without_inputs_listed_body_by_body_need_bo
     assert np.abs(run.x - reference.x).max() < 1e-8 * np.abs(reference.x).max()
     assert np.abs(run.xdot - reference.v).max() < 1e-8 * np.abs(reference.v).max()
     assert np.abs(run.xddot - reference.a).max() < 1e-8 * np.abs(reference.a).max()  # derived: measured 9.4e-10
+
+
+def test_a_damaged_fmu_is_one_line_and_leaves_no_extracted_folder(tmp_path, monkeypatch, capsys):
+    """A .fmu whose compressed data are damaged (third audit, 2026-11-26: a 67-line zlib traceback and a
+    half-extracted folder in the temporary directory each time): one line, exit code 2, nothing left behind."""
+    import tempfile
+
+    from fmu_opinf.cli import main
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Damaged"), tmp_path / "good.fmu")
+    data = bytearray(built.path.read_bytes())
+    middle = len(data) // 2
+    data[middle:middle + 200] = bytes(b ^ 0xFF for b in data[middle:middle + 200])
+    damaged = tmp_path / "damaged.fmu"
+    damaged.write_bytes(bytes(data))
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    code = main(["snapshots", str(damaged), "-o", str(tmp_path / "x.h5"), "--dt", "0.05", "--t-end", "1", "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "damaged.fmu cannot be unpacked" in err[0] and "again" in err[0]
+    assert not list(scratch.iterdir()) and not (tmp_path / "x.h5").exists()

@@ -5,8 +5,10 @@ from __future__ import annotations
 import ctypes
 import os
 import shutil
+import tempfile
 import weakref
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -326,7 +328,14 @@ class FMUSource(Source):
         if self._unzipdir is None:
             from fmpy import extract
 
-            self._unzipdir = str(extract(str(self.path)))
+            folder = tempfile.mkdtemp(prefix="fmu_opinf_")
+            try:
+                extract(str(self.path), unzipdir=folder)
+            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+                shutil.rmtree(folder, ignore_errors=True)
+                raise FMUError(f"{self.path.name} cannot be unpacked ({type(exc).__name__}: {exc}); the file is "
+                               "damaged or incomplete: copy or export the FMU again") from None
+            self._unzipdir = folder
             weakref.finalize(self, shutil.rmtree, self._unzipdir, True)
         return self._unzipdir
 
