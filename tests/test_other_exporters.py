@@ -245,3 +245,20 @@ def test_a_damaged_fmu_is_one_line_and_leaves_no_extracted_folder(tmp_path, monk
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "damaged.fmu cannot be unpacked" in err[0] and "again" in err[0]
     assert not list(scratch.iterdir()) and not (tmp_path / "x.h5").exists()
+
+
+def test_a_script_without_main_guard_records_in_a_child_process(tmp_path):
+    """A user's script that calls the API at module level (no ``if __name__ == "__main__":``) and isolates the
+    source in a spawned child: the child must not run the script again (third audit, 2026-11-26: a crash at
+    step 0 for record, a hang that only SIGKILL ended for compare)."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "unguarded.py"
+    script.write_text("from fmu_opinf import snapshots\n"
+                      "s = snapshots.record('builtin:anchored-msd', 'impulse:amplitude=100,t0=2,width=0.5', "
+                      "dt=0.1, t_end=2, quiet=True, isolate=True)\n"
+                      "print('recorded', s.runs[0].x.shape[1])\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path)
+    assert done.returncode == 0 and "recorded 21" in done.stdout, done.stderr[-500:]

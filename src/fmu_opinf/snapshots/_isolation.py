@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import signal as _signal
+import sys
 from collections.abc import Iterator
 from multiprocessing import shared_memory
 import time as _time
@@ -125,7 +126,7 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
     i0 = 0
     try:
-        with _signals_blocked():  # the child starts with SIGINT/SIGTERM blocked, then ignores them
+        with _signals_blocked(), _main_not_rerun(source):  # the child starts with SIGINT/SIGTERM blocked
             proc.start()
         there.close()
         while True:
@@ -162,6 +163,29 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
         del count, rows
         shm.close()
         shm.unlink()
+
+
+@contextlib.contextmanager
+def _main_not_rerun(source: Source) -> Iterator[None]:
+    """Start a spawned child without running the caller's main script again.
+
+    A spawned child normally re-imports the parent's ``__main__`` (by path or module name); a user's script
+    without an ``if __name__ == "__main__":`` guard then runs again in the child, which tries to spawn in turn
+    and dies (``record(isolate=True)`` reported a crash at step 0; ``compare`` hung, even for SIGTERM: third
+    audit, 2026-11-26).  The child needs nothing from ``__main__`` unless the source's class is defined
+    there, so the main module's path and spec are hidden while the child starts."""
+    main = sys.modules.get("__main__")
+    if main is None or type(source).__module__ == "__main__":
+        yield
+        return
+    hidden = {name: main.__dict__.pop(name) for name in ("__file__",) if name in main.__dict__}
+    spec = getattr(main, "__spec__", None)
+    main.__spec__ = None
+    try:
+        yield
+    finally:
+        main.__dict__.update(hidden)
+        main.__spec__ = spec
 
 
 @contextlib.contextmanager
