@@ -146,4 +146,7 @@ int stepIsFinite(const NewmarkSolver *solver, const SecondOrderSystem *system, c
 void computeOutputs(const SecondOrderSystem *system, const double x[], const double v[],
                     const double u[], double y[]);
 
+/* y += Du e_input change: the outputs' direct feedthrough of a changed input (the state is unchanged). */
+void addFeedthroughChange(const SecondOrderSystem *system, int input, double change, double y[]);
+
 #endif /* NEWMARK_H */

@@ -415,9 +415,14 @@ Status setFloat64(ModelInstance *instance, const char *function, const unsigned 
         }
 
         if (r >= VR_INPUTS && r < VR_OUTPUTS) {
-            instance->current.u[r - VR_INPUTS] = value[i];
+            int input = (int)(r - VR_INPUTS);
+            double change = value[i] - instance->current.u[input];
+            instance->current.u[input] = value[i];
             if (instance->current.stepCount == 0) {
                 instance->current.accelerationPending = 1;
+            } else if (change != 0.0 && instance->systemReady) {
+                /* the outputs read before the next step see the new input through the feedthrough */
+                addFeedthroughChange(&instance->system, input, change, instance->y);
             }
         } else if (r >= VR_PARAMETERS && r < VR_POSITIONS) {
             CALL(setParameter(instance, function, r, value[i]));

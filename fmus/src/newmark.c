@@ -986,6 +986,17 @@ void initialState(const SecondOrderSystem *system, double x[], double v[]) {
     addProduct(&system->matrices[MatrixV0], 1.0, unitColumn, v);
 }
 
+void addFeedthroughChange(const SecondOrderSystem *system, int input, double change, double y[]) {
+    const SparseMatrix *A = &system->matrices[MatrixDu];
+    int i, e;
+
+    for (i = 0; i < A->rows; i++) {
+        for (e = A->rowStart[i]; e < A->rowStart[i + 1]; e++) {
+            if (A->colIndex[e] == input) y[i] += change * A->values[e];
+        }
+    }
+}
+
 void computeOutputs(const SecondOrderSystem *system, const double x[], const double v[],
                     const double u[], double y[]) {
     memset(y, 0, (size_t)ARRAY_LENGTH(system->p) * sizeof(double));
