@@ -82,6 +82,22 @@ def rewrite_description(src, dst, edit) -> Path:
     return dst
 
 
+def started_fmu2(folder, instance: str = "test", start: float = 0.0):
+    """An FMI 2 co-simulation instance of the unzipped FMU in ``folder``, initialized at ``start`` (FMPy), and its
+    model description."""
+    from fmpy import read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(folder))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName=instance)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=start)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    return fmu, md
+
+
 def relative(a, b):
     """Max-norm difference of a and b relative to the max norm of b."""
     return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(np.asarray(b)).max()

@@ -225,24 +225,18 @@ def test_exported_rom_outputs_see_an_input_set_between_steps(offset_model, tmp_p
     """An acceleration sensor feeds the input through (``Dur``): after a step, setting a new input must change the
     outputs read before the next step by ``Dur`` times the change, as FMI requires of a direct dependency (third
     audit, 2026-11-26: the exported FMU kept the old value, off by exactly the change)."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+    from fmpy import extract
 
+    from conftest import started_fmu2
     from fmu_opinf.export import export_fmu
 
     runs = [_run(offset_model, "impulse:amplitude=20,t0=1,width=0.3", 30.0)]
     rom = fit_rom(runs, r=4, integrator="exact", refine=False)
     assert np.abs(rom.Dur).max() > 0.1  # the sensor's feedthrough was fitted
     folder = extract(str(export_fmu(rom, tmp_path / "Sensor.fmu")), str(tmp_path / "unzipped"))
-    md = read_model_description(folder)
+    fmu, md = started_fmu2(folder, "rom")
     inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="rom")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     fmu.setReal(inputs, [1.0])
     fmu.doStep(0.0, DT)
     before = np.array(fmu.getReal(outputs))

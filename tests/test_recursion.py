@@ -145,20 +145,15 @@ def test_modal_form_pads_an_odd_number_of_real_eigenvalues(rng):
 def _initialized_fmu(path):
     """An exported ROM FMU instantiated and initialized through fmpy, with its value references:
     ``(fmu, refs by name, output refs, state refs)``."""
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
+    from fmpy import extract
+
+    from conftest import started_fmu2
 
     folder = extract(str(path))
-    md = read_model_description(folder)
+    fmu, md = started_fmu2(folder, "modal")
     refs = {v.name: v.valueReference for v in md.modelVariables}
     outputs = [v.valueReference for v in md.modelVariables if v.causality == "output"]
     states = [v.valueReference for v in md.modelVariables if v.name.startswith(("q[", "qdot[", "qddot["))]
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="modal")
-    fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
     return fmu, refs, outputs, states
 
 
