@@ -300,7 +300,9 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     signal : Signal or str, optional
         Test input (see :mod:`fmu_opinf.signals`); required unless the ROM has no inputs, whose default is
         ``"none"`` (the free response from the initial state; the source's inputs, if any, held at their start
-        values).  Both sides start from the source's initial state (the ROM from its stored ``q0, qdot0``).
+        values).  Both sides start from the source's initial state: the ROM from the source's positions and
+        velocities after initialization, projected on its basis (its stored ``q0, qdot0`` for a builtin or ROM
+        source, or where the state cannot be read).
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time.
     source_options : dict, optional
