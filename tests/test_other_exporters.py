@@ -282,3 +282,32 @@ def test_compare_starts_the_rom_where_the_source_starts(tmp_path):
     moved = compare(rom, str(built.path), "step:amplitude=1,t0=1", H, 20.0, quiet=True,
                     source_options={"parameters": {"mass[1].s": 0.3}, "interface": "cs"})
     assert float(moved.eps.max()) < 1e-9  # the audit's FMU: 1.6e-22 now, 0.65 from the training start
+
+
+@pytest.mark.slow
+def test_compare_warns_when_the_source_is_not_the_training_fmu(tmp_path):
+    """Same variable names, another model: the comparison runs, and one warning says the GUID differs from the
+    one the training recorded (third audit, 2026-11-26: max eps_y 0.99 and no word)."""
+    import warnings
+
+    from fmu_opinf import snapshots
+    from fmu_opinf.compare import compare
+    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.sources import open_source
+
+    trained = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Trained"), tmp_path / "trained.fmu")
+    other = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Other", force_offset=0.3), tmp_path / "other.fmu")
+    train = snapshots.record(open_source(str(trained.path), interface="cs"), "impulse:amplitude=100,t0=2,width=0.5",
+                             H, 20.0, quiet=True)
+    rom = fit_rom(train, r=5, refine=False)
+    from fmu_opinf.export import export_fmu
+
+    exported = export_fmu(rom, tmp_path / "TrainedROM.fmu")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FmuOpinfWarning)
+        compare(rom, str(trained.path), "step:amplitude=1,t0=1", H, 5.0, quiet=True,
+                source_options={"interface": "cs"})
+        compare(rom, str(exported), "step:amplitude=1,t0=1", H, 5.0, quiet=True)  # its own export: no word
+    with pytest.warns(FmuOpinfWarning, match="other.fmu is not the FMU the ROM was learned from"):
+        compare(rom, str(other.path), "step:amplitude=1,t0=1", H, 5.0, quiet=True,
+                source_options={"interface": "cs"})

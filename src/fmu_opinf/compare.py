@@ -329,6 +329,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         t_end = dt * round(4 * float(t_train) / dt)
     t = time_grid(dt, float(t_end))
     source_options = _training_settings(rom_info, source, source_options)
+    _warn_if_another_fmu(rom_info, source)
     if rom_info["m"] == 0:
         signal = signal or "none"
         source_options.setdefault("inputs", "none")  # every source input held at its start value
@@ -403,6 +404,32 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
         warnings.warn(f"the ROM starts from its training start, not the source's: {exc}", FmuOpinfWarning,
                       stacklevel=3)
         return None
+
+
+def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
+    """One warning when the source FMU is not the one the ROM was learned from (its GUID differs from the one the
+    training recorded): with the same variable names the comparison runs and measures another model (third
+    audit, 2026-11-26: max eps_y 0.99 and no word)."""
+    snapshots = rom_info["provenance"].get("snapshots")
+    trained = snapshots.get("fmu_guid") if isinstance(snapshots, dict) else None
+    path = Path(str(source))
+    if not trained or str(source).startswith("builtin:") or path.suffix.lower() in (".h5", ".hdf5"):
+        return
+    try:
+        from .sources._variables import read_description
+
+        md = read_description(path)
+    except Exception:  # noqa: BLE001 - the run itself reports an unreadable FMU
+        return
+    exported = f"(GUID {trained})" in (md.description or "")  # a ROM exported from that FMU's training
+    if md.guid and md.guid != trained and not exported:
+        import warnings
+
+        from .errors import FmuOpinfWarning
+
+        warnings.warn(f"{path.name} is not the FMU the ROM was learned from ({snapshots.get('fmu_name') or 'FMU'}, "
+                      f"GUID {trained}; this one has {md.guid}): the comparison measures another model",
+                      FmuOpinfWarning, stacklevel=3)
 
 
 def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, Any] | None) -> dict[str, Any]:
