@@ -45,6 +45,23 @@ def test_streamed_equals_dense(rng, n, ks):
     assert np.allclose(streamed.basis_.T @ streamed.basis_, np.eye(6), atol=1e-12)
 
 
+@pytest.mark.parametrize("streamed, n, ks", [(False, 40, [150, 110]), (True, 40, [150, 110]), (True, 300, [30, 25])],
+                         ids=["dense", "correlation", "snapshots"])
+def test_wide_basis_extends_the_basis_from_one_decomposition(rng, streamed, n, ks):
+    """``wide_order`` keeps more leading modes (bounded by the rank) whose first r are the basis a fit without it
+    gives, on every path; the basis is the wide one's first r columns, not a second decomposition."""
+    runs = _low_rank_runs(rng, n, ks)
+    plain = PODBasis(r=3, streamed=streamed, chunk_size=17).fit(runs)
+    wide = PODBasis(r=3, streamed=streamed, chunk_size=17, wide_order=50).fit(runs)
+    assert wide.wide_basis_.shape == (n, 8)                            # rank 8 < 50
+    assert np.array_equal(wide.basis_, wide.wide_basis_[:, :3])
+    assert np.abs(wide.basis_ - plain.basis_).max() < 1e-12
+    assert np.allclose(wide.wide_basis_.T @ wide.wide_basis_, np.eye(8), atol=1e-12)
+    assert _max_angle(wide.wide_basis_, PODBasis(r=8, streamed=False).fit(runs).basis_) < 1e-10
+    default = PODBasis(r=3).fit(runs)
+    assert default.wide_basis_ is default.basis_
+
+
 def test_memory_limit_selects_streamed_path(rng):
     runs = _low_rank_runs(rng, 30, [200])
     assert PODBasis(r=3, max_memory=1e9).fit(runs).method_ == "dense"

@@ -453,11 +453,16 @@ class PODBasis:
         Columns read per chunk on the streamed paths (default: as many as fit in ``max_memory / 8``).
     streamed : bool, optional
         Force (True) or forbid (False) the streamed path; None chooses from ``max_memory``.
+    wide_order : int, default=0
+        Also keep the leading ``min(wide_order, rank)`` modes (at least ``r``) as :attr:`wide_basis_`, from the
+        same decomposition (the fit decides its extra terms on them, :mod:`fmu_opinf.rom`).
 
     Attributes
     ----------
     basis_ : (n, r) ndarray
         Orthonormal POD modes ``V_r``.
+    wide_basis_ : (n, max(r, min(wide_order, rank))) ndarray
+        The leading modes, of which :attr:`basis_` are the first ``r``.
     svdvals_ : (min(n, k),) ndarray
         All singular values of the snapshot matrix (unresolved ones 0 on the streamed path).
     energy_ : (min(n, k),) ndarray
@@ -481,6 +486,7 @@ class PODBasis:
         max_memory: float = 1e9,
         chunk_size: int | None = None,
         streamed: bool | None = None,
+        wide_order: int = 0,
     ) -> None:
         self.r = r
         self.energy = energy
@@ -488,6 +494,7 @@ class PODBasis:
         self.max_memory = max_memory
         self.chunk_size = chunk_size
         self.streamed = streamed
+        self.wide_order = wide_order
 
     # --- fitting -------------------------------------------------------------------------------------------
     def fit(self, data: Any, attrs: dict | None = None) -> "PODBasis":
@@ -514,7 +521,10 @@ class PODBasis:
         self.svdvals_, self.rank_, self.method_ = sigma, rank, method
         self.energy_ = cumulative_energy(sigma)
         self.r_ = self._order(sigma, rank)
-        self.basis_ = self._modes(runs, name, sigma, vecs, method)
+        self.wide_basis_ = self._modes(runs, name, sigma, vecs, method, max(self.r_, min(self.wide_order, rank)))
+        self.basis_ = np.ascontiguousarray(self.wide_basis_[:, :self.r_])  # modes are nested: the same V_r
+        if self.wide_basis_.shape[1] == self.r_:
+            self.wide_basis_ = self.basis_
         return self
 
     def _order(self, sigma: np.ndarray, rank: int) -> int:
@@ -571,8 +581,8 @@ class PODBasis:
             method = "streamed-snapshots"
         return sigma, vecs, _rank(sigma, rel), method
 
-    def _modes(self, runs: Sequence, name: str, sigma: np.ndarray, vecs: np.ndarray, method: str) -> np.ndarray:
-        r = self.r_
+    def _modes(self, runs: Sequence, name: str, sigma: np.ndarray, vecs: np.ndarray, method: str,
+               r: int) -> np.ndarray:
         if method in ("dense", "streamed-correlation"):
             return _fix_signs(vecs[:, :r].copy())
         if method.startswith("distributed-tsqr"):

@@ -630,16 +630,19 @@ def _initial_velocity(run: Any) -> np.ndarray:
                       dtype=float).reshape(-1)
 
 
-def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None) -> dict[str, np.ndarray]:
-    """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``.
+def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,
+                  wide: bool = False) -> dict[str, np.ndarray]:
+    """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``; with ``wide``
+    on the POD's :attr:`~fmu_opinf.basis.PODBasis.wide_basis_` (the extra terms' decision).
 
     With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
     run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).  Runs
     recorded with ``fit_rates="interval-averages"`` (accelerations derived from a continuous-time recording)
     give the SDP their interval averages instead (:func:`fmu_opinf.snapshots._rates.interval_averages`).
     """
-    chunk = pod.columns_per_chunk(pod.basis_.shape[0])
-    per_run = [_run_data(run, i, pod.basis_, chunk) for i, run in enumerate(runs)]
+    basis = pod.wide_basis_ if wide else pod.basis_
+    chunk = pod.columns_per_chunk(basis.shape[0])
+    per_run = [_run_data(run, i, basis, chunk) for i, run in enumerate(runs)]
     if any(_averaged(run) for run in runs):
         for run, d in zip(runs, per_run):
             d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u", "f_start", "f_h"), _sdp_triples(run, d)))
@@ -804,14 +807,13 @@ def fit_rom(
     start = time.perf_counter()
     x_ref = _reference_position(runs)
     centred_runs = [_CentredRun(run, x_ref) for run in runs] if np.any(x_ref) else runs
-    pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size,
-                   streamed=streamed).fit(centred_runs, attrs)
+    decide = any(value is None for value in requested.values())
+    pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size, streamed=streamed,
+                   wide_order=_decision_order(runs) if decide else 0).fit(centred_runs, attrs)
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
-    decision = data
-    if any(value is None for value in requested.values()):
-        decision = _decision_data(centred_runs, pod, attrs, lowpass, data)
+    decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(centred_runs, pod, lowpass, wide=True)
     with _threads.single_threaded():  # least-squares residuals of reduced data: small kernels
         chosen, term_info = _choose_terms(decision, requested, "f_" if any(_averaged(run) for run in runs) else "")
     sdp = "f_" if "f_x" in data else ""
@@ -966,18 +968,12 @@ def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
 TERM_DECISION_ORDER = 60
 
 
-def _decision_data(runs: list, pod: PODBasis, attrs: dict, lowpass: float | None,
-                   data: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """The reduced data on which the extra terms are decided: on a POD basis of order
-    :data:`TERM_DECISION_ORDER` (bounded by the snapshot rank and by an eighth of the samples, so that the least
-    squares stay overdetermined), the ROM's own ``data`` if that is not larger."""
-    samples = data["u"].shape[1]  # at most a quarter as many unknowns per row (2 order + m) as samples
-    order = min(pod.rank_, max(pod.r_, min(TERM_DECISION_ORDER, samples // 8)))
-    if order <= pod.r_:
-        return data
-    wider = PODBasis(r=order, kind=pod.kind_, max_memory=pod.max_memory, chunk_size=pod.chunk_size,
-                     streamed=pod.streamed).fit(runs, attrs)
-    return _reduced_data(runs, wider, lowpass)
+def _decision_order(runs: list) -> int:
+    """Order of the POD basis on which the extra terms are decided: :data:`TERM_DECISION_ORDER`, at most an
+    eighth of the samples (about a quarter as many unknowns per row, ``2 order + m``, as samples: the least
+    squares stay overdetermined); the POD bounds it by the snapshot rank and keeps at least the ROM's order."""
+    samples = sum(int(np.asarray(run.t).size) for run in runs)
+    return min(TERM_DECISION_ORDER, samples // 8)
 
 
 def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None],
