@@ -83,9 +83,9 @@ def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = N
     now = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, :-2] + a[:, 1:-1]), axis=0)
     shifted = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, 1:-1] + a[:, 2:]), axis=0)
     smooth = np.ones(now.size, dtype=bool)
-    if u is not None and u.size:
-        for change in np.flatnonzero(np.any(np.diff(u[:, :v.shape[1]], axis=1) != 0, axis=0)):
-            smooth[max(change - 2, 0):change + 3] = False
+    if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
+        changes = np.any(np.diff(u[:, :v.shape[1]], axis=1) != 0, axis=0).astype(float)
+        smooth = np.convolve(changes, np.ones(5))[2:2 + now.size] == 0
     now, shifted = np.linalg.norm(now[smooth]), np.linalg.norm(shifted[smooth])
     return bool(now > 1e-6 * np.linalg.norm(dv) and shifted < _STALE_GAIN * now)
 
@@ -109,8 +109,9 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
         Per position, the name of its derivative variable (None where the model has none).
     u : (m, k) ndarray, optional
         Inputs in effect (steps next to their changes do not count in :func:`stale_rates`).
+
+    The caller chooses the samples (:func:`judge_run`: the first :data:`_SAMPLES`).
     """
-    x, v = x[:, :_SAMPLES], None if v is None else v[:, :_SAMPLES]
     if v is not None and x.shape[1] >= 3:
         mismatch = rate_mismatch(x, v, h)
         worst = int(np.argmax(mismatch)) if mismatch.size else 0
@@ -120,7 +121,7 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
             if not guessed:
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
-    if a is not None and v is not None and stale_rates(v, a[:, :_SAMPLES], h, u):
+    if a is not None and v is not None and stale_rates(v, a, h, u):
         return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
                                       "before the FMU updated them): derived from the data instead")
     return None
@@ -152,11 +153,10 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
 
 
 def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
-    """``(position, velocity)`` row pairs such that every row is in one pair and each velocity row's average over a
-    step times ``h`` matches the position row's increments best (trapezoidal rule), with the largest relative
-    mismatch of a pair; None unless the best matches within :data:`MISMATCH` split all rows.  A pair's rows are
-    positions with increments and velocities: the best match of a velocity row (its increments are ``h``
-    times an acceleration, which matches no state) stays above :data:`MISMATCH` and leaves it unpaired."""
+    """``(position, velocity)`` row pairs, each velocity row's average over a step times ``h`` the best match of its
+    position row's increments (trapezoidal rule), and the largest relative mismatch of a pair (the caller judges
+    it); None unless the pairs use every row once.  Of the rows, the half with the better best matches are the
+    positions: a velocity row's increments are ``h`` times an acceleration, which matches no state as well."""
     increments = np.diff(states, axis=1)
     averages = h * 0.5 * (states[:, :-1] + states[:, 1:])
     # ||d_i - a_j||^2 for all i, j from one product
