@@ -370,28 +370,25 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
     if (str(source).startswith("builtin:") or Path(str(source)).suffix.lower() in (".h5", ".hdf5")
             or rom.basis is None):
         return None
-    from .newmark import applied_inputs
+    from .snapshots._record import MemorySink, record_run
     from .source import open_source
 
     keep = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters", "interface", "tolerance")}
     recorded = rom.provenance.get("snapshots") or {}
     for key, field_name in (("positions", "position_names"), ("velocities", "velocity_names")):
-        names = recorded.get(field_name)  # the variables the training recorded: the basis rows
-        if isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set(",*?") for n in names):
-            keep[key] = ",".join(names)
+        pattern = _exact_names(recorded.get(field_name))  # the variables the training recorded: the basis rows
+        if pattern:
+            keep[key] = pattern
     try:  # a source whose state cannot be read this way (an exported ROM FMU) starts where the ROM does
         fom = open_source(source, **keep)
-        try:
-            fom.start(t, np.ascontiguousarray(applied_inputs(signal, t).T))
-            row = np.empty(fom.width)
-            fom.read(row)
-            layout = fom.layout
-        finally:
-            fom.close()
+        run, failure = record_run(fom, signal, t[:2], MemorySink, True, bool(options.get("isolate", True)),
+                                  "initial state of the source")  # isolated like the comparison's own run
+        fom.close()
     except FmuOpinfError:
         return None
-    x0 = row[layout["x"]]
-    v0 = row[layout["xdot"]] if layout["xdot"].stop > layout["xdot"].start else None
+    if failure is not None:
+        return None
+    x0, v0 = np.asarray(run.x0), None if fom.derived["xdot"] else np.asarray(run.v0)
     if x0.size != rom.basis.shape[0]:
         return None
     try:
@@ -404,6 +401,14 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
         warnings.warn(f"the ROM starts from its training start, not the source's: {exc}", FmuOpinfWarning,
                       stacklevel=3)
         return None
+
+
+def _exact_names(names: Any) -> str | None:
+    """Recorded variable names as one pattern (exact names are patterns without wildcards), None if there are none
+    or one could be read as a separator or wildcard."""
+    if isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set(",*?") for n in names):
+        return ",".join(names)
+    return None
 
 
 def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
@@ -439,10 +444,9 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
     if str(source).startswith("builtin:") or not isinstance(snapshots, dict) or snapshots.get("source_kind") != "fmu":
         return options
     for key, names in (("inputs", snapshots.get("input_names")), ("outputs", snapshots.get("output_names"))):
-        usable = isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set(",*?")
-                                                         for n in names)
-        if key not in options and usable:
-            options[key] = ",".join(names)  # exact names are patterns without wildcards
+        pattern = _exact_names(names)
+        if key not in options and pattern:
+            options[key] = pattern
     settings = snapshots.get("fmu_settings")
     if "parameters" not in options and isinstance(settings, dict) and settings:
         options["parameters"] = dict(settings)
