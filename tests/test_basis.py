@@ -55,7 +55,7 @@ def test_wide_basis_extends_the_basis_from_one_decomposition(rng, streamed, n, k
     wide = PODBasis(r=3, streamed=streamed, chunk_size=17, wide_order=50).fit(runs)
     assert wide.wide_basis_.shape == (n, 8)                            # rank 8 < 50
     assert np.array_equal(wide.basis_, wide.wide_basis_[:, :3])
-    assert np.abs(wide.basis_ - plain.basis_).max() < 1e-12
+    assert np.abs(wide.basis_ - plain.basis_).max() < 1e-15  # measured 0, 0, 5.6e-17
     assert np.allclose(wide.wide_basis_.T @ wide.wide_basis_, np.eye(8), atol=1e-12)
     assert _max_angle(wide.wide_basis_, PODBasis(r=8, streamed=False).fit(runs).basis_) < 1e-10
     default = PODBasis(r=3).fit(runs)

@@ -244,4 +244,5 @@ def test_exported_rom_outputs_see_an_input_set_between_steps(offset_model, tmp_p
     after = np.array(fmu.getReal(outputs))
     fmu.terminate()
     fmu.freeInstance()
-    assert np.abs(after - before - 2.0 * rom.Dur[:, 0]).max() < 1e-12 * max(1.0, np.abs(before).max())
+    # measured 2.8e-18 with outputs of 2.1: the change is exact up to the round-off of the outputs
+    assert np.abs(after - before - 2.0 * rom.Dur[:, 0]).max() < 1e-15 * max(1.0, np.abs(before).max())
