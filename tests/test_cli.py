@@ -26,8 +26,11 @@ def test_every_verb_has_help():
     (["fit", "missing.h5", "-o", "rom.h5"], "missing.h5"),
     (["export", "missing.h5", "-o", "rom.fmu"], "missing.h5"),
     (["compare", "missing.h5", "builtin:anchored-msd", "--input", "step", "-o", "report"], "missing.h5"),
+    (["export", "folder.h5", "-o", "rom.fmu"], "ROM file folder.h5 is a directory"),
+    (["compare", "folder.h5", "builtin:anchored-msd", "--input", "step", "-o", "report"], "is a directory"),
 ])
 def test_user_errors_are_one_line_with_nonzero_exit(tmp_path, args, message):
+    (tmp_path / "folder.h5").mkdir()
     result = run_cli(*args, cwd=tmp_path)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()

@@ -395,3 +395,14 @@ def test_rom_in_modal_coordinates_exports_reconstructed_positions_through_both_r
     expected = rom.simulate(TEST, rom.dt, t[-1])
     assert relative_error(got["y"][0], expected.y[0]) < 3e-13  # measured 3.2e-14
     assert relative_error(got["y"][1], rom.basis[4] @ expected.q) < 3e-13  # measured 3.1e-14
+
+
+def test_full_model_fmu_given_as_the_rom_is_named_as_such(exported, tmp_path):
+    from conftest import rewrite_description
+
+    from fmu_opinf import compare
+
+    other = rewrite_description(exported[0], tmp_path / "Plant.fmu",
+                                lambda text: text.replace('generationTool="fmu-opinf"', 'generationTool="Dymola"'))
+    with pytest.raises(FileFormatError, match="Plant.fmu is not a ROM FMU exported by fmu-opinf"):
+        compare.compare(other, "builtin:triple-chain", "step", dt=0.5, t_end=2.0, quiet=True)

@@ -524,8 +524,8 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
     if isinstance(rom_side, Path):
         from .source import FMUSource
 
-        fmu = FMUSource(rom_side, **ROM_FMU_VARIABLES)
         meta = _rom_fmu_metadata(rom_side)
+        fmu = FMUSource(rom_side, **ROM_FMU_VARIABLES)
         return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
                 "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
@@ -550,12 +550,17 @@ def _training_end(provenance: dict[str, Any]) -> float | None:
 
 
 def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
-    """Step and training end of an exported ROM FMU (default experiment, bundled provenance.json)."""
+    """Step and training end of an exported ROM FMU (default experiment, bundled provenance.json); refuses an FMU
+    that 'fmu-opinf export' did not write (a full model given where the ROM belongs)."""
     import zipfile
 
-    from fmpy import read_model_description
+    from .sources._variables import read_description
 
-    md = read_model_description(str(path), validate=False)
+    md = read_description(path)
+    if md.generationTool != "fmu-opinf":
+        raise FileFormatError(f"{path} is not a ROM FMU exported by fmu-opinf (generationTool "
+                              f"{md.generationTool!r}); give the ROM (.h5 from 'fmu-opinf fit' or .fmu from "
+                              "'fmu-opinf export') first and the full model second")
     meta: dict[str, Any] = {"rom_fmu": str(path), "rom_fmu_guid": md.guid}
     if md.defaultExperiment is not None and md.defaultExperiment.stepSize:
         meta["dt"] = float(md.defaultExperiment.stepSize)

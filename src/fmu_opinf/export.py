@@ -50,9 +50,6 @@ def _load_rom(rom: Any) -> Any:
     if not isinstance(rom, (str, os.PathLike)):
         return rom
     path = Path(rom)
-    if not path.is_file():
-        raise FileFormatError(f"ROM file {path} does not exist; pass the file written by "
-                              "'fmu-opinf fit'")
     from .rom import SecondOrderROM
 
     try:

@@ -523,6 +523,8 @@ class SecondOrderROM:
             NaN/Inf in the stored matrices.
         """
         path = Path(path)
+        if path.is_dir():
+            raise FileFormatError(f"ROM file {path} is a directory; give the .h5 file that 'fmu-opinf fit' wrote")
         if not path.is_file():
             raise FileFormatError(f"ROM file {path} does not exist; write one with 'fmu-opinf fit'")
         try:

@@ -207,6 +207,9 @@ class Snapshots:
     def open(cls, path: str | os.PathLike) -> "Snapshots":
         """Open a snapshot file lazily: runs are backed by h5py datasets until :meth:`close`."""
         path = Path(path)
+        if path.is_dir():
+            raise FileFormatError(f"snapshot file {path} is a directory; give the .h5 file that "
+                                  "'fmu-opinf snapshots' wrote")
         if not path.is_file():
             raise FileFormatError(f"snapshot file {path} does not exist")
         try:
