@@ -85,3 +85,17 @@ def test_table_outside_its_time_range_is_an_error(tmp_path):
 def test_bad_tables_give_one_line_errors(tmp_path, text, message):
     with pytest.raises(InputSpecError, match=message):
         signals.parse_signal(_write(tmp_path, text))
+
+
+def test_none_among_several_specs_leaves_that_input_undriven():
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._record import as_signal
+
+    t = np.array([0.0, 1.0, 2.0])
+    parsed = signals.parse_signal("step:amplitude=2,t0=1;none", 2)
+    np.testing.assert_array_equal(parsed.sample(t), [[0.0, 2.0, 2.0], [0.0, 0.0, 0.0]])
+    source = SimpleNamespace(input_starts=lambda: np.array([3.0, 5.0]))  # an FMU's start values
+    recorded = as_signal("step:amplitude=2,t0=1;none", 2, source)
+    np.testing.assert_array_equal(recorded.sample(t), [[0.0, 2.0, 2.0], [5.0, 5.0, 5.0]])
+    np.testing.assert_array_equal(as_signal("none;none", 2, source).sample(t), as_signal("none", 2, source).sample(t))

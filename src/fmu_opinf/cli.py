@@ -123,8 +123,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="snapshot file to write (.h5)")
     p.add_argument("--input", dest="input_spec", action="append",
                    help="input signal, e.g. 'impulse:amplitude=100,t0=2,width=0.5' or a .csv table, or 'none' for "
-                        "the free response from the initial state (every input held at its start value); repeat "
-                        "for several training runs; default: the paper's impulse training input "
+                        "the free response from the initial state (every input held at its start value); ';' "
+                        "separates one spec per input ('none' there: that input held); repeat for several training "
+                        "runs; default: the paper's impulse training input "
                         "'impulse:amplitude=100,t0=2,width=0.5' on every input, or the free response of a model "
                         "without inputs")
     p.add_argument("--dt", type=float, help="communication step (default: the FMU's default experiment step, "

@@ -12,7 +12,8 @@ spec drives every input)::
     step:amplitude=1,t0=0                    amplitude for t >= t0, 0 before
     chirp:amplitude=1,omega0=0.01,omega1=1   sine sweeping linearly from omega0 to omega1 over `duration`
     path/to/table.csv                        time column plus one column per input, held between rows
-    none                                     no forcing: every input zero (the free response of a model)
+    none                                     no forcing: every input zero (the free response of a model);
+                                             as one of several ';' specs, that input alone is not driven
 """
 
 from __future__ import annotations
@@ -225,19 +226,24 @@ class _Broadcast(Signal):
 
 
 class NoInput(Signal):
-    """``none``: no forcing, every one of ``n_inputs`` channels zero (``n_inputs = 0``: a model without inputs).
+    """``none``: no forcing, every one of ``n_inputs`` channels held at ``values`` (default zero; ``n_inputs = 0``:
+    a model without inputs).
 
     A ROM simulated with it gives its free response from the initial state.  (An FMU recorded with
-    ``--input none`` holds its inputs at their start values instead, see :mod:`fmu_opinf.snapshots`.)
+    ``--input none``, or with ``none`` for one input among several specs, holds those inputs at their start
+    values instead, see :mod:`fmu_opinf.snapshots`.)
     """
 
     spec = "none"
 
-    def __init__(self, n_inputs: int = 0) -> None:
+    def __init__(self, n_inputs: int = 0, values: Sequence[float] | None = None) -> None:
         self.n_inputs = int(n_inputs)
+        self.values = np.zeros(self.n_inputs) if values is None else np.asarray(values, dtype=float).reshape(-1)
+        if self.values.size != self.n_inputs:
+            raise DimensionError(f"NoInput: {self.values.size} held values for {self.n_inputs} inputs")
 
     def _values(self, t: np.ndarray) -> np.ndarray:
-        return np.zeros((self.n_inputs, t.size))
+        return np.repeat(self.values[:, None], t.size, axis=1)
 
 
 def _parse_one(spec: str) -> Signal:
@@ -246,6 +252,8 @@ def _parse_one(spec: str) -> Signal:
         raise InputSpecError("empty input specification; e.g. 'impulse:amplitude=100,t0=2,width=0.5'")
     if spec.lower().endswith(".csv"):
         return table(spec)
+    if spec.lower() == "none":
+        return NoInput(1)
     kind, _, body = spec.partition(":")
     kind = kind.strip().lower()
     if kind not in _KINDS:

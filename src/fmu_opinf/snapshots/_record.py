@@ -437,10 +437,26 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
     if isinstance(signal, str):
         from ..signals import parse_signal
 
-        return parse_signal(signal, m) if m else parse_signal(signal)
+        parsed = parse_signal(signal, m) if m else parse_signal(signal)
+        return _undriven_held(parsed, source) if source is not None else parsed
     if not hasattr(signal, "sample"):
         raise InputSpecError(f"input {signal!r} is neither a signal nor a signal specification")
     return signal
+
+
+def _undriven_held(signal: Any, source: Source) -> Any:
+    """``signal`` with every ``none`` among several ``;`` specs held at that input's start (or ``--set``) value,
+    as ``--input none`` holds all of them, instead of zero."""
+    from ..signals import NoInput, StackedSignal
+
+    if not isinstance(signal, StackedSignal) or not any(isinstance(p, NoInput) for p in signal.parts):
+        return signal
+    starts, parts, first = source.input_starts(), [], 0
+    for part in signal.parts:
+        held = isinstance(part, NoInput)
+        parts.append(NoInput(part.n_inputs, starts[first:first + part.n_inputs]) if held else part)
+        first += part.n_inputs
+    return StackedSignal(parts)
 
 
 def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Path, quiet: bool, isolate: bool,
