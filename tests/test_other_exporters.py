@@ -241,7 +241,7 @@ def test_a_damaged_fmu_is_one_line_and_leaves_no_extracted_folder(tmp_path, monk
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
-    code = main(["snapshots", str(damaged), "-o", str(tmp_path / "x.h5"), "--dt", "0.05", "--t-end", "1", "-q"])
+    code = main(["snapshots", str(damaged), "-o", str(tmp_path / "x.h5"), "--dt", "0.05", "--t-end", "3", "-q"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "damaged.fmu cannot be unpacked" in err[0] and "again" in err[0]
     assert not list(scratch.iterdir()) and not (tmp_path / "x.h5").exists()

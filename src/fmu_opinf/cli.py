@@ -126,8 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "the free response from the initial state (every input held at its start value); ';' "
                         "separates one spec per input ('none' there: that input held); repeat for several training "
                         "runs; default: the paper's impulse training input "
-                        "'impulse:amplitude=100,t0=2,width=0.5' on every input, or the free response of a model "
-                        "without inputs")
+                        "'impulse:amplitude=100,t0=2,width=0.5', in one run per input with several inputs, or the "
+                        "free response of a model without inputs")
     p.add_argument("--dt", type=float, help="communication step (default: the FMU's default experiment step, "
                                             "else the automatic window)")
     p.add_argument("--t-end", type=float, help="end time (default: as --dt; an FMU's stopTime alone is not used)")

@@ -57,6 +57,11 @@ class Signal:
     def _values(self, t: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def is_identically_zero(self) -> bool | None:
+        """Whether the signal is zero at all times by construction (zero amplitude, an all-zero table), None
+        where that is not known.  A recorder refuses a signal that is not, yet zero at every sample it takes."""
+        return None
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.spec!r})"
 
@@ -72,6 +77,18 @@ class ParametricSignal(Signal):
     def __post_init__(self) -> None:
         self.n_inputs = 1
         self.spec = self.kind + ":" + ",".join(f"{k}={v:g}" for k, v in self.params.items())
+
+    def is_identically_zero(self) -> bool:
+        return self.params.get("amplitude", 1.0) == 0 and self.params.get("offset", 0.0) == 0
+
+    def activity(self) -> tuple[float, float | None] | None:
+        """Exactly when the input stops changing and its pulse width, ``(t_off, width)``, for an impulse
+        (``(t0 + width / 2, width)``) or a step (``(t0, None)``); None for the others, which never settle."""
+        if self.kind == "impulse":
+            return self.params["t0"] + 0.5 * self.params["width"], self.params["width"]
+        if self.kind == "step":
+            return max(self.params["t0"], 0.0), None
+        return None
 
     def _values(self, t: np.ndarray) -> np.ndarray:
         return np.asarray(self.formula(t, **self.params), dtype=float).reshape(1, -1)
@@ -160,6 +177,9 @@ class TableSignal(Signal):
         self.spec = spec
         self.t_range = (float(self.times[0]), float(self.times[-1]))
 
+    def is_identically_zero(self) -> bool:
+        return not np.any(self.values)
+
     def _values(self, t: np.ndarray) -> np.ndarray:
         tol = 1e-9 * max(1.0, abs(self.times[-1]))
         index = np.searchsorted(self.times, t + tol, side="right") - 1
@@ -220,6 +240,9 @@ class _Broadcast(Signal):
 
     def __init__(self, base: Signal, n_inputs: int) -> None:
         self.base, self.n_inputs, self.spec, self.t_range = base, n_inputs, base.spec, base.t_range
+
+    def is_identically_zero(self) -> bool | None:
+        return self.base.is_identically_zero()
 
     def _values(self, t: np.ndarray) -> np.ndarray:
         return np.repeat(self.base.sample(t), self.n_inputs, axis=0)

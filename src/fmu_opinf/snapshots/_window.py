@@ -14,8 +14,18 @@ from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
-__all__ = ["Window", "auto_window", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
+__all__ = ["Window", "auto_window", "follows_input", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "warn_if_step_dependent"]
+
+
+def follows_input(window: "Window", width: float | None) -> bool:
+    """Whether the recorded response merely followed a pulse of ``width``: faded within one width after the
+    input stopped, with no frequency above the pulse's own band (``2 / width``).  The model's dynamics are then
+    faster than the pulse and absent from the data (audit 2026-11-26: a chain with millisecond periods under the
+    default 0.5 s impulse, window dt = 0.1, t_end = 2.5, max eps_y 0.85 on a fast test input)."""
+    if width is None or not math.isfinite(window.t_fade):
+        return False
+    return window.t_fade - window.t_input <= width and window.f_max <= 2.0 / width
 
 
 def default_window(source: Source, dt: float | None, t_end: float | None) -> tuple[float, float]:
@@ -34,14 +44,21 @@ def default_window(source: Source, dt: float | None, t_end: float | None) -> tup
     return float(dt), float(t_end)
 
 
-def needs_auto_window(source: Source, dt: float | None, t_end: float | None) -> bool:
+def needs_auto_window(source: Source, dt: float | None, t_end: float | None, signal: Any = None) -> bool:
     """True when the automatic window must choose the grid: ``dt`` or ``t_end`` not given and the
-    source declares no default step (``DefaultExperiment/@stepSize``).  A ``stopTime`` alone is not
-    used: real FMUs carry ``stopTime=1`` unrelated to their dynamics."""
+    source declares no default step (``DefaultExperiment/@stepSize``), or ``t_end`` not given and the declared
+    ``stopTime`` ends before the training ``signal`` stops changing.  A ``stopTime`` alone is not
+    used: real FMUs carry ``stopTime=1`` unrelated to their dynamics (audit 2026-11-26: ``stepSize=0.001,
+    stopTime=1`` with the default impulse at t = 2 recorded a zero input)."""
     if dt is not None and t_end is not None:
         return False
     experiment = getattr(getattr(source, "md", None), "defaultExperiment", None)
-    return experiment is None or experiment.stepSize is None
+    if experiment is None or experiment.stepSize is None:
+        return True
+    if t_end is not None or signal is None or experiment.stopTime is None:
+        return False
+    start = float(experiment.startTime or 0.0)
+    return float(experiment.stopTime) - start <= input_activity(signal, getattr(source, "m", 1))[0]
 
 
 @dataclasses.dataclass
@@ -324,7 +341,8 @@ def auto_window(
             dt *= 4.0
         T = float(f"{T_next:.6g}")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
-                    f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end")
+                    f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end, or an input on the model's "
+                    "time scale (a wider impulse, later t0: a narrow pulse keeps the step small)")
 
 
 #: Largest difference (relative to the peak) between the outputs of a co-simulation run at a step and at half
@@ -395,7 +413,7 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     outputs = []
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
         run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
-                                  label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})")
+                                  label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})", pilot=True)
         if failure is not None and "non-finite" not in str(failure):
             raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
         outputs.append(np.asarray(run.y)[:, :run.k] if failure is None else None)
@@ -451,7 +469,7 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
 
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
                    growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run") -> _Pilot:
-    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label)
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
     if failure is not None:
         raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
@@ -522,6 +540,9 @@ def input_activity(signal: Any, m: int, horizon: float = 1000.0, samples: int = 
         Length of the pulse, where the input differs from both its first and its final value (None for a
         constant input, a step or an input that never settles).
     """
+    exact = _exact_activity(signal)
+    if exact is not None and m > 0:
+        return exact
     t_range = getattr(signal, "t_range", None)
     end = float(t_range[1]) if t_range and math.isfinite(float(t_range[1])) and t_range[1] > 0 else horizon
     t = np.linspace(0.0, end, samples)
@@ -546,13 +567,33 @@ def input_activity(signal: Any, m: int, horizon: float = 1000.0, samples: int = 
     return t_off, max(float(t[pulse[-1] + 1] - t[pulse[0]]), end / (samples - 1))
 
 
+def _exact_activity(signal: Any) -> tuple[float, float | None] | None:
+    """:func:`input_activity` from the parameters of impulses and steps (one, or several side by side: the
+    latest end, the narrowest pulse; ``none`` channels do not count), None where any part must be sampled.
+
+    Sampling on ``[0, 1000]`` at 5 ms missed a pulse of 0.5 ms (audit 2026-11-26: a model on a millisecond time
+    scale, window chosen from a 'constant' input, max eps_y 0.51).
+    """
+    from ..signals import NoInput, StackedSignal
+
+    base = getattr(signal, "base", signal)  # one spec driving every input
+    parts = [p for p in (base.parts if isinstance(base, StackedSignal) else [base]) if not isinstance(p, NoInput)]
+    found = [getattr(p, "activity", lambda: None)() for p in parts]
+    if not found or any(f is None for f in found):
+        return None
+    widths = [w for _, w in found if w is not None]
+    return max(t for t, _ in found), (min(widths) if widths else None)
+
+
 def _pilot_start(t_input: float, width: float | None, pilot_dt: float | None,
                  pilot_t_end: float | None) -> tuple[float, float]:
-    """First pilot: the input's active part plus ten widths (at least 10 time units), ten samples
-    across the pulse (no pulse: 1000 samples)."""
+    """First pilot: the input's active part plus ten widths (at least 10 time units, or ``4 t_input + 20 width``
+    where that is shorter: inputs on a millisecond scale), ten samples across the pulse (no pulse: 1000
+    samples)."""
     if width is None:
         T = max(2.0 * t_input, 10.0) if pilot_t_end is None else float(pilot_t_end)
         return T, (T / 1000.0 if pilot_dt is None else float(pilot_dt))
-    T = max(t_input + 10.0 * width, 10.0) if pilot_t_end is None else float(pilot_t_end)
+    floor = min(10.0, 4.0 * t_input + 20.0 * width)
+    T = max(t_input + 10.0 * width, floor) if pilot_t_end is None else float(pilot_t_end)
     dt = min(width / 10.0, T / 200.0) if pilot_dt is None else float(pilot_dt)
     return T, dt

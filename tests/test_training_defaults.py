@@ -1,0 +1,115 @@
+"""The default training runs on FMUs the fourth audit (2026-11-26) built: several inputs, a declared step with an
+unrelated stopTime, inputs that never reach the grid, and models on a millisecond time scale.  References are exact
+matrix-exponential responses (lti_fmus.zoh_response) under inputs independent of the training."""
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fmu_opinf import lti_fmus
+from fmu_opinf.errors import InputSpecError
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.snapshots import DEFAULT_TRAINING_INPUT, Window
+from fmu_opinf.snapshots._record import check_input_acts, default_training_inputs
+from fmu_opinf.snapshots._window import follows_input, input_activity, needs_auto_window
+
+
+def test_default_training_drives_each_input_in_a_run_of_its_own():
+    assert default_training_inputs(0) == ["none"]
+    assert default_training_inputs(1) == [DEFAULT_TRAINING_INPUT]
+    runs = default_training_inputs(3)
+    assert runs[1] == f"none;{DEFAULT_TRAINING_INPUT};none"
+    t = np.arange(0.0, 4.0, 0.05)
+    driven = [np.flatnonzero(np.abs(parse_signal(spec, 3).sample(t)).max(axis=1)) for spec in runs]
+    assert [list(d) for d in driven] == [[0], [1], [2]]
+
+
+def test_an_input_that_never_reaches_the_grid_is_refused():
+    t = np.arange(0.0, 1.0 + 1e-9, 0.001)  # stepSize 0.001, stopTime 1: the default impulse acts at t = 2
+    with pytest.raises(InputSpecError, match=r"is zero at every sample of the grid dt=0\.001, t_end=1"):
+        check_input_acts(parse_signal(DEFAULT_TRAINING_INPUT, 1), t)
+    coarse = np.arange(0.0, 1e5 + 1, 50.0)  # a 0.5 s pulse between samples 50 s apart
+    with pytest.raises(InputSpecError, match="between two samples"):
+        check_input_acts(parse_signal(DEFAULT_TRAINING_INPUT, 1), coarse)
+    check_input_acts(parse_signal(f"{DEFAULT_TRAINING_INPUT};none", 2), np.arange(0.0, 10.0, 0.05))
+    check_input_acts(parse_signal("step:amplitude=0", 1), t)  # zero by the user's choice: recorded as asked
+
+
+def test_a_declared_stop_time_before_the_input_acts_leaves_the_end_to_the_window():
+    def source(stop):
+        experiment = SimpleNamespace(startTime="0", stopTime=stop, stepSize="0.001")
+        return SimpleNamespace(md=SimpleNamespace(defaultExperiment=experiment), m=1)
+
+    impulse = parse_signal(DEFAULT_TRAINING_INPUT, 1)
+    assert needs_auto_window(source("1.0"), None, None, impulse)
+    assert not needs_auto_window(source("300"), None, None, impulse)  # the benchmark FMUs' declared windows
+    assert not needs_auto_window(source("1.0"), None, 5.0, impulse)
+    assert not needs_auto_window(source("1.0"), None, None, parse_signal("harmonic:omega=1", 1))
+
+
+def test_activity_of_a_short_pulse_is_exact():
+    """Sampling [0, 1000] at 5 ms missed a 0.5 ms pulse: the window then took the input for constant."""
+    t_off, width = input_activity(parse_signal("impulse:amplitude=1,t0=0.002,width=0.0005;none", 2), 2)
+    assert t_off == pytest.approx(0.00225, rel=1e-12) and width == pytest.approx(0.0005, rel=1e-12)
+
+
+def test_a_response_that_only_follows_the_pulse_is_told_from_a_free_vibration():
+    window = Window(dt=0.1, t_end=2.5, f_max=0.38, t_fade=2.45, peak=1.0, pilot_dt=0.05, pilot_t_end=10.0,
+                    pilots=1, points_per_period=20.0, energy=0.999, fade=0.01, t_input=2.25)
+    assert follows_input(window, 0.5)
+    assert not follows_input(replace(window, t_fade=40.0), 0.5)  # rings on after the pulse
+    assert not follows_input(replace(window, f_max=30.0), 0.5)   # a mode above the pulse's band
+    assert not follows_input(window, None)
+
+
+def _two_input_chain():
+    return lti_fmus.chain_model(4, inputs=(0, 3), x0=[0.0] * 4, name="TwoForces")
+
+
+@pytest.mark.slow
+def test_two_inputs_recorded_by_default_give_a_rom_that_tells_them_apart(tmp_path):
+    """Both inputs driven by one impulse at once made them indistinguishable: Br had equal columns and an
+    independent test input was 9.1 off.  By default each input now has a run of its own."""
+    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    model = _two_input_chain()
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "two.fmu", interfaces=("cs",))
+    record_to_file(str(fmu.path), tmp_path / "train.h5", None, dt=0.05, t_end=60.0, quiet=True)
+    snaps = Snapshots.load(tmp_path / "train.h5")
+    assert len(snaps.runs) == 2
+    rom = fit_rom(snaps, r=4)
+    t = np.arange(0.0, 40.0, 0.05)
+    test = "harmonic:amplitude=1,omega=0.8;harmonic:amplitude=-2,omega=1.9"
+    u = parse_signal(test, 2).sample(t)
+    reference = lti_fmus.zoh_response(model, t, u[:, :-1])
+    y_ref = reference.y
+    y = rom.simulate(test, 0.05, t[-1]).y
+    assert np.abs(y - y_ref).max() < 1e-9 * np.abs(y_ref).max()
+
+
+@pytest.mark.slow
+def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tmp_path, capsys):
+    """Periods of about 1-5 ms: the default 0.5 s impulse only moved the chain quasi-statically (window dt = 0.1,
+    26 samples, max eps_y 0.85 on a 3000 rad/s input).  The recorder shrinks the impulse until the response
+    outlasts it."""
+    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    base = lti_fmus.chain_model(name="Fast")
+    model = replace(base, M=base.M * 1e-6, D=base.D * 1e-3)
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "fast.fmu", interfaces=("cs",))
+    record_to_file(str(fmu.path), tmp_path / "train.h5", None, quiet=False)
+    assert "the response only followed the default impulse" in capsys.readouterr().err
+    snaps = Snapshots.load(tmp_path / "train.h5")
+    assert snaps.runs[0].attrs["input_spec"] == "impulse:amplitude=100,t0=0.02,width=0.005"
+    rom = fit_rom(snaps, r=5)
+    dt = 1e-4
+    t = np.arange(0.0, 0.05 + dt / 2, dt)
+    test = "harmonic:amplitude=1,omega=3000"
+    reference = lti_fmus.zoh_response(model, t, parse_signal(test, 1).sample(t)[:, :-1])
+    y_ref = reference.y
+    y = rom.simulate(test, dt, t[-1]).y
+    assert np.abs(y - y_ref).max() < 1e-6 * np.abs(y_ref).max()
