@@ -113,3 +113,26 @@ def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tm
     y_ref = reference.y
     y = rom.simulate(test, dt, t[-1]).y
     assert np.abs(y - y_ref).max() < 1e-6 * np.abs(y_ref).max()
+
+
+def test_fit_warns_when_the_training_inputs_cannot_be_told_apart():
+    """Two inputs driven by one signal: Br's columns are not determined by the data (9.1 off on independent
+    inputs in the audit), so the fit says so; independent inputs fit without a word."""
+    import warnings
+
+    from fmu_opinf import newmark, systems
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.rom import fit_rom
+
+    base = systems.anchored_msd(g=20)
+    import scipy.sparse as sp
+
+    first = base.B.toarray()[:, 0]
+    system = replace(base, B=sp.csr_matrix(np.column_stack([first, np.roll(first, 7)])))
+    alike = newmark.simulate(system, f"{DEFAULT_TRAINING_INPUT};{DEFAULT_TRAINING_INPUT}", 0.5, 100.0)
+    with pytest.warns(FmuOpinfWarning, match="are linearly dependent"):
+        fit_rom([alike], r=4, quiet=True, refine=False)
+    apart = [newmark.simulate(system, spec, 0.5, 100.0) for spec in default_training_inputs(2)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FmuOpinfWarning)
+        fit_rom(apart, r=4, quiet=True, refine=False)

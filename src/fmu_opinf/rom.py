@@ -50,6 +50,7 @@ import json
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
@@ -61,7 +62,7 @@ from . import _threads
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
-from .errors import DataError, DimensionError, FileFormatError, InputSpecError
+from .errors import DataError, DimensionError, FileFormatError, FmuOpinfWarning, InputSpecError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
 
 if TYPE_CHECKING:
@@ -632,6 +633,35 @@ def _initial_velocity(run: Any) -> np.ndarray:
                       dtype=float).reshape(-1)
 
 
+#: Smallest singular value of the training inputs (rows scaled to unit norm) relative to the largest below which
+#: the inputs count as linearly dependent.
+INPUT_DEPENDENCE = 1e-8
+
+
+def _warn_if_inputs_alike(u: np.ndarray, names: list[str]) -> None:
+    """One warning when the training inputs cannot be told apart: an input that is zero throughout, or inputs that
+    are linearly dependent (the same signal on several of them).  The columns of ``Br`` are then not determined by
+    the data, and the ROM answers independent inputs wrongly (audit 2026-11-26: one impulse on eight inputs, max
+    eps_y 9.1 on independent test inputs)."""
+    m = u.shape[0]
+    if m < 2:
+        return
+    norms = np.linalg.norm(u, axis=1)
+    silent = [names[i] for i in range(m) if norms[i] == 0]
+    if silent:
+        what = f"input(s) {', '.join(silent)} are zero in every training run"
+    else:
+        with _threads.single_threaded():
+            sigma = np.linalg.svd(u / norms[:, None], compute_uv=False)
+        if sigma[-1] > INPUT_DEPENDENCE * sigma[0]:
+            return
+        what = f"the training inputs {', '.join(names)} are linearly dependent (the same signal on several?)"
+    warnings.warn(f"{what}: the ROM cannot tell their effects apart and will answer independent inputs wrongly; "
+                  "record runs that drive each input on its own (e.g. --input 'impulse:amplitude=100,t0=2,"
+                  "width=0.5;none' and --input 'none;impulse:amplitude=100,t0=2,width=0.5'), as the default "
+                  "training does", FmuOpinfWarning, stacklevel=3)
+
+
 def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,
                   wide: bool = False) -> dict[str, np.ndarray]:
     """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``; with ``wide``
@@ -815,6 +845,8 @@ def fit_rom(
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     data = _reduced_data(centred_runs, pod, lowpass)
+    _warn_if_inputs_alike(data["u"], _names(attrs.get("input_names"), data["u"].shape[0])
+                          or [f"u[{i + 1}]" for i in range(data["u"].shape[0])])
     decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(centred_runs, pod, lowpass, wide=True)
     with _threads.single_threaded():  # least-squares residuals of reduced data: small kernels
         chosen, term_info = _choose_terms(decision, requested, "f_" if any(_averaged(run) for run in runs) else "")
