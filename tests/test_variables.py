@@ -444,3 +444,16 @@ def test_a_bare_name_of_a_two_dimensional_array_selects_its_real_elements(tmp_pa
     path = _write(tmp_path, xml)
     assert _names(resolve_variables(path, outputs="y").outputs) == ["y[1,1]", "y[1,2]", "y[2,1]", "y[2,2]"]
     assert _names(resolve_variables(path, outputs="sensors").outputs)[0] == "sensors[1,1]"
+
+
+def test_commas_inside_brackets_and_quotes_belong_to_the_name():
+    """Modelica 2-D component arrays and FMI 3 array elements are named ``sensor[1,1]``; cut at every comma they
+    matched nothing (fourth audit, 2026-11-26: '--outputs "sensor[1,1]" matches no real variable')."""
+    from fmu_opinf.sources._base import match_names, split_patterns
+
+    assert split_patterns("sensor[1,1], x[2:4],'a,b'.s") == ["sensor[1,1]", "x[2:4]", "'a,b'.s"]
+    assert split_patterns("u1,u2,,") == ["u1", "u2"]
+    assert split_patterns("x[1,2") == ["x[1", "2"]  # an unclosed bracket: every comma separates
+    names = ["mass[1,1].s", "mass[1,2].s", "mass[2,1].s", "sensor[1,1]"]
+    assert match_names("mass[1,*].s", names) == ["mass[1,1].s", "mass[1,2].s"]
+    assert match_names("sensor[1,1],mass[2,1].s", names) == ["sensor[1,1]", "mass[2,1].s"]

@@ -302,7 +302,9 @@ def _run_export(args: argparse.Namespace) -> None:
     from .export import export_fmu
     from .rom import SecondOrderROM
 
-    reconstruct = [s.strip() for s in args.reconstruct.split(",")] if args.reconstruct else None
+    from .sources._base import split_patterns
+
+    reconstruct = split_patterns(args.reconstruct) if args.reconstruct else None
     rom = SecondOrderROM.load(args.rom)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
                       overwrite=args.force, step=args.step)

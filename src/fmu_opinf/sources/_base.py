@@ -42,6 +42,29 @@ def _pattern_regex(pattern: str) -> re.Pattern[str]:
     return re.compile(body + r"\Z")
 
 
+def split_patterns(text: str) -> list[str]:
+    """The comma-separated patterns of ``text``, stripped, without empty ones; commas inside brackets or Modelica
+    quotes belong to the name (``sensor[1,1]``, ``'a,b'.s``: 2-D component arrays, FMI 3 array elements),
+    unless the brackets or quotes do not close (then every comma separates)."""
+    pieces, current, depth, quoted = [], [], 0, False
+    for char in text:
+        if char == "'":
+            quoted = not quoted
+        elif not quoted and char == "[":
+            depth += 1
+        elif not quoted and char == "]":
+            depth = max(depth - 1, 0)
+        if char == "," and depth == 0 and not quoted:
+            pieces.append("".join(current))
+            current = []
+        else:
+            current.append(char)
+    pieces.append("".join(current))
+    if depth or quoted:
+        pieces = text.split(",")
+    return [p.strip() for p in pieces if p.strip()]
+
+
 def match_names(patterns: str | Sequence[str], names: Sequence[str]) -> list[str]:
     """Names matching the patterns, each pattern's hits in natural order, without repeats.
 
@@ -59,7 +82,7 @@ def match_names(patterns: str | Sequence[str], names: Sequence[str]) -> list[str
         Matches; empty if nothing matched.
     """
     if isinstance(patterns, str):
-        patterns = [p for p in patterns.split(",")]
+        patterns = split_patterns(patterns)
     found: list[str] = []
     seen: set[str] = set()
     for pattern in (p.strip() for p in patterns):

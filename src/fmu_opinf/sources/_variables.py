@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
-from ._base import CONSTRAINTS, match_names, natural_key
+from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
@@ -693,7 +693,7 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
            required: bool) -> list[Element]:
     """Elements matching comma-separated patterns: exact names any real variable, wildcards and index ranges
     (``x[1:30]``, inclusive) only continuous-time signals."""
-    pieces = [p.strip() for p in (patterns.split(",") if isinstance(patterns, str) else patterns) if p.strip()]
+    pieces = split_patterns(patterns) if isinstance(patterns, str) else [p.strip() for p in patterns if p.strip()]
     reals = [n for n, e in elements.items() if e.var.is_real]
     signals = [n for n in reals if _is_signal(elements[n])]
     found: list[str] = []
@@ -786,7 +786,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     elif patterns.strip().lower() in ("", "none"):
         forces = []
     else:
-        names = _selected_names([p.strip() for p in patterns.split(",") if p.strip()], elements)
+        names = _selected_names(split_patterns(patterns), elements)
         if not names:
             available = [e.name for e in inputs]
             raise FMUError(f"input {show_patterns(patterns)} is not a real variable of {model.label} "
@@ -827,7 +827,7 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
-    names = _selected_names([p.strip() for p in patterns.split(",") if p.strip()], elements)
+    names = _selected_names(split_patterns(patterns), elements)
     if not names:
         examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
         raise FMUError(f"outputs pattern {show_patterns(patterns)} matches no real variable of {model.label} "
