@@ -88,3 +88,30 @@ def test_default_experiment_stops_on_a_whole_number_of_steps():
     spec = rom_fmu_spec(_rom(provenance={"t_train_end": 30.0}, integrator="exact"), "Stops", step=0.07)
     start, stop, step = spec.default_experiment
     assert step == 0.07 and stop == pytest.approx(428 * 0.07, rel=1e-15)
+
+
+def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
+    """The source's base and display units (fourth audit: the ROM FMU declared 'mm' without its BaseUnit, so an
+    importer could not convert it) are declared again; a definition with anything but SI exponents, finite
+    numbers and plain names is dropped to the bare unit name."""
+    import json
+    from xml.etree import ElementTree
+
+    from fmu_opinf.fmus import _model_description, _model_description3
+
+    definitions = {"mm": {"base": {"m": 1}, "factor": 0.001, "offset": 0.0, "display": [["cm", 0.1, 0.0]]},
+                   "m/s2": {"base": {"m": 1, "s": "-2\"/><Evil"}, "factor": 1.0, "offset": 0.0, "display": []},
+                   "N": {"base": {"kg": 1, "m": 1, "s": -2}, "factor": float("nan")}}
+    snapshots = {"input_units": ["N"], "output_units": ["mm"], "unit_definitions": json.dumps(definitions)}
+    spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
+    for xml in (_model_description(spec, "{guid}", ["model.c"]), _model_description3(spec, "{guid}")):
+        root = ElementTree.fromstring(xml)
+        units = {u.get("name"): u for u in root.iter("Unit")}
+        assert set(units) == {"N", "mm"}
+        base = units["mm"].find("BaseUnit")
+        assert base.attrib == {"m": "1", "factor": "0.001"}
+        assert units["mm"].find("DisplayUnit").attrib == {"name": "cm", "factor": "0.1", "offset": "0.0"}
+        assert list(units["N"]) == []  # a non-finite factor: the name alone
+    evil = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["m/s2"]}}), "Units")
+    xml = _model_description3(evil, "{guid}")
+    assert "Evil" not in xml and '<Unit name="m/s2"/>' in xml

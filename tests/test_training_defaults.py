@@ -136,3 +136,15 @@ def test_fit_warns_when_the_training_inputs_cannot_be_told_apart():
     with warnings.catch_warnings():
         warnings.simplefilter("error", FmuOpinfWarning)
         fit_rom(apart, r=4, quiet=True, refine=False)
+
+
+def test_the_sources_unit_definitions_are_recorded_for_the_exported_fmu(tmp_path):
+    from fmu_opinf.sources import open_source
+
+    fmu = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Units"), tmp_path / "units.fmu", output_units=True)
+    source = open_source(str(fmu.path))
+    try:
+        definitions = source.description()["unit_definitions"]
+    finally:
+        source.close()
+    assert definitions["N"]["base"] == {"kg": 1, "m": 1, "s": -2} and definitions["m/s"]["base"] == {"m": 1, "s": -1}

@@ -427,6 +427,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                                                    default=str) + "\n"},
         fmi_version=fmi_version, input_units=input_units,
         output_units=output_units + [_position_unit(provenance)] * len(names),
+        unit_definitions=_recorded_unit_definitions(provenance),
     )
 
 
@@ -458,6 +459,19 @@ def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[s
     snapshots = provenance.get("snapshots")
     snapshots = snapshots if isinstance(snapshots, dict) else {}
     return _units(snapshots.get("input_units"), m), _units(snapshots.get("output_units"), p)
+
+
+def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:
+    """The source's definitions of its units (base and display units) as recorded with the training snapshots;
+    each is checked again when written (:func:`fmu_opinf.fmus.unit_definition`)."""
+    snapshots = provenance.get("snapshots")
+    recorded = snapshots.get("unit_definitions") if isinstance(snapshots, dict) else None
+    if isinstance(recorded, str):  # a JSON attribute of the snapshot file
+        try:
+            recorded = json.loads(recorded)
+        except ValueError:
+            return {}
+    return {name: value for name, value in recorded.items() if isinstance(name, str)} if isinstance(recorded, dict) else {}
 
 
 def _position_unit(provenance: dict) -> str:

@@ -16,6 +16,7 @@ degrees of freedom.
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import re
 import shutil
@@ -25,6 +26,7 @@ import uuid
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 from xml.sax.saxutils import quoteattr
 
 from ._interrupts import check_interrupt
@@ -154,6 +156,7 @@ class SecondOrderFmuSpec:
     fmi_version: str = "2.0"
     input_units: list[str] | None = None
     output_units: list[str] | None = None
+    unit_definitions: dict[str, dict] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -464,14 +467,58 @@ def _variable3(variable: _Variable) -> str:
     return f"    <Float64 {variable.attributes()}{unit}{start}/>\n"
 
 
+#: SI base units of an FMI ``BaseUnit`` element, in the order of the standard.
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
 def _unit_definitions(spec: SecondOrderFmuSpec) -> str:
-    """``UnitDefinitions`` naming every unit the variables use (by name only: the source's base units are
-    not known), so that the description passes strict validation."""
+    """``UnitDefinitions`` naming every unit the variables use, with the source's ``BaseUnit`` and
+    ``DisplayUnit`` elements where ``spec.unit_definitions`` has them (:func:`unit_definition`), so that
+    importers can convert and check units; by name only otherwise."""
     units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) if u})
     if not units:
         return ""
-    rows = "".join(f"    <Unit name={quoteattr(u)}/>\n" for u in units)
+    known = spec.unit_definitions or {}
+    rows = "".join(_unit_row(u, known.get(u)) for u in units)
     return f"  <UnitDefinitions>\n{rows}  </UnitDefinitions>\n"
+
+
+def _unit_row(name: str, definition: Any) -> str:
+    clean = unit_definition(definition)
+    if clean is None:
+        return f"    <Unit name={quoteattr(name)}/>\n"
+    attributes = [f'{key}="{value}"' for key, value in clean["base"].items()]
+    attributes += [f'{key}="{clean[key]!r}"' for key, default in (("factor", 1.0), ("offset", 0.0))
+                   if clean[key] != default]
+    inner = f"      <BaseUnit {' '.join(attributes)}/>\n"
+    for display, factor, offset in clean["display"]:
+        inner += (f"      <DisplayUnit name={quoteattr(display)} factor=\"{factor!r}\" "
+                  f"offset=\"{offset!r}\"/>\n")
+    return f"    <Unit name={quoteattr(name)}>\n{inner}    </Unit>\n"
+
+
+def unit_definition(value: Any) -> dict | None:
+    """A unit definition recorded from a source FMU, checked as data: ``{"base": {SI unit: integer exponent},
+    "factor": float, "offset": float, "display": [[name, factor, offset], ...]}``, or None when anything in it is
+    not of that form (nothing read from a file reaches the XML unchecked)."""
+    if not isinstance(value, dict):
+        return None
+    base, factor, offset = value.get("base", {}), value.get("factor", 1.0), value.get("offset", 0.0)
+    if not isinstance(base, dict) or any(k not in BASE_UNITS for k in base):
+        return None
+    if any(isinstance(v, bool) or not isinstance(v, int) or abs(v) > 64 for v in base.values()):
+        return None
+    if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in (factor, offset)):
+        return None
+    display = []
+    for item in value.get("display", []) or []:
+        if not (isinstance(item, (list, tuple)) and len(item) == 3 and isinstance(item[0], str)
+                and UNIT_PATTERN.fullmatch(item[0]) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                            and math.isfinite(x) for x in item[1:])):
+            return None
+        display.append((item[0], float(item[1]), float(item[2])))
+    return {"base": {k: int(base[k]) for k in BASE_UNITS if base.get(k)}, "factor": float(factor),
+            "offset": float(offset), "display": display}
 
 
 def _naming_convention(spec: SecondOrderFmuSpec) -> str:

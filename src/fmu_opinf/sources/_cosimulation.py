@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
+from ..fmus import BASE_UNITS
 from ._base import Source, StepError, check_constraint
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
@@ -38,6 +39,25 @@ def check_tolerance(tolerance: float | None) -> float:
     if not (0.0 <= value < 1.0):
         raise InputSpecError(f"--tolerance {tolerance} must lie in [0, 1), e.g. 1e-10 (relative)")
     return value
+
+
+def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
+    """Base units (SI exponents, factor, offset) and display units of the named units, as the model
+    description defines them: the exported ROM FMU declares them again."""
+    found = {}
+    for unit in getattr(md, "unitDefinitions", None) or []:
+        if unit.name not in names:
+            continue
+        base = unit.baseUnit
+        entry: dict[str, Any] = {"base": {}, "factor": 1.0, "offset": 0.0}
+        if base is not None:
+            entry["base"] = {key: int(getattr(base, key, 0) or 0) for key in BASE_UNITS if getattr(base, key, 0)}
+            entry["factor"] = float(getattr(base, "factor", 1.0) or 1.0)
+            entry["offset"] = float(getattr(base, "offset", 0.0) or 0.0)
+        entry["display"] = [[d.name, float(d.factor or 1.0), float(d.offset or 0.0)]
+                            for d in getattr(unit, "displayUnits", None) or []]
+        found[unit.name] = entry
+    return found
 
 
 class FMUSource(Source):
@@ -220,7 +240,11 @@ class FMUSource(Source):
             desc["output_units"] = list(self.output_units)
         position_units = {c.element.var.unit or "" for c in self.selection.positions}
         if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
-            desc["position_unit"] = position_units.pop()
+            desc["position_unit"] = next(iter(position_units))
+        used = set(self.input_units) | set(self.output_units) | position_units
+        definitions = _unit_definitions(self.md, used - {""})
+        if definitions:
+            desc["unit_definitions"] = definitions
         negated = [c.name for c in self._read.columns if c.sign < 0]
         if negated:
             desc["negated_columns"] = negated
