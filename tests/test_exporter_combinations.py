@@ -265,7 +265,7 @@ def test_explicit_euler_co_simulation_is_refused_in_one_line(fmus, tmp_path, cap
     out = tmp_path / "train.h5"
     assert main(["snapshots", str(fmu), "-o", str(out), "-q"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "--positions and --velocities" in err
+    assert "\n" not in err and "pass --positions with the variables' names (and --velocities where" in err
 
     assert main(["snapshots", str(fmu), "-o", str(out), "-q", *GENERIC_STATES]) == 2
     err = capsys.readouterr().err.strip()

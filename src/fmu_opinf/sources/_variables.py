@@ -525,7 +525,8 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         return (*by_unit, "by unit: local variables in m or rad, m/s or rad/s, m/s2 or rad/s2 (no continuous "
                           "states declared)")
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
-                   "with units of length and velocity; pass --positions and --velocities with the variables' names")
+                   "with units of length and velocity; pass --positions with the variables' names (and "
+                   "--velocities where the FMU has them; otherwise they are derived from the positions)")
 
 
 #: Units that mark positions, velocities and accelerations when a model declares no states (SI, FMI spelling).
