@@ -339,3 +339,14 @@ def test_compare_runs_in_parallel_gives_one_summary(client, roms, table, tmp_pat
     page = (tmp_path / "par" / "index.html").read_text()
     assert 'href="slow/index.html"' in page and "failed" in page
     assert (tmp_path / "par" / "slow" / "index.html").exists()
+
+
+def test_a_free_response_row_beside_forced_rows_keeps_the_inputs(tmp_path):
+    """A ``none`` row of a table was recorded without input channels (m = 0) and the folder did not fit ("m
+    differs (0 vs 1)"; second audit, 2026-11-26); beside forced rows it keeps them, held at their start values."""
+    table = _write_table(tmp_path, {"imp": GOOD["imp"], "free": "none"}, ["imp", "free"])
+    report = runs.record_runs(SOURCE, table, tmp_path / "out", quiet=True, **SETTINGS)
+    assert [o.status for o in report.outcomes] == ["recorded", "recorded"]
+    with open_snapshot_set(tmp_path / "out") as snaps:
+        assert [run.u.shape[0] for run in snaps.runs] == [1, 1]
+        assert not np.any(snaps.runs[[r.attrs["input_spec"] for r in snaps.runs].index("none")].u)

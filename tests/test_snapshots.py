@@ -456,3 +456,27 @@ def test_cli_set_and_input_none(toys, tmp_path, capsys):
     code = main(["snapshots", str(toys["full"]), "-o", str(tmp_path / "none.h5"), "--dt", "0.1", "--t-end", "3"])
     assert code == 0 and "no --input given: recording the impulse training input" in capsys.readouterr().err
     assert Snapshots.load(tmp_path / "none.h5").runs[0].attrs["input_spec"].startswith("impulse:amplitude=100")
+
+
+def test_a_run_table_rows_own_settings_do_not_become_the_data_sets():
+    """Run table rows recorded with their own start values (a file each): the merged set keeps only the settings
+    all rows share, and a row without settings of its own comes first (its start is the ROM's reference state).
+    Before, the alphabetically first row's ``start:`` values were the set's: compare and the exported FMU started
+    from them (second audit, 2026-11-26: max eps_y 20.4 against the model's own start)."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.basis import _common_settings_first
+
+    common = {"k": "2"}
+    parts = [SimpleNamespace(attrs={"fmu_settings": {**common, "mass[1].s": "0.3"}}, name="free"),
+             SimpleNamespace(attrs={"fmu_settings": dict(common)}, name="imp1"),
+             SimpleNamespace(attrs={"fmu_settings": dict(common)}, name="imp2")]
+    assert [p.name for p in _common_settings_first(parts)] == ["imp1", "imp2", "free"]
+    from fmu_opinf.snapshots import Run
+
+    k = 5
+    run = Run(t=np.arange(5.0), u=np.zeros((0, k)), x=np.ones((2, k)), xdot=np.zeros((2, k)),
+              xddot=np.zeros((2, k)), y=np.zeros((1, k)))
+    merged = Snapshots([run], {"fmu_settings": {**common, "mass[1].s": "0.3"}})
+    merged.append(Snapshots([run], {"fmu_settings": dict(common)}))
+    assert merged.attrs["fmu_settings"] == common

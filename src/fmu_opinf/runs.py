@@ -558,6 +558,10 @@ def record_runs(
     source_spec = _shared_spec(source_spec)
     settings = {k: v for k, v in {"dt": dt, "t_end": t_end, "auto_window": auto_window or None}.items()
                 if v is not None}
+    from .snapshots._record import is_free_response
+
+    if any(not is_free_response(row.input) for row in rows):
+        settings["keep_inputs"] = True  # a free-response row keeps the force inputs (held) of the forced rows
     show = progress or _progress_printer(quiet)
     started = time.perf_counter()
     if scheduler is None:

@@ -148,10 +148,20 @@ class Snapshots:
             self._check_compatible(other.attrs)
             if not self.attrs:
                 self.attrs = dict(other.attrs)
+            else:
+                self._keep_common_settings(other.attrs)
         for run in runs:
             self._check_run(run)
             self.runs.append(run)
         return self
+
+    def _keep_common_settings(self, attrs: dict[str, Any]) -> None:
+        """``fmu_settings`` of merged snapshots: the settings every part was recorded with (a run table row's own
+        ``set:``/``start:`` values belong to its runs, not to the data set, whose settings ``compare`` applies)."""
+        mine, theirs = self.attrs.get("fmu_settings"), attrs.get("fmu_settings")
+        if isinstance(mine, dict) or isinstance(theirs, dict):
+            mine, theirs = dict(mine or {}), dict(theirs or {})
+            self.attrs["fmu_settings"] = {key: value for key, value in mine.items() if theirs.get(key) == value}
 
     def _check_compatible(self, attrs: dict[str, Any]) -> None:
         keys = ("n", "m", "p", "position_names", "input_names", "output_names")

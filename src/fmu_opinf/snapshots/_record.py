@@ -556,6 +556,7 @@ def record_to_file(
     overwrite: bool = False,
     quiet: bool = False,
     isolate: bool = True,
+    keep_inputs: bool = False,
     **size_options: Any,
 ) -> RecordSummary:
     """Command-line entry: record one run per input specification into ``output``.
@@ -594,6 +595,10 @@ def record_to_file(
     quiet : bool, default=False
     isolate : bool, default=True
         Run FMUs in a child process so that a crashing binary cannot take the data with it.
+    keep_inputs : bool, default=False
+        Keep the force inputs (held at their start values) when every run is a free response, instead of
+        recording no input channel (m = 0): a run table's ``none`` row beside forced rows, so that the files
+        merge into one data set.
     **size_options
         Sizes of a builtin system (``g`` for anchored-msd; ``n1, alpha, beta, v`` for triple-chain).
 
@@ -605,7 +610,7 @@ def record_to_file(
     from ._window import auto_window as choose_window, default_window, needs_auto_window, warn_if_step_dependent
 
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
-    if specs and all(is_free_response(s) for s in specs) and inputs is None:
+    if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs:
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
