@@ -160,16 +160,16 @@ def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -
     return float(freqs[min(int(np.searchsorted(cumulative, energy)), len(freqs) - 1)])
 
 
-def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01) -> tuple[float, float]:
+def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01,
+              t_input: float | None = None) -> tuple[float, float]:
     """Time after which ``||y(t) - y_rest||_2`` stays below ``fade`` times its peak.
 
     ``y_rest`` is the mean output over the last 5 % of the samples (the state the response settles
-    to).  Returns ``(t_fade, peak)``; ``t_fade`` is ``inf`` if the envelope never falls below.
+    to), or, after an input at ``t_input`` that set a free body drifting, the straight line of the drift
+    (:func:`_rest`).  Returns ``(t_fade, peak)``; ``t_fade`` is ``inf`` if the envelope never falls below.
     """
     y = np.atleast_2d(y)
-    tail = max(1, y.shape[1] // 20)
-    rest = y[:, -tail:].mean(axis=1, keepdims=True)
-    e = np.linalg.norm(y - rest, axis=0)
+    e = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
     peak = float(e.max())
     if peak == 0.0:
         return float(t[0]), 0.0
@@ -177,6 +177,40 @@ def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01) -> tuple[float, 
     below = np.nonzero(envelope <= fade * peak)[0]
     below = below[t[below] >= t[int(np.argmax(e))]]
     return (float(t[below[0]]) if below.size else math.inf), peak
+
+
+def _rest(t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None = None) -> np.ndarray:
+    """What the outputs settle to: their mean over the last 5 % of the samples, or, for a free body that an input
+    set drifting at constant speed, the straight line through the last quarter from ``t_input`` on (the value
+    before the input until then).  The line is taken when its slope is the same over the last 5 % (within 10 %),
+    the drift across the quarter exceeds ``fade`` of the response's size, and the outputs move away from their
+    value before the input (a slow decay moves back towards it, and over a short record looks just as straight).
+    Against the mean, the drift never 'faded' (second audit, 2026-11-26: a free-free chain with damping
+    D = 0.01 K refused after 12 pilots and 90 s).  Free responses (no ``t_input`` after the start) keep the mean.
+    """
+    k = y.shape[1]
+    tail, quarter = max(1, k // 20), max(1, k // 4)
+    mean = y[:, -tail:].mean(axis=1, keepdims=True)
+    if t_input is None or not t_input > t[0] or tail < 4 or t[-quarter] <= t_input:
+        return mean
+    slope_quarter, intercept = _line(t[-quarter:], y[:, -quarter:])
+    slope_tail, _ = _line(t[-tail:], y[:, -tail:])
+    before = y[:, :1]
+    drift = np.linalg.norm(slope_quarter) * float(t[-1] - t[-quarter])
+    size = float(np.linalg.norm(y - mean, axis=0).max())
+    agree = np.linalg.norm(slope_tail - slope_quarter) <= 0.1 * np.linalg.norm(slope_quarter)
+    away = float(slope_quarter @ (y[:, -1] - before[:, 0])) > 0
+    if not (agree and away and drift > fade * size):
+        return mean
+    line = intercept[:, None] + slope_quarter[:, None] * t[None, :]
+    return np.where(t[None, :] >= t_input, line, before)
+
+
+def _line(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Slope and intercept of each row's least-squares straight line in ``t``."""
+    centre = t - t.mean()
+    slope = (y @ centre) / max(float(centre @ centre), np.finfo(float).tiny)
+    return slope, y.mean(axis=1) - slope * t.mean()
 
 
 def slowest_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
@@ -473,7 +507,7 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     if failure is not None:
         raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
-    t_fade, peak = fade_time(t, y, fade)
+    t_fade, peak = fade_time(t, y, fade, t_input)
     if peak == 0.0:
         raise DataError("the outputs do not respond to the input; use an impulse-like input that excites "
                         "the system")
@@ -485,7 +519,7 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     f_min = slowest_frequency(t[free:], y[:, free:], energy)
     resolved = (t[-1] - t[free]) * f_min if f_min > 0 else 0.0
     return _Pilot(t_fade=t_fade, peak=peak, f_max=f_max, f_min=f_min, resolved_periods=float(resolved),
-                  fade_estimate=_fade_estimate(t, y, fade))
+                  fade_estimate=_fade_estimate(t, y, fade, t_input))
 
 
 def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float | None) -> bool:
@@ -495,17 +529,17 @@ def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float |
     return width is None or dt <= width / 4.0
 
 
-def _envelope(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+def _envelope(t: np.ndarray, y: np.ndarray, fade: float = 0.01,
+              t_input: float | None = None) -> tuple[np.ndarray, float]:
     y = np.atleast_2d(y)
-    rest = y[:, -max(1, y.shape[1] // 20):].mean(axis=1, keepdims=True)
-    e = np.linalg.norm(y - rest, axis=0)
+    e = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
     return np.maximum.accumulate(e[::-1])[::-1], float(e.max())
 
 
-def _fade_estimate(t: np.ndarray, y: np.ndarray, fade: float) -> float:
+def _fade_estimate(t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None = None) -> float:
     """Fade-out time extrapolated from the exponential decay of the envelope over the second half of
     the record; ``inf`` if it does not decay."""
-    envelope, peak = _envelope(t, y)
+    envelope, peak = _envelope(t, y, fade, t_input)
     half = slice(len(t) // 2, len(t) - max(1, len(t) // 20))
     tt, ee = t[half], envelope[half]
     keep = ee > 0
