@@ -217,3 +217,19 @@ def test_window_ignores_the_stop_time_and_the_defaults_need_no_option(tmp_path):
 def test_bad_periods():
     with pytest.raises(InputSpecError, match="periods"):
         auto_window(Oscillator(1.0, 0.1), IMPULSE, periods=0)
+
+
+def test_a_model_far_slower_than_the_pulse_is_named_early_and_a_wide_pulse_works():
+    """Periods of 1000 s under the 0.5 s impulse: the pulse alone kept the step at 0.05 and the window was refused
+    after 12 pilots (audit 2026-11-26, 48 s on an FMU).  It now stops early with PulseTooNarrow (the default
+    training then widens its impulse); the paper's triple chain, 63 times slower than the pulse, is far from it."""
+    from fmu_opinf.snapshots._window import NARROW_PULSE, PulseTooNarrow, _pulse_holds_back
+
+    omega, zeta = 2 * math.pi / 1000.0, 0.05
+    with pytest.raises(PulseTooNarrow, match="far shorter than the model's dynamics"):
+        auto_window(Oscillator(omega, zeta), IMPULSE)
+    wide = auto_window(Oscillator(omega, zeta), "impulse:amplitude=100,t0=200,width=50")
+    t_fade = 225.0 + math.log(100.0) / (zeta * omega)
+    assert wide.stopped_by == "fade" and 0.8 * t_fade <= wide.t_end <= 1.2 * t_fade, (wide, t_fade)
+    assert not _pulse_holds_back(0.0317, 0.5, 41740, 400_000)  # the triple chain's last pilot
+    assert _pulse_holds_back(0.5 / NARROW_PULSE, 0.5, 7000, 400_000)

@@ -630,8 +630,11 @@ def record_to_file(
     isolate = isolate and source.kind == "fmu"
     window = None
     if auto_window or needs_auto_window(source, dt, t_end, signals[0]):
-        window = choose_window(source, signals[0], points_per_period=points_per_period, energy=energy,
-                               fade=fade, isolate=isolate, quiet=quiet)
+        thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade)
+        if by_default and source.m:
+            window, signals = _wide_enough(source, signals, quiet, isolate, thresholds)
+        else:
+            window = choose_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds)
         if by_default and source.m:
             window, signals = _on_the_models_time_scale(source, window, signals, quiet, isolate,
                                                         dict(points_per_period=points_per_period, energy=energy,
@@ -673,6 +676,30 @@ def _on_the_models_time_scale(source: Source, window: Any, signals: list[Any], q
         signals = [as_signal(spec, source.m, source) for spec in specs]
         window = auto_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds)
     return window, signals
+
+
+def _wide_enough(source: Source, signals: list[Any], quiet: bool, isolate: bool,
+                 thresholds: dict[str, float]) -> tuple[Any, list[Any]]:
+    """The window of the default training, with the impulse widened (``t0, width x 100`` per try, at most
+    :data:`SHRINK_TRIES` times) while the model is too slow for the pulse to be resolved within the pilots'
+    step budget (:class:`~fmu_opinf.snapshots._window.PulseTooNarrow`: audit 2026-11-26, a chain with periods
+    of about 1000 s refused after 48 s).  Says what it did; the window and signals to record."""
+    from ._window import PulseTooNarrow, auto_window
+
+    base = dict(_parse_params(DEFAULT_TRAINING_INPUT))
+    for attempt in range(SHRINK_TRIES + 1):
+        try:
+            return auto_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds), signals
+        except PulseTooNarrow:
+            if attempt == SHRINK_TRIES:
+                raise
+        factor = SHRINK ** (attempt + 1)
+        pulse = f"impulse:amplitude={base['amplitude']:g},t0={base['t0'] * factor:g},width={base['width'] * factor:g}"
+        if not quiet:
+            print(f"the model is too slow for the default impulse to be resolved: trying {pulse}", file=sys.stderr)
+        signals = [as_signal(spec.replace(DEFAULT_TRAINING_INPUT, pulse), source.m, source)
+                   for spec in default_training_inputs(source.m)]
+    raise AssertionError("unreachable")
 
 
 def _parse_params(spec: str) -> list[tuple[str, float]]:
