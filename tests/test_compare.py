@@ -151,3 +151,19 @@ def test_report_figures_keep_every_label_inside_the_image(anchored_rom, tmp_path
         width, height = fig.get_size_inches()
         assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01, (drawn, fig.texts, fig.axes[0].get_title())
         assert drawn.x1 <= width + 0.01 and drawn.y1 <= height + 0.01, (drawn, fig.axes[0].get_title())
+
+
+def test_an_output_offset_does_not_hide_the_error_of_its_motion():
+    """y = 100 + sin t against 100 + 0.8 sin t over whole periods: eq. (19) is 0.2^2 / 101^2 = 3.9e-6, the error of
+    the motion 0.2^2 / 1 = 0.04 (mean removed) and 0.2 / 2 = 0.1 of its range; the table says so."""
+    t = np.linspace(0.0, 20 * np.pi, 20001)
+    y_ref, y = 100.0 + np.sin(t), 100.0 + 0.8 * np.sin(t)
+    metrics = compare.error_metrics(y_ref[None], y[None], ["y"])
+    assert metrics["max_error"] == pytest.approx(0.04 / 101.0**2, rel=1e-6)
+    assert metrics["max_error_variation"] == pytest.approx(0.04, rel=1e-6)
+    assert metrics["per_output"]["y"]["relative_max_variation"] == pytest.approx(0.1, rel=1e-6)
+    table = compare.summary_table([("offset", {**metrics, "r": 2, "fom_seconds": 1.0, "rom_seconds": 0.1,
+                                               "speedup": 10.0})])
+    assert "offset hides the error in eq. (19)" in table and "y is 0.1 of its range off" in table
+    plain = compare.error_metrics(np.sin(t)[None], 0.8 * np.sin(t)[None], ["y"])
+    assert compare.offset_note(plain) is None
