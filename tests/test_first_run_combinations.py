@@ -163,16 +163,16 @@ def test_array_outputs_with_feedthrough_default_chain_and_units(fmus, tmp_path):
     assert main(["snapshots", str(fmu.path), "-o", str(train), "-q"]) == 0
     assert main(["fit", str(train), "-o", str(rom_file), "-q"]) == 0
     snaps, rom = Snapshots.load(train), SecondOrderROM.load(rom_file)
-    assert snaps.attrs["output_names"] == ["forceSensor.f", "y[1]", "y[2]"]
-    assert snaps.attrs["output_units"] == ["N", "m", "m"] and snaps.attrs["input_units"] == ["N"]
+    assert snaps.attrs["output_names"] == ["y[1]", "y[2]", "forceSensor.f"]  # the declared (port) order
+    assert snaps.attrs["output_units"] == ["m", "m", "N"] and snaps.attrs["input_units"] == ["N"]
     dt = float(snaps.attrs["dt"])
     t = time_grid(dt, dt * round(4 * float(snaps.runs[0].t[-1]) / dt))
     reference, u = exact(fmu.model, t, HARMONIC)
-    y_exact = np.vstack([u, reference.y])
+    y_exact = np.vstack([reference.y, u])
     assert max_eps(rom.simulate(HARMONIC, dt, t[-1]).y, y_exact) < 2e-25                      # measured 1.9e-26
 
     result = compare(rom_file, fmu.path, HARMONIC, quiet=True)
-    assert result.output_units == ["N", "m", "m"]                      # before: ["N", "", ""]
+    assert result.output_units == ["m", "m", "N"]                      # before: ["", "", "N"]
     assert max_eps(result.y_fom, y_exact) < 2e-26                  # measured 1.3e-27
 
     assert main(["export", str(rom_file), "-o", str(out), "-q", "--reconstruct", "mass[3].s"]) == 0

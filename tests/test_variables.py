@@ -457,3 +457,18 @@ def test_commas_inside_brackets_and_quotes_belong_to_the_name():
     names = ["mass[1,1].s", "mass[1,2].s", "mass[2,1].s", "sensor[1,1]"]
     assert match_names("mass[1,*].s", names) == ["mass[1,1].s", "mass[1,2].s"]
     assert match_names("sensor[1,1],mass[2,1].s", names) == ["sensor[1,1]", "mass[2,1].s"]
+
+
+def test_default_outputs_keep_the_declared_port_order_unless_it_is_merely_alphabetical():
+    from types import SimpleNamespace
+
+    from fmu_opinf.sources._variables import select_outputs
+
+    def elements(names):
+        return {n: SimpleNamespace(name=n, alias=None, var=SimpleNamespace(causality="output", is_real=True))
+                for n in names}
+
+    ports = ["y[1]", "y[2]", "forceSensor[1].f", "forceSensor[2].f"]
+    assert [e.name for e in select_outputs(None, elements(ports), None)] == ports
+    alphabetical = ["y[1]", "y[10]", "y[11]", "y[2]"]  # a tool that sorts variables by name
+    assert [e.name for e in select_outputs(None, elements(alphabetical), None)] == ["y[1]", "y[2]", "y[10]", "y[11]"]
