@@ -470,5 +470,5 @@ def test_default_outputs_keep_the_declared_port_order_unless_it_is_merely_alphab
 
     ports = ["y[1]", "y[2]", "forceSensor[1].f", "forceSensor[2].f"]
     assert [e.name for e in select_outputs(None, elements(ports), None)] == ports
-    alphabetical = ["y[1]", "y[10]", "y[11]", "y[2]"]  # a tool that sorts variables by name
+    alphabetical = ["y[10]", "y[11]", "y[1]", "y[2]"]  # a tool that sorts variables by name
     assert [e.name for e in select_outputs(None, elements(alphabetical), None)] == ["y[1]", "y[2]", "y[10]", "y[11]"]

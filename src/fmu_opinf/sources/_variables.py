@@ -821,19 +821,19 @@ def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) 
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
-    """Outputs: default every real output in the order the FMU declares them (its port order), or in natural
-    order where the declaration is merely alphabetical (tools that sort variables by name put ``y[10]`` before
-    ``y[2]``); patterns match real variables, in the order of the patterns.
+    """Outputs: default every real output, groups of one base name (``y`` of ``y[3]``) in the order the FMU
+    declares them (its port order), the elements of a group in natural order (tools that sort variables by name
+    put ``y[10]`` before ``y[2]``); patterns match real variables, in the order of the patterns.
 
-    Before 2026-11-26 the default was always the natural order, which moved ``forceSensor[*]`` declared after
-    ``y[*]`` in front of them: a master wiring the exported ROM FMU's ports by position swapped signals.
+    Before 2026-11-26 the default was the natural order of all names, which moved ``forceSensor[*]`` declared
+    after ``y[*]`` in front of them: a master wiring the exported ROM FMU's ports by position swapped signals.
     """
     if patterns is None:
         declared = [e for e in elements.values() if e.var.causality == "output" and e.var.is_real and not e.alias]
-        names = [e.name for e in declared]
-        if names == sorted(names):
-            return sorted(declared, key=lambda e: natural_key(e.name))
-        return declared
+        groups: dict[str, int] = {}
+        for e in declared:
+            groups.setdefault(e.name.split("[")[0], len(groups))
+        return sorted(declared, key=lambda e: (groups[e.name.split("[")[0]], natural_key(e.name)))
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
