@@ -332,3 +332,19 @@ def test_a_singular_eliminated_block_keeps_every_cone(rng, monkeypatch, normaliz
     reference = fit_operators(*data, refine=False, method="sdp", normalization=fit.info["normalization"],
                               solver="clarabel", tol=1e-10)
     assert fit.info["sdp_objective"] == pytest.approx(reference.info["sdp_objective"], rel=1e-6)
+
+
+def test_a_numerically_singular_mass_has_no_explicit_residual_and_no_library_warning():
+    """The undamped audit model's trace fit had rcond(Mr) = 4.8e-19: LAPACK's 'ill-conditioned matrix' warning
+    reached the user as a bare line; the residual of an explicit form that does not exist is inf."""
+    import warnings
+
+    from fmu_opinf._sdp_paths import _acceleration_residual
+
+    r, m = 2, 1
+    R = np.triu(np.arange(1.0, 50.0).reshape(7, 7)) + 10 * np.eye(7)
+    singular = np.array([[1.0, 1.0], [1.0, 1.0 + 1e-18]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _acceleration_residual(R, m, (singular, np.eye(r), np.eye(r))) == np.inf
+        assert np.isfinite(_acceleration_residual(R, m, (np.eye(r), np.eye(r), np.eye(r))))
