@@ -101,7 +101,8 @@ def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
 
     definitions = {"mm": {"base": {"m": 1}, "factor": 0.001, "offset": 0.0, "display": [["cm", 0.1, 0.0]]},
                    "m/s2": {"base": {"m": 1, "s": "-2\"/><Evil"}, "factor": 1.0, "offset": 0.0, "display": []},
-                   "N": {"base": {"kg": 1, "m": 1, "s": -2}, "factor": float("nan")}}
+                   "N": {"base": {"kg": 1, "m": 1, "s": -2}, "factor": float("nan")},
+                   "mm/s": {"base": None, "factor": 1.0, "offset": 0.0, "display": [["cm/s", 0.1, 0.0]]}}
     snapshots = {"input_units": ["N"], "output_units": ["mm"], "unit_definitions": json.dumps(definitions)}
     spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
     for xml in (_model_description(spec, "{guid}", ["model.c"]), _model_description3(spec, "{guid}")):
@@ -112,6 +113,10 @@ def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
         assert base.attrib == {"m": "1", "factor": "0.001"}
         assert units["mm"].find("DisplayUnit").attrib == {"name": "cm", "factor": "0.1", "offset": "0.0"}
         assert list(units["N"]) == []  # a non-finite factor: the name alone
+    by_name = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["mm/s"]}}), "Units")
+    unit = {u.get("name"): u for u in ElementTree.fromstring(_model_description3(by_name, "{guid}")).iter("Unit")}
+    assert unit["mm/s"].find("BaseUnit") is None  # defined by name only: no claim that it is dimensionless
+    assert unit["mm/s"].find("DisplayUnit").get("name") == "cm/s"
     evil = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["m/s2"]}}), "Units")
     xml = _model_description3(evil, "{guid}")
     assert "Evil" not in xml and '<Unit name="m/s2"/>' in xml

@@ -350,3 +350,6 @@ def test_a_free_response_row_beside_forced_rows_keeps_the_inputs(tmp_path):
     with open_snapshot_set(tmp_path / "out") as snaps:
         assert [run.u.shape[0] for run in snaps.runs] == [1, 1]
         assert not np.any(snaps.runs[[r.attrs["input_spec"] for r in snaps.runs].index("none")].u)
+    alone = _write_table(tmp_path, {"imp": GOOD["imp"]}, ["imp"], name="alone.csv")
+    again = runs.record_runs(SOURCE, alone, tmp_path / "out", quiet=True, **SETTINGS)
+    assert [o.status for o in again.outcomes] == ["skipped"]  # the forced row's stamp does not see the free row

@@ -35,6 +35,9 @@ def test_an_input_that_never_reaches_the_grid_is_refused():
         check_input_acts(parse_signal(DEFAULT_TRAINING_INPUT, 1), coarse)
     check_input_acts(parse_signal(f"{DEFAULT_TRAINING_INPUT};none", 2), np.arange(0.0, 10.0, 0.05))
     check_input_acts(parse_signal("step:amplitude=0", 1), t)  # zero by the user's choice: recorded as asked
+    last = np.arange(0.0, 10.0 + 1e-9, 0.5)  # a step at the last sample: its value drives no step
+    with pytest.raises(InputSpecError, match="is zero at every sample"):
+        check_input_acts(parse_signal("step:amplitude=1,t0=10", 1), last)
 
 
 def test_a_declared_stop_time_before_the_input_acts_leaves_the_end_to_the_window():
@@ -53,6 +56,7 @@ def test_activity_of_a_short_pulse_is_exact():
     """Sampling [0, 1000] at 5 ms missed a 0.5 ms pulse: the window then took the input for constant."""
     t_off, width = input_activity(parse_signal("impulse:amplitude=1,t0=0.002,width=0.0005;none", 2), 2)
     assert t_off == pytest.approx(0.00225, rel=1e-12) and width == pytest.approx(0.0005, rel=1e-12)
+    assert input_activity(parse_signal("impulse:amplitude=1,t0=-10,width=0.5", 1), 1) == (0.0, None)  # all before 0
 
 
 def test_a_response_that_only_follows_the_pulse_is_told_from_a_free_vibration():
@@ -148,3 +152,20 @@ def test_the_sources_unit_definitions_are_recorded_for_the_exported_fmu(tmp_path
     finally:
         source.close()
     assert definitions["N"]["base"] == {"kg": 1, "m": 1, "s": -2} and definitions["m/s"]["base"] == {"m": 1, "s": -1}
+
+
+@pytest.mark.slow
+def test_a_declared_step_is_kept_when_the_window_chooses_the_end(tmp_path):
+    """stepSize=0.01, stopTime=1 (the default impulse acts at t = 2): the window chooses the end, the FMU's
+    declared step stays the recording's step, and the recorded input is the impulse, not zero."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Stepped"), tmp_path / "plain.fmu", interfaces=("cs",))
+    path = rewrite_description(built.path, tmp_path / "stepped.fmu",
+                               lambda text: text.replace('stopTime="1.0"', 'stopTime="1.0" stepSize="0.01"'))
+    record_to_file(str(path), tmp_path / "train.h5", None, quiet=True)
+    run = Snapshots.load(tmp_path / "train.h5").runs[0]
+    assert run.attrs["dt"] == pytest.approx(0.01) and run.t[-1] > 10.0
+    assert np.abs(run.u).max() == pytest.approx(100.0, rel=0.05)

@@ -472,3 +472,6 @@ def test_default_outputs_keep_the_declared_port_order_unless_it_is_merely_alphab
     assert [e.name for e in select_outputs(None, elements(ports), None)] == ports
     alphabetical = ["y[10]", "y[11]", "y[1]", "y[2]"]  # a tool that sorts variables by name
     assert [e.name for e in select_outputs(None, elements(alphabetical), None)] == ["y[1]", "y[2]", "y[10]", "y[11]"]
+    flat = ["y1", "y10", "y2", "sensor[2].v", "sensor[1].v", "sensor[1].f"]
+    assert [e.name for e in select_outputs(None, elements(flat), None)] == \
+        ["y1", "y2", "y10", "sensor[1].v", "sensor[2].v", "sensor[1].f"]

@@ -699,7 +699,9 @@ def snapshot_files(spec: str | os.PathLike | Sequence[str | os.PathLike]) -> lis
 
 
 class SnapshotSet:
-    """Several snapshot files read as one data set: ``runs`` of all files in order, ``attrs`` of the first.
+    """Several snapshot files read as one data set: ``runs`` of all files, those recorded with only the settings
+    all files share first (:func:`_common_settings_first`; ``files`` in the same order), ``attrs`` of the first
+    with ``fmu_settings`` the shared ones.
 
     Use as a context manager (the files stay open while the runs are used).  With ``dask=True`` the
     ``x, xdot, xddot`` arrays of each run are dask arrays read in row blocks where the computation runs
@@ -708,12 +710,13 @@ class SnapshotSet:
 
     def __init__(self, snapshots: list, files: list[Path]) -> None:
         self._parts = snapshots
-        self.files = files
+        order = _common_settings_first(list(range(len(snapshots))), [_settings_of(p) for p in snapshots])
+        self.files = [files[i] for i in order] if len(files) == len(snapshots) else files
         merged = snapshots[0]
         if len(snapshots) > 1:
             merged = snapshots[0].__class__()
-            for part in _common_settings_first(snapshots):
-                merged.append(part)
+            for i in order:
+                merged.append(snapshots[i])
         self.runs: list = list(merged.runs)
         self.attrs: dict = dict(merged.attrs)
 
@@ -734,7 +737,7 @@ def _settings_of(part: Any) -> dict:
     return dict(settings) if isinstance(settings, dict) else {}
 
 
-def _common_settings_first(parts: list) -> list:
+def _common_settings_first(parts: list, settings: list[dict] | None = None) -> list:
     """The files in order, those with only the settings common to all of them (no row of their own) first.
 
     The set's attributes, and so a ROM's training provenance, its reference position and initial state, are those
@@ -742,9 +745,10 @@ def _common_settings_first(parts: list) -> list:
     FMU start every model from that row's state (second audit, 2026-11-26: max eps_y 20.4 against the model's own
     start, reported as 1.6e-27).
     """
-    settings = [_settings_of(part) for part in parts]
+    settings = [_settings_of(part) for part in parts] if settings is None else settings
     common = {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings)}
-    return sorted(parts, key=lambda part: _settings_of(part) != common)
+    ranked = sorted(range(len(parts)), key=lambda i: settings[i] != common)
+    return [parts[i] for i in ranked]
 
 
 def _client_active() -> bool:

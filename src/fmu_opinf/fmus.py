@@ -487,25 +487,32 @@ def _unit_row(name: str, definition: Any) -> str:
     clean = unit_definition(definition)
     if clean is None:
         return f"    <Unit name={quoteattr(name)}/>\n"
-    attributes = [f'{key}="{value}"' for key, value in clean["base"].items()]
-    attributes += [f'{key}="{clean[key]!r}"' for key, default in (("factor", 1.0), ("offset", 0.0))
-                   if clean[key] != default]
-    inner = f"      <BaseUnit {' '.join(attributes)}/>\n"
+    inner = ""
+    if clean["base"] is not None:  # a unit the source defined by name only gets no BaseUnit (it is not "1")
+        attributes = [f'{key}="{value}"' for key, value in clean["base"].items()]
+        attributes += [f'{key}="{clean[key]!r}"' for key, default in (("factor", 1.0), ("offset", 0.0))
+                       if clean[key] != default]
+        inner = f"      <BaseUnit {' '.join(attributes)}/>\n"
     for display, factor, offset in clean["display"]:
         inner += (f"      <DisplayUnit name={quoteattr(display)} factor=\"{factor!r}\" "
                   f"offset=\"{offset!r}\"/>\n")
+    if not inner:
+        return f"    <Unit name={quoteattr(name)}/>\n"
     return f"    <Unit name={quoteattr(name)}>\n{inner}    </Unit>\n"
 
 
 def unit_definition(value: Any) -> dict | None:
-    """A unit definition recorded from a source FMU, checked as data: ``{"base": {SI unit: integer exponent},
+    """A unit definition recorded from a source FMU, checked as data: ``{"base": {SI unit: integer exponent} or
+    None (no BaseUnit declared),
     "factor": float, "offset": float, "display": [[name, factor, offset], ...]}``, or None when anything in it is
     not of that form (nothing read from a file reaches the XML unchecked)."""
     if not isinstance(value, dict):
         return None
-    base, factor, offset = value.get("base", {}), value.get("factor", 1.0), value.get("offset", 0.0)
-    if not isinstance(base, dict) or any(k not in BASE_UNITS for k in base):
+    base, factor, offset = value.get("base"), value.get("factor", 1.0), value.get("offset", 0.0)
+    if base is not None and (not isinstance(base, dict) or any(k not in BASE_UNITS for k in base)):
         return None
+    base = {} if base is None else base
+    declared = value.get("base") is not None
     if any(isinstance(v, bool) or not isinstance(v, int) or abs(v) > 64 for v in base.values()):
         return None
     if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in (factor, offset)):
@@ -517,8 +524,8 @@ def unit_definition(value: Any) -> dict | None:
                                                             and math.isfinite(x) for x in item[1:])):
             return None
         display.append((item[0], float(item[1]), float(item[2])))
-    return {"base": {k: int(base[k]) for k in BASE_UNITS if base.get(k)}, "factor": float(factor),
-            "offset": float(offset), "display": display}
+    return {"base": {k: int(base[k]) for k in BASE_UNITS if base.get(k)} if declared else None,
+            "factor": float(factor), "offset": float(offset), "display": display}
 
 
 def _naming_convention(spec: SecondOrderFmuSpec) -> str:

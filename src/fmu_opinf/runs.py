@@ -560,19 +560,24 @@ def record_runs(
                 if v is not None}
     from .snapshots._record import is_free_response
 
-    if any(not is_free_response(row.input) for row in rows):
-        settings["keep_inputs"] = True  # a free-response row keeps the force inputs (held) of the forced rows
+    forced = any(not is_free_response(row.input) for row in rows)
+
+    def row_settings(row: RunRow) -> dict[str, Any]:
+        """A free-response row beside forced ones keeps the force inputs, held (only its own stamp changes)."""
+        return {**settings, "keep_inputs": True} if forced and is_free_response(row.input) else settings
+
     show = progress or _progress_printer(quiet)
     started = time.perf_counter()
     if scheduler is None:
         outcomes = []
         for i, row in enumerate(rows):
-            outcomes.append(record_row(source_spec, row, out_dir, settings, source_options, isolate))
+            outcomes.append(record_row(source_spec, row, out_dir, row_settings(row), source_options, isolate))
             show(outcomes[-1], i + 1, len(rows))
     else:
         with dask_client(scheduler) as client:
             outcomes = _map_rows(client, record_row, rows, show,
-                                 lambda row: (source_spec, row, str(out_dir), settings, source_options, isolate))
+                                 lambda row: (source_spec, row, str(out_dir), row_settings(row), source_options,
+                                              isolate))
     return RunTableReport(outcomes, time.perf_counter() - started)
 
 

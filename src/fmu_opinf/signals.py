@@ -85,7 +85,8 @@ class ParametricSignal(Signal):
         """Exactly when the input stops changing and its pulse width, ``(t_off, width)``, for an impulse
         (``(t0 + width / 2, width)``) or a step (``(t0, None)``); None for the others, which never settle."""
         if self.kind == "impulse":
-            return self.params["t0"] + 0.5 * self.params["width"], self.params["width"]
+            end = self.params["t0"] + 0.5 * self.params["width"]
+            return (end, self.params["width"]) if end > 0 else None
         if self.kind == "step":
             return max(self.params["t0"], 0.0), None
         return None

@@ -469,6 +469,8 @@ def _undriven_held(signal: Any, source: Source) -> Any:
     if not isinstance(signal, StackedSignal) or not any(isinstance(p, NoInput) for p in signal.parts):
         return signal
     starts, parts, first = source.input_starts(), [], 0
+    if len(starts) != signal.n_inputs:
+        return signal  # a channel count that does not fit: refused with its own message where it is used
     for part in signal.parts:
         held = isinstance(part, NoInput)
         parts.append(NoInput(part.n_inputs, starts[first:first + part.n_inputs]) if held else part)
@@ -629,6 +631,9 @@ def record_to_file(
         print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
     window = None
+    declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
+    if dt is None and declared_step is not None and not auto_window:
+        dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
     if auto_window or needs_auto_window(source, dt, t_end, signals[0]):
         thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade)
         if by_default and source.m:
@@ -719,9 +724,10 @@ def check_input_acts(signal: Any, t: np.ndarray) -> None:
     """
     from ..signals import NoInput, StackedSignal
 
-    if isinstance(signal, (HeldInputs, NoInput)) or not hasattr(signal, "sample") or t.size == 0:
+    if isinstance(signal, (HeldInputs, NoInput)) or not hasattr(signal, "sample") or t.size < 2:
         return
-    values, first = np.atleast_2d(np.asarray(signal.sample(t), dtype=float)), 0
+    acting = t[:-1]  # the value at t_i drives the step to t_(i+1): the last sample's never acts
+    values, first = np.atleast_2d(np.asarray(signal.sample(acting), dtype=float)), 0
     parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
     for part in parts:
         count = getattr(part, "n_inputs", values.shape[0])  # any object with sample() is a signal

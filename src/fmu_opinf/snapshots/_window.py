@@ -396,7 +396,7 @@ def auto_window(
                 and _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, None):
             raise PulseTooNarrow(f"auto window: the training pulse (width {width:g}) is far shorter than the model's "
                                  f"dynamics (fastest significant frequency {seen.f_max:.3g}, still moving at "
-                                 f"t={t[-1]:g}): resolving it would take over {max_steps} steps; give an input on the "
+                                 f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
                                  "model's time scale (a wider impulse, later t0), or --dt and --t-end")
         T = float(f"{T_next:.6g}")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "

@@ -49,7 +49,7 @@ def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
         if unit.name not in names:
             continue
         base = unit.baseUnit
-        entry: dict[str, Any] = {"base": {}, "factor": 1.0, "offset": 0.0}
+        entry: dict[str, Any] = {"base": None, "factor": 1.0, "offset": 0.0}  # None: no BaseUnit declared
         if base is not None:
             entry["base"] = {key: int(getattr(base, key, 0) or 0) for key in BASE_UNITS if getattr(base, key, 0)}
             entry["factor"] = float(getattr(base, "factor", 1.0) or 1.0)

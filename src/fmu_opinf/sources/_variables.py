@@ -820,9 +820,15 @@ def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) 
             and nonzero_start(e)]
 
 
+def _numbers_masked(name: str) -> str:
+    """The name with its numbers replaced (``y#``, ``sensor[#].f``): outputs that differ only in numbers form one
+    group."""
+    return re.sub(r"\d+", "#", name)
+
+
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
-    """Outputs: default every real output, groups of one base name (``y`` of ``y[3]``) in the order the FMU
-    declares them (its port order), the elements of a group in natural order (tools that sort variables by name
+    """Outputs: default every real output, groups of names that differ only in numbers (``y[3]``, ``y1``,
+    ``sensor[2].f``) in the order the FMU declares them (its port order), each group in natural order (tools that sort variables by name
     put ``y[10]`` before ``y[2]``); patterns match real variables, in the order of the patterns.
 
     Before 2026-11-26 the default was the natural order of all names, which moved ``forceSensor[*]`` declared
@@ -832,8 +838,8 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
         declared = [e for e in elements.values() if e.var.causality == "output" and e.var.is_real and not e.alias]
         groups: dict[str, int] = {}
         for e in declared:
-            groups.setdefault(e.name.split("[")[0], len(groups))
-        return sorted(declared, key=lambda e: (groups[e.name.split("[")[0]], natural_key(e.name)))
+            groups.setdefault(_numbers_masked(e.name), len(groups))
+        return sorted(declared, key=lambda e: (groups[_numbers_masked(e.name)], natural_key(e.name)))
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
