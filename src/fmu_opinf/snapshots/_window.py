@@ -187,15 +187,31 @@ def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01,
     to), or, after an input at ``t_input`` that set a free body drifting, the straight line of the drift
     (:func:`_rest`).  Returns ``(t_fade, peak)``; ``t_fade`` is ``inf`` if the envelope never falls below.
     """
-    y = np.atleast_2d(y)
-    e = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
-    peak = float(e.max())
-    if peak == 0.0:
+    return _fade_from(t, _Envelope.of(t, y, fade, t_input), fade)
+
+
+@dataclasses.dataclass
+class _Envelope:
+    """The outputs' distance from their rest (``deviation``), its running maximum from each sample to the end
+    (``envelope``) and its ``peak``: computed once per pilot for the fade time and its extrapolation."""
+
+    deviation: np.ndarray
+    envelope: np.ndarray
+    peak: float
+
+    @classmethod
+    def of(cls, t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None) -> "_Envelope":
+        y = np.atleast_2d(y)
+        deviation = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
+        return cls(deviation, np.maximum.accumulate(deviation[::-1])[::-1], float(deviation.max()))
+
+
+def _fade_from(t: np.ndarray, seen: _Envelope, fade: float) -> tuple[float, float]:
+    if seen.peak == 0.0:
         return float(t[0]), 0.0
-    envelope = np.maximum.accumulate(e[::-1])[::-1]  # max over the rest of the run
-    below = np.nonzero(envelope <= fade * peak)[0]
-    below = below[t[below] >= t[int(np.argmax(e))]]
-    return (float(t[below[0]]) if below.size else math.inf), peak
+    below = np.nonzero(seen.envelope <= fade * seen.peak)[0]
+    below = below[t[below] >= t[int(np.argmax(seen.deviation))]]
+    return (float(t[below[0]]) if below.size else math.inf), seen.peak
 
 
 def _rest(t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None = None) -> np.ndarray:
@@ -260,9 +276,8 @@ def _without_trend(y: np.ndarray) -> np.ndarray:
     """Each row minus its least-squares straight line over the sample index (mean and drift removed; scipy.signal's
     detrend would cost its 0.5 s import in every process)."""
     index = np.arange(y.shape[1], dtype=float)
-    index -= index.mean()
-    slope = (y @ index) / max(float(index @ index), np.finfo(float).tiny)
-    return y - y.mean(axis=1, keepdims=True) - slope[:, None] * index
+    slope, intercept = _line(index, y)
+    return y - intercept[:, None] - slope[:, None] * index
 
 
 def _nice_floor(value: float) -> float:
@@ -532,7 +547,8 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     if failure is not None:
         raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
-    t_fade, peak = fade_time(t, y, fade, t_input)
+    envelope = _Envelope.of(t, y, fade, t_input)
+    t_fade, peak = _fade_from(t, envelope, fade)
     if peak == 0.0:
         raise DataError("the outputs do not respond to the input; use an impulse-like input that excites "
                         "the system")
@@ -544,7 +560,7 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     f_min = slowest_frequency(t[free:], y[:, free:], energy)
     resolved = (t[-1] - t[free]) * f_min if f_min > 0 else 0.0
     return _Pilot(t_fade=t_fade, peak=peak, f_max=f_max, f_min=f_min, resolved_periods=float(resolved),
-                  fade_estimate=_fade_estimate(t, y, fade, t_input))
+                  fade_estimate=_fade_estimate(t, envelope, fade))
 
 
 def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float | None) -> bool:
@@ -554,26 +570,18 @@ def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float |
     return width is None or dt <= width / 4.0
 
 
-def _envelope(t: np.ndarray, y: np.ndarray, fade: float = 0.01,
-              t_input: float | None = None) -> tuple[np.ndarray, float]:
-    y = np.atleast_2d(y)
-    e = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
-    return np.maximum.accumulate(e[::-1])[::-1], float(e.max())
-
-
-def _fade_estimate(t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None = None) -> float:
+def _fade_estimate(t: np.ndarray, seen: _Envelope, fade: float) -> float:
     """Fade-out time extrapolated from the exponential decay of the envelope over the second half of
     the record; ``inf`` if it does not decay."""
-    envelope, peak = _envelope(t, y, fade, t_input)
     half = slice(len(t) // 2, len(t) - max(1, len(t) // 20))
-    tt, ee = t[half], envelope[half]
+    tt, ee = t[half], seen.envelope[half]
     keep = ee > 0
-    if keep.sum() < 8 or peak == 0:
+    if keep.sum() < 8 or seen.peak == 0:
         return math.inf
     slope, intercept = np.polyfit(tt[keep], np.log(ee[keep]), 1)
     if slope >= 0:
         return math.inf
-    return float((math.log(fade * peak) - intercept) / slope)
+    return float((math.log(fade * seen.peak) - intercept) / slope)
 
 
 def _next_length(t: np.ndarray, seen: _Pilot, growth: float) -> float:
