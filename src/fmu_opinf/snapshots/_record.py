@@ -447,18 +447,17 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
     return signal
 
 
-def default_training_inputs(m: int) -> list[str]:
+def default_training_inputs(m: int, impulse: str = DEFAULT_TRAINING_INPUT) -> list[str]:
     """The training runs recorded without ``--input``: the free response for a model without inputs, else one
-    run per input, each driving that input alone with :data:`DEFAULT_TRAINING_INPUT` (``none`` on the others).
+    run per input, each driving that input alone with ``impulse`` (default :data:`DEFAULT_TRAINING_INPUT`;
+    ``none`` on the others).
 
     One impulse on every input at once would make the inputs indistinguishable in the data: the fitted ``Br``
     then has equal columns (audit 2026-11-26: eight inputs, max eps_y 9.1 on independent test inputs).
     """
     if m == 0:
         return ["none"]
-    if m == 1:
-        return [DEFAULT_TRAINING_INPUT]
-    return [";".join(DEFAULT_TRAINING_INPUT if j == i else "none" for j in range(m)) for i in range(m)]
+    return [";".join(impulse if j == i else "none" for j in range(m)) for i in range(m)]
 
 
 def _undriven_held(signal: Any, source: Source) -> Any:
@@ -635,15 +634,12 @@ def record_to_file(
     if dt is None and declared_step is not None and not auto_window:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
     if auto_window or needs_auto_window(source, dt, t_end, signals[0]):
-        thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade)
+        thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
+                          quiet=quiet)
         if by_default and source.m:
-            window, signals = _wide_enough(source, signals, quiet, isolate, thresholds)
+            window, signals = _default_training_window(source, thresholds)
         else:
-            window = choose_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds)
-        if by_default and source.m:
-            window, signals = _on_the_models_time_scale(source, window, signals, quiet, isolate,
-                                                        dict(points_per_period=points_per_period, energy=energy,
-                                                             fade=fade))
+            window = choose_window(source, signals[0], **thresholds)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -655,61 +651,49 @@ def record_to_file(
     return _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
 
 
-#: Factor by which the default impulse (``t0`` and ``width``) shrinks per try when the response only followed it,
-#: and how many tries: down to a millionth, 2 us wide, for models with periods of microseconds.
-SHRINK, SHRINK_TRIES = 100.0, 3
+#: Factor by which the default impulse (``t0`` and ``width``) shrinks or widens per try when it does not suit the
+#: model's time scale, and how many tries each way: down to a millionth (2 us wide) or up a millionfold.
+RESCALE, RESCALE_TRIES = 100.0, 3
 
 
-def _on_the_models_time_scale(source: Source, window: Any, signals: list[Any], quiet: bool, isolate: bool,
-                              thresholds: dict[str, float]) -> tuple[Any, list[Any]]:
-    """The default training runs with the impulse shrunk (``t0, width / 100`` per try) while the response only
-    followed it (:func:`~fmu_opinf.snapshots._window.follows_input`): a model whose dynamics are faster than the
-    0.5 s pulse shows none of them in the data.  Says what it did; the window and signals to record."""
-    from ._window import auto_window, follows_input, input_activity
+def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tuple[Any, list[Any]]:
+    """The window and signals of the default training, the impulse rescaled (``t0`` and ``width`` by
+    :data:`RESCALE` per try) while it does not suit the model: widened while the model is too slow for the pulse
+    to be resolved within the pilots' step budget (:class:`~fmu_opinf.snapshots._window.PulseTooNarrow`; audit
+    2026-11-26: a chain with periods of about 1000 s refused after 48 s), shrunk while the response only follows
+    the pulse (:func:`~fmu_opinf.snapshots._window.follows_input`: a model faster than the 0.5 s pulse shows none
+    of its dynamics; a millisecond chain at max eps_y 0.85).  Says what it did."""
+    from ..signals import parse_signal
+    from ._window import PulseTooNarrow, auto_window, follows_input, input_activity
 
-    base = dict(_parse_params(DEFAULT_TRAINING_INPUT))
-    factor = 1.0
-    for _ in range(SHRINK_TRIES):
-        if not follows_input(window, input_activity(signals[0], source.m)[1]):
-            break
-        factor /= SHRINK
-        pulse = f"impulse:amplitude={base['amplitude']:g},t0={base['t0'] * factor:g},width={base['width'] * factor:g}"
-        specs = [spec.replace(DEFAULT_TRAINING_INPUT, pulse) for spec in default_training_inputs(source.m)]
-        if not quiet:
-            print(f"the response only followed the default impulse (faded {window.t_fade - window.t_input:.3g} after "
-                  f"it, no frequency above its band): the model is faster; trying {pulse}", file=sys.stderr)
-        signals = [as_signal(spec, source.m, source) for spec in specs]
-        window = auto_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds)
-    return window, signals
+    default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
+    def impulse(factor: float) -> str:
+        return (f"impulse:amplitude={default['amplitude']:g},t0={default['t0'] * factor:g},"
+                f"width={default['width'] * factor:g}")
 
-def _wide_enough(source: Source, signals: list[Any], quiet: bool, isolate: bool,
-                 thresholds: dict[str, float]) -> tuple[Any, list[Any]]:
-    """The window of the default training, with the impulse widened (``t0, width x 100`` per try, at most
-    :data:`SHRINK_TRIES` times) while the model is too slow for the pulse to be resolved within the pilots'
-    step budget (:class:`~fmu_opinf.snapshots._window.PulseTooNarrow`: audit 2026-11-26, a chain with periods
-    of about 1000 s refused after 48 s).  Says what it did; the window and signals to record."""
-    from ._window import PulseTooNarrow, auto_window
-
-    base = dict(_parse_params(DEFAULT_TRAINING_INPUT))
-    for attempt in range(SHRINK_TRIES + 1):
+    factor, tries = 1.0, {"wider": 0, "narrower": 0}
+    while True:
+        pulse = impulse(factor)
+        signals = [as_signal(spec, source.m, source) for spec in default_training_inputs(source.m, pulse)]
         try:
-            return auto_window(source, signals[0], isolate=isolate, quiet=quiet, **thresholds), signals
+            window = auto_window(source, signals[0], **thresholds)
         except PulseTooNarrow:
-            if attempt == SHRINK_TRIES:
+            if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
                 raise
-        factor = SHRINK ** (attempt + 1)
-        pulse = f"impulse:amplitude={base['amplitude']:g},t0={base['t0'] * factor:g},width={base['width'] * factor:g}"
-        if not quiet:
-            print(f"the model is too slow for the default impulse to be resolved: trying {pulse}", file=sys.stderr)
-        signals = [as_signal(spec.replace(DEFAULT_TRAINING_INPUT, pulse), source.m, source)
-                   for spec in default_training_inputs(source.m)]
-    raise AssertionError("unreachable")
-
-
-def _parse_params(spec: str) -> list[tuple[str, float]]:
-    """``[(key, value), ...]`` of a ``kind:key=value,...`` spec."""
-    return [(key, float(value)) for key, value in (item.split("=") for item in spec.partition(":")[2].split(","))]
+            tries["wider"] += 1
+            factor *= RESCALE
+            why = "the model is too slow for the default impulse to be resolved"
+        else:
+            if tries["narrower"] == RESCALE_TRIES or tries["wider"] \
+                    or not follows_input(window, input_activity(signals[0], source.m)[1]):
+                return window, signals
+            tries["narrower"] += 1
+            factor /= RESCALE
+            why = (f"the response only followed the default impulse (faded {window.t_fade - window.t_input:.3g} after it, "
+                   "no frequency above its band): the model is faster")
+        if not thresholds.get("quiet"):
+            print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
 
 
 def check_input_acts(signal: Any, t: np.ndarray) -> None:
