@@ -94,7 +94,6 @@ def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
     """The source's base and display units (fourth audit: the ROM FMU declared 'mm' without its BaseUnit, so an
     importer could not convert it) are declared again; a definition with anything but SI exponents, finite
     numbers and plain names is dropped to the bare unit name."""
-    import json
     from xml.etree import ElementTree
 
     from fmu_opinf.fmus import _model_description, _model_description3
@@ -103,7 +102,7 @@ def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
                    "m/s2": {"base": {"m": 1, "s": "-2\"/><Evil"}, "factor": 1.0, "offset": 0.0, "display": []},
                    "N": {"base": {"kg": 1, "m": 1, "s": -2}, "factor": float("nan")},
                    "mm/s": {"base": None, "factor": 1.0, "offset": 0.0, "display": [["cm/s", 0.1, 0.0]]}}
-    snapshots = {"input_units": ["N"], "output_units": ["mm"], "unit_definitions": json.dumps(definitions)}
+    snapshots = {"input_units": ["N"], "output_units": ["mm"], "unit_definitions": definitions}
     spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
     for xml in (_model_description(spec, "{guid}", ["model.c"]), _model_description3(spec, "{guid}")):
         root = ElementTree.fromstring(xml)

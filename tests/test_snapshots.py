@@ -463,15 +463,11 @@ def test_a_run_table_rows_own_settings_do_not_become_the_data_sets():
     all rows share, and a row without settings of its own comes first (its start is the ROM's reference state).
     Before, the alphabetically first row's ``start:`` values were the set's: compare and the exported FMU started
     from them (second audit, 2026-11-26: max eps_y 20.4 against the model's own start)."""
-    from types import SimpleNamespace
-
     from fmu_opinf.basis import _common_settings_first
 
     common = {"k": "2"}
-    parts = [SimpleNamespace(attrs={"fmu_settings": {**common, "mass[1].s": "0.3"}}, name="free"),
-             SimpleNamespace(attrs={"fmu_settings": dict(common)}, name="imp1"),
-             SimpleNamespace(attrs={"fmu_settings": dict(common)}, name="imp2")]
-    assert [p.name for p in _common_settings_first(parts)] == ["imp1", "imp2", "free"]
+    settings = [{**common, "mass[1].s": "0.3"}, dict(common), dict(common)]
+    assert _common_settings_first(["free", "imp1", "imp2"], settings) == ["imp1", "imp2", "free"]
     from fmu_opinf.snapshots import Run
 
     k = 5

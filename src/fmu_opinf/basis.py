@@ -710,7 +710,9 @@ class SnapshotSet:
 
     def __init__(self, snapshots: list, files: list[Path]) -> None:
         self._parts = snapshots
-        order = _common_settings_first(list(range(len(snapshots))), [_settings_of(p) for p in snapshots])
+        from .snapshots._data import settings_of
+
+        order = _common_settings_first(list(range(len(snapshots))), [settings_of(p.attrs) for p in snapshots])
         self.files = [files[i] for i in order] if len(files) == len(snapshots) else files
         merged = snapshots[0]
         if len(snapshots) > 1:
@@ -731,22 +733,18 @@ class SnapshotSet:
         self.close()
 
 
-def _settings_of(part: Any) -> dict:
-    """A snapshot file's FMU settings (``--set`` values and a run table row's ``set:``/``start:`` cells)."""
-    settings = getattr(part, "attrs", {}).get("fmu_settings")
-    return dict(settings) if isinstance(settings, dict) else {}
-
-
-def _common_settings_first(parts: list, settings: list[dict] | None = None) -> list:
-    """The files in order, those with only the settings common to all of them (no row of their own) first.
+def _common_settings_first(parts: list, settings: list[dict]) -> list:
+    """``parts`` (with their ``settings``) in order, those with only the settings common to all (no row of their own)
+    first.
 
     The set's attributes, and so a ROM's training provenance, its reference position and initial state, are those
     of the first file; a run table row with its own ``start:`` value sorted first made ``compare`` and the exported
     FMU start every model from that row's state (second audit, 2026-11-26: max eps_y 20.4 against the model's own
     start, reported as 1.6e-27).
     """
-    settings = [_settings_of(part) for part in parts] if settings is None else settings
-    common = {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings)}
+    from .snapshots._data import shared_settings
+
+    common = shared_settings(settings)
     ranked = sorted(range(len(parts)), key=lambda i: settings[i] != common)
     return [parts[i] for i in ranked]
 

@@ -466,11 +466,6 @@ def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:
     each is checked again when written (:func:`fmu_opinf.fmus.unit_definition`)."""
     snapshots = provenance.get("snapshots")
     recorded = snapshots.get("unit_definitions") if isinstance(snapshots, dict) else None
-    if isinstance(recorded, str):  # a JSON attribute of the snapshot file
-        try:
-            recorded = json.loads(recorded)
-        except ValueError:
-            return {}
     return {name: value for name, value in recorded.items() if isinstance(name, str)} if isinstance(recorded, dict) else {}
 
 

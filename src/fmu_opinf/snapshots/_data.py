@@ -72,6 +72,18 @@ class Run:
                    x0=np.array(self.x0), v0=np.array(self.v0))
 
 
+def settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
+    """The FMU settings a snapshot file was recorded with (``--set`` values, a run table row's ``set:``/``start:``
+    cells); empty when it has none."""
+    settings = attrs.get("fmu_settings")
+    return dict(settings) if isinstance(settings, dict) else {}
+
+
+def shared_settings(settings: list[dict[str, Any]]) -> dict[str, Any]:
+    """The settings (name and value) that all of ``settings`` have."""
+    return {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings[1:])}
+
+
 class Snapshots:
     """Snapshot runs of one system plus file-level provenance.
 
@@ -158,10 +170,8 @@ class Snapshots:
     def _keep_common_settings(self, attrs: dict[str, Any]) -> None:
         """``fmu_settings`` of merged snapshots: the settings every part was recorded with (a run table row's own
         ``set:``/``start:`` values belong to its runs, not to the data set, whose settings ``compare`` applies)."""
-        mine, theirs = self.attrs.get("fmu_settings"), attrs.get("fmu_settings")
-        if isinstance(mine, dict) or isinstance(theirs, dict):
-            mine, theirs = dict(mine or {}), dict(theirs or {})
-            self.attrs["fmu_settings"] = {key: value for key, value in mine.items() if theirs.get(key) == value}
+        if "fmu_settings" in self.attrs or "fmu_settings" in attrs:
+            self.attrs["fmu_settings"] = shared_settings([settings_of(self.attrs), settings_of(attrs)])
 
     def _check_compatible(self, attrs: dict[str, Any]) -> None:
         keys = ("n", "m", "p", "position_names", "input_names", "output_names")

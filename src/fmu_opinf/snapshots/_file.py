@@ -26,7 +26,8 @@ FILE_KIND = "fmu-opinf snapshots"
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
 #: Per-run initial state datasets (layout 2; layout 1 files take the first samples instead).
 INITIAL = ("x0", "v0")
-_JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window")
+_JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window",
+               "unit_definitions")
 
 
 @contextlib.contextmanager
