@@ -28,6 +28,7 @@ import numpy as np
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
+from ..signals import NoInput, StackedSignal
 from ..sources import Source, StepError, open_source
 from ._consistency import judge_run
 from ._data import Run, Snapshots
@@ -406,19 +407,15 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
     return Snapshots.open(path)
 
 
-class HeldInputs:
+class HeldInputs(NoInput):
     """``--input none``: the free response, every force input held at its start (or ``--set``) value.
 
     With no force inputs (m = 0) it has no channel at all.
     """
 
-    spec = "none"
-
     def __init__(self, values: Any) -> None:
-        self.values = np.asarray(values, dtype=float).reshape(-1)
-
-    def sample(self, t: Any) -> np.ndarray:
-        return np.repeat(self.values[:, None], np.size(t), axis=1)
+        values = np.asarray(values, dtype=float).reshape(-1)
+        super().__init__(values.size, values)
 
     def __repr__(self) -> str:
         return "HeldInputs(" + ", ".join(f"{v:g}" for v in self.values) + ")"
@@ -463,8 +460,6 @@ def default_training_inputs(m: int, impulse: str = DEFAULT_TRAINING_INPUT) -> li
 def _undriven_held(signal: Any, source: Source) -> Any:
     """``signal`` with every ``none`` among several ``;`` specs held at that input's start (or ``--set``) value,
     as ``--input none`` holds all of them, instead of zero."""
-    from ..signals import NoInput, StackedSignal
-
     if not isinstance(signal, StackedSignal) or not any(isinstance(p, NoInput) for p in signal.parts):
         return signal
     starts, parts, first = source.input_starts(), [], 0
@@ -706,9 +701,7 @@ def check_input_acts(signal: Any, t: np.ndarray) -> None:
     ``none``, free responses and signals zero by construction (``amplitude=0``, an all-zero table: a user's
     deliberate choice) are not checked, nor signal objects that cannot say (no ``is_identically_zero``).
     """
-    from ..signals import NoInput, StackedSignal
-
-    if isinstance(signal, (HeldInputs, NoInput)) or not hasattr(signal, "sample") or t.size < 2:
+    if isinstance(signal, NoInput) or not hasattr(signal, "sample") or t.size < 2:
         return
     acting = t[:-1]  # the value at t_i drives the step to t_(i+1): the last sample's never acts
     values, first = np.atleast_2d(np.asarray(signal.sample(acting), dtype=float)), 0
