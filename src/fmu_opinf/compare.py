@@ -429,10 +429,14 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
 
 def _exact_names(names: Any) -> str | None:
     """Recorded variable names as one pattern (exact names are patterns without wildcards), None if there are none
-    or one could be read as a separator or wildcard."""
-    if isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set(",*?") for n in names):
-        return ",".join(names)
-    return None
+    or one could be read as a wildcard or does not come back whole from the patterns' own splitting (commas inside
+    brackets, ``sensor[1,1]``, do)."""
+    from .sources._base import split_patterns
+
+    if not (isinstance(names, list) and names and all(isinstance(n, str) and not set(n) & set("*?") for n in names)):
+        return None
+    joined = ",".join(names)
+    return joined if split_patterns(joined) == names else None
 
 
 def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
