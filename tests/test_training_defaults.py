@@ -91,7 +91,7 @@ def test_two_inputs_recorded_by_default_give_a_rom_that_tells_them_apart(tmp_pat
     reference = lti_fmus.zoh_response(model, t, u[:, :-1])
     y_ref = reference.y
     y = rom.simulate(test, 0.05, t[-1]).y
-    assert np.abs(y - y_ref).max() < 1e-9 * np.abs(y_ref).max()
+    assert np.abs(y - y_ref).max() < 2e-13 * np.abs(y_ref).max()  # measured 3.5e-14
 
 
 @pytest.mark.slow
@@ -116,7 +116,7 @@ def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tm
     reference = lti_fmus.zoh_response(model, t, parse_signal(test, 1).sample(t)[:, :-1])
     y_ref = reference.y
     y = rom.simulate(test, dt, t[-1]).y
-    assert np.abs(y - y_ref).max() < 1e-6 * np.abs(y_ref).max()
+    assert np.abs(y - y_ref).max() < 1e-9 * np.abs(y_ref).max()  # measured 2.3e-10
 
 
 def test_fit_warns_when_the_training_inputs_cannot_be_told_apart():
@@ -168,4 +168,4 @@ def test_a_declared_step_is_kept_when_the_window_chooses_the_end(tmp_path):
     record_to_file(str(path), tmp_path / "train.h5", None, quiet=True)
     run = Snapshots.load(tmp_path / "train.h5").runs[0]
     assert run.attrs["dt"] == pytest.approx(0.01) and run.t[-1] > 10.0
-    assert np.abs(run.u).max() == pytest.approx(100.0, rel=0.05)
+    assert np.abs(run.u).max() == pytest.approx(100.0, rel=1e-12)  # the pulse's peak t = 2 lies on the grid

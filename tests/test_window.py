@@ -182,7 +182,7 @@ def test_a_damped_free_body_fades_about_its_drift():
     window = auto_window(FreeBody(omega, zeta), IMPULSE)
     assert window.stopped_by == "fade", window
     expected = 2.25 + math.log(100.0) / (zeta * omega)
-    assert 0.85 * expected <= window.t_end <= 1.15 * expected, (window, expected)
+    assert 0.9 * expected <= window.t_end <= 1.1 * expected, (window, expected)  # measured 0.94
 
 
 def test_input_activity_and_slowest_frequency():
@@ -230,6 +230,6 @@ def test_a_model_far_slower_than_the_pulse_is_named_early_and_a_wide_pulse_works
         auto_window(Oscillator(omega, zeta), IMPULSE)
     wide = auto_window(Oscillator(omega, zeta), "impulse:amplitude=100,t0=200,width=50")
     t_fade = 225.0 + math.log(100.0) / (zeta * omega)
-    assert wide.stopped_by == "fade" and 0.8 * t_fade <= wide.t_end <= 1.2 * t_fade, (wide, t_fade)
+    assert wide.stopped_by == "fade" and 0.9 * t_fade <= wide.t_end <= 1.1 * t_fade, (wide, t_fade)  # 1.01
     assert not _pulse_holds_back(0.0317, 0.5, 41740, 400_000)  # the triple chain's last pilot
     assert _pulse_holds_back(0.5 / NARROW_PULSE, 0.5, 7000, 400_000)
