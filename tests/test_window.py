@@ -233,3 +233,56 @@ def test_a_model_far_slower_than_the_pulse_is_named_early_and_a_wide_pulse_works
     assert wide.stopped_by == "fade" and 0.9 * t_fade <= wide.t_end <= 1.1 * t_fade, (wide, t_fade)  # 1.01
     assert not _pulse_holds_back(0.0317, 0.5, 41740, 400_000)  # the triple chain's last pilot
     assert _pulse_holds_back(0.5 / NARROW_PULSE, 0.5, 7000, 400_000)
+
+
+class Oscillators(Oscillator):
+    """Uncoupled unit masses ``x_i'' + 2 zeta w_i x_i' + w_i^2 x_i = u_i``, one input and one output (its
+    position) each, stepped exactly: a mode that only one input drives and only one output shows."""
+
+    def __init__(self, omegas: tuple[float, ...], zeta: float) -> None:
+        super().__init__(omegas[0], zeta, inputs=len(omegas))
+        self.omegas, n = tuple(omegas), len(omegas)
+        names = [f"{i + 1}" for i in range(n)]
+        self.position_names, self.velocity_names = [f"x{i}" for i in names], [f"v{i}" for i in names]
+        self.acceleration_names, self.input_names = [f"a{i}" for i in names], [f"u{i}" for i in names]
+        self.output_names = [f"y{i}" for i in names]
+        w = np.asarray(omegas, dtype=float)
+        self.A = np.block([[np.zeros((n, n)), np.eye(n)], [-np.diag(w**2), -np.diag(2.0 * zeta * w)]])
+
+    def recipe(self):
+        return Oscillators, {"omegas": self.omegas, "zeta": self.zeta}
+
+    def start(self, t, U) -> None:
+        self._plan(t, U)
+        self.z, self.u, self.maps = np.zeros(2 * self.m), np.zeros(self.m), {}
+
+    def step(self, t: float, h: float, u) -> None:
+        key, n = round(h, 12), self.m
+        if key not in self.maps:
+            block = np.zeros((3 * n, 3 * n))
+            block[:2 * n, :2 * n], block[n:2 * n, 2 * n:] = self.A * h, h * np.eye(n)
+            E = scipy.linalg.expm(block)
+            self.maps[key] = (E[:2 * n, :2 * n], E[:2 * n, 2 * n:])
+        Phi, gamma = self.maps[key]
+        self.u = np.asarray(u, dtype=float).reshape(n)
+        self.z = Phi @ self.z + gamma @ self.u
+
+    def read(self, out) -> None:
+        n = self.m
+        out[:4 * n] = np.concatenate([self.z, (self.A @ self.z)[n:] + self.u, self.z[:n]])
+
+
+def test_the_default_window_resolves_a_mode_that_only_the_second_input_drives(tmp_path):
+    """A slow oscillator (1 rad/s) on input and output 1, a fast one (10 rad/s, dying out within about 5 s) on
+    input and output 2, 800 times smaller.  The window came from the first input's run alone and from the Hann
+    window of the whole record in the outputs' common units: dt = 0.2, 3 samples per fast period.  The pilots
+    now drive every input, each output counts in its own units and the early free response is analysed on its
+    own; the step must resolve the fast mode and the end must wait for the slow one, both known exactly."""
+    from fmu_opinf.snapshots import record_to_file
+
+    zeta, omegas = 0.05, (1.0, 10.0)
+    summary = record_to_file(Oscillators(omegas, zeta), tmp_path / "train.h5", None, quiet=True, isolate=False)
+    window = summary.window
+    check_step(window, omegas[1] / (2 * math.pi))  # 20 points per fast period, within the rounding to 1-2-5
+    t_fade = 2.25 + math.log(100.0) / (zeta * omegas[0])  # the slow mode below 1 % after the pulse ends
+    assert abs(window.t_end / t_fade - 1.0) < 0.03, (window, t_fade)

@@ -248,6 +248,45 @@ def _line(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return slope, y.mean(axis=1) - slope * t.mean()
 
 
+#: Fewest samples of a leading part of the free response that :func:`_fastest_early_or_late` analyses on its own.
+EARLY_SAMPLES = 64
+
+
+def _fastest_early_or_late(t: np.ndarray, y: np.ndarray, energy: float) -> float:
+    """The fastest significant frequency of the free response and of its leading quarter, sixteenth, ... (down to
+    :data:`EARLY_SAMPLES` samples).  The Hann window of the whole response nearly hides a fast mode that has died
+    out early (a 1.6 Hz mode with a 2 s decay in a 90 s window gave dt = 0.2, 3 samples per period); a leading part
+    holds it in full.  A part's frequencies count only with energy above ``1 - energy`` of the whole response's
+    (per sample, as both are sampled alike): the smooth start of a slow response has little energy left once its
+    trend is removed, and its round-off must not set the step."""
+    freqs, power = _energy_spectrum(t, y)
+    whole = float(power.sum())
+    if whole <= 0:
+        return 0.0
+    f_max, k = _frequency_below(freqs, power, (1.0 - energy) * whole), t.size
+    while k // 4 >= EARLY_SAMPLES:
+        k //= 4
+        freqs, power = _energy_spectrum(t[:k], y[:, :k])
+        f_max = max(f_max, _frequency_below(freqs, power, (1.0 - energy) * max(whole, float(power.sum()))))
+    return f_max
+
+
+def _energy_spectrum(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies and spectral energy of the Hann-windowed outputs without their straight-line trend, summed over
+    outputs and scaled by ``1 / k`` (Parseval: the sum is the windowed signal's sum of squares, comparable between
+    records of different length on the same step)."""
+    windowed = _without_trend(np.atleast_2d(y)) * np.hanning(t.size)
+    power = (np.abs(np.fft.rfft(windowed, axis=1)) ** 2).sum(axis=0) / t.size
+    return np.fft.rfftfreq(t.size, d=float(t[1] - t[0])), power
+
+
+def _frequency_below(freqs: np.ndarray, power: np.ndarray, budget: float) -> float:
+    """The smallest frequency above which at most ``budget`` of the energy lies."""
+    above = np.cumsum(power[::-1])[::-1]  # energy at and above each frequency
+    first = int(np.searchsorted(-above, -budget, side="left"))  # first index with at most budget at and above it
+    return float(freqs[max(first - 1, 0)])
+
+
 def slowest_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
     """Slowest significant frequency: the smallest one above which a fraction ``energy`` of the
     spectral energy of the (mean-free, Hann-windowed) outputs lies.
@@ -556,11 +595,31 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     free = free if len(t) - free >= 16 else 0
     faded = int(np.searchsorted(t, t_fade, side="right")) if math.isfinite(t_fade) else len(t)
     segment = slice(free, faded) if faded - free >= 16 else slice(free, len(t))
-    f_max = significant_frequency(t[segment], y[:, segment], energy)
-    f_min = slowest_frequency(t[free:], y[:, free:], energy)
+    own = in_own_units(y)
+    f_max = _fastest_early_or_late(t[segment], own[:, segment], energy)
+    f_min = slowest_frequency(t[free:], own[:, free:], energy)
     resolved = (t[-1] - t[free]) * f_min if f_min > 0 else 0.0
     return _Pilot(t_fade=t_fade, peak=peak, f_max=f_max, f_min=f_min, resolved_periods=float(resolved),
                   fade_estimate=_fade_estimate(t, envelope, fade))
+
+
+#: Outputs whose range is below this fraction of the largest one keep their size: a channel of round-off is not
+#: blown up to the size of the others.
+OUTPUT_FLOOR = 1e-6
+
+
+def in_own_units(y: np.ndarray) -> np.ndarray:
+    """Each output divided by its range over the pilot (floored at :data:`OUTPUT_FLOOR` of the largest range), so
+    that every output counts alike in the spectrum, whatever its units: a mode seen in one output only is not lost
+    in the energy of another (two oscillators of 0.16 and 1.6 Hz, each in an output of its own, 50 m against
+    0.06 m).  The fade keeps the outputs as they are: judged per output, a slowly fading position next to an
+    acceleration sensor doubled the window and its pilots (an 8-mass chain: 147 -> 263 s, ROM exact either way)."""
+    y = np.atleast_2d(y)
+    ranges = np.ptp(y, axis=1) if y.size else np.zeros(y.shape[0])
+    top = float(ranges.max()) if ranges.size else 0.0
+    if top == 0.0:
+        return y
+    return y / np.maximum(ranges, OUTPUT_FLOOR * top)[:, None]
 
 
 def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float | None) -> bool:
