@@ -219,6 +219,12 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
         message += "; pass --positions and --velocities"
     if selection.guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
+    if getattr(selection, "linked", False) and not isinstance(verdict, Repair):
+        # the FMU itself declares each velocity the derivative of its position: the step is what fails
+        warnings.warn(f"{source_label(source)}: {message}, though the FMU declares each velocity the derivative of its "
+                      f"position: the step dt={float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above "
+                      "half the sampling rate); record at a smaller --dt", FmuOpinfWarning, stacklevel=3)
+        return None
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
                   "the positions' rates", FmuOpinfWarning, stacklevel=3)
     return None

@@ -385,6 +385,11 @@ class Selection:
         rule = self.how.get("positions", "")
         return bool(self.velocities) and rule.startswith("from derivative links") and rule != _LINKS
 
+    @property
+    def linked(self) -> bool:
+        """Whether each velocity is the position's derivative by the FMU's own declaration (derivative aliases)."""
+        return bool(self.velocities) and self.how.get("positions", "") == _LINKS
+
 
 _LINKS = "from derivative links"
 _HALVES = "from derivative links, first-order states split in halves [positions; velocities]"
