@@ -193,7 +193,7 @@ def test_a_mismatch_of_states_the_fmu_links_blames_the_step_not_the_pairing():
     """Exact samples of a 6.4 Hz oscillation at dt = 0.2 (1.3 samples per period) miss the trapezoidal rule by
     far.  Where the FMU declares the velocity the derivative of the position, the warning used to say the model
     would be wrong 'unless --velocities name the positions' rates': it now names the step.  A pairing the user
-    gave keeps the former advice."""
+    gave, in full or only the velocities, keeps the former advice."""
     from types import SimpleNamespace
 
     from fmu_opinf.snapshots import _consistency
@@ -204,8 +204,8 @@ def test_a_mismatch_of_states_the_fmu_links_blames_the_step_not_the_pairing():
     x, v = np.cos(omega * t)[None, :], -omega * np.sin(omega * t)[None, :]
     assert rate_mismatch(x, v, h)[0] > MISMATCH
 
-    def warning_for(rule: str) -> str:
-        selection = Selection([], [1], [], {"positions": rule}, ["der(s)"])
+    def warning_for(positions: str, velocities: str) -> str:
+        selection = Selection([], [1], [], {"positions": positions, "velocities": velocities}, ["der(s)"])
         source = SimpleNamespace(selection=selection, n=1, derived={"xdot": False, "xddot": True},
                                  position_names=["s"], velocity_names=["v"], label="fast.fmu")
         run = SimpleNamespace(x=x, xdot=v, xddot=None, u=np.zeros((1, t.size)))
@@ -213,10 +213,11 @@ def test_a_mismatch_of_states_the_fmu_links_blames_the_step_not_the_pairing():
             assert _consistency.judge_run(source, run, t) is None
         return str(caught[0].message)
 
-    linked = warning_for("from derivative links")
+    linked = warning_for("from derivative links", "from derivative links")
     assert "v is not the rate of s" in linked and "the step dt=0.2 is too coarse" in linked
     assert "smaller --dt" in linked and "unless --velocities" not in linked
-    assert "unless --velocities name the positions' rates" in warning_for("given (--positions, --velocities)")
+    for given in (("pattern", "pattern"), ("from derivative links", "pattern v")):
+        assert "unless --velocities name the positions' rates" in warning_for(*given)
 
 
 @pytest.mark.slow

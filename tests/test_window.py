@@ -274,7 +274,7 @@ class Oscillators(Oscillator):
 
 def test_the_default_window_resolves_a_mode_that_only_the_second_input_drives(tmp_path):
     """A slow oscillator (1 rad/s) on input and output 1, a fast one (10 rad/s, dying out within about 5 s) on
-    input and output 2, 800 times smaller.  The window came from the first input's run alone and from the Hann
+    input and output 2, 15 times smaller (ranges 43 and 2.8 under the default impulse).  The window came from the first input's run alone and from the Hann
     window of the whole record in the outputs' common units: dt = 0.2, 3 samples per fast period.  The pilots
     now drive every input, each output counts in its own units and the early free response is analysed on its
     own; the step must resolve the fast mode and the end must wait for the slow one, both known exactly."""
@@ -286,3 +286,44 @@ def test_the_default_window_resolves_a_mode_that_only_the_second_input_drives(tm
     check_step(window, omegas[1] / (2 * math.pi))  # 20 points per fast period, within the rounding to 1-2-5
     t_fade = 2.25 + math.log(100.0) / (zeta * omegas[0])  # the slow mode below 1 % after the pulse ends
     assert abs(window.t_end / t_fade - 1.0) < 0.03, (window, t_fade)
+
+
+@pytest.mark.parametrize("omega", [0.1, 0.3, 1.0])
+def test_the_leading_parts_do_not_turn_a_slow_mode_into_a_faster_step(omega):
+    """A leading part that holds a fraction of the slow period has its energy in its lowest bins: counted, they
+    made f_max 2-4.4 times the only frequency present (review 2026-11-26).  A part's frequency counts only where
+    the part holds three of its periods."""
+    window = auto_window(Oscillator(omega, 0.05), IMPULSE)
+    check_step(window, omega / (2 * math.pi))
+
+
+class NoisySensor(Oscillator):
+    """The oscillator's position and a second output ``gain * x`` plus noise of absolute size ``noise``."""
+
+    def __init__(self, omega: float, zeta: float, gain: float, noise: float) -> None:
+        super().__init__(omega, zeta)
+        self.gain, self.noise = gain, noise
+        self.output_names = ["y", "sensor"]
+
+    def recipe(self):
+        return NoisySensor, {"omega": self.omega, "zeta": self.zeta, "gain": self.gain, "noise": self.noise}
+
+    def start(self, t, U) -> None:
+        super().start(t, U)
+        self.rng = np.random.default_rng(1)
+
+    def read(self, out) -> None:
+        super().read(out)
+        out[4] = self.gain * out[0] + self.noise * self.rng.standard_normal()
+
+
+@pytest.mark.parametrize("gain, noise", [(0.0, 1e-7), (0.0, 1e-3), (1e-2, 1e-6)])
+def test_an_output_of_noise_does_not_set_the_step(gain, noise):
+    """Each output counts in its own units in the spectrum, but one of noise (range far below the position's 46)
+    must not be blown up to full size: with the floor at 1e-6 of the largest range it set the step to its
+    Nyquist frequency until the pilots gave up (review 2026-11-26).  A real small sensor (1 % of the position)
+    with noise at 1e-4 of itself counts and leaves the step alone too."""
+    alone = auto_window(Oscillator(1.0, 0.05), IMPULSE)
+    window = auto_window(NoisySensor(1.0, 0.05, gain, noise), IMPULSE)
+    assert (window.dt, window.t_end) == (alone.dt, alone.t_end)
+    check_step(window, 1.0 / (2 * math.pi))

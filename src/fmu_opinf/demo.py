@@ -63,12 +63,12 @@ CASES: dict[str, DemoCase] = {
         fmu="AnchoredMSD", constraint="position",
         training_input="impulse:amplitude=100,t0=2,width=0.5",
         test_input="harmonic:amplitude=1,omega=0.2",
-        window={}, test_t_end=400.0, quick_window=(0.2, 95.4)),
+        window={}, test_t_end=400.0, quick_window=(0.5, 95.5)),
     "triple-chain": DemoCase(
         fmu="TripleChainMSD", constraint="velocity",
         training_input="impulse:amplitude=100,t0=2,width=0.5",
         test_input="harmonic:amplitude=1,omega=0.2",
-        window={}, test_t_end=400.0, quick_window=(0.2, 884.4), quick_order=12),
+        window={}, test_t_end=400.0, quick_window=(0.5, 884.5), quick_order=12),
 }
 
 

@@ -28,7 +28,7 @@ import numpy as np
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
-from ..signals import NoInput, StackedSignal
+from ..signals import NoInput, Signal, StackedSignal
 from ..sources import Source, StepError, open_source
 from ._consistency import judge_run
 from ._data import Run, Snapshots
@@ -671,7 +671,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source) for spec in default_training_inputs(source.m, pulse)]
-        pilot = as_signal(";".join(impulse(factor, weight) for weight in _pilot_weights(source.m)), source.m, source)
+        pilot = _pilot_signal([impulse(factor, weight) for weight in _pilot_weights(source.m)], source)
         try:
             window = auto_window(source, pilot, **thresholds)
         except PulseTooNarrow:
@@ -695,9 +695,38 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
 def _pilot_weights(m: int) -> np.ndarray:
     """Amplitudes, relative to the default impulse, with which the window's pilot runs drive all ``m`` inputs at
     once: one pilot sees every mode that any input excites (a mode that the first input does not reach set no
-    step before: two oscillators of 0.16 and 6.4 Hz, one per input, were recorded at dt = 0.2).  Distinct
-    weights between 1 and 1/2, so that inputs placed symmetrically do not cancel a mode between them."""
-    return 1.0 - 0.5 * np.arange(m) / max(m, 1)
+    step before: two oscillators of 0.16 and 1.6 Hz, one per input, were recorded at dt = 0.2).  Distinct
+    weights from 1 down to 1/2, so that inputs placed symmetrically do not cancel a mode between them."""
+    return 1.0 - 0.5 * np.arange(m) / max(m - 1, 1)
+
+
+def _pilot_signal(pulses: Sequence[str], source: Source) -> Signal:
+    """The pilots' input: ``pulses[j]`` on input ``j``, on top of the value the training runs hold it at when they
+    do not drive it (its start or ``--set`` value), so that the pilots stay at the training runs' operating point
+    (a parameter exposed as an input is not driven through zero there)."""
+    from ..signals import parse_signal
+
+    starts = source.input_starts()
+    if len(starts) != len(pulses):
+        starts = np.zeros(len(pulses))
+    return StackedSignal([_OnStartValue(parse_signal(pulse, 1), start) for pulse, start in zip(pulses, starts)])
+
+
+class _OnStartValue(Signal):
+    """One input channel: ``pulse`` added to a constant ``start``; its activity is the pulse's."""
+
+    def __init__(self, pulse: Any, start: float) -> None:
+        self.pulse, self.start, self.n_inputs = pulse, float(start), 1
+        self.spec = pulse.spec if self.start == 0 else f"{pulse.spec} on {self.start:g}"
+
+    def activity(self) -> tuple[float, float | None] | None:
+        return self.pulse.activity()
+
+    def is_identically_zero(self) -> bool:
+        return False
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        return self.pulse.sample(t) + self.start
 
 
 def check_input_acts(signal: Any, t: np.ndarray) -> None:

@@ -256,9 +256,9 @@ def _fastest_early_or_late(t: np.ndarray, y: np.ndarray, energy: float) -> float
     """The fastest significant frequency of the free response and of its leading quarter, sixteenth, ... (down to
     :data:`EARLY_SAMPLES` samples).  The Hann window of the whole response nearly hides a fast mode that has died
     out early (a 1.6 Hz mode with a 2 s decay in a 90 s window gave dt = 0.2, 3 samples per period); a leading part
-    holds it in full.  A part's frequencies count only with energy above ``1 - energy`` of the whole response's
-    (per sample, as both are sampled alike): the smooth start of a slow response has little energy left once its
-    trend is removed, and its round-off must not set the step."""
+    holds it in full.  A part's frequency counts only if the part resolves it (three periods or more, as in
+    :func:`slowest_frequency`: its lowest bins are the slower modes cut short) and with energy above ``1 - energy``
+    of the whole response's (per sample, as both are sampled alike)."""
     freqs, power = _energy_spectrum(t, y)
     whole = float(power.sum())
     if whole <= 0:
@@ -267,7 +267,9 @@ def _fastest_early_or_late(t: np.ndarray, y: np.ndarray, energy: float) -> float
     while k // 4 >= EARLY_SAMPLES:
         k //= 4
         freqs, power = _energy_spectrum(t[:k], y[:, :k])
-        f_max = max(f_max, _frequency_below(freqs, power, (1.0 - energy) * max(whole, float(power.sum()))))
+        early = _frequency_below(freqs, power, (1.0 - energy) * max(whole, float(power.sum())))
+        if early >= 3.0 * freqs[1]:
+            f_max = max(f_max, early)
     return f_max
 
 
@@ -603,23 +605,24 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
                   fade_estimate=_fade_estimate(t, envelope, fade))
 
 
-#: Outputs whose range is below this fraction of the largest one keep their size: a channel of round-off is not
-#: blown up to the size of the others.
-OUTPUT_FLOOR = 1e-6
+#: Outputs whose range is below this fraction of the largest one keep their size: a channel of round-off or
+#: solver noise is not blown up to the size of the others.
+OUTPUT_FLOOR = 1e-3
 
 
 def in_own_units(y: np.ndarray) -> np.ndarray:
-    """Each output divided by its range over the pilot (floored at :data:`OUTPUT_FLOOR` of the largest range), so
-    that every output counts alike in the spectrum, whatever its units: a mode seen in one output only is not lost
-    in the energy of another (two oscillators of 0.16 and 1.6 Hz, each in an output of its own, 50 m against
-    0.06 m).  The fade keeps the outputs as they are: judged per output, a slowly fading position next to an
+    """Each output divided by its range over the pilot, so that every output counts alike in the spectrum, whatever
+    its units: a mode seen in one output only is not lost in the energy of another (two oscillators of 0.16 and
+    1.6 Hz, each in an output of its own, ranges 43 and 2.8).  Outputs with a range below :data:`OUTPUT_FLOOR` of
+    the largest are divided by the largest instead (kept as they are): an output of noise at 1e-7 scaled to full
+    size set the step to its Nyquist frequency until the pilots gave up.  The fade keeps the outputs as they are: judged per output, a slowly fading position next to an
     acceleration sensor doubled the window and its pilots (an 8-mass chain: 147 -> 263 s, ROM exact either way)."""
     y = np.atleast_2d(y)
     ranges = np.ptp(y, axis=1) if y.size else np.zeros(y.shape[0])
     top = float(ranges.max()) if ranges.size else 0.0
     if top == 0.0:
         return y
-    return y / np.maximum(ranges, OUTPUT_FLOOR * top)[:, None]
+    return y / np.where(ranges >= OUTPUT_FLOOR * top, ranges, top)[:, None]
 
 
 def _coarsen_ok(f_max: float, dt: float, min_pilot_points: float, width: float | None) -> bool:

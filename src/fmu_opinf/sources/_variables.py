@@ -388,7 +388,7 @@ class Selection:
     @property
     def linked(self) -> bool:
         """Whether each velocity is the position's derivative by the FMU's own declaration (derivative aliases)."""
-        return bool(self.velocities) and self.how.get("positions", "") == _LINKS
+        return bool(self.velocities) and self.how.get("positions", "") == self.how.get("velocities", "") == _LINKS
 
 
 _LINKS = "from derivative links"
