@@ -189,6 +189,32 @@ def test_large_runs_are_judged_on_a_subset_of_positions_and_not_re_paired(exact)
         _consistency.judge_run(source, run, t)
 
 
+def test_velocities_the_user_gave_in_the_wrong_order_are_refused_with_the_data_s_pairing(exact):
+    """--velocities v3,v2,v1 for x1,x2,x3 (audit of pythonfmu FMUs, 2026-11-26) was a warning, and the model
+    fitted from the file was 400 times off.  Where the data pair the given states otherwise at this very step,
+    the recording stops and names the pairing; in the right order the data are accepted."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots import _consistency
+    from fmu_opinf.sources._variables import Selection
+
+    x, v, _ = exact
+    t = np.arange(x.shape[1]) * H
+
+    def judge(velocities: list[int]) -> None:
+        selection = Selection([], [1], [], {"positions": "pattern", "velocities": "pattern"}, [None] * 5)
+        source = SimpleNamespace(selection=selection, n=5, derived={"xdot": False, "xddot": True},
+                                 position_names=[f"x{i}" for i in range(1, 6)],
+                                 velocity_names=[f"v{i + 1}" for i in velocities], label="chain.fmu")
+        run = SimpleNamespace(x=x, xdot=v[velocities], xddot=None, u=_impulse(x.shape[1]))
+        _consistency.judge_run(source, run, t)
+
+    judge([0, 1, 2, 3, 4])
+    with pytest.raises(FMUError, match=r'v5 is not the rate of x1 .*but the data pair them at this step: pass '
+                                       r'--positions "x1,x2,x3,x4,x5" --velocities "v1,v2,v3,v4,v5"'):
+        judge([4, 3, 2, 1, 0])
+
+
 def test_a_mismatch_of_states_the_fmu_links_blames_the_step_not_the_pairing():
     """Exact samples of a 6.4 Hz oscillation at dt = 0.2 (1.3 samples per period) miss the trapezoidal rule by
     far.  Where the FMU declares the velocity the derivative of the position, the warning used to say the model

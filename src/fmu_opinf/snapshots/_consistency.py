@@ -179,6 +179,22 @@ def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], 
     return pairs, float(max(relative[i, j] for i, j in pairs))
 
 
+def _pairing_the_data_show(x: np.ndarray, v: np.ndarray, h: float,
+                           names: dict[str, list[str]]) -> tuple[list[str], list[str]] | None:
+    """Positions and velocities as the data pair the given states (within :data:`MISMATCH`), where that differs
+    from the given pairing; None where the data pair them as given (the step is then what fails) or not at all.
+    A user's velocities in the wrong order were a warning, and ``fit`` then learned a model 400 times off (audit of
+    pythonfmu FMUs, 2026-11-26)."""
+    states = names["positions"] + names["velocities"]
+    if len(states) > _MAX_PAIRED or len(set(states)) != len(states):
+        return None
+    found = _pair_by_data(np.vstack([x, v]), h)
+    n = len(names["positions"])
+    if found is None or found[1] > MISMATCH or sorted(found[0]) == [(i, n + i) for i in range(n)]:
+        return None
+    return [states[i] for i, _ in found[0]], [states[j] for _, j in found[0]]
+
+
 #: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
 #: states are listed body by body needs both).
 MAX_REPAIRS = 2
@@ -219,6 +235,11 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
         message += "; pass --positions and --velocities"
     if selection.guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
+    if whole and v is not None:
+        pairing = _pairing_the_data_show(x, v, float(t[1] - t[0]), names)
+        if pairing is not None:  # the user's pairing is contradicted by one the data make at this very step
+            raise FMUError(f"{source_label(source)}: {message}, but the data pair them at this step: pass "
+                           f'--positions "{",".join(pairing[0])}" --velocities "{",".join(pairing[1])}"')
     if getattr(selection, "linked", False) and not isinstance(verdict, Repair):
         # the FMU itself declares each velocity the derivative of its position: the step is what fails
         warnings.warn(f"{source_label(source)}: {message}, though the FMU declares each velocity the derivative of its "
