@@ -383,7 +383,8 @@ class Selection:
     def guessed(self) -> bool:
         """Whether positions and velocities were paired by a guess (not given, not linked by derivative aliases)."""
         rule = self.how.get("positions", "")
-        return bool(self.velocities) and rule.startswith("from derivative links") and rule != _LINKS
+        return bool(self.velocities) and (rule.startswith("from derivative links") and rule != _LINKS
+                                          or rule == _LOCAL_HALVES)
 
     @property
     def linked(self) -> bool:
@@ -392,6 +393,10 @@ class Selection:
 
 
 _LINKS = "from derivative links"
+#: A model without declared states (pythonfmu's FMI 2 co-simulation FMUs, audit 2026-11-26): its continuous local
+#: variables guessed as ``[positions; velocities]``; the rate check pairs them by the data or stops.
+_LOCAL_HALVES = ("guessed: continuous local variables split in halves [positions; velocities] (no continuous states "
+                 "declared)")
 _HALVES = "from derivative links, first-order states split in halves [positions; velocities]"
 
 
@@ -529,8 +534,14 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     if by_unit is not None:
         return (*by_unit, "by unit: local variables in m or rad, m/s or rad/s, m/s2 or rad/s2 (no continuous "
                           "states declared)")
+    locals_ = [Column(e, e.sign) for e in elements.values() if _is_signal(e) and e.var.causality == "local"]
+    if locals_ and len(locals_) % 2 == 0:
+        half = len(locals_) // 2
+        return locals_[:half], locals_[half:], None, _LOCAL_HALVES
+    listed = ", ".join(c.name for c in locals_[:8]) + (", ..." if len(locals_) > 8 else "")
+    found = f"its continuous local variables ({listed}) are an odd number" if locals_ else "it has no continuous local variables"
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
-                   "with units of length and velocity; pass --positions with the variables' names (and "
+                   f"with units of length and velocity, and {found}; pass --positions with the variables' names (and "
                    "--velocities where the FMU has them; otherwise they are derived from the positions)")
 
 
