@@ -301,6 +301,32 @@ def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
         euler.close()
 
 
+def test_the_step_checks_first_run_is_the_first_pilot(fmus, monkeypatch):
+    """A co-simulation FMU's runs are its costly part (a millisecond chain: 5 s per 200-step pilot at the tolerance
+    1e-10): the automatic window runs no experiment twice.  Before, the step check's run at the first pilot's step
+    was repeated as pilot 1 (3 runs before the first finding instead of 2)."""
+    import fmu_opinf.snapshots._window as window_module
+    from fmu_opinf.snapshots import auto_window
+    from fmu_opinf.sources import open_source
+
+    experiments = []
+    record_run = window_module.record_run
+
+    def counting(source, signal, t, *args, **kwargs):
+        experiments.append((type(signal).__name__, float(t[1] - t[0]), float(t[-1])))
+        return record_run(source, signal, t, *args, **kwargs)
+
+    monkeypatch.setattr(window_module, "record_run", counting)
+    source = open_source(str(fmus["generic-accurate"][0]), positions="x1,x2,x3,x4,x5", velocities="x6,x7,x8,x9,x10")
+    try:
+        window = auto_window(source, "impulse:amplitude=100,t0=2,width=0.5")
+    finally:
+        source.close()
+    assert len(experiments) == len(set(experiments)), experiments
+    # the step check (2 runs), the pilots, and the check at the chosen step (2 runs) when it is the coarser
+    assert len(experiments) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), experiments
+
+
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
     """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs,
     named as forces, driven to 0) is reported with its own hint, not as a step dependence.  Since the default

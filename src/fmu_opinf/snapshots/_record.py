@@ -659,7 +659,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     the pulse (:func:`~fmu_opinf.snapshots._window.follows_input`: a model faster than the 0.5 s pulse shows none
     of its dynamics; a millisecond chain at max eps_y 0.85).  Says what it did."""
     from ..signals import parse_signal
-    from ._window import PulseTooNarrow, auto_window, follows_input, input_activity
+    from ._window import PulseTooNarrow, auto_window, check_window_step, follows_input, input_activity
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -673,7 +673,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         signals = [as_signal(spec, source.m, source) for spec in default_training_inputs(source.m, pulse)]
         pilot = _pilot_signal([impulse(factor, weight) for weight in _pilot_weights(source.m)], source)
         try:
-            window = auto_window(source, pilot, **thresholds)
+            window = auto_window(source, pilot, **thresholds, check_chosen_step=False)
         except PulseTooNarrow:
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
                 raise
@@ -683,6 +683,8 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         else:
             if tries["narrower"] == RESCALE_TRIES or tries["wider"] \
                     or not follows_input(window, input_activity(signals[0], source.m)[1]):
+                check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
+                                  isolate=thresholds.get("isolate", False))
                 return window, signals
             tries["narrower"] += 1
             factor /= RESCALE

@@ -15,7 +15,8 @@ from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "follows_input", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
-           "needs_auto_window", "input_activity", "check_step_convergence", "warn_if_step_dependent"]
+           "needs_auto_window", "input_activity", "check_step_convergence",
+           "check_window_step", "warn_if_step_dependent"]
 
 
 #: A pulse this many times shorter than the fastest significant period only keeps the step small: once the next
@@ -359,6 +360,7 @@ def auto_window(
     max_steps: int = 400_000,
     isolate: bool = False,
     quiet: bool = True,
+    check_chosen_step: bool = True,
 ) -> Window:
     """Choose step and end time from the response to an impulse-like input (paper sec. 4.2).
 
@@ -405,6 +407,9 @@ def auto_window(
     isolate : bool, default=False
         Run the pilots in a child process.
     quiet : bool, default=True
+    check_chosen_step : bool, default=True
+        Also check the chosen step when it is coarser than the first pilot's (:func:`check_window_step`).  A
+        caller that may still reject the window passes False and checks the window it keeps.
 
     Returns
     -------
@@ -423,13 +428,14 @@ def auto_window(
         raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
     t_input, width = input_activity(signal, source.m)
     T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
-    check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
+    recorded = check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
             break
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
-                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})")
+                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})",
+                              run=recorded if pilot == 1 else None)
         if seen.f_max * dt * min_pilot_points > 1.0:
             dt /= 4.0
             continue
@@ -440,10 +446,9 @@ def auto_window(
             stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
             window = _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
                              periods, t_input, stopped_by)
-            first_T, first_dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
-            if window.dt > first_dt:   # the first check did not cover the chosen step
-                check_step_convergence(source, signal, window.dt, max(first_T, 20.0 * window.dt), quiet=quiet,
-                                       isolate=isolate)
+            if check_chosen_step:
+                check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
+                                  isolate=isolate)
             return window
         T_next = _next_length(t, seen, growth)
         while _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, width):
@@ -480,7 +485,7 @@ class _HeldOn:
 
 
 def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True,
-                           isolate: bool = False, threshold: float = STEP_CONVERGENCE) -> None:
+                           isolate: bool = False, threshold: float = STEP_CONVERGENCE) -> Any:
     """Refuse a co-simulation FMU whose results depend on the communication step.
 
     Several exporters' co-simulation is one explicit Euler step per ``doStep`` (spec: real FMUs): inaccurate or
@@ -506,10 +511,16 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
     DataError
         The outputs differ by more than ``threshold`` or turn non-finite: one line naming the steps, the
         difference and what to do.
+
+    Returns
+    -------
+    run or None
+        The complete run at ``dt`` (a pilot on the same grid need not repeat it), or None when the source is not
+        checked.
     """
-    found = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    found, coarse_run = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
     if found is None:
-        return
+        return coarse_run
     offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
     remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
               "it offers no model exchange: give --dt and --t-end")
@@ -519,27 +530,41 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
-                     threshold: float) -> str | None:
+                     threshold: float) -> tuple[str | None, Any]:
     """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
-    message), or None: within it, or a source that is not a co-simulation FMU of a continuous-time model."""
+    message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), and
+    the complete run at ``dt`` (None if there is none)."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()):
-        return None
+        return None, None
     coarse = time_grid(dt, T)
-    outputs = []
+    runs = []
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
         run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
                                   label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})", pilot=True)
         if failure is not None and "non-finite" not in str(failure):
             raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
-        outputs.append(np.asarray(run.y)[:, :run.k] if failure is None else None)
-    if outputs[0] is None or outputs[1] is None:
-        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}"
-    y, y_fine = outputs[0], outputs[1][:, ::2][:, :outputs[0].shape[1]]
+        runs.append(run if failure is None else None)
+    if runs[0] is None or runs[1] is None:
+        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}", None
+    y = np.asarray(runs[0].y)[:, :runs[0].k]
+    y_fine = np.asarray(runs[1].y)[:, :runs[1].k][:, ::2][:, :y.shape[1]]
     peak = float(np.abs(y_fine).max())
     difference = float(np.abs(y - y_fine).max()) / peak if peak > 0 else 0.0
     if difference <= threshold:
-        return None
-    return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
+        return None, runs[0]
+    return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak", runs[0]
+
+
+def check_window_step(source: Source, signal: Any, window: Window, *, pilot_dt: float | None = None,
+                      pilot_t_end: float | None = None, quiet: bool = True, isolate: bool = False) -> None:
+    """Refuse a co-simulation FMU whose results depend on the chosen step ``window.dt`` when it is coarser than
+    the first pilot's, which :func:`check_step_convergence` checked before the pilots ran (the same span, at least
+    20 steps).  ``pilot_dt, pilot_t_end``: as given to :func:`auto_window`."""
+    t_input, width = input_activity(signal, source.m)
+    first_T, first_dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+    if window.dt > first_dt:
+        check_step_convergence(source, signal, window.dt, max(first_T, 20.0 * window.dt), quiet=quiet,
+                               isolate=isolate)
 
 
 #: Share of a recording that :func:`warn_if_step_dependent` checks (at least 20 steps): its runs at ``dt`` and
@@ -557,7 +582,7 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     :data:`STEP_CHECK_SHARE` of the window (at least 20 steps).
     """
     T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
-    found = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    found, _ = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
     if found is None:
         return
     import warnings
@@ -583,11 +608,15 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
 
 
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
-                   growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run") -> _Pilot:
-    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
-    if failure is not None:
-        raise incomplete_error(failure, run, None)
-    y = np.asarray(run.y)
+                   growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run",
+                   run: Any = None) -> _Pilot:
+    """What a pilot on grid ``t`` shows; ``run``: its complete run when one was recorded already (the step check's
+    first run), otherwise it is recorded here."""
+    if run is None:
+        run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
+        if failure is not None:
+            raise incomplete_error(failure, run, None)
+    y = np.asarray(run.y)[:, :len(t)]
     envelope = _Envelope.of(t, y, fade, t_input)
     t_fade, peak = _fade_from(t, envelope, fade)
     if peak == 0.0:
