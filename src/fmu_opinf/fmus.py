@@ -22,6 +22,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import threading
 import uuid
 import zipfile
 from dataclasses import dataclass, field
@@ -761,12 +762,19 @@ def _compile(unzipdir: Path, build_dir: Path, cmake: str) -> None:
 _C_STANDARDS = {"C89": "c89", "C90": "c90", "C99": "c99", "C11": "c11", "C17": "c17"}
 
 
+#: fmpy validates a model description against the FMI schema with lxml, whose schema parser is not thread-safe:
+#: two corpus FMUs built at once (:func:`fmu_opinf.lti_fmus.build_corpus`) failed with lxml's "Internal error:
+#: xmlSchemaPValAttrNodeValue".  Builds read their descriptions one at a time.
+_DESCRIPTION_LOCK = threading.Lock()
+
+
 def _compile_direct(unzipdir: Path) -> None:
     """One compiler call, with the flags of FMPy's CMake project in Release mode (see :func:`_compile`)."""
     import fmpy
     from fmpy import read_model_description
 
-    description = read_model_description(unzipdir)
+    with _DESCRIPTION_LOCK:
+        description = read_model_description(unzipdir)
     files = description.buildConfigurations[0].sourceFileSets[0]
     interface = description.coSimulation or description.modelExchange
     platform = fmpy.platform if description.fmiVersion == "2.0" else fmpy.platform_tuple
@@ -791,7 +799,8 @@ def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:
         "CMAKE_C_VISIBILITY_PRESET:STRING": "hidden",
         "CMAKE_POLICY_VERSION_MINIMUM:STRING": "3.15",
     }
-    create_cmake_settings(unzipdir, build_dir, configuration="Release", cmake_options=options)
+    with _DESCRIPTION_LOCK:
+        create_cmake_settings(unzipdir, build_dir, configuration="Release", cmake_options=options)
     source_dir = _fmi_header_dir().as_posix()
     _run([cmake, "-S", source_dir, "-B", build_dir.as_posix()], "CMake configuration")
     _run([cmake, "--build", build_dir.as_posix(), "--target", "install", "--config", "Release"],
