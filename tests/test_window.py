@@ -288,6 +288,26 @@ def test_the_default_window_resolves_a_mode_that_only_the_second_input_drives(tm
     assert abs(window.t_end / t_fade - 1.0) < 0.03, (window, t_fade)
 
 
+def test_the_window_of_the_users_runs_resolves_the_mode_that_only_the_second_run_drives(tmp_path):
+    """The same two oscillators with the user's own runs, one impulse per input: the window came from the first
+    run alone (dt = 0.2, 3 samples per fast period), and a free response given first stopped the recording ('the
+    outputs do not respond').  The pilots now drive every run's input at once."""
+    from fmu_opinf.snapshots import record_to_file
+
+    zeta, omegas = 0.05, (1.0, 10.0)
+    pulse = "impulse:amplitude=100,t0=2,width=0.5"
+    runs = [f"{pulse};none", f"none;{pulse}"]
+    window = record_to_file(Oscillators(omegas, zeta), tmp_path / "a.h5", runs, quiet=True, isolate=False).window
+    check_step(window, omegas[1] / (2 * math.pi))
+    t_fade = 2.25 + math.log(100.0) / (zeta * omegas[0])
+    assert abs(window.t_end / t_fade - 1.0) < 0.03, (window, t_fade)
+    # a free response first, then the run that drives the fast oscillator alone: its window, which fades early
+    window = record_to_file(Oscillators(omegas, zeta), tmp_path / "b.h5", ["none", runs[1]], quiet=True,
+                            isolate=False).window
+    check_step(window, omegas[1] / (2 * math.pi))
+    assert window.t_end < 0.2 * t_fade, window
+
+
 @pytest.mark.parametrize("omega", [0.1, 0.3, 1.0])
 def test_the_leading_parts_do_not_turn_a_slow_mode_into_a_faster_step(omega):
     """A leading part that holds a fraction of the slow period has its energy in its lowest bins: counted, they

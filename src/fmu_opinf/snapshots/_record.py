@@ -573,8 +573,8 @@ def record_to_file(
         else the automatic window.
     auto_window : bool, default=False
         Choose ``dt`` and ``t_end`` from pilot runs (:func:`auto_window`) even when the source has a default
-        experiment; an explicitly given ``dt``/``t_end`` wins over the automatic choice.  The pilots drive the
-        first input specification, or, for the default training, every input at once.
+        experiment; an explicitly given ``dt``/``t_end`` wins over the automatic choice.  The pilots drive every
+        run's input at once (:func:`runs_together`), or, for the default training, every input at once.
     positions, velocities, accelerations, inputs, outputs : str, optional
         Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
     constraint : {"position", "velocity", "none", "unknown"}, optional
@@ -628,13 +628,14 @@ def record_to_file(
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
     if dt is None and declared_step is not None and not auto_window:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
-    if auto_window or needs_auto_window(source, dt, t_end, signals[0]):
+    pilot = signals[0] if by_default else runs_together(signals, source)
+    if auto_window or needs_auto_window(source, dt, t_end, pilot):
         thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
                           quiet=quiet)
         if by_default and source.m:
             window, signals = _default_training_window(source, thresholds)
         else:
-            window = choose_window(source, signals[0], **thresholds)
+            window = choose_window(source, pilot, **thresholds)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -712,6 +713,60 @@ def _pilot_signal(pulses: Sequence[str], source: Source) -> Signal:
     if len(starts) != len(pulses):
         starts = np.zeros(len(pulses))
     return StackedSignal([_OnStartValue(parse_signal(pulse, 1), start) for pulse, start in zip(pulses, starts)])
+
+
+def runs_together(signals: Sequence[Any], source: Source) -> Any:
+    """The input of the automatic window's pilots for the user's runs: each distinct forced run's input, as its
+    deviation from the held start values, added to those values with the weights of :func:`_pilot_weights`.
+
+    Every run's modes then set the step and the end, not the first run's alone (``--input "impulse;none"
+    --input "none;impulse"`` on two oscillators of 1 and 30 rad/s, one per input: dt = 0.2 from the first run, 10
+    points per period of the second).  A free response (``none``) adds nothing (every run starts from the same
+    state); with one distinct forced run that run's input is the pilots' input as it is.
+    """
+    forced, specs = [], set()
+    for signal in signals:
+        spec = getattr(signal, "spec", None)
+        if isinstance(signal, NoInput) or (spec is not None and spec in specs):
+            continue
+        specs.add(spec)
+        forced.append(signal)
+    if len(forced) < 2:
+        return forced[0] if forced else signals[0]
+    starts = source.input_starts()
+    if len(starts) != source.m:
+        starts = np.zeros(source.m)
+    return _WeightedRuns(forced, np.asarray(starts, dtype=float), _pilot_weights(len(forced)))
+
+
+class _WeightedRuns(Signal):
+    """``starts + sum_j weights[j] (runs[j] - starts)``, the runs' activities together (see :func:`runs_together`)."""
+
+    def __init__(self, runs: Sequence[Any], starts: np.ndarray, weights: np.ndarray) -> None:
+        self.runs, self.starts, self.weights, self.n_inputs = list(runs), starts, weights, len(starts)
+        self.spec = " + ".join(f"{w:g} x ({getattr(r, 'spec', repr(r))})" for w, r in zip(weights, self.runs))
+        self.t_range = (max(getattr(r, "t_range", (-math.inf, math.inf))[0] for r in self.runs),
+                        min(getattr(r, "t_range", (-math.inf, math.inf))[1] for r in self.runs))
+
+    def activity(self) -> tuple[float, float | None] | None:
+        """The latest end and the narrowest pulse of the runs' inputs; None where one of them must be sampled."""
+        from ._window import _exact_activity
+
+        found = [_exact_activity(run) for run in self.runs]
+        if any(f is None for f in found):
+            return None
+        widths = [w for _, w in found if w is not None]
+        return max(t for t, _ in found), (min(widths) if widths else None)
+
+    def is_identically_zero(self) -> bool:
+        return False
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        held = self.starts[:, None] * np.ones(t.size)
+        total = held.copy()
+        for weight, run in zip(self.weights, self.runs):
+            total += weight * (np.atleast_2d(np.asarray(run.sample(t), dtype=float)) - held)
+        return total
 
 
 class _OnStartValue(Signal):
