@@ -126,6 +126,10 @@ def combinations():
         # 4. undamped (D = 0) and lightly damped (D = 1e-4 K: modal damping 3e-4 .. 2e-3), offset, start off rest
         "undamped": (replace(chain(force_offset=0.3, name="Undamped", **OFF_REST), D=np.zeros((5, 5))), {}, None),
         "lightly-damped": (replace(light, D=1e-4 * light.K), {}, None),
+        # 2'''. FMI 3.0 co-simulation only, declaring a fixed internal step (CoSimulation/@fixedInternalStepSize)
+        "fixed-internal-step": (chain(name="FixedInternalStep", **OFF_REST),
+                                dict(fmi_version="3.0", interfaces=("cs",)),
+                                lambda text: text.replace("<CoSimulation", '<CoSimulation fixedInternalStepSize="0.003"', 1)),
         # 5. old OpenModelica style: a negatedAlias state, force input and output, an undefined unit (fails
         #    strict validation)
         "negated-alias": (chain(force_offset=0.4, name="NegatedAlias", **OFF_REST), {},
@@ -325,6 +329,33 @@ def test_the_step_checks_first_run_is_the_first_pilot(fmus, monkeypatch):
     assert len(experiments) == len(set(experiments)), experiments
     # the step check (2 runs), the pilots, and the check at the chosen step (2 runs) when it is the coarser
     assert len(experiments) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), experiments
+
+
+def test_a_declared_fixed_internal_step_sets_the_grid(fmus, tmp_path, monkeypatch):
+    """An FMI 3 co-simulation FMU that declares ``fixedInternalStepSize = 0.003`` gets communication steps that are
+    whole multiples of it: every pilot's and the chosen one (now 0.048 and 0.018; before: pilots at 0.05, a step
+    check at 0.025, the window 0.02, all between its own steps).  The step check does not run (the results of a fixed internal step do not depend on the communication step); a
+    user's ``--dt`` that is not a multiple is named with the nearest one below."""
+    import fmu_opinf.snapshots._window as window_module
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import record_to_file
+
+    steps, record_run = [], window_module.record_run
+
+    def recording(source, signal, t, *args, **kwargs):
+        steps.append((type(signal).__name__, float(t[1] - t[0])))
+        return record_run(source, signal, t, *args, **kwargs)
+
+    monkeypatch.setattr(window_module, "record_run", recording)
+    fmu, _ = fmus["fixed-internal-step"]
+    window = record_to_file(str(fmu), tmp_path / "a.h5", None, quiet=True).window
+    assert steps and all(kind != "_HeldOn" for kind, _ in steps), steps  # no step check's finer run
+    for dt in [dt for _, dt in steps] + [window.dt]:
+        multiple = dt / 0.003
+        assert multiple >= 1 - 1e-9 and abs(multiple - round(multiple)) < 1e-9, (dt, steps, window)
+    with pytest.warns(FmuOpinfWarning, match=r"dt=0\.01 is not a whole multiple of the step the FMU integrates with "
+                                             r"\(fixedInternalStepSize=0\.003\).*e\.g\. 0\.009"):
+        record_to_file(str(fmu), tmp_path / "b.h5", None, dt=0.01, t_end=5.0, quiet=True)
 
 
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):

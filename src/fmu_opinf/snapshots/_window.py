@@ -428,6 +428,8 @@ def auto_window(
         raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
     t_input, width = input_activity(signal, source.m)
     T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+    internal = fixed_internal_step(source)
+    dt = on_internal_steps(dt, internal)
     recorded = check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
@@ -436,8 +438,8 @@ def auto_window(
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
                               label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})",
                               run=recorded if pilot == 1 else None)
-        if seen.f_max * dt * min_pilot_points > 1.0:
-            dt /= 4.0
+        if seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal):
+            dt = on_internal_steps(dt / 4.0, internal)
             continue
         t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
         faded = seen.t_fade <= t[0] + 0.5 * (T - t[0])
@@ -445,7 +447,7 @@ def auto_window(
         if faded or cut:
             stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
             window = _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                             periods, t_input, stopped_by)
+                             periods, t_input, stopped_by, internal)
             if check_chosen_step:
                 check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
                                   isolate=isolate)
@@ -534,7 +536,8 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
     message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), and
     the complete run at ``dt`` (None if there is none)."""
-    if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()):
+    if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
+            or fixed_internal_step(source) is not None:
         return None, None
     coarse = time_grid(dt, T)
     runs = []
@@ -553,6 +556,40 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     if difference <= threshold:
         return None, runs[0]
     return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak", runs[0]
+
+
+def fixed_internal_step(source: Source) -> float | None:
+    """The step a co-simulation FMU declares it integrates with (FMI 3 ``CoSimulation/@fixedInternalStepSize``),
+    or None.
+
+    Communication steps should be whole multiples of it: the automatic window's pilots and its chosen step are
+    (:func:`on_internal_steps`), a user's ``--dt`` that is not gets a warning.  The step check
+    (:func:`check_step_convergence`) is skipped for such an FMU: with a fixed internal step its results do not
+    depend on the communication step, whatever the accuracy of its integrator, which only model exchange
+    (``--interface me``) puts in fmu-opinf's hands.
+    """
+    if getattr(source, "interface", None) != "cs":
+        return None
+    declared = getattr(getattr(getattr(source, "md", None), "coSimulation", None), "fixedInternalStepSize", None)
+    try:
+        step = float(declared)
+    except (TypeError, ValueError):
+        return None
+    return step if math.isfinite(step) and step > 0 else None
+
+
+def on_internal_steps(dt: float, internal: float | None) -> float:
+    """``dt`` rounded down to a whole multiple of the FMU's fixed ``internal`` step (at least one; ``dt`` as it is
+    without one)."""
+    if internal is None:
+        return dt
+    return float(f"{max(1, math.floor(dt / internal + 1e-9)) * internal:.12g}")
+
+
+def is_whole_multiple(dt: float, internal: float) -> bool:
+    """Whether ``dt`` is a whole multiple of ``internal`` (to 1e-9 relative)."""
+    ratio = dt / internal
+    return ratio >= 1.0 - 1e-9 and abs(ratio - round(ratio)) <= 1e-9 * max(1.0, ratio)
 
 
 def check_window_step(source: Source, signal: Any, window: Window, *, pilot_dt: float | None = None,
@@ -581,13 +618,20 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     explicit-Euler FMU at dt = 0.002 gave learned damping ratios 15-20 % off).  The check runs on the first
     :data:`STEP_CHECK_SHARE` of the window (at least 20 steps).
     """
+    import warnings
+
+    from ..errors import FmuOpinfWarning
+
+    internal = fixed_internal_step(source)
+    if internal is not None and not is_whole_multiple(dt, internal):
+        warnings.warn(f"{source_label(source)}: dt={dt:g} is not a whole multiple of the step the FMU integrates with "
+                      f"(fixedInternalStepSize={internal:g}): its communication points fall between its own steps; "
+                      f"give --dt as a multiple, e.g. {on_internal_steps(dt, internal):g}", FmuOpinfWarning,
+                      stacklevel=3)
     T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
     found, _ = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
     if found is None:
         return
-    import warnings
-
-    from ..errors import FmuOpinfWarning
 
     offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
     remedy = "record by model exchange (--interface me) or at a smaller --dt" if offers_me else \
@@ -598,9 +642,10 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
 
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
-            energy: float, fade: float, periods: float, t_input: float, stopped_by: str) -> Window:
+            energy: float, fade: float, periods: float, t_input: float, stopped_by: str,
+            internal: float | None = None) -> Window:
     f_use = max(seen.f_max, 1.0 / max(t_stop - t0, dt))
-    step = _nice_floor(1.0 / (points_per_period * f_use))
+    step = on_internal_steps(_nice_floor(1.0 / (points_per_period * f_use)), internal)
     end = t0 + math.ceil((t_stop - t0) / step - 1e-9) * step
     return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=seen.f_max, t_fade=seen.t_fade, peak=seen.peak,
                   pilot_dt=dt, pilot_t_end=T, pilots=pilots, points_per_period=points_per_period, energy=energy,
