@@ -527,6 +527,18 @@ def test_model_exchange_only_fmu(toys):
 def test_no_binary_for_this_platform(toys, variant):
     error = _one_line_error(FMUError, FMUSource, toys[variant], match="no binary for this platform")
     assert ("win64" in str(error)) == (variant == "win-only")
+    assert "fmpy compile" not in str(error)
+
+
+def test_an_fmu_without_our_binary_that_ships_its_sources_names_the_compile_command(toys, tmp_path):
+    """Source code FMUs (OpenModelica's --fmiSources, Reference-FMUs): fmpy compiles them for this platform."""
+    with_sources = tmp_path / "toy-win-sources.fmu"
+    with zipfile.ZipFile(toys["win-only"]) as zin, zipfile.ZipFile(with_sources, "w") as zout:
+        for item in zin.infolist():
+            zout.writestr(item, zin.read(item.filename))
+        zout.writestr("sources/model.c", "/* the model */\n")
+    _one_line_error(FMUError, FMUSource, with_sources, match=r"no binary for this platform \(linux64; it has: win64\); "
+                    r"it ships its C sources: compile them with 'fmpy compile toy-win-sources\.fmu'")
 
 
 def test_patterns_matching_nothing(toys):

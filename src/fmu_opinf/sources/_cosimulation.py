@@ -165,8 +165,11 @@ class FMUSource(Source):
                 files = zf.namelist()
         if not any(f.startswith(binary + ".") for f in files):
             have = sorted({f.split("/")[1] for f in files if f.startswith("binaries/") and f.count("/") >= 2})
+            sources = any(f.startswith("sources/") and f.lower().endswith((".c", ".cpp")) for f in files)
+            remedy = (f"it ships its C sources: compile them with 'fmpy compile {self.path.name}' (CMake and a C "
+                      f"compiler), or export it for {plat}" if sources else f"export or compile it for {plat}")
             raise FMUError(f"{self.path.name} has no binary for this platform ({plat}; it has: "
-                           f"{', '.join(have) or 'none'}); export or compile it for {plat}")
+                           f"{', '.join(have) or 'none'}); {remedy}")
 
     def _resolve(self, positions: str | None, velocities: str | None, accelerations: str | None,
                  inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:
