@@ -331,6 +331,25 @@ def test_the_step_checks_first_run_is_the_first_pilot(fmus, monkeypatch):
     assert len(experiments) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), experiments
 
 
+def test_the_default_training_checks_the_step_of_the_window_it_keeps(fmus, tmp_path, monkeypatch):
+    """The default training may reject a window (an impulse the model only follows) and so runs the automatic window
+    without its check of the chosen step; it checks the window it keeps, once, with the pilots' input."""
+    import fmu_opinf.snapshots._window as window_module
+    from fmu_opinf.snapshots import record_to_file
+
+    checked, check = [], window_module.check_window_step
+
+    def checking(source, signal, window, **kwargs):
+        checked.append(window)
+        return check(source, signal, window, **kwargs)
+
+    monkeypatch.setattr(window_module, "check_window_step", checking)
+    fmu, _ = fmus["generic-accurate"]
+    summary = record_to_file(str(fmu), tmp_path / "a.h5", None, quiet=True, positions="x1,x2,x3,x4,x5",
+                             velocities="x6,x7,x8,x9,x10")
+    assert checked == [summary.window]
+
+
 def test_a_declared_fixed_internal_step_sets_the_grid(fmus, tmp_path, monkeypatch):
     """An FMI 3 co-simulation FMU that declares ``fixedInternalStepSize = 0.003`` gets communication steps that are
     whole multiples of it: every pilot's and the chosen one (now 0.048 and 0.018; before: pilots at 0.05, a step

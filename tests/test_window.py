@@ -306,6 +306,13 @@ def test_the_window_of_the_users_runs_resolves_the_mode_that_only_the_second_run
                             isolate=False).window
     check_step(window, omegas[1] / (2 * math.pi))
     assert window.t_end < 0.2 * t_fade, window
+    # runs that drive the same input share the first one's window, whatever their amplitudes (an earlier sum of the
+    # runs cancelled 100 against -200 and refused), and a run that drives no input adds nothing
+    alone = record_to_file(Oscillators(omegas, zeta), tmp_path / "c.h5", [runs[0]], quiet=True, isolate=False).window
+    for i, more in enumerate(["impulse:amplitude=-200,t0=2,width=0.5;none", "none;none"]):
+        window = record_to_file(Oscillators(omegas, zeta), tmp_path / f"d{i}.h5", [runs[0], more], quiet=True,
+                                isolate=False).window
+        assert (window.dt, window.t_end, window.pilots) == (alone.dt, alone.t_end, alone.pilots), (window, alone)
 
 
 @pytest.mark.parametrize("omega", [0.1, 0.3, 1.0])

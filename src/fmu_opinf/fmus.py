@@ -764,8 +764,9 @@ _C_STANDARDS = {"C89": "c89", "C90": "c90", "C99": "c99", "C11": "c11", "C17": "
 
 #: fmpy validates a model description against the FMI schema with lxml, whose schema parser is not thread-safe:
 #: two corpus FMUs built at once (:func:`fmu_opinf.lti_fmus.build_corpus`) failed with lxml's "Internal error:
-#: xmlSchemaPValAttrNodeValue".  Builds read their descriptions one at a time.
-_DESCRIPTION_LOCK = threading.Lock()
+#: xmlSchemaPValAttrNodeValue".  Builds and the strict reading of a user's FMU
+#: (:func:`fmu_opinf.sources._variables.warn_if_not_strict`) validate one at a time.
+SCHEMA_LOCK = threading.Lock()
 
 
 def _compile_direct(unzipdir: Path) -> None:
@@ -773,7 +774,7 @@ def _compile_direct(unzipdir: Path) -> None:
     import fmpy
     from fmpy import read_model_description
 
-    with _DESCRIPTION_LOCK:
+    with SCHEMA_LOCK:
         description = read_model_description(unzipdir)
     files = description.buildConfigurations[0].sourceFileSets[0]
     interface = description.coSimulation or description.modelExchange
@@ -799,7 +800,7 @@ def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:
         "CMAKE_C_VISIBILITY_PRESET:STRING": "hidden",
         "CMAKE_POLICY_VERSION_MINIMUM:STRING": "3.15",
     }
-    with _DESCRIPTION_LOCK:
+    with SCHEMA_LOCK:
         create_cmake_settings(unzipdir, build_dir, configuration="Release", cmake_options=options)
     source_dir = _fmi_header_dir().as_posix()
     _run([cmake, "-S", source_dir, "-B", build_dir.as_posix()], "CMake configuration")

@@ -573,8 +573,9 @@ def record_to_file(
         else the automatic window.
     auto_window : bool, default=False
         Choose ``dt`` and ``t_end`` from pilot runs (:func:`auto_window`) even when the source has a default
-        experiment; an explicitly given ``dt``/``t_end`` wins over the automatic choice.  The pilots drive every
-        run's input at once (:func:`runs_together`), or, for the default training, every input at once.
+        experiment; an explicitly given ``dt``/``t_end`` wins over the automatic choice.  With several runs, one
+        window per group of runs that drive the same inputs, combined (:func:`runs_by_inputs_driven`); for the
+        default training, pilots that drive every input at once.
     positions, velocities, accelerations, inputs, outputs : str, optional
         Variable name patterns (FMU sources only; see :class:`~fmu_opinf.source.FMUSource`).
     constraint : {"position", "velocity", "none", "unknown"}, optional
@@ -603,7 +604,8 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import auto_window as choose_window, default_window, needs_auto_window, warn_if_step_dependent
+    from ._window import (auto_window as choose_window, combine_windows, default_window, needs_auto_window,
+                          warn_if_step_dependent)
 
     specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs:
@@ -628,14 +630,14 @@ def record_to_file(
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
     if dt is None and declared_step is not None and not auto_window:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
-    pilot = signals[0] if by_default else runs_together(signals, source)
-    if auto_window or needs_auto_window(source, dt, t_end, pilot):
+    representatives = [signals[0]] if by_default else runs_by_inputs_driven(signals)
+    if auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
         thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
                           quiet=quiet)
         if by_default and source.m:
             window, signals = _default_training_window(source, thresholds)
         else:
-            window = choose_window(source, pilot, **thresholds)
+            window = combine_windows([choose_window(source, signal, **thresholds) for signal in representatives])
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -643,7 +645,7 @@ def record_to_file(
     for signal in signals:
         check_input_acts(signal, t)
     if window is None:  # the user's own step: the automatic window's step check becomes a warning
-        warn_if_step_dependent(source, signals[0], dt, t_end, quiet=quiet, isolate=isolate)
+        warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
     return _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
 
 
@@ -695,6 +697,41 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
 
 
+def runs_by_inputs_driven(signals: Sequence[Any]) -> list[Any]:
+    """The first of the user's runs for each set of inputs that runs drive (the automatic window's pilots follow
+    each of them, :func:`~fmu_opinf.snapshots._window.combine_windows`); a free response, or a run that drives no input, only when every run is.
+
+    A mode that only a later run's input reaches sets the step too: ``--input "impulse;none" --input
+    "none;impulse"`` on two oscillators of 1 and 10 rad/s, one per input, gave dt = 0.2 from the first run
+    alone (3 samples per fast period), now 0.02; and a free response given first stopped the recording ('the
+    outputs do not respond').  Runs that drive the same inputs (amplitude sweeps) share the first one's window,
+    as before.
+    """
+    firsts: dict[Any, Any] = {}
+    for signal in signals:
+        driven = _inputs_driven(signal)
+        if driven:
+            firsts.setdefault(driven, signal)
+    return list(firsts.values()) or [signals[0]]
+
+
+def _inputs_driven(signal: Any) -> Any:
+    """A key of the inputs ``signal`` drives: the indices of its channels that are not held (``none``), ``"all"``
+    for one spec driving every input or a signal that cannot say, an empty tuple for a free response."""
+    if isinstance(signal, NoInput):
+        return ()
+    base = getattr(signal, "base", signal)
+    if not isinstance(base, StackedSignal):
+        return "all"
+    driven, first = [], 0
+    for part in base.parts:
+        count = getattr(part, "n_inputs", 1)
+        if not isinstance(part, NoInput):
+            driven.extend(range(first, first + count))
+        first += count
+    return tuple(driven)
+
+
 def _pilot_weights(m: int) -> np.ndarray:
     """Amplitudes, relative to the default impulse, with which the window's pilot runs drive all ``m`` inputs at
     once: one pilot sees every mode that any input excites (a mode that the first input does not reach set no
@@ -713,60 +750,6 @@ def _pilot_signal(pulses: Sequence[str], source: Source) -> Signal:
     if len(starts) != len(pulses):
         starts = np.zeros(len(pulses))
     return StackedSignal([_OnStartValue(parse_signal(pulse, 1), start) for pulse, start in zip(pulses, starts)])
-
-
-def runs_together(signals: Sequence[Any], source: Source) -> Any:
-    """The input of the automatic window's pilots for the user's runs: each distinct forced run's input, as its
-    deviation from the held start values, added to those values with the weights of :func:`_pilot_weights`.
-
-    Every run's modes then set the step and the end, not the first run's alone (``--input "impulse;none"
-    --input "none;impulse"`` on two oscillators of 1 and 30 rad/s, one per input: dt = 0.2 from the first run, 10
-    points per period of the second).  A free response (``none``) adds nothing (every run starts from the same
-    state); with one distinct forced run that run's input is the pilots' input as it is.
-    """
-    forced, specs = [], set()
-    for signal in signals:
-        spec = getattr(signal, "spec", None)
-        if isinstance(signal, NoInput) or (spec is not None and spec in specs):
-            continue
-        specs.add(spec)
-        forced.append(signal)
-    if len(forced) < 2:
-        return forced[0] if forced else signals[0]
-    starts = source.input_starts()
-    if len(starts) != source.m:
-        starts = np.zeros(source.m)
-    return _WeightedRuns(forced, np.asarray(starts, dtype=float), _pilot_weights(len(forced)))
-
-
-class _WeightedRuns(Signal):
-    """``starts + sum_j weights[j] (runs[j] - starts)``, the runs' activities together (see :func:`runs_together`)."""
-
-    def __init__(self, runs: Sequence[Any], starts: np.ndarray, weights: np.ndarray) -> None:
-        self.runs, self.starts, self.weights, self.n_inputs = list(runs), starts, weights, len(starts)
-        self.spec = " + ".join(f"{w:g} x ({getattr(r, 'spec', repr(r))})" for w, r in zip(weights, self.runs))
-        self.t_range = (max(getattr(r, "t_range", (-math.inf, math.inf))[0] for r in self.runs),
-                        min(getattr(r, "t_range", (-math.inf, math.inf))[1] for r in self.runs))
-
-    def activity(self) -> tuple[float, float | None] | None:
-        """The latest end and the narrowest pulse of the runs' inputs; None where one of them must be sampled."""
-        from ._window import _exact_activity
-
-        found = [_exact_activity(run) for run in self.runs]
-        if any(f is None for f in found):
-            return None
-        widths = [w for _, w in found if w is not None]
-        return max(t for t, _ in found), (min(widths) if widths else None)
-
-    def is_identically_zero(self) -> bool:
-        return False
-
-    def _values(self, t: np.ndarray) -> np.ndarray:
-        held = self.starts[:, None] * np.ones(t.size)
-        total = held.copy()
-        for weight, run in zip(self.weights, self.runs):
-            total += weight * (np.atleast_2d(np.asarray(run.sample(t), dtype=float)) - held)
-        return total
 
 
 class _OnStartValue(Signal):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -14,7 +15,7 @@ from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
-__all__ = ["Window", "auto_window", "follows_input", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
+__all__ = ["Window", "auto_window", "combine_windows", "follows_input", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence",
            "check_window_step", "warn_if_step_dependent"]
 
@@ -436,8 +437,8 @@ def auto_window(
         if len(t) > max_steps:
             break
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
-                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})",
-                              run=recorded if pilot == 1 else None)
+                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})", run=recorded)
+        recorded = None
         if seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal):
             dt = on_internal_steps(dt / 4.0, internal)
             continue
@@ -558,6 +559,21 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak", runs[0]
 
 
+def combine_windows(windows: Sequence[Window]) -> Window:
+    """One window for several runs' windows: the finest step and the latest end, rounded up to that step's grid
+    (the window that ends last speaks for the rest: its fade and stop rule); the fastest and slowest frequencies of
+    all, their pilots counted together."""
+    if len(windows) == 1:
+        return windows[0]
+    finest = min(windows, key=lambda w: w.dt)
+    last = max(windows, key=lambda w: w.t_end)
+    end = math.ceil(last.t_end / finest.dt - 1e-9) * finest.dt
+    slowest = [w.f_min for w in windows if w.f_min > 0]
+    return dataclasses.replace(last, dt=finest.dt, t_end=float(f"{end:.12g}"), f_max=max(w.f_max for w in windows),
+                               f_min=min(slowest) if slowest else 0.0, pilots=sum(w.pilots for w in windows),
+                               pilot_dt=finest.pilot_dt, pilot_t_end=finest.pilot_t_end)
+
+
 def fixed_internal_step(source: Source) -> float | None:
     """The step a co-simulation FMU declares it integrates with (FMI 3 ``CoSimulation/@fixedInternalStepSize``),
     or None.
@@ -655,13 +671,13 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
                    growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run",
                    run: Any = None) -> _Pilot:
-    """What a pilot on grid ``t`` shows; ``run``: its complete run when one was recorded already (the step check's
-    first run), otherwise it is recorded here."""
-    if run is None:
+    """What a pilot on grid ``t`` shows; ``run``: a complete run of ``signal`` already recorded (the step check's
+    first run), used where it is on the grid ``t``, otherwise the pilot is recorded here."""
+    if run is None or not np.array_equal(np.asarray(run.t), t):
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
             raise incomplete_error(failure, run, None)
-    y = np.asarray(run.y)[:, :len(t)]
+    y = np.asarray(run.y)
     envelope = _Envelope.of(t, y, fade, t_input)
     t_fade, peak = _fade_from(t, envelope, fade)
     if peak == 0.0:

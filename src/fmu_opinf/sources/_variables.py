@@ -149,8 +149,11 @@ def _schema_problem(path: Path) -> str | None:
     """
     from fmpy import read_model_description
 
+    from ..fmus import SCHEMA_LOCK
+
     try:
-        read_model_description(str(path), validate=True)
+        with SCHEMA_LOCK:
+            read_model_description(str(path), validate=True)
     except Exception as exc:  # fmpy raises plain Exception ("Failed to validate ...:" then "- ERROR ..." lines)
         problems = [line.strip()[2:] for line in str(exc).splitlines() if line.strip().startswith("- ")]
         if not problems:
