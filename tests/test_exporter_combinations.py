@@ -377,6 +377,19 @@ def test_a_declared_fixed_internal_step_sets_the_grid(fmus, tmp_path, monkeypatc
         record_to_file(str(fmu), tmp_path / "b.h5", None, dt=0.01, t_end=5.0, quiet=True)
 
 
+def test_a_float32_output_is_named_once_when_left_out(fmus, tmp_path, capsys):
+    """An FMI 3 FMU with a single-precision output: the recording goes on without it and says so in one line (not
+    once more from the run's child process)."""
+    fmu, _ = fmus["fixed-internal-step"]
+    single = rewrite_description(fmu, tmp_path / "single.fmu",
+                                 lambda text: re.sub(r'<Float64( name="y\[1\]")', r'<Float32\1', text, count=1))
+    assert main(["snapshots", str(single), "-o", str(tmp_path / "a.h5"), "-q", "--dt", "0.03", "--t-end", "3"]) == 0
+    err = [line for line in capsys.readouterr().err.splitlines() if "Float32" in line]
+    assert err == ["fmu-opinf: warning: single.fmu: Float32 variables, which fmu-opinf does not read or write "
+                   "(Float64 only): outputs y[1] not recorded"], err
+    assert list(Snapshots.load(tmp_path / "a.h5").attrs["output_names"]) == ["y[2]"]
+
+
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
     """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs,
     named as forces, driven to 0) is reported with its own hint, not as a step dependence.  Since the default

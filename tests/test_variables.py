@@ -484,3 +484,23 @@ def test_recorded_names_with_commas_become_one_exact_pattern_each():
 
     assert _exact_names(["sensor[1,1]", "mass[2,1].s"]) == "sensor[1,1],mass[2,1].s"
     assert _exact_names(["a,b"]) is None and _exact_names(["x*"]) is None and _exact_names([]) is None
+
+
+def test_float32_variables_are_named_when_left_out_and_refused_when_named(tmp_path):
+    """FMI 3 Float32 inputs and outputs (single-precision signals): fmu-opinf reads and writes Float64 only.  Before,
+    ``--outputs "y[1],s"`` recorded ``y[1]`` alone without a word; now naming ``s`` is refused in one line, and the
+    default selection leaves them out and says which (``Resolved.unread``, warned by ``open_source``)."""
+    xml = fmi3_array().replace(
+        '<Float64 name="k"',
+        '<Float32 name="s" valueReference="15" causality="output" variability="continuous"/>'
+        '<Float32 name="f" valueReference="16" causality="input" variability="continuous" start="0"/>'
+        '<Float64 name="k"')
+    path = _write(tmp_path, xml)
+    default = resolve_variables(path)
+    assert _names(default.outputs) == ["y[1]", "y[2]"] and _names(default.forces) == ["u[1]", "u[2]"]
+    assert default.unread == {"inputs": ["f"], "outputs": ["s"]}
+    assert resolve_variables(path, inputs="u[1]", outputs="y[*]").unread == {}
+    for option in ({"outputs": "y[1],s"}, {"inputs": "f"}, {"positions": "s"}):
+        with pytest.raises(FMUError, match=r"^(s|f) is a Float32 variable; fmu-opinf reads and writes Float64 "
+                                           r"variables only \(FMI 2: Real\): leave it out of the pattern$"):
+            resolve_variables(path, **option)

@@ -192,6 +192,7 @@ class FMUSource(Source):
         self.held_input_names = [e.name for e in held]
         #: held inputs that look like parameters (non-zero start, default selection): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
+        self.unread_float_names = resolved.unread
         self.output_names = [e.name for e in out_elements]
         self.input_units = [e.var.unit or "" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]

@@ -30,6 +30,9 @@ __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_pla
            "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs"]
 
 REAL_TYPES = ("Real", "Float64")
+#: Floating-point types fmu-opinf does not read or write (one ``fmi3GetFloat64`` call reads every recorded value):
+#: named in patterns they are refused, among the defaults they are left out with a warning.
+UNREAD_FLOAT_TYPES = ("Float32",)
 _PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
 _TYPE_TAGS = ("Real", "Integer", "Boolean", "String", "Enumeration", "Float32", "Float64", "Int8", "UInt8",
               "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Binary", "Clock")
@@ -725,6 +728,7 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
         else:
+            _refuse_unread_float(elements.get(piece))
             names = match_names(piece, reals)
         found += [n for n in names if n not in found]
     if not found and required:
@@ -756,10 +760,26 @@ def _selected_names(pieces: Sequence[str], elements: dict[str, Element]) -> list
     for piece in pieces:
         expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
         for p in expanded:
+            _refuse_unread_float(elements.get(p))
             exact = p in elements and elements[p].var.is_real   # element names may hold commas: y[1,2]
             hits = [p] if exact else match_names([p], own if ("*" in p or "?" in p) else reals)
             names += [n for n in hits if n not in names]
     return names
+
+
+def _refuse_unread_float(element: Element | None) -> None:
+    """One line for a variable named exactly whose floating-point type fmu-opinf does not read (FMI 3 Float32):
+    before, it was dropped from the selection without a word (``--outputs "y[1],y[2]"`` recorded ``y[2]`` alone)."""
+    if element is not None and element.var.type in UNREAD_FLOAT_TYPES:
+        raise FMUError(f"{element.name} is a {element.var.type} variable; fmu-opinf reads and writes Float64 variables "
+                       f"only (FMI 2: Real): leave it out of the pattern")
+
+
+def unread_floats(elements: dict[str, Element], causality: str) -> list[str]:
+    """Continuous variables of ``causality`` of a type fmu-opinf does not read (FMI 3 Float32): the default
+    selection leaves them out, and :func:`fmu_opinf.sources.open_source` says so."""
+    return [e.name for e in elements.values() if e.var.causality == causality and not e.alias
+            and e.var.type in UNREAD_FLOAT_TYPES and e.var.variability == "continuous"]
 
 
 def _value_key(element: Element) -> tuple[str, int, int]:
