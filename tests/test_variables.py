@@ -486,21 +486,22 @@ def test_recorded_names_with_commas_become_one_exact_pattern_each():
     assert _exact_names(["a,b"]) is None and _exact_names(["x*"]) is None and _exact_names([]) is None
 
 
-def test_float32_variables_are_named_when_left_out_and_refused_when_named(tmp_path):
-    """FMI 3 Float32 inputs and outputs (single-precision signals): fmu-opinf reads and writes Float64 only.  Before,
-    ``--outputs "y[1],s"`` recorded ``y[1]`` alone without a word; now naming ``s`` is refused in one line, and the
-    default selection leaves them out and says which (``Resolved.unread``, warned by ``open_source``)."""
+def test_float32_variables_are_read_and_written_by_a_call_of_their_own(tmp_path):
+    """FMI 3 Float32 inputs and outputs (single-precision signals) are selected like Float64 ones; their values come
+    after the Float64 values of the one ``fmi3GetFloat64`` call, from one ``fmi3GetFloat32`` call (before
+    2026-11-27 they were left out without a word: ``--outputs "y[1],s"`` recorded ``y[1]`` alone)."""
+    from fmu_opinf.sources._variables import ReadPlan
+
     xml = fmi3_array().replace(
         '<Float64 name="k"',
         '<Float32 name="s" valueReference="15" causality="output" variability="continuous"/>'
         '<Float32 name="f" valueReference="16" causality="input" variability="continuous" start="0"/>'
         '<Float64 name="k"')
-    path = _write(tmp_path, xml)
-    default = resolve_variables(path)
-    assert _names(default.outputs) == ["y[1]", "y[2]"] and _names(default.forces) == ["u[1]", "u[2]"]
-    assert default.unread == {"inputs": ["f"], "outputs": ["s"]}
-    assert resolve_variables(path, inputs="u[1]", outputs="y[*]").unread == {}
-    for option in ({"outputs": "y[1],s"}, {"inputs": "f"}, {"positions": "s"}):
-        with pytest.raises(FMUError, match=r"^(s|f) is a Float32 variable; fmu-opinf reads and writes Float64 "
-                                           r"variables only \(FMI 2: Real\): leave it out of the pattern$"):
-            resolve_variables(path, **option)
+    resolved = resolve_variables(_write(tmp_path, xml))
+    assert _names(resolved.outputs) == ["y[1]", "y[2]", "s"] and _names(resolved.forces) == ["f", "u[1]", "u[2]"]
+    assert _names(resolve_variables(_write(tmp_path, xml), outputs="s,y[2]").outputs) == ["s", "y[2]"]
+    plan = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.outputs], resolved.structural)
+    assert plan.vrs.tolist() == [13] and plan.nvalues == 2 and plan.vrs32.tolist() == [15] and plan.nvalues32 == 1
+    assert plan.gather.tolist() == [0, 1, 2] and not plan.identity
+    inputs = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.forces], resolved.structural)
+    assert inputs.vrs.tolist() == [12] and inputs.vrs32.tolist() == [16] and inputs.gather.tolist() == [2, 0, 1]

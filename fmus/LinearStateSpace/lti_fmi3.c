@@ -174,6 +174,42 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
                                    values, nValues));
 }
 
+/* Float32: the same values as Float64, rounded to single precision; in chunks, so no allocation is needed
+   (the generated FMUs declare a variable Float32 only when an importer's single-precision path is tested) */
+#define FLOAT32_CHUNK 64
+
+fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, fmi3Float32 values[], size_t nValues) {
+    double chunk[FLOAT32_CHUNK];
+    size_t done = 0;
+    CHECK(instance, "fmi3GetFloat32", PHASE_ANY);
+    if (nValues != nValueReferences) return finish(inst, LtiError);  /* scalars only */
+    while (done < nValueReferences) {
+        size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
+        LtiStatus status = ltiGetReal(inst, "fmi3GetFloat32", valueReferences + done, count, chunk, count);
+        if (status != LtiOK) return finish(inst, status);
+        for (size_t k = 0; k < count; k++) values[done + k] = (fmi3Float32)chunk[k];
+        done += count;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, const fmi3Float32 values[], size_t nValues) {
+    double chunk[FLOAT32_CHUNK];
+    size_t done = 0;
+    CHECK(instance, "fmi3SetFloat32", PhaseInstantiated | PhaseInitialization | PHASE_RUNNING);
+    if (nValues != nValueReferences) return finish(inst, LtiError);
+    while (done < nValueReferences) {
+        size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
+        for (size_t k = 0; k < count; k++) chunk[k] = (double)values[done + k];
+        LtiStatus status = ltiSetReal(inst, "fmi3SetFloat32", valueReferences + done, count, chunk, count);
+        if (status != LtiOK) return finish(inst, status);
+        done += count;
+    }
+    return fmi3OK;
+}
+
 fmi3Status fmi3GetUInt64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, fmi3UInt64 values[], size_t nValues) {
     CHECK(instance, "fmi3GetUInt64", PHASE_ANY);
@@ -204,7 +240,6 @@ fmi3Status fmi3SetUInt64(fmi3Instance instance, const fmi3ValueReference valueRe
         return noVariables(instance, #NAME, nValueReferences);                                 \
     }
 
-NO_GETTER(fmi3GetFloat32, fmi3Float32)
 NO_GETTER(fmi3GetInt8, fmi3Int8)
 NO_GETTER(fmi3GetUInt8, fmi3UInt8)
 NO_GETTER(fmi3GetInt16, fmi3Int16)
@@ -214,7 +249,6 @@ NO_GETTER(fmi3GetUInt32, fmi3UInt32)
 NO_GETTER(fmi3GetInt64, fmi3Int64)
 NO_GETTER(fmi3GetBoolean, fmi3Boolean)
 NO_GETTER(fmi3GetString, fmi3String)
-NO_SETTER(fmi3SetFloat32, fmi3Float32)
 NO_SETTER(fmi3SetInt8, fmi3Int8)
 NO_SETTER(fmi3SetUInt8, fmi3UInt8)
 NO_SETTER(fmi3SetInt16, fmi3Int16)

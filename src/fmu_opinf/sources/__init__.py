@@ -151,33 +151,7 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
     warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
     _warn_parameter_like(source)
-    _warn_unread_floats(source)
     return source
-
-
-#: (FMU, what was left out) already reported by :func:`_warn_unread_floats` in this process
-_UNREAD_REPORTED: set[tuple[str, str]] = set()
-
-
-def _warn_unread_floats(source: Source) -> None:
-    """One warning per process and FMU naming the Float32 inputs and outputs the default selection left out
-    (fmu-opinf reads and writes Float64 only; named in a pattern they are refused)."""
-    import warnings
-
-    from ..errors import FmuOpinfWarning
-
-    unread = getattr(source, "unread_float_names", None) or {}
-    consequence = {"inputs": "not driven (they keep the FMU's own values)", "outputs": "not recorded"}
-    parts = [f"{what} {', '.join(names[:6])}{', ...' if len(names) > 6 else ''} {consequence[what]}"
-             for what, names in unread.items()]
-    if not parts:
-        return
-    key = (os.path.abspath(str(getattr(source, "path", ""))), "; ".join(parts))
-    if key in _UNREAD_REPORTED:
-        return
-    _UNREAD_REPORTED.add(key)
-    warnings.warn(f"{Path(str(source.path)).name}: Float32 variables, which fmu-opinf does not read or write (Float64 "
-                  f"only): {'; '.join(parts)}", FmuOpinfWarning, stacklevel=3)
 
 
 #: (FMU, held inputs, force inputs) already reported by :func:`_warn_parameter_like` in this process

@@ -192,7 +192,6 @@ class FMUSource(Source):
         self.held_input_names = [e.name for e in held]
         #: held inputs that look like parameters (non-zero start, default selection): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
-        self.unread_float_names = resolved.unread
         self.output_names = [e.name for e in out_elements]
         self.input_units = [e.var.unit or "" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]
@@ -384,6 +383,9 @@ class FMUSource(Source):
         else:
             self._c_set, self._c_get = self._bind(("fmi3SetFloat64", [vp, vp, sz, vp, sz]),
                                                   ("fmi3GetFloat64", [vp, vp, sz, vp, sz]))
+            if self._read.nvalues32 or self._write.nvalues32:  # bound only where needed
+                self._c_set32, self._c_get32 = self._bind(("fmi3SetFloat32", [vp, vp, sz, vp, sz]),
+                                                          ("fmi3GetFloat32", [vp, vp, sz, vp, sz]))
         self._bind_interface_functions()
 
     def _bind_interface_functions(self) -> None:
@@ -484,17 +486,21 @@ class FMUSource(Source):
     def _set_inputs(self, i: int) -> None:
         if not self.m:
             return
-        row = self._Uraw[i]
-        status = self._call_set(row.ctypes.data)
-        if status > 1:
+        if self._call_set(self._Uraw[i]) > 1:
             raise StepError(self._fail_text("setting the input", i), i, float(self._t[i]))
 
-    def _call_set(self, address: int) -> int:
+    def _call_set(self, raw: np.ndarray) -> int:
+        """Write one row of raw input values (:meth:`_raw_inputs`): the Float64 ones, then the Float32 ones."""
         plan = self._write
         vr, nvr = plan.vrs.ctypes.data, len(plan.vrs)
         if self.fmi_version.startswith("2"):
-            return self._c_set(self._comp, vr, nvr, address)
-        return self._c_set(self._comp, vr, nvr, address, plan.nvalues)
+            return self._c_set(self._comp, vr, nvr, raw.ctypes.data)
+        status = self._c_set(self._comp, vr, nvr, raw.ctypes.data, plan.nvalues) if nvr else 0
+        if plan.nvalues32 and status <= 1:
+            single = np.ascontiguousarray(raw[plan.nvalues:], dtype=np.float32)
+            status = max(status, self._c_set32(self._comp, plan.vrs32.ctypes.data, len(plan.vrs32),
+                                               single.ctypes.data, plan.nvalues32))
+        return status
 
     def _fail_text(self, what: str, i: int) -> str:
         t = self._t
@@ -514,15 +520,27 @@ class FMUSource(Source):
             np.multiply(self._raw[plan.gather], plan.signs, out=out[:len(plan)])
 
     def _get(self, address: int) -> int:
+        """Read the raw values into ``address`` (the Float32 ones, when there are any, into ``self._raw``)."""
         plan = self._read
         vr, nvr = plan.vrs.ctypes.data, len(plan.vrs)
         if self.fmi_version.startswith("2"):
             return self._c_get(self._comp, vr, nvr, address)
-        return self._c_get(self._comp, vr, nvr, address, plan.nvalues)
+        status = self._c_get(self._comp, vr, nvr, address, plan.nvalues) if nvr else 0
+        if plan.nvalues32 and status <= 1:
+            status = max(status, self._read_single())
+        return status
+
+    def _read_single(self) -> int:
+        """Read the Float32 values and put them after the Float64 ones in ``self._raw``."""
+        plan, single = self._read, self._raw32
+        status = self._c_get32(self._comp, plan.vrs32.ctypes.data, len(plan.vrs32), single.ctypes.data,
+                               plan.nvalues32)
+        self._raw[plan.nvalues:] = single
+        return status
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
-        if self.m and self._call_set(u.ctypes.data) > 1:
+        if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
         if self._do_step(t, h) > 1:
             raise StepError(f"{self.path.name} returned an error in doStep at t={t:g}", -1, t)
@@ -571,23 +589,30 @@ class FMUSource(Source):
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
         read, write = self._read, self._write
         in_vr, m, m_values = write.vrs.ctypes.data, len(write.vrs), write.nvalues
-        out_vr, nv, n_values = read.vrs.ctypes.data, len(read.vrs), read.nvalues
+        out_vr, nv, n_values, single = read.vrs.ctypes.data, len(read.vrs), read.nvalues, read.nvalues32 > 0
         direct, raw, gather, signs = read.identity, self._raw, read.gather, read.signs
         rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
-        ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
+        U, ubase, ustride = self._Uraw, self._Uraw.ctypes.data, self._Uraw.strides[0]
+        if write.nvalues32:   # Float32 inputs: a second call (rare; the usual case stays one C call)
+            def put(i: int) -> int:
+                return self._call_set(U[i])
+        else:
+            def put(i: int) -> int:
+                return c_set(comp, in_vr, m, ubase + i * ustride, m_values)
         f = self._flags.ctypes.data
         t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
         for j in range(count):
             i = i0 + j
             if i:
-                if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1:
+                if changed[i] and put(i) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
-                if refresh and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1:
+                if refresh and put(i) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-            if c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1:
-                raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
+            if (nv and c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1) \
+                    or (single and self._read_single() > 1):
+                raise StepError(self._fail_text("reading values (fmi3GetFloat64/32)", i), i, t[i])
             if not direct:
                 np.multiply(raw[gather], signs, out=rows[j])
             if published is not None:
@@ -609,7 +634,8 @@ class FMUSource(Source):
         # again after each step.  fmu-opinf's own FMUs publish at the end of doStep and are spared the call.
         self._refresh = bool(self.m) and (self.md.generationTool or "") != "fmu-opinf"
         self._Uraw = self._raw_inputs(self._U)
-        self._raw = np.zeros(max(self._read.nvalues, 1))
+        self._raw = np.zeros(max(self._read.nvalues + self._read.nvalues32, 1))
+        self._raw32 = np.zeros(self._read.nvalues32, dtype=np.float32)
 
     def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
         """Inputs as the values of one set call: array inputs carry their held elements too."""

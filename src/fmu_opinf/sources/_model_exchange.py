@@ -173,7 +173,7 @@ class ModelExchangeSource(FMUSource):
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
-        if self.m and self._call_set(u.ctypes.data) > 1:
+        if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
         self._integrate(-1, t, t + h)
 

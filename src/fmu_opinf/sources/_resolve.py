@@ -13,7 +13,7 @@ from typing import Any
 
 from ._settings import Setting, parse_assignments, resolve_settings
 from ._variables import (Element, ModelInfo, Selection, discover, parameter_like_inputs, select_inputs,
-                         select_outputs, unread_floats)
+                         select_outputs)
 
 __all__ = ["Resolved", "resolve_variables"]
 
@@ -32,8 +32,6 @@ class Resolved:
     #: held inputs that the default selection left out for their non-zero start value (parameters exposed as
     #: inputs?); empty when the force inputs were named
     parameter_like: list[Element] = dataclasses.field(default_factory=list)
-    #: Float32 inputs and outputs the default selection left out (``{"inputs": [...], "outputs": [...]}``)
-    unread: dict[str, list[str]] = dataclasses.field(default_factory=dict)
 
 
 def resolve_variables(model: ModelInfo | str | Path, positions: str | None = None, velocities: str | None = None,
@@ -62,7 +60,5 @@ def resolve_variables(model: ModelInfo | str | Path, positions: str | None = Non
     given = {setting.var.name for setting in typed}
     forces, held = select_inputs(model, elements, inputs, given)
     parameter_like = parameter_like_inputs(held, given) if inputs is None else []
-    unread = {what: unread_floats(elements, what[:-1]) for what, pattern in (("inputs", inputs), ("outputs", outputs))
-              if pattern is None}
     return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs),
-                    parameter_like, {what: names for what, names in unread.items() if names})
+                    parameter_like)

@@ -29,10 +29,9 @@ __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_pla
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
            "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs"]
 
-REAL_TYPES = ("Real", "Float64")
-#: Floating-point types fmu-opinf does not read or write (one ``fmi3GetFloat64`` call reads every recorded value):
-#: named in patterns they are refused, among the defaults they are left out with a warning.
-UNREAD_FLOAT_TYPES = ("Float32",)
+#: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
+#: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
+REAL_TYPES = ("Real", "Float64", "Float32")
 _PARAMETER_CAUSALITIES = ("parameter", "calculatedParameter", "structuralParameter")
 _TYPE_TAGS = ("Real", "Integer", "Boolean", "String", "Enumeration", "Float32", "Float64", "Int8", "UInt8",
               "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64", "Binary", "Clock")
@@ -728,7 +727,6 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
         else:
-            _refuse_unread_float(elements.get(piece))
             names = match_names(piece, reals)
         found += [n for n in names if n not in found]
     if not found and required:
@@ -760,26 +758,10 @@ def _selected_names(pieces: Sequence[str], elements: dict[str, Element]) -> list
     for piece in pieces:
         expanded = _expand_range(piece) if _RANGE.search(piece) else _array_elements(piece, elements)
         for p in expanded:
-            _refuse_unread_float(elements.get(p))
             exact = p in elements and elements[p].var.is_real   # element names may hold commas: y[1,2]
             hits = [p] if exact else match_names([p], own if ("*" in p or "?" in p) else reals)
             names += [n for n in hits if n not in names]
     return names
-
-
-def _refuse_unread_float(element: Element | None) -> None:
-    """One line for a variable named exactly whose floating-point type fmu-opinf does not read (FMI 3 Float32):
-    before, it was dropped from the selection without a word (``--outputs "y[1],y[2]"`` recorded ``y[2]`` alone)."""
-    if element is not None and element.var.type in UNREAD_FLOAT_TYPES:
-        raise FMUError(f"{element.name} is a {element.var.type} variable; fmu-opinf reads and writes Float64 variables "
-                       f"only (FMI 2: Real): leave it out of the pattern")
-
-
-def unread_floats(elements: dict[str, Element], causality: str) -> list[str]:
-    """Continuous variables of ``causality`` of a type fmu-opinf does not read (FMI 3 Float32): the default
-    selection leaves them out, and :func:`fmu_opinf.sources.open_source` says so."""
-    return [e.name for e in elements.values() if e.var.causality == causality and not e.alias
-            and e.var.type in UNREAD_FLOAT_TYPES and e.var.variability == "continuous"]
 
 
 def _value_key(element: Element) -> tuple[str, int, int]:
@@ -896,12 +878,14 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
 
 
 class ReadPlan:
-    """Value references for one ``fmiGet``/``fmiSet`` call and where each column sits in its values.
+    """Value references for one ``fmiGet``/``fmiSet`` call per floating-point type and where each column sits in
+    their values.
 
     Scalars take one value each (a column per value reference, repeats allowed); an FMI 3 array
-    takes all its values once, however many of its elements are columns.  ``identity`` is true when
-    the raw values are the columns themselves (no array, no sign flip): then the C call writes
-    straight into the caller's row.
+    takes all its values once, however many of its elements are columns.  FMI 3 ``Float32`` variables are read
+    and written by a call of their own (``vrs32``); their values follow the ``Float64`` ones in the raw values.
+    ``identity`` is true when the raw values are the columns themselves (no array, no sign flip, no Float32):
+    then the C call writes straight into the caller's row.
 
     Parameters
     ----------
@@ -918,34 +902,37 @@ class ReadPlan:
         import numpy as np
 
         self.columns = list(columns)
-        vrs: list[int] = []
-        base: list[float] = []
-        array_at: dict[int, int] = {}
-        gather: list[int] = []
         given = {s.var.name: s.values for s in settings}
+        vrs: dict[bool, list[int]] = {False: [], True: []}      # by "is Float32"
+        base: dict[bool, list[float]] = {False: [], True: []}
+        array_at: dict[int, int] = {}
+        places: list[tuple[bool, int]] = []
         for column in self.columns:
             var = column.element.var
+            single = var.type == "Float32"
             if not var.dims:
-                gather.append(len(base))
-                vrs.append(var.vr)
-                base.append(0.0)
+                places.append((single, len(base[single])))
+                vrs[single].append(var.vr)
+                base[single].append(0.0)
                 continue
             if var.vr not in array_at:
-                array_at[var.vr] = len(base)
-                vrs.append(var.vr)
+                array_at[var.vr] = len(base[single])
+                vrs[single].append(var.vr)
                 size = 1
                 for s in model.shape(var, structural):
                     size *= s
                 values = given.get(var.name) or _float_starts(var, size)
-                base += [float(v) for v in values]
-            gather.append(array_at[var.vr] + column.element.offset)
-        self.vrs = np.array(vrs, dtype=np.uint32)
-        self.nvalues = len(base)
-        self.base = np.array(base, dtype=float)
-        self.gather = np.array(gather, dtype=np.intp)
+                base[single] += [float(v) for v in values]
+            places.append((single, array_at[var.vr] + column.element.offset))
+        self.vrs = np.array(vrs[False], dtype=np.uint32)
+        self.nvalues = len(base[False])
+        self.vrs32 = np.array(vrs[True], dtype=np.uint32)
+        self.nvalues32 = len(base[True])
+        self.base = np.array(base[False] + base[True], dtype=float)
+        self.gather = np.array([self.nvalues + at if single else at for single, at in places], dtype=np.intp)
         self.signs = np.array([c.sign for c in self.columns], dtype=float)
-        self.identity = (self.nvalues == len(self.columns) and bool(np.all(self.gather == np.arange(len(gather))))
-                         and bool(np.all(self.signs == 1.0)))
+        self.identity = (self.nvalues32 == 0 and self.nvalues == len(self.columns)
+                         and bool(np.all(self.gather == np.arange(len(places)))) and bool(np.all(self.signs == 1.0)))
 
     def __len__(self) -> int:
         return len(self.columns)
