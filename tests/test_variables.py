@@ -505,3 +505,20 @@ def test_float32_variables_are_read_and_written_by_a_call_of_their_own(tmp_path)
     assert plan.gather.tolist() == [0, 1, 2] and not plan.identity
     inputs = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.forces], resolved.structural)
     assert inputs.vrs.tolist() == [12] and inputs.vrs32.tolist() == [16] and inputs.gather.tolist() == [2, 0, 1]
+
+
+def test_float32_arrays_mixed_with_float64_arrays_have_their_own_offsets(tmp_path):
+    """Raw values: the Float64 ones by value reference in the order first met (the array y once, 2 values),
+    then the Float32 ones (s, then the array w once, 3 values); each column points at its value."""
+    from fmu_opinf.sources._variables import ReadPlan
+
+    xml = fmi3_array().replace(
+        '<Float64 name="k"',
+        '<Float32 name="s" valueReference="15" causality="output" variability="continuous"/>'
+        '<Float32 name="w" valueReference="20" causality="output" variability="continuous"><Dimension start="3"/>'
+        '</Float32><Float64 name="k"')
+    resolved = resolve_variables(_write(tmp_path, xml), outputs="s,y[2],w[3],y[1],w[1]")
+    assert _names(resolved.outputs) == ["s", "y[2]", "w[3]", "y[1]", "w[1]"]
+    plan = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.outputs], resolved.structural)
+    assert (plan.vrs.tolist(), plan.nvalues, plan.vrs32.tolist(), plan.nvalues32) == ([13], 2, [15, 20], 4)
+    assert plan.gather.tolist() == [2, 1, 5, 0, 3]

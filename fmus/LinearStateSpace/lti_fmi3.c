@@ -183,7 +183,12 @@ fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double chunk[FLOAT32_CHUNK];
     size_t done = 0;
     CHECK(instance, "fmi3GetFloat32", PHASE_ANY);
-    if (nValues != nValueReferences) return finish(inst, LtiError);  /* scalars only */
+    if (nValues != nValueReferences) {  /* Float32 arrays are not generated */
+        ltiLog(inst, LtiError, "logStatusError", "fmi3GetFloat32: only scalar Float32 variables "
+               "(%lu values for %lu value references)", (unsigned long)nValues,
+               (unsigned long)nValueReferences);
+        return finish(inst, LtiError);
+    }
     while (done < nValueReferences) {
         size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
         LtiStatus status = ltiGetReal(inst, "fmi3GetFloat32", valueReferences + done, count, chunk, count);
@@ -199,7 +204,12 @@ fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double chunk[FLOAT32_CHUNK];
     size_t done = 0;
     CHECK(instance, "fmi3SetFloat32", PhaseInstantiated | PhaseInitialization | PHASE_RUNNING);
-    if (nValues != nValueReferences) return finish(inst, LtiError);
+    if (nValues != nValueReferences) {  /* Float32 arrays are not generated */
+        ltiLog(inst, LtiError, "logStatusError", "fmi3SetFloat32: only scalar Float32 variables "
+               "(%lu values for %lu value references)", (unsigned long)nValues,
+               (unsigned long)nValueReferences);
+        return finish(inst, LtiError);
+    }
     while (done < nValueReferences) {
         size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
         for (size_t k = 0; k < count; k++) chunk[k] = (double)values[done + k];

@@ -65,7 +65,8 @@ class FMUSource(Source):
 
     The model description is read and the variables resolved at construction; the binary is
     loaded only by :meth:`start`.  Per step the recorder makes three raw C calls (set inputs,
-    do step, get all recorded values into one pre-allocated row).
+    do step, get all recorded values into one pre-allocated row); FMI 3 Float32 inputs and outputs take one
+    call more each.
 
     Parameters
     ----------
@@ -535,7 +536,7 @@ class FMUSource(Source):
         plan, single = self._read, self._raw32
         status = self._c_get32(self._comp, plan.vrs32.ctypes.data, len(plan.vrs32), single.ctypes.data,
                                plan.nvalues32)
-        self._raw[plan.nvalues:] = single
+        self._raw[plan.nvalues:] = single[:plan.nvalues32]
         return status
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
@@ -589,30 +590,36 @@ class FMUSource(Source):
         c_set, c_get, c_step, comp = self._c_set, self._c_get, self._c_step, self._comp
         read, write = self._read, self._write
         in_vr, m, m_values = write.vrs.ctypes.data, len(write.vrs), write.nvalues
-        out_vr, nv, n_values, single = read.vrs.ctypes.data, len(read.vrs), read.nvalues, read.nvalues32 > 0
+        out_vr, nv, n_values = read.vrs.ctypes.data, len(read.vrs), read.nvalues
         direct, raw, gather, signs = read.identity, self._raw, read.gather, read.signs
         rbase, rstride = (rows.ctypes.data, rows.strides[0]) if direct else (raw.ctypes.data, 0)
-        U, ubase, ustride = self._Uraw, self._Uraw.ctypes.data, self._Uraw.strides[0]
-        if write.nvalues32:   # Float32 inputs: a second call (rare; the usual case stays one C call)
-            def put(i: int) -> int:
-                return self._call_set(U[i])
-        else:
-            def put(i: int) -> int:
-                return c_set(comp, in_vr, m, ubase + i * ustride, m_values)
+        ubase, ustride = self._Uraw.ctypes.data, self._Uraw.strides[0]
+        # Float32 inputs and outputs (FMI 3 single precision): one more call each, addresses worked out here
+        c_set32, c_get32 = getattr(self, "_c_set32", None), getattr(self, "_c_get32", None)
+        in32, out32 = write.nvalues32 > 0, read.nvalues32 > 0
+        in_vr32, m32, m_values32 = write.vrs32.ctypes.data, len(write.vrs32), write.nvalues32
+        u32base, u32stride = self._Uraw32.ctypes.data, self._Uraw32.strides[0] if in32 else 0
+        out_vr32, nv32, n_values32 = read.vrs32.ctypes.data, len(read.vrs32), read.nvalues32
+        raw32, r32base = self._raw32, self._raw32.ctypes.data
         f = self._flags.ctypes.data
         t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
         for j in range(count):
             i = i0 + j
             if i:
-                if changed[i] and put(i) > 1:
+                if changed[i] and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
+                                   or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
                     raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
-                if refresh and put(i) > 1:
+                if refresh and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
+                                or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-            if (nv and c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1) \
-                    or (single and self._read_single() > 1):
-                raise StepError(self._fail_text("reading values (fmi3GetFloat64/32)", i), i, t[i])
+            if nv and c_get(comp, out_vr, nv, rbase + j * rstride, n_values) > 1:
+                raise StepError(self._fail_text("in fmi3GetFloat64", i), i, t[i])
+            if out32:
+                if c_get32(comp, out_vr32, nv32, r32base, n_values32) > 1:
+                    raise StepError(self._fail_text("in fmi3GetFloat32", i), i, t[i])
+                raw[n_values:] = raw32
             if not direct:
                 np.multiply(raw[gather], signs, out=rows[j])
             if published is not None:
@@ -635,7 +642,9 @@ class FMUSource(Source):
         self._refresh = bool(self.m) and (self.md.generationTool or "") != "fmu-opinf"
         self._Uraw = self._raw_inputs(self._U)
         self._raw = np.zeros(max(self._read.nvalues + self._read.nvalues32, 1))
-        self._raw32 = np.zeros(self._read.nvalues32, dtype=np.float32)
+        self._raw32 = np.zeros(max(self._read.nvalues32, 1), dtype=np.float32)
+        # Float32 inputs as the FMU takes them, one row per sample (their doubles are in _Uraw)
+        self._Uraw32 = np.ascontiguousarray(self._Uraw[:, self._write.nvalues:], dtype=np.float32)
 
     def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
         """Inputs as the values of one set call: array inputs carry their held elements too."""
