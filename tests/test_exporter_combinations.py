@@ -316,49 +316,34 @@ def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
         euler.close()
 
 
-def test_the_step_checks_first_run_is_the_first_pilot(fmus, monkeypatch):
+def test_the_window_runs_no_experiment_twice_and_checks_the_step_it_keeps(fmus, tmp_path, monkeypatch):
     """A co-simulation FMU's runs are its costly part (a millisecond chain: 5 s per 200-step pilot at the tolerance
-    1e-10): the automatic window runs no experiment twice.  Before, the step check's run at the first pilot's step
-    was repeated as pilot 1 (3 runs before the first finding instead of 2)."""
+    1e-10), so the automatic window runs no experiment twice.  Before, the step check's run at the first pilot's
+    step was repeated as pilot 1.  The default training may reject a window (an impulse the model only follows),
+    so it runs the automatic window without its check of the chosen step and checks the window it keeps, once."""
     import fmu_opinf.snapshots._window as window_module
-    from fmu_opinf.snapshots import auto_window
-    from fmu_opinf.sources import open_source
+    from fmu_opinf.snapshots import record_to_file
 
-    experiments = []
-    record_run = window_module.record_run
+    experiments, checked = [], []
+    record_run, check = window_module.record_run, window_module.check_window_step
 
     def counting(source, signal, t, *args, **kwargs):
         experiments.append((type(signal).__name__, float(t[1] - t[0]), float(t[-1])))
         return record_run(source, signal, t, *args, **kwargs)
 
-    monkeypatch.setattr(window_module, "record_run", counting)
-    source = open_source(str(fmus["generic-accurate"][0]), positions="x1,x2,x3,x4,x5", velocities="x6,x7,x8,x9,x10")
-    try:
-        window = auto_window(source, "impulse:amplitude=100,t0=2,width=0.5")
-    finally:
-        source.close()
-    assert len(experiments) == len(set(experiments)), experiments
-    # the step check (2 runs), the pilots, and the check at the chosen step (2 runs) when it is the coarser
-    assert len(experiments) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), experiments
-
-
-def test_the_default_training_checks_the_step_of_the_window_it_keeps(fmus, tmp_path, monkeypatch):
-    """The default training may reject a window (an impulse the model only follows) and so runs the automatic window
-    without its check of the chosen step; it checks the window it keeps, once, with the pilots' input."""
-    import fmu_opinf.snapshots._window as window_module
-    from fmu_opinf.snapshots import record_to_file
-
-    checked, check = [], window_module.check_window_step
-
     def checking(source, signal, window, **kwargs):
         checked.append(window)
         return check(source, signal, window, **kwargs)
 
+    monkeypatch.setattr(window_module, "record_run", counting)
     monkeypatch.setattr(window_module, "check_window_step", checking)
     fmu, _ = fmus["generic-accurate"]
-    summary = record_to_file(str(fmu), tmp_path / "a.h5", None, quiet=True, positions="x1,x2,x3,x4,x5",
-                             velocities="x6,x7,x8,x9,x10")
-    assert checked == [summary.window]
+    window = record_to_file(str(fmu), tmp_path / "a.h5", None, quiet=True, positions="x1,x2,x3,x4,x5",
+                            velocities="x6,x7,x8,x9,x10").window
+    assert len(experiments) == len(set(experiments)), experiments
+    # the step check (2 runs), the pilots, and the check at the chosen step (2 runs) when it is the coarser
+    assert len(experiments) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), experiments
+    assert checked == [window]
 
 
 def test_a_declared_fixed_internal_step_sets_the_grid(fmus, tmp_path, monkeypatch):
