@@ -178,17 +178,20 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
    (the generated FMUs declare a variable Float32 only when an importer's single-precision path is tested) */
 #define FLOAT32_CHUNK 64
 
+/* Float32 arrays are not generated: one value per value reference, else an error that says so */
+static int scalarsOnly(LtiInstance *inst, const char *function, size_t nValueReferences, size_t nValues) {
+    if (nValues == nValueReferences) return 1;
+    ltiLog(inst, LtiError, "logStatusError", "%s: only scalar Float32 variables (%lu values for %lu value "
+           "references)", function, (unsigned long)nValues, (unsigned long)nValueReferences);
+    return 0;
+}
+
 fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float32 values[], size_t nValues) {
     double chunk[FLOAT32_CHUNK];
     size_t done = 0;
     CHECK(instance, "fmi3GetFloat32", PHASE_ANY);
-    if (nValues != nValueReferences) {  /* Float32 arrays are not generated */
-        ltiLog(inst, LtiError, "logStatusError", "fmi3GetFloat32: only scalar Float32 variables "
-               "(%lu values for %lu value references)", (unsigned long)nValues,
-               (unsigned long)nValueReferences);
-        return finish(inst, LtiError);
-    }
+    if (!scalarsOnly(inst, "fmi3GetFloat32", nValueReferences, nValues)) return finish(inst, LtiError);
     while (done < nValueReferences) {
         size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
         LtiStatus status = ltiGetReal(inst, "fmi3GetFloat32", valueReferences + done, count, chunk, count);
@@ -204,12 +207,7 @@ fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double chunk[FLOAT32_CHUNK];
     size_t done = 0;
     CHECK(instance, "fmi3SetFloat32", PhaseInstantiated | PhaseInitialization | PHASE_RUNNING);
-    if (nValues != nValueReferences) {  /* Float32 arrays are not generated */
-        ltiLog(inst, LtiError, "logStatusError", "fmi3SetFloat32: only scalar Float32 variables "
-               "(%lu values for %lu value references)", (unsigned long)nValues,
-               (unsigned long)nValueReferences);
-        return finish(inst, LtiError);
-    }
+    if (!scalarsOnly(inst, "fmi3SetFloat32", nValueReferences, nValues)) return finish(inst, LtiError);
     while (done < nValueReferences) {
         size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
         for (size_t k = 0; k < count; k++) chunk[k] = (double)values[done + k];
