@@ -112,6 +112,9 @@ def combinations():
         "generic-euler": (chain(force_offset=0.5, name="GenericEuler", **OFF_REST),
                           dict(naming="generic", interfaces=("cs",), cs_method="euler",
                                expose_accelerations=False), None),
+        # 2'''''. one Euler step per doStep, at rest (no offset, start at rest): only a forced run moves it
+        "euler-at-rest": (chain(name="EulerAtRest"), dict(naming="generic", interfaces=("cs",), cs_method="euler",
+                                                          expose_accelerations=False), None),
         # 2'. the same with accurate co-simulation (RK4 substeps following the tolerance)
         "generic-accurate": (chain(force_offset=0.5, name="GenericAccurate", **OFF_REST),
                              dict(naming="generic", interfaces=("cs",), expose_accelerations=False), None),
@@ -530,6 +533,19 @@ def test_strict_description_gives_no_warning(fmus, recwarn):
     source = open_source(str(fmus["undamped"][0]))
     source.close()
     assert not [w for w in recwarn if "strict validation" in str(w.message)]
+
+
+def test_the_step_warning_follows_the_first_run_that_drives_an_input(fmus, tmp_path):
+    """With the user's step, the step check runs on the first run that drives an input: a free response given first
+    leaves an FMU at rest at rest, and the Euler co-simulation went without a word (review 2026-11-27)."""
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import record_to_file
+
+    fmu, _ = fmus["euler-at-rest"]
+    with pytest.warns(FmuOpinfWarning, match=r"depends on the communication step \(its outputs at dt=0\.005 and "
+                                             r"dt=0\.0025 differ by"):
+        record_to_file(str(fmu), tmp_path / "a.h5", ["none", "impulse:amplitude=100,t0=2,width=0.5"], dt=0.005,
+                       t_end=30.0, quiet=True, positions="x1,x2,x3,x4,x5", velocities="x6,x7,x8,x9,x10")
 
 
 def test_user_step_on_euler_co_simulation_warns_and_records(fmus, tmp_path, capsys):
