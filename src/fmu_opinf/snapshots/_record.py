@@ -224,6 +224,17 @@ def _first_bad_row(rows: np.ndarray) -> int | None:
     return int(np.argmax(bad)) if bad.any() else None
 
 
+def _as_received(source: Source, u: np.ndarray) -> np.ndarray:
+    """The inputs ``u`` (m, k) as the FMU receives them: its single-precision (FMI 3 Float32) inputs rounded, so
+    that the recorded input is the one the model responded to (else 1e-8 relative off)."""
+    single = np.asarray(getattr(source, "single_precision_inputs", ()), dtype=bool)
+    if single.size != u.shape[0] or not single.any():
+        return u
+    u = u.copy()
+    u[single] = u[single].astype(np.float32)
+    return u
+
+
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
                 isolate: bool, label: str = "recording", repairs: int = 0,
                 pilot: bool = False) -> tuple[Run, StepError | None]:
@@ -236,7 +247,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     problem left after :data:`~._consistency.MAX_REPAIRS` is an error; ``pilot``: a run of the automatic window,
     whose unrepairable problems are left to the recording, ``judge_run(strict=False)``).
     """
-    u = inputs_in_effect(signal, t, source.m)
+    u = _as_received(source, inputs_in_effect(signal, t, source.m))
     U = np.ascontiguousarray(u.T)
     sink = sink_factory(source, t, u)
     producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)

@@ -195,6 +195,8 @@ class FMUSource(Source):
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         self.output_names = [e.name for e in out_elements]
         self.input_units = [e.var.unit or "" for e in forces]
+        #: which force inputs are FMI 3 Float32 (the recorder rounds what it records of them to what they receive)
+        self.single_precision_inputs = [e.var.type == "Float32" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]
         columns = selection.positions + selection.velocities + selection.accelerations + out_columns
         self._read = ReadPlan(model, columns, structural)
