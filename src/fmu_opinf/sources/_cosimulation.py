@@ -489,18 +489,20 @@ class FMUSource(Source):
     def _set_inputs(self, i: int) -> None:
         if not self.m:
             return
-        if self._call_set(self._Uraw[i]) > 1:
+        if self._call_set(self._Uraw[i], self._Uraw32[i]) > 1:
             raise StepError(self._fail_text("setting the input", i), i, float(self._t[i]))
 
-    def _call_set(self, raw: np.ndarray) -> int:
-        """Write one row of raw input values (:meth:`_raw_inputs`): the Float64 ones, then the Float32 ones."""
+    def _call_set(self, raw: np.ndarray, single: np.ndarray | None = None) -> int:
+        """Write one row of raw input values (:meth:`_raw_inputs`): the Float64 ones, then the Float32 ones
+        (``single``: those already in single precision, as :meth:`_plan` keeps them; else converted here)."""
         plan = self._write
         vr, nvr = plan.vrs.ctypes.data, len(plan.vrs)
         if self.fmi_version.startswith("2"):
             return self._c_set(self._comp, vr, nvr, raw.ctypes.data)
         status = self._c_set(self._comp, vr, nvr, raw.ctypes.data, plan.nvalues) if nvr else 0
         if plan.nvalues32 and status <= 1:
-            single = np.ascontiguousarray(raw[plan.nvalues:], dtype=np.float32)
+            if single is None:
+                single = np.ascontiguousarray(raw[plan.nvalues:], dtype=np.float32)
             status = max(status, self._c_set32(self._comp, plan.vrs32.ctypes.data, len(plan.vrs32),
                                                single.ctypes.data, plan.nvalues32))
         return status
@@ -600,7 +602,7 @@ class FMUSource(Source):
         c_set32, c_get32 = getattr(self, "_c_set32", None), getattr(self, "_c_get32", None)
         in32, out32 = write.nvalues32 > 0, read.nvalues32 > 0
         in_vr32, m32, m_values32 = write.vrs32.ctypes.data, len(write.vrs32), write.nvalues32
-        u32base, u32stride = self._Uraw32.ctypes.data, self._Uraw32.strides[0] if in32 else 0
+        u32base, u32stride = self._Uraw32.ctypes.data, (self._Uraw32.strides[0] if in32 else 0)
         out_vr32, nv32, n_values32 = read.vrs32.ctypes.data, len(read.vrs32), read.nvalues32
         raw32, r32base = self._raw32, self._raw32.ctypes.data
         f = self._flags.ctypes.data
