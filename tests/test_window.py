@@ -305,7 +305,8 @@ def test_the_window_of_the_users_runs_resolves_the_mode_that_only_the_second_run
     window = record_to_file(Oscillators(omegas, zeta), tmp_path / "b.h5", ["none", runs[1]], quiet=True,
                             isolate=False).window
     check_step(window, omegas[1] / (2 * math.pi))
-    assert window.t_end < 0.2 * t_fade, window
+    t_fade_fast = 2.25 + math.log(100.0) / (zeta * omegas[1])  # the fast mode below 1 % after the pulse ends
+    assert abs(window.t_end / t_fade_fast - 1.0) < 0.03, (window, t_fade_fast)  # measured 0.991
     # runs that drive the same input share the first one's window, whatever their amplitudes (an earlier sum of the
     # runs cancelled 100 against -200 and refused), and a run that drives no input adds nothing
     alone = record_to_file(Oscillators(omegas, zeta), tmp_path / "c.h5", [runs[0]], quiet=True, isolate=False).window
