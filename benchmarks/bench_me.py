@@ -8,7 +8,9 @@ For each benchmark system (anchored chain with a rigid bar, triple chain) this b
 FMU offering both interfaces (``fmu_opinf.lti_fmus.build_lti_fmu``, dense matrices, the index reduced
 by the exporter) and records the paper's impulse response through :func:`fmu_opinf.snapshots.record`:
 
-* ``me/<method>``: model exchange at the given tolerance (default 1e-10, the CLI default);
+* ``me/<method>``: model exchange at the given tolerance (default 1e-10, the CLI default); ``dop853`` is the
+  compiled step loop (``fmus/integrator/erk.c``) where a C compiler is found, ``dop853-scipy`` the same method
+  through :class:`scipy.integrate.DOP853`'s Python loop;
 * ``cs/accurate``: the same FMU's co-simulation (RK4 substeps following the same tolerance);
 * ``cs/newmark``: the project's benchmark co-simulation FMU (``fmu_opinf.fmus``, one sparse Newmark
   step per doStep), the reference cost of one ``doStep``.
@@ -22,6 +24,7 @@ against the exact zero-order-hold solution (``lti_fmus.zoh_response``) relative 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import tempfile
 import time
 from pathlib import Path
@@ -50,6 +53,7 @@ class _Counting:
 
     def __init__(self, source) -> None:
         self.calls = 0
+        self.source = source
         original = source.rhs
 
         def rhs(t, x):
@@ -57,6 +61,26 @@ class _Counting:
             return original(t, x)
 
         source.rhs = rhs
+
+    @property
+    def evaluations(self) -> int:
+        """Evaluations through Python plus those of the compiled loop."""
+        kernel = getattr(self.source, "_kernel", None)
+        return self.calls + (kernel.evaluations if kernel is not None else 0)
+
+
+@contextlib.contextmanager
+def _without_compiled_loop(active: bool):
+    """While active, model-exchange sources use scipy's DOP853 loop instead of the compiled one."""
+    from fmu_opinf.sources import _compiled_rk
+
+    saved = _compiled_rk.kernel
+    if active:
+        _compiled_rk.kernel = lambda *args: None
+    try:
+        yield
+    finally:
+        _compiled_rk.kernel = saved
 
 
 def time_recording(source, dt: float, steps: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
@@ -95,10 +119,12 @@ def bench_system(name: str, size: int, dt: float, steps: int, methods: list[str]
         return float(np.abs(y - ref).max() / np.abs(ref).max())
 
     for method in methods:
-        source = ModelExchangeSource(fmu.path, method=method, tolerance=tolerance)
+        scipy_loop = method == "dop853-scipy"
+        source = ModelExchangeSource(fmu.path, method="dop853" if scipy_loop else method, tolerance=tolerance)
         counter = _Counting(source)
-        per_step, t, u, x = time_recording(source, dt, steps)
-        rows.append((name, f"me/{method}", f"{per_step * 1e6:.0f}", f"{counter.calls / steps:.1f}",
+        with _without_compiled_loop(scipy_loop):
+            per_step, t, u, x = time_recording(source, dt, steps)
+        rows.append((name, f"me/{method}", f"{per_step * 1e6:.0f}", f"{counter.evaluations / steps:.1f}",
                      f"{error(t, u, x):.1e}"))
     per_step, t, u, x = time_recording(FMUSource(fmu.path, tolerance=tolerance), dt, steps)
     rows.append((name, "cs/accurate", f"{per_step * 1e6:.0f}", "-", f"{error(t, u, x):.1e}"))
@@ -153,7 +179,7 @@ def main() -> None:
     parser.add_argument("--g", type=int, default=600, help="anchored chain masses (default 600)")
     parser.add_argument("--n1", type=int, default=100, help="triple chain masses per chain (default 100)")
     parser.add_argument("--steps", type=int, default=200)
-    parser.add_argument("--methods", nargs="+", default=["dop853", "lsoda"])
+    parser.add_argument("--methods", nargs="+", default=["dop853", "dop853-scipy", "lsoda"])
     parser.add_argument("--tolerance", type=float, default=1e-10)
     parser.add_argument("--out", help="folder for the FMUs (default: a temporary one)")
     parser.add_argument("--rates", action="store_true",

@@ -251,7 +251,9 @@ def test_states_sorted_by_component_are_recorded_exactly(fmus, tmp_path, name):
     assert snaps.attrs["position_names"] == [f"mass[{i}].s" for i in range(1, 6)]
     run = snaps.runs[0]
     reference, _ = exact(fmu.model, np.asarray(run.t), run.attrs["input_spec"])
-    assert relative(run.x, reference.x) < 1e-12 and relative(run.xddot, reference.a) < 1e-11   # 1.3e-13, 9.6e-13
+    # measured 1.3e-12 / 9.3e-12 with the compiled DOP853 loop, 4.8e-13 / 3.6e-12 with scipy's (the same method at
+    # tolerance 1e-10: rounding differences in the sums move 12 of 10,100 derivative evaluations)
+    assert relative(run.x, reference.x) < 3e-12 and relative(run.xddot, reference.a) < 3e-11
 
 
 # ------------------------------------------------------------------------ the exported FMU in an importer

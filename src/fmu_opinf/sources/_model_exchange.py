@@ -25,7 +25,9 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .._interrupts import check_interrupt
 from ..errors import FMUError, InputSpecError
+from . import _compiled_rk
 from ._base import StepError
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
 
@@ -80,7 +82,8 @@ class ModelExchangeSource(FMUSource):
 
     def provenance(self) -> dict[str, Any]:
         prov = super().provenance()
-        prov["integrator"] = _INTEGRATOR_TEXT[self.method]
+        compiled = self.method == "dop853" and _compiled_rk.available()
+        prov["integrator"] = _COMPILED_DOP853_TEXT if compiled else _INTEGRATOR_TEXT[self.method]
         return prov
 
     # -- loading ----------------------------------------------------------------------------
@@ -121,6 +124,8 @@ class ModelExchangeSource(FMUSource):
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
+        self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx)
+                        if self.method == "dop853" and self.nx else None)
 
     @property
     def _atol(self) -> np.ndarray:
@@ -276,11 +281,28 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float], np.nd
     return integrate
 
 
+def _dop853(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
+    """DOP853 through the compiled step loop (:mod:`._compiled_rk`), else scipy's Python loop."""
+    kernel = source._kernel
+    if kernel is None:
+        return _scipy_dop853(source, t0, t1)
+    first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
+    try:
+        x, h_last = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt)
+    except _compiled_rk.IntegrationFailure as exc:
+        raise _IntegrationError(str(exc)) from None
+    if h_last:
+        source._h_last = h_last
+    return x
+
+
+_scipy_dop853 = _solve_ivp("DOP853")
+
 _INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float], np.ndarray]] = {
     "lsoda": _lsoda,
     "bdf": _solve_ivp("BDF"),
     "radau": _solve_ivp("Radau"),
-    "dop853": _solve_ivp("DOP853"),
+    "dop853": _dop853,
     "rk45": _solve_ivp("RK45"),
 }
 
@@ -291,3 +313,6 @@ _INTEGRATOR_TEXT = {
     "dop853": "DOP853 (scipy.integrate.DOP853), restarted at every communication point",
     "rk45": "RK45 (scipy.integrate.RK45), restarted at every communication point",
 }
+
+_COMPILED_DOP853_TEXT = ("DOP853 (scipy.integrate.DOP853's method, step loop compiled from fmus/integrator/erk.c), "
+                         "restarted at every communication point")
