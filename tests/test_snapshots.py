@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import h5py
 import numpy as np
 import pytest
@@ -266,6 +269,37 @@ def test_isolated_recording_equals_in_process_recording(toys):
     assert child.attrs["isolated"] is True and child.k == 301
     for name in ARRAYS:
         np.testing.assert_array_equal(getattr(child, name), getattr(inproc, name))
+
+
+
+def test_isolated_runs_follow_the_callers_directory_and_environment(toys, tmp_path, monkeypatch):
+    """After the first run, runs start from a fork server (Linux) that was started in another directory with an
+    older environment: a relative path of an unpacked FMU after a chdir still opens, and the child sees the caller's
+    environment of the moment."""
+    import multiprocessing as mp
+
+    from fmu_opinf.snapshots import _isolation
+
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True)  # the server starts here
+    if "forkserver" in mp.get_all_start_methods():
+        assert _isolation._process_context().get_start_method() == "forkserver"
+    from fmpy import extract
+
+    extract(str(toys["fmi3"]), unzipdir=str(tmp_path / "unpacked"))  # an unpacked FMU is read where it lies
+    monkeypatch.chdir(tmp_path)
+    for isolate in (False, True):  # the relative path was refused in both ("can't be expressed as a file URI")
+        run = record(FMUSource("unpacked"), signal, 0.01, 0.5, quiet=True, isolate=isolate).runs[0]
+        assert run.k == 51 and run.complete
+    monkeypatch.setenv("FMU_OPINF_TEST_VARIABLE", "set after the server started")
+    environment = dict(os.environ)
+    monkeypatch.delenv("FMU_OPINF_TEST_VARIABLE")
+    _isolation._take_over(str(tmp_path), environment)   # what the child does first
+    try:
+        assert os.environ["FMU_OPINF_TEST_VARIABLE"] == "set after the server started"
+        assert Path.cwd() == tmp_path.resolve()
+    finally:
+        os.environ.pop("FMU_OPINF_TEST_VARIABLE", None)
 
 
 # ------------------------------------------------------------------------------- command-line entry, auto window

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import os
 import signal as _signal
 import sys
 from collections.abc import Iterator
@@ -57,14 +58,18 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
 _HEADER = 64  # bytes before the row buffer in shared memory: int64 count of valid rows
 
 
-def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray) -> None:
+def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray,
+                where: tuple[str, dict[str, str]] | None = None) -> None:
     """Child process: run the source, fill the shared buffer, report through ``conn``.
 
     The child ignores SIGINT and SIGTERM: the parent decides (Ctrl-C reaches the whole process group)
-    and kills the child when it stops.
+    and kills the child when it stops.  ``where``: the parent's working directory and environment at the
+    start of the run (a child of the fork server inherits the server's, which may be older).
     """
     for signum in _SIGNALS:
         _signal.signal(signum, _signal.SIG_IGN)
+    if where is not None:
+        _take_over(*where)
     shm = shared_memory.SharedMemory(name=shm_name)
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
@@ -121,9 +126,10 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     count[0] = 0
-    ctx = mp.get_context("spawn")
+    ctx = _process_context()
+    where = (os.getcwd(), dict(os.environ)) if ctx.get_start_method() == "forkserver" else None
     here, there = ctx.Pipe()
-    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U), daemon=True)
+    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U, where), daemon=True)
     i0 = 0
     try:
         with _signals_blocked(), _main_not_rerun(source):  # the child starts with SIGINT/SIGTERM blocked
@@ -163,6 +169,49 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
         del count, rows
         shm.close()
         shm.unlink()
+
+
+#: Modules the fork server imports once, so that a run's child process starts without importing them (about
+#: 0.4 s per run with a fresh interpreter, 0.03 s forked from the server).
+_PRELOAD = ["fmu_opinf.snapshots._isolation", "fmu_opinf.sources", "scipy.integrate", "fmpy.fmi2", "fmpy.fmi3"]
+
+#: The process whose fork server the runs use (None: none started by fmu-opinf yet).
+_server_owner: int | None = None
+
+
+def _process_context() -> Any:
+    """Where a run's child process comes from: multiprocessing's fork server, else a fresh interpreter (spawn).
+
+    Every run gets a process of its own either way (a crashing binary loses only its run, and no state of an
+    FMU's library survives into the next run), but the fork server has imported fmu-opinf, numpy, scipy and
+    fmpy once, so a child starts in about 30 ms instead of 0.4 s (a recording runs 4-10 of them).  The server
+    is used only in the process that started it, inside :func:`_signals_blocked`, so that it and its children
+    keep SIGINT and SIGTERM blocked from the start; a server started by other code, a forked process (whose
+    parent owns the server) and platforms without fork servers (Windows) spawn as before.
+    """
+    global _server_owner
+    if "forkserver" not in mp.get_all_start_methods():
+        return mp.get_context("spawn")
+    from multiprocessing import forkserver
+
+    running = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", "unknown")
+    if _server_owner == os.getpid():
+        return mp.get_context("forkserver")
+    if running is None:  # no server in this process yet: the first run starts fmu-opinf's
+        context = mp.get_context("forkserver")
+        context.set_forkserver_preload(_PRELOAD)
+        _server_owner = os.getpid()
+        return context
+    return mp.get_context("spawn")
+
+
+def _take_over(cwd: str, environment: dict[str, str]) -> None:
+    """Adopt the parent's working directory and environment (a relative FMU path, a licence variable)."""
+    with contextlib.suppress(OSError):
+        os.chdir(cwd)
+    if dict(os.environ) != environment:
+        os.environ.clear()
+        os.environ.update(environment)
 
 
 @contextlib.contextmanager

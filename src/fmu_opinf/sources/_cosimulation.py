@@ -118,7 +118,7 @@ class FMUSource(Source):
         settings: dict[str, Any] | None = None,
         tolerance: float | None = None,
     ) -> None:
-        self.path = Path(path)
+        self.path = Path(path).absolute()  # the same file after a change of directory (fmpy chdirs to load)
         self.tolerance = check_tolerance(tolerance)
         self._options = {
             "positions": positions,
