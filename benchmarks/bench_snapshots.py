@@ -58,7 +58,7 @@ def getreal_loop(source, t: np.ndarray, U: np.ndarray) -> float:
     row = np.empty(source.width)
     source.start(t, U)
     try:
-        get, comp, vr, nv, out = source._c_get, source._comp, source._out_vr_arr.ctypes.data, source.width, \
+        get, comp, vr, nv, out = source._c_get, source._comp, source._read.vrs.ctypes.data, len(source._read.vrs), \
             row.ctypes.data
         start = time.perf_counter()
         for _ in range(1, len(t)):

@@ -66,11 +66,21 @@ def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
     """Per row: ``min`` over the trapezoidal, forward and backward rule of ``||dx - h v_rule|| / scale`` (0 for a
     row that hardly moves), ``dx`` the increments of ``x`` and ``v_rule`` the velocity the rule uses."""
     dx = np.diff(x, axis=1)
-    rules = (0.5 * (v[:, :-1] + v[:, 1:]), v[:, :-1], v[:, 1:])
-    scale = np.maximum(np.linalg.norm(dx, axis=1), h * np.linalg.norm(rules[0], axis=1))
-    residual = np.min([np.linalg.norm(dx - h * rule, axis=1) for rule in rules], axis=0)
+    before, after = v[:, :-1], v[:, 1:]
+    buffer = np.add(before, after)
+    buffer *= 0.5 * h                                          # h times the trapezoidal rule's velocity
+    scale = np.maximum(_row_norms(dx), _row_norms(buffer))
+    residual = _row_norms(np.subtract(dx, buffer, out=buffer))
+    for rule in (before, after):                               # forward and backward rule, in the same buffer
+        np.multiply(rule, h, out=buffer)
+        np.minimum(residual, _row_norms(np.subtract(dx, buffer, out=buffer)), out=residual)
     moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
     return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
+
+
+def _row_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean norm of each row, without the temporary of ``np.linalg.norm(a, axis=1)``."""
+    return np.sqrt(np.einsum("ij,ij->i", a, a))
 
 
 def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = None) -> bool:
@@ -80,14 +90,22 @@ def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = N
     if v.shape[1] < 4:
         return False
     dv = np.diff(v, axis=1)
-    now = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, :-2] + a[:, 1:-1]), axis=0)
-    shifted = np.linalg.norm(dv[:, :-1] - 0.5 * h * (a[:, 1:-1] + a[:, 2:]), axis=0)
+    sums = np.add(a[:, :-1], a[:, 1:])                  # a_i + a_(i+1): both rules take a slice of it
+    sums *= 0.5 * h
+    increments = dv[:, :-1]
+    now = _column_norms(increments - sums[:, :-1])
+    shifted = _column_norms(increments - sums[:, 1:])
     smooth = np.ones(now.size, dtype=bool)
     if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
         changes = np.any(np.diff(u[:, :v.shape[1]], axis=1) != 0, axis=0).astype(float)
         smooth = np.convolve(changes, np.ones(5))[2:2 + now.size] == 0
     now, shifted = np.linalg.norm(now[smooth]), np.linalg.norm(shifted[smooth])
     return bool(now > 1e-6 * np.linalg.norm(dv) and shifted < _STALE_GAIN * now)
+
+
+def _column_norms(a: np.ndarray) -> np.ndarray:
+    """Euclidean norm of each column."""
+    return np.sqrt(np.einsum("ij,ij->j", a, a))
 
 
 def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
