@@ -5,6 +5,7 @@ neither writes into the checkout nor needs the network); ``.ci/run`` additionall
 fresh virtual environment and runs the quick demo from it.
 """
 
+import os
 import shutil
 import subprocess
 import sys
@@ -103,3 +104,13 @@ def test_unpacked_wheel_reads_its_packaged_sources_and_caches_fmus_outside(distr
     assert Path(sources) == site / "fmu_opinf" / "_csources"
     assert Path(fmu_dir) == tmp_path / "cache" / "fmus"
     assert int(count) > 10
+    # the model-exchange step loop is compiled from the wheel's copy into the cache (with a compiler on PATH)
+    code = ("from fmu_opinf.sources import _compiled_rk; print(_compiled_rk._source()); "
+            "print(_compiled_rk.available())")
+    env["PATH"] = os.environ.get("PATH", "")
+    done = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    source, available = done.stdout.split()
+    assert Path(source) == site / "fmu_opinf" / "_csources" / "integrator" / "erk.c"
+    if shutil.which("cc") or shutil.which("gcc"):
+        assert available == "True" and list((tmp_path / "cache" / "integrator").glob("erk-*"))
