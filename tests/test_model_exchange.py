@@ -6,6 +6,7 @@ coordinates, independent of the FMU and of the integrator).
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -293,9 +294,9 @@ def _record_counting(source, dt: float, t_end: float):
 @pytest.mark.filterwarnings("ignore:.*too coarse for the motion")
 @pytest.mark.parametrize("name, dt", [("me-only", 0.05), ("fmi3-array-structural", 0.05), ("me-only", 2.0)])
 def test_compiled_dop853_takes_the_steps_of_scipys_dop853(corpus, name, dt, monkeypatch):
-    """The C step loop is scipy's DOP853 (same tableau, error norm and step control): the same number of
-    derivative evaluations as :class:`scipy.integrate.DOP853` driving the FMU from Python, the same states to
-    rounding, and both within the tolerance of the exact solution.  With dt = 2 an interval takes more steps
+    """The C step loop is scipy's DOP853 (same tableau, error norm and step control): the number of derivative
+    evaluations of :class:`scipy.integrate.DOP853` driving the FMU from Python, the same states to rounding, and
+    both within the tolerance of the exact solution.  With dt = 2 an interval takes more steps
     than one call of the C loop runs, so the loop pauses (for Ctrl-C) and resumes without changing a step."""
     from fmu_opinf.sources import _compiled_rk
 
@@ -311,7 +312,9 @@ def test_compiled_dop853_takes_the_steps_of_scipys_dop853(corpus, name, dt, monk
     assert bool(pauses) == (dt > 1)
     monkeypatch.setattr(_compiled_rk, "kernel", lambda *args: None)
     python, counts_py = _record_counting(open_source(corpus[name]), dt, 8.0)
-    assert counts_py["python"] == counts_c["compiled"]
+    # equal here; the error estimate's sums are added in another order than numpy's, which can move a step when a
+    # state's absolute tolerance is near the rounding of the estimate (3 % fewer on a model starting at 0)
+    assert abs(counts_py["python"] - counts_c["compiled"]) <= 0.01 * counts_c["compiled"]
     for key in ("x", "xdot", "xddot", "y"):
         a, b = np.asarray(getattr(compiled, key)), np.asarray(getattr(python, key))
         assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), key  # measured 3.1e-15 / 6.4e-14
@@ -335,3 +338,34 @@ def test_model_exchange_without_a_c_compiler_keeps_scipys_loop(corpus, tmp_path,
         _compiled_rk._library.cache_clear()
     assert run.attrs["integrator"].startswith("DOP853 (scipy.integrate.DOP853)")
     assert max(relative_errors(run, exact("me-only", run)).values()) < 3e-11
+
+
+def test_a_failed_build_of_the_step_loop_is_tried_once_and_a_foreign_library_is_not_loaded(tmp_path, monkeypatch):
+    """A compiler that fails leaves a marker, so that the runs' processes do not call it again; a library in the
+    cache that another user could have written is not loaded (scipy's loop runs instead)."""
+    from fmu_opinf.sources import _compiled_rk
+
+    calls = tmp_path / "calls"
+    failing = tmp_path / "failing-cc"
+    failing.write_text(f"#!/bin/sh\necho called >> {calls}\necho 'no such header' >&2\nexit 1\n")
+    failing.chmod(0o755)
+    monkeypatch.setenv("CC", str(failing))
+    monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "cache"))
+    try:
+        for _ in range(3):
+            _compiled_rk._library.cache_clear()  # as in a new process
+            assert not _compiled_rk.available()
+        assert calls.read_text().count("called") == 1
+        (marker,) = (tmp_path / "cache" / "integrator").glob("*.failed")
+        assert "no such header" in marker.read_text()
+        if not (shutil.which("cc") or shutil.which("gcc")):
+            return
+        monkeypatch.delenv("CC")
+        _compiled_rk._library.cache_clear()
+        assert _compiled_rk.available()
+        (library,) = (tmp_path / "cache" / "integrator").glob("erk-*.so")
+        library.chmod(0o775)  # group-writable: anyone in the group could have replaced it
+        _compiled_rk._library.cache_clear()
+        assert not _compiled_rk.available()
+    finally:
+        _compiled_rk._library.cache_clear()

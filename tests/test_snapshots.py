@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import pickle
+import sys
 from pathlib import Path
 
 import h5py
@@ -273,34 +275,74 @@ def test_isolated_recording_equals_in_process_recording(toys):
 
 
 def test_isolated_runs_follow_the_callers_directory_and_environment(toys, tmp_path, monkeypatch):
-    """After the first run, runs start from a fork server (Linux) that was started in another directory with an
-    older environment: a relative path of an unpacked FMU after a chdir still opens, and the child sees the caller's
-    environment of the moment."""
+    """Runs from the fork server (the command line's, here switched on for the API; Linux), which was started in
+    another directory with an older environment: a relative path of an unpacked FMU after a chdir still opens
+    (it was refused in process too: "can't be expressed as a file URI"), and the child takes over the caller's
+    environment of the moment before it rebuilds the source."""
     import multiprocessing as mp
+    import sys
+
+    from fmpy import extract
 
     from fmu_opinf.snapshots import _isolation
 
+    monkeypatch.setitem(_isolation._FORK_SERVER, "enabled", True)
     signal = SignalStub(amplitude=1.0, t0=0.35)
     record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True)  # the server starts here
-    if "forkserver" in mp.get_all_start_methods():
+    if sys.platform.startswith("linux") and "forkserver" in mp.get_all_start_methods():
         assert _isolation._process_context().get_start_method() == "forkserver"
-    from fmpy import extract
-
     extract(str(toys["fmi3"]), unzipdir=str(tmp_path / "unpacked"))  # an unpacked FMU is read where it lies
     monkeypatch.chdir(tmp_path)
-    for isolate in (False, True):  # the relative path was refused in both ("can't be expressed as a file URI")
+    for isolate in (False, True):
         run = record(FMUSource("unpacked"), signal, 0.01, 0.5, quiet=True, isolate=isolate).runs[0]
         assert run.k == 51 and run.complete
     monkeypatch.setenv("FMU_OPINF_TEST_VARIABLE", "set after the server started")
-    environment = dict(os.environ)
+    inherited = pickle.loads(pickle.dumps(_isolation._Inherited(dict(os.environ))))
     monkeypatch.delenv("FMU_OPINF_TEST_VARIABLE")
-    _isolation._take_over(str(tmp_path), environment)   # what the child does first
+    inherited.take_over()   # what the child does first
     try:
         assert os.environ["FMU_OPINF_TEST_VARIABLE"] == "set after the server started"
-        assert Path.cwd() == tmp_path.resolve()
     finally:
         os.environ.pop("FMU_OPINF_TEST_VARIABLE", None)
 
+
+def test_the_python_api_spawns_and_the_command_line_uses_the_fork_server(monkeypatch, tmp_path):
+    """The fork server is shared by everything in a process that uses multiprocessing's "forkserver" method, and
+    fmu-opinf's keeps SIGINT/SIGTERM blocked: only the command line, where no other code runs, switches it on."""
+    from fmu_opinf.cli import main
+    from fmu_opinf.snapshots import _isolation
+
+    monkeypatch.setitem(_isolation._FORK_SERVER, "enabled", False)
+    assert _isolation._process_context().get_start_method() == "spawn"
+    assert main(["fit", str(tmp_path / "missing.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 2
+    assert _isolation._FORK_SERVER["enabled"]
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is used on Linux only")
+def test_a_fork_server_killed_during_a_run_is_named_and_the_next_run_restarts_it(toys, monkeypatch):
+    """Killing the server mid-run used to be reported as a crash of the FMU (exit code 255) and left its child
+    running; now the error names the server, and the next run starts a new one."""
+    import threading
+    from multiprocessing import forkserver
+
+    from fmu_opinf.errors import FMUError
+    from fmu_opinf.snapshots import _isolation
+
+    monkeypatch.setitem(_isolation._FORK_SERVER, "enabled", True)
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True)  # starts the server
+    if _isolation._process_context().get_start_method() != "forkserver":
+        pytest.skip("another fork server runs in this process")
+    server = forkserver._forkserver._forkserver_pid
+    killer = threading.Timer(0.3, os.kill, (server, 9))
+    killer.start()
+    try:
+        with pytest.raises(FMUError, match="fork server .* stopped during the run"):
+            record(FMUSource(toys["fmi3"]), signal, 1e-5, 30.0, quiet=True, isolate=True)
+    finally:
+        killer.cancel()
+    run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
+    assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
 
 # ------------------------------------------------------------------------------- command-line entry, auto window
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import os
+import pickle
 import signal as _signal
 import sys
 from collections.abc import Iterator
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
     from ._record import _Sink
 
 __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted", "deferred_interrupts",
-           "check_interrupt"]
+           "check_interrupt", "use_fork_server"]
 
 
 def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink) -> Iterator[tuple[int, int]]:
@@ -58,23 +59,28 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
 _HEADER = 64  # bytes before the row buffer in shared memory: int64 count of valid rows
 
 
-def _child_main(conn: Any, shm_name: str, cap: int, source: Source, t: np.ndarray, U: np.ndarray,
-                where: tuple[str, dict[str, str]] | None = None) -> None:
+def _child_main(conn: Any, shm_name: str, cap: int, source: Source | bytes, t: np.ndarray, U: np.ndarray,
+                inherited: _Inherited | None = None) -> None:
     """Child process: run the source, fill the shared buffer, report through ``conn``.
 
     The child ignores SIGINT and SIGTERM: the parent decides (Ctrl-C reaches the whole process group)
-    and kills the child when it stops.  ``where``: the parent's working directory and environment at the
-    start of the run (a child of the fork server inherits the server's, which may be older).
+    and kills the child when it stops.  A child of the fork server gets ``inherited`` (the caller's
+    environment and standard output and error at the start of the run, which a spawned child inherits anyway)
+    and the source pickled, unpickled only once that is in place.
     """
     for signum in _SIGNALS:
         _signal.signal(signum, _signal.SIG_IGN)
-    if where is not None:
-        _take_over(*where)
+    if inherited is not None:
+        inherited.take_over()
+    if isinstance(source, bytes):
+        source = pickle.loads(source)
     shm = shared_memory.SharedMemory(name=shm_name)
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, source.width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     try:
         _child_loop(conn, source, t, U, count, rows)
+    except (BrokenPipeError, EOFError, ConnectionResetError):
+        pass  # the parent is gone (killed, or stopped the run): nobody to report to
     finally:
         del count, rows
         shm.close()
@@ -127,9 +133,11 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     rows = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     count[0] = 0
     ctx = _process_context()
-    where = (os.getcwd(), dict(os.environ)) if ctx.get_start_method() == "forkserver" else None
+    forked = ctx.get_start_method() == "forkserver"
+    payload = pickle.dumps(source) if forked else source
+    inherited = _Inherited(dict(os.environ)) if forked else None
     here, there = ctx.Pipe()
-    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, source, t, U, where), daemon=True)
+    proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, payload, t, U, inherited), daemon=True)
     i0 = 0
     try:
         with _signals_blocked(), _main_not_rerun(source):  # the child starts with SIGINT/SIGTERM blocked
@@ -150,6 +158,10 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                 check_interrupt()  # killed with us by the same signal: an interrupt, not a crash
                 proc.join(5)  # reap it, so that its exit code (the signal) is known
                 i = i0 + valid
+                if forked and _server_lost(proc):
+                    raise FMUError(f"the fork server of fmu-opinf's simulation processes stopped during the run of "
+                                   f"{source_label(source)} (step {i} of {k}); the run was stopped, run the command "
+                                   "again")
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
             if message[0] == "fail":
                 raise StepError(message[1], message[2], message[3])
@@ -172,11 +184,26 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
 
 
 #: Modules the fork server imports once, so that a run's child process starts without importing them (about
-#: 0.4 s per run with a fresh interpreter, 0.03 s forked from the server).
+#: 0.4 s per run with a fresh interpreter, 0.025 s forked from the server).
 _PRELOAD = ["fmu_opinf.snapshots._isolation", "fmu_opinf.sources", "scipy.integrate", "fmpy.fmi2", "fmpy.fmi3"]
+
+#: Whether runs may start from multiprocessing's fork server (:func:`use_fork_server`; off for the Python API).
+_FORK_SERVER = {"enabled": False}
 
 #: The process whose fork server the runs use (None: none started by fmu-opinf yet).
 _server_owner: int | None = None
+
+
+def use_fork_server(enabled: bool = True) -> None:
+    """Let isolated runs of this process start from multiprocessing's fork server (Linux; the command line does).
+
+    The fork server is one per process and shared with every other user of multiprocessing's ``"forkserver"``
+    start method in it: fmu-opinf starts it with SIGINT and SIGTERM blocked and its own preload list, which the
+    processes of a ``Pool`` or ``Process(...)`` that the caller's own code starts later from it would inherit
+    (``terminate()`` would no longer stop them).  So the Python API keeps spawning a fresh interpreter per run
+    unless the caller opts in; the ``fmu-opinf`` command, where no other code shares the process, opts in.
+    """
+    _FORK_SERVER["enabled"] = bool(enabled)
 
 
 def _process_context() -> Any:
@@ -184,13 +211,15 @@ def _process_context() -> Any:
 
     Every run gets a process of its own either way (a crashing binary loses only its run, and no state of an
     FMU's library survives into the next run), but the fork server has imported fmu-opinf, numpy, scipy and
-    fmpy once, so a child starts in about 30 ms instead of 0.4 s (a recording runs 4-10 of them).  The server
-    is used only in the process that started it, inside :func:`_signals_blocked`, so that it and its children
-    keep SIGINT and SIGTERM blocked from the start; a server started by other code, a forked process (whose
-    parent owns the server) and platforms without fork servers (Windows) spawn as before.
+    fmpy once, so a child starts in about 25 ms instead of 0.4 s (a recording runs 4-10 of them).  Used where
+    enabled (:func:`use_fork_server`) on Linux (on macOS, forking after numpy and scipy are loaded is not safe
+    with Apple's libraries), only in the process that started the server, which it does inside
+    :func:`_signals_blocked` so that the server and its children keep SIGINT and SIGTERM blocked from the start.
+    A server started by other code and a forked process (whose parent owns the server) spawn.
     """
     global _server_owner
-    if "forkserver" not in mp.get_all_start_methods():
+    if not (_FORK_SERVER["enabled"] and sys.platform.startswith("linux")
+            and "forkserver" in mp.get_all_start_methods()):
         return mp.get_context("spawn")
     from multiprocessing import forkserver
 
@@ -205,13 +234,61 @@ def _process_context() -> Any:
     return mp.get_context("spawn")
 
 
-def _take_over(cwd: str, environment: dict[str, str]) -> None:
-    """Adopt the parent's working directory and environment (a relative FMU path, a licence variable)."""
-    with contextlib.suppress(OSError):
-        os.chdir(cwd)
-    if dict(os.environ) != environment:
-        os.environ.clear()
-        os.environ.update(environment)
+def _server_lost(proc: Any) -> bool:
+    """Whether the fork server died (its children then report exit code 255); its orphaned child is killed."""
+    from multiprocessing import forkserver
+
+    pid = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None)
+    if proc.exitcode != 255 or pid is None:
+        return False
+    try:
+        dead = os.waitpid(pid, os.WNOHANG)[0] != 0
+    except ChildProcessError:
+        dead = True
+    if dead:  # multiprocessing starts a new server at the next run; this child may still be running
+        forkserver._forkserver._forkserver_pid = None
+        with contextlib.suppress(OSError):
+            os.close(forkserver._forkserver._forkserver_alive_fd)
+        forkserver._forkserver._forkserver_alive_fd = None
+        forkserver._forkserver._forkserver_address = None
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(proc.pid, _signal.SIGKILL)
+    return dead
+
+
+class _Inherited:
+    """What a child of the fork server takes over from the caller at the start of its run: the environment, and
+    the caller's standard output and error (passed as file descriptors; the server's may be older)."""
+
+    def __init__(self, environment: dict[str, str]) -> None:
+        self.environment = environment
+        self.streams: list[Any] = []
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        from multiprocessing import reduction
+
+        streams = []
+        for fd in (1, 2):
+            with contextlib.suppress(OSError, ValueError):
+                os.fstat(fd)
+                streams.append((fd, reduction.DupFd(fd)))  # sent with the process start (fork server protocol)
+        return (_rebuild_inherited, (self.environment, streams))
+
+    def take_over(self) -> None:
+        if dict(os.environ) != self.environment:
+            os.environ.clear()
+            os.environ.update(self.environment)
+        for target, duplicate in self.streams:
+            with contextlib.suppress(OSError):
+                fd = duplicate.detach() if hasattr(duplicate, "detach") else int(duplicate)
+                os.dup2(fd, target)
+                os.close(fd)
+
+
+def _rebuild_inherited(environment: dict[str, str], streams: list[Any]) -> _Inherited:
+    inherited = _Inherited(environment)
+    inherited.streams = streams
+    return inherited
 
 
 @contextlib.contextmanager

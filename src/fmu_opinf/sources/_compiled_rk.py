@@ -9,18 +9,24 @@ norm and step-size control -- calling the FMU's ``SetTime``, ``SetContinuousStat
 ``GetDerivatives`` function pointers directly.
 
 The library is compiled once per machine into the per-user cache folder (``$FMU_OPINF_CACHE_DIR``, else e.g.
-``~/.cache/fmu-opinf``), named after a digest of its source, with the C compiler of ``$CC`` or the first of
-``cc``, ``gcc``, ``clang`` on the path.  Where no compiler is found or the build fails, :func:`kernel` returns
-None and the model-exchange source keeps scipy's Python loop (same method, same results to rounding).
+``~/.cache/fmu-opinf``), named after a digest of its source and of the build's kind, with the C compiler of
+``$CC`` or the first of ``cc``, ``gcc``, ``clang`` on the path; the model-exchange source asks for it when it is
+created, so the build happens in the caller's process, not in each run's.  Where no compiler is found or the
+build fails, :func:`kernel` returns None and the model-exchange source keeps scipy's Python loop (same method,
+same results to rounding: the error estimate's sums are added in another order, which can move a step).
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import hashlib
 import os
+import platform
+import shlex
 import shutil
+import struct
 import subprocess
 import sys
 import threading
@@ -155,19 +161,27 @@ def _source() -> Path:
     return _c_sources_dir() / "integrator" / "erk.c"
 
 
-def _compiler() -> str | None:
-    configured = os.environ.get("CC")
+def _compiler() -> list[str] | None:
+    """The compiler command (``$CC`` may carry options, e.g. ``ccache gcc``), None if there is none."""
+    configured = shlex.split(os.environ.get("CC", ""))
     if configured:
-        return shutil.which(configured)
-    return next((found for found in (shutil.which(name) for name in ("cc", "gcc", "clang")) if found), None)
+        found = shutil.which(configured[0])
+        return None if found is None else [found, *configured[1:]]
+    found = next((path for path in (shutil.which(name) for name in ("cc", "gcc", "clang")) if path), None)
+    return None if found is None else [found]
 
 
 @functools.lru_cache(maxsize=None)
 def _library() -> ctypes.CDLL | None:
-    """Load the cached build of ``erk.c``, building it first where needed; None without a working compiler."""
+    """Load the cached build of ``erk.c``, building it first where needed; None without a working compiler.
+
+    The file name carries a digest of the source, the compiler command, the platform, the machine and the pointer
+    size (a cache folder shared by different machines keeps one build per kind).  A failed build leaves a
+    ``.failed`` marker with the compiler's message, so that later runs (each isolated run is a process of its
+    own) do not try again; delete it to retry.  A library that another user could have written is not loaded.
+    """
     try:
-        source = _source()
-        text = source.read_bytes()
+        text = _source().read_bytes()
     except Exception:
         return None
     compiler = _compiler()
@@ -176,11 +190,25 @@ def _library() -> ctypes.CDLL | None:
     from ..fmus import _user_cache_dir
 
     suffix = ".dll" if sys.platform == "win32" else ".dylib" if sys.platform == "darwin" else ".so"
-    digest = hashlib.sha256(text + b"\0" + compiler.encode() + b"\0" + sys.platform.encode()).hexdigest()[:16]
+    kind = "\0".join([*compiler, sys.platform, platform.machine(), str(struct.calcsize("P"))]).encode()
+    digest = hashlib.sha256(text + b"\0" + kind).hexdigest()[:16]
     path = _user_cache_dir() / "integrator" / f"erk-{digest}{suffix}"
     with _BUILD_LOCK:
-        if not path.is_file() and not _build(compiler, source, path):
-            return None
+        for attempt in range(2):
+            if path.with_name(path.name + ".failed").is_file():
+                return None
+            if not path.is_file() and not _build(compiler, _source(), path):
+                return None
+            library = _load(path)
+            if library is not None or attempt or not _trusted(path):
+                return library
+            path.unlink(missing_ok=True)  # a damaged or foreign-architecture build: once more
+    return None
+
+
+def _load(path: Path) -> ctypes.CDLL | None:
+    if not _trusted(path):
+        return None
     try:
         library = ctypes.CDLL(str(path))
     except OSError:
@@ -191,21 +219,41 @@ def _library() -> ctypes.CDLL | None:
     return library
 
 
-def _build(compiler: str, source: Path, path: Path) -> bool:
-    """Compile ``source`` into ``path`` through a temporary file renamed into place (concurrent builds are safe)."""
+def _trusted(path: Path) -> bool:
+    """On POSIX: the library and its folder belong to this user and nobody else may write them (a shared
+    ``$FMU_OPINF_CACHE_DIR`` must not let another user plant code that fmu-opinf then runs)."""
+    if os.name != "posix":
+        return True
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        for item in (path, path.parent):
+            status = item.stat()
+            if status.st_uid != os.getuid() or status.st_mode & 0o022:
+                return False
+    except OSError:
+        return False
+    return True
+
+
+def _build(compiler: list[str], source: Path, path: Path) -> bool:
+    """Compile ``source`` into ``path`` through a temporary file renamed into place (concurrent builds are safe);
+    a failure is remembered next to it (``.failed``)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     except OSError:
         return False
     temporary = path.with_name(f"{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
-    command = [compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", str(temporary), "-lm"]
+    command = [*compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", str(temporary), "-lm"]
     try:
         result = subprocess.run(command, capture_output=True, timeout=120)
         if result.returncode != 0 or not temporary.is_file():
+            message = (result.stdout + result.stderr).decode("utf-8", "replace")
+            with contextlib.suppress(OSError):
+                path.with_name(path.name + ".failed").write_text(f"{' '.join(command)}\n{message}")
             return False
+        os.chmod(temporary, 0o755)
         os.replace(temporary, path)
         return True
     except (OSError, subprocess.SubprocessError):
-        return False
+        return path.is_file()  # e.g. Windows: another process loaded the file it built at the same time
     finally:
         temporary.unlink(missing_ok=True)

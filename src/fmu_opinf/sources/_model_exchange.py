@@ -75,6 +75,8 @@ class ModelExchangeSource(FMUSource):
         super().__init__(path, **options)
         self.method = method
         self._options["method"] = method
+        if method == "dop853":
+            _compiled_rk.available()  # build the step loop here, once, not in every isolated run's process
 
     @staticmethod
     def _interface_of(md: Any) -> Any:
