@@ -9,7 +9,8 @@ Modules, one job each:
 :mod:`._record`
     :func:`record` / :func:`record_to_file`: drive a source into memory or a file.
 :mod:`._isolation`
-    Run the source in this process or in a child process (a crashing FMU binary becomes an error).
+    Run the source in this process or in a child process (a crashing FMU binary becomes an error);
+    :func:`use_fork_server` lets the child processes of this process start from a fork server.
 :mod:`._rates`
     Time grid, inputs in effect, rates derived from recorded samples.
 :mod:`._window`
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION
+from ._isolation import use_fork_server
 from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
                      time_grid)
 from ._record import DEFAULT_TRAINING_INPUT, STREAM_THRESHOLD, RecordSummary, record, record_to_file
@@ -33,6 +35,7 @@ __all__ = [
     "RecordSummary",
     "record",
     "record_to_file",
+    "use_fork_server",
     "auto_window",
     "time_grid",
     "inputs_in_effect",

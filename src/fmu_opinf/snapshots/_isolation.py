@@ -118,7 +118,7 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
 
 def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                      timeout: float | None = None) -> Iterator[tuple[int, int]]:
-    """Like :func:`produce_inprocess`, with the source in a spawned child process.
+    """Like :func:`produce_inprocess`, with the source in a child process of its own (:func:`_process_context`).
 
     The child writes samples into shared memory and publishes after each sample how many rows are
     complete, so when it dies (a crashing binary) every sample it finished is still taken over.
@@ -202,6 +202,7 @@ def use_fork_server(enabled: bool = True) -> None:
     processes of a ``Pool`` or ``Process(...)`` that the caller's own code starts later from it would inherit
     (``terminate()`` would no longer stop them).  So the Python API keeps spawning a fresh interpreter per run
     unless the caller opts in; the ``fmu-opinf`` command, where no other code shares the process, opts in.
+    A script that does not use the ``"forkserver"`` start method itself can opt in as well.
     """
     _FORK_SERVER["enabled"] = bool(enabled)
 
