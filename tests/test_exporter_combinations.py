@@ -401,6 +401,27 @@ def test_single_precision_input_and_output_are_driven_and_recorded(fmus, tmp_pat
     assert relative(y[1], exact[1]) < 1e-11
 
 
+def test_an_input_beyond_single_precision_is_refused_in_one_line(fmus, tmp_path, capsys):
+    """A Float32 input driven beyond 3.4e38 became infinite: numpy's "overflow encountered in cast" warning, then
+    "the derivatives are not finite" at the impulse, naming neither the input nor the range.  Now one line names
+    both before the FMU runs; 1e37 still records.  The source refuses it too (``compare`` drives it directly)."""
+    from fmu_opinf.errors import InputSpecError
+    from fmu_opinf.sources import FMUSource
+
+    fmu, _ = fmus["single-precision"]
+    out = tmp_path / "a.h5"
+    args = ["snapshots", str(fmu), "-o", str(out), "-q", "--dt", "0.05", "--t-end", "10", "--input"]
+    assert main([*args, "impulse:amplitude=1e39,t0=2,width=0.5"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "input F is a single-precision (Float32) variable" in err and "1e+39" in err
+    assert "overflow" not in err and not out.exists()
+    assert main([*args, "impulse:amplitude=1e37,t0=2,width=0.5"]) == 0
+    source = FMUSource(fmu)
+    t = time_grid(0.05, 1.0)
+    with pytest.raises(InputSpecError, match="single-precision"):
+        source.start(t, np.full((len(t), 1), 1e39))
+    source.close()
+
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
     """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs,
     named as forces, driven to 0) is reported with its own hint, not as a step dependence.  Since the default

@@ -60,6 +60,24 @@ def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
     return found
 
 
+#: Largest finite single-precision number: an FMI 3 Float32 input beyond it would receive infinity.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def check_single_precision(fmu: str, names: list[str], single: np.ndarray, u: np.ndarray) -> None:
+    """Refuse inputs that single-precision (Float32) input variables cannot hold (``u``: (m, k), in effect).
+
+    Rounded to Float32 they would become infinite: numpy warned about an overflow in a cast and the FMU failed
+    later with non-finite derivatives or outputs, which named neither the input nor its range.
+    """
+    for name, values in zip((n for n, s in zip(names, single) if s), u[single]):
+        largest = float(np.max(np.abs(values))) if values.size else 0.0
+        if largest > FLOAT32_MAX:
+            raise InputSpecError(f"{fmu}: input {name} is a single-precision (Float32) variable and the input "
+                                 f"reaches {largest:.3g}, beyond its largest value {FLOAT32_MAX:.3g}; scale the "
+                                 "input down (e.g. its amplitude)")
+
+
 class FMUSource(Source):
     """A co-simulation FMU (FMI 2.0 or 3.0) driven step by step through its C functions.
 
@@ -648,6 +666,9 @@ class FMUSource(Source):
         self._raw = np.zeros(max(self._read.nvalues + self._read.nvalues32, 1))
         self._raw32 = np.zeros(max(self._read.nvalues32, 1), dtype=np.float32)
         # Float32 inputs as the FMU takes them, one row per sample (their doubles are in _Uraw)
+        single = np.asarray(getattr(self, "single_precision_inputs", ()), dtype=bool)
+        if single.size == self.m and single.any():
+            check_single_precision(self.path.name, self.input_names, single, self._U.T)
         self._Uraw32 = np.ascontiguousarray(self._Uraw[:, self._write.nvalues:], dtype=np.float32)
 
     def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
