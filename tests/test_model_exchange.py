@@ -342,7 +342,8 @@ def test_model_exchange_without_a_c_compiler_keeps_scipys_loop(corpus, tmp_path,
 
 def test_a_failed_build_of_the_step_loop_is_tried_once_and_a_foreign_library_is_not_loaded(tmp_path, monkeypatch):
     """A compiler that fails leaves a marker, so that the runs' processes do not call it again; a library in the
-    cache that another user could have written is not loaded (scipy's loop runs instead)."""
+    cache that another user could have written is not loaded (scipy's loop runs instead); a group-writable cache
+    folder of this user's (umask 0002) is made private rather than leaving the loop unused."""
     from fmu_opinf.sources import _compiled_rk
 
     calls = tmp_path / "calls"
@@ -361,8 +362,10 @@ def test_a_failed_build_of_the_step_loop_is_tried_once_and_a_foreign_library_is_
         if not (shutil.which("cc") or shutil.which("gcc")):
             return
         monkeypatch.delenv("CC")
+        (tmp_path / "cache" / "integrator").chmod(0o775)  # as a umask of 0002 leaves it: made private again
         _compiled_rk._library.cache_clear()
         assert _compiled_rk.available()
+        assert (tmp_path / "cache" / "integrator").stat().st_mode & 0o777 == 0o755
         (library,) = (tmp_path / "cache" / "integrator").glob("erk-*.so")
         library.chmod(0o775)  # group-writable: anyone in the group could have replaced it
         _compiled_rk._library.cache_clear()

@@ -194,6 +194,7 @@ def _library() -> ctypes.CDLL | None:
     digest = hashlib.sha256(text + b"\0" + kind).hexdigest()[:16]
     path = _user_cache_dir() / "integrator" / f"erk-{digest}{suffix}"
     with _BUILD_LOCK:
+        _private(path.parent)
         for attempt in range(2):
             if path.with_name(path.name + ".failed").is_file():
                 return None
@@ -219,6 +220,18 @@ def _load(path: Path) -> ctypes.CDLL | None:
     return library
 
 
+def _private(folder: Path) -> None:
+    """Create the folder, and take group and others' write permission away if this user owns it (a umask of 0002
+    or an older version made it group-writable, and :func:`_trusted` would then never load the library)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+        status = folder.stat()
+        if os.name == "posix" and status.st_uid == os.getuid() and status.st_mode & 0o022:
+            folder.chmod(status.st_mode & 0o755)
+    except OSError:
+        pass
+
+
 def _trusted(path: Path) -> bool:
     """On POSIX: the library and its folder belong to this user and nobody else may write them (a shared
     ``$FMU_OPINF_CACHE_DIR`` must not let another user plant code that fmu-opinf then runs)."""
@@ -237,9 +250,7 @@ def _trusted(path: Path) -> bool:
 def _build(compiler: list[str], source: Path, path: Path) -> bool:
     """Compile ``source`` into ``path`` through a temporary file renamed into place (concurrent builds are safe);
     a failure is remembered next to it (``.failed``)."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-    except OSError:
+    if not path.parent.is_dir():
         return False
     temporary = path.with_name(f"{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
     command = [*compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", str(temporary), "-lm"]
