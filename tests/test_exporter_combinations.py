@@ -421,6 +421,13 @@ def test_an_input_beyond_single_precision_is_refused_in_one_line(fmus, tmp_path,
     with pytest.raises(InputSpecError, match="single-precision"):
         source.start(t, np.full((len(t), 1), 1e39))
     source.close()
+    from fmu_opinf.sources._cosimulation import FLOAT32_MAX, check_single_precision
+
+    single = np.array([True])
+    check_single_precision("x.fmu", ["F"], single, np.array([[FLOAT32_MAX, -FLOAT32_MAX]]))  # held exactly
+    for values in ([[np.nan, 1e39]], [[3.41e38]]):  # a NaN beside it does not hide it; just past the largest
+        with pytest.raises(InputSpecError, match="input F is a single-precision"):
+            check_single_precision("x.fmu", ["F"], single, np.array(values))
 
 def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tmp_path, capsys):
     """2''. On a co-simulation FMU the step check runs first: an FMU error there (parameters exposed as inputs,

@@ -352,10 +352,23 @@ def test_a_failed_build_of_the_step_loop_is_tried_once_and_a_foreign_library_is_
     failing.chmod(0o755)
     monkeypatch.setenv("CC", str(failing))
     monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "cache"))
+    from fmu_opinf.errors import FmuOpinfWarning
+
     try:
+        interrupted = tmp_path / "interrupted-cc"
+        interrupted.write_text(f"#!/bin/sh\necho called >> {calls}\nkill -INT $$\n")
+        interrupted.chmod(0o755)
+        monkeypatch.setenv("CC", str(interrupted))
+        for _ in range(2):  # a compiler stopped by a signal is no verdict: no marker, tried again
+            _compiled_rk._library.cache_clear()
+            assert not _compiled_rk.available()
+        assert calls.read_text().count("called") == 2 and not list((tmp_path / "cache").rglob("*.failed"))
+        calls.unlink()
+        monkeypatch.setenv("CC", str(failing))
         for _ in range(3):
             _compiled_rk._library.cache_clear()  # as in a new process
-            assert not _compiled_rk.available()
+            with pytest.warns(FmuOpinfWarning, match="could not be built .* scipy's slower loop"):
+                assert not _compiled_rk.available()
         assert calls.read_text().count("called") == 1
         (marker,) = (tmp_path / "cache" / "integrator").glob("*.failed")
         assert "no such header" in marker.read_text()

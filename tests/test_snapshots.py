@@ -314,8 +314,11 @@ def test_the_python_api_spawns_and_the_command_line_uses_the_fork_server(monkeyp
 
     monkeypatch.setitem(_isolation._FORK_SERVER, "enabled", False)
     assert _isolation._process_context().get_start_method() == "spawn"
+    settings = []
+    use = _isolation.use_fork_server
+    monkeypatch.setattr(_isolation, "use_fork_server", lambda enabled=True: (settings.append(enabled), use(enabled)))
     assert main(["fit", str(tmp_path / "missing.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 2
-    assert _isolation._FORK_SERVER["enabled"]
+    assert settings == [True, False] and not _isolation._FORK_SERVER["enabled"]  # on for the command, then restored
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is used on Linux only")
@@ -552,3 +555,28 @@ def test_a_run_table_rows_own_settings_do_not_become_the_data_sets():
     merged = Snapshots([run], {"fmu_settings": {**common, "mass[1].s": "0.3"}})
     merged.append(Snapshots([run], {"fmu_settings": dict(common)}))
     assert merged.attrs["fmu_settings"] == common
+
+
+def test_a_non_inheritable_descriptor_in_place_of_stdout_is_not_handed_to_the_run(monkeypatch, tmp_path):
+    """With stdout closed, the run's shared memory (opened close-on-exec) can take descriptor 1; handing that to a
+    fork-server child as its stdout let an FMU's printing overwrite recorded samples (review of 2026-11-27).  Only
+    inheritable descriptors are passed; the child points the others at the null device."""
+    from multiprocessing import reduction
+
+    from fmu_opinf.snapshots import _isolation
+
+    passed = []
+    monkeypatch.setattr(reduction, "DupFd", lambda fd: passed.append(fd) or fd)
+    saved = os.dup(1)
+    private = os.open(tmp_path / "private", os.O_WRONLY | os.O_CREAT)
+    try:
+        os.dup2(private, 1, inheritable=False)  # what SharedMemory(create=True) does when fd 1 is free
+        _isolation._Inherited({}).__reduce__()
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(private)
+    assert passed == [2]
+    passed.clear()
+    _isolation._Inherited({}).__reduce__()
+    assert passed == [1, 2]

@@ -395,8 +395,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     import warnings
 
-    from .snapshots._isolation import use_fork_server
+    from .snapshots._isolation import _FORK_SERVER, use_fork_server
 
+    before = _FORK_SERVER["enabled"]
     use_fork_server(True)
     previous, warnings.showwarning = warnings.showwarning, _one_line_warning
     try:
@@ -405,6 +406,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         warnings.showwarning = previous
+        use_fork_server(before)  # a script calling main() keeps its own setting
 
 
 def _main(argv: Sequence[str] | None) -> int:

@@ -202,7 +202,10 @@ def use_fork_server(enabled: bool = True) -> None:
     processes of a ``Pool`` or ``Process(...)`` that the caller's own code starts later from it would inherit
     (``terminate()`` would no longer stop them).  So the Python API keeps spawning a fresh interpreter per run
     unless the caller opts in; the ``fmu-opinf`` command, where no other code shares the process, opts in.
-    A script that does not use the ``"forkserver"`` start method itself can opt in as well.
+    A script that does not use the ``"forkserver"`` start method itself can opt in as well.  The children take
+    over the caller's environment and standard streams at each run, but what a process reads only when it starts
+    (``LD_LIBRARY_PATH`` for an FMU's dependent libraries, BLAS thread counts, the umask) is the server's, from
+    the first run: set those before it.
     """
     _FORK_SERVER["enabled"] = bool(enabled)
 
@@ -239,19 +242,23 @@ def _server_lost(proc: Any) -> bool:
     """Whether the fork server died (its children then report exit code 255); its orphaned child is killed."""
     from multiprocessing import forkserver
 
-    pid = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None)
-    if proc.exitcode != 255 or pid is None:
+    server = getattr(forkserver, "_forkserver", None)
+    if proc.exitcode != 255 or server is None:
         return False
-    try:
-        dead = os.waitpid(pid, os.WNOHANG)[0] != 0
-    except ChildProcessError:
-        dead = True
-    if dead:  # multiprocessing starts a new server at the next run; this child may still be running
-        forkserver._forkserver._forkserver_pid = None
-        with contextlib.suppress(OSError):
-            os.close(forkserver._forkserver._forkserver_alive_fd)
-        forkserver._forkserver._forkserver_alive_fd = None
-        forkserver._forkserver._forkserver_address = None
+    with server._lock:  # the lock multiprocessing takes to start the server: no run restarts it meanwhile
+        pid = server._forkserver_pid
+        if pid is None:
+            dead = True  # another thread found it dead and reset it
+        else:
+            try:
+                dead = os.waitpid(pid, os.WNOHANG)[0] != 0
+            except ChildProcessError:
+                dead = True
+            if dead:  # multiprocessing starts a new server at the next run
+                with contextlib.suppress(OSError, TypeError):
+                    os.close(server._forkserver_alive_fd)
+                server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
+    if dead:  # its child may still be running
         with contextlib.suppress(ProcessLookupError, PermissionError):
             os.kill(proc.pid, _signal.SIGKILL)
     return dead
@@ -270,20 +277,28 @@ class _Inherited:
 
         streams = []
         for fd in (1, 2):
+            # an inheritable descriptor only: with stdout closed, fd 1 may be the run's shared memory (opened
+            # close-on-exec), and a child writing to it would overwrite the recorded samples
             with contextlib.suppress(OSError, ValueError):
-                os.fstat(fd)
-                streams.append((fd, reduction.DupFd(fd)))  # sent with the process start (fork server protocol)
+                if os.get_inheritable(fd):
+                    streams.append((fd, reduction.DupFd(fd)))  # sent with the process start (fork server protocol)
         return (_rebuild_inherited, (self.environment, streams))
 
     def take_over(self) -> None:
         if dict(os.environ) != self.environment:
             os.environ.clear()
             os.environ.update(self.environment)
+        passed = {target for target, _ in self.streams}
         for target, duplicate in self.streams:
             with contextlib.suppress(OSError):
                 fd = duplicate.detach() if hasattr(duplicate, "detach") else int(duplicate)
                 os.dup2(fd, target)
                 os.close(fd)
+        for target in {1, 2} - passed:  # closed in the caller: nowhere, rather than the server's old stream
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, target)
+                os.close(null)
 
 
 def _rebuild_inherited(environment: dict[str, str], streams: list[Any]) -> _Inherited:

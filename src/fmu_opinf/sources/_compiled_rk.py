@@ -178,7 +178,8 @@ def _library() -> ctypes.CDLL | None:
     The file name carries a digest of the source, the compiler command, the platform, the machine and the pointer
     size (a cache folder shared by different machines keeps one build per kind).  A failed build leaves a
     ``.failed`` marker with the compiler's message, so that later runs (each isolated run is a process of its
-    own) do not try again; delete it to retry.  A library that another user could have written is not loaded.
+    own) do not try again for a day or until the compiler changes (delete it to retry at once), and one warning
+    names it.  A library that another user could have written is not loaded.
     """
     try:
         text = _source().read_bytes()
@@ -196,15 +197,41 @@ def _library() -> ctypes.CDLL | None:
     with _BUILD_LOCK:
         _private(path.parent)
         for attempt in range(2):
-            if path.with_name(path.name + ".failed").is_file():
-                return None
-            if not path.is_file() and not _build(compiler, _source(), path):
+            if not path.is_file() and (_failed_recently(path, compiler) or not _build(compiler, _source(), path)):
+                _report_failure(path)
                 return None
             library = _load(path)
             if library is not None or attempt or not _trusted(path):
                 return library
             path.unlink(missing_ok=True)  # a damaged or foreign-architecture build: once more
     return None
+
+
+#: How long a failed build is not tried again (unless the compiler changed since): a day.
+_RETRY_AFTER = 86400.0
+
+
+def _failed_recently(path: Path, compiler: list[str]) -> bool:
+    """Whether a build failed within :data:`_RETRY_AFTER` with the compiler as it is now (its marker)."""
+    marker = path.with_name(path.name + ".failed")
+    try:
+        failed = marker.stat().st_mtime
+        return time.time() - failed < _RETRY_AFTER and os.stat(compiler[0]).st_mtime <= failed
+    except OSError:
+        return False
+
+
+def _report_failure(path: Path) -> None:
+    """One warning per command (not again from each run's process) naming the marker of a failed build."""
+    import multiprocessing
+    import warnings
+
+    from ..errors import FmuOpinfWarning
+
+    marker = path.with_name(path.name + ".failed")
+    if multiprocessing.parent_process() is None and marker.is_file():
+        warnings.warn(f"the compiled model-exchange step loop could not be built (compiler output in {marker}); "
+                      "scipy's slower loop runs instead, with the same results", FmuOpinfWarning, stacklevel=3)
 
 
 def _load(path: Path) -> ctypes.CDLL | None:
@@ -257,9 +284,10 @@ def _build(compiler: list[str], source: Path, path: Path) -> bool:
     try:
         result = subprocess.run(command, capture_output=True, timeout=120)
         if result.returncode != 0 or not temporary.is_file():
-            message = (result.stdout + result.stderr).decode("utf-8", "replace")
-            with contextlib.suppress(OSError):
-                path.with_name(path.name + ".failed").write_text(f"{' '.join(command)}\n{message}")
+            if result.returncode > 0:  # the compiler's verdict, not a signal (Ctrl-C) or a vanished file
+                message = (result.stdout + result.stderr).decode("utf-8", "replace")
+                with contextlib.suppress(OSError):
+                    path.with_name(path.name + ".failed").write_text(f"{' '.join(command)}\n{message}")
             return False
         os.chmod(temporary, 0o755)
         os.replace(temporary, path)

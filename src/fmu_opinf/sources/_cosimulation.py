@@ -68,13 +68,16 @@ def check_single_precision(fmu: str, names: list[str], single: np.ndarray, u: np
     """Refuse inputs that single-precision (Float32) input variables cannot hold (``u``: (m, k), in effect).
 
     Rounded to Float32 they would become infinite: numpy warned about an overflow in a cast and the FMU failed
-    later with non-finite derivatives or outputs, which named neither the input nor its range.
+    later with non-finite derivatives or outputs, which named neither the input nor its range.  A value refused
+    is one that rounds to infinity (from about 3.4028236e38 on; :data:`FLOAT32_MAX` itself is held).
     """
-    for name, values in zip((n for n, s in zip(names, single) if s), u[single]):
-        largest = float(np.max(np.abs(values))) if values.size else 0.0
-        if largest > FLOAT32_MAX:
+    for name, values in zip((n for n, s in zip(names, single) if s), np.atleast_2d(u)[single]):
+        with np.errstate(over="ignore", invalid="ignore"):
+            overflow = np.isinf(values.astype(np.float32)) & np.isfinite(values)
+        if overflow.any():
+            largest = float(np.max(np.abs(values[overflow])))
             raise InputSpecError(f"{fmu}: input {name} is a single-precision (Float32) variable and the input "
-                                 f"reaches {largest:.3g}, beyond its largest value {FLOAT32_MAX:.3g}; scale the "
+                                 f"reaches {largest:.9g}, beyond its largest value {FLOAT32_MAX:.9g}; scale the "
                                  "input down (e.g. its amplitude)")
 
 
@@ -562,6 +565,9 @@ class FMUSource(Source):
         return status
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
+        single = np.asarray(getattr(self, "single_precision_inputs", ()), dtype=bool)
+        if single.size == self.m and single.any():
+            check_single_precision(self.path.name, self.input_names, single, np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
         if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
