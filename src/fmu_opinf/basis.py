@@ -46,6 +46,7 @@ too; only ``(r, k)`` results travel.
 from __future__ import annotations
 
 import os
+import sys
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
@@ -750,6 +751,10 @@ def _common_settings_first(parts: list, settings: list[dict]) -> list:
 
 
 def _client_active() -> bool:
+    """Whether a ``distributed`` client is active; without ``distributed`` imported none can be (its import alone
+    took 0.15-0.26 s of a 1 s ``fmu-opinf fit``)."""
+    if "distributed" not in sys.modules:
+        return False
     try:
         from distributed import default_client
 
