@@ -547,6 +547,15 @@ ADMM was still 77 % above the optimum after 20,000 iterations at r = 10 (63 % at
 (exact solves on the faces ``T_b = V_b S_b V_b^T``, faces grown along the negative dual eigenvectors and shrunk
 where the face solution is indefinite) cycled, because a PSD face is reached by rotating ``V_b``, not by adding
 or dropping directions.
+
+*Decoupled-oscillator refinement* (measured 2026-11-27, not kept): refining only ``d_j, k_j, b_j`` of the
+realized model (``Mr = I``, ``Dr, Kr`` diagonal, the output map held; ``3 r`` parameters instead of ``3 r (r+1) / 2
++ r m``) by Levenberg-Marquardt with the exact Jacobian (each oscillator a second-order recursion) is fast but less
+accurate than the default (triple chain, max eps_y as in the refinement table; time of that refinement alone):
+r = 10: 7.3e-6 (default 7.1e-6); r = 20: 1.5e-6 in 0.11 s (9.2e-7); r = 35: 4.1e-7 after 50 iterations (0.55 s),
+2.0e-7 after 126 (2.6 s) (8.3e-8); r = 50: 1.7e-7 in 4.8 s (1.0e-7, whole fit 14.5 s); from the SDP start's
+realization r = 60: 3.8e-6 (5.0e-8) and r = 100: 1.6e-6 in 12 s after a 9.4 s start (4.6e-7, 71 s).  The smaller
+model class fits the training run as well (r = 35: 2.6e-9 against 3.5e-9) but generalizes worse.
 """
 
 from __future__ import annotations
