@@ -19,6 +19,7 @@ import hashlib
 import math
 import os
 import re
+import shlex
 import shutil
 import subprocess
 import tempfile
@@ -43,6 +44,7 @@ __all__ = [
     "build_fmus",
     "bundled_fmu",
     "find_build_tools",
+    "find_c_compiler",
     "value_references",
     "BENCHMARK_MODELS",
 ]
@@ -710,6 +712,18 @@ def _source_tree(spec: SecondOrderFmuSpec) -> tuple[dict[str, bytes], str]:
 
 # ------------------------------------------------------------------------ building
 
+def find_c_compiler() -> list[str] | None:
+    """The C compiler command: ``$CC`` (split like a shell's words, so ``ccache gcc`` works), else the first of
+    ``cc``, ``gcc``, ``clang`` on the path; None if there is none.  Also compiles the model-exchange step loop
+    (:mod:`fmu_opinf.sources._compiled_rk`)."""
+    configured = shlex.split(os.environ.get("CC", ""))
+    if configured:
+        found = shutil.which(configured[0])
+        return None if found is None else [found, *configured[1:]]
+    found = next((path for path in (shutil.which(name) for name in ("cc", "gcc", "clang")) if path), None)
+    return None if found is None else [found]
+
+
 def find_build_tools() -> tuple[str, str] | None:
     """Locate CMake and a C compiler.
 
@@ -718,12 +732,10 @@ def find_build_tools() -> tuple[str, str] | None:
     tuple of str or None
         ``(cmake, compiler)`` paths, or None if either is missing.
     """
-    cmake = shutil.which("cmake")
-    compiler = os.environ.get("CC") or next(
-        (c for c in (shutil.which(name) for name in ("cc", "gcc", "clang")) if c), None)
-    if cmake is None or compiler is None or shutil.which(compiler) is None:
+    cmake, compiler = shutil.which("cmake"), find_c_compiler()
+    if cmake is None or compiler is None:
         return None
-    return cmake, compiler
+    return cmake, compiler[0]
 
 
 def _require_build_tools() -> str:
@@ -781,8 +793,7 @@ def _compile_direct(unzipdir: Path) -> None:
     platform = fmpy.platform if description.fmiVersion == "2.0" else fmpy.platform_tuple
     target = unzipdir / "binaries" / platform / (interface.modelIdentifier + fmpy.sharedLibraryExtension)
     target.parent.mkdir(parents=True, exist_ok=True)
-    compiler = find_build_tools()[1]
-    command = [compiler, "-shared", "-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden",
+    command = [*find_c_compiler(), "-shared", "-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden",
                "-I" + (unzipdir / "sources").as_posix(), "-I" + _fmi_header_dir().as_posix()]
     if files.language in _C_STANDARDS:
         command.append("-std=" + _C_STANDARDS[files.language])

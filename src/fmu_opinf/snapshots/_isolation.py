@@ -225,12 +225,12 @@ def _process_context() -> Any:
     if not (_FORK_SERVER["enabled"] and sys.platform.startswith("linux")
             and "forkserver" in mp.get_all_start_methods()):
         return mp.get_context("spawn")
-    from multiprocessing import forkserver
-
-    running = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", "unknown")
     if _server_owner == os.getpid():
         return mp.get_context("forkserver")
-    if running is None:  # no server in this process yet: the first run starts fmu-opinf's
+    from multiprocessing import forkserver
+
+    if getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", "unknown") is None:
+        # no server in this process yet: the first run starts fmu-opinf's
         context = mp.get_context("forkserver")
         context.set_forkserver_preload(_PRELOAD)
         _server_owner = os.getpid()

@@ -24,8 +24,6 @@ import functools
 import hashlib
 import os
 import platform
-import shlex
-import shutil
 import struct
 import subprocess
 import sys
@@ -161,16 +159,6 @@ def _source() -> Path:
     return _c_sources_dir() / "integrator" / "erk.c"
 
 
-def _compiler() -> list[str] | None:
-    """The compiler command (``$CC`` may carry options, e.g. ``ccache gcc``), None if there is none."""
-    configured = shlex.split(os.environ.get("CC", ""))
-    if configured:
-        found = shutil.which(configured[0])
-        return None if found is None else [found, *configured[1:]]
-    found = next((path for path in (shutil.which(name) for name in ("cc", "gcc", "clang")) if path), None)
-    return None if found is None else [found]
-
-
 @functools.lru_cache(maxsize=None)
 def _library() -> ctypes.CDLL | None:
     """Load the cached build of ``erk.c``, building it first where needed; None without a working compiler.
@@ -181,14 +169,16 @@ def _library() -> ctypes.CDLL | None:
     own) do not try again for a day or until the compiler changes (delete it to retry at once), and one warning
     names it.  A library that another user could have written is not loaded.
     """
+    from ..fmus import _user_cache_dir, find_c_compiler
+
     try:
-        text = _source().read_bytes()
+        source = _source()
+        text = source.read_bytes()
     except Exception:
         return None
-    compiler = _compiler()
+    compiler = find_c_compiler()
     if compiler is None:
         return None
-    from ..fmus import _user_cache_dir
 
     suffix = ".dll" if sys.platform == "win32" else ".dylib" if sys.platform == "darwin" else ".so"
     kind = "\0".join([*compiler, sys.platform, platform.machine(), str(struct.calcsize("P"))]).encode()
@@ -197,7 +187,7 @@ def _library() -> ctypes.CDLL | None:
     with _BUILD_LOCK:
         _private(path.parent)
         for attempt in range(2):
-            if not path.is_file() and (_failed_recently(path, compiler) or not _build(compiler, _source(), path)):
+            if not path.is_file() and (_failed_recently(path, compiler) or not _build(compiler, source, path)):
                 _report_failure(path)
                 return None
             library = _load(path)
@@ -274,25 +264,32 @@ def _trusted(path: Path) -> bool:
     return True
 
 
+class _BuildFailed(Exception):
+    """The compiler refused the source (its message is in the ``.failed`` marker) or was stopped."""
+
+
 def _build(compiler: list[str], source: Path, path: Path) -> bool:
-    """Compile ``source`` into ``path`` through a temporary file renamed into place (concurrent builds are safe);
-    a failure is remembered next to it (``.failed``)."""
+    """Compile ``source`` into ``path`` through a temporary file renamed into place (:func:`~fmu_opinf._hdf5.
+    atomic_path`: concurrent builds are safe, an interrupted one leaves nothing); a failure is remembered next to
+    it (``.failed``)."""
+    from .._hdf5 import atomic_path
+    from ..errors import FmuOpinfError
+
     if not path.parent.is_dir():
         return False
-    temporary = path.with_name(f"{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
-    command = [*compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", str(temporary), "-lm"]
     try:
-        result = subprocess.run(command, capture_output=True, timeout=120)
-        if result.returncode != 0 or not temporary.is_file():
-            if result.returncode > 0:  # the compiler's verdict, not a signal (Ctrl-C) or a vanished file
-                message = (result.stdout + result.stderr).decode("utf-8", "replace")
-                with contextlib.suppress(OSError):
-                    path.with_name(path.name + ".failed").write_text(f"{' '.join(command)}\n{message}")
-            return False
-        os.chmod(temporary, 0o755)
-        os.replace(temporary, path)
+        with atomic_path(path) as temporary:
+            command = [*compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", temporary, "-lm"]
+            result = subprocess.run(command, capture_output=True, timeout=120)
+            if result.returncode != 0:
+                if result.returncode > 0:  # the compiler's verdict, not a signal (Ctrl-C)
+                    message = (result.stdout + result.stderr).decode("utf-8", "replace")
+                    with contextlib.suppress(OSError):
+                        path.with_name(path.name + ".failed").write_text(f"{' '.join(command)}\n{message}")
+                raise _BuildFailed
+        os.chmod(path, 0o755)  # atomic_path gives 0666 & ~umask; group-writable would not be trusted
         return True
-    except (OSError, subprocess.SubprocessError):
+    except _BuildFailed:
+        return False
+    except (OSError, subprocess.SubprocessError, FmuOpinfError):
         return path.is_file()  # e.g. Windows: another process loaded the file it built at the same time
-    finally:
-        temporary.unlink(missing_ok=True)
