@@ -230,9 +230,7 @@ def _as_received(source: Source, u: np.ndarray) -> np.ndarray:
     single = np.asarray(getattr(source, "single_precision_inputs", ()), dtype=bool)
     if single.size != u.shape[0] or not single.any():
         return u
-    from ..sources._cosimulation import check_single_precision
-
-    check_single_precision(source_label(source), source.input_names, single, u)
+    source.refuse_single_precision_overflow(u)
     u = u.copy()
     u[single] = u[single].astype(np.float32)
     return u

@@ -565,9 +565,7 @@ class FMUSource(Source):
         return status
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
-        single = np.asarray(getattr(self, "single_precision_inputs", ()), dtype=bool)
-        if single.size == self.m and single.any():
-            check_single_precision(self.path.name, self.input_names, single, np.reshape(u, (self.m, 1)))
+        self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
         if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
@@ -672,10 +670,15 @@ class FMUSource(Source):
         self._raw = np.zeros(max(self._read.nvalues + self._read.nvalues32, 1))
         self._raw32 = np.zeros(max(self._read.nvalues32, 1), dtype=np.float32)
         # Float32 inputs as the FMU takes them, one row per sample (their doubles are in _Uraw)
-        single = np.asarray(getattr(self, "single_precision_inputs", ()), dtype=bool)
-        if single.size == self.m and single.any():
-            check_single_precision(self.path.name, self.input_names, single, self._U.T)
+        self.refuse_single_precision_overflow(self._U.T)
         self._Uraw32 = np.ascontiguousarray(self._Uraw[:, self._write.nvalues:], dtype=np.float32)
+
+    def refuse_single_precision_overflow(self, u: np.ndarray) -> None:
+        """:func:`check_single_precision` for this FMU's Float32 inputs (``u``: (m, k), in effect): what
+        :meth:`start` and :meth:`step` check, and the recorder before it rounds the inputs it records."""
+        single = np.asarray(self.single_precision_inputs, dtype=bool)
+        if single.any():
+            check_single_precision(self.path.name, self.input_names, single, u)
 
     def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
         """Inputs as the values of one set call: array inputs carry their held elements too."""

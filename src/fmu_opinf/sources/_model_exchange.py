@@ -179,6 +179,7 @@ class ModelExchangeSource(FMUSource):
                 published[0] = offset + j + 1
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
+        self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
         if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
