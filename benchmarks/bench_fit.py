@@ -87,7 +87,7 @@ def total_fit(data: list[np.ndarray], u: np.ndarray, y: np.ndarray, V: np.ndarra
         Cpr, Cvr = fit.output_map if fit.output_map is not None else fit_outputs(sub[1], sub[2], y)
         rom = SecondOrderROM(fit.Mr, fit.Dr, fit.Kr, fit.Br, Cpr, Cvr, coordinates=fit.coordinates)
         error = output_error(y, rom.simulate(TRAIN, DT, T_END).y).max()
-        print(f"{r:3d} | {wall:8.2f} {seconds:9.2f} {info.get('setup_seconds', 0) + info.get('solve_seconds', 0):8.2f} "
+        print(f"{r:3d} | {wall:8.2f} {seconds:9.2f} {info.get('sdp_wall_seconds', 0):8.2f} "
               f"{refinement.get('seconds', 0.0):11.2f} {refinement.get('iterations', 0):5d} {second:9.2f} "
               f"{'kept' if chosen else 'not kept':>9} | {info.get('method', '?'):>14} | "
               f"{error:15.2e}", flush=True)

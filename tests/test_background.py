@@ -94,7 +94,7 @@ def test_checkpoint_outside_a_background_call_does_nothing():
 class _Serial:
     """Stand-in for :class:`Background` that runs the call at once in the calling thread."""
 
-    def __init__(self, function, *args, label="", total=1, **kwargs):
+    def __init__(self, function, *args, label="", total=1, mode="auto", **kwargs):
         self.value = function(*args, **kwargs)
 
     def result(self, progress=False):
@@ -207,3 +207,78 @@ def test_with_fork_the_second_start_runs_beside_at_every_order(triple_data, monk
     serial = inference.fit_operators(*small, u, y=y, dt=DT, refine_iterations=30)
     for a, b in zip((beside.Mr, beside.Dr, beside.Kr, beside.Br), (serial.Mr, serial.Dr, serial.Kr, serial.Br)):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.fixture(scope="module")
+def triple_data_20(triple_data):
+    """Order 20 (from SDP_SIDE_BY_SIDE_FROM on: the SDP's two normalizations side by side where a process can be
+    forked)."""
+    run = newmark.simulate(systems.triple_chain(), "impulse:amplitude=100,t0=2,width=0.5", DT, 300.0)
+    r = inference.SDP_SIDE_BY_SIDE_FROM
+    V = PODBasis(r=r, kind="velocities").fit([run]).basis_
+    return [V.T @ a for a in (run.xddot, run.xdot, run.x)], run.u, run.y
+
+
+def _recording_background(modes: list, labels: list):
+    def recorded(*args, **kwargs):
+        call = Background(*args, **kwargs)
+        modes.append(call.mode)
+        labels.append(call.label)
+        return call
+    return recorded
+
+
+@needs_fork
+def test_the_sdp_normalizations_side_by_side_equal_one_after_the_other(triple_data_20, monkeypatch):
+    """From SDP_SIDE_BY_SIDE_FROM on the Mr >= I solve runs in a forked process beside the trace one, and the
+    second start begins only after both: the same fit, bit for bit, as everything one after the other."""
+    import fmu_opinf._background as background
+
+    data, u, y = triple_data_20
+    modes, labels = [], []
+    monkeypatch.setattr(background, "Background", _recording_background(modes, labels))
+    monkeypatch.setattr(inference, "Background", _recording_background(modes, labels))
+    beside = inference.fit_operators(*data, u, y=y, dt=DT, refine_iterations=30)
+    assert modes == ["process", "process"] and labels[0].startswith("SDP") and "least-squares" in labels[1]
+    assert beside.info["sdp_side_by_side"] and beside.info["normalization"] in ("trace", "mass-eigenvalue")
+    monkeypatch.setattr(background, "Background", _Serial)
+    monkeypatch.setattr(inference, "Background", _Serial)
+    serial = inference.fit_operators(*data, u, y=y, dt=DT, refine_iterations=30)
+    for a, b in zip((beside.Mr, beside.Dr, beside.Kr, beside.Br), (serial.Mr, serial.Dr, serial.Kr, serial.Br)):
+        np.testing.assert_array_equal(a, b)
+    assert beside.info["acceleration_residual"] == serial.info["acceleration_residual"]
+
+
+@needs_fork
+def test_without_fork_the_sdp_normalizations_run_one_after_the_other(triple_data_20, monkeypatch):
+    data, u, y = triple_data_20
+    monkeypatch.setattr(inference, "can_fork_here", lambda: False)
+    fit = inference.fit_operators(*data, u, refine=False)
+    assert not fit.info["sdp_side_by_side"] and set(fit.info["acceleration_residual"]) == {"trace",
+                                                                                           "mass-eigenvalue"}
+
+
+@needs_fork
+@pytest.mark.parametrize("error", [KeyboardInterrupt, ValueError])
+def test_an_error_in_the_trace_solve_stops_the_mass_eigenvalue_process(triple_data_20, monkeypatch, error):
+    from fmu_opinf import _sdp_paths
+
+    data, u, _ = triple_data_20
+    original, seen = _sdp_paths._fit_compressed_paths, []
+
+    def failing_trace(*args, **kwargs):
+        if args[6] != "trace":  # the Mr >= I solve, in the forked process: slow, so that it is still running
+            time.sleep(30)
+            return original(*args, **kwargs)
+        deadline = time.monotonic() + 10
+        while not seen and time.monotonic() < deadline:
+            seen.extend(p.pid for p in mp.active_children())
+            time.sleep(0.02)
+        raise error("stop")
+
+    monkeypatch.setattr(_sdp_paths, "_fit_compressed_paths", failing_trace)
+    start = time.perf_counter()
+    with pytest.raises(error):
+        inference.fit_operators(*data, u, refine=False)
+    assert seen and not mp.active_children()
+    assert time.perf_counter() - start < 10

@@ -7,11 +7,13 @@ products, FFTs, the L-BFGS update) release the GIL; measured at r = 35, two refi
 against 3.3 s one after the other, with the same results (each thread runs its own computation; the BLAS pools
 stay at one thread, process-wide, held by the caller).
 
-Measured and not kept: the SDP's two normalizations side by side (same bits; the SDP alone at r = 50 took 17.2 s
-against 20.1 s, but the whole fit 36.3 s against 35.1 s, since the second start already keeps the other core
-busy).  Large LAPACK calls gain little from threads here anyway: SciPy's OpenBLAS serializes concurrent calls (two
-threads factoring a 2550-square matrix five times each: 1.40 s against 1.48 s one after the other; NumPy's
-OpenBLAS 1.16 s against 1.97 s).
+The SDP's two normalizations are independent problems too.  Side by side in *threads* they were measured and not
+kept (same bits; the SDP alone at r = 50 took 17.2 s against 20.1 s, but the whole fit 36.3 s against 35.1 s,
+since the second start already kept the other core busy): large LAPACK calls gain little from threads here, as
+SciPy's OpenBLAS serializes concurrent calls (two threads factoring a 2550-square matrix five times each: 1.40 s
+against 1.48 s one after the other; NumPy's OpenBLAS 1.16 s against 1.97 s).  In a forked *process*, with the
+second start begun only once both are solved, they are kept from r = 20 on
+(:data:`fmu_opinf.inference.SDP_SIDE_BY_SIDE_FROM`; figures there and in the inference module docstring).
 
 Where it can, the call runs in a forked process instead (:class:`Background` ``mode="auto"``): two refinements in
 two threads still wait for each other on the GIL between their many small NumPy calls (r = 35: 2.05 s for two

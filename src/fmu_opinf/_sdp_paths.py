@@ -357,14 +357,55 @@ def solve_sdp_direct(zs: np.ndarray, r: int, m: int, trace: float, tol: float, v
 
 
 def fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool,
-                   normalization: str = "auto", solver: str = "auto", progress: bool = False) -> tuple:
+                   normalization: str = "auto", solver: str = "auto", progress: bool = False,
+                   side_by_side: bool = False) -> tuple:
     """Steps 3-4 of the inference module docstring; returns scaled ``Ms, Ds, Ks`` and the report (with
     ``sdp_objective``, the SDP's objective ``trace(T G T^T)`` in its own units, comparable between solvers).
-    ``progress``: labelled progress bars of the interior-point solves on a terminal."""
-    *mats, info = _fit_compressed_paths(R, r, m, method, tol, verbose, normalization, solver, progress)
+    ``progress``: labelled progress bars of the interior-point solves on a terminal.
+
+    ``normalization="auto"`` solves both normalizations and keeps one (:func:`choose_normalization`); they are
+    independent problems, and with ``side_by_side`` the ``Mr >= I`` one runs in a forked process
+    (:mod:`fmu_opinf._background`) while this one solves the trace one: the same bits as one after the other.
+    """
+    if normalization != "auto":
+        return _with_objective(R, r, m, _fit_compressed_paths(R, r, m, method, tol, verbose, normalization, solver,
+                                                              progress))
+    from ._background import Background
+
+    second = (Background(fit_compressed, R, r, m, method, tol, False, "mass-eigenvalue", solver,
+                         label="SDP normalized by Mr >= I, beside the trace one", mode="process")
+              if side_by_side else None)
+    try:
+        trace_fit = fit_compressed(R, r, m, method, tol, verbose, "trace", solver, progress)
+        eig_fit = (second.result(progress) if second is not None
+                   else fit_compressed(R, r, m, method, tol, verbose, "mass-eigenvalue", solver, progress))
+    except BaseException:
+        if second is not None:
+            second.cancel()
+        raise
+    return choose_normalization(R, m, trace_fit, eig_fit)
+
+
+def _with_objective(R: np.ndarray, r: int, m: int, fit: tuple) -> tuple:
+    """``fit`` with ``info["sdp_objective"]``, ``trace(T G T^T)`` in the SDP's own units."""
+    *mats, info = fit
     R22 = R[m:, m:] / max(np.linalg.norm(R[m:, m:]) / np.sqrt(3 * r), np.finfo(float).tiny)
     info["sdp_objective"] = float(np.linalg.norm(np.hstack(mats) @ R22.T) ** 2)
     return (*mats, info)
+
+
+def choose_normalization(R: np.ndarray, m: int, trace_fit: tuple, eig_fit: tuple) -> tuple:
+    """``normalization="auto"``: of the two fits, the one with the smaller acceleration residual (inference
+    docstring, *Normalization*); its report carries the two solves' summed times and both residuals."""
+    residuals = {fit[3]["normalization"]: _acceleration_residual(R, m, fit[:3]) for fit in (trace_fit, eig_fit)}
+    # differences below 1e-12 (of a relative residual) are round-off, e.g. both ~1e-15 on exact data: keep trace
+    chosen = eig_fit if residuals["mass-eigenvalue"] < residuals["trace"] - _RESIDUAL_TIE else trace_fit
+    info = dict(chosen[3])
+    for key in ("setup_seconds", "solve_seconds", "iterations"):
+        info[key] = trace_fit[3].get(key, 0) + eig_fit[3].get(key, 0)
+    info["acceleration_residual"] = residuals
+    info["trace_mass_ratio"] = _mass_ratio(trace_fit[0])
+    return (*chosen[:3], info)
 
 
 #: ``solver="auto"`` starts the refinement from :func:`fit_factored` above this order (inference module docstring,
@@ -448,7 +489,7 @@ def _psd_square_root(A: np.ndarray) -> np.ndarray:
 
 def _fit_compressed_paths(R: np.ndarray, r: int, m: int, method: str, tol: float, verbose: bool,
                           normalization: str, solver: str, progress: bool = False) -> tuple:
-    """The normalizations and solution paths of :func:`fit_compressed`."""
+    """The solution paths of :func:`fit_compressed` for one normalization (``"trace"`` or ``"mass-eigenvalue"``)."""
     R22 = R[m:, m:]
     R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
     G = R22.T @ R22
@@ -463,20 +504,7 @@ def _fit_compressed_paths(R: np.ndarray, r: int, m: int, method: str, tol: float
     else:
         trace_fit = _fit_screened(H, r, tol, verbose, sdp=sdp)
     trace_fit[3]["normalization"] = "trace"
-    if normalization == "trace":
-        return trace_fit
-    # "auto": both normalizations, keep the smaller acceleration residual (inference docstring, *Normalization*)
-    keep = (0, *_indefinite(trace_fit[:3], (1, 2)))
-    eig_fit = _fit_mass_eigenvalue(H, r, tol, verbose, full=(method == "sdp"), keep=keep, sdp=sdp)
-    residuals = {fit[3]["normalization"]: _acceleration_residual(R, m, fit[:3]) for fit in (trace_fit, eig_fit)}
-    # differences below 1e-12 (of a relative residual) are round-off, e.g. both ~1e-15 on exact data: keep trace
-    chosen = eig_fit if residuals["mass-eigenvalue"] < residuals["trace"] - _RESIDUAL_TIE else trace_fit
-    info = dict(chosen[3])
-    for key in ("setup_seconds", "solve_seconds", "iterations"):
-        info[key] = trace_fit[3].get(key, 0) + eig_fit[3].get(key, 0)
-    info["acceleration_residual"] = residuals
-    info["trace_mass_ratio"] = _mass_ratio(trace_fit[0])
-    return (*chosen[:3], info)
+    return trace_fit
 
 
 #: Acceleration residuals closer than this are a tie (round-off), resolved in favour of the trace normalization.

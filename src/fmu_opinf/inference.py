@@ -432,9 +432,14 @@ can be forked safely (Linux, no other thread in the process, not a daemon), else
 (:data:`SIDE_BY_SIDE_FROM`) in a second thread (below, Python's own work dominates and two threads only wait for
 each other on the GIL).  Measured on the triple chain (wall seconds, 2026-11-26): in a process r = 5 / 10 / 14 /
 20 / 35 took 0.91 / 0.56 / 0.66 / 0.84 / 2.18 s against 1.59 / 1.05 / 1.23 s one after the other and 1.35 /
-2.79 s with the thread.  The result is the same bits as one after the other (tested); on any error or Ctrl-C in
-the main thread the second start is stopped (the process killed, the thread at its next iteration) before the
-error goes on.  The PSD report
+2.79 s with the thread.  Where a process can be forked, from r = 20 (:data:`SDP_SIDE_BY_SIDE_FROM`) the SDP's
+two normalizations (``"auto"``) are solved side by side first, the ``Mr >= I`` one in a forked process, and the
+second start begins once both are done (2026-11-27, whole fit, wall seconds, old order against new on the same
+basis: r = 35: 1.84-1.91 against 1.83, SDP stage 0.70 against 0.58; r = 50: 14.8 against 12.2).  Each
+normalization screens its own cones (before, ``Mr >= I`` started from the cones the trace solve needed, which
+made them sequential; the same cones and bits on the triple chain at r = 20 / 35 / 50).  The result is the same
+bits as one after the other (tested); on any error or Ctrl-C in the main thread the second start and the
+``Mr >= I`` solve are stopped (the process killed, the thread at its next iteration) before the error goes on.  The PSD report
 ``raw_*_eig_min`` is taken on the solver's output before the final
 symmetrization and clipping of round-off negative eigenvalues.
 
@@ -595,7 +600,9 @@ class OperatorFit:
         ``iterations``, ``objective``, ``relative_residual``, ``eig_min``/``eig_max`` per matrix, ``scales``;
         ``refinement`` (objective before/after, iterations, seconds, status) when the output-error refinement ran;
         ``solver`` (``"IPM"``, ``"CLARABEL"`` or none), ``gap`` (certified relative gap of the IPM),
-        ``fallback`` (why the IPM result was not used), ``sdp_objective`` (the SDP's objective in its units).
+        ``fallback`` (why the IPM result was not used), ``sdp_objective`` (the SDP's objective in its units),
+        ``sdp_wall_seconds`` (wall time of the SDP stage; ``setup_seconds + solve_seconds`` sum both
+        normalizations' solves, also when ``sdp_side_by_side`` ran them in two processes).
     output_map : (Cpr, Cvr) or None
         The output map re-fitted by the refinement (``refit_output_map=True``) or of the least-squares
         realization; it replaces the map of eq. 17 in the ROM.  None: the ROM keeps the map it passed in (or
@@ -819,14 +826,24 @@ def fit_operators(
         if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
             second_start = {"max_iterations": _refine_iterations(refine_iterations, r),
                             "progress_label": "output-error refinement from the least-squares start"}
-            if r >= SIDE_BY_SIDE_FROM or can_fork_here():
-                second = Background(_least_squares_start, R, scales, m, output_map, training, second_start,
-                                    label=f"{second_start['progress_label']} (L-BFGS iterations)",
-                                    total=second_start["max_iterations"])
+        sdp_side_by_side = _sdp_side_by_side(r, compressed, normalization, solver, refine, method)
+
+        def start_second() -> Background | None:
+            if second_start is None or not (r >= SIDE_BY_SIDE_FROM or can_fork_here()):
+                return None
+            return Background(_least_squares_start, R, scales, m, output_map, training, second_start,
+                              label=f"{second_start['progress_label']} (L-BFGS iterations)",
+                              total=second_start["max_iterations"])
+
         try:
+            if not sdp_side_by_side:  # else the SDP's two normalizations take both cores first
+                second = start_second()
             Mr, Dr, Kr, Br, info = _sdp_operators(R, scales, (xddot_r, xdot_r, x_r, u), r, m, compressed=compressed,
                                                   solver=solver, refine=refine, method=method, tol=tol,
-                                                  verbose=verbose, normalization=normalization, progress=progress)
+                                                  verbose=verbose, normalization=normalization, progress=progress,
+                                                  side_by_side=sdp_side_by_side)
+            if sdp_side_by_side:
+                second = start_second()
             if refine:
                 units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
                 Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
@@ -859,25 +876,45 @@ def fit_operators(
 
 def _sdp_operators(R: np.ndarray, scales: dict[str, float], data: tuple, r: int, m: int, *, compressed: bool,
                    solver: str, refine: bool, method: str, tol: float, verbose: bool,
-                   normalization: str,
-                   progress: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+                   normalization: str, progress: bool = False, side_by_side: bool = False
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """The SDP solution of eq. (16) in physical units (``Mr, Dr, Kr`` made exactly symmetric PSD, ``Br``) and the
-    solver's report; ``data`` are the reduced accelerations, velocities, positions and the inputs."""
+    solver's report; ``data`` are the reduced accelerations, velocities, positions and the inputs;
+    ``side_by_side``: the two normalizations in two processes (:func:`_sdp_side_by_side`)."""
     xddot_r, xdot_r, x_r, u = data
+    start = time.perf_counter()
     if compressed:
         if factored_start(solver, r, refine, method):
             Ms, Ds, Ks, info = fit_factored(R, r, m, progress=progress)
         else:
-            Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver, progress)
+            Ms, Ds, Ks, info = fit_compressed(R, r, m, method, tol, verbose, normalization, solver, progress,
+                                              side_by_side=side_by_side)
         Bs = input_matrix(R, m, np.hstack([Ms, Ds, Ks]))
     else:
         zs = np.vstack([u / scales["u"], xddot_r / scales["xddot"], xdot_r / scales["xdot"], x_r / scales["x"]])
         (Ms, Ds, Ks), Bs, info = solve_sdp_direct(zs, r, m, float(r), tol, verbose)
         info.update(method="sdp-direct", normalization="trace")
+    info.update(sdp_wall_seconds=time.perf_counter() - start, sdp_side_by_side=side_by_side)
     Mr, Dr, Kr = Ms / scales["xddot"], Ds / scales["xdot"], Ks / scales["x"]
     info.update({f"raw_{key}": value for key, value in psd_report({"Mr": Mr, "Dr": Dr, "Kr": Kr}).items()})
     Mr, Dr, Kr = (_symmetric_psd(a) for a in (Mr, Dr, Kr))
     return Mr, Dr, Kr, Bs / scales["u"], info
+
+
+#: Order from which the SDP's two normalizations are solved side by side in two processes (where one can be
+#: forked), the second start's refinement starting once both are done.  Triple chain, CPU seconds of the trace /
+#: ``Mr >= I`` solves (2026-11-27): r = 20: 0.05 / 0.07, r = 35: 0.26 / 0.49, r = 50: 3.8 / 3.2; below r = 20 a
+#: fork (3 ms) and the second start's later begin cost more than the overlap gains.
+SDP_SIDE_BY_SIDE_FROM = 20
+
+
+def _sdp_side_by_side(r: int, compressed: bool, normalization: str, solver: str, refine: bool, method: str) -> bool:
+    """Whether :func:`fit_operators` solves the two normalizations of the SDP in two processes: for
+    ``normalization="auto"`` on the compressed factor, from :data:`SDP_SIDE_BY_SIDE_FROM` on, where a process can
+    be forked (:func:`fmu_opinf._background.can_fork_here`; in threads both solves wait on each other's LAPACK
+    calls, see that module) and the start is not the factored one (one normalization only)."""
+    return (compressed and normalization == "auto" and r >= SDP_SIDE_BY_SIDE_FROM
+            and not factored_start(solver, r, refine, method) and can_fork_here())
 
 
 #: Order from which the second start is refined in a background thread beside the SDP solve and the first
