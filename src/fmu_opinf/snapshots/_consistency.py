@@ -18,6 +18,7 @@ repair, :func:`fmu_opinf.snapshots._record.record_run`), or turns what cannot be
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -62,50 +63,75 @@ class Repair:
         return " ".join(options)
 
 
+#: Samples per block of the rate checks: ``600 x 256`` doubles (1.2 MB) stay in cache through the several passes
+#: over a block (600 states x 4000 samples, 2026-11-27: 14.5 / 10.0 ms for the two checks over whole arrays, 9.1 /
+#: 8.2 ms in blocks).
+_BLOCK = 256
+
+
 def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
     """Per row: ``min`` over the trapezoidal, forward and backward rule of ``||dx - h v_rule|| / scale`` (0 for a
-    row that hardly moves), ``dx`` the increments of ``x`` and ``v_rule`` the velocity the rule uses."""
-    dx = np.diff(x, axis=1)
-    before, after = v[:, :-1], v[:, 1:]
-    buffer = np.add(before, after)
-    buffer *= 0.5 * h                                          # h times the trapezoidal rule's velocity
-    scale = np.maximum(_row_norms(dx), _row_norms(buffer))
-    residual = _row_norms(np.subtract(dx, buffer, out=buffer))
-    for rule in (before, after):                               # forward and backward rule, in the same buffer
-        np.multiply(rule, h, out=buffer)
-        np.minimum(residual, _row_norms(np.subtract(dx, buffer, out=buffer)), out=residual)
+    row that hardly moves), ``dx`` the increments of ``x``, ``v_rule`` the velocity the rule uses and ``scale``
+    the larger of ``||dx||`` and ``||h v_trapezoid||``; the squared norms are summed block by block
+    (:data:`_BLOCK`)."""
+    n, k = x.shape
+    squares = np.zeros((5, n))  # dx, h v_trapezoid, then the residuals of the trapezoidal, forward, backward rule
+    for c0 in range(0, k - 1, _BLOCK):
+        c1 = min(c0 + _BLOCK, k - 1)
+        dx = np.subtract(x[:, c0 + 1:c1 + 1], x[:, c0:c1])
+        before, after = v[:, c0:c1], v[:, c0 + 1:c1 + 1]
+        buffer = np.add(before, after)
+        buffer *= 0.5 * h
+        squares[0] += _row_squares(dx)
+        squares[1] += _row_squares(buffer)
+        squares[2] += _row_squares(np.subtract(dx, buffer, out=buffer))
+        for row, rule in ((3, before), (4, after)):
+            np.multiply(rule, h, out=buffer)
+            squares[row] += _row_squares(np.subtract(dx, buffer, out=buffer))
+    scale = np.sqrt(np.maximum(squares[0], squares[1]))
+    residual = np.sqrt(squares[2:].min(axis=0))
     moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
     return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
 
 
-def _row_norms(a: np.ndarray) -> np.ndarray:
-    """Euclidean norm of each row, without the temporary of ``np.linalg.norm(a, axis=1)``."""
-    return np.sqrt(np.einsum("ij,ij->i", a, a))
+def _row_squares(a: np.ndarray) -> np.ndarray:
+    """Sum of squares of each row."""
+    return np.einsum("ij,ij->i", a, a)
 
 
 def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = None) -> bool:
     """Whether ``a`` lags ``v``'s rate by one sample: shifted by one, the trapezoidal rule fits the increments of
     ``v`` at least five times better, and unshifted it misses by more than round-off.  Steps next to a change of
-    the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are not counted."""
-    if v.shape[1] < 4:
+    the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are not counted.  Computed
+    block by block (:data:`_BLOCK`)."""
+    k = v.shape[1]
+    if k < 4:
         return False
-    dv = np.diff(v, axis=1)
-    sums = np.add(a[:, :-1], a[:, 1:])                  # a_i + a_(i+1): both rules take a slice of it
-    sums *= 0.5 * h
-    increments = dv[:, :-1]
-    now = _column_norms(increments - sums[:, :-1])
-    shifted = _column_norms(increments - sums[:, 1:])
-    smooth = np.ones(now.size, dtype=bool)
+    count = k - 2  # increments judged: v_(i+1) - v_i for i < k - 2, against a_i + a_(i+1) and a_(i+1) + a_(i+2)
+    now, shifted = np.empty(count), np.empty(count)
+    increments_squared = 0.0
+    for c0 in range(0, count, _BLOCK):
+        c1 = min(c0 + _BLOCK, count)
+        dv = np.subtract(v[:, c0 + 1:c1 + 1], v[:, c0:c1])
+        sums = np.add(a[:, c0:c1 + 1], a[:, c0 + 1:c1 + 2])  # a_i + a_(i+1), one more for the shifted rule
+        sums *= 0.5 * h
+        increments_squared += float(np.einsum("ij,ij->", dv, dv))
+        residual = np.subtract(dv, sums[:, :-1])
+        now[c0:c1] = _column_squares(residual)
+        shifted[c0:c1] = _column_squares(np.subtract(dv, sums[:, 1:], out=residual))
+    last = v[:, -1] - v[:, -2]  # the one increment that no block judges, in the scale of round-off
+    increments_squared += float(last @ last)
+    smooth = np.ones(count, dtype=bool)
     if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
-        changes = np.any(np.diff(u[:, :v.shape[1]], axis=1) != 0, axis=0).astype(float)
-        smooth = np.convolve(changes, np.ones(5))[2:2 + now.size] == 0
-    now, shifted = np.linalg.norm(now[smooth]), np.linalg.norm(shifted[smooth])
-    return bool(now > 1e-6 * np.linalg.norm(dv) and shifted < _STALE_GAIN * now)
+        changes = np.any(np.diff(u[:, :k], axis=1) != 0, axis=0).astype(float)
+        smooth = np.convolve(changes, np.ones(5))[2:2 + count] == 0
+    now_norm, shifted_norm = math.sqrt(now[smooth].sum()), math.sqrt(shifted[smooth].sum())
+    return bool(now_norm > 1e-6 * math.sqrt(increments_squared) and shifted_norm < _STALE_GAIN * now_norm)
 
 
-def _column_norms(a: np.ndarray) -> np.ndarray:
-    """Euclidean norm of each column."""
-    return np.sqrt(np.einsum("ij,ij->j", a, a))
+def _column_squares(a: np.ndarray) -> np.ndarray:
+    """Sum of squares of each column."""
+    return np.einsum("ij,ij->j", a, a)
 
 
 def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
