@@ -222,7 +222,8 @@ def test_a_crossing_is_located_with_scipys_integrators_too(fmus):
     t_cross = first_crossing(model, run.t, held_inputs(run), STATE)
     x, v, a = reference(model, run.t, held_inputs(run), [(t_cross, np.asarray(STATE.force))])
     found = errors(run, x, v, a)
-    assert max(found.values()) < 2e-13, found   # measured 4.3e-14 (v)
+    # measured 3.2e-13 (v); 4.3e-14 with another sequence of trial points (Radau restarts at each)
+    assert max(found.values()) < 1e-12, found
 
 
 # ------------------------------------------------------------------------------ no events, no cost

@@ -295,18 +295,20 @@ class ModelExchangeSource(FMUSource):
 
     def _locate_crossing(self, i: int, a: float, b: float, x_a: np.ndarray) -> float:
         """The first zero crossing of an event indicator in ``(a, b]``, bracketed to
-        ``1e-12 (b - a)`` plus a few ulps: regula falsi on the earliest crossing (Illinois variant), a
-        bisection whenever the bracket did not halve.  Each trial re-integrates from the last state
-        before the crossing with the inputs held.  Leaves the FMU (and ``self._x``) at the right end."""
+        ``1e-12 (b - a)`` plus a few ulps: regula falsi on the earliest crossing (Illinois variant); an
+        estimate within half the tolerance of an end moves a whole tolerance inside (a converged one-sided
+        secant then closes the bracket in one trial); a bisection when three trials did not halve the
+        bracket.  Each trial re-integrates from the last state before the crossing with the inputs held.
+        Leaves the FMU (and ``self._x``) at the right end."""
         tolerance = 1e-12 * (b - a) + 4 * math.ulp(max(abs(a), abs(b)))
         g_a, g_b, x_b = self._z.copy(), self._z_end.copy(), self._x.copy()
         w_a, w_b = g_a.copy(), g_b.copy()   # Illinois: the values the secant uses
         h_last = self._h_last   # the next interval starts from the step size before the search
-        moved, bisect = 0, False
+        moved, bisect, widths = 0, False, [b - a] * 3
         while b - a > tolerance:
-            width = b - a
             t_m = 0.5 * (a + b) if bisect else _earliest_secant(a, b, g_a, g_b, w_a, w_b)
-            t_m = min(max(t_m, a + 0.25 * tolerance), b - 0.25 * tolerance)
+            if t_m - a < 0.5 * tolerance or b - t_m < 0.5 * tolerance:
+                t_m = a + tolerance if t_m - a < b - t_m else b - tolerance
             self._x = x_a.copy()
             self._piece(i, a, t_m)
             g_m = np.empty(self.nz)
@@ -321,7 +323,8 @@ class ModelExchangeSource(FMUSource):
                 if moved == 1:
                     w_b *= 0.5
                 moved = 1
-            bisect = b - a > 0.5 * width
+            widths = widths[1:] + [b - a]
+            bisect = b - a > 0.5 * widths[0] and not bisect
         self._x, self._h_last = x_b, h_last
         if self.nx:
             self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
