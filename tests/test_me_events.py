@@ -258,3 +258,17 @@ def test_cosimulation_meets_the_time_event_and_sees_the_state_event_at_the_next_
     x, v, a = reference(model, run.t, held_inputs(run), [(after, np.asarray(STATE.force))])
     found = errors(run, x, v, a)
     assert max(found.values()) < 1e-13, found   # measured 7.8e-15 (v)
+
+
+def test_invalid_events_are_refused_in_one_line(tmp_path):
+    from fmu_opinf.errors import DimensionError
+
+    model = two_masses()
+    with pytest.raises(DimensionError, match="give 2 finite values"):
+        lti_fmus.build_lti_fmu(model, tmp_path / "a.fmu", time_event=lti_fmus.TimeEvent(1.0, [1.0]))
+    with pytest.raises(lti_fmus.FmuBuildError, match=r"dof in \[0, 1\]"):
+        lti_fmus.build_lti_fmu(model, tmp_path / "b.fmu", state_event=lti_fmus.StateEvent(2, 0.0, [0.0, 1.0]))
+    with pytest.raises(lti_fmus.FmuBuildError, match="need a fixed size"):
+        lti_fmus.build_lti_fmu(lti_fmus.MassChain(n=2), tmp_path / "c.fmu", fmi_version="3.0", naming="array",
+                               time_event=lti_fmus.TimeEvent(1.0, [0.0, 1.0]))
+    assert not list(tmp_path.iterdir())

@@ -688,6 +688,8 @@ class LtiFmu:
         Name of the structural size (``"n"``) of array FMUs built from a :class:`MassChain`.
     guid : str
         GUID / instantiation token.
+    time_event, state_event : TimeEvent or StateEvent or None
+        The events the FMU was built with (:func:`build_lti_fmu`).
     """
 
     path: Path
@@ -1310,10 +1312,12 @@ def _build_description3(options: _Options, sources: list[str]) -> str:
 
 # ------------------------------------------------------------------------ C model
 
-def _c_array(name: str, values: np.ndarray) -> str:
+def _c_array(name: str, values: np.ndarray, static: bool = True) -> str:
+    """A C array definition (one 0.0 if empty, as C has no empty arrays); ``static=False`` for the
+    arrays that lti.h declares extern."""
     flat = np.asarray(values, dtype=float).reshape(-1)
     body = ", ".join(_number(v) for v in flat) if flat.size else "0.0"
-    return f"static const double {name}[] = {{{body}}};\n"
+    return f"{'static ' if static else ''}const double {name}[] = {{{body}}};\n"
 
 
 def _fixed_assembly(coords: _Coordinates, model: LinearMechanicalModel) -> str:
@@ -1379,13 +1383,11 @@ def _event_source(options: _Options, model: LinearMechanicalModel, coords: _Coor
     return (
         f"const int LTI_TIME_EVENT = {int(timed is not None)};\n"
         f"const double LTI_TIME_EVENT_AT = {_number(timed.time if timed else 0.0)};\n"
-        + _c_array("TIME_EVENT_FQ", in_q(timed.force) if timed else np.zeros(0)).replace(
-            "static const double TIME_EVENT_FQ", "const double LTI_TIME_EVENT_FQ")
+        + _c_array("LTI_TIME_EVENT_FQ", in_q(timed.force) if timed else np.zeros(0), static=False)
         + f"const int LTI_STATE_EVENT = {int(state is not None)};\n"
         f"const size_t LTI_STATE_EVENT_DOF = {int(state.dof) if state else 0};\n"
         f"const double LTI_STATE_EVENT_THRESHOLD = {_number(state.threshold if state else 0.0)};\n"
-        + _c_array("STATE_EVENT_FQ", in_q(state.force) if state else np.zeros(0)).replace(
-            "static const double STATE_EVENT_FQ", "const double LTI_STATE_EVENT_FQ"))
+        + _c_array("LTI_STATE_EVENT_FQ", in_q(state.force) if state else np.zeros(0), static=False))
 
 
 def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalModel,
