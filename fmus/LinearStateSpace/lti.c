@@ -1,7 +1,9 @@
 /*
  * Kernel of the linear state-space FMUs (see lti.h): storage, evaluation of the ODE right-hand
- * side and of the computed variables, value-reference access, co-simulation steps.
+ * side and of the computed variables, value-reference access, co-simulation steps, the optional
+ * time and state events.
  */
+#include <float.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -108,6 +110,9 @@ void ltiReset(LtiInstance *inst) {
     memcpy(inst->z, inst->zStart, 2 * inst->nq * sizeof(double));
     inst->upToDate = 0;
     inst->stale = 0;
+    inst->timeEventOn = 0;
+    inst->stateEventOn = 0;
+    inst->indicatorAbove = 0;
 }
 
 LtiStatus ltiFail(LtiInstance *inst, LtiStatus status) {
@@ -165,6 +170,8 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
     addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
     addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);
     addProduct(qdd, inst->Bq, inst->u, nq, LTI_NU, 1.0);
+    if (inst->timeEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_TIME_EVENT_FQ[i];
+    if (inst->stateEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_STATE_EVENT_FQ[i];
     for (i = 0; i < nq; i++) qdd[i] /= massScale;
     return LtiOK;
 }
@@ -188,6 +195,14 @@ LtiStatus ltiEvaluate(LtiInstance *inst, const char *function) {
     addProduct(inst->y, inst->Ca, inst->a, LTI_NY, nx, 1.0);
     inst->upToDate = 1;
     return LtiOK;
+}
+
+/* The event indicator x[LTI_STATE_EVENT_DOF] - LTI_STATE_EVENT_THRESHOLD of the state z (q, qd). */
+static double indicator(const LtiInstance *inst, const double *z) {
+    size_t nq = inst->nq, j, dof = LTI_STATE_EVENT_DOF;
+    double x = inst->xoff[dof];
+    for (j = 0; j < nq; j++) x += inst->T[dof * nq + j] * z[j];
+    return x - LTI_STATE_EVENT_THRESHOLD;
 }
 
 /* ----------------------------------------------------------- variable access */
@@ -251,6 +266,7 @@ LtiStatus ltiGetReal(LtiInstance *inst, const char *function, const unsigned int
                 case SlotPar: value = inst->par[e]; break;
                 case SlotQStart: value = inst->zStart[e]; break;
                 case SlotQdStart: value = inst->zStart[inst->nq + e]; break;
+                case SlotIndicator: value = indicator(inst, inst->z); break;
                 default: break;
             }
             values[offset + k] = value;
@@ -268,7 +284,8 @@ LtiStatus ltiSetReal(LtiInstance *inst, const char *function, const unsigned int
         const LtiSlot *slot = findSlot(inst, function, vr[i]);
         size_t length, first;
         if (!slot) return LtiError;
-        if (slot->kind == SlotTime || slot->kind == SlotSize || needsEvaluation(slot->kind)) {
+        if (slot->kind == SlotTime || slot->kind == SlotSize || slot->kind == SlotIndicator ||
+            needsEvaluation(slot->kind)) {
             ltiLog(inst, LtiError, "logStatusError",
                    "%s: value reference %u is computed by the FMU and cannot be set", function,
                    vr[i]);
@@ -434,21 +451,12 @@ static double frequencyScale(const LtiInstance *inst) {
     return sqrt(stiffness) + damping + 1e-12;
 }
 
-LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
+/* The state z advanced by h: one Euler step, or RK4 substeps following the tolerance. */
+static LtiStatus integrate(LtiInstance *inst, double h) {
     size_t n = 2 * inst->nq, i, k, steps = 1;
     double *k1 = inst->work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *zt = k4 + n;
     double *z = inst->z, dt = h;
 
-    if (h < 0.0 || !isfinite(h)) {
-        ltiLog(inst, LtiError, "logStatusError", "fmiDoStep: step size %g is invalid", h);
-        return LtiError;
-    }
-    if (fabs(t - inst->time) > 1e-9 * (1.0 + fabs(t))) {
-        ltiLog(inst, LtiError, "logStatusError",
-               "fmiDoStep: communication point %.17g differs from the FMU time %.17g", t,
-               inst->time);
-        return LtiError;
-    }
     if (LTI_CS_METHOD == CsRungeKutta && h > 0.0) {
         /* RK4 error per unit time ~ (w dt)^4 w: the substep follows the tolerance */
         double omega = frequencyScale(inst), tol = inst->tolerance > 0 ? inst->tolerance : 1e-4;
@@ -456,10 +464,6 @@ LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
         if (count > MAX_SUBSTEPS) count = MAX_SUBSTEPS;
         steps = count < 1.0 ? 1 : (size_t)count;
         dt = h / (double)steps;
-    }
-    if (LTI_STALE_DERIVATIVES) {   /* an exporter's defect, on request: der() read after the step is stale */
-        if (ltiEvaluate(inst, "fmiDoStep") != LtiOK) return LtiError;
-        memcpy(inst->qddBefore, inst->qdd, inst->nq * sizeof(double));
     }
     for (k = 0; k < steps; k++) {
         if (rate(inst, z, k1) != LtiOK) return LtiError;
@@ -475,8 +479,83 @@ LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
         if (rate(inst, zt, k4) != LtiOK) return LtiError;
         for (i = 0; i < n; i++) z[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
     }
-    inst->time = t + h;
+    return LtiOK;
+}
+
+/* Co-simulation step.  Its time event is met exactly (the step is split there, and a step that ends
+   at the event up to rounding ends after it); its state event is only looked at when the step ends,
+   as simple exporters do (the latched force starts at the communication point after the crossing). */
+LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
+    double end = t + h, slack = 1e-12 * h + 4.0 * DBL_EPSILON * fabs(end);
+    int timeEventDue = LTI_TIME_EVENT && !inst->timeEventOn && LTI_TIME_EVENT_AT <= end + slack;
+
+    if (h < 0.0 || !isfinite(h)) {
+        ltiLog(inst, LtiError, "logStatusError", "fmiDoStep: step size %g is invalid", h);
+        return LtiError;
+    }
+    if (fabs(t - inst->time) > 1e-9 * (1.0 + fabs(t))) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "fmiDoStep: communication point %.17g differs from the FMU time %.17g", t,
+               inst->time);
+        return LtiError;
+    }
+    if (LTI_STALE_DERIVATIVES) {   /* an exporter's defect, on request: der() read after the step is stale */
+        if (ltiEvaluate(inst, "fmiDoStep") != LtiOK) return LtiError;
+        memcpy(inst->qddBefore, inst->qdd, inst->nq * sizeof(double));
+    }
+    if (timeEventDue && LTI_TIME_EVENT_AT > t + slack && LTI_TIME_EVENT_AT < end - slack) {
+        if (integrate(inst, LTI_TIME_EVENT_AT - t) != LtiOK) return LtiError;
+        inst->timeEventOn = 1;
+        if (integrate(inst, end - LTI_TIME_EVENT_AT) != LtiOK) return LtiError;
+    } else {
+        if (integrate(inst, h) != LtiOK) return LtiError;
+        if (timeEventDue) inst->timeEventOn = 1;
+    }
+    inst->time = end;
     inst->upToDate = 0;
     inst->stale = LTI_STALE_DERIVATIVES;
+    if (LTI_STATE_EVENT) ltiUpdateDiscrete(inst, NULL, NULL);
     return LtiOK;
+}
+
+/* ------------------------------------------------------------------- events */
+
+size_t ltiEventIndicatorCount(void) {
+    return LTI_STATE_EVENT ? 1 : 0;
+}
+
+LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double values[], size_t n) {
+    if (n != ltiEventIndicatorCount()) {
+        ltiLog(inst, LtiError, "logStatusError", "%s: %lu event indicators, expected %lu", function,
+               (unsigned long)n, (unsigned long)ltiEventIndicatorCount());
+        return LtiError;
+    }
+    if (n) values[0] = indicator(inst, inst->z);
+    return LtiOK;
+}
+
+/* Event mode: the time event switches its force on once its time has come; a change of sign of the
+   indicator since the last event latches the state event's force on.  No update is ever needed twice. */
+void ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
+    int pending;
+    if (LTI_TIME_EVENT && !inst->timeEventOn && inst->time >= LTI_TIME_EVENT_AT) {
+        inst->timeEventOn = 1;
+        inst->upToDate = 0;
+    }
+    if (LTI_STATE_EVENT) {
+        int above = indicator(inst, inst->z) > 0.0;
+        if (above != inst->indicatorAbove && !inst->stateEventOn) {
+            inst->stateEventOn = 1;
+            inst->upToDate = 0;
+        }
+        inst->indicatorAbove = above;
+    }
+    pending = LTI_TIME_EVENT && !inst->timeEventOn;
+    if (nextDefined) *nextDefined = pending;
+    if (nextTime) *nextTime = pending ? LTI_TIME_EVENT_AT : 0.0;
+}
+
+/* End of initialization: the indicator's sign there is the reference of the first crossing. */
+void ltiStartEvents(LtiInstance *inst) {
+    if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
 }

@@ -8,6 +8,10 @@
  *
  * with variable access by value reference, explicit-Euler or RK4 co-simulation steps and the
  * call-order bookkeeping shared by the FMI 2.0 and FMI 3.0 layers (lti_fmi2.c, lti_fmi3.c).
+ * Optional discrete events (off unless the generated model asks for them): a force offset that
+ * switches on at a time event, and one that latches on when a position crosses a threshold (a
+ * state event, one event indicator).  Both act only from the event on: the kernel changes them in
+ * ltiUpdateDiscrete (event mode), never while the importer integrates.
  * The generated lti_model.c provides the sizes, the value-reference table and ltiAssemble().
  */
 #ifndef LTI_H
@@ -20,7 +24,7 @@ typedef enum { LtiOK = 0, LtiWarning = 1, LtiDiscard = 2, LtiError = 3, LtiFatal
 /* What a value reference designates. */
 typedef enum {
     SlotTime, SlotQ, SlotQd, SlotQdd, SlotX, SlotV, SlotA, SlotY, SlotU, SlotPar,
-    SlotQStart, SlotQdStart, SlotSize
+    SlotQStart, SlotQdStart, SlotSize, SlotIndicator
 } SlotKind;
 
 typedef struct {
@@ -75,6 +79,9 @@ struct LtiInstance {
     double *qddBefore;   /* LTI_STALE_DERIVATIVES: qdd at the start of the last doStep */
     int upToDate;
     int stale;           /* LTI_STALE_DERIVATIVES: doStep done, no input set since */
+    int timeEventOn;     /* LTI_TIME_EVENT: the time event has switched its force on */
+    int stateEventOn;    /* LTI_STATE_EVENT: the state event has latched its force on */
+    int indicatorAbove;  /* LTI_STATE_EVENT: indicator > 0 at the last event (or initialization) */
 };
 
 #define PAR_MASS_SCALE 0
@@ -90,6 +97,13 @@ extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ..
 extern const size_t LTI_N_SLOTS;
 extern const LtiSlot LTI_SLOTS[];
 extern const double LTI_PAR_DEFAULTS[2];
+/* Optional events: LTI_TIME_EVENT: qdd += LTI_TIME_EVENT_FQ (before the division by mass_scale) from
+   the event at LTI_TIME_EVENT_AT on; LTI_STATE_EVENT: event indicator x[LTI_STATE_EVENT_DOF] -
+   LTI_STATE_EVENT_THRESHOLD, whose first change of sign latches on qdd += LTI_STATE_EVENT_FQ. */
+extern const int LTI_TIME_EVENT, LTI_STATE_EVENT;
+extern const double LTI_TIME_EVENT_AT, LTI_STATE_EVENT_THRESHOLD;
+extern const size_t LTI_STATE_EVENT_DOF;
+extern const double LTI_TIME_EVENT_FQ[], LTI_STATE_EVENT_FQ[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
 
@@ -115,6 +129,12 @@ LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]);
 LtiStatus ltiSetStates(LtiInstance *inst, const double z[], size_t n);
 void ltiGetStates(const LtiInstance *inst, double z[]);
 LtiStatus ltiDoStep(LtiInstance *inst, double t, double h);
+/* events: number of indicators, their values at the current state, the discrete update of event mode
+   (next time event, if any, in *nextTime with *nextDefined = 1), and the start of the event bookkeeping */
+size_t ltiEventIndicatorCount(void);
+LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double values[], size_t n);
+void ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
+void ltiStartEvents(LtiInstance *inst);
 LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
 
 #endif /* LTI_H */

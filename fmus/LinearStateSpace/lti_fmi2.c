@@ -1,6 +1,7 @@
 /*
  * FMI 2.0 model-exchange and co-simulation API over the linear state-space kernel (lti.h).
- * No events, no FMU states, no directional derivatives: those functions answer fmi2Error.
+ * Events only where the generated model has them (a time event, one event indicator); no FMU
+ * states, no directional derivatives: those functions answer fmi2Error.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -112,6 +113,8 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     CHECK(c, "fmi2ExitInitializationMode", PhaseInitialization);
     if (ltiEvaluate(inst, "fmi2ExitInitializationMode") != LtiOK) return finish(inst, LtiError);
+    ltiStartEvents(inst);
+    if (inst->isCoSimulation) ltiUpdateDiscrete(inst, NULL, NULL);  /* model exchange: the importer's event iteration */
     inst->phase = inst->isCoSimulation ? PhaseStep : PhaseEvent;
     return fmi2OK;
 }
@@ -236,13 +239,16 @@ fmi2Status fmi2EnterEventMode(fmi2Component c) {
 }
 
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
+    int nextDefined;
+    double nextTime;
     CHECK(c, "fmi2NewDiscreteStates", PhaseEvent);
+    ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
     info->newDiscreteStatesNeeded = fmi2False;
     info->terminateSimulation = fmi2False;
     info->nominalsOfContinuousStatesChanged = fmi2False;
     info->valuesOfContinuousStatesChanged = fmi2False;
-    info->nextEventTimeDefined = fmi2False;
-    info->nextEventTime = 0.0;
+    info->nextEventTimeDefined = nextDefined ? fmi2True : fmi2False;
+    info->nextEventTime = nextTime;
     return fmi2OK;
 }
 
@@ -291,12 +297,8 @@ fmi2Status fmi2GetDerivatives(fmi2Component c, fmi2Real derivatives[], size_t nx
 
 fmi2Status fmi2GetEventIndicators(fmi2Component c, fmi2Real eventIndicators[], size_t ni) {
     CHECK(c, "fmi2GetEventIndicators", PHASE_ANY);
-    (void)eventIndicators;
-    if (ni != 0) {
-        ltiLog(inst, LtiError, "logStatusError", "fmi2GetEventIndicators: the FMU has none");
-        return fmi2Error;
-    }
-    return fmi2OK;
+    /* a wrong count is an error of the call, not of the instance */
+    return (fmi2Status)ltiEventIndicators(inst, "fmi2GetEventIndicators", eventIndicators, ni);
 }
 
 fmi2Status fmi2GetContinuousStates(fmi2Component c, fmi2Real x[], size_t nx) {

@@ -1,6 +1,7 @@
 /*
  * FMI 3.0 model-exchange and co-simulation API over the linear state-space kernel (lti.h),
- * with configuration mode for the structural size of array FMUs.  Event mode in
+ * with configuration mode for the structural size of array FMUs, and the events the generated
+ * model may have (a time event, one event indicator) in model exchange.  Event mode in
  * co-simulation, clocks, FMU states and derivatives of any kind are not provided: those
  * functions answer fmi3Error with a logged message.
  */
@@ -135,6 +136,8 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
     CHECK(instance, "fmi3ExitInitializationMode", PhaseInitialization);
     if (ltiEvaluate(inst, "fmi3ExitInitializationMode") != LtiOK) return finish(inst, LtiError);
+    ltiStartEvents(inst);
+    if (inst->isCoSimulation) ltiUpdateDiscrete(inst, NULL, NULL);  /* model exchange: the importer's event iteration */
     inst->phase = inst->isCoSimulation ? PhaseStep : PhaseEvent;
     return fmi3OK;
 }
@@ -459,13 +462,16 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
                                     fmi3Boolean *valuesOfContinuousStatesChanged,
                                     fmi3Boolean *nextEventTimeDefined,
                                     fmi3Float64 *nextEventTime) {
+    int nextDefined;
+    double nextTime;
     CHECK(instance, "fmi3UpdateDiscreteStates", PhaseEvent);
+    ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
     if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
     if (terminateSimulation) *terminateSimulation = fmi3False;
     if (nominalsOfContinuousStatesChanged) *nominalsOfContinuousStatesChanged = fmi3False;
     if (valuesOfContinuousStatesChanged) *valuesOfContinuousStatesChanged = fmi3False;
-    if (nextEventTimeDefined) *nextEventTimeDefined = fmi3False;
-    if (nextEventTime) *nextEventTime = 0.0;
+    if (nextEventTimeDefined) *nextEventTimeDefined = nextDefined ? fmi3True : fmi3False;
+    if (nextEventTime) *nextEventTime = nextTime;
     return fmi3OK;
 }
 
@@ -519,10 +525,9 @@ fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance instance, fmi3Float64 
 fmi3Status fmi3GetEventIndicators(fmi3Instance instance, fmi3Float64 eventIndicators[],
                                   size_t nEventIndicators) {
     CHECK(instance, "fmi3GetEventIndicators", PHASE_ANY);
-    (void)eventIndicators;
-    if (nEventIndicators == 0) return fmi3OK;
-    ltiLog(inst, LtiError, "logStatusError", "fmi3GetEventIndicators: the FMU has none");
-    return fmi3Error;
+    /* a wrong count is an error of the call, not of the instance */
+    return (fmi3Status)ltiEventIndicators(inst, "fmi3GetEventIndicators", eventIndicators,
+                                          nEventIndicators);
 }
 
 fmi3Status fmi3GetContinuousStates(fmi3Instance instance, fmi3Float64 continuousStates[],
@@ -544,7 +549,7 @@ fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance instance, fmi3Float64 
 
 fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance instance, size_t *nEventIndicators) {
     CHECK(instance, "fmi3GetNumberOfEventIndicators", PHASE_ANY);
-    *nEventIndicators = 0;
+    *nEventIndicators = ltiEventIndicatorCount();
     return fmi3OK;
 }
 

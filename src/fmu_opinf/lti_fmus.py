@@ -26,7 +26,10 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
   outputs too and on Modelica type definitions (``declaredType``);
 * on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
   outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
-  dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``).
+  dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``);
+* on request, discrete events as Modelica models with ``when`` clauses have them: a force that
+  switches on at a time event (:class:`TimeEvent`, announced as the next event time) and one that
+  latches on when a position crosses a threshold (:class:`StateEvent`, one event indicator).
 
 The system is ``M x'' + D x' + K x = B u + f0`` with outputs ``y = Cp x + Cv x' + Ca x'' + y0``
 (:class:`LinearMechanicalModel`).  The FMU integrates it in the coordinates an exporter would
@@ -42,6 +45,7 @@ FMU per convention with its model (:data:`CORPUS_NAMES`).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import re
 import tempfile
@@ -70,6 +74,8 @@ from .fmus import (
 __all__ = [
     "LinearMechanicalModel",
     "MassChain",
+    "TimeEvent",
+    "StateEvent",
     "ZohResponse",
     "LtiFmu",
     "build_lti_fmu",
@@ -95,9 +101,10 @@ _FMI_HEADERS = {
     "3.0": ("fmi3Functions.h", "fmi3FunctionTypes.h", "fmi3PlatformTypes.h"),
 }
 _GUID_PLACEHOLDER = "@GUID@"
+_INDICATOR = "eventIndicator"   # FMI 3 variable of the state event's indicator
 _GUID_NAMESPACE = uuid.UUID("0b7d6c1e-3f51-4f4e-a2f4-7c9d7e5b2a61")
 _SLOT_KINDS = ("SlotTime", "SlotQ", "SlotQd", "SlotQdd", "SlotX", "SlotV", "SlotA", "SlotY",
-               "SlotU", "SlotPar", "SlotQStart", "SlotQdStart", "SlotSize")
+               "SlotU", "SlotPar", "SlotQStart", "SlotQdStart", "SlotSize", "SlotIndicator")
 
 
 def _matrix(value, rows: int, cols: int, what: str) -> np.ndarray:
@@ -373,6 +380,49 @@ class MassChain:
             v0=self.start_velocity * np.ones(n), name=self.name)
 
 
+@dataclass(frozen=True)
+class TimeEvent:
+    """A constant force that switches on at a time event (a Modelica ``when time >= time``).
+
+    The FMU announces ``time`` as its next event time and adds ``force`` only in the event
+    iteration there: derivatives evaluated before the event, even at later times, use the old
+    force, so an importer that ignores the announcement records the model without it.
+
+    Parameters
+    ----------
+    time : float
+        Event time (s).
+    force : array_like (n,)
+        Force added to ``f0`` from the event on (N), one value per degree of freedom.
+    """
+
+    time: float
+    force: Sequence[float]
+
+
+@dataclass(frozen=True)
+class StateEvent:
+    """A constant force latched on when a position crosses a threshold (a state event).
+
+    The FMU has one event indicator, ``x[dof] - threshold``; the first change of its sign
+    (FMI's convention: from ``> 0`` to ``<= 0`` or back) seen in an event iteration latches
+    ``force`` on for good.  Later crossings are events that change nothing.
+
+    Parameters
+    ----------
+    dof : int
+        Degree of freedom (0-based) whose position is watched.
+    threshold : float
+        Position (m) whose crossing is the event.
+    force : array_like (n,)
+        Force added to ``f0`` from the event on (N).
+    """
+
+    dof: int
+    threshold: float
+    force: Sequence[float]
+
+
 # ------------------------------------------------------------- exact reference solution
 
 @dataclass
@@ -638,6 +688,8 @@ class LtiFmu:
         Name of the structural size (``"n"``) of array FMUs built from a :class:`MassChain`.
     guid : str
         GUID / instantiation token.
+    time_event, state_event : TimeEvent or StateEvent or None
+        The events the FMU was built with (:func:`build_lti_fmu`).
     """
 
     path: Path
@@ -657,6 +709,8 @@ class LtiFmu:
     start_parameters: list[str]
     structural_parameter: str | None
     guid: str
+    time_event: TimeEvent | None = None
+    state_event: StateEvent | None = None
 
 
 @dataclass
@@ -681,6 +735,8 @@ class _Options:
     interleaved: bool = False
     dependencies: bool = True
     stale_derivatives: bool = False
+    time_event: TimeEvent | None = None
+    state_event: StateEvent | None = None
 
 
 def _check_options(model, options: _Options) -> None:
@@ -721,6 +777,29 @@ def _check_options(model, options: _Options) -> None:
     if options.declared_types and not options.units:
         raise FmuBuildError("declared_types puts the units on type definitions; it needs "
                             "units=True")
+    _check_events(model, options)
+
+
+def _check_events(model, options: _Options) -> None:
+    """Events need a fixed size (their forces have one value per degree of freedom)."""
+    events = [e for e in (options.time_event, options.state_event) if e is not None]
+    if not events:
+        return
+    if isinstance(model, MassChain):
+        raise FmuBuildError("time and state events need a fixed size; pass chain.model() instead of "
+                            "the MassChain family")
+    for event in events:
+        force = np.asarray(event.force, dtype=float)
+        if force.shape != (model.n,) or not np.isfinite(force).all():
+            raise DimensionError(f"the force of {type(event).__name__} has shape {force.shape}; give "
+                                 f"{model.n} finite values, one per degree of freedom")
+    if options.time_event is not None and not math.isfinite(options.time_event.time):
+        raise FmuBuildError("the time of the TimeEvent is not finite; give a finite time")
+    state = options.state_event
+    if state is not None and not (int(state.dof) == state.dof and 0 <= state.dof < model.n
+                                  and math.isfinite(state.threshold)):
+        raise FmuBuildError(f"StateEvent dof={state.dof}, threshold={state.threshold} is invalid; give a "
+                            f"dof in [0, {model.n - 1}] and a finite threshold")
 
 
 def _indexed(base: str, i: int, count: int, modelica: bool) -> str:
@@ -1156,7 +1235,7 @@ def _model_description2(layout: _Layout, options: _Options, sources: list[str]) 
         f'<fmiModelDescription fmiVersion="2.0" modelName="{options.identifier}"'
         f' guid="{_GUID_PLACEHOLDER}"\n  description={quoteattr(options.description)}\n'
         f'  generationTool="fmu-opinf lti_fmus" variableNamingConvention="{naming}"'
-        ' numberOfEventIndicators="0">\n'
+        f' numberOfEventIndicators="{int(options.state_event is not None)}">\n'
         f"{interfaces}{_unit_definitions(layout)}"
         f"{_type_definitions(layout, options.declared_types)}"
         "  <LogCategories>\n"
@@ -1199,6 +1278,8 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
                          for d in layout.derivatives)
     structure += "".join(f'    <InitialUnknown valueReference="{v.vr}"/>\n'
                          for v in _initial_unknowns(layout))
+    structure += "".join(f'    <EventIndicator valueReference="{v.vr}"/>\n'
+                         for v in layout.variables if v.name == _INDICATOR)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         f'<fmiModelDescription fmiVersion="3.0" modelName="{options.identifier}"'
@@ -1231,10 +1312,12 @@ def _build_description3(options: _Options, sources: list[str]) -> str:
 
 # ------------------------------------------------------------------------ C model
 
-def _c_array(name: str, values: np.ndarray) -> str:
+def _c_array(name: str, values: np.ndarray, static: bool = True) -> str:
+    """A C array definition (one 0.0 if empty, as C has no empty arrays); ``static=False`` for the
+    arrays that lti.h declares extern."""
     flat = np.asarray(values, dtype=float).reshape(-1)
     body = ", ".join(_number(v) for v in flat) if flat.size else "0.0"
-    return f"static const double {name}[] = {{{body}}};\n"
+    return f"{'static ' if static else ''}const double {name}[] = {{{body}}};\n"
 
 
 def _fixed_assembly(coords: _Coordinates, model: LinearMechanicalModel) -> str:
@@ -1290,6 +1373,23 @@ void ltiAssemble(LtiInstance *inst) {{
 """
 
 
+def _event_source(options: _Options, model: LinearMechanicalModel, coords: _Coordinates) -> str:
+    """The C constants of the optional events (zeros and one-element arrays when off)."""
+    def in_q(force) -> np.ndarray:   # the force's contribution to q'' (before mass_scale), as fq
+        T = coords.T
+        return np.linalg.solve(T.T @ model.M @ T, T.T @ np.asarray(force, dtype=float))
+
+    timed, state = options.time_event, options.state_event
+    return (
+        f"const int LTI_TIME_EVENT = {int(timed is not None)};\n"
+        f"const double LTI_TIME_EVENT_AT = {_number(timed.time if timed else 0.0)};\n"
+        + _c_array("LTI_TIME_EVENT_FQ", in_q(timed.force) if timed else np.zeros(0), static=False)
+        + f"const int LTI_STATE_EVENT = {int(state is not None)};\n"
+        f"const size_t LTI_STATE_EVENT_DOF = {int(state.dof) if state else 0};\n"
+        f"const double LTI_STATE_EVENT_THRESHOLD = {_number(state.threshold if state else 0.0)};\n"
+        + _c_array("LTI_STATE_EVENT_FQ", in_q(state.force) if state else np.zeros(0), static=False))
+
+
 def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalModel,
                   coords: _Coordinates, chain: MassChain | None) -> str:
     slots = ",\n    ".join(f"{{{kind}, {index}, {array}, {tunable}}}"
@@ -1312,6 +1412,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_NU = {model.m};\n"
         f"const size_t LTI_NY = {model.p};\n"
         "const double LTI_PAR_DEFAULTS[2] = {1.0, 1.0};\n"
+        f"{_event_source(options, model, coords)}"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1349,6 +1450,10 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
             names = _array_states(layout, model, None, options)
     sensors = (_input_sensors(layout, inputs, options.naming == "modelica", options)
                if options.input_sensors else [])
+    if options.state_event is not None and layout.fmi3:   # FMI 3 names a variable per event indicator
+        layout.add(_INDICATOR, "SlotIndicator",
+                   description=f"event indicator: x[{options.state_event.dof + 1}] - "
+                               f"{_number(options.state_event.threshold)}")
     if options.dependencies:
         _dependencies(layout, model, coords, inputs, parameter_inputs,
                       [] if options.output_array else outputs)
@@ -1407,7 +1512,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   declared_types: bool = False, input_sensors: bool = False,
                   output_array: bool = False, output_aliases: bool = False,
                   input_array: bool = False, interleaved: bool = False,
-                  dependencies: bool = True, stale_derivatives: bool = False, reuse: bool = True) -> LtiFmu:
+                  dependencies: bool = True, stale_derivatives: bool = False,
+                  time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
+                  reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1473,6 +1580,15 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Co-simulation: after ``doStep`` the derivative variables of the velocity states return their values
         from before the step until an input is set (a defect of some generated LTI FMUs, spec
         ``real-fmus.md``; without inputs nothing refreshes them).
+    time_event : TimeEvent, optional
+        A force that switches on at a time event.  Model exchange: announced as the next event
+        time and applied in the event iteration there.  Co-simulation meets it exactly (the
+        ``doStep`` that contains it is split there).
+    state_event : StateEvent, optional
+        A force latched on when a position first crosses a threshold (one event indicator).
+        Model exchange: applied in the event iteration after the crossing, which the importer
+        must locate.  Co-simulation looks at the indicator only at the end of each ``doStep``
+        (the force starts at the communication point after the crossing, as simple exporters do).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1499,7 +1615,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         declared_types=bool(declared_types), input_sensors=bool(input_sensors),
         output_array=bool(output_array), output_aliases=bool(output_aliases),
         input_array=bool(input_array), interleaved=bool(interleaved),
-        dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives))
+        dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives),
+        time_event=time_event, state_event=state_event)
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
@@ -1508,7 +1625,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     result = LtiFmu(path=path, model=concrete, fmi_version=fmi_version,
                     interfaces=options.interfaces, cs_method=cs_method, naming=naming,
                     states=list(layout.states), derivatives=list(layout.derivatives),
-                    structural_parameter="n" if chain else None, guid=guid, **names)
+                    structural_parameter="n" if chain else None, guid=guid, time_event=time_event,
+                    state_event=state_event, **names)
     if reuse and path.is_file() and _existing_guid(path) == guid:
         return result
     cmake = _require_build_tools()

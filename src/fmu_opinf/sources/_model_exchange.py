@@ -14,6 +14,20 @@ tolerance, DOP853's below it).  Stiff models (widely separated time scales) are 
 by the implicit ``"radau"``, ``"bdf"`` or ``"lsoda"`` (Python API ``method=``).  The relative
 tolerance is the source's ``tolerance``; the absolute tolerance is that times each state's largest
 magnitude so far (floored at 1e-6 of its nominal value).
+
+Events.  Time events: the next event time that the FMU announces in an event iteration (the one
+that ends initialization included) splits the integration there; the event iteration runs at that
+time, the continuous states are read again, and the integration goes on with the same inputs.  State
+events: an FMU with event indicators has them read at the start and the end of every integration
+interval (one communication step, or the part of it after an event); a change of sign (FMI's
+convention: from ``> 0`` to ``<= 0`` or back) is located by regula falsi (Illinois) with bisection
+as a safeguard, re-integrating from the last state before the crossing with the inputs held, to
+``1e-12`` of the interval plus a few ulps of t, and the event is handled just after it; a change of
+sign across a communication point (the inputs set there moved an indicator) is an event at that
+point.  A sample at an event time holds the values after the event, like a co-simulation ``doStep``
+that ends there.
+FMUs without event indicators and without an announced time event take the plain path: no call more
+per step.
 """
 
 from __future__ import annotations
@@ -39,6 +53,9 @@ METHODS = ("dop853", "lsoda", "bdf", "radau", "rk45")
 #: Event iterations allowed at one time instant before giving up.
 _MAX_EVENT_ITERATIONS = 100
 
+#: Events (time events and located crossings) handled within one communication step before giving up.
+_MAX_EVENTS_PER_STEP = 1000
+
 
 class _IntegrationError(Exception):
     """The FMU refused a call inside the right-hand side, or the integrator gave up."""
@@ -59,8 +76,15 @@ class ModelExchangeSource(FMUSource):
 
     Notes
     -----
-    State events are not located: an FMU asking for an event after an integrator step gets its
-    event iteration at the next communication point.  Linear mechanical models have none.
+    Events (module docstring): time events are met exactly; state events are located to
+    ``1e-12`` of the interval (plus a few ulps of t) and handled just after the crossing; an FMU
+    asking for an event from ``fmiCompletedIntegratorStep`` gets its event iteration where it asks,
+    at the end of the interval (a communication step, or the part of it up to an event).  The signs
+    of the event indicators are compared only at the ends of each interval, so two crossings of one
+    indicator inside one interval (a communication step or shorter) cancel and are missed: record with
+    a smaller dt when a threshold may be crossed and re-crossed within one step.  Events may change the
+    continuous states (they are read again) and the nominals; they cannot change the inputs, which
+    stay held over the whole step.
     """
 
     interface = "me"
@@ -103,12 +127,14 @@ class ModelExchangeSource(FMUSource):
         v = "2" if self.fmi_version.startswith("2") else "3"
         derivatives = "fmi2GetDerivatives" if v == "2" else "fmi3GetContinuousStateDerivatives"
         flag = ctypes.c_int if v == "2" else ctypes.c_bool
-        (self._c_time, self._c_set_x, self._c_get_x, self._c_dx, self._c_completed) = self._bind(
+        (self._c_time, self._c_set_x, self._c_get_x, self._c_dx, self._c_completed,
+         self._c_indicators) = self._bind(
             (f"fmi{v}SetTime", [vp, dbl]),
             (f"fmi{v}SetContinuousStates", [vp, vp, sz]),
             (f"fmi{v}GetContinuousStates", [vp, vp, sz]),
             (derivatives, [vp, vp, sz]),
             (f"fmi{v}CompletedIntegratorStep", [vp, flag, vp, vp]),
+            (f"fmi{v}GetEventIndicators", [vp, vp, sz]),
         )
         self._event_flags = np.zeros(2, dtype=np.int32)  # enterEventMode, terminateSimulation
 
@@ -116,13 +142,19 @@ class ModelExchangeSource(FMUSource):
         """Leave initialization through an event iteration, then read the start state."""
         import scipy.integrate  # noqa: F401  (loaded here, not inside the first step)
 
+        self._t_next = math.inf
         self._event_iteration()
         self._fmu.enterContinuousTimeMode()
         self.nx = self._state_count()
+        self.nz = self._indicator_count()
+        self._z = np.zeros(self.nz)       # event indicators at the start of the current interval
+        self._z_end = np.zeros(self.nz)   # ... and at its end
         self._x = np.zeros(self.nx)
         self._dx = np.zeros(self.nx)
         if self.nx and self._c_get_x(self._comp, self._x.ctypes.data, self.nx) > 1:
             raise FMUError(f"{self.path.name} returned an error reading its continuous states")
+        if self.nz:
+            self._read_indicators(0, float(self._t[0]), self._z)
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
@@ -140,6 +172,16 @@ class ModelExchangeSource(FMUSource):
             return len(self.md.derivatives)
         return int(self._fmu.getNumberOfContinuousStates())
 
+    def _indicator_count(self) -> int:
+        """Number of event indicators (FMI 3: asked of the instance, as sizes may be structural)."""
+        declared = int(getattr(self.md, "numberOfEventIndicators", 0) or 0)
+        if self.fmi_version.startswith("2"):
+            return declared
+        try:
+            return int(self._fmu.getNumberOfEventIndicators())
+        except Exception:
+            return declared
+
     def _nominals(self) -> np.ndarray:
         nominals = np.ones(self.nx)
         if self.nx:
@@ -152,16 +194,20 @@ class ModelExchangeSource(FMUSource):
         nominals[~np.isfinite(nominals) | (nominals == 0)] = 1.0
         return nominals
 
-    def _event_iteration(self) -> None:
-        """Update the discrete states until the FMU needs no more (the FMU is in event mode)."""
+    def _event_iteration(self) -> bool:
+        """Update the discrete states until the FMU needs no more (the FMU is in event mode); remember
+        the next time event it announces.  Returns whether the nominals of the states changed."""
         update = (self._fmu.newDiscreteStates if self.fmi_version.startswith("2")
                   else self._fmu.updateDiscreteStates)
+        nominals = False
         for _ in range(_MAX_EVENT_ITERATIONS):
-            needed, terminate = update()[:2]
+            needed, terminate, nominals_changed, _, next_defined, next_time = update()[:6]
+            nominals = nominals or bool(nominals_changed)
             if terminate:
                 raise FMUError(f"{self.path.name} asked to terminate the simulation during an event iteration")
             if not needed:
-                return
+                self._t_next = float(next_time) if next_defined else math.inf
+                return nominals
         raise FMUError(f"{self.path.name} did not finish its event iteration after {_MAX_EVENT_ITERATIONS} rounds")
 
     # -- stepping ---------------------------------------------------------------------------
@@ -187,6 +233,14 @@ class ModelExchangeSource(FMUSource):
 
     def _integrate(self, i: int, t0: float, t1: float) -> None:
         """Integrate the state from ``t0`` to ``t1`` with the inputs held, and leave the FMU there."""
+        if self.nz or self._t_next != math.inf:
+            self._integrate_with_events(i, t0, t1)
+            return
+        self._piece(i, t0, t1)
+        self._completed_step(i, t1)
+
+    def _piece(self, i: int, t0: float, t1: float) -> None:
+        """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there."""
         if self.nx:
             try:
                 self._x = _INTEGRATORS[self.method](self, t0, t1)
@@ -196,9 +250,101 @@ class ModelExchangeSource(FMUSource):
             self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
         if self._c_time(self._comp, t1) > 1:
             raise StepError(self._integration_failure(i, t0, t1, "fmiSetTime failed"), i, t1)
-        self._completed_step(i, t1)
 
-    def _completed_step(self, i: int, t1: float) -> None:
+    def _integrate_with_events(self, i: int, t0: float, t1: float) -> None:
+        """:meth:`_integrate` through the time events and the located state events in ``(t0, t1]``.
+
+        An event time within :func:`_time_slack` of ``t1`` is taken as ``t1`` (the FMU's time is then the
+        event's), so that neither a zero-length integration nor a skipped event results from round-off.
+        """
+        slack = _time_slack(t0, t1)
+        t = t0
+        if self.nz:   # the inputs just set may have moved an indicator across zero: an event here
+            self._indicators_at(i, t, self._z_end)
+            if _sign_changed(self._z, self._z_end):
+                self._handle_event()
+            else:
+                self._z, self._z_end = self._z_end, self._z
+        for _ in range(_MAX_EVENTS_PER_STEP):
+            timed = self._t_next <= t1 + slack
+            end = max(self._t_next, t) if timed else t1
+            t, crossed = self._advance_to(i, t, end)
+            handled = self._completed_step(i, t)
+            if (crossed or timed) and not handled:
+                self._handle_event()
+            if t1 - t <= slack:
+                return
+        raise StepError(f"{self.path.name}: more than {_MAX_EVENTS_PER_STEP} events between t={t0:g} and "
+                        f"t={t1:g} (an event indicator chatters or time events do not advance); fix the model "
+                        "or try --interface cs", i, t1)
+
+    def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool]:
+        """Integrate towards ``t1``; with event indicators, stop just after the first change of sign.
+        Returns the time reached and whether an indicator crossed zero."""
+        if t1 <= t0:   # an event due at once
+            return t0, False
+        start = self._x.copy() if self.nz else None
+        self._piece(i, t0, t1)
+        if not self.nz:
+            return t1, False
+        self._read_indicators(i, t1, self._z_end)
+        if not _sign_changed(self._z, self._z_end):
+            self._z, self._z_end = self._z_end, self._z
+            return t1, False
+        return self._locate_crossing(i, t0, t1, start), True
+
+    def _locate_crossing(self, i: int, a: float, b: float, x_a: np.ndarray) -> float:
+        """The first zero crossing of an event indicator in ``(a, b]``, bracketed to
+        ``1e-12 (b - a)`` plus a few ulps: regula falsi on the earliest crossing (Illinois variant); an
+        estimate within half the tolerance of an end moves a whole tolerance inside (a converged one-sided
+        secant then closes the bracket in one trial); a bisection when three trials did not halve the
+        bracket.  Each trial re-integrates from the last state before the crossing with the inputs held.
+        Leaves the FMU (and ``self._x``) at the right end."""
+        tolerance = 1e-12 * (b - a) + 4 * math.ulp(max(abs(a), abs(b)))
+        g_a, g_b, x_b = self._z.copy(), self._z_end.copy(), self._x.copy()
+        w_a, w_b = g_a.copy(), g_b.copy()   # Illinois: the values the secant uses
+        h_last = self._h_last   # the next interval starts from the step size before the search
+        moved, bisect, widths = 0, False, [b - a] * 3
+        while b - a > tolerance:
+            t_m = 0.5 * (a + b) if bisect else _earliest_secant(a, b, g_a, g_b, w_a, w_b)
+            if t_m - a < 0.5 * tolerance or b - t_m < 0.5 * tolerance:
+                t_m = a + tolerance if t_m - a < b - t_m else b - tolerance
+            self._x = x_a.copy()
+            self._piece(i, a, t_m)
+            g_m = np.empty(self.nz)
+            self._read_indicators(i, t_m, g_m)
+            if _sign_changed(g_a, g_m):
+                b, g_b, w_b, x_b = t_m, g_m, g_m.copy(), self._x.copy()
+                if moved == -1:
+                    w_a *= 0.5
+                moved = -1
+            else:
+                a, g_a, w_a, x_a = t_m, g_m, g_m.copy(), self._x.copy()
+                if moved == 1:
+                    w_b *= 0.5
+                moved = 1
+            widths = widths[1:] + [b - a]
+            bisect = b - a > 0.5 * widths[0] and not bisect
+        self._x, self._h_last = x_b, h_last
+        if self.nx:
+            self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
+        self._c_time(self._comp, b)
+        self._z_end = g_b
+        return b
+
+    def _indicators_at(self, i: int, t: float, out: np.ndarray) -> None:
+        """The event indicators at time ``t`` and the current state (the FMU is left there)."""
+        if self.nx:
+            self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
+        self._c_time(self._comp, t)
+        self._read_indicators(i, t, out)
+
+    def _read_indicators(self, i: int, t: float, out: np.ndarray) -> None:
+        if self._c_indicators(self._comp, out.ctypes.data, self.nz) > 1:
+            raise StepError(self._integration_failure(i, t, t, "fmiGetEventIndicators failed"), i, t)
+
+    def _completed_step(self, i: int, t1: float) -> bool:
+        """``fmiCompletedIntegratorStep`` at ``t1``; handles the event it may ask for (returns whether)."""
         flags = self._event_flags
         flags[:] = 0
         address = flags.ctypes.data
@@ -208,13 +354,21 @@ class ModelExchangeSource(FMUSource):
             raise StepError(f"{self.path.name} asked to terminate the simulation at t={t1:g}", i, t1)
         if flags[0]:
             self._handle_event()
+        return bool(flags[0])
 
     def _handle_event(self) -> None:
+        """Event mode at the FMU's current time: iterate, then read the (possibly changed) states, their
+        nominals when they changed, and the event indicators as the reference of the next interval."""
         self._fmu.enterEventMode()
-        self._event_iteration()
+        nominals_changed = self._event_iteration()
         self._fmu.enterContinuousTimeMode()
         if self.nx:
             self._c_get_x(self._comp, self._x.ctypes.data, self.nx)
+            if nominals_changed:
+                self._floor = 1e-6 * self._nominals()
+        if self.nz and self._c_indicators(self._comp, self._z.ctypes.data, self.nz) > 1:
+            raise FMUError(f"{self.path.name} returned an error reading its event indicators after an event; "
+                           "try --interface cs")
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
         where = f"step {i} (t={t0:g} -> {t1:g})" if i >= 0 else f"t={t0:g} -> {t1:g}"
@@ -232,6 +386,29 @@ class ModelExchangeSource(FMUSource):
         if not np.isfinite(dx).all():
             raise _IntegrationError(f"the derivatives are not finite at t={t:.9g}")
         return dx.copy()
+
+
+# ---------------------------------------------------------------------------------------- events
+
+def _time_slack(t0: float, t1: float) -> float:
+    """Times closer than this to a communication point ``t1`` are ``t1`` (round-off of event times)."""
+    return 8 * math.ulp(max(abs(t0), abs(t1))) + 1e-12 * (t1 - t0)
+
+
+def _sign_changed(before: np.ndarray, after: np.ndarray) -> bool:
+    """Whether an event indicator crossed zero (FMI: from ``> 0`` to ``<= 0`` or back)."""
+    return bool(np.any((before > 0) != (after > 0)))
+
+
+def _earliest_secant(a: float, b: float, g_a: np.ndarray, g_b: np.ndarray, w_a: np.ndarray,
+                     w_b: np.ndarray) -> float:
+    """Regula falsi estimate of the earliest crossing in ``(a, b)`` among the indicators whose sign
+    differs at the ends (``w``: their Illinois-weighted values); the midpoint if none is usable."""
+    changed = (g_a > 0) != (g_b > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        times = a + (b - a) * w_a[changed] / (w_a[changed] - w_b[changed])
+    times = times[np.isfinite(times) & (times > a) & (times < b)]
+    return float(times.min()) if times.size else 0.5 * (a + b)
 
 
 # ---------------------------------------------------------------------------------------- integrators
