@@ -388,7 +388,11 @@ triple r = 20 / 35 / 40     2.0 / 4.5 / 8.1 s           1.1 / 2.9 / 6.4 s       
 
 So 100 iterations kept every order up to r = 40 within the goal at about half the time, with 2-10x larger errors
 on the anchored chain at r = 4 .. 8 (still far below both references) and, on the triple chain, errors on either
-side of the default's (the iterates' swing).  Above r = 40 the ``20 r`` budget is needed: 300 iterations ended
+side of the default's (the iterates' swing).  Re-measured 2026-11-27 with the current code (150 against 300,
+``bench_accuracy.py --refine-iterations 150``): triple r = 5 .. 40 ratio 0.13 .. 1.19 against 0.22 .. 1.90 (r = 35:
+3.2e-7 against 8.3e-8, r = 40: 4.7e-8 against 5.1e-7; fit 1.28 against 1.77 s wall at r = 35), anchored r = 2 .. 12
+0.003 .. 1.03 against 0.002 .. 1.04 with errors about 2x larger at r = 4 .. 8; 300 stays the default (accuracy
+first; the anchored chain's objective is still falling there).  Above r = 40 the ``20 r`` budget is needed: 300 iterations ended
 triple r = 45 / 50 / 55 / 60 at ratio 2.24 / 0.12 / 0.38 / 3.79 (default 0.75 / 0.67 / 0.54 / 0.17).
 L-BFGS keeps 100 correction pairs: with 30, r = 8 / 40 / 50 ended at ratio 2.1 / 2.1 / 13.  The learned poles
 stay 3-36 % off the full model's spectrum (``pole gap`` in the benchmark): the refined ``Mr, Dr, Kr`` reproduce
