@@ -799,8 +799,8 @@ def fit_rom(
         or the exact hold step of a continuous-time source); False keeps the SDP solution (the paper's eq. 16
         with ``normalization="trace"``).
     refine_iterations : int, optional
-        L-BFGS iterations of each refinement start: default 300 up to r = 40 and ``20 r`` above.  Fewer trade
-        accuracy for time (:mod:`fmu_opinf.inference`, *Cost of the refinement*: 100 iterations halve the fit
+        L-BFGS iterations of each refinement start: default 300 up to r = 40, ``20 r`` up to r = 60, 600
+        above.  Fewer trade accuracy for time (:mod:`fmu_opinf.inference`, *Cost of the refinement*: 100 iterations halve the fit
         at r = 35 and kept every benchmark order within 2x of the references, with larger errors on the
         anchored chain at r = 4 .. 8).
     refit_output_map : bool, default=False
