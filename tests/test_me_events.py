@@ -272,3 +272,72 @@ def test_invalid_events_are_refused_in_one_line(tmp_path):
         lti_fmus.build_lti_fmu(lti_fmus.MassChain(n=2), tmp_path / "c.fmu", fmi_version="3.0", naming="array",
                                time_event=lti_fmus.TimeEvent(1.0, [0.0, 1.0]))
     assert not list(tmp_path.iterdir())
+
+
+# ------------------------------------------------------------------------------ the crossing search alone
+
+class _LinearIndicator:
+    """Stand-in for a source in :meth:`ModelExchangeSource._locate_crossing`: one indicator ``g(t) = t - c``
+    (no state), each trial integration counted and capped."""
+
+    nz, nx, _comp = 1, 0, None
+
+    def __init__(self, a: float, b: float, c: float) -> None:
+        self.c, self.trials = c, 0
+        self._z, self._z_end = np.array([a - c]), np.array([b - c])
+        self._x, self._h_last = np.zeros(0), 0.01
+
+    def _piece(self, i, t0, t1):
+        self.trials += 1
+        assert self.trials <= 250, "the search does not end"
+
+    def _read_indicators(self, i, t, out):
+        out[0] = t - self.c
+
+    def _c_time(self, comp, t):
+        pass
+
+
+def test_the_crossing_search_ends_and_brackets_the_crossing_to_its_tolerance():
+    """Random brackets of a linear indicator, including a crossing at the interval's start (g = 0 there) and
+    brackets within rounding of the tolerance: before the fix 114 of 20 000 such searches never ended, and a
+    crossing at the start took 40 bisections."""
+    rng = np.random.default_rng(7)
+    worst = 0
+    for k in range(5000):
+        a = float(rng.uniform(0.0, 10.0))
+        b = a + 0.1
+        c = a if k % 10 == 0 else a + (b - a) * float(rng.random())
+        fake = _LinearIndicator(a, b, c)
+        found = ModelExchangeSource._locate_crossing(fake, 0, a, b, np.zeros(0))
+        tolerance = 1e-12 * (b - a) + 4 * math.ulp(b)
+        assert c <= found <= c + tolerance + 2 * math.ulp(b), (a, b, c, found)
+        worst = max(worst, fake.trials)
+    assert worst <= 4   # measured 3: the secant of a straight line is exact, then one trial to close the bracket
+
+
+# ------------------------------------------------------------------------------ failures and cost in event mode
+
+def test_an_fmu_asking_to_terminate_in_an_event_iteration_is_a_one_line_step_error(fmus, monkeypatch):
+    from fmu_opinf.sources._base import StepError
+
+    original = ModelExchangeSource._after_initialization
+
+    def terminating(self):
+        original(self)
+        if self.fmi_version.startswith("2"):
+            self._fmu.newDiscreteStates = lambda: (False, True, False, False, False, 0.0)
+
+    monkeypatch.setattr(ModelExchangeSource, "_after_initialization", terminating)
+    with pytest.raises(StepError, match=r"asked to terminate the simulation during an event iteration \(at t=1\.1"):
+        record(ModelExchangeSource(fmus[("2.0", "state")]), INPUT, DT, T_END, quiet=True)
+
+
+def test_indicators_are_checked_at_a_communication_point_only_where_inputs_were_set(fmus, monkeypatch):
+    """An indicator can jump at a communication point only through the inputs set there; where none changed, the
+    previous interval's end values stand (before, every step set states and time again and read them: +11 us)."""
+    checks = []
+    spy(monkeypatch, "_indicators_at", lambda args, result: checks.append(args[1]))
+    run, _ = record_me(fmus[("2.0", "state")])
+    changes = int(np.count_nonzero(np.any(np.diff(run.u, axis=1) != 0, axis=0)))
+    assert 0 < len(checks) <= changes < len(run.t) // 4
