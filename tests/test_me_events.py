@@ -341,3 +341,31 @@ def test_indicators_are_checked_at_a_communication_point_only_where_inputs_were_
     run, _ = record_me(fmus[("2.0", "state")])
     changes = int(np.count_nonzero(np.any(np.diff(run.u, axis=1) != 0, axis=0)))
     assert 0 < len(checks) <= changes < len(run.t) // 4
+
+
+def test_indicators_that_cannot_be_read_are_a_warning_and_the_run_records_without_them(fmus, monkeypatch):
+    """An export that declares more indicators than it returns (the FMU refuses the call): one warning, then the
+    recording of the plain path (before 2026-11-27 every recording of such an FMU ignored its indicators)."""
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    monkeypatch.setattr(ModelExchangeSource, "_indicator_count", lambda self: 2)  # the FMU has 1
+    with pytest.warns(FmuOpinfWarning, match="reading its 2 event indicators failed"):
+        run, source = record_me(fmus[("2.0", "state")])
+    assert source.nz == 0
+    x, v, a = reference(two_masses(), run.t, held_inputs(run))  # the latched force never comes on
+    assert max(errors(run, x, v, a).values()) < 2e-10
+
+
+def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path):
+    """The command line records in a child process; its warnings are issued again in the caller (one line there,
+    and caught like any other): before, the child printed them itself, with a source line."""
+    from conftest import rewrite_description
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    declared_two = rewrite_description(fmus[("2.0", "state")], tmp_path / "two.fmu",
+                                       lambda text: text.replace('numberOfEventIndicators="1"',
+                                                                 'numberOfEventIndicators="2"'))
+    with pytest.warns(FmuOpinfWarning, match="reading its 2 event indicators failed"):
+        run = record(ModelExchangeSource(declared_two), INPUT, DT, T_END, quiet=True, isolate=True).runs[0]
+    x, v, a = reference(two_masses(), run.t, held_inputs(run))
+    assert max(errors(run, x, v, a).values()) < 2e-10

@@ -7,11 +7,13 @@ step is raised as :class:`~fmu_opinf.sources.StepError` after the valid samples 
 from __future__ import annotations
 
 import contextlib
+import functools
 import multiprocessing as mp
 import os
 import pickle
 import signal as _signal
 import sys
+import warnings
 from collections.abc import Iterator
 from multiprocessing import shared_memory
 import time as _time
@@ -72,6 +74,7 @@ def _child_main(conn: Any, shm_name: str, cap: int, source: Source | bytes, t: n
         _signal.signal(signum, _signal.SIG_IGN)
     if inherited is not None:
         inherited.take_over()
+    warnings.showwarning = functools.partial(_relay_warning, conn)
     if isinstance(source, bytes):
         source = pickle.loads(source)
     shm = shared_memory.SharedMemory(name=shm_name)
@@ -84,6 +87,13 @@ def _child_main(conn: Any, shm_name: str, cap: int, source: Source | bytes, t: n
     finally:
         del count, rows
         shm.close()
+
+
+def _relay_warning(conn: Any, message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                   file: Any = None, line: str | None = None) -> None:
+    """The child's ``warnings.showwarning``: the warning goes to the parent, which issues it there (formatted as
+    the caller's warnings are: one line on the command line, caught by ``warnings.catch_warnings``)."""
+    conn.send(("warning", category.__name__, str(message)))
 
 
 def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: np.ndarray, rows: np.ndarray) -> None:
@@ -150,6 +160,9 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                 raise FMUError(f"{source_label(source)} did not finish within the timeout of {timeout:g} s "
                                f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase --timeout "
                                "or check the FMU")
+            if message is not None and message[0] == "warning":  # no rows, no acknowledgement
+                warnings.warn(message[2], _warning_class(message[1]), stacklevel=2)
+                continue
             valid = _valid_rows(message, int(count[0]))
             if valid:
                 sink.rows(i0, valid)[:] = rows[:valid]
@@ -342,6 +355,16 @@ def _signals_blocked() -> Iterator[None]:
         yield
     finally:
         _signal.pthread_sigmask(_signal.SIG_SETMASK, old)
+
+
+def _warning_class(name: str) -> type[Warning]:
+    """The warning class called ``name``: fmu-opinf's own, a built-in one, else :class:`UserWarning`."""
+    import builtins
+
+    from .. import errors
+
+    cls = getattr(errors, name, None) or getattr(builtins, name, None)
+    return cls if isinstance(cls, type) and issubclass(cls, Warning) else UserWarning
 
 
 def _error_class(name: str) -> type:

@@ -43,7 +43,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .._interrupts import check_interrupt
-from ..errors import FMUError, InputSpecError
+from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from . import _compiled_rk
 from ._base import StepError
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
@@ -160,8 +160,12 @@ class ModelExchangeSource(FMUSource):
         self._dx = np.zeros(self.nx)
         if self.nx and self._c_get_x(self._comp, self._x.ctypes.data, self.nx) > 1:
             raise FMUError(f"{self.path.name} returned an error reading its continuous states")
-        if self.nz:
-            self._read_indicators(0, float(self._t[0]), self._z)
+        if self.nz and self._c_indicators(self._comp, self._z.ctypes.data, self.nz) > 1:
+            # some exports declare indicators they cannot return: record as before events were handled
+            warnings.warn(f"{self.path.name}: reading its {self.nz} event indicators failed, so its state events are "
+                          "not located (a change of its discrete state then waits for the next communication point); "
+                          "check the results, or record with --interface cs", FmuOpinfWarning, stacklevel=2)
+            self.nz = 0
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
