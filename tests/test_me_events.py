@@ -47,8 +47,10 @@ def two_masses() -> lti_fmus.LinearMechanicalModel:
                                           x0=[0.1, 0.0], name="TwoMasses")
 
 
+#: the state event moved by the input: x[1] + u - 1 crosses zero where the impulse's input (2 N) is set
+INPUT_STATE = lti_fmus.StateEvent(dof=1, threshold=1.0, force=[2.0, 0.0], input_gain=1.0)
 CASES = {("2.0", "time"), ("3.0", "time"), ("2.0", "state"), ("3.0", "state"), ("2.0", "plain"),
-         ("2.0", "ulp-below"), ("3.0", "ulp-above")}
+         ("2.0", "ulp-below"), ("3.0", "ulp-above"), ("3.0", "input-state")}
 
 
 @pytest.fixture(scope="module")
@@ -58,6 +60,8 @@ def fmus(request, tmp_path_factory) -> dict:
         events = {}
         if kind == "state":
             events["state_event"] = STATE
+        elif kind == "input-state":
+            events["state_event"] = INPUT_STATE
         elif kind != "plain":
             at = T_EVENTS["off-grid" if kind == "time" else kind]
             events["time_event"] = lti_fmus.TimeEvent(at, TIME_FORCE)
@@ -213,6 +217,23 @@ def test_a_state_event_is_located_and_handled(fmus, version, monkeypatch):
     # measured 1.6e-11 s: the integrator's position error (about 5e-13 m) over the speed there (0.03 m/s); the
     # search itself brackets the crossing of the integrated solution to 1e-13 s
     assert located and abs(located[0] - t_cross) < 5e-11, (located, t_cross)
+
+
+def test_an_indicator_moved_across_zero_by_the_input_set_at_a_communication_point_is_an_event_there(fmus,
+                                                                                                 monkeypatch):
+    located = []
+    spy(monkeypatch, "_locate_crossing", lambda args, result: located.append(result))
+    run, _ = record_me(fmus[("3.0", "input-state")])
+    u = held_inputs(run)
+    on = int(np.flatnonzero(u[0] >= 1.0)[0])   # 2 N set at t[on] (0.5 N the step before: x[1] + 0.5 - 1 < 0)
+    # the force is on from t[on] for the integration; the sample at t[on] was read before the input was set
+    switch = math.nextafter(run.t[on], math.inf)
+    x, v, a = reference(two_masses(), run.t, u, [(switch, np.asarray(INPUT_STATE.force))])
+    found = errors(run, x, v, a)
+    assert max(found.values()) < 2e-10, found   # measured (FMI 3) x 2.0e-11, v 4.0e-11, a 4.2e-11
+    without = reference(two_masses(), run.t, u)
+    assert max(errors(run, *without).values()) > 0.1
+    assert located == []   # handled where the input was set, not found by a search inside the next step
 
 
 def test_a_crossing_is_located_with_scipys_integrators_too(fmus):

@@ -197,11 +197,13 @@ LtiStatus ltiEvaluate(LtiInstance *inst, const char *function) {
     return LtiOK;
 }
 
-/* The event indicator x[LTI_STATE_EVENT_DOF] - LTI_STATE_EVENT_THRESHOLD of the state z (q, qd). */
+/* The event indicator x[LTI_STATE_EVENT_DOF] + LTI_STATE_EVENT_INPUT_GAIN u[0] - LTI_STATE_EVENT_THRESHOLD of the
+   state z (q, qd) and the first input (if any): with a gain, setting the input can move it across zero. */
 static double indicator(const LtiInstance *inst, const double *z) {
     size_t nq = inst->nq, j, dof = LTI_STATE_EVENT_DOF;
     double x = inst->xoff[dof];
     for (j = 0; j < nq; j++) x += inst->T[dof * nq + j] * z[j];
+    if (LTI_NU > 0) x += LTI_STATE_EVENT_INPUT_GAIN * inst->u[0];
     return x - LTI_STATE_EVENT_THRESHOLD;
 }
 

@@ -98,10 +98,10 @@ extern const size_t LTI_N_SLOTS;
 extern const LtiSlot LTI_SLOTS[];
 extern const double LTI_PAR_DEFAULTS[2];
 /* Optional events: LTI_TIME_EVENT: qdd += LTI_TIME_EVENT_FQ (before the division by mass_scale) from
-   the event at LTI_TIME_EVENT_AT on; LTI_STATE_EVENT: event indicator x[LTI_STATE_EVENT_DOF] -
-   LTI_STATE_EVENT_THRESHOLD, whose first change of sign latches on qdd += LTI_STATE_EVENT_FQ. */
+   the event at LTI_TIME_EVENT_AT on; LTI_STATE_EVENT: event indicator x[LTI_STATE_EVENT_DOF] +
+   LTI_STATE_EVENT_INPUT_GAIN u[0] - LTI_STATE_EVENT_THRESHOLD, whose first change of sign latches on qdd += LTI_STATE_EVENT_FQ. */
 extern const int LTI_TIME_EVENT, LTI_STATE_EVENT;
-extern const double LTI_TIME_EVENT_AT, LTI_STATE_EVENT_THRESHOLD;
+extern const double LTI_TIME_EVENT_AT, LTI_STATE_EVENT_THRESHOLD, LTI_STATE_EVENT_INPUT_GAIN;
 extern const size_t LTI_STATE_EVENT_DOF;
 extern const double LTI_TIME_EVENT_FQ[], LTI_STATE_EVENT_FQ[];
 /* Fills the matrices and start values for the current nq. */

@@ -404,7 +404,7 @@ class TimeEvent:
 class StateEvent:
     """A constant force latched on when a position crosses a threshold (a state event).
 
-    The FMU has one event indicator, ``x[dof] - threshold``; the first change of its sign
+    The FMU has one event indicator, ``x[dof] + input_gain u[0] - threshold``; the first change of its sign
     (FMI's convention: from ``> 0`` to ``<= 0`` or back) seen in an event iteration latches
     ``force`` on for good.  Later crossings are events that change nothing.
 
@@ -416,11 +416,15 @@ class StateEvent:
         Position (m) whose crossing is the event.
     force : array_like (n,)
         Force added to ``f0`` from the event on (N).
+    input_gain : float, default=0
+        The indicator is ``x[dof] + input_gain * u[0] - threshold``: with a gain, the input set at a communication
+        point can move it across zero there.
     """
 
     dof: int
     threshold: float
     force: Sequence[float]
+    input_gain: float = 0.0
 
 
 # ------------------------------------------------------------- exact reference solution
@@ -797,9 +801,9 @@ def _check_events(model, options: _Options) -> None:
         raise FmuBuildError("the time of the TimeEvent is not finite; give a finite time")
     state = options.state_event
     if state is not None and not (int(state.dof) == state.dof and 0 <= state.dof < model.n
-                                  and math.isfinite(state.threshold)):
-        raise FmuBuildError(f"StateEvent dof={state.dof}, threshold={state.threshold} is invalid; give a "
-                            f"dof in [0, {model.n - 1}] and a finite threshold")
+                                  and math.isfinite(state.threshold) and math.isfinite(state.input_gain)):
+        raise FmuBuildError(f"StateEvent dof={state.dof}, threshold={state.threshold}, input_gain={state.input_gain} "
+                            f"is invalid; give a dof in [0, {model.n - 1}] and a finite threshold and gain")
 
 
 def _indexed(base: str, i: int, count: int, modelica: bool) -> str:
@@ -1387,6 +1391,7 @@ def _event_source(options: _Options, model: LinearMechanicalModel, coords: _Coor
         + f"const int LTI_STATE_EVENT = {int(state is not None)};\n"
         f"const size_t LTI_STATE_EVENT_DOF = {int(state.dof) if state else 0};\n"
         f"const double LTI_STATE_EVENT_THRESHOLD = {_number(state.threshold if state else 0.0)};\n"
+        f"const double LTI_STATE_EVENT_INPUT_GAIN = {_number(state.input_gain if state else 0.0)};\n"
         + _c_array("LTI_STATE_EVENT_FQ", in_q(state.force) if state else np.zeros(0), static=False))
 
 
