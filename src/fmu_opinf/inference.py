@@ -146,7 +146,9 @@ triple chain for every r = 5 .. 60; mostly the default is *better* than both ref
 the goal's range, measured 2026-11-27) it is not: from the factored start the triple chain reached ratio 17.9 /
 2.4 / 416 / 1.9e5 at r = 65 / 75 / 85 / 100 (max eps_y 5.7e-7 / 8.9e-9 / 3.1e-7 / 1.9e-7, where POD-Galerkin
 falls to 3.2e-8 .. 1.0e-12 and least squares is unstable except at r = 75, whose realization is kept); the
-certified SDP start (``solver="ipm"``) gave 8.8e-8 (ratio 2.8) at r = 65 in 78 s instead of 19 s.  Until the second start
+certified SDP start (``solver="ipm"``) gave 8.8e-8 (ratio 2.8) at r = 65 in 78 s instead of 19 s.  With the factored
+start at 10000 L-BFGS iterations instead of 3000 (the default since) r = 65 / 85 / 100 reach 8.9e-8 / 3.1e-8 / 9.7e-8
+(ratio 2.8 / 42 / 9.7e4) in 14 / 28 / 48 s instead of 12 / 21 / 27 s.  Until the second start
 triple r = 50 missed (3.42): the test error of the SDP start's refinement swings between iterates (below, and
 *Candidates against the swing*); the second start does not remove the swing, it offers a second local optimum,
 and at r = 45 .. 55 the least-squares start's is the better training fit.  At r = 8 .. 12 the anchored chain
@@ -496,7 +498,7 @@ dense method's ``O(r^6)`` Newton matrices make it slow there: r = 75 did not fin
 interior-point method of 2026-11-26, which certifies it in 142 s, 184 s for the whole fit against 44 s from the
 factored start, with the same ROM: the least-squares start is kept, max eps_y 7.8e-9, 2.1x POD-Galerkin).
 Eq. (16) with ``Mr >= I`` is solved by L-BFGS over PSD factors, ``Ms = I + LM LM^T``, ``Ds = LD LD^T``,
-``Ks = LK LK^T`` (``O(r^3)`` per iteration, 3000 iterations), from least squares with ``Ms = I`` and ``Ds, Ks``
+``Ks = LK LK^T`` (``O(r^3)`` per iteration, 10000 iterations since 2026-11-27, 3000 before), from least squares with ``Ms = I`` and ``Ds, Ks``
 clipped to PSD.  The start must have full rank: a zero column of a factor has zero gradient and never moves
 (with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
 floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  It runs the
