@@ -148,7 +148,8 @@ the goal's range, measured 2026-11-27) it is not: from the factored start the tr
 falls to 3.2e-8 .. 1.0e-12 and least squares is unstable except at r = 75, whose realization is kept); the
 certified SDP start (``solver="ipm"``) gave 8.8e-8 (ratio 2.8) at r = 65 in 78 s instead of 19 s.  With the factored
 start at 10000 L-BFGS iterations instead of 3000 (the default since) r = 65 / 85 / 100 reach 8.9e-8 / 3.1e-8 / 9.7e-8
-(ratio 2.8 / 42 / 9.7e4) in 14 / 28 / 48 s instead of 12 / 21 / 27 s.  Until the second start
+(ratio 2.8 / 42 / 9.7e4) in 14 / 28 / 48 s instead of 12 / 21 / 27 s; from that start, ``20 r`` refinement
+iterations instead of 600 gave 9.3e-8 / 3.8e-8 at r = 65 / 85 in 23 / 49 s.  Until the second start
 triple r = 50 missed (3.42): the test error of the SDP start's refinement swings between iterates (below, and
 *Candidates against the swing*); the second start does not remove the swing, it offers a second local optimum,
 and at r = 45 .. 55 the least-squares start's is the better training fit.  At r = 8 .. 12 the anchored chain
