@@ -484,6 +484,14 @@ static LtiStatus integrate(LtiInstance *inst, double h) {
     return LtiOK;
 }
 
+/* The time event comes: its force on, and its velocity jump (if any) added to qd. */
+static void timeEventOn(LtiInstance *inst) {
+    size_t i;
+    inst->timeEventOn = 1;
+    if (LTI_TIME_EVENT_JUMP) for (i = 0; i < inst->nq; i++) inst->z[inst->nq + i] += LTI_TIME_EVENT_DQD[i];
+    inst->upToDate = 0;
+}
+
 /* Co-simulation step.  Its time event is met exactly (the step is split there, and a step that ends
    at the event up to rounding ends after it); its state event is only looked at when the step ends,
    as simple exporters do (the latched force starts at the communication point after the crossing). */
@@ -507,11 +515,11 @@ LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
     }
     if (timeEventDue && LTI_TIME_EVENT_AT > t + slack && LTI_TIME_EVENT_AT < end - slack) {
         if (integrate(inst, LTI_TIME_EVENT_AT - t) != LtiOK) return LtiError;
-        inst->timeEventOn = 1;
+        timeEventOn(inst);
         if (integrate(inst, end - LTI_TIME_EVENT_AT) != LtiOK) return LtiError;
     } else {
         if (integrate(inst, h) != LtiOK) return LtiError;
-        if (timeEventDue) inst->timeEventOn = 1;
+        if (timeEventDue) timeEventOn(inst);
     }
     inst->time = end;
     inst->upToDate = 0;
@@ -538,11 +546,11 @@ LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double val
 
 /* Event mode: the time event switches its force on once its time has come; a change of sign of the
    indicator since the last event latches the state event's force on.  No update is ever needed twice. */
-void ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
-    int pending;
+int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
+    int pending, statesChanged = 0;
     if (LTI_TIME_EVENT && !inst->timeEventOn && inst->time >= LTI_TIME_EVENT_AT) {
-        inst->timeEventOn = 1;
-        inst->upToDate = 0;
+        timeEventOn(inst);
+        statesChanged = LTI_TIME_EVENT_JUMP;
     }
     if (LTI_STATE_EVENT) {
         int above = indicator(inst, inst->z) > 0.0;
@@ -555,6 +563,7 @@ void ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
     pending = LTI_TIME_EVENT && !inst->timeEventOn;
     if (nextDefined) *nextDefined = pending;
     if (nextTime) *nextTime = pending ? LTI_TIME_EVENT_AT : 0.0;
+    return statesChanged;
 }
 
 /* End of initialization: the indicator's sign there is the reference of the first crossing. */

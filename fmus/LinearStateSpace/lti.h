@@ -100,10 +100,12 @@ extern const double LTI_PAR_DEFAULTS[2];
 /* Optional events: LTI_TIME_EVENT: qdd += LTI_TIME_EVENT_FQ (before the division by mass_scale) from
    the event at LTI_TIME_EVENT_AT on; LTI_STATE_EVENT: event indicator x[LTI_STATE_EVENT_DOF] +
    LTI_STATE_EVENT_INPUT_GAIN u[0] - LTI_STATE_EVENT_THRESHOLD, whose first change of sign latches on qdd += LTI_STATE_EVENT_FQ. */
-extern const int LTI_TIME_EVENT, LTI_STATE_EVENT;
+extern const int LTI_TIME_EVENT, LTI_STATE_EVENT, LTI_TIME_EVENT_JUMP;
 extern const double LTI_TIME_EVENT_AT, LTI_STATE_EVENT_THRESHOLD, LTI_STATE_EVENT_INPUT_GAIN;
 extern const size_t LTI_STATE_EVENT_DOF;
 extern const double LTI_TIME_EVENT_FQ[], LTI_STATE_EVENT_FQ[];
+/* LTI_TIME_EVENT_JUMP: qd += LTI_TIME_EVENT_DQD at the time event (a reinit of the velocities). */
+extern const double LTI_TIME_EVENT_DQD[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
 
@@ -133,7 +135,8 @@ LtiStatus ltiDoStep(LtiInstance *inst, double t, double h);
    (next time event, if any, in *nextTime with *nextDefined = 1), and the start of the event bookkeeping */
 size_t ltiEventIndicatorCount(void);
 LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double values[], size_t n);
-void ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
+/* Returns 1 if the continuous states changed (the time event's velocity jump), else 0. */
+int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
 void ltiStartEvents(LtiInstance *inst);
 LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
 

@@ -239,14 +239,14 @@ fmi2Status fmi2EnterEventMode(fmi2Component c) {
 }
 
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
-    int nextDefined;
+    int nextDefined, statesChanged;
     double nextTime;
     CHECK(c, "fmi2NewDiscreteStates", PhaseEvent);
-    ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
+    statesChanged = ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
     info->newDiscreteStatesNeeded = fmi2False;
     info->terminateSimulation = fmi2False;
     info->nominalsOfContinuousStatesChanged = fmi2False;
-    info->valuesOfContinuousStatesChanged = fmi2False;
+    info->valuesOfContinuousStatesChanged = statesChanged ? fmi2True : fmi2False;
     info->nextEventTimeDefined = nextDefined ? fmi2True : fmi2False;
     info->nextEventTime = nextTime;
     return fmi2OK;

@@ -394,10 +394,14 @@ class TimeEvent:
         Event time (s).
     force : array_like (n,)
         Force added to ``f0`` from the event on (N), one value per degree of freedom.
+    velocity_jump : array_like (n,), optional
+        Added to the velocities in the event iteration (a Modelica ``reinit``): the continuous states
+        change at the event, and the FMU says so (``valuesOfContinuousStatesChanged``).
     """
 
     time: float
     force: Sequence[float]
+    velocity_jump: Sequence[float] | None = None
 
 
 @dataclass(frozen=True)
@@ -799,6 +803,10 @@ def _check_events(model, options: _Options) -> None:
                                  f"{model.n} finite values, one per degree of freedom")
     if options.time_event is not None and not math.isfinite(options.time_event.time):
         raise FmuBuildError("the time of the TimeEvent is not finite; give a finite time")
+    jump = options.time_event.velocity_jump if options.time_event is not None else None
+    if jump is not None and (np.shape(jump) != (model.n,) or not np.isfinite(np.asarray(jump, dtype=float)).all()):
+        raise DimensionError(f"the velocity_jump of TimeEvent has shape {np.shape(jump)}; give {model.n} finite "
+                             "values, one per degree of freedom")
     state = options.state_event
     if state is not None and not (int(state.dof) == state.dof and 0 <= state.dof < model.n
                                   and math.isfinite(state.threshold) and math.isfinite(state.input_gain)):
@@ -1383,11 +1391,17 @@ def _event_source(options: _Options, model: LinearMechanicalModel, coords: _Coor
         T = coords.T
         return np.linalg.solve(T.T @ model.M @ T, T.T @ np.asarray(force, dtype=float))
 
+    def velocity_in_q(jump) -> np.ndarray:   # the jump of q' that gives the jump of the velocities T q'
+        return np.linalg.lstsq(coords.T, np.asarray(jump, dtype=float), rcond=None)[0]
+
     timed, state = options.time_event, options.state_event
+    jump = timed.velocity_jump if timed is not None else None
     return (
         f"const int LTI_TIME_EVENT = {int(timed is not None)};\n"
         f"const double LTI_TIME_EVENT_AT = {_number(timed.time if timed else 0.0)};\n"
         + _c_array("LTI_TIME_EVENT_FQ", in_q(timed.force) if timed else np.zeros(0), static=False)
+        + f"const int LTI_TIME_EVENT_JUMP = {int(jump is not None)};\n"
+        + _c_array("LTI_TIME_EVENT_DQD", velocity_in_q(jump) if jump is not None else np.zeros(0), static=False)
         + f"const int LTI_STATE_EVENT = {int(state is not None)};\n"
         f"const size_t LTI_STATE_EVENT_DOF = {int(state.dof) if state else 0};\n"
         f"const double LTI_STATE_EVENT_THRESHOLD = {_number(state.threshold if state else 0.0)};\n"
