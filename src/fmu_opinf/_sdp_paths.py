@@ -414,7 +414,7 @@ def choose_normalization(R: np.ndarray, m: int, trace_fit: tuple, eig_fit: tuple
 #: O(r^6) Newton matrices
 #: make it slow (r = 75: 142 s certified since 2026-11-26, before not in 20 minutes; the whole fit 184 s against
 #: 44 s from the factored start, the same ROM since the least-squares start is kept there).
-_FACTORED_ABOVE = 60
+FACTORED_ABOVE = 60
 
 #: L-BFGS iterations of :func:`fit_factored`.  Triple chain, 2026-11-27, max eps_y of the refined ROM (600
 #: refinement iterations) with 10000 against 3000: r = 65: 8.9e-8 against 5.7e-7 (the certified SDP start gave
@@ -428,7 +428,7 @@ def factored_start(solver: str, r: int, refine: bool, method: str) -> bool:
     certified SDP."""
     if solver == "factored":
         return True
-    return solver == "auto" and method == "auto" and refine and r > _FACTORED_ABOVE
+    return solver == "auto" and method == "auto" and refine and r > FACTORED_ABOVE
 
 
 def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITERATIONS,
@@ -539,14 +539,14 @@ def _mass_ratio(mass: np.ndarray) -> float:
 
 
 def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full: bool = False,
-                         keep: tuple[int, ...] = (0,), sdp: dict | None = None) -> tuple:
+                         sdp: dict | None = None) -> tuple:
     """Eq. (16) normalized by ``Mr >= I`` (scaled units), with the same exact cone screening.
 
-    The mass cone is always kept (it carries the normalization); the damping and stiffness blocks not in
-    ``keep`` are eliminated without their cones and added only if they come out indefinite.
+    The mass cone is always kept (it carries the normalization); the damping and stiffness blocks are eliminated
+    without their cones and added only if they come out indefinite (all three cones with ``full``).
     """
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
-    keep = (0, 1, 2) if full else tuple(sorted(set(keep) | {0}))
+    keep = (0, 1, 2) if full else (0,)
     while True:
         try:
             w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, keep, normalization="mass-eigenvalue",

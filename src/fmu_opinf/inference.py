@@ -589,7 +589,8 @@ from .errors import DataError, DimensionError, FmuOpinfWarning
 from ._realization import first_order_matrix, mechanical_realization
 from ._background import Background, can_fork_here
 from ._threads import single_threaded
-from ._sdp_paths import factored_start, fit_compressed, fit_factored, input_matrix, solve_sdp_direct
+from ._sdp_paths import (FACTORED_ABOVE, factored_start, fit_compressed, fit_factored, input_matrix,
+                         solve_sdp_direct)
 from .refinement import newmark_step_map, output_error_objective, refine_output_error
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
@@ -1071,14 +1072,15 @@ HIGH_ORDER_ITERATIONS = 600
 
 def _refine_iterations(requested: int | None, r: int) -> int:
     """Default iteration budget of the refinement: 300 suffices up to r = 40, orders up to 60 need ``20 r``, and
-    above 60 :data:`HIGH_ORDER_ITERATIONS` did as well as ``20 r`` or better."""
+    above, where the start is the factored solve (``_sdp_paths.FACTORED_ABOVE``), :data:`HIGH_ORDER_ITERATIONS`
+    did as well as ``20 r`` or better."""
     if requested is not None:
         if int(requested) < 0:
             raise ValueError(f"refine_iterations={requested} must be >= 0")
         return int(requested)
     if r <= 40:
         return 300
-    return 20 * r if r <= 60 else HIGH_ORDER_ITERATIONS
+    return 20 * r if r <= FACTORED_ABOVE else HIGH_ORDER_ITERATIONS
 
 
 def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None, k: int, integrator: str) -> bool:
