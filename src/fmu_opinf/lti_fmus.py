@@ -788,6 +788,13 @@ def _check_options(model, options: _Options) -> None:
     _check_events(model, options)
 
 
+def _check_per_dof(values, what: str, n: int) -> None:
+    """``values`` must be ``n`` finite numbers, one per degree of freedom."""
+    array = np.asarray(values, dtype=float)
+    if array.shape != (n,) or not np.isfinite(array).all():
+        raise DimensionError(f"{what} has shape {array.shape}; give {n} finite values, one per degree of freedom")
+
+
 def _check_events(model, options: _Options) -> None:
     """Events need a fixed size (their forces have one value per degree of freedom)."""
     events = [e for e in (options.time_event, options.state_event) if e is not None]
@@ -797,16 +804,11 @@ def _check_events(model, options: _Options) -> None:
         raise FmuBuildError("time and state events need a fixed size; pass chain.model() instead of "
                             "the MassChain family")
     for event in events:
-        force = np.asarray(event.force, dtype=float)
-        if force.shape != (model.n,) or not np.isfinite(force).all():
-            raise DimensionError(f"the force of {type(event).__name__} has shape {force.shape}; give "
-                                 f"{model.n} finite values, one per degree of freedom")
+        _check_per_dof(event.force, f"the force of {type(event).__name__}", model.n)
     if options.time_event is not None and not math.isfinite(options.time_event.time):
         raise FmuBuildError("the time of the TimeEvent is not finite; give a finite time")
-    jump = options.time_event.velocity_jump if options.time_event is not None else None
-    if jump is not None and (np.shape(jump) != (model.n,) or not np.isfinite(np.asarray(jump, dtype=float)).all()):
-        raise DimensionError(f"the velocity_jump of TimeEvent has shape {np.shape(jump)}; give {model.n} finite "
-                             "values, one per degree of freedom")
+    if options.time_event is not None and options.time_event.velocity_jump is not None:
+        _check_per_dof(options.time_event.velocity_jump, "the velocity_jump of TimeEvent", model.n)
     state = options.state_event
     if state is not None and not (int(state.dof) == state.dof and 0 <= state.dof < model.n
                                   and math.isfinite(state.threshold) and math.isfinite(state.input_gain)):
