@@ -676,9 +676,9 @@ class FMUSource(Source):
     def refuse_single_precision_overflow(self, u: np.ndarray) -> None:
         """:func:`check_single_precision` for this FMU's Float32 inputs (``u``: (m, k), in effect): what
         :meth:`start` and :meth:`step` check, and the recorder before it rounds the inputs it records."""
-        single = np.asarray(self.single_precision_inputs, dtype=bool)
-        if single.any():
-            check_single_precision(self.path.name, self.input_names, single, u)
+        if any(self.single_precision_inputs):  # a plain list: step() asks at every call
+            check_single_precision(self.path.name, self.input_names,
+                                   np.asarray(self.single_precision_inputs, dtype=bool), u)
 
     def _raw_inputs(self, U: np.ndarray) -> np.ndarray:
         """Inputs as the values of one set call: array inputs carry their held elements too."""
