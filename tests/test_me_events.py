@@ -211,7 +211,7 @@ def test_a_time_event_on_a_sample_up_to_rounding_is_taken_at_the_sample(fmus, ca
     assert run.t[3] == 3 * DT and abs(T_EVENTS[case[1]] - run.t[3]) <= math.ulp(run.t[3])
     x, v, a = reference(two_masses(), run.t, held_inputs(run), [(run.t[3], TIME_FORCE)])
     found = errors(run, x, v, a)
-    assert max(found.values()) < 2e-10, found   # measured 5.5e-11 (a), both cases
+    assert max(found.values()) < 1.5e-10, found   # measured 5.5e-11 (a), both cases
     # the acceleration recorded at the event's sample includes the new force (0.5 of the 2 kg mass is 1.5)
     before = reference(two_masses(), run.t[:4], held_inputs(run)[:, :4])[2][:, 3]
     assert abs(run.xddot[1, 3] - before[1] - 1.5) < 1e-9
@@ -230,7 +230,7 @@ def test_a_state_event_is_located_and_handled(fmus, version, monkeypatch):
     x, v, a = reference(model, run.t, held_inputs(run), [(t_cross, np.asarray(STATE.force))])
     found = errors(run, x, v, a)
     # measured (FMI 2 and 3 alike): x 2.4e-11, v 5.6e-11, a 3.3e-11; against the model without the event 0.5 to 1.9
-    assert max(found.values()) < 2e-10, found
+    assert max(found.values()) < 1.5e-10, found
     without = reference(model, run.t, held_inputs(run))
     assert max(errors(run, *without).values()) > 0.1
     assert source.nz == 1
@@ -250,7 +250,7 @@ def test_an_indicator_moved_across_zero_by_the_input_set_at_a_communication_poin
     switch = math.nextafter(run.t[on], math.inf)
     x, v, a = reference(two_masses(), run.t, u, [(switch, np.asarray(INPUT_STATE.force))])
     found = errors(run, x, v, a)
-    assert max(found.values()) < 2e-10, found   # measured (FMI 3) x 2.0e-11, v 4.0e-11, a 4.2e-11
+    assert max(found.values()) < 1e-10, found   # measured (FMI 3) x 2.0e-11, v 4.0e-11, a 4.2e-11
     without = reference(two_masses(), run.t, u)
     assert max(errors(run, *without).values()) > 0.1
     assert located == []   # handled where the input was set, not found by a search inside the next step
@@ -277,7 +277,7 @@ def test_an_fmu_without_events_never_asks_for_event_indicators(fmus, monkeypatch
     assert source.nz == 0 and source._t_next == math.inf
     assert calls == {"_integrate_with_events": 0, "_read_indicators": 0}
     x, v, a = reference(two_masses(), run.t, held_inputs(run))
-    assert max(errors(run, x, v, a).values()) < 2e-10
+    assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
     # the spies do count: the FMU with an event indicator goes through them at every step
     record_me(fmus[("2.0", "state")])
     assert calls["_integrate_with_events"] == len(run.t) - 1 and calls["_read_indicators"] >= len(run.t) - 1
@@ -292,13 +292,13 @@ def test_cosimulation_meets_the_time_event_and_sees_the_state_event_at_the_next_
     run = record(FMUSource(fmus[("3.0", "time")], tolerance=1e-12), INPUT, DT, T_END, quiet=True).runs[0]
     x, v, a = reference(model, run.t, held_inputs(run), [(T_EVENT, TIME_FORCE)])
     found = errors(run, x, v, a)
-    assert max(found.values()) < 1e-13, found   # the doStep is split at the event; measured 1.3e-14 (a)
+    assert max(found.values()) < 4e-14, found   # the doStep is split at the event; measured 1.3e-14 (a)
     run = record(FMUSource(fmus[("2.0", "state")], tolerance=1e-12), INPUT, DT, T_END, quiet=True).runs[0]
     t_cross = first_crossing(model, run.t, held_inputs(run), STATE)
     after = run.t[np.searchsorted(run.t, t_cross)]   # the communication point after the crossing
     x, v, a = reference(model, run.t, held_inputs(run), [(after, np.asarray(STATE.force))])
     found = errors(run, x, v, a)
-    assert max(found.values()) < 1e-13, found   # measured 7.8e-15 (v)
+    assert max(found.values()) < 4e-14, found   # measured 7.8e-15 (v)
 
 
 def test_invalid_events_are_refused_in_one_line(tmp_path):
@@ -396,7 +396,7 @@ def test_indicators_that_cannot_be_read_are_a_warning_and_the_run_records_withou
         run, source = record_me(fmus[("2.0", "state")])
     assert source.nz == 0
     x, v, a = reference(two_masses(), run.t, held_inputs(run))  # the latched force never comes on
-    assert max(errors(run, x, v, a).values()) < 2e-10
+    assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
 
 
 def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path):
@@ -411,4 +411,4 @@ def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path):
     with pytest.warns(FmuOpinfWarning, match="reading its 2 event indicators failed"):
         run = record(ModelExchangeSource(declared_two), INPUT, DT, T_END, quiet=True, isolate=True).runs[0]
     x, v, a = reference(two_masses(), run.t, held_inputs(run))
-    assert max(errors(run, x, v, a).values()) < 2e-10
+    assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
