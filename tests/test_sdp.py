@@ -271,6 +271,35 @@ def test_factored_solve_reaches_the_clarabel_optimum_and_stays_feasible(rng, dat
     assert primal_min > -1e-12
 
 
+def _graded_data(rng, r=8, k=400, noise=0.3):
+    """Noisy data whose positions and velocities span six decades of energy across directions: the damping and
+    stiffness blocks of the quadratic form have condition numbers near 1e6 (the triple chain's reach 6e10)."""
+    M, K = spd(rng, r, 1.0), spd(rng, r, 1.0)
+    w, B = rng.standard_normal((r, 1)), rng.standard_normal((r, 1))
+    scale = np.logspace(0, -3, r)[:, None]
+    x, v, u = scale * rng.standard_normal((r, k)), scale * rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - w @ (w.T @ v) - K @ x) + noise * rng.standard_normal((r, k))
+    return a, v, x, u
+
+
+def test_preconditioned_factored_solve_converges_faster_on_graded_data(rng):
+    """The preconditioner of the factored solve pays on ill-conditioned blocks: after 300 iterations it is within
+    1e-6 of Clarabel's optimum (measured 4.8e-8) where the plain factors are 2.3e-5 above it, and both end at the
+    optimum."""
+    from fmu_opinf._sdp_paths import fit_factored
+
+    R, r, m, G = _scaled_problem(_graded_data(rng))
+    assert np.linalg.cond(G[r:2 * r, r:2 * r]) > 1e5
+    reference = _clarabel_reference(G, r, "mass-eigenvalue")
+    gaps = {}
+    for exponent in (0.0, 0.2):
+        *mats, _ = fit_factored(R, r, m, iterations=300, exponent=exponent)
+        gaps[exponent] = (_objective(mats, G) - reference) / reference
+        *mats, info = fit_factored(R, r, m, exponent=exponent)
+        assert _objective(mats, G) == pytest.approx(reference, rel=1e-9)
+    assert gaps[0.2] < 2e-7 and gaps[0.0] > 100 * gaps[0.2]
+
+
 def test_auto_solver_starts_from_the_factored_solve_only_above_order_60_with_refinement():
     from fmu_opinf._sdp_paths import factored_start
 

@@ -416,11 +416,28 @@ def choose_normalization(R: np.ndarray, m: int, trace_fit: tuple, eig_fit: tuple
 #: 44 s from the factored start, the same ROM since the least-squares start is kept there).
 FACTORED_ABOVE = 60
 
-#: L-BFGS iterations of :func:`fit_factored`.  Triple chain, 2026-11-27, max eps_y of the refined ROM (600
-#: refinement iterations) with 10000 against 3000: r = 65: 8.9e-8 against 5.7e-7 (the certified SDP start gave
-#: 8.8e-8 in 78 s), r = 85: 3.1e-8 against 3.1e-7, r = 100: 9.7e-8 against 1.9e-7; fit 14 / 28 / 48 s against
-#: 12 / 21 / 27 s (r = 75 keeps the least-squares start either way).  3000 had been measured at lower orders.
-_FACTORED_ITERATIONS = 10000
+#: L-BFGS iterations of :func:`fit_factored`, and the exponent of its preconditioner (:func:`_factor_preconditioners`).
+#: Triple chain, 2026-11-27, max eps_y of the refined ROM (600 refinement iterations), whole fit in wall seconds
+#: (two fits sharing the machine):
+#:
+#: ==========================  =========  =========  =========  =========  =========
+#: start                       r = 65     r = 85     r = 90     r = 100    fit [s] at r = 65 / 85 / 100
+#: ==========================  =========  =========  =========  =========  =========
+#: 3000, exponent 0.2          7.3e-8     1.1e-8     2.6e-8     8.4e-8     11 / 19 / 30
+#: 3000, exponent 0.15         1.1e-7     9.3e-9                5.1e-8     10 / 18 / 27
+#: 5000, exponent 0.2          1.1e-7     9.2e-9                2.6e-8     12 / 23 / 33
+#: 10000, exponent 0.2         1.6e-7     4.6e-9                1.6e-9     18 / 35 / 49
+#: 10000, no preconditioner    8.9e-8     3.1e-8     4.2e-8     9.7e-8     14 / 28 / 44-48 (alone)
+#: 3000, no preconditioner     5.7e-7     3.1e-7                1.9e-7     12 / 21 / 27 (alone)
+#: ==========================  =========  =========  =========  =========  =========
+#:
+#: The SDP objective the start reaches (certified optimum at r = 65: 0.02298): r = 65 0.02803 with 3000
+#: preconditioned iterations, 0.02932 with 10000 plain ones; r = 100 3.8e-3 against 7.9e-3.  3000 preconditioned
+#: iterations are better than 10000 plain ones at every order measured, in a third of the start's time; more of
+#: them helped r = 100 further but not r = 65 (the refinement's local optimum moves).  From r = 45 to 60 the
+#: preconditioned start was not better than the certified one (ratio to POD-Galerkin at r = 60: 2.5 against 0.31).
+_FACTORED_ITERATIONS = 3000
+_PRECONDITION_EXPONENT = 0.2
 
 
 def factored_start(solver: str, r: int, refine: bool, method: str) -> bool:
@@ -432,7 +449,7 @@ def factored_start(solver: str, r: int, refine: bool, method: str) -> bool:
 
 
 def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITERATIONS,
-                 progress: bool = False) -> tuple:
+                 progress: bool = False, exponent: float = _PRECONDITION_EXPONENT) -> tuple:
     """Eq. (16) normalized by ``Mr >= I`` (scaled units), by L-BFGS over PSD factors (inference module docstring,
     *Solvers*).
 
@@ -442,6 +459,7 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
     is an approximate optimum that serves as the start of the output-error refinement.  Start: least squares with
     ``Ms = I``, ``Ds, Ks`` symmetrized, their eigenvalues floored at ``_START_FLOOR`` of the largest, and
     ``LM = _START_MASS I``: every factor has full rank (a zero column has zero gradient and would never move).
+    The iterations run on preconditioned factors (:func:`_factor_preconditioners`, ``exponent``; 0 for none).
     ``progress``: a labelled progress bar of the L-BFGS iterations on a terminal.
     """
     t0 = time.perf_counter()
@@ -449,15 +467,19 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
     R22 = R22 / max(np.linalg.norm(R22) / np.sqrt(3 * r), np.finfo(float).tiny)
     G = R22.T @ R22
     free, *_ = np.linalg.lstsq(G[r:, r:], -G[r:, :r], rcond=None)  # [Ds Ks]^T with Ms = I
-    start = np.concatenate([(_START_MASS * np.eye(r)).ravel()]
-                           + [_psd_square_root(free[b * r:(b + 1) * r].T) for b in (0, 1)])
     eye = np.eye(r)
+    P = _factor_preconditioners(G, r, exponent)
+    factors0 = [_START_MASS * eye] + [_psd_square_root(free[b * r:(b + 1) * r].T).reshape(r, r) for b in (0, 1)]
+    start = np.concatenate([np.linalg.solve(P[b], factors0[b]).ravel() for b in range(3)])
+
+    def blocks(params: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        factors = [P[b] @ x for b, x in enumerate(params.reshape(3, r, r))]
+        return factors, np.hstack([eye + factors[0] @ factors[0].T] + [f @ f.T for f in factors[1:]])
 
     def objective(params: np.ndarray) -> tuple[float, np.ndarray]:
-        factors = params.reshape(3, r, r)
-        T = np.hstack([eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T])
+        factors, T = blocks(params)
         TG = T @ G
-        grads = [(TG[:, b * r:(b + 1) * r] + TG[:, b * r:(b + 1) * r].T) @ factors[b] for b in range(3)]
+        grads = [P[b].T @ (TG[:, b * r:(b + 1) * r] + TG[:, b * r:(b + 1) * r].T) @ factors[b] for b in range(3)]
         return float(np.sum(TG * T)), 2.0 * np.concatenate([g.ravel() for g in grads])
 
     label = "SDP Mr >= I, factored start (L-BFGS iterations)"
@@ -467,13 +489,37 @@ def fit_factored(R: np.ndarray, r: int, m: int, iterations: int = _FACTORED_ITER
 
         result = minimize_lbfgs(objective, start, max_iterations=iterations, memory=50, ftol=1e-15, gtol=1e-14,
                                 callback=advance)
-    factors = result.x.reshape(3, r, r)
-    Ms, Ds, Ks = eye + factors[0] @ factors[0].T, factors[1] @ factors[1].T, factors[2] @ factors[2].T
+    _, T = blocks(result.x)
+    Ms, Ds, Ks = (T[:, b * r:(b + 1) * r] for b in range(3))
     info = {"status": "approximate", "method": "factored", "solver": "L-BFGS (PSD factors, not certified)",
             "normalization": "mass-eigenvalue", "cones": list(_BLOCKS), "iterations": int(result.nit),
             "setup_seconds": 0.0, "solve_seconds": time.perf_counter() - t0, "sdp_objective": float(result.fun),
-            "start_objective": objective(start)[0]}
+            "start_objective": objective(start)[0], "preconditioner_exponent": exponent}
     return Ms, Ds, Ks, info
+
+
+def _factor_preconditioners(G: np.ndarray, r: int, exponent: float) -> list[np.ndarray]:
+    """``P_b = Q_b (Lambda_b / lambda_max)^-exponent`` for the blocks ``b = M, D, K``: :func:`fit_factored` iterates
+    on ``X_b`` with the factor ``L_b = P_b X_b``, ``G_bb = Q_b Lambda_b Q_b^T`` the block of the quadratic form.
+
+    In ``G_bb``'s eigenbasis the objective's curvature in the entry ``(i, j)`` of ``L_b L_b^T`` is
+    ``(lambda_i + lambda_j) / 2``: its condition grows with that of ``G_bb`` (6e10 for ``Kr`` at r = 100 on the
+    triple chain), and L-BFGS, whose first inverse Hessian is a multiple of the identity, crawls.  With
+    ``L_b = Q_b Lambda_b^-1/4 X_b`` the diagonal entries of ``X_b X_b^T`` get unit curvature and the off-diagonal ones
+    ``(lambda_i + lambda_j) / (2 sqrt(lambda_i lambda_j))``, the square root of the condition at worst.  Measured
+    on the triple chain (SDP objective after 3000 iterations, 2026-11-27): r = 65, exponent 0 / 0.1 / 0.2 / 0.25 /
+    0.3 / 0.5: 0.0477 / 0.0294 / 0.0280 / 0.0292 / 0.0316 / 8.71 (the optimum 0.0230); r = 100, 0 / 0.15 / 0.2 /
+    0.25: 0.0235 / 0.0036 / 0.0038 / 0.0072, hence 0.2 (:data:`_PRECONDITION_EXPONENT`).  Eigenvalues are floored
+    at ``1e-14`` of the largest.
+    """
+    if exponent == 0:
+        return [np.eye(r)] * 3
+    out = []
+    for b in range(3):
+        lam, Q = np.linalg.eigh(G[b * r:(b + 1) * r, b * r:(b + 1) * r])
+        top = max(float(lam[-1]), np.finfo(float).tiny)
+        out.append(Q * (np.maximum(lam, 1e-14 * top) / top) ** -exponent)
+    return out
 
 
 #: Start of :func:`fit_factored`: ``LM = _START_MASS I`` and eigenvalues of ``Ds, Ks`` floored at this fraction of

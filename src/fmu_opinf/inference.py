@@ -149,7 +149,9 @@ falls to 3.2e-8 .. 1.0e-12 and least squares is unstable except at r = 75, whose
 certified SDP start (``solver="ipm"``) gave 8.8e-8 (ratio 2.8) at r = 65 in 78 s instead of 19 s.  With the factored
 start at 10000 L-BFGS iterations instead of 3000 (the default since) r = 65 / 85 / 100 reach 8.9e-8 / 3.1e-8 / 9.7e-8
 (ratio 2.8 / 42 / 9.7e4) in 14 / 28 / 48 s instead of 12 / 21 / 27 s; from that start, ``20 r`` refinement
-iterations instead of 600 gave 9.3e-8 / 3.8e-8 at r = 65 / 85 in 23 / 49 s.  Until the second start
+iterations instead of 600 gave 9.3e-8 / 3.8e-8 at r = 65 / 85 in 23 / 49 s.  The preconditioned factored start
+(3000 iterations, the default since the same day) reaches 7.3e-8 / 1.1e-8 / 8.4e-8 (ratio 2.3 / 14 / 8.4e4) in 10 /
+16 / 25 s wall.  Until the second start
 triple r = 50 missed (3.42): the test error of the SDP start's refinement swings between iterates (below, and
 *Candidates against the swing*); the second start does not remove the swing, it offers a second local optimum,
 and at r = 45 .. 55 the least-squares start's is the better training fit.  At r = 8 .. 12 the anchored chain
@@ -499,8 +501,11 @@ dense method's ``O(r^6)`` Newton matrices make it slow there: r = 75 did not fin
 interior-point method of 2026-11-26, which certifies it in 142 s, 184 s for the whole fit against 44 s from the
 factored start, with the same ROM: the least-squares start is kept, max eps_y 7.8e-9, 2.1x POD-Galerkin).
 Eq. (16) with ``Mr >= I`` is solved by L-BFGS over PSD factors, ``Ms = I + LM LM^T``, ``Ds = LD LD^T``,
-``Ks = LK LK^T`` (``O(r^3)`` per iteration, 10000 iterations since 2026-11-27, 3000 before), from least squares with ``Ms = I`` and ``Ds, Ks``
-clipped to PSD.  The start must have full rank: a zero column of a factor has zero gradient and never moves
+``Ks = LK LK^T`` (``O(r^3)`` per iteration, 3000 iterations), from least squares with ``Ms = I`` and ``Ds, Ks``
+clipped to PSD; the factors are preconditioned by the eigenvalues of their blocks of the quadratic form (since
+2026-11-27: at r = 100 the SDP objective after 3000 iterations is 3.8e-3 against 2.35e-2 without, 7.9e-3 after
+10000 without;
+``_sdp_paths._factor_preconditioners``).  The start must have full rank: a zero column of a factor has zero gradient and never moves
 (with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
 floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  It runs the
 refinement's L-BFGS (:mod:`fmu_opinf._lbfgs`, 50 pairs): on the triple chain the start took 4.7 / 13.3 s CPU at
