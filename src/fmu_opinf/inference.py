@@ -504,9 +504,8 @@ Eq. (16) with ``Mr >= I`` is solved by L-BFGS over PSD factors, ``Ms = I + LM LM
 ``Ks = LK LK^T`` (``O(r^3)`` per iteration, 3000 iterations), from least squares with ``Ms = I`` and ``Ds, Ks``
 clipped to PSD; the factors are preconditioned by the eigenvalues of their blocks of the quadratic form (since
 2026-11-27: at r = 100 the SDP objective after 3000 iterations is 3.8e-3 against 2.35e-2 without, 7.9e-3 after
-10000 without;
-``_sdp_paths._factor_preconditioners``).  The start must have full rank: a zero column of a factor has zero gradient and never moves
-(with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
+10000 without; ``_sdp_paths._factor_preconditioners``).  The start must have full rank: a zero column of a
+factor has zero gradient and never moves (with ``LM = 0`` the fit stalled at 7x the optimum at r = 4; now ``LM = 0.1 I`` and the clipped eigenvalues are
 floored at 1e-3 of the largest).  It is not certified (``fit_info["status"] == "approximate"``).  It runs the
 refinement's L-BFGS (:mod:`fmu_opinf._lbfgs`, 50 pairs): on the triple chain the start took 4.7 / 13.3 s CPU at
 r = 75 / 100 against 14.8 / 28.0 s with SciPy's L-BFGS-B (2026-11-25), at 0.4 / 0.6 % lower objectives.  On small noisy
