@@ -39,6 +39,30 @@ def test_compact_direction_equals_the_bfgs_recursion_over_the_last_pairs(added):
     assert np.linalg.norm(store.direction(g) - expected) <= 1e-13 * np.linalg.norm(expected)
 
 
+@pytest.mark.parametrize("added", [3, 5, 9])
+def test_direction_from_projected_gradients_equals_the_bfgs_recursion(added):
+    """The pass-saving path (pairs added with the gradients, each direction asked for before its pair comes)
+    gives the recursion's direction too."""
+    rng = np.random.default_rng(10 + added)
+    n, memory = 15, 5
+    A = rng.standard_normal((n, n))
+    A = A @ A.T + np.eye(n)
+    b = rng.standard_normal(n)
+    x = rng.standard_normal(n)
+    g = A @ x - b
+    pairs, store = [], _Pairs(n, memory)
+    for _ in range(added):
+        store.direction(g)
+        x_new = x + rng.standard_normal(n)
+        g_new = A @ x_new - b
+        pairs.append((x_new - x, g_new - g))
+        store.add(*pairs[-1], gradient=g_new, previous=g)
+        x, g = x_new, g_new
+    assert store._projected is not None and store._projected[0] is g  # the cheap path was taken
+    expected = -_bfgs_inverse(pairs[-memory:], n) @ g
+    assert np.linalg.norm(store.direction(g) - expected) <= 1e-13 * np.linalg.norm(expected)
+
+
 def test_quadratic_minimizer_is_found_to_the_gradient_tolerance():
     rng = np.random.default_rng(0)
     n = 60

@@ -54,7 +54,14 @@ class LBFGSResult:
 
 class _Pairs:
     """The last ``memory`` correction pairs, stacked as rows ``[S; Y]`` of one array, with ``S^T Y`` and
-    ``Y^T Y`` kept up to date from one pass per new pair."""
+    ``Y^T Y`` kept up to date.
+
+    Large problems are bound by the passes over the stored pairs (r = 100: 200 rows of 30100 values, 48 MB), so
+    an iteration makes three of them instead of four: :meth:`add` projects the step and the new gradient, takes
+    ``[S; Y] y`` as the difference of the new and the previous gradient's projections (the one :meth:`direction`
+    made), and keeps the new gradient's projection for the next :meth:`direction`, whose one pass forms the
+    direction.
+    """
 
     def __init__(self, n: int, memory: int) -> None:
         self.memory = memory
@@ -62,15 +69,37 @@ class _Pairs:
         self.SY = np.zeros((memory, memory))
         self.YY = np.zeros((memory, memory))
         self.order: list[int] = []  # slots, oldest first
+        self._projected: tuple[np.ndarray, np.ndarray] | None = None  # (g, rows @ g) of the last gradient
 
-    def add(self, s: np.ndarray, y: np.ndarray) -> None:
+    def _projection(self, g: np.ndarray) -> np.ndarray:
+        if self._projected is None or self._projected[0] is not g:
+            self._projected = (g, self.rows @ g)
+        return self._projected[1]
+
+    def add(self, s: np.ndarray, y: np.ndarray, gradient: np.ndarray | None = None,
+            previous: np.ndarray | None = None) -> None:
+        """Store the pair ``(s, y)``; ``y = gradient - previous`` where both gradients are given, which saves a
+        pass when ``previous`` is the one the last :meth:`direction` was asked for."""
         slot = self.order.pop(0) if len(self.order) == self.memory else len(self.order)
+        known = self._projected is not None and previous is not None and self._projected[0] is previous
+        if known and gradient is not None:
+            with_s, with_g = self.rows @ s, self.rows @ gradient  # two products: one of two columns is slower
+            with_y = with_g - self._projected[1]
+        else:
+            with_s, with_y = self.rows @ s, self.rows @ y  # [S^T s; Y^T s], [S^T y; Y^T y]
+            with_g = None
         self.rows[slot], self.rows[self.memory + slot] = s, y
-        with_s, with_y = self.rows @ s, self.rows @ y  # [S^T s; Y^T s], [S^T y; Y^T y]
+        with_s[slot], with_s[self.memory + slot] = s @ s, y @ s
+        with_y[slot], with_y[self.memory + slot] = s @ y, y @ y
         S_y, Y_s, Y_y = with_y[:self.memory], with_s[self.memory:], with_y[self.memory:]
         self.SY[:, slot], self.SY[slot, :] = S_y, Y_s
         self.YY[:, slot] = self.YY[slot, :] = Y_y
         self.order.append(slot)
+        if with_g is None:
+            self._projected = None
+        else:
+            with_g[slot], with_g[self.memory + slot] = s @ gradient, y @ gradient
+            self._projected = (gradient, with_g)
 
     def direction(self, g: np.ndarray) -> np.ndarray:
         """``-H g``."""
@@ -79,7 +108,7 @@ class _Pairs:
         idx = np.array(self.order)
         newest = idx[-1]
         gamma = self.SY[newest, newest] / self.YY[newest, newest]
-        projections = self.rows @ g
+        projections = self._projection(g)
         a, b = projections[idx], projections[self.memory + idx]
         SY = self.SY[np.ix_(idx, idx)]
         R = np.triu(SY)
@@ -129,7 +158,7 @@ def minimize_lbfgs(fun: Callable[[np.ndarray], tuple[float, np.ndarray]], x0: np
         step, f_new, g_new = found
         s, y = step * d, g_new - state.jac
         if float(s @ y) > np.finfo(float).eps * step * -slope:  # L-BFGS-B's test of positive curvature
-            pairs.add(s, y)
+            pairs.add(s, y, gradient=g_new, previous=state.jac)
         f_old = state.fun
         state.x, state.fun, state.jac, state.nit = state.x + s, float(f_new), g_new, state.nit + 1
         if callback is not None:
