@@ -90,3 +90,49 @@ def test_the_modal_way_is_chosen_where_it_was_measured_faster():
     assert modal_is_faster(20, 1, 1)          # r = 10: 2-3x faster
     assert modal_is_faster(70, 3, 1)          # r = 35: 3.5x faster
     assert not modal_is_faster(20, 4, 3)      # many outputs and inputs: dense up to about r = 15
+
+
+def test_output_errors_simulated_on_a_helper_thread_give_the_same_numbers(rng):
+    """With a helper thread (a spare core) the outputs are simulated there, beside the eigendecomposition: the
+    same bits as in one thread, and the plain loop's objective."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    import fmu_opinf._output_gradient as og
+
+    A, B, C, runs = _damped_system(rng, r=12, m=1, p=3)
+    threads = []
+    simulate = og._output_errors
+
+    def recording(*args):
+        threads.append(threading.current_thread().name)
+        return simulate(*args)
+
+    alone = modal_output_gradient(A, B, C, runs)
+    og._output_errors = recording
+    try:
+        with ThreadPoolExecutor(1, thread_name_prefix="helper") as pool:
+            helped = modal_output_gradient(A, B, C, runs, pool)
+    finally:
+        og._output_errors = simulate
+    assert len(threads) == 1 and threads[0].startswith("helper")
+    assert helped[0] == alone[0] and all(np.array_equal(a, b) for a, b in zip(helped[1:], alone[1:]))
+    assert helped[0] == pytest.approx(_plain_objective(A, B, C, runs), rel=1e-14)
+
+
+def test_refinement_with_a_spare_core_ends_where_the_single_thread_one_does(rng):
+    from fmu_opinf.inference import refine_output_error
+
+    C = _damped_system(rng, r=10, m=1, p=2)[2]
+    r, k = 10, 400
+    Q = rng.standard_normal((r, r))
+    M, K = np.eye(r), Q @ Q.T + r * np.eye(r)
+    D = 0.02 * M + 0.01 * K
+    B = rng.standard_normal((r, 1))
+    x, v = rng.standard_normal((r, k)), rng.standard_normal((r, k))
+    u, y = rng.standard_normal((1, k)), rng.standard_normal((1, k))
+    options = dict(output_map=(C[:1, :r], C[:1, r:]), max_iterations=20, gradient="modal")
+    one = refine_output_error(M, D, K, B, v, x, u, y, 0.1, **options)
+    two = refine_output_error(M, D, K, B, v, x, u, y, 0.1, spare_core=True, **options)
+    assert one[-1]["iterations"] == two[-1]["iterations"] > 0
+    assert all(np.array_equal(a, b) for a, b in zip(one[:4], two[:4]))

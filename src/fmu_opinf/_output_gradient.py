@@ -32,6 +32,7 @@ Two ways to the same numbers:
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Executor
 
 import numpy as np
 import scipy.fft
@@ -136,10 +137,40 @@ def _output_misfit(C: np.ndarray, runs: list[Run]) -> Misfit:
     return misfit
 
 
-def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray,
-                          runs: list[Run]) -> tuple[float, np.ndarray, np.ndarray] | None:
+def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: list[Run],
+                          helper: Executor | None = None) -> tuple[float, np.ndarray, np.ndarray] | None:
     """``J``, ``dJ/dA``, ``dJ/dB`` through the eigenvalues of ``A`` (module docstring), or ``None`` when its
-    eigenvector basis is ill-conditioned or two eigenvalues are closer than ``1e-6``."""
+    eigenvector basis is ill-conditioned or two eigenvalues are closer than ``1e-6``.
+
+    ``helper``: a one-thread executor for a core that would otherwise idle; the output errors, which need only
+    ``A``, are simulated there while this thread decomposes ``A`` (the same numbers either way).
+    """
+    pending = helper.submit(_output_errors, A, B, C, runs) if helper is not None else None
+    try:
+        found = _eigenbasis(A)
+    finally:
+        errors = pending.result() if pending is not None else None  # never leave the helper running
+    if found is None:
+        return None
+    mu, V, V_inv, gap = found
+    modal_B, CV = V_inv @ B, C @ V
+    S, N, value = np.zeros_like(gap), np.zeros(modal_B.shape, dtype=complex), 0.0
+    for (z0, u, _), err in zip(runs, errors or _output_errors(A, B, C, runs)):
+        value += float(np.sum(err * err))
+        run_S, run_N = _modal_sums(mu, gap, V_inv @ z0, modal_B, CV, u, err)
+        S += run_S
+        N += run_N
+    return value, (V_inv.T @ S @ V.T).real, (V_inv.T @ N).real
+
+
+def _output_errors(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: list[Run]) -> list[np.ndarray]:
+    """``C z_i - t_i`` of every run."""
+    return [linear_recursion(A, z0, B, u[:, 1:], C) - target for z0, u, target in runs]
+
+
+def _eigenbasis(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """``mu, V, V^-1`` of ``A = V diag(mu) V^-1`` and the eigenvalue differences ``mu_a - mu_b`` (ones on the
+    diagonal), or ``None`` where the modal way does not apply (:func:`modal_output_gradient`)."""
     mu, V = np.linalg.eig(A)
     if not np.all(np.isfinite(mu)):
         return None
@@ -153,15 +184,7 @@ def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray,
         return None
     if not np.linalg.norm(V, 1) * np.linalg.norm(V_inv, 1) <= _MAX_CONDITION:  # the 1-norm condition number
         return None
-    modal_B, CV = V_inv @ B, C @ V
-    S, N, value = np.zeros_like(gap), np.zeros(modal_B.shape, dtype=complex), 0.0
-    for z0, u, target in runs:
-        err = linear_recursion(A, z0, B, u[:, 1:], C) - target
-        value += float(np.sum(err * err))
-        run_S, run_N = _modal_sums(mu, gap, V_inv @ z0, modal_B, CV, u, err)
-        S += run_S
-        N += run_N
-    return value, (V_inv.T @ S @ V.T).real, (V_inv.T @ N).real
+    return mu, V, V_inv, gap
 
 
 def _modal_sums(mu: np.ndarray, gap: np.ndarray, w0: np.ndarray, modal_B: np.ndarray, CV: np.ndarray,

@@ -868,12 +868,14 @@ def fit_operators(
                     Mr, Dr, Kr, Br, xdot_r, x_r, u, training[3], float(dt), output_map=output_map,
                     run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
                     unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
-                    equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress)
+                    equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress,
+                    spare_core=second is None or second.finished())  # e.g. no realization to refine
                 refitted_map = info["refinement"].pop("refitted_map", None)
             if candidate:
                 found = (second.result(progress) if second is not None
                          else _least_squares_start(R, scales, m, output_map, training,
-                                                   second_start and dict(second_start, progress=progress)))
+                                                   second_start and dict(second_start, progress=progress,
+                                                                         spare_core=True)))
                 chosen = _least_squares_candidate(found, (Mr, Dr, Kr, Br), refitted_map, training, info)
                 if chosen is not None:
                     (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen

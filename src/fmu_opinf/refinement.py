@@ -13,7 +13,10 @@ importable from :mod:`fmu_opinf.inference`.
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -133,6 +136,7 @@ class _Trajectories:
     equation: _EquationResidual | None = None  # the acceleration residual of eq. (16), for equation_weight
     equation_weight: float = 0.0  # exponent of the acceleration residual in the log objective
     gradient: str = "auto"  # "modal" (through the eigenvalues), "dense" (stepping states) or "auto" (modal if it can)
+    helper: Executor | None = None  # a thread on a spare core for the modal gradient's output simulation
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -161,7 +165,7 @@ class _Trajectories:
         wanted = self.gradient == "modal" or (self.gradient == "auto"
                                               and modal_is_faster(states, outputs, Bd.shape[1]))
         if wanted and not self.free_output_map and not mu:
-            result = modal_output_gradient(Ad, Bd, self.C, runs)
+            result = modal_output_gradient(Ad, Bd, self.C, runs, self.helper)
             if result is not None:
                 return result
             if self.gradient == "modal":
@@ -461,6 +465,7 @@ def refine_output_error(
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
     state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
     progress: bool = False, gradient: str = "auto", progress_label: str = "output-error refinement",
+    spare_core: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -535,8 +540,12 @@ def refine_output_error(
         beside one ``O(r^3)`` eigendecomposition), ``"dense"`` by stepping the states and the adjoint
         (``O(k r^2)``), ``"auto"`` the modal way where it is the faster one (from ``r = 7`` for one input and
         up to three outputs) and the step map has separated eigenvalues and a well-conditioned eigenvector
-        basis.  Both give the same objective and gradient up to rounding.  With ``refit_output_map`` or ``state_weight`` the states are needed:
-        always dense.
+        basis.  Both give the same objective and gradient up to rounding.  With ``refit_output_map`` or
+        ``state_weight`` the states are needed: always dense.
+    spare_core : bool, default=False
+        A second core is free (:func:`fmu_opinf.inference.fit_operators` says so when no second start runs beside
+        this one): the modal gradient simulates the outputs in a second thread while this one decomposes the step
+        map.  The same numbers; triple chain r = 100: 13.5 instead of 16.0 s for 600 iterations.
 
     Returns
     -------
@@ -590,7 +599,10 @@ def refine_output_error(
               "status": "exact start", "coordinates": "modal" if whiten else "given",
               "output_map": "refitted" if refit_output_map else "fixed"}
     if value0 > 0:
-        x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress, progress_label)
+        with _helper_thread(spare_core) as problem.helper:
+            x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress,
+                           progress_label)
+        problem.helper = None
         if polish_iterations > 0:
             problem.free_output_map = False  # the Jacobian holds C fixed: polish with the map L-BFGS ended at
             x, report["polish"] = _levenberg_marquardt(problem, x, r, m, polish_iterations)
@@ -609,6 +621,16 @@ def refine_output_error(
     back = T_inv.T  # q = T p: the operators of q are T^-T (.) T^-1
     Mr, Dr, Kr = (0.5 * (back @ A @ T_inv + (back @ A @ T_inv).T) for A in (Mr, Dr, Kr))
     return Mr, Dr, Kr, back @ Br, report
+
+
+@contextlib.contextmanager
+def _helper_thread(wanted: bool) -> Iterator[Executor | None]:
+    """A one-thread executor while the refinement runs (``wanted``), else ``None``."""
+    if not wanted:
+        yield None
+        return
+    with ThreadPoolExecutor(1, thread_name_prefix="fmu-opinf-refinement") as pool:
+        yield pool
 
 
 def output_error_objective(
