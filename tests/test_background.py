@@ -61,17 +61,6 @@ def test_result_returns_the_value_or_raises_the_error_of_the_call(mode):
     assert not _fmu_opinf_threads() and not mp.active_children()
 
 
-@pytest.mark.parametrize("mode", MODES)
-def test_finished_says_whether_the_call_has_ended(mode):
-    """What the fit asks before it gives the refinement a helper thread: a running call holds the other core."""
-    call = Background(_count, 30, pause=0.01, mode=mode)
-    assert not call.finished()
-    deadline = time.perf_counter() + 10.0
-    while not call.finished() and time.perf_counter() < deadline:
-        time.sleep(0.01)
-    assert call.finished() and call.result() == 30
-
-
 @needs_fork
 def test_a_forked_call_reports_its_progress_through_the_shared_counter():
     call = Background(_count, 40, pause=0.01, label="counting", total=40, mode="process")
@@ -110,9 +99,6 @@ class _Serial:
 
     def result(self, progress=False):
         return self.value
-
-    def finished(self):
-        return True
 
     def cancel(self):
         pass

@@ -125,10 +125,6 @@ class Background(Generic[T]):
         except BaseException as error:  # handed to the main thread by result()
             self._outcome = (False, error)
 
-    def finished(self) -> bool:
-        """Whether the call has ended (its value or exception waits for :meth:`result`)."""
-        return not self._alive()
-
     def _alive(self) -> bool:
         return self._worker.running() if self.mode == "process" else self._thread.is_alive()
 
