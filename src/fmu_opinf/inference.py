@@ -151,7 +151,8 @@ start at 10000 L-BFGS iterations instead of 3000 (the default since) r = 65 / 85
 (ratio 2.8 / 42 / 9.7e4) in 14 / 28 / 48 s instead of 12 / 21 / 27 s; from that start, ``20 r`` refinement
 iterations instead of 600 gave 9.3e-8 / 3.8e-8 at r = 65 / 85 in 23 / 49 s.  The preconditioned factored start
 (3000 iterations, the default since the same day) reaches 7.3e-8 / 1.1e-8 / 8.4e-8 (ratio 2.3 / 14 / 8.4e4) in 10 /
-16 / 25 s wall.  Until the second start
+16 / 25 s wall; with the refinement's outputs on the spare core and the L-BFGS of three passes 8.5e-8 / 6.9e-9 /
+7.9e-8 (ratio 2.7 / 9.3 / 7.9e4) in 8.1 / 14.3 / 21.4 s.  Until the second start
 triple r = 50 missed (3.42): the test error of the SDP start's refinement swings between iterates (below, and
 *Candidates against the swing*); the second start does not remove the swing, it offers a second local optimum,
 and at r = 45 .. 55 the least-squares start's is the better training fit.  At r = 8 .. 12 the anchored chain
