@@ -136,3 +136,31 @@ def test_refinement_with_a_spare_core_ends_where_the_single_thread_one_does(rng)
     two = refine_output_error(M, D, K, B, v, x, u, y, 0.1, spare_core=True, **options)
     assert one[-1]["iterations"] == two[-1]["iterations"] > 0
     assert all(np.array_equal(a, b) for a, b in zip(one[:4], two[:4]))
+
+
+def test_an_error_of_the_main_thread_is_raised_after_the_helper_ended(rng, monkeypatch):
+    """Ctrl-C during the eigendecomposition: the helper's simulation is waited for (nothing left running) and the
+    interrupt, not the helper's own failure, reaches the caller."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import fmu_opinf._output_gradient as og
+
+    A, B, C, runs = _damped_system(rng, r=4, m=1, p=1)
+    ended = threading.Event()
+
+    def interrupted(_):
+        raise KeyboardInterrupt
+
+    def failing(*_):
+        time.sleep(0.2)
+        ended.set()
+        raise ValueError("helper")
+
+    monkeypatch.setattr(og, "_eigenbasis", interrupted)
+    monkeypatch.setattr(og, "_output_errors", failing)
+    with ThreadPoolExecutor(1) as pool:
+        with pytest.raises(KeyboardInterrupt):
+            modal_output_gradient(A, B, C, runs, pool)
+        assert ended.is_set()

@@ -8,8 +8,8 @@ matrix (Byrd, Nocedal, Schnabel 1994) of the last ``memory`` pairs ``s_i = x_(i+
 
     H g = gamma g + S p - gamma Y t,   t = R^-1 (S^T g),   p = R^-T ((D + gamma Y^T Y) t - gamma Y^T g)
 
-(``R`` the upper triangle of ``S^T Y`` in the order the pairs came, ``D`` its diagonal): two passes over the
-stored pairs for the direction and one for the products of a new pair, all in NumPy, which releases the GIL.
+(``R`` the upper triangle of ``S^T Y`` in the order the pairs came, ``D`` its diagonal): three passes over the
+stored pairs per iteration (:class:`_Pairs`), all in NumPy, which releases the GIL.
 For an unconstrained problem this is the direction of L-BFGS-B (its Cauchy point has no breakpoints, and its
 subspace step is the full quasi-Newton step); the step length follows the same strong Wolfe conditions
 (sufficient decrease 1e-3, curvature 0.9), trying the unit step first (the first iteration a step of unit

@@ -32,7 +32,7 @@ Two ways to the same numbers:
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Executor
+from concurrent.futures import Executor, wait
 
 import numpy as np
 import scipy.fft
@@ -148,8 +148,11 @@ def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: lis
     pending = helper.submit(_output_errors, A, B, C, runs) if helper is not None else None
     try:
         found = _eigenbasis(A)
-    finally:
-        errors = pending.result() if pending is not None else None  # never leave the helper running
+    except BaseException:
+        if pending is not None:
+            wait([pending])  # never leave the helper running; this thread's error is the one to raise
+        raise
+    errors = pending.result() if pending is not None else None
     if found is None:
         return None
     mu, V, V_inv, gap = found

@@ -850,7 +850,7 @@ def fit_operators(
         found = _least_squares_start(R, scales, m, output_map, training) if candidate else None
 
         def start_second() -> Background | None:
-            if (second_start is None or found["proposal"] is None
+            if (second_start is None or found["proposal"] is None or not found["report"]["objective"] > 0
                     or not (r >= SIDE_BY_SIDE_FROM or can_fork_here())):
                 return None
             return Background(_refine_least_squares_start, found, training, second_start,
@@ -873,14 +873,14 @@ def fit_operators(
                     run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
                     unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
                     equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress,
-                    spare_core=second is None)
+                    spare_core=second is None and r >= SIDE_BY_SIDE_FROM)
                 refitted_map = info["refinement"].pop("refitted_map", None)
             if candidate:
                 if second is not None:
                     found = second.result(progress)
                 elif second_start is not None:
-                    found = _refine_least_squares_start(found, training,
-                                                        dict(second_start, progress=progress, spare_core=True))
+                    found = _refine_least_squares_start(found, training, dict(
+                        second_start, progress=progress, spare_core=r >= SIDE_BY_SIDE_FROM))
                 chosen = _least_squares_candidate(found, (Mr, Dr, Kr, Br), refitted_map, training, info)
                 if chosen is not None:
                     (Mr, Dr, Kr, Br), refitted_map, coordinates = chosen
@@ -947,6 +947,9 @@ def _sdp_side_by_side(r: int, compressed: bool, normalization: str, solver: str,
 #: the other.  Measured on the
 #: triple chain (wall seconds, best of two, 2026-11-25): r = 5 / 10 / 20 / 35: 0.93 / 1.34 / 1.79 / 3.76 side by
 #: side against 0.86 / 1.38 / 2.00 / 4.85 one after the other: small kernels leave both threads waiting for the GIL.
+#: Also the order from which a refinement with the other core free simulates its outputs on a helper thread
+#: (``refine_output_error(spare_core=True)``; 2026-11-27, 300 iterations: r = 8 / 10 10 / 5 % slower with it, even
+#: at r = 14 .. 16, r = 100 13.3 instead of 16.0 s).
 SIDE_BY_SIDE_FROM = 15
 
 

@@ -544,8 +544,9 @@ def refine_output_error(
         ``state_weight`` the states are needed: always dense.
     spare_core : bool, default=False
         A second core is free (:func:`fmu_opinf.inference.fit_operators` says so when no second start runs beside
-        this one): the modal gradient simulates the outputs in a second thread while this one decomposes the step
-        map.  The same numbers; triple chain r = 100: 13.5 instead of 16.0 s for 600 iterations.
+        this one, from ``SIDE_BY_SIDE_FROM`` = 15 on: below, the hand-over costs more than it gains): the modal
+        gradient simulates the outputs in a second thread while this one decomposes the step map.  The same
+        numbers; triple chain r = 100: 13.3 instead of 16.0 s for 600 iterations.
 
     Returns
     -------
