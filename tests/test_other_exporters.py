@@ -66,6 +66,51 @@ def test_stale_accelerations_are_told_from_fresh_and_from_euler_data(exact):
     assert not stale_rates(euler_v, a, H, u)
 
 
+@pytest.mark.parametrize("chunks", [[7, 300, 1], [513], [1] * 40 + [600], [256, 256, 1]])
+def test_rate_sums_fed_chunk_by_chunk_equal_the_checks_over_whole_arrays(exact, chunks):
+    """What the recorder feeds on a helper thread while it records: the same bits as the checks summed after the
+    run, whatever the chunks (here of samples 0 .. 640), never reading a sample not yet recorded, also for some
+    rows only and for stale data."""
+    from fmu_opinf.snapshots._consistency import RateSums
+
+    x, v, a = (z[:, :641] for z in exact)
+    stale = np.hstack([a[:, :1], a[:, :-1]])
+    u = _impulse(x.shape[1])
+    for rows, accelerations in ((slice(None), a), (np.array([0, 2, 4]), stale)):
+        sums = RateSums(3 if isinstance(rows, np.ndarray) else 5, x.shape[1], H, mismatch=True, stale=True,
+                        rows=rows)
+        recorded = [np.full_like(z, np.nan) for z in (x, v, accelerations)]  # samples not yet recorded: NaN
+        available = 0
+        for count in chunks + [x.shape[1]]:
+            available = min(available + count, x.shape[1])
+            for part, z in zip(recorded, (x, v, accelerations)):
+                part[:, :available] = z[:, :available]
+            sums.feed(*recorded, available)
+        np.testing.assert_array_equal(sums.mismatch(), rate_mismatch(x[rows], v[rows], H))
+        assert sums.stale(v, u) == stale_rates(v[rows], accelerations[rows], H, u) == (accelerations is stale)
+
+
+def test_recording_in_memory_judges_the_sums_fed_while_it_recorded(monkeypatch, tmp_path):
+    """The in-memory recorder sums the rate checks as it goes (the 600-mass chain: 1.82 -> 1.49-1.53x doStep), so the
+    checks over whole arrays are not run again; a streamed recording still runs them after the run."""
+    from fmu_opinf import fmus, signals, snapshots
+    from fmu_opinf.snapshots import _consistency
+    from fmu_opinf.source import FMUSource
+
+    calls = []
+    whole = _consistency.rate_mismatch
+    monkeypatch.setattr(_consistency, "rate_mismatch", lambda *args: calls.append(1) or whole(*args))
+    fed = []
+    feed = _consistency.RateSums.feed
+    monkeypatch.setattr(_consistency.RateSums, "feed", lambda self, *args: fed.append(args[-1]) or feed(self, *args))
+    source = FMUSource(fmus.bundled_fmu("TripleChainMSD"))
+    signal = signals.parse_signal("impulse:amplitude=100,t0=2,width=0.5")
+    snapshots.record(source, signal, 0.05, 20.0, quiet=True)
+    assert not calls and fed and fed[-1] == 401
+    snapshots.record(source, signal, 0.05, 20.0, quiet=True, path=tmp_path / "s.h5", stream=True).close()
+    assert calls and fed[-1] == 401
+
+
 def _impulse(k):
     t = np.arange(k) * H
     return np.where((t > 2.0) & (t < 2.5), 100.0, 0.0)[None, :]

@@ -28,7 +28,8 @@ import numpy as np
 from ..errors import FMUError, FmuOpinfWarning
 from ._isolation import source_label
 
-__all__ = ["MAX_REPAIRS", "Repair", "check_rates", "judge_run", "rate_mismatch", "stale_rates"]
+__all__ = ["MAX_REPAIRS", "RateSums", "Repair", "check_rates", "judge_run", "live_rate_sums", "rate_mismatch",
+           "stale_rates"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
 #: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
@@ -73,25 +74,10 @@ def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
     """Per row: ``min`` over the trapezoidal, forward and backward rule of ``||dx - h v_rule|| / scale`` (0 for a
     row that hardly moves), ``dx`` the increments of ``x``, ``v_rule`` the velocity the rule uses and ``scale``
     the larger of ``||dx||`` and ``||h v_trapezoid||``; the squared norms are summed block by block
-    (:data:`_BLOCK`)."""
-    n, k = x.shape
-    squares = np.zeros((5, n))  # dx, h v_trapezoid, then the residuals of the trapezoidal, forward, backward rule
-    for c0 in range(0, k - 1, _BLOCK):
-        c1 = min(c0 + _BLOCK, k - 1)
-        dx = np.subtract(x[:, c0 + 1:c1 + 1], x[:, c0:c1])
-        before, after = v[:, c0:c1], v[:, c0 + 1:c1 + 1]
-        buffer = np.add(before, after)
-        buffer *= 0.5 * h
-        squares[0] += _row_squares(dx)
-        squares[1] += _row_squares(buffer)
-        squares[2] += _row_squares(np.subtract(dx, buffer, out=buffer))
-        for row, rule in ((3, before), (4, after)):
-            np.multiply(rule, h, out=buffer)
-            squares[row] += _row_squares(np.subtract(dx, buffer, out=buffer))
-    scale = np.sqrt(np.maximum(squares[0], squares[1]))
-    residual = np.sqrt(squares[2:].min(axis=0))
-    moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
-    return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
+    (:data:`_BLOCK`, :class:`RateSums`)."""
+    sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
+    sums.feed(x, v, None, x.shape[1])
+    return sums.mismatch()
 
 
 def _row_squares(a: np.ndarray) -> np.ndarray:
@@ -103,30 +89,10 @@ def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = N
     """Whether ``a`` lags ``v``'s rate by one sample: shifted by one, the trapezoidal rule fits the increments of
     ``v`` at least five times better, and unshifted it misses by more than round-off.  Steps next to a change of
     the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are not counted.  Computed
-    block by block (:data:`_BLOCK`)."""
-    k = v.shape[1]
-    if k < 4:
-        return False
-    count = k - 2  # increments judged: v_(i+1) - v_i for i < k - 2, against a_i + a_(i+1) and a_(i+1) + a_(i+2)
-    now, shifted = np.empty(count), np.empty(count)
-    increments_squared = 0.0
-    for c0 in range(0, count, _BLOCK):
-        c1 = min(c0 + _BLOCK, count)
-        dv = np.subtract(v[:, c0 + 1:c1 + 1], v[:, c0:c1])
-        sums = np.add(a[:, c0:c1 + 1], a[:, c0 + 1:c1 + 2])  # a_i + a_(i+1), one more for the shifted rule
-        sums *= 0.5 * h
-        increments_squared += float(np.einsum("ij,ij->", dv, dv))
-        residual = np.subtract(dv, sums[:, :-1])
-        now[c0:c1] = _column_squares(residual)
-        shifted[c0:c1] = _column_squares(np.subtract(dv, sums[:, 1:], out=residual))
-    last = v[:, -1] - v[:, -2]  # the one increment that no block judges, in the scale of round-off
-    increments_squared += float(last @ last)
-    smooth = np.ones(count, dtype=bool)
-    if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
-        changes = np.any(np.diff(u[:, :k], axis=1) != 0, axis=0).astype(float)
-        smooth = np.convolve(changes, np.ones(5))[2:2 + count] == 0
-    now_norm, shifted_norm = math.sqrt(now[smooth].sum()), math.sqrt(shifted[smooth].sum())
-    return bool(now_norm > 1e-6 * math.sqrt(increments_squared) and shifted_norm < _STALE_GAIN * now_norm)
+    block by block (:data:`_BLOCK`, :class:`RateSums`)."""
+    sums = RateSums(v.shape[0], v.shape[1], h, mismatch=False, stale=True)
+    sums.feed(None, v, a, v.shape[1])
+    return sums.stale(v, u)
 
 
 def _column_squares(a: np.ndarray) -> np.ndarray:
@@ -134,9 +100,94 @@ def _column_squares(a: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->j", a, a)
 
 
+class RateSums:
+    """The sums behind :func:`rate_mismatch` and :func:`stale_rates` over the first ``k`` samples, fed as they are
+    recorded: :meth:`feed` takes every block of :data:`_BLOCK` samples that is complete, so a recorder can check
+    the samples so far on another core while it records the next ones (the same numbers as the whole arrays).
+
+    ``rows``: the rows of the arrays fed that are judged (default all).
+    """
+
+    def __init__(self, n: int, k: int, h: float, *, mismatch: bool, stale: bool,
+                 rows: slice | np.ndarray = slice(None)) -> None:
+        self.k, self.h, self.rows = k, h, rows
+        self.squares = np.zeros((5, n)) if mismatch else None  # dx, h v_trapezoid, trapezoidal / forward / backward
+        self.count = k - 2  # increments v_(i+1) - v_i judged by the stale test, i < k - 2
+        self.now = np.empty(max(self.count, 0)) if stale else None
+        self.shifted = np.empty(max(self.count, 0)) if stale else None
+        self.increments_squared = 0.0
+        self._mismatch_from = self._stale_from = 0
+
+    def _block(self, array: np.ndarray, c0: int, c1: int) -> np.ndarray:
+        part = array[:, c0:c1]
+        return part if isinstance(self.rows, slice) and self.rows == slice(None) else part[self.rows]
+
+    def feed(self, x: np.ndarray | None, v: np.ndarray, a: np.ndarray | None, available: int) -> None:
+        """Sum every block whose samples are among the first ``available`` of the ``(n, >= available)`` arrays."""
+        available = min(available, self.k)
+        while self.squares is not None and self._mismatch_from < self.k - 1:
+            c0 = self._mismatch_from
+            c1 = min(c0 + _BLOCK, self.k - 1)
+            if c1 + 1 > available:
+                break
+            self._add_mismatch(self._block(x, c0, c1 + 1), self._block(v, c0, c1 + 1))
+            self._mismatch_from = c1
+        while self.now is not None and self._stale_from < self.count:
+            c0 = self._stale_from
+            c1 = min(c0 + _BLOCK, self.count)
+            if c1 + 2 > available:
+                break
+            self._add_stale(c0, c1, self._block(v, c0, c1 + 1), self._block(a, c0, c1 + 2))
+            self._stale_from = c1
+
+    def _add_mismatch(self, x: np.ndarray, v: np.ndarray) -> None:
+        dx = np.subtract(x[:, 1:], x[:, :-1])
+        before, after = v[:, :-1], v[:, 1:]
+        buffer = np.add(before, after)
+        buffer *= 0.5 * self.h
+        squares = self.squares
+        squares[0] += _row_squares(dx)
+        squares[1] += _row_squares(buffer)
+        squares[2] += _row_squares(np.subtract(dx, buffer, out=buffer))
+        for row, rule in ((3, before), (4, after)):
+            np.multiply(rule, self.h, out=buffer)
+            squares[row] += _row_squares(np.subtract(dx, buffer, out=buffer))
+
+    def _add_stale(self, c0: int, c1: int, v: np.ndarray, a: np.ndarray) -> None:
+        dv = np.subtract(v[:, 1:], v[:, :-1])
+        sums = np.add(a[:, :-1], a[:, 1:])  # a_i + a_(i+1), one more for the shifted rule
+        sums *= 0.5 * self.h
+        self.increments_squared += float(np.einsum("ij,ij->", dv, dv))
+        residual = np.subtract(dv, sums[:, :-1])
+        self.now[c0:c1] = _column_squares(residual)
+        self.shifted[c0:c1] = _column_squares(np.subtract(dv, sums[:, 1:], out=residual))
+
+    def mismatch(self) -> np.ndarray:
+        """:func:`rate_mismatch` of the samples fed (all ``k`` of them)."""
+        squares = self.squares
+        scale = np.sqrt(np.maximum(squares[0], squares[1]))
+        residual = np.sqrt(squares[2:].min(axis=0))
+        moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
+        return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
+
+    def stale(self, v: np.ndarray, u: np.ndarray | None = None) -> bool:
+        """:func:`stale_rates` of the samples fed (all ``k`` of them; ``v`` for its last increment)."""
+        if self.k < 4:
+            return False
+        v_last = self._block(v, self.k - 2, self.k)
+        last = v_last[:, 1] - v_last[:, 0]  # the one increment that no block judges, in the scale of round-off
+        increments_squared = self.increments_squared + float(last @ last)
+        smooth = np.ones(self.count, dtype=bool)
+        if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
+            changes = np.any(np.diff(u[:, :self.k], axis=1) != 0, axis=0).astype(float)
+            smooth = np.convolve(changes, np.ones(5))[2:2 + self.count] == 0
+        now_norm, shifted_norm = math.sqrt(self.now[smooth].sum()), math.sqrt(self.shifted[smooth].sum())
+        return bool(now_norm > 1e-6 * math.sqrt(increments_squared) and shifted_norm < _STALE_GAIN * now_norm)
+
+
 def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
                 guessed: bool, derivative_names: list[str | None],
-                u: np.ndarray | None = None) -> Repair | str | None:
+                u: np.ndarray | None = None, sums: RateSums | None = None) -> Repair | str | None:
     """Judge one run's rates; None if consistent, a :class:`Repair` to record again, or a one-line problem.
 
     Parameters
@@ -153,11 +204,13 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
         Per position, the name of its derivative variable (None where the model has none).
     u : (m, k) ndarray, optional
         Inputs in effect (steps next to their changes do not count in :func:`stale_rates`).
+    sums : RateSums, optional
+        The sums of both tests, fed while the run was recorded (:func:`live_rate_sums`); default: summed here.
 
     The caller chooses the samples (:func:`judge_run`: the first :data:`_SAMPLES`).
     """
     if v is not None and x.shape[1] >= 3:
-        mismatch = rate_mismatch(x, v, h)
+        mismatch = rate_mismatch(x, v, h) if sums is None else sums.mismatch()
         worst = int(np.argmax(mismatch)) if mismatch.size else 0
         if mismatch.size and mismatch[worst] > MISMATCH:
             where = (f"{names['velocities'][worst]} is not the rate of {names['positions'][worst]} (relative mismatch "
@@ -165,7 +218,7 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
             if not guessed:
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
-    if a is not None and v is not None and stale_rates(v, a, h, u):
+    if a is not None and v is not None and (stale_rates(v, a, h, u) if sums is None else sums.stale(v, u)):
         return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
                                       "before the FMU updated them): derived from the data instead")
     return None
@@ -244,12 +297,25 @@ def _pairing_the_data_show(x: np.ndarray, v: np.ndarray, h: float,
 MAX_REPAIRS = 2
 
 
-def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bool = True) -> Repair | None:
+def live_rate_sums(source: Any, t: np.ndarray) -> RateSums | None:
+    """The :class:`RateSums` that :func:`judge_run` will need for a run of ``source`` on the grid ``t``, to be fed
+    while it is recorded, or None where the run will not be judged (or its velocities are derived)."""
+    if getattr(source, "selection", None) is None or not source.n or len(t) < 3 or source.derived["xdot"]:
+        return None
+    rows = _checked_rows(source.n)
+    n = source.n if isinstance(rows, slice) else len(rows)
+    return RateSums(n, min(len(t), _SAMPLES), float(t[1] - t[0]), mismatch=True,
+                    stale=not source.derived["xddot"], rows=rows)
+
+
+def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bool = True,
+              sums: RateSums | None = None) -> Repair | None:
     """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
     problem it cannot repair (any after a repair, or after :data:`MAX_REPAIRS`) is an :class:`FMUError`, a
     mismatch of velocities the user chose a warning.  ``strict=False`` (pilot runs of the automatic window, whose
     step may not resolve the model: audit 2026-11-26, warnings of mismatched velocities from pilots at an aliasing
-    step) proposes repairs but leaves what it cannot repair to the recording itself."""
+    step) proposes repairs but leaves what it cannot repair to the recording itself.  ``sums``: those of
+    :func:`live_rate_sums`, fed with the whole run as it was recorded."""
     selection = getattr(source, "selection", None)
     if selection is None or not source.n or len(t) < 3:
         return None
@@ -263,7 +329,7 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
              "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
     derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
     verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not repairs, derivatives,
-                          np.asarray(run.u[:, window]))
+                          np.asarray(run.u[:, window]), sums)
     if verdict is None:
         return None
     whole = len(picked) == source.n
