@@ -171,11 +171,11 @@ class RateSums:
         return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
 
     def stale(self, v: np.ndarray, u: np.ndarray | None = None) -> bool:
-        """:func:`stale_rates` of the samples fed (all ``k`` of them; ``v`` for its last increment)."""
+        """:func:`stale_rates` of the samples fed (all ``k`` of them; ``v``, the judged rows only, for its last
+        increment)."""
         if self.k < 4:
             return False
-        v_last = self._block(v, self.k - 2, self.k)
-        last = v_last[:, 1] - v_last[:, 0]  # the one increment that no block judges, in the scale of round-off
+        last = v[:, self.k - 1] - v[:, self.k - 2]  # the one increment that no block judges, in the scale of round-off
         increments_squared = self.increments_squared + float(last @ last)
         smooth = np.ones(self.count, dtype=bool)
         if u is not None and u.size:  # a change between samples c and c + 1 spoils the steps c - 2 .. c + 2
