@@ -494,3 +494,22 @@ def test_refinement_needs_dt_and_outputs(rng):
     with pytest.raises(DataError, match="y contains NaN"):
         fit_operators(a, v, x, u, y=np.where(y > 0, np.nan, y), dt=0.1)
     assert "refinement" not in fit_operators(a, v, x, u, dt=0.1).info  # "auto" needs y as well
+
+
+def test_one_degree_of_freedom_with_an_input_fits_its_operators(tmp_path):
+    """A single mass on a spring with a force, recorded from its FMU with the defaults (audit 2026-11-27): the
+    ``Mr >= I`` interior-point solve diverged at once, its progress callback raised on the NaN and ``fit`` ended in
+    a traceback; now that normalization is judged by its certificate like any other, and the fit gives back
+    ``D / M = 0.1``, ``K / M = 1``, ``B / M = 1`` (the recorded accelerations are the model's own)."""
+    from fmu_opinf import lti_fmus, snapshots
+    from fmu_opinf.source import FMUSource
+
+    model = lti_fmus.LinearMechanicalModel(M=np.array([[1.0]]), D=np.array([[0.1]]), K=np.array([[1.0]]),
+                                           B=np.array([[1.0]]), Cp=np.array([[1.0]]), name="OneDof")
+    lti_fmus.build_lti_fmu(model, tmp_path / "one.fmu")
+    run = snapshots.record(FMUSource(tmp_path / "one.fmu"), "impulse:amplitude=100,t0=2,width=0.5", 0.2, 95.0,
+                           quiet=True).runs[0]
+    fit = fit_operators(run.xddot, run.xdot, run.x, run.u, refine=False)
+    scale = fit.Mr[0, 0]
+    for got, want in ((fit.Dr, 0.1), (fit.Kr, 1.0), (fit.Br, 1.0)):
+        assert got[0, 0] / scale == pytest.approx(want, rel=1e-13)  # measured 9e-16

@@ -10,6 +10,7 @@ optimality certificate are in :mod:`fmu_opinf._sdp`.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable
@@ -265,7 +266,8 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     zero = expand(np.zeros(idx_a.size))
     t_solve = time.perf_counter()
     label = f"SDP {normalization}, cones {'/'.join(_BLOCKS[b] for b in keep)} (interior point, % to tol)"
-    with Progress(100, label, quiet=not progress) as bar:
+    # a diverging iterate may overflow on its way out: the certificate below judges the result, so no warnings
+    with Progress(100, label, quiet=not progress) as bar, np.errstate(over="ignore", invalid="ignore"):
         result = solve_ipm(S, lin, cones, a=a, c=trace, constant=float(zero @ H @ zero), tol=tol,
                            callback=_share_of_the_way(bar, tol))
         if result.status in ("optimal", "floor"):  # its own stopping test held: the whole way
@@ -297,6 +299,8 @@ def _share_of_the_way(bar: Progress, tol: float) -> Callable[[int, float], None]
 
     def report(iteration: int, measure: float) -> None:
         nonlocal first
+        if not math.isfinite(measure):  # a diverging iterate: the solver's own tests judge it, not the bar
+            return
         if first is None:
             first = max(measure, 10.0 * tol)
         share = np.log(first / max(measure, tol)) / np.log(first / tol)
