@@ -377,3 +377,31 @@ def test_a_numerically_singular_mass_has_no_explicit_residual_and_no_library_war
         warnings.simplefilter("error")
         assert _acceleration_residual(R, m, (singular, np.eye(r), np.eye(r))) == np.inf
         assert np.isfinite(_acceleration_residual(R, m, (np.eye(r), np.eye(r), np.eye(r))))
+
+
+def test_auto_normalization_keeps_the_one_that_solved_when_the_other_fails(rng, monkeypatch):
+    """An undamped free-free chain's free response (audit 2026-11-27): the ``Mr >= I`` solve failed (not certified,
+    then Clarabel failed) and the fit ended although the trace solve had its optimum.  Now ``auto`` keeps the
+    normalization that solved, says which failed and why, and raises only when both fail."""
+    from fmu_opinf import _sdp_paths
+    from fmu_opinf.errors import SolverError
+
+    R, r, m, G = _scaled_problem(_damping_data(rng))
+    solve = _sdp_paths.fit_compressed
+    reference = solve(R, r, m, "auto", 1e-9, False, "trace", "auto")
+
+    def failing(*args):
+        if args[6] in failed:
+            raise SolverError(f"clarabel failed on {args[6]}")
+        return solve(*args)
+
+    monkeypatch.setattr(_sdp_paths, "fit_compressed", failing)
+    failed = ("mass-eigenvalue",)
+    *mats, info = solve(R, r, m, "auto", 1e-9, False, "auto", "auto")
+    assert info["normalization"] == "trace"
+    assert info["normalization_failed"] == {"mass-eigenvalue": "clarabel failed on mass-eigenvalue"}
+    for got, want in zip(mats, reference[:3]):
+        np.testing.assert_array_equal(got, want)
+    failed = ("mass-eigenvalue", "trace")
+    with pytest.raises(SolverError, match="failed on trace"):
+        solve(R, r, m, "auto", 1e-9, False, "auto", "auto")

@@ -380,14 +380,23 @@ def fit_compressed(R: np.ndarray, r: int, m: int, method: str, tol: float, verbo
                          label="SDP normalized by Mr >= I, beside the trace one", mode="process")
               if side_by_side else None)
     try:
-        trace_fit = fit_compressed(R, r, m, method, tol, verbose, "trace", solver, progress)
-        eig_fit = (second.result(progress) if second is not None
-                   else fit_compressed(R, r, m, method, tol, verbose, "mass-eigenvalue", solver, progress))
+        trace_fit = _solved_or_error(fit_compressed, R, r, m, method, tol, verbose, "trace", solver, progress)
+        eig_fit = (_solved_or_error(second.result, progress) if second is not None
+                   else _solved_or_error(fit_compressed, R, r, m, method, tol, verbose, "mass-eigenvalue", solver,
+                                         progress))
     except BaseException:
         if second is not None:
             second.cancel()
         raise
     return choose_normalization(R, m, trace_fit, eig_fit)
+
+
+def _solved_or_error(solve: Callable[..., tuple], *args: Any) -> tuple | SolverError:
+    """``solve(*args)``, or the :class:`SolverError` it raised (the other normalization may still succeed)."""
+    try:
+        return solve(*args)
+    except SolverError as error:
+        return error
 
 
 def _with_objective(R: np.ndarray, r: int, m: int, fit: tuple) -> tuple:
@@ -398,9 +407,21 @@ def _with_objective(R: np.ndarray, r: int, m: int, fit: tuple) -> tuple:
     return (*mats, info)
 
 
-def choose_normalization(R: np.ndarray, m: int, trace_fit: tuple, eig_fit: tuple) -> tuple:
+def choose_normalization(R: np.ndarray, m: int, trace_fit: tuple | SolverError,
+                         eig_fit: tuple | SolverError) -> tuple:
     """``normalization="auto"``: of the two fits, the one with the smaller acceleration residual (inference
-    docstring, *Normalization*); its report carries the two solves' summed times and both residuals."""
+    docstring, *Normalization*); its report carries the two solves' summed times and both residuals.  Where one
+    normalization's solve failed (a :class:`SolverError` instead of a fit), the other is kept and its report says
+    why in ``normalization_failed``; where both failed, the trace one's error is raised.  (An undamped free-free
+    chain's free response: the ``Mr >= I`` solve was not certified and Clarabel failed on it, audit 2026-11-27.)"""
+    if isinstance(trace_fit, SolverError) and isinstance(eig_fit, SolverError):
+        raise trace_fit
+    for failed, kept in ((trace_fit, eig_fit), (eig_fit, trace_fit)):
+        if isinstance(failed, SolverError):
+            info = dict(kept[3])
+            other = "mass-eigenvalue" if info["normalization"] == "trace" else "trace"
+            info["normalization_failed"] = {other: str(failed)}
+            return (*kept[:3], info)
     residuals = {fit[3]["normalization"]: _acceleration_residual(R, m, fit[:3]) for fit in (trace_fit, eig_fit)}
     # differences below 1e-12 (of a relative residual) are round-off, e.g. both ~1e-15 on exact data: keep trace
     chosen = eig_fit if residuals["mass-eigenvalue"] < residuals["trace"] - _RESIDUAL_TIE else trace_fit
