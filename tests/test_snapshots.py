@@ -467,6 +467,26 @@ def test_builtin_free_response_with_input_none():
     assert np.abs(run.x).max() == 0.0  # the builtin systems start at rest
 
 
+def test_every_parameter_like_input_is_excluded_by_the_suggested_fix(tmp_path, monkeypatch):
+    """Audit 2026-11-27: of two parameters exposed as inputs, the error named only the one zero at the failing step
+    and suggested driving the other; that recorded another model without a word (ROM 120 % off).  The error now
+    excludes both, and driving an input that starts at a non-zero value is a warning."""
+    from fmu_opinf import lti_fmus, sources
+
+    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())
+    path = tmp_path / "parin.fmu"
+    lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="ParIn"), path, parameter_inputs=("mass_scale", "stiffness_scale"))
+    with pytest.warns(FmuOpinfWarning, match=r"driven input\(s\) mass_scale, stiffness_scale start at non-zero"):
+        with pytest.raises(StepError) as info:
+            source = sources.open_source(path, inputs="F,mass_scale,stiffness_scale")
+            record(source, "step:amplitude=1;step:amplitude=0;step:amplitude=1", 0.05, 1.0, quiet=True)
+    text = str(info.value)
+    assert "inputs mass_scale were set to 0" in text and "(and stiffness_scale, which start at non-zero" in text
+    assert "exclude them" in text and "with --inputs F and give their values with --set" in text
+    with pytest.warns(FmuOpinfWarning, match=r"driven input\(s\) stiffness_scale .* record with --inputs F and"):
+        sources.open_source(path, inputs="F,stiffness_scale")
+
+
 def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path, monkeypatch):
     from fmu_opinf import sources
 

@@ -166,9 +166,12 @@ def _warn_parameter_like(source: Source) -> None:
     from ..errors import FmuOpinfWarning
 
     held = list(getattr(source, "parameter_like_input_names", []) or [])
+    forces = list(getattr(source, "input_names", []) or [])
+    driven = [name for name in getattr(source, "_parameter_like", []) or [] if name in forces]
+    if driven:
+        _warn_driven_parameter_like(source, driven, forces)
     if not held:
         return
-    forces = list(getattr(source, "input_names", []) or [])
     key = (os.path.abspath(str(getattr(source, "path", ""))), tuple(held), tuple(forces))
     if key in _PARAMETER_LIKE_REPORTED:
         return
@@ -179,6 +182,26 @@ def _warn_parameter_like(source: Source) -> None:
                   "(parameters exposed as inputs?) and are held at them, not driven"
                   f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
                   f"values with --set, or drive them with --inputs {drive}", FmuOpinfWarning, stacklevel=3)
+
+
+def _warn_driven_parameter_like(source: Source, driven: list[str], forces: list[str]) -> None:
+    """One warning (once per process and FMU) for inputs chosen to be driven whose start values are not zero: a
+    training signal drives them from 0, so a parameter exposed as an input records another model (audit
+    2026-11-27: ``--inputs F,stiffness_scale`` recorded without a word and the ROM was 120 % off)."""
+    import warnings
+
+    from ..errors import FmuOpinfWarning
+
+    key = (os.path.abspath(str(getattr(source, "path", ""))), ("driven",) + tuple(driven), tuple(forces))
+    if key in _PARAMETER_LIKE_REPORTED:
+        return
+    _PARAMETER_LIKE_REPORTED.add(key)
+    rest = [name for name in forces if name not in driven]
+    fix = f"--inputs {','.join(rest)}" if rest else "--inputs none"
+    warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: the driven input(s) {', '.join(driven)} start "
+                  "at non-zero values, and the training signals drive them from 0: if they are parameters exposed "
+                  f"as inputs, the recording is of another model; record with {fix} and give their values with "
+                  "--set", FmuOpinfWarning, stacklevel=3)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",

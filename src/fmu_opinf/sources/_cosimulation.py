@@ -304,10 +304,12 @@ class FMUSource(Source):
         zeroed = [n for n in self._parameter_like if row[self.input_names.index(n)] == 0.0]
         if not zeroed:
             return ""
-        forces = [n for n in self.input_names if n not in zeroed]
+        forces = [n for n in self.input_names if n not in self._parameter_like]
         fix = f"--inputs {','.join(forces)}" if forces else "--input none (or --inputs none)"
+        others = [n for n in self._parameter_like if n not in zeroed]  # would fail or change the model next
+        also = f" (and {', '.join(others)}, which start at non-zero values too)" if others else ""
         return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
-                f"as inputs?): exclude them with {fix} and give their values with --set")
+                f"as inputs?): exclude them{also} with {fix} and give their values with --set")
 
     def provenance(self) -> dict[str, Any]:
         from .._hdf5 import sha256_of
