@@ -52,9 +52,9 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
                        help="relative tolerance of the model-exchange integration, also passed to the FMU "
                             "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
     group.add_argument("--me-method", dest="method", metavar="METHOD",
-                       help="integrator of model exchange: dop853 (default, explicit Runge-Kutta of order 8), "
-                            "radau, bdf, lsoda (for stiff models) or rk45; recorded in the provenance "
-                            "(docs/real-fmus.md)")
+                       help="integrator of model exchange: dop853 (default, explicit Runge-Kutta of order 8; "
+                            "also the fastest on the stiff models measured), lsoda, bdf, radau or rk45; recorded in "
+                            "the provenance (docs/real-fmus.md)")
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
