@@ -44,3 +44,21 @@ def test_report_path_that_is_a_file_fails_before_simulating(tmp_path):
     assert result.returncode == 2
     assert "report directory report is an existing file" in result.stderr
     assert (tmp_path / "report").read_text() == "keep me"
+
+
+def test_round_off_poles_of_a_free_free_rom_are_neither_unstable_nor_negatively_damped():
+    """Audit 2026-11-27: a free-free chain's ROM (PSD operators, a rigid-body mode) printed stable=False and
+    'damping ratios -1' for poles at +8.9e-16; the exact poles are 0 (double) and +-i sqrt(2) (undamped)."""
+    import numpy as np
+
+    from fmu_opinf.cli import _ROUNDING, _pole_summary
+    from fmu_opinf.inference import _pole_info
+    from fmu_opinf.rom import SecondOrderROM
+
+    M, D, K = np.eye(2), np.zeros((2, 2)), np.array([[1.0, -1.0], [-1.0, 1.0]])
+    info = _pole_info(M, D, K)
+    rom = SecondOrderROM(M, D, K, np.ones((2, 1)), np.ones((1, 2)), np.zeros((1, 2)))
+    assert rom.is_stable(tol=_ROUNDING)
+    line = _pole_summary(info["poles"])
+    assert "natural frequencies 1.41 .. 1.41 rad/s, damping ratios 0 .. 0; 2 zero pole(s) (rigid-body motion)" in line
+    assert "-1" not in line

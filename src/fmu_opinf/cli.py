@@ -261,7 +261,7 @@ def _run_fit(args: argparse.Namespace) -> None:
           f"[{info.get('solver')}, {info.get('normalization')} normalization, cones {', '.join(info.get('cones') or []) or 'none'}] "
           f"{info.get('status')} in {info.get('total_seconds', 0):.2f}s; eigenvalues min Mr "
           f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
-          f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable()}; extra terms "
+          f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable(tol=_ROUNDING)}; extra terms "
           f"{', '.join(extra) or 'none'}")
     if (info.get("least_squares_candidate") or {}).get("chosen"):
         print("kept the model started from the mechanical realization of least squares (modal coordinates): its "
@@ -269,19 +269,30 @@ def _run_fit(args: argparse.Namespace) -> None:
     print(_pole_summary(info.get("poles") or []))
 
 
+#: Real parts of poles up to this fraction of the largest pole magnitude are round-off of zero: a free-free
+#: structure's rigid-body poles came out at +8.9e-16 and the fit said ``stable=False`` and "damping ratios -1"
+#: of a model whose operators are PSD (audit 2026-11-27).
+_ROUNDING = 1e-12
+
+
 def _pole_summary(poles: list) -> str:
     """One line on the learned poles: natural frequencies and damping ratios (what a user checks against the
-    physics they know; the poles reproduce the input-output behaviour and need not be the full model's modes)."""
+    physics they know; the poles reproduce the input-output behaviour and need not be the full model's modes);
+    poles within :data:`_ROUNDING` of zero are counted as zero poles (rigid-body motion)."""
     import numpy as np
 
     values = np.array([complex(re, im) for re, im in poles])
-    values = values[np.abs(values) > 0]
+    zero = np.abs(values) <= _ROUNDING * max(float(np.abs(values).max(initial=0.0)), np.finfo(float).tiny)
+    rigid = f"; {int(zero.sum())} zero pole(s) (rigid-body motion)" if zero.any() else ""
+    values = values[~zero]
     if values.size == 0:
-        return "learned poles: none"
+        return f"learned poles: none{rigid}"
     omega = np.abs(values)
     zeta = -values.real / omega
+    zeta[np.abs(values.real) <= _ROUNDING * omega.max()] = 0.0  # undamped, up to round-off
     return (f"learned poles: {values.size} in the upper half plane, natural frequencies {omega.min():.3g} .. "
-            f"{omega.max():.3g} rad/s, damping ratios {zeta.min():.3g} .. {zeta.max():.3g} (fit_info['poles'])")
+            f"{omega.max():.3g} rad/s, damping ratios {zeta.min():.3g} .. {zeta.max():.3g}{rigid} "
+            "(fit_info['poles'])")
 
 
 def _run_compare(args: argparse.Namespace) -> None:
