@@ -169,3 +169,31 @@ def test_a_declared_step_is_kept_when_the_window_chooses_the_end(tmp_path):
     run = Snapshots.load(tmp_path / "train.h5").runs[0]
     assert run.attrs["dt"] == pytest.approx(0.01) and run.t[-1] > 10.0
     assert np.abs(run.u).max() == pytest.approx(100.0, rel=1e-12)  # the pulse's peak t = 2 lies on the grid
+
+
+def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
+    """Audit 2026-11-27: an FMU declaring stepSize=0.5 and stopTime=1 was recorded at its own step while the summary
+    printed 'auto window: dt=0.02', the window's step, and nothing said that 0.5 under-resolves its 1.3 Hz mode."""
+    import re
+    import zipfile
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import record_to_file
+
+    built = tmp_path / "built.fmu"
+    lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="DefStep"), built)
+    declared = tmp_path / "declared.fmu"
+    with zipfile.ZipFile(built) as given, zipfile.ZipFile(declared, "w", zipfile.ZIP_DEFLATED) as out:
+        for item in given.infolist():
+            data = given.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = re.sub(rb"<DefaultExperiment [^>]*/>",
+                              b'<DefaultExperiment startTime="0" stopTime="1.0" stepSize="0.5"/>', data)
+            out.writestr(item, data)
+    with pytest.warns(FmuOpinfWarning, match=r"stepSize=0.5 is the step recorded, coarser than the automatic "
+                                             r"window's dt=0.02 .* pass --dt 0.02"):
+        summary = record_to_file(declared, tmp_path / "s.h5", None, quiet=True)
+    text = summary.describe()
+    assert summary.dt == 0.5 and summary.window.dt == 0.02
+    assert "auto window for t_end only: dt=0.5 is the FMU's DefaultExperiment stepSize (the window's own: dt=0.02" in text

@@ -513,7 +513,8 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
                  overwrite: bool, window: "Window | None") -> "RecordSummary":
     """Stream every signal's run into one new file; stop at the first failing run (kept, incomplete)."""
     failure: StepError | None = None
-    summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window)
+    summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window,
+                            dt=float(t[1] - t[0]) if len(t) > 1 else None)
     with atomic(path, overwrite) as f:
         attrs = _file_attrs(source)
         attrs["dt"] = float(t[1] - t[0])
@@ -550,6 +551,7 @@ class RecordSummary:
     p: int
     window: "Window | None" = None
     runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
+    dt: float | None = None  # the step recorded (the FMU's declared one may stand beside the window's)
 
     def __str__(self) -> str:
         return str(self.path)
@@ -562,7 +564,10 @@ class RecordSummary:
         lines = [f"{self.path}: n={self.n}, m={self.m}, p={self.p}, {len(self.runs)} run(s)"]
         for index, (k, complete, spec) in enumerate(self.runs):
             lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)"))
-        if self.window is not None:
+        if self.window is not None and self.dt is not None and not math.isclose(self.dt, self.window.dt):
+            lines.append(f"  auto window for t_end only: dt={self.dt:g} is the FMU's DefaultExperiment stepSize "
+                         f"(the window's own: {self.window})")
+        elif self.window is not None:
             lines.append(f"  auto window: {self.window}")
         return "\n".join(lines)
 
@@ -676,6 +681,11 @@ def record_to_file(
             window, signals = _default_training_window(source, thresholds)
         else:
             window = combine_windows([choose_window(source, signal, **thresholds) for signal in representatives])
+        if dt is not None and dt > window.dt and declared_step is not None and dt == float(declared_step):
+            warnings.warn(f"{source_label(source)}: the FMU's DefaultExperiment stepSize={dt:g} is the step recorded, "
+                          f"coarser than the automatic window's dt={window.dt:g} ({window.points_per_period:g} points "
+                          f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
+                          f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
