@@ -309,6 +309,9 @@ def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
     signal = spec if isinstance(spec, Signal) else _stack([_parse_one(s) for s in str(spec).split(";")])
     if n_inputs is None or signal.n_inputs == n_inputs:
         return signal
+    if n_inputs == 0:  # broadcast to no channel it would vanish, and a report would name an input never applied
+        raise DimensionError(f"input {signal.spec!r} given, but the model has no inputs; give --input none (the free "
+                             "response from the start state)")
     if signal.n_inputs == 1:
         return _Broadcast(signal, n_inputs)
     raise DimensionError(f"input {signal.spec!r} has {signal.n_inputs} channels but the model has "
