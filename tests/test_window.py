@@ -355,3 +355,23 @@ def test_an_output_of_noise_does_not_set_the_step(gain, noise):
     window = auto_window(NoisySensor(1.0, 0.05, gain, noise), IMPULSE)
     assert (window.dt, window.t_end) == (alone.dt, alone.t_end)
     check_step(window, 1.0 / (2 * math.pi))
+
+
+def test_a_model_without_inputs_that_never_settles_is_told_to_pass_the_window(tmp_path):
+    """Audit 2026-11-27: a free-free chain without inputs, started with momentum, drifts for ever; the refusal
+    suggested 'an input on the model's time scale', which it cannot take.  It now asks for --dt and --t-end."""
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import DataError
+    from fmu_opinf.sources import open_source
+
+    M = np.diag([1.0, 1.5, 0.8, 1.2])
+    K = np.zeros((4, 4))
+    for i, k in enumerate([20.0, 30.0, 25.0]):
+        K[np.ix_([i, i + 1], [i, i + 1])] += k * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    Cp = np.zeros((2, 4))
+    Cp[0, 3] = Cp[1, 0] = 1.0
+    model = lti_fmus.LinearMechanicalModel(M=M, D=0.01 * K, K=K, Cp=Cp, x0=[0, 0.01, 0, -0.01],
+                                           v0=[0.1, 0, 0, 0.05], name="FreeFree")
+    lti_fmus.build_lti_fmu(model, tmp_path / "freefree.fmu")
+    with pytest.raises(DataError, match=r"within 2 pilot runs .*; pass --dt and --t-end \(the model has no inputs"):
+        auto_window(open_source(tmp_path / "freefree.fmu"), "none", max_pilots=2, quiet=True)

@@ -463,9 +463,11 @@ def auto_window(
                                  f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
                                  "model's time scale (a wider impulse, later t0), or --dt and --t-end")
         T = float(f"{T_next:.6g}")
+    fix = ("pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
+           "keeps the step small)" if source.m else
+           "pass --dt and --t-end (the model has no inputs: its free response from the start state is recorded)")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
-                    f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); pass --dt and --t-end, or an input on the model's "
-                    "time scale (a wider impulse, later t0: a narrow pulse keeps the step small)")
+                    f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); {fix}")
 
 
 #: Largest difference (relative to the peak) between the outputs of a co-simulation run at a step and at half
