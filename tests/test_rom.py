@@ -311,3 +311,15 @@ def test_r_above_rank_is_a_one_line_error(snapshot_file):
     rank = int(np.linalg.matrix_rank(run.x))
     with pytest.raises(DataError, match=rf"^r=60 exceeds the snapshot rank {rank}; choose r <= {rank}$"):
         fit_rom([run], r=60)
+
+
+def test_a_start_outside_the_truncated_basis_names_the_order_as_a_cause():
+    """Audit 2026-11-27: the source's start was the training start, only partly in the span of an r = 5 basis of a
+    20-mass chain, and the message blamed the constraint or data never trained on; it now names the order too."""
+    V = np.array([[1.0], [0.0]])  # r = 1 of n = 2
+    rom = SecondOrderROM(np.eye(1), np.eye(1), np.eye(1), np.ones((1, 1)), np.ones((1, 1)), np.zeros((1, 1)),
+                         basis=V)
+    assert rom.initial_state(np.array([2.0, 0.0]))[0][0] == 2.0
+    with pytest.raises(DataError, match=r"relative part outside 4.5e-01.*need more than the ROM's r=1 basis vectors.*"
+                                        r"fit with a larger r \(--r, --energy\)"):
+        rom.initial_state(np.array([2.0, 1.0]))

@@ -325,8 +325,10 @@ class SecondOrderROM:
             outside = float(np.linalg.norm(shifted - self.basis @ reduced))
             if outside > tol * max(float(np.linalg.norm(value)), float(np.linalg.norm(shifted)), 1e-300):
                 raise DataError(f"the initial {label} lie off the ROM's subspace (relative part outside "
-                                f"{outside / max(np.linalg.norm(shifted), 1e-300):.1e}): they violate the constraint "
-                                "or were never in the training data; start from a consistent state or retrain")
+                                f"{outside / max(np.linalg.norm(shifted), 1e-300):.1e}): they violate the constraint, "
+                                f"were never in the training data, or need more than the ROM's r={self.r} basis "
+                                "vectors (a start the training shared but the truncated basis misses); start from a "
+                                "consistent state, or fit with a larger r (--r, --energy)")
             if ref is not None:
                 q0 = reduced
             else:
