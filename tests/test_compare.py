@@ -3,6 +3,7 @@
 import json
 import shutil
 import subprocess
+import warnings
 
 import numpy as np
 import pytest
@@ -167,3 +168,20 @@ def test_an_output_offset_does_not_hide_the_error_of_its_motion():
     assert "offset hides the error in eq. (19)" in table and "y is 0.1 of its range off" in table
     plain = compare.error_metrics(np.sin(t)[None], 0.8 * np.sin(t)[None], ["y"])
     assert compare.offset_note(plain) is None
+
+
+def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
+    """Audit 2026-11-27: ``compare --set n=4`` of a ROM trained with ``n=3`` compared against another model without
+    a word (eps_y 0.56), and any ``--set`` dropped every other training setting."""
+    from fmu_opinf.compare import _training_settings
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    info = {"provenance": {"snapshots": {"source_kind": "fmu", "fmu_settings": {"n": "3", "x_start": "[0,1,0]"}}}}
+    with pytest.warns(FmuOpinfWarning, match=r"compared with n=4, but the ROM was trained with n=3"):
+        options = _training_settings(info, "model.fmu", {"parameters": {"n": "4"}})
+    assert options["parameters"] == {"n": "4", "x_start": "[0,1,0]"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        options = _training_settings(info, "model.fmu", {"parameters": {"x_start": "[0,1,0]", "damping": "2"}})
+    assert options["parameters"] == {"n": "3", "x_start": "[0,1,0]", "damping": "2"}
+    assert _training_settings(info, "model.fmu", None)["parameters"] == {"n": "3", "x_start": "[0,1,0]"}

@@ -476,8 +476,23 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
         if key not in options and pattern:
             options[key] = pattern
     settings = snapshots.get("fmu_settings")
-    if "parameters" not in options and isinstance(settings, dict) and settings:
-        options["parameters"] = dict(settings)
+    if not isinstance(settings, dict) or not settings:
+        return options
+    given_settings = options.get("parameters")
+    if not isinstance(given_settings, dict):
+        options.setdefault("parameters", dict(settings))
+        return options
+    changed = {name: value for name, value in given_settings.items()
+               if name in settings and str(value) != str(settings[name])}
+    if changed:
+        import warnings
+
+        from .errors import FmuOpinfWarning
+
+        warnings.warn("compared with " + ", ".join(f"{name}={value}" for name, value in changed.items())
+                      + ", but the ROM was trained with " + ", ".join(f"{name}={settings[name]}" for name in changed)
+                      + ": a ROM describes the model it was trained on", FmuOpinfWarning, stacklevel=3)
+    options["parameters"] = {**settings, **given_settings}  # the training's other settings stay as trained
     return options
 
 
