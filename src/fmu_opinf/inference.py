@@ -46,7 +46,11 @@ eq. (16)'s residual it is invariant to the common scale, so the two candidates a
 former threshold rule (``trace`` unless ``lambda_min / lambda_max(Mr) < 1e-3``), which flipped on noise and kept
 the collapsed trace solution at r = 10 on the triple chain (mass ratio 1.7e-3, error 2.1e-3).
 ``fit_info["normalization"]`` says which one produced the ROM, ``fit_info["acceleration_residual"]`` both
-criteria.  Either way the result is finally multiplied by one positive scalar so that ``trace(Mr) = mass_trace``.
+criteria.  Where one normalization's solve fails and the other's does not, the one that solved is kept
+(``fit_info["normalization_failed"]``; audit of 2026-11-27: an undamped free-free chain's free response, whose
+``Mr >= I`` solve was not certified and on which Clarabel then failed, ended the fit though the trace solve had
+its optimum).  Either way the result is finally multiplied by one positive scalar so that
+``trace(Mr) = mass_trace``.
 
 Output-error refinement (the default when the training time step and outputs are known)
 ---------------------------------------------------------------------------------------
@@ -768,7 +772,8 @@ def fit_operators(
     normalization : {"auto", "trace", "mass-eigenvalue"}, default="auto"
         How the homogeneous problem is made definite (module docstring, *Normalization*): ``"trace"`` is the
         paper's eq. (16) with ``trace(Mr)`` fixed; ``"mass-eigenvalue"`` requires ``Mr >= mu I``; ``"auto"``
-        solves both and keeps the one with the smaller acceleration residual.
+        solves both and keeps the one with the smaller acceleration residual, or the one that solved where the
+        other's solve failed (``info["normalization_failed"]`` says which and why).
     min_mass_ratio : float, default=1e-3
         Kept for backward compatibility; ``"auto"`` no longer uses a threshold.
     dt : float, optional
