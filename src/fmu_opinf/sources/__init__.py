@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputSpecError
-from ._base import Source, StepError, match_names, natural_key
+from ._base import Source, StepError, inputs_without, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
 from ._model_exchange import METHODS, ModelExchangeSource
@@ -159,49 +159,38 @@ _PARAMETER_LIKE_REPORTED: set[tuple[str, tuple[str, ...], tuple[str, ...]]] = se
 
 
 def _warn_parameter_like(source: Source) -> None:
-    """One warning (once per process and FMU: a run table opens the source per row) naming the inputs the
-    default selection holds for their non-zero start values."""
-    import warnings
-
-    from ..errors import FmuOpinfWarning
-
+    """At most one warning each (per process and FMU: a run table opens the source per row) naming the inputs the
+    default selection holds for their non-zero start values, and the inputs chosen to be driven although their
+    start values are not zero (a training signal drives them from 0: a parameter exposed as an input then records
+    another model; audit 2026-11-27: ``--inputs F,stiffness_scale`` without a word, the ROM 120 % off)."""
     held = list(getattr(source, "parameter_like_input_names", []) or [])
     forces = list(getattr(source, "input_names", []) or [])
-    driven = [name for name in getattr(source, "_parameter_like", []) or [] if name in forces]
+    driven = [name for name in getattr(source, "driven_parameter_like_names", []) or [] if name in forces]
     if driven:
-        _warn_driven_parameter_like(source, driven, forces)
-    if not held:
-        return
-    key = (os.path.abspath(str(getattr(source, "path", ""))), tuple(held), tuple(forces))
-    if key in _PARAMETER_LIKE_REPORTED:
-        return
-    _PARAMETER_LIKE_REPORTED.add(key)
-    shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
-    drive = ",".join(forces + held)
-    warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: input(s) {shown} start at non-zero values "
-                  "(parameters exposed as inputs?) and are held at them, not driven"
-                  f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
-                  f"values with --set, or drive them with --inputs {drive}", FmuOpinfWarning, stacklevel=3)
+        _warn_once(source, ("driven", *driven), forces,
+                   f"the driven input(s) {', '.join(driven)} start at non-zero values, and the training signals "
+                   "drive them from 0: if they are parameters exposed as inputs, the recording is of another model; "
+                   f"record with {inputs_without(forces, driven)} and give their values with --set")
+    if held:
+        shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
+        _warn_once(source, held, forces,
+                   f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
+                   f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
+                   f"give their values with --set, or drive them with --inputs {','.join(forces + held)}")
 
 
-def _warn_driven_parameter_like(source: Source, driven: list[str], forces: list[str]) -> None:
-    """One warning (once per process and FMU) for inputs chosen to be driven whose start values are not zero: a
-    training signal drives them from 0, so a parameter exposed as an input records another model (audit
-    2026-11-27: ``--inputs F,stiffness_scale`` recorded without a word and the ROM was 120 % off)."""
+def _warn_once(source: Source, named: list[str] | tuple[str, ...], forces: list[str], text: str) -> None:
+    """``text`` as a warning about ``source``'s FMU, unless this process said it already for these inputs."""
     import warnings
 
     from ..errors import FmuOpinfWarning
 
-    key = (os.path.abspath(str(getattr(source, "path", ""))), ("driven",) + tuple(driven), tuple(forces))
+    path = str(getattr(source, "path", ""))
+    key = (os.path.abspath(path), tuple(named), tuple(forces))
     if key in _PARAMETER_LIKE_REPORTED:
         return
     _PARAMETER_LIKE_REPORTED.add(key)
-    rest = [name for name in forces if name not in driven]
-    fix = f"--inputs {','.join(rest)}" if rest else "--inputs none"
-    warnings.warn(f"{os.path.basename(str(getattr(source, 'path', '')))}: the driven input(s) {', '.join(driven)} start "
-                  "at non-zero values, and the training signals drive them from 0: if they are parameters exposed "
-                  f"as inputs, the recording is of another model; record with {fix} and give their values with "
-                  "--set", FmuOpinfWarning, stacklevel=3)
+    warnings.warn(f"{os.path.basename(path)}: {text}", FmuOpinfWarning, stacklevel=4)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 
-__all__ = ["Source", "StepError", "match_names", "natural_key", "CONSTRAINTS", "check_constraint"]
+__all__ = ["Source", "StepError", "match_names", "natural_key", "CONSTRAINTS", "check_constraint", "inputs_without"]
 
 #: Constraint kinds a source may declare.
 CONSTRAINTS = ("position", "velocity", "none", "unknown")
@@ -282,3 +282,9 @@ def check_constraint(constraint: str | None, default: str) -> str:
     if value not in CONSTRAINTS:
         raise InputSpecError(f"constraint {constraint!r} is not one of {', '.join(CONSTRAINTS)}")
     return value
+
+
+def inputs_without(inputs: list[str], excluded: list[str]) -> str:
+    """The ``--inputs`` option that drives ``inputs`` but ``excluded`` (``--input none`` when none is left)."""
+    rest = [name for name in inputs if name not in excluded]
+    return f"--inputs {','.join(rest)}" if rest else "--input none (or --inputs none)"

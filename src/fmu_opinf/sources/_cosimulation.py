@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 from ..fmus import BASE_UNITS
-from ._base import Source, StepError, check_constraint
+from ._base import Source, StepError, check_constraint, inputs_without
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
@@ -223,7 +223,8 @@ class FMUSource(Source):
         self._read = ReadPlan(model, columns, structural)
         # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
         self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
-        self._parameter_like = [e.name for e in forces if nonzero_start(e)]
+        #: driven (force) inputs whose start value is not zero: parameters exposed as inputs, perhaps
+        self.driven_parameter_like_names = [e.name for e in forces if nonzero_start(e)]
 
     def reselect(self, positions: Any, velocities: Any, accelerations: str | None, reason: str) -> None:
         """Record other positions, velocities or accelerations from the next run on (the recorder's rate check
@@ -298,15 +299,14 @@ class FMUSource(Source):
                      else "pass a smaller --dt")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
                     f"that is unstable at this step: {other}")
-        if not self._parameter_like or U is None or not len(U):
+        if not self.driven_parameter_like_names or U is None or not len(U):
             return ""
         row = U[min(max(step, 0), len(U) - 1)]
-        zeroed = [n for n in self._parameter_like if row[self.input_names.index(n)] == 0.0]
+        zeroed = [n for n in self.driven_parameter_like_names if row[self.input_names.index(n)] == 0.0]
         if not zeroed:
             return ""
-        forces = [n for n in self.input_names if n not in self._parameter_like]
-        fix = f"--inputs {','.join(forces)}" if forces else "--input none (or --inputs none)"
-        others = [n for n in self._parameter_like if n not in zeroed]  # would fail or change the model next
+        fix = inputs_without(self.input_names, self.driven_parameter_like_names)
+        others = [n for n in self.driven_parameter_like_names if n not in zeroed]  # would fail or change the model next
         also = f" (and {', '.join(others)}, which start at non-zero values too)" if others else ""
         return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
                 f"as inputs?): exclude them{also} with {fix} and give their values with --set")
