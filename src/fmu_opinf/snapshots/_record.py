@@ -551,7 +551,7 @@ class RecordSummary:
     p: int
     window: "Window | None" = None
     runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
-    dt: float | None = None  # the step recorded (the FMU's declared one may stand beside the window's)
+    dt: float | None = None  # the step recorded (a given one may stand beside the window's)
 
     def __str__(self) -> str:
         return str(self.path)
@@ -565,8 +565,8 @@ class RecordSummary:
         for index, (k, complete, spec) in enumerate(self.runs):
             lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)"))
         if self.window is not None and self.dt is not None and not math.isclose(self.dt, self.window.dt):
-            lines.append(f"  auto window for t_end only: dt={self.dt:g} is the FMU's DefaultExperiment stepSize "
-                         f"(the window's own: {self.window})")
+            lines.append(f"  auto window for t_end only: dt={self.dt:g} as given (--dt, or the FMU's DefaultExperiment "
+                         f"stepSize; the window's own: {self.window})")
         elif self.window is not None:
             lines.append(f"  auto window: {self.window}")
         return "\n".join(lines)
@@ -671,7 +671,8 @@ def record_to_file(
     isolate = isolate and source.kind == "fmu"
     window = None
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
-    if dt is None and declared_step is not None and not auto_window:
+    step_declared = dt is None and declared_step is not None and not auto_window
+    if step_declared:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
     representatives = [signals[0]] if by_default else runs_by_inputs_driven(signals)
     if auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
@@ -681,7 +682,7 @@ def record_to_file(
             window, signals = _default_training_window(source, thresholds)
         else:
             window = combine_windows([choose_window(source, signal, **thresholds) for signal in representatives])
-        if dt is not None and dt > window.dt and declared_step is not None and dt == float(declared_step):
+        if step_declared and dt > window.dt:
             warnings.warn(f"{source_label(source)}: the FMU's DefaultExperiment stepSize={dt:g} is the step recorded, "
                           f"coarser than the automatic window's dt={window.dt:g} ({window.points_per_period:g} points "
                           f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
