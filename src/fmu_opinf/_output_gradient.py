@@ -158,7 +158,9 @@ def modal_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: lis
     mu, V, V_inv, gap = found
     modal_B, CV = V_inv @ B, C @ V
     S, N, value = np.zeros_like(gap), np.zeros(modal_B.shape, dtype=complex), 0.0
-    for (z0, u, _), err in zip(runs, errors or _output_errors(A, B, C, runs)):
+    if errors is None:
+        errors = _output_errors(A, B, C, runs)
+    for (z0, u, _), err in zip(runs, errors):
         value += float(np.sum(err * err))
         run_S, run_N = _modal_sums(mu, gap, V_inv @ z0, modal_B, CV, u, err)
         S += run_S
