@@ -36,6 +36,16 @@ def test_right_pairing_leaves_a_small_mismatch_and_wrong_ones_about_one(exact):
     assert relative[1:].min() > 2 * MISMATCH  # measured 0.57 .. 0.89
 
 
+def _mismatch_definition(x, v):
+    """Per row, the least relative misfit of the positions' increments by the trapezoidal, forward or backward rule,
+    on whole arrays (0 for a row that hardly moves): the definition the block sums must reproduce."""
+    dx = np.diff(x, axis=1)
+    rules = [0.5 * H * (v[:, :-1] + v[:, 1:]), H * v[:, :-1], H * v[:, 1:]]
+    scale = np.maximum(np.linalg.norm(dx, axis=1), np.linalg.norm(rules[0], axis=1))
+    residual = np.min([np.linalg.norm(dx - rule, axis=1) for rule in rules], axis=0)
+    return np.where(scale > 1e-8 * scale.max(), residual / scale, 0.0)
+
+
 def test_rate_mismatch_in_blocks_is_its_definition_over_the_whole_run(exact):
     """The check sums squares block by block (600 x 4000 samples: 14 -> 9 ms); against the definition evaluated
     on whole arrays, with a last block of 1 sample and rows on either side of the quiet threshold."""
@@ -46,11 +56,7 @@ def test_rate_mismatch_in_blocks_is_its_definition_over_the_whole_run(exact):
     x, v = x[:, :k].copy(), v[::-1, :k].copy()
     x[4] *= 1e-9  # hardly moves: not judged (0)
     v[4] *= 1e-9
-    dx = np.diff(x, axis=1)
-    rules = [0.5 * H * (v[:, :-1] + v[:, 1:]), H * v[:, :-1], H * v[:, 1:]]
-    scale = np.maximum(np.linalg.norm(dx, axis=1), np.linalg.norm(rules[0], axis=1))
-    residual = np.min([np.linalg.norm(dx - rule, axis=1) for rule in rules], axis=0)
-    expected = np.where(scale > 1e-8 * scale.max(), residual / scale, 0.0)
+    expected = _mismatch_definition(x, v)
     assert expected[4] == 0 and expected.max() > MISMATCH
     np.testing.assert_allclose(rate_mismatch(x, v, H), expected, rtol=1e-15, atol=0)  # measured 2.4e-16
 
@@ -86,7 +92,8 @@ def test_rate_sums_fed_chunk_by_chunk_equal_the_checks_over_whole_arrays(exact, 
             for part, z in zip(recorded, (x, v, accelerations)):
                 part[:, :available] = z[:, :available]
             sums.feed(*recorded, available)
-        np.testing.assert_array_equal(sums.mismatch(), rate_mismatch(x[rows], v[rows], H))
+        np.testing.assert_array_equal(sums.mismatch(), rate_mismatch(x[rows], v[rows], H))  # fed at once
+        np.testing.assert_allclose(sums.mismatch(), _mismatch_definition(x[rows], v[rows]), rtol=1e-15, atol=0)
         assert sums.stale(v[rows], u) == stale_rates(v[rows], accelerations[rows], H, u) == (accelerations is stale)
 
 
