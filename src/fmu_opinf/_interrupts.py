@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import signal as _signal
+import sys
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -44,7 +45,9 @@ def _in_main_thread() -> bool:
 @contextlib.contextmanager
 def remembered_interrupts() -> Iterator[None]:
     """SIGINT raises :class:`~fmu_opinf.errors.Interrupted` at once and stays pending for :func:`check_interrupt`
-    until the block ends (a raise that Python swallows in a finalizer is raised again at the next safe point).
+    until the block ends (a raise that Python swallows in a finalizer is raised again at the next safe point, and
+    not printed as "Exception ignored"); an error that leaves the block while it is pending is reported as the
+    interrupt.
 
     Only in the main thread and when SIGINT is not ignored; otherwise nothing changes.
     """
@@ -58,12 +61,31 @@ def remembered_interrupts() -> Iterator[None]:
         raise Interrupted(signum)
 
     previous = _signal.signal(_signal.SIGINT, handler)
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_remembered(previous_hook)
     try:
         yield
         check_interrupt()  # swallowed in a finalizer after the last safe point: the run still ends interrupted
+    except Exception as exc:
+        if _pending:  # its echo: a class whose creation the raise interrupted gives a RuntimeError, for instance
+            raise Interrupted(_pending[0]) from exc
+        raise
     finally:
         _signal.signal(_signal.SIGINT, previous)
+        sys.unraisablehook = previous_hook
         _pending.clear()
+
+
+def _quiet_about_remembered(previous_hook: Any) -> Any:
+    """An unraisable hook that drops :class:`~fmu_opinf.errors.Interrupted`: Python swallows a raise inside a
+    finalizer and would print its traceback, but the signal is pending and raised again at the next safe point."""
+
+    def hook(unraisable: Any) -> None:
+        if isinstance(unraisable.exc_value, Interrupted) and _pending:
+            return
+        previous_hook(unraisable)
+
+    return hook
 
 
 @contextlib.contextmanager
