@@ -337,13 +337,60 @@ def test_a_fork_server_killed_during_a_run_is_named_and_the_next_run_restarts_it
     if _isolation._process_context().get_start_method() != "forkserver":
         pytest.skip("another fork server runs in this process")
     server = forkserver._forkserver._forkserver_pid
-    killer = threading.Timer(0.3, os.kill, (server, 9))
-    killer.start()
+    stop = threading.Event()
+    killer = threading.Thread(target=_kill_once_it_forked, args=(server, stop))
+    killer.start()  # not after a fixed delay: on a loaded machine the run had not started yet, or had ended
     try:
         with pytest.raises(FMUError, match="fork server .* stopped during the run"):
             record(FMUSource(toys["fmi3"]), signal, 1e-5, 30.0, quiet=True, isolate=True)
     finally:
-        killer.cancel()
+        stop.set()
+        killer.join()
+    run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
+    assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
+
+
+def _kill_once_it_forked(server: int, stop) -> None:
+    """SIGKILL the fork server once it has a child (the run's) that has run for 0.2 s."""
+    import time
+
+    children = Path(f"/proc/{server}/task/{server}/children")
+    while not stop.is_set():
+        if children.read_text().split():
+            time.sleep(0.2)
+            os.kill(server, 9)
+            return
+        time.sleep(0.01)
+
+
+def test_a_fork_server_that_dies_as_a_run_is_handed_to_it_is_named(toys, monkeypatch):
+    """The server killed between taking a run's request and reading the run: a BrokenPipeError traceback before
+    (seen on a loaded machine); now the one-line error that names the server, and the next run starts a new one."""
+    import time
+    from multiprocessing import forkserver
+
+    from fmu_opinf.errors import FMUError
+    from fmu_opinf.snapshots import _isolation
+
+    monkeypatch.setitem(_isolation._FORK_SERVER, "enabled", True)
+    signal = SignalStub(amplitude=1.0, t0=0.35)
+    record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True)  # starts the server
+    if _isolation._process_context().get_start_method() != "forkserver":
+        pytest.skip("another fork server runs in this process")
+    server = forkserver._forkserver._forkserver_pid
+    handed_over = forkserver.connect_to_new_process
+
+    def then_lose_the_server(fds):
+        pipes = handed_over(fds)
+        os.kill(server, 9)
+        while Path(f"/proc/{server}/stat").read_text().split()[2] != "Z":
+            time.sleep(0.01)
+        return pipes
+
+    monkeypatch.setattr(forkserver, "connect_to_new_process", then_lose_the_server)
+    with pytest.raises(FMUError, match="fork server .* stopped"):
+        record(FMUSource(toys["fmi3"]), signal, 1e-5, 30.0, quiet=True, isolate=True)
+    monkeypatch.setattr(forkserver, "connect_to_new_process", handed_over)
     run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
     assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
 

@@ -151,7 +151,13 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     i0 = 0
     try:
         with _signals_blocked(), _main_not_rerun(source):  # the child starts with SIGINT/SIGTERM blocked
-            proc.start()
+            try:
+                proc.start()
+            except (OSError, EOFError):  # the fork server died as the run was handed to it
+                if not (forked and _server_dead()):
+                    raise
+                raise FMUError(f"the fork server of fmu-opinf's simulation processes stopped as the run of "
+                               f"{source_label(source)} started; the run was stopped, run the command again") from None
         there.close()
         while True:
             message = _receive(here, proc, deadline)
@@ -253,27 +259,32 @@ def _process_context() -> Any:
 
 def _server_lost(proc: Any) -> bool:
     """Whether the fork server died (its children then report exit code 255); its orphaned child is killed."""
+    if proc.exitcode != 255 or not _server_dead():
+        return False
+    with contextlib.suppress(ProcessLookupError, PermissionError):  # it may still be running
+        os.kill(proc.pid, _signal.SIGKILL)
+    return True
+
+
+def _server_dead() -> bool:
+    """Whether multiprocessing's fork server died; then it is forgotten, and the next run starts a new one."""
     from multiprocessing import forkserver
 
     server = getattr(forkserver, "_forkserver", None)
-    if proc.exitcode != 255 or server is None:
+    if server is None:
         return False
     with server._lock:  # the lock multiprocessing takes to start the server: no run restarts it meanwhile
         pid = server._forkserver_pid
         if pid is None:
-            dead = True  # another thread found it dead and reset it
-        else:
-            try:
-                dead = os.waitpid(pid, os.WNOHANG)[0] != 0
-            except ChildProcessError:
-                dead = True
-            if dead:  # multiprocessing starts a new server at the next run
-                with contextlib.suppress(OSError, TypeError):
-                    os.close(server._forkserver_alive_fd)
-                server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
-    if dead:  # its child may still be running
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.kill(proc.pid, _signal.SIGKILL)
+            return True  # another thread found it dead and reset it
+        try:
+            dead = os.waitpid(pid, os.WNOHANG)[0] != 0
+        except ChildProcessError:
+            dead = True
+        if dead:
+            with contextlib.suppress(OSError, TypeError):
+                os.close(server._forkserver_alive_fd)
+            server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
     return dead
 
 
