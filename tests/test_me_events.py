@@ -269,6 +269,44 @@ def test_a_crossing_is_located_with_scipys_integrators_too(fmus):
 
 # ------------------------------------------------------------------------------ no events, no cost
 
+@pytest.mark.parametrize("isolate", [False, True], ids=["in-process", "isolated"])
+def test_the_events_of_a_run_are_counted_stored_and_said_once(fmus, isolate):
+    """A linear ROM cannot follow a model that switches: the recording says when it had events (the count came
+    from the isolated child too) and stores them per run; the time is the exact solution's crossing."""
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    source = ModelExchangeSource(fmus[("3.0", "state")])
+    with pytest.warns(FmuOpinfWarning, match=r"had 1 event\(s\) during the run .* first at t=(\S+)\)") as seen:
+        snaps = record(source, INPUT, DT, T_END, quiet=True, isolate=isolate)
+        record(source, INPUT, DT, T_END, quiet=True, isolate=isolate)   # said once per source, not per run
+    run = snaps.runs[0]
+    t_cross = first_crossing(two_masses(), run.t, held_inputs(run), STATE)
+    assert run.attrs["events"] == 1 and abs(run.attrs["first_event_t"] - t_cross) < 5e-11
+    assert len([w for w in seen if "event(s)" in str(w.message)]) == 1
+    timed = record(ModelExchangeSource(fmus[("2.0", "time")]), INPUT, DT, T_END, quiet=True, isolate=isolate)
+    assert timed.runs[0].attrs["events"] == 1 and timed.runs[0].attrs["first_event_t"] == T_EVENT
+
+
+def test_the_recording_summary_counts_each_run_s_events(fmus, tmp_path):
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    with pytest.warns(UserWarning, match="event"):
+        summary = record_to_file(ModelExchangeSource(fmus[("2.0", "time")]), tmp_path / "s.h5", [INPUT, "none"],
+                                 dt=DT, t_end=T_END, quiet=True)
+    assert summary.events == [1, 1] and summary.describe().count(", 1 event(s)") == 2
+    assert [r.attrs["events"] for r in Snapshots.load(tmp_path / "s.h5").runs] == [1, 1]
+
+
+def test_a_run_without_events_says_nothing_and_co_simulation_stores_no_count(fmus, recwarn):
+    plain = record(ModelExchangeSource(fmus[("2.0", "plain")]), INPUT, DT, T_END, quiet=True).runs[0]
+    assert plain.attrs["events"] == 0 and "first_event_t" not in plain.attrs
+    from fmu_opinf.sources import FMUSource
+
+    cosim = record(FMUSource(fmus[("2.0", "state")]), INPUT, DT, T_END, quiet=True).runs[0]
+    assert "events" not in cosim.attrs   # a co-simulation FMU handles its events unseen: no count is not zero
+    assert not [w for w in recwarn if "event(s)" in str(w.message)]
+
+
 def test_an_fmu_without_events_never_asks_for_event_indicators(fmus, monkeypatch):
     calls = {"_integrate_with_events": 0, "_read_indicators": 0}
     for name in calls:

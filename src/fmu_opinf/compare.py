@@ -279,6 +279,7 @@ class _RowBuffer:
         self.block = block
         self.buffer = np.empty((block, width))
         self.seconds: float | None = None  # set by an isolated producer: the child's stepping time
+        self.events: tuple[int, float | None] | None = None  # set by the producers (not reported by compare)
 
     def rows(self, i0: int, count: int) -> np.ndarray:
         return self.buffer[:count]

@@ -54,6 +54,7 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
                 raise
             yield i, count
             i += count
+        sink.events = source.events_seen()
     finally:
         source.close()
 
@@ -121,7 +122,8 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
             i += c
             conn.send(("block", c))
             conn.recv()
-        conn.send(("done", _time.perf_counter() - started))  # stepping time without process start-up
+        # stepping time without process start-up, and the events the model had
+        conn.send(("done", _time.perf_counter() - started, source.events_seen()))
     finally:
         source.close()
 
@@ -187,7 +189,8 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
             if message[0] == "error":
                 raise _error_class(message[1])(message[2])
             if message[0] == "done":
-                sink.seconds = message[1] if len(message) > 1 else None
+                sink.seconds = message[1]
+                sink.events = message[2]
                 return
             i0 += valid
             here.send("ack")

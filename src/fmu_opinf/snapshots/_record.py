@@ -19,6 +19,7 @@ import os
 import sys
 import time as _time
 import warnings
+import weakref
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
@@ -70,6 +71,7 @@ class _Sink:
         self.t, self.u = t, u
         self.count = 0
         self.block = _block_rows(self.width, self.k)
+        self.events: tuple[int, float | None] | None = None  # the producer's: Source.events_seen at the end
 
     @functools.cached_property
     def continuous(self) -> bool:
@@ -276,6 +278,8 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
+    if attrs.get("events") and not pilot:
+        _warn_events(source, attrs)
     if failure is None:
         repair = judge_run(source, run, t, repairs, strict=not pilot, sums=sums)
         if repair is not None:
@@ -287,6 +291,23 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
             return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1, pilot)
     return run, failure
+
+
+#: Sources whose events were reported already (once per recording, not once per run).
+_EVENTS_REPORTED: "weakref.WeakSet[Source]" = weakref.WeakSet()
+
+
+def _warn_events(source: Source, attrs: dict[str, Any]) -> None:
+    """Say, once per source, that the model had events during a run: what a linear ROM does with them, and how
+    to check (each run's count is in its attributes: ``events``, ``first_event_t``)."""
+    if source in _EVENTS_REPORTED:
+        return
+    _EVENTS_REPORTED.add(source)
+    warnings.warn(f"{source_label(source)} had {attrs['events']} event(s) during the run of {attrs['input_spec']} "
+                  f"(the first at t={attrs['first_event_t']:g}): the model changes discretely there (switching, "
+                  "contact, friction, stops, a sampled controller or a table), which a linear ROM cannot follow; "
+                  "it fits one linear model to both sides, so compare the ROM on inputs that cross the events and "
+                  "on inputs that do not", FmuOpinfWarning, stacklevel=3)
 
 
 @contextlib.contextmanager
@@ -339,6 +360,10 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
     attrs["created"] = attrs["versions"]["created"]
     if failure is not None:
         attrs["error"] = str(failure)
+    if sink.events is not None:  # a model-exchange FMU's: co-simulation ones handle theirs unseen
+        attrs["events"] = int(sink.events[0])
+        if sink.events[1] is not None:
+            attrs["first_event_t"] = float(sink.events[1])
     return attrs
 
 
@@ -532,6 +557,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             if window is not None:
                 group.attrs["auto_window"] = json.dumps(window.as_dict())
             summary.runs.append((run.k, run.complete, run.attrs["input_spec"]))
+            summary.events.append(run.attrs.get("events"))
             if failure is not None:
                 failure = incomplete_error(failure, run, path)
                 break
@@ -552,6 +578,7 @@ class RecordSummary:
     window: "Window | None" = None
     runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
     dt: float | None = None  # the step recorded (a given one may stand beside the window's)
+    events: list[int | None] = dataclasses.field(default_factory=list)  # per run; None: not seen (co-simulation)
 
     def __str__(self) -> str:
         return str(self.path)
@@ -563,7 +590,9 @@ class RecordSummary:
         """Several lines: sizes, one line per run, the automatic window."""
         lines = [f"{self.path}: n={self.n}, m={self.m}, p={self.p}, {len(self.runs)} run(s)"]
         for index, (k, complete, spec) in enumerate(self.runs):
-            lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)"))
+            events = self.events[index] if index < len(self.events) else None
+            lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)")
+                         + (f", {events} event(s)" if events else ""))
         if self.window is not None and self.dt is not None and not math.isclose(self.dt, self.window.dt):
             lines.append(f"  auto window for t_end only: dt={self.dt:g} as given (--dt, or the FMU's DefaultExperiment "
                          f"stepSize; the window's own: {self.window})")

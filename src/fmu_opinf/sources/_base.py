@@ -187,6 +187,11 @@ class Source:
         """Where the data come from (source kind, path, checksums, ...)."""
         raise NotImplementedError
 
+    def events_seen(self) -> tuple[int, float | None] | None:
+        """Events the model had since :meth:`start` (how many, and the time of the first), or None where the
+        source cannot see them (a co-simulation FMU handles its events inside ``doStep``)."""
+        return None
+
     def recipe(self) -> tuple[type, dict[str, Any]]:
         """Class and keywords that rebuild this source in another process."""
         raise NotImplementedError

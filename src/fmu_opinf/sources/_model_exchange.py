@@ -120,6 +120,9 @@ class ModelExchangeSource(FMUSource):
         prov["integrator"] = _COMPILED_DOP853_TEXT if compiled else _INTEGRATOR_TEXT[self.method]
         return prov
 
+    def events_seen(self) -> tuple[int, float | None] | None:
+        return getattr(self, "_events", (0, None))
+
     # -- loading ----------------------------------------------------------------------------
     def _fmpy_class(self) -> tuple[type, dict[str, Any]]:
         if self.fmi_version.startswith("2"):
@@ -153,6 +156,7 @@ class ModelExchangeSource(FMUSource):
         self._t_next = math.inf
         self._event_iteration()
         self._fmu.enterContinuousTimeMode()
+        self._events: tuple[int, float | None] = (0, None)  # handled during the run (initialization's not)
         self.nx = self._state_count()
         self.nz = self._indicator_count()
         self._z = np.zeros(self.nz)       # event indicators at the start of the current interval
@@ -380,6 +384,8 @@ class ModelExchangeSource(FMUSource):
         Whatever goes wrong is a :class:`StepError`, so the recorder keeps the samples before it."""
         from fmpy.fmi1 import FMICallException
 
+        count, first = self._events
+        self._events = (count + 1, t if first is None else first)
         try:
             self._fmu.enterEventMode()
             nominals_changed = self._event_iteration()
