@@ -10,7 +10,9 @@ the kernel steps a real modal (2 x 2 block-diagonal) form of the step map, O(r) 
 outputs through the transformed output matrix and ``q, q', q''`` rebuilt only when read, if that form
 reproduces the step map to 1e-12 (:func:`fmu_opinf._recursion.modal_form`); otherwise, and at other
 step sizes, it solves as before.
-Inputs and outputs keep the source FMU's names and order; optional extra outputs
+Inputs and outputs keep the source FMU's names and order; each input starts at 0, whatever the source FMU
+declares: the recording drives every force input from 0 (and warns where an FMU's input starts elsewhere), so 0
+is the input the ROM's start state was learned with.  Optional extra outputs
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
 modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
