@@ -366,7 +366,6 @@ def _kill_once_it_forked(server: int, stop) -> None:
 def test_a_fork_server_that_dies_as_a_run_is_handed_to_it_is_named(toys, monkeypatch):
     """The server killed between taking a run's request and reading the run: a BrokenPipeError traceback before
     (seen on a loaded machine); now the one-line error that names the server, and the next run starts a new one."""
-    import time
     from multiprocessing import forkserver
 
     from fmu_opinf.errors import FMUError
@@ -377,22 +376,21 @@ def test_a_fork_server_that_dies_as_a_run_is_handed_to_it_is_named(toys, monkeyp
     record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True)  # starts the server
     if _isolation._process_context().get_start_method() != "forkserver":
         pytest.skip("another fork server runs in this process")
-    server = forkserver._forkserver._forkserver_pid
     handed_over = forkserver.connect_to_new_process
 
     def then_lose_the_server(fds):
         pipes = handed_over(fds)
-        os.kill(server, 9)
-        while Path(f"/proc/{server}/stat").read_text().split()[2] != "Z":
-            time.sleep(0.01)
+        os.kill(forkserver._forkserver._forkserver_pid, 9)  # no wait: its pipes break before it has exited
         return pipes
 
-    monkeypatch.setattr(forkserver, "connect_to_new_process", then_lose_the_server)
-    with pytest.raises(FMUError, match="fork server .* stopped"):
-        record(FMUSource(toys["fmi3"]), signal, 1e-5, 30.0, quiet=True, isolate=True)
-    monkeypatch.setattr(forkserver, "connect_to_new_process", handed_over)
-    run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
-    assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
+    for _ in range(3):  # a review saw 1 BrokenPipeError in 40 while the dead server was not reaped yet
+        server = forkserver._forkserver._forkserver_pid
+        monkeypatch.setattr(forkserver, "connect_to_new_process", then_lose_the_server)
+        with pytest.raises(FMUError, match="fork server .* stopped"):
+            record(FMUSource(toys["fmi3"]), signal, 1e-5, 30.0, quiet=True, isolate=True)
+        monkeypatch.setattr(forkserver, "connect_to_new_process", handed_over)
+        run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
+        assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
 
 # ------------------------------------------------------------------------------- command-line entry, auto window
 

@@ -60,10 +60,12 @@ def remembered_interrupts() -> Iterator[None]:
             _pending.append(signum)
         raise Interrupted(signum)
 
-    previous = _signal.signal(_signal.SIGINT, handler)
     previous_hook = sys.unraisablehook
-    sys.unraisablehook = _quiet_about_remembered(previous_hook)
-    try:
+    quiet_hook = _quiet_about_remembered(previous_hook)
+    previous = _signal.getsignal(_signal.SIGINT)
+    try:  # installed inside: a Ctrl-C between the two still restores both
+        _signal.signal(_signal.SIGINT, handler)
+        sys.unraisablehook = quiet_hook
         yield
         check_interrupt()  # swallowed in a finalizer after the last safe point: the run still ends interrupted
     except Exception as exc:

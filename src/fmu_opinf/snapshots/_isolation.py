@@ -54,8 +54,8 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
                 raise
             yield i, count
             i += count
-        sink.events = source.events_seen()
     finally:
+        sink.events = source.events_seen()  # also those before a failure
         source.close()
 
 
@@ -117,7 +117,7 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
             try:
                 source.advance(rows, i, c, published=count)
             except StepError as exc:
-                conn.send(("fail", str(exc), exc.step, exc.time))
+                conn.send(("fail", str(exc), exc.step, exc.time, source.events_seen()))
                 return
             i += c
             conn.send(("block", c))
@@ -156,7 +156,7 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
             try:
                 proc.start()
             except (OSError, EOFError):  # the fork server died as the run was handed to it
-                if not (forked and _server_dead()):
+                if not (forked and _server_dead(_SERVER_EXIT_WAIT)):
                     raise
                 raise FMUError(f"the fork server of fmu-opinf's simulation processes stopped as the run of "
                                f"{source_label(source)} started; the run was stopped, run the command again") from None
@@ -185,6 +185,7 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                                    "again")
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
             if message[0] == "fail":
+                sink.events = message[4] if len(message) > 4 else None  # the events before the failure
                 raise StepError(message[1], message[2], message[3])
             if message[0] == "error":
                 raise _error_class(message[1])(message[2])
@@ -260,35 +261,45 @@ def _process_context() -> Any:
     return mp.get_context("spawn")
 
 
+#: Seconds a fork server that broke its pipes is given to exit: a killed process closes them before it is a zombie.
+_SERVER_EXIT_WAIT = 2.0
+
+
 def _server_lost(proc: Any) -> bool:
     """Whether the fork server died (its children then report exit code 255); its orphaned child is killed."""
-    if proc.exitcode != 255 or not _server_dead():
+    if proc.exitcode != 255 or not _server_dead(_SERVER_EXIT_WAIT):
         return False
     with contextlib.suppress(ProcessLookupError, PermissionError):  # it may still be running
         os.kill(proc.pid, _signal.SIGKILL)
     return True
 
 
-def _server_dead() -> bool:
-    """Whether multiprocessing's fork server died; then it is forgotten, and the next run starts a new one."""
+def _server_dead(wait: float = 0.0) -> bool:
+    """Whether multiprocessing's fork server died (waiting up to ``wait`` seconds for it to exit); then it is
+    forgotten, and the next run starts a new one."""
     from multiprocessing import forkserver
 
     server = getattr(forkserver, "_forkserver", None)
     if server is None:
         return False
-    with server._lock:  # the lock multiprocessing takes to start the server: no run restarts it meanwhile
-        pid = server._forkserver_pid
-        if pid is None:
-            return True  # another thread found it dead and reset it
-        try:
-            dead = os.waitpid(pid, os.WNOHANG)[0] != 0
-        except ChildProcessError:
-            dead = True
-        if dead:
-            with contextlib.suppress(OSError, TypeError):
-                os.close(server._forkserver_alive_fd)
-            server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
-    return dead
+    deadline = _time.monotonic() + wait
+    while True:
+        with server._lock:  # the lock multiprocessing takes to start the server: no run restarts it meanwhile
+            pid = server._forkserver_pid
+            if pid is None:
+                return True  # another thread found it dead and reset it
+            try:
+                dead = os.waitpid(pid, os.WNOHANG)[0] != 0
+            except ChildProcessError:
+                dead = True
+            if dead:
+                with contextlib.suppress(OSError, TypeError):
+                    os.close(server._forkserver_alive_fd)
+                server._forkserver_pid = server._forkserver_alive_fd = server._forkserver_address = None
+                return True
+        if _time.monotonic() >= deadline:
+            return False
+        _time.sleep(0.005)
 
 
 class _Inherited:
