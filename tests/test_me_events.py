@@ -269,8 +269,16 @@ def test_a_crossing_is_located_with_scipys_integrators_too(fmus):
 
 # ------------------------------------------------------------------------------ no events, no cost
 
+@pytest.fixture
+def events_unsaid(monkeypatch):
+    """The events of every FMU not yet reported in this process (they are said once per FMU and process)."""
+    from fmu_opinf.snapshots import _record
+
+    monkeypatch.setattr(_record, "_EVENTS_REPORTED", set())
+
+
 @pytest.mark.parametrize("isolate", [False, True], ids=["in-process", "isolated"])
-def test_the_events_of_a_run_are_counted_stored_and_said_once(fmus, isolate):
+def test_the_events_of_a_run_are_counted_stored_and_said_once(fmus, isolate, events_unsaid):
     """A linear ROM cannot follow a model that switches: the recording says when it had events (the count came
     from the isolated child too) and stores them per run; the time is the exact solution's crossing."""
     from fmu_opinf.errors import FmuOpinfWarning
@@ -278,7 +286,8 @@ def test_the_events_of_a_run_are_counted_stored_and_said_once(fmus, isolate):
     source = ModelExchangeSource(fmus[("3.0", "state")])
     with pytest.warns(FmuOpinfWarning, match=r"had 1 event\(s\) during the run .* first at t=(\S+)\)") as seen:
         snaps = record(source, INPUT, DT, T_END, quiet=True, isolate=isolate)
-        record(source, INPUT, DT, T_END, quiet=True, isolate=isolate)   # said once per source, not per run
+        record(ModelExchangeSource(fmus[("3.0", "state")]), INPUT, DT, T_END, quiet=True,
+               isolate=isolate)   # said once per FMU, not per run (a row of --runs opens a source of its own)
     run = snaps.runs[0]
     t_cross = first_crossing(two_masses(), run.t, held_inputs(run), STATE)
     assert run.attrs["events"] == 1 and abs(run.attrs["first_event_t"] - t_cross) < 5e-11
@@ -287,7 +296,7 @@ def test_the_events_of_a_run_are_counted_stored_and_said_once(fmus, isolate):
     assert timed.runs[0].attrs["events"] == 1 and timed.runs[0].attrs["first_event_t"] == T_EVENT
 
 
-def test_the_recording_summary_counts_each_run_s_events(fmus, tmp_path):
+def test_the_recording_summary_counts_each_run_s_events(fmus, tmp_path, events_unsaid):
     from fmu_opinf.snapshots import Snapshots, record_to_file
 
     with pytest.warns(UserWarning, match="event"):
@@ -297,7 +306,7 @@ def test_the_recording_summary_counts_each_run_s_events(fmus, tmp_path):
     assert [r.attrs["events"] for r in Snapshots.load(tmp_path / "s.h5").runs] == [1, 1]
 
 
-def test_a_run_without_events_says_nothing_and_co_simulation_stores_no_count(fmus, recwarn):
+def test_a_run_without_events_says_nothing_and_co_simulation_stores_no_count(fmus, recwarn, events_unsaid):
     plain = record(ModelExchangeSource(fmus[("2.0", "plain")]), INPUT, DT, T_END, quiet=True).runs[0]
     assert plain.attrs["events"] == 0 and "first_event_t" not in plain.attrs
     from fmu_opinf.sources import FMUSource

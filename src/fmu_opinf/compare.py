@@ -407,7 +407,7 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
     try:  # a source whose state cannot be read this way (an exported ROM FMU) starts where the ROM does
         fom = open_source(source, **keep)
         run, failure = record_run(fom, signal, t[:2], MemorySink, True, bool(options.get("isolate", True)),
-                                  "initial state of the source")  # isolated like the comparison's own run
+                                  "initial state of the source", say_events=False)  # isolated like compare's run
         fom.close()
     except FmuOpinfError:
         return None

@@ -19,7 +19,6 @@ import os
 import sys
 import time as _time
 import warnings
-import weakref
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
 from pathlib import Path
@@ -242,7 +241,7 @@ def _as_received(source: Source, u: np.ndarray) -> np.ndarray:
 
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
                 isolate: bool, label: str = "recording", repairs: int = 0,
-                pilot: bool = False) -> tuple[Run, StepError | None]:
+                pilot: bool = False, say_events: bool = True) -> tuple[Run, StepError | None]:
     """Drive one run into a sink; return the run and the error that ended it early (if any).
 
     ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).  A complete
@@ -250,7 +249,9 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     velocities that the data contradict, or stale accelerations, are repaired on the source and the run is
     recorded once more (``repairs``: how many times already; both may be needed, one after the other, and a
     problem left after :data:`~._consistency.MAX_REPAIRS` is an error; ``pilot``: a run of the automatic window,
-    whose unrepairable problems are left to the recording, ``judge_run(strict=False)``).
+    whose unrepairable problems are left to the recording, ``judge_run(strict=False)``).  The model's events are
+    warned about (once per FMU and process) unless ``pilot`` or not ``say_events`` (a probe, like compare's of the
+    source's initial state).
     """
     u = _as_received(source, inputs_in_effect(signal, t, source.m))
     U = np.ascontiguousarray(u.T)
@@ -278,7 +279,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
-    if attrs.get("events") and not pilot:
+    if attrs.get("events") and say_events and not pilot:
         _warn_events(source, attrs)
     if failure is None:
         repair = judge_run(source, run, t, repairs, strict=not pilot, sums=sums)
@@ -289,20 +290,21 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             warnings.warn(f"{source_label(source)}: {repair.reason}; recording again", FmuOpinfWarning,
                           stacklevel=2)
             source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
-            return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1, pilot)
+            return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1, pilot, say_events)
     return run, failure
 
 
-#: Sources whose events were reported already (once per recording, not once per run).
-_EVENTS_REPORTED: "weakref.WeakSet[Source]" = weakref.WeakSet()
+#: FMUs whose events were reported already in this process (once, not once per run or per row of --runs).
+_EVENTS_REPORTED: set[str] = set()
 
 
 def _warn_events(source: Source, attrs: dict[str, Any]) -> None:
-    """Say, once per source, that the model had events during a run: what a linear ROM does with them, and how
-    to check (each run's count is in its attributes: ``events``, ``first_event_t``)."""
-    if source in _EVENTS_REPORTED:
+    """Say, once per FMU and process, that the model had events during a run: what a linear ROM does with them,
+    and how to check (each run's count is in its attributes: ``events``, ``first_event_t``)."""
+    key = os.path.abspath(str(getattr(source, "path", source_label(source))))
+    if key in _EVENTS_REPORTED:
         return
-    _EVENTS_REPORTED.add(source)
+    _EVENTS_REPORTED.add(key)
     warnings.warn(f"{source_label(source)} had {attrs['events']} event(s) during the run of {attrs['input_spec']} "
                   f"(the first at t={attrs['first_event_t']:g}): the model changes discretely there (switching, "
                   "contact, friction, stops, a sampled controller or a table), which a linear ROM cannot follow; "
