@@ -353,3 +353,27 @@ def test_a_free_response_row_beside_forced_rows_keeps_the_inputs(tmp_path):
     alone = _write_table(tmp_path, {"imp": GOOD["imp"]}, ["imp"], name="alone.csv")
     again = runs.record_runs(SOURCE, alone, tmp_path / "out", quiet=True, **SETTINGS)
     assert [o.status for o in again.outcomes] == ["skipped"]  # the forced row's stamp does not see the free row
+
+
+def _warning_row(row):
+    import warnings
+
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    warnings.warn(f"row {row} looks odd", FmuOpinfWarning)
+    warnings.warn("the same for every row", FmuOpinfWarning)
+    return runs.RunOutcome(row, f"r{row}", "recorded")
+
+
+def test_a_worker_s_warnings_are_said_by_the_caller_once_each(client, monkeypatch):
+    """Warnings of a task on a worker went to the worker's log, multi-line, one per row; now the caller says them
+    (one line on the command line), each text once."""
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    monkeypatch.setattr(runs, "_RELAYED", set())
+    rows = [runs.RunRow(i, f"r{i}", "step") for i in range(3)]
+    with pytest.warns(FmuOpinfWarning) as seen:
+        outcomes = runs._map_rows(client, _warning_row, rows, lambda *a: None, lambda row: (row.number,))
+    assert [o.name for o in outcomes] == ["r0", "r1", "r2"]
+    said = sorted(str(w.message) for w in seen)
+    assert said == ["row 0 looks odd", "row 1 looks odd", "row 2 looks odd", "the same for every row"]

@@ -35,6 +35,7 @@ import os
 import re
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -600,18 +601,44 @@ def _map_rows(client: Any, function: Callable, rows: Sequence[RunRow], show: Cal
     """One task per row; outcomes in table order, each shown as it arrives; a lost task fails only its row."""
     from distributed import as_completed
 
-    futures = {client.submit(function, *arguments(row), pure=False, key=f"{function.__name__}-{row.name}-"
-                             f"{time.time_ns()}"): row for row in rows}
+    futures = {client.submit(_warnings_returned, function, *arguments(row), pure=False,
+                             key=f"{function.__name__}-{row.name}-{time.time_ns()}"): row for row in rows}
     outcomes: dict[int, RunOutcome] = {}
     for done, future in enumerate(as_completed(futures), start=1):
         row = futures[future]
         try:
-            outcome = future.result()
+            outcome, said = future.result()
+            _warn_here(said)
         except Exception as exc:  # a crashed worker or an unexpected error: report it with its row
             outcome = RunOutcome(row.number, row.name, "failed", error=f"{type(exc).__name__}: {exc}")
         outcomes[row.number] = outcome
         show(outcome, done, len(rows))
     return [outcomes[row.number] for row in rows]
+
+
+def _warnings_returned(function: Callable, *arguments: Any) -> tuple[Any, list[tuple[bool, str]]]:
+    """``function(*arguments)`` on a worker, with the warnings it gave returned instead of printed in the worker's
+    log (``(is an FmuOpinfWarning, message)``), so that the caller says them the way it says its own."""
+    from .errors import FmuOpinfWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = function(*arguments)
+    return result, [(issubclass(w.category, FmuOpinfWarning), str(w.message)) for w in caught]
+
+
+def _warn_here(said: list[tuple[bool, str]]) -> None:
+    """Say again in this process what a worker's task warned (the same text of many rows: once)."""
+    from .errors import FmuOpinfWarning
+
+    for ours, message in said:
+        if message not in _RELAYED:
+            _RELAYED.add(message)
+            warnings.warn(message, FmuOpinfWarning if ours else UserWarning, stacklevel=3)
+
+
+#: Worker warnings said already in this process.
+_RELAYED: set[str] = set()
 
 
 # ---------------------------------------------------------------------------------------------
