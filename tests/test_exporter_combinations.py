@@ -228,7 +228,7 @@ def test_modelica_relative_parameter_inputs_offsets_feedthrough(fmus, tmp_path, 
     0 (one warning line names them); the default chain (model exchange, impulse, automatic window) is exact."""
     from fmu_opinf import sources
 
-    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
+    monkeypatch.setattr(sources, "_REPORTED", set())   # the warning is once per process
     fmu, model = fmus["modelica-combined"]
     snaps, rom, metrics = default_chain(fmu, tmp_path, (), ["--input", HARMONIC], compare_on_training_window=True)
     err = capsys.readouterr().err

@@ -109,7 +109,7 @@ def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, c
     as given.  Both recordings are the exact solution with that stiffness scale."""
     from fmu_opinf import sources
 
-    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
+    monkeypatch.setattr(sources, "_REPORTED", set())   # the warning is once per process
     fmu = fmus["stiffness-input"]
     grid = ["--dt", "0.05", "--t-end", "30", "-q"]
     train = tmp_path / "train.h5"
@@ -301,7 +301,7 @@ def test_parameter_like_warning_once_for_a_run_table(fmus, tmp_path, capsys, mon
     """A run table opens the source once per row: the warning about held parameter-like inputs is printed once."""
     from fmu_opinf import sources
 
-    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())
+    monkeypatch.setattr(sources, "_REPORTED", set())
     table = tmp_path / "runs.csv"
     table.write_text('input,name\n"impulse:amplitude=100,t0=2,width=0.5",a\n"step:amplitude=1",b\n')
     assert main(["snapshots", str(fmus["stiffness-input"].path), "-o", str(tmp_path / "out"), "--runs", str(table),

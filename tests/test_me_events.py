@@ -272,9 +272,9 @@ def test_a_crossing_is_located_with_scipys_integrators_too(fmus):
 @pytest.fixture
 def events_unsaid(monkeypatch):
     """The events of every FMU not yet reported in this process (they are said once per FMU and process)."""
-    from fmu_opinf.snapshots import _record
+    from fmu_opinf import sources
 
-    monkeypatch.setattr(_record, "_EVENTS_REPORTED", set())
+    monkeypatch.setattr(sources, "_REPORTED", set())
 
 
 @pytest.mark.parametrize("isolate", [False, True], ids=["in-process", "isolated"])

@@ -518,7 +518,7 @@ def test_every_parameter_like_input_is_excluded_by_the_suggested_fix(tmp_path, m
     excludes both, and driving an input that starts at a non-zero value is a warning."""
     from fmu_opinf import lti_fmus, sources
 
-    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())
+    monkeypatch.setattr(sources, "_REPORTED", set())
     path = tmp_path / "parin.fmu"
     lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="ParIn"), path, parameter_inputs=("mass_scale", "stiffness_scale"))
     with pytest.warns(FmuOpinfWarning, match=r"driven input\(s\) mass_scale, stiffness_scale start at non-zero"):
@@ -535,7 +535,7 @@ def test_every_parameter_like_input_is_excluded_by_the_suggested_fix(tmp_path, m
 def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path, monkeypatch):
     from fmu_opinf import sources
 
-    monkeypatch.setattr(sources, "_PARAMETER_LIKE_REPORTED", set())   # the warning is once per process
+    monkeypatch.setattr(sources, "_REPORTED", set())   # the warning is once per process
     with pytest.raises(StepError) as info:
         # one channel per input (fault_threshold, u), both named as forces: the parameter-like input is driven to 0
         record_to_file(toys["param-input"], tmp_path / "p.h5", "step:amplitude=0;step:amplitude=1,t0=0.35", dt=0.1,

@@ -855,8 +855,7 @@ def fit_operators(
         found = _least_squares_start(R, scales, m, output_map, training) if candidate else None
 
         def start_second() -> Background | None:
-            if (second_start is None or found["proposal"] is None or not found["report"]["objective"] > 0
-                    or not (r >= SIDE_BY_SIDE_FROM or can_fork_here())):
+            if second_start is None or not _refinable(found) or not (r >= SIDE_BY_SIDE_FROM or can_fork_here()):
                 return None
             return Background(_refine_least_squares_start, found, training, second_start,
                               label=f"{second_start['progress_label']} (L-BFGS iterations)",
@@ -1019,16 +1018,21 @@ def _least_squares_start(R: np.ndarray, scales: dict[str, float], m: int,
     return found
 
 
+def _refinable(found: dict[str, Any]) -> bool:
+    """Whether :func:`_least_squares_start` found a realization with an output error left to refine."""
+    return found["proposal"] is not None and found["report"]["objective"] > 0
+
+
 def _refine_least_squares_start(found: dict[str, Any], training: tuple,
                                 second_start: dict[str, Any]) -> dict[str, Any]:
     """``found`` of :func:`_least_squares_start` with its realization refined as a second start (``second_start``:
     the refinement's options); independent of the SDP, so the fit runs it beside the SDP solve and the first
     refinement (:mod:`fmu_opinf._background`)."""
-    report, proposal = found["report"], found["proposal"]
-    if proposal is None or not report["objective"] > 0:
+    if not _refinable(found):
         return found
+    report = found["report"]
     xdot_r, x_r, u, y, dt, run_lengths, integrator = training
-    operators, outputs, W = proposal
+    operators, outputs, W = found["proposal"]
     _, modal_xdot, modal_x = _modal_data(W, np.zeros_like(x_r), xdot_r, x_r)
     *operators, refinement = refine_output_error(
         *operators, modal_xdot, modal_x, u, y, dt, output_map=outputs, run_lengths=run_lengths,

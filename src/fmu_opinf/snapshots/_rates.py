@@ -58,12 +58,10 @@ def inputs_in_effect(signal: Any, t: np.ndarray, m: int) -> np.ndarray:
         Number of inputs the source expects.
     """
     sampled = np.atleast_2d(np.asarray(signal.sample(np.asarray(t)), dtype=float))
-    if sampled.shape[0] != m and m == 0:
-        raise DimensionError(f"the input signal has {sampled.shape[0]} channel(s) but the source has no inputs; give "
-                             "--input none (the free response from the start state)")
     if sampled.shape[0] != m:
-        raise DimensionError(f"the input signal has {sampled.shape[0]} channels but the source has m={m} inputs; "
-                             f"give a signal with {m} channels")
+        fix = f"give a signal with {m} channels" if m else "give --input none (the free response from the start state)"
+        raise DimensionError(f"the input signal has {sampled.shape[0]} channel(s) but the source has "
+                             f"{f'm={m} inputs' if m else 'no inputs'}; {fix}")
     if sampled.shape[1] != len(t):
         raise DimensionError(f"signal.sample returned {sampled.shape[1]} samples for {len(t)} times")
     if not np.all(np.isfinite(sampled)):

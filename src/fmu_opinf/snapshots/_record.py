@@ -31,7 +31,7 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
-from ..sources import Source, StepError, open_source
+from ..sources import Source, StepError, open_source, warn_once
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
@@ -294,22 +294,14 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     return run, failure
 
 
-#: FMUs whose events were reported already in this process (once, not once per run or per row of --runs).
-_EVENTS_REPORTED: set[str] = set()
-
-
 def _warn_events(source: Source, attrs: dict[str, Any]) -> None:
     """Say, once per FMU and process, that the model had events during a run: what a linear ROM does with them,
     and how to check (each run's count is in its attributes: ``events``, ``first_event_t``)."""
-    key = os.path.abspath(str(getattr(source, "path", source_label(source))))
-    if key in _EVENTS_REPORTED:
-        return
-    _EVENTS_REPORTED.add(key)
-    warnings.warn(f"{source_label(source)} had {attrs['events']} event(s) during the run of {attrs['input_spec']} "
-                  f"(the first at t={attrs['first_event_t']:g}): the model changes discretely there (switching, "
-                  "contact, friction, stops, a sampled controller or a table), which a linear ROM cannot follow; "
-                  "it fits one linear model to both sides, so compare the ROM on inputs that cross the events and "
-                  "on inputs that do not", FmuOpinfWarning, stacklevel=3)
+    warn_once(source, ("events",),
+              f"had {attrs['events']} event(s) during the run of {attrs['input_spec']} (the first at "
+              f"t={attrs['first_event_t']:g}): the model changes discretely there (switching, contact, friction, "
+              "stops, a sampled controller or a table), which a linear ROM cannot follow; it fits one linear model "
+              "to both sides, so compare the ROM on inputs that cross the events and on inputs that do not")
 
 
 @contextlib.contextmanager

@@ -154,8 +154,8 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     return source
 
 
-#: (FMU, held inputs, force inputs) already reported by :func:`_warn_parameter_like` in this process
-_PARAMETER_LIKE_REPORTED: set[tuple[str, tuple[str, ...], tuple[str, ...]]] = set()
+#: (FMU path, what about) of the warnings :func:`warn_once` said in this process
+_REPORTED: set[tuple[str, tuple[Any, ...]]] = set()
 
 
 def _warn_parameter_like(source: Source) -> None:
@@ -167,30 +167,31 @@ def _warn_parameter_like(source: Source) -> None:
     forces = list(getattr(source, "input_names", []) or [])
     driven = [name for name in getattr(source, "driven_parameter_like_names", []) or [] if name in forces]
     if driven:
-        _warn_once(source, ("driven", *driven), forces,
+        warn_once(source, ("driven", tuple(driven), tuple(forces)),
                    f"the driven input(s) {', '.join(driven)} start at non-zero values, and the training signals "
                    "drive them from 0: if they are parameters exposed as inputs, the recording is of another model; "
                    f"record with {inputs_without(forces, driven)} and give their values with --set")
     if held:
         shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
-        _warn_once(source, held, forces,
+        warn_once(source, ("held", tuple(held), tuple(forces)),
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
                    f"give their values with --set, or drive them with --inputs {','.join(forces + held)}")
 
 
-def _warn_once(source: Source, named: list[str] | tuple[str, ...], forces: list[str], text: str) -> None:
-    """``text`` as a warning about ``source``'s FMU, unless this process said it already for these inputs."""
+def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int = 4) -> None:
+    """``text`` as a warning about ``source``'s FMU, unless this process said one ``about`` the same thing of the
+    same FMU already (a run table opens the source once per row, and every row's runs would repeat it)."""
     import warnings
 
     from ..errors import FmuOpinfWarning
 
-    path = str(getattr(source, "path", ""))
-    key = (os.path.abspath(path), tuple(named), tuple(forces))
-    if key in _PARAMETER_LIKE_REPORTED:
+    path = str(getattr(source, "path", "")) or type(source).__name__
+    key = (os.path.abspath(path), about)
+    if key in _REPORTED:
         return
-    _PARAMETER_LIKE_REPORTED.add(key)
-    warnings.warn(f"{os.path.basename(path)}: {text}", FmuOpinfWarning, stacklevel=4)
+    _REPORTED.add(key)
+    warnings.warn(f"{os.path.basename(path)}: {text}", FmuOpinfWarning, stacklevel=stacklevel)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
