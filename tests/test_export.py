@@ -406,3 +406,33 @@ def test_full_model_fmu_given_as_the_rom_is_named_as_such(exported, tmp_path):
                                 lambda text: text.replace('generationTool="fmu-opinf"', 'generationTool="Dymola"'))
     with pytest.raises(FileFormatError, match="Plant.fmu is not a ROM FMU exported by fmu-opinf"):
         compare.compare(other, "builtin:triple-chain", "step", dt=0.5, t_end=2.0, quiet=True)
+
+
+def test_source_variables_named_like_the_rom_states_get_other_state_names(rom, tmp_path):
+    """Robot models call their joints ``q[i]``: a source output ``qdot[1]`` clashed with the ROM FMU's own
+    ``qdot[1]`` and export refused it with a fix the user could not apply (fifth audit).  The states move to
+    ``rom.q[*]`` etc., the outputs keep their names and values (against the ROM's own simulation), and compare
+    finds the states of such an FMU through its provenance.json."""
+    from fmpy import simulate_fmu
+
+    from fmu_opinf.compare import _rom_side_info
+    from fmu_opinf.rom import SecondOrderROM
+
+    real = SecondOrderROM(rom.Mr, rom.Dr, rom.Kr, rom.Br, np.vstack([rom.Cpr, rom.Cpr]),
+                          np.vstack([rom.Cvr, rom.Cpr]), input_names=["q[1]"], output_names=["q[2]", "qdot[1]"],
+                          dt=rom.dt)
+    path = export.export_fmu(real, tmp_path / "Joints.fmu")
+    assert validate_fmu(str(path)) == []
+    names = {v.name for v in read_model_description(str(path)).modelVariables}
+    assert {"q[1]", "q[2]", "qdot[1]", "rom.q[1]", "rom.qdot[6]", "rom.qddot[6]"} <= names
+    assert "q[3]" not in names
+    expected = real.simulate(TEST, rom.dt, 20.0)
+    held = zip(expected.t[:-1], expected.u[0, 1:])  # u[i] is held over the step that ends at t[i]
+    inputs = np.array(list(held), dtype=[("time", float), ("q[1]", float)])
+    got = simulate_fmu(str(path), stop_time=20.0, output_interval=rom.dt, input=inputs, output=["q[2]", "qdot[1]"])
+    for j, name in enumerate(["q[2]", "qdot[1]"]):
+        assert relative_error(got[name], expected.y[j]) < 1e-12
+    info = _rom_side_info(path)
+    assert info["r"] == rom.r and info["output_names"] == ["q[2]", "qdot[1]"]
+    assert export.rom_state_names(["q[1]", "rom.qddot[2]"]) == ("rom2.q", "rom2.qdot", "rom2.qddot")
+    assert export.rom_state_names(["y", "qq[1]"]) == ("q", "qdot", "qddot")

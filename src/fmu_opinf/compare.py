@@ -569,7 +569,7 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
         from .source import FMUSource
 
         meta = _rom_fmu_metadata(rom_side)
-        fmu = FMUSource(rom_side, **ROM_FMU_VARIABLES)
+        fmu = FMUSource(rom_side, **_rom_fmu_variables(meta.get("rom_fmu_states")))
         return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
                 "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
@@ -578,8 +578,16 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
             "t_train_end": _training_end(prov), "provenance": prov}
 
 
-#: Variable patterns of an exported ROM FMU (its reduced coordinates stand where positions would).
+#: Variable patterns of an exported ROM FMU (its reduced coordinates stand where positions would), for FMUs
+#: exported before the names were recorded in their provenance.json (``rom_fmu_states``).
 ROM_FMU_VARIABLES = {"positions": "q[*]", "velocities": "qdot[*]", "accelerations": "qddot[*]"}
+
+
+def _rom_fmu_variables(states: Any) -> dict[str, str]:
+    """The patterns of an exported ROM FMU's states from the base names its provenance.json records, if any."""
+    if isinstance(states, list) and len(states) == 3 and all(isinstance(s, str) and s for s in states):
+        return {kind: f"{base}[*]" for kind, base in zip(ROM_FMU_VARIABLES, states)}
+    return dict(ROM_FMU_VARIABLES)
 
 
 def _training_end(provenance: dict[str, Any]) -> float | None:
@@ -614,6 +622,7 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
             provenance = json.loads(archive.read(names[0]))
             if isinstance(provenance, dict):
                 meta["t_train_end"] = _training_end(provenance)
+                meta["rom_fmu_states"] = provenance.get("rom_fmu_states")
                 if isinstance(provenance.get("snapshots"), dict):
                     meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
     return meta

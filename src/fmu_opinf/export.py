@@ -419,10 +419,12 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
             raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
         c_matrices.update(stepMap=phi, stepMapInput=gamma, stepMapSize=np.array([dt]))
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
+    state_names = rom_state_names(list(input_names or []) + output_names + names)
+    provenance["rom_fmu_states"] = list(state_names)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, m=m, p=p + len(names), input_names=input_names,
-        output_names=output_names + names, state_names=("q", "qdot", "qddot"),
+        output_names=output_names + names, state_names=state_names,
         state_label="reduced coordinate", description=description,
         output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
@@ -431,6 +433,34 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance),
     )
+
+
+#: Base names of the exported FMU's reduced coordinates, their rates and their accelerations (``q[1]``, ...).
+ROM_STATE_NAMES = ("q", "qdot", "qddot")
+
+
+def rom_state_names(taken: Sequence[str]) -> tuple[str, str, str]:
+    """Base names for the exported FMU's reduced states that no variable in ``taken`` collides with.
+
+    ``q, qdot, qddot`` unless a source variable is itself called ``q[i]`` (robot joints often are); then
+    ``rom.q, rom.qdot, rom.qddot``, else ``rom2.q``, ... .  The names chosen are stored in the FMU's
+    ``provenance.json`` (``rom_fmu_states``), where ``compare`` reads them.
+
+    Parameters
+    ----------
+    taken : sequence of str
+        The inputs, outputs and reconstructed positions the FMU declares.
+
+    Returns
+    -------
+    tuple of 3 str
+    """
+    for attempt in range(len(taken) + 1):
+        prefix = ("", "rom.")[attempt] if attempt < 2 else f"rom{attempt}."
+        bases = tuple(prefix + base for base in ROM_STATE_NAMES)
+        if not any(name.startswith(tuple(f"{base}[" for base in bases)) for name in taken):
+            return bases  # type: ignore[return-value]
+    raise AssertionError("unreachable: each name blocks at most one prefix")
 
 
 #: ``export --step`` within this factor of the training step (either way): beyond, the step map over- or
