@@ -306,6 +306,10 @@ def test_parse_assignments_keeps_order_and_text():
     # several assignments in one --set (the audit of 2026-11-26 found "give a number" for them), arrays kept whole
     assert parse_assignments(["x1_start=0.3,x6_start=-0.2", "x0=1,2,3, k[2]=4"]) == {
         "x1_start": "0.3", "x6_start": "-0.2", "x0": "1,2,3", "k[2]": "4"}
+    # Modelica quoted names, names in other scripts and commas inside indices or quotes (fifth audit: a quoted name
+    # after a comma became part of the value before it)
+    assert parse_assignments(["Masse_ü.s=1.3,'mass 1'.s=0.55", "sensor[1,1]=3,'a,b'.s=2,der(x)=1"]) == {
+        "Masse_ü.s": "1.3", "'mass 1'.s": "0.55", "sensor[1,1]": "3", "'a,b'.s": "2", "der(x)": "1"}
 
 
 # --------------------------------------------------------------- FMI 3 states body by body (no alias derivatives)

@@ -35,9 +35,12 @@ class Setting:
     structural: bool
 
 
-#: A comma that starts another ``NAME=`` assignment (``--set a=1,b=2``); commas inside array values
-#: (``x0=[1,2,3]``, ``x0=1,2,3``) are followed by numbers, not by a name and ``=``.
-_NEXT_ASSIGNMENT = re.compile(r",(?=\s*[A-Za-z_][\w.\[\]()]*\s*=)")
+#: One part of a variable name: an identifier (any script: ``Masse_ü``) or a Modelica quoted identifier
+#: (``'mass 1'``), with any ``(...)`` and ``[...]`` after it (``der(x)``, ``sensor[1,1]``).
+_NAME_PART = r"(?:[^\W\d]\w*|'(?:[^'\\]|\\.)+')(?:\([^)]*\))?(?:\[[^\]]*\])*"
+#: A comma that starts another ``NAME=`` assignment (``--set a=1,'mass 1'.s=2``); commas inside array values
+#: (``x0=[1,2,3]``, ``x0=1,2,3``) and indices (``sensor[1,1]=3``) are followed by numbers, not by a name and ``=``.
+_NEXT_ASSIGNMENT = re.compile(rf",(?=\s*{_NAME_PART}(?:\.{_NAME_PART})*\s*=)")
 
 
 def parse_assignments(items: Iterable[str] | Mapping[str, Any] | None) -> dict[str, Any]:
@@ -170,8 +173,9 @@ def _typed(model: ModelInfo, name: str, var: Variable, value: Any) -> Any:
     except (ValueError, TypeError):
         kind = ("a number" if var.type in _FLOAT_TYPES else "an integer" if var.type in _INTEGER_TYPES
                 else "true or false" if var.type == "Boolean" else "a string")
+        several = " (one --set per variable if the value holds another NAME=VALUE)" if "=" in str(value) else ""
         raise InputSpecError(f"--set {name}={value}: {var.name} is a {var.type} variable of {model.label}; "
-                             f"give {kind}") from None
+                             f"give {kind}{several}") from None
     _check_bounds(model, name, var, typed)
     return typed
 
