@@ -170,6 +170,22 @@ def test_an_output_offset_does_not_hide_the_error_of_its_motion():
     assert compare.offset_note(plain) is None
 
 
+def test_larger_outputs_do_not_hide_the_error_of_a_small_one():
+    """Fifth audit: positions in mm (about 1e4) beside an acceleration in m/s2 (1e-2) that is 3 % off give eq. (19)
+    (0.03 * 1e-2)^2 / 1e4^2 = 9e-16, and the variation form the same; the table and the report say which output
+    is off.  Outputs of one scale with that error say nothing more (eq. 19 shows it)."""
+    t = np.linspace(0.0, 20 * np.pi, 20001)
+    y_ref = np.vstack([1e4 * np.sin(t), 1e-2 * np.sin(3 * t)])
+    y = np.vstack([y_ref[0], 0.97 * y_ref[1]])
+    metrics = compare.error_metrics(y_ref, y, ["frame.s", "joint2.a"])
+    assert metrics["max_error"] == pytest.approx((0.03e-2 / 1e4) ** 2, rel=1e-3)
+    table = compare.summary_table([("units", {**metrics, "r": 3, "fom_seconds": 1.0, "rom_seconds": 0.1,
+                                              "speedup": 10.0})])
+    assert "larger outputs hide an error in eq. (19): joint2.a is 0.03 of its peak off" in table
+    alike = compare.error_metrics(1e4 * y_ref[[1]] / 1e-2, 1e4 * y[[1]] / 1e-2, ["a"])
+    assert compare.scale_note(alike) is None and compare.offset_note(alike) is None
+
+
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
     """Audit 2026-11-27: ``compare --set n=4`` of a ROM trained with ``n=3`` compared against another model without
     a word (eps_y 0.56), and any ``--set`` dropped every other training setting."""

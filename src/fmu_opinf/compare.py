@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from .rom import SecondOrderROM
     from .signals import Signal
 
-__all__ = ["output_error", "error_metrics", "offset_note", "Comparison", "compare", "simulate_outputs", "write_report",
+__all__ = ["output_error", "error_metrics", "offset_note", "scale_note", "Comparison", "compare", "simulate_outputs", "write_report",
            "prepare_report_directory", "summary_table"]
 
 
@@ -108,6 +108,29 @@ def offset_note(metrics: dict[str, Any]) -> str | None:
     worst = max(metrics["per_output"].items(), key=lambda item: np.nan_to_num(item[1]["relative_max_variation"]))
     return (f"the outputs' offset hides the error in eq. (19): relative to the outputs' variation (mean removed) it "
             f"is {varying:.2e} (squared), and {worst[0]} is {worst[1]['relative_max_variation']:.2g} of its range off")
+
+
+def scale_note(metrics: dict[str, Any]) -> str | None:
+    """A line saying that larger outputs hide one output's error in eq. (19), or None.
+
+    Eq. (19) and its variation form weigh the outputs by their size, so with outputs in different units or scales
+    (positions in mm beside accelerations in m/s2) an output can be far off while both figures are small (fifth
+    audit: eq. (19) 1.7e-9, an acceleration output 3.2e-2 of its peak off).  Said when the worst output's relative
+    max error, squared to compare with eq. (19), exceeds both figures :data:`OFFSET_HIDES`-fold.
+    """
+    worst_name, worst = max(metrics["per_output"].items(), key=lambda item: np.nan_to_num(item[1]["relative_max"]))
+    squared = float(np.nan_to_num(worst["relative_max"])) ** 2
+    varying = metrics.get("max_error_variation", math.nan)
+    shown = max(metrics["max_error"], varying if math.isfinite(varying) else 0.0)
+    if not squared > OFFSET_HIDES * shown:
+        return None
+    return (f"larger outputs hide an error in eq. (19): {worst_name} is {worst['relative_max']:.2g} of its peak off "
+            f"(squared {squared:.2e}); see the per-output errors")
+
+
+def comparison_notes(metrics: dict[str, Any]) -> list[str]:
+    """The lines that say what eq. (19) hides (:func:`offset_note`, :func:`scale_note`)."""
+    return [note for note in (offset_note(metrics), scale_note(metrics)) if note]
 
 
 @dataclass
@@ -799,6 +822,7 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
                   for name, v in metrics["per_output"].items()]
     headline.insert(2, ("max over time of eps_y relative to the outputs' variation (time mean removed from the "
                         "scale)", _fmt(metrics.get("max_error_variation", math.nan))))
+    headline[3:3] = [("note", note) for note in comparison_notes(metrics)]
     provenance = [(f"FOM {k}", v) for k, v in comparison.fom_provenance.items() if not isinstance(v, (list, dict))]
     provenance += [(f"ROM {k}", v) for k, v in comparison.rom_provenance.items() if not isinstance(v, (list, dict))]
     images = "".join(
@@ -836,9 +860,7 @@ def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
         lines.append(f"{name:<28} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
                      f"{m['fom_seconds']:>9.3f} {m['rom_seconds']:>9.4f} {m['speedup']:>9.1f}")
     for name, m in rows:
-        note = offset_note(m)
-        if note:
-            lines.append(f"  {name}: {note}")
+        lines += [f"  {name}: {note}" for note in comparison_notes(m)]
     notes = [(name, m["speedup_timed"]) for name, m in rows if m.get("speedup_timed")]
     if notes:
         lines.append("speed-up = FOM [s] / ROM [s], wall time of the simulation loops alone:")
