@@ -323,3 +323,30 @@ def test_a_start_outside_the_truncated_basis_names_the_order_as_a_cause():
     with pytest.raises(DataError, match=r"relative part outside 4.5e-01.*need more than the ROM's r=1 basis vectors.*"
                                         r"fit with a larger r \(--r, --energy\)"):
         rom.initial_state(np.array([2.0, 1.0]))
+
+
+def test_a_learned_mode_above_the_training_nyquist_frequency_is_warned():
+    """Fifth audit: a learned mode at 8.3e3 rad/s from data at dt = 0.01 (pi/dt = 314 rad/s) rang in an acceleration
+    output, 3 % off, without a word.  Two masses with modes at 1.0 and 50 rad/s (the reference: the system's own
+    eigenvalues, which Newmark data at full order reproduce): at dt = 0.1 (pi/dt = 31 rad/s) the fit warns with
+    the mode and a step that resolves it, at dt = 0.05 (63 rad/s) it says nothing."""
+    import warnings
+
+    import scipy.sparse as sp
+
+    from fmu_opinf import newmark, systems
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    M, K = np.diag([1.0, 0.01]), np.diag([1.0, 25.0])  # modes 1 and 50 rad/s
+    system = systems.SecondOrderSystem(
+        sp.csr_matrix(M), sp.csr_matrix(0.01 * K), sp.csr_matrix(K), sp.csr_matrix((0, 2)), None,
+        sp.csr_matrix([[1.0], [0.001]]), sp.csr_matrix([[1.0, 1.0]]), sp.csr_matrix((1, 2)), name="two")
+    omega = np.sqrt(np.linalg.eigvals(np.linalg.solve(M, K)).real).max()
+    assert omega == pytest.approx(50.0)
+    train = "impulse:amplitude=1,t0=1,width=0.5"
+    coarse = newmark.simulate(system, train, 0.1, 60.0)
+    with pytest.warns(FmuOpinfWarning, match=r"mode at 50 rad/s, above the 31\.4 rad/s \(pi/dt\).*--dt below 0\.063"):
+        fit_rom([coarse], r=2, quiet=True, refine=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FmuOpinfWarning)
+        fit_rom([newmark.simulate(system, train, 0.05, 60.0)], r=2, quiet=True, refine=False)

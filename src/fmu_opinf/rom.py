@@ -47,6 +47,7 @@ from __future__ import annotations
 import datetime
 import functools
 import json
+import math
 import os
 import sys
 import time
@@ -664,6 +665,25 @@ def _warn_if_inputs_alike(u: np.ndarray, names: list[str]) -> None:
                   "training does", FmuOpinfWarning, stacklevel=3)
 
 
+def _warn_if_modes_above_nyquist(poles: list, dt: float | None) -> None:
+    """Warn when a learned pole lies above the Nyquist frequency ``pi / dt`` of the training data.
+
+    Samples ``dt`` apart see such a mode only as an alias, so neither the refinement nor a comparison at that step
+    can check its frequency and damping (the SDP's accelerations may still get them right, as on exact data): in
+    the fifth audit (modes at 0.91 .. 2.3e4 rad/s, dt = 0.01) a learned undamped mode at 8.3e3 rad/s rang for
+    ever in an acceleration output, 3.2e-2 of its peak off, while eq. (19) said 1.7e-9.
+    """
+    if not dt or not poles:
+        return
+    omega = max(abs(complex(re, im)) for re, im in poles)
+    nyquist = math.pi / dt
+    if omega > nyquist:
+        warnings.warn(f"the ROM has a mode at {omega:.3g} rad/s, above the {nyquist:.3g} rad/s (pi/dt) that the "
+                      f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
+                      f"damping are right, and it can ring in outputs it reaches (accelerations, forces); record "
+                      f"with --dt below {math.pi / omega:.2g} or fit a smaller r", FmuOpinfWarning, stacklevel=3)
+
+
 def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,
                   wide: bool = False) -> dict[str, np.ndarray]:
     """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``; with ``wide``
@@ -901,6 +921,7 @@ def fit_rom(
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
+    _warn_if_modes_above_nyquist(info.get("poles") or [], _training_dt(runs, attrs))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
