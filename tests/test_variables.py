@@ -227,6 +227,16 @@ def fmi3_array() -> str:
             '<ContinuousStateDerivative valueReference="11"/></ModelStructure></fmiModelDescription>')
 
 
+def test_an_input_clock_is_not_a_held_input(tmp_path):
+    """Fifth audit: an FMI 3 input clock (never set) was listed among the inputs held at their start values."""
+    xml = fmi3_array().replace(
+        '<Float64 name="k"', '<Float64 name="gain" valueReference="16" causality="input" variability="continuous" '
+        'start="2"/><Clock name="controller.sample" valueReference="15" causality="input" intervalVariability='
+        '"constant" intervalDecimal="0.1"/><Float64 name="k"')
+    resolved = resolve_variables(_write(tmp_path, xml))
+    assert _names(resolved.forces) == ["u[1]", "u[2]"] and _names(resolved.held) == ["gain"]
+
+
 def test_fmi3_array_states_expand_to_elements_with_one_value_reference(tmp_path):
     from fmu_opinf.sources._variables import ReadPlan
 

@@ -820,7 +820,8 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         forces = [elements[n] for n in names]
         _refuse_twice(forces, model)
     chosen = {_value_key(e) for e in forces}   # an alias named in --inputs drives its variable
-    return forces, sorted((e for e in inputs if _value_key(e) not in chosen), key=lambda e: natural_key(e.name))
+    held = (e for e in inputs if _value_key(e) not in chosen and e.var.type != "Clock")  # a clock is never set
+    return forces, sorted(held, key=lambda e: natural_key(e.name))
 
 
 def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
