@@ -174,7 +174,10 @@ class ModelExchangeSource(FMUSource):
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
-        self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx)
+        self._needs_completed = _needs_completed_steps(self.md, self.fmi_version)
+        self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx,
+                                            self._c_completed if self._needs_completed else None,
+                                            2 if self.fmi_version.startswith("2") else 3)
                         if self.method == "dop853" and self.nx else None)
 
     @property
@@ -253,20 +256,31 @@ class ModelExchangeSource(FMUSource):
         if self.nz or self._t_next != math.inf:
             self._integrate_with_events(i, t0, t1, inputs_set)
             return
-        self._piece(i, t0, t1)
+        t = self._piece(i, t0, t1)
+        if t < t1:   # the FMU asked for an event in a completed integrator step inside the interval
+            self._handle_event(i, t)
+            self._integrate_with_events(i, t, t1, False)
+            return
         self._completed_step(i, t1)
 
-    def _piece(self, i: int, t0: float, t1: float) -> None:
-        """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there."""
+    def _piece(self, i: int, t0: float, t1: float, completed: bool = True) -> float:
+        """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there.
+
+        For an FMU that needs them, ``fmiCompletedIntegratorStep`` is called after each accepted step before ``t1``
+        (``completed=False``: not, for the trials of a crossing search, which go back in time).  Returns the time
+        reached: ``t1``, or that of the completed step where the FMU asked for an event (the caller handles it).
+        """
+        t = t1
         if self.nx:
             try:
-                self._x = _INTEGRATORS[self.method](self, t0, t1)
+                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed and self._needs_completed)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
             self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
-        if self._c_time(self._comp, t1) > 1:
+        if self._c_time(self._comp, t) > 1:
             raise StepError(self._integration_failure(i, t0, t1, "fmiSetTime failed"), i, t1)
+        return t
 
     def _integrate_with_events(self, i: int, t0: float, t1: float, inputs_set: bool) -> None:
         """:meth:`_integrate` through the time events and the located state events in ``(t0, t1]``.
@@ -285,9 +299,10 @@ class ModelExchangeSource(FMUSource):
         for _ in range(_MAX_EVENTS_PER_STEP):
             timed = self._t_next <= t1 + slack
             end = max(self._t_next, t) if timed else t1
-            t, crossed = self._advance_to(i, t, end)
-            handled = self._completed_step(i, t)
-            if (crossed or timed) and not handled:
+            t, crossed, asked = self._advance_to(i, t, end)
+            if asked:   # in a completed integrator step before the end, which was called there
+                self._handle_event(i, t)
+            elif not self._completed_step(i, t) and (crossed or timed):
                 self._handle_event(i, t)
             if t1 - t <= slack:
                 return
@@ -295,20 +310,21 @@ class ModelExchangeSource(FMUSource):
                         f"t={t1:g} (an event indicator chatters or time events do not advance); fix the model "
                         "or try --interface cs", i, t1)
 
-    def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool]:
-        """Integrate towards ``t1``; with event indicators, stop just after the first change of sign.
-        Returns the time reached and whether an indicator crossed zero."""
+    def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool, bool]:
+        """Integrate towards ``t1``; with event indicators, stop just after the first change of sign; stop where
+        the FMU asks for an event in a completed integrator step.  Returns the time reached, whether an
+        indicator crossed zero, and whether the FMU asked for an event there (a crossing before it comes first)."""
         if t1 <= t0:   # an event due at once
-            return t0, False
+            return t0, False, False
         start = self._x.copy() if self.nz else None
-        self._piece(i, t0, t1)
+        t = self._piece(i, t0, t1)
         if not self.nz:
-            return t1, False
-        self._read_indicators(i, t1, self._z_end)
+            return t, False, t < t1
+        self._read_indicators(i, t, self._z_end)
         if not _sign_changed(self._z, self._z_end):
             self._z, self._z_end = self._z_end, self._z
-            return t1, False
-        return self._locate_crossing(i, t0, t1, start), True
+            return t, False, t < t1
+        return self._locate_crossing(i, t0, t, start), True, False
 
     def _locate_crossing(self, i: int, a: float, b: float, x_a: np.ndarray) -> float:
         """The first zero crossing of an event indicator in ``(a, b]``, bracketed to
@@ -332,7 +348,7 @@ class ModelExchangeSource(FMUSource):
             if not a < t_m < b:  # the bracket is within rounding of the tolerance: as narrow as it gets
                 break
             self._x = x_a.copy()
-            self._piece(i, a, t_m)
+            self._piece(i, a, t_m, completed=False)
             g_m = np.empty(self.nz)
             self._read_indicators(i, t_m, g_m)
             if _sign_changed(g_a, g_m):
@@ -422,6 +438,16 @@ class ModelExchangeSource(FMUSource):
 
 # ---------------------------------------------------------------------------------------- events
 
+def _needs_completed_steps(md: Any, fmi_version: str) -> bool:
+    """Whether the FMU needs ``fmiCompletedIntegratorStep`` after every accepted integrator step: FMI 2 unless
+    ``completedIntegratorStepNotNeeded="true"`` (the default is false: needed, FMI 2.0 section 3.2.2), FMI 3 when
+    ``needsCompletedIntegratorStep="true"`` (default false).  Others get it only at the end of each interval."""
+    me = md.modelExchange
+    if fmi_version.startswith("2"):
+        return not bool(getattr(me, "completedIntegratorStepNotNeeded", False))
+    return bool(getattr(me, "needsCompletedIntegratorStep", False))
+
+
 def _time_slack(t0: float, t1: float) -> float:
     """Times closer than this to a communication point ``t1`` are ``t1`` (round-off of event times)."""
     return 8 * math.ulp(max(abs(t0), abs(t1))) + 1e-12 * (t1 - t0)
@@ -448,9 +474,14 @@ def _earliest_secant(a: float, b: float, g_a: np.ndarray, g_b: np.ndarray, w_a: 
 
 # ---------------------------------------------------------------------------------------- integrators
 
-def _lsoda(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
-    """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size."""
+def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+    """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size; through
+    :class:`scipy.integrate.LSODA` step by step where the FMU needs its completed integrator steps (``completed``),
+    as ``odeint`` cannot call back after each step."""
     from scipy.integrate import odeint
+
+    if completed:
+        return _stepwise_lsoda(source, t0, t1, completed)
 
     h0 = source._h_last if math.isfinite(source._h_last) else 0.0
     failure: list[BaseException] = []
@@ -474,11 +505,14 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
     hu = info.get("hu")
     if hu is not None and len(hu) and hu[-1] > 0:
         source._h_last = float(hu[-1])
-    return np.ascontiguousarray(y[-1])
+    return np.ascontiguousarray(y[-1]), t1
 
 
-def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float], np.ndarray]:
-    def integrate(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
+def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]:
+    def integrate(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+        """scipy's solver ``name`` step by step from ``t0`` to ``t1``; with ``completed``, the FMU's completed
+        integrator step after each accepted step before ``t1``, stopping where it asks for an event.  Returns the
+        state and the time reached."""
         import scipy.integrate as si
 
         cls = getattr(si, name)
@@ -489,31 +523,50 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float], np.nd
             message = solver.step()
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
+            if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
+                break
         if solver.step_size:
             source._h_last = float(solver.step_size)
-        return np.ascontiguousarray(solver.y)
+        return np.ascontiguousarray(solver.y), (t1 if solver.status == "finished" else float(solver.t))
 
     return integrate
 
 
-def _dop853(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
+def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> bool:
+    """``fmiCompletedIntegratorStep`` after an accepted step of scipy's loop, at its time and state (set again:
+    the solver's last evaluation need not be there); whether the FMU asks for an event there."""
+    comp, flags = source._comp, source._event_flags
+    x = np.ascontiguousarray(x, dtype=float)
+    if source._c_time(comp, t) > 1 or source._c_set_x(comp, x.ctypes.data, source.nx) > 1:
+        raise _IntegrationError(f"the FMU returned an error setting the state of a completed step at t={t:.9g}")
+    flags[:] = 0
+    if source._c_completed(comp, True, flags.ctypes.data, flags.ctypes.data + flags.itemsize) > 1:
+        raise _IntegrationError(f"fmiCompletedIntegratorStep failed at t={t:.9g}")
+    if flags[1]:
+        raise _IntegrationError(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at t={t:.9g}")
+    return bool(flags[0])
+
+
+def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
     """DOP853 through the compiled step loop (:mod:`._compiled_rk`), else scipy's Python loop."""
     kernel = source._kernel
     if kernel is None:
-        return _scipy_dop853(source, t0, t1)
+        return _scipy_dop853(source, t0, t1, completed)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     try:
-        x, h_last = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt)
+        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt,
+                                        completed)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
         source._h_last = h_last
-    return x
+    return x, t
 
 
 _scipy_dop853 = _solve_ivp("DOP853")
+_stepwise_lsoda = _solve_ivp("LSODA")
 
-_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float], np.ndarray]] = {
+_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]] = {
     "lsoda": _lsoda,
     "bdf": _solve_ivp("BDF"),
     "radau": _solve_ivp("Radau"),
