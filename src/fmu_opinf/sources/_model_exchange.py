@@ -419,10 +419,16 @@ class ModelExchangeSource(FMUSource):
             self._read_indicators(i, t, self._z)
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
+        """One line: where and why the integration failed, the FMU's last error message, and what may help."""
         where = f"step {i} (t={t0:g} -> {t1:g})" if i >= 0 else f"t={t0:g} -> {t1:g}"
         log = self._last_log()
+        cs = " or --interface cs" if self.md.coSimulation is not None else ""
+        if log:   # the FMU said why: the tolerance is only one possible cause
+            hint = f"the FMU reported: {log}; if the tolerance is the cause, try a looser --tolerance{cs}"
+        else:
+            hint = f"try a looser --tolerance{cs}"
         return (f"{self.path.name}: model-exchange integration ({self.method}, tolerance {self.tolerance:g}) failed "
-                f"at {where}: {reason}{'; ' + log if log else ''}; try a looser --tolerance or --interface cs")
+                f"at {where}: {reason}; {hint}")
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
         """``der(x)`` of the FMU at time ``t`` and state ``x`` with the current inputs."""
