@@ -230,13 +230,30 @@ class ModelExchangeSource(FMUSource):
         raise FMUError(f"{self.path.name} did not finish its event iteration after {_MAX_EVENT_ITERATIONS} rounds")
 
     # -- stepping ---------------------------------------------------------------------------
+    def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
+        super()._plan(t, U)
+        discrete = self._discrete_inputs()
+        in_event = np.zeros(len(self._t), dtype=bool)
+        if discrete.any():
+            in_event[1:] = np.any(self._U[1:, discrete] != self._U[:-1, discrete], axis=1)
+        self._inputs_in_event_mode = in_event.tolist()
+
+    def _discrete_inputs(self) -> np.ndarray:
+        """Which force inputs have discrete variability: model exchange may change them only in event mode
+        (FMI 2.0 section 3.2.3, FMI 3.0 likewise); an element ``F[2]`` of an FMI 3 array is its array's."""
+        variability = {v.name: v.variability for v in self.md.modelVariables}
+        return np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
+                         for name in self.input_names], dtype=bool)
+
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
-        t, changed = self._t_list, self._changed
+        t, changed, in_event = self._t_list, self._changed, self._inputs_in_event_mode
         for j in range(count):
             i = i0 + j
             if i:
-                if changed[i]:
+                if in_event[i]:
+                    self._handle_event(i, t[i - 1], lambda: self._set_inputs(i))
+                elif changed[i]:
                     self._set_inputs(i)
                 self._integrate(i, t[i - 1], t[i], bool(changed[i]))
             self.read(rows[j])
@@ -246,8 +263,15 @@ class ModelExchangeSource(FMUSource):
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
-        if self.m and self._call_set(u) > 1:
-            raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+
+        def set_input() -> None:
+            if self._call_set(u) > 1:
+                raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+
+        if self.m and self._discrete_inputs().any():   # they may change only in event mode
+            self._handle_event(-1, t, set_input)
+        elif self.m:
+            set_input()
         self._integrate(-1, t, t + h)
 
     def _integrate(self, i: int, t0: float, t1: float, inputs_set: bool = True) -> None:
@@ -394,16 +418,21 @@ class ModelExchangeSource(FMUSource):
             self._handle_event(i, t1)
         return bool(flags[0])
 
-    def _handle_event(self, i: int, t: float) -> None:
+    def _handle_event(self, i: int, t: float, set_inputs: Callable[[], None] | None = None) -> None:
         """Event mode at the FMU's current time ``t`` (of step ``i``): iterate, then read the (possibly changed)
         states, their nominals when they changed, and the event indicators as the reference of the next interval.
+        ``set_inputs``: set the inputs in event mode, before the iteration (a change of a discrete input, which
+        the FMU may take only there); such an event is not one of the model's, so it is not counted.
         Whatever goes wrong is a :class:`StepError`, so the recorder keeps the samples before it."""
         from fmpy.fmi1 import FMICallException
 
-        count, first = self._events
-        self._events = (count + 1, t if first is None else first)
+        if set_inputs is None:
+            count, first = self._events
+            self._events = (count + 1, t if first is None else first)
         try:
             self._fmu.enterEventMode()
+            if set_inputs is not None:
+                set_inputs()
             nominals_changed = self._event_iteration()
             self._fmu.enterContinuousTimeMode()
         except FMUError as exc:
