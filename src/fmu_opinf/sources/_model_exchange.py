@@ -32,6 +32,16 @@ iteration does not end) is a step error, like any other failure of a step.
 FMUs without event indicators and without an announced time event take the plain path: no call more
 per step.  With indicators that never fire, a step of the test FMUs costs 17 us instead of 14 us (26 us
 before the start-of-interval check was limited to steps whose inputs changed; 2026-11-27).
+
+Completed integrator steps.  An FMU that needs ``fmiCompletedIntegratorStep`` after every accepted integrator step
+(FMI 2 unless ``completedIntegratorStepNotNeeded="true"``, FMI 3 if ``needsCompletedIntegratorStep="true"``; a
+``delay()`` buffer advances there) gets it from the integrator's loop after each accepted step inside an interval,
+and, like every FMU, at the interval's end.  An event it asks for there is handled at that step.  The trials of a
+crossing search go back in time and do not call it.
+
+Discrete inputs.  Model exchange may change an input of discrete variability only in event mode (FMI 2.0 section
+3.2.3): a step where one changes sets the inputs in event mode, before an event iteration (not counted as an event
+of the model).
 """
 
 from __future__ import annotations
@@ -86,8 +96,9 @@ class ModelExchangeSource(FMUSource):
     -----
     Events (module docstring): time events are met exactly; state events are located to
     ``1e-12`` of the interval (plus a few ulps of t) and handled just after the crossing; an FMU
-    asking for an event from ``fmiCompletedIntegratorStep`` gets its event iteration where it asks,
-    at the end of the interval (a communication step, or the part of it up to an event).  The signs
+    asking for an event from ``fmiCompletedIntegratorStep`` gets its event iteration where it asks:
+    at the end of the interval (a communication step, or the part of it up to an event), or, for an FMU that
+    needs the call after every integrator step, at that step.  The signs
     of the event indicators are compared only at the ends of each interval, so two crossings of one
     indicator inside one interval (a communication step or shorter) cancel and are missed: record with
     a smaller dt when a threshold may be crossed and re-crossed within one step.  Events may change the
