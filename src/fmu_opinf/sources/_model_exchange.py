@@ -186,6 +186,7 @@ class ModelExchangeSource(FMUSource):
         self._scale = np.abs(self._x)
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md, self.fmi_version)
+        self._searching = False   # in a crossing search: no completed integrator steps
         self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx,
                                             self._c_completed if self._needs_completed else None,
                                             2 if self.fmi_version.startswith("2") else 3)
@@ -298,17 +299,18 @@ class ModelExchangeSource(FMUSource):
             return
         self._completed_step(i, t1)
 
-    def _piece(self, i: int, t0: float, t1: float, completed: bool = True) -> float:
+    def _piece(self, i: int, t0: float, t1: float) -> float:
         """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there.
 
         For an FMU that needs them, ``fmiCompletedIntegratorStep`` is called after each accepted step before ``t1``
-        (``completed=False``: not, for the trials of a crossing search, which go back in time).  Returns the time
-        reached: ``t1``, or that of the completed step where the FMU asked for an event (the caller handles it).
+        (not in the trials of a crossing search, which go back in time).  Returns the time reached: ``t1``, or that
+        of the completed step where the FMU asked for an event (the caller handles it).
         """
         t = t1
         if self.nx:
             try:
-                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed and self._needs_completed)
+                completed = self._needs_completed and not self._searching
+                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
@@ -383,7 +385,11 @@ class ModelExchangeSource(FMUSource):
             if not a < t_m < b:  # the bracket is within rounding of the tolerance: as narrow as it gets
                 break
             self._x = x_a.copy()
-            self._piece(i, a, t_m, completed=False)
+            self._searching = True
+            try:
+                self._piece(i, a, t_m)
+            finally:
+                self._searching = False
             g_m = np.empty(self.nz)
             self._read_indicators(i, t_m, g_m)
             if _sign_changed(g_a, g_m):
