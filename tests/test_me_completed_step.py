@@ -97,7 +97,8 @@ def test_completed_integrator_step_after_every_accepted_step(fmus, version, loop
 @pytest.mark.parametrize("method", ["lsoda", "rk45"])
 def test_completed_steps_with_the_other_integrators(fmus, method):
     """LSODA (step by step through scipy.integrate.LSODA for such FMUs: odeint cannot call back) and RK45."""
-    run = record(ModelExchangeSource(fmus[("2.0", "gap")], method=method, **STATES), INPUT, DT, T_END, quiet=True).runs[0]
+    source = ModelExchangeSource(fmus[("2.0", "gap")], method=method, **STATES)
+    run = record(source, INPUT, DT, T_END, quiet=True).runs[0]
     assert run.complete
     assert largest_error(run, two_masses()) < 2e-9   # measured 6.9e-10 (LSODA), 3.1e-10 (RK45)
 
