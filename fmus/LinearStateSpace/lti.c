@@ -98,6 +98,7 @@ void ltiReset(LtiInstance *inst) {
     size_t i;
 
     inst->phase = PhaseInstantiated;
+    inst->completedEventAsked = 0;
     inst->nq = LTI_NQ_DEFAULT;
     inst->time = 0.0;
     inst->tolerance = DEFAULT_TOLERANCE;
@@ -291,6 +292,12 @@ LtiStatus ltiSetReal(LtiInstance *inst, const char *function, const unsigned int
             ltiLog(inst, LtiError, "logStatusError",
                    "%s: value reference %u is computed by the FMU and cannot be set", function,
                    vr[i]);
+            return LtiError;
+        }
+        if (slot->tunable == 2 && !inst->isCoSimulation && (inst->phase & PhaseContinuous) &&
+            values[offset] != inst->u[slot->index]) {
+            ltiLog(inst, LtiError, "logStatusError",
+                   "%s: discrete input (value reference %u) may only be set in event mode", function, vr[i]);
             return LtiError;
         }
         if (!slot->tunable && !(inst->phase & PHASE_BEFORE_INIT)) {
@@ -567,6 +574,33 @@ int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
 }
 
 /* End of initialization: the indicator's sign there is the reference of the first crossing. */
+LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time) {
+    if (LTI_COMPLETED_GAP > 0.0 && (inst->phase & PhaseContinuous) &&
+        time - inst->timeCompleted > LTI_COMPLETED_GAP) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "%s: buffer overrun: CompletedIntegratorStep not called since t=%g (now t=%g)", function,
+               inst->timeCompleted, time);
+        return LtiError;
+    }
+    inst->time = time;
+    inst->upToDate = 0;
+    return LtiOK;
+}
+
+int ltiCompletedStep(LtiInstance *inst) {
+    inst->timeCompleted = inst->time;
+    if (LTI_COMPLETED_EVENT && !inst->completedEventAsked && inst->time >= LTI_COMPLETED_EVENT_AT) {
+        inst->completedEventAsked = 1;
+        return 1;
+    }
+    return 0;
+}
+
+void ltiEnterContinuousMode(LtiInstance *inst) {
+    inst->phase = PhaseContinuous;
+    inst->timeCompleted = inst->time;
+}
+
 void ltiStartEvents(LtiInstance *inst) {
     if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
 }

@@ -31,7 +31,8 @@ typedef struct {
     int kind;      /* SlotKind */
     int index;     /* element (0-based); ignored for arrays */
     int isArray;   /* 1: the value reference holds every element (FMI 3 arrays) */
-    int tunable;   /* 1: may be set after initialization (inputs) */
+    int tunable;   /* 1: may be set after initialization (inputs); 2: a discrete input, which model exchange
+                      may change only in event mode (LTI_DISCRETE_INPUTS) */
 } LtiSlot;
 
 /* Phases of the FMI state machines (both versions). */
@@ -82,6 +83,8 @@ struct LtiInstance {
     int timeEventOn;     /* LTI_TIME_EVENT: the time event has switched its force on */
     int stateEventOn;    /* LTI_STATE_EVENT: the state event has latched its force on */
     int indicatorAbove;  /* LTI_STATE_EVENT: indicator > 0 at the last event (or initialization) */
+    double timeCompleted; /* LTI_COMPLETED_GAP: time of the last completed integrator step (or event) */
+    int completedEventAsked; /* LTI_COMPLETED_EVENT: the event was asked for */
 };
 
 #define PAR_MASS_SCALE 0
@@ -106,6 +109,11 @@ extern const size_t LTI_STATE_EVENT_DOF;
 extern const double LTI_TIME_EVENT_FQ[], LTI_STATE_EVENT_FQ[];
 /* LTI_TIME_EVENT_JUMP: qd += LTI_TIME_EVENT_DQD at the time event (a reinit of the velocities). */
 extern const double LTI_TIME_EVENT_DQD[];
+/* LTI_COMPLETED_GAP > 0: the FMU needs CompletedIntegratorStep after every integrator step (as a Modelica delay()
+   buffer does) and refuses SetTime more than LTI_COMPLETED_GAP after the last one.  LTI_COMPLETED_EVENT: the first
+   completed step at or after LTI_COMPLETED_EVENT_AT asks for event mode (an event iteration that changes nothing). */
+extern const double LTI_COMPLETED_GAP, LTI_COMPLETED_EVENT_AT;
+extern const int LTI_COMPLETED_EVENT;
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
 
@@ -138,6 +146,11 @@ LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double val
 /* Returns 1 if the continuous states changed (the time event's velocity jump), else 0. */
 int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
 void ltiStartEvents(LtiInstance *inst);
+/* model exchange: SetTime (checks LTI_COMPLETED_GAP), CompletedIntegratorStep (returns 1 to ask for event mode),
+   EnterContinuousTimeMode */
+LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time);
+int ltiCompletedStep(LtiInstance *inst);
+void ltiEnterContinuousMode(LtiInstance *inst);
 LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
 
 #endif /* LTI_H */

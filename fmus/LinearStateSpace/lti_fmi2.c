@@ -254,7 +254,7 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
 
 fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
     CHECK(c, "fmi2EnterContinuousTimeMode", PhaseEvent);
-    inst->phase = PhaseContinuous;
+    ltiEnterContinuousMode(inst);
     return fmi2OK;
 }
 
@@ -263,16 +263,14 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
                                        fmi2Boolean *terminateSimulation) {
     CHECK(c, "fmi2CompletedIntegratorStep", PhaseContinuous);
     (void)noSetFMUStatePriorToCurrentPoint;
-    *enterEventMode = fmi2False;
+    *enterEventMode = ltiCompletedStep(inst) ? fmi2True : fmi2False;
     *terminateSimulation = fmi2False;
     return fmi2OK;
 }
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
     CHECK(c, "fmi2SetTime", PhaseEvent | PhaseContinuous | PHASE_BEFORE_INIT);
-    inst->time = time;
-    inst->upToDate = 0;
-    return fmi2OK;
+    return finish(inst, ltiSetTime(inst, "fmi2SetTime", time));
 }
 
 fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {

@@ -477,7 +477,7 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
 
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance instance) {
     CHECK(instance, "fmi3EnterContinuousTimeMode", PhaseEvent);
-    inst->phase = PhaseContinuous;
+    ltiEnterContinuousMode(inst);
     return fmi3OK;
 }
 
@@ -487,16 +487,14 @@ fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance,
                                        fmi3Boolean *terminateSimulation) {
     CHECK(instance, "fmi3CompletedIntegratorStep", PhaseContinuous);
     (void)noSetFMUStatePriorToCurrentPoint;
-    *enterEventMode = fmi3False;
+    *enterEventMode = ltiCompletedStep(inst) ? fmi3True : fmi3False;
     *terminateSimulation = fmi3False;
     return fmi3OK;
 }
 
 fmi3Status fmi3SetTime(fmi3Instance instance, fmi3Float64 time) {
     CHECK(instance, "fmi3SetTime", PhaseEvent | PhaseContinuous);
-    inst->time = time;
-    inst->upToDate = 0;
-    return fmi3OK;
+    return finish(inst, ltiSetTime(inst, "fmi3SetTime", time));
 }
 
 static LtiStatus checkStates(LtiInstance *inst, const char *function, size_t n) {

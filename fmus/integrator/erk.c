@@ -24,6 +24,10 @@
 typedef int (*erk_set_time)(void *, double);
 typedef int (*erk_set_states)(void *, const double *, size_t);
 typedef int (*erk_get_derivatives)(void *, double *, size_t);
+/* fmi2CompletedIntegratorStep / fmi3CompletedIntegratorStep: the same shape, but FMI 2's booleans are ints and
+   FMI 3's are bools, so each version has its own pointer type. */
+typedef int (*erk_completed2)(void *, int, int *, int *);
+typedef int (*erk_completed3)(void *, _Bool, _Bool *, _Bool *);
 
 typedef struct {
     void *component;
@@ -33,6 +37,8 @@ typedef struct {
     size_t n;
     double rtol;
     const double *atol; /* n absolute tolerances */
+    void *completed;    /* the FMU's CompletedIntegratorStep, called after each accepted step inside the interval */
+    int fmi_version;    /* 2 or 3: how to call completed; 0: do not call it */
 } erk_model;
 
 typedef struct {
@@ -49,13 +55,16 @@ typedef struct {
     double t;          /* time reached */
     double h_abs;      /* next step size to try; <= 0 on the first call: chosen from the derivatives */
     double h_last;     /* size of the last step taken, 0 before the first */
-    double t_failed;   /* time of the evaluation that failed */
+    double t_failed;   /* time of the last evaluation: of the one that failed, after a failure */
     int have_f;        /* row 0 of the work array holds f(t, y) */
     long evaluations;  /* derivative evaluations so far */
     long steps;        /* accepted steps so far */
 } erk_state;
 
-enum { ERK_DONE = 0, ERK_PAUSED = 1, ERK_FMU_ERROR = 2, ERK_NOT_FINITE = 3, ERK_STEP_TOO_SMALL = 4 };
+enum {
+    ERK_DONE = 0, ERK_PAUSED = 1, ERK_FMU_ERROR = 2, ERK_NOT_FINITE = 3, ERK_STEP_TOO_SMALL = 4,
+    ERK_EVENT = 5, ERK_TERMINATE = 6, ERK_COMPLETED_ERROR = 7
+};
 
 static const double SAFETY = 0.9, MIN_FACTOR = 0.2, MAX_FACTOR = 10.0;
 
@@ -196,10 +205,32 @@ static int accepted_step(const erk_model *m, const erk_tableau *tab, erk_state *
     return ERK_DONE;
 }
 
+/* CompletedIntegratorStep at the accepted point (st->t, y): the FMU's state is y already (the last evaluation of
+   an accepted step is f(t + h, y_new)), its time is set again only where t + h rounded differently from st->t.
+   Returns ERK_EVENT or ERK_TERMINATE when the FMU asks for event mode or for the end of the simulation. */
+static int completed_step(const erk_model *m, erk_state *st) {
+    int event = 0, terminate = 0, status;
+    if (st->t_failed != st->t && m->set_time(m->component, st->t) > 1) return ERK_FMU_ERROR;
+    st->t_failed = st->t;
+    if (m->fmi_version == 2) {
+        status = ((erk_completed2)m->completed)(m->component, 1, &event, &terminate);
+    } else {
+        _Bool event3 = 0, terminate3 = 0;
+        status = ((erk_completed3)m->completed)(m->component, 1, &event3, &terminate3);
+        event = event3;
+        terminate = terminate3;
+    }
+    if (status > 1) return ERK_COMPLETED_ERROR;
+    return terminate ? ERK_TERMINATE : event ? ERK_EVENT : ERK_DONE;
+}
+
 /*
  * Integrate y from st->t towards t_bound, at most max_steps accepted steps per call (ERK_PAUSED: call again,
  * so that the caller can react to an interrupt).  work holds (stages + 4) * n doubles and must be kept between
  * the calls of one interval.  Returns ERK_DONE once st->t == t_bound, or an error code with st->t_failed.
+ * With m->fmi_version set, the FMU's CompletedIntegratorStep is called after every accepted step that ends before
+ * t_bound (the caller calls it at t_bound); when the FMU asks for an event (ERK_EVENT) or to terminate
+ * (ERK_TERMINATE) the loop stops there, with st->t and y the accepted point.
  */
 ERK_EXPORT int erk_advance(const erk_model *m, const erk_tableau *tab, erk_state *st, double t_bound, double *y,
                            double *work, long max_steps) {
@@ -225,6 +256,10 @@ ERK_EXPORT int erk_advance(const erk_model *m, const erk_tableau *tab, erk_state
         if (taken++ >= max_steps) return ERK_PAUSED;
         status = accepted_step(m, tab, st, t_bound, y, work);
         if (status) return status;
+        if (m->fmi_version && st->t < t_bound) {
+            status = completed_step(m, st);
+            if (status) return status;
+        }
     }
     return ERK_DONE;
 }

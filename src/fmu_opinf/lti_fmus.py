@@ -637,7 +637,7 @@ class _Layout:
                                        description="simulation time"))
 
     def add(self, name: str, kind: str, index: int = 0, *, array: bool = False,
-            tunable: bool = False, **attributes) -> _Var:
+            tunable: bool | int = False, **attributes) -> _Var:
         if not self.units:
             attributes.pop("unit", None)
         var = _Var(name, len(self.slots), **attributes)
@@ -745,6 +745,13 @@ class _Options:
     stale_derivatives: bool = False
     time_event: TimeEvent | None = None
     state_event: StateEvent | None = None
+    completed_step_gap: float | None = None
+    completed_step_event_at: float | None = None
+    discrete_inputs: tuple[int, ...] = ()
+
+    @property
+    def needs_completed_steps(self) -> bool:
+        return self.completed_step_gap is not None or self.completed_step_event_at is not None
 
 
 def _check_options(model, options: _Options) -> None:
@@ -786,6 +793,24 @@ def _check_options(model, options: _Options) -> None:
         raise FmuBuildError("declared_types puts the units on type definitions; it needs "
                             "units=True")
     _check_events(model, options)
+    _check_completed_steps(model, options)
+
+
+def _check_completed_steps(model, options: _Options) -> None:
+    """The completed-step options need model exchange; discrete inputs must be scalar force inputs."""
+    gap, at = options.completed_step_gap, options.completed_step_event_at
+    if options.needs_completed_steps and "me" not in options.interfaces:
+        raise FmuBuildError("completed_step_gap and completed_step_event_at need model exchange; "
+                            "include 'me' in interfaces")
+    if gap is not None and not (math.isfinite(gap) and gap > 0):
+        raise FmuBuildError(f"completed_step_gap={gap} is invalid; give a positive finite time")
+    if at is not None and not math.isfinite(at):
+        raise FmuBuildError(f"completed_step_event_at={at} is invalid; give a finite time")
+    m = (model.model() if isinstance(model, MassChain) else model).m
+    bad = [j for j in options.discrete_inputs if not (int(j) == j and 0 <= j < m)]
+    if bad or (options.discrete_inputs and options.input_array):
+        raise FmuBuildError(f"discrete_inputs {options.discrete_inputs} are invalid; give indices of scalar force "
+                            f"inputs in [0, {m - 1}] (not with input_array)")
 
 
 def _check_per_dof(values, what: str, n: int) -> None:
@@ -831,9 +856,10 @@ def _common_inputs(layout: _Layout, model: LinearMechanicalModel, options: _Opti
                    start=[0.0] * model.m, unit="N", description="force inputs (columns of B)")
         inputs = [f"{force}[{j + 1}]" for j in range(model.m)]
     for j in range(model.m if not inputs else 0):
-        var = layout.add(_indexed(force, j, model.m, modelica), "SlotU", j, tunable=True,
-                         causality="input", start=[0.0], unit="N",
-                         description=f"force input {j + 1} (column {j + 1} of B)")
+        discrete = j in options.discrete_inputs   # model exchange: set only in event mode (tunable 2 in C)
+        var = layout.add(_indexed(force, j, model.m, modelica), "SlotU", j, tunable=2 if discrete else True,
+                         causality="input", variability="discrete" if discrete else "continuous",
+                         start=[0.0], unit="N", description=f"force input {j + 1} (column {j + 1} of B)")
         inputs.append(var.name)
     parameter_inputs = []
     for index, name in enumerate(SCALE_PARAMETERS):
@@ -1213,7 +1239,8 @@ def _model_description2(layout: _Layout, options: _Options, sources: list[str]) 
     if "me" in options.interfaces:
         interfaces += (
             f'  <ModelExchange modelIdentifier="{options.identifier}" needsExecutionTool="false"'
-            ' completedIntegratorStepNotNeeded="true" canBeInstantiatedOnlyOncePerProcess="false"'
+            f' completedIntegratorStepNotNeeded="{str(not options.needs_completed_steps).lower()}"'
+            ' canBeInstantiatedOnlyOncePerProcess="false"'
             ' canNotUseMemoryManagementFunctions="true" canGetAndSetFMUstate="false"'
             ' canSerializeFMUstate="false" providesDirectionalDerivative="false">\n'
             f"    <SourceFiles>\n{files}    </SourceFiles>\n  </ModelExchange>\n")
@@ -1272,7 +1299,8 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
               ' providesAdjointDerivatives="false" providesPerElementDependencies="false"')
     interfaces = ""
     if "me" in options.interfaces:
-        interfaces += (f"  <ModelExchange{common} needsCompletedIntegratorStep=\"false\""
+        interfaces += (f"  <ModelExchange{common} needsCompletedIntegratorStep="
+                       f"\"{str(options.needs_completed_steps).lower()}\""
                        ' providesEvaluateDiscreteStates="false"/>\n')
     if "cs" in options.interfaces:
         interfaces += (f"  <CoSimulation{common} canHandleVariableCommunicationStepSize=\"true\""
@@ -1434,6 +1462,9 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_NY = {model.p};\n"
         "const double LTI_PAR_DEFAULTS[2] = {1.0, 1.0};\n"
         f"{_event_source(options, model, coords)}"
+        f"const double LTI_COMPLETED_GAP = {_number(options.completed_step_gap or 0.0)};\n"
+        f"const int LTI_COMPLETED_EVENT = {int(options.completed_step_event_at is not None)};\n"
+        f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1535,7 +1566,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   input_array: bool = False, interleaved: bool = False,
                   dependencies: bool = True, stale_derivatives: bool = False,
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
-                  reuse: bool = True) -> LtiFmu:
+                  completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
+                  discrete_inputs: Sequence[int] = (), reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1610,6 +1642,17 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Model exchange: applied in the event iteration after the crossing, which the importer
         must locate.  Co-simulation looks at the indicator only at the end of each ``doStep``
         (the force starts at the communication point after the crossing, as simple exporters do).
+    completed_step_gap : float, optional
+        Model exchange: the FMU declares that it needs ``fmiCompletedIntegratorStep`` after every integrator
+        step (FMI 2: ``completedIntegratorStepNotNeeded="false"``, FMI 3: ``needsCompletedIntegratorStep="true"``)
+        and refuses ``fmiSetTime`` more than this many seconds after the last one, as the buffer of a Modelica
+        ``delay()`` would: an importer that calls it once per communication step fails at a step longer than this.
+    completed_step_event_at : float, optional
+        Model exchange: the first completed integrator step at or after this time asks for event mode (whose event
+        iteration changes nothing); also declares the need for completed steps.
+    discrete_inputs : sequence of int, default=()
+        Force inputs (indices) declared with ``variability="discrete"``, which model exchange may change only in
+        event mode (FMI 2.0 section 3.2.3): the FMU refuses a new value in continuous-time mode.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1637,7 +1680,10 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         output_array=bool(output_array), output_aliases=bool(output_aliases),
         input_array=bool(input_array), interleaved=bool(interleaved),
         dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives),
-        time_event=time_event, state_event=state_event)
+        time_event=time_event, state_event=state_event,
+        completed_step_gap=None if completed_step_gap is None else float(completed_step_gap),
+        completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
+        discrete_inputs=tuple(discrete_inputs))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

@@ -6,7 +6,9 @@ model's derivatives cost in C: on the five-mass Modelica chain of the tests (tol
 evaluations took 7.1 s of a 13 s chain.  ``fmus/integrator/erk.c`` runs the same method -- the Butcher
 tableau and error estimators of :class:`scipy.integrate.DOP853`, passed in from that class, and its error
 norm and step-size control -- calling the FMU's ``SetTime``, ``SetContinuousStates`` and
-``GetDerivatives`` function pointers directly.
+``GetDerivatives`` function pointers directly.  For an FMU that needs ``CompletedIntegratorStep`` after each
+accepted integrator step (FMI 2: ``completedIntegratorStepNotNeeded`` not true; FMI 3:
+``needsCompletedIntegratorStep``), the loop calls it too, and stops at the step where the FMU asks for an event.
 
 The library is compiled once per machine into the per-user cache folder (``$FMU_OPINF_CACHE_DIR``, else e.g.
 ``~/.cache/fmu-opinf``), named after a digest of its source and of the build's kind, with the C compiler of
@@ -37,7 +39,7 @@ import numpy as np
 __all__ = ["Kernel", "kernel", "IntegrationFailure"]
 
 #: erk_advance's return codes.
-_DONE, _PAUSED, _FMU_ERROR, _NOT_FINITE, _STEP_TOO_SMALL = range(5)
+_DONE, _PAUSED, _FMU_ERROR, _NOT_FINITE, _STEP_TOO_SMALL, _EVENT, _TERMINATE, _COMPLETED_ERROR = range(8)
 
 #: Wall time one call of the C loop aims at: between calls the caller checks for Ctrl-C, so that a stiff model
 #: taking millions of steps in one interval can still be interrupted.  The number of steps per call adapts.
@@ -53,7 +55,7 @@ class IntegrationFailure(Exception):
 class _Model(ctypes.Structure):
     _fields_ = [("component", ctypes.c_void_p), ("set_time", ctypes.c_void_p), ("set_states", ctypes.c_void_p),
                 ("get_derivatives", ctypes.c_void_p), ("n", ctypes.c_size_t), ("rtol", ctypes.c_double),
-                ("atol", ctypes.c_void_p)]
+                ("atol", ctypes.c_void_p), ("completed", ctypes.c_void_p), ("fmi_version", ctypes.c_int)]
 
 
 class _Tableau(ctypes.Structure):
@@ -81,10 +83,14 @@ class Kernel:
         ``GetContinuousStateDerivatives``).
     n : int
         Number of continuous states.
+    completed : ctypes function, optional
+        The FMU's ``CompletedIntegratorStep``, for an FMU that needs it after every accepted step.
+    fmi_version : int, default=2
+        2 or 3: the boolean type of ``completed``'s arguments (int or bool).
     """
 
     def __init__(self, library: ctypes.CDLL, component: int, set_time: Any, set_states: Any, get_derivatives: Any,
-                 n: int) -> None:
+                 n: int, completed: Any = None, fmi_version: int = 2) -> None:
         from scipy.integrate import DOP853
 
         self._advance = library.erk_advance
@@ -92,26 +98,32 @@ class Kernel:
                                                                        DOP853.E5, DOP853.E3)]
         a, b, c, e5, e3 = (arr.ctypes.data for arr in self._arrays)
         self._tableau = _Tableau(int(DOP853.n_stages), int(DOP853.error_estimator_order), a, b, c, e5, e3)
-        self._functions = (set_time, set_states, get_derivatives)  # kept alive with the pointers below
-        address = [ctypes.cast(f, ctypes.c_void_p).value for f in self._functions]
+        self._functions = (set_time, set_states, get_derivatives, completed)  # kept alive with the pointers below
+        address = [ctypes.cast(f, ctypes.c_void_p).value for f in self._functions[:3]]
+        self._completed = ctypes.cast(completed, ctypes.c_void_p).value if completed is not None else None
+        self._fmi_version = int(fmi_version)
         self._atol = np.zeros(n)
-        self._model = _Model(component, *address, n, 0.0, self._atol.ctypes.data)
+        self._model = _Model(component, *address, n, 0.0, self._atol.ctypes.data, self._completed, 0)
         self._work = np.zeros((DOP853.n_stages + 4) * max(n, 1))
         self.n = n
         self.evaluations = 0
         self._steps_per_call = 16
 
     def integrate(self, y: np.ndarray, t0: float, t1: float, rtol: float, atol: np.ndarray, first_step: float | None,
-                  check_interrupt: Any = None) -> tuple[np.ndarray, float]:
-        """Integrate ``y`` from ``t0`` to ``t1``; the new state and the size of the last step taken (0: none).
+                  check_interrupt: Any = None, completed: bool = False) -> tuple[np.ndarray, float, float]:
+        """Integrate ``y`` from ``t0`` to ``t1``; the new state, the size of the last step taken (0: none) and the
+        time reached: ``t1``, or earlier where the FMU asked for an event in ``CompletedIntegratorStep``.
 
         ``first_step`` (None: chosen from the derivatives, as :func:`scipy.integrate.solve_ivp` does) must not
-        exceed ``t1 - t0``.  ``check_interrupt`` is called between blocks of steps.  Raises
-        :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails.
+        exceed ``t1 - t0``.  ``check_interrupt`` is called between blocks of steps.  ``completed``: call the FMU's
+        ``CompletedIntegratorStep`` after each accepted step before ``t1`` (not at ``t1``: the caller does, as it
+        may go on with events there).  Raises :class:`IntegrationFailure` with scipy's wording for the reasons its
+        loop fails, and when the FMU refuses the completed step or asks to terminate.
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
         self._model.rtol = max(float(rtol), 100 * np.finfo(float).eps)  # scipy's floor of the relative tolerance
+        self._model.fmi_version = self._fmi_version if completed and self._completed else 0
         state = _State(t0, first_step or 0.0, 0.0, t0, 0, 0, 0)
         try:
             while True:
@@ -132,7 +144,12 @@ class Kernel:
             raise IntegrationFailure(f"the derivatives are not finite at t={state.t_failed:.9g}")
         if status == _STEP_TOO_SMALL:
             raise IntegrationFailure("DOP853: Required step size is less than spacing between numbers.")
-        return y, float(state.h_last)
+        if status == _COMPLETED_ERROR:
+            raise IntegrationFailure(f"fmiCompletedIntegratorStep failed at t={state.t:.9g}")
+        if status == _TERMINATE:
+            raise IntegrationFailure(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at "
+                                     f"t={state.t:.9g}")
+        return y, float(state.h_last), float(state.t) if status == _EVENT else t1
 
     def _adapt(self, seconds: float) -> None:
         """More steps per call when a call was much shorter than the aim, fewer when it was longer."""
@@ -142,10 +159,13 @@ class Kernel:
             self._steps_per_call = max(self._steps_per_call // 2, 1)
 
 
-def kernel(component: int, set_time: Any, set_states: Any, get_derivatives: Any, n: int) -> Kernel | None:
-    """The compiled loop for one FMU instance, or None where the library cannot be built here."""
+def kernel(component: int, set_time: Any, set_states: Any, get_derivatives: Any, n: int, completed: Any = None,
+           fmi_version: int = 2) -> Kernel | None:
+    """The compiled loop for one FMU instance (``completed``, ``fmi_version``: see :class:`Kernel`), or None where
+    the library cannot be built here."""
     library = _library()
-    return None if library is None else Kernel(library, component, set_time, set_states, get_derivatives, n)
+    return None if library is None else Kernel(library, component, set_time, set_states, get_derivatives, n,
+                                               completed, fmi_version)
 
 
 def available() -> bool:

@@ -32,6 +32,16 @@ iteration does not end) is a step error, like any other failure of a step.
 FMUs without event indicators and without an announced time event take the plain path: no call more
 per step.  With indicators that never fire, a step of the test FMUs costs 17 us instead of 14 us (26 us
 before the start-of-interval check was limited to steps whose inputs changed; 2026-11-27).
+
+Completed integrator steps.  An FMU that needs ``fmiCompletedIntegratorStep`` after every accepted integrator step
+(FMI 2 unless ``completedIntegratorStepNotNeeded="true"``, FMI 3 if ``needsCompletedIntegratorStep="true"``; a
+``delay()`` buffer advances there) gets it from the integrator's loop after each accepted step inside an interval,
+and, like every FMU, at the interval's end.  An event it asks for there is handled at that step.  The trials of a
+crossing search go back in time and do not call it.
+
+Discrete inputs.  Model exchange may change an input of discrete variability only in event mode (FMI 2.0 section
+3.2.3): a step where one changes sets the inputs in event mode, before an event iteration (not counted as an event
+of the model).
 """
 
 from __future__ import annotations
@@ -86,8 +96,9 @@ class ModelExchangeSource(FMUSource):
     -----
     Events (module docstring): time events are met exactly; state events are located to
     ``1e-12`` of the interval (plus a few ulps of t) and handled just after the crossing; an FMU
-    asking for an event from ``fmiCompletedIntegratorStep`` gets its event iteration where it asks,
-    at the end of the interval (a communication step, or the part of it up to an event).  The signs
+    asking for an event from ``fmiCompletedIntegratorStep`` gets its event iteration where it asks:
+    at the end of the interval (a communication step, or the part of it up to an event), or, for an FMU that
+    needs the call after every integrator step, at that step.  The signs
     of the event indicators are compared only at the ends of each interval, so two crossings of one
     indicator inside one interval (a communication step or shorter) cancel and are missed: record with
     a smaller dt when a threshold may be crossed and re-crossed within one step.  Events may change the
@@ -174,7 +185,11 @@ class ModelExchangeSource(FMUSource):
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
-        self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx)
+        self._needs_completed = _needs_completed_steps(self.md, self.fmi_version)
+        self._searching = False   # in a crossing search: no completed integrator steps
+        self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx,
+                                            self._c_completed if self._needs_completed else None,
+                                            2 if self.fmi_version.startswith("2") else 3)
                         if self.method == "dop853" and self.nx else None)
 
     @property
@@ -227,13 +242,30 @@ class ModelExchangeSource(FMUSource):
         raise FMUError(f"{self.path.name} did not finish its event iteration after {_MAX_EVENT_ITERATIONS} rounds")
 
     # -- stepping ---------------------------------------------------------------------------
+    def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
+        super()._plan(t, U)
+        discrete = self._discrete_inputs()
+        in_event = np.zeros(len(self._t), dtype=bool)
+        if discrete.any():
+            in_event[1:] = np.any(self._U[1:, discrete] != self._U[:-1, discrete], axis=1)
+        self._inputs_in_event_mode = in_event.tolist()
+
+    def _discrete_inputs(self) -> np.ndarray:
+        """Which force inputs have discrete variability: model exchange may change them only in event mode
+        (FMI 2.0 section 3.2.3, FMI 3.0 likewise); an element ``F[2]`` of an FMI 3 array is its array's."""
+        variability = {v.name: v.variability for v in self.md.modelVariables}
+        return np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
+                         for name in self.input_names], dtype=bool)
+
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
-        t, changed = self._t_list, self._changed
+        t, changed, in_event = self._t_list, self._changed, self._inputs_in_event_mode
         for j in range(count):
             i = i0 + j
             if i:
-                if changed[i]:
+                if in_event[i]:
+                    self._handle_event(i, t[i - 1], lambda: self._set_inputs(i))
+                elif changed[i]:
                     self._set_inputs(i)
                 self._integrate(i, t[i - 1], t[i], bool(changed[i]))
             self.read(rows[j])
@@ -243,8 +275,15 @@ class ModelExchangeSource(FMUSource):
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
-        if self.m and self._call_set(u) > 1:
-            raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+
+        def set_input() -> None:
+            if self._call_set(u) > 1:
+                raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+
+        if self.m and self._discrete_inputs().any():   # they may change only in event mode
+            self._handle_event(-1, t, set_input)
+        elif self.m:
+            set_input()
         self._integrate(-1, t, t + h)
 
     def _integrate(self, i: int, t0: float, t1: float, inputs_set: bool = True) -> None:
@@ -253,20 +292,32 @@ class ModelExchangeSource(FMUSource):
         if self.nz or self._t_next != math.inf:
             self._integrate_with_events(i, t0, t1, inputs_set)
             return
-        self._piece(i, t0, t1)
+        t = self._piece(i, t0, t1)
+        if t < t1:   # the FMU asked for an event in a completed integrator step inside the interval
+            self._handle_event(i, t)
+            self._integrate_with_events(i, t, t1, False)
+            return
         self._completed_step(i, t1)
 
-    def _piece(self, i: int, t0: float, t1: float) -> None:
-        """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there."""
+    def _piece(self, i: int, t0: float, t1: float) -> float:
+        """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there.
+
+        For an FMU that needs them, ``fmiCompletedIntegratorStep`` is called after each accepted step before ``t1``
+        (not in the trials of a crossing search, which go back in time).  Returns the time reached: ``t1``, or that
+        of the completed step where the FMU asked for an event (the caller handles it).
+        """
+        t = t1
         if self.nx:
             try:
-                self._x = _INTEGRATORS[self.method](self, t0, t1)
+                completed = self._needs_completed and not self._searching
+                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
             self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
-        if self._c_time(self._comp, t1) > 1:
+        if self._c_time(self._comp, t) > 1:
             raise StepError(self._integration_failure(i, t0, t1, "fmiSetTime failed"), i, t1)
+        return t
 
     def _integrate_with_events(self, i: int, t0: float, t1: float, inputs_set: bool) -> None:
         """:meth:`_integrate` through the time events and the located state events in ``(t0, t1]``.
@@ -285,9 +336,10 @@ class ModelExchangeSource(FMUSource):
         for _ in range(_MAX_EVENTS_PER_STEP):
             timed = self._t_next <= t1 + slack
             end = max(self._t_next, t) if timed else t1
-            t, crossed = self._advance_to(i, t, end)
-            handled = self._completed_step(i, t)
-            if (crossed or timed) and not handled:
+            t, crossed, asked = self._advance_to(i, t, end)
+            if asked:   # in a completed integrator step before the end, which was called there
+                self._handle_event(i, t)
+            elif not self._completed_step(i, t) and (crossed or timed):
                 self._handle_event(i, t)
             if t1 - t <= slack:
                 return
@@ -295,20 +347,21 @@ class ModelExchangeSource(FMUSource):
                         f"t={t1:g} (an event indicator chatters or time events do not advance); fix the model "
                         "or try --interface cs", i, t1)
 
-    def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool]:
-        """Integrate towards ``t1``; with event indicators, stop just after the first change of sign.
-        Returns the time reached and whether an indicator crossed zero."""
+    def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool, bool]:
+        """Integrate towards ``t1``; with event indicators, stop just after the first change of sign; stop where
+        the FMU asks for an event in a completed integrator step.  Returns the time reached, whether an
+        indicator crossed zero, and whether the FMU asked for an event there (a crossing before it comes first)."""
         if t1 <= t0:   # an event due at once
-            return t0, False
+            return t0, False, False
         start = self._x.copy() if self.nz else None
-        self._piece(i, t0, t1)
+        t = self._piece(i, t0, t1)
         if not self.nz:
-            return t1, False
-        self._read_indicators(i, t1, self._z_end)
+            return t, False, t < t1
+        self._read_indicators(i, t, self._z_end)
         if not _sign_changed(self._z, self._z_end):
             self._z, self._z_end = self._z_end, self._z
-            return t1, False
-        return self._locate_crossing(i, t0, t1, start), True
+            return t, False, t < t1
+        return self._locate_crossing(i, t0, t, start), True, False
 
     def _locate_crossing(self, i: int, a: float, b: float, x_a: np.ndarray) -> float:
         """The first zero crossing of an event indicator in ``(a, b]``, bracketed to
@@ -332,7 +385,11 @@ class ModelExchangeSource(FMUSource):
             if not a < t_m < b:  # the bracket is within rounding of the tolerance: as narrow as it gets
                 break
             self._x = x_a.copy()
-            self._piece(i, a, t_m)
+            self._searching = True
+            try:
+                self._piece(i, a, t_m)
+            finally:
+                self._searching = False
             g_m = np.empty(self.nz)
             self._read_indicators(i, t_m, g_m)
             if _sign_changed(g_a, g_m):
@@ -378,16 +435,21 @@ class ModelExchangeSource(FMUSource):
             self._handle_event(i, t1)
         return bool(flags[0])
 
-    def _handle_event(self, i: int, t: float) -> None:
+    def _handle_event(self, i: int, t: float, set_inputs: Callable[[], None] | None = None) -> None:
         """Event mode at the FMU's current time ``t`` (of step ``i``): iterate, then read the (possibly changed)
         states, their nominals when they changed, and the event indicators as the reference of the next interval.
+        ``set_inputs``: set the inputs in event mode, before the iteration (a change of a discrete input, which
+        the FMU may take only there); such an event is not one of the model's, so it is not counted.
         Whatever goes wrong is a :class:`StepError`, so the recorder keeps the samples before it."""
         from fmpy.fmi1 import FMICallException
 
-        count, first = self._events
-        self._events = (count + 1, t if first is None else first)
+        if set_inputs is None:
+            count, first = self._events
+            self._events = (count + 1, t if first is None else first)
         try:
             self._fmu.enterEventMode()
+            if set_inputs is not None:
+                set_inputs()
             nominals_changed = self._event_iteration()
             self._fmu.enterContinuousTimeMode()
         except FMUError as exc:
@@ -403,10 +465,16 @@ class ModelExchangeSource(FMUSource):
             self._read_indicators(i, t, self._z)
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
+        """One line: where and why the integration failed, the FMU's last error message, and what may help."""
         where = f"step {i} (t={t0:g} -> {t1:g})" if i >= 0 else f"t={t0:g} -> {t1:g}"
         log = self._last_log()
+        cs = " or --interface cs" if self.md.coSimulation is not None else ""
+        if log:   # the FMU said why: the tolerance is only one possible cause
+            hint = f"the FMU reported: {log}; if the tolerance is the cause, try a looser --tolerance{cs}"
+        else:
+            hint = f"try a looser --tolerance{cs}"
         return (f"{self.path.name}: model-exchange integration ({self.method}, tolerance {self.tolerance:g}) failed "
-                f"at {where}: {reason}{'; ' + log if log else ''}; try a looser --tolerance or --interface cs")
+                f"at {where}: {reason}; {hint}")
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
         """``der(x)`` of the FMU at time ``t`` and state ``x`` with the current inputs."""
@@ -421,6 +489,16 @@ class ModelExchangeSource(FMUSource):
 
 
 # ---------------------------------------------------------------------------------------- events
+
+def _needs_completed_steps(md: Any, fmi_version: str) -> bool:
+    """Whether the FMU needs ``fmiCompletedIntegratorStep`` after every accepted integrator step: FMI 2 unless
+    ``completedIntegratorStepNotNeeded="true"`` (the default is false: needed, FMI 2.0 section 3.2.2), FMI 3 when
+    ``needsCompletedIntegratorStep="true"`` (default false).  Others get it only at the end of each interval."""
+    me = md.modelExchange
+    if fmi_version.startswith("2"):
+        return not bool(getattr(me, "completedIntegratorStepNotNeeded", False))
+    return bool(getattr(me, "needsCompletedIntegratorStep", False))
+
 
 def _time_slack(t0: float, t1: float) -> float:
     """Times closer than this to a communication point ``t1`` are ``t1`` (round-off of event times)."""
@@ -448,9 +526,14 @@ def _earliest_secant(a: float, b: float, g_a: np.ndarray, g_b: np.ndarray, w_a: 
 
 # ---------------------------------------------------------------------------------------- integrators
 
-def _lsoda(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
-    """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size."""
+def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+    """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size; through
+    :class:`scipy.integrate.LSODA` step by step where the FMU needs its completed integrator steps (``completed``),
+    as ``odeint`` cannot call back after each step."""
     from scipy.integrate import odeint
+
+    if completed:
+        return _stepwise_lsoda(source, t0, t1, completed)
 
     h0 = source._h_last if math.isfinite(source._h_last) else 0.0
     failure: list[BaseException] = []
@@ -474,11 +557,14 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
     hu = info.get("hu")
     if hu is not None and len(hu) and hu[-1] > 0:
         source._h_last = float(hu[-1])
-    return np.ascontiguousarray(y[-1])
+    return np.ascontiguousarray(y[-1]), t1
 
 
-def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float], np.ndarray]:
-    def integrate(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
+def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]:
+    def integrate(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+        """scipy's solver ``name`` step by step from ``t0`` to ``t1``; with ``completed``, the FMU's completed
+        integrator step after each accepted step before ``t1``, stopping where it asks for an event.  Returns the
+        state and the time reached."""
         import scipy.integrate as si
 
         cls = getattr(si, name)
@@ -489,31 +575,50 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float], np.nd
             message = solver.step()
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
+            if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
+                break
         if solver.step_size:
             source._h_last = float(solver.step_size)
-        return np.ascontiguousarray(solver.y)
+        return np.ascontiguousarray(solver.y), (t1 if solver.status == "finished" else float(solver.t))
 
     return integrate
 
 
-def _dop853(source: ModelExchangeSource, t0: float, t1: float) -> np.ndarray:
+def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> bool:
+    """``fmiCompletedIntegratorStep`` after an accepted step of scipy's loop, at its time and state (set again:
+    the solver's last evaluation need not be there); whether the FMU asks for an event there."""
+    comp, flags = source._comp, source._event_flags
+    x = np.ascontiguousarray(x, dtype=float)
+    if source._c_time(comp, t) > 1 or source._c_set_x(comp, x.ctypes.data, source.nx) > 1:
+        raise _IntegrationError(f"the FMU returned an error setting the state of a completed step at t={t:.9g}")
+    flags[:] = 0
+    if source._c_completed(comp, True, flags.ctypes.data, flags.ctypes.data + flags.itemsize) > 1:
+        raise _IntegrationError(f"fmiCompletedIntegratorStep failed at t={t:.9g}")
+    if flags[1]:
+        raise _IntegrationError(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at t={t:.9g}")
+    return bool(flags[0])
+
+
+def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
     """DOP853 through the compiled step loop (:mod:`._compiled_rk`), else scipy's Python loop."""
     kernel = source._kernel
     if kernel is None:
-        return _scipy_dop853(source, t0, t1)
+        return _scipy_dop853(source, t0, t1, completed)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     try:
-        x, h_last = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt)
+        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt,
+                                        completed)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
         source._h_last = h_last
-    return x
+    return x, t
 
 
 _scipy_dop853 = _solve_ivp("DOP853")
+_stepwise_lsoda = _solve_ivp("LSODA")
 
-_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float], np.ndarray]] = {
+_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]] = {
     "lsoda": _lsoda,
     "bdf": _solve_ivp("BDF"),
     "radau": _solve_ivp("Radau"),

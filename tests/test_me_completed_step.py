@@ -1,0 +1,151 @@
+"""Model exchange: ``fmiCompletedIntegratorStep`` after every accepted integrator step, and discrete inputs set in
+event mode (audit 5, findings 3 and 6), against the exact zero-order-hold solution.
+
+The FMUs (:func:`fmu_opinf.lti_fmus.build_lti_fmu`) enforce the rules: ``completed_step_gap`` refuses ``SetTime``
+more than that long after the last completed integrator step (a ``delay()`` buffer), so an importer that calls it
+only at communication points fails at a longer step; ``completed_step_event_at`` asks for event mode from the first
+completed step after that time; ``discrete_inputs`` refuses a new value of a discrete input outside event mode.
+The reference is :func:`~fmu_opinf.lti_fmus.zoh_response` (matrix exponential), which knows nothing of either.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("fmpy")
+
+from fmu_opinf import lti_fmus  # noqa: E402
+from fmu_opinf.cli import main  # noqa: E402
+from fmu_opinf.snapshots import record  # noqa: E402
+from fmu_opinf.sources import ModelExchangeSource, _compiled_rk  # noqa: E402
+
+from conftest import build_fmu_set  # noqa: E402
+
+#: DT is coarse for the motion (periods of 1 and 2.7 s), as it must be to exceed the buffer several times over; the
+#: rate check says so, which is not what these tests look at
+pytestmark = [pytest.mark.fmu, pytest.mark.filterwarnings("ignore:.*velocities do not match the positions")]
+#: the states, named: at this DT the rate check could not confirm a guessed pairing
+STATES = dict(positions="mass[1].s,mass[2].s", velocities="mass[1].v,mass[2].v")
+
+#: SetTime is refused this long after the last completed step; each recording's dt is 4 times longer
+GAP = 0.25
+DT, T_END = 1.0, 8.0
+#: the first completed integrator step at or after this time asks for an event (off the sample grid)
+T_ASK = 2.345
+INPUT = "impulse:amplitude=2,t0=1,width=1"
+#: both inputs change: the discrete one (the second) at 1.0 and 2.0
+TWO_INPUTS = "impulse:amplitude=2,t0=0.5,width=0.3;impulse:amplitude=3,t0=1,width=1"
+CASES = [("2.0", "gap"), ("3.0", "gap"), ("2.0", "ask"), ("3.0", "ask"), ("2.0", "discrete"), ("3.0", "discrete"),
+         ("2.0", "tiny")]
+
+
+def two_masses() -> lti_fmus.LinearMechanicalModel:
+    """Two masses in a chain started off rest; input 1 on the second mass, input 2 on the first."""
+    M = np.diag([1.0, 2.0])
+    K = np.array([[30.0, -10.0], [-10.0, 10.0]])
+    return lti_fmus.LinearMechanicalModel(M=M, D=0.05 * K + 0.1 * M, K=K, B=[[0.0, 1.0], [1.0, 0.0]],
+                                          Cp=[[0.0, 1.0]], x0=[0.1, 0.0], name="CompletedSteps")
+
+
+@pytest.fixture(scope="module")
+def fmus(request, tmp_path_factory) -> dict:
+    def build(folder, case):
+        version, kind = case
+        options = {"gap": dict(completed_step_gap=GAP, interfaces=("me",)),
+                   "ask": dict(completed_step_gap=GAP, completed_step_event_at=T_ASK, interfaces=("me",)),
+                   "discrete": dict(discrete_inputs=(1,), interfaces=("me", "cs")),
+                   "tiny": dict(completed_step_gap=1e-4, interfaces=("me",))}[kind]
+        path = folder / f"completed-{kind}-fmi{version[0]}.fmu"
+        return case, lti_fmus.build_lti_fmu(two_masses(), path, fmi_version=version, **options).path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-completed-steps", build, CASES)
+
+
+@pytest.fixture(params=["compiled", "scipy"])
+def loop(request, monkeypatch) -> str:
+    """DOP853 through the compiled step loop, or through scipy's Python loop (as without a C compiler)."""
+    if request.param == "compiled" and not _compiled_rk.available():
+        pytest.skip("no C compiler for the compiled step loop")
+    if request.param == "scipy":
+        monkeypatch.setattr(_compiled_rk, "kernel", lambda *args, **kwargs: None)
+    return request.param
+
+
+def largest_error(run, model) -> float:
+    """Largest error of positions, velocities, accelerations and outputs relative to each one's peak, against the
+    exact response to the run's inputs (``run.u[:, i+1]`` held over ``[t_i, t_{i+1}]``)."""
+    u = np.asarray(run.u)
+    ref = lti_fmus.zoh_response(model, run.t, np.hstack([u[:, 1:], u[:, -1:]]))
+    pairs = ((run.x, ref.x), (run.xdot, ref.v), (run.xddot, ref.a), (run.y, ref.y))
+    return max(float(np.abs(np.asarray(a) - b).max() / np.abs(b).max()) for a, b in pairs)
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_completed_integrator_step_after_every_accepted_step(fmus, version, loop):
+    """Communication steps 4 times longer than the FMU's buffer: it needs the call after each accepted step (it
+    refused SetTime at the first step when called once per step); the recording is exact to the tolerance."""
+    source = ModelExchangeSource(fmus[(version, "gap")], **STATES)
+    assert source.fmi_version == version
+    snaps = record(source, INPUT, DT, T_END, quiet=True)
+    run = snaps.runs[0]
+    assert run.complete and len(run.t) == 9
+    assert (source._kernel is not None) == (loop == "compiled")   # the loop that ran
+    assert largest_error(run, two_masses()) < 2e-10   # measured 1.02e-10 (both loops, FMI 2 and 3)
+
+
+@pytest.mark.parametrize("method", ["lsoda", "rk45"])
+def test_completed_steps_with_the_other_integrators(fmus, method):
+    """LSODA (step by step through scipy.integrate.LSODA for such FMUs: odeint cannot call back) and RK45."""
+    source = ModelExchangeSource(fmus[("2.0", "gap")], method=method, **STATES)
+    run = record(source, INPUT, DT, T_END, quiet=True).runs[0]
+    assert run.complete
+    assert largest_error(run, two_masses()) < 2e-9   # measured 6.9e-10 (LSODA), 3.1e-10 (RK45)
+
+
+@pytest.mark.filterwarnings("ignore:.*had 1 event")
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_an_event_asked_for_in_a_completed_step_is_handled_there(fmus, version, loop):
+    """The FMU asks for event mode from the first completed step after T_ASK: the event is handled at that step,
+    inside a communication interval (not at the next sample), once, and the interval is integrated on from there."""
+    source = ModelExchangeSource(fmus[(version, "ask")], **STATES)
+    run = record(source, INPUT, DT, T_END, quiet=True).runs[0]
+    count, first = source.events_seen()
+    assert count == 1
+    assert T_ASK <= first < T_ASK + GAP and first not in set(run.t)
+    assert largest_error(run, two_masses()) < 2e-10   # measured 1.1e-10 (event at 2.3510 compiled, 2.3518 scipy)
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_a_discrete_input_is_set_in_event_mode(fmus, version, loop):
+    """Both inputs driven, the second one discrete: its changes go through event mode (the FMU refused them in
+    continuous-time mode), which is not counted as an event of the model; the recording is exact."""
+    source = ModelExchangeSource(fmus[(version, "discrete")], inputs="F[1],F[2]")
+    run = record(source, TWO_INPUTS, 0.1, 4.0, quiet=True).runs[0]
+    assert run.complete and np.ptp(run.u[1]) == 3.0
+    assert source.events_seen() == (0, None)
+    assert largest_error(run, two_masses()) < 2e-10   # measured 9.5e-11 (compiled), 6.7e-11 (scipy)
+
+
+def test_co_simulation_sets_a_discrete_input_between_steps(fmus):
+    """Co-simulation may set a discrete input before any doStep (FMI 2.0 section 4.2): unchanged, and right."""
+    from fmu_opinf.sources import FMUSource
+
+    source = FMUSource(fmus[("2.0", "discrete")], inputs="F[1],F[2]")
+    run = record(source, TWO_INPUTS, 0.1, 4.0, quiet=True).runs[0]
+    assert run.complete and np.ptp(run.u[1]) == 3.0
+    assert largest_error(run, two_masses()) < 5e-12   # the FMU's RK4 substeps at tolerance 1e-10: measured 7.9e-13
+
+
+def test_a_failure_names_the_fmus_reason_and_no_co_simulation_it_lacks(fmus, tmp_path, capsys):
+    """A buffer shorter than any integrator step: the FMU refuses SetTime.  One line naming the FMU's own message,
+    the tolerance only as a possible cause, no --interface cs for a model-exchange-only FMU; a non-zero exit code."""
+    code = main(["snapshots", str(fmus[("2.0", "tiny")]), "--dt", str(DT), "--t-end", str(T_END), "--input", INPUT,
+                 "-o", str(tmp_path / "out.h5")])
+    err = capsys.readouterr().err
+    assert code != 0 and "Traceback" not in err
+    line = [text for text in err.splitlines() if "error:" in text]
+    assert len(line) == 1
+    assert "the FMU reported: fmi2SetTime: buffer overrun" in line[0]
+    assert "if the tolerance is the cause, try a looser --tolerance" in line[0]
+    assert "--interface cs" not in line[0]
