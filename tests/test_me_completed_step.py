@@ -149,3 +149,21 @@ def test_a_failure_names_the_fmus_reason_and_no_co_simulation_it_lacks(fmus, tmp
     assert "the FMU reported: fmi2SetTime: buffer overrun" in line[0]
     assert "if the tolerance is the cause, try a looser --tolerance" in line[0]
     assert "--interface cs" not in line[0]
+
+
+def test_only_fmus_that_declare_the_need_get_completed_integrator_steps(tmp_path):
+    """FMI 2 needs the calls unless ``completedIntegratorStepNotNeeded="true"``, FMI 3 only with
+    ``needsCompletedIntegratorStep="true"`` (the default FMUs of lti_fmus declare neither need).  fmpy maps FMI 2's
+    attribute into its negation and leaves ``completedIntegratorStepNotNeeded`` at False, which made every FMI 2
+    FMU take the calls in the first version of this code."""
+    from fmu_opinf.sources._model_exchange import _needs_completed_steps
+    from fmu_opinf.sources._variables import read_description
+
+    needs = {}
+    for version in ("2.0", "3.0"):
+        for need in (False, True):
+            options = dict(completed_step_gap=GAP) if need else {}
+            path = lti_fmus.build_lti_fmu(two_masses(), tmp_path / f"n{version[0]}{need:d}.fmu", fmi_version=version,
+                                          interfaces=("me",), **options).path
+            needs[version, need] = _needs_completed_steps(read_description(path))
+    assert needs == {("2.0", False): False, ("2.0", True): True, ("3.0", False): False, ("3.0", True): True}

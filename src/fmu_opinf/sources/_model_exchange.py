@@ -185,7 +185,7 @@ class ModelExchangeSource(FMUSource):
         self._floor = 1e-6 * self._nominals()
         self._scale = np.abs(self._x)
         self._h_last = math.nan
-        self._needs_completed = _needs_completed_steps(self.md, self.fmi_version)
+        self._needs_completed = _needs_completed_steps(self.md)
         self._searching = False   # in a crossing search: no completed integrator steps
         self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx,
                                             self._c_completed if self._needs_completed else None,
@@ -490,14 +490,14 @@ class ModelExchangeSource(FMUSource):
 
 # ---------------------------------------------------------------------------------------- events
 
-def _needs_completed_steps(md: Any, fmi_version: str) -> bool:
+def _needs_completed_steps(md: Any) -> bool:
     """Whether the FMU needs ``fmiCompletedIntegratorStep`` after every accepted integrator step: FMI 2 unless
     ``completedIntegratorStepNotNeeded="true"`` (the default is false: needed, FMI 2.0 section 3.2.2), FMI 3 when
-    ``needsCompletedIntegratorStep="true"`` (default false).  Others get it only at the end of each interval."""
-    me = md.modelExchange
-    if fmi_version.startswith("2"):
-        return not bool(getattr(me, "completedIntegratorStepNotNeeded", False))
-    return bool(getattr(me, "needsCompletedIntegratorStep", False))
+    ``needsCompletedIntegratorStep="true"`` (default false).  Others get it only at the end of each interval.
+
+    fmpy reads FMI 2's attribute into ``needsCompletedIntegratorStep`` (its negation) and leaves
+    ``completedIntegratorStepNotNeeded`` at its default, so that one attribute answers for both versions."""
+    return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
 
 def _time_slack(t0: float, t1: float) -> float:
