@@ -198,3 +198,18 @@ def test_one_run_keeps_one_step(fmus, tmp_path):
     assert main(["snapshots", str(fmus["max2"]), "-o", str(out), "-q", "--dt", "0.02", "--t-end", "300"]) == 0
     run = Snapshots.load(out).runs[0]
     assert run.t[-1] == pytest.approx(300.0) and _relative(run.y, _exact(run)) < RECORDING
+
+
+def test_a_given_coarse_dt_is_recorded_and_said_to_be_coarse(fmus, tmp_path):
+    """--dt 0.1 without --t-end (model exchange: no limit on the step): the pilots run at 0.1, the recording too,
+    and one warning says that it gives fewer than 20 samples per period of the fastest mode (1.5 Hz; 1.28 Hz as
+    seen at that step: 7.8 samples per period)."""
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import record_to_file
+
+    with pytest.warns(FmuOpinfWarning, match=r"--dt 0\.1 gives [\d.]+ samples per period of the fastest significant "
+                                             r"frequency [\d.]+ Hz .*a smaller --dt resolves it, e\.g\. 0\.02"):
+        summary = record_to_file(fmus["fixed_me"], tmp_path / "train.h5", None, dt=0.1, quiet=True)
+    run = Snapshots.load(tmp_path / "train.h5").runs[0]
+    assert summary.dt == 0.1 and summary.window.pilot_dt == 0.1 and run.attrs["fmi_interface"] == "me"
+    assert _relative(run.y, _exact(run)) < 1e-9  # DOP853 at the tolerance 1e-10: 1.7e-10

@@ -717,7 +717,7 @@ def record_to_file(
                           f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
                           f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
         elif fixed is not None or dt_given:
-            _warn_if_unresolved(source, window, dt, "the FMU's fixed communication step" if fixed else "--dt")
+            _warn_if_unresolved(source, window, dt, fixed is not None)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -729,19 +729,25 @@ def record_to_file(
     return _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
 
 
-def _warn_if_unresolved(source: Source, window: Any, dt: float, what: str) -> None:
-    """One warning when the step ``dt`` that the pilots had to use (``what``: the FMU's fixed step or the user's
-    ``--dt``) gives fewer samples per period of the fastest significant frequency they saw than the window asks
-    for: the data, and the ROM, may miss that mode."""
+def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> None:
+    """One warning when the step ``dt`` that the pilots had to use (the FMU's ``fixed`` communication step, else
+    the user's ``--dt``) gives fewer samples per period of the fastest significant frequency they saw than the
+    window asks for: the data, and the ROM, may miss that mode."""
     points = 1.0 / (window.f_max * dt) if window.f_max > 0 else math.inf
     if points >= window.points_per_period:
         return
-    me = "; its model exchange (--interface me) has no such limit" if fixed_communication_step(source) is not None \
-        and getattr(source.md, "modelExchange", None) is not None else ""
-    fix = "" if what != "--dt" else "; a smaller --dt resolves it"
-    warnings.warn(f"{source_label(source)}: {what} dt={dt:g} gives {points:.3g} samples per period of the fastest "
-                  f"significant frequency {window.f_max:.4g} Hz seen at that step (the automatic window asks for "
-                  f"{window.points_per_period:g}){fix}{me}", FmuOpinfWarning, stacklevel=3)
+    if fixed:
+        what = f"the FMU's fixed communication step {dt:g}"
+        fix = "; its model exchange (--interface me) has no fixed step" \
+            if getattr(source.md, "modelExchange", None) is not None else ""
+    else:
+        from ._window import _nice_floor
+
+        what = f"--dt {dt:g}"
+        fix = f"; a smaller --dt resolves it, e.g. {_nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
+    warnings.warn(f"{source_label(source)}: {what} gives {points:.3g} samples per period of the fastest significant "
+                  f"frequency {window.f_max:.4g} Hz seen at that step (the automatic window asks for "
+                  f"{window.points_per_period:g}){fix}", FmuOpinfWarning, stacklevel=3)
 
 
 #: Factor by which the default impulse (``t0`` and ``width``) shrinks or widens per try when it does not suit the
