@@ -440,8 +440,8 @@ def test_single_steps_match_the_batched_loop(toys, variant):
     single = np.empty_like(batched)
     source.start(t, U)
     source.read(single[0])
-    for i in range(1, len(t)):
-        source.step(t[i - 1], t[i] - t[i - 1], U[i])
+    for i in range(1, len(t)):  # the batched loop passes one step h on a uniform grid (not t[i] - t[i-1])
+        source.step(t[i - 1], t[1] - t[0], U[i])
         source.read(single[i])
     source.close()
     np.testing.assert_array_equal(single, batched)

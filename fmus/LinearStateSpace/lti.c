@@ -28,7 +28,7 @@ void ltiLog(const LtiInstance *inst, LtiStatus status, const char *category, con
     va_list args;
 
     if (!inst || !inst->log) return;
-    if (!inst->loggingOn && status < LtiError) return;
+    if (!inst->loggingOn && status < LtiDiscard) return;  /* errors and discards say why, whatever the setting */
     va_start(args, format);
     vsnprintf(message, sizeof message, format, args);
     va_end(args);
@@ -509,6 +509,17 @@ LtiStatus ltiDoStep(LtiInstance *inst, double t, double h) {
     if (h < 0.0 || !isfinite(h)) {
         ltiLog(inst, LtiError, "logStatusError", "fmiDoStep: step size %g is invalid", h);
         return LtiError;
+    }
+    if (LTI_CS_FIXED_STEP > 0.0 && fabs(h - LTI_CS_FIXED_STEP) > 1e-12 * LTI_CS_FIXED_STEP) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "fmiDoStep: communication step %.17g differs from the fixed step %g", h, LTI_CS_FIXED_STEP);
+        return LtiError;
+    }
+    if (LTI_CS_MAX_STEP > 0.0 && h > LTI_CS_MAX_STEP) {
+        ltiLog(inst, LtiDiscard, "logStatusError",
+               "fmiDoStep: step size %g exceeds the maximum step size %g of the embedded solver", h,
+               LTI_CS_MAX_STEP);
+        return LtiDiscard;
     }
     if (fabs(t - inst->time) > 1e-9 * (1.0 + fabs(t))) {
         ltiLog(inst, LtiError, "logStatusError",

@@ -748,6 +748,8 @@ class _Options:
     completed_step_gap: float | None = None
     completed_step_event_at: float | None = None
     discrete_inputs: tuple[int, ...] = ()
+    cs_fixed_step: float | None = None
+    cs_max_step: float | None = None
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -761,6 +763,10 @@ def _check_options(model, options: _Options) -> None:
     if not options.interfaces or set(options.interfaces) - {"me", "cs"}:
         raise FmuBuildError(f"interfaces {options.interfaces!r} are invalid; give a non-empty "
                             "subset of ('me', 'cs')")
+    for name in ("cs_fixed_step", "cs_max_step"):
+        value = getattr(options, name)
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise FmuBuildError(f"{name}={value} must be a positive step")
     if options.cs_method not in ("accurate", "euler"):
         raise FmuBuildError(f"cs_method {options.cs_method!r} is unknown; use 'accurate' or "
                             "'euler'")
@@ -1229,7 +1235,13 @@ def _initial_unknowns(layout: _Layout) -> list[_Var]:
 
 
 def _experiment(options: _Options) -> str:
-    return f'  <DefaultExperiment startTime="0" stopTime="{_number(options.stop_time)}"/>\n'
+    step = "" if options.cs_fixed_step is None else f' stepSize="{_number(options.cs_fixed_step)}"'
+    return f'  <DefaultExperiment startTime="0" stopTime="{_number(options.stop_time)}"{step}/>\n'
+
+
+def _variable_step(options: _Options) -> str:
+    """``canHandleVariableCommunicationStepSize``: false for an FMU with a fixed communication step."""
+    return "false" if options.cs_fixed_step is not None else "true"
 
 
 def _model_description2(layout: _Layout, options: _Options, sources: list[str]) -> str:
@@ -1247,7 +1259,7 @@ def _model_description2(layout: _Layout, options: _Options, sources: list[str]) 
     if "cs" in options.interfaces:
         interfaces += (
             f'  <CoSimulation modelIdentifier="{options.identifier}" needsExecutionTool="false"'
-            ' canHandleVariableCommunicationStepSize="true" canInterpolateInputs="false"'
+            f' canHandleVariableCommunicationStepSize="{_variable_step(options)}" canInterpolateInputs="false"'
             ' maxOutputDerivativeOrder="0" canRunAsynchronuously="false"'
             ' canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="true"'
             ' canGetAndSetFMUstate="false" canSerializeFMUstate="false"'
@@ -1303,7 +1315,7 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
                        f"\"{str(options.needs_completed_steps).lower()}\""
                        ' providesEvaluateDiscreteStates="false"/>\n')
     if "cs" in options.interfaces:
-        interfaces += (f"  <CoSimulation{common} canHandleVariableCommunicationStepSize=\"true\""
+        interfaces += (f"  <CoSimulation{common} canHandleVariableCommunicationStepSize=\"{_variable_step(options)}\""
                        ' maxOutputDerivativeOrder="0" providesIntermediateUpdate="false"'
                        ' mightReturnEarlyFromDoStep="false"'
                        ' canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"'
@@ -1451,6 +1463,8 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f'const char *const LTI_INSTANTIATION_TOKEN = "{_GUID_PLACEHOLDER}";\n'
         f"const int LTI_CS_METHOD = {'CsEuler' if options.cs_method == 'euler' else 'CsRungeKutta'};\n"
         f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
+        f"const double LTI_CS_FIXED_STEP = {_c_step(options.cs_fixed_step)};\n"
+        f"const double LTI_CS_MAX_STEP = {_c_step(options.cs_max_step)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
         f"const size_t LTI_NQ_DEFAULT = {nq};\n"
@@ -1468,6 +1482,11 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
+
+
+def _c_step(step: float | None) -> str:
+    """A step as a C constant, 0 for none."""
+    return "0.0" if step is None else repr(float(step))
 
 
 # --------------------------------------------------------------------- building
@@ -1567,7 +1586,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   dependencies: bool = True, stale_derivatives: bool = False,
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
-                  discrete_inputs: Sequence[int] = (), reuse: bool = True) -> LtiFmu:
+                  discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
+                  cs_max_step: float | None = None, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1603,7 +1623,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     description : str, default=None
         Model description.
     stop_time : float, default=1
-        ``DefaultExperiment/@stopTime`` (deliberately unrelated to the dynamics; no step size).
+        ``DefaultExperiment/@stopTime`` (deliberately unrelated to the dynamics; no step size unless
+        ``cs_fixed_step``).
     output_units : bool, default=False
         Declare the unit of each output that measures one kind of quantity (``m``, ``m/s``,
         ``m/s2``; ``N`` for force sensors); needs ``units``.
@@ -1653,6 +1674,13 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     discrete_inputs : sequence of int, default=()
         Force inputs (indices) declared with ``variability="discrete"``, which model exchange may change only in
         event mode (FMI 2.0 section 3.2.3): the FMU refuses a new value in continuous-time mode.
+    cs_fixed_step : float, optional
+        Co-simulation at one fixed communication step, as fixed-step code generators export: declared as
+        ``DefaultExperiment/@stepSize`` with ``canHandleVariableCommunicationStepSize="false"``, and
+        ``doStep`` returns an error for any other step (also for its multiples).
+    cs_max_step : float, optional
+        Co-simulation with an embedded solver's maximum step: ``doStep`` returns ``fmi2Discard`` /
+        ``fmi3Discard`` (and logs why) for a longer step; the FMU stays usable.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1683,7 +1711,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         time_event=time_event, state_event=state_event,
         completed_step_gap=None if completed_step_gap is None else float(completed_step_gap),
         completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
-        discrete_inputs=tuple(discrete_inputs))
+        discrete_inputs=tuple(discrete_inputs),
+        cs_fixed_step=None if cs_fixed_step is None else float(cs_fixed_step),
+        cs_max_step=None if cs_max_step is None else float(cs_max_step))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

@@ -31,7 +31,7 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
-from ..sources import Source, StepError, open_source, warn_once
+from ..sources import Source, StepError, check_communication_step, fixed_communication_step, open_source, warn_once
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
@@ -693,14 +693,20 @@ def record_to_file(
         print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
     window = None
+    dt_given = dt is not None
+    if dt_given:
+        check_communication_step(source, float(dt))  # an FMU with a fixed communication step: refused up front
+    fixed = fixed_communication_step(source)
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
-    step_declared = dt is None and declared_step is not None and not auto_window
+    step_declared = dt is None and declared_step is not None and (not auto_window or fixed is not None)
     if step_declared:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
     representatives = [signals[0]] if by_default else runs_by_inputs_driven(signals)
     if auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
+        # pilots never coarser than the step recorded (a longer one may be refused or discarded), and exactly at
+        # a step the user gave or the FMU's fixed communication step
         thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
-                          quiet=quiet)
+                          quiet=quiet, max_dt=dt, exact_dt=dt_given or fixed is not None)
         if by_default and source.m:
             window, signals = _default_training_window(source, thresholds)
         else:
@@ -710,15 +716,38 @@ def record_to_file(
                           f"coarser than the automatic window's dt={window.dt:g} ({window.points_per_period:g} points "
                           f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
                           f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
+        elif fixed is not None or dt_given:
+            _warn_if_unresolved(source, window, dt, fixed is not None)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
     t = time_grid(dt, t_end)
     for signal in signals:
         check_input_acts(signal, t)
-    if window is None:  # the user's own step: the automatic window's step check becomes a warning
+    if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
     return _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
+
+
+def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> None:
+    """One warning when the step ``dt`` that the pilots had to use (the FMU's ``fixed`` communication step, else
+    the user's ``--dt``) gives fewer samples per period of the fastest significant frequency they saw than the
+    window asks for: the data, and the ROM, may miss that mode."""
+    points = 1.0 / (window.f_max * dt) if window.f_max > 0 else math.inf
+    if points >= window.points_per_period:
+        return
+    if fixed:
+        what = f"the FMU's fixed communication step {dt:g}"
+        fix = "; its model exchange (--interface me) has no fixed step" \
+            if getattr(source.md, "modelExchange", None) is not None else ""
+    else:
+        from ._window import _nice_floor
+
+        what = f"--dt {dt:g}"
+        fix = f"; a smaller --dt resolves it, e.g. {_nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
+    warnings.warn(f"{source_label(source)}: {what} gives {points:.3g} samples per period of the fastest significant "
+                  f"frequency {window.f_max:.4g} Hz seen at that step (the automatic window asks for "
+                  f"{window.points_per_period:g}){fix}", FmuOpinfWarning, stacklevel=3)
 
 
 #: Factor by which the default impulse (``t0`` and ``width``) shrinks or widens per try when it does not suit the
@@ -756,10 +785,12 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             factor *= RESCALE
             why = "the model is too slow for the default impulse to be resolved"
         else:
-            if tries["narrower"] == RESCALE_TRIES or tries["wider"] \
-                    or not follows_input(window, input_activity(signals[0], source.m)[1]):
+            width = input_activity(signals[0], source.m)[1]
+            if tries["narrower"] == RESCALE_TRIES or tries["wider"] or not follows_input(window, width) \
+                    or not _narrower_resolved(width, thresholds):
                 check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
-                                  isolate=thresholds.get("isolate", False))
+                                  isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
+                                  exact_dt=thresholds.get("exact_dt", False))
                 return window, signals
             tries["narrower"] += 1
             factor /= RESCALE
@@ -767,6 +798,14 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                    "no frequency above its band): the model is faster")
         if not thresholds.get("quiet"):
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
+
+
+def _narrower_resolved(width: float | None, thresholds: dict[str, Any]) -> bool:
+    """Whether a pulse :data:`RESCALE` times narrower than ``width`` would still get ten samples where the pilots
+    run at one exact step (the user's ``--dt``, an FMU's fixed communication step): no point shrinking it
+    otherwise, the step cannot follow."""
+    step = thresholds.get("max_dt")
+    return not thresholds.get("exact_dt") or step is None or width is None or width / RESCALE >= 10.0 * step
 
 
 def runs_by_inputs_driven(signals: Sequence[Any]) -> list[Any]:

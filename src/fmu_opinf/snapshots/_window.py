@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError, InputSpecError
-from ..sources import Source, open_source
+from ..sources import Source, fixed_communication_step, open_source
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
@@ -355,6 +355,8 @@ def auto_window(
     periods: float = 20.0,
     pilot_dt: float | None = None,
     pilot_t_end: float | None = None,
+    max_dt: float | None = None,
+    exact_dt: bool = False,
     min_pilot_points: float = 8.0,
     growth: float = 4.0,
     max_pilots: int = 12,
@@ -400,6 +402,14 @@ def auto_window(
         Periods of the slowest significant oscillation after which a non-fading response is cut.
     pilot_dt, pilot_t_end : float, optional
         First pilot grid (default: from the input, see above).
+    max_dt : float, optional
+        The step the recording will use (an FMU's declared ``stepSize``): no pilot is coarser, since a longer
+        communication step may be refused or discarded by the FMU (an embedded solver's maximum step).
+    exact_dt : bool, default=False
+        Every pilot and the window's step are exactly ``max_dt`` (a ``--dt`` the user gave: the recording uses
+        it; pilots at other steps could be refused where the user's step is not): no refinement or coarsening,
+        and the step check is the caller's (:func:`warn_if_step_dependent`).  An FMU with a fixed communication
+        step (:func:`~fmu_opinf.sources.fixed_communication_step`) is always run this way, at its step.
     min_pilot_points : float, default=8
     growth : float, default=4
     max_pilots : int, default=12
@@ -428,10 +438,10 @@ def auto_window(
     if source.p == 0:
         raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
     t_input, width = input_activity(signal, source.m)
-    T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+    max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
+    T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
     internal = fixed_internal_step(source)
-    dt = on_internal_steps(dt, internal)
-    recorded = check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
+    recorded = None if exact_dt else check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
@@ -439,7 +449,7 @@ def auto_window(
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
                               label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})", run=recorded)
         recorded = None
-        if seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal):
+        if not exact_dt and seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal):
             dt = on_internal_steps(dt / 4.0, internal)
             continue
         t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
@@ -448,22 +458,24 @@ def auto_window(
         if faded or cut:
             stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
             window = _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                             periods, t_input, stopped_by, internal)
+                             periods, t_input, stopped_by, internal, dt if exact_dt else None)
             if check_chosen_step:
                 check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
-                                  isolate=isolate)
+                                  isolate=isolate, max_dt=max_dt, exact_dt=exact_dt)
             return window
         T_next = _next_length(t, seen, growth)
-        while _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, width):
+        while not exact_dt and _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, width) \
+                and (max_dt is None or 4.0 * dt <= max_dt * (1.0 + 1e-9)):
             dt *= 4.0
-        if _pulse_holds_back(seen.f_max, width, (T_next - t[0]) / dt, max_steps) \
+        if not exact_dt and _pulse_holds_back(seen.f_max, width, (T_next - t[0]) / dt, max_steps) \
                 and _coarsen_ok(seen.f_max, 4.0 * dt, min_pilot_points, None):
             raise PulseTooNarrow(f"auto window: the training pulse (width {width:g}) is far shorter than the model's "
                                  f"dynamics (fastest significant frequency {seen.f_max:.3g}, still moving at "
                                  f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
                                  "model's time scale (a wider impulse, later t0), or --dt and --t-end")
         T = float(f"{T_next:.6g}")
-    fix = ("pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
+    fix = (f"pass --t-end (every pilot ran at the step dt={dt:g})" if exact_dt else
+           "pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
            "keeps the step small)" if source.m else
            "pass --dt and --t-end (the model has no inputs: its free response from the start state is recorded)")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
@@ -540,8 +552,8 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), and
     the complete run at ``dt`` (None if there is none)."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
-            or fixed_internal_step(source) is not None:
-        return None, None
+            or fixed_internal_step(source) is not None or fixed_communication_step(source) is not None:
+        return None, None  # a fixed step: the results cannot depend on a step that cannot be changed
     coarse = time_grid(dt, T)
     runs = []
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
@@ -611,15 +623,20 @@ def is_whole_multiple(dt: float, internal: float) -> bool:
 
 
 def check_window_step(source: Source, signal: Any, window: Window, *, pilot_dt: float | None = None,
-                      pilot_t_end: float | None = None, quiet: bool = True, isolate: bool = False) -> None:
-    """Refuse a co-simulation FMU whose results depend on the chosen step ``window.dt`` when it is coarser than
-    the first pilot's, which :func:`check_step_convergence` checked before the pilots ran (the same span, at least
-    20 steps).  ``pilot_dt, pilot_t_end``: as given to :func:`auto_window`."""
+                      pilot_t_end: float | None = None, quiet: bool = True, isolate: bool = False,
+                      max_dt: float | None = None, exact_dt: bool = False) -> None:
+    """Refuse a co-simulation FMU whose results depend on the step recorded (``window.dt``, or ``max_dt`` where
+    given) when it is coarser than the first pilot's, which :func:`check_step_convergence` checked before the pilots ran
+    (the same span, at least 20 steps).  ``pilot_dt, pilot_t_end, max_dt, exact_dt``: as given to
+    :func:`auto_window` (with ``exact_dt`` the check is the caller's)."""
+    max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
+    if exact_dt:
+        return
     t_input, width = input_activity(signal, source.m)
-    first_T, first_dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
-    if window.dt > first_dt:
-        check_step_convergence(source, signal, window.dt, max(first_T, 20.0 * window.dt), quiet=quiet,
-                               isolate=isolate)
+    first_T, first_dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
+    step = window.dt if max_dt is None else max_dt
+    if step > first_dt * (1.0 + 1e-9):
+        check_step_convergence(source, signal, step, max(first_T, 20.0 * step), quiet=quiet, isolate=isolate)
 
 
 #: Share of a recording that :func:`warn_if_step_dependent` checks (at least 20 steps): its runs at ``dt`` and
@@ -661,9 +678,9 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
             energy: float, fade: float, periods: float, t_input: float, stopped_by: str,
-            internal: float | None = None) -> Window:
+            internal: float | None = None, exact: float | None = None) -> Window:
     f_use = max(seen.f_max, 1.0 / max(t_stop - t0, dt))
-    step = on_internal_steps(_nice_floor(1.0 / (points_per_period * f_use)), internal)
+    step = exact or on_internal_steps(_nice_floor(1.0 / (points_per_period * f_use)), internal)
     end = t0 + math.ceil((t_stop - t0) / step - 1e-9) * step
     return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=seen.f_max, t_fade=seen.t_fade, peak=seen.peak,
                   pilot_dt=dt, pilot_t_end=T, pilots=pilots, points_per_period=points_per_period, energy=energy,
@@ -804,6 +821,27 @@ def _exact_activity(signal: Any) -> tuple[float, float | None] | None:
         return None
     widths = [w for _, w in found if w is not None]
     return max(t for t, _ in found), (min(widths) if widths else None)
+
+
+def _step_limit(source: Source, max_dt: float | None, exact_dt: bool) -> tuple[float | None, bool]:
+    """``max_dt, exact_dt`` of :func:`auto_window`, an FMU's fixed communication step taking their place."""
+    fixed = fixed_communication_step(source)
+    if fixed is not None:
+        return fixed, True
+    if exact_dt and max_dt is None:
+        raise InputSpecError("exact_dt needs the step: give max_dt")
+    return (None if max_dt is None else float(max_dt)), exact_dt
+
+
+def _first_pilot(source: Source, t_input: float, width: float | None, pilot_dt: float | None,
+                 pilot_t_end: float | None, max_dt: float | None, exact_dt: bool) -> tuple[float, float]:
+    """End and step of the first pilot: :func:`_pilot_start`, its step then exactly ``max_dt`` (``exact_dt``),
+    or at most ``max_dt``, and a whole multiple of the FMU's fixed internal step."""
+    T, dt = _pilot_start(t_input, width, pilot_dt, pilot_t_end)
+    if exact_dt:
+        return max(T, 100.0 * max_dt), max_dt  # a coarse given step: still enough samples to analyse
+    dt = dt if max_dt is None else min(dt, max_dt)
+    return T, on_internal_steps(dt, fixed_internal_step(source))
 
 
 def _pilot_start(t_input: float, width: float | None, pilot_dt: float | None,

@@ -22,7 +22,7 @@ from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
                          read_description, start_value)
 
-__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance"]
+__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "check_communication_step"]
 
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
 DEFAULT_TOLERANCE = 1e-10
@@ -39,6 +39,61 @@ def check_tolerance(tolerance: float | None) -> float:
     if not (0.0 <= value < 1.0):
         raise InputSpecError(f"--tolerance {tolerance} must lie in [0, 1), e.g. 1e-10 (relative)")
     return value
+
+
+def _constant_step_only(source: Any) -> bool:
+    """Whether ``source`` is driven through co-simulation by an FMU that cannot vary its communication step
+    (``CoSimulation/@canHandleVariableCommunicationStepSize`` false, also where it is absent: the FMI default)."""
+    cs = getattr(getattr(source, "md", None), "coSimulation", None)
+    return getattr(source, "interface", None) == "cs" and cs is not None \
+        and not cs.canHandleVariableCommunicationStepSize
+
+
+def fixed_communication_step(source: Any) -> float | None:
+    """The one communication step a co-simulation FMU accepts, or None.
+
+    An FMU that cannot handle a variable communication step (FMI 2 and 3 attribute) and declares
+    ``DefaultExperiment/@stepSize`` is driven at exactly that step: its pilots, the automatic window's step and
+    every recording (a fixed-step code generator refuses any other ``h``; whether it accepts multiples cannot be
+    known, so none are used).  Without a declared step the attribute only asks for one constant step per run,
+    which every run on a uniform grid has (:meth:`FMUSource._steps`).
+    """
+    if not _constant_step_only(source):
+        return None
+    experiment = getattr(source.md, "defaultExperiment", None)
+    try:
+        step = float(experiment.stepSize)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return step if np.isfinite(step) and step > 0 else None
+
+
+def check_communication_step(source: Any, dt: float, option: str = "--dt") -> None:
+    """Refuse a step ``dt`` (given as ``option``) other than the FMU's fixed communication step, before any run.
+
+    Raises
+    ------
+    InputSpecError
+        One line naming the FMU's fixed step and the fix.
+    """
+    fixed = fixed_communication_step(source)
+    if fixed is None or abs(dt - fixed) <= 1e-9 * fixed:
+        return
+    me = " (or drive its model exchange, --interface me, whose step is free)" \
+        if getattr(source.md, "modelExchange", None) is not None else ""
+    raise InputSpecError(f"{source.path.name} runs only at its fixed communication step {fixed:g} "
+                         f"(canHandleVariableCommunicationStepSize=false, DefaultExperiment stepSize={fixed:g}), not "
+                         f"at {option} {dt:g}: leave {option} out or give {option} {fixed:g}{me}")
+
+
+#: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
+DISCARD = 2
+
+
+def _nice_below(value: float) -> float:
+    """The largest 1, 2 or 5 times a power of ten not above ``value``."""
+    power = 10.0 ** np.floor(np.log10(value))
+    return float(f"{max(m for m in (1.0, 2.0, 5.0) if m * power <= value * (1 + 1e-12)) * power:.6g}")
 
 
 def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
@@ -536,6 +591,26 @@ class FMUSource(Source):
         log = self._last_log()
         return f"{self.path.name} returned an error {what} at step {i} ({when})" + (f": {log}" if log else "")
 
+    def _step_failure(self, status: int, what: str, i: int) -> str:
+        """The line for a ``doStep`` to ``t[i]`` that returned ``status`` > warning: a discard (the FMU could not
+        take a step this long, e.g. its embedded solver's maximum step) says so and what to give instead; an
+        error or fatal status is the FMU's error (:meth:`_fail_text`)."""
+        if status != DISCARD:
+            return self._fail_text(f"in {what}", i)
+        t, h = self._t, self._h_list[i]
+        log = self._last_log()
+        told = f"; its log: {log}" if log else ""
+        return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
+                f"(t={t[i - 1]:g} -> {t[i]:g}{told}){self._discard_fix(h)}")
+
+    def _discard_fix(self, h: float) -> str:
+        """What to do about a discarded step ``h``: a smaller ``--dt`` (the automatic window's pilots then run
+        at it), unless the FMU has a fixed communication step, which no option changes."""
+        if fixed_communication_step(self) is not None:
+            return ": the FMU rejects its own fixed communication step; drive its model exchange (--interface me) " \
+                   "if it offers it"
+        return f": give a smaller --dt, e.g. {_nice_below(h / 2):g}"
+
     # -- stepping ---------------------------------------------------------------------------
     def read(self, out: np.ndarray) -> None:
         plan = self._read
@@ -571,7 +646,11 @@ class FMUSource(Source):
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
         if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
-        if self._do_step(t, h) > 1:
+        status = self._do_step(t, h)
+        if status == DISCARD:
+            raise StepError(f"{self.path.name} discarded the communication step {h:g} at t={t:g}"
+                            f"{self._discard_fix(h)}", -1, t)
+        if status > 1:
             raise StepError(f"{self.path.name} returned an error in doStep at t={t:g}", -1, t)
 
     def _do_step(self, t: float, h: float) -> int:
@@ -602,8 +681,9 @@ class FMUSource(Source):
             if i:
                 if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-                if c_step(comp, t[i - 1], h[i], 1) > 1:
-                    raise StepError(self._fail_text("in fmi2DoStep", i), i, t[i])
+                status = c_step(comp, t[i - 1], h[i], 1)
+                if status > 1:
+                    raise StepError(self._step_failure(status, "fmi2DoStep", i), i, t[i])
                 if refresh and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
@@ -637,8 +717,9 @@ class FMUSource(Source):
                 if changed[i] and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
                                    or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
-                if c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8) > 1:
-                    raise StepError(self._fail_text("in fmi3DoStep", i), i, t[i])
+                status = c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8)
+                if status > 1:
+                    raise StepError(self._step_failure(status, "fmi3DoStep", i), i, t[i])
                 if refresh and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
                                 or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
@@ -656,7 +737,7 @@ class FMUSource(Source):
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
         self._t_list = self._t.tolist()
-        self._h_list = [0.0] + np.diff(self._t).tolist()
+        self._h_list = [0.0] + self._steps().tolist()
         # inputs keep their values between steps: set them only when they change
         changed = np.ones(len(self._t), dtype=bool)
         if self.m:
@@ -674,6 +755,17 @@ class FMUSource(Source):
         # Float32 inputs as the FMU takes them, one row per sample (their doubles are in _Uraw)
         self.refuse_single_precision_overflow(self._U.T)
         self._Uraw32 = np.ascontiguousarray(self._Uraw[:, self._write.nvalues:], dtype=np.float32)
+
+    def _steps(self) -> np.ndarray:
+        """The communication steps of the planned grid: on a uniform grid one constant value (the FMU's fixed
+        communication step, or the grid's step), not the grid's differences, which vary by the rounding of ``t``:
+        an FMU that cannot vary its step may refuse that, and one with a maximum step equal to ``dt`` discarded
+        ``h = 0.02000000000002558`` at t = 256 (audit 2026-11-27).  Its time then follows ``t`` to rounding."""
+        steps = np.diff(self._t)
+        if not steps.size:
+            return steps
+        h = fixed_communication_step(self) or float(f"{steps[0]:.12g}")
+        return np.full(steps.size, h) if np.all(np.abs(steps - h) <= 1e-9 * h) else steps
 
     def refuse_single_precision_overflow(self, u: np.ndarray) -> None:
         """:func:`check_single_precision` for this FMU's Float32 inputs (``u``: (m, k), in effect): what
