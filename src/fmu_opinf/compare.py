@@ -266,7 +266,7 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     from ._progress import Progress
     from .newmark import applied_inputs
     from .source import open_source
-    from .sources import check_communication_step
+    from .sources import warn_other_communication_step
 
     from .snapshots._isolation import deferred_interrupts, produce_inprocess, produce_isolated
 
@@ -274,8 +274,8 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     options = {k: v for k, v in options.items()
                if k in ("inputs", "outputs", "parameters", "interface", "tolerance", "method")}
     source = open_source(spec, positions="", **options)
-    if t.size > 1:  # an FMU with a fixed communication step: another step is refused before any run
-        check_communication_step(source, float(t[1] - t[0]))
+    if t.size > 1:  # an FMU with a fixed communication step: another step is said before any run
+        warn_other_communication_step(source, float(t[1] - t[0]))
     u = applied_inputs(signal, t)
     if u.shape[0] != source.m:
         raise DimensionError(f"the input has {u.shape[0]} channels but {Path(str(spec)).name} has {source.m} "

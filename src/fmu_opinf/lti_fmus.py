@@ -749,6 +749,7 @@ class _Options:
     completed_step_event_at: float | None = None
     discrete_inputs: tuple[int, ...] = ()
     cs_fixed_step: float | None = None
+    cs_fixed_step_enforced: bool = True
     cs_max_step: float | None = None
 
     @property
@@ -1463,7 +1464,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f'const char *const LTI_INSTANTIATION_TOKEN = "{_GUID_PLACEHOLDER}";\n'
         f"const int LTI_CS_METHOD = {'CsEuler' if options.cs_method == 'euler' else 'CsRungeKutta'};\n"
         f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
-        f"const double LTI_CS_FIXED_STEP = {_c_step(options.cs_fixed_step)};\n"
+        f"const double LTI_CS_FIXED_STEP = {_c_step(options.cs_fixed_step if options.cs_fixed_step_enforced else None)};\n"
         f"const double LTI_CS_MAX_STEP = {_c_step(options.cs_max_step)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
@@ -1587,7 +1588,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
-                  cs_max_step: float | None = None, reuse: bool = True) -> LtiFmu:
+                  cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
+                  reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1678,6 +1680,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Co-simulation at one fixed communication step, as fixed-step code generators export: declared as
         ``DefaultExperiment/@stepSize`` with ``canHandleVariableCommunicationStepSize="false"``, and
         ``doStep`` returns an error for any other step (also for its multiples).
+    cs_fixed_step_enforced : bool, default=True
+        With ``cs_fixed_step``: ``False`` declares the fixed step but runs at any constant step (FMI asks no more
+        of an FMU that cannot vary its step).
     cs_max_step : float, optional
         Co-simulation with an embedded solver's maximum step: ``doStep`` returns ``fmi2Discard`` /
         ``fmi3Discard`` (and logs why) for a longer step; the FMU stays usable.
@@ -1713,6 +1718,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
         discrete_inputs=tuple(discrete_inputs),
         cs_fixed_step=None if cs_fixed_step is None else float(cs_fixed_step),
+        cs_fixed_step_enforced=bool(cs_fixed_step_enforced),
         cs_max_step=None if cs_max_step is None else float(cs_max_step))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)

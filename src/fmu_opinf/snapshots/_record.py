@@ -31,7 +31,8 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
-from ..sources import Source, StepError, check_communication_step, fixed_communication_step, open_source, warn_once
+from ..sources import (Source, StepError, fixed_communication_step, open_source, warn_once,
+                       warn_other_communication_step)
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
@@ -695,7 +696,7 @@ def record_to_file(
     window = None
     dt_given = dt is not None
     if dt_given:
-        check_communication_step(source, float(dt))  # an FMU with a fixed communication step: refused up front
+        warn_other_communication_step(source, float(dt))  # not the FMU's fixed communication step: said
     fixed = fixed_communication_step(source)
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
     step_declared = dt is None and declared_step is not None and (not auto_window or fixed is not None)

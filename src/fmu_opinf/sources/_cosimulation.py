@@ -22,7 +22,8 @@ from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
                          read_description, start_value)
 
-__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "check_communication_step"]
+__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step",
+           "warn_other_communication_step"]
 
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
 DEFAULT_TOLERANCE = 1e-10
@@ -68,22 +69,31 @@ def fixed_communication_step(source: Any) -> float | None:
     return step if np.isfinite(step) and step > 0 else None
 
 
-def check_communication_step(source: Any, dt: float, option: str = "--dt") -> None:
-    """Refuse a step ``dt`` (given as ``option``) other than the FMU's fixed communication step, before any run.
+def warn_other_communication_step(source: Any, dt: float, option: str = "--dt") -> None:
+    """Warn, before any run, that a step ``dt`` (given as ``option``) is not the FMU's fixed communication step.
 
-    Raises
-    ------
-    InputSpecError
-        One line naming the FMU's fixed step and the fix.
+    The step asked for is used: FMI only asks such an FMU for one constant step, and some run at any constant
+    step; a fixed-step code generator's FMU refuses it at the first ``doStep``, whose error then names the fixed
+    step (:meth:`FMUSource._step_failure`).
     """
     fixed = fixed_communication_step(source)
-    if fixed is None or abs(dt - fixed) <= 1e-9 * fixed:
+    if fixed is None or _same_step(dt, fixed):
         return
-    me = " (or drive its model exchange, --interface me, whose step is free)" \
-        if getattr(source.md, "modelExchange", None) is not None else ""
-    raise InputSpecError(f"{source.path.name} runs only at its fixed communication step {fixed:g} "
-                         f"(canHandleVariableCommunicationStepSize=false, DefaultExperiment stepSize={fixed:g}), not "
-                         f"at {option} {dt:g}: leave {option} out or give {option} {fixed:g}{me}")
+    from . import warn_once
+
+    warn_once(source, ("communication step", float(dt)),
+              f"it declares one fixed communication step {fixed:g} (canHandleVariableCommunicationStepSize=false, "
+              f"DefaultExperiment stepSize={fixed:g}); running at {option} {dt:g} as asked: if its doStep refuses "
+              f"that, leave {option} out or give {option} {fixed:g}{_model_exchange_hint(source)}")
+
+
+def _same_step(h: float, step: float) -> bool:
+    return abs(h - step) <= 1e-9 * step
+
+
+def _model_exchange_hint(source: Any) -> str:
+    return " (or drive its model exchange, --interface me, whose step is free)" \
+        if getattr(getattr(source, "md", None), "modelExchange", None) is not None else ""
 
 
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
@@ -595,9 +605,13 @@ class FMUSource(Source):
         """The line for a ``doStep`` to ``t[i]`` that returned ``status`` > warning: a discard (the FMU could not
         take a step this long, e.g. its embedded solver's maximum step) says so and what to give instead; an
         error or fatal status is the FMU's error (:meth:`_fail_text`)."""
-        if status != DISCARD:
-            return self._fail_text(f"in {what}", i)
         t, h = self._t, self._h_list[i]
+        if status != DISCARD:
+            fixed = fixed_communication_step(self)
+            hint = "" if fixed is None or _same_step(h, fixed) else (
+                f"; it declares the fixed communication step {fixed:g}: leave --dt out or give --dt {fixed:g}"
+                f"{_model_exchange_hint(self)}")
+            return self._fail_text(f"in {what}", i) + hint
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
         return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
@@ -606,7 +620,10 @@ class FMUSource(Source):
     def _discard_fix(self, h: float) -> str:
         """What to do about a discarded step ``h``: a smaller ``--dt`` (the automatic window's pilots then run
         at it), unless the FMU has a fixed communication step, which no option changes."""
-        if fixed_communication_step(self) is not None:
+        fixed = fixed_communication_step(self)
+        if fixed is not None and not _same_step(h, fixed):
+            return f": it declares the fixed communication step {fixed:g}: leave --dt out or give --dt {fixed:g}"
+        if fixed is not None:
             return ": the FMU rejects its own fixed communication step; drive its model exchange (--interface me) " \
                    "if it offers it"
         return f": give a smaller --dt, e.g. {_nice_below(h / 2):g}"
@@ -764,7 +781,9 @@ class FMUSource(Source):
         steps = np.diff(self._t)
         if not steps.size:
             return steps
-        h = fixed_communication_step(self) or float(f"{steps[0]:.12g}")
+        h, fixed = float(f"{steps[0]:.12g}"), fixed_communication_step(self)
+        if fixed is not None and _same_step(h, fixed):
+            h = fixed
         return np.full(steps.size, h) if np.all(np.abs(steps - h) <= 1e-9 * h) else steps
 
     def refuse_single_precision_overflow(self, u: np.ndarray) -> None:
