@@ -118,7 +118,10 @@ def scale_note(metrics: dict[str, Any]) -> str | None:
     audit: eq. (19) 1.7e-9, an acceleration output 3.2e-2 of its peak off).  Said when the worst output's relative
     max error, squared to compare with eq. (19), exceeds both figures :data:`OFFSET_HIDES`-fold.
     """
-    worst_name, worst = max(metrics["per_output"].items(), key=lambda item: np.nan_to_num(item[1]["relative_max"]))
+    per_output = metrics.get("per_output") or {}   # a metrics dict of an older report may have none
+    if not per_output:
+        return None
+    worst_name, worst = max(per_output.items(), key=lambda item: np.nan_to_num(item[1]["relative_max"]))
     squared = float(np.nan_to_num(worst["relative_max"])) ** 2
     varying = metrics.get("max_error_variation", math.nan)
     shown = max(metrics["max_error"], varying if math.isfinite(varying) else 0.0)
