@@ -742,10 +742,10 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
         fix = "; its model exchange (--interface me) has no fixed step" \
             if getattr(source.md, "modelExchange", None) is not None else ""
     else:
-        from ._window import _nice_floor
+        from ..sources._base import nice_floor
 
         what = f"--dt {dt:g}"
-        fix = f"; a smaller --dt resolves it, e.g. {_nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
+        fix = f"; a smaller --dt resolves it, e.g. {nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
     warnings.warn(f"{source_label(source)}: {what} gives {points:.3g} samples per period of the fastest significant "
                   f"frequency {window.f_max:.4g} Hz seen at that step (the automatic window asks for "
                   f"{window.points_per_period:g}){fix}", FmuOpinfWarning, stacklevel=3)

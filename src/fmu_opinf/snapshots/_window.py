@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import DataError, InputSpecError
 from ..sources import Source, fixed_communication_step, open_source
+from ..sources._base import nice_floor
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
@@ -321,16 +322,6 @@ def _without_trend(y: np.ndarray) -> np.ndarray:
     index = np.arange(y.shape[1], dtype=float)
     slope, intercept = _line(index, y)
     return y - intercept[:, None] - slope[:, None] * index
-
-
-def _nice_floor(value: float) -> float:
-    """Largest 1, 2 or 5 times a power of ten not above ``value``."""
-    exponent = math.floor(math.log10(value))
-    for mantissa in (5.0, 2.0, 1.0):
-        candidate = mantissa * 10.0 ** exponent
-        if candidate <= value * (1 + 1e-12):
-            return float(f"{candidate:.12g}")
-    return float(f"{10.0 ** exponent:.12g}")
 
 
 @dataclasses.dataclass
@@ -680,7 +671,7 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
             energy: float, fade: float, periods: float, t_input: float, stopped_by: str,
             internal: float | None = None, exact: float | None = None) -> Window:
     f_use = max(seen.f_max, 1.0 / max(t_stop - t0, dt))
-    step = exact or on_internal_steps(_nice_floor(1.0 / (points_per_period * f_use)), internal)
+    step = exact or on_internal_steps(nice_floor(1.0 / (points_per_period * f_use)), internal)
     end = t0 + math.ceil((t_stop - t0) / step - 1e-9) * step
     return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=seen.f_max, t_fade=seen.t_fade, peak=seen.peak,
                   pilot_dt=dt, pilot_t_end=T, pilots=pilots, points_per_period=points_per_period, energy=energy,

@@ -5,6 +5,8 @@ See :mod:`fmu_opinf.sources` for the stepping protocol every source implements.
 
 from __future__ import annotations
 
+import math
+
 import re
 from collections.abc import Sequence
 from typing import Any
@@ -293,3 +295,13 @@ def inputs_without(inputs: list[str], excluded: list[str]) -> str:
     """The ``--inputs`` option that drives ``inputs`` but ``excluded`` (``--input none`` when none is left)."""
     rest = [name for name in inputs if name not in excluded]
     return f"--inputs {','.join(rest)}" if rest else "--input none (or --inputs none)"
+
+
+def nice_floor(value: float) -> float:
+    """Largest 1, 2 or 5 times a power of ten not above ``value``: a step to suggest or choose."""
+    exponent = math.floor(math.log10(value))
+    for mantissa in (5.0, 2.0, 1.0):
+        candidate = mantissa * 10.0 ** exponent
+        if candidate <= value * (1 + 1e-12):
+            return float(f"{candidate:.12g}")
+    return float(f"{10.0 ** exponent:.12g}")

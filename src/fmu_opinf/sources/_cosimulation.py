@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 from ..fmus import BASE_UNITS
-from ._base import Source, StepError, check_constraint, inputs_without
+from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
@@ -98,12 +98,6 @@ def _model_exchange_hint(source: Any) -> str:
 
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
 DISCARD = 2
-
-
-def _nice_below(value: float) -> float:
-    """The largest 1, 2 or 5 times a power of ten not above ``value``."""
-    power = 10.0 ** np.floor(np.log10(value))
-    return float(f"{max(m for m in (1.0, 2.0, 5.0) if m * power <= value * (1 + 1e-12)) * power:.6g}")
 
 
 def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
@@ -626,7 +620,7 @@ class FMUSource(Source):
         if fixed is not None:
             return ": the FMU rejects its own fixed communication step; drive its model exchange (--interface me) " \
                    "if it offers it"
-        return f": give a smaller --dt, e.g. {_nice_below(h / 2):g}"
+        return f": give a smaller --dt, e.g. {nice_floor(h / 2):g}"
 
     # -- stepping ---------------------------------------------------------------------------
     def read(self, out: np.ndarray) -> None:
