@@ -22,7 +22,7 @@ from fmu_opinf.cli import main
 from fmu_opinf.newmark import time_grid
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.snapshots import Snapshots
+from fmu_opinf.snapshots import Snapshots, record_to_file
 
 pytestmark = pytest.mark.fmu
 
@@ -111,6 +111,9 @@ def test_a_fixed_communication_step_is_recorded_with_defaults(fmus, name, tmp_pa
     window = json.loads(run.attrs["auto_window"]) if isinstance(run.attrs["auto_window"], str) \
         else run.attrs["auto_window"]
     assert run.attrs["dt"] == FIXED and window["dt"] == FIXED and window["pilot_dt"] == FIXED
+    summary = record_to_file(str(fmus[name]), tmp_path / "again.h5", None, quiet=True)
+    assert "auto window for t_end only: dt=0.02 (the FMU's fixed communication step); the window's own: dt=0.02" \
+        in summary.describe()
     assert np.all(np.diff(run.t) == pytest.approx(FIXED, rel=1e-9)) and run.t[-1] > 50.0
     assert _relative(run.y, _exact(run)) < RECORDING
 

@@ -196,8 +196,8 @@ def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
         summary = record_to_file(declared, tmp_path / "s.h5", None, quiet=True)
     text = summary.describe()
     assert summary.dt == 0.5 and summary.window.dt == 0.02
-    assert ("auto window for t_end only: dt=0.5 as given (--dt, or the FMU's DefaultExperiment stepSize; the window's "
-            "own: dt=0.02") in text
+    assert ("auto window for t_end only: dt=0.5 (the FMU's DefaultExperiment stepSize); the window's own: "
+            "dt=0.02") in text
     import warnings
 
     with warnings.catch_warnings(record=True) as caught:  # the user's own --dt: not blamed on the FMU

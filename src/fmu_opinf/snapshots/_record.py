@@ -574,6 +574,7 @@ class RecordSummary:
     runs: list[tuple[int, bool, str]] = dataclasses.field(default_factory=list)
     dt: float | None = None  # the step recorded (a given one may stand beside the window's)
     events: list[int | None] = dataclasses.field(default_factory=list)  # per run; None: not seen (co-simulation)
+    step_from: str | None = None  # who set the step beside an automatic window (--dt, the FMU), if not the window
 
     def __str__(self) -> str:
         return str(self.path)
@@ -588,9 +589,9 @@ class RecordSummary:
             events = self.events[index] if index < len(self.events) else None
             lines.append(f"  run {index:04d}: k={k} samples, input {spec}" + ("" if complete else " (INCOMPLETE)")
                          + (f", {events} event(s)" if events else ""))
-        if self.window is not None and self.dt is not None and not math.isclose(self.dt, self.window.dt):
-            lines.append(f"  auto window for t_end only: dt={self.dt:g} as given (--dt, or the FMU's DefaultExperiment "
-                         f"stepSize; the window's own: {self.window})")
+        if self.window is not None and self.step_from is not None:
+            lines.append(f"  auto window for t_end only: dt={self.dt:g} ({self.step_from}); the window's own: "
+                         f"{self.window}")
         elif self.window is not None:
             lines.append(f"  auto window: {self.window}")
         return "\n".join(lines)
@@ -727,7 +728,10 @@ def record_to_file(
         check_input_acts(signal, t)
     if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
-    return _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
+    summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
+    summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
+                         else "the FMU's DefaultExperiment stepSize" if step_declared else None)
+    return summary
 
 
 def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> None:
