@@ -121,7 +121,8 @@ def test_a_fixed_communication_step_is_recorded_with_defaults(fmus, name, tmp_pa
 @pytest.mark.slow
 def test_the_default_chain_runs_on_a_fixed_step_fmu(fmus, tmp_path, capsys):
     """snapshots, fit, compare (at the training step: the fixed one), export with defaults; compare's eps_y is
-    checked against the exact solution; a compare --dt other than the fixed step is refused before any run."""
+    checked against the exact solution; a compare --dt other than the fixed step fails at the
+    FMU's first doStep, in one line naming the step to give."""
     fmu, train, rom, report = fmus["fixed2"], tmp_path / "train.h5", tmp_path / "rom.h5", tmp_path / "report"
     assert main(["snapshots", str(fmu), "-o", str(train), "-q"]) == 0
     assert main(["fit", str(train), "-o", str(rom), "-q"]) == 0
@@ -241,3 +242,22 @@ def test_a_given_coarse_dt_is_recorded_and_said_to_be_coarse(fmus, tmp_path):
     run = Snapshots.load(tmp_path / "train.h5").runs[0]
     assert summary.dt == 0.1 and summary.window.pilot_dt == 0.1 and run.attrs["fmi_interface"] == "me"
     assert _relative(run.y, _exact(run)) < 1e-9  # DOP853 at the tolerance 1e-10: 1.7e-10
+
+
+def test_a_given_dt_sets_the_pilots_step_also_on_a_declared_fixed_step_fmu(fmus, tmp_path, monkeypatch):
+    """Review of the fifth audit's fix: a --dt given without --t-end to an FMU that declares a fixed step ran the
+    window's pilots at the declared step, and the under-resolution warning called the user's step the FMU's.  The
+    pilots run at the step asked for, the one recorded, and the recording is the exact solution."""
+    import warnings
+
+    from fmu_opinf import sources
+
+    monkeypatch.setattr(sources, "_REPORTED", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        summary = record_to_file(str(fmus["declared"]), tmp_path / "a.h5", None, dt=0.1, quiet=True)
+    said = " ".join(str(w.message) for w in caught)
+    assert summary.window.pilot_dt == 0.1 and summary.dt == 0.1, summary.describe()
+    assert "running at --dt 0.1 as asked" in said and "fixed communication step 0.1" not in said, said
+    run = Snapshots.load(tmp_path / "a.h5").runs[0]
+    assert _relative(run.y, _exact(run)) < RECORDING

@@ -210,7 +210,7 @@ static int accepted_step(const erk_model *m, const erk_tableau *tab, erk_state *
    Returns ERK_EVENT or ERK_TERMINATE when the FMU asks for event mode or for the end of the simulation. */
 static int completed_step(const erk_model *m, erk_state *st) {
     int event = 0, terminate = 0, status;
-    if (st->t_failed != st->t && m->set_time(m->component, st->t) > 1) return ERK_FMU_ERROR;
+    if (st->t_failed != st->t && m->set_time(m->component, st->t) > 1) return ERK_COMPLETED_ERROR;
     st->t_failed = st->t;
     if (m->fmi_version == 2) {
         status = ((erk_completed2)m->completed)(m->component, 1, &event, &terminate);

@@ -110,23 +110,30 @@ def offset_note(metrics: dict[str, Any]) -> str | None:
             f"is {varying:.2e} (squared), and {worst[0]} is {worst[1]['relative_max_variation']:.2g} of its range off")
 
 
+#: Relative max error of one output below which no note says that larger outputs hide it: round-off (a ROM FMU
+#: against its ROM, 1e-13 of a small output's peak) is no error worth a note.
+SCALE_NOTE_FLOOR = 1e-6
+
+
 def scale_note(metrics: dict[str, Any]) -> str | None:
     """A line saying that larger outputs hide one output's error in eq. (19), or None.
 
     Eq. (19) and its variation form weigh the outputs by their size, so with outputs in different units or scales
     (positions in mm beside accelerations in m/s2) an output can be far off while both figures are small (fifth
     audit: eq. (19) 1.7e-9, an acceleration output 3.2e-2 of its peak off).  Said when the worst output's relative
-    max error, squared to compare with eq. (19), exceeds both figures :data:`OFFSET_HIDES`-fold.
+    max error, squared to compare with eq. (19), exceeds both figures :data:`OFFSET_HIDES`-fold and is above
+    :data:`SCALE_NOTE_FLOOR`.
     """
     per_output = metrics.get("per_output") or {}   # a metrics dict of an older report may have none
     if not per_output:
         return None
     worst_name, worst = max(per_output.items(), key=lambda item: np.nan_to_num(item[1]["relative_max"]))
-    squared = float(np.nan_to_num(worst["relative_max"])) ** 2
+    relative = float(np.nan_to_num(worst["relative_max"]))
     varying = metrics.get("max_error_variation", math.nan)
     shown = max(metrics["max_error"], varying if math.isfinite(varying) else 0.0)
-    if not squared > OFFSET_HIDES * shown:
+    if not (relative ** 2 > OFFSET_HIDES * shown and relative > SCALE_NOTE_FLOOR):
         return None
+    squared = relative ** 2
     return (f"larger outputs hide an error in eq. (19): {worst_name} is {worst['relative_max']:.2g} of its peak off "
             f"(squared {squared:.2e}); see the per-output errors")
 

@@ -673,15 +673,18 @@ def _warn_if_modes_above_nyquist(poles: list, dt: float | None) -> None:
     the fifth audit (modes at 0.91 .. 2.3e4 rad/s, dt = 0.01) a learned undamped mode at 8.3e3 rad/s rang for
     ever in an acceleration output, 3.2e-2 of its peak off, while eq. (19) said 1.7e-9.
     """
-    if not dt or not poles:
+    oscillating = [im for _, im in poles if im > 0]   # real (overdamped) poles do not ring
+    if not dt or not oscillating:
         return
-    omega = max(abs(complex(re, im)) for re, im in poles)
-    nyquist = math.pi / dt
+    omega, nyquist = max(oscillating), math.pi / dt
     if omega > nyquist:
+        from .sources._base import nice_floor
+
         warnings.warn(f"the ROM has a mode at {omega:.3g} rad/s, above the {nyquist:.3g} rad/s (pi/dt) that the "
                       f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
                       f"damping are right, and it can ring in outputs it reaches (accelerations, forces); record "
-                      f"with --dt below {math.pi / omega:.2g} or fit a smaller r", FmuOpinfWarning, stacklevel=3)
+                      f"with --dt {nice_floor(math.pi / omega):g} or below, or fit a smaller r",
+                      FmuOpinfWarning, stacklevel=3)
 
 
 def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,

@@ -719,7 +719,7 @@ def record_to_file(
                           f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
                           f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
         elif fixed is not None or dt_given:
-            _warn_if_unresolved(source, window, dt, fixed is not None)
+            _warn_if_unresolved(source, window, dt, fixed is not None and not dt_given)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -743,8 +743,9 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
         return
     if fixed:
         what = f"the FMU's fixed communication step {dt:g}"
-        fix = "; its model exchange (--interface me) has no fixed step" \
-            if getattr(source.md, "modelExchange", None) is not None else ""
+        fix = ("; its model exchange (--interface me) has no fixed step"
+               if getattr(source.md, "modelExchange", None) is not None else
+               "; no other step is possible: compare the ROM on the modes it resolves")
     else:
         from ..sources._base import nice_floor
 

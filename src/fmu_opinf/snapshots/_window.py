@@ -815,12 +815,13 @@ def _exact_activity(signal: Any) -> tuple[float, float | None] | None:
 
 
 def _step_limit(source: Source, max_dt: float | None, exact_dt: bool) -> tuple[float | None, bool]:
-    """``max_dt, exact_dt`` of :func:`auto_window`, an FMU's fixed communication step taking their place."""
-    fixed = fixed_communication_step(source)
-    if fixed is not None:
-        return fixed, True
+    """``max_dt, exact_dt`` of :func:`auto_window`; an FMU's fixed communication step takes their place unless the
+    caller asks for an exact step of its own (a user's ``--dt``, warned about when it is not the FMU's step)."""
     if exact_dt and max_dt is None:
         raise InputSpecError("exact_dt needs the step: give max_dt")
+    fixed = fixed_communication_step(source)
+    if fixed is not None and not exact_dt:
+        return fixed, True
     return (None if max_dt is None else float(max_dt)), exact_dt
 
 

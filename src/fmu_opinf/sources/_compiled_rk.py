@@ -145,7 +145,8 @@ class Kernel:
         if status == _STEP_TOO_SMALL:
             raise IntegrationFailure("DOP853: Required step size is less than spacing between numbers.")
         if status == _COMPLETED_ERROR:
-            raise IntegrationFailure(f"fmiCompletedIntegratorStep failed at t={state.t:.9g}")
+            raise IntegrationFailure(f"fmiSetTime or fmiCompletedIntegratorStep failed after the integrator step "
+                                     f"to t={state.t:.9g}")
         if status == _TERMINATE:
             raise IntegrationFailure(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at "
                                      f"t={state.t:.9g}")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import math
 import os
 import shutil
 import tempfile
@@ -618,8 +619,9 @@ class FMUSource(Source):
         if fixed is not None and not _same_step(h, fixed):
             return f": it declares the fixed communication step {fixed:g}: leave --dt out or give --dt {fixed:g}"
         if fixed is not None:
-            return ": the FMU rejects its own fixed communication step; drive its model exchange (--interface me) " \
-                   "if it offers it"
+            me = getattr(self.md, "modelExchange", None) is not None
+            return ": the FMU rejects its own fixed communication step" + (
+                "; drive its model exchange (--interface me)" if me else "; it offers no model exchange to use instead")
         return f": give a smaller --dt, e.g. {nice_floor(h / 2):g}"
 
     # -- stepping ---------------------------------------------------------------------------
@@ -778,7 +780,8 @@ class FMUSource(Source):
         h, fixed = float(f"{steps[0]:.12g}"), fixed_communication_step(self)
         if fixed is not None and _same_step(h, fixed):
             h = fixed
-        return np.full(steps.size, h) if np.all(np.abs(steps - h) <= 1e-9 * h) else steps
+        rounding = 1e-9 * h + 4 * math.ulp(float(np.abs(self._t).max()))  # t = i dt rounds, more so on long runs
+        return np.full(steps.size, h) if np.all(np.abs(steps - h) <= rounding) else steps
 
     def refuse_single_precision_overflow(self, u: np.ndarray) -> None:
         """:func:`check_single_precision` for this FMU's Float32 inputs (``u``: (m, k), in effect): what
