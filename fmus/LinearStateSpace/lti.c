@@ -593,6 +593,13 @@ LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time) {
                inst->timeCompleted, time);
         return LtiError;
     }
+    if (LTI_COMPLETED_GAP > 0.0 && (inst->phase & PhaseContinuous) &&
+        time < inst->timeCompleted - 1e-12 * (1.0 + fabs(time))) {
+        ltiLog(inst, LtiError, "logStatusError",
+               "%s: time %.17g is before the last completed integrator step at t=%.17g, which is never taken back",
+               function, time, inst->timeCompleted);
+        return LtiError;
+    }
     inst->time = time;
     inst->upToDate = 0;
     return LtiOK;

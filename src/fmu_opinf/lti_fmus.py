@@ -1670,6 +1670,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         step (FMI 2: ``completedIntegratorStepNotNeeded="false"``, FMI 3: ``needsCompletedIntegratorStep="true"``)
         and refuses ``fmiSetTime`` more than this many seconds after the last one, as the buffer of a Modelica
         ``delay()`` would: an importer that calls it once per communication step fails at a step longer than this.
+        It also refuses a time before the last completed step (FMI: a completed step is never taken back).
     completed_step_event_at : float, optional
         Model exchange: the first completed integrator step at or after this time asks for event mode (whose event
         iteration changes nothing); also declares the need for completed steps.

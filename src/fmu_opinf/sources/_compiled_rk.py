@@ -110,15 +110,18 @@ class Kernel:
         self._steps_per_call = 16
 
     def integrate(self, y: np.ndarray, t0: float, t1: float, rtol: float, atol: np.ndarray, first_step: float | None,
-                  check_interrupt: Any = None, completed: bool = False) -> tuple[np.ndarray, float, float]:
+                  check_interrupt: Any = None, completed: bool = False,
+                  one_step: bool = False) -> tuple[np.ndarray, float, float]:
         """Integrate ``y`` from ``t0`` to ``t1``; the new state, the size of the last step taken (0: none) and the
         time reached: ``t1``, or earlier where the FMU asked for an event in ``CompletedIntegratorStep``.
 
         ``first_step`` (None: chosen from the derivatives, as :func:`scipy.integrate.solve_ivp` does) must not
         exceed ``t1 - t0``.  ``check_interrupt`` is called between blocks of steps.  ``completed``: call the FMU's
         ``CompletedIntegratorStep`` after each accepted step before ``t1`` (not at ``t1``: the caller does, as it
-        may go on with events there).  Raises :class:`IntegrationFailure` with scipy's wording for the reasons its
-        loop fails, and when the FMU refuses the completed step or asks to terminate.
+        may go on with events there).  ``one_step``: return after the first accepted step (its time).  Raises
+        :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails, and when the FMU refuses the
+        completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
+        try (the step grows from call to call).
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
@@ -130,8 +133,8 @@ class Kernel:
                 started = time.perf_counter()
                 status = self._advance(ctypes.byref(self._model), ctypes.byref(self._tableau), ctypes.byref(state),
                                        ctypes.c_double(t1), y.ctypes.data, self._work.ctypes.data,
-                                       self._steps_per_call)
-                if status != _PAUSED:
+                                       1 if one_step else self._steps_per_call)
+                if status != _PAUSED or one_step:
                     break
                 self._adapt(time.perf_counter() - started)
                 if check_interrupt is not None:
@@ -150,7 +153,8 @@ class Kernel:
         if status == _TERMINATE:
             raise IntegrationFailure(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at "
                                      f"t={state.t:.9g}")
-        return y, float(state.h_last), float(state.t) if status == _EVENT else t1
+        step = state.h_abs if one_step else state.h_last   # one step at a time: the next one's size goes on
+        return y, float(step), float(state.t) if status in (_EVENT, _PAUSED) else t1
 
     def _adapt(self, seconds: float) -> None:
         """More steps per call when a call was much shorter than the aim, fewer when it was longer."""

@@ -36,8 +36,9 @@ before the start-of-interval check was limited to steps whose inputs changed; 20
 Completed integrator steps.  An FMU that needs ``fmiCompletedIntegratorStep`` after every accepted integrator step
 (FMI 2 unless ``completedIntegratorStepNotNeeded="true"``, FMI 3 if ``needsCompletedIntegratorStep="true"``; a
 ``delay()`` buffer advances there) gets it from the integrator's loop after each accepted step inside an interval,
-and, like every FMU, at the interval's end.  An event it asks for there is handled at that step.  The trials of a
-crossing search go back in time and do not call it.
+and, like every FMU, at the interval's end.  An event it asks for there is handled at that step.  With event
+indicators it is integrated one accepted step at a time and each step is completed only once its indicators show
+no crossing, so that a crossing search (whose trials do not call it) never goes back before a completed step.
 
 Discrete inputs.  Model exchange may change an input of discrete variability only in event mode (FMI 2.0 section
 3.2.3): a step where one changes sets the inputs in event mode, before an event iteration (not counted as an event
@@ -299,18 +300,19 @@ class ModelExchangeSource(FMUSource):
             return
         self._completed_step(i, t1)
 
-    def _piece(self, i: int, t0: float, t1: float) -> float:
+    def _piece(self, i: int, t0: float, t1: float, one_step: bool = False) -> float:
         """Integrate from ``t0`` to ``t1`` (no event inside) and set the FMU's state and time there.
 
         For an FMU that needs them, ``fmiCompletedIntegratorStep`` is called after each accepted step before ``t1``
         (not in the trials of a crossing search, which go back in time).  Returns the time reached: ``t1``, or that
-        of the completed step where the FMU asked for an event (the caller handles it).
+        of the completed step where the FMU asked for an event (the caller handles it).  ``one_step``: stop after
+        one accepted step, not completed (:meth:`_advance_step_by_step` completes it once its indicators are read).
         """
         t = t1
         if self.nx:
             try:
-                completed = self._needs_completed and not self._searching
-                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed)
+                completed = self._needs_completed and not self._searching and not one_step
+                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed, one_step)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
@@ -353,6 +355,8 @@ class ModelExchangeSource(FMUSource):
         indicator crossed zero, and whether the FMU asked for an event there (a crossing before it comes first)."""
         if t1 <= t0:   # an event due at once
             return t0, False, False
+        if self.nz and self._needs_completed:
+            return self._advance_step_by_step(i, t0, t1)
         start = self._x.copy() if self.nz else None
         t = self._piece(i, t0, t1)
         if not self.nz:
@@ -362,6 +366,24 @@ class ModelExchangeSource(FMUSource):
             self._z, self._z_end = self._z_end, self._z
             return t, False, t < t1
         return self._locate_crossing(i, t0, t, start), True, False
+
+    def _advance_step_by_step(self, i: int, t0: float, t1: float) -> tuple[float, bool, bool]:
+        """:meth:`_advance_to` for an FMU with event indicators that needs its completed integrator steps: one
+        accepted step at a time, its indicators read before the step is completed, so that a crossing is searched
+        for within the last step, after the last completed point (FMI never takes a completed step back: a search
+        over the whole interval went back before steps already completed)."""
+        t = t0
+        while t < t1:
+            start = self._x.copy()
+            reached = self._piece(i, t, t1, one_step=True)
+            self._read_indicators(i, reached, self._z_end)
+            if _sign_changed(self._z, self._z_end):
+                return self._locate_crossing(i, t, reached, start), True, False
+            self._z, self._z_end = self._z_end, self._z
+            if reached < t1 and _completed_inside(self, reached, self._x):
+                return reached, False, True
+            t = reached
+        return t, False, False
 
     def _locate_crossing(self, i: int, a: float, b: float, x_a: np.ndarray) -> float:
         """The first zero crossing of an event indicator in ``(a, b]``, bracketed to
@@ -526,14 +548,15 @@ def _earliest_secant(a: float, b: float, g_a: np.ndarray, g_b: np.ndarray, w_a: 
 
 # ---------------------------------------------------------------------------------------- integrators
 
-def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
+           one_step: bool = False) -> tuple[np.ndarray, float]:
     """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size; through
-    :class:`scipy.integrate.LSODA` step by step where the FMU needs its completed integrator steps (``completed``),
-    as ``odeint`` cannot call back after each step."""
+    :class:`scipy.integrate.LSODA` step by step where the FMU needs its completed integrator steps (``completed``)
+    or one step is asked for (``one_step``), as ``odeint`` cannot call back after each step."""
     from scipy.integrate import odeint
 
-    if completed:
-        return _stepwise_lsoda(source, t0, t1, completed)
+    if completed or one_step:
+        return _stepwise_lsoda(source, t0, t1, completed, one_step)
 
     h0 = source._h_last if math.isfinite(source._h_last) else 0.0
     failure: list[BaseException] = []
@@ -560,11 +583,12 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -
     return np.ascontiguousarray(y[-1]), t1
 
 
-def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]:
-    def integrate(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, bool], tuple[np.ndarray, float]]:
+    def integrate(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
+                  one_step: bool = False) -> tuple[np.ndarray, float]:
         """scipy's solver ``name`` step by step from ``t0`` to ``t1``; with ``completed``, the FMU's completed
-        integrator step after each accepted step before ``t1``, stopping where it asks for an event.  Returns the
-        state and the time reached."""
+        integrator step after each accepted step before ``t1``, stopping where it asks for an event; with
+        ``one_step``, stopping after the first accepted step.  Returns the state and the time reached."""
         import scipy.integrate as si
 
         cls = getattr(si, name)
@@ -575,10 +599,11 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool],
             message = solver.step()
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
-            if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
+            if one_step or (completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y)):
                 break
-        if solver.step_size:
-            source._h_last = float(solver.step_size)
+        step = getattr(solver, "h_abs", None) if one_step else None   # one step at a time: the next one's size
+        if step or solver.step_size:
+            source._h_last = float(step or solver.step_size)
         return np.ascontiguousarray(solver.y), (t1 if solver.status == "finished" else float(solver.t))
 
     return integrate
@@ -599,15 +624,16 @@ def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> b
     return bool(flags[0])
 
 
-def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool) -> tuple[np.ndarray, float]:
+def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
+            one_step: bool = False) -> tuple[np.ndarray, float]:
     """DOP853 through the compiled step loop (:mod:`._compiled_rk`), else scipy's Python loop."""
     kernel = source._kernel
     if kernel is None:
-        return _scipy_dop853(source, t0, t1, completed)
+        return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     try:
         x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt,
-                                        completed)
+                                        completed, one_step)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
@@ -618,7 +644,7 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool) 
 _scipy_dop853 = _solve_ivp("DOP853")
 _stepwise_lsoda = _solve_ivp("LSODA")
 
-_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float, bool], tuple[np.ndarray, float]]] = {
+_INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float, bool, bool], tuple[np.ndarray, float]]] = {
     "lsoda": _lsoda,
     "bdf": _solve_ivp("BDF"),
     "radau": _solve_ivp("Radau"),
