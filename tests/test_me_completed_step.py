@@ -187,3 +187,39 @@ def test_a_state_event_of_an_fmu_that_needs_completed_steps_is_found_without_goi
     x, v, a = reference(model, run.t, held_inputs(run), [(t_cross, np.asarray(STATE.force))])
     found = errors(run, x, v, a)
     assert run.attrs["events"] >= 1 and max(found.values()) < bound, found
+
+
+def test_single_steps_set_a_changed_discrete_input_in_event_mode_and_an_unchanged_one_not(fmus, monkeypatch):
+    """Source.step, one communication step at a time: event mode only where the discrete input changes (the FMU
+    refuses a change outside it): once for its first value and once per change, not at the other steps; the
+    outputs are those of the planned run."""
+    grid = np.arange(0.0, 4.0 + 1e-9, 0.1)
+    held = parse_two_inputs(grid)
+    source = ModelExchangeSource(fmus[("2.0", "discrete")], inputs="F[1],F[2]")
+    entered = []
+    original = ModelExchangeSource._handle_event
+    monkeypatch.setattr(ModelExchangeSource, "_handle_event",
+                        lambda self, i, t, set_inputs=None: (entered.append(t), original(self, i, t, set_inputs)))
+    try:
+        source.start(grid, held)
+        rows = np.zeros((grid.size, source.width))
+        source.read(rows[0])
+        for i in range(1, grid.size):
+            source.step(grid[i - 1], grid[i] - grid[i - 1], held[i])
+            source.read(rows[i])
+    finally:
+        source.close()
+    changes = int(np.count_nonzero(np.diff(held[1:, 1])))
+    assert 0 < changes < grid.size - 2 and len(entered) == 1 + changes, (changes, entered)
+    planned = record(ModelExchangeSource(fmus[("2.0", "discrete")], inputs="F[1],F[2]"), TWO_INPUTS, 0.1, 4.0,
+                     quiet=True).runs[0]
+    y = rows[:, -planned.y.shape[0]:].T
+    assert np.abs(y - planned.y).max() <= 1e-12 * np.abs(planned.y).max()
+
+
+def parse_two_inputs(grid: np.ndarray) -> np.ndarray:
+    """``TWO_INPUTS`` in effect at each sample (time-major), as the recorder applies it."""
+    from fmu_opinf.newmark import applied_inputs
+    from fmu_opinf.signals import parse_signal
+
+    return applied_inputs(parse_signal(TWO_INPUTS, 2), grid).T

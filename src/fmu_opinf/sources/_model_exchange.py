@@ -246,6 +246,7 @@ class ModelExchangeSource(FMUSource):
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
         discrete = self._discrete_inputs()
+        self._last_discrete = None   # step(): the first call of a run sets them in event mode
         in_event = np.zeros(len(self._t), dtype=bool)
         if discrete.any():
             in_event[1:] = np.any(self._U[1:, discrete] != self._U[:-1, discrete], axis=1)
@@ -254,9 +255,11 @@ class ModelExchangeSource(FMUSource):
     def _discrete_inputs(self) -> np.ndarray:
         """Which force inputs have discrete variability: model exchange may change them only in event mode
         (FMI 2.0 section 3.2.3, FMI 3.0 likewise); an element ``F[2]`` of an FMI 3 array is its array's."""
-        variability = {v.name: v.variability for v in self.md.modelVariables}
-        return np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
-                         for name in self.input_names], dtype=bool)
+        if getattr(self, "_discrete", None) is None:
+            variability = {v.name: v.variability for v in self.md.modelVariables}
+            self._discrete = np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
+                                       for name in self.input_names], dtype=bool)
+        return self._discrete
 
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
@@ -275,14 +278,17 @@ class ModelExchangeSource(FMUSource):
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
+        discrete = np.reshape(np.asarray(u, dtype=float), self.m)[self._discrete_inputs()]
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
 
         def set_input() -> None:
             if self._call_set(u) > 1:
                 raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
 
-        if self.m and self._discrete_inputs().any():   # they may change only in event mode
+        last = getattr(self, "_last_discrete", None)
+        if discrete.size and (last is None or np.any(discrete != last)):   # they may change only in event mode
             self._handle_event(-1, t, set_input)
+            self._last_discrete = discrete
         elif self.m:
             set_input()
         self._integrate(-1, t, t + h)
