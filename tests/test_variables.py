@@ -320,6 +320,9 @@ def test_parse_assignments_keeps_order_and_text():
     # after a comma became part of the value before it)
     assert parse_assignments(["Masse_ü.s=1.3,'mass 1'.s=0.55", "sensor[1,1]=3,'a,b'.s=2,der(x)=1"]) == {
         "Masse_ü.s": "1.3", "'mass 1'.s": "0.55", "sensor[1,1]": "3", "'a,b'.s": "2", "der(x)": "1"}
+    # '=' and ',' inside a quoted name, an escaped quote (review: split inside the quotes before)
+    assert parse_assignments(["'a=b'.s=2", "x=1,'a,b=c'.s=3", "'it\\'s'.s=4,k=5"]) == {
+        "'a=b'.s": "2", "x": "1", "'a,b=c'.s": "3", "'it\\'s'.s": "4", "k": "5"}
 
 
 # --------------------------------------------------------------- FMI 3 states body by body (no alias derivatives)

@@ -38,24 +38,50 @@ class Setting:
 #: One part of a variable name: an identifier (any script: ``Masse_ü``) or a Modelica quoted identifier
 #: (``'mass 1'``), with any ``(...)`` and ``[...]`` after it (``der(x)``, ``sensor[1,1]``).
 _NAME_PART = r"(?:[^\W\d]\w*|'(?:[^'\\]|\\.)+')(?:\([^)]*\))?(?:\[[^\]]*\])*"
-#: A comma that starts another ``NAME=`` assignment (``--set a=1,'mass 1'.s=2``); commas inside array values
-#: (``x0=[1,2,3]``, ``x0=1,2,3``) and indices (``sensor[1,1]=3``) are followed by numbers, not by a name and ``=``.
-_NEXT_ASSIGNMENT = re.compile(rf",(?=\s*{_NAME_PART}(?:\.{_NAME_PART})*\s*=)")
+#: A whole variable name followed by ``=``, at the start of an assignment: dots join the parts.
+_NAME_THEN_EQUALS = re.compile(rf"\s*({_NAME_PART}(?:\.{_NAME_PART})*)\s*=")
 
 
 def parse_assignments(items: Iterable[str] | Mapping[str, Any] | None) -> dict[str, Any]:
-    """``["k=4", "x0=[1,2]"]`` or ``["k=4,c=0.1"]`` (command line) or a mapping, as an ordered ``{name: value}``."""
+    """``["k=4", "x0=[1,2]"]`` or ``["k=4,c=0.1"]`` (command line) or a mapping, as an ordered ``{name: value}``.
+
+    A comma starts another assignment where a variable name and ``=`` follow it (``--set a=1,'mass 1'.s=2``);
+    commas inside array values (``x0=[1,2,3]``, ``x0=1,2,3``), indices (``sensor[1,1]=3``) and Modelica quoted
+    names (``'a,b=c'.s=2``) do not.
+    """
     if items is None:
         return {}
     if isinstance(items, Mapping):
         return dict(items)
     out: dict[str, Any] = {}
-    for item in (piece for given in items for piece in _NEXT_ASSIGNMENT.split(str(given))):
-        name, sep, value = str(item).partition("=")
-        if not sep or not name.strip():
-            raise InputSpecError(f"--set {item!r} is not NAME=VALUE; write e.g. --set k=1000 or --set x0=[1,2,3]")
+    for item in (piece for given in items for piece in _split_assignments(str(given))):
+        named = _NAME_THEN_EQUALS.match(item)
+        if named:
+            name, value = named.group(1), item[named.end():]
+        else:
+            name, sep, value = item.partition("=")
+            if not sep or not name.strip():
+                raise InputSpecError(f"--set {item!r} is not NAME=VALUE; write e.g. --set k=1000 or --set x0=[1,2,3]")
         out[name.strip()] = value.strip()
     return out
+
+
+def _split_assignments(text: str) -> list[str]:
+    """``text`` cut at the commas that start another ``NAME=`` (none inside a quoted name or brackets)."""
+    pieces, start, depth, quoted, escaped = [], 0, 0, False, False
+    for index, char in enumerate(text):
+        if quoted:
+            escaped, quoted = (not escaped and char == "\\"), quoted and (escaped or char != "'")
+        elif char == "'":
+            quoted = True
+        elif char in "[(":
+            depth += 1
+        elif char in "])":
+            depth = max(depth - 1, 0)
+        elif char == "," and depth == 0 and _NAME_THEN_EQUALS.match(text, index + 1):
+            pieces.append(text[start:index])
+            start = index + 1
+    return pieces + [text[start:]]
 
 
 def resolve_settings(model: ModelInfo, settings: Mapping[str, Any]) -> tuple[list[Setting], dict[str, int]]:
