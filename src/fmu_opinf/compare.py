@@ -29,8 +29,8 @@ if TYPE_CHECKING:
     from .rom import SecondOrderROM
     from .signals import Signal
 
-__all__ = ["output_error", "error_metrics", "offset_note", "scale_note", "Comparison", "compare", "simulate_outputs", "write_report",
-           "prepare_report_directory", "summary_table"]
+__all__ = ["output_error", "error_metrics", "offset_note", "scale_note", "Comparison", "compare", "simulate_outputs",
+           "write_report", "prepare_report_directory", "summary_table"]
 
 
 def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -1464,7 +1464,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f'const char *const LTI_INSTANTIATION_TOKEN = "{_GUID_PLACEHOLDER}";\n'
         f"const int LTI_CS_METHOD = {'CsEuler' if options.cs_method == 'euler' else 'CsRungeKutta'};\n"
         f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
-        f"const double LTI_CS_FIXED_STEP = {_c_step(options.cs_fixed_step if options.cs_fixed_step_enforced else None)};\n"
+        f"const double LTI_CS_FIXED_STEP = {_c_step(_enforced_step(options))};\n"
         f"const double LTI_CS_MAX_STEP = {_c_step(options.cs_max_step)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
@@ -1483,6 +1483,11 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
+
+
+def _enforced_step(options: _Options) -> float | None:
+    """The fixed communication step the FMU's ``doStep`` enforces (none where it is only declared)."""
+    return options.cs_fixed_step if options.cs_fixed_step_enforced else None
 
 
 def _c_step(step: float | None) -> str:
