@@ -67,21 +67,57 @@ def _mass_indicator(r: int) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 # Solution paths
 # ----------------------------------------------------------------------------------------------------------
-def _solve_unconstrained(H: np.ndarray, a: np.ndarray, trace: float) -> np.ndarray | None:
+def _solve_unconstrained(H: np.ndarray, a: np.ndarray, trace: float,
+                         root: np.ndarray | None = None) -> np.ndarray | None:
     """Minimizer of ``w^T H w`` subject to ``a^T w = trace`` (None if it is not unique).
 
     ``(a^T w)^2`` is constant on the constraint set, so ``H + a a^T`` gives the same minimizer; unlike ``H`` it
     stays positive definite for exact data, where ``H`` is singular along the true operators.  The copy of ``H``
     is factored in place (through its transpose, Fortran order): r = 60, ``H`` of 241 MB, one copy instead of two.
+    With ``root`` (``G = root^T root``, the data's triangular factor that ``H`` is assembled from) the solution is
+    refined by :func:`_refine_through_root`.
     """
-    try:
-        factor = scipy.linalg.cho_factor(_add_outer(H.copy(), a).T, overwrite_a=True, check_finite=False)
-        h_inv_a = scipy.linalg.cho_solve(factor, a, check_finite=False)
-    except np.linalg.LinAlgError:
-        h_inv_a = _pseudo_solve(_add_outer(H.copy(), a), a)
+    solve = _semidefinite_solver(H, a)
+    h_inv_a = None if solve is None else solve(a)
     if h_inv_a is None or not float(a @ h_inv_a) > 0:
         return None
-    return trace * h_inv_a / float(a @ h_inv_a)
+    w = trace * h_inv_a / float(a @ h_inv_a)
+    return w if root is None else _refine_through_root(w, a, trace, h_inv_a, root, solve)
+
+
+def _semidefinite_solver(H: np.ndarray, a: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+    """``b -> (H + a a^T)^-1 b``: Cholesky, else the minimum-norm solution (:func:`_pseudo_solver`)."""
+    try:
+        factor = scipy.linalg.cho_factor(_add_outer(H.copy(), a).T, overwrite_a=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return _pseudo_solver(_add_outer(H.copy(), a))
+    return lambda b: scipy.linalg.cho_solve(factor, b, check_finite=False)
+
+
+#: Steps of :func:`_refine_through_root` (the second changed the solution by 3e-16 relative in the case measured).
+_REFINEMENT_STEPS = 2
+
+
+def _refine_through_root(w: np.ndarray, a: np.ndarray, trace: float, x: np.ndarray, root: np.ndarray,
+                         solve: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """Corrected semi-normal equations: Newton steps on the optimality conditions ``H w = -mu a``, ``a^T w =
+    trace`` whose residual forms ``H w`` through ``root`` (``sum_i P_i^T root^T (root P_i w)``), never through the
+    assembled ``H``: assembling ``G = root^T root`` squared the data's conditioning, and on exact data the certified
+    least-squares operators were 4.4e-11 off where the SDP's were 5e-15 (a comparison's max eps_y 1.7e-21 against
+    1.3e-24; with two steps 1.4e-24).  ``x = (H + a a^T)^-1 a``; ``solve`` applies that inverse."""
+    r = root.shape[1] // 3
+    ns = r * (r + 1) // 2
+    sym = _sym_index(r)
+    rows = np.hstack([sym, sym + ns, sym + 2 * ns])  # (r, 3r): variable index of row i of [Mr, Dr, Kr]
+    mu = trace - trace / float(a @ x)  # (H + a a^T) w = (trace - mu) a at the first solution
+    for _ in range(_REFINEMENT_STEPS):
+        Hw = np.zeros_like(w)
+        np.add.at(Hw, rows, (w[rows] @ root.T) @ root)
+        stationarity, feasibility = -mu * a - Hw, trace - float(a @ w)
+        y = solve(stationarity + a * feasibility)
+        step = (float(a @ y) - feasibility) / float(a @ x)
+        w, mu = w + y - step * x, mu + step
+    return w
 
 
 def _add_outer(A: np.ndarray, a: np.ndarray) -> np.ndarray:
@@ -92,12 +128,12 @@ def _add_outer(A: np.ndarray, a: np.ndarray) -> np.ndarray:
     return A
 
 
-#: Eigenvalues of a semidefinite system below this fraction of the largest count as zero in :func:`_pseudo_solve`.
+#: Eigenvalues of a semidefinite system below this fraction of the largest count as zero in :func:`_pseudo_solver`.
 _NULL_LEVEL = 1e-13
 
 
-def _pseudo_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """Minimum-norm solution of ``A x = b`` for a symmetric semidefinite ``A`` (None if ``b`` is in its null space).
+def _pseudo_solver(A: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
+    """``b ->`` the minimum-norm solution of ``A x = b`` for a symmetric semidefinite ``A`` (None if ``A`` is zero).
 
     Exact data with a degenerate model (e.g. proportional damping: ``S (M, D, K)`` with ``S`` a polynomial in
     ``M^-1 K`` fits as well as ``(M, D, K)``) leave ``H`` a null space of several dimensions, where the Cholesky
@@ -107,7 +143,8 @@ def _pseudo_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
     kept = eigs > _NULL_LEVEL * max(eigs[-1], np.finfo(float).tiny)
     if not np.any(kept):
         return None
-    return vecs[:, kept] @ ((vecs[:, kept].T @ b) / eigs[kept])
+    basis, inverse = vecs[:, kept], 1.0 / eigs[kept]
+    return lambda b: basis @ ((basis.T @ b) * inverse)
 
 
 def _clarabel_settings(tol: float, verbose: bool) -> dict[str, Any]:
@@ -576,7 +613,7 @@ def _fit_compressed_paths(R: np.ndarray, r: int, m: int, method: str, tol: float
         info.update(method="sdp", cones=list(_BLOCKS))
         trace_fit = (*_unpack(w, r), info)
     else:
-        trace_fit = _fit_screened(H, r, tol, verbose, sdp=sdp)
+        trace_fit = _fit_screened(H, r, tol, verbose, sdp=sdp, root=R22)
     trace_fit[3]["normalization"] = "trace"
     return trace_fit
 
@@ -643,7 +680,8 @@ def _indefinite(mats: tuple, blocks: Any) -> list[int]:
     return [b for b in blocks if np.linalg.eigvalsh(mats[b])[0] < 0]
 
 
-def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | None = None) -> tuple:
+def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | None = None,
+                  root: np.ndarray | None = None) -> tuple:
     """Cone screening: solve with only the cones that a relaxation violates (exact, see inference module docstring).
 
     Round 0 drops all cones (one linear solve).  If one block comes out indefinite, its cone alone is kept and
@@ -655,7 +693,7 @@ def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | 
     """
     t0 = time.perf_counter()
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
-    w = _solve_unconstrained(H, _mass_indicator(r), float(r))
+    w = _solve_unconstrained(H, _mass_indicator(r), float(r), root)
     if w is not None:
         mats = _unpack(w, r)
         bad = _indefinite(mats, range(3))
