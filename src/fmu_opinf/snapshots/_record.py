@@ -33,6 +33,7 @@ from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
 from ..sources import (Source, StepError, fixed_communication_step, open_source, warn_once,
                        warn_other_communication_step)
+from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
@@ -747,8 +748,6 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
                if getattr(source.md, "modelExchange", None) is not None else
                "; no other step is possible: compare the ROM on the modes it resolves")
     else:
-        from ..sources._base import nice_floor
-
         what = f"--dt {dt:g}"
         fix = f"; a smaller --dt resolves it, e.g. {nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
     warnings.warn(f"{source_label(source)}: {what} gives {points:.3g} samples per period of the fastest significant "

@@ -400,7 +400,8 @@ def auto_window(
         Every pilot and the window's step are exactly ``max_dt`` (a ``--dt`` the user gave: the recording uses
         it; pilots at other steps could be refused where the user's step is not): no refinement or coarsening,
         and the step check is the caller's (:func:`warn_if_step_dependent`).  An FMU with a fixed communication
-        step (:func:`~fmu_opinf.sources.fixed_communication_step`) is always run this way, at its step.
+        step (:func:`~fmu_opinf.sources.fixed_communication_step`) is run this way at its step unless the caller
+        gives an exact step of its own.
     min_pilot_points : float, default=8
     growth : float, default=4
     max_pilots : int, default=12

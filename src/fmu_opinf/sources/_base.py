@@ -6,7 +6,6 @@ See :mod:`fmu_opinf.sources` for the stepping protocol every source implements.
 from __future__ import annotations
 
 import math
-
 import re
 from collections.abc import Sequence
 from typing import Any

@@ -85,16 +85,19 @@ def warn_other_communication_step(source: Any, dt: float, option: str = "--dt") 
     warn_once(source, ("communication step", float(dt)),
               f"it declares one fixed communication step {fixed:g} (canHandleVariableCommunicationStepSize=false, "
               f"DefaultExperiment stepSize={fixed:g}); running at {option} {dt:g} as asked: if its doStep refuses "
-              f"that, leave {option} out or give {option} {fixed:g}{_model_exchange_hint(source)}")
+              f"that, {_give_fixed_step(source, fixed, option)}")
 
 
 def _same_step(h: float, step: float) -> bool:
     return abs(h - step) <= 1e-9 * step
 
 
-def _model_exchange_hint(source: Any) -> str:
-    return " (or drive its model exchange, --interface me, whose step is free)" \
-        if getattr(getattr(source, "md", None), "modelExchange", None) is not None else ""
+def _give_fixed_step(source: Any, fixed: float, option: str = "--dt") -> str:
+    """The fix for a step other than the FMU's ``fixed`` communication step (said before the run and after a
+    refusal)."""
+    me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    return (f"leave {option} out or give {option} {fixed:g}"
+            + (" (or drive its model exchange, --interface me, whose step is free)" if me else ""))
 
 
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
@@ -604,8 +607,7 @@ class FMUSource(Source):
         if status != DISCARD:
             fixed = fixed_communication_step(self)
             hint = "" if fixed is None or _same_step(h, fixed) else (
-                f"; it declares the fixed communication step {fixed:g}: leave --dt out or give --dt {fixed:g}"
-                f"{_model_exchange_hint(self)}")
+                f"; it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}")
             return self._fail_text(f"in {what}", i) + hint
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
@@ -617,7 +619,7 @@ class FMUSource(Source):
         at it), unless the FMU has a fixed communication step, which no option changes."""
         fixed = fixed_communication_step(self)
         if fixed is not None and not _same_step(h, fixed):
-            return f": it declares the fixed communication step {fixed:g}: leave --dt out or give --dt {fixed:g}"
+            return f": it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}"
         if fixed is not None:
             me = getattr(self.md, "modelExchange", None) is not None
             return ": the FMU rejects its own fixed communication step" + (

@@ -245,21 +245,12 @@ class ModelExchangeSource(FMUSource):
     # -- stepping ---------------------------------------------------------------------------
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
-        discrete = self._discrete_inputs()
-        self._last_discrete = None   # step(): the first call of a run sets them in event mode
+        self._discrete = discrete = _discrete_inputs(self.md, self.input_names)
+        self._last_discrete: np.ndarray | None = None   # step(): the first call of a run sets them in event mode
         in_event = np.zeros(len(self._t), dtype=bool)
         if discrete.any():
             in_event[1:] = np.any(self._U[1:, discrete] != self._U[:-1, discrete], axis=1)
         self._inputs_in_event_mode = in_event.tolist()
-
-    def _discrete_inputs(self) -> np.ndarray:
-        """Which force inputs have discrete variability: model exchange may change them only in event mode
-        (FMI 2.0 section 3.2.3, FMI 3.0 likewise); an element ``F[2]`` of an FMI 3 array is its array's."""
-        if getattr(self, "_discrete", None) is None:
-            variability = {v.name: v.variability for v in self.md.modelVariables}
-            self._discrete = np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
-                                       for name in self.input_names], dtype=bool)
-        return self._discrete
 
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
@@ -278,14 +269,14 @@ class ModelExchangeSource(FMUSource):
 
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
-        discrete = np.reshape(np.asarray(u, dtype=float), self.m)[self._discrete_inputs()]
+        discrete = np.reshape(np.asarray(u, dtype=float), self.m)[self._discrete]
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
 
         def set_input() -> None:
             if self._call_set(u) > 1:
                 raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
 
-        last = getattr(self, "_last_discrete", None)
+        last = self._last_discrete
         if discrete.size and (last is None or np.any(discrete != last)):   # they may change only in event mode
             self._handle_event(-1, t, set_input)
             self._last_discrete = discrete
@@ -386,7 +377,7 @@ class ModelExchangeSource(FMUSource):
             if _sign_changed(self._z, self._z_end):
                 return self._locate_crossing(i, t, reached, start), True, False
             self._z, self._z_end = self._z_end, self._z
-            if reached < t1 and _completed_inside(self, reached, self._x):
+            if reached < t1 and self._completed_asks_event(i, reached):
                 return reached, False, True
             t = reached
         return t, False, False
@@ -452,6 +443,13 @@ class ModelExchangeSource(FMUSource):
 
     def _completed_step(self, i: int, t1: float) -> bool:
         """``fmiCompletedIntegratorStep`` at ``t1``; handles the event it may ask for (returns whether)."""
+        asked = self._completed_asks_event(i, t1)
+        if asked:
+            self._handle_event(i, t1)
+        return asked
+
+    def _completed_asks_event(self, i: int, t1: float) -> bool:
+        """``fmiCompletedIntegratorStep`` at ``t1`` (the FMU's time and state): whether the FMU asks for an event."""
         flags = self._event_flags
         flags[:] = 0
         address = flags.ctypes.data
@@ -459,8 +457,6 @@ class ModelExchangeSource(FMUSource):
             raise StepError(self._integration_failure(i, t1, t1, "fmiCompletedIntegratorStep failed"), i, t1)
         if flags[1]:
             raise StepError(f"{self.path.name} asked to terminate the simulation at t={t1:g}", i, t1)
-        if flags[0]:
-            self._handle_event(i, t1)
         return bool(flags[0])
 
     def _handle_event(self, i: int, t: float, set_inputs: Callable[[], None] | None = None) -> None:
@@ -517,6 +513,14 @@ class ModelExchangeSource(FMUSource):
 
 
 # ---------------------------------------------------------------------------------------- events
+
+def _discrete_inputs(md: Any, input_names: list[str]) -> np.ndarray:
+    """Which force inputs have discrete variability: model exchange may change them only in event mode (FMI 2.0
+    section 3.2.3, FMI 3.0 likewise); an element ``F[2]`` of an FMI 3 array is its array's."""
+    variability = {v.name: v.variability for v in md.modelVariables}
+    return np.array([variability.get(name, variability.get(name.split("[")[0])) == "discrete"
+                     for name in input_names], dtype=bool)
+
 
 def _needs_completed_steps(md: Any) -> bool:
     """Whether the FMU needs ``fmiCompletedIntegratorStep`` after every accepted integrator step: FMI 2 unless
@@ -605,7 +609,9 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, 
             message = solver.step()
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
-            if one_step or (completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y)):
+            if one_step:
+                break
+            if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
                 break
         step = getattr(solver, "h_abs", None) if one_step else None   # one step at a time: the next one's size
         if step or solver.step_size:
