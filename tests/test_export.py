@@ -431,7 +431,7 @@ def test_source_variables_named_like_the_rom_states_get_other_state_names(rom, t
     inputs = np.array(list(held), dtype=[("time", float), ("q[1]", float)])
     got = simulate_fmu(str(path), stop_time=20.0, output_interval=rom.dt, input=inputs, output=["q[2]", "qdot[1]"])
     for j, name in enumerate(["q[2]", "qdot[1]"]):
-        assert relative_error(got[name], expected.y[j]) < 1e-12
+        assert relative_error(got[name], expected.y[j]) < 5e-14   # measured 1.4e-14, 1.7e-14
     info = _rom_side_info(path)
     assert info["r"] == rom.r and info["output_names"] == ["q[2]", "qdot[1]"]
     assert export.rom_state_names(["q[1]", "rom.qddot[2]"]) == ("rom2.q", "rom2.qdot", "rom2.qddot")
