@@ -95,18 +95,29 @@ def test_two_inputs_recorded_by_default_give_a_rom_that_tells_them_apart(tmp_pat
 
 
 @pytest.mark.slow
-def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tmp_path, capsys):
+def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tmp_path, capsys, monkeypatch):
     """Periods of about 1-5 ms: the default 0.5 s impulse only moved the chain quasi-statically (window dt = 0.1,
     26 samples, max eps_y 0.85 on a 3000 rad/s input).  The recorder shrinks the impulse until the response
-    outlasts it."""
+    outlasts it, and it knows that from the step check's first run: the check's second run (dt / 2) of the
+    refused pulse is not made (it took 14 of the 30 s the recording took)."""
     from fmu_opinf.rom import fit_rom
-    from fmu_opinf.snapshots import Snapshots, record_to_file
+    from fmu_opinf.snapshots import Snapshots, _window, record_to_file
 
+    labels = []
+    record_run = _window.record_run
+
+    def counted(source, signal, t, *args, **kwargs):
+        labels.append(kwargs.get("label"))
+        return record_run(source, signal, t, *args, **kwargs)
+
+    monkeypatch.setattr(_window, "record_run", counted)
     base = lti_fmus.chain_model(name="Fast")
     model = replace(base, M=base.M * 1e-6, D=base.D * 1e-3)
     fmu = lti_fmus.build_lti_fmu(model, tmp_path / "fast.fmu", interfaces=("cs",))
     record_to_file(str(fmu.path), tmp_path / "train.h5", None, quiet=False)
     assert "the response only followed the default impulse" in capsys.readouterr().err
+    assert labels[0] == "step check (dt=0.05, t_end=10)"  # the default pulse's first pilot
+    assert labels[1] == "step check (dt=0.0005, t_end=0.19)"  # then at once the pulse 100x narrower
     snaps = Snapshots.load(tmp_path / "train.h5")
     assert snaps.runs[0].attrs["input_spec"] == "impulse:amplitude=100,t0=0.02,width=0.005"
     rom = fit_rom(snaps, r=5)

@@ -768,7 +768,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     the pulse (:func:`~fmu_opinf.snapshots._window.follows_input`: a model faster than the 0.5 s pulse shows none
     of its dynamics; a millisecond chain at max eps_y 0.85).  Says what it did."""
     from ..signals import parse_signal
-    from ._window import PulseTooNarrow, auto_window, check_window_step, follows_input, input_activity
+    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, follows_input, input_activity
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -781,26 +781,31 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source) for spec in default_training_inputs(source.m, pulse)]
         pilot = _pilot_signal([impulse(factor, weight) for weight in _pilot_weights(source.m)], source)
+        width = input_activity(signals[0], source.m)[1]
+
+        def too_wide(window: Any) -> bool:
+            return (tries["narrower"] < RESCALE_TRIES and not tries["wider"] and follows_input(window, width)
+                    and _narrower_resolved(width, thresholds))
+
         try:
-            window = auto_window(source, pilot, **thresholds, check_chosen_step=False)
+            window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide)
         except PulseTooNarrow:
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
                 raise
             tries["wider"] += 1
             factor *= RESCALE
             why = "the model is too slow for the default impulse to be resolved"
-        else:
-            width = input_activity(signals[0], source.m)[1]
-            if tries["narrower"] == RESCALE_TRIES or tries["wider"] or not follows_input(window, width) \
-                    or not _narrower_resolved(width, thresholds):
-                check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
-                                  isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
-                                  exact_dt=thresholds.get("exact_dt", False))
-                return window, signals
+        except WindowRejected as rejected:
             tries["narrower"] += 1
             factor /= RESCALE
-            why = (f"the response only followed the default impulse (faded {window.t_fade - window.t_input:.3g} after it, "
+            faded = rejected.window.t_fade - rejected.window.t_input
+            why = (f"the response only followed the default impulse (faded {faded:.3g} after it, "
                    "no frequency above its band): the model is faster")
+        else:
+            check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
+                              isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
+                              exact_dt=thresholds.get("exact_dt", False))
+            return window, signals
         if not thresholds.get("quiet"):
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
 

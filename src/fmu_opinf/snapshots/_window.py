@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,6 +38,15 @@ def _pulse_holds_back(f_max: float, width: float | None, next_steps: float, max_
 class PulseTooNarrow(DataError):
     """The automatic window cannot settle because the training pulse keeps its step small: the model is far
     slower than the pulse (the default training widens its impulse then)."""
+
+
+class WindowRejected(DataError):
+    """The caller's ``reject`` test of :func:`auto_window` refused the window the first pilot settled on; raised
+    before the step check's second run, which would be wasted (``window``: the refused window)."""
+
+    def __init__(self, window: "Window") -> None:
+        super().__init__(f"the automatic window (dt={window.dt:g}, t_end={window.t_end:g}) was refused")
+        self.window = window
 
 
 def follows_input(window: "Window", width: float | None) -> bool:
@@ -355,6 +364,7 @@ def auto_window(
     isolate: bool = False,
     quiet: bool = True,
     check_chosen_step: bool = True,
+    reject: Callable[[Window], bool] | None = None,
 ) -> Window:
     """Choose step and end time from the response to an impulse-like input (paper sec. 4.2).
 
@@ -413,10 +423,20 @@ def auto_window(
     check_chosen_step : bool, default=True
         Also check the chosen step when it is coarser than the first pilot's (:func:`check_window_step`).  A
         caller that may still reject the window passes False and checks the window it keeps.
+    reject : callable, optional
+        The caller's test of a window it would not keep (the default training: a response that only followed
+        the pulse).  Where the step check's first run, which is also the first pilot, settles on such a window,
+        :class:`WindowRejected` is raised before the step check's second run (on a millisecond chain under the
+        default 0.5 s impulse that run took 14 of 30 s).
 
     Returns
     -------
     Window
+
+    Raises
+    ------
+    WindowRejected
+        ``reject`` refused the first pilot's window.
     """
     source = open_source(source)
     signal = as_signal(signal, source.m, source)
@@ -433,7 +453,35 @@ def auto_window(
     max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
     T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
     internal = fixed_internal_step(source)
-    recorded = None if exact_dt else check_step_convergence(source, signal, dt, T, quiet=quiet, isolate=isolate)
+
+    def needs_finer(seen: _Pilot, dt: float) -> bool:
+        return not exact_dt and seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal)
+
+    def settled(seen: _Pilot, t: np.ndarray, dt: float, T: float, pilot: int) -> Window | None:
+        """The window pilot number ``pilot`` settles on, or None: it needs a finer or a longer pilot."""
+        if needs_finer(seen, dt):
+            return None
+        t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
+        faded = seen.t_fade <= t[0] + 0.5 * (T - t[0])
+        cut = seen.resolved_periods >= 4.0 and not seen.fade_estimate < t_cut
+        if not (faded or cut):
+            return None
+        stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
+        return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
+                       periods, t_input, stopped_by, internal, dt if exact_dt else None)
+
+    def reject_first_pilot(run: Any) -> None:
+        t = time_grid(dt, T)
+        try:
+            seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate, run=run)
+        except DataError:
+            return  # the pilots say it again, after the step check has had its say
+        window = settled(seen, t, dt, T, 1)
+        if window is not None and reject(window):
+            raise WindowRejected(window)
+
+    recorded = None if exact_dt else check_step_convergence(
+        source, signal, dt, T, quiet=quiet, isolate=isolate, inspect=reject_first_pilot if reject else None)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
@@ -441,16 +489,13 @@ def auto_window(
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
                               label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})", run=recorded)
         recorded = None
-        if not exact_dt and seen.f_max * dt * min_pilot_points > 1.0 and (internal is None or dt > internal):
+        if needs_finer(seen, dt):
             dt = on_internal_steps(dt / 4.0, internal)
             continue
-        t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
-        faded = seen.t_fade <= t[0] + 0.5 * (T - t[0])
-        cut = seen.resolved_periods >= 4.0 and not seen.fade_estimate < t_cut
-        if faded or cut:
-            stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
-            window = _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                             periods, t_input, stopped_by, internal, dt if exact_dt else None)
+        window = settled(seen, t, dt, T, pilot)
+        if window is not None:
+            if reject is not None and reject(window):
+                raise WindowRejected(window)
             if check_chosen_step:
                 check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
                                   isolate=isolate, max_dt=max_dt, exact_dt=exact_dt)
@@ -494,7 +539,8 @@ class _HeldOn:
 
 
 def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True,
-                           isolate: bool = False, threshold: float = STEP_CONVERGENCE) -> Any:
+                           isolate: bool = False, threshold: float = STEP_CONVERGENCE,
+                           inspect: Callable[[Any], None] | None = None) -> Any:
     """Refuse a co-simulation FMU whose results depend on the communication step.
 
     Several exporters' co-simulation is one explicit Euler step per ``doStep`` (spec: real FMUs): inaccurate or
@@ -514,6 +560,8 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         Progress bar; run in a child process.
     threshold : float, default=STEP_CONVERGENCE
         Largest accepted max-norm difference of the outputs relative to their peak.
+    inspect : callable, optional
+        Called with the complete run at ``dt`` before the run at ``dt / 2``; what it raises ends the check.
 
     Raises
     ------
@@ -527,7 +575,7 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         The complete run at ``dt`` (a pilot on the same grid need not repeat it), or None when the source is not
         checked.
     """
-    found, coarse_run = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    found, coarse_run = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
     if found is None:
         return coarse_run
     offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
@@ -539,7 +587,7 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
-                     threshold: float) -> tuple[str | None, Any]:
+                     threshold: float, inspect: Callable[[Any], None] | None = None) -> tuple[str | None, Any]:
     """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
     message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), and
     the complete run at ``dt`` (None if there is none)."""
@@ -554,6 +602,8 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
         if failure is not None and "non-finite" not in str(failure):
             raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
         runs.append(run if failure is None else None)
+        if inspect is not None and len(runs) == 1 and failure is None:
+            inspect(run)
     if runs[0] is None or runs[1] is None:
         return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}", None
     y = np.asarray(runs[0].y)[:, :runs[0].k]
