@@ -215,3 +215,42 @@ def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
         warnings.simplefilter("always")
         record_to_file(declared, tmp_path / "t.h5", None, dt=0.5, quiet=True)
     assert not [w for w in caught if "DefaultExperiment stepSize=" in str(w.message)]
+
+
+def test_display_units_reach_the_exported_fmu_where_their_unit_defines_them(tmp_path):
+    """Display units (a Modelica position in m shown in mm) are recorded and declared again on the ROM FMU's
+    ports, from the variable or from its declared type; one the source does not define for the unit is left out
+    (an importer would refuse it), and the ROM FMU passes fmpy's strict validation."""
+    from conftest import rewrite_description
+    from fmpy import read_model_description
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.export import export_fmu
+    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    def edit(text: str) -> str:
+        text = text.replace('<Unit name="m"><BaseUnit m="1"/></Unit>',
+                            '<Unit name="m"><BaseUnit m="1"/><DisplayUnit name="mm" factor="1000"/></Unit>')
+        text = text.replace('<Unit name="N"><BaseUnit kg="1" m="1" s="-2"/></Unit>',
+                            '<Unit name="N"><BaseUnit kg="1" m="1" s="-2"/><DisplayUnit name="kN" factor="0.001"/>'
+                            '</Unit>')
+        text = text.replace("<UnitDefinitions>", '<UnitDefinitions>\n    <Unit name="mm/s"/>')
+        text = text.replace('<Real unit="m"/>', '<Real unit="m" displayUnit="mm"/>')          # output y[1]
+        text = text.replace('<Real unit="m/s"/>', '<Real unit="m/s" displayUnit="mm/s"/>')    # not a display unit of m/s
+        text = text.replace("</UnitDefinitions>", '</UnitDefinitions>\n  <TypeDefinitions>\n    <SimpleType '
+                            'name="Force"><Real unit="N" displayUnit="kN"/></SimpleType>\n  </TypeDefinitions>')
+        return text.replace('<Real unit="N" start="0.0"/>', '<Real declaredType="Force" start="0.0"/>')  # input F
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Shown"), tmp_path / "built.fmu", output_units=True,
+                                   interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "shown.fmu", edit)
+    with pytest.warns(FmuOpinfWarning, match='The display unit "mm/s" of variable "y\\[2\\]"'):  # the source's own
+        record_to_file(str(fmu), tmp_path / "train.h5", None, dt=0.1, t_end=30.0, quiet=True)
+    snaps = Snapshots.load(tmp_path / "train.h5")
+    assert snaps.attrs["input_display_units"] == ["kN"] and snaps.attrs["output_display_units"] == ["mm", "mm/s"]
+    rom = fit_rom(snaps, r=4, quiet=True, refine=False)
+    export_fmu(rom, tmp_path / "rom.fmu")
+    described = {v.name: v for v in read_model_description(str(tmp_path / "rom.fmu"), validate=True).modelVariables}
+    assert [(described[name].unit, described[name].displayUnit) for name in ("F", "y[1]", "y[2]")] == \
+        [("N", "kN"), ("m", "mm"), ("m/s", None)]

@@ -432,6 +432,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         fmi_version=fmi_version, input_units=input_units,
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance),
+        input_display_units=_recorded_units(provenance, "input_display_units", m),
+        output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
     )
 
 
@@ -488,9 +490,14 @@ def _units(value: Any, count: int) -> list[str]:
 
 def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[str]]:
     """Units of the source's force inputs and outputs as recorded with the training snapshots."""
+    return _recorded_units(provenance, "input_units", m), _recorded_units(provenance, "output_units", p)
+
+
+def _recorded_units(provenance: dict, key: str, count: int) -> list[str]:
+    """One unit name (or "") per variable as recorded with the training snapshots under ``key``."""
     snapshots = provenance.get("snapshots")
     snapshots = snapshots if isinstance(snapshots, dict) else {}
-    return _units(snapshots.get("input_units"), m), _units(snapshots.get("output_units"), p)
+    return _units(snapshots.get(key), count)
 
 
 def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:

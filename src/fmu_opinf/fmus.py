@@ -136,6 +136,11 @@ class SecondOrderFmuSpec:
     input_units, output_units : list of str, default=None
         Unit of each input and output (``""``: none), declared on the variables and in
         ``UnitDefinitions``; characters are limited to :data:`UNIT_PATTERN`.
+    unit_definitions : dict, default=None
+        Base and display units of the units by name (:func:`unit_definition`).
+    input_display_units, output_display_units : list of str, default=None
+        ``displayUnit`` of each input and output (``""``: none); declared only where ``unit_definitions``
+        defines that display unit for the variable's unit (as FMI requires), left out otherwise.
     """
 
     identifier: str
@@ -160,6 +165,8 @@ class SecondOrderFmuSpec:
     input_units: list[str] | None = None
     output_units: list[str] | None = None
     unit_definitions: dict[str, dict] | None = None
+    input_display_units: list[str] | None = None
+    output_display_units: list[str] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -207,15 +214,18 @@ class SecondOrderFmuSpec:
                                     "an FMU's XML cannot hold; rename it (printable characters only)")
 
     def _check_units(self) -> None:
-        for what, units, count in (("input", self.input_units, self.m), ("output", self.output_units, self.p)):
+        for what, kind, units, count in (("unit", "input", self.input_units, self.m),
+                                         ("unit", "output", self.output_units, self.p),
+                                         ("display unit", "input", self.input_display_units, self.m),
+                                         ("display unit", "output", self.output_display_units, self.p)):
             if units is None:
                 continue
             if len(units) != count:
-                raise FmuBuildError(f"got {len(units)} {what} units for {count} {what}s; give one unit each "
+                raise FmuBuildError(f"got {len(units)} {kind} {what}s for {count} {kind}s; give one {what} each "
                                     "(an empty string for none)")
             for unit in units:
                 if not isinstance(unit, str) or (unit and not UNIT_PATTERN.fullmatch(unit)):
-                    raise FmuBuildError(f"{what} unit {unit!r} is not a unit name (letters, digits and "
+                    raise FmuBuildError(f"{kind} {what} {unit!r} is not a unit name (letters, digits and "
                                         "'._/*^()%+-', at most 40); give a unit such as 'm/s2' or none")
 
     def _check_unique_names(self) -> None:
@@ -416,6 +426,7 @@ class _Variable:
     initial: str | None = None
     start: float | None = None
     unit: str = ""
+    display_unit: str = ""
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -433,11 +444,14 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     held = "input (held over each communication step)"
     input_units = spec.input_units or [""] * spec.m
     output_units = spec.output_units or [""] * spec.p
-    rows = [_Variable(name, vr, "input", description=held, start=0.0, unit=unit)
-            for name, vr, unit in zip(spec.input_names, refs["u"], input_units)]
+    input_display = _display_units(spec, input_units, spec.input_display_units)
+    output_display = _display_units(spec, output_units, spec.output_display_units)
+    rows = [_Variable(name, vr, "input", description=held, start=0.0, unit=unit, display_unit=display)
+            for name, vr, unit, display in zip(spec.input_names, refs["u"], input_units, input_display)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
-    rows += [_Variable(name, vr, "output", description=text, unit=unit)
-             for name, vr, text, unit in zip(spec.output_names, refs["y"], described, output_units)]
+    rows += [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
+             for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
+                                                      output_display)]
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
@@ -449,6 +463,20 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     return rows
 
 
+def _display_units(spec: SecondOrderFmuSpec, units: list[str], display: list[str] | None) -> list[str]:
+    """Each variable's display unit where its unit's definition declares it (FMI: a ``displayUnit`` must be one of
+    the unit's ``DisplayUnit`` elements), else ``""``."""
+    if not display or len(display) != len(units):
+        return [""] * len(units)
+    known = spec.unit_definitions or {}
+
+    def defined(unit: str, name: Any) -> bool:
+        clean = unit_definition(known.get(unit)) if unit else None
+        return isinstance(name, str) and clean is not None and any(d[0] == name for d in clean["display"])
+
+    return [name if defined(unit, name) else "" for unit, name in zip(units, display)]
+
+
 def _experiment(spec: SecondOrderFmuSpec) -> str:
     if spec.default_experiment is None:
         return ""
@@ -458,14 +486,19 @@ def _experiment(spec: SecondOrderFmuSpec) -> str:
     return f"  <DefaultExperiment {attributes}/>\n"
 
 
-def _variable2(variable: _Variable) -> str:
+def _unit_attributes(variable: _Variable) -> str:
     unit = f" unit={quoteattr(variable.unit)}" if variable.unit else ""
+    return unit + (f" displayUnit={quoteattr(variable.display_unit)}" if variable.display_unit else "")
+
+
+def _variable2(variable: _Variable) -> str:
+    unit = _unit_attributes(variable)
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
     return f"    <ScalarVariable {variable.attributes()}>\n      <Real{unit}{start}/>\n    </ScalarVariable>\n"
 
 
 def _variable3(variable: _Variable) -> str:
-    unit = f" unit={quoteattr(variable.unit)}" if variable.unit else ""
+    unit = _unit_attributes(variable)
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
     return f"    <Float64 {variable.attributes()}{unit}{start}/>\n"
 

@@ -282,6 +282,8 @@ class FMUSource(Source):
         #: which force inputs are FMI 3 Float32 (the recorder rounds what it records of them to what they receive)
         self.single_precision_inputs = [e.var.type == "Float32" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]
+        self.input_display_units = [e.var.display_unit or "" for e in forces]
+        self.output_display_units = [e.var.display_unit or "" for e in out_elements]
         columns = selection.positions + selection.velocities + selection.accelerations + out_columns
         self._read = ReadPlan(model, columns, structural)
         # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
@@ -329,6 +331,9 @@ class FMUSource(Source):
         if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
             desc["input_units"] = list(self.input_units)
             desc["output_units"] = list(self.output_units)
+        if any(self.input_display_units) or any(self.output_display_units):
+            desc["input_display_units"] = list(self.input_display_units)
+            desc["output_display_units"] = list(self.output_display_units)
         position_units = {c.element.var.unit or "" for c in self.selection.positions}
         if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
             desc["position_unit"] = next(iter(position_units))

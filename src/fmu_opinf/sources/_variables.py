@@ -54,6 +54,7 @@ class Variable:
     min: str | None = None
     max: str | None = None
     unit: str | None = None  # its own unit, else its declared type's
+    display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
 
     @property
     def is_real(self) -> bool:
@@ -62,6 +63,13 @@ class Variable:
     @property
     def is_parameter(self) -> bool:
         return self.causality in _PARAMETER_CAUSALITIES or self.variability in ("constant", "fixed", "tunable")
+
+
+def _type_attribute(root: ET.Element, name: str) -> dict[str, str | None]:
+    """An attribute (``unit``, ``displayUnit``) of each type definition, by type name: on the FMI 3 type element
+    itself, on the FMI 2 one's ``<Real>`` child."""
+    return {t.get("name", ""): (t.get(name) or next((c.get(name) for c in t if c.get(name)), None))
+            for t in root.iter() if t.tag in _TYPE_DEFINITION_TAGS}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,8 +249,8 @@ class ModelInfo:
         self.fmi_version = root.get("fmiVersion", "")
         self.fmi3 = self.fmi_version.startswith("3")
         node = root.find("ModelVariables")
-        self._type_units = {t.get("name", ""): (t.get("unit") or next((c.get("unit") for c in t if c.get("unit")), None))
-                            for t in root.iter() if t.tag in _TYPE_DEFINITION_TAGS}
+        self._type_units = _type_attribute(root, "unit")
+        self._type_display_units = _type_attribute(root, "displayUnit")
         #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
         self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
@@ -258,6 +266,12 @@ class ModelInfo:
         return cls(model_xml(path), path.name)
 
     # -- parsing ------------------------------------------------------------------------------
+    def _display_unit(self, attrs: Any) -> str | None:
+        """A variable's ``displayUnit``: its own, else its declared type's unless it declares a unit of its own."""
+        if attrs.get("displayUnit") or attrs.get("unit"):
+            return attrs.get("displayUnit")
+        return self._type_display_units.get(attrs.get("declaredType", ""))
+
     def _read2(self, node: ET.Element) -> list[Variable]:
         out = []
         for sv in node.findall("ScalarVariable"):
@@ -269,7 +283,8 @@ class ModelInfo:
                            variability=sv.get("variability", "continuous" if kind == "Real" else "discrete"),
                            initial=sv.get("initial"), start=attrs.get("start"), derivative=attrs.get("derivative"),
                            negated=sv.get("alias") == "negatedAlias", min=attrs.get("min"), max=attrs.get("max"),
-                           unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")))
+                           unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
+                           display_unit=self._display_unit(attrs))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
             if var.derivative is not None:
@@ -289,7 +304,8 @@ class ModelInfo:
                                                    else "discrete"),
                                 initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
                                 min=el.get("min"), max=el.get("max"),
-                                unit=el.get("unit") or self._type_units.get(el.get("declaredType", ""))))
+                                unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
+                                display_unit=self._display_unit(el.attrib)))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
                 if alias.get("name"):
