@@ -38,3 +38,20 @@ def test_quick_demo_writes_everything(demo_dir):
         # the exported FMU reproduces the Python ROM: their errors against the FMU agree
         assert case["rom_fmu"]["max_error"] == pytest.approx(case["rom"]["max_error"], rel=1e-6, abs=1e-14)
     assert "demo" in (demo_dir / "index.html").read_text()
+
+
+@pytest.mark.slow
+def test_quick_demo_without_the_least_squares_candidate_fits_the_same_rom(demo_dir):
+    """--quick leaves the least-squares candidate out to save time; that is only right while the default fit keeps
+    the refined SDP solution over the candidate on both models: the default fit gives the same bits."""
+    import numpy as np
+
+    from fmu_opinf.rom import SecondOrderROM, fit_rom
+    from fmu_opinf.snapshots import Snapshots
+
+    for model, order in (("anchored-msd", None), ("triple-chain", 12)):
+        quick = SecondOrderROM.load(demo_dir / model / "rom.h5")
+        default = fit_rom(Snapshots.load(demo_dir / model / "snapshots.h5"), r=order, quiet=True)
+        assert not default.fit_info["least_squares_candidate"].get("chosen")
+        for name in ("Mr", "Dr", "Kr", "Br"):
+            assert np.array_equal(getattr(quick, name), getattr(default, name)), (model, name)

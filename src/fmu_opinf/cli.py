@@ -225,7 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", default="demo-out", help="output directory (default demo-out)")
     p.add_argument("--model", choices=["anchored-msd", "triple-chain", "all"], default="all",
                    help="which benchmark to run (default: both)")
-    p.add_argument("--quick", action="store_true", help="smaller, faster variant (used by the tests)")
+    p.add_argument("--quick", action="store_true", help="smaller, faster variant: fixed windows, r=12 for the triple chain, no least-squares "
+                   "candidate (used by the tests)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or stage lines")
 
     p = verbs.add_parser("build-fmus", help="build the benchmark FMUs from their C sources")
