@@ -119,3 +119,26 @@ def test_recorded_unit_definitions_reach_the_xml_only_as_checked_numbers():
     evil = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["m/s2"]}}), "Units")
     xml = _model_description3(evil, "{guid}")
     assert "Evil" not in xml and '<Unit name="m/s2"/>' in xml
+
+
+def test_non_ascii_unit_names_are_kept_and_format_characters_are_not():
+    """Sixth audit: a Latin-1 source's outputs in 'µm' and '°' lost their units in the ROM FMU (the unit filter was
+    ASCII only).  Printable symbols are kept; a name with a bidirectional override or white space is still
+    dropped, and the XML parses to the same names."""
+    from xml.etree import ElementTree
+
+    from fmu_opinf.fmus import _model_description, _model_description3
+
+    definitions = {"µm": {"base": {"m": 1}, "factor": 1e-6, "offset": 0.0, "display": [["Å", 1e4, 0.0]]},
+                   "°": {"base": {"rad": 1}, "factor": 0.017453292519943295, "offset": 0.0, "display": []}}
+    snapshots = {"input_units": ["\u202eN"], "output_units": ["µm"], "unit_definitions": definitions}
+    spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
+    assert spec.input_units == [""] and spec.output_units == ["µm"]
+    for xml in (_model_description(spec, "{guid}", ["model.c"]), _model_description3(spec, "{guid}")):
+        root = ElementTree.fromstring(xml.encode())
+        units = {u.get("name"): u for u in root.iter("Unit")}
+        assert set(units) == {"µm"} and units["µm"].find("DisplayUnit").get("name") == "Å"
+    degrees = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["°"]}}), "Units")
+    assert degrees.output_units == ["°"]
+    spaced = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["µ m"]}}), "Units")
+    assert spaced.output_units == [""]

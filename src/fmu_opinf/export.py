@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import UNIT_PATTERN, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools
+from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -482,10 +482,10 @@ def _export_step(step: float, dt: float | None) -> float:
 
 def _units(value: Any, count: int) -> list[str]:
     """A recorded unit list if it is one unit name (or "") per variable, else no units; provenance is data, so
-    anything but a plain unit name is dropped (``fmus.UNIT_PATTERN``)."""
+    anything but a plain unit name is dropped (:func:`fmu_opinf.fmus.is_unit_name`)."""
     if not isinstance(value, list) or len(value) != count:
         return [""] * count
-    return [u if isinstance(u, str) and UNIT_PATTERN.fullmatch(u) else "" for u in value]
+    return [u if is_unit_name(u) else "" for u in value]
 
 
 def _declared_units(provenance: dict, m: int, p: int) -> tuple[list[str], list[str]]:

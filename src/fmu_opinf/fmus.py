@@ -66,8 +66,20 @@ _GUID_NAMESPACE = uuid.UUID("5f0c2b52-8f7e-4a43-9d55-2f1f3c6c8a10")
 _CONSTRAINT_CODES = {None: 0, "position": 1, "velocity": 2}
 _STRUCTURED_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?"
                               r"(\.[A-Za-z_][A-Za-z0-9_]*(\[[0-9]+(,[0-9]+)*\])?)*$")
-#: what a unit name in a generated model description may hold (FMI unit names: ``m/s2``, ``N.m``, ``rad/s``)
-UNIT_PATTERN = re.compile(r"[A-Za-z0-9_./*^()%+\-]{1,40}")  # whole names only: fullmatch
+#: The ASCII characters a unit name in a generated model description may hold (FMI unit names: ``m/s2``, ``N.m``,
+#: ``rad/s``); :func:`is_unit_name` also lets through printable non-ASCII symbols (``µm``, ``°``, ``Ω``).
+_UNIT_ASCII = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_./*^()%+-")
+
+
+def is_unit_name(value: Any) -> bool:
+    """Whether ``value`` may stand as a unit name in a generated model description: 1 to 40 characters, each one
+    of ``A-Z a-z 0-9 _ . / * ^ ( ) % + -`` or a printable non-ASCII character that is not white space (``µm``, ``°``; Unicode's
+    format characters such as bidirectional overrides are not printable).  Unit names come from the source FMU's
+    file: nothing else reaches the XML, where they are quoted besides."""
+    if not isinstance(value, str) or not 1 <= len(value) <= 40:
+        return False
+    return all(c in _UNIT_ASCII or (ord(c) > 0x7F and c.isprintable() and not c.isspace()
+                                    and c not in "\ufffe\uffff") for c in value)
 
 
 class FmuBuildError(FMUError):
@@ -135,7 +147,7 @@ class SecondOrderFmuSpec:
         FMI version of the generated FMU (co-simulation only).
     input_units, output_units : list of str, default=None
         Unit of each input and output (``""``: none), declared on the variables and in
-        ``UnitDefinitions``; characters are limited to :data:`UNIT_PATTERN`.
+        ``UnitDefinitions``; names are limited as :func:`is_unit_name` says.
     unit_definitions : dict, default=None
         Base and display units of the units by name (:func:`unit_definition`).
     input_display_units, output_display_units : list of str, default=None
@@ -224,9 +236,10 @@ class SecondOrderFmuSpec:
                 raise FmuBuildError(f"got {len(units)} {kind} {what}s for {count} {kind}s; give one {what} each "
                                     "(an empty string for none)")
             for unit in units:
-                if not isinstance(unit, str) or (unit and not UNIT_PATTERN.fullmatch(unit)):
+                if not isinstance(unit, str) or (unit and not is_unit_name(unit)):
                     raise FmuBuildError(f"{kind} {what} {unit!r} is not a unit name (letters, digits and "
-                                        "'._/*^()%+-', at most 40); give a unit such as 'm/s2' or none")
+                                        "'._/*^()%+-' or printable non-ASCII symbols, at most 40); give a unit such as "
+                                        "'m/s2' or none")
 
     def _check_unique_names(self) -> None:
         names = list(self.input_names) + list(self.output_names) + [p.name for p in self.parameters]
@@ -556,7 +569,7 @@ def unit_definition(value: Any) -> dict | None:
     display = []
     for item in value.get("display", []) or []:
         if not (isinstance(item, (list, tuple)) and len(item) == 3 and isinstance(item[0], str)
-                and UNIT_PATTERN.fullmatch(item[0]) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                and is_unit_name(item[0]) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                                             and math.isfinite(x) for x in item[1:])):
             return None
         display.append((item[0], float(item[1]), float(item[2])))
