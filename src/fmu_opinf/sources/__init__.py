@@ -153,6 +153,7 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
     source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
     warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
     _warn_parameter_like(source)
+    _warn_unrecorded_states(source)
     return source
 
 
@@ -179,6 +180,17 @@ def _warn_parameter_like(source: Source) -> None:
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
                    f"give their values with --set, or drive them with --inputs {','.join(forces + held)}")
+
+
+def _warn_unrecorded_states(source: Source) -> None:
+    """One warning (per process and FMU) naming the continuous states that the given ``--positions`` and
+    ``--velocities`` leave out (without them the selection refuses such states: sixth audit, an actuator lag)."""
+    others = list(getattr(getattr(source, "selection", None), "unrecorded_states", []) or [])
+    if others:
+        shown = ", ".join(others[:6]) + (", ..." if len(others) > 6 else "")
+        warn_once(source, ("unrecorded states", tuple(others)),
+                  f"its continuous state(s) {shown} are recorded neither as positions nor as velocities: if they are "
+                  "dynamic (an actuator lag, a filter, a controller state), the reduced model cannot follow them")
 
 
 def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int = 4) -> None:
