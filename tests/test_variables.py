@@ -587,3 +587,12 @@ def test_a_state_the_model_structure_leaves_unpaired_is_named_in_the_error(tmp_p
     with pytest.raises(FMUError, match=rf"state\(s\) {', '.join(names)} are neither positions nor velocities "
                                        r"\(the model structure pairs body1\.s/body1\.v, body2\.s/body2\.v"):
         resolve_variables(_write(tmp_path, xml))
+
+
+def test_a_model_that_shows_only_its_ports_gets_its_outputs_proposed_as_positions(tmp_path):
+    """Sixth audit, a fixed-step code generator's FMU: inputs and outputs only; with --positions Out1,Out2 it was
+    exact (1.1e-11), but the error did not say so."""
+    v = [_sv("In1", 0, "input", body='<Real start="0"/>'), _sv("Out1", 1, "output"), _sv("Out2", 2, "output")]
+    with pytest.raises(FMUError, match=r"declares no continuous states.*where its outputs are the positions of "
+                                       r"every mass .*--positions Out1,Out2$"):
+        resolve_variables(_write(tmp_path, _fmi2(v, [])))

@@ -595,9 +595,12 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         return locals_[:half], locals_[half:], None, _LOCAL_HALVES
     listed = ", ".join(c.name for c in locals_[:8]) + (", ..." if len(locals_) > 8 else "")
     found = f"its continuous local variables ({listed}) are an odd number" if locals_ else "it has no continuous local variables"
+    outputs = [e.name for e in elements.values() if _is_signal(e) and e.var.causality == "output"]
+    hint = (f"; where its outputs are the positions of every mass (a fixed-step code generator's model shows no "
+            f"more), --positions {','.join(outputs)}" if outputs and len(outputs) <= 20 else "")
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
                    f"with units of length and velocity, and {found}; pass --positions with the variables' names (and "
-                   "--velocities where the FMU has them; otherwise they are derived from the positions)")
+                   f"--velocities where the FMU has them; otherwise they are derived from the positions){hint}")
 
 
 #: Units that mark positions, velocities and accelerations when a model declares no states (SI, FMI spelling).
