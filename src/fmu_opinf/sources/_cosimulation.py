@@ -517,7 +517,12 @@ class FMUSource(Source):
             (self._c_step,) = self._bind(("fmi2DoStep", [vp, dbl, dbl, ctypes.c_int]))
         else:
             (self._c_step,) = self._bind(("fmi3DoStep", [vp, dbl, dbl, ctypes.c_bool, vp, vp, vp, vp]))
-        self._flags = np.zeros(4, dtype=np.float64)  # fmi3DoStep out-arguments (3 booleans + 1 double)
+        # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation, earlyReturn (one byte each), then
+        # lastSuccessfulTime (a double at byte 8).  Zero until an FMU sets one, which ends the run (_flag_failure).
+        # eventHandlingNeeded is not read: fmu-opinf instantiates with eventModeUsed=false, so an FMU with
+        # hasEventMode handles its events inside fmi3DoStep (FMI 3.0, co-simulation without event mode).
+        self._flags = np.zeros(2, dtype=np.float64)
+        self._returned = memoryview(self._flags).cast("B")   # its bytes, read as ints after each step
 
     def _bind(self, *prototypes: tuple[str, list[Any]]) -> list[Any]:
         """Fresh function objects of the binary with the given argument types, returning int."""
@@ -660,6 +665,23 @@ class FMUSource(Source):
         return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
                 f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h)}")
 
+    def _flag_failure(self, t: float, h: float) -> str:
+        """The line for an ``fmi3DoStep`` from FMU time ``t`` over ``h`` that asked to terminate the simulation or
+        returned early, which fmu-opinf never allows (it instantiates with earlyReturnAllowed=false)."""
+        log = self._last_log()
+        told = f"; its log: {log}" if log else ""
+        if self._returned[1]:
+            rel = t + h - self.start_time
+            return (f"{self.path.name} asked to terminate the simulation in fmi3DoStep at {self._at(t)} -> {t + h:g}"
+                    f"{told}; record a shorter run (--t-end below {rel:g})")
+        last = float(self._flags[1])
+        me = getattr(self.md, "modelExchange", None) is not None
+        fix = ("drive its model exchange (--interface me)" if me else
+               "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
+        return (f"{self.path.name} returned early from fmi3DoStep at {self._at(t)} -> {t + h:g} (lastSuccessfulTime "
+                f"{last:.9g}), although early return was not allowed: the FMU breaks FMI 3.0 and its samples would "
+                f"be wrong{told}; {fix}")
+
     def _discard_fix(self, h: float) -> str:
         """What to do about a discarded step ``h``: a smaller ``--dt`` (the automatic window's pilots then run
         at it), unless the FMU has a fixed communication step, which no option changes."""
@@ -709,6 +731,8 @@ class FMUSource(Source):
         if self.m and self._call_set(u) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input at {self._at(t)}", -1, t)
         status = self._do_step(t, h)
+        if self.fmi_version.startswith("3") and (self._returned[1] or self._returned[2]):
+            raise StepError(self._flag_failure(t, h), -1, t)
         if status == DISCARD:
             raise StepError(f"{self.path.name} discarded the communication step {h:g} at {self._at(t)}"
                             f"{self._discard_fix(h)}", -1, t)
@@ -771,8 +795,9 @@ class FMUSource(Source):
         u32base, u32stride = self._Uraw32.ctypes.data, (self._Uraw32.strides[0] if in32 else 0)
         out_vr32, nv32, n_values32 = read.vrs32.ctypes.data, len(read.vrs32), read.nvalues32
         raw32, r32base = self._raw32, self._raw32.ctypes.data
-        f = self._flags.ctypes.data
+        f, returned = self._flags.ctypes.data, self._returned
         t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
+        last = len(t) - 1   # a step to the run's end may ask to terminate: nothing is asked of the FMU after it
         for j in range(count):
             i = i0 + j
             if i:
@@ -780,6 +805,8 @@ class FMUSource(Source):
                                    or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 status = c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8)
+                if (returned[1] and i < last) or returned[2]:   # terminateSimulation (before the end), earlyReturn
+                    raise StepError(self._flag_failure(t[i - 1], h[i]), i, t[i])
                 if status > 1:
                     raise StepError(self._step_failure(status, "fmi3DoStep", i), i, t[i])
                 if refresh and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
