@@ -245,7 +245,7 @@ def simulate_outputs(source: Any, signal: Any, t: np.ndarray, quiet: bool = True
         Uniform time grid.
     **options
         ``g``/``n1`` for builtin sources; ``inputs``/``outputs`` name patterns, ``parameters`` (``--set``),
-        ``interface`` and ``tolerance`` for FMUs (driven as :func:`fmu_opinf.sources.open_source` does);
+        ``interface``, ``tolerance`` and ``start_time`` for FMUs (driven as :func:`fmu_opinf.sources.open_source` does);
         ``initial=(q0, qdot0)`` the reduced initial state of a ROM (default its stored one).
 
     Returns

@@ -598,8 +598,8 @@ class FMUSource(Source):
         declared = declared_start_time(self.md)
         if declared == t0:
             return ""
-        return (f"; it declares DefaultExperiment startTime={declared:g}: leave out --start-time (start_time=) to start "
-                "there, or give another")
+        return (f"; it declares DefaultExperiment startTime={declared:g}: leave out --start-time (start_time=) to "
+                "start there, or give another")
 
     def _after_initialization(self) -> None:
         """Hook run right after ``exitInitializationMode`` (model exchange: event iteration)."""
