@@ -96,6 +96,10 @@ extern const int LTI_CS_METHOD;
 extern const int LTI_STALE_DERIVATIVES; /* 1: after doStep, der() of the velocities are the values before it */
 extern const double LTI_CS_FIXED_STEP;  /* > 0: doStep refuses (error) any other communication step */
 extern const double LTI_CS_MAX_STEP;    /* > 0: doStep discards a longer communication step */
+extern const int LTI_CS_EARLY_RETURN;   /* 1: fmi3DoStep returns early at LTI_CS_EARLY_RETURN_AT, even unallowed */
+extern const double LTI_CS_EARLY_RETURN_AT;
+extern const int LTI_CS_TERMINATE;      /* 1: fmi3DoStep asks to terminate once its time reaches LTI_CS_TERMINATE_AT */
+extern const double LTI_CS_TERMINATE_AT;
 extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
 extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
 extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */

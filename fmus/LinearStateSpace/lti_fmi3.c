@@ -570,12 +570,18 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
                       fmi3Boolean *eventHandlingNeeded, fmi3Boolean *terminateSimulation,
                       fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime) {
     LtiStatus status;
+    double end = currentCommunicationPoint + communicationStepSize, slack = 1e-12 * communicationStepSize;
+    /* on request, a non-conforming FMU: it stops inside the step whether early return was allowed or not */
+    int early = LTI_CS_EARLY_RETURN && LTI_CS_EARLY_RETURN_AT > currentCommunicationPoint + slack &&
+                LTI_CS_EARLY_RETURN_AT < end - slack;
     CHECK(instance, "fmi3DoStep", PhaseStep);
     (void)noSetFMUStatePriorToCurrentPoint;
-    status = ltiDoStep(inst, currentCommunicationPoint, communicationStepSize);
+    status = ltiDoStep(inst, currentCommunicationPoint,
+                       early ? LTI_CS_EARLY_RETURN_AT - currentCommunicationPoint : communicationStepSize);
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
-    if (earlyReturn) *earlyReturn = fmi3False;
+    if (terminateSimulation)
+        *terminateSimulation = LTI_CS_TERMINATE && inst->time >= LTI_CS_TERMINATE_AT - slack ? fmi3True : fmi3False;
+    if (earlyReturn) *earlyReturn = early ? fmi3True : fmi3False;
     if (lastSuccessfulTime) *lastSuccessfulTime = inst->time;
     return finish(inst, status);
 }

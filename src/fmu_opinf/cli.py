@@ -55,6 +55,10 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
                        help="integrator of model exchange: dop853 (default, explicit Runge-Kutta of order 8; "
                             "also the fastest on the stiff models measured), lsoda, bdf, radau or rk45; recorded in "
                             "the provenance (docs/real-fmus.md)")
+    group.add_argument("--start-time", dest="start_time", type=float, metavar="S",
+                       help="FMU time at which every run starts (the FMU runs at S + t; inputs, windows and the "
+                            "recorded times still start at 0); default: the FMU's DefaultExperiment startTime, else 0"
+                            + ("" if recording else "; compare: the start the ROM was trained with"))
     group.add_argument("--g", type=int, help="builtin:anchored-msd size (masses), default 600")
     group.add_argument("--n1", type=int, help="builtin:triple-chain masses per chain, default 100")
 
@@ -101,7 +105,7 @@ def _source_options(args: argparse.Namespace) -> dict:
     from .sources import parse_assignments
 
     keys = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "interface", "tolerance",
-            "method", "g", "n1")
+            "method", "start_time", "g", "n1")
     options = {k: getattr(args, k) for k in keys if getattr(args, k, None) is not None}
     if getattr(args, "settings", None):
         options["parameters"] = parse_assignments(args.settings)  # the FMU keyword of the --set values

@@ -245,7 +245,7 @@ def simulate_outputs(source: Any, signal: Any, t: np.ndarray, quiet: bool = True
         Uniform time grid.
     **options
         ``g``/``n1`` for builtin sources; ``inputs``/``outputs`` name patterns, ``parameters`` (``--set``),
-        ``interface`` and ``tolerance`` for FMUs (driven as :func:`fmu_opinf.sources.open_source` does);
+        ``interface``, ``tolerance`` and ``start_time`` for FMUs (driven as :func:`fmu_opinf.sources.open_source` does);
         ``initial=(q0, qdot0)`` the reduced initial state of a ROM (default its stored one).
 
     Returns
@@ -282,7 +282,7 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
 
     isolate, timeout = options.get("isolate", True), options.get("timeout")
     options = {k: v for k, v in options.items()
-               if k in ("inputs", "outputs", "parameters", "interface", "tolerance", "method")}
+               if k in ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "start_time")}
     source = open_source(spec, positions="", **options)
     if t.size > 1:  # an FMU with a fixed communication step: another step is said before any run
         warn_other_communication_step(source, float(t[1] - t[0]))
@@ -367,10 +367,11 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time.
     source_options : dict, optional
-        Variable patterns, ``--set`` values (``parameters``) or builtin size options for the source.  For an
-        FMU source, what is not given is taken from the ROM's training provenance: the force inputs and
-        outputs by their recorded names and the recorded ``--set`` values, so a comparison drives the FMU
-        the way the training did.  A ROM side with extra outputs (an FMU exported with ``--reconstruct``) is
+        Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
+        source.  For an FMU source, what is not given is taken from the ROM's training provenance: the force inputs
+        and outputs by their recorded names, the recorded ``--set`` values and the FMU time the training runs
+        started at (``start_time``, 0 where none is recorded), so a comparison drives the FMU the way the training
+        did.  A ROM side with extra outputs (an FMU exported with ``--reconstruct``) is
         compared on the source's outputs, matched by name.
 
     Returns
@@ -389,6 +390,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
             raise DimensionError("no --t-end given and the ROM does not record its training end time; pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
     t = time_grid(dt, float(t_end))
+    if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
+        raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
     source_options = _training_settings(rom_info, source, source_options)
     _warn_if_another_fmu(rom_info, source)
     if rom_info["m"] == 0:
@@ -434,7 +437,8 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
     from .snapshots._record import MemorySink, record_run
     from .source import open_source
 
-    keep = {k: v for k, v in options.items() if k in ("inputs", "outputs", "parameters", "interface", "tolerance")}
+    keep = {k: v for k, v in options.items()
+            if k in ("inputs", "outputs", "parameters", "interface", "tolerance", "start_time")}
     recorded = rom.provenance.get("snapshots") or {}
     for key, field_name in (("positions", "position_names"), ("velocities", "velocity_names")):
         pattern = _exact_names(recorded.get(field_name))  # the variables the training recorded: the basis rows
@@ -512,6 +516,8 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
         pattern = _exact_names(names)
         if key not in options and pattern:
             options[key] = pattern
+    if options.get("start_time") is None and not _is_rom_fmu(source):   # the FMU time the training started at
+        options["start_time"] = float(snapshots.get("start_time") or 0.0)
     settings = snapshots.get("fmu_settings")
     if not isinstance(settings, dict) or not settings:
         return options
@@ -531,6 +537,20 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
                       + ": a ROM describes the model it was trained on", FmuOpinfWarning, stacklevel=3)
     options["parameters"] = {**settings, **given_settings}  # the training's other settings stay as trained
     return options
+
+
+def _is_rom_fmu(source: Any) -> bool:
+    """Whether ``source`` is an FMU that 'fmu-opinf export' wrote (time-invariant, run from its own start)."""
+    import zipfile
+
+    path = Path(str(source))
+    if path.suffix.lower() != ".fmu" or not path.is_file():
+        return False
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return any(name.endswith("provenance.json") for name in archive.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
 
 
 def _declared_units(source: Any, names: list[str]) -> list[str] | None:

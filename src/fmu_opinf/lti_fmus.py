@@ -751,6 +751,8 @@ class _Options:
     cs_fixed_step: float | None = None
     cs_fixed_step_enforced: bool = True
     cs_max_step: float | None = None
+    cs_early_return_at: float | None = None
+    cs_terminate_at: float | None = None
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -768,6 +770,11 @@ def _check_options(model, options: _Options) -> None:
         value = getattr(options, name)
         if value is not None and not (np.isfinite(value) and value > 0):
             raise FmuBuildError(f"{name}={value} must be a positive step")
+    for name in ("cs_early_return_at", "cs_terminate_at"):
+        value = getattr(options, name)
+        if value is not None and (options.fmi_version != "3.0" or "cs" not in options.interfaces
+                                  or not np.isfinite(value)):
+            raise FmuBuildError(f"{name} needs FMI 3.0 co-simulation and a finite time; pass fmi_version='3.0'")
     if options.cs_method not in ("accurate", "euler"):
         raise FmuBuildError(f"cs_method {options.cs_method!r} is unknown; use 'accurate' or "
                             "'euler'")
@@ -1318,7 +1325,7 @@ def _model_description3(layout: _Layout, options: _Options) -> str:
     if "cs" in options.interfaces:
         interfaces += (f"  <CoSimulation{common} canHandleVariableCommunicationStepSize=\"{_variable_step(options)}\""
                        ' maxOutputDerivativeOrder="0" providesIntermediateUpdate="false"'
-                       ' mightReturnEarlyFromDoStep="false"'
+                       f' mightReturnEarlyFromDoStep="{str(options.cs_early_return_at is not None).lower()}"'
                        ' canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"'
                        ' providesEvaluateDiscreteStates="false"/>\n')
 
@@ -1466,6 +1473,10 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
         f"const double LTI_CS_FIXED_STEP = {_c_step(_enforced_step(options))};\n"
         f"const double LTI_CS_MAX_STEP = {_c_step(options.cs_max_step)};\n"
+        f"const int LTI_CS_EARLY_RETURN = {int(options.cs_early_return_at is not None)};\n"
+        f"const double LTI_CS_EARLY_RETURN_AT = {_number(options.cs_early_return_at or 0.0)};\n"
+        f"const int LTI_CS_TERMINATE = {int(options.cs_terminate_at is not None)};\n"
+        f"const double LTI_CS_TERMINATE_AT = {_number(options.cs_terminate_at or 0.0)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
         f"const size_t LTI_NQ_DEFAULT = {nq};\n"
@@ -1594,6 +1605,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
+                  cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
                   reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
@@ -1692,6 +1704,12 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     cs_max_step : float, optional
         Co-simulation with an embedded solver's maximum step: ``doStep`` returns ``fmi2Discard`` /
         ``fmi3Discard`` (and logs why) for a longer step; the FMU stays usable.
+    cs_early_return_at : float, optional
+        FMI 3 co-simulation that breaks the standard, as some exporters' do: the ``fmi3DoStep`` whose step
+        contains this time stops there and returns ``earlyReturn = true`` with that ``lastSuccessfulTime``, although
+        the importer did not allow early return (the FMU declares ``mightReturnEarlyFromDoStep="true"``).
+    cs_terminate_at : float, optional
+        FMI 3 co-simulation: ``fmi3DoStep`` sets ``terminateSimulation`` once its time reaches this one.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1725,7 +1743,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         discrete_inputs=tuple(discrete_inputs),
         cs_fixed_step=None if cs_fixed_step is None else float(cs_fixed_step),
         cs_fixed_step_enforced=bool(cs_fixed_step_enforced),
-        cs_max_step=None if cs_max_step is None else float(cs_max_step))
+        cs_max_step=None if cs_max_step is None else float(cs_max_step),
+        cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
+        cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

@@ -31,7 +31,7 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
-from ..sources import (Source, StepError, fixed_communication_step, open_source, warn_once,
+from ..sources import (Source, StepError, at_start_time, fixed_communication_step, open_source, warn_once,
                        warn_other_communication_step)
 from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
@@ -414,8 +414,8 @@ def _run_bytes(source: Source, k: int) -> int:
 
 
 def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, path: str | os.PathLike | None = None,
-           quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float = 0.0,
-           stream: bool | None = None) -> Snapshots:
+           quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float | None = None,
+           stream: bool | None = None, start_time: float | None = None) -> Snapshots:
     """Record one run of ``source`` driven by ``signal`` on the grid ``t0, t0+dt, ..., <= t_end``.
 
     Parameters
@@ -436,10 +436,16 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
         Replace an existing ``path``.
     isolate : bool, default=False
         Run the source in a child process (a crash becomes an :class:`~fmu_opinf.errors.FMUError`).
-    t0 : float, default=0.0
+    t0 : float, optional
+        An absolute start of the grid: an FMU is run at the grid's times themselves (from FMU time ``t0``; its
+        declared start time is not applied) and the run's ``t`` starts at ``t0``.  Default: the grid starts at 0
+        and an FMU runs from its start time (``start_time``).
     stream : bool, optional
         Write blocks to ``path`` during the run instead of keeping them in memory; default: when the
         run exceeds :data:`STREAM_THRESHOLD` bytes.  Streamed snapshots are returned opened lazily.
+    start_time : float, optional
+        The FMU time of the run's ``t = 0`` (:class:`~fmu_opinf.sources.FMUSource`); default: the source's (an FMU's
+        ``DefaultExperiment/@startTime``, else 0).  Not with ``t0``.
 
     Returns
     -------
@@ -447,9 +453,14 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
         One run.  If the run stopped early, the samples so far are stored (``complete=False``)
         and :class:`~fmu_opinf.source.StepError` is raised afterwards.
     """
+    if t0 is not None and start_time is not None:
+        raise InputSpecError("give either t0 (an absolute start of the grid) or start_time (the FMU time of t = 0)")
     source = open_source(source)
+    if t0 is not None and source.kind == "fmu":
+        start_time = 0.0   # the grid's times are the FMU's, as before start times existed
+    source = at_start_time(source, start_time)
     signal = as_signal(signal, source.m, source)
-    t = time_grid(dt, t_end, t0)
+    t = time_grid(dt, t_end, t0 or 0.0)
     check_input_acts(signal, t)
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
@@ -614,6 +625,7 @@ def record_to_file(
     parameters: dict[str, Any] | None = None,
     interface: str | None = None,
     tolerance: float | None = None,
+    start_time: float | None = None,
     points_per_period: float = 20.0,
     energy: float = 0.999,
     fade: float = 0.01,
@@ -654,6 +666,9 @@ def record_to_file(
         FMI interface (:func:`fmu_opinf.sources.choose_interface`; default auto: model exchange when offered).
     tolerance : float, optional
         Relative tolerance of the model-exchange integration, also passed to the FMU (default 1e-10).
+    start_time : float, optional
+        FMU time at which every run (pilots included) starts; the recorded times start at 0.  Default: the FMU's
+        ``DefaultExperiment/@startTime``, else 0.
     points_per_period, energy, fade : float
         Thresholds of :func:`auto_window`.
     overwrite : bool, default=False
@@ -681,7 +696,7 @@ def record_to_file(
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
                          inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
-                         interface=interface, tolerance=tolerance, **size_options)
+                         interface=interface, tolerance=tolerance, start_time=start_time, **size_options)
     by_default = not specs
     if not specs:
         specs = default_training_inputs(source.m)

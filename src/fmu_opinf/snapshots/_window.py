@@ -68,7 +68,7 @@ def default_window(source: Source, dt: float | None, t_end: float | None) -> tup
     if dt is None and experiment is not None and experiment.stepSize is not None:
         dt = float(experiment.stepSize)
     if t_end is None and experiment is not None and experiment.stopTime is not None:
-        t_end = float(experiment.stopTime)
+        t_end = float(experiment.stopTime) - float(experiment.startTime or 0.0)  # runs start at t = 0
     if dt is None or t_end is None:
         missing = " and ".join(n for n, v in (("--dt", dt), ("--t-end", t_end)) if v is None)
         raise InputSpecError(f"no {missing} given and the source has no default; pass {missing} or --auto-window")

@@ -54,6 +54,7 @@ __all__ = [
     "METHODS",
     "choose_interface",
     "open_source",
+    "at_start_time",
     "match_names",
     "natural_key",
     "BUILTIN_SYSTEMS",
@@ -209,5 +210,29 @@ def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
-                "settings")
-_FLAG = {"parameters": "set", "settings": "set", "method": "me-method"}
+                "settings", "start_time")
+_FLAG = {"parameters": "set", "settings": "set", "method": "me-method", "start_time": "start-time"}
+
+
+def at_start_time(source: Source, start_time: float | None) -> Source:
+    """``source`` run from the FMU time ``start_time`` (a copy; ``source`` itself when it starts there already or
+    ``start_time`` is None).
+
+    Parameters
+    ----------
+    source : Source
+        An FMU source (a builtin source has no start time: giving one is an error).
+    start_time : float or None
+
+    Returns
+    -------
+    Source
+    """
+    if start_time is None:
+        return source
+    if source.kind != "fmu":
+        raise InputSpecError(f"--start-time (start_time=) applies to fmu sources, not to {source!r}")
+    if getattr(source, "start_time", None) == float(start_time):
+        return source
+    cls, kwargs = source.recipe()
+    return cls(**{**kwargs, "start_time": float(start_time)})

@@ -88,6 +88,26 @@ def warn_other_communication_step(source: Any, dt: float, option: str = "--dt") 
               f"that, {_give_fixed_step(source, fixed, option)}")
 
 
+def declared_start_time(md: Any) -> float:
+    """The FMU's ``DefaultExperiment/@startTime`` (0 where it declares none)."""
+    experiment = getattr(md, "defaultExperiment", None)
+    value = getattr(experiment, "startTime", None) if experiment is not None else None
+    return float(value) if value not in (None, "") else 0.0
+
+
+def check_start_time(start_time: float | None, md: Any) -> float:
+    """The FMU time at which runs start: ``start_time`` if given (finite), else the declared one."""
+    if start_time is None:
+        return declared_start_time(md)
+    try:
+        value = float(start_time)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not math.isfinite(value):
+        raise InputSpecError(f"start time {start_time!r} is not a finite number; give e.g. --start-time 0")
+    return value
+
+
 def _same_step(h: float, step: float) -> bool:
     return abs(h - step) <= 1e-9 * step
 
@@ -183,6 +203,10 @@ class FMUSource(Source):
         Relative tolerance passed to the FMU (``fmi2SetupExperiment`` / ``fmi3EnterInitializationMode``):
         co-simulation FMUs with an internal variable-step solver follow it.  Default
         :data:`DEFAULT_TOLERANCE`; ``0`` passes none (the FMU's own default).
+    start_time : float, optional
+        The FMU time at which every run starts: the FMU is run at ``start_time + t`` for the run's time ``t``
+        (which starts at 0, as the inputs, windows, snapshot files and ROMs do).  Default: the FMU's
+        ``DefaultExperiment/@startTime``, else 0 (:func:`declared_start_time`).
     """
 
     kind = "fmu"
@@ -201,6 +225,7 @@ class FMUSource(Source):
         parameters: dict[str, Any] | None = None,
         settings: dict[str, Any] | None = None,
         tolerance: float | None = None,
+        start_time: float | None = None,
     ) -> None:
         self.path = Path(path).absolute()  # the same file after a change of directory (fmpy chdirs to load)
         self.tolerance = check_tolerance(tolerance)
@@ -213,11 +238,13 @@ class FMUSource(Source):
             "constraint": constraint,
             "parameters": {**parse_assignments(parameters), **parse_assignments(settings)} or None,
             "tolerance": tolerance,
+            "start_time": start_time,
         }
         md = read_description(self.path)
         self.constraint = check_constraint(constraint, annotated_constraint(self.path) or "unknown")
         self._check_interface(md)
         self.md = md
+        self.start_time = check_start_time(start_time, md)
         self.fmi_version = str(md.fmiVersion)
         self.model_identifier = self._interface_of(md).modelIdentifier
         self.model = ModelInfo.from_path(self.path)
@@ -396,6 +423,7 @@ class FMUSource(Source):
             "fmu_settings": self._settings_provenance(),
             "fmi_interface": self.interface,
             "tolerance": self.tolerance,
+            **({"start_time": self.start_time} if self.start_time else {}),
         }
 
     def recipe(self) -> tuple[type, dict[str, Any]]:
@@ -489,7 +517,12 @@ class FMUSource(Source):
             (self._c_step,) = self._bind(("fmi2DoStep", [vp, dbl, dbl, ctypes.c_int]))
         else:
             (self._c_step,) = self._bind(("fmi3DoStep", [vp, dbl, dbl, ctypes.c_bool, vp, vp, vp, vp]))
-        self._flags = np.zeros(4, dtype=np.float64)  # fmi3DoStep out-arguments (3 booleans + 1 double)
+        # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation, earlyReturn (one byte each), then
+        # lastSuccessfulTime (a double at byte 8).  Zero until an FMU sets one, which ends the run (_flag_failure).
+        # eventHandlingNeeded is not read: fmu-opinf instantiates with eventModeUsed=false, so an FMU with
+        # hasEventMode handles its events inside fmi3DoStep (FMI 3.0, co-simulation without event mode).
+        self._flags = np.zeros(2, dtype=np.float64)
+        self._returned = memoryview(self._flags).cast("B")   # its bytes, read as ints after each step
 
     def _bind(self, *prototypes: tuple[str, list[Any]]) -> list[Any]:
         """Fresh function objects of the binary with the given argument types, returning int."""
@@ -527,6 +560,11 @@ class FMUSource(Source):
             fmu.instantiate(logMessage=lambda env, status, cat, msg: self._logger(env, status, msg))
         self._comp = fmu.component if isinstance(fmu.component, int) else fmu.component.value
 
+    def _at(self, t: float) -> str:
+        """A time of the FMU in messages: ``t=...`` when runs start at FMU time 0, else ``FMU time ...`` (the run's
+        own time is that minus :attr:`start_time`)."""
+        return f"FMU time {t:g}" if self.start_time else f"t={t:g}"
+
     def _initialize(self) -> None:
         fmu, t0 = self._fmu, float(self._t[0])
         t_stop = float(self._t[-1])
@@ -551,9 +589,17 @@ class FMUSource(Source):
         except StepError:
             raise
         except Exception as exc:
-            raise StepError(f"{self.path.name} failed to initialize at t={t0:g} ({self._last_log() or exc})",
-                            0, t0) from None
+            raise StepError(f"{self.path.name} failed to initialize at {self._at(t0)} ({self._last_log() or exc})"
+                            f"{self._start_hint(t0)}", 0, t0) from None
         self._set_inputs(0)
+
+    def _start_hint(self, t0: float) -> str:
+        """Where initialization failed at another time than the FMU's declared start: that start and the option."""
+        declared = declared_start_time(self.md)
+        if declared == t0:
+            return ""
+        return (f"; it declares DefaultExperiment startTime={declared:g}: leave out --start-time (start_time=) to "
+                "start there, or give another")
 
     def _after_initialization(self) -> None:
         """Hook run right after ``exitInitializationMode`` (model exchange: event iteration)."""
@@ -600,7 +646,7 @@ class FMUSource(Source):
 
     def _fail_text(self, what: str, i: int) -> str:
         t = self._t
-        when = f"t={t[i - 1]:g} -> {t[i]:g}" if i else f"t={t[0]:g}"
+        when = f"{self._at(t[i - 1])} -> {t[i]:g}" if i else self._at(t[0])
         log = self._last_log()
         return f"{self.path.name} returned an error {what} at step {i} ({when})" + (f": {log}" if log else "")
 
@@ -617,7 +663,24 @@ class FMUSource(Source):
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
         return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
-                f"(t={t[i - 1]:g} -> {t[i]:g}{told}){self._discard_fix(h)}")
+                f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h)}")
+
+    def _flag_failure(self, t: float, h: float) -> str:
+        """The line for an ``fmi3DoStep`` from FMU time ``t`` over ``h`` that asked to terminate the simulation or
+        returned early, which fmu-opinf never allows (it instantiates with earlyReturnAllowed=false)."""
+        log = self._last_log()
+        told = f"; its log: {log}" if log else ""
+        if self._returned[1]:
+            rel = t + h - self.start_time
+            return (f"{self.path.name} asked to terminate the simulation in fmi3DoStep at {self._at(t)} -> {t + h:g}"
+                    f"{told}; record a shorter run (--t-end below {rel:g})")
+        last = float(self._flags[1])
+        me = getattr(self.md, "modelExchange", None) is not None
+        fix = ("drive its model exchange (--interface me)" if me else
+               "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
+        return (f"{self.path.name} returned early from fmi3DoStep at {self._at(t)} -> {t + h:g} (lastSuccessfulTime "
+                f"{last:.9g}), although early return was not allowed: the FMU breaks FMI 3.0 and its samples would "
+                f"be wrong{told}; {fix}")
 
     def _discard_fix(self, h: float) -> str:
         """What to do about a discarded step ``h``: a smaller ``--dt`` (the automatic window's pilots then run
@@ -664,14 +727,17 @@ class FMUSource(Source):
     def step(self, t: float, h: float, u: np.ndarray) -> None:
         self.refuse_single_precision_overflow(np.reshape(u, (self.m, 1)))
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
+        t = self.start_time + t   # the FMU's time
         if self.m and self._call_set(u) > 1:
-            raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+            raise StepError(f"{self.path.name} returned an error setting the input at {self._at(t)}", -1, t)
         status = self._do_step(t, h)
+        if self.fmi_version.startswith("3") and (self._returned[1] or self._returned[2]):
+            raise StepError(self._flag_failure(t, h), -1, t)
         if status == DISCARD:
-            raise StepError(f"{self.path.name} discarded the communication step {h:g} at t={t:g}"
+            raise StepError(f"{self.path.name} discarded the communication step {h:g} at {self._at(t)}"
                             f"{self._discard_fix(h)}", -1, t)
         if status > 1:
-            raise StepError(f"{self.path.name} returned an error in doStep at t={t:g}", -1, t)
+            raise StepError(f"{self.path.name} returned an error in doStep at {self._at(t)}", -1, t)
 
     def _do_step(self, t: float, h: float) -> int:
         if self.fmi_version.startswith("2"):
@@ -729,8 +795,9 @@ class FMUSource(Source):
         u32base, u32stride = self._Uraw32.ctypes.data, (self._Uraw32.strides[0] if in32 else 0)
         out_vr32, nv32, n_values32 = read.vrs32.ctypes.data, len(read.vrs32), read.nvalues32
         raw32, r32base = self._raw32, self._raw32.ctypes.data
-        f = self._flags.ctypes.data
+        f, returned = self._flags.ctypes.data, self._returned
         t, h, changed, refresh = self._t_list, self._h_list, self._changed, self._refresh
+        last = len(t) - 1   # a step to the run's end may ask to terminate: nothing is asked of the FMU after it
         for j in range(count):
             i = i0 + j
             if i:
@@ -738,6 +805,8 @@ class FMUSource(Source):
                                    or (in32 and c_set32(comp, in_vr32, m32, u32base + i * u32stride, m_values32) > 1)):
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 status = c_step(comp, t[i - 1], h[i], True, f, f + 1, f + 2, f + 8)
+                if (returned[1] and i < last) or returned[2]:   # terminateSimulation (before the end), earlyReturn
+                    raise StepError(self._flag_failure(t[i - 1], h[i]), i, t[i])
                 if status > 1:
                     raise StepError(self._step_failure(status, "fmi3DoStep", i), i, t[i])
                 if refresh and ((m and c_set(comp, in_vr, m, ubase + i * ustride, m_values) > 1)
@@ -756,6 +825,8 @@ class FMUSource(Source):
 
     def _plan(self, t: np.ndarray, U: np.ndarray) -> None:
         super()._plan(t, U)
+        if self.start_time:   # from here on the run's times are the FMU's (start_time + t)
+            self._t = self.start_time + self._t
         self._t_list = self._t.tolist()
         self._h_list = [0.0] + self._steps().tolist()
         # inputs keep their values between steps: set them only when they change

@@ -133,7 +133,9 @@ class ModelExchangeSource(FMUSource):
         return prov
 
     def events_seen(self) -> tuple[int, float | None] | None:
-        return getattr(self, "_events", (0, None))
+        """Events handled since :meth:`start`: how many, and the run's time (not the FMU's) of the first."""
+        count, first = getattr(self, "_events", (0, None))
+        return count, None if first is None else first - self.start_time
 
     # -- loading ----------------------------------------------------------------------------
     def _fmpy_class(self) -> tuple[type, dict[str, Any]]:
@@ -272,9 +274,11 @@ class ModelExchangeSource(FMUSource):
         discrete = np.reshape(np.asarray(u, dtype=float), self.m)[self._discrete]
         u = np.ascontiguousarray(self._raw_inputs(np.atleast_2d(np.asarray(u, dtype=float)))[0])
 
+        t = self.start_time + t   # the FMU's time
+
         def set_input() -> None:
             if self._call_set(u) > 1:
-                raise StepError(f"{self.path.name} returned an error setting the input at t={t:g}", -1, t)
+                raise StepError(f"{self.path.name} returned an error setting the input at {self._at(t)}", -1, t)
 
         last = self._last_discrete
         if discrete.size and (last is None or np.any(discrete != last)):   # they may change only in event mode
@@ -342,8 +346,8 @@ class ModelExchangeSource(FMUSource):
                 self._handle_event(i, t)
             if t1 - t <= slack:
                 return
-        raise StepError(f"{self.path.name}: more than {_MAX_EVENTS_PER_STEP} events between t={t0:g} and "
-                        f"t={t1:g} (an event indicator chatters or time events do not advance); fix the model "
+        raise StepError(f"{self.path.name}: more than {_MAX_EVENTS_PER_STEP} events between {self._at(t0)} and "
+                        f"{t1:g} (an event indicator chatters or time events do not advance); fix the model "
                         "or try --interface cs", i, t1)
 
     def _advance_to(self, i: int, t0: float, t1: float) -> tuple[float, bool, bool]:
@@ -456,7 +460,7 @@ class ModelExchangeSource(FMUSource):
         if self._c_completed(self._comp, True, address, address + flags.itemsize) > 1:
             raise StepError(self._integration_failure(i, t1, t1, "fmiCompletedIntegratorStep failed"), i, t1)
         if flags[1]:
-            raise StepError(f"{self.path.name} asked to terminate the simulation at t={t1:g}", i, t1)
+            raise StepError(f"{self.path.name} asked to terminate the simulation at {self._at(t1)}", i, t1)
         return bool(flags[0])
 
     def _handle_event(self, i: int, t: float, set_inputs: Callable[[], None] | None = None) -> None:
@@ -477,7 +481,7 @@ class ModelExchangeSource(FMUSource):
             nominals_changed = self._event_iteration()
             self._fmu.enterContinuousTimeMode()
         except FMUError as exc:
-            raise StepError(f"{exc} (at t={t:g})", i, t) from None
+            raise StepError(f"{exc} (at {self._at(t)})", i, t) from None
         except FMICallException as exc:  # the FMU refused a call of the event iteration
             raise StepError(self._integration_failure(i, t, t, f"the event iteration failed: {exc}"), i, t) from None
         if self.nx:
@@ -490,7 +494,7 @@ class ModelExchangeSource(FMUSource):
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
         """One line: where and why the integration failed, the FMU's last error message, and what may help."""
-        where = f"step {i} (t={t0:g} -> {t1:g})" if i >= 0 else f"t={t0:g} -> {t1:g}"
+        where = f"step {i} ({self._at(t0)} -> {t1:g})" if i >= 0 else f"{self._at(t0)} -> {t1:g}"
         log = self._last_log()
         cs = " or --interface cs" if self.md.coSimulation is not None else ""
         if log:   # the FMU said why: the tolerance is only one possible cause
