@@ -7,6 +7,7 @@ the integrator).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,9 @@ import pytest
 pytest.importorskip("fmpy")
 
 from fmu_opinf import lti_fmus  # noqa: E402
+from fmu_opinf.errors import FmuOpinfWarning  # noqa: E402
 from fmu_opinf.snapshots import record  # noqa: E402
+from fmu_opinf.snapshots._consistency import Repair, check_rates  # noqa: E402
 from fmu_opinf.sources import ModelExchangeSource, open_source  # noqa: E402
 
 pytestmark = pytest.mark.fmu
@@ -56,3 +59,41 @@ def test_a_careless_nominal_does_not_loosen_the_integration(generic_fmu, monkeyp
     assert _relative(careless.x, reference.x) < 3e-10   # measured 1.05e-10 (3.8e-9 before)
     assert _relative(careless.xdot, reference.v) < 3e-10
     assert np.array_equal(careless.x, plain.x)   # a nominal above 1 changes nothing
+
+
+def test_a_step_too_coarse_for_a_pairing_the_model_structure_declares_is_no_wrong_guess(generic_fmu):
+    """At dt = 0.7 (periods of a few seconds) the declared velocity x4 misses the increments of x1 by 0.4 per step.
+    That was called a wrong guess: the positions' derivative variables were recorded again as velocities with
+    accelerations from the data, and then the same mismatch stopped the recording.  Now a warning says to record at
+    a smaller --dt, and the recording keeps the FMU's own velocities and accelerations, exact at the samples."""
+    source = open_source(str(generic_fmu))
+    assert "model structure" in source.selection.how["positions"]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        run = record(source, "impulse:amplitude=1,t0=2,width=2", 0.7, 60.0, quiet=True).runs[0]
+    said = [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)]
+    assert len(said) == 1 and "record at a smaller --dt" in said[0] and "model structure" in said[0], said
+    assert "guess" not in said[0]
+    assert source.velocity_names == [f"x{i}" for i in range(4, 7)]
+    assert source.selection.how["accelerations"] == "derivatives of the velocity states"
+    reference = _exact(run)
+    assert _relative(run.x, reference.x) < 1e-9   # measured 3.7e-10
+    assert _relative(run.xdot, reference.v) < 4e-9   # 1.4e-9
+    assert _relative(run.xddot, reference.a) < 5e-9   # 1.8e-9: the FMU's own accelerations
+
+
+def test_scaled_velocity_states_are_repaired_without_blaming_a_guess():
+    """Velocity states that the model structure pairs with the positions but that are their rates times 1e4 (states
+    scaled by the exporter, like the FE-like export's x251 .. x500 by their nominals): the positions' derivative
+    variables become the velocities, and the reason names the factor, not a wrong guess."""
+    t = np.arange(0.0, 30.0, 0.05)
+    u = np.where((t > 1.0) & (t < 2.0), 1.0, 0.0)[None, :]
+    reference = lti_fmus.zoh_response(MODEL, t, u)
+    names = {"positions": ["x1", "x2", "x3"], "velocities": ["x4", "x5", "x6"]}
+    derivatives = ["der(x1)", "der(x2)", "der(x3)"]
+    verdict = check_rates(reference.x, 1e4 * reference.v, None, 0.05, names, False, derivatives, declared=True)
+    assert isinstance(verdict, Repair), verdict
+    assert verdict.velocities == derivatives and verdict.accelerations == ""
+    assert "times 1e+04" in verdict.reason and "scaled states" in verdict.reason and "guess" not in verdict.reason
+    # the same data unscaled: consistent
+    assert check_rates(reference.x, reference.v, None, 0.05, names, False, derivatives, declared=True) is None
