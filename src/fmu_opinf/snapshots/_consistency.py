@@ -216,16 +216,13 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
     The caller chooses the samples (:func:`judge_run`: the first :data:`_SAMPLES`).
     """
     if v is not None and x.shape[1] >= 3:
-        if sums is None:
-            sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
-            sums.feed(x, v, None, x.shape[1])
-        mismatch = sums.mismatch()
+        mismatch = rate_mismatch(x, v, h) if sums is None else sums.mismatch()
         worst = int(np.argmax(mismatch)) if mismatch.size else 0
         if mismatch.size and mismatch[worst] > MISMATCH:
             where = (f"{names['velocities'][worst]} is not the rate of {names['positions'][worst]} (relative mismatch "
                      f"{mismatch[worst]:.2g} per step)")
             if declared:
-                return _scaled_velocities(sums, mismatch, names, derivative_names, where)
+                return _scaled_velocities(x, v, h, sums, mismatch, names, derivative_names, where)
             if not guessed:
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
@@ -241,12 +238,16 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
 _SCALED = 10.0
 
 
-def _scaled_velocities(sums: RateSums, mismatch: np.ndarray, names: dict[str, list[str]],
-                       derivative_names: list[str | None], where: str) -> Repair | str:
+def _scaled_velocities(x: np.ndarray, v: np.ndarray, h: float, sums: RateSums | None, mismatch: np.ndarray,
+                       names: dict[str, list[str]], derivative_names: list[str | None], where: str) -> Repair | str:
     """A mismatch of velocities that the model structure pairs with the positions: a :class:`Repair` recording the
     positions' derivative variables as velocities where some velocity is its position's rate times a constant
     (states scaled by the exporter, e.g. by their nominal values: audit 2026-11-27, an FE-like export whose
-    ``der(x190)`` is ``x440`` times 1.2e-4), else the problem, which is then the step's."""
+    ``x440`` is the rate of ``x190`` times 3.3e-9), else the problem, which is then the step's.  ``sums``: those of the
+    run (default: summed here)."""
+    if sums is None:
+        sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
+        sums.feed(x, v, None, x.shape[1])
     squares = sums.squares
     inner = 0.5 * (squares[0] + squares[1] - squares[2])  # <dx, h v_trapezoid>, from the norms of the rule's terms
     with np.errstate(divide="ignore", invalid="ignore"):
