@@ -388,7 +388,7 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
         message += "; pass --positions and --velocities"
     if guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
-    if whole and v is not None:
+    if whole and v is not None and not structure:   # the data do not overrule the FMU's model structure
         pairing = _pairing_the_data_show(x, v, float(t[1] - t[0]), names)
         if pairing is not None:  # the user's pairing is contradicted by one the data make at this very step
             raise FMUError(f"{source_label(source)}: {message}, but the data pair them at this step: pass "
