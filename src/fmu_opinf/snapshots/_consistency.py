@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FMUError, FmuOpinfWarning
+from ..sources._variables import _DEPENDENCIES
 from ._isolation import source_label
 
 __all__ = ["MAX_REPAIRS", "RateSums", "Repair", "check_rates", "judge_run", "live_rate_sums", "rate_mismatch",
@@ -187,7 +188,8 @@ class RateSums:
 
 def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
                 guessed: bool, derivative_names: list[str | None],
-                u: np.ndarray | None = None, sums: RateSums | None = None) -> Repair | str | None:
+                u: np.ndarray | None = None, sums: RateSums | None = None, declared: bool = False
+                ) -> Repair | str | None:
     """Judge one run's rates; None if consistent, a :class:`Repair` to record again, or a one-line problem.
 
     Parameters
@@ -206,6 +208,10 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
         Inputs in effect (steps next to their changes do not count in :func:`stale_rates`).
     sums : RateSums, optional
         The sums of both tests, fed while the run was recorded (:func:`live_rate_sums`); default: summed here.
+    declared : bool, default=False
+        Whether the FMU's model structure pairs them (``der(position)`` depends on its velocity alone): a mismatch
+        is then no wrong guess but the step's (a one-line problem), unless the velocities are the positions'
+        rates scaled (:func:`_scaled_velocities`).
 
     The caller chooses the samples (:func:`judge_run`: the first :data:`_SAMPLES`).
     """
@@ -215,6 +221,8 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
         if mismatch.size and mismatch[worst] > MISMATCH:
             where = (f"{names['velocities'][worst]} is not the rate of {names['positions'][worst]} (relative mismatch "
                      f"{mismatch[worst]:.2g} per step)")
+            if declared:
+                return _scaled_velocities(x, v, h, sums, mismatch, names, derivative_names, where)
             if not guessed:
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
@@ -222,6 +230,39 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
         return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
                                       "before the FMU updated them): derived from the data instead")
     return None
+
+
+#: A declared velocity whose least-squares factor to its position's rate is off 1 by this factor or more (and which
+#: fits within :data:`MISMATCH` once scaled) is a scaled state: a step too coarse for the motion makes the factor
+#: ``tan(w h / 2) / (w h / 2)``, which exceeds 10 only within 7 % of the Nyquist frequency and is never below 1.
+_SCALED = 10.0
+
+
+def _scaled_velocities(x: np.ndarray, v: np.ndarray, h: float, sums: RateSums | None, mismatch: np.ndarray,
+                       names: dict[str, list[str]], derivative_names: list[str | None], where: str) -> Repair | str:
+    """A mismatch of velocities that the model structure pairs with the positions: a :class:`Repair` recording the
+    positions' derivative variables as velocities where some velocity is its position's rate times a constant
+    (states scaled by the exporter, e.g. by their nominal values: audit 2026-11-27, an FE-like export whose
+    ``x440`` is the rate of ``x190`` times 3.3e-9), else the problem, which is then the step's.  ``sums``: those of the
+    run (default: summed here)."""
+    if sums is None:
+        sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
+        sums.feed(x, v, None, x.shape[1])
+    squares = sums.squares
+    inner = 0.5 * (squares[0] + squares[1] - squares[2])  # <dx, h v_trapezoid>, from the norms of the rule's terms
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = inner / squares[1]
+        fitted = np.sqrt(np.maximum(squares[0] - inner * factor, 0.0) / squares[0])
+    scaled = ((mismatch > MISMATCH) & np.isfinite(factor) & (factor > 0)
+              & (np.abs(np.log10(np.where(factor > 0, factor, 1.0))) >= math.log10(_SCALED)) & (fitted <= MISMATCH))
+    states = names["positions"] + names["velocities"]
+    if scaled.any() and all(derivative_names) and not set(derivative_names) & set(states):
+        row = int(np.flatnonzero(scaled)[np.argmax(mismatch[scaled])])
+        return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
+                      f"{names['velocities'][row]} is the rate of {names['positions'][row]} times "
+                      f"{1 / factor[row]:.2g}, not the rate itself (scaled states); the positions' derivative "
+                      "variables are the velocities, accelerations derived from the data")
+    return f"velocities do not match the positions: {where}"
 
 
 def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
@@ -328,8 +369,10 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     names = {"positions": [source.position_names[i] for i in picked],
              "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
     derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
-    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, selection.guessed and not repairs, derivatives,
-                          np.asarray(run.u[:, window]), sums)
+    structure = _paired_by_structure(selection) and not repairs
+    guessed = selection.guessed and not structure
+    verdict = check_rates(x, v, a, float(t[1] - t[0]), names, guessed and not repairs, derivatives,
+                          np.asarray(run.u[:, window]), sums, declared=structure)
     if verdict is None:
         return None
     whole = len(picked) == source.n
@@ -343,22 +386,31 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
         message = (f"{cause}, also after {repairs} repairs" if repairs >= MAX_REPAIRS else
                    f"{cause}; too many positions ({source.n}) to pair by the data")
         message += "; pass --positions and --velocities"
-    if selection.guessed or repairs:
+    if guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
-    if whole and v is not None:
+    if whole and v is not None and not structure:   # the data do not overrule the FMU's model structure
         pairing = _pairing_the_data_show(x, v, float(t[1] - t[0]), names)
         if pairing is not None:  # the user's pairing is contradicted by one the data make at this very step
             raise FMUError(f"{source_label(source)}: {message}, but the data pair them at this step: pass "
                            f'--positions "{",".join(pairing[0])}" --velocities "{",".join(pairing[1])}"')
-    if getattr(selection, "linked", False) and not isinstance(verdict, Repair):
+    if (getattr(selection, "linked", False) or structure) and not isinstance(verdict, Repair):
         # the FMU itself declares each velocity the derivative of its position: the step is what fails
-        warnings.warn(f"{source_label(source)}: {message}, though the FMU declares each velocity the derivative of its "
-                      f"position: the step dt={float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above "
-                      "half the sampling rate); record at a smaller --dt", FmuOpinfWarning, stacklevel=3)
+        declares = ("declares each velocity the derivative of its position" if not structure else
+                    "pairs them in its model structure (der(position) depends on its velocity alone)")
+        warnings.warn(f"{source_label(source)}: {message}, though the FMU {declares}: the step dt="
+                      f"{float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above half the sampling "
+                      "rate); record at a smaller --dt", FmuOpinfWarning, stacklevel=3)
         return None
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
                   "the positions' rates", FmuOpinfWarning, stacklevel=3)
     return None
+
+
+def _paired_by_structure(selection: Any) -> bool:
+    """Whether the FMU's model structure pairs the positions with the velocities (``der(position)`` depends on its
+    velocity state alone) and both were recorded by that rule (not by patterns)."""
+    how = getattr(selection, "how", {})
+    return bool(selection.velocities) and how.get("positions") == how.get("velocities") == _DEPENDENCIES
 
 
 #: Positions the rate check reads at most (evenly spaced beyond): a run of 1e5 positions is not read whole.
