@@ -16,7 +16,7 @@ communication point; docs/real-fmus.md).  The others stay available (``method=``
 tolerance is the source's ``tolerance``; the absolute tolerance is that times each state's largest
 magnitude so far, floored at 1e-6 of its nominal value where that is below 1 (a nominal may tighten the floor, never
 loosen it: exporters set nominals carelessly, and a nominal of 1e9 on a state moving by 0.05 made a recording 37
-times less accurate, 3.8e-9 against 1.0e-10, tests/test_model_exchange.py).
+times less accurate, 3.8e-9 against 1.0e-10, tests/test_nominals.py).
 
 Events.  Time events: the next event time that the FMU announces in an event iteration (the one
 that ends initialization included) splits the integration there; the event iteration runs at that
