@@ -541,16 +541,20 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
 
 def _is_rom_fmu(source: Any) -> bool:
     """Whether ``source`` is an FMU that 'fmu-opinf export' wrote (time-invariant, run from its own start)."""
+    path = Path(str(source))
+    return path.suffix.lower() == ".fmu" and path.is_file() and _bundled_provenance(path) is not None
+
+
+def _bundled_provenance(path: Path) -> Any:
+    """The provenance.json that 'fmu-opinf export' bundles in a ROM FMU (parsed), or None where there is none."""
     import zipfile
 
-    path = Path(str(source))
-    if path.suffix.lower() != ".fmu" or not path.is_file():
-        return False
     try:
         with zipfile.ZipFile(path) as archive:
-            return any(name.endswith("provenance.json") for name in archive.namelist())
-    except (OSError, zipfile.BadZipFile):
-        return False
+            names = [n for n in archive.namelist() if n.endswith("provenance.json")]
+            return json.loads(archive.read(names[0])) if names else None
+    except (OSError, zipfile.BadZipFile, ValueError):
+        return None
 
 
 def _declared_units(source: Any, names: list[str]) -> list[str] | None:
@@ -660,8 +664,6 @@ def _training_end(provenance: dict[str, Any]) -> float | None:
 def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
     """Step and training end of an exported ROM FMU (default experiment, bundled provenance.json); refuses an FMU
     that 'fmu-opinf export' did not write (a full model given where the ROM belongs)."""
-    import zipfile
-
     from .sources._variables import read_description
 
     md = read_description(path)
@@ -672,15 +674,12 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
     meta: dict[str, Any] = {"rom_fmu": str(path), "rom_fmu_guid": md.guid}
     if md.defaultExperiment is not None and md.defaultExperiment.stepSize:
         meta["dt"] = float(md.defaultExperiment.stepSize)
-    with zipfile.ZipFile(path) as archive:
-        names = [n for n in archive.namelist() if n.endswith("provenance.json")]
-        if names:
-            provenance = json.loads(archive.read(names[0]))
-            if isinstance(provenance, dict):
-                meta["t_train_end"] = _training_end(provenance)
-                meta["rom_fmu_states"] = provenance.get("rom_fmu_states")
-                if isinstance(provenance.get("snapshots"), dict):
-                    meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
+    provenance = _bundled_provenance(path)
+    if isinstance(provenance, dict):
+        meta["t_train_end"] = _training_end(provenance)
+        meta["rom_fmu_states"] = provenance.get("rom_fmu_states")
+        if isinstance(provenance.get("snapshots"), dict):
+            meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
     return meta
 
 

@@ -31,8 +31,8 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal
-from ..sources import (Source, StepError, at_start_time, fixed_communication_step, open_source, warn_once,
-                       warn_other_communication_step)
+from ..sources import (Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
+                       open_source, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
@@ -760,7 +760,7 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
     if fixed:
         what = f"the FMU's fixed communication step {dt:g}"
         fix = ("; its model exchange (--interface me) has no fixed step"
-               if getattr(source.md, "modelExchange", None) is not None else
+               if offers_model_exchange(source) else
                "; no other step is possible: compare the ROM on the modes it resolves")
     else:
         what = f"--dt {dt:g}"

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError, InputSpecError
-from ..sources import Source, fixed_communication_step, open_source
+from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
 from ..sources._base import nice_floor
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
@@ -578,7 +578,7 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
     found, coarse_run = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
     if found is None:
         return coarse_run
-    offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    offers_me = offers_model_exchange(source)
     remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
               "it offers no model exchange: give --dt and --t-end")
     raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
@@ -710,7 +710,7 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     if found is None:
         return
 
-    offers_me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
+    offers_me = offers_model_exchange(source)
     remedy = "record by model exchange (--interface me) or at a smaller --dt" if offers_me else \
         "record at a smaller --dt (it offers no model exchange)"
     warnings.warn(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "

@@ -35,7 +35,8 @@ from typing import Any
 from ..errors import InputSpecError
 from ._base import Source, StepError, inputs_without, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
-from ._cosimulation import DEFAULT_TOLERANCE, FMUSource, fixed_communication_step, warn_other_communication_step
+from ._cosimulation import (DEFAULT_TOLERANCE, FMUSource, fixed_communication_step, offers_model_exchange,
+                            warn_other_communication_step)
 from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
@@ -50,6 +51,7 @@ __all__ = [
     "INTERFACES",
     "DEFAULT_TOLERANCE",
     "fixed_communication_step",
+    "offers_model_exchange",
     "warn_other_communication_step",
     "METHODS",
     "choose_interface",

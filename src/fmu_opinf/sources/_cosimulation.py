@@ -23,7 +23,7 @@ from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
                          read_description, start_value)
 
-__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step",
+__all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step"]
 
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
@@ -112,12 +112,18 @@ def _same_step(h: float, step: float) -> bool:
     return abs(h - step) <= 1e-9 * step
 
 
+def offers_model_exchange(source: Any) -> bool:
+    """Whether ``source`` is an FMU that offers model exchange (``--interface me``: fmu-opinf integrates it), the
+    fix that many co-simulation problems have."""
+    return getattr(getattr(source, "md", None), "modelExchange", None) is not None
+
+
 def _give_fixed_step(source: Any, fixed: float, option: str = "--dt") -> str:
     """The fix for a step other than the FMU's ``fixed`` communication step (said before the run and after a
     refusal)."""
-    me = getattr(getattr(source, "md", None), "modelExchange", None) is not None
     return (f"leave {option} out or give {option} {fixed:g}"
-            + (" (or drive its model exchange, --interface me, whose step is free)" if me else ""))
+            + (" (or drive its model exchange, --interface me, whose step is free)" if offers_model_exchange(source)
+               else ""))
 
 
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
@@ -390,7 +396,7 @@ class FMUSource(Source):
         co-simulation FMU are typical of an explicit (Euler) step that is unstable at this step size.
         """
         if "non-finite" in message and self.interface == "cs":
-            other = ("drive its model exchange (--interface me)" if self.md.modelExchange is not None
+            other = ("drive its model exchange (--interface me)" if offers_model_exchange(self)
                      else "pass a smaller --dt")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
                     f"that is unstable at this step: {other}")
@@ -675,8 +681,7 @@ class FMUSource(Source):
             return (f"{self.path.name} asked to terminate the simulation in fmi3DoStep at {self._at(t)} -> {t + h:g}"
                     f"{told}; record a shorter run (--t-end below {rel:g})")
         last = float(self._flags[1])
-        me = getattr(self.md, "modelExchange", None) is not None
-        fix = ("drive its model exchange (--interface me)" if me else
+        fix = ("drive its model exchange (--interface me)" if offers_model_exchange(self) else
                "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
         return (f"{self.path.name} returned early from fmi3DoStep at {self._at(t)} -> {t + h:g} (lastSuccessfulTime "
                 f"{last:.9g}), although early return was not allowed: the FMU breaks FMI 3.0 and its samples would "
@@ -689,9 +694,8 @@ class FMUSource(Source):
         if fixed is not None and not _same_step(h, fixed):
             return f": it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}"
         if fixed is not None:
-            me = getattr(self.md, "modelExchange", None) is not None
             return ": the FMU rejects its own fixed communication step" + (
-                "; drive its model exchange (--interface me)" if me else "; it offers no model exchange to use instead")
+                "; drive its model exchange (--interface me)" if offers_model_exchange(self) else "; it offers no model exchange to use instead")
         return f": give a smaller --dt, e.g. {nice_floor(h / 2):g}"
 
     # -- stepping ---------------------------------------------------------------------------
