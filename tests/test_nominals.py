@@ -97,3 +97,8 @@ def test_scaled_velocity_states_are_repaired_without_blaming_a_guess():
     assert "times 1e+04" in verdict.reason and "scaled states" in verdict.reason and "guess" not in verdict.reason
     # the same data unscaled: consistent
     assert check_rates(reference.x, reference.v, None, 0.05, names, False, derivatives, declared=True) is None
+    # unscaled at a step too coarse for the motion (0.4 off per step): the step's problem, no repair
+    coarse_t = np.arange(0.0, 60.0, 0.7)
+    coarse = lti_fmus.zoh_response(MODEL, coarse_t, np.where((coarse_t > 1.0) & (coarse_t < 3.0), 1.0, 0.0)[None, :])
+    verdict = check_rates(coarse.x, coarse.v, None, 0.7, names, False, derivatives, declared=True)
+    assert isinstance(verdict, str) and verdict.startswith("velocities do not match the positions"), verdict
