@@ -4,6 +4,7 @@ and repaired) and FMUs without outputs, against exact matrix-exponential respons
 descriptions are rewritten as other exporters write them."""
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -400,6 +401,38 @@ def test_a_damaged_fmu_is_one_line_and_leaves_no_extracted_folder(tmp_path, monk
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "damaged.fmu cannot be unpacked" in err[0] and "again" in err[0]
     assert not list(scratch.iterdir()) and not (tmp_path / "x.h5").exists()
+
+
+def _unpacked_folder_in_a_worker(path: str) -> str:
+    """Open an FMU in a worker process, make it unpack, return the folder and leave it to the exit."""
+    from fmu_opinf.source import open_source
+
+    source = open_source(path, interface="cs")
+    folder = source._extracted()
+    assert Path(folder).is_dir()
+    _unpacked_folder_in_a_worker.kept = source  # alive until the worker ends, as in a demo case's worker
+    return folder
+
+
+def test_an_fmu_opened_in_a_worker_process_leaves_no_unpacked_folder(tmp_path):
+    """The demo runs each model in a forked worker, which ends by ``os._exit``: the folders its FMU sources
+    unpacked to were left in the temporary directory (two per ``fmu-opinf demo``, found 2026-11-27).  And a
+    folder the parent unpacked before the fork is the parent's: the worker's end must not remove it."""
+    import threading
+
+    from fmu_opinf._forked import Worker
+    from fmu_opinf.source import open_source
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Unpacked"), tmp_path / "unpacked.fmu")
+    parent = open_source(str(built.path), interface="cs")
+    parents_folder = parent._extracted()
+    worker = Worker("[w] ", _unpacked_folder_in_a_worker, str(built.path), lock=threading.Lock())
+    try:
+        folder = worker.result()
+    finally:
+        worker.stop()
+    assert folder != parents_folder and not Path(folder).exists()
+    assert Path(parents_folder).is_dir()
 
 
 def test_a_script_without_main_guard_records_in_a_child_process(tmp_path):

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import ctypes
 import math
+import multiprocessing.util
 import os
 import shutil
 import tempfile
-import weakref
 import zipfile
 import zlib
 from pathlib import Path
@@ -491,7 +491,11 @@ class FMUSource(Source):
                 raise FMUError(f"{self.path.name} cannot be unpacked ({type(exc).__name__}: {exc}); the file is "
                                "damaged or incomplete: copy or export the FMU again") from None
             self._unzipdir = folder
-            weakref.finalize(self, shutil.rmtree, self._unzipdir, True)
+            # multiprocessing's finalizer, not weakref.finalize: it also runs when a worker process of
+            # multiprocessing ends (they leave by os._exit, past atexit), and a forked child never runs the
+            # finalizers it inherited, so it cannot remove its parent's folder
+            multiprocessing.util.Finalize(self, shutil.rmtree, args=(folder,), kwargs={"ignore_errors": True},
+                                          exitpriority=0)
         return self._unzipdir
 
     def _fmpy_class(self) -> tuple[type, dict[str, Any]]:
