@@ -190,6 +190,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refit-output-map", action="store_true",
                    help="let the refinement re-fit the output map to the ROM's own trajectory (variable projection; "
                         "much more accurate on some models, less on others: see fmu_opinf.inference, default off)")
+    p.add_argument("--output-weighting", choices=["per-output", "lumped"], default="per-output",
+                   help="how the refinement weighs several outputs: each relative to its own size (default), or all "
+                        "relative to their common size as eq. (19) does (see fmu_opinf.inference)")
     p.add_argument("--no-lstsq-candidate", dest="least_squares_candidate", action="store_false",
                    help="keep the refined SDP solution even where the mechanical realization of the unconstrained "
                         "least-squares fit has the smaller training output error (see fmu_opinf.inference)")
@@ -259,7 +262,7 @@ def _run_fit(args: argparse.Namespace) -> None:
                        integrator=args.integrator, refine="auto" if args.refine else False,
                        refine_iterations=args.refine_iterations, refit_output_map=args.refit_output_map,
                        least_squares_candidate=args.least_squares_candidate,
-                       max_memory=args.max_memory)
+                       output_weighting=args.output_weighting, max_memory=args.max_memory)
     info = rom.fit_info
     extra = [name for name, term in (info.get("terms") or {}).items() if term.get("fitted")]
     print(f"wrote {args.output}: r={rom.r} ({info.get('basis_kind')} basis), fit {info.get('method')} "

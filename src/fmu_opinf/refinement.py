@@ -29,7 +29,7 @@ from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, m
 from ._progress import Progress
 from .errors import DimensionError
 
-__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "zero_order_hold_step"]
+__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "output_scales", "zero_order_hold_step"]
 
 def newmark_step_map(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +83,19 @@ _WHITEN_FROM = 40
 
 #: How the refinement computes its gradient (``gradient`` of :func:`refine_output_error`).
 _GRADIENTS = ("auto", "modal", "dense")
+
+#: How the outputs are weighed against each other in the refinement's objective (:func:`output_scales`).
+OUTPUT_WEIGHTINGS = ("per-output", "lumped")
+
+#: RMS, relative to the largest output's, below which an output is weighted as if it were that large
+#: (:func:`output_scales`).
+OUTPUT_FLOOR = 1e-3
+
+#: Training objective (relative squared output error) at or below which the start already reproduces the data
+#: and is returned unrefined: 1e-10 in relative amplitude, the accuracy of a recording at the default tolerance.
+#: Below it the L-BFGS fits the recording's round-off; with each output relative to its own size, that moved an
+#: exact 12-mode model's small output from 3e-13 to 9e-11 of its variation (2026-11-27).
+REPRODUCED = 1e-20
 
 
 class _EquationResidual:
@@ -465,11 +478,12 @@ def refine_output_error(
     window: int = 25, polish_iterations: int = 0, refit_output_map: bool = False, integrator: str = "newmark",
     state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
     progress: bool = False, gradient: str = "auto", progress_label: str = "output-error refinement",
-    spare_core: bool = False,
+    spare_core: bool = False, output_weighting: str = "per-output",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
-    Minimizes ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs simulated with the
+    Minimizes ``sum_j sum_i (Cpr q_i + Cvr q'_i - y_i)_j^2 / (p ||y_j||^2)`` (the mean over the ``p`` outputs of
+    each one's relative squared error; ``output_weighting``) over the training runs simulated with the
     classical Newmark step (:func:`newmark_step_map`) or the exact hold step (:func:`zero_order_hold_step`) from
     each run's recorded initial state, over
     ``Mr = LM LM^T, Dr = LD LD^T, Kr = LK LK^T`` and ``Br`` (L-BFGS, adjoint gradient): the operators stay
@@ -542,6 +556,11 @@ def refine_output_error(
         up to three outputs) and the step map has separated eigenvalues and a well-conditioned eigenvector
         basis.  Both give the same objective and gradient up to rounding.  With ``refit_output_map`` or
         ``state_weight`` the states are needed: always dense.
+    output_weighting : {"per-output", "lumped"}, default="per-output"
+        ``"per-output"``: each output's error relative to its own size (:func:`output_scales`), so that larger
+        outputs do not buy their accuracy with a small one's (module docstring of :mod:`fmu_opinf.inference`,
+        *Outputs of different size*); ``"lumped"``: all outputs' errors relative to ``||y||``, the measure of
+        eq. (19).  The same with one output.
     spare_core : bool, default=False
         A second core is free (:func:`fmu_opinf.inference.fit_operators` says so when no second start runs beside
         this one, from ``SIDE_BY_SIDE_FROM`` = 15 on: below, the hand-over costs more than it gains): the modal
@@ -552,9 +571,11 @@ def refine_output_error(
     -------
     Mr, Dr, Kr, Br : ndarray
     report : dict
-        ``objective_start``, ``objective`` (relative squared output error on the training runs), ``iterations``,
+        ``objective_start``, ``objective`` (relative squared output error on the training runs, per output as
+        ``output_weighting`` says), ``iterations``,
         ``evaluations``, ``seconds``, ``coordinates`` (``"modal"`` or ``"given"``), ``status`` (``"converged"``,
-        ``"stagnated"``, ``"iteration limit"``, ``"line search failed"`` or ``"kept start"``), ``history``
+        ``"stagnated"``, ``"iteration limit"``, ``"line search failed"``, ``"kept start"`` or ``"exact start"``:
+        the start reproduced the data, objective at most :data:`REPRODUCED`), ``history``
         (objective after each L-BFGS iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map``
         (``(Cpr, Cvr)``, when refitted) and, when polishing, ``polish`` (objective and damping of each accepted
         Levenberg-Marquardt step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and at the end).
@@ -570,7 +591,7 @@ def refine_output_error(
     if not equation_weight >= 0:
         raise ValueError(f"equation_weight={equation_weight} must be >= 0")
     Cpr, Cvr = _output_map(output_map, xdot_r, x_r, y)
-    scale_y = float(np.linalg.norm(y)) or 1.0
+    divisor = output_scales(y, output_weighting)[:, None]
     scales = np.ones(4) if unit_scales is None else np.asarray(unit_scales, dtype=float)
     T, T_inv, columns = np.eye(r), np.eye(r), None
     if whiten not in ("auto", True, False):
@@ -583,7 +604,7 @@ def refine_output_error(
         Mr, Dr, Kr, Br = T.T @ Mr @ T, T.T @ Dr @ T, T.T @ Kr @ T, T.T @ Br
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
         xddot_r = None if xddot_r is None else T_inv @ xddot_r
-    problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales)
+    problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales, output_weighting)
     problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
     problem.state_weight = float(state_weight)
     if gradient not in _GRADIENTS:
@@ -599,7 +620,7 @@ def refine_output_error(
     report = {"objective_start": value0, "objective": value0, "iterations": 0, "evaluations": 1,
               "status": "exact start", "coordinates": "modal" if whiten else "given",
               "output_map": "refitted" if refit_output_map else "fixed"}
-    if value0 > 0:
+    if value0 > REPRODUCED:
         with _helper_thread(spare_core) as problem.helper:
             x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress,
                            progress_label)
@@ -613,7 +634,7 @@ def refine_output_error(
         if report["objective"] < value0 and np.linalg.eigvalsh(mats[0])[0] > 0:
             Mr, Dr, Kr, Br = (*mats, Bs / scales[3])
             if refit_output_map:
-                C = problem.C * scale_y  # p = T^-1 q: the map of q is C T^-1
+                C = problem.C * divisor  # p = T^-1 q: the map of q is C T^-1
                 report["refitted_map"] = (C[:, :r] @ T_inv, C[:, r:] @ T_inv)
         else:
             report["status"] = "kept start"
@@ -638,11 +659,12 @@ def output_error_objective(
     Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray] | None = None, run_lengths: list[int] | None = None,
-    integrator: str = "newmark",
+    integrator: str = "newmark", output_weighting: str = "per-output",
 ) -> float:
     """The training objective of :func:`refine_output_error` for any model, structured or not.
 
-    ``sum_i ||Cpr q_i + Cvr q'_i - y_i||^2 / ||y||^2`` over the training runs, each simulated from its recorded
+    ``sum_j sum_i (Cpr q_i + Cvr q'_i - y_i)_j^2 / s_j^2`` (``s`` from :func:`output_scales`) over the training
+    runs, each simulated from its recorded
     initial state with the classical Newmark step (``integrator="newmark"``) or the exact step under the held
     input (``"exact"``, :func:`zero_order_hold_step`).  ``Mr, Dr, Kr`` may be any real matrices with ``Mr`` and
     the Newmark matrix invertible (e.g. the unconstrained least-squares fit), so candidates of different structure
@@ -655,7 +677,7 @@ def output_error_objective(
     """
     k = x_r.shape[1]
     problem = _training_problem(xdot_r, x_r, u, y, dt, _output_map(output_map, xdot_r, x_r, y),
-                                _run_lengths(run_lengths, k, dt), np.ones(4))
+                                _run_lengths(run_lengths, k, dt), np.ones(4), output_weighting)
     step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
     Ad, Bd = step.Ad, step.Bd
     with np.errstate(over="ignore", invalid="ignore"):
@@ -684,16 +706,39 @@ def _output_map(output_map: tuple[np.ndarray, np.ndarray] | None, xdot_r: np.nda
     return output_map
 
 
+def output_scales(y: np.ndarray, output_weighting: str = "per-output") -> np.ndarray:
+    """The divisor of each output row in the refinement's objective (:func:`refine_output_error`).
+
+    ``"per-output"``: ``sqrt(p) ||y_j||``, each output relative to its own size, so that the objective is the mean
+    over the ``p`` outputs of their relative squared errors and a small output (a far-end displacement beside
+    large ones) is fitted as well as the large ones.  An output below :data:`OUTPUT_FLOOR` of the largest one
+    (in RMS) is weighted as if it had that size: a near-silent output is mostly the recording's round-off.
+    ``"lumped"``: ``||y||`` for every row (the objective of eq. (19), the form before 2026-11-27).  With one
+    output both are ``||y||``.
+    """
+    if output_weighting not in OUTPUT_WEIGHTINGS:
+        raise ValueError(f"output_weighting={output_weighting!r} is not known; use one of "
+                         f"{', '.join(map(repr, OUTPUT_WEIGHTINGS))}")
+    y = np.atleast_2d(y)
+    if output_weighting == "lumped" or y.shape[0] == 1:
+        return np.full(y.shape[0], float(np.linalg.norm(y)) or 1.0)
+    norms = np.array([float(np.linalg.norm(row)) for row in y])
+    if not norms.max() > 0:
+        return np.ones(y.shape[0])
+    return np.sqrt(y.shape[0]) * np.maximum(norms, OUTPUT_FLOOR * norms.max())
+
+
 def _training_problem(xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float,
                       output_map: tuple[np.ndarray, np.ndarray], lengths: list[int],
-                      scales: np.ndarray) -> _Trajectories:
-    """The runs split at ``lengths``, the output target and the map divided by ``||y||`` (relative objective)."""
-    scale_y = float(np.linalg.norm(y)) or 1.0
+                      scales: np.ndarray, output_weighting: str) -> _Trajectories:
+    """The runs split at ``lengths``, the output target and the map's rows divided by :func:`output_scales`
+    (relative objective)."""
+    divisor = output_scales(y, output_weighting)[:, None]
     cuts = np.cumsum([0] + lengths)
     z = np.vstack([x_r, xdot_r])
     return _Trajectories(
         z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
-        target=[y[:, a:b] / scale_y for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack(output_map) / scale_y,
+        target=[y[:, a:b] / divisor for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack(output_map) / divisor,
         dt=float(dt), scales=scales)
 
 

@@ -782,6 +782,7 @@ def fit_rom(
     refine_iterations: int | None = None,
     refit_output_map: bool = False,
     least_squares_candidate: bool = True,
+    output_weighting: str = "per-output",
     quiet: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> SecondOrderROM:
@@ -837,6 +838,10 @@ def fit_rom(
         and keep whichever of the two refined models has the smaller training output error
         (:mod:`fmu_opinf.inference`, *Least-squares candidate*).  The chosen realization lives in modal coordinates
         (:attr:`SecondOrderROM.coordinates`).  False keeps the refined SDP solution.
+    output_weighting : {"per-output", "lumped"}, default="per-output"
+        How the refinement weighs several outputs: each relative to its own size, so that a small output is
+        fitted as well as the large ones, or all relative to ``||y||`` as eq. (19) measures them
+        (:mod:`fmu_opinf.inference`, *Outputs of different size*).
     quiet : bool, default=True
         False: print one labelled line per stage (POD, SDP start, SDP result) on stderr, as the CLI does.
     log : callable, optional
@@ -896,7 +901,8 @@ def fit_rom(
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=method,
                         mass_trace=mass_trace, tol=tol, normalization=normalization, solver=solver,
                         refit_output_map=refit_output_map, least_squares_candidate=least_squares_candidate,
-                        refine_iterations=refine_iterations, progress=not quiet, **refinement)
+                        refine_iterations=refine_iterations, progress=not quiet,
+                        output_weighting=output_weighting, **refinement)
     if ops.output_map is not None:
         Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and lowpass is None else 0)):
@@ -929,7 +935,7 @@ def fit_rom(
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
                 "refine_iterations": refine_iterations, "refit_output_map": refit_output_map,
-                "least_squares_candidate": least_squares_candidate}
+                "least_squares_candidate": least_squares_candidate, "output_weighting": output_weighting}
     return SecondOrderROM(
         ops.Mr, ops.Dr, ops.Kr, Br, Cpr, Cvr,
         basis=pod.basis_ if keep_basis else None, basis_kind=pod.kind_,
