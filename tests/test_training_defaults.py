@@ -254,3 +254,34 @@ def test_display_units_reach_the_exported_fmu_where_their_unit_defines_them(tmp_
     described = {v.name: v for v in read_model_description(str(tmp_path / "rom.fmu"), validate=True).modelVariables}
     assert [(described[name].unit, described[name].displayUnit) for name in ("F", "y[1]", "y[2]")] == \
         [("N", "kN"), ("m", "mm"), ("m/s", None)]
+
+
+def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, capsys):
+    """A force input declared with ``max`` (here through its declared type, ``Force`` with max 30): the default
+    training impulse is lowered to it, since a Dymola FMU refuses values outside ``[min, max]`` (seventh audit,
+    2026-11-27: the default recording stopped at the first pulse, 'the value 65.45 of input 0 is outside its
+    range [-50, 50]').  A run the user gives beyond it gets a line naming the bound and an amplitude within it."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.cli import main
+    from fmu_opinf.snapshots import Snapshots
+    from fmu_opinf.source import open_source
+
+    def edit(text: str) -> str:
+        text = text.replace("</UnitDefinitions>", '</UnitDefinitions>\n  <TypeDefinitions>\n    <SimpleType '
+                            'name="Force"><Real unit="N" min="-30" max="30"/></SimpleType>\n  </TypeDefinitions>')
+        return text.replace('<Real unit="N" start="0.0"/>', '<Real declaredType="Force" start="0.0"/>')  # input F
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Bounded"), tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "bounded.fmu", edit)
+    for name, window in (("given", ["--dt", "0.1", "--t-end", "30"]), ("auto", [])):
+        assert main(["snapshots", str(fmu), "-o", str(tmp_path / f"{name}.h5"), *window]) == 0
+        assert "(amplitude 30 on F: the most its declared max allows)" in capsys.readouterr().err
+        run = Snapshots.load(tmp_path / f"{name}.h5").runs[0]
+        assert run.attrs["input_spec"].startswith("impulse:amplitude=30,")
+        assert 29.0 < np.max(run.u) <= 30.0 and np.min(run.u) >= 0.0
+    source = open_source(str(fmu), interface="cs")
+    U = np.array([[0.0], [45.0], [80.0]])
+    hint = source.failure_hint(U, 1)
+    assert hint == ("; input F is 45 there, above its declared max 30: give an input within [-30, 30] (this one "
+                    "reaches 80; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")

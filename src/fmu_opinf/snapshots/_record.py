@@ -16,6 +16,7 @@ import functools
 import json
 import math
 import os
+import re
 import sys
 import time as _time
 import warnings
@@ -30,10 +31,11 @@ import numpy as np
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
-from ..signals import NoInput, Signal, StackedSignal
+from ..signals import NoInput, Signal, StackedSignal, parse_signal
 from ..sources import (Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
+from ..sources._variables import pulse_amplitude
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
@@ -513,17 +515,41 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
     return signal
 
 
-def default_training_inputs(m: int, impulse: str = DEFAULT_TRAINING_INPUT) -> list[str]:
+def default_training_inputs(m: int, impulse: str = DEFAULT_TRAINING_INPUT,
+                            amplitudes: Sequence[float] | None = None) -> list[str]:
     """The training runs recorded without ``--input``: the free response for a model without inputs, else one
     run per input, each driving that input alone with ``impulse`` (default :data:`DEFAULT_TRAINING_INPUT`;
-    ``none`` on the others).
+    ``none`` on the others), at ``amplitudes[i]`` on input ``i`` where given (:func:`default_amplitudes`).
 
     One impulse on every input at once would make the inputs indistinguishable in the data: the fitted ``Br``
     then has equal columns (audit 2026-11-26: eight inputs, max eps_y 9.1 on independent test inputs).
     """
     if m == 0:
         return ["none"]
-    return [";".join(impulse if j == i else "none" for j in range(m)) for i in range(m)]
+    pulses = [impulse if amplitudes is None else _with_amplitude(impulse, amplitudes[i]) for i in range(m)]
+    return [";".join(pulses[i] if j == i else "none" for j in range(m)) for i in range(m)]
+
+
+def _with_amplitude(impulse: str, amplitude: float) -> str:
+    return re.sub(r"amplitude=[^,]*", f"amplitude={amplitude:g}", impulse)
+
+
+def default_amplitudes(source: Source) -> list[float]:
+    """The default impulse's amplitude on each input, lowered where the input declares a ``max`` below it (a
+    Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force input with ``max=50`` stopped the
+    default recording at its first pulse).  The pulse rises from the input's value when undriven where that is
+    above 0, so the room is ``max`` minus that."""
+    default = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitude"])
+    _, high = source.input_ranges()
+    rest = np.maximum(source.input_starts(), 0.0)
+    return [pulse_amplitude(float(h - base), default) for h, base in zip(high, rest)]
+
+
+def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
+    """What the default training says about amplitudes lowered to the inputs' declared ``max``; "" if none."""
+    default = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitude"])
+    lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != default]
+    return f" (amplitude {', '.join(lowered)}: the most its declared max allows)" if lowered else ""
 
 
 def _undriven_held(signal: Any, source: Source) -> Any:
@@ -699,12 +725,14 @@ def record_to_file(
                          interface=interface, tolerance=tolerance, start_time=start_time, **size_options)
     by_default = not specs
     if not specs:
-        specs = default_training_inputs(source.m)
+        amplitudes = default_amplitudes(source)
+        specs = default_training_inputs(source.m, amplitudes=amplitudes)
         if not quiet:
+            lowered = _lowered_amplitudes(source, amplitudes)
             what = ("the free response from the start state (the model has no inputs)" if not source.m
-                    else f"the impulse training input {DEFAULT_TRAINING_INPUT}" if source.m == 1
-                    else f"one run per input, each driving that input alone with the impulse {DEFAULT_TRAINING_INPUT} "
-                         "(the others held at their start values)")
+                    else f"the impulse training input {DEFAULT_TRAINING_INPUT}{lowered}" if source.m == 1
+                    else f"one run per input, each driving that input alone with the impulse {DEFAULT_TRAINING_INPUT}"
+                         f"{lowered} (the others held at their start values)")
             print(f"no --input given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
     if not quiet and hasattr(source, "selection_text"):
@@ -792,10 +820,14 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                 f"width={default['width'] * factor:g}")
 
     factor, tries = 1.0, {"wider": 0, "narrower": 0}
+    amplitudes = default_amplitudes(source)
+    scales = [a / default["amplitude"] for a in amplitudes]
     while True:
         pulse = impulse(factor)
-        signals = [as_signal(spec, source.m, source) for spec in default_training_inputs(source.m, pulse)]
-        pilot = _pilot_signal([impulse(factor, weight) for weight in _pilot_weights(source.m)], source)
+        signals = [as_signal(spec, source.m, source)
+                   for spec in default_training_inputs(source.m, pulse, amplitudes)]
+        pilot = _pilot_signal([impulse(factor, weight * scale)
+                               for weight, scale in zip(_pilot_weights(source.m), scales)], source)
         width = input_activity(signals[0], source.m)[1]
 
         def too_wide(window: Any) -> bool:

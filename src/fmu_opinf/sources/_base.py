@@ -184,6 +184,11 @@ class Source:
         """Values the inputs hold when not driven (``--input none``): zeros unless the source knows better."""
         return np.zeros(self.m)
 
+    def input_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds the inputs may take (an FMU's declared ``min`` / ``max``), infinite where none
+        is known."""
+        return np.full(self.m, -np.inf), np.full(self.m, np.inf)
+
     def provenance(self) -> dict[str, Any]:
         """Where the data come from (source kind, path, checksums, ...)."""
         raise NotImplementedError

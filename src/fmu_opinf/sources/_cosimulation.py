@@ -20,8 +20,8 @@ from ..fmus import BASE_UNITS
 from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
-from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, nonzero_start,
-                         read_description, start_value)
+from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
+                         nonzero_start, pulse_amplitude, read_description, start_value)
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step"]
@@ -389,6 +389,15 @@ class FMUSource(Source):
             out.append(float(values[element.offset]) if values is not None else start_value(element))
         return np.array(out, dtype=float)
 
+    def input_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """The force inputs' declared ``[min, max]`` (their variable's or its declared type's), in the recorded
+        sign; infinite where none is declared."""
+        bounds = [declared_range(column.element) for column in self._write.columns]
+        signed = [sorted((lo * column.sign, hi * column.sign)) if column.sign < 0 else (lo, hi)
+                  for (lo, hi), column in zip(bounds, self._write.columns)]
+        return (np.array([b[0] for b in signed], dtype=float).reshape(-1),
+                np.array([b[1] for b in signed], dtype=float).reshape(-1))
+
     def failure_hint(self, U: np.ndarray, step: int, message: str = "") -> str:
         """Why a step may have failed.
 
@@ -400,6 +409,9 @@ class FMUSource(Source):
                      else "pass a smaller --dt")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
                     f"that is unstable at this step: {other}")
+        outside = self._outside_range(U, step)
+        if outside:
+            return outside
         if not self.driven_parameter_like_names or U is None or not len(U):
             return ""
         row = U[min(max(step, 0), len(U) - 1)]
@@ -411,6 +423,20 @@ class FMUSource(Source):
         also = f" (and {', '.join(others)}, which start at non-zero values too)" if others else ""
         return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
                 f"as inputs?): exclude them{also} with {fix} and give their values with --set")
+
+    def _outside_range(self, U: np.ndarray | None, step: int) -> str:
+        """A hint naming the first input the run takes outside its declared range, with the fix; "" if none."""
+        if U is None or not len(U) or not self.m:
+            return ""
+        lo, hi = self.input_ranges()
+        row = U[min(max(step, 0), len(U) - 1)]
+        for j in np.flatnonzero((row < lo) | (row > hi)):
+            peak = float(np.max(np.abs(U[:, j])))
+            bound = f"above its declared max {hi[j]:g}" if row[j] > hi[j] else f"below its declared min {lo[j]:g}"
+            return (f"; input {self.input_names[j]} is {row[j]:.6g} there, {bound}: give an input within "
+                    f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g}; e.g. --input "
+                    f"'impulse:amplitude={pulse_amplitude(min(hi[j], -lo[j]), peak):g},t0=2,width=0.5')")
+        return ""
 
     def provenance(self) -> dict[str, Any]:
         from .._hdf5 import sha256_of

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import re
 import warnings
 import xml.etree.ElementTree as ET
@@ -250,6 +251,7 @@ class ModelInfo:
         self.fmi3 = self.fmi_version.startswith("3")
         node = root.find("ModelVariables")
         self._type_units = _type_attribute(root, "unit")
+        self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max")}
         self._type_display_units = _type_attribute(root, "displayUnit")
         #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
         self.aliases: dict[str, str] = {}
@@ -282,7 +284,8 @@ class ModelInfo:
                            causality=sv.get("causality", "local"),
                            variability=sv.get("variability", "continuous" if kind == "Real" else "discrete"),
                            initial=sv.get("initial"), start=attrs.get("start"), derivative=attrs.get("derivative"),
-                           negated=sv.get("alias") == "negatedAlias", min=attrs.get("min"), max=attrs.get("max"),
+                           negated=sv.get("alias") == "negatedAlias", min=self._bound(attrs, "min"),
+                           max=self._bound(attrs, "max"),
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
                            display_unit=self._display_unit(attrs))
             out.append(var)
@@ -291,6 +294,10 @@ class ModelInfo:
                 index = int(var.derivative)
                 var.derivative = out[index - 1].name if 0 < index <= len(out) else None
         return out
+
+    def _bound(self, attrs: Any, key: str) -> str | None:
+        """A variable's ``min`` or ``max``: its own, else its declared type's."""
+        return attrs.get(key) or self._type_bounds[key].get(attrs.get("declaredType", ""))
 
     def _read3(self, node: ET.Element) -> list[Variable]:
         out, dim_refs = [], []
@@ -303,7 +310,7 @@ class ModelInfo:
                                 variability=el.get("variability", "continuous" if el.tag.startswith("Float")
                                                    else "discrete"),
                                 initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
-                                min=el.get("min"), max=el.get("max"),
+                                min=self._bound(el.attrib, "min"), max=self._bound(el.attrib, "max"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
                                 display_unit=self._display_unit(el.attrib)))
             dim_refs.append(refs)
@@ -1036,6 +1043,28 @@ def start_value(element: Element) -> float:
         return float(text)
     except ValueError:
         return 0.0
+
+
+def declared_range(element: Element) -> tuple[float, float]:
+    """The element's declared ``[min, max]`` as floats (infinite where not declared or not a number)."""
+    def number(text: str | None, default: float) -> float:
+        try:
+            value = float(text) if text is not None else default
+        except ValueError:
+            return default
+        return value if not math.isnan(value) else default
+
+    return number(element.var.min, -math.inf), number(element.var.max, math.inf)
+
+
+def pulse_amplitude(high: float, default: float) -> float:
+    """The largest pulse amplitude up to ``default`` whose pulse, rising from 0, stays at or below ``high`` (an
+    input's declared ``max``), written with at most six significant digits; ``default`` where ``high`` leaves
+    no room (not above 0) or is not below it."""
+    if not 0 < high < default:
+        return default
+    value = float(f"{high:g}")
+    return value if value <= high else float(f"{high * (1 - 1e-5):g}")
 
 
 def nonzero_start(element: Element) -> bool:
