@@ -207,3 +207,28 @@ def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
         options = _training_settings(info, "model.fmu", {"parameters": {"x_start": "[0,1,0]", "damping": "2"}})
     assert options["parameters"] == {"n": "3", "x_start": "[0,1,0]", "damping": "2"}
     assert _training_settings(info, "model.fmu", None)["parameters"] == {"n": "3", "x_start": "[0,1,0]"}
+
+
+def test_many_outputs_draw_the_worst_few_and_say_so(tmp_path):
+    """200 outputs (seventh audit: an 880 x 48510 pixel figure, a 35 MB page, 60 s of drawing): the outputs figure
+    shows the twelve with the largest error relative to their own peak, in their order, and says so; the page
+    still lists every output's errors."""
+    import matplotlib.image
+
+    p, t = 200, np.linspace(0.0, 10.0, 501)
+    scale = np.logspace(-3, 3, p)[:, None]  # sizes of 1e-3 .. 1e3: the ranking is relative, not absolute
+    y_fom = scale * np.sin(t)[None]
+    off = np.zeros(p)
+    worst = [3, 17, 50, 51, 88, 99, 120, 150, 160, 177, 190, 199]
+    off[worst] = np.linspace(0.05, 0.2, len(worst))
+    off[[0, 60, 130]] = 0.01  # off, but less than the twelve
+    y_rom = y_fom * (1.0 - off[:, None])
+    comparison = compare.Comparison(t=t, y_fom=y_fom, y_rom=y_rom, output_names=[f"y{j}" for j in range(p)],
+                                    input_spec="harmonic:amplitude=1,omega=1", fom_seconds=1.0, rom_seconds=0.1, r=4)
+    assert compare.plotted_outputs(comparison) == worst
+    compare.write_report(comparison, tmp_path / "report")
+    image = matplotlib.image.imread(tmp_path / "report" / "outputs.png")
+    assert image.shape[0] <= (2.2 * 12 + 1.0) * 110 + 1   # twelve panels at 110 dpi, not two hundred
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert all(f"<tr><th>y{j}</th><td>relative L2" in page for j in range(p))
+    assert (tmp_path / "report" / "index.html").stat().st_size < 3e6

@@ -688,6 +688,23 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------
 
 
+#: Output panels the outputs figure draws at most: with more outputs, those with the largest error relative to
+#: their own peak (seventh audit, 2026-11-27: 200 outputs gave an 880 x 48510 pixel figure, a 35 MB report page
+#: and 60 s of drawing; every output's errors stay in metrics.json and in the page's table).
+MAX_OUTPUT_PANELS = 12
+
+
+def plotted_outputs(comparison: Comparison) -> list[int]:
+    """Indices of the outputs the outputs figure shows: all of them up to :data:`MAX_OUTPUT_PANELS`, else that
+    many with the largest max error relative to their own peak, in their order."""
+    p = comparison.y_fom.shape[0]
+    if p <= MAX_OUTPUT_PANELS:
+        return list(range(p))
+    peak = np.maximum(np.abs(comparison.y_fom).max(axis=1), 1e-300)
+    relative = np.nan_to_num(np.abs(comparison.y_fom - comparison.y_rom).max(axis=1) / peak, nan=np.inf)
+    return sorted(np.argsort(-relative, kind="stable")[:MAX_OUTPUT_PANELS].tolist())
+
+
 def _figure_outputs(comparison: Comparison, path: Path) -> None:
     import matplotlib
 
@@ -697,9 +714,10 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     from .plots import fixed_margins
 
     p = comparison.y_fom.shape[0]
+    shown = plotted_outputs(comparison)
     units = comparison.output_units or [""] * p
-    fig, axes = plt.subplots(p, 1, figsize=(8, 2.2 * p + 1.0), sharex=True, squeeze=False)
-    for j, ax in enumerate(axes[:, 0]):
+    fig, axes = plt.subplots(len(shown), 1, figsize=(8, 2.2 * len(shown) + 1.0), sharex=True, squeeze=False)
+    for j, ax in zip(shown, axes[:, 0]):
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
         ax.set_ylabel(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else ""))
@@ -709,7 +727,8 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     # the legend sits above the axes, where it cannot cover a curve
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
-    fig.suptitle(f"Outputs, input {comparison.input_spec}", y=1.0 - 0.3 / fig.get_figheight())
+    which = "" if len(shown) == p else f" ({len(shown)} of {p} outputs: the largest errors relative to their peak)"
+    fig.suptitle(f"Outputs, input {comparison.input_spec}{which}", y=1.0 - 0.3 / fig.get_figheight())
     fixed_margins(fig, left=0.95, bottom=0.5, top=0.75)
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
