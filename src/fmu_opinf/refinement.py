@@ -150,6 +150,7 @@ class _Trajectories:
     equation_weight: float = 0.0  # exponent of the acceleration residual in the log objective
     gradient: str = "auto"  # "modal" (through the eigenvalues), "dense" (stepping states) or "auto" (modal if it can)
     helper: Executor | None = None  # a thread on a spare core for the modal gradient's output simulation
+    unreached: float = 0.0  # the target's part outside the range of a compressed map (_training_problem)
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -166,7 +167,7 @@ class _Trajectories:
         gM, gD, gK, gB = step.operator_gradients(grad_A, grad_B)
         grads = [(((g + g.T) @ L) * c / scale).ravel()
                  for g, L, c, scale in zip((gM, gD, gK), (LM, LD, LK), columns, (sa, sv, sx))]
-        return value, np.concatenate(grads + [(gB / su).ravel()])
+        return value + self.unreached, np.concatenate(grads + [(gB / su).ravel()])
 
 
     def _step_map_gradient(self, Ad: np.ndarray, Bd: np.ndarray, r: int) -> tuple[float, np.ndarray, np.ndarray]:
@@ -358,7 +359,7 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
 
     Returns the last iterate and the ``(objective, damping)`` of each accepted step."""
     e, J = _residuals_and_jacobian(problem, x, r, m)
-    value = float(e @ e)
+    value = float(e @ e) + problem.unreached  # the objective of problem.loss
     steps: list[tuple[float, float]] = []
     mu = None
     for _ in range(iterations):
@@ -604,7 +605,8 @@ def refine_output_error(
         Mr, Dr, Kr, Br = T.T @ Mr @ T, T.T @ Dr @ T, T.T @ Kr @ T, T.T @ Br
         Cpr, Cvr, x_r, xdot_r = Cpr @ T, Cvr @ T, T_inv @ x_r, T_inv @ xdot_r
         xddot_r = None if xddot_r is None else T_inv @ xddot_r
-    problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales, output_weighting)
+    problem = _training_problem(xdot_r, x_r, u, y, dt, (Cpr, Cvr), lengths, scales, output_weighting,
+                                compress=not refit_output_map)
     problem.columns, problem.free_output_map, problem.integrator = columns, bool(refit_output_map), integrator
     problem.state_weight = float(state_weight)
     if gradient not in _GRADIENTS:
@@ -685,6 +687,7 @@ def output_error_objective(
         for z_data, inputs, target in zip(problem.z, problem.u, problem.target):
             err = problem.C @ propagate(Ad, Bd @ inputs, z_data[:, 0], _STRIDE) - target
             value += float(np.sum(err * err))
+    value += problem.unreached
     return value if np.isfinite(value) else float("inf")
 
 
@@ -730,16 +733,32 @@ def output_scales(y: np.ndarray, output_weighting: str = "per-output") -> np.nda
 
 def _training_problem(xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float,
                       output_map: tuple[np.ndarray, np.ndarray], lengths: list[int],
-                      scales: np.ndarray, output_weighting: str) -> _Trajectories:
+                      scales: np.ndarray, output_weighting: str, compress: bool = True) -> _Trajectories:
     """The runs split at ``lengths``, the output target and the map's rows divided by :func:`output_scales`
-    (relative objective)."""
+    (relative objective); with ``compress`` (a fixed map), more outputs than states are reduced to as many
+    (:func:`_compressed_outputs`)."""
     divisor = output_scales(y, output_weighting)[:, None]
     cuts = np.cumsum([0] + lengths)
     z = np.vstack([x_r, xdot_r])
+    targets = [y[:, a:b] / divisor for a, b in zip(cuts[:-1], cuts[1:])]
+    C, unreached = np.hstack(output_map) / divisor, 0.0
+    if compress and C.shape[0] > C.shape[1]:
+        C, targets, unreached = _compressed_outputs(C, targets)
     return _Trajectories(
         z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
-        target=[y[:, a:b] / divisor for a, b in zip(cuts[:-1], cuts[1:])], C=np.hstack(output_map) / divisor,
-        dt=float(dt), scales=scales)
+        target=targets, C=C, dt=float(dt), scales=scales, unreached=unreached)
+
+
+def _compressed_outputs(C: np.ndarray, targets: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray], float]:
+    """``p`` outputs of a fixed map ``C`` (``p`` larger than the ``2r`` states) reduced to ``2r``: with ``C = Q R``
+    (``Q`` orthonormal columns), ``||C z - t||^2 = ||R z - Q^T t||^2 + ||t - Q Q^T t||^2`` for every ``z``, the
+    last term a constant.  Each evaluation of the objective then costs ``O(k r^2)`` instead of ``O(k p r)``, and
+    the targets take ``2r`` rows instead of ``p`` (seventh audit, 2026-11-27: 200 outputs, r = 5, 172,000
+    samples: the refinement took 113 s and 2.3 GB).  Exact: no difference of squares is formed."""
+    Q, R = np.linalg.qr(C)
+    reduced = [Q.T @ t for t in targets]
+    unreached = sum(float(np.sum((t - Q @ q) ** 2)) for t, q in zip(targets, reduced))
+    return R, reduced, unreached
 
 
 def _modal_coordinates(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
