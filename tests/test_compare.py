@@ -1,6 +1,7 @@
 """compare and the report: error measures against independent computations, files, bad input."""
 
 import json
+import re
 import shutil
 import subprocess
 import warnings
@@ -232,3 +233,23 @@ def test_many_outputs_draw_the_worst_few_and_say_so(tmp_path):
     page = (tmp_path / "report" / "index.html").read_text()
     assert all(f"<tr><th>y{j}</th><td>relative L2" in page for j in range(p))
     assert (tmp_path / "report" / "index.html").stat().st_size < 3e6
+
+
+def test_constant_outputs_give_valid_json_and_say_so(tmp_path):
+    """An output that is zero and one that is constant beside a moving one (seventh audit: metrics.json held bare
+    NaN, which JSON parsers refuse, and the page printed 'nan'): null in the file, a word on the page, and the
+    absolute error of each output."""
+    t = np.linspace(0.0, 10.0, 201)
+    y_fom = np.vstack([np.sin(t), np.zeros_like(t), np.full_like(t, 4.5)])
+    y_rom = np.vstack([0.9 * np.sin(t), np.full_like(t, 1e-3), np.full_like(t, 4.5)])
+    comparison = compare.Comparison(t=t, y_fom=y_fom, y_rom=y_rom, output_names=["y", "unused", "mass"],
+                                    input_spec="harmonic:amplitude=1,omega=1", fom_seconds=1.0, rom_seconds=0.1, r=2)
+    compare.write_report(comparison, tmp_path / "report")
+    text = (tmp_path / "report" / "metrics.json").read_text()
+    metrics = json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in metrics.json"))
+    unused, mass = metrics["per_output"]["unused"], metrics["per_output"]["mass"]
+    assert unused["relative_max"] is None and unused["absolute_max"] == pytest.approx(1e-3)
+    assert mass["relative_max_variation"] is None and mass["relative_max"] == 0.0
+    assert metrics["per_output"]["y"]["relative_max"] == pytest.approx(0.1, rel=1e-3)
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert not re.search(r"\bnan\b", page) and "none (the output is constant)" in page

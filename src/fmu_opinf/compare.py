@@ -67,7 +67,8 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         ``max_error_variation`` (eq. 19 with each reference output's time mean removed from the scale:
         ``max_t ||y_ref - y||^2 / max_t ||y_ref - mean_t y_ref||^2``) and ``per_output``: for each output its
         relative L2 error, its max absolute error relative to the output's peak and relative to its variation
-        (``relative_max_variation``, peak minus trough).  Eq. (19) is the paper's measure; the figures relative to the
+        (``relative_max_variation``, peak minus trough; NaN where the output is zero or constant, null in
+        metrics.json) and its max absolute error (``absolute_max``).  Eq. (19) is the paper's measure; the figures relative to the
         variation show errors that a large static offset (``y0``, a static deflection) would hide (second audit,
         2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
     """
@@ -84,6 +85,7 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
             "relative_l2": float(np.linalg.norm(diff) / np.linalg.norm(y_ref[j])) if peak > 0 else math.nan,
             "relative_max": float(np.abs(diff).max() / peak) if peak > 0 else math.nan,
             "relative_max_variation": float(np.abs(diff).max() / span) if span > 0 else math.nan,
+            "absolute_max": float(np.abs(diff).max()),
         }
     moving = y_ref - y_ref.mean(axis=1, keepdims=True)
     scale = float(np.max(np.sum(moving**2, axis=0)))
@@ -835,7 +837,7 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
             _atomic_write_bytes(out_dir / png.name, png.read_bytes())
         all_figures = {**figures, **(extra_figures or {})}
         page = _html_page(comparison, metrics, all_figures)
-    _atomic_write_bytes(out_dir / "metrics.json", json.dumps(metrics, indent=2).encode())
+    _atomic_write_bytes(out_dir / "metrics.json", json.dumps(_json_numbers(metrics), indent=2, allow_nan=False).encode())
     _atomic_write_bytes(out_dir / "index.html", page.encode())
     return out_dir / "index.html"
 
@@ -845,7 +847,21 @@ def _html_table(rows: list[tuple[str, Any]]) -> str:
     return f"<table>{cells}</table>"
 
 
+def _json_numbers(value: Any) -> Any:
+    """``value`` with every non-finite float as None (JSON's null): a constant output has no relative error, and a
+    bare NaN is not JSON (seventh audit: metrics.json of a model with a constant output failed to parse)."""
+    if isinstance(value, dict):
+        return {k: _json_numbers(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_numbers(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def _fmt(value: Any) -> str:
+    if isinstance(value, float) and math.isnan(value):
+        return "none (the output is constant)"
     if isinstance(value, float):
         return f"{value:.3e}" if (value != 0 and (abs(value) < 1e-2 or abs(value) >= 1e4)) else f"{value:.4g}"
     return str(value)
@@ -869,7 +885,8 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
                          f"max_t |y|) {_fmt(v['relative_max'])}; relative to its range (max_t |y - y_r| / "
-                         f"(max_t y - min_t y)) {_fmt(v.get('relative_max_variation', math.nan))}")
+                         f"(max_t y - min_t y)) {_fmt(v.get('relative_max_variation', math.nan))}; absolute max "
+                         f"{_fmt(v.get('absolute_max', math.nan))}")
                   for name, v in metrics["per_output"].items()]
     headline.insert(2, ("max over time of eps_y relative to the outputs' variation (time mean removed from the "
                         "scale)", _fmt(metrics.get("max_error_variation", math.nan))))
