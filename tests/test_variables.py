@@ -203,6 +203,20 @@ def test_parameters_exposed_as_inputs_are_held_unless_named(tmp_path):
     assert resolve_variables(path, inputs="none").forces == []
 
 
+def test_ports_keep_the_declared_order_with_numbered_groups_in_natural_order(tmp_path):
+    """Per-body ports as block-diagram exports declare them (seventh audit, 2026-11-27: inputs F_mass1, F_ext,
+    F_mass3 became F_ext, F_mass1, F_mass3 and outputs x1, v1, x3, v3 became x1, x3, v1, v3 on the exported ROM
+    FMU, so a master wiring it by position swapped signals); a group a tool sorted by name (y[1], y[10], y[2])
+    still fills its places in natural order."""
+    v = [_sv("F_mass1", 0, "input", body='<Real start="0"/>'), _sv("F_ext", 1, "input", body='<Real start="0"/>'),
+         _sv("F_mass3", 2, "input", body='<Real start="0"/>')]
+    v += [_sv(name, 10 + i, "output") for i, name in enumerate(["x1", "v1", "x3", "v3", "y[1]", "y[10]", "y[2]"])]
+    v += [_sv("x[1]", 30), _sv("v[1]", 31)]
+    resolved = resolve_variables(_write(tmp_path, _fmi2(v, [])))
+    assert _names(resolved.forces) == ["F_mass1", "F_ext", "F_mass3"]
+    assert _names(resolved.outputs) == ["x1", "v1", "x3", "v3", "y[1]", "y[2]", "y[10]"]
+
+
 # ------------------------------------------------------------------------------- FMI 3 arrays
 
 
@@ -515,13 +529,13 @@ def test_float32_variables_are_read_and_written_by_a_call_of_their_own(tmp_path)
         '<Float32 name="f" valueReference="16" causality="input" variability="continuous" start="0"/>'
         '<Float64 name="k"')
     resolved = resolve_variables(_write(tmp_path, xml))
-    assert _names(resolved.outputs) == ["y[1]", "y[2]", "s"] and _names(resolved.forces) == ["f", "u[1]", "u[2]"]
+    assert _names(resolved.outputs) == ["y[1]", "y[2]", "s"] and _names(resolved.forces) == ["u[1]", "u[2]", "f"]  # port order
     assert _names(resolve_variables(_write(tmp_path, xml), outputs="s,y[2]").outputs) == ["s", "y[2]"]
     plan = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.outputs], resolved.structural)
     assert plan.vrs.tolist() == [13] and plan.nvalues == 2 and plan.vrs32.tolist() == [15] and plan.nvalues32 == 1
     assert plan.gather.tolist() == [0, 1, 2] and not plan.identity
     inputs = ReadPlan(resolved.model, [Column(e, 1.0) for e in resolved.forces], resolved.structural)
-    assert inputs.vrs.tolist() == [12] and inputs.vrs32.tolist() == [16] and inputs.gather.tolist() == [2, 0, 1]
+    assert inputs.vrs.tolist() == [12] and inputs.vrs32.tolist() == [16] and inputs.gather.tolist() == [0, 1, 2]
 
 
 def test_float32_arrays_mixed_with_float64_arrays_have_their_own_offsets(tmp_path):

@@ -885,9 +885,8 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     """
     inputs = [e for e in elements.values() if e.var.causality == "input" and not e.alias]
     if patterns is None:
-        forces = sorted((e for e in inputs if e.var.is_real and e.var.variability == "continuous"
-                         and e.var.name not in given and not nonzero_start(e)),
-                        key=lambda e: natural_key(e.name))
+        forces = port_order([e for e in inputs if e.var.is_real and e.var.variability == "continuous"
+                             and e.var.name not in given and not nonzero_start(e)])
     elif patterns.strip().lower() in ("", "none"):
         forces = []
     else:
@@ -904,7 +903,24 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         _refuse_twice(forces, model)
     chosen = {_value_key(e) for e in forces}   # an alias named in --inputs drives its variable
     held = (e for e in inputs if _value_key(e) not in chosen and e.var.type != "Clock")  # a clock is never set
-    return forces, sorted(held, key=lambda e: natural_key(e.name))
+    return forces, sorted(held, key=lambda e: natural_key(e.name))  # held: not ports of the ROM
+
+
+def port_order(declared: list[Element]) -> list[Element]:
+    """The ports in the order the FMU declares them, except that names differing only in numbers (``y[3]``,
+    ``y1``, ``sensor[2].f``) fill the places of their group in natural order (tools that sort variables by name
+    put ``y[10]`` before ``y[2]``).  Groups stay interleaved as declared: per-body ports ``x1, v1, x3, v3`` keep
+    that order (seventh audit, 2026-11-27: they became ``x1, x3, v1, v3``, and inputs ``F_mass1, F_ext,
+    F_mass3`` became ``F_ext, F_mass1, F_mass3``, so a master wiring the exported ROM FMU by position swapped
+    signals)."""
+    places: dict[str, list[int]] = {}
+    for i, e in enumerate(declared):
+        places.setdefault(_numbers_masked(e.name), []).append(i)
+    ordered = list(declared)
+    for indices in places.values():
+        for i, e in zip(indices, sorted((declared[i] for i in indices), key=lambda e: natural_key(e.name))):
+            ordered[i] = e
+    return ordered
 
 
 def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
@@ -932,19 +948,17 @@ def _numbers_masked(name: str) -> str:
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
-    """Outputs: default every real output, groups of names that differ only in numbers (``y[3]``, ``y1``,
-    ``sensor[2].f``) in the order the FMU declares them (its port order), each group in natural order (tools that sort variables by name
-    put ``y[10]`` before ``y[2]``); patterns match real variables, in the order of the patterns.
+    """Outputs: default every real output in the FMU's port order (:func:`port_order`); patterns match real
+    variables, in the order of the patterns.
 
     Before 2026-11-26 the default was the natural order of all names, which moved ``forceSensor[*]`` declared
-    after ``y[*]`` in front of them: a master wiring the exported ROM FMU's ports by position swapped signals.
+    after ``y[*]`` in front of them; until 2026-11-27 groups of numbered names were pulled together (``x1, v1,
+    x3, v3`` became ``x1, x3, v1, v3``): either way a master wiring the exported ROM FMU's ports by position
+    swapped signals.
     """
     if patterns is None:
-        declared = [e for e in elements.values() if e.var.causality == "output" and e.var.is_real and not e.alias]
-        groups: dict[str, int] = {}
-        for e in declared:
-            groups.setdefault(_numbers_masked(e.name), len(groups))
-        return sorted(declared, key=lambda e: (groups[_numbers_masked(e.name)], natural_key(e.name)))
+        return port_order([e for e in elements.values()
+                           if e.var.causality == "output" and e.var.is_real and not e.alias])
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
