@@ -285,3 +285,31 @@ def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, caps
     hint = source.failure_hint(U, 1)
     assert hint == ("; input F is 45 there, above its declared max 30: give an input within [-30, 30] (this one "
                     "reaches 80; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")
+
+
+def test_the_rom_fmu_s_inputs_start_where_the_source_s_do(tmp_path):
+    """A force input preloaded at 10 N (start="10"): the exported ROM FMU declares the same start value and holds
+    it until an importer sets the input, so an unconnected input behaves as on the source (seventh audit,
+    2026-11-27: the ROM FMU started it at 0 and, left unconnected, oscillated by 190 % of the static deflection
+    while the source stayed at rest).  Reference: the model's exact response to the held 10 N from rest."""
+    import fmpy
+    from conftest import rewrite_description
+
+    from fmu_opinf.cli import main
+
+    model = lti_fmus.chain_model(name="Preloaded")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "preloaded.fmu",
+                              lambda text: text.replace('<Real unit="N" start="0.0"/>', '<Real unit="N" start="10"/>'))
+    train, rom, out = tmp_path / "train.h5", tmp_path / "rom.h5", tmp_path / "rom.fmu"
+    assert main(["snapshots", str(fmu), "-o", str(train), "--inputs", "F", "--dt", "0.1", "--t-end", "60", "-q"]) == 0
+    assert main(["fit", str(train), "-o", str(rom), "--r", str(model.M.shape[0]), "-q"]) == 0
+    assert main(["export", str(rom), "-o", str(out), "-q"]) == 0
+    described = {v.name: v for v in fmpy.read_model_description(str(out)).modelVariables}
+    assert float(described["F"].start) == 10.0
+    result = fmpy.simulate_fmu(str(out), stop_time=30.0, output_interval=0.1, fmi_type="CoSimulation",
+                               output=["y[1]", "y[2]"])  # F never set
+    t = np.round(np.arange(301) * 0.1, 12)
+    exact = lti_fmus.zoh_response(model, t, np.full((1, t.size - 1), 10.0)).y
+    simulated = np.vstack([result["y[1]"], result["y[2]"]])
+    assert np.abs(simulated - exact).max() < 3e-14 * np.abs(exact).max()  # measured 9.7e-15

@@ -14,6 +14,12 @@
 
 static const double parameterDefaults[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_DEFAULTS;
 
+/* start values of the inputs (the source FMU's, for an exported ROM); zeros unless the configuration says */
+#ifndef INPUT_STARTS
+#define INPUT_STARTS { 0.0 }
+#endif
+static const double inputStarts[ARRAY_LENGTH(N_INPUTS)] = INPUT_STARTS;
+
 /* ------------------------------------------------------------------- logging */
 
 static void logFormatted(const ModelInstance *instance, Status status, const char *category,
@@ -192,8 +198,8 @@ static void resetDynamicState(ModelInstance *instance) {
         instance->current.parameters[i] = parameterDefaults[i];
     }
     for (i = 0; i < ARRAY_LENGTH(N_INPUTS); i++) {
-        instance->current.u[i] = 0.0;
-        instance->current.uApplied[i] = 0.0;
+        instance->current.u[i] = inputStarts[i];
+        instance->current.uApplied[i] = inputStarts[i];
     }
     for (i = 0; i < ARRAY_LENGTH(N_OUTPUTS); i++) {
         instance->y[i] = 0.0;

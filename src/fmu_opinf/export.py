@@ -10,9 +10,11 @@ the kernel steps a real modal (2 x 2 block-diagonal) form of the step map, O(r) 
 outputs through the transformed output matrix and ``q, q', q''`` rebuilt only when read, if that form
 reproduces the step map to 1e-12 (:func:`fmu_opinf._recursion.modal_form`); otherwise, and at other
 step sizes, it solves as before.
-Inputs and outputs keep the source FMU's names and order; each input starts at 0, whatever the source FMU
-declares: the recording drives every force input from 0 (and warns where an FMU's input starts elsewhere), so 0
-is the input the ROM's start state was learned with.  Optional extra outputs
+Inputs and outputs keep the source FMU's names and order, and each input the source FMU's start value (0 where it
+declares none): an input the importer leaves unconnected holds the same value on both, so the ROM FMU is a
+drop-in (seventh audit, 2026-11-27: a force input preloaded with 10 N left unconnected kept the source at rest and
+made the ROM FMU, which started its input at 0, oscillate by 190 % of the static deflection).  The recording
+drives force inputs from 0 (and warns where an FMU's input starts elsewhere); the ROM, linear, follows either.  Optional extra outputs
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
 modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
@@ -433,6 +435,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance),
         input_display_units=_recorded_units(provenance, "input_display_units", m),
+        input_starts=_recorded_input_starts(provenance, m),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
     )
 
@@ -498,6 +501,20 @@ def _recorded_units(provenance: dict, key: str, count: int) -> list[str]:
     snapshots = provenance.get("snapshots")
     snapshots = snapshots if isinstance(snapshots, dict) else {}
     return _units(snapshots.get(key), count)
+
+
+def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:
+    """The source's input start values as recorded with the training snapshots (None where none were recorded,
+    or they do not fit: the inputs then start at 0)."""
+    snapshots = provenance.get("snapshots")
+    recorded = snapshots.get("input_starts") if isinstance(snapshots, dict) else None
+    if not isinstance(recorded, list) or len(recorded) != count:
+        return None
+    try:
+        values = [float(v) for v in recorded]
+    except (TypeError, ValueError):
+        return None
+    return values if all(math.isfinite(v) for v in values) else None
 
 
 def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:

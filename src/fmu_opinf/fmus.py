@@ -153,6 +153,8 @@ class SecondOrderFmuSpec:
     input_display_units, output_display_units : list of str, default=None
         ``displayUnit`` of each input and output (``""``: none); declared only where ``unit_definitions``
         defines that display unit for the variable's unit (as FMI requires), left out otherwise.
+    input_starts : list of float, default=None
+        Start value of each input (the value it holds until an importer sets it); default zeros.
     """
 
     identifier: str
@@ -179,6 +181,7 @@ class SecondOrderFmuSpec:
     unit_definitions: dict[str, dict] | None = None
     input_display_units: list[str] | None = None
     output_display_units: list[str] | None = None
+    input_starts: list[float] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -190,6 +193,9 @@ class SecondOrderFmuSpec:
         if min(self.n, self.p) < 1 or min(self.m, self.nc) < 0:
             raise FmuBuildError(f"sizes n={self.n}, m={self.m}, p={self.p}, nc={self.nc} are "
                                 "invalid; n, p must be >= 1 and m, nc >= 0")
+        if self.input_starts is not None and (len(self.input_starts) != self.m or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) for v in self.input_starts)):
+            raise FmuBuildError(f"input_starts {self.input_starts!r} must be {self.m} finite numbers, one per input")
         if self.constraint not in _CONSTRAINT_CODES:
             raise FmuBuildError(f"constraint {self.constraint!r} is unknown; use None, "
                                 "'position' or 'velocity'")
@@ -459,8 +465,10 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     output_units = spec.output_units or [""] * spec.p
     input_display = _display_units(spec, input_units, spec.input_display_units)
     output_display = _display_units(spec, output_units, spec.output_display_units)
-    rows = [_Variable(name, vr, "input", description=held, start=0.0, unit=unit, display_unit=display)
-            for name, vr, unit, display in zip(spec.input_names, refs["u"], input_units, input_display)]
+    starts = spec.input_starts or [0.0] * spec.m
+    rows = [_Variable(name, vr, "input", description=held, start=float(start), unit=unit, display_unit=display)
+            for name, vr, unit, display, start in zip(spec.input_names, refs["u"], input_units, input_display,
+                                                      starts)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
     rows += [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
              for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
@@ -711,7 +719,10 @@ def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
     lines += [f"#define {name} {int(value)}" for name, value in spec.defines.items()]
     lines += [f"#define PAR_{p.name.upper()} {i}" for i, p in enumerate(spec.parameters)]
     defaults = ", ".join(repr(float(p.default)) for p in spec.parameters) or "0.0"
-    lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}", "", "#endif /* CONFIG_H */", ""]
+    lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}"]
+    if spec.input_starts is not None and spec.m:
+        lines += [f"#define INPUT_STARTS {{ {', '.join(repr(float(v)) for v in spec.input_starts)} }}"]
+    lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
 
 

@@ -367,6 +367,9 @@ class FMUSource(Source):
         if any(self.input_display_units) or any(self.output_display_units):
             desc["input_display_units"] = list(self.input_display_units)
             desc["output_display_units"] = list(self.output_display_units)
+        starts = self.input_starts()
+        if np.any(starts != 0):   # the exported ROM FMU's inputs start there too
+            desc["input_starts"] = [float(v) for v in starts]
         position_units = {c.element.var.unit or "" for c in self.selection.positions}
         if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
             desc["position_unit"] = next(iter(position_units))
