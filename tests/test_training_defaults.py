@@ -313,3 +313,24 @@ def test_the_rom_fmu_s_inputs_start_where_the_source_s_do(tmp_path):
     exact = lti_fmus.zoh_response(model, t, np.full((1, t.size - 1), 10.0)).y
     simulated = np.vstack([result["y[1]"], result["y[2]"]])
     assert np.abs(simulated - exact).max() < 3e-14 * np.abs(exact).max()  # measured 9.7e-15
+
+
+def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, capsys):
+    """The only force input starts at a non-zero value, so it is held like a parameter, and the model starts at
+    rest: nothing moves (seventh audit, 2026-11-27: twelve pilots, then 'the output does not settle ... pass --dt
+    and --t-end', which would have recorded a constant).  One line says so and names --inputs F; with it the
+    recording runs."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.cli import main
+
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="AtRest"), tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "at-rest.fmu",
+                              lambda text: text.replace('<Real unit="N" start="0.0"/>', '<Real unit="N" start="10"/>'))
+    capsys.readouterr()
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("fmu-opinf: error: auto window: the outputs stay constant over t <= ")
+    assert err[-1].endswith("drive an input: --inputs F (it is held at its start value now)")
+    assert not (tmp_path / "x.h5").exists()
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5"), "--inputs", "F", "-q"]) == 0

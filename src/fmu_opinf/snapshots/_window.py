@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError, InputSpecError
+from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
 from ..sources._base import nice_floor
 from ._isolation import source_label
@@ -739,6 +740,8 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         if failure is not None:
             raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
+    if y.size and not np.any(np.ptp(y, axis=1) > 1e-12 * max(float(np.abs(y).max()), 1e-300)):
+        raise DataError(_motionless(source, signal, t))
     envelope = _Envelope.of(t, y, fade, t_input)
     t_fade, peak = _fade_from(t, envelope, fade)
     if peak == 0.0:
@@ -754,6 +757,21 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     resolved = (t[-1] - t[free]) * f_min if f_min > 0 else 0.0
     return _Pilot(t_fade=t_fade, peak=peak, f_max=f_max, f_min=f_min, resolved_periods=float(resolved),
                   fade_estimate=_fade_estimate(t, envelope, fade))
+
+
+def _motionless(source: Source, signal: Any, t: np.ndarray) -> str:
+    """Why a pilot whose outputs stay constant cannot choose a window, and what to do (seventh audit, 2026-11-27:
+    a model at rest at its equilibrium, its only input held as a parameter-like preload, went through twelve
+    pilots to 'the output does not settle ... pass --dt and --t-end', which would record a constant)."""
+    held = list(getattr(source, "held_input_names", []) or [])
+    what = (f"the outputs stay constant over t <= {t[-1]:g} (the model rests at an equilibrium and nothing "
+            "moves it), so no window can be chosen and a recording would teach the fit nothing")
+    if isinstance(signal, NoInput) or not source.m:
+        fix = (f"drive an input: --inputs {held[0]} (it is held at its start value now)" if held
+               else "start the model away from its equilibrium (--set a start value) or give it an input")
+    else:
+        fix = "give an input that reaches the outputs (its amplitude, its channel)"
+    return f"auto window: {what}; {fix}"
 
 
 #: Outputs whose range is below this fraction of the largest one keep their size: a channel of round-off or
