@@ -288,18 +288,20 @@ def read_attrs(obj: h5py.HLObject) -> dict[str, Any]:
     return out
 
 
-def jsonable(value: Any) -> Any:
-    """Plain JSON types for nested dicts/lists of numpy scalars and arrays (non-finite floats as text)."""
+def jsonable(value: Any, non_finite_as_null: bool = False) -> Any:
+    """Plain JSON types for nested dicts/lists of numpy scalars and arrays: non-finite floats as text (``"nan"``),
+    or as None (JSON's null) with ``non_finite_as_null``, for files other programs parse (a bare NaN is not
+    JSON)."""
     if isinstance(value, dict):
-        return {str(k): jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v, non_finite_as_null) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [jsonable(v) for v in value]
+        return [jsonable(v, non_finite_as_null) for v in value]
     if isinstance(value, np.ndarray):
-        return jsonable(value.tolist())
+        return jsonable(value.tolist(), non_finite_as_null)
     if isinstance(value, np.generic):
-        return jsonable(value.item())
+        return jsonable(value.item(), non_finite_as_null)
     if isinstance(value, float) and not np.isfinite(value):
-        return str(value)
+        return None if non_finite_as_null else str(value)
     if isinstance(value, (str, int, float, bool)) or value is None:
         return value
     return str(value)

@@ -837,7 +837,10 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
             _atomic_write_bytes(out_dir / png.name, png.read_bytes())
         all_figures = {**figures, **(extra_figures or {})}
         page = _html_page(comparison, metrics, all_figures)
-    _atomic_write_bytes(out_dir / "metrics.json", json.dumps(_json_numbers(metrics), indent=2, allow_nan=False).encode())
+    # a constant output has no relative error: null, since a bare NaN is not JSON (seventh audit: metrics.json
+    # of a model with a constant output failed to parse)
+    _atomic_write_bytes(out_dir / "metrics.json",
+                        json.dumps(jsonable(metrics, non_finite_as_null=True), indent=2, allow_nan=False).encode())
     _atomic_write_bytes(out_dir / "index.html", page.encode())
     return out_dir / "index.html"
 
@@ -845,18 +848,6 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
 def _html_table(rows: list[tuple[str, Any]]) -> str:
     cells = "".join(f"<tr><th>{html.escape(str(k))}</th><td>{html.escape(str(v))}</td></tr>" for k, v in rows)
     return f"<table>{cells}</table>"
-
-
-def _json_numbers(value: Any) -> Any:
-    """``value`` with every non-finite float as None (JSON's null): a constant output has no relative error, and a
-    bare NaN is not JSON (seventh audit: metrics.json of a model with a constant output failed to parse)."""
-    if isinstance(value, dict):
-        return {k: _json_numbers(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_numbers(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _fmt(value: Any) -> str:
