@@ -638,7 +638,7 @@ from ._background import Background, can_fork_here
 from ._threads import single_threaded
 from ._sdp_paths import (FACTORED_ABOVE, factored_start, fit_compressed, fit_factored, input_matrix,
                          solve_sdp_direct)
-from .refinement import newmark_step_map, output_error_objective, output_scales, refine_output_error
+from .refinement import check_output_weighting, newmark_step_map, output_error_objective, refine_output_error
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
            "model_poles", "pole_match", "refine_output_error", "newmark_step_map", "unit_mass_least_squares",
@@ -868,7 +868,7 @@ def fit_operators(
     """
     if method not in ("auto", "sdp"):
         raise ValueError(f"method={method!r} is not known; use 'auto' or 'sdp'")
-    output_scales(np.zeros((1, 1)), output_weighting)  # an unknown weighting is refused before any work
+    check_output_weighting(output_weighting)
     if solver not in ("auto", "ipm", "clarabel", "factored"):
         raise ValueError(f"solver={solver!r} is not known; use 'auto', 'ipm', 'clarabel' or 'factored'")
     if solver == "factored" and normalization == "trace":

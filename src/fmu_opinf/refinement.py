@@ -29,7 +29,8 @@ from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, m
 from ._progress import Progress
 from .errors import DimensionError
 
-__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "output_scales", "zero_order_hold_step"]
+__all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "output_scales",
+           "check_output_weighting", "zero_order_hold_step"]
 
 def newmark_step_map(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
                      dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -151,6 +152,7 @@ class _Trajectories:
     gradient: str = "auto"  # "modal" (through the eigenvalues), "dense" (stepping states) or "auto" (modal if it can)
     helper: Executor | None = None  # a thread on a spare core for the modal gradient's output simulation
     unreached: float = 0.0  # the target's part outside the range of a compressed map (_training_problem)
+    divisor: np.ndarray | None = None  # (p, 1): what the outputs and the map's rows were divided by
 
     def loss(self, params: np.ndarray, r: int, m: int) -> tuple[float, np.ndarray]:
         """``sum_runs ||C z_sim - target||^2`` and its gradient in the factors (adjoint method).
@@ -592,7 +594,6 @@ def refine_output_error(
     if not equation_weight >= 0:
         raise ValueError(f"equation_weight={equation_weight} must be >= 0")
     Cpr, Cvr = _output_map(output_map, xdot_r, x_r, y)
-    divisor = output_scales(y, output_weighting)[:, None]
     scales = np.ones(4) if unit_scales is None else np.asarray(unit_scales, dtype=float)
     T, T_inv, columns = np.eye(r), np.eye(r), None
     if whiten not in ("auto", True, False):
@@ -636,7 +637,7 @@ def refine_output_error(
         if report["objective"] < value0 and np.linalg.eigvalsh(mats[0])[0] > 0:
             Mr, Dr, Kr, Br = (*mats, Bs / scales[3])
             if refit_output_map:
-                C = problem.C * divisor  # p = T^-1 q: the map of q is C T^-1
+                C = problem.C * problem.divisor  # p = T^-1 q: the map of q is C T^-1
                 report["refitted_map"] = (C[:, :r] @ T_inv, C[:, r:] @ T_inv)
         else:
             report["status"] = "kept start"
@@ -709,6 +710,13 @@ def _output_map(output_map: tuple[np.ndarray, np.ndarray] | None, xdot_r: np.nda
     return output_map
 
 
+def check_output_weighting(output_weighting: str) -> None:
+    """Refuse an ``output_weighting`` that is not one of :data:`OUTPUT_WEIGHTINGS`."""
+    if output_weighting not in OUTPUT_WEIGHTINGS:
+        raise ValueError(f"output_weighting={output_weighting!r} is not known; use one of "
+                         f"{', '.join(map(repr, OUTPUT_WEIGHTINGS))}")
+
+
 def output_scales(y: np.ndarray, output_weighting: str = "per-output") -> np.ndarray:
     """The divisor of each output row in the refinement's objective (:func:`refine_output_error`).
 
@@ -719,9 +727,7 @@ def output_scales(y: np.ndarray, output_weighting: str = "per-output") -> np.nda
     ``"lumped"``: ``||y||`` for every row (the objective of eq. (19), the form before 2026-11-27).  With one
     output both are ``||y||``.
     """
-    if output_weighting not in OUTPUT_WEIGHTINGS:
-        raise ValueError(f"output_weighting={output_weighting!r} is not known; use one of "
-                         f"{', '.join(map(repr, OUTPUT_WEIGHTINGS))}")
+    check_output_weighting(output_weighting)
     y = np.atleast_2d(y)
     if output_weighting == "lumped" or y.shape[0] == 1:
         return np.full(y.shape[0], float(np.linalg.norm(y)) or 1.0)
@@ -746,7 +752,7 @@ def _training_problem(xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.
         C, targets, unreached = _compressed_outputs(C, targets)
     return _Trajectories(
         z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
-        target=targets, C=C, dt=float(dt), scales=scales, unreached=unreached)
+        target=targets, C=C, dt=float(dt), scales=scales, unreached=unreached, divisor=divisor)
 
 
 def _compressed_outputs(C: np.ndarray, targets: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray], float]:

@@ -31,7 +31,7 @@ from .errors import DimensionError, InputSpecError
 
 __all__ = [
     "Signal", "ParametricSignal", "TableSignal", "StackedSignal", "NoInput",
-    "impulse", "harmonic", "step", "chirp", "table", "parse_signal",
+    "impulse", "harmonic", "step", "chirp", "table", "parse_signal", "pulse_amplitude",
 ]
 
 
@@ -320,3 +320,13 @@ def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
 
 def _stack(parts: list[Signal]) -> Signal:
     return parts[0] if len(parts) == 1 else StackedSignal(parts)
+
+
+def pulse_amplitude(high: float, default: float) -> float:
+    """The largest pulse amplitude up to ``default`` whose pulse, rising from 0, stays at or below ``high`` (an
+    input's declared ``max``), written with at most six significant digits; ``default`` where ``high`` leaves
+    no room (not above 0) or is not below it."""
+    if not 0 < high < default:
+        return default
+    value = float(f"{high:g}")
+    return value if value <= high else float(f"{high * (1 - 1e-5):g}")

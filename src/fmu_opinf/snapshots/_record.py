@@ -31,11 +31,10 @@ import numpy as np
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
-from ..signals import NoInput, Signal, StackedSignal, parse_signal
+from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
 from ..sources import (Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
-from ..sources._variables import pulse_amplitude
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state

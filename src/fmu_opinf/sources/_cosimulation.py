@@ -17,11 +17,12 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 from ..fmus import BASE_UNITS
+from ..signals import pulse_amplitude
 from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         nonzero_start, pulse_amplitude, read_description, start_value)
+                         nonzero_start, read_description, start_value)
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step"]
@@ -395,11 +396,12 @@ class FMUSource(Source):
     def input_ranges(self) -> tuple[np.ndarray, np.ndarray]:
         """The force inputs' declared ``[min, max]`` (their variable's or its declared type's), in the recorded
         sign; infinite where none is declared."""
-        bounds = [declared_range(column.element) for column in self._write.columns]
-        signed = [sorted((lo * column.sign, hi * column.sign)) if column.sign < 0 else (lo, hi)
-                  for (lo, hi), column in zip(bounds, self._write.columns)]
-        return (np.array([b[0] for b in signed], dtype=float).reshape(-1),
-                np.array([b[1] for b in signed], dtype=float).reshape(-1))
+        lows, highs = [], []
+        for column in self._write.columns:
+            low, high = declared_range(column.element)
+            lows.append(-high if column.sign < 0 else low)
+            highs.append(-low if column.sign < 0 else high)
+        return np.array(lows, dtype=float), np.array(highs, dtype=float)
 
     def failure_hint(self, U: np.ndarray, step: int, message: str = "") -> str:
         """Why a step may have failed.

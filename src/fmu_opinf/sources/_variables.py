@@ -1071,16 +1071,6 @@ def declared_range(element: Element) -> tuple[float, float]:
     return number(element.var.min, -math.inf), number(element.var.max, math.inf)
 
 
-def pulse_amplitude(high: float, default: float) -> float:
-    """The largest pulse amplitude up to ``default`` whose pulse, rising from 0, stays at or below ``high`` (an
-    input's declared ``max``), written with at most six significant digits; ``default`` where ``high`` leaves
-    no room (not above 0) or is not below it."""
-    if not 0 < high < default:
-        return default
-    value = float(f"{high:g}")
-    return value if value <= high else float(f"{high * (1 - 1e-5):g}")
-
-
 def nonzero_start(element: Element) -> bool:
     """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
     return start_value(element) != 0.0
