@@ -533,21 +533,23 @@ def _with_amplitude(impulse: str, amplitude: float) -> str:
     return re.sub(r"amplitude=[^,]*", f"amplitude={amplitude:g}", impulse)
 
 
+#: Amplitude of :data:`DEFAULT_TRAINING_INPUT`.
+_DEFAULT_AMPLITUDE = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitude"])
+
+
 def default_amplitudes(source: Source) -> list[float]:
     """The default impulse's amplitude on each input, lowered where the input declares a ``max`` below it (a
     Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force input with ``max=50`` stopped the
-    default recording at its first pulse).  The pulse rises from the input's value when undriven where that is
-    above 0, so the room is ``max`` minus that."""
-    default = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitude"])
+    default recording at its first pulse).  The window's pilots add the pulse to the input's undriven value, so
+    where that is above 0 the room is ``max`` minus it."""
     _, high = source.input_ranges()
     rest = np.maximum(source.input_starts(), 0.0)
-    return [pulse_amplitude(float(h - base), default) for h, base in zip(high, rest)]
+    return [pulse_amplitude(float(h - base), _DEFAULT_AMPLITUDE) for h, base in zip(high, rest)]
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
     """What the default training says about amplitudes lowered to the inputs' declared ``max``; "" if none."""
-    default = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitude"])
-    lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != default]
+    lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != _DEFAULT_AMPLITUDE]
     return f" (amplitude {', '.join(lowered)}: the most its declared max allows)" if lowered else ""
 
 
@@ -820,7 +822,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
 
     factor, tries = 1.0, {"wider": 0, "narrower": 0}
     amplitudes = default_amplitudes(source)
-    scales = [a / default["amplitude"] for a in amplitudes]
+    scales = [a / _DEFAULT_AMPLITUDE for a in amplitudes]
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
