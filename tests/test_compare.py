@@ -232,7 +232,7 @@ def test_many_outputs_draw_the_worst_few_and_say_so(tmp_path):
     assert image.shape[0] <= (2.2 * 12 + 1.0) * 110 + 1   # twelve panels at 110 dpi, not two hundred
     page = (tmp_path / "report" / "index.html").read_text()
     assert all(f"<tr><th>y{j}</th><td>relative L2" in page for j in range(p))
-    assert (tmp_path / "report" / "index.html").stat().st_size < 3e6
+    assert (tmp_path / "report" / "index.html").stat().st_size < 1.5e6   # measured 0.57 MB
 
 
 def test_constant_outputs_give_valid_json_and_say_so(tmp_path):
