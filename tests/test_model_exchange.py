@@ -292,9 +292,10 @@ def _record_counting(source, dt: float, t_end: float):
 
 
 @pytest.mark.filterwarnings("ignore:.*too coarse for the motion")
-# bound against the exact solution: measured 1.1e-11 / 3.2e-13 at dt = 0.05, 7.0e-10 at dt = 2 (40 time units per
-# interval, tolerance 1e-10)
-@pytest.mark.parametrize("name, dt, bound", [("me-only", 0.05, 3e-11), ("fmi3-array-structural", 0.05, 1e-12),
+# bound against the exact solution: measured 1.1e-11 / 1.3e-12 at dt = 0.05, 7.0e-10 at dt = 2 (40 time units per
+# interval, tolerance 1e-10).  fmi3-array-structural starts at 0.01 and swings to -0.01: its tolerance follows the
+# deviation from the start, up to 0.02 (3.2e-13 while it followed |x|, up to 0.01)
+@pytest.mark.parametrize("name, dt, bound", [("me-only", 0.05, 3e-11), ("fmi3-array-structural", 0.05, 4e-12),
                                              ("me-only", 2.0, 2e-9)])
 def test_compiled_dop853_takes_the_steps_of_scipys_dop853(corpus, name, dt, bound, monkeypatch):
     """The C step loop is scipy's DOP853 (same tableau, error norm and step control): the number of derivative
@@ -320,7 +321,9 @@ def test_compiled_dop853_takes_the_steps_of_scipys_dop853(corpus, name, dt, boun
     assert abs(counts_py["python"] - counts_c["compiled"]) <= 0.01 * counts_c["compiled"]
     for key in ("x", "xdot", "xddot", "y"):
         a, b = np.asarray(getattr(compiled, key)), np.asarray(getattr(python, key))
-        assert np.abs(a - b).max() <= 2e-13 * np.abs(b).max(), key  # measured up to 6.4e-14
+        # measured up to 1.0e-13 (fmi3-array-structural, started at 0.01: the tolerance follows the motion from there,
+        # tight at the start, where the sums' order moves steps more; 6.4e-14 while it followed |x|)
+        assert np.abs(a - b).max() <= 3e-13 * np.abs(b).max(), key
     assert max(relative_errors(compiled, exact(name, compiled)).values()) < bound
 
 

@@ -77,7 +77,9 @@ def _snapshots(path, out, *extra) -> Snapshots:
 
 
 @pytest.mark.parametrize("version", ["2.0", "3.0"])
-@pytest.mark.parametrize("interface, bound", [("me", 5e-12), ("cs", 1e-13)])   # measured 1.5e-12, 3.7e-14
+# measured 5.7e-12 (ME: the deviation from the start state integrated, its tolerance from the motion; 1.5e-12 with
+# the tolerance from |x|, looser while the motion was smaller than x0 = 0.1; tolerance 1e-10), 3.7e-14 (CS)
+@pytest.mark.parametrize("interface, bound", [("me", 1.5e-11), ("cs", 1e-13)])
 def test_snapshots_run_the_fmu_from_its_declared_start_time(fmus, tmp_path, version, interface, bound):
     snaps = _snapshots(fmus[version], tmp_path / "s.h5", "--interface", interface)
     run = snaps.runs[0]
@@ -101,7 +103,9 @@ def test_record_t0_is_still_an_absolute_start(fmus):
     absolute = record(str(fmus["2.0"]), "impulse:amplitude=2,t0=11,width=0.4", DT, START + T_END, quiet=True,
                       t0=START).runs[0]
     assert absolute.t[0] == START and "start_time" not in absolute.attrs
-    assert np.abs(absolute.y - relative.y).max() < 4e-15 * np.abs(relative.y).max()   # measured 3.8e-16
+    # measured 5.4e-15: the grids' times differ in the last bits, which moves the integrator's steps (3.8e-16 while the
+    # tolerance followed |x|: looser at the start, fewer steps there)
+    assert np.abs(absolute.y - relative.y).max() < 1.5e-14 * np.abs(relative.y).max()
     with pytest.raises(Exception, match="give either t0"):
         record(str(fmus["2.0"]), INPUT, DT, T_END, quiet=True, t0=0.0, start_time=1.0)
 

@@ -8,6 +8,10 @@
  * error estimators of orders 5 and 3), and the step-size control is the one of that class: the same method, the
  * same error norm and the same accepted steps as the Python loop it replaces, without Python between the
  * derivative evaluations.  Only forward integration (t_bound > t) is supported.
+ *
+ * The integrated variable may be the states' deviation from a fixed origin (erk_model.origin): the FMU is then
+ * given origin + y.  Positions in global coordinates (6.4e6 m moving by millimetres) lose their motion to
+ * rounding when each step adds a few ulps to them; the deviation keeps every digit of it.
  */
 #include <math.h>
 #include <stddef.h>
@@ -39,6 +43,8 @@ typedef struct {
     const double *atol; /* n absolute tolerances */
     void *completed;    /* the FMU's CompletedIntegratorStep, called after each accepted step inside the interval */
     int fmi_version;    /* 2 or 3: how to call completed; 0: do not call it */
+    const double *origin; /* n values added to y before it is given to the FMU, or NULL (y is the state) */
+    double *absolute;     /* n doubles of scratch for origin + y */
 } erk_model;
 
 typedef struct {
@@ -70,9 +76,14 @@ static const double SAFETY = 0.9, MIN_FACTOR = 0.2, MAX_FACTOR = 10.0;
 
 static int evaluate(const erk_model *m, erk_state *st, double t, const double *y, double *f) {
     size_t i;
+    const double *x = y;
     st->evaluations++;
     st->t_failed = t;
-    if (m->set_time(m->component, t) > 1 || m->set_states(m->component, y, m->n) > 1 ||
+    if (m->origin) {
+        for (i = 0; i < m->n; i++) m->absolute[i] = m->origin[i] + y[i];
+        x = m->absolute;
+    }
+    if (m->set_time(m->component, t) > 1 || m->set_states(m->component, x, m->n) > 1 ||
         m->get_derivatives(m->component, f, m->n) > 1)
         return ERK_FMU_ERROR;
     for (i = 0; i < m->n; i++)

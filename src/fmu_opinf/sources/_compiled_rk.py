@@ -55,7 +55,8 @@ class IntegrationFailure(Exception):
 class _Model(ctypes.Structure):
     _fields_ = [("component", ctypes.c_void_p), ("set_time", ctypes.c_void_p), ("set_states", ctypes.c_void_p),
                 ("get_derivatives", ctypes.c_void_p), ("n", ctypes.c_size_t), ("rtol", ctypes.c_double),
-                ("atol", ctypes.c_void_p), ("completed", ctypes.c_void_p), ("fmi_version", ctypes.c_int)]
+                ("atol", ctypes.c_void_p), ("completed", ctypes.c_void_p), ("fmi_version", ctypes.c_int),
+                ("origin", ctypes.c_void_p), ("absolute", ctypes.c_void_p)]
 
 
 class _Tableau(ctypes.Structure):
@@ -103,7 +104,10 @@ class Kernel:
         self._completed = ctypes.cast(completed, ctypes.c_void_p).value if completed is not None else None
         self._fmi_version = int(fmi_version)
         self._atol = np.zeros(n)
-        self._model = _Model(component, *address, n, 0.0, self._atol.ctypes.data, self._completed, 0)
+        self._origin = np.zeros(n)
+        self._absolute = np.zeros(n)
+        self._model = _Model(component, *address, n, 0.0, self._atol.ctypes.data, self._completed, 0, None,
+                             self._absolute.ctypes.data)
         self._work = np.zeros((DOP853.n_stages + 4) * max(n, 1))
         self.n = n
         self.evaluations = 0
@@ -111,7 +115,7 @@ class Kernel:
 
     def integrate(self, y: np.ndarray, t0: float, t1: float, rtol: float, atol: np.ndarray, first_step: float | None,
                   check_interrupt: Any = None, completed: bool = False,
-                  one_step: bool = False) -> tuple[np.ndarray, float, float]:
+                  one_step: bool = False, origin: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
         """Integrate ``y`` from ``t0`` to ``t1``; the new state, the size of the last step taken (0: none) and the
         time reached: ``t1``, or earlier where the FMU asked for an event in ``CompletedIntegratorStep``.
 
@@ -121,12 +125,18 @@ class Kernel:
         may go on with events there).  ``one_step``: return after the first accepted step (its time).  Raises
         :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails, and when the FMU refuses the
         completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
-        try (the step grows from call to call).
+        try (the step grows from call to call).  ``origin``: ``y`` is the states' deviation from it; the FMU is given
+        ``origin + y``.
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
         self._model.rtol = max(float(rtol), 100 * np.finfo(float).eps)  # scipy's floor of the relative tolerance
         self._model.fmi_version = self._fmi_version if completed and self._completed else 0
+        if origin is None:
+            self._model.origin = None
+        else:
+            self._origin[:] = origin
+            self._model.origin = self._origin.ctypes.data
         state = _State(t0, first_step or 0.0, 0.0, t0, 0, 0, 0)
         try:
             while True:

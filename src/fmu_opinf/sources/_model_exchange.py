@@ -14,9 +14,16 @@ tolerance, DOP853's below it), also on a stiff model (a mode at 1.4e5 rad/s: 1.2
 LSODA and 153 s for BDF; the implicit methods re-estimate their Jacobian at every restart, i.e. every
 communication point; docs/real-fmus.md).  The others stay available (``method=``).  The relative
 tolerance is the source's ``tolerance``; the absolute tolerance is that times each state's largest
-magnitude so far, floored at 1e-6 of its nominal value where that is below 1 (a nominal may tighten the floor, never
-loosen it: exporters set nominals carelessly, and a nominal of 1e9 on a state moving by 0.05 made a recording 37
-times less accurate, 3.8e-9 against 1.0e-10, tests/test_nominals.py).
+deviation from its start value so far, floored at 1e-6 of its nominal value where that is below 1 (a nominal may
+tighten the floor, never loosen it: exporters set nominals carelessly, and a nominal of 1e9 on a state moving by 0.05
+made a recording 37 times less accurate, 3.8e-9 against 1.0e-10, tests/test_nominals.py).
+
+Large start values.  The integrators work on each state's deviation from its value after initialization, and the
+FMU is given ``start + deviation``.  Positions in global coordinates (6.4e6 m, moving by millimetres) keep every
+digit of their motion that way; integrating the states themselves, each step added a few ulps of 6.4e6 m, the
+tolerance followed the 6.4e6 m instead of the motion, and a 10 s recording was 2.2e-3 of the motion off (now
+1.4e-6, about ten ulps of the positions; audit 2026-11-27, X).  The absolute tolerance is never below what the FMU
+can resolve there (:meth:`ModelExchangeSource._atol`).
 
 Events.  Time events: the next event time that the FMU announces in an event iteration (the one
 that ends initialization included) splits the integration there; the event iteration runs at that
@@ -188,7 +195,11 @@ class ModelExchangeSource(FMUSource):
                           "check the results, or record with --interface cs", FmuOpinfWarning, stacklevel=2)
             self.nz = 0
         self._floor = _floor(self._nominals())
-        self._scale = np.abs(self._x)
+        self._origin, self._x = self._x, np.zeros(self.nx)   # integrated: the deviation from the start state
+        self._absolute_x = np.zeros(self.nx)
+        self._scale = np.zeros(self.nx)
+        self._resolution = np.where(self._origin != 0, np.spacing(np.abs(self._origin)), 0.0)
+        self._noise = self._rounding_noise()
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md)
         self._searching = False   # in a crossing search: no completed integrator steps
@@ -197,12 +208,45 @@ class ModelExchangeSource(FMUSource):
                                             2 if self.fmi_version.startswith("2") else 3)
                         if self.method == "dop853" and self.nx else None)
 
-    @property
-    def _atol(self) -> np.ndarray:
-        """Absolute tolerance: the relative one times each state's largest magnitude so far (at least
-        1e-6 of its nominal value where that is below 1, :func:`_floor`), so that small responses are resolved as
-        well as large ones."""
-        return self.tolerance * np.maximum(self._scale, self._floor)
+    def _atol(self, t0: float, t1: float) -> np.ndarray:
+        """Absolute tolerance over ``[t0, t1]``: the relative one times each state's largest deviation from its
+        start value so far (at least 1e-6 of its nominal value where that is below 1, :func:`_floor`), so that small
+        responses are resolved as well as large ones, also about a large start value.  No state is asked for less
+        than the FMU can tell apart: one ulp of its start value (the FMU sees ``start + deviation`` rounded), and
+        what the derivatives' rounding noise (:meth:`_rounding_noise`) adds up to over the interval.  Asked for
+        less, the steps shrink until the noise fits: a chain at 6.4e6 m took 2.7 million derivative evaluations
+        for 2 s instead of 5,400 (tests/test_global_coordinates.py)."""
+        atol = self.tolerance * np.maximum(self._scale, self._floor)
+        np.maximum(atol, self._resolution, out=atol)
+        return np.maximum(atol, (t1 - t0) * self._noise, out=atol)
+
+    def _rounding_noise(self) -> np.ndarray:
+        """How far the derivatives move when the states move by one or two ulps of their start values, the most
+        of :data:`_NOISE_TRIALS` random trials (0 where all states start at 0).  The FMU sees the states rounded to
+        those ulps and computes with values of their size: at 6.4e6 m, ``K x - f0`` cancels 1e9 N to a few N, and
+        the accelerations are noisy at 1e-6 m/s^2."""
+        noise = np.zeros(self.nx)
+        ulps = self._resolution
+        if not ulps.any():
+            return noise
+        multiples = np.random.default_rng(0).choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx))
+        t = float(self._t[0])   # the FMU's time after initialization
+        try:
+            base = self._derivatives(t, np.zeros(self.nx))
+            for row in multiples:
+                np.maximum(noise, np.abs(self._derivatives(t, row * ulps) - base), out=noise)
+        except _IntegrationError:
+            noise[:] = 0.0   # the FMU refuses states off its start: the integration will say so if it matters
+        self._set_states(np.zeros(self.nx))
+        return noise
+
+    def _absolute(self, x: np.ndarray) -> np.ndarray:
+        """The FMU's states for the deviation ``x`` from the start state (in a buffer reused by the next call)."""
+        return np.add(self._origin, x, out=self._absolute_x)
+
+    def _set_states(self, x: np.ndarray) -> int:
+        """Give the FMU the states of the deviation ``x``; the FMU's status."""
+        return self._c_set_x(self._comp, self._absolute(x).ctypes.data, self.nx)
 
     def _state_count(self) -> int:
         if self.fmi_version.startswith("2"):
@@ -320,7 +364,7 @@ class ModelExchangeSource(FMUSource):
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
-            self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
+            self._set_states(self._x)
         if self._c_time(self._comp, t) > 1:
             raise StepError(self._integration_failure(i, t0, t1, "fmiSetTime failed"), i, t1)
         return t
@@ -432,7 +476,7 @@ class ModelExchangeSource(FMUSource):
             bisect = b - a > 0.5 * widths[0] and not bisect
         self._x, self._h_last = x_b, h_last
         if self.nx:
-            self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
+            self._set_states(self._x)
         self._c_time(self._comp, b)
         self._z_end = g_b
         return b
@@ -440,7 +484,7 @@ class ModelExchangeSource(FMUSource):
     def _indicators_at(self, i: int, t: float, out: np.ndarray) -> None:
         """The event indicators at time ``t`` and the current state (the FMU is left there)."""
         if self.nx:
-            self._c_set_x(self._comp, self._x.ctypes.data, self.nx)
+            self._set_states(self._x)
         self._c_time(self._comp, t)
         self._read_indicators(i, t, out)
 
@@ -488,12 +532,20 @@ class ModelExchangeSource(FMUSource):
         except FMICallException as exc:  # the FMU refused a call of the event iteration
             raise StepError(self._integration_failure(i, t, t, f"the event iteration failed: {exc}"), i, t) from None
         if self.nx:
-            if self._c_get_x(self._comp, self._x.ctypes.data, self.nx) > 1:
-                raise StepError(self._integration_failure(i, t, t, "reading the states after an event failed"), i, t)
+            self._read_states_after_event(i, t)
             if nominals_changed:
                 self._floor = _floor(self._nominals())
         if self.nz:
             self._read_indicators(i, t, self._z)
+
+    def _read_states_after_event(self, i: int, t: float) -> None:
+        """Read the states after an event; the deviation is kept to every digit where the event left them as they
+        were (most events), and taken from the states where it changed them."""
+        states = np.zeros(self.nx)
+        if self._c_get_x(self._comp, states.ctypes.data, self.nx) > 1:
+            raise StepError(self._integration_failure(i, t, t, "reading the states after an event failed"), i, t)
+        if not np.array_equal(states, self._absolute(self._x)):
+            self._x = states - self._origin
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
         """One line: where and why the integration failed, the FMU's last error message, and what may help."""
@@ -508,10 +560,13 @@ class ModelExchangeSource(FMUSource):
                 f"at {where}: {reason}; {hint}")
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
-        """``der(x)`` of the FMU at time ``t`` and state ``x`` with the current inputs."""
+        """``der(x)`` of the FMU at time ``t`` and the states of the deviation ``x`` from the start state, with
+        the current inputs (the integrators' right-hand side)."""
+        return self._derivatives(t, x)
+
+    def _derivatives(self, t: float, x: np.ndarray) -> np.ndarray:
         comp, dx = self._comp, self._dx
-        x = np.ascontiguousarray(x, dtype=float)
-        if (self._c_time(comp, t) > 1 or self._c_set_x(comp, x.ctypes.data, self.nx) > 1
+        if (self._c_time(comp, t) > 1 or self._set_states(x) > 1
                 or self._c_dx(comp, dx.ctypes.data, self.nx) > 1):
             raise _IntegrationError(f"the FMU returned an error evaluating the derivatives at t={t:.9g}")
         if not np.isfinite(dx).all():
@@ -537,6 +592,10 @@ def _needs_completed_steps(md: Any) -> bool:
     fmpy reads FMI 2's attribute into ``needsCompletedIntegratorStep`` (its negation) and leaves
     ``completedIntegratorStepNotNeeded`` at its default, so that one attribute answers for both versions."""
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
+
+
+#: Trials of :meth:`ModelExchangeSource._rounding_noise` (one derivative evaluation each, once per run).
+_NOISE_TRIALS = 8
 
 
 def _floor(nominals: np.ndarray) -> np.ndarray:
@@ -593,7 +652,7 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        y, info = odeint(f, source._x, (t0, t1), rtol=source.tolerance, atol=source._atol, tfirst=True,
+        y, info = odeint(f, source._x, (t0, t1), rtol=source.tolerance, atol=source._atol(t0, t1), tfirst=True,
                          full_output=True, h0=min(h0, t1 - t0), mxstep=100_000, printmessg=False)
     if failure:
         raise _IntegrationError(str(failure[0]))
@@ -616,7 +675,7 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, 
 
         cls = getattr(si, name)
         first = source._h_last if math.isfinite(source._h_last) else None
-        solver = cls(source.rhs, t0, source._x.copy(), t1, rtol=source.tolerance, atol=source._atol,
+        solver = cls(source.rhs, t0, source._x.copy(), t1, rtol=source.tolerance, atol=source._atol(t0, t1),
                      first_step=None if first is None else min(first, t1 - t0))
         while solver.status == "running":
             message = solver.step()
@@ -638,8 +697,7 @@ def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> b
     """``fmiCompletedIntegratorStep`` after an accepted step of scipy's loop, at its time and state (set again:
     the solver's last evaluation need not be there); whether the FMU asks for an event there."""
     comp, flags = source._comp, source._event_flags
-    x = np.ascontiguousarray(x, dtype=float)
-    if source._c_time(comp, t) > 1 or source._c_set_x(comp, x.ctypes.data, source.nx) > 1:
+    if source._c_time(comp, t) > 1 or source._set_states(x) > 1:
         raise _IntegrationError(f"the FMU returned an error setting the state of a completed step at t={t:.9g}")
     flags[:] = 0
     if source._c_completed(comp, True, flags.ctypes.data, flags.ctypes.data + flags.itemsize) > 1:
@@ -657,8 +715,8 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
         return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     try:
-        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol, first, check_interrupt,
-                                        completed, one_step)
+        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first, check_interrupt,
+                                        completed, one_step, source._origin)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
