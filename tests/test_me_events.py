@@ -316,6 +316,34 @@ def test_a_run_without_events_says_nothing_and_co_simulation_stores_no_count(fmu
     assert not [w for w in recwarn if "event(s)" in str(w.message)]
 
 
+@pytest.mark.parametrize("isolate", [False, True], ids=["in-process", "isolated"])
+def test_crossings_that_change_nothing_are_counted_apart(fmus, isolate, events_unsaid):
+    """The state event latches its force at the first crossing; the later crossings change nothing (same states,
+    derivatives and outputs), which a linear ROM follows exactly: they are counted apart (``inert_events``), and
+    the warning counts only the first.  The crossings are those of the exact solution on the samples."""
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    with pytest.warns(FmuOpinfWarning, match=r"had 1 event\(s\) during the run"):
+        run = record(ModelExchangeSource(fmus[("2.0", "state")]), "harmonic:amplitude=3,omega=3", DT, T_END,
+                     quiet=True, isolate=isolate).runs[0]
+    model, held = two_masses(), held_inputs(run)
+    t_cross = first_crossing(model, run.t, held, STATE)
+    x, _, _ = reference(model, run.t, held, switches=[(t_cross, np.asarray(STATE.force))])
+    crossings = int(np.sum(np.diff(np.sign(x[STATE.dof] - STATE.threshold)) != 0))
+    assert crossings == 3 and run.attrs["events"] == 1 and run.attrs["inert_events"] == crossings - 1
+
+
+def test_events_that_change_nothing_are_not_warned_about(fmus, recwarn, events_unsaid):
+    """The recorder, given a run whose events all changed nothing: it stores their count and says nothing."""
+    from fmu_opinf.sources import EventCount
+
+    source = ModelExchangeSource(fmus[("2.0", "state")])
+    source.events_seen = lambda: EventCount(0, None, 4)   # what the recorder stores and says, given inert events
+    run = record(source, INPUT, DT, T_END, quiet=True).runs[0]
+    assert run.attrs["events"] == 0 and run.attrs["inert_events"] == 4
+    assert not [w for w in recwarn if "event(s)" in str(w.message)]
+
+
 def test_an_fmu_without_events_never_asks_for_event_indicators(fmus, monkeypatch):
     calls = {"_integrate_with_events": 0, "_read_indicators": 0}
     for name in calls:

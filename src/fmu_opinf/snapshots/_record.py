@@ -32,7 +32,7 @@ from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
-from ..sources import (Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
+from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
@@ -73,7 +73,7 @@ class _Sink:
         self.t, self.u = t, u
         self.count = 0
         self.block = _block_rows(self.width, self.k)
-        self.events: tuple[int, float | None] | None = None  # the producer's: Source.events_seen at the end
+        self.events: EventCount | None = None  # the producer's: Source.events_seen at the end
 
     @functools.cached_property
     def continuous(self) -> bool:
@@ -358,9 +358,12 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
     if failure is not None:
         attrs["error"] = str(failure)
     if sink.events is not None:  # a model-exchange FMU's: co-simulation ones handle theirs unseen
-        attrs["events"] = int(sink.events[0])
-        if sink.events[1] is not None:
-            attrs["first_event_t"] = float(sink.events[1])
+        count, first, inert = sink.events
+        attrs["events"] = int(count)
+        if first is not None:
+            attrs["first_event_t"] = float(first)
+        if inert:
+            attrs["inert_events"] = int(inert)
     return attrs
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputSpecError
-from ._base import Source, StepError, inputs_without, match_names, natural_key
+from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
 from ._cosimulation import (DEFAULT_TOLERANCE, FMUSource, fixed_communication_step, offers_model_exchange,
                             warn_other_communication_step)
@@ -48,6 +48,7 @@ __all__ = [
     "FMUSource",
     "ModelExchangeSource",
     "StepError",
+    "EventCount",
     "INTERFACES",
     "DEFAULT_TOLERANCE",
     "fixed_communication_step",

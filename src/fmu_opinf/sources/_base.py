@@ -8,13 +8,13 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 
-__all__ = ["Source", "StepError", "match_names", "natural_key", "CONSTRAINTS", "check_constraint", "inputs_without"]
+__all__ = ["Source", "StepError", "EventCount", "match_names", "natural_key", "CONSTRAINTS", "check_constraint", "inputs_without"]
 
 #: Constraint kinds a source may declare.
 CONSTRAINTS = ("position", "velocity", "none", "unknown")
@@ -27,6 +27,24 @@ class StepError(FMUError):
         super().__init__(message)
         self.step = int(step)
         self.time = float(time)
+
+
+class EventCount(NamedTuple):
+    """The events a model-exchange run had (a picklable tuple: an isolated run's child sends it).
+
+    Attributes
+    ----------
+    count : int
+        Events that changed the model: its states, or its derivatives or recorded values at the event time.
+    first : float or None
+        The run's time of the first of them.
+    inert : int
+        Events that changed none of those (a Boolean sensor crossing, a flag set at a threshold).
+    """
+
+    count: int
+    first: float | None
+    inert: int = 0
 
 
 def natural_key(name: str) -> list[Any]:
@@ -193,9 +211,9 @@ class Source:
         """Where the data come from (source kind, path, checksums, ...)."""
         raise NotImplementedError
 
-    def events_seen(self) -> tuple[int, float | None] | None:
-        """Events the model had since :meth:`start` (how many, and the time of the first), or None where the
-        source cannot see them (a co-simulation FMU handles its events inside ``doStep``)."""
+    def events_seen(self) -> EventCount | None:
+        """Events the model had since :meth:`start` (:class:`EventCount`), or None where the source cannot see
+        them (a co-simulation FMU handles its events inside ``doStep``)."""
         return None
 
     def recipe(self) -> tuple[type, dict[str, Any]]:

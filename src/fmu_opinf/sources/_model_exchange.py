@@ -66,7 +66,7 @@ import numpy as np
 from .._interrupts import check_interrupt
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from . import _compiled_rk
-from ._base import StepError
+from ._base import EventCount, StepError
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
 
 __all__ = ["ModelExchangeSource", "METHODS"]
@@ -141,10 +141,11 @@ class ModelExchangeSource(FMUSource):
         prov["integrator"] = _COMPILED_DOP853_TEXT if compiled else _INTEGRATOR_TEXT[self.method]
         return prov
 
-    def events_seen(self) -> tuple[int, float | None] | None:
-        """Events handled since :meth:`start`: how many, and the run's time (not the FMU's) of the first."""
-        count, first = getattr(self, "_events", (0, None))
-        return count, None if first is None else first - self.start_time
+    def events_seen(self) -> EventCount | None:
+        """Events handled since :meth:`start`: how many changed the model, the run's time (not the FMU's) of the
+        first of them, and how many changed nothing (:meth:`_handle_event`)."""
+        seen = getattr(self, "_events", EventCount(0, None, 0))
+        return seen._replace(first=None if seen.first is None else seen.first - self.start_time)
 
     # -- loading ----------------------------------------------------------------------------
     def _fmpy_class(self) -> tuple[type, dict[str, Any]]:
@@ -179,7 +180,7 @@ class ModelExchangeSource(FMUSource):
         self._t_next = math.inf
         self._event_iteration()
         self._fmu.enterContinuousTimeMode()
-        self._events: tuple[int, float | None] = (0, None)  # handled during the run (initialization's not)
+        self._events = EventCount(0, None, 0)   # handled during the run (initialization's not)
         self.nx = self._state_count()
         self.nz = self._indicator_count()
         self._z = np.zeros(self.nz)       # event indicators at the start of the current interval
@@ -515,12 +516,13 @@ class ModelExchangeSource(FMUSource):
         states, their nominals when they changed, and the event indicators as the reference of the next interval.
         ``set_inputs``: set the inputs in event mode, before the iteration (a change of a discrete input, which
         the FMU may take only there); such an event is not one of the model's, so it is not counted.
+        The model's events are counted apart when they change nothing: the same states, and the same derivatives
+        and recorded values there before and after (a Boolean sensor, a threshold that only drives a flag); a
+        linear ROM follows such a model exactly (audit 2026-11-27, finding 11: 51 events, the ROM exact).
         Whatever goes wrong is a :class:`StepError`, so the recorder keeps the samples before it."""
         from fmpy.fmi1 import FMICallException
 
-        if set_inputs is None:
-            count, first = self._events
-            self._events = (count + 1, t if first is None else first)
+        before = self._observed(t) if set_inputs is None else None
         try:
             self._fmu.enterEventMode()
             if set_inputs is not None:
@@ -531,21 +533,42 @@ class ModelExchangeSource(FMUSource):
             raise StepError(f"{exc} (at {self._at(t)})", i, t) from None
         except FMICallException as exc:  # the FMU refused a call of the event iteration
             raise StepError(self._integration_failure(i, t, t, f"the event iteration failed: {exc}"), i, t) from None
-        if self.nx:
-            self._read_states_after_event(i, t)
-            if nominals_changed:
-                self._floor = _floor(self._nominals())
+        states_changed = self.nx and self._read_states_after_event(i, t)
+        if states_changed and nominals_changed:
+            self._floor = _floor(self._nominals())
+        if set_inputs is None:
+            self._count_event(t, states_changed or not _same(before, self._observed(t)))
         if self.nz:
             self._read_indicators(i, t, self._z)
 
-    def _read_states_after_event(self, i: int, t: float) -> None:
+    def _observed(self, t: float) -> np.ndarray | None:
+        """The derivatives and the recorded values at time ``t`` and the current states: what an event may
+        change (None where the FMU refuses to evaluate them, which then counts as a change)."""
+        values = np.empty(len(self._read))
+        try:
+            self.read(values)
+            derivatives = self._derivatives(t, self._x) if self.nx else np.empty(0)
+        except (StepError, _IntegrationError):
+            return None
+        return np.concatenate([derivatives, values])
+
+    def _count_event(self, t: float, changed: bool) -> None:
+        seen = self._events
+        if changed:
+            self._events = seen._replace(count=seen.count + 1, first=t if seen.first is None else seen.first)
+        else:
+            self._events = seen._replace(inert=seen.inert + 1)
+
+    def _read_states_after_event(self, i: int, t: float) -> bool:
         """Read the states after an event; the deviation is kept to every digit where the event left them as they
-        were (most events), and taken from the states where it changed them."""
+        were (most events), and taken from the states where it changed them (returns whether)."""
         states = np.zeros(self.nx)
         if self._c_get_x(self._comp, states.ctypes.data, self.nx) > 1:
             raise StepError(self._integration_failure(i, t, t, "reading the states after an event failed"), i, t)
-        if not np.array_equal(states, self._absolute(self._x)):
-            self._x = states - self._origin
+        if np.array_equal(states, self._absolute(self._x)):
+            return False
+        self._x = states - self._origin
+        return True
 
     def _integration_failure(self, i: int, t0: float, t1: float, reason: str) -> str:
         """One line: where and why the integration failed, the FMU's last error message, and what may help."""
@@ -607,6 +630,13 @@ def _floor(nominals: np.ndarray) -> np.ndarray:
 def _time_slack(t0: float, t1: float) -> float:
     """Times closer than this to a communication point ``t1`` are ``t1`` (round-off of event times)."""
     return 8 * math.ulp(max(abs(t0), abs(t1))) + 1e-12 * (t1 - t0)
+
+
+def _same(before: np.ndarray | None, after: np.ndarray | None) -> bool:
+    """Whether an event left the derivatives and recorded values as they were, to rounding (1e-12 relative)."""
+    if before is None or after is None:
+        return False
+    return bool(np.all(np.abs(after - before) <= 1e-12 * np.maximum(np.abs(before), np.abs(after))))
 
 
 def _sign_changed(before: np.ndarray, after: np.ndarray) -> bool:
