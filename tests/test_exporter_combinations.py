@@ -596,3 +596,29 @@ def test_user_step_on_euler_co_simulation_warns_and_records(fmus, tmp_path, caps
     assert main(["snapshots", str(accurate), "-o", str(tmp_path / "accurate.h5"), "-q", "--dt", "0.005",
                  "--t-end", "100", *GENERIC_STATES]) == 0
     assert "depends on the communication step" not in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def late_outputs(request, tmp_path_factory) -> Path:
+    """A co-simulation FMU (RK4, exact states) that computes its outputs at the start of each ``doStep`` only."""
+    from fmu_opinf import lti_fmus
+
+    def build(folder, name):
+        return name, lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="LateOut"), folder / "late-outputs.fmu",
+                                            interfaces=("cs",), late_outputs=True).path
+
+    return build_fmu_set(request, tmp_path_factory, "late-outputs", build, ["late"])["late"]
+
+
+def test_outputs_one_step_late_are_named_as_such(late_outputs, tmp_path, capsys):
+    """Seventh audit, finding 8: an FMU whose outputs lag its (exact) states by one communication step was refused as
+    "one explicit step per doStep?".  The step check now compares the states too, and says that the outputs are
+    one step late; with --dt given, the warning says so instead of blaming the FMU's integrator."""
+    out = tmp_path / "train.h5"
+    assert main(["snapshots", str(late_outputs), "-o", str(out), "-q"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "outputs lag its states by one communication step" in err, err
+    assert "explicit step" not in err and not out.exists()
+    assert main(["snapshots", str(late_outputs), "-o", str(out), "-q", "--dt", "0.01", "--t-end", "20"]) == 0
+    err = capsys.readouterr().err
+    assert "outputs lag by one communication step" in err and "integrator" not in err, err

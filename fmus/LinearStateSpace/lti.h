@@ -78,8 +78,10 @@ struct LtiInstance {
     double par[2];       /* mass_scale, stiffness_scale */
     double *qdd, *x, *v, *a, *y, *work;
     double *qddBefore;   /* LTI_STALE_DERIVATIVES: qdd at the start of the last doStep */
+    double *yBefore;     /* LTI_LATE_OUTPUTS: y at the start of the last doStep */
     int upToDate;
     int stale;           /* LTI_STALE_DERIVATIVES: doStep done, no input set since */
+    int late;            /* LTI_LATE_OUTPUTS: a doStep done */
     int timeEventOn;     /* LTI_TIME_EVENT: the time event has switched its force on */
     int stateEventOn;    /* LTI_STATE_EVENT: the state event has latched its force on */
     int indicatorAbove;  /* LTI_STATE_EVENT: indicator > 0 at the last event (or initialization) */
@@ -94,6 +96,7 @@ struct LtiInstance {
 extern const char *const LTI_INSTANTIATION_TOKEN;
 extern const int LTI_CS_METHOD;
 extern const int LTI_STALE_DERIVATIVES; /* 1: after doStep, der() of the velocities are the values before it */
+extern const int LTI_LATE_OUTPUTS;      /* 1: the outputs are computed at the start of doStep only (one step late) */
 extern const double LTI_CS_FIXED_STEP;  /* > 0: doStep refuses (error) any other communication step */
 extern const double LTI_CS_MAX_STEP;    /* > 0: doStep discards a longer communication step */
 extern const int LTI_CS_EARLY_RETURN;   /* 1: fmi3DoStep returns early at LTI_CS_EARLY_RETURN_AT, even unallowed */

@@ -26,7 +26,8 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
   outputs too and on Modelica type definitions (``declaredType``);
 * on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
   outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
-  dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``);
+  dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``), outputs one
+  communication step late (``late_outputs``);
 * on request, discrete events as Modelica models with ``when`` clauses have them: a force that
   switches on at a time event (:class:`TimeEvent`, announced as the next event time) and one that
   latches on when a position crosses a threshold (:class:`StateEvent`, one event indicator).
@@ -743,6 +744,7 @@ class _Options:
     interleaved: bool = False
     dependencies: bool = True
     stale_derivatives: bool = False
+    late_outputs: bool = False
     time_event: TimeEvent | None = None
     state_event: StateEvent | None = None
     completed_step_gap: float | None = None
@@ -1471,6 +1473,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f'const char *const LTI_INSTANTIATION_TOKEN = "{_GUID_PLACEHOLDER}";\n'
         f"const int LTI_CS_METHOD = {'CsEuler' if options.cs_method == 'euler' else 'CsRungeKutta'};\n"
         f"const int LTI_STALE_DERIVATIVES = {int(options.stale_derivatives)};\n"
+        f"const int LTI_LATE_OUTPUTS = {int(options.late_outputs)};\n"
         f"const double LTI_CS_FIXED_STEP = {_c_step(_enforced_step(options))};\n"
         f"const double LTI_CS_MAX_STEP = {_c_step(options.cs_max_step)};\n"
         f"const int LTI_CS_EARLY_RETURN = {int(options.cs_early_return_at is not None)};\n"
@@ -1600,7 +1603,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   declared_types: bool = False, input_sensors: bool = False,
                   output_array: bool = False, output_aliases: bool = False,
                   input_array: bool = False, interleaved: bool = False,
-                  dependencies: bool = True, stale_derivatives: bool = False,
+                  dependencies: bool = True, stale_derivatives: bool = False, late_outputs: bool = False,
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
@@ -1673,6 +1676,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Co-simulation: after ``doStep`` the derivative variables of the velocity states return their values
         from before the step until an input is set (a defect of some generated LTI FMUs, spec
         ``real-fmus.md``; without inputs nothing refreshes them).
+    late_outputs : bool, default=False
+        Co-simulation: the outputs are computed at the start of each ``doStep`` only, so after it they are the
+        values of the communication point before (one step late; the states are not).
     time_event : TimeEvent, optional
         A force that switches on at a time event.  Model exchange: announced as the next event
         time and applied in the event iteration there.  Co-simulation meets it exactly (the
@@ -1737,7 +1743,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         output_array=bool(output_array), output_aliases=bool(output_aliases),
         input_array=bool(input_array), interleaved=bool(interleaved),
         dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives),
-        time_event=time_event, state_event=state_event,
+        late_outputs=bool(late_outputs), time_event=time_event, state_event=state_event,
         completed_step_gap=None if completed_step_gap is None else float(completed_step_gap),
         completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
         discrete_inputs=tuple(discrete_inputs),

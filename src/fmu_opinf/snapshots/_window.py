@@ -576,25 +576,30 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         The complete run at ``dt`` (a pilot on the same grid need not repeat it), or None when the source is not
         checked.
     """
-    found, coarse_run = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
+    found, coarse_run, late = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
     if found is None:
         return coarse_run
     offers_me = offers_model_exchange(source)
     remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
               "it offers no model exchange: give --dt and --t-end")
+    if late:
+        raise DataError(f"{source_label(source)}: its co-simulation outputs lag its states by one communication "
+                        f"step ({found} over t <= {T:g}), so a recording's outputs are dt late; {remedy} to record "
+                        "at a step small against the motion; no file was written")
     raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
                     f"over t <= {T:g}; one explicit step per doStep?), so no step chosen by the automatic window "
                     f"is accurate; {remedy} to record at a step of your choice; no file was written")
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
-                     threshold: float, inspect: Callable[[Any], None] | None = None) -> tuple[str | None, Any]:
+                     threshold: float, inspect: Callable[[Any], None] | None = None
+                     ) -> tuple[str | None, Any, bool]:
     """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
-    message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), and
-    the complete run at ``dt`` (None if there is none)."""
+    message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), the
+    complete run at ``dt`` (None if there is none), and whether only the outputs differ, one step late."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
             or fixed_internal_step(source) is not None or fixed_communication_step(source) is not None:
-        return None, None  # a fixed step: the results cannot depend on a step that cannot be changed
+        return None, None, False  # a fixed step: the results cannot depend on a step that cannot be changed
     coarse = time_grid(dt, T)
     runs = []
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
@@ -606,14 +611,34 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
         if inspect is not None and len(runs) == 1 and failure is None:
             inspect(run)
     if runs[0] is None or runs[1] is None:
-        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}", None
-    y = np.asarray(runs[0].y)[:, :runs[0].k]
-    y_fine = np.asarray(runs[1].y)[:, :runs[1].k][:, ::2][:, :y.shape[1]]
-    peak = float(np.abs(y_fine).max())
-    difference = float(np.abs(y - y_fine).max()) / peak if peak > 0 else 0.0
+        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}", None, False
+    y, y_fine = (np.asarray(run.y)[:, :run.k] for run in runs)
+    difference = _relative_difference(y, y_fine[:, ::2])
     if difference <= threshold:
-        return None, runs[0]
-    return f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak", runs[0]
+        return None, runs[0], False
+    found = f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
+    if _outputs_one_step_late(runs, threshold):
+        return (f"{found}, its states agree, and each output is the one of the communication point before"), \
+            runs[0], True
+    return found, runs[0], False
+
+
+def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
+    """``max |a - b|`` relative to ``max |b|`` over their common columns (0 where ``b`` is 0)."""
+    k = min(a.shape[1], b.shape[1])
+    peak = float(np.abs(b[:, :k]).max()) if b.size else 0.0
+    return float(np.abs(a[:, :k] - b[:, :k]).max()) / peak if peak > 0 else 0.0
+
+
+def _outputs_one_step_late(runs: Sequence[Any], threshold: float) -> bool:
+    """Whether runs at ``dt`` and ``dt / 2`` have the same states at the coarse points while each coarse output is
+    the fine run's half a step before it: outputs computed at the start of each ``doStep``, so that after it they
+    belong to the point before (seventh audit: an FMU refused as "one explicit step per doStep?", its states exact)."""
+    x, x_fine = (np.asarray(run.x)[:, :run.k] for run in runs)
+    if not x.size or _relative_difference(x, x_fine[:, ::2]) > threshold:
+        return False
+    y, y_fine = (np.asarray(run.y)[:, :run.k] for run in runs)
+    return y.shape[1] > 1 and _relative_difference(y[:, 1:], y_fine[:, 1::2]) <= threshold
 
 
 def combine_windows(windows: Sequence[Window]) -> Window:
@@ -707,8 +732,14 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
                       f"give --dt as a multiple, e.g. {on_internal_steps(dt, internal):g}", FmuOpinfWarning,
                       stacklevel=3)
     T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
-    found, _ = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    found, _, late = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
     if found is None:
+        return
+    if late:
+        warnings.warn(f"{source_label(source)}: the co-simulation's outputs lag by one communication step ({found} "
+                      f"over t <= {T:g}): the recorded outputs are those of t - dt, and the ROM learns that lag; "
+                      f"{'record by model exchange (--interface me), or ' if offers_model_exchange(source) else ''}"
+                      "keep --dt small against the motion", FmuOpinfWarning, stacklevel=3)
         return
 
     offers_me = offers_model_exchange(source)
