@@ -626,6 +626,19 @@ void ltiEnterContinuousMode(LtiInstance *inst) {
     inst->timeCompleted = inst->time;
 }
 
+void ltiExitInitialization(LtiInstance *inst) {
+    if (LTI_STEADY_START) {
+        size_t i, j, nq = inst->nq;
+        for (i = 0; i < nq; i++) {
+            double q = LTI_STEADY_Q0[i];
+            for (j = 0; j < LTI_NU; j++) q += LTI_STEADY_QU[i * LTI_NU + j] * inst->u[j];
+            inst->z[i] = q;
+            inst->z[nq + i] = 0.0;
+        }
+        inst->upToDate = 0;
+    }
+}
+
 void ltiStartEvents(LtiInstance *inst) {
     if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
 }

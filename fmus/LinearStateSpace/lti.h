@@ -123,6 +123,10 @@ extern const double LTI_TIME_EVENT_DQD[];
    completed step at or after LTI_COMPLETED_EVENT_AT asks for event mode (an event iteration that changes nothing). */
 extern const double LTI_COMPLETED_GAP, LTI_COMPLETED_EVENT_AT;
 extern const int LTI_COMPLETED_EVENT;
+/* LTI_STEADY_START: initialization ends at the equilibrium q = LTI_STEADY_Q0 + LTI_STEADY_QU u (nq x nu,
+   row-major), qd = 0, under the inputs set then (a Modelica steady-state initialization). */
+extern const int LTI_STEADY_START;
+extern const double LTI_STEADY_Q0[], LTI_STEADY_QU[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
 
@@ -155,6 +159,8 @@ LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double val
 /* Returns 1 if the continuous states changed (the time event's velocity jump), else 0. */
 int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
 void ltiStartEvents(LtiInstance *inst);
+/* At the end of initialization: the steady start (LTI_STEADY_START), then the event bookkeeping. */
+void ltiExitInitialization(LtiInstance *inst);
 /* model exchange: SetTime (checks LTI_COMPLETED_GAP), CompletedIntegratorStep (returns 1 to ask for event mode),
    EnterContinuousTimeMode */
 LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time);

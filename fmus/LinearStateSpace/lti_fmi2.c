@@ -112,6 +112,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     CHECK(c, "fmi2ExitInitializationMode", PhaseInitialization);
+    ltiExitInitialization(inst);
     if (ltiEvaluate(inst, "fmi2ExitInitializationMode") != LtiOK) return finish(inst, LtiError);
     ltiStartEvents(inst);
     if (inst->isCoSimulation) ltiUpdateDiscrete(inst, NULL, NULL);  /* model exchange: the importer's event iteration */

@@ -135,6 +135,7 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance instance) {
     CHECK(instance, "fmi3ExitInitializationMode", PhaseInitialization);
+    ltiExitInitialization(inst);
     if (ltiEvaluate(inst, "fmi3ExitInitializationMode") != LtiOK) return finish(inst, LtiError);
     ltiStartEvents(inst);
     if (inst->isCoSimulation) ltiUpdateDiscrete(inst, NULL, NULL);  /* model exchange: the importer's event iteration */

@@ -27,7 +27,8 @@ snapshot stage can be tested against FMUs whose exact behaviour is known:
 * on request: force sensor outputs ``y = u``, FMI 3 output and input arrays, ``<Alias>`` names of
   outputs, states sorted body by body (``interleaved``, also the FMI state vector), no structural
   dependencies, derivatives one step stale after ``doStep`` (``stale_derivatives``), outputs one
-  communication step late (``late_outputs``);
+  communication step late (``late_outputs``), a start at the static equilibrium under the inputs set in
+  initialization mode (``steady_state_start``, Modelica's ``initial equation der(x) = 0``);
 * on request, discrete events as Modelica models with ``when`` clauses have them: a force that
   switches on at a time event (:class:`TimeEvent`, announced as the next event time) and one that
   latches on when a position crosses a threshold (:class:`StateEvent`, one event indicator).
@@ -745,6 +746,7 @@ class _Options:
     dependencies: bool = True
     stale_derivatives: bool = False
     late_outputs: bool = False
+    steady_state_start: bool = False
     time_event: TimeEvent | None = None
     state_event: StateEvent | None = None
     completed_step_gap: float | None = None
@@ -810,6 +812,9 @@ def _check_options(model, options: _Options) -> None:
                             "units=True")
     _check_events(model, options)
     _check_completed_steps(model, options)
+    if options.steady_state_start and isinstance(model, MassChain):
+        raise FmuBuildError("steady_state_start needs a fixed size; pass chain.model() instead of the MassChain "
+                            "family")
 
 
 def _check_completed_steps(model, options: _Options) -> None:
@@ -1491,12 +1496,23 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const size_t LTI_NY = {model.p};\n"
         "const double LTI_PAR_DEFAULTS[2] = {1.0, 1.0};\n"
         f"{_event_source(options, model, coords)}"
+        f"{_steady_source(options, coords)}"
         f"const double LTI_COMPLETED_GAP = {_number(options.completed_step_gap or 0.0)};\n"
         f"const int LTI_COMPLETED_EVENT = {int(options.completed_step_event_at is not None)};\n"
         f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
+
+
+def _steady_source(options: _Options, coords: _Coordinates) -> str:
+    """The C constants of ``steady_state_start``: the equilibrium ``q = Kq^-1 (Bq u + fq)`` as ``LTI_STEADY_Q0 +
+    LTI_STEADY_QU u`` (row-major ``nq x nu``; stiffness_scale 1)."""
+    on = options.steady_state_start
+    return (f"const int LTI_STEADY_START = {int(on)};\n"
+            + _c_array("LTI_STEADY_Q0", np.linalg.solve(coords.Kq, coords.fq) if on else np.zeros(0), static=False)
+            + _c_array("LTI_STEADY_QU", np.linalg.solve(coords.Kq, coords.Bq) if on and coords.Bq.size
+                       else np.zeros(0), static=False))
 
 
 def _enforced_step(options: _Options) -> float | None:
@@ -1604,6 +1620,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   output_array: bool = False, output_aliases: bool = False,
                   input_array: bool = False, interleaved: bool = False,
                   dependencies: bool = True, stale_derivatives: bool = False, late_outputs: bool = False,
+                  steady_state_start: bool = False,
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
@@ -1676,6 +1693,10 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Co-simulation: after ``doStep`` the derivative variables of the velocity states return their values
         from before the step until an input is set (a defect of some generated LTI FMUs, spec
         ``real-fmus.md``; without inputs nothing refreshes them).
+    steady_state_start : bool, default=False
+        Leave initialization at the static equilibrium under the inputs set in initialization mode (velocities 0),
+        whatever the start values (Modelica's steady-state initialization): the start state depends on the initial
+        input.
     late_outputs : bool, default=False
         Co-simulation: the outputs are computed at the start of each ``doStep`` only, so after it they are the
         values of the communication point before (one step late; the states are not).
@@ -1743,7 +1764,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         output_array=bool(output_array), output_aliases=bool(output_aliases),
         input_array=bool(input_array), interleaved=bool(interleaved),
         dependencies=bool(dependencies), stale_derivatives=bool(stale_derivatives),
-        late_outputs=bool(late_outputs), time_event=time_event, state_event=state_event,
+        late_outputs=bool(late_outputs), steady_state_start=bool(steady_state_start), time_event=time_event, state_event=state_event,
         completed_step_gap=None if completed_step_gap is None else float(completed_step_gap),
         completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
         discrete_inputs=tuple(discrete_inputs),

@@ -8,9 +8,10 @@ Textual form (used by the command line), one spec per input separated by ``;`` (
 spec drives every input)::
 
     impulse:amplitude=100,t0=2,width=0.5     raised-cosine pulse centred at t0, total width `width`
-    harmonic:amplitude=1,omega=0.2           amplitude * sin(omega t + phase) (+ offset)
+    harmonic:amplitude=1,omega=0.2           amplitude * sin(omega t + phase)
     step:amplitude=1,t0=0                    amplitude for t >= t0, 0 before
     chirp:amplitude=1,omega0=0.01,omega1=1   sine sweeping linearly from omega0 to omega1 over `duration`
+    ...,offset=10                            any of these on top of a constant (an operating point)
     path/to/table.csv                        time column plus one column per input, held between rows
     none                                     no forcing: every input zero (the free response of a model);
                                              as one of several ';' specs, that input alone is not driven
@@ -76,7 +77,8 @@ class ParametricSignal(Signal):
 
     def __post_init__(self) -> None:
         self.n_inputs = 1
-        self.spec = self.kind + ":" + ",".join(f"{k}={v:g}" for k, v in self.params.items())
+        shown = {k: v for k, v in self.params.items() if not (k == "offset" and v == 0 and self.kind != "harmonic")}
+        self.spec = self.kind + ":" + ",".join(f"{k}={_number(v)}" for k, v in shown.items())
 
     def is_identically_zero(self) -> bool:
         return self.params.get("amplitude", 1.0) == 0 and self.params.get("offset", 0.0) == 0
@@ -95,32 +97,39 @@ class ParametricSignal(Signal):
         return np.asarray(self.formula(t, **self.params), dtype=float).reshape(1, -1)
 
 
-def _impulse(t, amplitude, t0, width):
+def _number(value: float) -> str:
+    """A parameter in a spec: short (``%g``) where that reads back exactly, else every digit (an operating
+    point such as a start value of 9.80665 N must come back as it was)."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(float(value))
+
+
+def _impulse(t, amplitude, t0, width, offset):
     phase = 2.0 * np.pi * (t - t0) / width
-    return np.where(np.abs(t - t0) <= width / 2, amplitude * 0.5 * (1.0 + np.cos(phase)), 0.0)
+    return offset + np.where(np.abs(t - t0) <= width / 2, amplitude * 0.5 * (1.0 + np.cos(phase)), 0.0)
 
 
 def _harmonic(t, amplitude, omega, phase, offset):
     return offset + amplitude * np.sin(omega * t + phase)
 
 
-def _step(t, amplitude, t0):
-    return np.where(t >= t0, amplitude, 0.0)
+def _step(t, amplitude, t0, offset):
+    return offset + np.where(t >= t0, amplitude, 0.0)
 
 
-def _chirp(t, amplitude, omega0, omega1, duration, t0):
+def _chirp(t, amplitude, omega0, omega1, duration, t0, offset):
     s = np.clip(t - t0, 0.0, None)
     sweep = np.minimum(s, duration)
     angle = omega0 * sweep + (omega1 - omega0) * sweep**2 / (2.0 * duration) + omega1 * (s - sweep)
-    return np.where(t >= t0, amplitude * np.sin(angle), 0.0)
+    return offset + np.where(t >= t0, amplitude * np.sin(angle), 0.0)
 
 
 # name -> (formula, default parameters, parameters that must be > 0)
 _KINDS: dict[str, tuple[Callable[..., np.ndarray], dict[str, float], tuple[str, ...]]] = {
-    "impulse": (_impulse, {"amplitude": 1.0, "t0": 1.0, "width": 0.5}, ("width",)),
+    "impulse": (_impulse, {"amplitude": 1.0, "t0": 1.0, "width": 0.5, "offset": 0.0}, ("width",)),
     "harmonic": (_harmonic, {"amplitude": 1.0, "omega": 1.0, "phase": 0.0, "offset": 0.0}, ()),
-    "step": (_step, {"amplitude": 1.0, "t0": 0.0}, ()),
-    "chirp": (_chirp, {"amplitude": 1.0, "omega0": 0.01, "omega1": 1.0, "duration": 100.0, "t0": 0.0},
+    "step": (_step, {"amplitude": 1.0, "t0": 0.0, "offset": 0.0}, ()),
+    "chirp": (_chirp, {"amplitude": 1.0, "omega0": 0.01, "omega1": 1.0, "duration": 100.0, "t0": 0.0, "offset": 0.0},
               ("duration",)),
 }
 
@@ -141,13 +150,14 @@ def _make(kind: str, **params: float) -> ParametricSignal:
     return ParametricSignal(kind, values, formula)
 
 
-def impulse(amplitude: float = 1.0, t0: float = 1.0, width: float = 0.5) -> ParametricSignal:
-    """Impulse-like pulse: a raised cosine of peak ``amplitude`` centred at ``t0``, total ``width``.
+def impulse(amplitude: float = 1.0, t0: float = 1.0, width: float = 0.5, offset: float = 0.0) -> ParametricSignal:
+    """Impulse-like pulse: a raised cosine of peak ``amplitude`` centred at ``t0``, total ``width``, on top of
+    ``offset``.
 
     Smooth and short, it excites the system's own dynamics (the paper's training input).
     Keep ``t0`` on the time grid and ``dt <= width`` so the sampled pulse is not missed.
     """
-    return _make("impulse", amplitude=amplitude, t0=t0, width=width)
+    return _make("impulse", amplitude=amplitude, t0=t0, width=width, offset=offset)
 
 
 def harmonic(amplitude: float = 1.0, omega: float = 1.0, phase: float = 0.0,
@@ -156,15 +166,17 @@ def harmonic(amplitude: float = 1.0, omega: float = 1.0, phase: float = 0.0,
     return _make("harmonic", amplitude=amplitude, omega=omega, phase=phase, offset=offset)
 
 
-def step(amplitude: float = 1.0, t0: float = 0.0) -> ParametricSignal:
-    """Step of height ``amplitude`` switched on at ``t0``."""
-    return _make("step", amplitude=amplitude, t0=t0)
+def step(amplitude: float = 1.0, t0: float = 0.0, offset: float = 0.0) -> ParametricSignal:
+    """Step of height ``amplitude`` switched on at ``t0``, on top of ``offset``."""
+    return _make("step", amplitude=amplitude, t0=t0, offset=offset)
 
 
 def chirp(amplitude: float = 1.0, omega0: float = 0.01, omega1: float = 1.0,
-          duration: float = 100.0, t0: float = 0.0) -> ParametricSignal:
-    """Linear chirp: instantaneous frequency from ``omega0`` at ``t0`` to ``omega1`` at ``t0 + duration``."""
-    return _make("chirp", amplitude=amplitude, omega0=omega0, omega1=omega1, duration=duration, t0=t0)
+          duration: float = 100.0, t0: float = 0.0, offset: float = 0.0) -> ParametricSignal:
+    """Linear chirp: instantaneous frequency from ``omega0`` at ``t0`` to ``omega1`` at ``t0 + duration``, on
+    top of ``offset``."""
+    return _make("chirp", amplitude=amplitude, omega0=omega0, omega1=omega1, duration=duration, t0=t0,
+                 offset=offset)
 
 
 class TableSignal(Signal):

@@ -518,18 +518,31 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
 
 
 def default_training_inputs(m: int, impulse: str = DEFAULT_TRAINING_INPUT,
-                            amplitudes: Sequence[float] | None = None) -> list[str]:
+                            amplitudes: Sequence[float] | None = None,
+                            starts: Sequence[float] | None = None) -> list[str]:
     """The training runs recorded without ``--input``: the free response for a model without inputs, else one
     run per input, each driving that input alone with ``impulse`` (default :data:`DEFAULT_TRAINING_INPUT`;
-    ``none`` on the others), at ``amplitudes[i]`` on input ``i`` where given (:func:`default_amplitudes`).
+    ``none`` on the others, which holds them at their start values), at ``amplitudes[i]`` on input ``i`` where
+    given (:func:`default_amplitudes`), on top of its start value ``starts[i]`` where that is not 0.
 
     One impulse on every input at once would make the inputs indistinguishable in the data: the fitted ``Br``
-    then has equal columns (audit 2026-11-26: eight inputs, max eps_y 9.1 on independent test inputs).
+    then has equal columns (audit 2026-11-26: eight inputs, max eps_y 9.1 on independent test inputs).  The pulse
+    sits on the input's start value, the operating point of the model as exported: a preloaded model that starts
+    at its equilibrium under that load (or is initialized there, Modelica's steady state) starts at rest, as it
+    does for the ROM FMU, whose inputs start at the same values (seventh audit, E3: trained from 0, the ROM FMU
+    oscillated by 190 % of the static deflection where the source stayed at rest).
     """
     if m == 0:
         return ["none"]
     pulses = [impulse if amplitudes is None else _with_amplitude(impulse, amplitudes[i]) for i in range(m)]
+    if starts is not None:
+        pulses = [_on_start(pulse, start) for pulse, start in zip(pulses, starts)]
     return [";".join(pulses[i] if j == i else "none" for j in range(m)) for i in range(m)]
+
+
+def _on_start(pulse: str, start: float) -> str:
+    """``pulse`` on top of an input's start value (as it is where that is 0)."""
+    return pulse if start == 0 else parse_signal(f"{pulse},offset={float(start)!r}").spec
 
 
 def _with_amplitude(impulse: str, amplitude: float) -> str:
@@ -548,6 +561,12 @@ def default_amplitudes(source: Source) -> list[float]:
     _, high = source.input_ranges()
     rest = np.maximum(source.input_starts(), 0.0)
     return [pulse_amplitude(float(h - base), _DEFAULT_AMPLITUDE) for h, base in zip(high, rest)]
+
+
+def _on_start_values(source: Source) -> str:
+    """What the default training says about inputs whose pulse sits on a non-zero start value; "" if none."""
+    starts = [f"{name}={value:g}" for name, value in zip(source.input_names, source.input_starts()) if value != 0]
+    return f" on top of the start value{'s' if len(starts) > 1 else ''} {', '.join(starts)}" if starts else ""
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
@@ -730,9 +749,9 @@ def record_to_file(
     by_default = not specs
     if not specs:
         amplitudes = default_amplitudes(source)
-        specs = default_training_inputs(source.m, amplitudes=amplitudes)
+        specs = default_training_inputs(source.m, amplitudes=amplitudes, starts=source.input_starts())
         if not quiet:
-            lowered = _lowered_amplitudes(source, amplitudes)
+            lowered = _lowered_amplitudes(source, amplitudes) + _on_start_values(source)
             what = ("the free response from the start state (the model has no inputs)" if not source.m
                     else f"the impulse training input {DEFAULT_TRAINING_INPUT}{lowered}" if source.m == 1
                     else f"one run per input, each driving that input alone with the impulse {DEFAULT_TRAINING_INPUT}"
@@ -829,7 +848,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
-                   for spec in default_training_inputs(source.m, pulse, amplitudes)]
+                   for spec in default_training_inputs(source.m, pulse, amplitudes, source.input_starts())]
         pilot = _pilot_signal([impulse(factor, weight * scale)
                                for weight, scale in zip(_pilot_weights(source.m), scales)], source)
         width = input_activity(signals[0], source.m)[1]

@@ -168,15 +168,16 @@ _REPORTED: set[tuple[str, tuple[Any, ...]]] = set()
 def _warn_parameter_like(source: Source) -> None:
     """At most one warning each (per process and FMU: a run table opens the source per row) naming the inputs the
     default selection holds for their non-zero start values, and the inputs chosen to be driven although their
-    start values are not zero (a training signal drives them from 0: a parameter exposed as an input then records
-    another model; audit 2026-11-27: ``--inputs F,stiffness_scale`` without a word, the ROM 120 % off)."""
+    start values are not zero (a parameter exposed as an input, driven, records a model that changes with it;
+    audit 2026-11-27: ``--inputs F,stiffness_scale`` without a word, the ROM 120 % off)."""
     held = list(getattr(source, "parameter_like_input_names", []) or [])
     forces = list(getattr(source, "input_names", []) or [])
     driven = [name for name in getattr(source, "driven_parameter_like_names", []) or [] if name in forces]
     if driven:
         warn_once(source, ("driven", tuple(driven), tuple(forces)),
-                   f"the driven input(s) {', '.join(driven)} start at non-zero values, and the training signals "
-                   "drive them from 0: if they are parameters exposed as inputs, the recording is of another model; "
+                   f"the driven input(s) {', '.join(driven)} start at non-zero values (the default training pulses "
+                   "them on top of those, an --input sets them to its own values): if they are parameters exposed "
+                   "as inputs, the recording is of a model that changes with them; "
                    f"record with {inputs_without(forces, driven)} and give their values with --set")
     if held:
         shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
