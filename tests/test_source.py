@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fmu_opinf.errors import DimensionError, FMUError, FmuOpinfError, InputSpecError
+from fmu_opinf.errors import DimensionError, FMUError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 from fmu_opinf.source import FMUSource, StepError, match_names, natural_key, open_source
 
 TOY_C = r"""
@@ -530,15 +530,23 @@ def test_no_binary_for_this_platform(toys, variant):
     assert "fmpy compile" not in str(error)
 
 
-def test_an_fmu_without_our_binary_that_ships_its_sources_names_the_compile_command(toys, tmp_path):
-    """Source code FMUs (OpenModelica's --fmiSources, Reference-FMUs): fmpy compiles them for this platform."""
+def test_an_fmu_without_our_binary_that_ships_its_sources_is_compiled_here(toys, tmp_path, monkeypatch):
+    """Source code FMUs (OpenModelica's --fmiSources, a Windows export with sources): compiled here into the cache
+    (tests/test_sources_only.py runs such FMUs); sources that are no FMU's give a one-line error at the first run."""
+    from fmu_opinf import sources
+    from fmu_opinf.snapshots import record
+
+    monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(sources, "_REPORTED", set())
     with_sources = tmp_path / "toy-win-sources.fmu"
     with zipfile.ZipFile(toys["win-only"]) as zin, zipfile.ZipFile(with_sources, "w") as zout:
         for item in zin.infolist():
             zout.writestr(item, zin.read(item.filename))
         zout.writestr("sources/model.c", "/* the model */\n")
-    _one_line_error(FMUError, FMUSource, with_sources, match=r"no binary for this platform \([^;]+; it has: win64\); "
-                    r"it ships its C sources: compile them with 'fmpy compile toy-win-sources\.fmu'")
+    with pytest.warns(FmuOpinfWarning, match=r"toy-win-sources\.fmu: has no binary for this platform \([^;]+; it "
+                                             r"has: win64\); compiled from its C sources"):
+        source = FMUSource(with_sources)
+    _one_line_error(FMUError, record, source, "none", 0.1, 1.0, quiet=True, match="cannot load the binary")
 
 
 def test_patterns_matching_nothing(toys):

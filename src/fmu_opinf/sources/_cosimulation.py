@@ -19,6 +19,7 @@ from ..errors import DimensionError, FMUError, InputSpecError
 from ..fmus import BASE_UNITS
 from ..signals import pulse_amplitude
 from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
+from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
@@ -282,13 +283,25 @@ class FMUSource(Source):
         else:
             with zipfile.ZipFile(self.path) as zf:
                 files = zf.namelist()
+        self._compiled: dict[str, Path] = {}
         if not any(f.startswith(binary + ".") for f in files):
             have = sorted({f.split("/")[1] for f in files if f.startswith("binaries/") and f.count("/") >= 2})
-            sources = any(f.startswith("sources/") and f.lower().endswith((".c", ".cpp")) for f in files)
-            remedy = (f"it ships its C sources: compile them with 'fmpy compile {self.path.name}' (CMake and a C "
-                      f"compiler), or export it for {plat}" if sources else f"export or compile it for {plat}")
+            if has_c_sources(files) and not self.path.is_dir():
+                self._compile_sources(md, plat, have)
+                return
             raise FMUError(f"{self.path.name} has no binary for this platform ({plat}; it has: "
-                           f"{', '.join(have) or 'none'}); {remedy}")
+                           f"{', '.join(have) or 'none'}); export or compile it for {plat}")
+
+    def _compile_sources(self, md: Any, plat: str, have: list[str]) -> None:
+        """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install."""
+        from . import warn_once
+        from ._variables import model_xml
+
+        identifiers = [i.modelIdentifier for i in (md.modelExchange, md.coSimulation) if i is not None]
+        self._compiled = compile_sources(self.path, model_xml(self.path), list(dict.fromkeys(identifiers)))
+        folder = next(iter(self._compiled.values())).parent
+        warn_once(self, ("compiled",), f"has no binary for this platform ({plat}; it has: {', '.join(have) or 'none'}); "
+                  f"compiled from its C sources with this machine's C compiler, once, into {folder}", stacklevel=5)
 
     def _resolve(self, positions: str | None, velocities: str | None, accelerations: str | None,
                  inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:
@@ -517,6 +530,8 @@ class FMUSource(Source):
             folder = tempfile.mkdtemp(prefix="fmu_opinf_")
             try:
                 extract(str(self.path), unzipdir=folder)
+                if self._compiled:
+                    install_binaries(Path(folder), binary_platform(self.fmi_version), self._compiled)
             except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
                 shutil.rmtree(folder, ignore_errors=True)
                 raise FMUError(f"{self.path.name} cannot be unpacked ({type(exc).__name__}: {exc}); the file is "
