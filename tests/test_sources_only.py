@@ -85,3 +85,21 @@ def test_sources_that_do_not_compile_are_a_one_line_error(corpus, cache, tmp_pat
                                        r"compile here \(.*error.*\); export it with a binary for this platform$"):
         open_source(fmu)
     assert not list((cache / "compiled-fmus").rglob("*.so")) and not list(cache.rglob("*.part"))
+
+
+def test_a_cached_library_others_could_have_written_is_compiled_again(corpus, cache, tmp_path, monkeypatch):
+    """A shared cache folder must not let another user plant code: a cached library writable by others is not
+    used but compiled again (as the model-exchange step loop's is not loaded)."""
+    import os
+
+    if os.name != "posix":
+        pytest.skip("file modes are POSIX")
+    fmu = without_binaries(corpus["me-only"], tmp_path / "shared.fmu")
+    with pytest.warns(FmuOpinfWarning):
+        open_source(fmu).close()
+    library, = (cache / "compiled-fmus").rglob("*.so")
+    library.chmod(0o666)
+    builds, build = [], _compile._compile_one
+    monkeypatch.setattr(_compile, "_compile_one", lambda *args: (builds.append(args[3]), build(*args))[1])
+    open_source(fmu).close()
+    assert builds == ["MeOnly"] and not library.stat().st_mode & 0o022

@@ -8,7 +8,8 @@ the files named by the description (FMI 2: ``<SourceFiles>`` of each interface; 
 in ``sources/`` where none are named, are compiled with the C compiler of :func:`fmu_opinf.fmus.find_c_compiler`
 and fmpy's FMI headers into one shared library per model identifier.  The libraries are kept in the per-user cache
 folder, named after a digest of the FMU file and the compiler command, so each FMU is compiled once per machine; the
-unpacked copy of the FMU gets them in ``binaries/<platform>/``.  The FMU file itself is never changed.
+unpacked copy of the FMU gets them in ``binaries/<platform>/``.  The FMU file itself is never changed.  As for the
+model-exchange step loop, a cached library that another user could have written is not used.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import zipfile
 from pathlib import Path
 
 from ..errors import FMUError
+from ._compiled_rk import _private, _trusted
 
 __all__ = ["has_c_sources", "compile_sources", "install_binaries"]
 
@@ -118,17 +120,22 @@ def compile_sources(fmu: Path, root: ET.Element, identifiers: list[str]) -> dict
                        "install gcc); or export it with a binary for this platform")
     folder = _user_cache_dir() / "compiled-fmus" / _digest(fmu, compiler)
     wanted = {name: folder / f"{name}{_library_suffix()}" for name in identifiers}
-    if all(path.is_file() for path in wanted.values()):
+    if all(_trusted(path) for path in wanted.values()):
         return wanted
-    folder.mkdir(parents=True, exist_ok=True)
+    _private(folder.parent)
+    _private(folder)
     with tempfile.TemporaryDirectory(prefix="fmu_opinf_build_") as scratch:
         unzipped = Path(scratch)
         with zipfile.ZipFile(fmu) as zf:
             members = [m for m in zf.namelist() if m.startswith("sources/") and ".." not in Path(m).parts]
             zf.extractall(unzipped, members=members)
         for name, library in wanted.items():
-            if not library.is_file():
+            if not _trusted(library):
                 _compile_one(fmu, root, unzipped, name, compiler, library)
+            if not _trusted(library):
+                raise FMUError(f"{fmu.name}: the library compiled from its sources in {folder} could be changed by "
+                               "another user (a shared FMU_OPINF_CACHE_DIR?), so it is not loaded; use a cache folder "
+                               "of your own")
     return wanted
 
 
