@@ -351,3 +351,23 @@ def test_a_learned_mode_above_the_training_nyquist_frequency_is_warned():
     with warnings.catch_warnings():
         warnings.simplefilter("error", FmuOpinfWarning)
         fit_rom([newmark.simulate(system, train, 0.05, 60.0)], r=2, quiet=True, refine=False)
+
+
+def test_an_order_below_the_number_of_inputs_is_warned_about():
+    """Seventh audit: 20 inputs on 20 masses, r = 5 chosen from the energy at E_r = 0.959 (snapshot rank 20), one
+    output 11 % off, while --r 20 was exact.  The warning names the order to try; none where the snapshots hold no
+    more (rank = r) or r covers the inputs."""
+    import warnings
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.rom import _warn_if_order_below_inputs
+
+    with pytest.warns(FmuOpinfWarning, match=r"r=5 \(from the cumulative energy\) is below the 20 inputs, and the "
+                                             r"snapshots have rank 20: .* fit with --r 20"):
+        _warn_if_order_below_inputs(5, 20, 20)
+    with pytest.warns(FmuOpinfWarning, match="fit with --r 8"):
+        _warn_if_order_below_inputs(5, 8, 20)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_if_order_below_inputs(5, 5, 20)
+        _warn_if_order_below_inputs(20, 40, 20)
