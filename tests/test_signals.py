@@ -121,8 +121,10 @@ def test_an_offset_puts_impulse_step_and_chirp_on_an_operating_point():
     """``offset=`` adds a constant to the formula (the default training's pulse on an input's start value); the
     spec names it only where it is not 0 (specs written before read the same), and keeps every digit of it."""
     t = np.linspace(0.0, 4.0, 81)
-    for spec in ("impulse:amplitude=2,t0=1,width=0.5", "step:amplitude=2,t0=1", "chirp:amplitude=2,omega0=0.01,omega1=3,duration=100,t0=0"):
+    for spec in ("impulse:amplitude=2,t0=1,width=0.5", "step:amplitude=2,t0=1",
+                 "chirp:amplitude=2,omega0=0.01,omega1=3,duration=100,t0=0"):
         plain, shifted = signals.parse_signal(spec), signals.parse_signal(spec + ",offset=9.80665123")
         assert plain.spec == spec and "offset" not in plain.spec
         np.testing.assert_array_equal(shifted.sample(t), plain.sample(t) + 9.80665123)
-        assert signals.parse_signal(shifted.spec).params["offset"] == 9.80665123 and shifted.spec.endswith("offset=9.80665123")
+        assert signals.parse_signal(shifted.spec).params["offset"] == 9.80665123
+        assert shifted.spec.endswith("offset=9.80665123")

@@ -14,7 +14,8 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 
-__all__ = ["Source", "StepError", "EventCount", "match_names", "natural_key", "CONSTRAINTS", "check_constraint", "inputs_without"]
+__all__ = ["Source", "StepError", "EventCount", "match_names", "natural_key", "CONSTRAINTS", "check_constraint",
+           "inputs_without"]
 
 #: Constraint kinds a source may declare.
 CONSTRAINTS = ("position", "velocity", "none", "unknown")

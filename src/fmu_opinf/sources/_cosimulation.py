@@ -300,8 +300,9 @@ class FMUSource(Source):
         identifiers = [i.modelIdentifier for i in (md.modelExchange, md.coSimulation) if i is not None]
         self._compiled = compile_sources(self.path, model_xml(self.path), list(dict.fromkeys(identifiers)))
         folder = next(iter(self._compiled.values())).parent
-        warn_once(self, ("compiled",), f"has no binary for this platform ({plat}; it has: {', '.join(have) or 'none'}); "
-                  f"compiled from its C sources with this machine's C compiler, once, into {folder}", stacklevel=5)
+        warn_once(self, ("compiled",), f"has no binary for this platform ({plat}; it has: "
+                  f"{', '.join(have) or 'none'}); compiled from its C sources with this machine's C compiler, once, "
+                  f"into {folder}", stacklevel=5)
 
     def _resolve(self, positions: str | None, velocities: str | None, accelerations: str | None,
                  inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:

@@ -533,8 +533,8 @@ class ModelExchangeSource(FMUSource):
             raise StepError(f"{exc} (at {self._at(t)})", i, t) from None
         except FMICallException as exc:  # the FMU refused a call of the event iteration
             raise StepError(self._integration_failure(i, t, t, f"the event iteration failed: {exc}"), i, t) from None
-        states_changed = self.nx and self._read_states_after_event(i, t)
-        if states_changed and nominals_changed:
+        states_changed = bool(self.nx) and self._read_states_after_event(i, t)
+        if self.nx and nominals_changed:
             self._floor = _floor(self._nominals())
         if set_inputs is None:
             self._count_event(t, states_changed or not _same(before, self._observed(t)))
@@ -745,8 +745,8 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
         return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     try:
-        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first, check_interrupt,
-                                        completed, one_step, source._origin)
+        x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first,
+                                        check_interrupt, completed, one_step, source._origin)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
