@@ -545,7 +545,7 @@ def test_an_fmu_without_our_binary_that_ships_its_sources_is_compiled_here(toys,
         zout.writestr("sources/model.c", "/* the model */\n")
     with pytest.warns(FmuOpinfWarning, match=r"toy-win-sources\.fmu: has no binary for this platform \([^;]+; it "
                                              r"has: win64\); compiled from its C sources"):
-        source = FMUSource(with_sources)
+        source = open_source(str(with_sources), interface="cs")
     _one_line_error(FMUError, record, source, "none", 0.1, 1.0, quiet=True, match="cannot load the binary")
 
 

@@ -74,7 +74,8 @@ INTERFACES = ("auto", "me", "cs")
 def choose_interface(path: str | os.PathLike, interface: str | None = "auto") -> str:
     """The FMI interface to drive: ``"me"`` or ``"cs"``.
 
-    ``auto`` prefers model exchange when the FMU offers it (with a binary for this platform):
+    ``auto`` prefers model exchange when the FMU offers it (with a binary for this platform, or C sources and
+    no binary for either interface, compiled here):
     fmu-opinf then integrates with its own tolerance, whereas several exporters' co-simulation is one
     explicit Euler step per communication step.  A co-simulation-only FMU is driven through
     co-simulation.
@@ -103,8 +104,12 @@ def choose_interface(path: str | os.PathLike, interface: str | None = "auto") ->
         return "cs"
     if md.coSimulation is None:
         return "me"
-    binary = f"binaries/{binary_platform(str(md.fmiVersion))}/{md.modelExchange.modelIdentifier}."
-    return "me" if _has_file(path, binary) else "cs"
+    platform = binary_platform(str(md.fmiVersion))
+    if _has_file(path, f"binaries/{platform}/{md.modelExchange.modelIdentifier}."):
+        return "me"
+    # no binary for either interface, but sources: both are compiled here (sources._compile), so model exchange
+    return "me" if not _has_file(path, f"binaries/{platform}/{md.coSimulation.modelIdentifier}.") \
+        and _has_file(path, "sources/") else "cs"
 
 
 def _has_file(path: str | os.PathLike, prefix: str) -> bool:
@@ -156,6 +161,8 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
                              "or leave out --me-method")
     source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
     warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
+    if getattr(source, "compiled", None):
+        warn_once(source, ("compiled",), source.compiled, stacklevel=3)
     _warn_parameter_like(source)
     _warn_unrecorded_states(source)
     return source

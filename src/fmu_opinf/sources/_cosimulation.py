@@ -284,6 +284,7 @@ class FMUSource(Source):
             with zipfile.ZipFile(self.path) as zf:
                 files = zf.namelist()
         self._compiled: dict[str, Path] = {}
+        self.compiled = ""   # what was compiled here, for the one warning of open_source
         if not any(f.startswith(binary + ".") for f in files):
             have = sorted({f.split("/")[1] for f in files if f.startswith("binaries/") and f.count("/") >= 2})
             if has_c_sources(files) and not self.path.is_dir():
@@ -293,16 +294,15 @@ class FMUSource(Source):
                            f"{', '.join(have) or 'none'}); export or compile it for {plat}")
 
     def _compile_sources(self, md: Any, plat: str, have: list[str]) -> None:
-        """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install."""
-        from . import warn_once
+        """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install;
+        :attr:`compiled` says so (:func:`fmu_opinf.sources.open_source` warns, child processes stay silent)."""
         from ._variables import model_xml
 
         identifiers = [i.modelIdentifier for i in (md.modelExchange, md.coSimulation) if i is not None]
         self._compiled = compile_sources(self.path, model_xml(self.path), list(dict.fromkeys(identifiers)))
-        folder = next(iter(self._compiled.values())).parent
-        warn_once(self, ("compiled",), f"has no binary for this platform ({plat}; it has: "
-                  f"{', '.join(have) or 'none'}); compiled from its C sources with this machine's C compiler, once, "
-                  f"into {folder}", stacklevel=5)
+        self.compiled = (f"has no binary for this platform ({plat}; it has: {', '.join(have) or 'none'}); compiled "
+                         "from its C sources with this machine's C compiler, once, into "
+                         f"{next(iter(self._compiled.values())).parent}")
 
     def _resolve(self, positions: str | None, velocities: str | None, accelerations: str | None,
                  inputs: str | None, outputs: str | None, settings: dict[str, Any]) -> None:
