@@ -7,16 +7,18 @@ the files named by the description (FMI 2: ``<SourceFiles>`` of each interface; 
 ``sources/buildDescription.xml``, with its preprocessor definitions and include directories), or every ``.c`` file
 in ``sources/`` where none are named, are compiled with the C compiler of :func:`fmu_opinf.fmus.find_c_compiler`
 and fmpy's FMI headers into one shared library per model identifier.  The libraries are kept in the per-user cache
-folder, named after a digest of the FMU file and the compiler command, so each FMU is compiled once per machine; the
-unpacked copy of the FMU gets them in ``binaries/<platform>/``.  The FMU file itself is never changed.  As for the
-model-exchange step loop, a cached library that another user could have written is not used.
+folder, named after a digest of the FMU file, the compiler command and the machine's kind, so each FMU is compiled
+once per machine; the unpacked copy of the FMU gets them in ``binaries/<platform>/``.  The FMU file itself is never
+changed.  As for the model-exchange step loop, a cached library that another user could have written is not used.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import platform
 import shutil
+import struct
 import subprocess
 import sys
 import tempfile
@@ -86,7 +88,7 @@ def _digest(fmu: Path, compiler: list[str]) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     h.update("\0".join(compiler).encode())
-    h.update(sys.platform.encode())
+    h.update(f"{sys.platform} {platform.machine()} {struct.calcsize('P')}".encode())   # a cache shared by machines
     return h.hexdigest()[:24]
 
 
