@@ -933,31 +933,13 @@ def _pilot_weights(m: int) -> np.ndarray:
 
 def _pilot_signal(pulses: Sequence[str], source: Source) -> Signal:
     """The pilots' input: ``pulses[j]`` on input ``j``, on top of the value the training runs hold it at when they
-    do not drive it (its start or ``--set`` value), so that the pilots stay at the training runs' operating point
-    (a parameter exposed as an input is not driven through zero there)."""
-    from ..signals import parse_signal
-
+    do not drive it (its start or ``--set`` value), as the training runs' own pulses are (:func:`_on_start`), so
+    that the pilots stay at the training runs' operating point (a parameter exposed as an input is not driven
+    through zero there)."""
     starts = source.input_starts()
     if len(starts) != len(pulses):
         starts = np.zeros(len(pulses))
-    return StackedSignal([_OnStartValue(parse_signal(pulse, 1), start) for pulse, start in zip(pulses, starts)])
-
-
-class _OnStartValue(Signal):
-    """One input channel: ``pulse`` added to a constant ``start``; its activity is the pulse's."""
-
-    def __init__(self, pulse: Any, start: float) -> None:
-        self.pulse, self.start, self.n_inputs = pulse, float(start), 1
-        self.spec = pulse.spec if self.start == 0 else f"{pulse.spec} on {self.start:g}"
-
-    def activity(self) -> tuple[float, float | None] | None:
-        return self.pulse.activity()
-
-    def is_identically_zero(self) -> bool:
-        return False
-
-    def _values(self, t: np.ndarray) -> np.ndarray:
-        return self.pulse.sample(t) + self.start
+    return StackedSignal([parse_signal(_on_start(pulse, start), 1) for pulse, start in zip(pulses, starts)])
 
 
 def check_input_acts(signal: Any, t: np.ndarray) -> None:
