@@ -82,17 +82,15 @@ def _build_plan(root: ET.Element, unzipped: Path, identifier: str) -> tuple[list
     return named, defines, [sources, *includes, *headers]
 
 
-def _digest(fmu: Path, compiler: list[str]) -> str:
-    h = hashlib.sha256()
-    with open(fmu, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
+def _digest(fmu_sha256: str, compiler: list[str]) -> str:
+    """The cache folder's name: the FMU file's digest, the compiler command and the machine's kind."""
+    h = hashlib.sha256(fmu_sha256.encode())
     h.update("\0".join(compiler).encode())
     h.update(f"{sys.platform} {platform.machine()} {struct.calcsize('P')}".encode())   # a cache shared by machines
     return h.hexdigest()[:24]
 
 
-def compile_sources(fmu: Path, root: ET.Element, identifiers: list[str]) -> dict[str, Path]:
+def compile_sources(fmu: Path, root: ET.Element, identifiers: list[str], fmu_sha256: str) -> dict[str, Path]:
     """The shared library of each model identifier, compiled from the FMU's sources (or found in the cache).
 
     Parameters
@@ -103,6 +101,8 @@ def compile_sources(fmu: Path, root: ET.Element, identifiers: list[str]) -> dict
         Its ``modelDescription.xml`` root.
     identifiers : list of str
         The model identifiers to build (ME and CS may differ).
+    fmu_sha256 : str
+        The FMU file's SHA-256 (:func:`fmu_opinf._hdf5.sha256_of`; the source's provenance keeps it).
 
     Returns
     -------
@@ -120,7 +120,7 @@ def compile_sources(fmu: Path, root: ET.Element, identifiers: list[str]) -> dict
     if compiler is None:
         raise FMUError(f"{fmu.name} ships only C sources for this platform and no C compiler was found (set CC or "
                        "install gcc); or export it with a binary for this platform")
-    folder = _user_cache_dir() / "compiled-fmus" / _digest(fmu, compiler)
+    folder = _user_cache_dir() / "compiled-fmus" / _digest(fmu_sha256, compiler)
     wanted = {name: folder / f"{name}{_library_suffix()}" for name in identifiers}
     if all(_trusted(path) for path in wanted.values()):
         return wanted

@@ -250,6 +250,7 @@ class FMUSource(Source):
         }
         md = read_description(self.path)
         self.constraint = check_constraint(constraint, annotated_constraint(self.path) or "unknown")
+        self._sha256: str | None = None   # read once, where first needed (compiling sources, provenance)
         self._check_interface(md)
         self.md = md
         self.start_time = check_start_time(start_time, md)
@@ -259,7 +260,6 @@ class FMUSource(Source):
         self._resolve(positions, velocities, accelerations, inputs, outputs, self._options["parameters"] or {})
         self._fmu: Any = None
         self._unzipdir: str | None = None
-        self._sha256: str | None = None
 
     # -- description ------------------------------------------------------------------------
     @staticmethod
@@ -296,10 +296,13 @@ class FMUSource(Source):
     def _compile_sources(self, md: Any, plat: str, have: list[str]) -> None:
         """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install;
         :attr:`compiled` says so (:func:`fmu_opinf.sources.open_source` warns, child processes stay silent)."""
+        from .._hdf5 import sha256_of
         from ._variables import model_xml
 
         identifiers = [i.modelIdentifier for i in (md.modelExchange, md.coSimulation) if i is not None]
-        self._compiled = compile_sources(self.path, model_xml(self.path), list(dict.fromkeys(identifiers)))
+        self._sha256 = sha256_of(self.path)   # also the provenance's, which then need not read the file again
+        self._compiled = compile_sources(self.path, model_xml(self.path), list(dict.fromkeys(identifiers)),
+                                         self._sha256)
         self.compiled = (f"has no binary for this platform ({plat}; it has: {', '.join(have) or 'none'}); compiled "
                          "from its C sources with this machine's C compiler, once, into "
                          f"{next(iter(self._compiled.values())).parent}")
