@@ -68,7 +68,8 @@ def test_a_source_only_fmu_is_compiled_once_and_records_as_with_its_binary(corpu
                     4.0, quiet=True).runs[0]
     for key in ("x", "xdot", "y"):
         a, b = np.asarray(getattr(compiled, key)), np.asarray(getattr(binary, key))
-        assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max(), key
+        # measured 0 (bit for bit, -O2 against the exporter's CMake build); a few ulps for another compiler's rounding
+        assert np.abs(a - b).max() <= 1e-15 * np.abs(b).max(), key
     libraries = list((cache / "compiled-fmus").rglob("*.so"))
     assert len(libraries) == 1
     assert fmu.read_bytes() == without_binaries(corpus[name], tmp_path / "again.fmu").read_bytes()   # unchanged
