@@ -635,6 +635,7 @@ import scipy.linalg
 from .errors import DataError, DimensionError, FmuOpinfWarning
 from ._realization import first_order_matrix, mechanical_realization
 from ._background import Background, can_fork_here
+from .basis import column_blocks
 from ._threads import single_threaded
 from ._sdp_paths import (FACTORED_ABOVE, factored_start, fit_compressed, fit_factored, input_matrix,
                          solve_sdp_direct)
@@ -1328,8 +1329,7 @@ def fit_output_map(
             raise DataError(f"{name} contains NaN/Inf; check the snapshot data")
     blocks = [xdot_r, x_r] + ([u] if feedthrough else []) + ([np.ones((1, k))] if offset else [])
     scales = [_rms(b) for b in blocks]
-    A = np.vstack([b / s for b, s in zip(blocks, scales)]).T
-    coef, *_ = np.linalg.lstsq(A, y.T, rcond=None)
+    coef = _LeastSquares(np.vstack([b / s for b, s in zip(blocks, scales)]).T).solution(y)
     parts, row = [], 0
     for block, scale in zip(blocks, scales):
         parts.append(coef[row:row + block.shape[0]].T / scale)
@@ -1346,13 +1346,36 @@ def fit_output_map(
 TERM_SIGNIFICANCE = 0.5
 
 
+class _LeastSquares:
+    """``min ||A X - T^T||_F`` for a tall ``A`` (k, c) and targets ``T`` given as rows (p, k), as
+    ``np.linalg.lstsq(A, T.T)`` solves it (thin SVD of ``A``; singular values below ``eps max(k, c)`` times the
+    largest count as zero), without its copies of ``T^T``: the targets are read only through ``T U`` and in
+    column blocks, so many outputs cost no ``(k, p)`` temporaries (seventh audit: 200 outputs, 172180 samples;
+    each ``lstsq`` copied 275 MB, the fit peaked at 2.34 GB)."""
+
+    def __init__(self, A: np.ndarray) -> None:
+        U, sigma, Vt = np.linalg.svd(A, full_matrices=False)
+        keep = sigma > np.finfo(float).eps * max(A.shape) * (sigma[0] if sigma.size else 0.0)
+        self.U, self.sigma, self.Vt = U[:, keep], sigma[keep], Vt[keep]
+
+    def solution(self, targets: np.ndarray) -> np.ndarray:
+        """``X`` (c, p), the minimum-norm solution."""
+        return self.Vt.T @ ((targets @ self.U) / self.sigma).T
+
+    def residual(self, targets: np.ndarray) -> float:
+        """``||A X - T^T||_F`` at the solution: ``T`` less its projection on the range of ``A``."""
+        coordinates, total = targets @ self.U, 0.0
+        for part in column_blocks(*targets.shape):
+            block = targets[:, part] - coordinates @ self.U[part].T
+            total += float(np.sum(block * block))
+        return float(np.sqrt(total))
+
+
 def _lstsq_residual(blocks: list[np.ndarray], target: np.ndarray) -> float:
     blocks = [b for b in blocks if b.shape[0]]
     if not blocks:
         return float(np.linalg.norm(target))
-    A = np.vstack([b / _rms(b) for b in blocks]).T
-    coef, *_ = np.linalg.lstsq(A, target.T, rcond=None)
-    return float(np.linalg.norm(A @ coef - target.T))
+    return _LeastSquares(np.vstack([b / _rms(b) for b in blocks]).T).residual(target)
 
 
 def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray) -> tuple[float, float]:

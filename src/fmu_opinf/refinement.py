@@ -27,6 +27,7 @@ from ._background import checkpoint
 from ._lbfgs import minimize_lbfgs
 from ._output_gradient import _STRIDE, dense_output_gradient, modal_is_faster, modal_output_gradient, propagate
 from ._progress import Progress
+from .basis import column_blocks
 from .errors import DimensionError
 
 __all__ = ["refine_output_error", "newmark_step_map", "output_error_objective", "output_scales",
@@ -742,29 +743,42 @@ def _training_problem(xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.
                       scales: np.ndarray, output_weighting: str, compress: bool = True) -> _Trajectories:
     """The runs split at ``lengths``, the output target and the map's rows divided by :func:`output_scales`
     (relative objective); with ``compress`` (a fixed map), more outputs than states are reduced to as many
-    (:func:`_compressed_outputs`)."""
+    (:func:`_compressed_target`)."""
     divisor = output_scales(y, output_weighting)[:, None]
     cuts = np.cumsum([0] + lengths)
     z = np.vstack([x_r, xdot_r])
-    targets = [y[:, a:b] / divisor for a, b in zip(cuts[:-1], cuts[1:])]
-    C, unreached = np.hstack(output_map) / divisor, 0.0
+    C = np.hstack(output_map) / divisor
+    Q = None
     if compress and C.shape[0] > C.shape[1]:
-        C, targets, unreached = _compressed_outputs(C, targets)
+        Q, C = np.linalg.qr(C)
+    targets, unreached = [], 0.0
+    for a, b in zip(cuts[:-1], cuts[1:]):  # run by run: no divided copy of all outputs at once
+        if Q is None:
+            targets.append(y[:, a:b] / divisor)
+            continue
+        target, missed = _compressed_target(Q, y[:, a:b], divisor)
+        targets.append(target)
+        unreached += missed
     return _Trajectories(
         z=[z[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])], u=[u[:, a:b] for a, b in zip(cuts[:-1], cuts[1:])],
         target=targets, C=C, dt=float(dt), scales=scales, unreached=unreached, divisor=divisor)
 
 
-def _compressed_outputs(C: np.ndarray, targets: list[np.ndarray]) -> tuple[np.ndarray, list[np.ndarray], float]:
+def _compressed_target(Q: np.ndarray, outputs: np.ndarray, divisor: np.ndarray) -> tuple[np.ndarray, float]:
     """``p`` outputs of a fixed map ``C`` (``p`` larger than the ``2r`` states) reduced to ``2r``: with ``C = Q R``
     (``Q`` orthonormal columns), ``||C z - t||^2 = ||R z - Q^T t||^2 + ||t - Q Q^T t||^2`` for every ``z``, the
-    last term a constant.  Each evaluation of the objective then costs ``O(k r^2)`` instead of ``O(k p r)``, and
-    the targets take ``2r`` rows instead of ``p`` (seventh audit, 2026-11-27: 200 outputs, r = 5, 172,000
-    samples: the refinement took 113 s and 2.3 GB).  Exact: no difference of squares is formed."""
-    Q, R = np.linalg.qr(C)
-    reduced = [Q.T @ t for t in targets]
-    unreached = sum(float(np.sum((t - Q @ q) ** 2)) for t, q in zip(targets, reduced))
-    return R, reduced, unreached
+    last term a constant.  Returns the target ``Q^T t`` of the map ``R`` and that constant, for the target
+    ``t = outputs / divisor``, which is formed only in column blocks.  Each evaluation of the objective then costs
+    ``O(k r^2)`` instead of ``O(k p r)``, and the targets take ``2r`` rows instead of ``p`` (seventh audit,
+    2026-11-27: 200 outputs, r = 5, 172,000 samples: the refinement took 113 s and 2.3 GB).  Exact: no difference
+    of squares is formed."""
+    reduced = (Q / divisor).T @ outputs
+    unreached = 0.0
+    for part in column_blocks(*outputs.shape):
+        block = outputs[:, part] / divisor
+        block -= Q @ reduced[:, part]
+        unreached += float(np.sum(block * block))
+    return reduced, unreached
 
 
 def _modal_coordinates(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -62,7 +62,7 @@ import scipy.linalg
 from . import _threads
 from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
 from ._validate import check_rom_file
-from .basis import PODBasis, as_runs, centred, project, read_columns, snapshot_attrs
+from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError, FmuOpinfWarning, InputSpecError
 from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
 
@@ -590,20 +590,47 @@ def _vector(value: Any, size: int) -> np.ndarray:
 # The pipeline
 # ----------------------------------------------------------------------------------------------------------
 def _run_data(run: Any, i: int, basis: np.ndarray, chunk: int) -> dict[str, np.ndarray]:
-    """Reduced states (eq. 14), inputs and outputs of one run, with completeness, shape and value checks."""
+    """Reduced states (eq. 14) and inputs of one run, with completeness, shape and value checks (its outputs:
+    :func:`_stacked_outputs`)."""
     if not bool(getattr(run, "attrs", {}).get("complete", True)):
         raise DataError(f"run {i} is incomplete (the recording stopped early); re-record it or drop it")
-    k = int(np.shape(run.t)[0])
+    k = _run_length(run)
     out = {name: project(basis, getattr(run, name), chunk, label=f"{name} of run {i}")
            for name in ("xddot", "xdot", "x")}
     for name, array in out.items():
         if array.shape[1] != k:
             raise DimensionError(f"{name} of run {i} has {array.shape[1]} columns; t has {k}")
-    for name in ("u", "y"):
-        array = getattr(run, name)
-        if len(array.shape) != 2 or array.shape[1] != k:
-            raise DimensionError(f"{name} of run {i} has shape {tuple(array.shape)}; expected ({name[0]}, {k})")
-        out[name] = read_columns(array, 0, k, f"{name} of run {i}")
+    _check_port_shape(run, i, "u", k)
+    out["u"] = read_columns(run.u, 0, k, f"u of run {i}")
+    return out
+
+
+def _run_length(run: Any) -> int:
+    return int(np.shape(run.t)[0])
+
+
+def _check_port_shape(run: Any, i: int, name: str, k: int) -> None:
+    shape = getattr(run, name).shape
+    if len(shape) != 2 or shape[1] != k:
+        raise DimensionError(f"{name} of run {i} has shape {tuple(shape)}; expected ({name[0]}, {k})")
+
+
+def _stacked_outputs(runs: list) -> np.ndarray:
+    """The outputs of all runs side by side, ``(p, sum k)``, each run read straight into its columns: with many
+    outputs they are the largest array of a fit (seventh audit: 200 outputs, 172180 samples, 275 MB), so it is
+    held once, not once per run and once stacked."""
+    lengths = [_run_length(run) for run in runs]
+    for i, (run, k) in enumerate(zip(runs, lengths)):
+        _check_port_shape(run, i, "y", k)
+    rows = sorted({int(run.y.shape[0]) for run in runs})
+    if len(rows) != 1:
+        raise DimensionError(f"runs disagree in the number of rows of y: {rows}")
+    out = np.empty((rows[0], sum(lengths)))
+    start = 0
+    for i, (run, k) in enumerate(zip(runs, lengths)):
+        for part in column_blocks(rows[0], k):
+            out[:, start + part.start:start + part.stop] = read_columns(run.y, part.start, part.stop, f"y of run {i}")
+        start += k
     return out
 
 
@@ -698,10 +725,11 @@ def _warn_if_modes_above_nyquist(poles: list, dt: float | None) -> None:
                       FmuOpinfWarning, stacklevel=3)
 
 
-def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,
-                  wide: bool = False) -> dict[str, np.ndarray]:
+def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None, wide: bool = False,
+                  outputs: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Reduced data of all runs side by side: ``xddot, xdot, x (r, k)``, ``u (m, k)``, ``y (p, k)``; with ``wide``
-    on the POD's :attr:`~fmu_opinf.basis.PODBasis.wide_basis_` (the extra terms' decision).
+    on the POD's :attr:`~fmu_opinf.basis.PODBasis.wide_basis_` (the extra terms' decision).  ``outputs``: ``y``
+    when it was read already (it does not depend on the basis).
 
     With ``lowpass`` the entries ``"f_xddot", "f_xdot", "f_x", "f_u"`` hold low-pass filtered copies (each
     run filtered separately) for the SDP; the plain entries are always present (outputs fit, eq. 17).  Runs
@@ -714,17 +742,18 @@ def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None,
     if any(_averaged(run) for run in runs):
         for run, d in zip(runs, per_run):
             d.update(zip(("f_xddot", "f_xdot", "f_x", "f_u", "f_start", "f_h"), _sdp_triples(run, d)))
-    for name in ("u", "y"):
-        rows = sorted({d[name].shape[0] for d in per_run})
-        if len(rows) != 1:
-            raise DimensionError(f"runs disagree in the number of rows of {name}: {rows}")
+    rows = sorted({d["u"].shape[0] for d in per_run})
+    if len(rows) != 1:
+        raise DimensionError(f"runs disagree in the number of rows of u: {rows}")
     if lowpass is not None:
         names = ("xddot", "xdot", "x", "u")
         for run, d in zip(runs, per_run):
             step = float(np.diff(np.asarray(run.t[:2], dtype=float))[0])
             d.update(zip(("f_" + n for n in names), lowpass_filter([d.get("f_" + n, d[n]) for n in names],
                                                                    step, lowpass)))
-    return {name: np.hstack([d[name] for d in per_run]) for name in per_run[0]}
+    stacked = {name: np.hstack([d[name] for d in per_run]) for name in per_run[0]}
+    stacked["y"] = _stacked_outputs(runs) if outputs is None else outputs
+    return stacked
 
 
 def _averaged(run: Any) -> bool:
@@ -890,7 +919,8 @@ def fit_rom(
         _warn_if_order_below_inputs(pod.r_, pod.rank_, data["u"].shape[0])
     _warn_if_inputs_alike(data["u"], _names(attrs.get("input_names"), data["u"].shape[0])
                           or [f"u[{i + 1}]" for i in range(data["u"].shape[0])])
-    decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(centred_runs, pod, lowpass, wide=True)
+    decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(centred_runs, pod, lowpass, wide=True,
+                                                                          outputs=data["y"])
     with _threads.single_threaded():  # least-squares residuals of reduced data: small kernels
         chosen, term_info = _choose_terms(decision, requested, "f_" if any(_averaged(run) for run in runs) else "")
     sdp = "f_" if "f_x" in data else ""
@@ -989,9 +1019,17 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
     if refine is False or not possible:
         return {}
     Cpr, Cvr, Dur, y0 = maps
-    target = data["y"] - Dur @ data["u"] - y0[:, None]
+    target = data["y"] if not (np.any(Dur) or np.any(y0)) else _net_outputs(data["y"], data["u"], Dur, y0)
     return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths, "refine": True,
             "integrator": integrator}
+
+
+def _net_outputs(y: np.ndarray, u: np.ndarray, Dur: np.ndarray, y0: np.ndarray) -> np.ndarray:
+    """``y - Dur u - y0``, formed in blocks into one new array (no full-size temporaries)."""
+    out = np.empty_like(y)
+    for part in column_blocks(*y.shape):
+        np.subtract(y[:, part], Dur @ u[:, part] + y0[:, None], out=out[:, part])
+    return out
 
 
 def _refinement_summary(report: Any) -> str:
@@ -1127,8 +1165,12 @@ def _output_residual(maps: tuple, data: dict[str, np.ndarray], coordinates: np.n
         r = Cpr.shape[1]
         C = np.linalg.solve(coordinates.T, np.hstack([Cpr, Cvr]).T).T
         Cpr, Cvr = C[:, :r], C[:, r:]
-    resid = Cpr @ data["x"] + Cvr @ data["xdot"] + Dur @ data["u"] + y0[:, None] - data["y"]
-    return float(np.linalg.norm(resid) / (np.linalg.norm(data["y"]) or 1.0))
+    y, squares = data["y"], 0.0
+    for part in column_blocks(*y.shape):  # in blocks: y may be the largest array of the fit
+        resid = Cpr @ data["x"][:, part] + Cvr @ data["xdot"][:, part] + Dur @ data["u"][:, part] + y0[:, None]
+        resid -= y[:, part]
+        squares += float(np.sum(resid * resid))
+    return float(np.sqrt(squares) / (np.linalg.norm(y) or 1.0))
 
 
 def fit_rom_file(
