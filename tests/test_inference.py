@@ -411,6 +411,25 @@ def test_blocked_propagation_equals_the_plain_recursion(rng):
         np.testing.assert_allclose(propagate(A, f, z0, stride), plain, rtol=0, atol=1e-12 * np.abs(plain).max())
 
 
+def test_runs_propagated_side_by_side_equal_the_plain_recursion_of_each(rng):
+    from fmu_opinf._output_gradient import _similar_lengths, propagate_runs
+
+    A = rng.standard_normal((6, 6))
+    A /= 1.05 * np.abs(np.linalg.eigvals(A)).max()
+    lengths = [203, 190, 203, 2, 1, 60, 200]  # groups of similar length, a padded tail, runs of one or two samples
+    forcings = [rng.standard_normal((6, k)) for k in lengths]
+    starts = [rng.standard_normal(6) for _ in lengths]
+    groups = _similar_lengths(lengths)
+    assert sorted(j for g in groups for j in g) == list(range(len(lengths))) and len(groups[0]) >= 3
+    for stride in (1, 16, 64):
+        for f, z0, z in zip(forcings, starts, propagate_runs(A, forcings, starts, stride)):
+            plain = np.empty_like(f)
+            plain[:, 0] = z0
+            for i in range(1, f.shape[1]):
+                plain[:, i] = A @ plain[:, i - 1] + f[:, i]
+            np.testing.assert_allclose(z, plain, rtol=0, atol=1e-12 * np.abs(plain).max())
+
+
 @pytest.mark.parametrize("gradient", ["dense", "modal"])
 def test_refinement_gradient_matches_finite_differences(rng, gradient):
     from fmu_opinf.refinement import _psd_factor, _Trajectories
