@@ -138,6 +138,33 @@ def test_damped_waits_for_the_fade_out():
     assert y[long.t > window.t_end].max() <= 0.0105 * y.max()
 
 
+class SensedOscillator(Oscillator):
+    """The oscillator with a second output ``100 u``: a sensor of the input (direct feedthrough), which peaks
+    at 1e4 while the input acts, far above the vibrations (about 9.5)."""
+
+    def __init__(self, omega: float, zeta: float) -> None:
+        super().__init__(omega, zeta)
+        self.output_names = ["y", "u_meas"]
+
+    def recipe(self):
+        return SensedOscillator, {"omega": self.omega, "zeta": self.zeta}
+
+    def read(self, out) -> None:
+        super().read(out)
+        out[4] = 100.0 * self.u
+
+
+def test_a_feedthrough_peak_while_the_input_acts_does_not_end_the_wait_for_the_fade_out():
+    """The fade is judged against the vibrations' peak after the input (seventh audit, finding 12: against the
+    sensor's peak, a response at 36 % of its own peak had 'faded')."""
+    omega, zeta = math.pi, 0.05
+    window = auto_window(SensedOscillator(omega, zeta), IMPULSE)
+    t_fade = 2.25 + math.log(1 / 0.01) / (zeta * omega)  # envelope exp(-zeta w t) down to 1 % of its peak
+    assert window.stopped_by == "fade"
+    assert 0.8 * t_fade <= window.t_end <= 1.2 * t_fade, (window, t_fade)
+    assert window.t_end == auto_window(Oscillator(omega, zeta), IMPULSE).t_end
+
+
 @pytest.mark.parametrize("zeta", [3.0, 50.0])
 def test_overdamped_waits_for_the_slow_decay(zeta):
     omega = 1.0

@@ -206,24 +206,52 @@ def fade_time(t: np.ndarray, y: np.ndarray, fade: float = 0.01,
 @dataclasses.dataclass
 class _Envelope:
     """The outputs' distance from their rest (``deviation``), its running maximum from each sample to the end
-    (``envelope``) and its ``peak``: computed once per pilot for the fade time and its extrapolation."""
+    (``envelope``), and the ``peak`` the fade is judged against with the sample it is at (``peak_at``): computed
+    once per pilot for the fade time and its extrapolation.
+
+    The peak is the largest deviation once the input has stopped changing (``t >= t_input``), the vibrations the
+    window waits for; the whole run's only where the response after the input is negligible
+    (:data:`NEGLIGIBLE_AFTER_INPUT`, a model that merely follows the pulse).  While the input acts, an output it
+    reaches directly (a feedthrough-only input such as a sensor bias, an acceleration sensor under a force) can
+    peak far above the vibrations: judged against that peak, a response still at 36 % of its own peak had
+    'faded' (seventh audit, 2026-11-27).
+    """
 
     deviation: np.ndarray
     envelope: np.ndarray
     peak: float
+    peak_at: int = 0
 
     @classmethod
     def of(cls, t: np.ndarray, y: np.ndarray, fade: float, t_input: float | None) -> "_Envelope":
         y = np.atleast_2d(y)
         deviation = np.linalg.norm(y - _rest(t, y, fade, t_input), axis=0)
-        return cls(deviation, np.maximum.accumulate(deviation[::-1])[::-1], float(deviation.max()))
+        envelope = np.maximum.accumulate(deviation[::-1])[::-1]
+        peak_at = int(np.argmax(deviation))
+        stopped = 0 if t_input is None or len(t) < 2 else _held_until(t, t_input)
+        if 0 < stopped < len(t):
+            after = stopped + int(np.argmax(deviation[stopped:]))
+            if deviation[after] >= NEGLIGIBLE_AFTER_INPUT * deviation[peak_at]:
+                peak_at = after
+        return cls(deviation, envelope, float(deviation[peak_at]), peak_at)
+
+
+def _held_until(t: np.ndarray, t_input: float) -> int:
+    """The first sample whose step lies wholly after ``t_input``: a sample holds the input of the step that ends
+    at it, so the one just after ``t_input`` may still carry the input."""
+    return int(np.searchsorted(t, t_input + (t[1] - t[0]) - 1e-9 * (t[1] - t[0]), side="left"))
+
+
+#: Largest deviation after the input stopped, relative to the whole run's, below which the response after the
+#: input counts as negligible and the fade is judged against the whole run's peak (:class:`_Envelope`).
+NEGLIGIBLE_AFTER_INPUT = 1e-4
 
 
 def _fade_from(t: np.ndarray, seen: _Envelope, fade: float) -> tuple[float, float]:
     if seen.peak == 0.0:
         return float(t[0]), 0.0
     below = np.nonzero(seen.envelope <= fade * seen.peak)[0]
-    below = below[t[below] >= t[int(np.argmax(seen.deviation))]]
+    below = below[below >= seen.peak_at]
     return (float(t[below[0]]) if below.size else math.inf), seen.peak
 
 
