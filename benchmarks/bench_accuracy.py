@@ -41,7 +41,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from fmu_opinf import newmark, systems
+from fmu_opinf import inference, newmark, systems
 from fmu_opinf.basis import PODBasis
 from fmu_opinf.compare import output_error
 from fmu_opinf.inference import (compressed_factor, fit_operators, fit_output_map, model_poles, pole_match,
@@ -249,7 +249,8 @@ def _path(info: dict) -> str:
     """SDP path / refinement status, and ``lstsq-realized`` where the least-squares candidate was kept."""
     if (info.get("least_squares_candidate") or {}).get("chosen"):
         return "lstsq-realized"
-    return f"{info.get('method')}/{info.get('refinement', {}).get('status', '-')}"
+    refinement = info.get("refinement", {})
+    return f"{info.get('method')}/{refinement.get('status', '-')} {refinement.get('iterations', '')}"
 
 
 def main() -> None:
@@ -266,12 +267,16 @@ def main() -> None:
     parser.add_argument("--floor", action="store_true", help="print the round-off floor of eq. (19) and exit")
     parser.add_argument("--refine-iterations", type=int, default=None,
                         help="L-BFGS budget of each refinement start (default: fit_operators' own)")
+    parser.add_argument("--stall-rtol", type=float, default=None,
+                        help="the refinement's stall stop (inference.STALL_RTOL; 0: the whole iteration budget)")
     parser.add_argument("--solver", default=None, choices=["auto", "ipm", "clarabel", "factored"],
                         help="SDP solver of the fit (default: fit_operators' own; 'ipm' certifies above r = 60 too)")
     args = parser.parse_args()
     DATA["kind"] = args.data
     DATA["refine_iterations"] = args.refine_iterations
     DATA["solver"] = args.solver
+    if args.stall_rtol is not None:
+        inference.STALL_RTOL = args.stall_rtol
     names = list(CASES) if args.case == "both" else [args.case]
     if args.floor:
         for name in names:
