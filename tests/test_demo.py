@@ -41,17 +41,26 @@ def test_quick_demo_writes_everything(demo_dir):
 
 
 @pytest.mark.slow
-def test_quick_demo_without_the_least_squares_candidate_fits_the_same_rom(demo_dir):
-    """--quick leaves the least-squares candidate out to save time; that is only right while the default fit keeps
-    the refined SDP solution over the candidate on both models: the default fit gives the same bits."""
+def test_quick_demo_without_the_least_squares_candidate_is_as_accurate_as_the_default_fit(demo_dir):
+    """--quick leaves the least-squares candidate out to save time.  Where the default fit keeps the refined SDP
+    solution, the quick ROM is the same bits (anchored chain); where it keeps the candidate (triple chain r = 12
+    since 2026-11-28: training objective 5.39e-7 against 5.50e-7), the quick ROM's max eps_y against the FMU on
+    the demo's test input is within 2x of the default's (measured 3.8e-8 against 6.5e-8)."""
     import numpy as np
 
+    from fmu_opinf.compare import compare
     from fmu_opinf.rom import SecondOrderROM, fit_rom
     from fmu_opinf.snapshots import Snapshots
 
+    summary = {case["model"]: case for case in json.loads((demo_dir / "summary.json").read_text())["cases"]}
     for model, order in (("anchored-msd", None), ("triple-chain", 12)):
         quick = SecondOrderROM.load(demo_dir / model / "rom.h5")
         default = fit_rom(Snapshots.load(demo_dir / model / "snapshots.h5"), r=order, quiet=True)
-        assert not default.fit_info["least_squares_candidate"].get("chosen")
-        for name in ("Mr", "Dr", "Kr", "Br"):
-            assert np.array_equal(getattr(quick, name), getattr(default, name)), (model, name)
+        if not default.fit_info["least_squares_candidate"].get("chosen"):
+            for name in ("Mr", "Dr", "Kr", "Br"):
+                assert np.array_equal(getattr(quick, name), getattr(default, name)), (model, name)
+            continue
+        case = summary[model]["rom"]
+        errors = [compare(rom, summary[model]["rom"]["fom"]["source"], case["input"], dt=case["dt"],
+                          t_end=case["t_end"], quiet=True).metrics()["max_error"] for rom in (quick, default)]
+        assert errors[0] <= 2.0 * errors[1], (model, errors)

@@ -13,9 +13,10 @@ thread only; a library user running ROM simulations in a thread pool can hold on
 from __future__ import annotations
 
 import contextlib
+import os
 from typing import Any, Callable, TypeVar
 
-__all__ = ["single_threaded", "run_single_threaded", "threads_for", "SMALL_ENTRIES"]
+__all__ = ["single_threaded", "run_single_threaded", "threads_for", "usable_cores", "SMALL_ENTRIES"]
 
 T = TypeVar("T")
 
@@ -44,3 +45,10 @@ def run_single_threaded(function: Callable[..., T], *args: Any, **kwargs: Any) -
     """``function(*args, **kwargs)`` with one BLAS thread (picklable through ``functools.partial``)."""
     with single_threaded():
         return function(*args, **kwargs)
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the platform says, else the CPU count)."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
