@@ -80,6 +80,8 @@ typedef enum {
     MatrixModalRestChange,  /* 3n x m */
     MatrixModalOutput,      /* p x 3n (columns 0..k-1 used) */
     MatrixModalOutputInput, /* p x (m + 1) */
+    MatrixX0Input, /* n x m: how the start positions follow the inputs set before initialization ends,
+                    * x = X0 + X0Input u (a model that starts at its static equilibrium); optional */
     MatrixCount
 } MatrixId;
 

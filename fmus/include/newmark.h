@@ -102,8 +102,9 @@ Status allocateNewmarkSolver(NewmarkSolver *solver, const SecondOrderSystem *sys
                              const Allocator *allocator);
 void freeNewmarkSolver(NewmarkSolver *solver, const Allocator *allocator);
 
-/* The model's start state: x = X0, v = V0 (zero unless the model adds MatrixX0 / MatrixV0 entries). */
-void initialState(const SecondOrderSystem *system, double x[], double v[]);
+/* The model's start state under the inputs u: x = X0 + X0Input u, v = V0 (zero unless the model adds
+ * MatrixX0 / MatrixX0Input / MatrixV0 entries). */
+void initialState(const SecondOrderSystem *system, const double u[], double x[], double v[]);
 
 /* Consistent initial acceleration: [M G^T; G 0][a; l] = [B u + f - D v - K x; 0]. */
 Status initialAcceleration(NewmarkSolver *solver, const SecondOrderSystem *system,

@@ -131,7 +131,7 @@ static Status ensureInitialAcceleration(ModelInstance *instance) {
 
     if (instance->current.accelerationPending) {
         if (instance->current.stepCount == 0) {
-            initialState(&instance->system, instance->current.x, instance->current.v);
+            initialState(&instance->system, instance->current.u, instance->current.x, instance->current.v);
         }
         status = initialAcceleration(&instance->solver, &instance->system, instance->current.u,
                                      instance->current.x, instance->current.v, instance->current.a,

@@ -69,6 +69,7 @@ static void setMatrixShapes(Assembly *assembly, int n, int m, int p, int nc) {
     assembly->rows[MatrixModalRestChange] = 3 * n; assembly->cols[MatrixModalRestChange] = m;
     assembly->rows[MatrixModalOutput] = p; assembly->cols[MatrixModalOutput] = 3 * n;
     assembly->rows[MatrixModalOutputInput] = p; assembly->cols[MatrixModalOutputInput] = m + 1;
+    assembly->rows[MatrixX0Input] = n; assembly->cols[MatrixX0Input] = m;
 }
 
 static void freeTriplets(Assembly *assembly, const Allocator *allocator) {
@@ -979,10 +980,11 @@ void newmarkStep(NewmarkSolver *solver, const SecondOrderSystem *system, double 
     }
 }
 
-void initialState(const SecondOrderSystem *system, double x[], double v[]) {
+void initialState(const SecondOrderSystem *system, const double u[], double x[], double v[]) {
     memset(x, 0, (size_t)system->n * sizeof(double));
     memset(v, 0, (size_t)system->n * sizeof(double));
     addProduct(&system->matrices[MatrixX0], 1.0, unitColumn, x);
+    addProduct(&system->matrices[MatrixX0Input], 1.0, u, x);
     addProduct(&system->matrices[MatrixV0], 1.0, unitColumn, v);
 }
 

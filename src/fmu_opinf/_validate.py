@@ -281,7 +281,8 @@ SNAPSHOT_FILE_ATTRS = {"kind": "str", "layout_version": "int", "n": "int", "m": 
                        "constraint": "str", "source": "str", "source_kind": "str", "model_name": "str",
                        "derived_xdot": "bool", "derived_xddot": "bool", **{k: "names" for k in _NAMES},
                        **{k: "json" for k in ("system_options", "fmu_parameters", "fmu_settings",
-                                                  "variable_selection", "versions", "auto_window")}}
+                                                  "variable_selection", "versions", "auto_window",
+                                                  "initialization")}}
 #: Expected types of the known per-run snapshot attributes.
 SNAPSHOT_RUN_ATTRS = {"complete": "bool", "k": "int", "k_planned": "int", "dt": "positive", "t0": "float",
                       "t_end": "float", "input_spec": "str", "isolated": "bool", "error": "str",

@@ -249,6 +249,8 @@ def _model_source(matrices: dict[str, np.ndarray]) -> str:
     """The generated ``model.c``: numbers only (no text from the ROM file reaches the C code)."""
     arrays = "\n".join(_c_array(name, value) for name, value in matrices.items())
     step_map = _STEP_MAP_CALLS if "stepMap" in matrices else ""
+    if "initialPositionInput" in matrices:
+        step_map += "    addDense(assembly, MatrixX0Input, initialPositionInput, N_DOF, N_INPUTS);\n"
     if "modalSize" in matrices:
         step_map += _MODAL_CALLS.format(k=int(matrices["modalSize"][0]))
     return f"""/*
@@ -412,6 +414,12 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         "outputOffset": np.concatenate([extra["y0"], offsets]),
         "initialPosition": extra["q0"], "initialVelocity": extra["qdot0"],
     }
+    start_gain = _steady_start_gain(matrices, provenance, m)
+    if start_gain is not None:  # q = q0 + S (u - u_first): S u moves the start with the inputs initialized under
+        gain, first_input = start_gain
+        c_matrices.update(initialPosition=extra["q0"] - gain @ first_input, initialPositionInput=gain)
+        description += ("; starts at its static equilibrium under the inputs set before initialization ends, "
+                        "as the source does")
     if getattr(rom, "integrator", "newmark") == "exact":
         if dt is None:
             raise DataError("an exact-integrator ROM needs its training step dt; refit the ROM")
@@ -438,6 +446,37 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         input_starts=_recorded_input_starts(provenance, m),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
     )
+
+
+def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict,
+                       m: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """``S = Kr^-1 Br`` and the first training run's start input, where the recording found that the source
+    starts at its static equilibrium under the inputs it is initialized under (``initialization`` of the
+    snapshots, :mod:`fmu_opinf.snapshots._initialization`); None otherwise.  The ROM FMU then starts at
+    ``q0 + S (u - u_first)``: its training start under the training's first input, and its own static response
+    to any other (seventh audit, E3: a 10 N preload initialized under 5 N, the ROM FMU swung about the 5 N
+    equilibrium while the source rested there).  A ROM with a rigid-body mode (singular ``Kr``) keeps its fixed
+    start, with a warning."""
+    from .snapshots._initialization import STEADY_STATE
+
+    snapshots = provenance.get("snapshots")
+    found = snapshots.get("initialization") if isinstance(snapshots, dict) else None
+    if not isinstance(found, dict) or found.get("kind") != STEADY_STATE or not m:
+        return None
+    try:
+        first_input = np.asarray(found.get("input"), dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    if first_input.shape != (m,) or not np.all(np.isfinite(first_input)):
+        return None
+    Kr = matrices["Kr"]
+    if np.linalg.cond(Kr) > 1e12:
+        warnings.warn("the source starts at its static equilibrium under the inputs it is initialized under, but the "
+                      "ROM has a rigid-body mode (Kr singular) and no equilibrium: the ROM FMU starts where the "
+                      "training started, whatever its inputs at initialization", FmuOpinfWarning, stacklevel=3)
+        return None
+    gain = np.linalg.solve(Kr, matrices["Br"])
+    return gain, first_input
 
 
 #: Base names of the exported FMU's reduced coordinates, their rates and their accelerations (``q[1]``, ...).

@@ -38,6 +38,7 @@ from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
+from ._initialization import initialization_of
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
@@ -617,6 +618,10 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             if failure is not None:
                 failure = incomplete_error(failure, run, path)
                 break
+        if failure is None:
+            first_input = np.atleast_2d(np.asarray(signals[0].sample(t[:1]), dtype=float))[:, 0] if source.m else []
+            summary.initialization = initialization_of(source, t, first_input, isolate)
+            write_attrs(f, {"initialization": summary.initialization})
         f.attrs["n_runs"] = len(summary.runs)
     if failure is not None:
         raise failure
@@ -636,6 +641,7 @@ class RecordSummary:
     dt: float | None = None  # the step recorded (a given one may stand beside the window's)
     events: list[int | None] = dataclasses.field(default_factory=list)  # per run; None: not seen (co-simulation)
     step_from: str | None = None  # who set the step beside an automatic window (--dt, the FMU), if not the window
+    initialization: dict | None = None  # a start that follows the inputs (snapshots._initialization), else None
 
     def __str__(self) -> str:
         return str(self.path)
@@ -655,6 +661,9 @@ class RecordSummary:
                          f"{self.window}")
         elif self.window is not None:
             lines.append(f"  auto window: {self.window}")
+        if self.initialization:
+            lines.append("  start: the FMU starts at its static equilibrium under the inputs it is initialized under "
+                         "(its start positions move with them); an exported ROM FMU will do the same")
         return "\n".join(lines)
 
 
