@@ -1387,18 +1387,29 @@ class _LeastSquares:
         return float(np.sqrt(total))
 
 
-def _lstsq_residual(blocks: list[np.ndarray], target: np.ndarray) -> float:
+def _lstsq_residual(blocks: list[np.ndarray], target: np.ndarray, spaces: dict | None = None) -> float:
+    """The residual of ``target`` on the rows of ``blocks``; ``spaces`` keeps each set of blocks' factorization
+    (by the blocks' identity: a set in another order spans the same space) for the next call."""
     blocks = [b for b in blocks if b.shape[0]]
     if not blocks:
         return float(np.linalg.norm(target))
-    return _LeastSquares(np.vstack([b / _rms(b) for b in blocks]).T).residual(target)
+    key = frozenset(id(b) for b in blocks)
+    found = None if spaces is None else spaces.get(key)
+    if found is None:
+        found = _LeastSquares(np.vstack([b / _rms(b) for b in blocks]).T)
+        if spaces is not None:
+            spaces[key] = found
+    return found.residual(target)
 
 
-def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray,
+                   spaces: dict | None = None) -> tuple[float, float]:
     """Least-squares residuals of ``target`` explained by the rows of ``base`` without and with ``extra``.
 
     Used to decide from the data whether a term is present: it is kept when the second residual is at most
-    :data:`TERM_SIGNIFICANCE` times the first (see :func:`fmu_opinf.rom.fit_rom`, ``terms``).
+    :data:`TERM_SIGNIFICANCE` times the first (see :func:`fmu_opinf.rom.fit_rom`, ``terms``).  ``spaces``: a
+    dict shared by calls on the same arrays, so that each set of rows is factorized once (the three terms' six
+    problems span three spaces; seventh audit, 172,180 samples: 10.8 of a 16 s fit went to these factorizations).
 
     Returns
     -------
@@ -1406,4 +1417,5 @@ def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray
         Frobenius norms of the residuals, relative to ``||target||``.
     """
     scale = float(np.linalg.norm(target)) or 1.0
-    return _lstsq_residual(list(base), target) / scale, _lstsq_residual(list(base) + [extra], target) / scale
+    return (_lstsq_residual(list(base), target, spaces) / scale,
+            _lstsq_residual(list(base) + [extra], target, spaces) / scale)

@@ -1102,18 +1102,18 @@ def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None]
     (prefix ``sdp``: ``"f_"`` for interval averages)."""
     k = data["u"].shape[1]
     ones = np.ones((1, k))
+    sdp_ones = ones if data[sdp + "u"].shape[1] == k else np.ones((1, data[sdp + "u"].shape[1]))
     tests = {
-        "fr": ([data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"]], np.ones((1, data[sdp + "u"].shape[1])),
-               data[sdp + "xddot"]),
+        "fr": ([data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"]], sdp_ones, data[sdp + "xddot"]),
         "Dur": ([data["x"], data["xdot"], ones], data["u"], data["y"]),
         "y0": ([data["x"], data["xdot"], data["u"]], ones, data["y"]),
     }
-    chosen, info = {}, {}
+    chosen, info, spaces = {}, {}, {}
     for name, (base, extra, target) in tests.items():
         if extra.shape[0] == 0 or target.shape[0] == 0:
             chosen[name], info[name] = False, {"fitted": False, "reason": "no such term (m = 0 or p = 0)"}
             continue
-        without, with_term = term_residuals(base, extra, target)
+        without, with_term = term_residuals(base, extra, target, spaces)
         significant = with_term <= TERM_SIGNIFICANCE * without and without > 1e3 * np.finfo(float).eps
         decision = requested[name]
         chosen[name] = significant if decision is None else decision
