@@ -130,7 +130,9 @@ static Status ensureInitialAcceleration(ModelInstance *instance) {
     CALL(ensureSystem(instance));
 
     if (instance->current.accelerationPending) {
-        if (instance->current.stepCount == 0) {
+        if (instance->current.stepCount == 0 && (instance->current.state & (Instantiated | InitializationMode))) {
+            /* the start is fixed when initialization ends (exitInitialization comes here first): an input set
+             * after it, before the first step, changes the acceleration, not the start */
             initialState(&instance->system, instance->current.u, instance->current.x, instance->current.v);
         }
         status = initialAcceleration(&instance->solver, &instance->system, instance->current.u,
