@@ -421,6 +421,9 @@ def test_runs_propagated_side_by_side_equal_the_plain_recursion_of_each(rng):
     starts = [rng.standard_normal(6) for _ in lengths]
     groups = _similar_lengths(lengths)
     assert sorted(j for g in groups for j in g) == list(range(len(lengths))) and len(groups[0]) >= 3
+    from fmu_opinf._output_gradient import GROUP_BYTES
+    rows = GROUP_BYTES // (8 * 2 * 203)  # two padded runs of 203 steps fit in a group's array, three do not
+    assert max(len(g) for g in _similar_lengths(lengths, rows)) == 2
     for stride in (1, 16, 64):
         for f, z0, z in zip(forcings, starts, propagate_runs(A, forcings, starts, stride)):
             plain = np.empty_like(f)
@@ -532,3 +535,21 @@ def test_one_degree_of_freedom_with_an_input_fits_its_operators(tmp_path):
     scale = fit.Mr[0, 0]
     for got, want in ((fit.Dr, 0.1), (fit.Kr, 1.0), (fit.Br, 1.0)):
         assert got[0, 0] / scale == pytest.approx(want, rel=1e-14)  # measured 9e-16
+
+
+def test_term_residuals_share_factorizations_only_of_the_same_arrays(rng):
+    """``term_residuals(spaces=)`` factorizes each set of rows once, and a dict shared over fresh arrays (whose ids
+    Python may reuse) gives what a fresh dict gives (review of 2026-11-28: 46 of 50 such calls were wrong)."""
+    from fmu_opinf.inference import term_residuals
+
+    shared = {}
+    for _ in range(50):
+        base, extra = [rng.standard_normal((3, 200))], rng.standard_normal((1, 200))
+        target = rng.standard_normal((2, 200))
+        assert term_residuals(base, extra, target, shared) == term_residuals(base, extra, target)
+    x, u = rng.standard_normal((3, 200)), rng.standard_normal((1, 200))
+    target = x[:2] + 0.5 * u + 1e-3 * rng.standard_normal((2, 200))
+    spaces = {}
+    first = term_residuals([x], u, target, spaces)
+    assert len(spaces) == 2 and term_residuals([x, u], np.ones((1, 200)), target, spaces)[0] == first[1]
+    assert len(spaces) == 3  # [x, u] was factorized once

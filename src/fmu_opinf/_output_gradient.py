@@ -83,10 +83,11 @@ def propagate_runs(A: np.ndarray, forcings: list[np.ndarray], starts: list[np.nd
     Runs of similar length are stepped side by side, their block starts as the columns of one matrix: the
     Python iterations are those of the longest run of each group, not of every run (seventh audit: 20 runs of
     8609 steps at ``n = 10``, the interpreter's round trips were most of the refinement's 33 s).  A shorter run
-    of a group is padded with zero forcing; what the padding computes is dropped.
+    of a group is padded with zero forcing; what the padding computes is dropped.  A group's arrays stay below
+    :data:`GROUP_BYTES` (:func:`_similar_lengths`).
     """
     out: list[np.ndarray | None] = [None] * len(forcings)
-    for group in _similar_lengths([f.shape[1] for f in forcings]):
+    for group in _similar_lengths([f.shape[1] for f in forcings], A.shape[0]):
         states = _propagate_group(A, [forcings[j] for j in group], [starts[j] for j in group], stride, power_stack)
         for j, z in zip(group, states):
             out[j] = z
@@ -95,20 +96,26 @@ def propagate_runs(A: np.ndarray, forcings: list[np.ndarray], starts: list[np.nd
 
 #: Largest padded size of a group of runs stepped together, relative to the steps its runs have.
 _PADDING = 1.25
+#: Largest size of one array of a group of runs stepped together (a run longer than that is a group of its own).
+GROUP_BYTES = 16_000_000
 
 
-def _similar_lengths(lengths: list[int]) -> list[list[int]]:
+def _similar_lengths(lengths: list[int], rows: int = 1) -> list[list[int]]:
     """Indices of the runs grouped so that padding each group to its longest run costs at most
-    :data:`_PADDING` times its steps (longest first)."""
+    :data:`_PADDING` times its steps and a group's ``rows`` x padded-length array stays below
+    :data:`GROUP_BYTES` (longest first)."""
+    columns = max(1, GROUP_BYTES // (8 * max(int(rows), 1)))
     groups: list[list[int]] = []
+    steps = 0  # of the last group
     for j in sorted(range(len(lengths)), key=lambda i: -lengths[i]):
         if groups:
-            group = groups[-1]
-            longest = lengths[group[0]]
-            if longest * (len(group) + 1) <= _PADDING * (sum(lengths[i] for i in group) + lengths[j]):
-                group.append(j)
+            padded = lengths[groups[-1][0]] * (len(groups[-1]) + 1)
+            if padded <= _PADDING * (steps + lengths[j]) and padded <= columns:
+                groups[-1].append(j)
+                steps += lengths[j]
                 continue
         groups.append([j])
+        steps = lengths[j]
     return groups
 
 
@@ -165,13 +172,17 @@ def dense_output_gradient(A: np.ndarray, B: np.ndarray, C: np.ndarray, runs: lis
     power_stack = powers(A, _STRIDE)  # shared by all runs, transposed for the adjoint
     states = propagate_runs(A, [B @ u for _, u, _ in runs], [z0 for z0, _, _ in runs], _STRIDE, power_stack)
     value, drives = (misfit or _output_misfit(C, runs))(states)
-    adjoints = propagate_runs(A.T, [g[:, ::-1] for g in drives], [g[:, -1] for g in drives], _STRIDE,
-                              power_stack.transpose(0, 2, 1))
+    shares: list[tuple[np.ndarray, np.ndarray] | None] = [None] * len(runs)
+    for group in _similar_lengths([g.shape[1] for g in drives], A.shape[0]):  # one group's adjoints at a time
+        adjoints = _propagate_group(A.T, [drives[j][:, ::-1] for j in group], [drives[j][:, -1] for j in group],
+                                    _STRIDE, power_stack.transpose(0, 2, 1))
+        for j, lam in zip(group, adjoints):
+            lam = lam[:, ::-1]
+            shares[j] = (lam[:, 1:] @ states[j][:, :-1].T, lam[:, 1:] @ runs[j][1][:, 1:].T)
     grad_A, grad_B = np.zeros_like(A), np.zeros_like(B)
-    for z, (_, u, _), lam in zip(states, runs, adjoints):
-        lam = lam[:, ::-1]
-        grad_A += lam[:, 1:] @ z[:, :-1].T
-        grad_B += lam[:, 1:] @ u[:, 1:].T
+    for share_A, share_B in shares:  # in the runs' order, whatever the groups
+        grad_A += share_A
+        grad_B += share_B
     return value, grad_A, grad_B
 
 

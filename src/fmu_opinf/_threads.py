@@ -13,6 +13,7 @@ thread only; a library user running ROM simulations in a thread pool can hold on
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 from typing import Any, Callable, TypeVar
 
@@ -23,11 +24,22 @@ T = TypeVar("T")
 
 def single_threaded() -> Any:
     """Context manager limiting the BLAS/OpenMP thread pools to one thread (threadpoolctl)."""
+    controller = _controller()
+    return contextlib.nullcontext() if controller is None else controller.limit(limits=1)
+
+
+@functools.lru_cache(maxsize=1)
+def _controller() -> Any:
+    """One threadpoolctl controller for the process, made after NumPy and SciPy have loaded their BLAS
+    libraries: ``threadpool_limits`` scans the loaded libraries on every call (0.7 ms, 2.4 ms under load: a small
+    projection took 2.5 ms instead of 13 us), the controller once (its limit then costs 0.02 ms)."""
+    import numpy  # noqa: F401 - their BLAS libraries are loaded before the scan
+    import scipy.linalg  # noqa: F401
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import ThreadpoolController
     except ImportError:  # pragma: no cover - threadpoolctl is a dependency; stay usable without it
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1)
+        return None
+    return ThreadpoolController()
 
 
 #: Dense kernels on matrices up to this many entries (32 MB) run with one thread (:func:`threads_for`): a

@@ -45,6 +45,7 @@ too; only ``(r, k)`` results travel.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import weakref
@@ -683,24 +684,34 @@ def project(basis: np.ndarray, array: Any, chunk_size: int, label: str = "snapsh
     out = np.empty((basis.shape[1], k))
     left = np.ascontiguousarray(basis.T)
     workers = usable_cores() if left.size * k > SMALL_ENTRIES else 1
-    with single_threaded(), ThreadPoolExecutor(workers) as pool:
+    rows = [slice(i, i + PRODUCT_ROWS) for i in range(0, int(shape[0]), PRODUCT_ROWS)]
+    with single_threaded(), ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
         for j0 in range(0, k, chunk_size):
-            j1 = min(j0 + chunk_size, k)
-            block = read_columns(array, j0, j1, label)
+            block = read_columns(array, j0, min(j0 + chunk_size, k), label)
+            parts = [(slice(a, a + PRODUCT_COLUMNS), part) for a in range(0, block.shape[1], PRODUCT_COLUMNS)
+                     for part in rows]
 
-            def product(a: int, block: np.ndarray = block, j0: int = j0) -> None:
-                b = min(a + PRODUCT_COLUMNS, block.shape[1])
-                out[:, j0 + a:j0 + b] = left @ block[:, a:b]
+            def product(columns_rows: tuple[slice, slice], block: np.ndarray = block) -> np.ndarray:
+                columns, part = columns_rows
+                return left[:, part] @ block[part, columns]
 
-            list(pool.map(product, range(0, j1 - j0, PRODUCT_COLUMNS)))
+            products = list(pool.map(product, parts) if pool is not None else map(product, parts))
+            for index in range(0, len(parts), len(rows)):  # the row blocks' products summed in one fixed order
+                total = products[index]
+                for partial in products[index + 1:index + len(rows)]:
+                    total += partial
+                columns = parts[index][0]
+                out[:, j0 + columns.start:j0 + columns.start + total.shape[1]] = total
     return out
 
 
-#: Columns of each product of :func:`project`.  The products run with one BLAS thread each, side by side on the
-#: machine's cores: every column is then summed the same way whatever the number of threads, and so is the ROM
-#: (with two OpenBLAS threads the projection differed in its last bits, and the refinement, which is not convex,
-#: ended 1 % higher or lower; demo triple chain, 2026-11-28).
-PRODUCT_COLUMNS = 2048
+#: Columns and rows of each product of :func:`project`.  The products run with one BLAS thread each, side by side
+#: on the machine's cores, and the products of a block's rows are summed in one fixed order: every entry is then
+#: summed the same way whatever the number of threads, and so is the ROM (with two OpenBLAS threads the projection
+#: differed in its last bits, and the refinement, which is not convex, ended 1 % higher or lower; demo triple
+#: chain, 2026-11-28).  Rows are split too so that a large model (a chunk of a few hundred columns of 30,000 rows)
+#: still uses every core.
+PRODUCT_COLUMNS, PRODUCT_ROWS = 2048, 4096
 
 
 # ----------------------------------------------------------------------------------------------------------

@@ -185,8 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="keep the SDP solution (eq. 16) instead of refining it by output error with the ROM's own "
                         "step (the default; see fmu_opinf.inference)")
     p.add_argument("--refine-iterations", type=int, metavar="N",
-                   help="L-BFGS iterations of each refinement start (default 300 up to r = 40, 20 r up to r = 60, 600 above); "
-                        "fewer are faster and less accurate (100 halve the fit at r = 35)")
+                   help="L-BFGS iterations of each refinement start at most (default 300 up to r = 40, 20 r up to "
+                        "r = 60, 600 above; a start whose objective falls by less than 0.01 %% over 50 iterations ends "
+                        "early); fewer are faster and less accurate (100 halve the fit at r = 35)")
     p.add_argument("--refit-output-map", action="store_true",
                    help="let the refinement re-fit the output map to the ROM's own trajectory (variable projection; "
                         "much more accurate on some models, less on others: see fmu_opinf.inference, default off)")

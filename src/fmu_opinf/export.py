@@ -468,6 +468,10 @@ def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict,
     except (TypeError, ValueError):
         return None
     if first_input.shape != (m,) or not np.all(np.isfinite(first_input)):
+        warnings.warn(f"the training snapshots say the source starts at its static equilibrium, but their recorded "
+                      f"start input {found.get('input')!r} does not fit the ROM's {m} inputs: the ROM FMU starts "
+                      "where the training started, whatever its inputs at initialization", FmuOpinfWarning,
+                      stacklevel=3)
         return None
     Kr = matrices["Kr"]
     if np.linalg.cond(Kr) > 1e12:

@@ -74,8 +74,8 @@ step-by-step loop.  L-BFGS with the adjoint gradient (100 correction pairs); a r
 the objective and ``Mr`` stays definite.  Budget: 300 iterations up to r = 40, ``20 r`` up to r = 60 and
 600 above (:data:`HIGH_ORDER_ITERATIONS`), ended early only where the objective has stalled: down by less than
 0.01 % over the last 50 iterations (:data:`STALL_RTOL`, :data:`STALL_WINDOW`; since 2026-11-28).  On the paper's
-benchmarks that never happens before the budget ends (``bench_accuracy.py --stall-rtol 0``: the same max eps_y
-for anchored r = 2..12 and triple r = 5..50 but anchored r = 3, stopped at 186 iterations, 3.58e-6 instead of
+benchmarks that happens once before the budget ends (``bench_accuracy.py --stall-rtol 0``: the same max eps_y
+for anchored r = 2..12 and triple r = 5..50; anchored r = 3 stopped at 186 iterations, 3.58e-6 instead of
 3.59e-6); on a fit that truncation bounds (seventh audit: r = 5 for 20 independent inputs, training error
 1.56e-2 -> 1.47e-2, four digits reached by iteration 100) it ended at 125 instead of 300 iterations, 13.6 s
 instead of 31.4 s.  A coarser
@@ -1394,11 +1394,12 @@ def _lstsq_residual(blocks: list[np.ndarray], target: np.ndarray, spaces: dict |
     if not blocks:
         return float(np.linalg.norm(target))
     key = frozenset(id(b) for b in blocks)
-    found = None if spaces is None else spaces.get(key)
-    if found is None:
-        found = _LeastSquares(np.vstack([b / _rms(b) for b in blocks]).T)
-        if spaces is not None:
-            spaces[key] = found
+    kept = None if spaces is None else spaces.get(key)
+    if kept is not None and all(any(b is k for k in kept[0]) for b in blocks):
+        return kept[1].residual(target)
+    found = _LeastSquares(np.vstack([b / _rms(b) for b in blocks]).T)
+    if spaces is not None:  # the blocks are kept with it: an id is only a name while its array lives
+        spaces[key] = (tuple(blocks), found)
     return found.residual(target)
 
 

@@ -34,20 +34,24 @@ def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, is
     with the inputs' values, else None (fixed start values, no inputs, not an FMU, or a probe that failed).
 
     Two initializations, one step of ``t`` each: the inputs held at their start values, and moved by the default
-    training amplitude (within each input's declared ``max``).  ``first_input`` is the input the recording's first
-    run starts under, where its start state (the ROM's) is the equilibrium.
+    training amplitude with the window's distinct pilot weights (inputs placed symmetrically do not cancel), down
+    instead of up where the declared ``max`` leaves no room.  ``first_input`` is the input the recording's first
+    run starts under, where its start state (the ROM's) is the equilibrium.  A probe the FMU refuses says nothing.
     """
     if getattr(source, "kind", None) != "fmu" or not source.m or len(t) < 2:
         return None
-    from ._record import HeldInputs, MemorySink, default_amplitudes, record_run
+    from ._record import HeldInputs, MemorySink, _pilot_weights, default_amplitudes, record_run
 
     starts = np.asarray(source.input_starts(), dtype=float)
+    low, high = source.input_ranges()
+    moves = np.asarray(default_amplitudes(source), dtype=float) * _pilot_weights(source.m)
+    moves = np.where((starts + moves > high) & (starts - moves >= low), -moves, moves)
     positions = []
-    for values in (starts, starts + np.asarray(default_amplitudes(source), dtype=float)):
+    for values in (starts, starts + moves):
         try:
             run, failure = record_run(source, HeldInputs(values), t[:2], MemorySink, True, isolate,
                                       "initial state under another input", say_events=False)
-        except FmuOpinfError:
+        except (FmuOpinfError, OSError, RuntimeError, ValueError):
             return None
         if failure is not None:
             return None

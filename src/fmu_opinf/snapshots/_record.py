@@ -611,6 +611,8 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
                 return _H5Sink(src, tt, uu, g, path)
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
+            if index == 0:
+                first_input = np.asarray(run.u[:, 0], dtype=float) if source.m else np.zeros(0)
             if window is not None:
                 group.attrs["auto_window"] = json.dumps(window.as_dict())
             summary.runs.append((run.k, run.complete, run.attrs["input_spec"]))
@@ -618,8 +620,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             if failure is not None:
                 failure = incomplete_error(failure, run, path)
                 break
-        if failure is None:
-            first_input = np.atleast_2d(np.asarray(signals[0].sample(t[:1]), dtype=float))[:, 0] if source.m else []
+        if failure is None:  # the input the first run started under, as recorded (Float32 inputs rounded)
             summary.initialization = initialization_of(source, t, first_input, isolate)
             write_attrs(f, {"initialization": summary.initialization})
         f.attrs["n_runs"] = len(summary.runs)
