@@ -762,7 +762,10 @@ def record_to_file(
         specs = default_training_inputs(source.m, amplitudes=amplitudes, starts=source.input_starts())
         if not quiet:
             lowered = _lowered_amplitudes(source, amplitudes) + _on_start_values(source)
-            what = ("the free response from the start state (the model has no inputs)" if not source.m
+            held = list(getattr(source, "held_input_names", []) or [])
+            none = (f"no force inputs: {', '.join(held)} held at their start values" if held
+                    else "the model has no inputs")
+            what = (f"the free response from the start state ({none})" if not source.m
                     else f"the impulse training input {DEFAULT_TRAINING_INPUT}{lowered}" if source.m == 1
                     else f"one run per input, each driving that input alone with the impulse {DEFAULT_TRAINING_INPUT}"
                          f"{lowered} (the others held at their start values)")

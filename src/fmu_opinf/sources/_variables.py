@@ -881,12 +881,20 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     Default: every real input of continuous variability is a force, except inputs the user gives a value
     (``given``: names of variables with a ``--set`` value) and inputs with a non-zero start value (parameters
     exposed as inputs, shared/spec/real-fmus.md: driving them would change the model, or make it fail at 0);
-    those are held (:func:`parameter_like_inputs` names the second kind).  ``""``/``"none"``: no forces.
+    those are held (:func:`parameter_like_inputs` names the second kind).  Real inputs of discrete variability
+    are held too, unless the model has no continuous one to drive: then they are its forces (a sampled actuator
+    command; eighth audit: the only input of a chain, declared discrete, was held and the recording stopped with
+    'nothing moves').  ``""``/``"none"``: no forces.
     """
     inputs = [e for e in elements.values() if e.var.causality == "input" and not e.alias]
     if patterns is None:
-        forces = port_order([e for e in inputs if e.var.is_real and e.var.variability == "continuous"
-                             and e.var.name not in given and not nonzero_start(e)])
+        def drivable(e: Element, variability: str) -> bool:
+            return (e.var.is_real and e.var.variability == variability and e.var.name not in given
+                    and not nonzero_start(e))
+
+        forces = port_order([e for e in inputs if drivable(e, "continuous")])
+        if not any(e.var.is_real and e.var.variability == "continuous" for e in inputs):
+            forces = port_order([e for e in inputs if drivable(e, "discrete")])
     elif patterns.strip().lower() in ("", "none"):
         forces = []
     else:
