@@ -264,3 +264,18 @@ def test_a_given_dt_sets_the_pilots_step_also_on_a_declared_fixed_step_fmu(fmus,
     assert "running at --dt 0.1 as asked" in said and "fixed communication step 0.1" not in said, said
     run = Snapshots.load(tmp_path / "a.h5").runs[0]
     assert _relative(run.y, _exact(run)) < RECORDING
+
+
+def test_a_fixed_step_fmu_that_declares_no_step_is_told_to_give_dt(fmus, tmp_path, capsys):
+    """Eighth audit (a Simulink-style FMU): canHandleVariableCommunicationStepSize=false without a declared stepSize
+    gives no step to keep, so the window's first pilot step is refused by doStep; the one line says what the FMU
+    lacks and to give --dt as a multiple of its internal step, with a round value."""
+    from conftest import rewrite_description
+
+    silent = rewrite_description(fmus["fixed2"], tmp_path / "silent.fmu",
+                                 lambda text: re.sub(r'\s*stepSize="[^"]*"', "", text))
+    assert main(["snapshots", str(silent), "-o", str(tmp_path / "train.h5")]) == 2
+    line = _last_line_error(capsys)
+    assert re.search(r"returned an error in fmi2DoStep.*cannot vary its communication step .* declares no "
+                     r"DefaultExperiment stepSize.*give --dt as such a multiple, e\.g\. [0-9.e-]+, and --t-end", line)
+    assert not (tmp_path / "train.h5").exists()

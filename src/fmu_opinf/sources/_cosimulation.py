@@ -719,6 +719,11 @@ class FMUSource(Source):
             fixed = fixed_communication_step(self)
             hint = "" if fixed is None or _same_step(h, fixed) else (
                 f"; it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}")
+            if fixed is None and _constant_step_only(self):  # eighth audit: a Simulink-style FMU refused h=0.0125
+                hint = ("; it cannot vary its communication step (canHandleVariableCommunicationStepSize=false) and "
+                        "declares no DefaultExperiment stepSize: a fixed-step FMU takes only multiples of its "
+                        f"internal step (its log may name it); give --dt as such a multiple, e.g. {nice_floor(h):g}, "
+                        "and --t-end")
             return self._fail_text(f"in {what}", i) + hint
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
