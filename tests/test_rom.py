@@ -346,7 +346,8 @@ def test_a_learned_mode_above_the_training_nyquist_frequency_is_warned():
     assert omega == pytest.approx(50.0) and omega * np.sqrt(1 - zeta**2) == pytest.approx(48.41, abs=0.005)
     train = "impulse:amplitude=1,t0=1,width=0.5"
     coarse = newmark.simulate(system, train, 0.1, 60.0)
-    with pytest.warns(FmuOpinfWarning, match=r"mode at 48\.4 rad/s, above the 31\.4 rad/s \(pi/dt\).*--dt 0\.05 or below"):
+    with pytest.warns(FmuOpinfWarning, match=r"mode at 48\.4 rad/s, above the 31\.4 rad/s \(pi/dt\).*--dt 0\.05 or "
+                                             r"below and --t-end 60 "):
         fit_rom([coarse], r=2, quiet=True, refine=False)
     with warnings.catch_warnings():
         warnings.simplefilter("error", FmuOpinfWarning)

@@ -723,7 +723,7 @@ def _warn_if_training_outputs_missed(info: dict, r: int) -> None:
                   "outputs follow from the recorded positions and velocities", FmuOpinfWarning, stacklevel=3)
 
 
-def _warn_if_modes_above_nyquist(poles: list, dt: float | None) -> None:
+def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None) -> None:
     """Warn when a learned pole lies above the Nyquist frequency ``pi / dt`` of the training data.
 
     Samples ``dt`` apart see such a mode only as an alias, so neither the refinement nor a comparison at that step
@@ -741,7 +741,9 @@ def _warn_if_modes_above_nyquist(poles: list, dt: float | None) -> None:
         warnings.warn(f"the ROM has a mode at {omega:.3g} rad/s, above the {nyquist:.3g} rad/s (pi/dt) that the "
                       f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
                       f"damping are right, and it can ring in outputs it reaches (accelerations, forces); record "
-                      f"with --dt {nice_floor(math.pi / omega):g} or below, or fit a smaller r",
+                      f"with --dt {nice_floor(math.pi / omega):g} or below"
+                      + (f" and --t-end {t_end:g} (this recording's end: at the finer step the automatic window's "
+                         "pilots may not reach it)" if t_end else "") + ", or fit a smaller r",
                       FmuOpinfWarning, stacklevel=3)
 
 
@@ -993,7 +995,8 @@ def fit_rom(
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
-    _warn_if_modes_above_nyquist(info.get("poles") or [], _training_dt(runs, attrs))
+    _warn_if_modes_above_nyquist(info.get("poles") or [], _training_dt(runs, attrs),
+                                 max(float(np.asarray(run.t)[-1]) for run in runs))
     _warn_if_training_outputs_missed(info, pod.r_)
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
