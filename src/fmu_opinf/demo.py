@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -244,9 +243,9 @@ _PRELOAD = ("fmu_opinf.compare", "fmu_opinf.export", "fmu_opinf.fmus", "fmu_opin
 def _side_by_side(names: list[str]) -> bool:
     """Run the cases concurrently: more than one, a core for each, and workers can be forked."""
     from ._forked import can_fork
+    from ._threads import usable_cores
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return len(names) > 1 and cores >= len(names) and can_fork()
+    return len(names) > 1 and usable_cores() >= len(names) and can_fork()
 
 
 def _run_cases(names: list[str], out_dir: Path, **options: Any) -> list[dict[str, Any]]:

@@ -1034,8 +1034,8 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
         raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
     dt = _training_dt(runs, attrs)
     steps = {round(float(np.diff(np.asarray(run.t[:2], dtype=float))[0]), 12) for run in runs
-             if int(np.shape(run.t)[0]) > 1}
-    lengths = [int(np.shape(run.t)[0]) for run in runs]
+             if _run_length(run) > 1}
+    lengths = [_run_length(run) for run in runs]
     possible = lowpass is None and dt is not None and len(steps) == 1 and min(lengths) >= 2 and "f_h" not in data
     if refine is True and not possible:
         raise ValueError("refine=True needs no lowpass, one training step dt and sampled states (not interval "
