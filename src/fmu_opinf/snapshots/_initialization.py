@@ -29,14 +29,17 @@ STEADY_STATE = "steady-state"
 UNCHANGED = 1e-10
 
 
-def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, isolate: bool) -> dict[str, Any] | None:
+def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, first_position: np.ndarray,
+                      isolate: bool) -> dict[str, Any] | None:
     """``{"kind": "steady-state", "input": first_input}`` when the source's positions after initialization change
     with the inputs' values, else None (fixed start values, no inputs, not an FMU, or a probe that failed).
 
     Two initializations, one step of ``t`` each: the inputs held at their start values, and moved by the default
     training amplitude with the window's distinct pilot weights (inputs placed symmetrically do not cancel), down
-    instead of up where the declared ``max`` leaves no room.  ``first_input`` is the input the recording's first
-    run starts under, where its start state (the ROM's) is the equilibrium.  A probe the FMU refuses says nothing.
+    instead of up where the declared ``max`` leaves no room.  ``first_input`` and ``first_position`` are the input
+    the recording's first run starts under and its start positions (the ROM's start): where that input is the start
+    values, as in the default training, the first initialization is that run's and is not repeated.  A probe the
+    FMU refuses says nothing.
     """
     if getattr(source, "kind", None) != "fmu" or not source.m or len(t) < 2:
         return None
@@ -46,8 +49,10 @@ def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, is
     low, high = source.input_ranges()
     moves = np.asarray(default_amplitudes(source), dtype=float) * _pilot_weights(source.m)
     moves = np.where((starts + moves > high) & (starts - moves >= low), -moves, moves)
-    positions = []
-    for values in (starts, starts + moves):
+    first_input = np.asarray(first_input, dtype=float).reshape(-1)
+    recorded = np.array_equal(first_input, starts)
+    positions = [np.asarray(first_position, dtype=float)] if recorded else []
+    for values in ([] if recorded else [starts]) + [starts + moves]:
         try:
             run, failure = record_run(source, HeldInputs(values), t[:2], MemorySink, True, isolate,
                                       "initial state under another input", say_events=False)
@@ -60,4 +65,4 @@ def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, is
     change = float(np.abs(positions[1] - positions[0]).max(initial=0.0))
     if not change > UNCHANGED * size:
         return None
-    return {"kind": STEADY_STATE, "input": [float(v) for v in np.asarray(first_input, dtype=float).reshape(-1)]}
+    return {"kind": STEADY_STATE, "input": [float(v) for v in first_input]}

@@ -613,6 +613,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
             if index == 0:
                 first_input = np.asarray(run.u[:, 0], dtype=float) if source.m else np.zeros(0)
+                first_position = np.asarray(run.x0, dtype=float)
             if window is not None:
                 group.attrs["auto_window"] = json.dumps(window.as_dict())
             summary.runs.append((run.k, run.complete, run.attrs["input_spec"]))
@@ -621,7 +622,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
                 failure = incomplete_error(failure, run, path)
                 break
         if failure is None:  # the input the first run started under, as recorded (Float32 inputs rounded)
-            summary.initialization = initialization_of(source, t, first_input, isolate)
+            summary.initialization = initialization_of(source, t, first_input, first_position, isolate)
             write_attrs(f, {"initialization": summary.initialization})
         f.attrs["n_runs"] = len(summary.runs)
     if failure is not None:
