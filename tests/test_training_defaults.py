@@ -386,7 +386,7 @@ def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tm
                                start_values={"F": 5.0}, output=["y[1]", "y[2]"])
     simulated = np.vstack([result["y[1]"], result["y[2]"]])
     # measured 9.3e-15 (steady; 1.0 of the peak when the ROM FMU's start did not follow the input) and 1.1e-14
-    assert np.abs(simulated - exact).max() < 1e-13 * np.abs(exact).max()
+    assert np.abs(simulated - exact).max() < 3e-14 * np.abs(exact).max()
     # an input set after initialization ends moves no start: both sources start at the 10 N equilibrium then
     # (their inputs' start value) and answer the step to 5 N (review of 2026-11-28: the ROM FMU's start moved)
     folder = tmp_path / "unzipped"
@@ -402,7 +402,7 @@ def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tm
     fmu.freeInstance()
     late = lti_fmus.zoh_response(dataclasses.replace(model, x0=x_ten), t, np.full((1, t.size - 1), 5.0)).y[:, 1:]
     # measured 1.0e-14 and 1.1e-14 (0.49 of the peak when the start followed the late input)
-    assert np.abs(np.array(stepped).T - late).max() < 1e-13 * np.abs(late).max()
+    assert np.abs(np.array(stepped).T - late).max() < 3e-14 * np.abs(late).max()
 
 
 def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, capsys):
