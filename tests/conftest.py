@@ -11,6 +11,13 @@ from threadpoolctl import threadpool_limits
 
 from fmu_opinf import newmark, systems
 
+# A runner started in the background of a non-interactive shell (`cmd &`) inherits SIGINT ignored, which the tool
+# respects (nohup semantics); the Ctrl-C tests need it delivered as a terminal delivers it.
+import signal as _signal  # noqa: E402
+
+if _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN:
+    _signal.signal(_signal.SIGINT, _signal.default_int_handler)
+
 
 @pytest.fixture(scope="session", autouse=True)
 def one_blas_thread_per_test_process():
