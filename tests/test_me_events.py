@@ -19,7 +19,7 @@ import scipy.optimize
 
 pytest.importorskip("fmpy")
 
-from fmu_opinf import lti_fmus  # noqa: E402
+from fmu_opinf import lti_fmus, sources  # noqa: E402
 from fmu_opinf.snapshots import record  # noqa: E402
 from fmu_opinf.sources import ModelExchangeSource  # noqa: E402
 
@@ -467,6 +467,7 @@ def test_indicators_that_cannot_be_read_are_a_warning_and_the_run_records_withou
     from fmu_opinf.errors import FmuOpinfWarning
 
     monkeypatch.setattr(ModelExchangeSource, "_indicator_count", lambda self: 2)  # the FMU has 1
+    monkeypatch.setattr(sources, "_REPORTED", set())
     with pytest.warns(FmuOpinfWarning, match="reading its 2 event indicators failed"):
         run, source = record_me(fmus[("2.0", "state")])
     assert source.nz == 0
@@ -474,7 +475,7 @@ def test_indicators_that_cannot_be_read_are_a_warning_and_the_run_records_withou
     assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
 
 
-def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path):
+def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path, monkeypatch):
     """The command line records in a child process; its warnings are issued again in the caller (one line there,
     and caught like any other): before, the child printed them itself, with a source line."""
     from conftest import rewrite_description
@@ -483,7 +484,27 @@ def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path):
     declared_two = rewrite_description(fmus[("2.0", "state")], tmp_path / "two.fmu",
                                        lambda text: text.replace('numberOfEventIndicators="1"',
                                                                  'numberOfEventIndicators="2"'))
+    monkeypatch.setattr(sources, "_REPORTED", set())
     with pytest.warns(FmuOpinfWarning, match="reading its 2 event indicators failed"):
         run = record(ModelExchangeSource(declared_two), INPUT, DT, T_END, quiet=True, isolate=True).runs[0]
     x, v, a = reference(two_masses(), run.t, held_inputs(run))
     assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
+
+
+def test_what_every_isolated_run_finds_is_said_once(fmus, tmp_path, monkeypatch):
+    """Each run of ``compare`` or a run table opens the FMU in its own child, which finds the same defect again:
+    the user hears it once (eighth audit: compare printed the indicator warning twice)."""
+    import warnings
+
+    from conftest import rewrite_description
+
+    declared_two = rewrite_description(fmus[("2.0", "state")], tmp_path / "two.fmu",
+                                       lambda text: text.replace('numberOfEventIndicators="1"',
+                                                                 'numberOfEventIndicators="2"'))
+    monkeypatch.setattr(sources, "_REPORTED", set())
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for isolate in (True, True, False, False):   # and in this process, instance after instance
+            record(ModelExchangeSource(declared_two), INPUT, DT, T_END, quiet=True, isolate=isolate)
+    said = [w for w in caught if "event indicators failed" in str(w.message)]
+    assert len(said) == 1, [str(w.message) for w in said]

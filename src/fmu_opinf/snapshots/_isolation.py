@@ -24,7 +24,7 @@ import numpy as np
 
 from .._interrupts import _SIGNALS, check_interrupt, deferred_interrupts
 from ..errors import FMUError, FmuOpinfError, Interrupted
-from ..sources import Source, StepError
+from ..sources import Source, StepError, first_report, said_key
 
 if TYPE_CHECKING:
     from ._record import _Sink
@@ -169,7 +169,9 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                                f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase --timeout "
                                "or check the FMU")
             if message is not None and message[0] == "warning":  # no rows, no acknowledgement
-                warnings.warn(message[2], _warning_class(message[1]), stacklevel=2)
+                # each child opens the FMU afresh and says what it finds; the user hears it once
+                if first_report(said_key(message[1], message[2])):
+                    warnings.warn(message[2], _warning_class(message[1]), stacklevel=2)
                 continue
             valid = _valid_rows(message, int(count[0]))
             if valid:

@@ -205,6 +205,20 @@ def _warn_unrecorded_states(source: Source) -> None:
                   "dynamic (an actuator lag, a filter, a controller state), the reduced model cannot follow them")
 
 
+def first_report(key: tuple[Any, ...]) -> bool:
+    """True the first time this process asks about ``key``: what a warning said once is not said again."""
+    if key in _REPORTED:
+        return False
+    _REPORTED.add(key)
+    return True
+
+
+def said_key(category: str, text: str) -> tuple[str, str, str]:
+    """The key under which :func:`first_report` knows a warning by its words (the same words from a child
+    process and from this one are one warning)."""
+    return ("said", category, text)
+
+
 def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int = 4) -> None:
     """``text`` as a warning about ``source``'s FMU, unless this process said one ``about`` the same thing of the
     same FMU already (a run table opens the source once per row, and every row's runs would repeat it)."""
@@ -213,11 +227,9 @@ def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int
     from ..errors import FmuOpinfWarning
 
     path = str(getattr(source, "path", "")) or type(source).__name__
-    key = (os.path.abspath(path), about)
-    if key in _REPORTED:
-        return
-    _REPORTED.add(key)
-    warnings.warn(f"{os.path.basename(path)}: {text}", FmuOpinfWarning, stacklevel=stacklevel)
+    said = f"{os.path.basename(path)}: {text}"
+    if first_report((os.path.abspath(path), about)) and first_report(said_key(FmuOpinfWarning.__name__, said)):
+        warnings.warn(said, FmuOpinfWarning, stacklevel=stacklevel)
 
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",

@@ -64,7 +64,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .._interrupts import check_interrupt
-from ..errors import FMUError, FmuOpinfWarning, InputSpecError
+from ..errors import FMUError, InputSpecError
 from . import _compiled_rk
 from ._base import EventCount, StepError
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
@@ -191,9 +191,11 @@ class ModelExchangeSource(FMUSource):
             raise FMUError(f"{self.path.name} returned an error reading its continuous states")
         if self.nz and self._c_indicators(self._comp, self._z.ctypes.data, self.nz) > 1:
             # some exports declare indicators they cannot return: record as before events were handled
-            warnings.warn(f"{self.path.name}: reading its {self.nz} event indicators failed, so its state events are "
-                          "not located (a change of its discrete state then waits for the next communication point); "
-                          "check the results, or record with --interface cs", FmuOpinfWarning, stacklevel=2)
+            from . import warn_once
+
+            warn_once(self, ("event indicators",), f"reading its {self.nz} event indicators failed, so its state "
+                      "events are not located (a change of its discrete state then waits for the next communication "
+                      "point); check the results, or record with --interface cs", stacklevel=3)
             self.nz = 0
         self._floor = _floor(self._nominals())
         self._origin, self._x = self._x, np.zeros(self.nx)   # integrated: the deviation from the start state
