@@ -10,6 +10,7 @@ import pytest
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.errors import InputSpecError
+from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import DEFAULT_TRAINING_INPUT, Snapshots, Window
 from fmu_opinf.snapshots._record import check_input_acts, default_training_inputs
@@ -387,6 +388,9 @@ def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tm
     simulated = np.vstack([result["y[1]"], result["y[2]"]])
     # measured 9.3e-15 (steady; 1.0 of the peak when the ROM FMU's start did not follow the input) and 1.1e-14
     assert np.abs(simulated - exact).max() < 3e-14 * np.abs(exact).max()
+    # the Python ROM starts there too, from its first input (before 2026-11-28 at its stored training start)
+    python_rom = SecondOrderROM.load(rom).simulate("step:amplitude=5", 0.1, 30.0).y
+    assert np.abs(python_rom - exact).max() < 3e-14 * np.abs(exact).max()
     # an input set after initialization ends moves no start: both sources start at the 10 N equilibrium then
     # (their inputs' start value) and answer the step to 5 N (review of 2026-11-28: the ROM FMU's start moved)
     folder = tmp_path / "unzipped"

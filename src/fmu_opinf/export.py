@@ -414,7 +414,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         "outputOffset": np.concatenate([extra["y0"], offsets]),
         "initialPosition": extra["q0"], "initialVelocity": extra["qdot0"],
     }
-    start_gain = _steady_start_gain(matrices, provenance, m)
+    start_gain = _steady_start_gain(matrices, provenance)
     if start_gain is not None:  # q = q0 + S (u - u_first): S u moves the start with the inputs initialized under
         gain, first_input = start_gain
         c_matrices.update(initialPosition=extra["q0"] - gain @ first_input, initialPositionInput=gain)
@@ -448,39 +448,17 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     )
 
 
-def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict,
-                       m: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """``S = Kr^-1 Br`` and the first training run's start input, where the recording found that the source
-    starts at its static equilibrium under the inputs it is initialized under (``initialization`` of the
-    snapshots, :mod:`fmu_opinf.snapshots._initialization`); None otherwise.  The ROM FMU then starts at
-    ``q0 + S (u - u_first)``: its training start under the training's first input, and its own static response
-    to any other (seventh audit, E3: a 10 N preload initialized under 5 N, the ROM FMU swung about the 5 N
-    equilibrium while the source rested there).  A ROM with a rigid-body mode (singular ``Kr``) keeps its fixed
-    start, with a warning."""
-    from .snapshots._initialization import STEADY_STATE
+def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """:meth:`SecondOrderROM.steady_start` for the FMU's initialization, with a warning where the source's start
+    follows its inputs but the ROM's cannot (its C start then stays the training start)."""
+    from .rom import steady_start
 
-    snapshots = provenance.get("snapshots")
-    found = snapshots.get("initialization") if isinstance(snapshots, dict) else None
-    if not isinstance(found, dict) or found.get("kind") != STEADY_STATE or not m:
+    found = steady_start(provenance, matrices["Kr"], matrices["Br"])
+    if isinstance(found, str):
+        warnings.warn(f"{found}: the ROM FMU starts where the training started, whatever its inputs at "
+                      "initialization", FmuOpinfWarning, stacklevel=3)
         return None
-    try:
-        first_input = np.asarray(found.get("input"), dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        return None
-    if first_input.shape != (m,) or not np.all(np.isfinite(first_input)):
-        warnings.warn(f"the training snapshots say the source starts at its static equilibrium, but their recorded "
-                      f"start input {found.get('input')!r} does not fit the ROM's {m} inputs: the ROM FMU starts "
-                      "where the training started, whatever its inputs at initialization", FmuOpinfWarning,
-                      stacklevel=3)
-        return None
-    Kr = matrices["Kr"]
-    if np.linalg.cond(Kr) > 1e12:
-        warnings.warn("the source starts at its static equilibrium under the inputs it is initialized under, but the "
-                      "ROM has a rigid-body mode (Kr singular) and no equilibrium: the ROM FMU starts where the "
-                      "training started, whatever its inputs at initialization", FmuOpinfWarning, stacklevel=3)
-        return None
-    gain = np.linalg.solve(Kr, matrices["Br"])
-    return gain, first_input
+    return found
 
 
 #: Base names of the exported FMU's reduced coordinates, their rates and their accelerations (``q[1]``, ...).

@@ -362,7 +362,9 @@ class SecondOrderROM:
             Step and end time (a whole number of steps).
         q0, qdot0 : (r,) ndarray, optional
             Reduced initial state; default :attr:`q0`, :attr:`qdot0` (the training source's initial state,
-            rest for the paper's benchmarks).  Use :meth:`initial_state` for a full-order one.
+            rest for the paper's benchmarks), moved to the static equilibrium under the first input where the
+            source starts at its equilibrium under whatever inputs it is initialized under
+            (:meth:`steady_start`; as the exported FMU does).  Use :meth:`initial_state` for a full-order one.
 
         Returns
         -------
@@ -380,6 +382,9 @@ class SecondOrderROM:
             raise DimensionError(f"signal has {signal.n_inputs} inputs; the ROM has m={self.m}")
         t = time_grid(dt, t_end)
         u = applied_inputs(signal, t)
+        if q0 is None and qdot0 is None and isinstance(following := self.steady_start(), tuple):
+            gain, first_input = following   # the source's start follows the inputs it is initialized under
+            q0 = self.q0 + gain @ (u[:, 0] - first_input)
         q0 = self.q0 if q0 is None else _vector(q0, self.r)
         qdot0 = self.qdot0 if qdot0 is None else _vector(qdot0, self.r)
         qddot0 = scipy.linalg.solve(self.Mr, self.Br @ u[:, 0] + self.fr - self.Dr @ qdot0 - self.Kr @ q0,
@@ -443,6 +448,21 @@ class SecondOrderROM:
         q_pod, _ = self._pod_state(q, None if qdot is None else np.asarray(qdot, dtype=float))
         shift = self.x_ref if q.ndim == 1 else self.x_ref[:, None]
         return self.basis @ q_pod + shift
+
+    def steady_start(self) -> tuple[np.ndarray, np.ndarray] | str | None:
+        """How the start follows the inputs at initialization, where the training source starts at its static
+        equilibrium under whatever inputs it is initialized under (``initialization`` of the snapshots,
+        :mod:`fmu_opinf.snapshots._initialization`; seventh audit, E3: a 10 N preload initialized under 5 N rests
+        at the 5 N equilibrium).
+
+        Returns
+        -------
+        (S, u_first) : ((r, m) ndarray, (m,) ndarray), str or None
+            ``S = Kr^-1 Br`` and the first training run's start input: the start under inputs ``u`` is
+            ``q0 + S (u - u_first)``.  A string says why the ROM cannot follow (a rigid-body mode, a recorded
+            start input that does not fit); None where the source's start does not follow its inputs.
+        """
+        return steady_start(self.provenance, self.Kr, self.Br)
 
     def equilibrium(self) -> np.ndarray:
         """Static equilibrium under zero input: ``q_eq = Kr^-1 fr``, in full coordinates ``x_ref + V q_eq`` if the
@@ -632,6 +652,28 @@ def _stacked_outputs(runs: list) -> np.ndarray:
             out[:, start + part.start:start + part.stop] = read_columns(run.y, part.start, part.stop, f"y of run {i}")
         start += k
     return out
+
+
+def steady_start(provenance: dict, Kr: np.ndarray, Br: np.ndarray) -> tuple[np.ndarray, np.ndarray] | str | None:
+    """:meth:`SecondOrderROM.steady_start` from a ROM's provenance and matrices (also of a ROM-like object)."""
+    from .snapshots._initialization import STEADY_STATE
+
+    m = Br.shape[1]
+    snapshots = provenance.get("snapshots")
+    found = snapshots.get("initialization") if isinstance(snapshots, dict) else None
+    if not isinstance(found, dict) or found.get("kind") != STEADY_STATE or not m:
+        return None
+    try:
+        first_input = np.asarray(found.get("input"), dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        first_input = np.empty(0)
+    if first_input.shape != (m,) or not np.all(np.isfinite(first_input)):
+        return (f"the training snapshots say the source starts at its static equilibrium, but their recorded "
+                f"start input {found.get('input')!r} does not fit the ROM's {m} inputs")
+    if np.linalg.cond(Kr) > 1e12:
+        return ("the source starts at its static equilibrium under the inputs it is initialized under, but the "
+                "ROM has a rigid-body mode (Kr singular) and no equilibrium")
+    return scipy.linalg.solve(Kr, Br, assume_a="sym"), first_input
 
 
 class _CentredRun:
