@@ -155,6 +155,7 @@ def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeyp
 
 
 @pytest.mark.skipif(os.name != "posix", reason="process-group signals")
+@pytest.mark.slow  # 6 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
     from fmu_opinf.snapshots import record
 

@@ -118,6 +118,7 @@ def _test_error(model, run: Run, corrections: int | None = None, monkeypatch=Non
     return float(output_error(ref.y, rom.simulate(test, DT, 200.0).y).max())
 
 
+@pytest.mark.slow  # 8 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_fit_from_interval_averages_is_as_good_as_the_fit_from_true_accelerations(monkeypatch):
     """The corpus FMU "no-accelerations" setting (impulse training, dt of the automatic window, r = 5)."""
     model = lti_fmus.chain_model(**OFF_REST)

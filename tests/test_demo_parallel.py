@@ -192,6 +192,7 @@ def _state(pid: int) -> str:
 
 
 @pytest.mark.skipif(find_build_tools() is None, reason="no C compiler or CMake to build the FMUs")
+@pytest.mark.slow  # 10 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_rom_fmu_compiles_while_the_figures_are_drawn_and_its_errors_stay_the_same(tmp_path, monkeypatch,
                                                                                         capsys):
     from fmu_opinf import export, plots

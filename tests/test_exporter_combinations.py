@@ -320,6 +320,7 @@ def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
         euler.close()
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_window_runs_no_experiment_twice_and_checks_the_step_it_keeps(fmus, tmp_path, monkeypatch):
     """A co-simulation FMU's runs are its costly part (a millisecond chain: 5 s per 200-step pilot at the tolerance
     1e-10), so the automatic window runs no experiment twice.  Before, the step check's run at the first pilot's
@@ -350,6 +351,7 @@ def test_the_window_runs_no_experiment_twice_and_checks_the_step_it_keeps(fmus, 
     assert checked == [window]
 
 
+@pytest.mark.slow  # 6 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_declared_fixed_internal_step_sets_the_grid(fmus, tmp_path, monkeypatch):
     """An FMI 3 co-simulation FMU that declares ``fixedInternalStepSize = 0.003`` gets communication steps that are
     whole multiples of it: every pilot's and the chosen one (now 0.048 and 0.018; before: pilots at 0.05, a step
@@ -460,6 +462,7 @@ def test_states_of_a_model_that_declares_none_are_guessed_from_its_local_variabl
     assert metrics["max_error"] < 2e-20
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_generic_accurate_co_simulation_without_accelerations(fmus, tmp_path):
     """2'. The same generic FMU with accurate co-simulation: given its positions and velocities, the defaults
     derive the rates (interval averages) and the ROM is exact."""
@@ -565,6 +568,7 @@ def test_strict_description_gives_no_warning(fmus, recwarn):
     assert not [w for w in recwarn if "strict validation" in str(w.message)]
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_step_warning_follows_the_first_run_that_drives_an_input(fmus, tmp_path):
     """With the user's step, the step check runs on the first run that drives an input: a free response given first
     leaves an FMU at rest at rest, and the Euler co-simulation went without a word (review 2026-11-27)."""

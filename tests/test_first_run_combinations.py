@@ -257,6 +257,7 @@ def test_states_sorted_by_component_are_recorded_exactly(fmus, tmp_path, name):
 
 
 # ------------------------------------------------------------------------ the exported FMU in an importer
+@pytest.mark.slow  # 12 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_exported_exact_rom_steps_with_multiples_of_its_step(tmp_path):
     """A ROM of a continuous-time FMU steps by its exact step map: an importer's communication step that is a
     multiple of the training step is that many map steps (exact; before: refused), another step is refused in

@@ -103,6 +103,7 @@ def test_the_fmus_refuse_another_step(fmus, tmp_path, capsys):
 
 
 @pytest.mark.parametrize("name", ["fixed2", "fixed3"])
+@pytest.mark.slow  # 9 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_fixed_communication_step_is_recorded_with_defaults(fmus, name, tmp_path):
     """Before: 'returned an error in fmi2DoStep ... communication step 0.025 differs from the fixed step' (the step
     check's dt/2 run, or the window's own pilot step).  Now the pilots, the window and the recording use exactly
@@ -232,6 +233,7 @@ def test_one_run_keeps_one_step(fmus, tmp_path):
     assert run.t[-1] == pytest.approx(300.0) and _relative(run.y, _exact(run)) < RECORDING
 
 
+@pytest.mark.slow  # 18 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_given_coarse_dt_is_recorded_and_said_to_be_coarse(fmus, tmp_path):
     """--dt 0.1 without --t-end (model exchange: no limit on the step): the pilots run at 0.1, the recording too,
     and one warning says that it gives fewer than 20 samples per period of the fastest mode (1.5 Hz; 1.28 Hz as
@@ -247,6 +249,7 @@ def test_a_given_coarse_dt_is_recorded_and_said_to_be_coarse(fmus, tmp_path):
     assert _relative(run.y, _exact(run)) < 1e-9  # DOP853 at the tolerance 1e-10: 1.7e-10
 
 
+@pytest.mark.slow  # 7 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_given_dt_sets_the_pilots_step_also_on_a_declared_fixed_step_fmu(fmus, tmp_path, monkeypatch):
     """Review of the fifth audit's fix: a --dt given without --t-end to an FMU that declares a fixed step ran the
     window's pilots at the declared step, and the under-resolution warning called the user's step the FMU's.  The

@@ -125,6 +125,7 @@ def driver_factory(built):
 # ------------------------------------------------------------------------ the files
 
 @pytest.mark.parametrize("name", list(CASES))
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_validate_fmu_reports_no_problem(built, name):
     assert validate_fmu(str(built[name][0])) == []
 
@@ -153,6 +154,7 @@ def test_fmu_keeps_sources_and_description(built, name):
     assert names[0] == "u" and f"x[{n}]" in names and f"a[{n}]" in names
 
 
+@pytest.mark.slow  # 21 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_cmake_build_gives_the_same_working_fmu(tmp_path, monkeypatch):
     """The CMake path (Windows, or FMU_OPINF_BUILD=cmake) and the direct compiler call build FMUs that both
     reproduce the reference simulator; the direct one is the default on Linux."""

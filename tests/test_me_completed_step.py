@@ -153,6 +153,7 @@ def test_a_failure_names_the_fmus_reason_and_no_co_simulation_it_lacks(fmus, tmp
     assert "--interface cs" not in line[0]
 
 
+@pytest.mark.slow  # 7 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_only_fmus_that_declare_the_need_get_completed_integrator_steps(tmp_path):
     """FMI 2 needs the calls unless ``completedIntegratorStepNotNeeded="true"``, FMI 3 only with
     ``needsCompletedIntegratorStep="true"`` (the default FMUs of lti_fmus declare neither need).  fmpy maps FMI 2's

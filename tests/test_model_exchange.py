@@ -253,6 +253,7 @@ def test_cli_me_method_on_a_builtin_source_is_refused(tmp_path, capsys):
     assert code == 2 and "--me-method applies to fmu sources" in err and err.count("\n") == 0, err
 
 
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_compare_drives_the_fmu_with_the_given_method(corpus):
     from fmu_opinf.compare import simulate_outputs
     from fmu_opinf.signals import parse_signal

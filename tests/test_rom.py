@@ -374,6 +374,7 @@ def test_an_order_below_the_number_of_inputs_is_warned_about():
         _warn_if_order_below_inputs(20, 40, 20)
 
 
+@pytest.mark.slow  # 13 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_fit_with_many_outputs_holds_them_about_once(monkeypatch):
     """Memory proportional to the outputs (seventh audit: 200 outputs, 266 MB recorded, the fit peaked at 2.34 GB):
     the traced peak of a fit with 400 outputs stays near the size of its stacked outputs, with column blocks of
@@ -409,6 +410,7 @@ def test_a_fit_with_many_outputs_holds_them_about_once(monkeypatch):
     assert rom.fit_info["refinement"]["iterations"] > 0
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_same_rom_with_one_and_two_blas_threads():
     """The whole fit (projection, POD, SDP, refinement) gives the same bits with one and two BLAS threads (issue 16):
     the projection's products run with one thread each on fixed column blocks (with two OpenBLAS threads the

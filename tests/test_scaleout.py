@@ -176,6 +176,7 @@ def test_a_changed_row_that_fails_leaves_no_stale_result(tmp_path):
     assert [p.name for p in snapshot_files(tmp_path / "set")] == ["b.h5"]
 
 
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_cli_records_a_table_on_a_running_cluster(client, table, tmp_path):
     out = tmp_path / "set"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
@@ -303,6 +304,7 @@ def test_fit_from_run_set_equals_fit_from_one_file(roms, recorded):
     np.testing.assert_allclose(poles[0], poles[1], rtol=1e-4)
 
 
+@pytest.mark.slow  # 9 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_cli_fits_a_per_run_set_on_a_running_cluster(client, recorded, roms, tmp_path):
     from fmu_opinf.rom import SecondOrderROM
 
@@ -316,6 +318,7 @@ def test_cli_fits_a_per_run_set_on_a_running_cluster(client, recorded, roms, tmp
     assert np.max(scipy.linalg.subspace_angles(rom.basis, roms[1].basis)) < 1e-10
 
 
+@pytest.mark.slow  # 6 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_compare_runs_in_parallel_gives_one_summary(client, roms, table, tmp_path):
     rom_set, _, out = roms
     tests = tmp_path / "tests.csv"

@@ -363,6 +363,7 @@ def _kill_once_it_forked(server: int, stop) -> None:
         time.sleep(0.01)
 
 
+@pytest.mark.slow  # 7 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_fork_server_that_dies_as_a_run_is_handed_to_it_is_named(toys, monkeypatch):
     """The server killed between taking a run's request and reading the run: a BrokenPipeError traceback before
     (seen on a loaded machine); now the one-line error that names the server, and the next run starts a new one."""
@@ -418,6 +419,7 @@ def test_record_to_file_without_a_window_chooses_it_automatically(tmp_path):
     assert Snapshots.load(tmp_path / "x.h5").runs[0].attrs["dt"] == summary.window.dt
 
 
+@pytest.mark.slow  # 8 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_auto_window_resolves_the_response_and_waits_for_the_fade_out(bundled, tmp_path):
     spec = "impulse:amplitude=100,t0=2,width=0.5"
     source = FMUSource(bundled["AnchoredMSD"])
@@ -491,6 +493,7 @@ def test_fmu_without_inputs_records_its_free_response_from_the_initial_state(toy
     assert relative(run.x, _free_reference(np.array([0.5, 0.0, -0.2]), run.t)) < 1e-4
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_input_none_on_a_model_with_inputs_holds_them_at_their_start_values(toys, tmp_path):
     only_free = record_to_file(toys["param-input"], tmp_path / "a.h5", "none", dt=0.1, t_end=1.0,
                                parameters={"x[2]": "0.1"}, quiet=True)
@@ -532,6 +535,7 @@ def test_every_parameter_like_input_is_excluded_by_the_suggested_fix(tmp_path, m
         sources.open_source(path, inputs="F,stiffness_scale")
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_parameter_like_inputs_driven_to_zero_are_named_in_the_error(toys, tmp_path, monkeypatch):
     from fmu_opinf import sources
 

@@ -58,6 +58,7 @@ def cache(tmp_path, monkeypatch) -> Path:
 
 @pytest.mark.parametrize("name, interface", [("me-only", "me"), ("fmi3-array-structural", "cs"),
                                              ("fmi3-array-structural", "me")])
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_source_only_fmu_is_compiled_once_and_records_as_with_its_binary(corpus, cache, tmp_path, name, interface,
                                                                            monkeypatch):
     fmu = without_binaries(corpus[name], tmp_path / f"{name}-sources.fmu")

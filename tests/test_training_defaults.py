@@ -183,6 +183,7 @@ def test_a_declared_step_is_kept_when_the_window_chooses_the_end(tmp_path):
     assert np.abs(run.u).max() == pytest.approx(100.0, rel=1e-12)  # the pulse's peak t = 2 lies on the grid
 
 
+@pytest.mark.slow  # 19 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
     """Audit 2026-11-27: an FMU declaring stepSize=0.5 and stopTime=1 was recorded at its own step while the summary
     printed 'auto window: dt=0.02', the window's step, and nothing said that 0.5 under-resolves its 1.3 Hz mode."""
@@ -218,6 +219,7 @@ def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
     assert not [w for w in caught if "DefaultExperiment stepSize=" in str(w.message)]
 
 
+@pytest.mark.slow  # 6 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_display_units_reach_the_exported_fmu_where_their_unit_defines_them(tmp_path):
     """Display units (a Modelica position in m shown in mm) are recorded and declared again on the ROM FMU's
     ports, from the variable or from its declared type; one the source does not define for the unit is left out
@@ -257,6 +259,7 @@ def test_display_units_reach_the_exported_fmu_where_their_unit_defines_them(tmp_
         [("N", "kN"), ("m", "mm"), ("m/s", None)]
 
 
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, capsys):
     """A force input declared with ``max`` (here through its declared type, ``Force`` with max 30): the default
     training impulse is lowered to it, since a Dymola FMU refuses values outside ``[min, max]`` (seventh audit,
@@ -288,6 +291,7 @@ def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, caps
                     "reaches 80; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")
 
 
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_rom_fmu_s_inputs_start_where_the_source_s_do(tmp_path):
     """A force input preloaded at 10 N (start="10"): the exported ROM FMU declares the same start value and holds
     it until an importer sets the input, so an unconnected input behaves as on the source (seventh audit,
@@ -316,6 +320,7 @@ def test_the_rom_fmu_s_inputs_start_where_the_source_s_do(tmp_path):
     assert np.abs(simulated - exact).max() < 3e-14 * np.abs(exact).max()  # measured 9.7e-15
 
 
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_model_initialized_at_its_equilibrium_under_the_start_input_is_trained_there(tmp_path):
     """A preloaded model with a steady-state initialization (Modelica ``initial equation der(x) = 0``): the FMU
     starts at the static equilibrium under whatever input initialization sees.  The default training pulses the
@@ -353,6 +358,7 @@ def test_a_model_initialized_at_its_equilibrium_under_the_start_input_is_trained
 
 
 @pytest.mark.parametrize("steady", [True, False])
+@pytest.mark.slow  # 4 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tmp_path, steady):
     """Seventh audit, E3: a model that starts at its static equilibrium under whatever input initialization sees
     (``steady``), initialized under F = 5 N instead of its start value 10 N, rests at the equilibrium under 5 N;
