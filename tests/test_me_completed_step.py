@@ -10,6 +10,8 @@ The reference is :func:`~fmu_opinf.lti_fmus.zoh_response` (matrix exponential), 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -37,7 +39,7 @@ INPUT = "impulse:amplitude=2,t0=1,width=1"
 #: both inputs change: the discrete one (the second) at 1.0 and 2.0
 TWO_INPUTS = "impulse:amplitude=2,t0=0.5,width=0.3;impulse:amplitude=3,t0=1,width=1"
 CASES = [("2.0", "gap"), ("3.0", "gap"), ("2.0", "ask"), ("3.0", "ask"), ("2.0", "discrete"), ("3.0", "discrete"),
-         ("2.0", "tiny")]
+         ("2.0", "tiny"), ("2.0", "every"), ("3.0", "every")]
 
 
 def two_masses() -> lti_fmus.LinearMechanicalModel:
@@ -52,12 +54,16 @@ def two_masses() -> lti_fmus.LinearMechanicalModel:
 def fmus(request, tmp_path_factory) -> dict:
     def build(folder, case):
         version, kind = case
+        model = two_masses()
         options = {"gap": dict(completed_step_gap=GAP, interfaces=("me",)),
+                   "every": dict(completed_step_event_at=0.0, completed_step_event_every=True, interfaces=("me",)),
                    "ask": dict(completed_step_gap=GAP, completed_step_event_at=T_ASK, interfaces=("me",)),
                    "discrete": dict(discrete_inputs=(1,), interfaces=("me", "cs")),
                    "tiny": dict(completed_step_gap=1e-4, interfaces=("me",))}[kind]
         path = folder / f"completed-{kind}-fmi{version[0]}.fmu"
-        return case, lti_fmus.build_lti_fmu(two_masses(), path, fmi_version=version, **options).path
+        if kind == "every":   # from rest: the integrator's first step is tiny (the derivatives are zero)
+            model = dataclasses.replace(model, x0=np.zeros(2))
+        return case, lti_fmus.build_lti_fmu(model, path, fmi_version=version, **options).path
 
     return build_fmu_set(request, tmp_path_factory, "lti-completed-steps", build, CASES)
 
@@ -116,6 +122,36 @@ def test_an_event_asked_for_in_a_completed_step_is_handled_there(fmus, version, 
     assert source.events_seen() == (0, None, 1)
     assert len(handled) == 1 and T_ASK <= handled[0] < T_ASK + GAP and handled[0] not in set(run.t)
     assert largest_error(run, two_masses()) < 2e-10   # measured 1.1e-10 (event at 2.3510 compiled, 2.3518 scipy)
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_an_fmu_that_asks_for_an_event_at_every_completed_step_is_recorded(fmus, version, loop):
+    """FMI allows an FMU to ask for event mode in every completed integrator step; started from rest (first step
+    1e-6 s).  Each piece after such an event starts with the step the integrator proposed: from the size of the
+    last step taken, the step could never grow (ninth audit: the recording stopped after 1000 events in 1 ms,
+    advising co-simulation, which the FMU does not offer).  Reference: the exact response."""
+    source = ModelExchangeSource(fmus[(version, "every")], **STATES)
+    run = record(source, INPUT, DT, T_END, quiet=True).runs[0]
+    assert run.complete
+    inert = source.events_seen()[2]
+    assert 50 < inert < 200, inert   # one per accepted step: measured 93 (both loops, FMI 2 and 3)
+    model = dataclasses.replace(two_masses(), x0=np.zeros(2))
+    assert largest_error(run, model) < 5e-10   # measured 2.58e-10 (both loops, FMI 2 and 3)
+
+
+def test_too_many_events_asked_for_in_completed_steps_are_named_as_such(fmus, monkeypatch):
+    """Where the cap of asked-for events is reached, the line names the completed steps, not event indicators,
+    and offers no co-simulation that the FMU lacks."""
+    from fmu_opinf.errors import FMUError
+    from fmu_opinf.sources import _model_exchange
+
+    monkeypatch.setattr(_model_exchange, "_MAX_ASKED_EVENTS_PER_STEP", 5)
+    source = ModelExchangeSource(fmus[("2.0", "every")], **STATES)
+    with pytest.raises(FMUError) as failure:
+        record(source, INPUT, DT, T_END, quiet=True, isolate=False)
+    text = str(failure.value)
+    assert "asked for an event in more than 5 completed integrator steps" in text
+    assert "indicator" not in text and "--interface cs" not in text
 
 
 @pytest.mark.parametrize("version", ["2.0", "3.0"])

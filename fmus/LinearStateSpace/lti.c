@@ -614,7 +614,8 @@ LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time) {
 
 int ltiCompletedStep(LtiInstance *inst) {
     inst->timeCompleted = inst->time;
-    if (LTI_COMPLETED_EVENT && !inst->completedEventAsked && inst->time >= LTI_COMPLETED_EVENT_AT) {
+    if (LTI_COMPLETED_EVENT && (LTI_COMPLETED_EVENT_EVERY || !inst->completedEventAsked)
+        && inst->time >= LTI_COMPLETED_EVENT_AT) {
         inst->completedEventAsked = 1;
         return 1;
     }

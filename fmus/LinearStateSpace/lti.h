@@ -120,9 +120,10 @@ extern const double LTI_TIME_EVENT_FQ[], LTI_STATE_EVENT_FQ[];
 extern const double LTI_TIME_EVENT_DQD[];
 /* LTI_COMPLETED_GAP > 0: the FMU needs CompletedIntegratorStep after every integrator step (as a Modelica delay()
    buffer does) and refuses SetTime more than LTI_COMPLETED_GAP after the last one.  LTI_COMPLETED_EVENT: the first
-   completed step at or after LTI_COMPLETED_EVENT_AT asks for event mode (an event iteration that changes nothing). */
+   completed step at or after LTI_COMPLETED_EVENT_AT asks for event mode (an event iteration that changes nothing);
+   with LTI_COMPLETED_EVENT_EVERY, every one from then on does. */
 extern const double LTI_COMPLETED_GAP, LTI_COMPLETED_EVENT_AT;
-extern const int LTI_COMPLETED_EVENT;
+extern const int LTI_COMPLETED_EVENT, LTI_COMPLETED_EVENT_EVERY;
 /* LTI_STEADY_START: initialization ends at the equilibrium q = LTI_STEADY_Q0 + LTI_STEADY_QU u (nq x nu,
    row-major), qd = 0, under the inputs set then (a Modelica steady-state initialization). */
 extern const int LTI_STEADY_START;

@@ -751,6 +751,7 @@ class _Options:
     state_event: StateEvent | None = None
     completed_step_gap: float | None = None
     completed_step_event_at: float | None = None
+    completed_step_event_every: bool = False
     discrete_inputs: tuple[int, ...] = ()
     cs_fixed_step: float | None = None
     cs_fixed_step_enforced: bool = True
@@ -1500,6 +1501,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const double LTI_COMPLETED_GAP = {_number(options.completed_step_gap or 0.0)};\n"
         f"const int LTI_COMPLETED_EVENT = {int(options.completed_step_event_at is not None)};\n"
         f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
+        f"const int LTI_COMPLETED_EVENT_EVERY = {int(options.completed_step_event_every)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1623,6 +1625,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   steady_state_start: bool = False,
                   time_event: TimeEvent | None = None, state_event: StateEvent | None = None,
                   completed_step_gap: float | None = None, completed_step_event_at: float | None = None,
+                  completed_step_event_every: bool = False,
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
@@ -1718,6 +1721,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
     completed_step_event_at : float, optional
         Model exchange: the first completed integrator step at or after this time asks for event mode (whose event
         iteration changes nothing); also declares the need for completed steps.
+    completed_step_event_every : bool, default=False
+        With ``completed_step_event_at``: every completed step from then on asks for event mode, not only the
+        first (FMI allows it; some exports do it to re-check their discrete state).
     discrete_inputs : sequence of int, default=()
         Force inputs (indices) declared with ``variability="discrete"``, which model exchange may change only in
         event mode (FMI 2.0 section 3.2.3): the FMU refuses a new value in continuous-time mode.
@@ -1768,7 +1774,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         time_event=time_event, state_event=state_event,
         completed_step_gap=None if completed_step_gap is None else float(completed_step_gap),
         completed_step_event_at=None if completed_step_event_at is None else float(completed_step_event_at),
-        discrete_inputs=tuple(discrete_inputs),
+        completed_step_event_every=bool(completed_step_event_every), discrete_inputs=tuple(discrete_inputs),
         cs_fixed_step=None if cs_fixed_step is None else float(cs_fixed_step),
         cs_fixed_step_enforced=bool(cs_fixed_step_enforced),
         cs_max_step=None if cs_max_step is None else float(cs_max_step),

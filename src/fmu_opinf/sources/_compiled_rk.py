@@ -163,7 +163,9 @@ class Kernel:
         if status == _TERMINATE:
             raise IntegrationFailure(f"the FMU asked to terminate the simulation in fmiCompletedIntegratorStep at "
                                      f"t={state.t:.9g}")
-        step = state.h_abs if one_step else state.h_last   # one step at a time: the next one's size goes on
+        # one step at a time, or stopped at an event the FMU asked for: the next one's size goes on (from the
+        # last step taken, an FMU that asks at every step would never let it grow)
+        step = state.h_abs if one_step or status == _EVENT else state.h_last
         return y, float(step), float(state.t) if status in (_EVENT, _PAUSED) else t1
 
     def _adapt(self, seconds: float) -> None:
