@@ -102,3 +102,24 @@ def test_scaled_velocity_states_are_repaired_without_blaming_a_guess():
     coarse = lti_fmus.zoh_response(MODEL, coarse_t, np.where((coarse_t > 1.0) & (coarse_t < 3.0), 1.0, 0.0)[None, :])
     verdict = check_rates(coarse.x, coarse.v, None, 0.7, names, False, derivatives, declared=True)
     assert isinstance(verdict, str) and verdict.startswith("velocities do not match the positions"), verdict
+
+
+def test_states_in_other_coordinates_are_refused_not_replaced_by_derivative_variables():
+    """A generic LTI export whose states are ``z = T^-1 [x; v]`` (a state space in other coordinates, as from a
+    transformed Simulink block): the halves of the guess are no positions and velocities, and the data pair none.
+    Recording the first half with its derivative variables as velocities left the other half out, and the fit
+    learned a model 120 % off without a word (ninth audit, finding 2); now the recording stops and names the
+    states that are no position's rate.  Velocity states that are the positions' rates times a constant (scaled by
+    the exporter) are still repaired that way, under a guessed pairing too."""
+    t = np.arange(0.0, 30.0, 0.05)
+    u = np.where((t > 1.0) & (t < 2.0), 1.0, 0.0)[None, :]
+    reference = lti_fmus.zoh_response(MODEL, t, u)
+    names = {"positions": ["x1", "x2", "x3"], "velocities": ["x4", "x5", "x6"]}
+    derivatives = ["der(x1)", "der(x2)", "der(x3)"]
+    transform = np.random.default_rng(3).standard_normal((6, 6)) + 3.0 * np.eye(6)
+    z = np.linalg.solve(transform, np.vstack([reference.x, reference.v]))
+    verdict = check_rates(z[:3], z[3:], None, 0.05, names, True, derivatives)
+    # x4 is near a multiple of x1's rate (T is near 3 I), x5 and x6 are not
+    assert isinstance(verdict, str) and "the states x5, x6 are not the rate of any position" in verdict, verdict
+    scaled = check_rates(reference.x, 1e4 * reference.v, None, 0.05, names, True, derivatives)
+    assert isinstance(scaled, Repair) and scaled.velocities == derivatives, scaled

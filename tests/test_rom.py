@@ -454,3 +454,40 @@ def test_a_rom_that_misses_its_own_training_outputs_is_warned_about():
     assert good.fit_info["refinement"]["objective"] < 1e-10
     with pytest.warns(FmuOpinfWarning, match=r"reproduces its own training outputs only to .*--positions names"):
         fit_rom([Run(train.t, train.u, mixed, train.xdot, train.xddot, train.y)], r=2, quiet=True)
+
+
+def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_output_check():
+    """States of a state space in other coordinates (``z = T^-1 [x; v]``) recorded as positions ``z1..z3`` and
+    velocities ``z4..z6``.  With no refinement (``refine=False``, or interval averages) no training output error
+    was simulated, and the fit said nothing (ninth audit, finding 2: compare 128 % off); now the SDP solution's
+    training output error is simulated and judged like the refinement's (:data:`TRAINING_MISS`).  The true
+    positions and velocities of the same motion fit exactly and say nothing.  Reference: the exact response."""
+    import warnings
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.rom import TRAINING_MISS
+
+    model = lti_fmus.chain_model(3)
+    t = np.arange(0.0, 40.0, 0.05)
+    held = np.where((t > 1.0) & (t < 2.0), 1.0, 0.0)[None, :]   # over [t_i, t_i+1]
+    exact = lti_fmus.zoh_response(model, t, held)
+    u = np.hstack([held[:, :1], held[:, :-1]])   # a run's u[:, i + 1] is held over [t_i, t_i+1]
+    transform = np.random.default_rng(3).standard_normal((6, 6)) + 3.0 * np.eye(6)
+    z, dz = (np.linalg.solve(transform, np.vstack(pair)) for pair in ((exact.x, exact.v), (exact.v, exact.a)))
+    errors = {}
+    averages = {"fit_rates": "interval-averages"}   # rates from the data, as for a CS FMU without accelerations
+    for name, run, refine in (("wrong", Run(t, u, z[:3], z[3:], dz[3:], exact.y), False),
+                              ("wrong averages", Run(t, u, z[:3], z[3:], dz[3:], exact.y, averages), "auto"),
+                              ("right", Run(t, u, exact.x, exact.v, exact.a, exact.y), False),
+                              ("right averages", Run(t, u, exact.x, exact.v, exact.a, exact.y, averages), "auto")):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            rom = fit_rom([run], r=3, refine=refine, integrator="exact", quiet=True)
+        said = [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)
+                and "reproduces its own training outputs only" in str(w.message)]
+        errors[name] = (rom.fit_info["training_output_error"], len(said))
+    for name in ("wrong", "wrong averages"):   # measured 1.43 and 1.46
+        assert errors[name][0] > 100 * TRAINING_MISS and errors[name][1] == 1, errors
+    for name in ("right", "right averages"):   # measured 7.9e-29 and 2.1e-28
+        assert errors[name][0] < 1e-20 and errors[name][1] == 0, errors

@@ -757,6 +757,8 @@ def _warn_if_training_outputs_missed(info: dict, r: int) -> None:
     refinement = info.get("refinement") or {}
     candidate = info.get("least_squares_candidate") or {}
     objective = candidate.get("objective") if candidate.get("chosen") else refinement.get("objective")
+    if objective is None:   # no refinement ran (--no-refine, interval averages): the SDP solution's own error
+        objective = info.get("training_output_error")
     if not isinstance(objective, (int, float)) or not objective > TRAINING_MISS:
         return
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(objective):.2g} relative RMS "
@@ -1017,6 +1019,11 @@ def fit_rom(
                             method=method, mass_trace=mass_trace, tol=tol, normalization=normalization,
                             solver=solver)
         ops.info["interval_average_corrections"] = count
+    sampled_u = data["u"] if not chosen["fr"] else np.vstack([data["u"], np.ones((1, data["u"].shape[1]))])
+    unchecked = None if refinement.get("refine") else _training_output_error(
+        ops, sampled_u, data, _refinement("auto", time_integrator, lowpass, runs, attrs,
+                                      {key: value for key, value in data.items() if not key.startswith("f_")},
+                                      (Cpr, Cvr, Dur, y0)), output_weighting)
     sdp_seconds = ops.info.get("sdp_wall_seconds", ops.info.get("total_seconds", 0))
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization, {ops.info.get('solver')}) in {sdp_seconds:.2f}s"
@@ -1037,6 +1044,8 @@ def fit_rom(
                 energy_r=float(pod.energy_[pod.r_ - 1]), n=int(pod.basis_.shape[0]), k=int(data["u"].shape[1]),
                 n_runs=len(runs), lowpass=lowpass, terms=term_info,
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
+    if unchecked is not None:
+        info["training_output_error"] = unchecked
     _warn_if_modes_above_nyquist(info.get("poles") or [], _training_dt(runs, attrs),
                                  max(float(np.asarray(run.t)[-1]) for run in runs))
     _warn_if_training_outputs_missed(info, pod.r_)
@@ -1088,6 +1097,23 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
     target = data["y"] if not (np.any(Dur) or np.any(y0)) else _net_outputs(data["y"], data["u"], Dur, y0)
     return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths, "refine": True,
             "integrator": integrator}
+
+
+def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
+                           output_weighting: str) -> float | None:
+    """The refinement's objective (training output error) of a fit that ran no refinement (``refine=False``,
+    interval averages), where the training runs can be simulated (``simulated``: the keywords of
+    :func:`_refinement` on the sampled states), so that a ROM that misses its own training data is said to
+    (ninth audit: states of a state space in other coordinates, recorded as interval averages, fitted without a
+    word and 128 % off); else None.  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
+    from .refinement import output_error_objective
+
+    if not simulated.get("refine"):
+        return None
+    return output_error_objective(ops.Mr, ops.Dr, ops.Kr, ops.Br, data["xdot"], data["x"], u, simulated["y"],
+                                  simulated["dt"], output_map=simulated["output_map"],
+                                  run_lengths=simulated["run_lengths"], integrator=simulated["integrator"],
+                                  output_weighting=output_weighting)
 
 
 def _net_outputs(y: np.ndarray, u: np.ndarray, Dur: np.ndarray, y0: np.ndarray) -> np.ndarray:

@@ -282,12 +282,34 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
             return Repair([states[i] for i, _ in pairs], [states[j] for _, j in pairs], None,
                           f"the guessed pairing is wrong ({where}); positions and velocities paired by the data")
     if all(derivative_names) and not set(derivative_names) & set(states):
-        return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
-                      f"the guessed pairing is wrong ({where}); the positions' derivative variables are the "
-                      "velocities, accelerations derived from the data")
+        left_out = _not_scaled_rates(x, v, h)
+        if not left_out:
+            return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
+                          f"the guessed pairing is wrong ({where}); the positions' derivative variables are the "
+                          "velocities, accelerations derived from the data")
+        # the derivative variables would stand in for states that are no velocities: those would be lost, and the
+        # data are no M x'' + D x' + K x = B u (ninth audit: a state space in other coordinates, a ROM 120 % off)
+        shown = ", ".join(names["velocities"][j] for j in left_out[:6]) + (", ..." if len(left_out) > 6 else "")
+        return (f"cannot tell positions from velocities: {where}, the data pair no states, and the states {shown} "
+                "are not the rate of any position (a state space in other coordinates, or non-mechanical states); "
+                "pass --positions and --velocities naming states whose rates are the velocities")
     why = ("the data pair no states" if len(states) <= _MAX_PAIRED else
            f"too many states ({len(states)}) to pair by the data")
     return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
+
+
+def _not_scaled_rates(x: np.ndarray, v: np.ndarray, h: float) -> list[int]:
+    """Rows of ``v`` that are no position's rate times a constant (within :data:`MISMATCH`, the trapezoidal rule
+    over a step); rows that hardly move (:data:`_QUIET`) pass.  Velocity states scaled by the exporter are such
+    rates; the states of a state space in other coordinates are not."""
+    increments = np.diff(x, axis=1)
+    averages = 0.5 * (v[:, :-1] + v[:, 1:])
+    norms_d, norms_a = np.linalg.norm(increments, axis=1), np.linalg.norm(averages, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cosines = np.abs(increments @ averages.T) / np.outer(norms_d, norms_a)
+    residual = np.sqrt(np.maximum(1.0 - np.nan_to_num(cosines) ** 2, 0.0))   # relative, after the best constant
+    moving = norms_a > _QUIET * max(float(norms_a.max(initial=0.0)), np.finfo(float).tiny)
+    return [int(j) for j in np.flatnonzero(moving) if residual[:, j].min(initial=np.inf) > MISMATCH]
 
 
 def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
