@@ -302,6 +302,11 @@ def test_bad_snapshot_data(snapshot_file):
         fit_rom([Run(run.t, run.u, run.x, run.xdot, run.xddot, y)], r=2)
     with pytest.raises(DataError, match="run 0 is incomplete"):
         fit_rom([Run(run.t, run.u, run.x, run.xdot, run.xddot, run.y, {"complete": False})], r=2)
+    # the one sample that a recording failing at its first step keeps: incomplete, not "all snapshots are zero"
+    first = Run(run.t[:1], run.u[:, :1], 0 * run.x[:, :1], 0 * run.xdot[:, :1], 0 * run.xddot[:, :1],
+                run.y[:, :1], {"complete": False})
+    with pytest.raises(DataError, match="run 0 is incomplete: the recording stopped early, after 1 sample;"):
+        fit_rom([first])
     with pytest.raises(DimensionError, match="u of run 0 has shape"):
         fit_rom([Run(run.t, run.u[:, :-1], run.x, run.xdot, run.xddot, run.y)], r=2)
 

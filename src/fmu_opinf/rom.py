@@ -609,11 +609,19 @@ def _vector(value: Any, size: int) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 # The pipeline
 # ----------------------------------------------------------------------------------------------------------
+def _check_complete(runs: list) -> None:
+    """Refuse an incomplete run (a recording that stopped early keeps what it had: the partial file) before
+    anything is computed from it (ninth audit: a 1-sample partial run was reported as "all snapshots are zero")."""
+    for i, run in enumerate(runs):
+        if not bool(getattr(run, "attrs", {}).get("complete", True)):
+            k = _run_length(run)
+            raise DataError(f"run {i} is incomplete: the recording stopped early, after {k} sample"
+                            f"{'s' if k != 1 else ''}; re-record it or drop it")
+
+
 def _run_data(run: Any, i: int, basis: np.ndarray, chunk: int) -> dict[str, np.ndarray]:
-    """Reduced states (eq. 14) and inputs of one run, with completeness, shape and value checks (its outputs:
-    :func:`_stacked_outputs`)."""
-    if not bool(getattr(run, "attrs", {}).get("complete", True)):
-        raise DataError(f"run {i} is incomplete (the recording stopped early); re-record it or drop it")
+    """Reduced states (eq. 14) and inputs of one run, with shape and value checks (its outputs:
+    :func:`_stacked_outputs`; completeness: :func:`_check_complete`)."""
     k = _run_length(run)
     out = {name: project(basis, getattr(run, name), chunk, label=f"{name} of run {i}")
            for name in ("xddot", "xdot", "x")}
@@ -968,6 +976,7 @@ def fit_rom(
     """
     requested = _requested_terms(terms)
     runs = as_runs(snapshots)
+    _check_complete(runs)
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
     if refit_output_map and (refine is False or lowpass is not None):

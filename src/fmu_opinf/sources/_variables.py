@@ -654,7 +654,7 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
 
 
 _DEPENDENCIES = "from derivative links: der(position) depends on its velocity state alone (model structure)"
-_UNITS = "from derivative links: states paired by unit (m, m/s) and name"
+_UNITS = "from derivative links: states paired by unit (a length or an angle and its rate) and name"
 
 
 def _state_variables(states: _States) -> list[Variable]:
