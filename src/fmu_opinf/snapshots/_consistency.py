@@ -301,15 +301,28 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
 def _not_scaled_rates(x: np.ndarray, v: np.ndarray, h: float) -> list[int]:
     """Rows of ``v`` that are no position's rate times a constant (within :data:`MISMATCH`, the trapezoidal rule
     over a step); rows that hardly move (:data:`_QUIET`) pass.  Velocity states scaled by the exporter are such
-    rates; the states of a state space in other coordinates are not."""
+    rates; the states of a state space in other coordinates are not.  Each row is tried against its own position
+    first (how exporters order them), and only a row that fails is tried against every position, at most
+    :data:`_SCANNED` rows (an FE export has thousands; those beyond count as failing)."""
     increments = np.diff(x, axis=1)
     averages = 0.5 * (v[:, :-1] + v[:, 1:])
     norms_d, norms_a = np.linalg.norm(increments, axis=1), np.linalg.norm(averages, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cosines = np.abs(increments @ averages.T) / np.outer(norms_d, norms_a)
-    residual = np.sqrt(np.maximum(1.0 - np.nan_to_num(cosines) ** 2, 0.0))   # relative, after the best constant
+
+    def residual(inner: np.ndarray, norms: np.ndarray) -> np.ndarray:   # relative, after the best constant
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cosine = np.nan_to_num(np.abs(inner) / norms)
+        return np.sqrt(np.maximum(1.0 - np.minimum(cosine, 1.0) ** 2, 0.0))
+
     moving = norms_a > _QUIET * max(float(norms_a.max(initial=0.0)), np.finfo(float).tiny)
-    return [int(j) for j in np.flatnonzero(moving) if residual[:, j].min(initial=np.inf) > MISMATCH]
+    own = residual(np.einsum("ij,ij->i", increments, averages), norms_d * norms_a)
+    failing = [int(j) for j in np.flatnonzero(moving & (own > MISMATCH))]
+    scanned = [j for j in failing[:_SCANNED]
+               if residual(increments @ averages[j], norms_d * norms_a[j]).min() > MISMATCH]
+    return scanned + failing[_SCANNED:]
+
+
+#: Velocity rows at most that :func:`_not_scaled_rates` tries against every position.
+_SCANNED = 200
 
 
 def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
