@@ -109,8 +109,9 @@ def test_states_in_other_coordinates_are_refused_not_replaced_by_derivative_vari
     transformed Simulink block): the halves of the guess are no positions and velocities, and the data pair none.
     Recording the first half with its derivative variables as velocities left the other half out, and the fit
     learned a model 120 % off without a word (ninth audit, finding 2); now the recording stops and names the
-    states that are no position's rate.  Velocity states that are the positions' rates times a constant (scaled by
-    the exporter) are still repaired that way, under a guessed pairing too."""
+    states that are no combination of the positions' rates.  Velocity states that are the positions' rates times a
+    constant (scaled by the exporter) are still repaired that way, under a guessed pairing too (and absolute
+    velocities beside relative positions: ``test_other_exporters.py``)."""
     t = np.arange(0.0, 30.0, 0.05)
     u = np.where((t > 1.0) & (t < 2.0), 1.0, 0.0)[None, :]
     reference = lti_fmus.zoh_response(MODEL, t, u)
@@ -119,7 +120,7 @@ def test_states_in_other_coordinates_are_refused_not_replaced_by_derivative_vari
     transform = np.random.default_rng(3).standard_normal((6, 6)) + 3.0 * np.eye(6)
     z = np.linalg.solve(transform, np.vstack([reference.x, reference.v]))
     verdict = check_rates(z[:3], z[3:], None, 0.05, names, True, derivatives)
-    # x4 is near a multiple of x1's rate (T is near 3 I), x5 and x6 are not
-    assert isinstance(verdict, str) and "the states x5, x6 are not the rate of any position" in verdict, verdict
+    assert isinstance(verdict, str) and "the states x4, x5, x6 are no combination of the positions' rates" in verdict, \
+        verdict
     scaled = check_rates(reference.x, 1e4 * reference.v, None, 0.05, names, True, derivatives)
     assert isinstance(scaled, Repair) and scaled.velocities == derivatives, scaled
