@@ -183,6 +183,39 @@ def test_a_declared_step_is_kept_when_the_window_chooses_the_end(tmp_path):
     assert np.abs(run.u).max() == pytest.approx(100.0, rel=1e-12)  # the pulse's peak t = 2 lies on the grid
 
 
+@pytest.mark.slow  # 9 s each on the 2-core machine of 2026-11-28
+@pytest.mark.parametrize("experiment, kept_multiple", [('stopTime="10000" stepSize="0.001"', False),
+                                                       ('stopTime="1.0" stepSize="0.00001"', True)])
+def test_a_declared_step_that_would_make_millions_of_samples_gives_way_to_the_window(tmp_path, experiment,
+                                                                                     kept_multiple):
+    """Simulink-style exports declare their solver's step beside a long stopTime: 1 ms up to 1e4 s made 1e7 samples
+    per run (tenth audit: killed after 400 s at 1.2 GB; the automatic window took 8.5 s).  Above a million samples
+    the automatic window chooses the step (with a warning naming --dt to keep it); where the window chooses the end
+    (a stopTime before the input acts), the recording takes the largest multiple of the declared step within the
+    window's, and model exchange's pilots are not held to the declared step.  Reference: the exact response."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    model = lti_fmus.chain_model(name="Declared")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "plain.fmu")
+    path = rewrite_description(built.path, tmp_path / "declared.fmu",
+                               lambda text: text.replace('stopTime="1.0"', experiment))
+    with pytest.warns(FmuOpinfWarning, match="samples per run") as said:
+        record_to_file(str(path), tmp_path / "train.h5", None, quiet=True)
+    run = Snapshots.load(tmp_path / "train.h5").runs[0]
+    declared = 1e-5 if kept_multiple else 1e-3
+    steps = run.attrs["dt"] / declared
+    assert 1000 < len(run.t) < 20000 and steps > 10
+    assert ("the multiple of it" in str(said[0].message)) == kept_multiple
+    if kept_multiple:
+        assert steps == pytest.approx(round(steps), abs=1e-6)
+    exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
+    # measured 2.2e-13 (both: 6239 samples at dt = 0.02; 1e7 samples at the declared step before)
+    assert np.abs(run.x - exact.x).max() < 1e-12 * np.abs(exact.x).max()
+
+
 @pytest.mark.slow  # 19 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
     """Audit 2026-11-27: an FMU declaring stepSize=0.5 and stopTime=1 was recorded at its own step while the summary

@@ -784,12 +784,17 @@ def record_to_file(
     step_declared = dt is None and declared_step is not None and (not auto_window or fixed is not None)
     if step_declared:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
+        if fixed is None and _too_many_samples(source, dt, t_end):
+            step_declared, dt, auto_window = False, None, True   # the automatic window chooses, as --auto-window
     representatives = [signals[0]] if by_default else runs_by_inputs_driven(signals)
     if auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
         # pilots never coarser than the step recorded (a longer one may be refused or discarded), and exactly at
         # a step the user gave or the FMU's fixed communication step
+        # (model exchange has no communication step: a declared one bounds nothing there, and at 1 ms the pilots
+        # of a slow model took 1e7 steps)
+        bound = None if step_declared and getattr(source, "interface", None) == "me" else dt
         thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
-                          quiet=quiet, max_dt=dt, exact_dt=dt_given or fixed is not None)
+                          quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None)
         if by_default and source.m:
             window, signals = _default_training_window(source, thresholds)
         else:
@@ -801,6 +806,8 @@ def record_to_file(
                           f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
         elif fixed is not None or dt_given:
             _warn_if_unresolved(source, window, dt, fixed is not None and not dt_given)
+        if step_declared and fixed is None and (t_end or window.t_end) / dt > DECLARED_STEP_SAMPLES:
+            dt = _declared_step_multiple(source, dt, window.dt, t_end or window.t_end)
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -813,6 +820,39 @@ def record_to_file(
     summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
                          else "the FMU's DefaultExperiment stepSize" if step_declared else None)
     return summary
+
+
+#: Samples per run above which the FMU's DefaultExperiment stepSize (where the FMU can take other steps) is not
+#: the recording step: Simulink-style exports declare their solver's step (1 ms) beside a stopTime of 1e4 s, and
+#: the recording took 1e7 samples (tenth audit: killed after 400 s at 1.2 GB; the automatic window 8.5 s).
+DECLARED_STEP_SAMPLES = 1_000_000
+
+
+def _too_many_samples(source: Source, dt: float, t_end: float | None) -> bool:
+    """Whether the declared step ``dt`` over ``t_end`` (default: the declared stopTime) makes more than
+    :data:`DECLARED_STEP_SAMPLES` samples per run; then a warning says that the automatic window chooses the step."""
+    experiment = getattr(getattr(source, "md", None), "defaultExperiment", None)
+    end = t_end
+    if end is None and experiment is not None and experiment.stopTime is not None:
+        end = float(experiment.stopTime) - float(experiment.startTime or 0.0)
+    if end is None or end / dt <= DECLARED_STEP_SAMPLES:
+        return False
+    warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={dt:g} up to t={end:g} would make "
+                  f"{end / dt:.3g} samples per run; the automatic window chooses the step instead (pass --dt {dt:g} "
+                  "to keep it)", FmuOpinfWarning, stacklevel=3)
+    return True
+
+
+def _declared_step_multiple(source: Source, declared: float, window_dt: float, t_end: float) -> float:
+    """The largest multiple of the declared step ``declared`` within the automatic window's ``window_dt``, where the
+    declared step over the window's end ``t_end`` would make more than :data:`DECLARED_STEP_SAMPLES` samples
+    per run (a multiple keeps the grid the FMU's own step divides)."""
+    step = declared * max(1, math.floor(window_dt / declared + 1e-9))
+    warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={declared:g} up to the window's end "
+                  f"t={t_end:g} would make {t_end / declared:.3g} samples per run; recording at dt={step:g}, the "
+                  f"multiple of it within the automatic window's dt={window_dt:g} (pass --dt {declared:g} to keep "
+                  "it)", FmuOpinfWarning, stacklevel=3)
+    return step
 
 
 def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> None:
