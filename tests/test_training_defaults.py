@@ -313,7 +313,7 @@ def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, caps
     fmu = rewrite_description(built.path, tmp_path / "bounded.fmu", edit)
     for name, window in (("given", ["--dt", "0.1", "--t-end", "30"]), ("auto", [])):
         assert main(["snapshots", str(fmu), "-o", str(tmp_path / f"{name}.h5"), *window]) == 0
-        assert "(amplitude 30 on F: the most its declared max allows)" in capsys.readouterr().err
+        assert "(amplitude 30 on F: what its declared range allows)" in capsys.readouterr().err
         run = Snapshots.load(tmp_path / f"{name}.h5").runs[0]
         assert run.attrs["input_spec"].startswith("impulse:amplitude=30,")
         assert 29.0 < np.max(run.u) <= 30.0 and np.min(run.u) >= 0.0
@@ -321,7 +321,38 @@ def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, caps
     U = np.array([[0.0], [45.0], [80.0]])
     hint = source.failure_hint(U, 1)
     assert hint == ("; input F is 45 there, above its declared max 30: give an input within [-30, 30] (this one "
-                    "reaches 80; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")
+                    "reaches 80 in magnitude; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")
+
+
+def test_an_input_that_may_only_pull_is_pulsed_downwards(tmp_path, capsys):
+    """A cable force declared within [-1000, 0] (it can only pull): the default pulse of +100 was refused at once,
+    and the line advised the very pulse that had failed (tenth audit).  Now the default pulses it by -100, the
+    recording is the exact response to that, and a run beyond the range is told a pulse in the allowed
+    direction.  Reference: the model's exact response to the recorded input."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.cli import main
+    from fmu_opinf.snapshots import Snapshots
+    from fmu_opinf.source import open_source
+
+    def edit(text: str) -> str:
+        text = text.replace("</UnitDefinitions>", '</UnitDefinitions>\n  <TypeDefinitions>\n    <SimpleType '
+                            'name="Pull"><Real unit="N" min="-1000" max="0"/></SimpleType>\n  </TypeDefinitions>')
+        return text.replace('<Real unit="N" start="0.0"/>', '<Real declaredType="Pull" start="0.0"/>')  # input F
+
+    model = lti_fmus.chain_model(name="PullOnly")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "pull.fmu", edit)
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "--dt", "0.1", "--t-end", "30"]) == 0
+    assert "(amplitude -100 on F: what its declared range allows)" in capsys.readouterr().err
+    run = Snapshots.load(tmp_path / "train.h5").runs[0]
+    assert run.attrs["input_spec"].startswith("impulse:amplitude=-100,")
+    assert np.min(run.u) == pytest.approx(-100.0) and np.max(run.u) <= 0.0
+    exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
+    assert np.abs(run.y - exact.y).max() < 2e-12 * np.abs(exact.y).max()   # measured 4.4e-13
+    hint = open_source(str(fmu), interface="cs").failure_hint(np.array([[0.0], [45.0]]), 1)
+    assert hint.endswith("within [-1000, 0] (this one reaches 45 in magnitude; e.g. --input "
+                         "'impulse:amplitude=-45,t0=2,width=0.5')"), hint
 
 
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)

@@ -559,9 +559,13 @@ def default_amplitudes(source: Source) -> list[float]:
     Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force input with ``max=50`` stopped the
     default recording at its first pulse).  The window's pilots add the pulse to the input's undriven value, so
     where that is above 0 the room is ``max`` minus it."""
-    _, high = source.input_ranges()
-    rest = np.maximum(source.input_starts(), 0.0)
-    return [pulse_amplitude(float(h - base), _DEFAULT_AMPLITUDE) for h, base in zip(high, rest)]
+    low, high = source.input_ranges()
+    starts = np.asarray(source.input_starts(), dtype=float)
+    up, down = high - np.maximum(starts, 0.0), np.minimum(starts, 0.0) - low
+    # an input with no room upwards but room downwards (a cable that only pulls, max = 0) is pulsed downwards
+    # (tenth audit: the default pulse of +100 was refused at once)
+    return [-pulse_amplitude(float(d), _DEFAULT_AMPLITUDE) if u <= 0 < d
+            else pulse_amplitude(float(u), _DEFAULT_AMPLITUDE) for u, d in zip(up, down)]
 
 
 def _on_start_values(source: Source) -> str:
@@ -573,7 +577,7 @@ def _on_start_values(source: Source) -> str:
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
     """What the default training says about amplitudes lowered to the inputs' declared ``max``; "" if none."""
     lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != _DEFAULT_AMPLITUDE]
-    return f" (amplitude {', '.join(lowered)}: the most its declared max allows)" if lowered else ""
+    return f" (amplitude {', '.join(lowered)}: what its declared range allows)" if lowered else ""
 
 
 def _undriven_held(signal: Any, source: Source) -> Any:

@@ -455,9 +455,9 @@ class FMUSource(Source):
         for j in np.flatnonzero((row < lo) | (row > hi)):
             peak = float(np.max(np.abs(U[:, j])))
             bound = f"above its declared max {hi[j]:g}" if row[j] > hi[j] else f"below its declared min {lo[j]:g}"
+            example = ";".join(_pulse_within(float(lo[k]), float(hi[k]), peak or 1.0) for k in range(self.m))
             return (f"; input {self.input_names[j]} is {row[j]:.6g} there, {bound}: give an input within "
-                    f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g}; e.g. --input "
-                    f"'impulse:amplitude={pulse_amplitude(min(hi[j], -lo[j]), peak):g},t0=2,width=0.5')")
+                    f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g} in magnitude; e.g. --input '{example}')")
         return ""
 
     def provenance(self) -> dict[str, Any]:
@@ -972,3 +972,14 @@ def _positions_as_outputs(positions: list[Column]) -> list[Column]:
         return list(positions)
     picks = np.unique(np.linspace(0, len(positions) - 1, MAX_POSITION_OUTPUTS).round().astype(int))
     return [positions[i] for i in picks]
+
+
+def _pulse_within(low: float, high: float, amplitude: float) -> str:
+    """The example impulse of :meth:`FMUSource._outside_range` for one input declared within ``[low, high]``: up to
+    ``amplitude`` upwards where the range allows (a pulse rising from 0), else downwards (a pull-only input,
+    ``max = 0``: the tenth audit was advised the pulse that had just failed), else ``none``."""
+    if high > 0:
+        return f"impulse:amplitude={pulse_amplitude(high, amplitude):g},t0=2,width=0.5"
+    if low < 0:
+        return f"impulse:amplitude={-pulse_amplitude(-low, amplitude):g},t0=2,width=0.5"
+    return "none"
