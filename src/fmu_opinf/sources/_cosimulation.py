@@ -728,7 +728,7 @@ class FMUSource(Source):
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
         return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
-                f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h)}")
+                f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h, log)}")
 
     def _flag_failure(self, t: float, h: float) -> str:
         """The line for an ``fmi3DoStep`` from FMU time ``t`` over ``h`` that asked to terminate the simulation or
@@ -746,16 +746,19 @@ class FMUSource(Source):
                 f"{last:.9g}), although early return was not allowed: the FMU breaks FMI 3.0 and its samples would "
                 f"be wrong{told}; {fix}")
 
-    def _discard_fix(self, h: float) -> str:
+    def _discard_fix(self, h: float, log: str = "") -> str:
         """What to do about a discarded step ``h``: a smaller ``--dt`` (the automatic window's pilots then run
-        at it), unless the FMU has a fixed communication step, which no option changes."""
+        at it), unless the FMU has a fixed communication step, which no option changes.  The example is the
+        largest step below ``h`` that the FMU's ``log`` line names (tenth audit: "exceeds the maximum step size
+        0.01" was quoted beside the advice 0.02), else half of ``h``."""
         fixed = fixed_communication_step(self)
         if fixed is not None and not _same_step(h, fixed):
             return f": it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}"
         if fixed is not None:
             return ": the FMU rejects its own fixed communication step" + (
                 "; drive its model exchange (--interface me)" if offers_model_exchange(self) else "; it offers no model exchange to use instead")
-        return f": give a smaller --dt, e.g. {nice_floor(h / 2):g}"
+        named = [value for value in _numbers(log) if 0 < value < h * (1 - 1e-9)]
+        return f": give a smaller --dt, e.g. {nice_floor(max(named)) if named else nice_floor(h / 2):g}"
 
     # -- stepping ---------------------------------------------------------------------------
     def read(self, out: np.ndarray) -> None:
@@ -983,3 +986,10 @@ def _pulse_within(low: float, high: float, amplitude: float) -> str:
     if low < 0:
         return f"impulse:amplitude={-pulse_amplitude(-low, amplitude):g},t0=2,width=0.5"
     return "none"
+
+
+def _numbers(text: str) -> list[float]:
+    """The decimal numbers written in ``text`` (an FMU's log line), as floats."""
+    import re
+
+    return [float(match) for match in re.findall(r"(?<![\w.])\d+(?:\.\d*)?(?:[eE][-+]?\d+)?", text or "")]
