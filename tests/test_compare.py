@@ -215,6 +215,28 @@ def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
     assert _training_settings(info, "model.fmu", None)["parameters"] == {"n": "3", "x_start": "[0,1,0]"}
 
 
+def test_a_setting_the_training_left_at_its_start_value_is_warned_when_changed(tmp_path):
+    """Tenth audit: ``compare --set gear=2`` of a ROM recorded with ``gear`` held at its start value 1 (no --set in
+    the training) was 0.44 off without a word; the FMU's start value is what the training ran with."""
+    from fmu_opinf.compare import _training_settings
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    (tmp_path / "modelDescription.xml").write_text(
+        '<?xml version="1.0" encoding="UTF-8"?><fmiModelDescription fmiVersion="2.0" modelName="m" guid="{0}">'
+        '<CoSimulation modelIdentifier="m"/><ModelVariables>'
+        '<ScalarVariable name="gear" valueReference="1" causality="input"><Real start="1"/></ScalarVariable>'
+        '<ScalarVariable name="tau" valueReference="2" causality="input"><Real start="0"/></ScalarVariable>'
+        '</ModelVariables><ModelStructure/></fmiModelDescription>')
+    info = {"provenance": {"snapshots": {"source_kind": "fmu", "fmu_settings": {}}}}
+    with pytest.warns(FmuOpinfWarning, match=r"compared with gear=2, but the ROM was trained with gear=1 \(its start "
+                                             r"value\): a ROM describes the model it was trained on"):
+        _training_settings(info, str(tmp_path), {"parameters": {"gear": "2"}})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        options = _training_settings(info, str(tmp_path), {"parameters": {"gear": "1.0"}})   # the same value
+    assert options["parameters"] == {"gear": "1.0"}
+
+
 def test_many_outputs_draw_the_worst_few_and_say_so(tmp_path):
     """200 outputs (seventh audit: an 880 x 48510 pixel figure, a 35 MB page, 60 s of drawing): the outputs figure
     shows the twelve with the largest error relative to their own peak, in their order, and says so; the page
