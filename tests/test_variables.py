@@ -591,6 +591,32 @@ def test_a_state_whose_derivative_is_an_input_is_named_a_prescribed_motion(tmp_p
         resolve_variables(_write(tmp_path, modelica_two_masses_with_actuator_lag()))
 
 
+def test_positions_sharing_a_velocity_get_the_options_that_record_one_of_them(tmp_path):
+    """Eighth audit: a rigid connection whose two positions the exporter keeps as states, both with the rate of one
+    velocity state, was refused with only "pass --positions and --velocities".  The line now names them and gives
+    the options, which record one position per velocity and name the other as left out."""
+    v = [
+        _sv("F", 0, "input", body='<Real start="0"/>'),                                  # 1
+        _sv("body1.s", 1, extra=' initial="exact"', body='<Real start="0"/>'),            # 2
+        _sv("body2.s", 2, extra=' initial="exact"', body='<Real start="0.3"/>'),          # 3: moves with body1.s
+        _sv("body1.v", 3, extra=' initial="exact"', body='<Real start="0"/>'),            # 4
+        _sv("mass.s", 4, extra=' initial="exact"', body='<Real start="1"/>'),             # 5
+        _sv("mass.v", 5, extra=' initial="exact"', body='<Real start="0"/>'),             # 6
+        _sv("der(body1.s)", 3, body='<Real derivative="2"/>'),                            # 7: alias of body1.v
+        _sv("der(body2.s)", 3, body='<Real derivative="3"/>'),                            # 8: alias of body1.v
+        _sv("der(body1.v)", 6, body='<Real derivative="4"/>'),                            # 9
+        _sv("der(mass.s)", 5, body='<Real derivative="5"/>'),                             # 10: alias of mass.v
+        _sv("der(mass.v)", 7, body='<Real derivative="6"/>'),                             # 11
+    ]
+    path = _write(tmp_path, _fmi2(v, [7, 8, 9, 10, 11]))
+    with pytest.raises(FMUError, match=r"positions share a velocity state: body2\.s moves with body1\.s \(both have "
+                                       r"the rate body1\.v\).* --positions \"body1\.s,mass\.s\" --velocities "
+                                       r"\"body1\.v,mass\.v\""):
+        resolve_variables(path)
+    sel = resolve_variables(path, positions="body1.s,mass.s", velocities="body1.v,mass.v").selection
+    assert _names(sel.positions) == ["body1.s", "mass.s"] and sel.unrecorded_states == ["body2.s"]
+
+
 def test_given_positions_and_velocities_record_the_masses_and_name_the_state_left_out(tmp_path):
     path = _write(tmp_path, modelica_two_masses_with_actuator_lag())
     sel = resolve_variables(path, positions="mass1.s,mass2.s", velocities="mass1.v,mass2.v").selection

@@ -567,8 +567,9 @@ def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _Stat
         pairs = ", ".join(f"{state} is the integral of the input {name}" for state, name in list(driven.items())[:3])
         return FMUError(f"{model.label}: its continuous state(s) {shown} are neither positions nor velocities "
                         f"({why}): {pairs}, a prescribed motion (a base driven by its velocity), which "
-                        "M x'' + D x' + K x = B u cannot represent: the masses feel the motion's displacement, no input of the FMU; a "
-                        "model whose input is the displacement (or a force) can be reduced, this one only "
+                        "M x'' + D x' + K x = B u cannot represent: the masses feel the motion's displacement, no "
+                        "input of the FMU; a model whose input is the displacement (or a force) can be reduced, this "
+                        "one only "
                         "approximately (pass --positions and --velocities to try)")
     return FMUError(f"{model.label}: its continuous state(s) {shown} are neither positions nor velocities ({why}): "
                     "the model is not M x'' + D x' + K x = B u alone (an actuator lag, a filter or a controller "
@@ -660,6 +661,25 @@ def _by_units(elements: dict[str, Element]) -> tuple[list[Column], list[Column],
     return pos, vel, acc if len(acc) == len(pos) else None
 
 
+def _shared_velocity(model: ModelInfo, pairs: list, states: _States) -> FMUError:
+    """The error for positions that share one velocity state (``der(s1) = der(s2) = v``: the two move together,
+    a rigid connection the exporter kept both coordinates of), with the options that record one position per
+    velocity: the others differ from it by a constant, which the outputs' offset absorbs (eighth audit: refused
+    with only "pass --positions and --velocities")."""
+    first: dict[str, str] = {}
+    shared: list[str] = []
+    for position, (velocity, _) in pairs:
+        if velocity.name in first:
+            shared.append(f"{position.name} moves with {first[velocity.name]} (both have the rate {velocity.name})")
+        else:
+            first[velocity.name] = position.name
+    kept = [p.name for p, (v, _) in pairs if first[v.name] == p.name]
+    return FMUError(f"{model.label}: positions share a velocity state: {'; '.join(shared[:3])}; a rigid connection "
+                    "whose coordinates the FMU keeps both of. Record one position per velocity: --positions "
+                    f"\"{','.join(kept)}\" --velocities \"{','.join(first)}\" (the other positions differ from them "
+                    "by constants, and are left out with a warning)")
+
+
 def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None] | None:
     """Positions = states whose derivative is (an alias of) another state."""
     pairs = []
@@ -673,7 +693,9 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
     pos_names = {p.name for p, _ in pairs}
     vel_names = [v.name for _, (v, _) in pairs]
     chained = sorted(pos_names & set(vel_names), key=natural_key)
-    if chained or len(set(vel_names)) != len(vel_names):
+    if not chained and len(set(vel_names)) != len(vel_names):
+        raise _shared_velocity(model, pairs, states)
+    if chained:
         shown = ", ".join(f"der({p.name})={v.name}" for p, (v, _) in pairs[:6])
         raise FMUError(f"{model.label}: the derivative links do not split the states into positions and "
                        f"velocities ({shown}{', ...' if len(pairs) > 6 else ''}); pass --positions and --velocities")
