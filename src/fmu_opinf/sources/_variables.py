@@ -569,8 +569,7 @@ def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _Stat
                         f"({why}): {pairs}, a prescribed motion (a base driven by its velocity), which "
                         "M x'' + D x' + K x = B u cannot represent: the masses feel the motion's displacement, no "
                         "input of the FMU; a model whose input is the displacement (or a force) can be reduced, this "
-                        "one only "
-                        "approximately (pass --positions and --velocities to try)")
+                        "one only approximately (pass --positions and --velocities to try)")
     return FMUError(f"{model.label}: its continuous state(s) {shown} are neither positions nor velocities ({why}): "
                     "the model is not M x'' + D x' + K x = B u alone (an actuator lag, a filter or a controller "
                     "state?) and a reduced model of its mechanical states cannot follow them; pass --positions and "
