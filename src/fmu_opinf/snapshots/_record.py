@@ -558,7 +558,8 @@ def default_amplitudes(source: Source) -> list[float]:
     """The default impulse's amplitude on each input, lowered where the input declares a ``max`` below it (a
     Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force input with ``max=50`` stopped the
     default recording at its first pulse).  The window's pilots add the pulse to the input's undriven value, so
-    where that is above 0 the room is ``max`` minus it."""
+    where that is above 0 the room is ``max`` minus it.  An input with no room upwards but room downwards gets a
+    negative pulse, within its ``min``."""
     low, high = source.input_ranges()
     starts = np.asarray(source.input_starts(), dtype=float)
     up, down = high - np.maximum(starts, 0.0), np.minimum(starts, 0.0) - low
@@ -575,7 +576,7 @@ def _on_start_values(source: Source) -> str:
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
-    """What the default training says about amplitudes lowered to the inputs' declared ``max``; "" if none."""
+    """What the default training says about amplitudes changed to fit the inputs' declared ranges; "" if none."""
     lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != _DEFAULT_AMPLITUDE]
     return f" (amplitude {', '.join(lowered)}: what its declared range allows)" if lowered else ""
 
