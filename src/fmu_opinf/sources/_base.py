@@ -105,11 +105,17 @@ def match_names(patterns: str | Sequence[str], names: Sequence[str]) -> list[str
         patterns = split_patterns(patterns)
     found: list[str] = []
     seen: set[str] = set()
+    known: set[str] | None = None
     for pattern in (p.strip() for p in patterns):
         if not pattern:
             continue
-        regex = _pattern_regex(pattern)
-        for name in sorted((n for n in names if regex.match(n)), key=natural_key):
+        if "*" in pattern or "?" in pattern:
+            regex = _pattern_regex(pattern)
+            hits = sorted((n for n in names if regex.match(n)), key=natural_key)
+        else:   # a literal name: a set lookup, not a scan (thousands of listed names on a large model)
+            known = set(names) if known is None else known
+            hits = [pattern] if pattern in known else []
+        for name in hits:
             if name not in seen:
                 seen.add(name)
                 found.append(name)

@@ -19,6 +19,7 @@ import re
 import warnings
 import xml.etree.ElementTree as ET
 import zipfile
+from collections import OrderedDict
 from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
@@ -102,12 +103,43 @@ class Column:
         return self.element.name
 
 
-def read_description(path: Path) -> Any:
-    """Parse the model description, turning every failure into a one-line :class:`FMUError`."""
-    from fmpy import read_model_description
+#: Parsed descriptions by file (resolved path, inode, size, mtime), newest last: one process opens the same FMU many times
+#: (pilots, runs, compare's sources), and a large model's XML takes 0.1-0.2 s to parse.
+_DESCRIPTIONS: OrderedDict[tuple[str, int, int, int], Any] = OrderedDict()
+_KEPT_DESCRIPTIONS = 8
 
+
+def read_description(path: Path) -> Any:
+    """Parse the model description, turning every failure into a one-line :class:`FMUError`.
+
+    The parsed description is kept per file state (path, size, modification time) and shared by later calls:
+    callers treat it as read-only.
+    """
     if not path.exists():
         raise FMUError(f"fmu {path} does not exist; check the path")
+    key = _file_state(path / "modelDescription.xml" if path.is_dir() else path)
+    if key is not None and key in _DESCRIPTIONS:
+        _DESCRIPTIONS.move_to_end(key)
+        return _DESCRIPTIONS[key]
+    description = _parse_description(path)
+    if key is not None:
+        _DESCRIPTIONS[key] = description
+        while len(_DESCRIPTIONS) > _KEPT_DESCRIPTIONS:
+            _DESCRIPTIONS.popitem(last=False)
+    return description
+
+
+def _file_state(path: Path) -> tuple[str, int, int, int] | None:
+    try:
+        stat = path.stat()
+    except OSError:
+        return None
+    return str(path.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns
+
+
+def _parse_description(path: Path) -> Any:
+    from fmpy import read_model_description
+
     if path.is_dir():
         if not (path / "modelDescription.xml").is_file():
             raise FMUError(f"{path} is a directory without modelDescription.xml; give an .fmu file")
@@ -851,17 +883,21 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
     pieces = split_patterns(patterns) if isinstance(patterns, str) else [p.strip() for p in patterns if p.strip()]
     reals = [n for n, e in elements.items() if e.var.is_real]
     signals = [n for n in reals if _is_signal(elements[n])]
+    real_set, signal_set = set(reals), set(signals)
     found: list[str] = []
+    taken: set[str] = set()
     for piece in pieces:
         if _RANGE.search(piece):
-            names = [n for n in _expand_range(piece) if n in set(signals)]
+            names = [n for n in _expand_range(piece) if n in signal_set]
         elif _array_elements(piece, elements) != [piece]:   # an FMI 3 array by its name: every element
             names = _array_elements(piece, elements)
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
         else:
-            names = match_names(piece, reals)
-        found += [n for n in names if n not in found]
+            names = [piece] if piece in real_set else []
+        fresh = [n for n in dict.fromkeys(names) if n not in taken]
+        found += fresh
+        taken.update(fresh)
     if not found and required:
         examples = ", ".join(sorted(signals, key=natural_key)[:6]) or "none"
         raise FMUError(f"{what} pattern {show_patterns(patterns)} matches no real variable of {model.label} "
