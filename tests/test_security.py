@@ -550,6 +550,21 @@ def test_crash_in_the_auto_window_pilot_does_not_claim_kept_samples(toys, tmp_pa
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("grid", [[], ["--dt", "0.5", "--t-end", "20"]])
+def test_parameter_refused_at_initialization_is_one_line_and_keeps_the_previous_file(anchored_fmu, tmp_path,
+                                                                                     capsys, grid):
+    """The FMU refuses a --set value when it initializes: no sample is recorded, so no file is kept (it was left
+    empty, or a traceback from reading the first sample)."""
+    out = tmp_path / "s.h5"
+    out.write_bytes(b"previous")
+    code = cli.main(["snapshots", str(anchored_fmu), "-o", str(out), "--force", "--set", "mass=-1", *grid])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "Traceback" not in err and "IndexError" not in err
+    last = err.splitlines()[-1]
+    assert last.startswith("fmu-opinf: error: ") and "failed to initialize" in last and "mass must be positive" in last
+    assert out.read_bytes() == b"previous" and list(tmp_path.iterdir()) == [out]
+
+
 def test_report_files_honour_the_umask(files, tmp_path, capsys):
     old = os.umask(0o022)
     try:

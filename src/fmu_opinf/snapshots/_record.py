@@ -616,6 +616,8 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
                 return _H5Sink(src, tt, uu, g, path)
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
+            if index == 0 and run.k == 0:
+                raise failure or StepError("the first run recorded no sample")
             if index == 0:
                 first_input = np.asarray(run.u[:, 0], dtype=float) if source.m else np.zeros(0)
                 first_position = np.asarray(run.x0, dtype=float)
