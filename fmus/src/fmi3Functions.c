@@ -63,12 +63,83 @@ END:
     RETURN;
 }
 
-static Status checkCount(const ModelInstance *model, const char *function, size_t nValueReferences,
-                         size_t nValues) {
-    if (nValueReferences != nValues) {
-        logError(model, "%s: %lu values for %lu scalar value references", function,
-                 (unsigned long)nValues, (unsigned long)nValueReferences);
+/* Array and Float32 variables of a generated ROM FMU (config.h): {first value reference, number of values}.
+ * An array's values sit at consecutive value references of the instance; the FMI 3 layer expands them. */
+typedef struct {
+    unsigned int first;
+    unsigned int size;
+} Port;
+
+#ifdef N_ARRAY_PORTS
+static const Port arrayPorts[N_ARRAY_PORTS] = ARRAY_PORTS;
+#endif
+#ifdef N_FLOAT32_PORTS
+static const Port float32Ports[N_FLOAT32_PORTS] = FLOAT32_PORTS;
+#endif
+
+static size_t valueCount(unsigned int vr) {
+#ifdef N_ARRAY_PORTS
+    size_t i;
+    for (i = 0; i < N_ARRAY_PORTS; i++) {
+        if (arrayPorts[i].first == vr) {
+            return arrayPorts[i].size;
+        }
+    }
+#endif
+    (void)vr;
+    return 1;
+}
+
+static int isFloat32(unsigned int vr) {
+#ifdef N_FLOAT32_PORTS
+    size_t i;
+    for (i = 0; i < N_FLOAT32_PORTS; i++) {
+        if (float32Ports[i].first == vr) {
+            return 1;
+        }
+    }
+#endif
+    (void)vr;
+    return 0;
+}
+
+/* The instance's scalar value references behind valueReferences (each array's values in order), in
+ * scalars[] (nValues of them, allocated here, freed by the caller); the variables must be of the
+ * function's type (single: Float32) and hold nValues values together. */
+static Status expandReferences(const ModelInstance *model, const char *function,
+                               const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                               size_t nValues, int single, unsigned int **scalars) {
+    size_t i, j, total = 0;
+
+    *scalars = NULL;
+    if (nValueReferences > 0 && !valueReferences) {
+        logError(model, "%s: valueReferences is NULL", function);
         return Error;
+    }
+    for (i = 0; i < nValueReferences; i++) {
+        if (isFloat32(valueReferences[i]) != single) {
+            logError(model, "%s: value reference %u is a %s variable; use fmi3%sFloat%s", function,
+                     (unsigned)valueReferences[i], single ? "Float64" : "Float32",
+                     strstr(function, "Get") ? "Get" : "Set", single ? "64" : "32");
+            return Error;
+        }
+        total += valueCount(valueReferences[i]);
+    }
+    if (total != nValues) {
+        logError(model, "%s: %lu values for value references that hold %lu", function,
+                 (unsigned long)nValues, (unsigned long)total);
+        return Error;
+    }
+    *scalars = (unsigned int *)calloc(total > 0 ? total : 1, sizeof(unsigned int));
+    if (!*scalars) {
+        logError(model, "%s: out of memory", function);
+        return Error;
+    }
+    for (i = 0, total = 0; i < nValueReferences; i++) {
+        size_t count = valueCount(valueReferences[i]);
+        for (j = 0; j < count; j++) {
+            (*scalars)[total++] = valueReferences[i] + (unsigned int)j;
+        }
     }
     return OK;
 }
@@ -201,19 +272,70 @@ END:
 
 fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float64 values[], size_t nValues) {
+    unsigned int *scalars = NULL;
     BEGIN("fmi3GetFloat64", STATE_GET);
-    CALL(checkCount(model, function, nValueReferences, nValues));
-    CALL(getFloat64(model, function, valueReferences, nValueReferences, values));
+    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 0, &scalars));
+    CALL(getFloat64(model, function, scalars, nValues, values));
 END:
+    free(scalars);
     RETURN;
 }
 
 fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, const fmi3Float64 values[], size_t nValues) {
+    unsigned int *scalars = NULL;
     BEGIN("fmi3SetFloat64", STATE_SET);
-    CALL(checkCount(model, function, nValueReferences, nValues));
-    CALL(setFloat64(model, function, valueReferences, nValueReferences, values));
+    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 0, &scalars));
+    CALL(setFloat64(model, function, scalars, nValues, values));
 END:
+    free(scalars);
+    RETURN;
+}
+
+/* Float32 variables (inputs and outputs of a ROM of a single-precision source) hold doubles inside. */
+fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, fmi3Float32 values[], size_t nValues) {
+    unsigned int *scalars = NULL;
+    double *buffer = NULL;
+    size_t i;
+    BEGIN("fmi3GetFloat32", STATE_GET);
+    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
+    buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
+    if (!buffer) {
+        logError(model, "%s: out of memory", function);
+        status = Error;
+        goto END;
+    }
+    CALL(getFloat64(model, function, scalars, nValues, buffer));
+    for (i = 0; i < nValues; i++) {
+        values[i] = (fmi3Float32)buffer[i];
+    }
+END:
+    free(buffer);
+    free(scalars);
+    RETURN;
+}
+
+fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, const fmi3Float32 values[], size_t nValues) {
+    unsigned int *scalars = NULL;
+    double *buffer = NULL;
+    size_t i;
+    BEGIN("fmi3SetFloat32", STATE_SET);
+    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
+    buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
+    if (!buffer) {
+        logError(model, "%s: out of memory", function);
+        status = Error;
+        goto END;
+    }
+    for (i = 0; i < nValues; i++) {
+        buffer[i] = (double)values[i];
+    }
+    CALL(setFloat64(model, function, scalars, nValues, buffer));
+END:
+    free(buffer);
+    free(scalars);
     RETURN;
 }
 
@@ -232,7 +354,6 @@ END:
         return noVariables(instance, #name, nValueReferences); \
     }
 
-NO_GETTER(fmi3GetFloat32, fmi3Float32)
 NO_GETTER(fmi3GetInt8, fmi3Int8)
 NO_GETTER(fmi3GetUInt8, fmi3UInt8)
 NO_GETTER(fmi3GetInt16, fmi3Int16)
@@ -243,7 +364,6 @@ NO_GETTER(fmi3GetInt64, fmi3Int64)
 NO_GETTER(fmi3GetUInt64, fmi3UInt64)
 NO_GETTER(fmi3GetBoolean, fmi3Boolean)
 NO_GETTER(fmi3GetString, fmi3String)
-NO_SETTER(fmi3SetFloat32, fmi3Float32)
 NO_SETTER(fmi3SetInt8, fmi3Int8)
 NO_SETTER(fmi3SetUInt8, fmi3UInt8)
 NO_SETTER(fmi3SetInt16, fmi3Int16)

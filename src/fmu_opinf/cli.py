@@ -222,7 +222,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="FMU to write (.fmu)")
     p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
     p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0",
-                   help="FMI version of the exported co-simulation FMU (default 2.0)")
+                   help="FMI version of the exported co-simulation FMU (default 2.0); 3.0 declares an FMI 3 "
+                        "source's array and Float32 inputs and outputs as the source does")
     p.add_argument("--step", type=float, default=None,
                    help="communication step the FMU is made for (default: the training step); a ROM of a "
                         "continuous-time FMU steps by its exact step map of this step and accepts its multiples")

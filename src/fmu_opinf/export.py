@@ -445,6 +445,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         input_display_units=_recorded_units(provenance, "input_display_units", m),
         input_starts=_recorded_input_starts(provenance, m),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
+        **_ports(provenance, input_names or [], output_names, names, fmi_version),
     )
 
 
@@ -524,6 +525,45 @@ def _recorded_units(provenance: dict, key: str, count: int) -> list[str]:
     return _units(snapshots.get(key), count)
 
 
+def _ports(provenance: dict, input_names: list[str], output_names: list[str], reconstructed: list[str],
+           fmi_version: str) -> dict[str, Any]:
+    """``input_ports`` and ``output_ports`` of an FMI 3 ROM FMU: the source's variables (arrays, Float32), so that
+    the ROM FMU connects where the source did; reconstructed positions are Float64 scalars after them."""
+    if fmi_version != "3.0":
+        return {}
+    inputs = _recorded_ports(provenance, "inputs", input_names)
+    outputs = _recorded_ports(provenance, "outputs", output_names)
+    if outputs is not None:
+        outputs += [{"name": name, "shape": [], "type": "Float64"} for name in reconstructed]
+    return {"input_ports": inputs, "output_ports": outputs}
+
+
+def _recorded_ports(provenance: dict, key: str, names: list[str]) -> list[dict[str, Any]] | None:
+    """The FMI 3 variables (arrays, Float32) that held ``names`` in the source, as recorded with the training
+    snapshots (``fmi3_ports[key]``, :func:`fmu_opinf.sources.fmi3_ports`); None where none were recorded or they do not
+    hold exactly these names in this order (the FMU then declares Float64 scalars).  Data, not code: every entry
+    is checked."""
+    from .sources import element_names
+
+    snapshots = provenance.get("snapshots")
+    recorded = snapshots.get("fmi3_ports") if isinstance(snapshots, dict) else None
+    recorded = recorded.get(key) if isinstance(recorded, dict) else None
+    if not isinstance(recorded, list):
+        return None
+    ports, expanded = [], []
+    for port in recorded:
+        if not isinstance(port, dict):
+            return None
+        name, shape, kind = port.get("name"), port.get("shape"), port.get("type")
+        if (not isinstance(name, str) or kind not in ("Float64", "Float32") or not isinstance(shape, list)
+                or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in shape)
+                or math.prod(shape) > len(names)):
+            return None
+        ports.append({"name": name, "shape": list(shape), "type": kind})
+        expanded += element_names(name, shape)
+    return ports if expanded == list(names) else None
+
+
 def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:
     """The source's input start values as recorded with the training snapshots (None where none were recorded,
     or they do not fit: the inputs then start at 0)."""
@@ -584,7 +624,9 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
     path : str or PathLike
         The ``.fmu`` file to write; its stem becomes the model identifier.
     fmi_version : {"2.0", "3.0"}, default="2.0"
-        FMI version of the co-simulation FMU.
+        FMI version of the co-simulation FMU.  FMI 3.0 declares the inputs and outputs as the source FMU did
+        (recorded with the snapshots): an array recorded whole is one array variable, a Float32 variable stays
+        Float32; FMI 2.0 has neither and names each value (``F[1]``).
     reconstruct : sequence of str or int, default=None
         Full-order positions to add as outputs, e.g. ``["x[1]", "x[300]"]`` or the source's own
         names (``"mass[3].s"``, ``"x10"``), computed through the basis as ``x_i = x_ref,i + V[i, :] q``.

@@ -26,7 +26,7 @@ import tempfile
 import threading
 import uuid
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -155,6 +155,12 @@ class SecondOrderFmuSpec:
         defines that display unit for the variable's unit (as FMI requires), left out otherwise.
     input_starts : list of float, default=None
         Start value of each input (the value it holds until an importer sets it); default zeros.
+    input_ports, output_ports : list of dict, default=None
+        FMI 3.0 only: the variables that hold the inputs and outputs, in order, each ``{"name", "shape", "type"}``
+        (``shape`` ``[]`` for a scalar, ``[3]`` for an array of 3 values, row-major; ``type`` ``"Float64"`` or
+        ``"Float32"``), as :func:`fmu_opinf.sources.fmi3_ports` reads them from a source FMU.  An array takes
+        one value reference and its values follow each other.  Default: every input and output a Float64
+        scalar of its own name.
     """
 
     identifier: str
@@ -182,6 +188,8 @@ class SecondOrderFmuSpec:
     input_display_units: list[str] | None = None
     output_display_units: list[str] | None = None
     input_starts: list[float] | None = None
+    input_ports: list[dict[str, Any]] | None = None
+    output_ports: list[dict[str, Any]] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -211,6 +219,7 @@ class SecondOrderFmuSpec:
                                 f"output names for m={self.m}, p={self.p}; give one name each")
         if self.expose_states is None:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+        self._check_ports()
         self._check_units()
         self._check_text()
         self._check_unique_names()
@@ -218,7 +227,8 @@ class SecondOrderFmuSpec:
     def _check_text(self) -> None:
         """Names and the description end up in XML: refuse characters XML 1.0 cannot hold (control characters)
         and empty names; quoting (``quoteattr``) handles everything else."""
-        texts = [("input name", s) for s in self.input_names] + [("output name", s) for s in self.output_names]
+        texts = [("input name", s) for s in self.input_names + self.port_names("input")]
+        texts += [("output name", s) for s in self.output_names + self.port_names("output")]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
         texts += [("description", text) for text in self.output_descriptions or []]
         if self.output_descriptions is not None and len(self.output_descriptions) != self.p:
@@ -247,8 +257,37 @@ class SecondOrderFmuSpec:
                                         "'._/*^()%+-' or printable non-ASCII symbols, at most 40); give a unit such as "
                                         "'m/s2' or none")
 
+    def _check_ports(self) -> None:
+        """Ports must cover the inputs and outputs exactly; FMI 2.0 has neither arrays nor Float32 (scalars)."""
+        if self.fmi_version != "3.0":
+            self.input_ports = self.output_ports = None
+            return
+        for kind, ports, count in (("input", self.input_ports, self.m), ("output", self.output_ports, self.p)):
+            if ports is None:
+                continue
+            sizes = []
+            for port in ports:
+                shape, kind_of = port.get("shape"), port.get("type")
+                if (not isinstance(port.get("name"), str) or kind_of not in ("Float64", "Float32")
+                        or not isinstance(shape, (list, tuple))
+                        or not all(isinstance(d, int) and d >= 1 for d in shape)):
+                    raise FmuBuildError(f"{kind} port {port!r} is not a name, a shape of positive sizes and a type "
+                                        "Float64 or Float32; give ports as fmu_opinf.sources.fmi3_ports returns them")
+                sizes.append(math.prod(shape) if shape else 1)
+            if sum(sizes) != count:
+                raise FmuBuildError(f"the {kind} ports hold {sum(sizes)} values for {count} {kind}s; give ports "
+                                    f"that hold each {kind} once")
+
+    def port_names(self, kind: str) -> list[str]:
+        """Names of the variables that hold the inputs (``kind="input"``) or outputs: the ports' names in FMI 3.0,
+        else the element names."""
+        ports = self.input_ports if kind == "input" else self.output_ports
+        if ports is not None:
+            return [port["name"] for port in ports]
+        return list(self.input_names if kind == "input" else self.output_names)
+
     def _check_unique_names(self) -> None:
-        names = list(self.input_names) + list(self.output_names) + [p.name for p in self.parameters]
+        names = (self.port_names("input") + self.port_names("output") + [p.name for p in self.parameters])
         if self.fmi_version == "3.0":
             names.append("time")
         states = tuple(f"{base}[" for base in self.state_names) if self.expose_states else ()
@@ -443,9 +482,11 @@ class _Variable:
     variability: str = "continuous"
     description: str = ""
     initial: str | None = None
-    start: float | None = None
+    start: float | tuple[float, ...] | None = None
     unit: str = ""
     display_unit: str = ""
+    shape: tuple[int, ...] = ()
+    type: str = "Float64"
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -470,9 +511,10 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
             for name, vr, unit, display, start in zip(spec.input_names, refs["u"], input_units, input_display,
                                                       starts)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
-    rows += [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
-             for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
-                                                      output_display)]
+    outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
+               for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
+                                                        output_display)]
+    rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
@@ -482,6 +524,25 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
                                description=f"{what} of {spec.state_label} {i}")
                      for i, vr in enumerate(refs[key], start=1)]
     return rows
+
+
+def _grouped(elements: list[_Variable], ports: list[dict[str, Any]] | None) -> list[_Variable]:
+    """The element variables as the FMI 3 ports declare them: an array port is one variable at its first element's
+    value reference, with the elements' starts (its unit, display unit and description where they all share
+    one); a scalar port keeps its element with the port's name and type."""
+    if ports is None:
+        return elements
+    out, first = [], 0
+    for port in ports:
+        shape = tuple(port["shape"])
+        group = elements[first:first + (math.prod(shape) if shape else 1)]
+        first += len(group)
+        lead = group[0]
+        shared = {key: getattr(lead, key) if all(getattr(e, key) == getattr(lead, key) for e in group) else ""
+                  for key in ("unit", "display_unit", "description")}
+        start = None if lead.start is None else (tuple(float(e.start) for e in group) if shape else lead.start)
+        out.append(replace(lead, name=port["name"], start=start, shape=shape, type=port["type"], **shared))
+    return out
 
 
 def _display_units(spec: SecondOrderFmuSpec, units: list[str], display: list[str] | None) -> list[str]:
@@ -520,8 +581,12 @@ def _variable2(variable: _Variable) -> str:
 
 def _variable3(variable: _Variable) -> str:
     unit = _unit_attributes(variable)
-    start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
-    return f"    <Float64 {variable.attributes()}{unit}{start}/>\n"
+    values = variable.start if isinstance(variable.start, tuple) else (variable.start,)
+    start = "" if variable.start is None else f' start="{" ".join(repr(float(v)) for v in values)}"'
+    if not variable.shape:
+        return f"    <{variable.type} {variable.attributes()}{unit}{start}/>\n"
+    dimensions = "".join(f'      <Dimension start="{int(size)}"/>\n' for size in variable.shape)
+    return f"    <{variable.type} {variable.attributes()}{unit}{start}>\n{dimensions}    </{variable.type}>\n"
 
 
 #: SI base units of an FMI ``BaseUnit`` element, in the order of the standard.
@@ -650,10 +715,11 @@ def _vendor_annotations(spec: SecondOrderFmuSpec) -> str:
 def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
     """FMI 3.0 modelDescription.xml (time is the independent variable, value reference 0)."""
     time = _Variable("time", 0, "independent", description="simulation time")
-    variables = [_variable3(v) for v in [time] + _variables(spec)]
-    refs = value_references(spec)
-    outputs = "".join(f'    <Output valueReference="{vr}"/>\n' for vr in refs["y"])
-    unknowns = "".join(f'    <InitialUnknown valueReference="{vr}"/>\n' for vr in refs["y"])
+    variables_of = _variables(spec)
+    variables = [_variable3(v) for v in [time] + variables_of]
+    outputs_vr = [v.vr for v in variables_of if v.causality == "output"]
+    outputs = "".join(f'    <Output valueReference="{vr}"/>\n' for vr in outputs_vr)
+    unknowns = "".join(f'    <InitialUnknown valueReference="{vr}"/>\n' for vr in outputs_vr)
     experiment = _experiment(spec)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
@@ -722,8 +788,31 @@ def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
     lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}"]
     if spec.input_starts is not None and spec.m:
         lines += [f"#define INPUT_STARTS {{ {', '.join(repr(float(v)) for v in spec.input_starts)} }}"]
+    lines += _port_tables(spec)
     lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
+
+
+def _port_tables(spec: SecondOrderFmuSpec) -> list[str]:
+    """``config.h`` lines for the FMI 3 layer: ``{first value reference, number of values}`` of each array variable
+    (``ARRAY_PORTS``) and of each Float32 variable (``FLOAT32_PORTS``)."""
+    refs = value_references(spec)
+    arrays, singles = [], []
+    for ports, first_refs in ((spec.input_ports, refs["u"]), (spec.output_ports, refs["y"])):
+        first = 0
+        for port in ports or []:
+            size = math.prod(port["shape"]) if port["shape"] else 1
+            entry = f"{{ {first_refs[first]}u, {size}u }}"
+            if port["shape"]:
+                arrays.append(entry)
+            if port["type"] == "Float32":
+                singles.append(entry)
+            first += size
+    lines = []
+    for name, entries in (("ARRAY_PORTS", arrays), ("FLOAT32_PORTS", singles)):
+        if entries:
+            lines += [f"#define N_{name} {len(entries)}", f"#define {name} {{ {', '.join(entries)} }}"]
+    return lines
 
 
 def _fmi_header_dir() -> Path:

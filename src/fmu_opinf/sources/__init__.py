@@ -40,7 +40,7 @@ from ._cosimulation import (DEFAULT_TOLERANCE, FMUSource, fixed_communication_st
 from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
-from ._variables import warn_if_not_strict
+from ._variables import element_names, fmi3_ports, warn_if_not_strict
 
 __all__ = [
     "Source",
@@ -64,6 +64,8 @@ __all__ = [
     "parse_assignments",
     "resolve_variables",
     "Resolved",
+    "element_names",
+    "fmi3_ports",
 ]
 
 

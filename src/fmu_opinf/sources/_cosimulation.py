@@ -23,7 +23,7 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         nonzero_start, read_description, start_value)
+                         fmi3_ports, nonzero_start, read_description, start_value)
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step"]
@@ -329,6 +329,9 @@ class FMUSource(Source):
         #: held inputs that look like parameters (non-zero start, default selection): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         self.output_names = [e.name for e in out_elements]
+        #: the FMI 3 variables behind the inputs and outputs (arrays, Float32): the exported ROM FMU declares them
+        self.ports = ({"inputs": fmi3_ports(model, forces, structural),
+                       "outputs": fmi3_ports(model, out_elements, structural)} if model.fmi3 else {})
         self.input_units = [e.var.unit or "" for e in forces]
         #: which force inputs are FMI 3 Float32 (the recorder rounds what it records of them to what they receive)
         self.single_precision_inputs = [e.var.type == "Float32" for e in forces]
@@ -395,6 +398,8 @@ class FMUSource(Source):
         definitions = _unit_definitions(self.md, used - {""})
         if definitions:
             desc["unit_definitions"] = definitions
+        if any(port["shape"] or port["type"] != "Float64" for ports in self.ports.values() for port in ports):
+            desc["fmi3_ports"] = dict(self.ports)
         negated = [c.name for c in self._read.columns if c.sign < 0]
         if negated:
             desc["negated_columns"] = negated

@@ -29,7 +29,7 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs"]
+           "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -1168,3 +1168,41 @@ def declared_range(element: Element) -> tuple[float, float]:
 def nonzero_start(element: Element) -> bool:
     """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
     return start_value(element) != 0.0
+
+
+def element_names(name: str, shape: Sequence[int]) -> list[str]:
+    """The element names of an FMI 3 array ``name`` of ``shape``: ``x[1] .. x[n]``, ``x[i,j]`` row-major; ``[name]``
+    for a scalar (``shape == ()``)."""
+    if not shape:
+        return [name]
+    return [f"{name}[{','.join(map(str, index))}]"
+            for index in itertools.product(*(range(1, s + 1) for s in shape))]
+
+
+def fmi3_ports(model: ModelInfo, elements: Sequence[Element], structural: dict[str, Any]) -> list[dict[str, Any]]:
+    """How recorded inputs or outputs group into FMI 3 variables: ``{"name", "shape", "type"}`` each, in order.
+
+    An exported ROM FMU (FMI 3) declares the same variables, so it connects where the source did: a whole array
+    recorded in element order under its own name is one array port, any other element (part of an array, an
+    ``<Alias>`` name, a negated or reordered element) a scalar of its own name.  ``type`` is ``Float64`` or
+    ``Float32``.
+    """
+    ports: list[dict[str, Any]] = []
+    i = 0
+    while i < len(elements):
+        element = elements[i]
+        var = element.var
+        shape = model.shape(var, structural) if var.dims else ()
+        size = math.prod(shape) if shape else 1
+        group = elements[i:i + size]
+        whole = (bool(shape) and len(group) == size and not var.negated
+                 and all(e.var is var and e.offset == j and not e.alias for j, e in enumerate(group))
+                 and [e.name for e in group] == element_names(var.name, shape))
+        kind = "Float32" if var.type == "Float32" else "Float64"
+        if whole:
+            ports.append({"name": var.name, "shape": list(shape), "type": kind})
+            i += size
+        else:
+            ports.append({"name": element.name, "shape": [], "type": kind})
+            i += 1
+    return ports
