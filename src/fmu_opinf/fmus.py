@@ -939,14 +939,37 @@ def _compile_direct(unzipdir: Path) -> None:
     platform = fmpy.platform if description.fmiVersion == "2.0" else fmpy.platform_tuple
     target = unzipdir / "binaries" / platform / (interface.modelIdentifier + fmpy.sharedLibraryExtension)
     target.parent.mkdir(parents=True, exist_ok=True)
-    command = [*find_c_compiler(), "-shared", "-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden",
-               "-I" + (unzipdir / "sources").as_posix(), "-I" + _fmi_header_dir().as_posix()]
+    compiler = find_c_compiler()
+    flags = ["-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden",
+             "-I" + (unzipdir / "sources").as_posix(), "-I" + _fmi_header_dir().as_posix()]
     if files.language in _C_STANDARDS:
-        command.append("-std=" + _C_STANDARDS[files.language])
-    command += [f"-D{d.name}={d.value}" if d.value is not None else f"-D{d.name}"
-                for d in files.preprocessorDefinitions]
-    command += [(unzipdir / "sources" / name).as_posix() for name in files.sourceFiles]
-    _run(command + ["-o", target.as_posix(), "-lm"], "compilation")
+        flags.append("-std=" + _C_STANDARDS[files.language])
+    flags += [f"-D{d.name}={d.value}" if d.value is not None else f"-D{d.name}"
+              for d in files.preprocessorDefinitions]
+    objects_dir = unzipdir.parent / "objects"
+    objects_dir.mkdir(exist_ok=True)
+    sources = [(unzipdir / "sources" / name) for name in files.sourceFiles]
+    objects = [objects_dir / f"{i}_{source.stem}.o" for i, source in enumerate(sources)]
+    # one compiler per source file, side by side: the shared kernel alone takes half of the time (0.8 of 1.5 s)
+    _run_side_by_side([[*compiler, "-c", *flags, source.as_posix(), "-o", obj.as_posix()]
+                       for source, obj in zip(sources, objects)], "compilation")
+    _run([*compiler, "-shared", "-fPIC", *[obj.as_posix() for obj in objects], "-o", target.as_posix(), "-lm"],
+         "linking")
+
+
+def _run_side_by_side(commands: list[list[str]], what: str) -> None:
+    """:func:`_run` for each command, as many at a time as this process has cores; the first failure in order."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ._threads import usable_cores
+
+    with ThreadPoolExecutor(max_workers=max(1, min(len(commands), usable_cores()))) as pool:
+        results = list(pool.map(lambda command: subprocess.run(command, capture_output=True, text=True), commands))
+    for result in results:
+        if result.returncode != 0:
+            log = (result.stdout + result.stderr).strip().splitlines()
+            tail = " | ".join(line.strip() for line in log[-8:])
+            raise FmuBuildError(f"{what} failed (exit code {result.returncode}): {tail}")
 
 
 def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:
