@@ -122,6 +122,28 @@ def test_float32_ports_of_the_source_are_float32_ports_of_the_rom_fmu(sources, t
     assert relative(y3[1], y_rom[1]) < 3e-8     # the Float64 output; its input came as a Float32
     assert relative(y3[0], y3[0].astype(np.float32)) == 0.0   # the Float32 output holds single-precision values
     assert 1e-9 < relative(y3[0], y_rom[0]) < 1e-7
+    null_values_are_an_error(paths["3.0"], tmp_path)
+
+
+def null_values_are_an_error(path, tmp_path) -> None:
+    """fmi3GetFloat32 / fmi3SetFloat32 with a NULL values array log an error (they crashed: review of
+    2026-11-28, under AddressSanitizer)."""
+    import ctypes
+
+    folder = extract(str(path), str(tmp_path / "single3"))
+    md = read_model_description(folder)
+    vr = (ctypes.c_uint32 * 1)(next(v.valueReference for v in md.modelVariables if v.name == "F"))
+    log = []
+    for function in ("fmi3GetFloat32", "fmi3SetFloat32"):
+        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="null")
+        fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
+        fmu.enterInitializationMode(startTime=0.0)
+        fmu.exitInitializationMode()
+        with pytest.raises(Exception, match="status 3"):
+            getattr(fmu, function)(fmu.component, vr, 1, None, 1)
+        assert log[-1] == f"{function}: values is NULL"
+        fmu.freeInstance()
 
 
 def test_array_value_references_take_their_whole_size_and_the_declared_type(array_rom, tmp_path):
@@ -145,6 +167,36 @@ def test_array_value_references_take_their_whole_size_and_the_declared_type(arra
         fmu.getFloat64([refs["y"]], nValues=1)
     assert "1 values for value references that hold 2" in log[-1]
     fmu.freeInstance()
+    for set_, vr in ((False, refs["y"] + 1), (True, refs["F"] + 1)):   # an element's own value reference
+        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="ports")
+        fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
+        fmu.enterInitializationMode(startTime=0.0)
+        fmu.exitInitializationMode()
+        with pytest.raises(Exception, match="status 3"):
+            fmu.setFloat64([vr], [5.0]) if set_ else fmu.getFloat64([vr])
+        assert f"value reference {vr} is not declared" in log[-1]
+        fmu.freeInstance()
+
+
+@pytest.mark.parametrize("ports", [
+    [{"name": "F", "shape": [10 ** 9] * 60_000, "type": "Float64"}],   # a product of 9e5 digits, not formed
+    [{"name": "F", "shape": [2.0], "type": "Float64"}], [{"name": "F", "shape": [True, True], "type": "Float64"}],
+    [{"name": "F", "shape": [2], "type": "Int32"}], [{"name": "F", "shape": [3], "type": "Float64"}],
+    [{"name": "G", "shape": [2], "type": "Float64"}], "F", [["F", [2]]]])
+def test_recorded_ports_that_do_not_fit_the_rom_give_scalars(ports):
+    """Ports come from a data file: anything but ports that expand to exactly the ROM's names is ignored (the FMU
+    then declares Float64 scalars), in bounded time."""
+    import time
+
+    from fmu_opinf.export import _recorded_ports
+
+    provenance = {"snapshots": {"fmi3_ports": {"inputs": ports}}}
+    start = time.perf_counter()
+    assert _recorded_ports(provenance, "inputs", ["F[1]", "F[2]"]) is None
+    assert time.perf_counter() - start < 0.1
+    good = {"snapshots": {"fmi3_ports": {"inputs": [{"name": "F", "shape": [2], "type": "Float32"}]}}}
+    assert _recorded_ports(good, "inputs", ["F[1]", "F[2]"]) == [{"name": "F", "shape": [2], "type": "Float32"}]
 
 
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28

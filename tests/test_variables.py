@@ -653,3 +653,31 @@ def test_a_model_that_shows_only_its_ports_gets_its_outputs_proposed_as_position
     with pytest.raises(FMUError, match=r"declares no continuous states.*where its outputs are the positions of "
                                        r"every mass .*--positions Out1,Out2$"):
         resolve_variables(_write(tmp_path, _fmi2(v, [])))
+
+
+def test_a_description_rewritten_in_place_is_read_again(tmp_path):
+    """Parsed descriptions are kept per file state; a rewrite of the same size that keeps the modification time
+    (coarse time stamps, ``cp -p``) is still a new file: its change time moved (review of 2026-11-28)."""
+    import os
+
+    from fmu_opinf.sources._variables import read_description
+
+    folder = tmp_path / "fmu"
+    folder.mkdir()
+    path = folder / "modelDescription.xml"
+    text = _fmi2([_sv("F", 0, "input", body='<Real start="0"/>'), _sv("y", 1, "output")], [])
+    path.write_text(text)
+    assert read_description(folder).guid == "{0}"
+    assert read_description(folder) is read_description(folder)   # kept: parsed once
+    before = path.stat()
+    path.write_text(text.replace('guid="{0}"', 'guid="{1}"'))
+    os.utime(path, ns=(before.st_atime_ns, before.st_mtime_ns))
+    assert path.stat().st_size == before.st_size and path.stat().st_mtime_ns == before.st_mtime_ns
+    assert read_description(folder).guid == "{1}"
+
+
+def test_literal_names_in_a_list_of_patterns_may_hold_several(tmp_path):
+    """An item of a list of patterns is split at its commas, as a pattern string is."""
+    resolved = resolve_variables(_write(tmp_path, modelica_two_masses()), positions=["mass1.s,mass2.s"],
+                                 velocities=["mass1.v", "mass2.v"])
+    assert _names(resolved.selection.positions) == ["mass1.s", "mass2.s"]

@@ -5,6 +5,8 @@
  * other function of the standard is exported and answers with a logged fmi3Error.  Memory
  * comes from the C library (FMI 3.0 has no allocation callbacks).
  */
+#include <float.h>
+#include <math.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -77,12 +79,17 @@ static const Port arrayPorts[N_ARRAY_PORTS] = ARRAY_PORTS;
 static const Port float32Ports[N_FLOAT32_PORTS] = FLOAT32_PORTS;
 #endif
 
+/* Number of values behind a declared value reference; 0 for the value references of an array's other
+ * elements, which no variable declares. */
 static size_t valueCount(unsigned int vr) {
 #ifdef N_ARRAY_PORTS
     size_t i;
     for (i = 0; i < N_ARRAY_PORTS; i++) {
         if (arrayPorts[i].first == vr) {
             return arrayPorts[i].size;
+        }
+        if (vr > arrayPorts[i].first && vr - arrayPorts[i].first < arrayPorts[i].size) {
+            return 0;
         }
     }
 #endif
@@ -94,13 +101,32 @@ static int isFloat32(unsigned int vr) {
 #ifdef N_FLOAT32_PORTS
     size_t i;
     for (i = 0; i < N_FLOAT32_PORTS; i++) {
-        if (float32Ports[i].first == vr) {
+        if (vr >= float32Ports[i].first && vr - float32Ports[i].first < float32Ports[i].size) {
             return 1;
         }
     }
 #endif
     (void)vr;
     return 0;
+}
+
+/* A double as the nearest Float32, infinite beyond its range (a plain conversion is undefined there). */
+static fmi3Float32 toFloat32(double value) {
+    if (value > FLT_MAX) {
+        return (fmi3Float32)INFINITY;
+    }
+    if (value < -FLT_MAX) {
+        return (fmi3Float32)-INFINITY;
+    }
+    return (fmi3Float32)value;
+}
+
+static Status checkValues(const ModelInstance *model, const char *function, const void *values, size_t nValues) {
+    if (nValues > 0 && !values) {
+        logError(model, "%s: values is NULL", function);
+        return Error;
+    }
+    return OK;
 }
 
 /* The instance's scalar value references behind valueReferences (each array's values in order), in
@@ -117,6 +143,11 @@ static Status expandReferences(const ModelInstance *model, const char *function,
         return Error;
     }
     for (i = 0; i < nValueReferences; i++) {
+        if (valueCount(valueReferences[i]) == 0) {
+            logError(model, "%s: value reference %u is not declared (an element of an array variable is "
+                     "reached through the array's value reference)", function, (unsigned)valueReferences[i]);
+            return Error;
+        }
         if (isFloat32(valueReferences[i]) != single) {
             logError(model, "%s: value reference %u is a %s variable; use fmi3%sFloat%s", function,
                      (unsigned)valueReferences[i], single ? "Float64" : "Float32",
@@ -299,6 +330,7 @@ fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double *buffer = NULL;
     size_t i;
     BEGIN("fmi3GetFloat32", STATE_GET);
+    CALL(checkValues(model, function, values, nValues));
     CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
     buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
     if (!buffer) {
@@ -308,7 +340,7 @@ fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     }
     CALL(getFloat64(model, function, scalars, nValues, buffer));
     for (i = 0; i < nValues; i++) {
-        values[i] = (fmi3Float32)buffer[i];
+        values[i] = toFloat32(buffer[i]);
     }
 END:
     free(buffer);
@@ -322,6 +354,7 @@ fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double *buffer = NULL;
     size_t i;
     BEGIN("fmi3SetFloat32", STATE_SET);
+    CALL(checkValues(model, function, values, nValues));
     CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
     buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
     if (!buffer) {

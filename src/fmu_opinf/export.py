@@ -525,6 +525,10 @@ def _recorded_units(provenance: dict, key: str, count: int) -> list[str]:
     return _units(snapshots.get(key), count)
 
 
+#: Most dimensions of a recorded array port (a bound on data read from a file, before any product is formed).
+_MAX_DIMENSIONS = 32
+
+
 def _ports(provenance: dict, input_names: list[str], output_names: list[str], reconstructed: list[str],
            fmi_version: str) -> dict[str, Any]:
     """``input_ports`` and ``output_ports`` of an FMI 3 ROM FMU: the source's variables (arrays, Float32), so that
@@ -556,7 +560,8 @@ def _recorded_ports(provenance: dict, key: str, names: list[str]) -> list[dict[s
             return None
         name, shape, kind = port.get("name"), port.get("shape"), port.get("type")
         if (not isinstance(name, str) or kind not in ("Float64", "Float32") or not isinstance(shape, list)
-                or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 1 for d in shape)
+                or len(shape) > _MAX_DIMENSIONS
+                or not all(isinstance(d, int) and not isinstance(d, bool) and 1 <= d <= len(names) for d in shape)
                 or math.prod(shape) > len(names)):
             return None
         ports.append({"name": name, "shape": list(shape), "type": kind})

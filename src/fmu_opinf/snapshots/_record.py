@@ -617,7 +617,8 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
             if index == 0 and run.k == 0:
-                raise failure or StepError("the first run recorded no sample")
+                raise failure or StepError(f"{source_label(source)} recorded no sample in its first run", 0,
+                                           float(t[0]))
             if index == 0:
                 first_input = np.asarray(run.u[:, 0], dtype=float) if source.m else np.zeros(0)
                 first_position = np.asarray(run.x0, dtype=float)

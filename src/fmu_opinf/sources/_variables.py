@@ -103,9 +103,9 @@ class Column:
         return self.element.name
 
 
-#: Parsed descriptions by file (resolved path, inode, size, mtime), newest last: one process opens the same FMU many times
+#: Parsed descriptions by file (resolved path, inode, size, mtime, ctime), newest last: one process opens the same FMU many times
 #: (pilots, runs, compare's sources), and a large model's XML takes 0.1-0.2 s to parse.
-_DESCRIPTIONS: OrderedDict[tuple[str, int, int, int], Any] = OrderedDict()
+_DESCRIPTIONS: OrderedDict[tuple[str, int, int, int, int], Any] = OrderedDict()
 _KEPT_DESCRIPTIONS = 8
 
 
@@ -129,12 +129,14 @@ def read_description(path: Path) -> Any:
     return description
 
 
-def _file_state(path: Path) -> tuple[str, int, int, int] | None:
+def _file_state(path: Path) -> tuple[str, int, int, int, int] | None:
+    """What identifies one version of a file: a rewrite in place changes the change time (ctime) even where it
+    keeps the size and the modification time (coarse time stamps, ``cp -p``, ``unzip``)."""
     try:
         stat = path.stat()
     except OSError:
         return None
-    return str(path.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns
+    return str(path.resolve()), stat.st_ino, stat.st_size, stat.st_mtime_ns, stat.st_ctime_ns
 
 
 def _parse_description(path: Path) -> Any:
@@ -893,8 +895,8 @@ def _match(model: ModelInfo, elements: dict[str, Element], what: str, patterns: 
             names = _array_elements(piece, elements)
         elif "*" in piece or "?" in piece:
             names = match_names(piece, signals)
-        else:
-            names = [piece] if piece in real_set else []
+        else:   # literal names (an item of a list of patterns may hold several, comma-separated)
+            names = [name for name in split_patterns(piece) if name in real_set]
         fresh = [n for n in dict.fromkeys(names) if n not in taken]
         found += fresh
         taken.update(fresh)
