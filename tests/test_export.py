@@ -436,3 +436,23 @@ def test_source_variables_named_like_the_rom_states_get_other_state_names(rom, t
     assert info["r"] == rom.r and info["output_names"] == ["q[2]", "qdot[1]"]
     assert export.rom_state_names(["q[1]", "rom.qddot[2]"]) == ("rom2.q", "rom2.qdot", "rom2.qddot")
     assert export.rom_state_names(["y", "qq[1]"]) == ("q", "qdot", "qddot")
+
+
+def test_reconstructed_positions_of_a_recorded_subset_keep_their_own_names():
+    """Recorded positions x[2], x[4], ..., x[12] (every second mass): ``x[4]`` is the recorded x[4] (row 2), not
+    row 4 (x[8]), and ``x[12]`` is accepted; ``x[3]`` was not recorded (eleventh audit: the output named x[4]
+    showed x[8], 73 % off the true x[4], and x[12] was refused)."""
+    rng = np.random.default_rng(3)
+    basis, x_ref = rng.standard_normal((6, 3)), np.arange(6.0)
+    own = [f"x[{2 * i}]" for i in range(1, 7)]
+    rom = SimpleNamespace(basis=basis, x_ref=x_ref, coordinates=None,
+                          provenance={"snapshots": {"position_names": own}})
+    names, rows, _, offsets = export._reconstruction_rows(rom, ["x[4]", "x[12]", 3], 3)
+    assert names == ["x[4]", "x[12]", "x[6]"]   # the number 3 is row 3, the source's x[6]
+    np.testing.assert_array_equal(rows, basis[[1, 5, 2]])
+    np.testing.assert_array_equal(offsets, x_ref[[1, 5, 2]])
+    with pytest.raises(DimensionError, match=r"cannot reconstruct 'x\[3\]': it is not a recorded position "
+                                             r"\(recorded: x\[2\], x\[4\], x\[6\], x\[8\], \.\.\.\)"):
+        export._reconstruction_rows(rom, ["x[3]"], 3)
+    with pytest.raises(DimensionError, match="twice"):
+        export._reconstruction_rows(rom, ["x[4]", 2], 3)

@@ -220,7 +220,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = verbs.add_parser("export", help="export a ROM as a self-contained co-simulation FMU")
     p.add_argument("rom", help="ROM file (.h5)")
     p.add_argument("-o", "--output", required=True, help="FMU to write (.fmu)")
-    p.add_argument("--reconstruct", help="full-order positions to add as outputs, e.g. 'x[1],x[300]'")
+    p.add_argument("--reconstruct", help="full-order positions to add as outputs: the source's names of recorded "
+                                         "positions, or x[i] for the i-th recorded one, e.g. 'x[1],x[300]'")
     p.add_argument("--fmi-version", choices=["2.0", "3.0"], default="2.0",
                    help="FMI version of the exported co-simulation FMU (default 2.0); 3.0 declares an FMI 3 "
                         "source's array and Float32 inputs and outputs as the source does")

@@ -137,31 +137,46 @@ def _reconstruction_rows(rom: Any, reconstruct: Sequence[str | int] | None,
     if basis.ndim != 2 or basis.shape[1] != r:
         raise DimensionError(f"ROM basis has shape {basis.shape}, expected (n, {r})")
     own = _position_names(rom, n)
-    names, rows = [], []
+    names, indices = [], []
     for item in reconstruct:
-        match = _POSITION_NAME.match(item) if isinstance(item, str) else None
-        index = int(match.group(1)) if match else (item if isinstance(item, int) else None)
-        if index is None and isinstance(item, str) and item in own:
-            index = own.index(item) + 1
-        if index is None or not 1 <= index <= n:
-            hint = f" or the source's position names ({', '.join(own[:3])}, ...)" if own else ""
-            raise DimensionError(f"cannot reconstruct {item!r}: give full-order positions as "
-                                 f"'x[i]' (or i) with 1 <= i <= {n}{hint}")
-        names.append(item if isinstance(item, str) and item in own else f"x[{index}]")
-        rows.append(basis[index - 1])
-    if len(set(names)) != len(names):
+        index, name = _reconstructed_position(item, own, n)
+        names.append(name)
+        indices.append(index)
+    if len(set(indices)) != len(indices):
         raise DimensionError(f"reconstruct lists a position twice: {list(reconstruct)}")
     if not np.all(np.isfinite(basis)):
         raise DataError("the ROM basis has NaN or infinite entries; refit the ROM")
     x_ref = getattr(rom, "x_ref", None)
     x_ref = np.zeros(n) if x_ref is None or np.size(x_ref) == 0 else _vector(rom, "x_ref", n)
-    indices = [own.index(name) if name in own else int(name[2:-1]) - 1 for name in names]
-    rows = np.array(rows)
+    rows = basis[indices]
     W = getattr(rom, "coordinates", None)
     if W is None:
         return names, rows, np.zeros_like(rows), x_ref[indices]
     W = _matrix(rom, "coordinates", (2 * r, 2 * r))
     return names, rows @ W[:r, :r], rows @ W[:r, r:], x_ref[indices]
+
+
+def _reconstructed_position(item: str | int, own: list[str], n: int) -> tuple[int, str]:
+    """Row (0-based) and output name of one reconstructed position: a recorded position's own name first, else
+    ``x[i]`` or ``i`` for the i-th recorded position (1-based).
+
+    Where the recorded names are themselves ``x[...]`` (a subset such as ``x[2], x[4], ...``), an ``x[i]`` that is
+    not one of them is refused rather than read as a row number: ``x[4]`` would name one mass and show another
+    (eleventh audit).  A number ``i`` is named by the source's name of that row, where the names were recorded.
+    """
+    if isinstance(item, str) and item in own:
+        return own.index(item), item
+    match = _POSITION_NAME.match(item) if isinstance(item, str) else None
+    index = int(match.group(1)) if match else (item if isinstance(item, int) and not isinstance(item, bool) else None)
+    shown = f" (recorded: {', '.join(own[:4])}{', ...' if len(own) > 4 else ''})" if own else ""
+    if match and any(_POSITION_NAME.match(name) for name in own):
+        raise DimensionError(f"cannot reconstruct {item!r}: it is not a recorded position{shown}; give a recorded "
+                             f"name, or the row of one as a number 1 .. {n}")
+    if index is None or not 1 <= index <= n:
+        hint = f" or the source's position names{shown}" if own else ""
+        raise DimensionError(f"cannot reconstruct {item!r}: give full-order positions as "
+                             f"'x[i]' (or i) with 1 <= i <= {n}{hint}")
+    return index - 1, (own[index - 1] if own and not match else f"x[{index}]")
 
 
 def _reconstruction_formula(rom: Any) -> str:
