@@ -205,3 +205,31 @@ def test_part_of_an_array_is_exported_as_scalar_ports(sources, tmp_path):
     rom, paths = exported(sources, "array", tmp_path, "--inputs", "F[2]")
     assert rom.input_names == ["F[2]"]
     assert ports(paths["3.0"]) == [("F[2]", "Float64", []), ("y", "Float64", [2])]
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_master_keeps_the_step_of_an_exact_step_map(array_rom, version):
+    """A ROM of a continuous-time source steps by multiples of its exact step map only, and says so
+    (``canHandleVariableCommunicationStepSize="false"``, FMI 3 ``fixedInternalStepSize``): fmpy then keeps its
+    step at an input event between grid points and at a stop time off the grid (eleventh audit, F7: it shortened
+    those steps and the FMU's refusal ended the simulation with an error)."""
+    rom, paths = array_rom
+    assert rom.integrator == "exact"
+    md = read_model_description(str(paths[version]))
+    assert md.coSimulation.canHandleVariableCommunicationStepSize is False
+    if version == "3.0":
+        assert float(md.coSimulation.fixedInternalStepSize) == float(rom.dt)
+    dt = float(rom.dt)
+    event = 10.5 * dt   # a force step between two grid points
+    rows = [(0.0, 0.0, 0.0), (event, 0.0, 0.0), (event, 1.0, -0.5), (1.0, 1.0, -0.5)]
+    if version == "3.0":   # the array input F as one field of two values
+        signals = np.array([(t, (a, b)) for t, a, b in rows], dtype=[("time", float), ("F", float, (2,))])
+    else:
+        signals = np.array(rows, dtype=[("time", float), ("F[1]", float), ("F[2]", float)])
+    result = fmpy.simulate_fmu(str(paths[version]), stop_time=40.5 * dt, output_interval=dt, input=signals)
+    assert np.isclose(result["time"][-1], 40 * dt)   # the last whole step: not shortened to the stop time
+    y = np.asarray(result["y"]).T if version == "3.0" else np.vstack([result["y[1]"], result["y[2]"]])
+    # the reference: the ROM under the step held from the first grid point after the event (as fmpy applies it)
+    expected = rom.simulate(f"step:amplitude=1,t0={11 * dt - dt / 2};step:amplitude=-0.5,t0={11 * dt - dt / 2}",
+                            dt, 40 * dt).y
+    assert relative(y, expected) < 1e-12

@@ -461,6 +461,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         input_starts=_recorded_input_starts(provenance, m),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
         **_ports(provenance, input_names or [], output_names, names, fmi_version),
+        step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
     )
 
 

@@ -161,6 +161,10 @@ class SecondOrderFmuSpec:
         ``"Float32"``), as :func:`fmu_opinf.sources.fmi3_ports` reads them from a source FMU.  An array takes
         one value reference and its values follow each other.  Default: every input and output a Float64
         scalar of its own name.
+    step_multiple : float, optional
+        The FMU accepts only communication steps that are multiples of this step (an exact step map): it then
+        declares ``canHandleVariableCommunicationStepSize="false"`` (and, FMI 3.0, ``fixedInternalStepSize``),
+        so a master keeps a constant step instead of shortening one to an input event or to the stop time.
     """
 
     identifier: str
@@ -190,6 +194,7 @@ class SecondOrderFmuSpec:
     input_starts: list[float] | None = None
     input_ports: list[dict[str, Any]] | None = None
     output_ports: list[dict[str, Any]] | None = None
+    step_multiple: float | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -219,6 +224,8 @@ class SecondOrderFmuSpec:
                                 f"output names for m={self.m}, p={self.p}; give one name each")
         if self.expose_states is None:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
+        if self.step_multiple is not None and not (math.isfinite(self.step_multiple) and self.step_multiple > 0):
+            raise FmuBuildError(f"step_multiple {self.step_multiple!r} must be a positive finite number")
         self._check_ports()
         self._check_units()
         self._check_text()
@@ -670,7 +677,7 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         f'variableNamingConvention="{_naming_convention(spec)}" '
         'numberOfEventIndicators="0">\n'
         f'  <CoSimulation modelIdentifier="{spec.identifier}" needsExecutionTool="false"\n'
-        '    canHandleVariableCommunicationStepSize="true" canInterpolateInputs="false"\n'
+        f'    canHandleVariableCommunicationStepSize="{_variable_step(spec)}" canInterpolateInputs="false"\n'
         '    maxOutputDerivativeOrder="0" canRunAsynchronuously="false"\n'
         '    canBeInstantiatedOnlyOncePerProcess="false" canNotUseMemoryManagementFunctions="false"\n'
         '    canGetAndSetFMUstate="true" canSerializeFMUstate="true"\n'
@@ -699,6 +706,17 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         "  </ModelStructure>\n"
         "</fmiModelDescription>\n"
     )
+
+
+def _variable_step(spec: SecondOrderFmuSpec) -> str:
+    """``canHandleVariableCommunicationStepSize``: false for an FMU that steps by multiples of one step only."""
+    return "false" if spec.step_multiple is not None else "true"
+
+
+def _fixed_step3(spec: SecondOrderFmuSpec) -> str:
+    """FMI 3 ``fixedInternalStepSize`` of an FMU that steps by multiples of one step (masters take it as their
+    communication step, fmpy among them)."""
+    return "" if spec.step_multiple is None else f' fixedInternalStepSize="{float(spec.step_multiple)!r}"'
 
 
 def _vendor_annotations(spec: SecondOrderFmuSpec) -> str:
@@ -732,7 +750,8 @@ def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
         '    canBeInstantiatedOnlyOncePerProcess="false" canGetAndSetFMUState="true"\n'
         '    canSerializeFMUState="true" providesDirectionalDerivatives="false"\n'
         '    providesAdjointDerivatives="false" providesPerElementDependencies="false"\n'
-        '    canHandleVariableCommunicationStepSize="true" maxOutputDerivativeOrder="0"\n'
+        f'    canHandleVariableCommunicationStepSize="{_variable_step(spec)}"{_fixed_step3(spec)}'
+        ' maxOutputDerivativeOrder="0"\n'
         '    providesIntermediateUpdate="false" mightReturnEarlyFromDoStep="false"\n'
         '    canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"\n'
         '    providesEvaluateDiscreteStates="false"/>\n'
