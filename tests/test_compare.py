@@ -280,3 +280,33 @@ def test_constant_outputs_give_valid_json_and_say_so(tmp_path):
     assert metrics["per_output"]["y"]["relative_max"] == pytest.approx(0.1, rel=1e-3)
     page = (tmp_path / "report" / "index.html").read_text()
     assert not re.search(r"\bnan\b", page) and "none (the output is constant)" in page
+
+
+def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
+    """A full disk while the last file is written leaves the earlier report as it was, and no temporary file
+    (eleventh audit: the new figures and metrics sat beside the old page)."""
+    import errno
+    import os
+
+    from fmu_opinf import compare
+    from fmu_opinf.errors import FmuOpinfError
+
+    earlier = {"outputs.png": b"old png", "metrics.json": b"{}", "index.html": b"<p>old</p>"}
+    for name, data in earlier.items():
+        (tmp_path / name).write_bytes(data)
+    real_fdopen = os.fdopen
+
+    def full_disk_at_the_page(fd, *args, **kwargs):
+        handle = real_fdopen(fd, *args, **kwargs)
+        if os.path.basename(os.readlink(f"/proc/self/fd/{fd}")).startswith("index.html."):
+            handle.close()
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return handle
+
+    monkeypatch.setattr(compare.os, "fdopen", full_disk_at_the_page)
+    with pytest.raises(FmuOpinfError, match="disk is full"):
+        compare._replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == earlier
+    monkeypatch.setattr(compare.os, "fdopen", real_fdopen)
+    compare._replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {n: b"new " + d for n, d in earlier.items()}

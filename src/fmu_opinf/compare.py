@@ -10,6 +10,7 @@ errors per output, times both, and ``write_report`` writes ``metrics.json``, the
 from __future__ import annotations
 
 import base64
+import contextlib
 import html
 import json
 import math
@@ -819,7 +820,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
                  notes: dict[str, Any] | None = None) -> Path:
     """Write ``metrics.json``, ``outputs.png``, ``error.png`` and ``index.html`` into ``out_dir``.
 
-    Each file is written to a temporary name and renamed, so a report is never half-replaced.
+    An earlier report in ``out_dir`` is replaced as a whole: every file is written under a temporary name
+    first and the renames follow, so a failure (a full disk) or an interrupt leaves it as it was.
 
     Parameters
     ----------
@@ -853,21 +855,50 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
     metrics = comparison.metrics()
     if notes:
         metrics["notes"] = jsonable(notes)
+    files: dict[str, bytes] = {}
     with tempfile.TemporaryDirectory() as tmp:
         figures = {"Outputs of full-order model and ROM (paper Figs. 9-10 a-c)": Path(tmp) / "outputs.png",
                    "Relative output error eq. (19) over time (paper Figs. 9-10 d)": Path(tmp) / "error.png"}
         _figure_outputs(comparison, figures["Outputs of full-order model and ROM (paper Figs. 9-10 a-c)"])
         _figure_error(comparison, figures["Relative output error eq. (19) over time (paper Figs. 9-10 d)"])
-        for png in figures.values():
-            _atomic_write_bytes(out_dir / png.name, png.read_bytes())
+        files.update({png.name: png.read_bytes() for png in figures.values()})
         all_figures = {**figures, **(extra_figures or {})}
         page = _html_page(comparison, metrics, all_figures)
     # a constant output has no relative error: null, since a bare NaN is not JSON (seventh audit: metrics.json
     # of a model with a constant output failed to parse)
-    _atomic_write_bytes(out_dir / "metrics.json",
-                        json.dumps(jsonable(metrics, non_finite_as_null=True), indent=2, allow_nan=False).encode())
-    _atomic_write_bytes(out_dir / "index.html", page.encode())
+    files["metrics.json"] = json.dumps(jsonable(metrics, non_finite_as_null=True), indent=2, allow_nan=False).encode()
+    files["index.html"] = page.encode()
+    _replace_together(out_dir, files)
     return out_dir / "index.html"
+
+
+def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
+    """Write every file under a temporary name in ``folder``, then rename them all, with interrupts deferred.
+
+    A failure while writing (a full disk) leaves the earlier report as it was and no temporary file: the
+    renames, which need no space, start only once every byte is written (eleventh audit: new figures and
+    metrics beside the old page after a full disk).
+    """
+    from ._hdf5 import output_mode
+    from ._interrupts import deferred_interrupts
+
+    temporary: dict[str, str] = {}
+    try:
+        for name, data in files.items():
+            fd, temporary[name] = tempfile.mkstemp(prefix=name + ".", suffix=".tmp", dir=folder)
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+        with deferred_interrupts():
+            for name, tmp in list(temporary.items()):
+                os.chmod(tmp, output_mode(folder / name))
+                os.replace(tmp, folder / name)
+                del temporary[name]
+    except OSError as exc:
+        raise write_error(folder / name, exc) from None
+    finally:
+        for tmp in temporary.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def _html_table(rows: list[tuple[str, Any]]) -> str:
