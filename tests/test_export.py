@@ -456,3 +456,4 @@ def test_reconstructed_positions_of_a_recorded_subset_keep_their_own_names():
         export._reconstruction_rows(rom, ["x[3]"], 3)
     with pytest.raises(DimensionError, match="twice"):
         export._reconstruction_rows(rom, ["x[4]", 2], 3)
+    assert export._reconstruction_rows(rom, ["3"], 3)[0] == ["x[6]"]   # a number as the command line gives it

@@ -209,6 +209,8 @@ def test_speedup_says_what_it_timed(rng):
     assert both["like_with_like"] and "rom.fmu" in both["rom"] and "separate process" in both["rom"]
     assert "in this process" in _timed("plant.fmu", Path("rom.fmu"), isolate=False)["rom"]
     assert not _timed("builtin:triple-chain", Path("rom.fmu"))["like_with_like"]
+    by_me = _timed("plant.fmu", Path("rom.fmu"), fom_provenance={"fmi_interface": "me"})   # ME against CS steps
+    assert not by_me["like_with_like"] and "model exchange" in by_me["fom"]
 
 
 def test_rom_fmu_is_driven_like_the_source(monkeypatch):

@@ -756,3 +756,30 @@ def test_ctrl_c_swallowed_before_an_fmu_is_written_keeps_the_previous_fmu(tmp_pa
     with pytest.raises(Interrupted):
         with remembered_interrupts():
             Finalized()  # no safe point after it in the block: its end raises
+
+
+@pytest.mark.parametrize("output, reconstruct, text", [
+    ("folder.fmu", None, "folder.fmu is a directory; give a file name"),   # was "exists; pass --force"
+    ("notes.txt", None, "must end in .fmu"),
+    ("new.fmu", "", "--reconstruct '' names no position"),                 # exported nothing extra, rc 0
+    ("new.fmu", ",", "--reconstruct ',' names no position"),
+])
+def test_export_output_and_reconstruct_errors_say_what_is_wrong_first(files, tmp_path, capsys, output, reconstruct,
+                                                                       text):
+    """Eleventh audit, F4 and F6: the first error names the real problem."""
+    (tmp_path / "folder.fmu").mkdir()
+    (tmp_path / "notes.txt").write_text("keep")
+    extra = [] if reconstruct is None else ["--reconstruct", reconstruct]
+    code, err = run_main(capsys, "export", files["rom"], "-o", tmp_path / output, *extra)
+    assert_one_line_error(code, err, text)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["folder.fmu", "notes.txt"]
+
+
+def test_export_from_the_api_creates_no_folder_for_refused_arguments(files, tmp_path):
+    """Eleventh audit, F5: a refused export left the output's new parent folders behind."""
+    from fmu_opinf.errors import DimensionError
+    from fmu_opinf.export import export_fmu
+
+    with pytest.raises(DimensionError):
+        export_fmu(files["rom"], tmp_path / "new" / "deeper" / "rom.fmu", reconstruct=["x[0]"])
+    assert list(tmp_path.iterdir()) == []

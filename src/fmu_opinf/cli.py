@@ -326,7 +326,10 @@ def _run_export(args: argparse.Namespace) -> None:
 
     from .sources._base import split_patterns
 
-    reconstruct = split_patterns(args.reconstruct) if args.reconstruct else None
+    reconstruct = split_patterns(args.reconstruct) if args.reconstruct is not None else None
+    if reconstruct is not None and not reconstruct:
+        raise InputSpecError(f"--reconstruct {args.reconstruct!r} names no position; give names such as "
+                             "'x[1],x[300]', or leave the option out")
     rom = SecondOrderROM.load(args.rom)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
                       overwrite=args.force, step=args.step)
@@ -394,6 +397,10 @@ def _check_output_file(args: argparse.Namespace, inputs: list) -> None:
     from . import _validate as v
 
     v.check_not_input(args.output, inputs, "output")
+    if Path(args.output).is_dir():   # before "exists": --force cannot replace a folder
+        raise FileExistsError(f"{args.output} is a directory; give a file name")
+    if args.verb == "export" and Path(args.output).suffix != ".fmu":
+        raise InputSpecError(f"output path {args.output} must end in .fmu")
     if Path(args.output).exists() and not args.force:
         raise FileExistsError(f"{args.output} exists; pass --force to replace it")
     v.check_writable(args.output, "output")

@@ -644,11 +644,13 @@ def _timed_description(side: Any, isolate: bool = True, provenance: dict | None 
 
 
 def _timed(source: Any, rom_side: Any, isolate: bool = True, fom_provenance: dict | None = None) -> dict[str, Any]:
-    """What each side's time measured; like with like when both are FMUs (then driven the same way)."""
+    """What each side's time measured; like with like when both are FMUs stepped by co-simulation (a full model
+    integrated by model exchange against the ROM FMU's co-simulation steps is not: eleventh audit, F9)."""
     fmu = [not str(side).startswith("builtin:") and Path(str(side)).suffix.lower() == ".fmu"
            for side in (source, rom_side)]
+    model_exchange = (fom_provenance or {}).get("fmi_interface") == "me"
     return {"fom": _timed_description(source, isolate, fom_provenance), "rom": _timed_description(rom_side, isolate),
-            "like_with_like": all(fmu), "clock": "wall time (time.perf_counter)"}
+            "like_with_like": all(fmu) and not model_exchange, "clock": "wall time (time.perf_counter)"}
 
 
 def _rom_side_info(rom_side: Any) -> dict[str, Any]:

@@ -166,6 +166,8 @@ def _reconstructed_position(item: str | int, own: list[str], n: int) -> tuple[in
     """
     if isinstance(item, str) and item in own:
         return own.index(item), item
+    if isinstance(item, str) and item.strip().isdecimal():   # a row number from the command line
+        item = int(item)
     match = _POSITION_NAME.match(item) if isinstance(item, str) else None
     index = int(match.group(1)) if match else (item if isinstance(item, int) and not isinstance(item, bool) else None)
     shown = f" (recorded: {', '.join(own[:4])}{', ...' if len(own) > 4 else ''})" if own else ""
@@ -616,13 +618,16 @@ def _position_unit(provenance: dict) -> str:
 
 # ------------------------------------------------------------------------- export
 
-def _check_output_path(path: Path, overwrite: bool) -> None:
+def _check_output_name(path: Path, overwrite: bool) -> None:
     if path.suffix != ".fmu":
         raise FMUError(f"output path {path} must end in .fmu")
     if path.is_dir():
         raise FMUError(f"output path {path} is a directory; give a file name ending in .fmu")
     if path.exists() and not overwrite:
         raise FMUError(f"{path} exists; replace it with overwrite=True (command line: --force)")
+
+
+def _prepare_output_folder(path: Path) -> None:
     parent = path.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -681,8 +686,9 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with "
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
-    _check_output_path(path, overwrite)
+    _check_output_name(path, overwrite)
     spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
+    _prepare_output_folder(path)   # created only once the arguments are known to be good
     if find_build_tools() is None:
         build_second_order_fmu(spec, path, compile=False)
         warnings.warn(f"{path} holds C sources only and still needs compiling: no C compiler or "
