@@ -457,3 +457,27 @@ def test_reconstructed_positions_of_a_recorded_subset_keep_their_own_names():
     with pytest.raises(DimensionError, match="twice"):
         export._reconstruction_rows(rom, ["x[4]", 2], 3)
     assert export._reconstruction_rows(rom, ["3"], 3)[0] == ["x[6]"]   # a number as the command line gives it
+
+
+def test_a_serialized_state_is_refused_by_another_model_of_the_same_sizes(exported, rom, tmp_path):
+    """Eleventh audit, F8: only the sizes were checked, so a state of another ROM FMU (same r, m) was accepted."""
+    other = Path(extract(str(export.export_fmu(rom, tmp_path / "OtherROM.fmu")), str(tmp_path / "other")))
+
+    def started(folder: Path) -> FMU2Slave:
+        md = read_model_description(str(folder))
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="state")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        return fmu
+
+    source = started(exported[1])
+    source.setReal([1], [2.0])
+    source.doStep(0.0, rom.dt)
+    blob = source.serializeFMUstate(source.getFMUstate())
+    same = started(exported[1])
+    same.setFMUstate(same.deSerializeFMUstate(blob))   # the same model takes it
+    with pytest.raises(Exception, match="fmi2DeSerializeFMUstate failed"):
+        started(other).deSerializeFMUstate(blob)

@@ -653,6 +653,19 @@ size_t serializedStateSize(void) {
     return SERIAL_SIZE;
 }
 
+/* A 31-bit FNV-1a hash of the instantiation token: a state serialized by another model of the same sizes
+ * (another ROM FMU) is refused. */
+static int modelFingerprint(void) {
+    const char *text = INSTANTIATION_TOKEN;
+    unsigned int hash = 2166136261u;
+
+    while (*text) {
+        hash ^= (unsigned char)*text++;
+        hash *= 16777619u;
+    }
+    return (int)(hash & 0x7fffffffu);
+}
+
 static unsigned char *put(unsigned char *cursor, const void *data, size_t bytes) {
     memcpy(cursor, data, bytes);
     return cursor + bytes;
@@ -688,7 +701,7 @@ Status serializeState(ModelInstance *instance, const char *function, const void 
     header[4] = (int)snapshot->state;
     header[5] = snapshot->accelerationPending;
     header[6] = snapshot->stepCount;
-    header[7] = 0;
+    header[7] = modelFingerprint();
 
     cursor = put(cursor, header, sizeof(header));
     cursor = put(cursor, &snapshot->time, sizeof(double));
@@ -723,6 +736,10 @@ Status deserializeState(ModelInstance *instance, const char *function,
     if (header[0] != SERIAL_MAGIC || header[1] != N_DOF || header[2] != N_INPUTS ||
         header[3] != N_PARAMETERS) {
         logError(instance, "%s: the data do not belong to this model", function);
+        return Error;
+    }
+    if (header[7] != modelFingerprint()) {
+        logError(instance, "%s: the data are the state of another model (another instantiation token)", function);
         return Error;
     }
 
