@@ -398,19 +398,29 @@ def _refined(phi: np.ndarray, lam: np.ndarray, right: np.ndarray,
     the eigenvalue-0 cluster left alone: that cluster only enters through its projector).  Conjugate pairs stay
     conjugate because every step is real-equivariant.
     """
+    # numpy has no BLAS for long doubles: einsum's loop is 1.6x faster than matmul's, the real map times the real
+    # and imaginary parts of V half the work of a complex product (r = 189, 567 states: 18.7 -> about 6 s)
     wide = phi.astype(np.longdouble)
-    v, w = right.astype(np.clongdouble), left.astype(np.clongdouble)
-    R = w @ (wide @ v)
+    product = (_wide_product(wide, right.real.astype(np.longdouble))
+               + 1j * _wide_product(wide, right.imag.astype(np.longdouble)))
+    R = _wide_product(left.astype(np.clongdouble), product)
     quotient = np.diagonal(R).copy()
     gap = quotient[None, :] - quotient[:, None]
     scale = max(float(np.abs(quotient).max()), np.finfo(float).tiny)
     separated = np.abs(gap) > 1e-8 * scale
     X = np.where(separated, R / np.where(separated, gap, 1.0), 0.0)
     np.fill_diagonal(X, 0.0)
-    v, w = v @ (np.eye(len(lam)) + X), (np.eye(len(lam)) - X) @ w
+    # X is of the order of the eigenvectors' rounding: its products in double add errors of that order squared
+    step = X.astype(complex)
+    v = right.astype(np.clongdouble) + right @ step
+    w = left.astype(np.clongdouble) - step @ left
     out = quotient.astype(complex)
     out[lam.imag == 0] = out[lam.imag == 0].real
     return out, v.astype(complex), w.astype(complex)
+
+
+def _wide_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,jk->ik", a, b)
 
 
 def modal_form(phi: np.ndarray, gamma: np.ndarray, steps: int = 2000, tol: float = 1e-12) -> ModalForm | None:

@@ -331,6 +331,9 @@ def _run_export(args: argparse.Namespace) -> None:
         raise InputSpecError(f"--reconstruct {args.reconstruct!r} names no position; give names such as "
                              "'x[1],x[300]', or leave the option out")
     rom = SecondOrderROM.load(args.rom)
+    if not args.quiet:
+        print(f"exporting the r={rom.r} ROM: modal form of its step map, FMI {args.fmi_version} description, C "
+              "compilation ...", file=sys.stderr, flush=True)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
                       overwrite=args.force, step=args.step)
     if not args.quiet:

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from ._threads import single_threaded
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name
 
@@ -687,7 +688,8 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
     _check_output_name(path, overwrite)
-    spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
+    with single_threaded():   # dense kernels of a few hundred rows: two BLAS threads collapse under load
+        spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
     _prepare_output_folder(path)   # created only once the arguments are known to be good
     if find_build_tools() is None:
         build_second_order_fmu(spec, path, compile=False)
