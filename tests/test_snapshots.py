@@ -649,3 +649,34 @@ def test_a_non_inheritable_descriptor_in_place_of_stdout_is_not_handed_to_the_ru
     passed.clear()
     _isolation._Inherited({}).__reduce__()
     assert passed == [1, 2]
+
+
+def test_a_slow_model_reports_its_progress_in_a_log(monkeypatch, capsys):
+    """A model that takes seconds per sample (a stiff FE model under an explicit integrator: 0.4 s per sample,
+    twelfth audit) gets small blocks, so a log (stderr not a terminal) has a line while it runs, not minutes of
+    silence; a fast run writes none."""
+    import time as _time
+
+    from fmu_opinf import _progress
+    from fmu_opinf.snapshots import _isolation
+
+    monkeypatch.setattr(_progress, "LOG_AFTER", 0.3)
+    monkeypatch.setattr(_progress, "LOG_EVERY", 0.3)
+    monkeypatch.setattr(_isolation._BlockSizes, "SECONDS", 0.05)
+    source = BuiltinSource("anchored-msd", g=4)
+    advance = source.advance
+    sizes = []
+
+    def slow_advance(rows, i0, count, **kwargs):
+        sizes.append(count)
+        _time.sleep(0.01 * count)   # 10 ms per sample
+        return advance(rows, i0, count, **kwargs)
+
+    monkeypatch.setattr(source, "advance", slow_advance)
+    record(source, "step", 0.5, 60.0, quiet=False)
+    err = capsys.readouterr().err
+    assert sizes[:2] == [16, 16] and max(sizes) <= 64   # blocks stay small: each took longer than 0.05 s
+    lines = [line for line in err.splitlines() if "after" in line]
+    assert len(lines) >= 2 and lines[-1].endswith("(ended)") and "121/121" in lines[-1]
+    record(BuiltinSource("anchored-msd", g=4), "step", 0.5, 60.0, quiet=False)
+    assert "after" not in capsys.readouterr().err

@@ -2,6 +2,8 @@
 
 It draws on stderr only when stderr is a terminal, the caller did not ask for quiet,
 and the work has already taken longer than ``delay`` seconds, so short runs and logs stay clean.
+Where stderr is not a terminal (a log file, a pipe), work that runs longer than ``LOG_AFTER`` seconds
+gets a plain line then and every ``LOG_EVERY`` seconds after, and one when it ends.
 """
 
 from __future__ import annotations
@@ -10,22 +12,41 @@ import sys
 import time
 
 
+#: Seconds after which work reports itself in a log (stderr not a terminal), and between its lines.
+LOG_AFTER = 10.0
+LOG_EVERY = 60.0
+
+
 class Progress:
-    """Report ``done / total`` on one terminal line, at most ten times a second."""
+    """Report ``done / total`` on one terminal line, at most ten times a second (in a log: a line a minute)."""
 
     def __init__(self, total: int, label: str, quiet: bool = False, delay: float = 1.0) -> None:
         self.total = max(int(total), 1)
         self.label = label
         self.enabled = not quiet and sys.stderr.isatty()
+        self.logged = not quiet and not self.enabled
         self.delay = delay
         self.start = time.perf_counter()
         self._last_draw = 0.0
         self._drawn = False
+        self._next_log = self.start + LOG_AFTER
+        self._log_lines = 0
         self.done = 0
+
+    def _log(self, final: bool = False) -> None:
+        """A plain line for a log: where the work stands and how long it has taken."""
+        elapsed = time.perf_counter() - self.start
+        state = "ended" if final else "running"
+        sys.stderr.write(f"{self.label}: {self.done}/{self.total} after {elapsed:.0f} s ({state})\n")
+        sys.stderr.flush()
+        self._log_lines += 1
 
     def update(self, done: int) -> None:
         """Set the number of finished units and redraw if due."""
         self.done = done
+        if self.logged and time.perf_counter() >= self._next_log:
+            self._log()
+            self._next_log = time.perf_counter() + LOG_EVERY
         if not self.enabled:
             return
         now = time.perf_counter()
@@ -41,7 +62,9 @@ class Progress:
         self._drawn = True
 
     def close(self) -> None:
-        """Finish the line if anything was drawn."""
+        """Finish the line if anything was drawn (in a log: a last line if the work had reported itself)."""
+        if self._log_lines:
+            self._log(final=True)
         if self._drawn:
             self._last_draw = 0.0  # the final state is drawn even right after another draw
             self.update(self.done)
