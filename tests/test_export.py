@@ -476,8 +476,16 @@ def test_a_serialized_state_is_refused_by_another_model_of_the_same_sizes(export
     source = started(exported[1])
     source.setReal([1], [2.0])
     source.doStep(0.0, rom.dt)
-    blob = source.serializeFMUstate(source.getFMUstate())
-    same = started(exported[1])
-    same.setFMUstate(same.deSerializeFMUstate(blob))   # the same model takes it
-    with pytest.raises(Exception, match="fmi2DeSerializeFMUstate failed"):
-        started(other).deSerializeFMUstate(blob)
+    state = source.getFMUstate()
+    blob = source.serializeFMUstate(state)
+    source.freeFMUstate(state)
+    same, foreign = started(exported[1]), started(other)
+    try:
+        restored = same.deSerializeFMUstate(blob)   # the same model takes it
+        same.setFMUstate(restored)
+        same.freeFMUstate(restored)
+        with pytest.raises(Exception, match="fmi2DeSerializeFMUstate failed"):
+            foreign.deSerializeFMUstate(blob)
+    finally:
+        for fmu in (source, same, foreign):
+            fmu.freeInstance()

@@ -36,7 +36,9 @@ static void forwardLog(const ModelInstance *instance, Status status, const char 
     fmi2CallbackLogger logger = (fmi2CallbackLogger)instance->logger;
 
     if (logger) {
-        logger(instance->environment, instance->instanceName, (fmi2Status)status, category, message);
+        /* the FMI 2 logger formats its message like printf: the text goes in as an argument, so a '%' in it
+         * (a variable name) is printed, not read as a conversion */
+        logger(instance->environment, instance->instanceName, (fmi2Status)status, category, "%s", message);
     }
 }
 

@@ -333,7 +333,7 @@ def _run_export(args: argparse.Namespace) -> None:
     rom = SecondOrderROM.load(args.rom)
     if not args.quiet:
         print(f"exporting the r={rom.r} ROM: modal form of its step map, FMI {args.fmi_version} description, C "
-              "compilation ...", file=sys.stderr, flush=True)
+              "compilation ...", flush=True)
     path = export_fmu(rom, args.output, fmi_version=args.fmi_version, reconstruct=reconstruct,
                       overwrite=args.force, step=args.step)
     if not args.quiet:
