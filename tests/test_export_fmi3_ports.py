@@ -99,6 +99,16 @@ def relative(a, b) -> float:
     return float(np.abs(np.asarray(a) - b).max() / np.abs(b).max())
 
 
+def initialized(folder, md, log: list) -> FMU3Slave:
+    """An instance of the unpacked FMU after initialization, logging into ``log``."""
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="ports")
+    fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    return fmu
+
+
 def test_array_ports_of_the_source_are_array_ports_of_the_rom_fmu(sources, array_rom):
     rom, paths = array_rom
     assert ports(paths["3.0"]) == [("F", "Float64", [2]), ("y", "Float64", [2])]
@@ -135,11 +145,7 @@ def null_values_are_an_error(path, tmp_path) -> None:
     vr = (ctypes.c_uint32 * 1)(next(v.valueReference for v in md.modelVariables if v.name == "F"))
     log = []
     for function in ("fmi3GetFloat32", "fmi3SetFloat32"):
-        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName="null")
-        fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
-        fmu.enterInitializationMode(startTime=0.0)
-        fmu.exitInitializationMode()
+        fmu = initialized(folder, md, log)
         with pytest.raises(Exception, match="status 3"):
             getattr(fmu, function)(fmu.component, vr, 1, None, 1)
         assert log[-1] == f"{function}: values is NULL"
@@ -153,11 +159,7 @@ def test_array_value_references_take_their_whole_size_and_the_declared_type(arra
     md = read_model_description(folder)
     refs = {v.name: v.valueReference for v in md.modelVariables}
     log = []
-    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="ports")
-    fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
-    fmu.enterInitializationMode(startTime=0.0)
-    fmu.exitInitializationMode()
+    fmu = initialized(folder, md, log)
     fmu.setFloat64([refs["F"]], [1.0, -2.0])
     assert fmu.getFloat64([refs["F"]], nValues=2) == [1.0, -2.0]
     fmu.doStep(0.0, float(rom.dt))
@@ -168,11 +170,7 @@ def test_array_value_references_take_their_whole_size_and_the_declared_type(arra
     assert "1 values for value references that hold 2" in log[-1]
     fmu.freeInstance()
     for set_, vr in ((False, refs["y"] + 1), (True, refs["F"] + 1)):   # an element's own value reference
-        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                        instanceName="ports")
-        fmu.instantiate(loggingOn=True, logMessage=lambda *args: log.append(args[-1].decode()))
-        fmu.enterInitializationMode(startTime=0.0)
-        fmu.exitInitializationMode()
+        fmu = initialized(folder, md, log)
         with pytest.raises(Exception, match="status 3"):
             fmu.setFloat64([vr], [5.0]) if set_ else fmu.getFloat64([vr])
         assert f"value reference {vr} is not declared" in log[-1]

@@ -323,21 +323,33 @@ END:
     RETURN;
 }
 
-/* Float32 variables (inputs and outputs of a ROM of a single-precision source) hold doubles inside. */
+/* Float32 variables (inputs and outputs of a ROM of a single-precision source) hold doubles inside: the
+ * scalar value references behind a Float32 call and a double buffer of its nValues values. */
+static Status float32Call(const ModelInstance *model, const char *function,
+                          const fmi3ValueReference valueReferences[], size_t nValueReferences,
+                          const void *values, size_t nValues, unsigned int **scalars, double **buffer) {
+    Status status = checkValues(model, function, values, nValues);
+
+    if (status == OK) {
+        status = expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, scalars);
+    }
+    if (status == OK) {
+        *buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
+        if (!*buffer) {
+            logError(model, "%s: out of memory", function);
+            status = Error;
+        }
+    }
+    return status;
+}
+
 fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float32 values[], size_t nValues) {
     unsigned int *scalars = NULL;
     double *buffer = NULL;
     size_t i;
     BEGIN("fmi3GetFloat32", STATE_GET);
-    CALL(checkValues(model, function, values, nValues));
-    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
-    buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
-    if (!buffer) {
-        logError(model, "%s: out of memory", function);
-        status = Error;
-        goto END;
-    }
+    CALL(float32Call(model, function, valueReferences, nValueReferences, values, nValues, &scalars, &buffer));
     CALL(getFloat64(model, function, scalars, nValues, buffer));
     for (i = 0; i < nValues; i++) {
         values[i] = toFloat32(buffer[i]);
@@ -354,14 +366,7 @@ fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     double *buffer = NULL;
     size_t i;
     BEGIN("fmi3SetFloat32", STATE_SET);
-    CALL(checkValues(model, function, values, nValues));
-    CALL(expandReferences(model, function, valueReferences, nValueReferences, nValues, 1, &scalars));
-    buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
-    if (!buffer) {
-        logError(model, "%s: out of memory", function);
-        status = Error;
-        goto END;
-    }
+    CALL(float32Call(model, function, valueReferences, nValueReferences, values, nValues, &scalars, &buffer));
     for (i = 0; i < nValues; i++) {
         buffer[i] = (double)values[i];
     }
