@@ -656,3 +656,45 @@ def test_selection_is_described(toys):
         "accelerations": "derivatives of the velocity states"}
     text = source.selection_text()
     assert "\n" not in text and "positions q[1], q[2], q[3] (from derivative links)" in text
+
+
+def test_fmpy_default_logging_survives_a_closed_source(tmp_path):
+    """fmpy's native logger proxy keeps the last logger it was given in one process-wide slot, also for fmpy's own
+    default callbacks.  A source's logger used to go into that slot and die with the source: the next FMU that
+    logged through fmpy's defaults crashed the process (segmentation fault).  Run in a child process, which such a
+    crash kills, after a source has recorded, been closed and collected."""
+    import subprocess
+    import sys
+    import textwrap
+
+    from fmu_opinf import fmus
+
+    if fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build the benchmark FMU")
+    fmu = fmus.bundled_fmu("AnchoredMSD")   # its kernel logs the error below
+    script = textwrap.dedent(f"""
+        import gc
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from fmu_opinf.snapshots import record
+        from fmu_opinf.source import FMUSource
+        source = FMUSource({str(fmu)!r})
+        record(source, "step", 0.5, 2.0, quiet=True)
+        del source
+        gc.collect()
+        folder = extract({str(fmu)!r})
+        md = read_model_description(folder)
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="other")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        try:
+            fmu.setReal([999999], [1.0])   # an error the FMU logs
+        except Exception:
+            pass
+        print("survived")
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "survived" in done.stdout, done.stderr[-500:]

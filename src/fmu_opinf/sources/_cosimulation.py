@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import ctypes
+import itertools
 import math
 import multiprocessing.util
 import os
 import shutil
 import tempfile
+import weakref
 import zipfile
 import zlib
 from pathlib import Path
@@ -24,6 +26,48 @@ from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
                          fmi3_ports, nonzero_start, read_description, start_value)
+
+#: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
+#: carry back to the logger.
+_INSTANCES = itertools.count(1)
+#: The FMI 2 log messages' recipients by key (weak: a closed source is gone).
+_LOG_TARGETS: dict[int, Any] = {}
+_PROXY: list[Any] = []
+
+
+def _fmi2_callbacks(target: Any) -> Any:
+    """FMI 2 callbacks whose log messages reach ``target`` (a bound method), through fmpy's native logger proxy.
+
+    The proxy (which formats the variadic messages) keeps the logger it was last given in one process-wide slot,
+    which fmpy's own default callbacks use too: a logger per source left that slot pointing at freed memory once the
+    source was gone, and the next FMU that logged through fmpy's defaults crashed the process (found 2026-11-28:
+    ``fmpy.simulate_fmu`` after a recording, the FMU logging an error).  The slot now holds one dispatcher for the
+    life of the process; it finds the recipient by the ``componentEnvironment`` the FMU passes back, and hands
+    other instances' messages to fmpy's default printer.
+    """
+    from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, printLogMessage
+
+    if not _PROXY:
+        from fmpy.logging import addLoggerProxy
+
+        def dispatch(env: Any, name: bytes, status: int, category: bytes, message: bytes) -> None:
+            found = _LOG_TARGETS.get(env) if isinstance(env, int) else None
+            logger = found() if found is not None else None
+            (logger or printLogMessage)(env, name, status, category, message)
+
+        master = fmi2CallbackFunctions()
+        master.logger = fmi2CallbackLoggerTYPE(dispatch)
+        addLoggerProxy(ctypes.byref(master))   # master.logger is now the proxy; the slot holds dispatch
+        _PROXY.append(master)
+    key = next(_INSTANCES)
+    _LOG_TARGETS[key] = weakref.WeakMethod(target)
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = _PROXY[0].logger
+    callbacks.allocateMemory = defaultCallbacks.allocateMemory
+    callbacks.freeMemory = defaultCallbacks.freeMemory
+    callbacks.componentEnvironment = key
+    return callbacks
+
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step"]
@@ -610,17 +654,8 @@ class FMUSource(Source):
     def _instantiate(self) -> None:
         fmu = self._fmu
         if self.fmi_version.startswith("2"):
-            from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, defaultCallbacks
-            from fmpy.logging import addLoggerProxy
-
-            cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(
-                lambda env, name, status, category, message: self._logger(env, name, status, category, message))
-            cb.allocateMemory = defaultCallbacks.allocateMemory
-            cb.freeMemory = defaultCallbacks.freeMemory
-            addLoggerProxy(ctypes.byref(cb))
-            self._callbacks = cb
-            fmu.instantiate(callbacks=cb)
+            self._callbacks = _fmi2_callbacks(self._logger)   # kept: the FMU holds a pointer to it
+            fmu.instantiate(callbacks=self._callbacks)
         else:
             fmu.instantiate(logMessage=lambda env, status, cat, msg: self._logger(env, status, msg))
         self._comp = fmu.component if isinstance(fmu.component, int) else fmu.component.value
