@@ -698,3 +698,37 @@ def test_fmpy_default_logging_survives_a_closed_source(tmp_path):
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and "survived" in done.stdout, done.stderr[-500:]
+
+
+def test_a_source_survives_fmpy_simulate_fmu_with_its_own_logger(tmp_path):
+    """``fmpy.simulate_fmu(logger=...)`` leaves fmpy's proxy slot at its logger, which is freed when it returns; a
+    source opened after it logged through that dead pointer (the CI crash of 2026-11-28: an ME recording whose FMU
+    logged an error).  Run in a child process, which such a crash kills."""
+    import subprocess
+    import sys
+    import textwrap
+
+    from fmu_opinf import fmus
+
+    if fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build the benchmark FMU")
+    fmu = fmus.bundled_fmu("AnchoredMSD")
+    script = textwrap.dedent(f"""
+        import gc
+        import fmpy
+        from fmu_opinf.source import FMUSource
+        from fmu_opinf.sources import StepError
+        from fmu_opinf.snapshots import record
+        try:   # the FMU logs its refusal through simulate_fmu's logger, and simulate_fmu raises
+            fmpy.simulate_fmu({str(fmu)!r}, stop_time=1.0, start_values={{"mass": -1.0}},
+                              logger=lambda *args: None)
+        except Exception:
+            pass
+        gc.collect()
+        try:
+            record(FMUSource({str(fmu)!r}, parameters={{"mass": -1}}), "step", 0.5, 2.0, quiet=True)
+        except StepError as exc:
+            print("refused:", exc)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and "mass must be positive" in done.stdout, done.stderr[-500:]

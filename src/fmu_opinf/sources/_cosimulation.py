@@ -32,40 +32,38 @@ from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, bina
 _INSTANCES = itertools.count(1)
 #: The FMI 2 log messages' recipients by key (weak: a closed source is gone).
 _LOG_TARGETS: dict[int, Any] = {}
-_PROXY: list[Any] = []
+_DISPATCH: list[Any] = []
 
 
 def _fmi2_callbacks(target: Any) -> Any:
     """FMI 2 callbacks whose log messages reach ``target`` (a bound method), through fmpy's native logger proxy.
 
     The proxy (which formats the variadic messages) keeps the logger it was last given in one process-wide slot,
-    which fmpy's own default callbacks use too: a logger per source left that slot pointing at freed memory once the
-    source was gone, and the next FMU that logged through fmpy's defaults crashed the process (found 2026-11-28:
-    ``fmpy.simulate_fmu`` after a recording, the FMU logging an error).  The slot now holds one dispatcher for the
-    life of the process; it finds the recipient by the ``componentEnvironment`` the FMU passes back, and hands
-    other instances' messages to fmpy's default printer.
+    which fmpy's default callbacks and ``fmpy.simulate_fmu(logger=...)`` use too.  A logger per source left that
+    slot pointing at freed memory once the source was gone, and the next FMU that logged through the proxy crashed
+    the process (found 2026-11-28: ``fmpy.simulate_fmu`` after a recording, the FMU logging an error); so does
+    ``simulate_fmu``'s own logger after it returns.  The slot is set, at every instantiation, to one dispatcher
+    that lives as long as the process; it finds the recipient by the ``componentEnvironment`` the FMU passes back,
+    and hands other instances' messages to fmpy's default printer.
     """
     from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, printLogMessage
+    from fmpy.logging import addLoggerProxy
 
-    if not _PROXY:
-        from fmpy.logging import addLoggerProxy
-
+    if not _DISPATCH:
         def dispatch(env: Any, name: bytes, status: int, category: bytes, message: bytes) -> None:
             found = _LOG_TARGETS.get(env) if isinstance(env, int) else None
             logger = found() if found is not None else None
             (logger or printLogMessage)(env, name, status, category, message)
 
-        master = fmi2CallbackFunctions()
-        master.logger = fmi2CallbackLoggerTYPE(dispatch)
-        addLoggerProxy(ctypes.byref(master))   # master.logger is now the proxy; the slot holds dispatch
-        _PROXY.append(master)
+        _DISPATCH.append(fmi2CallbackLoggerTYPE(dispatch))
     key = next(_INSTANCES)
     _LOG_TARGETS[key] = weakref.WeakMethod(target)
     callbacks = fmi2CallbackFunctions()
-    callbacks.logger = _PROXY[0].logger
+    callbacks.logger = _DISPATCH[0]
     callbacks.allocateMemory = defaultCallbacks.allocateMemory
     callbacks.freeMemory = defaultCallbacks.freeMemory
     callbacks.componentEnvironment = key
+    addLoggerProxy(ctypes.byref(callbacks))   # the slot holds the dispatcher again; callbacks.logger is the proxy
     return callbacks
 
 
