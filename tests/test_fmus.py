@@ -621,3 +621,25 @@ def test_no_leaks_or_memory_errors_under_valgrind(tmp_path):
                             capture_output=True, text=True)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "All heap blocks were freed" in result.stderr and result.stdout.strip() == "done"
+
+
+def test_a_percent_sign_in_a_message_is_text_for_a_formatting_importer(built, capfd):
+    """The FMI 2 logger's message is a printf format: fmpy's proxy formats it.  A token with conversions in it (given
+    by the importer, repeated in the kernel's refusal) is printed as it was given, instead of reading arguments that
+    are not there."""
+    import subprocess
+    import sys
+    import textwrap
+
+    folder = built["AnchoredMSD"][1]
+    script = textwrap.dedent(f"""
+        from ctypes import byref
+        from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CoSimulation
+        fmu = FMU2Slave(guid="x", unzipDirectory={str(folder)!r}, modelIdentifier="AnchoredMSD", instanceName="p")
+        component = fmu.fmi2Instantiate(b"p", fmi2CoSimulation, b"{{bad%s%s%s%n}}", b"file:///",
+                                        byref(defaultCallbacks), 0, 0)
+        assert component is None
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr[-400:]
+    assert 'token "{bad%s%s%s%n}"' in done.stdout

@@ -36,9 +36,20 @@ static void forwardLog(const ModelInstance *instance, Status status, const char 
     fmi2CallbackLogger logger = (fmi2CallbackLogger)instance->logger;
 
     if (logger) {
-        /* the FMI 2 logger formats its message like printf: the text goes in as an argument, so a '%' in it
-         * (a variable name) is printed, not read as a conversion */
-        logger(instance->environment, instance->instanceName, (fmi2Status)status, category, "%s", message);
+        /* The FMI 2 logger's message is a printf format, and importers that format it read a '%' (in a variable
+         * name) as a conversion with no argument behind it; others print it as it is.  Doubled, it is a plain '%'
+         * to the first and "%%" to the second, and neither reads past the arguments. */
+        char escaped[1024];
+        size_t in, out = 0;
+
+        for (in = 0; message[in] != '\0' && out + 2 < sizeof(escaped); in++) {
+            if (message[in] == '%') {
+                escaped[out++] = '%';
+            }
+            escaped[out++] = message[in];
+        }
+        escaped[out] = '\0';
+        logger(instance->environment, instance->instanceName, (fmi2Status)status, category, escaped);
     }
 }
 
