@@ -402,8 +402,10 @@ def _check_output_file(args: argparse.Namespace, inputs: list) -> None:
     v.check_not_input(args.output, inputs, "output")
     if Path(args.output).is_dir():   # before "exists": --force cannot replace a folder
         raise FileExistsError(f"{args.output} is a directory; give a file name")
-    if args.verb == "export" and Path(args.output).suffix != ".fmu":
-        raise InputSpecError(f"output path {args.output} must end in .fmu")
+    if args.verb == "export":   # the exporter's own checks of the name: a suffix, not a folder
+        from .export import check_output_name
+
+        check_output_name(Path(args.output), overwrite=True)   # an existing file: the line below
     if Path(args.output).exists() and not args.force:
         raise FileExistsError(f"{args.output} exists; pass --force to replace it")
     v.check_writable(args.output, "output")

@@ -619,7 +619,8 @@ def _position_unit(provenance: dict) -> str:
 
 # ------------------------------------------------------------------------- export
 
-def _check_output_name(path: Path, overwrite: bool) -> None:
+def check_output_name(path: Path, overwrite: bool) -> None:
+    """Refuse an output name that is not ``.fmu``, a folder, or an existing file without ``overwrite``."""
     if path.suffix != ".fmu":
         raise FMUError(f"output path {path} must end in .fmu")
     if path.is_dir():
@@ -687,7 +688,7 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with "
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
-    _check_output_name(path, overwrite)
+    check_output_name(path, overwrite)
     with single_threaded():   # dense kernels of a few hundred rows: two BLAS threads collapse under load
         spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)
     _prepare_output_folder(path)   # created only once the arguments are known to be good

@@ -913,7 +913,11 @@ def _require_build_tools() -> str:
 
 
 def _run(command: list[str], what: str) -> None:
-    result = subprocess.run(command, capture_output=True, text=True)
+    _check_result(subprocess.run(command, capture_output=True, text=True), what)
+
+
+def _check_result(result: subprocess.CompletedProcess, what: str) -> None:
+    """A one-line :class:`FmuBuildError` with the last lines of the tool's output if it failed."""
     if result.returncode != 0:
         log = (result.stdout + result.stderr).strip().splitlines()
         tail = " | ".join(line.strip() for line in log[-8:])
@@ -985,10 +989,7 @@ def _run_side_by_side(commands: list[list[str]], what: str) -> None:
     with ThreadPoolExecutor(max_workers=max(1, min(len(commands), usable_cores()))) as pool:
         results = list(pool.map(lambda command: subprocess.run(command, capture_output=True, text=True), commands))
     for result in results:
-        if result.returncode != 0:
-            log = (result.stdout + result.stderr).strip().splitlines()
-            tail = " | ".join(line.strip() for line in log[-8:])
-            raise FmuBuildError(f"{what} failed (exit code {result.returncode}): {tail}")
+        _check_result(result, what)
 
 
 def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:

@@ -103,8 +103,8 @@ class Column:
         return self.element.name
 
 
-#: Parsed descriptions by file (resolved path, inode, size, mtime, ctime), newest last: one process opens the same FMU many times
-#: (pilots, runs, compare's sources), and a large model's XML takes 0.1-0.2 s to parse.
+#: Parsed descriptions by file state (:func:`_file_state`), newest last: one process opens the same FMU many
+#: times (pilots, runs, compare's sources), and a large model's XML takes 0.1-0.2 s to parse.
 _DESCRIPTIONS: OrderedDict[tuple[str, int, int, int, int], Any] = OrderedDict()
 _KEPT_DESCRIPTIONS = 8
 
@@ -112,8 +112,8 @@ _KEPT_DESCRIPTIONS = 8
 def read_description(path: Path) -> Any:
     """Parse the model description, turning every failure into a one-line :class:`FMUError`.
 
-    The parsed description is kept per file state (path, size, modification time) and shared by later calls:
-    callers treat it as read-only.
+    The parsed description is kept per file state (:func:`_file_state`) and shared by later calls: callers treat
+    it as read-only.
     """
     if not path.exists():
         raise FMUError(f"fmu {path} does not exist; check the path")
@@ -418,9 +418,7 @@ class ModelInfo:
             if not var.dims:
                 out.setdefault(label, Element(label, var, 0, alias))
                 continue
-            shape = self.shape(var, overrides)
-            for offset, index in enumerate(itertools.product(*(range(1, s + 1) for s in shape))):
-                name = f"{label}[{','.join(map(str, index))}]"
+            for offset, name in enumerate(element_names(label, self.shape(var, overrides))):
                 out.setdefault(name, Element(name, var, offset, alias))
         return out
 
