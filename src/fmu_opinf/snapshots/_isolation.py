@@ -82,6 +82,7 @@ def produce_inprocess(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink)
             i += count
     finally:
         sink.events = source.events_seen()  # also those before a failure
+        sink.report = source.run_report()
         source.close()
 
 
@@ -144,14 +145,14 @@ def _child_loop(conn: Any, source: Source, t: np.ndarray, U: np.ndarray, count: 
             try:
                 source.advance(rows, i, c, published=count)
             except StepError as exc:
-                conn.send(("fail", str(exc), exc.step, exc.time, source.events_seen()))
+                conn.send(("fail", str(exc), exc.step, exc.time, source.events_seen(), source.run_report()))
                 return
             i += c
             blocks.took(c)
             conn.send(("block", c))
             conn.recv()
         # stepping time without process start-up, and the events the model had
-        conn.send(("done", _time.perf_counter() - started, source.events_seen()))
+        conn.send(("done", _time.perf_counter() - started, source.events_seen(), source.run_report()))
     finally:
         source.close()
 
@@ -216,12 +217,13 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
                 raise StepError(_crash_text(source, proc.exitcode, i, t), i, float(t[min(i, k - 1)]))
             if message[0] == "fail":
                 sink.events = message[4] if len(message) > 4 else None  # the events before the failure
+                sink.report = message[5] if len(message) > 5 else {}
                 raise StepError(message[1], message[2], message[3])
             if message[0] == "error":
                 raise _error_class(message[1])(message[2])
             if message[0] == "done":
                 sink.seconds = message[1]
-                sink.events = message[2]
+                sink.events, sink.report = message[2], message[3]
                 return
             i0 += valid
             here.send("ack")

@@ -75,6 +75,7 @@ class _Sink:
         self.count = 0
         self.block = _block_rows(self.width, self.k)
         self.events: EventCount | None = None  # the producer's: Source.events_seen at the end
+        self.report: dict[str, Any] = {}        # ... and its Source.run_report
 
     @functools.cached_property
     def continuous(self) -> bool:
@@ -358,6 +359,7 @@ def _run_attrs(source: Source, signal: Any, t: np.ndarray, sink: _Sink, failure:
     attrs["created"] = attrs["versions"]["created"]
     if failure is not None:
         attrs["error"] = str(failure)
+    attrs.update(sink.report)   # e.g. the integrator a model-exchange run took
     if sink.events is not None:  # a model-exchange FMU's: co-simulation ones handle theirs unseen
         count, first, inert = sink.events
         attrs["events"] = int(count)

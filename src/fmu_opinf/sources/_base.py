@@ -223,6 +223,11 @@ class Source:
         them (a co-simulation FMU handles its events inside ``doStep``)."""
         return None
 
+    def run_report(self) -> dict[str, Any]:
+        """Provenance of the last run that only the run could tell (a picklable dict of file attributes, e.g. the
+        integrator a model-exchange run chose); empty by default."""
+        return {}
+
     def recipe(self) -> tuple[type, dict[str, Any]]:
         """Class and keywords that rebuild this source in another process."""
         raise NotImplementedError

@@ -65,14 +65,15 @@ import numpy as np
 
 from .._interrupts import check_interrupt
 from ..errors import FMUError, InputSpecError
-from . import _compiled_rk
+from . import _compiled_rk, _linear_hold
 from ._base import EventCount, StepError
 from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
 
 __all__ = ["ModelExchangeSource", "METHODS"]
 
-#: Integrators of :class:`ModelExchangeSource` (``"dop853"`` is the default).
-METHODS = ("dop853", "lsoda", "bdf", "radau", "rk45")
+#: Integrators of :class:`ModelExchangeSource` (``"auto"`` is the default: ``"linear"`` for a stiff model that
+#: qualifies, else ``"dop853"``).
+METHODS = ("auto", "dop853", "linear", "lsoda", "bdf", "radau", "rk45")
 
 #: Event iterations allowed at one time instant before giving up.
 _MAX_EVENT_ITERATIONS = 100
@@ -122,7 +123,7 @@ class ModelExchangeSource(FMUSource):
 
     interface = "me"
 
-    def __init__(self, path: Any, *, method: str = "dop853", **options: Any) -> None:
+    def __init__(self, path: Any, *, method: str = "auto", **options: Any) -> None:
         method = str(method).lower()
         if method not in METHODS:
             raise InputSpecError(f"integrator {method!r} is unknown; choose one of {', '.join(METHODS)}")
@@ -132,7 +133,7 @@ class ModelExchangeSource(FMUSource):
         super().__init__(path, **options)
         self.method = method
         self._options["method"] = method
-        if method == "dop853":
+        if method in ("auto", "dop853", "linear"):
             _compiled_rk.available()  # build the step loop here, once, not in every isolated run's process
 
     @staticmethod
@@ -141,9 +142,27 @@ class ModelExchangeSource(FMUSource):
 
     def provenance(self) -> dict[str, Any]:
         prov = super().provenance()
-        compiled = self.method == "dop853" and _compiled_rk.available()
-        prov["integrator"] = _COMPILED_DOP853_TEXT if compiled else _INTEGRATOR_TEXT[self.method]
+        prov["integrator"] = self._integrator_text(self.method)
         return prov
+
+    def _integrator_text(self, method: str) -> str:
+        if method == "dop853" and _compiled_rk.available():
+            return _COMPILED_DOP853_TEXT
+        return _INTEGRATOR_TEXT[method]
+
+    def run_report(self) -> dict[str, Any]:
+        """The integrator this run took (``auto`` chooses per run, a linear step may hand over to DOP853)."""
+        active = getattr(self, "_active", None)
+        if active is None:
+            return {}
+        text = self._integrator_text(active)
+        if self.method == "auto":
+            text = f"auto: {text}"
+        handover = getattr(self, "_handover", None)
+        if handover is not None:
+            text += (f"; from t={handover[0] - self.start_time:.9g} DOP853, the FMU's derivatives having departed from "
+                     f"the linear model by {handover[1]:.2g} of the absolute tolerance")
+        return {"integrator": text}
 
     def events_seen(self) -> EventCount | None:
         """Events handled since :meth:`start`: how many changed the model, the run's time (not the FMU's) of the
@@ -213,7 +232,57 @@ class ModelExchangeSource(FMUSource):
         self._kernel = (_compiled_rk.kernel(self._comp, self._c_time, self._c_set_x, self._c_dx, self.nx,
                                             self._c_completed if self._needs_completed else None,
                                             2 if self.fmi_version.startswith("2") else 3)
-                        if self.method == "dop853" and self.nx else None)
+                        if self.method in ("auto", "dop853", "linear") and self.nx else None)
+        self._handover: tuple[float, float] | None = None   # (time, defect) where a linear step handed over
+        self._hold: _linear_hold.LinearHold | None = None
+        self._active = self._choose_integrator()
+
+    def _choose_integrator(self) -> str:
+        """The integrator of this run: ``method``, where ``auto`` and ``linear`` are resolved.
+
+        ``linear`` (:mod:`._linear_hold`) needs a model without events (the exact step has none) whose Jacobian
+        can be identified; ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
+        would hold DOP853 to over 40 steps per communication step (``rho(A) h > 250``), and up to
+        :data:`~._linear_hold.MAX_STATES` states.  Everything else takes DOP853, as before ``auto``.
+        """
+        if self.method not in ("auto", "linear"):
+            return self.method
+        if not self.nx or self.nz or self._t_next != math.inf or self._discrete.any():
+            return "dop853"
+        steps = np.diff(self._t)
+        if self.method == "auto" and (self.nx > _linear_hold.MAX_STATES or not steps.size
+                                      or self._stiffness() * float(steps.max()) <= _linear_hold.STIFFNESS_RATIO):
+            return "dop853"
+        self._hold = self._identify_jacobian()
+        return "dop853" if self._hold is None else "linear"
+
+    def _probe_deltas(self) -> np.ndarray:
+        """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
+        difference is exact for a linear model, and large moves keep rounding small against it)."""
+        return np.maximum(self._nominals(), 1e-3 * np.abs(self._origin))
+
+    def _stiffness(self) -> float:
+        """An estimate of the spectral radius of the FMU's Jacobian (a few dozen derivative evaluations), 0 where
+        the FMU refuses the probes."""
+        t, deltas = float(self._t[0]), self._probe_deltas()
+        try:
+            base = self._derivatives(t, np.zeros(self.nx))
+            return _linear_hold.spectral_radius(lambda v: (self._derivatives(t, deltas * v) - base) / deltas, self.nx)
+        except _IntegrationError:
+            return 0.0
+        finally:
+            self._set_states(np.zeros(self.nx))
+
+    def _identify_jacobian(self) -> _linear_hold.LinearHold | None:
+        """The FMU's Jacobian at its start state (``n + 1`` derivative evaluations), None where it refuses."""
+        t = float(self._t[0])
+        try:
+            return _linear_hold.LinearHold.identify(lambda x: self._derivatives(t, x), np.zeros(self.nx),
+                                                    self._probe_deltas())
+        except _IntegrationError:
+            return None
+        finally:
+            self._set_states(np.zeros(self.nx))
 
     def _atol(self, t0: float, t1: float) -> np.ndarray:
         """Absolute tolerance over ``[t0, t1]``: the relative one times each state's largest deviation from its
@@ -367,7 +436,7 @@ class ModelExchangeSource(FMUSource):
         if self.nx:
             try:
                 completed = self._needs_completed and not self._searching and not one_step
-                self._x, t = _INTEGRATORS[self.method](self, t0, t1, completed, one_step)
+                self._x, t = _INTEGRATORS[self._active](self, t0, t1, completed, one_step)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
@@ -592,7 +661,8 @@ class ModelExchangeSource(FMUSource):
             hint = f"the FMU reported: {log}; if the tolerance is the cause, try a looser --tolerance{cs}"
         else:
             hint = f"try a looser --tolerance{cs}"
-        return (f"{self.path.name}: model-exchange integration ({self.method}, tolerance {self.tolerance:g}) failed "
+        method = getattr(self, "_active", self.method)
+        return (f"{self.path.name}: model-exchange integration ({method}, tolerance {self.tolerance:g}) failed "
                 f"at {where}: {reason}; {hint}")
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
@@ -770,6 +840,29 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     return x, t
 
 
+def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
+            one_step: bool = False) -> tuple[np.ndarray, float]:
+    """The exact step of the FMU's linear model over ``[t0, t1]`` (:mod:`._linear_hold`), verified against its
+    derivative at ``t1``; DOP853 from the first step whose defect exceeds the absolute tolerance, to the end of
+    the run (the model is not linear there).  The step is the whole interval: an FMU that needs completed
+    integrator steps gets its call at the interval's end, as from any integrator's last step."""
+    hold = source._hold
+    if hold is None or one_step or source._handover is not None:
+        return _dop853(source, t0, t1, completed, one_step)
+    h = t1 - t0
+    f0 = source.rhs(t0, source._x)
+    x1 = hold.step(source._x, f0, h)
+    f1 = source.rhs(t1, x1)
+    defect = hold.defect(source._x, x1, f0, f1, source._origin, h)
+    if defect.any():   # measured as DOP853 measures its error: absolute tolerance plus relative to the state
+        allowed = source._atol(t0, t1) + source.tolerance * np.maximum(np.abs(source._x), np.abs(x1))
+        ratio = float(np.max(defect / allowed))
+        if ratio > 1.0:
+            source._handover = (t0, ratio)
+            return _dop853(source, t0, t1, completed, one_step)
+    return x1, t1
+
+
 _scipy_dop853 = _solve_ivp("DOP853")
 _stepwise_lsoda = _solve_ivp("LSODA")
 
@@ -778,6 +871,7 @@ _INTEGRATORS: dict[str, Callable[[ModelExchangeSource, float, float, bool, bool]
     "bdf": _solve_ivp("BDF"),
     "radau": _solve_ivp("Radau"),
     "dop853": _dop853,
+    "linear": _linear,
     "rk45": _solve_ivp("RK45"),
 }
 
@@ -787,6 +881,9 @@ _INTEGRATOR_TEXT = {
     "radau": "Radau IIA (scipy.integrate.Radau), restarted at every communication point",
     "dop853": "DOP853 (scipy.integrate.DOP853), restarted at every communication point",
     "rk45": "RK45 (scipy.integrate.RK45), restarted at every communication point",
+    "linear": ("exact zero-order-hold step of the FMU's Jacobian (matrix exponential; identified by differences "
+               "at the start, every step checked against the FMU's derivatives)"),
+    "auto": "auto (linear for a stiff model without events, else DOP853)",
 }
 
 _COMPILED_DOP853_TEXT = ("DOP853 (scipy.integrate.DOP853's method, step loop compiled from fmus/integrator/erk.c), "

@@ -1,0 +1,150 @@
+"""The exact zero-order-hold step of a linear model-exchange FMU: the integrator for stiff models.
+
+A finite-element model of a structure has modes far faster than anything its outputs show (a beam: 5 rad/s to
+3e5 rad/s).  An explicit integrator is held to the stability limit of the fastest of them, and an implicit one
+restarted at every communication point (where the held input jumps) re-estimates its Jacobian there; both crawl
+(docs/real-fmus.md: 20 s per sample).  fmu-opinf's models are linear, ``der(z) = A z + g(u)``, and for a
+linear model the step over an interval of held input is exact:
+
+    z(t + h) = z(t) + P(h) f(z(t)),   P(h) = int_0^h exp(A s) ds = h phi_1(h A),
+
+where ``f`` is the FMU's own derivative with the new input in effect, so the input never has to be identified.
+``A`` is identified once per run from ``n + 1`` derivative evaluations (exact differences for a linear model);
+``P`` comes with ``exp(h A)`` and ``h phi_2(h A)`` from one matrix exponential (Van Loan's block form) per step
+size.  A step costs two derivative evaluations and three ``n x n`` products, whatever the stiffness.
+
+Nothing is taken on trust: after each step the FMU's derivative at the new state, ``f1``, is compared with the
+linear model's, ``f0 + A (z1 - z0)``.  A difference ``d`` that grows linearly over the step moves the state by
+``h phi_2(h A) d`` (the variation-of-constants integral of the difference); where that exceeds the integrator's
+absolute tolerance beyond the FMU's own rounding, the model is not linear (or not time-invariant) there, and
+:class:`LinearHold` says so, and the caller integrates that step, and the rest of the run, with DOP853.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["LinearHold", "spectral_radius", "STIFFNESS_RATIO"]
+
+#: ``auto`` takes the exact step where ``rho(A) h`` exceeds this: DOP853's stability bound (about 6 for
+#: ``|h lambda|``) then forces over 40 steps of 12 evaluations per communication step.
+STIFFNESS_RATIO = 250.0
+
+#: Largest number of states for which ``auto`` takes the exact step (its matrix exponential, of size 3n, takes
+#: about 10 s at n = 2000 on the reference machine).
+MAX_STATES = 2000
+
+#: Differences of the FMU's derivative from the linear model within this many times its rounding are rounding.
+_NOISE_FACTOR = 64.0
+
+
+def spectral_radius(jvp: Callable[[np.ndarray], np.ndarray], n: int, iterations: int = 40,
+                    seed: int = 0) -> float:
+    """Estimate the largest modulus of the eigenvalues of ``A`` from products ``jvp(v) = A v`` (power iteration).
+
+    Parameters
+    ----------
+    jvp : callable
+        ``v -> A v`` (here a directional difference of the FMU's derivatives).
+    n : int
+        Size of ``A``.
+    iterations : int, default=40
+        Products computed.
+    seed : int, default=0
+        Seed of the random start vector (the estimate is reproducible).
+
+    Returns
+    -------
+    float
+        The geometric mean growth of ``||A^k v||`` over the last half of the iterations, a estimate within a small
+        factor of the spectral radius: enough to tell a stiff model from a mild one.
+    """
+    v = np.random.default_rng(seed).standard_normal(n)
+    v /= np.linalg.norm(v)
+    logs = []
+    for _ in range(iterations):
+        w = jvp(v)
+        norm = float(np.linalg.norm(w))
+        if not np.isfinite(norm) or norm == 0.0:
+            return 0.0 if norm == 0.0 else np.inf
+        logs.append(np.log(norm))
+        v = w / norm
+    tail = logs[len(logs) // 2:]
+    return float(np.exp(np.mean(tail)))
+
+
+class LinearHold:
+    """Exact steps of ``der(z) = A z + g`` under held inputs, for a Jacobian ``A`` identified from the FMU.
+
+    Parameters
+    ----------
+    A : ndarray (n, n)
+        Jacobian of the FMU's derivatives with respect to its continuous states.
+    """
+
+    def __init__(self, A: np.ndarray) -> None:
+        self.A = np.ascontiguousarray(A, dtype=float)
+        self._abs_A = np.abs(self.A)
+        self._maps: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    @classmethod
+    def identify(cls, derivatives: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
+                 deltas: np.ndarray) -> "LinearHold":
+        """Identify ``A`` column by column: ``(f(x + delta_j e_j) - f(x)) / delta_j``.
+
+        For a linear model the difference is exact whatever ``delta_j``; large ``delta_j`` (a state's nominal
+        value or more) keep the rounding of the states and of the derivatives small against it.
+        """
+        n = x.size
+        f0 = derivatives(x)
+        A = np.empty((n, n))
+        probe = x.copy()
+        for j in range(n):
+            probe[j] = x[j] + deltas[j]
+            A[:, j] = (derivatives(probe) - f0) / (probe[j] - x[j])
+            probe[j] = x[j]
+        return cls(A)
+
+    def maps(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(exp(h A), h phi_1(h A), h phi_2(h A))`` for the step ``h`` (computed once per step size)."""
+        key = float(f"{h:.13g}")   # steps of one grid differ in their last bits: one map for them all
+        found = self._maps.get(key)
+        if found is None:
+            h = key
+            from scipy.linalg import expm
+
+            n = self.A.shape[0]
+            block = np.zeros((3 * n, 3 * n))
+            block[:n, :n] = h * self.A
+            block[:n, n:2 * n] = h * np.eye(n)
+            block[n:2 * n, 2 * n:] = h * np.eye(n)
+            exp = expm(block)
+            # exp's blocks: (0,0) exp(hA), (0,1) int_0^h exp(As) ds = h phi_1, (0,2) int_0^h exp(A(h-s)) s ds
+            # = h^2 phi_2
+            found = (np.ascontiguousarray(exp[:n, :n]), np.ascontiguousarray(exp[:n, n:2 * n]),
+                     np.ascontiguousarray(exp[:n, 2 * n:]) / h)
+            if len(self._maps) > 8:
+                self._maps.clear()
+            self._maps[key] = found
+        return found
+
+    def step(self, x0: np.ndarray, f0: np.ndarray, h: float) -> np.ndarray:
+        """The state after ``h`` from ``x0``, where the FMU's derivative with the held input is ``f0``."""
+        return x0 + self.maps(h)[1] @ f0
+
+    def defect(self, x0: np.ndarray, x1: np.ndarray, f0: np.ndarray, f1: np.ndarray, origin: np.ndarray,
+               h: float) -> np.ndarray:
+        """How far a step from ``x0`` to ``x1`` (deviations from ``origin``) is off where the FMU is not the
+        linear model: its derivatives ``f0, f1`` at the ends differ from the linear model's by
+        ``d = f1 - f0 - A (x1 - x0)``; the part of ``d`` above the derivatives' rounding, growing over the step,
+        moves the end state by ``h phi_2(h A) d``.  Zero for a linear model (the matrix exponential's own
+        rounding is not measured here: it is that of the exact solution, tests/test_linear_hold.py)."""
+        difference = f1 - f0 - self.A @ (x1 - x0)
+        states = np.abs(origin + x0) + np.abs(origin + x1)
+        rounding = _NOISE_FACTOR * np.finfo(float).eps * (self._abs_A @ states + np.abs(f0) + np.abs(f1))
+        difference[np.abs(difference) <= rounding] = 0.0
+        if not difference.any():
+            return difference
+        return np.abs(self.maps(h)[2] @ difference)

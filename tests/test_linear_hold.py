@@ -1,0 +1,160 @@
+"""The exact hold step of model exchange for stiff linear FMUs (:mod:`fmu_opinf.sources._linear_hold`).
+
+References: the model's exact modal solution (its own matrices, mode by mode, not the Jacobian that the step
+identifies through the FMU), closed forms for the step maps, and scipy's DOP853 on a nonlinear right-hand side
+for the hand-over.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from fmu_opinf import lti_fmus
+from fmu_opinf.snapshots import record
+from fmu_opinf.sources import open_source
+from fmu_opinf.sources import _model_exchange as me
+from fmu_opinf.sources._linear_hold import LinearHold, spectral_radius
+
+DT, T_END = 0.2, 12.0
+SIGNAL = "impulse:amplitude=5,t0=0.5,width=0.4"
+
+
+def stiff_chain(link: float = 4e6) -> lti_fmus.LinearMechanicalModel:
+    """Six masses on soft springs (20 N/m) with one stiff link (4e6 N/m: a mode at 2.9e3 rad/s against 2 to 8
+    rad/s), Rayleigh damping: ``rho(A) dt`` = 580 at dt = 0.2 s, where DOP853 is held to about a hundred steps
+    per communication step by the stiff mode."""
+    n = 6
+    springs = np.full(n, 20.0)
+    springs[3] = link
+    K = np.diag(springs + np.r_[springs[1:], 0.0]) - np.diag(springs[1:], 1) - np.diag(springs[1:], -1)
+    M = np.diag([1.0, 1.5, 0.8, 1.2, 1.0, 0.9])
+    B = np.zeros((n, 1))
+    B[-1, 0] = 1.0
+    Cp = np.zeros((2, n))
+    Cp[0, -1] = Cp[1, 0] = 1.0
+    return lti_fmus.LinearMechanicalModel(M=M, D=0.05 * M + 1e-6 * K, K=K, B=B, f0=np.full(n, 0.5), Cp=Cp,
+                                          x0=np.r_[0.0, 0.01, 0.0, 0.0, 0.0, -0.02], name="StiffChain")
+
+
+@pytest.fixture(scope="module")
+def stiff_fmu(tmp_path_factory):
+    path = tmp_path_factory.mktemp("stiff") / "StiffChain.fmu"
+    lti_fmus.build_lti_fmu(stiff_chain(), path, interfaces=("me",))
+    return path
+
+
+def modal_response(model: lti_fmus.LinearMechanicalModel, t: np.ndarray, held: np.ndarray):
+    """Exact positions and velocities under held inputs, mode by mode: Rayleigh damping decouples the modes of
+    ``K v = w^2 M v``, and each is a 2 x 2 system with its own exponential (better conditioned than any
+    exponential of the whole first-order matrix, whose entries span 1 to 4e6)."""
+    from scipy.linalg import eigh, expm
+
+    w2, modes = eigh(model.K, model.M)
+    damping = np.einsum("ji,jk,ki->i", modes, model.D, modes)
+    forces = modes.T @ (model.B @ held + model.f0[:, None])
+    h = float(t[1] - t[0])
+    maps = []
+    for square, d in zip(w2, damping):
+        block = np.zeros((3, 3))
+        block[:2, :2] = h * np.array([[0.0, 1.0], [-square, -d]])
+        block[1, 2] = h
+        maps.append(expm(block))
+    maps = np.array(maps)
+    q = np.zeros((len(w2), len(t)))
+    qd = np.zeros_like(q)
+    q[:, 0], qd[:, 0] = modes.T @ model.M @ model.x0, modes.T @ model.M @ model.v0
+    for k in range(len(t) - 1):
+        q[:, k + 1] = maps[:, 0, 0] * q[:, k] + maps[:, 0, 1] * qd[:, k] + maps[:, 0, 2] * forces[:, k]
+        qd[:, k + 1] = maps[:, 1, 0] * q[:, k] + maps[:, 1, 1] * qd[:, k] + maps[:, 1, 2] * forces[:, k]
+    return modes @ q, modes @ qd
+
+
+def errors(run) -> dict[str, float]:
+    held = np.hstack([run.u[:, 1:], run.u[:, -1:]])
+    x, v = modal_response(stiff_chain(), run.t, held)
+    return {"x": float(np.abs(run.x - x).max() / np.abs(x).max()),
+            "xdot": float(np.abs(run.xdot - v).max() / np.abs(v).max())}
+
+
+@pytest.mark.parametrize("isolate", [False, True], ids=["in-process", "isolated"])
+def test_auto_takes_the_exact_step_on_a_stiff_model_and_matches_the_exact_solution(stiff_fmu, isolate):
+    run = record(open_source(stiff_fmu), SIGNAL, DT, T_END, quiet=True, isolate=isolate).runs[0]
+    assert run.attrs["integrator"].startswith("auto: exact zero-order-hold step")
+    assert "DOP853" not in run.attrs["integrator"]   # no hand-over on a linear model
+    linear = errors(run)
+    assert linear["x"] < 3e-10 and linear["xdot"] < 8e-10, linear   # measured 1.2e-10, 3.3e-10
+    if isolate:
+        return
+    reference = record(open_source(stiff_fmu, method="dop853"), SIGNAL, DT, T_END, quiet=True).runs[0]
+    assert run.attrs["integrator"] != reference.attrs["integrator"]
+    # as accurate as DOP853 at its tolerance 1e-10 (positions 1.1e-10, velocities 2.8e-8); the time is
+    # benchmarks/bench_me.py's (a few states here: both take milliseconds)
+    assert max(linear.values()) <= 2 * max(errors(reference).values())
+
+
+def test_a_mild_model_stays_with_dop853(stiff_fmu, tmp_path):
+    soft = stiff_chain(link=20.0)
+    path = tmp_path / "Soft.fmu"
+    lti_fmus.build_lti_fmu(soft, path, interfaces=("me",))
+    run = record(open_source(path), SIGNAL, DT, 2.0, quiet=True).runs[0]
+    assert run.attrs["integrator"].startswith("auto: DOP853")
+
+
+def test_the_step_maps_are_the_closed_forms():
+    """exp(hA), h phi_1(hA), h phi_2(hA) of a diagonal A, against (e^z - 1)/z and (e^z - 1 - z)/z^2."""
+    lam = np.array([-3.0e4, -2.0, 0.0, 0.5])
+    hold = LinearHold(np.diag(lam))
+    h = 0.1
+    exp, phi1, phi2 = hold.maps(h)
+    z = h * lam
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p1 = np.where(z == 0, 1.0, np.expm1(z) / z)
+        p2 = np.where(z == 0, 0.5, (np.expm1(z) - z) / z**2)
+    assert np.allclose(np.diag(exp), np.exp(z), rtol=1e-14, atol=1e-300)
+    assert np.allclose(np.diag(phi1), h * p1, rtol=1e-13)
+    assert np.allclose(np.diag(phi2), h * p2, rtol=1e-12)
+
+
+def test_spectral_radius_is_within_a_small_factor():
+    rng = np.random.default_rng(3)
+    Q = np.linalg.qr(rng.standard_normal((8, 8)))[0]
+    eigenvalues = np.array([-5e5, -2e3, -40.0, -1.0, -0.5, -0.1, -0.01, 0.0])
+    A = Q @ np.diag(eigenvalues) @ Q.T
+    estimate = spectral_radius(lambda v: A @ v, 8)
+    assert 0.5 * 5e5 < estimate < 2 * 5e5
+
+
+class _NonlinearSource:
+    """What :func:`_model_exchange._linear` uses of a source, for ``x' = -x - x^3 / 3`` (linear near 0)."""
+
+    tolerance = 1e-10
+    _kernel = None
+
+    def __init__(self, x0: float) -> None:
+        self._x = np.array([x0])
+        self._origin = np.zeros(1)
+        self._hold = LinearHold(np.array([[-1.0]]))   # the Jacobian at 0
+        self._handover = None
+        self._h_last = math.nan
+
+    def rhs(self, t, x):
+        return -x - x**3 / 3
+
+    def _atol(self, t0, t1):
+        return np.full(1, 1e-12)
+
+
+def test_a_step_of_a_model_that_is_not_linear_hands_over_to_dop853():
+    source = _NonlinearSource(0.5)
+    x1, t1 = me._linear(source, 0.0, 0.1, False)
+    assert source._handover is not None and source._handover[0] == 0.0 and source._handover[1] > 1e3
+    exact = solve_ivp(source.rhs, (0.0, 0.1), [0.5], method="DOP853", rtol=1e-13, atol=1e-15).y[0, -1]
+    assert abs(x1[0] - exact) < 1e-11 and t1 == 0.1
+    near_zero = _NonlinearSource(1e-7)   # x^3/3 is below the derivatives' rounding: the linear step stands
+    x1, _ = me._linear(near_zero, 0.0, 0.1, False)
+    assert near_zero._handover is None
+    assert abs(x1[0] - 1e-7 * math.exp(-0.1)) < 1e-22
