@@ -139,6 +139,7 @@ class _NonlinearSource:
         self._origin = np.zeros(1)
         self._hold = LinearHold(np.array([[-1.0]]))   # the Jacobian at 0
         self._handover = None
+        self._f_end = None
         self._h_last = math.nan
 
     def rhs(self, t, x):

@@ -235,7 +235,12 @@ class ModelExchangeSource(FMUSource):
                         if self.method in ("auto", "dop853", "linear") and self.nx else None)
         self._handover: tuple[float, float] | None = None   # (time, defect) where a linear step handed over
         self._hold: _linear_hold.LinearHold | None = None
+        self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
         self._active = self._choose_integrator()
+
+    def _call_set(self, raw: np.ndarray, single: np.ndarray | None = None) -> int:
+        self._f_end = None   # the derivative where the last step ended is that of the former input
+        return super()._call_set(raw, single)
 
     def _choose_integrator(self) -> str:
         """The integrator of this run: ``method``, where ``auto`` and ``linear`` are resolved.
@@ -850,9 +855,11 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if hold is None or one_step or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
     h = t1 - t0
-    f0 = source.rhs(t0, source._x)
+    end = source._f_end   # the derivative where the last step ended, if no input was set since
+    f0 = end[2] if end is not None and end[0] is source._x and end[1] == t0 else source.rhs(t0, source._x)
     x1 = hold.step(source._x, f0, h)
     f1 = source.rhs(t1, x1)
+    source._f_end = (x1, t1, f1)
     defect = hold.defect(source._x, x1, f0, f1, source._origin, h)
     if defect.any():   # measured as DOP853 measures its error: absolute tolerance plus relative to the state
         allowed = source._atol(t0, t1) + source.tolerance * np.maximum(np.abs(source._x), np.abs(x1))
