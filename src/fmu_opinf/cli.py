@@ -52,9 +52,10 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
                        help="relative tolerance of the model-exchange integration, also passed to the FMU "
                             "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
     group.add_argument("--me-method", dest="method", metavar="METHOD",
-                       help="integrator of model exchange: dop853 (default, explicit Runge-Kutta of order 8; "
-                            "also the fastest on the stiff models measured), lsoda, bdf, radau or rk45; recorded in "
-                            "the provenance (docs/real-fmus.md)")
+                       help="integrator of model exchange: auto (default: linear for a stiff model without events, "
+                            "else dop853), dop853 (explicit Runge-Kutta of order 8), linear (the exact step of the "
+                            "FMU's identified Jacobian under held inputs, each step checked, DOP853 where the model is "
+                            "not linear), lsoda, bdf, radau or rk45; recorded in the provenance (docs/real-fmus.md)")
     group.add_argument("--start-time", dest="start_time", type=float, metavar="S",
                        help="FMU time at which every run starts (the FMU runs at S + t; inputs, windows and the "
                             "recorded times still start at 0); default: the FMU's DefaultExperiment startTime, else 0"
