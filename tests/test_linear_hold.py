@@ -96,6 +96,29 @@ def test_auto_takes_the_exact_step_on_a_stiff_model_and_matches_the_exact_soluti
     assert max(linear.values()) <= 2 * max(errors(reference).values())
 
 
+def test_the_exact_step_at_a_large_start_time(stiff_fmu):
+    """At FMU time 1e7 s the grid's steps differ by ulps of the time: one step map serves them all."""
+    from fmu_opinf.sources._linear_hold import LinearHold
+
+    calls = []
+    original = LinearHold.maps
+
+    def counted(self, h):
+        found = original(self, h)
+        calls.append(id(found[0]))
+        return found
+
+    LinearHold.maps = counted
+    try:
+        run = record(open_source(stiff_fmu, start_time=1e7), SIGNAL, DT, T_END, quiet=True).runs[0]
+    finally:
+        LinearHold.maps = original
+    assert run.attrs["integrator"].startswith("auto: exact zero-order-hold step")
+    assert len(set(calls)) == 1 and len(calls) == len(run.t) - 1
+    linear = errors(run)
+    assert linear["x"] < 3e-10 and linear["xdot"] < 8e-10, linear
+
+
 def test_a_mild_model_stays_with_dop853(stiff_fmu, tmp_path):
     soft = stiff_chain(link=20.0)
     path = tmp_path / "Soft.fmu"
@@ -141,6 +164,7 @@ class _NonlinearSource:
         self._hold = LinearHold(np.array([[-1.0]]))   # the Jacobian at 0
         self._handover = None
         self._f_end = None
+        self._nominal_step = math.nan
         self._h_last = math.nan
 
     def rhs(self, t, x):

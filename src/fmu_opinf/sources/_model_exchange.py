@@ -239,6 +239,7 @@ class ModelExchangeSource(FMUSource):
                         if self.method in ("auto", "dop853", "linear") and self.nx else None)
         self._handover: tuple[float, float] | None = None   # (time, defect) where a linear step handed over
         self._hold: _linear_hold.LinearHold | None = None
+        self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
         self._active = self._choose_integrator()
 
@@ -251,17 +252,19 @@ class ModelExchangeSource(FMUSource):
 
         ``linear`` (:mod:`._linear_hold`) needs a model without events (the exact step has none) whose Jacobian
         can be identified; ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
-        would hold DOP853 to over 40 steps per communication step (``rho(A) h > 250``), and up to
-        :data:`~._linear_hold.MAX_STATES` states.  Everything else takes DOP853, as before ``auto``.
+        would hold DOP853 to over 40 steps per communication step (``rho(A) h > 250``), on a uniform grid and up
+        to :data:`~._linear_hold.MAX_STATES` states.  Everything else takes DOP853, as before ``auto``.
         """
         if self.method not in ("auto", "linear"):
             return self.method
         if not self.nx or self.nz or self._t_next != math.inf or self._discrete.any():
             return "dop853"
         steps = np.diff(self._t)
-        if self.method == "auto" and (self.nx > _linear_hold.MAX_STATES or not steps.size
+        self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
+        uniform = steps.size and np.ptp(steps) <= 1e-9 * float(steps.max()) + 16 * math.ulp(float(self._t[-1]))
+        if self.method == "auto" and (self.nx > _linear_hold.MAX_STATES or not uniform
                                       or self._stiffness() * float(steps.max()) <= _linear_hold.STIFFNESS_RATIO):
-            return "dop853"
+            return "dop853"   # (a grid of many step sizes would need one matrix exponential for each)
         self._hold = self._identify_jacobian()
         return "dop853" if self._hold is None else "linear"
 
@@ -859,6 +862,10 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if hold is None or one_step or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
     h = t1 - t0
+    if abs(h - source._nominal_step) <= 16 * math.ulp(max(abs(t0), abs(t1))):
+        # a uniform grid at a large time (1e7 s): its steps differ by ulps of the time; the nominal step keeps
+        # the sum of the steps, where rounding each would drift (1.3e-7 of the motion in 60 steps)
+        h = source._nominal_step
     end = source._f_end   # the derivative where the last step ended, if no input was set since
     f0 = end[2] if end is not None and end[0] is source._x and end[1] == t0 else source.rhs(t0, source._x)
     x1 = hold.step(source._x, f0, h)
