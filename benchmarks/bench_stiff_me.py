@@ -80,7 +80,8 @@ def bench(elements: int, dt: float, t_end: float, dop853_samples: int, folder: P
     path = folder / f"Beam{elements}.fmu"
     lti_fmus.build_lti_fmu(model, path, naming="generic", interfaces=("me",))
     rows, first = [], None
-    for method, end in (("auto", t_end), ("dop853", min(t_end, dop853_samples * dt))):
+    plan = [("auto", t_end)] + ([("dop853", min(t_end, dop853_samples * dt))] if dop853_samples > 0 else [])
+    for method, end in plan:
         started = time.perf_counter()
         run = record(open_source(path, method=method), SIGNAL, dt, end, quiet=True).runs[0]
         seconds = time.perf_counter() - started
@@ -101,7 +102,7 @@ def main() -> None:
     parser.add_argument("--dt", type=float, default=0.01)
     parser.add_argument("--t-end", type=float, default=2.0)
     parser.add_argument("--dop853-samples", type=int, default=20,
-                        help="samples DOP853 records (default 20; the whole run can take hours)")
+                        help="samples DOP853 records (default 20; the whole run can take hours; 0: none)")
     parser.add_argument("--out", help="folder for the FMUs (default: a temporary one)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:

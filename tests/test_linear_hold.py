@@ -184,3 +184,17 @@ def test_a_step_of_a_model_that_is_not_linear_hands_over_to_dop853():
     x1, _ = me._linear(near_zero, 0.0, 0.1, False)
     assert near_zero._handover is None
     assert abs(x1[0] - 1e-7 * math.exp(-0.1)) < 1e-22
+
+
+@pytest.mark.parametrize("n, rho_h, samples, seconds, expected", [
+    (12, 580.0, 60, 5e-6, True),         # the stiff chain above
+    (12, 200.0, 60, 5e-6, False),        # mild: DOP853 takes a few steps per sample
+    (400, 2e5, 200, 2e-5, True),         # a 200-element beam
+    (4000, 500.0, 1000, 3e-3, True),     # an FE model of 2000 DOFs: 80 s of set-up against hours
+    (4000, 300.0, 10, 5e-5, False),      # ... recorded for 10 samples only: the set-up costs more
+    (4001, 1e6, 1000, 1e-2, False),      # above MAX_STATES: memory
+])
+def test_auto_takes_the_exact_step_where_it_pays(n, rho_h, samples, seconds, expected):
+    from fmu_opinf.sources._linear_hold import exact_step_pays
+
+    assert exact_step_pays(n, rho_h, samples, seconds) is expected

@@ -25,15 +25,34 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["LinearHold", "spectral_radius", "STIFFNESS_RATIO"]
+__all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "STIFFNESS_RATIO", "MAX_STATES"]
 
-#: ``auto`` takes the exact step where ``rho(A) h`` exceeds this: DOP853's stability bound (about 6 for
-#: ``|h lambda|``) then forces over 40 steps of 12 evaluations per communication step.
+#: ``auto`` considers the exact step where ``rho(A) h`` exceeds this: DOP853's stability bound (about 3.3 for
+#: ``|h lambda|`` on the negative real axis) then forces over 70 steps of 12 evaluations per communication step.
 STIFFNESS_RATIO = 250.0
 
-#: Largest number of states for which ``auto`` takes the exact step (its matrix exponential, of size 2n, takes
-#: about 10 s at n = 2000 on the reference machine).
-MAX_STATES = 2000
+#: Largest number of states for which ``auto`` takes the exact step: its matrix exponential, of size 2n, took
+#: 10-25 s and 1.1 GB at n = 2000 on the reference machine; at n = 4000 about 8 times the time, 4 times the memory.
+MAX_STATES = 4000
+
+#: Seconds of the matrix exponential per ``(2n)^3`` (scipy's expm on the reference machine: 10.5 s at n = 2000 idle,
+#: 25 s under load and with a larger norm).
+_EXPM_SECONDS_PER_CUBE = 3e-10
+
+
+def exact_step_pays(n: int, rho_h: float, samples: int, evaluation_seconds: float) -> bool:
+    """Whether ``auto`` takes the exact step: a stiff model (``rho(A) h`` above :data:`STIFFNESS_RATIO`) of at most
+    :data:`MAX_STATES` states whose predicted recording time is shorter than DOP853's.
+
+    DOP853 is held to about ``rho(A) h / 3.3`` steps of 12 derivative evaluations per sample; the exact step costs
+    ``n + 1`` evaluations and one matrix exponential of size ``2n`` to set up, then two evaluations per sample.
+    """
+    if n > MAX_STATES or not rho_h > STIFFNESS_RATIO:
+        return False
+    dop853 = samples * 12.0 * (rho_h / 3.3) * evaluation_seconds
+    exact = (n + 1 + 2 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
+    return exact < dop853
+
 
 #: Differences of the FMU's derivative from the linear model within this many times its rounding are rounding.
 _NOISE_FACTOR = 64.0

@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import time
 import warnings
 from typing import Any, Callable
 
@@ -252,8 +253,9 @@ class ModelExchangeSource(FMUSource):
 
         ``linear`` (:mod:`._linear_hold`) needs a model without events (the exact step has none) whose Jacobian
         can be identified; ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
-        would hold DOP853 to over 40 steps per communication step (``rho(A) h > 250``), on a uniform grid and up
-        to :data:`~._linear_hold.MAX_STATES` states.  Everything else takes DOP853, as before ``auto``.
+        would hold DOP853 to over 70 steps per communication step (``rho(A) h > 250``), on a uniform grid, up to
+        :data:`~._linear_hold.MAX_STATES` states, and where its set-up (a matrix exponential of size 2n) is
+        predicted to cost less than DOP853's steps (:func:`~._linear_hold.exact_step_pays`).  Everything else takes DOP853, as before ``auto``.
         """
         if self.method not in ("auto", "linear"):
             return self.method
@@ -262,9 +264,12 @@ class ModelExchangeSource(FMUSource):
         steps = np.diff(self._t)
         self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
         uniform = steps.size and np.ptp(steps) <= 1e-9 * float(steps.max()) + 16 * math.ulp(float(self._t[-1]))
-        if self.method == "auto" and (self.nx > _linear_hold.MAX_STATES or not uniform
-                                      or self._stiffness() * float(steps.max()) <= _linear_hold.STIFFNESS_RATIO):
-            return "dop853"   # (a grid of many step sizes would need one matrix exponential for each)
+        if self.method == "auto":
+            if self.nx > _linear_hold.MAX_STATES or not uniform:
+                return "dop853"   # (a grid of many step sizes would need one matrix exponential for each)
+            rho, seconds = self._stiffness()
+            if not _linear_hold.exact_step_pays(self.nx, rho * float(steps.max()), len(steps), seconds):
+                return "dop853"
         self._hold = self._identify_jacobian()
         return "dop853" if self._hold is None else "linear"
 
@@ -273,17 +278,24 @@ class ModelExchangeSource(FMUSource):
         difference is exact for a linear model, and large moves keep rounding small against it)."""
         return np.maximum(self._nominals(), 1e-3 * np.abs(self._origin))
 
-    def _stiffness(self) -> float:
-        """An estimate of the spectral radius of the FMU's Jacobian (a few dozen derivative evaluations), 0 where
-        the FMU refuses the probes."""
+    def _stiffness(self) -> tuple[float, float]:
+        """An estimate of the spectral radius of the FMU's Jacobian (a few dozen derivative evaluations; 0 where the
+        FMU refuses the probes) and the seconds one evaluation took."""
         t, deltas = float(self._t[0]), self._probe_deltas()
+        started, calls = time.perf_counter(), [0]
+
+        def product(v: np.ndarray) -> np.ndarray:
+            calls[0] += 1
+            return (self._derivatives(t, deltas * v) - base) / deltas
+
         try:
             base = self._derivatives(t, np.zeros(self.nx))
-            return _linear_hold.spectral_radius(lambda v: (self._derivatives(t, deltas * v) - base) / deltas, self.nx)
+            rho = _linear_hold.spectral_radius(product, self.nx)
         except _IntegrationError:
-            return 0.0
+            rho = 0.0
         finally:
             self._set_states(np.zeros(self.nx))
+        return rho, (time.perf_counter() - started) / (calls[0] + 1)
 
     def _identify_jacobian(self) -> _linear_hold.LinearHold | None:
         """The FMU's Jacobian at its start state (``n + 1`` derivative evaluations), None where it refuses."""
