@@ -202,7 +202,9 @@ def read_columns(array: Any, j0: int, j1: int, label: str) -> np.ndarray:
     (n, j1 - j0) ndarray
     """
     try:
-        block = np.asarray(array[:, j0:j1], dtype=np.float64)
+        # C order whatever the array's layout: BLAS rounds F- and C-ordered operands differently, and the fit of
+        # a recording in memory (F order) must be the same bits as the fit of its file (C order)
+        block = np.ascontiguousarray(array[:, j0:j1], dtype=np.float64)
     except (OSError, KeyError, ValueError, RuntimeError) as exc:
         raise FileFormatError(f"cannot read columns {j0}:{j1} of {label} ({exc}); the file may be truncated") from exc
     if not np.all(np.isfinite(block)):

@@ -374,7 +374,22 @@ class SecondOrderROM:
             here; the states are formed on first access of ``q``, ``qdot`` or ``qddot`` (the same values as if
             formed here; at r = 35 they cost about ten times the outputs, ``benchmarks/bench_rom.py``).
         """
-        from ._recursion import rom_evaluate, rom_step
+        from ._recursion import rom_evaluate
+
+        t, u, step, s0 = self._prepared_run(signal, dt, t_end, q0, qdot0)
+        # the step is one linear map, evaluated in blocks of steps (fmu_opinf._recursion); the outputs alone
+        # are far cheaper than the states, which are formed only if asked for; small matrices: one BLAS thread
+        with _threads.single_threaded():
+            outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
+            y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
+        states = functools.partial(_threads.run_single_threaded, rom_evaluate, step, s0, u)  # picklable
+        return ROMTrajectory(t=t, u=u, y=y, states=states)
+
+    def _prepared_run(self, signal: Signal | str, dt: float, t_end: float, q0: np.ndarray | None = None,
+                      qdot0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, Any, np.ndarray]:
+        """The grid, the inputs in effect, the step map and the initial state ``[q; q'; q'']`` of
+        :meth:`simulate` (whose docstring says how the initial state is chosen)."""
+        from ._recursion import rom_step
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
@@ -390,14 +405,9 @@ class SecondOrderROM:
         qdot0 = self.qdot0 if qdot0 is None else _vector(qdot0, self.r)
         qddot0 = scipy.linalg.solve(self.Mr, self.Br @ u[:, 0] + self.fr - self.Dr @ qdot0 - self.Kr @ q0,
                                     assume_a="sym")
-        # the step is one linear map, evaluated in blocks of steps (fmu_opinf._recursion); the outputs alone
-        # are far cheaper than the states, which are formed only if asked for; small matrices: one BLAS thread
         with _threads.single_threaded():
-            step, s0 = rom_step(self, dt), np.concatenate([q0, qdot0, qddot0])
-            outputs = np.hstack([self.Cpr, self.Cvr, np.zeros_like(self.Cpr)])
-            y = rom_evaluate(step, s0, u, outputs) + self.Dur @ u + self.y0[:, None]
-        states = functools.partial(_threads.run_single_threaded, rom_evaluate, step, s0, u)  # picklable
-        return ROMTrajectory(t=t, u=u, y=y, states=states)
+            step = rom_step(self, dt)
+        return t, u, step, np.concatenate([q0, qdot0, qddot0])
 
     def step_map(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Exact zero-order-hold step of the reduced ODE (``integrator="exact"``) as one linear map.
@@ -1099,6 +1109,7 @@ def _training_position_error(model: SecondOrderROM, run: Any) -> tuple[float, fl
     of a refined ROM can be far less accurate than its outputs (twelfth audit: ``export --reconstruct`` of such a
     ROM gave positions much further off than the outputs, with no word); ``export --reconstruct`` warns from this
     figure.  At most :data:`_POSITION_CHECK_SAMPLES` samples are compared, in blocks (FE-size runs stay lazy)."""
+    from ._recursion import rom_evaluate
     from .signals import TableSignal
 
     t = np.asarray(run.t, dtype=float)
@@ -1108,18 +1119,20 @@ def _training_position_error(model: SecondOrderROM, run: Any) -> tuple[float, fl
     u = np.asarray(run.u, dtype=float)
     held = np.hstack([u[:, 1:], u[:, -1:]])   # column i is held over [t_i, t_i+1] (docs/design.md)
     signal = TableSignal(t - t[0], held, model.input_names, "training run")
-    try:
-        trajectory = model.simulate(signal, dt, float(t[-1] - t[0]))
+    try:   # the states alone: the outputs of a wide-output model would double the fit's memory
+        _, inputs, step, s0 = model._prepared_run(signal, dt, float(t[-1] - t[0]))
+        states = _threads.run_single_threaded(rom_evaluate, step, s0, inputs)
     except Exception:   # noqa: BLE001 -- a check, never a reason for the fit to fail
         return None
-    columns = np.unique(np.linspace(0, min(t.size, trajectory.q.shape[1]) - 1,
+    r = model.r
+    columns = np.unique(np.linspace(0, min(t.size, states.shape[1]) - 1,
                                     min(t.size, _POSITION_CHECK_SAMPLES)).astype(int))
     error = projected = motion = 0.0
     basis = model.basis
     for start in range(0, columns.size, 256):
         part = columns[start:start + 256]
         recorded = np.asarray(run.x[:, part], dtype=float)   # increasing columns: h5py reads them as they are
-        rebuilt = model.reconstruct(trajectory.q[:, part], trajectory.qdot[:, part])
+        rebuilt = model.reconstruct(states[:r, part], states[r:2 * r, part])
         moved = recorded - model.x_ref[:, None]
         error += float(np.sum((rebuilt - recorded) ** 2))
         projected += float(np.sum((moved - basis @ (basis.T @ moved)) ** 2))
