@@ -308,7 +308,8 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
         finally:
             producer.close()
     seconds = getattr(sink, "seconds", None) or time.perf_counter() - start  # the child's own stepping time
-    return y, seconds, source.provenance(), list(source.output_names)
+    # the run's own report (e.g. the integrator a model-exchange run took, which auto chooses per run)
+    return y, seconds, {**source.provenance(), **sink.report}, list(source.output_names)
 
 
 class _RowBuffer:
@@ -319,6 +320,7 @@ class _RowBuffer:
         self.buffer = np.empty((block, width))
         self.seconds: float | None = None  # set by an isolated producer: the child's stepping time
         self.events: tuple[int, float | None] | None = None  # set by the producers (not reported by compare)
+        self.report: dict[str, Any] = {}  # set by the producers: the source's run_report
 
     def rows(self, i0: int, count: int) -> np.ndarray:
         return self.buffer[:count]

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "STIFFNESS_RATIO", "MAX_STATES"]
+__all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "STIFFNESS_RATIO", "MAX_STATES", "CARRY_MAX_STATES"]
 
 #: ``auto`` considers the exact step where ``rho(A) h`` exceeds this: DOP853's stability bound (about 3.3 for
 #: ``|h lambda|`` on the negative real axis) then forces over 70 steps of 12 evaluations per communication step.
@@ -34,6 +34,11 @@ STIFFNESS_RATIO = 250.0
 #: Largest number of states for which ``auto`` takes the exact step: its matrix exponential, of size 2n, took
 #: 10-25 s and 1.1 GB at n = 2000 on the reference machine; at n = 4000 about 8 times the time, 4 times the memory.
 MAX_STATES = 4000
+
+#: Largest number of states for which a step's defect is carried to the end state exactly (:meth:`LinearHold.carry`,
+#: a matrix exponential of size 3n: about 10 matrices of 72 MB at n = 1000, 9.8 GB at n = 4000); above it, by the
+#: bound ``|h phi_2(h A) d| <= h |d| / 2`` of a dissipative normal ``A``, which may hand a stiff model over sooner.
+CARRY_MAX_STATES = 1000
 
 #: Seconds of the matrix exponential per ``(2n)^3`` (scipy's expm on the reference machine: 10.5 s at n = 2000 idle,
 #: 25 s under load and with a larger norm).
@@ -53,6 +58,11 @@ def exact_step_pays(n: int, rho_h: float, samples: int, evaluation_seconds: floa
     exact = (n + 1 + 2 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
     return exact < dop853
 
+
+#: :meth:`LinearHold.identify` probes a column again where its rounding exceeds this fraction of its entries ...
+_COLUMN_ACCURACY = 1e-13
+#: ... with a move at most this many times the first.
+_LARGEST_REPROBE = 1e6
 
 #: Differences of the FMU's derivative from the linear model within this many times its rounding are rounding.
 _NOISE_FACTOR = 64.0
@@ -110,21 +120,44 @@ class LinearHold:
 
     @classmethod
     def identify(cls, derivatives: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
-                 deltas: np.ndarray) -> "LinearHold":
+                 deltas: np.ndarray, origin: np.ndarray | None = None) -> "LinearHold":
         """Identify ``A`` column by column: ``(f(x + delta_j e_j) - f(x)) / delta_j``.
 
-        For a linear model the difference is exact whatever ``delta_j``; large ``delta_j`` (a state's nominal
-        value or more) keep the rounding of the states and of the derivatives small against it.
+        For a linear model the difference is exact whatever ``delta_j``, up to the rounding of the two derivatives
+        (about ``eps (|A| |origin + x| + |f|)``, large about a large ``origin``) divided by ``delta_j``.  A column
+        whose rounding so found exceeds :data:`_COLUMN_ACCURACY` of its entries is probed again with a larger
+        move (at most :data:`_LARGEST_REPROBE` times the first): an inaccurate ``A`` is a real error of the
+        step, which :meth:`defect` would see and hand over for (a chain at 1e8 m with nominal moves of 1 m).
         """
-        n = x.size
         f0 = derivatives(x)
-        A = np.empty((n, n))
-        probe = x.copy()
-        for j in range(n):
-            probe[j] = x[j] + deltas[j]
-            A[:, j] = (derivatives(probe) - f0) / (probe[j] - x[j])
-            probe[j] = x[j]
+        deltas = np.asarray(deltas, dtype=float)
+        A, largest = cls._columns(derivatives, x, f0, deltas, range(x.size))
+        states = np.abs(x if origin is None else origin + x)
+        rounding = 2.0 * np.finfo(float).eps * float(np.max(np.abs(A) @ (states + deltas) + largest))
+        scale = np.abs(A).max(axis=0)
+        wanted = np.where(scale > 0, rounding / (_COLUMN_ACCURACY * np.where(scale > 0, scale, 1.0)), 0.0)
+        again = np.flatnonzero(wanted > deltas)
+        if again.size:
+            moves = deltas.copy()
+            moves[again] = np.minimum(wanted[again], _LARGEST_REPROBE * deltas[again])
+            A[:, again] = cls._columns(derivatives, x, f0, moves, again)[0][:, again]
         return cls(A)
+
+    @staticmethod
+    def _columns(derivatives: Callable[[np.ndarray], np.ndarray], x: np.ndarray, f0: np.ndarray,
+                 deltas: np.ndarray, columns) -> tuple[np.ndarray, np.ndarray]:
+        """The difference quotients of ``columns`` (others zero) and the largest derivatives met."""
+        n = x.size
+        A = np.zeros((n, n))
+        largest = np.abs(f0)
+        probe = x.copy()
+        for j in columns:
+            probe[j] = x[j] + deltas[j]
+            column = derivatives(probe)
+            np.maximum(largest, np.abs(column), out=largest)
+            A[:, j] = (column - f0) / (probe[j] - x[j])
+            probe[j] = x[j]
+        return A, largest
 
     def maps(self, h: float) -> tuple[np.ndarray, np.ndarray]:
         """``(exp(h A), h phi_1(h A))`` for the step ``h``, from one exponential of ``[[A, I], [0, 0]] h``
@@ -189,6 +222,8 @@ class LinearHold:
             return 0.0
         if h * float(np.abs(difference).max()) <= 0.5 * float(allowed.min()):
             return 0.0
+        if self.A.shape[0] > CARRY_MAX_STATES:
+            return float(np.max(0.5 * h * np.abs(difference) / allowed))
         return float(np.max(np.abs(self.carry(h) @ difference) / allowed))
 
 

@@ -98,6 +98,10 @@ class _IntegrationError(Exception):
     """The FMU refused a call inside the right-hand side, or the integrator gave up."""
 
 
+class _ExactStepRefused(_IntegrationError):
+    """The FMU refused the first exact step of a run (:func:`_linear`): the run starts again with DOP853."""
+
+
 class ModelExchangeSource(FMUSource):
     """A model-exchange FMU (FMI 2.0 or 3.0), integrated under zero-order-hold inputs.
 
@@ -163,10 +167,12 @@ class ModelExchangeSource(FMUSource):
         text = self._integrator_text(active)
         if self.method == "auto":
             text = f"auto: {text}"
+        refused = getattr(self, "_exact_refused", None)
+        if refused is not None and self.method in ("auto", "linear"):
+            text += f"; no exact zero-order-hold step: the FMU refused it at the first step ({refused})"
         handover = getattr(self, "_handover", None)
         if handover is not None:
-            text += (f"; from t={handover[0] - self.start_time:.9g} DOP853, the FMU's derivatives having departed from "
-                     f"the linear model by {handover[1]:.2g} of the absolute tolerance")
+            text += f"; from t={handover[0] - self.start_time:.9g} DOP853, {handover[1]}"
         return {"integrator": text}
 
     def events_seen(self) -> EventCount | None:
@@ -238,7 +244,8 @@ class ModelExchangeSource(FMUSource):
                                             self._c_completed if self._needs_completed else None,
                                             2 if self.fmi_version.startswith("2") else 3)
                         if self.method in ("auto", "dop853", "linear") and self.nx else None)
-        self._handover: tuple[float, float] | None = None   # (time, defect) where a linear step handed over
+        self._handover: tuple[float, str] | None = None   # (time, why) where a linear step handed over
+        self._exact_refused: str | None = getattr(self, "_exact_refused", None)   # kept over restarts
         self._hold: _linear_hold.LinearHold | None = None
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
@@ -246,7 +253,25 @@ class ModelExchangeSource(FMUSource):
 
     def _call_set(self, raw: np.ndarray, single: np.ndarray | None = None) -> int:
         self._f_end = None   # the derivative where the last step ended is that of the former input
+        self._inputs_in_effect = (raw, single)   # (a restart sets them again)
         return super()._call_set(raw, single)
+
+    def start(self, t: np.ndarray, U: np.ndarray) -> None:
+        self._run_grid = (t, U)
+        super().start(t, U)
+
+    def _restart_without_exact_step(self, reason: str) -> None:
+        """Start the run again and set the inputs of its first step again, after the FMU refused the exact step
+        there: an FMU that returned an error may take no further call (FMI 2.0 section 2.1.3), and the
+        run had not moved yet.  This source then records with DOP853 (:meth:`_choose_integrator`)."""
+        self._exact_refused = reason
+        raw, single = self._inputs_in_effect
+        raw = raw.copy()
+        single = None if single is None else single.copy()
+        super().start(*self._run_grid)
+        if self._call_set(raw, single) > 1:
+            raise StepError(f"{self.path.name} returned an error setting the input again after its restart", 0,
+                            float(self._t[0]))
 
     def _choose_integrator(self) -> str:
         """The integrator of this run: ``method``, where ``auto`` and ``linear`` are resolved.
@@ -259,7 +284,7 @@ class ModelExchangeSource(FMUSource):
         """
         if self.method not in ("auto", "linear"):
             return self.method
-        if not self.nx or self.nz or self._t_next != math.inf or self._discrete.any():
+        if getattr(self, "_exact_refused", None) is not None or not self.nx or self.nz or self._t_next != math.inf or self._discrete.any():
             return "dop853"
         steps = np.diff(self._t)
         self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
@@ -294,7 +319,7 @@ class ModelExchangeSource(FMUSource):
         except _IntegrationError:
             rho = 0.0
         finally:
-            self._set_states(np.zeros(self.nx))
+            self._end_probes()
         return rho, (time.perf_counter() - started) / (calls[0] + 1)
 
     def _identify_jacobian(self) -> _linear_hold.LinearHold | None:
@@ -302,11 +327,17 @@ class ModelExchangeSource(FMUSource):
         t = float(self._t[0])
         try:
             return _linear_hold.LinearHold.identify(lambda x: self._derivatives(t, x), np.zeros(self.nx),
-                                                    self._probe_deltas())
+                                                    self._probe_deltas(), self._origin)
         except _IntegrationError:
             return None
         finally:
-            self._set_states(np.zeros(self.nx))
+            self._end_probes()
+
+    def _end_probes(self) -> None:
+        """Back to the start state after probing the derivatives, and without the messages the FMU logged for
+        probes it refused (a later failure must not be explained by them)."""
+        self._set_states(np.zeros(self.nx))
+        self._log = []
 
     def _atol(self, t0: float, t1: float) -> np.ndarray:
         """Absolute tolerance over ``[t0, t1]``: the relative one times each state's largest deviation from its
@@ -337,7 +368,7 @@ class ModelExchangeSource(FMUSource):
                 np.maximum(noise, np.abs(self._derivatives(t, row * ulps) - base), out=noise)
         except _IntegrationError:
             noise[:] = 0.0   # the FMU refuses states off its start: the integration will say so if it matters
-        self._set_states(np.zeros(self.nx))
+        self._end_probes()
         return noise
 
     def _absolute(self, x: np.ndarray) -> np.ndarray:
@@ -462,6 +493,9 @@ class ModelExchangeSource(FMUSource):
                 completed = self._needs_completed and not self._searching and not one_step
                 self._x, t = _INTEGRATORS[self._active](self, t0, t1, completed, one_step)
                 np.maximum(self._scale, np.abs(self._x), out=self._scale)
+            except _ExactStepRefused as exc:
+                self._restart_without_exact_step(str(exc))
+                return self._piece(i, t0, t1, one_step)
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
             self._set_states(self._x)
@@ -639,6 +673,7 @@ class ModelExchangeSource(FMUSource):
             raise StepError(f"{exc} (at {self._at(t)})", i, t) from None
         except FMICallException as exc:  # the FMU refused a call of the event iteration
             raise StepError(self._integration_failure(i, t, t, f"the event iteration failed: {exc}"), i, t) from None
+        self._f_end = None   # the event may have changed the derivatives where the last step ended
         states_changed = bool(self.nx) and self._read_states_after_event(i, t)
         if self.nx and nominals_changed:
             self._floor = _floor(self._nominals())
@@ -869,10 +904,33 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     """The exact step of the FMU's linear model over ``[t0, t1]`` (:mod:`._linear_hold`), verified against its
     derivative at ``t1``; DOP853 from the first step whose defect exceeds the absolute tolerance, to the end of
     the run (the model is not linear there).  The step is the whole interval: an FMU that needs completed
-    integrator steps gets its call at the interval's end, as from any integrator's last step."""
+    integrator steps gets its call at the interval's end, as from any integrator's last step.  An FMU that refuses
+    the step (an error status) may take no further call: at the run's first step the run starts again with DOP853
+    (:class:`_ExactStepRefused`), later the run ends with a one-line error naming ``--me-method dop853``."""
     hold = source._hold
     if hold is None or one_step or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
+    try:
+        x1, ratio = _exact_step(source, hold, t0, t1)
+    except _IntegrationError as exc:
+        # e.g. an FMU with a delay buffer refuses a time beyond a gap after its last completed integrator step;
+        # an FMU in error may take no further call: at the run's first step it starts again, else the run ends
+        reason = source._last_log() or str(exc)
+        if t0 == source._t_list[0] and not source._x.any():
+            raise _ExactStepRefused(reason) from None
+        raise _IntegrationError(f"the FMU refused the exact zero-order-hold step ({reason}); record with "
+                                "--me-method dop853") from None
+    if ratio > 1.0:
+        source._handover = (t0, f"the FMU's derivatives having departed from the linear model by {ratio:.2g} of "
+                                "the absolute tolerance")
+        return _dop853(source, t0, t1, completed, one_step)
+    return x1, t1
+
+
+def _exact_step(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float,
+                t1: float) -> tuple[np.ndarray, float]:
+    """The state at ``t1`` by the exact step from the source's state at ``t0``, and its defect as a multiple of
+    what the integrator allows (:meth:`~._linear_hold.LinearHold.defect`)."""
     h = t1 - t0
     if abs(h - source._nominal_step) <= 16 * math.ulp(max(abs(t0), abs(t1))):
         # a uniform grid at a large time (1e7 s): its steps differ by ulps of the time; the nominal step keeps
@@ -885,11 +943,7 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     source._f_end = (x1, t1, f1)
     # allowed as DOP853 measures its error: the absolute tolerance plus the relative one of the state
     allowed = source._atol(t0, t1) + source.tolerance * np.maximum(np.abs(source._x), np.abs(x1))
-    ratio = hold.defect(source._x, x1, f0, f1, source._origin, h, allowed)
-    if ratio > 1.0:
-        source._handover = (t0, ratio)
-        return _dop853(source, t0, t1, completed, one_step)
-    return x1, t1
+    return x1, hold.defect(source._x, x1, f0, f1, source._origin, h, allowed)
 
 
 _scipy_dop853 = _solve_ivp("DOP853")
