@@ -283,3 +283,34 @@ def test_an_error_in_the_trace_solve_stops_the_mass_eigenvalue_process(triple_da
         inference.fit_operators(*data, u, refine=False)
     assert seen and not mp.active_children()
     assert time.perf_counter() - start < 10
+
+
+_TWO_CLARABEL_FITS = """
+import numpy as np
+from fmu_opinf import inference, newmark, systems
+from fmu_opinf.basis import PODBasis
+
+run = newmark.simulate(systems.triple_chain(), "impulse:amplitude=100,t0=2,width=0.5", 0.1, 300.0)
+V = PODBasis(r=20, kind="velocities").fit([run]).basis_
+data = [V.T @ a for a in (run.xddot, run.xdot, run.x)]
+fits = [inference.fit_operators(*data, run.u, refine=False, solver="clarabel") for _ in range(2)]
+assert all(fit.info["sdp_side_by_side"] for fit in fits)
+print(np.array_equal(fits[0].Mr, fits[1].Mr))
+"""
+
+
+@needs_fork
+def test_a_second_fit_in_one_process_forks_beside_clarabel_without_hanging():
+    """Clarabel 0.11 factors with a native thread pool unless told to use one thread; a process forked after that
+    (the SDP's second normalization, from r = 20) inherits the pool without its threads, and its own Clarabel solve
+    waited for them for ever: the second fit of a session hung (2026-12-05, found by benchmarks/bench_fit.py).  In
+    a fresh interpreter, so that a hang fails here after a minute instead of stopping the suite."""
+    import subprocess
+    import sys
+
+    try:
+        done = subprocess.run([sys.executable, "-c", _TWO_CLARABEL_FITS], capture_output=True, text=True, timeout=60)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the second fit hung in its forked SDP solve")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "True"   # and both fits are the same bits

@@ -10,6 +10,7 @@ optimality certificate are in :mod:`fmu_opinf._sdp`.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import warnings
@@ -148,7 +149,21 @@ def _pseudo_solver(A: np.ndarray) -> Callable[[np.ndarray], np.ndarray] | None:
 
 
 def _clarabel_settings(tol: float, verbose: bool) -> dict[str, Any]:
-    return dict(tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol, tol_ktratio=1e-7, verbose=verbose)
+    settings = dict(tol_gap_abs=tol, tol_gap_rel=tol, tol_feas=tol, tol_ktratio=1e-7, verbose=verbose)
+    if _clarabel_has_thread_limit():
+        # one thread: Clarabel 0.11's factorization (faer) otherwise starts a native thread pool, which a process
+        # forked later (the fit's second start, fmu_opinf._background) inherits without its threads: the next
+        # Clarabel solve there waited for them for ever (a second fit in one process hung, 2026-12-05)
+        settings["max_threads"] = 1
+    return settings
+
+
+@functools.cache
+def _clarabel_has_thread_limit() -> bool:
+    """Whether the installed Clarabel takes ``max_threads`` (0.10 on; older ones run one thread anyway)."""
+    import clarabel
+
+    return hasattr(clarabel.DefaultSettings(), "max_threads")
 
 
 _BLOCKS = ("Mr", "Dr", "Kr")
