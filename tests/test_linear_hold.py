@@ -153,6 +153,19 @@ def test_an_fmu_that_refuses_the_exact_step_hands_over_to_dop853(tmp_path, fmi_v
     assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)   # the run started again
 
 
+def test_an_fmu_without_inputs_that_refuses_the_exact_step_starts_again(tmp_path):
+    """The restart sets the inputs of the first step again, where there are any (none here: the start state moves)."""
+    import dataclasses
+
+    path = tmp_path / "Unforced.fmu"
+    unforced = dataclasses.replace(stiff_chain(), B=np.zeros((6, 0)))
+    lti_fmus.build_lti_fmu(unforced, path, interfaces=("me",), completed_step_gap=0.05)
+    run = record(open_source(path), "none", DT, 2.0, quiet=True).runs[0]
+    assert "the FMU refused it at the first step" in run.attrs["integrator"]
+    alone = record(open_source(path, method="dop853"), "none", DT, 2.0, quiet=True).runs[0]
+    assert np.array_equal(run.x, alone.x) and np.ptp(run.x) > 0.01
+
+
 def test_a_mild_model_stays_with_dop853(stiff_fmu, tmp_path):
     soft = stiff_chain(link=20.0)
     path = tmp_path / "Soft.fmu"

@@ -265,11 +265,10 @@ class ModelExchangeSource(FMUSource):
         there: an FMU that returned an error may take no further call (FMI 2.0 section 2.1.3), and the
         run had not moved yet.  This source then records with DOP853 (:meth:`_choose_integrator`)."""
         self._exact_refused = reason
-        raw, single = self._inputs_in_effect
-        raw = raw.copy()
-        single = None if single is None else single.copy()
+        inputs = getattr(self, "_inputs_in_effect", None)   # none for an FMU without inputs
+        inputs = None if inputs is None else (inputs[0].copy(), None if inputs[1] is None else inputs[1].copy())
         super().start(*self._run_grid)
-        if self._call_set(raw, single) > 1:
+        if inputs is not None and self._call_set(*inputs) > 1:
             raise StepError(f"{self.path.name} returned an error setting the input again after its restart", 0,
                             float(self._t[0]))
 
