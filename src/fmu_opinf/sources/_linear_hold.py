@@ -160,39 +160,38 @@ class LinearHold:
         return A, largest
 
     def maps(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(exp(h A), h phi_1(h A))`` for the step ``h``, from one exponential of ``[[A, I], [0, 0]] h``
-        (computed once per step size)."""
+        """``(exp(h A), h phi_1(h A))`` for the step ``h`` (computed once per step size)."""
         key = _key(h)
         found = self._maps.get(key)
         if found is None:
-            from scipy.linalg import expm
-
             n = self.A.shape[0]
-            block = np.zeros((2 * n, 2 * n))
-            block[:n, :n] = key * self.A
-            block[:n, n:] = key * np.eye(n)
-            exp = expm(block)   # blocks (0,0) exp(hA), (0,1) int_0^h exp(As) ds = h phi_1(hA)
-            found = (np.ascontiguousarray(exp[:n, :n]), np.ascontiguousarray(exp[:n, n:]))
+            row = self._top_row(key, 2)   # blocks exp(hA) and int_0^h exp(As) ds = h phi_1(hA)
+            found = (np.ascontiguousarray(row[:, :n]), np.ascontiguousarray(row[:, n:]))
             self._remember(self._maps, key, found)
         return found
 
     def carry(self, h: float) -> np.ndarray:
         """``h phi_2(h A)``: a difference ``(s / h) d`` of the derivative growing over the step moves the end state by
-        ``h phi_2(h A) d`` (the (0,2) block of the exponential of ``[[A, I, 0], [0, 0, I], [0, 0, 0]] h`` is
-        ``h^2 phi_2(hA)``).  Needed only where a step's defect is not plainly small, so computed then."""
+        ``h phi_2(h A) d``.  Needed only where a step's defect is not plainly small, so computed then."""
         key = _key(h)
         found = self._carries.get(key)
         if found is None:
-            from scipy.linalg import expm
-
             n = self.A.shape[0]
-            block = np.zeros((3 * n, 3 * n))
-            block[:n, :n] = key * self.A
-            block[:n, n:2 * n] = key * np.eye(n)
-            block[n:2 * n, 2 * n:] = key * np.eye(n)
-            found = np.ascontiguousarray(expm(block)[:n, 2 * n:]) / key
+            found = np.ascontiguousarray(self._top_row(key, 3)[:, 2 * n:]) / key   # h^2 phi_2(hA) / h
             self._remember(self._carries, key, found)
         return found
+
+    def _top_row(self, h: float, blocks: int) -> np.ndarray:
+        """The first block row of the exponential of ``h [[A, I, 0, ..], [0, 0, I, ..], .., [0, .., 0]]`` (size
+        ``blocks n``): ``exp(hA), h phi_1(hA), h^2 phi_2(hA), ..`` (Van Loan's block form)."""
+        from scipy.linalg import expm
+
+        n = self.A.shape[0]
+        block = np.zeros((blocks * n, blocks * n))
+        block[:n, :n] = h * self.A
+        for k in range(1, blocks):
+            block[(k - 1) * n:k * n, k * n:(k + 1) * n] = h * np.eye(n)
+        return expm(block)[:n]
 
     @staticmethod
     def _remember(cache: dict, key: float, value) -> None:
