@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from fmu_opinf import lti_fmus
+from fmu_opinf import lti_fmus, sources
+from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.snapshots import record
 from fmu_opinf.sources import open_source
 from fmu_opinf.sources import _model_exchange as me
@@ -213,6 +214,7 @@ class _NonlinearSource:
         self._f_end = None
         self._nominal_step = math.nan
         self._h_last = math.nan
+        self._stiffness_seen = None   # as with --me-method linear
 
     def rhs(self, t, x):
         return -x - x**3 / 3
@@ -305,3 +307,101 @@ def test_auto_takes_the_exact_step_where_it_pays(n, rho_h, samples, seconds, exp
     from fmu_opinf.sources._linear_hold import exact_step_pays
 
     assert exact_step_pays(n, rho_h, samples, seconds) is expected
+
+
+# ------------------------------------------------------------------------------ through events
+
+EVENT_FORCE = [0.0] * 5 + [1.5]
+
+
+@pytest.fixture(scope="module")
+def stiff_event_fmus(tmp_path_factory):
+    """The stiff chain with a time event between samples (a force switched on and a velocity jump, Modelica's
+    ``reinit``) and with a state event (mass 6 passing 0.05 m latches a force on mass 1)."""
+    folder = tmp_path_factory.mktemp("stiff-events")
+    time_event = lti_fmus.TimeEvent(3.3333, EVENT_FORCE, velocity_jump=[0.0, 0.01, 0.0, 0.0, 0.0, 0.0])
+    state_event = lti_fmus.StateEvent(dof=5, threshold=0.05, force=[0.5] + [0.0] * 5)
+    return {kind: (lti_fmus.build_lti_fmu(stiff_chain(), folder / f"StiffChain-{kind}.fmu", interfaces=("me",),
+                                          **{f"{kind}_event": event}).path, event)
+            for kind, event in (("time", time_event), ("state", state_event))}
+
+
+def _event_reference(run, kind: str, event):
+    """Exact samples of the stiff chain through its event (tests/test_me_events.py: the piecewise exponential,
+    the crossing time by brentq on it)."""
+    from test_me_events import first_crossing, held_inputs, reference
+
+    held = held_inputs(run)
+    if kind == "time":
+        return reference(stiff_chain(), run.t, held, [(event.time, np.asarray(event.force))],
+                         [(event.time, np.asarray(event.velocity_jump))])
+    crossing = first_crossing(stiff_chain(), run.t, held, event)
+    return reference(stiff_chain(), run.t, held, [(crossing, np.asarray(event.force))])
+
+
+def _pieces_predicted(monkeypatch, cost: float) -> None:
+    """Predict DOP853 over a piece shorter than the grid step to take ``cost`` seconds (the real prediction compares
+    timings, which vary with the machine's load); the grid step's own prediction, auto's first, stays."""
+    predicted = me._linear_hold.dop853_seconds
+    grid_step = []
+
+    def prediction(rho_h: float, seconds: float) -> float:
+        grid_step.append(rho_h)
+        return predicted(rho_h, seconds) if rho_h >= grid_step[0] else cost
+
+    monkeypatch.setattr(me._linear_hold, "dop853_seconds", prediction)
+
+
+def _record_counting_pieces(path, monkeypatch) -> tuple:
+    """The default recording of ``path``, the pieces DOP853 integrated and the step sizes whose maps were computed."""
+    pieces, maps = [], []
+    dop853, top_row = me._INTEGRATORS["dop853"], LinearHold._top_row
+    monkeypatch.setattr(me, "_dop853", lambda source, t0, t1, *args: pieces.append((t0, t1)) or dop853(source, t0,
+                                                                                                      t1, *args))
+    monkeypatch.setattr(LinearHold, "_top_row", lambda self, h, blocks: maps.append(h) or top_row(self, h, blocks))
+    monkeypatch.setattr(sources, "_REPORTED", set())   # (events are said once per FMU and process)
+    with pytest.warns(FmuOpinfWarning, match="1 event"):
+        run = record(open_source(path), SIGNAL, DT, T_END, quiet=True).runs[0]
+    return run, pieces, maps
+
+
+@pytest.mark.parametrize("kind", ["time", "state"])
+def test_auto_takes_the_exact_step_through_time_and_state_events(stiff_event_fmus, kind, monkeypatch):
+    """Before 2026-12-05 any event indicator or announced time event sent a stiff model to DOP853 (at n = 100 with
+    a time event: 1.07 s, velocities 1.1e-6 off, against 0.20 s and 7.8e-10 now).  An event splits a step into
+    pieces of other lengths; each takes the exact step where its own matrix exponential costs less than DOP853
+    there (here predicted so for every piece)."""
+    path, event = stiff_event_fmus[kind]
+    _pieces_predicted(monkeypatch, math.inf)
+    run, pieces, maps = _record_counting_pieces(path, monkeypatch)
+    assert run.attrs["integrator"].startswith("auto: exact zero-order-hold step")
+    assert "DOP853" not in run.attrs["integrator"] and pieces == []
+    assert maps[0] == DT and len(maps) == (3 if kind == "time" else len(set(maps))), maps   # each size once
+    x, v, _ = _event_reference(run, kind, event)
+    x_error, v_error = (float(np.abs(got - want).max() / np.abs(want).max()) for got, want in ((run.x, x),
+                                                                                              (run.xdot, v)))
+    assert x_error < 6e-10 and v_error < 8e-10, (x_error, v_error)   # measured 2.7e-10, 3.6e-10 (both kinds)
+
+
+def test_a_piece_whose_exponential_costs_more_than_dop853_there_takes_dop853(stiff_event_fmus, monkeypatch):
+    """The cost rule the other way: with DOP853 predicted free on pieces shorter than the grid step, the two pieces
+    the time event cuts from its step take DOP853, and no other map than the grid step's is computed."""
+    path, event = stiff_event_fmus["time"]
+    _pieces_predicted(monkeypatch, 0.0)
+    run, pieces, maps = _record_counting_pieces(path, monkeypatch)
+    assert [(round(a, 9), round(b, 9)) for a, b in pieces] == [(3.2, 3.3333), (3.3333, 3.4)]
+    assert run.attrs["integrator"].endswith("; 2 piece(s) of steps cut by events by DOP853 (cheaper there than "
+                                            "another exponential)")
+    assert maps == [DT]
+    x, v, _ = _event_reference(run, "time", event)
+    assert np.abs(run.x - x).max() / np.abs(x).max() < 6e-10
+
+
+def test_the_grid_step_s_map_outlives_the_maps_of_other_lengths():
+    hold = LinearHold(np.array([[0.0, 1.0], [-4.0, -0.1]]))
+    hold.pin(0.2)
+    grid_map = hold.maps(0.2)
+    for k in range(1, 30):
+        hold.maps(0.2 * k / 31)
+    assert hold.has_map(0.2) and hold.maps(0.2) is grid_map
+    assert len(hold._maps) <= 9

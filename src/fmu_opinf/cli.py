@@ -52,7 +52,7 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
                        help="relative tolerance of the model-exchange integration, also passed to the FMU "
                             "(fmi2SetupExperiment / fmi3EnterInitializationMode); default 1e-10")
     group.add_argument("--me-method", dest="method", metavar="METHOD",
-                       help="integrator of model exchange: auto (default: linear for a stiff model without events, "
+                       help="integrator of model exchange: auto (default: linear for a stiff model, "
                             "else dop853), dop853 (explicit Runge-Kutta of order 8), linear (the exact step of the "
                             "FMU's identified Jacobian under held inputs, each step checked, DOP853 where the model is "
                             "not linear), lsoda, bdf, radau or rk45; recorded in the provenance (docs/real-fmus.md)")

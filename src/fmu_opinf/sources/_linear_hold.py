@@ -21,11 +21,13 @@ absolute tolerance beyond the FMU's own rounding, the model is not linear (or no
 
 from __future__ import annotations
 
+import math
+import time
 from typing import Callable
 
 import numpy as np
 
-__all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "STIFFNESS_RATIO", "MAX_STATES", "CARRY_MAX_STATES"]
+__all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "dop853_seconds", "STIFFNESS_RATIO", "MAX_STATES", "CARRY_MAX_STATES"]
 
 #: ``auto`` considers the exact step where ``rho(A) h`` exceeds this: DOP853's stability bound (about 3.3 for
 #: ``|h lambda|`` on the negative real axis) then forces over 70 steps of 12 evaluations per communication step.
@@ -54,9 +56,15 @@ def exact_step_pays(n: int, rho_h: float, samples: int, evaluation_seconds: floa
     """
     if n > MAX_STATES or not rho_h > STIFFNESS_RATIO:
         return False
-    dop853 = samples * 12.0 * (rho_h / 3.3) * evaluation_seconds
     exact = (n + 1 + 2 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
-    return exact < dop853
+    return exact < samples * dop853_seconds(rho_h, evaluation_seconds)
+
+
+def dop853_seconds(rho_h: float, evaluation_seconds: float) -> float:
+    """Predicted seconds of DOP853 over a step ``h`` of a model whose Jacobian has spectral radius ``rho``: its
+    stability bound (about 3.3 for ``|h lambda|`` on the negative real axis) holds it to about ``rho h / 3.3``
+    steps of 12 derivative evaluations."""
+    return 12.0 * (rho_h / 3.3) * evaluation_seconds
 
 
 #: :meth:`LinearHold.identify` probes a column again where its rounding exceeds this fraction of its entries ...
@@ -66,6 +74,11 @@ _LARGEST_REPROBE = 1e6
 
 #: Differences of the FMU's derivative from the linear model within this many times its rounding are rounding.
 _NOISE_FACTOR = 64.0
+
+#: Maps of step sizes other than the pinned one kept at most (an entry: two ``n x n`` matrices) ...
+_CACHED_MAPS = 8
+#: ... and bytes they may take (n = 4000: one entry of 256 MB).
+_CACHED_BYTES = 256 * 2**20
 
 
 def spectral_radius(jvp: Callable[[np.ndarray], np.ndarray], n: int, iterations: int = 40,
@@ -117,6 +130,17 @@ class LinearHold:
         self._abs_A = np.abs(self.A)
         self._maps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._carries: dict[float, np.ndarray] = {}
+        self._pinned: float | None = None
+        #: seconds the last step map took (the cost of a map for another step size, which events ask for)
+        self.map_seconds = math.nan
+
+    def pin(self, h: float) -> None:
+        """Keep the maps of the step ``h`` (the grid's) however many other step sizes events ask for."""
+        self._pinned = _key(h)
+
+    def has_map(self, h: float) -> bool:
+        """Whether the map of the step ``h`` is at hand (no matrix exponential needed)."""
+        return _key(h) in self._maps
 
     @classmethod
     def identify(cls, derivatives: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
@@ -165,9 +189,13 @@ class LinearHold:
         found = self._maps.get(key)
         if found is None:
             n = self.A.shape[0]
+            started = time.perf_counter()
             row = self._top_row(key, 2)   # blocks exp(hA) and int_0^h exp(As) ds = h phi_1(hA)
             found = (np.ascontiguousarray(row[:, :n]), np.ascontiguousarray(row[:, n:]))
+            self.map_seconds = time.perf_counter() - started
             self._remember(self._maps, key, found)
+        else:
+            self._maps[key] = self._maps.pop(key)   # most recently used last
         return found
 
     def carry(self, h: float) -> np.ndarray:
@@ -193,10 +221,14 @@ class LinearHold:
             block[(k - 1) * n:k * n, k * n:(k + 1) * n] = h * np.eye(n)
         return expm(block)[:n]
 
-    @staticmethod
-    def _remember(cache: dict, key: float, value) -> None:
-        if len(cache) > 8:
-            cache.clear()
+    def _remember(self, cache: dict, key: float, value) -> None:
+        """Cache ``value``, dropping the least recently used entries beyond :data:`_CACHED_MAPS` and beyond
+        :data:`_CACHED_BYTES`, never the pinned step's (an event splits a step into two of other sizes; a crossing
+        search tries a dozen)."""
+        entry = sum(part.nbytes for part in (value if isinstance(value, tuple) else (value,)))
+        keep = max(1, min(_CACHED_MAPS, _CACHED_BYTES // max(entry, 1)))
+        for old in [k for k in cache if k != self._pinned][:max(0, len(cache) + 1 - keep)]:
+            del cache[old]
         cache[key] = value
 
     def step(self, x0: np.ndarray, f0: np.ndarray, h: float) -> np.ndarray:

@@ -7,7 +7,7 @@ with ``U[i]`` still in effect, so accelerations (``der`` of the velocity states)
 direct feedthrough pair with the same input as a co-simulation FMU's values after ``doStep``.
 
 The integrator is chosen by ``method`` (:data:`METHODS`).  The default ``auto`` takes the exact hold step of the
-FMU's identified Jacobian (``linear``, :mod:`._linear_hold`) for a stiff model without events, where every explicit
+FMU's identified Jacobian (``linear``, :mod:`._linear_hold`) for a stiff model (through its events too), where every explicit
 method crawls and the implicit ones restart at each communication point, and DOP853 for everything else.  Before
 ``auto`` (2026-11-28) the default was scipy's DOP853 (explicit
 Runge-Kutta of order 8 with step-size control): on the corpus and benchmark FMUs it was both the
@@ -111,8 +111,8 @@ class ModelExchangeSource(FMUSource):
     Parameters
     ----------
     method : {"auto", "dop853", "linear", "lsoda", "bdf", "radau", "rk45"}, default="auto"
-        Integrator (see the module docstring): ``auto`` is ``linear`` for a stiff model without events, else
-        ``dop853``; the run's ``integrator`` attribute says which ran.
+        Integrator (see the module docstring): ``auto`` is ``linear`` for a stiff model (:meth:`_choose_integrator`),
+        else ``dop853``; the run's ``integrator`` attribute says which ran.
     **options
         Keywords of :class:`~fmu_opinf.sources.FMUSource`.
 
@@ -170,6 +170,9 @@ class ModelExchangeSource(FMUSource):
         refused = getattr(self, "_exact_refused", None)
         if refused is not None and self.method in ("auto", "linear"):
             text += f"; no exact zero-order-hold step: the FMU refused it at the first step ({refused})"
+        pieces = getattr(self, "_pieces_by_dop853", 0)
+        if pieces and active == "linear":
+            text += f"; {pieces} piece(s) of steps cut by events by DOP853 (cheaper there than another exponential)"
         handover = getattr(self, "_handover", None)
         if handover is not None:
             text += f"; from t={handover[0] - self.start_time:.9g} DOP853, {handover[1]}"
@@ -248,6 +251,8 @@ class ModelExchangeSource(FMUSource):
         self._exact_refused: str | None = getattr(self, "_exact_refused", None)   # kept over restarts
         self._hold: _linear_hold.LinearHold | None = None
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
+        self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
+        self._pieces_by_dop853 = 0   # pieces cut by events that _linear left to DOP853 (cheaper there)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
         self._active = self._choose_integrator()
 
@@ -275,15 +280,19 @@ class ModelExchangeSource(FMUSource):
     def _choose_integrator(self) -> str:
         """The integrator of this run: ``method``, where ``auto`` and ``linear`` are resolved.
 
-        ``linear`` (:mod:`._linear_hold`) needs a model without events (the exact step has none) whose Jacobian
-        can be identified; ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
+        ``linear`` (:mod:`._linear_hold`) needs a model whose Jacobian can be identified, without discrete inputs,
+        and without event indicators where the FMU needs completed integrator steps (those are integrated one
+        accepted step at a time); ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
         would hold DOP853 to over 70 steps per communication step (``rho(A) h > 250``), on a uniform grid, up to
         :data:`~._linear_hold.MAX_STATES` states, and where its set-up (a matrix exponential of size 2n) is
-        predicted to cost less than DOP853's steps (:func:`~._linear_hold.exact_step_pays`).  Everything else takes DOP853, as before ``auto``.
+        predicted to cost less than DOP853's steps (:func:`~._linear_hold.exact_step_pays`).  Everything else takes
+        DOP853, as before ``auto``.  Events split steps: a piece of another length takes the exact step where its
+        own matrix exponential is predicted to cost less than DOP853 there (:func:`_exact_piece_pays`).
         """
         if self.method not in ("auto", "linear"):
             return self.method
-        if getattr(self, "_exact_refused", None) is not None or not self.nx or self.nz or self._t_next != math.inf or self._discrete.any():
+        if (getattr(self, "_exact_refused", None) is not None or not self.nx or self._discrete.any()
+                or (self.nz and self._needs_completed)):
             return "dop853"
         steps = np.diff(self._t)
         self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
@@ -294,8 +303,12 @@ class ModelExchangeSource(FMUSource):
             rho, seconds = self._stiffness()
             if not _linear_hold.exact_step_pays(self.nx, rho * float(steps.max()), len(steps), seconds):
                 return "dop853"
+            self._stiffness_seen = (rho, seconds)
         self._hold = self._identify_jacobian()
-        return "dop853" if self._hold is None else "linear"
+        if self._hold is None:
+            return "dop853"
+        self._hold.pin(self._nominal_step)
+        return "linear"
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
@@ -909,6 +922,9 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     hold = source._hold
     if hold is None or one_step or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
+    if not _exact_piece_pays(source, hold, t0, t1):
+        source._pieces_by_dop853 += 1
+        return _dop853(source, t0, t1, completed, one_step)
     try:
         x1, ratio = _exact_step(source, hold, t0, t1)
     except _IntegrationError as exc:
@@ -926,15 +942,32 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     return x1, t1
 
 
+def _exact_piece_pays(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float, t1: float) -> bool:
+    """Whether the piece ``[t0, t1]`` takes the exact step: its map is at hand, or ``auto`` predicts its matrix
+    exponential (timed like the grid step's, of the same size) to cost less than DOP853 over the piece.  Pieces
+    of other lengths come from events (a time event splits a step in two; a crossing search tries a dozen
+    lengths); ``linear`` takes the exact step for each."""
+    h = _step_size(source, t0, t1)
+    measured = source._stiffness_seen
+    if measured is None or hold.has_map(h) or not math.isfinite(hold.map_seconds):
+        return True
+    rho, evaluation_seconds = measured
+    return hold.map_seconds < _linear_hold.dop853_seconds(rho * h, evaluation_seconds)
+
+
+def _step_size(source: ModelExchangeSource, t0: float, t1: float) -> float:
+    """``t1 - t0``, or the grid's nominal step where they differ by rounding: a uniform grid at a large time
+    (1e7 s) has steps that differ by ulps of the time; the nominal step keeps the sum of the steps, where rounding
+    each would drift (1.3e-7 of the motion in 60 steps)."""
+    h = t1 - t0
+    return source._nominal_step if abs(h - source._nominal_step) <= 16 * math.ulp(max(abs(t0), abs(t1))) else h
+
+
 def _exact_step(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float,
                 t1: float) -> tuple[np.ndarray, float]:
     """The state at ``t1`` by the exact step from the source's state at ``t0``, and its defect as a multiple of
     what the integrator allows (:meth:`~._linear_hold.LinearHold.defect`)."""
-    h = t1 - t0
-    if abs(h - source._nominal_step) <= 16 * math.ulp(max(abs(t0), abs(t1))):
-        # a uniform grid at a large time (1e7 s): its steps differ by ulps of the time; the nominal step keeps
-        # the sum of the steps, where rounding each would drift (1.3e-7 of the motion in 60 steps)
-        h = source._nominal_step
+    h = _step_size(source, t0, t1)
     end = source._f_end   # the derivative where the last step ended, if no input was set since
     f0 = end[2] if end is not None and end[0] is source._x and end[1] == t0 else source.rhs(t0, source._x)
     x1 = hold.step(source._x, f0, h)
@@ -965,7 +998,7 @@ _INTEGRATOR_TEXT = {
     "rk45": "RK45 (scipy.integrate.RK45), restarted at every communication point",
     "linear": ("exact zero-order-hold step of the FMU's Jacobian (matrix exponential; identified by differences "
                "at the start, every step checked against the FMU's derivatives)"),
-    "auto": "auto (linear for a stiff model without events, else DOP853)",
+    "auto": "auto (linear for a stiff model, else DOP853)",
 }
 
 _COMPILED_DOP853_TEXT = ("DOP853 (scipy.integrate.DOP853's method, step loop compiled from fmus/integrator/erk.c), "
