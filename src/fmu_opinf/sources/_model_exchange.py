@@ -280,9 +280,9 @@ class ModelExchangeSource(FMUSource):
     def _choose_integrator(self) -> str:
         """The integrator of this run: ``method``, where ``auto`` and ``linear`` are resolved.
 
-        ``linear`` (:mod:`._linear_hold`) needs a model whose Jacobian can be identified, without discrete inputs,
-        and without event indicators where the FMU needs completed integrator steps (those are integrated one
-        accepted step at a time); ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
+        ``linear`` (:mod:`._linear_hold`) needs a model whose Jacobian can be identified, without discrete inputs
+        (the exact step is one accepted step: where event indicators and completed integrator steps make the
+        integration go one accepted step at a time, it is the whole piece); ``auto`` takes it only for a stiff model, where the fastest mode's stability bound
         would hold DOP853 to over 70 steps per communication step (``rho(A) h > 250``), on a uniform grid, up to
         :data:`~._linear_hold.MAX_STATES` states, and where its set-up (a matrix exponential of size 2n) is
         predicted to cost less than DOP853's steps (:func:`~._linear_hold.exact_step_pays`).  Everything else takes
@@ -291,8 +291,7 @@ class ModelExchangeSource(FMUSource):
         """
         if self.method not in ("auto", "linear"):
             return self.method
-        if (getattr(self, "_exact_refused", None) is not None or not self.nx or self._discrete.any()
-                or (self.nz and self._needs_completed)):
+        if getattr(self, "_exact_refused", None) is not None or not self.nx or self._discrete.any():
             return "dop853"
         steps = np.diff(self._t)
         self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
@@ -915,12 +914,13 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
             one_step: bool = False) -> tuple[np.ndarray, float]:
     """The exact step of the FMU's linear model over ``[t0, t1]`` (:mod:`._linear_hold`), verified against its
     derivative at ``t1``; DOP853 from the first step whose defect exceeds the absolute tolerance, to the end of
-    the run (the model is not linear there).  The step is the whole interval: an FMU that needs completed
-    integrator steps gets its call at the interval's end, as from any integrator's last step.  An FMU that refuses
+    the run (the model is not linear there).  The step is the whole interval, also where one accepted step is
+    asked for (``one_step``): an FMU that needs completed integrator steps gets its call at the interval's end, as
+    from any integrator's last step.  An FMU that refuses
     the step (an error status) may take no further call: at the run's first step the run starts again with DOP853
     (:class:`_ExactStepRefused`), later the run ends with a one-line error naming ``--me-method dop853``."""
     hold = source._hold
-    if hold is None or one_step or source._handover is not None:
+    if hold is None or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
     if not _exact_piece_pays(source, hold, t0, t1):
         source._pieces_by_dop853 += 1
