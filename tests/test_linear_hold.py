@@ -117,18 +117,18 @@ def test_the_exact_step_at_a_large_start_time(stiff_fmu):
     from fmu_opinf.sources._linear_hold import LinearHold
 
     calls = []
-    original = LinearHold.maps
+    original = LinearHold._step_maps
 
     def counted(self, h):
         found = original(self, h)
         calls.append(id(found[0]))
         return found
 
-    LinearHold.maps = counted
+    LinearHold._step_maps = counted
     try:
         run = record(open_source(stiff_fmu, start_time=1e7), SIGNAL, DT, T_END, quiet=True).runs[0]
     finally:
-        LinearHold.maps = original
+        LinearHold._step_maps = original
     assert run.attrs["integrator"].startswith("auto: exact zero-order-hold step")
     assert len(set(calls)) == 1 and len(calls) == len(run.t) - 1
     linear = errors(run)
@@ -215,6 +215,7 @@ class _NonlinearSource:
         self._nominal_step = math.nan
         self._h_last = math.nan
         self._stiffness_seen = None   # as with --me-method linear
+        self._time_probed = False
 
     def rhs(self, t, x):
         return -x - x**3 / 3
@@ -234,6 +235,40 @@ def test_a_step_of_a_model_that_is_not_linear_hands_over_to_dop853():
     assert near_zero._handover is None
     assert abs(x1[0] - 1e-7 * math.exp(-0.1)) < 1e-22
 
+
+
+class _InternalSource(_NonlinearSource):
+    """``x' = -x + sin(2 pi t / 0.1)``: an internal force periodic in the step, zero at every step's start, middle
+    and end (audit of 2026-12-05, F1)."""
+
+    def rhs(self, t, x):
+        return -x + np.sin(2 * np.pi * t / 0.1)
+
+
+class _BandSource(_NonlinearSource):
+    """``x' = -x - 50 (x - 0.5)(0.7 - x)`` within ``0.5 < x < 0.7``, else ``-x`` (its Jacobian at 0 is -1): from 1 over
+    a step of 1 the linear trajectory passes the band only between the step's ends (0.607 at its middle; audit of
+    2026-12-05, F2: an end stop reached only between two samples)."""
+
+    def rhs(self, t, x):
+        return -x - 50.0 * np.clip(x - 0.5, 0.0, None) * np.clip(0.7 - x, 0.0, None)
+
+
+@pytest.mark.parametrize("case", ["time", "band"])
+def test_what_the_step_ends_cannot_see_hands_over_to_dop853(case):
+    """The exact step checked the FMU only at its ends: a force periodic in the step, and a nonlinearity visited
+    only between the ends, went unnoticed (recordings 0.7 % and 2 % off).  Now the first step probes the derivative
+    at other times, and every step checks the FMU at its middle too."""
+    source, t1 = (_InternalSource(0.0), 0.1) if case == "time" else (_BandSource(1.0), 1.0)
+    x0 = source._x.copy()
+    x1, _ = me._linear(source, 0.0, t1, False)
+    assert source._handover is not None and source._handover[0] == 0.0
+    assert ("changing with time" if case == "time" else "departed") in source._handover[1]
+    exact = solve_ivp(source.rhs, (0.0, t1), x0, method="DOP853", rtol=1e-13, atol=1e-15).y[0, -1]
+    # DOP853 at tolerance 1e-10 (measured 1.3e-15 and 4.7e-10: the band's edges are kinks)
+    assert abs(x1[0] - exact) < 1e-9, (x1[0], exact)
+    if case == "band":   # the end state of the linear step, where the band ends, would be 0.04 off
+        assert abs(exact - math.exp(-1.0)) > 0.03
 
 def _offset_model():
     """A stiff 3-mass model about positions of 1e7 to 1e8 (a large global offset): its derivatives' terms reach
@@ -382,7 +417,7 @@ def test_auto_takes_the_exact_step_through_time_and_state_events(stiff_event_fmu
     run, pieces, maps = _record_counting_pieces(path, monkeypatch)
     assert run.attrs["integrator"].startswith("auto: exact zero-order-hold step")
     assert "DOP853" not in run.attrs["integrator"] and pieces == []
-    assert maps[0] == DT and len(maps) == (3 if kind == "time" else len(set(maps))), maps   # each size once
+    assert maps[0] == DT / 2 and len(maps) == (3 if kind == "time" else len(set(maps))), maps   # each size once
     x, v, _ = _event_reference(run, kind, event)
     x_error, v_error = (float(np.abs(got - want).max() / np.abs(want).max()) for got, want in ((run.x, x),
                                                                                               (run.xdot, v)))
@@ -398,7 +433,7 @@ def test_a_piece_whose_exponential_costs_more_than_dop853_there_takes_dop853(sti
     assert [(round(a, 9), round(b, 9)) for a, b in pieces] == [(3.2, 3.3333), (3.3333, 3.4)]
     assert run.attrs["integrator"].endswith("; 2 piece(s) of steps cut by events by DOP853 (cheaper there than "
                                             "another exponential)")
-    assert maps == [DT]
+    assert maps == [DT / 2]   # (the map of the grid step comes from that of its half)
     x, v, _ = _event_reference(run, "time", event)
     assert np.abs(run.x - x).max() / np.abs(x).max() < 6e-10
 
@@ -406,8 +441,8 @@ def test_a_piece_whose_exponential_costs_more_than_dop853_there_takes_dop853(sti
 def test_the_grid_step_s_map_outlives_the_maps_of_other_lengths():
     hold = LinearHold(np.array([[0.0, 1.0], [-4.0, -0.1]]))
     hold.pin(0.2)
-    grid_map = hold.maps(0.2)
+    grid_map = hold.maps(0.2)[0]
     for k in range(1, 30):
         hold.maps(0.2 * k / 31)
-    assert hold.has_map(0.2) and hold.maps(0.2) is grid_map
+    assert hold.has_map(0.2) and hold.maps(0.2)[0] is grid_map
     assert len(hold._maps) <= 9

@@ -12,8 +12,13 @@ where ``f`` is the FMU's own derivative with the new input in effect, so the inp
 ``A`` is identified once per run from ``n + 1`` derivative evaluations (exact differences for a linear model);
 ``P`` comes with ``exp(h A)`` from one matrix exponential (Van Loan's block form) per step size.  A step costs two derivative evaluations and three ``n x n`` products, whatever the stiffness.
 
-Nothing is taken on trust: after each step the FMU's derivative at the new state, ``f1``, is compared with the
-linear model's, ``f0 + A (z1 - z0)``.  A difference ``d`` that grows linearly over the step moves the state by
+Nothing is taken on trust: after each step the FMU's derivative at the new state, ``f1``, and at the state
+half-way (:meth:`LinearHold.step_and_midpoint`: the map of ``h / 2`` is the exponential, squared once for ``h``)
+are compared with the linear model's, ``f0 + A (z - z0)``, and the first step of a run probes the derivative at
+three more times at its start state (an internal source periodic in the step is zero at the step's start, middle
+and end).  These are samples, not a proof: a nonlinearity the trajectory meets and leaves between them is not seen
+(``--me-method dop853`` is the safe choice for a model known to have stops or contacts).  A difference ``d``
+that grows linearly over the step moves the state by
 ``h phi_2(h A) d`` (the variation-of-constants integral of the difference); where that exceeds the integrator's
 absolute tolerance beyond the FMU's own rounding, the model is not linear (or not time-invariant) there, and
 :class:`LinearHold` says so, and the caller integrates that step, and the rest of the run, with DOP853.
@@ -52,11 +57,11 @@ def exact_step_pays(n: int, rho_h: float, samples: int, evaluation_seconds: floa
     :data:`MAX_STATES` states whose predicted recording time is shorter than DOP853's.
 
     DOP853 is held to about ``rho(A) h / 3.3`` steps of 12 derivative evaluations per sample; the exact step costs
-    ``n + 1`` evaluations and one matrix exponential of size ``2n`` to set up, then two evaluations per sample.
+    ``n + 4`` evaluations and one matrix exponential of size ``2n`` to set up, then three evaluations per sample.
     """
     if n > MAX_STATES or not rho_h > STIFFNESS_RATIO:
         return False
-    exact = (n + 1 + 2 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
+    exact = (n + 4 + 3 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
     return exact < samples * dop853_seconds(rho_h, evaluation_seconds)
 
 
@@ -75,9 +80,9 @@ _LARGEST_REPROBE = 1e6
 #: Differences of the FMU's derivative from the linear model within this many times its rounding are rounding.
 _NOISE_FACTOR = 64.0
 
-#: Maps of step sizes other than the pinned one kept at most (an entry: two ``n x n`` matrices) ...
+#: Maps of step sizes other than the pinned one kept at most (an entry: four ``n x n`` matrices) ...
 _CACHED_MAPS = 8
-#: ... and bytes they may take (n = 4000: one entry of 256 MB).
+#: ... and bytes they may take (n = 4000: one entry of 512 MB).
 _CACHED_BYTES = 256 * 2**20
 
 
@@ -130,13 +135,13 @@ class LinearHold:
         self._abs_A = np.abs(self.A)
         self._maps: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._carries: dict[float, np.ndarray] = {}
-        self._pinned: float | None = None
+        self._pinned: set[float] = set()
         #: seconds the last step map took (the cost of a map for another step size, which events ask for)
         self.map_seconds = math.nan
 
     def pin(self, h: float) -> None:
         """Keep the maps of the step ``h`` (the grid's) however many other step sizes events ask for."""
-        self._pinned = _key(h)
+        self._pinned = {_key(h)}
 
     def has_map(self, h: float) -> bool:
         """Whether the map of the step ``h`` is at hand (no matrix exponential needed)."""
@@ -184,19 +189,33 @@ class LinearHold:
         return A, largest
 
     def maps(self, h: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(exp(h A), h phi_1(h A))`` for the step ``h`` (computed once per step size)."""
+        """``(exp(h A), h phi_1(h A))`` for the step ``h`` (computed once per step size, with those of ``h / 2``:
+        :meth:`step_and_midpoint`)."""
+        return self._step_maps(h)[:2]
+
+    def _step_maps(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``exp(h A), h phi_1(h A)`` and the same for ``h / 2``, from one matrix exponential (of ``h / 2``)."""
         key = _key(h)
         found = self._maps.get(key)
         if found is None:
             n = self.A.shape[0]
             started = time.perf_counter()
-            row = self._top_row(key, 2)   # blocks exp(hA) and int_0^h exp(As) ds = h phi_1(hA)
-            found = (np.ascontiguousarray(row[:, :n]), np.ascontiguousarray(row[:, n:]))
+            row = self._top_row(0.5 * key, 2)   # blocks exp(hA/2) and int_0^(h/2) exp(As) ds
+            E, P = np.ascontiguousarray(row[:, :n]), np.ascontiguousarray(row[:, n:])
+            # [[E, P], [0, I]] squared is [[E E, P + E P], [0, I]]: the last squaring of the exponential itself
+            found = (E @ E, P + E @ P, E, P)
             self.map_seconds = time.perf_counter() - started
             self._remember(self._maps, key, found)
         else:
             self._maps[key] = self._maps.pop(key)   # most recently used last
         return found
+
+    def step_and_midpoint(self, x0: np.ndarray, f0: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+        """The states after ``h / 2`` and after ``h`` from ``x0`` (:meth:`step`): the caller checks the FMU at
+        both, so that a nonlinearity the step passes through between its ends is seen (audit of 2026-12-05: an
+        end stop reached only between two samples went unnoticed, the recording 2 % off)."""
+        _, P, _, P_half = self._step_maps(h)
+        return x0 + P_half @ f0, x0 + P @ f0
 
     def carry(self, h: float) -> np.ndarray:
         """``h phi_2(h A)``: a difference ``(s / h) d`` of the derivative growing over the step moves the end state by
@@ -227,8 +246,9 @@ class LinearHold:
         search tries a dozen)."""
         entry = sum(part.nbytes for part in (value if isinstance(value, tuple) else (value,)))
         keep = max(1, min(_CACHED_MAPS, _CACHED_BYTES // max(entry, 1)))
-        for old in [k for k in cache if k != self._pinned][:max(0, len(cache) + 1 - keep)]:
-            del cache[old]
+        if key not in cache:
+            for old in [k for k in cache if k not in self._pinned][:max(0, len(cache) + 1 - keep)]:
+                del cache[old]
         cache[key] = value
 
     def step(self, x0: np.ndarray, f0: np.ndarray, h: float) -> np.ndarray:

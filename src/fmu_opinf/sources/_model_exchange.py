@@ -79,6 +79,11 @@ __all__ = ["ModelExchangeSource", "METHODS"]
 #: qualifies, else ``"dop853"``).
 METHODS = ("auto", "dop853", "linear", "lsoda", "bdf", "radau", "rk45")
 
+#: Fractions of the first exact step at which :func:`_varies_with_time` probes the FMU's derivative: no rational
+#: fraction (an internal source periodic in the step would be zero at all of them), and within the step (an FMU may
+#: refuse a time beyond where it was last told an integrator step completed).
+_TIME_PROBES = (0.2763932022500210, 0.6180339887498949, 0.8541019662496845)
+
 #: Event iterations allowed at one time instant before giving up.
 _MAX_EVENT_ITERATIONS = 100
 
@@ -253,6 +258,7 @@ class ModelExchangeSource(FMUSource):
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
         self._pieces_by_dop853 = 0   # pieces cut by events that _linear left to DOP853 (cheaper there)
+        self._time_probed = False   # _linear: whether the FMU's derivative was probed at other times (first step)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
         self._active = self._choose_integrator()
 
@@ -345,9 +351,10 @@ class ModelExchangeSource(FMUSource):
             self._end_probes()
 
     def _end_probes(self) -> None:
-        """Back to the start state after probing the derivatives, and without the messages the FMU logged for
-        probes it refused (a later failure must not be explained by them)."""
+        """Back to the start state and time after probing the derivatives, and without the messages the FMU logged
+        for probes it refused (a later failure must not be explained by them)."""
         self._set_states(np.zeros(self.nx))
+        self._c_time(self._comp, float(self._t[0]))
         self._log = []
 
     def _atol(self, t0: float, t1: float) -> np.ndarray:
@@ -926,7 +933,14 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
         source._pieces_by_dop853 += 1
         return _dop853(source, t0, t1, completed, one_step)
     try:
-        x1, ratio = _exact_step(source, hold, t0, t1)
+        if not source._time_probed:
+            source._time_probed = True
+            if _varies_with_time(source, hold, t0, t1):
+                source._handover = (t0, "the FMU's derivatives changing with time at a fixed state and input (an "
+                                        "internal source or a time-varying parameter, which the exact step cannot "
+                                        "follow)")
+        if source._handover is None:
+            x1, ratio = _exact_step(source, hold, t0, t1)
     except _IntegrationError as exc:
         # e.g. an FMU with a delay buffer refuses a time beyond a gap after its last completed integrator step;
         # an FMU in error may take no further call: at the run's first step it starts again, else the run ends
@@ -935,11 +949,26 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
             raise _ExactStepRefused(reason) from None
         raise _IntegrationError(f"the FMU refused the exact zero-order-hold step ({reason}); record with "
                                 "--me-method dop853") from None
+    if source._handover is not None:
+        return _dop853(source, t0, t1, completed, one_step)
     if ratio > 1.0:
         source._handover = (t0, f"the FMU's derivatives having departed from the linear model by {ratio:.2g} of "
                                 "the absolute tolerance")
         return _dop853(source, t0, t1, completed, one_step)
     return x1, t1
+
+
+def _varies_with_time(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float, t1: float) -> bool:
+    """Whether the FMU's derivative at the current state moves with time alone over ``[t0, t1]`` (probed at the
+    fractions :data:`_TIME_PROBES`), by more than a step may be off (:meth:`~._linear_hold.LinearHold.defect`).
+    The exact step evaluates the FMU only at the middle and the end of each step: an internal force
+    ``sin(2 pi t / h)`` is zero at all of them, and a recording took it for a linear model, 0.7 % off (audit of
+    2026-12-05).  Probed once, at the first exact step of a run: three evaluations."""
+    x, h = source._x, t1 - t0
+    f0 = source.rhs(t0, x)
+    allowed = source._atol(t0, t1) + source.tolerance * np.abs(x)
+    return any(hold.defect(x, x, f0, source.rhs(t0 + fraction * h, x), source._origin, h, allowed) > 1.0
+               for fraction in _TIME_PROBES)
 
 
 def _exact_piece_pays(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float, t1: float) -> bool:
@@ -966,16 +995,23 @@ def _step_size(source: ModelExchangeSource, t0: float, t1: float) -> float:
 def _exact_step(source: ModelExchangeSource, hold: _linear_hold.LinearHold, t0: float,
                 t1: float) -> tuple[np.ndarray, float]:
     """The state at ``t1`` by the exact step from the source's state at ``t0``, and its defect as a multiple of
-    what the integrator allows (:meth:`~._linear_hold.LinearHold.defect`)."""
+    what the integrator allows (:meth:`~._linear_hold.LinearHold.defect`): the larger of those over the step's
+    first half and over the whole step, so that the FMU is checked at the step's middle too (one evaluation more:
+    an end stop reached only between two samples is seen there)."""
     h = _step_size(source, t0, t1)
     end = source._f_end   # the derivative where the last step ended, if no input was set since
-    f0 = end[2] if end is not None and end[0] is source._x and end[1] == t0 else source.rhs(t0, source._x)
-    x1 = hold.step(source._x, f0, h)
+    x0 = source._x
+    f0 = end[2] if end is not None and end[0] is x0 and end[1] == t0 else source.rhs(t0, x0)
+    x_mid, x1 = hold.step_and_midpoint(x0, f0, h)
+    f_mid = source.rhs(t0 + 0.5 * h, x_mid)
     f1 = source.rhs(t1, x1)
     source._f_end = (x1, t1, f1)
     # allowed as DOP853 measures its error: the absolute tolerance plus the relative one of the state
-    allowed = source._atol(t0, t1) + source.tolerance * np.maximum(np.abs(source._x), np.abs(x1))
-    return x1, hold.defect(source._x, x1, f0, f1, source._origin, h, allowed)
+    atol = source._atol(t0, t1)
+    allowed = atol + source.tolerance * np.maximum(np.abs(x0), np.abs(x1))
+    allowed_mid = atol + source.tolerance * np.maximum(np.abs(x0), np.abs(x_mid))
+    return x1, max(hold.defect(x0, x_mid, f0, f_mid, source._origin, 0.5 * h, allowed_mid),
+                   hold.defect(x0, x1, f0, f1, source._origin, h, allowed))
 
 
 _scipy_dop853 = _solve_ivp("DOP853")
