@@ -446,3 +446,18 @@ def test_the_grid_step_s_map_outlives_the_maps_of_other_lengths():
         hold.maps(0.2 * k / 31)
     assert hold.has_map(0.2) and hold.maps(0.2)[0] is grid_map
     assert len(hold._maps) <= 9
+
+
+def test_a_stiff_model_too_large_for_the_exact_step_is_warned_about_with_a_prediction(stiff_fmu, monkeypatch):
+    """Above 4000 states a stiff model gets DOP853, held to its stability limit (an FE model: hours); the recording
+    says so at once, with DOP853's predicted time and what helps (here with the limit lowered to 5 states and the
+    threshold to 0 s)."""
+    monkeypatch.setattr(me._linear_hold, "MAX_STATES", 5)
+    monkeypatch.setattr(me, "_SLOW_RUN_SECONDS", 0.0)
+    monkeypatch.setattr(sources, "_REPORTED", set())
+    with pytest.warns(FmuOpinfWarning, match=r"a stiff model of 12 states \(spectral radius about .* 1/s, .* times "
+                                             r"the step\): DOP853 .* predicted to take about \d+ s for a run of 60 "
+                                             r"steps, .* at most 5 states; reduce the model's states, or force the "
+                                             r"exact step with --me-method linear"):
+        run = record(open_source(stiff_fmu), SIGNAL, DT, T_END, quiet=True).runs[0]
+    assert run.attrs["integrator"].startswith("auto: DOP853")

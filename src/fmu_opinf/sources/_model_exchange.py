@@ -84,6 +84,13 @@ METHODS = ("auto", "dop853", "linear", "lsoda", "bdf", "radau", "rk45")
 #: refuse a time beyond where it was last told an integrator step completed).
 _TIME_PROBES = (0.2763932022500210, 0.6180339887498949, 0.8541019662496845)
 
+#: A run that DOP853 is predicted to take longer than this (seconds) on a stiff model too large for the exact step
+#: is warned about (:meth:`ModelExchangeSource._warn_if_slow`).
+_SLOW_RUN_SECONDS = 60.0
+
+#: Bytes the exact step's matrix exponential (size 2n) takes per n^2: 1.1 GB at n = 2000 (docs/real-fmus.md).
+_EXPM_BYTES_PER_SQUARE = 275.0
+
 #: Event iterations allowed at one time instant before giving up.
 _MAX_EVENT_ITERATIONS = 100
 
@@ -304,6 +311,8 @@ class ModelExchangeSource(FMUSource):
         uniform = steps.size and np.ptp(steps) <= 1e-9 * float(steps.max()) + 16 * math.ulp(float(self._t[-1]))
         if self.method == "auto":
             if self.nx > _linear_hold.MAX_STATES or not uniform:
+                if uniform:
+                    self._warn_if_slow(float(steps.max()), len(steps))
                 return "dop853"   # (a grid of many step sizes would need one matrix exponential for each)
             rho, seconds = self._stiffness()
             if not _linear_hold.exact_step_pays(self.nx, rho * float(steps.max()), len(steps), seconds):
@@ -314,6 +323,28 @@ class ModelExchangeSource(FMUSource):
             return "dop853"
         self._hold.pin(self._nominal_step)
         return "linear"
+
+    def _warn_if_slow(self, h: float, samples: int) -> None:
+        """Warn, once per FMU, where a model too large for the exact step is stiff enough that DOP853 is predicted to
+        take over :data:`_SLOW_RUN_SECONDS` for the run (an FE model of 10,000 states: hours, with nothing said but
+        the progress lines), and name what helps."""
+        rho, seconds = self._stiffness()
+        rho_h = rho * h
+        if not rho_h > _linear_hold.STIFFNESS_RATIO:
+            return
+        predicted = samples * _linear_hold.dop853_seconds(rho_h, seconds)
+        if predicted <= _SLOW_RUN_SECONDS:
+            return
+        from . import warn_once
+
+        cs = "record by co-simulation (--interface cs) if the FMU's own solver is implicit, " if (
+            self.md.coSimulation is not None) else ""
+        memory = _EXPM_BYTES_PER_SQUARE * self.nx**2 / 2**30
+        warn_once(self, ("stiff beyond the exact step",), f"a stiff model of {self.nx} states (spectral radius about "
+                  f"{rho:.2g} 1/s, {rho_h:.3g} times the step): DOP853 is held to its stability limit and predicted to "
+                  f"take about {_duration(predicted)} for a run of {samples} steps, and the exact hold step takes at "
+                  f"most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step with "
+                  f"--me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
@@ -758,6 +789,15 @@ class ModelExchangeSource(FMUSource):
 
 
 # ---------------------------------------------------------------------------------------- events
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in the unit a reader takes in at once: ``"40 s"``, ``"12 min"``, ``"3.5 h"``."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.2g} h"
+
 
 def _discrete_inputs(md: Any, input_names: list[str]) -> np.ndarray:
     """Which force inputs have discrete variability: model exchange may change them only in event mode (FMI 2.0
