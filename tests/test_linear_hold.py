@@ -154,6 +154,25 @@ def test_an_fmu_that_refuses_the_exact_step_hands_over_to_dop853(tmp_path, fmi_v
     assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)   # the run started again
 
 
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_an_fmu_that_refuses_a_probe_and_stays_in_error_is_recorded_from_a_fresh_start(tmp_path, fmi_version):
+    """The probes of the Jacobian move a state by its nominal value (1 m); an FMU asserting a range of 0.8 m on
+    that position refuses the probe and, as after a failed Modelica ``assert``, every call after it (audit of
+    2026-12-05: the run then failed at its first step "try a looser --tolerance", where DOP853 recorded it).  The
+    run starts again without probes, records with DOP853, says why, and matches the exact solution."""
+    path = tmp_path / "Asserting.fmu"
+    lti_fmus.build_lti_fmu(stiff_chain(), path, interfaces=("me",), position_limit=(0, 0.8), fmi_version=fmi_version)
+    run = record(open_source(path), SIGNAL, DT, 2.0, quiet=True).runs[0]
+    assert run.attrs["complete"]
+    assert run.attrs["integrator"].startswith("auto: DOP853")
+    assert "the FMU refused a probe of its derivatives off the start state" in run.attrs["integrator"]
+    assert "out of its range" in run.attrs["integrator"]
+    found = errors(run)
+    assert found["x"] < 1e-10 and found["xdot"] < 1e-7, found   # measured 2.8e-11, 2.9e-8
+    alone = record(open_source(path, method="dop853"), SIGNAL, DT, 2.0, quiet=True).runs[0]
+    assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)
+
+
 def test_an_fmu_without_inputs_that_refuses_the_exact_step_starts_again(tmp_path):
     """The restart sets the inputs of the first step again, where there are any (none here: the start state moves)."""
     import dataclasses

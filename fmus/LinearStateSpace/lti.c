@@ -169,6 +169,15 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
                massScale);
         return LtiError;
     }
+    if (LTI_POSITION_LIMIT) {
+        double x = inst->xoff[LTI_POSITION_LIMIT_DOF];
+        for (i = 0; i < nq; i++) x += inst->T[LTI_POSITION_LIMIT_DOF * nq + i] * z[i];
+        if (!(fabs(x) <= LTI_POSITION_LIMIT_BOUND)) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: assert: position %lu = %g is out of its range +-%g",
+                   function, (unsigned long)LTI_POSITION_LIMIT_DOF, x, LTI_POSITION_LIMIT_BOUND);
+            return LtiError;
+        }
+    }
     for (i = 0; i < nq; i++) qdd[i] = inst->fq[i];
     addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
     addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);

@@ -124,6 +124,11 @@ extern const double LTI_TIME_EVENT_DQD[];
    with LTI_COMPLETED_EVENT_EVERY, every one from then on does. */
 extern const double LTI_COMPLETED_GAP, LTI_COMPLETED_EVENT_AT;
 extern const int LTI_COMPLETED_EVENT, LTI_COMPLETED_EVENT_EVERY;
+/* LTI_POSITION_LIMIT: the model asserts |x[LTI_POSITION_LIMIT_DOF]| <= LTI_POSITION_LIMIT_BOUND in every evaluation,
+   as a Modelica assert on a variable's range does: beyond it, an error, and the instance stays in error. */
+extern const int LTI_POSITION_LIMIT;
+extern const size_t LTI_POSITION_LIMIT_DOF;
+extern const double LTI_POSITION_LIMIT_BOUND;
 /* LTI_STEADY_START: initialization ends at the equilibrium q = LTI_STEADY_Q0 + LTI_STEADY_QU u (nq x nu,
    row-major), qd = 0, under the inputs set then (a Modelica steady-state initialization). */
 extern const int LTI_STEADY_START;

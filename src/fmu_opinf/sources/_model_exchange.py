@@ -181,7 +181,7 @@ class ModelExchangeSource(FMUSource):
             text = f"auto: {text}"
         refused = getattr(self, "_exact_refused", None)
         if refused is not None and self.method in ("auto", "linear"):
-            text += f"; no exact zero-order-hold step: the FMU refused it at the first step ({refused})"
+            text += f"; no exact zero-order-hold step: {refused}"
         pieces = getattr(self, "_pieces_by_dop853", 0)
         if pieces and active == "linear":
             text += f"; {pieces} piece(s) of steps cut by events by DOP853 (cheaper there than another exponential)"
@@ -251,6 +251,8 @@ class ModelExchangeSource(FMUSource):
         self._absolute_x = np.zeros(self.nx)
         self._scale = np.zeros(self.nx)
         self._resolution = np.where(self._origin != 0, np.spacing(np.abs(self._origin)), 0.0)
+        self._probe_refusal: str | None = None   # why the FMU refused a probe of its derivatives in this start
+        self._no_probes: bool = getattr(self, "_no_probes", False)   # kept over restarts (:meth:`start`)
         self._noise = self._rounding_noise()
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md)
@@ -276,13 +278,29 @@ class ModelExchangeSource(FMUSource):
 
     def start(self, t: np.ndarray, U: np.ndarray) -> None:
         self._run_grid = (t, U)
-        super().start(t, U)
+        self._probe_refusal = None
+        try:
+            super().start(t, U)
+        except StepError:
+            if self._probe_refusal is None or self._no_probes:
+                raise   # (an FMU in error after a refused probe may fail what follows its initialization)
+        if self._probe_refusal is not None and not self._no_probes:
+            self._restart_without_probes()
+
+    def _restart_without_probes(self) -> None:
+        """Start the run again, without probing the derivatives off the start state and with DOP853, after the FMU
+        refused a probe: an FMU that returned an error may take no further call (FMI 2.0 section 2.1.3), and one
+        whose ``assert`` on a range failed stays in error (an audit's FMU then failed the run at its first step,
+        with a message blaming the tolerance, while DOP853 recorded it correctly)."""
+        self._no_probes = True
+        self._exact_refused = f"the FMU refused a probe of its derivatives off the start state ({self._probe_refusal})"
+        super().start(*self._run_grid)
 
     def _restart_without_exact_step(self, reason: str) -> None:
         """Start the run again and set the inputs of its first step again, after the FMU refused the exact step
         there: an FMU that returned an error may take no further call (FMI 2.0 section 2.1.3), and the
         run had not moved yet.  This source then records with DOP853 (:meth:`_choose_integrator`)."""
-        self._exact_refused = reason
+        self._exact_refused = f"the FMU refused it at the first step ({reason})"
         inputs = getattr(self, "_inputs_in_effect", None)   # none for an FMU without inputs
         inputs = None if inputs is None else (inputs[0].copy(), None if inputs[1] is None else inputs[1].copy())
         super().start(*self._run_grid)
@@ -304,7 +322,8 @@ class ModelExchangeSource(FMUSource):
         """
         if self.method not in ("auto", "linear"):
             return self.method
-        if getattr(self, "_exact_refused", None) is not None or not self.nx or self._discrete.any():
+        if (getattr(self, "_exact_refused", None) is not None or self._probe_refusal is not None or not self.nx
+                or self._discrete.any()):
             return "dop853"
         steps = np.diff(self._t)
         self._nominal_step = float((self._t[-1] - self._t[0]) / max(len(self._t) - 1, 1))
@@ -315,6 +334,8 @@ class ModelExchangeSource(FMUSource):
                     self._warn_if_slow(float(steps.max()), len(steps))
                 return "dop853"   # (a grid of many step sizes would need one matrix exponential for each)
             rho, seconds = self._stiffness()
+            if self._probe_refusal is not None:
+                return "dop853"
             if not _linear_hold.exact_step_pays(self.nx, rho * float(steps.max()), len(steps), seconds):
                 return "dop853"
             self._stiffness_seen = (rho, seconds)
@@ -328,6 +349,8 @@ class ModelExchangeSource(FMUSource):
         """Warn, once per FMU, where a model too large for the exact step is stiff enough that DOP853 is predicted to
         take over :data:`_SLOW_RUN_SECONDS` for the run (an FE model of 10,000 states: hours, with nothing said but
         the progress lines), and name what helps."""
+        if self._no_probes or self._probe_refusal is not None:
+            return
         rho, seconds = self._stiffness()
         rho_h = rho * h
         if not rho_h > _linear_hold.STIFFNESS_RATIO:
@@ -364,7 +387,8 @@ class ModelExchangeSource(FMUSource):
         try:
             base = self._derivatives(t, np.zeros(self.nx))
             rho = _linear_hold.spectral_radius(product, self.nx)
-        except _IntegrationError:
+        except _IntegrationError as exc:
+            self._refused_probe(exc)
             rho = 0.0
         finally:
             self._end_probes()
@@ -376,10 +400,16 @@ class ModelExchangeSource(FMUSource):
         try:
             return _linear_hold.LinearHold.identify(lambda x: self._derivatives(t, x), np.zeros(self.nx),
                                                     self._probe_deltas(), self._origin)
-        except _IntegrationError:
+        except _IntegrationError as exc:
+            self._refused_probe(exc)
             return None
         finally:
             self._end_probes()
+
+    def _refused_probe(self, exc: _IntegrationError) -> None:
+        """Remember the first probe the FMU refused: :meth:`start` then starts the run again without probes."""
+        if self._probe_refusal is None:
+            self._probe_refusal = self._last_log() or str(exc)
 
     def _end_probes(self) -> None:
         """Back to the start state and time after probing the derivatives, and without the messages the FMU logged
@@ -407,7 +437,7 @@ class ModelExchangeSource(FMUSource):
         the accelerations are noisy at 1e-6 m/s^2."""
         noise = np.zeros(self.nx)
         ulps = self._resolution
-        if not ulps.any():
+        if not ulps.any() or self._no_probes:
             return noise
         multiples = np.random.default_rng(0).choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx))
         t = float(self._t[0])   # the FMU's time after initialization
@@ -415,8 +445,9 @@ class ModelExchangeSource(FMUSource):
             base = self._derivatives(t, np.zeros(self.nx))
             for row in multiples:
                 np.maximum(noise, np.abs(self._derivatives(t, row * ulps) - base), out=noise)
-        except _IntegrationError:
-            noise[:] = 0.0   # the FMU refuses states off its start: the integration will say so if it matters
+        except _IntegrationError as exc:
+            self._refused_probe(exc)
+            noise[:] = 0.0
         self._end_probes()
         return noise
 
