@@ -355,6 +355,7 @@ def test_above_the_carry_limit_the_defect_is_bounded_without_the_large_exponenti
     (400, 2e5, 200, 2e-5, True),         # a 200-element beam
     (4000, 500.0, 1000, 3e-3, True),     # an FE model of 2000 DOFs: 80 s of set-up against hours
     (4000, 300.0, 10, 5e-5, False),      # ... recorded for 10 samples only: the set-up costs more
+    (4000, 5.7e3, 60, 1.8e-4, False),    # predicted 1.4 times faster only: not enough for so coarse a prediction
     (4001, 1e6, 1000, 1e-2, False),      # above MAX_STATES: memory
 ])
 def test_auto_takes_the_exact_step_where_it_pays(n, rho_h, samples, seconds, expected):
