@@ -393,6 +393,66 @@ def test_a_fork_server_that_dies_as_a_run_is_handed_to_it_is_named(toys, monkeyp
         run = record(FMUSource(toys["fmi3"]), signal, 0.01, 0.5, quiet=True, isolate=True).runs[0]
         assert run.k == 51 and forkserver._forkserver._forkserver_pid not in (None, server)
 
+@pytest.mark.slow  # 3 s: builds an FMU and starts a Python process with a fork server
+def test_an_isolated_run_ends_when_its_caller_is_killed_inside_a_long_sample(tmp_path):
+    """The run's process ignores SIGINT and SIGTERM (its caller decides) and reported only after each block: inside
+    a sample that took minutes it outlived its killed command for 7 minutes (audit of 2026-12-05).  It now leaves
+    as soon as its caller dies, and the fork server and resource tracker follow."""
+    import signal as _signal
+    import subprocess
+    import textwrap
+    import time
+
+    from fmu_opinf import lti_fmus
+    from test_linear_hold import stiff_chain
+
+    path = tmp_path / "Chain.fmu"
+    lti_fmus.build_lti_fmu(stiff_chain(), path, interfaces=("me",))
+    script = textwrap.dedent(f"""
+        from fmu_opinf.snapshots import record, use_fork_server
+        from fmu_opinf.sources import open_source
+        use_fork_server()
+        # samples of 1e5 s, each about 5 minutes of DOP853 held to its stability limit
+        record(open_source({str(path)!r}, method="dop853"), "step", 1e5, 1e6, quiet=True, isolate=True)
+    """)
+    environment = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    caller = subprocess.Popen([sys.executable, "-c", script], env=environment)
+    try:
+        deadline = time.monotonic() + 60
+        while len(_descendants(caller.pid)) < 3 and time.monotonic() < deadline:   # tracker, server, run
+            time.sleep(0.05)
+        time.sleep(0.5)
+        left_behind = _descendants(caller.pid)
+        assert len(left_behind) >= 3, left_behind
+    finally:
+        caller.kill()
+        caller.wait()
+    deadline = time.monotonic() + 10
+    try:
+        while any(_alive(pid) for pid in left_behind) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not [pid for pid in left_behind if _alive(pid)]
+    finally:
+        for pid in left_behind:
+            if _alive(pid):
+                os.kill(pid, _signal.SIGKILL)
+
+
+def _descendants(pid: int) -> list[int]:
+    try:
+        children = [int(child) for child in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+    return children + [grandchild for child in children for grandchild in _descendants(child)]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
 # ------------------------------------------------------------------------------- command-line entry, auto window
 
 

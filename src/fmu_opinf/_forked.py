@@ -143,8 +143,9 @@ def _decode_exception(how: str, data: bytes | None, text: str) -> BaseException:
     return exc
 
 
-def _exit_with_parent() -> None:
-    """Leave at once when the parent process dies (e.g. killed by SIGKILL or SIGTERM)."""
+def exit_with_parent() -> None:
+    """Leave at once when the parent process dies (e.g. killed by SIGKILL or SIGTERM): a child that ignores those
+    signals (the parent decides when it stops) would otherwise compute on, unseen, until it next reports."""
     parent = mp.parent_process()
     if parent is None:
         return
@@ -161,7 +162,7 @@ def _worker_main(conn: Any, label: str, function: Callable[..., Any], args: tupl
     for signum in _SIGNALS:
         signal.signal(signum, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
-    _exit_with_parent()
+    exit_with_parent()
     lock = threading.Lock()  # a thread of the call (e.g. a warning) may print while the main thread sends
 
     def send(message: tuple) -> None:

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._forked import exit_with_parent
 from .._interrupts import _SIGNALS, check_interrupt, deferred_interrupts
 from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError, first_report, said_key
@@ -94,12 +95,14 @@ def _child_main(conn: Any, shm_name: str, cap: int, source: Source | bytes, t: n
     """Child process: run the source, fill the shared buffer, report through ``conn``.
 
     The child ignores SIGINT and SIGTERM: the parent decides (Ctrl-C reaches the whole process group)
-    and kills the child when it stops.  A child of the fork server gets ``inherited`` (the caller's
-    environment and standard output and error at the start of the run, which a spawned child inherits anyway)
-    and the source pickled, unpickled only once that is in place.
+    and kills the child when it stops; a child whose parent died leaves at once (audit of 2026-12-05: one inside a
+    sample that took minutes outlived its killed command for 7 minutes, and ignored SIGTERM).  A child of the fork
+    server gets ``inherited`` (the caller's environment and standard output and error at the start of the run,
+    which a spawned child inherits anyway) and the source pickled, unpickled only once that is in place.
     """
     for signum in _SIGNALS:
         _signal.signal(signum, _signal.SIG_IGN)
+    exit_with_parent()
     if inherited is not None:
         inherited.take_over()
     warnings.showwarning = functools.partial(_relay_warning, conn)
