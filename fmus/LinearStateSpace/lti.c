@@ -73,7 +73,7 @@ LtiInstance *ltiCreate(const char *name, int isCoSimulation, LtiLogger log, void
     inst->a = (double *)calloc(nx, sizeof(double));
     inst->y = (double *)calloc(ny, sizeof(double));
     inst->yBefore = (double *)calloc(ny, sizeof(double));
-    inst->work = (double *)calloc(12 * nq, sizeof(double));
+    inst->work = (double *)calloc(14 * nq, sizeof(double));   /* RK4 10 nq, derivatives 2 nq, single precision 2 nq */
     if (!inst->name || !inst->Kq || !inst->Dq || !inst->Bq || !inst->fq || !inst->T ||
         !inst->xoff || !inst->Cp || !inst->Cv || !inst->Ca || !inst->y0 || !inst->z ||
         !inst->zStart || !inst->u || !inst->qdd || !inst->qddBefore || !inst->x || !inst->v || !inst->a ||
@@ -169,6 +169,11 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
                massScale);
         return LtiError;
     }
+    if (LTI_SINGLE_PRECISION) {   /* the state as a float, the terms below rounded to float */
+        double *rounded = inst->work + 12 * nq;
+        for (i = 0; i < 2 * nq; i++) rounded[i] = (float)z[i];
+        z = rounded;
+    }
     if (LTI_POSITION_LIMIT) {
         double x = inst->xoff[LTI_POSITION_LIMIT_DOF];
         for (i = 0; i < nq; i++) x += inst->T[LTI_POSITION_LIMIT_DOF * nq + i] * z[i];
@@ -185,6 +190,7 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
     if (inst->timeEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_TIME_EVENT_FQ[i];
     if (inst->stateEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_STATE_EVENT_FQ[i];
     for (i = 0; i < nq; i++) qdd[i] /= massScale;
+    if (LTI_SINGLE_PRECISION) for (i = 0; i < nq; i++) qdd[i] = (float)qdd[i];
     return LtiOK;
 }
 
@@ -421,8 +427,9 @@ static void toFmiOrder(size_t nq, const double *z, double *out) {
 LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
     size_t nq = inst->nq;
     double *internal = inst->work + 10 * nq;   /* the RK4 step uses the first 10 nq */
+    size_t i;
     if (accelerations(inst, function, inst->z, internal + nq) != LtiOK) return LtiError;
-    memcpy(internal, inst->z + nq, nq * sizeof(double));
+    for (i = 0; i < nq; i++) internal[i] = LTI_SINGLE_PRECISION ? (float)inst->z[nq + i] : inst->z[nq + i];
     toFmiOrder(nq, internal, dz);
     return LtiOK;
 }

@@ -759,6 +759,7 @@ class _Options:
     cs_early_return_at: float | None = None
     cs_terminate_at: float | None = None
     position_limit: tuple[int, float] | None = None
+    single_precision: bool = False
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -1516,6 +1517,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const int LTI_COMPLETED_EVENT = {int(options.completed_step_event_at is not None)};\n"
         f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
         f"const int LTI_COMPLETED_EVENT_EVERY = {int(options.completed_step_event_every)};\n"
+        f"const int LTI_SINGLE_PRECISION = {int(options.single_precision)};\n"
         f"const int LTI_POSITION_LIMIT = {int(options.position_limit is not None)};\n"
         f"const size_t LTI_POSITION_LIMIT_DOF = {limit[0]};\n"
         f"const double LTI_POSITION_LIMIT_BOUND = {_number(limit[1])};\n"
@@ -1646,7 +1648,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
-                  position_limit: tuple[int, float] | None = None, reuse: bool = True) -> LtiFmu:
+                  position_limit: tuple[int, float] | None = None, single_precision: bool = False,
+                  reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1764,6 +1767,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         ``(dof, bound)``: every evaluation of the model asserts ``|x[dof]| <= bound`` (m), as a Modelica ``assert``
         on a variable's range does; beyond it the call returns an error and the instance stays in error (FMI 2.0
         section 2.1.3), whatever is called next.
+    single_precision : bool, default=False
+        The derivatives are computed from the state rounded to ``float`` and returned rounded to ``float``, as an
+        export for an embedded target may compute (the rounding noise is 6e-8 of their terms).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1801,7 +1807,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         cs_max_step=None if cs_max_step is None else float(cs_max_step),
         cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
         cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at),
-        position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])))
+        position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
+        single_precision=bool(single_precision))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
