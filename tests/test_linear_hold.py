@@ -201,6 +201,17 @@ def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_se
     assert x_error < 2e-6 and v_error < 3e-3, (x_error, v_error)   # measured 6.6e-7, 1.1e-3
 
 
+def test_a_communication_step_that_takes_long_is_reported_while_dop853_is_at_it(stiff_fmu, monkeypatch):
+    """Coulomb friction without event indicators kept DOP853 on one step for over 15 minutes with nothing said
+    (audit of 2026-12-05); a step taking over ``_SLOW_INTERVAL_SECONDS`` now gets one warning, during the step, naming
+    the step size and the ways out (here the limit is 0 s, so the stiff chain's first paused block says it)."""
+    monkeypatch.setattr(me, "_SLOW_INTERVAL_SECONDS", 0.0)
+    with pytest.warns(FmuOpinfWarning, match=r"DOP853 has spent over 0 s on the communication step from t=0 to "
+                                             r"0\.2 .* with steps of .* s: a stiff model .*Coulomb friction") as seen:
+        record(open_source(stiff_fmu, method="dop853"), SIGNAL, DT, 1.0, quiet=True, isolate=False)
+    assert len([w for w in seen if "has spent" in str(w.message)]) == 1
+
+
 def test_an_fmu_without_inputs_that_refuses_the_exact_step_starts_again(tmp_path):
     """The restart sets the inputs of the first step again, where there are any (none here: the start state moves)."""
     import dataclasses

@@ -115,7 +115,8 @@ class Kernel:
 
     def integrate(self, y: np.ndarray, t0: float, t1: float, rtol: float, atol: np.ndarray, first_step: float | None,
                   check_interrupt: Any = None, completed: bool = False,
-                  one_step: bool = False, origin: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+                  one_step: bool = False, origin: np.ndarray | None = None,
+                  progress: Any = None) -> tuple[np.ndarray, float, float]:
         """Integrate ``y`` from ``t0`` to ``t1``; the new state, the size of the last step taken (0: none) and the
         time reached: ``t1``, or earlier where the FMU asked for an event in ``CompletedIntegratorStep``.
 
@@ -126,7 +127,7 @@ class Kernel:
         :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails, and when the FMU refuses the
         completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
         try (the step grows from call to call).  ``origin``: ``y`` is the states' deviation from it; the FMU is given
-        ``origin + y``.
+        ``origin + y``.  ``progress(t, h)`` is called between blocks of steps with the time reached and the step size.
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
@@ -149,6 +150,8 @@ class Kernel:
                 self._adapt(time.perf_counter() - started)
                 if check_interrupt is not None:
                     check_interrupt()
+                if progress is not None:
+                    progress(state.t, state.h_abs)
         finally:
             self.evaluations += state.evaluations
         if status == _FMU_ERROR:

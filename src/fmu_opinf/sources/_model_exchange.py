@@ -369,6 +369,19 @@ class ModelExchangeSource(FMUSource):
                   f"most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step with "
                   f"--me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
 
+    def _warn_slow_interval(self, t0: float, t1: float, t: float, h: float) -> None:
+        """Say once, while DOP853 is still at it, that one communication step has taken over
+        :data:`_SLOW_INTERVAL_SECONDS`, with its step size and the likely causes (audit of 2026-12-05: Coulomb
+        friction ``sign(v)`` without event indicators ran for over 15 minutes in silence)."""
+        from . import warn_once
+
+        cs = "record by co-simulation (--interface cs), " if self.md.coSimulation is not None else ""
+        warn_once(self, ("slow interval",), f"DOP853 has spent over {_SLOW_INTERVAL_SECONDS:g} s on the communication "
+                  f"step from {self._at(t0)} to {t1:g} and is at {t:.9g} with steps of {h:.2g} s: a "
+                  "stiff model holds it to its stability limit, and derivatives that jump without event indicators "
+                  "(Coulomb friction sign(v), a relay, a table) make its steps collapse; the run may take hours: "
+                  f"{cs}loosen --tolerance, or give the model event indicators or smooth friction", stacklevel=2)
+
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
         difference is exact for a linear model, and large moves keep rounding small against it)."""
@@ -863,6 +876,9 @@ def _needs_completed_steps(md: Any) -> bool:
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
 
+#: Seconds of DOP853 on one communication step after which :meth:`ModelExchangeSource._warn_slow_interval` says so.
+_SLOW_INTERVAL_SECONDS = 30.0
+
 #: Trials of :meth:`ModelExchangeSource._rounding_noise` (one derivative evaluation each, once per run).
 _NOISE_TRIALS = 8
 
@@ -997,9 +1013,15 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if kernel is None:
         return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
+    started = time.perf_counter()
+
+    def progress(t: float, h: float) -> None:
+        if time.perf_counter() - started > _SLOW_INTERVAL_SECONDS:
+            source._warn_slow_interval(t0, t1, t, h)
+
     try:
         x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first,
-                                        check_interrupt, completed, one_step, source._origin)
+                                        check_interrupt, completed, one_step, source._origin, progress)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
     if h_last:
