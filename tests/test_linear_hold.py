@@ -173,12 +173,15 @@ def test_an_fmu_that_refuses_a_probe_and_stays_in_error_is_recorded_from_a_fresh
     assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)
 
 
-def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_seconds(tmp_path):
+@pytest.mark.parametrize("limit", [None, (0, 0.8)])
+def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_seconds(tmp_path, limit):
     """An FMU rounding its state and derivatives to ``float`` (audit of 2026-12-05: every integrator crawled at the
     noise, killed after 180 s for 61 samples): its noise, seen by the second difference of the derivatives about
     the start state, bounds the absolute tolerance, and the run ends in seconds (2.4 s for 12 s measured, over 60
     s before) as close to the exact solution as single precision allows (the stiff link's force is 0.5 N on a
-    displacement of 1.2e-7 m, a few float ulps of the positions, so its velocities are noisy at 1e-3)."""
+    displacement of 1.2e-7 m, a few float ulps of the positions, so its velocities are noisy at 1e-3).  With a
+    range assert that refuses the Jacobian's probe, the restart keeps the noise measured before it (second audit of
+    2026-12-05: 441 s for 12 s, the noise dropped with the probes)."""
     import dataclasses
     import os
     import signal as _signal
@@ -187,7 +190,7 @@ def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_se
     chain = stiff_chain()
     chain = dataclasses.replace(chain, x0=np.linalg.solve(chain.K, chain.f0))   # at rest: all positions non-zero
     path = tmp_path / "Single.fmu"
-    lti_fmus.build_lti_fmu(chain, path, interfaces=("me",), single_precision=True)
+    lti_fmus.build_lti_fmu(chain, path, interfaces=("me",), single_precision=True, position_limit=limit)
     stop = threading.Timer(60.0, os.kill, (os.getpid(), _signal.SIGTERM))   # an Interrupted error, not a hang
     stop.start()
     try:
@@ -199,16 +202,26 @@ def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_se
     x_error = np.abs(run.x - x).max() / np.abs(x - x[0]).max()
     v_error = np.abs(run.xdot - v).max() / np.abs(v).max()
     assert x_error < 2e-6 and v_error < 3e-3, (x_error, v_error)   # measured 6.6e-7, 1.1e-3
+    assert limit is None or "refused a probe" in run.attrs["integrator"]
 
 
-def test_a_communication_step_that_takes_long_is_reported_while_dop853_is_at_it(stiff_fmu, monkeypatch):
-    """Coulomb friction without event indicators kept DOP853 on one step for over 15 minutes with nothing said
-    (audit of 2026-12-05); a step taking over ``_SLOW_INTERVAL_SECONDS`` now gets one warning, during the step, naming
-    the step size and the ways out (here the limit is 0 s, so the stiff chain's first paused block says it)."""
-    monkeypatch.setattr(me, "_SLOW_INTERVAL_SECONDS", 0.0)
-    with pytest.warns(FmuOpinfWarning, match=r"DOP853 has spent over 0 s on the communication step from t=0 to "
-                                             r"0\.2 .* with steps of .* s: a stiff model .*Coulomb friction") as seen:
-        record(open_source(stiff_fmu, method="dop853"), SIGNAL, DT, 1.0, quiet=True, isolate=False)
+@pytest.mark.parametrize("indicators", [False, True])
+def test_a_run_on_which_dop853_spends_long_is_reported_while_it_is_at_it(tmp_path, monkeypatch, indicators):
+    """Coulomb friction without event indicators kept DOP853 on one step for over 15 minutes with nothing said, and
+    a single-precision FMU starting at zero took 12-25 s per step for 60 steps (audits of 2026-12-05); a run on
+    which DOP853 has spent over ``_SLOW_RUN_DOP853_SECONDS`` now gets one warning while it runs, naming where it is,
+    the step size, the pace and the ways out (here the limit is 0 s, so the first step says it), also where event
+    indicators and completed integrator steps make it go one accepted step at a time (the second audit: never
+    said)."""
+    monkeypatch.setattr(me, "_SLOW_RUN_DOP853_SECONDS", 0.0)
+    path = tmp_path / "Chain.fmu"
+    events = dict(state_event=lti_fmus.StateEvent(dof=5, threshold=5.0, force=EVENT_FORCE),
+                  completed_step_gap=1.0) if indicators else {}
+    lti_fmus.build_lti_fmu(stiff_chain(), path, interfaces=("me",), **events)
+    with pytest.warns(FmuOpinfWarning, match=r"DOP853 has spent over 0 s on this run and is at t=.* of 1, about .* "
+                                             r"for the run at this pace, with steps of .* s in a communication step "
+                                             r"of 0\.2 s: a stiff model .*Coulomb friction") as seen:
+        record(open_source(path, method="dop853"), SIGNAL, DT, 1.0, quiet=True, isolate=False)
     assert len([w for w in seen if "has spent" in str(w.message)]) == 1
 
 

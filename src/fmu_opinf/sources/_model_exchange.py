@@ -266,6 +266,7 @@ class ModelExchangeSource(FMUSource):
         self._hold: _linear_hold.LinearHold | None = None
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
+        self._dop853_seconds = 0.0   # wall seconds DOP853 took in this run (:meth:`_warn_slow_run`)
         self._pieces_by_dop853 = 0   # pieces cut by events that _linear left to DOP853 (cheaper there)
         self._time_probed = False   # _linear: whether the FMU's derivative was probed at other times (first step)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
@@ -293,8 +294,13 @@ class ModelExchangeSource(FMUSource):
         whose ``assert`` on a range failed stays in error (an audit's FMU then failed the run at its first step,
         with a message blaming the tolerance, while DOP853 recorded it correctly)."""
         self._no_probes = True
+        self._noise_kept = self._noise   # (the noise probes' tiny moves passed, unless they were the ones refused)
         self._exact_refused = f"the FMU refused a probe of its derivatives off the start state ({self._probe_refusal})"
-        super().start(*self._run_grid)
+        try:
+            super().start(*self._run_grid)
+        except (StepError, FMUError) as exc:
+            raise FMUError(f"{self.path.name} refused a probe of its derivatives ({self._probe_refusal}) and could not "
+                           f"be started again after it ({exc}); record with --me-method dop853") from None
 
     def _restart_without_exact_step(self, reason: str) -> None:
         """Start the run again and set the inputs of its first step again, after the FMU refused the exact step
@@ -369,18 +375,24 @@ class ModelExchangeSource(FMUSource):
                   f"most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step with "
                   f"--me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
 
-    def _warn_slow_interval(self, t0: float, t1: float, t: float, h: float) -> None:
-        """Say once, while DOP853 is still at it, that one communication step has taken over
-        :data:`_SLOW_INTERVAL_SECONDS`, with its step size and the likely causes (audit of 2026-12-05: Coulomb
-        friction ``sign(v)`` without event indicators ran for over 15 minutes in silence)."""
+    def _warn_slow_run(self, t0: float, t1: float, t: float, h: float) -> None:
+        """Say once, while DOP853 is still at it, that it has spent over :data:`_SLOW_RUN_DOP853_SECONDS` on this
+        run, where it is, its step size, the time the run takes at this pace, and the likely causes (audits of
+        2026-12-05: Coulomb friction ``sign(v)`` without event indicators, and a single-precision FMU starting at
+        zero, each ran for over 15 minutes in silence)."""
         from . import warn_once
 
+        start, end = float(self._t[0]), float(self._t[-1])
+        done = (t - start) / (end - start) if end > start else 0.0
+        pace = f", about {_duration(self._dop853_seconds / done)} for the run at this pace" if done > 0 else ""
         cs = "record by co-simulation (--interface cs), " if self.md.coSimulation is not None else ""
-        warn_once(self, ("slow interval",), f"DOP853 has spent over {_SLOW_INTERVAL_SECONDS:g} s on the communication "
-                  f"step from {self._at(t0)} to {t1:g} and is at {t:.9g} with steps of {h:.2g} s: a "
-                  "stiff model holds it to its stability limit, and derivatives that jump without event indicators "
-                  "(Coulomb friction sign(v), a relay, a table) make its steps collapse; the run may take hours: "
-                  f"{cs}loosen --tolerance, or give the model event indicators or smooth friction", stacklevel=2)
+        warn_once(self, ("slow run",), f"DOP853 has spent over {_SLOW_RUN_DOP853_SECONDS:g} s on this run and is at "
+                  f"t={t - self.start_time:.9g} of {end - self.start_time:g}{pace}, with steps of {h:.2g} s in a "
+                  f"communication step of {t1 - t0:.3g} s: a stiff model holds it to its stability limit, and "
+                  "derivatives that jump without event indicators (Coulomb friction sign(v), a relay, a table) or are "
+                  "rounded inside the FMU (single precision) make its steps collapse: "
+                  f"{cs}loosen --tolerance (1e-6 for single precision), or give the model event indicators or smooth "
+                  "friction", stacklevel=2)
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
@@ -460,7 +472,10 @@ class ModelExchangeSource(FMUSource):
         the accelerations are noisy at 1e-6 m/s^2."""
         noise = np.zeros(self.nx)
         ulps = self._resolution
-        if not ulps.any() or self._no_probes:
+        if self._no_probes:
+            kept = getattr(self, "_noise_kept", None)
+            return noise if kept is None or kept.shape != noise.shape else kept.copy()
+        if not ulps.any():
             return noise
         rng = np.random.default_rng(0)
         multiples = rng.choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx))
@@ -675,6 +690,7 @@ class ModelExchangeSource(FMUSource):
         over the whole interval went back before steps already completed)."""
         t = t0
         while t < t1:
+            check_interrupt()   # (the step loop pauses for it only between blocks of many steps)
             start = self._x.copy()
             reached = self._piece(i, t, t1, one_step=True)
             self._read_indicators(i, reached, self._z_end)
@@ -880,8 +896,8 @@ def _needs_completed_steps(md: Any) -> bool:
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
 
-#: Seconds of DOP853 on one communication step after which :meth:`ModelExchangeSource._warn_slow_interval` says so.
-_SLOW_INTERVAL_SECONDS = 30.0
+#: Seconds of DOP853 in one run after which :meth:`ModelExchangeSource._warn_slow_run` says so.
+_SLOW_RUN_DOP853_SECONDS = 30.0
 
 #: Trials of :meth:`ModelExchangeSource._rounding_noise` (one derivative evaluation each, once per run).
 _NOISE_TRIALS = 8
@@ -1017,17 +1033,19 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if kernel is None:
         return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
-    started = time.perf_counter()
+    started, spent = time.perf_counter(), source._dop853_seconds
 
-    def progress(t: float, h: float) -> None:
-        if time.perf_counter() - started > _SLOW_INTERVAL_SECONDS:
-            source._warn_slow_interval(t0, t1, t, h)
+    def progress(t: float, h: float) -> None:   # between blocks of steps, and after each call
+        source._dop853_seconds = spent + time.perf_counter() - started
+        if source._dop853_seconds > _SLOW_RUN_DOP853_SECONDS:
+            source._warn_slow_run(t0, t1, t, h)
 
     try:
         x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first,
                                         check_interrupt, completed, one_step, source._origin, progress)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
+    progress(t, h_last)
     if h_last:
         source._h_last = h_last
     return x, t
