@@ -157,6 +157,14 @@ static void addProduct(double *y, const double *A, const double *x, size_t rows,
     }
 }
 
+/* The position x[dof] = xoff[dof] + T[dof, :] q of the state z (q, qd). */
+static double position(const LtiInstance *inst, size_t dof, const double *z) {
+    size_t nq = inst->nq, j;
+    double x = inst->xoff[dof];
+    for (j = 0; j < nq; j++) x += inst->T[dof * nq + j] * z[j];
+    return x;
+}
+
 /* qdd of the state z (2 nq) under the current inputs and parameters. */
 static LtiStatus accelerations(LtiInstance *inst, const char *function, const double *z,
                                double *qdd) {
@@ -175,8 +183,7 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
         z = rounded;
     }
     if (LTI_POSITION_LIMIT) {
-        double x = inst->xoff[LTI_POSITION_LIMIT_DOF];
-        for (i = 0; i < nq; i++) x += inst->T[LTI_POSITION_LIMIT_DOF * nq + i] * z[i];
+        double x = position(inst, LTI_POSITION_LIMIT_DOF, z);
         if (!(fabs(x) <= LTI_POSITION_LIMIT_BOUND)) {
             ltiLog(inst, LtiError, "logStatusError", "%s: assert: position %lu = %g is out of its range +-%g",
                    function, (unsigned long)LTI_POSITION_LIMIT_DOF, x, LTI_POSITION_LIMIT_BOUND);
@@ -218,9 +225,7 @@ LtiStatus ltiEvaluate(LtiInstance *inst, const char *function) {
 /* The event indicator x[LTI_STATE_EVENT_DOF] + LTI_STATE_EVENT_INPUT_GAIN u[0] - LTI_STATE_EVENT_THRESHOLD of the
    state z (q, qd) and the first input (if any): with a gain, setting the input can move it across zero. */
 static double indicator(const LtiInstance *inst, const double *z) {
-    size_t nq = inst->nq, j, dof = LTI_STATE_EVENT_DOF;
-    double x = inst->xoff[dof];
-    for (j = 0; j < nq; j++) x += inst->T[dof * nq + j] * z[j];
+    double x = position(inst, LTI_STATE_EVENT_DOF, z);
     if (LTI_NU > 0) x += LTI_STATE_EVENT_INPUT_GAIN * inst->u[0];
     return x - LTI_STATE_EVENT_THRESHOLD;
 }
