@@ -177,7 +177,7 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
                massScale);
         return LtiError;
     }
-    if (LTI_SINGLE_PRECISION) {   /* the state as a float, the terms below rounded to float */
+    if (LTI_SINGLE_PRECISION == 1) {   /* the state as a float, the terms below rounded to float */
         double *rounded = inst->work + 12 * nq;
         for (i = 0; i < 2 * nq; i++) rounded[i] = (float)z[i];
         z = rounded;
@@ -191,13 +191,26 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
         }
     }
     for (i = 0; i < nq; i++) qdd[i] = inst->fq[i];
-    addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
+    if (LTI_SINGLE_PRECISION == 2) {   /* one block in float: the stiffness forces on the first half of the dofs */
+        double *rounded = inst->work + 12 * nq, *force = rounded + nq, stiffness = -inst->par[PAR_STIFFNESS_SCALE];
+        for (i = 0; i < nq; i++) {
+            rounded[i] = (float)z[i];
+            force[i] = 0.0;
+        }
+        addProduct(force, inst->Kq, rounded, nq, nq, stiffness);
+        for (i = 0; i < nq / 2; i++) qdd[i] += (float)force[i];
+        for (i = 0; i < nq; i++) force[i] = 0.0;
+        addProduct(force, inst->Kq, z, nq, nq, stiffness);
+        for (i = nq / 2; i < nq; i++) qdd[i] += force[i];
+    } else {
+        addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
+    }
     addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);
     addProduct(qdd, inst->Bq, inst->u, nq, LTI_NU, 1.0);
     if (inst->timeEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_TIME_EVENT_FQ[i];
     if (inst->stateEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_STATE_EVENT_FQ[i];
     for (i = 0; i < nq; i++) qdd[i] /= massScale;
-    if (LTI_SINGLE_PRECISION) for (i = 0; i < nq; i++) qdd[i] = (float)qdd[i];
+    if (LTI_SINGLE_PRECISION == 1) for (i = 0; i < nq; i++) qdd[i] = (float)qdd[i];
     return LtiOK;
 }
 
@@ -434,7 +447,7 @@ LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
     double *internal = inst->work + 10 * nq;   /* the RK4 step uses the first 10 nq */
     size_t i;
     if (accelerations(inst, function, inst->z, internal + nq) != LtiOK) return LtiError;
-    for (i = 0; i < nq; i++) internal[i] = LTI_SINGLE_PRECISION ? (float)inst->z[nq + i] : inst->z[nq + i];
+    for (i = 0; i < nq; i++) internal[i] = LTI_SINGLE_PRECISION == 1 ? (float)inst->z[nq + i] : inst->z[nq + i];
     toFmiOrder(nq, internal, dz);
     return LtiOK;
 }

@@ -124,8 +124,10 @@ extern const double LTI_TIME_EVENT_DQD[];
    with LTI_COMPLETED_EVENT_EVERY, every one from then on does. */
 extern const double LTI_COMPLETED_GAP, LTI_COMPLETED_EVENT_AT;
 extern const int LTI_COMPLETED_EVENT, LTI_COMPLETED_EVENT_EVERY;
-/* LTI_SINGLE_PRECISION: the derivatives are computed from the state rounded to float, each product's terms added in
-   double but the accelerations and velocities returned rounded to float (an export for an embedded target). */
+/* LTI_SINGLE_PRECISION 1: the derivatives are computed from the state rounded to float, each product's terms added in
+   double but the accelerations and velocities returned rounded to float (an export for an embedded target); 2: only
+   the stiffness forces on the first half of the degrees of freedom are, from the positions rounded to float (one
+   single-precision block beside double-precision ones). */
 extern const int LTI_SINGLE_PRECISION;
 /* LTI_POSITION_LIMIT: the model asserts |x[LTI_POSITION_LIMIT_DOF]| <= LTI_POSITION_LIMIT_BOUND in every evaluation,
    as a Modelica assert on a variable's range does: beyond it, an error, and the instance stays in error. */

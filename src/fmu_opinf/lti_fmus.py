@@ -759,11 +759,15 @@ class _Options:
     cs_early_return_at: float | None = None
     cs_terminate_at: float | None = None
     position_limit: tuple[int, float] | None = None
-    single_precision: bool = False
+    single_precision: bool | str = False
 
     @property
     def needs_completed_steps(self) -> bool:
         return self.completed_step_gap is not None or self.completed_step_event_at is not None
+
+
+#: ``LTI_SINGLE_PRECISION`` of the C kernel for each value of ``single_precision``.
+_SINGLE_PRECISION_CODES = {False: 0, True: 1, "partial": 2}
 
 
 def _check_options(model, options: _Options) -> None:
@@ -773,6 +777,9 @@ def _check_options(model, options: _Options) -> None:
     if not options.interfaces or set(options.interfaces) - {"me", "cs"}:
         raise FmuBuildError(f"interfaces {options.interfaces!r} are invalid; give a non-empty "
                             "subset of ('me', 'cs')")
+    if options.single_precision not in _SINGLE_PRECISION_CODES:
+        raise FmuBuildError(f"single_precision {options.single_precision!r} is invalid; give True, False or "
+                            "'partial'")
     for name in ("cs_fixed_step", "cs_max_step"):
         value = getattr(options, name)
         if value is not None and not (np.isfinite(value) and value > 0):
@@ -1517,7 +1524,7 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const int LTI_COMPLETED_EVENT = {int(options.completed_step_event_at is not None)};\n"
         f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
         f"const int LTI_COMPLETED_EVENT_EVERY = {int(options.completed_step_event_every)};\n"
-        f"const int LTI_SINGLE_PRECISION = {int(options.single_precision)};\n"
+        f"const int LTI_SINGLE_PRECISION = {_SINGLE_PRECISION_CODES[options.single_precision]};\n"
         f"const int LTI_POSITION_LIMIT = {int(options.position_limit is not None)};\n"
         f"const size_t LTI_POSITION_LIMIT_DOF = {limit[0]};\n"
         f"const double LTI_POSITION_LIMIT_BOUND = {_number(limit[1])};\n"
@@ -1648,7 +1655,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
-                  position_limit: tuple[int, float] | None = None, single_precision: bool = False,
+                  position_limit: tuple[int, float] | None = None, single_precision: bool | str = False,
                   reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
@@ -1767,9 +1774,11 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         ``(dof, bound)``: every evaluation of the model asserts ``|x[dof]| <= bound`` (m), as a Modelica ``assert``
         on a variable's range does; beyond it the call returns an error and the instance stays in error (FMI 2.0
         section 2.1.3), whatever is called next.
-    single_precision : bool, default=False
+    single_precision : bool or "partial", default=False
         The derivatives are computed from the state rounded to ``float`` and returned rounded to ``float``, as an
-        export for an embedded target may compute (the rounding noise is 6e-8 of their terms).
+        export for an embedded target may compute (the rounding noise is 6e-8 of their terms).  ``"partial"``:
+        only the stiffness forces on the first half of the degrees of freedom are, from the positions rounded to
+        ``float`` (one single-precision block beside double-precision ones, whose derivatives follow every move).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1808,7 +1817,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
         cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
-        single_precision=bool(single_precision))
+        single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
