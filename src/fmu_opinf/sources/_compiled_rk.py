@@ -127,7 +127,8 @@ class Kernel:
         :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails, and when the FMU refuses the
         completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
         try (the step grows from call to call).  ``origin``: ``y`` is the states' deviation from it; the FMU is given
-        ``origin + y``.  ``progress(t, h)`` is called between blocks of steps with the time reached and the step size.
+        ``origin + y``.  ``progress(t, h, y)`` is called between blocks of steps with the time reached, the step size and
+        the state there (not to be changed); it may change the absolute tolerance (:meth:`set_absolute_tolerance`).
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
@@ -151,7 +152,7 @@ class Kernel:
                 if check_interrupt is not None:
                     check_interrupt()
                 if progress is not None:
-                    progress(state.t, state.h_abs)
+                    progress(state.t, state.h_abs, y)
         finally:
             self.evaluations += state.evaluations
         if status == _FMU_ERROR:
@@ -170,6 +171,10 @@ class Kernel:
         # last step taken, an FMU that asks at every step would never let it grow)
         step = state.h_abs if one_step or status == _EVENT else state.h_last
         return y, float(step), float(state.t) if status in (_EVENT, _PAUSED) else t1
+
+    def set_absolute_tolerance(self, atol: np.ndarray) -> None:
+        """The absolute tolerances from the next step on (between blocks of steps, from ``progress``)."""
+        self._atol[:] = atol
 
     def _adapt(self, seconds: float) -> None:
         """More steps per call when a call was much shorter than the aim, fewer when it was longer."""

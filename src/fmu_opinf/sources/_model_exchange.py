@@ -254,6 +254,8 @@ class ModelExchangeSource(FMUSource):
         self._probe_refusal: str | None = None   # why the FMU refused a probe of its derivatives in this start
         self._no_probes: bool = getattr(self, "_no_probes", False)   # kept over restarts (:meth:`start`)
         self._noise = self._rounding_noise()
+        self._noise_measured_size = np.abs(self._origin)   # the states' size where the noise was last measured
+        self._noise_checked_after = 0.0   # seconds of DOP853 in the run at the last look (_measure_noise_again)
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md)
         self._searching = False   # in a crossing search: no completed integrator steps
@@ -463,39 +465,108 @@ class ModelExchangeSource(FMUSource):
         return np.maximum(atol, (t1 - t0) * self._noise, out=atol)
 
     def _rounding_noise(self) -> np.ndarray:
-        """How far the derivatives move when the states move by one or two ulps of their start values, the most
-        of :data:`_NOISE_TRIALS` random trials (0 where all states start at 0), or, where none of them moved the
-        derivatives at all, how far they bend for moves of a few ulps of single precision (an FMU computing in
-        ``float`` rounds the ulps away, and its derivatives are noisy at 6e-8 of their terms, which DOP853 asked for
-        1e-10 chased for ever: audit of 2026-12-05).  The FMU sees the states rounded to
-        those ulps and computes with values of their size: at 6.4e6 m, ``K x - f0`` cancels 1e9 N to a few N, and
-        the accelerations are noisy at 1e-6 m/s^2."""
-        noise = np.zeros(self.nx)
-        ulps = self._resolution
+        """The derivatives' rounding noise at the start state (:meth:`_measure_noise`; 0 where the FMU refuses the
+        probes, and the noise measured before a restart after a refused probe)."""
         if self._no_probes:   # (started again after a refused probe: the noise measured before it)
-            return getattr(self, "_noise_kept", noise).copy()
+            return getattr(self, "_noise_kept", np.zeros(self.nx)).copy()
+        try:
+            noise = self._measure_noise(float(self._t[0]), np.zeros(self.nx))   # (the FMU's time after initialization)
+        except _IntegrationError as exc:
+            self._refused_probe(exc)
+            noise = np.zeros(self.nx)
+        self._end_probes()
+        return noise
+
+    def _measure_noise(self, t: float, x: np.ndarray, coarse_only: bool = False) -> np.ndarray:
+        """How far the derivatives at time ``t`` and deviation ``x`` are rounded: the most they move when the
+        states move by one or two ulps (:data:`_NOISE_TRIALS` random trials), and where the second differences of
+        moves of a few ulps of single precision show more, that.
+
+        The FMU sees the states rounded to their ulps and computes with values of their size: at 6.4e6 m,
+        ``K x - f0`` cancels 1e9 N to a few N, and the accelerations are noisy at 1e-6 m/s^2.  An FMU computing in
+        ``float`` rounds the ulps away, and its derivatives are noisy at 6e-8 of their terms, which DOP853 asked
+        for 1e-10 chased for ever (audit of 2026-12-05); one single-precision block among double ones (a link
+        force) leaves the other terms following the ulps, so the second difference is taken for every derivative.
+        A derivative that follows no ulp move (rounded to ``float``) takes it as noise; one that does, only where
+        it stays within twice its size for moves four times larger: rounding does not grow with the move, while a
+        kink in a double-precision model grows at least four times and curvature sixteen (a contact force at its
+        gap would otherwise loosen the tolerance).  ``coarse_only``: only noise over :data:`_COARSER_THAN_DOUBLE`
+        times the ulp moves' (single precision), 0 elsewhere."""
+        absolute = self._origin + x
+        ulps = np.where(absolute != 0, np.spacing(np.abs(absolute)), 0.0)
+        noise = np.zeros(self.nx)
         if not ulps.any():
             return noise
         rng = np.random.default_rng(0)
-        multiples = rng.choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx))
+        base = self._derivatives(t, x)
+        for row in rng.choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx)):
+            np.maximum(noise, np.abs(self._derivatives(t, x + row * ulps) - base), out=noise)
         signs = rng.choice([-1.0, 1.0], size=(_NOISE_TRIALS // 2, self.nx))
-        moves = _SINGLE_PRECISION_MOVE * np.abs(self._origin) * signs
-        t = float(self._t[0])   # the FMU's time after initialization
+        bends = []
+        for factor in (1.0, _NOISE_MOVE_GROWTH):
+            bend = np.zeros(self.nx)
+            for move in factor * _SINGLE_PRECISION_MOVE * np.abs(absolute) * signs:
+                bent = self._derivatives(t, x + move) + self._derivatives(t, x - move) - 2.0 * base
+                np.maximum(bend, 0.5 * np.abs(bent), out=bend)
+            bends.append(bend)
+        small, large = bends
+        rounded = (noise == 0) | (large <= 2.0 * small)
+        if coarse_only:
+            return np.where(rounded & (small > _COARSER_THAN_DOUBLE * noise), small, 0.0)
+        return np.maximum(noise, np.where(rounded, small, 0.0), out=noise)
+
+    def _measure_noise_again(self, t: float, x: np.ndarray, t0: float, t1: float) -> np.ndarray | None:
+        """Measure the rounding noise again where the run has spent another :data:`_NOISE_RECHECK_SECONDS` of
+        DOP853 since the last look and a state has grown to twice the size it had at the last measurement (an FMU
+        computing in ``float`` from rest at zero shows no noise at the start: 11-13 s per 0.2 s step in an audit).
+        Leaves the FMU at ``t`` and ``x``.  Returns the absolute tolerances over ``[t0, t1]`` where the noise now
+        raises them, else None.  Only noise coarser than double precision counts (``coarse_only``): a double model's
+        steps, and so its results, must not depend on when the measurement happened to fall (a test on a double
+        model, whose tolerance follows its motion from near zero, failed under load before)."""
+        if self._dop853_seconds < self._noise_checked_after + _NOISE_RECHECK_SECONDS or self._no_probes:
+            return None
+        self._noise_checked_after = self._dop853_seconds
+        size = np.abs(self._origin + x)
+        if not np.any(size > 2.0 * self._noise_measured_size):
+            return None
+        np.maximum(self._noise_measured_size, size, out=self._noise_measured_size)
         try:
-            base = self._derivatives(t, np.zeros(self.nx))
-            for row in multiples:
-                np.maximum(noise, np.abs(self._derivatives(t, row * ulps) - base), out=noise)
-            # derivatives blind to every move of double ulps: the FMU rounds the states (single precision?), and
-            # the second difference shows its noise (only then: a model with a kink at its start state would
-            # show the kink, as noise it is not)
-            for move in moves if not noise.any() else ():
-                bent = self._derivatives(t, move) + self._derivatives(t, -move) - 2.0 * base
-                np.maximum(noise, 0.5 * np.abs(bent), out=noise)
-        except _IntegrationError as exc:
-            self._refused_probe(exc)
-            noise[:] = 0.0
-        self._end_probes()
-        return noise
+            noise = self._measure_noise(t, x, coarse_only=True)
+        except _IntegrationError:
+            return None   # (moves smaller than the integrator's own: the next step says what the FMU refuses)
+        finally:
+            self._set_states(x)
+            self._c_time(self._comp, t)
+        before = self._atol(t0, t1)
+        binding = (t1 - t0) * noise > before
+        if not binding.any():
+            return None
+        self._noise[binding] = noise[binding]
+        self._warn_noise(t, t0, t1)
+        return self._atol(t0, t1)
+
+    def _warn_noise(self, t: float, t0: float, t1: float) -> None:
+        """Say once that the derivatives' rounding, measured during the run, now sets the absolute tolerance: where
+        it loosens it most against what ``--tolerance`` asks."""
+        from . import warn_once
+
+        asked = self.tolerance * np.maximum(np.maximum(self._scale, self._noise_measured_size), self._floor)
+        held = self._atol(t0, t1)
+        worst = int(np.argmax(held / asked))
+        name = self._state_name(worst)
+        warn_once(self, ("rounding noise",), f"from t={t - self.start_time:.6g} the FMU's derivatives are rounded at "
+                  f"up to {self._noise[worst]:.2g} ({name}'s derivative; single precision?), so {name} is integrated "
+                  f"to an absolute tolerance of {held[worst]:.2g} over a step of {t1 - t0:.3g} s, not the "
+                  f"{asked[worst]:.2g} that --tolerance {self.tolerance:g} asks for", stacklevel=3)
+
+    def _state_name(self, index: int) -> str:
+        """The name of continuous state ``index`` from the model description, else ``"state <index + 1>"``."""
+        unknowns = getattr(self.md, "derivatives", None) or []
+        if len(unknowns) == self.nx:   # (an FMI 3 array state counts once there)
+            state = getattr(getattr(unknowns[index], "variable", None), "derivative", None)
+            if getattr(state, "name", None):
+                return str(state.name)
+        return f"state {index + 1}"
 
     def _absolute(self, x: np.ndarray) -> np.ndarray:
         """The FMU's states for the deviation ``x`` from the start state (in a buffer reused by the next call)."""
@@ -901,9 +972,22 @@ _SLOW_RUN_DOP853_SECONDS = 30.0
 #: Trials of :meth:`ModelExchangeSource._rounding_noise` (one derivative evaluation each, once per run).
 _NOISE_TRIALS = 8
 
-#: Relative moves of the start values for the second difference of :meth:`ModelExchangeSource._rounding_noise`:
-#: a few ulps of single precision (6e-8), which an FMU computing in ``float`` rounds to its grid.
+#: Relative moves of the states for the second differences of :meth:`ModelExchangeSource._measure_noise`: a few
+#: ulps of single precision (6e-8), which an FMU computing in ``float`` rounds to its grid.
 _SINGLE_PRECISION_MOVE = 3e-7
+
+#: The larger moves of :meth:`ModelExchangeSource._measure_noise`, relative to :data:`_SINGLE_PRECISION_MOVE`,
+#: that tell rounding noise (the same size) from a kink (four times the size or more).
+_NOISE_MOVE_GROWTH = 4.0
+
+#: How much coarser than the response to ulp moves a derivative's rounding noise must be for
+#: :meth:`ModelExchangeSource._measure_noise_again` to count it during a run: ``float`` is 5e8 times coarser than
+#: ``double``, a double model's second differences are within a few ulps of its terms.
+_COARSER_THAN_DOUBLE = 1e3
+
+#: Seconds of DOP853 in a run between looks at whether the states have grown enough to measure the rounding noise
+#: again (:meth:`ModelExchangeSource._measure_noise_again`): a run faster than that never measures it again.
+_NOISE_RECHECK_SECONDS = 0.1
 
 
 def _floor(nominals: np.ndarray) -> np.ndarray:
@@ -1034,8 +1118,11 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
     started, spent = time.perf_counter(), source._dop853_seconds
 
-    def progress(t: float, h: float) -> None:   # between blocks of steps, and after each call
+    def progress(t: float, h: float, y: np.ndarray) -> None:   # between blocks of steps, and after each call
         source._dop853_seconds = spent + time.perf_counter() - started
+        atol = source._measure_noise_again(t, y, t0, t1)
+        if atol is not None:
+            kernel.set_absolute_tolerance(atol)
         if source._dop853_seconds > _SLOW_RUN_DOP853_SECONDS:
             source._warn_slow_run(t0, t1, t, h)
 
@@ -1044,7 +1131,7 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
                                         check_interrupt, completed, one_step, source._origin, progress)
     except _compiled_rk.IntegrationFailure as exc:
         raise _IntegrationError(str(exc)) from None
-    progress(t, h_last)
+    progress(t, h_last, x)
     if h_last:
         source._h_last = h_last
     return x, t
