@@ -111,6 +111,8 @@ class Kernel:
         self._work = np.zeros((DOP853.n_stages + 4) * max(n, 1))
         self.n = n
         self.evaluations = 0
+        self.accepted = 0   # accepted steps over all calls
+        self.pause_at: int | None = None   # a count of accepted steps at which a call pauses (progress is called)
         self._steps_per_call = 16
 
     def integrate(self, y: np.ndarray, t0: float, t1: float, rtol: float, atol: np.ndarray, first_step: float | None,
@@ -128,7 +130,8 @@ class Kernel:
         completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
         try (the step grows from call to call).  ``origin``: ``y`` is the states' deviation from it; the FMU is given
         ``origin + y``.  ``progress(t, h, y)`` is called between blocks of steps with the time reached, the step size and
-        the state there (not to be changed); it may change the absolute tolerance (:meth:`set_absolute_tolerance`).
+        the state there (not to be changed), and always once :attr:`accepted` reaches :attr:`pause_at`; it may change
+        the absolute tolerance (:meth:`set_absolute_tolerance`) and ``pause_at``.
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol
@@ -142,10 +145,11 @@ class Kernel:
         state = _State(t0, first_step or 0.0, 0.0, t0, 0, 0, 0)
         try:
             while True:
-                started = time.perf_counter()
+                started, before = time.perf_counter(), state.steps
                 status = self._advance(ctypes.byref(self._model), ctypes.byref(self._tableau), ctypes.byref(state),
                                        ctypes.c_double(t1), y.ctypes.data, self._work.ctypes.data,
-                                       1 if one_step else self._steps_per_call)
+                                       1 if one_step else self._steps_until_pause())
+                self.accepted += state.steps - before
                 if status != _PAUSED or one_step:
                     break
                 self._adapt(time.perf_counter() - started)
@@ -171,6 +175,14 @@ class Kernel:
         # last step taken, an FMU that asks at every step would never let it grow)
         step = state.h_abs if one_step or status == _EVENT else state.h_last
         return y, float(step), float(state.t) if status in (_EVENT, _PAUSED) else t1
+
+    def _steps_until_pause(self) -> int:
+        """Steps for the next call: as many as take about :data:`_SECONDS_PER_CALL`, but none past ``pause_at``
+        (so that ``progress`` sees the state there whatever the machine's speed)."""
+        steps = self._steps_per_call
+        if self.pause_at is not None and self.pause_at > self.accepted:
+            steps = min(steps, self.pause_at - self.accepted)
+        return steps
 
     def set_absolute_tolerance(self, atol: np.ndarray) -> None:
         """The absolute tolerances from the next step on (between blocks of steps, from ``progress``)."""

@@ -255,7 +255,8 @@ class ModelExchangeSource(FMUSource):
         self._no_probes: bool = getattr(self, "_no_probes", False)   # kept over restarts (:meth:`start`)
         self._noise = self._rounding_noise()
         self._noise_measured_size = np.abs(self._origin)   # the states' size where the noise was last measured
-        self._noise_checked_after = 0.0   # seconds of DOP853 in the run at the last look (_measure_noise_again)
+        self._noise_check_at = _NOISE_CHECK_STEPS   # DOP853's accepted steps in the run at the next look (below)
+        self._scipy_steps = 0   # accepted steps of scipy's DOP853 loop in the run
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md)
         self._searching = False   # in a crossing search: no completed integrator steps
@@ -515,17 +516,19 @@ class ModelExchangeSource(FMUSource):
             return np.where(rounded & (small > _COARSER_THAN_DOUBLE * noise), small, 0.0)
         return np.maximum(noise, np.where(rounded, small, 0.0), out=noise)
 
-    def _measure_noise_again(self, t: float, x: np.ndarray, t0: float, t1: float) -> np.ndarray | None:
-        """Measure the rounding noise again where the run has spent another :data:`_NOISE_RECHECK_SECONDS` of
-        DOP853 since the last look and a state has grown to twice the size it had at the last measurement (an FMU
-        computing in ``float`` from rest at zero shows no noise at the start: 11-13 s per 0.2 s step in an audit).
-        Leaves the FMU at ``t`` and ``x``.  Returns the absolute tolerances over ``[t0, t1]`` where the noise now
-        raises them, else None.  Only noise coarser than double precision counts (``coarse_only``): a double model's
-        steps, and so its results, must not depend on when the measurement happened to fall (a test on a double
-        model, whose tolerance follows its motion from near zero, failed under load before)."""
-        if self._dop853_seconds < self._noise_checked_after + _NOISE_RECHECK_SECONDS or self._no_probes:
+    def _measure_noise_again(self, t: float, x: np.ndarray, t0: float, t1: float,
+                             accepted: int) -> np.ndarray | None:
+        """Measure the rounding noise again where DOP853 has taken another :data:`_NOISE_CHECK_STEPS` accepted
+        steps in the run (``accepted`` so far) since the last look and a state has grown to twice the size it had at
+        the last measurement (an FMU computing in ``float`` from rest at zero shows no noise at the start: 11-13 s
+        per 0.2 s step in an audit).  Counted in steps, not seconds, so that the looks fall on the same states
+        whatever the machine's load (a float FMU's results moved with it by up to 3x).  Leaves the FMU at ``t``
+        and ``x``.  Returns the absolute tolerances over ``[t0, t1]`` where the noise now raises them, else None.
+        Only noise coarser than double precision counts (``coarse_only``): a double model's steps, and so its
+        results, stay those of a run without the looks (tested to the bit)."""
+        if accepted < self._noise_check_at or self._no_probes:
             return None
-        self._noise_checked_after = self._dop853_seconds
+        self._noise_check_at = accepted + _NOISE_CHECK_STEPS
         size = np.abs(self._origin + x)
         if not np.any(size > 2.0 * self._noise_measured_size):
             return None
@@ -985,9 +988,9 @@ _NOISE_MOVE_GROWTH = 4.0
 #: ``double``, a double model's second differences are within a few ulps of its terms.
 _COARSER_THAN_DOUBLE = 1e3
 
-#: Seconds of DOP853 in a run between looks at whether the states have grown enough to measure the rounding noise
-#: again (:meth:`ModelExchangeSource._measure_noise_again`): a run faster than that never measures it again.
-_NOISE_RECHECK_SECONDS = 0.1
+#: Accepted DOP853 steps in a run between looks at whether the states have grown enough to measure the rounding
+#: noise again (:meth:`ModelExchangeSource._measure_noise_again`; 12,000 derivative evaluations, a measurement 25).
+_NOISE_CHECK_STEPS = 1000
 
 
 def _floor(nominals: np.ndarray) -> np.ndarray:
@@ -1076,10 +1079,17 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, 
         first = source._h_last if math.isfinite(source._h_last) else None
         solver = cls(source.rhs, t0, source._x.copy(), t1, rtol=source.tolerance, atol=source._atol(t0, t1),
                      first_step=None if first is None else min(first, t1 - t0))
+        watch = _StepWatch(source, t0, t1) if name == "DOP853" else None   # (the compiled loop's stand-in)
         while solver.status == "running":
             message = solver.step()
+            check_interrupt()   # (one that arrived in the FMU's logger callback is only remembered there)
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
+            if watch is not None:
+                source._scipy_steps += 1
+                atol = watch(solver.t, solver.step_size or 0.0, solver.y, source._scipy_steps)
+                if atol is not None:
+                    solver.atol = atol   # (scipy's Runge-Kutta steps read it at every step)
             if one_step:
                 break
             if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
@@ -1109,6 +1119,25 @@ def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> b
     return bool(flags[0])
 
 
+class _StepWatch:
+    """What DOP853 does between blocks of steps over ``[t0, t1]``, called with the time, step size and state
+    reached and the run's accepted steps so far: count the run's DOP853 seconds, measure the rounding noise again where due (returns the new absolute
+    tolerances, else None) and say once when the run has been slow
+    (:meth:`ModelExchangeSource._measure_noise_again`, :meth:`ModelExchangeSource._warn_slow_run`)."""
+
+    def __init__(self, source: ModelExchangeSource, t0: float, t1: float) -> None:
+        self.source, self.t0, self.t1 = source, t0, t1
+        self.started, self.spent = time.perf_counter(), source._dop853_seconds
+
+    def __call__(self, t: float, h: float, y: np.ndarray, accepted: int) -> np.ndarray | None:
+        source = self.source
+        source._dop853_seconds = self.spent + time.perf_counter() - self.started
+        atol = source._measure_noise_again(t, y, self.t0, self.t1, accepted)
+        if source._dop853_seconds > _SLOW_RUN_DOP853_SECONDS:
+            source._warn_slow_run(self.t0, self.t1, t, h)
+        return atol
+
+
 def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
             one_step: bool = False) -> tuple[np.ndarray, float]:
     """DOP853 through the compiled step loop (:mod:`._compiled_rk`), else scipy's Python loop."""
@@ -1116,15 +1145,14 @@ def _dop853(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if kernel is None:
         return _scipy_dop853(source, t0, t1, completed, one_step)
     first = min(source._h_last, t1 - t0) if math.isfinite(source._h_last) else None
-    started, spent = time.perf_counter(), source._dop853_seconds
+    watch = _StepWatch(source, t0, t1)
+    kernel.pause_at = source._noise_check_at
 
     def progress(t: float, h: float, y: np.ndarray) -> None:   # between blocks of steps, and after each call
-        source._dop853_seconds = spent + time.perf_counter() - started
-        atol = source._measure_noise_again(t, y, t0, t1)
+        atol = watch(t, h, y, kernel.accepted)
+        kernel.pause_at = source._noise_check_at
         if atol is not None:
             kernel.set_absolute_tolerance(atol)
-        if source._dop853_seconds > _SLOW_RUN_DOP853_SECONDS:
-            source._warn_slow_run(t0, t1, t, h)
 
     try:
         x, h_last, t = kernel.integrate(source._x, t0, t1, source.tolerance, source._atol(t0, t1), first,
