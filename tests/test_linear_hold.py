@@ -260,8 +260,9 @@ def without_compiler(tmp_path, monkeypatch):
 @pytest.mark.slow  # 8 s: two FMUs built, scipy's loop
 def test_scipys_loop_also_measures_the_noise_again_and_takes_interrupts(tmp_path, without_compiler):
     """Without a compiler, scipy's DOP853 loop stands in for the compiled one, with the same checks between steps:
-    a single-precision FMU from zero records in seconds (3.6 s for 1 s measured under load; over 60 s before), and SIGTERM
-    ends a long run at once (it was remembered in the FMU's logger callback and acted on only after 2.4 min)."""
+    a single-precision FMU from zero records in seconds (3.6 s for 1 s measured under load; over 60 s before),
+    and SIGTERM ends a long run at once (it was remembered in the FMU's logger callback and acted on only after
+    2.4 min)."""
     import os
     import signal as _signal
     import threading

@@ -129,9 +129,9 @@ class Kernel:
         :class:`IntegrationFailure` with scipy's wording for the reasons its loop fails, and when the FMU refuses the
         completed step or asks to terminate.  With ``one_step`` the second value is the size the next step would
         try (the step grows from call to call).  ``origin``: ``y`` is the states' deviation from it; the FMU is given
-        ``origin + y``.  ``progress(t, h, y)`` is called between blocks of steps with the time reached, the step size and
-        the state there (not to be changed), and always once :attr:`accepted` reaches :attr:`pause_at`; it may change
-        the absolute tolerance (:meth:`set_absolute_tolerance`) and ``pause_at``.
+        ``origin + y``.  ``progress(t, h, y)`` is called between blocks of steps with the time reached, the step
+        size and the state there (not to be changed), and always once :attr:`accepted` reaches :attr:`pause_at`;
+        it may change the absolute tolerance (:meth:`set_absolute_tolerance`) and ``pause_at``.
         """
         y = np.array(y, dtype=float)  # a fresh array: the caller's state is not changed on failure
         self._atol[:] = atol

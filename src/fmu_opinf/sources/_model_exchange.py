@@ -1121,8 +1121,8 @@ def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> b
 
 class _StepWatch:
     """What DOP853 does between blocks of steps over ``[t0, t1]``, called with the time, step size and state
-    reached and the run's accepted steps so far: count the run's DOP853 seconds, measure the rounding noise again where due (returns the new absolute
-    tolerances, else None) and say once when the run has been slow
+    reached and the run's accepted steps so far: count the run's DOP853 seconds, measure the rounding noise again
+    where due (returns the new absolute tolerances, else None) and say once when the run has been slow
     (:meth:`ModelExchangeSource._measure_noise_again`, :meth:`ModelExchangeSource._warn_slow_run`)."""
 
     def __init__(self, source: ModelExchangeSource, t0: float, t1: float) -> None:
