@@ -202,9 +202,9 @@ def test_one_single_precision_block_beside_double_ones_is_recorded_in_seconds(tm
     """Only the stiffness forces on half the masses in ``float``, the rest in double (as a Simulink model with one
     single-precision block; second audit of 2026-12-05: 63 s for 4 s): the double derivatives follow every ulp
     move, so the float block's noise shows only in the second differences, taken for every derivative and kept
-    where larger moves do not bend them more (rounding, not a kink).  Over 60 s before, here 1.9-2.6 s.  Against
-    the double model's exact solution: the block's rounding makes the stiff link's two forces unequal, which no
-    integrator undoes (the run before this change did not end within 40 minutes, so it gives no reference)."""
+    where larger moves do not bend them more (rounding, not a kink).  Before, 134 s for 4 s at rest (DOP853 at
+    steps of 3e-8 s); here 1.9-2.6 s.  Against the double model's exact solution: the block's rounding makes the
+    stiff link's two forces unequal, which no integrator undoes (that slow run was 8.7e-4 and 1.5e-3 off it)."""
     chain = _started(stiff_chain(), start)
     path = tmp_path / "Partial.fmu"
     lti_fmus.build_lti_fmu(chain, path, interfaces=("me",), single_precision="partial")
