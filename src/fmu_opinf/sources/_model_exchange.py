@@ -110,6 +110,10 @@ class _IntegrationError(Exception):
     """The FMU refused a call inside the right-hand side, or the integrator gave up."""
 
 
+class _LeftInError(_IntegrationError):
+    """The FMU refused a probe of its rounding noise during a run and then refused the state it came from."""
+
+
 class _ExactStepRefused(_IntegrationError):
     """The FMU refused the first exact step of a run (:func:`_linear`): the run starts again with DOP853."""
 
@@ -488,11 +492,14 @@ class ModelExchangeSource(FMUSource):
         ``float`` rounds the ulps away, and its derivatives are noisy at 6e-8 of their terms, which DOP853 asked
         for 1e-10 chased for ever (audit of 2026-12-05); one single-precision block among double ones (a link
         force) leaves the other terms following the ulps, so the second difference is taken for every derivative.
-        A derivative that follows no ulp move (rounded to ``float``) takes it as noise; one that does, only where
-        it stays within twice its size for moves four times larger: rounding does not grow with the move, while a
-        kink in a double-precision model grows at least four times and curvature sixteen (a contact force at its
-        gap would otherwise loosen the tolerance).  ``coarse_only``: only noise over :data:`_COARSER_THAN_DOUBLE`
-        times the ulp moves' (single precision), 0 elsewhere."""
+        It counts as noise where it is rounding: where it stays within twice its size for moves four times
+        larger (rounding does not grow with the move, while a kink grows at least four times and curvature
+        sixteen: a contact force at its gap), and is at most :data:`_ROUNDING_SHARE` of the derivative's response
+        to those larger moves (float rounding is about 6e-8 of the terms against their change of 1.2e-6, while a
+        jump within reach, a table's step, a relay or ``sign`` of a relative velocity, moves the second difference
+        as much as the response: a double model at 1000 m with a 5 N step 0.1 mm away was recorded with its
+        velocity's tolerance at 0.5 m/s, audit of 2026-12-05).  ``coarse_only``: only noise over
+        :data:`_COARSER_THAN_DOUBLE` times the ulp moves' (single precision), 0 elsewhere."""
         absolute = self._origin + x
         ulps = np.where(absolute != 0, np.spacing(np.abs(absolute)), 0.0)
         noise = np.zeros(self.nx)
@@ -503,15 +510,19 @@ class ModelExchangeSource(FMUSource):
         for row in rng.choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx)):
             np.maximum(noise, np.abs(self._derivatives(t, x + row * ulps) - base), out=noise)
         signs = rng.choice([-1.0, 1.0], size=(_NOISE_TRIALS // 2, self.nx))
-        bends = []
+        bends, slopes = [], np.zeros(self.nx)
         for factor in (1.0, _NOISE_MOVE_GROWTH):
             bend = np.zeros(self.nx)
             for move in factor * _SINGLE_PRECISION_MOVE * np.abs(absolute) * signs:
-                bent = self._derivatives(t, x + move) + self._derivatives(t, x - move) - 2.0 * base
-                np.maximum(bend, 0.5 * np.abs(bent), out=bend)
+                # unequal moves ahead and behind, exact for a linear model: equal ones of a value that float
+                # represents exactly (0.375) land on the float grid symmetrically and hide its rounding
+                ahead, behind = self._derivatives(t, x + move), self._derivatives(t, x - _BEHIND * move)
+                bent = _BEHIND * ahead + behind - (1.0 + _BEHIND) * base
+                np.maximum(bend, np.abs(bent) / (1.0 + _BEHIND), out=bend)
+                np.maximum(slopes, 0.5 * np.abs(ahead - behind), out=slopes)   # (the larger moves' is kept)
             bends.append(bend)
         small, large = bends
-        rounded = (noise == 0) | (large <= 2.0 * small)
+        rounded = (large <= 2.0 * small) & (small <= _ROUNDING_SHARE * slopes)
         if coarse_only:
             return np.where(rounded & (small > _COARSER_THAN_DOUBLE * noise), small, 0.0)
         return np.maximum(noise, np.where(rounded, small, 0.0), out=noise)
@@ -526,7 +537,7 @@ class ModelExchangeSource(FMUSource):
         and ``x``.  Returns the absolute tolerances over ``[t0, t1]`` where the noise now raises them, else None.
         Only noise coarser than double precision counts (``coarse_only``): a double model's steps, and so its
         results, stay those of a run without the looks (tested to the bit)."""
-        if accepted < self._noise_check_at or self._no_probes:
+        if accepted < self._noise_check_at:   # (also after a restart without the Jacobian's probes: these are tiny)
             return None
         self._noise_check_at = accepted + _NOISE_CHECK_STEPS
         size = np.abs(self._origin + x)
@@ -535,8 +546,10 @@ class ModelExchangeSource(FMUSource):
         np.maximum(self._noise_measured_size, size, out=self._noise_measured_size)
         try:
             noise = self._measure_noise(t, x, coarse_only=True)
-        except _IntegrationError:
-            return None   # (moves smaller than the integrator's own: the next step says what the FMU refuses)
+        except _IntegrationError as exc:
+            self._noise_check_at = _NEVER   # (no more probes in this run)
+            self._check_after_refused_probe(t, x, self._last_log() or str(exc))
+            return None
         finally:
             self._set_states(x)
             self._c_time(self._comp, t)
@@ -545,22 +558,35 @@ class ModelExchangeSource(FMUSource):
         if not binding.any():
             return None
         self._noise[binding] = noise[binding]
-        self._warn_noise(t, t0, t1)
+        self._warn_noise(t, t0, t1, binding)
         return self._atol(t0, t1)
 
-    def _warn_noise(self, t: float, t0: float, t1: float) -> None:
-        """Say once that the derivatives' rounding, measured during the run, now sets the absolute tolerance: where
-        it loosens it most against what ``--tolerance`` asks."""
+    def _check_after_refused_probe(self, t: float, x: np.ndarray, refusal: str) -> None:
+        """After the FMU refused a probe of its rounding noise at ``t``: go on where it still takes the state it came
+        from; raise :class:`_LeftInError`, naming the probe, where it stays in error (FMI 2.0 section 2.1.3: an
+        FMU that returned an error may take no further call; a range assert at a state's bound does)."""
+        try:
+            self._derivatives(t, x)
+        except _IntegrationError:
+            raise _LeftInError(f"the FMU refused a probe of its derivatives at t={t - self.start_time:.9g}, the states "
+                               f"moved by up to {_NOISE_MOVE_GROWTH * _SINGLE_PRECISION_MOVE:.2g} of their values to "
+                               f"measure their rounding ({refusal}), and stays in error since; record with "
+                               "--me-method bdf, which takes no such probes") from None
+
+    def _warn_noise(self, t: float, t0: float, t1: float, raised: np.ndarray) -> None:
+        """Say once that the derivatives' rounding, measured during the run, now sets the absolute tolerance: of the
+        states whose noise this measurement ``raised``, the one whose tolerance it loosens most."""
         from . import warn_once
 
-        asked = self.tolerance * np.maximum(np.maximum(self._scale, self._noise_measured_size), self._floor)
         held = self._atol(t0, t1)
-        worst = int(np.argmax(held / asked))
+        asked = self.tolerance * np.maximum(np.maximum(self._scale, self._noise_measured_size), self._floor)
+        worst = int(np.argmax(np.where(raised, held / asked, -1.0)))
         name = self._state_name(worst)
-        warn_once(self, ("rounding noise",), f"from t={t - self.start_time:.6g} the FMU's derivatives are rounded at "
-                  f"up to {self._noise[worst]:.2g} ({name}'s derivative; single precision?), so {name} is integrated "
-                  f"to an absolute tolerance of {held[worst]:.2g} over a step of {t1 - t0:.3g} s, not the "
-                  f"{asked[worst]:.2g} that --tolerance {self.tolerance:g} asks for", stacklevel=3)
+        warn_once(self, ("rounding noise",), f"from t={t - self.start_time:.6g} the FMU's derivatives change "
+                  f"irregularly by up to {self._noise[worst]:.2g} ({name}'s derivative) under moves of 1e-6 of the "
+                  f"states, as rounding in single precision does: {name} is integrated to an absolute tolerance of "
+                  f"{held[worst]:.2g} over a step of {t1 - t0:.3g} s from there, the most the noise allows (it may "
+                  "grow later in the run)", stacklevel=3)
 
     def _state_name(self, index: int) -> str:
         """The name of continuous state ``index`` from the model description, else ``"state <index + 1>"``."""
@@ -696,6 +722,8 @@ class ModelExchangeSource(FMUSource):
             except _ExactStepRefused as exc:
                 self._restart_without_exact_step(str(exc))
                 return self._piece(i, t0, t1, one_step)
+            except _LeftInError as exc:
+                raise StepError(f"{self.path.name}: {exc}", i, t1) from None
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
             self._set_states(self._x)
@@ -979,9 +1007,18 @@ _NOISE_TRIALS = 8
 #: ulps of single precision (6e-8), which an FMU computing in ``float`` rounds to its grid.
 _SINGLE_PRECISION_MOVE = 3e-7
 
+#: The move behind the state in the second differences of :meth:`ModelExchangeSource._measure_noise`, relative to
+#: the move ahead (incommensurate with float's grid).
+_BEHIND = 0.618
+
 #: The larger moves of :meth:`ModelExchangeSource._measure_noise`, relative to :data:`_SINGLE_PRECISION_MOVE`,
 #: that tell rounding noise (the same size) from a kink (four times the size or more).
 _NOISE_MOVE_GROWTH = 4.0
+
+#: The largest share of a derivative's response to the larger moves of :meth:`ModelExchangeSource._measure_noise`
+#: that its second difference may have to count as rounding: float rounding is about 0.05 of it (6e-8 of the terms
+#: against a change of 1.2e-6 of them), a jump within reach about 1.
+_ROUNDING_SHARE = 0.25
 
 #: How much coarser than the response to ulp moves a derivative's rounding noise must be for
 #: :meth:`ModelExchangeSource._measure_noise_again` to count it during a run: ``float`` is 5e8 times coarser than
@@ -991,6 +1028,9 @@ _COARSER_THAN_DOUBLE = 1e3
 #: Accepted DOP853 steps in a run between looks at whether the states have grown enough to measure the rounding
 #: noise again (:meth:`ModelExchangeSource._measure_noise_again`; 12,000 derivative evaluations, a measurement 25).
 _NOISE_CHECK_STEPS = 1000
+
+#: A count of accepted steps no run reaches: no more looks.
+_NEVER = 1 << 62
 
 
 def _floor(nominals: np.ndarray) -> np.ndarray:
