@@ -498,7 +498,9 @@ class ModelExchangeSource(FMUSource):
         to those larger moves (float rounding is about 6e-8 of the terms against their change of 1.2e-6, while a
         jump within reach, a table's step, a relay or ``sign`` of a relative velocity, moves the second difference
         as much as the response: a double model at 1000 m with a 5 N step 0.1 mm away was recorded with its
-        velocity's tolerance at 0.5 m/s, audit of 2026-12-05).  ``coarse_only``: only noise over
+        velocity's tolerance at 0.5 m/s, audit of 2026-12-05), or at most :data:`_FLOAT_ULPS` float ulps of the
+        derivative's value (gravity rounded in float with a weak spring's force: rounding far above the response
+        to the moves, but a few ulps of the value).  ``coarse_only``: only noise over
         :data:`_COARSER_THAN_DOUBLE` times the ulp moves' (single precision), 0 elsewhere."""
         absolute = self._origin + x
         ulps = np.where(absolute != 0, np.spacing(np.abs(absolute)), 0.0)
@@ -510,7 +512,7 @@ class ModelExchangeSource(FMUSource):
         for row in rng.choice([-2.0, -1.0, 1.0, 2.0], size=(_NOISE_TRIALS, self.nx)):
             np.maximum(noise, np.abs(self._derivatives(t, x + row * ulps) - base), out=noise)
         signs = rng.choice([-1.0, 1.0], size=(_NOISE_TRIALS // 2, self.nx))
-        bends, slopes = [], np.zeros(self.nx)
+        bends, slopes, sizes = [], np.zeros(self.nx), np.abs(base)
         for factor in (1.0, _NOISE_MOVE_GROWTH):
             bend = np.zeros(self.nx)
             for move in factor * _SINGLE_PRECISION_MOVE * np.abs(absolute) * signs:
@@ -520,9 +522,11 @@ class ModelExchangeSource(FMUSource):
                 bent = _BEHIND * ahead + behind - (1.0 + _BEHIND) * base
                 np.maximum(bend, np.abs(bent) / (1.0 + _BEHIND), out=bend)
                 np.maximum(slopes, 0.5 * np.abs(ahead - behind), out=slopes)   # (the larger moves' is kept)
+                np.maximum(sizes, np.maximum(np.abs(ahead), np.abs(behind)), out=sizes)
             bends.append(bend)
         small, large = bends
-        rounded = (large <= 2.0 * small) & (small <= _ROUNDING_SHARE * slopes)
+        float_ulps = _FLOAT_ULPS * np.finfo(np.float32).eps * sizes   # (a constant term rounded with the rest)
+        rounded = (large <= 2.0 * small) & ((small <= _ROUNDING_SHARE * slopes) | (small <= float_ulps))
         if coarse_only:
             return np.where(rounded & (small > _COARSER_THAN_DOUBLE * noise), small, 0.0)
         return np.maximum(noise, np.where(rounded, small, 0.0), out=noise)
@@ -1019,6 +1023,11 @@ _NOISE_MOVE_GROWTH = 4.0
 #: that its second difference may have to count as rounding: float rounding is about 0.05 of it (6e-8 of the terms
 #: against a change of 1.2e-6 of them), a jump within reach about 1.
 _ROUNDING_SHARE = 0.25
+
+#: Float ulps of a derivative's value (``2**-23`` of it each) up to which its second difference counts as rounding
+#: whatever the response to the moves (:meth:`ModelExchangeSource._measure_noise`): a result rounded to float is
+#: within half an ulp.
+_FLOAT_ULPS = 4.0
 
 #: How much coarser than the response to ulp moves a derivative's rounding noise must be for
 #: :meth:`ModelExchangeSource._measure_noise_again` to count it during a run: ``float`` is 5e8 times coarser than
