@@ -501,8 +501,7 @@ class ModelExchangeSource(FMUSource):
         audits of 2026-12-05 found no test that tells that block's rounding from a jump near the state (a force
         step 0.1 mm away at 1000 m, beside a stiff link, passed every one and loosened a velocity's tolerance to
         0.77 m/s); such a model records at the tolerance's pace, with the slow-run warning.
-        ``coarse_only``: only noise over :data:`_COARSER_THAN_DOUBLE` times the ulp moves' (single precision), 0
-        elsewhere."""
+        ``coarse_only``: only that rounding, without the response to ulp moves (a double model's)."""
         absolute = self._origin + x
         ulps = np.where(absolute != 0, np.spacing(np.abs(absolute)), 0.0)
         noise = np.zeros(self.nx)
@@ -527,9 +526,8 @@ class ModelExchangeSource(FMUSource):
                 np.maximum(sizes, np.maximum(np.abs(ahead), np.abs(behind)), out=sizes)
         float_ulps = _FLOAT_ULPS * np.finfo(np.float32).eps * sizes   # (a constant term rounded with the rest)
         rounded = (noise == 0) & ((small <= _ROUNDING_SHARE * slopes) | (small <= float_ulps))
-        if coarse_only:
-            return np.where(rounded & (small > _COARSER_THAN_DOUBLE * noise), small, 0.0)
-        return np.maximum(noise, np.where(rounded, small, 0.0), out=noise)
+        rounding = np.where(rounded, small, 0.0)
+        return rounding if coarse_only else np.maximum(noise, rounding, out=noise)
 
     def _measure_noise_again(self, t: float, x: np.ndarray, t0: float, t1: float,
                              accepted: int) -> np.ndarray | None:
@@ -539,8 +537,8 @@ class ModelExchangeSource(FMUSource):
         per 0.2 s step in an audit).  Counted in steps, not seconds, so that the looks fall on the same states
         whatever the machine's load (a float FMU's results moved with it by up to 3x).  Leaves the FMU at ``t``
         and ``x``.  Returns the absolute tolerances over ``[t0, t1]`` where the noise now raises them, else None.
-        Only noise coarser than double precision counts (``coarse_only``): a double model's steps, and so its
-        results, stay those of a run without the looks (tested to the bit)."""
+        Only rounding to ``float`` counts (``coarse_only``), not the response to ulp moves: a double model's steps,
+        and so its results, stay those of a run without the looks (tested to the bit)."""
         if accepted < self._noise_check_at:   # (also after a restart without the Jacobian's probes: these are tiny)
             return None
         self._noise_check_at = accepted + _NOISE_CHECK_STEPS
@@ -1028,11 +1026,6 @@ _ROUNDING_SHARE = 0.25
 #: whatever the response to the moves (:meth:`ModelExchangeSource._measure_noise`): a result rounded to float is
 #: within half an ulp.
 _FLOAT_ULPS = 4.0
-
-#: How much coarser than the response to ulp moves a derivative's rounding noise must be for
-#: :meth:`ModelExchangeSource._measure_noise_again` to count it during a run: ``float`` is 5e8 times coarser than
-#: ``double``, a double model's second differences are within a few ulps of its terms.
-_COARSER_THAN_DOUBLE = 1e3
 
 #: Accepted DOP853 steps in a run between looks at whether the states have grown enough to measure the rounding
 #: noise again (:meth:`ModelExchangeSource._measure_noise_again`; 12,000 derivative evaluations, a measurement 25).
