@@ -8,6 +8,7 @@ for the hand-over.
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -213,6 +214,31 @@ def test_one_single_precision_block_beside_double_ones_is_recorded_in_seconds(tm
     run = _record_within_a_minute(path)
     x_error, v_error = _errors(chain, run)
     assert x_error < 1e-3 and v_error < 4e-3, (x_error, v_error)   # measured 3.9e-4 / 3.0e-4, 2.0e-3 / 1.5e-3
+
+
+@pytest.mark.parametrize("precision", [True, False], ids=["float", "double"])
+def test_a_tolerance_the_rounding_noise_loosened_is_said_once_and_reported_per_run(tmp_path, precision):
+    """Where the derivatives' rounding sets a state's absolute tolerance, the run's ``integrator`` attribute names
+    the noise, the state loosened most and its tolerance, and the command warns once, also for a loosening measured
+    at the start (before, only a loosening found later in a run was said: here the states never double, so there is
+    none).  Two runs in processes of their own warn once; a double-precision model not at all."""
+    import warnings
+
+    path = tmp_path / "Rounded.fmu"
+    lti_fmus.build_lti_fmu(_started(stiff_chain(), "rest"), path, interfaces=("me",), single_precision=precision)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        runs = [record(open_source(path), signal, DT, 2.0, quiet=True, isolate=True).runs[0]
+                for signal in ("impulse:amplitude=0.05,t0=0.5,width=0.4", "step:amplitude=0.02")]
+    said = [str(w.message) for w in caught if "irregularly" in str(w.message)]
+    reports = [run.attrs["integrator"] for run in runs]
+    if not precision:   # (its stiff link's cancelling forces loosen two tolerances, to 5e-8 of their motion)
+        assert not said, said
+        return
+    assert len(said) == 1 and "not to the 1e-10 asked" in said[0], said
+    for report in reports:   # the stiff link's masses carry its rounded force: their velocities are the noisiest
+        assert re.search(r"rounding noise \(up to [0-9.e+-]+ in mass\[[34]\]\.v's derivative\) set the absolute "
+                         r"tolerance of \d+ state\(s\), the loosest against its motion mass\[\d\]\.[sv]'s", report), report
 
 
 def test_measuring_the_noise_again_leaves_a_double_precision_run_unchanged(tmp_path, monkeypatch):
