@@ -174,6 +174,27 @@ def test_an_fmu_that_refuses_a_probe_and_stays_in_error_is_recorded_from_a_fresh
     assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)
 
 
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_an_fmu_that_discards_a_probe_is_recorded_with_the_same_instance(tmp_path, monkeypatch, fmi_version):
+    """A discard (a state outside the model's domain) leaves the instance usable (FMI 2.0 section 2.1.3), so the run
+    goes on with it and DOP853, without the new instance an error needs: an FMU that allows one instance per process
+    (a licence checked out per process) failed the run to instantiate (audit of 2026-12-05).  Here a new instance
+    fails the test."""
+    path = tmp_path / "Discarding.fmu"
+    lti_fmus.build_lti_fmu(stiff_chain(), path, interfaces=("me",), position_limit=(0, 0.8),
+                           position_limit_status="discard", fmi_version=fmi_version)
+    monkeypatch.setattr(me.ModelExchangeSource, "_restart_without_probes",
+                        lambda self: pytest.fail("a discarded probe started the FMU again"))
+    run = record(open_source(path), SIGNAL, DT, 2.0, quiet=True, isolate=False).runs[0]
+    assert run.attrs["complete"] and run.attrs["integrator"].startswith("auto: DOP853")
+    assert "the FMU discarded a probe of its derivatives off the start state" in run.attrs["integrator"]
+    assert "out of its range" in run.attrs["integrator"]
+    found = errors(run)
+    assert found["x"] < 1e-10 and found["xdot"] < 1e-7, found   # measured 2.8e-11, 2.9e-8
+    alone = record(open_source(path, method="dop853"), SIGNAL, DT, 2.0, quiet=True, isolate=False).runs[0]
+    assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)
+
+
 @pytest.mark.parametrize("precision, start, limit, x_bound, v_bound", [
     (True, "rest", None, 2e-6, 4e-3),         # measured 6.6e-7, 1.5e-3
     (True, "rest", (0, 0.8), 2e-6, 4e-3),     # the same

@@ -185,9 +185,10 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
     if (LTI_POSITION_LIMIT) {
         double x = position(inst, LTI_POSITION_LIMIT_DOF, z);
         if (!(fabs(x) <= LTI_POSITION_LIMIT_BOUND)) {
-            ltiLog(inst, LtiError, "logStatusError", "%s: assert: position %lu = %g is out of its range +-%g",
+            LtiStatus refused = LTI_POSITION_LIMIT == 2 ? LtiDiscard : LtiError;
+            ltiLog(inst, refused, "logStatusError", "%s: assert: position %lu = %g is out of its range +-%g",
                    function, (unsigned long)LTI_POSITION_LIMIT_DOF, x, LTI_POSITION_LIMIT_BOUND);
-            return LtiError;
+            return refused;
         }
     }
     for (i = 0; i < nq; i++) qdd[i] = inst->fq[i];
@@ -446,7 +447,8 @@ LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
     size_t nq = inst->nq;
     double *internal = inst->work + 10 * nq;   /* the RK4 step uses the first 10 nq */
     size_t i;
-    if (accelerations(inst, function, inst->z, internal + nq) != LtiOK) return LtiError;
+    LtiStatus status = accelerations(inst, function, inst->z, internal + nq);
+    if (status != LtiOK) return status == LtiDiscard ? LtiDiscard : LtiError;
     for (i = 0; i < nq; i++) internal[i] = LTI_SINGLE_PRECISION == 1 ? (float)inst->z[nq + i] : inst->z[nq + i];
     toFmiOrder(nq, internal, dz);
     return LtiOK;

@@ -130,7 +130,8 @@ extern const int LTI_COMPLETED_EVENT, LTI_COMPLETED_EVENT_EVERY;
    single-precision block beside double-precision ones). */
 extern const int LTI_SINGLE_PRECISION;
 /* LTI_POSITION_LIMIT: the model asserts |x[LTI_POSITION_LIMIT_DOF]| <= LTI_POSITION_LIMIT_BOUND in every evaluation,
-   as a Modelica assert on a variable's range does: beyond it, an error, and the instance stays in error. */
+   as a Modelica assert on a variable's range does: beyond it, an error, and the instance stays in error (1), or a
+   discard, the instance staying usable (2: a state outside the model's domain). */
 extern const int LTI_POSITION_LIMIT;
 extern const size_t LTI_POSITION_LIMIT_DOF;
 extern const double LTI_POSITION_LIMIT_BOUND;

@@ -759,6 +759,7 @@ class _Options:
     cs_early_return_at: float | None = None
     cs_terminate_at: float | None = None
     position_limit: tuple[int, float] | None = None
+    position_limit_status: str = "error"
     single_precision: bool | str = False
 
     @property
@@ -768,6 +769,9 @@ class _Options:
 
 #: ``LTI_SINGLE_PRECISION`` of the C kernel for each value of ``single_precision``.
 _SINGLE_PRECISION_CODES = {False: 0, True: 1, "partial": 2}
+
+#: ``LTI_POSITION_LIMIT`` of the C kernel for each ``position_limit_status`` (0: no limit).
+_POSITION_LIMIT_CODES = {"error": 1, "discard": 2}
 
 
 def _check_options(model, options: _Options) -> None:
@@ -830,6 +834,9 @@ def _check_options(model, options: _Options) -> None:
 
 def _check_position_limit(model, options: _Options) -> None:
     """``position_limit`` names a degree of freedom of the model and a positive bound."""
+    if options.position_limit_status not in _POSITION_LIMIT_CODES:
+        raise FmuBuildError(f"position_limit_status={options.position_limit_status!r} is not known; use 'error' or "
+                            "'discard'")
     if options.position_limit is None:
         return
     dof, bound = options.position_limit
@@ -1525,7 +1532,8 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const double LTI_COMPLETED_EVENT_AT = {_number(options.completed_step_event_at or 0.0)};\n"
         f"const int LTI_COMPLETED_EVENT_EVERY = {int(options.completed_step_event_every)};\n"
         f"const int LTI_SINGLE_PRECISION = {_SINGLE_PRECISION_CODES[options.single_precision]};\n"
-        f"const int LTI_POSITION_LIMIT = {int(options.position_limit is not None)};\n"
+        f"const int LTI_POSITION_LIMIT = "
+        f"{0 if options.position_limit is None else _POSITION_LIMIT_CODES[options.position_limit_status]};\n"
         f"const size_t LTI_POSITION_LIMIT_DOF = {limit[0]};\n"
         f"const double LTI_POSITION_LIMIT_BOUND = {_number(limit[1])};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
@@ -1655,8 +1663,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
-                  position_limit: tuple[int, float] | None = None, single_precision: bool | str = False,
-                  reuse: bool = True) -> LtiFmu:
+                  position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
+                  single_precision: bool | str = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1774,6 +1782,9 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         ``(dof, bound)``: every evaluation of the model asserts ``|x[dof]| <= bound`` (m), as a Modelica ``assert``
         on a variable's range does; beyond it the call returns an error and the instance stays in error (FMI 2.0
         section 2.1.3), whatever is called next.
+    position_limit_status : {"error", "discard"}, default="error"
+        What a call beyond ``position_limit`` returns: ``"error"`` as above, or ``"discard"``: ``fmi2Discard`` /
+        ``fmi3Discard`` (and logs why), the instance staying usable, as a model does for a state outside its domain.
     single_precision : bool or "partial", default=False
         The derivatives are computed from the state rounded to ``float`` and returned rounded to ``float``, as an
         export for an embedded target may compute (the rounding noise is 6e-8 of their terms).  ``"partial"``:
@@ -1817,7 +1828,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
         cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
-        single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
+        position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)

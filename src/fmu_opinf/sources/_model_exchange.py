@@ -71,7 +71,7 @@ from .._interrupts import check_interrupt
 from ..errors import FMUError, InputSpecError
 from . import _compiled_rk, _linear_hold
 from ._base import EventCount, StepError
-from ._cosimulation import DEFAULT_TOLERANCE, FMUSource
+from ._cosimulation import DEFAULT_TOLERANCE, DISCARD, FMUSource
 
 __all__ = ["ModelExchangeSource", "METHODS"]
 
@@ -108,6 +108,11 @@ _MAX_CROSSING_TRIALS = 200
 
 class _IntegrationError(Exception):
     """The FMU refused a call inside the right-hand side, or the integrator gave up."""
+
+
+class _Discarded(_IntegrationError):
+    """The FMU discarded a call (``fmi2Discard`` / ``fmi3Discard``) or returned derivatives that are not finite: the
+    instance stays usable (FMI 2.0 section 2.1.3), unlike after an error."""
 
 
 class _LeftInError(_IntegrationError):
@@ -259,6 +264,7 @@ class ModelExchangeSource(FMUSource):
         self._scale = np.zeros(self.nx)
         self._resolution = np.where(self._origin != 0, np.spacing(np.abs(self._origin)), 0.0)
         self._probe_refusal: str | None = None   # why the FMU refused a probe of its derivatives in this start
+        self._probe_left_in_error = False   # ... and whether with an error (not a discard): then start again
         self._no_probes: bool = getattr(self, "_no_probes", False)   # kept over restarts (:meth:`start`)
         self._noise = self._rounding_noise()
         self._noise_measured_size = np.abs(self._origin)   # the states' size where the noise was last measured
@@ -289,14 +295,18 @@ class ModelExchangeSource(FMUSource):
 
     def start(self, t: np.ndarray, U: np.ndarray) -> None:
         self._run_grid = (t, U)
-        self._probe_refusal = None
+        self._probe_refusal, self._probe_left_in_error = None, False
         try:
             super().start(t, U)
         except StepError:
-            if self._probe_refusal is None or self._no_probes:
+            if self._probe_refusal is None or self._no_probes or not self._probe_left_in_error:
                 raise   # (an FMU in error after a refused probe may fail what follows its initialization)
         if self._probe_refusal is not None and not self._no_probes:
-            self._restart_without_probes()
+            if self._probe_left_in_error:
+                self._restart_without_probes()
+            else:   # a discard leaves the instance usable: no new instance (one per process may be all it allows)
+                self._exact_refused = (f"the FMU discarded a probe of its derivatives off the start state "
+                                       f"({self._probe_refusal})")
 
     def _restart_without_probes(self) -> None:
         """Start the run again, without probing the derivatives off the start state and with DOP853, after the FMU
@@ -452,6 +462,7 @@ class ModelExchangeSource(FMUSource):
         """Remember the first probe the FMU refused: :meth:`start` then starts the run again without probes."""
         if self._probe_refusal is None:
             self._probe_refusal = self._last_log() or str(exc)
+        self._probe_left_in_error = self._probe_left_in_error or not isinstance(exc, _Discarded)
 
     def _end_probes(self) -> None:
         """Back to the start state and time after probing the derivatives, and without the messages the FMU logged
@@ -996,11 +1007,17 @@ class ModelExchangeSource(FMUSource):
 
     def _derivatives(self, t: float, x: np.ndarray) -> np.ndarray:
         comp, dx = self._comp, self._dx
-        if (self._c_time(comp, t) > 1 or self._set_states(x) > 1
-                or self._c_dx(comp, dx.ctypes.data, self.nx) > 1):
+        status = self._c_time(comp, t)
+        if status < DISCARD:
+            status = self._set_states(x)
+        if status < DISCARD:
+            status = self._c_dx(comp, dx.ctypes.data, self.nx)
+        if status == DISCARD:
+            raise _Discarded(f"the FMU discarded the evaluation of the derivatives at t={t:.9g}")
+        if status > DISCARD:
             raise _IntegrationError(f"the FMU returned an error evaluating the derivatives at t={t:.9g}")
         if not np.isfinite(dx).all():
-            raise _IntegrationError(f"the derivatives are not finite at t={t:.9g}")
+            raise _Discarded(f"the derivatives are not finite at t={t:.9g}")
         return dx.copy()
 
 
