@@ -1,7 +1,9 @@
 """Shared fixtures: small reference systems and simulations reused across test modules."""
 
 import importlib.util
+import os
 import sys
+import threading
 import zipfile
 from pathlib import Path
 
@@ -79,13 +81,22 @@ def fake_terminal(monkeypatch, *modules):
 
 
 def rewrite_description(src, dst, edit) -> Path:
-    """Copy the FMU ``src`` to ``dst`` with its modelDescription.xml passed through ``edit(text) -> text``."""
-    with zipfile.ZipFile(src) as zin, zipfile.ZipFile(dst, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
-            if item.filename == "modelDescription.xml":
-                data = edit(data.decode()).encode()
-            zout.writestr(item, data)
+    """Copy the FMU ``src`` to ``dst`` with its modelDescription.xml passed through ``edit(text) -> text``.
+
+    Written beside ``dst`` and moved into place: FMU sets in pytest's cache are rewritten by every worker of a
+    parallel run, and a worker reading one while another wrote it failed ("not a zip archive")."""
+    dst = Path(dst)
+    partial = dst.with_name(f".{dst.name}.{os.getpid()}.{threading.get_ident()}.partial")
+    try:
+        with zipfile.ZipFile(src) as zin, zipfile.ZipFile(partial, "w", zipfile.ZIP_DEFLATED) as zout:
+            for item in zin.infolist():
+                data = zin.read(item.filename)
+                if item.filename == "modelDescription.xml":
+                    data = edit(data.decode()).encode()
+                zout.writestr(item, data)
+        os.replace(partial, dst)
+    finally:
+        partial.unlink(missing_ok=True)
     return dst
 
 
