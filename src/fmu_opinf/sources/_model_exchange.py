@@ -459,7 +459,8 @@ class ModelExchangeSource(FMUSource):
             self._end_probes()
 
     def _refused_probe(self, exc: _IntegrationError) -> None:
-        """Remember the first probe the FMU refused: :meth:`start` then starts the run again without probes."""
+        """Remember the first probe the FMU refused and whether any refusal was an error: :meth:`start` then starts
+        the run again without probes (after a discard the instance stays usable and the run goes on with DOP853)."""
         if self._probe_refusal is None:
             self._probe_refusal = self._last_log() or str(exc)
         self._probe_left_in_error = self._probe_left_in_error or not isinstance(exc, _Discarded)
@@ -600,7 +601,7 @@ class ModelExchangeSource(FMUSource):
         tolerance of 0.16 of their motion, and as far off with one 1000 times tighter).  The warning's words are the
         same for every run, since each run in a process of its own says it and the user is to hear it once.  No
         warning where no tolerance exceeds :data:`_NOTABLE_LOOSENING` of its state's motion (a double model's stiff
-        link at rest, 1.9e-10 against 1e-10 asked).
+        link at rest: 5e-8).
         """
         noise = getattr(self, "_noise", None)
         if noise is None or not noise.any() or len(self._t) < 2:
