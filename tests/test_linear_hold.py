@@ -195,6 +195,46 @@ def test_an_fmu_that_discards_a_probe_is_recorded_with_the_same_instance(tmp_pat
     assert np.array_equal(run.x, alone.x) and np.array_equal(run.xdot, alone.xdot)
 
 
+def test_a_discarded_check_of_the_exact_step_hands_over_to_dop853_with_the_same_instance(tmp_path, monkeypatch):
+    """The exact step checks the FMU's derivatives at the step's middle and end; a discard there (the motion crosses
+    a range the model asserts) leaves the instance usable, so DOP853 takes over with it, not with a new instance
+    (audit of 2026-12-05, late: a restart, which an FMU allowing one instance per process refuses), and fails where
+    the exact motion crosses the bound, naming the FMU's reason and the ways out."""
+    import dataclasses
+
+    from fmu_opinf.sources import StepError
+
+    B = np.zeros((6, 1))
+    B[3, 0] = 1.0
+    path = tmp_path / "Pushed.fmu"
+    lti_fmus.build_lti_fmu(dataclasses.replace(stiff_chain(), B=B), path, interfaces=("me",),
+                           position_limit=(3, 1.2), position_limit_status="discard")
+    monkeypatch.setattr(me.ModelExchangeSource, "_restart_without_exact_step",
+                        lambda self, reason: pytest.fail(f"a discarded exact step started the FMU again ({reason})"))
+    with pytest.raises(StepError) as failed:
+        record(open_source(path), "step:amplitude=1000", DT, 4.0, quiet=True, isolate=False)
+    message = str(failed.value)
+    assert "out of its range" in message and "(a discard)" not in message, message
+    assert "a smaller input or another start state" in message, message
+    crossing = _first_crossing(dataclasses.replace(stiff_chain(), B=B), 3, 1.2, 1000.0)
+    refused = float(message.split(" at t=")[1].split(";")[0])   # a stage of the DOP853 step over the crossing:
+    assert 0.0 <= refused - crossing < 1e-3, (message, crossing)   # measured 3.5e-5 after it
+
+
+def _first_crossing(chain, dof: int, bound: float, force: float) -> float:
+    """When ``|x[dof]|`` first reaches ``bound`` under the step ``force`` from the model's start (bisection on the
+    exact modal solution, independent of the FMU)."""
+    t = np.linspace(0.0, DT, 4001)
+    x, _ = modal_response(chain, t, np.full((1, t.size), force))
+    i = int(np.argmax(np.abs(x[dof]) >= bound))
+    lo, hi = t[i - 1], t[i]
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        xm, _ = modal_response(chain, np.array([0.0, mid]), np.full((1, 2), force))
+        lo, hi = (mid, hi) if abs(xm[dof, -1]) < bound else (lo, mid)
+    return float(hi)
+
+
 @pytest.mark.parametrize("precision, start, limit, x_bound, v_bound", [
     (True, "rest", None, 2e-6, 4e-3),         # measured 6.6e-7, 1.5e-3
     (True, "rest", (0, 0.8), 2e-6, 4e-3),     # the same
@@ -242,24 +282,28 @@ def test_a_tolerance_the_rounding_noise_loosened_is_said_once_and_reported_per_r
     """Where the derivatives' rounding sets a state's absolute tolerance, the run's ``integrator`` attribute names
     the noise, the state loosened most and its tolerance, and the command warns once, also for a loosening measured
     at the start (before, only a loosening found later in a run was said: here the states never double, so there is
-    none).  Two runs in processes of their own warn once; a double-precision model not at all."""
+    none).  Three runs in processes of their own warn once; a double-precision model not at all, also not after a run
+    of one step (an audit saw its tolerance, loosened to 1.9e-11, said against the floor of 1e-6 of a state that had
+    hardly moved)."""
     import warnings
 
-    path = tmp_path / "Rounded.fmu"
+    path = tmp_path / f"Rounded{int(precision)}.fmu"   # (a warning said of one name is not said again)
     lti_fmus.build_lti_fmu(_started(stiff_chain(), "rest"), path, interfaces=("me",), single_precision=precision)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        runs = [record(open_source(path), signal, DT, 2.0, quiet=True, isolate=True).runs[0]
-                for signal in ("impulse:amplitude=0.05,t0=0.5,width=0.4", "step:amplitude=0.02")]
+        runs = [record(open_source(path), signal, dt, t_end, quiet=True, isolate=True).runs[0]
+                for signal, dt, t_end in (("impulse:amplitude=0.05,t0=0.5,width=0.4", DT, 2.0),
+                                          ("step:amplitude=0.02", DT, 2.0),
+                                          ("step:amplitude=0.5", 0.02, 0.02))]   # (one step, as a steady start's check)
     said = [str(w.message) for w in caught if "irregularly" in str(w.message)]
     reports = [run.attrs["integrator"] for run in runs]
     if not precision:   # (its stiff link's cancelling forces loosen two tolerances, to 5e-8 of their motion)
         assert not said, said
         return
-    assert len(said) == 1 and "not to the 1e-10 asked" in said[0], said
+    assert len(said) == 1 and "not to the relative tolerance 1e-10 asked" in said[0], said
     for report in reports:   # the stiff link's masses carry its rounded force: their velocities are the noisiest
         assert re.search(r"rounding noise \(up to [0-9.e+-]+ in mass\[[34]\]\.v's derivative\) set the absolute "
-                         r"tolerance of \d+ state\(s\), the loosest against its motion mass\[\d\]\.[sv]'s", report), report
+                         r"tolerance of \d+ state\(s\); the loosest against its motion is mass\[\d\]\.[sv]'s", report), report
 
 
 def test_measuring_the_noise_again_leaves_a_double_precision_run_unchanged(tmp_path, monkeypatch):

@@ -160,7 +160,8 @@ class Kernel:
         finally:
             self.evaluations += state.evaluations
         if status == _FMU_ERROR:
-            raise IntegrationFailure(f"the FMU returned an error evaluating the derivatives at t={state.t_failed:.9g}")
+            raise IntegrationFailure(f"the FMU refused to evaluate the derivatives (an error or a discard) at "
+                                     f"t={state.t_failed:.9g}")
         if status == _NOT_FINITE:
             raise IntegrationFailure(f"the derivatives are not finite at t={state.t_failed:.9g}")
         if status == _STEP_TOO_SMALL:

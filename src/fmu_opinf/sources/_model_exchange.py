@@ -600,8 +600,9 @@ class ModelExchangeSource(FMUSource):
         steps are held far below the noise's pace by stability (a float chain's velocities were 1.5e-3 off at a
         tolerance of 0.16 of their motion, and as far off with one 1000 times tighter).  The warning's words are the
         same for every run, since each run in a process of its own says it and the user is to hear it once.  No
-        warning where no tolerance exceeds :data:`_NOTABLE_LOOSENING` of its state's motion (a double model's stiff
-        link at rest: 5e-8).
+        warning where no tolerance exceeds :data:`_NOTABLE_LOOSENING` of its state's motion, or of its nominal value
+        up to 1 where it moved less (a double model's stiff link at rest: 5e-8; after the one step of a steady-start
+        check, 1.9e-5 of the floor of 1e-6, which an audit saw said as a warning for double models).
         """
         noise = getattr(self, "_noise", None)
         if noise is None or not noise.any() or len(self._t) < 2:
@@ -611,18 +612,20 @@ class ModelExchangeSource(FMUSource):
         loosened = held > asked
         if not loosened.any():
             return None
-        share = np.where(loosened, held / np.maximum(self._scale, self._floor), -1.0)
+        motion = np.maximum(self._scale, np.minimum(self._nominals(), 1.0))   # (a run of one step hardly moves)
+        share = np.where(loosened, held / motion, -1.0)
         worst = int(np.argmax(share))
         name = self._state_name(worst)
         clause = (f"the derivatives' rounding noise (up to {noise[worst]:.2g} in {name}'s derivative) set the absolute "
-                  f"tolerance of {int(loosened.sum())} state(s), the loosest against its motion {name}'s: "
-                  f"{held[worst]:.2g}")
+                  f"tolerance of {int(loosened.sum())} state(s); the loosest against its motion is {name}'s, "
+                  f"{held[worst]:.2g} in its unit")
         if share[worst] < _NOTABLE_LOOSENING:
             return clause, None
         warning = ("its derivatives change irregularly under the smallest moves of the states, as rounding in single "
                    "precision or large terms cancelling does: the recorded states carry that rounding, and states "
-                   f"were integrated to the absolute tolerance it allows, not to the {self.tolerance:g} asked (each "
-                   "run's integrator attribute gives the noise and the loosest tolerance)")
+                   f"were integrated to the absolute tolerance it allows, not to the relative tolerance "
+                   f"{self.tolerance:g} asked (each such run's integrator attribute gives the noise and the loosest "
+                   "tolerance)")
         return clause, warning
 
     def _state_name(self, index: int) -> str:
@@ -994,7 +997,8 @@ class ModelExchangeSource(FMUSource):
         log = self._last_log()
         cs = " or --interface cs" if self.md.coSimulation is not None else ""
         if log:   # the FMU said why: the tolerance is only one possible cause
-            hint = f"the FMU reported: {log}; if the tolerance is the cause, try a looser --tolerance{cs}"
+            hint = (f"the FMU reported: {log}; where that is a range the model asserts, the motion leaves it (a "
+                    f"smaller input or another start state); if the tolerance is the cause, try a looser --tolerance{cs}")
         else:
             hint = f"try a looser --tolerance{cs}"
         method = getattr(self, "_active", self.method)
@@ -1014,9 +1018,9 @@ class ModelExchangeSource(FMUSource):
         if status < DISCARD:
             status = self._c_dx(comp, dx.ctypes.data, self.nx)
         if status == DISCARD:
-            raise _Discarded(f"the FMU discarded the evaluation of the derivatives at t={t:.9g}")
+            raise _Discarded(f"the FMU refused to evaluate the derivatives (a discard) at t={t:.9g}")
         if status > DISCARD:
-            raise _IntegrationError(f"the FMU returned an error evaluating the derivatives at t={t:.9g}")
+            raise _IntegrationError(f"the FMU refused to evaluate the derivatives (an error) at t={t:.9g}")
         if not np.isfinite(dx).all():
             raise _Discarded(f"the derivatives are not finite at t={t:.9g}")
         return dx.copy()
@@ -1272,7 +1276,8 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     asked for (``one_step``): an FMU that needs completed integrator steps gets its call at the interval's end, as
     from any integrator's last step.  An FMU that refuses
     the step (an error status) may take no further call: at the run's first step the run starts again with DOP853
-    (:class:`_ExactStepRefused`), later the run ends with a one-line error naming ``--me-method dop853``."""
+    (:class:`_ExactStepRefused`), later the run ends with a one-line error naming ``--me-method dop853``.  One that
+    discards it stays usable: DOP853 takes over with the same instance (one per process may be all it allows)."""
     hold = source._hold
     if hold is None or source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
@@ -1292,6 +1297,10 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
         # e.g. an FMU with a delay buffer refuses a time beyond a gap after its last completed integrator step;
         # an FMU in error may take no further call: at the run's first step it starts again, else the run ends
         reason = source._last_log() or str(exc)
+        if isinstance(exc, _Discarded):   # the instance stays usable: DOP853 goes on with it, no new instance
+            source._log = []
+            source._handover = (t0, f"the FMU having discarded the exact step's check ({reason})")
+            return _dop853(source, t0, t1, completed, one_step)
         if t0 == source._t_list[0] and not source._x.any():
             raise _ExactStepRefused(reason) from None
         raise _IntegrationError(f"the FMU refused the exact zero-order-hold step ({reason}); record with "
