@@ -218,7 +218,7 @@ def test_a_discarded_check_of_the_exact_step_hands_over_to_dop853_with_the_same_
     assert "a smaller input or another start state" in message, message
     crossing = _first_crossing(dataclasses.replace(stiff_chain(), B=B), 3, 1.2, 1000.0)
     refused = float(message.split(" at t=")[1].split(";")[0])   # a stage of the DOP853 step over the crossing:
-    assert 0.0 <= refused - crossing < 1e-3, (message, crossing)   # measured 3.5e-5 after it
+    assert 0.0 <= refused - crossing < 1.5e-4, (message, crossing)   # measured 3.5e-5 after it
 
 
 def _first_crossing(chain, dof: int, bound: float, force: float) -> float:

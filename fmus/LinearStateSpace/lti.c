@@ -448,7 +448,7 @@ LtiStatus ltiDerivatives(LtiInstance *inst, const char *function, double dz[]) {
     double *internal = inst->work + 10 * nq;   /* the RK4 step uses the first 10 nq */
     size_t i;
     LtiStatus status = accelerations(inst, function, inst->z, internal + nq);
-    if (status != LtiOK) return status == LtiDiscard ? LtiDiscard : LtiError;
+    if (status != LtiOK) return status;   /* a discard stays a discard */
     for (i = 0; i < nq; i++) internal[i] = LTI_SINGLE_PRECISION == 1 ? (float)inst->z[nq + i] : inst->z[nq + i];
     toFmiOrder(nq, internal, dz);
     return LtiOK;
