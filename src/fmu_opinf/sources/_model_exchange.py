@@ -119,6 +119,11 @@ class _LeftInError(_IntegrationError):
     """The FMU refused a probe of its rounding noise during a run and then refused the state it came from."""
 
 
+class _ReplayWithoutLooks(Exception):
+    """:meth:`ModelExchangeSource.advance` starts the run again without looks at the rounding noise
+    (:meth:`ModelExchangeSource._replay_without_looks`)."""
+
+
 class _ExactStepRefused(_IntegrationError):
     """The FMU refused the first exact step of a run (:func:`_linear`): the run starts again with DOP853."""
 
@@ -194,6 +199,9 @@ class ModelExchangeSource(FMUSource):
         pieces = getattr(self, "_pieces_by_dop853", 0)
         if pieces and active == "linear":
             text += f"; {pieces} piece(s) of steps cut by events by DOP853 (cheaper there than another exponential)"
+        noise_refused = getattr(self, "_noise_refused", None)
+        if noise_refused is not None:
+            text += f"; started again, without looking at the derivatives' rounding during the run: {noise_refused}"
         handover = getattr(self, "_handover", None)
         if handover is not None:
             text += f"; from t={handover[0] - self.start_time:.9g} DOP853, {handover[1]}"
@@ -268,7 +276,9 @@ class ModelExchangeSource(FMUSource):
         self._no_probes: bool = getattr(self, "_no_probes", False)   # kept over restarts (:meth:`start`)
         self._noise = self._rounding_noise()
         self._noise_measured_size = np.abs(self._origin)   # the states' size where the noise was last measured
-        self._noise_check_at = _NOISE_CHECK_STEPS   # DOP853's accepted steps in the run at the next look (below)
+        self._noise_refused: str | None = getattr(self, "_noise_refused", None)   # kept over restarts (_replay)
+        # DOP853's accepted steps in the run at the next look at the rounding (none after a refused look)
+        self._noise_check_at = _NOISE_CHECK_STEPS if self._noise_refused is None else _NEVER
         self._scipy_steps = 0   # accepted steps of scipy's DOP853 loop in the run
         self._h_last = math.nan
         self._needs_completed = _needs_completed_steps(self.md)
@@ -282,7 +292,7 @@ class ModelExchangeSource(FMUSource):
         self._hold: _linear_hold.LinearHold | None = None
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
-        self._dop853_seconds = 0.0   # wall seconds DOP853 took in this run (:meth:`_warn_slow_run`)
+        self._integrator_seconds = 0.0   # wall seconds the integrator took in this run (:meth:`_warn_slow_run`)
         self._pieces_by_dop853 = 0   # pieces cut by events that _linear left to DOP853 (cheaper there)
         self._time_probed = False   # _linear: whether the FMU's derivative was probed at other times (first step)
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
@@ -395,24 +405,28 @@ class ModelExchangeSource(FMUSource):
                   f"most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step with "
                   f"--me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
 
-    def _warn_slow_run(self, t0: float, t1: float, t: float, h: float) -> None:
-        """Say once, while DOP853 is still at it, that it has spent over :data:`_SLOW_RUN_DOP853_SECONDS` on this
-        run, where it is, its step size, the time the run takes at this pace, and the likely causes (audits of
-        2026-12-05: Coulomb friction ``sign(v)`` without event indicators, and a single-precision FMU starting at
-        zero, each ran for over 15 minutes in silence)."""
+    def _warn_slow_run(self, name: str, t0: float, t1: float, t: float, h: float) -> None:
+        """Say once, while the integrator ``name`` is still at it, that it has spent over
+        :data:`_SLOW_RUN_INTEGRATOR_SECONDS` on this run, where it is, its step size, the time the run takes at this
+        pace, and the likely causes (audits of 2026-12-05: Coulomb friction ``sign(v)`` without event indicators,
+        a single-precision FMU starting at zero, and BDF on a stiff model at rest each ran for minutes in silence)."""
         from . import warn_once
 
         start, end = float(self._t[0]), float(self._t[-1])
         done = (t - start) / (end - start) if end > start else 0.0
-        pace = f", about {_duration(self._dop853_seconds / done)} for the run at this pace" if done > 0 else ""
+        pace = f", about {_duration(self._integrator_seconds / done)} for the run at this pace" if done > 0 else ""
+        steps = f", with steps of {h:.2g} s" if math.isfinite(h) else ""
         cs = "record by co-simulation (--interface cs), " if self.md.coSimulation is not None else ""
-        warn_once(self, ("slow run",), f"DOP853 has spent over {_SLOW_RUN_DOP853_SECONDS:g} s on this run and is at "
-                  f"t={t - self.start_time:.9g} of {end - self.start_time:g}{pace}, with steps of {h:.2g} s in a "
-                  f"communication step of {t1 - t0:.3g} s: a stiff model holds it to its stability limit, and "
-                  "derivatives that jump without event indicators (Coulomb friction sign(v), a relay, a table) or are "
-                  "rounded inside the FMU (single precision) make its steps collapse: "
-                  f"{cs}loosen --tolerance (1e-6 for single precision), or give the model event indicators or smooth "
-                  "friction", stacklevel=2)
+        if name in _IMPLICIT:   # (stiffness does not hold these back; the default integrator may do better)
+            causes, ways = "", f"{cs}record with --me-method auto, "
+        else:
+            causes, ways = "a stiff model holds it to its stability limit, and ", cs
+        warn_once(self, ("slow run",), f"{name} has spent over {_SLOW_RUN_INTEGRATOR_SECONDS:g} s on this run and is "
+                  f"at t={t - self.start_time:.9g} of {end - self.start_time:g}{pace}{steps} in a communication step "
+                  f"of {t1 - t0:.3g} s: {causes}derivatives that jump without event indicators (Coulomb friction "
+                  "sign(v), a relay, a table) or are rounded inside the FMU (single precision) make its steps "
+                  f"collapse: {ways}loosen --tolerance (1e-6 for single precision), or give the model event "
+                  "indicators or smooth friction", stacklevel=2)
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
@@ -586,8 +600,7 @@ class ModelExchangeSource(FMUSource):
         except _IntegrationError:
             raise _LeftInError(f"the FMU refused a probe of its derivatives at t={t - self.start_time:.9g}, the states "
                                f"moved by up to {_NOISE_MOVE_GROWTH * _SINGLE_PRECISION_MOVE:.2g} of their values to "
-                               f"measure their rounding ({refusal}), and stays in error since; record with "
-                               "--me-method bdf, which takes no such probes") from None
+                               f"measure their rounding ({refusal}), and stays in error since") from None
 
     def _rounding_summary(self) -> tuple[str, str | None] | None:
         """What the derivatives' rounding noise (:meth:`_measure_noise`, at the start and during the run) did to this
@@ -700,20 +713,47 @@ class ModelExchangeSource(FMUSource):
 
     def advance(self, rows: np.ndarray, i0: int, count: int, published: np.ndarray | None = None,
                 offset: int = 0) -> None:
-        t, changed, in_event = self._t_list, self._changed, self._inputs_in_event_mode
+        t = self._t_list
         for j in range(count):
             i = i0 + j
             if i:
-                if in_event[i]:
-                    self._handle_event(i, t[i - 1], lambda: self._set_inputs(i))
-                elif changed[i]:
-                    self._set_inputs(i)
-                self._integrate(i, t[i - 1], t[i], bool(changed[i]))
+                try:
+                    self._take_step(i)
+                except _ReplayWithoutLooks as exc:
+                    self._replay_without_looks(i, str(exc))
+                    self._take_step(i)
             self.read(rows[j])
             if published is not None:
                 published[0] = offset + j + 1
         if i0 + count == len(t):
             self._warn_rounding()
+
+    def _take_step(self, i: int) -> None:
+        """From sample ``i - 1`` to sample ``i`` of the run: the inputs of step ``i``, then the integration."""
+        t, changed = self._t_list, self._changed
+        if self._inputs_in_event_mode[i]:
+            self._handle_event(i, t[i - 1], lambda: self._set_inputs(i))
+        elif changed[i]:
+            self._set_inputs(i)
+        self._integrate(i, t[i - 1], t[i], bool(changed[i]))
+
+    def _replay_without_looks(self, i: int, refusal: str) -> None:
+        """Start the run again and take its steps up to sample ``i - 1`` once more, without looking at the rounding
+        noise again, after the FMU refused such a look in step ``i`` and stayed in error (:class:`_LeftInError`).
+
+        An FMU that returned an error may take no further call (FMI 2.0 section 2.1.3), and the looks move the
+        states by a few ulps of single precision: a model at rest exactly on the bound of a range it asserts
+        failed there, and the message named BDF, which never finished on a stiff model at rest (audit of
+        2026-12-05).  The samples already recorded stay; the run's second pass recomputes the state they reached
+        (the same integrator, only without the looks)."""
+        self._noise_refused = refusal
+        try:
+            self.start(*self._run_grid)
+            for step in range(1, i):
+                self._take_step(step)
+        except (StepError, FMUError) as exc:
+            raise StepError(f"{self.path.name}: {refusal}; started again without such probes, it failed ({exc})",
+                            i, self._t_list[i]) from None
 
     def _warn_rounding(self) -> None:
         """At the end of a run, say once for this FMU where rounding noise loosened a tolerance
@@ -774,6 +814,8 @@ class ModelExchangeSource(FMUSource):
                 self._restart_without_exact_step(str(exc))
                 return self._piece(i, t0, t1, one_step)
             except _LeftInError as exc:
+                if i > 0 and self._noise_refused is None:   # (the run's grid is known: it can be replayed)
+                    raise _ReplayWithoutLooks(str(exc)) from None
                 raise StepError(f"{self.path.name}: {exc}", i, t1) from None
             except _IntegrationError as exc:
                 raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
@@ -1055,8 +1097,8 @@ def _needs_completed_steps(md: Any) -> bool:
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
 
-#: Seconds of DOP853 in one run after which :meth:`ModelExchangeSource._warn_slow_run` says so.
-_SLOW_RUN_DOP853_SECONDS = 30.0
+#: Seconds of the integrator in one run after which :meth:`ModelExchangeSource._warn_slow_run` says so.
+_SLOW_RUN_INTEGRATOR_SECONDS = 30.0
 
 #: Trials of :meth:`ModelExchangeSource._rounding_noise` (one derivative evaluation each, once per run).
 _NOISE_TRIALS = 8
@@ -1140,15 +1182,19 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     """LSODA (ODEPACK) through :func:`scipy.integrate.odeint`, warm-started with the last step size; through
     :class:`scipy.integrate.LSODA` step by step where the FMU needs its completed integrator steps (``completed``)
     or one step is asked for (``one_step``), as ``odeint`` cannot call back after each step."""
-    from scipy.integrate import odeint
+    from scipy.integrate import ODEintWarning, odeint
 
     if completed or one_step:
         return _stepwise_lsoda(source, t0, t1, completed, one_step)
 
     h0 = source._h_last if math.isfinite(source._h_last) else 0.0
     failure: list[BaseException] = []
+    watch, calls = _StepWatch(source, t0, t1, "LSODA"), [0]
 
     def f(t: float, x: np.ndarray) -> np.ndarray:
+        calls[0] += 1
+        if not calls[0] % _LSODA_WATCH_CALLS:   # (odeint calls back only for derivatives, not after steps)
+            watch(t, math.nan, None, 0)
         try:
             return source.rhs(t, x)
         except _IntegrationError as exc:
@@ -1156,7 +1202,7 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
             return np.full(source.nx, np.nan)
 
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.simplefilter("ignore", ODEintWarning)   # (its failure is read from the report; ours must pass)
         y, info = odeint(f, source._x, (t0, t1), rtol=source.tolerance, atol=source._atol(t0, t1), tfirst=True,
                          full_output=True, h0=min(h0, t1 - t0), mxstep=100_000, printmessg=False)
     if failure:
@@ -1168,6 +1214,13 @@ def _lsoda(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
     if hu is not None and len(hu) and hu[-1] > 0:
         source._h_last = float(hu[-1])
     return np.ascontiguousarray(y[-1]), t1
+
+
+#: Derivative evaluations of LSODA through :func:`scipy.integrate.odeint` between looks at its pace.
+_LSODA_WATCH_CALLS = 256
+
+#: scipy's implicit methods, which a stiff model does not hold to a stability limit.
+_IMPLICIT = ("BDF", "Radau", "LSODA")
 
 
 def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, bool], tuple[np.ndarray, float]]:
@@ -1182,17 +1235,16 @@ def _solve_ivp(name: str) -> Callable[[ModelExchangeSource, float, float, bool, 
         first = source._h_last if math.isfinite(source._h_last) else None
         solver = cls(source.rhs, t0, source._x.copy(), t1, rtol=source.tolerance, atol=source._atol(t0, t1),
                      first_step=None if first is None else min(first, t1 - t0))
-        watch = _StepWatch(source, t0, t1) if name == "DOP853" else None   # (the compiled loop's stand-in)
+        watch = _StepWatch(source, t0, t1, name)   # (for DOP853 the compiled loop's stand-in)
         while solver.status == "running":
             message = solver.step()
             check_interrupt()   # (one that arrived in the FMU's logger callback is only remembered there)
             if solver.status == "failed":
                 raise _IntegrationError(f"{name}: {message}")
-            if watch is not None:
-                source._scipy_steps += 1
-                atol = watch(solver.t, solver.step_size or 0.0, solver.y, source._scipy_steps)
-                if atol is not None:
-                    solver.atol = atol   # (scipy's Runge-Kutta steps read it at every step)
+            source._scipy_steps += 1
+            atol = watch(solver.t, solver.step_size or 0.0, solver.y, source._scipy_steps)
+            if atol is not None:
+                solver.atol = atol   # (scipy's Runge-Kutta steps read it at every step)
             if one_step:
                 break
             if completed and solver.status == "running" and _completed_inside(source, solver.t, solver.y):
@@ -1223,21 +1275,21 @@ def _completed_inside(source: ModelExchangeSource, t: float, x: np.ndarray) -> b
 
 
 class _StepWatch:
-    """What DOP853 does between blocks of steps over ``[t0, t1]``, called with the time, step size and state
-    reached and the run's accepted steps so far: count the run's DOP853 seconds, measure the rounding noise again
-    where due (returns the new absolute tolerances, else None) and say once when the run has been slow
-    (:meth:`ModelExchangeSource._measure_noise_again`, :meth:`ModelExchangeSource._warn_slow_run`)."""
+    """What the integrator ``name`` does between blocks of steps over ``[t0, t1]``, called with the time, step size
+    and state reached and the run's accepted steps so far: count the run's integrator seconds, for DOP853 measure
+    the rounding noise again where due (returns the new absolute tolerances, else None), and say once when the run
+    has been slow (:meth:`ModelExchangeSource._measure_noise_again`, :meth:`ModelExchangeSource._warn_slow_run`)."""
 
-    def __init__(self, source: ModelExchangeSource, t0: float, t1: float) -> None:
-        self.source, self.t0, self.t1 = source, t0, t1
-        self.started, self.spent = time.perf_counter(), source._dop853_seconds
+    def __init__(self, source: ModelExchangeSource, t0: float, t1: float, name: str = "DOP853") -> None:
+        self.source, self.t0, self.t1, self.name = source, t0, t1, name
+        self.started, self.spent = time.perf_counter(), source._integrator_seconds
 
-    def __call__(self, t: float, h: float, y: np.ndarray, accepted: int) -> np.ndarray | None:
+    def __call__(self, t: float, h: float, y: np.ndarray | None, accepted: int) -> np.ndarray | None:
         source = self.source
-        source._dop853_seconds = self.spent + time.perf_counter() - self.started
-        atol = source._measure_noise_again(t, y, self.t0, self.t1, accepted)
-        if source._dop853_seconds > _SLOW_RUN_DOP853_SECONDS:
-            source._warn_slow_run(self.t0, self.t1, t, h)
+        source._integrator_seconds = self.spent + time.perf_counter() - self.started
+        atol = source._measure_noise_again(t, y, self.t0, self.t1, accepted) if self.name == "DOP853" else None
+        if source._integrator_seconds > _SLOW_RUN_INTEGRATOR_SECONDS:
+            source._warn_slow_run(self.name, self.t0, self.t1, t, h)
         return atol
 
 
