@@ -474,6 +474,16 @@ def test_a_rom_that_misses_its_own_training_outputs_is_warned_about():
     assert good.fit_info["refinement"]["objective"] < 1e-10
     with pytest.warns(FmuOpinfWarning, match=r"reproduces its own training outputs only to .*--positions names"):
         fit_rom([Run(train.t, train.u, mixed, train.xdot, train.xddot, train.y)], r=2, quiet=True)
+    # a force that switches on by itself at t = 30 s (a co-simulation FMU's internal time event: audit of
+    # 2026-12-05, where the hint named only the positions, the order and the outputs)
+    import dataclasses
+
+    timed = dataclasses.replace(system, B=sp.csr_matrix([[0.0, 1.0], [1.0, 0.0]]))   # the timer's force on mass 1
+    switched = newmark.simulate(timed, "impulse:amplitude=1,t0=1,width=0.5;step:amplitude=0.5,t0=30", 0.05, 60.0)
+    assert np.array_equal(switched.u[:1], train.u)   # the FMU's input as recorded; the timer is not among them
+    with pytest.warns(FmuOpinfWarning, match=r"reproduces its own training outputs only to .*changes only with its "
+                                             r"inputs \(an internal event, a force on a timer"):
+        fit_rom([Run(train.t, train.u, switched.x, switched.xdot, switched.xddot, switched.y)], r=2, quiet=True)
 
 
 def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_output_check():

@@ -782,8 +782,10 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
         return
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(objective):.2g} relative RMS "
                   f"(training output error {objective:.2g}): check that --positions names positions only (a velocity "
-                  f"or a force among them cannot be fitted), that the order suffices (r={r}; --r), and that the "
-                  "outputs follow from the recorded positions and velocities", FmuOpinfWarning, stacklevel=3)
+                  f"or a force among them cannot be fitted), that the order suffices (r={r}; --r), that the "
+                  "outputs follow from the recorded positions and velocities, and that the model changes only with "
+                  "its inputs (an internal event, a force on a timer, a time-varying parameter or a nonlinearity "
+                  "changes it on its own: record a stretch without them)", FmuOpinfWarning, stacklevel=3)
 
 
 def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None) -> None:
