@@ -159,22 +159,27 @@ class LinearHold:
         """Identify ``A`` column by column: ``(f(x + delta_j e_j) - f(x)) / delta_j``.
 
         For a linear model the difference is exact whatever ``delta_j``, up to the rounding of the two derivatives
-        (about ``eps (|A| |origin + x| + |f|)``, large about a large ``origin``) divided by ``delta_j``.  A column
-        whose rounding so found exceeds :data:`_COLUMN_ACCURACY` of its entries is probed again with a larger
-        move (at most :data:`_LARGEST_REPROBE` times the first): an inaccurate ``A`` is a real error of the
-        step, which :meth:`defect` would see and hand over for (a chain at 1e8 m with nominal moves of 1 m).
+        (in row ``i`` about ``eps (|A_i| |origin + x| + |f_i|)``, large about a large ``origin``) divided by
+        ``delta_j``.  A column whose rounding so found exceeds :data:`_COLUMN_ACCURACY` of the largest entry of a
+        row it is in is probed again with a larger move (at most :data:`_LARGEST_REPROBE` times the first): an
+        inaccurate ``A`` is a real error of the step, which :meth:`defect` would see and hand over for (a chain at
+        1e8 m with nominal moves of 1 m).  Each row's rounding is weighed against that row's entries, whose terms
+        it sits among: weighed against the column's own entries, a stiff link's rounding in its rows made the soft
+        columns beside it look inaccurate, and their second probe moved a state by 1665 times its nominal value,
+        out of the range the model asserts, so that model never got the exact step (audit of 2026-12-05).
         """
         f0 = derivatives(x)
         deltas = np.asarray(deltas, dtype=float)
         A, largest = cls._columns(derivatives, x, f0, deltas, range(x.size))
         states = np.abs(x if origin is None else origin + x)
-        rounding = 2.0 * np.finfo(float).eps * float(np.max(np.abs(A) @ (states + deltas) + largest))
-        scale = np.abs(A).max(axis=0)
-        wanted = np.where(scale > 0, rounding / (_COLUMN_ACCURACY * np.where(scale > 0, scale, 1.0)), 0.0)
-        again = np.flatnonzero(wanted > deltas)
+        rounding = 2.0 * np.finfo(float).eps * (np.abs(A) @ (states + deltas) + largest)   # per row
+        row_scale = np.abs(A).max(axis=1)
+        rows = row_scale > 0
+        wanted = float(np.max(rounding[rows] / (_COLUMN_ACCURACY * row_scale[rows]), initial=0.0))
+        again = np.flatnonzero((wanted > deltas) & np.abs(A).any(axis=0))
         if again.size:
             moves = deltas.copy()
-            moves[again] = np.minimum(wanted[again], _LARGEST_REPROBE * deltas[again])
+            moves[again] = np.minimum(wanted, _LARGEST_REPROBE * deltas[again])
             A[:, again] = cls._columns(derivatives, x, f0, moves, again)[0][:, again]
         return cls(A)
 
