@@ -16,6 +16,7 @@ import scipy.linalg
 from fmu_opinf.errors import InputSpecError
 from fmu_opinf.snapshots import auto_window, input_activity, record, slowest_frequency
 from fmu_opinf.signals import parse_signal
+from fmu_opinf import sources
 from fmu_opinf.sources import Source
 
 IMPULSE = "impulse:amplitude=100,t0=2,width=0.5"
@@ -402,3 +403,46 @@ def test_a_model_without_inputs_that_never_settles_is_told_to_pass_the_window(tm
     lti_fmus.build_lti_fmu(model, tmp_path / "freefree.fmu")
     with pytest.raises(DataError, match=r"within 2 pilot runs .*; pass --dt and --t-end \(the model has no inputs"):
         auto_window(open_source(tmp_path / "freefree.fmu"), "none", max_pilots=2, quiet=True)
+
+
+def test_model_exchange_pilots_run_at_a_looser_tolerance_and_choose_the_same_window(tmp_path, monkeypatch):
+    """The automatic window's pilot runs only look for the response's frequencies and fade time; a model exchange
+    FMU runs them at the relative tolerance ``PILOT_TOLERANCE`` (1e-6) where 1e-10 is asked (an FMU with a
+    single-precision block: 60 s with its defaults, 21 s so, the same window; audit of 2026-12-05).  Reference: the
+    window and the recording of pilots at the asked tolerance (the behaviour before), and the recording itself is
+    the one of the same window given as ``--dt``/``--t-end`` (no pilots at all), to the bit.  The looser tolerance
+    also reaches a pilot run in a child process (the source pickled inside the pilots' context)."""
+    import pickle
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+    from fmu_opinf.sources import _model_exchange as me
+
+    path = lti_fmus.build_lti_fmu(lti_fmus.chain_model(3), tmp_path / "Chain.fmu", interfaces=("me",)).path
+    seen = []
+    start = me.ModelExchangeSource.start
+    monkeypatch.setattr(me.ModelExchangeSource, "start",
+                        lambda self, t, U: seen.append(self.tolerance) or start(self, t, U))
+
+    def window_and_data(name: str, **options):
+        seen.clear()
+        record_to_file(str(path), tmp_path / name, None, quiet=True, isolate=False, **options)
+        data = Snapshots.load(tmp_path / name)
+        return dict(data.attrs.get("auto_window") or {}), data.runs[0], list(seen)
+
+    loose, loose_run, loose_tolerances = window_and_data("loose.h5")
+    with monkeypatch.context() as strict:
+        strict.setattr(me, "PILOT_TOLERANCE", 1e-10)
+        tight, tight_run, tight_tolerances = window_and_data("tight.h5")
+    pilots = int(loose["pilots"])   # run first; then the recording and a look at its initial state
+    assert pilots >= 1 and loose_tolerances[:pilots] == [1e-6] * pilots, loose_tolerances
+    assert set(loose_tolerances[pilots:]) == {1e-10} and set(tight_tolerances) == {1e-10}, loose_tolerances
+    assert loose["dt"] == tight["dt"] and loose["t_end"] == pytest.approx(tight["t_end"], rel=1e-6), (loose, tight)
+    _, given_run, given_tolerances = window_and_data("given.h5", dt=loose["dt"], t_end=loose["t_end"])
+    assert set(given_tolerances) == {1e-10}
+    for run in (loose_run, tight_run):
+        assert np.array_equal(run.x, given_run.x) and np.array_equal(run.xdot, given_run.xdot)
+    source = sources.open_source(str(path))
+    with source.pilot_accuracy():
+        copy = pickle.loads(pickle.dumps(source))
+    assert (copy.tolerance, source.tolerance) == (1e-6, 1e-10)

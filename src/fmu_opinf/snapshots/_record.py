@@ -261,11 +261,12 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     u = _as_received(source, inputs_in_effect(signal, t, source.m))
     U = np.ascontiguousarray(u.T)
     sink = sink_factory(source, t, u)
-    producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
     failure: StepError | None = None
     sums = live_rate_sums(source, t) if isinstance(sink, MemorySink) else None
     started = _time.perf_counter()
-    with deferred_interrupts(), Progress(len(t), label, quiet=quiet) as bar, _rate_feed(sink, sums) as feed:
+    with (source.pilot_accuracy() if pilot else contextlib.nullcontext()), deferred_interrupts(), \
+            Progress(len(t), label, quiet=quiet) as bar, _rate_feed(sink, sums) as feed:
+        producer = (produce_isolated if isolate else produce_inprocess)(source, t, U, sink)
         try:
             for i0, count in producer:
                 check_interrupt()

@@ -5,6 +5,7 @@ See :mod:`fmu_opinf.sources` for the stepping protocol every source implements.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 from collections.abc import Sequence
@@ -227,6 +228,12 @@ class Source:
         """Provenance of the last run that only the run could tell (a picklable dict of file attributes, e.g. the
         integrator a model-exchange run chose); empty by default."""
         return {}
+
+    def pilot_accuracy(self) -> contextlib.AbstractContextManager[None]:
+        """Within this context the source runs the automatic window's pilot runs, which only look for the
+        response's frequencies and fade time: a source may trade accuracy for speed there (model exchange loosens
+        its tolerance, :meth:`~._model_exchange.ModelExchangeSource.pilot_accuracy`).  Unchanged by default."""
+        return contextlib.nullcontext()
 
     def recipe(self) -> tuple[type, dict[str, Any]]:
         """Class and keywords that rebuild this source in another process."""

@@ -59,10 +59,12 @@ of the model).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import time
 import warnings
+from collections.abc import Iterator
 from typing import Any, Callable
 
 import numpy as np
@@ -168,6 +170,7 @@ class ModelExchangeSource(FMUSource):
         super().__init__(path, **options)
         self.method = method
         self._options["method"] = method
+        self._pilot_of: float | None = None   # the tolerance asked, while a pilot runs at a looser one
         if method in ("auto", "dop853", "linear"):
             _compiled_rk.available()  # build the step loop here, once, not in every isolated run's process
 
@@ -179,6 +182,34 @@ class ModelExchangeSource(FMUSource):
         prov = super().provenance()
         prov["integrator"] = self._integrator_text(self.method)
         return prov
+
+    @contextlib.contextmanager
+    def pilot_accuracy(self) -> Iterator[None]:
+        """The automatic window's pilot runs at the relative tolerance :data:`PILOT_TOLERANCE` where more was asked:
+        they only look for the response's frequencies and its fade time, which that resolves many times over, and
+        a model whose steps the tolerance holds back (rounding inside the FMU, a stiff one without the exact step)
+        took most of its recording's time there (a single-precision block: pilots 40 s, the recording 18 s; audit
+        of 2026-12-05)."""
+        if self._pilot_of is not None:
+            yield
+            return
+        asked = self.tolerance
+        self.tolerance, self._pilot_of = max(asked, PILOT_TOLERANCE), asked
+        try:
+            yield
+        finally:
+            self.tolerance, self._pilot_of = asked, None
+
+    def _shared_state(self) -> dict[str, Any]:
+        state = super()._shared_state()
+        if self._pilot_of is not None:   # (a pilot in a child process runs at the pilots' tolerance too)
+            state["pilot_tolerance"] = (self.tolerance, self._pilot_of)
+        return state
+
+    def _borrow(self, state: dict[str, Any]) -> None:
+        super()._borrow(state)
+        if "pilot_tolerance" in state:
+            self.tolerance, self._pilot_of = state["pilot_tolerance"]
 
     def _integrator_text(self, method: str) -> str:
         if method == "dop853" and _compiled_rk.available():
@@ -637,7 +668,7 @@ class ModelExchangeSource(FMUSource):
         warning = ("its derivatives change irregularly under the smallest moves of the states, as rounding in single "
                    "precision or large terms cancelling does: the recorded states carry that rounding, and states "
                    f"were integrated to the absolute tolerance it allows, not to the relative tolerance "
-                   f"{self.tolerance:g} asked (each such run's integrator attribute gives the noise and the loosest "
+                   f"{self._asked_tolerance():g} asked (each such run's integrator attribute gives the noise and the loosest "
                    "tolerance)")
         return clause, warning
 
@@ -1038,14 +1069,21 @@ class ModelExchangeSource(FMUSource):
         where = f"step {i} ({self._at(t0)} -> {t1:g})" if i >= 0 else f"{self._at(t0)} -> {t1:g}"
         log = self._last_log()
         cs = " or --interface cs" if self.md.coSimulation is not None else ""
+        looser = (f"try a looser --tolerance{cs}" if self._pilot_of is None else
+                  "give --dt and --t-end to record without the automatic window's pilot runs")
         if log:   # the FMU said why: the tolerance is only one possible cause
             hint = (f"the FMU reported: {log}; where that is a range the model asserts, the motion leaves it (a "
-                    f"smaller input or another start state); if the tolerance is the cause, try a looser --tolerance{cs}")
+                    f"smaller input or another start state); if the tolerance is the cause, {looser}")
         else:
-            hint = f"try a looser --tolerance{cs}"
+            hint = looser
         method = getattr(self, "_active", self.method)
-        return (f"{self.path.name}: model-exchange integration ({method}, tolerance {self.tolerance:g}) failed "
-                f"at {where}: {reason}; {hint}")
+        pilot = "" if self._pilot_of is None else ", in a pilot run of the automatic window"
+        return (f"{self.path.name}: model-exchange integration ({method}, tolerance {self.tolerance:g}{pilot}) "
+                f"failed at {where}: {reason}; {hint}")
+
+    def _asked_tolerance(self) -> float:
+        """The relative tolerance the user asked for (not the pilots' looser one, :meth:`pilot_accuracy`)."""
+        return self.tolerance if self._pilot_of is None else self._pilot_of
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
         """``der(x)`` of the FMU at time ``t`` and the states of the deviation ``x`` from the start state, with
@@ -1096,6 +1134,9 @@ def _needs_completed_steps(md: Any) -> bool:
     ``completedIntegratorStepNotNeeded`` at its default, so that one attribute answers for both versions."""
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
+
+#: Relative tolerance of the automatic window's pilot runs at most (:meth:`ModelExchangeSource.pilot_accuracy`).
+PILOT_TOLERANCE = 1e-6
 
 #: Seconds of the integrator in one run after which :meth:`ModelExchangeSource._warn_slow_run` says so.
 _SLOW_RUN_INTEGRATOR_SECONDS = 30.0
