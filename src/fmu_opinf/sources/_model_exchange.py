@@ -668,8 +668,8 @@ class ModelExchangeSource(FMUSource):
         warning = ("its derivatives change irregularly under the smallest moves of the states, as rounding in single "
                    "precision or large terms cancelling does: the recorded states carry that rounding, and states "
                    f"were integrated to the absolute tolerance it allows, not to the relative tolerance "
-                   f"{self._asked_tolerance():g} asked (each such run's integrator attribute gives the noise and the loosest "
-                   "tolerance)")
+                   f"{self._pilot_of or self.tolerance:g} asked (each such run's integrator attribute gives the noise "
+                   "and the loosest tolerance)")
         return clause, warning
 
     def _state_name(self, index: int) -> str:
@@ -1069,21 +1069,18 @@ class ModelExchangeSource(FMUSource):
         where = f"step {i} ({self._at(t0)} -> {t1:g})" if i >= 0 else f"{self._at(t0)} -> {t1:g}"
         log = self._last_log()
         cs = " or --interface cs" if self.md.coSimulation is not None else ""
-        looser = (f"try a looser --tolerance{cs}" if self._pilot_of is None else
-                  "give --dt and --t-end to record without the automatic window's pilot runs")
+        in_pilot = self._pilot_of is not None
+        looser = ("give --dt and --t-end to record without the automatic window's pilot runs" if in_pilot else
+                  f"try a looser --tolerance{cs}")
         if log:   # the FMU said why: the tolerance is only one possible cause
             hint = (f"the FMU reported: {log}; where that is a range the model asserts, the motion leaves it (a "
                     f"smaller input or another start state); if the tolerance is the cause, {looser}")
         else:
             hint = looser
         method = getattr(self, "_active", self.method)
-        pilot = "" if self._pilot_of is None else ", in a pilot run of the automatic window"
+        pilot = ", in a pilot run of the automatic window" if in_pilot else ""
         return (f"{self.path.name}: model-exchange integration ({method}, tolerance {self.tolerance:g}{pilot}) "
                 f"failed at {where}: {reason}; {hint}")
-
-    def _asked_tolerance(self) -> float:
-        """The relative tolerance the user asked for (not the pilots' looser one, :meth:`pilot_accuracy`)."""
-        return self.tolerance if self._pilot_of is None else self._pilot_of
 
     def rhs(self, t: float, x: np.ndarray) -> np.ndarray:
         """``der(x)`` of the FMU at time ``t`` and the states of the deviation ``x`` from the start state, with
@@ -1135,7 +1132,8 @@ def _needs_completed_steps(md: Any) -> bool:
     return bool(getattr(md.modelExchange, "needsCompletedIntegratorStep", False))
 
 
-#: Relative tolerance of the automatic window's pilot runs at most (:meth:`ModelExchangeSource.pilot_accuracy`).
+#: Relative tolerance of the automatic window's pilot runs where a tighter one was asked
+#: (:meth:`ModelExchangeSource.pilot_accuracy`).
 PILOT_TOLERANCE = 1e-6
 
 #: Seconds of the integrator in one run after which :meth:`ModelExchangeSource._warn_slow_run` says so.
