@@ -18,6 +18,7 @@ from fmu_opinf import lti_fmus, sources
 from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.snapshots import record
 from fmu_opinf.sources import open_source
+from fmu_opinf.sources import _integrators as integrators
 from fmu_opinf.sources import _model_exchange as me
 from fmu_opinf.sources._linear_hold import LinearHold, spectral_radius
 
@@ -369,7 +370,7 @@ def test_a_probe_refused_during_a_run_is_survived_also_where_the_fmu_stays_in_er
             return measure(self, t, x, coarse_only)
         if sticky:   # beyond the range: the instance stays in error
             self._derivatives(t, x + np.where(np.arange(self.nx) == 0, 1.0, 0.0))
-        raise me._IntegrationError("refused")
+        raise integrators._IntegrationError("refused")
 
     monkeypatch.setattr(me.ModelExchangeSource, "_measure_noise", refused)
     monkeypatch.setattr(me, "_NOISE_CHECK_STEPS", 1)
@@ -539,8 +540,8 @@ def test_a_run_on_which_the_integrator_spends_long_is_reported_while_it_is_at_it
     pace and the ways out (here the limit is 0 s, so the first step says it), also where event indicators and
     completed integrator steps make DOP853 go one accepted step at a time (the second audit: never said).  The
     implicit methods are pointed to the default integrator, not to stiffness."""
-    monkeypatch.setattr(me, "_SLOW_RUN_INTEGRATOR_SECONDS", 0.0)
-    monkeypatch.setattr(me, "_LSODA_WATCH_CALLS", 1)
+    monkeypatch.setattr(integrators, "_SLOW_RUN_INTEGRATOR_SECONDS", 0.0)
+    monkeypatch.setattr(integrators, "_LSODA_WATCH_CALLS", 1)
     path = tmp_path / "Chain.fmu"
     events = dict(state_event=lti_fmus.StateEvent(dof=5, threshold=5.0, force=EVENT_FORCE),
                   completed_step_gap=1.0) if indicators else {}
@@ -605,7 +606,7 @@ def test_spectral_radius_is_within_a_small_factor():
 
 
 class _NonlinearSource:
-    """What :func:`_model_exchange._linear` uses of a source, for ``x' = -x - x^3 / 3`` (linear near 0)."""
+    """What :func:`_integrators._linear` uses of a source, for ``x' = -x - x^3 / 3`` (linear near 0)."""
 
     tolerance = 1e-10
     _kernel = None
@@ -635,12 +636,12 @@ class _NonlinearSource:
 
 def test_a_step_of_a_model_that_is_not_linear_hands_over_to_dop853():
     source = _NonlinearSource(0.5)
-    x1, t1 = me._linear(source, 0.0, 0.1, False)
+    x1, t1 = integrators._linear(source, 0.0, 0.1, False)
     assert source._handover is not None and source._handover[0] == 0.0 and "departed" in source._handover[1]
     exact = solve_ivp(source.rhs, (0.0, 0.1), [0.5], method="DOP853", rtol=1e-13, atol=1e-15).y[0, -1]
     assert abs(x1[0] - exact) < 1e-11 and t1 == 0.1
     near_zero = _NonlinearSource(1e-7)   # x^3/3 is below the derivatives' rounding: the linear step stands
-    x1, _ = me._linear(near_zero, 0.0, 0.1, False)
+    x1, _ = integrators._linear(near_zero, 0.0, 0.1, False)
     assert near_zero._handover is None
     assert abs(x1[0] - 1e-7 * math.exp(-0.1)) < 1e-22
 
@@ -670,7 +671,7 @@ def test_what_the_step_ends_cannot_see_hands_over_to_dop853(case):
     at other times, and every step checks the FMU at its middle too."""
     source, t1 = (_InternalSource(0.0), 0.1) if case == "time" else (_BandSource(1.0), 1.0)
     x0 = source._x.copy()
-    x1, _ = me._linear(source, 0.0, t1, False)
+    x1, _ = integrators._linear(source, 0.0, t1, False)
     assert source._handover is not None and source._handover[0] == 0.0
     assert ("changing with time" if case == "time" else "departed") in source._handover[1]
     exact = solve_ivp(source.rhs, (0.0, t1), x0, method="DOP853", rtol=1e-13, atol=1e-15).y[0, -1]
@@ -791,22 +792,22 @@ def _event_reference(run, kind: str, event):
 def _pieces_predicted(monkeypatch, cost: float) -> None:
     """Predict DOP853 over a piece shorter than the grid step to take ``cost`` seconds (the real prediction compares
     timings, which vary with the machine's load); the grid step's own prediction, auto's first, stays."""
-    predicted = me._linear_hold.dop853_seconds
+    predicted = integrators._linear_hold.dop853_seconds
     grid_step = []
 
     def prediction(rho_h: float, seconds: float) -> float:
         grid_step.append(rho_h)
         return predicted(rho_h, seconds) if rho_h >= grid_step[0] else cost
 
-    monkeypatch.setattr(me._linear_hold, "dop853_seconds", prediction)
+    monkeypatch.setattr(integrators._linear_hold, "dop853_seconds", prediction)
 
 
 def _record_counting_pieces(path, monkeypatch) -> tuple:
     """The default recording of ``path``, the pieces DOP853 integrated and the step sizes whose maps were computed."""
     pieces, maps = [], []
-    dop853, top_row = me._INTEGRATORS["dop853"], LinearHold._top_row
-    monkeypatch.setattr(me, "_dop853", lambda source, t0, t1, *args: pieces.append((t0, t1)) or dop853(source, t0,
-                                                                                                      t1, *args))
+    dop853, top_row = integrators._INTEGRATORS["dop853"], LinearHold._top_row
+    monkeypatch.setattr(integrators, "_dop853",
+                        lambda source, t0, t1, *args: pieces.append((t0, t1)) or dop853(source, t0, t1, *args))
     monkeypatch.setattr(LinearHold, "_top_row", lambda self, h, blocks: maps.append(h) or top_row(self, h, blocks))
     monkeypatch.setattr(sources, "_REPORTED", set())   # (events are said once per FMU and process)
     with pytest.warns(FmuOpinfWarning, match="1 event"):
@@ -875,7 +876,7 @@ def test_a_stiff_model_too_large_for_the_exact_step_is_warned_about_with_a_predi
     """Above 4000 states a stiff model gets DOP853, held to its stability limit (an FE model: hours); the recording
     says so at once, with DOP853's predicted time and what helps (here with the limit lowered to 5 states and the
     threshold to 0 s)."""
-    monkeypatch.setattr(me._linear_hold, "MAX_STATES", 5)
+    monkeypatch.setattr(integrators._linear_hold, "MAX_STATES", 5)
     monkeypatch.setattr(me, "_SLOW_RUN_SECONDS", 0.0)
     monkeypatch.setattr(sources, "_REPORTED", set())
     with pytest.warns(FmuOpinfWarning, match=r"a stiff model of 12 states \(spectral radius about .* 1/s, .* times "

@@ -4,7 +4,8 @@ Modules: :mod:`._base` (the interface), :mod:`._builtin` (reference simulator), 
 (model description and variable discovery), :mod:`._settings` (``--set`` values), :mod:`._resolve`
 (what an FMU records, from its description alone), :mod:`._cosimulation` (co-simulation FMUs),
 :mod:`._model_exchange` (model-exchange FMUs, integrated by fmu-opinf under the same stepping
-interface).
+interface) with its integrators in :mod:`._integrators` (the exact hold step of :mod:`._linear_hold`, DOP853's
+compiled step loop of :mod:`._compiled_rk`, scipy's methods).
 
 Both sources describe themselves the same way (sizes ``n, m, p``, variable names, constraint kind,
 provenance) and share one stepping interface, so the recorder in :mod:`fmu_opinf.snapshots` does not
