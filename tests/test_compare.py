@@ -310,3 +310,69 @@ def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     monkeypatch.setattr(compare.os, "fdopen", real_fdopen)
     compare._replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {n: b"new " + d for n, d in earlier.items()}
+
+
+# ------------------------------------------------------------------------------------------- default test input
+
+def _natural_frequencies(model) -> np.ndarray:
+    """|poles| of a ROM from its first-order matrix (numpy's eigenvalues, not the package's pole routine)."""
+    r = model.r
+    Minv = np.linalg.inv(model.Mr)
+    A = np.block([[np.zeros((r, r)), np.eye(r)], [-Minv @ model.Kr, -Minv @ model.Dr]])
+    omega = np.abs(np.linalg.eigvals(A))
+    return omega[omega > 0]
+
+
+def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic_of_the_training_s_size(tmp_path,
+                                                                                                    capsys):
+    """``compare`` stopped without ``--input`` ("no test input given") on every ROM with inputs.  It now takes a
+    harmonic (the paper's test input) on each input the training drove, at the amplitude and operating point it
+    was trained with, at frequencies inside the ROM's band and apart from each other, and says so.  The FMU's
+    side is checked against the exact response of the model to that input, so the input said is the one applied;
+    the exported ROM FMU chooses the same input from its provenance.json."""
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.export import export_fmu
+    from fmu_opinf.signals import parse_signal
+
+    model = lti_fmus.chain_model(4, inputs=(0, 3), x0=[0.0] * 4, name="TwoForces")
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "two.fmu", interfaces=("cs",))
+    training = ["impulse:amplitude=3,t0=1,width=0.5;none", "none;impulse:amplitude=-7,t0=1,width=0.5,offset=2"]
+    snapshots.record_to_file(str(fmu.path), tmp_path / "train.h5", training, dt=0.05, t_end=60.0, quiet=True)
+    fitted = rom.fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=4)
+    fitted.save(tmp_path / "rom.h5")
+    capsys.readouterr()
+
+    result = compare.compare(tmp_path / "rom.h5", fmu.path)
+    said = capsys.readouterr().err
+    signal = parse_signal(result.input_spec, 2)
+    first, second = ({k: v for k, v in part.params.items() if k != "omega"} for part in signal.parts)
+    assert [part.kind for part in signal.parts] == ["harmonic", "harmonic"]
+    assert first == {"amplitude": 3.0, "phase": 0.0, "offset": 0.0}
+    assert second == {"amplitude": 7.0, "phase": 0.0, "offset": 2.0}
+    band, omegas = _natural_frequencies(fitted), [part.params["omega"] for part in signal.parts]
+    assert band.min() < omegas[0] < omegas[1] < band.max()
+    assert "no --input given: comparing on harmonic:amplitude=3,omega=" in said
+    u = signal.sample(result.t)
+    exact = lti_fmus.zoh_response(model, result.t, u[:, :-1]).y
+    assert np.abs(result.y_fom - exact).max() < 1e-10 * np.abs(exact).max()
+    assert result.metrics()["max_error"] < 1e-20   # the ROM is exact for these data (r = n)
+
+    exported = export_fmu(fitted, tmp_path / "rom.fmu")
+    assert compare.compare(exported, fmu.path, quiet=True).input_spec == result.input_spec
+
+
+def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path):
+    """A training input without an amplitude (a table) leaves nothing to size a test input by: one line, the
+    fix, exit code 2, no report."""
+    from test_cli import run_cli
+
+    table = tmp_path / "push.csv"
+    table.write_text("t,u\n0,0\n1,5\n2,0\n100,0\n")
+    snaps = snapshots.record("builtin:anchored-msd", str(table), 0.5, 60.0, quiet=True)
+    rom.fit_rom(snaps, r=4).save(tmp_path / "rom.h5")
+    done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(tmp_path / "report"))
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines()[-1] == (
+        f"fmu-opinf: error: no test input given, and the training input {str(table)!r} has no amplitude to take "
+        "one from; pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+    assert not (tmp_path / "report").exists()

@@ -2,7 +2,7 @@
 
     fmu-opinf snapshots SOURCE -o snapshots.h5 [--input SPEC] [--dt H] [--t-end T | --auto-window]
     fmu-opinf fit snapshots.h5 -o rom.h5 [--r N | --energy E] [--basis positions|velocities]
-    fmu-opinf compare rom.h5 SOURCE --input SPEC [--dt H] [--t-end T] -o report/
+    fmu-opinf compare rom.h5 SOURCE [--input SPEC] [--dt H] [--t-end T] -o report/
     fmu-opinf export rom.h5 -o rom.fmu [--reconstruct 'x[1],x[300]']
     fmu-opinf demo -o out/ [--model anchored-msd|triple-chain|all] [--quick]
     fmu-opinf build-fmus [-o fmus/] [--g 600] [--n1 100]
@@ -207,8 +207,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
     p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
     p.add_argument("--input", dest="input_spec",
-                   help="test input signal (or --runs); 'none' (the default for a ROM without inputs): the free "
-                        "response from the source's initial state")
+                   help="test input signal (or --runs); default: a harmonic on each input the training drove, at "
+                        "its training amplitude, between the ROM's natural frequencies; 'none' (the default for a "
+                        "ROM without inputs): the free response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")

@@ -451,6 +451,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
     state_names = rom_state_names(list(input_names or []) + output_names + names)
     provenance["rom_fmu_states"] = list(state_names)
+    provenance["poles"] = _upper_poles(matrices)   # (compare's default test frequency)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, m=m, p=p + len(names), input_names=input_names,
@@ -473,6 +474,16 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
 #: ``export --reconstruct`` warns where the ROM's reconstructed training positions are more than this many times as
 #: far off as their projection on its basis (and over 1e-3 relative RMS).
 RECONSTRUCTION_MISS = 2.0
+
+
+def _upper_poles(matrices: dict[str, np.ndarray]) -> list[list[float]]:
+    """The ROM's poles in the upper half plane as ``[real, imag]`` pairs, for the FMU's provenance.json."""
+    from .inference import model_poles
+
+    if not matrices["Mr"].size:
+        return []
+    poles = model_poles(matrices["Mr"], matrices["Dr"], matrices["Kr"])
+    return [[float(v.real), float(v.imag)] for v in poles if np.isfinite(v) and v.imag >= 0]
 
 
 def _warn_if_reconstruction_is_poor(fit_info: dict) -> None:
