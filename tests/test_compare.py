@@ -376,3 +376,43 @@ def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path)
         f"fmu-opinf: error: no test input given, and the training input {str(table)!r} has no amplitude to take "
         "one from; pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
     assert not (tmp_path / "report").exists()
+
+
+@pytest.mark.slow  # 4 s: builds an FMU, records, fits and compares twice
+def test_a_preload_force_is_trained_and_compared_on_top_of_its_start_value(tmp_path):
+    """An input in N that starts at 10 N beside a dimensionless stiffness scale exposed as an input (audit of
+    2026-12-06): the defaults held both, so the ROM had no port for the force, the warning offered to drive the
+    stiffness, and ``compare`` set a ``none`` input to 0, away from the 10 N the source and the exported ROM FMU
+    start at.  Now the force is driven on top of its start, the scale alone is held (and not offered), and
+    ``compare`` holds a ``none`` input at its start value.  References: the exact response of the model to the
+    inputs as stated."""
+    from conftest import rewrite_description
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.signals import parse_signal
+
+    model = lti_fmus.chain_model(name="Preloaded")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",),
+                                   parameter_inputs=("stiffness_scale",))
+    fmu = rewrite_description(built.path, tmp_path / "preloaded.fmu",
+                              lambda text: text.replace('<Real unit="N" start="0.0"/>', '<Real unit="N" start="10"/>'))
+    with pytest.warns(FmuOpinfWarning, match=r"input\(s\) stiffness_scale start at non-zero values") as seen:
+        snapshots.record_to_file(str(fmu), tmp_path / "train.h5", None, dt=0.1, t_end=60.0, quiet=True)
+    assert not [w for w in seen if "--inputs" in str(w.message)]   # a scale in unit "1" is no force to drive
+    run = snapshots.Snapshots.load(tmp_path / "train.h5").runs[0]
+    assert run.attrs["input_spec"] == "impulse:amplitude=100,t0=2,width=0.5,offset=10"
+    fitted = rom.fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=model.M.shape[0])
+    assert fitted.input_names == ["F"]
+    fitted.save(tmp_path / "rom.h5")
+
+    for given in (None, "none"):
+        result = compare.compare(tmp_path / "rom.h5", fmu, given, quiet=True)
+        held = parse_signal(result.input_spec, 1).sample(result.t) if given is None else np.full((1, result.t.size),
+                                                                                                   10.0)
+        if given is None:
+            assert result.input_spec.startswith("harmonic:amplitude=100,") and result.input_spec.endswith(
+                "offset=10")
+        exact = lti_fmus.zoh_response(model, result.t, held[:, :-1]).y
+        assert np.abs(result.y_fom - exact).max() < 1e-10 * np.abs(exact).max(), given
+        assert result.metrics()["max_error"] < 1e-20, given

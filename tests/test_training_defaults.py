@@ -480,17 +480,17 @@ def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tm
 
 
 def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, capsys):
-    """The only force input starts at a non-zero value, so it is held like a parameter, and the model starts at
-    rest: nothing moves (seventh audit, 2026-11-27: twelve pilots, then 'the output does not settle ... pass --dt
-    and --t-end', which would have recorded a constant).  One line says so and names --inputs F; with it the
-    recording runs."""
+    """The only force input starts at a non-zero value and declares no unit, so it is held like a parameter, and
+    the model starts at rest: nothing moves (seventh audit, 2026-11-27: twelve pilots, then 'the output does not
+    settle ... pass --dt and --t-end', which would have recorded a constant).  One line says so and names --inputs
+    F; with it the recording runs.  Declared in N, the same input is a preload force, driven by default."""
     from conftest import rewrite_description
 
     from fmu_opinf.cli import main
 
     built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="AtRest"), tmp_path / "built.fmu", interfaces=("cs",))
     fmu = rewrite_description(built.path, tmp_path / "at-rest.fmu",
-                              lambda text: text.replace('<Real unit="N" start="0.0"/>', '<Real unit="N" start="10"/>'))
+                              lambda text: text.replace('<Real unit="N" start="0.0"/>', '<Real start="10"/>'))
     capsys.readouterr()
     assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -498,3 +498,7 @@ def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, 
     assert err[-1].endswith("drive an input: --inputs F (it is held at its start value now)")
     assert not (tmp_path / "x.h5").exists()
     assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5"), "--inputs", "F", "-q"]) == 0
+    in_newtons = rewrite_description(built.path, tmp_path / "preloaded.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="10"/>'))
+    assert main(["snapshots", str(in_newtons), "-o", str(tmp_path / "y.h5"), "-q"]) == 0
+    assert Snapshots.load(tmp_path / "y.h5").runs[0].attrs["input_spec"].endswith(",offset=10")

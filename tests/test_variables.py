@@ -203,6 +203,29 @@ def test_parameters_exposed_as_inputs_are_held_unless_named(tmp_path):
     assert resolve_variables(path, inputs="none").forces == []
 
 
+def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
+    """A preload force F = 10 N was held like the stiffness input beside it, for its non-zero start alone, and the
+    exported ROM had no port for it (audit of 2026-12-06).  An input whose unit is a force's or a moment's (by
+    name, through its declared type, or defined in UnitDefinitions by base units kg.m/s2 or kg.m2/s2) is a force
+    whatever its start; one in N/m, or dimensionless, that starts away from 0 is still held."""
+    v = [_sv("F", 0, "input", body='<Real unit="N" start="10"/>'),
+         _sv("tau", 1, "input", body='<Real unit="N.m" start="-2"/>'),
+         _sv("load", 2, "input", body='<Real declaredType="Force" start="5"/>'),
+         _sv("push", 3, "input", body='<Real unit="lbf" start="1"/>'),
+         _sv("c", 4, "input", body='<Real unit="N/m" start="400"/>'),
+         _sv("scale", 5, "input", body='<Real unit="1" start="1"/>'),
+         _sv("gain", 6, "input", body='<Real start="2"/>'),
+         _sv("x[1]", 7), _sv("v[1]", 8)]
+    units = ('<UnitDefinitions><Unit name="lbf"><BaseUnit kg="1" m="1" s="-2" factor="4.448"/></Unit>'
+             '<Unit name="N/m"><BaseUnit kg="1" s="-2"/></Unit></UnitDefinitions>'
+             '<TypeDefinitions><SimpleType name="Force"><Real quantity="Force" unit="N"/></SimpleType>'
+             '</TypeDefinitions>')
+    xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + units)
+    default = resolve_variables(_write(tmp_path, xml))
+    assert _names(default.forces) == ["F", "tau", "load", "push"]
+    assert _names(default.held) == _names(default.parameter_like) == ["c", "gain", "scale"]
+
+
 def test_ports_keep_the_declared_order_with_numbered_groups_in_natural_order(tmp_path):
     """Per-body ports as block-diagram exports declare them (seventh audit, 2026-11-27: inputs F_mass1, F_ext,
     F_mass3 became F_ext, F_mass1, F_mass3 and outputs x1, v1, x3, v3 became x1, x3, v1, v3 on the exported ROM

@@ -408,7 +408,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal, why = default_test_input(rom_info, dt, float(t_end))
         if not quiet:
             print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
-    signal = parse_signal(signal, rom_info["m"])
+    signal = _held_at_start_values(parse_signal(signal, rom_info["m"]), source, source_options)
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options)
@@ -427,6 +427,28 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
         timed=_timed(source, rom_side, isolate, fom_prov),
     )
+
+
+def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":
+    """``signal`` with its ``none`` channels held at the FMU source's start (or ``--set``) values, on both sides,
+    as ``snapshots`` holds them and as the exported ROM FMU starts them.  Before, they were 0 here: a preload
+    F = 10 N was compared at 0 N, away from the operating point of the training, and a parameter exposed as an
+    input and driven in the training was set to 0 (audit of 2026-12-06: the stiffness, eps_y 1.45)."""
+    from .signals import NoInput, StackedSignal
+
+    parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
+    if (not any(isinstance(part, NoInput) and part.n_inputs for part in parts) or str(source).startswith("builtin:")
+            or Path(str(source)).suffix.lower() in (".h5", ".hdf5")):
+        return signal
+    from .snapshots._record import as_signal
+    from .source import open_source
+
+    keep = {k: v for k, v in options.items() if k in ("inputs", "parameters", "interface", "start_time")}
+    fom = open_source(source, positions="", **keep)
+    try:
+        return as_signal(signal.spec, signal.n_inputs, fom) if fom.m == signal.n_inputs else signal
+    finally:
+        fom.close()
 
 
 #: The fewest periods of the default test input within the comparison, and its fewest samples per period.
@@ -464,7 +486,7 @@ def default_test_input(rom_info: dict[str, Any], dt: float, t_end: float) -> tup
         specs[i] = f"harmonic:amplitude={amplitude:.6g},omega={frequency:.3g}" + (
             f",offset={offset:.15g}" if offset else "")
     what = ("a harmonic", "input's amplitude") if len(driven) == 1 else (
-        "a harmonic on each input the training drove", "inputs' amplitudes")
+        "a harmonic on each input the training drove,", "inputs' amplitudes")
     why = (f"{what[0]} between the ROM's natural frequencies {omega.min():.3g} and {omega.max():.3g} rad/s, at the "
            f"training {what[1]}")
     return ";".join(specs) if len(set(specs)) > 1 else specs[0], why

@@ -25,7 +25,7 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         fmi3_ports, nonzero_start, read_description, start_value)
+                         fmi3_ports, looks_like_parameter, read_description, start_value)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -370,6 +370,8 @@ class FMUSource(Source):
         self.held_input_names = [e.name for e in held]
         #: held inputs that look like parameters (non-zero start, default selection): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
+        #: those of them without a unit (a force without a declared unit, perhaps: the warning offers to drive them)
+        self.unitless_parameter_like_names = [e.name for e in resolved.parameter_like if not e.var.unit]
         self.output_names = [e.name for e in out_elements]
         #: the FMI 3 variables behind the inputs and outputs (arrays, Float32): the exported ROM FMU declares them
         self.ports = ({"inputs": fmi3_ports(model, forces, structural),
@@ -384,8 +386,8 @@ class FMUSource(Source):
         self._read = ReadPlan(model, columns, structural)
         # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
         self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
-        #: driven (force) inputs whose start value is not zero: parameters exposed as inputs, perhaps
-        self.driven_parameter_like_names = [e.name for e in forces if nonzero_start(e)]
+        #: driven (force) inputs that look like parameters exposed as inputs (non-zero start, no force unit)
+        self.driven_parameter_like_names = [e.name for e in forces if looks_like_parameter(e, model)]
 
     def reselect(self, positions: Any, velocities: Any, accelerations: str | None, reason: str) -> None:
         """Record other positions, velocities or accelerations from the next run on (the recorder's rate check

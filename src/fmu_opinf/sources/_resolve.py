@@ -59,6 +59,6 @@ def resolve_variables(model: ModelInfo | str | Path, positions: str | None = Non
     selection = discover(model, elements, positions, velocities, accelerations)
     given = {setting.var.name for setting in typed}
     forces, held = select_inputs(model, elements, inputs, given)
-    parameter_like = parameter_like_inputs(held, given) if inputs is None else []
+    parameter_like = parameter_like_inputs(model, held, given) if inputs is None else []
     return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs),
                     parameter_like)

@@ -29,7 +29,7 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
+           "show_patterns", "nonzero_start", "looks_like_parameter", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -65,6 +65,31 @@ class Variable:
     @property
     def is_parameter(self) -> bool:
         return self.causality in _PARAMETER_CAUSALITIES or self.variability in ("constant", "fixed", "tunable")
+
+
+#: Units of a force or a moment by name, as FMI and Modelica spell them; units a model defines by their base units
+#: as kg.m/s2 or kg.m2/s2 count too (:func:`_defined_force_units`).
+_FORCE_UNIT_NAMES = frozenset({"N", "mN", "kN", "MN", "N.m", "N*m", "Nm", "N.mm", "mN.m", "kN.m", "MN.m"})
+
+#: Base-unit exponents of a force (kg m s-2) and of a moment (kg m2 s-2).
+_FORCE_DIMENSIONS = ({"kg": 1, "m": 1, "s": -2}, {"kg": 1, "m": 2, "s": -2})
+
+
+def _defined_force_units(root: ET.Element) -> set[str]:
+    """Names of the units in ``UnitDefinitions`` whose ``BaseUnit`` is that of a force or a moment."""
+    found = set()
+    for unit in root.iterfind("UnitDefinitions/Unit"):
+        base = unit.find("BaseUnit")
+        if base is None:
+            continue
+        try:
+            exponents = {key: int(value) for key, value in base.attrib.items()
+                         if key not in ("factor", "offset") and int(value)}
+        except ValueError:
+            continue
+        if exponents in _FORCE_DIMENSIONS:
+            found.add(unit.get("name", ""))
+    return found
 
 
 def _type_attribute(root: ET.Element, name: str) -> dict[str, str | None]:
@@ -287,6 +312,8 @@ class ModelInfo:
         self._type_units = _type_attribute(root, "unit")
         self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max")}
         self._type_display_units = _type_attribute(root, "displayUnit")
+        #: names of the units of a force or a moment (:func:`looks_like_parameter`)
+        self.force_units = _FORCE_UNIT_NAMES | _defined_force_units(root)
         #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
         self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
@@ -976,7 +1003,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     if patterns is None:
         def drivable(e: Element, variability: str) -> bool:
             return (e.var.is_real and e.var.variability == variability and e.var.name not in given
-                    and not nonzero_start(e))
+                    and not looks_like_parameter(e, model))
 
         forces = port_order([e for e in inputs if drivable(e, "continuous")])
         if not any(e.var.is_real and e.var.variability == "continuous" for e in inputs):
@@ -1028,11 +1055,12 @@ def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
         seen[_value_key(e)] = e.name
 
 
-def parameter_like_inputs(held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
-    """Held inputs that the default selection would have driven but for their non-zero start value (and no
-    ``--set`` value): what the user is told about (:func:`fmu_opinf.sources.open_source`)."""
+def parameter_like_inputs(model: ModelInfo, held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
+    """Held inputs that the default selection would have driven but for their look of a parameter (a non-zero start
+    value, no force unit, :func:`looks_like_parameter`) and that have no ``--set`` value: what the user is told
+    about (:func:`fmu_opinf.sources.open_source`)."""
     return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
-            and nonzero_start(e)]
+            and looks_like_parameter(e, model)]
 
 
 def _numbers_masked(name: str) -> str:
@@ -1166,8 +1194,17 @@ def declared_range(element: Element) -> tuple[float, float]:
 
 
 def nonzero_start(element: Element) -> bool:
-    """True if the element's start value is a non-zero number (an input that looks like a parameter)."""
+    """True if the element's start value is a non-zero number."""
     return start_value(element) != 0.0
+
+
+def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
+    """True for an input that looks like a parameter exposed as an input (spec: real-fmus.md): a non-zero start
+    value and a unit that is not a force's or a moment's.  A force input declared in N (or N.m, or a unit the model
+    defines as one) that starts at a preload is a force all the same, driven on top of its start value (audit of
+    2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had no port
+    for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held."""
+    return nonzero_start(element) and (element.var.unit or "").replace(" ", "") not in model.force_units
 
 
 def element_names(name: str, shape: Sequence[int]) -> list[str]:
