@@ -193,7 +193,8 @@ def test_fmu_without_rates_gets_derived_rates_marked_in_the_file(toys, tmp_path)
 
 
 @pytest.mark.parametrize("fault, text", [(1, "returned an error in fmi2DoStep at step 5 \\(t=0.4 -> 0.5\\)"),
-                                         (2, "produced non-finite values at step 5 \\(t=0.5\\)")])
+                                         (2, "produced non-finite values at step 5 \\(t=0.5\\) in x\\[1\\], "
+                                             "x\\[2\\], x\\[3\\], y\\[1\\] and 1 more; the FMU's co-simulation")])
 def test_error_mid_run_keeps_the_samples_so_far(toys, tmp_path, fault, text):
     signal = SignalStub(amplitude=1.0, t0=0.35)
     clean = record(FMUSource(toys["full"]), signal, 0.1, 3.0, quiet=True).runs[0]
@@ -208,6 +209,25 @@ def test_error_mid_run_keeps_the_samples_so_far(toys, tmp_path, fault, text):
     assert "step 5" in run.attrs["error"]
     for name in ARRAYS:
         np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :5])
+
+
+def test_non_finite_values_name_their_variables_and_the_usual_causes():
+    """Audit of 2026-12-06: ``--set mass1.m=0`` on a model-exchange FMU ended in "produced non-finite values at
+    step 0 (t=0)", naming neither the variables nor a fix.  Without an explanation from the source, the line names
+    the first variables that are not finite and the usual causes."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._record import _non_finite_names, _with_hint
+
+    source = SimpleNamespace(layout={"x": slice(0, 2), "xdot": slice(2, 4), "xddot": slice(4, 4), "y": slice(4, 5)},
+                             position_names=["s1", "s2"], velocity_names=["v1", "v2"], output_names=["acc"])
+    row = np.array([0.0, 1.0, 0.0, np.nan, np.inf])
+    failure = StepError(f"m.fmu produced non-finite values at step 0 (t=0){_non_finite_names(source, row)}", 0, 0.0)
+    assert str(_with_hint(source, failure, np.zeros((1, 0)))) == (
+        "m.fmu produced non-finite values at step 0 (t=0) in v2, acc; check the --set values and the inputs (a mass "
+        "or a stiffness at 0, a parameter exposed as an input driven to 0)")
+    many = np.full(5, np.nan)
+    assert _non_finite_names(source, many) == " in s1, s2, v1, v2 and 1 more"
 
 
 def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):

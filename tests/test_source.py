@@ -508,7 +508,7 @@ def test_missing_path(tmp_path):
 def test_file_that_is_not_an_fmu(tmp_path):
     text = tmp_path / "model.fmu"
     text.write_text("not a zip")
-    _one_line_error(FMUError, FMUSource, text, match="is not an fmu")
+    _one_line_error(FMUError, FMUSource, text, match=r"is not an fmu \(not a zip archive\); give an \.fmu file$")
     empty_zip = tmp_path / "empty.fmu"
     with zipfile.ZipFile(empty_zip, "w") as zf:
         zf.writestr("readme.txt", "hello")
@@ -634,7 +634,7 @@ def test_settings_set_start_values_and_parameters(toys):
 def test_setting_errors_name_the_variable(toys):
     _one_line_error(InputSpecError, FMUSource, toys["full"], parameters={"kk": 1}, match="has no variable 'kk'")
     _one_line_error(InputSpecError, FMUSource, toys["full"], parameters={"fault": "1.5"},
-                    match="fault is a Integer variable.*give an integer")
+                    match="fault is an Integer variable.*give an integer")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", parameters={"k": 1},
                     match="--set applies to fmu sources")
 

@@ -330,7 +330,7 @@ def test_settings_are_typed_by_the_variable(tmp_path):
 @pytest.mark.parametrize("items, match", [
     (["spring.k=3"], r"has no variable 'spring.k' \(did you mean spring.c"),
     (["spring.c=soft"], "spring.c is a Real variable.*give a number"),
-    (["nsteps=2.5"], "nsteps is a Integer variable.*give an integer"),
+    (["nsteps=2.5"], "nsteps is an Integer variable.*give an integer"),
     (["use_damper=maybe"], "give true or false"),
     (["spring.c=-1"], r"outside the bounds \[0, inf\]"),
     (["nsteps=11"], r"outside the bounds \[1, 10\]"),

@@ -232,6 +232,18 @@ def _first_bad_row(rows: np.ndarray) -> int | None:
     return int(np.argmax(bad)) if bad.any() else None
 
 
+def _non_finite_names(source: Source, row: np.ndarray) -> str:
+    """`` in NAME, NAME, ...``: the first few recorded variables that are not finite in the sample ``row``."""
+    names: list[str] = []
+    for kind, attribute in (("x", "position_names"), ("xdot", "velocity_names"),
+                            ("xddot", "acceleration_names"), ("y", "output_names")):
+        part, labels = row[source.layout[kind]], list(getattr(source, attribute, []) or [])
+        names += [labels[j] if j < len(labels) else f"{kind}[{j + 1}]" for j in np.flatnonzero(~np.isfinite(part))]
+    if not names:
+        return ""
+    return " in " + ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+
+
 def _as_received(source: Source, u: np.ndarray) -> np.ndarray:
     """The inputs ``u`` (m, k) as the FMU receives them: its single-precision (FMI 3 Float32) inputs rounded, so
     that the recorded input is the one the model responded to (else 1e-8 relative off)."""
@@ -270,12 +282,14 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
         try:
             for i0, count in producer:
                 check_interrupt()
-                first = _first_bad_row(sink.rows(i0, count)[:count])
+                rows = sink.rows(i0, count)[:count]
+                first = _first_bad_row(rows)
                 if first is not None:
+                    named = _non_finite_names(source, rows[first])
                     sink.commit(i0, first)
                     i = i0 + first
                     raise StepError(f"{source_label(source)} produced non-finite values at step {i} "
-                                    f"(t={t[i]:g})", i, float(t[i]))
+                                    f"(t={t[i]:g}){named}", i, float(t[i]))
                 sink.commit(i0, count)
                 feed(sink.count)
                 bar.update(sink.count)
@@ -332,9 +346,14 @@ def _rate_feed(sink: _Sink, sums: RateSums | None) -> Iterator[Callable[[int], N
 
 
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
-    """The failure with the source's explanation appended (e.g. inputs that look like parameters)."""
+    """The failure with the source's explanation appended (e.g. inputs that look like parameters); non-finite
+    values the source cannot explain get the usual causes (audit of 2026-12-06: the message named neither the
+    variables nor a fix)."""
     hint = getattr(source, "failure_hint", None)
     text = hint(U, failure.step, str(failure)) if hint is not None else ""
+    if not text and "produced non-finite values" in str(failure):
+        text = ("; check the --set values and the inputs (a mass or a stiffness at 0, a parameter exposed as an "
+                "input driven to 0)")
     return StepError(str(failure) + text, failure.step, failure.time) if text else failure
 
 

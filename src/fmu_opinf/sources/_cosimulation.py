@@ -475,7 +475,7 @@ class FMUSource(Source):
         Force inputs with non-zero start values set to 0 look like parameters; non-finite values from a
         co-simulation FMU are typical of an explicit (Euler) step that is unstable at this step size.
         """
-        if "non-finite" in message and self.interface == "cs":
+        if "non-finite" in message and self.interface == "cs" and step > 0:   # (at step 0 no step was taken)
             other = ("drive its model exchange (--interface me)" if offers_model_exchange(self)
                      else "pass a smaller --dt")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "

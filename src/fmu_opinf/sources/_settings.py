@@ -128,7 +128,8 @@ def _check_settable(model: ModelInfo, name: str, var: Variable) -> None:
     if var.variability == "constant":
         raise InputSpecError(f"--set {name}: {var.name} is a constant of {model.label} and cannot be set")
     if var.causality in ("calculatedParameter", "independent"):
-        raise InputSpecError(f"--set {name}: {var.name} is a {var.causality} of {model.label} and cannot be set")
+        raise InputSpecError(f"--set {name}: {var.name} is {_article(var.causality)} {var.causality} of "
+                             f"{model.label} and cannot be set")
     if var.causality in ("parameter", "structuralParameter", "input"):
         return
     if var.initial == "calculated" or (var.initial is None and var.start is None):
@@ -193,6 +194,11 @@ def _flat_index(model: ModelInfo, name: str, index: tuple[int, ...], shape: tupl
     return flat
 
 
+def _article(word: str) -> str:
+    """``"an"`` before a word that starts with a vowel (``an Integer``, ``an input``), else ``"a"``."""
+    return "an" if word[:1].lower() in "aeiou" else "a"
+
+
 def _typed(model: ModelInfo, name: str, var: Variable, value: Any) -> Any:
     try:
         typed = _convert(var, value)
@@ -200,7 +206,8 @@ def _typed(model: ModelInfo, name: str, var: Variable, value: Any) -> Any:
         kind = ("a number" if var.type in _FLOAT_TYPES else "an integer" if var.type in _INTEGER_TYPES
                 else "true or false" if var.type == "Boolean" else "a string")
         several = " (one --set per variable if the value holds another NAME=VALUE)" if "=" in str(value) else ""
-        raise InputSpecError(f"--set {name}={value}: {var.name} is a {var.type} variable of {model.label}; "
+        raise InputSpecError(f"--set {name}={value}: {var.name} is {_article(var.type)} {var.type} variable of "
+                             f"{model.label}; "
                              f"give {kind}{several}") from None
     _check_bounds(model, name, var, typed)
     return typed

@@ -171,7 +171,7 @@ def _parse_description(path: Path) -> Any:
         if not (path / "modelDescription.xml").is_file():
             raise FMUError(f"{path} is a directory without modelDescription.xml; give an .fmu file")
     elif not zipfile.is_zipfile(path):
-        raise FMUError(f"{path} is not an fmu (not a zip archive); give a co-simulation .fmu file")
+        raise FMUError(f"{path} is not an fmu (not a zip archive); give an .fmu file")
     else:
         with zipfile.ZipFile(path) as zf:
             if "modelDescription.xml" not in zf.namelist():
