@@ -416,3 +416,23 @@ def test_a_preload_force_is_trained_and_compared_on_top_of_its_start_value(tmp_p
         exact = lti_fmus.zoh_response(model, result.t, held[:, :-1]).y
         assert np.abs(result.y_fom - exact).max() < 1e-10 * np.abs(exact).max(), given
         assert result.metrics()["max_error"] < 1e-20, given
+
+
+@pytest.mark.parametrize("poles, expected", [
+    ([0.0, 1e-9], [2 * np.pi * 4 / 100.0, 2 * np.pi * 4 / 100.0 * 2 ** 0.25]),  # rigid: 4 periods in the window
+    ([100j, 300j], [np.pi * 2 ** -0.25, np.pi]),                                 # beyond 20 samples per period
+    ([-0.5, -2.0], [2 ** -0.25, 2 ** 0.25]),                                      # overdamped: |poles| 0.5 and 2
+])
+def test_the_default_test_frequency_stays_where_the_comparison_resolves_it(poles, expected):
+    """A rigid-body ROM (natural frequencies 0 and 1e-9 rad/s) first got a test harmonic of 1e-9 rad/s, a constant
+    over the comparison.  The frequency is the geometric mean of the ROM's band, kept to at least 4 periods in
+    the comparison (t_end = 100 s here) and 20 samples per period (dt = 0.1 s); two inputs a quarter octave to
+    either side of it (inside those limits), each at its training amplitude (the one spec of the training drove
+    both)."""
+    info = {"m": 2, "provenance": {"training_runs": [{"input_spec": "impulse:amplitude=-5,t0=1,width=0.5"}]},
+            "poles": np.asarray(poles, dtype=complex)}
+    spec, why = compare.default_test_input(info, 0.1, 100.0)
+    parts = [part.partition(",omega=") for part in spec.split(";")]
+    assert [head for head, _, _ in parts] == ["harmonic:amplitude=5", "harmonic:amplitude=5"]
+    assert [float(tail) for _, _, tail in parts] == pytest.approx(expected, rel=5e-3)   # (3 significant digits)
+    assert why.startswith("a harmonic on each input the training drove, ")

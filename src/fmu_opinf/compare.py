@@ -368,9 +368,9 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         Test input (see :mod:`fmu_opinf.signals`).  Default: for a ROM without inputs ``"none"`` (the free response
         from the initial state; the source's inputs, if any, held at their start values), else a harmonic on
         each input the training drove, at the training's amplitude and operating point and at a frequency between
-        the ROM's natural frequencies (:func:`default_test_input`).  Both sides start from the source's initial state: the ROM from the source's positions and
-        velocities after initialization, projected on its basis (its stored ``q0, qdot0`` for a builtin or ROM
-        source, or where the state cannot be read).
+        the ROM's natural frequencies (:func:`default_test_input`).  Both sides start from the source's initial
+        state: the ROM from the source's positions and velocities after initialization, projected on its basis (its
+        stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be read).
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time.
     source_options : dict, optional
@@ -465,31 +465,40 @@ def default_test_input(rom_info: dict[str, Any], dt: float, t_end: float) -> tup
     run drove stays held at its start value (``none``).
 
     Raises :class:`~fmu_opinf.errors.InputSpecError` where no such input can be made: the training input of a
-    driven input was a table, no training run is recorded, or the ROM has no natural frequency.
+    driven input was a table, no training run is recorded or none drove an input, or the ROM has no natural
+    frequency.
     """
     m = int(rom_info["m"])
     drives = _training_drives(rom_info["provenance"].get("training_runs"), m)
     omega = np.abs(np.asarray(rom_info.get("poles", []), dtype=complex))
     omega = omega[np.isfinite(omega) & (omega > 0)]
-    if drives is None or not omega.size:
-        lacking = "no training run recorded" if drives is None else "no natural frequency of the ROM"
+    if drives is None or not omega.size or not any(drives):
+        lacking = ("no training run recorded" if drives is None else "no natural frequency of the ROM"
+                   if not omega.size else "no training run drove an input")
         raise InputSpecError(f"no test input given and none can be chosen ({lacking}); pass --input SPEC, e.g. "
                              "'harmonic:amplitude=1,omega=0.2'")
-    low = max(float(omega.min()), 2 * math.pi * _DEFAULT_TEST_PERIODS / t_end)
-    high = min(float(omega.max()), 2 * math.pi / (_DEFAULT_TEST_SAMPLES_PER_PERIOD * dt))
-    centre = math.sqrt(low * high) if low <= high else high
+    floor, ceiling = 2 * math.pi * _DEFAULT_TEST_PERIODS / t_end, 2 * math.pi / (_DEFAULT_TEST_SAMPLES_PER_PERIOD * dt)
+    low, high = max(float(omega.min()), floor), min(float(omega.max()), ceiling)
+    band = f"{omega.min():.3g} and {omega.max():.3g} rad/s"
+    if low <= high:
+        centre, where = math.sqrt(low * high), f"between the ROM's natural frequencies {band}"
+    elif omega.max() < floor <= ceiling:   # every mode slower than the comparison holds periods of
+        centre, where = floor, (f"the slowest with {_DEFAULT_TEST_PERIODS} periods in the comparison (the ROM's "
+                                f"natural frequencies lie between {band})")
+    else:
+        centre, where = ceiling, (f"the fastest with {_DEFAULT_TEST_SAMPLES_PER_PERIOD} samples per period (the "
+                                  f"ROM's natural frequencies lie between {band})")
     driven = [i for i, drive in enumerate(drives) if drive is not None]
     specs = ["none"] * m
     for j, i in enumerate(driven):
         amplitude, offset = drives[i]
-        frequency = centre * 2.0 ** ((j - (len(driven) - 1) / 2) / len(driven))
+        spread = centre * 2.0 ** ((j - (len(driven) - 1) / 2) / len(driven))
+        frequency = min(max(spread, floor), ceiling) if floor <= ceiling else spread
         specs[i] = f"harmonic:amplitude={amplitude:.6g},omega={frequency:.3g}" + (
             f",offset={offset:.15g}" if offset else "")
     what = ("a harmonic", "input's amplitude") if len(driven) == 1 else (
         "a harmonic on each input the training drove,", "inputs' amplitudes")
-    why = (f"{what[0]} between the ROM's natural frequencies {omega.min():.3g} and {omega.max():.3g} rad/s, at the "
-           f"training {what[1]}")
-    return ";".join(specs) if len(set(specs)) > 1 else specs[0], why
+    return ";".join(specs) if len(set(specs)) > 1 else specs[0], f"{what[0]} {where}, at the training {what[1]}"
 
 
 def _training_drives(runs: Any, m: int) -> list[tuple[float, float] | None] | None:
