@@ -15,7 +15,7 @@ import pytest
 
 from fmu_opinf.errors import FMUError, FmuOpinfError, InputSpecError
 from fmu_opinf.sources import parse_assignments, resolve_variables
-from fmu_opinf.sources._variables import Column
+from fmu_opinf.sources._variables import Column, ModelInfo, unit_kind
 
 
 def _fmi2(variables: list[str], derivatives: list[int], name: str = "Model") -> str:
@@ -205,25 +205,31 @@ def test_parameters_exposed_as_inputs_are_held_unless_named(tmp_path):
 
 def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
     """A preload force F = 10 N was held like the stiffness input beside it, for its non-zero start alone, and the
-    exported ROM had no port for it (audit of 2026-12-06).  An input whose unit is a force's or a moment's (by
-    name, through its declared type, or defined in UnitDefinitions by base units kg.m/s2 or kg.m2/s2) is a force
-    whatever its start; one in N/m, or dimensionless, that starts away from 0 is still held."""
-    v = [_sv("F", 0, "input", body='<Real unit="N" start="10"/>'),
-         _sv("tau", 1, "input", body='<Real unit="N.m" start="-2"/>'),
-         _sv("load", 2, "input", body='<Real declaredType="Force" start="5"/>'),
-         _sv("push", 3, "input", body='<Real unit="lbf" start="1"/>'),
-         _sv("c", 4, "input", body='<Real unit="N/m" start="400"/>'),
-         _sv("scale", 5, "input", body='<Real unit="1" start="1"/>'),
-         _sv("gain", 6, "input", body='<Real start="2"/>'),
-         _sv("x[1]", 7), _sv("v[1]", 8)]
-    units = ('<UnitDefinitions><Unit name="lbf"><BaseUnit kg="1" m="1" s="-2" factor="4.448"/></Unit>'
+    exported ROM had no port for it (audit 49); so was one in lbf, N·m or kg.m/s2, or of quantity Force without a
+    unit (audit 50).  An input whose unit is a force's or a moment's (by name with prefixes and customary units,
+    as a product with a length, in base units, defined in UnitDefinitions, or through its declared type's unit or
+    quantity) is a force whatever its start; one in N/m, kg or 1 that starts away from 0 is a parameter, held; one
+    without a unit too, but the warning offers to drive it."""
+    forces = [("F", 'unit="N" start="10"'), ("tau", 'unit="N.m" start="-2"'), ("load", 'declaredType="Force" start="5"'),
+              ("push", 'unit="pound" start="1"'), ("pull", 'unit="lbf" start="3"'), ("twist", 'unit="N·m" start="1"'),
+              ("dead", 'unit="daN" start="2"'), ("base", 'unit="kg.m/s2" start="4"'),
+              ("q", 'declaredType="Push" start="6"'), ("M", 'unit="kNm" start="7"')]
+    parameters = [("c", 'unit="N/m" start="400"'), ("d", 'unit="N.s/m" start="2"'), ("mass", 'unit="kg" start="3"'),
+                  ("scale", 'unit="1" start="1"'), ("gain", 'start="2"')]
+    v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in
+         enumerate(forces + parameters)] + [_sv("x[1]", 20), _sv("v[1]", 21)]
+    units = ('<UnitDefinitions><Unit name="pound"><BaseUnit kg="1" m="1" s="-2" factor="4.448"/></Unit>'
              '<Unit name="N/m"><BaseUnit kg="1" s="-2"/></Unit></UnitDefinitions>'
              '<TypeDefinitions><SimpleType name="Force"><Real quantity="Force" unit="N"/></SimpleType>'
-             '</TypeDefinitions>')
+             '<SimpleType name="Push"><Real quantity="Force"/></SimpleType></TypeDefinitions>')
     xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + units)
-    default = resolve_variables(_write(tmp_path, xml))
-    assert _names(default.forces) == ["F", "tau", "load", "push"]
-    assert _names(default.held) == _names(default.parameter_like) == ["c", "gain", "scale"]
+    path = _write(tmp_path, xml)
+    default = resolve_variables(path)
+    assert _names(default.forces) == [name for name, _ in forces]
+    assert _names(default.held) == _names(default.parameter_like) == ["c", "d", "gain", "mass", "scale"]
+    model = ModelInfo.from_path(path)
+    assert [unit_kind(e.var, model) for e in default.held] == ["parameter", "parameter", "unknown", "parameter",
+                                                               "parameter"]
 
 
 def test_ports_keep_the_declared_order_with_numbered_groups_in_natural_order(tmp_path):

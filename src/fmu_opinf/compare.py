@@ -635,8 +635,9 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
     starts = _declared_starts(source) if any(name not in settings for name in given_settings) else {}
     trained = {name: (settings[name], "") if name in settings else (starts[name], " (its start value)")
                for name in given_settings if name in settings or name in starts}
+    ports = set(snapshots.get("input_names") or [])   # (a ROM input's value is the test input's, not a setting)
     changed = {name: value for name, value in given_settings.items()
-               if name in trained and not _same_setting(value, trained[name][0])}
+               if name in trained and name not in ports and not _same_setting(value, trained[name][0])}
     if changed:
         import warnings
 

@@ -177,8 +177,8 @@ _REPORTED: set[tuple[str, tuple[Any, ...]]] = set()
 
 def _warn_parameter_like(source: Source) -> None:
     """At most one warning each (per process and FMU: a run table opens the source per row) naming the inputs the
-    default selection holds for their non-zero start values (offering to drive only those without a unit: one in
-    N/m or kg is a parameter), and the inputs chosen to be driven although they look like parameters (a parameter
+    default selection holds for their non-zero start values (offering to drive only those whose unit is none or not
+    known: one in N/m or kg is a parameter), and the inputs chosen to be driven although they look like parameters (a parameter
     exposed as an input, driven, records a model that changes with it; audit 2026-11-27: ``--inputs
     F,stiffness_scale`` without a word, the ROM 120 % off)."""
     held = list(getattr(source, "parameter_like_input_names", []) or [])
@@ -192,10 +192,9 @@ def _warn_parameter_like(source: Source) -> None:
                    f"record with {inputs_without(forces, driven)} and give their values with --set")
     if held:
         shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
-        # (one with a unit that is not a force's is a parameter: driving it is not offered)
-        unitless = [name for name in getattr(source, "unitless_parameter_like_names", held) if name in held]
-        drive = (f", or drive those that are forces with --inputs {','.join(forces + unitless)}" if unitless
-                 else "")
+        # (one in N/m, kg or 1 is a parameter: driving it is not offered)
+        unknown = [name for name in getattr(source, "maybe_force_names", held) if name in held]
+        drive = f", or drive those that are forces with --inputs {','.join(forces + unknown)}" if unknown else ""
         warn_once(source, ("held", tuple(held), tuple(forces)),
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "

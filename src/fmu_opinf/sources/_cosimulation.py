@@ -25,7 +25,7 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         fmi3_ports, looks_like_parameter, read_description, start_value)
+                         fmi3_ports, looks_like_parameter, read_description, start_value, unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -370,8 +370,8 @@ class FMUSource(Source):
         self.held_input_names = [e.name for e in held]
         #: held inputs that look like parameters (non-zero start, default selection): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
-        #: those of them without a unit (a force without a declared unit, perhaps: the warning offers to drive them)
-        self.unitless_parameter_like_names = [e.name for e in resolved.parameter_like if not e.var.unit]
+        #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
+        self.maybe_force_names = [e.name for e in resolved.parameter_like if unit_kind(e.var, model) == "unknown"]
         self.output_names = [e.name for e in out_elements]
         #: the FMI 3 variables behind the inputs and outputs (arrays, Float32): the exported ROM FMU declares them
         self.ports = ({"inputs": fmi3_ports(model, forces, structural),

@@ -29,7 +29,7 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "looks_like_parameter", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
+           "show_patterns", "nonzero_start", "looks_like_parameter", "unit_kind", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -56,6 +56,7 @@ class Variable:
     min: str | None = None
     max: str | None = None
     unit: str | None = None  # its own unit, else its declared type's
+    quantity: str | None = None  # its own quantity, else its declared type's (FMI: e.g. "Force")
     display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
 
     @property
@@ -67,12 +68,61 @@ class Variable:
         return self.causality in _PARAMETER_CAUSALITIES or self.variability in ("constant", "fixed", "tunable")
 
 
-#: Units of a force or a moment by name, as FMI and Modelica spell them; units a model defines by their base units
-#: as kg.m/s2 or kg.m2/s2 count too (:func:`_defined_force_units`).
-_FORCE_UNIT_NAMES = frozenset({"N", "mN", "kN", "MN", "N.m", "N*m", "Nm", "N.mm", "mN.m", "kN.m", "MN.m"})
+#: Units of a force by name (SI with prefixes and the customary ones); a moment is one of them times a length.
+_FORCE_UNITS = frozenset({"N", "mN", "cN", "daN", "kN", "MN", "lbf", "kgf", "kp", "ozf", "dyn", "kip", "pdl",
+                          "Nm", "Nmm", "kNm"})   # (the last three: moments as some tools spell them)
+_LENGTH_UNITS = frozenset({"m", "dm", "cm", "mm", "um", "km", "in", "ft", "yd"})
+
+#: Quantities (FMI ``quantity``, Modelica's type names) of a force or a moment.
+_FORCE_QUANTITIES = frozenset({"Force", "Torque", "MomentOfForce"})
+
+#: Units of what exporters expose as inputs though it is a parameter: mass, inertia, dimensionless scales.
+_PARAMETER_UNITS = frozenset({"1", "kg", "g", "t", "kg.m2", "kg.m^2"})
 
 #: Base-unit exponents of a force (kg m s-2) and of a moment (kg m2 s-2).
 _FORCE_DIMENSIONS = ({"kg": 1, "m": 1, "s": -2}, {"kg": 1, "m": 2, "s": -2})
+
+
+def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
+    """``"force"`` for a force or a moment (by unit: ``N``, ``kN``, ``lbf``, ``N.m``, ``N·m``, ``kg.m/s2``, a unit
+    the model defines with those base units; or by quantity: ``Force``, ``Torque``), ``"parameter"`` for a unit
+    no force has (``N/m``, ``N.s/m``, ``kg``, ``1``), ``"unknown"`` otherwise (no unit, or one not recognized):
+    what :func:`looks_like_parameter` and the warning about held inputs go by (audits of 2026-12-06: a preload of
+    10 N was held like the stiffness beside it, and so was one in lbf or N·m)."""
+    unit = _normalized_unit(variable.unit)
+    if variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit):
+        return "force"
+    if unit in _PARAMETER_UNITS or "/" in unit:
+        return "parameter"
+    return "unknown"
+
+
+def _normalized_unit(unit: str | None) -> str:
+    """A unit with its factors joined by ``.`` (``N·m``, ``N*m``, ``N m`` -> ``N.m``)."""
+    return re.sub(r"[\s·*]+", ".", (unit or "").strip()).strip(".")
+
+
+def _is_force_unit(unit: str) -> bool:
+    """``unit`` (factors joined by ``.``) is a force, a force times a length, or kg.m/s2, kg.m2.s-2 and the like."""
+    factors = unit.split(".") if "/" not in unit else []
+    if len(factors) == 1 and factors[0] in _FORCE_UNITS:
+        return True
+    if len(factors) == 2 and {factors[0] in _FORCE_UNITS, factors[1] in _FORCE_UNITS} == {True, False}:
+        return (factors[0] if factors[1] in _FORCE_UNITS else factors[1]) in _LENGTH_UNITS
+    return _base_exponents(unit) in _FORCE_DIMENSIONS
+
+
+def _base_exponents(unit: str) -> dict[str, int] | None:
+    """``{"kg": 1, "m": 1, "s": -2}`` for ``kg.m/s2`` or ``kg.m.s-2``; None where a factor is not kg, m or s."""
+    numerator, _, denominator = unit.partition("/")
+    exponents: dict[str, int] = {}
+    for sign, part in ((1, numerator), (-1, denominator)):
+        for factor in filter(None, part.split(".")):
+            match = re.fullmatch(r"(kg|m|s)\^?(-?\d+)?", factor)
+            if match is None:
+                return None
+            exponents[match[1]] = exponents.get(match[1], 0) + sign * int(match[2] or 1)
+    return {k: v for k, v in exponents.items() if v}
 
 
 def _defined_force_units(root: ET.Element) -> set[str]:
@@ -88,7 +138,7 @@ def _defined_force_units(root: ET.Element) -> set[str]:
         except ValueError:
             continue
         if exponents in _FORCE_DIMENSIONS:
-            found.add(unit.get("name", ""))
+            found.add(_normalized_unit(unit.get("name", "")))
     return found
 
 
@@ -312,8 +362,9 @@ class ModelInfo:
         self._type_units = _type_attribute(root, "unit")
         self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max")}
         self._type_display_units = _type_attribute(root, "displayUnit")
-        #: names of the units of a force or a moment (:func:`looks_like_parameter`)
-        self.force_units = _FORCE_UNIT_NAMES | _defined_force_units(root)
+        self._type_quantities = _type_attribute(root, "quantity")
+        #: units the model defines (UnitDefinitions) with the base units of a force or a moment (:func:`unit_kind`)
+        self.force_units = _defined_force_units(root)
         #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
         self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
@@ -348,6 +399,7 @@ class ModelInfo:
                            negated=sv.get("alias") == "negatedAlias", min=self._bound(attrs, "min"),
                            max=self._bound(attrs, "max"),
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
+                           quantity=attrs.get("quantity") or self._type_quantities.get(attrs.get("declaredType", "")),
                            display_unit=self._display_unit(attrs))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
@@ -373,6 +425,7 @@ class ModelInfo:
                                 initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
                                 min=self._bound(el.attrib, "min"), max=self._bound(el.attrib, "max"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
+                                quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
                                 display_unit=self._display_unit(el.attrib)))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
@@ -1200,11 +1253,11 @@ def nonzero_start(element: Element) -> bool:
 
 def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     """True for an input that looks like a parameter exposed as an input (spec: real-fmus.md): a non-zero start
-    value and a unit that is not a force's or a moment's.  A force input declared in N (or N.m, or a unit the model
-    defines as one) that starts at a preload is a force all the same, driven on top of its start value (audit of
+    value and a unit that is not a force's or a moment's (:func:`unit_kind`).  A force input declared in N (or N.m,
+    lbf, a unit the model defines as one, a Force quantity) that starts at a preload is a force all the same, driven on top of its start value (audit of
     2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had no port
     for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held."""
-    return nonzero_start(element) and (element.var.unit or "").replace(" ", "") not in model.force_units
+    return nonzero_start(element) and unit_kind(element.var, model) != "force"
 
 
 def element_names(name: str, shape: Sequence[int]) -> list[str]:
