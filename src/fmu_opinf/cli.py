@@ -208,9 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rom", help="ROM file (.h5) or exported ROM FMU (.fmu)")
     p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
     p.add_argument("--input", dest="input_spec",
-                   help="test input signal (or --runs); default: a harmonic on each input the training drove, at "
-                        "its training amplitude, between the ROM's natural frequencies; 'none' (the default for a "
-                        "ROM without inputs): the free response from the source's initial state")
+                   help="test input signal (or --runs); default: a harmonic on each input the training drove, "
+                        "off the ROM's natural frequencies, sized to stay within the training's output range; 'none' "
+                        "(the default for a ROM without inputs): the free response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
     p.add_argument("-o", "--output", required=True, help="report directory")

@@ -368,7 +368,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         Test input (see :mod:`fmu_opinf.signals`).  Default: for a ROM without inputs ``"none"`` (the free response
         from the initial state; the source's inputs, if any, held at their start values), else a harmonic on
         each input the training drove, at the training's amplitude and operating point and at a frequency between
-        the ROM's natural frequencies (:func:`default_test_input`).  Both sides start from the source's initial
+        the ROM's natural frequencies (:mod:`fmu_opinf._test_input`).  Both sides start from the source's initial
         state: the ROM from the source's positions and velocities after initialization, projected on its basis (its
         stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be read).
     dt, t_end : float, optional
@@ -405,7 +405,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal = signal or "none"
         source_options.setdefault("inputs", "none")  # every source input held at its start value
     if not signal:
-        signal, why = default_test_input(rom_info, dt, float(t_end))
+        signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
             print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
     signal = _held_at_start_values(parse_signal(signal, rom_info["m"]), source, source_options)
@@ -429,6 +429,20 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     )
 
 
+def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
+    """The test input without one given (:mod:`fmu_opinf._test_input`): chosen from the ROM, or the one an exported
+    ROM FMU carries for its training grid (a data file: taken only as a string, parsed like any --input)."""
+    from ._test_input import default_test_input
+
+    if not isinstance(rom_side, Path):
+        return default_test_input(rom_side, dt, t_end)
+    carried = rom_info["provenance"].get("default_test_input")
+    if (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
+        return carried[0], carried[1]
+    raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); pass "
+                         "--input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+
+
 def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":
     """``signal`` with its ``none`` channels held at the FMU source's start (or ``--set``) values, on both sides,
     as ``snapshots`` holds them and as the exported ROM FMU starts them.  Before, they were 0 here: a preload
@@ -449,80 +463,6 @@ def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]
         return as_signal(signal.spec, signal.n_inputs, fom) if fom.m == signal.n_inputs else signal
     finally:
         fom.close()
-
-
-#: The fewest periods of the default test input within the comparison, and its fewest samples per period.
-_DEFAULT_TEST_PERIODS, _DEFAULT_TEST_SAMPLES_PER_PERIOD = 4, 20
-
-
-def default_test_input(rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
-    """The test input of a comparison given none, and why: a harmonic wave (the paper's test input, spec section 5)
-    on each input the training runs drove, at the largest amplitude and on the operating point (``offset``) they
-    drove it with, at a frequency the training did not impose: the geometric mean of the ROM's lowest and highest
-    natural frequency, kept to at least :data:`_DEFAULT_TEST_PERIODS` periods in ``t_end`` and
-    :data:`_DEFAULT_TEST_SAMPLES_PER_PERIOD` samples per period of ``dt``.  Several inputs get frequencies spread
-    over an octave around it, so that the comparison tells them apart as the training did; an input no training
-    run drove stays held at its start value (``none``).
-
-    Raises :class:`~fmu_opinf.errors.InputSpecError` where no such input can be made: the training input of a
-    driven input was a table, no training run is recorded or none drove an input, or the ROM has no natural
-    frequency.
-    """
-    m = int(rom_info["m"])
-    drives = _training_drives(rom_info["provenance"].get("training_runs"), m)
-    omega = np.abs(np.asarray(rom_info.get("poles", []), dtype=complex))
-    omega = omega[np.isfinite(omega) & (omega > 0)]
-    if drives is None or not omega.size or not any(drives):
-        lacking = ("no training run recorded" if drives is None else "no natural frequency of the ROM"
-                   if not omega.size else "no training run drove an input")
-        raise InputSpecError(f"no test input given and none can be chosen ({lacking}); pass --input SPEC, e.g. "
-                             "'harmonic:amplitude=1,omega=0.2'")
-    floor, ceiling = 2 * math.pi * _DEFAULT_TEST_PERIODS / t_end, 2 * math.pi / (_DEFAULT_TEST_SAMPLES_PER_PERIOD * dt)
-    low, high = max(float(omega.min()), floor), min(float(omega.max()), ceiling)
-    band = f"{omega.min():.3g} and {omega.max():.3g} rad/s"
-    if low <= high:
-        centre, where = math.sqrt(low * high), f"between the ROM's natural frequencies {band}"
-    elif omega.max() < floor <= ceiling:   # every mode slower than the comparison holds periods of
-        centre, where = floor, (f"the slowest with {_DEFAULT_TEST_PERIODS} periods in the comparison (the ROM's "
-                                f"natural frequencies lie between {band})")
-    else:
-        centre, where = ceiling, (f"the fastest with {_DEFAULT_TEST_SAMPLES_PER_PERIOD} samples per period (the "
-                                  f"ROM's natural frequencies lie between {band})")
-    driven = [i for i, drive in enumerate(drives) if drive is not None]
-    specs = ["none"] * m
-    for j, i in enumerate(driven):
-        amplitude, offset = drives[i]
-        spread = centre * 2.0 ** ((j - (len(driven) - 1) / 2) / len(driven))
-        frequency = min(max(spread, floor), ceiling) if floor <= ceiling else spread
-        specs[i] = f"harmonic:amplitude={amplitude:.6g},omega={frequency:.3g}" + (
-            f",offset={offset:.15g}" if offset else "")
-    what = ("a harmonic", "input's amplitude") if len(driven) == 1 else (
-        "a harmonic on each input the training drove,", "inputs' amplitudes")
-    return ";".join(specs) if len(set(specs)) > 1 else specs[0], f"{what[0]} {where}, at the training {what[1]}"
-
-
-def _training_drives(runs: Any, m: int) -> list[tuple[float, float] | None] | None:
-    """Per input, the largest amplitude the training runs drove it with and that run's offset (None: never
-    driven); None where no run is recorded.  A table's amplitude is unknown here: then InputSpecError."""
-    from .signals import ParametricSignal, parse_signal
-
-    if not isinstance(runs, list) or not runs:
-        return None
-    drives: list[tuple[float, float] | None] = [None] * m
-    for run in runs:
-        parts = str(run.get("input_spec", "none") if isinstance(run, dict) else "none").split(";")
-        for i in range(m):
-            part = (parts[0] if len(parts) == 1 else parts[i] if i < len(parts) else "none").strip()
-            if part.lower() == "none":
-                continue
-            signal = None if part.lower().endswith(".csv") else parse_signal(part)
-            if not isinstance(signal, ParametricSignal) or "amplitude" not in signal.params:
-                raise InputSpecError(f"no test input given, and the training input {part!r} has no amplitude to "
-                                     "take one from; pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
-            amplitude = abs(signal.params["amplitude"])
-            if amplitude > 0 and (drives[i] is None or amplitude > drives[i][0]):
-                drives[i] = (amplitude, float(signal.params.get("offset", 0.0)))
-    return drives
 
 
 def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
@@ -764,15 +704,11 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
         meta = _rom_fmu_metadata(rom_side)
         fmu = FMUSource(rom_side, **_rom_fmu_variables(meta.get("rom_fmu_states")))
         return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
-                "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta},
-                "poles": [complex(*pole) for pole in meta.get("poles") or []]}
-    from .inference import model_poles
-
+                "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
     return {"m": rom_side.m, "p": rom_side.p, "r": rom_side.r, "dt": rom_side.dt,
             "output_names": list(rom_side.output_names),
-            "t_train_end": _training_end(prov), "provenance": prov,
-            "poles": model_poles(rom_side.Mr, rom_side.Dr, rom_side.Kr) if rom_side.r else []}
+            "t_train_end": _training_end(prov), "provenance": prov}
 
 
 #: Variable patterns of an exported ROM FMU (its reduced coordinates stand where positions would), for FMUs
@@ -817,20 +753,8 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
         meta["rom_fmu_states"] = provenance.get("rom_fmu_states")
         if isinstance(provenance.get("snapshots"), dict):
             meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
-        meta["training_runs"] = provenance.get("training_runs")   # (for the default test input)
-        meta["poles"] = _pole_pairs(provenance.get("poles"))
+        meta["default_test_input"] = provenance.get("default_test_input")
     return meta
-
-
-def _pole_pairs(poles: Any) -> list[tuple[float, float]]:
-    """The ``[real, imag]`` pairs of a ROM FMU's provenance.json ``poles`` (a data file: only finite number pairs
-    are taken)."""
-    pairs = []
-    for pole in poles if isinstance(poles, list) else []:
-        if (isinstance(pole, list) and len(pole) == 2 and all(isinstance(v, (int, float)) for v in pole)
-                and all(math.isfinite(v) for v in pole)):
-            pairs.append((float(pole[0]), float(pole[1])))
-    return pairs
 
 
 # ---------------------------------------------------------------------------------------------

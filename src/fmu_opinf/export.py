@@ -451,7 +451,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
     state_names = rom_state_names(list(input_names or []) + output_names + names)
     provenance["rom_fmu_states"] = list(state_names)
-    provenance["poles"] = _upper_poles(matrices)   # (compare's default test frequency)
+    provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, m=m, p=p + len(names), input_names=input_names,
@@ -476,14 +476,18 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
 RECONSTRUCTION_MISS = 2.0
 
 
-def _upper_poles(matrices: dict[str, np.ndarray]) -> list[list[float]]:
-    """The ROM's poles in the upper half plane as ``[real, imag]`` pairs, for the FMU's provenance.json."""
-    from .inference import model_poles
+def _default_test_input(rom: Any, dt: float | None, t_train_end: Any) -> list[str] | None:
+    """``compare``'s test input for this ROM on its default grid (training step, four times the training end) and
+    why, for the FMU's provenance.json: where the FMU stands for the ROM, its matrices are not at hand."""
+    from ._test_input import default_test_input
+    from .errors import FmuOpinfError
 
-    if not matrices["Mr"].size:
-        return []
-    poles = model_poles(matrices["Mr"], matrices["Dr"], matrices["Kr"])
-    return [[float(v.real), float(v.imag)] for v in poles if np.isfinite(v) and v.imag >= 0]
+    if not dt or not t_train_end:
+        return None
+    try:
+        return list(default_test_input(rom, float(dt), float(dt) * round(4 * float(t_train_end) / float(dt))))
+    except (FmuOpinfError, np.linalg.LinAlgError, TypeError, ValueError):
+        return None
 
 
 def _warn_if_reconstruction_is_poor(fit_info: dict) -> None:
