@@ -437,8 +437,8 @@ def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_en
     if not isinstance(rom_side, Path):
         return default_test_input(rom_side, dt, t_end)
     carried = rom_info["provenance"].get("default_test_input")
-    if (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
-        return carried[0], carried[1]
+    if isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried):
+        return tuple("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
     raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); pass "
                          "--input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
 
