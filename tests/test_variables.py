@@ -210,7 +210,8 @@ def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
     as a product with a length, in base units, defined in UnitDefinitions, or through its declared type's unit or
     quantity) is a force whatever its start; one in N/m, kg or 1 that starts away from 0 is a parameter, held; one
     without a unit too, but the warning offers to drive it."""
-    forces = [("F", 'unit="N" start="10"'), ("tau", 'unit="N.m" start="-2"'), ("load", 'declaredType="Force" start="5"'),
+    forces = [("F", 'unit="N" start="10"'), ("tau", 'unit="N.m" start="-2"'),
+              ("load", 'declaredType="Force" start="5"'),
               ("push", 'unit="pound" start="1"'), ("pull", 'unit="lbf" start="3"'), ("twist", 'unit="N·m" start="1"'),
               ("dead", 'unit="daN" start="2"'), ("base", 'unit="kg.m/s2" start="4"'),
               ("q", 'declaredType="Push" start="6"'), ("M", 'unit="kNm" start="7"')]

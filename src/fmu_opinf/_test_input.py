@@ -66,12 +66,8 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     for j, i in enumerate(driven):
         frequency = low * (high / low) ** (0.25 + 0.5 * (j + 1) / (len(driven) + 1))
         amplitude, offset = drives[i]
-        try:
-            gain = np.abs(_frequency_response(rom, frequency)[:, i])
-        except np.linalg.LinAlgError:   # (an undamped mode at exactly this frequency: no steady response)
-            gain = np.zeros(rom.p)
-        sized = [PEAK_SHARE * peak / (len(driven) * g) for peak, g in zip(peaks, gain) if g > 0 and peak > 0]
-        amplitude = min([amplitude] + sized) if peaks is not None else amplitude
+        if peaks is not None:
+            amplitude = _sized(rom, i, frequency, amplitude, peaks / len(driven))
         specs[i] = f"harmonic:amplitude={amplitude:.3g},omega={frequency:.3g}" + (
             f",offset={offset:.15g}" if offset else "")
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
@@ -109,6 +105,16 @@ def _frequency_gap(omega: np.ndarray, floor: float, ceiling: float) -> tuple[flo
     return max(ceiling / 2, floor), ceiling, f"the fastest with {SAMPLES_PER_PERIOD} samples per period ({band})"
 
 
+def _sized(rom: "SecondOrderROM", i: int, omega: float, amplitude: float, peaks: np.ndarray) -> float:
+    """``amplitude`` lowered until the steady response to input ``i`` alone at ``omega`` reaches at most
+    :data:`PEAK_SHARE` of ``peaks`` in every output."""
+    try:
+        gain = np.abs(_frequency_response(rom, omega)[:, i])
+    except np.linalg.LinAlgError:   # (an undamped mode at exactly this frequency: no steady response)
+        return amplitude
+    return min([amplitude] + [PEAK_SHARE * peak / g for peak, g in zip(peaks, gain) if g > 0 and peak > 0])
+
+
 def _frequency_response(rom: "SecondOrderROM", omega: float) -> np.ndarray:
     """``H(i omega) = (Cp + i omega Cv) (K - omega^2 M + i omega D)^-1 B + Du``, (p, m) complex."""
     s = 1j * omega
@@ -122,7 +128,8 @@ def _training_peaks(rom: "SecondOrderROM") -> np.ndarray | None:
     peaks = None
     for run in rom.provenance.get("training_runs") or []:
         try:
-            y = rom.simulate(str(run["input_spec"]), float(run["dt"]), float(run["t_end"]) - float(run.get("t0", 0.0))).y
+            duration = float(run["t_end"]) - float(run.get("t0", 0.0))
+            y = rom.simulate(str(run["input_spec"]), float(run["dt"]), duration).y
         except (FmuOpinfError, KeyError, TypeError, ValueError):
             continue
         peak = np.abs(y - y[:, :1]).max(axis=1)

@@ -178,8 +178,8 @@ _REPORTED: set[tuple[str, tuple[Any, ...]]] = set()
 def _warn_parameter_like(source: Source) -> None:
     """At most one warning each (per process and FMU: a run table opens the source per row) naming the inputs the
     default selection holds for their non-zero start values (offering to drive only those whose unit is none or not
-    known: one in N/m or kg is a parameter), and the inputs chosen to be driven although they look like parameters (a parameter
-    exposed as an input, driven, records a model that changes with it; audit 2026-11-27: ``--inputs
+    known: one in N/m or kg is a parameter), and the inputs chosen to be driven although they look like parameters
+    (a parameter exposed as an input, driven, records a model that changes with it; audit 2026-11-27: ``--inputs
     F,stiffness_scale`` without a word, the ROM 120 % off)."""
     held = list(getattr(source, "parameter_like_input_names", []) or [])
     forces = list(getattr(source, "input_names", []) or [])

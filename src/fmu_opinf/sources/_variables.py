@@ -29,7 +29,8 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "looks_like_parameter", "unit_kind", "start_value", "parameter_like_inputs", "element_names", "fmi3_ports"]
+           "show_patterns", "nonzero_start", "looks_like_parameter", "unit_kind", "start_value",
+           "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -1253,10 +1254,11 @@ def nonzero_start(element: Element) -> bool:
 
 def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     """True for an input that looks like a parameter exposed as an input (spec: real-fmus.md): a non-zero start
-    value and a unit that is not a force's or a moment's (:func:`unit_kind`).  A force input declared in N (or N.m,
-    lbf, a unit the model defines as one, a Force quantity) that starts at a preload is a force all the same, driven on top of its start value (audit of
-    2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had no port
-    for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held."""
+    value and a unit that is not a force's or a moment's (:func:`unit_kind`).  A force input (in N, N.m, lbf, a
+    unit the model defines as one, or of quantity Force) that starts at a preload is a force all the same, driven
+    on top of its start value (audits of 2026-12-06: a preload F = 10 N was held like the stiffness input beside
+    it, and the exported ROM had no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that
+    starts where it does is held."""
     return nonzero_start(element) and unit_kind(element.var, model) != "force"
 
 
