@@ -500,3 +500,14 @@ def test_a_preload_force_is_trained_and_compared_on_top_of_its_start_value(tmp_p
     assert result.metrics()["max_error"] < 1e-20
 
 
+
+
+def test_a_rom_whose_training_runs_cannot_be_simulated_keeps_the_training_amplitude():
+    """Training runs recorded without their grid (older files) give no training peak to size the test by: the
+    training amplitude stays (this path raised TypeError in review)."""
+    from fmu_opinf._test_input import default_test_input
+
+    model = _oscillators([1.0, 3.0], 0.01, 1, ["impulse:amplitude=7,t0=1,width=0.5"])
+    model.provenance["training_runs"] = [{"input_spec": "impulse:amplitude=7,t0=1,width=0.5"}]
+    spec, why = default_test_input(model, 0.1, 100.0)
+    assert spec.startswith("harmonic:amplitude=7,omega=") and why.endswith("at the training input's amplitude")
