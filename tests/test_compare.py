@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, newmark, rom, snapshots, systems
-from fmu_opinf.errors import DimensionError, FileFormatError, InputSpecError
+from fmu_opinf.errors import DimensionError, FileFormatError, FmuOpinfError, InputSpecError
 
 TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
 TEST = "harmonic:amplitude=1,omega=0.2"
@@ -350,6 +350,9 @@ def _exact_outputs(model, spec, dt, t_end):
     ([10.0], 0.0, 1),                    # undamped: at resonance it grows without bound (181x)
     ([1.0, 31.6, 1000.0], 0.005, 3),     # wide band, three inputs: one at 0.995 rad/s beside the mode at 1 (323x)
     ([2.0, 3.0, 4.5], 0.02, 2),          # close modes
+    ([10.0, 10.05], 0.001, 2),           # audit 51: two modes closer than their resonance peaks
+    ([0.0, 14.1], 0.02, 1),              # audit 51: a free body beside a mode drifted 2 to 9 times past the training
+    ([0.0], 0.0, 1),                     # audit 51: a free mass alone, 18 times
 ])
 def test_the_default_test_input_stays_off_resonance_and_within_the_training_range(frequencies, damping_ratio,
                                                                                   inputs):
@@ -368,12 +371,13 @@ def test_the_default_test_input_stays_off_resonance_and_within_the_training_rang
     signal = parse_signal(spec, inputs)
     omegas = [part.params["omega"] for part in (signal.parts if inputs > 1 else [signal])]
     assert len(set(omegas)) == inputs
-    assert min(abs(np.log(w / f)) for w in omegas for f in frequencies) > np.log(1.15)   # measured >= log 1.2
-    trained = max(np.abs(_exact_outputs(model, run, 0.01, 40.0)).max() for run in training)
-    tested = np.abs(_exact_outputs(model, spec, 0.01, 160.0)).max()
-    assert tested <= trained, (spec, tested / trained)
-    assert tested >= 0.3 * trained, (spec, tested / trained)    # measured 0.43 .. 0.82: still the trained range
-    assert "sized to 0.5 of the outputs' training peak" in why
+    modes = [f for f in frequencies if f > 0]
+    assert min([abs(np.log(w / f)) for w in omegas for f in modes] + [1.0]) > np.log(1.15)   # measured >= log 1.2
+    trained = np.max([np.abs(_exact_outputs(model, run, 0.01, 40.0)).max(axis=1) for run in training], axis=0)
+    ratios = np.abs(_exact_outputs(model, spec, 0.01, 160.0)).max(axis=1) / trained   # per output
+    assert ratios.max() <= 0.6, (spec, ratios)    # measured 0.36 .. 0.50: half the training peak, to the 3 digits
+    assert ratios.max() >= 0.3, (spec, ratios)    # and still a test of the range it was trained in
+    assert "its response in the ROM within 0.5 of the outputs' training peak" in why
 
 
 def test_the_default_test_frequency_of_a_rigid_rom_has_periods_in_the_window():
@@ -385,7 +389,7 @@ def test_the_default_test_frequency_of_a_rigid_rom_has_periods_in_the_window():
     model = _oscillators([1e-9, 1e-7], 0.0, 1, ["impulse:amplitude=5,t0=1,width=0.5"])
     spec, why = default_test_input(model, 0.1, 100.0)
     assert parse_signal(spec).params["omega"] >= 2 * np.pi * 4 / 100.0
-    assert why.startswith("a harmonic the slowest with 4 periods in the comparison")
+    assert why.startswith("a harmonic at the slowest frequency with 4 periods in the comparison, a cosine")
 
 
 def test_a_training_that_drove_no_input_is_compared_on_the_free_response():
@@ -431,6 +435,9 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     assert np.abs(exact - exact[:, :1]).max() <= 2 * trained
     assert result.metrics()["max_error"] < 1e-20   # the ROM is exact for these data (r = n)
 
+    assert result.metrics()["input_choice"].startswith("chosen without --input: a harmonic on each input")
+    page = compare.write_report(result, tmp_path / "report")
+    assert "chosen without --input: a harmonic on each input" in page.read_text()
     exported = export_fmu(fitted, tmp_path / "rom.fmu")
     assert compare.compare(exported, fmu.path, quiet=True).input_spec == result.input_spec
 
@@ -450,8 +457,9 @@ def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path)
     done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(tmp_path / "other"))
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1] == (
-        f"fmu-opinf: error: no test input given, and the training input {str(table)!r} has no amplitude to take "
-        "one from here; pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+        f"fmu-opinf: error: no test input given, and the training input {str(table)!r} cannot be read here (input "
+        f"table {table} not found; give an existing .csv file); pass --input SPEC, e.g. "
+        "'harmonic:amplitude=1,omega=0.2'")
     assert not (tmp_path / "other").exists()
 
 
@@ -510,4 +518,52 @@ def test_a_rom_whose_training_runs_cannot_be_simulated_keeps_the_training_amplit
     model = _oscillators([1.0, 3.0], 0.01, 1, ["impulse:amplitude=7,t0=1,width=0.5"])
     model.provenance["training_runs"] = [{"input_spec": "impulse:amplitude=7,t0=1,width=0.5"}]
     spec, why = default_test_input(model, 0.1, 100.0)
-    assert spec.startswith("harmonic:amplitude=7,omega=") and why.endswith("at the training input's amplitude")
+    assert spec.startswith("harmonic:amplitude=7,omega=")
+    assert why.endswith("at the training amplitude (the training runs cannot be simulated here to size it)")
+
+
+@pytest.mark.slow  # 3 s: exports a ROM FMU
+def test_a_damaged_or_hostile_rom_file_gives_one_line_errors(anchored_rom, tmp_path):
+    """Audit 51 edited the provenance of ROM files: a test input carried by a ROM FMU that names a local table (read
+    and quoted) or holds 100,000 parts (printed twice), a provenance nested past Python's recursion limit, a training
+    end of NaN or 1e15 s: tracebacks, memory errors, a file's line in a message.  Each is now one line naming the
+    fix.  The carried input also says it was chosen for the FMU's own grid, and is refused on a grid that does not
+    resolve it."""
+    import zipfile
+
+    from fmu_opinf.export import export_fmu
+
+    model, path = anchored_rom
+    exported = export_fmu(model, tmp_path / "rom.fmu")
+
+    def with_provenance(edit, name):
+        target = tmp_path / name
+        with zipfile.ZipFile(exported) as zin, zipfile.ZipFile(target, "w") as zout:
+            for item in zin.infolist():
+                data = zin.read(item.filename)
+                if item.filename.endswith("provenance.json"):
+                    data = edit(json.loads(data))
+                    data = data if isinstance(data, bytes) else json.dumps(data).encode()
+                zout.writestr(item, data)
+        return target
+
+    carried = json.loads(zipfile.ZipFile(exported).read(
+        next(n for n in zipfile.ZipFile(exported).namelist() if n.endswith("provenance.json"))))["default_test_input"]
+    result = compare.compare(exported, "builtin:anchored-msd", quiet=True)
+    assert result.input_spec == compare.compare(path, "builtin:anchored-msd", quiet=True).input_spec
+    (tmp_path / "secret.csv").write_text("t,u\nhunter2,1\n")
+    cases = {
+        "table": (lambda p: {**p, "default_test_input": [str(tmp_path / "secret.csv"), "x"]}, {}, "is not a harmonic"),
+        "many": (lambda p: {**p, "default_test_input": [";".join(["none"] * 100_000), "x"]}, {}, "is not a harmonic"),
+        "grid": (lambda p: p, {"dt": 0.5, "t_end": 20.0}, "was chosen for its own step and training end"),
+        "nested": (lambda p: b'{"a": ' * 100_000 + b"1" + b"}" * 100_000, {}, "does not record a usable training"),
+        "nan end": (lambda p: {**p, "t_train_end": "nan"}, {}, "does not record a usable training end"),
+        "huge end": (lambda p: {**p, "t_train_end": 1e15}, {}, "does not record a usable training end"),
+    }
+    for name, (edit, grid, expected) in cases.items():
+        with pytest.raises(FmuOpinfError, match=expected) as info:
+            compare.compare(with_provenance(edit, f"{name}.fmu"), "builtin:anchored-msd", quiet=True, **grid)
+        assert "\n" not in str(info.value) and "hunter2" not in str(info.value) and len(str(info.value)) < 400, name
+    with pytest.raises(DimensionError, match="more than 1e\\+08; pass a shorter --t-end"):
+        compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=1e15, quiet=True)
+    assert carried[1].startswith("a harmonic")

@@ -4,17 +4,19 @@ The paper tests its ROMs on a harmonic wave after training on an impulse (spec s
 :func:`default_test_input` makes one from what the ROM knows: a harmonic on each input the training drove, on the
 operating point (``offset``) the training drove it on,
 
-* at a frequency in the widest gap between the ROM's natural frequencies (below the one mode of a single-mode ROM),
-  so that no lightly damped mode is driven at resonance, kept to at least :data:`PERIODS` periods in the comparison
-  and :data:`SAMPLES_PER_PERIOD` samples per period; several inputs spread inside the gap, so that the comparison
-  tells them apart as the training did;
-* at an amplitude whose steady response, by the ROM's frequency response, reaches about half the outputs'
-  training peak (split among the inputs), at most the training amplitude: the model stays in the range it was
-  trained in (audit of 2026-12-06: the training pulse's height as a harmonic's amplitude at a mode drove a model
-  13 to 323 times past its training peak, and an FMU that asserts a range failed).
+* at a frequency in the widest gap between the ROM's natural frequencies (below or above the modes where no gap is
+  wide enough, :data:`WIDEST_RESONANCE`), so that no lightly damped mode is driven at resonance, kept to at least
+  :data:`PERIODS` periods in the comparison and :data:`SAMPLES_PER_PERIOD` samples per period; several inputs
+  spread inside that band, so that the comparison tells them apart as the training did;
+* as a cosine where the ROM has a rigid-body mode (a sine from rest pushes it into a drift that grows with time);
+* at an amplitude, at most the training's, whose response in the ROM over the comparison (the start transient and
+  any drift included) stays within :data:`PEAK_SHARE` of the outputs' peak in the ROM's simulation of its training
+  runs: the model stays in the range it was trained in (audits of 2026-12-06: the training pulse's height at a
+  mode drove models 13 to 323 times past their training peak; sized by the steady response alone, a free body
+  drifted 2 to 18 times past it; each time a model that asserts a range failed).
 
-The exported ROM FMU carries the input chosen for its training step and end in its provenance.json
-(``default_test_input``), since its matrices are not at hand where it is compared.
+The exported ROM FMU carries the input chosen for its own step and four times its training end in its
+provenance.json (``default_test_input``), since its matrices are not at hand where it is compared.
 """
 
 from __future__ import annotations
@@ -29,17 +31,24 @@ from .errors import FmuOpinfError, InputSpecError
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
 
-__all__ = ["default_test_input", "PERIODS", "SAMPLES_PER_PERIOD"]
+__all__ = ["default_test_input", "PERIODS", "SAMPLES_PER_PERIOD", "PEAK_SHARE"]
 
 #: The fewest periods of the test harmonic within the comparison, and its fewest samples per period.
 PERIODS, SAMPLES_PER_PERIOD = 4, 20
 
-#: The share of the outputs' training peak that the test's steady response reaches (the start adds a transient).
+#: The share of the outputs' training peak that the test's response in the ROM may reach.
 PEAK_SHARE = 0.5
 
-#: Pole magnitudes up to this fraction of the largest are rigid-body motion, not a natural frequency (as ``fit``
-#: says of its poles).
-RIGID = 1e-12
+#: Pole magnitudes up to this fraction of the largest are rigid-body motion (as ``fit`` says of its poles); so are
+#: modes whose period is longer than the comparison by :data:`RIGID_PERIODS`, which do not swing within it.
+RIGID, RIGID_PERIODS = 1e-12, 2.5
+
+#: The narrowest gap between two natural frequencies (their ratio) the test harmonics are put in: a narrower one
+#: lies within the modes' resonance peaks.
+WIDEST_RESONANCE = 1.3
+
+#: Steps of a simulation of the ROM this module makes at most (the training runs and the sizing run).
+MAX_STEPS = 1_000_000
 
 _FIX = "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'"
 
@@ -54,85 +63,104 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     driven = [i for i, drive in enumerate(drives) if drive is not None]
     if not driven:
         return "none", "the training drove no input: the free response from the source's start, as trained"
-    poles = _poles(rom)
-    omega = np.sort(np.abs(poles[poles.imag >= 0]))   # (a complex pair is one natural frequency)
-    omega = omega[np.isfinite(omega) & (omega > RIGID * max(float(omega.max(initial=0.0)), 1e-300))]
     floor, ceiling = 2 * math.pi * PERIODS / t_end, 2 * math.pi / (SAMPLES_PER_PERIOD * dt)
-    if not omega.size:
-        raise InputSpecError(f"no test input given, and the ROM has no natural frequency to choose one by; {_FIX}")
-    low, high, where = _frequency_gap(omega, floor, ceiling)
-    peaks = _training_peaks(rom)
+    omega, rigid = _natural_frequencies(rom, floor)
+    low, high, where = _frequency_band(omega, floor, ceiling)
+    frequencies = [float(f"{low * (high / low) ** (0.25 + 0.5 * (j + 1) / (len(driven) + 1)):.3g}")
+                   for j in range(len(driven))]
+    harmonics = {i: f"harmonic:amplitude={{:.3g}},omega={frequency:g}" + (_cosine(frequency, dt) if rigid else "")
+                 for i, frequency in zip(driven, frequencies)}
+    amplitudes = {i: drives[i][0] for i in driven}
+    scale = _scale_to_training_range(rom, harmonics, amplitudes, dt, t_end)
     specs = ["none"] * rom.m
-    for j, i in enumerate(driven):
-        frequency = low * (high / low) ** (0.25 + 0.5 * (j + 1) / (len(driven) + 1))
-        amplitude, offset = drives[i]
-        if peaks is not None:
-            amplitude = _sized(rom, i, frequency, amplitude, peaks / len(driven))
-        specs[i] = f"harmonic:amplitude={amplitude:.3g},omega={frequency:.3g}" + (
-            f",offset={offset:.15g}" if offset else "")
+    for i in driven:
+        offset = drives[i][1]
+        specs[i] = harmonics[i].format((scale or 1.0) * amplitudes[i]) + (f",offset={offset:.15g}" if offset else "")
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
-    size = (f"sized to {PEAK_SHARE:g} of the outputs' training peak" if peaks is not None
-            else "at the training input's amplitude")
-    return (";".join(specs) if len(set(specs)) > 1 else specs[0]), f"{what} {where}, {size}"
+    how = ("at the training amplitude (the training runs cannot be simulated here to size it)" if scale is None
+           else f"its response in the ROM within {PEAK_SHARE:g} of the outputs' training peak" + (
+               ", at the training amplitude" if scale == 1.0 else ""))
+    cosine = ", a cosine (the ROM has a rigid-body mode)" if rigid else ""
+    return (";".join(specs) if len(set(specs)) > 1 else specs[0]), f"{what} {where}{cosine}, {how}"
 
 
-def _poles(rom: "SecondOrderROM") -> np.ndarray:
+def _cosine(omega: float, dt: float) -> str:
+    """The phase that makes the held samples of a sine a cosine centred on each step, ``cos(omega (t_k + dt/2))``:
+    their sums have no mean, so a rigid-body mode does not drift (held from ``cos(omega t_k)`` it drifted by
+    ``A dt / 2m`` per unit time)."""
+    return f",phase={math.pi / 2 + omega * dt / 2:.10g}"
+
+
+def _natural_frequencies(rom: "SecondOrderROM", floor: float) -> tuple[np.ndarray, bool]:
+    """The ROM's natural frequencies (pole magnitudes, a complex pair once), sorted, without its rigid-body modes,
+    and whether it has one."""
     from .inference import model_poles
 
-    return model_poles(rom.Mr, rom.Dr, rom.Kr) if rom.r else np.zeros(0, dtype=complex)
+    poles = model_poles(rom.Mr, rom.Dr, rom.Kr) if rom.r else np.zeros(0, dtype=complex)
+    omega = np.sort(np.abs(poles[np.isfinite(poles) & (poles.imag >= 0)]))
+    rigid = omega <= max(RIGID * float(omega.max(initial=0.0)), floor / (PERIODS * RIGID_PERIODS))
+    if not omega.size:
+        raise InputSpecError(f"no test input given, and the ROM has no pole to choose one by; {_FIX}")
+    return omega[~rigid], bool(rigid.any())
 
 
-def _frequency_gap(omega: np.ndarray, floor: float, ceiling: float) -> tuple[float, float, str]:
-    """The ends of the frequency band the test harmonics take, and where that is (a phrase): the widest gap (on a
-    log scale) between two natural frequencies inside ``[floor, ceiling]``, where a limit with modes beyond it
-    counts as one; for one mode, the band just below it (above it if that is below ``floor``); by ``floor`` or
-    ``ceiling`` where every mode lies outside."""
-    band = f"the ROM's natural frequencies {omega.min():.3g} .. {omega.max():.3g} rad/s"
+def _frequency_band(omega: np.ndarray, floor: float, ceiling: float) -> tuple[float, float, str]:
+    """The ends of the band the test harmonics take, and where that is (a phrase): the widest gap (on a log scale)
+    between two natural frequencies inside ``[floor, ceiling]``, where a limit with modes beyond it counts as one,
+    if it is wider than :data:`WIDEST_RESONANCE`; else the band just below the lowest mode there (above the
+    highest if that is below ``floor``); by ``floor`` or ``ceiling`` where every mode lies outside."""
+    band = ("" if not omega.size else f"the ROM's natural frequency {omega[0]:.3g} rad/s" if omega.size == 1
+            else f"the ROM's natural frequencies {omega.min():.3g} .. {omega.max():.3g} rad/s")
     inside = omega[(omega >= floor) & (omega <= ceiling)]
     if inside.size:
         points = np.concatenate([[floor] if omega.min() < floor else [], inside,
                                  [ceiling] if omega.max() > ceiling else []])
-    if inside.size and points.size >= 2:
-        k = int(np.argmax(np.diff(np.log(points))))
-        return float(points[k]), float(points[k + 1]), f"in the widest gap between {band}"
-    if inside.size:
-        mode = float(inside[0])
-        if mode / 2 >= floor:
-            return mode / 2, mode / 1.2, f"below the ROM's one natural frequency, {mode:.3g} rad/s"
-        return mode * 1.2, min(mode * 2, ceiling), f"above the ROM's one natural frequency, {mode:.3g} rad/s"
-    if omega.max() < floor:   # every mode is slower than the comparison holds periods of
-        return floor, min(floor * 2, ceiling), f"the slowest with {PERIODS} periods in the comparison ({band})"
-    return max(ceiling / 2, floor), ceiling, f"the fastest with {SAMPLES_PER_PERIOD} samples per period ({band})"
+        k = int(np.argmax(np.diff(np.log(points)))) if points.size >= 2 else 0
+        if points.size >= 2 and points[k + 1] / points[k] > WIDEST_RESONANCE:
+            return float(points[k]), float(points[k + 1]), f"in the widest gap between {band}"
+        if inside[0] / 2 >= floor:
+            return inside[0] / 2, inside[0] / 1.2, f"below {band}"
+        return inside[-1] * 1.2, max(min(inside[-1] * 2, ceiling), inside[-1] * 1.2), f"above {band}"
+    if not omega.size or omega.max() < floor:   # every mode slower than the comparison holds periods of
+        return floor, min(floor * 2, ceiling), (f"at the slowest frequency with {PERIODS} periods in the comparison"
+                                                + (f" ({band})" if band else ""))
+    return max(ceiling / 2, floor), ceiling, (f"at the fastest frequency with {SAMPLES_PER_PERIOD} samples per "
+                                              f"period ({band})")
 
 
-def _sized(rom: "SecondOrderROM", i: int, omega: float, amplitude: float, peaks: np.ndarray) -> float:
-    """``amplitude`` lowered until the steady response to input ``i`` alone at ``omega`` reaches at most
-    :data:`PEAK_SHARE` of ``peaks`` in every output."""
-    try:
-        gain = np.abs(_frequency_response(rom, omega)[:, i])
-    except np.linalg.LinAlgError:   # (an undamped mode at exactly this frequency: no steady response)
-        return amplitude
-    return min([amplitude] + [PEAK_SHARE * peak / g for peak, g in zip(peaks, gain) if g > 0 and peak > 0])
+def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], amplitudes: dict[int, float],
+                             dt: float, t_end: float) -> float | None:
+    """The factor (at most 1) on the training amplitudes that keeps the ROM's response to the harmonics over the
+    comparison within :data:`PEAK_SHARE` of its outputs' training peak; None where the training runs cannot be
+    simulated here (nothing to size by)."""
+    peaks = _training_peaks(rom)
+    if peaks is None:
+        return None
+    specs = [harmonics[i].format(amplitudes[i]) if i in harmonics else "none" for i in range(rom.m)]
+    steps = min(round(t_end / dt), MAX_STEPS)
+    response = _departure(rom, ";".join(specs), dt, steps * dt) - _departure(rom, "none", dt, steps * dt)
+    swing = np.abs(response).max(axis=1)
+    limits = [PEAK_SHARE * peak / s for peak, s in zip(peaks, swing) if s > 0 and peak > 0]
+    return min([1.0] + limits)
 
 
-def _frequency_response(rom: "SecondOrderROM", omega: float) -> np.ndarray:
-    """``H(i omega) = (Cp + i omega Cv) (K - omega^2 M + i omega D)^-1 B + Du``, (p, m) complex."""
-    s = 1j * omega
-    states = np.linalg.solve(rom.Kr + s * rom.Dr + s * s * rom.Mr, rom.Br.astype(complex))
-    return (rom.Cpr + s * rom.Cvr) @ states + rom.Dur
+def _departure(rom: "SecondOrderROM", spec: str, dt: float, t_end: float) -> np.ndarray:
+    y = rom.simulate(spec, dt, t_end).y
+    return y - y[:, :1]
 
 
 def _training_peaks(rom: "SecondOrderROM") -> np.ndarray | None:
     """Each output's largest departure from its start in the ROM's simulation of its training runs (None where no
-    run can be simulated here: a table no longer at hand)."""
+    run can be simulated here: a table no longer at hand, a run without its grid)."""
     peaks = None
     for run in rom.provenance.get("training_runs") or []:
         try:
-            duration = float(run["t_end"]) - float(run.get("t0", 0.0))
-            y = rom.simulate(str(run["input_spec"]), float(run["dt"]), duration).y
-        except (FmuOpinfError, KeyError, TypeError, ValueError):
+            dt, duration = float(run["dt"]), float(run["t_end"]) - float(run.get("t0", 0.0))
+            if not (0 < dt and 0 < duration / dt <= MAX_STEPS):   # (also NaN; a data file's sizes)
+                continue
+            peak = np.abs(_departure(rom, str(run["input_spec"]), dt, dt * round(duration / dt))).max(axis=1)
+        except (FmuOpinfError, KeyError, TypeError, ValueError, AttributeError):
             continue
-        peak = np.abs(y - y[:, :1]).max(axis=1)
         peaks = peak if peaks is None else np.maximum(peaks, peak)
     return peaks
 
@@ -157,17 +185,20 @@ def _training_drives(runs: Any, m: int) -> list[tuple[float, float] | None]:
 
 def _drive_of(part: str, column: int) -> tuple[float, float]:
     """(amplitude, offset) of one input's training spec ``part``; a table's (its ``column``) are its largest
-    departure from its first value and that value."""
+    departure from its first value and that value (to six digits)."""
     from .signals import ParametricSignal, TableSignal, parse_signal
 
     try:
         signal = parse_signal(part)
-    except FmuOpinfError:   # (a table no longer at hand)
-        signal = None
+    except FmuOpinfError as exc:   # (a table no longer at hand)
+        raise InputSpecError(f"no test input given, and the training input {part!r} cannot be read here ({exc}); "
+                             f"{_FIX}") from None
     if isinstance(signal, ParametricSignal) and "amplitude" in signal.params:
         return abs(signal.params["amplitude"]), float(signal.params.get("offset", 0.0))
     if isinstance(signal, TableSignal):
         values = signal.values[min(column, signal.values.shape[0] - 1)]
-        return float(np.abs(values - values[0]).max()), float(values[0])
-    raise InputSpecError(f"no test input given, and the training input {part!r} has no amplitude to take one from "
-                         f"here; {_FIX}")
+        amplitude = float(np.abs(values - values[0]).max())
+        start = float(f"{values[0]:.6g}")
+        return amplitude, start if abs(start) > 1e-9 * amplitude else 0.0
+    raise InputSpecError(f"no test input given, and the training input {part!r} has no amplitude to take one from; "
+                         f"{_FIX}")

@@ -166,6 +166,8 @@ class Comparison:
         Last training snapshot time, marked on the error plot when known.
     output_units : list of str, optional
         Unit of each output where the FMU declares one ("" where not), for the figure labels.
+    input_choice : str
+        Where ``compare`` chose the test input itself (none given): how and why, else "".
     timed : dict
         What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
         the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:
@@ -186,6 +188,7 @@ class Comparison:
     title: str = "ROM validation"
     output_units: list[str] | None = None
     timed: dict[str, Any] = field(default_factory=dict)
+    input_choice: str = ""   # why, where compare chose the test input itself (no --input)
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -206,6 +209,7 @@ class Comparison:
             "speedup": self.fom_seconds / self.rom_seconds if self.rom_seconds > 0 else math.inf,
             "speedup_timed": dict(self.timed),
             "input": self.input_spec,
+            "input_choice": self.input_choice or None,
             "dt": float(self.t[1] - self.t[0]) if self.t.size > 1 else None,
             "t_end": float(self.t[-1]),
             "steps": int(self.t.size - 1),
@@ -385,7 +389,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     -------
     Comparison
     """
-    from .newmark import time_grid
+    from .newmark import MAX_GRID_STEPS, time_grid
     from .signals import parse_signal
 
     rom_side = _load_rom_side(rom)
@@ -393,8 +397,9 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     dt = float(dt if dt is not None else rom_info["dt"])
     if t_end is None:
         t_train = rom_info.get("t_train_end")
-        if not t_train:
-            raise DimensionError("no --t-end given and the ROM does not record its training end time; pass --t-end")
+        if not (t_train and math.isfinite(float(t_train)) and 0 < 4 * float(t_train) / dt <= MAX_GRID_STEPS):
+            raise DimensionError("no --t-end given and the ROM does not record a usable training end time "
+                                 f"({t_train}); pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
     t = time_grid(dt, float(t_end))
     if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
@@ -404,6 +409,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     if rom_info["m"] == 0:
         signal = signal or "none"
         source_options.setdefault("inputs", "none")  # every source input held at its start value
+    why = ""
     if not signal:
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
@@ -426,6 +432,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
         timed=_timed(source, rom_side, isolate, fom_prov),
+        input_choice=f"chosen without --input: {why}" if why else "",
     )
 
 
@@ -437,10 +444,38 @@ def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_en
     if not isinstance(rom_side, Path):
         return default_test_input(rom_side, dt, t_end)
     carried = rom_info["provenance"].get("default_test_input")
-    if isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried):
-        return tuple("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
-    raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); pass "
-                         "--input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+    if not (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
+        raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
+                             "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+    spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
+    _check_carried(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
+    return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"
+
+
+def _check_carried(spec: str, name: str, m: int, dt: float, t_end: float) -> None:
+    """Refuse a test input an exported ROM FMU carries unless it is harmonics (and ``none``) for its ``m`` inputs
+    whose frequencies the grid resolves (:mod:`fmu_opinf._test_input`): the file is data, and its input was chosen
+    for the FMU's own grid."""
+    from ._test_input import PERIODS, SAMPLES_PER_PERIOD
+    from .signals import NoInput, ParametricSignal, StackedSignal, parse_signal
+
+    fix = "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'"
+    try:
+        short, tabled = len(spec) < 100 * max(m, 1) + 100, ".csv" in spec.lower()   # (no file is read for it)
+        signal = parse_signal(spec, m) if short and not tabled else None
+    except FmuOpinfError:
+        signal = None
+    parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
+    if signal is None or not all(isinstance(p, NoInput) or isinstance(p, ParametricSignal) and p.kind == "harmonic"
+                                 for p in parts):
+        raise InputSpecError(f"no test input given, and the one {name} carries is not a harmonic test input for its "
+                             f"{m} input(s); {fix}")
+    omegas = [p.params["omega"] for p in parts if isinstance(p, ParametricSignal)]
+    low, high = 0.99 * 2 * math.pi * PERIODS / t_end, 1.01 * 2 * math.pi / (SAMPLES_PER_PERIOD * dt)  # (3 digits)
+    if any(not low <= w <= high for w in omegas):
+        raise InputSpecError(f"no test input given, and the one {name} carries ({spec}) was chosen for its own step "
+                             f"and training end: at dt={dt:g} up to t={t_end:g} it has fewer than {PERIODS} periods "
+                             f"or {SAMPLES_PER_PERIOD} samples per period; {fix}")
 
 
 def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":
@@ -624,7 +659,7 @@ def _bundled_provenance(path: Path) -> Any:
         with zipfile.ZipFile(path) as archive:
             names = [n for n in archive.namelist() if n.endswith("provenance.json")]
             return json.loads(archive.read(names[0])) if names else None
-    except (OSError, zipfile.BadZipFile, ValueError):
+    except (OSError, zipfile.BadZipFile, ValueError, RecursionError):   # (a file nested past Python's limit)
         return None
 
 
@@ -727,7 +762,10 @@ def _training_end(provenance: dict[str, Any]) -> float | None:
     """Last training time recorded in a ROM's provenance, if any."""
     for key in ("t_train_end", "t_end"):
         if provenance.get(key) is not None:
-            return float(provenance[key])
+            try:
+                return float(provenance[key])
+            except (TypeError, ValueError):   # (a damaged file's)
+                return None
     snaps = provenance.get("snapshots")
     if isinstance(snaps, dict):
         return _training_end(snaps)
@@ -974,7 +1012,8 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
         headline += [("full-order time measures", timed["fom"]), ("ROM time measures", timed["rom"]),
                      ("like with like", "yes: both FMUs, stepped the same way" if timed["like_with_like"]
                       else "no: the two sides run differently (export the ROM and compare its FMU for that)")]
-    settings = [("test input", metrics["input"]), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
+    chosen = f" ({metrics['input_choice']})" if metrics.get("input_choice") else ""
+    settings = [("test input", metrics["input"] + chosen), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
                          f"max_t |y|) {_fmt(v['relative_max'])}; relative to its range (max_t |y - y_r| / "

@@ -26,6 +26,7 @@ Without G it is the classical Newmark method of the reduced ODE.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable
 
@@ -247,12 +248,21 @@ class Trajectory:
     y: np.ndarray
 
 
+#: Steps of one time grid at most (800 MB for its times alone): more is a mistake in ``--dt`` or ``--t-end``, or a
+#: damaged file's (audit of 2026-12-06: a ROM file's training end of 1e15 s ended compare in a MemoryError).
+MAX_GRID_STEPS = 100_000_000
+
+
 def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
-    """Equidistant grid ``t0, t0 + dt, ..., t_end``; t_end - t0 must be a whole number of steps."""
-    if not dt > 0:
-        raise DimensionError(f"time step must be positive, got dt={dt}")
-    if not t_end > t0:
-        raise DimensionError(f"end time must exceed the start time {t0}, got t_end={t_end}")
+    """Equidistant grid ``t0, t0 + dt, ..., t_end``; t_end - t0 must be a whole number of steps, at most
+    :data:`MAX_GRID_STEPS`."""
+    if not (dt > 0 and math.isfinite(dt)):
+        raise DimensionError(f"time step must be positive and finite, got dt={dt}")
+    if not (t_end > t0 and math.isfinite(t_end)):
+        raise DimensionError(f"end time must be finite and exceed the start time {t0}, got t_end={t_end}")
+    if (t_end - t0) / dt > MAX_GRID_STEPS:
+        raise DimensionError(f"t_end={t_end:g} at dt={dt:g} makes {(t_end - t0) / dt:.3g} steps, more than "
+                             f"{MAX_GRID_STEPS:.0e}; pass a shorter --t-end or a larger --dt")
     steps = round((t_end - t0) / dt)
     if steps < 1 or abs(steps * dt - (t_end - t0)) > 1e-9 * max(1.0, abs(t_end)):
         raise DimensionError(f"t_end - t0 = {t_end - t0:g} is not a whole number of steps dt={dt:g}; "

@@ -798,7 +798,7 @@ def record_to_file(
                     else "the model has no inputs")
             what = (f"the free response from the start state ({none})" if not source.m
                     else f"the impulse training input {DEFAULT_TRAINING_INPUT}{lowered}" if source.m == 1
-                    else f"one run per input, each driving that input alone with the impulse {DEFAULT_TRAINING_INPUT}"
+                    else f"one run per input, each driving that input alone with {DEFAULT_TRAINING_INPUT}"
                          f"{lowered} (the others held at their start values)")
             print(f"no --input given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
