@@ -40,6 +40,7 @@ def test_one_spec_per_input_and_broadcast():
 
 @pytest.mark.parametrize("spec, message", [
     ("pulse:amplitude=1", "unknown input kind 'pulse'"),
+    ("Data/PULSE:amplitude=1", "unknown input kind 'Data/PULSE'"),   # (as given: a path keeps its capitals)
     ("impulse:height=3", "unknown key 'height' for impulse input"),
     ("impulse:amplitude", "malformed impulse parameter 'amplitude'"),
     ("harmonic:omega=fast", "omega='fast' is not a number"),

@@ -290,10 +290,10 @@ def _parse_one(spec: str) -> Signal:
         return table(spec)
     if spec.lower() == "none":
         return NoInput(1)
-    kind, _, body = spec.partition(":")
-    kind = kind.strip().lower()
+    given, _, body = spec.partition(":")
+    kind = given.strip().lower()
     if kind not in _KINDS:
-        raise InputSpecError(f"unknown input kind {kind!r}; use one of {', '.join(_KINDS)} "
+        raise InputSpecError(f"unknown input kind {given.strip()!r}; use one of {', '.join(_KINDS)} "
                              "or a path to a .csv table")
     params: dict[str, float] = {}
     for item in filter(None, (s.strip() for s in body.split(","))):
