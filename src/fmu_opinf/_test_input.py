@@ -31,7 +31,8 @@ from .errors import FmuOpinfError, InputSpecError
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
 
-__all__ = ["default_test_input", "PERIODS", "SAMPLES_PER_PERIOD", "PEAK_SHARE"]
+__all__ = ["default_test_input", "training_peaks", "recorded_peaks", "cosine_phase", "PERIODS", "SAMPLES_PER_PERIOD",
+           "PEAK_SHARE"]
 
 #: The fewest periods of the test harmonic within the comparison, and its fewest samples per period.
 PERIODS, SAMPLES_PER_PERIOD = 4, 20
@@ -46,6 +47,10 @@ RIGID, RIGID_PERIODS = 1e-12, 2.5
 #: The narrowest gap between two natural frequencies (their ratio) the test harmonics are put in: a narrower one
 #: lies within the modes' resonance peaks.
 WIDEST_RESONANCE = 1.3
+
+#: The smallest factor on the training amplitudes the sizing keeps before it lets the harmonics swing by half the
+#: training peak on top of where the offsets alone take the outputs (a test of the offsets' step alone tests little).
+SMALLEST_SCALE = 0.25
 
 #: Steps of a simulation of the ROM this module makes at most (the training runs and the sizing run).
 MAX_STEPS = 1_000_000
@@ -69,26 +74,43 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     frequencies = [float(f"{low * (high / low) ** (0.25 + 0.5 * (j + 1) / (len(driven) + 1)):.3g}")
                    for j in range(len(driven))]
     harmonics = {i: f"harmonic:amplitude={{:.3g}},omega={frequency:g}" + (_cosine(frequency, dt) if rigid else "")
+                 + (f",offset={drives[i][1]:.15g}" if drives[i][1] else "")
                  for i, frequency in zip(driven, frequencies)}
     amplitudes = {i: drives[i][0] for i in driven}
-    scale = _scale_to_training_range(rom, harmonics, amplitudes, dt, t_end)
-    specs = ["none"] * rom.m
-    for i in driven:
-        offset = drives[i][1]
-        specs[i] = harmonics[i].format((scale or 1.0) * amplitudes[i]) + (f",offset={offset:.15g}" if offset else "")
+    scale, offsets = _scale_to_training_range(rom, harmonics, amplitudes, dt, t_end)
+    factor = 1.0 if scale is None else scale
+    specs = [harmonics[i].format(factor * amplitudes[i]) if i in harmonics else "none" for i in range(rom.m)]
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
-    how = ("at the training amplitude (the training runs cannot be simulated here to size it)" if scale is None
-           else f"its response in the ROM within {PEAK_SHARE:g} of the outputs' training peak" + (
-               ", at the training amplitude" if scale == 1.0 else ""))
+    how = _sizing_phrase(scale, offsets)
     cosine = ", a cosine (the ROM has a rigid-body mode)" if rigid else ""
     return (";".join(specs) if len(set(specs)) > 1 else specs[0]), f"{what} {where}{cosine}, {how}"
 
 
-def _cosine(omega: float, dt: float) -> str:
+def _sizing_phrase(scale: float | None, offsets: float) -> str:
+    """How the amplitudes were sized (:func:`_scale_to_training_range`), for the line ``compare`` prints."""
+    if scale is None:
+        return "at the training amplitude (no training peak is known to size it by)"
+    if offsets < 0:
+        return (f"the offsets alone take the ROM's outputs to {-offsets:.2g} times their training peak over this "
+                "comparison, and its swing adds half of that peak")
+    if offsets <= PEAK_SHARE:
+        text = "its response in the ROM within half of the outputs' training peak"
+    else:
+        longer = " over this comparison (a shorter --t-end keeps them nearer)" if offsets > 1 else ""
+        text = (f"its response in the ROM within where the offsets alone take the outputs, {offsets:.2g} times their "
+                f"training peak{longer}")
+    return text + (", at the training amplitude" if scale == 1.0 else "")
+
+
+def cosine_phase(omega: float, dt: float) -> float:
     """The phase that makes the held samples of a sine a cosine centred on each step, ``cos(omega (t_k + dt/2))``:
     their sums have no mean, so a rigid-body mode does not drift (held from ``cos(omega t_k)`` it drifted by
     ``A dt / 2m`` per unit time)."""
-    return f",phase={math.pi / 2 + omega * dt / 2:.10g}"
+    return float(f"{math.pi / 2 + omega * dt / 2:.10g}")
+
+
+def _cosine(omega: float, dt: float) -> str:
+    return f",phase={cosine_phase(omega, dt):.10g}"
 
 
 def _natural_frequencies(rom: "SecondOrderROM", floor: float) -> tuple[np.ndarray, bool]:
@@ -129,19 +151,36 @@ def _frequency_band(omega: np.ndarray, floor: float, ceiling: float) -> tuple[fl
 
 
 def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], amplitudes: dict[int, float],
-                             dt: float, t_end: float) -> float | None:
-    """The factor (at most 1) on the training amplitudes that keeps the ROM's response to the harmonics over the
-    comparison within :data:`PEAK_SHARE` of its outputs' training peak; None where the training runs cannot be
-    simulated here (nothing to size by)."""
-    peaks = _training_peaks(rom)
+                             dt: float, t_end: float) -> tuple[float | None, float]:
+    """The factor ``k`` (at most 1) on the training amplitudes that keeps the ROM's response to the test input over
+    the comparison, its offsets' step response included (audit 52: left out, 1.3 times the training peak), within
+    :data:`PEAK_SHARE` of each output's training peak, or within where the offsets alone take it if that is
+    farther; None where no training peak is known.  Also how far the offsets alone go (times the peak), negative
+    where that left less than :data:`SMALLEST_SCALE` and the harmonics' own swing is sized to half the peak."""
+    peaks = training_peaks(rom)
     if peaks is None:
-        return None
-    specs = [harmonics[i].format(amplitudes[i]) if i in harmonics else "none" for i in range(rom.m)]
-    steps = min(round(t_end / dt), MAX_STEPS)
-    response = _departure(rom, ";".join(specs), dt, steps * dt) - _departure(rom, "none", dt, steps * dt)
-    swing = np.abs(response).max(axis=1)
-    limits = [PEAK_SHARE * peak / s for peak, s in zip(peaks, swing) if s > 0 and peak > 0]
-    return min([1.0] + limits)
+        return None, 0.0
+    grid = dt * min(round(t_end / dt), MAX_STEPS)
+    spec = [harmonics.get(i, "none") for i in range(rom.m)]
+    base = _departure(rom, ";".join(part.format(0.0) for part in spec), dt, grid)
+    swing = _departure(rom, ";".join(part.format(amplitudes.get(i, 0.0)) for i, part in enumerate(spec)), dt,
+                       grid) - base
+    reach = np.abs(base).max(axis=1)
+    limit = np.maximum(PEAK_SHARE * np.where(peaks > 0, peaks, np.inf), reach)[:, None]
+
+    def within(k: float) -> bool:
+        return bool((np.abs(base + k * swing) <= limit).all())
+
+    low, high = (1.0, 1.0) if within(1.0) else (0.0, 1.0)
+    for _ in range(40 if low < high else 0):   # (the largest response over the window is convex in k)
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if within(middle) else (low, middle)
+    offsets = float((reach / np.where(peaks > 0, peaks, np.inf)).max())
+    if low < SMALLEST_SCALE:   # the offsets use up the range: the harmonics alone get half of it, on top
+        base, limit = np.zeros_like(base), PEAK_SHARE * np.where(peaks > 0, peaks, np.inf)[:, None]
+        low = min(1.0, float((limit[:, 0] / np.maximum(np.abs(swing).max(axis=1), 1e-300)).min()))
+        return low, -offsets
+    return low, offsets
 
 
 def _departure(rom: "SecondOrderROM", spec: str, dt: float, t_end: float) -> np.ndarray:
@@ -149,11 +188,33 @@ def _departure(rom: "SecondOrderROM", spec: str, dt: float, t_end: float) -> np.
     return y - y[:, :1]
 
 
-def _training_peaks(rom: "SecondOrderROM") -> np.ndarray | None:
-    """Each output's largest departure from its start in the ROM's simulation of its training runs (None where no
-    run can be simulated here: a table no longer at hand, a run without its grid)."""
+def training_peaks(rom: "SecondOrderROM") -> np.ndarray | None:
+    """Each output's largest departure from its start in the training runs: as recorded by ``fit`` (the source's
+    own outputs, fits since 2026-12-06), else in the ROM's simulation of the runs' inputs; None where neither is
+    at hand (a table no longer there, a run without its grid)."""
+    recorded = recorded_peaks(rom.provenance, rom.p)
+    if recorded is not None:
+        return recorded
+    return _simulated_peaks(rom, [run for run in rom.provenance.get("training_runs") or [] if isinstance(run, dict)])
+
+
+def recorded_peaks(provenance: dict[str, Any], p: int) -> np.ndarray | None:
+    """Each of the ``p`` outputs' largest departure from its start over the training runs, as ``fit`` recorded it
+    in ``provenance`` (``training_runs[*].output_peak``); None where a run lacks it."""
+    runs = provenance.get("training_runs")
+    recorded = [run.get("output_peak") if isinstance(run, dict) else None for run in runs or []]
+    if not recorded or not all(isinstance(peak, list) and len(peak) == p for peak in recorded):
+        return None
+    try:
+        peaks = np.max(np.asarray(recorded, dtype=float), axis=0)
+    except (TypeError, ValueError):   # (a damaged file's)
+        return None
+    return peaks if np.isfinite(peaks).all() else None
+
+
+def _simulated_peaks(rom: "SecondOrderROM", runs: list[dict]) -> np.ndarray | None:
     peaks = None
-    for run in rom.provenance.get("training_runs") or []:
+    for run in runs:
         try:
             dt, duration = float(run["dt"]), float(run["t_end"]) - float(run.get("t0", 0.0))
             if not (0 < dt and 0 < duration / dt <= MAX_STEPS):   # (also NaN; a data file's sizes)

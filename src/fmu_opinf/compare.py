@@ -418,6 +418,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options)
+    if why:
+        _warn_if_past_training(y_fom, list(fom_outputs), rom_info, source)
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
@@ -448,15 +450,38 @@ def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_en
         raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
                              "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
     spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
-    _check_carried(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
+    spec = _carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
     return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"
 
 
-def _check_carried(spec: str, name: str, m: int, dt: float, t_end: float) -> None:
-    """Refuse a test input an exported ROM FMU carries unless it is harmonics (and ``none``) for its ``m`` inputs
-    whose frequencies the grid resolves (:mod:`fmu_opinf._test_input`): the file is data, and its input was chosen
-    for the FMU's own grid."""
-    from ._test_input import PERIODS, SAMPLES_PER_PERIOD
+def _warn_if_past_training(y: np.ndarray, names: list[str], rom_info: dict[str, Any], source: Any) -> None:
+    """Warn where the test input ``compare`` chose drove the source's outputs past their training peak: it was sized
+    by the ROM, which may miss a mode of the model (audit 52: an r = 1 ROM beside a lightly damped mode it did not
+    learn, 4.3 times)."""
+    from ._test_input import recorded_peaks
+
+    peaks = recorded_peaks(rom_info["provenance"], y.shape[0])
+    if peaks is None:
+        return
+    ratios = np.abs(y - y[:, :1]).max(axis=1) / np.where(peaks > 0, peaks, np.inf)
+    worst = int(np.argmax(ratios))
+    if ratios[worst] > 1.0:
+        import warnings
+
+        from .errors import FmuOpinfWarning
+
+        warnings.warn(f"{Path(str(source)).name}: the test input compare chose drove {names[worst]} to "
+                      f"{ratios[worst]:.2g} times its largest departure in the training (the ROM may miss a mode of "
+                      "the model there): the model left the range it was trained in; pass --input with a smaller "
+                      "amplitude or another frequency", FmuOpinfWarning, stacklevel=3)
+
+
+def _carried_for_grid(spec: str, name: str, m: int, dt: float, t_end: float) -> str:
+    """The test input an exported ROM FMU carries, its cosines' phases made for the step ``dt`` (a cosine centred on
+    each step keeps a rigid-body mode from drifting, :mod:`fmu_opinf._test_input`; with the export's step it
+    drifted at another one, audit 52).  Refused unless it is harmonics (and ``none``) for its ``m`` inputs whose
+    frequencies the grid resolves: the file is data, and its input was chosen for the FMU's own grid."""
+    from ._test_input import PERIODS, SAMPLES_PER_PERIOD, cosine_phase
     from .signals import NoInput, ParametricSignal, StackedSignal, parse_signal
 
     fix = "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'"
@@ -476,6 +501,11 @@ def _check_carried(spec: str, name: str, m: int, dt: float, t_end: float) -> Non
         raise InputSpecError(f"no test input given, and the one {name} carries ({spec}) was chosen for its own step "
                              f"and training end: at dt={dt:g} up to t={t_end:g} it has fewer than {PERIODS} periods "
                              f"or {SAMPLES_PER_PERIOD} samples per period; {fix}")
+    return ";".join(
+        "none" if isinstance(p, NoInput) else
+        f"harmonic:amplitude={p.params['amplitude']!r},omega={p.params['omega']!r}"
+        + (f",phase={cosine_phase(p.params['omega'], dt)!r}" if p.params.get("phase") else "")
+        + (f",offset={p.params['offset']!r}" if p.params.get("offset") else "") for p in parts)
 
 
 def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":

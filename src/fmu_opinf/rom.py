@@ -1310,7 +1310,11 @@ def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
     training = []
     for run in runs:
         run_attrs = getattr(run, "attrs", None) or {}
-        training.append({key: run_attrs[key] for key in _RUN_PROVENANCE if key in run_attrs})
+        entry = {key: run_attrs[key] for key in _RUN_PROVENANCE if key in run_attrs}
+        peak = _output_peak(getattr(run, "y", None))
+        if peak is not None:   # (compare sizes its default test input by it)
+            entry["output_peak"] = peak
+        training.append(entry)
     return {
         "snapshots": jsonable(_without_local_paths(attrs)),
         "training_runs": jsonable(training),
@@ -1319,6 +1323,15 @@ def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
         "fit_date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         "versions": tool_versions(),
     }
+
+
+def _output_peak(y: Any) -> list[float] | None:
+    """Each output's largest departure from its start in a run's outputs ``y`` (p, k), one output at a time (an
+    array or an HDF5 dataset: no copy of the whole)."""
+    if y is None or len(getattr(y, "shape", ())) != 2 or not y.shape[1]:
+        return None
+    rows = (np.asarray(y[i], dtype=float) for i in range(y.shape[0]))
+    return [float(np.abs(row - row[0]).max()) for row in rows]
 
 
 def _names(names: Any, count: int) -> list[str] | None:
