@@ -420,11 +420,12 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     capsys.readouterr()
 
     # the offset's step from rest goes on past the 60 s of training: over the 240 s compared it alone takes y[1] to
-    # 1.2 times its training peak, which the line says, and the source's y[1] to 1.4 times, which is warned about
-    with pytest.warns(FmuOpinfWarning, match=r"drove y\[1\] to 1.4 times its largest departure in the training"):
+    # 1.2 times its training peak, which the line says, and the warning names the offsets as the cause
+    with pytest.warns(FmuOpinfWarning, match=r"two.fmu's y\[1\] went to 1.18 times its largest departure in the "
+                                             r"training; the input's offsets take it there in the ROM too"):
         result = compare.compare(tmp_path / "rom.h5", fmu.path)
     said = capsys.readouterr().err
-    assert "the offsets alone take the ROM's outputs to 1.2 times their training peak over this comparison" in said
+    assert "where the offsets alone take the outputs, 1.2 times it over this comparison (a shorter --t-end" in said
     signal = parse_signal(result.input_spec, 2)
     assert [part.kind for part in signal.parts] == ["harmonic", "harmonic"]
     assert [part.params["offset"] for part in signal.parts] == [0.0, 2.0]
@@ -438,14 +439,18 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     from fmu_opinf._test_input import recorded_peaks   # (fit records the source's peaks; before, the ROM's guess)
     assert recorded_peaks(fitted.provenance, 2).tolist() == np.max(
         [np.abs(run.y - run.y[:, :1]).max(axis=1) for run in recorded.runs], axis=0).tolist()
-    assert np.abs(exact - exact[:, :1]).max() <= 1.5 * trained   # measured 1.36
+    assert np.abs(exact - exact[:, :1]).max() <= 1.25 * trained   # measured 1.18 (the offsets' own reach: 1.2)
     assert result.metrics()["max_error"] < 1e-20   # the ROM is exact for these data (r = n)
 
     assert result.metrics()["input_choice"].startswith("chosen without --input: a harmonic on each input")
+    assert result.metrics()["input_choice"].endswith("y[1] went to 1.18 times its largest departure in the training; "
+                                                     "the input's offsets take it there in the ROM too: a shorter "
+                                                     "--t-end keeps them nearer")
     page = compare.write_report(result, tmp_path / "report")
     assert "chosen without --input: a harmonic on each input" in page.read_text()
     exported = export_fmu(fitted, tmp_path / "rom.fmu")
-    assert compare.compare(exported, fmu.path, quiet=True).input_spec == result.input_spec
+    with pytest.warns(FmuOpinfWarning, match=r"y\[1\] went to 1.18 times"):   # (audit 53: not said for an FMU)
+        assert compare.compare(exported, fmu.path, quiet=True).input_spec == result.input_spec
 
 
 def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path):
@@ -525,7 +530,8 @@ def test_a_rom_whose_training_runs_cannot_be_simulated_keeps_the_training_amplit
     model.provenance["training_runs"] = [{"input_spec": "impulse:amplitude=7,t0=1,width=0.5"}]
     spec, why = default_test_input(model, 0.1, 100.0)
     assert spec.startswith("harmonic:amplitude=7,omega=")
-    assert why.endswith("at the training amplitude (no training peak is known to size it by)")
+    assert why.endswith("at the training amplitude (no training peak is known to size it by: a fit of today records "
+                        "them)")
 
 
 @pytest.mark.slow  # 3 s: exports a ROM FMU
@@ -587,11 +593,11 @@ def test_the_default_test_input_counts_the_offsets_step_response():
     spec, why = default_test_input(model, 0.01, 120.0)
     trained = np.abs(_exact_outputs(model, training[0], 0.01, 30.0)).max(axis=1)
     ratios = np.abs(_exact_outputs(model, spec, 0.01, 120.0)).max(axis=1) / trained
-    # the training began with the offset's step from rest, which alone reaches the training peak: the harmonic adds
-    # half of it (before, unsized by the offsets, 1.29 on the source)
-    assert spec.endswith(",offset=50") and ratios.max() <= 1.5, (spec, ratios)   # measured 1.15 / 1.35
-    assert ("the offsets alone take the ROM's outputs to 1 times their training peak over this comparison, and its "
-            "swing adds half of that peak") in why
+    # the training began with the offset's step from rest, which alone reaches the training peak: no room is left
+    # for the harmonic, and the line says why (before, unsized by the offsets, 1.29 on the source; audit 53: with
+    # half the peak on top of the offsets, 1.3)
+    assert spec.endswith(",offset=50") and ratios.max() <= 1.0 + 1e-6, (spec, ratios)   # measured 1.0 / 1.0
+    assert "within the training peak or where the offsets alone take the outputs, 1 times it" in why
 
 
 def test_a_carried_cosine_is_centred_on_the_comparison_s_steps():

@@ -48,8 +48,8 @@ RIGID, RIGID_PERIODS = 1e-12, 2.5
 #: lies within the modes' resonance peaks.
 WIDEST_RESONANCE = 1.3
 
-#: The smallest factor on the training amplitudes the sizing keeps before it lets the harmonics swing by half the
-#: training peak on top of where the offsets alone take the outputs (a test of the offsets' step alone tests little).
+#: The smallest factor on the training amplitudes the sizing keeps within half the training peak; below it, the
+#: offsets use up that half, and the harmonics get what is left below the whole peak (or where the offsets go).
 SMALLEST_SCALE = 0.25
 
 #: Steps of a simulation of the ROM this module makes at most (the training runs and the sizing run).
@@ -89,14 +89,14 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
 def _sizing_phrase(scale: float | None, offsets: float) -> str:
     """How the amplitudes were sized (:func:`_scale_to_training_range`), for the line ``compare`` prints."""
     if scale is None:
-        return "at the training amplitude (no training peak is known to size it by)"
+        return "at the training amplitude (no training peak is known to size it by: a fit of today records them)"
+    longer = " over this comparison (a shorter --t-end keeps them nearer)" if abs(offsets) > 1 else ""
     if offsets < 0:
-        return (f"the offsets alone take the ROM's outputs to {-offsets:.2g} times their training peak over this "
-                "comparison, and its swing adds half of that peak")
+        return (f"its response in the ROM within the training peak or where the offsets alone take the outputs, "
+                f"{-offsets:.2g} times it{longer}")
     if offsets <= PEAK_SHARE:
         text = "its response in the ROM within half of the outputs' training peak"
     else:
-        longer = " over this comparison (a shorter --t-end keeps them nearer)" if offsets > 1 else ""
         text = (f"its response in the ROM within where the offsets alone take the outputs, {offsets:.2g} times their "
                 f"training peak{longer}")
     return text + (", at the training amplitude" if scale == 1.0 else "")
@@ -156,7 +156,8 @@ def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], a
     the comparison, its offsets' step response included (audit 52: left out, 1.3 times the training peak), within
     :data:`PEAK_SHARE` of each output's training peak, or within where the offsets alone take it if that is
     farther; None where no training peak is known.  Also how far the offsets alone go (times the peak), negative
-    where that left less than :data:`SMALLEST_SCALE` and the harmonics' own swing is sized to half the peak."""
+    where that left less than :data:`SMALLEST_SCALE` and the limit is the whole peak (audit 53: half the peak on
+    top of the offsets reached 1.3 times it)."""
     peaks = training_peaks(rom)
     if peaks is None:
         return None, 0.0
@@ -171,16 +172,24 @@ def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], a
     def within(k: float) -> bool:
         return bool((np.abs(base + k * swing) <= limit).all())
 
-    low, high = (1.0, 1.0) if within(1.0) else (0.0, 1.0)
-    for _ in range(40 if low < high else 0):   # (the largest response over the window is convex in k)
+    scale = _largest_within(within)
+    offsets = float((reach / np.where(peaks > 0, peaks, np.inf)).max())
+    if scale < SMALLEST_SCALE and offsets > PEAK_SHARE / 2:   # the offsets use up half the range: what is left of all
+        limit = np.maximum(np.where(peaks > 0, peaks, np.inf), reach)[:, None]
+        return _largest_within(within), -offsets
+    return scale, offsets
+
+
+def _largest_within(within: Any) -> float:
+    """The largest ``k`` in [0, 1] with ``within(k)``, where ``within(0)`` holds (the largest response over the
+    window is convex in ``k``: bisection)."""
+    if within(1.0):
+        return 1.0
+    low, high = 0.0, 1.0
+    for _ in range(40):
         middle = 0.5 * (low + high)
         low, high = (middle, high) if within(middle) else (low, middle)
-    offsets = float((reach / np.where(peaks > 0, peaks, np.inf)).max())
-    if low < SMALLEST_SCALE:   # the offsets use up the range: the harmonics alone get half of it, on top
-        base, limit = np.zeros_like(base), PEAK_SHARE * np.where(peaks > 0, peaks, np.inf)[:, None]
-        low = min(1.0, float((limit[:, 0] / np.maximum(np.abs(swing).max(axis=1), 1e-300)).min()))
-        return low, -offsets
-    return low, offsets
+    return low
 
 
 def _departure(rom: "SecondOrderROM", spec: str, dt: float, t_end: float) -> np.ndarray:
