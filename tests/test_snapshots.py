@@ -211,23 +211,23 @@ def test_error_mid_run_keeps_the_samples_so_far(toys, tmp_path, fault, text):
         np.testing.assert_array_equal(getattr(run, name), getattr(clean, name)[..., :5])
 
 
-def test_non_finite_values_name_their_variables_and_the_usual_causes():
+def test_non_finite_values_name_their_variables_and_the_usual_causes(toys):
     """Audit of 2026-12-06: ``--set mass1.m=0`` on a model-exchange FMU ended in "produced non-finite values at
-    step 0 (t=0)", naming neither the variables nor a fix.  Without an explanation from the source, the line names
-    the first variables that are not finite and the usual causes."""
+    step 0 (t=0)", naming neither the variables nor a fix.  The line names the first variables that are not finite,
+    and an FMU source with no other explanation (here: no step was taken, so no unstable explicit step) the usual
+    causes."""
     from types import SimpleNamespace
 
     from fmu_opinf.snapshots._record import _non_finite_names, _with_hint
 
-    source = SimpleNamespace(layout={"x": slice(0, 2), "xdot": slice(2, 4), "xddot": slice(4, 4), "y": slice(4, 5)},
-                             position_names=["s1", "s2"], velocity_names=["v1", "v2"], output_names=["acc"])
+    names = SimpleNamespace(layout={"x": slice(0, 2), "xdot": slice(2, 4), "xddot": slice(4, 4), "y": slice(4, 5)},
+                            position_names=["s1", "s2"], velocity_names=["v1", "v2"], output_names=["acc"])
     row = np.array([0.0, 1.0, 0.0, np.nan, np.inf])
-    failure = StepError(f"m.fmu produced non-finite values at step 0 (t=0){_non_finite_names(source, row)}", 0, 0.0)
-    assert str(_with_hint(source, failure, np.zeros((1, 0)))) == (
+    failure = StepError(f"m.fmu produced non-finite values at step 0 (t=0){_non_finite_names(names, row)}", 0, 0.0)
+    assert str(_with_hint(FMUSource(toys["full"]), failure, np.zeros((1, 1)))) == (
         "m.fmu produced non-finite values at step 0 (t=0) in v2, acc; check the --set values and the inputs (a mass "
         "or a stiffness at 0, a parameter exposed as an input driven to 0)")
-    many = np.full(5, np.nan)
-    assert _non_finite_names(source, many) == " in s1, s2, v1, v2 and 1 more"
+    assert _non_finite_names(names, np.full(5, np.nan)) == " in s1, s2, v1, v2 and 1 more"
 
 
 def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):

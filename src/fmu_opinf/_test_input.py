@@ -31,8 +31,8 @@ from .errors import FmuOpinfError, InputSpecError
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
 
-__all__ = ["default_test_input", "training_peaks", "recorded_peaks", "cosine_phase", "PERIODS", "SAMPLES_PER_PERIOD",
-           "PEAK_SHARE"]
+__all__ = ["default_test_input", "carried_for_grid", "training_peaks", "recorded_peaks", "cosine_phase", "PERIODS",
+           "SAMPLES_PER_PERIOD", "PEAK_SHARE"]
 
 #: The fewest periods of the test harmonic within the comparison, and its fewest samples per period.
 PERIODS, SAMPLES_PER_PERIOD = 4, 20
@@ -73,17 +73,25 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     low, high, where = _frequency_band(omega, floor, ceiling)
     frequencies = [float(f"{low * (high / low) ** (0.25 + 0.5 * (j + 1) / (len(driven) + 1)):.3g}")
                    for j in range(len(driven))]
-    harmonics = {i: f"harmonic:amplitude={{:.3g}},omega={frequency:g}" + (_cosine(frequency, dt) if rigid else "")
-                 + (f",offset={drives[i][1]:.15g}" if drives[i][1] else "")
-                 for i, frequency in zip(driven, frequencies)}
+    waves = {i: {"omega": frequency, "phase": cosine_phase(frequency, dt) if rigid else 0.0, "offset": drives[i][1]}
+             for i, frequency in zip(driven, frequencies)}
     amplitudes = {i: drives[i][0] for i in driven}
-    scale, offsets = _scale_to_training_range(rom, harmonics, amplitudes, dt, t_end)
+    scale, offsets = _scale_to_training_range(rom, waves, amplitudes, dt, t_end)
     factor = 1.0 if scale is None else scale
-    specs = [harmonics[i].format(factor * amplitudes[i]) if i in harmonics else "none" for i in range(rom.m)]
+    spec = _spec(rom.m, waves, {i: float(f"{factor * a:.3g}") for i, a in amplitudes.items()})
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
     how = _sizing_phrase(scale, offsets)
     cosine = ", a cosine (the ROM has a rigid-body mode)" if rigid else ""
-    return (";".join(specs) if len(set(specs)) > 1 else specs[0]), f"{what} {where}{cosine}, {how}"
+    return spec, f"{what} {where}{cosine}, {how}"
+
+
+def _spec(m: int, waves: dict[int, dict[str, float]], amplitudes: dict[int, float]) -> str:
+    """The input spec of harmonics ``waves`` (omega, phase, offset by input) at ``amplitudes``, ``none`` on the other
+    inputs; one spec where every input gets the same."""
+    from .signals import harmonic
+
+    parts = [harmonic(amplitude=amplitudes.get(i, 0.0), **waves[i]).spec if i in waves else "none" for i in range(m)]
+    return ";".join(parts) if len(set(parts)) > 1 else parts[0]
 
 
 def _sizing_phrase(scale: float | None, offsets: float) -> str:
@@ -107,10 +115,6 @@ def cosine_phase(omega: float, dt: float) -> float:
     their sums have no mean, so a rigid-body mode does not drift (held from ``cos(omega t_k)`` it drifted by
     ``A dt / 2m`` per unit time)."""
     return float(f"{math.pi / 2 + omega * dt / 2:.10g}")
-
-
-def _cosine(omega: float, dt: float) -> str:
-    return f",phase={cosine_phase(omega, dt):.10g}"
 
 
 def _natural_frequencies(rom: "SecondOrderROM", floor: float) -> tuple[np.ndarray, bool]:
@@ -150,8 +154,8 @@ def _frequency_band(omega: np.ndarray, floor: float, ceiling: float) -> tuple[fl
                                               f"period ({band})")
 
 
-def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], amplitudes: dict[int, float],
-                             dt: float, t_end: float) -> tuple[float | None, float]:
+def _scale_to_training_range(rom: "SecondOrderROM", waves: dict[int, dict[str, float]],
+                             amplitudes: dict[int, float], dt: float, t_end: float) -> tuple[float | None, float]:
     """The factor ``k`` (at most 1) on the training amplitudes that keeps the ROM's response to the test input over
     the comparison, its offsets' step response included (audit 52: left out, 1.3 times the training peak), within
     :data:`PEAK_SHARE` of each output's training peak, or within where the offsets alone take it if that is
@@ -162,10 +166,8 @@ def _scale_to_training_range(rom: "SecondOrderROM", harmonics: dict[int, str], a
     if peaks is None:
         return None, 0.0
     grid = dt * min(round(t_end / dt), MAX_STEPS)
-    spec = [harmonics.get(i, "none") for i in range(rom.m)]
-    base = _departure(rom, ";".join(part.format(0.0) for part in spec), dt, grid)
-    swing = _departure(rom, ";".join(part.format(amplitudes.get(i, 0.0)) for i, part in enumerate(spec)), dt,
-                       grid) - base
+    base = _departure(rom, _spec(rom.m, waves, {}), dt, grid)
+    swing = _departure(rom, _spec(rom.m, waves, amplitudes), dt, grid) - base
     reach = np.abs(base).max(axis=1)
     limit = np.maximum(PEAK_SHARE * np.where(peaks > 0, peaks, np.inf), reach)[:, None]
 
@@ -272,3 +274,30 @@ def _drive_of(part: str, column: int) -> tuple[float, float]:
         return amplitude, start if abs(start) > 1e-9 * amplitude else 0.0
     raise InputSpecError(f"no test input given, and the training input {part!r} has no amplitude to take one from; "
                          f"{_FIX}")
+
+
+def carried_for_grid(spec: str, name: str, m: int, dt: float, t_end: float) -> str:
+    """The test input an exported ROM FMU carries, its cosines' phases made for the step ``dt`` (a cosine centred on
+    each step keeps a rigid-body mode from drifting; with the export's step it drifted at another one, audit 52).
+    Refused unless it is harmonics (and ``none``) for its ``m`` inputs whose frequencies the grid resolves: the
+    file is data, and its input was chosen for the FMU's own grid."""
+    from .signals import NoInput, ParametricSignal, StackedSignal, harmonic, parse_signal
+
+    try:
+        short, tabled = len(spec) < 100 * max(m, 1) + 100, ".csv" in spec.lower()   # (no file is read for it)
+        signal = parse_signal(spec, m) if short and not tabled else None
+    except FmuOpinfError:
+        signal = None
+    parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
+    if signal is None or not all(isinstance(p, NoInput) or isinstance(p, ParametricSignal) and p.kind == "harmonic"
+                                 for p in parts):
+        raise InputSpecError(f"no test input given, and the one {name} carries is not a harmonic test input for its "
+                             f"{m} input(s); {_FIX}")
+    omegas = [p.params["omega"] for p in parts if isinstance(p, ParametricSignal)]
+    low, high = 0.99 * 2 * math.pi * PERIODS / t_end, 1.01 * 2 * math.pi / (SAMPLES_PER_PERIOD * dt)  # (3 digits)
+    if any(not low <= w <= high for w in omegas):
+        raise InputSpecError(f"no test input given, and the one {name} carries ({spec}) was chosen for its own step "
+                             f"and training end: at dt={dt:g} up to t={t_end:g} it has fewer than {PERIODS} periods "
+                             f"or {SAMPLES_PER_PERIOD} samples per period; {_FIX}")
+    return ";".join("none" if isinstance(p, NoInput) else harmonic(**{
+        **p.params, "phase": cosine_phase(p.params["omega"], dt) if p.params["phase"] else 0.0}).spec for p in parts)

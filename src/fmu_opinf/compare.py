@@ -441,7 +441,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
     """The test input without one given (:mod:`fmu_opinf._test_input`): chosen from the ROM, or the one an exported
     ROM FMU carries for its training grid (a data file: taken only as a string, parsed like any --input)."""
-    from ._test_input import default_test_input
+    from ._test_input import carried_for_grid, default_test_input
 
     if not isinstance(rom_side, Path):
         return default_test_input(rom_side, dt, t_end)
@@ -450,7 +450,7 @@ def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_en
         raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
                              "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
     spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
-    spec = _carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
+    spec = carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
     return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"
 
 
@@ -482,38 +482,6 @@ def _past_training(y: np.ndarray, y_rom: np.ndarray, names: list[str], rom_info:
 
     warnings.warn(f"under the test input compare chose, {text}", FmuOpinfWarning, stacklevel=3)
     return f"; {text}"
-
-
-def _carried_for_grid(spec: str, name: str, m: int, dt: float, t_end: float) -> str:
-    """The test input an exported ROM FMU carries, its cosines' phases made for the step ``dt`` (a cosine centred on
-    each step keeps a rigid-body mode from drifting, :mod:`fmu_opinf._test_input`; with the export's step it
-    drifted at another one, audit 52).  Refused unless it is harmonics (and ``none``) for its ``m`` inputs whose
-    frequencies the grid resolves: the file is data, and its input was chosen for the FMU's own grid."""
-    from ._test_input import PERIODS, SAMPLES_PER_PERIOD, cosine_phase
-    from .signals import NoInput, ParametricSignal, StackedSignal, parse_signal
-
-    fix = "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'"
-    try:
-        short, tabled = len(spec) < 100 * max(m, 1) + 100, ".csv" in spec.lower()   # (no file is read for it)
-        signal = parse_signal(spec, m) if short and not tabled else None
-    except FmuOpinfError:
-        signal = None
-    parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
-    if signal is None or not all(isinstance(p, NoInput) or isinstance(p, ParametricSignal) and p.kind == "harmonic"
-                                 for p in parts):
-        raise InputSpecError(f"no test input given, and the one {name} carries is not a harmonic test input for its "
-                             f"{m} input(s); {fix}")
-    omegas = [p.params["omega"] for p in parts if isinstance(p, ParametricSignal)]
-    low, high = 0.99 * 2 * math.pi * PERIODS / t_end, 1.01 * 2 * math.pi / (SAMPLES_PER_PERIOD * dt)  # (3 digits)
-    if any(not low <= w <= high for w in omegas):
-        raise InputSpecError(f"no test input given, and the one {name} carries ({spec}) was chosen for its own step "
-                             f"and training end: at dt={dt:g} up to t={t_end:g} it has fewer than {PERIODS} periods "
-                             f"or {SAMPLES_PER_PERIOD} samples per period; {fix}")
-    return ";".join(
-        "none" if isinstance(p, NoInput) else
-        f"harmonic:amplitude={p.params['amplitude']!r},omega={p.params['omega']!r}"
-        + (f",phase={cosine_phase(p.params['omega'], dt)!r}" if p.params.get("phase") else "")
-        + (f",offset={p.params['offset']!r}" if p.params.get("offset") else "") for p in parts)
 
 
 def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":

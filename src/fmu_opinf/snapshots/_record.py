@@ -346,14 +346,9 @@ def _rate_feed(sink: _Sink, sums: RateSums | None) -> Iterator[Callable[[int], N
 
 
 def _with_hint(source: Source, failure: StepError, U: np.ndarray) -> StepError:
-    """The failure with the source's explanation appended (e.g. inputs that look like parameters); non-finite
-    values the source cannot explain get the usual causes (audit of 2026-12-06: the message named neither the
-    variables nor a fix)."""
+    """The failure with the source's explanation appended (e.g. inputs that look like parameters)."""
     hint = getattr(source, "failure_hint", None)
     text = hint(U, failure.step, str(failure)) if hint is not None else ""
-    if not text and "produced non-finite values" in str(failure):
-        text = ("; check the --set values and the inputs (a mass or a stiffness at 0, a parameter exposed as an "
-                "input driven to 0)")
     return StepError(str(failure) + text, failure.step, failure.time) if text else failure
 
 

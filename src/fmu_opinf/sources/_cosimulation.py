@@ -473,8 +473,16 @@ class FMUSource(Source):
         """Why a step may have failed.
 
         Force inputs with non-zero start values set to 0 look like parameters; non-finite values from a
-        co-simulation FMU are typical of an explicit (Euler) step that is unstable at this step size.
+        co-simulation FMU are typical of an explicit (Euler) step that is unstable at this step size; other
+        non-finite values get the usual causes (audit of 2026-12-06: the message named neither them nor a fix).
         """
+        hint = self._cause_of(U, step, message)
+        if not hint and "non-finite" in message:
+            hint = ("; check the --set values and the inputs (a mass or a stiffness at 0, a parameter exposed as an "
+                    "input driven to 0)")
+        return hint
+
+    def _cause_of(self, U: np.ndarray, step: int, message: str) -> str:
         if "non-finite" in message and self.interface == "cs" and step > 0:   # (at step 0 no step was taken)
             other = ("drive its model exchange (--interface me)" if offers_model_exchange(self)
                      else "pass a smaller --dt")
