@@ -25,7 +25,7 @@ import numpy as np
 from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
+__all__ = ["atomic_h5", "atomic_path", "output_target", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
            "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
@@ -58,6 +58,7 @@ def atomic_path(path: Path) -> Iterator[str]:
 
     Interrupts (Ctrl-C, SIGTERM turned into an exception) remove it too, so no ``.tmp`` file is left.
     """
+    path = output_target(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise FileFormatError(f"directory {parent} does not exist; create it first")
@@ -76,6 +77,21 @@ def atomic_path(path: Path) -> Iterator[str]:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def output_target(path: str | os.PathLike) -> Path:
+    """The file an output named ``path`` replaces: ``path``, or the file a symbolic link there points to (the
+    link stays); refused where that is not a regular file.  Renamed over a device, a pipe or a link, an output
+    replaced them with a plain file (audit 55: ``-o /dev/null --force`` replaced the system's /dev/null)."""
+    target = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
+    try:
+        mode = os.stat(target).st_mode
+    except OSError:   # (nothing there yet, or a name the system refuses: the write says why)
+        return target
+    if not stat.S_ISREG(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "a device, a pipe or a socket"
+        raise FileFormatError(f"{path} is {kind}, not a file; give the name of a file to write")
+    return target
 
 
 @contextlib.contextmanager

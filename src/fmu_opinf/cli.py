@@ -401,6 +401,7 @@ def _me_method(text: str) -> str:
 
 def _check_output_file(args: argparse.Namespace, inputs: list) -> None:
     from . import _validate as v
+    from ._hdf5 import output_target
 
     v.check_not_input(args.output, inputs, "output")
     if Path(args.output).is_dir():   # before "exists": --force cannot replace a folder
@@ -411,6 +412,7 @@ def _check_output_file(args: argparse.Namespace, inputs: list) -> None:
         check_output_name(Path(args.output), overwrite=True)   # an existing file: the line below
     if Path(args.output).exists() and not args.force:
         raise FileExistsError(f"{args.output} exists; pass --force to replace it")
+    output_target(args.output)   # (a device, a pipe: refused before the work, not at its end)
     v.check_writable(args.output, "output")
 
 

@@ -970,19 +970,20 @@ def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
     renames, which need no space, start only once every byte is written (eleventh audit: new figures and
     metrics beside the old page after a full disk).
     """
-    from ._hdf5 import output_mode
+    from ._hdf5 import output_mode, output_target
     from ._interrupts import deferred_interrupts
 
+    targets = {name: output_target(folder / name) for name in files}
     temporary: dict[str, str] = {}
     try:
         for name, data in files.items():
-            fd, temporary[name] = tempfile.mkstemp(prefix=name + ".", suffix=".tmp", dir=folder)
+            fd, temporary[name] = tempfile.mkstemp(prefix=name + ".", suffix=".tmp", dir=targets[name].parent)
             with os.fdopen(fd, "wb") as handle:
                 handle.write(data)
         with deferred_interrupts():
             for name, tmp in list(temporary.items()):
-                os.chmod(tmp, output_mode(folder / name))
-                os.replace(tmp, folder / name)
+                os.chmod(tmp, output_mode(targets[name]))
+                os.replace(tmp, targets[name])
                 del temporary[name]
     except OSError as exc:
         raise write_error(folder / name, exc) from None

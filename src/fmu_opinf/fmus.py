@@ -1009,6 +1009,9 @@ def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:
 
 
 def _write_zip(unzipdir: Path, path: Path) -> None:
+    from ._hdf5 import output_target
+
+    path = output_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, tmp = tempfile.mkstemp(prefix=path.name + ".tmp-", dir=path.parent)
     os.close(handle)

@@ -1,0 +1,63 @@
+"""Where outputs go: an ``-o`` that is not a plain file (audit 55)."""
+
+import os
+import stat
+
+import pytest
+
+from fmu_opinf import snapshots
+from fmu_opinf.errors import FileFormatError
+
+from test_cli import run_cli
+
+SPEC = dict(input_spec="impulse:amplitude=100,t0=2,width=0.5", dt=0.5, t_end=20.0, quiet=True)
+
+
+def test_an_output_named_by_a_pipe_is_refused_and_the_pipe_stays(tmp_path):
+    """``--force`` renamed the new file over a device or a pipe: as root, ``-o /dev/null --force`` replaced the
+    system's /dev/null with an HDF5 file.  Refused in one line; the pipe is still a pipe."""
+    fifo = tmp_path / "pipe.h5"
+    os.mkfifo(fifo)
+    with pytest.raises(FileFormatError, match="is a device, a pipe or a socket, not a file; give the name of a file"):
+        snapshots.record_to_file("builtin:anchored-msd", fifo, overwrite=True, **SPEC)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe.h5"]   # no temporary file left
+
+
+@pytest.mark.parametrize("verb, suffix", [("snapshots", ".h5"), ("fit", ".h5"), ("export", ".fmu")])
+def test_the_command_line_refuses_a_pipe_before_the_work(tmp_path, verb, suffix):
+    snaps = tmp_path / "s.h5"
+    snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
+    fifo = tmp_path / f"pipe{suffix}"
+    os.mkfifo(fifo)
+    args = {"snapshots": ["builtin:anchored-msd", "--input", SPEC["input_spec"], "--dt", "0.5", "--t-end", "20"],
+            "fit": [str(snaps), "--r", "2"], "export": [str(snaps)]}[verb]
+    done = run_cli(verb, *args, "-o", str(fifo), "--force")
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"fmu-opinf: error: {fifo} is a device, a pipe or a socket, not a file; give the name of a file to write"]
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+
+
+def test_an_output_named_by_a_link_is_written_to_the_file_it_points_to(tmp_path):
+    """A symbolic link was replaced by the new file; the new file now replaces the one the link points to, and
+    the link stays (snapshots, and the exported FMU)."""
+    from fmu_opinf import rom
+    from fmu_opinf.export import export_fmu
+    import fmpy
+
+    real = tmp_path / "data" / "train.h5"
+    real.parent.mkdir()
+    real.write_bytes(b"old")
+    link = tmp_path / "train.h5"
+    link.symlink_to(real)
+    snapshots.record_to_file("builtin:anchored-msd", link, overwrite=True, **SPEC)
+    assert link.is_symlink() and snapshots.Snapshots.load(real).runs[0].t[-1] == 20.0
+    assert sorted(p.name for p in real.parent.iterdir()) == ["train.h5"]
+
+    fitted = rom.fit_rom(snapshots.Snapshots.load(real), r=2)
+    (real.parent / "rom.fmu").write_bytes(b"old")
+    (tmp_path / "rom.fmu").symlink_to(real.parent / "rom.fmu")
+    export_fmu(fitted, tmp_path / "rom.fmu", overwrite=True)
+    assert (tmp_path / "rom.fmu").is_symlink()
+    assert len(fmpy.simulate_fmu(str(real.parent / "rom.fmu"), stop_time=1.0, output_interval=0.5)) == 3
