@@ -156,7 +156,10 @@ def test_an_error_in_the_main_thread_stops_the_second_start(triple_data, monkeyp
 
 @pytest.mark.skipif(os.name != "posix", reason="process-group signals")
 @pytest.mark.slow  # 6 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
-def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
+@pytest.mark.parametrize("terminate", [False, True], ids=["ctrl-c", "sigterm"])
+def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path, terminate):
+    """Ctrl-C, and SIGTERM to the command alone (before 2026-12-06 it killed the fit on the spot, exit -15, no
+    line, audit 55)."""
     from fmu_opinf.snapshots import record
 
     from test_security import ctrl_c_after
@@ -168,9 +171,11 @@ def test_ctrl_c_during_fit_is_one_line_and_keeps_the_previous_rom(tmp_path):
     # 0.3 s after the fit started: in the SDP solve, the second start running beside it (a process, or a
     # thread where none can be forked); no process of the command may outlive it
     returncode, err = ctrl_c_after(["fit", str(tmp_path / "s.h5"), "-o", str(out), "--r", "35", "--force"], 0.3,
-                                   after_line="output-error refinement from")
+                                   after_line="output-error refinement from", terminate=terminate)
     lines = err.strip().splitlines()
-    assert returncode == 130 and lines[-1].startswith("fmu-opinf: interrupted"), err
+    assert returncode == (143 if terminate else 130), err
+    assert lines[-1] == (f"fmu-opinf: interrupted ({'SIGTERM' if terminate else 'Ctrl-C'}); no output file was "
+                         "written or replaced"), err
     assert "Traceback" not in err
     assert out.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rom.h5", "s.h5"]

@@ -61,3 +61,34 @@ def test_an_output_named_by_a_link_is_written_to_the_file_it_points_to(tmp_path)
     export_fmu(fitted, tmp_path / "rom.fmu", overwrite=True)
     assert (tmp_path / "rom.fmu").is_symlink()
     assert len(fmpy.simulate_fmu(str(real.parent / "rom.fmu"), stop_time=1.0, output_interval=0.5)) == 3
+
+
+@pytest.mark.parametrize("args", [["build-fmus", "-o", ""], ["fit", "s.h5", "-o", ""],
+                                  ["fit", "s.h5", "-o", "r.h5", "--figures", ""]])
+def test_an_empty_output_path_is_refused(tmp_path, args):
+    """``build-fmus -o ""`` wrote into the package's own fmus/ folder, ``--figures ""`` into the current one."""
+    done = run_cli(*args, cwd=tmp_path)
+    flag = "--figures" if "--figures" in args else "-o"
+    assert done.returncode == 2 and done.stderr.strip() == f"fmu-opinf: error: {flag} is empty; give a path"
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_build_fmus_interrupted_after_one_fmu_names_it(tmp_path, monkeypatch, capsys):
+    """Interrupted between its two FMUs, ``build-fmus`` said that no output file was written or replaced, but the
+    first was (audit 55).  It names what it replaced."""
+    from fmu_opinf import cli, fmus
+
+    built = []
+    real = fmus.build_second_order_fmu
+
+    def second_interrupted(spec, path, **options):
+        if built:
+            raise KeyboardInterrupt
+        built.append(real(spec, path, **options))
+        return built[-1]
+
+    monkeypatch.setattr(fmus, "build_second_order_fmu", second_interrupted)
+    assert cli.main(["build-fmus", "-o", str(tmp_path), "--g", "4", "--n1", "4"]) == 130
+    assert capsys.readouterr().err.strip() == (f"fmu-opinf: interrupted (Ctrl-C); written before it: {built[0]}; "
+                                               "every other output was left as it was")
+    assert [p.name for p in tmp_path.iterdir()] == [built[0].name]

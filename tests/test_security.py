@@ -355,10 +355,12 @@ def _as_from_a_terminal() -> None:
     _signal.signal(_signal.SIGTERM, _signal.SIG_DFL)
 
 
-def ctrl_c_after(arguments: list[str], delay: float, after_line: str | None = None) -> tuple[int, str]:
+def ctrl_c_after(arguments: list[str], delay: float, after_line: str | None = None,
+                 terminate: bool = False) -> tuple[int, str]:
     """Run ``fmu-opinf *arguments`` as from a terminal, press Ctrl-C (SIGINT to its process group) ``delay``
     seconds after its start, or after it printed a line containing ``after_line``; its exit code and standard
-    error, once every process of its group has ended (a forked helper included)."""
+    error, once every process of its group has ended (a forked helper included).  ``terminate``: SIGTERM to the
+    command's process alone instead (as a service manager or ``timeout`` stops it)."""
     import signal as _signal
     import subprocess
     import sys
@@ -373,7 +375,7 @@ def ctrl_c_after(arguments: list[str], delay: float, after_line: str | None = No
             break
         head += line
     time.sleep(delay)
-    os.killpg(proc.pid, _signal.SIGINT)
+    os.kill(proc.pid, _signal.SIGTERM) if terminate else os.killpg(proc.pid, _signal.SIGINT)
     try:
         _, err = proc.communicate(timeout=30)
         deadline = time.monotonic() + 5

@@ -6,8 +6,8 @@ labelled (e.g. ``[triple-chain] ``), so that the lines of several cases stay rea
 off inside (they redraw one terminal line, which several processes cannot share).  An exception in the
 worker is raised again by :meth:`Worker.result` with its type, message and attributes, the worker's
 traceback attached as its ``__cause__``: an :class:`~fmu_opinf.errors.FmuOpinfError` still ends as the
-command line's one-line error.  The worker ignores SIGINT and SIGTERM (the caller decides and stops it
-with :meth:`Worker.stop`) and exits when the calling process dies.
+command line's one-line error.  The worker ignores SIGINT (the caller decides), stops as after an interrupt
+on the SIGTERM of :meth:`Worker.stop` (its temporary files removed) and exits when the calling process dies.
 """
 
 from __future__ import annotations
@@ -28,6 +28,9 @@ from typing import Any
 __all__ = ["Worker", "can_fork", "labelled_output"]
 
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+#: Seconds a worker has to clean up after :meth:`Worker.stop` asked it to stop, before it is killed.
+STOP_GRACE = 3.0
 
 
 def can_fork() -> bool:
@@ -158,9 +161,16 @@ def exit_with_parent() -> None:
 
 
 def _worker_main(conn: Any, label: str, function: Callable[..., Any], args: tuple, kwargs: dict) -> None:
-    """Forked process: ignore SIGINT/SIGTERM, send labelled lines, then ``("done", value)`` or ``("error", ...)``."""
-    for signum in _SIGNALS:
-        signal.signal(signum, signal.SIG_IGN)
+    """Forked process: ignore SIGINT (a Ctrl-C reaches the parent, which decides), take SIGTERM (the parent's
+    :meth:`Worker.stop`) as an interrupt that cleans up, send labelled lines, then ``("done", value)`` or
+    ``("error", ...)``."""
+    from .errors import Interrupted
+
+    def interrupted(signum: int, frame: Any) -> None:
+        raise Interrupted(signum)
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, interrupted)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
     exit_with_parent()
     lock = threading.Lock()  # a thread of the call (e.g. a warning) may print while the main thread sends
@@ -252,7 +262,12 @@ class Worker:
                            f"(exit code {self._process.exitcode})")
 
     def stop(self) -> None:
-        """Kill the worker if it still runs, and release its pipe."""
+        """Stop the worker if it still runs, and release its pipe: SIGTERM first, which it takes as an interrupt
+        and cleans up after (killed at once, a demo worker left its temporary folders behind, audit 55), then
+        SIGKILL after :data:`STOP_GRACE` seconds."""
+        if self._process.is_alive():
+            self._process.terminate()
+            self._process.join(STOP_GRACE)
         if self._process.is_alive():
             self._process.kill()
         self._process.join()

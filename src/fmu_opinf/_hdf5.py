@@ -25,7 +25,7 @@ import numpy as np
 from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "output_target", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
+__all__ = ["atomic_h5", "atomic_path", "output_target", "REPLACED", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
            "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
@@ -63,7 +63,7 @@ def atomic_path(path: Path) -> Iterator[str]:
     if not parent.is_dir():
         raise FileFormatError(f"directory {parent} does not exist; create it first")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=parent)
+        fd, tmp = tempfile.mkstemp(prefix=path.name[:_TEMPORARY_PREFIX] + ".", suffix=".tmp", dir=parent)
     except OSError as exc:
         raise write_error(path, exc) from None
     os.close(fd)
@@ -73,10 +73,20 @@ def atomic_path(path: Path) -> Iterator[str]:
             check_interrupt()  # a Ctrl-C that Python swallowed in a finalizer: do not replace the previous file
             os.chmod(tmp, output_mode(path))
             os.replace(tmp, path)
+            REPLACED.append(path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+#: Characters of an output's name that its temporary file's name starts with (the rest of 255 for the random part).
+_TEMPORARY_PREFIX = 200
+
+#: The outputs this process wrote or replaced since the list was last cleared (the command line clears it at the
+#: start of a command and names them if it is interrupted: audit 55, ``build-fmus`` replaced one FMU of two and
+#: said that none was).
+REPLACED: list[Path] = []
 
 
 def output_target(path: str | os.PathLike) -> Path:

@@ -4,7 +4,7 @@ Python raises ``KeyboardInterrupt`` at an arbitrary bytecode.  When that bytecod
 ``ZipFile.__del__`` while an FMU's description is read, an h5py weakref callback), Python prints "Exception
 ignored" and goes on: the run continued to its end although the user pressed Ctrl-C.  Two mechanisms:
 
-* :func:`remembered_interrupts` (the command line, around a whole verb): SIGINT still raises at once, and is also
+* :func:`remembered_interrupts` (the command line, around a whole verb): SIGINT and SIGTERM raise at once, and are also
   remembered; :func:`check_interrupt` raises it again at the next safe point, so a swallowed one is not lost;
 * :func:`deferred_interrupts` (around a recording or simulation loop): SIGINT and SIGTERM only set the flag, and
   the loop stops at its next block.
@@ -44,14 +44,17 @@ def _in_main_thread() -> bool:
 
 @contextlib.contextmanager
 def remembered_interrupts() -> Iterator[None]:
-    """SIGINT raises :class:`~fmu_opinf.errors.Interrupted` at once and stays pending for :func:`check_interrupt`
-    until the block ends (a raise that Python swallows in a finalizer is raised again at the next safe point, and
-    not printed as "Exception ignored"); an error that leaves the block while it is pending is reported as the
-    interrupt.
+    """SIGINT, and SIGTERM where it has its default action, raise :class:`~fmu_opinf.errors.Interrupted` at once
+    and stay pending for :func:`check_interrupt` until the block ends (a raise that Python swallows in a finalizer
+    is raised again at the next safe point, and not printed as "Exception ignored"); an error that leaves the block
+    while it is pending is reported as the interrupt.  (SIGTERM's default action killed a fit, a comparison or an
+    export on the spot, outside the atomic writes: temporary folders and compilers were left behind, audit 55.)
 
-    Only in the main thread and when SIGINT is not ignored; otherwise nothing changes.
+    Only in the main thread and for a signal the process does not ignore; otherwise nothing changes.
     """
-    if not _in_main_thread() or _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN:
+    caught = [signum for signum in _SIGNALS if _signal.getsignal(signum) is not _signal.SIG_IGN
+              and (signum == _signal.SIGINT or _signal.getsignal(signum) is _signal.SIG_DFL)]
+    if not _in_main_thread() or not caught:
         yield
         return
 
@@ -62,9 +65,10 @@ def remembered_interrupts() -> Iterator[None]:
 
     previous_hook = sys.unraisablehook
     quiet_hook = _quiet_about_remembered(previous_hook)
-    previous = _signal.getsignal(_signal.SIGINT)
+    previous = {signum: _signal.getsignal(signum) for signum in caught}
     try:  # installed inside: a Ctrl-C between the two still restores both
-        _signal.signal(_signal.SIGINT, handler)
+        for signum in caught:
+            _signal.signal(signum, handler)
         sys.unraisablehook = quiet_hook
         yield
         check_interrupt()  # swallowed in a finalizer after the last safe point: the run still ends interrupted
@@ -73,7 +77,8 @@ def remembered_interrupts() -> Iterator[None]:
             raise Interrupted(_pending[0]) from exc
         raise
     finally:
-        _signal.signal(_signal.SIGINT, previous)
+        for signum, old in previous.items():
+            _signal.signal(signum, old)
         sys.unraisablehook = previous_hook
         _pending.clear()
 

@@ -10,6 +10,7 @@ check raises a one-line :class:`~fmu_opinf.errors.FileFormatError` (structure, t
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -23,7 +24,7 @@ import numpy as np
 from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
-    "available_memory", "check_memory", "check_grid", "check_positive", "check_fraction", "check_patterns",
+    "available_memory", "check_memory", "check_name_length", "check_grid", "check_positive", "check_fraction", "check_patterns",
     "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real",
     "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS",
     "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
@@ -119,6 +120,16 @@ def _existing_ancestor(path: Path) -> Path:
     while not path.exists() and path != path.parent:
         path = path.parent
     return path
+
+
+def check_name_length(path: str | os.PathLike, option: str) -> None:
+    """A one-line error for a path the file system refuses as too long (it ended in a traceback, audit 55)."""
+    try:
+        os.stat(path)
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            raise FileFormatError(f"{option} names a path too long for the file system ({len(str(path))} "
+                                  "characters); choose a shorter one") from None
 
 
 def check_writable(path: str | os.PathLike, what: str, directory: bool = False) -> None:

@@ -352,7 +352,7 @@ def _run_demo(args: argparse.Namespace) -> None:
 def _run_build_fmus(args: argparse.Namespace) -> None:
     from .fmus import build_fmus, bundled_fmu_dir
 
-    out_dir = args.output if args.output else bundled_fmu_dir()
+    out_dir = args.output if args.output is not None else bundled_fmu_dir()
     for path in build_fmus(out_dir=out_dir, g=args.g, n1=args.n1):
         print(f"built {path}")
 
@@ -363,6 +363,11 @@ def _check_arguments(args: argparse.Namespace) -> None:
 
     for option in ("positions", "velocities", "accelerations", "inputs", "outputs"):
         v.check_patterns(getattr(args, option, None), "--" + option)
+    for option, flag in (("output", "-o"), ("figures", "--figures")):   # ("" is the current folder, audit 55)
+        if getattr(args, option, None) == "":
+            raise InputSpecError(f"{flag} is empty; give a path")
+        if getattr(args, option, None) is not None:
+            v.check_name_length(getattr(args, option), flag)
     for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
     for option, least in (("r", 1), ("g", 1), ("n1", 1), ("refine_iterations", 0)):
@@ -445,9 +450,11 @@ def _main(argv: Sequence[str] | None) -> int:
     try:
         with remembered_interrupts():  # a Ctrl-C swallowed in a finalizer is raised again at the next safe point
             # imported here, not at the top: numpy and fmpy take a while, and a Ctrl-C meanwhile is an interrupt
+            from ._hdf5 import REPLACED
             from .snapshots._isolation import _FORK_SERVER, use_fork_server
 
             args = build_parser().parse_args(argv)
+            REPLACED.clear()
             warnings.showwarning = _one_line_warning
             before = _FORK_SERVER["enabled"]
             use_fork_server(True)
@@ -459,14 +466,29 @@ def _main(argv: Sequence[str] | None) -> int:
     except (FmuOpinfError, FileExistsError) as exc:
         print("fmu-opinf: error: " + " ".join(str(exc).split()), file=sys.stderr)  # one line, always
         return 2
-    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM during a recording (snapshots.Interrupted)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (snapshots.Interrupted)
         signum = getattr(exc, "signum", 2)
-        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); no output file was "
-              "written or replaced", file=sys.stderr)
+        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); {_left_behind(argv)}",
+              file=sys.stderr)
         return 128 + signum
     finally:
         warnings.showwarning = previous
     return 0
+
+
+def _left_behind(argv: Sequence[str] | None) -> str:
+    """What an interrupted command leaves: the outputs it replaced before the interrupt (:data:`_hdf5.REPLACED`),
+    or none; the demo's cases, written by worker processes, are not counted here: it says what it may have left."""
+    from ._hdf5 import REPLACED
+
+    words = list(sys.argv[1:] if argv is None else argv)
+    if words[:1] == ["demo"]:
+        return ("the demo folder may hold this run's files beside the previous run's (each file is whole); run the "
+                "demo again")
+    if not REPLACED:
+        return "no output file was written or replaced"
+    return (f"written before it: {', '.join(str(path) for path in REPLACED)}; every other output was left as it "
+            "was")
 
 
 def run() -> None:

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ._hdf5 import atomic_path, jsonable, write_error
-from .errors import DimensionError, FileFormatError, FmuOpinfError, InputSpecError
+from .errors import DataError, DimensionError, FileFormatError, FmuOpinfError, InputSpecError
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -824,6 +824,12 @@ def plotted_outputs(comparison: Comparison) -> list[int]:
     return sorted(np.argsort(-relative, kind="stable")[:MAX_OUTPUT_PANELS].tolist())
 
 
+def _as_text(label: str) -> str:
+    """A label from the data drawn as it is: matplotlib reads ``$...$`` as math (audit 55: an output named
+    ``$x^{$`` ended the comparison with a parse error)."""
+    return label.replace("$", r"\$")
+
+
 def _figure_outputs(comparison: Comparison, path: Path) -> None:
     import matplotlib
 
@@ -839,7 +845,7 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     for j, ax in zip(shown, axes[:, 0]):
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
-        ax.set_ylabel(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else ""))
+        ax.set_ylabel(_as_text(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else "")))
         _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t [s]")
@@ -847,7 +853,7 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
     which = "" if len(shown) == p else f" ({len(shown)} of {p} outputs: the largest errors relative to their peak)"
-    fig.suptitle(f"Outputs, input {comparison.input_spec}{which}", y=1.0 - 0.3 / fig.get_figheight())
+    fig.suptitle(_as_text(f"Outputs, input {comparison.input_spec}{which}"), y=1.0 - 0.3 / fig.get_figheight())
     fixed_margins(fig, left=0.95, bottom=0.5, top=0.75)
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
@@ -950,8 +956,13 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
     with tempfile.TemporaryDirectory() as tmp:
         figures = {"Outputs of full-order model and ROM (paper Figs. 9-10 a-c)": Path(tmp) / "outputs.png",
                    "Relative output error eq. (19) over time (paper Figs. 9-10 d)": Path(tmp) / "error.png"}
-        _figure_outputs(comparison, figures["Outputs of full-order model and ROM (paper Figs. 9-10 a-c)"])
-        _figure_error(comparison, figures["Relative output error eq. (19) over time (paper Figs. 9-10 d)"])
+        try:
+            _figure_outputs(comparison, figures["Outputs of full-order model and ROM (paper Figs. 9-10 a-c)"])
+            _figure_error(comparison, figures["Relative output error eq. (19) over time (paper Figs. 9-10 d)"])
+        except (ValueError, OverflowError) as exc:   # (audit 55: outputs of 1.7e308 from a damaged ROM's y0)
+            peak = max(float(np.max(np.abs(y), initial=0.0)) for y in (comparison.y_fom, comparison.y_rom))
+            raise DataError(f"the comparison's figures cannot be drawn ({' '.join(str(exc).split())[:120]}); "
+                            f"the outputs reach {peak:.3g}: check the ROM and the source") from None
         files.update({png.name: png.read_bytes() for png in figures.values()})
         all_figures = {**figures, **(extra_figures or {})}
         page = _html_page(comparison, metrics, all_figures)
@@ -970,7 +981,7 @@ def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
     renames, which need no space, start only once every byte is written (eleventh audit: new figures and
     metrics beside the old page after a full disk).
     """
-    from ._hdf5 import output_mode, output_target
+    from ._hdf5 import REPLACED, output_mode, output_target
     from ._interrupts import deferred_interrupts
 
     targets = {name: output_target(folder / name) for name in files}
@@ -985,6 +996,7 @@ def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
                 os.chmod(tmp, output_mode(targets[name]))
                 os.replace(tmp, targets[name])
                 del temporary[name]
+            REPLACED.append(folder)
     except OSError as exc:
         raise write_error(folder / name, exc) from None
     finally:

@@ -245,8 +245,13 @@ def _modal_matrices(rom: Any, c_matrices: dict[str, np.ndarray], dt: float | Non
             raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
     else:
         M, D, K = (c_matrices[name] for name in ("reducedMass", "reducedDamping", "reducedStiffness"))
-        phi, gamma_new, gamma_old = step_matrices(M, D, K, forced, dt)
+        try:
+            phi, gamma_new, gamma_old = step_matrices(M, D, K, forced, dt)
+        except (ValueError, np.linalg.LinAlgError):   # (audit 55: a ROM file's dt of 1e300)
+            phi = gamma_new = gamma_old = np.full((1, 1), np.nan)
         gamma = gamma_new + gamma_old           # the kernel updates the acceleration for a new input first
+    if not (np.isfinite(phi).all() and np.isfinite(gamma).all()):
+        raise DataError(f"the ROM's step map at dt={dt:g} is not finite; choose a smaller --step")
     form = modal_form(phi, gamma)
     if form is None:
         return {}

@@ -1009,7 +1009,7 @@ def _compile_cmake(unzipdir: Path, build_dir: Path, cmake: str) -> None:
 
 
 def _write_zip(unzipdir: Path, path: Path) -> None:
-    from ._hdf5 import output_target
+    from ._hdf5 import REPLACED, output_target
 
     path = output_target(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -1023,6 +1023,7 @@ def _write_zip(unzipdir: Path, path: Path) -> None:
         check_interrupt()  # a Ctrl-C swallowed in a finalizer: the previous FMU stays
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
+        REPLACED.append(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -1061,20 +1062,35 @@ def build_second_order_fmu(spec: SecondOrderFmuSpec, path: str | os.PathLike,
                             f"{error.strerror}; choose a writable path") from error
     with tempfile.TemporaryDirectory(prefix="fmu-opinf-build-") as tmp:
         unzipdir = Path(tmp) / "fmu"
-        for name, content in files.items():
-            target = unzipdir / name
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_bytes(content)
-        if compile:
-            build_dir = Path(tmp) / "build"
-            build_dir.mkdir()
-            _compile(unzipdir, build_dir, cmake)
+        try:
+            for name, content in files.items():
+                target = unzipdir / name
+                target.parent.mkdir(parents=True, exist_ok=True)
+                target.write_bytes(content)
+            if compile:
+                build_dir = Path(tmp) / "build"
+                build_dir.mkdir()
+                _compile(unzipdir, build_dir, cmake)
+        except (OSError, FmuBuildError) as error:
+            raise _no_room_to_build(Path(tmp)) or (error if isinstance(error, FmuBuildError) else FmuBuildError(
+                f"cannot write the FMU's sources into {tmp}: {error.strerror}; choose another TMPDIR")) from None
         try:
             _write_zip(unzipdir, path)
         except OSError as error:
             raise FmuBuildError(f"cannot write {path}: {error.strerror}; choose a writable "
                                 "path") from error
     return path
+
+
+def _no_room_to_build(folder: Path) -> FmuBuildError | None:
+    """The error of a build that failed for want of room in its temporary ``folder`` (a full disk, or a file size
+    limit: the compiler then reported an "internal compiler error", audit 55), else None."""
+    from ._hdf5 import SPACE_MARGIN, free_space
+
+    if free_space(folder / "probe") >= SPACE_MARGIN:
+        return None
+    return FmuBuildError(f"cannot build the FMU in the temporary folder {folder.parent}: the disk is full or a file "
+                         "size limit is set (ulimit -f); free space there, lift the limit or set TMPDIR")
 
 
 def build_fmus(out_dir: str | os.PathLike = "fmus",

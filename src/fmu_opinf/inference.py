@@ -638,7 +638,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from .errors import DataError, DimensionError, FmuOpinfWarning
+from .errors import DataError, DimensionError, FmuOpinfWarning, InputSpecError
 from ._realization import first_order_matrix, mechanical_realization
 from ._background import Background, can_fork_here
 from .basis import column_blocks
@@ -1257,6 +1257,12 @@ def _residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u) -> dict[str, float]:
     return {"objective": float(np.sum(resid**2)), "relative_residual": float(np.linalg.norm(resid) / ref)}
 
 
+def _check_cutoff(cutoff: float, dt: float) -> None:
+    if not 0 < cutoff < np.pi / dt:
+        raise InputSpecError(f"lowpass cutoff {cutoff:g} rad/s must lie in (0, pi/dt = {np.pi / dt:.4g}) rad/s; "
+                             "give a smaller --lowpass")
+
+
 def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: int = 4) -> list[np.ndarray]:
     """Zero-phase Butterworth low-pass along time, applied identically to every row of every array.
 
@@ -1282,8 +1288,7 @@ def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: in
     """
     import scipy.signal
 
-    if not 0 < cutoff < np.pi / dt:
-        raise ValueError(f"lowpass cutoff {cutoff} rad/s must lie in (0, pi/dt = {np.pi / dt:.4g}) rad/s")
+    _check_cutoff(cutoff, dt)
     sos = scipy.signal.butter(order, cutoff / (2 * np.pi), btype="low", fs=1.0 / dt, output="sos")
     k = arrays[0].shape[1]
     padlen = min(k - 1, 3 * (2 * sos.shape[0] + 1))

@@ -65,7 +65,8 @@ from ._sdp_paths import FACTORED_ABOVE
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError, FmuOpinfWarning, InputSpecError
-from .inference import TERM_SIGNIFICANCE, fit_operators, fit_output_map, lowpass_filter, term_residuals
+from .inference import (TERM_SIGNIFICANCE, _check_cutoff, fit_operators, fit_output_map, lowpass_filter,
+                        term_residuals)
 
 if TYPE_CHECKING:
     from .signals import Signal
@@ -994,6 +995,9 @@ def fit_rom(
     say = log or ((lambda line: None) if quiet else _stderr)
     if refit_output_map and (refine is False or lowpass is not None):
         raise _refit_without_refinement()
+    if lowpass is not None:   # (checked before the POD, not after it)
+        for run in runs:
+            _check_cutoff(lowpass, float(np.diff(np.asarray(run.t[:2], dtype=float))[0]))
     start = time.perf_counter()
     x_ref = _reference_position(runs)
     centred_runs = [_CentredRun(run, x_ref) for run in runs] if np.any(x_ref) else runs
@@ -1159,14 +1163,14 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
     continuous-time source).  ``refine=False`` keeps the SDP solution: neither.
     """
     if refine not in ("auto", True, False):
-        raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
+        raise InputSpecError(f"refine={refine!r} is not known; use 'auto', True or False")
     dt = _training_dt(runs, attrs)
     steps = {round(float(np.diff(np.asarray(run.t[:2], dtype=float))[0]), 12) for run in runs
              if _run_length(run) > 1}
     lengths = [_run_length(run) for run in runs]
     possible = lowpass is None and dt is not None and len(steps) == 1 and min(lengths) >= 2 and "f_h" not in data
     if refine is True and not possible:
-        raise ValueError("refine=True needs no lowpass, one training step dt and sampled states (not interval "
+        raise InputSpecError("refine=True needs no lowpass, one training step dt and sampled states (not interval "
                          "averages)")
     if refine is False or not possible:
         return {}
@@ -1227,7 +1231,7 @@ def _integrator(requested: str, attrs: dict) -> str:
     """``integrator="auto"``: Newmark for Newmark sources (builtin simulator, fmu-opinf benchmark FMUs)."""
     if requested != "auto":
         if requested not in INTEGRATORS:
-            raise ValueError(f"integrator={requested!r} is not known; use 'auto', 'newmark' or 'exact'")
+            raise InputSpecError(f"integrator={requested!r} is not known; use 'auto', 'newmark' or 'exact'")
         return requested
     continuous_source = attrs.get("source_kind") == "fmu" and attrs.get("fmu_generation_tool") != "fmu-opinf"
     return "exact" if continuous_source else "newmark"
@@ -1245,7 +1249,7 @@ def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
     names = [t.strip() for t in (terms.split(",") if isinstance(terms, str) else terms) if t.strip()]
     unknown = [t for t in names if t not in TERMS]
     if unknown:
-        raise ValueError(f"terms {unknown} are not known; use 'auto', 'none', 'all' or a list of {', '.join(TERMS)}")
+        raise InputSpecError(f"terms {unknown} are not known; use 'auto', 'none', 'all' or a list of {', '.join(TERMS)}")
     return {name: name in names for name in TERMS}
 
 

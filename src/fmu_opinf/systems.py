@@ -123,6 +123,18 @@ def _chain_matrix(link: np.ndarray, ground: np.ndarray) -> sp.csr_matrix:
     return sp.diags([-link, diagonal, -link], [-1, 0, 1], format="csr")
 
 
+#: Vectors of length n that building and simulating a benchmark system holds at least (its sparse matrices,
+#: their factors, the Newmark state): the measure of :func:`_check_size`.
+_VECTORS_PER_DOF = 40
+
+
+def _check_size(n: int, what: str, fix: str) -> None:
+    """One line instead of a MemoryError where ``n`` degrees of freedom cannot fit (audit 55: g = 1e11, 745 GiB)."""
+    from ._validate import check_memory
+
+    check_memory(8.0 * _VECTORS_PER_DOF * n, what, fix)
+
+
 def anchored_msd(g: int = 600, mass: float = 100.0, k1: float = 2.0, d1: float = 5.0,
                  k2: float = 2.0, d2: float = 5.0) -> SecondOrderSystem:
     """Anchored chain of ``g`` masses whose two ends are joined by a rigid bar (index 3).
@@ -133,6 +145,7 @@ def anchored_msd(g: int = 600, mass: float = 100.0, k1: float = 2.0, d1: float =
     """
     if g < 4:
         raise DimensionError(f"the anchored chain needs g >= 4 masses, got g={g}")
+    _check_size(g, f"the anchored chain with g={g}", "give a smaller --g")
     link_k = np.full(g - 1, k1)
     link_d = np.full(g - 1, d1)
     ground_k = np.full(g, k2)
@@ -177,6 +190,7 @@ def triple_chain(n1: int = 100, alpha: float = 0.01, beta: float = 0.01, v: floa
     """
     if n1 < 2 or n1 % 2:
         raise DimensionError(f"the triple chain needs an even n1 >= 2, got n1={n1}")
+    _check_size(3 * n1 + 1, f"the triple chain with n1={n1}", "give a smaller --n1")
     n = 3 * n1 + 1
     mass = np.concatenate([np.full(n1, mc) for mc in masses] + [np.array([m0])])
     block = sp.diags([-np.ones(n1 - 1), 2 * np.ones(n1), -np.ones(n1 - 1)], [-1, 0, 1])

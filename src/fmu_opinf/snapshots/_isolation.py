@@ -172,14 +172,14 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
     deadline = None if timeout is None else _time.monotonic() + timeout
     k, width = len(t), source.width
     cap = sink.block
+    ctx = _process_context()
+    forked = ctx.get_start_method() == "forkserver"
+    payload = pickle.dumps(source) if forked else source   # (before the block: a source that fails to pickle,
+    inherited = _Inherited(dict(os.environ)) if forked else None   # an FMU that does not unpack, left it behind)
     shm = shared_memory.SharedMemory(create=True, size=_HEADER + 8 * cap * max(width, 1))
     count = np.ndarray((1,), dtype=np.int64, buffer=shm.buf[:8])
     rows = np.ndarray((cap, width), dtype=np.float64, buffer=shm.buf[_HEADER:])
     count[0] = 0
-    ctx = _process_context()
-    forked = ctx.get_start_method() == "forkserver"
-    payload = pickle.dumps(source) if forked else source
-    inherited = _Inherited(dict(os.environ)) if forked else None
     here, there = ctx.Pipe()
     proc = ctx.Process(target=_child_main, args=(there, shm.name, cap, payload, t, U, inherited), daemon=True)
     i0 = 0

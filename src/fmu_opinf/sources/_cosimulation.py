@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import errno
 import itertools
 import math
 import multiprocessing.util
@@ -590,13 +591,15 @@ class FMUSource(Source):
 
             folder = tempfile.mkdtemp(prefix="fmu_opinf_")
             try:
+                _check_room_to_unpack(self.path, folder)
                 extract(str(self.path), unzipdir=folder)
                 if self._compiled:
                     install_binaries(Path(folder), binary_platform(self.fmi_version), self._compiled)
-            except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+            except BaseException as exc:
                 shutil.rmtree(folder, ignore_errors=True)
-                raise FMUError(f"{self.path.name} cannot be unpacked ({type(exc).__name__}: {exc}); the file is "
-                               "damaged or incomplete: copy or export the FMU again") from None
+                if isinstance(exc, FMUError) or not isinstance(exc, Exception):
+                    raise
+                raise _unpack_error(self.path, folder, exc) from None
             self._unzipdir = folder
             # multiprocessing's finalizer, not weakref.finalize: it also runs when a worker process of
             # multiprocessing ends (they leave by os._exit, past atexit), and a forked child never runs the
@@ -1002,6 +1005,32 @@ class FMUSource(Source):
                 fmu.freeInstance()
             except Exception:
                 pass
+
+
+def _check_room_to_unpack(path: Path, folder: str) -> None:
+    """Refuse an archive whose members unpack to more than the temporary folder can hold (audit 55: a 1 MB zip
+    bomb filled 1 GiB of the temporary folder on every run)."""
+    from .._hdf5 import SPACE_MARGIN, free_space
+
+    with zipfile.ZipFile(path) as archive:
+        needed = sum(member.file_size for member in archive.infolist())
+    room = free_space(Path(folder) / "member")
+    if needed + SPACE_MARGIN > room:
+        raise FMUError(f"{path.name} unpacks to {needed / 2**30:.3g} GiB, more than the temporary folder "
+                       f"{Path(folder).parent} can take now ({max(room, 0.0) / 2**30:.3g} GiB: its free space, or a "
+                       "file size limit); free space there, lift the limit or set TMPDIR to a larger folder")
+
+
+def _unpack_error(path: Path, folder: str, exc: Exception) -> FMUError:
+    """One line for an FMU that cannot be unpacked: no room, a member name fmpy refuses, or a damaged archive."""
+    text = " ".join(str(exc).split())[:200]
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+        return FMUError(f"{path.name} cannot be unpacked into the temporary folder {Path(folder).parent}: "
+                        f"{exc.strerror} (a full disk or a file size limit); free space there or set TMPDIR")
+    if text.startswith("Illegal path"):   # (fmpy: an absolute member name, or one with ':' or '\\')
+        return FMUError(f"{path.name} cannot be unpacked: {text}; repack the FMU with plain relative member names")
+    return FMUError(f"{path.name} cannot be unpacked ({type(exc).__name__}: {text}); the file is damaged or "
+                    "incomplete: copy or export the FMU again")
 
 
 def _few(names: list[str], limit: int = 4) -> str:
