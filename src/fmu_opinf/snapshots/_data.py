@@ -231,7 +231,8 @@ class Snapshots:
             raise FileFormatError(f"snapshot file {path} is a directory; give the .h5 file that "
                                   "'fmu-opinf snapshots' wrote")
         if not path.is_file():
-            raise FileFormatError(f"snapshot file {path} does not exist")
+            raise FileFormatError(f"snapshot file {path} " + ("is not a regular file; give the .h5 file that "
+                                  "'fmu-opinf snapshots' wrote" if path.exists() else "does not exist"))
         try:
             f = h5py.File(path, "r")
         except OSError:
@@ -268,6 +269,7 @@ class Snapshots:
             check_attr_types(run_attrs, SNAPSHOT_RUN_ATTRS, f"{path}: run {name}")
             initial = {a: np.array(g[a][()]) for a in INITIAL if a in g}  # layout 1 has none: first samples
             runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=run_attrs, **initial))
+        _check_per_column(attrs, sizes, path)
         return cls(runs, attrs)
 
     def close(self) -> None:
@@ -289,6 +291,24 @@ class Snapshots:
         except DataError:
             sizes = "empty"
         return f"Snapshots({sizes}, runs k=[{ks}], constraint={self.attrs.get('constraint', 'unknown')!r})"
+
+
+def _check_per_column(attrs: dict[str, Any], sizes: dict[str, Any], path: Path) -> None:
+    """One name per position, input and output, and one finite start value per input (audit 55: a damaged file's
+    extra output name went unseen and the report labelled the outputs wrongly; NaN start values made the exported
+    ROM FMU's inputs start at 0 without a word)."""
+    for key, size in (("position_names", "n"), ("input_names", "m"), ("output_names", "p"), ("input_starts", "m")):
+        values, count = attrs.get(key), sizes.get(size)
+        if values is None or count is None:
+            continue
+        values = list(np.ravel(values)) if isinstance(values, np.ndarray) else values
+        wrong = not isinstance(values, (list, tuple)) or len(values) != int(count)
+        if not wrong and key == "input_starts":
+            wrong = not all(isinstance(v, (int, float, np.number)) and np.isfinite(v) for v in values)
+        if wrong:
+            raise FileFormatError(f"{path}: its {key.replace('_', ' ')} do not give one "
+                                  f"{'finite number' if key == 'input_starts' else 'name'} for each of its {count} "
+                                  "columns; the file is damaged: record the snapshots again")
 
 
 def _short(value: Any) -> str:

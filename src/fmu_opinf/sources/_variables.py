@@ -225,8 +225,12 @@ def _parse_description(path: Path) -> Any:
         raise FMUError(f"{path} is not an fmu (not a zip archive); give an .fmu file")
     else:
         with zipfile.ZipFile(path) as zf:
-            if "modelDescription.xml" not in zf.namelist():
+            names = zf.namelist()
+            if "modelDescription.xml" not in names:
                 raise FMUError(f"{path} is not an fmu (no modelDescription.xml inside)")
+            if names.count("modelDescription.xml") > 1:   # (which one a reader takes is its own choice)
+                raise FMUError(f"{path} holds modelDescription.xml {names.count('modelDescription.xml')} times; "
+                               "repack the FMU with one")
     try:
         return read_model_description(str(path), validate=False)
     except Exception as exc:  # fmpy raises plain Exception / lxml errors
