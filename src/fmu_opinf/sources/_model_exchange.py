@@ -439,7 +439,8 @@ class ModelExchangeSource(FMUSource):
                   f"of {t1 - t0:.3g} s: {causes}derivatives that jump without event indicators (Coulomb friction "
                   "sign(v), a relay, a table) or are rounded inside the FMU (single precision) make its steps "
                   f"collapse: {ways}loosen --tolerance (1e-6 for single precision), or give the model event "
-                  "indicators or smooth friction", stacklevel=2)
+                  "indicators or smooth friction; a linear model of many states that is none of these records "
+                  "faster by the exact hold step (--me-method linear)", stacklevel=2)
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
