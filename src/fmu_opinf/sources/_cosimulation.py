@@ -1034,7 +1034,8 @@ def _unpack_error(path: Path, folder: str, exc: Exception) -> FMUError:
 
 
 def _few(names: list[str], limit: int = 4) -> str:
-    """``a, b, c, d, ... (n)`` for long lists."""
+    """``a, b, c, d, ... (n)`` for long lists, each name printable (audit 55: a newline in a name broke the line)."""
+    names = ["".join(c if c.isprintable() else repr(c)[1:-1] for c in name) for name in names]
     if len(names) <= limit:
         return ", ".join(names)
     return ", ".join(names[:limit - 1]) + f", ..., {names[-1]} ({len(names)})"
