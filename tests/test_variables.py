@@ -233,18 +233,19 @@ def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
                                                                "parameter"]
 
 
-def test_ports_keep_the_declared_order_with_numbered_groups_in_natural_order(tmp_path):
+def test_ports_keep_the_declared_order(tmp_path):
     """Per-body ports as block-diagram exports declare them (seventh audit, 2026-11-27: inputs F_mass1, F_ext,
     F_mass3 became F_ext, F_mass1, F_mass3 and outputs x1, v1, x3, v3 became x1, x3, v1, v3 on the exported ROM
     FMU, so a master wiring it by position swapped signals); a group a tool sorted by name (y[1], y[10], y[2])
-    still fills its places in natural order."""
+    keeps that order too: it is the source's port order (audit 56: put in natural order, a group such as
+    mass10, mass9 declared in an order of its own was swapped)."""
     v = [_sv("F_mass1", 0, "input", body='<Real start="0"/>'), _sv("F_ext", 1, "input", body='<Real start="0"/>'),
          _sv("F_mass3", 2, "input", body='<Real start="0"/>')]
     v += [_sv(name, 10 + i, "output") for i, name in enumerate(["x1", "v1", "x3", "v3", "y[1]", "y[10]", "y[2]"])]
     v += [_sv("x[1]", 30), _sv("v[1]", 31)]
     resolved = resolve_variables(_write(tmp_path, _fmi2(v, [])))
     assert _names(resolved.forces) == ["F_mass1", "F_ext", "F_mass3"]
-    assert _names(resolved.outputs) == ["x1", "v1", "x3", "v3", "y[1]", "y[2]", "y[10]"]
+    assert _names(resolved.outputs) == ["x1", "v1", "x3", "v3", "y[1]", "y[10]", "y[2]"]
 
 
 # ------------------------------------------------------------------------------- FMI 3 arrays
@@ -520,7 +521,7 @@ def test_commas_inside_brackets_and_quotes_belong_to_the_name():
     assert match_names("sensor[1,1],mass[2,1].s", names) == ["sensor[1,1]", "mass[2,1].s"]
 
 
-def test_default_outputs_keep_the_declared_port_order_unless_it_is_merely_alphabetical():
+def test_default_outputs_keep_the_declared_port_order():
     from types import SimpleNamespace
 
     from fmu_opinf.sources._variables import select_outputs
@@ -529,17 +530,13 @@ def test_default_outputs_keep_the_declared_port_order_unless_it_is_merely_alphab
         return {n: SimpleNamespace(name=n, alias=None, var=SimpleNamespace(causality="output", is_real=True))
                 for n in names}
 
-    ports = ["y[1]", "y[2]", "forceSensor[1].f", "forceSensor[2].f"]
-    assert [e.name for e in select_outputs(None, elements(ports), None)] == ports
-    alphabetical = ["y[10]", "y[11]", "y[1]", "y[2]"]  # a tool that sorts variables by name
-    assert [e.name for e in select_outputs(None, elements(alphabetical), None)] == ["y[1]", "y[2]", "y[10]", "y[11]"]
-    flat = ["y1", "y10", "y2", "sensor[2].v", "sensor[1].v", "sensor[1].f"]
-    assert [e.name for e in select_outputs(None, elements(flat), None)] == \
-        ["y1", "y2", "y10", "sensor[2].v", "sensor[1].v", "sensor[1].f"]
-    # a group in an order of its own is the FMU's port order (audit 54: an OpenModelica export declared mass4's
-    # output before mass2's, and the exported ROM FMU swapped them)
-    own = ["_D_outputAlias_mass4_s", "_D_outputAlias_mass2_s"]
-    assert [e.name for e in select_outputs(None, elements(own), None)] == own
+    # an order of the FMU's own (audit 54: an OpenModelica export declared mass4's output before mass2's; audit 56:
+    # mass10's before mass9's, which is also the order of a sort by name) and one a tool sorted by name
+    for declared in (["y[1]", "y[2]", "forceSensor[1].f", "forceSensor[2].f"], ["y[10]", "y[11]", "y[1]", "y[2]"],
+                     ["y1", "y10", "y2", "sensor[2].v", "sensor[1].v", "sensor[1].f"],
+                     ["_D_outputAlias_mass4_s", "_D_outputAlias_mass2_s"],
+                     ["_D_outputAlias_mass10_s", "_D_outputAlias_mass9_s"]):
+        assert [e.name for e in select_outputs(None, elements(declared), None)] == declared
 
 
 def test_recorded_names_with_commas_become_one_exact_pattern_each():

@@ -1086,28 +1086,12 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
 
 
 def port_order(declared: list[Element]) -> list[Element]:
-    """The ports in the order the FMU declares them, except that names differing only in numbers (``y[3]``,
-    ``y1``, ``sensor[2].f``) that a tool sorted by name (``y[10]`` before ``y[2]``) fill the places of their group
-    in natural order.  Groups stay interleaved as declared: per-body ports ``x1, v1, x3, v3`` keep that order
-    (seventh audit, 2026-11-27: they became ``x1, x3, v1, v3``, and inputs ``F_mass1, F_ext, F_mass3`` became
-    ``F_ext, F_mass1, F_mass3``, so a master wiring the exported ROM FMU by position swapped signals), and so
-    does a group declared in an order of its own (audit 54: ``..._mass4_s`` before ``..._mass2_s`` was swapped)."""
-    places: dict[str, list[int]] = {}
-    for i, e in enumerate(declared):
-        places.setdefault(_numbers_masked(e.name), []).append(i)
-    ordered = list(declared)
-    for indices in places.values():
-        if not _sorted_by_name([declared[i].name for i in indices]):
-            continue
-        for i, e in zip(indices, sorted((declared[i] for i in indices), key=lambda e: natural_key(e.name))):
-            ordered[i] = e
-    return ordered
-
-
-def _sorted_by_name(names: list[str]) -> bool:
-    """Whether ``names`` are in the order a tool that sorts by name gives: as strings, or by their letters and
-    digits alone (``y[1], y[10], y[2]``)."""
-    return names == sorted(names) or names == sorted(names, key=lambda name: re.sub(r"[^0-9A-Za-z]", "", name))
+    """The ports in the order the FMU declares them: the exported ROM FMU replaces the source in a master that may
+    wire it by position.  (Until 2026-12-06 names that differ only in numbers were put in natural order, or, after
+    audit 54, where a group was in an order a tool sorting by name gives; audit 56 found that a group of two, such
+    as ``..._mass10_s, ..._mass9_s``, is in that order by chance, and the exported ROM FMU swapped the signals.
+    The seventh audit, 2026-11-27, had found interleaved groups reordered.)"""
+    return list(declared)
 
 
 def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
@@ -1127,12 +1111,6 @@ def parameter_like_inputs(model: ModelInfo, held: Sequence[Element], given: Coll
     about (:func:`fmu_opinf.sources.open_source`)."""
     return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
             and looks_like_parameter(e, model)]
-
-
-def _numbers_masked(name: str) -> str:
-    """The name with its numbers replaced (``y#``, ``sensor[#].f``): outputs that differ only in numbers form one
-    group."""
-    return re.sub(r"\d+", "#", name)
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
