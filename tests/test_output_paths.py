@@ -92,3 +92,37 @@ def test_build_fmus_interrupted_after_one_fmu_names_it(tmp_path, monkeypatch, ca
     assert capsys.readouterr().err.strip() == (f"fmu-opinf: interrupted (Ctrl-C); written before it: {built[0]}; "
                                                "every other output was left as it was")
     assert [p.name for p in tmp_path.iterdir()] == [built[0].name]
+
+
+def test_a_link_or_a_pipe_among_a_report_s_or_the_figures_files_is_refused_before_the_work(tmp_path):
+    """Audit 56: a report's outputs.png linked to the ROM being compared overwrote the ROM (written through the
+    link), ``fit --figures`` wrote through a link into its input, and a pipe among the figures ended the fit in
+    a traceback after its work."""
+    from fmu_opinf import compare, rom
+
+    snaps = tmp_path / "s.h5"
+    snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
+    rom.fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
+    before = (tmp_path / "rom.h5").read_bytes()
+    report = tmp_path / "report"
+    report.mkdir()
+    (report / "metrics.json").write_text("{}")
+    (report / "outputs.png").symlink_to(tmp_path / "rom.h5")
+    done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(report), "--input",
+                   "harmonic:amplitude=1,omega=0.2", "--dt", "0.5", "--t-end", "20")
+    assert done.returncode == 2 and done.stderr.strip().splitlines() == [
+        f"fmu-opinf: error: {report / 'outputs.png'} is a symbolic link; the files of {report} are written there: "
+        "remove it or choose another folder"]
+    with pytest.raises(FileFormatError, match="is a symbolic link"):   # the API, with its work done
+        compare.write_report(compare.compare(tmp_path / "rom.h5", "builtin:anchored-msd", "harmonic:amplitude=1,"
+                                             "omega=0.2", dt=0.5, t_end=20.0, quiet=True), report)
+    assert (tmp_path / "rom.h5").read_bytes() == before
+
+    figures = tmp_path / "figures"
+    figures.mkdir()
+    os.mkfifo(figures / "singular_values.png")
+    done = run_cli("fit", str(snaps), "-o", str(tmp_path / "r2.h5"), "--r", "2", "--figures", str(figures))
+    assert done.returncode == 2 and "Traceback" not in done.stderr and done.stderr.strip().splitlines()[-1] == (
+        f"fmu-opinf: error: {figures / 'singular_values.png'} is not a plain file; the files of {figures} are "
+        "written there: remove it or choose another folder")
+    assert not (tmp_path / "r2.h5").exists()

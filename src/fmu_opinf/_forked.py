@@ -164,13 +164,10 @@ def _worker_main(conn: Any, label: str, function: Callable[..., Any], args: tupl
     """Forked process: ignore SIGINT (a Ctrl-C reaches the parent, which decides), take SIGTERM (the parent's
     :meth:`Worker.stop`) as an interrupt that cleans up, send labelled lines, then ``("done", value)`` or
     ``("error", ...)``."""
-    from .errors import Interrupted
-
-    def interrupted(signum: int, frame: Any) -> None:
-        raise Interrupted(signum)
+    from ._interrupts import interrupt_once_on_sigterm
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, interrupted)
+    interrupt_once_on_sigterm()
     signal.pthread_sigmask(signal.SIG_UNBLOCK, _SIGNALS)
     exit_with_parent()
     lock = threading.Lock()  # a thread of the call (e.g. a warning) may print while the main thread sends

@@ -25,7 +25,7 @@ import numpy as np
 from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "output_target", "REPLACED", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
+__all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "REPLACED", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
            "sha256_of", "write_attrs", "read_attrs", "jsonable"]
 
 
@@ -53,10 +53,11 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
 
 
 @contextlib.contextmanager
-def atomic_path(path: Path) -> Iterator[str]:
+def atomic_path(path: Path, output: bool = True) -> Iterator[str]:
     """A temporary file name next to ``path``, renamed to ``path`` if the block succeeds, else removed.
 
-    Interrupts (Ctrl-C, SIGTERM turned into an exception) remove it too, so no ``.tmp`` file is left.
+    Interrupts (Ctrl-C, SIGTERM turned into an exception) remove it too, so no ``.tmp`` file is left.  An
+    ``output`` is listed in :data:`REPLACED` (not a file of the tool's cache).
     """
     path = output_target(path)
     parent = path.parent if str(path.parent) else Path(".")
@@ -73,7 +74,8 @@ def atomic_path(path: Path) -> Iterator[str]:
             check_interrupt()  # a Ctrl-C that Python swallowed in a finalizer: do not replace the previous file
             os.chmod(tmp, output_mode(path))
             os.replace(tmp, path)
-            REPLACED.append(path)
+            if output:
+                REPLACED.append(path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -96,12 +98,27 @@ def output_target(path: str | os.PathLike) -> Path:
     target = Path(os.path.realpath(path)) if os.path.islink(path) else Path(path)
     try:
         mode = os.stat(target).st_mode
-    except OSError:   # (nothing there yet, or a name the system refuses: the write says why)
+    except OSError as exc:   # (nothing there yet, or a name the system refuses: the write says why)
+        if exc.errno == errno.ELOOP:   # (audit 56: replaced by a plain file, without --force)
+            raise FileFormatError(f"{path} is a loop of symbolic links; give the name of a file to write") from None
         return target
     if not stat.S_ISREG(mode):
         kind = "a directory" if stat.S_ISDIR(mode) else "a device, a pipe or a socket"
         raise FileFormatError(f"{path} is {kind}, not a file; give the name of a file to write")
     return target
+
+
+def check_folder_entries(folder: str | os.PathLike) -> None:
+    """Refuse a folder of outputs (a report, figures) holding a symbolic link or anything but plain files and
+    folders: its files are written in the folder, not through a link (audit 56: a report's ``outputs.png`` linked
+    to the ROM being compared overwrote it; a pipe among the figures ended a fit in a traceback)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return
+    for entry in folder.iterdir():
+        if entry.is_symlink() or not (entry.is_file() or entry.is_dir()):
+            raise FileFormatError(f"{entry} is {'a symbolic link' if entry.is_symlink() else 'not a plain file'}; "
+                                  f"the files of {folder} are written there: remove it or choose another folder")
 
 
 @contextlib.contextmanager

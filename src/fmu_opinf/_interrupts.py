@@ -26,7 +26,7 @@ from typing import Any
 
 from .errors import Interrupted
 
-__all__ = ["check_interrupt", "deferred_interrupts", "remembered_interrupts"]
+__all__ = ["check_interrupt", "deferred_interrupts", "remembered_interrupts", "interrupt_once_on_sigterm"]
 
 _SIGNALS = (_signal.SIGINT, _signal.SIGTERM)
 _pending: list[int] = []  # signals received and not yet acted on by check_interrupt
@@ -81,6 +81,23 @@ def remembered_interrupts() -> Iterator[None]:
             _signal.signal(signum, old)
         sys.unraisablehook = previous_hook
         _pending.clear()
+
+
+def interrupt_once_on_sigterm() -> None:
+    """For a worker process that its caller stops by SIGTERM: the first SIGTERM raises
+    :class:`~fmu_opinf.errors.Interrupted` and stays pending for :func:`check_interrupt` (a raise that Python
+    swallows in a finalizer is raised again at the next safe point, without "Exception ignored"), later ones do
+    nothing (audit 56: ``timeout`` signals the process group and the caller signals the worker again; the second
+    raise, inside the handling of the first, ended the worker in a traceback)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        if signum in _pending:
+            return
+        _pending.append(signum)
+        raise Interrupted(signum)
+
+    _signal.signal(_signal.SIGTERM, handler)
+    sys.unraisablehook = _quiet_about_remembered(sys.unraisablehook)
 
 
 def _quiet_about_remembered(previous_hook: Any) -> Any:

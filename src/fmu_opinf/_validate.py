@@ -132,7 +132,7 @@ def check_name_length(path: str | os.PathLike, option: str) -> None:
                                   "characters); choose a shorter one") from None
 
 
-def check_writable(path: str | os.PathLike, what: str, directory: bool = False) -> None:
+def check_writable(path: str | os.PathLike, what: str, directory: bool = False, option: str = "-o") -> None:
     """Fail now, not after the work, if ``path`` (a file, or with ``directory`` a folder) cannot be written.
 
     A file's folder must exist; a folder may be created later, so its nearest existing ancestor is probed.
@@ -140,7 +140,7 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
     """
     path = Path(path)
     if directory and path.exists() and not path.is_dir():
-        raise FileFormatError(f"{what} {path} is an existing file; choose another -o path")
+        raise FileFormatError(f"{what} {path} is an existing file; choose another {option} path")
     if directory:
         folder = path if path.is_dir() else _existing_ancestor(path)
     else:
@@ -151,7 +151,7 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
         fd, probe = tempfile.mkstemp(prefix=".fmu-opinf-probe-", dir=folder)
     except OSError as exc:
         raise FileFormatError(f"cannot write {what} {path}: {exc.strerror} in {folder}; "
-                              "choose a writable location with -o") from None
+                              f"choose a writable location with {option}") from None
     os.close(fd)
     os.unlink(probe)
 
@@ -159,10 +159,13 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False) 
 def check_report_directory(path: str | os.PathLike) -> None:
     """A report goes into a new or empty folder, or replaces an earlier report (one with ``metrics.json``);
     a folder holding other files is refused rather than silently mixed with the report."""
+    from ._hdf5 import check_folder_entries
+
     path = Path(path)
     if path.is_dir() and any(path.iterdir()) and not (path / "metrics.json").is_file():
         raise FileFormatError(f"report directory {path} exists and holds other files; choose a new -o path "
                               "(an earlier report in it would be replaced)")
+    check_folder_entries(path)
 
 
 def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> None:

@@ -360,6 +360,7 @@ def _run_build_fmus(args: argparse.Namespace) -> None:
 def _check_arguments(args: argparse.Namespace) -> None:
     """Validate option values and output locations before any work (one-line errors, exit code 2)."""
     from . import _validate as v
+    from ._hdf5 import check_folder_entries
 
     for option in ("positions", "velocities", "accelerations", "inputs", "outputs"):
         v.check_patterns(getattr(args, option, None), "--" + option)
@@ -384,7 +385,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
     elif args.verb == "fit":
         _check_output_file(args, [args.snapshots])
         if args.figures:
-            v.check_writable(args.figures, "figure directory", directory=True)
+            v.check_writable(args.figures, "figure directory", directory=True, option="--figures")
+            check_folder_entries(args.figures)
     elif args.verb == "export":
         _check_output_file(args, [args.rom])
     elif args.verb == "compare":

@@ -981,9 +981,10 @@ def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
     renames, which need no space, start only once every byte is written (eleventh audit: new figures and
     metrics beside the old page after a full disk).
     """
-    from ._hdf5 import REPLACED, output_mode, output_target
+    from ._hdf5 import REPLACED, check_folder_entries, output_mode, output_target
     from ._interrupts import deferred_interrupts
 
+    check_folder_entries(folder)
     targets = {name: output_target(folder / name) for name in files}
     temporary: dict[str, str] = {}
     try:

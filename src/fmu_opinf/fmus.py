@@ -1128,16 +1128,19 @@ def build_fmus(out_dir: str | os.PathLike = "fmus",
     if unknown:
         raise FmuBuildError(f"unknown benchmark model(s) {', '.join(unknown)}; choose from "
                             f"{', '.join(BENCHMARK_MODELS)}")
+    from ._hdf5 import output_target
+
     _require_build_tools()
-    paths = []
-    for name in models:
-        spec = _SPEC_FACTORIES[name](g, n1)
+    specs = {}
+    for name in models:   # every size and output checked before any FMU is built (audit 56: --n1 1 was refused
+        spec = _SPEC_FACTORIES[name](g, n1)   # after AnchoredMSD.fmu had been replaced)
         if expose_states is not None:
             spec.expose_states = expose_states
         spec.fmi_version = fmi_version
         spec.__post_init__()
-        paths.append(build_second_order_fmu(spec, Path(out_dir) / f"{name}.fmu"))
-    return paths
+        output_target(Path(out_dir) / f"{name}.fmu")
+        specs[name] = spec
+    return [build_second_order_fmu(spec, Path(out_dir) / f"{name}.fmu") for name, spec in specs.items()]
 
 
 def _fmu_guid(path: Path) -> str | None:

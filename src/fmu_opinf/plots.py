@@ -42,11 +42,18 @@ def fixed_margins(fig: Any, left: float = 0.85, right: float = 0.15, bottom: flo
 
 
 def _save(fig: Any, path: str | os.PathLike) -> Path:
+    """Draw ``fig`` into ``path`` as a whole file (a temporary one renamed), in a folder of plain files only."""
+    from ._hdf5 import atomic_path, check_folder_entries
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    check_folder_entries(path.parent)
     fixed_margins(fig)
-    fig.savefig(path, dpi=120)
-    _pyplot().close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=120, format=path.suffix.lstrip(".") or "png")
+    finally:
+        _pyplot().close(fig)
     return path
 
 

@@ -149,17 +149,19 @@ def _compile_one(fmu: Path, root: ET.Element, unzipped: Path, identifier: str, c
                *(arg for folder in includes for arg in ("-I", str(folder))),
                *(f"-D{definition}" for definition in defines), *map(str, files), "-o", str(partial), "-lm"]
     try:
-        done = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT)
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        raise FMUError(f"{fmu.name}: compiling its C sources failed ({type(exc).__name__}); export it with a binary "
-                       "for this platform") from None
-    if done.returncode != 0 or not partial.is_file():
+        try:
+            done = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            raise FMUError(f"{fmu.name}: compiling its C sources failed ({type(exc).__name__}); export it with a "
+                           "binary for this platform") from None
+        if done.returncode != 0 or not partial.is_file():
+            errors = [line for line in done.stderr.splitlines() if "error" in line.lower()] or done.stderr.splitlines()
+            first = errors[0].strip() if errors else f"exit code {done.returncode}"
+            raise FMUError(f"{fmu.name} has no binary for this platform and its C sources do not compile here "
+                           f"({first}); export it with a binary for this platform")
+        os.replace(partial, library)   # atomic: a concurrent process sees the whole library or none
+    finally:   # (also on an interrupt: audit 56 found the partial library left in the cache)
         partial.unlink(missing_ok=True)
-        errors = [line for line in done.stderr.splitlines() if "error" in line.lower()] or done.stderr.splitlines()
-        first = errors[0].strip() if errors else f"exit code {done.returncode}"
-        raise FMUError(f"{fmu.name} has no binary for this platform and its C sources do not compile here "
-                       f"({first}); export it with a binary for this platform")
-    os.replace(partial, library)   # atomic: a concurrent process sees the whole library or none
 
 
 def install_binaries(unzipped: Path, platform: str, libraries: dict[str, Path]) -> None:

@@ -336,7 +336,7 @@ def _build(compiler: list[str], source: Path, path: Path) -> bool:
     if not path.parent.is_dir():
         return False
     try:
-        with atomic_path(path) as temporary:
+        with atomic_path(path, output=False) as temporary:
             command = [*compiler, "-O2", "-std=c99", "-shared", "-fPIC", str(source), "-o", temporary, "-lm"]
             result = subprocess.run(command, capture_output=True, timeout=120)
             if result.returncode != 0:
