@@ -25,8 +25,9 @@ import numpy as np
 from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "REPLACED", "write_error", "output_mode", "ensure_space", "free_space", "tool_versions",
-           "sha256_of", "write_attrs", "read_attrs", "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "REPLACED", "write_error",
+           "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs",
+           "jsonable"]
 
 
 @contextlib.contextmanager

@@ -4,8 +4,9 @@ Python raises ``KeyboardInterrupt`` at an arbitrary bytecode.  When that bytecod
 ``ZipFile.__del__`` while an FMU's description is read, an h5py weakref callback), Python prints "Exception
 ignored" and goes on: the run continued to its end although the user pressed Ctrl-C.  Two mechanisms:
 
-* :func:`remembered_interrupts` (the command line, around a whole verb): SIGINT and SIGTERM raise at once, and are also
-  remembered; :func:`check_interrupt` raises it again at the next safe point, so a swallowed one is not lost;
+* :func:`remembered_interrupts` (the command line, around a whole verb): SIGINT and SIGTERM raise at once, and
+  are also remembered; :func:`check_interrupt` raises it again at the next safe point, so a swallowed one is not
+  lost;
 * :func:`deferred_interrupts` (around a recording or simulation loop): SIGINT and SIGTERM only set the flag, and
   the loop stops at its next block.
 

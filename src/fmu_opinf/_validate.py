@@ -24,10 +24,10 @@ import numpy as np
 from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
-    "available_memory", "check_memory", "check_name_length", "check_grid", "check_positive", "check_fraction", "check_patterns",
-    "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array", "read_real",
-    "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run", "SNAPSHOT_FILE_ATTRS",
-    "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
+    "available_memory", "check_memory", "check_name_length", "check_grid", "check_positive", "check_fraction",
+    "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array",
+    "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
+    "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
 # -- memory ----------------------------------------------------------------------------------------------

@@ -1249,7 +1249,8 @@ def _requested_terms(terms: str | Sequence[str]) -> dict[str, bool | None]:
     names = [t.strip() for t in (terms.split(",") if isinstance(terms, str) else terms) if t.strip()]
     unknown = [t for t in names if t not in TERMS]
     if unknown:
-        raise InputSpecError(f"terms {unknown} are not known; use 'auto', 'none', 'all' or a list of {', '.join(TERMS)}")
+        raise InputSpecError(f"terms {unknown} are not known; use 'auto', 'none', 'all' or a list of "
+                             f"{', '.join(TERMS)}")
     return {name: name in names for name in TERMS}
 
 

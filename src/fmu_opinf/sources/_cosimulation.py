@@ -12,7 +12,6 @@ import shutil
 import tempfile
 import weakref
 import zipfile
-import zlib
 from pathlib import Path
 from typing import Any
 
