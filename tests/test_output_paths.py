@@ -126,3 +126,43 @@ def test_a_link_or_a_pipe_among_a_report_s_or_the_figures_files_is_refused_befor
         f"fmu-opinf: error: {figures / 'singular_values.png'} is not a plain file; the files of {figures} are "
         "written there: remove it or choose another folder")
     assert not (tmp_path / "r2.h5").exists()
+
+
+def test_links_in_a_run_table_s_or_the_demo_s_folder_and_dangling_links_are_refused_before_the_work(tmp_path):
+    """Audit 57: ``compare --runs`` wrote its table's index.html through a link into the ROM it compared; the demo
+    wrote summary.json through a link, or refused a linked figure only after its work; ``--figures`` naming a
+    link to nothing failed after the fit with "File exists"; a link elsewhere in the figures' folder is no
+    concern of the fit's."""
+    from fmu_opinf import rom
+
+    snaps = tmp_path / "s.h5"
+    snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
+    rom.fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
+    before = (tmp_path / "rom.h5").read_bytes()
+    table = tmp_path / "t.csv"
+    table.write_text('name,input\nr1,"harmonic:amplitude=1,omega=0.5"\n')
+    (tmp_path / "rr").mkdir()
+    (tmp_path / "rr" / "index.html").symlink_to(tmp_path / "rom.h5")
+    done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "--runs", str(table), "-o",
+                   str(tmp_path / "rr"), "--dt", "0.5", "--t-end", "20")
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].endswith(
+        "rr/index.html is a symbolic link; the files of " + str(tmp_path / "rr") + " are written there: remove it "
+        "or choose another folder"), done.stderr
+    assert (tmp_path / "rom.h5").read_bytes() == before and not (tmp_path / "rr" / "r1").exists()
+
+    (tmp_path / "demo" / "anchored-msd" / "report").mkdir(parents=True)
+    (tmp_path / "demo" / "anchored-msd" / "report" / "outputs.png").symlink_to(tmp_path / "rom.h5")
+    done = run_cli("demo", "--quick", "-o", str(tmp_path / "demo"))
+    assert done.returncode == 2 and "outputs.png is a symbolic link" in done.stderr.strip().splitlines()[-1]
+    assert (tmp_path / "rom.h5").read_bytes() == before
+    assert sorted(p.name for p in (tmp_path / "demo").rglob("*")) == ["anchored-msd", "outputs.png", "report"]
+
+    (tmp_path / "figd").symlink_to(tmp_path / "nowhere")
+    done = run_cli("fit", str(snaps), "-o", str(tmp_path / "r.h5"), "--r", "2", "--figures", str(tmp_path / "figd"))
+    assert done.returncode == 2 and done.stderr.strip() == (
+        f"fmu-opinf: error: --figures {tmp_path / 'figd'} is a symbolic link to nothing ({tmp_path / 'nowhere'}); "
+        "give an existing path or a new name")
+    (tmp_path / "figs").mkdir()
+    (tmp_path / "figs" / "alias.h5").symlink_to(snaps)
+    done = run_cli("fit", str(snaps), "-o", str(tmp_path / "r.h5"), "--r", "2", "--figures", str(tmp_path / "figs"))
+    assert done.returncode == 0 and (tmp_path / "figs" / "singular_values.png").is_file(), done.stderr

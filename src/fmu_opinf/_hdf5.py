@@ -12,7 +12,7 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterable, Iterator
 
 try:
     import resource
@@ -109,15 +109,19 @@ def output_target(path: str | os.PathLike) -> Path:
     return target
 
 
-def check_folder_entries(folder: str | os.PathLike) -> None:
-    """Refuse a folder of outputs (a report, figures) holding a symbolic link or anything but plain files and
-    folders: its files are written in the folder, not through a link (audit 56: a report's ``outputs.png`` linked
-    to the ROM being compared overwrote it; a pipe among the figures ended a fit in a traceback)."""
+def check_folder_entries(folder: str | os.PathLike, names: Iterable[str] | None = None,
+                         recursive: bool = False) -> None:
+    """Refuse a folder of outputs (a report, figures, the demo's) holding a symbolic link or anything but plain
+    files and folders among ``names`` (default: every entry; ``recursive``: in its subfolders too): its files are
+    written in the folder, not through a link (audit 56: a report's ``outputs.png`` linked to the ROM being
+    compared overwrote it; a pipe among the figures ended a fit in a traceback)."""
     folder = Path(folder)
     if not folder.is_dir():
         return
-    for entry in folder.iterdir():
-        if entry.is_symlink() or not (entry.is_file() or entry.is_dir()):
+    entries = folder.rglob("*") if recursive else folder.iterdir() if names is None else \
+        (folder / name for name in names)
+    for entry in entries:
+        if entry.is_symlink() or entry.exists() and not (entry.is_file() or entry.is_dir()):
             raise FileFormatError(f"{entry} is {'a symbolic link' if entry.is_symlink() else 'not a plain file'}; "
                                   f"the files of {folder} are written there: remove it or choose another folder")
 

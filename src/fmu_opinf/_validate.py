@@ -24,9 +24,9 @@ import numpy as np
 from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
 
 __all__ = [
-    "available_memory", "check_memory", "check_name_length", "check_grid", "check_positive", "check_fraction",
-    "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links", "check_array",
-    "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
+    "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
+    "check_fraction", "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
+    "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
@@ -130,6 +130,14 @@ def check_name_length(path: str | os.PathLike, option: str) -> None:
         if exc.errno == errno.ENAMETOOLONG:
             raise FileFormatError(f"{option} names a path too long for the file system ({len(str(path))} "
                                   "characters); choose a shorter one") from None
+
+
+def check_not_dangling(path: str | os.PathLike, option: str) -> None:
+    """Refuse a symbolic link to nothing as an output (audit 57: ``--figures`` ended after the fit with "File
+    exists", ``build-fmus`` created the folders the link named)."""
+    if os.path.islink(path) and not os.path.exists(path):
+        raise FileFormatError(f"{option} {path} is a symbolic link to nothing ({os.readlink(path)}); give an "
+                              "existing path or a new name")
 
 
 def check_writable(path: str | os.PathLike, what: str, directory: bool = False, option: str = "-o") -> None:

@@ -369,6 +369,7 @@ def _check_arguments(args: argparse.Namespace) -> None:
             raise InputSpecError(f"{flag} is empty; give a path")
         if getattr(args, option, None) is not None:
             v.check_name_length(getattr(args, option), flag)
+            v.check_not_dangling(getattr(args, option), flag)
     for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
     for option, least in (("r", 1), ("g", 1), ("n1", 1), ("refine_iterations", 0)):
@@ -385,8 +386,10 @@ def _check_arguments(args: argparse.Namespace) -> None:
     elif args.verb == "fit":
         _check_output_file(args, [args.snapshots])
         if args.figures:
+            from .plots import POD_FIGURES
+
             v.check_writable(args.figures, "figure directory", directory=True, option="--figures")
-            check_folder_entries(args.figures)
+            check_folder_entries(args.figures, POD_FIGURES)
     elif args.verb == "export":
         _check_output_file(args, [args.rom])
     elif args.verb == "compare":
@@ -394,6 +397,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
         v.check_writable(args.output, "report directory", directory=True)
         if not args.runs:  # a run table's folder holds one report per row
             v.check_report_directory(args.output)
+        else:
+            check_folder_entries(args.output, ("summary.txt", "index.html"))
 
 
 def _me_method(text: str) -> str:

@@ -984,7 +984,7 @@ def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
     from ._hdf5 import REPLACED, check_folder_entries, output_mode, output_target
     from ._interrupts import deferred_interrupts
 
-    check_folder_entries(folder)
+    check_folder_entries(folder, files)
     targets = {name: output_target(folder / name) for name in files}
     temporary: dict[str, str] = {}
     try:

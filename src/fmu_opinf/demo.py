@@ -215,8 +215,11 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     """
     from . import fmus
 
+    from ._hdf5 import check_folder_entries
+
     out_dir = Path(out_dir)
     prepare_report_directory(out_dir)
+    check_folder_entries(out_dir, recursive=True)   # (audit 57: written through links, or refused after the work)
     names = list(CASES) if model == "all" else [model]
     compile_fmus = fmus.find_build_tools() is not None
     if not compile_fmus:

@@ -47,7 +47,7 @@ def _save(fig: Any, path: str | os.PathLike) -> Path:
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    check_folder_entries(path.parent)
+    check_folder_entries(path.parent, [path.name])
     fixed_margins(fig)
     try:
         with atomic_path(path) as tmp:
@@ -159,6 +159,10 @@ def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLik
     ax.set_title("cumulative energy (eq. 18)")
     ax.legend()
     return _save(fig, path)
+
+
+#: The files :func:`pod_figures` writes.
+POD_FIGURES = ("singular_values.png", "cumulative_energy.png")
 
 
 def pod_figures(snapshots: Any, rom: Any, out_dir: str | os.PathLike, max_memory: float = 1e9) -> dict[str, Path]:

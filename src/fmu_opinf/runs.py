@@ -736,7 +736,8 @@ def compare_runs(
 def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[RunOutcome], table: str) -> None:
     import html
 
-    (out_dir / "summary.txt").write_text(table + "\n", encoding="utf-8")
+    from .compare import _replace_together
+
     items = []
     for row, outcome in zip(rows, outcomes):
         target = f'<a href="{html.escape(row.name)}/index.html">{html.escape(row.name)}</a>' \
@@ -746,4 +747,4 @@ def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[Run
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>fmu-opinf run table comparison</title>"
             "</head><body><h1>ROM vs source on a run table</h1><pre>" + html.escape(table) + "</pre><ul>"
             + "".join(items) + "</ul></body></html>\n")
-    (out_dir / "index.html").write_text(page, encoding="utf-8")
+    _replace_together(out_dir, {"summary.txt": (table + "\n").encode(), "index.html": page.encode()})
