@@ -289,6 +289,7 @@ def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     import os
 
     from fmu_opinf import compare
+    from fmu_opinf._hdf5 import replace_together
     from fmu_opinf.errors import FmuOpinfError
 
     earlier = {"outputs.png": b"old png", "metrics.json": b"{}", "index.html": b"<p>old</p>"}
@@ -305,10 +306,10 @@ def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
 
     monkeypatch.setattr(compare.os, "fdopen", full_disk_at_the_page)
     with pytest.raises(FmuOpinfError, match="disk is full"):
-        compare._replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
+        replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == earlier
     monkeypatch.setattr(compare.os, "fdopen", real_fdopen)
-    compare._replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
+    replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {n: b"new " + d for n, d in earlier.items()}
 
 

@@ -25,9 +25,9 @@ import numpy as np
 from ._interrupts import check_interrupt
 from .errors import FileFormatError
 
-__all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "REPLACED", "write_error",
-           "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs", "read_attrs",
-           "jsonable"]
+__all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "replace_together", "REPLACED",
+           "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs",
+           "read_attrs", "jsonable"]
 
 
 @contextlib.contextmanager
@@ -124,6 +124,38 @@ def check_folder_entries(folder: str | os.PathLike, names: Iterable[str] | None 
         if entry.is_symlink() or entry.exists() and not (entry.is_file() or entry.is_dir()):
             raise FileFormatError(f"{entry} is {'a symbolic link' if entry.is_symlink() else 'not a plain file'}; "
                                   f"the files of {folder} are written there: remove it or choose another folder")
+
+
+def replace_together(folder: Path, files: dict[str, bytes]) -> None:
+    """Write every file under a temporary name in ``folder``, then rename them all, with interrupts deferred
+    (a report's page, metrics and figures; a run table's summary and page).
+
+    A failure while writing (a full disk) leaves the earlier files as they were and no temporary file: the
+    renames, which need no space, start only once every byte is written (eleventh audit: new figures and
+    metrics beside the old page after a full disk).  A link or a pipe where a file goes is refused
+    (:func:`check_folder_entries`).
+    """
+    from ._interrupts import deferred_interrupts
+
+    check_folder_entries(folder, files)
+    temporary: dict[str, str] = {}
+    try:
+        for name, data in files.items():
+            fd, temporary[name] = tempfile.mkstemp(prefix=name + ".", suffix=".tmp", dir=folder)
+            with os.fdopen(fd, "wb") as handle:
+                handle.write(data)
+        with deferred_interrupts():
+            for name, tmp in list(temporary.items()):
+                os.chmod(tmp, output_mode(folder / name))
+                os.replace(tmp, folder / name)
+                del temporary[name]
+            REPLACED.append(folder)
+    except OSError as exc:
+        raise write_error(folder / name, exc) from None
+    finally:
+        for tmp in temporary.values():
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 @contextlib.contextmanager

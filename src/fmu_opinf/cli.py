@@ -454,6 +454,7 @@ def _main(argv: Sequence[str] | None) -> int:
     import warnings
 
     previous = warnings.showwarning
+    verb = None
     try:
         with remembered_interrupts():  # a Ctrl-C swallowed in a finalizer is raised again at the next safe point
             # imported here, not at the top: numpy and fmpy take a while, and a Ctrl-C meanwhile is an interrupt
@@ -461,6 +462,7 @@ def _main(argv: Sequence[str] | None) -> int:
             from .snapshots._isolation import _FORK_SERVER, use_fork_server
 
             args = build_parser().parse_args(argv)
+            verb = args.verb
             REPLACED.clear()
             warnings.showwarning = _one_line_warning
             before = _FORK_SERVER["enabled"]
@@ -475,7 +477,7 @@ def _main(argv: Sequence[str] | None) -> int:
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (snapshots.Interrupted)
         signum = getattr(exc, "signum", 2)
-        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); {_left_behind(argv)}",
+        print(f"fmu-opinf: interrupted ({'SIGTERM' if signum == 15 else 'Ctrl-C'}); {_left_behind(verb)}",
               file=sys.stderr)
         return 128 + signum
     finally:
@@ -483,13 +485,12 @@ def _main(argv: Sequence[str] | None) -> int:
     return 0
 
 
-def _left_behind(argv: Sequence[str] | None) -> str:
+def _left_behind(verb: str | None) -> str:
     """What an interrupted command leaves: the outputs it replaced before the interrupt (:data:`_hdf5.REPLACED`),
     or none; the demo's cases, written by worker processes, are not counted here: it says what it may have left."""
     from ._hdf5 import REPLACED
 
-    words = list(sys.argv[1:] if argv is None else argv)
-    if words[:1] == ["demo"]:
+    if verb == "demo":
         return ("the demo folder may hold this run's files beside the previous run's (each file is whole); run the "
                 "demo again")
     if not REPLACED:

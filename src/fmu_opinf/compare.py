@@ -10,7 +10,6 @@ errors per output, times both, and ``write_report`` writes ``metrics.json``, the
 from __future__ import annotations
 
 import base64
-import contextlib
 import html
 import json
 import math
@@ -24,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ._hdf5 import atomic_path, jsonable, write_error
+from ._hdf5 import atomic_path, jsonable, replace_together, write_error
 from .errors import DataError, DimensionError, FileFormatError, FmuOpinfError, InputSpecError
 
 if TYPE_CHECKING:
@@ -970,40 +969,8 @@ def _write_report_files(comparison: Comparison, out_dir: Path, extra_figures: di
     # of a model with a constant output failed to parse)
     files["metrics.json"] = json.dumps(jsonable(metrics, non_finite_as_null=True), indent=2, allow_nan=False).encode()
     files["index.html"] = page.encode()
-    _replace_together(out_dir, files)
+    replace_together(out_dir, files)
     return out_dir / "index.html"
-
-
-def _replace_together(folder: Path, files: dict[str, bytes]) -> None:
-    """Write every file under a temporary name in ``folder``, then rename them all, with interrupts deferred.
-
-    A failure while writing (a full disk) leaves the earlier report as it was and no temporary file: the
-    renames, which need no space, start only once every byte is written (eleventh audit: new figures and
-    metrics beside the old page after a full disk).
-    """
-    from ._hdf5 import REPLACED, check_folder_entries, output_mode, output_target
-    from ._interrupts import deferred_interrupts
-
-    check_folder_entries(folder, files)
-    targets = {name: output_target(folder / name) for name in files}
-    temporary: dict[str, str] = {}
-    try:
-        for name, data in files.items():
-            fd, temporary[name] = tempfile.mkstemp(prefix=name + ".", suffix=".tmp", dir=targets[name].parent)
-            with os.fdopen(fd, "wb") as handle:
-                handle.write(data)
-        with deferred_interrupts():
-            for name, tmp in list(temporary.items()):
-                os.chmod(tmp, output_mode(targets[name]))
-                os.replace(tmp, targets[name])
-                del temporary[name]
-            REPLACED.append(folder)
-    except OSError as exc:
-        raise write_error(folder / name, exc) from None
-    finally:
-        for tmp in temporary.values():
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
 
 
 def _html_table(rows: list[tuple[str, Any]]) -> str:

@@ -736,7 +736,7 @@ def compare_runs(
 def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[RunOutcome], table: str) -> None:
     import html
 
-    from .compare import _replace_together
+    from ._hdf5 import replace_together
 
     items = []
     for row, outcome in zip(rows, outcomes):
@@ -747,4 +747,4 @@ def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[Run
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>fmu-opinf run table comparison</title>"
             "</head><body><h1>ROM vs source on a run table</h1><pre>" + html.escape(table) + "</pre><ul>"
             + "".join(items) + "</ul></body></html>\n")
-    _replace_together(out_dir, {"summary.txt": (table + "\n").encode(), "index.html": page.encode()})
+    replace_together(out_dir, {"summary.txt": (table + "\n").encode(), "index.html": page.encode()})

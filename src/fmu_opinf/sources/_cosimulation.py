@@ -594,11 +594,15 @@ class FMUSource(Source):
                 extract(str(self.path), unzipdir=folder)
                 if self._compiled:
                     install_binaries(Path(folder), binary_platform(self.fmi_version), self._compiled)
-            except BaseException as exc:
+            except FMUError:
                 shutil.rmtree(folder, ignore_errors=True)
-                if isinstance(exc, FMUError) or not isinstance(exc, Exception):
-                    raise
+                raise
+            except Exception as exc:   # (fmpy raises a bare Exception for a member name it refuses)
+                shutil.rmtree(folder, ignore_errors=True)
                 raise _unpack_error(self.path, folder, exc) from None
+            except BaseException:
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
             self._unzipdir = folder
             # multiprocessing's finalizer, not weakref.finalize: it also runs when a worker process of
             # multiprocessing ends (they leave by os._exit, past atexit), and a forked child never runs the
