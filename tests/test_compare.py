@@ -434,7 +434,7 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     signal = parse_signal(result.input_spec, 2)
     assert [part.kind for part in signal.parts] == ["harmonic", "harmonic"]
     assert [part.params["offset"] for part in signal.parts] == [0.0, 2.0]
-    assert min(part.params["amplitude"] for part in signal.parts) > 0.3   # measured 1.05 and 2.45 (of 3 and 7)
+    assert min(part.params["amplitude"] for part in signal.parts) >= 1.0   # measured 1.1 and 2.58 (of 3 and 7)
     assert said.startswith("no --input given: comparing on harmonic:amplitude=")
     assert "(a harmonic on each input the training drove, in the widest gap between the ROM's natural frequencies" \
            in said
