@@ -384,12 +384,17 @@ def test_a_model_at_rest_on_the_bound_of_its_range_assert_is_recorded_where_the_
     that leaves it unusable: the Jacobian's probes and the looks at the rounding noise both step over the bound
     (audit of 2026-12-05: the run failed at t=0.09 naming BDF, which never ended).  A motion that stays inside is
     recorded as exactly as where the FMU discards the call instead (and so stays usable), and as the exact modal
-    solution allows."""
+    solution allows.
+
+    The bound sits 1e-9 of the position (1.5e-10) above the start: the rest state solved in double precision
+    leaves a force of 5.9e-11 N at the stiff link (2026-12-06), which moved the first mass up to 5.7e-14 above its
+    start, past an exact bound whenever LAPACK's rounding had that sign; the probes move the states by 1."""
     chain = _started(stiff_chain(), "rest")
+    bound = float(chain.x0[0]) * (1.0 + 1e-9)
     runs = {}
     for status in ("error", "discard"):
         path = tmp_path / f"Edge_{status}.fmu"
-        lti_fmus.build_lti_fmu(chain, path, interfaces=("me",), position_limit=(0, float(chain.x0[0])),
+        lti_fmus.build_lti_fmu(chain, path, interfaces=("me",), position_limit=(0, bound),
                                position_limit_status=status)
         runs[status] = record(open_source(path), "step:amplitude=-1,t0=0.5", DT, 4.0, quiet=True,
                               isolate=False).runs[0]
