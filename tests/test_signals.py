@@ -1,5 +1,7 @@
 """Input signals: values, textual form, tables, and clear errors for bad specifications."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -96,7 +98,7 @@ def test_none_among_several_specs_leaves_that_input_undriven():
     t = np.array([0.0, 1.0, 2.0])
     parsed = signals.parse_signal("step:amplitude=2,t0=1;none", 2)
     np.testing.assert_array_equal(parsed.sample(t), [[0.0, 2.0, 2.0], [0.0, 0.0, 0.0]])
-    source = SimpleNamespace(input_starts=lambda: np.array([3.0, 5.0]))  # an FMU's start values
+    source = SimpleNamespace(input_starts=lambda: np.array([3.0, 5.0]), input_names=["a", "b"])  # an FMU's starts
     recorded = as_signal("step:amplitude=2,t0=1;none", 2, source)
     np.testing.assert_array_equal(recorded.sample(t), [[0.0, 2.0, 2.0], [5.0, 5.0, 5.0]])
     np.testing.assert_array_equal(as_signal("none;none", 2, source).sample(t), as_signal("none", 2, source).sample(t))
@@ -129,3 +131,31 @@ def test_an_offset_puts_impulse_step_and_chirp_on_an_operating_point():
         np.testing.assert_array_equal(shifted.sample(t), plain.sample(t) + 9.80665123)
         assert signals.parse_signal(shifted.spec).params["offset"] == 9.80665123
         assert shifted.spec.endswith("offset=9.80665123")
+
+
+def test_a_table_s_header_puts_its_columns_where_it_names_the_inputs(tmp_path):
+    """Audit 58: a table headed ``time,F_kN,F_mN`` for inputs ``F_mN, F_kN`` drove each input with the other's
+    column.  The header is the reference: each input gets the column named after it."""
+    names = ["F_mN", "F_kN"]
+    swapped = signals.parse_signal(_write(tmp_path, "time,F_kN,F_mN\n0,1,10\n1,2,20\n"), 2, names)
+    assert swapped.names == names
+    assert np.array_equal(swapped.sample(np.array([0.0, 1.0])), [[10, 20], [1, 2]])
+    placed = signals.parse_signal("none;" + _write(tmp_path, "time,F_kN\n0,1\n1,2\n", "kn.csv"), 2, names)
+    assert np.array_equal(placed.sample(np.array([0.0, 1.0])), [[0, 0], [1, 2]])
+    generic = signals.parse_signal(_write(tmp_path, "time,u\n0,1\n1,2\n", "u1.csv"), 2, names)   # names no input
+    assert np.array_equal(generic.sample(np.array([1.0])), [[2], [2]])
+    ordered = signals.parse_signal(_write(tmp_path, "time,a,b\n0,1,10\n1,2,20\n", "ab.csv"), 2, names)
+    assert np.array_equal(ordered.sample(np.array([0.0])), [[1], [10]])
+
+
+@pytest.mark.parametrize("text, spec, message", [
+    ("time,F_kN\n0,1\n1,2\n", "{}", "has no column for F_mN; give a column for each input (F_mN, F_kN)"),
+    ("time,F_kN\n0,1\n1,2\n", "{};none", "gives F_kN in the place of F_mN among the ';' specs"),
+    ("time,F_kN,force\n0,1,2\n1,2,3\n", "{}", "has columns force beside the model's inputs (F_mN, F_kN)"),
+    ("time,F_kN,F_kN\n0,1,2\n1,2,3\n", "{}", "names a column twice (F_kN, F_kN)"),
+])
+def test_a_table_naming_inputs_it_cannot_drive_is_refused_in_one_line(tmp_path, text, spec, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(InputSpecError, match=re.escape(message)) as info:
+        signals.parse_signal(spec.format(path), 2, ["F_mN", "F_kN"])
+    assert "\n" not in str(info.value)

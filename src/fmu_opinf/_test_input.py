@@ -68,7 +68,7 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     Raises :class:`~fmu_opinf.errors.InputSpecError` where none can be made: no training run is recorded, or the
     input of a driven input was a table that is not at hand.
     """
-    drives = _training_drives(rom.provenance.get("training_runs"), rom.m)
+    drives = _training_drives(rom.provenance.get("training_runs"), rom.m, rom.input_names)
     driven = [i for i, drive in enumerate(drives) if drive is not None]
     if not driven:
         return "none", "the training drove no input: the free response from the source's start, as trained"
@@ -283,9 +283,9 @@ def _simulated_peaks(rom: "SecondOrderROM", runs: list[dict]) -> np.ndarray | No
     return peaks
 
 
-def _training_drives(runs: Any, m: int) -> list[tuple[float, float] | None]:
+def _training_drives(runs: Any, m: int, names: list[str] | None = None) -> list[tuple[float, float] | None]:
     """Per input, the largest amplitude the training runs drove it with and that run's offset (None: never
-    driven)."""
+    driven); a table's columns are the inputs its header names among ``names``."""
     if not isinstance(runs, list) or not runs:
         raise InputSpecError(f"no test input given, and the ROM records no training run to choose one by; {_FIX}")
     drives: list[tuple[float, float] | None] = [None] * m
@@ -295,19 +295,21 @@ def _training_drives(runs: Any, m: int) -> list[tuple[float, float] | None]:
             part = (parts[0] if len(parts) == 1 else parts[i] if i < len(parts) else "none").strip()
             if part.lower() == "none":
                 continue
-            drive = _drive_of(part, i if len(parts) == 1 else 0)
+            drive = _drive_of(part, i if len(parts) == 1 else 0, names if len(parts) == 1 else None)
             if drive[0] > 0 and (drives[i] is None or drive[0] > drives[i][0]):
                 drives[i] = drive
     return drives
 
 
-def _drive_of(part: str, column: int) -> tuple[float, float]:
-    """(amplitude, offset) of one input's training spec ``part``; a table's (its ``column``) are its largest
-    departure from its first value and that value (to six digits)."""
-    from .signals import ParametricSignal, TableSignal, parse_signal
+def _drive_of(part: str, column: int, names: list[str] | None = None) -> tuple[float, float]:
+    """(amplitude, offset) of one input's training spec ``part``; a table's (its ``column``, after its header put
+    the columns where it names ``names``) are its largest departure from its first value and that value (to six
+    digits)."""
+    from .signals import ParametricSignal, TableSignal, by_input_names, parse_signal
 
     try:
         signal = parse_signal(part)
+        signal = by_input_names(signal, names) if names is not None else signal
     except FmuOpinfError as exc:   # (a table no longer at hand)
         raise InputSpecError(f"no test input given, and the training input {part!r} cannot be read here ({exc}); "
                              f"{_FIX}") from None

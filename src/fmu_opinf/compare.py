@@ -413,7 +413,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
             print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
-    signal = _held_at_start_values(parse_signal(signal, rom_info["m"]), source, source_options)
+    signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"]), source,
+                                   source_options)
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options)
@@ -744,10 +745,11 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
         meta = _rom_fmu_metadata(rom_side)
         fmu = FMUSource(rom_side, **_rom_fmu_variables(meta.get("rom_fmu_states")))
         return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
+                "input_names": list(fmu.input_names),
                 "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
     return {"m": rom_side.m, "p": rom_side.p, "r": rom_side.r, "dt": rom_side.dt,
-            "output_names": list(rom_side.output_names),
+            "output_names": list(rom_side.output_names), "input_names": list(rom_side.input_names),
             "t_train_end": _training_end(prov), "provenance": prov}
 
 

@@ -394,7 +394,7 @@ class SecondOrderROM:
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
-        signal = parse_signal(signal, self.m)
+        signal = parse_signal(signal, self.m, self.input_names)
         if signal.n_inputs != self.m:
             raise DimensionError(f"signal has {signal.n_inputs} inputs; the ROM has m={self.m}")
         t = time_grid(dt, t_end)

@@ -221,7 +221,7 @@ def validate_rows(rows: Sequence[RunRow], source_spec: str | os.PathLike,
             column = ", ".join([f"set:{k}" for k in row.set] + [f"start:{k}" for k in row.start]) or "source"
             raise RunTableError(f"row {row.number} ({row.name}), column {column}: {exc}") from None
         try:
-            parse_signal(row.input, source.m)
+            parse_signal(row.input, source.m, source.input_names)
         except FmuOpinfError as exc:
             raise RunTableError(f"row {row.number} ({row.name}), column 'input': {exc}") from None
 

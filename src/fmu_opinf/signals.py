@@ -12,7 +12,8 @@ spec drives every input)::
     step:amplitude=1,t0=0                    amplitude for t >= t0, 0 before
     chirp:amplitude=1,omega0=0.01,omega1=1   sine sweeping linearly from omega0 to omega1 over `duration`
     ...,offset=10                            any of these on top of a constant (an operating point)
-    path/to/table.csv                        time column plus one column per input, held between rows
+    path/to/table.csv                        time column plus one column per input, held between rows;
+                                             where the header names the model's inputs, by name
     none                                     no forcing: every input zero (the free response of a model);
                                              as one of several ';' specs, that input alone is not driven
 """
@@ -32,7 +33,7 @@ from .errors import DimensionError, InputSpecError
 
 __all__ = [
     "Signal", "ParametricSignal", "TableSignal", "StackedSignal", "NoInput",
-    "impulse", "harmonic", "step", "chirp", "table", "parse_signal", "pulse_amplitude",
+    "impulse", "harmonic", "step", "chirp", "table", "parse_signal", "pulse_amplitude", "by_input_names",
 ]
 
 
@@ -311,14 +312,18 @@ def _parse_one(spec: str) -> Signal:
     return _make(kind, **params)
 
 
-def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
+def parse_signal(spec: str | Signal, n_inputs: int | None = None,
+                 input_names: Sequence[str] | None = None) -> Signal:
     """Signal from its textual form (see module docstring), checked against ``n_inputs``.
 
-    A single scalar spec drives all ``n_inputs`` inputs; ``;`` separates one spec per input.
+    A single scalar spec drives all ``n_inputs`` inputs; ``;`` separates one spec per input.  With the model's
+    ``input_names``, a table whose header names inputs gives each its own column (:func:`by_input_names`).
     """
     if not isinstance(spec, Signal) and str(spec).strip().lower() == "none":
         return NoInput(n_inputs or 0)
     signal = spec if isinstance(spec, Signal) else _stack([_parse_one(s) for s in str(spec).split(";")])
+    if input_names is not None:
+        signal = by_input_names(signal, input_names)
     if n_inputs is None or signal.n_inputs == n_inputs:
         return signal
     if n_inputs == 0:  # broadcast to no channel it would vanish, and a report would name an input never applied
@@ -332,6 +337,65 @@ def parse_signal(spec: str | Signal, n_inputs: int | None = None) -> Signal:
 
 def _stack(parts: list[Signal]) -> Signal:
     return parts[0] if len(parts) == 1 else StackedSignal(parts)
+
+
+def by_input_names(signal: Signal, input_names: Sequence[str]) -> Signal:
+    """``signal`` with the columns of its tables put where the header names them among ``input_names``.
+
+    A table's header is the one place a user names inputs: read by position, a table whose columns came in
+    another order than the model's inputs drove each input with another's values, and a one-column table named
+    for one input drove all of them (audit 58: ``time,F_kN,F_mN`` for inputs ``F_mN, F_kN``; compare then agreed
+    to 1e-25 on inputs nobody had asked for).  A header that names none of the inputs (``time,u``) keeps the
+    columns in their order, as before; one that names some of them and not the others is refused.
+
+    Raises
+    ------
+    InputSpecError
+        A header naming inputs that are not where the table's columns go, or naming some inputs and not others.
+    """
+    names = list(input_names)
+    parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
+    if not any(isinstance(part, TableSignal) for part in parts):
+        return signal
+    whole = len(parts) == 1 and parts[0].n_inputs < len(names)   # one table meant for every input
+    if not whole and signal.n_inputs != len(names):
+        return signal   # (the count of channels is refused where the signal is checked against the model)
+    matched, start = [], 0
+    for part in parts:
+        wanted = names if whole else names[start:start + part.n_inputs]
+        matched.append(_table_by_names(part, wanted, names) if isinstance(part, TableSignal) else part)
+        start += part.n_inputs
+    return _stack(matched) if len(matched) > 1 else matched[0]
+
+
+def _table_by_names(table: TableSignal, wanted: list[str], names: list[str]) -> TableSignal:
+    """``table`` with its columns in the order of ``wanted`` (the inputs its columns go to), or as it is where its
+    header names none of the model's ``names``."""
+    header = table.names
+    named = [column for column in header if column in names]
+    if not named:
+        return table
+    listed = ", ".join(names)
+    if len(set(header)) != len(header):
+        raise InputSpecError(f"input table {table.spec} names a column twice ({', '.join(header)}); give each input "
+                             "one column")
+    if len(named) != len(header):
+        others = ", ".join(column for column in header if column not in names)
+        raise InputSpecError(f"input table {table.spec} has columns {others} beside the model's inputs ({listed}); "
+                             "name every column after an input, or none of them to take the columns in order")
+    if set(header) < set(wanted):
+        missing = ", ".join(name for name in wanted if name not in header)
+        raise InputSpecError(f"input table {table.spec} has no column for {missing}; give a column for each input "
+                             f"({listed}), or one spec per input separated by ';' (none holds an input at its start "
+                             "value)")
+    if sorted(header) != sorted(wanted):
+        raise InputSpecError(f"input table {table.spec} gives {', '.join(header)} in the place of "
+                             f"{', '.join(wanted)} among the ';' specs (the model's inputs in order: {listed}); put "
+                             "it where its inputs are")
+    if header == wanted:
+        return table
+    order = [header.index(name) for name in wanted]
+    return TableSignal(table.times, table.values[order], wanted, table.spec)
 
 
 def pulse_amplitude(high: float, default: float) -> float:
