@@ -233,6 +233,50 @@ def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
                                                                "parameter"]
 
 
+def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
+    """A damping in N.s/m exposed as an input with start 0 was driven like a force (audit 58): the model is
+    bilinear in it, the fit learned a linear input for it (the ROM 4.4e-3 of the range off with it held) and the
+    default test input drove the damping negative.  A coefficient's unit or quantity (stiffness, damping, mass,
+    inertia, in base units too) holds an input at any start; a kinematic input (m, m/s) or one without a unit that
+    starts at 0 is driven as before."""
+    coefficients = [("extraDamping", 'unit="N.s/m" start="0"'), ("spring", 'unit="N/m" start="0"'),
+                    ("twist", 'unit="N.m/rad" start="0"'), ("c", 'unit="kg/s2" start="0"'),
+                    ("mass", 'unit="kg" start="0"'), ("J", 'unit="kg.m2" start="0"'),
+                    ("k", 'declaredType="Stiffness" start="0"')]
+    driven = [("F", 'unit="N" start="0"'), ("base", 'unit="m" start="0"'), ("speed", 'unit="m/s" start="0"'),
+              ("u", 'start="0"'), ("scale", 'unit="1" start="0"'), ("tau", 'unit="kg.m2/s2" start="0"')]
+    v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in
+         enumerate(coefficients + driven)] + [_sv("x[1]", 20), _sv("v[1]", 21)]
+    types = ('<TypeDefinitions><SimpleType name="Stiffness"><Real quantity="TranslationalSpringConstant"/>'
+             '</SimpleType></TypeDefinitions>')
+    xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + types)
+    default = resolve_variables(_write(tmp_path, xml))
+    assert _names(default.forces) == [name for name, _ in driven]
+    assert _names(default.held) == _names(default.parameter_like) == sorted(name for name, _ in coefficients)
+
+
+@pytest.mark.parametrize("driven", [False, True])
+def test_the_warning_about_a_coefficient_input_names_its_unit_not_its_start(tmp_path, driven):
+    """Held at a start of 0, a damping does not 'start at a non-zero value': the warning says what it is."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.sources import _warn_parameter_like
+
+    forces = ["F", "extraDamping"] if driven else ["F"]
+    source = SimpleNamespace(path=tmp_path / f"Coefficient{driven}.fmu", input_names=forces,
+                             parameter_like_input_names=[] if driven else ["extraDamping"],
+                             driven_parameter_like_names=["extraDamping"] if driven else [],
+                             coefficient_input_names=["extraDamping"], maybe_force_names=[])
+    with pytest.warns(FmuOpinfWarning) as record:
+        _warn_parameter_like(source)
+    (text,) = [str(w.message) for w in record]
+    assert "extraDamping" in text and "the unit of a stiffness, a damping or a mass" in text
+    assert "non-zero" not in text
+    assert ("record with --inputs F and give their values with --set" in text) == driven
+    assert ("held at their start values, not driven; force inputs: F" in text) == (not driven)
+
+
 def test_ports_keep_the_declared_order(tmp_path):
     """Per-body ports as block-diagram exports declare them (seventh audit, 2026-11-27: inputs F_mass1, F_ext,
     F_mass3 became F_ext, F_mass1, F_mass3 and outputs x1, v1, x3, v3 became x1, x3, v1, v3 on the exported ROM

@@ -33,8 +33,9 @@ def _add_source_options(parser: argparse.ArgumentParser, recording: bool = True)
         group.add_argument("--accelerations", help="name patterns of the accelerations, e.g. 'a[*]'")
     trained = "" if recording else " (default: those the ROM was trained with)"
     group.add_argument("--inputs", help="name patterns of the force inputs (default: every real continuous input "
-                                        "but those with a --set value and those that start at a non-zero value in "
-                                        "a unit that is not a force's or a moment's, which look like parameters; "
+                                        "but those with a --set value and those that look like parameters: a "
+                                        "start value other than 0 in a unit that is not a force's or a moment's, or "
+                                        "a unit such as N/m, N.s/m or kg; "
                                         "'none': no force input); other inputs are held at their start "
                                         "(or --set) values"
                                         + trained)

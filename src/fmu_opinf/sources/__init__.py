@@ -177,13 +177,18 @@ _REPORTED: set[tuple[str, tuple[Any, ...]]] = set()
 
 def _warn_parameter_like(source: Source) -> None:
     """At most one warning each (per process and FMU: a run table opens the source per row) naming the inputs the
-    default selection holds for their non-zero start values (offering to drive only those whose unit is none or not
-    known: one in N/m or kg is a parameter), and the inputs chosen to be driven although they look like parameters
-    (a parameter exposed as an input, driven, records a model that changes with it; audit 2026-11-27: ``--inputs
-    F,stiffness_scale`` without a word, the ROM 120 % off)."""
+    default selection holds for their non-zero start values or a coefficient's unit (offering to drive only those
+    whose unit is none or not known: one in N/m or kg is a parameter), and the inputs chosen to be driven although
+    they look like parameters (a parameter exposed as an input, driven, records a model that changes with it; audit
+    2026-11-27: ``--inputs F,stiffness_scale`` without a word, the ROM 120 % off)."""
     held = list(getattr(source, "parameter_like_input_names", []) or [])
     forces = list(getattr(source, "input_names", []) or [])
     driven = [name for name in getattr(source, "driven_parameter_like_names", []) or [] if name in forces]
+    coefficients = set(getattr(source, "coefficient_input_names", []) or [])
+    if coefficients & set(driven + held):
+        _warn_coefficients(source, [name for name in driven + held if name in coefficients], forces,
+                           [name for name in driven if name in coefficients])
+        driven, held = ([name for name in names if name not in coefficients] for names in (driven, held))
     if driven:
         warn_once(source, ("driven", tuple(driven), tuple(forces)),
                    f"the driven input(s) {', '.join(driven)} start at non-zero values (the default training pulses "
@@ -199,6 +204,22 @@ def _warn_parameter_like(source: Source) -> None:
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
                    f"give their values with --set{drive}")
+
+
+def _warn_coefficients(source: Source, names: list[str], forces: list[str], driven: list[str]) -> None:
+    """One warning (per process and FMU) naming the inputs in a coefficient's unit (a damping in N.s/m, a mass in
+    kg): held at their start values, or driven as asked, which records a model that changes with them."""
+    shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+    if driven:
+        text = (f"the driven input(s) {', '.join(driven)} are in the unit of a stiffness, a damping or a mass "
+                "(parameters exposed as inputs?): driven, they record a model that changes with them; record with "
+                f"{inputs_without(forces, driven)} and give their values with --set")
+    else:
+        text = (f"input(s) {shown} are in the unit of a stiffness, a damping or a mass (parameters exposed as "
+                "inputs?) and are held at their start values, not driven"
+                f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
+                "values with --set")
+    warn_once(source, ("coefficients", tuple(names), tuple(forces)), text)
 
 
 def _warn_unrecorded_states(source: Source) -> None:

@@ -25,7 +25,8 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         fmi3_ports, looks_like_parameter, read_description, start_value, unit_kind)
+                         fmi3_ports, is_coefficient, looks_like_parameter, read_description, start_value,
+                         unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -237,7 +238,8 @@ class FMUSource(Source):
         from the data (also with ``"none"``).
     inputs : str, optional
         Name patterns of the force inputs; default: every real continuous input except those with a
-        non-zero start value or a ``settings`` value (parameters exposed as inputs).  Other inputs are
+        ``settings`` value and those that look like parameters exposed as inputs (a non-zero start value in no
+        force unit, or a unit such as N/m, N.s/m or kg).  Other inputs are
         held at their start (or ``settings``) values; ``"none"`` drives no input (m = 0).
     outputs : str, optional
         Name patterns; default: all real variables with causality output.
@@ -368,7 +370,7 @@ class FMUSource(Source):
         self.acceleration_names = [c.name for c in selection.accelerations]
         self.input_names = [e.name for e in forces]
         self.held_input_names = [e.name for e in held]
-        #: held inputs that look like parameters (non-zero start, default selection): open_source warns
+        #: held inputs that look like parameters (default selection, looks_like_parameter): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
         self.maybe_force_names = [e.name for e in resolved.parameter_like if unit_kind(e.var, model) == "unknown"]
@@ -386,8 +388,10 @@ class FMUSource(Source):
         self._read = ReadPlan(model, columns, structural)
         # a negated alias input takes -u at its value reference (FMI 2 alias="negatedAlias")
         self._write = ReadPlan(model, [Column(e, e.sign) for e in forces], structural, settings=self._settings)
-        #: driven (force) inputs that look like parameters exposed as inputs (non-zero start, no force unit)
+        #: driven (force) inputs that look like parameters exposed as inputs (looks_like_parameter)
         self.driven_parameter_like_names = [e.name for e in forces if looks_like_parameter(e, model)]
+        #: those of both in the unit of a coefficient (N.s/m, kg): told apart in the warning
+        self.coefficient_input_names = [e.name for e in [*forces, *resolved.parameter_like] if is_coefficient(e.var)]
 
     def reselect(self, positions: Any, velocities: Any, accelerations: str | None, reason: str) -> None:
         """Record other positions, velocities or accelerations from the next run on (the recorder's rate check
@@ -494,12 +498,16 @@ class FMUSource(Source):
         if not self.driven_parameter_like_names or U is None or not len(U):
             return ""
         row = U[min(max(step, 0), len(U) - 1)]
-        zeroed = [n for n in self.driven_parameter_like_names if row[self.input_names.index(n)] == 0.0]
+        starts = self.input_starts()
+        zeroed = [n for n in self.driven_parameter_like_names
+                  if row[self.input_names.index(n)] == 0.0 and starts[self.input_names.index(n)] != 0.0]
         if not zeroed:
             return ""
         fix = inputs_without(self.input_names, self.driven_parameter_like_names)
         others = [n for n in self.driven_parameter_like_names if n not in zeroed]  # would fail or change the model next
-        also = f" (and {', '.join(others)}, which start at non-zero values too)" if others else ""
+        alike = ("start at non-zero values" if all(starts[self.input_names.index(n)] != 0.0 for n in others)
+                 else "look like parameters")
+        also = f" (and {', '.join(others)}, which {alike} too)" if others else ""
         return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
                 f"as inputs?): exclude them{also} with {fix} and give their values with --set")
 

@@ -29,7 +29,7 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "looks_like_parameter", "unit_kind", "start_value",
+           "show_patterns", "nonzero_start", "looks_like_parameter", "is_coefficient", "unit_kind", "start_value",
            "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
@@ -77,8 +77,15 @@ _LENGTH_UNITS = frozenset({"m", "dm", "cm", "mm", "um", "km", "in", "ft", "yd"})
 #: Quantities (FMI ``quantity``, Modelica's type names) of a force or a moment.
 _FORCE_QUANTITIES = frozenset({"Force", "Torque", "MomentOfForce"})
 
-#: Units of what exporters expose as inputs though it is a parameter: mass, inertia, dimensionless scales.
-_PARAMETER_UNITS = frozenset({"1", "kg", "g", "t", "kg.m2", "kg.m^2"})
+#: Units of masses and inertias, and (with dimensionless scales) of what exporters expose as inputs though it is a
+#: parameter.
+_MASS_UNITS = frozenset({"kg", "g", "t", "kg.m2", "kg.m^2"})
+_PARAMETER_UNITS = _MASS_UNITS | {"1"}
+
+#: Quantities (Modelica's type names) of the coefficients a model multiplies its states by.
+_COEFFICIENT_QUANTITIES = frozenset({"Mass", "Inertia", "MomentOfInertia", "TranslationalSpringConstant",
+                                     "TranslationalDampingConstant", "RotationalSpringConstant",
+                                     "RotationalDampingConstant"})
 
 #: Base-unit exponents of a force (kg m s-2) and of a moment (kg m2 s-2).
 _FORCE_DIMENSIONS = ({"kg": 1, "m": 1, "s": -2}, {"kg": 1, "m": 2, "s": -2})
@@ -96,6 +103,22 @@ def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
     if unit in _PARAMETER_UNITS or "/" in unit:
         return "parameter"
     return "unknown"
+
+
+def is_coefficient(variable: "Variable") -> bool:
+    """Whether ``variable`` is in the unit (or of the quantity) of a mass, an inertia, a stiffness or a damping
+    (``kg``, ``kg.m2``, ``N/m``, ``N.s/m``, ``N.m/rad``, ``kg/s2``): something a model multiplies its states by,
+    never a force, whatever its start value.  Driven, it makes the model bilinear (audit 58: a damping in N.s/m
+    exposed as an input with start 0 was pulsed, the fit learned a linear input for it, and the ROM was 4.4e-3 of
+    the range off even with it held; the default test input then drove the damping negative)."""
+    unit = _normalized_unit(variable.unit)
+    if variable.quantity in _COEFFICIENT_QUANTITIES or unit in _MASS_UNITS:
+        return True
+    numerator, slash, _ = unit.partition("/")
+    if slash and any(factor in _FORCE_UNITS for factor in numerator.split(".")):
+        return True
+    exponents = _base_exponents(unit)
+    return bool(exponents) and exponents.get("kg") == 1 and exponents not in _FORCE_DIMENSIONS
 
 
 def _normalized_unit(unit: str | None) -> str:
@@ -1050,8 +1073,9 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     """Force inputs and the other inputs (held at their start or ``--set`` values).
 
     Default: every real input of continuous variability is a force, except inputs the user gives a value
-    (``given``: names of variables with a ``--set`` value) and inputs with a non-zero start value (parameters
-    exposed as inputs, shared/spec/real-fmus.md: driving them would change the model, or make it fail at 0);
+    (``given``: names of variables with a ``--set`` value) and inputs that look like parameters exposed as inputs
+    (:func:`looks_like_parameter`, shared/spec/real-fmus.md: driving them would change the model, or make it fail
+    at 0);
     those are held (:func:`parameter_like_inputs` names the second kind).  Real inputs of discrete variability
     are held too, unless the model has no continuous one to drive: then they are its forces (a sampled actuator
     command; eighth audit: the only input of a chain, declared discrete, was held and the recording stopped with
@@ -1107,7 +1131,7 @@ def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
 
 def parameter_like_inputs(model: ModelInfo, held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
     """Held inputs that the default selection would have driven but for their look of a parameter (a non-zero start
-    value, no force unit, :func:`looks_like_parameter`) and that have no ``--set`` value: what the user is told
+    value in no force unit, or a coefficient's unit: :func:`looks_like_parameter`) and that have no ``--set`` value: what the user is told
     about (:func:`fmu_opinf.sources.open_source`)."""
     return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
             and looks_like_parameter(e, model)]
@@ -1243,13 +1267,16 @@ def nonzero_start(element: Element) -> bool:
 
 
 def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
-    """True for an input that looks like a parameter exposed as an input (spec: real-fmus.md): a non-zero start
-    value and a unit that is not a force's or a moment's (:func:`unit_kind`).  A force input (in N, N.m, lbf, a
-    unit the model defines as one, or of quantity Force) that starts at a preload is a force all the same, driven
-    on top of its start value (audits of 2026-12-06: a preload F = 10 N was held like the stiffness input beside
-    it, and the exported ROM had no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that
-    starts where it does is held."""
-    return nonzero_start(element) and unit_kind(element.var, model) != "force"
+    """True for an input that looks like a parameter exposed as an input (spec: real-fmus.md): a unit that is not a
+    force's or a moment's (:func:`unit_kind`) with a non-zero start value, or the unit of a coefficient
+    (:func:`is_coefficient`) whatever its start.  A force input (in N, N.m, lbf, a unit the model defines as one,
+    or of quantity Force) that starts at a preload is a force all the same, driven on top of its start value
+    (audits of 2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had
+    no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held,
+    and so is a damping in N.s/m that starts at 0 (audit 58)."""
+    if unit_kind(element.var, model) == "force":
+        return False
+    return nonzero_start(element) or is_coefficient(element.var)
 
 
 def element_names(name: str, shape: Sequence[int]) -> list[str]:
