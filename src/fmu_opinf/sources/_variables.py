@@ -748,7 +748,7 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
             return (*_halves(model, states), _HALVES)
         paired = _paired_by_units(model, states)
         if paired is not None:
-            return (*paired, _UNITS)
+            return paired
         pairs = _dependency_pairs(model, states)
         others = [v.name for v in _state_variables(states) if v.name not in set(pairs) | set(pairs.values())]
         if pairs and others:
@@ -845,6 +845,8 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
 
 _DEPENDENCIES = "from derivative links: der(position) depends on its velocity state alone (model structure)"
 _UNITS = "from derivative links: states paired by unit (a length or an angle and its rate) and name"
+_UNITS_IN_ORDER = ("from derivative links: states paired by unit (a length or an angle and its rate), variable by "
+                   "variable in declaration order")
 
 
 def _state_variables(states: _States) -> list[Variable]:
@@ -919,18 +921,38 @@ def _dependencies_contradict_halves(model: ModelInfo, states: _States) -> bool:
 
 
 def _paired_by_units(model: ModelInfo, states: _States
-                     ) -> tuple[list[Column], list[Column], list[Column] | None] | None:
-    """States in length units paired with states in velocity units, in state order, when each pair's names differ
-    only after their last dot (``mass[2].s`` / ``mass[2].v``); None otherwise."""
+                     ) -> tuple[list[Column], list[Column], list[Column] | None, str] | None:
+    """States in length units paired with states in velocity units, in state order, and how: when each pair's
+    names differ only after their last dot (``mass[2].s`` / ``mass[2].v``), or else when the two kinds come in
+    variables of the same sizes in the same order, arrays among them (FMI 3 arrays ``x[4], xb, xa[2]`` / ``v[4],
+    vb, va[2]``, which have no alias to pair them: audit 58 found such a model refused though every unit paired
+    it); None otherwise.  The second is a guess, as the halves are: the recorder's rate check judges it on the
+    data.  Scalars alone are no such evidence (``bodyA.s, mount.s`` / ``bodyA.v, other.v``): refused."""
     pos = [e for e in states.states if _unit_kind(e) == 0]
     vel = [e for e in states.states if _unit_kind(e) == 1]
     if not pos or len(pos) != len(vel) or len(pos) + len(vel) != len(states.states):
         return None
-    for p, v in zip(pos, vel):
-        if "." not in p.name or p.name.rsplit(".", 1)[0] != v.name.rsplit(".", 1)[0]:
-            return None
+    named = all("." in p.name and p.name.rsplit(".", 1)[0] == v.name.rsplit(".", 1)[0] for p, v in zip(pos, vel))
+    sizes = _variable_sizes(pos)
+    if not named and (sizes != _variable_sizes(vel) or max(sizes) == 1):
+        return None
     vel_columns = [Column(e, e.sign) for e in vel]
-    return [Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns)
+    return ([Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns),
+            _UNITS if named else _UNITS_IN_ORDER)
+
+
+def _variable_sizes(elements: list[Element]) -> list[int]:
+    """How many of ``elements`` each variable holds, variable by variable in their order (a variable split or
+    reordered among them makes the list differ from one of whole variables)."""
+    sizes: list[int] = []
+    previous = None
+    for element in elements:
+        if element.var is previous and element.offset == sizes[-1]:
+            sizes[-1] += 1
+        else:
+            sizes.append(1)
+        previous = element.var
+    return sizes
 
 
 def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Column], list[Column] | None]:
