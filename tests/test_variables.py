@@ -731,12 +731,29 @@ def test_positions_sharing_a_velocity_get_the_options_that_record_one_of_them(tm
         resolve_variables(path)
     sel = resolve_variables(path, positions="body1.s,mass.s", velocities="body1.v,mass.v").selection
     assert _names(sel.positions) == ["body1.s", "mass.s"] and sel.unrecorded_states == ["body2.s"]
+    assert sel.followers == {"body2.s": "body1.v"}
+    text = _unrecorded_warning(tmp_path, sel)   # audit 58: it was warned about as a possible actuator lag
+    assert "body2.s moves with the recorded velocity body1.v (a rigid connection)" in text and "lag" not in text
+
+
+def _unrecorded_warning(tmp_path, selection) -> str:
+    """The one warning an FMU source with ``selection`` gives about its states left out."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.sources import _warn_unrecorded_states
+
+    with pytest.warns(FmuOpinfWarning) as record:
+        _warn_unrecorded_states(SimpleNamespace(path=tmp_path / f"{id(selection)}.fmu", selection=selection))
+    (text,) = [str(w.message) for w in record]
+    return text
 
 
 def test_given_positions_and_velocities_record_the_masses_and_name_the_state_left_out(tmp_path):
     path = _write(tmp_path, modelica_two_masses_with_actuator_lag())
     sel = resolve_variables(path, positions="mass1.s,mass2.s", velocities="mass1.v,mass2.v").selection
     assert _names(sel.positions) == ["mass1.s", "mass2.s"] and sel.unrecorded_states == ["actuator.F"]
+    assert sel.followers == {} and "an actuator lag" in _unrecorded_warning(tmp_path, sel)
     # velocities derived from the recorded positions leave no velocity state unrecorded
     derived = resolve_variables(path, positions="mass1.s,mass2.s,actuator.F", velocities="").selection
     assert derived.unrecorded_states == []

@@ -225,7 +225,16 @@ def _warn_coefficients(source: Source, names: list[str], forces: list[str], driv
 def _warn_unrecorded_states(source: Source) -> None:
     """One warning (per process and FMU) naming the continuous states that the given ``--positions`` and
     ``--velocities`` leave out (without them the selection refuses such states: sixth audit, an actuator lag)."""
-    others = list(getattr(getattr(source, "selection", None), "unrecorded_states", []) or [])
+    selection = getattr(source, "selection", None)
+    followers = dict(getattr(selection, "followers", {}) or {})
+    if followers:
+        moves = "; ".join(f"{state} moves with the recorded velocity {velocity}"
+                          for state, velocity in list(followers.items())[:3])
+        warn_once(source, ("followers", tuple(followers)),
+                  f"its continuous state(s) {', '.join(list(followers)[:6])} are not recorded: {moves} (a rigid "
+                  "connection), so each differs from the position of that velocity by a constant, which the outputs' "
+                  "offsets absorb")
+    others = [name for name in getattr(selection, "unrecorded_states", []) or [] if name not in followers]
     if others:
         shown = ", ".join(others[:6]) + (", ..." if len(others) > 6 else "")
         warn_once(source, ("unrecorded states", tuple(others)),

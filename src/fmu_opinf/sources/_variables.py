@@ -548,6 +548,8 @@ class Selection:
     position_derivatives: list[str | None] = dataclasses.field(default_factory=list)
     #: continuous states that are neither recorded positions nor velocities (given patterns left them out)
     unrecorded_states: list[str] = dataclasses.field(default_factory=list)
+    #: those of them whose rate is a recorded velocity (a rigid follower of a recorded position): state -> velocity
+    followers: dict[str, str] = dataclasses.field(default_factory=dict)
 
     @property
     def guessed(self) -> bool:
@@ -679,7 +681,24 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     others = _other_states(states, pos + vel)
     if others and positions is None and velocities is None:
         raise _not_mechanical(model, others, "no derivative link pairs them with the others", states)
-    return Selection(pos, vel, acc, how, derivatives, others)
+    return Selection(pos, vel, acc, how, derivatives, others, _followers(states, vel, others))
+
+
+def _followers(states: _States, velocities: list[Column], others: list[str]) -> dict[str, str]:
+    """The states among ``others`` whose rate is (an alias of) a recorded velocity state, with that velocity: a
+    position the FMU keeps beside another that moves with the same velocity, rigidly (audit 58: left out as the
+    refusal of shared velocities advised, it was warned about as a possible actuator lag or filter)."""
+    recorded = {}
+    for column in velocities:
+        aliased = states.alias_state(column.element)
+        if aliased is not None:
+            recorded[aliased[0].name] = column.name
+    found = {}
+    for name in others:
+        rate = states.alias_state(states.der[name]) if name in states.der else None
+        if rate is not None and rate[0].name in recorded:
+            found[name] = recorded[rate[0].name]
+    return found
 
 
 def _other_states(states: _States, columns: list[Column]) -> list[str]:
