@@ -392,3 +392,18 @@ def test_a_failed_build_of_the_step_loop_is_tried_once_and_a_foreign_library_is_
         assert not _compiled_rk.available()
     finally:
         _compiled_rk._library.cache_clear()
+
+
+def test_a_motion_that_grows_without_bound_is_said_to_and_not_blamed_on_the_tolerance_alone(tmp_path):
+    """An unstable model (a negative stiffness, as a stiffness or damping exposed as an input and driven below 0
+    makes one) overflows after about 14 s here (growth rate 50/s); audit 58: the line said only "try a looser
+    --tolerance", which cannot help."""
+    model = lti_fmus.LinearMechanicalModel(M=np.eye(1), D=np.zeros((1, 1)), K=-2500.0 * np.eye(1),
+                                           B=np.ones((1, 1)), Cp=np.eye(1), name="Unstable")
+    path = tmp_path / "Unstable.fmu"
+    lti_fmus.build_lti_fmu(model, path, interfaces=("me",))
+    with pytest.raises(StepError) as info:
+        record(open_source(path), "step:amplitude=1,t0=0.5", 0.1, 20.0, quiet=True)
+    message = str(info.value)
+    assert "the derivatives are not finite at t=14." in message and "\n" not in message
+    assert "the motion grew without bound, as an unstable model's does" in message

@@ -1058,6 +1058,11 @@ class ModelExchangeSource(FMUSource):
         if log:   # the FMU said why: the tolerance is only one possible cause
             hint = (f"the FMU reported: {log}; where that is a range the model asserts, the motion leaves it (a "
                     f"smaller input or another start state); if the tolerance is the cause, {looser}")
+        elif "not finite" in reason:   # (audit 58: a damping exposed as an input, driven below 0, was blamed on
+            # the tolerance alone)
+            hint = ("the motion grew without bound, as an unstable model's does (a stiffness or a damping that is "
+                    "driven as an input or --set below 0: --inputs names the forces); if the tolerance is the cause, "
+                    f"{looser}")
         else:
             hint = looser
         method = getattr(self, "_active", self.method)
