@@ -29,8 +29,8 @@ class Resolved:
     forces: list[Element]
     held: list[Element]
     outputs: list[Element]
-    #: held inputs that the default selection left out for their non-zero start value (parameters exposed as
-    #: inputs?); empty when the force inputs were named
+    #: held inputs that the default selection left out as parameters exposed as inputs (a non-zero start value in
+    #: no force unit, or a coefficient's unit); empty when the force inputs were named
     parameter_like: list[Element] = dataclasses.field(default_factory=list)
 
 

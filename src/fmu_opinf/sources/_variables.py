@@ -1172,8 +1172,8 @@ def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
 
 def parameter_like_inputs(model: ModelInfo, held: Sequence[Element], given: Collection[str] = ()) -> list[Element]:
     """Held inputs that the default selection would have driven but for their look of a parameter (a non-zero start
-    value in no force unit, or a coefficient's unit: :func:`looks_like_parameter`) and that have no ``--set`` value: what the user is told
-    about (:func:`fmu_opinf.sources.open_source`)."""
+    value in no force unit, or a coefficient's unit: :func:`looks_like_parameter`) and that have no ``--set``
+    value: what the user is told about (:func:`fmu_opinf.sources.open_source`)."""
     return [e for e in held if e.var.is_real and e.var.variability == "continuous" and e.var.name not in given
             and looks_like_parameter(e, model)]
 
