@@ -293,22 +293,36 @@ class Snapshots:
         return f"Snapshots({sizes}, runs k=[{ks}], constraint={self.attrs.get('constraint', 'unknown')!r})"
 
 
+#: Per-input number attributes and what each entry must be: start values finite, declared bounds any number but
+#: NaN (infinite where the source declares none).
+_PER_INPUT_NUMBERS = {"input_starts": "finite number", "input_min": "number", "input_max": "number"}
+
+
 def _check_per_column(attrs: dict[str, Any], sizes: dict[str, Any], path: Path) -> None:
-    """One name per position, input and output, and one finite start value per input (audit 55: a damaged file's
-    extra output name went unseen and the report labelled the outputs wrongly; NaN start values made the exported
-    ROM FMU's inputs start at 0 without a word)."""
-    for key, size in (("position_names", "n"), ("input_names", "m"), ("output_names", "p"), ("input_starts", "m")):
+    """One name per position, input and output, one finite start value and one declared bound (``input_min``,
+    ``input_max``, not NaN) per input (audit 55: a damaged file's extra output name went unseen and the report
+    labelled the outputs wrongly; NaN start values made the exported ROM FMU's inputs start at 0 without a
+    word)."""
+    for key, size in (("position_names", "n"), ("input_names", "m"), ("output_names", "p"), ("input_starts", "m"),
+                      ("input_min", "m"), ("input_max", "m")):
         values, count = attrs.get(key), sizes.get(size)
         if values is None or count is None:
             continue
         values = list(np.ravel(values)) if isinstance(values, np.ndarray) else values
         wrong = not isinstance(values, (list, tuple)) or len(values) != int(count)
-        if not wrong and key == "input_starts":
-            wrong = not all(isinstance(v, (int, float, np.number)) and np.isfinite(v) for v in values)
+        if not wrong and key in _PER_INPUT_NUMBERS:
+            wrong = not all(_is_number(v, finite=key == "input_starts") for v in values)
         if wrong:
             raise FileFormatError(f"{path}: its {key.replace('_', ' ')} do not give one "
-                                  f"{'finite number' if key == 'input_starts' else 'name'} for each of its {count} "
+                                  f"{_PER_INPUT_NUMBERS.get(key, 'name')} for each of its {count} "
                                   "columns; the file is damaged: record the snapshots again")
+
+
+def _is_number(value: Any, finite: bool) -> bool:
+    """Whether an attribute's entry is a number (not NaN; finite too where ``finite``)."""
+    if not isinstance(value, (int, float, np.number)) or np.isnan(value):
+        return False
+    return bool(np.isfinite(value)) or not finite
 
 
 def _short(value: Any) -> str:

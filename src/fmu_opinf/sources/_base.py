@@ -203,8 +203,24 @@ class Source:
             "input_names": list(self.input_names),
             "output_names": list(self.output_names),
         }
+        desc.update(self.declared_input_ranges())
         desc.update(self.provenance())
         return desc
+
+    def declared_input_ranges(self) -> dict[str, list[float]]:
+        """The file attributes ``input_min`` and ``input_max`` (:meth:`input_ranges`, infinite where none is declared),
+        or none where no input declares a finite bound.
+
+        The fit carries them into the ROM's provenance and the exported ROM FMU declares them (and refuses values
+        outside), so that a master learns the range the ROM was trained in and the source accepts (audit 58,
+        finding 6: the source's ``F`` took ``[-20, 20]`` only, the ROM FMU's ``F`` declared no range).
+        """
+        if not self.m:
+            return {}
+        low, high = (np.asarray(bound, dtype=float) for bound in self.input_ranges())
+        if not (np.isfinite(low).any() or np.isfinite(high).any()):
+            return {}
+        return {"input_min": [float(v) for v in low], "input_max": [float(v) for v in high]}
 
     def input_starts(self) -> np.ndarray:
         """Values the inputs hold when not driven (``--input none``): zeros unless the source knows better."""
