@@ -476,6 +476,20 @@ class SecondOrderROM:
         """
         return steady_start(self.provenance, self.Kr, self.Br)
 
+    def input_ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ``[min, max]`` the training source declared for each input: the range the ROM was trained in and the
+        source accepts, which the exported ROM FMU declares (audit 58, finding 6).
+
+        Read from the snapshots' ``input_min`` / ``input_max`` in the provenance (fits since 2026-12-06; a ROM
+        fitted before has none, and its inputs are unbounded here and on its FMU as before).
+
+        Returns
+        -------
+        (low, high) : ((m,) ndarray, (m,) ndarray)
+            The bounds, ``-inf`` / ``inf`` where none was declared or recorded.
+        """
+        return input_ranges(self.provenance, self.m)
+
     def equilibrium(self) -> np.ndarray:
         """Static equilibrium under zero input: ``q_eq = Kr^-1 fr``, in full coordinates ``x_ref + V q_eq`` if the
         basis is kept (reduced coordinates otherwise).  Raises if ``Kr`` is singular (a mechanism)."""
@@ -694,6 +708,45 @@ def steady_start(provenance: dict, Kr: np.ndarray, Br: np.ndarray) -> tuple[np.n
         return ("the source starts at its static equilibrium under the inputs it is initialized under, but the "
                 "ROM has a rigid-body mode (Kr singular) and no equilibrium")
     return scipy.linalg.solve(Kr, Br, assume_a="sym"), first_input
+
+
+def input_ranges(provenance: dict, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`SecondOrderROM.input_ranges` from a ROM's provenance (also of a ROM-like object).
+
+    The provenance is data read from a file: only finite numbers are bounds; anything else (the text ``"inf"`` of a
+    side the source left open, a list that does not fit the ``m`` inputs) is no bound, and an input whose recorded
+    ``min`` lies above its ``max`` gets neither.
+    """
+    snapshots = provenance.get("snapshots")
+    snapshots = snapshots if isinstance(snapshots, dict) else {}
+    low = _recorded_bounds(snapshots.get("input_min"), m, -np.inf)
+    high = _recorded_bounds(snapshots.get("input_max"), m, np.inf)
+    crossed = low > high
+    low[crossed], high[crossed] = -np.inf, np.inf
+    return low, high
+
+
+def _recorded_bounds(value: Any, m: int, default: float) -> np.ndarray:
+    """One bound per input from a recorded list: its finite numbers, ``default`` for any other entry and for a
+    list that does not have ``m`` entries."""
+    out = np.full(m, default)
+    if isinstance(value, (list, tuple)) and len(value) == m:
+        for i, entry in enumerate(value):
+            number = _finite_number(entry)
+            if number is not None:
+                out[i] = number
+    return out
+
+
+def _finite_number(value: Any) -> float | None:
+    """``value`` as a float if it is a finite int or float (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:   # an integer beyond the float range
+        return None
+    return number if math.isfinite(number) else None
 
 
 class _CentredRun:
