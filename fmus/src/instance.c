@@ -20,6 +20,13 @@ static const double parameterDefaults[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_DE
 #endif
 static const double inputStarts[ARRAY_LENGTH(N_INPUTS)] = INPUT_STARTS;
 
+/* declared [min, max] of the inputs (an exported ROM's: the range of the source it was trained on); an FMU
+ * without them checks no range */
+#ifdef INPUT_MIN
+static const double inputMin[ARRAY_LENGTH(N_INPUTS)] = INPUT_MIN;
+static const double inputMax[ARRAY_LENGTH(N_INPUTS)] = INPUT_MAX;
+#endif
+
 /* ------------------------------------------------------------------- logging */
 
 static void logFormatted(const ModelInstance *instance, Status status, const char *category,
@@ -402,6 +409,23 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
     return OK;
 }
 
+/* A value for an input outside its declared [min, max] is an error (FMI: setting a value outside the range is
+ * not allowed, and an FMU may report it); the source FMUs that declare ranges refuse such values too. */
+static Status checkInputRange(const ModelInstance *instance, const char *function, int input, unsigned int r,
+                              double value) {
+#ifdef INPUT_MIN
+    if (value < inputMin[input] || value > inputMax[input]) {
+        logError(instance, "%s: value %.17g of input %d (value reference %u) is outside its declared range "
+                 "[%g, %g], the range the model accepts (a ROM: the range its source declared and it was "
+                 "trained in)", function, value, input + 1, r, inputMin[input], inputMax[input]);
+        return Error;
+    }
+#else
+    (void)instance; (void)function; (void)input; (void)r; (void)value;
+#endif
+    return OK;
+}
+
 Status setFloat64(ModelInstance *instance, const char *function, const unsigned int vr[],
                   size_t nvr, const double value[]) {
     Status status = OK;
@@ -425,6 +449,7 @@ Status setFloat64(ModelInstance *instance, const char *function, const unsigned 
         if (r >= VR_INPUTS && r < VR_OUTPUTS) {
             int input = (int)(r - VR_INPUTS);
             double change = value[i] - instance->current.u[input];
+            CALL(checkInputRange(instance, function, input, r, value[i]));
             instance->current.u[input] = value[i];
             if (instance->current.stepCount == 0) {
                 instance->current.accelerationPending = 1;

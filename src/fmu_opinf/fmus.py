@@ -21,6 +21,7 @@ import os
 import re
 import shlex
 import shutil
+import struct
 import subprocess
 import tempfile
 import threading
@@ -155,6 +156,12 @@ class SecondOrderFmuSpec:
         defines that display unit for the variable's unit (as FMI requires), left out otherwise.
     input_starts : list of float, default=None
         Start value of each input (the value it holds until an importer sets it); default zeros.
+    input_ranges : list of (float, float), default=None
+        Declared ``[min, max]`` of each input (``-inf`` / ``inf`` where a side is open), e.g. a source FMU's range
+        that an exported ROM was trained in.  The finite bounds are declared as ``min`` / ``max`` (an FMI 3 array
+        takes the widest of its elements'), and the FMU refuses a value set outside with ``fmi2Error`` /
+        ``fmi3Error`` and a log line, as FMI allows and as the source FMUs that declare ranges do.  Each range
+        must hold its input's start value.  Default: none, every input unbounded.
     input_ports, output_ports : list of dict, default=None
         FMI 3.0 only: the variables that hold the inputs and outputs, in order, each ``{"name", "shape", "type"}``
         (``shape`` ``[]`` for a scalar, ``[3]`` for an array of 3 values, row-major; ``type`` ``"Float64"`` or
@@ -192,6 +199,7 @@ class SecondOrderFmuSpec:
     input_display_units: list[str] | None = None
     output_display_units: list[str] | None = None
     input_starts: list[float] | None = None
+    input_ranges: list[tuple[float, float]] | None = None
     input_ports: list[dict[str, Any]] | None = None
     output_ports: list[dict[str, Any]] | None = None
     step_multiple: float | None = None
@@ -227,6 +235,7 @@ class SecondOrderFmuSpec:
         if self.step_multiple is not None and not (math.isfinite(self.step_multiple) and self.step_multiple > 0):
             raise FmuBuildError(f"step_multiple {self.step_multiple!r} must be a positive finite number")
         self._check_ports()
+        self._check_ranges()
         self._check_units()
         self._check_text()
         self._check_unique_names()
@@ -247,6 +256,22 @@ class SecondOrderFmuSpec:
             if bad:
                 raise FmuBuildError(f"{what} {text!r} contains the control character {bad.group()!r}, which "
                                     "an FMU's XML cannot hold; rename it (printable characters only)")
+
+    def _check_ranges(self) -> None:
+        """``input_ranges``: one ``(min, max)`` per input, numbers (not NaN) with ``min <= max`` that hold the
+        input's start value (FMI requires ``min <= start <= max``)."""
+        if self.input_ranges is None:
+            return
+        if len(self.input_ranges) != self.m:
+            raise FmuBuildError(f"got {len(self.input_ranges)} input ranges for m={self.m} inputs; give one "
+                                "(min, max) each, -inf / inf for an open side")
+        starts = self.input_starts or [0.0] * self.m
+        for name, bounds, start in zip(self.input_names, self.input_ranges, starts):
+            if (not isinstance(bounds, (tuple, list)) or len(bounds) != 2
+                    or not all(isinstance(b, (int, float)) and not isinstance(b, bool) for b in bounds)
+                    or not -math.inf <= bounds[0] <= start <= bounds[1] <= math.inf):
+                raise FmuBuildError(f"input range {bounds!r} of {name!r} is not a (min, max) pair of numbers with "
+                                    f"min <= start ({start!r}) <= max; give -inf / inf for an open side")
 
     def _check_units(self) -> None:
         for what, kind, units, count in (("unit", "input", self.input_units, self.m),
@@ -494,6 +519,8 @@ class _Variable:
     display_unit: str = ""
     shape: tuple[int, ...] = ()
     type: str = "Float64"
+    minimum: float = -math.inf
+    maximum: float = math.inf
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -514,9 +541,10 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     input_display = _display_units(spec, input_units, spec.input_display_units)
     output_display = _display_units(spec, output_units, spec.output_display_units)
     starts = spec.input_starts or [0.0] * spec.m
-    rows = [_Variable(name, vr, "input", description=held, start=float(start), unit=unit, display_unit=display)
-            for name, vr, unit, display, start in zip(spec.input_names, refs["u"], input_units, input_display,
-                                                      starts)]
+    rows = [_Variable(name, vr, "input", description=held, start=float(start), unit=unit, display_unit=display,
+                      minimum=low, maximum=high)
+            for name, vr, unit, display, start, (low, high) in zip(spec.input_names, refs["u"], input_units,
+                                                                   input_display, starts, _input_bounds(spec))]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
     outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
                for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
@@ -545,11 +573,28 @@ def _grouped(elements: list[_Variable], ports: list[dict[str, Any]] | None) -> l
         group = elements[first:first + (math.prod(shape) if shape else 1)]
         first += len(group)
         lead = group[0]
+        # (the bounds are the lead's, which _input_bounds made every element's)
         shared = {key: getattr(lead, key) if all(getattr(e, key) == getattr(lead, key) for e in group) else ""
                   for key in ("unit", "display_unit", "description")}
         start = None if lead.start is None else (tuple(float(e.start) for e in group) if shape else lead.start)
         out.append(replace(lead, name=port["name"], start=start, shape=shape, type=port["type"], **shared))
     return out
+
+
+def _input_bounds(spec: SecondOrderFmuSpec) -> list[tuple[float, float]]:
+    """The declared ``(min, max)`` of each input element (``spec.input_ranges``, unbounded by default), each FMI 3
+    array's elements widened to the widest of them: an array variable declares one ``min`` and one ``max``, and
+    the FMU must not refuse a value its description allows."""
+    bounds = [(float(low), float(high)) for low, high in spec.input_ranges or [(-math.inf, math.inf)] * spec.m]
+    if spec.fmi_version != "3.0" or not spec.input_ports:
+        return bounds
+    first = 0
+    for port in spec.input_ports:
+        size = math.prod(port["shape"]) if port["shape"] else 1
+        group = bounds[first:first + size]
+        bounds[first:first + size] = [(min(b[0] for b in group), max(b[1] for b in group))] * size
+        first += size
+    return bounds
 
 
 def _display_units(spec: SecondOrderFmuSpec, units: list[str], display: list[str] | None) -> list[str]:
@@ -580,14 +625,20 @@ def _unit_attributes(variable: _Variable) -> str:
     return unit + (f" displayUnit={quoteattr(variable.display_unit)}" if variable.display_unit else "")
 
 
+def _range_attributes(variable: _Variable) -> str:
+    """`` min="..." max="..."`` for the finite bounds of a variable (none for an open side)."""
+    bounds = (("min", variable.minimum), ("max", variable.maximum))
+    return "".join(f' {key}="{float(value)!r}"' for key, value in bounds if math.isfinite(value))
+
+
 def _variable2(variable: _Variable) -> str:
-    unit = _unit_attributes(variable)
+    unit = _unit_attributes(variable) + _range_attributes(variable)
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
     return f"    <ScalarVariable {variable.attributes()}>\n      <Real{unit}{start}/>\n    </ScalarVariable>\n"
 
 
 def _variable3(variable: _Variable) -> str:
-    unit = _unit_attributes(variable)
+    unit = _unit_attributes(variable) + _range_attributes(variable)
     values = variable.start if isinstance(variable.start, tuple) else (variable.start,)
     start = "" if variable.start is None else f' start="{" ".join(repr(float(v)) for v in values)}"'
     if not variable.shape:
@@ -807,9 +858,47 @@ def _config_header(spec: SecondOrderFmuSpec, guid: str) -> str:
     lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}"]
     if spec.input_starts is not None and spec.m:
         lines += [f"#define INPUT_STARTS {{ {', '.join(repr(float(v)) for v in spec.input_starts)} }}"]
+    lines += _range_tables(spec)
     lines += _port_tables(spec)
     lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
+
+
+def _range_tables(spec: SecondOrderFmuSpec) -> list[str]:
+    """``config.h`` lines ``INPUT_MIN`` / ``INPUT_MAX`` of an FMU with declared input ranges (none without: the
+    FMU then checks no range).  A Float32 input's bounds are widened to the nearest Float32 outside, so that a
+    master's Float32 value of a declared bound (0.1f above 0.1) is not refused."""
+    if spec.input_ranges is None or not spec.m:
+        return []
+    single = _float32_inputs(spec)
+    low, high = zip(*_input_bounds(spec))
+    low = [min(v, _nearest_float32(v)) if s else v for v, s in zip(low, single)]
+    high = [max(v, _nearest_float32(v)) if s else v for v, s in zip(high, single)]
+    return [f"#define INPUT_MIN {{ {', '.join(_c_double(v) for v in low)} }}",
+            f"#define INPUT_MAX {{ {', '.join(_c_double(v) for v in high)} }}"]
+
+
+def _float32_inputs(spec: SecondOrderFmuSpec) -> list[bool]:
+    """Whether each input element belongs to an FMI 3 Float32 variable."""
+    if spec.input_ports is None:
+        return [False] * spec.m
+    return [port["type"] == "Float32" for port in spec.input_ports
+            for _ in range(math.prod(port["shape"]) if port["shape"] else 1)]
+
+
+def _nearest_float32(value: float) -> float:
+    """The Float32 nearest to ``value`` (infinite beyond the Float32 range)."""
+    try:
+        return float(struct.unpack("<f", struct.pack("<f", value))[0])
+    except OverflowError:
+        return math.copysign(math.inf, value)
+
+
+def _c_double(value: float) -> str:
+    """A C double literal of ``value``: ``repr`` of a finite one, ``INFINITY`` (math.h) for an open side."""
+    if math.isfinite(value):
+        return repr(float(value))
+    return "INFINITY" if value > 0 else "(-INFINITY)"
 
 
 def _port_tables(spec: SecondOrderFmuSpec) -> list[str]:
