@@ -439,6 +439,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         "outputOffset": np.concatenate([extra["y0"], offsets]),
         "initialPosition": extra["q0"], "initialVelocity": extra["qdot0"],
     }
+    input_starts = _recorded_input_starts(provenance, m)
     start_gain = _steady_start_gain(matrices, provenance)
     if start_gain is not None:  # q = q0 + S (u - u_first): S u moves the start with the inputs initialized under
         gain, first_input = start_gain
@@ -469,7 +470,9 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance),
         input_display_units=_recorded_units(provenance, "input_display_units", m),
-        input_starts=_recorded_input_starts(provenance, m),
+        input_starts=input_starts,
+        input_ranges=_declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)],
+                                            input_starts),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
         **_ports(provenance, input_names or [], output_names, names, fmi_version),
         step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
@@ -644,6 +647,26 @@ def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:
     return values if all(math.isfinite(v) for v in values) else None
 
 
+def _declared_input_ranges(provenance: dict, names: list[str],
+                           starts: list[float] | None) -> list[tuple[float, float]] | None:
+    """The ``[min, max]`` the training source declared for each input (:func:`fmu_opinf.rom.input_ranges`), for the
+    FMU to declare and enforce; None where no input has a finite bound (a ROM fitted before they were recorded:
+    the FMU is as before).  A range that does not hold the input's start value (FMI requires it to) is left out
+    with a warning."""
+    from .rom import input_ranges
+
+    low, high = input_ranges(provenance, len(names))
+    for i, start in enumerate(starts or [0.0] * len(names)):
+        if not low[i] <= start <= high[i]:
+            warnings.warn(f"the training source declared input {names[i]} within [{low[i]:g}, {high[i]:g}], which "
+                          f"does not hold its start value {start:g}: the ROM FMU declares no range for it",
+                          FmuOpinfWarning, stacklevel=3)
+            low[i], high[i] = -math.inf, math.inf
+    if not (np.isfinite(low).any() or np.isfinite(high).any()):
+        return None
+    return [(float(a), float(b)) for a, b in zip(low, high)]
+
+
 def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:
     """The source's definitions of its units (base and display units) as recorded with the training snapshots;
     each is checked again when written (:func:`fmu_opinf.fmus.unit_definition`)."""
@@ -708,7 +731,9 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         so an importer that runs at a finer step needs the FMU exported with that step.
 
     The FMU's default experiment runs over the training horizon (stopTime = last training time) with
-    the training step.
+    the training step.  Its inputs start at the source's start values and declare the source's units and
+    ranges (:meth:`SecondOrderROM.input_ranges`): a value set outside a range is refused with fmi2Error /
+    fmi3Error and a log line, as the source refused it (the ROM was trained within it).
 
     Returns
     -------
