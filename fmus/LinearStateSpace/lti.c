@@ -498,7 +498,7 @@ static double frequencyScale(const LtiInstance *inst) {
     return sqrt(stiffness) + damping + 1e-12;
 }
 
-/* The state z advanced by h: one Euler step, or RK4 substeps following the tolerance. */
+/* The state z advanced by h: one Euler step, RK4 substeps following the tolerance, or one RK4 step. */
 static LtiStatus integrate(LtiInstance *inst, double h) {
     size_t n = 2 * inst->nq, i, k, steps = 1;
     double *k1 = inst->work, *k2 = k1 + n, *k3 = k2 + n, *k4 = k3 + n, *zt = k4 + n;

@@ -51,7 +51,7 @@ typedef enum {
 #define PHASE_RUNNING (PhaseEvent | PhaseContinuous | PhaseStep)
 #define PHASE_ANY (PHASE_BEFORE_INIT | PHASE_RUNNING | PhaseTerminated | PhaseError)
 
-enum { CsEuler = 0, CsRungeKutta = 1 };
+enum { CsEuler = 0, CsRungeKutta = 1, CsOneRungeKutta = 2 };  /* 2: one RK4 step per doStep */
 
 typedef struct LtiInstance LtiInstance;
 typedef void (*LtiCallback)(void);  /* any importer callback, cast back by the API layer */
