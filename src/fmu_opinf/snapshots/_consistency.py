@@ -18,8 +18,10 @@ repair, :func:`fmu_opinf.snapshots._record.record_run`), or turns what cannot be
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,6 +103,17 @@ def _column_squares(a: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->j", a, a)
 
 
+def _quiet_overflow(method: Callable[..., Any]) -> Callable[..., Any]:
+    """``method`` with NumPy's overflow and invalid-value warnings off: a run diverging at an unstable step (finite
+    values near 1e300) overflows the sums of squares to inf, and the checks then judge nothing (comparisons with
+    inf and nan are false) where NumPy's raw warning reached the user before the run's own error (audit 58)."""
+    @functools.wraps(method)
+    def quiet(*args: Any, **kwargs: Any) -> Any:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return method(*args, **kwargs)
+    return quiet
+
+
 class RateSums:
     """The sums behind :func:`rate_mismatch` and :func:`stale_rates` over the first ``k`` samples, fed as they are
     recorded: :meth:`feed` takes every block of :data:`_BLOCK` samples that is complete, so a recorder can check
@@ -123,6 +136,7 @@ class RateSums:
         part = array[:, c0:c1]
         return part if isinstance(self.rows, slice) and self.rows == slice(None) else part[self.rows]
 
+    @_quiet_overflow
     def feed(self, x: np.ndarray | None, v: np.ndarray, a: np.ndarray | None, available: int) -> None:
         """Sum every block whose samples are among the first ``available`` of the ``(n, >= available)`` arrays."""
         available = min(available, self.k)
@@ -163,6 +177,7 @@ class RateSums:
         self.now[c0:c1] = _column_squares(residual)
         self.shifted[c0:c1] = _column_squares(np.subtract(dv, sums[:, 1:], out=residual))
 
+    @_quiet_overflow
     def mismatch(self) -> np.ndarray:
         """:func:`rate_mismatch` of the samples fed (all ``k`` of them)."""
         squares = self.squares
@@ -171,6 +186,7 @@ class RateSums:
         moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
         return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
 
+    @_quiet_overflow
     def stale(self, v: np.ndarray, u: np.ndarray | None = None) -> bool:
         """:func:`stale_rates` of the samples fed (all ``k`` of them; ``v``, the judged rows only, for its last
         increment)."""

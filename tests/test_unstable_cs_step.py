@@ -1,0 +1,90 @@
+"""A co-simulation FMU stable only below a communication step (audit 58, finding 5).
+
+The FMU makes one RK4 step per ``doStep`` (:func:`fmu_opinf.lti_fmus.build_lti_fmu` with ``cs_method="rk4"``) on a
+fixed-free chain of three masses whose first link is stiff (2.5e4 N/m, 204 rad/s): stable below dt = 2.83 / 204 =
+0.0139, so it overflows at the automatic window's pilot steps 0.05 and 0.025, and at 0.02, like the audit's
+free-free chain with four RK4 substeps per ``doStep`` (stable below 0.011).  Before, ``snapshots`` without ``--dt``
+refused it ("depends on the communication step ... non-finite values at dt=0.05 or dt=0.025") without naming a
+step, although ``--dt 0.01`` records it accurately; a run at a step where it diverges but stays finite (1e200)
+printed NumPy's "overflow encountered in matmul" and "... in reduce" before fmu-opinf's own lines.  Recordings are
+checked against the exact zero-order-hold solution (:func:`fmu_opinf.lti_fmus.zoh_response`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import build_fmu_set
+from fmu_opinf import lti_fmus
+from fmu_opinf.cli import main
+from fmu_opinf.snapshots._consistency import rate_mismatch, stale_rates
+
+pytestmark = pytest.mark.fmu
+
+#: Stiffness of the chain's first link (N/m): one RK4 step per doStep is stable below dt = 0.0139.
+STIFF = 2.5e4
+
+
+
+def _model() -> lti_fmus.LinearMechanicalModel:
+    """:func:`~fmu_opinf.lti_fmus.chain_model` (3 masses, input on the last) with its first link made stiff."""
+    model = lti_fmus.chain_model(3, name="StiffLinkRk4")
+    K = model.K.copy()
+    K[:2, :2] += (STIFF + K[0, 1]) * np.array([[1.0, -1.0], [-1.0, 1.0]])  # K[0, 1]: minus the link's own spring
+    return replace(model, K=K)
+
+
+@pytest.fixture(scope="module")
+def fmu(request, tmp_path_factory):
+    """The chain's co-simulation-only FMU, one RK4 step per doStep."""
+
+    def build(folder, item):
+        built = lti_fmus.build_lti_fmu(_model(), folder / f"{item}.fmu", interfaces=("cs",), cs_method="rk4")
+        return item, built.path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-unstable-step", build, ["StiffLinkRk4"])["StiffLinkRk4"]
+
+
+def test_the_model_is_stable_only_below_the_step_the_window_finds():
+    """The premise, from the model alone: the RK4 amplification ``|R(lambda h)|`` of its fastest mode exceeds 1 at
+    the pilot steps and at 0.02, and not at 0.01."""
+    M, D, K = _model().M, _model().D, _model().K
+    n = M.shape[0]
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(M, K), -np.linalg.solve(M, D)]])
+    z = np.linalg.eigvals(A)
+
+    def growth(h: float) -> float:
+        w = z * h
+        return float(np.abs(1 + w + w**2 / 2 + w**3 / 6 + w**4 / 24).max())
+
+    assert min(growth(h) for h in (0.05, 0.025, 0.02)) > 8.0 and growth(0.01) < 1.0
+
+
+def test_a_diverging_run_prints_no_numpy_warning(fmu, tmp_path, capsys):
+    """At --dt 0.0145, just above the stability limit, the run grows to about 1e200 but stays finite: the rate checks'
+    sums of squares overflow.  Only fmu-opinf's lines are printed (before: NumPy's 'overflow encountered in matmul'
+    and '... in reduce'); with RuntimeWarnings as errors the command still ends normally."""
+    out = tmp_path / "train.h5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        main(["snapshots", str(fmu), "-o", str(out), "--dt", "0.0145", "--t-end", "30", "-q"])
+    err = capsys.readouterr().err
+    assert "encountered" not in err and "Traceback" not in err, err
+    assert all(line.startswith(("fmu-opinf: ", "wrote ", "  ")) for line in err.strip().splitlines()), err
+    assert "the co-simulation depends on the communication step" in err, err
+
+
+def test_rate_checks_of_huge_finite_values_do_not_warn():
+    """The rate checks (:func:`rate_mismatch`, :func:`stale_rates`) on a run diverging near 1e200: no NumPy warning,
+    and no stale accelerations claimed."""
+    t = np.arange(50) * 0.01
+    v = np.vstack([1e200 * np.exp(t) * np.cos(40 * t), 1e200 * np.exp(t)])
+    a = np.gradient(v, 0.01, axis=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rate_mismatch(v, v, 0.01)
+        assert not stale_rates(v, a, 0.01)
