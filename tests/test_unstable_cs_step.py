@@ -12,6 +12,7 @@ checked against the exact zero-order-hold solution (:func:`fmu_opinf.lti_fmus.zo
 
 from __future__ import annotations
 
+import json
 import warnings
 from dataclasses import replace
 
@@ -21,13 +22,20 @@ import pytest
 from conftest import build_fmu_set
 from fmu_opinf import lti_fmus
 from fmu_opinf.cli import main
+from fmu_opinf.errors import DataError
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.snapshots import Snapshots
 from fmu_opinf.snapshots._consistency import rate_mismatch, stale_rates
+from fmu_opinf.snapshots._window import pilot_step
+from fmu_opinf.sources import open_source
 
 pytestmark = pytest.mark.fmu
 
 #: Stiffness of the chain's first link (N/m): one RK4 step per doStep is stable below dt = 0.0139.
 STIFF = 2.5e4
-
+#: The recording at dt = 0.01 against the exact solution, relative to the outputs' peak: 6.9e-7 measured
+#: (2026-12-06; the FMU's RK4 at that step), bound about 3x.
+RECORDING = 2e-6
 
 
 def _model() -> lti_fmus.LinearMechanicalModel:
@@ -49,6 +57,12 @@ def fmu(request, tmp_path_factory):
     return build_fmu_set(request, tmp_path_factory, "lti-unstable-step", build, ["StiffLinkRk4"])["StiffLinkRk4"]
 
 
+def _exact(run) -> np.ndarray:
+    """The exact outputs on the run's grid under its held inputs."""
+    u = np.asarray(run.u)
+    return lti_fmus.zoh_response(_model(), np.asarray(run.t), u[:, 1:] if u.shape[0] else None).y
+
+
 def test_the_model_is_stable_only_below_the_step_the_window_finds():
     """The premise, from the model alone: the RK4 amplification ``|R(lambda h)|`` of its fastest mode exceeds 1 at
     the pilot steps and at 0.02, and not at 0.01."""
@@ -62,6 +76,41 @@ def test_the_model_is_stable_only_below_the_step_the_window_finds():
         return float(np.abs(1 + w + w**2 / 2 + w**3 / 6 + w**4 / 24).max())
 
     assert min(growth(h) for h in (0.05, 0.025, 0.02)) > 8.0 and growth(0.01) < 1.0
+
+
+def test_the_window_records_at_the_largest_stable_step_and_says_why(fmu, tmp_path, capsys):
+    """Without --dt the pilots' step check overflows at 0.05 and 0.025; the steps 0.02 (overflows) and 0.01
+    (finite, its outputs within 6.5e-7 of a run at 0.005) are tried, and the recording is at 0.01, the exact
+    solution to the FMU's RK4 accuracy; the window's line says which step and why."""
+    out = tmp_path / "train.h5"
+    assert main(["snapshots", str(fmu), "-o", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "Traceback" not in said.err and "encountered" not in said.err and "warning" not in said.err, said.err
+    line = [line for line in said.out.splitlines() if "auto window: dt=0.01" in line]
+    assert line and ("the co-simulation overflows or diverges at dt=0.02: steps at most dt=0.01, the largest tried "
+                     "where it is finite and agrees with dt=0.005 to ") in line[0], said.out
+    run = Snapshots.load(out).runs[0]
+    window = run.attrs["auto_window"]
+    window = json.loads(window) if isinstance(window, str) else window
+    assert run.attrs["dt"] == 0.01 and window["stable_dt"] == 0.01 and window["unstable_dt"] == 0.02
+    assert window["stable_difference"] < 1e-3 and run.t[-1] > 30.0
+    y = np.asarray(run.y)
+    assert np.isfinite(y).all()
+    assert float(np.abs(y - _exact(run)).max() / np.abs(_exact(run)).max()) < RECORDING
+
+
+def test_every_step_tried_overflowing_names_a_smaller_one(fmu):
+    """Where the search ends before a stable step (here after one try, 0.02), the refusal is one line whose fix
+    names a step below the smallest tried."""
+    source = open_source(str(fmu))
+    signal = parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1)
+    with pytest.raises(DataError) as refused:
+        pilot_step(source, signal, 0.05, 10.0, tries=1)
+    message = str(refused.value)
+    assert "\n" not in message
+    assert ("the co-simulation overflows or diverges at every communication step the automatic window tried, down "
+            "to dt=0.02 (it produced non-finite values at dt=0.02") in message, message
+    assert "give --dt below 0.02 (e.g. 0.01) and --t-end" in message, message
 
 
 def test_a_diverging_run_prints_no_numpy_warning(fmu, tmp_path, capsys):

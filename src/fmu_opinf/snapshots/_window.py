@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
-           "needs_auto_window", "input_activity", "check_step_convergence",
+           "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
            "check_window_step", "warn_if_step_dependent"]
 
 
@@ -124,6 +124,10 @@ class Window:
         Time from which the input stays constant (the free response starts).
     stopped_by : str
         ``"fade"`` (the vibrations faded out) or ``"periods"`` (cut after ``periods`` slow periods).
+    stable_dt, unstable_dt, stable_difference : float
+        Where the co-simulation overflowed at the first pilot's step (:func:`pilot_step`): the largest step tried
+        at which it stays finite and converges (``dt`` is at most this), the smallest at which it overflowed or
+        diverged, and the outputs' difference at ``stable_dt`` and half of it relative to their peak; 0 otherwise.
     """
 
     dt: float
@@ -141,6 +145,9 @@ class Window:
     periods: float = 20.0
     t_input: float = 0.0
     stopped_by: str = "fade"
+    stable_dt: float = 0.0
+    unstable_dt: float = 0.0
+    stable_difference: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
@@ -156,8 +163,16 @@ class Window:
         else:
             end = f"output below {self.fade:g} of its peak after t={self.t_fade:.4g}"
         return (f"dt={self.dt:g}, t_end={self.t_end:g} (fastest significant frequency {self.f_max:.4g} Hz, "
-                f"{self.points_per_period:g} points per period; {end}; {self.pilots} pilot run(s), last "
-                f"dt={self.pilot_dt:g}, t_end={self.pilot_t_end:g})")
+                f"{self.points_per_period:g} points per period; {end}{self._stable_note()}; {self.pilots} pilot "
+                f"run(s), last dt={self.pilot_dt:g}, t_end={self.pilot_t_end:g})")
+
+    def _stable_note(self) -> str:
+        """Why the step is at most :attr:`stable_dt` (empty where no step search was needed)."""
+        if not self.stable_dt:
+            return ""
+        return (f"; the co-simulation overflows or diverges at dt={self.unstable_dt:g}: steps at most "
+                f"dt={self.stable_dt:g}, the largest tried where it is finite and agrees with "
+                f"dt={self.stable_dt / 2:g} to {self.stable_difference:.2g} of the outputs' peak")
 
 
 def significant_frequency(t: np.ndarray, y: np.ndarray, energy: float = 0.999) -> float:
@@ -417,8 +432,9 @@ def auto_window(
     extrapolated from the envelope's exponential decay, at least doubled and at most ``growth**2``
     times longer.  An extended pilot is coarsened (step x 4) when ``f_max`` and the input pulse stay
     resolved, so that slow decays do not hit ``max_steps``.  A co-simulation FMU whose outputs depend on
-    the communication step (one explicit step per ``doStep``) is refused first
-    (:func:`check_step_convergence`).
+    the communication step (one explicit step per ``doStep``) is refused first (:func:`check_step_convergence`);
+    one that overflows at the first pilot's step is run at the largest smaller step at which it is finite and
+    converges, which bounds the pilots' and the window's step (:func:`pilot_step`; refused where there is none).
 
     Parameters
     ----------
@@ -497,7 +513,7 @@ def auto_window(
             return None
         stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
         return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                       periods, t_input, stopped_by, internal, dt if exact_dt else None)
+                       periods, t_input, stopped_by, internal, dt if exact_dt else None, stable)
 
     def reject_first_pilot(run: Any) -> None:
         t = time_grid(dt, T)
@@ -509,8 +525,14 @@ def auto_window(
         if window is not None and reject(window):
             raise WindowRejected(window)
 
-    recorded = None if exact_dt else check_step_convergence(
-        source, signal, dt, T, quiet=quiet, isolate=isolate, inspect=reject_first_pilot if reject else None)
+    recorded, stable = None, None
+    if not exact_dt:
+        recorded, stable = pilot_step(source, signal, dt, T, quiet=quiet, isolate=isolate, max_steps=max_steps,
+                                      inspect=reject_first_pilot if reject else None)
+    if stable is not None:  # the pilots start at, and stay within, the step where the co-simulation is stable
+        dt, max_dt = stable.dt, stable.dt if max_dt is None else min(max_dt, stable.dt)
+        if reject is not None:
+            reject_first_pilot(recorded)
     for pilot in range(1, max_pilots + 1):
         t = time_grid(dt, T)
         if len(t) > max_steps:
@@ -604,30 +626,149 @@ def check_step_convergence(source: Source, signal: Any, dt: float, T: float, *, 
         The complete run at ``dt`` (a pilot on the same grid need not repeat it), or None when the source is not
         checked.
     """
-    found, coarse_run, late = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
-    if found is None:
-        return coarse_run
+    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
+    if check.found is None:
+        return check.run
+    raise _step_dependence_error(source, check, T)
+
+
+def _step_dependence_error(source: Source, check: _StepCheck, T: float, before: str = "") -> DataError:
+    """The one-line refusal of :func:`check_step_convergence` for what ``check`` found over ``t <= T`` (``before``:
+    what coarser steps did, ahead of it)."""
     offers_me = offers_model_exchange(source)
     remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
               "it offers no model exchange: give --dt and --t-end")
-    if late:
-        raise DataError(f"{source_label(source)}: its co-simulation outputs lag its states by one communication "
-                        f"step ({found} over t <= {T:g}), so a recording's outputs are dt late; {remedy} to record "
-                        "at a step small against the motion; no file was written")
-    raise DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({found} "
-                    f"over t <= {T:g}; one explicit step per doStep?), so no step chosen by the automatic window "
-                    f"is accurate; {remedy} to record at a step of your choice; no file was written")
+    if check.late:
+        return DataError(f"{source_label(source)}: its co-simulation outputs lag its states by one communication "
+                         f"step ({check.found} over t <= {T:g}), so a recording's outputs are dt late; {remedy} to "
+                         "record at a step small against the motion; no file was written")
+    return DataError(f"{source_label(source)}: the co-simulation depends on the communication step ({before}"
+                     f"{check.found} over t <= {T:g}; one explicit step per doStep?), so no step chosen by the "
+                     f"automatic window is accurate; {remedy} to record at a step of your choice; no file was written")
+
+
+#: Steps of the 1-2-5 ladder below the first pilot's that :func:`pilot_step` tries where the co-simulation overflows
+#: at the first pilot's step: down to about a hundredth of it (0.05 -> 0.0005).
+STABLE_STEP_TRIES = 6
+
+#: Outputs at a step off by more than this many times their peak (against a run at half the step) diverge: the
+#: search of :func:`pilot_step` goes on past such a step as past one that overflowed (it never keeps one).
+DIVERGED = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class StableStep:
+    """The step :func:`pilot_step` found below the first pilot's, where the co-simulation overflowed.
+
+    Attributes
+    ----------
+    dt : float
+        The largest step tried at which the runs at ``dt`` and ``dt / 2`` are finite and agree.
+    unstable_dt : float
+        The smallest step tried at which they overflowed or diverged (:data:`DIVERGED`).
+    difference : float
+        The outputs' largest difference at ``dt`` and ``dt / 2``, relative to their peak.
+    run : Run
+        The complete run at ``dt`` (the first pilot).
+    """
+
+    dt: float
+    unstable_dt: float
+    difference: float
+    run: Any
+
+    def window_fields(self) -> dict[str, float]:
+        """The :class:`Window` attributes that say where the step search ended."""
+        return dict(stable_dt=self.dt, unstable_dt=self.unstable_dt, stable_difference=self.difference)
+
+
+def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True, isolate: bool = False,
+               threshold: float = STEP_CONVERGENCE, inspect: Callable[[Any], None] | None = None,
+               max_steps: int = 400_000, tries: int = STABLE_STEP_TRIES) -> tuple[Any, StableStep | None]:
+    """:func:`check_step_convergence` at the first pilot's step ``dt``, or, where a run there turns non-finite, the
+    largest step below it at which the co-simulation is stable and converges.
+
+    A co-simulation of a fixed number of explicit steps per ``doStep`` (RK4 substeps) is accurate at small
+    communication steps and overflows above its stability limit (audit 58: four RK4 substeps of a chain with a
+    1e6 N/m link, stable below dt = 0.011, was refused at the pilot steps 0.05 and 0.025 while ``--dt 0.01`` gave
+    an exact ROM).  The steps 1, 2, 5 times a power of ten below ``dt`` are tried in turn (at most ``tries``, the
+    runs within ``max_steps``), each checked against half of it like ``dt``: the first within ``threshold`` is the
+    pilots' step and the window's largest; a step whose runs overflow or diverge (:data:`DIVERGED`) is passed.
+
+    Parameters
+    ----------
+    source, signal, dt, T, quiet, isolate, threshold, inspect
+        As for :func:`check_step_convergence` (``inspect`` sees the run at ``dt`` only).
+    max_steps : int, default=400000
+        Largest run of the search (its runs at half a step).
+    tries : int, default=STABLE_STEP_TRIES
+
+    Returns
+    -------
+    run : Run or None
+        The complete run at the pilots' step (None where the source is not checked).
+    stable : StableStep or None
+        The step found below ``dt``; None where ``dt`` itself passed.
+
+    Raises
+    ------
+    DataError
+        One line: the outputs depend on the step at a step where they stay bounded (no step makes them accurate),
+        or every step tried overflowed or diverged (the fix names a step below the smallest).
+    """
+    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
+    if check.found is None:
+        return check.run, None
+    if not math.isinf(check.difference):
+        raise _step_dependence_error(source, check, T)
+    step, unstable = dt, check
+    for _ in range(tries):
+        step = nice_floor(step / 2.0)
+        if len(time_grid(step / 2.0, T)) > max_steps:
+            break
+        check = _step_dependence(source, signal, step, T, quiet, isolate, threshold)
+        if check.found is None:
+            return check.run, StableStep(step, unstable.dt, check.difference, check.run)
+        if check.difference <= DIVERGED:  # bounded but step-dependent: a smaller step does not make it accurate
+            raise _step_dependence_error(source, check, T, before=f"{unstable.found}; ")
+        unstable = check
+    raise _unstable_error(source, unstable, T)
+
+
+def _unstable_error(source: Source, check: _StepCheck, T: float) -> DataError:
+    """The one-line refusal of :func:`pilot_step` where every step tried overflowed or diverged, the last one as
+    ``check`` found it: the fix names a step below it."""
+    step = check.dt
+    remedy = "use its model exchange (--interface me), or " if offers_model_exchange(source) else ""
+    return DataError(f"{source_label(source)}: the co-simulation overflows or diverges at every communication step "
+                     f"the automatic window tried, down to dt={step:g} ({check.found} over t <= {T:g}); {remedy}give "
+                     f"--dt below {step:g} (e.g. {nice_floor(step / 2.0):g}) and --t-end to record at a step of your "
+                     "choice; no file was written")
+
+
+class _StepCheck(NamedTuple):
+    """What :func:`_step_dependence` found between runs at ``dt`` and ``dt / 2``.
+
+    ``found``: a phrase for a message (None: within the threshold, or a source that is not checked); ``run``: the
+    complete run at ``dt`` (None if there is none); ``late``: only the outputs differ, one step late; ``difference``:
+    the outputs' largest difference relative to their peak (``inf`` where a run turned non-finite, 0 unchecked);
+    ``dt``: the coarser step compared.
+    """
+
+    found: str | None
+    run: Any
+    late: bool = False
+    difference: float = 0.0
+    dt: float = 0.0
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
-                     threshold: float, inspect: Callable[[Any], None] | None = None
-                     ) -> tuple[str | None, Any, bool]:
-    """What differs between runs at ``dt`` and ``dt / 2`` on ``[0, T]`` beyond ``threshold`` (a phrase for a
-    message, or None: within it, or a source that is not a co-simulation FMU of a continuous-time model), the
-    complete run at ``dt`` (None if there is none), and whether only the outputs differ, one step late."""
+                     threshold: float, inspect: Callable[[Any], None] | None = None) -> _StepCheck:
+    """Compare runs at ``dt`` and ``dt / 2`` on ``[0, T]`` under the same held input (:class:`_StepCheck`); a source
+    that is not a co-simulation FMU of a continuous-time model, or has a fixed step, is not checked."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
             or fixed_internal_step(source) is not None or fixed_communication_step(source) is not None:
-        return None, None, False  # a fixed step: the results cannot depend on a step that cannot be changed
+        return _StepCheck(None, None)  # a fixed step: the results cannot depend on a step that cannot be changed
     coarse = time_grid(dt, T)
     runs = []
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
@@ -639,16 +780,17 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
         if inspect is not None and len(runs) == 1 and failure is None:
             inspect(run)
     if runs[0] is None or runs[1] is None:
-        return f"it produced non-finite values at dt={dt:g} or dt={dt / 2:g}", None, False
+        steps = " and ".join(f"dt={step:g}" for step, run in ((dt, runs[0]), (dt / 2.0, runs[1])) if run is None)
+        return _StepCheck(f"it produced non-finite values at {steps}", runs[0], False, math.inf, dt)
     y, y_fine = (np.asarray(run.y)[:, :run.k] for run in runs)
     difference = _relative_difference(y, y_fine[:, ::2])
     if difference <= threshold:
-        return None, runs[0], False
+        return _StepCheck(None, runs[0], False, difference, dt)
     found = f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak"
     if _outputs_one_step_late(runs, threshold):
-        return (f"{found}, its states agree, and each output is the one of the communication point before"), \
-            runs[0], True
-    return found, runs[0], False
+        return _StepCheck(f"{found}, its states agree, and each output is the one of the communication point before",
+                          runs[0], True, difference, dt)
+    return _StepCheck(found, runs[0], False, difference, dt)
 
 
 def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
@@ -673,14 +815,18 @@ def _outputs_one_step_late(runs: Sequence[Any], threshold: float) -> bool:
 def combine_windows(windows: Sequence[Window]) -> Window:
     """One window for several runs' windows: the finest step and the latest end, rounded up to that step's grid
     (the window that ends last speaks for the rest: its fade and stop rule); the fastest and slowest frequencies of
-    all, their pilots counted together."""
+    all, their pilots counted together, and the smallest stable step of any (:class:`StableStep`)."""
     if len(windows) == 1:
         return windows[0]
     finest = min(windows, key=lambda w: w.dt)
     last = max(windows, key=lambda w: w.t_end)
     end = math.ceil(last.t_end / finest.dt - 1e-9) * finest.dt
     slowest = [w.f_min for w in windows if w.f_min > 0]
-    return dataclasses.replace(last, dt=finest.dt, t_end=float(f"{end:.12g}"), f_max=max(w.f_max for w in windows),
+    limited = [w for w in windows if w.stable_dt]
+    stable = min(limited, key=lambda w: w.stable_dt) if limited else last  # the tightest limit speaks for the rest
+    return dataclasses.replace(last, dt=finest.dt, stable_dt=stable.stable_dt, unstable_dt=stable.unstable_dt,
+                               stable_difference=stable.stable_difference, t_end=float(f"{end:.12g}"),
+                               f_max=max(w.f_max for w in windows),
                                f_min=min(slowest) if slowest else 0.0, pilots=sum(w.pilots for w in windows),
                                pilot_dt=finest.pilot_dt, pilot_t_end=finest.pilot_t_end)
 
@@ -761,7 +907,7 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
                       f"give --dt as a multiple, e.g. {on_internal_steps(dt, internal):g}", FmuOpinfWarning,
                       stacklevel=3)
     T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
-    found, _, late = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
+    found, _, late, *_ = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
     if found is None:
         return
     if late:
@@ -781,13 +927,16 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,
             energy: float, fade: float, periods: float, t_input: float, stopped_by: str,
-            internal: float | None = None, exact: float | None = None) -> Window:
+            internal: float | None = None, exact: float | None = None, stable: StableStep | None = None) -> Window:
     f_use = max(seen.f_max, 1.0 / max(t_stop - t0, dt))
     step = exact or on_internal_steps(nice_floor(1.0 / (points_per_period * f_use)), internal)
+    if stable is not None:
+        step = min(step, stable.dt)
     end = t0 + math.ceil((t_stop - t0) / step - 1e-9) * step
     return Window(dt=step, t_end=float(f"{end:.12g}"), f_max=seen.f_max, t_fade=seen.t_fade, peak=seen.peak,
                   pilot_dt=dt, pilot_t_end=T, pilots=pilots, points_per_period=points_per_period, energy=energy,
-                  fade=fade, f_min=seen.f_min, periods=periods, t_input=t_input, stopped_by=stopped_by)
+                  fade=fade, f_min=seen.f_min, periods=periods, t_input=t_input, stopped_by=stopped_by,
+                  **({} if stable is None else stable.window_fields()))
 
 
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
