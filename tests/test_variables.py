@@ -237,17 +237,27 @@ def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
     """A damping in N.s/m exposed as an input with start 0 was driven like a force (audit 58): the model is
     bilinear in it, the fit learned a linear input for it (the ROM 4.4e-3 of the range off with it held) and the
     default test input drove the damping negative.  A coefficient's unit or quantity (stiffness, damping, mass,
-    inertia, in base units too) holds an input at any start; a kinematic input (m, m/s) or one without a unit that
-    starts at 0 is driven as before."""
+    inertia, translational or rotational, as exporters spell them, in base units or defined in UnitDefinitions)
+    holds an input at any start; a load keeps being driven: a force, a moment, a pressure (audit 59: N/mm2 was held
+    as a stiffness), an acceleration the model defines as g (audit 59: held as grams), a kinematic input, one
+    without a unit that starts at 0."""
     coefficients = [("extraDamping", 'unit="N.s/m" start="0"'), ("spring", 'unit="N/m" start="0"'),
                     ("twist", 'unit="N.m/rad" start="0"'), ("c", 'unit="kg/s2" start="0"'),
                     ("mass", 'unit="kg" start="0"'), ("J", 'unit="kg.m2" start="0"'),
-                    ("k", 'declaredType="Stiffness" start="0"')]
+                    ("k", 'declaredType="Stiffness" start="0"'), ("d1", 'unit="Ns/m" start="0"'),
+                    ("d2", 'unit="N-s/m" start="0"'), ("d3", 'unit="Nms/rad" start="0"'),
+                    ("d4", 'unit="N.s.m-1" start="0"'), ("k2", 'unit="N.m-1" start="0"'),
+                    ("k3", 'unit="kN/mm" start="0"'), ("J2", 'unit="kg·m²" start="0"'), ("J3", 'unit="kgm2" start="0"'),
+                    ("d5", 'unit="N/(m/s)" start="0"'), ("d6", 'unit="damping_unit" start="0"')]
     driven = [("F", 'unit="N" start="0"'), ("base", 'unit="m" start="0"'), ("speed", 'unit="m/s" start="0"'),
-              ("u", 'start="0"'), ("scale", 'unit="1" start="0"'), ("tau", 'unit="kg.m2/s2" start="0"')]
+              ("u", 'start="0"'), ("scale", 'unit="1" start="0"'), ("tau", 'unit="kg.m2/s2" start="0"'),
+              ("p1", 'unit="N/mm2" start="0"'), ("p2", 'unit="kN/m2" start="0"'), ("p3", 'unit="Pa" start="0"'),
+              ("acc", 'unit="g" start="0"'), ("M", 'unit="Nm" start="0"')]
     v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in
-         enumerate(coefficients + driven)] + [_sv("x[1]", 20), _sv("v[1]", 21)]
-    types = ('<TypeDefinitions><SimpleType name="Stiffness"><Real quantity="TranslationalSpringConstant"/>'
+         enumerate(coefficients + driven)] + [_sv("x[1]", 40), _sv("v[1]", 41)]
+    types = ('<UnitDefinitions><Unit name="damping_unit"><BaseUnit kg="1" s="-1"/></Unit>'
+             '<Unit name="g"><BaseUnit m="1" s="-2" factor="9.80665"/></Unit></UnitDefinitions>'
+             '<TypeDefinitions><SimpleType name="Stiffness"><Real quantity="TranslationalSpringConstant"/>'
              '</SimpleType></TypeDefinitions>')
     xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + types)
     default = resolve_variables(_write(tmp_path, xml))

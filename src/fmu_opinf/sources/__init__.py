@@ -218,7 +218,7 @@ def _warn_coefficients(source: Source, names: list[str], forces: list[str], driv
         text = (f"input(s) {shown} are in the unit of a stiffness, a damping or a mass (parameters exposed as "
                 "inputs?) and are held at their start values, not driven"
                 f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
-                "values with --set")
+                f"values with --set, or drive any that is a load with --inputs {','.join(forces + names)}")
     warn_once(source, ("coefficients", tuple(names), tuple(forces)), text)
 
 

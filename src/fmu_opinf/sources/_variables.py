@@ -105,20 +105,99 @@ def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
     return "unknown"
 
 
-def is_coefficient(variable: "Variable") -> bool:
-    """Whether ``variable`` is in the unit (or of the quantity) of a mass, an inertia, a stiffness or a damping
-    (``kg``, ``kg.m2``, ``N/m``, ``N.s/m``, ``N.m/rad``, ``kg/s2``): something a model multiplies its states by,
-    never a force, whatever its start value.  Driven, it makes the model bilinear (audit 58: a damping in N.s/m
+def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
+    """Whether ``variable`` is in the unit (or of the quantity) of a mass, an inertia, a stiffness or a damping,
+    translational or rotational (``kg``, ``kg.m2``, ``N/m``, ``N.s/m``, ``Ns/m``, ``N.m/rad``, ``Nms/rad``,
+    ``kg/s2``, ``N.m-1``, a unit the model defines with such base units): something a model multiplies its states
+    by, never a load, whatever its start value.  Driven, it makes the model bilinear (audit 58: a damping in N.s/m
     exposed as an input with start 0 was pulsed, the fit learned a linear input for it, and the ROM was 4.4e-3 of
-    the range off even with it held; the default test input then drove the damping negative)."""
-    unit = _normalized_unit(variable.unit)
-    if variable.quantity in _COEFFICIENT_QUANTITIES or unit in _MASS_UNITS:
+    the range off even with it held; the default test input then drove the damping negative).  Decided by the
+    unit's dimension (:func:`unit_dimension`), so that a pressure in N/mm2 or an acceleration the model defines as
+    ``g`` stays a load (audit 59: both were held)."""
+    if variable.quantity in _COEFFICIENT_QUANTITIES:
         return True
-    numerator, slash, _ = unit.partition("/")
-    if slash and any(factor in _FORCE_UNITS for factor in numerator.split(".")):
-        return True
-    exponents = _base_exponents(unit)
-    return bool(exponents) and exponents.get("kg") == 1 and exponents not in _FORCE_DIMENSIONS
+    return unit_dimension(variable.unit, model) in _COEFFICIENT_DIMENSIONS
+
+
+#: Dimensions (exponents of kg, m, s and rad) of a mass, an inertia, a stiffness and a damping, translational and
+#: rotational.
+_COEFFICIENT_DIMENSIONS = ({"kg": 1}, {"kg": 1, "m": 2}, {"kg": 1, "s": -2}, {"kg": 1, "s": -1},
+                           {"kg": 1, "m": 2, "s": -2, "rad": -1}, {"kg": 1, "m": 2, "s": -1, "rad": -1})
+
+#: Dimensions of the unit symbols exporters write (with their prefixes), for :func:`unit_dimension`.
+_SYMBOL_DIMENSIONS = {
+    **dict.fromkeys(_FORCE_UNITS - {"Nm", "Nmm", "kNm"}, {"kg": 1, "m": 1, "s": -2}),
+    **dict.fromkeys(_LENGTH_UNITS | {"µm", "mi"}, {"m": 1}),
+    **dict.fromkeys(("s", "ms", "us", "min", "h"), {"s": 1}),
+    **dict.fromkeys(("kg", "g", "mg", "t", "lb"), {"kg": 1}),
+    **dict.fromkeys(("rad", "mrad", "deg", "rev"), {"rad": 1}),
+    **dict.fromkeys(("Pa", "hPa", "kPa", "MPa", "GPa", "bar", "mbar", "psi"), {"kg": 1, "m": -1, "s": -2}),
+    **dict.fromkeys(("J", "kJ"), {"kg": 1, "m": 2, "s": -2}),
+    **dict.fromkeys(("W", "kW"), {"kg": 1, "m": 2, "s": -3}),
+    "Hz": {"s": -1}, "1": {},
+}
+
+#: Products written without a separator where reading the longest symbol first would go wrong (``Nms`` is not
+#: N times milliseconds).
+_RUN_TOGETHER = {"Nms": "N.m.s", "kNms": "kN.m.s"}
+
+
+def unit_dimension(unit: str | None, model: "ModelInfo | None" = None) -> dict[str, int] | None:
+    """The exponents of kg, m, s and rad of ``unit`` (zeros left out; ``{}`` for a number): from the model's
+    ``UnitDefinitions`` where it defines the unit with base units, else read from the unit's symbols (products by
+    ``.``, ``*``, ``·``, a blank, ``-`` or nothing between symbols, quotients by ``/``, parentheses, exponents such
+    as ``m2``, ``m^2``, ``m²``, ``s-1``).  None where a symbol is not known or the unit is empty."""
+    text = (unit or "").strip()
+    if not text:
+        return None
+    defined = getattr(model, "unit_dimensions", {}).get(_normalized_unit(text))
+    if defined is not None:
+        return defined
+    text = text.replace("²", "2").replace("³", "3").replace("^", "")
+    try:
+        found, rest = _quotient(text)
+    except ValueError:
+        return None
+    return None if rest else {key: value for key, value in found.items() if value}
+
+
+def _quotient(text: str) -> tuple[dict[str, int], str]:
+    """The dimension of the product / quotient at the start of ``text`` (up to a closing parenthesis) and the
+    rest of ``text``."""
+    total: dict[str, int] = {}
+    sign = 1   # every factor after a '/' divides (N.s/m.rad: by m and by rad)
+    while text and text[0] != ")":
+        if text[0] in "/.*· -":
+            sign = -1 if text[0] == "/" else sign
+            text = text[1:]
+            continue
+        factor, text = _factor(text)
+        for key, value in factor.items():
+            total[key] = total.get(key, 0) + sign * value
+    return total, text
+
+
+def _factor(text: str) -> tuple[dict[str, int], str]:
+    """One symbol or parenthesized group with its exponent at the start of ``text``, and the rest."""
+    if text[0] == "(":
+        inner, rest = _quotient(text[1:])
+        if not rest.startswith(")"):
+            raise ValueError(text)
+        text, base = rest[1:], inner
+    else:
+        symbol = next((s for s in sorted({*_SYMBOL_DIMENSIONS, *_RUN_TOGETHER}, key=len, reverse=True)
+                       if text.startswith(s)), None)
+        if symbol is None:
+            raise ValueError(text)
+        text = text[len(symbol):]
+        if symbol in _RUN_TOGETHER:
+            base = _quotient(_RUN_TOGETHER[symbol])[0]
+        else:
+            base = _SYMBOL_DIMENSIONS[symbol]
+    power = re.match(r"-?\d+", text)
+    exponent = int(power[0]) if power else 1
+    text = text[power.end():] if power else text
+    return {key: value * exponent for key, value in base.items()}, text
 
 
 def _normalized_unit(unit: str | None) -> str:
@@ -149,9 +228,10 @@ def _base_exponents(unit: str) -> dict[str, int] | None:
     return {k: v for k, v in exponents.items() if v}
 
 
-def _defined_force_units(root: ET.Element) -> set[str]:
-    """Names of the units in ``UnitDefinitions`` whose ``BaseUnit`` is that of a force or a moment."""
-    found = set()
+def _defined_unit_dimensions(root: ET.Element) -> dict[str, dict[str, int]]:
+    """The base-unit exponents (``kg``, ``m``, ``s``, ``rad``, ...; zeros left out) of each unit that
+    ``UnitDefinitions`` defines with a ``BaseUnit``, by its name."""
+    found = {}
     for unit in root.iterfind("UnitDefinitions/Unit"):
         base = unit.find("BaseUnit")
         if base is None:
@@ -161,8 +241,7 @@ def _defined_force_units(root: ET.Element) -> set[str]:
                          if key not in ("factor", "offset") and int(value)}
         except ValueError:
             continue
-        if exponents in _FORCE_DIMENSIONS:
-            found.add(_normalized_unit(unit.get("name", "")))
+        found[_normalized_unit(unit.get("name", ""))] = exponents
     return found
 
 
@@ -392,7 +471,9 @@ class ModelInfo:
         self._type_display_units = _type_attribute(root, "displayUnit")
         self._type_quantities = _type_attribute(root, "quantity")
         #: units the model defines (UnitDefinitions) with the base units of a force or a moment (:func:`unit_kind`)
-        self.force_units = _defined_force_units(root)
+        #: the units UnitDefinitions defines with base units: their dimensions, and those of a force or a moment
+        self.unit_dimensions = _defined_unit_dimensions(root)
+        self.force_units = {name for name, dims in self.unit_dimensions.items() if dims in _FORCE_DIMENSIONS}
         #: FMI 3 ``<Alias>`` names -> the name of the variable they designate
         self.aliases: dict[str, str] = {}
         self.variables = (self._read3(node) if self.fmi3 else self._read2(node)) if node is not None else []
@@ -1317,7 +1398,7 @@ def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     and so is a damping in N.s/m that starts at 0 (audit 58)."""
     if unit_kind(element.var, model) == "force":
         return False
-    return nonzero_start(element) or is_coefficient(element.var)
+    return nonzero_start(element) or is_coefficient(element.var, model)
 
 
 def element_names(name: str, shape: Sequence[int]) -> list[str]:
