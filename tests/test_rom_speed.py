@@ -223,7 +223,8 @@ def test_rom_fmu_is_driven_like_the_source(monkeypatch):
         calls[str(side)] = options
         return np.ones((1, t.size)), 1.0, {}, ["y"]
 
-    info = {"m": 1, "p": 1, "r": 2, "dt": 0.5, "output_names": ["y"], "t_train_end": 10.0, "provenance": {}}
+    info = {"m": 1, "p": 1, "r": 2, "dt": 0.5, "output_names": ["y"], "input_names": ["u"], "t_train_end": 10.0,
+            "provenance": {}}
     monkeypatch.setattr(compare_module, "simulate_outputs", fake_outputs)
     monkeypatch.setattr(compare_module, "_rom_side_info", lambda side: info)
     for isolate in (True, False):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import signals
-from fmu_opinf.errors import DimensionError, InputSpecError
+from fmu_opinf.errors import DimensionError, FmuOpinfWarning, InputSpecError
 
 
 def test_impulse_is_a_smooth_pulse_centred_at_t0():
@@ -142,17 +142,40 @@ def test_a_table_s_header_puts_its_columns_where_it_names_the_inputs(tmp_path):
     assert np.array_equal(swapped.sample(np.array([0.0, 1.0])), [[10, 20], [1, 2]])
     placed = signals.parse_signal("none;" + _write(tmp_path, "time,F_kN\n0,1\n1,2\n", "kn.csv"), 2, names)
     assert np.array_equal(placed.sample(np.array([0.0, 1.0])), [[0, 0], [1, 2]])
-    generic = signals.parse_signal(_write(tmp_path, "time,u\n0,1\n1,2\n", "u1.csv"), 2, names)   # names no input
+    with pytest.warns(FmuOpinfWarning, match=r"names none of the inputs \(F_mN, F_kN\), so its columns are taken "
+                                             r"in order: u drives each of F_mN, F_kN"):
+        generic = signals.parse_signal(_write(tmp_path, "time,u\n0,1\n1,2\n", "u1.csv"), 2, names)
     assert np.array_equal(generic.sample(np.array([1.0])), [[2], [2]])
-    ordered = signals.parse_signal(_write(tmp_path, "time,a,b\n0,1,10\n1,2,20\n", "ab.csv"), 2, names)
+    with pytest.warns(FmuOpinfWarning, match=r"taken in order: a -> F_mN, b -> F_kN"):
+        ordered = signals.parse_signal(_write(tmp_path, "time,a,b\n0,1,10\n1,2,20\n", "ab.csv"), 2, names)
     assert np.array_equal(ordered.sample(np.array([0.0])), [[1], [10]])
+
+
+@pytest.mark.parametrize("header", ['f_kn,f_mn', 'F_kN [kN], F_mN [mN]', ' "F_kN", "F_mN"', "F_KN,F_MN"])
+def test_a_header_that_names_the_inputs_but_for_case_quotes_or_a_unit_is_matched_by_name(tmp_path, header):
+    """Audit 59: cells differing from the input names in case, by a unit in brackets or by a blank before a quote
+    were read by position, and swapped the two inputs."""
+    table = signals.parse_signal(_write(tmp_path, f"time,{header}\n0,1,10\n1,2,20\n"), 2, ["F_mN", "F_kN"])
+    assert table.names == ["F_mN", "F_kN"]
+    assert np.array_equal(table.sample(np.array([0.0, 1.0])), [[10, 20], [1, 2]])
+
+
+def test_a_table_with_a_column_for_a_held_input_or_separated_otherwise_is_refused_in_one_line(tmp_path):
+    """Audit 59: a one-column table headed by an input the model holds (a parameter exposed as an input) drove
+    the force input with its values; a table separated by semicolons was said to lack an input column."""
+    with pytest.raises(InputSpecError, match=r"has a column for springScale, held at its start value, not driven "
+                                             r"\(the driven inputs: F\); drive it with --inputs F,springScale"):
+        signals.parse_signal(_write(tmp_path, "time,springScale\n0,1\n1,2\n"), 1, ["F"], ["springScale"])
+    with pytest.raises(InputSpecError, match="is separated by semicolons; write it with commas"):
+        signals.parse_signal(_write(tmp_path, "time;F\n0;1\n1;2\n", "semi.csv"), 1, ["F"])
 
 
 @pytest.mark.parametrize("text, spec, message", [
     ("time,F_kN\n0,1\n1,2\n", "{}", "has no column for F_mN; give a column for each input (F_mN, F_kN)"),
     ("time,F_kN\n0,1\n1,2\n", "{};none", "gives F_kN in the place of F_mN among the ';' specs"),
     ("time,F_kN,force\n0,1,2\n1,2,3\n", "{}", "has columns force beside the model's inputs (F_mN, F_kN)"),
-    ("time,F_kN,F_kN\n0,1,2\n1,2,3\n", "{}", "names a column twice (F_kN, F_kN)"),
+    ("time,F_kN,F_kN\n0,1,2\n1,2,3\n", "{}", "names an input twice (F_kN, F_kN)"),
+    ("time,F_kN,f_kn [kN]\n0,1,2\n1,2,3\n", "{}", "names an input twice (F_kN, f_kn [kN])"),
 ])
 def test_a_table_naming_inputs_it_cannot_drive_is_refused_in_one_line(tmp_path, text, spec, message):
     path = _write(tmp_path, text)

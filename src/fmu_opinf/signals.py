@@ -23,13 +23,15 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 
-from .errors import DimensionError, InputSpecError
+from .errors import DimensionError, FmuOpinfWarning, InputSpecError
 
 __all__ = [
     "Signal", "ParametricSignal", "TableSignal", "StackedSignal", "NoInput",
@@ -218,6 +220,10 @@ def table(path: str | os.PathLike) -> TableSignal:
         raise InputSpecError(f"input table {path} needs a header row and at least two data rows")
     header = [c.strip() for c in rows[0]]
     if len(header) < 2:
+        separator = next((name for mark, name in ((";", "semicolons"), ("\t", "tabs")) if mark in rows[0][0]), None)
+        if separator:
+            raise InputSpecError(f"input table {path} is separated by {separator}; write it with commas (a time "
+                                 "column, then one column per input)")
         raise InputSpecError(f"input table {path} needs a time column and at least one input column")
     data = np.empty((len(rows) - 1, len(header)))
     for line, row in enumerate(rows[1:], start=2):
@@ -312,18 +318,19 @@ def _parse_one(spec: str) -> Signal:
     return _make(kind, **params)
 
 
-def parse_signal(spec: str | Signal, n_inputs: int | None = None,
-                 input_names: Sequence[str] | None = None) -> Signal:
+def parse_signal(spec: str | Signal, n_inputs: int | None = None, input_names: Sequence[str] | None = None,
+                 held_names: Sequence[str] = ()) -> Signal:
     """Signal from its textual form (see module docstring), checked against ``n_inputs``.
 
     A single scalar spec drives all ``n_inputs`` inputs; ``;`` separates one spec per input.  With the model's
-    ``input_names``, a table whose header names inputs gives each its own column (:func:`by_input_names`).
+    ``input_names`` (and the names of its inputs held, not driven), a table whose header names inputs gives each
+    its own column (:func:`by_input_names`).
     """
     if not isinstance(spec, Signal) and str(spec).strip().lower() == "none":
         return NoInput(n_inputs or 0)
     signal = spec if isinstance(spec, Signal) else _stack([_parse_one(s) for s in str(spec).split(";")])
     if input_names is not None:
-        signal = by_input_names(signal, input_names)
+        signal = by_input_names(signal, input_names, held_names)
     if n_inputs is None or signal.n_inputs == n_inputs:
         return signal
     if n_inputs == 0:  # broadcast to no channel it would vanish, and a report would name an input never applied
@@ -339,24 +346,31 @@ def _stack(parts: list[Signal]) -> Signal:
     return parts[0] if len(parts) == 1 else StackedSignal(parts)
 
 
-def by_input_names(signal: Signal, input_names: Sequence[str]) -> Signal:
+def by_input_names(signal: Signal, input_names: Sequence[str], held_names: Sequence[str] = ()) -> Signal:
     """``signal`` with the columns of its tables put where the header names them among ``input_names``.
 
     A table's header is the one place a user names inputs: read by position, a table whose columns came in
     another order than the model's inputs drove each input with another's values, and a one-column table named
     for one input drove all of them (audit 58: ``time,F_kN,F_mN`` for inputs ``F_mN, F_kN``; compare then agreed
-    to 1e-25 on inputs nobody had asked for).  A header that names none of the inputs (``time,u``) keeps the
-    columns in their order, as before; one that names some of them and not the others is refused.
+    to 1e-25 on inputs nobody had asked for).  A header cell names an input as written, or apart from quotes,
+    blanks, case and a unit in brackets after a blank (``"f_kn [kN]"``; audit 59: such near misses were read by
+    position).  A header that names none of the inputs (``time,u``) keeps the columns in their order, said in a
+    warning where that order decides which input gets which column; one that names some of them and not the
+    others, or an input held at its start value (``held_names``: not driven, audit 59), is refused.
 
     Raises
     ------
     InputSpecError
-        A header naming inputs that are not where the table's columns go, or naming some inputs and not others.
+        A header naming inputs that are not where the table's columns go, naming some inputs and not others, or
+        naming a held input.
     """
     names = list(input_names)
     parts = signal.parts if isinstance(signal, StackedSignal) else [signal]
     if not any(isinstance(part, TableSignal) for part in parts):
         return signal
+    for part in parts:
+        if isinstance(part, TableSignal):
+            _refuse_held_columns(part, names, list(held_names))
     whole = len(parts) == 1 and parts[0].n_inputs < len(names)   # one table meant for every input
     if not whole and signal.n_inputs != len(names):
         return signal   # (the count of channels is refused where the signal is checked against the model)
@@ -368,34 +382,84 @@ def by_input_names(signal: Signal, input_names: Sequence[str]) -> Signal:
     return _stack(matched) if len(matched) > 1 else matched[0]
 
 
+def _column_key(text: str) -> str:
+    """A header cell or an input name as they are matched: without quotes, surrounding blanks and a unit in
+    brackets after a blank (``F_kN [kN]``, not the index of ``F[2]``), case folded."""
+    text = text.strip().strip("\"'").strip()
+    return re.sub(r"\s+[\[(][^\[\]()]*[\])]$", "", text).casefold()
+
+
+def _named_inputs(header: list[str], names: list[str]) -> list[str | None]:
+    """The input each header cell names (:func:`by_input_names`), None where it names none; a cell matching two
+    inputs but for case names neither."""
+    keys: dict[str, list[str]] = {}
+    for name in names:
+        keys.setdefault(_column_key(name), []).append(name)
+    found: list[str | None] = []
+    for cell in header:
+        matches = [cell] if cell in names else keys.get(_column_key(cell), [])
+        found.append(matches[0] if len(matches) == 1 else None)
+    return found
+
+
+def _refuse_held_columns(table: TableSignal, names: list[str], held: list[str]) -> None:
+    """One line where ``table``'s header names an input that is held, not driven: its column would drive another."""
+    columns = [cell for cell, name in zip(table.names, _named_inputs(table.names, held)) if name is not None
+               and cell not in names]
+    if columns:
+        raise InputSpecError(f"input table {table.spec} has a column for {', '.join(columns)}, held at its start "
+                             f"value, not driven (the driven inputs: {', '.join(names) or 'none'}); drive it with "
+                             f"--inputs {','.join(names + columns)}, or leave its column out")
+
+
+#: The tables whose columns :func:`_table_by_names` said it takes in order (one warning per table and inputs).
+_SAID_IN_ORDER: set[tuple[str, tuple[str, ...]]] = set()
+
+
 def _table_by_names(table: TableSignal, wanted: list[str], names: list[str]) -> TableSignal:
     """``table`` with its columns in the order of ``wanted`` (the inputs its columns go to), or as it is where its
     header names none of the model's ``names``."""
-    header = table.names
-    named = [column for column in header if column in names]
-    if not named:
-        return table
+    resolved = _named_inputs(table.names, names)
     listed = ", ".join(names)
-    if len(set(header)) != len(header):
-        raise InputSpecError(f"input table {table.spec} names a column twice ({', '.join(header)}); give each input "
-                             "one column")
-    if len(named) != len(header):
-        others = ", ".join(column for column in header if column not in names)
+    if not any(resolved):
+        _warn_in_order(table, wanted, names)
+        return table
+    if None in resolved:
+        others = ", ".join(cell for cell, name in zip(table.names, resolved) if name is None)
         raise InputSpecError(f"input table {table.spec} has columns {others} beside the model's inputs ({listed}); "
                              "name every column after an input, or none of them to take the columns in order")
-    if set(header) < set(wanted):
-        missing = ", ".join(name for name in wanted if name not in header)
+    if len(set(resolved)) != len(resolved):
+        raise InputSpecError(f"input table {table.spec} names an input twice ({', '.join(table.names)}); give each "
+                             "input one column")
+    if set(resolved) < set(wanted):
+        missing = ", ".join(name for name in wanted if name not in resolved)
         raise InputSpecError(f"input table {table.spec} has no column for {missing}; give a column for each input "
                              f"({listed}), or one spec per input separated by ';' (none holds an input at its start "
                              "value)")
-    if sorted(header) != sorted(wanted):
-        raise InputSpecError(f"input table {table.spec} gives {', '.join(header)} in the place of "
+    if sorted(resolved) != sorted(wanted):
+        raise InputSpecError(f"input table {table.spec} gives {', '.join(resolved)} in the place of "
                              f"{', '.join(wanted)} among the ';' specs (the model's inputs in order: {listed}); put "
                              "it where its inputs are")
-    if header == wanted:
-        return table
-    order = [header.index(name) for name in wanted]
+    if resolved == wanted:
+        return table if table.names == wanted else TableSignal(table.times, table.values, wanted, table.spec)
+    order = [resolved.index(name) for name in wanted]
     return TableSignal(table.times, table.values[order], wanted, table.spec)
+
+
+def _warn_in_order(table: TableSignal, wanted: list[str], names: list[str]) -> None:
+    """Say once which input takes which column of a table whose header names none of them, where that is a choice
+    (two inputs or more)."""
+    key = (table.spec, tuple(wanted))
+    if len(names) < 2 or key in _SAID_IN_ORDER:
+        return
+    _SAID_IN_ORDER.add(key)
+    if table.n_inputs == 1:
+        pairs = f"{table.names[0]} drives each of {', '.join(wanted)}"
+    else:
+        pairs = ", ".join(f"{cell} -> {name}" for cell, name in zip(table.names, wanted))
+    warnings.warn(f"input table {table.spec}: its header ({', '.join(table.names)}) names none of the inputs "
+                  f"({', '.join(names)}), so its columns are taken in order: {pairs}; name the columns after the "
+                  "inputs to have them matched by name", FmuOpinfWarning, stacklevel=4)
 
 
 def pulse_amplitude(high: float, default: float) -> float:

@@ -529,7 +529,8 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
         from ..signals import parse_signal
 
         names = source.input_names if source is not None and len(source.input_names) == m else None
-        parsed = parse_signal(signal, m, names) if m else parse_signal(signal)
+        held = getattr(source, "held_input_names", ()) if names is not None else ()
+        parsed = parse_signal(signal, m, names, held) if m else parse_signal(signal)
         return _undriven_held(parsed, source) if source is not None else parsed
     if not hasattr(signal, "sample"):
         raise InputSpecError(f"input {signal!r} is neither a signal nor a signal specification")
