@@ -217,20 +217,27 @@ def test_an_input_in_a_force_unit_is_driven_on_top_of_its_preload(tmp_path):
               ("q", 'declaredType="Push" start="6"'), ("M", 'unit="kNm" start="7"')]
     parameters = [("c", 'unit="N/m" start="400"'), ("d", 'unit="N.s/m" start="2"'), ("mass", 'unit="kg" start="3"'),
                   ("scale", 'unit="1" start="1"'), ("gain", 'start="2"')]
-    v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in
-         enumerate(forces + parameters)] + [_sv("x[1]", 20), _sv("v[1]", 21)]
     units = ('<UnitDefinitions><Unit name="pound"><BaseUnit kg="1" m="1" s="-2" factor="4.448"/></Unit>'
              '<Unit name="N/m"><BaseUnit kg="1" s="-2"/></Unit></UnitDefinitions>'
              '<TypeDefinitions><SimpleType name="Force"><Real quantity="Force" unit="N"/></SimpleType>'
              '<SimpleType name="Push"><Real quantity="Force"/></SimpleType></TypeDefinitions>')
-    xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + units)
-    path = _write(tmp_path, xml)
+    path = _inputs_description(tmp_path, forces + parameters, units)
     default = resolve_variables(path)
     assert _names(default.forces) == [name for name, _ in forces]
     assert _names(default.held) == _names(default.parameter_like) == ["c", "d", "gain", "mass", "scale"]
     model = ModelInfo.from_path(path)
     assert [unit_kind(e.var, model) for e in default.held] == ["parameter", "parameter", "unknown", "parameter",
                                                                "parameter"]
+
+
+def _inputs_description(tmp_path, inputs: list[tuple[str, str]], definitions: str) -> Path:
+    """A model description with the real inputs ``(name, attributes of <Real>)``, one state pair and the unit and
+    type ``definitions`` (XML)."""
+    v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in enumerate(inputs)]
+    v += [_sv("x[1]", len(inputs)), _sv("v[1]", len(inputs) + 1)]
+    xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>',
+                               '<CoSimulation modelIdentifier="m"/>' + definitions)
+    return _write(tmp_path, xml)
 
 
 def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
@@ -253,14 +260,11 @@ def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
               ("u", 'start="0"'), ("scale", 'unit="1" start="0"'), ("tau", 'unit="kg.m2/s2" start="0"'),
               ("p1", 'unit="N/mm2" start="0"'), ("p2", 'unit="kN/m2" start="0"'), ("p3", 'unit="Pa" start="0"'),
               ("acc", 'unit="g" start="0"'), ("M", 'unit="Nm" start="0"')]
-    v = [_sv(name, vr, "input", body=f"<Real {attributes}/>") for vr, (name, attributes) in
-         enumerate(coefficients + driven)] + [_sv("x[1]", 40), _sv("v[1]", 41)]
     types = ('<UnitDefinitions><Unit name="damping_unit"><BaseUnit kg="1" s="-1"/></Unit>'
              '<Unit name="g"><BaseUnit m="1" s="-2" factor="9.80665"/></Unit></UnitDefinitions>'
              '<TypeDefinitions><SimpleType name="Stiffness"><Real quantity="TranslationalSpringConstant"/>'
              '</SimpleType></TypeDefinitions>')
-    xml = _fmi2(v, []).replace('<CoSimulation modelIdentifier="m"/>', '<CoSimulation modelIdentifier="m"/>' + types)
-    default = resolve_variables(_write(tmp_path, xml))
+    default = resolve_variables(_inputs_description(tmp_path, coefficients + driven, types))
     assert _names(default.forces) == [name for name, _ in driven]
     assert _names(default.held) == _names(default.parameter_like) == sorted(name for name, _ in coefficients)
 
