@@ -254,7 +254,8 @@ def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
                     ("k", 'declaredType="Stiffness" start="0"'), ("d1", 'unit="Ns/m" start="0"'),
                     ("d2", 'unit="N-s/m" start="0"'), ("d3", 'unit="Nms/rad" start="0"'),
                     ("d4", 'unit="N.s.m-1" start="0"'), ("k2", 'unit="N.m-1" start="0"'),
-                    ("k3", 'unit="kN/mm" start="0"'), ("J2", 'unit="kg·m²" start="0"'), ("J3", 'unit="kgm2" start="0"'),
+                    ("k3", 'unit="kN/mm" start="0"'), ("J2", 'unit="kg·m²" start="0"'),
+                    ("J3", 'unit="kgm2" start="0"'),
                     ("d5", 'unit="N/(m/s)" start="0"'), ("d6", 'unit="damping_unit" start="0"')]
     driven = [("F", 'unit="N" start="0"'), ("base", 'unit="m" start="0"'), ("speed", 'unit="m/s" start="0"'),
               ("u", 'start="0"'), ("scale", 'unit="1" start="0"'), ("tau", 'unit="kg.m2/s2" start="0"'),

@@ -391,7 +391,8 @@ class FMUSource(Source):
         #: driven (force) inputs that look like parameters exposed as inputs (looks_like_parameter)
         self.driven_parameter_like_names = [e.name for e in forces if looks_like_parameter(e, model)]
         #: those of both in the unit of a coefficient (N.s/m, kg): told apart in the warning
-        self.coefficient_input_names = [e.name for e in [*forces, *resolved.parameter_like] if is_coefficient(e.var, model)]
+        self.coefficient_input_names = [e.name for e in [*forces, *resolved.parameter_like]
+                                        if is_coefficient(e.var, model)]
 
     def reselect(self, positions: Any, velocities: Any, accelerations: str | None, reason: str) -> None:
         """Record other positions, velocities or accelerations from the next run on (the recorder's rate check
