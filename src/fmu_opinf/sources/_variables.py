@@ -857,7 +857,8 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
                        "no derivative is an alias of a state, the model structure declares no dependency pairing "
-                       "them, and they are not positions then velocities; pass --positions and --velocities")
+                       f"them, and they are not positions then velocities; pass --positions and --velocities"
+                       f"{_patterns_by_units(states)}")
     pos = _named(elements, "x[*]")
     if pos:
         return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
@@ -1039,6 +1040,20 @@ def _paired_by_units(model: ModelInfo, states: _States
     vel_columns = [Column(e, e.sign) for e in vel]
     return ([Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns),
             _UNITS if named else _UNITS_IN_ORDER)
+
+
+def _patterns_by_units(states: _States) -> str:
+    """Where the units tell the states' kinds but not their pairing: the variables of each kind, as patterns to
+    put in matching order (audit 59: the refusal named no variable to pass); "" otherwise."""
+    kinds = [[e for e in states.states if _unit_kind(e) == kind] for kind in (0, 1)]
+    if not kinds[0] or len(kinds[0]) != len(kinds[1]) or len(kinds[0]) + len(kinds[1]) != len(states.states):
+        return ""
+    patterns = []
+    for elements in kinds:
+        variables = list(dict.fromkeys(e.var.name if e.var.dims else e.name for e in elements))
+        patterns.append(",".join(f"{name}[*]" if name in {e.var.name for e in elements if e.var.dims} else name
+                                 for name in variables))
+    return f" in matching order (by their units, positions {patterns[0]}; velocities {patterns[1]})"
 
 
 def _variable_sizes(elements: list[Element]) -> list[int]:
