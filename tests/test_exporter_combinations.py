@@ -532,6 +532,23 @@ def test_undamped_model_window_stops_after_periods(fmus, tmp_path, name):
     assert metrics["max_error"] < 1e-22                                             # measured 1.4e-26, 1.6e-23
 
 
+def test_a_negated_alias_input_s_range_bounds_its_own_value(fmus, tmp_path):
+    """A negated alias declares its own min / max as its own start: the range of its value, the one recorded and
+    exported (audit 60: flipped, an alias in [-5, 10] was recorded and exported as [-10, 5])."""
+    from fmu_opinf.source import open_source
+
+    def ranged(text: str) -> str:
+        return re.sub(r'(<ScalarVariable name="F" [^>]*>\s*<Real)', r'\1 min="-5" max="10"', text, count=1)
+
+    fmu = rewrite_description(fmus["negated-alias"][0], tmp_path / "ranged.fmu", ranged)
+    source = open_source(fmu, positions="", interface="cs")
+    try:
+        low, high = source.input_ranges()
+    finally:
+        source.close()
+    assert list(low) == [-5.0] and list(high) == [10.0]
+
+
 @pytest.mark.parametrize("interface", ["auto", "cs"])
 def test_negated_aliases_and_undefined_unit(fmus, tmp_path, capsys, monkeypatch, interface):
     """5. The state of body 1 is a negatedAlias (flange.s = -x_1), so are the force input F (the FMU's force is

@@ -465,14 +465,11 @@ class FMUSource(Source):
         return np.array(out, dtype=float)
 
     def input_ranges(self) -> tuple[np.ndarray, np.ndarray]:
-        """The force inputs' declared ``[min, max]`` (their variable's or its declared type's), in the recorded
-        sign; infinite where none is declared."""
-        lows, highs = [], []
-        for column in self._write.columns:
-            low, high = declared_range(column.element)
-            lows.append(-high if column.sign < 0 else low)
-            highs.append(-low if column.sign < 0 else high)
-        return np.array(lows, dtype=float), np.array(highs, dtype=float)
+        """The force inputs' declared ``[min, max]`` (their variable's or its declared type's); infinite where none
+        is declared.  A negated alias's own ``min`` / ``max`` bound its own value, the one recorded, as its own
+        ``start`` is its start (audit 60: flipped, an alias in [0, 10] starting at 2 was pulsed down to -8)."""
+        ranges = [declared_range(column.element) for column in self._write.columns]
+        return (np.array([low for low, _ in ranges], dtype=float), np.array([high for _, high in ranges], dtype=float))
 
     def failure_hint(self, U: np.ndarray, step: int, message: str = "") -> str:
         """Why a step may have failed.
