@@ -615,6 +615,31 @@ def test_the_default_test_input_counts_the_offsets_step_response():
     assert swing.max() >= 0.1, (spec, swing)   # measured 0.086 / 0.15 (amplitude 6.81 of 60; unshifted: 0)
 
 
+@pytest.mark.parametrize("low, high", [(0.0, 30.0), (-30.0, 0.0), (-4.0, 6.0)])
+def test_the_default_test_input_stays_within_the_declared_input_range(low, high):
+    """Audit 60: the exported ROM FMU refuses inputs outside the source's declared range, and compare's default
+    harmonic about the training's 0 took a push-only input in [0, 30] to -0.58, so compare failed.  The offsets
+    move as little as the swing needs, and the response stays within half the training peak or where the offsets'
+    own step response from rest takes it.  Reference: the exact response of the oscillators."""
+    from fmu_opinf._test_input import default_test_input
+    from fmu_opinf.signals import parse_signal
+
+    training = ["impulse:amplitude=30,t0=2,width=0.5" if high > 0 else "impulse:amplitude=-30,t0=2,width=0.5"]
+    model = _oscillators([1.0, 3.0], 0.05, 1, training, t_end=40.0)
+    model.provenance["snapshots"] = {"input_min": [low], "input_max": [high]}
+    spec, why = default_test_input(model, 0.01, 160.0)
+    u = parse_signal(spec, 1).sample(np.arange(16001) * 0.01)
+    assert low <= u.min() and u.max() <= high, (spec, u.min(), u.max())
+    assert u.max() - u.min() >= 2.0, spec   # it still swings (measured 4.1 / 4.9 / 7.7)
+    trained = np.abs(_exact_outputs(model, training[0], 0.01, 40.0)).max(axis=1)
+    ratios = np.abs(_exact_outputs(model, spec, 0.01, 160.0)).max(axis=1) / trained
+    offsets_alone = _exact_outputs(model, re.sub(r"amplitude=[0-9.e-]+", "amplitude=0", spec), 0.01, 160.0)
+    reach = np.abs(offsets_alone).max(axis=1) / trained
+    # measured 0.54 / 0.64 / 0.48 (the offsets alone 0.55 / 0.65 / 0)
+    assert np.all(ratios <= np.maximum(0.5, reach) + 1e-6), (spec, ratios, reach)
+    assert ("within its declared range" in why) == (low == 0.0 or high == 0.0), why
+
+
 def test_a_carried_cosine_is_centred_on_the_comparison_s_steps():
     """Audit 52: a ROM FMU's carried cosine kept the phase of the export's step; at another --dt a free body drifted
     (2.1 times its training peak at t_end 1000).  The phase is made for the comparison's step.  Reference: the

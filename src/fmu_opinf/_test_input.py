@@ -79,15 +79,68 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
                    for j in range(len(driven))]
     waves = {i: {"omega": frequency, "phase": cosine_phase(frequency, dt) if rigid else 0.0, "offset": drives[i][1]}
              for i, frequency in zip(driven, frequencies)}
-    amplitudes = {i: drives[i][0] for i in driven}
-    scale, offsets, shift = _scale_to_training_range(rom, waves, amplitudes, dt, t_end, rigid)
-    factor = 1.0 if scale is None else scale
+    trained = {i: drives[i][0] for i in driven}
+    amplitudes, scale, offsets, shift = _sized_within_ranges(rom, waves, trained, dt, t_end, rigid)
+    waves, _, moved = _within_declared_ranges(rom, waves, amplitudes)   # the offsets for the final swing
     waves = {i: dict(wave, phase=float(f"{wave['phase'] + shift:.10g}")) for i, wave in waves.items()}
-    spec = _spec(rom.m, waves, {i: _three_digits_down(factor * a) for i, a in amplitudes.items()})
+    spec = _spec(rom.m, waves, amplitudes)
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
-    how = _sizing_phrase(scale, offsets) + (", its phase shifted to let it swing wider" if shift else "")
+    how = _sizing_phrase(scale, offsets) + (", its phase shifted to let it swing wider" if shift else "") + moved
     cosine = ", a cosine (the ROM has a rigid-body mode)" if rigid else ""
     return spec, f"{what} {where}{cosine}, {how}"
+
+
+#: Rounds of sizing and moving the offsets into the declared ranges (:func:`_within_declared_ranges`).
+_RANGE_ROUNDS = 3
+
+
+def _sized_within_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, float]], trained: dict[int, float],
+                         dt: float, t_end: float, rigid: bool) -> tuple[dict[int, float], float | None, float, float]:
+    """The test amplitudes (three digits, rounded down), the scale on the training's that the phrase reports
+    (:func:`_sizing_phrase`: None where no peak is known), how far the offsets go and the phase shift
+    (:func:`_scale_to_training_range`), with the offsets moved into the declared input ranges
+    (:func:`_within_declared_ranges`): sized again where a smaller swing lets them move less."""
+    amplitudes, scale, offsets, shift = dict(trained), None, 0.0, 0.0
+    for _ in range(_RANGE_ROUNDS):
+        placed, amplitudes, moved = _within_declared_ranges(rom, waves, amplitudes)
+        scale, offsets, shift = _scale_to_training_range(rom, placed, amplitudes, dt, t_end, rigid)
+        if not moved or scale is None or scale >= 1:
+            break
+        amplitudes, scale = {i: scale * a for i, a in amplitudes.items()}, 1.0
+    factor = 1.0 if scale is None else scale
+    final = {i: _three_digits_down(factor * a) for i, a in amplitudes.items()}
+    if scale is not None and any(final[i] < _three_digits_down(a) for i, a in trained.items()):
+        scale = min(final[i] / a for i, a in trained.items() if a > 0)
+    return final, scale, offsets, shift
+
+
+def _within_declared_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, float]], amplitudes: dict[int, float]
+                            ) -> tuple[dict[int, dict[str, float]], dict[int, float], str]:
+    """The harmonics' offsets (the training's, in ``waves``) moved as little as lets each input swing by its
+    amplitude within the range its training source declared (:meth:`SecondOrderROM.input_ranges`; where a range
+    is narrower than the swing, the amplitude too), written to six digits, and a phrase that says so ("" where
+    nothing moved).  The source refuses values outside, and so does the exported ROM FMU (audit 60: a harmonic
+    about the training's 0 took a push-only input in [0, 30] to -0.58)."""
+    low, high = rom.input_ranges()
+    waves, amplitudes, moved = dict(waves), dict(amplitudes), []
+    for i, wave in waves.items():
+        offset = wave["offset"]
+        lo, hi, given = float(low[i]), float(high[i]), amplitudes[i]
+        if hi - lo < 2 * given:   # (a margin below the half width: the offset's rounding stays inside)
+            amplitude, centre = float(f"{0.5 * (hi - lo) * (1 - 1e-6):.6g}"), 0.5 * (lo + hi)
+        else:
+            amplitude, centre = given, min(max(offset, lo + given), hi - given)
+        centre = _six_digits_inside(centre, lo + amplitude, hi - amplitude)
+        waves[i], amplitudes[i] = dict(wave, offset=centre), amplitude
+        if centre != offset or amplitude != given:
+            moved.append(f"{rom.input_names[i]} about {centre:.6g} within its declared range [{lo:g}, {hi:g}]")
+    return waves, amplitudes, (", " + "; ".join(moved) if moved else "")
+
+
+def _six_digits_inside(value: float, low: float, high: float) -> float:
+    """``value`` (in ``[low, high]``) to six significant digits where those stay in the interval, else as is."""
+    short = float(f"{value:.6g}")
+    return short if low <= short <= high else float(value)
 
 
 def _three_digits_down(value: float) -> float:
