@@ -58,3 +58,13 @@ def test_a_rom_simulated_from_a_table_takes_each_input_from_its_named_column(tmp
     np.testing.assert_array_equal(swapped.u, ordered.u)
     np.testing.assert_array_equal(swapped.y, ordered.y)
     assert np.abs(ordered.y[0]).max() > 0.1 and np.abs(ordered.y[1]).max() > 0.1   # both inputs move the model
+
+
+def test_a_rom_refuses_a_table_column_named_after_an_input_its_source_held(tmp_path):
+    """Audit 60: compare and the ROM drove the force with a column headed by the stiffness input the training held
+    (only snapshots refused it)."""
+    rom = SecondOrderROM(np.eye(1), 0.2 * np.eye(1), np.eye(1), np.eye(1), np.eye(1), np.zeros((1, 1)),
+                         input_names=["F"], provenance={"snapshots": {"held_input_names": ["springScale"]}})
+    first, _ = _forces()
+    with pytest.raises(InputSpecError, match="has a column for springScale, held at its start value"):
+        rom.simulate(_table(tmp_path / "scale.csv", ["springScale"], [first]), DT, T_END)

@@ -182,3 +182,15 @@ def test_a_table_naming_inputs_it_cannot_drive_is_refused_in_one_line(tmp_path, 
     with pytest.raises(InputSpecError, match=re.escape(message)) as info:
         signals.parse_signal(spec.format(path), 2, ["F_mN", "F_kN"])
     assert "\n" not in str(info.value)
+
+
+def test_inputs_that_differ_in_case_take_their_own_columns_and_a_held_one_is_named_as_declared(tmp_path):
+    """Audit 60: with inputs F and f, the header 'f [N],F [N]' was taken in order (swapped); with F driven and f
+    held, 'F [N]' was refused as f's; a refusal named the header's 'SPRINGSCALE [1]' where --inputs needs the
+    input's own name."""
+    table = signals.parse_signal(_write(tmp_path, "time,f [N],F [N]\n0,1,10\n1,2,20\n"), 2, ["F", "f"])
+    assert np.array_equal(table.sample(np.array([0.0])), [[10], [1]])
+    assert signals.parse_signal(_write(tmp_path, "time,F [N]\n0,1\n1,2\n", "F.csv"), 1, ["F"], ["f"]).names == ["F"]
+    with pytest.raises(InputSpecError, match=r"a column for springScale, .* --inputs F,springScale, or leave"):
+        signals.parse_signal(_write(tmp_path, "time,SPRINGSCALE [1]\n0,1\n1,2\n", "s.csv"), 1, ["F"],
+                             ["springScale"])

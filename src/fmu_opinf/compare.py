@@ -389,6 +389,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     Comparison
     """
     from .newmark import MAX_GRID_STEPS, time_grid
+    from .rom import held_input_names
     from .signals import parse_signal
 
     rom_side = _load_rom_side(rom)
@@ -413,7 +414,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
             print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
-    signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"]), source,
+    held = held_input_names(rom_info["provenance"])
+    signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"], held), source,
                                    source_options)
 
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,

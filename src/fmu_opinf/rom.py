@@ -394,7 +394,7 @@ class SecondOrderROM:
         from .newmark import applied_inputs, time_grid
         from .signals import parse_signal
 
-        signal = parse_signal(signal, self.m, self.input_names)
+        signal = parse_signal(signal, self.m, self.input_names, held_input_names(self.provenance))
         if signal.n_inputs != self.m:
             raise DimensionError(f"signal has {signal.n_inputs} inputs; the ROM has m={self.m}")
         t = time_grid(dt, t_end)
@@ -708,6 +708,15 @@ def steady_start(provenance: dict, Kr: np.ndarray, Br: np.ndarray) -> tuple[np.n
         return ("the source starts at its static equilibrium under the inputs it is initialized under, but the "
                 "ROM has a rigid-body mode (Kr singular) and no equilibrium")
     return scipy.linalg.solve(Kr, Br, assume_a="sym"), first_input
+
+
+def held_input_names(provenance: dict) -> list[str]:
+    """The inputs the training source held at their start values (not the ROM's inputs), from the snapshots in
+    ``provenance``: a table column named after one of them is refused (:func:`fmu_opinf.signals.by_input_names`;
+    audit 60: compare drove the force with it).  Data from a file: only a list of text counts."""
+    snapshots = provenance.get("snapshots")
+    names = snapshots.get("held_input_names") if isinstance(snapshots, dict) else None
+    return [name for name in names if isinstance(name, str)] if isinstance(names, list) else []
 
 
 def input_ranges(provenance: dict, m: int) -> tuple[np.ndarray, np.ndarray]:

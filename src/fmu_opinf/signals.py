@@ -382,30 +382,31 @@ def by_input_names(signal: Signal, input_names: Sequence[str], held_names: Seque
     return _stack(matched) if len(matched) > 1 else matched[0]
 
 
-def _column_key(text: str) -> str:
-    """A header cell or an input name as they are matched: without quotes, surrounding blanks and a unit in
-    brackets after a blank (``F_kN [kN]``, not the index of ``F[2]``), case folded."""
+def _bare(text: str) -> str:
+    """A header cell without quotes, surrounding blanks and a unit in brackets after a blank (``F_kN [kN]``, not
+    the index of ``F[2]``)."""
     text = text.strip().strip("\"'").strip()
-    return re.sub(r"\s+[\[(][^\[\]()]*[\])]$", "", text).casefold()
+    return re.sub(r"\s+[\[(][^\[\]()]*[\])]$", "", text)
 
 
 def _named_inputs(header: list[str], names: list[str]) -> list[str | None]:
-    """The input each header cell names (:func:`by_input_names`), None where it names none; a cell matching two
-    inputs but for case names neither."""
-    keys: dict[str, list[str]] = {}
+    """The input each header cell names (:func:`by_input_names`), None where it names none: as written, or bare
+    (:func:`_bare`), or bare but for case where that matches one input only (inputs ``F`` and ``f``: each its own,
+    audit 60)."""
+    folded: dict[str, list[str]] = {}
     for name in names:
-        keys.setdefault(_column_key(name), []).append(name)
+        folded.setdefault(name.casefold(), []).append(name)
     found: list[str | None] = []
     for cell in header:
-        matches = [cell] if cell in names else keys.get(_column_key(cell), [])
+        bare = _bare(cell)
+        matches = [cell] if cell in names else [bare] if bare in names else folded.get(bare.casefold(), [])
         found.append(matches[0] if len(matches) == 1 else None)
     return found
 
 
 def _refuse_held_columns(table: TableSignal, names: list[str], held: list[str]) -> None:
     """One line where ``table``'s header names an input that is held, not driven: its column would drive another."""
-    columns = [cell for cell, name in zip(table.names, _named_inputs(table.names, held)) if name is not None
-               and cell not in names]
+    columns = [name for name in _named_inputs(table.names, names + held) if name in held and name not in names]
     if columns:
         raise InputSpecError(f"input table {table.spec} has a column for {', '.join(columns)}, held at its start "
                              f"value, not driven (the driven inputs: {', '.join(names) or 'none'}); drive it with "
