@@ -98,7 +98,8 @@ def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
     what :func:`looks_like_parameter` and the warning about held inputs go by (audits of 2026-12-06: a preload of
     10 N was held like the stiffness beside it, and so was one in lbf or N·m)."""
     unit = _normalized_unit(variable.unit)
-    if variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit):
+    if (variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit)
+            or unit_dimension(variable.unit, model) in _PRESSURE_DIMENSIONS):
         return "force"
     if unit in _PARAMETER_UNITS or "/" in unit:
         return "parameter"
@@ -116,7 +117,17 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
     ``g`` stays a load (audit 59: both were held)."""
     if variable.quantity in _COEFFICIENT_QUANTITIES:
         return True
-    return unit_dimension(variable.unit, model) in _COEFFICIENT_DIMENSIONS
+    if unit_dimension(variable.unit, model) in _COEFFICIENT_DIMENSIONS:
+        return True
+    # a unit written per radian is a rotational stiffness or damping also where UnitDefinitions leaves the radian
+    # out and so defines it as a moment (audit 60: N.m/rad defined as kg.m2.s-2 was driven)
+    written = unit_dimension(variable.unit)
+    return written is not None and "rad" in written and written in _COEFFICIENT_DIMENSIONS
+
+
+#: A pressure (a load on an area: N/m2, N/mm2, Pa, bar): driven like a force, on top of a start value such as the
+#: ambient pressure (audit 60: bar starting at 1 and Pa at 101325 were held as parameters).
+_PRESSURE_DIMENSIONS = ({"kg": 1, "m": -1, "s": -2},)
 
 
 #: Dimensions (exponents of kg, m, s and rad) of a mass, an inertia, a stiffness and a damping, translational and
@@ -1411,9 +1422,9 @@ def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     (audits of 2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had
     no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held,
     and so is a damping in N.s/m that starts at 0 (audit 58)."""
-    if unit_kind(element.var, model) == "force":
-        return False
-    return nonzero_start(element) or is_coefficient(element.var, model)
+    if is_coefficient(element.var, model):
+        return True
+    return nonzero_start(element) and unit_kind(element.var, model) != "force"
 
 
 def element_names(name: str, shape: Sequence[int]) -> list[str]:
