@@ -640,6 +640,24 @@ def test_the_default_test_input_stays_within_the_declared_input_range(low, high)
     assert ("within its declared range" in why) == (low == 0.0 or high == 0.0), why
 
 
+def test_where_moved_offsets_alone_pass_the_limit_the_swing_shrinks_but_never_to_zero(monkeypatch):
+    """Audit 61: the offset a push-only input needs drove a rigid-body ROM away, the sizing scaled the swing to 0,
+    and then every input was 0 (compare: "the reference output is identically zero").  Here every moved offset
+    passes the limit: the swing shrinks by a quarter a round and stays within the range."""
+    from fmu_opinf import _test_input
+    from fmu_opinf.signals import parse_signal
+
+    def sizing(rom, waves, amplitudes, dt, t_end, rigid):   # a rigid body's drift under any offset: no swing fits
+        return (0.0 if any(wave["offset"] for wave in waves.values()) else 1.0), 0.0, 0.0
+
+    monkeypatch.setattr(_test_input, "_scale_to_training_range", sizing)
+    model = _oscillators([0.0, 30.0], 0.05, 1, ["impulse:amplitude=5,t0=2,width=0.5"], t_end=10.0)
+    model.provenance["snapshots"] = {"input_min": [0.0], "input_max": [5.0]}
+    spec, _ = _test_input.default_test_input(model, 0.01, 10.0)
+    u = parse_signal(spec, 1).sample(np.arange(1001) * 0.01)
+    assert 0.0 <= u.min() and u.max() <= 5.0 and np.ptp(u) > 0.05, spec   # amplitude 2.5 / 4 ** 3 = 0.039
+
+
 def test_a_carried_cosine_is_centred_on_the_comparison_s_steps():
     """Audit 52: a ROM FMU's carried cosine kept the phase of the export's step; at another --dt a free body drifted
     (2.1 times its training peak at t_end 1000).  The phase is made for the comparison's step.  Reference: the

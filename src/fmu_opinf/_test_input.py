@@ -90,8 +90,9 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
     return spec, f"{what} {where}{cosine}, {how}"
 
 
-#: Rounds of sizing and moving the offsets into the declared ranges (:func:`_within_declared_ranges`).
-_RANGE_ROUNDS = 3
+#: Rounds of sizing and moving the offsets into the declared ranges (:func:`_within_declared_ranges`), and the
+#: smallest factor on the amplitudes from one round to the next.
+_RANGE_ROUNDS, _SMALLEST_STEP = 3, 0.25
 
 
 def _sized_within_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, float]], trained: dict[int, float],
@@ -106,9 +107,13 @@ def _sized_within_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, float
         scale, offsets, shift = _scale_to_training_range(rom, placed, amplitudes, dt, t_end, rigid)
         if not moved or scale is None or scale >= 1:
             break
-        amplitudes, scale = {i: scale * a for i, a in amplitudes.items()}, 1.0
+        # (a quarter at least: where the moved offsets alone pass the limit, a rigid body's drift, a smaller swing
+        # moves them less; audit 61: scaled to 0, no input swung at all)
+        amplitudes, scale = {i: max(scale, _SMALLEST_STEP) * a for i, a in amplitudes.items()}, 1.0
     factor = 1.0 if scale is None else scale
     final = {i: _three_digits_down(factor * a) for i, a in amplitudes.items()}
+    if not any(final.values()):   # no swing stays within the limits: the smallest tried (compare says it goes past)
+        final, scale = {i: _three_digits_down(a) for i, a in amplitudes.items()}, 0.0
     if scale is not None and any(final[i] < _three_digits_down(a) for i, a in trained.items()):
         scale = min(final[i] / a for i, a in trained.items() if a > 0)
     return final, scale, offsets, shift

@@ -98,8 +98,7 @@ def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
     what :func:`looks_like_parameter` and the warning about held inputs go by (audits of 2026-12-06: a preload of
     10 N was held like the stiffness beside it, and so was one in lbf or N·m)."""
     unit = _normalized_unit(variable.unit)
-    if (variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit)
-            or unit_dimension(variable.unit, model) in _PRESSURE_DIMENSIONS):
+    if variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit):
         return "force"
     if unit in _PARAMETER_UNITS or "/" in unit:
         return "parameter"
@@ -124,10 +123,6 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
     written = unit_dimension(variable.unit)
     return written is not None and "rad" in written and written in _COEFFICIENT_DIMENSIONS
 
-
-#: A pressure (a load on an area: N/m2, N/mm2, Pa, bar): driven like a force, on top of a start value such as the
-#: ambient pressure (audit 60: bar starting at 1 and Pa at 101325 were held as parameters).
-_PRESSURE_DIMENSIONS = ({"kg": 1, "m": -1, "s": -2},)
 
 
 #: Dimensions (exponents of kg, m, s and rad) of a mass, an inertia, a stiffness and a damping, translational and
