@@ -112,8 +112,8 @@ def _sized_within_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, float
         amplitudes, scale = {i: max(scale, _SMALLEST_STEP) * a for i, a in amplitudes.items()}, 1.0
     factor = 1.0 if scale is None else scale
     final = {i: _three_digits_down(factor * a) for i, a in amplitudes.items()}
-    if not any(final.values()):   # no swing stays within the limits: the smallest tried (compare says it goes past)
-        final, scale = {i: _three_digits_down(a) for i, a in amplitudes.items()}, 0.0
+    if moved and not any(final.values()):   # no swing the range allows stays within the limits: the smallest tried
+        final, scale = {i: _three_digits_down(a) for i, a in amplitudes.items()}, 0.0   # (compare says it goes past)
     if scale is not None and any(final[i] < _three_digits_down(a) for i, a in trained.items()):
         scale = min(final[i] / a for i, a in trained.items() if a > 0)
     return final, scale, offsets, shift
