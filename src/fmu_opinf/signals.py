@@ -409,8 +409,9 @@ def _refuse_held_columns(table: TableSignal, names: list[str], held: list[str]) 
     columns = [name for name in _named_inputs(table.names, names + held) if name in held and name not in names]
     if columns:
         raise InputSpecError(f"input table {table.spec} has a column for {', '.join(columns)}, held at its start "
-                             f"value, not driven (the driven inputs: {', '.join(names) or 'none'}); drive it with "
-                             f"--inputs {','.join(names + columns)}, or leave its column out")
+                             f"value, not driven (the driven inputs: {', '.join(names) or 'none'}); leave its column "
+                             f"out, or record snapshots with --inputs {','.join(names + columns)} to drive it (and fit "
+                             "again: a ROM has ports for the inputs it was trained on only)")
 
 
 #: The tables whose columns :func:`_table_by_names` said it takes in order (one warning per table and inputs).
