@@ -131,11 +131,12 @@ def _within_declared_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, fl
     for i, wave in waves.items():
         offset = wave["offset"]
         lo, hi, given = float(low[i]), float(high[i]), amplitudes[i]
-        if hi - lo < 2 * given:   # (a margin below the half width: the offset's rounding stays inside)
-            amplitude, centre = float(f"{0.5 * (hi - lo) * (1 - 1e-6):.6g}"), 0.5 * (lo + hi)
+        if hi - lo < 2 * given:   # (rounded down below the half width: the samples' rounding stays inside)
+            amplitude, centre = _three_digits_down(0.5 * (hi - lo) * (1 - 1e-6)), 0.5 * (lo + hi)
         else:
-            amplitude, centre = given, min(max(offset, lo + given), hi - given)
-        centre = _six_digits_inside(centre, lo + amplitude, hi - amplitude)
+            amplitude, centre = given, offset
+        margin = amplitude * (1 + 1e-9)   # (c - A in floating point may fall an ulp below lo)
+        centre = _six_digits_inside(min(max(centre, lo + margin), hi - margin), lo + margin, hi - margin)
         waves[i], amplitudes[i] = dict(wave, offset=centre), amplitude
         if centre != offset or amplitude != given:
             moved.append(f"{rom.input_names[i]} about {centre:.6g} within its declared range [{lo:g}, {hi:g}]")
