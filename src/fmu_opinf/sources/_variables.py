@@ -69,9 +69,9 @@ class Variable:
         return self.causality in _PARAMETER_CAUSALITIES or self.variability in ("constant", "fixed", "tunable")
 
 
-#: Units of a force by name (SI with prefixes and the customary ones); a moment is one of them times a length.
-_FORCE_UNITS = frozenset({"N", "mN", "cN", "daN", "kN", "MN", "lbf", "kgf", "kp", "ozf", "dyn", "kip", "pdl",
-                          "Nm", "Nmm", "kNm"})   # (the last three: moments as some tools spell them)
+#: Units of a force by name (SI with prefixes and the customary ones); a moment is one of them times a length
+#: (``N.m``, ``Nm``, ``kNm``, ``lbf.ft``: :func:`unit_dimension`).
+_FORCE_UNITS = frozenset({"N", "mN", "cN", "daN", "kN", "MN", "lbf", "kgf", "kp", "ozf", "dyn", "kip", "pdl"})
 _LENGTH_UNITS = frozenset({"m", "dm", "cm", "mm", "um", "km", "in", "ft", "yd"})
 
 #: Quantities (FMI ``quantity``, Modelica's type names) of a force or a moment.
@@ -98,7 +98,8 @@ def unit_kind(variable: "Variable", model: "ModelInfo") -> str:
     what :func:`looks_like_parameter` and the warning about held inputs go by (audits of 2026-12-06: a preload of
     10 N was held like the stiffness beside it, and so was one in lbf or N·m)."""
     unit = _normalized_unit(variable.unit)
-    if variable.quantity in _FORCE_QUANTITIES or unit in model.force_units or _is_force_unit(unit):
+    if (variable.quantity in _FORCE_QUANTITIES or unit in model.force_units
+            or unit_dimension(variable.unit) in _FORCE_DIMENSIONS):
         return "force"
     if unit in _PARAMETER_UNITS or "/" in unit:
         return "parameter"
@@ -124,7 +125,6 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
     return written is not None and "rad" in written and written in _COEFFICIENT_DIMENSIONS
 
 
-
 #: Dimensions (exponents of kg, m, s and rad) of a mass, an inertia, a stiffness and a damping, translational and
 #: rotational.
 _COEFFICIENT_DIMENSIONS = ({"kg": 1}, {"kg": 1, "m": 2}, {"kg": 1, "s": -2}, {"kg": 1, "s": -1},
@@ -132,7 +132,7 @@ _COEFFICIENT_DIMENSIONS = ({"kg": 1}, {"kg": 1, "m": 2}, {"kg": 1, "s": -2}, {"k
 
 #: Dimensions of the unit symbols exporters write (with their prefixes), for :func:`unit_dimension`.
 _SYMBOL_DIMENSIONS = {
-    **dict.fromkeys(_FORCE_UNITS - {"Nm", "Nmm", "kNm"}, {"kg": 1, "m": 1, "s": -2}),
+    **dict.fromkeys(_FORCE_UNITS, {"kg": 1, "m": 1, "s": -2}),
     **dict.fromkeys(_LENGTH_UNITS | {"µm", "mi"}, {"m": 1}),
     **dict.fromkeys(("s", "ms", "us", "min", "h"), {"s": 1}),
     **dict.fromkeys(("kg", "g", "mg", "t", "lb"), {"kg": 1}),
@@ -146,6 +146,9 @@ _SYMBOL_DIMENSIONS = {
 #: Products written without a separator where reading the longest symbol first would go wrong (``Nms`` is not
 #: N times milliseconds).
 _RUN_TOGETHER = {"Nms": "N.m.s", "kNms": "kN.m.s"}
+
+#: Every symbol :func:`unit_dimension` reads, the longest first (``mN`` before ``m``, ``Nms`` before ``N``).
+_SYMBOLS = sorted({*_SYMBOL_DIMENSIONS, *_RUN_TOGETHER}, key=len, reverse=True)
 
 
 def unit_dimension(unit: str | None, model: "ModelInfo | None" = None) -> dict[str, int] | None:
@@ -191,8 +194,7 @@ def _factor(text: str) -> tuple[dict[str, int], str]:
             raise ValueError(text)
         text, base = rest[1:], inner
     else:
-        symbol = next((s for s in sorted({*_SYMBOL_DIMENSIONS, *_RUN_TOGETHER}, key=len, reverse=True)
-                       if text.startswith(s)), None)
+        symbol = next((s for s in _SYMBOLS if text.startswith(s)), None)
         if symbol is None:
             raise ValueError(text)
         text = text[len(symbol):]
@@ -210,28 +212,6 @@ def _normalized_unit(unit: str | None) -> str:
     """A unit with its factors joined by ``.`` (``N·m``, ``N*m``, ``N m`` -> ``N.m``)."""
     return re.sub(r"[\s·*]+", ".", (unit or "").strip()).strip(".")
 
-
-def _is_force_unit(unit: str) -> bool:
-    """``unit`` (factors joined by ``.``) is a force, a force times a length, or kg.m/s2, kg.m2.s-2 and the like."""
-    factors = unit.split(".") if "/" not in unit else []
-    if len(factors) == 1 and factors[0] in _FORCE_UNITS:
-        return True
-    if len(factors) == 2 and {factors[0] in _FORCE_UNITS, factors[1] in _FORCE_UNITS} == {True, False}:
-        return (factors[0] if factors[1] in _FORCE_UNITS else factors[1]) in _LENGTH_UNITS
-    return _base_exponents(unit) in _FORCE_DIMENSIONS
-
-
-def _base_exponents(unit: str) -> dict[str, int] | None:
-    """``{"kg": 1, "m": 1, "s": -2}`` for ``kg.m/s2`` or ``kg.m.s-2``; None where a factor is not kg, m or s."""
-    numerator, _, denominator = unit.partition("/")
-    exponents: dict[str, int] = {}
-    for sign, part in ((1, numerator), (-1, denominator)):
-        for factor in filter(None, part.split(".")):
-            match = re.fullmatch(r"(kg|m|s)\^?(-?\d+)?", factor)
-            if match is None:
-                return None
-            exponents[match[1]] = exponents.get(match[1], 0) + sign * int(match[2] or 1)
-    return {k: v for k, v in exponents.items() if v}
 
 
 def _defined_unit_dimensions(root: ET.Element) -> dict[str, dict[str, int]]:
