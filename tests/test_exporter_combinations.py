@@ -300,6 +300,24 @@ def test_explicit_euler_co_simulation_is_refused_in_one_line(fmus, tmp_path, cap
     assert not out.exists()
 
 
+def test_explicit_euler_refusal_runs_the_two_step_check_runs_only(fmus, tmp_path, monkeypatch):
+    """Explicit Euler grows at both pilot steps (0.05: 4e3 times the peak at 0.025, which itself grows): not a
+    divergence at the first step that a smaller step would cure (audit 60, finding 6), so the refusal comes after
+    the step check's two runs, with no search of smaller steps before it."""
+    import fmu_opinf.snapshots._window as window_module
+
+    steps, record_run = [], window_module.record_run
+
+    def counting(source, signal, t, *args, **kwargs):
+        steps.append(float(t[1] - t[0]))
+        return record_run(source, signal, t, *args, **kwargs)
+
+    monkeypatch.setattr(window_module, "record_run", counting)
+    fmu, _ = fmus["generic-euler"]
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "-q", *GENERIC_STATES]) == 2
+    assert steps == [0.05, 0.025], steps
+
+
 def test_step_check_passes_accurate_co_simulation_and_catches_euler(fmus):
     """The check itself, on the same model: RK4 substeps agree with half the step to round-off (measured 1.9e-14),
     one Euler step per doStep does not, even at a step where it is stable (dt = 0.005: 0.07 of the peak)."""

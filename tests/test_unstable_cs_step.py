@@ -137,3 +137,112 @@ def test_rate_checks_of_huge_finite_values_do_not_warn():
         warnings.simplefilter("error")
         rate_mismatch(v, v, 0.01)
         assert not stale_rates(v, a, 0.01)
+
+
+# ------------------------------------------------------------------ a first pilot that diverges but stays finite
+#: The mild chain (audit 60, finding 6: ``chain_model(3)`` with K x 50, fastest mode 58.5 rad/s, one RK4 step per
+#: doStep) recorded by the window at dt = 0.005 against the exact solution, relative to the outputs' peak: 1.04e-4
+#: measured (2026-12-07), bound about 3x.
+MILD_RECORDING = 3e-4
+
+
+def _mild() -> lti_fmus.LinearMechanicalModel:
+    """:func:`~fmu_opinf.lti_fmus.chain_model` (3 masses) with every spring 50 times stiffer."""
+    model = lti_fmus.chain_model(3, name="MildRk4")
+    return replace(model, K=50.0 * model.K)
+
+
+@pytest.fixture(scope="module")
+def mild(request, tmp_path_factory):
+    """The mild chain's co-simulation-only FMU, one RK4 step per doStep."""
+
+    def build(folder, item):
+        return item, lti_fmus.build_lti_fmu(_mild(), folder / f"{item}.fmu", interfaces=("cs",), cs_method="rk4").path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-diverging-step", build, ["MildRk4"])["MildRk4"]
+
+
+def _rk4_growth(model: lti_fmus.LinearMechanicalModel, h: float) -> float:
+    """The largest RK4 amplification ``|R(lambda h)|`` over the model's eigenvalues."""
+    n = model.M.shape[0]
+    M, D, K = model.M, model.D, model.K
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(M, K), -np.linalg.solve(M, D)]])
+    w = np.linalg.eigvals(A) * h
+    return float(np.abs(1 + w + w**2 / 2 + w**3 / 6 + w**4 / 24).max())
+
+
+def test_the_mild_chain_is_unstable_at_the_first_pilot_step_only():
+    """The premise, from the model alone: RK4 grows at 0.05 (h omega = 2.9, slowly: 200 steps stay finite), not at
+    half of it."""
+    assert 1.0 < _rk4_growth(_mild(), 0.05) < 1.5 and _rk4_growth(_mild(), 0.025) < 1.0
+
+
+def test_a_first_pilot_that_diverges_but_stays_finite_searches_a_smaller_step(mild, tmp_path, capsys):
+    """Audit 60, finding 6: at the pilot step 0.05 the outputs grow to 2.4e13 times those at 0.025, which stay
+    bounded.  Before, that was refused as 'depends on the communication step (... differ by 2.6e+13 of their peak)'
+    with no step named.  Now it is a divergence like an overflow: the search passes 0.02 and 0.01 (bounded, the
+    difference falling 11-fold, RK4 just below its stability limit) and records at 0.005, the exact solution to
+    the FMU's RK4 accuracy."""
+    out = tmp_path / "train.h5"
+    assert main(["snapshots", str(mild), "-o", str(out)]) == 0
+    said = capsys.readouterr()
+    assert "Traceback" not in said.err and "warning" not in said.err, said.err
+    line = [line for line in said.out.splitlines() if "auto window: dt=0.005" in line]
+    assert line and "the co-simulation overflows or diverges at dt=0.05: steps at most dt=0.005" in line[0], said.out
+    run = Snapshots.load(out).runs[0]
+    window = run.attrs["auto_window"]
+    window = json.loads(window) if isinstance(window, str) else window
+    assert run.attrs["dt"] == 0.005 and window["stable_dt"] == 0.005 and window["unstable_dt"] == 0.05
+    u = np.asarray(run.u)
+    exact = lti_fmus.zoh_response(_mild(), np.asarray(run.t), u[:, 1:]).y
+    assert float(np.abs(np.asarray(run.y) - exact).max() / np.abs(exact).max()) < MILD_RECORDING
+
+
+def _fake_checks(monkeypatch, found: list[tuple[float, float]]) -> list[float]:
+    """Make the step checks of :func:`pilot_step` report ``(dt, difference)`` in turn (``inf``: non-finite);
+    returns the list of steps checked."""
+    import fmu_opinf.snapshots._window as window_module
+
+    checked, results = [], iter(found)
+
+    def check(source, signal, dt, T, *args, **kwargs):
+        step, difference = next(results)
+        assert step == dt, (step, dt)
+        checked.append(dt)
+        said = (f"it produced non-finite values at dt={dt:g}" if np.isinf(difference) else
+                f"its outputs at dt={dt:g} and dt={dt / 2:g} differ by {difference:.2g} of their peak")
+        return window_module._StepCheck(said, object(), False, difference, dt)
+
+    monkeypatch.setattr(window_module, "_step_dependence", check)
+    return checked
+
+
+def test_a_bounded_step_whose_difference_falls_slowly_ends_the_search(mild, monkeypatch):
+    """After the divergence, a step where the runs stay bounded but differ is passed once (0.02); where the next
+    step's difference falls only in proportion to the step (explicit Euler: 0.2 -> 0.1), no step within reach is
+    accurate: refused there, in one line that shows the fall, without trying smaller steps."""
+    checked = _fake_checks(monkeypatch, [(0.05, np.inf), (0.02, 0.2), (0.01, 0.1), (0.005, 0.0)])
+    source = open_source(str(mild))
+    with pytest.raises(DataError) as refused:
+        pilot_step(source, parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), 0.05, 10.0)
+    message = str(refused.value)
+    assert checked == [0.05, 0.02, 0.01] and "\n" not in message, (checked, message)
+    assert ("the co-simulation depends on the communication step (it produced non-finite values at dt=0.05; its "
+            "outputs at dt=0.02 and dt=0.01 differ by 0.2 of their peak; its outputs at dt=0.01 and dt=0.005 differ "
+            "by 0.1 of their peak over t <= 10") in message, message
+
+
+def test_a_search_ending_while_the_difference_still_falls_names_a_smaller_step(mild, monkeypatch):
+    """Where the tries end at steps whose difference falls fast (RK4) but is not yet within the threshold, the
+    refusal says so and names a --dt below the smallest tried (before: refused as step-dependent at the first
+    bounded step, with no step named)."""
+    checked = _fake_checks(monkeypatch, [(0.05, np.inf), (0.02, 0.5), (0.01, 0.05)])
+    source = open_source(str(mild))
+    with pytest.raises(DataError) as refused:
+        pilot_step(source, parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), 0.05, 10.0, tries=2)
+    message = str(refused.value)
+    assert checked == [0.05, 0.02, 0.01] and "\n" not in message, (checked, message)
+    assert ("the co-simulation diverges at dt=0.05 (it produced non-finite values at dt=0.05) and converges at "
+            "smaller steps, but not yet at the smallest the automatic window tried (its outputs at dt=0.01 and "
+            "dt=0.005 differ by 0.05 of their peak over t <= 10); give --dt below 0.01 (e.g. 0.005)") in message, \
+        message

@@ -655,17 +655,31 @@ STABLE_STEP_TRIES = 6
 #: search of :func:`pilot_step` goes on past such a step as past one that overflowed (it never keeps one).
 DIVERGED = 1.0
 
+#: A first pilot whose outputs' peak exceeds this many times the peak of the run at half its step, which itself
+#: does not grow once the input is constant, diverges at that step like one that overflows (audit 60: one RK4 step
+#: per doStep at h omega = 2.9 reached 4e13 while the run at half the step stayed at 1.6): :func:`pilot_step`
+#: searches for a smaller step.  Explicit Euler at the pilot steps grows at both (4e3 times, and 8 times the
+#: model's peak at half the step): it stays refused at once as depending on the step.
+DIVERGED_GROWTH = 1e3
+
+#: Order of convergence above which the search of :func:`pilot_step` goes on past a step where the runs stay
+#: bounded but differ by more than the threshold: the difference must fall at least ``(step ratio)**2`` from the
+#: previous such step (RK4 just below its stability limit: 0.0167 at 0.02, 0.0015 at 0.01, 9.8e-5 at 0.005);
+#: explicit Euler's falls about in proportion to the step (0.19 at 0.01, 0.07 at 0.005) and is refused there.
+CONVERGENCE_ORDER = 2.0
+
 
 @dataclasses.dataclass(frozen=True)
 class StableStep:
-    """The step :func:`pilot_step` found below the first pilot's, where the co-simulation overflowed.
+    """The step :func:`pilot_step` found below the first pilot's, where the co-simulation overflowed or diverged.
 
     Attributes
     ----------
     dt : float
         The largest step tried at which the runs at ``dt`` and ``dt / 2`` are finite and agree.
     unstable_dt : float
-        The smallest step tried at which they overflowed or diverged (:data:`DIVERGED`).
+        The smallest step tried at which they overflowed or diverged (:data:`DIVERGED`, :data:`DIVERGED_GROWTH`);
+        steps between it and ``dt`` kept the runs bounded but not yet within the threshold.
     difference : float
         The outputs' largest difference at ``dt`` and ``dt / 2``, relative to their peak.
     run : Run
@@ -685,15 +699,21 @@ class StableStep:
 def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True, isolate: bool = False,
                threshold: float = STEP_CONVERGENCE, inspect: Callable[[Any], None] | None = None,
                max_steps: int = 400_000, tries: int = STABLE_STEP_TRIES) -> tuple[Any, StableStep | None]:
-    """:func:`check_step_convergence` at the first pilot's step ``dt``, or, where a run there turns non-finite, the
-    largest step below it at which the co-simulation is stable and converges.
+    """:func:`check_step_convergence` at the first pilot's step ``dt``, or, where the co-simulation diverges there,
+    the largest step below it at which it is stable and converges.
 
     A co-simulation of a fixed number of explicit steps per ``doStep`` (RK4 substeps) is accurate at small
     communication steps and overflows above its stability limit (audit 58: four RK4 substeps of a chain with a
     1e6 N/m link, stable below dt = 0.011, was refused at the pilot steps 0.05 and 0.025 while ``--dt 0.01`` gave
-    an exact ROM).  The steps 1, 2, 5 times a power of ten below ``dt`` are tried in turn (at most ``tries``, the
-    runs within ``max_steps``), each checked against half of it like ``dt``: the first within ``threshold`` is the
-    pilots' step and the window's largest; a step whose runs overflow or diverge (:data:`DIVERGED`) is passed.
+    an exact ROM).  It diverges at ``dt`` where a run there turns non-finite, or grows beyond
+    :data:`DIVERGED_GROWTH` times the peak of the run at ``dt / 2`` while that run does not grow once the input is
+    constant (audit 60: 4e13 times, stable at half the step).  Then the steps 1, 2, 5 times a power of ten below
+    ``dt`` are tried in turn (at most ``tries``, the runs within ``max_steps``), each checked against half of it
+    like ``dt``: the first within ``threshold`` is the pilots' step and the window's largest; a step whose runs
+    overflow or diverge (:data:`DIVERGED`) is passed, and so is one whose runs stay bounded but differ by more than
+    ``threshold`` while that difference falls faster than :data:`CONVERGENCE_ORDER` (the first such step always:
+    the next one tells how fast).  A difference that falls more slowly (explicit Euler) is refused there: no step
+    within reach makes it accurate.
 
     Parameters
     ----------
@@ -713,15 +733,17 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
     Raises
     ------
     DataError
-        One line: the outputs depend on the step at a step where they stay bounded (no step makes them accurate),
-        or every step tried overflowed or diverged (the fix names a step below the smallest).
+        One line: the outputs depend on the step where they stay bounded and no smaller step within reach makes
+        them accurate, or every step tried overflowed, diverged or had not converged yet (the fix names a step
+        below the smallest).
     """
-    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect)
+    t_quiet = input_activity(signal, source.m)[0]
+    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect, t_quiet=t_quiet)
     if check.found is None:
         return check.run, None
-    if not math.isinf(check.difference):
+    if not (math.isinf(check.difference) or check.diverged):
         raise _step_dependence_error(source, check, T)
-    step, unstable = dt, check
+    step, unstable, bounded = dt, check, None
     for _ in range(tries):
         step = nice_floor(step / 2.0)
         if len(time_grid(step / 2.0, T)) > max_steps:
@@ -729,10 +751,32 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
         check = _step_dependence(source, signal, step, T, quiet, isolate, threshold)
         if check.found is None:
             return check.run, StableStep(step, unstable.dt, check.difference, check.run)
-        if check.difference <= DIVERGED:  # bounded but step-dependent: a smaller step does not make it accurate
-            raise _step_dependence_error(source, check, T, before=f"{unstable.found}; ")
-        unstable = check
+        if check.difference > DIVERGED:
+            unstable = check
+            continue
+        if bounded is not None and not _converges(bounded, check):
+            raise _step_dependence_error(source, check, T, before=f"{unstable.found}; {bounded.found}; ")
+        bounded = check
+    if bounded is not None:
+        raise _unconverged_error(source, unstable, bounded, T)
     raise _unstable_error(source, unstable, T)
+
+
+def _converges(before: _StepCheck, check: _StepCheck) -> bool:
+    """Whether the outputs' difference fell from the step check ``before`` to ``check`` (a smaller step) faster than
+    :data:`CONVERGENCE_ORDER`: a step smaller still is worth trying."""
+    return check.difference * (before.dt / check.dt) ** CONVERGENCE_ORDER <= before.difference
+
+
+def _unconverged_error(source: Source, unstable: _StepCheck, check: _StepCheck, T: float) -> DataError:
+    """The one-line refusal of :func:`pilot_step` where the search ended (``tries``, ``max_steps``) at a step whose
+    runs stay bounded and converge, but not yet within the threshold: the fix names a step below it."""
+    step = check.dt
+    remedy = "use its model exchange (--interface me), or " if offers_model_exchange(source) else ""
+    return DataError(f"{source_label(source)}: the co-simulation diverges at dt={unstable.dt:g} ({unstable.found}) "
+                     f"and converges at smaller steps, but not yet at the smallest the automatic window tried "
+                     f"({check.found} over t <= {T:g}); {remedy}give --dt below {step:g} (e.g. "
+                     f"{nice_floor(step / 2.0):g}) and --t-end to record at a step of your choice; no file was written")
 
 
 def _unstable_error(source: Source, check: _StepCheck, T: float) -> DataError:
@@ -752,7 +796,8 @@ class _StepCheck(NamedTuple):
     ``found``: a phrase for a message (None: within the threshold, or a source that is not checked); ``run``: the
     complete run at ``dt`` (None if there is none); ``late``: only the outputs differ, one step late; ``difference``:
     the outputs' largest difference relative to their peak (``inf`` where a run turned non-finite, 0 unchecked);
-    ``dt``: the coarser step compared.
+    ``dt``: the coarser step compared; ``diverged``: the run at ``dt`` grew beyond :data:`DIVERGED_GROWTH` times the
+    peak of the run at ``dt / 2``, which does not grow (judged only where the caller says when the input settles).
     """
 
     found: str | None
@@ -760,12 +805,16 @@ class _StepCheck(NamedTuple):
     late: bool = False
     difference: float = 0.0
     dt: float = 0.0
+    diverged: bool = False
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
-                     threshold: float, inspect: Callable[[Any], None] | None = None) -> _StepCheck:
+                     threshold: float, inspect: Callable[[Any], None] | None = None,
+                     t_quiet: float | None = None) -> _StepCheck:
     """Compare runs at ``dt`` and ``dt / 2`` on ``[0, T]`` under the same held input (:class:`_StepCheck`); a source
-    that is not a co-simulation FMU of a continuous-time model, or has a fixed step, is not checked."""
+    that is not a co-simulation FMU of a continuous-time model, or has a fixed step, is not checked.  ``t_quiet``:
+    when the input stops changing, from which the run at ``dt / 2`` must not grow for the run at ``dt`` to count as
+    diverged (None: not judged)."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
             or fixed_internal_step(source) is not None or fixed_communication_step(source) is not None:
         return _StepCheck(None, None)  # a fixed step: the results cannot depend on a step that cannot be changed
@@ -790,7 +839,29 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     if _outputs_one_step_late(runs, threshold):
         return _StepCheck(f"{found}, its states agree, and each output is the one of the communication point before",
                           runs[0], True, difference, dt)
+    growth = _growth(y, y_fine)
+    if t_quiet is not None and growth > DIVERGED_GROWTH and not _grows(runs[1], t_quiet):
+        found = f"its outputs at dt={dt:g} grow to {growth:.2g} times the peak of those at dt={dt / 2:g}"
+        return _StepCheck(found, runs[0], False, difference, dt, True)
     return _StepCheck(found, runs[0], False, difference, dt)
+
+
+def _growth(y: np.ndarray, y_fine: np.ndarray) -> float:
+    """The peak of ``y`` over the peak of ``y_fine`` (``inf`` where that is 0 and ``y`` is not)."""
+    peak, fine_peak = (float(np.abs(a).max()) if a.size else 0.0 for a in (y, y_fine))
+    return peak / fine_peak if fine_peak > 0 else (math.inf if peak > 0 else 1.0)
+
+
+def _grows(run: Any, t_quiet: float, samples: int = 20) -> bool:
+    """Whether ``run``'s outputs are larger in the second half of the time after ``t_quiet`` (the input constant)
+    than in the first: a run that is itself unstable (or too short after the input to tell: True)."""
+    t, y = np.asarray(run.t)[:run.k], np.asarray(run.y)[:, :run.k]
+    after = np.nonzero(t >= t_quiet)[0]
+    if after.size < samples or not y.size:
+        return True
+    middle = 0.5 * (t[after[0]] + t[-1])
+    early, late = (np.abs(y[:, after[part]]).max() for part in (t[after] < middle, t[after] >= middle))
+    return bool(late > early)
 
 
 def _relative_difference(a: np.ndarray, b: np.ndarray) -> float:
