@@ -8,7 +8,10 @@ A run table is a CSV file with a header and one row per run (``docs/scale-out.md
     shifted,loads/case3.csv,,0.01
 
 * ``input`` (required): an input specification (:mod:`fmu_opinf.signals`); a relative ``.csv`` path is
-  relative to the table's folder.
+  relative to the table's folder.  Specs separated by ``;`` list the inputs in the source's order: the FMU's
+  declared order, or the order of ``--inputs`` where the command is given one.  ``compare --runs`` reads them in
+  the same order and hands each to the ROM's input of that name (:func:`in_rom_order`), so that a table means the
+  same in ``snapshots --runs`` and in ``compare --runs`` against a ROM trained with its inputs in another order.
 * ``name`` (optional): the run's name, also its file name ``NAME.h5``; default ``run-NNNN`` (row number).
 * ``set:NAME``: a start value set before initialization (an FMU parameter), ``start:NAME``: an initial-state
   value (the start value of a state variable).  An empty cell leaves the value at the model's default.
@@ -46,7 +49,8 @@ from .errors import FmuOpinfError, InputSpecError
 
 __all__ = [
     "RunRow", "RunOutcome", "RunTableReport", "RunTableError", "read_run_table", "validate_rows",
-    "row_source_options", "record_row", "record_runs", "compare_runs", "dask_client", "parse_scheduler",
+    "row_source_options", "source_input_names", "in_rom_order", "record_row", "record_runs", "compare_runs",
+    "dask_client", "parse_scheduler",
 ]
 
 ROW_ATTR = "run_row"
@@ -224,6 +228,50 @@ def validate_rows(rows: Sequence[RunRow], source_spec: str | os.PathLike,
             parse_signal(row.input, source.m, source.input_names)
         except FmuOpinfError as exc:
             raise RunTableError(f"row {row.number} ({row.name}), column 'input': {exc}") from None
+
+
+def source_input_names(source_spec: str | os.PathLike, source_options: dict[str, Any] | None = None) -> list[str]:
+    """The inputs of ``source_spec`` opened with ``source_options``, in order: the order in which a run table's
+    ``;``-separated specs list them (the FMU's declared order, or that of the command's ``--inputs``)."""
+    from .source import open_source
+
+    source = open_source(source_spec, **(source_options or {}))
+    try:
+        return list(source.input_names)
+    finally:
+        getattr(source, "close", lambda: None)()
+
+
+def in_rom_order(row: RunRow, table_inputs: Sequence[str], rom_inputs: Sequence[str]) -> RunRow:
+    """``row`` with its ``;``-separated specs, which list ``table_inputs`` (the source's inputs), moved to the
+    order of ``rom_inputs``, the ROM's: each spec to the ROM input of its name.
+
+    A spec for an input the ROM does not drive must be ``none`` (the comparison holds that input at its start
+    value, as the ROM's training did) and is left out.  A row with a single spec, which drives every input or is a
+    table whose header names them, is returned as it is.
+
+    Raises
+    ------
+    RunTableError
+        One line: the row gives a signal to an input the ROM does not drive, or has no spec for one it does.
+    """
+    parts = row.input.split(";")
+    table_inputs, rom_inputs = list(table_inputs), list(rom_inputs)
+    if len(parts) < 2 or len(parts) != len(table_inputs) or table_inputs == rom_inputs:
+        return row   # (a count that does not match the source's inputs was refused by validate_rows)
+    where = f"row {row.number} ({row.name}), column 'input'"
+    order = ", ".join(table_inputs)
+    missing = [name for name in rom_inputs if name not in table_inputs]
+    if missing:
+        raise RunTableError(f"{where}: its ';' specs list the source's inputs ({order}), but the ROM also drives "
+                            f"{', '.join(missing)}; compare with the inputs the ROM was trained on (--inputs)")
+    driven = [name for name, part in zip(table_inputs, parts)
+              if name not in rom_inputs and part.strip().lower() != "none"]
+    if driven:
+        raise RunTableError(f"{where}: its ';' specs list the source's inputs ({order}) and give a signal to "
+                            f"{', '.join(driven)}, which the ROM does not drive (its inputs: {', '.join(rom_inputs)});"
+                            " give none for it, or compare a ROM trained with that input")
+    return dataclasses.replace(row, input=";".join(parts[table_inputs.index(name)] for name in rom_inputs))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -689,18 +737,23 @@ def compare_runs(
     """Validate a ROM on every row of a run table (in parallel with a scheduler); one summary for all.
 
     Each row's report goes to ``output/NAME/``; ``output/index.html`` and ``output/summary.txt`` hold the
-    summary table (:func:`fmu_opinf.compare.summary_table`) with links to the rows' reports.
+    summary table (:func:`fmu_opinf.compare.summary_table`) with links to the rows' reports.  A row's
+    ``;``-separated specs list the source's inputs in its order, as ``snapshots --runs`` reads them, and go to the
+    ROM's inputs by name (:func:`in_rom_order`).
 
     Returns
     -------
     (RunTableReport, str)
         The outcomes and the plain-text summary table.
     """
-    from .compare import summary_table
+    from .compare import _load_rom_side, _rom_side_info, summary_table
 
     rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)
     source_options = {k: v for k, v in source_options.items() if v is not None}
     validate_rows(rows, source_spec, source_options)
+    table_inputs = source_input_names(source_spec, source_options)
+    rom_inputs = _rom_side_info(_load_rom_side(rom))["input_names"]
+    rows = [in_rom_order(row, table_inputs, rom_inputs) for row in rows]
     out_dir = _output_directory(output)
     rom, source_spec = str(Path(rom).resolve()), _shared_spec(source_spec)
     metrics: dict[int, dict[str, Any]] = {}
