@@ -658,6 +658,36 @@ def test_where_moved_offsets_alone_pass_the_limit_the_swing_shrinks_but_never_to
     assert 0.0 <= u.min() and u.max() <= 5.0 and np.ptp(u) > 0.05, spec   # amplitude 2.5 / 4 ** 3 = 0.039
 
 
+def test_an_offset_moved_to_a_bound_is_written_rounded_towards_the_inside(monkeypatch):
+    """Audit 61, finding 7: an offset moved just inside a declared range printed as offset=3.9800000000000004,
+    because its six digits (3.98) fell an ulp outside.  It is rounded towards the inside of the range instead.
+    Reference: the offset the range needs, -2 + 5.98 (written out by hand), and the range itself."""
+    from fmu_opinf import _test_input
+    from fmu_opinf.signals import parse_signal
+
+    monkeypatch.setattr(_test_input, "_scale_to_training_range", lambda *args: (1.0, 0.0, 0.0))
+    model = _oscillators([1.0, 3.0], 0.05, 1, ["impulse:amplitude=5.98,t0=2,width=0.5"], t_end=10.0)
+    model.provenance["snapshots"] = {"input_min": [-2.0], "input_max": [50.0]}
+    spec, why = _test_input.default_test_input(model, 0.01, 40.0)
+    assert parse_signal(spec, 1).params["offset"] == 3.98001, spec   # before: 3.9800000059800003
+    assert spec.endswith(",offset=3.98001") and "u[1] about 3.98001 within" in why, (spec, why)
+    u = parse_signal(spec, 1).sample(np.arange(4001) * 0.01)
+    assert -2.0 <= u.min() and u.max() <= 50.0, (u.min(), u.max())
+
+
+@pytest.mark.parametrize("value, low, high, expected", [
+    (3.9800000000000004, 3.9800000000000004, 30.0, 3.98001),   # the nearest six digits fall below: up
+    (29.99999999, 0.0, 29.99999999, 29.9999),                  # above: down
+    (-1.999999999, -1.999999999, 5.0, -1.99999),               # a negative bound
+    (12.3456789, 0.0, 30.0, 12.3457),                          # inside: the nearest
+    (1.23456789, 1.2345678, 1.2345679, 1.2345679),             # narrower than the sixth digit: more digits
+])
+def test_six_digits_round_towards_the_inside_of_the_range(value, low, high, expected):
+    from fmu_opinf._test_input import _six_digits_inside
+
+    assert _six_digits_inside(value, low, high) == expected
+
+
 def test_a_carried_cosine_is_centred_on_the_comparison_s_steps():
     """Audit 52: a ROM FMU's carried cosine kept the phase of the export's step; at another --dt a free body drifted
     (2.1 times its training peak at t_end 1000).  The phase is made for the comparison's step.  Reference: the

@@ -144,9 +144,18 @@ def _within_declared_ranges(rom: "SecondOrderROM", waves: dict[int, dict[str, fl
 
 
 def _six_digits_inside(value: float, low: float, high: float) -> float:
-    """``value`` (in ``[low, high]``) to six significant digits where those stay in the interval, else as is."""
-    short = float(f"{value:.6g}")
-    return short if low <= short <= high else float(value)
+    """``value`` (in ``[low, high]``) to six significant digits, rounded towards the inside of the interval where
+    the nearest six digits leave it (3.9800000000000004 in ``[3.9800000000000004, 30]``: 3.98001, audit 61: the
+    spec printed the raw float); more digits where the interval is narrower than the sixth's unit."""
+    for digits in range(6, 18):
+        short = float(f"{value:.{digits}g}")
+        if low <= short <= high:
+            return short
+        unit = 10.0 ** (math.floor(math.log10(abs(short))) - digits + 1)
+        inward = float(f"{short + (unit if short < low else -unit):.{digits}g}")
+        if low <= inward <= high:
+            return inward
+    return float(value)
 
 
 def _three_digits_down(value: float) -> float:
