@@ -275,6 +275,33 @@ def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
     assert _names(default.held) == _names(default.parameter_like) == sorted(name for name, _ in coefficients)
 
 
+@pytest.mark.parametrize("unit", ["atm", "psia", "psig", "psid", "Torr", "mmHg", "inHg", "inH2O", "mmH2O", "ksi",
+                                  "bar(a)", "bar(g)", "barg", "bara", "mbarg", "kPa(g)", "kPag", "kPa g", "psi(gauge)",
+                                  "MPa", "mPa", "N/mm2", "kgf/cm2"])
+def test_pressure_spellings_have_a_pressure_s_dimension(unit):
+    """Audit 61, finding 4: atm, psia, Torr, mmHg, inH2O, ksi and bar(a) were not read, and psig / barg were read as
+    psi and bar times grams (kg2 m-1 s-2).  A pressure is a force per area: kg m-1 s-2 (by hand)."""
+    from fmu_opinf.sources._variables import unit_dimension
+
+    assert unit_dimension(unit) == {"kg": 1, "m": -1, "s": -2}
+
+
+def test_the_pressure_symbols_leave_masses_forces_and_a_defined_g_as_they_were(tmp_path):
+    """The gauge and absolute marks are read only after a pressure symbol: g alone is a gram, or the acceleration
+    where UnitDefinitions defines it so; kg, kgf, mg, a viscosity in Pa.s and mPa.s keep their dimensions (by
+    hand)."""
+    from fmu_opinf.sources._variables import unit_dimension
+
+    expected = {"g": {"kg": 1}, "kg": {"kg": 1}, "mg": {"kg": 1}, "kgf": {"kg": 1, "m": 1, "s": -2},
+                "kg.m2": {"kg": 1, "m": 2}, "Pa.s": {"kg": 1, "m": -1, "s": -1},
+                "mPa.s": {"kg": 1, "m": -1, "s": -1}, "N.s/m": {"kg": 1, "s": -1}, "barrel": None}
+    assert {unit: unit_dimension(unit) for unit in expected} == expected
+    path = _inputs_description(tmp_path, [("acc", 'unit="g" start="0"')],
+                               '<UnitDefinitions><Unit name="g"><BaseUnit m="1" s="-2" factor="9.80665"/></Unit>'
+                               '</UnitDefinitions>')
+    assert unit_dimension("g", ModelInfo.from_path(path)) == {"m": 1, "s": -2}
+
+
 @pytest.mark.parametrize("driven", [False, True])
 def test_the_warning_about_a_coefficient_input_names_its_unit_not_its_start(tmp_path, driven):
     """Held at a start of 0, a damping does not 'start at a non-zero value': the warning says what it is."""

@@ -130,6 +130,20 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
 _COEFFICIENT_DIMENSIONS = ({"kg": 1}, {"kg": 1, "m": 2}, {"kg": 1, "s": -2}, {"kg": 1, "s": -1},
                            {"kg": 1, "m": 2, "s": -2, "rad": -1}, {"kg": 1, "m": 2, "s": -1, "rad": -1})
 
+#: The dimension of a pressure (and of a stress, a modulus), and the pressure symbols exporters write: SI with
+#: prefixes (``mPa``: ``mPa.s`` is a viscosity, not metres times a damping), bar, the customary ones (``psi``,
+#: ``ksi``, ``atm``, ``Torr``) and heights of mercury or water.
+_PRESSURE_DIMENSION = {"kg": 1, "m": -1, "s": -2}
+_PRESSURE_UNITS = frozenset({"Pa", "mPa", "hPa", "kPa", "MPa", "GPa", "bar", "mbar", "kbar", "psi", "ksi", "kpsi",
+                             "atm", "Torr", "torr", "mTorr", "mmHg", "cmHg", "inHg", "mmH2O", "cmH2O", "inH2O",
+                             "ftH2O"})
+
+#: A pressure symbol with a gauge, absolute or differential mark (``psig``, ``barg``, ``psia``, ``bar(a)``,
+#: ``kPa(g)``, ``psid``): the pressure itself to :func:`unit_dimension`, never a product with a gram (audit 61:
+#: ``psig`` and ``barg`` were read as psi and bar times grams).
+_MARKED_PRESSURE = re.compile(r"(?<![A-Za-z])(" + "|".join(sorted(_PRESSURE_UNITS, key=len, reverse=True))
+                              + r")\s*(?:\((?:g|a|d|abs|gauge|absolute)\)|[gad](?![A-Za-z0-9]))")
+
 #: Dimensions of the unit symbols exporters write (with their prefixes), for :func:`unit_dimension`.
 _SYMBOL_DIMENSIONS = {
     **dict.fromkeys(_FORCE_UNITS, {"kg": 1, "m": 1, "s": -2}),
@@ -137,7 +151,7 @@ _SYMBOL_DIMENSIONS = {
     **dict.fromkeys(("s", "ms", "us", "min", "h"), {"s": 1}),
     **dict.fromkeys(("kg", "g", "mg", "t", "lb"), {"kg": 1}),
     **dict.fromkeys(("rad", "mrad", "deg", "rev"), {"rad": 1}),
-    **dict.fromkeys(("Pa", "hPa", "kPa", "MPa", "GPa", "bar", "mbar", "psi"), {"kg": 1, "m": -1, "s": -2}),
+    **dict.fromkeys(_PRESSURE_UNITS, _PRESSURE_DIMENSION),
     **dict.fromkeys(("J", "kJ"), {"kg": 1, "m": 2, "s": -2}),
     **dict.fromkeys(("W", "kW"), {"kg": 1, "m": 2, "s": -3}),
     "Hz": {"s": -1}, "1": {},
@@ -155,14 +169,15 @@ def unit_dimension(unit: str | None, model: "ModelInfo | None" = None) -> dict[s
     """The exponents of kg, m, s and rad of ``unit`` (zeros left out; ``{}`` for a number): from the model's
     ``UnitDefinitions`` where it defines the unit with base units, else read from the unit's symbols (products by
     ``.``, ``*``, ``·``, a blank, ``-`` or nothing between symbols, quotients by ``/``, parentheses, exponents such
-    as ``m2``, ``m^2``, ``m²``, ``s-1``).  None where a symbol is not known or the unit is empty."""
+    as ``m2``, ``m^2``, ``m²``, ``s-1``; a pressure's gauge or absolute mark, ``psig``, ``bar(a)``, left out).  None
+    where a symbol is not known or the unit is empty."""
     text = (unit or "").strip()
     if not text:
         return None
     defined = getattr(model, "unit_dimensions", {}).get(_normalized_unit(text))
     if defined is not None:
         return defined
-    text = text.replace("²", "2").replace("³", "3").replace("^", "")
+    text = _MARKED_PRESSURE.sub(r"\1", text.replace("²", "2").replace("³", "3").replace("^", ""))
     try:
         found, rest = _quotient(text)
     except ValueError:
