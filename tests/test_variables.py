@@ -275,6 +275,28 @@ def test_a_coefficient_exposed_as_an_input_is_held_whatever_its_start(tmp_path):
     assert _names(default.held) == _names(default.parameter_like) == sorted(name for name, _ in coefficients)
 
 
+def test_a_coefficient_per_angle_is_held_and_an_angle_s_rate_is_driven(tmp_path):
+    """Audit 61, finding 9: a cornering stiffness in N/rad (start 0) was driven as a load.  A unit written divided by
+    an angle is a coefficient per angle, held like a stiffness (also where UnitDefinitions defines it without the
+    radian); angles, angular velocities and accelerations have the angle above the line and stay driven."""
+    from fmu_opinf.sources._variables import is_coefficient
+
+    per_angle = [("cornering", 'unit="N/rad" start="0"'), ("c_deg", 'unit="N/deg" start="0"'),
+                 ("c_kN", 'unit="kN/rad" start="0"'), ("gain", 'unit="1/rad" start="0"'),
+                 ("lever", 'unit="m/rad" start="0"'), ("c_def", 'unit="N/deg" declaredType="Defined" start="0"')]
+    angles = [("phi", 'unit="rad" start="0"'), ("w", 'unit="rad/s" start="0"'), ("alpha", 'unit="rad/s2" start="0"'),
+              ("w_deg", 'unit="deg/s" start="0"'), ("theta", 'unit="deg" start="0"'), ("F", 'unit="N" start="0"')]
+    units = ('<UnitDefinitions><Unit name="N/deg"><BaseUnit kg="1" m="1" s="-2" factor="57.3"/></Unit>'
+             '</UnitDefinitions><TypeDefinitions><SimpleType name="Defined"><Real unit="N/deg"/></SimpleType>'
+             '</TypeDefinitions>')
+    path = _inputs_description(tmp_path, per_angle + angles, units)
+    default = resolve_variables(path)
+    assert _names(default.forces) == [name for name, _ in angles]
+    assert _names(default.held) == _names(default.parameter_like) == sorted(name for name, _ in per_angle)
+    model = ModelInfo.from_path(path)
+    assert all(is_coefficient(e.var, model) for e in default.held)
+
+
 @pytest.mark.parametrize("unit", ["atm", "psia", "psig", "psid", "Torr", "mmHg", "inHg", "inH2O", "mmH2O", "ksi",
                                   "bar(a)", "bar(g)", "barg", "bara", "mbarg", "kPa(g)", "kPag", "kPa g", "psi(gauge)",
                                   "MPa", "mPa", "N/mm2", "kgf/cm2"])

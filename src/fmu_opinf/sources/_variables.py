@@ -114,15 +114,19 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
     exposed as an input with start 0 was pulsed, the fit learned a linear input for it, and the ROM was 4.4e-3 of
     the range off even with it held; the default test input then drove the damping negative).  Decided by the
     unit's dimension (:func:`unit_dimension`), so that a pressure in N/mm2 or an acceleration the model defines as
-    ``g`` stays a load (audit 59: both were held)."""
+    ``g`` stays a load (audit 59: both were held).
+
+    A unit written per angle (divided by ``rad`` or ``deg``: ``N/rad``, ``kN/deg``, ``N.m/rad``, ``m/rad``) is a
+    coefficient too, read from its written form also where ``UnitDefinitions`` leaves the radian out: a cornering
+    stiffness, a rotational stiffness or damping, a ratio per angle (audit 60: N.m/rad defined as kg.m2.s-2 was
+    driven; audit 61: N/rad was).  Angles and their rates (``rad``, ``rad/s``, ``deg/s``, ``rad/s2``) carry the
+    angle above the line and stay loads."""
     if variable.quantity in _COEFFICIENT_QUANTITIES:
         return True
     if unit_dimension(variable.unit, model) in _COEFFICIENT_DIMENSIONS:
         return True
-    # a unit written per radian is a rotational stiffness or damping also where UnitDefinitions leaves the radian
-    # out and so defines it as a moment (audit 60: N.m/rad defined as kg.m2.s-2 was driven)
     written = unit_dimension(variable.unit)
-    return written is not None and "rad" in written and written in _COEFFICIENT_DIMENSIONS
+    return written is not None and written.get("rad", 0) < 0
 
 
 #: Dimensions (exponents of kg, m, s and rad) of a mass, an inertia, a stiffness and a damping, translational and
