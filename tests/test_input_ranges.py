@@ -264,3 +264,33 @@ def test_an_fmi3_array_input_s_range_is_declared_on_the_array_and_on_each_fmi2_e
         fmu3.setFloat64([1], [1.0, -6.0])   # the array's second element
     assert any("value -6 of input 2" in line and "[-5, 5]" in line for line in log), log
     fmu3.freeInstance()   # (after an error FMI 3 allows no fmi3Terminate)
+
+
+# ----------------------------------------------------------------- compare refuses an input outside before running
+
+@pytest.mark.fmu
+def test_compare_refuses_an_input_outside_the_source_s_declared_range_before_running(tmp_path):
+    """Audit 61, finding 6: a source that enforces F in [0, 30] refused compare's harmonic about 0 at the step it
+    went below 0 ("... returned an error setting the input at step 106"), naming neither the input, the value
+    nor the range.  compare refuses it before the run in one line with all of them.  The source here does not
+    enforce its range, so the old code compared without a word.  Reference: 5 sin(3 t) first falls below 0 at
+    the first sample past pi/3 = 1.0472 on the 0.01 grid, t = 1.05, where it is 5 sin(3.15) = -0.0420 (by hand)."""
+    from conftest import rewrite_description
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.compare import compare
+    from fmu_opinf.errors import InputSpecError
+
+    needs_build_tools()
+    built = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="PushOnly"), tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "push.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="0" max="30"/>'))
+    rom = SecondOrderROM(np.eye(1), 0.2 * np.eye(1), np.eye(1), np.ones((1, 1)), np.ones((2, 1)), np.zeros((2, 1)),
+                         input_names=["F"], dt=0.01)
+    with pytest.raises(InputSpecError) as info:
+        compare(rom, fmu, "harmonic:amplitude=5,omega=3", dt=0.01, t_end=2.0, quiet=True)
+    text = str(info.value)
+    assert "\n" not in text and "at t=1.05;" in text, text
+    assert "input F is -0.0420362 there, below its declared min 0: give an input within [0, 30]" in text, text
+    within = compare(rom, fmu, "harmonic:amplitude=5,omega=3,offset=5", dt=0.01, t_end=2.0, quiet=True)
+    assert within.y_fom.shape == (2, 201)

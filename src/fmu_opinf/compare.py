@@ -301,6 +301,7 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     y = np.empty((source.p, t.size))
     columns = source.layout["y"]
     U = np.ascontiguousarray(u.T)
+    _refuse_outside_ranges(source, U, t, signal)
     # like snapshots: a crashing or hanging FMU binary ends in a one-line error, not in the tool's death
     producer = produce_isolated(source, t, U, sink, timeout) if isolate else produce_inprocess(source, t, U, sink)
     start = time.perf_counter()
@@ -314,6 +315,32 @@ def _source_outputs(spec: Any, signal: Any, t: np.ndarray, quiet: bool,
     seconds = getattr(sink, "seconds", None) or time.perf_counter() - start  # the child's own stepping time
     # the run's own report (e.g. the integrator a model-exchange run took, which auto chooses per run)
     return y, seconds, {**source.provenance(), **sink.report}, list(source.output_names)
+
+
+def _refuse_outside_ranges(source: Any, U: np.ndarray, t: np.ndarray, signal: Any) -> None:
+    """One line before the run where the input leaves an input's declared ``[min, max]``, naming the input, its
+    value, the time, the range and an input within it (the words of the source's own hint, ``_outside_range``, as
+    ``snapshots`` gives them after a refusal).  A source that enforces its ranges refused such an input only at
+    the step it left them, after running up to there, and said neither which input nor what range (audit 61,
+    finding 6); the exported ROM FMU refuses it too."""
+    outside_range = getattr(source, "_outside_range", None)
+    if outside_range is None or not U.size:
+        return
+    low, high = source.input_ranges()
+    rows = np.flatnonzero(np.any((U < low) | (U > high), axis=1))
+    if not rows.size:
+        return
+    step = int(rows[0])
+    hint = outside_range(U, step)
+    when = float(t[max(step - 1, 0)])   # (row k holds the input sampled at t[k - 1]: the zero-order hold)
+    name = Path(str(getattr(source, "path", "the source"))).name
+    raise InputSpecError(f"the input {_short(signal.spec)} leaves a declared input range of {name} at t={when:g}"
+                         f"{hint}")
+
+
+def _short(spec: str, most: int = 120) -> str:
+    """An input spec for a message, cut short where it is long (many inputs, a table's path)."""
+    return repr(spec) if len(spec) <= most else repr(spec[:most - 3] + "...")
 
 
 class _RowBuffer:
