@@ -355,6 +355,33 @@ def test_an_input_that_may_only_pull_is_pulsed_downwards(tmp_path, capsys):
                          "'impulse:amplitude=-45,t0=2,width=0.5')"), hint
 
 
+@pytest.mark.slow  # 17 s on the shared 2-core machine of 2026-12-06, beside another test run
+def test_an_input_whose_start_lies_outside_its_declared_range_is_trained_from_the_nearest_bound(tmp_path, capsys):
+    """Audit 60, finding 8: F1 declared in [5, 30] with start 0 (not FMI-conformant, seen in the wild) was pulsed
+    from 0 by the default training, which such a source refuses at step 0, and the error's example started at 0
+    again.  The default training drives it from 5, the nearest bound, by 25 up to 30, and holds it at 5 in the
+    run that drives the other input.  Reference: the bounds, and the model's exact response to the recorded
+    input."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.cli import main
+
+    model = lti_fmus.chain_model(4, inputs=(0, 3), name="Excluded")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",))
+    fmu = rewrite_description(built.path, tmp_path / "excluded.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="5" max="30"/>', 1))   # F[1] only
+    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "--dt", "0.1", "--t-end", "30"]) == 0
+    err = capsys.readouterr().err
+    assert "F[1] from its declared start 0 to 5, the nearest bound of its range [5, 30]" in err, err
+    runs = Snapshots.load(tmp_path / "train.h5").runs
+    assert runs[0].attrs["input_spec"] == "impulse:amplitude=25,t0=2,width=0.5,offset=5;none"
+    for run in runs:
+        assert 5.0 <= run.u[0].min() and run.u[0].max() <= 30.0, run.attrs["input_spec"]
+        exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
+        assert np.abs(run.y - exact.y).max() < 2e-12 * np.abs(exact.y).max()
+    assert runs[0].u[0].max() == pytest.approx(30.0) and np.all(runs[1].u[0] == 5.0)
+
+
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_the_rom_fmu_s_inputs_start_where_the_source_s_do(tmp_path):
     """A force input preloaded at 10 N (start="10"): the exported ROM FMU declares the same start value and holds

@@ -43,9 +43,9 @@ def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, fi
     """
     if getattr(source, "kind", None) != "fmu" or not source.m or len(t) < 2:
         return None
-    from ._record import HeldInputs, MemorySink, _pilot_weights, default_amplitudes, record_run
+    from ._record import HeldInputs, MemorySink, _pilot_weights, default_amplitudes, held_starts, record_run
 
-    starts = np.asarray(source.input_starts(), dtype=float)
+    starts = held_starts(source)
     low, high = source.input_ranges()
     moves = np.asarray(default_amplitudes(source), dtype=float) * _pilot_weights(source.m)
     moves = np.where((starts + moves > high) & (starts - moves >= low), -moves, moves)

@@ -523,7 +523,7 @@ def as_signal(signal: Any, m: int | None = None, source: Source | None = None) -
     ``"none"`` holds every input at the source's start values (zeros without a source).
     """
     if is_free_response(signal) and isinstance(signal, str):
-        starts = source.input_starts() if source is not None else np.zeros(m or 0)
+        starts = held_starts(source) if source is not None else np.zeros(m or 0)
         return HeldInputs(starts)
     if isinstance(signal, str):
         from ..signals import parse_signal
@@ -580,7 +580,7 @@ def default_amplitudes(source: Source) -> list[float]:
     where that is above 0 the room is ``max`` minus it.  An input with no room upwards but room downwards gets a
     negative pulse, within its ``min``."""
     low, high = source.input_ranges()
-    starts = np.asarray(source.input_starts(), dtype=float)
+    starts = held_starts(source)
     up, down = high - np.maximum(starts, 0.0), np.minimum(starts, 0.0) - low
     # an input with no room upwards but room downwards (a cable that only pulls, max = 0) is pulsed downwards
     # (tenth audit: the default pulse of +100 was refused at once)
@@ -589,9 +589,29 @@ def default_amplitudes(source: Source) -> list[float]:
 
 
 def _on_start_values(source: Source) -> str:
-    """What the default training says about inputs whose pulse sits on a non-zero start value; "" if none."""
-    starts = [f"{name}={value:g}" for name, value in zip(source.input_names, source.input_starts()) if value != 0]
-    return f" on top of the start value{'s' if len(starts) > 1 else ''} {', '.join(starts)}" if starts else ""
+    """What the default training says about inputs whose pulse sits on a non-zero start value, and about starts
+    moved into the declared range (:func:`held_starts`); "" if none."""
+    held, declared = held_starts(source), np.asarray(source.input_starts(), dtype=float)
+    starts = [f"{name}={value:g}" for name, value in zip(source.input_names, held) if value != 0]
+    text = f" on top of the start value{'s' if len(starts) > 1 else ''} {', '.join(starts)}" if starts else ""
+    low, high = source.input_ranges()
+    moved = [f"{name} from its declared start {start:g} to {value:g}, the nearest bound of its range [{lo:g}, {hi:g}]"
+             for name, start, value, lo, hi in zip(source.input_names, declared, held, low, high) if value != start]
+    return text + (f" (moved into the declared range: {'; '.join(moved)})" if moved else "")
+
+
+def held_starts(source: Source) -> np.ndarray:
+    """The values the recordings hold the inputs at where they do not drive them, and drive them about: their
+    start (or ``--set``) values, each moved to the nearest bound of its declared ``[min, max]`` where it lies
+    outside.  A source whose start lies outside its own range (not FMI-conformant, but seen) refuses that start
+    at step 0: the default training pulse from it failed, and the example in its error started there again
+    (audit 60, finding 8: F1 in [5, 30] with start 0)."""
+    starts = np.asarray(source.input_starts(), dtype=float)
+    low, high = (np.asarray(bound, dtype=float) for bound in source.input_ranges())
+    if starts.shape != low.shape or starts.shape != high.shape:
+        return starts
+    ordered = low <= high   # (a crossed range bounds nothing)
+    return np.where(ordered, np.clip(starts, np.where(ordered, low, -np.inf), np.where(ordered, high, np.inf)), starts)
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
@@ -605,7 +625,7 @@ def _undriven_held(signal: Any, source: Source) -> Any:
     as ``--input none`` holds all of them, instead of zero."""
     if not isinstance(signal, StackedSignal) or not any(isinstance(p, NoInput) for p in signal.parts):
         return signal
-    starts, parts, first = source.input_starts(), [], 0
+    starts, parts, first = held_starts(source), [], 0
     if len(starts) != signal.n_inputs:
         return signal  # a channel count that does not fit: refused with its own message where it is used
     for part in signal.parts:
@@ -787,7 +807,7 @@ def record_to_file(
     by_default = not specs
     if not specs:
         amplitudes = default_amplitudes(source)
-        specs = default_training_inputs(source.m, amplitudes=amplitudes, starts=source.input_starts())
+        specs = default_training_inputs(source.m, amplitudes=amplitudes, starts=held_starts(source))
         if not quiet:
             lowered = _lowered_amplitudes(source, amplitudes) + _on_start_values(source)
             held = list(getattr(source, "held_input_names", []) or [])
@@ -929,7 +949,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
-                   for spec in default_training_inputs(source.m, pulse, amplitudes, source.input_starts())]
+                   for spec in default_training_inputs(source.m, pulse, amplitudes, held_starts(source))]
         pilot = _pilot_signal([impulse(factor, weight * scale)
                                for weight, scale in zip(_pilot_weights(source.m), scales)], source)
         width = input_activity(signals[0], source.m)[1]
@@ -1017,7 +1037,7 @@ def _pilot_signal(pulses: Sequence[str], source: Source) -> Signal:
     do not drive it (its start or ``--set`` value), as the training runs' own pulses are (:func:`_on_start`), so
     that the pilots stay at the training runs' operating point (a parameter exposed as an input is not driven
     through zero there)."""
-    starts = source.input_starts()
+    starts = held_starts(source)
     if len(starts) != len(pulses):
         starts = np.zeros(len(pulses))
     return StackedSignal([parse_signal(_on_start(pulse, start), 1) for pulse, start in zip(pulses, starts)])
