@@ -658,6 +658,27 @@ def test_where_moved_offsets_alone_pass_the_limit_the_swing_shrinks_but_never_to
     assert 0.0 <= u.min() and u.max() <= 5.0 and np.ptp(u) > 0.05, spec   # amplitude 2.5 / 4 ** 3 = 0.039
 
 
+def test_the_default_harmonic_swings_a_pressure_by_at_most_half_its_start():
+    """Audit 61, finding 3: trained by a pulse of 100 about 1 bar, the default harmonic swung an absolute pressure
+    by 19.4 about 1 bar, down to -18.4 bar.  A pressure's harmonic (by its recorded unit, also one the recording's
+    unit definitions define) swings by at most half of its offset; a force beside it keeps its training amplitude.
+    Reference: the bounds 0.5 and 1.5 bar and 1 +- 0.5 of the defined unit, written by hand."""
+    from fmu_opinf._test_input import default_test_input
+    from fmu_opinf.signals import parse_signal
+
+    training = ["impulse:amplitude=100,t0=2,width=0.5;none;none",
+                "none;impulse:amplitude=100,t0=2,width=0.5,offset=1;none",
+                "none;none;impulse:amplitude=100,t0=2,width=0.5,offset=1"]
+    model = _oscillators([10.0, 30.0, 90.0], 0.05, 3, training, t_end=10.0)
+    model.provenance["snapshots"] = {"input_units": ["N", "bar", "p_unit"],
+                                     "unit_definitions": {"p_unit": {"base": {"kg": 1, "m": -1, "s": -2}}}}
+    spec, why = default_test_input(model, 0.001, 40.0)
+    u = parse_signal(spec, 3).sample(np.arange(40001) * 0.001)
+    assert 0.5 <= u[1].min() and u[1].max() <= 1.5 and 0.5 <= u[2].min() and u[2].max() <= 1.5, spec
+    assert np.ptp(u[1]) > 0.1 and np.ptp(u[2]) > 0.1, spec   # (they still swing)
+    assert "u[2], u[3] by at most half of its offset (a pressure)" in why, why
+
+
 def test_an_offset_moved_to_a_bound_is_written_rounded_towards_the_inside(monkeypatch):
     """Audit 61, finding 7: an offset moved just inside a declared range printed as offset=3.9800000000000004,
     because its six digits (3.98) fell an ulp outside.  It is rounded towards the inside of the range instead.

@@ -355,6 +355,29 @@ def test_an_input_that_may_only_pull_is_pulsed_downwards(tmp_path, capsys):
                          "'impulse:amplitude=-45,t0=2,width=0.5')"), hint
 
 
+def test_a_pressure_driven_about_its_start_is_pulsed_by_a_tenth_of_it():
+    """Audit 61, finding 3: a pressure driven about its start was pulsed by 100 in its own unit, 1 bar to 101 bar,
+    101325 Pa by 0.1 %.  A pressure (by its unit's dimension, also one UnitDefinitions defines) that starts away
+    from 0 is pulsed by a tenth of its start, to three digits, and still within its declared max; a force, or a
+    pressure at 0, by 100.  Reference: the amplitudes written out by hand."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._record import _lowered_amplitudes, default_amplitudes
+
+    inputs = [("F", "N", 10.0, np.inf), ("p_bar", "bar", 1.0, np.inf), ("p_amb", "Pa", 101325.0, np.inf),
+              ("p_gauge", "psig", 0.0, np.inf), ("p_near", "Pa", 101325.0, 105000.0),
+              ("p_def", "p_unit", -2.0, np.inf), ("p_neg", "kPa", -40.0, np.inf)]
+    source = SimpleNamespace(input_names=[name for name, *_ in inputs], input_units=[unit for _, unit, *_ in inputs],
+                             input_starts=lambda: np.array([start for *_, start, _ in inputs]),
+                             input_ranges=lambda: (np.full(len(inputs), -np.inf), np.array([hi for *_, hi in inputs])),
+                             model=SimpleNamespace(unit_dimensions={"p_unit": {"kg": 1, "m": -1, "s": -2}}))
+    amplitudes = default_amplitudes(source)
+    assert amplitudes == [100.0, 0.1, 10100.0, 100.0, 3675.0, 0.2, 4.0]
+    assert _lowered_amplitudes(source, amplitudes) == (" (amplitude 3675 on p_near: what its declared range allows; "
+                                                       "0.1 on p_bar, 10100 on p_amb, 0.2 on p_def, 4 on p_neg: a "
+                                                       "tenth of its start, a pressure)")
+
+
 @pytest.mark.slow  # 17 s on the shared 2-core machine of 2026-12-06, beside another test run
 def test_an_input_whose_start_lies_outside_its_declared_range_is_trained_from_the_nearest_bound(tmp_path, capsys):
     """Audit 60, finding 8: F1 declared in [5, 30] with start 0 (not FMI-conformant, seen in the wild) was pulsed

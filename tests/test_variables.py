@@ -346,6 +346,29 @@ def test_the_warning_about_a_coefficient_input_names_its_unit_not_its_start(tmp_
     assert ("held at their start values, not driven; force inputs: F" in text) == (not driven)
 
 
+def test_a_pressure_driven_about_its_start_is_said_to_be_driven_as_a_load(tmp_path):
+    """Audit 61, findings 2 and 3: a pressure driven about a non-zero start (an ambient pressure, or a modulus the
+    unit cannot tell from one) was driven without a word on what it is taken for.  One line names its unit and
+    start and the --inputs that holds it; another input that starts away from 0 keeps the general warning."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.sources import _warn_parameter_like
+
+    source = SimpleNamespace(path=tmp_path / "Pressure.fmu", input_names=["F", "p", "scale"],
+                             input_units=["N", "bar", ""], input_starts=lambda: np.array([0.0, 1.0, 2.0]),
+                             parameter_like_input_names=[], driven_parameter_like_names=["p", "scale"],
+                             coefficient_input_names=[], maybe_force_names=[], model=None)
+    with pytest.warns(FmuOpinfWarning) as record:
+        _warn_parameter_like(source)
+    texts = [str(w.message) for w in record]
+    assert any(text.startswith("Pressure.fmu: p (bar, start 1) is driven as a pressure load about its start") and
+               "hold it with --inputs F,scale and give its value with --set if it is a parameter" in text
+               for text in texts), texts
+    assert any("the driven input(s) scale start at non-zero values" in text for text in texts), texts
+    assert not any("input(s) p" in text or "input(s) p," in text for text in texts), texts
+
+
 def test_ports_keep_the_declared_order(tmp_path):
     """Per-body ports as block-diagram exports declare them (seventh audit, 2026-11-27: inputs F_mass1, F_ext,
     F_mass3 became F_ext, F_mass1, F_mass3 and outputs x1, v1, x3, v3 became x1, x3, v1, v3 on the exported ROM

@@ -79,15 +79,58 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
                    for j in range(len(driven))]
     waves = {i: {"omega": frequency, "phase": cosine_phase(frequency, dt) if rigid else 0.0, "offset": drives[i][1]}
              for i, frequency in zip(driven, frequencies)}
-    trained = {i: drives[i][0] for i in driven}
+    trained = _within_pressure_share(rom, {i: drives[i][0] for i in driven}, waves)
+    capped = [rom.input_names[i] for i in driven if trained[i] < drives[i][0]]
     amplitudes, scale, offsets, shift = _sized_within_ranges(rom, waves, trained, dt, t_end, rigid)
     waves, _, moved = _within_declared_ranges(rom, waves, amplitudes)   # the offsets for the final swing
     waves = {i: dict(wave, phase=float(f"{wave['phase'] + shift:.10g}")) for i, wave in waves.items()}
     spec = _spec(rom.m, waves, amplitudes)
     what = "a harmonic" if len(driven) == 1 else "a harmonic on each input the training drove,"
     how = _sizing_phrase(scale, offsets) + (", its phase shifted to let it swing wider" if shift else "") + moved
+    if capped:
+        how += f", {', '.join(capped)} by at most half of its offset (a pressure)"
     cosine = ", a cosine (the ROM has a rigid-body mode)" if rigid else ""
     return spec, f"{what} {where}{cosine}, {how}"
+
+
+#: The largest share of its offset a harmonic swings a pressure by.
+PRESSURE_SHARE = 0.5
+
+
+def _within_pressure_share(rom: "SecondOrderROM", trained: dict[int, float], waves: dict[int, dict[str, float]]
+                           ) -> dict[int, float]:
+    """The training amplitudes, at most :data:`PRESSURE_SHARE` of the offset (three digits, rounded down) on an
+    input in a pressure's unit that the training drove about a start away from 0: an absolute pressure about 1 bar
+    trained by a pulse of 100 took a harmonic of 19.4 about 1 bar, down to -18.4 bar (audit 61, finding 3).  The
+    unit is the one the snapshots recorded (the source's, or one its ``UnitDefinitions`` defined)."""
+    from .sources._variables import is_pressure_unit
+
+    recorded = rom.provenance.get("snapshots")
+    recorded = recorded if isinstance(recorded, dict) else {}
+    units, model = recorded.get("input_units"), _RecordedUnits(recorded.get("unit_definitions"))
+    if not (isinstance(units, list) and len(units) == rom.m):
+        return trained
+    out = dict(trained)
+    for i, amplitude in trained.items():
+        offset = waves[i]["offset"]
+        if offset != 0 and isinstance(units[i], str) and is_pressure_unit(units[i], model):
+            out[i] = min(amplitude, _three_digits_down(PRESSURE_SHARE * abs(offset)))
+    return out
+
+
+class _RecordedUnits:
+    """The ``unit_dimensions`` (:class:`~fmu_opinf.sources._variables.ModelInfo`'s) of the unit definitions a
+    recording kept (``{name: {"base": {"kg": 1, ...}}}``, data: anything else is left out)."""
+
+    def __init__(self, definitions: Any) -> None:
+        from .sources._variables import _normalized_unit
+
+        self.unit_dimensions: dict[str, dict[str, int]] = {}
+        for name, entry in (definitions.items() if isinstance(definitions, dict) else ()):
+            base = entry.get("base") if isinstance(entry, dict) else None
+            if isinstance(name, str) and isinstance(base, dict) and all(
+                    isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) for k, v in base.items()):
+                self.unit_dimensions[_normalized_unit(name)] = {k: v for k, v in base.items() if v}
 
 
 #: Rounds of sizing and moving the offsets into the declared ranges (:func:`_within_declared_ranges`), and the

@@ -574,18 +574,38 @@ _DEFAULT_AMPLITUDE = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitud
 
 
 def default_amplitudes(source: Source) -> list[float]:
-    """The default impulse's amplitude on each input, lowered where the input declares a ``max`` below it (a
-    Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force input with ``max=50`` stopped the
-    default recording at its first pulse).  The window's pilots add the pulse to the input's undriven value, so
-    where that is above 0 the room is ``max`` minus it.  An input with no room upwards but room downwards gets a
-    negative pulse, within its ``min``."""
+    """The default impulse's amplitude on each input (:func:`_unbounded_amplitudes`), lowered where the input
+    declares a ``max`` below it (a Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force
+    input with ``max=50`` stopped the default recording at its first pulse).  The window's pilots add the pulse to
+    the input's undriven value, so where that is above 0 the room is ``max`` minus it.  An input with no room
+    upwards but room downwards gets a negative pulse, within its ``min``."""
     low, high = source.input_ranges()
     starts = held_starts(source)
     up, down = high - np.maximum(starts, 0.0), np.minimum(starts, 0.0) - low
     # an input with no room upwards but room downwards (a cable that only pulls, max = 0) is pulsed downwards
     # (tenth audit: the default pulse of +100 was refused at once)
-    return [-pulse_amplitude(float(d), _DEFAULT_AMPLITUDE) if u <= 0 < d
-            else pulse_amplitude(float(u), _DEFAULT_AMPLITUDE) for u, d in zip(up, down)]
+    return [-pulse_amplitude(float(d), a) if u <= 0 < d else pulse_amplitude(float(u), a)
+            for u, d, a in zip(up, down, _unbounded_amplitudes(source))]
+
+
+#: The default pulse on a pressure that starts away from 0, as a share of its start.
+PRESSURE_SHARE = 0.1
+
+
+def _unbounded_amplitudes(source: Source) -> list[float]:
+    """The default impulse's amplitude on each input before its declared range is heeded: 100 in the input's own
+    unit, or :data:`PRESSURE_SHARE` of the start (three digits) for an input in a pressure's unit that starts away
+    from 0.  A pressure driven about an ambient or a working pressure was pulsed by 100 whatever its unit: from 1
+    to 101 bar, or by 0.1 % of 101325 Pa (audit 61, finding 3)."""
+    from ..sources._variables import is_pressure_unit
+
+    units = list(getattr(source, "input_units", None) or [])
+    model = getattr(source, "model", None)
+    starts = held_starts(source)
+    if len(units) != len(starts):
+        return [_DEFAULT_AMPLITUDE] * len(starts)
+    return [float(f"{PRESSURE_SHARE * abs(start):.3g}") if start != 0 and is_pressure_unit(unit, model)
+            else _DEFAULT_AMPLITUDE for unit, start in zip(units, starts)]
 
 
 def _on_start_values(source: Source) -> str:
@@ -615,9 +635,15 @@ def held_starts(source: Source) -> np.ndarray:
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
-    """What the default training says about amplitudes changed to fit the inputs' declared ranges; "" if none."""
-    lowered = [f"{a:g} on {name}" for name, a in zip(source.input_names, amplitudes) if a != _DEFAULT_AMPLITUDE]
-    return f" (amplitude {', '.join(lowered)}: what its declared range allows)" if lowered else ""
+    """What the default training says about amplitudes changed to fit the inputs' declared ranges, or sized by a
+    pressure's start (:func:`_unbounded_amplitudes`); "" if none."""
+    unbounded = _unbounded_amplitudes(source)
+    lowered = [f"{a:g} on {name}" for name, a, b in zip(source.input_names, amplitudes, unbounded) if a != b]
+    pressures = [f"{a:g} on {name}" for name, a, b in zip(source.input_names, amplitudes, unbounded)
+                 if a == b != _DEFAULT_AMPLITUDE]
+    parts = ([f"{', '.join(lowered)}: what its declared range allows"] if lowered else []) + (
+        [f"{', '.join(pressures)}: a tenth of its start, a pressure"] if pressures else [])
+    return f" (amplitude {'; '.join(parts)})" if parts else ""
 
 
 def _undriven_held(signal: Any, source: Source) -> Any:

@@ -189,6 +189,16 @@ def _warn_parameter_like(source: Source) -> None:
         _warn_coefficients(source, [name for name in driven + held if name in coefficients], forces,
                            [name for name in driven if name in coefficients])
         driven, held = ([name for name in names if name not in coefficients] for names in (driven, held))
+    pressures = _driven_pressures(source, driven, forces)
+    if pressures:
+        shown = ", ".join(f"{name} ({unit}, start {start:g})" for name, unit, start in pressures)
+        names = [name for name, _, _ in pressures]
+        warn_once(source, ("pressures", tuple(names), tuple(forces)),
+                  f"{shown} {'is' if len(names) == 1 else 'are'} driven as a pressure load about its start (the "
+                  "default training pulses it by a tenth of the start, compare's default harmonic by at most half "
+                  f"of it); hold it with {inputs_without(forces, names)} and give its value with --set if it is a "
+                  "parameter (a modulus)")
+        driven = [name for name in driven if name not in names]
     if driven:
         warn_once(source, ("driven", tuple(driven), tuple(forces)),
                    f"the driven input(s) {', '.join(driven)} start at non-zero values (the default training pulses "
@@ -204,6 +214,22 @@ def _warn_parameter_like(source: Source) -> None:
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
                    f"give their values with --set{drive}")
+
+
+def _driven_pressures(source: Source, driven: list[str], forces: list[str]) -> list[tuple[str, str, float]]:
+    """``(name, unit, start)`` of the ``driven`` inputs in a pressure's unit that start away from 0: driven about
+    that start as a load, though the unit cannot tell an ambient pressure from a modulus (audit 61, findings 2 and
+    3); what the default training and test inputs do with them is sized by the start."""
+    from ._variables import is_pressure_unit
+
+    units = list(getattr(source, "input_units", None) or [])
+    starts = getattr(source, "input_starts", None)
+    if not driven or len(units) != len(forces) or starts is None:
+        return []
+    values = list(starts())
+    model = getattr(source, "model", None)
+    return [(name, unit, float(start)) for name, unit, start in zip(forces, units, values)
+            if name in driven and start != 0 and is_pressure_unit(unit, model)]
 
 
 def _warn_coefficients(source: Source, names: list[str], forces: list[str], driven: list[str]) -> None:
