@@ -294,3 +294,18 @@ def test_compare_refuses_an_input_outside_the_source_s_declared_range_before_run
     assert "input F is -0.0420362 there, below its declared min 0: give an input within [0, 30]" in text, text
     within = compare(rom, fmu, "harmonic:amplitude=5,omega=3,offset=5", dt=0.01, t_end=2.0, quiet=True)
     assert within.y_fom.shape == (2, 201)
+
+
+@pytest.mark.parametrize("low, high", [(5.0, 30.0), (5.0, math.inf), (-30.0, -5.0), (-math.inf, -2.0), (5.0, 5.0),
+                                       (0.0, 30.0), (-20.0, 20.0), (-20.0, 0.0)])
+def test_the_example_input_of_a_range_refusal_lies_within_the_range(low, high):
+    """The example a refusal offers (``--input '...'``) must itself be accepted: sampled finely, it stays within the
+    range, also where the range leaves out 0 (audit 60: for ``[5, 30]`` the example rose from 0 and was refused at
+    step 0 like the input it replaced), and it moves the input where the range has room."""
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.sources._cosimulation import _pulse_within
+
+    spec = _pulse_within(low, high, 100.0)
+    u = parse_signal(spec, 1).sample(np.linspace(0.0, 5.0, 50_001))
+    assert low <= u.min() and u.max() <= high, spec
+    assert (u.max() - u.min() > 0) == (high > low), spec

@@ -1067,7 +1067,13 @@ def _positions_as_outputs(positions: list[Column]) -> list[Column]:
 def _pulse_within(low: float, high: float, amplitude: float) -> str:
     """The example impulse of :meth:`FMUSource._outside_range` for one input declared within ``[low, high]``: up to
     ``amplitude`` upwards where the range allows (a pulse rising from 0), else downwards (a pull-only input,
-    ``max = 0``: the tenth audit was advised the pulse that had just failed), else ``none``."""
+    ``max = 0``: the tenth audit was advised the pulse that had just failed), else ``none``.  A range that leaves
+    out 0 gets the pulse on its nearest bound (audit 60: for ``[5, 30]`` the example rose from 0, and the source
+    refused it at step 0 as it had refused the input it replaced)."""
+    if low > 0 or high < 0:
+        base = low if low > 0 else high
+        room = pulse_amplitude(high - low, amplitude) if high > low else 0.0
+        return f"impulse:amplitude={room if low > 0 else -room:g},t0=2,width=0.5,offset={base:g}"
     if high > 0:
         return f"impulse:amplitude={pulse_amplitude(high, amplitude):g},t0=2,width=0.5"
     if low < 0:

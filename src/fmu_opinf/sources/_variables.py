@@ -148,6 +148,7 @@ _PRESSURE_UNITS = frozenset({"Pa", "mPa", "hPa", "kPa", "MPa", "GPa", "bar", "mb
 _MARKED_PRESSURE = re.compile(r"(?<![A-Za-z])(" + "|".join(sorted(_PRESSURE_UNITS, key=len, reverse=True))
                               + r")\s*(?:\((?:g|a|d|abs|gauge|absolute)\)|[gad](?![A-Za-z0-9]))")
 
+
 def is_pressure_unit(unit: str | None, model: Any = None) -> bool:
     """Whether ``unit`` has a pressure's dimension (:func:`unit_dimension`; ``model``: anything with the
     ``unit_dimensions`` of :class:`ModelInfo`).  A pressure may be a load (an ambient or a gauge pressure) or a
