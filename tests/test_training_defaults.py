@@ -216,6 +216,33 @@ def test_a_declared_step_that_would_make_millions_of_samples_gives_way_to_the_wi
     assert np.abs(run.x - exact.x).max() < 1e-12 * np.abs(exact.x).max()
 
 
+@pytest.mark.slow
+def test_model_exchange_records_at_a_multiple_of_a_fine_declared_step(tmp_path):
+    """OpenModelica declares stepSize = stopTime / 500 (2 ms beside stopTime="1"); in model exchange a declared
+    step bounds nothing, and recording at it gave 25 times the window's samples and a 4 times longer default chain
+    for no accuracy (audit 62, finding 2).  Model exchange now records at the largest multiple of the declared step
+    within the automatic window's step (said, with the --dt that keeps it), co-simulation at the declared step as
+    before; the samples equal the exact response."""
+    from conftest import rewrite_description
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    model = lti_fmus.chain_model(name="OMStyle")
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "plain.fmu", interfaces=("me",))
+    path = rewrite_description(built.path, tmp_path / "om.fmu",
+                               lambda text: text.replace('stopTime="1.0"', 'stopTime="1.0" stepSize="0.002"'))
+    with pytest.warns(FmuOpinfWarning, match=r"stepSize=0.002 bounds nothing in model exchange .*\(pass --dt 0.002 "):
+        summary = record_to_file(str(path), tmp_path / "train.h5", None, quiet=True)
+    run = Snapshots.load(tmp_path / "train.h5").runs[0]
+    multiple = run.attrs["dt"] / 0.002
+    assert multiple == pytest.approx(round(multiple), abs=1e-9) and round(multiple) >= 2
+    assert run.attrs["dt"] <= summary.window.dt < run.attrs["dt"] + 0.002
+    assert "a multiple of the FMU's DefaultExperiment stepSize" in summary.describe()
+    exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
+    assert np.abs(run.x - exact.x).max() < 1e-9 * np.abs(exact.x).max()
+
+
 @pytest.mark.slow  # 19 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_a_declared_step_coarser_than_the_window_s_is_said_and_warned(tmp_path):
     """Audit 2026-11-27: an FMU declaring stepSize=0.5 and stopTime=1 was recorded at its own step while the summary

@@ -857,6 +857,7 @@ def record_to_file(
     fixed = fixed_communication_step(source)
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
     step_declared = dt is None and declared_step is not None and (not auto_window or fixed is not None)
+    step_multiple = False
     if step_declared:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
         if fixed is None and _too_many_samples(source, dt, t_end):
@@ -883,6 +884,8 @@ def record_to_file(
             _warn_if_unresolved(source, window, dt, fixed is not None and not dt_given)
         if step_declared and fixed is None and (t_end or window.t_end) / dt > DECLARED_STEP_SAMPLES:
             dt = _declared_step_multiple(source, dt, window.dt, t_end or window.t_end)
+        elif step_declared and getattr(source, "interface", None) == "me" and window.dt >= 2.0 * dt:
+            dt, step_multiple = _declared_step_multiple(source, dt, window.dt, t_end or window.t_end, "me"), True
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
@@ -893,6 +896,7 @@ def record_to_file(
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
     summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
     summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
+                         else "a multiple of the FMU's DefaultExperiment stepSize" if step_multiple
                          else "the FMU's DefaultExperiment stepSize" if step_declared else None)
     return summary
 
@@ -918,15 +922,21 @@ def _too_many_samples(source: Source, dt: float, t_end: float | None) -> bool:
     return True
 
 
-def _declared_step_multiple(source: Source, declared: float, window_dt: float, t_end: float) -> float:
-    """The largest multiple of the declared step ``declared`` within the automatic window's ``window_dt``, where the
-    declared step over the window's end ``t_end`` would make more than :data:`DECLARED_STEP_SAMPLES` samples
-    per run (a multiple keeps the grid the FMU's own step divides)."""
+def _declared_step_multiple(source: Source, declared: float, window_dt: float, t_end: float,
+                            reason: str = "samples") -> float:
+    """The largest multiple of the declared step ``declared`` within the automatic window's ``window_dt`` (a
+    multiple keeps the grid the FMU's own step divides), said in a warning naming ``--dt`` to keep the declared
+    step.  Used where the declared step over the window's end ``t_end`` would make more than
+    :data:`DECLARED_STEP_SAMPLES` samples per run (``reason="samples"``), and in model exchange (``"me"``), where
+    the importer's integrator controls the accuracy and a declared step bounds nothing: OpenModelica declares
+    ``stopTime / 500`` (2 ms beside ``stopTime="1"``), and a slow model was recorded with 25 times the window's
+    samples, its default chain 4 times as long, for no accuracy (audit 62, finding 2)."""
     step = declared * max(1, math.floor(window_dt / declared + 1e-9))
-    warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={declared:g} up to the window's end "
-                  f"t={t_end:g} would make {t_end / declared:.3g} samples per run; recording at dt={step:g}, the "
-                  f"multiple of it within the automatic window's dt={window_dt:g} (pass --dt {declared:g} to keep "
-                  "it)", FmuOpinfWarning, stacklevel=3)
+    why = (f"up to the window's end t={t_end:g} would make {t_end / declared:.3g} samples per run"
+           if reason == "samples" else "bounds nothing in model exchange (the integrator chooses its own steps)")
+    warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={declared:g} {why}; recording at "
+                  f"dt={step:g}, the multiple of it within the automatic window's dt={window_dt:g} (pass --dt "
+                  f"{declared:g} to keep it)", FmuOpinfWarning, stacklevel=3)
     return step
 
 
