@@ -94,12 +94,12 @@ def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[
 
 
 #: The largest share of its offset a harmonic swings a pressure by.
-PRESSURE_SHARE = 0.5
+PRESSURE_SWING_SHARE = 0.5
 
 
 def _within_pressure_share(rom: "SecondOrderROM", trained: dict[int, float], waves: dict[int, dict[str, float]]
                            ) -> dict[int, float]:
-    """The training amplitudes, at most :data:`PRESSURE_SHARE` of the offset (three digits, rounded down) on an
+    """The training amplitudes, at most :data:`PRESSURE_SWING_SHARE` of the offset (three digits, rounded down) on an
     input in a pressure's unit that the training drove about a start away from 0: an absolute pressure about 1 bar
     trained by a pulse of 100 took a harmonic of 19.4 about 1 bar, down to -18.4 bar (audit 61, finding 3).  The
     unit is the one the snapshots recorded (the source's, or one its ``UnitDefinitions`` defined)."""
@@ -114,7 +114,7 @@ def _within_pressure_share(rom: "SecondOrderROM", trained: dict[int, float], wav
     for i, amplitude in trained.items():
         offset = waves[i]["offset"]
         if offset != 0 and isinstance(units[i], str) and is_pressure_unit(units[i], model):
-            out[i] = min(amplitude, _three_digits_down(PRESSURE_SHARE * abs(offset)))
+            out[i] = min(amplitude, _three_digits_down(PRESSURE_SWING_SHARE * abs(offset)))
     return out
 
 

@@ -589,12 +589,12 @@ def default_amplitudes(source: Source) -> list[float]:
 
 
 #: The default pulse on a pressure that starts away from 0, as a share of its start.
-PRESSURE_SHARE = 0.1
+PRESSURE_PULSE_SHARE = 0.1
 
 
 def _unbounded_amplitudes(source: Source) -> list[float]:
     """The default impulse's amplitude on each input before its declared range is heeded: 100 in the input's own
-    unit, or :data:`PRESSURE_SHARE` of the start (three digits) for an input in a pressure's unit that starts away
+    unit, or :data:`PRESSURE_PULSE_SHARE` of the start (three digits) for an input in a pressure's unit that starts away
     from 0.  A pressure driven about an ambient or a working pressure was pulsed by 100 whatever its unit: from 1
     to 101 bar, or by 0.1 % of 101325 Pa (audit 61, finding 3)."""
     from ..sources._variables import is_pressure_unit
@@ -604,7 +604,7 @@ def _unbounded_amplitudes(source: Source) -> list[float]:
     starts = held_starts(source)
     if len(units) != len(starts):
         return [_DEFAULT_AMPLITUDE] * len(starts)
-    return [float(f"{PRESSURE_SHARE * abs(start):.3g}") if start != 0 and is_pressure_unit(unit, model)
+    return [float(f"{PRESSURE_PULSE_SHARE * abs(start):.3g}") if start != 0 and is_pressure_unit(unit, model)
             else _DEFAULT_AMPLITUDE for unit, start in zip(units, starts)]
 
 
