@@ -142,3 +142,54 @@ def test_non_ascii_unit_names_are_kept_and_format_characters_are_not():
     assert degrees.output_units == ["°"]
     spaced = rom_fmu_spec(_rom(provenance={"snapshots": {**snapshots, "output_units": ["µ m"]}}), "Units")
     assert spaced.output_units == [""]
+
+
+NAMES_WITH_BREAKS = {"input_names": ["F2'); system(\"id\"); //\n#include <x>"],
+                     "output_names": ["pos%d\r\nline2 ]]> <!-- -->\tend"]}
+
+
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_tab_newline_and_carriage_return_in_names_are_character_references(fmi_version):
+    """Audit 62, finding 6: the source FMU's XML held a newline in a port name as ``&#10;``, and export refused the
+    name as one XML cannot hold.  They are written as character references (a literal one in an attribute would
+    be read back as a blank) and read back as they were; they never reach the generated C."""
+    from xml.etree import ElementTree
+
+    from fmu_opinf.fmus import _model_description, _model_description3
+
+    spec = rom_fmu_spec(_rom(**NAMES_WITH_BREAKS), "Breaks", fmi_version=fmi_version)
+    xml = _model_description(spec, "{guid}", []) if fmi_version == "2.0" else _model_description3(spec, "{guid}")
+    assert "//&#10;#include" in xml and "pos%d&#13;&#10;line2" in xml and "&#9;end" in xml
+    names = [v.get("name") for v in ElementTree.fromstring(xml).iter() if v.get("causality") in ("input", "output")]
+    assert names == NAMES_WITH_BREAKS["input_names"] + NAMES_WITH_BREAKS["output_names"]
+    assert "#include <x>" not in spec.model_source and "line2" not in spec.model_source
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_an_fmu_with_line_breaks_in_its_port_names_validates_and_reads_back(tmp_path, fmi_version):
+    from fmpy import read_model_description
+
+    from fmu_opinf.fmus import find_build_tools
+
+    if find_build_tools() is None:
+        pytest.skip("needs a C compiler")
+    path = export_fmu(_rom(**NAMES_WITH_BREAKS), tmp_path / "Breaks.fmu", fmi_version=fmi_version)
+    described = read_model_description(str(path), validate=True)
+    ports = {v.causality: v.name for v in described.modelVariables if v.causality in ("input", "output")}
+    assert [ports["input"]] == NAMES_WITH_BREAKS["input_names"]
+    assert [ports["output"]] == NAMES_WITH_BREAKS["output_names"]
+    with zipfile.ZipFile(path) as archive:
+        code = "".join(archive.read(n).decode() for n in archive.namelist() if n.endswith((".c", ".h")))
+    assert "#include <x>" not in code and "line2" not in code
+
+
+@pytest.mark.parametrize("name, character", [("u\x01", r"control character '\\x01'"),
+                                             ("u\x0b", r"control character '\\x0b'"),
+                                             ("u\ud800", r"character '\\ud800'"), ("u\uffff", r"character '\\uffff'")])
+def test_characters_xml_cannot_hold_are_refused_as_such(name, character):
+    from fmu_opinf.fmus import FmuBuildError
+
+    with pytest.raises(FmuBuildError, match=rf"{character}, which XML 1\.0 cannot hold, not even as a character "
+                                            r"reference; rename it \(TAB, LF and CR are fine\)$"):
+        rom_fmu_spec(_rom(input_names=[name]), "Bad")

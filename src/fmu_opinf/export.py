@@ -21,7 +21,8 @@ The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
 
 Nothing read from the ROM file becomes code: the generated C holds numbers only (written by
 ``repr(float)``), no text from the file; names and the description go into the XML through an
-attribute quoting function, and text with control characters is refused.
+attribute quoting function (TAB, LF and CR as the character references ``&#9;``, ``&#10;``, ``&#13;``), and text
+with characters XML 1.0 cannot hold (other control characters) is refused.
 """
 
 from __future__ import annotations

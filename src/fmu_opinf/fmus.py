@@ -241,8 +241,11 @@ class SecondOrderFmuSpec:
         self._check_unique_names()
 
     def _check_text(self) -> None:
-        """Names and the description end up in XML: refuse characters XML 1.0 cannot hold (control characters)
-        and empty names; quoting (``quoteattr``) handles everything else."""
+        """Names and the description end up in XML: refuse empty names and characters XML 1.0 cannot hold, not even
+        as a character reference (most C0 controls, lone surrogates, U+FFFE, U+FFFF), and DEL, which it
+        discourages.  TAB, LF and CR are fine: quoting (``quoteattr``) writes them as ``&#9;``, ``&#10;``,
+        ``&#13;``, so that a parser reads them back (a literal one would be normalized to a blank), as the source
+        FMU's XML held them; it handles everything else too."""
         texts = [("input name", s) for s in self.input_names + self.port_names("input")]
         texts += [("output name", s) for s in self.output_names + self.port_names("output")]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
@@ -252,10 +255,7 @@ class SecondOrderFmuSpec:
         for what, text in texts:
             if not isinstance(text, str) or (what != "description" and not text.strip()):
                 raise FmuBuildError(f"{what} {text!r} is not a non-empty string; give printable names")
-            bad = _CONTROL_CHARACTERS.search(text)
-            if bad:
-                raise FmuBuildError(f"{what} {text!r} contains the control character {bad.group()!r}, which "
-                                    "an FMU's XML cannot hold; rename it (printable characters only)")
+            _check_xml_characters(what, text)
 
     def _check_ranges(self) -> None:
         """``input_ranges``: one ``(min, max)`` per input, numbers (not NaN) with ``min <= max`` that hold the
@@ -329,8 +329,23 @@ class SecondOrderFmuSpec:
                                 "inputs, outputs and parameters distinct names")
 
 
-#: Characters XML 1.0 does not allow (and that have no business in a variable name or description).
-_CONTROL_CHARACTERS = re.compile(r"[\x00-\x1f\x7f\ud800-\udfff\ufffe\uffff]")
+#: Characters XML 1.0 cannot hold at all, not even as character references (``&#1;`` is not well-formed XML 1.0);
+#: TAB, LF and CR are not among them.
+_NON_XML_CHARACTERS = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
+
+
+def _check_xml_characters(what: str, text: str) -> None:
+    """Refuse ``text`` (a name or description bound for the XML) if it holds a character XML 1.0 cannot hold, or
+    DEL, a control character XML 1.0 discourages and that has no business in a name (refused before TAB, LF and CR
+    were let through, as character references)."""
+    bad = _NON_XML_CHARACTERS.search(text)
+    if bad:
+        kind = "control character" if bad.group() < " " else "character"
+        raise FmuBuildError(f"{what} {text!r} contains the {kind} {bad.group()!r}, which XML 1.0 cannot hold, not "
+                            "even as a character reference; rename it (TAB, LF and CR are fine)")
+    if "\x7f" in text:
+        raise FmuBuildError(f"{what} {text!r} contains the control character '\\x7f' (DEL), which XML 1.0 "
+                            "discourages; rename it (TAB, LF and CR are fine)")
 
 
 def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:
