@@ -830,6 +830,53 @@ def test_positions_sharing_a_velocity_get_the_options_that_record_one_of_them(tm
     assert "body2.s moves with the recorded velocity body1.v (a rigid connection)" in text and "lag" not in text
 
 
+def modelica_velocity_gear(local_velocity: bool = True) -> str:
+    """Three masses, mass[3] geared to mass[1] at velocity level (``v3 = 2 v1``, audit 62's GearVel.fmu in small):
+    three position states, two velocity states; ``der(mass[3].s)`` (m/s) is computed, no alias of a state, and so is
+    the local ``mass[3].v`` (declared last, as the exporter did), its value."""
+    m, ms, ms2 = '<Real unit="m" start="0"/>', '<Real unit="m/s" start="0"/>', '<Real unit="m/s2" derivative="{}"/>'
+    v = [
+        _sv("F", 0, "input", body='<Real unit="N" start="0"/>'),                                 # 1
+        _sv("mass[1].s", 1, extra=' initial="exact"', body=m),                                    # 2
+        _sv("mass[2].s", 2, extra=' initial="exact"', body=m),                                    # 3
+        _sv("mass[3].s", 3, extra=' initial="exact"', body=m),                                    # 4
+        _sv("mass[1].v", 4, extra=' initial="exact"', body=ms),                                   # 5
+        _sv("mass[2].v", 5, extra=' initial="exact"', body=ms),                                   # 6
+        _sv("der(mass[1].s)", 4, body='<Real unit="m/s" derivative="2"/>'),               # 7: alias of mass[1].v
+        _sv("der(mass[2].s)", 5, body='<Real unit="m/s" derivative="3"/>'),               # 8: alias of mass[2].v
+        _sv("der(mass[3].s)", 10, body='<Real unit="m/s" derivative="4"/>'),                      # 9: 2 mass[1].v
+        _sv("der(mass[1].v)", 11, body=ms2.format(5)),                                            # 10
+        _sv("der(mass[2].v)", 12, body=ms2.format(6)),                                            # 11
+        _sv("y", 13, "output", body='<Real unit="m"/>'),                                          # 12
+    ]
+    if local_velocity:
+        v.append(_sv("mass[3].v", 20, body='<Real unit="m/s"/>'))                                 # 13: 2 mass[1].v
+    return _fmi2(v, [7, 8, 9, 10, 11])
+
+
+@pytest.mark.parametrize("local_velocity, velocities", [(True, "mass[*].v"),
+                                                        (False, "mass[1].v,mass[2].v,der(mass[3].s)")])
+def test_a_position_whose_rate_is_no_velocity_state_gets_the_patterns_that_record_it(tmp_path, local_velocity,
+                                                                                        velocities):
+    """Audit 62, finding 4: a velocity gear keeps mass[3].s (m) as a state whose derivative (m/s) is computed, no
+    velocity state.  It was refused as "neither positions nor velocities ... (an actuator lag, a filter or a
+    controller state?)" with no patterns; the line now says what it is and names the patterns, which record the
+    three positions with their velocities, paired."""
+    path = _write(tmp_path, modelica_velocity_gear(local_velocity))
+    rate = "mass[3].v" if local_velocity else "der(mass[3].s)"
+    with pytest.raises(FMUError) as caught:
+        resolve_variables(path)
+    text = str(caught.value)
+    assert text.startswith(f"modelDescription.xml: its continuous state(s) mass[3].s (velocity {rate}) are "
+                           "positions whose derivatives are not velocity states (a velocity constraint or a gear")
+    assert text.endswith(f'record them with the others: --positions "mass[*].s" --velocities "{velocities}"')
+    assert "lag" not in text and "\n" not in text
+    selection = resolve_variables(path, positions="mass[*].s", velocities=velocities).selection
+    assert _names(selection.positions) == ["mass[1].s", "mass[2].s", "mass[3].s"]
+    assert _names(selection.velocities) == ["mass[1].v", "mass[2].v", rate]
+    assert selection.unrecorded_states == []
+
+
 def _unrecorded_warning(tmp_path, selection) -> str:
     """The one warning an FMU source with ``selection`` gives about its states left out."""
     from types import SimpleNamespace

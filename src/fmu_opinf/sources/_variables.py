@@ -775,8 +775,61 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     derivatives = [states.der[c.name].name if c.name in states.der else None for c in pos]
     others = _other_states(states, pos + vel)
     if others and positions is None and velocities is None:
+        geared = _geared_positions(states, elements, pos, vel, others)
+        if geared is not None:
+            raise _geared_refusal(model, elements, pos, vel, geared)
         raise _not_mechanical(model, others, "no derivative link pairs them with the others", states)
     return Selection(pos, vel, acc, how, derivatives, others, _followers(states, vel, others))
+
+
+def _geared_positions(states: _States, elements: dict[str, Element], pos: list[Column], vel: list[Column],
+                      others: list[str]) -> dict[str, str] | None:
+    """The velocity variable of each unpaired state in ``others`` that is a position whose derivative is no
+    velocity state: a state in a length unit whose derivative is in a velocity unit, recorded by that velocity (a
+    local named like the recorded velocities, ``mass[4].v`` beside ``mass[4].s``, else the derivative itself);
+    None unless every one of ``others`` is such a position.  A velocity gear ``v4 = 2 v2`` (an index-2 model whose
+    tool eliminated a velocity state) leaves its position so (audit 62: refused as a possible actuator lag)."""
+    suffixes = {(p.name.rsplit(".", 1)[-1], v.name.rsplit(".", 1)[-1]) for p, v in zip(pos, vel)
+                if "." in p.name and "." in v.name and p.name.rsplit(".", 1)[0] == v.name.rsplit(".", 1)[0]}
+    found: dict[str, str] = {}
+    for name in others:
+        state, derivative = elements.get(name), states.der.get(name)
+        if state is None or derivative is None or _unit_kind(state) != 0:
+            return None
+        named = [f"{name.rsplit('.', 1)[0]}.{v}" for p, v in suffixes if "." in name and name.endswith("." + p)]
+        local = [n for n in named if n in elements and _is_signal(elements[n]) and _unit_kind(elements[n]) == 1]
+        if local:
+            found[name] = local[0]
+        elif _unit_kind(derivative) == 1:
+            found[name] = derivative.name
+        else:
+            return None
+    return found
+
+
+def _geared_refusal(model: ModelInfo, elements: dict[str, Element], pos: list[Column], vel: list[Column],
+                    geared: dict[str, str]) -> FMUError:
+    """The error for positions whose derivatives are not velocity states (:func:`_geared_positions`), with the
+    ``--positions`` / ``--velocities`` patterns that record them beside the paired ones."""
+    pairs = sorted([(p.name, v.name) for p, v in zip(pos, vel)] + list(geared.items()),
+                   key=lambda pair: natural_key(pair[0]))
+    positions = _compact_pattern(model, elements, [p for p, _ in pairs])
+    velocities = _compact_pattern(model, elements, [v for _, v in pairs])
+    shown = ", ".join(f"{p} (velocity {v})" for p, v in list(geared.items())[:4]) + (", ..." if len(geared) > 4 else "")
+    return FMUError(f"{model.label}: its continuous state(s) {shown} are positions whose derivatives are not velocity "
+                    "states (a velocity constraint or a gear: an index-2 model whose tool eliminated a velocity); "
+                    f"record them with the others: --positions \"{positions}\" --velocities \"{velocities}\"")
+
+
+def _compact_pattern(model: ModelInfo, elements: dict[str, Element], names: list[str]) -> str:
+    """``names`` as one wildcard pattern (indices as ``[*]``: ``mass[*].s``) where it matches exactly them in that
+    order, else as their comma-separated list."""
+    patterns = {re.sub(r"\[\d+\]", "[*]", name) for name in names}
+    if len(patterns) == 1:
+        pattern = patterns.pop()
+        if pattern not in names and [e.name for e in _match(model, elements, "", pattern, False)] == names:
+            return pattern
+    return ",".join(names)
 
 
 def _followers(states: _States, velocities: list[Column], others: list[str]) -> dict[str, str]:
