@@ -799,6 +799,14 @@ def test_a_state_whose_derivative_is_an_input_is_named_a_prescribed_motion(tmp_p
         resolve_variables(_write(tmp_path, xml))
     with pytest.raises(FMUError, match=r"an actuator lag"):   # a lag is still a lag
         resolve_variables(_write(tmp_path, modelica_two_masses_with_actuator_lag()))
+    in_units = xml.replace('"base.v" valueReference="30" causality="input" variability="continuous"><Real ',
+                           '"base.v" valueReference="30" causality="input" variability="continuous"><Real unit="m/s" ')
+    in_units = in_units.replace('"base.s" valueReference="31" causality="local" variability="continuous" '
+                                'initial="exact"><Real ', '"base.s" valueReference="31" causality="local" '
+                                'variability="continuous" initial="exact"><Real unit="m" ')
+    assert in_units.count('unit="m') == 2   # in m and m/s it is still a prescribed motion, no gear (audit 62)
+    with pytest.raises(FMUError, match=r"base\.s is the integral of the input base\.v, a prescribed motion"):
+        resolve_variables(_write(tmp_path, in_units))
 
 
 def test_positions_sharing_a_velocity_get_the_options_that_record_one_of_them(tmp_path):

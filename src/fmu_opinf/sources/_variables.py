@@ -776,7 +776,7 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     others = _other_states(states, pos + vel)
     if others and positions is None and velocities is None:
         geared = _geared_positions(states, elements, pos, vel, others)
-        if geared is not None:
+        if geared is not None and not _prescribed_motions(model, states, others):   # a base driven by its velocity
             raise _geared_refusal(model, elements, pos, vel, geared)
         raise _not_mechanical(model, others, "no derivative link pairs them with the others", states)
     return Selection(pos, vel, acc, how, derivatives, others, _followers(states, vel, others))
