@@ -230,6 +230,33 @@ def test_wrong_version_missing_matrix_and_nan(tmp_path, small_rom):
         SecondOrderROM.load(path)
 
 
+def test_asymmetric_operator_in_a_file_is_refused_like_export_refuses_it(tmp_path, small_rom):
+    """Audit 62, finding 5: a ROM file whose Kr bytes were flipped was compared (exit 0) but not exported."""
+    from fmu_opinf.export import export_fmu
+
+    path = small_rom.save(tmp_path / "rom.h5")
+    with h5py.File(path, "a") as f:
+        f["Kr"][0, 1] = f["Kr"][0, 1] * (1 + 1e-7) + 1e-7 * np.abs(f["Kr"][()]).max()
+    expected = f"{path}: ROM matrix Kr is not symmetric .*re-fit the ROM"
+    with pytest.raises(DataError, match=expected):
+        SecondOrderROM.load(path)
+    with pytest.raises(DataError, match=expected):
+        export_fmu(path, tmp_path / "rom.fmu")
+    assert not (tmp_path / "rom.fmu").exists()
+
+
+@pytest.mark.parametrize("name, change, problem", [
+    ("Mr", lambda a: a - 2 * np.abs(a).max() * np.eye(len(a)), "Mr is not positive definite"),
+    ("Dr", lambda a: a - 2 * max(np.abs(a).max(), 1.0) * np.eye(len(a)), "Dr has a negative eigenvalue"),
+])
+def test_indefinite_operator_in_a_file_is_refused(tmp_path, small_rom, name, change, problem):
+    path = small_rom.save(tmp_path / "rom.h5")
+    with h5py.File(path, "a") as f:
+        f[name][...] = change(f[name][()])
+    with pytest.raises(DataError, match=f"{path}: ROM matrix {problem}.*re-fit the ROM"):
+        SecondOrderROM.load(path)
+
+
 def test_inconsistent_matrices_are_rejected():
     with pytest.raises(DimensionError, match="Cvr has shape"):
         SecondOrderROM(np.eye(2), np.eye(2), np.eye(2), np.ones((2, 1)), np.ones((1, 2)), np.ones((1, 3)))

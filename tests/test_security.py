@@ -260,6 +260,9 @@ ROM_DEFECTS = {
     "Mr wrong shape": _replace("Mr", data=np.ones((3, 4))),
     "Mr zero": _transform("Mr", np.zeros_like),
     "Kr negative definite": _negative("Kr"),
+    "Kr asymmetric (a flipped byte)": _transform("Kr", lambda k: k + np.diag(np.full(k.shape[0] - 1, 1e-6 *
+                                                                                  np.abs(k).max()), 1)),
+    "Dr asymmetric": _transform("Dr", lambda d: d + np.diag(np.full(d.shape[0] - 1, 1e-3 * np.abs(d).max()), -1)),
     "NaN basis": _transform("basis", lambda v: np.where(v == v.max(), np.nan, v)),
     "complex Br": _transform("Br", lambda b: b + 1j),
     "bool Dr": _transform("Dr", lambda d: d > 0),

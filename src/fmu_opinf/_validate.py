@@ -391,8 +391,9 @@ def check_rom_file(f: h5py.File, path: Path) -> None:
     """Validate a ROM file before :meth:`SecondOrderROM._from_h5 <fmu_opinf.rom.SecondOrderROM>` reads it.
 
     Checks links, attribute types, that every dataset holds finite real numbers actually stored in the file
-    and fitting into memory, and that ``Mr`` is a square positive definite matrix and ``Dr``, ``Kr`` are
-    positive semidefinite (eq. 16).
+    and fitting into memory, and that the matrices' shapes agree.  That ``Mr, Dr, Kr`` are the operators of a
+    second-order ROM is checked once they are read, by :func:`fmu_opinf.rom.check_operators` (the check
+    ``export`` runs too).
     """
     with damaged_file_errors(path):
         _check_rom_file(f, path)
@@ -442,24 +443,3 @@ def _check_rom_file(f: h5py.File, path: Path) -> None:
                  "the file declares more data than this machine holds; it is damaged or not a ROM")
     mats = {name: read_real(ds, f"{path}: {name}") for name, ds in datasets.items()}
     _check_rom_shapes(mats, path)
-    if "Mr" in mats:
-        _check_definite(mats, path)
-
-
-def _check_definite(mats: dict[str, np.ndarray], path: Path) -> None:
-    Mr = mats["Mr"]
-    if Mr.ndim != 2 or Mr.shape[0] != Mr.shape[1] or Mr.shape[0] == 0:
-        raise FileFormatError(f"{path}: Mr has shape {Mr.shape}, expected a square (r, r) matrix; the file is damaged")
-    for name in ("Mr", "Dr", "Kr"):
-        value = mats.get(name)
-        if value is None or value.shape != Mr.shape:
-            continue
-        sym = 0.5 * (value + value.T)
-        eig = np.linalg.eigvalsh(sym)
-        scale = float(np.abs(eig).max()) if eig.size else 0.0
-        if name == "Mr" and not (scale > 0 and eig.min() > 1e-12 * scale):
-            raise DataError(f"{path}: Mr is not positive definite (eigenvalues {eig.min():.3g} .. {eig.max():.3g}); "
-                            "the ROM is unusable, refit it")
-        if name != "Mr" and eig.min() < -1e-6 * max(scale, 1e-300):
-            raise DataError(f"{path}: {name} has a negative eigenvalue {eig.min():.3g}; a learned {name} is "
-                            "positive semidefinite (eq. 16), the ROM is damaged, refit it")

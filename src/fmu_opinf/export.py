@@ -60,7 +60,7 @@ def _load_rom(rom: Any) -> Any:
 
     try:
         return SecondOrderROM.load(path)
-    except FileFormatError:
+    except (FileFormatError, DataError):  # (one line naming the file already)
         raise
     except Exception as error:  # noqa: BLE001 - any reader failure means a bad file
         raise FileFormatError(f"cannot read ROM file {path}: {error}; pass a file written by "
@@ -79,25 +79,21 @@ def _matrix(rom: Any, name: str, shape: tuple[int, int]) -> np.ndarray:
     return array
 
 
-def _symmetric(matrix: np.ndarray, name: str) -> np.ndarray:
-    scale = max(np.abs(matrix).max(), np.finfo(float).tiny)
-    if np.abs(matrix - matrix.T).max() > 1e-10 * scale:
-        raise DataError(f"ROM matrix {name} is not symmetric; the exporter needs the "
-                        "symmetric operators of a second-order ROM")
-    return matrix
+def _check_step_matrix(matrices: dict[str, np.ndarray], dt: float | None) -> None:
+    """Newmark's step matrix ``Mr + dt/2 Dr + dt^2/4 Kr`` is positive definite (the FMU solves with it).
 
-
-def _check_definite(matrices: dict[str, np.ndarray], dt: float | None) -> None:
+    ``Mr, Dr, Kr`` themselves are checked by :func:`fmu_opinf.rom.check_operators`, the check loading a ROM
+    file runs too.
+    """
+    if dt is None:
+        return
     M, D, K = matrices["Mr"], matrices["Dr"], matrices["Kr"]
-    checks = [("Mr", M)]
-    if dt is not None:
-        checks.append(("Mr + dt/2 Dr + dt^2/4 Kr", M + dt / 2 * D + dt * dt / 4 * K))
-    for label, S in checks:
-        try:
-            np.linalg.cholesky((S + S.T) / 2)
-        except np.linalg.LinAlgError:
-            raise DataError(f"{label} is not positive definite; the ROM is not a stable "
-                            "second-order model, refit it") from None
+    S = M + dt / 2 * D + dt * dt / 4 * K
+    try:
+        np.linalg.cholesky((S + S.T) / 2)
+    except np.linalg.LinAlgError:
+        raise DataError("Mr + dt/2 Dr + dt^2/4 Kr is not positive definite; the ROM is not a stable "
+                        "second-order model, refit it") from None
 
 
 def _sizes(rom: Any) -> tuple[int, int, int]:
@@ -393,9 +389,9 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     """
     r, m, p = _sizes(rom)
     matrices = {
-        "Mr": _symmetric(_matrix(rom, "Mr", (r, r)), "Mr"),
-        "Dr": _symmetric(_matrix(rom, "Dr", (r, r)), "Dr"),
-        "Kr": _symmetric(_matrix(rom, "Kr", (r, r)), "Kr"),
+        "Mr": _matrix(rom, "Mr", (r, r)),
+        "Dr": _matrix(rom, "Dr", (r, r)),
+        "Kr": _matrix(rom, "Kr", (r, r)),
         "Br": _matrix(rom, "Br", (r, m)),
         "Cpr": _matrix(rom, "Cpr", (p, r)),
         "Cvr": _matrix(rom, "Cvr", (p, r)),
@@ -405,7 +401,10 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         raise DataError(f"ROM training step dt={dt} is not positive; refit the ROM")
     if step is not None:
         dt = _export_step(float(step), dt)
-    _check_definite(matrices, dt)
+    from .rom import check_operators  # (here: the module loads without the fitting code, like _load_rom)
+
+    check_operators(matrices["Mr"], matrices["Dr"], matrices["Kr"])
+    _check_step_matrix(matrices, dt)
     names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     if names:
         _warn_if_reconstruction_is_poor(getattr(rom, "fit_info", None) or {})

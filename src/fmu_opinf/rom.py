@@ -80,6 +80,8 @@ LAYOUT_VERSION = 3
 #: no ``coordinates``, the POD coordinates).
 READABLE_LAYOUTS = (1, 2, 3)
 FILE_KIND = "fmu-opinf rom"
+#: The way out of a ROM file whose operators break the invariants of :func:`check_operators`.
+DAMAGED_ROM_FIX = "the file is damaged or was edited: restore it from a copy or re-fit the ROM with 'fmu-opinf fit'"
 _MATRICES = ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr")
 _EXTRA_TERMS = ("fr", "Dur", "y0", "q0", "qdot0", "x_ref")
 #: The terms beyond the paper's model that ``fit_rom(terms=...)`` can fit.
@@ -570,7 +572,8 @@ class SecondOrderROM:
         FileFormatError
             Missing, unreadable or truncated file, wrong kind or layout version, missing or inconsistent data.
         DataError
-            NaN/Inf in the stored matrices.
+            NaN/Inf in the stored matrices; ``Mr, Dr, Kr`` not symmetric, ``Mr`` not positive definite or
+            ``Dr, Kr`` not positive semidefinite (:func:`check_operators`: the invariants ``export`` needs).
         """
         path = Path(path)
         if path.is_dir():
@@ -585,7 +588,7 @@ class SecondOrderROM:
 
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "SecondOrderROM":
-        check_rom_file(f, path)  # links, attribute types, sizes vs data and memory, finite values, Mr > 0
+        check_rom_file(f, path)  # links, attribute types, sizes vs data and memory, finite values, shapes
         attrs = read_attrs(f)
         if attrs.get("kind") != FILE_KIND:
             raise FileFormatError(f"{path} is not an fmu-opinf ROM file (kind={attrs.get('kind')!r})")
@@ -610,6 +613,7 @@ class SecondOrderROM:
         for name, value in mats.items():
             if not np.all(np.isfinite(value)):
                 raise DataError(f"{path}: {name} contains NaN/Inf; the ROM is unusable, refit it")
+        check_operators(mats["Mr"], mats["Dr"], mats["Kr"], where=f"{path}: ROM", fix=DAMAGED_ROM_FIX)
         extra = {name: mats.pop(name) for name in _EXTRA_TERMS if name in mats}
         if "x_ref" in extra and extra["x_ref"].size == 0:
             extra["x_ref"] = None
@@ -620,6 +624,76 @@ class SecondOrderROM:
                        integrator=attrs.get("integrator", "newmark"), coordinates=coordinates, **extra)
         except (DimensionError, ValueError) as exc:
             raise FileFormatError(f"{path}: inconsistent ROM data ({exc})") from None
+
+
+#: Largest ``|A - A^T|`` of ``Mr, Dr, Kr`` relative to their largest entry: round-off (a fit stores them exactly
+#: symmetric; a flipped byte or a hand edit breaks it, audit 62, finding 5).
+SYMMETRY_TOL = 1e-10
+#: Smallest eigenvalue of ``Mr`` relative to its largest one: below it ``Mr`` is not positive definite.
+DEFINITE_TOL = 1e-12
+#: Most negative eigenvalue of ``Dr``, ``Kr`` relative to their largest one: round-off of the SDP solver's
+#: semidefinite iterate.
+SEMIDEFINITE_TOL = 1e-6
+
+
+def check_operators(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, where: str = "ROM",
+                    fix: str = "refit the ROM") -> None:
+    """Refuse ``Mr, Dr, Kr`` that are not the operators of a second-order ROM (eq. 16).
+
+    The one check of these invariants: loading a ROM file (:meth:`SecondOrderROM.load`) and exporting a ROM
+    (:func:`fmu_opinf.export.rom_fmu_spec`) both run it, so a file ``export`` refuses is not simulated by
+    ``compare`` either (audit 62, finding 5: a ROM file with flipped bytes in ``Kr`` was compared without a
+    word).
+
+    Parameters
+    ----------
+    Mr, Dr, Kr : ndarray
+        Finite square matrices of one size ``(r, r)``, ``r >= 1``; symmetric to :data:`SYMMETRY_TOL`, ``Mr``
+        positive definite (:data:`DEFINITE_TOL`), ``Dr``, ``Kr`` positive semidefinite (:data:`SEMIDEFINITE_TOL`).
+    where : str, default="ROM"
+        What holds them, at the start of the message (a file name: ``"rom.h5: ROM"``).
+    fix : str, default="refit the ROM"
+        The way out the message ends with.
+
+    Raises
+    ------
+    DataError
+        One line naming ``where``, the matrix, the problem and ``fix``.
+    """
+    mats = {"Mr": np.asarray(Mr, dtype=float), "Dr": np.asarray(Dr, dtype=float), "Kr": np.asarray(Kr, dtype=float)}
+    shape = mats["Mr"].shape
+    for name, value in mats.items():
+        if value.ndim != 2 or value.shape[0] != value.shape[1] or value.shape[0] == 0 or value.shape != shape:
+            raise DataError(f"{where} matrix {name} has shape {value.shape}, expected a square (r, r) matrix like "
+                            f"Mr {shape}; {fix}")
+        if not np.all(np.isfinite(value)):
+            raise DataError(f"{where} matrix {name} has NaN or infinite entries; {fix}")
+    for name, value in mats.items():
+        _check_symmetric(value, name, where, fix)
+    for name, value in mats.items():
+        _check_eigenvalues(value, name, where, fix)
+
+
+def _check_symmetric(value: np.ndarray, name: str, where: str, fix: str) -> None:
+    """``value`` equals its transpose to :data:`SYMMETRY_TOL` of its largest entry."""
+    scale = max(float(np.abs(value).max()), np.finfo(float).tiny)
+    asymmetry = float(np.abs(value - value.T).max())
+    if asymmetry > SYMMETRY_TOL * scale:
+        raise DataError(f"{where} matrix {name} is not symmetric (|{name} - {name}^T| = {asymmetry:.3g}, "
+                        f"{asymmetry / scale:.2g} of its largest entry); a second-order ROM has symmetric operators, "
+                        f"{fix}")
+
+
+def _check_eigenvalues(value: np.ndarray, name: str, where: str, fix: str) -> None:
+    """``Mr`` positive definite, ``Dr`` and ``Kr`` positive semidefinite, within round-off."""
+    eig = np.linalg.eigvalsh(0.5 * (value + value.T))
+    scale = float(np.abs(eig).max())
+    if name == "Mr" and not (scale > 0 and eig.min() > DEFINITE_TOL * scale):
+        raise DataError(f"{where} matrix Mr is not positive definite (eigenvalues {eig.min():.3g} .. "
+                        f"{eig.max():.3g}); a second-order ROM has a positive definite mass, {fix}")
+    if name != "Mr" and eig.min() < -SEMIDEFINITE_TOL * max(scale, 1e-300):
+        raise DataError(f"{where} matrix {name} has a negative eigenvalue {eig.min():.3g}; a learned {name} is "
+                        f"positive semidefinite (eq. 16), {fix}")
 
 
 def _vector(value: Any, size: int) -> np.ndarray:
