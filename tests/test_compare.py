@@ -69,6 +69,23 @@ def test_report_files(anchored_rom, tmp_path):
         assert (tmp_path / "report" / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_control_characters_in_names_are_drawn_as_spaces_without_a_font_warning(anchored_rom, tmp_path):
+    """Audit 62, finding 7: a carriage return in an output's name printed matplotlib's "Glyph 13 missing from
+    font(s) DejaVu Sans" warning; the names stay as they are in the report's data."""
+    model, path = anchored_rom
+    result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=20.0, quiet=True)
+    names = ["pos%d\r\nline2 ]]> <!-- -->", "a\tb\x01", "y3"]
+    result.output_names = list(names)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        compare.write_report(result, tmp_path / "report")
+    assert not [str(w.message) for w in caught if "Glyph" in str(w.message)]
+    assert result.output_names == names
+    from fmu_opinf.plots import plot_text
+
+    assert plot_text("pos%d\r\nline2 ]]> $x$\x85\x7f") == "pos%d line2 ]]> \\$x\\$ "
+
+
 def test_report_directory_that_is_a_file_is_refused(anchored_rom, tmp_path):
     model, path = anchored_rom
     result = compare.compare(model, "builtin:anchored-msd", TEST, dt=0.5, t_end=10.0, quiet=True)

@@ -854,19 +854,13 @@ def plotted_outputs(comparison: Comparison) -> list[int]:
     return sorted(np.argsort(-relative, kind="stable")[:MAX_OUTPUT_PANELS].tolist())
 
 
-def _as_text(label: str) -> str:
-    """A label from the data drawn as it is: matplotlib reads ``$...$`` as math (audit 55: an output named
-    ``$x^{$`` ended the comparison with a parse error)."""
-    return label.replace("$", r"\$")
-
-
 def _figure_outputs(comparison: Comparison, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plots import fixed_margins
+    from .plots import fixed_margins, plot_text
 
     p = comparison.y_fom.shape[0]
     shown = plotted_outputs(comparison)
@@ -875,7 +869,7 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     for j, ax in zip(shown, axes[:, 0]):
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
-        ax.set_ylabel(_as_text(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else "")))
+        ax.set_ylabel(plot_text(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else "")))
         _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t [s]")
@@ -883,7 +877,7 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
     which = "" if len(shown) == p else f" ({len(shown)} of {p} outputs: the largest errors relative to their peak)"
-    fig.suptitle(_as_text(f"Outputs, input {comparison.input_spec}{which}"), y=1.0 - 0.3 / fig.get_figheight())
+    fig.suptitle(plot_text(f"Outputs, input {comparison.input_spec}{which}"), y=1.0 - 0.3 / fig.get_figheight())
     fixed_margins(fig, left=0.95, bottom=0.5, top=0.75)
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)

@@ -6,6 +6,7 @@ Figures are drawn with matplotlib's Agg backend and written to files; nothing is
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -13,11 +14,27 @@ import numpy as np
 
 from .basis import cumulative_energy, svdvals
 
-__all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures", "decade_label", "fixed_margins"]
+__all__ = ["plot_singular_values", "plot_cumulative_energy", "pod_figures", "decade_label", "fixed_margins",
+           "plot_text"]
 
 _ROUND_OFF = 1e-15
 _LABELS = {"positions": r"$\sigma_i(X)$", "velocities": r"$\sigma_i(\dot X)$"}
 _ELABELS = {"positions": r"$E^i_{\mathrm{cum}}(X)$", "velocities": r"$E^i_{\mathrm{cum}}(\dot X)$"}
+
+
+#: Runs of control characters (C0, DEL, C1): no font has glyphs for them.
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]+")
+
+
+def plot_text(label: str) -> str:
+    """A label or title from the data (a variable's name, an input's text) drawn as it is.
+
+    matplotlib reads ``$...$`` as math (audit 55: an output named ``$x^{$`` ended the comparison with a parse
+    error), so ``$`` is escaped; a control character has no glyph in any font (audit 62: a carriage return in
+    an output's name printed matplotlib's "Glyph 13 missing from font(s)" warning), so each run of them is
+    drawn as one space.  The names stay as they are everywhere else (files, reports, the exported FMU).
+    """
+    return _CONTROL.sub(" ", label).replace("$", r"\$")
 
 
 def _pyplot():
