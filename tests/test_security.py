@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import stat
 import tempfile
@@ -281,6 +282,23 @@ def test_damaged_rom_file_is_one_line_error(files, tmp_path, capsys, defect):
                          "--t-end", "2", "-o", report, "-q")
     assert_one_line_error(code, err)
     assert not report.exists()
+
+
+@pytest.mark.parametrize("kind, command", [("snapshots", "fmu-opinf snapshots"), ("rom", "fmu-opinf fit")])
+def test_truncated_files_are_said_to_be_truncated(files, tmp_path, capsys, kind, command):
+    """Audit 62, finding 7: the first half of a snapshot file was "not an HDF5 file" (a ROM's: "not HDF5 or is
+    truncated")."""
+    data = files[kind].read_bytes()
+    path = tmp_path / f"half_{kind}.h5"
+    path.write_bytes(data[:len(data) // 2])
+    expected = f"it is not HDF5 or is truncated: restore it or write it again with '{command}'"
+    with pytest.raises(FileFormatError, match=f"cannot read {'snapshot' if kind == 'snapshots' else 'ROM'} file "
+                                              f"{re.escape(str(path))} .*; {expected}"):
+        (Snapshots if kind == "snapshots" else SecondOrderROM).load(path)
+    args = ("fit", path, "-o", tmp_path / "rom.h5", "-q") if kind == "snapshots" else ("export", path, "-o",
+                                                                                       tmp_path / "rom.fmu")
+    code, err = run_main(capsys, *args)
+    assert_one_line_error(code, err, expected)
 
 
 def test_valid_files_still_load(files):

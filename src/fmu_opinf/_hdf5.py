@@ -27,7 +27,7 @@ from .errors import FileFormatError
 
 __all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "replace_together", "REPLACED",
            "write_error", "output_mode", "ensure_space", "free_space", "tool_versions", "sha256_of", "write_attrs",
-           "read_attrs", "jsonable"]
+           "read_attrs", "jsonable", "unreadable_file"]
 
 
 @contextlib.contextmanager
@@ -192,6 +192,28 @@ def write_error(path: Path, exc: OSError) -> FileFormatError:
     if exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
         return FileFormatError(f"cannot write {path}: {exc.strerror}; choose a writable location with -o")
     return FileFormatError(f"cannot write {path} ({text[:200]}); the previous file is unchanged")
+
+
+def unreadable_file(path: str | os.PathLike, what: str, command: str, exc: OSError) -> FileFormatError:
+    """One line for a file HDF5 cannot open: not HDF5 at all, or cut short (a copy or a download that stopped).
+
+    Snapshot and ROM files say it alike (audit 62, finding 7: a truncated snapshot file was called "not an HDF5
+    file", which a file ``fmu-opinf snapshots`` wrote and a copy cut short is not).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The file.
+    what : str
+        What it should be (``"snapshot"``, ``"ROM"``).
+    command : str
+        The command that writes such files (``"fmu-opinf snapshots"``), named in the fix.
+    exc : OSError
+        HDF5's refusal, shown shortened in parentheses.
+    """
+    text = " ".join(str(exc).split())[:200]
+    return FileFormatError(f"cannot read {what} file {path} ({text}); it is not HDF5 or is truncated: "
+                           f"restore it or write it again with '{command}'")
 
 
 #: Free bytes kept beyond the next write: HDF5 chunk caches and metadata written when the file is closed.

@@ -60,7 +60,7 @@ import numpy as np
 import scipy.linalg
 
 from . import _threads
-from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, write_attrs
+from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, unreadable_file, write_attrs
 from ._sdp_paths import FACTORED_ABOVE
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
@@ -584,7 +584,7 @@ class SecondOrderROM:
             with h5py.File(path, "r") as f:
                 return cls._from_h5(f, path)
         except OSError as exc:
-            raise FileFormatError(f"cannot read ROM file {path} ({exc}); it is not HDF5 or is truncated") from None
+            raise unreadable_file(path, "ROM", "fmu-opinf fit", exc) from None
 
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "SecondOrderROM":

@@ -11,7 +11,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from .._hdf5 import read_attrs
+from .._hdf5 import read_attrs, unreadable_file
 from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run,
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
@@ -235,8 +235,8 @@ class Snapshots:
                                   "'fmu-opinf snapshots' wrote" if path.exists() else "does not exist"))
         try:
             f = h5py.File(path, "r")
-        except OSError:
-            raise FileFormatError(f"{path} is not an HDF5 file; give a file written by 'fmu-opinf snapshots'") from None
+        except OSError as exc:
+            raise unreadable_file(path, "snapshot", "fmu-opinf snapshots", exc) from None
         try:
             with damaged_file_errors(path):
                 snaps = cls._from_h5(f, path)
