@@ -301,6 +301,67 @@ def test_truncated_files_are_said_to_be_truncated(files, tmp_path, capsys, kind,
     assert_one_line_error(code, err, expected)
 
 
+def _flip_a_stored_byte(src: Path, folder: Path, name: str) -> Path:
+    """A copy of ``src`` with one byte of the first stored chunk of dataset ``name`` changed (a bit rot)."""
+    path = folder / src.name
+    shutil.copy(src, path)
+    with h5py.File(path, "r") as f:
+        assert f[name].fletcher32, f"{name} is written without a checksum"
+        info = f[name].id.get_chunk_info(0)
+    with open(path, "r+b") as handle:
+        handle.seek(info.byte_offset + info.size // 3)
+        byte = handle.read(1)[0]
+        handle.seek(info.byte_offset + info.size // 3)
+        handle.write(bytes([byte ^ 0x10]))
+    return path
+
+
+@pytest.mark.parametrize("kind, name", [("rom", "Kr"), ("rom", "basis"), ("snapshots", "runs/0000/x"),
+                                        ("snapshots", "runs/0000/x0")])
+def test_changed_bytes_fail_the_checksum_in_one_line(files, tmp_path, capsys, kind, name):
+    """Audit 62, finding 5: flipped bytes in a ROM's Kr were read as data; HDF5's checksum now refuses them."""
+    path = _flip_a_stored_byte(files[kind], tmp_path, name)
+    reader = SecondOrderROM if kind == "rom" else Snapshots
+    with pytest.raises(FileFormatError, match="fail HDF5's checksum .*damaged, restore it from a copy"):
+        reader.load(path)
+    args = ("compare", path, "builtin:anchored-msd", "--g", "12", "--input", "step", "--t-end", "2", "-o",
+            tmp_path / "report", "-q") if kind == "rom" else ("fit", path, "-o", tmp_path / "rom.h5", "-q")
+    code, err = run_main(capsys, *args)
+    assert_one_line_error(code, err, "fail HDF5's checksum")
+    assert path.name in err[0] and "damaged" in err[0]
+
+
+def _without_checksums(src: Path, folder: Path) -> Path:
+    """``src`` rewritten as older versions wrote it: the same datasets and attributes, no checksums."""
+    path = folder / ("old_" + src.name)
+
+    def copy(source, target):
+        for key, value in source.attrs.items():
+            target.attrs[key] = value
+        for key, obj in source.items():
+            if isinstance(obj, h5py.Group):
+                copy(obj, target.create_group(key))
+            else:
+                target.create_dataset(key, data=obj[()])
+
+    with h5py.File(src, "r") as old, h5py.File(path, "w") as new:
+        copy(old, new)
+    return path
+
+
+def test_files_without_checksums_still_load(files, tmp_path):
+    """New files carry checksums; the files older versions wrote, without, load as before (docs/file-format.md)."""
+    with h5py.File(files["rom"], "r") as rom, h5py.File(files["snapshots"], "r") as snaps:
+        assert all(rom[name].fletcher32 for name in ("Mr", "Dr", "Kr", "Br", "Cpr", "Cvr", "basis"))
+        assert all(snaps["runs/0000"][name].fletcher32 for name in ("t", "u", "x", "xdot", "xddot", "y", "x0", "v0"))
+    old_rom = _without_checksums(files["rom"], tmp_path)
+    with h5py.File(old_rom, "r") as f:
+        assert not f["Kr"].fletcher32 and f["Kr"].chunks is None
+    np.testing.assert_array_equal(SecondOrderROM.load(old_rom).Kr, SecondOrderROM.load(files["rom"]).Kr)
+    old_snapshots = _without_checksums(files["snapshots"], tmp_path)
+    np.testing.assert_array_equal(Snapshots.load(old_snapshots).runs[0].x, Snapshots.load(files["snapshots"]).runs[0].x)
+
+
 def test_valid_files_still_load(files):
     assert Snapshots.load(files["snapshots"]).n == 12
     assert SecondOrderROM.load(files["rom"]).r == 3

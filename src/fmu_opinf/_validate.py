@@ -27,6 +27,7 @@ __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
     "check_fraction", "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
+    "read_failure", "RESTORE",
     "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
 ]
 
@@ -262,6 +263,22 @@ def check_array(ds: Any, label: str, ndim: int | None = None, rows: int | None =
     return ds
 
 
+#: The way out of a damaged file.
+RESTORE = "restore it from a copy or write it again"
+
+
+def read_failure(exc: BaseException) -> str:
+    """HDF5's reason for a failed read, shortened, in words where it is a failed filter.
+
+    A chunk whose Fletcher-32 checksum (written since audit 62) or gzip stream does not match its bytes makes
+    HDF5 say only "filter returned failure during read": the bytes changed after the file was written.
+    """
+    text = " ".join(str(exc).split())[:200]
+    if "filter returned failure" in text:
+        return "its stored bytes fail HDF5's checksum or decompression: they changed after the file was written"
+    return text
+
+
 def read_real(ds: Any, label: str, ndim: int | None = None) -> np.ndarray:
     """Read a checked dataset into a finite float64 array (memory checked before reading)."""
     check_array(ds, label, ndim)
@@ -269,7 +286,7 @@ def read_real(ds: Any, label: str, ndim: int | None = None) -> np.ndarray:
     try:
         values = np.array(ds[()], dtype=float)
     except (OSError, ValueError, TypeError) as exc:
-        raise FileFormatError(f"cannot read {label} ({exc}); the file is damaged") from None
+        raise FileFormatError(f"cannot read {label} ({read_failure(exc)}); the file is damaged, {RESTORE}") from None
     if not np.all(np.isfinite(values)):
         raise DataError(f"{label} contains NaN/Inf; the file is unusable, re-create it")
     return values
@@ -407,8 +424,8 @@ def damaged_file_errors(path: Path) -> Iterator[None]:
     except FmuOpinfError:
         raise
     except (OSError, RuntimeError, KeyError, ValueError, TypeError, IndexError, AttributeError) as exc:
-        text = " ".join(str(exc).split())[:200]
-        raise FileFormatError(f"cannot read {path} ({type(exc).__name__}: {text}); the file is damaged") from None
+        raise FileFormatError(f"cannot read {path} ({type(exc).__name__}: {read_failure(exc)}); the file is damaged, "
+                              f"{RESTORE}") from None
 
 
 #: Expected shapes of the ROM matrices in terms of ``r``, ``m``, ``p``, ``n`` (None: any).

@@ -206,7 +206,7 @@ def read_columns(array: Any, j0: int, j1: int, label: str) -> np.ndarray:
         # a recording in memory (F order) must be the same bits as the fit of its file (C order)
         block = np.ascontiguousarray(array[:, j0:j1], dtype=np.float64)
     except (OSError, KeyError, ValueError, RuntimeError) as exc:
-        raise FileFormatError(f"cannot read columns {j0}:{j1} of {label} ({exc}); the file may be truncated") from exc
+        raise _read_error(f"columns {j0}:{j1} of {label}", array, exc) from exc
     if not np.all(np.isfinite(block)):
         bad = j0 + int(np.argwhere(~np.isfinite(block))[0, 1])
         raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")
@@ -380,13 +380,23 @@ def _snapshot_gram(runs: Sequence, name: str, chunk_size: int) -> np.ndarray:
     return gram
 
 
+def _read_error(part: str, array: Any, exc: BaseException) -> FileFormatError:
+    """One line for a failed read of ``part`` of a snapshot array, naming its file (an h5py dataset's)."""
+    from ._validate import RESTORE, read_failure
+
+    filename = getattr(getattr(array, "file", None), "filename", None)
+    where = f" in {filename}" if filename else ""
+    return FileFormatError(f"cannot read {part}{where} ({read_failure(exc)}); the file may be truncated or damaged, "
+                           f"{RESTORE}")
+
+
 def _read_rows(run: Any, name: str, i0: int, i1: int, run_index: int) -> np.ndarray:
     """Rows ``i0:i1`` (all columns) of ``run.<name>`` as float64, with read and NaN/Inf checks."""
     label = f"{name} of run {run_index}"
     try:
         block = np.asarray(getattr(run, name)[i0:i1, :], dtype=np.float64)
     except (OSError, KeyError, ValueError, RuntimeError) as exc:
-        raise FileFormatError(f"cannot read rows {i0}:{i1} of {label} ({exc}); the file may be truncated") from exc
+        raise _read_error(f"rows {i0}:{i1} of {label}", getattr(run, name), exc) from exc
     if not np.all(np.isfinite(block)):
         bad = int(np.argwhere(~np.isfinite(block))[0, 1])
         raise DataError(f"snapshot array {label} has NaN/Inf at column {bad}; re-record the data")

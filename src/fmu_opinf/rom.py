@@ -60,7 +60,7 @@ import numpy as np
 import scipy.linalg
 
 from . import _threads
-from ._hdf5 import atomic_h5, jsonable, read_attrs, tool_versions, unreadable_file, write_attrs
+from ._hdf5 import atomic_h5, checksummed, jsonable, read_attrs, tool_versions, unreadable_file, write_attrs
 from ._sdp_paths import FACTORED_ABOVE
 from ._validate import check_rom_file
 from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
@@ -542,14 +542,10 @@ class SecondOrderROM:
         """
         path = Path(path)
         with atomic_h5(path, overwrite=overwrite) as f:
-            for name in _MATRICES + _EXTRA_TERMS:
-                f.create_dataset(name, data=getattr(self, name))
-            if self.basis is not None:
-                f.create_dataset("basis", data=self.basis)
-            if self.singular_values is not None:
-                f.create_dataset("singular_values", data=self.singular_values)
-            if self.coordinates is not None:
-                f.create_dataset("coordinates", data=self.coordinates)
+            for name in _MATRICES + _EXTRA_TERMS + ("basis", "singular_values", "coordinates"):
+                value = getattr(self, name)
+                if value is not None:
+                    f.create_dataset(name, data=value, **checksummed(np.shape(value)))
             write_attrs(f, {
                 "kind": FILE_KIND,
                 "layout_version": LAYOUT_VERSION,

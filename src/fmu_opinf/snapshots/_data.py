@@ -221,7 +221,8 @@ class Snapshots:
         with cls.open(path) as lazy:
             check_memory(8.0 * sum(a.size for r in lazy.runs for a in r.arrays().values()),
                          f"loading {path} into memory", "open it lazily with Snapshots.open instead")
-            return cls([r.load() for r in lazy.runs], dict(lazy.attrs))
+            with damaged_file_errors(Path(path)):   # (a chunk failing its checksum)
+                return cls([r.load() for r in lazy.runs], dict(lazy.attrs))
 
     @classmethod
     def open(cls, path: str | os.PathLike) -> "Snapshots":

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-from .._hdf5 import atomic_h5, ensure_space, write_attrs
+from .._hdf5 import atomic_h5, checksummed, ensure_space, write_attrs
 from ..errors import FileFormatError
 
 if TYPE_CHECKING:
@@ -71,17 +71,19 @@ def _chunks(shape: tuple[int, ...]) -> tuple[int, ...]:
 
 
 def create_dataset(group: h5py.Group, name: str, shape: tuple[int, ...]) -> h5py.Dataset:
-    """A chunked, gzip-compressed float64 dataset resizable along time."""
+    """A chunked, gzip-compressed float64 dataset resizable along time, with a checksum per chunk
+    (:func:`~fmu_opinf._hdf5.checksummed`: HDF5 refuses changed bytes instead of reading them)."""
     # a fixed size of 0 (no inputs: m = 0) cannot hold a chunk of 1; leave such dimensions unlimited
     maxshape = tuple(None if d == 0 else d for d in shape[:-1]) + (None,)
     return group.create_dataset(name, shape=shape, dtype="f8", maxshape=maxshape, chunks=_chunks(shape),
-                                compression="gzip", compression_opts=1, shuffle=True)
+                                compression="gzip", compression_opts=1, shuffle=True, fletcher32=True)
 
 
 def write_initial_state(group: h5py.Group, x0: Any, v0: Any) -> None:
     """The run's initial positions and velocities as small datasets ``x0``, ``v0`` (layout 2)."""
     for name, values in (("x0", x0), ("v0", v0)):
-        group.create_dataset(name, data=np.asarray(values, dtype=float).reshape(-1))
+        data = np.asarray(values, dtype=float).reshape(-1)
+        group.create_dataset(name, data=data, **checksummed(data.shape))
 
 
 def write_run(runs: h5py.Group, index: int, run: Run) -> None:
