@@ -41,8 +41,11 @@ def triple():
     return systems.triple_chain()
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture
 def rng():
+    """A generator seeded alike for every test, so that a test's draws do not depend on which tests ran before it
+    in the same process (a session-wide generator made the draws differ between runs under pytest-xdist, and a
+    finite-difference check failed on one of them)."""
     return np.random.default_rng(20251121)
 
 
