@@ -963,3 +963,19 @@ def test_literal_names_in_a_list_of_patterns_may_hold_several(tmp_path):
     resolved = resolve_variables(_write(tmp_path, modelica_two_masses()), positions=["mass1.s,mass2.s"],
                                  velocities=["mass1.v", "mass2.v"])
     assert _names(resolved.selection.positions) == ["mass1.s", "mass2.s"]
+
+
+def test_every_input_of_an_exported_rom_fmu_is_driven(tmp_path):
+    """An FMU 'fmu-opinf export' wrote has one input port per force input of its ROM, a pressure driven about its
+    start or a preload in no force unit included: none is held as parameter-like (audit 63: a ROM trained with a
+    pressure in bar about 1 exported an FMU whose pressure port ``compare rom.fmu`` then held, and the comparison
+    could not run).  The same description from another tool holds them."""
+    inputs = [("F", 'unit="N" start="0"'), ("p", 'unit="bar" start="1"'), ("scale", 'unit="1" start="2"')]
+    foreign = resolve_variables(_inputs_description(tmp_path, inputs, ""))
+    assert _names(foreign.forces) == ["F"] and _names(foreign.held) == ["p", "scale"]
+    path = tmp_path / "exported"
+    path.mkdir()
+    text = _inputs_description(tmp_path, inputs, "").read_text()
+    exported = _write(path, text.replace('fmiVersion="2.0"', 'fmiVersion="2.0" generationTool="fmu-opinf"'))
+    selection = resolve_variables(exported)
+    assert _names(selection.forces) == ["F", "p", "scale"] and not selection.held

@@ -479,6 +479,8 @@ class ModelInfo:
         self.label = label
         self.fmi_version = root.get("fmiVersion", "")
         self.fmi3 = self.fmi_version.startswith("3")
+        #: an FMU that 'fmu-opinf export' wrote: its inputs are the ports of a ROM's force inputs
+        self.exported_rom = root.get("generationTool") == "fmu-opinf"
         node = root.find("ModelVariables")
         self._type_units = _type_attribute(root, "unit")
         self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max")}
@@ -1477,7 +1479,11 @@ def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     or of quantity Force) that starts at a preload is a force all the same, driven on top of its start value
     (audits of 2026-12-06: a preload F = 10 N was held like the stiffness input beside it, and the exported ROM had
     no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held,
-    and so is a damping in N.s/m that starts at 0 (audit 58)."""
+    and so is a damping in N.s/m that starts at 0 (audit 58).  Never for an exported ROM FMU
+    (``model.exported_rom``): each of its inputs is one the ROM was trained to be driven by, a pressure about its
+    start included (audit 63: such an input was held, and ``compare rom.fmu`` could not run at all)."""
+    if getattr(model, "exported_rom", False):
+        return False
     if is_coefficient(element.var, model):
         return True
     return nonzero_start(element) and unit_kind(element.var, model) != "force"
