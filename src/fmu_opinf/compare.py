@@ -463,7 +463,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"], held), source,
                                    source_options)
 
-    by_name = {"signal_inputs": list(rom_info["input_names"])} if _fmu_path(source) and rom_info["m"] else {}
+    trained = _trained_input_names(rom_info)
+    by_name = {"signal_inputs": trained} if _fmu_path(source) and trained else {}
     y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                  **source_options, **by_name)
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
@@ -697,6 +698,16 @@ def _same_setting(value: Any, trained: Any) -> bool:
         return float(value) == float(trained)
     except (TypeError, ValueError):
         return str(value).strip().lower() == str(trained).strip().lower()
+
+
+def _trained_input_names(rom_info: dict[str, Any]) -> list[str] | None:
+    """The names of the FMU inputs the ROM was trained on, in the ROM's input order, as the snapshots recorded
+    them (None where none were recorded: a ROM built in Python with placeholder names ``u[1]``, ...)."""
+    snapshots = rom_info["provenance"].get("snapshots")
+    names = snapshots.get("input_names") if isinstance(snapshots, dict) else None
+    if isinstance(names, list) and len(names) == rom_info["m"] > 0 and all(isinstance(n, str) for n in names):
+        return list(names)
+    return None
 
 
 def _fmu_path(source: Any) -> bool:
