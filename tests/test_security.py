@@ -867,3 +867,25 @@ def test_export_from_the_api_creates_no_folder_for_refused_arguments(files, tmp_
     with pytest.raises(DimensionError):
         export_fmu(files["rom"], tmp_path / "new" / "deeper" / "rom.fmu", reconstruct=["x[0]"])
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("where", ["file", "run"])
+def test_a_dt_attribute_that_is_not_the_stored_step_is_refused(files, tmp_path, capsys, where):
+    """Attributes carry no HDF5 checksum: one flipped bit made a file's dt 0.01049 beside times 0.01 apart, and
+    the fit took the step from it (audit 63: the ROM 3.0e-2 off, no word).  The stored times decide: a dt that
+    is not their step is refused on load, by the API and by fit, in one line."""
+    import shutil
+
+    import h5py
+
+    damaged = tmp_path / "s.h5"
+    shutil.copy(files["snapshots"], damaged)
+    with h5py.File(damaged, "r+") as f:
+        holder = f if where == "file" else f["runs"][sorted(f["runs"])[0]]
+        holder.attrs["dt"] = float(holder.attrs["dt"]) * (1 + 2.0**-7)   # one bit of the mantissa
+    with pytest.raises(FileFormatError, match="attribute dt is 0.50390625, but the stored times are 0.5 apart"):
+        Snapshots.load(damaged)
+    code, err = run_main(capsys, "fit", damaged, "-o", tmp_path / "rom.h5", "-q")
+    assert_one_line_error(code, err, "the file is damaged")
+    assert not (tmp_path / "rom.h5").exists()
+    assert Snapshots.load(files["snapshots"]).runs   # the undamaged file loads
