@@ -576,12 +576,15 @@ _DEFAULT_AMPLITUDE = float(parse_signal(DEFAULT_TRAINING_INPUT).params["amplitud
 def default_amplitudes(source: Source) -> list[float]:
     """The default impulse's amplitude on each input (:func:`_unbounded_amplitudes`), lowered where the input
     declares a ``max`` below it (a Dymola FMU refuses a value outside ``[min, max]``: the seventh audit's force
-    input with ``max=50`` stopped the default recording at its first pulse).  The window's pilots add the pulse to
-    the input's undriven value, so where that is above 0 the room is ``max`` minus it.  An input with no room
-    upwards but room downwards gets a negative pulse, within its ``min``."""
+    input with ``max=50`` stopped the default recording at its first pulse).  The training runs and the window's
+    pilots add the pulse to the input's undriven value (:func:`held_starts`, within the range), so the room upwards
+    is ``max`` minus that value and the room downwards that value minus ``min``.  An input with no room upwards
+    but room downwards gets a negative pulse, within its ``min``: one held at its ``max`` (its start lay above the
+    range) is pulsed down into the range (audit 63, finding 2: the rooms were measured from 0 where the value lay
+    on the other side of it, so from a held 30 in [5, 30] none was seen downwards and the pulse of +100 failed)."""
     low, high = source.input_ranges()
     starts = held_starts(source)
-    up, down = high - np.maximum(starts, 0.0), np.minimum(starts, 0.0) - low
+    up, down = high - starts, starts - low
     # an input with no room upwards but room downwards (a cable that only pulls, max = 0) is pulsed downwards
     # (tenth audit: the default pulse of +100 was refused at once)
     return [-pulse_amplitude(float(d), a) if u <= 0 < d else pulse_amplitude(float(u), a)

@@ -518,7 +518,7 @@ class FMUSource(Source):
         for j in np.flatnonzero((row < lo) | (row > hi)):
             peak = float(np.max(np.abs(U[:, j])))
             bound = f"above its declared max {hi[j]:g}" if row[j] > hi[j] else f"below its declared min {lo[j]:g}"
-            example = ";".join(_pulse_within(float(lo[k]), float(hi[k]), peak or 1.0) for k in range(self.m))
+            example = ";".join(_example_pulse(U[:, k], float(lo[k]), float(hi[k]), k == j) for k in range(self.m))
             return (f"; input {self.input_names[j]} is {row[j]:.6g} there, {bound}: give an input within "
                     f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g} in magnitude; e.g. --input '{example}')")
         return ""
@@ -1062,6 +1062,16 @@ def _positions_as_outputs(positions: list[Column]) -> list[Column]:
         return list(positions)
     picks = np.unique(np.linspace(0, len(positions) - 1, MAX_POSITION_OUTPUTS).round().astype(int))
     return [positions[i] for i in picks]
+
+
+def _example_pulse(column: np.ndarray, low: float, high: float, failed: bool) -> str:
+    """The example input of :meth:`FMUSource._outside_range` for one input, whose values in the failed run are
+    ``column``: a pulse within ``[low, high]`` up to its own peak where the run drove it or it is the input that
+    left its range (``failed``), else ``none``, held as the run held it (audit 63, finding 2: a run that drove F1
+    alone was advised a pulse of 130, F1's peak, on F2 as well)."""
+    if not failed and np.all(column == column[0]):
+        return "none"
+    return _pulse_within(low, high, float(np.max(np.abs(column))) or 1.0)
 
 
 def _pulse_within(low: float, high: float, amplitude: float) -> str:
