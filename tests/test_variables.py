@@ -36,7 +36,7 @@ def _sv(name: str, vr: int, causality: str = "local", variability: str = "contin
 
 def _write(tmp_path: Path, xml: str) -> Path:
     path = tmp_path / "modelDescription.xml"
-    path.write_text(xml)
+    path.write_text(xml, encoding="utf-8")
     return path
 
 
@@ -283,9 +283,12 @@ def test_a_coefficient_per_angle_is_held_and_an_angle_s_rate_is_driven(tmp_path)
 
     per_angle = [("cornering", 'unit="N/rad" start="0"'), ("c_deg", 'unit="N/deg" start="0"'),
                  ("c_kN", 'unit="kN/rad" start="0"'), ("gain", 'unit="1/rad" start="0"'),
-                 ("lever", 'unit="m/rad" start="0"'), ("c_def", 'unit="N/deg" declaredType="Defined" start="0"')]
+                 ("lever", 'unit="m/rad" start="0"'), ("c_def", 'unit="N/deg" declaredType="Defined" start="0"'),
+                 ("c_sign", 'unit="N/°" start="0"'), ("c_degree", 'unit="N/degree" start="0"'),
+                 ("c_rev", 'unit="N.m/revolution" start="0"')]   # audit 63, finding 6: the last three were driven
     angles = [("phi", 'unit="rad" start="0"'), ("w", 'unit="rad/s" start="0"'), ("alpha", 'unit="rad/s2" start="0"'),
-              ("w_deg", 'unit="deg/s" start="0"'), ("theta", 'unit="deg" start="0"'), ("F", 'unit="N" start="0"')]
+              ("w_deg", 'unit="deg/s" start="0"'), ("theta", 'unit="deg" start="0"'), ("F", 'unit="N" start="0"'),
+              ("w_sign", 'unit="°/s" start="0"'), ("theta_degrees", 'unit="degrees" start="0"')]
     units = ('<UnitDefinitions><Unit name="N/deg"><BaseUnit kg="1" m="1" s="-2" factor="57.3"/></Unit>'
              '</UnitDefinitions><TypeDefinitions><SimpleType name="Defined"><Real unit="N/deg"/></SimpleType>'
              '</TypeDefinitions>')
@@ -322,6 +325,16 @@ def test_the_pressure_symbols_leave_masses_forces_and_a_defined_g_as_they_were(t
                                '<UnitDefinitions><Unit name="g"><BaseUnit m="1" s="-2" factor="9.80665"/></Unit>'
                                '</UnitDefinitions>')
     assert unit_dimension("g", ModelInfo.from_path(path)) == {"m": 1, "s": -2}
+
+
+def test_standard_gravity_is_an_acceleration_and_no_symbol_is_read_to_the_power_0():
+    """Audit 63, finding 6: g0 (standard gravity) was read as g, a gram, to the power 0, a number.  gn and g0 are
+    accelerations, g alone stays a gram, and a symbol written to the power 0 is no unit (by hand)."""
+    from fmu_opinf.sources._variables import unit_dimension
+
+    expected = {"g0": {"m": 1, "s": -2}, "gn": {"m": 1, "s": -2}, "kg.gn": {"kg": 1, "m": 1, "s": -2},
+                "g": {"kg": 1}, "s0": None, "m0/s": None, "1": {}}
+    assert {unit: unit_dimension(unit) for unit in expected} == expected
 
 
 @pytest.mark.parametrize("driven", [False, True])

@@ -116,7 +116,7 @@ def is_coefficient(variable: "Variable", model: "ModelInfo") -> bool:
     unit's dimension (:func:`unit_dimension`), so that a pressure in N/mm2 or an acceleration the model defines as
     ``g`` stays a load (audit 59: both were held).
 
-    A unit written per angle (divided by ``rad`` or ``deg``: ``N/rad``, ``kN/deg``, ``N.m/rad``, ``m/rad``) is a
+    A unit written per angle (divided by ``rad``, ``deg`` or ``°``: ``N/rad``, ``kN/deg``, ``N.m/rad``, ``m/rad``) is a
     coefficient too, read from its written form also where ``UnitDefinitions`` leaves the radian out: a cornering
     stiffness, a rotational stiffness or damping, a ratio per angle (audit 60: N.m/rad defined as kg.m2.s-2 was
     driven; audit 61: N/rad was).  Angles and their rates (``rad``, ``rad/s``, ``deg/s``, ``rad/s2``) carry the
@@ -163,7 +163,8 @@ _SYMBOL_DIMENSIONS = {
     **dict.fromkeys(_LENGTH_UNITS | {"µm", "mi"}, {"m": 1}),
     **dict.fromkeys(("s", "ms", "us", "min", "h"), {"s": 1}),
     **dict.fromkeys(("kg", "g", "mg", "t", "lb"), {"kg": 1}),
-    **dict.fromkeys(("rad", "mrad", "deg", "rev"), {"rad": 1}),
+    **dict.fromkeys(("rad", "mrad", "deg", "°", "degree", "degrees", "rev", "revolution", "revolutions"), {"rad": 1}),
+    **dict.fromkeys(("gn", "g0"), {"m": 1, "s": -2}),   # standard gravity (g alone is a gram)
     **dict.fromkeys(_PRESSURE_UNITS, _PRESSURE_DIMENSION),
     **dict.fromkeys(("J", "kJ"), {"kg": 1, "m": 2, "s": -2}),
     **dict.fromkeys(("W", "kW"), {"kg": 1, "m": 2, "s": -3}),
@@ -182,8 +183,9 @@ def unit_dimension(unit: str | None, model: "ModelInfo | None" = None) -> dict[s
     """The exponents of kg, m, s and rad of ``unit`` (zeros left out; ``{}`` for a number): from the model's
     ``UnitDefinitions`` where it defines the unit with base units, else read from the unit's symbols (products by
     ``.``, ``*``, ``·``, a blank, ``-`` or nothing between symbols, quotients by ``/``, parentheses, exponents such
-    as ``m2``, ``m^2``, ``m²``, ``s-1``; a pressure's gauge or absolute mark, ``psig``, ``bar(a)``, left out).  None
-    where a symbol is not known or the unit is empty."""
+    as ``m2``, ``m^2``, ``m²``, ``s-1``; a pressure's gauge or absolute mark, ``psig``, ``bar(a)``, left out;
+    ``g`` a gram, ``gn`` and ``g0`` standard gravity).  None where a symbol is not known, an exponent is 0 (no
+    unit is written so) or the unit is empty."""
     text = (unit or "").strip()
     if not text:
         return None
@@ -232,6 +234,8 @@ def _factor(text: str) -> tuple[dict[str, int], str]:
             base = _SYMBOL_DIMENSIONS[symbol]
     power = re.match(r"-?\d+", text)
     exponent = int(power[0]) if power else 1
+    if exponent == 0:   # no unit is written to the power 0: g0 was read as dimensionless (audit 63, finding 6)
+        raise ValueError(text)
     text = text[power.end():] if power else text
     return {key: value * exponent for key, value in base.items()}, text
 
