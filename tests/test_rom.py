@@ -257,6 +257,36 @@ def test_indefinite_operator_in_a_file_is_refused(tmp_path, small_rom, name, cha
         SecondOrderROM.load(path)
 
 
+def _round_off(rng, eigenvalues) -> np.ndarray:
+    """A symmetric 2 x 2 matrix with ``eigenvalues`` in a random orthonormal basis."""
+    q = np.linalg.qr(rng.standard_normal((2, 2)))[0]
+    return q @ np.diag(eigenvalues) @ q.T
+
+
+@pytest.mark.parametrize("name", ["Dr", "Kr"])
+def test_an_operator_that_is_round_off_may_dip_below_zero_by_round_off(tmp_path, rng, name):
+    """Audit 63, finding 9: an undamped ROM whose Dr is round-off (largest eigenvalue 1e-16, smallest -7.7e-17
+    beside a Kr of 900) was refused as damaged: the semidefinite test was relative to Dr alone.  Its floor is now
+    1e-12 of the scale the other operators give it, sqrt(|Mr| |Kr|) for Dr (here 30), |Dr|^2 / |Mr| for Kr (a
+    free body with a damping of 3: 9), so such a ROM saves, loads and exports; an eigenvalue of -1e-9 (over 1e-11
+    of that scale) is still refused."""
+    from fmu_opinf.export import export_fmu
+
+    noise = _round_off(rng, [1e-16, -7.7e-17])
+    operators = {"Mr": np.eye(2), "Dr": noise, "Kr": np.diag([100.0, 900.0])} if name == "Dr" else \
+        {"Mr": np.eye(2), "Dr": np.diag([1.0, 3.0]), "Kr": noise}
+    rom = SecondOrderROM(operators["Mr"], operators["Dr"], operators["Kr"], np.eye(2), np.eye(2), np.zeros((2, 2)),
+                         dt=0.01)
+    path = rom.save(tmp_path / "rom.h5")
+    loaded = SecondOrderROM.load(path)
+    np.testing.assert_array_equal(getattr(loaded, name), noise)
+    assert export_fmu(path, tmp_path / "rom.fmu").stat().st_size > 0
+    with h5py.File(path, "a") as f:
+        f[name][...] = _round_off(rng, [1e-16, -1e-9])
+    with pytest.raises(DataError, match=f"{path}: ROM matrix {name} has a negative eigenvalue -1e-09.*re-fit"):
+        SecondOrderROM.load(path)
+
+
 def test_inconsistent_matrices_are_rejected():
     with pytest.raises(DimensionError, match="Cvr has shape"):
         SecondOrderROM(np.eye(2), np.eye(2), np.eye(2), np.ones((2, 1)), np.ones((1, 2)), np.ones((1, 3)))

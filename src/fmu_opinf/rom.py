@@ -630,6 +630,10 @@ DEFINITE_TOL = 1e-12
 #: Most negative eigenvalue of ``Dr``, ``Kr`` relative to their largest one: round-off of the SDP solver's
 #: semidefinite iterate.
 SEMIDEFINITE_TOL = 1e-6
+#: Most negative eigenvalue of ``Dr``, ``Kr`` relative to the scale the other operators give them (``sqrt(|Mr| |Kr|)``
+#: for a damping, ``|Dr|^2 / |Mr|`` for a stiffness; :func:`_semidefinite_tolerances`): round-off of an operator that
+#: is (nearly) zero, such as the ``Dr`` of an undamped ROM, whose own largest eigenvalue is round-off too.
+ROUNDOFF_TOL = 1e-12
 
 
 def check_operators(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, where: str = "ROM",
@@ -645,7 +649,7 @@ def check_operators(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, where: str =
     ----------
     Mr, Dr, Kr : ndarray
         Finite square matrices of one size ``(r, r)``, ``r >= 1``; symmetric to :data:`SYMMETRY_TOL`, ``Mr``
-        positive definite (:data:`DEFINITE_TOL`), ``Dr``, ``Kr`` positive semidefinite (:data:`SEMIDEFINITE_TOL`).
+        positive definite (:data:`DEFINITE_TOL`), ``Dr``, ``Kr`` positive semidefinite (:func:`_semidefinite_tolerances`).
     where : str, default="ROM"
         What holds them, at the start of the message (a file name: ``"rom.h5: ROM"``).
     fix : str, default="refit the ROM"
@@ -666,8 +670,26 @@ def check_operators(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, where: str =
             raise DataError(f"{where} matrix {name} has NaN or infinite entries; {fix}")
     for name, value in mats.items():
         _check_symmetric(value, name, where, fix)
-    for name, value in mats.items():
-        _check_eigenvalues(value, name, where, fix)
+    eigs = {name: np.linalg.eigvalsh(0.5 * (value + value.T)) for name, value in mats.items()}
+    tolerances = _semidefinite_tolerances(*(float(np.abs(eigs[name]).max()) for name in ("Mr", "Dr", "Kr")))
+    for name, eig in eigs.items():
+        _check_eigenvalues(eig, name, where, fix, tolerances.get(name, 0.0))
+
+
+def _semidefinite_tolerances(m: float, d: float, k: float) -> dict[str, float]:
+    """The most negative eigenvalue ``Dr`` and ``Kr`` may have, from the largest eigenvalue magnitudes ``m, d, k``
+    of ``Mr, Dr, Kr``: :data:`SEMIDEFINITE_TOL` of its own, or :data:`ROUNDOFF_TOL` of the scale the other two
+    give it where that is larger.
+
+    A relative test alone refuses an operator that is round-off as a whole: the ``Dr`` of an undamped ROM (largest
+    eigenvalue 7.7e-14 beside a ``Kr`` of 900) with an eigenvalue of -7.7e-17 was refused as damaged (audit 63,
+    finding 9).  The scales are those of ``M s^2 + D s + K``: a damping's is ``sqrt(m k)`` (critical damping) and
+    a stiffness's ``d^2 / m``, so both floors have their operator's units.  Below them a negative eigenvalue
+    ``-e`` gives a growth rate ``e / 2m`` of at most 1e-12 of the fastest frequency ``sqrt(k / m)`` (damping), or
+    ``sqrt(e / m)`` of at most 1e-6 of the fastest decay rate ``d / m`` (stiffness): round-off, not a model that
+    grows.  Where the other operators are 0 the floor is 0 and the relative test stands as it was."""
+    return {"Dr": max(SEMIDEFINITE_TOL * d, ROUNDOFF_TOL * np.sqrt(m * k)),
+            "Kr": max(SEMIDEFINITE_TOL * k, ROUNDOFF_TOL * d * d / m if m > 0 else 0.0)}
 
 
 def _check_symmetric(value: np.ndarray, name: str, where: str, fix: str) -> None:
@@ -680,14 +702,14 @@ def _check_symmetric(value: np.ndarray, name: str, where: str, fix: str) -> None
                         f"{fix}")
 
 
-def _check_eigenvalues(value: np.ndarray, name: str, where: str, fix: str) -> None:
-    """``Mr`` positive definite, ``Dr`` and ``Kr`` positive semidefinite, within round-off."""
-    eig = np.linalg.eigvalsh(0.5 * (value + value.T))
+def _check_eigenvalues(eig: np.ndarray, name: str, where: str, fix: str, tolerance: float) -> None:
+    """``Mr`` positive definite, ``Dr`` and ``Kr`` positive semidefinite: their eigenvalues ``eig`` not below
+    ``-tolerance`` (:func:`_semidefinite_tolerances`)."""
     scale = float(np.abs(eig).max())
     if name == "Mr" and not (scale > 0 and eig.min() > DEFINITE_TOL * scale):
         raise DataError(f"{where} matrix Mr is not positive definite (eigenvalues {eig.min():.3g} .. "
                         f"{eig.max():.3g}); a second-order ROM has a positive definite mass, {fix}")
-    if name != "Mr" and eig.min() < -SEMIDEFINITE_TOL * max(scale, 1e-300):
+    if name != "Mr" and eig.min() < -tolerance:
         raise DataError(f"{where} matrix {name} has a negative eigenvalue {eig.min():.3g}; a learned {name} is "
                         f"positive semidefinite (eq. 16), {fix}")
 
