@@ -246,3 +246,56 @@ def test_a_search_ending_while_the_difference_still_falls_names_a_smaller_step(m
             "smaller steps, but not yet at the smallest the automatic window tried (its outputs at dt=0.01 and "
             "dt=0.005 differ by 0.05 of their peak over t <= 10); give --dt below 0.01 (e.g. 0.005)") in message, \
         message
+
+
+#: One mass, omega = 10 rad/s, damping ratio 0.1: explicit Euler is stable below dt = 2 zeta / omega = 0.02.
+EULER_ONE = {"K": np.array([[100.0]]), "D": np.array([[2.0]])}
+
+
+@pytest.fixture(scope="module")
+def euler_one(request, tmp_path_factory):
+    """The one-mass model's co-simulation-only FMU, one explicit Euler step per doStep."""
+
+    def build(folder, item):
+        model = replace(lti_fmus.chain_model(1, name=item), **EULER_ONE)
+        return item, lti_fmus.build_lti_fmu(model, folder / f"{item}.fmu", interfaces=("cs",), cs_method="euler").path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-euler-both", build, ["EulerOne"])["EulerOne"]
+
+
+def test_explicit_euler_diverging_at_both_pilot_steps_is_called_a_divergence(euler_one):
+    """Audit 63, finding 8: explicit Euler diverges at both pilot steps (growth per step 1.07 at 0.05 and 1.006 at
+    0.025 in amplitude: |1 + h lambda|), the run at 0.05 reaching thousands of times the peak at 0.025.  It stays
+    refused at once, but as a divergence at both steps with a step below them named, not as 'depends on the
+    communication step'.  Reference: the stability limit 0.02 by hand; the step named, 0.01, is below it."""
+    h = np.array([0.05, 0.025, 0.01])
+    lam = -1.0 + 1j * np.sqrt(99.0)   # roots of s^2 + 2 s + 100
+    assert np.all(np.abs(1 + h[:2] * lam) > 1.0) and abs(1 + h[2] * lam) < 1.0
+    source = open_source(str(euler_one))
+    with pytest.raises(DataError) as refused:
+        pilot_step(source, parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), 0.05, 10.0)
+    message = str(refused.value)
+    assert "\n" not in message and "depends on the communication step" not in message, message
+    assert "the co-simulation diverges at both communication steps the automatic window tried" in message, message
+    assert "which grow too once the input is constant" in message, message
+    assert "it offers no model exchange: give --dt below 0.025 (e.g. 0.01) and --t-end" in message, message
+
+
+def test_judging_a_pilot_that_diverges_to_huge_finite_values_does_not_warn():
+    """Audit 63, finding 8: the step check hands its first run to the window's analysis before judging whether it
+    diverges; outputs near 1e200 (RK4 above its stability limit, still finite) overflowed in the envelope's norms,
+    and 'fmu-opinf: warning: overflow encountered in dot' was printed three times.  The analysis runs without
+    NumPy's overflow warnings (here made errors) and still says what it sees."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._window import _analyse_pilot
+
+    t = np.round(np.arange(201) * 0.05, 12)
+    y = np.vstack([np.exp(2.3 * t) * np.sin(30.0 * t), np.exp(2.3 * t) * np.cos(30.0 * t)]) * 1e200 / np.exp(23.0)
+    run = SimpleNamespace(t=t, y=y, k=t.size)
+    source = SimpleNamespace(m=1, held_input_names=[])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        seen = _analyse_pilot(source, parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), t, 2.5, 0.99, 0.01,
+                              10.0, True, False, run=run)
+    assert seen.peak > 1e199

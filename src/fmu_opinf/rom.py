@@ -649,7 +649,8 @@ def check_operators(Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, where: str =
     ----------
     Mr, Dr, Kr : ndarray
         Finite square matrices of one size ``(r, r)``, ``r >= 1``; symmetric to :data:`SYMMETRY_TOL`, ``Mr``
-        positive definite (:data:`DEFINITE_TOL`), ``Dr``, ``Kr`` positive semidefinite (:func:`_semidefinite_tolerances`).
+        positive definite (:data:`DEFINITE_TOL`), ``Dr``, ``Kr`` positive semidefinite
+        (:func:`_semidefinite_tolerances`).
     where : str, default="ROM"
         What holds them, at the start of the message (a file name: ``"rom.h5: ROM"``).
     fix : str, default="refit the ROM"

@@ -659,7 +659,8 @@ DIVERGED = 1.0
 #: does not grow once the input is constant, diverges at that step like one that overflows (audit 60: one RK4 step
 #: per doStep at h omega = 2.9 reached 4e13 while the run at half the step stayed at 1.6): :func:`pilot_step`
 #: searches for a smaller step.  Explicit Euler at the pilot steps grows at both (4e3 times, and 8 times the
-#: model's peak at half the step): it stays refused at once as depending on the step.
+#: model's peak at half the step): it stays refused at once, as diverging at both steps
+#: (:func:`_diverges_at_both_error`).
 DIVERGED_GROWTH = 1e3
 
 #: Order of convergence above which the search of :func:`pilot_step` goes on past a step where the runs stay
@@ -734,13 +735,15 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
     ------
     DataError
         One line: the outputs depend on the step where they stay bounded and no smaller step within reach makes
-        them accurate, or every step tried overflowed, diverged or had not converged yet (the fix names a step
-        below the smallest).
+        them accurate, or every step tried overflowed, diverged or had not converged yet, or the runs at ``dt`` and
+        ``dt / 2`` both grow (the fix names a step below the smallest).
     """
     t_quiet = input_activity(signal, source.m)[0]
     check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect, t_quiet=t_quiet)
     if check.found is None:
         return check.run, None
+    if check.both_grow:
+        raise _diverges_at_both_error(source, check, T)
     if not (math.isinf(check.difference) or check.diverged):
         raise _step_dependence_error(source, check, T)
     step, unstable, bounded = dt, check, None
@@ -779,6 +782,20 @@ def _unconverged_error(source: Source, unstable: _StepCheck, check: _StepCheck, 
                      f"{nice_floor(step / 2.0):g}) and --t-end to record at a step of your choice; no file was written")
 
 
+def _diverges_at_both_error(source: Source, check: _StepCheck, T: float) -> DataError:
+    """The one-line refusal of :func:`pilot_step` where the runs at the first pilot's step and at half of it both
+    grow once the input is constant (explicit Euler per ``doStep``): a divergence, not a dependence on the step
+    (audit 63, finding 8: 'differ by 6.5e+21 of their peak' was called step dependence); the fix names a step
+    below both."""
+    step = check.dt / 2.0
+    remedy = ("use its model exchange (--interface me), or give --dt" if offers_model_exchange(source) else
+              "it offers no model exchange: give --dt")
+    return DataError(f"{source_label(source)}: the co-simulation diverges at both communication steps the automatic "
+                     f"window tried ({check.found} over t <= {T:g}; explicit steps per doStep?); {remedy} below "
+                     f"{step:g} (e.g. {nice_floor(step / 2.0):g}) and --t-end to record at a step where it stays "
+                     "bounded; no file was written")
+
+
 def _unstable_error(source: Source, check: _StepCheck, T: float) -> DataError:
     """The one-line refusal of :func:`pilot_step` where every step tried overflowed or diverged, the last one as
     ``check`` found it: the fix names a step below it."""
@@ -797,7 +814,8 @@ class _StepCheck(NamedTuple):
     complete run at ``dt`` (None if there is none); ``late``: only the outputs differ, one step late; ``difference``:
     the outputs' largest difference relative to their peak (``inf`` where a run turned non-finite, 0 unchecked);
     ``dt``: the coarser step compared; ``diverged``: the run at ``dt`` grew beyond :data:`DIVERGED_GROWTH` times the
-    peak of the run at ``dt / 2``, which does not grow (judged only where the caller says when the input settles).
+    peak of the run at ``dt / 2``, which does not grow (judged only where the caller says when the input settles);
+    ``both_grow``: it did, and the run at ``dt / 2`` grows too once the input is constant (the same proviso).
     """
 
     found: str | None
@@ -806,6 +824,7 @@ class _StepCheck(NamedTuple):
     difference: float = 0.0
     dt: float = 0.0
     diverged: bool = False
+    both_grow: bool = False
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
@@ -843,6 +862,10 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     if t_quiet is not None and growth > DIVERGED_GROWTH and not _grows(runs[1], t_quiet):
         found = f"its outputs at dt={dt:g} grow to {growth:.2g} times the peak of those at dt={dt / 2:g}"
         return _StepCheck(found, runs[0], False, difference, dt, True)
+    if t_quiet is not None and growth > DIVERGED_GROWTH and _grows(runs[1], t_quiet, unknown=False):
+        found = (f"its outputs at dt={dt:g} grow to {growth:.2g} times the peak of those at dt={dt / 2:g}, which "
+                 "grow too once the input is constant")
+        return _StepCheck(found, runs[0], False, difference, dt, both_grow=True)
     return _StepCheck(found, runs[0], False, difference, dt)
 
 
@@ -852,13 +875,13 @@ def _growth(y: np.ndarray, y_fine: np.ndarray) -> float:
     return peak / fine_peak if fine_peak > 0 else (math.inf if peak > 0 else 1.0)
 
 
-def _grows(run: Any, t_quiet: float, samples: int = 20) -> bool:
+def _grows(run: Any, t_quiet: float, samples: int = 20, unknown: bool = True) -> bool:
     """Whether ``run``'s outputs are larger in the second half of the time after ``t_quiet`` (the input constant)
-    than in the first: a run that is itself unstable (or too short after the input to tell: True)."""
+    than in the first: a run that is itself unstable (``unknown`` where it is too short after the input to tell)."""
     t, y = np.asarray(run.t)[:run.k], np.asarray(run.y)[:, :run.k]
     after = np.nonzero(t >= t_quiet)[0]
     if after.size < samples or not y.size:
-        return True
+        return unknown
     middle = 0.5 * (t[after[0]] + t[-1])
     early, late = (np.abs(y[:, after[part]]).max() for part in (t[after] < middle, t[after] >= middle))
     return bool(late > early)
@@ -1019,7 +1042,16 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
             raise incomplete_error(failure, run, None)
-    y = np.asarray(run.y)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _judged_pilot(source, signal, t, np.asarray(run.y), t_input, energy, fade)
+
+
+def _judged_pilot(source: Source, signal: Any, t: np.ndarray, y: np.ndarray, t_input: float, energy: float,
+                  fade: float) -> _Pilot:
+    """What the outputs ``y`` of a pilot on grid ``t`` show (:func:`_analyse_pilot`).  Called without NumPy's
+    overflow warnings: the step check hands over its first run before it has judged whether the co-simulation
+    diverges at that step, and squares of outputs near 1e200 overflowed to 'fmu-opinf: warning: overflow
+    encountered in dot' three times before the search found a stable step (audit 63, finding 8)."""
     if y.size and not np.any(np.ptp(y, axis=1) > 1e-12 * max(float(np.abs(y).max()), 1e-300)):
         raise DataError(_motionless(source, signal, t))
     envelope = _Envelope.of(t, y, fade, t_input)
