@@ -210,7 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", help="FMU path or builtin:NAME of the full-order model")
     p.add_argument("--input", dest="input_spec",
                    help="test input signal (or --runs), ';'-separated specs in the ROM's input order (the "
-                        "FMU gets each at the input of its name); default: a harmonic on each input the training drove, "
+                        "FMU gets each at the input of its name); default: a harmonic on each input the training "
+                        "drove, "
                         "off the ROM's natural frequencies, sized to stay within the training's output range; 'none' "
                         "(the default for a ROM without inputs): the free response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
