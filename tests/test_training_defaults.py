@@ -405,60 +405,39 @@ def test_a_pressure_driven_about_its_start_is_pulsed_by_a_tenth_of_it():
                                                        "tenth of its start, a pressure)")
 
 
-@pytest.mark.slow  # 17 s on the shared 2-core machine of 2026-12-06, beside another test run
-def test_an_input_whose_start_lies_outside_its_declared_range_is_trained_from_the_nearest_bound(tmp_path, capsys):
-    """Audit 60, finding 8: F1 declared in [5, 30] with start 0 (not FMI-conformant, seen in the wild) was pulsed
-    from 0 by the default training, which such a source refuses at step 0, and the error's example started at 0
-    again.  The default training drives it from 5, the nearest bound, by 25 up to 30, and holds it at 5 in the
-    run that drives the other input.  Reference: the bounds, and the model's exact response to the recorded
-    input."""
-    from conftest import rewrite_description
-
-    from fmu_opinf.cli import main
-
-    model = lti_fmus.chain_model(4, inputs=(0, 3), name="Excluded")
-    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",))
-    fmu = rewrite_description(built.path, tmp_path / "excluded.fmu", lambda text: text.replace(
-        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="5" max="30"/>', 1))   # F[1] only
-    assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "--dt", "0.1", "--t-end", "30"]) == 0
-    err = capsys.readouterr().err
-    assert "F[1] from its declared start 0 to 5, the nearest bound of its range [5, 30]" in err, err
-    runs = Snapshots.load(tmp_path / "train.h5").runs
-    assert runs[0].attrs["input_spec"] == "impulse:amplitude=25,t0=2,width=0.5,offset=5;none"
-    for run in runs:
-        assert 5.0 <= run.u[0].min() and run.u[0].max() <= 30.0, run.attrs["input_spec"]
-        exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
-        assert np.abs(run.y - exact.y).max() < 2e-12 * np.abs(exact.y).max()
-    assert runs[0].u[0].max() == pytest.approx(30.0) and np.all(runs[1].u[0] == 5.0)
-
-
-@pytest.mark.slow  # like the test above
-def test_an_input_whose_start_lies_above_its_declared_range_is_pulsed_down_from_its_max(tmp_path, capsys):
-    """Audit 63, finding 2: F1 declared in [5, 30] with start 40 was held at 30, its max, and then pulsed up by
-    100 from there, which the source refused (the rooms were measured from 0, so none was seen downwards).  It is
-    pulsed by -25, down to its min, and held at 30 in the run that drives the other input; the refusal of a run
-    beyond the range gives an example that leaves the undriven input held instead of pulsing it by F1's peak.
-    Reference: the bounds, and the model's exact response to the recorded input."""
+@pytest.mark.slow  # 17 s each on the shared 2-core machine of 2026-12-06, beside another test run
+@pytest.mark.parametrize("start, held, spec, reached", [
+    (0.0, 5.0, "impulse:amplitude=25,t0=2,width=0.5,offset=5;none", 30.0),      # below the range
+    (40.0, 30.0, "impulse:amplitude=-25,t0=2,width=0.5,offset=30;none", 5.0),   # above it
+])
+def test_an_input_whose_start_lies_outside_its_declared_range_is_trained_from_the_nearest_bound(
+        tmp_path, capsys, start, held, spec, reached):
+    """F1 declared in [5, 30] with a start outside (not FMI-conformant, seen in the wild).  Audit 60, finding 8:
+    with start 0 it was pulsed from 0 by the default training, which such a source refuses at step 0, and the
+    error's example started at 0 again.  Audit 63, finding 2: with start 40 it was held at 30 and pulsed up by 100
+    from there (the rooms were measured from 0).  The default training holds it at the nearest bound and pulses it
+    across the range to the other one; the refusal of a run beyond the range gives an example within it that
+    leaves the undriven input held.  Reference: the bounds, and the model's exact response to the recorded input."""
     from conftest import rewrite_description
 
     from fmu_opinf.cli import main
     from fmu_opinf.source import open_source
 
-    model = lti_fmus.chain_model(4, inputs=(0, 3), name="Above")
+    model = lti_fmus.chain_model(4, inputs=(0, 3), name="Excluded")
     built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("cs",))
-    fmu = rewrite_description(built.path, tmp_path / "above.fmu", lambda text: text.replace(
-        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="40" min="5" max="30"/>', 1))   # F[1] only
+    fmu = rewrite_description(built.path, tmp_path / "excluded.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', f'<Real unit="N" start="{start:g}" min="5" max="30"/>', 1))   # F[1] only
     assert main(["snapshots", str(fmu), "-o", str(tmp_path / "train.h5"), "--dt", "0.1", "--t-end", "30"]) == 0
     err = capsys.readouterr().err
-    assert "F[1] from its declared start 40 to 30, the nearest bound of its range [5, 30]" in err, err
+    assert f"F[1] from its declared start {start:g} to {held:g}, the nearest bound of its range [5, 30]" in err, err
     runs = Snapshots.load(tmp_path / "train.h5").runs
-    assert runs[0].attrs["input_spec"] == "impulse:amplitude=-25,t0=2,width=0.5,offset=30;none"
+    assert runs[0].attrs["input_spec"] == spec
     for run in runs:
         assert 5.0 <= run.u[0].min() and run.u[0].max() <= 30.0, run.attrs["input_spec"]
         exact = lti_fmus.zoh_response(model, run.t, np.hstack([run.u[:, 1:], run.u[:, -1:]]))
         assert np.abs(run.y - exact.y).max() < 2e-12 * np.abs(exact.y).max()
-    assert runs[0].u[0].min() == pytest.approx(5.0) and np.all(runs[1].u[0] == 30.0)
-    U = np.array([[30.0, 0.0], [130.0, 0.0]])   # F[1] pulsed up by 100 from its max, F[2] held
+    assert np.abs(runs[0].u[0] - reached).min() < 1e-12 and np.all(runs[1].u[0] == held)
+    U = np.array([[held, 0.0], [held + 100.0, 0.0]])   # F[1] pulsed by 100 beyond the range, F[2] held
     hint = open_source(str(fmu), interface="cs").failure_hint(U, 1)
     assert hint.endswith("e.g. --input 'impulse:amplitude=25,t0=2,width=0.5,offset=5;none')"), hint
 
