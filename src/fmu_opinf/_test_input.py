@@ -103,7 +103,7 @@ def _within_pressure_share(rom: "SecondOrderROM", trained: dict[int, float], wav
     input in a pressure's unit that the training drove about a start away from 0: an absolute pressure about 1 bar
     trained by a pulse of 100 took a harmonic of 19.4 about 1 bar, down to -18.4 bar (audit 61, finding 3).  The
     unit is the one the snapshots recorded (the source's, or one its ``UnitDefinitions`` defined)."""
-    from .sources._variables import is_pressure_unit
+    from .sources._variables import is_pressure_about_start
 
     recorded = rom.provenance.get("snapshots")
     recorded = recorded if isinstance(recorded, dict) else {}
@@ -113,7 +113,7 @@ def _within_pressure_share(rom: "SecondOrderROM", trained: dict[int, float], wav
     out = dict(trained)
     for i, amplitude in trained.items():
         offset = waves[i]["offset"]
-        if offset != 0 and isinstance(units[i], str) and is_pressure_unit(units[i], model):
+        if is_pressure_about_start(units[i], offset, model):
             out[i] = min(amplitude, _three_digits_down(PRESSURE_SWING_SHARE * abs(offset)))
     return out
 

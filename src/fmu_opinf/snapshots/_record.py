@@ -600,14 +600,14 @@ def _unbounded_amplitudes(source: Source) -> list[float]:
     unit, or :data:`PRESSURE_PULSE_SHARE` of the start (three digits) for an input in a pressure's unit that starts away
     from 0.  A pressure driven about an ambient or a working pressure was pulsed by 100 whatever its unit: from 1
     to 101 bar, or by 0.1 % of 101325 Pa (audit 61, finding 3)."""
-    from ..sources._variables import is_pressure_unit
+    from ..sources._variables import is_pressure_about_start
 
     units = list(getattr(source, "input_units", None) or [])
     model = getattr(source, "model", None)
     starts = held_starts(source)
     if len(units) != len(starts):
         return [_DEFAULT_AMPLITUDE] * len(starts)
-    return [float(f"{PRESSURE_PULSE_SHARE * abs(start):.3g}") if start != 0 and is_pressure_unit(unit, model)
+    return [float(f"{PRESSURE_PULSE_SHARE * abs(start):.3g}") if is_pressure_about_start(unit, start, model)
             else _DEFAULT_AMPLITUDE for unit, start in zip(units, starts)]
 
 

@@ -220,7 +220,7 @@ def _driven_pressures(source: Source, driven: list[str], forces: list[str]) -> l
     """``(name, unit, start)`` of the ``driven`` inputs in a pressure's unit that start away from 0: driven about
     that start as a load, though the unit cannot tell an ambient pressure from a modulus (audit 61, findings 2 and
     3); what the default training and test inputs do with them is sized by the start."""
-    from ._variables import is_pressure_unit
+    from ._variables import is_pressure_about_start
 
     units = list(getattr(source, "input_units", None) or [])
     starts = getattr(source, "input_starts", None)
@@ -229,7 +229,7 @@ def _driven_pressures(source: Source, driven: list[str], forces: list[str]) -> l
     values = list(starts())
     model = getattr(source, "model", None)
     return [(name, unit, float(start)) for name, unit, start in zip(forces, units, values)
-            if name in driven and start != 0 and is_pressure_unit(unit, model)]
+            if name in driven and is_pressure_about_start(unit, start, model)]
 
 
 def _warn_coefficients(source: Source, names: list[str], forces: list[str], driven: list[str]) -> None:

@@ -30,7 +30,7 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
            "show_patterns", "nonzero_start", "looks_like_parameter", "is_coefficient", "unit_kind", "start_value",
-           "is_pressure_unit", "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports"]
+           "is_pressure_about_start", "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -149,12 +149,14 @@ _MARKED_PRESSURE = re.compile(r"(?<![A-Za-z])(" + "|".join(sorted(_PRESSURE_UNIT
                               + r")\s*(?:\((?:g|a|d|abs|gauge|absolute)\)|[gad](?![A-Za-z0-9]))")
 
 
-def is_pressure_unit(unit: str | None, model: Any = None) -> bool:
-    """Whether ``unit`` has a pressure's dimension (:func:`unit_dimension`; ``model``: anything with the
-    ``unit_dimensions`` of :class:`ModelInfo`).  A pressure may be a load (an ambient or a gauge pressure) or a
-    modulus exposed as an input; the default training and test inputs size one that starts away from 0 by its
-    start (:func:`fmu_opinf.snapshots._record.default_amplitudes`, :mod:`fmu_opinf._test_input`)."""
-    return unit_dimension(unit, model) == _PRESSURE_DIMENSION
+def is_pressure_about_start(unit: Any, start: float, model: Any = None) -> bool:
+    """Whether an input in ``unit`` that starts at ``start`` is a pressure about a start away from 0: ``unit`` has
+    a pressure's dimension (:func:`unit_dimension`; ``model``: anything with the ``unit_dimensions`` of
+    :class:`ModelInfo`).  Such an input may be a load (an ambient or a gauge pressure) or a modulus exposed as an
+    input; the one rule behind the note that says it is driven (:func:`fmu_opinf.sources.open_source`) and behind
+    the default training pulse and test swing sized by its start
+    (:func:`fmu_opinf.snapshots._record.default_amplitudes`, :mod:`fmu_opinf._test_input`; audit 61)."""
+    return start != 0 and isinstance(unit, str) and unit_dimension(unit, model) == _PRESSURE_DIMENSION
 
 
 #: Dimensions of the unit symbols exporters write (with their prefixes), for :func:`unit_dimension`.
