@@ -751,6 +751,33 @@ def test_ctrl_c_that_ended_a_string_evaluation_still_exits_130_under_python_m(tm
     assert result.returncode == 130, result.stderr
 
 
+def test_ctrl_c_while_numpy_is_imported_is_one_line(monkeypatch, capsys):
+    """A Ctrl-C while the command line imports its file layer (numpy, h5py) leaves numpy half imported, and the
+    message saying what was left imported it again: "cannot load module more than once", exit 1 with a traceback
+    (CI, 2026-12-06, one trial in many of the start-up test).  Both imports are played here: the first is
+    interrupted, any later one fails as numpy's did."""
+    import importlib.abc
+    import sys
+
+    class HalfImported(importlib.abc.MetaPathFinder):
+        tries = 0
+
+        def find_spec(self, name, path=None, target=None):
+            if name != "fmu_opinf._hdf5":
+                return None
+            HalfImported.tries += 1
+            if HalfImported.tries == 1:
+                raise KeyboardInterrupt
+            raise ImportError("cannot load module more than once per process")
+
+    monkeypatch.delitem(sys.modules, "fmu_opinf._hdf5")
+    monkeypatch.setattr(sys, "meta_path", [HalfImported(), *sys.meta_path])
+    assert cli.main(["fit", "missing.h5", "-o", "rom.h5"]) == 130
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == ["fmu-opinf: interrupted (Ctrl-C); no output file was written or replaced"]
+    assert HalfImported.tries == 1
+
+
 def test_an_error_raised_by_the_interrupt_itself_is_the_interrupt():
     """A Ctrl-C landing in ``__set_name__`` while a module defines a class (seen importing fmu_opinf.signals) comes
     out as a RuntimeError; under the command line's handler it is the interrupt, not a traceback."""
