@@ -974,9 +974,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     to be resolved within the pilots' step budget (:class:`~fmu_opinf.snapshots._window.PulseTooNarrow`; audit
     2026-11-26: a chain with periods of about 1000 s refused after 48 s), shrunk while the response only follows
     the pulse (:func:`~fmu_opinf.snapshots._window.follows_input`: a model faster than the 0.5 s pulse shows none
-    of its dynamics; a millisecond chain at max eps_y 0.85).  Says what it did."""
+    of its dynamics; a millisecond chain at max eps_y 0.85) or only bends the model statically
+    (:func:`~fmu_opinf.snapshots._window.quasi_static_pulse`: an FE bar with its first mode at 25 Hz, r = 2 and
+    4-9 % off; the impulse is then shrunk to one period of the fastest significant frequency).  Says what it did."""
     from ..signals import parse_signal
-    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, follows_input, input_activity
+    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -996,8 +998,9 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         width = input_activity(signals[0], source.m)[1]
 
         def too_wide(window: Any) -> bool:
-            return (tries["narrower"] < RESCALE_TRIES and not tries["wider"] and follows_input(window, width)
-                    and _narrower_resolved(width, thresholds))
+            narrower = _narrower_width(window, width)
+            return (tries["narrower"] < RESCALE_TRIES and not tries["wider"] and narrower is not None
+                    and _resolved(narrower, thresholds))
 
         try:
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide)
@@ -1009,10 +1012,8 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             why = "the model is too slow for the default impulse to be resolved"
         except WindowRejected as rejected:
             tries["narrower"] += 1
-            factor /= RESCALE
-            faded = rejected.window.t_fade - rejected.window.t_input
-            why = (f"the response only followed the default impulse (faded {faded:.3g} after it, "
-                   "no frequency above its band): the model is faster")
+            factor *= _narrower_width(rejected.window, width) / width
+            why = _why_narrower(rejected.window, width)
         else:
             check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
                               isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
@@ -1022,12 +1023,35 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
 
 
-def _narrower_resolved(width: float | None, thresholds: dict[str, Any]) -> bool:
-    """Whether a pulse :data:`RESCALE` times narrower than ``width`` would still get ten samples where the pilots
-    run at one exact step (the user's ``--dt``, an FMU's fixed communication step): no point shrinking it
-    otherwise, the step cannot follow."""
+def _narrower_width(window: "Window", width: float | None) -> float | None:
+    """The width the default impulse (now ``width``) shrinks to, or None where it suits the model: :data:`RESCALE`
+    times narrower where the response only followed it, one period of the fastest significant frequency (two
+    significant digits) where it only bent the model statically."""
+    from ._window import follows_input, quasi_static_pulse
+
+    if follows_input(window, width):
+        return width / RESCALE
+    if quasi_static_pulse(window, width):
+        return float(f"{1.0 / window.f_max:.2g}")
+    return None
+
+
+def _why_narrower(window: "Window", width: float) -> str:
+    """Why the default impulse of ``width`` is shrunk (:func:`_narrower_width`), for the progress line."""
+    from ._window import follows_input
+
+    if follows_input(window, width):
+        return (f"the response only followed the default impulse (faded {window.t_fade - window.t_input:.3g} after "
+                "it, no frequency above its band): the model is faster")
+    return (f"the default impulse lasts {window.f_max * width:.3g} periods of the fastest significant frequency "
+            f"{window.f_max:.4g} Hz and only bends the model statically: its dynamics would be missing from the data")
+
+
+def _resolved(width: float, thresholds: dict[str, Any]) -> bool:
+    """Whether a pulse of ``width`` would still get ten samples where the pilots run at one exact step (the user's
+    ``--dt``, an FMU's fixed communication step): no point shrinking it below that, the step cannot follow."""
     step = thresholds.get("max_dt")
-    return not thresholds.get("exact_dt") or step is None or width is None or width / RESCALE >= 10.0 * step
+    return not thresholds.get("exact_dt") or step is None or width >= 10.0 * step
 
 
 def runs_by_inputs_driven(signals: Sequence[Any]) -> list[Any]:
