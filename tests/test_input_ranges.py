@@ -309,3 +309,34 @@ def test_the_example_input_of_a_range_refusal_lies_within_the_range(low, high):
     u = parse_signal(spec, 1).sample(np.linspace(0.0, 5.0, 50_001))
     assert low <= u.min() and u.max() <= high, spec
     assert (u.max() - u.min() > 0) == (high > low), spec
+
+
+def test_a_free_body_pushed_by_an_input_held_at_its_bound_is_refused_at_once(tmp_path):
+    """Audit 63, finding 5: a free body whose force input declares ``[-30, -5]`` (start 0, outside) is held at
+    -5 N by the default training, a constant push under which it drifts: the impulse was widened twice, to
+    500000 s, and the refusal after 101 s asked for a wider one.  It is now refused after the first pilots, naming
+    the held input and the options that record it (``--dt`` and ``--t-end``)."""
+    from conftest import rewrite_description
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import DataError
+    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.sources import open_source
+
+    needs_build_tools()
+    K = np.array([[20.0, -20.0, 0.0], [-20.0, 45.0, -25.0], [0.0, -25.0, 25.0]])   # free-free: K @ 1 = 0
+    free = lti_fmus.LinearMechanicalModel(M=np.diag([1.0, 1.5, 0.8]), D=0.05 * K, K=K, B=np.eye(3)[:, [0, 2]],
+                                          Cp=np.eye(3)[[0, 2]], name="Free")
+    built = lti_fmus.build_lti_fmu(free, tmp_path / "built.fmu", interfaces=("me",))
+    fmu = rewrite_description(built.path, tmp_path / "free.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="-30" max="-5"/>', 1))
+    source = open_source(str(fmu))
+    try:
+        with pytest.raises(DataError) as info:
+            _default_training_window(source, {"quiet": True, "max_steps": 20_000})
+    finally:
+        source.close()
+    text = str(info.value)
+    assert text.startswith("the default training holds F[1] at -5, the nearest bound of its declared range "
+                           "[-30, -5] (its start 0 lies outside): a constant force"), text
+    assert "give --dt and --t-end" in text and "wider" not in text, text

@@ -30,7 +30,7 @@ import numpy as np
 
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
-from ..errors import FMUError, FmuOpinfWarning, InputSpecError
+from ..errors import DataError, FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
 from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, warn_once, warn_other_communication_step)
@@ -1004,9 +1004,12 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
 
         try:
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide)
-        except PulseTooNarrow:
+        except PulseTooNarrow as slow:
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
                 raise
+            pushing = _held_at_bounds(source)
+            if pushing:
+                raise DataError(_pushed_without_rest(pushing, slow)) from None
             tries["wider"] += 1
             factor *= RESCALE
             why = "the model is too slow for the default impulse to be resolved"
@@ -1021,6 +1024,29 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             return window, signals
         if not thresholds.get("quiet"):
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
+
+
+def _held_at_bounds(source: Source) -> list[str]:
+    """The inputs the recordings hold at a bound of their declared range instead of their start, which lies
+    outside it (:func:`held_starts`), each as ``"F1 at -5, the nearest bound of its declared range [-30, -5]
+    (its start 0 lies outside)"``."""
+    held, starts = held_starts(source), np.asarray(source.input_starts(), dtype=float)
+    if not hasattr(source, "input_ranges") or held.shape != starts.shape:
+        return []
+    low, high = source.input_ranges()
+    return [f"{name} at {value:g}, the nearest bound of its declared range [{lo:g}, {hi:g}] (its start {start:g} "
+            "lies outside)" for name, value, start, lo, hi in zip(source.input_names, held, starts, low, high)
+            if value != start and value != 0.0]
+
+
+def _pushed_without_rest(pushing: list[str], slow: Any) -> str:
+    """Why a default training whose held inputs push the model cannot find a window (audit 63, finding 5: a free
+    body held at -5 N drifted; the impulse was widened twice, to 500000 s, and the refusal after 101 s asked for
+    a wider one still)."""
+    return (f"the default training holds {'; '.join(pushing)}: a constant force, and the response keeps moving "
+            f"under it (a free body drifts; it still moved at t={slow.still_moving_at:g}), so no window can wait "
+            "for it to settle; give --dt and --t-end for the window to record (the fit learns the constant force), "
+            "or an --input per run")
 
 
 def _narrower_width(window: "Window", width: float | None) -> float | None:

@@ -38,7 +38,12 @@ def _pulse_holds_back(f_max: float, width: float | None, next_steps: float, max_
 
 class PulseTooNarrow(DataError):
     """The automatic window cannot settle because the training pulse keeps its step small: the model is far
-    slower than the pulse (the default training widens its impulse then)."""
+    slower than the pulse (the default training widens its impulse then); ``still_moving_at``: the end of the
+    last pilot, where the outputs still moved."""
+
+    def __init__(self, message: str, still_moving_at: float) -> None:
+        super().__init__(message)
+        self.still_moving_at = still_moving_at
 
 
 class WindowRejected(DataError):
@@ -576,7 +581,7 @@ def auto_window(
             raise PulseTooNarrow(f"auto window: the training pulse (width {width:g}) is far shorter than the model's "
                                  f"dynamics (fastest significant frequency {seen.f_max:.3g}, still moving at "
                                  f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
-                                 "model's time scale (a wider impulse, later t0), or --dt and --t-end")
+                                 "model's time scale (a wider impulse, later t0), or --dt and --t-end", float(t[-1]))
         T = float(f"{T_next:.6g}")
     fix = (f"pass --t-end (every pilot ran at the step dt={dt:g})" if exact_dt else
            "pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
