@@ -851,10 +851,12 @@ def test_positions_sharing_a_velocity_get_the_options_that_record_one_of_them(tm
     assert "body2.s moves with the recorded velocity body1.v (a rigid connection)" in text and "lag" not in text
 
 
-def modelica_velocity_gear(local_velocity: bool = True) -> str:
+def modelica_velocity_gear(local_velocity: bool = True, rate_dependencies: str | None = "5") -> str:
     """Three masses, mass[3] geared to mass[1] at velocity level (``v3 = 2 v1``, audit 62's GearVel.fmu in small):
     three position states, two velocity states; ``der(mass[3].s)`` (m/s) is computed, no alias of a state, and so is
-    the local ``mass[3].v`` (declared last, as the exporter did), its value."""
+    the local ``mass[3].v`` (declared last, as the exporter did), its value.  ``rate_dependencies``: what the model
+    structure says ``der(mass[3].s)`` depends on (5: ``mass[1].v``, a gear; "4 5" adds ``mass[3].s`` itself, a
+    lag; None: not declared)."""
     m, ms, ms2 = '<Real unit="m" start="0"/>', '<Real unit="m/s" start="0"/>', '<Real unit="m/s2" derivative="{}"/>'
     v = [
         _sv("F", 0, "input", body='<Real unit="N" start="0"/>'),                                 # 1
@@ -872,7 +874,10 @@ def modelica_velocity_gear(local_velocity: bool = True) -> str:
     ]
     if local_velocity:
         v.append(_sv("mass[3].v", 20, body='<Real unit="m/s"/>'))                                 # 13: 2 mass[1].v
-    return _fmi2(v, [7, 8, 9, 10, 11])
+    xml = _fmi2(v, [7, 8, 9, 10, 11])
+    if rate_dependencies is None:
+        return xml
+    return xml.replace('<Unknown index="9"/>', f'<Unknown index="9" dependencies="{rate_dependencies}"/>')
 
 
 @pytest.mark.parametrize("local_velocity, velocities", [(True, "mass[*].v"),
@@ -896,6 +901,21 @@ def test_a_position_whose_rate_is_no_velocity_state_gets_the_patterns_that_recor
     assert _names(selection.positions) == ["mass[1].s", "mass[2].s", "mass[3].s"]
     assert _names(selection.velocities) == ["mass[1].v", "mass[2].v", rate]
     assert selection.unrecorded_states == []
+
+
+@pytest.mark.parametrize("dependencies, kind", [
+    ("4 5", "(a first-order lag or filter in a length unit: the model structure makes its rate depend on itself)"),
+    (None, "(a velocity constraint or a gear, an index-2 model whose tool eliminated a velocity, or a first-order "
+           "lag or filter in a length unit)")])
+def test_a_position_whose_rate_depends_on_itself_is_named_a_lag(tmp_path, dependencies, kind):
+    """Audit 63, finding 7: a first-order lag in m (``der(act.s) = (mass[1].s - act.s) / 0.05``) was called "a
+    velocity constraint or a gear"; recorded with the patterns offered it is exact (3.9e-26), so they stay."""
+    path = _write(tmp_path, modelica_velocity_gear(True, dependencies))
+    with pytest.raises(FMUError) as caught:
+        resolve_variables(path)
+    text = str(caught.value)
+    assert f"are positions whose derivatives are not velocity states {kind}; record them with the others" in text
+    assert text.endswith('--positions "mass[*].s" --velocities "mass[*].v"')
 
 
 def _unrecorded_warning(tmp_path, selection) -> str:

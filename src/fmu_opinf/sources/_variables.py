@@ -785,7 +785,7 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     if others and positions is None and velocities is None:
         geared = _geared_positions(states, elements, pos, vel, others)
         if geared is not None and not _prescribed_motions(model, states, others):   # a base driven by its velocity
-            raise _geared_refusal(model, elements, pos, vel, geared)
+            raise _geared_refusal(model, elements, states, pos, vel, geared)
         raise _not_mechanical(model, others, "no derivative link pairs them with the others", states)
     return Selection(pos, vel, acc, how, derivatives, others, _followers(states, vel, others))
 
@@ -815,8 +815,8 @@ def _geared_positions(states: _States, elements: dict[str, Element], pos: list[C
     return found
 
 
-def _geared_refusal(model: ModelInfo, elements: dict[str, Element], pos: list[Column], vel: list[Column],
-                    geared: dict[str, str]) -> FMUError:
+def _geared_refusal(model: ModelInfo, elements: dict[str, Element], states: _States, pos: list[Column],
+                    vel: list[Column], geared: dict[str, str]) -> FMUError:
     """The error for positions whose derivatives are not velocity states (:func:`_geared_positions`), with the
     ``--positions`` / ``--velocities`` patterns that record them beside the paired ones."""
     pairs = sorted([(p.name, v.name) for p, v in zip(pos, vel)] + list(geared.items()),
@@ -825,8 +825,21 @@ def _geared_refusal(model: ModelInfo, elements: dict[str, Element], pos: list[Co
     velocities = _compact_pattern(model, elements, [v for _, v in pairs])
     shown = ", ".join(f"{p} (velocity {v})" for p, v in list(geared.items())[:4]) + (", ..." if len(geared) > 4 else "")
     return FMUError(f"{model.label}: its continuous state(s) {shown} are positions whose derivatives are not velocity "
-                    "states (a velocity constraint or a gear: an index-2 model whose tool eliminated a velocity); "
-                    f"record them with the others: --positions \"{positions}\" --velocities \"{velocities}\"")
+                    f"states ({_geared_kind(model, elements, states, geared)}); record them with the others: "
+                    f"--positions \"{positions}\" --velocities \"{velocities}\"")
+
+
+def _geared_kind(model: ModelInfo, elements: dict[str, Element], states: _States, geared: dict[str, str]) -> str:
+    """What positions whose derivatives are no velocity states may be: a lag or a filter where the model structure
+    declares the derivative to depend on the position itself, a gear where it declares it without, either where it
+    declares nothing (audit 63: a first-order lag in m was called a gear; recorded as advised, it is exact)."""
+    declared = [model.derivative_dependencies.get(states.der[name].var.name) for name in geared]
+    if any(deps is None for deps in declared):
+        return ("a velocity constraint or a gear, an index-2 model whose tool eliminated a velocity, or a first-order "
+                "lag or filter in a length unit")
+    if any(elements[name].var.name in deps for name, deps in zip(geared, declared)):
+        return "a first-order lag or filter in a length unit: the model structure makes its rate depend on itself"
+    return "a velocity constraint or a gear: an index-2 model whose tool eliminated a velocity"
 
 
 def _compact_pattern(model: ModelInfo, elements: dict[str, Element], names: list[str]) -> str:
