@@ -215,6 +215,30 @@ def test_larger_outputs_do_not_hide_the_error_of_a_small_one():
     assert compare.scale_note(rounding) is None
 
 
+def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested():
+    """Audit 62: an FE bar's ROM at the energy order (r = 3 of a snapshot rank of 300) was 1-1.6 % off on a harmonic
+    test and nothing said what to try.  Here the anchored chain at the order of a 0.6 energy threshold (r = 2) is
+    compared with the builtin model (Newmark, independent of the ROM): the table suggests twice the order; a ROM
+    with the
+    order given, a smaller error or no room below the snapshot rank, says nothing."""
+    snaps = snapshots.record("builtin:anchored-msd", TRAIN, 0.5, 100.0, quiet=True)
+    small = rom.fit_rom(snaps, energy=0.6, refine=False)
+    assert small.r == 2 and small.fit_info["snapshot_rank"] > 4
+    fast = "harmonic:amplitude=1,omega=0.28"   # near the chain's fastest learned modes
+    metrics = compare.compare(small, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
+    worst = max(output["relative_max_variation"] for output in metrics["per_output"].values())
+    assert worst > 4 * compare.ORDER_NOTE   # measured 5.9e-2
+    assert metrics["order"] == {"r": 2, "chosen": "energy", "snapshot_rank": small.fit_info["snapshot_rank"]}
+    table = compare.summary_table([("small", metrics)])
+    assert "came from the POD energy (eq. 18) of snapshots of rank" in table and "(fit --r 4, then compare" in table
+    given = rom.fit_rom(snaps, r=2, refine=False)
+    given_metrics = compare.compare(given, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
+    assert given_metrics["order"]["chosen"] == "given" and compare.order_note(given_metrics) is None
+    assert compare.order_note({**metrics, "per_output": {"y": {"relative_max_variation": 0.5 * compare.ORDER_NOTE}}}) \
+        is None
+    assert compare.order_note({**metrics, "order": {**metrics["order"], "snapshot_rank": 2}}) is None
+
+
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
     """Audit 2026-11-27: ``compare --set n=4`` of a ROM trained with ``n=3`` compared against another model without
     a word (eps_y 0.56), and any ``--set`` dropped every other training setting."""

@@ -142,8 +142,35 @@ def scale_note(metrics: dict[str, Any]) -> str | None:
 
 
 def comparison_notes(metrics: dict[str, Any]) -> list[str]:
-    """The lines that say what eq. (19) hides (:func:`offset_note`, :func:`scale_note`)."""
-    return [note for note in (offset_note(metrics), scale_note(metrics)) if note]
+    """The lines that say what eq. (19) hides (:func:`offset_note`, :func:`scale_note`) and what to try where the
+    ROM misses (:func:`order_note`)."""
+    return [note for note in (offset_note(metrics), scale_note(metrics), order_note(metrics)) if note]
+
+
+#: Relative max error of the worst output (over its range) above which a comparison of a ROM whose order came from
+#: the POD energy suggests a larger one: 1 %.
+ORDER_NOTE = 1e-2
+
+
+def order_note(metrics: dict[str, Any]) -> str | None:
+    """A line suggesting a larger ``--r`` where the ROM misses an output by over :data:`ORDER_NOTE` of its range and
+    its order came from the POD energy below the snapshot rank, or None.
+
+    The energy criterion (eq. 18) counts the modes the training excited; a test input that excites others more
+    needs them (audit 62: an FE bar trained with the default impulse got r = 3 from a snapshot rank of 300 and was
+    1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).
+    """
+    order, per_output = metrics.get("order") or {}, metrics.get("per_output") or {}
+    if order.get("chosen") != "energy" or not order.get("snapshot_rank", 0) > order.get("r", 0) or not per_output:
+        return None
+    name, worst = max(per_output.items(), key=lambda item: np.nan_to_num(item[1].get("relative_max_variation")))
+    relative = float(np.nan_to_num(worst.get("relative_max_variation")))
+    if not relative > ORDER_NOTE:
+        return None
+    r, larger = order["r"], min(2 * order["r"], order["snapshot_rank"])
+    return (f"{name} is {relative:.2g} of its range off, and the ROM's order r={r} came from the POD energy (eq. 18) "
+            f"of snapshots of rank {order['snapshot_rank']}: a larger order may follow this input (fit --r {larger}, "
+            "then compare again); if it does not, train with an input nearer this one")
 
 
 @dataclass
@@ -188,6 +215,7 @@ class Comparison:
     output_units: list[str] | None = None
     timed: dict[str, Any] = field(default_factory=dict)
     input_choice: str = ""   # why, where compare chose the test input itself (no --input)
+    order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -215,6 +243,7 @@ class Comparison:
             "t_train_end": self.t_train_end,
             "fom": jsonable(self.fom_provenance),
             "rom": jsonable(self.rom_provenance),
+            "order": dict(self.order) or None,
         })
         return out
 
@@ -484,7 +513,21 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
         timed=_timed(source, rom_side, isolate, fom_prov),
         input_choice=f"chosen without --input: {why}" if why else "",
+        order=_order_chosen(rom_side),
     )
+
+
+def _order_chosen(rom_side: Any) -> dict[str, Any]:
+    """How a ROM object's order was chosen (for :func:`order_note`): ``r``, ``"energy"`` where the fit took it
+    from the POD energy (eq. 18) or ``"given"``, and the snapshot rank that bounds it; empty for an exported FMU
+    or a ROM that does not say."""
+    info = getattr(rom_side, "fit_info", None) or {}
+    settings = (getattr(rom_side, "provenance", None) or {}).get("fit_settings")
+    rank = info.get("snapshot_rank")
+    if not isinstance(settings, dict) or "r" not in settings or not isinstance(rank, (int, np.integer)):
+        return {}
+    return {"r": int(rom_side.r), "chosen": "energy" if settings["r"] is None else "given",
+            "snapshot_rank": int(rank)}
 
 
 def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
