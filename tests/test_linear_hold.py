@@ -748,6 +748,9 @@ def test_above_the_carry_limit_the_defect_is_bounded_without_the_large_exponenti
 @pytest.mark.parametrize("n, rho_h, samples, seconds, expected", [
     (12, 580.0, 60, 5e-6, True),         # the stiff chain above
     (12, 200.0, 60, 5e-6, False),        # mild: DOP853 takes a few steps per sample
+    (600, 124.0, 3719, 2e-5, True),      # audit 62's FE bar: mildly stiff, but DOP853 predicted 41 s (160 s seen)
+    (600, 124.0, 200, 2e-5, False),      # ... for 200 samples: DOP853 predicted 2.2 s, not worth a change
+    (600, 25.0, 10**5, 2e-5, False),     # below MILD_STIFFNESS_RATIO: DOP853 takes a few steps per sample
     (400, 2e5, 200, 2e-5, True),         # a 200-element beam
     (4000, 500.0, 1000, 3e-3, True),     # an FE model of 2000 DOFs: 80 s of set-up against hours
     (4000, 300.0, 10, 5e-5, False),      # ... recorded for 10 samples only: the set-up costs more

@@ -38,6 +38,13 @@ __all__ = ["LinearHold", "spectral_radius", "exact_step_pays", "dop853_seconds",
 #: ``|h lambda|`` on the negative real axis) then forces over 70 steps of 12 evaluations per communication step.
 STIFFNESS_RATIO = 250.0
 
+#: Below :data:`STIFFNESS_RATIO` and above this, ``auto`` still weighs the exact step where DOP853 is predicted to
+#: take over :data:`LONG_RUN_SECONDS` for the run: a mildly stiff model of many states (audit 62: a 600-state FE bar
+#: at ``rho(A) h = 124`` ran DOP853 for 160 s of compare, 53 s with the exact step).  DOP853 then takes about 40
+#: steps of 12 evaluations per sample.
+MILD_STIFFNESS_RATIO = 30.0
+LONG_RUN_SECONDS = 10.0
+
 #: Largest number of states for which ``auto`` takes the exact step: its matrix exponential, of size 2n, took
 #: 10-25 s and 1.1 GB at n = 2000 on the reference machine; at n = 4000 about 8 times the time, 4 times the memory.
 MAX_STATES = 4000
@@ -58,17 +65,20 @@ _EXACT_STEP_MARGIN = 0.5
 
 
 def exact_step_pays(n: int, rho_h: float, samples: int, evaluation_seconds: float) -> bool:
-    """Whether ``auto`` takes the exact step: a stiff model (``rho(A) h`` above :data:`STIFFNESS_RATIO`) of at most
+    """Whether ``auto`` takes the exact step: a stiff model (``rho(A) h`` above :data:`STIFFNESS_RATIO`, or above
+    :data:`MILD_STIFFNESS_RATIO` where DOP853 would take over :data:`LONG_RUN_SECONDS`) of at most
     :data:`MAX_STATES` states whose predicted recording time is shorter than DOP853's.
 
     DOP853 is held to about ``rho(A) h / 3.3`` steps of 12 derivative evaluations per sample; the exact step costs
     ``n + 4`` evaluations and one matrix exponential of size ``2n`` to set up, then three evaluations per sample;
     it must be predicted to take at most :data:`_EXACT_STEP_MARGIN` of DOP853's time.
     """
-    if n > MAX_STATES or not rho_h > STIFFNESS_RATIO:
+    dop853 = samples * dop853_seconds(rho_h, evaluation_seconds)
+    stiff = rho_h > STIFFNESS_RATIO or (rho_h > MILD_STIFFNESS_RATIO and dop853 > LONG_RUN_SECONDS)
+    if n > MAX_STATES or not stiff:
         return False
     exact = (n + 4 + 3 * samples) * evaluation_seconds + _EXPM_SECONDS_PER_CUBE * (2.0 * n) ** 3
-    return exact < _EXACT_STEP_MARGIN * samples * dop853_seconds(rho_h, evaluation_seconds)
+    return exact < _EXACT_STEP_MARGIN * dop853
 
 
 def dop853_seconds(rho_h: float, evaluation_seconds: float) -> float:
