@@ -62,6 +62,24 @@ def test_wide_basis_extends_the_basis_from_one_decomposition(rng, streamed, n, k
     assert default.wide_basis_ is default.basis_
 
 
+@pytest.mark.parametrize("streamed, n, ks", [(False, 40, [150, 110]), (True, 40, [150, 110]), (True, 300, [30, 25])],
+                         ids=["dense", "correlation", "snapshots"])
+def test_at_order_gives_a_larger_order_from_the_same_decomposition(rng, streamed, n, ks):
+    """``spare_order`` keeps leading modes for :meth:`PODBasis.at_order` (the fit's order search): a copy at a
+    larger order, equal to what a fit at that order gives, while the basis itself keeps its order; beyond the
+    modes kept it refuses."""
+    runs = _low_rank_runs(rng, n, ks)
+    pod = PODBasis(r=3, streamed=streamed, chunk_size=17, spare_order=6, wide_order=4).fit(runs)
+    larger = pod.at_order(6)
+    assert (pod.r_, pod.basis_.shape, larger.r_, larger.basis_.shape) == (3, (n, 3), 6, (n, 6))
+    assert np.array_equal(larger.basis_[:, :3], pod.basis_)
+    assert np.abs(larger.basis_ - PODBasis(r=6, streamed=streamed, chunk_size=17).fit(runs).basis_).max() < 1e-12
+    assert larger.wide_basis_ is larger.basis_ and pod.wide_basis_.shape == (n, 4)
+    assert pod.at_order(2).wide_basis_.shape == (n, 4)
+    with pytest.raises(ValueError, match="spare_order=7"):
+        pod.at_order(7)
+
+
 def test_memory_limit_selects_streamed_path(rng):
     runs = _low_rank_runs(rng, 30, [200])
     assert PODBasis(r=3, max_memory=1e9).fit(runs).method_ == "dense"

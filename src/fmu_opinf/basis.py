@@ -46,6 +46,7 @@ too; only ``(r, k)`` results travel.
 from __future__ import annotations
 
 import contextlib
+import copy
 import os
 import sys
 import weakref
@@ -485,6 +486,10 @@ class PODBasis:
     wide_order : int, default=0
         Also keep the leading ``min(wide_order, rank)`` modes (at least ``r``) as :attr:`wide_basis_`, from the
         same decomposition (the fit decides its extra terms on them, :mod:`fmu_opinf.rom`).
+    spare_order : int, default=0
+        Keep the leading ``min(spare_order, rank)`` modes, so that :meth:`at_order` gives a larger order from the
+        same decomposition (the fit's order search, :mod:`fmu_opinf.rom`); no further cost where ``wide_order``
+        keeps as many.
 
     Attributes
     ----------
@@ -516,6 +521,7 @@ class PODBasis:
         chunk_size: int | None = None,
         streamed: bool | None = None,
         wide_order: int = 0,
+        spare_order: int = 0,
     ) -> None:
         self.r = r
         self.energy = energy
@@ -524,6 +530,7 @@ class PODBasis:
         self.chunk_size = chunk_size
         self.streamed = streamed
         self.wide_order = wide_order
+        self.spare_order = spare_order
 
     # --- fitting -------------------------------------------------------------------------------------------
     def fit(self, data: Any, attrs: dict | None = None) -> "PODBasis":
@@ -550,11 +557,40 @@ class PODBasis:
         self.svdvals_, self.rank_, self.method_ = sigma, rank, method
         self.energy_ = cumulative_energy(sigma)
         self.r_ = self._order(sigma, rank)
-        self.wide_basis_ = self._modes(runs, name, sigma, vecs, method, max(self.r_, min(self.wide_order, rank)))
-        self.basis_ = np.ascontiguousarray(self.wide_basis_[:, :self.r_])  # modes are nested: the same V_r
-        if self.wide_basis_.shape[1] == self.r_:
-            self.wide_basis_ = self.basis_
+        self._leading = self._modes(runs, name, sigma, vecs, method,
+                                    max(self.r_, min(max(self.wide_order, self.spare_order), rank)))
+        self._take(self.r_)
         return self
+
+    def _take(self, r: int) -> None:
+        """Set :attr:`basis_` and :attr:`wide_basis_` at order ``r`` from the kept leading modes (modes are
+        nested: the first ``r`` of a wider decomposition are the same ``V_r``)."""
+        self.r_ = r
+        wide = max(r, min(self.wide_order, self.rank_))
+        self.wide_basis_ = np.ascontiguousarray(self._leading[:, :wide])
+        self.basis_ = np.ascontiguousarray(self.wide_basis_[:, :r])
+        if wide == r:
+            self.wide_basis_ = self.basis_
+
+    def at_order(self, r: int) -> "PODBasis":
+        """The same decomposition at another order ``r`` (a copy; this basis is unchanged), without a second SVD.
+
+        Parameters
+        ----------
+        r : int
+            Order, ``1 <= r <=`` the leading modes kept (``max(r_, min(max(wide_order, spare_order), rank_))``).
+
+        Returns
+        -------
+        PODBasis
+        """
+        self._check_fitted()
+        if not 1 <= r <= self._leading.shape[1]:
+            raise ValueError(f"r={r} is outside the {self._leading.shape[1]} modes this basis kept; fit it with "
+                             f"spare_order={r}")
+        other = copy.copy(self)
+        other._take(int(r))
+        return other
 
     def _order(self, sigma: np.ndarray, rank: int) -> int:
         if self.r is None:
