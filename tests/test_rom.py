@@ -611,6 +611,37 @@ def test_an_order_from_the_energy_that_misses_the_training_outputs_is_grown():
     assert any(re.match(line, said_line) for said_line in said), said   # measured 0.052 and 0.0038
 
 
+def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_none_reproduces():
+    """The orders tried (doubling, capped at the snapshot rank and ORDER_SEARCH_LIMIT, the cap tried last); where
+    no order reproduces the training outputs, the closest is kept, said in the stage line, and the warning names
+    the orders tried.  Fits stand in for :func:`fit_rom`'s (only their order and training output error count)."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.rom import ORDER_SEARCH_LIMIT, _grow_order, _search_orders, _warn_if_training_outputs_missed
+
+    assert _search_orders(2, 28) == [4, 8, 16, 28] and _search_orders(36, 151) == [ORDER_SEARCH_LIMIT] == [60]
+    assert _search_orders(5, 5) == [] and _search_orders(61, 151) == []
+    objectives = {2: 5e-2, 4: 4e-3, 8: 2e-3, 16: 3e-3}
+
+    def fit(order):
+        return SimpleNamespace(pod=SimpleNamespace(r_=order, rank_=16),
+                               info={"refinement": {"objective": objectives[order]}, "total_seconds": 0.1})
+
+    said = []
+    kept, search = _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)
+    assert kept.pod.r_ == 8 and [entry["r"] for entry in search] == [2, 4, 8, 16], search
+    assert said == [("order search: r=2 from eq. (18) misses its training outputs (0.22 relative RMS); r=4: 0.063, "
+                     "r=8: 0.045, r=16: 0.055; none reproduces them within 0.032: kept r=8, the closest")], said
+    with pytest.warns(FmuOpinfWarning, match=r"order suffices \(r=8, the closest of r=2, 4, 8, 16 tried; --r\)"):
+        _warn_if_training_outputs_missed(kept.info, 8, tried=[2, 4, 8, 16])
+    objectives[4] = 1e-4   # the first order that reproduces them ends the search
+    kept, search = _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)
+    assert kept.pod.r_ == 4 and len(search) == 2 and said[-1].endswith("r=4: 0.01, kept"), said
+    objectives[2] = 1e-4   # none where the energy's order reproduces them
+    assert _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)[1] == [] and len(said) == 2
+
+
 def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_output_check():
     """States of a state space in other coordinates (``z = T^-1 [x; v]``) recorded as positions ``z1..z3`` and
     velocities ``z4..z6``.  Where no refinement can run (interval averages) no training output error was

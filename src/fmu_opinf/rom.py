@@ -910,13 +910,14 @@ def _warn_if_inputs_alike(u: np.ndarray, names: list[str]) -> None:
                   "training does", FmuOpinfWarning, stacklevel=3)
 
 
-def _warn_if_order_below_inputs(r: int, rank: int, m: int) -> None:
-    """One warning when the order chosen from the energy (eq. 18) is below the number of inputs and the snapshots
-    hold more: ``r`` reduced coordinates follow at most ``r`` independent load patterns, so independent inputs are
-    answered wrongly (seventh audit: 20 inputs on 20 masses, r = 5 chosen at E_r = 0.959, one output 11 % off;
-    ``--r 20``, the snapshot rank, was exact to 1.5e-10)."""
+def _warn_if_order_below_inputs(r: int, rank: int, m: int, origin: str = "from the cumulative energy") -> None:
+    """One warning when the order chosen from the energy (eq. 18; ``origin``: how it was chosen, also by the order
+    search) is below the number of inputs and the snapshots hold more: ``r`` reduced coordinates follow at most
+    ``r`` independent load patterns, so independent inputs are answered wrongly (seventh audit: 20 inputs on 20
+    masses, r = 5 chosen at E_r = 0.959, one output 11 % off; ``--r 20``, the snapshot rank, was exact to
+    1.5e-10)."""
     if r < m and rank > r:
-        warnings.warn(f"r={r} (from the cumulative energy) is below the {m} inputs, and the snapshots have rank {rank}: "
+        warnings.warn(f"r={r} ({origin}) is below the {m} inputs, and the snapshots have rank {rank}: "
                       f"{r} reduced coordinates follow at most {r} independent load patterns; if the inputs act "
                       f"independently, fit with --r {min(m, rank)} (r= in Python)", FmuOpinfWarning, stacklevel=4)
 
@@ -1187,15 +1188,16 @@ def fit_rom(
                           refine_iterations=refine_iterations, refit_output_map=refit_output_map,
                           least_squares_candidate=least_squares_candidate, output_weighting=output_weighting,
                           progress=not quiet)
-    fit = _fit_order(pod, centred_runs, runs, attrs, options, say)
+    fit = first = _fit_order(pod, centred_runs, runs, attrs, options, say)
     _warn_if_inputs_alike(fit.data["u"], _names(attrs.get("input_names"), fit.data["u"].shape[0])
                           or [f"u[{i + 1}]" for i in range(fit.data["u"].shape[0])])
     search: list[dict] = []
     if r is None:
-        fit, search = _grow_order(fit, lambda order: _fit_order(pod.at_order(order), centred_runs, runs, attrs,
-                                                                options, say, decided=fit),
+        fit, search = _grow_order(first, lambda order: _fit_order(pod.at_order(order), centred_runs, runs, attrs,
+                                                                  options, say, decided=first),
                                   judge_unrefined=refine is not False, say=say)
-        _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0])
+        _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0],
+                                    "from the order search" if search else "from the cumulative energy")
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
     if search:
         info["order_search"] = search
