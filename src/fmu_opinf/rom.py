@@ -1350,9 +1350,10 @@ ORDER_SEARCH_LIMIT = FACTORED_ABOVE
 def _search_orders(start: int, rank: int) -> list[int]:
     """The orders the search tries after ``start``: doubling, up to ``min(rank, ORDER_SEARCH_LIMIT)`` (tried last
     where doubling passes it)."""
-    limit, orders = min(rank, ORDER_SEARCH_LIMIT), []
-    while (orders[-1] if orders else start) < limit:
-        orders.append(min(2 * (orders[-1] if orders else start), limit))
+    limit, orders, order = min(rank, ORDER_SEARCH_LIMIT), [], start
+    while order < limit:
+        order = min(2 * order, limit)
+        orders.append(order)
     return orders
 
 
