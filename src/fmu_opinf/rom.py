@@ -1093,11 +1093,11 @@ def fit_rom(
         ``output_names``, ``dt``.  Runs may start from different initial states and mix forced and free
         responses.
     r : int, optional
-        Reduced order, kept as given.  Else chosen from the cumulative energy with threshold ``energy``, and where
-        the ROM at that order misses its own training outputs (training output error above
-        :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order, up to the
-        snapshot rank and :data:`ORDER_SEARCH_LIMIT`, keep the first that reproduces them, else the closest
-        (``fit_info["order_search"]``).
+        Reduced order, kept as given.  Else chosen from the cumulative energy with threshold ``energy``, and, where
+        ``energy`` is not given either and the ROM at that order misses its own training outputs (training output
+        error above :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order,
+        up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error :data:`ORDER_HELPS`-fold,
+        keep the first that reproduces them, else the closest where the order helped (``fit_info["order_search"]``).
     energy : float, optional
         Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
         (eq. 18, :class:`fmu_opinf.basis.PODBasis`); default 0.95.
@@ -1176,7 +1176,7 @@ def fit_rom(
     decide = any(value is None for value in requested.values())
     pod = PODBasis(r=r, energy=energy, kind=basis, max_memory=max_memory, chunk_size=chunk_size, streamed=streamed,
                    wide_order=_decision_order(runs) if decide else 0,
-                   spare_order=ORDER_SEARCH_LIMIT if r is None else 0).fit(centred_runs, attrs)
+                   spare_order=ORDER_SEARCH_LIMIT if r is None and energy is None else 0).fit(centred_runs, attrs)
     say(f"POD of the {pod.kind_} ({pod.method_}, {time.perf_counter() - start:.2f}s): r={pod.r_}, "
         f"cumulative energy E_r={pod.energy_[pod.r_ - 1]:.4f}, snapshot rank {pod.rank_}")
     if r is None and pod.r_ > FACTORED_ABOVE:
@@ -1192,7 +1192,7 @@ def fit_rom(
     _warn_if_inputs_alike(fit.data["u"], _names(attrs.get("input_names"), fit.data["u"].shape[0])
                           or [f"u[{i + 1}]" for i in range(fit.data["u"].shape[0])])
     search: list[dict] = []
-    if r is None:
+    if r is None and energy is None:   # an energy given is the user's order rule: kept as it is
         fit, search = _grow_order(first, lambda order: _fit_order(pod.at_order(order), centred_runs, runs, attrs,
                                                                   options, say, decided=first),
                                   judge_unrefined=refine is not False, say=say)
@@ -1212,7 +1212,7 @@ def fit_rom(
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
                 "refine_iterations": refine_iterations, "refit_output_map": refit_output_map,
                 "least_squares_candidate": least_squares_candidate, "output_weighting": output_weighting,
-                "order_search_limit": ORDER_SEARCH_LIMIT if r is None else None}
+                "order_search_limit": ORDER_SEARCH_LIMIT if r is None and energy is None else None}
     Cpr, Cvr, Dur, y0 = fit.maps
     m = data["u"].shape[0]
     Br, fr = ops.Br[:, :m], (ops.Br[:, m] if fit.chosen["fr"] else np.zeros(pod.r_))
@@ -1388,12 +1388,33 @@ def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unre
         tried.append((fit, objective))
         if objective is not None and objective <= TRAINING_MISS:
             break
-    # the one that reproduces them (the last tried) or else the closest
+        if not _order_helps(tried[-2][1], objective):
+            break   # the miss is not the order's (a nonlinearity, noise, a wrong selection): no larger fits
+    # the one that reproduces them (the last tried), else the closest where the order helped, else the first
     kept = min(tried, key=lambda entry: entry[1] if entry[1] is not None and entry[1] == entry[1] else math.inf)[0]
+    best = _objective_of(tried, kept)
+    if not (best is not None and best <= TRAINING_MISS) and not _order_helps(_objective_of(tried, first), best):
+        kept = first
     search = [{"r": fit.pod.r_, "training_output_error": objective, "seconds": fit.info.get("total_seconds")}
               for fit, objective in tried]
     say(_search_summary(search, kept.pod.r_))
     return kept, search
+
+
+#: Factor by which a doubled order must lower the training output error for the order search to go on (and for a
+#: larger order that still misses to be kept): where the miss comes from a nonlinearity, noise or a wrong variable
+#: selection, larger orders fit a little better and cost more (up to minutes at r = 60) without following the model.
+ORDER_HELPS = 4.0
+
+
+def _order_helps(before: float | None, after: float | None) -> bool:
+    """Whether a larger order lowered the training output error from ``before`` to ``after`` by :data:`ORDER_HELPS`."""
+    return before is not None and after is not None and after == after and after * ORDER_HELPS <= before
+
+
+def _objective_of(tried: list[tuple[Any, float | None]], fit: Any) -> float | None:
+    """The training output error recorded for ``fit`` among ``tried``."""
+    return next(objective for candidate, objective in tried if candidate is fit)
 
 
 def _search_summary(search: list[dict], kept: int) -> str:
@@ -1408,8 +1429,9 @@ def _search_summary(search: list[dict], kept: int) -> str:
     return (f"order search: r={first['r']} from eq. (18) misses its training outputs ({rms(first)} relative RMS); "
             + ", ".join(f"r={entry['r']}: {rms(entry)}" + (", kept" if entry["r"] == kept and found else "")
                         for entry in rest)
-            + ("" if found else f"; none reproduces them within {math.sqrt(TRAINING_MISS):.2g}: kept r={kept}, "
-                                "the closest"))
+            + ("" if found else f"; none reproduces them within {math.sqrt(TRAINING_MISS):.2g}: kept r={kept}"
+                                + (", the closest" if kept != first["r"] else f", larger orders lowered the error "
+                                   f"less than {ORDER_HELPS:g}-fold")))
 
 
 #: Samples of the first training run at which :func:`_training_position_error` compares positions (evenly spaced).
