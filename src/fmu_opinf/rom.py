@@ -1196,6 +1196,7 @@ def fit_rom(
         fit, search = _grow_order(first, lambda order: _fit_order(pod.at_order(order), centred_runs, runs, attrs,
                                                                   options, say, decided=first),
                                   judge_unrefined=refine is not False, say=say)
+    if r is None:
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0],
                                     "from the order search" if search else "from the cumulative energy")
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
