@@ -1055,7 +1055,9 @@ SCHEMA_LOCK = threading.Lock()
 
 
 def _compile_direct(unzipdir: Path) -> None:
-    """One compiler call, with the flags of FMPy's CMake project in Release mode (see :func:`_compile`)."""
+    """One compiler call per source, with the flags of FMPy's CMake project in Release mode (see :func:`_compile`);
+    objects that an earlier build compiled from the same preprocessed source are reused
+    (:mod:`fmu_opinf._object_cache`)."""
     import fmpy
     from fmpy import read_model_description
 
@@ -1067,21 +1069,61 @@ def _compile_direct(unzipdir: Path) -> None:
     target = unzipdir / "binaries" / platform / (interface.modelIdentifier + fmpy.sharedLibraryExtension)
     target.parent.mkdir(parents=True, exist_ok=True)
     compiler = find_c_compiler()
-    flags = ["-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden",
-             "-I" + (unzipdir / "sources").as_posix(), "-I" + _fmi_header_dir().as_posix()]
+    flags = ["-fPIC", "-O3", "-DNDEBUG", "-fvisibility=hidden"]
     if files.language in _C_STANDARDS:
         flags.append("-std=" + _C_STANDARDS[files.language])
     flags += [f"-D{d.name}={d.value}" if d.value is not None else f"-D{d.name}"
               for d in files.preprocessorDefinitions]
+    includes = ["-I" + (unzipdir / "sources").as_posix(), "-I" + _fmi_header_dir().as_posix()]
     objects_dir = unzipdir.parent / "objects"
     objects_dir.mkdir(exist_ok=True)
     sources = [(unzipdir / "sources" / name) for name in files.sourceFiles]
     objects = [objects_dir / f"{i}_{source.stem}.o" for i, source in enumerate(sources)]
-    # one compiler per source file, side by side: the shared kernel alone takes half of the time (0.8 of 1.5 s)
-    _run_side_by_side([[*compiler, "-c", *flags, source.as_posix(), "-o", obj.as_posix()]
-                       for source, obj in zip(sources, objects)], "compilation")
+    _compile_objects(compiler, flags, includes, list(zip(sources, objects)))
     _run([*compiler, "-shared", "-fPIC", *[obj.as_posix() for obj in objects], "-o", target.as_posix(), "-lm"],
          "linking")
+
+
+def _compile_objects(compiler: list[str], flags: list[str], includes: list[str],
+                     pairs: list[tuple[Path, Path]]) -> None:
+    """Compile each ``(source, object)`` pair, taking the object from the cache where its key is there.
+
+    Parameters
+    ----------
+    compiler : list of str
+        The compiler command.
+    flags : list of str
+        Code generation flags and definitions (part of each object's key).
+    includes : list of str
+        ``-I`` flags (their effect is in the preprocessed source, which is part of the key).
+    pairs : list of (Path, Path)
+        Each source file and the object file to write.
+
+    Notes
+    -----
+    Preprocessing takes about 10 ms a file; compiling the kernel ``newmark.c`` alone 0.6 s.  The misses compile
+    side by side, one compiler per core.
+    """
+    from . import _object_cache
+
+    keys = [_object_cache.object_key(compiler, flags, source.name, preprocessed)
+            for (source, _), preprocessed in zip(pairs, _preprocessed(compiler, flags, includes, pairs))]
+    missing = [(key, source, obj) for key, (source, obj) in zip(keys, pairs) if not _object_cache.restore(key, obj)]
+    # one compiler per source file, side by side: the shared kernel alone takes half of the time (0.8 of 1.5 s)
+    _run_side_by_side([[*compiler, "-c", *flags, *includes, source.as_posix(), "-o", obj.as_posix()]
+                       for _, source, obj in missing], "compilation")
+    for key, _, obj in missing:
+        _object_cache.store(key, obj)
+
+
+def _preprocessed(compiler: list[str], flags: list[str], includes: list[str],
+                  pairs: list[tuple[Path, Path]]) -> list[bytes]:
+    """The preprocessed text of each source (``-E -P``: no line markers, which name the temporary folder), read from
+    a ``.i`` file next to its object."""
+    outputs = [obj.with_suffix(".i") for _, obj in pairs]
+    _run_side_by_side([[*compiler, "-E", "-P", *flags, *includes, source.as_posix(), "-o", output.as_posix()]
+                       for (source, _), output in zip(pairs, outputs)], "compilation")
+    return [output.read_bytes() for output in outputs]
 
 
 def _run_side_by_side(commands: list[list[str]], what: str) -> None:
@@ -1090,6 +1132,8 @@ def _run_side_by_side(commands: list[list[str]], what: str) -> None:
 
     from ._threads import usable_cores
 
+    if not commands:
+        return
     with ThreadPoolExecutor(max_workers=max(1, min(len(commands), usable_cores()))) as pool:
         results = list(pool.map(lambda command: subprocess.run(command, capture_output=True, text=True), commands))
     for result in results:
