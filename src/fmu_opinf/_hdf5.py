@@ -38,7 +38,11 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
     without an exception the old file is untouched, and the replacement is one rename.
     The new file gets the permissions of the file it replaces, else ``0666`` minus the umask.
     Failing writes (disk full, no permission) are reported as one-line :class:`FileFormatError`.
+    Just before the file is closed its attributes are sealed (:func:`fmu_opinf._seal.seal_attributes`: HDF5
+    checksums only the datasets' bytes), so every snapshot and ROM file carries the seal.
     """
+    from ._seal import seal_attributes
+
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} exists; pass overwrite=True (--force) to replace it")
@@ -49,6 +53,7 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
         try:
             with h5py.File(tmp, "w") as f:
                 yield f
+                seal_attributes(f)
         except OSError as exc:
             raise write_error(path, exc) from None
 

@@ -45,6 +45,7 @@ from typing import Any, Callable, Iterator, Sequence
 import h5py
 
 from ._interrupts import check_interrupt
+from ._seal import seal_attributes
 from .errors import FmuOpinfError, InputSpecError
 
 __all__ = [
@@ -403,6 +404,7 @@ def _stamp_file(path: Path, stamp: dict[str, Any]) -> int:
         for key in sorted(f["runs"]):
             f["runs"][key].attrs[ROW_ATTR] = text
             k += int(f["runs"][key].attrs.get("k", 0))
+        seal_attributes(f)   # the stamp changed the attributes the recording sealed
     return k
 
 

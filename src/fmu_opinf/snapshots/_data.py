@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 
 from .._hdf5 import read_attrs, unreadable_file
+from .._seal import SEAL_ATTR, check_seal
 from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run,
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
@@ -250,8 +251,10 @@ class Snapshots:
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "Snapshots":
         reject_links(f)
+        check_seal(f, path)   # (before any attribute is used: a changed one is damage, not a wrong value)
         attrs = decode(read_attrs(f))
         attrs.pop("n_runs", None)  # structural: len(runs)
+        attrs.pop(SEAL_ATTR, None)  # describes this file only: a file saved from these attributes gets its own
         if attrs.get("kind") != FILE_KIND or "layout_version" not in attrs:
             raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (no kind/layout_version attributes)")
         check_attr_types(attrs, SNAPSHOT_FILE_ATTRS, str(path))
