@@ -64,7 +64,7 @@ from . import _threads
 from ._hdf5 import atomic_h5, checksummed, jsonable, read_attrs, tool_versions, unreadable_file, write_attrs
 from ._sdp_paths import FACTORED_ABOVE
 from ._seal import check_seal
-from ._validate import check_rom_file, damaged_file_errors, reject_links
+from ._validate import check_rom_file, damaged_file_errors
 from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
 from .errors import DataError, DimensionError, FileFormatError, FmuOpinfWarning, InputSpecError
 from .inference import (TERM_SIGNIFICANCE, _check_cutoff, fit_operators, fit_output_map, lowpass_filter,
@@ -586,10 +586,9 @@ class SecondOrderROM:
 
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "SecondOrderROM":
-        with damaged_file_errors(path):
-            reject_links(f)
-            check_seal(f, path)   # (before any attribute is used: a changed one is damage, not a wrong value)
         check_rom_file(f, path)  # links, attribute types, sizes vs data and memory, finite values, shapes
+        with damaged_file_errors(path):
+            check_seal(f, path)   # after the checks above (a change they name is said in their words)
         attrs = read_attrs(f)
         if attrs.get("kind") != FILE_KIND:
             raise FileFormatError(f"{path} is not an fmu-opinf ROM file (kind={attrs.get('kind')!r})")

@@ -251,7 +251,6 @@ class Snapshots:
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "Snapshots":
         reject_links(f)
-        check_seal(f, path)   # (before any attribute is used: a changed one is damage, not a wrong value)
         attrs = decode(read_attrs(f))
         attrs.pop("n_runs", None)  # structural: len(runs)
         attrs.pop(SEAL_ATTR, None)  # describes this file only: a file saved from these attributes gets its own
@@ -277,6 +276,7 @@ class Snapshots:
             initial = {a: np.array(g[a][()]) for a in INITIAL if a in g}  # layout 1 has none: first samples
             runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=run_attrs, **initial))
         _check_per_column(attrs, sizes, path)
+        check_seal(f, path)   # last: a change the checks above name is said in their words, any other here
         return cls(runs, attrs)
 
     def close(self) -> None:
