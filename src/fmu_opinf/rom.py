@@ -587,8 +587,6 @@ class SecondOrderROM:
     @classmethod
     def _from_h5(cls, f: h5py.File, path: Path) -> "SecondOrderROM":
         check_rom_file(f, path)  # links, attribute types, sizes vs data and memory, finite values, shapes
-        with damaged_file_errors(path):
-            check_seal(f, path)   # after the checks above (a change they name is said in their words)
         attrs = read_attrs(f)
         if attrs.get("kind") != FILE_KIND:
             raise FileFormatError(f"{path} is not an fmu-opinf ROM file (kind={attrs.get('kind')!r})")
@@ -614,6 +612,8 @@ class SecondOrderROM:
             if not np.all(np.isfinite(value)):
                 raise DataError(f"{path}: {name} contains NaN/Inf; the ROM is unusable, refit it")
         check_operators(mats["Mr"], mats["Dr"], mats["Kr"], where=f"{path}: ROM", fix=DAMAGED_ROM_FIX)
+        with damaged_file_errors(path):
+            check_seal(f, path)   # last: a change the checks above name is said in their words, any other here
         extra = {name: mats.pop(name) for name in _EXTRA_TERMS if name in mats}
         if "x_ref" in extra and extra["x_ref"].size == 0:
             extra["x_ref"] = None
