@@ -11,8 +11,8 @@ run, and fail, on code without a seal.
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import h5py
 import numpy as np
@@ -66,6 +66,7 @@ def assert_damaged(load: Callable[[Path], object], path: Path) -> None:
 
 
 def load_snapshots(path: Path) -> Snapshots:
+    """Open ``path`` lazily, as ``fit`` and ``compare`` do, and close it again."""
     with Snapshots.open(path) as snaps:
         return snaps
 

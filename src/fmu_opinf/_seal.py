@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import FileFormatError
 
-__all__ = ["SEAL_ATTR", "attribute_digest", "seal_attributes", "check_seal"]
+__all__ = ["SEAL_ATTR", "attribute_digest", "check_seal", "seal_attributes"]
 
 #: Root attribute holding the seal: 64 lowercase hexadecimal digits of a SHA-256 digest.
 SEAL_ATTR = "attributes_sha256"
