@@ -17,7 +17,8 @@ from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
-__all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency", "slowest_frequency", "fade_time", "default_window",
+__all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency",
+           "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
            "check_window_step", "warn_if_step_dependent"]
 
