@@ -230,13 +230,15 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
     assert worst > 4 * compare.ORDER_NOTE   # measured 5.9e-2
     assert metrics["order"] == {"r": 2, "chosen": "energy", "snapshot_rank": small.fit_info["snapshot_rank"]}
     table = compare.summary_table([("small", metrics)])
-    assert "came from the POD energy (eq. 18) of snapshots of rank" in table and "(fit --r 4, then compare" in table
+    assert "came from the POD energy (eq. 18) on snapshots of rank" in table and "(fit --r 4, then compare" in table
     given = rom.fit_rom(snaps, r=2, refine=False)
     given_metrics = compare.compare(given, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
     assert given_metrics["order"]["chosen"] == "given" and compare.order_note(given_metrics) is None
     assert compare.order_note({**metrics, "per_output": {"y": {"relative_max_variation": 0.5 * compare.ORDER_NOTE}}}) \
         is None
     assert compare.order_note({**metrics, "order": {**metrics["order"], "snapshot_rank": 2}}) is None
+    searched = compare.order_note({**metrics, "order": {**metrics["order"], "chosen": "search"}})
+    assert "order r=2 came from the fit's order search on snapshots of rank" in searched
 
 
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():

@@ -78,6 +78,24 @@ def test_a_pulse_many_periods_of_the_fastest_mode_long_is_quasi_static():
     assert not quasi_static_pulse(replace(bar, f_max=0.064), 0.5)
 
 
+
+def test_at_a_given_step_a_quasi_static_pulse_shrinks_to_ten_samples_of_it():
+    """Audit 64, finding 1: at ``--dt 0.002`` a 25 Hz bar's fastest frequency is seen as an alias near Nyquist
+    (249.5 Hz); one period of it is under ten samples, and the 0.5 s pulse was kept (23-31 % off, 4-11 % where
+    the shrink happened).  It now shrinks to ten samples of the step; at ``--dt 0.05`` ten samples are 0.5 s
+    already, and at a chosen step one period of the fastest frequency is taken."""
+    from fmu_opinf.snapshots._record import _narrower_width
+
+    bar = Window(dt=0.002, t_end=3.7, f_max=249.5, t_fade=3.7, peak=1.0, pilot_dt=0.002, pilot_t_end=10.0,
+                 pilots=1, points_per_period=20.0, energy=0.999, fade=0.01, t_input=2.25)
+    assert _narrower_width(bar, 0.5, {"exact_dt": True, "max_dt": 0.002}) == pytest.approx(0.02, rel=1e-12)
+    assert _narrower_width(bar, 0.5, {"exact_dt": True, "max_dt": 0.05}) is None
+    assert _narrower_width(bar, 0.5, {}) == 0.004
+    following = replace(bar, f_max=0.38, t_fade=2.45)   # the response only followed the pulse: 100x, if resolved
+    assert _narrower_width(following, 0.5, {}) == 0.005
+    assert _narrower_width(following, 0.5, {"exact_dt": True, "max_dt": 0.002}) is None
+
+
 def _two_input_chain():
     return lti_fmus.chain_model(4, inputs=(0, 3), x0=[0.0] * 4, name="TwoForces")
 

@@ -154,22 +154,23 @@ ORDER_NOTE = 1e-2
 
 def order_note(metrics: dict[str, Any]) -> str | None:
     """A line suggesting a larger ``--r`` where the ROM misses an output by over :data:`ORDER_NOTE` of its range and
-    its order came from the POD energy below the snapshot rank, or None.
+    its order came from the POD energy (or the fit's order search) below the snapshot rank, or None.
 
     The energy criterion (eq. 18) counts the modes the training excited; a test input that excites others more
     needs them (audit 62: an FE bar trained with the default impulse got r = 3 from a snapshot rank of 300 and was
     1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).
     """
     order, per_output = metrics.get("order") or {}, metrics.get("per_output") or {}
-    if order.get("chosen") != "energy" or not order.get("snapshot_rank", 0) > order.get("r", 0) or not per_output:
+    origin = {"energy": "the POD energy (eq. 18)", "search": "the fit's order search"}.get(order.get("chosen"))
+    if origin is None or not order.get("snapshot_rank", 0) > order.get("r", 0) or not per_output:
         return None
     name, worst = max(per_output.items(), key=lambda item: np.nan_to_num(item[1].get("relative_max_variation")))
     relative = float(np.nan_to_num(worst.get("relative_max_variation")))
     if not relative > ORDER_NOTE:
         return None
     r, larger = order["r"], min(2 * order["r"], order["snapshot_rank"])
-    return (f"{name} is {relative:.2g} of its range off, and the ROM's order r={r} came from the POD energy (eq. 18) "
-            f"of snapshots of rank {order['snapshot_rank']}: a larger order may follow this input (fit --r {larger}, "
+    return (f"{name} is {relative:.2g} of its range off, and the ROM's order r={r} came from {origin} on "
+            f"snapshots of rank {order['snapshot_rank']}: a larger order may follow this input (fit --r {larger}, "
             "then compare again); if it does not, train with an input nearer this one")
 
 
@@ -526,7 +527,9 @@ def _order_chosen(rom_side: Any) -> dict[str, Any]:
     rank = info.get("snapshot_rank")
     if not isinstance(settings, dict) or "r" not in settings or not isinstance(rank, (int, np.integer)):
         return {}
-    return {"r": int(rom_side.r), "chosen": "energy" if settings["r"] is None else "given",
+    search = info.get("order_search") or []
+    grown = bool(search) and search[0].get("r") != rom_side.r
+    return {"r": int(rom_side.r), "chosen": "given" if settings["r"] is not None else "search" if grown else "energy",
             "snapshot_rank": int(rank)}
 
 

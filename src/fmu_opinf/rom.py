@@ -1201,7 +1201,7 @@ def fit_rom(
                                   judge_unrefined=refine is not False, say=say)
     if r is None:
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0],
-                                    "from the order search" if search else "from the cumulative energy")
+                                    "from the order search" if fit is not first else "from the cumulative energy")
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
     if search:
         info["order_search"] = search
@@ -1408,7 +1408,7 @@ def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unre
 #: Factor by which a doubled order must lower the training output error for the order search to go on (and for a
 #: larger order that still misses to be kept): where the miss comes from a nonlinearity, noise or a wrong variable
 #: selection, larger orders fit a little better and cost more (up to minutes at r = 60) without following the model.
-ORDER_HELPS = 4.0
+ORDER_HELPS = 2.0
 
 
 def _order_helps(before: float | None, after: float | None) -> bool:
