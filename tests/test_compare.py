@@ -444,6 +444,7 @@ def test_a_training_that_drove_no_input_is_compared_on_the_free_response():
         "none", "the training drove no input: the free response from the source's start, as trained")
 
 
+@pytest.mark.slow  # 13 s in the fast set of 2026-12-06 (idle 2-core machine)
 def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_path, capsys, monkeypatch):
     """``compare`` stopped without ``--input`` ("no test input given") on every ROM with inputs.  It now takes a
     harmonic (the paper's test input) on each input the training drove, on the operating point it was trained on,
@@ -507,6 +508,7 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     assert [part.params["amplitude"] for part in unshifted.parts] == [0.0, 0.0]
 
 
+@pytest.mark.slow  # 7 s in the fast set of 2026-12-06
 def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path):
     """A table the training read gives the test its amplitude while it is at hand; once it is gone, nothing sizes
     a test input: one line, the fix, exit code 2, no report."""

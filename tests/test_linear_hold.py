@@ -291,6 +291,7 @@ def test_one_single_precision_block_beside_double_ones_is_recorded_in_seconds(tm
     assert x_error < 1e-3 and v_error < 4e-3, (x_error, v_error)   # measured 3.9e-4 / 3.0e-4, 2.0e-3 / 1.5e-3
 
 
+@pytest.mark.slow  # 4-5 s per case in the fast set of 2026-12-06
 @pytest.mark.parametrize("precision", [True, False], ids=["float", "double"])
 def test_a_tolerance_the_rounding_noise_loosened_is_said_once_and_reported_per_run(tmp_path, precision):
     """Where the derivatives' rounding sets a state's absolute tolerance, the run's ``integrator`` attribute names
@@ -534,6 +535,7 @@ def _errors(chain: lti_fmus.LinearMechanicalModel, run) -> tuple[float, float]:
     return np.abs(run.x - x).max() / np.abs(x - x[0]).max(), np.abs(run.xdot - v).max() / np.abs(v).max()
 
 
+@pytest.mark.slow  # 2-9 s per case in the fast set of 2026-12-06 (bdf: 8.7 s)
 @pytest.mark.parametrize("method, indicators", [("dop853", False), ("dop853", True), ("bdf", False),
                                                ("lsoda", False)])
 def test_a_run_on_which_the_integrator_spends_long_is_reported_while_it_is_at_it(tmp_path, monkeypatch, method,

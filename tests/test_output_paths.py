@@ -128,6 +128,7 @@ def test_a_link_or_a_pipe_among_a_report_s_or_the_figures_files_is_refused_befor
     assert not (tmp_path / "r2.h5").exists()
 
 
+@pytest.mark.slow  # 6 s in the fast set of 2026-12-06
 def test_links_in_a_run_table_s_or_the_demo_s_folder_and_dangling_links_are_refused_before_the_work(tmp_path):
     """Audit 57: ``compare --runs`` wrote its table's index.html through a link into the ROM it compared; the demo
     wrote summary.json through a link, or refused a linked figure only after its work; ``--figures`` naming a
