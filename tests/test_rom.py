@@ -639,7 +639,7 @@ def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_no
     objectives[4] = 3.5e-2   # doubling lowers the error 1.4-fold only: not the order's miss, no larger fits
     kept, search = _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)
     assert kept.pod.r_ == 2 and [entry["r"] for entry in search] == [2, 4], search
-    assert said[-1].endswith("kept r=2, larger orders lowered the error less than 2-fold"), said
+    assert said[-1].endswith("kept r=2, larger orders lowered the error less than 2-fold (squared)"), said
     said.pop()
     objectives[4] = 1e-4   # the first order that reproduces them ends the search
     kept, search = _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)

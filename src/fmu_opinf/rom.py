@@ -1099,7 +1099,7 @@ def fit_rom(
         Reduced order, kept as given.  Else chosen from the cumulative energy with threshold ``energy``, and, where
         ``energy`` is not given either and the ROM at that order misses its own training outputs (training output
         error above :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order,
-        up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error :data:`ORDER_HELPS`-fold,
+        up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error (mean squared) :data:`ORDER_HELPS`-fold,
         keep the first that reproduces them, else the closest where the order helped (``fit_info["order_search"]``).
     energy : float, optional
         Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
@@ -1405,9 +1405,10 @@ def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unre
     return kept, search
 
 
-#: Factor by which a doubled order must lower the training output error for the order search to go on (and for a
-#: larger order that still misses to be kept): where the miss comes from a nonlinearity, noise or a wrong variable
-#: selection, larger orders fit a little better and cost more (up to minutes at r = 60) without following the model.
+#: Factor by which a doubled order must lower the training output error (a mean squared relative error: its RMS
+#: falls by the square root, 1.4) for the order search to go on, and for a larger order that still misses to be
+#: kept: where the miss comes from a nonlinearity, noise or a wrong variable selection, larger orders fit a little
+#: better and cost more (up to minutes at r = 60) without following the model.
 ORDER_HELPS = 2.0
 
 
@@ -1435,7 +1436,7 @@ def _search_summary(search: list[dict], kept: int) -> str:
                         for entry in rest)
             + ("" if found else f"; none reproduces them within {math.sqrt(TRAINING_MISS):.2g}: kept r={kept}"
                                 + (", the closest" if kept != first["r"] else f", larger orders lowered the error "
-                                   f"less than {ORDER_HELPS:g}-fold")))
+                                   f"less than {ORDER_HELPS:g}-fold (squared)")))
 
 
 #: Samples of the first training run at which :func:`_training_position_error` compares positions (evenly spaced).
