@@ -228,7 +228,8 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
     metrics = compare.compare(small, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
     worst = max(output["relative_max_variation"] for output in metrics["per_output"].values())
     assert worst > 4 * compare.ORDER_NOTE   # measured 5.9e-2
-    assert metrics["order"] == {"r": 2, "chosen": "energy", "snapshot_rank": small.fit_info["snapshot_rank"]}
+    assert metrics["order"] == {"r": 2, "chosen": "energy", "snapshot_rank": small.fit_info["snapshot_rank"],
+                                "tried": []}
     table = compare.summary_table([("small", metrics)])
     assert "came from the POD energy (eq. 18) on snapshots of rank" in table and "(fit --r 4, then compare" in table
     given = rom.fit_rom(snaps, r=2, refine=False)
@@ -239,6 +240,8 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
     assert compare.order_note({**metrics, "order": {**metrics["order"], "snapshot_rank": 2}}) is None
     searched = compare.order_note({**metrics, "order": {**metrics["order"], "chosen": "search"}})
     assert "order r=2 came from the fit's order search on snapshots of rank" in searched
+    tried = {**metrics["order"], "tried": [2, 4]}   # audit 65: the search tried r = 4 and kept r = 2
+    assert compare.order_note({**metrics, "order": tried}) is None
 
 
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():

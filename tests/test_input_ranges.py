@@ -311,26 +311,34 @@ def test_the_example_input_of_a_range_refusal_lies_within_the_range(low, high):
     assert (u.max() - u.min() > 0) == (high > low), spec
 
 
-def test_a_free_body_pushed_by_an_input_held_at_its_bound_is_refused_at_once(tmp_path):
-    """Audit 63, finding 5: a free body whose force input declares ``[-30, -5]`` (start 0, outside) is held at
-    -5 N by the default training, a constant push under which it drifts: the impulse was widened twice, to
-    500000 s, and the refusal after 101 s asked for a wider one.  It is now refused after the first pilots, naming
-    the held input and the options that record it (``--dt`` and ``--t-end``)."""
+def _pushed_at_a_bound(tmp_path, model):
+    """``model`` as an ME FMU whose first force input declares ``[-30, -5]`` with start 0 (held at -5), opened."""
     from conftest import rewrite_description
 
     from fmu_opinf import lti_fmus
+    from fmu_opinf.sources import open_source
+
+    built = lti_fmus.build_lti_fmu(model, tmp_path / "built.fmu", interfaces=("me",))
+    fmu = rewrite_description(built.path, tmp_path / "pushed.fmu", lambda text: text.replace(
+        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="-30" max="-5"/>', 1))
+    return open_source(str(fmu))
+
+
+@pytest.mark.slow  # 10-20 s: every widening of the impulse runs
+def test_a_free_body_pushed_by_an_input_held_at_its_bound_is_refused_naming_it(tmp_path):
+    """Audit 63, finding 5: a free body whose force input declares ``[-30, -5]`` (start 0, outside) is held at
+    -5 N by the default training, a constant push under which it drifts: the impulse was widened to 500000 s and
+    the refusal asked for a wider one still.  It now names the held input and the options that record it (``--dt``
+    and ``--t-end``)."""
+    from fmu_opinf import lti_fmus
     from fmu_opinf.errors import DataError
     from fmu_opinf.snapshots._record import _default_training_window
-    from fmu_opinf.sources import open_source
 
     needs_build_tools()
     K = np.array([[20.0, -20.0, 0.0], [-20.0, 45.0, -25.0], [0.0, -25.0, 25.0]])   # free-free: K @ 1 = 0
     free = lti_fmus.LinearMechanicalModel(M=np.diag([1.0, 1.5, 0.8]), D=0.05 * K, K=K, B=np.eye(3)[:, [0, 2]],
                                           Cp=np.eye(3)[[0, 2]], name="Free")
-    built = lti_fmus.build_lti_fmu(free, tmp_path / "built.fmu", interfaces=("me",))
-    fmu = rewrite_description(built.path, tmp_path / "free.fmu", lambda text: text.replace(
-        '<Real unit="N" start="0.0"/>', '<Real unit="N" start="0.0" min="-30" max="-5"/>', 1))
-    source = open_source(str(fmu))
+    source = _pushed_at_a_bound(tmp_path, free)
     try:
         with pytest.raises(DataError) as info:
             _default_training_window(source, {"quiet": True, "max_steps": 20_000})
@@ -340,3 +348,24 @@ def test_a_free_body_pushed_by_an_input_held_at_its_bound_is_refused_at_once(tmp
     assert text.startswith("the default training holds F[1] at -5, the nearest bound of its declared range "
                            "[-30, -5] (its start 0 lies outside): a constant force"), text
     assert "give --dt and --t-end" in text and "wider" not in text, text
+
+
+@pytest.mark.slow  # 10-20 s
+def test_an_anchored_slow_model_pushed_at_a_bound_gets_a_wider_impulse(tmp_path):
+    """Audit 65, finding 1: an anchored chain with periods of 700-4583 s, its input held at -5 N (a static
+    preload it settles under) was refused at the first try as a drifting free body; before, and now again, the
+    default training widens its impulse and records it."""
+    from dataclasses import replace
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.snapshots._record import _default_training_window
+
+    needs_build_tools()
+    base = lti_fmus.chain_model(5, inputs=(0, 4), name="Slow")
+    slow = replace(base, M=base.M * 1e6, D=0.0005 * base.M * 1e6 + 0.01 * base.K)
+    source = _pushed_at_a_bound(tmp_path, slow)
+    try:
+        window, signals = _default_training_window(source, {"quiet": True})
+    finally:
+        source.close()
+    assert "width=50" in signals[1].spec and window.stopped_by == "fade", (signals[1].spec, window)

@@ -158,7 +158,8 @@ def order_note(metrics: dict[str, Any]) -> str | None:
 
     The energy criterion (eq. 18) counts the modes the training excited; a test input that excites others more
     needs them (audit 62: an FE bar trained with the default impulse got r = 3 from a snapshot rank of 300 and was
-    1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).
+    1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).  Not where the fit's
+    order search already tried that order and did not keep it.
     """
     order, per_output = metrics.get("order") or {}, metrics.get("per_output") or {}
     origin = {"energy": "the POD energy (eq. 18)", "search": "the fit's order search"}.get(order.get("chosen"))
@@ -169,6 +170,8 @@ def order_note(metrics: dict[str, Any]) -> str | None:
     if not relative > ORDER_NOTE:
         return None
     r, larger = order["r"], min(2 * order["r"], order["snapshot_rank"])
+    if larger in (order.get("tried") or []):
+        return None   # the fit's order search tried it and it did not reproduce the training (audit 65)
     return (f"{name} is {relative:.2g} of its range off, and the ROM's order r={r} came from {origin} on "
             f"snapshots of rank {order['snapshot_rank']}: a larger order may follow this input (fit --r {larger}, "
             "then compare again); if it does not, train with an input nearer this one")
@@ -530,7 +533,7 @@ def _order_chosen(rom_side: Any) -> dict[str, Any]:
     search = info.get("order_search") or []
     grown = bool(search) and search[0].get("r") != rom_side.r
     return {"r": int(rom_side.r), "chosen": "given" if settings["r"] is not None else "search" if grown else "energy",
-            "snapshot_rank": int(rank)}
+            "snapshot_rank": int(rank), "tried": [int(entry["r"]) for entry in search if "r" in entry]}
 
 
 def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:

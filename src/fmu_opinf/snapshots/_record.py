@@ -1005,10 +1005,10 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide)
         except PulseTooNarrow as slow:
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
+                pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
+                if pushing:
+                    raise DataError(_pushed_without_rest(pushing, slow)) from None
                 raise
-            pushing = _held_at_bounds(source)
-            if pushing:
-                raise DataError(_pushed_without_rest(pushing, slow)) from None
             tries["wider"] += 1
             factor *= RESCALE
             why = "the model is too slow for the default impulse to be resolved"
@@ -1039,9 +1039,10 @@ def _held_at_bounds(source: Source) -> list[str]:
 
 
 def _pushed_without_rest(pushing: list[str], slow: Any) -> str:
-    """Why a default training whose held inputs push the model cannot find a window (audit 63, finding 5: a free
-    body held at -5 N drifted; the impulse was widened twice, to 500000 s, and the refusal after 101 s asked for
-    a wider one still)."""
+    """Why a default training whose held inputs push the model cannot find a window even with its widest impulse
+    (audit 63, finding 5: a free body held at -5 N drifted; the impulse was widened twice, to 500000 s, and the
+    refusal asked for a wider one still).  Said only then: an anchored slow model settles under the push and is
+    recorded with a wider impulse (audit 65, finding 1: refused at the first try, it was called a free body)."""
     return (f"the default training holds {'; '.join(pushing)}: a constant force, and the response keeps moving "
             f"under it (a free body drifts; it still moved at t={slow.still_moving_at:g}), so no window can wait "
             "for it to settle; give --dt and --t-end for the window to record (the fit learns the constant force), "
