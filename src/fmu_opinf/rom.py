@@ -1099,8 +1099,9 @@ def fit_rom(
         Reduced order, kept as given.  Else chosen from the cumulative energy with threshold ``energy``, and, where
         ``energy`` is not given either and the ROM at that order misses its own training outputs (training output
         error above :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order,
-        up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error (mean squared) :data:`ORDER_HELPS`-fold,
-        keep the first that reproduces them, else the closest where the order helped (``fit_info["order_search"]``).
+        up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error (mean squared)
+        :data:`ORDER_HELPS`-fold, keep the first that reproduces them, else the closest where the order helped
+        (``fit_info["order_search"]``).
     energy : float, optional
         Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
         (eq. 18, :class:`fmu_opinf.basis.PODBasis`); default 0.95.
