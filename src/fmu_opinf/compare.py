@@ -522,9 +522,9 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:
-    """How a ROM object's order was chosen (for :func:`order_note`): ``r``, ``"energy"`` where the fit took it
-    from the POD energy (eq. 18) or ``"given"``, and the snapshot rank that bounds it; empty for an exported FMU
-    or a ROM that does not say."""
+    """How a ROM object's order was chosen (for :func:`order_note`): ``r``; ``"given"``, ``"energy"`` where the fit
+    took it from the POD energy (eq. 18), or ``"search"`` where its order search grew it; the snapshot rank that
+    bounds it; the orders the search tried.  Empty for an exported FMU or a ROM that does not say."""
     info = getattr(rom_side, "fit_info", None) or {}
     settings = (getattr(rom_side, "provenance", None) or {}).get("fit_settings")
     rank = info.get("snapshot_rank")
