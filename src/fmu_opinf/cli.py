@@ -490,7 +490,8 @@ def _main(argv: Sequence[str] | None) -> int:
 
 def _left_behind(verb: str | None) -> str:
     """What an interrupted command leaves: the outputs it replaced before the interrupt (:data:`_hdf5.REPLACED`),
-    or none; the demo's cases, written by worker processes, are not counted here: it says what it may have left.
+    or none; the demo's cases, written by worker processes, are not counted here: the demo puts its folder back
+    as it was (:func:`fmu_opinf.demo.run_demo`).
 
     A Ctrl-C while ``_hdf5`` (numpy, h5py) was still being imported leaves it half imported, and importing it again
     fails: before that import ends, no output can have been written.
@@ -498,8 +499,7 @@ def _left_behind(verb: str | None) -> str:
     hdf5 = sys.modules.get(f"{__package__}._hdf5")
     replaced = getattr(hdf5, "REPLACED", [])
     if verb == "demo":
-        return ("the demo folder may hold this run's files beside the previous run's (each file is whole); run the "
-                "demo again")
+        return "the demo folder was left as it was before the run"
     if not replaced:
         return "no output file was written or replaced"
     return (f"written before it: {', '.join(str(path) for path in replaced)}; every other output was left as it "

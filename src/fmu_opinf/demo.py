@@ -9,13 +9,15 @@ model and a summary page.
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
+import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, TypeVar
+from typing import Any, Callable, Iterator, TypeVar
 
 from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
 
@@ -206,7 +208,8 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
     With a core per model (on Linux) the models run side by side, each after the first in a forked
     worker process, and every line printed for a model starts with its name; the results, files, table
     and errors are those of running them one after the other.  Each model's ROM FMU compiles while its
-    figures are drawn and its ROM is compared.
+    figures are drawn and its ROM is compared.  An interrupted or failed run leaves the folder as it was: the
+    previous run's entries wait in a hidden folder until this run has written all of its own.
 
     Returns
     -------
@@ -226,15 +229,92 @@ def run_demo(out_dir: str | Path = "demo-out", model: str = "all", quick: bool =
         _log("no C compiler or CMake found: skipping the benchmark FMU builds and the ROM FMU export; "
              "the builtin reference simulator (the same models and Newmark scheme) stands in for the FMUs", quiet)
     start = time.perf_counter()
-    rows = _run_cases(names, out_dir, quick=quick, quiet=quiet, compile_fmus=compile_fmus)
-    seconds = time.perf_counter() - start
-    _atomic_write_bytes(out_dir / "summary.json",
-                        json.dumps({"seconds": seconds, "quick": quick, "cases": rows}, indent=2).encode())
-    _atomic_write_bytes(out_dir / "index.html", _summary_page(rows, seconds).encode())
+    with _previous_run_kept(out_dir, names + list(_SUMMARY_FILES)):
+        rows = _run_cases(names, out_dir, quick=quick, quiet=quiet, compile_fmus=compile_fmus)
+        seconds = time.perf_counter() - start
+        _atomic_write_bytes(out_dir / "summary.json",
+                            json.dumps({"seconds": seconds, "quick": quick, "cases": rows}, indent=2).encode())
+        _atomic_write_bytes(out_dir / "index.html", _summary_page(rows, seconds).encode())
     table = summary_table([(f"{r['model']} ROM", r["rom"]) for r in rows]
                           + [(f"{r['model']} ROM FMU", r["rom_fmu"]) for r in rows if r["rom_fmu"]])
     _log(table + f"\n\ntotal {seconds:.1f} s; open {out_dir / 'index.html'}", quiet)
     return rows
+
+
+#: The demo folder's own files beside the model folders.
+_SUMMARY_FILES = ("summary.json", "index.html")
+#: Hidden folder in the demo folder holding the previous run's entries while a run writes new ones.
+PREVIOUS_RUN = ".fmu-opinf-previous-run"
+_DELETING = PREVIOUS_RUN + "-deleting"
+#: File in :data:`PREVIOUS_RUN` naming the entries the run writes (a JSON list of names).
+_MANIFEST = "entries.json"
+
+
+@contextlib.contextmanager
+def _previous_run_kept(out_dir: Path, entries: list[str]) -> Iterator[None]:
+    """Keep the previous run's ``entries`` of ``out_dir`` (model folders, summary files) aside while the block
+    writes new ones: if the block fails or is interrupted, the entries it wrote are removed and the previous ones
+    put back; once it ends well, the previous ones are deleted.
+
+    Files are written atomically, but a run writes dozens of them: an interrupted run left the folder with this
+    run's files beside the previous run's.  The entries move by renames in the same folder (no copy, nothing
+    left behind), with interrupts deferred while they move.  A run killed outright (SIGKILL) leaves the
+    previous entries in :data:`PREVIOUS_RUN`; the next run puts them back first, so they are never lost.
+    """
+    keep = out_dir / PREVIOUS_RUN
+    _put_back(out_dir, keep)
+    try:
+        with _moving():
+            keep.mkdir()
+            (keep / _MANIFEST).write_text(json.dumps(entries))
+            for name in entries:
+                if (out_dir / name).exists() or (out_dir / name).is_symlink():
+                    (out_dir / name).rename(keep / name)
+        yield
+    except BaseException:
+        _put_back(out_dir, keep)
+        raise
+    with _moving():  # renamed first: a run killed while deleting must not put back half of the previous run
+        keep.rename(out_dir / _DELETING)
+    shutil.rmtree(out_dir / _DELETING)
+
+
+def _put_back(out_dir: Path, keep: Path) -> None:
+    """Remove the entries of ``out_dir`` that the run behind ``keep`` (if it exists) writes, move the previous
+    ones back from it, then remove it (and what a killed run was deleting)."""
+    if (out_dir / _DELETING).is_dir():
+        shutil.rmtree(out_dir / _DELETING)
+    if not keep.is_dir():
+        return
+    with _moving():
+        for name in _written_entries(keep):
+            target = out_dir / name
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            elif target.exists() or target.is_symlink():
+                target.unlink()
+            if (keep / name).exists() or (keep / name).is_symlink():
+                (keep / name).rename(target)
+        shutil.rmtree(keep)
+
+
+def _written_entries(keep: Path) -> list[str]:
+    """The entry names in ``keep``'s manifest (plain names only: the folder is data, nothing in it names a path
+    outside the demo folder); without a readable manifest, the entries kept in it."""
+    try:
+        names = json.loads((keep / _MANIFEST).read_text())
+    except (OSError, ValueError):
+        names = [entry.name for entry in keep.iterdir() if entry.name != _MANIFEST]
+    plain = [name for name in names if isinstance(name, str) and name not in ("", ".", "..", _MANIFEST)
+             and Path(name).name == name]
+    return sorted(plain)
+
+
+def _moving() -> contextlib.AbstractContextManager[None]:
+    """Interrupts deferred (in the main thread) while entries move: the folder is never half moved."""
+    from ._interrupts import deferred_interrupts
+
+    return deferred_interrupts()
 
 
 #: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked.
