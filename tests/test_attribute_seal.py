@@ -63,6 +63,13 @@ def assert_damaged(load: Callable[[Path], object], path: Path) -> None:
     text = str(caught.value)
     assert "\n" not in text and str(path) in text and "damaged" in text, text
     assert SEAL in text, text   # (the seal's refusal, not a later check stumbling on the change)
+    assert "write it again" in text and unseal_statement(path) in text, text   # both ways out
+
+
+def unseal_statement(path: Path) -> str:
+    """The statement of docs/file-format.md that deletes the seal of ``path`` (spelled out, independently of the
+    code's own helper)."""
+    return f"with h5py.File({str(path)!r}, 'r+') as f: del f.attrs['{SEAL}']"
 
 
 def load_snapshots(path: Path) -> Snapshots:
@@ -146,6 +153,28 @@ def test_a_flipped_byte_of_an_attribute_is_refused(files, tmp_path):
     data[at + 3] ^= 0x01
     path.write_bytes(bytes(data))
     assert_damaged(load_snapshots, path)
+
+
+def _annotation(f: h5py.File) -> None:
+    """A harmless attribute added on purpose (audit of 2026-12-06, F6)."""
+    f.attrs["zz_note"] = "my annotation"
+
+
+@pytest.mark.parametrize("name, load", [("small", load_snapshots), ("rom", SecondOrderROM.load)])
+def test_the_statement_in_the_refusal_accepts_a_deliberate_change(files, tmp_path, name, load):
+    """The refusal's own statement, run as it is printed, deletes the seal: the annotated file then loads."""
+    folder = tmp_path / "a 'quoted' folder"
+    folder.mkdir()
+    path = changed_copy(files[name], folder, _annotation)
+    with pytest.raises(FileFormatError) as caught:
+        load(path)
+    text = str(caught.value)
+    statement = text[text.find("with h5py.File("):]
+    assert statement == unseal_statement(path), statement
+    exec(statement, {"h5py": h5py})   # noqa: S102 (the message's statement, exactly as a user would paste it)
+    with h5py.File(path, "r") as f:
+        assert SEAL not in f.attrs and f.attrs["zz_note"] == "my annotation"
+    load(path)
 
 
 def test_the_command_line_says_it_in_one_line(files, tmp_path, capsys):

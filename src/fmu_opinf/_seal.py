@@ -146,7 +146,8 @@ def check_seal(f: h5py.File, path: str | os.PathLike) -> None:
     ------
     FileFormatError
         The seal is not a SHA-256 in hexadecimal, or the attributes' digest differs from it: an attribute
-        changed after the file was written.
+        changed after the file was written.  The one-line message names both ways out: restore or write the file
+        again, or, for a deliberate change, the statement that deletes the seal (:func:`unseal_statement`).
     """
     from ._validate import RESTORE
 
@@ -155,6 +156,24 @@ def check_seal(f: h5py.File, path: str | os.PathLike) -> None:
     stored = f.attrs[SEAL_ATTR]
     stored = _text_bytes(stored).decode("ascii", "replace") if np.ndim(stored) == 0 else ""
     if stored != attribute_digest(f):
-        raise FileFormatError(f"cannot read {path} (its attributes do not match their SHA-256 seal "
-                              f"{SEAL_ATTR!r}: they changed after the file was written); the file is damaged, "
-                              f"{RESTORE}")
+        raise FileFormatError(f"cannot read {path} (its attributes do not match their SHA-256 seal {SEAL_ATTR!r}: "
+                              f"they changed after the file was written); if the file is damaged, {RESTORE}; "
+                              f"if you changed an attribute on purpose, {unseal_statement(path)}")
+
+
+def unseal_statement(path: str | os.PathLike) -> str:
+    """The documented way to accept a deliberate change of attributes (docs/file-format.md, "Attribute seal"):
+    the Python statement that deletes the seal of ``path``, after which the file is read as an unsealed one.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The sealed file.
+
+    Returns
+    -------
+    str
+        Text naming the statement, with the path as a Python string literal (quotes in it stay valid).
+    """
+    return (f"delete the seal in Python (the file's attributes are then read unchecked): "
+            f"with h5py.File({os.fspath(path)!r}, 'r+') as f: del f.attrs[{SEAL_ATTR!r}]")
