@@ -489,3 +489,42 @@ def test_a_serialized_state_is_refused_by_another_model_of_the_same_sizes(export
     finally:
         for fmu in (source, same, foreign):
             fmu.freeInstance()
+
+
+# ------------------------------------------------------------------------ the object cache
+
+def test_an_export_under_another_name_compiles_only_the_name(rom, tmp_path, monkeypatch):
+    """Audit of 2026-12-06, F5: the name and GUID were in ``config.h``, which every unit includes, so an export under
+    a new name compiled ``instance.c`` again and added a cache entry per name.  Now the second export compiles only
+    the small unit holding them (never cached); both FMUs validate, keep their own identifier and GUID, and give
+    bit-identical outputs that match the ROM's own simulation."""
+    monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "cache"))
+    compiled: list[str] = []
+    run = fmus._run_side_by_side
+
+    def spy(commands: list[list[str]], what: str) -> None:
+        compiled.extend(Path(command[-1]).name for command in commands if "-c" in command)
+        run(commands, what)
+
+    monkeypatch.setattr(fmus, "_run_side_by_side", spy)
+    objects = tmp_path / "cache" / "objects"
+    first = export.export_fmu(rom, tmp_path / "RomOne.fmu")
+    assert len(compiled) == 5 and len(list(objects.glob("*.o"))) == 4
+    compiled.clear()
+    second = export.export_fmu(rom, tmp_path / "RomTwo.fmu")
+    assert compiled == ["4_fmu_identity.o"] and len(list(objects.glob("*.o"))) == 4
+    expected = rom.simulate(TEST, rom.dt, 10.0)
+    outputs, guids = [], []
+    for path, name in ((first, "RomOne"), (second, "RomTwo")):
+        assert validate_fmu(str(path)) == []
+        folder = Path(extract(str(path), str(tmp_path / name)))
+        md = read_model_description(str(folder))
+        assert md.coSimulation.modelIdentifier == name and (folder / "binaries" / "linux64" / f"{name}.so").is_file()
+        outputs.append(drive(folder, signals.parse_signal(TEST), expected.t, rom.r)["y"])
+        guids.append((folder, md.guid))
+    assert np.array_equal(outputs[0], outputs[1]) and relative_error(outputs[0], expected.y) < 1e-12
+    (folder, _), (_, other_guid) = guids
+    assert guids[0][1] != other_guid
+    with pytest.raises(Exception, match="Failed to instantiate"):   # its own GUID: RomOne refuses RomTwo's
+        FMU2Slave(guid=other_guid, unzipDirectory=str(folder), modelIdentifier="RomOne",
+                  instanceName="x").instantiate()

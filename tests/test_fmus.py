@@ -146,7 +146,10 @@ def test_fmu_keeps_sources_and_description(built, name):
     for file in ("fmi2Functions.c", "newmark.c", "model.c", "config.h", "model.h", "newmark.h",
                  "fmi2Functions.h", "readme.md"):
         assert (folder / "sources" / file).is_file()
-    assert md.guid in (folder / "sources" / "config.h").read_text()
+    identity = (folder / "sources" / fmus.IDENTITY_SOURCE).read_text()
+    assert f'"{md.guid}"' in identity and f'"{md.coSimulation.modelIdentifier}"' in identity
+    assert md.guid not in (folder / "sources" / "config.h").read_text()   # (else every unit changes with it)
+    assert [s for s in md.buildConfigurations[0].sourceFileSets[0].sourceFiles if s == fmus.IDENTITY_SOURCE]
     assert md.coSimulation.canHandleVariableCommunicationStepSize
     assert md.coSimulation.canGetAndSetFMUstate
     names = [v.name for v in md.modelVariables]
@@ -615,7 +618,8 @@ def test_no_leaks_or_memory_errors_under_valgrind(tmp_path):
     program = tmp_path / "harness"
     compiler = fmus.find_build_tools()[1]
     subprocess.run([compiler, "-std=c99", "-g", "-O1", "-I", str(src), "-include", "config.h",
-                    *(str(src / f) for f in ("fmi2Functions.c", "instance.c", "newmark.c", "model.c")),
+                    *(str(src / f) for f in ("fmi2Functions.c", "instance.c", "newmark.c", "model.c",
+                                             fmus.IDENTITY_SOURCE)),
                     str(tmp_path / "harness.c"), "-o", str(program), "-lm"], check=True)
     result = subprocess.run(["valgrind", "--leak-check=full", "--error-exitcode=9", str(program)],
                             capture_output=True, text=True)

@@ -23,6 +23,9 @@ COMPILER = fmus.find_c_compiler()
 if COMPILER is None:
     pytest.skip("no C compiler", allow_module_level=True)
 
+#: The object of the unit holding the model identifier and the GUID (``fmus.IDENTITY_SOURCE``), fifth source.
+IDENTITY = "4_fmu_identity.o"
+
 SOURCE = '#include "value.h"\nint value(void) { return VALUE; }\n'
 
 
@@ -168,18 +171,18 @@ def binary(path: Path) -> bytes:
 
 def test_an_fmu_rebuilt_from_cached_objects_is_the_same_binary(tmp_path, compiled, cache, monkeypatch):
     first = fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "First.fmu")
-    assert len(compiled) == 4
+    assert len(compiled) == 5 and len(entries(cache)) == 4   # the name and GUID unit is compiled, never cached
     again = fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "First.fmu", compile=True)
-    assert len(compiled) == 4 and binary(again) == binary(first)
+    assert compiled[5:] == [IDENTITY] and binary(again) == binary(first)
     monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "fresh"))   # compiled anew: the same bytes
     assert binary(fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "Third.fmu")) == binary(first)
 
 
 def test_an_fmu_of_another_guid_or_size_compiles_what_depends_on_it(tmp_path, compiled):
-    """Another description changes only the GUID, which ``instance.c`` checks at instantiation: that object is
-    compiled again (a stale one would refuse the FMU's own GUID), the others are reused; another number of degrees
-    of freedom compiles the kernel and the model too (the FMI layer's preprocessed text holds the numbers of inputs,
-    outputs and parameters only)."""
+    """Another description changes only the GUID, which ``instance.c`` checks at instantiation: only the unit that
+    holds it (never cached) is compiled again (a stale GUID would refuse the FMU), the others are reused; another
+    number of degrees of freedom compiles the instance, the kernel and the model too (the FMI layer's preprocessed
+    text holds the numbers of inputs, outputs and parameters only)."""
     from fmpy import simulate_fmu
 
     fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "A.fmu")
@@ -187,8 +190,8 @@ def test_an_fmu_of_another_guid_or_size_compiles_what_depends_on_it(tmp_path, co
     spec = fmus.anchored_msd_spec(10)
     spec.description = "the same model, described otherwise"
     other = fmus.build_second_order_fmu(spec, tmp_path / "B.fmu")
-    assert compiled == ["1_instance.o"]
+    assert compiled == [IDENTITY]
     assert len(simulate_fmu(str(other), stop_time=1.0, output_interval=0.1)) > 1   # instantiates: its GUID matches
     compiled.clear()
     fmus.build_second_order_fmu(fmus.anchored_msd_spec(12), tmp_path / "C.fmu")
-    assert sorted(compiled) == ["1_instance.o", "2_newmark.o", "3_model.o"]
+    assert sorted(compiled) == ["1_instance.o", "2_newmark.o", "3_model.o", IDENTITY]

@@ -6,8 +6,8 @@
  *     M a + D v + K x + G^T mu = B u + f,      y = Cp x + Cv v + Du u + y0,
  *     G x = 0 (ConstraintPosition, index 3)  or  G v = 0 (ConstraintVelocity, index 2).
  *
- * The generated config.h fixes the sizes, the constraint kind, the identifier and the
- * instantiation token.  A model only implements assembleSystem(): it adds the matrix
+ * The generated config.h fixes the sizes and the constraint kind, and declares the identifier and
+ * the instantiation token, which the generated fmu_identity.c defines.  A model only implements assembleSystem(): it adds the matrix
  * entries, computed from the parameter values, through addEntry().  The glue calls it
  * twice (once to count the entries, once to store them), so it must be deterministic.
  */
