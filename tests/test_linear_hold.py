@@ -587,6 +587,42 @@ def test_a_mild_model_stays_with_dop853(stiff_fmu, tmp_path):
     assert run.attrs["integrator"].startswith("auto: DOP853")
 
 
+#: What the files said before (audit of 2026-12-06, F7): the rule of ``auto``, not the method its runs took.
+AUTO_RULE = "auto (linear for a stiff model, else DOP853)"
+
+
+@pytest.mark.parametrize("link, taken", [(4e6, "exact zero-order-hold step"), (20.0, "DOP853")],
+                         ids=["stiff", "mild"])
+def test_a_file_of_auto_runs_names_the_method_they_took(tmp_path, link, taken):
+    """The file's ``integrator`` names the method ``auto`` took (the exact step on the stiff chain, DOP853 on the mild
+    one, as the tests above establish from the runs), still saying ``auto`` chose it, both for a file written from
+    memory and for one streamed run by run; each run says it in ``integrator_method`` too."""
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    path = tmp_path / "Chain.fmu"
+    lti_fmus.build_lti_fmu(stiff_chain(link), path, interfaces=("me",))
+    method = "linear" if link > 1e3 else "dop853"
+    saved = tmp_path / "memory.h5"
+    record(open_source(path), SIGNAL, DT, 2.0, quiet=True, path=saved)
+    record_to_file(open_source(path), tmp_path / "streamed.h5", [SIGNAL, "none"], DT, 2.0, quiet=True,
+                   isolate=False)
+    for file in (saved, tmp_path / "streamed.h5"):
+        snaps = Snapshots.load(file)
+        text = snaps.attrs["integrator"]
+        assert text.startswith(taken) and "chosen by auto" in text and text != AUTO_RULE, text
+        assert [run.attrs["integrator_method"] for run in snaps.runs] == [method] * len(snaps.runs)
+
+
+def test_an_explicit_method_and_runs_that_differ_are_named_as_such(stiff_fmu):
+    source = open_source(stiff_fmu, method="dop853")
+    assert source.recorded_integrator(["dop853"]) == source.provenance()["integrator"]
+    auto = open_source(stiff_fmu)
+    assert auto.provenance()["integrator"] == AUTO_RULE   # before any run: the rule
+    text = auto.recorded_integrator(["linear", "dop853", "linear"])
+    assert text.startswith("auto (linear for a stiff model, else DOP853), per run"), text
+    assert re.search(r"exact zero-order-hold step .* in run\(s\) 0, 2; DOP853 .* in run\(s\) 1$", text), text
+
+
 def test_the_step_maps_are_the_closed_forms():
     """exp(hA), h phi_1(hA), h phi_2(hA) of a diagonal A, against (e^z - 1)/z and (e^z - 1 - z)/z^2."""
     lam = np.array([-3.0e4, -2.0, 0.0, 0.5])

@@ -326,7 +326,7 @@ SNAPSHOT_FILE_ATTRS = {"kind": "str", "layout_version": "int", "n": "int", "m": 
 SNAPSHOT_RUN_ATTRS = {"complete": "bool", "k": "int", "k_planned": "int", "dt": "positive", "t0": "float",
                       "t_end": "float", "input_spec": "str", "isolated": "bool", "error": "str",
                       "derived_xdot": "bool", "derived_xddot": "bool", "events": "int", "first_event_t": "float",
-                      "inert_events": "int"}
+                      "inert_events": "int", "integrator_method": "str"}
 #: Expected types of the ROM file attributes.
 ROM_ATTRS = {"kind": "str", "layout_version": "int", "basis_kind": "str", "dt": "positive",
              "input_names": "names", "output_names": "names", "provenance": "json_text", "fit_info": "json_text"}

@@ -423,6 +423,17 @@ def _file_attrs(source: Source) -> dict[str, Any]:
     return attrs
 
 
+def _integrator_taken(source: Source, runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The file attribute ``integrator`` saying which method the runs (their attributes ``runs``) took, for a source
+    that chooses per run (:meth:`~fmu_opinf.sources.ModelExchangeSource.recorded_integrator`, ``--me-method
+    auto``); {} for any other source or a run that does not say (the file then keeps the source's own text)."""
+    recorded = getattr(source, "recorded_integrator", None)
+    methods = [attrs.get("integrator_method") for attrs in runs]
+    if recorded is None or not methods or not all(isinstance(method, str) for method in methods):
+        return {}
+    return {"integrator": recorded(methods)}
+
+
 def incomplete_error(failure: StepError, run: Run, path: Path | None) -> StepError:
     """The failure with what became of the samples before it: kept in ``path``, or (no path) not written."""
     if path is None:
@@ -487,7 +498,8 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
-        snaps = Snapshots([run], {**_file_attrs(source), "dt": float(t[1] - t[0])})
+        attrs = {**_file_attrs(source), "dt": float(t[1] - t[0]), **_integrator_taken(source, [run.attrs])}
+        snaps = Snapshots([run], attrs)
         if path is not None:
             snaps.save(path, overwrite=overwrite)
         if failure is not None:
@@ -679,6 +691,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             attrs["auto_window"] = window.as_dict()
         write_file_attrs(f, attrs)
         runs = f.create_group("runs")
+        recorded: list[dict[str, Any]] = []   # (each run's attributes: its samples stay in the file)
         for index, signal in enumerate(signals):
             group = runs.create_group(f"{index:04d}")
 
@@ -686,6 +699,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
                 return _H5Sink(src, tt, uu, g, path)
 
             run, failure = record_run(source, signal, t, factory, quiet, isolate)
+            recorded.append(run.attrs)
             if index == 0 and run.k == 0:
                 raise failure or StepError(f"{source_label(source)} recorded no sample in its first run", 0,
                                            float(t[0]))
@@ -703,6 +717,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             summary.initialization = initialization_of(source, t, first_input, first_position, isolate)
             write_attrs(f, {"initialization": summary.initialization})
         f.attrs["n_runs"] = len(summary.runs)
+        write_attrs(f, _integrator_taken(source, recorded))
     if failure is not None:
         raise failure
     return summary

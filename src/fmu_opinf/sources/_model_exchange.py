@@ -63,7 +63,7 @@ import contextlib
 import ctypes
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Any, Callable
 
 import numpy as np
@@ -218,7 +218,35 @@ class ModelExchangeSource(FMUSource):
         rounding = self._rounding_summary()
         if rounding is not None:
             text += f"; {rounding[0]}"
-        return {"integrator": text}
+        return {"integrator": text, "integrator_method": active}
+
+    def recorded_integrator(self, methods: Sequence[str]) -> str:
+        """The file's ``integrator`` attribute once its runs took ``methods`` (each run's ``integrator_method``).
+
+        ``auto`` chooses per run, so before the runs the source can only say the rule; a file of ``auto`` runs
+        named the rule, not the method used (audit of 2026-12-06, F7).  It now names the method all its runs took,
+        marked as chosen by ``auto``, or, where runs differ, which run took which.
+
+        Parameters
+        ----------
+        methods : sequence of str
+            The method each run took, in order (``"linear"``, ``"dop853"``; any of :data:`METHODS` but ``auto``).
+
+        Returns
+        -------
+        str
+            :meth:`provenance`'s text for an explicit method or no runs, else e.g. ``"exact zero-order-hold step
+            ... (chosen by auto: linear for a stiff model, else DOP853)"``.
+        """
+        if self.method != "auto" or not methods:
+            return self._integrator_text(self.method)
+        rule = _INTEGRATOR_TEXT["auto"].removeprefix("auto ")
+        taken = list(dict.fromkeys(methods))
+        if len(taken) == 1:
+            return f"{self._integrator_text(taken[0])} (chosen by auto: {rule.strip('()')})"
+        runs = "; ".join(f"{self._integrator_text(method)} in run(s) "
+                         + ", ".join(str(i) for i, m in enumerate(methods) if m == method) for method in taken)
+        return f"auto {rule}, per run (each run's integrator says which): {runs}"
 
     def events_seen(self) -> EventCount | None:
         """Events handled since :meth:`start`: how many changed the model, the run's time (not the FMU's) of the
