@@ -648,6 +648,58 @@ def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_no
     assert _grow_order(fit(2), fit, judge_unrefined=True, say=said.append)[1] == [] and len(said) == 2
 
 
+def _bar_with_a_tip_accelerometer(n: int):
+    """The tests' chain of ``n`` unequal masses (:func:`fmu_opinf.lti_fmus.chain_model`, forces at node ``n // 3``
+    and at the tip), its mass scaled so that the first mode lies at 157 rad/s, with 2 % Rayleigh damping at that
+    mode; outputs: the displacements of nodes ``n // 4``, ``n // 2`` and of the tip, and the tip's acceleration (a
+    feedthrough of the tip force, and an output 1e4-1e5 times larger than the displacements)."""
+    from dataclasses import replace
+
+    from fmu_opinf import lti_fmus
+
+    chain = lti_fmus.chain_model(n, inputs=(n // 3, n - 1))
+    lowest = np.sqrt(np.linalg.eigvals(np.linalg.solve(chain.M, chain.K)).real.min())
+    mass = chain.M * (lowest / 157.0) ** 2
+    Cp, Ca = np.zeros((4, n)), np.zeros((4, n))
+    Cp[[0, 1, 2], [n // 4, n // 2, n - 1]] = 1.0
+    Ca[3, n - 1] = 1.0
+    beta = 0.04 / (6 * 157.0)   # D = beta (alpha M + K), alpha = 5 * 157^2: damping ratio 2 % at 157 rad/s
+    damping = beta * (5 * 157.0 ** 2 * mass + chain.K)
+    return replace(chain, M=mass, D=damping, Cp=Cp, Cv=np.zeros((4, n)), Ca=Ca, y0=np.zeros(4))
+
+
+def test_the_order_search_judges_each_output_by_its_own_size():
+    """Audit 65, F2: beside a tip acceleration (RMS 4e7), the displacements (RMS 1e2-1e3) counted in the training
+    output error only as much as an output of 1e-3 of the acceleration's size, so the default fit kept the energy's
+    r = 3 at 0.5 % mean error while one displacement was 5-6 % off its training run and 6.6 % off an unseen
+    input.  The search now judges the worst output, each relative to its own size, and grows the order.
+    Reference: the exact zero-order-hold response of the full model to an input the fit never saw."""
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+    model, dt, t_end = _bar_with_a_tip_accelerometer(16), 1e-3, 1.005
+    t = time_grid(dt, t_end)
+
+    def exact(spec):
+        u = inputs_in_effect(parse_signal(spec, 2), t, 2)   # u[:, i + 1] is held over [t_i, t_i+1]
+        return u, lti_fmus.zoh_response(model, t, u[:, 1:])
+
+    pulse = "impulse:amplitude=100,t0=0.128,width=0.032"   # the default training of each input, as `snapshots` made
+    runs = [Run(t, u, y.x, y.v, y.a, y.y) for u, y in map(exact, (f"{pulse};none", f"none;{pulse}"))]
+    test_input = "harmonic:amplitude=17.8,omega=210;harmonic:amplitude=17.8,omega=235"
+    reference = exact(test_input)[1].y
+    fits = {name: fit_rom(runs, r=order, integrator="exact") for name, order in (("default", None), ("energy", 3))}
+    errors = {name: np.abs(rom.simulate(test_input, dt, t_end).y - reference).max(axis=1) / np.ptp(reference, axis=1)
+              for name, rom in fits.items()}
+    assert fits["energy"].fit_info["energy_r"] >= 0.95   # r = 3 is the energy's order (E_3 = 0.9985)
+    # measured r = 6: displacements 0.0032 / 0.0015 / 0.0012 of their range against 0.066 / 0.015 / 0.024 at r = 3
+    assert fits["default"].r > 3 and np.max(errors["default"][:3]) < 0.005 < 0.05 < errors["energy"][0], errors
+    first = fits["default"].fit_info["order_search"][0]   # the mean passed; the worst output (y[1], 5.3 %) did not
+    assert first["r"] == 3 and first["training_output_error"] < TRAINING_MISS < first["worst_output_error"], first
+
+
 def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_output_check():
     """States of a state space in other coordinates (``z = T^-1 [x; v]``) recorded as positions ``z1..z3`` and
     velocities ``z4..z6``.  Where no refinement can run (interval averages) no training output error was

@@ -693,6 +693,50 @@ def output_error_objective(
     return value if np.isfinite(value) else float("inf")
 
 
+
+#: RMS, relative to the largest output's, at or below which :func:`output_errors` does not judge an output: what it
+#: holds is the recording's round-off (1e-10 relative tolerance), not a response.
+SILENT_OUTPUT = 1e-8
+
+
+def output_errors(
+    Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
+    xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
+    output_map: tuple[np.ndarray, np.ndarray], run_lengths: list[int] | None = None, integrator: str = "newmark",
+) -> np.ndarray:
+    """Each output's relative squared error ``||(C z)_j - y_j||^2 / ||y_j||^2`` over the training runs, simulated
+    as :func:`output_error_objective` simulates them, each relative to its own size alone.
+
+    The objective weighs an output below :data:`OUTPUT_FLOOR` of the largest one as if it had that size, which
+    suits a near-silent output but not outputs in different units: beside a tip acceleration of RMS 4e7 the
+    displacements (RMS 700) counted 3400 times less, and a ROM 7 % off on one of them met the objective to 0.7 %
+    (audit 65, F2).  Here no output is measured against another; one at or below :data:`SILENT_OUTPUT` of the
+    largest is not judged (NaN).
+
+    Returns
+    -------
+    (p,) ndarray
+        The relative squared errors (inf where the simulation overflows, NaN for a silent output).
+    """
+    k = x_r.shape[1]
+    cuts = np.cumsum([0] + _run_lengths(run_lengths, k, dt))
+    y = np.atleast_2d(y)
+    C = np.hstack(output_map)
+    step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
+    squared = np.zeros(y.shape[0])
+    with np.errstate(over="ignore", invalid="ignore"):
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            z = propagate(step.Ad, step.Bd @ u[:, a:b], np.concatenate([x_r[:, a], xdot_r[:, a]]), _STRIDE)
+            for part in column_blocks(y.shape[0], b - a):
+                err = C @ z[:, part] - y[:, a:b][:, part]
+                squared += np.sum(err * err, axis=1)
+    norms = np.array([float(np.dot(row, row)) for row in y])
+    judged = norms > (SILENT_OUTPUT ** 2) * norms.max() if norms.max() > 0 else np.zeros(len(norms), dtype=bool)
+    errors = np.full(y.shape[0], np.nan)
+    errors[judged] = squared[judged] / norms[judged]
+    errors[judged & ~np.isfinite(squared)] = np.inf
+    return errors
+
 def _run_lengths(run_lengths: list[int] | None, k: int, dt: float) -> list[int]:
     lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]
     if sum(lengths) != k or min(lengths) < 2:
