@@ -700,6 +700,49 @@ def test_the_order_search_judges_each_output_by_its_own_size():
     assert first["r"] == 3 and first["training_output_error"] < TRAINING_MISS < first["worst_output_error"], first
 
 
+def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_values():
+    """Audit 65, F3: with 5 % noise on the positions of a 40-node bar, eq. (18) kept r = 33 of the rank 40 (noise
+    fills the energy), the ROM missed its noisy training outputs, and the search's one trial, at r = 40, the
+    costliest and worst-conditioned fit, made the fit 47 s instead of 15 s to be 270 times further off.  The
+    singular values of white noise on 40 x 1001 snapshots lie within (sqrt(1001) + sqrt(40)) / (sqrt(1001) -
+    sqrt(40)) = 1.5 of each other (Marchenko-Pastur): the search now stops where the modes beyond lie on that floor,
+    and says so.  The singular values are those of the exact response (matrix exponential) with and without the
+    noise; the fits stand in for :func:`fit_rom`'s (only their order and training output error count)."""
+    from types import SimpleNamespace
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.basis import cumulative_energy
+    from fmu_opinf.rom import _grow_order
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+    model, t = _fixed_free_bar(40), time_grid(2e-4, 0.2)
+    u = inputs_in_effect(parse_signal("impulse:amplitude=100,t0=0.01,width=0.01", 1), t, 1)
+    x = lti_fmus.zoh_response(model, t, u[:, 1:]).x
+    noisy = x + 0.05 * np.abs(x).max() * np.random.default_rng(0).standard_normal(x.shape)
+    for positions, energy_r, tried in ((noisy, 33, [33]), (x, 2, [2, 4, 8, 16])):
+        sigma = np.linalg.svd(positions, compute_uv=False)
+        r = int(np.argmax(cumulative_energy(sigma) >= 0.95)) + 1
+        assert r == energy_r and np.count_nonzero(sigma > 1e-13 * sigma[0]) >= 28, sigma   # the audit's orders
+
+        def fit(order, rank=np.count_nonzero(sigma > 1e-13 * sigma[0]), sigma=sigma):
+            error = {2: 4e-2, 4: 1e-2, 8: 4e-3, 16: 1e-3, 33: 1.2e-2}.get(order, 3.0)   # r = 40: 272^2 / 2.5e4
+            return SimpleNamespace(pod=SimpleNamespace(r_=order, rank_=rank, svdvals_=sigma),
+                                   info={"refinement": {"objective": error}, "total_seconds": 0.1, "n": 40,
+                                         "k": positions.shape[1]})
+
+        said: list[str] = []
+        kept, search = _grow_order(fit(r), fit, judge_unrefined=True, say=said.append)
+        assert [entry["r"] for entry in search] == tried and kept.pod.r_ == tried[-1], search
+        if positions is noisy:   # s_4 on lie within 1.54 of the smallest: about 3 modes carry the motion
+            assert search[0]["noise_floor"] == 4, search
+            assert said[-1].endswith("kept r=33; the singular values from s_4 on lie on a noise floor, so no order "
+                                     "above r=33 was tried (it would fit the noise); with noisy snapshots a smaller "
+                                     "order, about --r 3, may follow other inputs better"), said
+        else:   # clean: 1e14 from s_3 to the rank; the search goes on as before
+            assert all("noise_floor" not in entry for entry in search) and "noise" not in said[-1], said
+
+
 def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_output_check():
     """States of a state space in other coordinates (``z = T^-1 [x; v]``) recorded as positions ``z1..z3`` and
     velocities ``z4..z6``.  Where no refinement can run (interval averages) no training output error was
