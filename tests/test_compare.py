@@ -239,9 +239,37 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
         is None
     assert compare.order_note({**metrics, "order": {**metrics["order"], "snapshot_rank": 2}}) is None
     searched = compare.order_note({**metrics, "order": {**metrics["order"], "chosen": "search"}})
-    assert "order r=2 came from the fit's order search on snapshots of rank" in searched
-    tried = {**metrics["order"], "tried": [2, 4]}   # audit 65: the search tried r = 4 and kept r = 2
-    assert compare.order_note({**metrics, "order": tried}) is None
+    assert "the fit's order search kept r=2 on snapshots of rank" in searched
+    tried = {**metrics["order"], "chosen": "search", "tried": [2, 4]}   # audit 65: the search tried r = 4, kept 2
+    assert "(fit --r" not in compare.order_note({**metrics, "order": tried})
+
+
+def test_the_order_note_reads_the_fit_s_order_search():
+    """Audit 65, F4: for a ROM whose order search kept the energy's r = 33 after trying r = 40 (272 times off its
+    training outputs), compare said the order "came from the POD energy" and suggested ``fit --r 40``.  The note
+    now says what the search kept and tried, never suggests an order it tried, suggests the next doubling where
+    the search kept the largest order it tried, and a smaller order where it stopped at a noise floor.  ROM objects
+    stand in with only what :func:`compare._order_chosen` reads."""
+    from types import SimpleNamespace
+
+    def order_of(r, search):
+        return compare._order_chosen(SimpleNamespace(r=r, provenance={"fit_settings": {"r": None}},
+                                                     fit_info={"snapshot_rank": 40, "order_search": search}))
+
+    off = {"per_output": {"y[2]": {"relative_max_variation": 0.35}}}
+    kept_first = order_of(33, [{"r": 33, "training_output_error": 1.2e-2}, {"r": 40, "training_output_error": 7.4e4}])
+    assert kept_first == {"r": 33, "chosen": "search", "snapshot_rank": 40, "tried": [33, 40]}
+    note = compare.order_note({**off, "order": kept_first})
+    assert note == ("y[2] is 0.35 of its range off, and the fit's order search kept r=33 (tried r=33, 40) on "
+                    "snapshots of rank 40: the larger orders it tried did not fit the training outputs enough better "
+                    "to be kept; train with an input nearer this one (or add it as a training run)"), note
+    grown = order_of(4, [{"r": 2}, {"r": 4}])   # kept the largest it tried: the next doubling is untried
+    assert "search kept r=4 (tried r=2, 4)" in compare.order_note({**off, "order": grown})
+    assert "(fit --r 8, then compare again)" in compare.order_note({**off, "order": grown})
+    floor = order_of(33, [{"r": 33, "noise_floor": 4}])
+    assert floor["noise_floor"] == 4
+    assert "(fit --r 3, then compare again)" in compare.order_note({**off, "order": floor})
+    assert order_of(3, [])["chosen"] == "energy"   # no search ran: the energy's order passed its training
 
 
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():

@@ -153,28 +153,40 @@ ORDER_NOTE = 1e-2
 
 
 def order_note(metrics: dict[str, Any]) -> str | None:
-    """A line suggesting a larger ``--r`` where the ROM misses an output by over :data:`ORDER_NOTE` of its range and
-    its order came from the POD energy (or the fit's order search) below the snapshot rank, or None.
+    """A line where the ROM misses an output by over :data:`ORDER_NOTE` of its range and its order came from the POD
+    energy or the fit's order search below the snapshot rank, or None: it suggests a larger ``--r`` the search did
+    not try, else says that the search found none and to train nearer the input.
 
     The energy criterion (eq. 18) counts the modes the training excited; a test input that excites others more
     needs them (audit 62: an FE bar trained with the default impulse got r = 3 from a snapshot rank of 300 and was
-    1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).  Not where the fit's
-    order search already tried that order and did not keep it.
+    1-1.6 % of the range off on a harmonic test; ``--r 6`` on the same snapshots, 0.07-0.2 %).  An order the search
+    tried and did not keep fitted the training no better, so it is never suggested (audit 65, F4: ``fit --r 40`` was
+    suggested after the search had found r = 40 272 times off its training outputs); where the search stopped at
+    a noise floor of the snapshots' singular values, a smaller order is suggested instead.
     """
     order, per_output = metrics.get("order") or {}, metrics.get("per_output") or {}
-    origin = {"energy": "the POD energy (eq. 18)", "search": "the fit's order search"}.get(order.get("chosen"))
-    if origin is None or not order.get("snapshot_rank", 0) > order.get("r", 0) or not per_output:
+    if order.get("chosen") not in ("energy", "search") or not order.get("snapshot_rank", 0) > order.get("r", 0) \
+            or not per_output:
         return None
     name, worst = max(per_output.items(), key=lambda item: np.nan_to_num(item[1].get("relative_max_variation")))
     relative = float(np.nan_to_num(worst.get("relative_max_variation")))
     if not relative > ORDER_NOTE:
         return None
-    r, larger = order["r"], min(2 * order["r"], order["snapshot_rank"])
-    if larger in (order.get("tried") or []):
-        return None   # the fit's order search tried it and it did not reproduce the training (audit 65)
-    return (f"{name} is {relative:.2g} of its range off, and the ROM's order r={r} came from {origin} on "
-            f"snapshots of rank {order['snapshot_rank']}: a larger order may follow this input (fit --r {larger}, "
-            "then compare again); if it does not, train with an input nearer this one")
+    r, tried = order["r"], [int(value) for value in order.get("tried") or []]
+    origin = (f"the ROM's order r={r} came from the POD energy (eq. 18)" if order["chosen"] == "energy"
+              else f"the fit's order search kept r={r}" + (f" (tried r={', '.join(map(str, tried))})" if tried else ""))
+    opening = f"{name} is {relative:.2g} of its range off, and {origin} on snapshots of rank {order['snapshot_rank']}"
+    larger = min(2 * r, order["snapshot_rank"])
+    if larger not in tried and not any(value > r for value in tried) and not order.get("noise_floor"):
+        return (f"{opening}: a larger order may follow this input (fit --r {larger}, then compare again); if it "
+                "does not, train with an input nearer this one")
+    floor = order.get("noise_floor")
+    if floor:
+        return (f"{opening}: its singular values from s_{floor} on lie on a noise floor, so larger orders fit the "
+                f"noise; a smaller order may follow this input better (fit --r {max(int(floor) - 1, 1)}, then "
+                "compare again), and less noisy snapshots would")
+    return (f"{opening}: the larger orders it tried did not fit the training outputs enough better to be kept; "
+            "train with an input nearer this one (or add it as a training run)")
 
 
 @dataclass
@@ -523,17 +535,23 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:
     """How a ROM object's order was chosen (for :func:`order_note`): ``r``; ``"given"``, ``"energy"`` where the fit
-    took it from the POD energy (eq. 18), or ``"search"`` where its order search grew it; the snapshot rank that
-    bounds it; the orders the search tried.  Empty for an exported FMU or a ROM that does not say."""
+    took it from the POD energy (eq. 18) and judged it good enough, or ``"search"`` where its order search ran (and
+    grew it, or kept the energy's after trying larger ones); the snapshot rank that bounds it; the orders the search
+    tried (``fit_info["order_search"]``), and ``noise_floor`` where it stopped at one of the singular values
+    (:func:`fmu_opinf.rom._noise_floor`).  Empty for an exported FMU or a ROM that does not say."""
     info = getattr(rom_side, "fit_info", None) or {}
     settings = (getattr(rom_side, "provenance", None) or {}).get("fit_settings")
     rank = info.get("snapshot_rank")
     if not isinstance(settings, dict) or "r" not in settings or not isinstance(rank, (int, np.integer)):
         return {}
     search = info.get("order_search") or []
-    grown = bool(search) and search[0].get("r") != rom_side.r
-    return {"r": int(rom_side.r), "chosen": "given" if settings["r"] is not None else "search" if grown else "energy",
-            "snapshot_rank": int(rank), "tried": [int(entry["r"]) for entry in search if "r" in entry]}
+    how = "given" if settings["r"] is not None else "search" if search else "energy"
+    chosen = {"r": int(rom_side.r), "chosen": how, "snapshot_rank": int(rank),
+              "tried": [int(entry["r"]) for entry in search if "r" in entry]}
+    floor = next((entry["noise_floor"] for entry in search if isinstance(entry.get("noise_floor"), int)), None)
+    if floor is not None:
+        chosen["noise_floor"] = floor
+    return chosen
 
 
 def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
