@@ -626,7 +626,7 @@ def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_no
     objectives = {2: 5e-2, 4: 4e-3, 8: 2e-3, 16: 3e-3}
 
     def fit(order):
-        return SimpleNamespace(pod=SimpleNamespace(r_=order, rank_=16),
+        return SimpleNamespace(pod=SimpleNamespace(r_=order, rank_=16, svdvals_=None),   # (no noise floor)
                                info={"refinement": {"objective": objectives[order]}, "total_seconds": 0.1})
 
     said = []
