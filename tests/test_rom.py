@@ -671,10 +671,11 @@ def _bar_with_a_tip_accelerometer(n: int):
 def test_the_order_search_judges_each_output_by_its_own_size():
     """Audit 65, F2: beside a tip acceleration (RMS 4e7), the displacements (RMS 1e2-1e3) counted in the training
     output error only as much as an output of 1e-3 of the acceleration's size, so the default fit kept the energy's
-    r = 3 at 0.5 % mean error while one displacement was 5-6 % off its training run and 6.6 % off an unseen
-    input.  The search now judges the worst output, each relative to its own size, and grows the order.
+    r = 3 at 0.8 % RMS on average while one displacement was 5.3 % off its training runs and 6.6 % of its range
+    off an unseen input.  The search now judges the worst output, each relative to its own size, and grows the order.
     Reference: the exact zero-order-hold response of the full model to an input the fit never saw."""
     from fmu_opinf import lti_fmus
+    from fmu_opinf.errors import FmuOpinfWarning
     from fmu_opinf.rom import TRAINING_MISS
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
@@ -690,7 +691,10 @@ def test_the_order_search_judges_each_output_by_its_own_size():
     runs = [Run(t, u, y.x, y.v, y.a, y.y) for u, y in map(exact, (f"{pulse};none", f"none;{pulse}"))]
     test_input = "harmonic:amplitude=17.8,omega=210;harmonic:amplitude=17.8,omega=235"
     reference = exact(test_input)[1].y
-    fits = {name: fit_rom(runs, r=order, integrator="exact") for name, order in (("default", None), ("energy", 3))}
+    fits = {"default": fit_rom(runs, integrator="exact")}
+    with pytest.warns(FmuOpinfWarning, match=r"outputs only to 0\.05\d* relative RMS \(output y\[1\]; training "
+                                             r"output error 6\.\de-05\)"):   # the mean: 0.8 % RMS
+        fits["energy"] = fit_rom(runs, r=3, integrator="exact")
     errors = {name: np.abs(rom.simulate(test_input, dt, t_end).y - reference).max(axis=1) / np.ptp(reference, axis=1)
               for name, rom in fits.items()}
     assert fits["energy"].fit_info["energy_r"] >= 0.95   # r = 3 is the energy's order (E_3 = 0.9985)
