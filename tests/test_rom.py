@@ -707,7 +707,7 @@ def test_the_order_search_judges_each_output_by_its_own_size():
 def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_values():
     """Audit 65, F3: with 5 % noise on the positions of a 40-node bar, eq. (18) kept r = 33 of the rank 40 (noise
     fills the energy), the ROM missed its noisy training outputs, and the search's one trial, at r = 40, the
-    costliest and worst-conditioned fit, made the fit 47 s instead of 15 s to be 270 times further off.  The
+    costliest and worst-conditioned fit, made the fit 47 s instead of 15 s to be 272 relative RMS off.  The
     singular values of white noise on 40 x 1001 snapshots lie within (sqrt(1001) + sqrt(40)) / (sqrt(1001) -
     sqrt(40)) = 1.5 of each other (Marchenko-Pastur): the search now stops where the modes beyond lie on that floor,
     and says so.  The singular values are those of the exact response (matrix exponential) with and without the
