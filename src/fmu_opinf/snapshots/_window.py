@@ -562,12 +562,8 @@ def auto_window(
         except DataError:
             return  # the pilots say it again, after the step check has had its say
         window = settled(seen, t, dt, T, 1)
-        if window is None:
-            return
-        alias = aliased(dt, T)
-        window = _seen_finer(window, alias)
-        if reject(window):
-            raise WindowRejected(window)
+        if window is not None and reject(window):   # before the alias check: too wide for what it saw, wider still
+            raise WindowRejected(window)              # for a mode it missed
 
     recorded, stable = None, None
     if not exact_dt:
@@ -589,21 +585,17 @@ def auto_window(
             dt = on_internal_steps(dt / 4.0, internal)
             continue
         window = settled(seen, t, dt, T, pilot)
+        if window is not None and reject is not None and reject(window):
+            raise WindowRejected(window)
         alias = None if window is None else aliased(dt, T)
         if alias is not None and alias.aliased:  # a faster mode was missed: go on from the check run, at its step
-            rejected = reject is not None and reject(_seen_finer(window, alias))
             if not quiet:
-                print(f"auto window: {alias.describe(dt)}{'' if rejected else '; refining the pilots'}",
-                      file=sys.stderr)
-            if rejected:
-                raise WindowRejected(_seen_finer(window, alias))
+                print(f"auto window: {alias.describe(dt)}; refining the pilots", file=sys.stderr)
             dt, recorded = alias.dt, alias.run
             continue
         if window is not None:
             if alias is not None:   # the check run counts as a pilot
                 window = dataclasses.replace(window, pilots=window.pilots + 1)
-            if reject is not None and reject(window):
-                raise WindowRejected(window)
             if check_chosen_step:
                 check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
                                   isolate=isolate, max_dt=max_dt, exact_dt=exact_dt)
@@ -1107,15 +1099,6 @@ class _AliasCheck(NamedTuple):
         """What the check found, for the progress line."""
         return (f"a pilot at dt={self.dt:g} shows significant content up to {self.f_max:.4g} Hz, above the "
                 f"{0.5 / coarse:.4g} Hz that the pilot at dt={coarse:g} resolves (a fast mode was aliased there)")
-
-
-def _seen_finer(window: Window, alias: _AliasCheck | None) -> Window:
-    """``window`` with the fastest significant frequency that its check run (:func:`_alias_check`) showed above
-    the pilot's Nyquist frequency: what a caller's ``reject`` test judges (a pulse many periods of that frequency long
-    is shrunk before the pilots refine on the wide pulse's long run: audit 64's bar, 51201 steps at dt = 2e-4)."""
-    if alias is None or not alias.aliased:
-        return window
-    return dataclasses.replace(window, f_max=alias.f_max, pilots=window.pilots + 1)
 
 
 def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: float, energy: float, fade: float,
