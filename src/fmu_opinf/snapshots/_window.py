@@ -591,7 +591,8 @@ def auto_window(
         if alias is not None and alias.aliased:  # a faster mode was missed: go on from the check run, at its step
             if not quiet:
                 print(f"auto window: {alias.describe(dt)}; refining the pilots", file=sys.stderr)
-            dt, recorded = alias.dt, alias.run
+            dt = alias.dt
+            recorded = alias.run if np.array_equal(np.asarray(alias.run.t), time_grid(dt, T)) else None
             continue
         if window is not None:
             if alias is not None:   # the check run counts as a pilot
@@ -1082,8 +1083,9 @@ def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots:
                   **({} if stable is None else stable.window_fields()))
 
 
-#: Factor by which :func:`_alias_check` refines the step of a pilot that settled.
-ALIAS_REFINE = 4.0
+#: Factor by which :func:`_alias_check` refines the step of a pilot that settled, and the steps of that pilot
+#: after the input stopped that the check covers (a fast mode rings, and dies out, first).
+ALIAS_REFINE, ALIAS_SPAN = 4.0, 256
 
 
 class _AliasCheck(NamedTuple):
@@ -1113,13 +1115,15 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
     0.001 Hz in the samples, the window took 1.8 Hz (dt = 0.02), neither rule that shrinks the training pulse fired,
     and the ROM was 57-253 % off.  At a step four times smaller the same ringing lies at 20 Hz, above the coarse
     Nyquist frequency; a resolved model shows the same spectrum at both steps and keeps its window.  A mode whose
-    frequency is a whole multiple of ``ALIAS_REFINE / dt`` aliases to zero at both steps and is still missed."""
+    frequency is a whole multiple of ``ALIAS_REFINE / dt`` aliases to zero at both steps and is still missed.  The
+    check ends :data:`ALIAS_SPAN` steps of ``dt`` after the input stopped (or at ``T``): on the paper's triple chain
+    its pilots run to t = 2000 and beyond, where a check of the whole pilot would cost four times its steps."""
     fine = on_internal_steps(dt / ALIAS_REFINE, internal)
-    t = time_grid(fine, T)
+    t = time_grid(fine, min(T, t_input + ALIAS_SPAN * dt))
     if fine >= dt * (1.0 - 1e-9) or len(t) > max_steps:
         return None
     run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
-                              f"auto window: alias check (dt={fine:g}, t_end={T:g})", pilot=True)
+                              f"auto window: alias check (dt={fine:g}, t_end={t[-1]:g})", pilot=True)
     if failure is not None:
         raise incomplete_error(failure, run, None)
     seen = _analyse_pilot(source, signal, t, t_input, energy, fade, 0.0, quiet, isolate, run=run)
