@@ -217,7 +217,7 @@ def _stiff_light_bar(path, n=12, f1=20.0, zeta=0.005):
 
 def test_a_mode_the_first_pilot_aliases_still_sets_the_window(tmp_path):
     """Audit 64, finding 2: the first pilot's step (0.05, Nyquist 10 Hz) folded a lightly damped 20 Hz mode onto
-    a slow drift, and the window took 0.56 Hz for the fastest significant frequency (dt = 0.05).  The pilot that
+    a slow drift, and the window took 0.6 Hz for the fastest significant frequency (dt = 0.05).  The pilot that
     settled is now checked at a quarter of its step, which shows the mode above 10 Hz, and the pilots are refined.
     Reference: the model's first natural frequency."""
     from fmu_opinf.snapshots import auto_window
