@@ -562,8 +562,8 @@ def auto_window(
         except DataError:
             return  # the pilots say it again, after the step check has had its say
         window = settled(seen, t, dt, T, 1)
-        if window is not None and reject(window):   # before the alias check: too wide for what it saw, wider still
-            raise WindowRejected(window)              # for a mode it missed
+        if window is not None and reject(window):  # before the alias check: a pulse too wide for the modes the
+            raise WindowRejected(window)             # pilot saw is too wide for any it missed
 
     recorded, stable = None, None
     if not exact_dt:
@@ -1116,8 +1116,9 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
     and the ROM was 57-253 % off.  At a step four times smaller the same ringing lies at 20 Hz, above the coarse
     Nyquist frequency; a resolved model shows the same spectrum at both steps and keeps its window.  A mode whose
     frequency is a whole multiple of ``ALIAS_REFINE / dt`` aliases to zero at both steps and is still missed.  The
-    check ends :data:`ALIAS_SPAN` steps of ``dt`` after the input stopped (or at ``T``): on the paper's triple chain
-    its pilots run to t = 2000 and beyond, where a check of the whole pilot would cost four times its steps."""
+    check ends :data:`ALIAS_SPAN` steps of ``dt`` after the input stopped (or at ``T``): a slow, lightly damped
+    model's pilots run on for hundreds of periods (the paper's triple chain: its window ends at t = 884.5), and a
+    check of the whole pilot would cost four times its steps."""
     fine = on_internal_steps(dt / ALIAS_REFINE, internal)
     t = time_grid(fine, min(T, t_input + ALIAS_SPAN * dt))
     if fine >= dt * (1.0 - 1e-9) or len(t) > max_steps:
