@@ -7,9 +7,10 @@
  *     G x = 0 (ConstraintPosition, index 3)  or  G v = 0 (ConstraintVelocity, index 2).
  *
  * The generated config.h fixes the sizes and the constraint kind, and declares the identifier and
- * the instantiation token, which the generated fmu_identity.c defines.  A model only implements assembleSystem(): it adds the matrix
- * entries, computed from the parameter values, through addEntry().  The glue calls it
- * twice (once to count the entries, once to store them), so it must be deterministic.
+ * the instantiation token, which the generated fmu_identity.c defines.  A model only implements
+ * assembleSystem(): it adds the matrix entries, computed from the parameter values, through
+ * addEntry().  The glue calls it twice (once to count the entries, once to store them), so it must
+ * be deterministic.
  */
 #ifndef MODEL_H
 #define MODEL_H
