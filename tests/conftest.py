@@ -155,3 +155,20 @@ def build_fmu_set(request, tmp_path_factory, label: str, build, items) -> dict:
     folder = Path(cache.mkdir(label) if cache is not None else tmp_path_factory.mktemp(label))
     with ThreadPoolExecutor(max_workers=2) as pool:
         return dict(pool.map(lambda item: build(folder, item), items))
+
+
+@pytest.fixture
+def compiled(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """The object files that FMU builds had the compiler write (not those taken from the object cache), in order,
+    over the whole test."""
+    from fmu_opinf import fmus
+
+    written: list[str] = []
+    run = fmus._run_side_by_side
+
+    def spy(commands: list[list[str]], what: str) -> None:
+        written.extend(Path(command[-1]).name for command in commands if "-c" in command)
+        run(commands, what)
+
+    monkeypatch.setattr(fmus, "_run_side_by_side", spy)
+    return written

@@ -493,20 +493,12 @@ def test_a_serialized_state_is_refused_by_another_model_of_the_same_sizes(export
 
 # ------------------------------------------------------------------------ the object cache
 
-def test_an_export_under_another_name_compiles_only_the_name(rom, tmp_path, monkeypatch):
+def test_an_export_under_another_name_compiles_only_the_name(rom, tmp_path, monkeypatch, compiled):
     """Audit of 2026-12-06, F5: the name and GUID were in ``config.h``, which every unit includes, so an export under
     a new name compiled ``instance.c`` again and added a cache entry per name.  Now the second export compiles only
     the small unit holding them (never cached); both FMUs validate, keep their own identifier and GUID, and give
     bit-identical outputs that match the ROM's own simulation."""
     monkeypatch.setenv("FMU_OPINF_CACHE_DIR", str(tmp_path / "cache"))
-    compiled: list[str] = []
-    run = fmus._run_side_by_side
-
-    def spy(commands: list[list[str]], what: str) -> None:
-        compiled.extend(Path(command[-1]).name for command in commands if "-c" in command)
-        run(commands, what)
-
-    monkeypatch.setattr(fmus, "_run_side_by_side", spy)
     objects = tmp_path / "cache" / "objects"
     first = export.export_fmu(rom, tmp_path / "RomOne.fmu")
     assert len(compiled) == 5 and len(list(objects.glob("*.o"))) == 4

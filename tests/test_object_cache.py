@@ -36,20 +36,6 @@ def cache(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return tmp_path / "cache" / "objects"
 
 
-@pytest.fixture
-def compiled(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """The object files the compiler wrote (not those taken from the cache), in order, over the whole test."""
-    written: list[str] = []
-    run = fmus._run_side_by_side
-
-    def spy(commands: list[list[str]], what: str) -> None:
-        written.extend(Path(command[-1]).name for command in commands if "-c" in command)
-        run(commands, what)
-
-    monkeypatch.setattr(fmus, "_run_side_by_side", spy)
-    return written
-
-
 class Builds:
     """Builds of ``value.c`` (which returns the header's ``VALUE``) through the cache, each in a folder of its own."""
 
