@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fmu_opinf import demo
-from fmu_opinf.errors import Interrupted
+from fmu_opinf.errors import FileFormatError, Interrupted
 
 
 def _tree(folder: Path) -> dict[str, str]:
@@ -117,3 +117,53 @@ def test_a_manifest_naming_paths_outside_the_folder_is_not_followed(tmp_path):
         pass
     assert (outside / "file").read_text() == "keep me"
     assert sorted(path.name for path in out.iterdir()) == []
+
+
+def test_an_entry_that_cannot_be_set_aside_stops_the_run_in_one_line_and_nothing_is_removed(tmp_path, monkeypatch):
+    """Audit 67, finding 1: a model folder that cannot be renamed (a mount point: EBUSY) but whose files can be
+    deleted.  The put-back took every name still in the folder for this run's and deleted the previous run's files
+    (and the next run the summary files).  Now the run stops before any work and only what moved is moved back."""
+    import errno
+
+    _previous_run(tmp_path)
+    before = _tree(tmp_path)
+    rename = Path.rename
+
+    def busy(self: Path, target):
+        if self.name == "anchored-msd" and Path(target).parent.name == demo.PREVIOUS_RUN:
+            raise OSError(errno.EBUSY, "Device or resource busy", str(self))
+        return rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", busy)
+    monkeypatch.setattr(demo, "_run_cases", _half_written(AssertionError("the cases must not run")))
+    with pytest.raises(FileFormatError) as caught:
+        demo.run_demo(tmp_path, quiet=True)
+    message = str(caught.value)
+    assert "\n" not in message and str(tmp_path / "anchored-msd") in message and "-o" in message, message
+    assert _tree(tmp_path) == before
+    monkeypatch.setattr(Path, "rename", rename)
+    with demo._previous_run_kept(tmp_path, ["index.html"]):   # the next run finds nothing to put back or remove
+        pass
+    assert sorted(_tree(tmp_path)) == sorted(name for name in before if name != "index.html")
+
+
+def test_a_folder_that_cannot_be_written_is_refused_in_one_line_before_the_work(tmp_path, monkeypatch, capsys):
+    """Audit 67, finding 2: a read-only demo folder gave a traceback at the hidden folder's creation (exit 1); it
+    is the one-line error of before (exit 2), now before any case runs."""
+    from fmu_opinf import cli
+
+    _previous_run(tmp_path)
+    before = _tree(tmp_path)
+    mkdir = Path.mkdir
+
+    def read_only(self: Path, *args, **kwargs):
+        if self.name == demo.PREVIOUS_RUN:
+            raise PermissionError(1, "Operation not permitted", str(self))
+        return mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    monkeypatch.setattr(demo, "_run_cases", _half_written(AssertionError("the cases must not run")))
+    assert cli.main(["demo", "-o", str(tmp_path), "--quick"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err and "choose a writable location with -o" in err, err
+    assert _tree(tmp_path) == before

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
 
 from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
+from .errors import FileFormatError
 
 __all__ = ["DemoCase", "CASES", "run_demo"]
 
@@ -246,8 +247,9 @@ _SUMMARY_FILES = ("summary.json", "index.html")
 #: Hidden folder in the demo folder holding the previous run's entries while a run writes new ones.
 PREVIOUS_RUN = ".fmu-opinf-previous-run"
 _DELETING = PREVIOUS_RUN + "-deleting"
-#: File in :data:`PREVIOUS_RUN` naming the entries the run writes (a JSON list of names).
-_MANIFEST = "entries.json"
+#: File in :data:`PREVIOUS_RUN` naming the entries the run creates that did not exist before it (a JSON list of
+#: names): a put-back removes them; the entries set aside are those in the folder itself.
+_MANIFEST = "created.json"
 
 
 @contextlib.contextmanager
@@ -259,17 +261,15 @@ def _previous_run_kept(out_dir: Path, entries: list[str]) -> Iterator[None]:
     Files are written atomically, but a run writes dozens of them: an interrupted run left the folder with this
     run's files beside the previous run's.  The entries move by renames in the same folder (no copy, nothing
     left behind), with interrupts deferred while they move.  A run killed outright (SIGKILL) leaves the
-    previous entries in :data:`PREVIOUS_RUN`; the next run puts them back first, so they are never lost.
+    previous entries in :data:`PREVIOUS_RUN`; the next run puts them back first, so they are never lost.  Only
+    what was set aside, and what did not exist before, is ever removed: an entry that cannot be moved (a mount
+    point, a file held open elsewhere) stops the run in one line and stays as it is (audit 67, finding 1).
     """
     keep = out_dir / PREVIOUS_RUN
     _put_back(out_dir, keep)
     try:
         with _moving():
-            keep.mkdir()
-            (keep / _MANIFEST).write_text(json.dumps(entries))
-            for name in entries:
-                if (out_dir / name).exists() or (out_dir / name).is_symlink():
-                    (out_dir / name).rename(keep / name)
+            _set_aside(out_dir, keep, entries)
         yield
     except BaseException:
         _put_back(out_dir, keep)
@@ -279,35 +279,69 @@ def _previous_run_kept(out_dir: Path, entries: list[str]) -> Iterator[None]:
     shutil.rmtree(out_dir / _DELETING)
 
 
+def _set_aside(out_dir: Path, keep: Path, entries: list[str]) -> None:
+    """Move the existing ``entries`` of ``out_dir`` into ``keep``, after noting in its manifest those that do not
+    exist (the run creates them); one line naming the folder and ``-o`` where the folder is not writable."""
+    existing = [name for name in entries if _exists(out_dir / name)]
+    try:
+        keep.mkdir()
+        (keep / _MANIFEST).write_text(json.dumps([name for name in entries if name not in existing]))
+    except OSError as exc:
+        raise FileFormatError(f"cannot write in the demo folder {out_dir} ({exc.strerror or exc}); choose a "
+                              "writable location with -o") from None
+    for name in existing:
+        try:
+            (out_dir / name).rename(keep / name)
+        except OSError as exc:
+            raise FileFormatError(f"cannot set the previous run's {out_dir / name} aside while the demo writes a "
+                                  f"new one ({exc.strerror or exc}); the demo folder was left as it was: choose "
+                                  "another folder with -o") from None
+
+
 def _put_back(out_dir: Path, keep: Path) -> None:
-    """Remove the entries of ``out_dir`` that the run behind ``keep`` (if it exists) writes, move the previous
-    ones back from it, then remove it (and what a killed run was deleting)."""
+    """Remove the entries of ``out_dir`` that the run behind ``keep`` (if it exists) set aside or created, move
+    the ones set aside back, then remove ``keep`` (and what a killed run was deleting)."""
     if (out_dir / _DELETING).is_dir():
         shutil.rmtree(out_dir / _DELETING)
     if not keep.is_dir():
         return
     with _moving():
-        for name in _written_entries(keep):
-            target = out_dir / name
-            if target.is_dir() and not target.is_symlink():
-                shutil.rmtree(target)
-            elif target.exists() or target.is_symlink():
-                target.unlink()
-            if (keep / name).exists() or (keep / name).is_symlink():
-                (keep / name).rename(target)
-        shutil.rmtree(keep)
+        kept = [entry.name for entry in keep.iterdir() if entry.name != _MANIFEST]
+        try:
+            for name in sorted(set(kept) | set(_created_entries(keep))):
+                _remove(out_dir / name)
+                if name in kept:
+                    (keep / name).rename(out_dir / name)
+            shutil.rmtree(keep)
+        except OSError as exc:
+            raise FileFormatError(f"cannot put the previous demo run back from {keep} into {out_dir} "
+                                  f"({exc.strerror or exc}); its files are in {keep}") from None
 
 
-def _written_entries(keep: Path) -> list[str]:
+def _created_entries(keep: Path) -> list[str]:
     """The entry names in ``keep``'s manifest (plain names only: the folder is data, nothing in it names a path
-    outside the demo folder); without a readable manifest, the entries kept in it."""
+    outside the demo folder); none without a readable manifest (nothing unknown is removed)."""
     try:
         names = json.loads((keep / _MANIFEST).read_text())
     except (OSError, ValueError):
-        names = [entry.name for entry in keep.iterdir() if entry.name != _MANIFEST]
-    plain = [name for name in names if isinstance(name, str) and name not in ("", ".", "..", _MANIFEST)
-             and Path(name).name == name]
-    return sorted(plain)
+        return []
+    if not isinstance(names, list):
+        return []
+    return [name for name in names if isinstance(name, str) and name not in ("", ".", "..", _MANIFEST)
+            and Path(name).name == name]
+
+
+def _exists(path: Path) -> bool:
+    """Whether anything (a broken link too) is at ``path``."""
+    return path.exists() or path.is_symlink()
+
+
+def _remove(path: Path) -> None:
+    """Remove the file, link or folder at ``path``, if any."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif _exists(path):
+        path.unlink()
 
 
 def _moving() -> contextlib.AbstractContextManager[None]:
