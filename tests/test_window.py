@@ -450,3 +450,33 @@ def test_model_exchange_pilots_run_at_a_looser_tolerance_and_choose_the_same_win
         failure = source._integration_failure(3, 0.0, 0.1, "step too small")
     assert "tolerance 1e-06, in a pilot run of the automatic window" in failure, failure
     assert "give --dt and --t-end" in failure and "--tolerance" not in failure, failure
+
+
+class FailsBelowStep(Oscillator):
+    """An oscillator whose steps fail below ``h_min`` (as an FMU with a smallest communication step would)."""
+
+    def __init__(self, omega: float, zeta: float, h_min: float) -> None:
+        super().__init__(omega, zeta)
+        self.h_min, self.refused = h_min, 0
+
+    def recipe(self):
+        return FailsBelowStep, {"omega": self.omega, "zeta": self.zeta, "h_min": self.h_min}
+
+    def step(self, t: float, h: float, u) -> None:
+        if h < self.h_min:
+            self.refused += 1
+            raise sources.StepError(f"step {h:g} below the smallest step {self.h_min:g}", 0, t)
+        super().step(t, h, u)
+
+
+def test_an_alias_check_that_cannot_run_leaves_the_pilot_s_window():
+    """The alias check reruns a settled pilot at a quarter of its step; a source that refuses that step (here below
+    0.02) stopped the whole window with the check's failure, although the window's own step works.  Now the check
+    says nothing and the window is the one an oscillator that takes every step gets (the check finds nothing
+    there: 0.2 Hz is far below the pilot's Nyquist frequency)."""
+    omega, zeta = 2 * math.pi * 0.2, 0.05
+    refusing = FailsBelowStep(omega, zeta, h_min=0.02)
+    window = auto_window(refusing, IMPULSE)
+    assert refusing.refused >= 1   # the check was tried, at a step the source refuses
+    plain = auto_window(Oscillator(omega, zeta), IMPULSE)
+    assert (window.dt, window.t_end, window.f_max) == (plain.dt, plain.t_end, plain.f_max)

@@ -1107,7 +1107,8 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
                  quiet: bool, isolate: bool, internal: float | None, max_steps: int) -> _AliasCheck | None:
     """Run the pilot that settled at step ``dt`` again at :data:`ALIAS_REFINE` times smaller a step, and say whether
     its fastest significant frequency lies above the Nyquist frequency of ``dt`` (None where the step cannot be
-    refined: an FMU's fixed internal step, or more than ``max_steps`` steps).
+    refined: an FMU's fixed internal step, or more than ``max_steps`` steps; or where the run at the finer step
+    fails, which the recording at the pilot's step does not take).
 
     The samples of a pilot are exact whatever its step, so a mode above its Nyquist frequency is not missing from
     them: it is folded onto a slower frequency (aliased), and the spectrum cannot tell.  Audit 64, finding 2: an FE
@@ -1125,8 +1126,8 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
         return None
     run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
                               f"auto window: alias check (dt={fine:g}, t_end={t[-1]:g})", pilot=True)
-    if failure is not None:
-        raise incomplete_error(failure, run, None)
+    if failure is not None:  # a check that cannot run says nothing: the pilot's window, at its step, stands
+        return None
     seen = _analyse_pilot(source, signal, t, t_input, energy, fade, 0.0, quiet, isolate, run=run)
     return _AliasCheck(fine, run, seen.f_max, seen.f_max > 0.5 / dt)
 
