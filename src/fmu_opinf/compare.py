@@ -176,15 +176,14 @@ def order_note(metrics: dict[str, Any]) -> str | None:
     origin = (f"the ROM's order r={r} came from the POD energy (eq. 18)" if order["chosen"] == "energy"
               else f"the fit's order search kept r={r}" + (f" (tried r={', '.join(map(str, tried))})" if tried else ""))
     opening = f"{name} is {relative:.2g} of its range off, and {origin} on snapshots of rank {order['snapshot_rank']}"
-    larger = min(2 * r, order["snapshot_rank"])
-    if larger not in tried and not any(value > r for value in tried) and not order.get("noise_floor"):
-        return (f"{opening}: a larger order may follow this input (fit --r {larger}, then compare again); if it "
-                "does not, train with an input nearer this one")
     floor = order.get("noise_floor")
     if floor:
         return (f"{opening}: its singular values from s_{floor} on lie on a noise floor, so larger orders fit the "
                 f"noise; a smaller order may follow this input better (fit --r {max(int(floor) - 1, 1)}, then "
                 "compare again), and less noisy snapshots would")
+    if not any(value > r for value in tried):   # (2 r, or the rank above r, was not tried)
+        return (f"{opening}: a larger order may follow this input (fit --r {min(2 * r, order['snapshot_rank'])}, "
+                "then compare again); if it does not, train with an input nearer this one")
     return (f"{opening}: the larger orders it tried did not fit the training outputs enough better to be kept; "
             "train with an input nearer this one (or add it as a training run)")
 

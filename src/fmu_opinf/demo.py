@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
 
+from ._interrupts import deferred_interrupts
 from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
 from .errors import FileFormatError
 
@@ -260,21 +261,22 @@ def _previous_run_kept(out_dir: Path, entries: list[str]) -> Iterator[None]:
 
     Files are written atomically, but a run writes dozens of them: an interrupted run left the folder with this
     run's files beside the previous run's.  The entries move by renames in the same folder (no copy, nothing
-    left behind), with interrupts deferred while they move.  A run killed outright (SIGKILL) leaves the
-    previous entries in :data:`PREVIOUS_RUN`; the next run puts them back first, so they are never lost.  Only
+    left behind), with interrupts deferred while they move (the folder is never half moved).  A run killed
+    outright (SIGKILL) leaves the previous entries in :data:`PREVIOUS_RUN`; the next run puts them back first, so
+    they are never lost.  Only
     what was set aside, and what did not exist before, is ever removed: an entry that cannot be moved (a mount
     point, a file held open elsewhere) stops the run in one line and stays as it is (audit 67, finding 1).
     """
     keep = out_dir / PREVIOUS_RUN
     _put_back(out_dir, keep)
     try:
-        with _moving():
+        with deferred_interrupts():
             _set_aside(out_dir, keep, entries)
         yield
     except BaseException:
         _put_back(out_dir, keep)
         raise
-    with _moving():  # renamed first: a run killed while deleting must not put back half of the previous run
+    with deferred_interrupts():  # renamed first: a run killed while deleting must not put back half of the previous run
         keep.rename(out_dir / _DELETING)
     shutil.rmtree(out_dir / _DELETING)
 
@@ -305,7 +307,7 @@ def _put_back(out_dir: Path, keep: Path) -> None:
         shutil.rmtree(out_dir / _DELETING)
     if not keep.is_dir():
         return
-    with _moving():
+    with deferred_interrupts():
         kept = [entry.name for entry in keep.iterdir() if entry.name != _MANIFEST]
         try:
             for name in sorted(set(kept) | set(_created_entries(keep))):
@@ -342,13 +344,6 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path)
     elif _exists(path):
         path.unlink()
-
-
-def _moving() -> contextlib.AbstractContextManager[None]:
-    """Interrupts deferred (in the main thread) while entries move: the folder is never half moved."""
-    from ._interrupts import deferred_interrupts
-
-    return deferred_interrupts()
 
 
 #: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked.

@@ -693,7 +693,6 @@ def output_error_objective(
     return value if np.isfinite(value) else float("inf")
 
 
-
 #: RMS, relative to the largest output's, at or below which :func:`output_errors` does not judge an output: what it
 #: holds is the recording's round-off (1e-10 relative tolerance), not a response.
 SILENT_OUTPUT = 1e-8
@@ -736,6 +735,7 @@ def output_errors(
     errors[judged] = squared[judged] / norms[judged]
     errors[judged & ~np.isfinite(squared)] = np.inf
     return errors
+
 
 def _run_lengths(run_lengths: list[int] | None, k: int, dt: float) -> list[int]:
     lengths = [k] if run_lengths is None else [int(v) for v in run_lengths]

@@ -541,19 +541,19 @@ def auto_window(
         return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
                        periods, t_input, stopped_by, internal, dt if exact_dt else None, stable)
 
-    checks: dict[float, _AliasCheck | None] = {}
+    checked: list[_AliasCheck | None] = []   # the one check run, once made
     unrefined = dt
 
     def aliased(dt: float, T: float) -> _AliasCheck | None:
-        """The check run of a pilot that settled at the step ``dt`` (:func:`_alias_check`), once per step, and only
-        at the step the pilots started from: a step that a pilot refined to follows the model's own spectrum, and a
+        """The check run of a pilot that settled at the step ``dt`` (:func:`_alias_check`), made once and only at
+        the step the pilots started from: a step that a pilot refined to follows the model's own spectrum, and a
         step coarsened to was resolved twice over by a finer pilot."""
         if exact_dt or dt != unrefined:
             return None
-        if dt not in checks:
-            checks[dt] = _alias_check(source, signal, dt, T, t_input, energy, fade, quiet, isolate, internal,
-                                      max_steps)
-        return checks[dt]
+        if not checked:
+            checked.append(_alias_check(source, signal, dt, T, t_input, energy, fade, quiet, isolate, internal,
+                                        max_steps))
+        return checked[0]
 
     def reject_first_pilot(run: Any) -> None:
         t = time_grid(dt, T)
