@@ -62,3 +62,48 @@ def test_round_off_poles_of_a_free_free_rom_are_neither_unstable_nor_negatively_
     line = _pole_summary(info["poles"])
     assert "natural frequencies 1.41 .. 1.41 rad/s, damping ratios 0 .. 0; 2 zero pole(s) (rigid-body motion)" in line
     assert "-1" not in line
+
+
+@pytest.mark.parametrize("late", ["clean-up", "remembered"])
+def test_a_ctrl_c_after_the_work_is_done_is_not_an_interrupted_run(tmp_path, monkeypatch, capsys, late):
+    """A Ctrl-C to the process group as a demo ends (audit 67) landed after the demo had written everything: the
+    command exited 130 with no message, or said the folder was left as it was before the run, though it held the
+    new run.  Once the verb's work is done, a late Ctrl-C says so and the exit code stays 0."""
+    import contextlib
+
+    from fmu_opinf.snapshots import _isolation
+
+    done = []
+    monkeypatch.setitem(cli._VERBS, "build-fmus", lambda args: done.append((tmp_path / "out.txt").write_text("x")))
+    if late == "clean-up":  # in the clean-up after the verb: the fork server's setting being restored
+        real = _isolation.use_fork_server
+
+        def restore_interrupted(enabled):
+            real(enabled)
+            if done:
+                raise KeyboardInterrupt
+
+        monkeypatch.setattr(_isolation, "use_fork_server", restore_interrupted)
+    else:  # remembered while the verb ran (swallowed in a finalizer) and raised at the end of the command
+
+        @contextlib.contextmanager
+        def raised_at_the_end():
+            yield
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(cli, "remembered_interrupts", raised_at_the_end)
+    assert cli.main(["build-fmus", "-o", str(tmp_path / "fmus")]) == 0
+    assert done and (tmp_path / "out.txt").read_text() == "x"
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "fmu-opinf: Ctrl-C arrived after build-fmus had finished; its outputs are complete"]
+
+
+def test_a_ctrl_c_before_the_work_is_done_is_still_an_interrupt(tmp_path, monkeypatch, capsys):
+    """The counterpart: the verb itself interrupted exits 130 with the interrupt's message."""
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli._VERBS, "build-fmus", interrupted)
+    assert cli.main(["build-fmus", "-o", str(tmp_path / "fmus")]) == 130
+    assert capsys.readouterr().err.strip().startswith("fmu-opinf: interrupted (Ctrl-C)")
