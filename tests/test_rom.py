@@ -766,6 +766,81 @@ def test_a_chain_under_a_constant_load_started_off_equilibrium_gets_the_order_it
     assert rom.r == n and error.max() < 1e-9, (rom.r, error)   # measured 2.1e-10 (r = 4: 0.11 .. 0.61)
 
 
+def test_free_response_errors_measure_each_run_until_its_inputs_change():
+    """:func:`fmu_opinf.refinement.free_response_errors` against a by-hand figure: a model with a 10 % stiffer
+    spring, simulated by the exact zero-order-hold response (:func:`fmu_opinf.lti_fmus.zoh_response`, not the
+    refinement's step), over the samples before the first run's pulse, relative to the recorded outputs' variation
+    about their mean.  A run whose inputs change at once has no free response; a start at rest has none to judge."""
+    from dataclasses import replace
+
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.refinement import FREE_RESPONSE_SAMPLES, free_response_errors
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+    n, dt = 6, 0.05
+    model = lti_fmus.chain_model(n, inputs=(n - 1,), x0=0.1 * np.sin(np.arange(n)), v0=0.2 * np.cos(np.arange(n)))
+    stiffer = replace(model, K=1.1 * model.K)
+    t = time_grid(dt, 6.0)
+    pulse_u = inputs_in_effect(parse_signal("impulse:amplitude=5,t0=1,width=0.5", 1), t, 1)
+    changing_u = inputs_in_effect(parse_signal("harmonic:amplitude=1,omega=3", 1), t, 1)
+    runs = [(u, lti_fmus.zoh_response(model, t, u[:, 1:])) for u in (pulse_u, changing_u)]
+    free = int(np.flatnonzero(pulse_u[0] != pulse_u[0, 0])[0])   # samples before the pulse acts on the outputs
+    assert free >= FREE_RESPONSE_SAMPLES > np.flatnonzero(changing_u[0] != changing_u[0, 0])[0]
+    recorded = runs[0][1].y[:, :free]
+    wrong = lti_fmus.zoh_response(stiffer, t[:free], pulse_u[:, 1:free]).y
+    motion = recorded - recorded.mean(axis=1, keepdims=True)
+    expected = np.sum((wrong - recorded) ** 2, axis=1) / np.sum(motion ** 2, axis=1)
+
+    def errors(runs, K):
+        u = np.hstack([u for u, _ in runs])
+        x, v, y = (np.hstack([getattr(run, name) for _, run in runs]) for name in ("x", "v", "y"))
+        return free_response_errors(model.M, model.D, K, model.B, v, x, u, y, dt, output_map=(model.Cp, model.Cv),
+                                    run_lengths=[t.size] * len(runs), integrator="exact")
+
+    assert expected.min() > 1e-3   # the stiffer spring is visible in the free response
+    np.testing.assert_allclose(errors(runs, stiffer.K), expected, rtol=1e-8)
+    np.testing.assert_allclose(errors(runs, model.K), 0.0, atol=1e-20)
+    at_rest = replace(model, x0=np.zeros(n), v0=np.zeros(n))
+    resting = [(u, lti_fmus.zoh_response(at_rest, t, u[:, 1:])) for u in (pulse_u, changing_u)]
+    assert np.all(np.isnan(errors(resting, stiffer.K)))
+
+
+@pytest.mark.slow
+def test_a_chain_started_off_rest_reproduces_its_free_response():
+    """Audit 69, F2: a 20-mass chain started off rest (no load), three force inputs and two acceleration sensors.
+    Pooled over whole runs the 100 N training pulses dwarf the motion from the start values: the order search kept
+    r = 18 at a training error of 7e-4, and the ROM run with no input was 6.7 % of an acceleration's range off the
+    source.  Judging each run's free response on its own grows the order to the snapshots' rank.  Reference: the
+    exact zero-order-hold response of the full model."""
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+    n, dt, t_end = 20, 0.05, 60.0
+    s = np.arange(n) / (n - 1)
+    model = lti_fmus.chain_model(n, inputs=(0, n // 2, n - 1),
+                                 x0=0.05 * np.sin(np.pi * s) + 0.02 * np.sin(3 * np.pi * s),
+                                 v0=0.1 * np.sin(2 * np.pi * s), acceleration_outputs=(n - 1, n // 3),
+                                 output_offset=0.1)
+    t = time_grid(dt, t_end)
+
+    def exact(spec):
+        u = inputs_in_effect(parse_signal(spec, 3), t, 3)   # u[:, i + 1] is held over [t_i, t_i+1]
+        return u, lti_fmus.zoh_response(model, t, u[:, 1:])
+
+    pulse = "impulse:amplitude=100,t0=2,width=0.5"
+    runs = [Run(t, u, y.x, y.v, y.a, y.y) for u, y in
+            map(exact, [";".join(pulse if j == i else "none" for j in range(3)) for i in range(3)])]
+    rom = fit_rom(runs, integrator="exact")
+    eighteen = next(entry for entry in rom.fit_info["order_search"] if entry["r"] == 18)   # kept before
+    assert eighteen["training_output_error"] < TRAINING_MISS < eighteen["judged"], eighteen
+    reference = exact("none;none;none")[1].y
+    error = np.abs(rom.simulate("none;none;none", dt, t_end).y - reference).max(axis=1) / np.ptp(reference, axis=1)
+    assert rom.r == n and error.max() < 3e-13, (rom.r, error)   # measured 3.2e-14 (before: r = 18, 0.067)
+
+
 def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_values():
     """Audit 65, F3: with 5 % noise on the positions of a 40-node bar, eq. (18) kept r = 33 of the rank 40 (noise
     fills the energy), the ROM missed its noisy training outputs, and the search's one trial, at r = 40, the

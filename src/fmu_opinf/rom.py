@@ -965,7 +965,9 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
     if miss is None or not miss > TRAINING_MISS:
         return
     order = f"r={r}" + (f", the closest of r={', '.join(map(str, tried))} tried" if tried else "")
-    worst = "" if miss == objective else f"output y[{info['worst_output'] + 1}]; "
+    worst = "" if miss == objective else (f"output y[{info['worst_output'] + 1}]"
+                                           + (" in the free response from the start values"
+                                              if info.get("worst_in_free_response") else "") + "; ")
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
                   f"({worst}training output error {objective:.2g}): check that --positions names positions only "
                   f"(a velocity or a force among them cannot be fitted), that the order suffices ({order}; --r), "
@@ -1621,12 +1623,14 @@ def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray],
 
 def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
                    output_map: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
-    """Each training output's relative squared error, each relative to its own size
-    (:func:`fmu_opinf.refinement.output_errors`), as ``{"output_errors": [...], "worst_output_error": e,
-    "worst_output": j}`` (0-based ``j``; NaN for a silent output), for the model fitted (in its modal coordinates,
-    if any) with its output map; empty where the training runs cannot be simulated (``simulated``: the keywords
-    of :func:`_refinement` on the sampled states).  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
-    from .refinement import output_errors
+    """Each training output's relative squared error, each relative to its own size, over the whole runs
+    (:func:`fmu_opinf.refinement.output_errors`) and over their free responses
+    (:func:`fmu_opinf.refinement.free_response_errors`), as ``{"output_errors": [...], "free_response_errors":
+    [...], "worst_output_error": e, "worst_output": j, "worst_in_free_response": bool}`` (0-based ``j``, the larger
+    of the two figures; None where an output was not judged), for the model fitted (in its modal coordinates, if
+    any) with its output map; empty where the training runs cannot be simulated (``simulated``: the keywords of
+    :func:`_refinement` on the sampled states).  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
+    from .refinement import free_response_errors, output_errors
 
     if not simulated.get("refine"):
         return {}
@@ -1637,14 +1641,22 @@ def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulat
         if ops.output_map is None:   # a map of the POD coordinates
             C = C @ ops.coordinates
     r = data["x"].shape[0]
-    errors = output_errors(ops.Mr, ops.Dr, ops.Kr, ops.Br, z[r:], z[:r], u, simulated["y"], simulated["dt"],
-                           output_map=(C[:, :r], C[:, r:]), run_lengths=simulated["run_lengths"],
-                           integrator=simulated["integrator"])
-    if not np.any(np.isfinite(errors) | np.isinf(errors)):
-        return {"output_errors": [None] * len(errors)}
-    worst = int(np.nanargmax(errors))
-    return {"output_errors": [None if np.isnan(e) else float(e) for e in errors],
-            "worst_output_error": float(errors[worst]), "worst_output": worst}
+    arguments = (ops.Mr, ops.Dr, ops.Kr, ops.Br, z[r:], z[:r], u, simulated["y"], simulated["dt"])
+    options = {"output_map": (C[:, :r], C[:, r:]), "run_lengths": simulated["run_lengths"],
+               "integrator": simulated["integrator"]}
+    errors, free = output_errors(*arguments, **options), free_response_errors(*arguments, **options)
+    result: dict[str, Any] = {"output_errors": _listed(errors), "free_response_errors": _listed(free)}
+    combined = np.fmax(errors, free)
+    if not np.any(np.isfinite(combined) | np.isinf(combined)):
+        return result
+    worst = int(np.nanargmax(combined))
+    return dict(result, worst_output_error=float(combined[worst]), worst_output=worst,
+                worst_in_free_response=bool(free[worst] > errors[worst]))
+
+
+def _listed(errors: np.ndarray) -> list[float | None]:
+    """Errors as a JSON-ready list (None for NaN: nothing judged)."""
+    return [None if np.isnan(e) else float(e) for e in errors]
 
 
 def _net_outputs(y: np.ndarray, u: np.ndarray, Dur: np.ndarray, y0: np.ndarray) -> np.ndarray:
