@@ -380,3 +380,21 @@ def test_a_worker_s_warnings_are_said_by_the_caller_once_each(client, monkeypatc
     assert [o.name for o in outcomes] == ["r0", "r1", "r2"]
     said = sorted(str(w.message) for w in seen)
     assert said == ["row 0 looks odd", "row 1 looks odd", "row 2 looks odd", "the same for every row"]
+
+
+def test_a_table_recorded_from_python_with_integer_times_is_skipped_by_the_same_settings_as_floats(tmp_path):
+    """``t_end=20`` (Python) and ``--t-end 20`` (a float on the command line) are the same setting: the rerun
+    skips the row (audit 68: the stamps held 20 and 20.0, and every row was recorded again)."""
+    table = _write_table(tmp_path, {"imp": GOOD["imp"]}, ["imp"])
+    first = runs.record_runs(SOURCE, table, tmp_path / "out", quiet=True, dt=0.1, t_end=20, g=40)
+    assert [o.status for o in first.outcomes] == ["recorded"]
+    again = runs.record_runs(SOURCE, table, tmp_path / "out", quiet=True, **SETTINGS)
+    assert [o.status for o in again.outcomes] == ["skipped"]
+
+
+def test_a_tls_scheduler_without_tls_settings_is_a_one_line_error():
+    """``tls://`` without distributed's TLS configuration raised distributed's TypeError (a traceback, exit 1;
+    audit 68); it is a one-line error naming the configuration."""
+    with pytest.raises(FmuOpinfError, match="distributed.comm.tls"):
+        with runs.dask_client("tls://127.0.0.1:1"):
+            pass

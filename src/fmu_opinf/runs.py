@@ -34,6 +34,7 @@ import functools
 import hashlib
 import json
 import math
+import numbers
 import os
 import re
 import sys
@@ -527,6 +528,10 @@ def dask_client(scheduler: Any) -> Iterator[Any]:
         except (OSError, TimeoutError) as exc:
             raise FmuOpinfError(f"cannot reach the dask scheduler at {address} ({exc}); start it or check "
                                 "the address") from None
+        except TypeError as exc:  # tls:// without TLS settings: distributed asks for an ssl_context
+            raise FmuOpinfError(f"cannot connect to the dask scheduler at {address} ({exc}); for tls:// set "
+                                "distributed's distributed.comm.tls configuration (ca-file, client cert and key), "
+                                "or pass a distributed.Client with its Security in Python") from None
         with client:
             yield client
         return
@@ -607,8 +612,8 @@ def record_runs(
     validate_rows(rows, source_spec, source_options)
     out_dir = _output_directory(output)
     source_spec = _shared_spec(source_spec)
-    settings = {k: v for k, v in {"dt": dt, "t_end": t_end, "auto_window": auto_window or None}.items()
-                if v is not None}
+    settings = {k: v for k, v in {"dt": _as_float(dt), "t_end": _as_float(t_end),
+                                  "auto_window": auto_window or None}.items() if v is not None}
     from .snapshots._record import is_free_response
 
     forced = any(not is_free_response(row.input) for row in rows)
@@ -630,6 +635,27 @@ def record_runs(
                                  lambda row: (source_spec, row, str(out_dir), row_settings(row), source_options,
                                               isolate))
     return RunTableReport(outcomes, time.perf_counter() - started)
+
+
+def _as_float(value: Any) -> Any:
+    """A recording setting as the command line gives it: an integer (``t_end=150`` from Python) as a float.
+
+    The row stamps compare settings as JSON text: ``150`` and ``150.0`` (the command line's) differed, and a
+    table recorded from Python was recorded again, row by row, by the same command line (audit 68).
+
+    Parameters
+    ----------
+    value : Any
+        ``dt`` or ``t_end`` as given, or None.
+
+    Returns
+    -------
+    Any
+        ``float(value)`` for an integer (not a bool), else ``value`` unchanged (checked where it is used).
+    """
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        return float(value)
+    return value
 
 
 def _shared_spec(source_spec: Any) -> str:
