@@ -809,3 +809,20 @@ def test_a_carried_cosine_is_centred_on_the_comparison_s_steps():
         3 * np.pi / 2 + 9.13 * 0.01, abs=1e-9)
     shifted = carried.replace(f"phase={cosine_phase(9.13, 0.01)!r}", "phase=1.3744")
     assert parse_signal(carried_for_grid(shifted, "rom.fmu", 1, 0.02, 1000.0)).params["phase"] == 1.3744
+
+
+def test_error_figures_of_outputs_near_the_top_of_the_floating_point_range_are_finite():
+    """Audit 68: outputs of about 1e160 overflowed when squared, and compare printed eps_y = nan with exit code 0.
+    A ROM 0.1 % off everywhere has eq. (19) 1e-6 and relative errors 1e-3 at any scale."""
+    from fmu_opinf.compare import error_metrics
+
+    t = np.linspace(0.0, 6 * np.pi, 600, endpoint=False)   # whole periods: the outputs' means are 0
+    for size in (1.0, 1e160, 1e300):
+        y_ref = size * np.vstack([np.sin(t), 2 * np.cos(t)])
+        metrics = error_metrics(y_ref, 1.001 * y_ref)
+        assert metrics["max_error"] == pytest.approx(1e-6, rel=1e-9), size
+        assert metrics["l2_error"] == pytest.approx(1e-3, rel=1e-9), size
+        assert metrics["max_error_variation"] == pytest.approx(1e-6, rel=1e-9), size
+        first = metrics["per_output"]["y[1]"]
+        assert first["relative_max"] == pytest.approx(1e-3, rel=1e-9), size
+        assert first["absolute_max"] == pytest.approx(1e-3 * size, rel=1e-6), size

@@ -48,14 +48,24 @@ def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
     -------
     (k,) ndarray
     """
-    y_ref = np.atleast_2d(np.asarray(y_ref, dtype=float))
-    y = np.atleast_2d(np.asarray(y, dtype=float))
-    if y_ref.shape != y.shape:
-        raise DimensionError(f"outputs differ in shape: reference {y_ref.shape}, ROM {y.shape}")
+    y_ref, y = _in_reference_units(y_ref, y)
     scale = np.max(np.sum(y_ref**2, axis=0))
     if scale == 0:
         raise DimensionError("the reference output is identically zero; eq. (19) is undefined")
     return np.sum((y_ref - y) ** 2, axis=0) / scale
+
+
+def _in_reference_units(y_ref: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Both outputs divided by the reference's largest magnitude: the error measures are ratios, and squaring raw
+    outputs above about 1e154 overflowed to a NaN error reported as a success (audit 68)."""
+    y_ref = np.atleast_2d(np.asarray(y_ref, dtype=float))
+    y = np.atleast_2d(np.asarray(y, dtype=float))
+    if y_ref.shape != y.shape:
+        raise DimensionError(f"outputs differ in shape: reference {y_ref.shape}, ROM {y.shape}")
+    unit = float(np.max(np.abs(y_ref))) if y_ref.size else 0.0
+    if not (math.isfinite(unit) and unit > 0):
+        return y_ref, y
+    return y_ref / unit, y / unit
 
 
 def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | None = None) -> dict[str, Any]:
@@ -74,8 +84,9 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
     """
     eps = output_error(y_ref, y)
-    y_ref = np.atleast_2d(y_ref)
-    y = np.atleast_2d(y)
+    unit = float(np.max(np.abs(np.atleast_2d(y_ref)))) if np.size(y_ref) else 0.0
+    y_ref, y = _in_reference_units(y_ref, y)
+    unit = unit if math.isfinite(unit) and unit > 0 else 1.0
     names = output_names or [f"y[{j + 1}]" for j in range(y_ref.shape[0])]
     per_output = {}
     for j, name in enumerate(names):
@@ -86,7 +97,7 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
             "relative_l2": float(np.linalg.norm(diff) / np.linalg.norm(y_ref[j])) if peak > 0 else math.nan,
             "relative_max": float(np.abs(diff).max() / peak) if peak > 0 else math.nan,
             "relative_max_variation": float(np.abs(diff).max() / span) if span > 0 else math.nan,
-            "absolute_max": float(np.abs(diff).max()),
+            "absolute_max": float(np.abs(diff).max()) * unit,
         }
     moving = y_ref - y_ref.mean(axis=1, keepdims=True)
     scale = float(np.max(np.sum(moving**2, axis=0)))
