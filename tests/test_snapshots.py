@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import re
 import sys
 from pathlib import Path
 
@@ -92,6 +93,23 @@ def test_round_trip_keeps_arrays_and_attributes(tmp_path):
         np.testing.assert_array_equal(x[:, 10:20], snaps.runs[0].x[:, 10:20])
         np.testing.assert_array_equal(lazy.concatenate("x"), np.hstack([r.x for r in snaps.runs]))
     assert not x.id.valid  # closed by the context manager
+
+
+@pytest.mark.parametrize(("kind", "layout", "message"), [
+    (snapshots.FILE_KIND, 0, "snapshot layout 0, which no fmu-opinf wrote (layouts start at 1)"),
+    ("something else", snapshots.LAYOUT_VERSION, "not an fmu-opinf snapshot file (kind='something else', not"),
+])
+def test_a_snapshot_file_of_no_layout_or_another_kind_is_named_as_such(tmp_path, kind, layout, message):
+    """Audit 68: layout 0 (written by no version) was read as a snapshot file, and a file of another kind was said
+    to have no kind attribute.  The attributes are edited on purpose, so the seal goes too."""
+    from fmu_opinf._seal import SEAL_ATTR
+
+    path = small_snapshots().save(tmp_path / "s.h5")
+    with h5py.File(path, "r+") as f:
+        f.attrs["kind"], f.attrs["layout_version"] = kind, layout
+        del f.attrs[SEAL_ATTR]
+    with pytest.raises(FileFormatError, match=re.escape(message)):
+        Snapshots.load(path)
 
 
 def test_save_never_clobbers_and_overwrite_is_atomic(tmp_path):

@@ -254,12 +254,18 @@ class Snapshots:
         attrs = decode(read_attrs(f))
         attrs.pop("n_runs", None)  # structural: len(runs)
         attrs.pop(SEAL_ATTR, None)  # describes this file only: a file saved from these attributes gets its own
-        if attrs.get("kind") != FILE_KIND or "layout_version" not in attrs:
+        if "kind" not in attrs or "layout_version" not in attrs:
             raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (no kind/layout_version attributes)")
+        if attrs["kind"] != FILE_KIND:
+            raise FileFormatError(f"{path} is not an fmu-opinf snapshot file (kind={attrs['kind']!r}, not "
+                                  f"{FILE_KIND!r})")
         check_attr_types(attrs, SNAPSHOT_FILE_ATTRS, str(path))
         if int(attrs["layout_version"]) > LAYOUT_VERSION:
             raise FileFormatError(f"{path} has snapshot layout {attrs['layout_version']}, newer than this tool's "
                                   f"{LAYOUT_VERSION}; upgrade fmu-opinf")
+        if int(attrs["layout_version"]) < 1:   # the first layout is 1 (a ROM file's 0 was refused, this one read)
+            raise FileFormatError(f"{path} has snapshot layout {attrs['layout_version']}, which no fmu-opinf wrote "
+                                  "(layouts start at 1); the file is damaged or not this tool's")
         group = f.get("runs")
         if group is not None and not isinstance(group, h5py.Group):
             raise FileFormatError(f"{path}: 'runs' is not a group; the file is damaged")
