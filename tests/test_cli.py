@@ -107,3 +107,24 @@ def test_a_ctrl_c_before_the_work_is_done_is_still_an_interrupt(tmp_path, monkey
     monkeypatch.setitem(cli._VERBS, "build-fmus", interrupted)
     assert cli.main(["build-fmus", "-o", str(tmp_path / "fmus")]) == 130
     assert capsys.readouterr().err.strip().startswith("fmu-opinf: interrupted (Ctrl-C)")
+
+
+def test_build_fmus_replaces_fmus_in_a_given_folder_only_with_force(tmp_path, monkeypatch, capsys):
+    """Audit 68: ``build-fmus -o DIR`` replaced a file of the user's without ``--force``, and ``--g 0`` / ``--g 1``
+    gave two different lower bounds.  The tool's own folder (no ``-o``) is still rebuilt in place."""
+    from fmu_opinf import fmus
+
+    mine = tmp_path / "AnchoredMSD.fmu"
+    mine.write_text("not built by fmu-opinf")
+    built = []
+    monkeypatch.setattr(fmus, "build_fmus", lambda out_dir, g, n1: built.append(out_dir) or [])
+    assert cli.main(["build-fmus", "-o", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == f"fmu-opinf: error: {mine} exists; pass --force to replace it"
+    assert mine.read_text() == "not built by fmu-opinf" and not built
+    assert cli.main(["build-fmus", "-o", str(tmp_path), "--force"]) == 0 and built == [str(tmp_path)]
+    assert cli.main(["build-fmus"]) == 0 and built[-1] == fmus.bundled_fmu_dir()
+    monkeypatch.undo()
+    for g in ("0", "1"):
+        assert cli.main(["build-fmus", "-o", str(tmp_path / "new"), "--g", g]) == 2
+        assert capsys.readouterr().err.strip().endswith("is invalid for AnchoredMSD; use an integer g >= 3")
+    assert not (tmp_path / "new").exists()

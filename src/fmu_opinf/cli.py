@@ -246,9 +246,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars or stage lines")
 
     p = verbs.add_parser("build-fmus", help="build the benchmark FMUs from their C sources")
-    p.add_argument("-o", "--output", default=None, help="directory for the FMUs (default: the fmus/ folder)")
-    p.add_argument("--g", type=int, default=600, help="anchored chain size")
-    p.add_argument("--n1", type=int, default=100, help="triple chain masses per chain")
+    p.add_argument("-o", "--output", default=None,
+                   help="directory for the FMUs (default: the tool's own folder, rebuilt in place: fmus/ of a "
+                        "checkout, or fmus/ in the user cache folder of an installed package, $FMU_OPINF_CACHE_DIR)")
+    p.add_argument("--g", type=int, default=600, help="anchored chain size (masses, at least 3)")
+    p.add_argument("--n1", type=int, default=100, help="triple chain masses per chain (even, at least 4)")
+    p.add_argument("--force", action="store_true", help="replace existing FMUs in the -o directory")
     return parser
 
 
@@ -353,9 +356,13 @@ def _run_demo(args: argparse.Namespace) -> None:
 
 
 def _run_build_fmus(args: argparse.Namespace) -> None:
-    from .fmus import build_fmus, bundled_fmu_dir
+    from .fmus import BENCHMARK_MODELS, build_fmus, bundled_fmu_dir
 
     out_dir = args.output if args.output is not None else bundled_fmu_dir()
+    if args.output is not None and not args.force:   # the tool's own folder is rebuilt in place
+        for name in BENCHMARK_MODELS:
+            if (Path(out_dir) / f"{name}.fmu").exists():
+                raise FileExistsError(f"{Path(out_dir) / f'{name}.fmu'} exists; pass --force to replace it")
     for path in build_fmus(out_dir=out_dir, g=args.g, n1=args.n1):
         print(f"built {path}")
 
@@ -375,7 +382,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
             v.check_not_dangling(getattr(args, option), flag)
     for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
-    for option, least in (("r", 1), ("g", 1), ("n1", 1), ("refine_iterations", 0)):
+    sizes = () if args.verb == "build-fmus" else (("g", 1), ("n1", 1))   # build-fmus names the FMUs' own bounds
+    for option, least in (("r", 1), *sizes, ("refine_iterations", 0)):
         value = getattr(args, option, None)
         if value is not None and value < least:
             raise InputSpecError(f"--{option.replace('_', '-')} {value} must be at least {least}")
