@@ -10,7 +10,7 @@ from fmu_opinf.errors import FileFormatError
 
 from test_cli import run_cli
 
-SPEC = dict(input_spec="impulse:amplitude=100,t0=2,width=0.5", dt=0.5, t_end=20.0, quiet=True)
+SPEC = dict(signal="impulse:amplitude=100,t0=2,width=0.5", dt=0.5, t_end=20.0, quiet=True)
 
 
 def test_an_output_named_by_a_pipe_is_refused_and_the_pipe_stays(tmp_path):
@@ -30,7 +30,7 @@ def test_the_command_line_refuses_a_pipe_before_the_work(tmp_path, verb, suffix)
     snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
     fifo = tmp_path / f"pipe{suffix}"
     os.mkfifo(fifo)
-    args = {"snapshots": ["builtin:anchored-msd", "--input", SPEC["input_spec"], "--dt", "0.5", "--t-end", "20"],
+    args = {"snapshots": ["builtin:anchored-msd", "--input", SPEC["signal"], "--dt", "0.5", "--t-end", "20"],
             "fit": [str(snaps), "--r", "2"], "export": [str(snaps)]}[verb]
     done = run_cli(verb, *args, "-o", str(fifo), "--force")
     assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr

@@ -782,3 +782,21 @@ def test_a_slow_model_reports_its_progress_in_a_log(monkeypatch, capsys):
     assert len(lines) >= 2 and lines[-1].endswith("(ended)") and "121/121" in lines[-1]
     record(BuiltinSource("anchored-msd", g=4), "step", 0.5, 60.0, quiet=False)
     assert "after" not in capsys.readouterr().err
+
+
+def test_record_to_file_names_the_input_signal_like_record_and_compare(tmp_path):
+    """Audit 68: the input was ``signal=`` in ``record`` and ``compare`` but ``input_spec=`` here, and ``energy=``
+    meant the auto window's spectral share here but the POD energy in ``fit_rom``.  The old keywords still work,
+    with a DeprecationWarning, and give the same file."""
+    spec = "harmonic:amplitude=1,omega=0.5"
+    new = snapshots.record_to_file("builtin:anchored-msd", tmp_path / "new.h5", signal=spec, dt=0.5, t_end=10.0,
+                                   quiet=True, g=12)
+    with pytest.warns(DeprecationWarning, match=r"input_spec=\.\.\.\) is now signal="):
+        old = snapshots.record_to_file("builtin:anchored-msd", tmp_path / "old.h5", input_spec=spec, dt=0.5,
+                                       t_end=10.0, quiet=True, g=12)
+    a, b = Snapshots.load(str(new)), Snapshots.load(str(old))
+    np.testing.assert_array_equal(a.runs[0].x, b.runs[0].x)
+    assert a.runs[0].attrs["input_spec"] == parse_signal(spec).spec
+    with pytest.warns(DeprecationWarning, match=r"energy=\.\.\.\) is now window_energy="):
+        snapshots.record_to_file("builtin:anchored-msd", tmp_path / "e.h5", signal=spec, auto_window=True,
+                                 energy=0.99, quiet=True, g=12)

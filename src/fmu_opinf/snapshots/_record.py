@@ -762,10 +762,18 @@ class RecordSummary:
         return "\n".join(lines)
 
 
+def _renamed(options: dict[str, Any], old: str, new: str, value: Any) -> Any:
+    """``options[old]`` (popped, with a DeprecationWarning naming ``new``) where an older keyword was given."""
+    if old not in options:
+        return value
+    warnings.warn(f"record_to_file({old}=...) is now {new}=...", DeprecationWarning, stacklevel=3)
+    return options.pop(old)
+
+
 def record_to_file(
     source_spec: str | os.PathLike | Source,
     output: str | os.PathLike,
-    input_spec: str | Sequence[str],
+    signal: "str | Signal | Sequence[str | Signal] | None" = None,
     dt: float | None = None,
     t_end: float | None = None,
     auto_window: bool = False,
@@ -780,7 +788,7 @@ def record_to_file(
     tolerance: float | None = None,
     start_time: float | None = None,
     points_per_period: float = 20.0,
-    energy: float = 0.999,
+    window_energy: float = 0.999,
     fade: float = 0.01,
     overwrite: bool = False,
     quiet: bool = False,
@@ -796,9 +804,11 @@ def record_to_file(
         ``builtin:anchored-msd``, ``builtin:triple-chain`` or an ``.fmu`` path.
     output : str or path-like
         HDF5 file to create (atomically).
-    input_spec : str or sequence of str
+    signal : str, Signal or sequence of them, optional
         Input signal specification(s) (:func:`fmu_opinf.signals.parse_signal`; a single-channel
-        spec drives every input) or signal objects; one run each.  Default (None or empty):
+        spec drives every input) or signal objects; one run each; the name :func:`record` and
+        :func:`fmu_opinf.compare.compare` give it (``input_spec=`` still works, with a
+        DeprecationWarning).  Default (None or empty):
         :func:`default_training_inputs`: :data:`DEFAULT_TRAINING_INPUT` on each input in a run of its own, or
         the free response of a model without inputs.
     dt, t_end : float, optional
@@ -822,8 +832,10 @@ def record_to_file(
     start_time : float, optional
         FMU time at which every run (pilots included) starts; the recorded times start at 0.  Default: the FMU's
         ``DefaultExperiment/@startTime``, else 0.
-    points_per_period, energy, fade : float
-        Thresholds of :func:`auto_window`.
+    points_per_period, window_energy, fade : float
+        Thresholds of :func:`auto_window` (``window_energy`` is its ``energy``, the share of the pilots' spectral
+        energy below the fastest significant frequency; named apart from the POD energy of
+        :func:`fmu_opinf.rom.fit_rom`; ``energy=`` still works, with a DeprecationWarning).
     overwrite : bool, default=False
     quiet : bool, default=False
     isolate : bool, default=True
@@ -844,7 +856,9 @@ def record_to_file(
     from ._window import (auto_window as choose_window, combine_windows, default_window, needs_auto_window,
                           warn_if_step_dependent)
 
-    specs = [input_spec] if isinstance(input_spec, str) else list(input_spec or [])
+    signal = _renamed(size_options, "input_spec", "signal", signal)
+    window_energy = _renamed(size_options, "energy", "window_energy", window_energy)
+    specs = [signal] if isinstance(signal, (str, Signal)) else list(signal or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs:
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
     source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
@@ -887,7 +901,7 @@ def record_to_file(
         # (model exchange has no communication step: a declared one bounds nothing there, and at 1 ms the pilots
         # of a slow model took 1e7 steps)
         bound = None if step_declared and getattr(source, "interface", None) == "me" else dt
-        thresholds = dict(points_per_period=points_per_period, energy=energy, fade=fade, isolate=isolate,
+        thresholds = dict(points_per_period=points_per_period, energy=window_energy, fade=fade, isolate=isolate,
                           quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None)
         if by_default and source.m:
             window, signals = _default_training_window(source, thresholds)
