@@ -40,6 +40,7 @@ import re
 import sys
 import time
 import warnings
+import weakref
 from pathlib import Path
 from typing import Any, Callable, Iterator, Sequence
 
@@ -509,33 +510,56 @@ def _require_distributed() -> Any:
 
 
 @contextlib.contextmanager
-def dask_client(scheduler: Any) -> Iterator[Any]:
+def dask_client(scheduler: Any, isolate: bool = False) -> Iterator[Any]:
     """A ``distributed.Client`` for a scheduler spec (or the given client, left open), closed afterwards.
 
     ``local[:N]`` starts a local cluster of N single-threaded worker processes (default: one per core).  Its
     workers are not daemonic, so that a worker can start the recorder's isolated child process for an FMU;
     workers of a running cluster (``tcp://...``) need the same setting (``DASK_DISTRIBUTED__WORKER__DAEMON=False``
-    in their environment) to record FMUs with isolation.
+    in their environment) to record FMUs with isolation.  With ``isolate`` (FMU runs in child processes), the
+    workers of a given client or address are checked for that once per client, before any row runs.
     """
     distributed = _require_distributed()
     if isinstance(scheduler, distributed.Client):
+        _check_workers_can_isolate(scheduler, isolate)
         yield scheduler
         return
     address, workers = parse_scheduler(str(scheduler))
-    if address != "local":
-        try:
-            client = distributed.Client(address, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise FmuOpinfError(f"cannot reach the dask scheduler at {address} ({exc}); start it or check "
-                                "the address") from None
-        except TypeError as exc:  # tls:// without TLS settings: distributed asks for an ssl_context
-            raise FmuOpinfError(f"cannot connect to the dask scheduler at {address} ({exc}); for tls:// set "
-                                "distributed's distributed.comm.tls configuration (ca-file, client cert and key), "
-                                "or pass a distributed.Client with its Security in Python") from None
-        with client:
+    if address == "local":
+        with _local_cluster_client(distributed, workers) as client:
             yield client
         return
+    try:
+        client = distributed.Client(address, timeout="20s")
+    except (OSError, TimeoutError) as exc:
+        raise FmuOpinfError(f"cannot reach the dask scheduler at {address} ({exc}); start it or check "
+                            "the address") from None
+    except TypeError as exc:  # tls:// without TLS settings: distributed asks for an ssl_context
+        raise FmuOpinfError(f"cannot connect to the dask scheduler at {address} ({exc}); for tls:// set "
+                            "distributed's distributed.comm.tls configuration (ca-file, client cert and key), "
+                            "or pass a distributed.Client with its Security in Python") from None
+    with client:
+        _check_workers_can_isolate(client, isolate)
+        yield client
+
+
+@contextlib.contextmanager
+def _local_cluster_client(distributed: Any, workers: int | None) -> Iterator[Any]:
+    """A client of a new local cluster, closed when the block ends (also on Ctrl-C, before the interpreter's exit).
+
+    Ctrl-C from a terminal reaches the whole process group: the workers printed ``KeyboardInterrupt`` tracebacks
+    (in the middle of their imports, too), and a Ctrl-C while the cluster started left it half made, for
+    distributed's exit hook to fail on (audit 68).  So a Ctrl-C while the cluster starts is deferred until the
+    cluster and its client are ready to be closed, and each worker ignores SIGINT once it runs (the client acts on
+    it).  The workers close their running rows cleanly
+    (:class:`fmu_opinf._dask_plugin.StopRowsOnClose`), and distributed logs only errors (the table's outcome
+    names a row that was retried after a lost worker).
+    """
+    import logging
+
     import dask
+
+    from ._dask_plugin import StopRowsOnClose
 
     # Workers are not daemonic (an FMU's isolated child process), and their glibc keeps its dynamic mmap threshold:
     # distributed's default MALLOC_TRIM_THRESHOLD_ disables it, so that every array above 128 kB of a simulation
@@ -543,12 +567,72 @@ def dask_client(scheduler: Any) -> Iterator[Any]:
     environ = {k: v for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items()
                if k != "MALLOC_TRIM_THRESHOLD_"}
     # The workers' statistical profiler (a stack sample every 10 ms) costs a run ~10% CPU: off.
-    with dask.config.set({"distributed.worker.daemon": False, "distributed.nanny.pre-spawn-environ": environ,
-                          "distributed.worker.profile.enabled": False}):
-        cluster = distributed.LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                                           processes=True, dashboard_address=None)
-        with cluster, distributed.Client(cluster) as client:
-            yield client
+    settings = {"distributed.worker.daemon": False, "distributed.nanny.pre-spawn-environ": environ,
+                "distributed.worker.profile.enabled": False}
+    with dask.config.set(settings), contextlib.ExitStack() as stack:
+        with _interrupts_after():  # a Ctrl-C meanwhile is raised once both are ready to be closed
+            cluster = stack.enter_context(distributed.LocalCluster(
+                n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                dashboard_address=None, silence_logs=logging.ERROR))
+            client = stack.enter_context(distributed.Client(cluster))
+            client.register_plugin(StopRowsOnClose())
+        yield client
+
+
+@contextlib.contextmanager
+def _interrupts_after() -> Iterator[None]:
+    """SIGINT and SIGTERM only noted while the block runs, and raised as
+    :class:`~fmu_opinf.errors.Interrupted` when it ends, also when the block failed meanwhile (workers that a
+    Ctrl-C to the process group hit in their imports make the cluster fail to start).  Main thread only."""
+    import signal
+    import threading
+
+    from .errors import Interrupted
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    noted: list[int] = []
+    previous = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(signum) not in (signal.SIG_IGN, None)}
+    for signum in previous:
+        signal.signal(signum, lambda number, frame: noted.append(number))
+    try:
+        yield
+    except Exception as exc:
+        if noted:
+            raise Interrupted(noted[0]) from exc
+        raise
+    finally:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
+    if noted:
+        raise Interrupted(noted[0])
+
+
+def _worker_is_daemonic() -> bool:
+    import multiprocessing
+
+    return bool(multiprocessing.current_process().daemon)
+
+
+def _check_workers_can_isolate(client: Any, isolate: bool) -> None:
+    """Stop with one line if the client's workers are daemonic processes and FMU runs are to be isolated: every
+    row would fail with a bare ``AssertionError: daemonic processes are not allowed to have children`` (audit 68,
+    a ``LocalCluster`` made with Dask's defaults)."""
+    if not isolate or client in _ISOLATION_CHECKED:
+        return
+    daemonic = sorted(address for address, flag in client.run(_worker_is_daemonic).items() if flag)
+    if daemonic:
+        raise FmuOpinfError(f"the Dask workers {', '.join(daemonic)} are daemonic processes, which cannot start the "
+                            "FMU's isolated child process; start them with DASK_DISTRIBUTED__WORKER__DAEMON=False "
+                            "(or dask.config distributed.worker.daemon=False), or pass isolate=False "
+                            "(command line: --in-process)")
+    _ISOLATION_CHECKED.add(client)
+
+
+#: Clients whose workers were found able to start isolated FMU processes (a client is checked once).
+_ISOLATION_CHECKED: weakref.WeakSet = weakref.WeakSet()
 
 
 # ---------------------------------------------------------------------------------------------
