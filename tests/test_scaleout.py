@@ -12,6 +12,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -398,3 +399,129 @@ def test_a_tls_scheduler_without_tls_settings_is_a_one_line_error():
     with pytest.raises(FmuOpinfError, match="distributed.comm.tls"):
         with runs.dask_client("tls://127.0.0.1:1"):
             pass
+
+
+# ---------------------------------------------------------------------------------------------
+# Interrupts, lost workers and daemonic workers (audit 68, findings 1, 4 and 5)
+# ---------------------------------------------------------------------------------------------
+LONG_T_END = "1e5"  # a row of 1e6 steps: minutes, so a Ctrl-C finds it running
+
+
+def _cli(arguments: list[str], tmp_path: Path) -> subprocess.Popen:
+    """The command line in its own process group (a Ctrl-C to the group, as a terminal sends it)."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src"),
+           "TMPDIR": str(tmp_path / "tmp")}
+    (tmp_path / "tmp").mkdir(exist_ok=True)
+    return subprocess.Popen([sys.executable, "-m", "fmu_opinf.cli", *arguments], start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def _interrupt_when(proc: subprocess.Popen, ready: Any, timeout: float = 120.0) -> tuple[str, str]:
+    """SIGINT to the process group once ``ready()`` holds; the command's stdout and stderr."""
+    import signal
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not ready():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the rows did not start in time"
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        return proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _not_warnings(err: str) -> list[str]:
+    """stderr without the tool's one-line warnings (the failing rows' overflow, said by the tool itself)."""
+    return [line for line in err.strip().splitlines() if not line.startswith("fmu-opinf: warning: ")]
+
+
+def _temporaries(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp") or ".partial." in p.name)
+
+
+@pytest.mark.slow  # 8 s on the 2-core machine of 2026-12-06 (a local cluster starts, two rows are interrupted)
+def test_ctrl_c_during_a_distributed_table_leaves_one_line_naming_the_written_rows_and_no_temporaries(tmp_path):
+    """Two rows fail at once (their ``NAME.incomplete.h5`` is written by a worker), two run for minutes; Ctrl-C
+    then: the tool's line is all of stderr, it names the files the workers wrote, and the interrupted rows leave
+    no temporary file (audit 68: 3-5 tracebacks and log lines, "no output file was written or replaced", and a
+    ``.NAME.partial.h5.XXXX.tmp`` per interrupted row)."""
+    table = tmp_path / "runs.csv"
+    table.write_text(f'name,input\nboom1,"{FAILING[1]}"\nboom2,"{FAILING[1]}"\n'
+                     'long1,"harmonic:amplitude=1,omega=0.7"\nlong2,"harmonic:amplitude=1,omega=0.5"\n')
+    out = tmp_path / "set"
+    proc = _cli(["snapshots", SOURCE, "--runs", str(table), "-o", str(out), "--g", "40", "--dt", "0.1",
+                 "--t-end", LONG_T_END, "--scheduler", "local:2", "-q"], tmp_path)
+    written = [out / "boom1.incomplete.h5", out / "boom2.incomplete.h5"]
+
+    def ready() -> bool:
+        return out.is_dir() and all(p.exists() for p in written) and len(list(out.glob(".long*.tmp"))) == 2
+
+    _, err = _interrupt_when(proc, ready)
+    assert proc.returncode == 130, err
+    lines = _not_warnings(err)
+    assert len(lines) == 1 and err.strip().splitlines()[-1] == lines[0], err
+    assert lines[0].startswith("fmu-opinf: interrupted (Ctrl-C); written before it: ")
+    assert all(str(path) in lines[0] for path in written) and "long" not in lines[0]
+    assert _temporaries(out) == []
+    assert sorted(p.name for p in out.iterdir()) == ["boom1.incomplete.h5", "boom2.incomplete.h5"]
+
+
+def test_ctrl_c_in_a_serial_table_names_the_row_file_not_its_intermediate(tmp_path):
+    """Serial: the last line named the hidden ``.NAME.partial.h5`` that had been renamed (audit 68)."""
+    table = tmp_path / "runs.csv"
+    table.write_text(f'name,input\nboom,"{FAILING[1]}"\nlong,"harmonic:amplitude=1,omega=0.7"\n')
+    out = tmp_path / "set"
+    proc = _cli(["snapshots", SOURCE, "--runs", str(table), "-o", str(out), "--g", "40", "--dt", "0.1",
+                 "--t-end", LONG_T_END, "-q"], tmp_path)
+    _, err = _interrupt_when(proc, lambda: out.is_dir() and bool(list(out.glob(".long*.tmp"))))
+    assert proc.returncode == 130, err
+    assert _not_warnings(err) == [f"fmu-opinf: interrupted (Ctrl-C); written before it: {out / 'boom.incomplete.h5'}; "
+                                  "every other output was left as it was"], err
+    assert _temporaries(out) == []
+
+
+def test_a_row_recorded_again_removes_the_temporaries_an_earlier_attempt_left(tmp_path):
+    """A worker killed mid-row (by its nanny after a Ctrl-C, or lost and retried by Dask) leaves its temporary
+    files; the row's next recording removes them, and only files of the tool's own pattern for that row."""
+    table = _write_table(tmp_path, GOOD, ["imp", "harm"])
+    out = tmp_path / "set"
+    out.mkdir()
+    stale = [".imp.partial.h5", ".imp.partial.h5.k2_x9q0a.tmp", ".harm.partial.h5.zzzzzzzz.tmp"]
+    kept = [".imp.partial.h5.k2_x9q0.tmp", ".imp.partial.h5.K2_X9Q0A.tmp", ".imp2.partial.h5.k2_x9q0a.tmp",
+            "imp.h5.k2_x9q0a.tmp", ".imp.partial.h5.k2_x9q0a.tmp.bak", "notes.txt"]
+    for name in stale + kept:
+        (out / name).write_bytes(b"x" * 96)
+    report = runs.record_runs(SOURCE, table, out, quiet=True, **SETTINGS)
+    assert [o.status for o in report.outcomes] == ["recorded", "recorded"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(kept + ["imp.h5", "harm.h5"])
+    (out / ".harm.partial.h5.abcdefgh.tmp").write_bytes(b"x")  # a complete row, skipped: its debris goes too
+    again = runs.record_runs(SOURCE, table, out, quiet=True, **SETTINGS)
+    assert [o.status for o in again.outcomes] == ["skipped", "skipped"]
+    assert sorted(p.name for p in out.iterdir()) == sorted(kept + ["imp.h5", "harm.h5"])
+
+
+@pytest.mark.slow  # 5 s on the 2-core machine of 2026-12-06 (a cluster of daemonic workers starts)
+def test_daemonic_workers_with_isolation_are_one_line_error_naming_the_fix():
+    """A user's LocalCluster with Dask's default (daemonic) workers failed every FMU row with a bare
+    ``AssertionError: daemonic processes are not allowed to have children`` (audit 68)."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    with dask.config.set({"distributed.worker.daemon": True}), \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as user_client:
+        with pytest.raises(FmuOpinfError, match="DASK_DISTRIBUTED__WORKER__DAEMON=False") as caught:
+            with runs.dask_client(user_client, isolate=True):
+                pass
+        assert "\n" not in str(caught.value) and "isolate=False" in str(caught.value)
+        with runs.dask_client(user_client, isolate=False) as same:  # no child processes: fine
+            assert same is user_client
+
+
+def test_a_row_retried_after_a_lost_worker_says_so():
+    outcome = runs.RunOutcome(2, "b", "recorded", "b.h5", 10, 1.0, worker="tcp://w", retries=1)
+    assert outcome.line().endswith("on tcp://w (retried after 1 lost worker(s))")

@@ -295,13 +295,16 @@ class RunOutcome:
     error: str = ""
     worker: str = ""
     cpu_seconds: float = 0.0
+    retries: int = 0
 
     def line(self) -> str:
         """One line for progress output."""
         text = f"row {self.number} ({self.name}): {self.status}"
+        again = f" (retried after {self.retries} lost worker(s))" if self.retries else ""
         if self.status != "failed":
-            return f"{text}, k={self.k} samples, {self.seconds:.2f}s" + (f" on {self.worker}" if self.worker else "")
-        return f"{text}: {self.error}"
+            return (f"{text}, k={self.k} samples, {self.seconds:.2f}s" + (f" on {self.worker}" if self.worker else "")
+                    + again)
+        return f"{text}: {self.error}{again}"
 
 
 @dataclasses.dataclass
@@ -457,10 +460,11 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
     out_dir = Path(out_dir)
     final, failed = out_dir / f"{row.name}.h5", out_dir / f"{row.name}{INCOMPLETE_SUFFIX}"
     stamp = _stamp(source_spec, row, settings, options)
+    partial = out_dir / f".{row.name}.partial.h5"
+    _remove_stale_temporaries(partial)
     done, k = _is_done(final, stamp)
     if done:
         return RunOutcome(row.number, row.name, "skipped", str(final), k, worker=_worker_name())
-    partial = out_dir / f".{row.name}.partial.h5"
     started, cpu, error = time.perf_counter(), _cpu_seconds(), ""
     try:
         record_to_file(source_spec, partial, row.input, overwrite=True, quiet=True, isolate=isolate,
@@ -471,14 +475,50 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
     if not partial.exists():
         final.unlink(missing_ok=True)  # a result of an earlier version of this row is not this row's result
         return RunOutcome(row.number, row.name, "failed", None, 0, seconds, error, _worker_name(), cpu)
-    k = _stamp_file(partial, stamp)
     target = failed if error else final
-    check_interrupt()  # a Ctrl-C swallowed in an h5py finalizer: the row's previous result stays
-    os.replace(partial, target)
+    k = _move_into_place(partial, target, stamp)
     error = error.replace(str(partial), str(target))
     (final if error else failed).unlink(missing_ok=True)
     return RunOutcome(row.number, row.name, "failed" if error else "recorded", str(target), k, seconds, error,
                       _worker_name(), cpu)
+
+
+def _move_into_place(partial: Path, target: Path, stamp: dict[str, Any]) -> int:
+    """Stamp the row's intermediate file and rename it to ``target``; the list of written outputs
+    (:data:`fmu_opinf._hdf5.REPLACED`) names ``target``, not the hidden intermediate (audit 68).  Interrupted
+    before the rename, the intermediate is removed and the row's previous result stays."""
+    from ._hdf5 import REPLACED
+
+    try:
+        k = _stamp_file(partial, stamp)
+        check_interrupt()  # a Ctrl-C swallowed in an h5py finalizer: the row's previous result stays
+        os.replace(partial, target)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    finally:
+        while partial in REPLACED:
+            REPLACED.remove(partial)
+    REPLACED.append(target)
+    return k
+
+
+def _remove_stale_temporaries(partial: Path) -> None:
+    """Remove what an earlier attempt at this row left: the intermediate ``partial`` and the temporary files
+    that :func:`fmu_opinf._hdf5.atomic_path` makes for it (``.NAME.partial.h5.XXXXXXXX.tmp``).  A worker killed by
+    its nanny after a Ctrl-C, or lost and retried by Dask, cannot remove its own (audit 68).  Only names of exactly
+    that pattern, of this row, are touched."""
+    from ._hdf5 import _TEMPORARY_PREFIX
+
+    pattern = re.compile(re.escape(partial.name[:_TEMPORARY_PREFIX] + ".") + r"[a-z0-9_]{8}\.tmp")
+    try:
+        entries = list(os.scandir(partial.parent))
+    except OSError:
+        return
+    for entry in entries:
+        if (entry.name == partial.name or pattern.fullmatch(entry.name)) and entry.is_file(follow_symlinks=False):
+            with contextlib.suppress(OSError):
+                os.unlink(entry.path)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -708,16 +748,19 @@ def record_runs(
 
     show = progress or _progress_printer(quiet)
     started = time.perf_counter()
-    if scheduler is None:
-        outcomes = []
-        for i, row in enumerate(rows):
-            outcomes.append(record_row(source_spec, row, out_dir, row_settings(row), source_options, isolate))
-            show(outcomes[-1], i + 1, len(rows))
-    else:
-        with dask_client(scheduler) as client:
-            outcomes = _map_rows(client, record_row, rows, show,
-                                 lambda row: (source_spec, row, str(out_dir), row_settings(row), source_options,
-                                              isolate))
+    outputs = {path: path for row in rows for path in (out_dir / f"{row.name}.h5", out_dir / f"{row.name}"
+                                                       f"{INCOMPLETE_SUFFIX}")}
+    with _written_named_on_interrupt(outputs):
+        if scheduler is None:
+            outcomes = []
+            for i, row in enumerate(rows):
+                outcomes.append(record_row(source_spec, row, out_dir, row_settings(row), source_options, isolate))
+                show(outcomes[-1], i + 1, len(rows))
+        else:
+            with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
+                outcomes = _map_rows(client, record_row, rows, show,
+                                     lambda row: (source_spec, row, str(out_dir), row_settings(row), source_options,
+                                                  isolate))
     return RunTableReport(outcomes, time.perf_counter() - started)
 
 
@@ -740,6 +783,38 @@ def _as_float(value: Any) -> Any:
     if isinstance(value, numbers.Integral) and not isinstance(value, bool):
         return float(value)
     return value
+
+
+def _is_fmu(source_spec: Any) -> bool:
+    """Whether runs of the source are isolated in a child process when asked (FMUs; not ``builtin:`` ones)."""
+    return not os.fspath(source_spec).startswith("builtin:")
+
+
+def _identity(path: Path) -> tuple[int, ...] | None:
+    try:
+        info = path.stat()
+    except OSError:
+        return None
+    return info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns, info.st_ctime_ns
+
+
+@contextlib.contextmanager
+def _written_named_on_interrupt(outputs: dict[Path, Path]) -> Iterator[None]:
+    """On Ctrl-C, add to :data:`fmu_opinf._hdf5.REPLACED` each output (key) whose file (value) was written or
+    replaced since the block began, for the command's last line: workers write rows that this process never hears
+    of once it is interrupted (audit 68: "no output file was written or replaced" after two rows were).  The block
+    must hold the cluster's closing, so that no worker writes after the check."""
+    before = {shown: _identity(probe) for shown, probe in outputs.items()}
+    try:
+        yield
+    except KeyboardInterrupt:
+        from ._hdf5 import REPLACED
+
+        for shown, probe in outputs.items():
+            now = _identity(probe)
+            if now is not None and now != before[shown] and shown not in REPLACED:
+                REPLACED.append(shown)
+        raise
 
 
 def _shared_spec(source_spec: Any) -> str:
@@ -771,9 +846,26 @@ def _map_rows(client: Any, function: Callable, rows: Sequence[RunRow], show: Cal
             _warn_here(said)
         except Exception as exc:  # a crashed worker or an unexpected error: report it with its row
             outcome = RunOutcome(row.number, row.name, "failed", error=f"{type(exc).__name__}: {exc}")
+        _note_retries(client, future, outcome)
         outcomes[row.number] = outcome
         show(outcome, done, len(rows))
     return [outcomes[row.number] for row in rows]
+
+
+def _lost_worker_count(key: str, dask_scheduler: Any = None) -> int:
+    """On the scheduler: how often the task's worker was lost while it ran the task (Dask then runs it again)."""
+    task = dask_scheduler.tasks.get(key)
+    return int(getattr(task, "suspicious", 0)) if task is not None else 0
+
+
+def _note_retries(client: Any, future: Any, outcome: Any) -> None:
+    """Put in the row's outcome how often Dask ran it again after a lost worker (one round trip to the scheduler;
+    nothing if the scheduler does not answer)."""
+    target = outcome[0] if isinstance(outcome, tuple) else outcome
+    try:
+        target.retries = int(client.run_on_scheduler(_lost_worker_count, future.key))
+    except Exception:  # noqa: BLE001 - a note only: a scheduler that refuses to run it leaves it out
+        pass
 
 
 def _warnings_returned(function: Callable, *arguments: Any) -> tuple[Any, list[tuple[bool, str]]]:
@@ -887,7 +979,9 @@ def compare_runs(
             outcomes.append(unpack(compare_row(*task(row))))
             show(outcomes[-1], i + 1, len(rows))
     else:
-        with dask_client(scheduler) as client:
+        isolate = bool(source_options.get("isolate", True)) and _is_fmu(source_spec)
+        reports = {out_dir / row.name: out_dir / row.name / "index.html" for row in rows}
+        with _written_named_on_interrupt(reports), dask_client(scheduler, isolate=isolate) as client:
             pairs = _map_rows(client, compare_row, rows, lambda *a: None, task)
         outcomes = []
         for i, pair in enumerate(pairs):
