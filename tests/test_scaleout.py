@@ -504,7 +504,6 @@ def test_a_row_recorded_again_removes_the_temporaries_an_earlier_attempt_left(tm
     assert sorted(p.name for p in out.iterdir()) == sorted(kept + ["imp.h5", "harm.h5"])
 
 
-@pytest.mark.slow  # 5 s on the 2-core machine of 2026-12-06 (a cluster of daemonic workers starts)
 def test_daemonic_workers_with_isolation_are_one_line_error_naming_the_fix():
     """A user's LocalCluster with Dask's default (daemonic) workers failed every FMU row with a bare
     ``AssertionError: daemonic processes are not allowed to have children`` (audit 68)."""
@@ -512,7 +511,7 @@ def test_daemonic_workers_with_isolation_are_one_line_error_naming_the_fix():
     from distributed import Client, LocalCluster
 
     with dask.config.set({"distributed.worker.daemon": True}), \
-            LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as user_client:
         with pytest.raises(FmuOpinfError, match="DASK_DISTRIBUTED__WORKER__DAEMON=False") as caught:
             with runs.dask_client(user_client, isolate=True):
