@@ -479,8 +479,9 @@ def test_ctrl_c_in_a_serial_table_names_the_row_file_not_its_intermediate(tmp_pa
                  "--t-end", LONG_T_END, "-q"], tmp_path)
     _, err = _interrupt_when(proc, lambda: out.is_dir() and bool(list(out.glob(".long*.tmp"))))
     assert proc.returncode == 130, err
-    assert _not_warnings(err) == [f"fmu-opinf: interrupted (Ctrl-C); written before it: {out / 'boom.incomplete.h5'}; "
-                                  "every other output was left as it was"], err
+    expected = (f"fmu-opinf: interrupted (Ctrl-C); written before it: {out / 'boom.incomplete.h5'}; "
+                "every other output was left as it was")
+    assert _not_warnings(err) == [expected], err
     assert _temporaries(out) == []
 
 
@@ -513,9 +514,9 @@ def test_daemonic_workers_with_isolation_are_one_line_error_naming_the_fix():
     with dask.config.set({"distributed.worker.daemon": True}), \
             LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
             Client(cluster) as user_client:
-        with pytest.raises(FmuOpinfError, match="DASK_DISTRIBUTED__WORKER__DAEMON=False") as caught:
-            with runs.dask_client(user_client, isolate=True):
-                pass
+        with pytest.raises(FmuOpinfError, match="DASK_DISTRIBUTED__WORKER__DAEMON=False") as caught, \
+                runs.dask_client(user_client, isolate=True):
+            pass
         assert "\n" not in str(caught.value) and "isolate=False" in str(caught.value)
         with runs.dask_client(user_client, isolate=False) as same:  # no child processes: fine
             assert same is user_client

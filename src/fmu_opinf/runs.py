@@ -862,10 +862,8 @@ def _note_retries(client: Any, future: Any, outcome: Any) -> None:
     """Put in the row's outcome how often Dask ran it again after a lost worker (one round trip to the scheduler;
     nothing if the scheduler does not answer)."""
     target = outcome[0] if isinstance(outcome, tuple) else outcome
-    try:
+    with contextlib.suppress(Exception):  # a note only: a scheduler that refuses to run it leaves it out
         target.retries = int(client.run_on_scheduler(_lost_worker_count, future.key))
-    except Exception:  # noqa: BLE001 - a note only: a scheduler that refuses to run it leaves it out
-        pass
 
 
 def _warnings_returned(function: Callable, *arguments: Any) -> tuple[Any, list[tuple[bool, str]]]:
