@@ -11,6 +11,7 @@ what it made, as it does on Ctrl-C in a serial run.
 
 from __future__ import annotations
 
+import logging
 import signal
 from typing import Any
 
@@ -36,6 +37,8 @@ class StopRowsOnClose(WorkerPlugin):
             signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     def teardown(self, worker: Any) -> None:
-        """Called by ``Worker.close`` before it waits for the running task."""
+        """Called by ``Worker.close`` before it waits for the running task; what distributed says while the
+        worker closes (a heartbeat to a scheduler that closed first) is no news: only critical messages."""
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)
         if signal.SIGINT not in _interrupts._pending:
             _interrupts._pending.append(signal.SIGINT)

@@ -609,14 +609,23 @@ def _local_cluster_client(distributed: Any, workers: int | None) -> Iterator[Any
     # The workers' statistical profiler (a stack sample every 10 ms) costs a run ~10% CPU: off.
     settings = {"distributed.worker.daemon": False, "distributed.nanny.pre-spawn-environ": environ,
                 "distributed.worker.profile.enabled": False}
-    with dask.config.set(settings), contextlib.ExitStack() as stack:
-        with _interrupts_after():  # a Ctrl-C meanwhile is raised once both are ready to be closed
-            cluster = stack.enter_context(distributed.LocalCluster(
-                n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                dashboard_address=None, silence_logs=logging.ERROR))
-            client = stack.enter_context(distributed.Client(cluster))
-            client.register_plugin(StopRowsOnClose())
-        yield client
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    try:
+        with dask.config.set(settings), contextlib.ExitStack() as stack:
+            with _interrupts_after():  # a Ctrl-C meanwhile is raised once both are ready to be closed
+                cluster = stack.enter_context(distributed.LocalCluster(
+                    n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=logging.ERROR))
+                client = stack.enter_context(distributed.Client(cluster))
+                client.register_plugin(StopRowsOnClose())
+            try:
+                yield client
+            except KeyboardInterrupt:  # closing after a Ctrl-C: the cluster's complaints about it are no news
+                logger.setLevel(logging.CRITICAL)
+                raise
+    finally:
+        logger.setLevel(level)
 
 
 @contextlib.contextmanager
