@@ -18,6 +18,11 @@ drives force inputs from 0 (and warns where an FMU's input starts elsewhere); th
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
 modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
+``ModelStructure`` declares each output's dependence on the inputs (FMI: an output without ``dependencies`` depends
+on every input, and a master sees algebraic loops that are not there; audit 69): exactly the inputs of its
+non-negligible feedthrough entries (:func:`_feedthrough_pattern`; negligible ones are dropped from the FMU, so it
+computes what it declares), none for a reconstructed position; at initialization the same, unless the FMU starts at
+its static equilibrium under the inputs set then (all inputs, undeclared).
 
 Nothing read from the ROM file becomes code: the generated C holds numbers only (written by
 ``repr(float)``), no text from the file; names and the description go into the XML through an
@@ -439,6 +444,9 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         "outputOffset": np.concatenate([extra["y0"], offsets]),
         "initialPosition": extra["q0"], "initialVelocity": extra["qdot0"],
     }
+    feedthrough = _feedthrough_pattern(extra["Dur"], provenance, getattr(rom, "fit_info", None) or {})
+    c_matrices["reducedFeedthrough"][:p] = np.where(feedthrough, extra["Dur"], 0.0)  # exactly what is declared
+    dependencies = [[int(j) for j in np.flatnonzero(row)] for row in feedthrough] + [[] for _ in names]
     input_starts = _recorded_input_starts(provenance, m)
     start_gain = _steady_start_gain(matrices, provenance)
     if start_gain is not None:  # q = q0 + S (u - u_first): S u moves the start with the inputs initialized under
@@ -476,7 +484,51 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
         **_ports(provenance, input_names or [], output_names, names, fmi_version),
         step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
+        output_dependencies=dependencies,
+        initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
     )
+
+
+#: A feedthrough entry ``Dur[i, j]`` whose part of output ``i`` at the training inputs' size is at most this fraction
+#: of that output's training motion is a least-squares round-off (1e-17 .. 1e-15 of it where the true entry is
+#: zero), not a dependence: the exported FMU drops it and declares no dependence of output ``i`` on input ``j``.
+NEGLIGIBLE_FEEDTHROUGH = 1e-10
+
+
+def _feedthrough_pattern(Dur: np.ndarray, provenance: dict, fit_info: dict) -> np.ndarray:
+    """Which entries of ``Dur`` (p, m) make an output depend on an input (``ModelStructure`` dependencies).
+
+    A fitted ``Dur`` holds round-off where the source has no feedthrough.  An entry counts when
+    ``|Dur[i, j]| * s_u > NEGLIGIBLE_FEEDTHROUGH * s_i``, with ``s_u`` the training inputs' RMS
+    (``fit_info["scales"]["u"]``) and ``s_i`` output ``i``'s largest departure from its start over the training
+    runs (``training_runs[*].output_peak``).  Where either is not recorded (a ROM built by hand, an older file),
+    every non-zero entry counts: declaring a dependence that is not there is safe, leaving one out is not.
+    """
+    nonzero = Dur != 0
+    scales = fit_info.get("scales") if isinstance(fit_info, dict) else None
+    u_scale = scales.get("u") if isinstance(scales, dict) else None
+    y_scale = _training_output_motion(provenance, Dur.shape[0])
+    if (not isinstance(u_scale, (int, float)) or isinstance(u_scale, bool) or not math.isfinite(u_scale)
+            or u_scale <= 0 or y_scale is None):
+        return nonzero
+    return nonzero & (np.abs(Dur) * float(u_scale) > NEGLIGIBLE_FEEDTHROUGH * y_scale[:, None])
+
+
+def _training_output_motion(provenance: dict, p: int) -> np.ndarray | None:
+    """Each output's largest departure from its start over the training runs (``training_runs[*].output_peak``),
+    or None where a run lacks it or it does not fit (data read from a file: checked)."""
+    runs = provenance.get("training_runs")
+    if not isinstance(runs, list) or not runs:
+        return None
+    peaks = []
+    for run in runs:
+        peak = run.get("output_peak") if isinstance(run, dict) else None
+        if (not isinstance(peak, list) or len(peak) != p
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                           for v in peak)):
+            return None
+        peaks.append(peak)
+    return np.max(np.asarray(peaks, dtype=float), axis=0)
 
 
 #: ``export --reconstruct`` warns where the ROM's reconstructed training positions are more than this many times as

@@ -178,6 +178,17 @@ class SecondOrderFmuSpec:
         The FMU accepts only communication steps that are multiples of this step (an exact step map): it then
         declares ``canHandleVariableCommunicationStepSize="false"`` (and, FMI 3.0, ``fixedInternalStepSize``),
         so a master keeps a constant step instead of shortening one to an input event or to the stop time.
+    output_dependencies : list of list of int, optional
+        For each output, the inputs (0-based) it depends on directly at a communication point, each linearly with a
+        constant factor (a feedthrough ``Du``): declared in ``ModelStructure/Outputs`` as ``dependencies`` with
+        ``dependenciesKind="constant"``, an empty list as ``dependencies=""`` (no input).  In a co-simulation FMU the
+        knowns of an output are its inputs (its states are internal), and FMI 2.0 / 3.0 read an output without
+        ``dependencies`` as depending on every input: a master then sees algebraic loops that do not exist.
+        Default: none declared.  FMI 3.0 declares them per variable (an array depends on an input array if any
+        of their elements do).
+    initial_dependencies : list of list of int, optional
+        The same for the outputs during initialization (``InitialUnknowns``); default none declared.  Declared only
+        for an FMU without parameters (FMI also counts the parameters among the knowns at initialization).
     """
 
     identifier: str
@@ -209,6 +220,8 @@ class SecondOrderFmuSpec:
     input_ports: list[dict[str, Any]] | None = None
     output_ports: list[dict[str, Any]] | None = None
     step_multiple: float | None = None
+    output_dependencies: list[list[int]] | None = None
+    initial_dependencies: list[list[int]] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -241,6 +254,7 @@ class SecondOrderFmuSpec:
         if self.step_multiple is not None and not (math.isfinite(self.step_multiple) and self.step_multiple > 0):
             raise FmuBuildError(f"step_multiple {self.step_multiple!r} must be a positive finite number")
         self._check_ports()
+        self._check_dependencies()
         self._check_ranges()
         self._check_units()
         self._check_text()
@@ -262,6 +276,22 @@ class SecondOrderFmuSpec:
             if not isinstance(text, str) or (what != "description" and not text.strip()):
                 raise FmuBuildError(f"{what} {text!r} is not a non-empty string; give printable names")
             _check_xml_characters(what, text)
+
+    def _check_dependencies(self) -> None:
+        """``output_dependencies`` and ``initial_dependencies``: one list per output of distinct input indices
+        ``0 .. m-1`` (they become value references and indices in the XML, so nothing else gets through)."""
+        for what, lists in (("output_dependencies", self.output_dependencies),
+                            ("initial_dependencies", self.initial_dependencies)):
+            if lists is None:
+                continue
+            if not isinstance(lists, (list, tuple)) or len(lists) != self.p:
+                raise FmuBuildError(f"{what} must hold one list of input indices per output ({self.p}); got {lists!r}")
+            for inputs in lists:
+                if (not isinstance(inputs, (list, tuple)) or len(set(inputs)) != len(inputs)
+                        or not all(isinstance(j, int) and not isinstance(j, bool) and 0 <= j < self.m
+                                   for j in inputs)):
+                    raise FmuBuildError(f"{what} entry {inputs!r} is not a list of distinct input indices 0 .. "
+                                        f"{self.m - 1}; give the inputs each output depends on")
 
     def _check_ranges(self) -> None:
         """``input_ranges``: one ``(min, max)`` per input, numbers (not NaN) with ``min <= max`` that hold the
@@ -737,8 +767,8 @@ def _naming_convention(spec: SecondOrderFmuSpec) -> str:
 def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) -> str:
     """FMI 2.0 modelDescription.xml."""
     variables = [_variable2(v) for v in _variables(spec)]
-    output_indices = range(spec.m + 1, spec.m + spec.p + 1)
-    outputs = "".join(f'      <Unknown index="{i}"/>\n' for i in output_indices)
+    outputs = _unknowns2(spec, spec.output_dependencies)
+    initial = _unknowns2(spec, _initial_dependencies(spec))
     files = "".join(f'        <File name="{s}"/>\n' for s in sources)
     experiment = _experiment(spec)
     return (
@@ -773,11 +803,59 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         f"{outputs}"
         "    </Outputs>\n"
         "    <InitialUnknowns>\n"
-        f"{outputs}"
+        f"{initial}"
         "    </InitialUnknowns>\n"
         "  </ModelStructure>\n"
         "</fmiModelDescription>\n"
     )
+
+
+def _initial_dependencies(spec: SecondOrderFmuSpec) -> list[list[int]] | None:
+    """``spec.initial_dependencies`` where they can be declared: not with parameters, which FMI counts among the
+    knowns at initialization too."""
+    return None if spec.parameters else spec.initial_dependencies
+
+
+def _dependency_attributes(keys: list[int]) -> str:
+    """`` dependencies="..." dependenciesKind="..."``: each known enters linearly with a constant factor."""
+    listed = " ".join(str(k) for k in sorted(keys))
+    kinds = " ".join(["constant"] * len(keys))
+    return f' dependencies="{listed}" dependenciesKind="{kinds}"'
+
+
+def _unknowns2(spec: SecondOrderFmuSpec, dependencies: list[list[int]] | None) -> str:
+    """FMI 2.0 ``Unknown`` elements of the outputs (indices ``m + 1 ..``; input ``j`` has index ``j + 1``), with
+    their dependencies where declared."""
+    rows = []
+    for i in range(spec.p):
+        attributes = "" if dependencies is None else _dependency_attributes([j + 1 for j in dependencies[i]])
+        rows.append(f'      <Unknown index="{spec.m + 1 + i}"{attributes}/>\n')
+    return "".join(rows)
+
+
+def _port_of(ports: list[dict[str, Any]] | None, count: int) -> list[int]:
+    """The index of the FMI 3 variable (port) that holds each element (each element its own without ports)."""
+    if ports is None:
+        return list(range(count))
+    return [k for k, port in enumerate(ports) for _ in range(math.prod(port["shape"]) if port["shape"] else 1)]
+
+
+def _unknowns3(spec: SecondOrderFmuSpec, element: str, dependencies: list[list[int]] | None) -> str:
+    """FMI 3.0 ``Output`` or ``InitialUnknown`` elements, one per output variable, with their dependencies on
+    input variables (value references) where declared: a variable depends on an input variable if any of their
+    elements do (``providesPerElementDependencies="false"``)."""
+    refs = value_references(spec)
+    output_port, input_port = _port_of(spec.output_ports, spec.p), _port_of(spec.input_ports, spec.m)
+    first_input = {k: refs["u"][input_port.index(k)] for k in set(input_port)}
+    rows = []
+    for k in sorted(set(output_port)):
+        attributes = ""
+        if dependencies is not None:
+            members = [i for i, port in enumerate(output_port) if port == k]
+            known = {first_input[input_port[j]] for i in members for j in dependencies[i]}
+            attributes = _dependency_attributes(sorted(known))
+        rows.append(f'    <{element} valueReference="{refs["y"][output_port.index(k)]}"{attributes}/>\n')
+    return "".join(rows)
 
 
 def _variable_step(spec: SecondOrderFmuSpec) -> str:
@@ -807,9 +885,8 @@ def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
     time = _Variable("time", 0, "independent", description="simulation time")
     variables_of = _variables(spec)
     variables = [_variable3(v) for v in [time] + variables_of]
-    outputs_vr = [v.vr for v in variables_of if v.causality == "output"]
-    outputs = "".join(f'    <Output valueReference="{vr}"/>\n' for vr in outputs_vr)
-    unknowns = "".join(f'    <InitialUnknown valueReference="{vr}"/>\n' for vr in outputs_vr)
+    outputs = _unknowns3(spec, "Output", spec.output_dependencies)
+    unknowns = _unknowns3(spec, "InitialUnknown", _initial_dependencies(spec))
     experiment = _experiment(spec)
     return (
         '<?xml version="1.0" encoding="UTF-8"?>\n'
