@@ -85,6 +85,19 @@ def shared_settings(settings: list[dict[str, Any]]) -> dict[str, Any]:
     return {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings[1:])}
 
 
+def shared_held_inputs(mine: Any, theirs: Any) -> Any:
+    """``held_inputs`` of merged snapshots: a held input whose value differs between the parts (a run table's
+    per-row ``set:``) was not held at one value; it moves to ``"varied"``, which the exported ROM FMU leaves out
+    with a warning.  Parts that do not both record them: none (the ROM FMU then exports without held inputs)."""
+    if not (isinstance(mine, dict) and isinstance(theirs, dict) and mine.get("order") == theirs.get("order")
+            and isinstance(mine.get("values"), dict) and isinstance(theirs.get("values"), dict)):
+        return None
+    values = dict(mine["values"])
+    varied = sorted(set(mine.get("varied") or []) | set(theirs.get("varied") or [])
+                    | {name for name, value in values.items() if theirs["values"].get(name) != value})
+    return {**mine, "values": {name: value for name, value in values.items() if name not in varied}, "varied": varied}
+
+
 class Snapshots:
     """Snapshot runs of one system plus file-level provenance.
 
@@ -173,6 +186,10 @@ class Snapshots:
         ``set:``/``start:`` values belong to its runs, not to the data set, whose settings ``compare`` applies)."""
         if "fmu_settings" in self.attrs or "fmu_settings" in attrs:
             self.attrs["fmu_settings"] = shared_settings([settings_of(self.attrs), settings_of(attrs)])
+        if "held_inputs" in self.attrs:
+            shared = shared_held_inputs(self.attrs.pop("held_inputs"), attrs.get("held_inputs"))
+            if shared is not None:
+                self.attrs["held_inputs"] = shared
 
     def _check_compatible(self, attrs: dict[str, Any]) -> None:
         keys = ("n", "m", "p", "position_names", "input_names", "output_names")

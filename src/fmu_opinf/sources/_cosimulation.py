@@ -25,8 +25,8 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         fmi3_ports, is_coefficient, looks_like_parameter, read_description, start_value,
-                         unit_kind)
+                         fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter, read_description,
+                         start_value, unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -370,6 +370,8 @@ class FMUSource(Source):
         self.acceleration_names = [c.name for c in selection.accelerations]
         self.input_names = [e.name for e in forces]
         self.held_input_names = [e.name for e in held]
+        #: the held inputs' values and the source's input order, for the exported ROM FMU (audit 69 F4)
+        self.held_inputs = held_inputs_record(model.elements(structural), forces, held, self._settings)
         #: held inputs that look like parameters (default selection, looks_like_parameter): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
@@ -431,6 +433,7 @@ class FMUSource(Source):
         desc = super().description()
         desc["variable_selection"] = dict(self.selection.how)
         desc["held_input_names"] = list(self.held_input_names)
+        desc["held_inputs"] = dict(self.held_inputs)
         if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
             desc["input_units"] = list(self.input_units)
             desc["output_units"] = list(self.output_units)

@@ -30,7 +30,8 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
            "show_patterns", "nonzero_start", "looks_like_parameter", "is_coefficient", "unit_kind", "start_value",
-           "is_pressure_about_start", "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports"]
+           "is_pressure_about_start", "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports",
+           "held_inputs_record"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -1310,7 +1311,7 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     if patterns is None:
         def drivable(e: Element, variability: str) -> bool:
             return (e.var.is_real and e.var.variability == variability and e.var.name not in given
-                    and not looks_like_parameter(e, model))
+                    and not looks_like_parameter(e, model) and not _one_value(e))
 
         forces = port_order([e for e in inputs if drivable(e, "continuous")])
         if not any(e.var.is_real and e.var.variability == "continuous" for e in inputs):
@@ -1332,6 +1333,47 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
     chosen = {_value_key(e) for e in forces}   # an alias named in --inputs drives its variable
     held = (e for e in inputs if _value_key(e) not in chosen and e.var.type != "Clock")  # a clock is never set
     return forces, sorted(held, key=lambda e: natural_key(e.name))  # held: not ports of the ROM
+
+
+def held_inputs_record(elements: dict[str, Element], forces: Sequence[Element], held: Sequence[Element],
+                       settings: Sequence[Any]) -> dict[str, Any]:
+    """What an exported ROM FMU needs to keep the source's held inputs (audit 69 F4): ``{"order": every real input
+    in the source's declaration order, a driven one under its recorded name; "values": {held input: the value the
+    training held it at (its ``--set`` value, else its start value)}; "units": {held input: its unit}}``.
+
+    Inputs that are not real (Integer, Boolean, ...) are in neither: a ROM FMU has real inputs only.  ``settings``
+    are the typed ``--set`` values (:class:`fmu_opinf.sources._settings.Setting`).
+    """
+    given = {setting.var.name: setting.values for setting in settings}
+    driven = {_value_key(e): e.name for e in forces}
+    kept = {_value_key(e): e for e in held if e.var.is_real}
+    order, values, units = [], {}, {}
+    for element in elements.values():
+        key = _value_key(element)
+        if element.var.causality != "input" or element.alias or not element.var.is_real:
+            continue
+        if key in driven:
+            order.append(driven.pop(key))
+        elif key in kept and element.name not in values:
+            values[element.name] = _held_value(element, given.get(element.var.name))
+            units[element.name] = element.var.unit or ""
+            order.append(element.name)
+    order += list(driven.values())   # (an input driven under a name not declared as one: after the others)
+    return {"order": order, "values": values, "units": units}
+
+
+def _held_value(element: Element, given: list[Any] | None) -> float:
+    """The value a held input keeps in training: its ``--set`` value where given, else its start value."""
+    if given is not None:
+        return float(given[element.offset] if element.offset < len(given) else given[0])
+    return start_value(element)
+
+
+def _one_value(element: Element) -> bool:
+    """An input declared with ``min = max`` takes that one value only (an exported ROM FMU's input its training held,
+    audit 69): no default selection drives it."""
+    low, high = declared_range(element)
+    return low == high
 
 
 def port_order(declared: list[Element]) -> list[Element]:
@@ -1500,7 +1542,8 @@ def looks_like_parameter(element: Element, model: ModelInfo) -> bool:
     no port for it); a stiffness in N/m, a mass in kg or a scale without a unit that starts where it does is held,
     and so is a damping in N.s/m that starts at 0 (audit 58).  Never for an exported ROM FMU
     (``model.exported_rom``): each of its inputs is one the ROM was trained to be driven by, a pressure about its
-    start included (audit 63: such an input was held, and ``compare rom.fmu`` could not run at all)."""
+    start included (audit 63: such an input was held, and ``compare rom.fmu`` could not run at all); the inputs its
+    training held it declares at their one value (``min = max``), which :func:`select_inputs` holds."""
     if getattr(model, "exported_rom", False):
         return False
     if is_coefficient(element.var, model):
