@@ -199,10 +199,11 @@ def test_recorded_ports_that_do_not_fit_the_rom_give_scalars(ports):
 
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28
 def test_part_of_an_array_is_exported_as_scalar_ports(sources, tmp_path):
-    """Only F[2] driven (F[1] held): the ROM FMU's input is the scalar F[2], the outputs stay an array."""
+    """Only F[2] driven (F[1] held): the ROM FMU's inputs are the scalars F[1] (held at its start, audit 69 F4) and
+    F[2], in the source's order; the outputs stay an array."""
     rom, paths = exported(sources, "array", tmp_path, "--inputs", "F[2]")
     assert rom.input_names == ["F[2]"]
-    assert ports(paths["3.0"]) == [("F[2]", "Float64", []), ("y", "Float64", [2])]
+    assert ports(paths["3.0"]) == [("F[1]", "Float64", []), ("F[2]", "Float64", []), ("y", "Float64", [2])]
 
 
 @pytest.mark.parametrize("version", ["2.0", "3.0"])

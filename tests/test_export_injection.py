@@ -193,3 +193,47 @@ def test_characters_xml_cannot_hold_are_refused_as_such(name, character):
     with pytest.raises(FmuBuildError, match=rf"{character}, which XML 1\.0 cannot hold, not even as a character "
                                             r"reference; rename it \(TAB, LF and CR are fine\)$"):
         rom_fmu_spec(_rom(input_names=[name]), "Bad")
+
+
+#: A held input's name that would end a C string, start a trigraph, a format and a preprocessor line (audit 69 F4: the
+#: names of held inputs reach the generated C, as string literals for the FMU's log line).
+HOSTILE_HELD = 'k"); system("touch /tmp/pwned"); //??/\n#include <x> %s\\'
+
+
+def _rom_with_held_input() -> SecondOrderROM:
+    held = {"order": ["u", HOSTILE_HELD], "values": {HOSTILE_HELD: 2.5}, "units": {HOSTILE_HELD: 'N"/><Evil x="'}}
+    return _rom(input_names=["u"], provenance={"snapshots": {"held_inputs": held}})
+
+
+def test_held_input_names_reach_the_c_only_as_escaped_string_literals():
+    from fmu_opinf.fmus import _config_header
+
+    spec = rom_fmu_spec(_rom_with_held_input(), "Held")
+    header = _config_header(spec)
+    assert "system(" in header and 'system("' not in header   # the quote is \042 only
+    assert not any(line.startswith("#include") for line in header.splitlines())   # the newline is \012
+    assert "??/" not in header and "%s" not in header
+    names_line = next(line for line in header.splitlines() if line.startswith("#define INPUT_NAMES"))
+    assert names_line.count('"') == 4                          # two literals, no quote of the name's own
+    assert spec.input_units == ["", ""]                        # the hostile unit is not a unit name: dropped
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_a_hostile_held_input_name_compiles_and_is_logged_as_it_is(tmp_path, fmi_version):
+    """The FMU compiles, declares the name, and its log line refusing another value quotes the name exactly."""
+    from fmpy import read_model_description, simulate_fmu
+
+    from fmu_opinf.fmus import find_build_tools
+
+    if find_build_tools() is None:
+        pytest.skip("needs a C compiler")
+    path = export_fmu(_rom_with_held_input(), tmp_path / "Held.fmu", fmi_version=fmi_version)
+    names = [v.name for v in read_model_description(str(path), validate=True).modelVariables
+             if v.causality == "input"]
+    assert names == ["u", HOSTILE_HELD]
+    lines = []
+    with pytest.raises(Exception, match="failed with status 3"):
+        simulate_fmu(str(path), stop_time=0.5, start_values={HOSTILE_HELD: 1.0},
+                     logger=lambda *args: lines.append(args[-1].decode()))
+    assert any(f"input {HOSTILE_HELD} (value reference 2) was held at 2.5 in training" in line for line in lines)

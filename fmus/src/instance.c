@@ -22,6 +22,11 @@ static const double inputStarts[ARRAY_LENGTH(N_INPUTS)] = INPUT_STARTS;
 
 /* declared [min, max] of the inputs (an exported ROM's: the range of the source it was trained on); an FMU
  * without them checks no range */
+#ifdef INPUT_HELD
+/* Inputs the model was made for at one value only (a ROM's inputs that its training held; their min = max). */
+static const int inputHeld[ARRAY_LENGTH(N_INPUTS)] = INPUT_HELD;
+static const char *const inputNames[ARRAY_LENGTH(N_INPUTS)] = INPUT_NAMES;
+#endif
 #ifdef INPUT_MIN
 static const double inputMin[ARRAY_LENGTH(N_INPUTS)] = INPUT_MIN;
 static const double inputMax[ARRAY_LENGTH(N_INPUTS)] = INPUT_MAX;
@@ -413,6 +418,14 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
  * not allowed, and an FMU may report it); the source FMUs that declare ranges refuse such values too. */
 static Status checkInputRange(const ModelInstance *instance, const char *function, int input, unsigned int r,
                               double value) {
+#ifdef INPUT_HELD
+    if (inputHeld[input] && value != inputMin[input]) {
+        logError(instance, "%s: input %s (value reference %u) was held at %.17g in training, the only value the "
+                 "model knows; %.17g refused: set it to %.17g or leave it, or train with this input driven",
+                 function, inputNames[input], r, inputMin[input], value, inputMin[input]);
+        return Error;
+    }
+#endif
 #ifdef INPUT_MIN
     if (value < inputMin[input] || value > inputMax[input]) {
         logError(instance, "%s: value %.17g of input %d (value reference %u) is outside its declared range "

@@ -525,7 +525,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
-    rom_options: dict[str, Any] = {"isolate": isolate} if isinstance(rom_side, Path) else {}
+    rom_options: dict[str, Any] = {"isolate": isolate, **rom_info["fmu_options"]} if isinstance(rom_side, Path) else {}
     if not isinstance(rom_side, Path):
         rom_options["initial"] = _source_start(rom_side, source, signal, t, source_options)
     y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
@@ -783,7 +783,8 @@ def _trained_input_names(rom_info: dict[str, Any]) -> list[str] | None:
     snapshots = rom_info["provenance"].get("snapshots")
     names = snapshots.get("input_names") if isinstance(snapshots, dict) else None
     if isinstance(names, list) and len(names) == rom_info["m"] > 0 and all(isinstance(n, str) for n in names):
-        return list(names)
+        side = list(rom_info.get("input_names") or [])   # an exported FMU's: in the source's order (audit 69 F4)
+        return side if sorted(side) == sorted(names) else list(names)
     return None
 
 
@@ -884,8 +885,12 @@ def _rom_side_info(rom_side: Any) -> dict[str, Any]:
         from .source import FMUSource
 
         meta = _rom_fmu_metadata(rom_side)
-        fmu = FMUSource(rom_side, **_rom_fmu_variables(meta.get("rom_fmu_states")))
+        driven = meta.get("rom_fmu_driven_inputs")   # an FMU that keeps its training's held inputs: not driven
+        pattern = "none" if driven == [] else _exact_names(driven)
+        chosen = {"inputs": pattern} if pattern else {}
+        fmu = FMUSource(rom_side, **_rom_fmu_variables(meta.get("rom_fmu_states")), **chosen)
         return {"m": fmu.m, "p": fmu.p, "r": fmu.n, "dt": meta.get("dt"), "output_names": list(fmu.output_names),
+                "fmu_options": chosen,
                 "input_names": list(fmu.input_names),
                 "t_train_end": meta.get("t_train_end"), "provenance": {**fmu.provenance(), **meta}}
     prov = dict(getattr(rom_side, "provenance", {}) or {})
@@ -937,6 +942,7 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
     if isinstance(provenance, dict):
         meta["t_train_end"] = _training_end(provenance)
         meta["rom_fmu_states"] = provenance.get("rom_fmu_states")
+        meta["rom_fmu_driven_inputs"] = provenance.get("rom_fmu_driven_inputs")
         if isinstance(provenance.get("snapshots"), dict):
             meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
         meta["default_test_input"] = provenance.get("default_test_input")

@@ -14,7 +14,12 @@ Inputs and outputs keep the source FMU's names and order, and each input the sou
 declares none): an input the importer leaves unconnected holds the same value on both, so the ROM FMU is a
 drop-in (seventh audit, 2026-11-27: a force input preloaded with 10 N left unconnected kept the source at rest and
 made the ROM FMU, which started its input at 0, oscillate by 190 % of the static deflection).  The recording
-drives force inputs from 0 (and warns where an FMU's input starts elsewhere); the ROM, linear, follows either.  Optional extra outputs
+drives force inputs from 0 (and warns where an FMU's input starts elsewhere); the ROM, linear, follows either.
+The inputs the training held (parameters exposed as inputs, inputs left out of ``--inputs``, ``--set`` values) are
+declared too, in the source's order, each with the held value as start and as its only value (``min = max``): the FMU
+refuses another with a log line naming the input and the value (audit 69: they were missing, and a ROM trained at
+``--set stiffness_scale=2`` looked like the source at its default 1).  A ROM whose file does not record the held
+values (snapshots recorded before 2026-12-06) exports without them, with one warning.  Optional extra outputs
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
 modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
@@ -24,10 +29,11 @@ non-negligible feedthrough entries (:func:`_feedthrough_pattern`; negligible one
 computes what it declares), none for a reconstructed position; at initialization the same, unless the FMU starts at
 its static equilibrium under the inputs set then (all inputs, undeclared).
 
-Nothing read from the ROM file becomes code: the generated C holds numbers only (written by
-``repr(float)``), no text from the file; names and the description go into the XML through an
-attribute quoting function (TAB, LF and CR as the character references ``&#9;``, ``&#10;``, ``&#13;``), and text
-with characters XML 1.0 cannot hold (other control characters) is refused.
+Nothing read from the ROM file becomes code: the generated C holds numbers (written by ``repr(float)``) and, for the
+log line of a held input, the input names as C string literals in which every byte but letters, digits and a few
+plain signs is an octal escape (:func:`fmu_opinf.fmus.c_string`), no other text from the file; names and the
+description go into the XML through an attribute quoting function (TAB, LF and CR as the character references
+``&#9;``, ``&#10;``, ``&#13;``), and text with characters XML 1.0 cannot hold (other control characters) is refused.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ import math
 import os
 import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -463,30 +470,175 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
             raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
         c_matrices.update(stepMap=phi, stepMapInput=gamma, stepMapSize=np.array([dt]))
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
-    state_names = rom_state_names(list(input_names or []) + output_names + names)
+    ranges = _declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)], input_starts)
+    inputs = {"m": m, "input_names": input_names, "input_units": input_units, "input_starts": input_starts,
+              "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
+              **_ports(provenance, input_names or [], output_names, names, fmi_version)}
+    held = _held_inputs(provenance, input_names, m)
+    if held is not None:
+        inputs, feedthrough = _keep_held_inputs(held, inputs, c_matrices, feedthrough, fmi_version)
+        dependencies = [[int(j) for j in np.flatnonzero(row)] for row in feedthrough] + [[] for _ in names]
+        if held.values:
+            description += "; inputs held in training (refused at any other value): " + ", ".join(
+                f"{name} = {value!r}" for name, value in held.values.items())
+        provenance["rom_fmu_driven_inputs"] = [held.order[i] for i in held.position]
+    state_names = rom_state_names(list(inputs["input_names"] or []) + output_names + names)
     provenance["rom_fmu_states"] = list(state_names)
     provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
-        n=r, m=m, p=p + len(names), input_names=input_names,
+        n=r, p=p + len(names),
         output_names=output_names + names, state_names=state_names,
-        state_label="reduced coordinate", description=description,
+        state_label="reduced coordinate", description=re.sub(r"[\x00-\x1f\x7f]", "?", description),
         output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
-        fmi_version=fmi_version, input_units=input_units,
+        fmi_version=fmi_version,
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance),
-        input_display_units=_recorded_units(provenance, "input_display_units", m),
-        input_starts=input_starts,
-        input_ranges=_declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)],
-                                            input_starts),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
-        **_ports(provenance, input_names or [], output_names, names, fmi_version),
         step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
         output_dependencies=dependencies,
         initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
+        **inputs,
     )
+
+
+# -------------------------------------------------------------- held inputs (audit 69 F4)
+
+@dataclass(frozen=True)
+class HeldInputs:
+    """The source's inputs as the training recorded them (snapshots ``held_inputs``): ``order`` all of them in the
+    source's order, ``position`` where each ROM input stands in it, ``values`` and ``units`` of the held ones."""
+
+    order: list[str]
+    position: list[int]
+    values: dict[str, float]
+    units: dict[str, str]
+
+
+def _held_inputs(provenance: dict, input_names: list[str] | None, m: int) -> HeldInputs | None:
+    """The held inputs to keep in the ROM FMU, or None: nothing held and the ROM's inputs in the source's order,
+    a ROM without input names, or a ROM file that does not record the held values (one warning line: it fitted
+    snapshots recorded before 2026-12-06, and the ROM FMU leaves the held inputs out as before)."""
+    from .rom import held_input_names
+
+    snapshots = provenance.get("snapshots")
+    record = snapshots.get("held_inputs") if isinstance(snapshots, dict) else None
+    held_names = held_input_names(provenance)
+    input_names = list(input_names or [])
+    if len(input_names) != m:
+        return None
+    if not isinstance(record, dict) or not _held_record_fits(record, input_names):
+        if held_names:
+            warnings.warn(f"the ROM file records no values for the inputs its training held ({_few(held_names)}): "
+                          "the ROM FMU leaves them out; record the snapshots again and refit to keep them",
+                          FmuOpinfWarning, stacklevel=4)
+        return None
+    values = {name: float(value) for name, value in record["values"].items()}
+    varied = set(record.get("varied") or [])
+    if varied:
+        warnings.warn(f"the training held inputs {_few(sorted(varied))} at different values in different runs: the "
+                      "ROM cannot follow them, and the ROM FMU leaves them out", FmuOpinfWarning, stacklevel=4)
+    left_out = [name for name in held_names if name not in values and name not in varied]
+    if left_out:
+        warnings.warn(f"held inputs {_few(left_out)} are not real variables: the ROM FMU (real inputs only) does "
+                      "not declare them", FmuOpinfWarning, stacklevel=4)
+    order = [name for name in record["order"] if name not in varied]
+    if not values and order == list(input_names):
+        return None
+    units = record.get("units") if isinstance(record.get("units"), dict) else {}
+    return HeldInputs(order, [order.index(name) for name in input_names], values,
+                      {name: _units([units.get(name)], 1)[0] for name in values})
+
+
+def _held_record_fits(record: dict, input_names: list[str]) -> bool:
+    """Whether a recorded ``held_inputs`` holds distinct names, the ROM's inputs among them, and a finite value for
+    each of the others (data read from a file: checked before any of it is used)."""
+    order, values, varied = record.get("order"), record.get("values"), record.get("varied", [])
+    if not (isinstance(order, list) and all(isinstance(n, str) for n in order) and len(set(order)) == len(order)
+            and isinstance(values, dict) and isinstance(varied, list)):
+        return False
+    return (set(input_names) <= set(order) and set(values) == set(order) - set(input_names) - set(varied)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in values.values()))
+
+
+def _few(names: list[str]) -> str:
+    return ", ".join(names[:4]) + (", ..." if len(names) > 4 else "")
+
+
+#: The generated matrices with a column per input (``m``, or ``m + 1`` with the constant force last).
+_INPUT_COLUMNS = ("reducedInput", "reducedFeedthrough", "initialPositionInput", "stepMapInput", "modalInput",
+                  "modalInputChange", "modalRest", "modalRestChange", "modalOutputInput")
+
+
+def _spread_columns(matrix: np.ndarray, position: list[int], total: int) -> np.ndarray:
+    """``matrix`` with its first ``len(position)`` (input) columns moved to ``position`` among ``total`` input
+    columns, zero for the held inputs; any further column (the constant force) stays last."""
+    m = len(position)
+    out = np.zeros((matrix.shape[0], total + matrix.shape[1] - m), dtype=matrix.dtype)
+    out[:, position] = matrix[:, :m]
+    out[:, total:] = matrix[:, m:]
+    return out
+
+
+def _keep_held_inputs(held: HeldInputs, inputs: dict[str, Any], c_matrices: dict[str, np.ndarray],
+                      feedthrough: np.ndarray, fmi_version: str) -> tuple[dict[str, Any], np.ndarray]:
+    """Every source input in the source's order: the held ones act on nothing (zero columns) and declare their
+    held value as start and as their only allowed value (``min = max``), which the FMU enforces with a log line
+    naming the input and the value (``spec.held_inputs``).  Returns the spec's input fields and the spread
+    feedthrough pattern; ``c_matrices`` are spread in place."""
+    total = len(held.order)
+    for name in _INPUT_COLUMNS:
+        if name in c_matrices:
+            c_matrices[name] = _spread_columns(np.atleast_2d(c_matrices[name]), held.position, total)
+
+    def spread(values: list[Any] | None, default: Any, of_held: Any) -> list[Any]:
+        out = [of_held(name) if name in held.values else default for name in held.order]
+        for j, i in enumerate(held.position):
+            out[i] = values[j] if values is not None else default
+        return out
+
+    starts = spread(inputs["input_starts"], 0.0, held.values.get)
+    fields = {
+        "m": total, "input_names": list(held.order), "input_starts": starts,
+        "input_units": spread(inputs["input_units"], "", held.units.get),
+        "input_display_units": spread(inputs["input_display_units"], "", lambda name: ""),
+        "input_ranges": spread(inputs["input_ranges"], (-math.inf, math.inf), lambda n: (held.values[n],) * 2),
+        "held_inputs": [name in held.values for name in held.order],
+        "input_descriptions": [f"input held at {held.values[name]!r} in training: the ROM is valid at that value "
+                               "only and refuses another" if name in held.values else None for name in held.order],
+    }
+    if fmi_version == "3.0":
+        fields["input_ports"] = _spread_ports(inputs.get("input_ports"), held)
+        fields["output_ports"] = inputs.get("output_ports")
+    return fields, _spread_columns(feedthrough, held.position, total)
+
+
+def _spread_ports(ports: list[dict[str, Any]] | None, held: HeldInputs) -> list[dict[str, Any]] | None:
+    """The FMI 3 input variables with the held inputs: each recorded port where its elements stand together in the
+    source's order, a held input a Float64 scalar; None (every input a Float64 scalar) where they do not."""
+    if ports is None:
+        return None
+    from .sources import element_names
+
+    driven = [held.order[i] for i in held.position]
+    port_at, first = {}, 0
+    for port in ports:
+        size = math.prod(port["shape"]) if port["shape"] else 1
+        members = element_names(port["name"], port["shape"]) if port["shape"] else [driven[first]]
+        start = held.order.index(members[0])
+        if held.order[start:start + size] != members:
+            return None
+        port_at[start] = (port, size)
+        first += size
+    out, i = [], 0
+    while i < len(held.order):
+        port, size = port_at.get(i, ({"name": held.order[i], "shape": [], "type": "Float64"}, 1))
+        out.append(port)
+        i += size
+    return out
 
 
 #: A feedthrough entry ``Dur[i, j]`` whose part of output ``i`` at the training inputs' size is at most this fraction

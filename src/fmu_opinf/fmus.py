@@ -186,6 +186,12 @@ class SecondOrderFmuSpec:
         ``dependencies`` as depending on every input: a master then sees algebraic loops that do not exist.
         Default: none declared.  FMI 3.0 declares them per variable (an array depends on an input array if any
         of their elements do).
+    held_inputs : list of bool, optional
+        Which inputs the model was made for at one value only (a ROM's inputs that its training held): each must
+        declare ``min = max = start`` (``input_ranges``), and the FMU refuses another value with a log line naming
+        the input and that value.  Default: none.
+    input_descriptions : list of str or None, optional
+        The ``description`` of each input (None: the default one).
     initial_dependencies : list of list of int, optional
         The same for the outputs during initialization (``InitialUnknowns``); default none declared.  Declared only
         for an FMU without parameters (FMI also counts the parameters among the knowns at initialization).
@@ -222,6 +228,8 @@ class SecondOrderFmuSpec:
     step_multiple: float | None = None
     output_dependencies: list[list[int]] | None = None
     initial_dependencies: list[list[int]] | None = None
+    held_inputs: list[bool] | None = None
+    input_descriptions: list[str | None] | None = None
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -256,6 +264,7 @@ class SecondOrderFmuSpec:
         self._check_ports()
         self._check_dependencies()
         self._check_ranges()
+        self._check_held()
         self._check_units()
         self._check_text()
         self._check_unique_names()
@@ -270,6 +279,9 @@ class SecondOrderFmuSpec:
         texts += [("output name", s) for s in self.output_names + self.port_names("output")]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
         texts += [("description", text) for text in self.output_descriptions or []]
+        texts += [("description", text) for text in self.input_descriptions or [] if text is not None]
+        if self.input_descriptions is not None and len(self.input_descriptions) != self.m:
+            raise FmuBuildError(f"got {len(self.input_descriptions)} input descriptions for m={self.m} inputs")
         if self.output_descriptions is not None and len(self.output_descriptions) != self.p:
             raise FmuBuildError(f"got {len(self.output_descriptions)} output descriptions for p={self.p} outputs")
         for what, text in texts:
@@ -308,6 +320,18 @@ class SecondOrderFmuSpec:
                     or not -math.inf <= bounds[0] <= start <= bounds[1] <= math.inf):
                 raise FmuBuildError(f"input range {bounds!r} of {name!r} is not a (min, max) pair of numbers with "
                                     f"min <= start ({start!r}) <= max; give -inf / inf for an open side")
+
+    def _check_held(self) -> None:
+        """``held_inputs``: one flag per input, each held input with ``min = max = start`` (its only value)."""
+        if self.held_inputs is None:
+            return
+        if len(self.held_inputs) != self.m:
+            raise FmuBuildError(f"got {len(self.held_inputs)} held_inputs flags for m={self.m} inputs; give one each")
+        starts, ranges = self.input_starts or [0.0] * self.m, self.input_ranges or [(-math.inf, math.inf)] * self.m
+        for name, held, start, bounds in zip(self.input_names, self.held_inputs, starts, ranges):
+            if held and not bounds[0] == start == bounds[1]:
+                raise FmuBuildError(f"held input {name!r} must declare min = max = start ({start!r}), not range "
+                                    f"{bounds!r}; give input_ranges with its held value on both sides")
 
     def _check_units(self) -> None:
         for what, kind, units, count in (("unit", "input", self.input_units, self.m),
@@ -592,10 +616,12 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     input_display = _display_units(spec, input_units, spec.input_display_units)
     output_display = _display_units(spec, output_units, spec.output_display_units)
     starts = spec.input_starts or [0.0] * spec.m
-    rows = [_Variable(name, vr, "input", description=held, start=float(start), unit=unit, display_unit=display,
+    described = [text or held for text in spec.input_descriptions or [None] * spec.m]
+    rows = [_Variable(name, vr, "input", description=text, start=float(start), unit=unit, display_unit=display,
                       minimum=low, maximum=high)
-            for name, vr, unit, display, start, (low, high) in zip(spec.input_names, refs["u"], input_units,
-                                                                   input_display, starts, _input_bounds(spec))]
+            for name, vr, text, unit, display, start, (low, high) in zip(spec.input_names, refs["u"], described,
+                                                                         input_units, input_display, starts,
+                                                                         _input_bounds(spec))]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
     outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
                for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
@@ -973,6 +999,7 @@ def _config_header(spec: SecondOrderFmuSpec) -> str:
     if spec.input_starts is not None and spec.m:
         lines += [f"#define INPUT_STARTS {{ {', '.join(repr(float(v)) for v in spec.input_starts)} }}"]
     lines += _range_tables(spec)
+    lines += _held_tables(spec)
     lines += _port_tables(spec)
     lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
@@ -990,6 +1017,37 @@ def _range_tables(spec: SecondOrderFmuSpec) -> list[str]:
     high = [max(v, _nearest_float32(v)) if s else v for v, s in zip(high, single)]
     return [f"#define INPUT_MIN {{ {', '.join(_c_double(v) for v in low)} }}",
             f"#define INPUT_MAX {{ {', '.join(_c_double(v) for v in high)} }}"]
+
+
+def _held_tables(spec: SecondOrderFmuSpec) -> list[str]:
+    """``config.h`` lines ``INPUT_HELD`` (a flag per input) and ``INPUT_NAMES`` (C string literals, for the log line
+    that refuses a held input's other value) of an FMU with held inputs; none without."""
+    if not spec.held_inputs or not any(spec.held_inputs):
+        return []
+    flags = ", ".join("1" if held else "0" for held in spec.held_inputs)
+    names = ", ".join(c_string(name) for name in spec.input_names)
+    return [f"#define INPUT_HELD {{ {flags} }}", f"#define INPUT_NAMES {{ {names} }}"]
+
+
+#: Bytes written as themselves in a generated C string literal; every other byte (quotes, backslashes, ``?`` of a
+#: trigraph, control characters, non-ASCII) as a three-digit octal escape, which no following character extends.
+_C_STRING_PLAIN = frozenset(b"abcdefghijklmnopqrstuvwxyz" b"ABCDEFGHIJKLMNOPQRSTUVWXYZ" b"0123456789"
+                            b" _.,:;()[]{}+-*/=<>!#&|^~@$")
+
+
+def c_string(text: str) -> str:
+    """``text`` as a C string literal holding its UTF-8 bytes: names from a file reach the generated C only this way.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    str
+        ``"..."`` with every byte outside a small plain set written as ``\\ooo``.
+    """
+    return '"' + "".join(chr(b) if b in _C_STRING_PLAIN else f"\\{b:03o}" for b in text.encode("utf-8")) + '"'
 
 
 def _float32_inputs(spec: SecondOrderFmuSpec) -> list[bool]:
