@@ -73,6 +73,23 @@ def test_side_by_side_gives_the_rows_and_table_of_one_after_the_other(tmp_path, 
         assert f"[{name}] [{name}]" not in parallel_out.out
 
 
+@pytest.mark.skipif(find_build_tools() is None, reason="no C compiler or CMake to build the FMUs")
+@pytest.mark.slow  # one quick case in a fresh interpreter: 4 s on the idle 2-core machine
+def test_every_module_the_demo_loads_before_forking_is_one_a_case_imports(tmp_path):
+    """The preload is serial time before the cases run side by side: a module no case imports (scipy.optimize,
+    0.1-0.17 s, after the fit stopped using it) only delays both."""
+    script = textwrap.dedent(f"""
+        import sys
+        from pathlib import Path
+        from fmu_opinf import demo
+        demo.run_case("anchored-msd", Path({str(tmp_path / "case")!r}), quick=True, quiet=True)
+        print(",".join(name for name in demo._PRELOAD if name not in sys.modules))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True,
+                          env=dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path)))
+    assert done.stdout.strip().splitlines()[-1:] in ([], [""]), done.stdout
+
+
 def _failing_second_case(name, out_dir, **options):
     if name == "triple-chain":
         raise StepError("TripleChainMSD.fmu crashed the simulation process (signal SIGSEGV) at step 3 "

@@ -346,10 +346,12 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
-#: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked.
+#: What a case imports (with matplotlib about 1.2 s), loaded before the workers are forked: only modules a case does
+#: import (this is serial time before the cases run side by side; scipy.optimize, which no module imports any more,
+#: took 0.1-0.17 s of it).
 _PRELOAD = ("fmu_opinf.compare", "fmu_opinf.export", "fmu_opinf.fmus", "fmu_opinf.plots", "fmu_opinf.rom",
             "fmu_opinf.snapshots", "fmu_opinf.source", "fmu_opinf.newmark", "fmu_opinf._sdp", "fmu_opinf._recursion",
-            "scipy.optimize", "fmpy.simulation")
+            "fmpy.simulation")
 
 
 def _side_by_side(names: list[str]) -> bool:
