@@ -73,6 +73,27 @@ def test_side_by_side_gives_the_rows_and_table_of_one_after_the_other(tmp_path, 
         assert f"[{name}] [{name}]" not in parallel_out.out
 
 
+def _freeze_count_case(name, out_dir, **options):
+    """Says how many objects the garbage collector leaves out in the process the case runs in."""
+    import gc
+
+    return {**fake_case(name, out_dir, quiet=True), "frozen": gc.get_freeze_count()}
+
+
+def test_the_cases_run_with_the_imports_left_out_of_garbage_collection_and_the_demo_takes_them_back(
+        tmp_path, monkeypatch, capsys):
+    """A full collection walked the ~100,000 objects of the imports, 0.05-0.1 s each, several times per case."""
+    import gc
+
+    monkeypatch.setattr(demo, "run_case", _freeze_count_case)
+    assert gc.get_freeze_count() == 0
+    rows, _ = _run_demo(tmp_path, monkeypatch, capsys, True, "frozen")
+    assert rows[0]["pid"] != rows[1]["pid"]
+    # the imports of the demo's modules, matplotlib and SciPy (well over 50,000 objects) in both processes
+    assert all(row["frozen"] > 50_000 for row in rows), [row["frozen"] for row in rows]
+    assert gc.get_freeze_count() == 0 and gc.isenabled()
+
+
 @pytest.mark.skipif(find_build_tools() is None, reason="no C compiler or CMake to build the FMUs")
 @pytest.mark.slow  # one quick case in a fresh interpreter: 4 s on the idle 2-core machine
 def test_every_module_the_demo_loads_before_forking_is_one_a_case_imports(tmp_path):
