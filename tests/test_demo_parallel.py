@@ -15,7 +15,7 @@ import time
 import pytest
 
 from fmu_opinf import cli, demo
-from fmu_opinf._forked import RemoteTraceback, Worker, can_fork
+from fmu_opinf._forked import LabelledLines, RemoteTraceback, Worker, can_fork
 from fmu_opinf.errors import DataError, Interrupted
 from fmu_opinf.fmus import find_build_tools
 from fmu_opinf.sources import StepError
@@ -260,8 +260,6 @@ def test_the_rom_fmu_compiles_while_the_figures_are_drawn_and_its_errors_stay_th
 
 
 def test_labelled_lines_pass_on_whole_lines_once_labelled():
-    from fmu_opinf._forked import LabelledLines
-
     emitted = []
     stream = LabelledLines("[case] ", emitted.append)
     stream.write("first ")
@@ -270,3 +268,29 @@ def test_labelled_lines_pass_on_whole_lines_once_labelled():
     stream.finish()
     assert "".join(emitted) == "[case] first line\n[case] second\n[case] third\n[case] unfinished\n"
     assert not stream.isatty()
+
+
+def test_labelled_lines_written_from_two_threads_at_once_stay_whole():
+    """A demo case's export runs in a thread that may warn while the case's main thread prints: nothing written
+    is lost or doubled, each line is passed on whole and labelled once."""
+    emitted = []
+    stream = LabelledLines("[case] ", emitted.append)
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads as often as possible: interleavings the old code did not survive
+    try:
+        def write(word):
+            for _ in range(20000):
+                stream.write(word)
+                stream.write(word + "\n")
+
+        threads = [threading.Thread(target=write, args=(word,)) for word in ("abc", "xyz")]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        sys.setswitchinterval(interval)
+    text = "".join(emitted)
+    # nothing lost or doubled: every character written, every line whole and labelled once
+    assert (text.count("b"), text.count("y"), text.count("\n")) == (40000, 40000, 40000)
+    assert all(line.startswith("[case] ") and "[case]" not in line[7:] for line in text.splitlines())

@@ -42,7 +42,8 @@ class LabelledLines(io.TextIOBase):
     """A text stream that hands whole lines, each starting with ``label``, to ``emit``.
 
     Lines that already start with the label's bracketed name (e.g. ``[anchored-msd] snapshot window``) are
-    passed on unchanged.  ``isatty()`` is False, so progress bars stay off.
+    passed on unchanged.  ``isatty()`` is False, so progress bars stay off.  Threads may write at once (a
+    demo case's export thread warning while its main thread prints): each write is whole before the next.
     """
 
     def __init__(self, label: str, emit: Callable[[str], None]) -> None:
@@ -51,6 +52,7 @@ class LabelledLines(io.TextIOBase):
         self._name = label.strip()
         self._emit = emit
         self._pending = ""
+        self._lock = threading.RLock()  # reentrant: emit may write here again (a warning printed while emitting)
 
     def writable(self) -> bool:
         return True
@@ -63,16 +65,18 @@ class LabelledLines(io.TextIOBase):
         return "utf-8"
 
     def write(self, text: str) -> int:
-        *lines, self._pending = (self._pending + text).split("\n")
-        if lines:
-            self._emit("".join(line + "\n" if line.startswith(self._name) else self.label + line + "\n"
-                               for line in lines))
+        with self._lock:
+            *lines, self._pending = (self._pending + text).split("\n")
+            if lines:
+                self._emit("".join(line + "\n" if line.startswith(self._name) else self.label + line + "\n"
+                                   for line in lines))
         return len(text)
 
     def finish(self) -> None:
         """Pass on an unfinished last line."""
-        if self._pending:
-            self.write("\n")
+        with self._lock:
+            if self._pending:
+                self.write("\n")
 
 
 def _locked_writer(stream: Any, lock: threading.Lock) -> Callable[[str], None]:
