@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 import zipfile
 
 import numpy as np
@@ -237,3 +238,21 @@ def test_a_hostile_held_input_name_compiles_and_is_logged_as_it_is(tmp_path, fmi
         simulate_fmu(str(path), stop_time=0.5, start_values={HOSTILE_HELD: 1.0},
                      logger=lambda *args: lines.append(args[-1].decode()))
     assert any(f"input {HOSTILE_HELD} (value reference 2) was held at 2.5 in training" in line for line in lines)
+
+
+def test_a_unit_or_unit_definition_dropped_from_the_rom_fmu_is_said():
+    """Audit 68: units that are not plain names (a hostile ']]>', a name with white space) and malformed unit
+    definitions were left out of the exported FMU without a word.  One warning each; a definition of a unit no
+    variable uses is not written, so not warned about."""
+    from fmu_opinf.errors import FmuOpinfWarning
+
+    definitions = {"N": {"base": {"kg": 1, "m": 1, "s": -2.5}}, "Pa": {"base": {"parsec": 1}}}
+    snapshots = {"input_units": ["N"], "output_units": ["]]>"], "unit_definitions": definitions}
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        spec = rom_fmu_spec(_rom(provenance={"snapshots": snapshots}), "Units")
+    said = [str(w.message) for w in seen if issubclass(w.category, FmuOpinfWarning)]
+    assert spec.output_units == [""] and spec.input_units == ["N"]
+    assert len(said) == 2, said
+    assert said[0].startswith("the recorded unit ']]>' is not a plain unit name"), said
+    assert said[1].startswith("the recorded definition of unit 'N' is not of the form"), said

@@ -51,7 +51,7 @@ import numpy as np
 
 from ._threads import single_threaded
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name
+from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -495,7 +495,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                                                    default=str) + "\n"},
         fmi_version=fmi_version,
         output_units=output_units + [_position_unit(provenance)] * len(names),
-        unit_definitions=_recorded_unit_definitions(provenance),
+        unit_definitions=_recorded_unit_definitions(provenance, set(input_units + output_units)),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
         step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
         output_dependencies=dependencies,
@@ -775,9 +775,15 @@ def _export_step(step: float, dt: float | None) -> float:
 
 def _units(value: Any, count: int) -> list[str]:
     """A recorded unit list if it is one unit name (or "") per variable, else no units; provenance is data, so
-    anything but a plain unit name is dropped (:func:`fmu_opinf.fmus.is_unit_name`)."""
+    anything but a plain unit name is dropped (:func:`fmu_opinf.fmus.is_unit_name`), with one warning each: an
+    FMU shipped without a unit its source declared should not be a surprise (audit 68)."""
     if not isinstance(value, list) or len(value) != count:
         return [""] * count
+    for unit in value:
+        if unit not in ("", None) and not is_unit_name(unit):
+            warnings.warn(f"the recorded unit {str(unit)[:60]!r} is not a plain unit name (1 to 40 letters, digits, "
+                          "'_./*^()%+-' or printable non-ASCII signs): the ROM FMU declares its variable without "
+                          "a unit", FmuOpinfWarning, stacklevel=2)
     return [u if is_unit_name(u) else "" for u in value]
 
 
@@ -871,12 +877,22 @@ def _declared_input_ranges(provenance: dict, names: list[str],
     return [(float(a), float(b)) for a, b in zip(low, high)]
 
 
-def _recorded_unit_definitions(provenance: dict) -> dict[str, dict]:
+def _recorded_unit_definitions(provenance: dict, used: set[str] | None = None) -> dict[str, dict]:
     """The source's definitions of its units (base and display units) as recorded with the training snapshots;
-    each is checked again when written (:func:`fmu_opinf.fmus.unit_definition`)."""
+    each is checked again when written (:func:`fmu_opinf.fmus.unit_definition`), and one of a unit in ``used``
+    (the units the FMU's variables declare; only theirs are written) that fails it is said in one warning."""
     snapshots = provenance.get("snapshots")
     recorded = snapshots.get("unit_definitions") if isinstance(snapshots, dict) else None
-    return {name: value for name, value in recorded.items() if isinstance(name, str)} if isinstance(recorded, dict) else {}
+    if not isinstance(recorded, dict):
+        return {}
+    kept = {name: value for name, value in recorded.items() if isinstance(name, str)}
+    for name, value in kept.items():
+        if unit_definition(value) is None and is_unit_name(name) and (used is None or name in used):
+            warnings.warn(f"the recorded definition of unit {name!r} is not of the form fmu-opinf records (SI base "
+                          "units with integer exponents, finite factor and offset, plain display unit names): the "
+                          "ROM FMU declares the unit without its base units and display units", FmuOpinfWarning,
+                          stacklevel=2)
+    return kept
 
 
 def _position_unit(provenance: dict) -> str:
