@@ -172,3 +172,33 @@ def compiled(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 
     monkeypatch.setattr(fmus, "_run_side_by_side", spy)
     return written
+
+
+#: The logger that fmpy's process-wide logger-proxy slot is pointed back at after each test (kept alive here).
+_LASTING_FMPY_LOGGER: list = []
+
+
+@pytest.fixture(autouse=True)
+def _fmpy_logger_slot_pointed_at_a_living_logger():
+    """After each test, point fmpy's native logger-proxy slot at a logger that lives as long as the session.
+
+    ``fmpy.simulate_fmu(logger=...)`` on an FMI 2 FMU leaves that process-wide slot at a ctypes thunk freed when it
+    returns, and the next FMU that logs through fmpy's default callbacks (``FMU2Slave`` used directly) jumps into
+    freed memory: a held input's refusal tested that way crashed a later test's ``fmi2DeSerializeFMUstate`` in the
+    same worker (segmentation fault or illegal instruction; the tool's own sources reset the slot themselves,
+    :func:`fmu_opinf.sources._cosimulation._fmi2_callbacks`)."""
+    yield
+    if "fmpy.logging" not in sys.modules:
+        return
+    import ctypes
+
+    from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, printLogMessage
+    from fmpy.logging import addLoggerProxy
+
+    if not _LASTING_FMPY_LOGGER:
+        _LASTING_FMPY_LOGGER.append(fmi2CallbackLoggerTYPE(printLogMessage))
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = _LASTING_FMPY_LOGGER[0]
+    callbacks.allocateMemory = defaultCallbacks.allocateMemory
+    callbacks.freeMemory = defaultCallbacks.freeMemory
+    addLoggerProxy(ctypes.byref(callbacks))
