@@ -525,7 +525,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
-    rom_options: dict[str, Any] = {"isolate": isolate, **rom_info["fmu_options"]} if isinstance(rom_side, Path) else {}
+    rom_options: dict[str, Any] = ({"isolate": isolate, **rom_info.get("fmu_options", {})}
+                                   if isinstance(rom_side, Path) else {})
     if not isinstance(rom_side, Path):
         rom_options["initial"] = _source_start(rom_side, source, signal, t, source_options)
     y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
