@@ -826,3 +826,25 @@ def test_error_figures_of_outputs_near_the_top_of_the_floating_point_range_are_f
         first = metrics["per_output"]["y[1]"]
         assert first["relative_max"] == pytest.approx(1e-3, rel=1e-9), size
         assert first["absolute_max"] == pytest.approx(1e-3 * size, rel=1e-6), size
+
+
+def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
+    """Audit 69, F6: ``compare`` on a ROM FMU gave no order note, since the FMU did not carry the fit's report.  The
+    export writes :func:`compare._order_chosen` of the ROM into provenance.json, and compare takes it back only in
+    that form (a data file)."""
+    from fmu_opinf.export import rom_fmu_spec
+    from fmu_opinf.rom import SecondOrderROM
+
+    search = [{"r": 4, "judged": 0.97}, {"r": 8, "judged": 0.9}, {"r": 16, "judged": 0.05}]
+    rom = SecondOrderROM(np.eye(2), 0.1 * np.eye(2), np.diag([1.0, 4.0]), np.ones((2, 1)), np.ones((1, 2)),
+                         np.zeros((1, 2)), dt=0.1, provenance={"fit_settings": {"r": None}},
+                         fit_info={"snapshot_rank": 30, "order_search": search})
+    carried = json.loads(rom_fmu_spec(rom, "Order").extra_files["provenance.json"])["rom_fmu_order"]
+    expected = {"r": 2, "chosen": "search", "snapshot_rank": 30, "tried": [4, 8, 16]}
+    assert carried == expected and compare._carried_order({"rom_fmu_order": carried}) == expected
+    off = {"per_output": {"y[1]": {"relative_max_variation": 0.2}}}
+    assert "the fit's order search kept r=2 (tried r=4, 8, 16) on snapshots of rank 30" in compare.order_note(
+        {**off, "order": compare._carried_order({"rom_fmu_order": carried})})
+    for bad in ({**expected, "r": "2; rm -rf"}, {**expected, "chosen": "<script>"}, {**expected, "tried": [True]},
+                {**expected, "snapshot_rank": -1}, [expected], None):
+        assert compare._carried_order({"rom_fmu_order": bad}) == {}, bad

@@ -540,7 +540,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
         timed=_timed(source, rom_side, isolate, fom_prov),
         input_choice=f"chosen without --input: {why}" if why else "",
-        order=_order_chosen(rom_side),
+        order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
     )
 
 
@@ -549,7 +549,8 @@ def _order_chosen(rom_side: Any) -> dict[str, Any]:
     took it from the POD energy (eq. 18) and judged it good enough, or ``"search"`` where its order search ran (and
     grew it, or kept the energy's after trying larger ones); the snapshot rank that bounds it; the orders the search
     tried (``fit_info["order_search"]``), and ``noise_floor`` where it stopped at one of the singular values
-    (:func:`fmu_opinf.rom._noise_floor`).  Empty for an exported FMU or a ROM that does not say."""
+    (:func:`fmu_opinf.rom._noise_floor`).  Empty for a ROM that does not say (an exported FMU carries it:
+    :func:`_carried_order`)."""
     info = getattr(rom_side, "fit_info", None) or {}
     settings = (getattr(rom_side, "provenance", None) or {}).get("fit_settings")
     rank = info.get("snapshot_rank")
@@ -562,6 +563,28 @@ def _order_chosen(rom_side: Any) -> dict[str, Any]:
     floor = next((entry["noise_floor"] for entry in search if isinstance(entry.get("noise_floor"), int)), None)
     if floor is not None:
         chosen["noise_floor"] = floor
+    return chosen
+
+
+def _carried_order(provenance: dict[str, Any]) -> dict[str, Any]:
+    """:func:`_order_chosen` of the ROM an exported FMU was made from, as its provenance.json carries it
+    (``rom_fmu_order``, since 2026-12-06; audit 69 F6: compare on a ROM FMU gave no order note).  A data file:
+    taken only if every field has the form :func:`_order_chosen` gives it, else nothing."""
+    carried = provenance.get("rom_fmu_order")
+    if not isinstance(carried, dict) or carried.get("chosen") not in ("given", "energy", "search"):
+        return {}
+
+    def count(value: Any) -> bool:
+        return isinstance(value, int) and not isinstance(value, bool) and 0 < value < 1_000_000
+
+    tried = carried.get("tried")
+    if not (count(carried.get("r")) and count(carried.get("snapshot_rank")) and isinstance(tried, list)
+            and all(count(value) for value in tried) and len(tried) <= 64):
+        return {}
+    chosen = {"r": carried["r"], "chosen": carried["chosen"], "snapshot_rank": carried["snapshot_rank"],
+              "tried": list(tried)}
+    if count(carried.get("noise_floor")):
+        chosen["noise_floor"] = carried["noise_floor"]
     return chosen
 
 

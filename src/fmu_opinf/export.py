@@ -485,6 +485,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     state_names = rom_state_names(list(inputs["input_names"] or []) + output_names + names)
     provenance["rom_fmu_states"] = list(state_names)
     provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
+    provenance["rom_fmu_order"] = _order_record(rom)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, p=p + len(names),
@@ -893,6 +894,14 @@ def _recorded_unit_definitions(provenance: dict, used: set[str] | None = None) -
                           "ROM FMU declares the unit without its base units and display units", FmuOpinfWarning,
                           stacklevel=2)
     return kept
+
+
+def _order_record(rom: SecondOrderROM) -> dict[str, Any]:
+    """How the ROM's order was chosen (:func:`fmu_opinf.compare._order_chosen`), for ``compare`` on the FMU: its
+    order note needs it, and the FMU does not carry the fit's report (audit 69 F6)."""
+    from .compare import _order_chosen
+
+    return _order_chosen(rom)
 
 
 def _position_unit(provenance: dict) -> str:
