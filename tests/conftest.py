@@ -174,31 +174,22 @@ def compiled(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     return written
 
 
-#: The logger that fmpy's process-wide logger-proxy slot is pointed back at after each test (kept alive here).
-_LASTING_FMPY_LOGGER: list = []
+class _NoRecipient:
+    def log(self, *message) -> None:  # never reached: the dispatcher finds no living recipient and prints
+        pass
 
 
 @pytest.fixture(autouse=True)
 def _fmpy_logger_slot_pointed_at_a_living_logger():
-    """After each test, point fmpy's native logger-proxy slot at a logger that lives as long as the session.
+    """After each test, point fmpy's native logger-proxy slot back at the tool's process-long dispatcher
+    (:func:`fmu_opinf.sources._cosimulation._fmi2_callbacks`, the mechanism the tool's own sources use).
 
     ``fmpy.simulate_fmu(logger=...)`` on an FMI 2 FMU leaves that process-wide slot at a ctypes thunk freed when it
     returns, and the next FMU that logs through fmpy's default callbacks (``FMU2Slave`` used directly) jumps into
     freed memory: a held input's refusal tested that way crashed a later test's ``fmi2DeSerializeFMUstate`` in the
-    same worker (segmentation fault or illegal instruction; the tool's own sources reset the slot themselves,
-    :func:`fmu_opinf.sources._cosimulation._fmi2_callbacks`)."""
+    same worker (segmentation fault or illegal instruction)."""
     yield
-    if "fmpy.logging" not in sys.modules:
-        return
-    import ctypes
+    if "fmpy.logging" in sys.modules:
+        from fmu_opinf.sources._cosimulation import _fmi2_callbacks
 
-    from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, printLogMessage
-    from fmpy.logging import addLoggerProxy
-
-    if not _LASTING_FMPY_LOGGER:
-        _LASTING_FMPY_LOGGER.append(fmi2CallbackLoggerTYPE(printLogMessage))
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = _LASTING_FMPY_LOGGER[0]
-    callbacks.allocateMemory = defaultCallbacks.allocateMemory
-    callbacks.freeMemory = defaultCallbacks.freeMemory
-    addLoggerProxy(ctypes.byref(callbacks))
+        _fmi2_callbacks(_NoRecipient().log)

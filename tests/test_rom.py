@@ -780,14 +780,15 @@ def test_a_chain_under_a_constant_load_started_off_equilibrium_gets_the_order_it
 
 
 def test_free_response_errors_measure_each_run_until_its_inputs_change():
-    """:func:`fmu_opinf.refinement.free_response_errors` against a by-hand figure: a model with a 10 % stiffer
-    spring, simulated by the exact zero-order-hold response (:func:`fmu_opinf.lti_fmus.zoh_response`, not the
-    refinement's step), over the samples before the first run's pulse, relative to the recorded outputs' variation
-    about their mean.  A run whose inputs change at once has no free response; a start at rest has none to judge."""
+    """The free-response errors of :func:`fmu_opinf.refinement.output_errors` against a by-hand figure: a model with a
+    10 % stiffer spring, simulated by the exact zero-order-hold response (:func:`fmu_opinf.lti_fmus.zoh_response`,
+    not the refinement's step), over the samples before the first run's pulse, relative to the recorded outputs'
+    variation about their mean. A run whose inputs change at once has no free response; a start at rest has none to
+    judge."""
     from dataclasses import replace
 
     from fmu_opinf import lti_fmus
-    from fmu_opinf.refinement import FREE_RESPONSE_SAMPLES, free_response_errors
+    from fmu_opinf.refinement import FREE_RESPONSE_SAMPLES, output_errors
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
@@ -808,8 +809,8 @@ def test_free_response_errors_measure_each_run_until_its_inputs_change():
     def errors(runs, K):
         u = np.hstack([u for u, _ in runs])
         x, v, y = (np.hstack([getattr(run, name) for _, run in runs]) for name in ("x", "v", "y"))
-        return free_response_errors(model.M, model.D, K, model.B, v, x, u, y, dt, output_map=(model.Cp, model.Cv),
-                                    run_lengths=[t.size] * len(runs), integrator="exact")
+        return output_errors(model.M, model.D, K, model.B, v, x, u, y, dt, output_map=(model.Cp, model.Cv),
+                             run_lengths=[t.size] * len(runs), integrator="exact").free_response
 
     assert expected.min() > 1e-3   # the stiffer spring is visible in the free response
     np.testing.assert_allclose(errors(runs, stiffer.K), expected, rtol=1e-8)

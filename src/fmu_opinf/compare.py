@@ -48,24 +48,29 @@ def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
     -------
     (k,) ndarray
     """
-    y_ref, y = _in_reference_units(y_ref, y)
+    return _eq19(*_in_reference_units(y_ref, y)[:2])
+
+
+def _eq19(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Eq. (19) of outputs already in the reference's units (:func:`_in_reference_units`)."""
     scale = np.max(np.sum(y_ref**2, axis=0))
     if scale == 0:
         raise DimensionError("the reference output is identically zero; eq. (19) is undefined")
     return np.sum((y_ref - y) ** 2, axis=0) / scale
 
 
-def _in_reference_units(y_ref: Any, y: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Both outputs divided by the reference's largest magnitude: the error measures are ratios, and squaring raw
-    outputs above about 1e154 overflowed to a NaN error reported as a success (audit 68)."""
+def _in_reference_units(y_ref: Any, y: Any) -> tuple[np.ndarray, np.ndarray, float]:
+    """Both outputs divided by the reference's largest magnitude, and that unit (1 for a zero or non-finite
+    reference): the error measures are ratios, and squaring raw outputs above about 1e154 overflowed to a NaN error
+    reported as a success (audit 68)."""
     y_ref = np.atleast_2d(np.asarray(y_ref, dtype=float))
     y = np.atleast_2d(np.asarray(y, dtype=float))
     if y_ref.shape != y.shape:
         raise DimensionError(f"outputs differ in shape: reference {y_ref.shape}, ROM {y.shape}")
     unit = float(np.max(np.abs(y_ref))) if y_ref.size else 0.0
     if not (math.isfinite(unit) and unit > 0):
-        return y_ref, y
-    return y_ref / unit, y / unit
+        return y_ref, y, 1.0
+    return y_ref / unit, y / unit, unit
 
 
 def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | None = None) -> dict[str, Any]:
@@ -83,10 +88,8 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         variation show errors that a large static offset (``y0``, a static deflection) would hide (second audit,
         2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
     """
-    eps = output_error(y_ref, y)
-    unit = float(np.max(np.abs(np.atleast_2d(y_ref)))) if np.size(y_ref) else 0.0
-    y_ref, y = _in_reference_units(y_ref, y)
-    unit = unit if math.isfinite(unit) and unit > 0 else 1.0
+    y_ref, y, unit = _in_reference_units(y_ref, y)
+    eps = _eq19(y_ref, y)
     names = output_names or [f"y[{j + 1}]" for j in range(y_ref.shape[0])]
     per_output = {}
     for j, name in enumerate(names):

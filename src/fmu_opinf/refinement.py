@@ -18,7 +18,7 @@ import time
 from collections.abc import Iterator
 from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -698,13 +698,29 @@ def output_error_objective(
 SILENT_OUTPUT = 1e-8
 
 
+class OutputErrors(NamedTuple):
+    """Each training output's relative squared errors (:func:`output_errors`): over whole runs, and over the
+    runs' free responses (the worst run)."""
+
+    whole: np.ndarray
+    free_response: np.ndarray
+
+
+#: Samples a run's free response (:func:`output_errors`) must span to be judged on its own.
+FREE_RESPONSE_SAMPLES = 10
+#: RMS of a free response's variation, relative to the output's RMS over all training samples, at or below which
+#: :func:`output_errors` does not judge it: a source started at rest at its equilibrium has none.
+FREE_RESPONSE_SIZE = 1e-2
+
+
 def output_errors(
     Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
     xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
     output_map: tuple[np.ndarray, np.ndarray], run_lengths: list[int] | None = None, integrator: str = "newmark",
-) -> np.ndarray:
-    """Each output's relative squared error ``||(C z)_j - y_j||^2 / ||y_j||^2`` over the training runs, simulated
-    as :func:`output_error_objective` simulates them, each relative to its own size alone.
+) -> OutputErrors:
+    """Each output's relative squared error over the training runs, simulated as :func:`output_error_objective`
+    simulates them (one simulation per run), each output relative to its own size alone: over whole runs
+    (``||(C z)_j - y_j||^2 / ||y_j||^2``) and over their *free responses*.
 
     The objective weighs an output below :data:`OUTPUT_FLOOR` of the largest one as if it had that size, which
     suits a near-silent output but not outputs in different units: beside a tip acceleration of RMS 4e7 the
@@ -712,81 +728,62 @@ def output_errors(
     (audit 65, F2).  Here no output is measured against another; one at or below :data:`SILENT_OUTPUT` of the
     largest is not judged (NaN).
 
+    A run's free response is its stretch from the start until its inputs first change, where the source moves from
+    its own start values alone: an FMU starts there, neither at rest nor at equilibrium, and the ROM FMU is first
+    run with nothing connected.  Pooled over whole runs that motion counts for little beside a 100 N training
+    pulse: a ROM 22 % of an acceleration's range off the free response passed at 1e-5 (audit 69, F2).  Each free
+    stretch is measured against its own variation about its mean (an output's offset is not motion); the worst run
+    counts.  Stretches shorter than :data:`FREE_RESPONSE_SAMPLES`, and outputs whose variation there is at or below
+    :data:`FREE_RESPONSE_SIZE` of their RMS over all samples, are not judged.
+
     Returns
     -------
-    (p,) ndarray
-        The relative squared errors (inf where the simulation overflows, NaN for a silent output).
+    OutputErrors
+        ``whole`` and ``free_response``, each ``(p,)`` (inf where the simulation overflows, NaN where an output was
+        not judged).
     """
     k = x_r.shape[1]
     cuts = np.cumsum([0] + _run_lengths(run_lengths, k, dt))
     y = np.atleast_2d(y)
     C = np.hstack(output_map)
     step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
-    squared = np.zeros(y.shape[0])
+    norms = np.array([float(np.dot(row, row)) for row in y])
+    squared, free = np.zeros(y.shape[0]), np.full(y.shape[0], np.nan)
     with np.errstate(over="ignore", invalid="ignore"):
         for a, b in zip(cuts[:-1], cuts[1:]):
             z = propagate(step.Ad, step.Bd @ u[:, a:b], np.concatenate([x_r[:, a], xdot_r[:, a]]), _STRIDE)
             for part in column_blocks(y.shape[0], b - a):
                 err = C @ z[:, part] - y[:, a:b][:, part]
                 squared += np.sum(err * err, axis=1)
-    norms = np.array([float(np.dot(row, row)) for row in y])
+            _worst_free_response(free, C @ z[:, :_free_length(u[:, a:b])], y[:, a:b], norms / k)
     judged = norms > (SILENT_OUTPUT ** 2) * norms.max() if norms.max() > 0 else np.zeros(len(norms), dtype=bool)
-    errors = np.full(y.shape[0], np.nan)
-    errors[judged] = squared[judged] / norms[judged]
-    errors[judged & ~np.isfinite(squared)] = np.inf
-    return errors
+    whole = np.full(y.shape[0], np.nan)
+    whole[judged] = squared[judged] / norms[judged]
+    whole[judged & ~np.isfinite(squared)] = np.inf
+    return OutputErrors(whole, free)
 
 
-#: Samples a run's free response (:func:`free_response_errors`) must span to be judged on its own.
-FREE_RESPONSE_SAMPLES = 10
-#: RMS of a free response's variation, relative to the output's RMS over all training samples, at or below which
-#: :func:`free_response_errors` does not judge it: a source started at rest at its equilibrium has none.
-FREE_RESPONSE_SIZE = 1e-2
+def _free_length(u: np.ndarray) -> int:
+    """Samples of a run before its inputs first change (0 where that is shorter than FREE_RESPONSE_SAMPLES)."""
+    changed = np.flatnonzero(np.any(u != u[:, :1], axis=0))
+    length = int(changed[0]) if changed.size else u.shape[1]
+    return length if length >= FREE_RESPONSE_SAMPLES else 0
 
 
-def free_response_errors(
-    Mr: np.ndarray, Dr: np.ndarray, Kr: np.ndarray, Br: np.ndarray,
-    xdot_r: np.ndarray, x_r: np.ndarray, u: np.ndarray, y: np.ndarray, dt: float, *,
-    output_map: tuple[np.ndarray, np.ndarray], run_lengths: list[int] | None = None, integrator: str = "newmark",
-) -> np.ndarray:
-    """Each output's relative squared error over the *free responses* of the training runs: the samples from a
-    run's start until its inputs first change, where the source moves from its own start values alone.
-
-    An FMU starts from its start values, neither at rest nor at equilibrium, and the ROM FMU is first run with
-    nothing connected.  Pooled over whole runs (:func:`output_errors`) that motion counts for little beside a
-    100 N training pulse: a ROM 22 % of an acceleration's range off the free response passed at 1e-5 (audit 69,
-    F2).  Here each run's free stretch is measured against its own variation about its mean (an output's offset
-    is not motion); the worst run counts.  Stretches shorter than :data:`FREE_RESPONSE_SAMPLES`, and outputs whose
-    variation there is at or below :data:`FREE_RESPONSE_SIZE` of their RMS over all samples, are not judged.
-
-    Returns
-    -------
-    (p,) ndarray
-        The worst relative squared error of each output (NaN where nothing was judged, inf on overflow).
-    """
-    k = x_r.shape[1]
-    cuts = np.cumsum([0] + _run_lengths(run_lengths, k, dt))
-    y = np.atleast_2d(y)
-    C = np.hstack(output_map)
-    step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
-    overall = np.array([float(np.dot(row, row)) for row in y]) / k
-    errors = np.full(y.shape[0], np.nan)
-    with np.errstate(over="ignore", invalid="ignore"):
-        for a, b in zip(cuts[:-1], cuts[1:]):
-            changed = np.flatnonzero(np.any(u[:, a:b] != u[:, a:a + 1], axis=0))
-            end = a + (int(changed[0]) if changed.size else b - a)
-            if end - a < FREE_RESPONSE_SAMPLES:
-                continue
-            z = propagate(step.Ad, step.Bd @ u[:, a:end], np.concatenate([x_r[:, a], xdot_r[:, a]]), _STRIDE)
-            recorded = y[:, a:end]
-            motion = recorded - recorded.mean(axis=1, keepdims=True)
-            size = np.sum(motion * motion, axis=1)
-            judged = size > (FREE_RESPONSE_SIZE ** 2) * overall * (end - a)
-            err = C @ z - recorded
-            run_errors = np.sum(err * err, axis=1)[judged] / size[judged]
-            run_errors[~np.isfinite(run_errors)] = np.inf
-            errors[judged] = np.fmax(errors[judged], run_errors)
-    return errors
+def _worst_free_response(worst: np.ndarray, simulated: np.ndarray, y: np.ndarray, mean_square: np.ndarray) -> None:
+    """Raise ``worst`` (in place) to one run's free-response errors: ``simulated`` the ROM's outputs over the free
+    stretch, ``y`` the run's recorded outputs, ``mean_square`` each output's mean square over all samples."""
+    length = simulated.shape[1]
+    if not length:
+        return
+    recorded = y[:, :length]
+    motion = recorded - recorded.mean(axis=1, keepdims=True)
+    size = np.sum(motion * motion, axis=1)
+    judged = size > (FREE_RESPONSE_SIZE ** 2) * mean_square * length
+    err = simulated - recorded
+    errors = np.sum(err * err, axis=1)[judged] / size[judged]
+    errors[~np.isfinite(errors)] = np.inf
+    worst[judged] = np.fmax(worst[judged], errors)
 
 
 def _run_lengths(run_lengths: list[int] | None, k: int, dt: float) -> list[int]:

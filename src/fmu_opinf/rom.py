@@ -1626,14 +1626,14 @@ def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray],
 
 def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
                    output_map: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
-    """Each training output's relative squared error, each relative to its own size, over the whole runs
-    (:func:`fmu_opinf.refinement.output_errors`) and over their free responses
-    (:func:`fmu_opinf.refinement.free_response_errors`), as ``{"output_errors": [...], "free_response_errors":
-    [...], "worst_output_error": e, "worst_output": j, "worst_in_free_response": bool}`` (0-based ``j``, the larger
-    of the two figures; None where an output was not judged), for the model fitted (in its modal coordinates, if
-    any) with its output map; empty where the training runs cannot be simulated (``simulated``: the keywords of
-    :func:`_refinement` on the sampled states).  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
-    from .refinement import free_response_errors, output_errors
+    """Each training output's relative squared error, each relative to its own size, over the whole runs and over
+    their free responses (:func:`fmu_opinf.refinement.output_errors`, one simulation), as ``{"output_errors":
+    [...], "free_response_errors": [...], "worst_output_error": e, "worst_output": j, "worst_in_free_response":
+    bool}`` (0-based ``j``, the larger of the two figures; None where an output was not judged), for the model
+    fitted (in its modal coordinates, if any) with its output map; empty where the training runs cannot be simulated
+    (``simulated``: the keywords of :func:`_refinement` on the sampled states).  ``u``: the sampled inputs (with the
+    row of ones of ``fr``)."""
+    from .refinement import output_errors
 
     if not simulated.get("refine"):
         return {}
@@ -1644,10 +1644,9 @@ def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulat
         if ops.output_map is None:   # a map of the POD coordinates
             C = C @ ops.coordinates
     r = data["x"].shape[0]
-    arguments = (ops.Mr, ops.Dr, ops.Kr, ops.Br, z[r:], z[:r], u, simulated["y"], simulated["dt"])
-    options = {"output_map": (C[:, :r], C[:, r:]), "run_lengths": simulated["run_lengths"],
-               "integrator": simulated["integrator"]}
-    errors, free = output_errors(*arguments, **options), free_response_errors(*arguments, **options)
+    errors, free = output_errors(ops.Mr, ops.Dr, ops.Kr, ops.Br, z[r:], z[:r], u, simulated["y"], simulated["dt"],
+                                 output_map=(C[:, :r], C[:, r:]), run_lengths=simulated["run_lengths"],
+                                 integrator=simulated["integrator"])
     result: dict[str, Any] = {"output_errors": _listed(errors), "free_response_errors": _listed(free)}
     combined = np.fmax(errors, free)
     if not np.any(np.isfinite(combined) | np.isinf(combined)):
