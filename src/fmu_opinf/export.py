@@ -420,6 +420,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     names, rows, velocity_rows, offsets = _reconstruction_rows(rom, reconstruct, r)
     if names:
         _warn_if_reconstruction_is_poor(getattr(rom, "fit_info", None) or {})
+    _warn_if_start_is_missed(rom)
     extra = {"fr": _vector(rom, "fr", r), "y0": _vector(rom, "y0", p), "q0": _vector(rom, "q0", r),
              "qdot0": _vector(rom, "qdot0", r),
              "Dur": np.zeros((p, m)) if getattr(rom, "Dur", None) is None else _matrix(rom, "Dur", (p, m))}
@@ -716,6 +717,16 @@ def _warn_if_reconstruction_is_poor(fit_info: dict) -> None:
                       f"where its basis allows {best:.2g}: the output-error refinement fitted the outputs, not the "
                       "basis's coordinates; for reconstructed positions refit with --no-refine (the SDP solution, in "
                       "the basis's coordinates) or a larger --r", FmuOpinfWarning, stacklevel=3)
+
+
+def _warn_if_start_is_missed(rom: Any) -> None:
+    """The fit's warning that the ROM's outputs at its start miss the source's (:func:`fmu_opinf.rom.start_miss_warning`)
+    again at export: the ROM FMU run with nothing connected shows that miss first (audit 69 F3)."""
+    from .rom import start_miss_warning
+
+    message = start_miss_warning(getattr(rom, "fit_info", None) or {}, list(getattr(rom, "output_names", None) or ()))
+    if message:
+        warnings.warn(message, FmuOpinfWarning, stacklevel=3)
 
 
 def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict) -> tuple[np.ndarray, np.ndarray] | None:

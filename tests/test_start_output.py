@@ -1,0 +1,66 @@
+"""The ROM's outputs at its start against the source's (audit 69 F3): recorded in ``fit_info`` and warned about by
+``fit`` and ``export`` where they miss by more than :data:`fmu_opinf.rom.START_OUTPUT_MISS` of an output's range.
+
+Reference: the exact zero-order-hold response of a 12-mass chain started off rest (``lti_fmus.zoh_response``),
+against the ROM's own simulation at ``t = 0`` (not the output map that ``fit_rom`` evaluates)."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from fmu_opinf import lti_fmus
+from fmu_opinf.errors import FmuOpinfWarning
+from fmu_opinf.export import _warn_if_start_is_missed
+from fmu_opinf.rom import START_OUTPUT_MISS, fit_rom
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.snapshots import Run
+from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+DT, T_END, N = 0.05, 40.0, 12
+
+
+@pytest.fixture(scope="module")
+def off_rest_run():
+    """One training pulse on the tip of a chain whose start velocity is a high spatial harmonic (little of it in a
+    low-order basis); outputs: tip position, velocity of the first mass."""
+    s = np.arange(N) / (N - 1)
+    model = lti_fmus.chain_model(N, x0=0.05 * np.sin(np.pi * s), v0=0.3 * np.sin(5 * np.pi * s))
+    t = time_grid(DT, T_END)
+    u = inputs_in_effect(parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), t, 1)
+    exact = lti_fmus.zoh_response(model, t, u[:, 1:])
+    return Run(t, u, exact.x, exact.v, exact.a, exact.y), exact.y
+
+
+def _fit(run, r):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rom = fit_rom([run], r=r, integrator="exact", quiet=True)
+    return rom, [str(w.message) for w in caught if "at its start" in str(w.message)]
+
+
+def _start_miss_of_simulation(rom, y_exact):
+    y = rom.simulate("none", DT, 2 * DT).y
+    return np.abs(y[:, 0] - y_exact[:, 0]) / np.ptp(y_exact, axis=1)
+
+
+def test_reduced_order_start_miss_is_recorded_and_warned(off_rest_run):
+    run, y_exact = off_rest_run
+    rom, said = _fit(run, 6)
+    simulated = _start_miss_of_simulation(rom, y_exact)
+    assert simulated[1] > 2 * START_OUTPUT_MISS                                  # measured 0.0235
+    np.testing.assert_allclose(rom.fit_info["start_output_miss"], simulated, rtol=1e-9, atol=1e-15)
+    assert len(said) == 1 and "output y[2]" in said[0] and f"{simulated[1]:.2g}" in said[0], said
+    with pytest.warns(FmuOpinfWarning, match=r"at its start \(t = 0\) miss .* output y\[2\]"):
+        _warn_if_start_is_missed(rom)
+
+
+def test_full_order_start_is_exact_and_silent(off_rest_run):
+    run, y_exact = off_rest_run
+    rom, said = _fit(run, N)
+    assert max(rom.fit_info["start_output_miss"]) < 1e-14                           # measured 1.9e-18
+    assert np.max(_start_miss_of_simulation(rom, y_exact)) < 1e-14
+    assert said == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_if_start_is_missed(rom)
