@@ -494,10 +494,15 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     from .newmark import MAX_GRID_STEPS, time_grid
     from .rom import held_input_names
     from .signals import parse_signal
+    from .snapshots._record import check_table_times
+    from .sources import StepError
 
     rom_side = _load_rom_side(rom)
     rom_info = _rom_side_info(rom_side)
     dt = float(dt if dt is not None else rom_info["dt"])
+    end_given = t_end is not None
+    if t_end is None:   # an input table's last time (audit 70, F3: four times the training ran past it)
+        t_end = _table_end(signal, rom_info)
     if t_end is None:
         t_train = rom_info.get("t_train_end")
         if not (t_train and math.isfinite(float(t_train)) and 0 < 4 * float(t_train) / dt <= MAX_GRID_STEPS):
@@ -521,10 +526,14 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"], held), source,
                                    source_options)
 
+    check_table_times([signal], float(source_options.get("start_time") or 0.0))
     trained = _trained_input_names(rom_info)
     by_name = {"signal_inputs": trained} if _fmu_path(source) and trained else {}
-    y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
-                                                                 **source_options, **by_name)
+    try:
+        y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
+                                                                     **source_options, **by_name)
+    except StepError as stopped:
+        raise _past_termination(stopped, float(t_end), end_given) from None
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
@@ -545,6 +554,34 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         input_choice=f"chosen without --input: {why}" if why else "",
         order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
     )
+
+
+def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
+    """The last time of an input table given as ``signal`` (None for any other input or none): the default end of
+    a comparison driven by it, since it cannot be sampled beyond."""
+    from .rom import held_input_names
+    from .signals import parse_signal
+    from .snapshots._record import input_table_end
+
+    if signal is None:
+        return None
+    if isinstance(signal, str):
+        held = held_input_names(rom_info["provenance"])
+        signal = parse_signal(signal, rom_info["m"], rom_info["input_names"], held) if rom_info["m"] else None
+    return input_table_end([signal]) if signal is not None else None
+
+
+def _past_termination(stopped: Any, t_end: float, end_given: bool) -> Any:
+    """The error of a source run that the FMU ended by terminating the simulation, where the run went to
+    compare's default end (four times the training's): the fix is compare's ``--t-end`` (audit 70, F5: the
+    source's advice said "record a shorter run")."""
+    from .sources import StepError, terminated_at
+
+    at = terminated_at(str(stopped))
+    if at is None or end_given:
+        return stopped
+    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, four times the training's end; give "
+                     f"compare --t-end below {at:g})", stopped.step, stopped.time)
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:

@@ -1011,13 +1011,16 @@ def start_miss_warning(info: dict, names: Sequence[str] = ()) -> str | None:
             "fits all snapshots alike; a larger --r takes more of the start state into the basis")
 
 
-def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None) -> None:
+def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None,
+                                 fixed: bool = False) -> None:
     """Warn when a learned pole lies above the Nyquist frequency ``pi / dt`` of the training data.
 
     Samples ``dt`` apart see such a mode only as an alias, so neither the refinement nor a comparison at that step
     can check its frequency and damping (the SDP's accelerations may still get them right, as on exact data): in
     the fifth audit (modes at 0.91 .. 2.3e4 rad/s, dt = 0.01) a learned undamped mode at 8.3e3 rad/s rang for
-    ever in an acceleration output, 3.2e-2 of its peak off, while eq. (19) said 1.7e-9.
+    ever in an acceleration output, 3.2e-2 of its peak off, while eq. (19) said 1.7e-9.  ``fixed``: ``dt`` is the
+    one communication step the FMU accepts (the snapshot file's ``fixed_communication_step``), so only a smaller
+    r is offered (audit 70, F10: a finer --dt was advised to an FMU that refuses it).
     """
     oscillating = [im for _, im in poles if im > 0]   # real (overdamped) poles do not ring
     if not dt or not oscillating:
@@ -1026,13 +1029,14 @@ def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | N
     if omega > nyquist:
         from .sources._base import nice_floor
 
-        warnings.warn(f"the ROM has a mode at {omega:.3g} rad/s, above the {nyquist:.3g} rad/s (pi/dt) that the "
-                      f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
-                      f"damping are right, and it can ring in outputs it reaches (accelerations, forces); record "
-                      f"with --dt {nice_floor(math.pi / omega):g} or below"
-                      + (f" and --t-end {t_end:g} (this recording's end: at the finer step the automatic window's "
-                         "pilots may not reach it)" if t_end else "") + ", or fit a smaller r",
-                      FmuOpinfWarning, stacklevel=3)
+        found = (f"the ROM has a mode at {omega:.3g} rad/s, above the {nyquist:.3g} rad/s (pi/dt) that the "
+                 f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
+                 f"damping are right, and it can ring in outputs it reaches (accelerations, forces); ")
+        fix = ("fit a smaller r (dt is the FMU's fixed communication step: it takes no finer one)" if fixed else
+               f"record with --dt {nice_floor(math.pi / omega):g} or below"
+               + (f" and --t-end {t_end:g} (this recording's end: at the finer step the automatic window's "
+                  "pilots may not reach it)" if t_end else "") + ", or fit a smaller r")
+        warnings.warn(found + fix, FmuOpinfWarning, stacklevel=3)
 
 
 def _reduced_data(runs: list, pod: PODBasis, lowpass: float | None = None, wide: bool = False,
@@ -1101,6 +1105,16 @@ def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]
         x1, v1 = x0 + step * data["f_xdot"][:, cols], v0 + step * data["f_xddot"][:, cols]
         x_mean[:, cols] = hermite_rule(x0, x1, v0, v1, step) + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
     return x_mean
+
+
+def _at_fixed_step(attrs: dict, dt: float | None) -> bool:
+    """Whether the training step ``dt`` is the FMU's fixed communication step, the only one it accepts (the
+    snapshot attribute ``fixed_communication_step``; files written before 2026-12-07 do not say: False)."""
+    fixed = attrs.get("fixed_communication_step")
+    try:
+        return dt is not None and fixed is not None and abs(float(fixed) - dt) <= 1e-9 * float(fixed)
+    except (TypeError, ValueError):
+        return False
 
 
 def _training_dt(runs: list, attrs: dict) -> float | None:
@@ -1257,8 +1271,10 @@ def fit_rom(
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
     if search:
         info["order_search"] = search
-    _warn_if_modes_above_nyquist(info.get("poles") or [], _training_dt(runs, attrs),
-                                 max(float(np.asarray(run.t)[-1]) for run in runs))
+    dt_training = _training_dt(runs, attrs)
+    _warn_if_modes_above_nyquist(info.get("poles") or [], dt_training,
+                                 max(float(np.asarray(run.t)[-1]) for run in runs),
+                                 fixed=_at_fixed_step(attrs, dt_training))
     # --no-refine asks for the SDP solution as it is (the paper's: 18 % RMS on the anchored chain at r = 4); the
     # figure is in fit_info, the warning only where no refinement could run
     _warn_if_training_outputs_missed(info, pod.r_, judge_unrefined=refine is not False,

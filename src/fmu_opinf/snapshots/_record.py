@@ -33,7 +33,7 @@ from .._progress import Progress
 from ..errors import DataError, FMUError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
 from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
-                       open_source, warn_once, warn_other_communication_step)
+                       open_source, terminated_at, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
 from ._consistency import RateSums, judge_run, live_rate_sums
 from ._data import Run, Snapshots
@@ -423,6 +423,17 @@ def _file_attrs(source: Source) -> dict[str, Any]:
     return attrs
 
 
+def fixed_step_attrs(source: Source, dt: float) -> dict[str, float]:
+    """The file attribute ``fixed_communication_step`` where the recording step ``dt`` is the one communication
+    step the FMU accepts (:func:`~fmu_opinf.sources.fixed_communication_step`), else {}: the fit then knows that no
+    finer recording is possible and does not advise one (audit 70, F10: "record with --dt 0.02" for an FMU that
+    refuses every step but 0.05)."""
+    fixed = fixed_communication_step(source)
+    if fixed is None or abs(dt - fixed) > 1e-9 * fixed:
+        return {}
+    return {"fixed_communication_step": float(fixed)}
+
+
 def _integrator_taken(source: Source, runs: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The file attribute ``integrator`` saying which method the runs (their attributes ``runs``) took, for a source
     that chooses per run (:meth:`~fmu_opinf.sources.ModelExchangeSource.recorded_integrator`, ``--me-method
@@ -498,7 +509,8 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
-        attrs = {**_file_attrs(source), "dt": float(t[1] - t[0]), **_integrator_taken(source, [run.attrs])}
+        attrs = {**_file_attrs(source), "dt": float(t[1] - t[0]), **fixed_step_attrs(source, float(t[1] - t[0])),
+                 **_integrator_taken(source, [run.attrs])}
         snaps = Snapshots([run], attrs)
         if path is not None:
             snaps.save(path, overwrite=overwrite)
@@ -687,6 +699,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
     with atomic(path, overwrite) as f:
         attrs = _file_attrs(source)
         attrs["dt"] = float(t[1] - t[0])
+        attrs.update(fixed_step_attrs(source, attrs["dt"]))
         if window is not None:
             attrs["auto_window"] = window.as_dict()
         write_file_attrs(f, attrs)
@@ -737,6 +750,9 @@ class RecordSummary:
     events: list[int | None] = dataclasses.field(default_factory=list)  # per run; None: not seen (co-simulation)
     step_from: str | None = None  # who set the step beside an automatic window (--dt, the FMU), if not the window
     initialization: dict | None = None  # a start that follows the inputs (snapshots._initialization), else None
+    t_end_from: str | None = None  # who set the end beside an automatic window (--t-end, a table, a termination)
+
+    window_end: float = 0.0  # the last recorded time (the window's own end may differ: ``t_end_from``)
 
     def __str__(self) -> str:
         return str(self.path)
@@ -756,6 +772,8 @@ class RecordSummary:
                          f"{self.window}")
         elif self.window is not None:
             lines.append(f"  auto window: {self.window}")
+        if self.window is not None and self.t_end_from is not None:
+            lines.append(f"  recorded to t_end={self.window_end:g} ({self.t_end_from})")
         if self.initialization:
             lines.append("  start: the FMU starts at its static equilibrium under the inputs it is initialized under "
                          "(its start positions move with them); an exported ROM FMU will do the same")
@@ -853,8 +871,7 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import (auto_window as choose_window, combine_windows, default_window, needs_auto_window,
-                          warn_if_step_dependent)
+    from ._window import default_window, needs_auto_window, warn_if_step_dependent
 
     signal = _renamed(size_options, "input_spec", "signal", signal)
     window_energy = _renamed(size_options, "energy", "window_energy", window_energy)
@@ -884,6 +901,11 @@ def record_to_file(
     isolate = isolate and source.kind == "fmu"
     window = None
     dt_given = dt is not None
+    check_table_times(signals, float(getattr(source, "start_time", 0.0) or 0.0))
+    table_end = input_table_end(signals)
+    t_end_from = "--t-end as given" if t_end is not None else None
+    if t_end is None and table_end is not None:   # a table's last time is the default end (audit 70, F3)
+        t_end, t_end_from = table_end, "the input table's last time"
     if dt_given:
         warn_other_communication_step(source, float(dt))  # not the FMU's fixed communication step: said
     fixed = fixed_communication_step(source)
@@ -901,12 +923,14 @@ def record_to_file(
         # (model exchange has no communication step: a declared one bounds nothing there, and at 1 ms the pilots
         # of a slow model took 1e7 steps)
         bound = None if step_declared and getattr(source, "interface", None) == "me" else dt
+        limits = [end for end in (t_end, table_end) if end is not None]   # no pilot runs past these
         thresholds = dict(points_per_period=points_per_period, energy=window_energy, fade=fade, isolate=isolate,
-                          quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None)
-        if by_default and source.m:
-            window, signals = _default_training_window(source, thresholds)
-        else:
-            window = combine_windows([choose_window(source, signal, **thresholds) for signal in representatives])
+                          quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None,
+                          t_limit=min(limits) if limits else None)
+        window, signals, terminated = _window_before_termination(source, signals, representatives, by_default,
+                                                                 thresholds)
+        if terminated is not None and t_end is None:
+            t_end_from = f"before the FMU terminates the simulation at t={terminated:g}"
         if step_declared and dt > window.dt:
             warnings.warn(f"{source_label(source)}: the FMU's DefaultExperiment stepSize={dt:g} is the step recorded, "
                           f"coarser than the automatic window's dt={window.dt:g} ({window.points_per_period:g} points "
@@ -927,10 +951,70 @@ def record_to_file(
     if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
     summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
+    summary.t_end_from, summary.window_end = t_end_from, float(t[-1])
     summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
                          else "a multiple of the FMU's DefaultExperiment stepSize" if step_multiple
                          else "the FMU's DefaultExperiment stepSize" if step_declared else None)
     return summary
+
+
+def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
+                               thresholds: dict[str, Any]) -> tuple[Any, list[Any], float | None]:
+    """The automatic window (and the default training's signals), with the time at which the FMU terminated the
+    simulation in a pilot (None where it did not): the pilots are then run again, none past that time, and the
+    window ends before it (audit 70, F5: a Simulink-style FMU that stops itself at t = 30 was refused whatever
+    --t-end said, the pilots running on to their own horizon).  Said in a warning, since the recording ends there
+    and not where the response would have faded."""
+    from ._window import auto_window as choose_window, combine_windows
+
+    def choose(limits: dict[str, Any]) -> tuple[Any, list[Any]]:
+        if by_default and source.m:
+            return _default_training_window(source, limits)
+        return combine_windows([choose_window(source, signal, **limits) for signal in representatives]), signals
+
+    try:
+        window, chosen = choose(thresholds)
+        return window, chosen, None
+    except StepError as stopped:
+        at = terminated_at(str(stopped))
+        limit = thresholds.get("t_limit")
+        if at is None or (limit is not None and limit < at):
+            raise
+    below = at * (1.0 - 1e-6)   # the step that ends at ``at`` is the one refused
+    warnings.warn(f"{source_label(source)}: terminates the simulation at t={at:g} (seen in a pilot run of the "
+                  f"automatic window): the window ends before it", FmuOpinfWarning, stacklevel=3)
+    window, chosen = choose({**thresholds, "t_limit": below})
+    return dataclasses.replace(window, t_end=min(window.t_end, below)), chosen, at
+
+
+def input_table_end(signals: Sequence[Any]) -> float | None:
+    """The earliest last time of the input tables among ``signals`` (their ``t_range``), None where no signal
+    ends: a table cannot be sampled beyond its last time, so that is the default end of a run driven by it and
+    the latest time of any run with it (audit 70, F3: pilots to t = 550 on a table ending at 120)."""
+    ends = [float(getattr(signal, "t_range", (0.0, math.inf))[1]) for signal in signals]
+    ends = [end for end in ends if math.isfinite(end)]
+    return min(ends) if ends else None
+
+
+def check_table_times(signals: Sequence[Any], start_time: float) -> None:
+    """Refuse an input table that does not start at t = 0, saying that table times count from the run's start
+    (README, Inputs), and, for one that starts at the FMU's start time ``start_time``, by how much to shift it.
+
+    A table written in the FMU's own time (a result export of a model with startTime 10, from 10 to 130) is not
+    shifted silently: the same file would then mean other times beside another start (``--start-time``), and
+    ``compare`` on the ROM, which counts from 0, would read it as given (audit 70, F3: it was refused with
+    "defined on [10, 130] but the simulation needs [0, 10]")."""
+    for signal in signals:
+        low = float(getattr(signal, "t_range", (-math.inf, math.inf))[0])
+        if not math.isfinite(low) or low <= 1e-9 * max(1.0, abs(low)):
+            continue
+        spec = getattr(signal, "spec", repr(signal))
+        if start_time and abs(low - start_time) <= 1e-9 * max(1.0, abs(start_time)):
+            raise InputSpecError(f"input {spec!r} starts at t={low:g}, the FMU's start time: table times count from "
+                                 f"the run's start (t = 0 is FMU time {start_time:g}), not in FMU time; subtract "
+                                 f"{start_time:g} from its time column")
+        raise InputSpecError(f"input {spec!r} starts at t={low:g}: table times count from the run's start (t = 0"
+                             + (f", FMU time {start_time:g}" if start_time else "") + "); give it from t = 0")
 
 
 #: Samples per run above which the FMU's DefaultExperiment stepSize (where the FMU can take other steps) is not

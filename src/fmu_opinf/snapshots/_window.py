@@ -146,11 +146,15 @@ class Window:
     t_input : float
         Time from which the input stays constant (the free response starts).
     stopped_by : str
-        ``"fade"`` (the vibrations faded out) or ``"periods"`` (cut after ``periods`` slow periods).
+        ``"fade"`` (the vibrations faded out), ``"periods"`` (cut after ``periods`` slow periods) or ``"limit"``
+        (cut at :attr:`t_limit`, which the pilots reached with the step resolved).
     stable_dt, unstable_dt, stable_difference : float
         Where the co-simulation overflowed at the first pilot's step (:func:`pilot_step`): the largest step tried
         at which it stays finite and converges (``dt`` is at most this), the smallest at which it overflowed or
         diverged, and the outputs' difference at ``stable_dt`` and half of it relative to their peak; 0 otherwise.
+    t_limit : float
+        The latest time the pilots could run to (:func:`auto_window`'s ``t_limit``: a given end time, an input
+        table's last time, a time at which the FMU terminates); 0 where there was none.
     """
 
     dt: float
@@ -171,6 +175,7 @@ class Window:
     stable_dt: float = 0.0
     unstable_dt: float = 0.0
     stable_difference: float = 0.0
+    t_limit: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
@@ -180,7 +185,9 @@ class Window:
         return out
 
     def __str__(self) -> str:
-        if self.stopped_by == "periods":
+        if self.stopped_by == "limit":
+            end = f"cut at t_end={self.t_end:g}, the latest the run may reach (the response goes on)"
+        elif self.stopped_by == "periods":
             end = (f"the response does not fade, cut after {self.periods:g} periods of the slowest significant "
                    f"oscillation ({self.f_min:.4g} Hz) from t={self.t_input:.4g}")
         else:
@@ -432,6 +439,7 @@ def auto_window(
     quiet: bool = True,
     check_chosen_step: bool = True,
     reject: Callable[[Window], bool] | None = None,
+    t_limit: float | None = None,
 ) -> Window:
     """Choose step and end time from the response to an impulse-like input (paper sec. 4.2).
 
@@ -499,6 +507,12 @@ def auto_window(
         the pulse).  Where the step check's first run, which is also the first pilot, settles on such a window,
         :class:`WindowRejected` is raised before the step check's second run (on a millisecond chain under the
         default 0.5 s impulse that run took 14 of 30 s).
+    t_limit : float, optional
+        The latest time any pilot may run to: a given end time, the last time of an input table (which cannot be
+        sampled beyond it), a time at which the FMU terminates the simulation.  Pilots longer than that are cut
+        there, and a pilot that reaches it with its step resolved settles: the window ends there
+        (``stopped_by="limit"``; audit 70, F3/F5: the pilots ran to t = 550 past a table ending at 120 and past an
+        FMU's termination at t = 30, whatever --t-end said).
 
     Returns
     -------
@@ -523,6 +537,10 @@ def auto_window(
     t_input, width = input_activity(signal, source.m)
     max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
     T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
+    if t_limit is not None:
+        if not (t_limit > 0 and math.isfinite(t_limit)):
+            raise InputSpecError(f"t_limit={t_limit} must be positive and finite")
+        T = min(T, float(t_limit))
     internal = fixed_internal_step(source)
 
     def needs_finer(seen: _Pilot, dt: float) -> bool:
@@ -535,11 +553,14 @@ def auto_window(
         t_cut = t_input + periods / seen.f_min if seen.f_min > 0 else math.inf
         faded = seen.t_fade <= t[0] + 0.5 * (T - t[0])
         cut = seen.resolved_periods >= 4.0 and not seen.fade_estimate < t_cut
-        if not (faded or cut):
+        reached = t_limit is not None and T >= t_limit * (1.0 - 1e-9)
+        if not (faded or cut or reached):
             return None
-        stopped_by = "fade" if seen.t_fade <= t_cut else "periods"
-        return _window(seen, min(seen.t_fade, t_cut), t[0], dt, T, pilot, points_per_period, energy, fade,
-                       periods, t_input, stopped_by, internal, dt if exact_dt else None, stable)
+        stopped_by = "limit" if not (faded or cut) else "fade" if seen.t_fade <= t_cut else "periods"
+        t_stop = min(seen.t_fade, t_cut) if stopped_by != "limit" else T
+        window = _window(seen, t_stop, t[0], dt, T, pilot, points_per_period, energy, fade, periods, t_input,
+                         stopped_by, internal, dt if exact_dt else None, stable)
+        return window if t_limit is None else _within_limit(window, t[0], float(t_limit))
 
     checked: list[_AliasCheck | None] = []   # the one check run, once made
     unrefined = dt
@@ -611,7 +632,7 @@ def auto_window(
                                  f"dynamics (fastest significant frequency {seen.f_max:.3g}, still moving at "
                                  f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
                                  "model's time scale (a wider impulse, later t0), or --dt and --t-end", float(t[-1]))
-        T = float(f"{T_next:.6g}")
+        T = float(f"{T_next:.6g}") if t_limit is None else min(float(f"{T_next:.6g}"), float(t_limit))
     fix = (f"pass --t-end (every pilot ran at the step dt={dt:g})" if exact_dt else
            "pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
            "keeps the step small)" if source.m else
@@ -1022,8 +1043,11 @@ def check_window_step(source: Source, signal: Any, window: Window, *, pilot_dt: 
     t_input, width = input_activity(signal, source.m)
     first_T, first_dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
     step = window.dt if max_dt is None else max_dt
+    span = max(first_T, 20.0 * step)
+    if window.t_limit:   # no check run past the latest time the pilots could reach
+        span = min(span, window.t_limit)
     if step > first_dt * (1.0 + 1e-9):
-        check_step_convergence(source, signal, step, max(first_T, 20.0 * step), quiet=quiet, isolate=isolate)
+        check_step_convergence(source, signal, step, span, quiet=quiet, isolate=isolate)
 
 
 #: Share of a recording that :func:`warn_if_step_dependent` checks (at least 20 steps): its runs at ``dt`` and
@@ -1067,6 +1091,13 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     warnings.warn(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "
                   f"t <= {T:g}): the recording follows the FMU's integrator, not the model; {remedy}",
                   FmuOpinfWarning, stacklevel=3)
+
+
+def _within_limit(window: Window, t0: float, t_limit: float) -> Window:
+    """``window`` ending at the latest point of its grid at or before ``t_limit`` (:func:`auto_window`): its end is
+    rounded up to its step, which may lie past the limit (a step that ends at an FMU's termination fails)."""
+    last = t0 + math.floor((t_limit - t0) / window.dt * (1 + 1e-12) + 1e-9) * window.dt
+    return dataclasses.replace(window, t_end=float(f"{min(window.t_end, last):.12g}"), t_limit=t_limit)
 
 
 def _window(seen: _Pilot, t_stop: float, t0: float, dt: float, T: float, pilots: int, points_per_period: float,

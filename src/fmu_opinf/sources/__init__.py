@@ -36,8 +36,8 @@ from typing import Any
 from ..errors import InputSpecError
 from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
-from ._cosimulation import (DEFAULT_TOLERANCE, FMUSource, fixed_communication_step, offers_model_exchange,
-                            warn_other_communication_step)
+from ._cosimulation import (DEFAULT_TOLERANCE, TERMINATED, FMUSource, fixed_communication_step, offers_model_exchange,
+                            terminated_at, warn_other_communication_step)
 from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
@@ -55,6 +55,8 @@ __all__ = [
     "fixed_communication_step",
     "offers_model_exchange",
     "warn_other_communication_step",
+    "TERMINATED",
+    "terminated_at",
     "METHODS",
     "choose_interface",
     "open_source",

@@ -8,6 +8,7 @@ import itertools
 import math
 import multiprocessing.util
 import os
+import re
 import shutil
 import tempfile
 import weakref
@@ -69,7 +70,21 @@ def _fmi2_callbacks(target: Any) -> Any:
 
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
-           "warn_other_communication_step"]
+           "warn_other_communication_step", "TERMINATED", "terminated_at"]
+
+#: What the error of an FMU that asked to terminate the simulation (FMI 3 ``terminateSimulation``) says; its time
+#: relative to the run's start follows as ``--t-end below T`` (:func:`terminated_at`).
+TERMINATED = "asked to terminate the simulation"
+
+
+def terminated_at(text: str) -> float | None:
+    """The time, relative to the run's start, at which an FMU asked to terminate the simulation, read from the
+    error ``text`` of a run (the error crosses a process boundary as text), or None for any other error.  The
+    automatic window then ends before it (audit 70, F5: the pilots ran on past a Simulink-style stop time)."""
+    if TERMINATED not in text:
+        return None
+    found = re.search(r"--t-end below ([-+0-9.eE]+)", text)
+    return float(found.group(1)) if found else None
 
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
 DEFAULT_TOLERANCE = 1e-10
@@ -800,8 +815,8 @@ class FMUSource(Source):
         told = f"; its log: {log}" if log else ""
         if self._returned[1]:
             rel = t + h - self.start_time
-            return (f"{self.path.name} asked to terminate the simulation in fmi3DoStep at {self._at(t)} -> {t + h:g}"
-                    f"{told}; record a shorter run (--t-end below {rel:g})")
+            return (f"{self.path.name} {TERMINATED} in fmi3DoStep at {self._at(t)} -> {t + h:g}{told}; end the run "
+                    f"before it: --t-end below {rel:.12g}")
         last = float(self._flags[1])
         fix = ("drive its model exchange (--interface me)" if offers_model_exchange(self) else
                "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
