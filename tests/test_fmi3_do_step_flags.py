@@ -79,7 +79,7 @@ def test_a_request_to_terminate_is_an_error_before_the_end_and_accepted_at_it(fm
     code = _snapshots(fmus["terminate"], tmp_path / "s.h5", "--t-end", "1")
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert code == 2 and ("terminate.fmu asked to terminate the simulation in fmi3DoStep at t=0.4 -> 0.5; "
-                          "record a shorter run (--t-end below 0.5)") in err, err
+                          "end the run before it: --t-end below 0.5") in err, err
     assert _snapshots(fmus["terminate"], tmp_path / "end.h5", "--t-end", str(TERMINATE)) == 0   # its last step
     assert _error_vs_exact(tmp_path / "end.h5") < 1e-12   # measured 3.7e-13
 
