@@ -1109,7 +1109,7 @@ def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]
 
 def _at_fixed_step(attrs: dict, dt: float | None) -> bool:
     """Whether the training step ``dt`` is the FMU's fixed communication step, the only one it accepts (the
-    snapshot attribute ``fixed_communication_step``; files written before 2026-12-07 do not say: False)."""
+    snapshot attribute ``fixed_communication_step``; files written before 2026-12-06 do not say: False)."""
     fixed = attrs.get("fixed_communication_step")
     try:
         return dt is not None and fixed is not None and abs(float(fixed) - dt) <= 1e-9 * float(fixed)

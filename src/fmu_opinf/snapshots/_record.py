@@ -928,7 +928,7 @@ def record_to_file(
                           quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None,
                           t_limit=min(limits) if limits else None)
         window, signals, terminated = _window_before_termination(source, signals, representatives, by_default,
-                                                                 thresholds)
+                                                                 thresholds, t_end)
         if terminated is not None and t_end is None:
             t_end_from = f"before the FMU terminates the simulation at t={terminated:g}"
         if step_declared and dt > window.dt:
@@ -959,12 +959,14 @@ def record_to_file(
 
 
 def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
-                               thresholds: dict[str, Any]) -> tuple[Any, list[Any], float | None]:
+                               thresholds: dict[str, Any],
+                               t_end: float | None) -> tuple[Any, list[Any], float | None]:
     """The automatic window (and the default training's signals), with the time at which the FMU terminated the
     simulation in a pilot (None where it did not): the pilots are then run again, none past that time, and the
     window ends before it (audit 70, F5: a Simulink-style FMU that stops itself at t = 30 was refused whatever
     --t-end said, the pilots running on to their own horizon).  Said in a warning, since the recording ends there
-    and not where the response would have faded."""
+    and not where the response would have faded.  Where the end ``t_end`` is set already (``--t-end``, an input
+    table's last time), a termination before it is the error, whose message names the --t-end that works."""
     from ._window import auto_window as choose_window, combine_windows
 
     def choose(limits: dict[str, Any]) -> tuple[Any, list[Any]]:
@@ -977,8 +979,7 @@ def _window_before_termination(source: Source, signals: list[Any], representativ
         return window, chosen, None
     except StepError as stopped:
         at = terminated_at(str(stopped))
-        limit = thresholds.get("t_limit")
-        if at is None or (limit is not None and limit < at):
+        if at is None or t_end is not None:
             raise
     below = at * (1.0 - 1e-6)   # the step that ends at ``at`` is the one refused
     warnings.warn(f"{source_label(source)}: terminates the simulation at t={at:g} (seen in a pilot run of the "
