@@ -1012,3 +1012,38 @@ def test_every_input_of_an_exported_rom_fmu_is_driven(tmp_path):
     exported = _write(path, text.replace('fmiVersion="2.0"', 'fmiVersion="2.0" generationTool="fmu-opinf"'))
     selection = resolve_variables(exported)
     assert _names(selection.forces) == ["F", "p", "scale"] and not selection.held
+
+
+def _scrambled_states(states: list[tuple[str, str]]) -> str:
+    """FMI 2 states in the given order with their units, each derivative ``der(name)`` a variable of its own (no
+    alias, no dependencies), one force input."""
+    variables = [_sv("F", 0, "input", body='<Real start="0"/>')]
+    variables += [_sv(name, i + 1, extra=' initial="exact"', body=f'<Real unit="{unit}" start="0"/>')
+                  for i, (name, unit) in enumerate(states)]
+    variables += [_sv(f"der({name})", 100 + i, body=f'<Real derivative="{i + 2}"/>')
+                  for i, (name, _) in enumerate(states)]
+    return _fmi2(variables, list(range(len(states) + 2, 2 * len(states) + 2)))
+
+
+def test_states_in_any_order_are_paired_by_their_owner_s_name(tmp_path):
+    """Audit 70 F6: states ``mass[2].v, mass[1].s, mass[3].s, mass[1].v, mass[2].s, mass[3].v`` in m and m/s were
+    refused, and the refusal offered positions and velocities "in matching order" that did not match (mass[1].s
+    with mass[2].v); each position has one velocity of the same owner (``mass[i]``), which pairs them."""
+    xml = _scrambled_states([("mass[2].v", "m/s"), ("mass[1].s", "m"), ("mass[3].s", "m"), ("mass[1].v", "m/s"),
+                             ("mass[2].s", "m"), ("mass[3].v", "m/s")])
+    sel = resolve_variables(_write(tmp_path, xml)).selection
+    assert _names(sel.positions) == ["mass[1].s", "mass[3].s", "mass[2].s"]
+    assert _names(sel.velocities) == ["mass[1].v", "mass[3].v", "mass[2].v"]
+    ambiguous = _scrambled_states([("a.v", "m/s"), ("a.s", "m"), ("b.s", "m"), ("a.w", "m/s")])
+    with pytest.raises(FMUError, match="cannot tell positions from velocities"):   # two velocities own a.: none
+        resolve_variables(_write(tmp_path, ambiguous))
+
+
+def test_the_odd_state_out_is_named_by_its_units(tmp_path):
+    """Audit 70 F7: a chain of four masses with an actuator lag ``actuator.y`` in N, the ninth state: the refusal
+    listed eight names and "...", never the one that is neither a position nor a velocity."""
+    states = [(f"mass[{i}].s", "m") for i in range(1, 5)] + [(f"mass[{i}].v", "m/s") for i in range(1, 5)]
+    xml = _scrambled_states(states + [("actuator.y", "N")])
+    with pytest.raises(FMUError, match=r"an odd number .* by their units actuator\.y is neither a position nor a "
+                                       r"velocity .* pass --positions and --velocities"):
+        resolve_variables(_write(tmp_path, xml))

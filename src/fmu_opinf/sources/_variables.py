@@ -1112,8 +1112,10 @@ def _dependencies_contradict_halves(model: ModelInfo, states: _States) -> bool:
 
 def _paired_by_units(model: ModelInfo, states: _States
                      ) -> tuple[list[Column], list[Column], list[Column] | None, str] | None:
-    """States in length units paired with states in velocity units, in state order, and how: when each pair's
-    names differ only after their last dot (``mass[2].s`` / ``mass[2].v``), or else when the two kinds come in
+    """States in length units paired with states in velocity units, and how: when each position has exactly one
+    velocity whose name differs from its own only after the last dot (``mass[2].s`` / ``mass[2].v``, in whatever
+    order the states come: audit 70 F6, ``mass[2].v, mass[1].s, mass[3].s, mass[1].v, ...``), or else, in state
+    order, when the two kinds come in
     variables of the same sizes in the same order, arrays among them (FMI 3 arrays ``x[4], xb, xa[2]`` / ``v[4],
     vb, va[2]``, which have no alias to pair them: audit 58 found such a model refused though every unit paired
     it); None otherwise.  The second is a guess, as the halves are: the recorder's rate check judges it on the
@@ -1122,13 +1124,29 @@ def _paired_by_units(model: ModelInfo, states: _States
     vel = [e for e in states.states if _unit_kind(e) == 1]
     if not pos or len(pos) != len(vel) or len(pos) + len(vel) != len(states.states):
         return None
-    named = all("." in p.name and p.name.rsplit(".", 1)[0] == v.name.rsplit(".", 1)[0] for p, v in zip(pos, vel))
+    by_owner = _velocities_by_owner(pos, vel)
+    named = by_owner is not None
+    if named:
+        vel = by_owner
     sizes = _variable_sizes(pos)
     if not named and (sizes != _variable_sizes(vel) or max(sizes) == 1):
         return None
     vel_columns = [Column(e, e.sign) for e in vel]
     return ([Column(e, e.sign) for e in pos], vel_columns, states.rate_columns(vel_columns),
             _UNITS if named else _UNITS_IN_ORDER)
+
+
+def _velocities_by_owner(pos: list[Element], vel: list[Element]) -> list[Element] | None:
+    """``vel`` in the order of ``pos`` where each name's part before its last dot (its owner, ``mass[2]``) is that
+    of exactly one position and one velocity; None otherwise."""
+    def owner(element: Element) -> str | None:
+        return element.name.rsplit(".", 1)[0] if "." in element.name else None
+
+    owners = {owner(v): v for v in vel}
+    if None in owners or len(owners) != len(vel) or len({owner(p) for p in pos}) != len(pos):
+        return None
+    matched = [owners.get(owner(p)) for p in pos]
+    return matched if all(v is not None for v in matched) else None  # type: ignore[return-value]
 
 
 def _patterns_by_units(states: _States) -> str:
@@ -1165,12 +1183,23 @@ def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
     if len(ordered) % 2:
         names = ", ".join(s.name for s in ordered[:8]) + (", ..." if len(ordered) > 8 else "")
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its {len(ordered)} continuous "
-                       f"states ({names}): an odd number and no derivative is an alias of a state; pass "
-                       "--positions and --velocities")
+                       f"states ({names}): an odd number and no derivative is an alias of a state"
+                       f"{_neither_by_units(ordered)}; pass --positions and --velocities")
     half = len(ordered) // 2
     pos = [Column(s, s.sign) for s in ordered[:half]]
     vel = [Column(s, s.sign) for s in ordered[half:]]
     return pos, vel, states.rate_columns(vel)
+
+
+def _neither_by_units(ordered: list[Element]) -> str:
+    """Where units mark most states as positions or velocities: the few that are neither, named (audit 70 F7: an
+    actuator lag ``actuator.y`` in N, the ninth of nine states, hidden behind the list's "...")."""
+    kinds = [_unit_kind(e) for e in ordered]
+    neither = [e.name for e, kind in zip(ordered, kinds) if kind not in (0, 1)]
+    if not neither or len(neither) > 4 or 2 * len(neither) >= len(ordered):
+        return ""
+    return (f"; by their units {', '.join(neither)} {'is' if len(neither) == 1 else 'are'} neither a position nor a "
+            "velocity (an actuator lag, a filter or a controller state?): name the mechanical states")
 
 
 def _default_rate(states: _States, elements: dict[str, Element], base: list[Column], pattern: str, what: str,
