@@ -73,6 +73,18 @@ def test_stale_accelerations_are_told_from_fresh_and_from_euler_data(exact):
     assert not stale_rates(euler_v, a, H, u)
 
 
+def test_a_shift_that_fits_half_the_increments_proves_no_staleness():
+    """Audit 70 F8: an FE beam whose fastest modes the step did not resolve (current derivatives) fitted its velocity
+    increments to 2.9 times their size as recorded and to 0.55 shifted by one sample: called stale, and recorded a
+    second time with derived accelerations.  A stale FMU at a step that resolves the motion fits them shifted to
+    ``(omega h)^2 / 12`` (0.008 at 20 samples per period; a noiseless stale sine at ``omega h = 1.3``:
+    1.13 and 0.145)."""
+    from fmu_opinf.snapshots._consistency import stale_verdict
+
+    assert not stale_verdict(2.9, 0.55, 1.0)
+    assert stale_verdict(1.13, 0.145, 1.0) and stale_verdict(0.3, 0.008, 1.0)
+
+
 @pytest.mark.parametrize("chunks", [[7, 300, 1], [513], [1] * 40 + [600], [256, 256, 1]])
 def test_rate_sums_fed_chunk_by_chunk_equal_the_checks_over_whole_arrays(exact, chunks):
     """What the recorder feeds on a helper thread while it records: the same bits as the checks summed after the

@@ -32,14 +32,19 @@ from ..sources._variables import _DEPENDENCIES
 from ._isolation import source_label
 
 __all__ = ["MAX_REPAIRS", "RateSums", "Repair", "check_rates", "judge_run", "live_rate_sums", "rate_mismatch",
-           "stale_rates"]
+           "stale_rates", "stale_verdict"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
 #: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
 #: ``omega h / 2`` (explicit Euler, ``omega h < 0.5``), a wrong one about one.
 MISMATCH = 0.25
-#: Accelerations are stale when shifted by one sample they fit the velocities' increments this much better.
+#: Accelerations are stale when shifted by one sample they fit the velocities' increments this much better ...
 _STALE_GAIN = 0.2
+#: ... and then fit them to this fraction of the increments themselves, as a step that resolves the motion allows
+#: (the trapezoidal rule leaves ``(omega h)^2 / 12``).  Audit 70 F8: an FE beam whose fastest modes the step did not
+#: resolve fitted its increments to 2.9 times their size, shifted to 0.55: "stale", though its derivatives were
+#: current.
+_STALE_FIT = 0.3
 #: Rows (states) moving less than this fraction of the most moving one are not judged.
 _QUIET = 1e-8
 #: Samples used by the checks (the first ones of a run).
@@ -90,12 +95,18 @@ def _row_squares(a: np.ndarray) -> np.ndarray:
 
 def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = None) -> bool:
     """Whether ``a`` lags ``v``'s rate by one sample: shifted by one, the trapezoidal rule fits the increments of
-    ``v`` at least five times better, and unshifted it misses by more than round-off.  Steps next to a change of
-    the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are not counted.  Computed
-    block by block (:data:`_BLOCK`, :class:`RateSums`)."""
+    ``v`` at least five times better and to 0.3 of their size, and unshifted it misses by more than round-off.
+    Steps next to a change of the inputs ``u`` (where the rule misses anyway, by the jump of the acceleration) are
+    not counted.  Computed block by block (:data:`_BLOCK`, :class:`RateSums`)."""
     sums = RateSums(v.shape[0], v.shape[1], h, mismatch=False, stale=True)
     sums.feed(None, v, a, v.shape[1])
     return sums.stale(v, u)
+
+
+def stale_verdict(now: float, shifted: float, increments: float) -> bool:
+    """The rule of :func:`stale_rates` on the norms of the trapezoidal rule's residuals with the accelerations as
+    recorded (``now``) and shifted by one sample (``shifted``), and of the velocities' increments."""
+    return bool(now > 1e-6 * increments and shifted < _STALE_GAIN * now and shifted < _STALE_FIT * increments)
 
 
 def _column_squares(a: np.ndarray) -> np.ndarray:
@@ -199,7 +210,7 @@ class RateSums:
             changes = np.any(np.diff(u[:, :self.k], axis=1) != 0, axis=0).astype(float)
             smooth = np.convolve(changes, np.ones(5))[2:2 + self.count] == 0
         now_norm, shifted_norm = math.sqrt(self.now[smooth].sum()), math.sqrt(self.shifted[smooth].sum())
-        return bool(now_norm > 1e-6 * math.sqrt(increments_squared) and shifted_norm < _STALE_GAIN * now_norm)
+        return stale_verdict(now_norm, shifted_norm, math.sqrt(increments_squared))
 
 
 def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: float, names: dict[str, list[str]],
