@@ -1092,7 +1092,8 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     (:func:`~fmu_opinf.snapshots._window.quasi_static_pulse`: an FE bar with its first mode at 25 Hz, r = 2 and
     4-9 % off; the impulse is then shrunk to one period of the fastest significant frequency).  Says what it did."""
     from ..signals import parse_signal
-    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
+    from ._window import (PulseTooNarrow, WindowRejected, accelerates_under_load, auto_window, check_window_step,
+                          input_activity)
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -1101,6 +1102,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                 f"width={default['width'] * factor:g}")
 
     factor, tries = 1.0, {"wider": 0, "narrower": 0}
+    drift: str | None = None   # how the model drifts under its own constant load, once seen (then judged net of it)
     amplitudes = default_amplitudes(source)
     scales = [a / _DEFAULT_AMPLITUDE for a in amplitudes]
     while True:
@@ -1116,8 +1118,20 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                     and _narrower_width(window, width, thresholds) is not None)
 
         try:
-            window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide)
+            window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide,
+                                 baseline=_held_only(source) if drift else None)
         except PulseTooNarrow as slow:
+            if drift:
+                raise DataError(_accelerates_error(source, drift)) from None
+            if not tries["wider"]:
+                drift = accelerates_under_load(source, _held_only(source), slow.still_moving_at,
+                                               quiet=thresholds.get("quiet", True),
+                                               isolate=thresholds.get("isolate", False))
+                if drift:
+                    if not thresholds.get("quiet"):
+                        print(f"the model accelerates under its own constant load ({drift}): judging the "
+                              "response to the default impulse net of that drift", file=sys.stderr)
+                    continue
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
                 pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
                 if pushing:
@@ -1137,6 +1151,19 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             return window, signals
         if not thresholds.get("quiet"):
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
+
+
+def _held_only(source: Source) -> Signal:
+    """The pilots' input without its pulses: every input held at the value the training runs hold it at."""
+    return NoInput(source.m, held_starts(source))
+
+
+def _accelerates_error(source: Source, drift: str) -> str:
+    """The one-line refusal where the window cannot be chosen even net of the model's drift under its own constant
+    load (:func:`~fmu_opinf.snapshots._window.accelerates_under_load`: ``drift`` says how it grows)."""
+    return (f"{source_label(source)}: the model accelerates under its own constant load (a free body under gravity "
+            f"or thrust: {drift}), and no window suits the default impulse even net of that drift; give --dt and "
+            "--t-end for the window to record (the fit learns the constant force); no file was written")
 
 
 def _held_at_bounds(source: Source) -> list[str]:

@@ -14,6 +14,7 @@ from ..errors import DataError, InputSpecError
 from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
 from ..sources._base import nice_floor
+from ..sources._cosimulation import DISCARDED
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
@@ -21,7 +22,7 @@ from ._record import MemorySink, as_signal, incomplete_error, record_run
 __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency",
            "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
-           "check_window_step", "warn_if_step_dependent"]
+           "check_window_step", "warn_if_step_dependent", "accelerates_under_load"]
 
 
 #: A pulse this many times shorter than the fastest significant period only keeps the step small: once the next
@@ -155,6 +156,9 @@ class Window:
     t_limit : float
         The latest time the pilots could run to (:func:`auto_window`'s ``t_limit``: a given end time, an input
         table's last time, a time at which the FMU terminates); 0 where there was none.
+    unstable_cause : str
+        ``"discard"`` where the FMU discarded the step ``unstable_dt`` (an embedded solver's maximum step) rather than
+        overflowing or diverging there; "" otherwise.
     """
 
     dt: float
@@ -176,6 +180,7 @@ class Window:
     unstable_dt: float = 0.0
     stable_difference: float = 0.0
     t_limit: float = 0.0
+    unstable_cause: str = ""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
@@ -200,6 +205,10 @@ class Window:
         """Why the step is at most :attr:`stable_dt` (empty where no step search was needed)."""
         if not self.stable_dt:
             return ""
+        if self.unstable_cause == "discard":
+            return (f"; the FMU discards the communication step dt={self.unstable_dt:g}: steps at most "
+                    f"dt={self.stable_dt:g}, the largest tried that it takes and where it agrees with "
+                    f"dt={self.stable_dt / 2:g} to {self.stable_difference:.2g} of the outputs' peak")
         return (f"; the co-simulation overflows or diverges at dt={self.unstable_dt:g}: steps at most "
                 f"dt={self.stable_dt:g}, the largest tried where it is finite and agrees with "
                 f"dt={self.stable_dt / 2:g} to {self.stable_difference:.2g} of the outputs' peak")
@@ -440,6 +449,7 @@ def auto_window(
     check_chosen_step: bool = True,
     reject: Callable[[Window], bool] | None = None,
     t_limit: float | None = None,
+    baseline: Any = None,
 ) -> Window:
     """Choose step and end time from the response to an impulse-like input (paper sec. 4.2).
 
@@ -513,6 +523,11 @@ def auto_window(
         there, and a pilot that reaches it with its step resolved settles: the window ends there
         (``stopped_by="limit"``; audit 70, F3/F5: the pilots ran to t = 550 past a table ending at 120 and past an
         FMU's termination at t = 30, whatever --t-end said).
+    baseline : Signal, optional
+        An input (the inputs held, no pulse) whose response is subtracted from every pilot's outputs before they
+        are judged: the window follows the response to ``signal`` net of what the model does on its own, a free
+        body's drift under its own constant load (:func:`accelerates_under_load`; audit 70, finding 2).  Each
+        pilot then costs a second run on its grid.
 
     Returns
     -------
@@ -573,13 +588,14 @@ def auto_window(
             return None
         if not checked:
             checked.append(_alias_check(source, signal, dt, T, t_input, energy, fade, quiet, isolate, internal,
-                                        max_steps))
+                                        max_steps, baseline))
         return checked[0]
 
     def reject_first_pilot(run: Any) -> None:
         t = time_grid(dt, T)
         try:
-            seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate, run=run)
+            seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate, run=run,
+                                  baseline=baseline)
         except DataError:
             return  # the pilots say it again, after the step check has had its say
         window = settled(seen, t, dt, T, 1)
@@ -600,7 +616,8 @@ def auto_window(
         if len(t) > max_steps:
             break
         seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate,
-                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})", run=recorded)
+                              label=f"auto window: pilot run {pilot} (dt={dt:g}, t_end={T:g})", run=recorded,
+                              baseline=baseline)
         recorded = None
         if needs_finer(seen, dt):
             dt = on_internal_steps(dt / 4.0, internal)
@@ -756,16 +773,20 @@ class StableStep:
         The outputs' largest difference at ``dt`` and ``dt / 2``, relative to their peak.
     run : Run
         The complete run at ``dt`` (the first pilot).
+    discarded : bool
+        The FMU discarded the step ``unstable_dt`` (``fmi2Discard``: an embedded solver's maximum step).
     """
 
     dt: float
     unstable_dt: float
     difference: float
     run: Any
+    discarded: bool = False
 
-    def window_fields(self) -> dict[str, float]:
+    def window_fields(self) -> dict[str, Any]:
         """The :class:`Window` attributes that say where the step search ended."""
-        return dict(stable_dt=self.dt, unstable_dt=self.unstable_dt, stable_difference=self.difference)
+        return dict(stable_dt=self.dt, unstable_dt=self.unstable_dt, stable_difference=self.difference,
+                    unstable_cause="discard" if self.discarded else "")
 
 
 def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool = True, isolate: bool = False,
@@ -824,7 +845,7 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
             break
         check = _step_dependence(source, signal, step, T, quiet, isolate, threshold)
         if check.found is None:
-            return check.run, StableStep(step, unstable.dt, check.difference, check.run)
+            return check.run, StableStep(step, unstable.dt, check.difference, check.run, unstable.discarded)
         if check.difference > DIVERGED:
             unstable = check
             continue
@@ -886,7 +907,8 @@ class _StepCheck(NamedTuple):
     the outputs' largest difference relative to their peak (``inf`` where a run turned non-finite, 0 unchecked);
     ``dt``: the coarser step compared; ``diverged``: the run at ``dt`` grew beyond :data:`DIVERGED_GROWTH` times the
     peak of the run at ``dt / 2``, which does not grow (judged only where the caller says when the input settles);
-    ``both_grow``: it did, and the run at ``dt / 2`` grows too once the input is constant (the same proviso).
+    ``both_grow``: it did, and the run at ``dt / 2`` grows too once the input is constant (the same proviso);
+    ``discarded``: the FMU discarded the step ``dt`` (``difference`` is then ``inf``: searched below like an overflow).
     """
 
     found: str | None
@@ -896,6 +918,7 @@ class _StepCheck(NamedTuple):
     dt: float = 0.0
     diverged: bool = False
     both_grow: bool = False
+    discarded: bool = False
 
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
@@ -913,6 +936,9 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
         run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
                                   label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})", pilot=True)
+        if failure is not None and not runs and DISCARDED in str(failure):   # audit 70, finding 9
+            return _StepCheck(f"it discarded the communication step {dt:g}", None, False, math.inf, dt,
+                              discarded=True)
         if failure is not None and "non-finite" not in str(failure):
             raise incomplete_error(failure, run, None)   # an FMU error: its own message (and hint) tells more
         runs.append(run if failure is None else None)
@@ -990,7 +1016,8 @@ def combine_windows(windows: Sequence[Window]) -> Window:
     limited = [w for w in windows if w.stable_dt]
     stable = min(limited, key=lambda w: w.stable_dt) if limited else last  # the tightest limit speaks for the rest
     return dataclasses.replace(last, dt=finest.dt, stable_dt=stable.stable_dt, unstable_dt=stable.unstable_dt,
-                               stable_difference=stable.stable_difference, t_end=float(f"{end:.12g}"),
+                               stable_difference=stable.stable_difference, unstable_cause=stable.unstable_cause,
+                               t_end=float(f"{end:.12g}"),
                                f_max=max(w.f_max for w in windows),
                                f_min=min(slowest) if slowest else 0.0, pilots=sum(w.pilots for w in windows),
                                pilot_dt=finest.pilot_dt, pilot_t_end=finest.pilot_t_end)
@@ -1135,7 +1162,8 @@ class _AliasCheck(NamedTuple):
 
 
 def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: float, energy: float, fade: float,
-                 quiet: bool, isolate: bool, internal: float | None, max_steps: int) -> _AliasCheck | None:
+                 quiet: bool, isolate: bool, internal: float | None, max_steps: int,
+                 baseline: Any = None) -> _AliasCheck | None:
     """Run the pilot that settled at step ``dt`` again at :data:`ALIAS_REFINE` times smaller a step, and say whether
     its fastest significant frequency lies above the Nyquist frequency of ``dt`` (None where the step cannot be
     refined: an FMU's fixed internal step, or more than ``max_steps`` steps; or where the run at the finer step
@@ -1159,21 +1187,94 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
                               f"auto window: alias check (dt={fine:g}, t_end={t[-1]:g})", pilot=True)
     if failure is not None:  # a check that cannot run says nothing: the pilot's window, at its step, stands
         return None
-    seen = _analyse_pilot(source, signal, t, t_input, energy, fade, 0.0, quiet, isolate, run=run)
+    seen = _analyse_pilot(source, signal, t, t_input, energy, fade, 0.0, quiet, isolate, run=run, baseline=baseline)
     return _AliasCheck(fine, run, seen.f_max, seen.f_max > 0.5 / dt)
 
 
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
                    growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run",
-                   run: Any = None) -> _Pilot:
+                   run: Any = None, baseline: Any = None) -> _Pilot:
     """What a pilot on grid ``t`` shows; ``run``: a complete run of ``signal`` already recorded (the step check's
-    first run), used where it is on the grid ``t``, otherwise the pilot is recorded here."""
+    first run), used where it is on the grid ``t``, otherwise the pilot is recorded here; ``baseline``: an input
+    whose response on ``t`` is subtracted from the pilot's outputs first (:func:`auto_window`)."""
     if run is None or not np.array_equal(np.asarray(run.t), t):
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
             raise incomplete_error(failure, run, None)
+    y = np.asarray(run.y)
+    if baseline is not None:
+        y = y - _outputs_of(source, baseline, t, quiet, isolate, f"{label}: its drift without the pulse")
     with np.errstate(over="ignore", invalid="ignore"):
-        return _judged_pilot(source, signal, t, np.asarray(run.y), t_input, energy, fade)
+        return _judged_pilot(source, signal, t, y, t_input, energy, fade)
+
+
+def _outputs_of(source: Source, signal: Any, t: np.ndarray, quiet: bool, isolate: bool, label: str) -> np.ndarray:
+    """The outputs of a complete run of ``signal`` on the grid ``t`` (a failure raises, as a pilot's does)."""
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
+    if failure is not None:
+        raise incomplete_error(failure, run, None)
+    return np.asarray(run.y)[:, :len(t)]
+
+
+#: A drift fits a parabola over the second half of a run to this fraction of the output's range (a mode of period
+#: P fits it to about ``(2 pi T / P)**2 / 12`` over a run of length T: only modes far slower than the run pass).
+DRIFT_FIT = 1e-3
+
+#: A drift still grows: the second half of the run holds at least this share of the output's range (a free body
+#: accelerated from rest: 3/4; a model that settled by then: round-off).
+DRIFT_SHARE = 0.5
+
+#: The parabola's curvature must make at least this share of the output's change over the second half: a body that
+#: accelerates (a free body under a constant force: 1/3), not one that coasts at a constant speed (0).
+DRIFT_CURVATURE = 0.05
+
+
+def accelerates_under_load(source: Source, signal: Any, t_end: float, *, quiet: bool = True,
+                           isolate: bool = False, samples: int = 2000) -> str | None:
+    """Whether the model, under the input ``signal`` (its inputs held: no pulse), accelerates away on its own over
+    ``[0, t_end]``: a free body (a rigid-body mode, no spring to ground) under a constant load inside the model, a
+    non-zero input start value or a ``--set`` value.  Its outputs then grow like ``t**2`` and never settle, and
+    the automatic window, judging the response to its pulse, widened the pulse to t0 = 2e6 s and ran for a minute
+    before refusing (audit 70, finding 2).
+
+    The run is judged over its second half: some output whose range is at least :data:`OUTPUT_FLOOR` of the
+    largest changes there by :data:`DRIFT_SHARE` of its range, fits a parabola to :data:`DRIFT_FIT` of it, bends by at least :data:`DRIFT_CURVATURE` of its
+    change there (accelerates, does not coast), and moves away faster at the end (the acceleration and the
+    velocity agree in sign: not a decay towards rest).  A model far slower than ``t_end`` may pass as well.
+
+    Returns
+    -------
+    str or None
+        A phrase naming the output and its growth, or None where the model does not drift so.
+    """
+    t = time_grid(t_end / samples, t_end)
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
+                              f"auto window: the response without the pulse (dt={t[1] - t[0]:g}, t_end={t_end:g})",
+                              pilot=True)
+    if failure is not None:
+        return None
+    y = np.asarray(run.y)[:, :run.k]
+    ranges = np.ptp(y, axis=1) if y.size else np.zeros(0)
+    if not ranges.size or not ranges.max() > 0:
+        return None
+    names = list(getattr(source, "output_names", None) or [f"y[{i}]" for i in range(len(ranges))])
+    half = t[:run.k] >= 0.5 * t[run.k - 1]
+    for i in np.argsort(-ranges):
+        if ranges[i] >= OUTPUT_FLOOR * ranges.max() and _parabolic(t[:run.k][half], y[i, half], ranges[i]):
+            return f"{names[i]} grows like t^2, by {ranges[i]:.3g} over t <= {t[run.k - 1]:g}"
+    return None
+
+
+def _parabolic(t: np.ndarray, y: np.ndarray, span: float) -> bool:
+    """Whether ``y(t)`` accelerates away like a parabola (:func:`accelerates_under_load`); ``span``: its range."""
+    if t.size < 16 or not span > 0:
+        return False
+    s = (t - t[0]) / (t[-1] - t[0])
+    c, b, a = np.polyfit(s, y, 2)
+    residual = float(np.abs(y - (a + b * s + c * s * s)).max())
+    change = float(np.ptp(y))
+    return (change >= DRIFT_SHARE * span and residual <= DRIFT_FIT * span and abs(c) >= DRIFT_CURVATURE * change
+            and (b + 2.0 * c) * c > 0)
 
 
 def _judged_pilot(source: Source, signal: Any, t: np.ndarray, y: np.ndarray, t_input: float, energy: float,

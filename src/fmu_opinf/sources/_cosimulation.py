@@ -189,6 +189,10 @@ def _give_fixed_step(source: Any, fixed: float, option: str = "--dt") -> str:
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
 DISCARD = 2
 
+#: The words every failure of a discarded ``doStep`` says (the automatic window's step search looks for them: a
+#: pilot's step that the FMU discards is searched below like one where it overflows, audit 70 finding 9).
+DISCARDED = "discarded the communication step"
+
 
 def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
     """Base units (SI exponents, factor, offset) and display units of the named units, as the model
@@ -805,7 +809,7 @@ class FMUSource(Source):
             return self._fail_text(f"in {what}", i) + hint
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
-        return (f"{self.path.name} discarded the communication step {h:g} in {what} at step {i} "
+        return (f"{self.path.name} {DISCARDED} {h:g} in {what} at step {i} "
                 f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h, log)}")
 
     def _flag_failure(self, t: float, h: float) -> str:
@@ -878,7 +882,7 @@ class FMUSource(Source):
         if self.fmi_version.startswith("3") and (self._returned[1] or self._returned[2]):
             raise StepError(self._flag_failure(t, h), -1, t)
         if status == DISCARD:
-            raise StepError(f"{self.path.name} discarded the communication step {h:g} at {self._at(t)}"
+            raise StepError(f"{self.path.name} {DISCARDED} {h:g} at {self._at(t)}"
                             f"{self._discard_fix(h)}", -1, t)
         if status > 1:
             raise StepError(f"{self.path.name} returned an error in doStep at {self._at(t)}", -1, t)
