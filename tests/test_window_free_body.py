@@ -24,7 +24,6 @@ from fmu_opinf import lti_fmus
 from fmu_opinf.cli import main
 from fmu_opinf.signals import NoInput
 from fmu_opinf.snapshots import Snapshots
-from fmu_opinf.snapshots._window import _parabolic, accelerates_under_load
 from fmu_opinf.sources import open_source
 
 pytestmark = pytest.mark.fmu
@@ -115,6 +114,8 @@ def test_the_drift_test_sees_a_loaded_free_body_and_not_an_anchored_one(fmus):
     """:func:`accelerates_under_load` over 2000 s with the inputs held at 0: the loaded free body accelerates (its
     tip grows like t**2), the unloaded one rests, and the anchored chain under the same load settles (it oscillates
     about its static deflection, periods of a few seconds)."""
+    from fmu_opinf.snapshots._window import accelerates_under_load
+
     said = {item: accelerates_under_load(open_source(fmus[item]), NoInput(2), 2000.0)
             for item in ("FreeLoad", "FreeBase", "Anchored")}
     assert said["FreeLoad"] is not None and "grows like t^2" in said["FreeLoad"]
@@ -143,6 +144,8 @@ def test_a_drift_accelerates_away_a_coasting_or_settling_output_does_not():
     """The shape test over a run's second half (:func:`_parabolic`), on closed forms over t in [1000, 2000]: a body
     accelerated from rest (``t**2``) drifts; one coasting at a constant speed (``t``), one creeping to rest
     (``1 - exp(-t / 300)``) and one settled at a constant do not."""
+    from fmu_opinf.snapshots._window import _parabolic
+
     t = np.linspace(1000.0, 2000.0, 1001)
     assert _parabolic(t, 0.25 * t**2, 0.25 * 2000.0**2)
     assert not _parabolic(t, 3.0 * t, 3.0 * 2000.0)

@@ -1238,9 +1238,11 @@ def accelerates_under_load(source: Source, signal: Any, t_end: float, *, quiet: 
     before refusing (audit 70, finding 2).
 
     The run is judged over its second half: some output whose range is at least :data:`OUTPUT_FLOOR` of the
-    largest changes there by :data:`DRIFT_SHARE` of its range, fits a parabola to :data:`DRIFT_FIT` of it, bends by at least :data:`DRIFT_CURVATURE` of its
-    change there (accelerates, does not coast), and moves away faster at the end (the acceleration and the
-    velocity agree in sign: not a decay towards rest).  A model far slower than ``t_end`` may pass as well.
+    largest changes there by :data:`DRIFT_SHARE` of its range, fits a parabola to :data:`DRIFT_FIT` of it, bends by
+    at least :data:`DRIFT_CURVATURE` of its change there (accelerates, does not coast), and moves away faster at the
+    end (the acceleration and the velocity agree in sign: not a decay towards rest).  A model far slower than
+    ``t_end`` may pass as well; its pilots, judged net of that response, then see its pulse response alone.  Outputs
+    that are only velocities (growing like ``t``) are not seen.
 
     Returns
     -------
