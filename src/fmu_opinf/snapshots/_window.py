@@ -831,7 +831,8 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
         ``dt / 2`` both grow (the fix names a step below the smallest).
     """
     t_quiet = input_activity(signal, source.m)[0]
-    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect, t_quiet=t_quiet)
+    check = _step_dependence(source, signal, dt, T, quiet, isolate, threshold, inspect, t_quiet=t_quiet,
+                             search=True)
     if check.found is None:
         return check.run, None
     if check.both_grow:
@@ -843,7 +844,7 @@ def pilot_step(source: Source, signal: Any, dt: float, T: float, *, quiet: bool 
         step = nice_floor(step / 2.0)
         if len(time_grid(step / 2.0, T)) > max_steps:
             break
-        check = _step_dependence(source, signal, step, T, quiet, isolate, threshold)
+        check = _step_dependence(source, signal, step, T, quiet, isolate, threshold, search=True)
         if check.found is None:
             return check.run, StableStep(step, unstable.dt, check.difference, check.run, unstable.discarded)
         if check.difference > DIVERGED:
@@ -923,11 +924,13 @@ class _StepCheck(NamedTuple):
 
 def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bool, isolate: bool,
                      threshold: float, inspect: Callable[[Any], None] | None = None,
-                     t_quiet: float | None = None) -> _StepCheck:
+                     t_quiet: float | None = None, search: bool = False) -> _StepCheck:
     """Compare runs at ``dt`` and ``dt / 2`` on ``[0, T]`` under the same held input (:class:`_StepCheck`); a source
     that is not a co-simulation FMU of a continuous-time model, or has a fixed step, is not checked.  ``t_quiet``:
     when the input stops changing, from which the run at ``dt / 2`` must not grow for the run at ``dt`` to count as
-    diverged (None: not judged)."""
+    diverged (None: not judged); ``search``: the caller is the step search of :func:`pilot_step`, which takes a step
+    the FMU discards at ``dt`` as one to search below (elsewhere the discard is the error it was: a step the user
+    gave)."""
     if getattr(source, "interface", None) != "cs" or not continuous_recording(source.provenance()) \
             or fixed_internal_step(source) is not None or fixed_communication_step(source) is not None:
         return _StepCheck(None, None)  # a fixed step: the results cannot depend on a step that cannot be changed
@@ -936,7 +939,7 @@ def _step_dependence(source: Source, signal: Any, dt: float, T: float, quiet: bo
     for t, held in ((coarse, signal), (time_grid(dt / 2.0, T), _HeldOn(signal, coarse))):
         run, failure = record_run(source, held, t, MemorySink, quiet, isolate,
                                   label=f"step check (dt={t[1] - t[0]:g}, t_end={T:g})", pilot=True)
-        if failure is not None and not runs and DISCARDED in str(failure):   # audit 70, finding 9
+        if failure is not None and search and not runs and DISCARDED in str(failure):   # audit 70, finding 9
             return _StepCheck(f"it discarded the communication step {dt:g}", None, False, math.inf, dt,
                               discarded=True)
         if failure is not None and "non-finite" not in str(failure):
