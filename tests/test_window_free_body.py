@@ -151,3 +151,33 @@ def test_a_drift_accelerates_away_a_coasting_or_settling_output_does_not():
     assert not _parabolic(t, 3.0 * t, 3.0 * 2000.0)
     assert not _parabolic(t, 1.0 - np.exp(-t / 300.0), 1.0)
     assert not _parabolic(t, np.full_like(t, 0.2) + 1e-15 * t**2, 0.2)
+
+
+def test_a_drifting_body_whose_window_is_not_found_even_net_of_the_drift_is_refused_in_one_line(fmus, monkeypatch):
+    """The decision alone, with the window stubbed to find nothing (a pulse always too narrow): the first try
+    without a baseline, the drift seen once, then the same impulse and its three widenings all judged net of the
+    drift (with the held inputs as baseline), then one line saying the model accelerates under its own constant
+    load and what to give.  Before, the widenings ran on the raw response and the pulse refusal was re-raised."""
+    from fmu_opinf.errors import DataError
+    from fmu_opinf.snapshots import _window
+    from fmu_opinf.snapshots._record import _default_training_window
+
+    calls = []
+
+    def nothing(source, pilot, **options):
+        calls.append(options.get("baseline"))
+        raise _window.PulseTooNarrow("auto window: the training pulse is far shorter", 2000.0)
+
+    monkeypatch.setattr(_window, "auto_window", nothing)
+    monkeypatch.setattr(_window, "accelerates_under_load", lambda *args, **kw: "y[1] grows like t^2")
+    source = open_source(fmus["FreeLoad"])
+    try:
+        with pytest.raises(DataError) as info:
+            _default_training_window(source, {"quiet": True})
+    finally:
+        source.close()
+    assert calls[0] is None and len(calls) == 5, calls
+    assert all(isinstance(held, NoInput) for held in calls[1:]), calls
+    text = str(info.value)
+    assert "\n" not in text and "the model accelerates under its own constant load (a free body under gravity or " \
+        "thrust: y[1] grows like t^2)" in text and "give --dt and --t-end" in text, text
