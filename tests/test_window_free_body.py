@@ -18,8 +18,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import build_fmu_set
+
 from fmu_opinf import lti_fmus
 from fmu_opinf.cli import main
 from fmu_opinf.signals import NoInput
@@ -50,7 +50,7 @@ def _models() -> dict[str, tuple[lti_fmus.LinearMechanicalModel, dict]]:
     return {"FreeLoad": (_free(0.5, "FreeLoad"), {}),
             "FreeBase": (_free(0.0, "FreeBase"), {}),
             "Anchored": (replace(lti_fmus.chain_model(3, inputs=(0, -1), force_offset=0.5), name="Anchored"), {}),
-            "MaxStep": (lti_fmus.chain_model(3, name="MaxStep"), dict(interfaces=("cs",), cs_max_step=0.01))}
+            "MaxStep": (lti_fmus.chain_model(3, name="MaxStep"), {"interfaces": ("cs",), "cs_max_step": 0.01})}
 
 
 @pytest.fixture(scope="module")
