@@ -434,6 +434,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
                              "or output of the ROM; drop them from reconstruct")
     description = _description(rom, r, names)
     provenance = dict(getattr(rom, "provenance", None) or {})
+    if _warn_if_recording_warned(provenance):
+        description += "; trained on a recording that fmu-opinf snapshots warned about (provenance.json)"
     input_units, output_units = _declared_units(provenance, m, p)
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
@@ -717,6 +719,16 @@ def _warn_if_reconstruction_is_poor(fit_info: dict) -> None:
                       f"where its basis allows {best:.2g}: the output-error refinement fitted the outputs, not the "
                       "basis's coordinates; for reconstructed positions refit with --no-refine (the SDP solution, in "
                       "the basis's coordinates) or a larger --r", FmuOpinfWarning, stacklevel=3)
+
+
+def _warn_if_recording_warned(provenance: dict) -> bool:
+    """The warning ``snapshots`` gave on the ROM's training recording, again (audit 70 F4); whether there was one."""
+    from .snapshots._notes import recorded_warning
+
+    message = recorded_warning(provenance.get("snapshots"))
+    if message:
+        warnings.warn(message, FmuOpinfWarning, stacklevel=4)
+    return bool(message)
 
 
 def _warn_if_start_is_missed(rom: Any) -> None:

@@ -198,6 +198,17 @@ class RateSums:
         return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
 
     @_quiet_overflow
+    def rules(self) -> tuple[float, float, float]:
+        """The relative residuals of the trapezoidal, forward and backward rule over all rows fed (each the root of
+        its summed squares over that of the larger of ``||dx||`` and ``||h v_trapezoid||``; NaN for data that do
+        not move)."""
+        scale = math.sqrt(float(np.maximum(self.squares[0], self.squares[1]).sum()))
+        if not scale > 0 or not math.isfinite(scale):
+            return math.nan, math.nan, math.nan
+        trapezoidal, forward, backward = (math.sqrt(float(row.sum())) / scale for row in self.squares[2:])
+        return trapezoidal, forward, backward
+
+    @_quiet_overflow
     def stale(self, v: np.ndarray, u: np.ndarray | None = None) -> bool:
         """:func:`stale_rates` of the samples fed (all ``k`` of them; ``v``, the judged rows only, for its last
         increment)."""
@@ -435,6 +446,8 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     verdict = check_rates(x, v, a, float(t[1] - t[0]), names, guessed and not repairs, derivatives,
                           np.asarray(run.u[:, window]), sums, declared=structure)
     if verdict is None:
+        if strict and v is not None and getattr(source, "interface", None) == "cs":
+            _warn_if_euler_steps(source, x, v, float(t[1] - t[0]), sums)
         return None
     whole = len(picked) == source.n
     if isinstance(verdict, Repair) and repairs < MAX_REPAIRS and (whole or verdict.velocities is None):
@@ -465,6 +478,45 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
                   "the positions' rates", FmuOpinfWarning, stacklevel=3)
     return None
+
+
+#: A co-simulation takes one Euler step per communication step when the forward (or backward) rule fits the position
+#: increments to this relative residual, round-off, ...
+EULER_EXACT = 1e-9
+#: ... while the trapezoidal rule, which an accurate integration follows to ``(omega h)^2 / 12``, misses by at least
+#: this (audit 70 F1, a Simulink ode1-style FMU at 0.01 s: forward 2.2e-15, trapezoidal 2.1e-2; an accurate FMU at
+#: 0.003 s: forward 3.9e-3, trapezoidal 9.5e-6).
+EULER_TRAPEZOIDAL_MISS = 1e-5
+
+
+def _warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, sums: RateSums | None) -> None:
+    """Warn (kept in the snapshot file, :mod:`._notes`) where a co-simulation's positions move by exactly ``h`` times
+    the velocity at the start (explicit Euler) or at the end (semi-implicit or implicit Euler) of each step: the
+    recording then follows the FMU's first-order integrator, not the model (audit 70 F1: a Simulink ode1-style FMU
+    recorded silently, its ROM 41-49 % of range off the model, with most of the damping lost)."""
+    from ..sources import fixed_communication_step, offers_model_exchange
+    from ._notes import warn_recording
+
+    if sums is None or sums.squares is None or sums.k != x.shape[1]:
+        sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
+        sums.feed(x, v, None, x.shape[1])
+    trapezoidal, forward, backward = sums.rules()
+    euler = min(forward, backward)
+    if not (euler <= EULER_EXACT and trapezoidal >= EULER_TRAPEZOIDAL_MISS):
+        return
+    if offers_model_exchange(source):
+        remedy = "record by model exchange (--interface me)"
+    elif fixed_communication_step(source) is not None:
+        remedy = ("its communication step is fixed and it offers no model exchange: export it with a smaller step or "
+                  "a higher-order solver")
+    else:
+        remedy = "record at a smaller --dt (the error shrinks like dt; it offers no model exchange)"
+    rule = "start" if forward <= backward else "end"
+    warn_recording(f"{source_label(source)}: the co-simulation takes one Euler step per communication step (each "
+                   f"position moves by dt={h:g} times its velocity at the {rule} of the step, to {euler:.1e}; an "
+                   f"accurate integration follows the trapezoidal rule, which misses by {trapezoidal:.1e}): the "
+                   f"recording follows the FMU's integrator, not the model (damping and frequencies off by terms of "
+                   f"order omega dt); {remedy}", "euler-steps", stacklevel=4)
 
 
 def _paired_by_structure(selection: Any) -> bool:

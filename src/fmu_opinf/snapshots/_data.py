@@ -190,6 +190,11 @@ class Snapshots:
             shared = shared_held_inputs(self.attrs.pop("held_inputs"), attrs.get("held_inputs"))
             if shared is not None:
                 self.attrs["held_inputs"] = shared
+        for key in ("recording_warnings", "recording_verdicts"):   # any part's warning holds for the whole set
+            mine = _texts(self.attrs.get(key))
+            joined = mine + [text for text in _texts(attrs.get(key)) if text not in mine]
+            if joined:
+                self.attrs[key] = joined
 
     def _check_compatible(self, attrs: dict[str, Any]) -> None:
         keys = ("n", "m", "p", "position_names", "input_names", "output_names")
@@ -384,3 +389,9 @@ def _initial(value: Any, samples: Any) -> np.ndarray:
         return np.asarray(value, dtype=float).reshape(-1)
     rows, k = samples.shape[0], samples.shape[-1]
     return np.array(samples[:, 0], dtype=float) if k and rows else np.zeros(rows)
+
+
+def _texts(value: Any) -> list[str]:
+    """A list attribute of text as a list of its strings (one string alone counts; anything else is none)."""
+    items = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, tuple)) else []
+    return [item for item in items if isinstance(item, str)]

@@ -40,6 +40,7 @@ from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
+from ._notes import collecting_recording_notes, current_recording_notes
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
 
@@ -731,6 +732,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             write_attrs(f, {"initialization": summary.initialization})
         f.attrs["n_runs"] = len(summary.runs)
         write_attrs(f, _integrator_taken(source, recorded))
+        write_attrs(f, current_recording_notes())   # (audit 70 F4: fit, compare and export repeat them)
     if failure is not None:
         raise failure
     return summary
@@ -788,6 +790,7 @@ def _renamed(options: dict[str, Any], old: str, new: str, value: Any) -> Any:
     return options.pop(old)
 
 
+@collecting_recording_notes
 def record_to_file(
     source_spec: str | os.PathLike | Source,
     output: str | os.PathLike,

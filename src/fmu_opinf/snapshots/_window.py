@@ -1097,6 +1097,7 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     import warnings
 
     from ..errors import FmuOpinfWarning
+    from ._notes import warn_recording
 
     internal = fixed_internal_step(source)
     if internal is not None and not is_whole_multiple(dt, internal):
@@ -1109,18 +1110,18 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     if found is None:
         return
     if late:
-        warnings.warn(f"{source_label(source)}: the co-simulation's outputs lag by one communication step ({found} "
-                      f"over t <= {T:g}): the recorded outputs are those of t - dt, and the ROM learns that lag; "
-                      f"{'record by model exchange (--interface me), or ' if offers_model_exchange(source) else ''}"
-                      "keep --dt small against the motion", FmuOpinfWarning, stacklevel=3)
+        warn_recording(f"{source_label(source)}: the co-simulation's outputs lag by one communication step ({found} "
+                       f"over t <= {T:g}): the recorded outputs are those of t - dt, and the ROM learns that lag; "
+                       f"{'record by model exchange (--interface me), or ' if offers_model_exchange(source) else ''}"
+                       "keep --dt small against the motion", "late-outputs", stacklevel=3)
         return
 
     offers_me = offers_model_exchange(source)
     remedy = "record by model exchange (--interface me) or at a smaller --dt" if offers_me else \
         "record at a smaller --dt (it offers no model exchange)"
-    warnings.warn(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "
-                  f"t <= {T:g}): the recording follows the FMU's integrator, not the model; {remedy}",
-                  FmuOpinfWarning, stacklevel=3)
+    warn_recording(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "
+                   f"t <= {T:g}): the recording follows the FMU's integrator, not the model; {remedy}",
+                   "step-dependent", stacklevel=3)
 
 
 def _within_limit(window: Window, t0: float, t_limit: float) -> Window:

@@ -1,0 +1,88 @@
+"""Warnings that a recording follows the FMU's integrator rather than the model, kept in the snapshot file.
+
+``snapshots`` says once that a co-simulation depends on its communication step, lags by one step or takes one
+explicit Euler step per communication step; ``fit``, ``compare`` and ``export`` run later, in other processes, on
+the file alone.  Before, they then reported success on ROMs 28-72 % of range off the model (audit 70 F4), because
+nothing of the warning was left.  :func:`warn_recording` warns as before and adds the line to the notes of the
+recording in progress (:func:`collecting_recording_notes` around :func:`~fmu_opinf.snapshots.record_to_file`);
+the file keeps them in its attribute ``recording_warnings`` (and what each says, a word of :data:`VERDICTS`, in
+``recording_verdicts``), and :func:`recorded_warning` gives the later stages one line to repeat.
+"""
+
+from __future__ import annotations
+
+import contextvars
+import functools
+import warnings
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from ..errors import FmuOpinfWarning
+
+__all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", "recorded_verdicts",
+           "recorded_warning", "warn_recording"]
+
+#: What a recording warning says: the co-simulation takes one Euler step per communication step, depends on the
+#: step in another way, or returns its outputs one step late.
+VERDICTS = ("euler-steps", "step-dependent", "late-outputs")
+
+_NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
+                                                                                    default=None)
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def collecting_recording_notes(function: _F) -> _F:
+    """``function`` with the recording notes of its call collected (a fresh list; an enclosing call's are kept
+    apart)."""
+    @functools.wraps(function)
+    def collecting(*args: Any, **kwargs: Any) -> Any:
+        token = _NOTES.set({"recording_warnings": [], "recording_verdicts": []})
+        try:
+            return function(*args, **kwargs)
+        finally:
+            _NOTES.reset(token)
+    return collecting  # type: ignore[return-value]
+
+
+def current_recording_notes() -> dict[str, list[str]]:
+    """The file attributes ``recording_warnings`` and ``recording_verdicts`` of the recording in progress (empty
+    outside one, or where nothing was warned)."""
+    notes = _NOTES.get()
+    return {key: list(value) for key, value in notes.items()} if notes and notes["recording_warnings"] else {}
+
+
+def warn_recording(message: str, verdict: str, stacklevel: int = 2) -> None:
+    """Warn ``message`` (a :class:`~fmu_opinf.errors.FmuOpinfWarning`) and keep it, with its ``verdict`` (one of
+    :data:`VERDICTS`), for the file being recorded."""
+    if verdict not in VERDICTS:
+        raise ValueError(f"verdict={verdict!r} is not one of {VERDICTS}")
+    warnings.warn(message, FmuOpinfWarning, stacklevel=stacklevel + 1)
+    notes = _NOTES.get()
+    if notes is not None and message not in notes["recording_warnings"]:
+        notes["recording_warnings"].append(message)
+        if verdict not in notes["recording_verdicts"]:
+            notes["recording_verdicts"].append(verdict)
+
+
+def recorded_verdicts(attrs: Any) -> set[str]:
+    """The verdicts of :data:`VERDICTS` that snapshot attributes ``attrs`` carry (read as data: other text is
+    ignored)."""
+    verdicts = attrs.get("recording_verdicts") if isinstance(attrs, dict) else None
+    if isinstance(verdicts, str):
+        verdicts = [verdicts]
+    return {v for v in verdicts if v in VERDICTS} if isinstance(verdicts, (list, tuple)) else set()
+
+
+def recorded_warning(attrs: Any) -> str | None:
+    """The line a later stage repeats for snapshot attributes ``attrs`` (a file's, or a ROM's
+    ``provenance["snapshots"]``) that carry recording warnings, or None.  Read as data: only text counts."""
+    notes = attrs.get("recording_warnings") if isinstance(attrs, dict) else None
+    if isinstance(notes, str):
+        notes = [notes]
+    if not isinstance(notes, (list, tuple)):
+        return None
+    texts = [note for note in notes if isinstance(note, str) and note]
+    if not texts:
+        return None
+    more = f" (and {len(texts) - 1} more warning{'s' if len(texts) > 2 else ''})" if len(texts) > 1 else ""
+    return f"the training snapshots were recorded with this warning: {texts[0]}{more}"

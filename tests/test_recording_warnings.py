@@ -1,0 +1,125 @@
+"""Recordings that follow the FMU's integrator, not the model (audit 70, F1 and F4).
+
+F1: a Simulink ode1-style co-simulation FMU (one explicit Euler step per ``doStep``, fixed step 0.01 s enforced,
+:func:`fmu_opinf.lti_fmus.build_lti_fmu` with ``cs_method="euler"``): ``snapshots`` said nothing and the default
+ROM was 22-49 % of range off the model.  The recorded positions move by exactly ``dt`` times the velocity at the
+step's start; ``snapshots`` now says so, and since the FMU's own accelerations are the model's derivatives at the
+recorded states, ``fit`` fits those without the output-error refinement.  Reference: the exact zero-order-hold
+response of the model (:func:`fmu_opinf.lti_fmus.zoh_response`), not the FMU.
+
+F4: such a warning lived only on ``snapshots``' stderr; ``fit``, ``compare`` and ``export`` now repeat it from the
+file (attribute ``recording_warnings``).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import h5py
+import numpy as np
+import pytest
+
+from conftest import build_fmu_set
+from fmu_opinf import lti_fmus
+from fmu_opinf.cli import main
+from fmu_opinf.errors import FmuOpinfWarning
+from fmu_opinf.rom import SecondOrderROM, fit_rom
+from fmu_opinf.signals import parse_signal
+from fmu_opinf.snapshots import Run, Snapshots
+from fmu_opinf.snapshots._notes import recorded_warning
+from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+pytestmark = pytest.mark.fmu
+
+FIXED_STEP = 0.01
+
+
+def _model() -> lti_fmus.LinearMechanicalModel:
+    return lti_fmus.chain_model(4, inputs=(-1,), x0=[0.0, 0.0, 0.0, 0.05], name="Ode1Chain")
+
+
+@pytest.fixture(scope="module")
+def fmus(request, tmp_path_factory):
+    """Euler co-simulation at a fixed step (Simulink ode1-style) and the same model with an accurate one."""
+    options = {"Ode1Chain": dict(cs_method="euler", cs_fixed_step=FIXED_STEP),
+               "AccurateChain": dict(cs_fixed_step=FIXED_STEP)}
+
+    def build(folder, item):
+        return item, lti_fmus.build_lti_fmu(_model(), folder / f"{item}.fmu", interfaces=("cs",),
+                                            identifier=item, **options[item]).path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-recording-warnings", build, list(options))
+
+
+def _miss_against_model(rom: SecondOrderROM, spec: str, t_end: float = 60.0) -> float:
+    """Largest output error over its range, the ROM against the exact model on ``spec``."""
+    t = time_grid(rom.dt, t_end)
+    u = inputs_in_effect(parse_signal(spec, 1), t, 1)
+    reference = lti_fmus.zoh_response(_model(), t, u[:, 1:]).y
+    y = rom.simulate(spec, rom.dt, t_end).y
+    return float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1)))
+
+
+def test_euler_co_simulation_is_said_kept_and_fitted_as_the_model(fmus, tmp_path, capsys):
+    train, rom_file = tmp_path / "train.h5", tmp_path / "rom.h5"
+    assert main(["snapshots", str(fmus["Ode1Chain"]), "-o", str(train), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("one Euler step per communication step") == 1, err
+    assert "its communication step is fixed and it offers no model exchange" in err
+    with h5py.File(train) as f:
+        assert list(f.attrs["recording_verdicts"]) == ["euler-steps"]
+        assert "one Euler step" in f.attrs["recording_warnings"][0]
+    assert main(["fit", str(train), "-o", str(rom_file), "-q"]) == 0
+    assert "without output-error refinement" in capsys.readouterr().err
+    rom = SecondOrderROM.load(rom_file)
+    # measured 2.0e-13 / 1.7e-13 (before: 0.49 / 0.41, the refinement fitted the Euler trajectory)
+    assert _miss_against_model(rom, "none") < 1e-12
+    assert _miss_against_model(rom, "harmonic:amplitude=1,omega=0.9") < 1e-12
+    assert rom.fit_info["refinement_skipped"] == "euler-steps"
+    assert main(["compare", str(rom_file), str(fmus["Ode1Chain"]), "-o", str(tmp_path / "report"), "-q"]) == 0
+    assert "includes the FMU's own integration error" in capsys.readouterr().err
+
+
+def test_accurate_co_simulation_at_the_same_step_is_not_called_euler(fmus, tmp_path, capsys):
+    train = tmp_path / "train.h5"
+    assert main(["snapshots", str(fmus["AccurateChain"]), "-o", str(train), "-q"]) == 0
+    assert "Euler" not in capsys.readouterr().err
+    with h5py.File(train) as f:
+        assert "recording_warnings" not in f.attrs
+
+
+def _runs_with_warning(warning: str | None) -> Snapshots:
+    """One exact run of the model (no FMU), with a recording warning in its attributes as ``snapshots`` writes it."""
+    t = time_grid(0.05, 40.0)
+    u = inputs_in_effect(parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), t, 1)
+    exact = lti_fmus.zoh_response(_model(), t, u[:, 1:])
+    attrs = {} if warning is None else {"recording_warnings": [warning], "recording_verdicts": ["step-dependent"]}
+    return Snapshots([Run(t, u, exact.x, exact.v, exact.a, exact.y)], attrs)
+
+
+def test_fit_and_export_repeat_the_recording_warning(tmp_path):
+    said = "X.fmu: the co-simulation depends on the communication step (...)"
+    with pytest.warns(FmuOpinfWarning, match=r"recorded with this warning: X\.fmu: the co-simulation depends"):
+        rom = fit_rom(_runs_with_warning(said), quiet=True, refine=False)
+    assert recorded_warning(rom.provenance["snapshots"]).endswith(said)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        quiet = fit_rom(_runs_with_warning(None), quiet=True, refine=False)
+    from fmu_opinf.export import _warn_if_recording_warned
+
+    with pytest.warns(FmuOpinfWarning, match="recorded with this warning"):
+        assert _warn_if_recording_warned(dict(rom.provenance))
+    assert not _warn_if_recording_warned(dict(quiet.provenance))
+
+
+def test_merged_snapshots_keep_every_part_s_warning():
+    merged = _runs_with_warning("first").append(_runs_with_warning("second"))
+    assert merged.attrs["recording_warnings"] == ["first", "second"]
+    assert merged.attrs["recording_verdicts"] == ["step-dependent"]
+    assert recorded_warning(merged.attrs).endswith("with this warning: first (and 1 more warning)")
+
+
+def test_recorded_warnings_are_read_as_data():
+    assert recorded_warning({"recording_warnings": [3, None]}) is None
+    assert recorded_warning({"recording_warnings": "one"}).endswith("warning: one")
+    assert recorded_warning({"recording_warnings": {"a": 1}}) is None
