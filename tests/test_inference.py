@@ -471,6 +471,44 @@ def test_refinement_objective_is_zero_at_the_true_operators_with_two_runs(rng, w
     assert one_run["objective_start"] > 1e-6  # treating the two runs as one trajectory is wrong
 
 
+@pytest.mark.parametrize("whiten", [False, True])
+def test_a_screen_ends_the_refinement_where_its_test_says_and_changes_nothing_where_it_does_not(rng, whiten):
+    """The order search's screen (issue 16): after N iterations the test gets the iterate's operators, in the given
+    coordinates also where the refinement works in modal ones; True ends the refinement there (status "screened
+    out"), False lets it go on to the same bits as without a screen.  Reference for the operators handed over: their
+    output error by :func:`output_error_objective` (an independent simulation) equals the objective the L-BFGS
+    recorded after N iterations, and they are the model a refinement of N iterations returns."""
+    from fmu_opinf.refinement import output_error_objective, refine_output_error
+
+    _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng)
+    start = (1.3 * M, 0.5 * D, 0.8 * K, 1.2 * B)   # away from the truth: the refinement has work to do
+    common = dict(output_map=(Cp, np.zeros_like(Cp)), run_lengths=lengths, whiten=whiten, max_iterations=60)
+    seen = []
+
+    def test(answer):
+        def hopeless(*operators):
+            seen.append(operators)
+            return answer
+        return hopeless
+
+    *plain, report = refine_output_error(*start, v, x, u, y, 0.1, **common)
+    *kept, kept_report = refine_output_error(*start, v, x, u, y, 0.1, screen=(20, test(False)), **common)
+    assert len(seen) == 1 and kept_report["iterations"] == report["iterations"] > 20, kept_report
+    for got, expected in zip(kept, plain):
+        np.testing.assert_array_equal(got, expected)
+    *stopped, stopped_report = refine_output_error(*start, v, x, u, y, 0.1, screen=(20, test(True)), **common)
+    assert stopped_report["status"] == "screened out" and stopped_report["iterations"] == 20, stopped_report
+    *twenty, _ = refine_output_error(*start, v, x, u, y, 0.1, **dict(common, max_iterations=20))
+    handed = seen[-1]
+    objective = output_error_objective(*handed, v, x, u, y, 0.1, output_map=common["output_map"],
+                                       run_lengths=lengths)
+    assert objective == pytest.approx(stopped_report["history"][20], rel=1e-9)
+    assert objective < 0.5 * report["objective_start"]   # the test saw the refined iterate, not the start
+    for got, handed_over, expected in zip(stopped, handed, twenty):
+        np.testing.assert_array_equal(got, expected)
+        np.testing.assert_allclose(handed_over, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+
+
 def _simulated_outputs(fit, C, u, dt):
     """Outputs ``C q`` of the fitted operators under the Newmark step map, from rest."""
     from fmu_opinf.inference import newmark_step_map

@@ -792,6 +792,7 @@ def fit_operators(
     equation_weight: float | None = None,
     progress: bool = False,
     output_weighting: str = "per-output",
+    screen: tuple[int, Any] | None = None,
 ) -> OperatorFit:
     """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
 
@@ -867,6 +868,11 @@ def fit_operators(
     output_weighting : {"per-output", "lumped"}, default="per-output"
         How the refinement and the choice between the two starts weigh several outputs: each relative to its own
         size, or all relative to ``||y||`` as eq. (19) does (module docstring, *Outputs of different size*).
+    screen : (int, callable), optional
+        ``(iterations, test)`` of :func:`refine_output_error` for the refinement from the SDP solution: ends it
+        early where ``test`` finds the model hopeless after that many iterations (the order search's screening,
+        :func:`fmu_opinf.rom.fit_rom`).  Applied only where no second start runs (no realization of least
+        squares to refine), so that the two starts are never compared at unequal budgets.
 
     Returns
     -------
@@ -927,7 +933,8 @@ def fit_operators(
                     run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
                     **_stall_stop(), unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
                     equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress,
-                    spare_core=second is None and r >= SIDE_BY_SIDE_FROM, output_weighting=output_weighting)
+                    spare_core=second is None and r >= SIDE_BY_SIDE_FROM, output_weighting=output_weighting,
+                    screen=screen if second_start is None or not _refinable(found) else None)
                 refitted_map = info["refinement"].pop("refitted_map", None)
             if candidate:
                 if second is not None:
