@@ -172,3 +172,21 @@ def test_an_error_of_the_main_thread_is_raised_after_the_helper_ended(rng, monke
         with pytest.raises(KeyboardInterrupt):
             modal_output_gradient(A, B, C, runs, pool)
         assert ended.is_set()
+
+
+def test_polynomial_values_agree_with_horner_at_conjugate_pairs_in_any_order():
+    """Issue 16: the modal gradient's polynomials are evaluated at one eigenvalue of each exact conjugate pair and
+    conjugated for the other; the reference is Horner's rule (``numpy.polyval``) at every eigenvalue, also where the
+    eigenvalues do not come in LAPACK's order (lower first, or a pair split apart) and where one is real."""
+    from fmu_opinf._output_gradient import _polynomial_values
+
+    rng = np.random.default_rng(3)
+    A = rng.standard_normal((9, 9))
+    mu = np.linalg.eigvals(A / (1.02 * np.abs(np.linalg.eigvals(A)).max()))
+    assert np.count_nonzero(mu.imag > 0) >= 2 and np.count_nonzero(mu.imag == 0) >= 1, mu
+    coefficients = rng.standard_normal((3, 700))
+    for order in (np.arange(mu.size), np.arange(mu.size)[::-1], rng.permutation(mu.size)):
+        at = mu[order]
+        expected = np.array([[np.polyval(row[::-1], z) for z in at] for row in coefficients])
+        np.testing.assert_allclose(_polynomial_values(coefficients, at), expected, rtol=1e-12,
+                                   atol=1e-12 * np.abs(expected).max())
