@@ -817,6 +817,9 @@ def test_a_chain_under_a_constant_load_started_off_equilibrium_gets_the_order_it
     rom = fit_rom(runs, integrator="exact")
     search = rom.fit_info["order_search"]
     assert search[0]["r"] == 4 and search[1]["judged"] > GROSS_MISS, search   # the plateau that ended it
+    # issue 16: the orders it discards were refined only until they still missed grossly, the kept one in full
+    assert [entry.get("screened", False) for entry in search] == [True] * (len(search) - 1) + [False], search
+    assert rom.fit_info["refinement"]["status"] != "screened out" and search[-1]["r"] == rom.r, rom.fit_info
     test_input = "harmonic:amplitude=3,omega=1.3;none;harmonic:amplitude=2,omega=0.7"
     reference = exact(test_input)[1].y
     error = np.abs(rom.simulate(test_input, dt, t_end).y - reference).max(axis=1) / np.ptp(reference, axis=1)

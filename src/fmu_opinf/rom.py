@@ -1167,7 +1167,9 @@ def fit_rom(
         error above :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order,
         up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error (mean squared)
         :data:`ORDER_HELPS`-fold, keep the first that reproduces them, else the closest where the order helped
-        (``fit_info["order_search"]``).
+        (``fit_info["order_search"]``).  An order that still misses grossly after :data:`SCREEN_ITERATIONS`
+        refinement iterations (above :data:`HOPELESS_MISS`) is not refined further unless the search keeps it or
+        needs its full figure (:func:`_grow_order`; its entry says ``"screened": True``).
     energy : float, optional
         Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
         (eq. 18, :class:`fmu_opinf.basis.PODBasis`); default 0.95.
