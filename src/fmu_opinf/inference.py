@@ -429,6 +429,17 @@ from the compact form of the inverse BFGS matrix in NumPy, the same strong Wolfe
 start).  The refinement alone (``refine_output_error``, 300 iterations, CPU seconds) at r = 10 / 20 / 35: 0.73 /
 0.96 / 1.65 s against 0.91 / 1.08 / 2.01 s, objectives 4.25e-7 / 3.10e-8 / 4.63e-9 against 4.30e-7 / 3.10e-8 /
 4.47e-9.
+Since 2026-12-06 (issue 16) the polynomial sums of the modal gradient are evaluated at one eigenvalue of each
+conjugate pair (the coefficients are real, so the other's values are the conjugates) and multiply the real and
+imaginary parts of the powers as two real products (:func:`fmu_opinf._output_gradient._polynomial_values`): the
+same bits, CPU ms per call (``n = 2r`` eigenvalues, ``sets = 2 p (1 + m)`` polynomials of 6001-9074
+coefficients, one BLAS thread, medians of 7 alternated rounds): n = 52 / 120 / 26 with 24 / 24 / 30 sets (a
+three-output chain with two inputs and a force offset; five outputs, two inputs) 4.0 / 14.1 / 3.8 against 2.1 /
+4.7 / 2.3; one output and one input (4 sets) at n = 70 / 100: 0.88 / 1.39 against 0.74 / 0.97, and within the
+timing noise at n = 14 / 20.  A whole fit at r = 26 (300 iterations, exact step, CPU seconds, three rounds
+alternated): five outputs of a 40-mass chain 10.1 / 9.5 / 8.1 against 7.2 / 7.2; a 100-mass loaded chain (three
+outputs) 10.1 / 9.8 / 9.0 against 8.7 / 7.9 / 8.5; the same ``Mr`` to the last bit.  (At r = 52 / 60 on that
+chain the polynomials had taken 57 of the refinement's 201 s.)
 The accuracy table above was re-measured with it: the same ratios within the iterates' swing (r = 15 / 30 / 55 /
 60: 0.19 / 0.55 / 1.25 / 0.08 against 0.42 / 0.72 / 1.05 / 0.18), the r = 50 miss unchanged (3.42) until the
 second start (*Least-squares candidate* below) brought it to 0.65.
