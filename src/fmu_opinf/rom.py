@@ -1656,13 +1656,16 @@ def _search_summary(search: list[dict], kept: int) -> str:
         error = entry["judged"]
         return "not simulated" if error is None else f"{math.sqrt(error):.2g}"
 
+    def screened(entry: dict) -> str:
+        return f" after {SCREEN_ITERATIONS} refinement iterations" if entry.get("screened") else ""
+
     first, rest = search[0], search[1:]
     found = any(entry["r"] == kept and entry["judged"] is not None and entry["judged"] <= TRAINING_MISS
                 for entry in search)
-    return (f"order search: r={first['r']} from eq. (18) misses its training outputs ({rms(first)} relative RMS)"
-            + ("; " if rest else "")
-            + ", ".join(f"r={entry['r']}: {rms(entry)}" + (", kept" if entry["r"] == kept and found else "")
-                        for entry in rest)
+    return (f"order search: r={first['r']} from eq. (18) misses its training outputs ({rms(first)} relative RMS"
+            f"{screened(first)})" + ("; " if rest else "")
+            + ", ".join(f"r={entry['r']}: {rms(entry)}{screened(entry)}"
+                        + (", kept" if entry["r"] == kept and found else "") for entry in rest)
             + ("" if found else f"; none reproduces them within {math.sqrt(TRAINING_MISS):.2g}: kept r={kept}"
                                 + (", the closest" if kept != first["r"] else _why_not_larger(search[-1]))))
 
