@@ -486,20 +486,21 @@ def test_a_screen_ends_the_refinement_where_its_test_says_and_changes_nothing_wh
     seen = []
 
     def test(answer):
-        def hopeless(*operators):
-            seen.append(operators)
+        def hopeless(iterations, *operators):
+            seen.append((iterations, operators))
             return answer
         return hopeless
 
     *plain, report = refine_output_error(*start, v, x, u, y, 0.1, **common)
-    *kept, kept_report = refine_output_error(*start, v, x, u, y, 0.1, screen=(20, test(False)), **common)
-    assert len(seen) == 1 and kept_report["iterations"] == report["iterations"] > 20, kept_report
+    *kept, kept_report = refine_output_error(*start, v, x, u, y, 0.1, screen=((10, 20), test(False)), **common)
+    assert [i for i, _ in seen] == [10, 20] and kept_report["iterations"] == report["iterations"] > 20, seen
     for got, expected in zip(kept, plain):
         np.testing.assert_array_equal(got, expected)
-    *stopped, stopped_report = refine_output_error(*start, v, x, u, y, 0.1, screen=(20, test(True)), **common)
+    *stopped, stopped_report = refine_output_error(*start, v, x, u, y, 0.1, screen=((20, 40), test(True)), **common)
     assert stopped_report["status"] == "screened out" and stopped_report["iterations"] == 20, stopped_report
     *twenty, _ = refine_output_error(*start, v, x, u, y, 0.1, **dict(common, max_iterations=20))
-    handed = seen[-1]
+    assert seen[-1][0] == 20
+    handed = seen[-1][1]
     objective = output_error_objective(*handed, v, x, u, y, 0.1, output_map=common["output_map"],
                                        run_lengths=lengths)
     assert objective == pytest.approx(stopped_report["history"][20], rel=1e-9)

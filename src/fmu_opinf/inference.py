@@ -803,7 +803,7 @@ def fit_operators(
     equation_weight: float | None = None,
     progress: bool = False,
     output_weighting: str = "per-output",
-    screen: tuple[int, Any] | None = None,
+    screen: tuple[tuple[int, ...], Any] | None = None,
 ) -> OperatorFit:
     """Fit ``Mr, Dr, Kr`` (symmetric PSD) and ``Br`` to reduced data by the SDP of eq. (16).
 
@@ -879,9 +879,9 @@ def fit_operators(
     output_weighting : {"per-output", "lumped"}, default="per-output"
         How the refinement and the choice between the two starts weigh several outputs: each relative to its own
         size, or all relative to ``||y||`` as eq. (19) does (module docstring, *Outputs of different size*).
-    screen : (int, callable), optional
-        ``(iterations, test)`` of :func:`refine_output_error` for the refinement from the SDP solution: ends it
-        early where ``test`` finds the model hopeless after that many iterations (the order search's screening,
+    screen : (sequence of int, callable), optional
+        ``(checkpoints, test)`` of :func:`refine_output_error` for the refinement from the SDP solution: ends it
+        early where ``test`` finds the model hopeless at one of those iteration counts (the order search's screening,
         :func:`fmu_opinf.rom.fit_rom`).  Applied only where no second start runs (no realization of least
         squares to refine), so that the two starts are never compared at unequal budgets.
 

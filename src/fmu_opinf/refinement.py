@@ -397,13 +397,13 @@ def _levenberg_marquardt(problem: _Trajectories, x: np.ndarray, r: int, m: int, 
 def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int, m: int, max_iterations: int,
                window: int, rtol: float, report: dict[str, Any], progress: bool = False,
                label: str = "output-error refinement",
-               screen: tuple[int, Callable[[np.ndarray], bool]] | None = None) -> np.ndarray:
+               screen: tuple[tuple[int, ...], Callable[[int, np.ndarray], bool]] | None = None) -> np.ndarray:
     """L-BFGS on the output error from ``start`` (objective ``value0``), relative to ``value0`` (the L-BFGS
     gradient test is absolute), or with ``problem.equation_weight`` on ``log(J / J0) + w log(E / E0)``
     (:meth:`_Trajectories.log_loss`); fills ``report`` (``objective`` and ``history`` are the output error
-    ``J`` either way) and returns the last iterate.  ``screen``: ``(iterations, test)``, the iterate after that
-    many iterations is handed to ``test`` and the run ends there where it returns True (status ``"screened
-    out"``)."""
+    ``J`` either way) and returns the last iterate.  ``screen``: ``(checkpoints, test)``, the iterate after each
+    of those iteration counts is handed to ``test(iterations, x)`` and the run ends there where it returns True
+    (status ``"screened out"``)."""
     history = [1.0]
     stop = _Stagnation(history, window, rtol)
     stop.screen = screen
@@ -454,7 +454,7 @@ class _Stagnation:
         self.history, self.window, self.rtol, self.stopped = history, int(window), float(rtol), False
         self.transform = None  # the recorded objective from L-BFGS's intermediate result (default: its fun)
         self.bar: Progress | None = None  # labelled progress of the iterations on a terminal
-        self.screen: tuple[int, Callable[[np.ndarray], bool]] | None = None  # (iterations, test of the iterate)
+        self.screen: tuple[tuple[int, ...], Callable[[int, np.ndarray], bool]] | None = None  # (checkpoints, test)
         self.screened = False  # the screen's test ended the run
 
     def __call__(self, intermediate_result: Any) -> None:
@@ -464,7 +464,8 @@ class _Stagnation:
         if self.bar is not None:
             self.bar.update(len(self.history) - 1)
         iterations = len(self.history) - 1
-        if self.screen is not None and iterations == self.screen[0] and self.screen[1](intermediate_result.x):
+        if self.screen is not None and iterations in self.screen[0] and self.screen[1](iterations,
+                                                                                      intermediate_result.x):
             self.screened = True
             raise StopIteration
         if self.rtol > 0 and len(self.history) > 2 * self.window:
@@ -493,7 +494,7 @@ def refine_output_error(
     state_weight: float = 0.0, equation_weight: float = 0.0, xddot_r: np.ndarray | None = None,
     progress: bool = False, gradient: str = "auto", progress_label: str = "output-error refinement",
     spare_core: bool = False, output_weighting: str = "per-output",
-    screen: tuple[int, Callable[..., bool]] | None = None,
+    screen: tuple[tuple[int, ...], Callable[..., bool]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Output-error (trajectory) refinement of a structured fit (module docstring, *Output-error refinement*).
 
@@ -581,13 +582,13 @@ def refine_output_error(
         this one, from ``SIDE_BY_SIDE_FROM`` = 15 on: below, the hand-over costs more than it gains): the modal
         gradient simulates the outputs in a second thread while this one decomposes the step map.  The same
         numbers; triple chain r = 100: 13.3 instead of 16.0 s for 600 iterations.
-    screen : (int, callable), optional
-        ``(iterations, test)``: after that many L-BFGS iterations ``test(Mr, Dr, Kr, Br)`` gets the iterate's
-        operators (in the given coordinates, ``Mr`` as the factors make it, not yet symmetrized) and ends the
-        refinement there where it returns True (status ``"screened out"``): the order search of
-        :func:`fmu_opinf.rom.fit_rom` stops refining an order that still misses its training outputs grossly,
-        which it discards (:data:`fmu_opinf.rom.SCREEN_ITERATIONS`).  Otherwise the refinement goes on as without
-        it, to the same iterates.
+    screen : (sequence of int, callable), optional
+        ``(checkpoints, test)``: after each of those numbers of L-BFGS iterations ``test(iterations, Mr, Dr, Kr,
+        Br)`` gets the iterate's operators (in the given coordinates, ``Mr`` as the factors make it, not yet
+        symmetrized) and ends the refinement there where it returns True (status ``"screened out"``): the order
+        search of :func:`fmu_opinf.rom.fit_rom` stops refining an order that still misses its training outputs
+        grossly, which it discards (:data:`fmu_opinf.rom.SCREEN_CHECKPOINTS`).  Otherwise the refinement goes on
+        as without it, to the same iterates.
 
     Returns
     -------
@@ -643,7 +644,8 @@ def refine_output_error(
               "status": "exact start", "coordinates": "modal" if whiten else "given",
               "output_map": "refitted" if refit_output_map else "fixed"}
     if value0 > REPRODUCED:
-        screened = None if screen is None else (int(screen[0]), _operator_test(screen[1], r, m, cols, scales, T_inv))
+        screened = None if screen is None else (tuple(int(i) for i in screen[0]),
+                                                _operator_test(screen[1], r, m, cols, scales, T_inv))
         with _helper_thread(spare_core) as problem.helper:
             x = _run_lbfgs(problem, start, value0, r, m, max_iterations, window, rtol, report, progress,
                            progress_label, screened)
@@ -670,12 +672,13 @@ def refine_output_error(
 
 def _operator_test(test: Callable[..., bool], r: int, m: int, columns: np.ndarray, scales: np.ndarray,
                    T_inv: np.ndarray) -> Callable[[np.ndarray], bool]:
-    """``test`` of ``Mr, Dr, Kr, Br`` (given coordinates ``q = T p``) as a test of the refinement's parameters."""
-    def on_parameters(params: np.ndarray) -> bool:
+    """``test(iterations, Mr, Dr, Kr, Br)`` (given coordinates ``q = T p``) as a test of the refinement's
+    parameters."""
+    def on_parameters(iterations: int, params: np.ndarray) -> bool:
         factors, Bs = _split_factors(params, r, m)
         mats = [(L * c) @ (L * c).T / s for L, c, s in zip(factors, columns, scales[:3])]
         back = T_inv.T
-        return bool(test(*(back @ A @ T_inv for A in mats), back @ (Bs / scales[3])))
+        return bool(test(iterations, *(back @ A @ T_inv for A in mats), back @ (Bs / scales[3])))
     return on_parameters
 
 
