@@ -737,9 +737,9 @@ def test_the_order_search_refines_in_full_only_what_it_keeps_or_relies_on():
     """Issue 16: the orders the search tries are fitted with a screen that ends their refinement where they still
     miss grossly (SCREEN_CHECKPOINTS); such an order is taken not to pass, and the search refits it in full before it
     relies on its figure: where the next order's miss is not gross (ORDER_HELPS decides) and where no order
-    reproduces the outputs (the closest is kept).  Where a larger order reproduces them, the screened ones are never refitted.  The
-    decisions are those of full fits throughout.  Fits stand in for :func:`fit_rom`'s (their order, training output
-    error and refinement status count)."""
+    reproduces the outputs (the closest is kept).  Where a larger order reproduces them, the screened ones are never
+    refitted.  The decisions are those of full fits throughout.  Fits stand in for :func:`fit_rom`'s (their order,
+    training output error and refinement status count)."""
     from types import SimpleNamespace
 
     from fmu_opinf.rom import GROSS_MISS, SCREEN_CHECKPOINTS, _grow_order
