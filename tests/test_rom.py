@@ -775,6 +775,9 @@ def test_the_order_search_refines_in_full_only_what_it_keeps_or_relies_on():
     assert [entry["r"] for entry in search] == [4, 8, 16] and kept.pod.r_ == 16, search   # (8's screened 1.5: on)
     assert refitted == [8, 4] and [entry["judged"] for entry in search] == [0.97, 0.11, 0.06], (refitted, search)
     refitted.clear()
+    screened[8], full[16] = 50.0, 4e-3   # 50 after 40 iterations: at least 0.05 in full, 2x 16's miss: no refit
+    kept, search = _grow_order(fit_at(4), fit_at, judge_unrefined=True, say=said.append, refit=refit)
+    assert kept.pod.r_ == 30 and [entry["r"] for entry in search] == [4, 8, 16, 30] and refitted == [], search
     lone = stand_in(4, 2.0, "screened out")
     lone.pod.rank_ = 4   # no larger order to try
     kept, search = _grow_order(lone, fit_at, judge_unrefined=True, say=said.append, refit=refit)
