@@ -986,9 +986,12 @@ START_OUTPUT_MISS = 0.01
 def start_output_miss(maps: tuple[np.ndarray, ...], data: dict[str, np.ndarray], qdot0: np.ndarray) -> list[float]:
     """Each output's miss at the ROM's start over its training range: the output map ``(Cpr, Cvr, Dur, y0)`` of the
     POD coordinates at the ROM's own start (``q = 0``, ``q' = qdot0 = V^T v0``, :func:`fit_rom`) and the first
-    snapshot's inputs, against the first snapshot's recorded outputs.  Least squares (eq. 17) fits all snapshots alike; at a reduced order the start,
-    with the part of its state outside the basis, can be the worst of them.  (Pinning the start's outputs by an
-    equality constraint was measured and not kept: exact at ``t = 0``, but up to 2x worse errors after it.)"""
+    snapshot's inputs, against the first snapshot's recorded outputs.  Least squares (eq. 17) fits all snapshots
+    alike; at a reduced order the start, with the part of its state outside the basis, can be the worst of them.
+    Measured and not kept (audit 69 F3): pinning the start's outputs by an equality constraint on eq. 17 (exact at
+    ``t = 0``, but the free response 1.4x worse at r = 24 on audit 69's G and 2x on a 12-mass FMI 3 array at
+    r = 3), and the start velocity's part outside the basis added to it (free response 0.51 against 0.42 of its
+    range on a 12-mass chain at r = 6 + 1)."""
     Cpr, Cvr, Dur, y0 = maps
     y = data["y"]
     at_start = Cvr @ qdot0 + Dur @ data["u"][:, 0] + y0
