@@ -433,8 +433,9 @@ def test_runs_propagated_side_by_side_equal_the_plain_recursion_of_each(rng):
             np.testing.assert_allclose(z, plain, rtol=0, atol=1e-12 * np.abs(plain).max())
 
 
-@pytest.mark.parametrize("gradient", ["dense", "modal"])
-def test_refinement_gradient_matches_finite_differences(rng, gradient):
+@pytest.mark.parametrize("gradient, integrator", [("dense", "newmark"), ("modal", "newmark"),
+                                                  ("dense", "forward-euler"), ("modal", "forward-euler")])
+def test_refinement_gradient_matches_finite_differences(rng, gradient, integrator):
     from fmu_opinf.refinement import _psd_factor, _Trajectories
 
     _, (M, D, K, B, Cp), (a, v, x, u, y), lengths = _oscillator_runs(rng, r=3, steps=120)
@@ -442,7 +443,7 @@ def test_refinement_gradient_matches_finite_differences(rng, gradient):
     C = np.hstack([Cp, np.zeros_like(Cp)])
     problem = _Trajectories(z=[np.vstack([x, v])[:, :cut], np.vstack([x, v])[:, cut:]], u=[u[:, :cut], u[:, cut:]],
                             target=[y[:, :cut], y[:, cut:]], C=C, dt=0.1, scales=np.array([2.0, 0.5, 3.0, 1.5]),
-                            gradient=gradient)
+                            gradient=gradient, integrator=integrator)
     start = np.concatenate([_psd_factor(A * s).ravel() for A, s in zip((M, D, K), (2.0, 0.5, 3.0))]
                            + [(1.5 * B).ravel()])
     point = start + 0.05 * rng.standard_normal(start.size)  # away from the optimum: a non-zero gradient
@@ -452,6 +453,19 @@ def test_refinement_gradient_matches_finite_differences(rng, gradient):
         step = 1e-6
         fd = (problem.loss(point + step * direction, 3, 1)[0] - problem.loss(point - step * direction, 3, 1)[0]) / (2 * step)
         assert fd == pytest.approx(grad @ direction, rel=1e-5)
+
+
+def test_forward_euler_step_is_one_explicit_euler_step_of_the_first_order_form(rng):
+    """The refinement's ``forward-euler`` step (audit 70 F1: co-simulations recorded at one explicit Euler step per
+    communication step) against ``z + dt (A z + Bc u)`` stepped by hand from the first-order matrices."""
+    from fmu_opinf.refinement import _ForwardEulerStep
+
+    _, (M, D, K, B, _), *_ = _oscillator_runs(rng, r=3, steps=10)
+    step = _ForwardEulerStep(M, D, K, B, 0.05)
+    z, u = rng.standard_normal(6), rng.standard_normal(B.shape[1])
+    q, qdot = z[:3], z[3:]
+    by_hand = np.concatenate([q + 0.05 * qdot, qdot + 0.05 * np.linalg.solve(M, B @ u - D @ qdot - K @ q)])
+    np.testing.assert_allclose(step.Ad @ z + step.Bd @ u, by_hand, rtol=1e-14, atol=1e-14)
 
 
 @pytest.mark.parametrize("whiten", [False, True])

@@ -770,7 +770,7 @@ def _warn_if_recording_warned(rom_info: dict[str, Any]) -> None:
     settings = rom_info["provenance"].get("fit_settings")
     if not message:
         return
-    if isinstance(settings, dict) and settings.get("euler_steps") is True:
+    if isinstance(settings, dict) and settings.get("recording_integrator") in ("forward-euler", "backward-euler"):
         message += ("; the ROM was fitted to the model from the FMU's derivatives, so the difference to this FMU's "
                     "co-simulation includes the FMU's own integration error")
     else:

@@ -1200,8 +1200,8 @@ def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None
     """Whether to run the output-error refinement (``refine="auto"``: when ``dt`` and ``y`` are given)."""
     if refine not in ("auto", True, False):
         raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
-    if integrator not in ("newmark", "exact"):
-        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark' or 'exact'")
+    if integrator not in ("newmark", "exact", "forward-euler"):
+        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark', 'exact' or 'forward-euler'")
     available = dt is not None and y is not None
     if refine is True and not available:
         raise ValueError("refine=True needs the training time step dt and the outputs y")

@@ -288,13 +288,40 @@ class _ExactStep:
         return gM, gD, gK, gB
 
 
-#: The time steps the refinement can model (``integrator`` of :func:`refine_output_error`).
-_STEPS = {"newmark": _NewmarkStep, "exact": _ExactStep}
+class _ForwardEulerStep:
+    """``Ad = I + dt A``, ``Bd = dt [0; Mr^-1 Br]`` for ``A = [[0, I], [-Mr^-1 Kr, -Mr^-1 Dr]]``: one explicit Euler
+    step of the first-order form with the input held, the step of a co-simulation that takes one per
+    communication step (Simulink's ode1; audit 70 F1: such recordings follow it, and the model is what makes it
+    reproduce them), and the way back to ``Mr, Dr, Kr, Br`` (the chain rule through ``Mr^-1``)."""
+
+    def __init__(self, Mr, Dr, Kr, Br, dt: float) -> None:
+        self.dt, self.r, self.m = dt, Mr.shape[0], Br.shape[1]
+        self.Minv = np.linalg.inv(Mr)
+        self.unit = self.Minv @ np.hstack([Kr, Dr, Br])  # Mr^-1 [Kr, Dr, Br]
+        r = self.r
+        self.Ad = np.eye(2 * r)
+        self.Ad[:r, r:] += dt * np.eye(r)
+        self.Ad[r:, :] -= dt * self.unit[:, :2 * r]
+        self.Bd = np.vstack([np.zeros((r, self.m)), dt * self.unit[:, 2 * r:]])
+
+    def operator_gradients(self, grad_A: np.ndarray, grad_B: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Gradients in ``Mr, Dr, Kr, Br`` from those in ``Ad, Bd``."""
+        r = self.r
+        g_unit = self.dt * np.hstack([-grad_A[r:, :2 * r], grad_B[r:]])  # gradient in Mr^-1 [Kr, Dr, Br]
+        gK, gD, gB = (self.Minv.T @ g_unit[:, a:b] for a, b in ((0, r), (r, 2 * r), (2 * r, 2 * r + self.m)))
+        gM = -self.Minv.T @ g_unit @ self.unit.T  # d(Mr^-1) = -Mr^-1 dMr Mr^-1
+        return gM, gD, gK, gB
+
+
+#: The time steps the refinement can model (``integrator`` of :func:`refine_output_error`): the ROM's own
+#: (classical Newmark, the exact hold step), or the explicit Euler step a recording followed (``"forward-euler"``:
+#: the refined operators are then the continuous model's, which the ROM simulates with its own step).
+_STEPS = {"newmark": _NewmarkStep, "exact": _ExactStep, "forward-euler": _ForwardEulerStep}
 
 
 def _step(integrator: str) -> type:
     if integrator not in _STEPS:
-        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark' or 'exact'")
+        raise ValueError(f"integrator={integrator!r} is not known; use one of {', '.join(_STEPS)}")
     return _STEPS[integrator]
 
 

@@ -1242,13 +1242,18 @@ def fit_rom(
 
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
-    euler_steps = refine == "auto" and _fmu_derivatives_on_euler_steps(attrs)
-    if euler_steps:
+    recording_step = _recorded_euler_step(attrs) if refine is not False else None
+    euler_steps = recording_step == "backward-euler" and refine == "auto"   # the SDP alone: no refinement, no search
+    if recording_step == "forward-euler":
+        warnings.warn("the training snapshots follow the FMU's explicit Euler co-simulation steps (snapshots warned): "
+                      "the output-error refinement simulates the ROM with that step, so the ROM stands for the model, "
+                      "not for the FMU's co-simulation at that step", FmuOpinfWarning, stacklevel=2)
+    elif euler_steps:
         refine = False
-        warnings.warn("the training snapshots follow the FMU's co-simulation Euler steps (snapshots warned); their "
-                      "accelerations are the FMU's derivatives at the recorded states, so the ROM is fitted to those "
-                      "(eq. 16) without output-error refinement or order search: it stands for the model, not for the "
-                      "FMU's co-simulation at that step", FmuOpinfWarning, stacklevel=2)
+        warnings.warn("the training snapshots follow the FMU's semi-implicit Euler co-simulation steps (snapshots "
+                      "warned); their accelerations are the FMU's derivatives at the recorded states, so the ROM is "
+                      "fitted to those (eq. 16) without output-error refinement or order search: it stands for the "
+                      "model, not for the FMU's co-simulation at that step", FmuOpinfWarning, stacklevel=2)
     elif (recorded := recorded_warning(attrs)):
         warnings.warn(f"{recorded}; the ROM learns what was recorded", FmuOpinfWarning, stacklevel=2)
     if refit_output_map and (refine is False or lowpass is not None):
@@ -1273,7 +1278,8 @@ def fit_rom(
                           normalization=normalization, solver=solver, integrator=integrator, refine=refine,
                           refine_iterations=refine_iterations, refit_output_map=refit_output_map,
                           least_squares_candidate=least_squares_candidate, output_weighting=output_weighting,
-                          progress=not quiet)
+                          progress=not quiet, refine_integrator="forward-euler" if recording_step == "forward-euler"
+                          else None)
     searched = r is None and energy is None and not euler_steps   # an energy given is the user's order rule
 
     def fit_at(order: int, screen: bool = True) -> _OrderFit:
@@ -1293,7 +1299,9 @@ def fit_rom(
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0], origin)
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
     if euler_steps:
-        info["refinement_skipped"] = "euler-steps"
+        info["refinement_skipped"] = "backward-euler"
+    if recording_step == "forward-euler":
+        info["refinement_integrator"] = "forward-euler"
     if search:
         info["order_search"] = search
     dt_training = _training_dt(runs, attrs)
@@ -1310,7 +1318,7 @@ def fit_rom(
                 "refine_iterations": refine_iterations, "refit_output_map": refit_output_map,
                 "least_squares_candidate": least_squares_candidate, "output_weighting": output_weighting,
                 "order_search_limit": ORDER_SEARCH_LIMIT if r is None and energy is None and not euler_steps else None,
-                "euler_steps": euler_steps}
+                "recording_integrator": recording_step}
     Cpr, Cvr, Dur, y0 = fit.maps
     m = data["u"].shape[0]
     Br, fr = ops.Br[:, :m], (ops.Br[:, m] if fit.chosen["fr"] else np.zeros(pod.r_))
@@ -1355,6 +1363,7 @@ class _FitOptions:
     least_squares_candidate: bool
     output_weighting: str
     progress: bool
+    refine_integrator: str | None = None   # the step the refinement simulates, where not the ROM's own
 
 
 @dataclasses.dataclass
@@ -1403,7 +1412,8 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
         Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
                                            feedthrough=chosen["Dur"], offset=chosen["y0"])
     time_integrator = _integrator(o.integrator, attrs)
-    refinement = _refinement(o.refine, time_integrator, o.lowpass, runs, attrs, data, (Cpr, Cvr, Dur, y0))
+    refinement = _refinement(o.refine, o.refine_integrator or time_integrator, o.lowpass, runs, attrs, data,
+                             (Cpr, Cvr, Dur, y0))
     if refinement.get("refine"):
         starts = "the SDP solution" + (" and, where it exists, the mechanical realization of least squares"
                                        if o.least_squares_candidate else "")
@@ -1425,7 +1435,7 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
         ops.info["interval_average_corrections"] = count
     sampled_u = data["u"] if not chosen["fr"] else np.vstack([data["u"], np.ones((1, data["u"].shape[1]))])
     simulated = refinement if refinement.get("refine") else _refinement(
-        "auto", time_integrator, o.lowpass, runs, attrs,
+        "auto", o.refine_integrator or time_integrator, o.lowpass, runs, attrs,
         {key: value for key, value in data.items() if not key.startswith("f_")}, (Cpr, Cvr, Dur, y0))
     unchecked = None if refinement.get("refine") else _training_output_error(ops, sampled_u, data, simulated,
                                                                                o.output_weighting)
@@ -1863,16 +1873,26 @@ def _candidate_summary(report: dict) -> str:
             f"kept {kept}")
 
 
-def _fmu_derivatives_on_euler_steps(attrs: dict) -> bool:
-    """Whether the snapshots follow a co-simulation's Euler steps (``snapshots`` found each position moving by the
-    step times its velocity, :mod:`fmu_opinf.snapshots._consistency`) while their accelerations are the FMU's own
-    derivatives, not derived from the samples.  The derivatives are then the model's at the states recorded: the
-    SDP of eq. (16) fits the model itself, and the output-error refinement, which simulates the ROM's accurate step,
-    would pull it toward the integrator (audit 70 F1, Simulink ode1-style FMU at 0.01 s: 0 % of range against the
-    exact model without it, 22-49 % with it)."""
+def _recorded_euler_step(attrs: dict) -> str | None:
+    """The Euler step a co-simulation recording follows, where the fit can use it (``snapshots`` found each position
+    moving by the step times its velocity, :mod:`fmu_opinf.snapshots._consistency`; audit 70 F1, a Simulink
+    ode1-style FMU at 0.01 s, whose default ROM, refined with the ROM's accurate step against the Euler trajectory,
+    was 41-49 % of range off the model):
+
+    * ``"forward-euler"`` (explicit Euler): the refinement simulates the ROM with that step (``Ad = I + dt A``), so
+      the operators it refines are the continuous model that makes the recording;
+    * ``"backward-euler"`` (semi-implicit or implicit: which one the data do not say), where the accelerations are
+      the FMU's own derivatives at the recorded states: the SDP of eq. (16) fits the model itself, and the fit
+      keeps it as it is;
+    * None otherwise (no such verdict, or derived accelerations after a backward rule)."""
     from .snapshots._notes import recorded_verdicts
 
-    return "euler-steps" in recorded_verdicts(attrs) and attrs.get("derived_xddot") is False
+    verdicts = recorded_verdicts(attrs)
+    if "forward-euler" in verdicts:
+        return "forward-euler"
+    if "backward-euler" in verdicts and attrs.get("derived_xddot") is False:
+        return "backward-euler"
+    return None
 
 
 def _integrator(requested: str, attrs: dict) -> str:

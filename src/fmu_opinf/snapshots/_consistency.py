@@ -516,7 +516,8 @@ def _warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, su
                    f"position moves by dt={h:g} times its velocity at the {rule} of the step, to {euler:.1e}; an "
                    f"accurate integration follows the trapezoidal rule, which misses by {trapezoidal:.1e}): the "
                    f"recording follows the FMU's integrator, not the model (damping and frequencies off by terms of "
-                   f"order omega dt); {remedy}", "euler-steps", stacklevel=4)
+                   f"order omega dt); {remedy}", "forward-euler" if rule == "start" else "backward-euler",
+                   stacklevel=4)
 
 
 def _paired_by_structure(selection: Any) -> bool:

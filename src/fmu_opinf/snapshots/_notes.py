@@ -22,9 +22,10 @@ from ..errors import FmuOpinfWarning
 __all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", "recorded_verdicts",
            "recorded_warning", "warn_recording"]
 
-#: What a recording warning says: the co-simulation takes one Euler step per communication step, depends on the
-#: step in another way, or returns its outputs one step late.
-VERDICTS = ("euler-steps", "step-dependent", "late-outputs")
+#: What a recording warning says: the co-simulation takes one explicit Euler step per communication step (each
+#: position moves by the step times its velocity at the step's start), one semi-implicit or implicit one (at its
+#: end), depends on the step in another way, or returns its outputs one step late.
+VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs")
 
 _NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
                                                                                     default=None)
