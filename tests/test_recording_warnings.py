@@ -42,6 +42,7 @@ def _model() -> lti_fmus.LinearMechanicalModel:
 def fmus(request, tmp_path_factory):
     """Euler co-simulation at a fixed step (Simulink ode1-style) and the same model with an accurate one."""
     options = {"Ode1Chain": dict(cs_method="euler", cs_fixed_step=FIXED_STEP),
+               "Ode1NoAccelerations": dict(cs_method="euler", cs_fixed_step=FIXED_STEP, expose_accelerations=False),
                "AccurateChain": dict(cs_fixed_step=FIXED_STEP)}
 
     def build(folder, item):
@@ -78,6 +79,23 @@ def test_euler_co_simulation_is_said_kept_and_fitted_as_the_model(fmus, tmp_path
     assert rom.fit_info["refinement_integrator"] == "forward-euler"
     assert main(["compare", str(rom_file), str(fmus["Ode1Chain"]), "-o", str(tmp_path / "report"), "-q"]) == 0
     assert "includes the FMU's own integration error" in capsys.readouterr().err
+    assert main(["export", str(rom_file), "-o", str(tmp_path / "rom.fmu"), "-q"]) == 0
+    assert main(["compare", str(tmp_path / "rom.fmu"), str(fmus["Ode1Chain"]), "-o", str(tmp_path / "report2"),
+                 "-q"]) == 0   # (audit 71 F7: the ROM FMU's provenance.json carries the fit's settings)
+    assert "includes the FMU's own integration error" in capsys.readouterr().err
+
+
+def test_euler_co_simulation_without_accelerations_is_fitted_from_its_velocities_steps(fmus, tmp_path):
+    """Audit 71 F3: the same FMU without ``der(v)`` variables: the accelerations derived for accurate data were
+    1.55 of their norm off (wrong signs) and the ROM 6-19 % of range off; the velocities' steps are the model's
+    derivatives exactly (measured 2.0e-13 / 1.7e-13 of range against the exact model)."""
+    train = tmp_path / "train.h5"
+    assert main(["snapshots", str(fmus["Ode1NoAccelerations"]), "-o", str(train), "-q"]) == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FmuOpinfWarning)
+        rom = fit_rom(Snapshots.load(train), quiet=True)
+    assert _miss_against_model(rom, "none") < 1e-12
+    assert _miss_against_model(rom, "harmonic:amplitude=1,omega=0.9") < 1e-12
 
 
 def _galerkin(rom: SecondOrderROM, model: lti_fmus.LinearMechanicalModel) -> SecondOrderROM:
@@ -117,14 +135,18 @@ def test_euler_co_simulation_at_a_reduced_order_is_refined_with_its_step(tmp_pat
 
 
 def test_a_backward_rule_uses_the_sdp_only_with_the_fmu_s_own_accelerations():
-    """Semi-implicit or implicit Euler (the data do not tell which): the FMU's own accelerations are the model's
-    derivatives, so the SDP solution is kept; with accelerations derived from the samples nothing is changed."""
+    """Semi-implicit or implicit Euler (the data do not tell which), or any co-simulation whose outputs depend on the
+    step: the FMU's own accelerations are the model's derivatives, so the SDP solution is kept; with accelerations
+    derived from the samples nothing is changed."""
     from fmu_opinf.rom import _recorded_euler_step
 
     assert _recorded_euler_step({"recording_verdicts": ["forward-euler"], "derived_xddot": True}) == "forward-euler"
     assert _recorded_euler_step({"recording_verdicts": ["backward-euler"], "derived_xddot": False}) == "backward-euler"
     assert _recorded_euler_step({"recording_verdicts": ["backward-euler"], "derived_xddot": True}) is None
-    assert _recorded_euler_step({"recording_verdicts": ["step-dependent"], "derived_xddot": False}) is None
+    assert _recorded_euler_step({"recording_verdicts": ["step-dependent"], "derived_xddot": np.False_}) == \
+        "step-dependent"   # (audit 71 F4: Euler substeps; as read from HDF5, NumPy's bool)
+    assert _recorded_euler_step({"recording_verdicts": ["step-dependent"], "derived_xddot": np.True_}) is None
+    assert _recorded_euler_step({"recording_verdicts": ["late-outputs"], "derived_xddot": False}) is None
     assert _recorded_euler_step({"recording_verdicts": "forward-euler; rm -rf"}) is None
 
 

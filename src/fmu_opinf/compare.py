@@ -770,9 +770,10 @@ def _warn_if_recording_warned(rom_info: dict[str, Any]) -> None:
     settings = rom_info["provenance"].get("fit_settings")
     if not message:
         return
-    if isinstance(settings, dict) and settings.get("recording_integrator") in ("forward-euler", "backward-euler"):
-        message += ("; the ROM was fitted to the model from the FMU's derivatives, so the difference to this FMU's "
-                    "co-simulation includes the FMU's own integration error")
+    if isinstance(settings, dict) and settings.get("recording_integrator") in (
+            "forward-euler", "backward-euler", "step-dependent"):
+        message += ("; the ROM stands for the model (fitted through the FMU's Euler steps or from its derivatives), "
+                    "so the difference to this FMU's co-simulation includes the FMU's own integration error")
     else:
         message += "; a comparison with the same FMU shares what the recording followed"
     warnings.warn(message, FmuOpinfWarning, stacklevel=4)
@@ -1033,6 +1034,8 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
             meta["snapshots"] = provenance["snapshots"]  # the training's variable selection
         meta["default_test_input"] = provenance.get("default_test_input")
         meta["training_runs"] = provenance.get("training_runs")   # (their output peaks: the check after the run)
+        if isinstance(provenance.get("fit_settings"), dict):   # (how the fit read a warned recording: audit 71 F7)
+            meta["fit_settings"] = provenance["fit_settings"]
     return meta
 
 
