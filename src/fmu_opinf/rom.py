@@ -1274,7 +1274,8 @@ def fit_rom(
         warnings.warn(f"the training snapshots follow the FMU's {follows} (snapshots warned); their accelerations are "
                       "the FMU's derivatives at the recorded states, so the ROM is fitted to those (eq. 16) without "
                       "output-error refinement or order search: it stands for the model, not for the FMU's "
-                      "co-simulation at that step", FmuOpinfWarning, stacklevel=2)
+                      "co-simulation at that step, and below the snapshot rank its accuracy is not measured (--r up "
+                      "to the rank fits the data exactly)", FmuOpinfWarning, stacklevel=2)
     elif (recorded := recorded_warning(attrs)):
         warnings.warn(f"{recorded}; the ROM learns what was recorded", FmuOpinfWarning, stacklevel=2)
     if refit_output_map and (refine is False or lowpass is not None):
