@@ -43,10 +43,12 @@ def fmus(request, tmp_path_factory):
     """Euler co-simulation at a fixed step (Simulink ode1-style) and the same model with an accurate one."""
     options = {"Ode1Chain": dict(cs_method="euler", cs_fixed_step=FIXED_STEP),
                "Ode1NoAccelerations": dict(cs_method="euler", cs_fixed_step=FIXED_STEP, expose_accelerations=False),
+               "Ode1TwoInputs": dict(cs_method="euler", cs_fixed_step=FIXED_STEP),
                "AccurateChain": dict(cs_fixed_step=FIXED_STEP)}
 
     def build(folder, item):
-        return item, lti_fmus.build_lti_fmu(_model(), folder / f"{item}.fmu", interfaces=("cs",),
+        model = _model() if item != "Ode1TwoInputs" else lti_fmus.chain_model(4, inputs=(0, -1), name=item)
+        return item, lti_fmus.build_lti_fmu(model, folder / f"{item}.fmu", interfaces=("cs",),
                                             identifier=item, **options[item]).path
 
     return build_fmu_set(request, tmp_path_factory, "lti-recording-warnings", build, list(options))
@@ -151,6 +153,15 @@ def test_a_backward_rule_uses_the_sdp_only_with_the_fmu_s_own_accelerations():
     assert _recorded_euler_step({"recording_verdicts": ["step-dependent"], "derived_xddot": np.True_}) is None
     assert _recorded_euler_step({"recording_verdicts": ["late-outputs"], "derived_xddot": False}) is None
     assert _recorded_euler_step({"recording_verdicts": "forward-euler; rm -rf"}) is None
+
+
+def test_the_euler_warning_is_said_once_per_recording(fmus, tmp_path, capsys):
+    """Two inputs, one run each: one line and one stored warning, not one per run."""
+    train = tmp_path / "train.h5"
+    assert main(["snapshots", str(fmus["Ode1TwoInputs"]), "-o", str(train), "-q"]) == 0
+    assert capsys.readouterr().err.count("one Euler step per communication step") == 1
+    with h5py.File(train) as f:
+        assert len(f.attrs["recording_warnings"]) == 1 and f.attrs["n_runs"] == 2
 
 
 def test_accurate_co_simulation_at_the_same_step_is_not_called_euler(fmus, tmp_path, capsys):

@@ -495,8 +495,10 @@ def _warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, su
     recording then follows the FMU's first-order integrator, not the model (audit 70 F1: a Simulink ode1-style FMU
     recorded silently, its ROM 41-49 % of range off the model, with most of the damping lost)."""
     from ..sources import fixed_communication_step, offers_model_exchange
-    from ._notes import warn_recording
+    from ._notes import current_recording_notes, warn_recording
 
+    if {"forward-euler", "backward-euler"} & set(current_recording_notes().get("recording_verdicts", [])):
+        return   # said for an earlier run of this recording
     if sums is None or sums.squares is None or sums.k != x.shape[1]:
         sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
         sums.feed(x, v, None, x.shape[1])
