@@ -283,9 +283,15 @@ class _ExactStep:
         G[:2 * r, :2 * r], G[:2 * r, 2 * r:] = grad_A, grad_B
         gX = scipy.linalg.expm_frechet(self.X.T, G, compute_expm=False) * self.dt
         g_unit = np.hstack([-gX[r:2 * r, :2 * r], gX[r:2 * r, 2 * r:]])  # gradient in Mr^-1 [Kr, Dr, Br]
-        gK, gD, gB = (self.Minv.T @ g_unit[:, a:b] for a, b in ((0, r), (r, 2 * r), (2 * r, 2 * r + self.m)))
-        gM = -self.Minv.T @ g_unit @ self.unit.T  # d(Mr^-1) = -Mr^-1 dMr Mr^-1
-        return gM, gD, gK, gB
+        return _through_unit_mass(self.Minv, self.unit, g_unit)
+
+
+def _through_unit_mass(Minv: np.ndarray, unit: np.ndarray, g_unit: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Gradients in ``Mr, Dr, Kr, Br`` from the gradient ``g_unit`` in ``unit = Mr^-1 [Kr, Dr, Br]`` (the steps
+    that are functions of the unit-mass operators): ``d unit = Mr^-1 (d[Kr, Dr, Br] - dMr unit)``."""
+    r = Minv.shape[0]
+    gK, gD, gB = (Minv.T @ part for part in (g_unit[:, :r], g_unit[:, r:2 * r], g_unit[:, 2 * r:]))
+    return -Minv.T @ g_unit @ unit.T, gD, gK, gB
 
 
 class _ForwardEulerStep:
@@ -308,9 +314,7 @@ class _ForwardEulerStep:
         """Gradients in ``Mr, Dr, Kr, Br`` from those in ``Ad, Bd``."""
         r = self.r
         g_unit = self.dt * np.hstack([-grad_A[r:, :2 * r], grad_B[r:]])  # gradient in Mr^-1 [Kr, Dr, Br]
-        gK, gD, gB = (self.Minv.T @ g_unit[:, a:b] for a, b in ((0, r), (r, 2 * r), (2 * r, 2 * r + self.m)))
-        gM = -self.Minv.T @ g_unit @ self.unit.T  # d(Mr^-1) = -Mr^-1 dMr Mr^-1
-        return gM, gD, gK, gB
+        return _through_unit_mass(self.Minv, self.unit, g_unit)
 
 
 #: The time steps the refinement can model (``integrator`` of :func:`refine_output_error`): the ROM's own

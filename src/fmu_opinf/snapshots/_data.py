@@ -17,6 +17,7 @@ from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_typ
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
+from ._notes import texts
 
 __all__ = ["Run", "Snapshots"]
 
@@ -191,8 +192,8 @@ class Snapshots:
             if shared is not None:
                 self.attrs["held_inputs"] = shared
         for key in ("recording_warnings", "recording_verdicts"):   # any part's warning holds for the whole set
-            mine = _texts(self.attrs.get(key))
-            joined = mine + [text for text in _texts(attrs.get(key)) if text not in mine]
+            mine = texts(self.attrs.get(key))
+            joined = mine + [text for text in texts(attrs.get(key)) if text not in mine]
             if joined:
                 self.attrs[key] = joined
 
@@ -390,8 +391,3 @@ def _initial(value: Any, samples: Any) -> np.ndarray:
     rows, k = samples.shape[0], samples.shape[-1]
     return np.array(samples[:, 0], dtype=float) if k and rows else np.zeros(rows)
 
-
-def _texts(value: Any) -> list[str]:
-    """A list attribute of text as a list of its strings (one string alone counts; anything else is none)."""
-    items = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, tuple)) else []
-    return [item for item in items if isinstance(item, str)]

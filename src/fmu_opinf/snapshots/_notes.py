@@ -65,25 +65,24 @@ def warn_recording(message: str, verdict: str, stacklevel: int = 2) -> None:
             notes["recording_verdicts"].append(verdict)
 
 
+def texts(value: Any) -> list[str]:
+    """A list attribute of text read as data: one string alone counts as a list of it, other items and values are
+    none (a file's ``recording_warnings`` / ``recording_verdicts``)."""
+    items = [value] if isinstance(value, str) else list(value) if isinstance(value, (list, tuple)) else []
+    return [item for item in items if isinstance(item, str) and item]
+
+
 def recorded_verdicts(attrs: Any) -> set[str]:
-    """The verdicts of :data:`VERDICTS` that snapshot attributes ``attrs`` carry (read as data: other text is
-    ignored)."""
-    verdicts = attrs.get("recording_verdicts") if isinstance(attrs, dict) else None
-    if isinstance(verdicts, str):
-        verdicts = [verdicts]
-    return {v for v in verdicts if v in VERDICTS} if isinstance(verdicts, (list, tuple)) else set()
+    """The verdicts of :data:`VERDICTS` that snapshot attributes ``attrs`` carry (other text is ignored)."""
+    found = texts(attrs.get("recording_verdicts")) if isinstance(attrs, dict) else []
+    return {verdict for verdict in found if verdict in VERDICTS}
 
 
 def recorded_warning(attrs: Any) -> str | None:
     """The line a later stage repeats for snapshot attributes ``attrs`` (a file's, or a ROM's
     ``provenance["snapshots"]``) that carry recording warnings, or None.  Read as data: only text counts."""
-    notes = attrs.get("recording_warnings") if isinstance(attrs, dict) else None
-    if isinstance(notes, str):
-        notes = [notes]
-    if not isinstance(notes, (list, tuple)):
+    notes = texts(attrs.get("recording_warnings")) if isinstance(attrs, dict) else []
+    if not notes:
         return None
-    texts = [note for note in notes if isinstance(note, str) and note]
-    if not texts:
-        return None
-    more = f" (and {len(texts) - 1} more warning{'s' if len(texts) > 2 else ''})" if len(texts) > 1 else ""
-    return f"the training snapshots were recorded with this warning: {texts[0]}{more}"
+    more = f" (and {len(notes) - 1} more warning{'s' if len(notes) > 2 else ''})" if len(notes) > 1 else ""
+    return f"the training snapshots were recorded with this warning: {notes[0]}{more}"
