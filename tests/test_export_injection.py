@@ -149,40 +149,46 @@ NAMES_WITH_BREAKS = {"input_names": ["F2'); system(\"id\"); //\n#include <x>"],
                      "output_names": ["pos%d\r\nline2 ]]> <!-- -->\tend"]}
 
 
-@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
-def test_tab_newline_and_carriage_return_in_names_are_character_references(fmi_version):
-    """Audit 62, finding 6: the source FMU's XML held a newline in a port name as ``&#10;``, and export refused the
-    name as one XML cannot hold.  They are written as character references (a literal one in an attribute would
-    be read back as a blank) and read back as they were; they never reach the generated C."""
-    from xml.etree import ElementTree
+@pytest.mark.parametrize("kind, name, words", [("input", "F2\n#include <x>", "a line feed"),
+                                               ("output", "pos%d\rline2", "a carriage return"),
+                                               ("output", "a\tb", "a TAB")])
+def test_tab_newline_and_carriage_return_in_names_are_refused(kind, name, words):
+    """Audit 68, finding 3: FMI's naming conventions exclude TAB, LF and CR from variable names, and fmpy's
+    validator rejected the FMU that export wrote with them as character references (audit 62 had let them
+    through).  The refusal names the variable, the character and the fix."""
+    from fmu_opinf.fmus import FmuBuildError
 
-    from fmu_opinf.fmus import _model_description, _model_description3
+    with pytest.raises(FmuBuildError, match=rf"^{kind} name .* contains {words}, which FMI variable names cannot "
+                                            r"hold \(importers reject the FMU\); rename it"):
+        rom_fmu_spec(_rom(**{f"{kind}_names": [name]}), "Breaks")
 
-    spec = rom_fmu_spec(_rom(**NAMES_WITH_BREAKS), "Breaks", fmi_version=fmi_version)
-    xml = _model_description(spec, "{guid}", []) if fmi_version == "2.0" else _model_description3(spec, "{guid}")
-    assert "//&#10;#include" in xml and "pos%d&#13;&#10;line2" in xml and "&#9;end" in xml
-    names = [v.get("name") for v in ElementTree.fromstring(xml).iter() if v.get("causality") in ("input", "output")]
-    assert names == NAMES_WITH_BREAKS["input_names"] + NAMES_WITH_BREAKS["output_names"]
-    assert "#include <x>" not in spec.model_source and "line2" not in spec.model_source
+
+def test_names_with_line_breaks_are_one_line_export_errors(tmp_path, capsys):
+    _rom(**NAMES_WITH_BREAKS).save(tmp_path / "rom.h5")
+    assert main(["export", str(tmp_path / "rom.h5"), "-o", str(tmp_path / "x.fmu")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "contains a line feed" in err and "Traceback" not in err
+    assert not (tmp_path / "x.fmu").exists()
 
 
 @pytest.mark.fmu
 @pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
-def test_an_fmu_with_line_breaks_in_its_port_names_validates_and_reads_back(tmp_path, fmi_version):
+def test_a_hostile_rom_exports_an_fmu_that_fmpy_validates(tmp_path, fmi_version):
+    """Quotes, markup, format and comment characters in names reach the XML as data: fmpy's validator (which
+    checks FMI's naming rules too) finds no problem, and the names read back as they were."""
     from fmpy import read_model_description
+    from fmpy.validation import validate_fmu
 
     from fmu_opinf.fmus import find_build_tools
 
     if find_build_tools() is None:
         pytest.skip("needs a C compiler")
-    path = export_fmu(_rom(**NAMES_WITH_BREAKS), tmp_path / "Breaks.fmu", fmi_version=fmi_version)
+    names = {"input_names": ["F2'); system(\"id\"); // <x>"], "output_names": ["pos%d ]]> <!-- --> &amp; end"]}
+    path = export_fmu(_rom(**names), tmp_path / "Hostile.fmu", fmi_version=fmi_version)
+    assert validate_fmu(str(path)) == []
     described = read_model_description(str(path), validate=True)
     ports = {v.causality: v.name for v in described.modelVariables if v.causality in ("input", "output")}
-    assert [ports["input"]] == NAMES_WITH_BREAKS["input_names"]
-    assert [ports["output"]] == NAMES_WITH_BREAKS["output_names"]
-    with zipfile.ZipFile(path) as archive:
-        code = "".join(archive.read(n).decode() for n in archive.namelist() if n.endswith((".c", ".h")))
-    assert "#include <x>" not in code and "line2" not in code
+    assert [ports["input"]] == names["input_names"] and [ports["output"]] == names["output_names"]
 
 
 @pytest.mark.parametrize("name, character", [("u\x01", r"control character '\\x01'"),
@@ -192,13 +198,14 @@ def test_characters_xml_cannot_hold_are_refused_as_such(name, character):
     from fmu_opinf.fmus import FmuBuildError
 
     with pytest.raises(FmuBuildError, match=rf"{character}, which XML 1\.0 cannot hold, not even as a character "
-                                            r"reference; rename it \(TAB, LF and CR are fine\)$"):
+                                            r"reference; rename it$"):
         rom_fmu_spec(_rom(input_names=[name]), "Bad")
 
 
-#: A held input's name that would end a C string, start a trigraph, a format and a preprocessor line (audit 69 F4: the
-#: names of held inputs reach the generated C, as string literals for the FMU's log line).
-HOSTILE_HELD = 'k"); system("touch /tmp/pwned"); //??/\n#include <x> %s\\'
+#: A held input's name that would end a C string and a comment, start a trigraph and a format (audit 69 F4: the
+#: names of held inputs reach the generated C, as string literals for the FMU's log line; a line break, which
+#: could start a preprocessor line, is refused in any name since audit 68 F3).
+HOSTILE_HELD = 'k"); system("touch /tmp/pwned"); //??/ */ #include <x> %s\\'
 
 
 def _rom_with_held_input() -> SecondOrderROM:
@@ -212,7 +219,6 @@ def test_held_input_names_reach_the_c_only_as_escaped_string_literals():
     spec = rom_fmu_spec(_rom_with_held_input(), "Held")
     header = _config_header(spec)
     assert "system(" in header and 'system("' not in header   # the quote is \042 only
-    assert not any(line.startswith("#include") for line in header.splitlines())   # the newline is \012
     assert "??/" not in header and "%s" not in header
     names_line = next(line for line in header.splitlines() if line.startswith("#define INPUT_NAMES"))
     assert names_line.count('"') == 4                          # two literals, no quote of the name's own

@@ -32,8 +32,9 @@ its static equilibrium under the inputs set then (all inputs, undeclared).
 Nothing read from the ROM file becomes code: the generated C holds numbers (written by ``repr(float)``) and, for the
 log line of a held input, the input names as C string literals in which every byte but letters, digits and a few
 plain signs is an octal escape (:func:`fmu_opinf.fmus.c_string`), no other text from the file; names and the
-description go into the XML through an attribute quoting function (TAB, LF and CR as the character references
-``&#9;``, ``&#10;``, ``&#13;``), and text with characters XML 1.0 cannot hold (other control characters) is refused.
+description go into the XML through an attribute quoting function (TAB, LF and CR of a description as the character
+references ``&#9;``, ``&#10;``, ``&#13;``), and text with characters XML 1.0 cannot hold (other control characters)
+is refused, as are names with TAB, LF or CR, which FMI names cannot hold.
 """
 
 from __future__ import annotations

@@ -272,9 +272,10 @@ class SecondOrderFmuSpec:
     def _check_text(self) -> None:
         """Names and the description end up in XML: refuse empty names and characters XML 1.0 cannot hold, not even
         as a character reference (most C0 controls, lone surrogates, U+FFFE, U+FFFF), and DEL, which it
-        discourages.  TAB, LF and CR are fine: quoting (``quoteattr``) writes them as ``&#9;``, ``&#10;``,
-        ``&#13;``, so that a parser reads them back (a literal one would be normalized to a blank), as the source
-        FMU's XML held them; it handles everything else too."""
+        discourages.  Names also may not hold TAB, LF or CR: FMI's naming conventions (flat and structured, FMI 2
+        and 3) exclude them, and importers reject such an FMU (audit 68, finding 3; fmpy's validator).  A
+        description may: quoting (``quoteattr``) writes them as ``&#9;``, ``&#10;``, ``&#13;``, so that a parser
+        reads them back (a literal one would be normalized to a blank); it handles everything else too."""
         texts = [("input name", s) for s in self.input_names + self.port_names("input")]
         texts += [("output name", s) for s in self.output_names + self.port_names("output")]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
@@ -288,6 +289,8 @@ class SecondOrderFmuSpec:
             if not isinstance(text, str) or (what != "description" and not text.strip()):
                 raise FmuBuildError(f"{what} {text!r} is not a non-empty string; give printable names")
             _check_xml_characters(what, text)
+            if what != "description":
+                _check_fmi_name(what, text)
 
     def _check_dependencies(self) -> None:
         """``output_dependencies`` and ``initial_dependencies``: one list per output of distinct input indices
@@ -394,6 +397,21 @@ class SecondOrderFmuSpec:
 _NON_XML_CHARACTERS = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\ud800-\udfff\ufffe\uffff]")
 
 
+#: Characters FMI's variable naming conventions exclude from names, with the words the refusal uses.
+_NAME_BREAKS = {"\t": "a TAB", "\n": "a line feed", "\r": "a carriage return"}
+
+
+def _check_fmi_name(what: str, name: str) -> None:
+    """Refuse a port or parameter ``name`` holding TAB, LF or CR, which no FMI name may hold (FMI 2.0 section
+    2.2.9, and FMI 3.0 alike: flat names are any Unicode characters but these three; structured names are
+    narrower still)."""
+    for character, words in _NAME_BREAKS.items():
+        if character in name:
+            raise FmuBuildError(f"{what} {name!r} contains {words}, which FMI variable names cannot hold "
+                                "(importers reject the FMU); rename it (SecondOrderROM.input_names / output_names "
+                                "in Python) before exporting")
+
+
 def _check_xml_characters(what: str, text: str) -> None:
     """Refuse ``text`` (a name or description bound for the XML) if it holds a character XML 1.0 cannot hold, or
     DEL, a control character XML 1.0 discourages and that has no business in a name (refused before TAB, LF and CR
@@ -402,10 +420,10 @@ def _check_xml_characters(what: str, text: str) -> None:
     if bad:
         kind = "control character" if bad.group() < " " else "character"
         raise FmuBuildError(f"{what} {text!r} contains the {kind} {bad.group()!r}, which XML 1.0 cannot hold, not "
-                            "even as a character reference; rename it (TAB, LF and CR are fine)")
+                            "even as a character reference; rename it")
     if "\x7f" in text:
         raise FmuBuildError(f"{what} {text!r} contains the control character '\\x7f' (DEL), which XML 1.0 "
-                            "discourages; rename it (TAB, LF and CR are fine)")
+                            "discourages; rename it")
 
 
 def value_references(spec: SecondOrderFmuSpec) -> dict[str, list[int]]:
