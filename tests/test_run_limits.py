@@ -146,3 +146,49 @@ def test_fit_offers_only_a_smaller_r_at_an_fmus_fixed_step(fmus, tmp_path, capsy
     from fmu_opinf.rom import _at_fixed_step
 
     assert not _at_fixed_step({}, FIXED)   # a file written before says nothing: the advice stays as it was
+
+
+def test_compare_s_default_end_stops_before_the_termination_the_training_found(fmus, tmp_path, capsys):
+    """Audit 71 F8: the default training of an FMU that terminates at t = 20 ends before it and records where
+    (``auto_window["terminates_at"]``); compare's default end (four times the training's) then ran into the
+    termination and failed with an error naming --t-end.  Now it stops at the last point of its grid before the
+    termination, says so in one line, and the FMU's outputs up to there are the model's exact response; a --t-end
+    past the termination keeps the error that names the --t-end that works."""
+    from fmu_opinf.compare import compare
+
+    with warnings.catch_warnings(record=True):
+        assert _snapshots(fmus["term"], tmp_path / "s.h5") == 0, capsys.readouterr().err
+    assert main(["fit", str(tmp_path / "s.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0, capsys.readouterr().err
+    dt = float(Snapshots.load(tmp_path / "s.h5").runs[0].t[1])
+    t0 = 1.0 + 0.5 * dt   # mid-step: the held input's switch is unambiguous
+    capsys.readouterr()
+    with warnings.catch_warnings(record=True):
+        result = compare(tmp_path / "rom.h5", fmus["term"], f"step:amplitude=1,t0={t0!r}")
+    said = [line for line in capsys.readouterr().err.splitlines() if "terminated the simulation" in line]
+    assert len(said) == 1 and f"at t={TERMINATE:g}" in said[0] and "--t-end" in said[0], said
+    assert result.t[-1] == pytest.approx(TERMINATE - dt, abs=1e-9)   # the last grid point before 20
+    u = np.where(result.t[:-1] >= t0, 1.0, 0.0)[None, :]   # u[i]: held from t[i] to t[i + 1]
+    exact = lti_fmus.zoh_response(_chain(), result.t, u).y
+    assert np.abs(result.y_fom - exact).max() < 1e-6 * np.abs(exact).max()
+    code = main(["compare", str(tmp_path / "rom.h5"), str(fmus["term"]), "--t-end", "30", "-o",
+                 str(tmp_path / "past"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code != 0 and f"--t-end below {TERMINATE:g}" in err, err
+
+
+def test_compare_of_the_exported_rom_fmu_stops_before_the_termination_too(fmus, tmp_path, capsys):
+    """The same for ``compare rom.fmu term.fmu``: the ROM FMU's provenance.json carries the training's snapshot
+    notes, its automatic window with the termination among them (audit 71 F8)."""
+    with warnings.catch_warnings(record=True):
+        assert _snapshots(fmus["term"], tmp_path / "s.h5") == 0, capsys.readouterr().err
+    dt = float(Snapshots.load(tmp_path / "s.h5").runs[0].t[1])
+    assert main(["fit", str(tmp_path / "s.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0, capsys.readouterr().err
+    assert main(["export", str(tmp_path / "rom.h5"), "-o", str(tmp_path / "rom.fmu"), "-q"]) == 0, \
+        capsys.readouterr().err
+    capsys.readouterr()
+    code = main(["compare", str(tmp_path / "rom.fmu"), str(fmus["term"]), "-o", str(tmp_path / "report")])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert sum("terminated the simulation at t=20" in line for line in err.splitlines()) == 1, err
+    metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
+    assert metrics["t_end"] == pytest.approx(TERMINATE - dt, abs=1e-9)

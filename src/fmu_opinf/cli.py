@@ -215,7 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "off the ROM's natural frequencies, sized to stay within the training's output range; 'none' "
                         "(the default for a ROM without inputs): the free response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
-    p.add_argument("--t-end", type=float, help="end time (default: four times the training end time)")
+    p.add_argument("--t-end", type=float, help="end time (default: four times the training end time, cut before "
+                   "the time at which the training found the FMU terminating the simulation)")
     p.add_argument("-o", "--output", required=True, help="report directory")
     p.add_argument("--timeout", type=float, help="seconds the full-order FMU may run before it is stopped "
                                                  "(it runs in a separate process; default: no limit)")

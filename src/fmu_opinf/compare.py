@@ -478,7 +478,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         state: the ROM from the source's positions and velocities after initialization, projected on its basis (its
         stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be read).
     dt, t_end : float, optional
-        Grid; defaults: the ROM's training step and four times the training end time.
+        Grid; defaults: the ROM's training step and four times the training end time, cut before the time at which
+        the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).
     source_options : dict, optional
         Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
         source.  For an FMU source, what is not given is taken from the ROM's training provenance: the force inputs
@@ -500,7 +501,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     rom_side = _load_rom_side(rom)
     rom_info = _rom_side_info(rom_side)
     dt = float(dt if dt is not None else rom_info["dt"])
-    end_given = t_end is not None
+    end_given, capped = t_end is not None, None
     if t_end is None:   # an input table's last time (audit 70, F3: four times the training ran past it)
         t_end = _table_end(signal, rom_info)
     if t_end is None:
@@ -509,6 +510,10 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
             raise DimensionError("no --t-end given and the ROM does not record a usable training end time "
                                  f"({t_train}); pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
+        capped = _before_termination(rom_info, source, dt, float(t_end))
+        if capped is not None and not quiet:
+            print(capped[1], file=sys.stderr)
+        t_end = t_end if capped is None else capped[0]
     t = time_grid(dt, float(t_end))
     if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
         raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
@@ -534,7 +539,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                      **source_options, **by_name)
     except StepError as stopped:
-        raise _past_termination(stopped, float(t_end), end_given) from None
+        raise _past_termination(stopped, float(t_end), end_given, capped is not None) from None
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
@@ -572,17 +577,56 @@ def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
     return input_table_end([signal]) if signal is not None else None
 
 
-def _past_termination(stopped: Any, t_end: float, end_given: bool) -> Any:
+def _past_termination(stopped: Any, t_end: float, end_given: bool, capped: bool = False) -> Any:
     """The error of a source run that the FMU ended by terminating the simulation, where the run went to
-    compare's default end (four times the training's): the fix is compare's ``--t-end`` (audit 70, F5: the
-    source's advice said "record a shorter run")."""
+    compare's default end (four times the training's, or ``capped`` before the termination the training recorded):
+    the fix is compare's ``--t-end`` (audit 70, F5: the source's advice said "record a shorter run")."""
     from .sources import StepError, terminated_at
 
     at = terminated_at(str(stopped))
     if at is None or end_given:
         return stopped
-    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, four times the training's end; give "
+    which = ("before the termination the training recorded" if capped else "four times the training's end")
+    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {which}; give "
                      f"compare --t-end below {at:g})", stopped.step, stopped.time)
+
+
+def _recorded_termination(rom_info: dict[str, Any]) -> float | None:
+    """The time (from the run's start) at which the training's FMU terminated the simulation in a pilot run of the
+    automatic window, as the snapshot provenance of a ROM (``.h5``) or of an exported ROM FMU records it
+    (``auto_window["terminates_at"]``); None where it records none (older files, FMUs that do not terminate)."""
+    snapshots = rom_info["provenance"].get("snapshots")
+    window = snapshots.get("auto_window") if isinstance(snapshots, dict) else None
+    if isinstance(window, str):   # (as a snapshot file's attribute: JSON text)
+        try:
+            window = json.loads(window)
+        except ValueError:
+            return None
+    at = window.get("terminates_at") if isinstance(window, dict) else None
+    try:
+        at = float(at) if at is not None else None
+    except (TypeError, ValueError):   # (a damaged file's)
+        return None
+    return at if at is not None and math.isfinite(at) and at > 0 else None
+
+
+def _before_termination(rom_info: dict[str, Any], source: Any, dt: float, t_end: float) -> tuple[float, str] | None:
+    """compare's default end ``t_end`` (four times the training's) cut to the last point of its grid before the time
+    at which the training found the source FMU terminating the simulation, and the line saying so; None where the
+    training found no termination, the source is no FMU, or ``t_end`` lies before it.
+
+    The training's recording ends there itself (its automatic window stops before the termination); compare ran on
+    to four times the training's end and failed with an error naming ``--t-end`` (audit 71 F8)."""
+    at = _recorded_termination(rom_info)
+    if at is None or not _fmu_path(source) or t_end < at * (1.0 - 1e-6):
+        return None
+    last = dt * math.floor(at * (1.0 - 1e-6) / dt * (1.0 + 1e-12) + 1e-9)   # the step ending at ``at`` is refused
+    if last < 2 * dt:
+        return None
+    last = float(f"{last:.12g}")
+    return last, (f"{Path(str(source)).name} terminated the simulation at t={at:g} in the training's recording: "
+                  f"comparing to t_end={last:g}, before it (not four times the training's end, {t_end:g}; --t-end "
+                  "chooses another end)")
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:

@@ -988,7 +988,7 @@ def _window_before_termination(source: Source, signals: list[Any], representativ
     warnings.warn(f"{source_label(source)}: terminates the simulation at t={at:g} (seen in a pilot run of the "
                   f"automatic window): the window ends before it", FmuOpinfWarning, stacklevel=3)
     window, chosen = choose({**thresholds, "t_limit": below})
-    return dataclasses.replace(window, t_end=min(window.t_end, below)), chosen, at
+    return dataclasses.replace(window, t_end=min(window.t_end, below), terminates_at=at), chosen, at
 
 
 def input_table_end(signals: Sequence[Any]) -> float | None:

@@ -159,6 +159,10 @@ class Window:
     unstable_cause : str
         ``"discard"`` where the FMU discarded the step ``unstable_dt`` (an embedded solver's maximum step) rather than
         overflowing or diverging there; "" otherwise.
+    terminates_at : float
+        The time, relative to the run's start, at which the FMU terminated the simulation in a pilot run (the window
+        then ends before it, :attr:`t_limit`); 0 where it did not.  Kept so that ``compare``'s default end stops
+        before it too (audit 71 F8: it ran on to four times the training's end and failed there).
     """
 
     dt: float
@@ -181,6 +185,7 @@ class Window:
     stable_difference: float = 0.0
     t_limit: float = 0.0
     unstable_cause: str = ""
+    terminates_at: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
