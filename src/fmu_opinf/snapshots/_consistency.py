@@ -31,8 +31,8 @@ from ..errors import FMUError, FmuOpinfWarning
 from ..sources._variables import _DEPENDENCIES
 from ._isolation import source_label
 
-__all__ = ["MAX_REPAIRS", "RateSums", "Repair", "check_rates", "judge_run", "live_rate_sums", "rate_mismatch",
-           "stale_rates", "stale_verdict"]
+__all__ = ["MAX_REPAIRS", "RateSums", "Repair", "STALE_REASON", "check_rates", "confirmed_stale", "evaluation_sample",
+           "evaluation_verdict", "judge_run", "live_rate_sums", "rate_mismatch", "stale_rates", "stale_verdict"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
 #: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
@@ -45,6 +45,13 @@ _STALE_GAIN = 0.2
 #: resolve fitted its increments to 2.9 times their size, shifted to 0.55: "stale", though its derivatives were
 #: current.
 _STALE_FIT = 0.3
+#: The reason of the repair of stale accelerations (:func:`check_rates`).
+STALE_REASON = ("the accelerations lag the velocities by one sample (derivatives read before the FMU updated them): "
+                "derived from the data instead")
+#: A direct evaluation of the accelerations (:func:`evaluation_verdict`) decides where it lies this much closer to one
+#: recorded sample than to the other (a current value is off by ``omega`` times the probe's step, 1e-6 ``h``, relative;
+#: the other sample by ``omega h`` or more).
+_EVALUATION_MARGIN = 0.1
 #: Rows (states) moving less than this fraction of the most moving one are not judged.
 _QUIET = 1e-8
 #: Samples used by the checks (the first ones of a run).
@@ -101,6 +108,68 @@ def stale_rates(v: np.ndarray, a: np.ndarray, h: float, u: np.ndarray | None = N
     sums = RateSums(v.shape[0], v.shape[1], h, mismatch=False, stale=True)
     sums.feed(None, v, a, v.shape[1])
     return sums.stale(v, u)
+
+
+def evaluation_sample(a: np.ndarray, u: np.ndarray | None) -> int | None:
+    """The sample ``i`` at which a direct evaluation of the accelerations tells stale from current ones best
+    (:func:`evaluation_verdict`): the first whose next increment ``||a[:, i + 1] - a[:, i]||`` is at least half the
+    largest, among those with ``1 <= i <= k - 2`` and the same input over the steps that end at ``t[i]`` and
+    ``t[i + 1]`` (an FMU's stale value may belong to either input); None where no such increment moves."""
+    k = a.shape[1]
+    if k < 3:
+        return None
+    jumps = np.linalg.norm(np.diff(a, axis=1), axis=0)[1:k - 1]   # a[:, i + 1] - a[:, i] for i = 1 .. k - 2
+    if u is not None and u.size:
+        jumps = np.where(np.all(u[:, 1:k - 1] == u[:, 2:k], axis=0), jumps, 0.0)
+    largest = float(np.max(jumps, initial=0.0))
+    if not (largest > 0 and math.isfinite(largest)):
+        return None
+    return 1 + int(np.flatnonzero(jumps >= 0.5 * largest)[0])
+
+
+def evaluation_verdict(evaluated: np.ndarray, now: np.ndarray, after: np.ndarray) -> bool | None:
+    """Whether accelerations are stale, from the FMU's own value ``evaluated`` at the state of sample ``i`` (read
+    just after it, :func:`evaluation_sample`): True where it is the value recorded at sample ``i + 1`` (``after``:
+    each sample then holds the derivative of the one before), False where it is the value recorded at ``i``
+    (``now``), None where it is neither clearly (:data:`_EVALUATION_MARGIN`).
+
+    The rule of :func:`stale_rates` on sampled increments cannot tell where the step leaves modes unresolved: an FE
+    beam started by an impact (modes far above pi/dt) fitted the shifted rule better with current derivatives, and
+    was recorded a second time with derivatives taken from the data (audit 71 F6)."""
+    to_now, to_after = float(np.linalg.norm(evaluated - now)), float(np.linalg.norm(evaluated - after))
+    if not (math.isfinite(to_now) and math.isfinite(to_after)):
+        return None
+    if to_after <= _EVALUATION_MARGIN * to_now:
+        return True
+    if to_now <= _EVALUATION_MARGIN * to_after:
+        return False
+    return None
+
+
+def confirmed_stale(repair: Repair, a: np.ndarray, u: np.ndarray, t: np.ndarray,
+                    evaluate: Callable[[int], np.ndarray | None]) -> Repair | None:
+    """``repair`` (stale accelerations, judged from the data) where a direct evaluation confirms it or cannot tell,
+    None where the FMU's value just after a sample is the one recorded there (current derivatives).
+
+    Parameters
+    ----------
+    a, u : ndarray
+        The recorded accelerations of the judged rows and the inputs in effect, over the judged samples.
+    t : ndarray
+        The run's time grid.
+    evaluate : callable
+        ``evaluate(i)``: the FMU's accelerations of those rows at the state of sample ``i``, read just after it (None
+        where it cannot run so)."""
+    i = evaluation_sample(a, u)
+    evaluated = evaluate(i) if i is not None else None
+    stale = None if evaluated is None else evaluation_verdict(np.asarray(evaluated, dtype=float), a[:, i], a[:, i + 1])
+    if stale is False:
+        return None
+    if stale:
+        return Repair(repair.positions, repair.velocities, repair.accelerations,
+                      f"{repair.reason} (the FMU's own value just after t={t[i]:g} is the one recorded at the next "
+                      "sample)")
+    return repair
 
 
 def stale_verdict(now: float, shifted: float, increments: float) -> bool:
@@ -265,8 +334,7 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
     if a is not None and v is not None and (stale_rates(v, a, h, u) if sums is None else sums.stale(v, u)):
-        return Repair(None, None, "", "the accelerations lag the velocities by one sample (derivatives read "
-                                      "before the FMU updated them): derived from the data instead")
+        return Repair(None, None, "", STALE_REASON)
     return None
 
 
@@ -421,14 +489,21 @@ def live_rate_sums(source: Any, t: np.ndarray) -> RateSums | None:
                     stale=not source.derived["xddot"], rows=rows)
 
 
+#: ``evaluate(rows, i)``: the accelerations of the judged ``rows`` as the FMU gives them at the state of sample ``i``
+#: of the run judged, read just after it (:func:`judge_run`); None where it cannot tell.
+Evaluate = Callable[[Any, int], "np.ndarray | None"]
+
+
 def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bool = True,
-              sums: RateSums | None = None) -> Repair | None:
+              sums: RateSums | None = None, evaluate: Evaluate | None = None) -> Repair | None:
     """The repair :func:`check_rates` proposes for a run of an FMU source (None if its rates are consistent); a
     problem it cannot repair (any after a repair, or after :data:`MAX_REPAIRS`) is an :class:`FMUError`, a
     mismatch of velocities the user chose a warning.  ``strict=False`` (pilot runs of the automatic window, whose
     step may not resolve the model: audit 2026-11-26, warnings of mismatched velocities from pilots at an aliasing
     step) proposes repairs but leaves what it cannot repair to the recording itself.  ``sums``: those of
-    :func:`live_rate_sums`, fed with the whole run as it was recorded."""
+    :func:`live_rate_sums`, fed with the whole run as it was recorded.  ``evaluate``: the FMU's accelerations just
+    after a sample (:data:`Evaluate`), which overrule the data's verdict of stale accelerations where they tell
+    (:func:`confirmed_stale`)."""
     selection = getattr(source, "selection", None)
     if selection is None or not source.n or len(t) < 3:
         return None
@@ -445,6 +520,8 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     guessed = selection.guessed and not structure
     verdict = check_rates(x, v, a, float(t[1] - t[0]), names, guessed and not repairs, derivatives,
                           np.asarray(run.u[:, window]), sums, declared=structure)
+    if isinstance(verdict, Repair) and verdict.reason == STALE_REASON and evaluate is not None:
+        verdict = confirmed_stale(verdict, a, np.asarray(run.u[:, window]), t, lambda i: evaluate(rows, i))
     if verdict is None:
         if strict and v is not None and getattr(source, "interface", None) == "cs":
             _warn_if_euler_steps(source, x, v, float(t[1] - t[0]), sums)
