@@ -19,8 +19,14 @@ import pytest
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.snapshots._consistency import (STALE_REASON, Repair, evaluation_sample, evaluation_verdict, judge_run,
-                                              stale_rates)
+from fmu_opinf.snapshots._consistency import (
+    STALE_REASON,
+    Repair,
+    evaluation_sample,
+    evaluation_verdict,
+    judge_run,
+    stale_rates,
+)
 from fmu_opinf.sources._variables import Selection
 
 #: The step and length of audit 71's recording of the impacted beam (the automatic window's choice).

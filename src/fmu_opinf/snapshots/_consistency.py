@@ -7,7 +7,9 @@ FMU without inputs can return derivatives one step stale.  Either way the record
 model is silently wrong.  The data tell: over a step ``h`` a position moves by ``h`` times its velocity
 (trapezoidal rule for an accurate integration; the forward or backward rule for an FMU's explicit Euler steps),
 so a mismatch of order one per step, where a right pairing leaves ``(omega h)^2``, shows a wrong pairing, and
-accelerations that fit the velocities' increments far better when shifted by one sample are stale.
+accelerations that fit the velocities' increments far better when shifted by one sample are stale, once the FMU's
+own value just after a sample confirms it (:func:`confirmed_stale`: where the step leaves modes unresolved, the
+increments cannot tell; audit 71 F6).
 
 :func:`check_rates` judges one run's arrays and proposes a repair: positions and velocities paired by the data
 (each position's increments matched with the state whose average over the step fits them), or the positions'
@@ -31,7 +33,7 @@ from ..errors import FMUError, FmuOpinfWarning
 from ..sources._variables import _DEPENDENCIES
 from ._isolation import source_label
 
-__all__ = ["MAX_REPAIRS", "RateSums", "Repair", "STALE_REASON", "check_rates", "confirmed_stale", "evaluation_sample",
+__all__ = ["MAX_REPAIRS", "STALE_REASON", "RateSums", "Repair", "check_rates", "confirmed_stale", "evaluation_sample",
            "evaluation_verdict", "judge_run", "live_rate_sums", "rate_mismatch", "stale_rates", "stale_verdict"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a

@@ -401,7 +401,7 @@ class ModelExchangeSource(FMUSource):
                 or self._discrete.any()):
             return "dop853"
         steps = _grid_steps(self._t)
-        self._nominal_step = float(steps.sum() / max(steps.size, 1)) if steps.size else math.nan
+        self._nominal_step = float((self._t[steps.size] - self._t[0]) / max(steps.size, 1))   # t[-1] with all steps
         uniform = steps.size and np.ptp(steps) <= 1e-9 * float(steps.max()) + 16 * math.ulp(float(self._t[-1]))
         if self.method == "auto":
             if self.nx > _linear_hold.MAX_STATES or not uniform:
@@ -1119,8 +1119,6 @@ class ModelExchangeSource(FMUSource):
         return dx.copy()
 
 
-# ---------------------------------------------------------------------------------------- events
-
 def _grid_steps(t: np.ndarray) -> np.ndarray:
     """The steps of the grid ``t`` that choose a run's integrator: all, but for a last step shorter than half the one
     before, which is then a piece of another length (:func:`~._integrators._exact_piece_pays`).  The recorder's
@@ -1130,6 +1128,8 @@ def _grid_steps(t: np.ndarray) -> np.ndarray:
     steps = np.diff(np.asarray(t, dtype=float))
     return steps[:-1] if steps.size > 1 and steps[-1] < 0.5 * steps[-2] else steps
 
+
+# ---------------------------------------------------------------------------------------- events
 
 def _duration(seconds: float) -> str:
     """``seconds`` in the unit a reader takes in at once: ``"40 s"``, ``"12 min"``, ``"3.5 h"``."""
