@@ -192,3 +192,17 @@ def test_compare_of_the_exported_rom_fmu_stops_before_the_termination_too(fmus, 
     assert sum("terminated the simulation at t=20" in line for line in err.splitlines()) == 1, err
     metrics = json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert metrics["t_end"] == pytest.approx(TERMINATE - dt, abs=1e-9)
+
+
+def test_compare_on_a_table_past_a_termination_names_the_table_as_its_end(fmus, tmp_path, capsys):
+    """A table that runs past the FMU's termination: compare's end was the table's last time, and the error said
+    "its default t_end=40, four times the training's end" (the training ended at 15)."""
+    table = _table(tmp_path / "u.csv")
+    assert _snapshots(fmus["term"], tmp_path / "s.h5", "--dt", "0.02", "--t-end", "15") == 0
+    assert main(["fit", str(tmp_path / "s.h5"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0
+    capsys.readouterr()
+    code = main(["compare", str(tmp_path / "rom.h5"), str(fmus["term"]), "--input", str(table),
+                 "-o", str(tmp_path / "report"), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code != 0 and f"t_end={TABLE_END:g}, the input table's last time" in err, err
+    assert f"compare --t-end below {TERMINATE:g}" in err and "four times" not in err, err

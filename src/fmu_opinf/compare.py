@@ -501,19 +501,21 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     rom_side = _load_rom_side(rom)
     rom_info = _rom_side_info(rom_side)
     dt = float(dt if dt is not None else rom_info["dt"])
-    end_given, capped = t_end is not None, None
+    end_given, end_from = t_end is not None, "the input table's last time"
     if t_end is None:   # an input table's last time (audit 70, F3: four times the training ran past it)
         t_end = _table_end(signal, rom_info)
     if t_end is None:
+        end_from = "four times the training's end"
         t_train = rom_info.get("t_train_end")
         if not (t_train and math.isfinite(float(t_train)) and 0 < 4 * float(t_train) / dt <= MAX_GRID_STEPS):
             raise DimensionError("no --t-end given and the ROM does not record a usable training end time "
                                  f"({t_train}); pass --t-end")
         t_end = dt * round(4 * float(t_train) / dt)
         capped = _before_termination(rom_info, source, dt, float(t_end))
-        if capped is not None and not quiet:
-            print(capped[1], file=sys.stderr)
-        t_end = t_end if capped is None else capped[0]
+        if capped is not None:
+            t_end, end_from = capped[0], "before the termination the training recorded"
+            if not quiet:
+                print(capped[1], file=sys.stderr)
     t = time_grid(dt, float(t_end))
     if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
         raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
@@ -539,7 +541,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
                                                                      **source_options, **by_name)
     except StepError as stopped:
-        raise _past_termination(stopped, float(t_end), end_given, capped is not None) from None
+        raise _past_termination(stopped, float(t_end), end_given, end_from) from None
     rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
     # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
     isolate = bool(source_options.get("isolate", True))
@@ -577,17 +579,18 @@ def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
     return input_table_end([signal]) if signal is not None else None
 
 
-def _past_termination(stopped: Any, t_end: float, end_given: bool, capped: bool = False) -> Any:
+def _past_termination(stopped: Any, t_end: float, end_given: bool,
+                      end_from: str = "four times the training's end") -> Any:
     """The error of a source run that the FMU ended by terminating the simulation, where the run went to
-    compare's default end (four times the training's, or ``capped`` before the termination the training recorded):
-    the fix is compare's ``--t-end`` (audit 70, F5: the source's advice said "record a shorter run")."""
+    compare's default end (``end_from`` says which: four times the training's, an input table's last time, or
+    before the termination the training recorded): the fix is compare's ``--t-end`` (audit 70, F5: the source's
+    advice said "record a shorter run")."""
     from .sources import StepError, terminated_at
 
     at = terminated_at(str(stopped))
     if at is None or end_given:
         return stopped
-    which = ("before the termination the training recorded" if capped else "four times the training's end")
-    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {which}; give "
+    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {end_from}; give "
                      f"compare --t-end below {at:g})", stopped.step, stopped.time)
 
 
