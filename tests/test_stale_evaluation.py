@@ -164,7 +164,7 @@ def test_an_impacted_beam_fmu_keeps_its_own_accelerations(tmp_path):
     """The beam as an FMU (current derivatives), recorded by model exchange at audit 71's step (as the default
     recording does; its co-simulation crawls through the stiff modes): no stale verdict, and the accelerations
     recorded are the model's exact ones (before: derived from the data, far off where the step leaves the modes
-    unresolved).  The direct evaluation runs one sample and a step of 2e-9 s: about 0.1 s."""
+    unresolved).  The direct evaluation runs one sample and a step of 2e-9 s: 0.1-0.7 s."""
     from fmu_opinf import snapshots
     from fmu_opinf.sources import open_source
 
