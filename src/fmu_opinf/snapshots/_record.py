@@ -266,7 +266,8 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     run of an FMU is checked for consistent rates (:mod:`._consistency`): a guessed pairing of positions and
     velocities that the data contradict, or stale accelerations (confirmed by the FMU's own value just after a
     sample, :func:`_accelerations_after`), are repaired on the source and the run is recorded once more
-    (``repairs``: how many times already; both may be needed, one after the other, and a problem left after :data:`~._consistency.MAX_REPAIRS` is an error; ``pilot``: a run of the automatic window,
+    (``repairs``: how many times already; both may be needed, one after the other, and a problem left after
+    :data:`~._consistency.MAX_REPAIRS` is an error; ``pilot``: a run of the automatic window,
     whose unrepairable problems are left to the recording, ``judge_run(strict=False)``).  The model's events are
     warned about (once per FMU and process) unless ``pilot`` or not ``say_events`` (a probe, like compare's of the
     source's initial state).
