@@ -874,7 +874,7 @@ def test_free_response_errors_measure_each_run_until_its_inputs_change():
     assert np.all(np.isnan(errors(resting, stiffer.K)))
 
 
-def _two_input_chain_with_a_stiff_mount(n: int):
+def _two_input_chain_with_a_stiff_mount(n: int) -> tuple[object, float, np.ndarray, tuple[str, str], list[Run]]:
     """``lti_fmus.chain_model(n)`` with forces at the base and at the tip and the wall spring 10x stiffer (audit
     72's twostiff10 at 12 masses): the base force hardly moves the tip (tip position RMS 0.021 against 2.5 from the
     tip force), and each run's exact zero-order-hold response to a 100 N pulse on one input."""
