@@ -1511,8 +1511,9 @@ def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unre
     criterion of :func:`_warn_if_training_outputs_missed`) and the snapshots hold more modes, refit at the orders
     of :func:`_search_orders` and keep the first that reproduces them, else the one with the smallest training
     output error.  Judged by :func:`_training_miss`: the mean over the outputs, or the worst output in its worst
-    run, relative to that run's own variation, where that is larger (the line names that output and run).  The search goes on while each order lowers that error
-    :data:`ORDER_HELPS`-fold, and whatever it gained while it stays above :data:`GROSS_MISS`.
+    run, relative to that run's own variation, where that is larger (the line names that output and run).  The
+    search goes on while each order lowers that error :data:`ORDER_HELPS`-fold, and whatever it gained while it
+    stays above :data:`GROSS_MISS`.
 
     ``fit_at(order)`` fits an order the search may discard: its refinement ends early where the model still
     misses grossly (:func:`_screen`; ``first`` too, where the search can follow it).  Such an order is judged by
