@@ -321,7 +321,7 @@ SNAPSHOT_FILE_ATTRS = {"kind": "str", "layout_version": "int", "n": "int", "m": 
                        "derived_xdot": "bool", "derived_xddot": "bool", **{k: "names" for k in _NAMES},
                        **{k: "json" for k in ("system_options", "fmu_parameters", "fmu_settings",
                                                   "variable_selection", "versions", "auto_window",
-                                                  "initialization", "fmi3_ports", "held_inputs")}}
+                                                  "initialization", "fmi3_ports", "held_inputs", "merged_parts")}}
 #: Expected types of the known per-run snapshot attributes.
 SNAPSHOT_RUN_ATTRS = {"complete": "bool", "k": "int", "k_planned": "int", "dt": "positive", "t0": "float",
                       "t_end": "float", "input_spec": "str", "isolated": "bool", "error": "str",

@@ -521,7 +521,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
     source_options = _training_settings(rom_info, source, source_options)
     _warn_if_another_fmu(rom_info, source)
-    _warn_if_recording_warned(rom_info)
+    _warn_if_recording_warned(rom_info, _compared_interface(source, source_options))
     if rom_info["m"] == 0:
         signal = signal or "none"
         source_options.setdefault("inputs", "none")  # every source input held at its start value
@@ -804,26 +804,47 @@ def _exact_names(names: Any) -> str | None:
     return joined if split_patterns(joined) == names else None
 
 
-def _warn_if_recording_warned(rom_info: dict[str, Any]) -> None:
+def _warn_if_recording_warned(rom_info: dict[str, Any], interface: str | None) -> None:
     """The warning ``snapshots`` gave on the ROM's training recording, again (audit 70 F4: a recording that
     followed the FMU's integrator, compared against the same FMU at the same step: 7.6e-7 and no word, the ROM
-    28-72 % of range off the model)."""
+    28-72 % of range off the model).  Where the fit made the ROM stand for the model, the FMU's own integration
+    error is part of the difference only when this comparison drives the FMU by co-simulation (``interface``
+    ``"cs"``; audit 72 F3: said of an FMU driven by model exchange, where the error was the ROM's)."""
     import warnings
 
     from .errors import FmuOpinfWarning
-    from .snapshots._notes import recorded_warning
+    from .snapshots._notes import recorded_verdicts, recorded_warning
 
     message = recorded_warning(rom_info["provenance"].get("snapshots"))
-    settings = rom_info["provenance"].get("fit_settings")
     if not message:
         return
-    if isinstance(settings, dict) and settings.get("recording_integrator") in (
-            "forward-euler", "backward-euler", "step-dependent"):
+    settings = rom_info["provenance"].get("fit_settings")
+    modelled = isinstance(settings, dict) and (settings.get("recording_integrator") in (
+        "forward-euler", "backward-euler", "step-dependent") or settings.get("mixed_recordings") is True)
+    if modelled and interface == "cs":
         message += ("; the ROM stands for the model (fitted through the FMU's Euler steps or from its derivatives), "
                     "so the difference to this FMU's co-simulation includes the FMU's own integration error")
-    else:
+    elif modelled:
+        message += ("; the ROM stands for the model (fitted through the FMU's Euler steps or from its derivatives), "
+                    "and this comparison ran no co-simulation: the difference is the ROM's")
+    elif recorded_verdicts(rom_info["provenance"].get("snapshots")) != {"internal-events"}:
         message += "; a comparison with the same FMU shares what the recording followed"
     warnings.warn(message, FmuOpinfWarning, stacklevel=4)
+
+
+def _compared_interface(source: Any, options: dict[str, Any]) -> str | None:
+    """The FMI interface this comparison drives ``source`` by (``"me"``, ``"cs"``), None for a builtin source or a
+    ROM file (no FMU integrator) or where the FMU's description cannot be read (the run then says why)."""
+    text = str(source)
+    if text.startswith("builtin:") or Path(text).suffix.lower() in (".h5", ".hdf5"):
+        return None
+    from .errors import FmuOpinfError
+    from .sources import choose_interface
+
+    try:
+        return choose_interface(text, options.get("interface") or "auto")
+    except (FmuOpinfError, OSError, ValueError):
+        return None
 
 
 def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:

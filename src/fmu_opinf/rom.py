@@ -1265,17 +1265,23 @@ def fit_rom(
     requested = _requested_terms(terms)
     runs = as_runs(snapshots)
     _check_complete(runs)
+    from .snapshots._merge import merge_warnings, mixed_steps
     from .snapshots._notes import recorded_warning
 
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
     recording_step = _recorded_euler_step(attrs)
-    euler_steps = recording_step in ("backward-euler", "step-dependent") and refine == "auto"   # the SDP alone
+    mixed = refine == "auto" and mixed_steps(attrs) is not None   # some files Euler steps, others not: the SDP alone
+    euler_steps = (recording_step in ("backward-euler", "step-dependent") or mixed) and refine == "auto"
+    for message in merge_warnings(attrs):   # files of other FMUs, interfaces, settings or verdicts (audit 72 F3/F4)
+        warnings.warn(message, FmuOpinfWarning, stacklevel=2)
+    if mixed:
+        refine = False
     if recording_step == "forward-euler":
         warnings.warn("the training snapshots follow the FMU's explicit Euler co-simulation steps (snapshots warned): "
                       "the output-error refinement simulates the ROM with that step, so the ROM stands for the model, "
                       "not for the FMU's co-simulation at that step", FmuOpinfWarning, stacklevel=2)
-    elif euler_steps:
+    elif euler_steps and not mixed:
         refine = False
         follows = ("semi-implicit Euler co-simulation steps" if recording_step == "backward-euler" else
                    "co-simulation's integrator (its outputs depend on the communication step)")
@@ -1329,7 +1335,7 @@ def fit_rom(
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0], origin)
     pod, data, ops, info = fit.pod, fit.data, fit.ops, fit.info
     if euler_steps:
-        info["refinement_skipped"] = recording_step
+        info["refinement_skipped"] = recording_step or "mixed-recordings"
     if recording_step == "forward-euler":
         info["refinement_integrator"] = "forward-euler"
     if search:
@@ -1348,7 +1354,7 @@ def fit_rom(
                 "refine_iterations": refine_iterations, "refit_output_map": refit_output_map,
                 "least_squares_candidate": least_squares_candidate, "output_weighting": output_weighting,
                 "order_search_limit": ORDER_SEARCH_LIMIT if r is None and energy is None and not euler_steps else None,
-                "recording_integrator": recording_step}
+                "recording_integrator": recording_step, "mixed_recordings": mixed}
     Cpr, Cvr, Dur, y0 = fit.maps
     m = data["u"].shape[0]
     Br, fr = ops.Br[:, :m], (ops.Br[:, m] if fit.chosen["fr"] else np.zeros(pod.r_))

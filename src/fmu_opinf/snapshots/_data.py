@@ -17,7 +17,8 @@ from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_typ
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
-from ._notes import texts
+from ._merge import MERGED_PARTS, merged_parts, part_verdicts
+from ._notes import VERDICTS, texts
 
 __all__ = ["Run", "Snapshots"]
 
@@ -112,12 +113,14 @@ class Snapshots:
     -----
     ``Snapshots.load(path)`` reads everything into memory; ``Snapshots.open(path)`` keeps the file
     open and backs each run by h5py datasets (slice them, e.g. ``run.x[:, j0:j1]``); use it as a
-    context manager or call :meth:`close`.
+    context manager or call :meth:`close`.  ``path`` is the file they were read from (None for snapshots made in
+    memory); merging names each part by it.
     """
 
     def __init__(self, runs: Sequence[Run] | None = None, attrs: dict[str, Any] | None = None) -> None:
         self.runs: list[Run] = list(runs or [])
         self.attrs: dict[str, Any] = dict(attrs or {})
+        self.path: Path | None = None
         self._file: h5py.File | None = None
 
     # -- sizes -----------------------------------------------------------------------------
@@ -175,8 +178,10 @@ class Snapshots:
             self._check_compatible(other.attrs)
             if not self.attrs:
                 self.attrs = dict(other.attrs)
+                self.attrs[MERGED_PARTS] = {"parts": merged_parts(other.attrs, other._part_name(1))}
             else:
                 self._keep_common_settings(other.attrs)
+                self._keep_parts(other)
         for run in runs:
             self._check_run(run)
             self.runs.append(run)
@@ -191,11 +196,26 @@ class Snapshots:
             shared = shared_held_inputs(self.attrs.pop("held_inputs"), attrs.get("held_inputs"))
             if shared is not None:
                 self.attrs["held_inputs"] = shared
-        for key in ("recording_warnings", "recording_verdicts"):   # any part's warning holds for the whole set
-            mine = texts(self.attrs.get(key))
-            joined = mine + [text for text in texts(attrs.get(key)) if text not in mine]
-            if joined:
-                self.attrs[key] = joined
+        mine = texts(self.attrs.get("recording_warnings"))   # any part's warning is repeated for the whole set
+        joined = mine + [text for text in texts(attrs.get("recording_warnings")) if text not in mine]
+        if joined:
+            self.attrs["recording_warnings"] = joined
+
+    def _part_name(self, number: int) -> str:
+        """How a merge names these snapshots: their file's name, else ``part <number>``."""
+        return self.path.name if self.path is not None else f"part {number}"
+
+    def _keep_parts(self, other: "Snapshots") -> None:
+        """The summaries of all merged parts (:mod:`._merge`: file, FMU and its hash, interface, settings, verdicts),
+        and as ``recording_verdicts`` only those every part carries: one part's Euler verdict does not make the
+        fit treat every run as Euler steps (audit 72 F3); the fit says which parts carry which."""
+        parts = merged_parts(self.attrs, self._part_name(1))
+        parts += merged_parts(other.attrs, other._part_name(len(parts) + 1))
+        self.attrs[MERGED_PARTS] = {"parts": parts}
+        every, _ = part_verdicts(self.attrs)
+        self.attrs.pop("recording_verdicts", None)
+        if every:
+            self.attrs["recording_verdicts"] = [verdict for verdict in VERDICTS if verdict in every]
 
     def _check_compatible(self, attrs: dict[str, Any]) -> None:
         keys = ("n", "m", "p", "position_names", "input_names", "output_names")
@@ -246,7 +266,9 @@ class Snapshots:
             check_memory(8.0 * sum(a.size for r in lazy.runs for a in r.arrays().values()),
                          f"loading {path} into memory", "open it lazily with Snapshots.open instead")
             with damaged_file_errors(Path(path)):   # (a chunk failing its checksum)
-                return cls([r.load() for r in lazy.runs], dict(lazy.attrs))
+                loaded = cls([r.load() for r in lazy.runs], dict(lazy.attrs))
+                loaded.path = lazy.path
+                return loaded
 
     @classmethod
     def open(cls, path: str | os.PathLike) -> "Snapshots":
@@ -269,6 +291,7 @@ class Snapshots:
             f.close()
             raise
         snaps._file = f
+        snaps.path = path
         return snaps
 
     @classmethod

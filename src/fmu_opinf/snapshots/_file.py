@@ -27,7 +27,7 @@ ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
 #: Per-run initial state datasets (layout 2; layout 1 files take the first samples instead).
 INITIAL = ("x0", "v0")
 _JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window",
-               "unit_definitions", "initialization", "fmi3_ports", "held_inputs")
+               "unit_definitions", "initialization", "fmi3_ports", "held_inputs", "merged_parts")
 
 
 @contextlib.contextmanager

@@ -6,7 +6,9 @@ the file alone.  Before, they then reported success on ROMs 28-72 % of range off
 nothing of the warning was left.  :func:`warn_recording` warns as before and adds the line to the notes of the
 recording in progress (:func:`collecting_recording_notes` around :func:`~fmu_opinf.snapshots.record_to_file`);
 the file keeps them in its attribute ``recording_warnings`` (and what each says, a word of :data:`VERDICTS`, in
-``recording_verdicts``), and :func:`recorded_warning` gives the later stages one line to repeat.
+``recording_verdicts``), and :func:`recorded_warning` gives the later stages one line to repeat.  A model's own
+events (a force on a timer, a switch) are kept the same way (:func:`note_recording`; audit 72 F5: they were warned
+in ``snapshots`` only, and compare then reported a 22 % error with no word on why).
 """
 
 from __future__ import annotations
@@ -19,13 +21,14 @@ from typing import Any, TypeVar
 
 from ..errors import FmuOpinfWarning
 
-__all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", "recorded_verdicts",
-           "recorded_warning", "warn_recording"]
+__all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", "note_recording",
+           "recorded_verdicts", "recorded_warning", "warn_recording"]
 
 #: What a recording warning says: the co-simulation takes one explicit Euler step per communication step (each
 #: position moves by the step times its velocity at the step's start), one semi-implicit or implicit one (at its
-#: end), depends on the step in another way, or returns its outputs one step late.
-VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs")
+#: end), depends on the step in another way, or returns its outputs one step late; or the model had events of its
+#: own during the recording (which a linear ROM cannot follow; no change to the fit).
+VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs", "internal-events")
 
 _NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
                                                                                     default=None)
@@ -58,6 +61,14 @@ def warn_recording(message: str, verdict: str, stacklevel: int = 2) -> None:
     if verdict not in VERDICTS:
         raise ValueError(f"verdict={verdict!r} is not one of {VERDICTS}")
     warnings.warn(message, FmuOpinfWarning, stacklevel=stacklevel + 1)
+    note_recording(message, verdict)
+
+
+def note_recording(message: str, verdict: str) -> None:
+    """Keep ``message`` with its ``verdict`` (one of :data:`VERDICTS`) for the file being recorded, without warning
+    (for a warning said once per process while every recording must keep it, e.g. a model's own events)."""
+    if verdict not in VERDICTS:
+        raise ValueError(f"verdict={verdict!r} is not one of {VERDICTS}")
     notes = _NOTES.get()
     if notes is not None and message not in notes["recording_warnings"]:
         notes["recording_warnings"].append(message)

@@ -352,12 +352,22 @@ def _accelerations_after(source: Source, t: np.ndarray, u: np.ndarray, isolate: 
 
 def _warn_events(source: Source, attrs: dict[str, Any]) -> None:
     """Say, once per FMU and process, that the model had events during a run: what a linear ROM does with them,
-    and how to check (each run's count is in its attributes: ``events``, ``first_event_t``)."""
-    warn_once(source, ("events",),
-              f"had {attrs['events']} event(s) during the run of {attrs['input_spec']} (the first at "
-              f"t={attrs['first_event_t']:g}): the model changes discretely there (switching, contact, friction, "
-              "stops, a sampled controller or a table), which a linear ROM cannot follow; it fits one linear model "
-              "to both sides, so compare the ROM on inputs that cross the events and on inputs that do not")
+    and how to check (each run's count is in its attributes: ``events``, ``first_event_t``).  Every recording keeps
+    the line with its file (:func:`~._notes.note_recording`, once per file), so fit, compare and export repeat it
+    (audit 72 F5)."""
+    from ._notes import current_recording_notes, note_recording
+
+    start = float(getattr(source, "start_time", None) or 0.0)
+    first = float(attrs["first_event_t"])
+    fmu_time = f", FMU time {start + first:g}" if start else ""
+    text = (f"had {attrs['events']} event(s) during the run of {attrs['input_spec']} (the first at t={first:g}"
+            f"{fmu_time}): the model changes discretely there (switching, contact, friction, stops, a sampled "
+            "controller, a force on a timer or a table), which a linear ROM cannot follow; it fits one linear model "
+            "to both sides, so compare the ROM on inputs that cross the events and on inputs that do not")
+    warn_once(source, ("events",), text)
+    if "internal-events" not in current_recording_notes().get("recording_verdicts", []):
+        note_recording(f"{os.path.basename(str(getattr(source, 'path', '')) or type(source).__name__)}: {text}",
+                       "internal-events")
 
 
 @contextlib.contextmanager

@@ -1,0 +1,155 @@
+"""What the parts of a merged data set (a folder of snapshot files, several files, appended snapshots) were recorded
+from, and where they differ.
+
+Merging checks that the parts describe the same system (sizes, variable names, constraint kind); it cannot check
+that they record the same model.  Audit 72 (F3, F4): a folder holding one FMU by model exchange and its explicit
+Euler co-simulation (or two FMUs), or files recorded at two stiffness values (a run table's ``set:`` column), was
+fitted as one model without a word, one part's Euler verdict applied to every run (the ROM 15-31 % of range off a
+model either file fits exactly), and the provenance named the first file's FMU only.
+
+The merged attributes keep a summary of every part (``merged_parts``: its file, FMU name and hash, interface,
+settings and recording verdicts), :func:`merge_differences` names what differs for ``fit`` to warn, and the
+recording verdicts of the merged set are those every part carries (:func:`part_verdicts` gives the mixed ones).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ._notes import VERDICTS, texts
+
+__all__ = ["MERGED_PARTS", "merge_differences", "merge_warnings", "merged_parts", "mixed_steps", "part_summary",
+           "part_verdicts"]
+
+#: The attribute that holds the parts' summaries: ``{"parts": [summary, ...]}`` (JSON object, as the other dict
+#: attributes).
+MERGED_PARTS = "merged_parts"
+
+#: Summary keys copied from a part's attributes.
+_KEYS = ("fmu_name", "fmu_sha256", "fmi_interface", "fmu_settings", "recording_verdicts")
+
+_INTERFACES = {"me": "model exchange", "cs": "co-simulation"}
+
+#: The verdicts that change how ``fit`` treats a recording (:func:`fmu_opinf.rom._recorded_euler_step`) and what
+#: each says.
+_STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps",
+                  "backward-euler": "the FMU's semi-implicit Euler co-simulation steps",
+                  "step-dependent": "a co-simulation that depends on its communication step"}
+
+
+def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
+    """What a part with file attributes ``attrs``, called ``name`` (its file name), was recorded from."""
+    summary: dict[str, Any] = {"file": name}
+    for key in _KEYS:
+        value = attrs.get(key)
+        if key == "recording_verdicts":
+            value = [verdict for verdict in texts(value) if verdict in VERDICTS]
+        elif key == "fmu_settings":
+            value = dict(value) if isinstance(value, dict) else {}
+        elif not isinstance(value, str):
+            continue
+        summary[key] = value
+    return summary
+
+
+def merged_parts(attrs: dict[str, Any], name: str) -> list[dict[str, Any]]:
+    """The part summaries of attributes ``attrs``: those stored by an earlier merge, else ``attrs`` as one part
+    called ``name``."""
+    stored = attrs.get(MERGED_PARTS)
+    parts = stored.get("parts") if isinstance(stored, dict) else None
+    if isinstance(parts, list) and parts and all(isinstance(part, dict) for part in parts):
+        return [dict(part) for part in parts]
+    return [part_summary(attrs, name)]
+
+
+def part_verdicts(attrs: dict[str, Any]) -> tuple[set[str], dict[str, list[str]]]:
+    """The recording verdicts every part of ``attrs`` carries, and those only some carry (each with its parts' file
+    names); for a single recording, its verdicts and none mixed."""
+    parts = merged_parts(attrs, "")
+    sets = [set(texts(part.get("recording_verdicts"))) for part in parts]
+    every = set.intersection(*sets) if sets else set()
+    mixed = {verdict: [str(part.get("file")) for part, found in zip(parts, sets) if verdict in found]
+             for verdict in sorted(set.union(*sets) - every)} if sets else {}
+    return every, mixed
+
+
+def merge_differences(attrs: dict[str, Any]) -> str | None:
+    """One sentence naming where the parts of merged snapshot attributes ``attrs`` differ (the FMU, its interface,
+    its settings with their values), or None when they agree or ``attrs`` are one recording's."""
+    parts = merged_parts(attrs, "")
+    if len(parts) < 2:
+        return None
+    settings = _differing_settings(parts)
+    said = [text for text in (_differing(parts, "fmu_sha256", _fmu), _differing(parts, "fmi_interface", _interface),
+                              settings) if text]
+    if not said:
+        return None
+    files = ", ".join(str(part.get("file")) for part in parts)
+    advice = ("one linear ROM cannot follow both; fit one ROM per setting" if settings else
+              "the ROM is one model fitted to all of them; fit one ROM per FMU and interface")
+    return f"the merged snapshot files ({files}) were recorded {'; '.join(said)}: {advice}"
+
+
+def _differing(parts: list[dict[str, Any]], key: str, label: Any) -> str | None:
+    """``key``'s values of ``parts`` said by ``label`` where they are not all the same (absent values count as
+    unknown, not as different)."""
+    values = [part.get(key) for part in parts]
+    if len({value for value in values if value is not None}) < 2:
+        return None
+    return label(", ".join(f"{part.get('file')} {_said(key, part)}" for part in parts))
+
+
+def _said(key: str, part: dict[str, Any]) -> str:
+    """A part's value of ``key`` in words."""
+    if key == "fmu_sha256":
+        digest = part.get("fmu_sha256")
+        return f"{part.get('fmu_name', '?')} (sha256 {str(digest)[:12] if digest else 'unknown'})"
+    return _INTERFACES.get(str(part.get(key)), str(part.get(key, "unknown")))
+
+
+def _fmu(text: str) -> str:
+    return f"from different FMUs ({text})"
+
+
+def _interface(text: str) -> str:
+    return f"by different FMI interfaces ({text})"
+
+
+def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
+    """The settings (``--set``, a run table's ``set:``/``start:`` cells) whose values differ between ``parts``, each
+    with every part's value ("default" where a part did not set it)."""
+    settings = [part.get("fmu_settings") if isinstance(part.get("fmu_settings"), dict) else {} for part in parts]
+    names = sorted({name for setting in settings for name in setting})
+    differing = [name for name in names if len({repr(setting.get(name)) for setting in settings}) > 1]
+    if not differing:
+        return None
+    said = "; ".join(f"{name}: " + ", ".join(f"{part.get('file')} {setting.get(name, 'default')}"
+                                                for part, setting in zip(parts, settings)) for name in differing)
+    return f"with different settings ({said})"
+
+
+def mixed_steps(attrs: dict[str, Any]) -> str | None:
+    """Where some parts of merged attributes ``attrs`` follow the FMU's integrator (a verdict of
+    :data:`_STEP_VERDICTS`) and others do not: one sentence saying so and what the fit does instead, else None.
+
+    The Euler treatment is for runs that all follow those steps: applied to every run it stepped the accurate runs
+    by Euler too, and the output-error refinement with the ROM's own step pulls toward the Euler runs (audit 72 F3:
+    15-31 % and 61 % of range off the model).  The SDP of eq. (16) alone fits the FMU's derivatives at the recorded
+    states, which both kinds of recording give (that set: the model to 2e-14)."""
+    every, mixed = part_verdicts(attrs)
+    found = [(verdict, files) for verdict, files in mixed.items() if verdict in _STEP_VERDICTS]
+    if not found:
+        return None
+    said = "; ".join(f"{', '.join(files)} follow{'s' if len(files) == 1 else ''} {_STEP_VERDICTS[verdict]}"
+                     for verdict, files in found)
+    return (f"of the merged snapshot files, {said} (snapshots warned), the others do not: the Euler treatment "
+            "would step the accurate runs by Euler too, and the output-error refinement would pull toward the Euler "
+            "runs, so the fit keeps the SDP solution of eq. (16), fitted to the FMU's derivatives at the recorded "
+            "states (fit_rom(refine=True) refines anyway); where the accelerations were derived from the "
+            "samples they follow the Euler steps: then fit the two kinds apart")
+
+
+def merge_warnings(attrs: dict[str, Any]) -> list[str]:
+    """What ``fit`` says about merged snapshot attributes ``attrs``: the parts' differences
+    (:func:`merge_differences`) and mixed integrator verdicts (:func:`mixed_steps`)."""
+    return [text for text in (merge_differences(attrs), mixed_steps(attrs)) if text]
