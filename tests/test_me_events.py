@@ -346,6 +346,35 @@ def test_events_that_change_nothing_are_not_warned_about(fmus, recwarn, events_u
     assert not [w for w in recwarn if "event(s)" in str(w.message)]
 
 
+def test_the_events_are_kept_with_each_recording_and_repeated_by_fit_compare_and_export(fmus, tmp_path,
+                                                                                         events_unsaid):
+    """Audit 72 F5: the event warning lived on ``snapshots``' stderr only, and compare reported a 22 % error with no
+    word on why.  Every file keeps it (also the second recording of the process, where it is not said again), and
+    fit, compare and export repeat it."""
+    from fmu_opinf import compare
+    from fmu_opinf.errors import FmuOpinfWarning
+    from fmu_opinf.export import _warn_if_recording_warned
+    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.snapshots import Snapshots, record_to_file
+
+    path = fmus[("2.0", "time")]
+    with pytest.warns(FmuOpinfWarning, match=r"had 1 event\(s\)"):
+        record_to_file(ModelExchangeSource(path), tmp_path / "a.h5", INPUT, dt=DT, t_end=T_END, quiet=True)
+    record_to_file(ModelExchangeSource(path), tmp_path / "b.h5", "none", dt=DT, t_end=T_END, quiet=True)
+    for name in ("a.h5", "b.h5"):
+        attrs = Snapshots.load(tmp_path / name).attrs
+        assert list(attrs["recording_verdicts"]) == ["internal-events"]
+        assert f"(the first at t={T_EVENT:g})" in attrs["recording_warnings"][0]
+    said = r"recorded with this warning: events-time-fmi2\.fmu: had 1 event\(s\)"
+    with pytest.warns(FmuOpinfWarning, match=said):
+        rom = fit_rom(Snapshots.load(tmp_path / "a.h5"), r=2, quiet=True, refine=False)
+    with pytest.warns(FmuOpinfWarning, match=said) as seen:
+        compare.compare(rom, path, INPUT, t_end=T_END, quiet=True)
+    assert not [w for w in seen if "shares what the recording followed" in str(w.message)]
+    with pytest.warns(FmuOpinfWarning, match=said):
+        assert _warn_if_recording_warned(dict(rom.provenance))
+
+
 def test_an_fmu_without_events_never_asks_for_event_indicators(fmus, monkeypatch):
     calls = {"_integrate_with_events": 0, "_read_indicators": 0}
     for name in calls:

@@ -161,6 +161,9 @@ class Snapshots:
     def append(self, other: "Snapshots | Run") -> "Snapshots":
         """Add the runs of ``other`` (same system: sizes and variable names must agree).
 
+        The attributes keep a summary of every merged part (``merged_parts``: file, FMU name and hash, interface,
+        settings, recording verdicts; :mod:`._merge`), from which ``fit`` says where the parts differ.
+
         Runs are taken over as they are: runs of an :meth:`open` file stay backed by that file, so
         keep it open until the merged snapshots are saved (or :meth:`Run.load` them first).
 

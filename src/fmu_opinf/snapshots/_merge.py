@@ -136,7 +136,7 @@ def mixed_steps(attrs: dict[str, Any]) -> str | None:
     by Euler too, and the output-error refinement with the ROM's own step pulls toward the Euler runs (audit 72 F3:
     15-31 % and 61 % of range off the model).  The SDP of eq. (16) alone fits the FMU's derivatives at the recorded
     states, which both kinds of recording give (that set: the model to 2e-14)."""
-    every, mixed = part_verdicts(attrs)
+    _, mixed = part_verdicts(attrs)
     found = [(verdict, files) for verdict, files in mixed.items() if verdict in _STEP_VERDICTS]
     if not found:
         return None
