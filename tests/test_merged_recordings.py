@@ -135,3 +135,14 @@ def test_a_saved_merge_keeps_its_parts(tmp_path):
     with pytest.warns(FmuOpinfWarning, match=r"from different FMUs \(a\.h5 a\.fmu \(sha256 aaaaaaaaaaaa\), part 2 "
                                              r"b\.fmu \(sha256 bbbbbbbbbbbb\)\)"):
         fit_rom(again, r=4, quiet=True, refine=False)
+
+
+def test_a_warning_on_a_thousand_files_stays_one_short_line():
+    """A run table of a thousand rows, each at its own setting: the files and values are listed up to four, then
+    counted (before the listing was cut, the line was 24 kB)."""
+    from fmu_opinf.snapshots._merge import merge_differences
+
+    parts = [{"file": f"r{i}.h5", "fmu_settings": {"k": i}} for i in range(1000)]
+    said = merge_differences({"merged_parts": {"parts": parts}})
+    assert said is not None and len(said) < 300 and "\n" not in said
+    assert "k: r0.h5 0, r1.h5 1, r2.h5 2, r3.h5 3, ... (1000 in all)" in said and said.endswith("fit one ROM per setting")

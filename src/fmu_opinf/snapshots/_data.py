@@ -17,7 +17,7 @@ from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_typ
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
-from ._merge import MERGED_PARTS, merged_parts, part_verdicts
+from ._merge import MERGED_PARTS, merged_parts
 from ._notes import VERDICTS, texts
 
 __all__ = ["Run", "Snapshots"]
@@ -215,8 +215,8 @@ class Snapshots:
         parts = merged_parts(self.attrs, self._part_name(1))
         parts += merged_parts(other.attrs, other._part_name(len(parts) + 1))
         self.attrs[MERGED_PARTS] = {"parts": parts}
-        every, _ = part_verdicts(self.attrs)
-        self.attrs.pop("recording_verdicts", None)
+        every = set(texts(self.attrs.pop("recording_verdicts", None)))   # (each side's: those all its parts carry)
+        every &= set(texts(other.attrs.get("recording_verdicts")))
         if every:
             self.attrs["recording_verdicts"] = [verdict for verdict in VERDICTS if verdict in every]
 

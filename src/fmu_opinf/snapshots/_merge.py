@@ -84,8 +84,9 @@ def merge_differences(attrs: dict[str, Any]) -> str | None:
                               settings) if text]
     if not said:
         return None
-    files = ", ".join(str(part.get("file")) for part in parts)
-    advice = ("one linear ROM cannot follow both; fit one ROM per setting" if settings else
+    files = _listing([str(part.get("file")) for part in parts])
+    advice = (f"one linear ROM cannot follow {'both' if len(parts) == 2 else 'all of them'}; fit one ROM per setting"
+              if settings else
               "the ROM is one model fitted to all of them; fit one ROM per FMU and interface")
     return f"the merged snapshot files ({files}) were recorded {'; '.join(said)}: {advice}"
 
@@ -96,7 +97,7 @@ def _differing(parts: list[dict[str, Any]], key: str, label: Any) -> str | None:
     values = [part.get(key) for part in parts]
     if len({value for value in values if value is not None}) < 2:
         return None
-    return label(", ".join(f"{part.get('file')} {_said(key, part)}" for part in parts))
+    return label(_listing([f"{part.get('file')} {_said(key, part)}" for part in parts]))
 
 
 def _said(key: str, part: dict[str, Any]) -> str:
@@ -123,8 +124,9 @@ def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
     differing = [name for name in names if len({repr(setting.get(name)) for setting in settings}) > 1]
     if not differing:
         return None
-    said = "; ".join(f"{name}: " + ", ".join(f"{part.get('file')} {setting.get(name, 'default')}"
-                                                for part, setting in zip(parts, settings)) for name in differing)
+    said = "; ".join(f"{name}: " + _listing([f"{part.get('file')} {setting.get(name, 'default')}"
+                                              for part, setting in zip(parts, settings)]) for name in differing[:3])
+    said += f"; and {len(differing) - 3} more" if len(differing) > 3 else ""
     return f"with different settings ({said})"
 
 
@@ -140,7 +142,7 @@ def mixed_steps(attrs: dict[str, Any]) -> str | None:
     found = [(verdict, files) for verdict, files in mixed.items() if verdict in _STEP_VERDICTS]
     if not found:
         return None
-    said = "; ".join(f"{', '.join(files)} follow{'s' if len(files) == 1 else ''} {_STEP_VERDICTS[verdict]}"
+    said = "; ".join(f"{_listing(files)} follow{'s' if len(files) == 1 else ''} {_STEP_VERDICTS[verdict]}"
                      for verdict, files in found)
     return (f"of the merged snapshot files, {said} (snapshots warned), the others do not: the Euler treatment "
             "would step the accurate runs by Euler too, and the output-error refinement would pull toward the Euler "
@@ -153,3 +155,14 @@ def merge_warnings(attrs: dict[str, Any]) -> list[str]:
     """What ``fit`` says about merged snapshot attributes ``attrs``: the parts' differences
     (:func:`merge_differences`) and mixed integrator verdicts (:func:`mixed_steps`)."""
     return [text for text in (merge_differences(attrs), mixed_steps(attrs)) if text]
+
+
+#: Items a warning lists at most (a run table of a thousand rows made a warning of 24 kB).
+_LISTED = 4
+
+
+def _listing(items: list[str]) -> str:
+    """``items`` joined by commas, the first :data:`_LISTED` of many and their count."""
+    if len(items) <= _LISTED + 1:
+        return ", ".join(items)
+    return ", ".join(items[:_LISTED]) + f", ... ({len(items)} in all)"
