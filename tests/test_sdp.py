@@ -151,16 +151,23 @@ def test_symmetric_kronecker_block_matches_its_definition(rng, k):
     assert np.abs((got - start)[upper] - want[upper]).max() < 1e-12
 
 
+@pytest.mark.parametrize("reuse", [False, True])
 @pytest.mark.parametrize("keep", [(0,), (1,), (2,), (0, 1), (0, 2), (1, 2)])
-def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep):
+def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep, reuse):
     """_reduced_quadratic (Schur complement through the triangular factor of H_FF): the recovered entries are the
     constrained minimizer over the eliminated blocks (KKT system solved directly), and the reduced quadratic
-    form reproduces the full objective up to a constant."""
-    from fmu_opinf._sdp_paths import _hessian, _mass_indicator, _reduced_quadratic
+    form reproduces the full objective up to a constant.  ``reuse``: with the screening's factor of the whole
+    H + a a^T (blocks in the order M, K, D), read from it where its leading blocks are the eliminated ones (kept
+    Dr, or Dr and Kr: a wrong block permutation of W or of the Schur complement fails the checks)."""
+    from fmu_opinf._sdp_paths import (_SCREENING_ORDER, _hessian, _leading_elimination, _mass_indicator,
+                                      _reduced_quadratic, _solve_unconstrained)
 
     _, r, _, G = _scaled_problem(_active_data(rng))
     H, a = _hessian(G, r), _mass_indicator(r)
-    idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a, float(r), keep, r)
+    factor = _solve_unconstrained(H, a, float(r), order=_SCREENING_ORDER)[1] if reuse else None
+    free = [b for b in range(3) if b not in keep]
+    assert (_leading_elimination(factor, free, keep, r * (r + 1) // 2) is not None) == (reuse and keep in ((1,), (1, 2)))
+    idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a, float(r), keep, r, factor)
     constrained = 0 not in keep
     H_ff, H_fa, a_f = H[np.ix_(idx_f, idx_f)], H[np.ix_(idx_f, idx_a)], a[idx_f]
 
