@@ -166,7 +166,8 @@ def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep
     H, a = _hessian(G, r), _mass_indicator(r)
     factor = _solve_unconstrained(H, a, float(r), order=_SCREENING_ORDER)[1] if reuse else None
     free = [b for b in range(3) if b not in keep]
-    assert (_leading_elimination(factor, free, keep, r * (r + 1) // 2) is not None) == (reuse and keep in ((1,), (1, 2)))
+    reused = _leading_elimination(factor, free, keep, r * (r + 1) // 2) is not None
+    assert reused == (reuse and keep in ((1,), (1, 2)))
     idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a, float(r), keep, r, factor)
     constrained = 0 not in keep
     H_ff, H_fa, a_f = H[np.ix_(idx_f, idx_f)], H[np.ix_(idx_f, idx_a)], a[idx_f]
@@ -188,6 +189,30 @@ def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep
         values.append(w @ H @ w - (w_a @ S @ w_a + 2 * lin @ w_a))
         scale = max(scale, w @ H @ w)
     assert np.ptp(values) <= 1e-12 * scale  # the same constant for every w_A
+
+
+def test_a_relaxation_with_a_violated_dropped_cone_is_ended_early_with_the_same_optimum(monkeypatch):
+    """The Mr >= I screening's first SDP keeps the mass cone only; where its damping comes out clearly indefinite
+    the interior-point method stops there (status ``stopped``, fewer iterations than a full solve) and the damping
+    cone is added: the result is still Clarabel's optimum of the full SDP, certified.  (Seed 1: the relaxation's
+    damping is clearly indefinite; with the fixture's seed it is only slightly so and the relaxation is solved.)"""
+    data = _damping_data(np.random.default_rng(1))
+    ends = []
+    original = _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        result = original(*args, **kwargs)
+        ends.append((len(args[2]), result.status, result.iterations))
+        return result
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
+    fit = fit_operators(*data, normalization="mass-eigenvalue", refine=False)
+    assert fit.info["cones"] == ["Mr", "Dr"] and fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6
+    assert [(cones, status) for cones, status, _ in ends] == [(1, "stopped"), (2, "optimal")]
+    assert ends[0][2] < ends[1][2]
+    _, r, _, G = _scaled_problem(data)
+    reference = _clarabel_reference(G, r, "mass-eigenvalue")
+    assert abs(fit.info["sdp_objective"] - reference) <= 1e-6 * reference
 
 
 def test_failed_certificate_falls_back_to_clarabel(rng, monkeypatch):

@@ -73,7 +73,8 @@ class IPMResult:
         Solution (last iterate).
     status : str
         ``"optimal"`` (gap and residuals below ``tol``), ``"floor"`` (gap below ``tol``, dual residual stalled at
-        round-off), ``"max_iterations"``, ``"stalled"`` (step length below 1e-10) or ``"singular"``
+        round-off), ``"stopped"`` (by the caller's ``stop``), ``"max_iterations"``, ``"stalled"`` (step length
+        below 1e-10) or ``"singular"``
         (Newton matrix not positive definite, typical close to the optimum); ``w`` is then
         the last interior iterate, which the caller certifies.
     iterations : int
@@ -191,6 +192,7 @@ def solve_ipm(
     tol: float = 1e-9,
     max_iterations: int = 100,
     callback: Callable[[int, float], None] | None = None,
+    stop: Callable[[np.ndarray, float], bool] | None = None,
 ) -> IPMResult:
     """Minimize ``w^T S w + 2 s^T w`` with ``mat(w_j) - lower_j I`` PSD and optionally ``a^T w = c``.
 
@@ -216,6 +218,10 @@ def solve_ipm(
     callback : callable, optional
         ``callback(iteration, measure)`` after each iteration's residuals, ``measure`` the larger of the relative
         complementarity and dual residual that the stopping test compares with ``tol`` (for progress reports).
+    stop : callable, optional
+        ``stop(w, measure)`` after the callback; ``True`` ends the iteration with status ``"stopped"`` (the
+        caller has learnt what it needed from the iterate, e.g. the cone screening of
+        :mod:`fmu_opinf._sdp_paths` that a dropped cone is violated).
 
     Returns
     -------
@@ -248,6 +254,9 @@ def solve_ipm(
         dual_norm = residual * (1.0 + float(np.linalg.norm(w))) / floor
         if callback is not None:
             callback(iteration, max(gap, dual_norm))
+        if stop is not None and stop(w, max(gap, dual_norm)):
+            status = "stopped"
+            break
         if gap <= tol and dual_norm <= tol:
             status = "optimal"
             break
