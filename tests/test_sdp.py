@@ -166,7 +166,7 @@ def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep
     H, a = _hessian(G, r), _mass_indicator(r)
     factor = _solve_unconstrained(H, a, float(r), order=_SCREENING_ORDER)[1] if reuse else None
     free = [b for b in range(3) if b not in keep]
-    reused = _leading_elimination(factor, free, keep, r * (r + 1) // 2) is not None
+    reused = _leading_elimination(H, factor, free, keep, r * (r + 1) // 2) is not None
     assert reused == (reuse and keep in ((1,), (1, 2)))
     idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a, float(r), keep, r, factor)
     constrained = 0 not in keep
