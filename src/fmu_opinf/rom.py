@@ -1473,7 +1473,7 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     sampled_u = data["u"] if not chosen["fr"] else np.vstack([data["u"], np.ones((1, data["u"].shape[1]))])
     simulated = refinement if refinement.get("refine") else _refinement(
         "auto", o.refine_integrator or time_integrator, o.lowpass, runs, attrs,
-        {key: value for key, value in data.items() if not key.startswith("f_")}, (Cpr, Cvr, Dur, y0))
+        {key: value for key, value in data.items() if not key.startswith("f_")}, (Cpr, Cvr, Dur, y0), warn=False)
     unchecked = None if refinement.get("refine") else _training_output_error(ops, sampled_u, data, simulated,
                                                                                o.output_weighting)
     sdp_seconds = ops.info.get("sdp_wall_seconds", ops.info.get("total_seconds", 0))
@@ -1809,14 +1809,17 @@ def _refit_without_refinement() -> InputSpecError:
 
 
 def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs: list, attrs: dict,
-                data: dict[str, np.ndarray], maps: tuple) -> dict[str, Any]:
+                data: dict[str, np.ndarray], maps: tuple, warn: bool = True) -> dict[str, Any]:
     """Keywords of :func:`fmu_opinf.inference.fit_operators` for what compares simulated training outputs: the
     output-error refinement and the least-squares candidate.
 
     Both need unweighted data (``lowpass`` off) sampled with one training step, and sampled states (interval
     averages are no samples: their runs keep the SDP solution); the output target excludes the fitted
     feedthrough and offset.  The refinement simulates the ROM's own step (Newmark, or the exact hold step of a
-    continuous-time source).  ``refine=False`` keeps the SDP solution: neither.
+    continuous-time source).  ``refine=False`` keeps the SDP solution: neither.  Runs of different steps turn
+    both off, and with them the order search and the training-miss check: said in one warning (``warn``) with its
+    fix (audit 72, F2: runs of a run table at their own automatic steps gave a ROM 15-51 % of range off its own
+    training inputs, without a word).
     """
     if refine not in ("auto", True, False):
         raise InputSpecError(f"refine={refine!r} is not known; use 'auto', True or False")
@@ -1829,11 +1832,25 @@ def _refinement(refine: bool | str, integrator: str, lowpass: float | None, runs
         raise InputSpecError("refine=True needs no lowpass, one training step dt and sampled states (not interval "
                          "averages)")
     if refine is False or not possible:
+        if warn and refine == "auto" and len(steps) > 1:
+            _warn_different_steps(steps)
         return {}
     Cpr, Cvr, Dur, y0 = maps
     target = data["y"] if not (np.any(Dur) or np.any(y0)) else _net_outputs(data["y"], data["u"], Dur, y0)
     return {"dt": float(dt), "y": target, "output_map": (Cpr, Cvr), "run_lengths": lengths, "refine": True,
             "integrator": integrator}
+
+
+def _warn_different_steps(steps: set[float]) -> None:
+    """Say that runs of different steps (``steps``) leave the SDP solution unchecked, and how to record them.
+
+    The refinement, the least-squares candidate, the order search and the training-miss check all simulate the
+    ROM at one step over every run, so they need one; each run at its own step would need a ROM per step.
+    """
+    listed = ", ".join(f"{step:g}" for step in sorted(steps))
+    warnings.warn(f"the training runs have different steps ({listed}): no output-error refinement, least-squares "
+                  f"candidate, order search or training-miss check (the ROM is the SDP solution, unchecked); "
+                  f"record every run at one step (snapshots --dt)", FmuOpinfWarning, stacklevel=4)
 
 
 def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
