@@ -1269,14 +1269,16 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     (:func:`~fmu_opinf.snapshots._window.quasi_static_pulse`: an FE bar with its first mode at 25 Hz, r = 2 and
     4-9 % off; the impulse is then shrunk to one period of the fastest significant frequency).  Says what it did.
 
-    Where the pulse first seems too narrow, a run without it tells whether the model accelerates under its own
-    constant load (:func:`~fmu_opinf.snapshots._window.accelerates_under_load`: a free body under ``f0``, a
-    non-zero input start or a ``--set`` value); from then on every pilot is judged net of that drift, so that the
-    loaded body gets the window of the body without the load (audit 70, finding 2: the drift, growing like
-    ``t**2``, kept the response 'moving', the impulse was widened to t0 = 2e6 s and refused after 70-118 s)."""
+    First a run without the pulse on the first pilot's grid tells whether the model rests
+    (:func:`_motion_without_pulse`).  Where it moves on its own (a constant load inside the model, a non-zero input
+    start or a ``--set`` value), every pilot is judged net of that run (``baseline``), so that the loaded model gets
+    the window of the model without the load: a free body accelerating under the load (audit 70, finding 2: the
+    drift, growing like ``t**2``, kept the response 'moving', the impulse was widened to t0 = 2e6 s and refused after
+    70-118 s), and an anchored slow model sagging under it (audit 71, F5: a 660 s mode sagging by thousands of
+    metres set the window, dt = 20, on which the 0.5 s pulse was never sampled).  A model at rest costs that one
+    short run and nothing else."""
     from ..signals import parse_signal
-    from ._window import (PulseTooNarrow, WindowRejected, accelerates_under_load, auto_window, check_window_step,
-                          input_activity)
+    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -1285,15 +1287,24 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                 f"width={default['width'] * factor:g}")
 
     factor, tries = 1.0, {"wider": 0, "narrower": 0}
-    drift: str | None = None   # how the model drifts under its own constant load, once seen (then judged net of it)
     amplitudes = default_amplitudes(source)
     scales = [a / _DEFAULT_AMPLITUDE for a in amplitudes]
+
+    def pilot_of(factor: float) -> Signal:
+        return _pilot_signal([impulse(factor, weight * scale)
+                              for weight, scale in zip(_pilot_weights(source.m), scales)], source)
+
+    moving = _motion_without_pulse(source, pilot_of(factor), thresholds)
+    baseline = _held_only(source) if moving else None   # every pilot is judged net of the model's own motion
+    if moving and not thresholds.get("quiet"):
+        print(f"the outputs move without the pulse ({moving}: a constant load inside the model, a non-zero input "
+              "start or a --set value): judging the response to the default impulse net of that motion",
+              file=sys.stderr)
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
                    for spec in default_training_inputs(source.m, pulse, amplitudes, held_starts(source))]
-        pilot = _pilot_signal([impulse(factor, weight * scale)
-                               for weight, scale in zip(_pilot_weights(source.m), scales)], source)
+        pilot = pilot_of(factor)
         width = input_activity(signals[0], source.m)[1]
 
         def too_wide(window: Any) -> bool:
@@ -1302,20 +1313,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
 
         try:
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide,
-                                 baseline=_held_only(source) if drift else None)
+                                 baseline=baseline)
         except PulseTooNarrow as slow:
-            if not drift and not tries["wider"]:
-                drift = accelerates_under_load(source, _held_only(source), slow.still_moving_at,
-                                               quiet=thresholds.get("quiet", True),
-                                               isolate=thresholds.get("isolate", False))
-                if drift:
-                    if not thresholds.get("quiet"):
-                        print(f"the model accelerates under its own constant load ({drift}): judging the "
-                              "response to the default impulse net of that drift", file=sys.stderr)
-                    continue
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
-                if drift:
-                    raise DataError(_accelerates_error(source, drift)) from None
+                if baseline is not None:
+                    raise DataError(_load_error(source, slow.still_moving_at, thresholds)) from None
                 pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
                 if pushing:
                     raise DataError(_pushed_without_rest(pushing, slow)) from None
@@ -1339,6 +1341,42 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
 def _held_only(source: Source) -> Signal:
     """The pilots' input without its pulses: every input held at the value the training runs hold it at."""
     return NoInput(source.m, held_starts(source))
+
+
+def _motion_without_pulse(source: Source, pilot: Signal, thresholds: dict[str, Any]) -> str | None:
+    """How the model moves on its own, its inputs held (:func:`_held_only`), over the grid of the first pilot of
+    ``pilot`` (:func:`~fmu_opinf.snapshots._window.largest_motion`: ``"y by 0.77 over t <= 10"``), or None where
+    it rests there (or the run failed: the pilots meet the failure and say it).  One run of the first pilot's
+    length: 200 steps over 10 s for the default impulse."""
+    from ._window import first_pilot_grid, largest_motion, response_without_pulse
+
+    held = response_without_pulse(source, _held_only(source), first_pilot_grid(source, pilot, **thresholds),
+                                  quiet=thresholds.get("quiet", True), isolate=thresholds.get("isolate", False))
+    return None if held is None else largest_motion(source, *held)
+
+
+#: Samples of the run without the pulse that :func:`_load_error` judges (as :func:`accelerates_under_load`).
+LOAD_SAMPLES = 2000
+
+
+def _load_error(source: Source, still_moving_at: float, thresholds: dict[str, Any]) -> str:
+    """The one-line refusal where no widening of the default impulse finds a window even net of the model's own
+    motion under its constant load: one run without the pulse up to where the last pilot still moved
+    (``still_moving_at``) tells a free body accelerating under it (:func:`_accelerates_error`) from a model whose
+    response to the load dominates the pulse's (its size said)."""
+    from ._window import drift_of, largest_motion, response_without_pulse
+
+    t = time_grid(still_moving_at / LOAD_SAMPLES, still_moving_at)
+    held = response_without_pulse(source, _held_only(source), t, quiet=thresholds.get("quiet", True),
+                                  isolate=thresholds.get("isolate", False))
+    drift = None if held is None else drift_of(source, *held)
+    if drift:
+        return _accelerates_error(source, drift)
+    size = (None if held is None else largest_motion(source, *held)) or f"over t <= {still_moving_at:g}"
+    return (f"{source_label(source)}: the response to the constant load dominates (without the pulse the outputs "
+            f"move, {size}: a load inside the model, a non-zero input start or a --set value), and no widening of "
+            "the default impulse finds a window even net of it; give --dt and --t-end for the window to record (the "
+            "fit learns the constant force); no file was written")
 
 
 def _accelerates_error(source: Source, drift: str) -> str:

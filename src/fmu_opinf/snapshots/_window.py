@@ -22,7 +22,8 @@ from ._record import MemorySink, as_signal, incomplete_error, record_run
 __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency",
            "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
-           "check_window_step", "warn_if_step_dependent", "accelerates_under_load"]
+           "check_window_step", "warn_if_step_dependent", "accelerates_under_load",
+           "response_without_pulse", "drift_of", "largest_motion", "first_pilot_grid"]
 
 
 #: A pulse this many times shorter than the fastest significant period only keeps the step small: once the next
@@ -1246,34 +1247,66 @@ def accelerates_under_load(source: Source, signal: Any, t_end: float, *, quiet: 
     the automatic window, judging the response to its pulse, widened the pulse to t0 = 2e6 s and ran for a minute
     before refusing (audit 70, finding 2).
 
-    The run is judged over its second half: some output whose range is at least :data:`OUTPUT_FLOOR` of the
-    largest changes there by :data:`DRIFT_SHARE` of its range, fits a parabola to :data:`DRIFT_FIT` of it, bends by
-    at least :data:`DRIFT_CURVATURE` of its change there (accelerates, does not coast), and moves away faster at the
-    end (the acceleration and the velocity agree in sign: not a decay towards rest).  A model far slower than
-    ``t_end`` may pass as well; its pilots, judged net of that response, then see its pulse response alone.  Outputs
-    that are only velocities (growing like ``t``) are not seen.
+    The run is judged over its second half (:func:`drift_of`).  Outputs that are only velocities (growing like
+    ``t``) are not seen.
 
     Returns
     -------
     str or None
-        A phrase naming the output and its growth, or None where the model does not drift so.
+        A phrase naming the output and its growth, or None where the model does not drift so (or the run failed).
     """
-    t = time_grid(t_end / samples, t_end)
+    held = response_without_pulse(source, signal, time_grid(t_end / samples, t_end), quiet=quiet, isolate=isolate)
+    return None if held is None else drift_of(source, *held)
+
+
+def response_without_pulse(source: Source, signal: Any, t: np.ndarray, *, quiet: bool = True,
+                           isolate: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """The times and outputs of a run of ``signal`` (the inputs held, no pulse) on the grid ``t``: what the model
+    does on its own under a constant load.  None where the run failed (the pilots then meet, and report, the same
+    failure)."""
     run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
-                              f"auto window: the response without the pulse (dt={t[1] - t[0]:g}, t_end={t_end:g})",
+                              f"auto window: the response without the pulse (dt={t[1] - t[0]:g}, t_end={t[-1]:g})",
                               pilot=True)
     if failure is not None:
         return None
-    y = np.asarray(run.y)[:, :run.k]
+    return np.asarray(t[:run.k]), np.asarray(run.y)[:, :run.k]
+
+
+def drift_of(source: Source, t: np.ndarray, y: np.ndarray) -> str | None:
+    """How the outputs ``y`` of a run without the pulse accelerate away (:func:`accelerates_under_load`), or None.
+
+    Some output whose range is at least :data:`OUTPUT_FLOOR` of the largest changes over the run's second half by
+    :data:`DRIFT_SHARE` of its range, fits a parabola to :data:`DRIFT_FIT` of it, bends by at least
+    :data:`DRIFT_CURVATURE` of its change there (accelerates, does not coast), and moves away faster at the end
+    (the acceleration and the velocity agree in sign: not a decay towards rest).  A model far slower than the run
+    may pass as well."""
     ranges = np.ptp(y, axis=1) if y.size else np.zeros(0)
     if not ranges.size or not ranges.max() > 0:
         return None
-    names = list(getattr(source, "output_names", None) or [f"y[{i}]" for i in range(len(ranges))])
-    half = t[:run.k] >= 0.5 * t[run.k - 1]
+    half = t >= 0.5 * t[-1]
     for i in np.argsort(-ranges):
-        if ranges[i] >= OUTPUT_FLOOR * ranges.max() and _parabolic(t[:run.k][half], y[i, half], ranges[i]):
-            return f"{names[i]} grows like t^2, by {ranges[i]:.3g} over t <= {t[run.k - 1]:g}"
+        if ranges[i] >= OUTPUT_FLOOR * ranges.max() and _parabolic(t[half], y[i, half], ranges[i]):
+            return f"{_output_names(source, len(ranges))[i]} grows like t^2, by {ranges[i]:.3g} over t <= {t[-1]:g}"
     return None
+
+
+def largest_motion(source: Source, t: np.ndarray, y: np.ndarray) -> str | None:
+    """The output that moves most in a run without the pulse, and by how much (``"y by 0.77 over t <= 10"``), or
+    None where every output stays constant: the model rests at an equilibrium (the test of a motionless pilot,
+    :func:`_judged_pilot`: a change above 1e-12 of the outputs' largest magnitude)."""
+    if not y.size:
+        return None
+    ranges = np.ptp(y, axis=1)
+    if not np.any(ranges > 1e-12 * max(float(np.abs(y).max()), 1e-300)):
+        return None
+    i = int(np.argmax(ranges))
+    return f"{_output_names(source, len(ranges))[i]} by {ranges[i]:.3g} over t <= {t[-1]:g}"
+
+
+def _output_names(source: Source, p: int) -> list[str]:
+    """The source's output names, or ``y[i]`` where it gives none."""
+    names = list(getattr(source, "output_names", None) or [])
+    return names if len(names) == p else [f"y[{i}]" for i in range(p)]
 
 
 def _parabolic(t: np.ndarray, y: np.ndarray, span: float) -> bool:
@@ -1457,6 +1490,18 @@ def _first_pilot(source: Source, t_input: float, width: float | None, pilot_dt: 
         return max(T, 100.0 * max_dt), max_dt  # a coarse given step: still enough samples to analyse
     dt = dt if max_dt is None else min(dt, max_dt)
     return T, on_internal_steps(dt, fixed_internal_step(source))
+
+
+def first_pilot_grid(source: Source, signal: Any, *, pilot_dt: float | None = None, pilot_t_end: float | None = None,
+                     max_dt: float | None = None, exact_dt: bool = False, t_limit: float | None = None,
+                     **_: Any) -> np.ndarray:
+    """The grid of :func:`auto_window`'s first pilot of ``signal`` (before any step search), from the same keywords
+    (others are ignored): a short run that a caller can spend on a question about the model before the pilots
+    (whether it rests without the pulse, :func:`largest_motion`)."""
+    t_input, width = input_activity(signal, source.m)
+    max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
+    T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
+    return time_grid(dt, T if t_limit is None else min(T, float(t_limit)))
 
 
 def _pilot_start(t_input: float, width: float | None, pilot_dt: float | None,
