@@ -1330,12 +1330,36 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             factor *= _narrower_width(rejected.window, width, thresholds) / width
             why = _why_narrower(rejected.window, width)
         else:
-            check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
-                              isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
-                              exact_dt=thresholds.get("exact_dt", False))
-            return window, signals
+            if not (_steps_over_pulse(source, pilot, window) and tries["wider"] < RESCALE_TRIES
+                    and not tries["narrower"]):
+                check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
+                                  isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
+                                  exact_dt=thresholds.get("exact_dt", False))
+                return window, signals
+            tries["wider"] += 1
+            factor *= RESCALE
+            why = (f"the window's step dt={window.dt:g}, set by the model's slow motion, steps over the default "
+                   f"impulse (width {width:g}): the model is too slow for it")
         if not thresholds.get("quiet"):
             print(f"{why}; trying {impulse(factor)}", file=sys.stderr)
+
+
+def _steps_over_pulse(source: Source, pilot: Signal, window: Any) -> bool:
+    """Whether the window's grid misses the pulse of ``pilot`` on some input it drives: the input is held at every
+    sample that drives a step (all but the last), so a recording would never feel that pulse.  The pilots judge
+    the response, not the input: a slow mode far above the pulse's response in energy sets a step of seconds, and
+    the recording was refused with 'is zero at every sample of the grid' (audit 71, F5: dt = 5 against a 0.5 s
+    pulse on an anchored chain with a 160 s mode, loaded or not); the default training widens its impulse then."""
+    from ._window import input_activity
+
+    t_input, width = input_activity(pilot, source.m)
+    held = held_starts(source)
+    if width is None or held.shape != (source.m,):
+        return False
+    driven = np.any(np.atleast_2d(pilot.sample(np.linspace(0.0, t_input, 2001))) != held[:, None], axis=1)
+    acting = time_grid(window.dt, window.t_end)[:-1]
+    felt = np.any(np.atleast_2d(pilot.sample(acting)) != held[:, None], axis=1)
+    return bool(np.any(driven & ~felt))
 
 
 def _held_only(source: Source) -> Signal:
