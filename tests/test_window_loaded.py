@@ -113,7 +113,7 @@ def test_the_unloaded_slow_chain_widens_the_impulse_its_window_would_step_over(f
         source.close()
     assert [signal.spec for signal in signals] == ["impulse:amplitude=100,t0=200,width=50;none",
                                                    "none;impulse:amplitude=100,t0=200,width=50"]
-    assert window.dt == 5.0 and window.dt * 10 <= 50.0
+    assert window.dt == 5.0   # ten samples across the widened pulse
 
 
 def _calls_of_auto_window(monkeypatch, fmu, answer) -> tuple[list, list, object]:
@@ -126,13 +126,13 @@ def _calls_of_auto_window(monkeypatch, fmu, answer) -> tuple[list, list, object]
     calls, held_runs = [], []
     monkeypatch.setattr(_window, "auto_window", lambda source, pilot, **options: (calls.append(options),
                                                                                   answer(len(calls)))[1])
-    without_pulse = _window.response_without_pulse
+    without_pulse = getattr(_window, "response_without_pulse", None)
 
     def spy(source, signal, t, **options):
         held_runs.append(len(t))
         return without_pulse(source, signal, t, **options)
 
-    monkeypatch.setattr(_window, "response_without_pulse", spy)
+    monkeypatch.setattr(_window, "response_without_pulse", spy, raising=False)   # (absent before audit 71)
     source = open_source(fmu)
     try:
         ended = _default_training_window(source, {"quiet": True})
