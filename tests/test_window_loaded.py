@@ -90,9 +90,9 @@ def test_an_anchored_slow_chain_under_a_constant_load_gets_the_window_of_the_cha
     said_base = capsys.readouterr()
     assert main(["snapshots", str(fmus[loaded]), "-o", str(tmp_path / "load.h5")]) == 0
     said = capsys.readouterr()
+    assert _window_line(said.out) == _window_line(said_base.out)
     assert "the outputs move without the pulse (y[1] by " in said.err and "warning" not in said.err, said.err
     assert "move without the pulse" not in said_base.err, said_base.err
-    assert _window_line(said.out) == _window_line(said_base.out)
     for run in Snapshots.load(tmp_path / "load.h5").runs:
         assert ("width=50" in run.attrs["input_spec"]) == (ground == 0.005)
         assert _worst_miss(run, _sagging(0.5, loaded, ground)) < EXACT
