@@ -1264,9 +1264,8 @@ def response_without_pulse(source: Source, signal: Any, t: np.ndarray, *, quiet:
     """The times and outputs of a run of ``signal`` (the inputs held, no pulse) on the grid ``t``: what the model
     does on its own under a constant load.  None where the run failed (the pilots then meet, and report, the same
     failure)."""
-    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
-                              f"auto window: the response without the pulse (dt={t[1] - t[0]:g}, t_end={t[-1]:g})",
-                              pilot=True)
+    label = f"auto window: the response without the pulse (dt={t[1] - t[0]:g}, t_end={t[-1]:g})"
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, pilot=True, label=label)
     if failure is not None:
         return None
     return np.asarray(t[:run.k]), np.asarray(run.y)[:, :run.k]
