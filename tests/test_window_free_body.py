@@ -4,13 +4,13 @@ steps (audit 70, findings 2 and 9).
 A free body (a rigid-body mode, no spring to ground) under a constant load, inside the model (``f0``) or from a
 ``--set`` value on an input, accelerates on its own: its outputs grow like ``t**2`` whatever the pulse does.  Before,
 the window widened the default impulse three times, to t0 = 2e6 s, and refused after 70-118 s with advice that did
-not fit ("scale the input"); with ``--dt 0.02 --t-end 60`` the recording was exact.  The window now sees, from a run
-without the pulse on the first pilot's grid, that the body moves on its own and judges every pilot net of that run
-(since audit 71, F5; at first, from audit 70, only after a pulse too narrow and a t^2 drift): the loaded body gets the
-window of the same body without the load.  A co-simulation whose embedded solver discards steps above 0.01 s
-stopped the default chain ("discarded the communication step 0.05 ... give a smaller --dt, e.g. 0.01"); the window's
-step search now takes a discarded pilot step like one where the co-simulation overflows.  Recordings are checked
-against the exact zero-order-hold solution (:func:`fmu_opinf.lti_fmus.zoh_response`).
+not fit ("scale the input"); with ``--dt 0.02 --t-end 60`` the recording was exact.  The window now sees, from the
+first pilot's samples before its pulse acts, that the body moves on its own and judges every pilot net of a run
+without the pulse (since audit 71, F5; at first, from audit 70, only after a pulse too narrow and a t^2 drift): the
+loaded body gets the window of the same body without the load.  A co-simulation whose embedded solver discards
+steps above 0.01 s stopped the default chain ("discarded the communication step 0.05 ... give a smaller --dt, e.g.
+0.01"); the window's step search now takes a discarded pilot step like one where the co-simulation overflows.
+Recordings are checked against the exact zero-order-hold solution (:func:`fmu_opinf.lti_fmus.zoh_response`).
 """
 
 from __future__ import annotations
@@ -156,20 +156,25 @@ def test_a_drift_accelerates_away_a_coasting_or_settling_output_does_not():
 
 
 def test_a_drifting_body_whose_window_is_not_found_even_net_of_the_drift_is_refused_in_one_line(fmus, monkeypatch):
-    """The decision alone, with the window stubbed to find nothing (a pulse always too narrow): the body moves
-    without the pulse on the first pilot's grid, so the impulse and its three widenings are all judged net of the
-    run with the inputs held, then a run without the pulse over the last pilot's 2000 s shows the t^2 drift, and one
-    line says the model accelerates under its own constant load and what to give.  Before audit 70 the widenings
-    ran on the raw response and the pulse refusal was re-raised; before audit 71 the first try ran on the raw
-    response too."""
+    """The decision alone, with the window stubbed to find nothing after its first pilot (a pulse always too
+    narrow): the body moves before the first pilot's pulse acts, so the impulse and its three widenings are all
+    judged net of the run with the inputs held, then a run without the pulse over the last pilot's 2000 s shows
+    the t^2 drift, and one line says the model accelerates under its own constant load and what to give.  Before
+    audit 70 the widenings ran on the raw response and the pulse refusal was re-raised; before audit 71 the first
+    try ran on the raw response too."""
     from fmu_opinf.errors import DataError
     from fmu_opinf.snapshots import _window
     from fmu_opinf.snapshots._record import _default_training_window
 
-    calls = []
+    calls, real_window = [], _window.auto_window
 
-    def nothing(source, pilot, **options):
+    def nothing(source, pilot, **options):   # the first pilot (it tells that the body moves), then nothing
         calls.append(options.get("baseline"))
+        if len(calls) == 1:
+            try:
+                real_window(source, pilot, **{**options, "max_pilots": 1})
+            except DataError:
+                pass
         raise _window.PulseTooNarrow("auto window: the training pulse is far shorter", 2000.0)
 
     monkeypatch.setattr(_window, "auto_window", nothing)
@@ -179,7 +184,7 @@ def test_a_drifting_body_whose_window_is_not_found_even_net_of_the_drift_is_refu
             _default_training_window(source, {"quiet": True})
     finally:
         source.close()
-    assert len(calls) == 4 and all(isinstance(held, NoInput) for held in calls), calls
+    assert len(calls) == 4 and all(isinstance(held.held, NoInput) and held.moving for held in calls), calls
     text = str(info.value)
     assert "\n" not in text and "give --dt and --t-end" in text and "over t <= 2000" in text, text
     assert "the model accelerates under its own constant load (a free body under gravity or thrust: y[1] grows like " \

@@ -20,7 +20,6 @@ from conftest import build_fmu_set
 from fmu_opinf import lti_fmus
 from fmu_opinf.cli import main
 from fmu_opinf.errors import DataError
-from fmu_opinf.signals import NoInput
 from fmu_opinf.snapshots import Snapshots
 from fmu_opinf.sources import open_source
 
@@ -116,23 +115,41 @@ def test_the_unloaded_slow_chain_widens_the_impulse_its_window_would_step_over(f
     assert window.dt == 5.0   # ten samples across the widened pulse
 
 
+def _real_window_functions() -> tuple:
+    from fmu_opinf.snapshots import _window
+
+    return _window.auto_window, _window.record_run
+
+
+_REAL_WINDOW, _REAL_RUN = _real_window_functions()
+
+
 def _calls_of_auto_window(monkeypatch, fmu, answer) -> tuple[list, list, object]:
-    """Run the default training's window on ``fmu`` with :func:`auto_window` replaced by ``answer`` (its keywords
-    are recorded), and every run without the pulse recorded (its grid's length); returns the keywords, the lengths
-    and what the window ended in (the window, or the error)."""
+    """Run the default training's window on ``fmu`` with :func:`auto_window` stubbed: its first call runs the real
+    first pilot (which tells whether the model moves), and every call ends in ``answer(call number)`` (a window, or
+    an error it raises); returns the calls' keywords, the runs made (the input's kind, the grid's length) and what
+    the window ended in (the window, or the error)."""
     from fmu_opinf.snapshots import _window
     from fmu_opinf.snapshots._record import _default_training_window
 
-    calls, held_runs = [], []
-    monkeypatch.setattr(_window, "auto_window", lambda source, pilot, **options: (calls.append(options),
-                                                                                  answer(len(calls)))[1])
-    without_pulse = getattr(_window, "response_without_pulse", None)
+    calls, runs = [], []
+    real_window, real_run = _REAL_WINDOW, _REAL_RUN   # (not this test's stubs of an earlier call)
 
-    def spy(source, signal, t, **options):
-        held_runs.append(len(t))
-        return without_pulse(source, signal, t, **options)
+    def first_pilot_then_answer(source, pilot, **options):
+        calls.append(options)
+        if len(calls) == 1:   # the first pilot of the first try tells whether the model moves
+            try:
+                real_window(source, pilot, **{**options, "max_pilots": 1})
+            except DataError:   # (the pilots do not settle within one)
+                pass
+        return answer(len(calls))
 
-    monkeypatch.setattr(_window, "response_without_pulse", spy, raising=False)   # (absent before audit 71)
+    def spy(source, signal, t, *args, **kwargs):
+        runs.append((type(signal).__name__, len(t)))
+        return real_run(source, signal, t, *args, **kwargs)
+
+    monkeypatch.setattr(_window, "auto_window", first_pilot_then_answer)
+    monkeypatch.setattr(_window, "record_run", spy)
     source = open_source(fmu)
     try:
         ended = _default_training_window(source, {"quiet": True})
@@ -140,7 +157,7 @@ def _calls_of_auto_window(monkeypatch, fmu, answer) -> tuple[list, list, object]
         ended = error
     finally:
         source.close()
-    return calls, held_runs, ended
+    return calls, runs, ended
 
 
 def _fixed_window(_: int):
@@ -150,36 +167,35 @@ def _fixed_window(_: int):
                   pilots=1, points_per_period=20.0, energy=0.999, fade=0.01)
 
 
-def test_a_loaded_model_is_judged_net_of_its_own_motion_from_the_first_pilot_and_one_at_rest_is_not(fmus,
-                                                                                                   monkeypatch):
-    """The decision alone (the window stubbed to settle at once): the loaded chain's first window is judged net of
-    the run with the inputs held, that run found by one run without the pulse on the first pilot's grid (10 s, 201
-    samples); the chain without the load rests there and is judged as before, the same one short run its only
-    extra cost.  Before, the loaded chain's first try ran on the raw response (baseline None): a net judgement came
+def test_the_first_pilot_tells_a_loaded_model_from_one_at_rest_at_no_extra_run(fmus, monkeypatch):
+    """The decision alone (the window's first pilot, then stubbed to settle): the loaded chain's first
+    pilot (10 s, 201 samples) moves before its pulse acts at 1.75 s, so it is judged net of a run with the inputs
+    held on its grid, and so is every later pilot; the chain without the load rests there and is judged as before,
+    by the pilot's run alone.  Before, the loaded chain's first try ran on the raw response: a net judgement came
     only after a pulse too narrow and a t^2 drift, which an anchored chain never shows."""
-    calls, held_runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], _fixed_window)
-    assert len(calls) == 1 and isinstance(calls[0]["baseline"], NoInput), calls
-    assert held_runs == [201] and ended[0].dt == 0.05
-    calls, held_runs, ended = _calls_of_auto_window(monkeypatch, fmus["SagBase"], _fixed_window)
-    assert len(calls) == 1 and calls[0]["baseline"] is None and held_runs == [201] and ended[0].dt == 0.05
+    calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], _fixed_window)
+    assert len(calls) == 1 and calls[0]["baseline"].moving.startswith("y[1] by "), calls
+    assert runs == [("StackedSignal", 201), ("NoInput", 201)] and ended[0].dt == 0.05, runs
+    calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["SagBase"], _fixed_window)
+    assert len(calls) == 1 and calls[0]["baseline"].moving is None and runs == [("StackedSignal", 201)], runs
 
 
 def test_a_loaded_anchored_model_whose_window_is_not_found_even_net_of_the_load_is_refused_in_one_line(
         fmus, monkeypatch):
-    """The window stubbed to find nothing (a pulse always too narrow): the first impulse and its three widenings
-    all judged net of the run without the pulse, then one line saying that the response to the constant load
-    dominates, with its size (the tip, y[1], swings about its static sag of 300 m through a range of 600 over the
-    last pilot's 2000 s), and to give --dt and --t-end.  The chain is anchored: no t^2 drift is claimed.
-    Before: the raw response judged, and the pulse refusal re-raised ('give an input on the model's time
-    scale')."""
+    """The window stubbed to find nothing after the first pilot (a pulse always too narrow): the first impulse and
+    its three widenings all judged net of the run without the pulse, then one line saying that the
+    response to the constant load dominates, with its size (the tip, y[1], swings about its static sag of 300 m
+    through a range of 600 over the last pilot's 2000 s), and to give --dt and --t-end.  The chain is anchored: no
+    t^2 drift is claimed.  Before: the raw response judged, and the pulse refusal re-raised ('give an input on the
+    model's time scale')."""
     from fmu_opinf.snapshots import _window
 
     def nothing(_: int):
         raise _window.PulseTooNarrow("auto window: the training pulse is far shorter", 2000.0)
 
-    calls, held_runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], nothing)
-    assert len(calls) == 4 and all(isinstance(call["baseline"], NoInput) for call in calls), calls
-    assert held_runs == [201, 2001], held_runs
+    calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], nothing)
+    assert len(calls) == 4 and all(call["baseline"].moving for call in calls), calls
+    assert runs == [("StackedSignal", 201), ("NoInput", 201), ("NoInput", 2001)], runs   # the last: the refusal's
     text = str(ended)
     assert isinstance(ended, DataError) and "\n" not in text, text
     assert "the response to the constant load dominates (without the pulse the outputs move, y[1] by " in text, text

@@ -1269,16 +1269,16 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     (:func:`~fmu_opinf.snapshots._window.quasi_static_pulse`: an FE bar with its first mode at 25 Hz, r = 2 and
     4-9 % off; the impulse is then shrunk to one period of the fastest significant frequency).  Says what it did.
 
-    First a run without the pulse on the first pilot's grid tells whether the model rests
-    (:func:`_motion_without_pulse`).  Where it moves on its own (a constant load inside the model, a non-zero input
-    start or a ``--set`` value), every pilot is judged net of that run (``baseline``), so that the loaded model gets
-    the window of the model without the load: a free body accelerating under the load (audit 70, finding 2: the
-    drift, growing like ``t**2``, kept the response 'moving', the impulse was widened to t0 = 2e6 s and refused after
-    70-118 s), and an anchored slow model sagging under it (audit 71, F5: a 660 s mode sagging by thousands of
-    metres set the window, dt = 20, on which the 0.5 s pulse was never sampled).  A model at rest costs that one
-    short run and nothing else."""
+    The first pilot's samples before its pulse acts tell whether the model rests
+    (:class:`~fmu_opinf.snapshots._window.IfMoving`).  Where it moves on its own (a constant load inside the model, a
+    non-zero input start or a ``--set`` value), every pilot is judged net of a run without the pulse on its grid
+    (``baseline``), so that the loaded model gets the window of the model without the load: a free body
+    accelerating under the load (audit 70, finding 2: the drift, growing like ``t**2``, kept the response 'moving',
+    the impulse was widened to t0 = 2e6 s and refused after 70-118 s), and an anchored slow model sagging under it
+    (audit 71, F5: a 660 s mode sagging by thousands of metres set the window, dt = 20, on which the 0.5 s pulse was
+    never sampled).  A model at rest costs no extra run."""
     from ..signals import parse_signal
-    from ._window import PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
+    from ._window import IfMoving, PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
 
     default = parse_signal(DEFAULT_TRAINING_INPUT).params
 
@@ -1286,7 +1286,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         return (f"impulse:amplitude={default['amplitude'] * weight:g},t0={default['t0'] * factor:g},"
                 f"width={default['width'] * factor:g}")
 
-    factor, tries = 1.0, {"wider": 0, "narrower": 0}
+    factor, tries, said = 1.0, {"wider": 0, "narrower": 0}, []
     amplitudes = default_amplitudes(source)
     scales = [a / _DEFAULT_AMPLITUDE for a in amplitudes]
 
@@ -1294,12 +1294,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         return _pilot_signal([impulse(factor, weight * scale)
                               for weight, scale in zip(_pilot_weights(source.m), scales)], source)
 
-    moving = _motion_without_pulse(source, pilot_of(factor), thresholds)
-    baseline = _held_only(source) if moving else None   # every pilot is judged net of the model's own motion
-    if moving and not thresholds.get("quiet"):
-        print(f"the outputs move without the pulse ({moving}: a constant load inside the model, a non-zero input "
-              "start or a --set value): judging the response to the default impulse net of that motion",
-              file=sys.stderr)
+    baseline = IfMoving(_held_only(source))   # told by the first pilot: net of the model's own motion, if any
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
@@ -1315,8 +1310,9 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide,
                                  baseline=baseline)
         except PulseTooNarrow as slow:
+            _say_moving(baseline, said, thresholds)
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
-                if baseline is not None:
+                if baseline.moving:
                     raise DataError(_load_error(source, slow.still_moving_at, thresholds)) from None
                 pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
                 if pushing:
@@ -1326,10 +1322,12 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             factor *= RESCALE
             why = "the model is too slow for the default impulse to be resolved"
         except WindowRejected as rejected:
+            _say_moving(baseline, said, thresholds)
             tries["narrower"] += 1
             factor *= _narrower_width(rejected.window, width, thresholds) / width
             why = _why_narrower(rejected.window, width)
         else:
+            _say_moving(baseline, said, thresholds)
             if not (_steps_over_pulse(source, pilot, window) and tries["wider"] < RESCALE_TRIES
                     and not tries["narrower"]):
                 check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
@@ -1367,16 +1365,16 @@ def _held_only(source: Source) -> Signal:
     return NoInput(source.m, held_starts(source))
 
 
-def _motion_without_pulse(source: Source, pilot: Signal, thresholds: dict[str, Any]) -> str | None:
-    """How the model moves on its own, its inputs held (:func:`_held_only`), over the grid of the first pilot of
-    ``pilot`` (:func:`~fmu_opinf.snapshots._window.largest_motion`: ``"y by 0.77 over t <= 10"``), or None where
-    it rests there (or the run failed: the pilots meet the failure and say it).  One run of the first pilot's
-    length: 200 steps over 10 s for the default impulse."""
-    from ._window import first_pilot_grid, largest_motion, response_without_pulse
-
-    held = response_without_pulse(source, _held_only(source), first_pilot_grid(source, pilot, **thresholds),
-                                  quiet=thresholds.get("quiet", True), isolate=thresholds.get("isolate", False))
-    return None if held is None else largest_motion(source, *held)
+def _say_moving(baseline: Any, said: list[str], thresholds: dict[str, Any]) -> None:
+    """Say once (unless quiet) that the first pilot showed the model moving without the pulse
+    (:class:`~fmu_opinf.snapshots._window.IfMoving`), so that the pilots are judged net of that motion; ``said``
+    keeps what was said."""
+    if baseline.moving and baseline.moving is not ... and not said:
+        said.append(baseline.moving)
+        if not thresholds.get("quiet"):
+            print(f"the outputs move without the pulse ({baseline.moving}: a constant load inside the model, a "
+                  "non-zero input start or a --set value): judging the response to the default impulse net of that "
+                  "motion", file=sys.stderr)
 
 
 #: Samples of the run without the pulse that :func:`_load_error` judges (as :func:`accelerates_under_load`).

@@ -23,7 +23,7 @@ __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_s
            "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
            "check_window_step", "warn_if_step_dependent", "accelerates_under_load",
-           "response_without_pulse", "drift_of", "largest_motion", "first_pilot_grid"]
+           "response_without_pulse", "drift_of", "largest_motion", "IfMoving"]
 
 
 #: A pulse this many times shorter than the fastest significant period only keeps the step small: once the next
@@ -529,11 +529,12 @@ def auto_window(
         there, and a pilot that reaches it with its step resolved settles: the window ends there
         (``stopped_by="limit"``; audit 70, F3/F5: the pilots ran to t = 550 past a table ending at 120 and past an
         FMU's termination at t = 30, whatever --t-end said).
-    baseline : Signal, optional
+    baseline : Signal or IfMoving, optional
         An input (the inputs held, no pulse) whose response is subtracted from every pilot's outputs before they
         are judged: the window follows the response to ``signal`` net of what the model does on its own, a free
-        body's drift under its own constant load (:func:`accelerates_under_load`; audit 70, finding 2).  Each
-        pilot then costs a second run on its grid.
+        body's drift under its own constant load (:func:`accelerates_under_load`; audit 70, finding 2), an anchored
+        slow model's sag (audit 71, F5).  Each pilot then costs a second run on its grid.  An :class:`IfMoving`
+        applies only where the first pilot shows the model moving before the pulse acts.
 
     Returns
     -------
@@ -1201,6 +1202,51 @@ def _alias_check(source: Source, signal: Any, dt: float, T: float, t_input: floa
     return _AliasCheck(fine, run, seen.f_max, seen.f_max > 0.5 / dt)
 
 
+class IfMoving:
+    """A ``baseline`` for :func:`auto_window` that applies only where the model moves on its own (a constant load
+    inside the model, a non-zero input start, a ``--set`` value): the first pilot run analysed tells it, from its
+    samples before the pulse acts (the inputs are held there: a run without the pulse, at no extra run), or, where
+    fewer than two samples precede the pulse, from one run of ``held`` on that pilot's grid.
+
+    Attributes
+    ----------
+    held : Signal
+        The pilots' input without its pulses (every input held).
+    moving : str or None
+        How the outputs moved without the pulse (:func:`largest_motion`), None where the model rests; ``...``
+        (Ellipsis) until a pilot has told.
+    """
+
+    def __init__(self, held: Any) -> None:
+        self.held = held
+        self.moving: Any = ...
+
+    def decided(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool,
+                isolate: bool) -> Any:
+        """The baseline to subtract from a pilot of ``signal`` with outputs ``y`` on ``t``: ``held`` where the
+        model moves on its own, None where it rests (told once, by the first pilot)."""
+        if self.moving is ...:
+            before = _samples_before_pulse(signal, self.held, t)
+            if before >= 2:
+                self.moving = largest_motion(source, t[:before], np.atleast_2d(y)[:, :before])
+            else:
+                run = response_without_pulse(source, self.held, t, quiet=quiet, isolate=isolate)
+                self.moving = None if run is None else largest_motion(source, *run)
+        return self.held if self.moving else None
+
+
+def _samples_before_pulse(signal: Any, held: Any, t: np.ndarray) -> int:
+    """How many leading samples of a run of ``signal`` on ``t`` are those of a run of ``held``: every input takes its
+    held value at them (an output at a sample may feel the input at that sample directly, so the first sample at
+    which the pulse acts is not counted)."""
+    u = np.atleast_2d(np.asarray(signal.sample(t), dtype=float))
+    h = np.atleast_2d(np.asarray(held.sample(t[:1]), dtype=float))
+    if u.shape[0] != h.shape[0]:
+        return 0
+    acting = np.nonzero(np.any(u != h, axis=0))[0]
+    return int(acting[0]) if acting.size else len(t)
+
+
 def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, energy: float, fade: float,
                    growth: float, quiet: bool, isolate: bool, label: str = "auto window: pilot run",
                    run: Any = None, baseline: Any = None) -> _Pilot:
@@ -1212,6 +1258,8 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         if failure is not None:
             raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
+    if isinstance(baseline, IfMoving):
+        baseline = baseline.decided(source, signal, t, y, quiet, isolate)
     if baseline is not None:
         y = y - _outputs_of(source, baseline, t, quiet, isolate, f"{label}: its drift without the pulse")
     with np.errstate(over="ignore", invalid="ignore"):
@@ -1489,18 +1537,6 @@ def _first_pilot(source: Source, t_input: float, width: float | None, pilot_dt: 
         return max(T, 100.0 * max_dt), max_dt  # a coarse given step: still enough samples to analyse
     dt = dt if max_dt is None else min(dt, max_dt)
     return T, on_internal_steps(dt, fixed_internal_step(source))
-
-
-def first_pilot_grid(source: Source, signal: Any, *, pilot_dt: float | None = None, pilot_t_end: float | None = None,
-                     max_dt: float | None = None, exact_dt: bool = False, t_limit: float | None = None,
-                     **_: Any) -> np.ndarray:
-    """The grid of :func:`auto_window`'s first pilot of ``signal`` (before any step search), from the same keywords
-    (others are ignored): a short run that a caller can spend on a question about the model before the pilots
-    (whether it rests without the pulse, :func:`largest_motion`)."""
-    t_input, width = input_activity(signal, source.m)
-    max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
-    T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
-    return time_grid(dt, T if t_limit is None else min(T, float(t_limit)))
 
 
 def _pilot_start(t_input: float, width: float | None, pilot_dt: float | None,
