@@ -600,6 +600,8 @@ def auto_window(
 
     def reject_first_pilot(run: Any) -> None:
         t = time_grid(dt, T)
+        if isinstance(baseline, IfMoving) and baseline.tell(source, signal, t, np.asarray(run.y), quiet, isolate):
+            return  # a run without the pulse would be needed first: the pilots judge (and reject) it
         try:
             seen = _analyse_pilot(source, signal, t, t_input, energy, fade, growth, quiet, isolate, run=run,
                                   baseline=baseline)
@@ -1220,11 +1222,11 @@ class IfMoving:
     def __init__(self, held: Any) -> None:
         self.held = held
         self.moving: Any = ...
+        self._outputs: dict[tuple[float, float, int], np.ndarray] = {}
 
-    def decided(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool,
-                isolate: bool) -> Any:
-        """The baseline to subtract from a pilot of ``signal`` with outputs ``y`` on ``t``: ``held`` where the
-        model moves on its own, None where it rests (told once, by the first pilot)."""
+    def tell(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool, isolate: bool) -> Any:
+        """Whether the model moves on its own (:attr:`moving`), told once, by the first pilot: ``y``, the outputs of
+        ``signal`` on the grid ``t``."""
         if self.moving is ...:
             before = _samples_before_pulse(signal, self.held, t)
             if before >= 2:
@@ -1232,7 +1234,18 @@ class IfMoving:
             else:
                 run = response_without_pulse(source, self.held, t, quiet=quiet, isolate=isolate)
                 self.moving = None if run is None else largest_motion(source, *run)
-        return self.held if self.moving else None
+        return self.moving
+
+    def net(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool, isolate: bool,
+            label: str) -> np.ndarray:
+        """The outputs ``y`` of a pilot of ``signal`` on ``t`` net of a run of ``held`` on the same grid where the
+        model moves on its own (that run made once per grid), as they are where it rests."""
+        if not self.tell(source, signal, t, y, quiet, isolate):
+            return y
+        key = (float(t[0]), float(t[1] - t[0]), len(t))
+        if key not in self._outputs:
+            self._outputs[key] = _outputs_of(source, self.held, t, quiet, isolate, label)
+        return y - self._outputs[key]
 
 
 def _samples_before_pulse(signal: Any, held: Any, t: np.ndarray) -> int:
@@ -1259,8 +1272,8 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
             raise incomplete_error(failure, run, None)
     y = np.asarray(run.y)
     if isinstance(baseline, IfMoving):
-        baseline = baseline.decided(source, signal, t, y, quiet, isolate)
-    if baseline is not None:
+        y = baseline.net(source, signal, t, y, quiet, isolate, f"{label}: its drift without the pulse")
+    elif baseline is not None:
         y = y - _outputs_of(source, baseline, t, quiet, isolate, f"{label}: its drift without the pulse")
     with np.errstate(over="ignore", invalid="ignore"):
         return _judged_pilot(source, signal, t, y, t_input, energy, fade)
