@@ -1312,7 +1312,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         except PulseTooNarrow as slow:
             _say_moving(baseline, said, thresholds)
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
-                if baseline.moving:
+                if baseline.moves:
                     raise DataError(_load_error(source, slow.still_moving_at, thresholds)) from None
                 pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
                 if pushing:
@@ -1369,7 +1369,7 @@ def _say_moving(baseline: Any, said: list[str], thresholds: dict[str, Any]) -> N
     """Say once (unless quiet) that the first pilot showed the model moving without the pulse
     (:class:`~fmu_opinf.snapshots._window.IfMoving`), so that the pilots are judged net of that motion; ``said``
     keeps what was said."""
-    if baseline.moving and baseline.moving is not ... and not said:
+    if baseline.moves and not said:
         said.append(baseline.moving)
         if not thresholds.get("quiet"):
             print(f"the outputs move without the pulse ({baseline.moving}: a constant load inside the model, a "

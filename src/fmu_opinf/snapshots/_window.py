@@ -1224,6 +1224,11 @@ class IfMoving:
         self.moving: Any = ...
         self._outputs: dict[tuple[float, float, int], np.ndarray] = {}
 
+    @property
+    def moves(self) -> bool:
+        """Whether a pilot has told that the model moves on its own."""
+        return self.moving is not ... and bool(self.moving)
+
     def tell(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool, isolate: bool) -> Any:
         """Whether the model moves on its own (:attr:`moving`), told once, by the first pilot: ``y``, the outputs of
         ``signal`` on the grid ``t``."""
