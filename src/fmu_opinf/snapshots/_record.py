@@ -1270,9 +1270,10 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     4-9 % off; the impulse is then shrunk to one period of the fastest significant frequency).  Says what it did.
 
     The first pilot's samples before its pulse acts tell whether the model rests
-    (:class:`~fmu_opinf.snapshots._window.IfMoving`).  Where it moves on its own (a constant load inside the model, a
-    non-zero input start or a ``--set`` value), every pilot is judged net of a run without the pulse on its grid
-    (``baseline``), so that the loaded model gets the window of the model without the load: a free body
+    (:class:`~fmu_opinf.snapshots._window.IfMoving`).  Where the pilots as they are find no window (the pulse too
+    narrow, or a step that steps over it) and the model moves on its own (a constant load inside the model, a
+    non-zero input start or a ``--set`` value), the same impulse is tried again with every pilot judged net of a run
+    without the pulse on its grid (``baseline``, :func:`_armed_now`), so that the loaded model gets the window of the model without the load: a free body
     accelerating under the load (audit 70, finding 2: the drift, growing like ``t**2``, kept the response 'moving',
     the impulse was widened to t0 = 2e6 s and refused after 70-118 s), and an anchored slow model sagging under it
     (audit 71, F5: a 660 s mode sagging by thousands of metres set the window, dt = 20, on which the 0.5 s pulse was
@@ -1294,7 +1295,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         return _pilot_signal([impulse(factor, weight * scale)
                               for weight, scale in zip(_pilot_weights(source.m), scales)], source)
 
-    baseline = IfMoving(_held_only(source))   # told by the first pilot: net of the model's own motion, if any
+    baseline = IfMoving(_held_only(source))   # armed where the pilots as they are find no window (_armed_now)
     while True:
         pulse = impulse(factor)
         signals = [as_signal(spec, source.m, source)
@@ -1310,9 +1311,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             window = auto_window(source, pilot, **thresholds, check_chosen_step=False, reject=too_wide,
                                  baseline=baseline)
         except PulseTooNarrow as slow:
+            if _armed_now(baseline):
+                continue
             _say_moving(baseline, said, thresholds)
             if tries["wider"] == RESCALE_TRIES or tries["narrower"]:
-                if baseline.moves:
+                if baseline.armed and baseline.moves:
                     raise DataError(_load_error(source, slow.still_moving_at, thresholds)) from None
                 pushing = _held_at_bounds(source)   # (an anchored slow model settles under it: audit 65)
                 if pushing:
@@ -1327,9 +1330,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
             factor *= _narrower_width(rejected.window, width, thresholds) / width
             why = _why_narrower(rejected.window, width)
         else:
+            steps_over = _steps_over_pulse(source, pilot, window)
+            if steps_over and _armed_now(baseline):
+                continue
             _say_moving(baseline, said, thresholds)
-            if not (_steps_over_pulse(source, pilot, window) and tries["wider"] < RESCALE_TRIES
-                    and not tries["narrower"]):
+            if not (steps_over and tries["wider"] < RESCALE_TRIES and not tries["narrower"]):
                 check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
                                   isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
                                   exact_dt=thresholds.get("exact_dt", False))
@@ -1365,11 +1370,23 @@ def _held_only(source: Source) -> Signal:
     return NoInput(source.m, held_starts(source))
 
 
+def _armed_now(baseline: Any) -> bool:
+    """Arm ``baseline`` (:class:`~fmu_opinf.snapshots._window.IfMoving`) where the pilots, judged as they are,
+    found no window (the pulse too narrow, or a step that steps over it) and the model moves on its own or no pilot
+    could tell: True where it was armed now, and the caller tries the same impulse again, judged net of the model's
+    own motion.  Armed only then, so that a model that found a window before keeps it (audit 71, F5: the loaded
+    slow chain's sag set dt = 20; a start off rest or a load elsewhere changed windows that were right)."""
+    if baseline.armed or not baseline.may_move:
+        return False
+    baseline.armed = True
+    return True
+
+
 def _say_moving(baseline: Any, said: list[str], thresholds: dict[str, Any]) -> None:
     """Say once (unless quiet) that the first pilot showed the model moving without the pulse
     (:class:`~fmu_opinf.snapshots._window.IfMoving`), so that the pilots are judged net of that motion; ``said``
     keeps what was said."""
-    if baseline.moves and not said:
+    if baseline.armed and baseline.moves and not said:
         said.append(baseline.moving)
         if not thresholds.get("quiet"):
             print(f"the outputs move without the pulse ({baseline.moving}: a constant load inside the model, a "

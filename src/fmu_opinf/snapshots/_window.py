@@ -1217,11 +1217,17 @@ class IfMoving:
     moving : str or None
         How the outputs moved without the pulse (:func:`largest_motion`), None where the model rests; ``...``
         (Ellipsis) until a pilot has told.
+    armed : bool
+        Whether the pilots are judged net of that motion.  Until armed the pilots are judged as they are, and a
+        pilot tells :attr:`moving` only from its own samples before the pulse (no extra run): the default training
+        arms it where those pilots find no window and the model moves (or may move), so that a model that found
+        one before keeps it (a start off rest, a load whose response the pulse's dominates).
     """
 
-    def __init__(self, held: Any) -> None:
+    def __init__(self, held: Any, armed: bool = False) -> None:
         self.held = held
         self.moving: Any = ...
+        self.armed = armed
         self._outputs: dict[tuple[float, float, int], np.ndarray] = {}
 
     @property
@@ -1229,17 +1235,22 @@ class IfMoving:
         """Whether a pilot has told that the model moves on its own."""
         return self.moving is not ... and bool(self.moving)
 
+    @property
+    def may_move(self) -> bool:
+        """Whether the model moves on its own, or no pilot could tell yet."""
+        return self.moving is ... or bool(self.moving)
+
     def tell(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool, isolate: bool) -> Any:
-        """Whether the model moves on its own (:attr:`moving`), told once, by the first pilot: ``y``, the outputs of
-        ``signal`` on the grid ``t``."""
+        """Whether the pilots are judged net of the model's own motion: :attr:`moving` where :attr:`armed`, else
+        None.  Told once, by the first pilot that can: ``y``, the outputs of ``signal`` on the grid ``t``."""
         if self.moving is ...:
             before = _samples_before_pulse(signal, self.held, t)
             if before >= 2:
                 self.moving = largest_motion(source, t[:before], np.atleast_2d(y)[:, :before])
-            else:
+            elif self.armed:
                 run = response_without_pulse(source, self.held, t, quiet=quiet, isolate=isolate)
                 self.moving = None if run is None else largest_motion(source, *run)
-        return self.moving
+        return self.moving if self.armed and self.moving is not ... else None
 
     def net(self, source: Source, signal: Any, t: np.ndarray, y: np.ndarray, quiet: bool, isolate: bool,
             label: str) -> np.ndarray:
