@@ -205,7 +205,7 @@ def report(results: dict) -> str:
         f"{_mean(rec['par']['per_run_seconds']):.2f}s / {_mean(rec['par']['per_run_cpu_seconds']):.2f}s on a worker; "
         f"{_mean(pod['record']['per_run_seconds']):.2f}s / {_mean(pod['record']['per_run_cpu_seconds']):.2f}s at "
         f"g={results['g2']} on a worker",
-        f"1-min load average of the machine at the stage starts: "
+        "1-min load average of the machine at the stage starts: "
         + ", ".join(f"{r['load_before']:.1f}" for r in (rec["seq"], rec["par"], pod["record"], fit)),
         f"POD: {fit['pod_method']}, n={fit['n']}, k={fit['k']}, {fit['data_gib_per_array']:.2f} GiB per array, "
         f"row blocks of {fit['block_rows_aligned']} rows (budget {fit['block_rows']}, file chunks "

@@ -145,4 +145,5 @@ def test_a_warning_on_a_thousand_files_stays_one_short_line():
     parts = [{"file": f"r{i}.h5", "fmu_settings": {"k": i}} for i in range(1000)]
     said = merge_differences({"merged_parts": {"parts": parts}})
     assert said is not None and len(said) < 300 and "\n" not in said
-    assert "k: r0.h5 0, r1.h5 1, r2.h5 2, r3.h5 3, ... (1000 in all)" in said and said.endswith("fit one ROM per setting")
+    assert "k: r0.h5 0, r1.h5 1, r2.h5 2, r3.h5 3, ... (1000 in all)" in said
+    assert said.endswith("fit one ROM per setting")

@@ -184,11 +184,11 @@ def test_the_first_pilot_tells_a_loaded_model_from_one_at_rest_at_no_extra_run(f
 def test_a_loaded_anchored_model_whose_window_is_not_found_even_net_of_the_load_is_refused_in_one_line(
         fmus, monkeypatch):
     """The window stubbed to find nothing after the first pilot (a pulse always too narrow): the first impulse
-    judged as it is, then again and with its three widenings net of the run without the pulse, then one line saying that the
-    response to the constant load dominates, with its size (the tip, y[1], swings about its static sag of 300 m
-    through a range of 600 over the last pilot's 2000 s), and to give --dt and --t-end.  The chain is anchored: no
-    t^2 drift is claimed.  Before: the raw response judged, and the pulse refusal re-raised ('give an input on the
-    model's time scale')."""
+    judged as it is, then again and with its three widenings net of the run without the pulse, then one line saying
+    that the response to the constant load dominates, with its size (the tip, y[1], swings about its static sag of
+    300 m through a range of 600 over the last pilot's 2000 s), and to give --dt and --t-end.  The chain is
+    anchored: no t^2 drift is claimed.  Before: the raw response judged, and the pulse refusal re-raised ('give an
+    input on the model's time scale')."""
     from fmu_opinf.snapshots import _window
 
     def nothing(_: int):

@@ -1273,11 +1273,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     (:class:`~fmu_opinf.snapshots._window.IfMoving`).  Where the pilots as they are find no window (the pulse too
     narrow, or a step that steps over it) and the model moves on its own (a constant load inside the model, a
     non-zero input start or a ``--set`` value), the same impulse is tried again with every pilot judged net of a run
-    without the pulse on its grid (``baseline``, :func:`_armed_now`), so that the loaded model gets the window of the model without the load: a free body
-    accelerating under the load (audit 70, finding 2: the drift, growing like ``t**2``, kept the response 'moving',
-    the impulse was widened to t0 = 2e6 s and refused after 70-118 s), and an anchored slow model sagging under it
-    (audit 71, F5: a 660 s mode sagging by thousands of metres set the window, dt = 20, on which the 0.5 s pulse was
-    never sampled).  A model at rest costs no extra run."""
+    without the pulse on its grid (``baseline``, :func:`_armed_now`), so that the loaded model gets the window of
+    the model without the load: a free body accelerating under the load (audit 70, finding 2: the drift, growing
+    like ``t**2``, kept the response 'moving', the impulse was widened to t0 = 2e6 s and refused after 70-118 s),
+    and an anchored slow model sagging under it (audit 71, F5: a 660 s mode sagging by thousands of metres set the
+    window, dt = 20, on which the 0.5 s pulse was never sampled).  A model at rest costs no extra run."""
     from ..signals import parse_signal
     from ._window import IfMoving, PulseTooNarrow, WindowRejected, auto_window, check_window_step, input_activity
 
