@@ -193,3 +193,18 @@ def _fmpy_logger_slot_pointed_at_a_living_logger():
         from fmu_opinf.sources._cosimulation import _fmi2_callbacks
 
         _fmi2_callbacks(_NoRecipient().log)
+
+
+def miss_against_model(rom, model, spec: str, t_end: float = 60.0) -> float:
+    """Largest output error over the output's range of ``rom`` simulated on the input ``spec`` (one input) against
+    the exact zero-order-hold response of the linear ``model`` (:func:`fmu_opinf.lti_fmus.zoh_response`), at the
+    ROM's step to ``t_end``: the independent reference of the recording tests."""
+    from fmu_opinf import lti_fmus
+    from fmu_opinf.signals import parse_signal
+    from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
+
+    t = time_grid(rom.dt, t_end)
+    u = inputs_in_effect(parse_signal(spec, 1), t, 1)
+    reference = lti_fmus.zoh_response(model, t, u[:, 1:]).y
+    y = rom.simulate(spec, rom.dt, t_end).y
+    return float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1)))

@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from conftest import build_fmu_set
+from conftest import build_fmu_set, miss_against_model
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.basis import open_snapshot_set
@@ -46,11 +46,7 @@ def euler_and_me(request, tmp_path_factory):
 
 def _miss_against_model(rom: SecondOrderROM, spec: str, t_end: float = 60.0) -> float:
     """Largest output error over its range, the ROM against the exact model on ``spec``."""
-    t = time_grid(rom.dt, t_end)
-    u = inputs_in_effect(parse_signal(spec, 1), t, 1)
-    reference = lti_fmus.zoh_response(_model(), t, u[:, 1:]).y
-    y = rom.simulate(spec, rom.dt, t_end).y
-    return float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1)))
+    return miss_against_model(rom, _model(), spec, t_end)
 
 
 @pytest.mark.fmu

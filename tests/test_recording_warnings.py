@@ -19,7 +19,7 @@ import h5py
 import numpy as np
 import pytest
 
-from conftest import build_fmu_set
+from conftest import build_fmu_set, miss_against_model
 from fmu_opinf import lti_fmus
 from fmu_opinf.cli import main
 from fmu_opinf.errors import FmuOpinfWarning
@@ -56,11 +56,7 @@ def fmus(request, tmp_path_factory):
 
 def _miss_against_model(rom: SecondOrderROM, spec: str, t_end: float = 60.0) -> float:
     """Largest output error over its range, the ROM against the exact model on ``spec``."""
-    t = time_grid(rom.dt, t_end)
-    u = inputs_in_effect(parse_signal(spec, 1), t, 1)
-    reference = lti_fmus.zoh_response(_model(), t, u[:, 1:]).y
-    y = rom.simulate(spec, rom.dt, t_end).y
-    return float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1)))
+    return miss_against_model(rom, _model(), spec, t_end)
 
 
 def test_euler_co_simulation_is_said_kept_and_fitted_as_the_model(fmus, tmp_path, capsys):
