@@ -112,6 +112,7 @@ def triple_data():
 
 
 @pytest.mark.parametrize("mode", ["thread", pytest.param("process", marks=needs_fork)])
+@pytest.mark.slow
 def test_the_fit_beside_equals_the_fit_one_start_after_the_other(triple_data, monkeypatch, mode):
     data, u, y = triple_data
     monkeypatch.setattr(inference, "Background", functools.partial(Background, mode=mode))
@@ -305,6 +306,7 @@ print(np.array_equal(fits[0].Mr, fits[1].Mr))
 
 
 @needs_fork
+@pytest.mark.slow
 def test_a_second_fit_in_one_process_forks_beside_clarabel_without_hanging():
     """Clarabel 0.11 factors with a native thread pool unless told to use one thread; a process forked after that
     (the SDP's second normalization, from r = 20) inherits the pool without its threads, and its own Clarabel solve

@@ -192,6 +192,7 @@ def test_use_before_fit_is_an_error():
         PODBasis().project(np.zeros((3, 3)))
 
 
+@pytest.mark.slow
 def test_fitting_without_dask_does_not_import_distributed(tmp_path):
     """Whether a Dask client is active was asked by importing ``distributed`` (0.15-0.26 s of a 1 s ``fmu-opinf
     fit``); without it imported no client can exist, so a fit from a file leaves it unimported."""

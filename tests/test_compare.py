@@ -126,6 +126,7 @@ window.addEventListener("load", () => {
 
 
 @pytest.mark.skipif(_chromium() is None, reason="no chromium installed (.ci/run installs Debian's chromium)")
+@pytest.mark.slow
 def test_report_page_renders_in_headless_chromium(anchored_rom, tmp_path):
     model, path = anchored_rom
     result = compare.compare(path, "builtin:anchored-msd", TEST, dt=0.5, t_end=200.0, quiet=True)

@@ -493,6 +493,7 @@ def test_a_serialized_state_is_refused_by_another_model_of_the_same_sizes(export
 
 # ------------------------------------------------------------------------ the object cache
 
+@pytest.mark.slow
 def test_an_export_under_another_name_compiles_only_the_name(rom, tmp_path, monkeypatch, compiled):
     """Audit of 2026-12-06, F5: the name and GUID were in ``config.h``, which every unit includes, so an export under
     a new name compiled ``instance.c`` again and added a cache entry per name.  Now the second export compiles only

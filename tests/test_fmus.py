@@ -605,6 +605,7 @@ def test_sources_compile_without_warnings(tmp_path, version):
     assert result.returncode == 0, result.stderr
 
 
+@pytest.mark.slow
 def test_no_leaks_or_memory_errors_under_valgrind(tmp_path):
     import shutil
     import zipfile

@@ -274,6 +274,7 @@ def test_an_fmu_computing_in_single_precision_is_recorded_to_its_precision_in_se
 
 
 @pytest.mark.parametrize("start", ["rest", "zero"])
+@pytest.mark.slow
 def test_one_single_precision_block_beside_double_ones_is_recorded_in_seconds(tmp_path, start):
     """Only the stiffness forces on half the masses in ``float``, the rest in double (as a Simulink model with one
     single-precision block; second audit of 2026-12-05: 63 s for 4 s).  Those masses' accelerations are sums whose

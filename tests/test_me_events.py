@@ -346,6 +346,7 @@ def test_events_that_change_nothing_are_not_warned_about(fmus, recwarn, events_u
     assert not [w for w in recwarn if "event(s)" in str(w.message)]
 
 
+@pytest.mark.slow
 def test_the_events_are_kept_with_each_recording_and_repeated_by_fit_compare_and_export(fmus, tmp_path,
                                                                                          events_unsaid):
     """Audit 72 F5: the event warning lived on ``snapshots``' stderr only, and compare reported a 22 % error with no
@@ -522,6 +523,7 @@ def test_a_warning_of_an_isolated_run_reaches_the_caller(fmus, tmp_path, monkeyp
     assert max(errors(run, x, v, a).values()) < 1e-10   # measured 4.8e-11 (v)
 
 
+@pytest.mark.slow
 def test_what_every_isolated_run_finds_is_said_once(fmus, tmp_path, monkeypatch):
     """Each run of ``compare`` or a run table opens the FMU in its own child, which finds the same defect again:
     the user hears it once (eighth audit: compare printed the indicator warning twice)."""

@@ -50,6 +50,7 @@ def _miss_against_model(rom: SecondOrderROM, spec: str, t_end: float = 60.0) -> 
 
 
 @pytest.mark.fmu
+@pytest.mark.slow
 def test_model_exchange_and_euler_co_simulation_merged_are_said_and_fitted_as_the_model(euler_and_me, tmp_path,
                                                                                        capsys):
     folder, rom_file = tmp_path / "train", tmp_path / "rom.h5"

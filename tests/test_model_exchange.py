@@ -95,6 +95,7 @@ def test_free_response_through_model_exchange(corpus):
 
 
 @pytest.mark.parametrize("method", ["lsoda", "radau"])
+@pytest.mark.slow
 def test_other_integrators_follow_the_tolerance(corpus, method):
     source = open_source(corpus["start-off-rest"], method=method, tolerance=1e-11)
     run = record(source, Levels(1, 0.1), 0.1, 4.0, quiet=True).runs[0]
@@ -222,6 +223,7 @@ def test_structural_parameter_through_model_exchange(corpus):
 
 # ----------------------------------------------------------------------------- --me-method
 
+@pytest.mark.slow
 def test_cli_me_method_reaches_the_file_and_the_recording_follows_it(corpus, tmp_path, capsys):
     out = tmp_path / "s.h5"
     code = main(["snapshots", str(corpus["start-off-rest"]), "-o", str(out), "--input", "step:amplitude=2,t0=1",

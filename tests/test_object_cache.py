@@ -155,6 +155,7 @@ def binary(path: Path) -> bytes:
         return next(archive.read(name) for name in archive.namelist() if name.startswith("binaries/"))
 
 
+@pytest.mark.slow
 def test_an_fmu_rebuilt_from_cached_objects_is_the_same_binary(tmp_path, compiled, cache, monkeypatch):
     first = fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "First.fmu")
     assert len(compiled) == 5 and len(entries(cache)) == 4   # the name and GUID unit is compiled, never cached
@@ -164,6 +165,7 @@ def test_an_fmu_rebuilt_from_cached_objects_is_the_same_binary(tmp_path, compile
     assert binary(fmus.build_second_order_fmu(fmus.anchored_msd_spec(10), tmp_path / "Third.fmu")) == binary(first)
 
 
+@pytest.mark.slow
 def test_an_fmu_of_another_guid_or_size_compiles_what_depends_on_it(tmp_path, compiled):
     """Another description changes only the GUID, which ``instance.c`` checks at instantiation: only the unit that
     holds it (never cached) is compiled again (a stale GUID would refuse the FMU), the others are reused; another

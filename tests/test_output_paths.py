@@ -94,6 +94,7 @@ def test_build_fmus_interrupted_after_one_fmu_names_it(tmp_path, monkeypatch, ca
     assert [p.name for p in tmp_path.iterdir()] == [built[0].name]
 
 
+@pytest.mark.slow
 def test_a_link_or_a_pipe_among_a_report_s_or_the_figures_files_is_refused_before_the_work(tmp_path):
     """Audit 56: a report's outputs.png linked to the ROM being compared overwrote the ROM (written through the
     link), ``fit --figures`` wrote through a link into its input, and a pipe among the figures ended the fit in

@@ -59,6 +59,7 @@ def _miss_against_model(rom: SecondOrderROM, spec: str, t_end: float = 60.0) -> 
     return miss_against_model(rom, _model(), spec, t_end)
 
 
+@pytest.mark.slow
 def test_euler_co_simulation_is_said_kept_and_fitted_as_the_model(fmus, tmp_path, capsys):
     train, rom_file = tmp_path / "train.h5", tmp_path / "rom.h5"
     assert main(["snapshots", str(fmus["Ode1Chain"]), "-o", str(train), "-q"]) == 0

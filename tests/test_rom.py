@@ -507,6 +507,7 @@ def test_the_same_rom_from_a_recording_in_memory_and_from_its_file():
         assert np.array_equal(getattr(roms[0], name), getattr(roms[1], name)), name
 
 
+@pytest.mark.slow
 def test_a_rom_that_misses_its_own_training_outputs_is_warned_about():
     """Eighth audit: a velocity recorded among the positions (a Simulink-style FMU whose outputs were all passed as
     --positions) fitted to a training output error of 9.0e-3 without a word, and the ROM was 12.7 % off.  Here two
@@ -559,6 +560,7 @@ def _fixed_free_bar(n: int):
     return lti_fmus.LinearMechanicalModel(M, 0.5 * M + 2e-5 * K, K, B, Cp=Cp, name="bar")
 
 
+@pytest.mark.slow
 def test_an_order_from_the_energy_that_misses_the_training_outputs_is_grown():
     """Audit 62: on an FE-like model the energy (eq. 18) keeps too few modes for the outputs of a training pulse
     that excites the dynamics (a 300-node fixed-free bar: r = 2, 5 % RMS off its own training outputs; fit
@@ -668,6 +670,7 @@ def _bar_with_a_tip_accelerometer(n: int):
     return replace(chain, M=mass, D=damping, Cp=Cp, Cv=np.zeros((4, n)), Ca=Ca, y0=np.zeros(4))
 
 
+@pytest.mark.slow
 def test_the_order_search_judges_each_output_by_its_own_size():
     """Audit 65, F2: beside a tip acceleration (RMS 4e7), the displacements (RMS 1e2-1e3) counted in the training
     output error only as much as an output of 1e-3 of the acceleration's size, so the default fit kept the energy's

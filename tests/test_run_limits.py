@@ -148,6 +148,7 @@ def test_fit_offers_only_a_smaller_r_at_an_fmus_fixed_step(fmus, tmp_path, capsy
     assert not _at_fixed_step({}, FIXED)   # a file written before says nothing: the advice stays as it was
 
 
+@pytest.mark.slow
 def test_compare_s_default_end_stops_before_the_termination_the_training_found(fmus, tmp_path, capsys):
     """Audit 71 F8: the default training of an FMU that terminates at t = 20 ends before it and records where
     (``auto_window["terminates_at"]``); compare's default end (four times the training's) then ran into the

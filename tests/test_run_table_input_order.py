@@ -42,6 +42,7 @@ def _reversed_rom(path) -> str:
 
 
 @pytest.mark.fmu
+@pytest.mark.slow
 def test_compare_runs_drives_the_input_the_table_names_by_position(tmp_path, monkeypatch):
     """Row ``none;impulse`` written for the FMU's order (F[1], F[2]) drives F[2] in the comparison as in the
     recording, against a ROM whose inputs are F[2], F[1]: the source's outputs are the exact response to F[2]."""

@@ -66,6 +66,7 @@ def test_full_order_start_is_exact_and_silent(off_rest_run):
         _warn_if_start_is_missed(rom)
 
 
+@pytest.mark.slow
 def test_a_kept_mechanical_realization_is_judged_at_its_own_start():
     """Audit 71 F2: a 30-mass chain started by an impact on mass 15, whose velocity is an output; the default fit
     keeps the refined mechanical realization of least squares (modal coordinates) at r = 30 = n.  The start's miss

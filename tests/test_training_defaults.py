@@ -215,6 +215,7 @@ def _stiff_light_bar(path, n=12, f1=20.0, zeta=0.005):
     return model, lti_fmus.build_lti_fmu(model, path, interfaces=("me",))
 
 
+@pytest.mark.slow
 def test_a_mode_the_first_pilot_aliases_still_sets_the_window(tmp_path):
     """Audit 64, finding 2: the first pilot's step (0.05, Nyquist 10 Hz) folded a lightly damped 20 Hz mode onto
     a slow drift, and the window took 0.6 Hz for the fastest significant frequency (dt = 0.05).  The pilot that
@@ -686,6 +687,7 @@ def test_the_rom_fmu_starts_where_the_source_does_under_another_initial_input(tm
     assert np.abs(np.array(stepped).T - late).max() < 3e-14 * np.abs(late).max()
 
 
+@pytest.mark.slow
 def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, capsys):
     """The only force input starts at a non-zero value and declares no unit, so it is held like a parameter, and
     the model starts at rest: nothing moves (seventh audit, 2026-11-27: twelve pilots, then 'the output does not

@@ -247,6 +247,7 @@ def test_bad_periods():
         auto_window(Oscillator(1.0, 0.1), IMPULSE, periods=0)
 
 
+@pytest.mark.slow
 def test_a_model_far_slower_than_the_pulse_is_named_early_and_a_wide_pulse_works():
     """Periods of 1000 s under the 0.5 s impulse: the pulse alone kept the step at 0.05 and the window was refused
     after 12 pilots (audit 2026-11-26, 48 s on an FMU).  It now stops early with PulseTooNarrow (the default

@@ -100,6 +100,7 @@ def test_an_anchored_slow_chain_under_a_constant_load_gets_the_window_of_the_cha
         #                                                                 at 0.005)
 
 
+@pytest.mark.slow
 def test_the_unloaded_slow_chain_widens_the_impulse_its_window_would_step_over(fmus):
     """The chain without the load: the pilots of the 0.5 s impulse settle on dt=5 (20 points per period of its
     160 s mode), which never samples the pulse; the default training widens the impulse to 50 s instead of handing
