@@ -101,7 +101,7 @@ RESULT["max_relative_difference"] = worst
 import numpy as np, resource
 from fmu_opinf import runs
 from fmu_opinf.basis import open_snapshot_set, _block_shape
-from fmu_opinf.rom import fit_rom_file
+from fmu_opinf.fit import fit_rom_file
 from distributed import get_task_stream
 with runs.dask_client(f"local:{ARGS['workers']}") as client:
     RESULT["client_rss_at_start_gib"] = rss_gib()

@@ -25,8 +25,8 @@ snapshots.record_to_file("builtin:anchored-msd", OUT / "train.h5", ["impulse:amp
                          quiet=True, isolate=False)
 """,
     "fit": r"""
-from fmu_opinf import rom
-model = rom.fit_rom_file(OUT / "train.h5", OUT / "rom.h5", r=ARGS["r"], overwrite=True, quiet=True,
+from fmu_opinf import fit
+model = fit.fit_rom_file(OUT / "train.h5", OUT / "rom.h5", r=ARGS["r"], overwrite=True, quiet=True,
                          keep_basis=False, max_memory=ARGS["max_memory"])
 RESULT.update(r=model.r, pod_method=model.fit_info.get("pod_method"), status=model.fit_info.get("status"),
               solve_seconds=model.fit_info.get("solve_seconds"))

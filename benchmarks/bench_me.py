@@ -144,7 +144,7 @@ def bench_rates(name: str, size: int, dt: float, t_end: float, r: int) -> list[t
     integrator ``"exact"``) from the true accelerations, from each derived set, and from interval averages."""
     from fmu_opinf import lti_fmus
     from fmu_opinf.compare import output_error
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots import Run, inputs_in_effect, time_grid
     from fmu_opinf.snapshots._rates import continuous_accelerations, newmark_accelerations

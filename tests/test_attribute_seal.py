@@ -34,7 +34,7 @@ LARGE_G = 2000
 @pytest.fixture(scope="module")
 def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A snapshot file (names in ``_attrs``), a small one and a ROM fitted from the small one."""
-    from fmu_opinf.rom import fit_rom_file
+    from fmu_opinf.fit import fit_rom_file
 
     folder = tmp_path_factory.mktemp("sealed")
     large = record(BuiltinSource("anchored-msd", g=LARGE_G), SIGNAL, 0.5, 10.0, quiet=True)

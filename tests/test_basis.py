@@ -204,7 +204,7 @@ def test_fitting_without_dask_does_not_import_distributed(tmp_path):
     path = tmp_path / "train.h5"
     assert main(["snapshots", "builtin:anchored-msd", "--g", "12", "--input", "impulse:amplitude=100,t0=2,width=0.5",
                  "--dt", "0.5", "--t-end", "100", "-o", str(path), "-q"]) == 0
-    code = ("import sys; from fmu_opinf.rom import fit_rom_file; "
+    code = ("import sys; from fmu_opinf.fit import fit_rom_file; "
             f"fit_rom_file({str(path)!r}, {str(tmp_path / 'rom.h5')!r}, r=4); print('distributed' in sys.modules)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, newmark, rom, snapshots, systems
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.errors import DimensionError, FileFormatError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 
 TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
@@ -20,7 +21,7 @@ TEST = "harmonic:amplitude=1,omega=0.2"
 def anchored_rom(tmp_path_factory):
     """A ROM of the builtin anchored chain (r = 5), saved to a file."""
     snaps = snapshots.record("builtin:anchored-msd", TRAIN, 0.5, 100.0, quiet=True)
-    model = rom.fit_rom(snaps, r=5)
+    model = fit_rom(snaps, r=5)
     path = tmp_path_factory.mktemp("rom") / "rom.h5"
     model.save(path)
     return model, path
@@ -223,7 +224,7 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
     with the
     order given, a smaller error or no room below the snapshot rank, says nothing."""
     snaps = snapshots.record("builtin:anchored-msd", TRAIN, 0.5, 100.0, quiet=True)
-    small = rom.fit_rom(snaps, energy=0.6, refine=False)
+    small = fit_rom(snaps, energy=0.6, refine=False)
     assert small.r == 2 and small.fit_info["snapshot_rank"] > 4
     fast = "harmonic:amplitude=1,omega=0.28"   # near the chain's fastest learned modes
     metrics = compare.compare(small, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
@@ -233,7 +234,7 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
                                 "tried": []}
     table = compare.summary_table([("small", metrics)])
     assert "came from the POD energy (eq. 18) on snapshots of rank" in table and "(fit --r 4, then compare" in table
-    given = rom.fit_rom(snaps, r=2, refine=False)
+    given = fit_rom(snaps, r=2, refine=False)
     given_metrics = compare.compare(given, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
     assert given_metrics["order"]["chosen"] == "given" and compare.order_note(given_metrics) is None
     assert compare.order_note({**metrics, "per_output": {"y": {"relative_max_variation": 0.5 * compare.ORDER_NOTE}}}) \
@@ -492,7 +493,7 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     training = ["impulse:amplitude=3,t0=1,width=0.5;none", "none;impulse:amplitude=-7,t0=1,width=0.5,offset=2"]
     snapshots.record_to_file(str(fmu.path), tmp_path / "train.h5", training, dt=0.05, t_end=60.0, quiet=True)
     recorded = snapshots.Snapshots.load(tmp_path / "train.h5")
-    fitted = rom.fit_rom(recorded, r=4)
+    fitted = fit_rom(recorded, r=4)
     fitted.save(tmp_path / "rom.h5")
     capsys.readouterr()
     trained = max(np.abs(run.y - run.y[:, :1]).max() for run in recorded.runs)
@@ -549,7 +550,7 @@ def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path)
     table = tmp_path / "push.csv"
     table.write_text("t,u\n0,0\n1,5\n2,0\n100,0\n")
     snaps = snapshots.record("builtin:anchored-msd", str(table), 0.5, 60.0, quiet=True)
-    rom.fit_rom(snaps, r=4).save(tmp_path / "rom.h5")
+    fit_rom(snaps, r=4).save(tmp_path / "rom.h5")
     done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(tmp_path / "report"))
     assert done.returncode == 0 and "no --input given: comparing on harmonic:amplitude=" in done.stderr
     table.unlink()
@@ -586,7 +587,7 @@ def test_a_preload_force_is_trained_and_compared_on_top_of_its_start_value(tmp_p
     assert not [w for w in seen if "--inputs" in str(w.message)]   # a scale in unit "1" is no force to drive
     run = snapshots.Snapshots.load(tmp_path / "train.h5").runs[0]
     assert run.attrs["input_spec"] == "impulse:amplitude=100,t0=2,width=0.5,offset=10"
-    fitted = rom.fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=model.M.shape[0])
+    fitted = fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=model.M.shape[0])
     assert fitted.input_names == ["F"]
     fitted.save(tmp_path / "rom.h5")
 

@@ -8,7 +8,7 @@ import pytest
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.compare import output_error
-from fmu_opinf.rom import fit_rom
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run
 from fmu_opinf.snapshots._rates import (constant_input_pieces, continuous_accelerations, continuous_recording,
@@ -111,7 +111,7 @@ def _run(model, spec: str, accelerations: str) -> Run:
 
 def _test_error(model, run: Run, corrections: int | None = None, monkeypatch=None) -> float:
     if corrections is not None:
-        monkeypatch.setattr("fmu_opinf.rom.AVERAGE_CORRECTIONS", corrections)
+        monkeypatch.setattr("fmu_opinf.fit.AVERAGE_CORRECTIONS", corrections)
     rom = fit_rom(run, r=5, integrator="exact")
     test = "harmonic:amplitude=1,omega=0.8"
     u, ref = _exact(model, test, 200.0)

@@ -49,7 +49,8 @@ def test_quick_demo_without_the_least_squares_candidate_is_as_accurate_as_the_de
     import numpy as np
 
     from fmu_opinf.compare import compare
-    from fmu_opinf.rom import SecondOrderROM, fit_rom
+    from fmu_opinf.fit import fit_rom
+    from fmu_opinf.rom import SecondOrderROM
     from fmu_opinf.snapshots import Snapshots
 
     summary = {case["model"]: case for case in json.loads((demo_dir / "summary.json").read_text())["cases"]}

@@ -28,7 +28,7 @@ from fmu_opinf import export, fmus  # noqa: E402
 from fmu_opinf.errors import FMUError  # noqa: E402
 from fmu_opinf.lti_fmus import chain_model, zoh_response  # noqa: E402
 from fmu_opinf.newmark import applied_inputs, time_grid  # noqa: E402
-from fmu_opinf.rom import fit_rom  # noqa: E402
+from fmu_opinf.fit import fit_rom  # noqa: E402
 from fmu_opinf.signals import parse_signal  # noqa: E402
 
 DT = 0.02

@@ -22,7 +22,7 @@ from fmpy import read_model_description, simulate_fmu  # noqa: E402
 
 from fmu_opinf import compare, export, lti_fmus, snapshots  # noqa: E402
 from fmu_opinf.errors import FmuOpinfWarning  # noqa: E402
-from fmu_opinf.rom import fit_rom  # noqa: E402
+from fmu_opinf.fit import fit_rom  # noqa: E402
 from fmu_opinf.source import open_source  # noqa: E402
 
 pytestmark = pytest.mark.slow   # one source FMU and six ROM FMUs compiled: 20 s on the 2-core machine

@@ -143,7 +143,7 @@ def worker(cases_file: str) -> None:
 
 @pytest.fixture(scope="module")
 def valid_files(tmp_path_factory):
-    from fmu_opinf.rom import fit_rom_file
+    from fmu_opinf.fit import fit_rom_file
     from fmu_opinf.snapshots import record
     from fmu_opinf.source import BuiltinSource
 

@@ -355,7 +355,7 @@ def test_the_events_are_kept_with_each_recording_and_repeated_by_fit_compare_and
     from fmu_opinf import compare
     from fmu_opinf.errors import FmuOpinfWarning
     from fmu_opinf.export import _warn_if_recording_warned
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import Snapshots, record_to_file
 
     path = fmus[("2.0", "time")]

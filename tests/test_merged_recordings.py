@@ -21,7 +21,8 @@ from fmu_opinf import lti_fmus
 from fmu_opinf.basis import open_snapshot_set
 from fmu_opinf.cli import main
 from fmu_opinf.errors import FmuOpinfWarning
-from fmu_opinf.rom import SecondOrderROM, fit_rom
+from fmu_opinf.fit import fit_rom
+from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run, Snapshots
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, rom, snapshots
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.errors import DataError
 
 from test_cli import run_cli
@@ -18,7 +19,7 @@ TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
 def fitted(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fitted")
     snapshots.record_to_file("builtin:anchored-msd", folder / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
-    model = rom.fit_rom(snapshots.Snapshots.load(folder / "s.h5"), r=4)
+    model = fit_rom(snapshots.Snapshots.load(folder / "s.h5"), r=4)
     model.save(folder / "rom.h5")
     return folder
 

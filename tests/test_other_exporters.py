@@ -472,7 +472,7 @@ def test_compare_starts_the_rom_where_the_source_starts(tmp_path):
     it started from the training run's, and a ROM exact to 1e-22 was reported at max eps_y 0.65)."""
     from fmu_opinf import snapshots
     from fmu_opinf.compare import compare
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.sources import open_source
 
     model = lti_fmus.chain_model(x0=[0.05, -0.02, 0.03, 0.0, 0.04], name="Started")
@@ -496,7 +496,7 @@ def test_compare_warns_when_the_source_is_not_the_training_fmu(tmp_path):
 
     from fmu_opinf import snapshots
     from fmu_opinf.compare import compare
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.sources import open_source
 
     trained = lti_fmus.build_lti_fmu(lti_fmus.chain_model(name="Trained"), tmp_path / "trained.fmu")

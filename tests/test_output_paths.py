@@ -6,6 +6,7 @@ import stat
 import pytest
 
 from fmu_opinf import snapshots
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.errors import FileFormatError
 
 from test_cli import run_cli
@@ -42,7 +43,7 @@ def test_the_command_line_refuses_a_pipe_before_the_work(tmp_path, verb, suffix)
 def test_an_output_named_by_a_link_is_written_to_the_file_it_points_to(tmp_path):
     """A symbolic link was replaced by the new file; the new file now replaces the one the link points to, and
     the link stays (snapshots, and the exported FMU)."""
-    from fmu_opinf import rom
+
     from fmu_opinf.export import export_fmu
     import fmpy
 
@@ -55,7 +56,7 @@ def test_an_output_named_by_a_link_is_written_to_the_file_it_points_to(tmp_path)
     assert link.is_symlink() and snapshots.Snapshots.load(real).runs[0].t[-1] == 20.0
     assert sorted(p.name for p in real.parent.iterdir()) == ["train.h5"]
 
-    fitted = rom.fit_rom(snapshots.Snapshots.load(real), r=2)
+    fitted = fit_rom(snapshots.Snapshots.load(real), r=2)
     (real.parent / "rom.fmu").write_bytes(b"old")
     (tmp_path / "rom.fmu").symlink_to(real.parent / "rom.fmu")
     export_fmu(fitted, tmp_path / "rom.fmu", overwrite=True)
@@ -99,11 +100,11 @@ def test_a_link_or_a_pipe_among_a_report_s_or_the_figures_files_is_refused_befor
     """Audit 56: a report's outputs.png linked to the ROM being compared overwrote the ROM (written through the
     link), ``fit --figures`` wrote through a link into its input, and a pipe among the figures ended the fit in
     a traceback after its work."""
-    from fmu_opinf import compare, rom
+    from fmu_opinf import compare
 
     snaps = tmp_path / "s.h5"
     snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
-    rom.fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
+    fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
     before = (tmp_path / "rom.h5").read_bytes()
     report = tmp_path / "report"
     report.mkdir()
@@ -135,11 +136,11 @@ def test_links_in_a_run_table_s_or_the_demo_s_folder_and_dangling_links_are_refu
     wrote summary.json through a link, or refused a linked figure only after its work; ``--figures`` naming a
     link to nothing failed after the fit with "File exists"; a link elsewhere in the figures' folder is no
     concern of the fit's."""
-    from fmu_opinf import rom
+
 
     snaps = tmp_path / "s.h5"
     snapshots.record_to_file("builtin:anchored-msd", snaps, **SPEC)
-    rom.fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
+    fit_rom(snapshots.Snapshots.load(snaps), r=2).save(tmp_path / "rom.h5")
     before = (tmp_path / "rom.h5").read_bytes()
     table = tmp_path / "t.csv"
     table.write_text('name,input\nr1,"harmonic:amplitude=1,omega=0.5"\n')

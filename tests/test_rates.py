@@ -12,7 +12,7 @@ import pytest
 
 from fmu_opinf import newmark, systems
 from fmu_opinf.compare import output_error
-from fmu_opinf.rom import fit_rom
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.snapshots import (Run, Snapshots, newmark_accelerations, newmark_rates,
                                  newmark_velocities_and_accelerations)
 

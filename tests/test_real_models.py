@@ -18,7 +18,8 @@ import pytest
 from fmu_opinf.errors import DataError
 from fmu_opinf.lti_fmus import chain_model, zoh_response
 from fmu_opinf.newmark import applied_inputs, time_grid
-from fmu_opinf.rom import SecondOrderROM, fit_rom
+from fmu_opinf.fit import fit_rom
+from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
 
 DT = 0.02

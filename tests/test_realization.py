@@ -126,7 +126,7 @@ def test_unit_mass_least_squares_from_the_compressed_factor_equals_plain_least_s
 # ----------------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def anchored_fit(bench):
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
 
     return fit_rom([bench.training("anchored")], r=12)
 
@@ -246,7 +246,7 @@ def anchored60():
 
 def _exact_errors(anchored60, r):
     """max eps_y of the default exact-integrator fit, the SDP alone and least squares (independent)."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
 
     train, test = anchored60
     spec = "harmonic:amplitude=1,omega=0.2"

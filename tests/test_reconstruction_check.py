@@ -13,7 +13,8 @@ import warnings
 import numpy as np
 import pytest
 
-from fmu_opinf import export, rom
+from fmu_opinf import export
+from fmu_opinf.fit import fit_rom
 from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.snapshots import record
 
@@ -28,7 +29,7 @@ def training():
 
 @pytest.fixture(scope="module")
 def fits(training):
-    return {refine: rom.fit_rom(training, r=R, refine=refine, quiet=True) for refine in ("auto", False)}
+    return {refine: fit_rom(training, r=R, refine=refine, quiet=True) for refine in ("auto", False)}
 
 
 def independent_errors(model, run) -> tuple[float, float]:

@@ -9,7 +9,8 @@ from fmu_opinf import newmark, systems
 from fmu_opinf.basis import cumulative_energy, energy_order
 from fmu_opinf.compare import output_error
 from fmu_opinf.errors import DataError, DimensionError, FileFormatError
-from fmu_opinf.rom import SecondOrderROM, fit_rom, fit_rom_file
+from fmu_opinf.fit import fit_rom, fit_rom_file
+from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.snapshots import Run, Snapshots
 
 TRAIN = "impulse:amplitude=100,t0=2,width=0.5"
@@ -423,7 +424,7 @@ def test_an_order_below_the_number_of_inputs_is_warned_about():
     import warnings
 
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import _warn_if_order_below_inputs
+    from fmu_opinf.fit import _warn_if_order_below_inputs
 
     with pytest.warns(FmuOpinfWarning, match=r"r=5 \(from the cumulative energy\) is below the 20 inputs, and the "
                                              r"snapshots have rank 20: .* fit with --r 20"):
@@ -572,7 +573,7 @@ def test_an_order_from_the_energy_that_misses_the_training_outputs_is_grown():
 
     from fmu_opinf import lti_fmus
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.fit import TRAINING_MISS
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
@@ -621,7 +622,7 @@ def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_no
     from types import SimpleNamespace
 
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import ORDER_SEARCH_LIMIT, _grow_order, _search_orders, _warn_if_training_outputs_missed
+    from fmu_opinf.fit import ORDER_SEARCH_LIMIT, _grow_order, _search_orders, _warn_if_training_outputs_missed
 
     assert _search_orders(2, 28) == [4, 8, 16, 28] and _search_orders(36, 151) == [ORDER_SEARCH_LIMIT] == [60]
     assert _search_orders(5, 5) == [] and _search_orders(61, 151) == []
@@ -679,7 +680,7 @@ def test_the_order_search_judges_each_output_by_its_own_size():
     Reference: the exact zero-order-hold response of the full model to an input the fit never saw."""
     from fmu_opinf import lti_fmus
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.fit import TRAINING_MISS
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
@@ -713,7 +714,7 @@ def test_a_gross_training_miss_keeps_the_order_search_going_while_any_order_lowe
     :func:`fit_rom`'s (only their order and training output error count)."""
     from types import SimpleNamespace
 
-    from fmu_opinf.rom import GROSS_MISS, ORDER_HELPS, _grow_order
+    from fmu_opinf.fit import GROSS_MISS, ORDER_HELPS, _grow_order
 
     objectives = {4: 0.97, 8: 0.91, 16: 0.05, 30: 1e-20}   # audit 69's chain: 4 -> 8 lowers it 1.07-fold only
     assert objectives[8] * ORDER_HELPS > objectives[4] and objectives[8] > GROSS_MISS
@@ -745,7 +746,7 @@ def test_the_order_search_refines_in_full_only_what_it_keeps_or_relies_on():
     training output error and refinement status count)."""
     from types import SimpleNamespace
 
-    from fmu_opinf.rom import GROSS_MISS, SCREEN_CHECKPOINTS, _grow_order
+    from fmu_opinf.fit import GROSS_MISS, SCREEN_CHECKPOINTS, _grow_order
 
     full = {4: 0.97, 8: 0.91, 16: 0.5, 30: 1e-20}       # audit 69's chain, judged after a full refinement
     screened = {4: 2.0, 8: 1.5}                         # the same orders ended by the screen
@@ -820,7 +821,7 @@ def test_a_chain_under_a_constant_load_started_off_equilibrium_gets_the_order_it
     the snapshot energy; the energy's r = 4 missed the training outputs by 0.99 relative RMS and r = 8 by 0.96,
     which ended the order search, and the ROM was 11-61 % of each output's range off an unseen input.  Reference:
     the exact zero-order-hold response of the full model."""
-    from fmu_opinf.rom import GROSS_MISS
+    from fmu_opinf.fit import GROSS_MISS
 
     n, dt, t_end = 30, 0.05, 100.0
     exact, runs = _chain_off_rest(n, 0.5, dt, t_end)
@@ -955,7 +956,7 @@ def test_a_chain_started_off_rest_reproduces_its_free_response():
     r = 18 at a training error of 7e-4, and the ROM run with no input was 6.7 % of an acceleration's range off the
     source.  Judging each run's free response on its own grows the order to the snapshots' rank.  Reference: the
     exact zero-order-hold response of the full model."""
-    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.fit import TRAINING_MISS
 
     n, dt, t_end = 20, 0.05, 60.0
     exact, runs = _chain_off_rest(n, 0.0, dt, t_end)
@@ -979,7 +980,7 @@ def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_va
 
     from fmu_opinf import lti_fmus
     from fmu_opinf.basis import cumulative_energy
-    from fmu_opinf.rom import _grow_order
+    from fmu_opinf.fit import _grow_order
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
@@ -1020,7 +1021,7 @@ def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_o
 
     from fmu_opinf import lti_fmus
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import TRAINING_MISS
+    from fmu_opinf.fit import TRAINING_MISS
 
     model = lti_fmus.chain_model(3)
     t = np.arange(0.0, 40.0, 0.05)
@@ -1046,3 +1047,13 @@ def test_a_fit_of_states_that_are_no_positions_and_velocities_warns_without_an_o
     assert errors["wrong averages"][0] > 100 * TRAINING_MISS and errors["wrong averages"][1] == 1, errors   # 1.46
     for name in ("right", "right averages"):   # measured 7.9e-29 and 2.1e-28
         assert errors[name][0] < 1e-20 and errors[name][1] == 0, errors
+
+
+def test_the_fit_functions_are_still_reached_where_they_lived_before_the_fit_module():
+    """``fmu_opinf.rom.fit_rom`` and ``fit_rom_file`` (scripts written before :mod:`fmu_opinf.fit`) are the fit
+    module's functions, and a misspelt name is still an AttributeError."""
+    from fmu_opinf import fit, rom
+
+    assert rom.fit_rom is fit.fit_rom and rom.fit_rom_file is fit.fit_rom_file
+    with pytest.raises(AttributeError, match="fit_romm"):
+        rom.fit_romm

@@ -266,7 +266,7 @@ def test_distributed_pod_tall_data_equals_incore(tall_set, ratio, monkeypatch):
 @pytest.fixture(scope="module")
 def roms(client, recorded, tmp_path_factory):
     """The ROM of the per-run set (fitted while the client is active: distributed POD) and of one file."""
-    from fmu_opinf.rom import fit_rom, fit_rom_file
+    from fmu_opinf.fit import fit_rom, fit_rom_file
 
     out = tmp_path_factory.mktemp("roms")
     one = out / "one.h5"
@@ -290,7 +290,7 @@ def test_fit_from_run_set_equals_fit_from_one_file(roms, recorded):
     """In core the per-run set is the one file's data set exactly; through the distributed POD the basis agrees
     to round-off and the operators to the fit's own conditioning (a relative 1e-15 perturbation of the snapshots
     moves this fit's Mr by ~1e-5, measured)."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
 
     rom_set, rom_one, _ = roms
     assert (rom_set.fit_info["pod_method"], rom_one.fit_info["pod_method"]) == ("distributed-tsqr-transposed", "dense")

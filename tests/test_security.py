@@ -31,7 +31,7 @@ SIGNAL = "impulse:amplitude=10,t0=1,width=0.5"
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A small valid snapshot file and a ROM fitted from it (anchored chain, g = 12)."""
-    from fmu_opinf.rom import fit_rom_file
+    from fmu_opinf.fit import fit_rom_file
 
     folder = tmp_path_factory.mktemp("valid")
     snaps = folder / "s.h5"

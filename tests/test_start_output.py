@@ -1,5 +1,5 @@
 """The ROM's outputs at its start against the source's (audit 69 F3): recorded in ``fit_info`` and warned about by
-``fit`` and ``export`` where they miss by more than :data:`fmu_opinf.rom.START_OUTPUT_MISS` of an output's range.
+``fit`` and ``export`` where they miss by more than :data:`fmu_opinf.fit.START_OUTPUT_MISS` of an output's range.
 
 Reference: the exact zero-order-hold response of a 12-mass chain started off rest (``lti_fmus.zoh_response``),
 against the ROM's own simulation at ``t = 0`` (not the output map that ``fit_rom`` evaluates)."""
@@ -12,7 +12,7 @@ import pytest
 from fmu_opinf import lti_fmus
 from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.export import _warn_if_start_is_missed
-from fmu_opinf.rom import START_OUTPUT_MISS, fit_rom
+from fmu_opinf.fit import START_OUTPUT_MISS, fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid

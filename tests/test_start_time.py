@@ -113,7 +113,7 @@ def test_record_t0_is_still_an_absolute_start(fmus):
 @pytest.mark.slow  # 9 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
 def test_compare_runs_the_fmu_from_the_training_start(fmus, tmp_path):
     from fmu_opinf.compare import compare
-    from fmu_opinf.rom import fit_rom_file
+    from fmu_opinf.fit import fit_rom_file
 
     _snapshots(fmus["2.0"], tmp_path / "s.h5")
     rom = fit_rom_file(tmp_path / "s.h5", tmp_path / "rom.h5", quiet=True)

@@ -15,7 +15,7 @@ import pytest
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.errors import FmuOpinfWarning
-from fmu_opinf.rom import fit_rom_file
+from fmu_opinf.fit import fit_rom_file
 from fmu_opinf.snapshots import record_to_file
 
 from conftest import build_fmu_set

@@ -104,7 +104,7 @@ def _two_input_chain():
 def test_two_inputs_recorded_by_default_give_a_rom_that_tells_them_apart(tmp_path):
     """Both inputs driven by one impulse at once made them indistinguishable: Br had equal columns and an
     independent test input was 9.1 off.  By default each input now has a run of its own."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import Snapshots, record_to_file
 
     model = _two_input_chain()
@@ -128,7 +128,7 @@ def test_a_model_on_a_millisecond_scale_gets_a_default_impulse_it_responds_to(tm
     26 samples, max eps_y 0.85 on a 3000 rad/s input).  The recorder shrinks the impulse until the response
     outlasts it, and it knows that from the step check's first run: the check's second run (dt / 2) of the
     refused pulse is not made (it took 14 of the 30 s the recording took)."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import Snapshots, _window, record_to_file
 
     labels = []
@@ -179,7 +179,7 @@ def test_an_fe_like_model_gets_a_default_impulse_that_shows_its_dynamics(tmp_pat
     snapshots held one static shape per input, the energy criterion kept r = 2, and the ROM was 8.2 % of the
     range off on a harmonic test (this bar; 4-9 % on the audit's 300-node bar) while it reproduced its own
     training.  The impulse is now shrunk to one period of the fastest significant frequency (33 ms)."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import Snapshots, record_to_file
 
     model, fmu = _fe_like_bar(tmp_path / "bar.fmu")
@@ -235,7 +235,7 @@ def test_the_default_training_of_a_model_the_first_pilot_aliases_gives_an_accura
     (f_max 0.56 Hz), fitted r = 8, and the ROM was 2 %, 35 % and 304 % of each output's range off on a harmonic at
     0.9 times the first mode.  The pilots now see the mode, the pulse is shrunk to it, and the ROM is exact to
     about 1.6 %.  Reference: the exact zero-order-hold response on a fine grid."""
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import record_to_file
 
     model, fmu = _stiff_light_bar(tmp_path / "bar.fmu")
@@ -259,7 +259,7 @@ def test_fit_warns_when_the_training_inputs_cannot_be_told_apart():
 
     from fmu_opinf import newmark, systems
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
 
     base = systems.anchored_msd(g=20)
     import scipy.sparse as sp
@@ -410,7 +410,7 @@ def test_display_units_reach_the_exported_fmu_where_their_unit_defines_them(tmp_
 
     from fmu_opinf.errors import FmuOpinfWarning
     from fmu_opinf.export import export_fmu
-    from fmu_opinf.rom import fit_rom
+    from fmu_opinf.fit import fit_rom
     from fmu_opinf.snapshots import Snapshots, record_to_file
 
     def edit(text: str) -> str:

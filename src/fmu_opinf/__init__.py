@@ -3,6 +3,8 @@
 Pipeline, one module per stage::
 
     source -> snapshots -> basis -> inference -> rom -> compare / export
+
+(``fit`` drives basis and inference into a ``rom``: order, extra terms, refinement, training checks.)
 """
 
 __version__ = "0.1.0"

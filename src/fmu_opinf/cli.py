@@ -266,7 +266,7 @@ def _run_snapshots(args: argparse.Namespace) -> None:
 
 
 def _run_fit(args: argparse.Namespace) -> None:
-    from .rom import fit_rom_file
+    from .fit import fit_rom_file
 
     rom = fit_rom_file(args.snapshots, args.output, r=args.r, energy=args.energy, basis=args.basis,
                        figures=args.figures, overwrite=args.force, quiet=args.quiet,

@@ -93,7 +93,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     With ``compile_fmus=False`` (no C compiler) the builtin reference simulator of the same model
     stands in for the benchmark FMU and the ROM is not exported (``"rom_fmu"`` is None).
     """
-    from . import compare, export, fmus, plots, rom, snapshots
+    from . import compare, export, fit, fmus, plots, snapshots
     from .source import FMUSource
 
     case = CASES[name]
@@ -128,7 +128,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     order = case.quick_order if quick else None
     # --quick leaves out the least-squares candidate: on both models the refined SDP solution is kept over it, so
     # the ROM is the same (tested), 0.7-1.2 s sooner per model
-    model = rom.fit_rom(snaps, r=order, quiet=quiet, least_squares_candidate=not quick)  # labelled stage lines
+    model = fit.fit_rom(snaps, r=order, quiet=quiet, least_squares_candidate=not quick)  # labelled stage lines
     timings["fit"] = time.perf_counter() - start
     model.save(out_dir / "rom.h5", overwrite=True)
     test = {"fmu_path": fmu_path, "dt": dt, "t_end": dt * round(case.test_t_end / dt), "quiet": quiet}

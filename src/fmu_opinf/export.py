@@ -734,9 +734,9 @@ def _warn_if_recording_warned(provenance: dict) -> bool:
 
 def _warn_if_start_is_missed(rom: Any) -> None:
     """The fit's warning that the ROM's outputs at its start miss the source's
-    (:func:`fmu_opinf.rom.start_miss_warning`) again at export: the ROM FMU run with nothing connected shows that
+    (:func:`fmu_opinf.fit.start_miss_warning`) again at export: the ROM FMU run with nothing connected shows that
     miss first (audit 69 F3)."""
-    from .rom import start_miss_warning
+    from .fit import start_miss_warning
 
     message = start_miss_warning(getattr(rom, "fit_info", None) or {}, list(getattr(rom, "output_names", None) or ()))
     if message:

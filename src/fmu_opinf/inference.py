@@ -93,7 +93,7 @@ outputs was also measured and not kept: at r = 10 / 20 it reached 1.3e-4 / 2.4e-
 larger state error than the SDP solution on these data, so state error is not a proxy for output accuracy).
 
 ``fit_operators(..., dt=, y=)`` refines by default (``refine="auto"``); ``refine=False`` returns the SDP
-solution and ``normalization="trace", refine=False`` is the paper's plain eq. (16).  :func:`fmu_opinf.rom.fit_rom`
+solution and ``normalization="trace", refine=False`` is the paper's plain eq. (16).  :func:`fmu_opinf.fit.fit_rom`
 passes ``dt``, the outputs net of any fitted feedthrough and offset, the output map and the run lengths for Newmark
 ROMs fitted without ``lowpass`` (``fit_rom(refine=False)``, ``fmu-opinf fit --no-refine`` keep the SDP solution).
 ``fit_info["refinement"]``
@@ -890,7 +890,7 @@ def fit_operators(
     screen : (sequence of int, callable), optional
         ``(checkpoints, test)`` of :func:`refine_output_error` for the refinement from the SDP solution: ends it
         early where ``test`` finds the model hopeless at one of those iteration counts (the order search's screening,
-        :func:`fmu_opinf.rom.fit_rom`).  Applied only where no second start runs (no realization of least
+        :func:`fmu_opinf.fit.fit_rom`).  Applied only where no second start runs (no realization of least
         squares to refine), so that the two starts are never compared at unequal budgets.
 
     Returns
@@ -1295,7 +1295,7 @@ def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: in
     Filtering all of ``Xr'', Xr', Xr, U`` with the same linear time-invariant filter multiplies the stacked
     data by one fixed matrix from the right, ``Z -> Z F``, so an exact relation ``Theta Z = 0`` is kept
     exactly; the residual of eq. (16) is only *weighted* in frequency.  Used to keep the closure error of
-    truncated high-frequency modes out of the fit (:func:`fmu_opinf.rom.fit_rom`, ``lowpass=``).
+    truncated high-frequency modes out of the fit (:func:`fmu_opinf.fit.fit_rom`, ``lowpass=``).
 
     Parameters
     ----------
@@ -1439,7 +1439,7 @@ def term_residuals(base: list[np.ndarray], extra: np.ndarray, target: np.ndarray
     """Least-squares residuals of ``target`` explained by the rows of ``base`` without and with ``extra``.
 
     Used to decide from the data whether a term is present: it is kept when the second residual is at most
-    :data:`TERM_SIGNIFICANCE` times the first (see :func:`fmu_opinf.rom.fit_rom`, ``terms``).  ``spaces``: a
+    :data:`TERM_SIGNIFICANCE` times the first (see :func:`fmu_opinf.fit.fit_rom`, ``terms``).  ``spaces``: a
     dict shared by calls on the same arrays, so that each set of rows is factorized once (the three terms' six
     problems span three spaces; seventh audit, 172,180 samples: 10.8 of a 16 s fit went to these factorizations).
 

@@ -617,8 +617,8 @@ def refine_output_error(
         ``(checkpoints, test)``: after each of those numbers of L-BFGS iterations ``test(iterations, Mr, Dr, Kr,
         Br)`` gets the iterate's operators (in the given coordinates, ``Mr`` as the factors make it, not yet
         symmetrized) and ends the refinement there where it returns True (status ``"screened out"``): the order
-        search of :func:`fmu_opinf.rom.fit_rom` stops refining an order that still misses its training outputs
-        grossly, which it discards (:data:`fmu_opinf.rom.SCREEN_CHECKPOINTS`).  Otherwise the refinement goes on
+        search of :func:`fmu_opinf.fit.fit_rom` stops refining an order that still misses its training outputs
+        grossly, which it discards (:data:`fmu_opinf.fit.SCREEN_CHECKPOINTS`).  Otherwise the refinement goes on
         as without it, to the same iterates.
 
     Returns

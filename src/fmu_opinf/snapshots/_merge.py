@@ -30,7 +30,7 @@ _KEYS = ("fmu_name", "fmu_sha256", "fmi_interface", "fmu_settings", "recording_v
 
 _INTERFACES = {"me": "model exchange", "cs": "co-simulation"}
 
-#: The verdicts that change how ``fit`` treats a recording (:func:`fmu_opinf.rom._recorded_euler_step`) and what
+#: The verdicts that change how ``fit`` treats a recording (:func:`fmu_opinf.fit._recorded_euler_step`) and what
 #: each says.
 _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps",
                   "backward-euler": "the FMU's semi-implicit Euler co-simulation steps",

@@ -901,7 +901,7 @@ def record_to_file(
     points_per_period, window_energy, fade : float
         Thresholds of :func:`auto_window` (``window_energy`` is its ``energy``, the share of the pilots' spectral
         energy below the fastest significant frequency; named apart from the POD energy of
-        :func:`fmu_opinf.rom.fit_rom`; ``energy=`` still works, with a DeprecationWarning).
+        :func:`fmu_opinf.fit.fit_rom`; ``energy=`` still works, with a DeprecationWarning).
     overwrite : bool, default=False
     quiet : bool, default=False
     isolate : bool, default=True
