@@ -145,3 +145,61 @@ def test_a_warning_on_a_thousand_files_stays_one_short_line():
     assert said is not None and len(said) < 300 and "\n" not in said
     assert "k: r0.h5 0, r1.h5 1, r2.h5 2, r3.h5 3, ... (1000 in all)" in said
     assert said.endswith("fit one ROM per setting")
+
+
+def _two_fmus(tmp_path) -> Snapshots:
+    """A folder of two exact recordings attributed to two FMUs (a.fmu, b.fmu), opened as one set."""
+    _exact_part(1.0, {"fmu_name": "a.fmu", "fmu_sha256": "aa" * 32, "fmu_guid": "{a}", "source": "/x/a.fmu"}).save(
+        tmp_path / "a.h5")
+    _exact_part(1.0, {"fmu_name": "b.fmu", "fmu_sha256": "bb" * 32, "fmu_guid": "{b}", "source": "/x/b.fmu"}).save(
+        tmp_path / "b.h5")
+    return open_snapshot_set(tmp_path)
+
+
+def test_a_set_merged_from_two_fmus_names_neither_alone_and_keeps_both(tmp_path):
+    """The set's FMU was the first file's (name, hash, GUID, path: audit 72 F3, ode1.fmu appeared nowhere): it now
+    says how many FMUs it holds and names them, and each part keeps its own; through a fit into the ROM."""
+    with _two_fmus(tmp_path) as snaps:
+        attrs = dict(snaps.attrs)
+        with pytest.warns(FmuOpinfWarning, match="from different FMUs"):
+            rom = fit_rom(snaps, r=4, quiet=True, refine=False)
+    assert attrs["fmu_name"] == "2 FMUs merged (a.fmu, b.fmu)"
+    assert attrs["source"] == "2 FMUs merged (a.fmu, b.fmu)"
+    assert "fmu_sha256" not in attrs and "fmu_guid" not in attrs
+    assert [(p["fmu_name"], p["fmu_sha256"]) for p in attrs["merged_parts"]["parts"]] == [
+        ("a.fmu", "aa" * 32), ("b.fmu", "bb" * 32)]
+    recorded = rom.provenance["snapshots"]
+    assert recorded["fmu_name"] == "2 FMUs merged (a.fmu, b.fmu)" and recorded.get("fmu_guid") is None
+
+
+def test_a_set_of_one_fmu_keeps_its_name_and_hash():
+    """Parts of one FMU (a run table's rows at two settings) still name it: only different FMUs are merged names."""
+    fmu = {"fmu_name": "c4.fmu", "fmu_sha256": "93db" * 16, "fmu_guid": "{c4}"}
+    merged = Snapshots().append(_exact_part(1.0, fmu)).append(_exact_part(2.5, {**fmu, "fmu_settings": {"k": 2.5}}))
+    assert (merged.attrs["fmu_name"], merged.attrs["fmu_sha256"], merged.attrs["fmu_guid"]) == (
+        "c4.fmu", "93db" * 16, "{c4}")
+
+
+def test_compare_and_export_repeat_the_merge_warning_once(tmp_path):
+    """fit warned that the merged files come from two FMUs; compare and export said nothing (audit 72 F3/F4).  Each
+    now repeats that one line, once, from the ROM's stored provenance; the exported FMU's description names the two
+    FMUs, not the first one's GUID."""
+    import re
+    import warnings
+
+    from fmu_opinf.compare import compare
+    from fmu_opinf.export import rom_fmu_spec
+
+    with _two_fmus(tmp_path) as snaps, pytest.warns(FmuOpinfWarning):
+        fit_rom(snaps, r=4, quiet=True, refine=False).save(tmp_path / "rom.h5")
+    rom = SecondOrderROM.load(tmp_path / "rom.h5")
+    said = r"as fit warned, the merged snapshot files \(a\.h5, b\.h5\) were recorded from different FMUs"
+    for run in (lambda: compare(rom, tmp_path / "rom.h5", "harmonic:amplitude=1,omega=0.9", t_end=5.0, quiet=True),
+                lambda: rom_fmu_spec(rom)):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = run()
+        repeated = [w for w in caught if "as fit warned, the merged" in str(w.message)]
+        assert len(repeated) == 1, [str(w.message) for w in caught]
+        assert re.search(said, str(repeated[0].message))
+    assert "2 FMUs merged (a.fmu, b.fmu)" in result.description and "GUID" not in result.description

@@ -356,6 +356,13 @@ def _training_inputs(provenance: dict) -> str:
     return _lookup(provenance, ("input_spec", "training_input", "signal"))
 
 
+def _guid(pick: Any) -> str:
+    """`` (GUID ...)`` of the source FMU for the description; "" where none is recorded (a set merged from several
+    FMUs names none: :func:`fmu_opinf.snapshots._merge.merged_source`)."""
+    guid = pick("fmu_guid", "guid", "source_guid")
+    return "" if guid == "unknown" else f" (GUID {guid})"
+
+
 def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     provenance = dict(getattr(rom, "provenance", None) or {})
 
@@ -366,8 +373,7 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     source = pick("fmu_name", "source", "source_path")
     text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis, "
             f"{getattr(rom, 'integrator', 'newmark')} integrator) learned by operator inference from "
-            f"{Path(source).name if not source.startswith('builtin:') else source} "
-            f"(GUID {pick('fmu_guid', 'guid', 'source_guid')}); training input {_training_inputs(provenance)}; "
+            f"{Path(source).name if not source.startswith('builtin:') else source}{_guid(pick)}; training input {_training_inputs(provenance)}; "
             f"fitted {pick('fit_date', 'date', 'created')}; training step dt="
             f"{'unknown' if dt is None else repr(float(dt))}")
     if reconstructed:
@@ -437,6 +443,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     provenance = dict(getattr(rom, "provenance", None) or {})
     if _warn_if_recording_warned(provenance):
         description += "; trained on a recording that fmu-opinf snapshots warned about (provenance.json)"
+    _warn_if_merged(provenance)
     input_units, output_units = _declared_units(provenance, m, p)
     t_train_end = provenance.get("t_train_end")
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
@@ -730,6 +737,16 @@ def _warn_if_recording_warned(provenance: dict) -> bool:
     if message:
         warnings.warn(message, FmuOpinfWarning, stacklevel=4)
     return bool(message)
+
+
+def _warn_if_merged(provenance: dict) -> None:
+    """The warning ``fit`` gave where the ROM's merged snapshot files differ (FMU, interface, settings), again: the
+    exported FMU is one model fitted to all of them (audit 72 F3, F4: ``fit`` warned, ``export`` said nothing)."""
+    from .snapshots._merge import repeated_merge_warning
+
+    message = repeated_merge_warning(provenance.get("snapshots"))
+    if message:
+        warnings.warn(message, FmuOpinfWarning, stacklevel=4)
 
 
 def _warn_if_start_is_missed(rom: Any) -> None:

@@ -18,8 +18,8 @@ from typing import Any
 
 from ._notes import VERDICTS, texts
 
-__all__ = ["MERGED_PARTS", "merge_differences", "merge_warnings", "merged_parts", "mixed_steps", "part_summary",
-           "part_verdicts"]
+__all__ = ["MERGED_PARTS", "SOURCE_KEYS", "merge_differences", "merge_warnings", "merged_parts", "merged_source",
+           "mixed_steps", "part_summary", "part_verdicts", "repeated_merge_warning"]
 
 #: The attribute that holds the parts' summaries: ``{"parts": [summary, ...]}`` (JSON object, as the other dict
 #: attributes).
@@ -150,6 +150,35 @@ def mixed_steps(attrs: dict[str, Any]) -> str | None:
             "runs, so the fit keeps the SDP solution of eq. (16), fitted to the FMU's derivatives at the recorded "
             "states (fit_rom(refine=True) refines anyway); where the accelerations were derived from the "
             "samples they follow the Euler steps: then fit the two kinds apart")
+
+
+#: The top-level attributes that name one recording's FMU; a set merged from different FMUs drops them, as its
+#: ``fmu_name`` and ``source`` say how many FMUs it holds (:func:`merged_source`).
+SOURCE_KEYS = ("fmu_guid", "fmu_sha256")
+
+
+def merged_source(parts: list[dict[str, Any]]) -> str | None:
+    """What a set merged from ``parts`` names as its FMU where the parts come from different FMUs, e.g.
+    ``"2 FMUs merged (c4.fmu, ode1.fmu)"`` (each part keeps its own in ``merged_parts``); None where every part
+    names the same FMU (or none).
+
+    The merge took the first part's attributes as the set's: its FMU name, hash and GUID stood for every part, so
+    the ROM's provenance, ``compare``'s words and the exported FMU's description named one FMU of several (audit 72
+    F3).  FMUs are told apart by their hash where every part records one, else by their file name."""
+    key = "fmu_sha256" if all(part.get("fmu_sha256") for part in parts) else "fmu_name"
+    distinct = {str(part[key]) for part in parts if part.get(key)}
+    if len(distinct) < 2:
+        return None
+    names = list(dict.fromkeys(str(part.get("fmu_name") or "unnamed FMU") for part in parts))
+    return f"{len(distinct)} FMUs merged ({_listing(names)})"
+
+
+def repeated_merge_warning(snapshots: Any) -> str | None:
+    """The warning ``fit`` gave where the merged snapshot files of a ROM differ (:func:`merge_differences`), from
+    the ROM's snapshot provenance ``snapshots`` (a ROM file's, or an exported ROM FMU's provenance.json), for
+    ``compare`` and ``export`` to repeat; None for one recording, parts that agree, or no provenance."""
+    text = merge_differences(snapshots) if isinstance(snapshots, dict) else None
+    return f"as fit warned, {text}" if text else None
 
 
 def merge_warnings(attrs: dict[str, Any]) -> list[str]:
