@@ -326,7 +326,9 @@ def _run_compare(args: argparse.Namespace) -> None:
     result = compare(args.rom, args.source, args.input_spec, dt=args.dt, t_end=args.t_end, quiet=args.quiet,
                      source_options=options)
     page = write_report(result, args.output)
-    print(summary_table([(Path(str(args.rom)).name, result.metrics())]))
+    name = Path(str(args.rom)).name
+    print(summary_table([(name, result.metrics())] + [(f"{name}, {alone.driven_alone} alone", alone.run_metrics())
+                                                      for alone in result.each_input_alone]))
     print(f"report: {page}")
 
 

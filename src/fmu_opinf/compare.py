@@ -223,6 +223,12 @@ class Comparison:
         Unit of each output where the FMU declares one ("" where not), for the figure labels.
     input_choice : str
         Where ``compare`` chose the test input itself (none given): how and why, else "".
+    driven_alone : str
+        The input this comparison drove alone (the others held at their operating point), "" where it drove all.
+    each_input_alone : list of Comparison
+        Where ``compare`` chose a test input driving two inputs or more: the same harmonics, one input swinging at a
+        time (:func:`fmu_opinf._test_input.each_input_alone`), so that an input whose response the others' hide is
+        judged on its own.
     timed : dict
         What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
         the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:
@@ -245,6 +251,8 @@ class Comparison:
     timed: dict[str, Any] = field(default_factory=dict)
     input_choice: str = ""   # why, where compare chose the test input itself (no --input)
     order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
+    driven_alone: str = ""   # the input this comparison drove alone, "" for all (compare's runs of each_input_alone)
+    each_input_alone: list["Comparison"] = field(default_factory=list)
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -273,8 +281,16 @@ class Comparison:
             "fom": jsonable(self.fom_provenance),
             "rom": jsonable(self.rom_provenance),
             "order": dict(self.order) or None,
+            "driven_alone": self.driven_alone or None,
+            "each_input_alone": [alone.run_metrics() for alone in self.each_input_alone] or None,
         })
         return out
+
+    def run_metrics(self) -> dict[str, Any]:
+        """:meth:`metrics` without what a comparison of several runs says once for all (provenance, what the times
+        measured): those of a run of one input alone."""
+        return {key: value for key, value in self.metrics().items()
+                if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone")}
 
 
 
@@ -493,9 +509,6 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     Comparison
     """
     from .newmark import MAX_GRID_STEPS, time_grid
-    from .rom import held_input_names
-    from .signals import parse_signal
-    from .snapshots._record import check_table_times
     from .sources import StepError
 
     rom_side = _load_rom_side(rom)
@@ -531,38 +544,74 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
             print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
-    held = held_input_names(rom_info["provenance"])
-    signal = _held_at_start_values(parse_signal(signal, rom_info["m"], rom_info["input_names"], held), source,
-                                   source_options)
-
-    check_table_times([signal], float(source_options.get("start_time") or 0.0))
-    trained = _trained_input_names(rom_info)
-    by_name = {"signal_inputs": trained} if _fmu_path(source) and trained else {}
+    alone = _each_input_alone(signal, rom_info) if why else []
+    if alone and not quiet:
+        print(f"then each of {', '.join(name for name, _ in alone)} alone ({len(alone)} more runs of the source: "
+              "together, the input that moves the outputs most hides the others' errors)", file=sys.stderr)
+    run = _Run(rom_side, rom_info, source, source_options, t, quiet)
     try:
-        y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=quiet,
-                                                                     **source_options, **by_name)
+        result = run.compared(signal, why)
+        result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
     except StepError as stopped:
         raise _past_termination(stopped, float(t_end), end_given, end_from) from None
-    rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
-    # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
-    isolate = bool(source_options.get("isolate", True))
-    rom_options: dict[str, Any] = ({"isolate": isolate, **rom_info.get("fmu_options", {})}
-                                   if isinstance(rom_side, Path) else {})
-    if not isinstance(rom_side, Path):
-        rom_options["initial"] = _source_start(rom_side, source, signal, t, source_options)
-    y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
-    y_rom = np.atleast_2d(y_rom)[rows]
-    if why:
-        why += _past_training(y_fom, y_rom, list(fom_outputs), rom_info, source)
-    return Comparison(
-        t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
-        output_units=_declared_units(source, list(fom_outputs)),
-        input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
-        fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
-        timed=_timed(source, rom_side, isolate, fom_prov),
-        input_choice=f"chosen without --input: {why}" if why else "",
-        order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
-    )
+    return result
+
+
+def _each_input_alone(spec: str, rom_info: dict[str, Any]) -> list[tuple[str, str]]:
+    """The chosen test input ``spec`` with each driven input swinging alone (:func:`fmu_opinf._test_input.
+    each_input_alone`); empty where fewer than two inputs swing."""
+    from ._test_input import each_input_alone
+
+    return each_input_alone(spec, int(rom_info["m"]), list(rom_info["input_names"] or []))
+
+
+@dataclass
+class _Run:
+    """One comparison's two sides, the grid and the source's options: :meth:`compared` runs both on an input."""
+
+    rom_side: Any
+    rom_info: dict[str, Any]
+    source: Any
+    source_options: dict[str, Any]
+    t: np.ndarray
+    quiet: bool
+
+    def compared(self, spec: Any, why: str, alone: str = "") -> Comparison:
+        """The source and the ROM on the input ``spec`` (``why``: how compare chose it, "" where given; ``alone``:
+        the input it drives alone, "" for all)."""
+        from .rom import held_input_names
+        from .signals import parse_signal
+        from .snapshots._record import check_table_times
+
+        rom_side, rom_info, source, options, t = self.rom_side, self.rom_info, self.source, self.source_options, self.t
+        held = held_input_names(rom_info["provenance"])
+        signal = _held_at_start_values(parse_signal(spec, rom_info["m"], rom_info["input_names"], held), source,
+                                       options)
+        check_table_times([signal], float(options.get("start_time") or 0.0))
+        trained = _trained_input_names(rom_info)
+        by_name = {"signal_inputs": trained} if _fmu_path(source) and trained else {}
+        y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=self.quiet, **options,
+                                                                     **by_name)
+        rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
+        # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
+        isolate = bool(options.get("isolate", True))
+        rom_options: dict[str, Any] = ({"isolate": isolate, **rom_info.get("fmu_options", {})}
+                                       if isinstance(rom_side, Path) else {})
+        if not isinstance(rom_side, Path):
+            rom_options["initial"] = _source_start(rom_side, source, signal, t, options)
+        y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
+        y_rom = np.atleast_2d(y_rom)[rows]
+        if why:
+            why += _past_training(y_fom, y_rom, list(fom_outputs), rom_info, source)
+        return Comparison(
+            t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
+            output_units=_declared_units(source, list(fom_outputs)),
+            input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
+            fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
+            timed=_timed(source, rom_side, isolate, fom_prov),
+            input_choice=f"chosen without --input: {why}" if why else "",
+            order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
+            driven_alone=alone)
 
 
 def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
@@ -1333,6 +1382,7 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
         f'{base64.b64encode(Path(png).read_bytes()).decode()}"><figcaption>{html.escape(caption)}</figcaption></figure>'
         for caption, png in figures.items())
     notes = _html_table([(k, v) for k, v in metrics.get("notes", {}).items()]) if metrics.get("notes") else ""
+    alone = _html_each_input_alone(metrics.get("each_input_alone") or [])
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(comparison.title)}</title>
 <style>
@@ -1347,12 +1397,32 @@ figure {{ margin: 1em 0; }} img {{ max-width: 100%; }} figcaption {{ color: #555
 with the full-order model on an input it was not trained on. The error measure is the paper's eq. (19):
 eps_y(t) = |y(t) - y_rom(t)|^2 / max_t |y(t)|^2.</p>
 <h2>Result</h2>{_html_table(headline)}
-<h2>Per output</h2>{_html_table(per_output)}
+<h2>Per output</h2>{_html_table(per_output)}{alone}
 <h2>Figures</h2>{images}
 <h2>Settings</h2>{_html_table(settings)}{notes}
 <h2>Provenance</h2>{_html_table(provenance)}
 </body></html>
 """
+
+
+def _html_each_input_alone(runs: list[dict[str, Any]]) -> str:
+    """The report's section on the runs of each input alone: per run the input driven, its spec, eq. (19) and the
+    output furthest off relative to its range, with the run's notes ("" where there are none)."""
+    if not runs:
+        return ""
+    rows = []
+    for run in runs:
+        worst = max(run["per_output"].items(), key=lambda item: _or_zero(item[1].get("relative_max_variation")))
+        text = (f"input {run['input']}; max eps_y {_fmt(run['max_error'])}; {worst[0]} off by "
+                f"{_fmt(worst[1].get('relative_max_variation', math.nan))} of its range")
+        rows.append((f"{run['driven_alone']} alone", "; ".join([text] + comparison_notes(run))))
+    return ("<h2>Each input alone</h2><p>The same harmonics, one input swinging at a time (the others at their "
+            "operating point): together, the input that moves the outputs most hides the others' errors.</p>"
+            + _html_table(rows))
+
+
+def _or_zero(value: Any) -> float:
+    return float(value) if isinstance(value, float) and math.isfinite(value) else 0.0
 
 
 def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
