@@ -40,8 +40,8 @@ from .errors import FmuOpinfError, InputSpecError
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
 
-__all__ = ["default_test_input", "each_input_alone", "carried_for_grid", "training_peaks", "recorded_peaks", "cosine_phase", "PERIODS",
-           "SAMPLES_PER_PERIOD", "PEAK_SHARE"]
+__all__ = ["default_test_input", "each_input_alone", "carried_for_grid", "training_peaks", "recorded_peaks",
+           "cosine_phase", "PERIODS", "SAMPLES_PER_PERIOD", "PEAK_SHARE"]
 
 #: The fewest periods of the test harmonic within the comparison, and its fewest samples per period.
 PERIODS, SAMPLES_PER_PERIOD = 4, 20

@@ -212,7 +212,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="test input signal (or --runs), ';'-separated specs in the ROM's input order (the "
                         "FMU gets each at the input of its name); default: a harmonic on each input the training "
                         "drove, "
-                        "off the ROM's natural frequencies, sized to stay within the training's output range; 'none' "
+                        "off the ROM's natural frequencies, sized to stay within the training's output range, and "
+                        "with two driven inputs or more each input's harmonic alone as well (a row each); 'none' "
                         "(the default for a ROM without inputs): the free response from the source's initial state")
     p.add_argument("--dt", type=float, help="step (default: the ROM's training step)")
     p.add_argument("--t-end", type=float, help="end time (default: four times the training end time, cut before "

@@ -490,9 +490,12 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         Test input (see :mod:`fmu_opinf.signals`).  Default: for a ROM without inputs ``"none"`` (the free response
         from the initial state; the source's inputs, if any, held at their start values), else a harmonic on
         each input the training drove, at the training's amplitude and operating point and at a frequency between
-        the ROM's natural frequencies (:mod:`fmu_opinf._test_input`).  Both sides start from the source's initial
-        state: the ROM from the source's positions and velocities after initialization, projected on its basis (its
-        stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be read).
+        the ROM's natural frequencies (:mod:`fmu_opinf._test_input`); with two driven inputs or more, the same
+        harmonics once more per input, it alone swinging (``each_input_alone`` of the result: one more run of the
+        source each; together, the input that moves the outputs most hid another's 11 % error).  Both sides start
+        from the source's initial state: the ROM from the source's positions and velocities after initialization,
+        projected on its basis (its stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be
+        read).
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time, cut before the time at which
         the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).

@@ -373,7 +373,8 @@ def _description(rom: Any, r: int, reconstructed: list[str]) -> str:
     source = pick("fmu_name", "source", "source_path")
     text = (f"Reduced second-order model (r={r}, {getattr(rom, 'basis_kind', 'unknown')} basis, "
             f"{getattr(rom, 'integrator', 'newmark')} integrator) learned by operator inference from "
-            f"{Path(source).name if not source.startswith('builtin:') else source}{_guid(pick)}; training input {_training_inputs(provenance)}; "
+            f"{Path(source).name if not source.startswith('builtin:') else source}{_guid(pick)}; "
+            f"training input {_training_inputs(provenance)}; "
             f"fitted {pick('fit_date', 'date', 'created')}; training step dt="
             f"{'unknown' if dt is None else repr(float(dt))}")
     if reconstructed:
