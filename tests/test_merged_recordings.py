@@ -149,10 +149,10 @@ def test_a_warning_on_a_thousand_files_stays_one_short_line():
 
 def _two_fmus(tmp_path) -> Snapshots:
     """A folder of two exact recordings attributed to two FMUs (a.fmu, b.fmu), opened as one set."""
-    _exact_part(1.0, {"fmu_name": "a.fmu", "fmu_sha256": "aa" * 32, "fmu_guid": "{a}", "source": "/x/a.fmu"}).save(
-        tmp_path / "a.h5")
-    _exact_part(1.0, {"fmu_name": "b.fmu", "fmu_sha256": "bb" * 32, "fmu_guid": "{b}", "source": "/x/b.fmu"}).save(
-        tmp_path / "b.h5")
+    _exact_part(1.0, {"fmu_name": "a.fmu", "fmu_sha256": "aa" * 32, "fmu_guid": "{a}", "source": "/x/a.fmu",
+                      "fmi_interface": "me"}).save(tmp_path / "a.h5")
+    _exact_part(1.0, {"fmu_name": "b.fmu", "fmu_sha256": "bb" * 32, "fmu_guid": "{b}", "source": "/x/b.fmu",
+                      "fmi_interface": "cs"}).save(tmp_path / "b.h5")
     return open_snapshot_set(tmp_path)
 
 
@@ -165,7 +165,7 @@ def test_a_set_merged_from_two_fmus_names_neither_alone_and_keeps_both(tmp_path)
             rom = fit_rom(snaps, r=4, quiet=True, refine=False)
     assert attrs["fmu_name"] == "2 FMUs merged (a.fmu, b.fmu)"
     assert attrs["source"] == "2 FMUs merged (a.fmu, b.fmu)"
-    assert "fmu_sha256" not in attrs and "fmu_guid" not in attrs
+    assert "fmu_sha256" not in attrs and "fmu_guid" not in attrs and "fmi_interface" not in attrs
     assert [(p["fmu_name"], p["fmu_sha256"]) for p in attrs["merged_parts"]["parts"]] == [
         ("a.fmu", "aa" * 32), ("b.fmu", "bb" * 32)]
     recorded = rom.provenance["snapshots"]
@@ -178,6 +178,9 @@ def test_a_set_of_one_fmu_keeps_its_name_and_hash():
     merged = Snapshots().append(_exact_part(1.0, fmu)).append(_exact_part(2.5, {**fmu, "fmu_settings": {"k": 2.5}}))
     assert (merged.attrs["fmu_name"], merged.attrs["fmu_sha256"], merged.attrs["fmu_guid"]) == (
         "c4.fmu", "93db" * 16, "{c4}")
+    fmu = {**fmu, "fmi_interface": "me"}
+    same = Snapshots().append(_exact_part(1.0, fmu)).append(_exact_part(1.0, fmu))
+    assert same.attrs["fmi_interface"] == "me" and same.attrs["fmu_name"] == "c4.fmu"
 
 
 def test_compare_and_export_repeat_the_merge_warning_once(tmp_path):

@@ -17,7 +17,7 @@ from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_typ
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
-from ._merge import MERGED_PARTS, SOURCE_KEYS, merged_parts, merged_source
+from ._merge import MERGED_PARTS, SOURCE_KEYS, merged_parts, merged_source, mixed_interfaces
 from ._notes import VERDICTS, texts
 
 __all__ = ["Run", "Snapshots"]
@@ -210,9 +210,10 @@ class Snapshots:
 
     def _keep_parts(self, other: "Snapshots") -> None:
         """The summaries of all merged parts (:mod:`._merge`: file, FMU and its hash, interface, settings, verdicts),
-        the set's FMU named as several where the parts come from different FMUs (:func:`._merge.merged_source`), and
-        as ``recording_verdicts`` only those every part carries: one part's Euler verdict does not make the
-        fit treat every run as Euler steps (audit 72 F3); the fit says which parts carry which."""
+        the set's FMU named as several where the parts come from different FMUs (:func:`._merge.merged_source`) and
+        no interface where they differ in it, and as ``recording_verdicts`` only those every part carries: one
+        part's Euler verdict does not make the fit treat every run as Euler steps (audit 72 F3); the fit says which
+        parts carry which."""
         parts = merged_parts(self.attrs, self._part_name(1))
         parts += merged_parts(other.attrs, other._part_name(len(parts) + 1))
         self.attrs[MERGED_PARTS] = {"parts": parts}
@@ -221,6 +222,8 @@ class Snapshots:
             self.attrs.update(fmu_name=source, source=source)
             for key in SOURCE_KEYS:
                 self.attrs.pop(key, None)
+        if mixed_interfaces(parts):
+            self.attrs.pop("fmi_interface", None)
         every = set(texts(self.attrs.pop("recording_verdicts", None)))   # (each side's: those all its parts carry)
         every &= set(texts(other.attrs.get("recording_verdicts")))
         if every:

@@ -19,7 +19,7 @@ from typing import Any
 from ._notes import VERDICTS, texts
 
 __all__ = ["MERGED_PARTS", "SOURCE_KEYS", "merge_differences", "merge_warnings", "merged_parts", "merged_source",
-           "mixed_steps", "part_summary", "part_verdicts", "repeated_merge_warning"]
+           "mixed_interfaces", "mixed_steps", "part_summary", "part_verdicts", "repeated_merge_warning"]
 
 #: The attribute that holds the parts' summaries: ``{"parts": [summary, ...]}`` (JSON object, as the other dict
 #: attributes).
@@ -171,6 +171,12 @@ def merged_source(parts: list[dict[str, Any]]) -> str | None:
         return None
     names = list(dict.fromkeys(str(part.get("fmu_name") or "unnamed FMU") for part in parts))
     return f"{len(distinct)} FMUs merged ({_listing(names)})"
+
+
+def mixed_interfaces(parts: list[dict[str, Any]]) -> bool:
+    """Whether ``parts`` were recorded by different FMI interfaces (model exchange and co-simulation): the set then
+    names none (it named the first part's)."""
+    return len({part["fmi_interface"] for part in parts if part.get("fmi_interface")}) > 1
 
 
 def repeated_merge_warning(snapshots: Any) -> str | None:
