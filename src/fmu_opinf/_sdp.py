@@ -27,7 +27,18 @@ caller keeps whichever point has the better certificate.
 Measured and not kept (triple chain, ``cond(G) ~ 1e30``): ADMM on ``[Mr, Dr, Kr]`` with PSD projections
 (r = 10: objective still 77 % above the optimum after 20,000 iterations) and an active-face method with exact
 face solves (cycles: the optimal face of a PSD block is reached by rotations, not by adding or dropping
-directions).
+directions).  A matrix-free version of this method (2026-12-07, trace normalization, prototype outside the package):
+the same HKM predictor-corrector steps on ``T = [Mr, Dr, Kr]``, each Newton system solved by projected
+preconditioned CG on the operator ``dT -> 2 sym_b(dT G) + sym(X_b^-1 dT_b Z_b)`` (``O(r^3)`` per product, no Newton
+matrix), with a face polish by CG and this module's certificate.  The best ``O(r^3)`` preconditioner tried, one
+3 x 3 matrix per entry ``(i, j)`` coupling ``Mr, Dr, Kr`` in the POD basis, leaves the Hessian alone (no barrier)
+conditioned 5.0e3 / 2.8e4 / 2.5e5 at r = 20 / 35 / 50 (the block-diagonal Lyapunov preconditioner on ``G_bb``:
+1.9e6 / 4.3e6 / 5.9e6), with a spread tail (deflating its 100 smallest eigenvectors exactly still leaves
+13 / 468 / 3040).  CPU seconds (one BLAS thread, loaded machine): r = 20 2.5-2.9 and r = 35 11.9-13.1 (certified,
+11,300 and 30,600 CG products), r = 50 not certified in 31 s (objective 2.2e-6 above the optimum; with inner
+tolerances tied to the gap 1.0e-8 above after 150 s, certificate gap 1.5e-3), r = 70 / 100 not in 150 s; the dense
+path took 0.07 / 0.38 / 6.0 / 11.6 s at r = 20 / 35 / 50 / 70 in the same session.  One CG product costs
+0.3-0.4 / 0.5-0.6 / 0.9-1.1 / 1.8-2.0 ms at r = 35 / 50 / 70 / 100, so 5 s at r = 100 allow about 2,500 of them.
 
 Certificate
 -----------
