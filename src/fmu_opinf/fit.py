@@ -632,7 +632,39 @@ def fit_rom(
     checked = _training_position_error(model, runs[0]) if keep_basis else None
     if checked is not None:
         model.fit_info["training_position_error"], model.fit_info["training_projection_error"] = checked
+    _start_at_model_start(model, runs[0], attrs, pod.basis_, x_ref, ops.coordinates, say)
     return model
+
+
+def _start_at_model_start(model: SecondOrderROM, first: Any, attrs: dict, basis: np.ndarray, x_ref: np.ndarray,
+                          coordinates: np.ndarray | None, say: Callable[[str], None]) -> None:
+    """Start ``model`` from the model's own start where its first training run ``first`` had run table ``start:``
+    values (then every run had: :mod:`fmu_opinf.basis` puts a run without them first), else leave it at that run's
+    start; where the own start cannot be read, one warning says so and how to fix it (:mod:`._model_start`)."""
+    from ._model_start import own_start, row_start
+
+    starts = row_start(getattr(first, "attrs", None) or {})
+    if not starts:
+        return
+    said = ", ".join(f"{name}={value:g}" if isinstance(value, (int, float)) else f"{name}={value}"
+                     for name, value in starts.items())
+    found = own_start(first, attrs, basis, x_ref)
+    if isinstance(found, str):
+        model.fit_info["start"] = {"from": "first training run", "start_values": starts, "reason": found}
+        warnings.warn(f"every training run has its own start: values, and the model's own start cannot be read: "
+                      f"{found}; the ROM (and an FMU exported from it) starts from the first run's start ({said}), "
+                      "not the model's: add a run table row without start: values and re-record, or record from "
+                      "the FMU where it is", FmuOpinfWarning, stacklevel=3)
+        return
+    q0, qdot0 = found
+    _, pod_qdot0 = model._pod_state(model.q0, model.qdot0)
+    state = np.concatenate([q0, pod_qdot0 if qdot0 is None else qdot0])
+    if coordinates is not None:   # the ROM's coordinates (module docstring of rom.py, *Coordinates*)
+        state = np.linalg.solve(coordinates, state)
+    model.q0, model.qdot0 = state[:model.r], state[model.r:]
+    model.fit_info["start"] = {"from": "the model's own start", "start_values": starts}
+    say(f"the ROM starts from the model's own start (its FMU initialized without the start: values of the "
+        f"training runs, e.g. {said})")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,177 @@
+"""Where a ROM starts when every training run had its own run table ``start:`` values: the model's own start.
+
+A run table's ``start:`` columns give a run its own initial state; the rows are one training set
+(``docs/scale-out.md``), and the ROM's start (``q0, qdot0``: where ``compare`` without a source and the exported FMU
+begin) is the model's own.  :mod:`fmu_opinf.fit` takes the first training run's start as the ROM's
+(:mod:`fmu_opinf.basis` puts a run without start values of its own first), so a table in which every row has its
+own start gave a ROM, and a ROM FMU, that started from the first row's state: audit 73 F2, the exported FMU's free
+response 174-180 % of range off the model from its own start, and nothing said.
+
+The model's own start is not in the data then, and the declared start values alone do not give it (a state's start
+may be calculated from parameters, an FMI 3 array's from ``x_start``).  The source that recorded the runs does:
+it is initialized once more with the first run's settings but without its ``start:`` values, and its positions and
+velocities after initialization are the start, mapped onto the ROM's basis (:func:`own_start`).  Where the FMU is
+not there any more, has changed, or its start lies off the basis, the ROM keeps the first run's start and the fit
+says so, with the fix: a row without ``start:`` values.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import FmuOpinfError
+
+__all__ = ["row_start", "own_start", "START_OFF_BASIS"]
+
+#: Largest relative part of the model's own start (``x0 - x_ref``, ``v0``) outside the ROM's basis that still counts
+#: as on it (as :meth:`fmu_opinf.rom.SecondOrderROM.initial_state`'s default).
+START_OFF_BASIS = 1e-6
+
+
+def row_start(attrs: dict[str, Any]) -> dict[str, Any]:
+    """The ``start:`` cells of the run table row a recording (file or run attributes ``attrs``) came from.
+
+    Returns
+    -------
+    dict
+        Variable name to value; empty for a recording that is no run table row's, or a row without them.
+    """
+    stamp = attrs.get("run_row") if isinstance(attrs, dict) else None
+    if isinstance(stamp, bytes):
+        stamp = stamp.decode("utf-8", "replace")
+    if isinstance(stamp, str):
+        try:
+            stamp = json.loads(stamp)
+        except ValueError:
+            return {}
+    row = stamp.get("row") if isinstance(stamp, dict) else None
+    start = row.get("start") if isinstance(row, dict) else None
+    return {str(name): value for name, value in start.items()} if isinstance(start, dict) else {}
+
+
+def own_start(run: Any, attrs: dict[str, Any], basis: np.ndarray, x_ref: np.ndarray,
+              isolate: bool = True) -> tuple[np.ndarray, np.ndarray | None] | str:
+    """The model's own start in POD coordinates, for a ROM whose first training run ``run`` had ``start:`` values.
+
+    Parameters
+    ----------
+    run : Run
+        The first training run (its attributes name its source, settings and ``start:`` cells).
+    attrs : dict
+        The training set's attributes (what the run's own do not say).
+    basis : (n, r) ndarray
+        The ROM's position basis ``V``.
+    x_ref : (n,) ndarray
+        The ROM's reference position.
+    isolate : bool, default True
+        Initialize the FMU in a child process, as recording does.
+
+    Returns
+    -------
+    (q0, qdot0) or str
+        ``q0 = V^T (x0 - x_ref)`` and ``qdot0 = V^T v0`` (None where the source derives its velocities, which one
+        sample does not give), or why the start cannot be had: a clause for the fit's warning.
+    """
+    found = _source_start(run, attrs, isolate)
+    if isinstance(found, str):
+        return found
+    x0, v0 = found
+    if x0.shape != (basis.shape[0],) or (v0 is not None and v0.shape != x0.shape):
+        return f"the source's start has {x0.size} positions, the ROM's basis {basis.shape[0]}"
+    q0, miss = _on_basis(basis, x0 - x_ref)
+    qdot0, miss_v = _on_basis(basis, v0) if v0 is not None else (None, 0.0)
+    if max(miss, miss_v) > START_OFF_BASIS:
+        return (f"the model's own start lies off the ROM's basis (relative part outside {max(miss, miss_v):.1e}): "
+                "the training runs' starts do not span it")
+    return q0, qdot0
+
+
+def _on_basis(basis: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, float]:
+    """``V^T vector`` and the relative part of ``vector`` outside the span of ``V``."""
+    reduced = basis.T @ vector
+    norm = float(np.linalg.norm(vector))
+    return reduced, (float(np.linalg.norm(vector - basis @ reduced)) / norm if norm > 0 else 0.0)
+
+
+def _source_start(run: Any, attrs: dict[str, Any], isolate: bool) -> tuple[np.ndarray, np.ndarray | None] | str:
+    """Positions and velocities of the run's source after initialization without the run's ``start:`` values,
+    or why they cannot be had."""
+    from .snapshots._data import settings_of
+    from .snapshots._record import MemorySink, record_run
+    from .signals import parse_signal
+    from .source import open_source
+
+    own = dict(getattr(run, "attrs", None) or {})
+    path = _source_path(own, attrs)
+    if isinstance(path, str):
+        return path
+    starts = row_start(own)
+    settings = {name: value for name, value in settings_of(own or attrs).items() if name not in starts}
+    options = {"parameters": settings or None, "start_time": _number(own.get("t0", attrs.get("start_time"))),
+               "interface": own.get("fmi_interface") or attrs.get("fmi_interface")}
+    for key, names in (("positions", attrs.get("position_names")), ("velocities", attrs.get("velocity_names")),
+                       ("inputs", attrs.get("input_names")), ("outputs", attrs.get("output_names"))):
+        options[key] = _exact_names(names)
+    try:
+        source = open_source(path, **options)
+        try:
+            signal = parse_signal("none", source.m, source.input_names)
+            first, failure = record_run(source, signal, _first_step(run), MemorySink, True, isolate,
+                                        "the model's own start", say_events=False)
+            derived = bool(source.derived.get("xdot"))
+        finally:
+            getattr(source, "close", lambda: None)()
+    except FmuOpinfError as exc:
+        return f"{path.name} could not be initialized to read it ({exc})"
+    if failure is not None:
+        return f"{path.name} could not be initialized to read it ({failure})"
+    x0 = np.asarray(first.x0, dtype=float).reshape(-1)
+    return x0, None if derived else np.asarray(first.v0, dtype=float).reshape(-1)
+
+
+def _first_step(run: Any) -> np.ndarray:
+    """The run's first time step from 0 (the FMU's time grid: a fixed-step co-simulation takes no other)."""
+    t = np.asarray(run.t[:2], dtype=float)
+    return t - t[0] if t.size == 2 else np.array([0.0, 1e-3])
+
+
+def _source_path(own: dict[str, Any], attrs: dict[str, Any]) -> Path | str:
+    """The recorded FMU's path where it is still there unchanged, else why not."""
+    text = own.get("source") or attrs.get("source")
+    if not isinstance(text, str) or not text or text.startswith("builtin:"):
+        return "the recording names no FMU to read it from"
+    path = Path(text)
+    if not path.is_file():
+        return f"the FMU it was recorded from, {text}, is not there any more"
+    digest = own.get("fmu_sha256") or attrs.get("fmu_sha256")
+    if isinstance(digest, str) and digest and _sha256(path) != digest:
+        return f"the FMU {text} has changed since the recording"
+    return path
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _number(value: Any) -> float | None:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
+def _exact_names(names: Any) -> str | None:
+    """Recorded variable names as one pattern of exact names (as ``compare`` opens the source with them)."""
+    from .compare import _exact_names as exact
+
+    listed = [str(n) for n in names] if isinstance(names, (list, tuple, np.ndarray)) else None
+    return exact(listed)
