@@ -38,7 +38,10 @@ _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps
 
 
 def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
-    """What a part with file attributes ``attrs``, called ``name`` (its file name), was recorded from."""
+    """What a part with file attributes ``attrs``, called ``name`` (its file name), was recorded from; ``start_columns``
+    names those of its ``fmu_settings`` that are a run table row's ``start:`` cells (initial conditions)."""
+    from .._model_start import row_start
+
     summary: dict[str, Any] = {"file": name}
     for key in _KEYS:
         value = attrs.get(key)
@@ -49,6 +52,9 @@ def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
         elif not isinstance(value, str):
             continue
         summary[key] = value
+    starts = sorted(row_start(attrs))
+    if starts:
+        summary["start_columns"] = starts
     return summary
 
 
@@ -117,10 +123,16 @@ def _interface(text: str) -> str:
 
 
 def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
-    """The settings (``--set``, a run table's ``set:``/``start:`` cells) whose values differ between ``parts``, each
-    with every part's value ("default" where a part did not set it)."""
+    """The settings (``--set``, a run table's ``set:`` cells) whose values differ between ``parts``, each with every
+    part's value ("default" where a part did not set it).
+
+    A run table's ``start:`` cells are initial conditions, not settings: rows that differ only in them are one
+    training set of one model (``docs/scale-out.md``), and the warning called them settings and said "fit one ROM
+    per setting" (audit 73 F2).  A name counts as a start value where every part that sets it does so by a
+    ``start:`` cell."""
     settings = [part.get("fmu_settings") if isinstance(part.get("fmu_settings"), dict) else {} for part in parts]
-    names = sorted({name for setting in settings for name in setting})
+    starts = _start_values(parts, settings)
+    names = sorted({name for setting in settings for name in setting} - starts)
     differing = [name for name in names if len({repr(setting.get(name)) for setting in settings}) > 1]
     if not differing:
         return None
@@ -128,6 +140,14 @@ def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
                                               for part, setting in zip(parts, settings)]) for name in differing[:3])
     said += f"; and {len(differing) - 3} more" if len(differing) > 3 else ""
     return f"with different settings ({said})"
+
+
+def _start_values(parts: list[dict[str, Any]], settings: list[dict[str, Any]]) -> set[str]:
+    """The names of ``settings`` that every part setting them sets by a run table ``start:`` cell."""
+    names = {name for setting in settings for name in setting}
+    columns = [set(part.get("start_columns") or ()) for part in parts]
+    return {name for name in names
+            if all(name in column for setting, column in zip(settings, columns) if name in setting)}
 
 
 def mixed_steps(attrs: dict[str, Any]) -> str | None:
