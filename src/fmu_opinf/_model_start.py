@@ -175,3 +175,44 @@ def _exact_names(names: Any) -> str | None:
 
     listed = [str(n) for n in names] if isinstance(names, (list, tuple, np.ndarray)) else None
     return exact(listed)
+
+
+_PARAMETERS = ("parameter", "calculatedParameter", "structuralParameter")
+
+
+def start_column_problem(description: Any, name: str) -> str | None:
+    """What is wrong with a run table column ``start:NAME`` for the FMU of model ``description``, or None.
+
+    A ``start:`` column sets an initial state (:mod:`fmu_opinf.runs`); a parameter there changes the model, which
+    is a ``set:`` column's job (audit 73 F2: ``start:mass_scale`` recorded another model without a word).  A
+    parameter that is a state's start value by name, ``<state>_start`` (Modelica's and the FMI 3 array FMUs'
+    convention: ``x_start`` sets ``x``), is an initial condition and accepted; a state whose start is calculated
+    from such a parameter is pointed to it (``start:x[4]`` -> ``start:x_start[4]``).  Names the description does not
+    hold are left to the source's own check.
+    """
+    variables = {v.name: v for v in getattr(description, "modelVariables", ())}
+    base, index = _split_index(name)
+    variable = variables.get(name) or variables.get(base)
+    if variable is None:
+        return None
+    own = variable.name
+    if getattr(variable, "causality", None) in _PARAMETERS:
+        state = own[:-len("_start")] if own.endswith("_start") else None
+        if state and state in variables and variables[state].causality not in _PARAMETERS:
+            return None
+        return (f"{name} is a parameter, not a state: a start: column sets an initial state; give a parameter as "
+                f"column set:{name}")
+    starter = variables.get(f"{own}_start")
+    if getattr(variable, "start", None) is None and starter is not None and starter.causality in _PARAMETERS:
+        column = f"{own}_start{name[len(own):]}" if name.startswith(own) else f"{own}_start"
+        return (f"the start of {own} is calculated from the parameter {own}_start (it has no start value to set): "
+                f"give column start:{column}")
+    return None
+
+
+def _split_index(name: str) -> tuple[str, str]:
+    """``"x[4]"`` -> ``("x", "[4]")``: an array element's variable and its index (``("name", "")`` without)."""
+    if name.endswith("]") and "[" in name:
+        cut = name.rindex("[")
+        return name[:cut], name[cut:]
+    return name, ""

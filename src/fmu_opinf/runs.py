@@ -221,6 +221,7 @@ def validate_rows(rows: Sequence[RunRow], source_spec: str | os.PathLike,
     from .signals import parse_signal
     from .source import open_source
 
+    _check_start_columns(rows, source_spec)
     for row in rows:
         try:
             source = open_source(source_spec, **row_source_options(row, source_options))
@@ -231,6 +232,26 @@ def validate_rows(rows: Sequence[RunRow], source_spec: str | os.PathLike,
             parse_signal(row.input, source.m, source.input_names)
         except FmuOpinfError as exc:
             raise RunTableError(f"row {row.number} ({row.name}), column 'input': {exc}") from None
+
+
+def _check_start_columns(rows: Sequence[RunRow], source_spec: str | os.PathLike) -> None:
+    """Refuse a ``start:`` column that names no initial state of the FMU ``source_spec`` (a parameter: ``set:``'s
+    job), or a state whose start is calculated from a ``<state>_start`` parameter (:mod:`._model_start`)."""
+    from ._model_start import start_column_problem
+    from .sources._variables import read_description
+
+    text = os.fspath(source_spec)
+    if text.startswith("builtin:") or not any(row.start for row in rows):
+        return
+    try:
+        description = read_description(Path(text))
+    except FmuOpinfError:
+        return   # (opening the source says what is wrong with it)
+    for row in rows:
+        for name in row.start:
+            problem = start_column_problem(description, name)
+            if problem:
+                raise RunTableError(f"row {row.number} ({row.name}), column start:{name}: {problem}")
 
 
 def source_input_names(source_spec: str | os.PathLike, source_options: dict[str, Any] | None = None) -> list[str]:
