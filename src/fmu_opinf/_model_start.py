@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import FmuOpinfError
 
-__all__ = ["row_start", "own_start", "START_OFF_BASIS"]
+__all__ = ["row_start", "own_start", "sets_initial_state", "start_column_problem", "START_OFF_BASIS"]
 
 #: Largest relative part of the model's own start (``x0 - x_ref``, ``v0``) outside the ROM's basis that still counts
 #: as on it (as :meth:`fmu_opinf.rom.SecondOrderROM.initial_state`'s default).
@@ -52,6 +52,14 @@ def row_start(attrs: dict[str, Any]) -> dict[str, Any]:
     row = stamp.get("row") if isinstance(stamp, dict) else None
     start = row.get("start") if isinstance(row, dict) else None
     return {str(name): value for name, value in start.items()} if isinstance(start, dict) else {}
+
+
+def sets_initial_state(name: str, attrs: dict[str, Any]) -> bool:
+    """Whether a start value for ``name`` sets an initial state of a recording with attributes ``attrs``: ``name`` is
+    a recorded position or velocity, or the ``<state>_start`` parameter of one (``x_start[4]`` for ``x[4]``)."""
+    states = [str(n) for key in ("position_names", "velocity_names") for n in (attrs.get(key) or [])]
+    bases = {state.split("[", 1)[0] for state in states}
+    return name in states or name.split("[", 1)[0] in {f"{base}_start" for base in bases}
 
 
 def own_start(run: Any, attrs: dict[str, Any], basis: np.ndarray, x_ref: np.ndarray,

@@ -941,7 +941,12 @@ def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
 
 
 def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, Any] | None) -> dict[str, Any]:
-    """Source options for an FMU source: the user's, completed from the ROM's training provenance."""
+    """Source options for an FMU source: the user's, completed from the ROM's training provenance.  A value given
+    for an initial state (:func:`fmu_opinf._model_start.sets_initial_state`) is no model change: not warned about
+    (audit 73 F2: ``compare --runs`` with a table's ``start:`` rows said a ROM describes the model it was trained on).
+    """
+    from ._model_start import sets_initial_state
+
     options = dict(given or {})
     snapshots = rom_info["provenance"].get("snapshots")
     if str(source).startswith("builtin:") or not isinstance(snapshots, dict) or snapshots.get("source_kind") != "fmu":
@@ -966,7 +971,8 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
                for name in given_settings if name in settings or name in starts}
     ports = set(snapshots.get("input_names") or [])   # (a ROM input's value is the test input's, not a setting)
     changed = {name: value for name, value in given_settings.items()
-               if name in trained and name not in ports and not _same_setting(value, trained[name][0])}
+               if name in trained and name not in ports and not _same_setting(value, trained[name][0])
+               and not sets_initial_state(name, snapshots)}
     if changed:
         import warnings
 

@@ -38,10 +38,7 @@ _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps
 
 
 def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
-    """What a part with file attributes ``attrs``, called ``name`` (its file name), was recorded from; ``start_columns``
-    names those of its ``fmu_settings`` that are a run table row's ``start:`` cells (initial conditions)."""
-    from .._model_start import row_start
-
+    """What a part with file attributes ``attrs``, called ``name`` (its file name), was recorded from."""
     summary: dict[str, Any] = {"file": name}
     for key in _KEYS:
         value = attrs.get(key)
@@ -52,9 +49,6 @@ def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
         elif not isinstance(value, str):
             continue
         summary[key] = value
-    starts = sorted(row_start(attrs))
-    if starts:
-        summary["start_columns"] = starts
     return summary
 
 
@@ -85,7 +79,7 @@ def merge_differences(attrs: dict[str, Any]) -> str | None:
     parts = merged_parts(attrs, "")
     if len(parts) < 2:
         return None
-    settings = _differing_settings(parts)
+    settings = _differing_settings(parts, attrs)
     said = [text for text in (_differing(parts, "fmu_sha256", _fmu), _differing(parts, "fmi_interface", _interface),
                               settings) if text]
     if not said:
@@ -122,17 +116,19 @@ def _interface(text: str) -> str:
     return f"by different FMI interfaces ({text})"
 
 
-def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
+def _differing_settings(parts: list[dict[str, Any]], attrs: dict[str, Any]) -> str | None:
     """The settings (``--set``, a run table's ``set:`` cells) whose values differ between ``parts``, each with every
     part's value ("default" where a part did not set it).
 
-    A run table's ``start:`` cells are initial conditions, not settings: rows that differ only in them are one
-    training set of one model (``docs/scale-out.md``), and the warning called them settings and said "fit one ROM
-    per setting" (audit 73 F2).  A name counts as a start value where every part that sets it does so by a
-    ``start:`` cell."""
+    A start value of an initial state (:func:`fmu_opinf._model_start.sets_initial_state`: a recorded position or
+    velocity, or its ``<state>_start`` parameter, which a run table's ``start:`` cells name) is an
+    initial condition, not a setting: runs that differ only in them are one training set of one model
+    (``docs/scale-out.md``), and the warning called them settings and said "fit one ROM per setting" (audit 73 F2).
+    """
+    from .._model_start import sets_initial_state
+
     settings = [part.get("fmu_settings") if isinstance(part.get("fmu_settings"), dict) else {} for part in parts]
-    starts = _start_values(parts, settings)
-    names = sorted({name for setting in settings for name in setting} - starts)
+    names = sorted({name for setting in settings for name in setting if not sets_initial_state(name, attrs)})
     differing = [name for name in names if len({repr(setting.get(name)) for setting in settings}) > 1]
     if not differing:
         return None
@@ -140,14 +136,6 @@ def _differing_settings(parts: list[dict[str, Any]]) -> str | None:
                                               for part, setting in zip(parts, settings)]) for name in differing[:3])
     said += f"; and {len(differing) - 3} more" if len(differing) > 3 else ""
     return f"with different settings ({said})"
-
-
-def _start_values(parts: list[dict[str, Any]], settings: list[dict[str, Any]]) -> set[str]:
-    """The names of ``settings`` that every part setting them sets by a run table ``start:`` cell."""
-    names = {name for setting in settings for name in setting}
-    columns = [set(part.get("start_columns") or ()) for part in parts]
-    return {name for name in names
-            if all(name in column for setting, column in zip(settings, columns) if name in setting)}
 
 
 def mixed_steps(attrs: dict[str, Any]) -> str | None:
