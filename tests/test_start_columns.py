@@ -1,0 +1,146 @@
+"""Run table ``start:`` columns are initial conditions of one model (audit 73 F2).
+
+A table whose every row had its own ``start:`` value gave a ROM, and a ROM FMU, that started from the first row's
+state instead of the model's own (the FMU's free response 174-180 % of range off the model), and ``fit`` called the
+start values "settings" ("fit one ROM per setting"), as did ``compare --runs``.  A ``start:`` column naming a
+parameter recorded another model without a word.  References: the exact zero-order-hold response of the model from
+its declared start (:func:`fmu_opinf.lti_fmus.zoh_response`), not the tool's output.
+"""
+
+from __future__ import annotations
+
+import shutil
+import warnings
+
+import numpy as np
+import pytest
+from conftest import build_fmu_set, miss_against_model
+
+from fmu_opinf import lti_fmus
+from fmu_opinf.cli import main
+from fmu_opinf.errors import FmuOpinfWarning
+from fmu_opinf.rom import SecondOrderROM
+from fmu_opinf.snapshots._merge import merge_differences
+
+#: The model's own start: the last mass 0.05 m out (declared start of ``mass[4].s``).
+MODEL = lti_fmus.chain_model(4, inputs=(-1,), x0=[0.0, 0.0, 0.0, 0.05], name="OwnStart")
+#: Every row its own start; neither is the model's.
+EVERY_ROW = ('name,input,start:mass[4].s\na,"impulse:amplitude=100,t0=2,width=0.5",0.2\n'
+             'b,"harmonic:amplitude=1,omega=0.9",-0.1\n')
+GRID = ["--dt", "0.05", "--t-end", "20", "-q"]
+
+
+@pytest.fixture(scope="module")
+def fmus(request, tmp_path_factory):
+    """The chain (Modelica naming, states with start values) and an FMI 3 array chain (``x`` calculated from the
+    parameter ``x_start``)."""
+    def build(folder, item):
+        if item == "chain":
+            return item, lti_fmus.build_lti_fmu(MODEL, folder / "OwnStart.fmu", identifier="OwnStart").path
+        chain = lti_fmus.MassChain(n=4, start_position=0.01)
+        return item, lti_fmus.build_lti_fmu(chain, folder / "OwnStartArray.fmu", identifier="OwnStartArray",
+                                            fmi_version="3.0", naming="array").path
+
+    return build_fmu_set(request, tmp_path_factory, "lti-start-columns", build, ["chain", "array"])
+
+
+def _record(fmu, folder, table: str) -> int:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "runs.csv").write_text(table)
+    return main(["snapshots", str(fmu), "--runs", str(folder / "runs.csv"), "-o", str(folder / "snaps"), *GRID])
+
+
+def _fmu_free_response_miss(rom_fmu, t_end: float, dt: float) -> float:
+    """Largest output error over its range of the ROM FMU's free response against the exact model's."""
+    import fmpy
+
+    t = np.arange(0.0, t_end + dt / 2, dt)
+    reference = lti_fmus.zoh_response(MODEL, t, np.zeros((1, t.size))).y
+    result = fmpy.simulate_fmu(str(rom_fmu), stop_time=t[-1], output_interval=dt, output=["y[1]", "y[2]"])
+    y = np.array([result["y[1]"], result["y[2]"]])[:, :t.size]
+    return float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1)))
+
+
+@pytest.mark.fmu
+def test_every_row_with_its_own_start_gives_a_rom_and_fmu_starting_at_the_models_start(fmus, tmp_path, capsys):
+    """Before: the ROM and its FMU started at row a's 0.2 (free response 1.8 x range off the model from 0.05), and
+    fit and export warned of "different settings"."""
+    assert _record(fmus["chain"], tmp_path, EVERY_ROW) == 0
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "snaps"), "-o", str(tmp_path / "rom.h5")]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "settings" not in err and "the ROM starts from the model's own start" in err, err
+    rom = SecondOrderROM.load(tmp_path / "rom.h5")
+    assert rom.fit_info["start"]["from"] == "the model's own start"
+    # measured 1.7e-14 (free response), 1.3e-14 (harmonic); before: 1.8 and 1.36
+    assert miss_against_model(rom, MODEL, "none", 20.0) < 1e-10
+    assert miss_against_model(rom, MODEL, "harmonic:amplitude=1,omega=0.9", 20.0) < 1e-10
+    assert main(["export", str(tmp_path / "rom.h5"), "-o", str(tmp_path / "rom.fmu"), "-q"]) == 0
+    assert "settings" not in capsys.readouterr().err
+    assert _fmu_free_response_miss(tmp_path / "rom.fmu", 20.0, rom.dt) < 1e-10   # measured 2.7e-14; before 1.8
+
+
+@pytest.mark.fmu
+def test_the_model_start_that_cannot_be_read_is_said_with_its_fix(fmus, tmp_path, capsys):
+    """The FMU gone before the fit: the ROM keeps the first row's start, and one warning says so and how to fix it
+    (before: nothing said)."""
+    fmu = shutil.copy(fmus["chain"], tmp_path / "gone.fmu")
+    assert _record(fmu, tmp_path, EVERY_ROW) == 0
+    (tmp_path / "gone.fmu").unlink()
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "snaps"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "every training run has its own start: values, and the model's own start cannot be read" in err, err
+    assert "starts from the first run's start (mass[4].s=0.2)" in err
+    assert "add a run table row without start: values" in err
+
+
+@pytest.mark.fmu
+def test_a_start_column_naming_a_parameter_or_a_calculated_state_is_refused_in_one_line(fmus, tmp_path, capsys):
+    """``start:mass_scale`` recorded another model (before: no word); ``start:x[4]`` of an FMI 3 array whose ``x``
+    is calculated from ``x_start`` was refused without the column that works."""
+    table = 'name,input,start:mass_scale\na,"impulse:amplitude=100,t0=2,width=0.5",2\n'
+    assert _record(fmus["chain"], tmp_path / "param", table) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "column start:mass_scale: mass_scale is a parameter, not a state" in err[0], err
+    assert "give a parameter as column set:mass_scale" in err[0]
+    table = 'name,input,start:x[4]\na,"impulse:amplitude=100,t0=2,width=0.5",0.2\n'
+    assert _record(fmus["array"], tmp_path / "array", table) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "column start:x[4]:" in err[0] and "give column start:x_start[4]" in err[0], err
+
+
+def _parts(**settings) -> dict:
+    """Merged snapshot attributes of parts ``a.h5``, ``b.h5`` with the given settings each."""
+    return {"position_names": [f"mass[{i}].s" for i in range(1, 5)],
+            "velocity_names": [f"mass[{i}].v" for i in range(1, 5)],
+            "merged_parts": {"parts": [{"file": f"{name}.h5", "fmu_settings": value}
+                                       for name, value in settings.items()]}}
+
+
+def test_start_values_of_states_are_no_settings_in_the_merge_warning():
+    """Parts that differ only in the start of a recorded position or velocity (or of an array's ``x_start``) are one
+    training set: no warning (before: "different settings ... fit one ROM per setting"); a parameter still is."""
+    assert merge_differences(_parts(a={"mass[4].s": 0.2}, b={"mass[4].s": -0.1, "mass[1].v": 1.0})) is None
+    arrays = _parts(a={"x_start[4]": 0.2}, b={"x_start[4]": -0.1})
+    arrays.update(position_names=["x[1]", "x[2]"], velocity_names=["v[1]", "v[2]"])
+    assert merge_differences(arrays) is None
+    said = merge_differences(_parts(a={"mass[4].s": 0.2}, b={"mass[4].s": 0.2, "stiffness_scale": 2.5}))
+    assert said is not None and "different settings (stiffness_scale: a.h5 default, b.h5 2.5)" in said
+    assert "mass[4].s" not in said
+
+
+def test_compare_with_another_start_value_of_a_state_is_no_model_change():
+    """``compare --runs`` rows with their own ``start:``: before, each warned "a ROM describes the model it was
+    trained on"; a parameter given another value still warns."""
+    from fmu_opinf.compare import _training_settings
+
+    trained = {"stiffness_scale": "1", "mass[4].s": "0.05"}   # (recorded with --set mass[4].s=0.05)
+    info = {"provenance": {"snapshots": {"source_kind": "fmu", "fmu_settings": trained,
+                                         "position_names": ["mass[4].s"], "velocity_names": ["mass[4].v"]}}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", FmuOpinfWarning)
+        options = _training_settings(info, "model.fmu", {"parameters": {"mass[4].s": 0.2, "mass[4].v": 1.0}})
+    assert options["parameters"] == {**trained, "mass[4].s": 0.2, "mass[4].v": 1.0}
+    with pytest.warns(FmuOpinfWarning, match="compared with stiffness_scale=2.5, but the ROM was trained with"):
+        _training_settings(info, "model.fmu", {"parameters": {"stiffness_scale": 2.5, "mass[4].s": 0.2}})
