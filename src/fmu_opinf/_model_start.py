@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import FmuOpinfError
 
-__all__ = ["row_start", "own_start", "sets_initial_state", "start_column_problem", "START_OFF_BASIS"]
+__all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem"]
 
 #: Largest relative part of the model's own start (``x0 - x_ref``, ``v0``) outside the ROM's basis that still counts
 #: as on it (as :meth:`fmu_opinf.rom.SecondOrderROM.initial_state`'s default).
@@ -109,9 +109,9 @@ def _on_basis(basis: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, float]
 def _source_start(run: Any, attrs: dict[str, Any], isolate: bool) -> tuple[np.ndarray, np.ndarray | None] | str:
     """Positions and velocities of the run's source after initialization without the run's ``start:`` values,
     or why they cannot be had."""
+    from .signals import parse_signal
     from .snapshots._data import settings_of
     from .snapshots._record import MemorySink, record_run
-    from .signals import parse_signal
     from .source import open_source
 
     own = dict(getattr(run, "attrs", None) or {})
@@ -199,7 +199,7 @@ def start_column_problem(description: Any, name: str) -> str | None:
     hold are left to the source's own check.
     """
     variables = {v.name: v for v in getattr(description, "modelVariables", ())}
-    base, index = _split_index(name)
+    base, _ = _split_index(name)
     variable = variables.get(name) or variables.get(base)
     if variable is None:
         return None

@@ -10,7 +10,10 @@ basis of the centred positions keeps ``G V = 0``; the first run starts exactly a
 its initial position); and a model started at the origin (the paper's benchmarks) has ``x_ref = 0``, so nothing
 changes there.  (The mean position would also satisfy the constraint, but depends on the training input and puts
 a projection error into the initial state.)  The basis is computed from ``x - x_ref`` (positions) or from the
-velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.
+velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.  The ROM
+starts (``q0, qdot0``) where the first run does, which is the model's own start when that run has no run table
+``start:`` values (:mod:`fmu_opinf.basis` puts such a run first); where every run has its own, the ROM starts from
+the model's own start read from the recorded FMU (:mod:`fmu_opinf._model_start`; ``x_ref`` stays the first run's).
 
 When the extra terms are fitted (``terms="auto"``, the default): from the data.  Each of ``fr``, ``Dur``,
 ``y0`` is added to its least-squares problem -- ``fr`` to the unconstrained fit of ``q''`` from

@@ -14,7 +14,8 @@ A run table is a CSV file with a header and one row per run (``docs/scale-out.md
   same in ``snapshots --runs`` and in ``compare --runs`` against a ROM trained with its inputs in another order.
 * ``name`` (optional): the run's name, also its file name ``NAME.h5``; default ``run-NNNN`` (row number).
 * ``set:NAME``: a start value set before initialization (an FMU parameter), ``start:NAME``: an initial-state
-  value (the start value of a state variable).  An empty cell leaves the value at the model's default.
+  value (the start value of a state variable, or of its ``<state>_start`` parameter; any other parameter is refused
+  with a pointer to ``set:``).  An empty cell leaves the value at the model's default.
 
 The whole table is read and validated before anything runs; every problem is one line naming the row and
 the column.  Recording writes one snapshot file per run into an output directory (``NAME.h5``, or
