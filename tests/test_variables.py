@@ -719,7 +719,8 @@ def test_default_outputs_keep_the_declared_port_order():
     from fmu_opinf.sources._variables import select_outputs
 
     def elements(names):
-        return {n: SimpleNamespace(name=n, alias=None, var=SimpleNamespace(causality="output", is_real=True))
+        return {n: SimpleNamespace(name=n, alias=None, var=SimpleNamespace(causality="output", is_real=True,
+                                                                          variability="continuous", clocks=None))
                 for n in names}
 
     # an order of the FMU's own (audit 54: an OpenModelica export declared mass4's output before mass2's; audit 56:

@@ -170,6 +170,8 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
         warn_once(source, ("compiled",), source.compiled, stacklevel=3)
     _warn_parameter_like(source)
     _warn_unrecorded_states(source)
+    _warn_outputs_left_out(source)
+    _warn_held_outputs(source)
     return source
 
 
@@ -268,6 +270,50 @@ def _warn_unrecorded_states(source: Source) -> None:
         warn_once(source, ("unrecorded states", tuple(others)),
                   f"its continuous state(s) {shown} are recorded neither as positions nor as velocities: if they are "
                   "dynamic (an actuator lag, a filter, a controller state), the reduced model cannot follow them")
+
+
+def _warn_outputs_left_out(source: Source) -> None:
+    """One line (per process and FMU) naming the declared outputs the default selection does not record: those held
+    between samples (discrete variability or clocked), with why and the ``--outputs`` that records them anyway, and
+    those that are not real (Boolean, Integer, ...), which the ROM and its exported FMU have no port for (audit 73
+    F3: a sampled output fitted beside continuous ones threw them 9-60 % of their range off)."""
+    left_out = dict(getattr(source, "outputs_left_out", {}) or {})
+    if not left_out:
+        return
+    held = [name for name, why in left_out.items() if why == "discrete"]
+    other = [f"{name} ({why})" for name, why in left_out.items() if why != "discrete"]
+    parts = []
+    if held:
+        insist = ",".join(getattr(source, "real_output_names", []) or held)
+        parts.append(f"output(s) {_few_names(held)} are held between samples (discrete variability) and are not "
+                     "recorded: the ROM's outputs are continuous maps of its state (eq. 17), which cannot follow a "
+                     "staircase, and fitting one throws the others off; record them anyway with "
+                     f'--outputs "{insist}"')
+    if other:
+        parts.append(f"output(s) {_few_names(other)} are not real signals and are not recorded (the ROM and its "
+                     "exported FMU have no port for them)")
+    warn_once(source, ("outputs left out", tuple(left_out)), "; ".join(parts))
+
+
+def _warn_held_outputs(source: Source) -> None:
+    """One warning (per process and FMU) naming the recorded outputs that ``--outputs`` chose although they are held
+    between samples: eq. 17's continuous output map cannot fit them, the fit bends the ROM toward their steps, and
+    their jumps set the automatic window's step."""
+    held = list(getattr(source, "held_output_names", []) or [])
+    if not held:
+        return
+    others = [name for name in getattr(source, "output_names", []) if name not in held]
+    fix = f'--outputs "{",".join(others)}"' if others else "--outputs naming continuous outputs (or positions)"
+    warn_once(source, ("held outputs", tuple(held)),
+              f"output(s) {_few_names(held)} are held between samples (discrete variability) but recorded as asked: "
+              "eq. 17's continuous output map cannot follow their steps, the fit bends the ROM's dynamics toward "
+              f"them{' and throws the other outputs off' if others else ''}, and their jumps set the automatic "
+              f"window's step; for a ROM of the continuous outputs record with {fix}")
+
+
+def _few_names(names: list[str]) -> str:
+    """Up to six names, comma separated (``...`` after them if there are more)."""
+    return ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
 
 
 def first_report(key: tuple[Any, ...]) -> bool:

@@ -27,7 +27,7 @@ from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
                          fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter, read_description,
-                         start_value, unit_kind)
+                         real_outputs, start_value, unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -381,7 +381,9 @@ class FMUSource(Source):
         if not out_columns and outputs is None and selection.positions:
             out_columns = _positions_as_outputs(selection.positions)
             out_elements = [c.element for c in out_columns]
-            selection.how["outputs"] = (f"{len(out_columns)} of the positions (the FMU declares no outputs; "
+            declared = ("no continuous real output" if "discrete" in resolved.outputs_left_out.values()
+                        else "no outputs")
+            selection.how["outputs"] = (f"{len(out_columns)} of the positions (the FMU declares {declared}; "
                                         "--outputs chooses others)")
         self.selection = selection
         self.position_names = [c.name for c in selection.positions]
@@ -396,6 +398,13 @@ class FMUSource(Source):
         #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
         self.maybe_force_names = [e.name for e in resolved.parameter_like if unit_kind(e.var, model) == "unknown"]
         self.output_names = [e.name for e in out_elements]
+        #: declared outputs the default selection left out, name -> why (``"discrete"``, ``"Boolean"``, ...):
+        #: open_source says so in one line
+        self.outputs_left_out = dict(resolved.outputs_left_out)
+        #: recorded outputs held between samples (named by --outputs): open_source warns that eq. 17 cannot fit them
+        self.held_output_names = [e.name for e in resolved.held_outputs]
+        #: every declared real output, held ones included: the --outputs that line offers
+        self.real_output_names = real_outputs(model.elements(structural))
         #: the FMI 3 variables behind the inputs and outputs (arrays, Float32): the exported ROM FMU declares them
         self.ports = ({"inputs": fmi3_ports(model, forces, structural),
                        "outputs": fmi3_ports(model, out_elements, structural)} if model.fmi3 else {})
@@ -474,6 +483,10 @@ class FMUSource(Source):
         negated = [c.name for c in self._read.columns if c.sign < 0]
         if negated:
             desc["negated_columns"] = negated
+        if self.outputs_left_out:   # declared outputs not recorded, and why (discrete, Boolean, ...)
+            desc["outputs_left_out"] = dict(self.outputs_left_out)
+        if self.held_output_names:   # recorded outputs held between samples (named by --outputs)
+            desc["held_outputs"] = list(self.held_output_names)
         return desc
 
     def input_starts(self) -> np.ndarray:

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any
 
 from ._settings import Setting, parse_assignments, resolve_settings
-from ._variables import (Element, ModelInfo, Selection, discover, parameter_like_inputs, select_inputs,
-                         select_outputs)
+from ._variables import (Element, ModelInfo, Selection, discover, held_outputs, outputs_left_out,
+                         parameter_like_inputs, select_inputs, select_outputs)
 
 __all__ = ["Resolved", "resolve_variables"]
 
@@ -32,6 +32,11 @@ class Resolved:
     #: held inputs that the default selection left out as parameters exposed as inputs (a non-zero start value in
     #: no force unit, or a coefficient's unit); empty when the force inputs were named
     parameter_like: list[Element] = dataclasses.field(default_factory=list)
+    #: declared outputs the default selection left out, name -> why (``"discrete"``: held between samples; else
+    #: the type of one that is not real); empty when the outputs were named
+    outputs_left_out: dict[str, str] = dataclasses.field(default_factory=dict)
+    #: outputs held between samples that ``--outputs`` named: recorded, though no continuous output map follows them
+    held_outputs: list[Element] = dataclasses.field(default_factory=list)
 
 
 def resolve_variables(model: ModelInfo | str | Path, positions: str | None = None, velocities: str | None = None,
@@ -60,5 +65,7 @@ def resolve_variables(model: ModelInfo | str | Path, positions: str | None = Non
     given = {setting.var.name for setting in typed}
     forces, held = select_inputs(model, elements, inputs, given)
     parameter_like = parameter_like_inputs(model, held, given) if inputs is None else []
-    return Resolved(model, typed, structural, selection, forces, held, select_outputs(model, elements, outputs),
-                    parameter_like)
+    chosen = select_outputs(model, elements, outputs)
+    left_out = outputs_left_out(elements) if outputs is None else {}
+    return Resolved(model, typed, structural, selection, forces, held, chosen, parameter_like, left_out,
+                    held_outputs(chosen))

@@ -29,9 +29,9 @@ from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
-           "show_patterns", "nonzero_start", "looks_like_parameter", "is_coefficient", "unit_kind", "start_value",
-           "is_pressure_about_start", "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports",
-           "held_inputs_record"]
+           "show_patterns", "is_held", "outputs_left_out", "held_outputs", "real_outputs", "nonzero_start", "looks_like_parameter",
+           "is_coefficient", "unit_kind", "start_value", "is_pressure_about_start", "unit_dimension",
+           "parameter_like_inputs", "element_names", "fmi3_ports", "held_inputs_record"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
@@ -60,6 +60,7 @@ class Variable:
     unit: str | None = None  # its own unit, else its declared type's
     quantity: str | None = None  # its own quantity, else its declared type's (FMI: e.g. "Force")
     display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
+    clocks: str | None = None  # FMI 3 ``clocks``: value references of the clocks it ticks with (a clocked variable)
 
     @property
     def is_real(self) -> bool:
@@ -558,7 +559,7 @@ class ModelInfo:
                                 min=self._bound(el.attrib, "min"), max=self._bound(el.attrib, "max"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
                                 quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
-                                display_unit=self._display_unit(el.attrib)))
+                                display_unit=self._display_unit(el.attrib), clocks=el.get("clocks")))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
                 if alias.get("name"):
@@ -1434,8 +1435,15 @@ def parameter_like_inputs(model: ModelInfo, held: Sequence[Element], given: Coll
 
 
 def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str | None) -> list[Element]:
-    """Outputs: default every real output in the FMU's port order (:func:`port_order`); patterns match real
-    variables, in the order of the patterns.
+    """Outputs: default every real output of continuous variability in the FMU's port order (:func:`port_order`);
+    patterns match real variables, in the order of the patterns (a held output among them too:
+    :func:`held_outputs` names it).
+
+    A real output of discrete variability (or an FMI 3 clocked one) is held between its samples: no continuous
+    output map of the states (eq. 17) follows its staircase, and fitted as one it bends the ROM's dynamics and
+    throws the continuous outputs off (audit 73 F3: 9-60 % of their range; its jumps also set the automatic window's
+    step, ten times finer).  The default leaves it out (:func:`outputs_left_out` says which, for the one line of
+    :func:`fmu_opinf.sources.open_source`).
 
     Before 2026-11-26 the default was the natural order of all names, which moved ``forceSensor[*]`` declared
     after ``y[*]`` in front of them; until 2026-11-27 groups of numbered names were pulled together (``x1, v1,
@@ -1443,8 +1451,7 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
     swapped signals.
     """
     if patterns is None:
-        return port_order([e for e in elements.values()
-                           if e.var.causality == "output" and e.var.is_real and not e.alias])
+        return port_order([e for e in _declared_outputs(elements) if e.var.is_real and not is_held(e)])
     if patterns.strip().lower() in ("", "none"):
         return []
     reals = [n for n, e in elements.items() if e.var.is_real]
@@ -1454,6 +1461,38 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
         raise FMUError(f"outputs pattern {show_patterns(patterns)} matches no real variable of {model.label} "
                        f"(variables: {examples}, ...); pass --outputs with a matching pattern")
     return [elements[n] for n in names]
+
+
+def is_held(element: Element) -> bool:
+    """Whether a real element changes only at events and is held between them: FMI ``variability="discrete"``
+    (FMI 2 ``Real``, FMI 3 ``Float64`` / ``Float32``; a sampled sensor, a zero-order hold's output) or an FMI 3
+    clocked variable (``clocks``), which changes only when its clock ticks."""
+    return element.var.is_real and (element.var.variability == "discrete" or element.var.clocks is not None)
+
+
+def _declared_outputs(elements: dict[str, Element]) -> list[Element]:
+    """The elements of causality output under their own names (no FMI 3 ``<Alias>``), in declaration order."""
+    return [e for e in elements.values() if e.var.causality == "output" and not e.alias]
+
+
+def outputs_left_out(elements: dict[str, Element]) -> dict[str, str]:
+    """The declared outputs that the default :func:`select_outputs` leaves out, with why: ``"discrete"`` for a real
+    output held between samples (:func:`is_held`), else the type of one that is not real (``"Boolean"``,
+    ``"Integer"``, ``"Clock"``, ...), which no ``--outputs`` records."""
+    return {e.name: ("discrete" if e.var.is_real else e.var.type)
+            for e in _declared_outputs(elements) if is_held(e) or not e.var.is_real}
+
+
+def real_outputs(elements: dict[str, Element]) -> list[str]:
+    """Every declared real output, held ones included, in declaration order: the ``--outputs`` that records the
+    held outputs beside the continuous ones."""
+    return [e.name for e in _declared_outputs(elements) if e.var.is_real]
+
+
+def held_outputs(outputs: Sequence[Element]) -> list[Element]:
+    """The selected outputs that are held between samples (:func:`is_held`): recorded because ``--outputs`` named
+    them, though eq. 17's continuous output map cannot follow them (the recorder warns)."""
+    return [e for e in outputs if is_held(e)]
 
 
 # =============================================================================================
