@@ -257,3 +257,20 @@ def test_default_chain_leaves_the_sampled_output_out_and_its_rom_is_exact(sample
         assert _error_of_range(rom, model, spec) < 1e-12, spec
     assert list(rom.output_names) == ["y[1]"]
     assert len(said) == 1 and "y[2] are held" in said[0] and '--outputs "y[1],y[2]"' in said[0]
+
+
+@pytest.mark.fmu
+def test_fit_names_a_held_output_first_among_the_causes_of_a_training_miss(sampled, tmp_path, capsys):
+    """Recorded as asked, the sampled output throws the fit off its training data; fit's warning names it (audit 73
+    F3: it listed positions, order, integrator, events and nonlinearity, but not the output held between samples)."""
+    from fmu_opinf.cli import main
+
+    path, _ = sampled
+    train = tmp_path / "train.h5"
+    assert main(["snapshots", str(path), "-o", str(train), "--dt", str(DT), "--t-end", str(T_END),
+                 "--outputs", "y[1],y[2]"]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(train), "-o", str(tmp_path / "rom.h5")]) == 0
+    missed = [line for line in capsys.readouterr().err.splitlines() if "reproduces its own training outputs" in line]
+    assert len(missed) == 1
+    assert "check that no output is held between samples (y[2] is: eq. 17 cannot follow its steps" in missed[0]

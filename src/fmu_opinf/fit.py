@@ -220,11 +220,12 @@ def _in_run(name: str | None, runs: int | None) -> str:
 
 
 def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool = True,
-                                     tried: Sequence[int] = ()) -> None:
+                                     tried: Sequence[int] = (), held: Sequence[str] = ()) -> None:
     """One warning when the fitted ROM reproduces its own training outputs only to more than :data:`TRAINING_MISS`
     (eighth audit: a Simulink-style FMU recorded with a velocity among ``--positions`` fitted to 9.0e-3 with no
     word, and was 12.7 % off on that output); ``tried``: the orders the order search tried (:func:`_grow_order`),
-    named in it."""
+    named in it; ``held``: recorded outputs held between samples (the snapshot file's ``held_outputs``), named
+    first, as the likeliest cause (audit 73 F3: the warning listed every cause but a sampled output)."""
     objective, miss = _training_objective(info, judge_unrefined), _training_miss(info, judge_unrefined)
     if miss is None or not miss > TRAINING_MISS:
         return
@@ -233,9 +234,12 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
                                            + (" in the free response from the start values"
                                               if info.get("worst_in_free_response") else "")
                                            + _in_run(info.get("worst_run_name"), info.get("n_runs")) + "; ")
+    verb, its, it = ("is", "its", "it") if len(held) == 1 else ("are", "their", "them")
+    sampled = (f"that no output is held between samples ({', '.join(held)} {verb}: eq. 17 cannot follow {its} "
+               f"steps; record without {it}), " if held else "")
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
-                  f"({worst}training output error {objective:.2g}): check that --positions names positions only "
-                  f"(a velocity or a force among them cannot be fitted), that the order suffices ({order}; --r), "
+                  f"({worst}training output error {objective:.2g}): check {sampled}that --positions names positions "
+                  f"only (a velocity or a force among them cannot be fitted), that the order suffices ({order}; --r), "
                   "that the outputs follow from the recorded positions and velocities, that the recording follows "
                   "the model, not a co-simulation's integrator (--interface me), and that the model changes "
                   "only with its inputs (an internal event, a force on a timer, a time-varying parameter or a "
@@ -604,7 +608,7 @@ def fit_rom(
     # --no-refine asks for the SDP solution as it is (the paper's: 18 % RMS on the anchored chain at r = 4); the
     # figure is in fit_info, the warning only where no refinement could run
     _warn_if_training_outputs_missed(info, pod.r_, judge_unrefined=refine is not False,
-                                     tried=[entry["r"] for entry in search])
+                                     tried=[entry["r"] for entry in search], held=_held_outputs(attrs))
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
@@ -1384,6 +1388,13 @@ def _output_peak(y: Any) -> list[float] | None:
         return None
     rows = (np.asarray(y[i], dtype=float) for i in range(y.shape[0]))
     return [float(np.abs(row - row[0]).max()) for row in rows]
+
+
+def _held_outputs(attrs: dict) -> list[str]:
+    """The recorded outputs held between samples (``held_outputs`` of the snapshot file, written since 2026-12-07
+    when ``--outputs`` named such an output; :mod:`fmu_opinf.sources`)."""
+    names = attrs.get("held_outputs")
+    return [str(v) for v in np.atleast_1d(names)] if names is not None and np.size(names) else []
 
 
 def _names(names: Any, count: int) -> list[str] | None:
