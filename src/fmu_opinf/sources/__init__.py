@@ -287,7 +287,8 @@ def _warn_outputs_left_out(source: Source) -> None:
         insist = ",".join(getattr(source, "real_output_names", []) or held)
         parts.append(f"output(s) {_few_names(held)} are held between samples (discrete variability) and are not "
                      "recorded: the ROM's outputs are continuous maps of its state (eq. 17), which cannot follow a "
-                     "staircase, and fitting one throws the others off; record them anyway with "
+                     "staircase (fitted, one bends the ROM's dynamics and throws the continuous outputs off); record "
+                     "them anyway with "
                      f'--outputs "{insist}"')
     if other:
         parts.append(f"output(s) {_few_names(other)} are not real signals and are not recorded (the ROM and its "
