@@ -873,7 +873,8 @@ def _warn_if_recording_warned(rom_info: dict[str, Any], interface: str | None) -
         return
     settings = rom_info["provenance"].get("fit_settings")
     modelled = isinstance(settings, dict) and (settings.get("recording_integrator") in (
-        "forward-euler", "backward-euler", "step-dependent") or settings.get("mixed_recordings") is True)
+        "forward-euler", "backward-euler", "euler-substeps", "step-dependent")
+        or settings.get("mixed_recordings") is True)
     if modelled and interface == "cs":
         message += ("; the ROM stands for the model (fitted through the FMU's Euler steps or from its derivatives), "
                     "so the difference to this FMU's co-simulation includes the FMU's own integration error")

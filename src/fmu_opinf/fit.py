@@ -533,7 +533,7 @@ def fit_rom(
     say = log or ((lambda line: None) if quiet else _stderr)
     recording_step = _recorded_euler_step(attrs)
     mixed = refine == "auto" and mixed_steps(attrs) is not None   # some files Euler steps, others not: the SDP alone
-    euler_steps = (recording_step in ("backward-euler", "step-dependent") or mixed) and refine == "auto"
+    euler_steps = (recording_step in _SDP_ONLY_STEPS or mixed) and refine == "auto"
     for message in merge_warnings(attrs):   # files of other FMUs, interfaces, settings or verdicts (audit 72 F3/F4)
         warnings.warn(message, FmuOpinfWarning, stacklevel=2)
     if mixed:
@@ -545,6 +545,8 @@ def fit_rom(
     elif euler_steps and not mixed:
         refine = False
         follows = ("semi-implicit Euler co-simulation steps" if recording_step == "backward-euler" else
+                   "explicit Euler steps of its fixed internal step, several per communication step"
+                   if recording_step == "euler-substeps" else
                    "co-simulation's integrator (its outputs depend on the communication step)")
         warnings.warn(f"the training snapshots follow the FMU's {follows} (snapshots warned); their accelerations are "
                       "the FMU's derivatives at the recorded states, so the ROM is fitted to those (eq. 16) without "
@@ -1246,6 +1248,10 @@ def _candidate_summary(report: dict) -> str:
             f"kept {kept}")
 
 
+#: The verdicts of :func:`_recorded_euler_step` on which the default fit keeps the SDP solution unrefined.
+_SDP_ONLY_STEPS = ("backward-euler", "euler-substeps", "step-dependent")
+
+
 def _recorded_euler_step(attrs: dict) -> str | None:
     """The Euler step a co-simulation recording follows, where the fit can use it (``snapshots`` found each position
     moving by the step times its velocity, :mod:`fmu_opinf.snapshots._consistency`; audit 70 F1, a Simulink
@@ -1254,18 +1260,20 @@ def _recorded_euler_step(attrs: dict) -> str | None:
 
     * ``"forward-euler"`` (explicit Euler): the refinement simulates the ROM with that step (``Ad = I + dt A``), so
       the operators it refines are the continuous model that makes the recording;
-    * ``"backward-euler"`` (semi-implicit or implicit: which one the data do not say) or ``"step-dependent"`` (two
-      communication steps gave different outputs: Euler substeps, an inaccurate solver), where the accelerations
-      are the FMU's own derivatives at the recorded states: the SDP of eq. (16) fits the model itself, which the
-      refinement would pull toward the integrator, and the fit keeps it as it is (audit 71 F4: ten Euler substeps
-      per step, refined 1-3 % of range off the model, the SDP solution 2e-13);
+    * ``"backward-euler"`` (semi-implicit or implicit: which one the data do not say), ``"euler-substeps"``
+      (explicit Euler steps of the FMU's fixed internal step, several per communication step) or
+      ``"step-dependent"`` (two communication steps gave different outputs: Euler substeps, an inaccurate solver),
+      where the accelerations are the FMU's own derivatives at the recorded states: the SDP of eq. (16) fits the
+      model itself, which the refinement would pull toward the integrator, and the fit keeps it as it is (audit 71
+      F4: ten Euler substeps per step, refined 1-3 % of range off the model, the SDP solution 2e-13; audit 73 F4:
+      six per step of a declared fixed internal step, refined 1-18 %, the SDP solution 4e-14);
     * None otherwise (no such verdict, or derived accelerations: then they follow the integrator too)."""
     from .snapshots._notes import recorded_verdicts
 
     verdicts = recorded_verdicts(attrs)
     if "forward-euler" in verdicts:
         return "forward-euler"
-    for verdict in ("backward-euler", "step-dependent"):
+    for verdict in _SDP_ONLY_STEPS:
         if verdict in verdicts and _derived_accelerations(attrs) is False:
             return verdict
     return None

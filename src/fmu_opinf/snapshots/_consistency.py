@@ -525,8 +525,10 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     if isinstance(verdict, Repair) and verdict.reason == STALE_REASON and evaluate is not None:
         verdict = confirmed_stale(verdict, a, np.asarray(run.u[:, window]), t, lambda i: evaluate(rows, i))
     if verdict is None:
-        if strict and v is not None and getattr(source, "interface", None) == "cs":
-            _warn_if_euler_steps(source, x, v, float(t[1] - t[0]), sums)
+        if strict and getattr(source, "interface", None) == "cs":
+            if v is not None:
+                _warn_if_euler_steps(source, x, v, float(t[1] - t[0]), sums)
+            _warn_if_internal_steps(source, x, v, a, np.asarray(run.u[:, window]), float(t[1] - t[0]))
         return None
     whole = len(picked) == source.n
     if isinstance(verdict, Repair) and repairs < MAX_REPAIRS and (whole or verdict.velocities is None):
@@ -590,6 +592,8 @@ def _warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, su
     elif fixed_communication_step(source) is not None:
         remedy = ("its communication step is fixed and it offers no model exchange: export it with a smaller step or "
                   "a higher-order solver")
+    elif _fixed_internal_step(source) is not None:   # a smaller --dt takes the same internal steps (audit 73 F4)
+        remedy = _FIXED_INTERNAL_REMEDY
     else:
         remedy = "record at a smaller --dt (the error shrinks like dt; it offers no model exchange)"
     rule = "start" if forward <= backward else "end"
@@ -599,6 +603,108 @@ def _warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, su
                    f"recording follows the FMU's integrator, not the model (damping and frequencies off by terms of "
                    f"order omega dt); {remedy}", "forward-euler" if rule == "start" else "backward-euler",
                    stacklevel=4)
+
+
+#: A co-simulation with a fixed internal step (FMI 3 ``fixedInternalStepSize``) takes explicit Euler steps when the
+#: rule of those steps fits the position increments at most this fraction of the residual of the rule of an accurate
+#: integration, and integrates accurately when the accurate rule fits at most this fraction of the Euler rule's
+#: (audit 73 F4, 6 Euler steps of 0.003 s per communication step: 5.1e-6 against 3.9e-3; :func:`internal_step_rules`).
+INTERNAL_RULE_MARGIN = 0.1
+#: The fix for a co-simulation whose fixed internal step follows a low-order integrator and that offers no model
+#: exchange: no communication step changes its internal one.
+_FIXED_INTERNAL_REMEDY = ("its internal step is fixed (a smaller --dt takes the same steps) and it offers no model "
+                          "exchange: export it with a smaller fixedInternalStepSize or a higher-order solver")
+
+
+def _fixed_internal_step(source: Any) -> float | None:
+    """:func:`fmu_opinf.snapshots._window.fixed_internal_step` (imported late: that module imports this one's
+    users)."""
+    from ._window import fixed_internal_step
+
+    return fixed_internal_step(source)
+
+
+def internal_step_rules(x: np.ndarray, v: np.ndarray, a: np.ndarray, u: np.ndarray | None, dt: float,
+                        steps: int) -> tuple[float, float]:
+    """The relative residuals of two rules for the position increments of a co-simulation recorded at ``dt``: the
+    rule of ``steps`` explicit Euler steps of ``h = dt / steps`` per communication step, and the rule of an accurate
+    integration (its limit of infinitely many steps).  NaN where the positions do not move.
+
+    Explicit Euler maps the state over one communication step by ``(I + h A)^N`` (``N = steps``): the positions
+    move by ``dt v_0 + h^2 sum_(i < N-1) (N - 1 - i) a_i`` and the velocities by ``h sum_(i < N) a_i``, with
+    ``a_i`` the model's accelerations at the internal steps.  With ``a_i = a_0 + i s`` (the part of them the samples
+    hold), the velocities' increment gives ``s`` and the rule is
+
+        dx - dt v_0 - h^2 N (N - 1) / 2 a_0 - h (N - 2) / 3 (dv - dt a_0) = 0,
+
+    exact for ``N <= 2`` (one step: the forward rule of :func:`_warn_if_euler_steps`) and else left with terms of
+    order ``(omega dt)^3`` relative.  As ``N`` grows it becomes Taylor's rule through the third derivative,
+    ``dx - dt v_0 - dt^2 / 2 a_0 - dt / 3 (dv - dt a_0)``, which an accurate integration follows to those terms.
+    The two differ by about ``dt h a_0 / 2``, i.e. ``omega h / 2`` relative: the damping Euler's steps lose.
+
+    ``a`` must be the FMU's derivatives at the recorded states (data-derived ones follow the steps).  Sample ``i``'s
+    acceleration pairs with the input ``u[:, i]`` held over the step that ends there (the project's column
+    convention), while the step from ``i`` takes ``u[:, i + 1]``: the part of each row's residual that is linear
+    in ``u[:, i + 1] - u[:, i]`` is removed by least squares."""
+    h = dt / steps
+    dx, dv = np.diff(x, axis=1), np.diff(v, axis=1)
+    scale = float(np.linalg.norm(dx))
+    if not (scale > 0 and math.isfinite(scale)):
+        return math.nan, math.nan
+    base, slope = dx - dt * v[:, :-1], dv - dt * a[:, :-1]
+    euler = base - (h * h * steps * (steps - 1) / 2.0) * a[:, :-1] - (h * (steps - 2) / 3.0) * slope
+    accurate = base - (dt * dt / 2.0) * a[:, :-1] - (dt / 3.0) * slope
+    changes = np.diff(u, axis=1) if u is not None and u.size else np.zeros((0, dx.shape[1]))
+    changes = changes[np.any(changes != 0, axis=1)]
+    if changes.size and changes.shape[0] < dx.shape[1] // 4:
+        q = np.linalg.qr(changes.T)[0]
+        euler, accurate = (residual - (residual @ q) @ q.T for residual in (euler, accurate))
+    return float(np.linalg.norm(euler)) / scale, float(np.linalg.norm(accurate)) / scale
+
+
+def _warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None,
+                            u: np.ndarray, dt: float) -> None:
+    """Judge the integrator of a co-simulation FMU that declares a fixed internal step ``h`` (FMI 3
+    ``fixedInternalStepSize``) and was recorded at ``dt = N h``, ``N >= 2`` (one step per ``doStep``:
+    :func:`_warn_if_euler_steps`).  Its results cannot depend on ``dt``, so the step check skips it
+    (:func:`fmu_opinf.snapshots._window.fixed_internal_step`); audit 73 F4: explicit Euler with 6 steps per
+    ``doStep`` was recorded silently and the default ROM, refined toward those steps, was 1-18 % of range off the
+    model, while the FMU's own derivatives gave it to 4e-14.  Explicit Euler (:func:`internal_step_rules`) is
+    warned with the verdict ``"euler-substeps"``, on which ``fit`` keeps the SDP fitted to the FMU's derivatives;
+    where the data cannot tell (no velocities or accelerations of the FMU's own, motion the step does not resolve,
+    another low-order integrator) one line says what the recording follows and the fix (``"internal-step"``)."""
+    from ..sources import offers_model_exchange
+    from ._notes import current_recording_notes, warn_recording
+
+    internal = _fixed_internal_step(source)
+    said = set(current_recording_notes().get("recording_verdicts", []))
+    if internal is None or said & {"forward-euler", "backward-euler", "euler-substeps", "internal-step"}:
+        return
+    steps = round(dt / internal)
+    if steps < 2 or abs(dt / internal - steps) > 1e-9 * steps:
+        return   # one step per doStep (the forward and backward rules tell), or not on its grid (warned)
+    euler, accurate = (math.nan, math.nan) if v is None or a is None else internal_step_rules(x, v, a, u, dt, steps)
+    if accurate < EULER_TRAPEZOIDAL_MISS or accurate <= INTERNAL_RULE_MARGIN * euler:
+        return
+    label = f"{source_label(source)}: the co-simulation"
+    where = f"{steps} steps of its fixedInternalStepSize={internal:g} per communication step dt={dt:g}"
+    remedy = "record by model exchange (--interface me)" if offers_model_exchange(source) else _FIXED_INTERNAL_REMEDY
+    if euler <= INTERNAL_RULE_MARGIN * accurate:
+        warn_recording(f"{label} takes {where} by explicit Euler (their rule fits the position increments to "
+                       f"{euler:.1e}, an accurate integration's misses by {accurate:.1e}): the recording follows "
+                       "the FMU's integrator, not the model (damping off by about omega h / 2; fit keeps the SDP "
+                       f"fitted to the FMU's derivatives at the recorded states); {remedy}", "euler-substeps",
+                       stacklevel=4)
+        return
+    why = ("gave no velocities or accelerations of its own to judge that integrator by" if v is None or a is None
+           else "did not move in the samples judged" if math.isnan(accurate)
+           else f"the data cannot tell from an accurate one (explicit Euler's rule misses by {euler:.1e}, an "
+                f"accurate integration's by {accurate:.1e})")
+    fix = (remedy if offers_model_exchange(source) or a is None else
+           f"fit with --no-refine (the SDP then fits the FMU's derivatives at the recorded states, not its steps), or "
+           f"{remedy.split(': ', 1)[1]}")
+    warn_recording(f"{label} integrates with {where} and the recording follows them; it {why}: where that "
+                   f"integrator is a low-order one (Euler), {fix}", "internal-step", stacklevel=4)
 
 
 def _paired_by_structure(selection: Any) -> bool:

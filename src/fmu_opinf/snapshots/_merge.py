@@ -34,6 +34,7 @@ _INTERFACES = {"me": "model exchange", "cs": "co-simulation"}
 #: each says.
 _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps",
                   "backward-euler": "the FMU's semi-implicit Euler co-simulation steps",
+                  "euler-substeps": "the FMU's explicit Euler steps of its fixed internal step",
                   "step-dependent": "a co-simulation that depends on its communication step"}
 
 
