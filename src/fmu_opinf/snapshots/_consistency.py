@@ -696,14 +696,14 @@ def _warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a:
                        f"fitted to the FMU's derivatives at the recorded states); {remedy}", "euler-substeps",
                        stacklevel=4)
         return
-    why = ("gave no velocities or accelerations of its own to judge that integrator by" if v is None or a is None
-           else "did not move in the samples judged" if math.isnan(accurate)
-           else f"the data cannot tell from an accurate one (explicit Euler's rule misses by {euler:.1e}, an "
-                f"accurate integration's by {accurate:.1e})")
+    why = ("it gave no velocities or accelerations of its own to judge its integrator by" if v is None or a is None
+           else "its positions did not move in the samples judged" if math.isnan(accurate)
+           else f"the data cannot tell its integrator from an accurate one (explicit Euler's rule misses by "
+                f"{euler:.1e}, an accurate integration's by {accurate:.1e})")
     fix = (remedy if offers_model_exchange(source) or a is None else
            f"fit with --no-refine (the SDP then fits the FMU's derivatives at the recorded states, not its steps), or "
            f"{remedy.split(': ', 1)[1]}")
-    warn_recording(f"{label} integrates with {where} and the recording follows them; it {why}: where that "
+    warn_recording(f"{label} integrates with {where} and the recording follows them; {why}: where that "
                    f"integrator is a low-order one (Euler), {fix}", "internal-step", stacklevel=4)
 
 
