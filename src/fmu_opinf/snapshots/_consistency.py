@@ -624,6 +624,7 @@ def _fixed_internal_step(source: Any) -> float | None:
     return fixed_internal_step(source)
 
 
+@_quiet_overflow
 def internal_step_rules(x: np.ndarray, v: np.ndarray, a: np.ndarray, u: np.ndarray | None, dt: float,
                         steps: int) -> tuple[float, float]:
     """The relative residuals of two rules for the position increments of a co-simulation recorded at ``dt``: the
@@ -646,20 +647,36 @@ def internal_step_rules(x: np.ndarray, v: np.ndarray, a: np.ndarray, u: np.ndarr
     acceleration pairs with the input ``u[:, i]`` held over the step that ends there (the project's column
     convention), while the step from ``i`` takes ``u[:, i + 1]``: the part of each row's residual that is linear
     in ``u[:, i + 1] - u[:, i]`` is removed by least squares."""
-    h = dt / steps
-    dx, dv = np.diff(x, axis=1), np.diff(v, axis=1)
-    scale = float(np.linalg.norm(dx))
-    if not (scale > 0 and math.isfinite(scale)):
-        return math.nan, math.nan
-    base, slope = dx - dt * v[:, :-1], dv - dt * a[:, :-1]
-    euler = base - (h * h * steps * (steps - 1) / 2.0) * a[:, :-1] - (h * (steps - 2) / 3.0) * slope
-    accurate = base - (dt * dt / 2.0) * a[:, :-1] - (dt / 3.0) * slope
-    changes = np.diff(u, axis=1) if u is not None and u.size else np.zeros((0, dx.shape[1]))
+    k = x.shape[1]
+    changes = np.diff(u, axis=1) if u is not None and u.size else np.zeros((0, k - 1))
     changes = changes[np.any(changes != 0, axis=1)]
-    if changes.size and changes.shape[0] < dx.shape[1] // 4:
-        q = np.linalg.qr(changes.T)[0]
-        euler, accurate = (residual - (residual @ q) @ q.T for residual in (euler, accurate))
-    return float(np.linalg.norm(euler)) / scale, float(np.linalg.norm(accurate)) / scale
+    basis = np.linalg.qr(changes.T)[0] if changes.size and changes.shape[0] < (k - 1) // 4 else None
+    squares, projected = np.zeros(3), np.zeros((2, x.shape[0], 0 if basis is None else basis.shape[1]))
+    for c0 in range(0, k - 1, _BLOCK):   # blocks of samples: a few (n, _BLOCK) temporaries, not (n, k)
+        c1 = min(c0 + _BLOCK, k - 1)
+        dx, residuals = _internal_step_residuals(x[:, c0:c1 + 1], v[:, c0:c1 + 1], a[:, c0:c1], dt, steps)
+        squares[0] += float(np.einsum("ij,ij->", dx, dx))
+        for j, residual in enumerate(residuals):
+            squares[1 + j] += float(np.einsum("ij,ij->", residual, residual))
+            if basis is not None:
+                projected[j] += residual @ basis[c0:c1]
+    if not (squares[0] > 0 and math.isfinite(squares[0])):
+        return math.nan, math.nan
+    # the residual left after removing the least-squares part in the input changes: ||R||^2 - ||R Q||^2
+    left = [max(squares[1 + j] - float(np.einsum("ij,ij->", projected[j], projected[j])), 0.0) for j in range(2)]
+    return math.sqrt(left[0] / squares[0]), math.sqrt(left[1] / squares[0])
+
+
+def _internal_step_residuals(x: np.ndarray, v: np.ndarray, a: np.ndarray, dt: float,
+                             steps: int) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The position increments over the samples of ``x, v`` (one more than ``a``), and the residuals of the rule of
+    ``steps`` explicit Euler steps and of the accurate rule (:func:`internal_step_rules`)."""
+    h = dt / steps
+    dx = np.diff(x, axis=1)
+    base, slope = dx - dt * v[:, :-1], np.diff(v, axis=1) - dt * a
+    euler = base - (h * h * steps * (steps - 1) / 2.0) * a - (h * (steps - 2) / 3.0) * slope
+    accurate = base - (dt * dt / 2.0) * a - (dt / 3.0) * slope
+    return dx, (euler, accurate)
 
 
 def _warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None,
