@@ -97,12 +97,15 @@ def _source(internal: float | None = INTERNAL, model_exchange: bool = False, der
 
 
 @collecting_recording_notes
-def _judged(data: SimpleNamespace, source: SimpleNamespace | None = None) -> tuple[dict, list[str]]:
-    """The recording notes and the warnings of :func:`judge_run` on ``data`` (as the recorder judges a run)."""
-    run = SimpleNamespace(x=data.x, xdot=data.v, xddot=data.a, u=data.u)
+def _judged(data: SimpleNamespace | list[SimpleNamespace],
+            source: SimpleNamespace | None = None) -> tuple[dict, list[str]]:
+    """The recording notes and the warnings of :func:`judge_run` on the run ``data`` (or each of a list of runs of
+    one recording, in order), as the recorder judges them."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        assert judge_run(source or _source(), run, data.t) is None
+        for each in data if isinstance(data, list) else [data]:
+            run = SimpleNamespace(x=each.x, xdot=each.v, xddot=each.a, u=each.u)
+            assert judge_run(source or _source(), run, each.t) is None
     return current_recording_notes(), [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)]
 
 
@@ -155,6 +158,18 @@ def test_where_the_data_cannot_tell_one_line_says_what_the_recording_follows_and
     notes, said = _judged(_substeps("euler"), _source(derived=True))
     assert notes.get("recording_verdicts") == ["internal-step"]
     assert "gave no velocities or accelerations of its own" in said[0] and "--no-refine" not in said[0]
+
+
+def test_a_run_that_cannot_tell_leaves_the_next_run_of_the_recording_to_judge():
+    """A run table's first row at rest (nothing moves: the data cannot tell), then the impulse: the Euler verdict
+    of the second run is not lost behind the first run's line; a third run that cannot tell adds no line."""
+    rest = _substeps("euler", "harmonic:amplitude=0,omega=1")
+    rest.x, rest.v, rest.a = (np.zeros_like(array) for array in (rest.x, rest.v, rest.a))
+    notes, said = _judged([rest, _substeps("euler"), rest])
+    assert notes.get("recording_verdicts") == ["internal-step", "euler-substeps"], said
+    assert len(said) == 2 and "its positions did not move in the samples judged" in said[0]
+    notes, said = _judged([rest, _substeps("exact"), rest])
+    assert notes.get("recording_verdicts") == ["internal-step"] and len(said) == 1
 
 
 def test_without_a_declared_internal_step_nothing_changes():

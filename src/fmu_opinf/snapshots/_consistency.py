@@ -695,14 +695,16 @@ def _warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a:
 
     internal = _fixed_internal_step(source)
     said = set(current_recording_notes().get("recording_verdicts", []))
-    if internal is None or said & {"forward-euler", "backward-euler", "euler-substeps", "internal-step"}:
-        return
+    if internal is None or said & {"forward-euler", "backward-euler", "euler-substeps"}:
+        return   # (an earlier run that could not tell leaves the next one to judge)
     steps = round(dt / internal)
     if steps < 2 or abs(dt / internal - steps) > 1e-9 * steps:
         return   # one step per doStep (the forward and backward rules tell), or not on its grid (warned)
     euler, accurate = (math.nan, math.nan) if v is None or a is None else internal_step_rules(x, v, a, u, dt, steps)
     if accurate < EULER_TRAPEZOIDAL_MISS or accurate <= INTERNAL_RULE_MARGIN * euler:
         return
+    if "internal-step" in said and not euler <= INTERNAL_RULE_MARGIN * accurate:
+        return   # said for an earlier run
     label = f"{source_label(source)}: the co-simulation"
     where = f"{steps} steps of its fixedInternalStepSize={internal:g} per communication step dt={dt:g}"
     remedy = "record by model exchange (--interface me)" if offers_model_exchange(source) else _FIXED_INTERNAL_REMEDY
