@@ -664,21 +664,73 @@ def default_amplitudes(source: Source) -> list[float]:
 #: The default pulse on a pressure that starts away from 0, as a share of its start.
 PRESSURE_PULSE_SHARE = 0.1
 
+#: The default pulse on an input that declares a finite ``[min, max]`` and no nominal, as a share of the range's
+#: width, where that share is above the default amplitude (a narrower range keeps the default, lowered to fit).
+RANGE_PULSE_SHARE = 0.1
+
+#: A declared bound beyond this magnitude is an unbounded range written out (``1e60``, ``DBL_MAX``), never a size
+#: to pulse by (it still bounds the pulse).
+PLACEHOLDER_BOUND = 1e15
+
 
 def _unbounded_amplitudes(source: Source) -> list[float]:
-    """The default impulse's amplitude on each input before its declared range is heeded: 100 in the input's own
-    unit, or :data:`PRESSURE_PULSE_SHARE` of the start (three digits) for an input in a pressure's unit that starts away
-    from 0.  A pressure driven about an ambient or a working pressure was pulsed by 100 whatever its unit: from 1
-    to 101 bar, or by 0.1 % of 101325 Pa (audit 61, finding 3)."""
+    """The default impulse's amplitude on each input before its declared range is heeded (:func:`_sized_amplitudes`)."""
+    return [amplitude for amplitude, _ in _sized_amplitudes(source)]
+
+
+def _sized_amplitudes(source: Source) -> list[tuple[float, str]]:
+    """The default impulse's amplitude on each input before its declared range caps it, and what sized it:
+
+    * ``"pressure"``: :data:`PRESSURE_PULSE_SHARE` of the start (three digits) for an input in a pressure's unit
+      that starts away from 0.  A pressure driven about an ambient or a working pressure was pulsed by 100 whatever
+      its unit: from 1 to 101 bar, or by 0.1 % of 101325 Pa (audit 61, finding 3);
+    * ``"nominal"``: the input's declared ``nominal`` (FMI 2 ``Real``, FMI 3 ``Float64`` / ``Float32``; its own or
+      its declared type's), the size the exporter gives its values.  A nominal of exactly 1 is FMI's default
+      written out and sizes nothing.  A force declared ``nominal="1e5"`` on a heavy structure under gravity was
+      pulsed by 100 N, a response 3e-4 of the gravity swing, and the ROM was 3-8 times the output range off at
+      loads of 1e5 N (audit 73, F1);
+    * ``"range"``: :data:`RANGE_PULSE_SHARE` of the width of a finite declared ``[min, max]`` (three digits) where
+      no nominal is declared and that is above 100: a range far wider than the default says the input takes loads
+      far above it; a narrower one keeps the default, lowered to fit (:func:`default_amplitudes`).  Bounds beyond
+      :data:`PLACEHOLDER_BOUND` are no size;
+    * ``"default"``: 100 in the input's own unit (:data:`DEFAULT_TRAINING_INPUT`).
+    """
     from ..sources._variables import is_pressure_about_start
 
+    starts = held_starts(source)
     units = list(getattr(source, "input_units", None) or [])
     model = getattr(source, "model", None)
-    starts = held_starts(source)
-    if len(units) != len(starts):
-        return [_DEFAULT_AMPLITUDE] * len(starts)
-    return [float(f"{PRESSURE_PULSE_SHARE * abs(start):.3g}") if is_pressure_about_start(unit, start, model)
-            else _DEFAULT_AMPLITUDE for unit, start in zip(units, starts)]
+    nominals, widths = _declared_nominals(source, len(starts)), _range_widths(source, len(starts))
+    out: list[tuple[float, str]] = []
+    for i, start in enumerate(starts):
+        if len(units) == len(starts) and is_pressure_about_start(units[i], start, model):
+            out.append((float(f"{PRESSURE_PULSE_SHARE * abs(start):.3g}"), "pressure"))
+        elif math.isfinite(nominals[i]) and nominals[i] != 1.0:
+            out.append((float(f"{nominals[i]:g}"), "nominal"))
+        elif RANGE_PULSE_SHARE * widths[i] > _DEFAULT_AMPLITUDE:
+            out.append((float(f"{RANGE_PULSE_SHARE * widths[i]:.3g}"), "range"))
+        else:
+            out.append((_DEFAULT_AMPLITUDE, "default"))
+    return out
+
+
+def _declared_nominals(source: Source, m: int) -> np.ndarray:
+    """The inputs' declared nominals (``Source.input_nominals``), NaN where none is declared or known (a
+    duck-typed source of the API that declares none)."""
+    nominals = np.asarray(getattr(source, "input_nominals", lambda: np.full(m, np.nan))(), dtype=float)
+    return nominals if nominals.shape == (m,) else np.full(m, np.nan)
+
+
+def _range_widths(source: Source, m: int) -> np.ndarray:
+    """The widths of the inputs' declared ranges, 0 where a bound is missing, beyond :data:`PLACEHOLDER_BOUND` or
+    the range is crossed."""
+    if not hasattr(source, "input_ranges"):
+        return np.zeros(m)
+    low, high = (np.asarray(bound, dtype=float) for bound in source.input_ranges())
+    if low.shape != (m,) or high.shape != (m,):
+        return np.zeros(m)
+    sized = (np.abs(low) < PLACEHOLDER_BOUND) & (np.abs(high) < PLACEHOLDER_BOUND) & (low < high)
+    return np.where(sized, high - low, 0.0)
 
 
 def _on_start_values(source: Source) -> str:
@@ -710,14 +762,19 @@ def held_starts(source: Source) -> np.ndarray:
 
 
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
-    """What the default training says about amplitudes changed to fit the inputs' declared ranges, or sized by a
-    pressure's start (:func:`_unbounded_amplitudes`); "" if none."""
-    unbounded = _unbounded_amplitudes(source)
-    lowered = [f"{a:g} on {name}" for name, a, b in zip(source.input_names, amplitudes, unbounded) if a != b]
-    pressures = [f"{a:g} on {name}" for name, a, b in zip(source.input_names, amplitudes, unbounded)
-                 if a == b != _DEFAULT_AMPLITUDE]
-    parts = ([f"{', '.join(lowered)}: what its declared range allows"] if lowered else []) + (
-        [f"{', '.join(pressures)}: a tenth of its start, a pressure"] if pressures else [])
+    """What the default training says about amplitudes other than 100: changed to fit the inputs' declared ranges,
+    or sized by a pressure's start, a declared nominal or a declared range (:func:`_sized_amplitudes`); "" if
+    none."""
+    why = {"lowered": "what its declared range allows", "pressure": "a tenth of its start, a pressure",
+           "nominal": "its declared nominal", "range": "a tenth of its declared range's width"}
+    groups: dict[str, list[str]] = {key: [] for key in why}
+    for name, amplitude, (sized, origin) in zip(source.input_names, amplitudes, _sized_amplitudes(source)):
+        if amplitude != sized:
+            groups["lowered"].append(f"{amplitude:g} on {name}" + (f" (its declared nominal {sized:g})"
+                                                                  if origin == "nominal" else ""))
+        elif origin != "default":
+            groups[origin].append(f"{amplitude:g} on {name}")
+    parts = [f"{', '.join(entries)}: {why[key]}" for key, entries in groups.items() if entries]
     return f" (amplitude {'; '.join(parts)})" if parts else ""
 
 

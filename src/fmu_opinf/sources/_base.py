@@ -231,6 +231,11 @@ class Source:
         is known."""
         return np.full(self.m, -np.inf), np.full(self.m, np.inf)
 
+    def input_nominals(self) -> np.ndarray:
+        """The inputs' declared magnitudes (an FMU's ``nominal``), NaN where none is known: the default training
+        pulse is sized by them (:func:`fmu_opinf.snapshots._record.default_amplitudes`)."""
+        return np.full(self.m, np.nan)
+
     def provenance(self) -> dict[str, Any]:
         """Where the data come from (source kind, path, checksums, ...)."""
         raise NotImplementedError

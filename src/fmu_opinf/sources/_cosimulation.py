@@ -25,9 +25,9 @@ from ._base import Source, StepError, check_constraint, inputs_without, nice_flo
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
-from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_range,
-                         fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter, read_description,
-                         real_outputs, start_value, unit_kind)
+from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_nominal,
+                         declared_range, fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter,
+                         read_description, real_outputs, start_value, unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -505,6 +505,11 @@ class FMUSource(Source):
         ``start`` is its start (audit 60: flipped, an alias in [0, 10] starting at 2 was pulsed down to -8)."""
         ranges = [declared_range(column.element) for column in self._write.columns]
         return (np.array([low for low, _ in ranges], dtype=float), np.array([high for _, high in ranges], dtype=float))
+
+    def input_nominals(self) -> np.ndarray:
+        """The force inputs' declared ``nominal`` (their variable's or its declared type's), NaN where none is
+        declared or it is not a number above 0 (:func:`~._variables.declared_nominal`)."""
+        return np.array([declared_nominal(column.element) for column in self._write.columns], dtype=float)
 
     def failure_hint(self, U: np.ndarray, step: int, message: str = "") -> str:
         """Why a step may have failed.

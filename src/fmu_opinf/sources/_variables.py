@@ -61,6 +61,7 @@ class Variable:
     quantity: str | None = None  # its own quantity, else its declared type's (FMI: e.g. "Force")
     display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
     clocks: str | None = None  # FMI 3 ``clocks``: value references of the clocks it ticks with (a clocked variable)
+    nominal: str | None = None  # its own nominal, else its declared type's (FMI: its magnitude, default 1)
 
     @property
     def is_real(self) -> bool:
@@ -491,7 +492,7 @@ class ModelInfo:
         self.exported_rom = root.get("generationTool") == "fmu-opinf"
         node = root.find("ModelVariables")
         self._type_units = _type_attribute(root, "unit")
-        self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max")}
+        self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max", "nominal")}
         self._type_display_units = _type_attribute(root, "displayUnit")
         self._type_quantities = _type_attribute(root, "quantity")
         #: units the model defines (UnitDefinitions) with the base units of a force or a moment (:func:`unit_kind`)
@@ -530,7 +531,7 @@ class ModelInfo:
                            variability=sv.get("variability", "continuous" if kind == "Real" else "discrete"),
                            initial=sv.get("initial"), start=attrs.get("start"), derivative=attrs.get("derivative"),
                            negated=sv.get("alias") == "negatedAlias", min=self._bound(attrs, "min"),
-                           max=self._bound(attrs, "max"),
+                           max=self._bound(attrs, "max"), nominal=self._bound(attrs, "nominal"),
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
                            quantity=attrs.get("quantity") or self._type_quantities.get(attrs.get("declaredType", "")),
                            display_unit=self._display_unit(attrs))
@@ -542,7 +543,7 @@ class ModelInfo:
         return out
 
     def _bound(self, attrs: Any, key: str) -> str | None:
-        """A variable's ``min`` or ``max``: its own, else its declared type's."""
+        """A variable's ``min``, ``max`` or ``nominal``: its own, else its declared type's."""
         return attrs.get(key) or self._type_bounds[key].get(attrs.get("declaredType", ""))
 
     def _read3(self, node: ET.Element) -> list[Variable]:
@@ -557,6 +558,7 @@ class ModelInfo:
                                                    else "discrete"),
                                 initial=el.get("initial"), start=el.get("start"), derivative=el.get("derivative"),
                                 min=self._bound(el.attrib, "min"), max=self._bound(el.attrib, "max"),
+                                nominal=self._bound(el.attrib, "nominal"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
                                 quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
                                 display_unit=self._display_unit(el.attrib), clocks=el.get("clocks")))
@@ -1594,6 +1596,17 @@ def declared_range(element: Element) -> tuple[float, float]:
         return value if not math.isnan(value) else default
 
     return number(element.var.min, -math.inf), number(element.var.max, math.inf)
+
+
+def declared_nominal(element: Element) -> float:
+    """The element's declared ``nominal`` (its own, else its declared type's) as a float; NaN where none is declared
+    or it is not a finite number above 0 (FMI asks for ``nominal > 0``).  FMI 3 declares one ``nominal`` for every
+    element of an array."""
+    try:
+        value = float(element.var.nominal) if element.var.nominal is not None else math.nan
+    except ValueError:
+        return math.nan
+    return value if math.isfinite(value) and value > 0 else math.nan
 
 
 def nonzero_start(element: Element) -> bool:
