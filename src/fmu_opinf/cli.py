@@ -133,7 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "the free response from the initial state (every input held at its start value); ';' "
                         "separates one spec per input ('none' there: that input held); repeat for several training "
                         "runs; default: the paper's impulse training input "
-                        "'impulse:amplitude=100,t0=2,width=0.5', in one run per input with several inputs, or the "
+                        "'impulse:amplitude=100,t0=2,width=0.5' (the amplitude an input's declared nominal where it "
+                        "has one, within its declared range), in one run per input with several inputs, or the "
                         "free response of a model without inputs")
     p.add_argument("--dt", type=float, help="communication step (default: the FMU's default experiment step, "
                                             "else the automatic window)")

@@ -51,7 +51,8 @@ if TYPE_CHECKING:
 __all__ = ["record", "record_to_file", "check_input_acts", "default_training_inputs", "RecordSummary", "STREAM_THRESHOLD", "DEFAULT_TRAINING_INPUT"]
 
 #: Training input when none is given for a model with inputs: the paper's impulse-like pulse (the one of
-#: the demo): a raised cosine of 100 (force units) centred at t=2, 0.5 time units wide.
+#: the demo): a raised cosine of 100 (force units) centred at t=2, 0.5 time units wide; its amplitude on each
+#: input is the one :func:`default_amplitudes` gives (a declared nominal or range sizes it).
 DEFAULT_TRAINING_INPUT = "impulse:amplitude=100,t0=2,width=0.5"
 
 #: Bytes of one run above which ``record(..., path=...)`` streams blocks to disk instead of memory.
@@ -932,8 +933,9 @@ def record_to_file(
         spec drives every input) or signal objects; one run each; the name :func:`record` and
         :func:`fmu_opinf.compare.compare` give it (``input_spec=`` still works, with a
         DeprecationWarning).  Default (None or empty):
-        :func:`default_training_inputs`: :data:`DEFAULT_TRAINING_INPUT` on each input in a run of its own, or
-        the free response of a model without inputs.
+        :func:`default_training_inputs`: :data:`DEFAULT_TRAINING_INPUT` on each input in a run of its own, at the
+        amplitude the input declares (:func:`default_amplitudes`: its nominal, else a wide range's tenth, else 100,
+        within its range), or the free response of a model without inputs.
     dt, t_end : float, optional
         Step and end time; default: the FMU's ``DefaultExperiment`` when it declares a ``stepSize``,
         else the automatic window.
