@@ -746,7 +746,9 @@ def record_runs(
         None: the rows run one after another in this process.  ``"local"``, ``"local:N"``,
         ``"tcp://HOST:PORT"`` or a client: one Dask task per row.
     dt, t_end, auto_window
-        As for :func:`fmu_opinf.snapshots.record_to_file` (the same for every row).
+        As for :func:`fmu_opinf.snapshots.record_to_file` (the same for every row).  Without ``dt``, each row's
+        step is chosen first (its pilot runs, or the FMU's declared step) and every row is recorded at the finest
+        of them, to its own end (:func:`_at_one_step`): the runs then fit together.
     isolate : bool, default=True
         Crash isolation of FMUs (the recorder's child process), on the workers too.
     quiet : bool, default=False
@@ -781,18 +783,108 @@ def record_runs(
     started = time.perf_counter()
     outputs = {path: path for row in rows for path in (out_dir / f"{row.name}.h5", out_dir / f"{row.name}"
                                                        f"{INCOMPLETE_SUFFIX}")}
+    shared = dt is None and len(rows) > 1   # rows at their own automatic steps would not fit together (audit 72)
+
+    def windows(map_rows: Callable[[Callable, Callable], list]) -> dict[int, dict[str, Any]]:
+        if not shared:
+            return {row.number: row_settings(row) for row in rows}
+        found = map_rows(row_window, lambda row: (source_spec, row, row_settings(row), source_options, isolate))
+        return _at_one_step(rows, [row_settings(row) for row in rows], found, quiet)
+
     with _written_named_on_interrupt(outputs):
         if scheduler is None:
+            chosen = windows(lambda function, arguments: [function(*arguments(row)) for row in rows])
             outcomes = []
             for i, row in enumerate(rows):
-                outcomes.append(record_row(source_spec, row, out_dir, row_settings(row), source_options, isolate))
+                outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate))
                 show(outcomes[-1], i + 1, len(rows))
         else:
             with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
+                chosen = windows(lambda function, arguments: _gather_rows(client, function, rows, arguments))
                 outcomes = _map_rows(client, record_row, rows, show,
-                                     lambda row: (source_spec, row, str(out_dir), row_settings(row), source_options,
-                                                  isolate))
+                                     lambda row: (source_spec, row, str(out_dir), chosen[row.number],
+                                                  source_options, isolate))
     return RunTableReport(outcomes, time.perf_counter() - started)
+
+
+def row_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_options: dict[str, Any],
+               isolate: bool = True) -> tuple[float, float, dict[str, Any] | None] | None:
+    """The step, end and automatic window (``as_dict``) the row would be recorded with on its own, from its pilot
+    runs (:func:`fmu_opinf.snapshots.recording_window`); None where they fail (the row's recording then fails
+    with its own message, and the other rows go on).
+
+    Parameters
+    ----------
+    source_spec : str or path-like
+        ``builtin:NAME`` or an FMU path.
+    row : RunRow
+    settings : dict
+        Keywords of :func:`fmu_opinf.snapshots.record_to_file` common to all rows.
+    source_options : dict
+        Source keywords common to all rows.
+    isolate : bool, default=True
+
+    Returns
+    -------
+    tuple or None
+        ``(dt, t_end, window)``; ``window`` None where no pilots chose the grid.
+    """
+    from .snapshots._record import recording_window
+
+    try:
+        dt, t_end, window = recording_window(source_spec, row.input, isolate=isolate, **settings,
+                                             **row_source_options(row, source_options))
+    except FmuOpinfError:
+        return None
+    return dt, t_end, None if window is None else window.as_dict()
+
+
+def _gather_rows(client: Any, function: Callable, rows: Sequence[RunRow],
+                 arguments: Callable[[RunRow], tuple]) -> list[Any]:
+    """``function(*arguments(row))`` for every row as Dask tasks, in table order; a row whose task failed: None.
+    The tasks' warnings are said here (once each)."""
+    futures = [client.submit(_warnings_returned, function, *arguments(row), pure=False,
+                             key=f"{function.__name__}-{row.name}-{time.time_ns()}") for row in rows]
+    found = []
+    for future in futures:
+        try:
+            result, said = future.result()
+            _warn_here(said)
+        except Exception:  # a lost worker: the row's recording says what went wrong
+            result = None
+        found.append(result)
+    return found
+
+
+def _at_one_step(rows: Sequence[RunRow], settings: Sequence[dict[str, Any]], found: Sequence[Any],
+                 quiet: bool) -> dict[int, dict[str, Any]]:
+    """Each row's recording settings with the table's one step: the finest of the rows' own steps (``found``, from
+    :func:`row_window`); each row keeps its own end and its window's description, with the step replaced.
+
+    Runs of one table are fitted together, and the fit's output-error refinement, order search and training
+    check simulate every run at one step: rows at their own automatic steps (an impulse at 0.02, a harmonic at
+    0.1) turned them off, and the ROM was 15-51 % of range off its own training inputs (audit 72, F2).  The
+    finest step resolves every row's fastest significant frequency; the end stays each row's own (where its
+    response faded, or its input table ends), since runs of different lengths fit together and a later end would
+    only cost samples.  The pilots run once: the row is recorded with its window (``record_to_file(window=)``).
+    """
+    steps = [item[0] for item in found if item is not None]
+    step = min(steps) if steps else None
+    chosen: dict[int, dict[str, Any]] = {}
+    for row, own, item in zip(rows, settings, found):
+        if item is None or step is None:
+            chosen[row.number] = own
+            continue
+        dt, t_end, window = item
+        if window is not None:
+            chosen[row.number] = {**own, "window": {**window, "dt": step, "t_end": t_end}}
+        else:
+            chosen[row.number] = {**own, "dt": step, "t_end": t_end} if dt != step else own
+    if not quiet and step is not None and len(set(steps)) > 1:
+        listed = ", ".join(f"{row.name} {item[0]:g}" for row, item in zip(rows, found) if item is not None)
+        print(f"run table: every row recorded at dt={step:g}, the finest of the rows' own steps ({listed}), so that "
+              f"they fit together; each row to its own end", file=sys.stderr)
+    return chosen
 
 
 def _as_float(value: Any) -> Any:

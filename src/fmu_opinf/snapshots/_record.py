@@ -918,6 +918,7 @@ def record_to_file(
     quiet: bool = False,
     isolate: bool = True,
     keep_inputs: bool = False,
+    window: "Window | dict | None" = None,
     **size_options: Any,
 ) -> RecordSummary:
     """Command-line entry: record one run per input specification into ``output``.
@@ -970,6 +971,10 @@ def record_to_file(
         Keep the force inputs (held at their start values) when every run is a free response, instead of
         recording no input channel (m = 0): a run table's ``none`` row beside forced rows, so that the files
         merge into one data set.
+    window : Window or dict, optional
+        An automatic window chosen beforehand (:func:`recording_window`, with its step and end replaced as
+        wanted; a dict: its ``as_dict()``): recorded at its ``dt`` and ``t_end`` as the automatic window, without
+        pilot runs (a run table's rows at the table's one step, :func:`fmu_opinf.runs.record_runs`).
     **size_options
         Sizes of a builtin system (``g`` for anchored-msd; ``n1, alpha, beta, v`` for triple-chain).
 
@@ -978,10 +983,115 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
-    from ._window import default_window, needs_auto_window, warn_if_step_dependent
+    from ._window import warn_if_step_dependent
+
+    plan = _plan_recording(source_spec, signal, dt, t_end, auto_window, window, quiet, isolate, keep_inputs,
+                           dict(positions=positions, velocities=velocities, accelerations=accelerations,
+                                inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
+                                interface=interface, tolerance=tolerance, start_time=start_time),
+                           dict(points_per_period=points_per_period, window_energy=window_energy, fade=fade),
+                           size_options)
+    source, signals, window, dt, t_end = plan.source, plan.signals, plan.window, plan.dt, plan.t_end
+    dt_given, fixed, representatives = plan.dt_given, plan.fixed, plan.representatives
+    step_declared, step_multiple, t_end_from = plan.step_declared, plan.step_multiple, plan.t_end_from
+    t = time_grid(dt, t_end)
+    for signal in signals:
+        check_input_acts(signal, t)
+    if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
+        warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
+    summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
+    summary.t_end_from, summary.window_end = t_end_from, float(t[-1])
+    summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
+                         else "a multiple of the FMU's DefaultExperiment stepSize" if step_multiple
+                         else "the FMU's DefaultExperiment stepSize" if step_declared else None)
+    return summary
+
+@dataclasses.dataclass
+class _Plan:
+    """What :func:`record_to_file` records: the opened source, the signals, the grid and who chose it."""
+
+    source: Source
+    signals: list[Any]
+    representatives: list[Any]
+    window: "Window | None"
+    dt: float
+    t_end: float
+    dt_given: bool
+    fixed: float | None
+    step_declared: bool
+    step_multiple: bool
+    t_end_from: str | None
+
+
+def recording_window(source_spec: str | os.PathLike, signal: Any = None, dt: float | None = None,
+                     t_end: float | None = None, auto_window: bool = False, *, isolate: bool = True,
+                     keep_inputs: bool = False, **options: Any) -> tuple[float, float, "Window | None"]:
+    """The step, end and automatic window :func:`record_to_file` would record ``signal`` with, from its pilot runs
+    alone (nothing recorded, nothing printed).
+
+    A run table's rows are recorded at one step (:func:`fmu_opinf.runs.record_runs`): each row's window is chosen
+    first, the finest step of all is the table's, and each row is then recorded with its window at that step
+    (``record_to_file(window=...)``, without running its pilots again).
+
+    Parameters
+    ----------
+    source_spec : str or path-like
+        ``builtin:NAME`` or an FMU path.
+    signal : str, optional
+        The run's input specification (one run).
+    dt, t_end, auto_window, isolate, keep_inputs
+        As for :func:`record_to_file`.
+    **options
+        The other keywords of :func:`record_to_file` (variable patterns, parameters, thresholds, sizes).
+
+    Returns
+    -------
+    dt, t_end : float
+        The step and end the run would be recorded with.
+    window : Window or None
+        The automatic window behind them (None where no pilots chose them: given or declared by the FMU).
+    """
+    names = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
+             "interface", "tolerance", "start_time")
+    thresholds = {key: options.pop(key) for key in ("points_per_period", "window_energy", "fade") if key in options}
+    plan = _plan_recording(source_spec, signal, dt, t_end, auto_window, None, True, isolate, keep_inputs,
+                           {key: options.pop(key, None) for key in names},
+                           {"points_per_period": 20.0, "window_energy": 0.999, "fade": 0.01, **thresholds}, options)
+    close = getattr(plan.source, "close", None)
+    if callable(close):
+        close()
+    return plan.dt, plan.t_end, plan.window
+
+
+def _preset_window(window: "Window | dict | None") -> "Window | None":
+    """A window chosen beforehand (:func:`recording_window`), as a :class:`Window` (a dict: its ``as_dict``)."""
+    from ._window import Window
+
+    if window is None or isinstance(window, Window):
+        return window
+    try:
+        return Window(**dict(window))
+    except (TypeError, ValueError) as exc:
+        raise InputSpecError(f"window={window!r} is not an automatic window ({exc}); give Window.as_dict() of "
+                             f"recording_window's window") from None
+
+
+def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: float | None, auto_window: bool,
+                    window: "Window | dict | None", quiet: bool, isolate: bool, keep_inputs: bool,
+                    names: dict[str, Any], limits: dict[str, float], size_options: dict[str, Any]) -> _Plan:
+    """Open the source and choose the run's grid (:func:`record_to_file`'s steps before recording): a given
+    ``dt``/``t_end``, an input table's end, the FMU's declared step, or the automatic window from pilot runs; a
+    ``window`` chosen beforehand (:func:`recording_window`) is taken as the automatic window, without pilots."""
+    from ._window import default_window, needs_auto_window
+
+    positions, velocities, accelerations, inputs, outputs, constraint, parameters, interface, tolerance, \
+        start_time = (names[key] for key in ("positions", "velocities", "accelerations", "inputs", "outputs",
+                                             "constraint", "parameters", "interface", "tolerance", "start_time"))
+    points_per_period, fade = limits["points_per_period"], limits["fade"]
+    preset = _preset_window(window)
 
     signal = _renamed(size_options, "input_spec", "signal", signal)
-    window_energy = _renamed(size_options, "energy", "window_energy", window_energy)
+    window_energy = _renamed(size_options, "energy", "window_energy", limits["window_energy"])
     specs = [signal] if isinstance(signal, (str, Signal)) else list(signal or [])
     if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs:
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
@@ -1006,7 +1116,6 @@ def record_to_file(
     if not quiet and hasattr(source, "selection_text"):
         print(source.selection_text(), file=sys.stderr)
     isolate = isolate and source.kind == "fmu"
-    window = None
     dt_given = dt is not None
     check_table_times(signals, float(getattr(source, "start_time", 0.0) or 0.0))
     table_end = input_table_end(signals)
@@ -1017,14 +1126,19 @@ def record_to_file(
         warn_other_communication_step(source, float(dt))  # not the FMU's fixed communication step: said
     fixed = fixed_communication_step(source)
     declared_step = getattr(getattr(getattr(source, "md", None), "defaultExperiment", None), "stepSize", None)
-    step_declared = dt is None and declared_step is not None and (not auto_window or fixed is not None)
+    step_declared = (preset is None and dt is None and declared_step is not None
+                     and (not auto_window or fixed is not None))
     step_multiple = False
     if step_declared:
         dt = float(declared_step)  # the FMU's own step; only a stopTime before the input acts is replaced
         if fixed is None and _too_many_samples(source, dt, t_end):
             step_declared, dt, auto_window = False, None, True   # the automatic window chooses, as --auto-window
     representatives = [signals[0]] if by_default else runs_by_inputs_driven(signals)
-    if auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
+    if preset is not None:   # chosen beforehand (a run table's step shared by its rows): no pilots again
+        window = preset
+        dt = preset.dt if dt is None else dt
+        t_end = preset.t_end if t_end is None else t_end
+    elif auto_window or any(needs_auto_window(source, dt, t_end, signal) for signal in representatives):
         # pilots never coarser than the step recorded (a longer one may be refused or discarded), and exactly at
         # a step the user gave or the FMU's fixed communication step
         # (model exchange has no communication step: a declared one bounds nothing there, and at 1 ms the pilots
@@ -1052,17 +1166,8 @@ def record_to_file(
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
-    t = time_grid(dt, t_end)
-    for signal in signals:
-        check_input_acts(signal, t)
-    if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
-        warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
-    summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
-    summary.t_end_from, summary.window_end = t_end_from, float(t[-1])
-    summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
-                         else "a multiple of the FMU's DefaultExperiment stepSize" if step_multiple
-                         else "the FMU's DefaultExperiment stepSize" if step_declared else None)
-    return summary
+    return _Plan(source, signals, representatives, window, dt, t_end, dt_given, fixed, step_declared, step_multiple,
+                 t_end_from)
 
 
 def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
