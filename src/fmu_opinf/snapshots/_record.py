@@ -564,7 +564,7 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
         if failure is not None:
             raise incomplete_error(failure, run, Path(path) if path else None)
         return snaps
-    summary = _record_file(source, [signal], t, Path(path), quiet, isolate, overwrite, None)
+    summary = _record_file(source, [signal], [t], Path(path), quiet, isolate, overwrite, None)
     del summary
     return Snapshots.open(path)
 
@@ -794,10 +794,12 @@ def _undriven_held(signal: Any, source: Source) -> Any:
     return StackedSignal(parts)
 
 
-def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Path, quiet: bool, isolate: bool,
-                 overwrite: bool, window: "Window | None") -> "RecordSummary":
-    """Stream every signal's run into one new file; stop at the first failing run (kept, incomplete)."""
+def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndarray], path: Path, quiet: bool,
+                 isolate: bool, overwrite: bool, window: "Window | None") -> "RecordSummary":
+    """Stream every signal's run (on its grid in ``grids``: one step, each run's own end) into one new file; stop
+    at the first failing run (kept, incomplete)."""
     failure: StepError | None = None
+    t = grids[0]
     summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window,
                             dt=float(t[1] - t[0]) if len(t) > 1 else None)
     with atomic(path, overwrite) as f:
@@ -815,7 +817,7 @@ def _record_file(source: Source, signals: Sequence[Any], t: np.ndarray, path: Pa
             def factory(src: Source, tt: np.ndarray, uu: np.ndarray, g: h5py.Group = group) -> _H5Sink:
                 return _H5Sink(src, tt, uu, g, path)
 
-            run, failure = record_run(source, signal, t, factory, quiet, isolate)
+            run, failure = record_run(source, signal, grids[index], factory, quiet, isolate)
             recorded.append(run.attrs)
             if index == 0 and run.k == 0:
                 raise failure or StepError(f"{source_label(source)} recorded no sample in its first run", 0,
@@ -883,6 +885,25 @@ class RecordSummary:
             lines.append("  start: the FMU starts at its static equilibrium under the inputs it is initialized under "
                          "(its start positions move with them); an exported ROM FMU will do the same")
         return "\n".join(lines)
+
+
+#: Where the end of a run without --t-end comes from when an input table drives it.
+TABLE_END = "the input table's last time"
+
+
+def _run_grids(signals: Sequence[Any], dt: float, t_end: float, to_table_ends: bool) -> list[np.ndarray]:
+    """Each run's time grid: to ``t_end``, or, where the end is the input tables' (``to_table_ends``: no --t-end),
+    each table-driven run to its own table's last time.
+
+    The end of a file's runs is the earliest of its tables' last times (:func:`input_table_end`: no run may go
+    past its table); a longer table was cut there without a word (audit 72, F6: a 60 s table beside a 30 s one
+    lost its second half).  Runs of one file may differ in length: the fit takes them so.
+    """
+    def end(signal: Any) -> float:
+        own = float(getattr(signal, "t_range", (0.0, math.inf))[1])
+        return own if to_table_ends and math.isfinite(own) else t_end
+
+    return [time_grid(dt, end(signal)) for signal in signals]
 
 
 def _renamed(options: dict[str, Any], old: str, new: str, value: Any) -> Any:
@@ -994,13 +1015,16 @@ def record_to_file(
     source, signals, window, dt, t_end = plan.source, plan.signals, plan.window, plan.dt, plan.t_end
     dt_given, fixed, representatives = plan.dt_given, plan.fixed, plan.representatives
     step_declared, step_multiple, t_end_from = plan.step_declared, plan.step_multiple, plan.t_end_from
-    t = time_grid(dt, t_end)
-    for signal in signals:
+    grids = _run_grids(signals, dt, t_end, plan.t_end_from == TABLE_END)
+    for signal, t in zip(signals, grids):
         check_input_acts(signal, t)
     if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
-    summary = _record_file(source, signals, t, Path(output), quiet, isolate, overwrite, window)
-    summary.t_end_from, summary.window_end = t_end_from, float(t[-1])
+    summary = _record_file(source, signals, grids, Path(output), quiet, isolate, overwrite, window)
+    ends = sorted({float(t[-1]) for t in grids})
+    summary.window_end = ends[-1]
+    summary.t_end_from = t_end_from if len(ends) == 1 else (
+        f"each run to its input table's last time: {', '.join(f'{t[-1]:g}' for t in grids)}")
     summary.step_from = ("--dt as given" if dt_given else "the FMU's fixed communication step" if fixed is not None
                          else "a multiple of the FMU's DefaultExperiment stepSize" if step_multiple
                          else "the FMU's DefaultExperiment stepSize" if step_declared else None)
@@ -1121,7 +1145,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
     table_end = input_table_end(signals)
     t_end_from = "--t-end as given" if t_end is not None else None
     if t_end is None and table_end is not None:   # a table's last time is the default end (audit 70, F3)
-        t_end, t_end_from = table_end, "the input table's last time"
+        t_end, t_end_from = table_end, TABLE_END
     if dt_given:
         warn_other_communication_step(source, float(dt))  # not the FMU's fixed communication step: said
     fixed = fixed_communication_step(source)
