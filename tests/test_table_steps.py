@@ -127,3 +127,14 @@ def test_input_tables_of_different_lengths_are_each_recorded_to_their_own_end(fm
 def test_a_window_that_is_no_window_is_a_one_line_error(fmu, tmp_path):
     with pytest.raises(InputSpecError, match="not an automatic window.*Window.as_dict"):
         record_to_file(fmu, tmp_path / "w.h5", ROWS["imp"], window={"dt": 0.1}, quiet=True, isolate=False)
+
+
+def test_a_table_on_a_cluster_shares_the_step_as_in_this_process(fmu, alone, tmp_path):
+    own = {name: _step(data.runs[0]) for name, data in alone.items()}
+    report = runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", scheduler="local:1", isolate=False,
+                              quiet=True)
+    report.raise_for_failures()
+    for name, data in alone.items():
+        run = Snapshots.load(tmp_path / "runs" / f"{name}.h5").runs[0]
+        assert _step(run) == pytest.approx(min(own.values()), rel=1e-12)
+        assert abs(run.t[-1] - data.runs[0].t[-1]) < own[name]
