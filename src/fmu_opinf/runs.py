@@ -53,8 +53,8 @@ from .errors import FmuOpinfError, InputSpecError
 
 __all__ = [
     "RunRow", "RunOutcome", "RunTableReport", "RunTableError", "read_run_table", "validate_rows",
-    "row_source_options", "source_input_names", "in_rom_order", "record_row", "record_runs", "compare_runs",
-    "dask_client", "parse_scheduler",
+    "row_source_options", "source_input_names", "in_rom_order", "record_row", "row_window", "record_runs",
+    "compare_runs", "dask_client", "parse_scheduler",
 ]
 
 ROW_ATTR = "run_row"
