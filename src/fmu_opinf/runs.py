@@ -20,7 +20,9 @@ A run table is a CSV file with a header and one row per run (``docs/scale-out.md
 The whole table is read and validated before anything runs; every problem is one line naming the row and
 the column.  Recording writes one snapshot file per run into an output directory (``NAME.h5``, or
 ``NAME.incomplete.h5`` for a run that stopped early), each stamped with the row it came from (file and run
-attribute ``run_row``).  A rerun skips every row whose complete file carries the same stamp.
+attribute ``run_row``).  A rerun skips every row whose complete file carries the same stamp.  Without ``--dt``
+every row is recorded at one step, the finest of the rows' own (:func:`record_runs`), so that the runs fit
+together (audit 72).
 
 With a scheduler (``local``, ``local:N`` or ``tcp://HOST:PORT``) every row is a Dask task on a worker
 process; without one the rows run one after another in this process.
