@@ -58,7 +58,7 @@ def _table(folder: Path) -> Path:
 
 
 def test_a_run_table_without_dt_records_every_row_at_the_finest_of_the_rows_own_steps(fmu, alone, tmp_path,
-                                                                                        capsys):
+                                                                                        monkeypatch):
     own = {name: _step(data.runs[0]) for name, data in alone.items()}
     assert len(set(own.values())) == 2   # the premise: alone, the rows take different steps
     report = runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", isolate=False, quiet=True)
@@ -67,8 +67,25 @@ def test_a_run_table_without_dt_records_every_row_at_the_finest_of_the_rows_own_
         run = Snapshots.load(tmp_path / "runs" / f"{name}.h5").runs[0]
         assert _step(run) == pytest.approx(min(own.values()), rel=1e-12)
         assert abs(run.t[-1] - data.runs[0].t[-1]) < own[name]   # each row to its own end
+    monkeypatch.setattr(runs, "row_window", _no_pilots)   # a rerun of a done table needs no pilots
     again = runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", isolate=False, quiet=True)
     assert [outcome.status for outcome in again.outcomes] == ["skipped", "skipped"]
+
+
+def _no_pilots(*args, **kwargs):
+    raise AssertionError("the rows' pilots ran again")
+
+
+def test_a_row_added_with_a_finer_step_records_the_done_rows_again_at_it(fmu, alone, tmp_path):
+    own = {name: _step(data.runs[0]) for name, data in alone.items()}
+    coarse = max(own, key=own.get)
+    (tmp_path / "one.csv").write_text(f'name,input\n{coarse},"{ROWS[coarse]}"\n')
+    runs.record_runs(fmu, tmp_path / "one.csv", tmp_path / "runs", isolate=False, quiet=True).raise_for_failures()
+    both = runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", isolate=False, quiet=True)
+    assert [outcome.status for outcome in both.outcomes] == ["recorded", "recorded"]
+    for name in ROWS:
+        assert _step(Snapshots.load(tmp_path / "runs" / f"{name}.h5").runs[0]) == pytest.approx(
+            min(own.values()), rel=1e-12)
 
 
 def test_the_table_says_the_step_it_shares(fmu, alone, tmp_path, capsys):

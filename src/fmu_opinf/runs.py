@@ -787,22 +787,27 @@ def record_runs(
                                                        f"{INCOMPLETE_SUFFIX}")}
     shared = dt is None and len(rows) > 1   # rows at their own automatic steps would not fit together (audit 72)
 
-    def windows(map_rows: Callable[[Callable, Callable], list]) -> dict[int, dict[str, Any]]:
+    def windows(map_rows: Callable[[list[RunRow], Callable, Callable], list]) -> dict[int, dict[str, Any]]:
         if not shared:
             return {row.number: row_settings(row) for row in rows}
-        found = map_rows(row_window, lambda row: (source_spec, row, row_settings(row), source_options, isolate))
-        return _at_one_step(rows, [row_settings(row) for row in rows], found, quiet)
+        found = {row.number: _recorded_window(source_spec, row, row_settings(row), source_options, out_dir)
+                 for row in rows}
+        missing = [row for row in rows if found[row.number] is None]   # rows done already: no pilots again
+        if missing:
+            found.update(zip([row.number for row in missing], map_rows(
+                missing, row_window, lambda row: (source_spec, row, row_settings(row), source_options, isolate))))
+        return _at_one_step(rows, [row_settings(row) for row in rows], [found[row.number] for row in rows], quiet)
 
     with _written_named_on_interrupt(outputs):
         if scheduler is None:
-            chosen = windows(lambda function, arguments: [function(*arguments(row)) for row in rows])
+            chosen = windows(lambda some, function, arguments: [function(*arguments(row)) for row in some])
             outcomes = []
             for i, row in enumerate(rows):
                 outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate))
                 show(outcomes[-1], i + 1, len(rows))
         else:
             with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
-                chosen = windows(lambda function, arguments: _gather_rows(client, function, rows, arguments))
+                chosen = windows(lambda some, function, arguments: _gather_rows(client, function, some, arguments))
                 outcomes = _map_rows(client, record_row, rows, show,
                                      lambda row: (source_spec, row, str(out_dir), chosen[row.number],
                                                   source_options, isolate))
@@ -839,6 +844,24 @@ def row_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_o
     except FmuOpinfError:
         return None
     return dt, t_end, None if window is None else window.as_dict()
+
+
+def _recorded_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_options: dict[str, Any],
+                     out_dir: Path) -> tuple[float, float, dict[str, Any]] | None:
+    """The step, end and window of the row's complete file where it was recorded at a table's one step with these
+    settings (:func:`_at_one_step`), else None: a rerun then needs no pilots for that row."""
+    path = out_dir / f"{row.name}.h5"
+    if not path.exists():
+        return None
+    try:
+        with h5py.File(path, "r") as f:
+            window = json.loads(f.attrs.get(ROW_ATTR, "{}")).get("settings", {}).get("window")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if not isinstance(window, dict) or not _is_done(path, _stamp(source_spec, row, {**settings, "window": window},
+                                                                 source_options))[0]:
+        return None
+    return float(window["dt"]), float(window["t_end"]), window
 
 
 def _gather_rows(client: Any, function: Callable, rows: Sequence[RunRow],
