@@ -359,6 +359,23 @@ def test_the_python_api_spawns_and_the_command_line_uses_the_fork_server(monkeyp
     assert settings == [True, False] and not _isolation._FORK_SERVER["enabled"]  # on for the command, then restored
 
 
+def test_a_builtin_source_is_recorded_in_this_process_even_when_isolation_is_asked(monkeypatch, tmp_path):
+    """Isolation is for an FMU's binary; ``record_to_file`` of a builtin source ran it in a child process once its
+    grid choice moved into ``_plan_recording`` (fix72b, reverted): a run table's builtin rows then went through the
+    fork server, which under pytest-xdist stopped as the first row started, and the row failed without its file."""
+    from fmu_opinf.snapshots import _record
+
+    def no_child(*args, **kwargs):
+        raise AssertionError("a builtin source was run in a child process")
+
+    monkeypatch.setattr(_record, "produce_isolated", no_child)
+    for dt in (0.1, None):   # a given step, and the automatic window's pilots
+        path = tmp_path / f"b{dt}.h5"
+        record_to_file("builtin:anchored-msd", path, "impulse:amplitude=100,t0=1,width=0.5", dt=dt, t_end=5.0,
+                       g=5, quiet=True, isolate=True)
+        assert Snapshots.load(path).runs[0].attrs["isolated"] is False
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is used on Linux only")
 def test_a_fork_server_killed_during_a_run_is_named_and_the_next_run_restarts_it(toys, monkeypatch):
     """Killing the server mid-run used to be reported as a crash of the FMU (exit code 255) and left its child

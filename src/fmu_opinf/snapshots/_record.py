@@ -1015,6 +1015,7 @@ def record_to_file(
     source, signals, window, dt, t_end = plan.source, plan.signals, plan.window, plan.dt, plan.t_end
     dt_given, fixed, representatives = plan.dt_given, plan.fixed, plan.representatives
     step_declared, step_multiple, t_end_from = plan.step_declared, plan.step_multiple, plan.t_end_from
+    isolate = plan.isolate   # only an FMU runs in a child process (a builtin source in this one)
     grids = _run_grids(signals, dt, t_end, plan.t_end_from == TABLE_END)
     for signal, t in zip(signals, grids):
         check_input_acts(signal, t)
@@ -1030,9 +1031,11 @@ def record_to_file(
                          else "the FMU's DefaultExperiment stepSize" if step_declared else None)
     return summary
 
+
 @dataclasses.dataclass
 class _Plan:
-    """What :func:`record_to_file` records: the opened source, the signals, the grid and who chose it."""
+    """What :func:`record_to_file` records: the opened source, the signals, the grid and who chose it, and
+    whether its runs are isolated (``isolate`` as asked, for an FMU only: a builtin source runs in this process)."""
 
     source: Source
     signals: list[Any]
@@ -1045,6 +1048,7 @@ class _Plan:
     step_declared: bool
     step_multiple: bool
     t_end_from: str | None
+    isolate: bool
 
 
 def recording_window(source_spec: str | os.PathLike, signal: Any = None, dt: float | None = None,
@@ -1191,7 +1195,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
     return _Plan(source, signals, representatives, window, dt, t_end, dt_given, fixed, step_declared, step_multiple,
-                 t_end_from)
+                 t_end_from, isolate)
 
 
 def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
