@@ -443,6 +443,37 @@ def _temporaries(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.iterdir() if p.name.endswith(".tmp") or ".partial." in p.name)
 
 
+def _group(pgid: int) -> list[tuple[str, float, str]]:
+    """The live processes of a process group, as (state, CPU seconds, command line); zombies, which only wait for
+    their reaper, are left out (Linux's /proc)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+            command = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:   # the process ended meanwhile
+            continue
+        fields = text.rsplit(")", 1)[1].split()   # after "pid (name)": state, ppid, pgrp, ..., utime, stime
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            cpu = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+            found.append((fields[0], cpu, command.strip()))
+    return found
+
+
+def _left_behind(pgid: int, within: float = 15.0) -> list[str]:
+    """The processes of the interrupted command's group still alive ``within`` seconds after it ended (killed then,
+    so that none spins on): Dask workers or their rows' children that the interrupt did not stop."""
+    import signal
+    import time
+
+    deadline = time.monotonic() + within
+    while (left := _group(pgid)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    if left:
+        os.killpg(pgid, signal.SIGKILL)
+    return [command for _, _, command in left]
+
+
 @pytest.mark.slow  # 8 s on the 2-core machine of 2026-12-06 (a local cluster starts, two rows are interrupted)
 def test_ctrl_c_during_a_distributed_table_leaves_one_line_naming_the_written_rows_and_no_temporaries(tmp_path):
     """Two rows fail at once (their ``NAME.incomplete.h5`` is written by a worker), two run for minutes; Ctrl-C
@@ -468,6 +499,7 @@ def test_ctrl_c_during_a_distributed_table_leaves_one_line_naming_the_written_ro
     assert all(str(path) in lines[0] for path in written) and "long" not in lines[0]
     assert _temporaries(out) == []
     assert sorted(p.name for p in out.iterdir()) == ["boom1.incomplete.h5", "boom2.incomplete.h5"]
+    assert _left_behind(proc.pid) == []   # workers and their rows stopped with the command
 
 
 def test_ctrl_c_in_a_serial_table_names_the_row_file_not_its_intermediate(tmp_path):
@@ -483,6 +515,44 @@ def test_ctrl_c_in_a_serial_table_names_the_row_file_not_its_intermediate(tmp_pa
                 "every other output was left as it was")
     assert _not_warnings(err) == [expected], err
     assert _temporaries(out) == []
+    assert _left_behind(proc.pid) == []
+
+
+@pytest.mark.slow  # 6 s and 12-14 s under pytest -n 2 on the 2-core machine of 2026-12-07 (a cluster starts)
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="the process check reads Linux's /proc")
+@pytest.mark.parametrize("scheduler", [None, "local:2"], ids=["serial", "local-cluster"])
+def test_ctrl_c_during_a_table_s_pilots_leaves_no_file_no_temporary_and_no_process(tmp_path, scheduler):
+    """Without --dt every row's pilots run before any row is recorded (the rows share the finest of their steps,
+    audit 72 F2), so for a while no row file exists.  A Ctrl-C then writes nothing, says so in one line, exits
+    with 130 and leaves no temporary file and no process (a Dask worker still running a pilot) behind."""
+    table = tmp_path / "runs.csv"
+    table.write_text('name,input\nlong1,"harmonic:amplitude=1,omega=0.7"\nlong2,"harmonic:amplitude=1,omega=0.5"\n')
+    out = tmp_path / "set"
+    cluster = ["--scheduler", scheduler] if scheduler else []
+    proc = _cli(["snapshots", SOURCE, "--runs", str(table), "-o", str(out), "--g", "40", "--t-end", LONG_T_END,
+                 "-q", *cluster], tmp_path)
+    workers = 2 if scheduler else 1   # the processes that run the pilots: the Dask workers, or the command
+
+    def ready() -> bool:
+        """The pilots (minutes at this t_end) have run for a while: each process that runs them has used 3 s of
+        CPU, more than its start (what a Ctrl-C does to a worker still starting is not what this test checks)."""
+        running = [cpu for _, cpu, command in _group(proc.pid)
+                   if ("spawn_main" in command) == bool(scheduler) and "resource_tracker" not in command]
+        return out.is_dir() and len(running) >= workers and min(running) > 3.0
+
+    at_interrupt: list[list[str]] = []
+
+    def still_in_the_pilots() -> bool:
+        if ready():
+            at_interrupt.append(sorted(p.name for p in out.iterdir()))
+        return bool(at_interrupt)
+
+    _, err = _interrupt_when(proc, still_in_the_pilots)
+    assert at_interrupt == [[]], at_interrupt   # the premise: still in the pilots, no row recorded yet
+    assert proc.returncode == 130, err
+    assert _not_warnings(err) == ["fmu-opinf: interrupted (Ctrl-C); no output file was written or replaced"], err
+    assert list(out.iterdir()) == []
+    assert _left_behind(proc.pid) == []
 
 
 def test_a_row_recorded_again_removes_the_temporaries_an_earlier_attempt_left(tmp_path):
