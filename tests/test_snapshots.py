@@ -377,6 +377,27 @@ def test_a_builtin_source_is_recorded_in_this_process_even_when_isolation_is_ask
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is used on Linux only")
+def test_isolated_runs_of_the_command_line_work_under_a_deep_tmpdir(tmp_path):
+    """The fork server's socket lives in $TMPDIR; under a folder of 75 characters or so its path no longer fits a
+    Unix socket's 108 bytes, the server did not start, and every isolated run failed with "the fork server ...
+    stopped as the run ... started; run the command again" (pytest -n 2: popen-gwN/test_NAME0/tmp).  Such runs
+    now spawn.  In a fresh process: multiprocessing keeps its temporary folder and its fork server per process."""
+    import subprocess
+
+    deep = tmp_path / ("d" * (100 - len(str(tmp_path)))) / "tmp"
+    deep.mkdir(parents=True)
+    script = ("from fmu_opinf.snapshots import _isolation, record\n"
+              "from fmu_opinf.source import BuiltinSource\n"
+              "_isolation.use_fork_server(True)\n"
+              "run = record(BuiltinSource('anchored-msd', g=5), 'impulse:amplitude=1,t0=1,width=0.5', 0.1, 3.0,\n"
+              "             quiet=True, isolate=True).runs[0]\n"
+              "print(run.attrs['isolated'], run.k)\n")
+    env = {**os.environ, "TMPDIR": str(deep), "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0 and done.stdout.split() == ["True", "31"], done.stdout + done.stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the fork server is used on Linux only")
 def test_a_fork_server_killed_during_a_run_is_named_and_the_next_run_restarts_it(toys, monkeypatch):
     """Killing the server mid-run used to be reported as a crash of the FMU (exit code 255) and left its child
     running; now the error names the server, and the next run starts a new one."""

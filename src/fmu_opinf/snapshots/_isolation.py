@@ -277,11 +277,14 @@ def _process_context() -> Any:
     enabled (:func:`use_fork_server`) on Linux (on macOS, forking after numpy and scipy are loaded is not safe
     with Apple's libraries), only in the process that started the server, which it does inside
     :func:`_signals_blocked` so that the server and its children keep SIGINT and SIGTERM blocked from the start.
-    A server started by other code and a forked process (whose parent owns the server) spawn.
+    A server started by other code and a forked process (whose parent owns the server) spawn, and so does every
+    run where the server's socket would not fit its path (:func:`_server_socket_fits`).
     """
     global _server_owner
     if not (_FORK_SERVER["enabled"] and sys.platform.startswith("linux")
             and "forkserver" in mp.get_all_start_methods()):
+        return mp.get_context("spawn")
+    if _server_owner != os.getpid() and not _server_socket_fits():
         return mp.get_context("spawn")
     if _server_owner == os.getpid():
         return mp.get_context("forkserver")
@@ -294,6 +297,24 @@ def _process_context() -> Any:
         _server_owner = os.getpid()
         return context
     return mp.get_context("spawn")
+
+
+#: Bytes of a Unix socket's path on Linux (``sockaddr_un.sun_path``), its terminating NUL included.
+_SUN_PATH = 108
+
+
+def _server_socket_fits() -> bool:
+    """Whether the fork server's socket, which multiprocessing makes in its temporary folder
+    (``$TMPDIR/pymp-XXXXXXXX/listener-XXXXXXXX``), has a path short enough to be bound.
+
+    With a deep ``$TMPDIR`` (75 characters or so) the server could not start, and every isolated run of the command
+    line failed with "the fork server ... stopped as the run ... started; run the command again", which a second
+    attempt does not mend (a run table's rows, under pytest -n 2 with pytest's long temporary folders).
+    """
+    from multiprocessing import util
+
+    listener = os.path.join(util.get_temp_dir(), "listener-" + "x" * 8)
+    return len(os.fsencode(listener)) < _SUN_PATH
 
 
 #: Seconds a fork server that broke its pipes is given to exit: a killed process closes them before it is a zombie.
