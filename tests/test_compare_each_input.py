@@ -16,7 +16,7 @@ import json
 import numpy as np
 import pytest
 
-from fmu_opinf import lti_fmus, rom, snapshots
+from fmu_opinf import fit, lti_fmus, snapshots
 from fmu_opinf.cli import main
 
 GAIN_ERROR = 0.3
@@ -38,7 +38,7 @@ def test_default_compare_judges_each_input_alone_and_names_it(tmp_path, capsys):
     fmu = lti_fmus.build_lti_fmu(_model(), tmp_path / "two.fmu", interfaces=("cs",)).path
     training = ["impulse:amplitude=3,t0=1,width=0.5;none", "none;impulse:amplitude=3,t0=1,width=0.5"]
     snapshots.record_to_file(str(fmu), tmp_path / "train.h5", training, dt=0.05, t_end=60.0, quiet=True)
-    fitted = rom.fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=4, quiet=True, refine=False)
+    fitted = fit.fit_rom(snapshots.Snapshots.load(tmp_path / "train.h5"), r=4, quiet=True, refine=False)
     fitted.Br = np.array(fitted.Br, dtype=float)
     fitted.Br[:, 0] *= 1.0 + GAIN_ERROR   # wrong on the base force alone
     fitted.save(tmp_path / "rom.h5")
