@@ -437,6 +437,7 @@ def test_fmpy_simulate_fmu_matches_reference(built):
     assert relative_error(got, reference.y) < 1e-10
 
 
+@pytest.mark.slow
 def test_states_can_be_left_out_of_the_model_description(tmp_path):
     spec = fmus.anchored_msd_spec(30)
     spec.expose_states = False

@@ -240,6 +240,7 @@ def test_a_held_output_named_by_outputs_is_recorded_with_a_warning(sampled):
 
 
 @pytest.mark.fmu
+@pytest.mark.slow
 def test_default_chain_leaves_the_sampled_output_out_and_its_rom_is_exact(sampled, tmp_path, capsys):
     """Default outputs: the ROM of y[1] follows the exact model (measured 8.5e-15 and 1.3e-14 of its range; before
     2026-12-07 y[2] was fitted beside it and y[1] was 8.7 % and 60 % of its range off, as in audit 73 F3); y[2] is
@@ -260,6 +261,7 @@ def test_default_chain_leaves_the_sampled_output_out_and_its_rom_is_exact(sample
 
 
 @pytest.mark.fmu
+@pytest.mark.slow
 def test_fit_names_a_held_output_first_among_the_causes_of_a_training_miss(sampled, tmp_path, capsys):
     """Recorded as asked, the sampled output throws the fit off its training data; fit's warning names it (audit 73
     F3: it listed positions, order, integrator, events and nonlinearity, but not the output held between samples)."""

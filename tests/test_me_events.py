@@ -256,6 +256,7 @@ def test_an_indicator_moved_across_zero_by_the_input_set_at_a_communication_poin
     assert located == []   # handled where the input was set, not found by a search inside the next step
 
 
+@pytest.mark.slow
 def test_a_crossing_is_located_with_scipys_integrators_too(fmus):
     source = ModelExchangeSource(fmus[("2.0", "state")], method="radau", tolerance=1e-11)
     run = record(source, INPUT, DT, T_END, quiet=True).runs[0]

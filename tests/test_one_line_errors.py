@@ -40,6 +40,7 @@ def _one_line(done, *parts):
     (["snapshots", "builtin:anchored-msd", "--g", "100000000000", "--dt", "0.1", "--t-end", "1", "-o", "s.h5"],
      ["the anchored chain with g=100000000000 needs", "give a smaller --g"]),
 ])
+@pytest.mark.slow
 def test_options_the_work_cannot_take(fitted, tmp_path, args, parts):
     done = run_cli(*[a.replace("{s}", str(fitted / "s.h5")) for a in args], cwd=tmp_path)
     _one_line(done, *parts)

@@ -448,6 +448,7 @@ def test_an_fmu_opened_in_a_worker_process_leaves_no_unpacked_folder(tmp_path):
     assert Path(parents_folder).is_dir()
 
 
+@pytest.mark.slow
 def test_a_script_without_main_guard_records_in_a_child_process(tmp_path):
     """A user's script that calls the API at module level (no ``if __name__ == "__main__":``) and isolates the
     source in a spawned child: the child must not run the script again (third audit, 2026-11-26: a crash at

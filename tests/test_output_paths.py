@@ -40,6 +40,7 @@ def test_the_command_line_refuses_a_pipe_before_the_work(tmp_path, verb, suffix)
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
 
 
+@pytest.mark.slow
 def test_an_output_named_by_a_link_is_written_to_the_file_it_points_to(tmp_path):
     """A symbolic link was replaced by the new file; the new file now replaces the one the link points to, and
     the link stays (snapshots, and the exported FMU)."""

@@ -677,6 +677,7 @@ def test_compare_refuses_a_folder_with_other_files_but_replaces_an_earlier_repor
 
 
 @pytest.mark.parametrize("verb", ["fit", "compare"])
+@pytest.mark.slow
 def test_disk_full_in_fit_and_compare_is_one_line(files, tmp_path, verb):
     import resource
     import signal as _signal

@@ -552,6 +552,7 @@ def test_record_to_file_writes_one_run_per_input_with_provenance(toys, tmp_path)
     np.testing.assert_allclose(snaps.runs[1].u[0, 1:], np.sin(2.0 * snaps.runs[1].t[:-1]), rtol=0, atol=1e-15)
 
 
+@pytest.mark.slow
 def test_record_to_file_without_a_window_chooses_it_automatically(tmp_path):
     summary = record_to_file("builtin:anchored-msd", tmp_path / "x.h5", "impulse:amplitude=100,t0=2,width=0.5",
                              quiet=True, g=12)

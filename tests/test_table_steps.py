@@ -57,6 +57,7 @@ def _table(folder: Path) -> Path:
     return folder / "table.csv"
 
 
+@pytest.mark.slow
 def test_a_run_table_without_dt_records_every_row_at_the_finest_of_the_rows_own_steps(fmu, alone, tmp_path,
                                                                                         monkeypatch):
     own = {name: _step(data.runs[0]) for name, data in alone.items()}
@@ -76,6 +77,7 @@ def _no_pilots(*args, **kwargs):
     raise AssertionError("the rows' pilots ran again")
 
 
+@pytest.mark.slow
 def test_a_row_added_with_a_finer_step_records_the_done_rows_again_at_it(fmu, alone, tmp_path):
     own = {name: _step(data.runs[0]) for name, data in alone.items()}
     coarse = max(own, key=own.get)
@@ -88,6 +90,7 @@ def test_a_row_added_with_a_finer_step_records_the_done_rows_again_at_it(fmu, al
             min(own.values()), rel=1e-12)
 
 
+@pytest.mark.slow
 def test_the_table_says_the_step_it_shares(fmu, alone, tmp_path, capsys):
     runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", isolate=False, quiet=False).raise_for_failures()
     own = {name: _step(data.runs[0]) for name, data in alone.items()}
@@ -146,6 +149,7 @@ def test_a_window_that_is_no_window_is_a_one_line_error(fmu, tmp_path):
         record_to_file(fmu, tmp_path / "w.h5", ROWS["imp"], window={"dt": 0.1}, quiet=True, isolate=False)
 
 
+@pytest.mark.slow
 def test_a_table_on_a_cluster_shares_the_step_as_in_this_process(fmu, alone, tmp_path):
     own = {name: _step(data.runs[0]) for name, data in alone.items()}
     report = runs.record_runs(fmu, _table(tmp_path), tmp_path / "runs", scheduler="local:1", isolate=False,
