@@ -548,6 +548,33 @@ def test_structural_parameter_outside_its_bounds(tmp_path):
     _bad_setting(tmp_path, fmi3_array(), ["x[7]=1"], "index out of range")
 
 
+def _fmi3_matrix_parameter() -> str:
+    """:func:`fmi3_array` with a 2 x 3 parameter ``A`` (start 1 .. 6, row-major), as a StateSpace FMU's matrices."""
+    return fmi3_array().replace(
+        '<Float64 name="k" ',
+        '<Float64 name="A" valueReference="15" causality="parameter" variability="fixed" start="1 2 3 4 5 6">'
+        '<Dimension start="2"/><Dimension start="3"/></Float64><Float64 name="k" ')
+
+
+def test_a_matrix_parameter_is_set_by_rows_by_two_indices_or_row_major(tmp_path):
+    """A 2-D parameter (audit 74 F3: the refusal of nested rows advised ``A[i]=v``, which was then refused as out of
+    range): nested rows are flattened in FMI 3's row-major order, ``A[i,j]`` sets one entry, and the refusals name
+    the forms that work.  Reference: the row-major layout written out by hand."""
+    xml = _fmi3_matrix_parameter()
+
+    def values(item: str) -> list[float]:
+        settings = resolve_variables(_write(tmp_path, xml), settings=[item]).settings
+        return next(s.values for s in settings if s.var.name == "A")
+
+    assert values("A=[[10,20,30],[40,50,60]]") == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    assert values("A=[10,20,30,40,50,60]") == [10.0, 20.0, 30.0, 40.0, 50.0, 60.0]
+    assert values("A[2,1]=-7") == [1.0, 2.0, 3.0, -7.0, 5.0, 6.0]
+    message = _bad_setting(tmp_path, xml, ["A=[[1,2],[3,4],[5,6]]"], r"A is an array of 6 values \(shape 2x3\)")
+    assert "A[i,j]=v" in message and "row-major" in message and "A[i]=v" not in message
+    _bad_setting(tmp_path, xml, ["A[5]=1"], r"A has 2 dimension\(s\) \(2x3\) .* write A\[i,j\]=v")
+    _bad_setting(tmp_path, xml, ["A[3,1]=1"], "index out of range; A has shape 2x3")
+
+
 def test_parse_assignments_keeps_order_and_text():
     assert parse_assignments(["a=1", "b = [1, 2]", "c=x=y"]) == {"a": "1", "b": "[1, 2]", "c": "x=y"}
     # several assignments in one --set (the audit of 2026-11-26 found "give a number" for them), arrays kept whole

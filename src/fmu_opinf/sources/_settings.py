@@ -159,15 +159,48 @@ def _start_values(model: ModelInfo, var: Variable, shape: tuple[int, ...]) -> li
 def _whole(model: ModelInfo, name: str, var: Variable, value: Any, shape: tuple[int, ...]) -> list[Any]:
     if not shape:
         return [_typed(model, name, var, value)]
-    items = _as_list(value)
+    items = _row_major(_as_list(value), shape)
     size = 1
     for s in shape:
         size *= s
     if items is None or len(items) != size:
         got = "a scalar" if items is None else f"{len(items)} values"
-        raise InputSpecError(f"--set {name}: {var.name} is an array of {size} values in {model.label} but got "
-                             f"{got}; write {name}=[v1,...,v{size}] or {name}[i]=v")
+        raise InputSpecError(f"--set {name}: {var.name} is an array of {size} values{_shape_said(shape)} in "
+                             f"{model.label} but got {got}; write {_array_forms(name, shape, size)}")
     return [_typed(model, name, var, item) for item in items]
+
+
+def _row_major(items: list[Any] | None, shape: tuple[int, ...]) -> list[Any] | None:
+    """``items`` flattened in row-major order (FMI 3's order of array values) where it is a nested list of exactly
+    ``shape`` (``A=[[1,2],[3,4]]`` for a 2 x 2 ``A``), else as given."""
+    if items is None or len(shape) < 2 or not _nested_as(items, shape):
+        return items
+    flat: list[Any] = items
+    for _ in shape[1:]:
+        flat = [item for row in flat for item in row]
+    return flat
+
+
+def _nested_as(items: Any, shape: tuple[int, ...]) -> bool:
+    """Whether ``items`` is a nested list whose lengths are ``shape`` at every level."""
+    if not shape:
+        return not isinstance(items, (list, tuple))
+    return (isinstance(items, (list, tuple)) and len(items) == shape[0]
+            and all(_nested_as(item, shape[1:]) for item in items))
+
+
+def _shape_said(shape: tuple[int, ...]) -> str:
+    """``" (shape 8x8)"`` for an array of more than one dimension, else ``""``."""
+    return f" (shape {'x'.join(map(str, shape))})" if len(shape) > 1 else ""
+
+
+def _array_forms(name: str, shape: tuple[int, ...], size: int) -> str:
+    """The ways to write a value of an array of ``shape`` in ``--set``, for a refusal's fix."""
+    if len(shape) < 2:
+        return f"{name}=[v1,...,v{size}] or {name}[i]=v"
+    index = ",".join("ijklmn"[:len(shape)])
+    return (f"{name}=[v1,...,v{size}] (row-major, as FMI 3 stores it), {name} as nested lists of shape "
+            f"{'x'.join(map(str, shape))}, or {name}[{index}]=v")
 
 
 def _as_list(value: Any) -> list[Any] | None:
@@ -185,7 +218,12 @@ def _as_list(value: Any) -> list[Any] | None:
 
 
 def _flat_index(model: ModelInfo, name: str, index: tuple[int, ...], shape: tuple[int, ...]) -> int:
-    if len(index) != len(shape) or any(not 1 <= i <= s for i, s in zip(index, shape)):
+    if len(index) != len(shape):
+        forms = ",".join("ijklmn"[:len(shape)])
+        raise InputSpecError(f"--set {name}: {name.split('[')[0]} has {len(shape)} dimension(s) "
+                             f"({'x'.join(map(str, shape))}) in {model.label} but the index has {len(index)}; write "
+                             f"{name.split('[')[0]}[{forms}]=v (indices start at 1)")
+    if any(not 1 <= i <= s for i, s in zip(index, shape)):
         raise InputSpecError(f"--set {name}: index out of range; {name.split('[')[0]} has shape "
                              f"{'x'.join(map(str, shape))} in {model.label} (indices start at 1)")
     flat = 0
