@@ -122,5 +122,7 @@ def test_states_in_other_coordinates_are_refused_not_replaced_by_derivative_vari
     verdict = check_rates(z[:3], z[3:], None, 0.05, names, True, derivatives)
     assert isinstance(verdict, str) and "the states x4, x5, x6 are no combination of the positions' rates" in verdict, \
         verdict
+    # the fix a user can follow where no state is a position or a velocity (audit 74 F2: only --positions was named)
+    assert "export the model with its mechanical states" in verdict and "\n" not in verdict, verdict
     scaled = check_rates(reference.x, 1e4 * reference.v, None, 0.05, names, True, derivatives)
     assert isinstance(scaled, Repair) and scaled.velocities == derivatives, scaled

@@ -399,8 +399,10 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
         # data are no M x'' + D x' + K x = B u (ninth audit: a state space in other coordinates, a ROM 128 % off)
         shown = ", ".join(names["velocities"][j] for j in left_out[:6]) + (", ..." if len(left_out) > 6 else "")
         return (f"cannot tell positions from velocities: {where}, the data pair no states, and the states {shown} "
-                "are no combination of the positions' rates (a state space in other coordinates, or non-mechanical "
-                "states); pass --positions and --velocities naming states whose rates are the velocities")
+                "are no combination of the positions' rates: the states are no positions and velocities (a state "
+                "space in other coordinates, or non-mechanical states), and fmu-opinf learns M x'' + D x' + K x = "
+                "B u from those; export the model with its mechanical states (positions and their velocities), or, "
+                "where some states are, pass --positions and --velocities naming them")
     why = ("the data pair no states" if len(states) <= _MAX_PAIRED else
            f"too many states ({len(states)}) to pair by the data")
     return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
