@@ -150,6 +150,7 @@ def test_a_loaded_chain_trained_by_default_is_right_at_loads_of_its_declared_nom
     rom = SecondOrderROM.load(tmp_path / "rom.h5")
     for spec in (f"harmonic:amplitude={LOAD:g},omega=0.8", f"step:amplitude={LOAD:g},t0=3"):
         assert miss_against_model(rom, model, spec) < 0.015, spec
-    assert "(amplitude 100000 on F: its declared nominal)" in said
+    assert "recording the impulse training input impulse:amplitude=100000,t0=2,width=0.5 (amplitude 100000 on F: " \
+           "its declared nominal)" in said   # the spec recorded, not the template's 100
     assert main(["snapshots", str(built.path), "-o", str(tmp_path / "plain.h5"), *window, "-q"]) == 0
     assert Snapshots.load(tmp_path / "plain.h5").runs[0].attrs["input_spec"].startswith("impulse:amplitude=100,")

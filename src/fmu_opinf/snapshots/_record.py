@@ -762,6 +762,15 @@ def held_starts(source: Source) -> np.ndarray:
     return np.where(ordered, np.clip(starts, np.where(ordered, low, -np.inf), np.where(ordered, high, np.inf)), starts)
 
 
+def _impulse_said(amplitudes: Sequence[float]) -> str:
+    """The default impulse as the line of the default training names it: :data:`DEFAULT_TRAINING_INPUT` where every
+    input takes its amplitude, else the pulse's shape without one (each input's amplitude follows in brackets)."""
+    if all(a == _DEFAULT_AMPLITUDE for a in amplitudes):
+        return DEFAULT_TRAINING_INPUT
+    return "the impulse " + ",".join(part for part in DEFAULT_TRAINING_INPUT.split(":", 1)[1].split(",")
+                                     if not part.startswith("amplitude="))
+
+
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
     """What the default training says about amplitudes other than 100: changed to fit the inputs' declared ranges,
     or sized by a pressure's start, a declared nominal or a declared range (:func:`_sized_amplitudes`); "" if
@@ -1136,8 +1145,8 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
             none = (f"no force inputs: {', '.join(held)} held at their start values" if held
                     else "the model has no inputs")
             what = (f"the free response from the start state ({none})" if not source.m
-                    else f"the impulse training input {DEFAULT_TRAINING_INPUT}{lowered}" if source.m == 1
-                    else f"one run per input, each driving that input alone with {DEFAULT_TRAINING_INPUT}"
+                    else f"the impulse training input {specs[0]}{lowered}" if source.m == 1
+                    else f"one run per input, each driving that input alone with {_impulse_said(amplitudes)}"
                          f"{lowered} (the others held at their start values)")
             print(f"no --input given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
