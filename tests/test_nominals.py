@@ -126,3 +126,30 @@ def test_states_in_other_coordinates_are_refused_not_replaced_by_derivative_vari
     assert "export the model with its mechanical states" in verdict and "\n" not in verdict, verdict
     scaled = check_rates(reference.x, 1e4 * reference.v, None, 0.05, names, True, derivatives)
     assert isinstance(scaled, Repair) and scaled.velocities == derivatives, scaled
+
+
+def test_states_left_out_for_the_positions_derivative_variables_are_not_called_a_lag(tmp_path):
+    """Velocity states scaled by the exporter, replaced by the positions' derivative variables (the rate check's
+    repair above): compare's source warned that they "are recorded neither as positions nor as velocities ... an
+    actuator lag" on an exact ROM (audit 74 F4).  Where the recorded velocities are the positions' derivative
+    variables, the line says so; states left out beside the states' own velocities keep the lag wording."""
+    import types
+    import warnings
+
+    from fmu_opinf.sources import _warn_unrecorded_states
+
+    def said(velocities: list[str], name: str) -> str:
+        column = types.SimpleNamespace
+        selection = types.SimpleNamespace(velocities=[column(name=v) for v in velocities], followers={},
+                                          position_derivatives=["der(x1)", "der(x2)"], unrecorded_states=["x3", "x4"])
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            _warn_unrecorded_states(types.SimpleNamespace(selection=selection, path=str(tmp_path / name)))
+        assert len(caught) == 1, caught
+        return str(caught[0].message)
+
+    scaled = said(["der(x1)", "der(x2)"], "scaled.fmu")
+    assert "x3, x4 are not recorded (the velocities recorded are the positions' derivative variables)" in scaled
+    assert "nothing is lost" in scaled
+    lag = said(["x3", "x5"], "lag.fmu")
+    assert "recorded neither as positions nor as velocities" in lag and "actuator lag" in lag
