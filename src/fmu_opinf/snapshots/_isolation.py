@@ -311,9 +311,11 @@ def _server_socket_fits() -> bool:
     line failed with "the fork server ... stopped as the run ... started; run the command again", which a second
     attempt does not mend (a run table's rows, under pytest -n 2 with pytest's long temporary folders).
     """
-    from multiprocessing import util
+    import tempfile
 
-    listener = os.path.join(util.get_temp_dir(), "listener-" + "x" * 8)
+    # the folder multiprocessing would make (pymp- and 8 characters), not made here: asking multiprocessing for it
+    # creates it in the current temporary folder, which a command's clean-up does not know of
+    listener = os.path.join(tempfile.gettempdir(), "pymp-" + "x" * 8, "listener-" + "x" * 8)
     return len(os.fsencode(listener)) < _SUN_PATH
 
 
