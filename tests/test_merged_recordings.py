@@ -206,3 +206,34 @@ def test_compare_and_export_repeat_the_merge_warning_once(tmp_path):
         assert len(repeated) == 1, [str(w.message) for w in caught]
         assert re.search(said, str(repeated[0].message))
     assert "2 FMUs merged (a.fmu, b.fmu)" in result.description and "GUID" not in result.description
+
+
+def test_compare_against_a_third_fmu_still_says_it_is_not_the_trained_one(tmp_path):
+    """A set merged from two FMUs names no GUID of its own (above), so compare's check that the source is the FMU the
+    ROM was learned from no longer fired for a third FMU with the same variable names (fix73a's caveat).  Each part
+    now keeps its GUID: an FMU of either part is not warned about, a third one is, naming both."""
+    import warnings
+    import zipfile
+
+    from fmu_opinf.compare import _warn_if_another_fmu
+
+    with _two_fmus(tmp_path) as snaps, pytest.warns(FmuOpinfWarning):
+        rom = fit_rom(snaps, r=4, quiet=True, refine=False)
+    assert [part.get("fmu_guid") for part in rom.provenance["snapshots"]["merged_parts"]["parts"]] == ["{a}", "{b}"]
+
+    def fmu(name: str, guid: str) -> str:
+        path = tmp_path / name
+        with zipfile.ZipFile(path, "w") as z:
+            z.writestr("modelDescription.xml", f'<?xml version="1.0"?><fmiModelDescription fmiVersion="2.0" '
+                       f'modelName="m" guid="{guid}"><CoSimulation modelIdentifier="m"/><ModelVariables/>'
+                       '<ModelStructure/></fmiModelDescription>')
+        return str(path)
+
+    info = {"provenance": rom.provenance}
+    for known in (fmu("b.fmu", "{b}"), fmu("a.fmu", "{a}")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            _warn_if_another_fmu(info, known)
+    with pytest.warns(FmuOpinfWarning, match=r"c\.fmu is not the FMU the ROM was learned from \(a\.fmu, GUID \{a\}, "
+                                              r"b\.fmu, GUID \{b\}; this one has \{c\}\)"):
+        _warn_if_another_fmu(info, fmu("c.fmu", "{c}"))

@@ -920,7 +920,7 @@ def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
     training recorded): with the same variable names the comparison runs and measures another model (third
     audit, 2026-11-26: max eps_y 0.99 and no word)."""
     snapshots = rom_info["provenance"].get("snapshots")
-    trained = snapshots.get("fmu_guid") if isinstance(snapshots, dict) else None
+    trained = _trained_guids(snapshots)
     path = Path(str(source))
     if not trained or str(source).startswith("builtin:") or path.suffix.lower() in (".h5", ".hdf5"):
         return
@@ -930,15 +930,27 @@ def _warn_if_another_fmu(rom_info: dict[str, Any], source: Any) -> None:
         md = read_description(path)
     except Exception:  # noqa: BLE001 - the run itself reports an unreadable FMU
         return
-    exported = f"(GUID {trained})" in (md.description or "")  # a ROM exported from that FMU's training
-    if md.guid and md.guid != trained and not exported:
+    # a ROM exported from that FMU's training names its GUID in the description
+    exported = any(f"(GUID {guid})" in (md.description or "") for guid in trained)
+    if md.guid and md.guid not in trained and not exported:
         import warnings
 
         from .errors import FmuOpinfWarning
 
-        warnings.warn(f"{path.name} is not the FMU the ROM was learned from ({snapshots.get('fmu_name') or 'FMU'}, "
-                      f"GUID {trained}; this one has {md.guid}): the comparison measures another model",
-                      FmuOpinfWarning, stacklevel=3)
+        learned = ", ".join(f"{name}, GUID {guid}" for guid, name in trained.items())
+        warnings.warn(f"{path.name} is not the FMU the ROM was learned from ({learned}; this one has {md.guid}): the "
+                      "comparison measures another model", FmuOpinfWarning, stacklevel=3)
+
+
+def _trained_guids(snapshots: Any) -> dict[str, str]:
+    """The GUIDs of the FMUs the training recorded, each with its FMU's name: the recording's, or each merged part's
+    (a set merged from different FMUs names no GUID of its own; audit 72 F3)."""
+    if not isinstance(snapshots, dict):
+        return {}
+    from .snapshots._merge import merged_parts
+
+    parts = [snapshots] if snapshots.get("fmu_guid") else merged_parts(snapshots, "")
+    return {str(part["fmu_guid"]): str(part.get("fmu_name") or "FMU") for part in parts if part.get("fmu_guid")}
 
 
 def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, Any] | None) -> dict[str, Any]:

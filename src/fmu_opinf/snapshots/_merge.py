@@ -26,7 +26,7 @@ __all__ = ["MERGED_PARTS", "SOURCE_KEYS", "merge_differences", "merge_warnings",
 MERGED_PARTS = "merged_parts"
 
 #: Summary keys copied from a part's attributes.
-_KEYS = ("fmu_name", "fmu_sha256", "fmi_interface", "fmu_settings", "recording_verdicts")
+_KEYS = ("fmu_name", "fmu_sha256", "fmu_guid", "fmi_interface", "fmu_settings", "recording_verdicts")
 
 _INTERFACES = {"me": "model exchange", "cs": "co-simulation"}
 
