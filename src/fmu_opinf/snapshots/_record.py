@@ -1203,6 +1203,8 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
         dt = window.dt if dt is None else dt
         t_end = window.t_end if t_end is None else t_end
     dt, t_end = default_window(source, dt, t_end)
+    if by_default and source.m and window is None:   # a grid given or declared: no pilots told whether it rests
+        signals = _sized_on_grid(source, signals, time_grid(dt, t_end), quiet, isolate)
     return _Plan(source, signals, representatives, window, dt, t_end, dt_given, fixed, step_declared, step_multiple,
                  t_end_from, isolate)
 
@@ -1332,7 +1334,123 @@ RESCALE, RESCALE_TRIES = 100.0, 3
 
 
 def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tuple[Any, list[Any]]:
-    """The window and signals of the default training, the impulse rescaled (``t0`` and ``width`` by
+    """The window and signals of the default training (:func:`_impulse_window`), its pulse raised where its effect
+    on the outputs is lost in the model's own motion (:func:`_raised_amplitudes`): the window is then chosen again
+    for the raised pulse.  A model at rest (the first pilot tells, from its samples before the pulse) costs no extra
+    run and keeps its amplitudes."""
+    amplitudes = default_amplitudes(source)
+    window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
+    if source.m == 0 or not baseline.may_move:
+        return window, signals
+    raised = _raised_amplitudes(source, time_grid(window.dt, window.t_end), signals, amplitudes, thresholds)
+    if raised is None:
+        return window, signals
+    window, signals, _ = _impulse_window(source, thresholds, raised)
+    return window, signals
+
+
+#: Below this share of the model's own motion (per output, its range over the window without the pulse) the default
+#: pulse's effect on the outputs, net of that motion, is raised: a 100 N pulse moved a heavy chain under gravity by
+#: 3e-4 of its 96 m swing, and the ROM was 35-90 % of range off at 1e4 N loads (audit 74, F1).
+PULSE_EFFECT_SHARE = 1e-2
+
+#: The share of the model's own motion the raised pulse's effect is sized to (a linear model's response scales with
+#: the amplitude): the pulse then shapes the snapshots' basis beside the motion without dwarfing it.
+RAISED_PULSE_SHARE = 0.1
+
+
+def _raised_amplitudes(source: Source, t: np.ndarray, signals: Sequence[Any], amplitudes: Sequence[float],
+                       thresholds: dict[str, Any]) -> list[float] | None:
+    """The default pulse's amplitudes raised, on each input whose pulse moves the outputs, net of the model's own
+    motion (a run without the pulse on the recording's grid ``t``), by less than :data:`PULSE_EFFECT_SHARE` of that motion,
+    to :data:`RAISED_PULSE_SHARE` of it, within the input's declared range; said in one line (a warning where the
+    range allows no larger pulse).  None where no input is raised: the model rests (no run but the one without the
+    pulse), or every pulse is seen."""
+    from ._window import _outputs_of
+
+    quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
+    free = _outputs_of(source, _held_only(source), t, True, isolate, "the run without the pulse")
+    motion = np.ptp(free, axis=1)
+    if not np.any(motion > 1e-12 * max(float(np.abs(free).max()), 1e-300)):
+        return None   # at rest: the pulse is all there is
+    raised, said = list(amplitudes), []
+    for i, signal in enumerate(signals):
+        share = _effect_share(_outputs_of(source, signal, t, True, isolate, "a pilot of the default pulse") - free,
+                              motion)
+        if not share < PULSE_EFFECT_SHARE:
+            continue
+        wanted = float(f"{amplitudes[i] * RAISED_PULSE_SHARE / max(share, 1e-300):.2g}")
+        raised[i] = _within_range(source, i, wanted)
+        said.append(_raised_phrase(source.input_names[i], amplitudes[i], raised[i], wanted, share))
+    if not said:
+        return None
+    _say_raised(source, said, any(a != b for a, b in zip(raised, amplitudes)), quiet)
+    return raised if raised != list(amplitudes) else None
+
+
+def _sized_on_grid(source: Source, signals: list[Any], t: np.ndarray, quiet: bool, isolate: bool) -> list[Any]:
+    """The default training's ``signals`` on a grid ``t`` chosen without pilots (``--dt`` and ``--t-end``, the
+    FMU's declared experiment), their pulses raised as :func:`_raised_amplitudes` raises them where the model moves
+    on its own.  Whether it moves is told by a run without the pulse up to the pulse (or over ``t`` where fewer
+    than two samples precede it): a model at rest costs that short run only and keeps its amplitudes."""
+    from ._window import _outputs_of, input_activity, largest_motion
+
+    t_input, width = input_activity(signals[0], source.m)
+    before = t[t < t_input - (width or 0.0)]
+    if before.size >= 2:
+        y = _outputs_of(source, _held_only(source), before, True, isolate, "the run without the pulse")
+        if largest_motion(source, before, y) is None:
+            return signals
+    amplitudes = default_amplitudes(source)
+    raised = _raised_amplitudes(source, t, signals, amplitudes, {"quiet": quiet, "isolate": isolate})
+    if raised is None:
+        return signals
+    specs = default_training_inputs(source.m, DEFAULT_TRAINING_INPUT, raised, held_starts(source))
+    return [as_signal(spec, source.m, source) for spec in specs]
+
+
+def _effect_share(net: np.ndarray, motion: np.ndarray) -> float:
+    """The largest share, over the outputs, of a pulse's effect ``net`` (outputs net of the run without it) in the
+    model's own motion ``motion`` (each output's range in that run); inf where an output that does not move on its
+    own feels the pulse."""
+    effect = np.abs(net).max(axis=1)
+    shares = np.where(motion > 0, effect / np.where(motion > 0, motion, 1.0), np.where(effect > 0, np.inf, 0.0))
+    return float(shares.max())
+
+
+def _within_range(source: Source, i: int, amplitude: float) -> float:
+    """``amplitude`` for input ``i``'s pulse from its held value, lowered to what its declared range allows (as
+    :func:`default_amplitudes` lowers the default)."""
+    low, high = (np.asarray(bound, dtype=float) for bound in source.input_ranges())
+    start = float(held_starts(source)[i])
+    room = (high[i] - start) if amplitude > 0 else (start - low[i])
+    return math.copysign(pulse_amplitude(float(room), abs(amplitude)), amplitude)
+
+
+def _raised_phrase(name: str, old: float, new: float, wanted: float, share: float) -> str:
+    """One input's part of the line of :func:`_say_raised`."""
+    capped = "" if new == wanted else f" (what its declared range allows; {wanted:.2g} wanted)"
+    return (f"amplitude {new:.3g} on {name}{capped}: the {old:g} pulse moved the outputs by {share:.1g} of the model's "
+            "own motion")
+
+
+def _say_raised(source: Source, said: list[str], raised: bool, quiet: bool) -> None:
+    """The line of :func:`_raised_amplitudes`: what was raised (printed), or, where the declared ranges allow no
+    larger pulse, a warning with the fix."""
+    text = "; ".join(said)
+    if raised and not quiet:
+        print(f"{text} (net of a run without the pulse): recording with the larger pulse; give --input at the loads "
+              "you mean to choose them", file=sys.stderr)
+    elif not raised:
+        warnings.warn(f"{source_label(source)}: {text} (net of a run without the pulse), and the declared range "
+                      "allows no larger pulse: the ROM may miss larger loads; give --input at the loads you mean",
+                      FmuOpinfWarning, stacklevel=4)
+
+
+def _impulse_window(source: Source, thresholds: dict[str, Any],
+                    amplitudes: Sequence[float]) -> tuple[Any, list[Any], Any]:
+    """The window and signals of the default training at ``amplitudes``, and the pilots' baseline (whether the
+    model moves on its own), the impulse rescaled (``t0`` and ``width`` by
     :data:`RESCALE` per try) while it does not suit the model: widened while the model is too slow for the pulse
     to be resolved within the pilots' step budget (:class:`~fmu_opinf.snapshots._window.PulseTooNarrow`; audit
     2026-11-26: a chain with periods of about 1000 s refused after 48 s), shrunk while the response only follows
@@ -1360,7 +1478,6 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                 f"width={default['width'] * factor:g}")
 
     factor, tries, said = 1.0, {"wider": 0, "narrower": 0}, []
-    amplitudes = default_amplitudes(source)
     scales = [a / _DEFAULT_AMPLITUDE for a in amplitudes]
 
     def pilot_of(factor: float) -> Signal:
@@ -1410,7 +1527,7 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
                 check_window_step(source, pilot, window, quiet=thresholds.get("quiet", True),
                                   isolate=thresholds.get("isolate", False), max_dt=thresholds.get("max_dt"),
                                   exact_dt=thresholds.get("exact_dt", False))
-                return window, signals
+                return window, signals, baseline
             tries["wider"] += 1
             factor *= RESCALE
             why = (f"the window's step dt={window.dt:g}, set by the model's slow motion, steps over the default "
