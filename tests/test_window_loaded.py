@@ -172,12 +172,16 @@ def _fixed_window(_: int):
 def test_the_first_pilot_tells_a_loaded_model_from_one_at_rest_at_no_extra_run(fmus, monkeypatch):
     """The decision alone (the window's first pilot, then stubbed to settle): the loaded chain's first
     pilot (10 s, 201 samples) moves before its pulse acts at 1.75 s, which it tells at no extra run; as the
-    pilots judged as they are found a window, the net judgement is not armed and no run without the pulse is made
-    (a model that found its window before keeps it).  The chain without the load rests there."""
+    pilots judged as they are found a window, the net judgement is not armed and the window is chosen without a run
+    without the pulse (a model that found its window before keeps it); only the pulse's size is then checked
+    against the load (audit 74 F1).  The chain without the load rests there: nothing more."""
     calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], _fixed_window)
     assert len(calls) == 1 and calls[0]["baseline"].moving.startswith("y[1] by "), calls
     assert not calls[0]["baseline"].armed   # a window found by the pilots as they are: kept, no run without pulse
-    assert runs == [("StackedSignal", 201)] and ended[0].dt == 0.05, runs
+    # then the default pulse's size is checked net of the load on the window's grid (snapshots._record.
+    # _raised_amplitudes): one run without the pulse and one per input; the pulse stands out here, nothing changes
+    assert runs == [("StackedSignal", 201), ("NoInput", 2001), ("StackedSignal", 2001), ("StackedSignal", 2001)]
+    assert ended[0].dt == 0.05 and "amplitude=100," in ended[1][0].spec, ended
     calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["SagBase"], _fixed_window)
     assert len(calls) == 1 and calls[0]["baseline"].moving is None and runs == [("StackedSignal", 201)], runs
 

@@ -1393,13 +1393,16 @@ def _sized_on_grid(source: Source, signals: list[Any], t: np.ndarray, quiet: boo
     FMU's declared experiment), their pulses raised as :func:`_raised_amplitudes` raises them where the model moves
     on its own.  Whether it moves is told by a run without the pulse up to the pulse (or over ``t`` where fewer
     than two samples precede it): a model at rest costs that short run only and keeps its amplitudes."""
-    from ._window import _outputs_of, input_activity, largest_motion
+    from ._window import input_activity, largest_motion
 
     t_input, width = input_activity(signals[0], source.m)
     before = t[t < t_input - (width or 0.0)]
-    if before.size >= 2:
-        y = _outputs_of(source, _held_only(source), before, True, isolate, "the run without the pulse")
-        if largest_motion(source, before, y) is None:
+    if before.size >= 2:   # (at the tolerance asked, as the recording: a grid given means no pilots)
+        run, failure = record_run(source, _held_only(source), before, MemorySink, True, isolate,
+                                  "the run without the pulse")
+        if failure is not None:
+            raise incomplete_error(failure, run, None)
+        if largest_motion(source, before, np.asarray(run.y)[:, :before.size]) is None:
             return signals
     amplitudes = default_amplitudes(source)
     raised = _raised_amplitudes(source, t, signals, amplitudes, {"quiet": quiet, "isolate": isolate})
