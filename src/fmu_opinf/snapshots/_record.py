@@ -30,7 +30,7 @@ import numpy as np
 
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
-from ..errors import DataError, FMUError, FmuOpinfWarning, InputSpecError
+from ..errors import DataError, FMUError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
 from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, terminated_at, warn_once, warn_other_communication_step)
@@ -1392,7 +1392,9 @@ def _sized_on_grid(source: Source, signals: list[Any], t: np.ndarray, quiet: boo
     """The default training's ``signals`` on a grid ``t`` chosen without pilots (``--dt`` and ``--t-end``, the
     FMU's declared experiment), their pulses raised as :func:`_raised_amplitudes` raises them where the model moves
     on its own.  Whether it moves is told by a run without the pulse up to the pulse (or over ``t`` where fewer
-    than two samples precede it): a model at rest costs that short run only and keeps its amplitudes."""
+    than two samples precede it): a model at rest costs that short run only and keeps its amplitudes.  Where a run of
+    the check fails (a step the FMU refuses), the signals are kept: the recording then fails with its own message and
+    keeps what it recorded, as without the check."""
     from ._window import input_activity, largest_motion
 
     t_input, width = input_activity(signals[0], source.m)
@@ -1400,12 +1402,13 @@ def _sized_on_grid(source: Source, signals: list[Any], t: np.ndarray, quiet: boo
     if before.size >= 2:   # (at the tolerance asked, as the recording: a grid given means no pilots)
         run, failure = record_run(source, _held_only(source), before, MemorySink, True, isolate,
                                   "the run without the pulse")
-        if failure is not None:
-            raise incomplete_error(failure, run, None)
-        if largest_motion(source, before, np.asarray(run.y)[:, :before.size]) is None:
+        if failure is not None or largest_motion(source, before, np.asarray(run.y)[:, :before.size]) is None:
             return signals
     amplitudes = default_amplitudes(source)
-    raised = _raised_amplitudes(source, t, signals, amplitudes, {"quiet": quiet, "isolate": isolate})
+    try:
+        raised = _raised_amplitudes(source, t, signals, amplitudes, {"quiet": quiet, "isolate": isolate})
+    except FmuOpinfError:
+        return signals
     if raised is None:
         return signals
     specs = default_training_inputs(source.m, DEFAULT_TRAINING_INPUT, raised, held_starts(source))
