@@ -126,6 +126,7 @@ def loaded_chain(request, tmp_path_factory) -> tuple[lti_fmus.LinearMechanicalMo
 
 
 @pytest.mark.fmu
+@pytest.mark.slow
 def test_a_loaded_chain_trained_by_default_is_right_at_loads_of_its_declared_nominal(loaded_chain, tmp_path,
                                                                                      capsys):
     """The audit's case in small: 12 masses under a constant load of 1e5 N each, released from rest, the tip force F

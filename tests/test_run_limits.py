@@ -177,6 +177,7 @@ def test_compare_s_default_end_stops_before_the_termination_the_training_found(f
     assert code != 0 and f"--t-end below {TERMINATE:g}" in err, err
 
 
+@pytest.mark.slow
 def test_compare_of_the_exported_rom_fmu_stops_before_the_termination_too(fmus, tmp_path, capsys):
     """The same for ``compare rom.fmu term.fmu``: the ROM FMU's provenance.json carries the training's snapshot
     notes, its automatic window with the termination among them (audit 71 F8)."""

@@ -248,6 +248,7 @@ def test_non_finite_values_name_their_variables_and_the_usual_causes(toys):
     assert _non_finite_names(names, np.full(5, np.nan)) == " in s1, s2, v1, v2 and 1 more"
 
 
+@pytest.mark.slow
 def test_crashing_fmu_binary_is_reported_and_the_data_kept(toys, tmp_path):
     """The toy dereferences NULL in doStep once its input exceeds the threshold: u(4.0) = 1 is in
     effect for the step from t=4.0 to sample 41, so samples 0..40 exist when the process dies."""

@@ -36,6 +36,7 @@ def _pulse_share(model, t):
     return float(np.max(np.abs(net).max(axis=1) / np.ptp(free, axis=1)))
 
 
+@pytest.mark.slow
 def test_a_pulse_lost_in_the_model_s_own_motion_is_raised_and_the_rom_follows_large_loads(tmp_path, capsys):
     """On a given grid (no pilots): the 100 N pulse moves the outputs by 1e-3 of the swing; raised to a tenth of
     it (6800 N), said in one line.  Against the exact model at 1e4 N the ROM is 0.9 % / 4.6 % of range off (the
@@ -59,6 +60,7 @@ def test_a_pulse_lost_in_the_model_s_own_motion_is_raised_and_the_rom_follows_la
     assert off[0] < 0.012 and off[1] < 0.06   # measured 0.0087, 0.046 (the 100 N pulse: 0.46, 1.34)
 
 
+@pytest.mark.slow
 def test_a_model_at_rest_keeps_the_default_pulse_of_100(tmp_path, capsys):
     """The same chain without the load rests: 100 N on a given grid (one short run before the pulse tells) and with
     the automatic window (the first pilot tells: no run of the sizing at all)."""
@@ -68,6 +70,7 @@ def test_a_model_at_rest_keeps_the_default_pulse_of_100(tmp_path, capsys):
     assert Snapshots.load(tmp_path / "given.h5").runs[0].attrs["input_spec"] == "impulse:amplitude=100,t0=2,width=0.5"
 
 
+@pytest.mark.slow
 def test_with_the_automatic_window_a_resting_model_runs_nothing_more(tmp_path, monkeypatch):
     def never(*args, **kwargs):
         raise AssertionError("the pulse was sized for a model at rest")
@@ -78,6 +81,7 @@ def test_with_the_automatic_window_a_resting_model_runs_nothing_more(tmp_path, m
     assert Snapshots.load(tmp_path / "auto.h5").runs[0].attrs["input_spec"] == "impulse:amplitude=100,t0=2,width=0.5"
 
 
+@pytest.mark.slow
 def test_where_the_declared_range_allows_no_larger_pulse_a_warning_gives_the_fix(tmp_path):
     from conftest import rewrite_description
 
