@@ -257,8 +257,9 @@ def start_output_miss(maps: tuple[np.ndarray, ...], data: dict[str, np.ndarray],
     """Each output's miss at the ROM's start over its training range: the ROM's output map ``(Cpr, Cvr, Dur, y0)``
     at its own start ``q0, qdot0`` (in the coordinates of that map: POD's, ``q = 0, q' = V^T v0``, or the modal ones
     of a kept least-squares realization; audit 71 F2: POD's start with the modal map warned 0.061 on an exact ROM)
-    and the first snapshot's inputs, against the first snapshot's recorded outputs.  Least squares (eq. 17) fits all snapshots
-    alike; at a reduced order the start, with the part of its state outside the basis, can be the worst of them.
+    and the first snapshot's inputs, against the first snapshot's recorded outputs.  Least squares (eq. 17) fits all
+    snapshots alike; at a reduced order the start, with the part of its state outside the basis, can be the worst
+    of them.
     Measured and not kept (audit 69 F3): pinning the start's outputs by an equality constraint on eq. 17 (exact at
     ``t = 0``, but the free response 1.4x worse at r = 24 on audit 69's G and 2x on a 12-mass FMI 3 array at
     r = 3), and the start velocity's part outside the basis added to it (free response 0.51 against 0.42 of its
@@ -395,7 +396,8 @@ def _corrected_averages(ops: Any, u_fit: np.ndarray, data: dict[str, np.ndarray]
         cols = data["f_h"][0] == step
         x0, v0 = data["f_start"][:r, cols], data["f_start"][r:, cols]
         x1, v1 = x0 + step * data["f_xdot"][:, cols], v0 + step * data["f_xddot"][:, cols]
-        x_mean[:, cols] = hermite_rule(x0, x1, v0, v1, step) + hermite_rule_corrections(ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
+        x_mean[:, cols] = hermite_rule(x0, x1, v0, v1, step) + hermite_rule_corrections(
+            ops.Mr, ops.Dr, ops.Kr, force[:, cols], x0, v0, step)
     return x_mean
 
 
@@ -489,9 +491,9 @@ def fit_rom(
         with ``normalization="trace"``).
     refine_iterations : int, optional
         L-BFGS iterations of each refinement start: default 300 up to r = 40, ``20 r`` up to r = 60, 600
-        above.  Fewer trade accuracy for time (:mod:`fmu_opinf.inference`, *Cost of the refinement*: 100 iterations halve the fit
-        at r = 35 and kept every benchmark order within 2x of the references, with larger errors on the
-        anchored chain at r = 4 .. 8).
+        above.  Fewer trade accuracy for time (:mod:`fmu_opinf.inference`, *Cost of the refinement*: 100
+        iterations halve the fit at r = 35 and kept every benchmark order within 2x of the references, with larger
+        errors on the anchored chain at r = 4 .. 8).
     refit_output_map : bool, default=False
         Let the refinement re-fit ``Cpr, Cvr`` to the ROM's own trajectory instead of keeping eq. 17's map
         (:mod:`fmu_opinf.inference`, *Output map*: much more accurate on the anchored chain, less on the triple
@@ -1150,11 +1152,11 @@ def _warn_different_steps(steps: set[float]) -> None:
 
 def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
                            output_weighting: str) -> float | None:
-    """The refinement's objective (training output error) of a fit that ran no refinement (``refine=False``,
-    interval averages; only the latter is warned about), where the training runs can be simulated (``simulated``: the keywords of
-    :func:`_refinement` on the sampled states), so that a ROM that misses its own training data is said to
-    (ninth audit: states of a state space in other coordinates, recorded as interval averages, fitted without a
-    word and 128 % off); else None.  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
+    """The refinement's objective (training output error) of a fit that ran no refinement (``refine=False``, interval
+    averages; only the latter is warned about), where the training runs can be simulated (``simulated``: the keywords of
+    :func:`_refinement` on the sampled states), so that a ROM that misses its own training data is said to (ninth audit:
+    states of a state space in other coordinates, recorded as interval averages, fitted without a word and 128 % off);
+    else None.  ``u``: the sampled inputs (with the row of ones of ``fr``)."""
     from .refinement import output_error_objective
 
     if not simulated.get("refine"):

@@ -161,7 +161,8 @@ class SecondOrderROM:
     integrator : {"newmark", "exact"}, default="newmark"
         Time discretization of :meth:`simulate` (and of the exported FMU): the paper's classical Newmark
         scheme, which reproduces a Newmark full-order model exactly, or the exact solution of the reduced ODE
-        under zero-order-hold inputs (matrix exponential), for continuous-time sources (see :func:`fmu_opinf.fit.fit_rom`).
+        under zero-order-hold inputs (matrix exponential), for continuous-time sources (see
+        :func:`fmu_opinf.fit.fit_rom`).
     coordinates : (2r, 2r) ndarray, optional
         ``W`` with ``[q_pod; q_pod'] = W [q; q']``: the POD coordinates of the ROM's state (module docstring,
         *Coordinates*); default None, the ROM's coordinates are the POD ones.

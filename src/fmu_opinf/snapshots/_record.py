@@ -1361,11 +1361,11 @@ RAISED_PULSE_SHARE = 0.1
 
 def _raised_amplitudes(source: Source, t: np.ndarray, signals: Sequence[Any], amplitudes: Sequence[float],
                        thresholds: dict[str, Any]) -> list[float] | None:
-    """The default pulse's amplitudes raised, on each input whose pulse moves the outputs, net of the model's own
-    motion (a run without the pulse on the recording's grid ``t``), by less than :data:`PULSE_EFFECT_SHARE` of that motion,
-    to :data:`RAISED_PULSE_SHARE` of it, within the input's declared range; said in one line (a warning where the
-    range allows no larger pulse).  None where no input is raised: the model rests (no run but the one without the
-    pulse), or every pulse is seen."""
+    """The default pulse's amplitudes raised, on each input whose pulse moves the outputs, net of the model's own motion
+    (a run without the pulse on the recording's grid ``t``), by less than :data:`PULSE_EFFECT_SHARE` of that motion, to
+    :data:`RAISED_PULSE_SHARE` of it, within the input's declared range; said in one line (a warning where the range
+    allows no larger pulse).  None where no input is raised: the model rests (no run but the one without the pulse), or
+    every pulse is seen."""
     from ._window import _outputs_of
 
     quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
