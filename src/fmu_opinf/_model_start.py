@@ -17,14 +17,15 @@ says so, with the fix: a row without ``start:`` values.
 
 from __future__ import annotations
 
-import hashlib
 import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._hdf5 import sha256_of
 from .errors import FmuOpinfError
+from .rom import _finite_number
 
 __all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem"]
 
@@ -120,7 +121,7 @@ def _source_start(run: Any, attrs: dict[str, Any], isolate: bool) -> tuple[np.nd
         return path
     starts = row_start(own)
     settings = {name: value for name, value in settings_of(own or attrs).items() if name not in starts}
-    options = {"parameters": settings or None, "start_time": _number(own.get("t0", attrs.get("start_time"))),
+    options = {"parameters": settings or None, "start_time": _finite_number(own.get("t0", attrs.get("start_time"))),
                "interface": own.get("fmi_interface") or attrs.get("fmi_interface")}
     for key, names in (("positions", attrs.get("position_names")), ("velocities", attrs.get("velocity_names")),
                        ("inputs", attrs.get("input_names")), ("outputs", attrs.get("output_names"))):
@@ -157,24 +158,9 @@ def _source_path(own: dict[str, Any], attrs: dict[str, Any]) -> Path | str:
     if not path.is_file():
         return f"the FMU it was recorded from, {text}, is not there any more"
     digest = own.get("fmu_sha256") or attrs.get("fmu_sha256")
-    if isinstance(digest, str) and digest and _sha256(path) != digest:
+    if isinstance(digest, str) and digest and sha256_of(path) != digest:
         return f"the FMU {text} has changed since the recording"
     return path
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def _number(value: Any) -> float | None:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return None
 
 
 def _exact_names(names: Any) -> str | None:

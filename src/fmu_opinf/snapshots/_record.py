@@ -1366,13 +1366,13 @@ def _raised_amplitudes(source: Source, t: np.ndarray, signals: Sequence[Any], am
     :data:`RAISED_PULSE_SHARE` of it, within the input's declared range; said in one line (a warning where the range
     allows no larger pulse).  None where no input is raised: the model rests (no run but the one without the pulse), or
     every pulse is seen."""
-    from ._window import _outputs_of
+    from ._window import _outputs_of, largest_motion
 
     quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
     free = _outputs_of(source, _held_only(source), t, True, isolate, "the run without the pulse")
-    motion = np.ptp(free, axis=1)
-    if not np.any(motion > 1e-12 * max(float(np.abs(free).max()), 1e-300)):
+    if largest_motion(source, t, free) is None:
         return None   # at rest: the pulse is all there is
+    motion = np.ptp(free, axis=1)
     raised, said = list(amplitudes), []
     for i, signal in enumerate(signals):
         share = _effect_share(_outputs_of(source, signal, t, True, isolate, "a pilot of the default pulse") - free,

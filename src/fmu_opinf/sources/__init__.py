@@ -210,7 +210,7 @@ def _warn_parameter_like(source: Source) -> None:
                    "as inputs, the recording is of a model that changes with them; "
                    f"record with {inputs_without(forces, driven)} and give their values with --set")
     if held:
-        shown = ", ".join(held[:6]) + (", ..." if len(held) > 6 else "")
+        shown = _few_names(held)
         # (one in N/m, kg or 1 is a parameter: driving it is not offered)
         unknown = [name for name in getattr(source, "maybe_force_names", held) if name in held]
         drive = f", or drive those that are forces with --inputs {','.join(forces + unknown)}" if unknown else ""
@@ -239,7 +239,7 @@ def _driven_pressures(source: Source, driven: list[str], forces: list[str]) -> l
 def _warn_coefficients(source: Source, names: list[str], forces: list[str], driven: list[str]) -> None:
     """One warning (per process and FMU) naming the inputs in a coefficient's unit (a damping in N.s/m, a mass in
     kg): held at their start values, or driven as asked, which records a model that changes with them."""
-    shown = ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+    shown = _few_names(names)
     if driven:
         text = (f"the driven input(s) {', '.join(driven)} are in the unit of a stiffness, a damping or a mass "
                 "(parameters exposed as inputs?): driven, they record a model that changes with them; record with "
@@ -267,7 +267,7 @@ def _warn_unrecorded_states(source: Source) -> None:
     others = [name for name in getattr(selection, "unrecorded_states", []) or [] if name not in followers]
     if not others:
         return
-    shown = ", ".join(others[:6]) + (", ..." if len(others) > 6 else "")
+    shown = _few_names(others)
     if _velocities_are_derivatives(selection):
         # the rate check of snapshots records so only where these states are the positions' rates scaled (audit 74
         # F4: the lag wording below, on an exact ROM of an FMU whose velocity states are 10 v)
@@ -329,8 +329,10 @@ def _warn_held_outputs(source: Source) -> None:
 
 
 def _few_names(names: list[str]) -> str:
-    """Up to six names, comma separated (``...`` after them if there are more)."""
-    return ", ".join(names[:6]) + (", ..." if len(names) > 6 else "")
+    """Up to six names, comma separated (``...`` after them if there are more), each printable (a newline in a name
+    would break the one-line warning, as :func:`~fmu_opinf.sources._cosimulation._few` says)."""
+    shown = ["".join(c if c.isprintable() else repr(c)[1:-1] for c in name) for name in names[:6]]
+    return ", ".join(shown) + (", ..." if len(names) > 6 else "")
 
 
 def first_report(key: tuple[Any, ...]) -> bool:
