@@ -2,7 +2,7 @@
 
 Pipeline, one module per stage::
 
-    source -> snapshots -> basis -> inference -> rom -> compare / export
+    source -> snapshots -> basis -> inference -> rom -> compare (-> report) / export
 
 (``fit`` drives basis and inference into a ``rom``: order, extra terms, refinement, training checks.)
 """

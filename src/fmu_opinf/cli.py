@@ -319,7 +319,8 @@ def _pole_summary(poles: list) -> str:
 
 
 def _run_compare(args: argparse.Namespace) -> None:
-    from .compare import compare, summary_table, write_report
+    from .compare import compare
+    from .report import summary_table, write_report
 
     # the report folder was checked up front (_check_arguments) and is created only once there is a report
     options = _source_options(args)

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, TypeVar
 
 from ._interrupts import deferred_interrupts
-from .compare import _atomic_write_bytes, prepare_report_directory, summary_table
+from .report import _atomic_write_bytes, prepare_report_directory, summary_table
 from .errors import FileFormatError
 
 __all__ = ["DemoCase", "CASES", "run_demo"]
@@ -93,7 +93,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
     With ``compile_fmus=False`` (no C compiler) the builtin reference simulator of the same model
     stands in for the benchmark FMU and the ROM is not exported (``"rom_fmu"`` is None).
     """
-    from . import compare, export, fit, fmus, plots, snapshots
+    from . import export, fit, fmus, plots, report, snapshots
     from .source import FMUSource
 
     case = CASES[name]
@@ -146,7 +146,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
         reference_name = "FMU" if compile_fmus else "reference simulator"
         result = _compare(model, case, test, f"{case.fmu}: ROM (r={model.r}) vs {reference_name}")
         timings["compare"] = time.perf_counter() - start
-        compare.write_report(result, out_dir / "report",
+        report.write_report(result, out_dir / "report",
                              extra_figures={k.replace("_", " "): v for k, v in figures.items()}, notes=notes)
         summary["rom"] = result.metrics()
         if exported is None:
@@ -154,7 +154,7 @@ def run_case(name: str, out_dir: Path, quick: bool = False, quiet: bool = False,
         rom_fmu, timings["export"] = exported.result()
     fmu_result = _compare(rom_fmu, case, test, f"{case.fmu}: exported ROM FMU vs FMU")
     fmu_result.t_train_end = t_end
-    compare.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
+    report.write_report(fmu_result, out_dir / "report-fmu", notes=notes)
     summary["rom_fmu"] = fmu_result.metrics()
     return summary
 

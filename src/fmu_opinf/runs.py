@@ -1045,7 +1045,8 @@ _RELAYED: set[str] = set()
 def compare_row(rom: str, source_spec: str, row: RunRow, out_dir: str, dt: float | None, t_end: float | None,
                 source_options: dict[str, Any] | None = None) -> tuple[RunOutcome, dict[str, Any] | None]:
     """Compare the ROM with its source on one row's input; write the row's report to ``out_dir/NAME/``."""
-    from .compare import compare, write_report
+    from .compare import compare
+    from .report import write_report
 
     started = time.perf_counter()
     try:
@@ -1087,7 +1088,7 @@ def compare_runs(
     """Validate a ROM on every row of a run table (in parallel with a scheduler); one summary for all.
 
     Each row's report goes to ``output/NAME/``; ``output/index.html`` and ``output/summary.txt`` hold the
-    summary table (:func:`fmu_opinf.compare.summary_table`) with links to the rows' reports.  A row's
+    summary table (:func:`fmu_opinf.report.summary_table`) with links to the rows' reports.  A row's
     ``;``-separated specs list the source's inputs in its order, as ``snapshots --runs`` reads them, and go to the
     ROM's inputs by name (:func:`in_rom_order`).
 
@@ -1096,7 +1097,8 @@ def compare_runs(
     (RunTableReport, str)
         The outcomes and the plain-text summary table.
     """
-    from .compare import _load_rom_side, _rom_side_info, summary_table
+    from .compare import _load_rom_side, _rom_side_info
+    from .report import summary_table
 
     rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)
     source_options = {k: v for k, v in source_options.items() if v is not None}
