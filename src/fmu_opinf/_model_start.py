@@ -7,11 +7,19 @@ begin) is the model's own.  :mod:`fmu_opinf.fit` takes the first training run's 
 own start gave a ROM, and a ROM FMU, that started from the first row's state: audit 73 F2, the exported FMU's free
 response 174-180 % of range off the model from its own start, and nothing said.
 
-The model's own start is not in the data then, and the declared start values alone do not give it (a state's start
-may be calculated from parameters, an FMI 3 array's from ``x_start``).  The source that recorded the runs does:
-it is initialized once more with the first run's settings but without its ``start:`` values, and its positions and
-velocities after initialization are the start, mapped onto the ROM's basis (:func:`own_start`).  Where the FMU is
-not there any more, has changed, or its start lies off the basis, the ROM keeps the first run's start and the fit
+The model's own start is not in the runs' samples then, and the declared start values alone do not give it (a
+state's start may be calculated from parameters, an FMI 3 array's from ``x_start``).  The source that recorded the
+runs does: it is initialized once more with a row's settings but without its ``start:`` values, and its positions
+and velocities after initialization are the start.  That is done when the row is recorded, where the source is at
+hand (:func:`start_to_record`, called by :func:`fmu_opinf.runs.record_row`; once per source and settings in a
+process), and stored with the run (datasets ``model_start_x0``, ``model_start_v0``, attribute ``model_start``:
+whose settings, or why it could not be read; docs/file-format.md).  The fit maps the stored start onto the ROM's
+basis (:func:`own_start`) and never opens the FMU for it: the data flow one way (source -> snapshots -> basis ->
+inference -> ROM), and a fit elsewhere, or after the FMU moved or changed, starts where the model does.
+
+A file recorded before 2026-12-07 has no stored start: for it, the fit initializes the recorded FMU as before, if
+it is still there unchanged (:func:`_source_start`).  Where the start cannot be had (not stored and the FMU gone or
+changed, its initialization failed, or the start lies off the basis) the ROM keeps the first run's start and the fit
 says so, with the fix: a row without ``start:`` values.
 """
 
@@ -27,7 +35,7 @@ from ._hdf5 import sha256_of
 from .errors import FmuOpinfError
 from .rom import _finite_number
 
-__all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem"]
+__all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem", "start_to_record"]
 
 #: Largest relative part of the model's own start (``x0 - x_ref``, ``v0``) outside the ROM's basis that still counts
 #: as on it (as :meth:`fmu_opinf.rom.SecondOrderROM.initial_state`'s default).
@@ -67,10 +75,14 @@ def own_start(run: Any, attrs: dict[str, Any], basis: np.ndarray, x_ref: np.ndar
               isolate: bool = True) -> tuple[np.ndarray, np.ndarray | None] | str:
     """The model's own start in POD coordinates, for a ROM whose first training run ``run`` had ``start:`` values.
 
+    The start stored with the run when it was recorded is taken; a run without one (recorded before 2026-12-07)
+    has its FMU initialized here, as then.
+
     Parameters
     ----------
     run : Run
-        The first training run (its attributes name its source, settings and ``start:`` cells).
+        The first training run (its stored ``model_start``, else its attributes: source, settings, ``start:``
+        cells).
     attrs : dict
         The training set's attributes (what the run's own do not say).
     basis : (n, r) ndarray
@@ -86,7 +98,9 @@ def own_start(run: Any, attrs: dict[str, Any], basis: np.ndarray, x_ref: np.ndar
         ``q0 = V^T (x0 - x_ref)`` and ``qdot0 = V^T v0`` (None where the source derives its velocities, which one
         sample does not give), or why the start cannot be had: a clause for the fit's warning.
     """
-    found = _source_start(run, attrs, isolate)
+    found = stored_start(run)
+    if found is None:   # a file recorded before the start was stored with the run
+        found = _source_start(run, attrs, isolate)
     if isinstance(found, str):
         return found
     x0, v0 = found
@@ -107,30 +121,56 @@ def _on_basis(basis: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, float]
     return reduced, (float(np.linalg.norm(vector - basis @ reduced)) / norm if norm > 0 else 0.0)
 
 
+def stored_start(run: Any) -> tuple[np.ndarray, np.ndarray | None] | str | None:
+    """The model's own start stored with ``run`` when it was recorded (positions, velocities or None where they are
+    derived), why it could not be read then, or None where the run has none stored."""
+    arrays = getattr(run, "model_start", None)
+    provenance = (getattr(run, "attrs", None) or {}).get("model_start")
+    if not arrays:
+        reason = provenance.get("reason") if isinstance(provenance, dict) else None
+        return f"{reason} (when the snapshots were recorded)" if isinstance(reason, str) and reason else None
+    v0 = arrays.get("v0")
+    return (np.asarray(arrays["x0"], dtype=float).reshape(-1),
+            None if v0 is None else np.asarray(v0, dtype=float).reshape(-1))
+
+
 def _source_start(run: Any, attrs: dict[str, Any], isolate: bool) -> tuple[np.ndarray, np.ndarray | None] | str:
     """Positions and velocities of the run's source after initialization without the run's ``start:`` values,
-    or why they cannot be had."""
-    from .signals import parse_signal
-    from .snapshots._data import settings_of
-    from .snapshots._record import MemorySink, record_run
-    from .source import open_source
-
+    or why they cannot be had (the fit's way for a file without a stored start)."""
     own = dict(getattr(run, "attrs", None) or {})
     path = _source_path(own, attrs)
     if isinstance(path, str):
         return path
-    starts = row_start(own)
+    return _initialized(path, _start_options(own, attrs, row_start(own)), _first_step(run), isolate)
+
+
+def _start_options(own: dict[str, Any], attrs: dict[str, Any], starts: dict[str, Any]) -> dict[str, Any]:
+    """The source keywords of a recording (run attributes ``own``, file attributes ``attrs``) without its
+    ``start:`` values ``starts``: its settings, start time, interface and exact variable names."""
+    from .snapshots._data import settings_of
+
     settings = {name: value for name, value in settings_of(own or attrs).items() if name not in starts}
     options = {"parameters": settings or None, "start_time": _finite_number(own.get("t0", attrs.get("start_time"))),
                "interface": own.get("fmi_interface") or attrs.get("fmi_interface")}
     for key, names in (("positions", attrs.get("position_names")), ("velocities", attrs.get("velocity_names")),
                        ("inputs", attrs.get("input_names")), ("outputs", attrs.get("output_names"))):
         options[key] = _exact_names(names)
+    return options
+
+
+def _initialized(path: Path, options: dict[str, Any], step: np.ndarray,
+                 isolate: bool) -> tuple[np.ndarray, np.ndarray | None] | str:
+    """Positions and velocities (None where the source derives them) of the FMU ``path`` opened with ``options``
+    after its initialization, or why they cannot be had."""
+    from .signals import parse_signal
+    from .snapshots._record import MemorySink, record_run
+    from .source import open_source
+
     try:
         source = open_source(path, **options)
         try:
             signal = parse_signal("none", source.m, source.input_names)
-            first, failure = record_run(source, signal, _first_step(run), MemorySink, True, isolate,
+            first, failure = record_run(source, signal, step, MemorySink, True, isolate,
                                         "the model's own start", say_events=False)
             derived = bool(source.derived.get("xdot"))
         finally:
@@ -141,6 +181,64 @@ def _source_start(run: Any, attrs: dict[str, Any], isolate: bool) -> tuple[np.nd
         return f"{path.name} could not be initialized to read it ({failure})"
     x0 = np.asarray(first.x0, dtype=float).reshape(-1)
     return x0, None if derived else np.asarray(first.v0, dtype=float).reshape(-1)
+
+
+#: Starts read at recording time in this process, by FMU identity, settings and step (:func:`start_to_record`): a
+#: table's rows with one setting initialize the FMU once.  Bounded: a few sources and settings per process.
+_READ: dict[str, tuple[tuple[np.ndarray, np.ndarray | None] | str, dict[str, Any]]] = {}
+_READ_LIMIT = 16
+
+
+def start_to_record(source_spec: Any, recorded: Path, row: Any,
+                    isolate: bool = True) -> tuple[dict[str, np.ndarray], dict[str, Any]] | None:
+    """The model's own start to store with a run table row's recording, for a row with ``start:`` values.
+
+    The FMU is initialized with the row's settings (its ``set:`` values and the table's common ones, as recorded in
+    ``recorded``) but without its ``start:`` values, at the recording's start time and first step, exactly as the
+    fit did before it was stored (:func:`_source_start`); a second row with the same FMU and settings takes the
+    start read for the first (once per process).
+
+    Parameters
+    ----------
+    source_spec : str or path-like
+        The FMU the row was recorded from (``builtin:`` sources: nothing stored).
+    recorded : Path
+        The row's freshly recorded snapshot file (its first run's attributes and times give the settings and step).
+    row : RunRow
+        The run table row (its ``start:`` values, number and name).
+    isolate : bool, default True
+        Initialize the FMU in a child process, as recording does.
+
+    Returns
+    -------
+    (arrays, provenance) or None
+        ``arrays`` ``{"x0": positions, "v0": velocities}`` (no ``v0`` where the source derives them; empty where
+        the start could not be read), ``provenance`` the run attribute ``model_start``: the row whose settings were
+        initialized (``row``), the ``settings`` applied, or ``reason``: why it could not be read.  None for a row
+        without ``start:`` values or a builtin source.
+    """
+    from .snapshots import Snapshots
+
+    text = str(source_spec)
+    if not getattr(row, "start", None) or text.startswith("builtin:"):
+        return None
+    with Snapshots.open(recorded) as snaps:
+        run, attrs = snaps.runs[0], dict(snaps.attrs)
+        options, step = _start_options(dict(run.attrs), attrs, dict(row.start)), _first_step(run)
+    path = Path(text)
+    key = json.dumps([str(path.resolve()), sha256_of(path), options, step.tolist(), isolate], sort_keys=True,
+                     default=str)
+    if key not in _READ:
+        if len(_READ) >= _READ_LIMIT:
+            _READ.pop(next(iter(_READ)))
+        _READ[key] = (_initialized(path, options, step, isolate),
+                      {"row": {"number": int(row.number), "name": str(row.name)},
+                       "settings": options["parameters"] or {}})
+    found, provenance = _READ[key]
+    if isinstance(found, str):
+        return {}, {**provenance, "reason": found}
+    x0, v0 = found
+    return {"x0": x0, **({} if v0 is None else {"v0": v0})}, provenance
 
 
 def _first_step(run: Any) -> np.ndarray:

@@ -13,7 +13,8 @@ a projection error into the initial state.)  The basis is computed from ``x - x_
 velocities; the reduced coordinates are ``q = V^T (x - x_ref)``, ``q' = V^T x'``, ``q'' = V^T x''``.  The ROM
 starts (``q0, qdot0``) where the first run does, which is the model's own start when that run has no run table
 ``start:`` values (:mod:`fmu_opinf.basis` puts such a run first); where every run has its own, the ROM starts from
-the model's own start read from the recorded FMU (:mod:`fmu_opinf._model_start`; ``x_ref`` stays the first run's).
+the model's own start, stored with the run when it was recorded (for older files read from the recorded FMU;
+:mod:`fmu_opinf._model_start`; ``x_ref`` stays the first run's).
 
 When the extra terms are fitted (``terms="auto"``, the default): from the data.  Each of ``fr``, ``Dur``,
 ``y0`` is added to its least-squares problem -- ``fr`` to the unconstrained fit of ``q''`` from
@@ -651,14 +652,17 @@ def _start_at_model_start(model: SecondOrderROM, first: Any, attrs: dict, basis:
                           coordinates: np.ndarray | None, say: Callable[[str], None]) -> None:
     """Start ``model`` from the model's own start where its first training run ``first`` had run table ``start:``
     values (then every run had: :mod:`fmu_opinf.basis` puts a run without them first), else leave it at that run's
-    start; where the own start cannot be read, one warning says so and how to fix it (:mod:`._model_start`)."""
-    from ._model_start import own_start, row_start
+    start; where the own start cannot be read, one warning says so and how to fix it (:mod:`._model_start`).  The
+    start stored with the run when it was recorded is taken; only a run recorded before it was stored has its FMU
+    initialized here."""
+    from ._model_start import own_start, row_start, stored_start
 
     starts = row_start(getattr(first, "attrs", None) or {})
     if not starts:
         return
     said = ", ".join(f"{name}={value:g}" if isinstance(value, (int, float)) else f"{name}={value}"
                      for name, value in starts.items())
+    stored = stored_start(first) is not None
     found = own_start(first, attrs, basis, x_ref)
     if isinstance(found, str):
         model.fit_info["start"] = {"from": "first training run", "start_values": starts, "reason": found}
@@ -673,9 +677,10 @@ def _start_at_model_start(model: SecondOrderROM, first: Any, attrs: dict, basis:
     if coordinates is not None:   # the ROM's coordinates (module docstring of rom.py, *Coordinates*)
         state = np.linalg.solve(coordinates, state)
     model.q0, model.qdot0 = state[:model.r], state[model.r:]
-    model.fit_info["start"] = {"from": "the model's own start", "start_values": starts}
+    read = "when the snapshots were recorded" if stored else "from the FMU now: the snapshots predate its storing"
+    model.fit_info["start"] = {"from": "the model's own start", "start_values": starts, "read": read}
     say(f"the ROM starts from the model's own start (its FMU initialized without the start: values of the "
-        f"training runs, e.g. {said})")
+        f"training runs, e.g. {said}; read {read})")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -425,7 +425,12 @@ def _is_done(path: Path, stamp: dict[str, Any]) -> tuple[bool, int]:
     return complete and _same_stamp(found, stamp), k
 
 
-def _stamp_file(path: Path, stamp: dict[str, Any]) -> int:
+def _stamp_file(path: Path, stamp: dict[str, Any], start: tuple[dict[str, Any], dict[str, Any]] | None = None) -> int:
+    """Write the row's stamp (and the model's own ``start``: arrays and provenance, :func:`_model_start_of`) into
+    every run of ``path`` and seal the attributes again; returns the number of samples."""
+    from ._hdf5 import write_attrs
+    from .snapshots._file import MODEL_START, write_model_start
+
     with h5py.File(path, "r+") as f:
         text = json.dumps(stamp, sort_keys=True)
         f.attrs[ROW_ATTR] = text
@@ -433,6 +438,9 @@ def _stamp_file(path: Path, stamp: dict[str, Any]) -> int:
         for key in sorted(f["runs"]):
             f["runs"][key].attrs[ROW_ATTR] = text
             k += int(f["runs"][key].attrs.get("k", 0))
+            if start is not None:
+                write_model_start(f["runs"][key], start[0])
+                write_attrs(f["runs"][key], {MODEL_START: start[1]})
         seal_attributes(f)   # the stamp changed the attributes the recording sealed
     return k
 
@@ -495,26 +503,41 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
                        **settings, **row_source_options(row, options))
     except FmuOpinfError as exc:
         error = str(exc)
+    start = None if error or not partial.exists() else _model_start_of(source_spec, partial, row, isolate)
     seconds, cpu = time.perf_counter() - started, _cpu_seconds() - cpu
     if not partial.exists():
         final.unlink(missing_ok=True)  # a result of an earlier version of this row is not this row's result
         return RunOutcome(row.number, row.name, "failed", None, 0, seconds, error, _worker_name(), cpu)
     target = failed if error else final
-    k = _move_into_place(partial, target, stamp)
+    k = _move_into_place(partial, target, stamp, start)
     error = error.replace(str(partial), str(target))
     (final if error else failed).unlink(missing_ok=True)
     return RunOutcome(row.number, row.name, "failed" if error else "recorded", str(target), k, seconds, error,
                       _worker_name(), cpu)
 
 
-def _move_into_place(partial: Path, target: Path, stamp: dict[str, Any]) -> int:
-    """Stamp the row's intermediate file and rename it to ``target``; the list of written outputs
-    (:data:`fmu_opinf._hdf5.REPLACED`) names ``target``, not the hidden intermediate (audit 68).  Interrupted
-    before the rename, the intermediate is removed and the row's previous result stays."""
+def _model_start_of(source_spec: Any, partial: Path, row: RunRow,
+                    isolate: bool) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """The model's own start to store with a row that has ``start:`` values (:func:`._model_start.start_to_record`:
+    the FMU initialized without them, so that the fit need not open it); None for other rows.  A failure to read
+    it is stored as its reason, not raised: the row's recording stands."""
+    from ._model_start import start_to_record
+
+    try:
+        return start_to_record(source_spec, partial, row, isolate)
+    except FmuOpinfError as exc:
+        return {}, {"row": {"number": row.number, "name": row.name}, "reason": f"it could not be read ({exc})"}
+
+
+def _move_into_place(partial: Path, target: Path, stamp: dict[str, Any],
+                     start: tuple[dict[str, Any], dict[str, Any]] | None = None) -> int:
+    """Stamp the row's intermediate file (with the model's own ``start`` where given) and rename it to ``target``;
+    the list of written outputs (:data:`fmu_opinf._hdf5.REPLACED`) names ``target``, not the hidden intermediate
+    (audit 68).  Interrupted before the rename, the intermediate is removed and the row's previous result stays."""
     from ._hdf5 import REPLACED
 
     try:
-        k = _stamp_file(partial, stamp)
+        k = _stamp_file(partial, stamp, start)
         check_interrupt()  # a Ctrl-C swallowed in an h5py finalizer: the row's previous result stays
         os.replace(partial, target)
     except BaseException:

@@ -16,7 +16,8 @@ from .._seal import SEAL_ATTR, check_seal
 from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_types, check_memory, check_snapshot_run,
                          damaged_file_errors, reject_links)
 from ..errors import DataError, DimensionError, FileFormatError
-from ._file import ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, write_file_attrs, write_run
+from ._file import (ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, read_model_start, write_file_attrs,
+                    write_run)
 from ._merge import MERGED_PARTS, SOURCE_KEYS, merged_parts, merged_source, mixed_interfaces
 from ._notes import VERDICTS, texts
 
@@ -39,6 +40,10 @@ class Run:
     x0, v0 : (n,) ndarray
         The source's initial state (positions and velocities at ``t[0]``, not necessarily at rest or
         at equilibrium); default: the first samples of ``x`` and ``xdot``.  Layout 2 stores them.
+    model_start : dict or None
+        A run table row with ``start:`` values: the model's own start, its source initialized without them when the
+        row was recorded (``{"x0": positions, "v0": velocities}``, no ``v0`` where the velocities are derived;
+        provenance in ``attrs["model_start"]``; :mod:`fmu_opinf._model_start`).  None: not recorded.
     """
 
     t: Any
@@ -50,6 +55,7 @@ class Run:
     attrs: dict[str, Any] = dataclasses.field(default_factory=dict)
     x0: Any = None
     v0: Any = None
+    model_start: dict[str, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         self.x0 = _initial(self.x0, self.x)
@@ -72,7 +78,9 @@ class Run:
     def load(self) -> "Run":
         """An in-memory copy (reads lazy datasets)."""
         return Run(**{n: np.array(a[()]) for n, a in self.arrays().items()}, attrs=dict(self.attrs),
-                   x0=np.array(self.x0), v0=np.array(self.v0))
+                   x0=np.array(self.x0), v0=np.array(self.v0),
+                   model_start=None if self.model_start is None else {k: np.array(v) for k, v in
+                                                                      self.model_start.items()})
 
 
 def settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
@@ -338,7 +346,8 @@ class Snapshots:
             if not runs:
                 _check_step(g["t"], attrs.get("dt"), f"{path}: the file's attribute dt")
             initial = {a: np.array(g[a][()]) for a in INITIAL if a in g}  # layout 1 has none: first samples
-            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=run_attrs, **initial))
+            start = read_model_start(g, run_attrs, int(sizes["n"]), f"{path}: run {name}")
+            runs.append(Run(**{a: g[a] for a in ARRAYS}, attrs=run_attrs, **initial, model_start=start))
         _check_per_column(attrs, sizes, path)
         check_seal(f, path)   # last: a change the checks above name is said in their words, any other here
         return cls(runs, attrs)

@@ -17,8 +17,8 @@ from ..errors import FileFormatError
 if TYPE_CHECKING:
     from ._data import Run
 
-__all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "INITIAL", "write_initial_state", "atomic", "decode", "write_file_attrs", "create_dataset",
-           "write_run"]
+__all__ = ["LAYOUT_VERSION", "FILE_KIND", "ARRAYS", "INITIAL", "MODEL_START", "write_initial_state", "atomic", "decode",
+           "write_file_attrs", "create_dataset", "write_run", "write_model_start", "read_model_start"]
 
 #: Version of the HDF5 layout written by this package (docs/file-format.md).
 LAYOUT_VERSION = 2
@@ -26,8 +26,12 @@ FILE_KIND = "fmu-opinf snapshots"
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
 #: Per-run initial state datasets (layout 2; layout 1 files take the first samples instead).
 INITIAL = ("x0", "v0")
+#: Run attribute (JSON) and dataset prefix of the model's own start recorded beside a run table row with ``start:``
+#: values (layout 2, since 2026-12-07: :mod:`fmu_opinf._model_start`); datasets ``model_start_x0``, ``model_start_v0``.
+MODEL_START = "model_start"
 _JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window",
-               "unit_definitions", "initialization", "fmi3_ports", "held_inputs", "merged_parts")
+               "unit_definitions", "initialization", "fmi3_ports", "held_inputs", "merged_parts",
+               MODEL_START)
 
 
 @contextlib.contextmanager
@@ -96,4 +100,43 @@ def write_run(runs: h5py.Group, index: int, run: Run) -> None:
             ensure_space(runs.file.filename, 8.0 * ds.size / max(k, 1) * min(step, k - j0))
             ds[..., j0:j0 + step] = np.ascontiguousarray(array[..., j0:j0 + step])
     write_initial_state(g, run.x0, run.v0)
+    write_model_start(g, run.model_start)
     write_attrs(g, run.attrs)
+
+
+def write_model_start(group: h5py.Group, start: dict[str, Any] | None) -> None:
+    """The model's own start of a run (``{"x0": positions, "v0": velocities}``, ``v0`` absent where the source's
+    velocities are derived) as datasets ``model_start_x0``, ``model_start_v0``; nothing for None.  Its provenance is
+    the run attribute ``model_start`` (written with the other attributes)."""
+    for name, values in (start or {}).items():
+        data = np.asarray(values, dtype=float).reshape(-1)
+        key = f"{MODEL_START}_{name}"
+        if key in group:
+            del group[key]
+        group.create_dataset(key, data=data, **checksummed(data.shape))
+
+
+def read_model_start(group: h5py.Group, attrs: dict[str, Any], n: int, label: str) -> dict[str, np.ndarray] | None:
+    """The model's own start stored with a run (:func:`write_model_start`), or None where the run has none (a file
+    written before 2026-12-07, a run that is no run table row with ``start:`` values, or one whose start could
+    not be read when it was recorded: its attribute ``model_start`` then says why).
+
+    Raises
+    ------
+    FileFormatError
+        A stored start that is not ``n`` finite numbers, or provenance that promises a start the run lacks.
+    """
+    found = {}
+    for name in ("x0", "v0"):
+        key = f"{MODEL_START}_{name}"
+        if key in group:
+            data = np.asarray(group[key][()], dtype=float)
+            if data.shape != (n,) or not np.all(np.isfinite(data)):
+                raise FileFormatError(f"{label}: {key} is not {n} finite numbers (one per position); the file is "
+                                      "damaged: record the snapshots again")
+            found[name] = data
+    provenance = attrs.get(MODEL_START)
+    if isinstance(provenance, dict) and "reason" not in provenance and "x0" not in found:
+        raise FileFormatError(f"{label}: its attribute {MODEL_START} names a stored start but {MODEL_START}_x0 is "
+                              "missing; the file is damaged: record the snapshots again")
+    return found or None
