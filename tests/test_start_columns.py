@@ -80,19 +80,126 @@ def test_every_row_with_its_own_start_gives_a_rom_and_fmu_starting_at_the_models
     assert _fmu_free_response_miss(tmp_path / "rom.fmu", 20.0, rom.dt) < 1e-10   # measured 2.7e-14; before 1.8
 
 
+def _strip_stored_start(folder) -> None:
+    """Make the row files of ``folder`` like files recorded before the model's start was stored with them."""
+    import h5py
+
+    from fmu_opinf._seal import seal_attributes
+
+    for path in sorted(folder.glob("*.h5")):
+        with h5py.File(path, "r+") as f:
+            for group in f["runs"].values():
+                for name in ("model_start_x0", "model_start_v0"):
+                    group.pop(name, None)
+                if "model_start" in group.attrs:
+                    del group.attrs["model_start"]
+            seal_attributes(f)
+
+
 @pytest.mark.fmu
-def test_the_model_start_that_cannot_be_read_is_said_with_its_fix(fmus, tmp_path, capsys):
-    """The FMU gone before the fit: the ROM keeps the first row's start, and one warning says so and how to fix it
-    (before: nothing said)."""
+def test_each_row_file_stores_the_models_declared_start_read_once(fmus, tmp_path, monkeypatch):
+    """The snapshot stage stores the model's own start with every row that has start: values: the FMU's declared
+    start (``mass[4].s`` 0.05, at rest), not the row's; one initialization for a table whose rows share their
+    settings (before: nothing stored; the fit opened the FMU again)."""
+    from fmu_opinf import _model_start
+    from fmu_opinf.snapshots import Snapshots
+
+    calls = []
+    initialize = _model_start._initialized
+    monkeypatch.setattr(_model_start, "_READ", {})
+    monkeypatch.setattr(_model_start, "_initialized", lambda *a: calls.append(a) or initialize(*a))
+    assert _record(fmus["chain"], tmp_path, EVERY_ROW) == 0
+    assert len(calls) == 1
+    for name, start in (("a", 0.2), ("b", -0.1)):
+        with Snapshots.open(tmp_path / "snaps" / f"{name}.h5") as snaps:
+            run = snaps.runs[0]
+            assert run.x0[3] == start   # (the row's own start)
+            np.testing.assert_array_equal(run.model_start["x0"], MODEL.x0)
+            np.testing.assert_array_equal(run.model_start["v0"], np.zeros(4))
+            assert run.attrs["model_start"] == {"row": {"number": 1, "name": "a"}, "settings": {}}
+
+
+@pytest.mark.fmu
+def test_the_fit_starts_at_the_models_start_after_the_fmu_is_deleted(fmus, tmp_path, capsys):
+    """A fit where the FMU is gone (another machine, a snapshots file sent on) starts at the model's own start, from
+    the snapshots alone, also after a merge and save (before: a warning, and the ROM started from row a's 0.2: free
+    response 1.8 x range off the model)."""
+    from fmu_opinf.snapshots import Snapshots
+
     fmu = shutil.copy(fmus["chain"], tmp_path / "gone.fmu")
     assert _record(fmu, tmp_path, EVERY_ROW) == 0
     (tmp_path / "gone.fmu").unlink()
+    merged = Snapshots()
+    for name in ("a", "b"):
+        merged.append(Snapshots.load(tmp_path / "snaps" / f"{name}.h5"))
+    merged.save(tmp_path / "merged.h5")
+    capsys.readouterr()
+    for data, rom_file in ((tmp_path / "snaps", tmp_path / "rom.h5"), (tmp_path / "merged.h5", tmp_path / "m.h5")):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", FmuOpinfWarning)
+            assert main(["fit", str(data), "-o", str(rom_file)]) == 0
+        err = " ".join(capsys.readouterr().err.split())
+        assert "the ROM starts from the model's own start" in err and "read when the snapshots were recorded" in err
+        rom = SecondOrderROM.load(rom_file)
+        assert rom.fit_info["start"]["from"] == "the model's own start"
+        # measured 1.4e-14 (free response); before: 1.8
+        assert miss_against_model(rom, MODEL, "none", 20.0) < 1e-10
+
+
+@pytest.mark.fmu
+def test_an_older_file_without_the_stored_start_reads_it_from_the_fmu_or_says_it_cannot(fmus, tmp_path, capsys):
+    """Files recorded before the start was stored: the fit initializes the FMU as before; with the FMU gone, the ROM
+    keeps the first row's start and one warning says so and how to fix it."""
+    fmu = shutil.copy(fmus["chain"], tmp_path / "gone.fmu")
+    assert _record(fmu, tmp_path, EVERY_ROW) == 0
+    _strip_stored_start(tmp_path / "snaps")
+    capsys.readouterr()
+    assert main(["fit", str(tmp_path / "snaps"), "-o", str(tmp_path / "rom.h5")]) == 0
+    assert "read from the FMU now" in " ".join(capsys.readouterr().err.split())
+    assert miss_against_model(SecondOrderROM.load(tmp_path / "rom.h5"), MODEL, "none", 20.0) < 1e-10
+    (tmp_path / "gone.fmu").unlink()
+    assert main(["fit", str(tmp_path / "snaps"), "-o", str(tmp_path / "rom.h5"), "-q", "--force"]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    assert "every training run has its own start: values, and the model's own start cannot be read" in err, err
+    assert "is not there any more" in err
+    assert "starts from the first run's start (mass[4].s=0.2)" in err
+    assert "add a run table row without start: values" in err
+
+
+@pytest.mark.fmu
+def test_a_start_that_could_not_be_read_when_recorded_is_said_without_opening_the_fmu(fmus, tmp_path, capsys,
+                                                                                         monkeypatch):
+    """An initialization that failed at recording time is stored as its reason; the fit says it (with the fix) and
+    does not try the FMU again."""
+    from fmu_opinf import _model_start
+
+    monkeypatch.setattr(_model_start, "_READ", {})
+    monkeypatch.setattr(_model_start, "_initialized", lambda *a: "OwnStart.fmu could not be initialized (boom)")
+    assert _record(fmus["chain"], tmp_path, EVERY_ROW) == 0
+    monkeypatch.setattr(_model_start, "_source_start", lambda *a: pytest.fail("the fit opened the FMU"))
     capsys.readouterr()
     assert main(["fit", str(tmp_path / "snaps"), "-o", str(tmp_path / "rom.h5"), "-q"]) == 0
     err = " ".join(capsys.readouterr().err.split())
-    assert "every training run has its own start: values, and the model's own start cannot be read" in err, err
-    assert "starts from the first run's start (mass[4].s=0.2)" in err
+    assert "the model's own start cannot be read: OwnStart.fmu could not be initialized (boom) (when the snapshots " \
+           "were recorded)" in err, err
     assert "add a run table row without start: values" in err
+
+
+@pytest.mark.fmu
+def test_a_damaged_stored_start_is_refused_in_one_line(fmus, tmp_path):
+    """A stored start of the wrong length (a damaged or hand-edited file) is no start to begin a ROM from."""
+    import h5py
+
+    from fmu_opinf.errors import FileFormatError
+    from fmu_opinf.snapshots import Snapshots
+
+    assert _record(fmus["chain"], tmp_path, EVERY_ROW) == 0
+    with h5py.File(tmp_path / "snaps" / "a.h5", "r+") as f:
+        f["runs/0000"].pop("model_start_x0", None)
+        f["runs/0000"].create_dataset("model_start_x0", data=np.zeros(3))
+    with pytest.raises(FileFormatError, match=r"run 0000: model_start_x0 is not 4 finite numbers \(one per position\)"
+                       r"; the file is damaged"):
+        Snapshots.open(tmp_path / "snaps" / "a.h5")
 
 
 @pytest.mark.fmu
