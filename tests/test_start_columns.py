@@ -120,6 +120,29 @@ def test_each_row_file_stores_the_models_declared_start_read_once(fmus, tmp_path
 
 
 @pytest.mark.fmu
+def test_an_array_fmus_stored_start_is_its_declared_x_start_whatever_the_rows_set(fmus, tmp_path, monkeypatch):
+    """FMI 3 array chain, ``x`` calculated from ``x_start`` (declared 0.01 each): rows that start other states
+    (``v_start[1]``, ``x_start[2]``) store the model's start, read once: what the fit used to read from the FMU."""
+    from fmu_opinf import _model_start
+    from fmu_opinf.snapshots import Snapshots
+
+    calls = []
+    initialize = _model_start._initialized
+    monkeypatch.setattr(_model_start, "_READ", {})
+    monkeypatch.setattr(_model_start, "_initialized", lambda *a: calls.append(a) or initialize(*a))
+    table = ('name,input,start:v_start[1],start:x_start[2]\na,"impulse:amplitude=100,t0=2,width=0.5",0.5,\n'
+             'b,"harmonic:amplitude=1,omega=0.9",,0.3\n')
+    assert _record(fmus["array"], tmp_path, table) == 0
+    assert len(calls) == 1
+    for name, x0, v0 in (("a", [0.01] * 4, [0.5, 0, 0, 0]), ("b", [0.01, 0.3, 0.01, 0.01], [0] * 4)):
+        with Snapshots.open(tmp_path / "snaps" / f"{name}.h5") as snaps:
+            run = snaps.runs[0]
+            np.testing.assert_array_equal(np.r_[run.x0, run.v0], np.r_[x0, v0])   # (the row's own start)
+            np.testing.assert_array_equal(run.model_start["x0"], np.full(4, 0.01))
+            np.testing.assert_array_equal(run.model_start["v0"], np.zeros(4))
+
+
+@pytest.mark.fmu
 def test_the_fit_starts_at_the_models_start_after_the_fmu_is_deleted(fmus, tmp_path, capsys):
     """A fit where the FMU is gone (another machine, a snapshots file sent on) starts at the model's own start, from
     the snapshots alone, also after a merge and save (before: a warning, and the ROM started from row a's 0.2: free
