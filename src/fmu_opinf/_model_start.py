@@ -35,7 +35,8 @@ from ._hdf5 import sha256_of
 from .errors import FmuOpinfError
 from .rom import _finite_number
 
-__all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem", "start_to_record"]
+__all__ = ["START_OFF_BASIS", "own_start", "row_start", "sets_initial_state", "start_column_problem", "start_to_record",
+           "stored_start"]
 
 #: Largest relative part of the model's own start (``x0 - x_ref``, ``v0``) outside the ROM's basis that still counts
 #: as on it (as :meth:`fmu_opinf.rom.SecondOrderROM.initial_state`'s default).
