@@ -274,3 +274,25 @@ def test_compare_with_another_start_value_of_a_state_is_no_model_change():
     assert options["parameters"] == {**trained, "mass[4].s": 0.2, "mass[4].v": 1.0}
     with pytest.warns(FmuOpinfWarning, match="compared with stiffness_scale=2.5, but the ROM was trained with"):
         _training_settings(info, "model.fmu", {"parameters": {"stiffness_scale": 2.5, "mass[4].s": 0.2}})
+
+
+@pytest.mark.fmu
+def test_an_interrupt_while_the_models_start_is_read_leaves_no_temporary_and_the_previous_result(fmus, tmp_path,
+                                                                                                 monkeypatch, capsys):
+    """A Ctrl-C while the FMU is initialized once more for the model's start (after the row was recorded into its
+    hidden intermediate file) removes that file; the row's earlier result stays as it was."""
+    from fmu_opinf import _model_start
+
+    assert _record(fmus["chain"], tmp_path, EVERY_ROW) == 0
+    before = {path.name: path.read_bytes() for path in (tmp_path / "snaps").iterdir()}
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(_model_start, "_READ", {})
+    monkeypatch.setattr(_model_start, "_initialized", interrupted)
+    changed = EVERY_ROW.replace("0.2\n", "0.3\n")   # row a changed: it is recorded again
+    assert _record(fmus["chain"], tmp_path, changed) != 0
+    after = {path.name: path.read_bytes() for path in (tmp_path / "snaps").iterdir()}
+    assert after == before
+    assert ".partial" not in capsys.readouterr().err   # (the message names no file it did not leave)

@@ -503,7 +503,11 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
                        **settings, **row_source_options(row, options))
     except FmuOpinfError as exc:
         error = str(exc)
-    start = None if error or not partial.exists() else _model_start_of(source_spec, partial, row, isolate)
+    try:
+        start = None if error or not partial.exists() else _model_start_of(source_spec, partial, row, isolate)
+    except BaseException:   # interrupted while the model's start is read: the row's previous result stays
+        _discard_intermediate(partial)
+        raise
     seconds, cpu = time.perf_counter() - started, _cpu_seconds() - cpu
     if not partial.exists():
         final.unlink(missing_ok=True)  # a result of an earlier version of this row is not this row's result
@@ -541,13 +545,21 @@ def _move_into_place(partial: Path, target: Path, stamp: dict[str, Any],
         check_interrupt()  # a Ctrl-C swallowed in an h5py finalizer: the row's previous result stays
         os.replace(partial, target)
     except BaseException:
-        partial.unlink(missing_ok=True)
+        _discard_intermediate(partial)
         raise
-    finally:
-        while partial in REPLACED:
-            REPLACED.remove(partial)
+    _discard_intermediate(partial)   # (renamed: only its name in the list of written outputs)
     REPLACED.append(target)
     return k
+
+
+def _discard_intermediate(partial: Path) -> None:
+    """Remove a row's hidden intermediate file and its name from the list of written outputs
+    (:data:`fmu_opinf._hdf5.REPLACED`): an interrupted row names no file it did not leave (audit 68)."""
+    from ._hdf5 import REPLACED
+
+    partial.unlink(missing_ok=True)
+    while partial in REPLACED:
+        REPLACED.remove(partial)
 
 
 def _remove_stale_temporaries(partial: Path) -> None:
