@@ -663,7 +663,7 @@ class Selection:
         """Whether positions and velocities were paired by a guess (not given, not linked by derivative aliases)."""
         rule = self.how.get("positions", "")
         return bool(self.velocities) and (rule.startswith("from derivative links") and rule != _LINKS
-                                          or rule == _LOCAL_HALVES)
+                                          or rule in (_LOCAL_HALVES, _LOCAL_STEMS))
 
     @property
     def linked(self) -> bool:
@@ -677,6 +677,13 @@ _LINKS = "from derivative links"
 _LOCAL_HALVES = ("guessed: continuous local variables split in halves [positions; velocities] (no continuous states "
                  "declared)")
 _HALVES = "from derivative links, first-order states split in halves [positions; velocities]"
+#: A model without declared states whose continuous locals come in groups named as a variable and its rates
+#: (``q[*]`` / ``qdot[*]`` / ``qddot[*]`` of fmu-opinf's own exported ROM FMU, ``mass[*].s`` / ``mass[*].v``): a
+#: guess the rate check confirms by the data, as it does the halves (audit 75 F4: the halves split q, qdot, qddot).
+_LOCAL_STEMS = ("guessed: continuous local variables paired by name (a variable and its rates: q, qdot, qddot; s, "
+                "v, a; x, der(x)) (no continuous states declared)")
+#: The rule of positions found by the name ``x[*]`` in a model that declares no states (velocities then derived).
+_PATTERN_X = "pattern x[*] (no continuous states declared)"
 
 
 class _States:
@@ -761,7 +768,7 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
         elif vel and acc is None:
             acc = _default_rate(states, elements, vel, "a[*]", "accelerations", how)
         elif acc:
-            how["accelerations"] = "derivatives of the velocity states"
+            how["accelerations"] = rule if rule == _LOCAL_STEMS else "derivatives of the velocity states"
 
     else:
         pos = [Column(e, e.sign) for e in _match(model, elements, "positions", positions, required=True)]
@@ -950,15 +957,18 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
                        "no derivative is an alias of a state, the model structure declares no dependency pairing "
                        f"them, and they are not positions then velocities; pass --positions and --velocities"
-                       f"{_patterns_by_units(states)}")
+                       f"{_aliased_rates(model, states, elements) or _patterns_by_units(states)}")
     pos = _named(elements, "x[*]")
     if pos:
-        return pos, _named(elements, "v[*]"), None, "pattern x[*] (no continuous states declared)"
+        return pos, _named(elements, "v[*]"), None, _PATTERN_X
     by_unit = _by_units(elements)
     if by_unit is not None:
         return (*by_unit, "by unit: local variables in m or rad, m/s or rad/s, m/s2 or rad/s2 (no continuous "
                           "states declared)")
-    locals_ = [Column(e, e.sign) for e in elements.values() if _is_signal(e) and e.var.causality == "local"]
+    locals_ = _distinct_locals(elements)
+    stems = _paired_by_stems(locals_)
+    if stems is not None:
+        return (*stems, _LOCAL_STEMS)
     if locals_ and len(locals_) % 2 == 0:
         half = len(locals_) // 2
         return locals_[:half], locals_[half:], None, _LOCAL_HALVES
@@ -970,6 +980,91 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
                    f"with units of length and velocity, and {found}; pass --positions with the variables' names (and "
                    f"--velocities where the FMU has them; otherwise they are derived from the positions){hint}")
+
+
+def _aliased_rates(model: ModelInfo, states: _States, elements: dict[str, Element]) -> str:
+    """Where each state's derivative is an alias of a variable that is no declared state (``der(mass[1].s)`` shares
+    the value reference of ``mass[1].v``, whose own derivative link is missing): those variables named as the
+    velocities to pass (audit 75 F5: the refusal said "no derivative is an alias of a state" and named none);
+    "" otherwise."""
+    pairs = []
+    for state in states.states:
+        der = states.der[state.name]
+        same = [e for e in elements.values() if e.name not in (der.name, state.name) and not e.alias
+                and _is_signal(e) and (e.var.vr, e.offset) == (der.var.vr, der.offset) and e.sign == der.sign]
+        if not same:
+            return ""
+        pairs.append((state.name, same[0].name, der.name))
+    positions = _compact_pattern(model, elements, [p for p, _, _ in pairs])
+    velocities = _compact_pattern(model, elements, [v for _, v, _ in pairs])
+    shown = ", ".join(f"{d} is an alias of {v}" for _, v, d in pairs[:3]) + (", ..." if len(pairs) > 3 else "")
+    return (f": {shown} (no declared state: its derivative link is missing), so --positions \"{positions}\" "
+            f"--velocities \"{velocities}\"")
+
+
+def _distinct_locals(elements: dict[str, Element]) -> list[Column]:
+    """The continuous local variables of a model without declared states, each value once: an FMI 2 alias (a
+    variable sharing another's value reference, ``der(mass[1].s)`` beside ``mass[1].v``) is left out, since
+    recorded twice it would be a position and its own velocity (audit 75 F5: the halves took both)."""
+    seen: set[tuple[int, int]] = set()
+    out = []
+    for element in elements.values():
+        key = (element.var.vr, element.offset)
+        if _is_signal(element) and element.var.causality == "local" and key not in seen:
+            seen.add(key)
+            out.append(Column(element, element.sign))
+    return out
+
+
+#: A position's (or velocity's) last name word and the words of its rate: ``s`` / ``v``, ``vel`` / ``acc`` ...
+_RATE_WORDS = {"s": "v", "x": "v", "q": "v", "p": "v", "pos": "vel", "position": "velocity", "v": "a",
+               "vel": "acc", "velocity": "acceleration"}
+_LAST_WORD = re.compile(r"([A-Za-z_][A-Za-z_]*)(?=[^A-Za-z_]*$)")
+
+
+def _rate_keys(key: str) -> list[str]:
+    """The name keys (numbers as ``#``) that the rate of the variables of ``key`` may have: ``der(key)``, and its
+    last word with ``dot``, ``_dot``, ``d`` or ``_d`` appended, ``dot`` made ``ddot``, or swapped as in
+    :data:`_RATE_WORDS`."""
+    found = _LAST_WORD.search(key)
+    if found is None:
+        return [f"der({key})"]
+    word, start, end = found.group(1), found.start(1), found.end(1)
+    words = [word + "dot", word + "_dot", word + "d", word + "_d"]
+    if word.endswith("dot"):
+        words.append(word[:-3] + "ddot")
+    if word in _RATE_WORDS:
+        words.append(_RATE_WORDS[word])
+    return [f"der({key})"] + [key[:start] + w + key[end:] for w in words]
+
+
+def _paired_by_stems(locals_: list[Column]) -> tuple[list[Column], list[Column], list[Column] | None] | None:
+    """Positions, velocities (and accelerations) among the continuous locals of a model without declared states
+    where their names group them as variables and their rates (:func:`_rate_keys`; the same indices, element by
+    element) and the groups cover every local; None otherwise (a guess: the rate check judges it on the data)."""
+    groups: dict[str, list[Column]] = {}
+    for column in locals_:
+        groups.setdefault(re.sub(r"\d+", "#", column.name), []).append(column)
+
+    def same_indices(a: str, b: str) -> bool:
+        return [re.findall(r"\d+", c.name) for c in groups[a]] == [re.findall(r"\d+", c.name) for c in groups[b]]
+
+    rate = {}
+    for key in groups:
+        found = [k for k in _rate_keys(key) if k in groups and k != key and same_indices(key, k)]
+        if found:
+            rate[key] = found[0]
+    positions = [key for key in groups if key in rate and key not in rate.values()]
+    chains = [(p, rate[p], rate.get(rate[p])) for p in positions]
+    if not chains or len({c[2] is None for c in chains}) != 1:
+        return None
+    covered = [key for chain in chains for key in chain if key is not None]
+    if len(covered) != len(set(covered)) or set(covered) != set(groups):
+        return None
+    pos = [c for p, _, _ in chains for c in groups[p]]
+    vel = [c for _, v, _ in chains for c in groups[v]]
+    acc = [c for _, _, a in chains if a is not None for c in groups[a]] or None
+    return pos, vel, acc
 
 
 #: Units that mark positions, velocities and accelerations when a model declares no states (SI, FMI spelling).
