@@ -30,11 +30,12 @@ from typing import Any
 import numpy as np
 
 from ..errors import FMUError, FmuOpinfWarning
-from ..sources._variables import _DEPENDENCIES
+from ..sources._variables import _DEPENDENCIES, _PATTERN_X
 from ._isolation import source_label
 
 __all__ = ["MAX_REPAIRS", "STALE_REASON", "RateSums", "Repair", "check_rates", "confirmed_stale", "evaluation_sample",
-           "evaluation_verdict", "judge_run", "live_rate_sums", "rate_mismatch", "stale_rates", "stale_verdict"]
+           "evaluation_verdict", "judge_run", "live_rate_sums", "rate_mismatch", "rates_among_positions", "stale_rates",
+           "stale_verdict"]
 
 #: A position whose increments differ from ``h`` times its velocity by more than this fraction (relative, over a
 #: run) is not paired with that velocity: a right pairing at a step that resolves the motion leaves at most
@@ -395,6 +396,9 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
             return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
                           f"the guessed pairing is wrong ({where}); the positions' derivative variables are the "
                           "velocities, accelerations derived from the data")
+        partly = _partial_pairing_problem(np.vstack([x, v]), h, states, where)
+        if partly is not None:
+            return partly
         # the derivative variables would stand in for states that are no velocities: those would be lost, and the
         # data are no M x'' + D x' + K x = B u (ninth audit: a state space in other coordinates, a ROM 128 % off)
         shown = ", ".join(names["velocities"][j] for j in left_out[:6]) + (", ..." if len(left_out) > 6 else "")
@@ -403,9 +407,102 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
                 "space in other coordinates, or non-mechanical states), and fmu-opinf learns M x'' + D x' + K x = "
                 "B u from those; export the model with its mechanical states (positions and their velocities), or, "
                 "where some states are, pass --positions and --velocities naming them")
+    if len(states) <= _MAX_PAIRED:
+        partly = _partial_pairing_problem(np.vstack([x, v]), h, states, where)
+        if partly is not None:
+            return partly
     why = ("the data pair no states" if len(states) <= _MAX_PAIRED else
            f"too many states ({len(states)}) to pair by the data")
     return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
+
+
+def _rates_by_data(rows: np.ndarray, h: float) -> dict[int, int]:
+    """Row -> the row that is its rate by the data (its average over each step times ``h`` matches the row's
+    increments within :data:`MISMATCH`, trapezoidal rule), each row the rate of one row at most, the best matches
+    first; rows that hardly move (:data:`_QUIET`) take part in no pair (two constant rows match each other)."""
+    relative = _relative_matches(rows, h)
+    increments = np.linalg.norm(np.diff(rows, axis=1), axis=1)
+    averages = np.linalg.norm(0.5 * h * (rows[:, :-1] + rows[:, 1:]), axis=1)
+    quiet = ((increments <= _QUIET * max(float(increments.max(initial=0.0)), np.finfo(float).tiny))
+             | (averages <= _QUIET * max(float(averages.max(initial=0.0)), np.finfo(float).tiny)))
+    relative[quiet, :] = np.inf
+    relative[:, quiet] = np.inf
+    rate: dict[int, int] = {}
+    for flat in np.argsort(relative, axis=None):
+        i, j = divmod(int(flat), relative.shape[1])
+        if relative[i, j] > MISMATCH:
+            break
+        if i not in rate and j not in rate.values():
+            rate[i] = j
+    return rate
+
+
+def _chains(rate: dict[int, int], n: int) -> tuple[list[int], list[int], list[int] | None, list[int]]:
+    """Positions (rows that are no row's rate), their velocities, their accelerations (where every velocity has a
+    rate, else None) and the rows left over, from :func:`_rates_by_data`'s pairs of ``n`` rows."""
+    positions = sorted(i for i in rate if i not in rate.values())
+    velocities = [rate[i] for i in positions]
+    accelerations = [rate[j] for j in velocities] if all(j in rate for j in velocities) else None
+    used = set(positions) | set(velocities) | set(accelerations or [])
+    return positions, velocities, accelerations, [k for k in range(n) if k not in used]
+
+
+def _options_text(names: list[str], positions: list[int], velocities: list[int],
+                  accelerations: list[int] | None) -> str:
+    """``--positions ... --velocities ... [--accelerations ...]`` naming the rows given."""
+    text = (f'--positions "{",".join(names[i] for i in positions)}" '
+            f'--velocities "{",".join(names[j] for j in velocities)}"')
+    return text + (f' --accelerations "{",".join(names[k] for k in accelerations)}"' if accelerations else "")
+
+
+def _few_pairs(names: list[str], positions: list[int], velocities: list[int]) -> str:
+    """``v is the rate of p`` for the first three pairs."""
+    shown = "; ".join(f"{names[j]} is the rate of {names[i]}" for i, j in list(zip(positions, velocities))[:3])
+    return shown + ("; ..." if len(positions) > 3 else "")
+
+
+def _partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where: str) -> str | None:
+    """Where the guessed pairing is wrong and the data pair some of the states but not all as positions and
+    velocities: the problem naming the pairs, the states left over (neither positions nor velocities) and the
+    options that record the mechanical states; None where the data pair none.  Audit 75 F6: generic names
+    ``x1 .. x10`` (x5..x8 the rates of x1..x4, x9 and x10 a controller's integrator and an actuator lag) were
+    refused saying "the data pair no states"; F4: ``q``, ``qdot``, ``qddot`` split in halves, likewise."""
+    positions, velocities, accelerations, left = _chains(_rates_by_data(rows, h), len(names))
+    if not positions:
+        return None
+    options = _options_text(names, positions, velocities, accelerations)
+    if not left:
+        return (f"cannot tell positions from velocities: {where}, but the data pair all states otherwise "
+                f"({_few_pairs(names, positions, velocities)}); pass {options}")
+    shown = ", ".join(names[k] for k in left[:6]) + (", ..." if len(left) > 6 else "")
+    return (f"cannot tell positions from velocities: {where}; by the data {_few_pairs(names, positions, velocities)}"
+            f", but {shown} pair with none: neither positions nor velocities (an actuator lag, a filter or a controller state?), "
+            "which a reduced model of the mechanical states cannot follow; to record the mechanical states anyway, "
+            f"pass {options}")
+
+
+def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair | str | None:
+    """Positions recorded by a guess without velocities (``x[*]`` of a model that declares no states) of which the
+    data make some the rates of others: a :class:`Repair` recording them as positions and velocities (and
+    accelerations) where that pairs them all, as a guessed split in halves is repaired; otherwise the problem
+    naming them; None where no position is another's rate.  Audit 75 F5: an FMI 3 model-exchange FMU whose
+    ``der(x)`` lost its ``derivative=`` was recorded silently with its 6 velocities as positions, and the ROM was
+    24-1000 % off; recorded as the data pair it, it is the exact model's."""
+    if len(names) > _MAX_PAIRED or len(names) < 2 or x.shape[1] < 3:
+        return None
+    positions, velocities, accelerations, left = _chains(_rates_by_data(x, h), len(names))
+    if not positions:
+        return None
+    pairs = _few_pairs(names, positions, velocities)
+    if left:
+        shown = ", ".join(names[k] for k in left[:6]) + (", ..." if len(left) > 6 else "")
+        return (f"velocities among the positions: {pairs} by the data, and {shown} pair with none; pass "
+                f"{_options_text(names, positions, velocities, accelerations)} (the states left out, if dynamic, "
+                "the reduced model cannot follow), or the positions alone with --positions")
+    return Repair([names[i] for i in positions], [names[j] for j in velocities],
+                  ",".join(names[k] for k in accelerations) if accelerations else "",
+                  f"velocities among the positions guessed by the name x[*] (the FMU declares no states): {pairs} "
+                  "by the data; recorded as positions and velocities")
 
 
 def _not_rates(x: np.ndarray, v: np.ndarray, h: float) -> list[int]:
@@ -434,11 +531,9 @@ _SPANNED = 500
 _COMBINATION_MISFIT = 0.1
 
 
-def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
-    """``(position, velocity)`` row pairs, each velocity row's average over a step times ``h`` the best match of its
-    position row's increments (trapezoidal rule), and the largest relative mismatch of a pair (the caller judges
-    it); None unless the pairs use every row once.  Of the rows, the half with the better best matches are the
-    positions: a velocity row's increments are ``h`` times an acceleration, which matches no state as well."""
+def _relative_matches(states: np.ndarray, h: float) -> np.ndarray:
+    """``[i, j]``: how far row ``j``'s average over each step times ``h`` is from row ``i``'s increments, relative
+    to the larger of the two (trapezoidal rule); ``inf`` on the diagonal."""
     increments = np.diff(states, axis=1)
     averages = h * 0.5 * (states[:, :-1] + states[:, 1:])
     # ||d_i - a_j||^2 for all i, j from one product
@@ -447,6 +542,15 @@ def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], 
     scale = np.maximum(np.linalg.norm(increments, axis=1)[:, None], np.linalg.norm(averages, axis=1)[None, :])
     relative = np.sqrt(np.maximum(squared, 0.0)) / np.maximum(scale, np.finfo(float).tiny)
     np.fill_diagonal(relative, np.inf)
+    return relative
+
+
+def _pair_by_data(states: np.ndarray, h: float) -> tuple[list[tuple[int, int]], float] | None:
+    """``(position, velocity)`` row pairs, each velocity row's average over a step times ``h`` the best match of its
+    position row's increments (trapezoidal rule), and the largest relative mismatch of a pair (the caller judges
+    it); None unless the pairs use every row once.  Of the rows, the half with the better best matches are the
+    positions: a velocity row's increments are ``h`` times an acceleration, which matches no state as well."""
+    relative = _relative_matches(states, h)
     best = np.argmin(relative, axis=1)
     # a position's best match is its velocity; a velocity's increments (h times an acceleration) match no state
     # as well: of each row and its best match, the row with the better match is the position
@@ -520,6 +624,14 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     names = {"positions": [source.position_names[i] for i in picked],
              "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
     derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
+    if v is None and not repairs and len(picked) == source.n and selection.how.get("positions") == _PATTERN_X:
+        among = rates_among_positions(x, float(t[1] - t[0]), names["positions"])
+        if isinstance(among, str):
+            if strict:
+                raise FMUError(f"{source_label(source)}: {among}")
+            return None
+        if among is not None:
+            return among
     structure = _paired_by_structure(selection) and not repairs
     guessed = selection.guessed and not structure
     verdict = check_rates(x, v, a, float(t[1] - t[0]), names, guessed and not repairs, derivatives,
