@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FMUError, FmuOpinfWarning
-from ..sources._variables import _DEPENDENCIES, _PATTERN_X
+from ..sources._variables import _DEPENDENCIES, _LOCAL_STEMS, _PATTERN_X
 from ._isolation import source_label
 
 __all__ = ["MAX_REPAIRS", "STALE_REASON", "RateSums", "Repair", "check_rates", "confirmed_stale", "evaluation_sample",
@@ -482,8 +482,8 @@ def _partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where
 
 
 def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair | str | None:
-    """Positions recorded by a guess without velocities (``x[*]`` of a model that declares no states) of which the
-    data make some the rates of others: a :class:`Repair` recording them as positions and velocities (and
+    """Positions guessed by name (``x[*]`` recorded without velocities, or paired by name with ``xdot[*]``, in a
+    model that declares no states) of which the data make some the rates of others: a :class:`Repair` recording them as positions and velocities (and
     accelerations) where that pairs them all, as a guessed split in halves is repaired; otherwise the problem
     naming them; None where no position is another's rate.  Audit 75 F5: an FMI 3 model-exchange FMU whose
     ``der(x)`` lost its ``derivative=`` was recorded silently with its 6 velocities as positions, and the ROM was
@@ -501,8 +501,8 @@ def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair |
                 "the reduced model cannot follow), or the positions alone with --positions")
     return Repair([names[i] for i in positions], [names[j] for j in velocities],
                   ",".join(names[k] for k in accelerations) if accelerations else "",
-                  f"velocities among the positions guessed by the name x[*] (the FMU declares no states): {pairs} "
-                  "by the data; recorded as positions and velocities")
+                  f"velocities among the positions guessed by name (the FMU declares no states): {pairs} by the "
+                  "data; recorded as positions and velocities")
 
 
 def _not_rates(x: np.ndarray, v: np.ndarray, h: float) -> list[int]:
@@ -624,7 +624,8 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
     names = {"positions": [source.position_names[i] for i in picked],
              "velocities": [source.velocity_names[i] for i in picked] if source.velocity_names else []}
     derivatives = [selection.position_derivatives[i] for i in picked] if selection.position_derivatives else []
-    if v is None and not repairs and len(picked) == source.n and selection.how.get("positions") == _PATTERN_X:
+    rule = selection.how.get("positions")
+    if not repairs and len(picked) == source.n and (v is None and rule == _PATTERN_X or rule == _LOCAL_STEMS):
         among = rates_among_positions(x, float(t[1] - t[0]), names["positions"])
         if isinstance(among, str):
             if strict:

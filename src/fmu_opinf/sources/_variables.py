@@ -681,7 +681,7 @@ _HALVES = "from derivative links, first-order states split in halves [positions;
 #: (``q[*]`` / ``qdot[*]`` / ``qddot[*]`` of fmu-opinf's own exported ROM FMU, ``mass[*].s`` / ``mass[*].v``): a
 #: guess the rate check confirms by the data, as it does the halves (audit 75 F4: the halves split q, qdot, qddot).
 _LOCAL_STEMS = ("guessed: continuous local variables paired by name (a variable and its rates: q, qdot, qddot; s, "
-                "v, a; x, der(x)) (no continuous states declared)")
+                "v, der(v)) (no continuous states declared)")
 #: The rule of positions found by the name ``x[*]`` in a model that declares no states (velocities then derived).
 _PATTERN_X = "pattern x[*] (no continuous states declared)"
 
@@ -1022,26 +1022,29 @@ _RATE_WORDS = {"s": "v", "x": "v", "q": "v", "p": "v", "pos": "vel", "position":
 _LAST_WORD = re.compile(r"([A-Za-z_][A-Za-z_]*)(?=[^A-Za-z_]*$)")
 
 
-def _rate_keys(key: str) -> list[str]:
-    """The name keys (numbers as ``#``) that the rate of the variables of ``key`` may have: ``der(key)``, and its
-    last word with ``dot``, ``_dot``, ``d`` or ``_d`` appended, ``dot`` made ``ddot``, or swapped as in
-    :data:`_RATE_WORDS`."""
+def _rate_keys(key: str, second: bool) -> list[str]:
+    """The name keys (numbers as ``#``) that the rate of the variables of ``key`` may have: its last word with
+    ``dot``, ``_dot``, ``d`` or ``_d`` appended, ``dot`` made ``ddot``, or swapped as in :data:`_RATE_WORDS`; and
+    where ``second`` (the rate of a velocity) ``der(key)``, which a tool names the derivative of any state, a
+    first-order state vector's too, and so is no sign of a velocity."""
     found = _LAST_WORD.search(key)
+    keys = [f"der({key})"] if second else []
     if found is None:
-        return [f"der({key})"]
+        return keys
     word, start, end = found.group(1), found.start(1), found.end(1)
     words = [word + "dot", word + "_dot", word + "d", word + "_d"]
     if word.endswith("dot"):
         words.append(word[:-3] + "ddot")
     if word in _RATE_WORDS:
         words.append(_RATE_WORDS[word])
-    return [f"der({key})"] + [key[:start] + w + key[end:] for w in words]
+    return [key[:start] + w + key[end:] for w in words] + keys
 
 
 def _paired_by_stems(locals_: list[Column]) -> tuple[list[Column], list[Column], list[Column] | None] | None:
     """Positions, velocities (and accelerations) among the continuous locals of a model without declared states
     where their names group them as variables and their rates (:func:`_rate_keys`; the same indices, element by
-    element) and the groups cover every local; None otherwise (a guess: the rate check judges it on the data)."""
+    element) and the groups cover every local; None otherwise.  A guess: the rate check judges it on the data, and
+    also whether positions are the rates of other positions (``x`` / ``xdot`` of a first-order state vector)."""
     groups: dict[str, list[Column]] = {}
     for column in locals_:
         groups.setdefault(re.sub(r"\d+", "#", column.name), []).append(column)
@@ -1049,13 +1052,13 @@ def _paired_by_stems(locals_: list[Column]) -> tuple[list[Column], list[Column],
     def same_indices(a: str, b: str) -> bool:
         return [re.findall(r"\d+", c.name) for c in groups[a]] == [re.findall(r"\d+", c.name) for c in groups[b]]
 
-    rate = {}
-    for key in groups:
-        found = [k for k in _rate_keys(key) if k in groups and k != key and same_indices(key, k)]
-        if found:
-            rate[key] = found[0]
-    positions = [key for key in groups if key in rate and key not in rate.values()]
-    chains = [(p, rate[p], rate.get(rate[p])) for p in positions]
+    def rate_of(key: str, second: bool) -> str | None:
+        found = [k for k in _rate_keys(key, second) if k in groups and k != key and same_indices(key, k)]
+        return found[0] if found else None
+
+    rate = {key: rate_of(key, False) for key in groups}
+    positions = [key for key in groups if rate[key] is not None and key not in rate.values()]
+    chains = [(p, rate[p], rate_of(rate[p], True)) for p in positions]
     if not chains or len({c[2] is None for c in chains}) != 1:
         return None
     covered = [key for chain in chains for key in chain if key is not None]
