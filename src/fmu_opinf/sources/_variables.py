@@ -943,6 +943,11 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         paired = _paired_by_dependencies(model, states)
         if paired is not None:
             return (*paired, _DEPENDENCIES)
+        aliased = _aliased_rates(model, states, elements)
+        if aliased:   # the states are positions whose velocities are no states: halves would pair positions
+            names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
+            raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states "
+                           f"({names}): each derivative is an alias of a variable that is no declared state{aliased}")
         if not _units_contradict_halves(states) and not _dependencies_contradict_halves(model, states):
             return (*_halves(model, states), _HALVES)
         paired = _paired_by_units(model, states)
@@ -957,7 +962,7 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
                        "no derivative is an alias of a state, the model structure declares no dependency pairing "
                        f"them, and they are not positions then velocities; pass --positions and --velocities"
-                       f"{_aliased_rates(model, states, elements) or _patterns_by_units(states)}")
+                       f"{_patterns_by_units(states)}")
     pos = _named(elements, "x[*]")
     if pos:
         return pos, _named(elements, "v[*]"), None, _PATTERN_X
@@ -991,14 +996,15 @@ def _aliased_rates(model: ModelInfo, states: _States, elements: dict[str, Elemen
     for state in states.states:
         der = states.der[state.name]
         same = [e for e in elements.values() if e.name not in (der.name, state.name) and not e.alias
-                and _is_signal(e) and (e.var.vr, e.offset) == (der.var.vr, der.offset) and e.sign == der.sign]
+                and _is_signal(e) and e.var.causality == "local" and (e.var.vr, e.offset) == (der.var.vr, der.offset)
+                and e.sign == der.sign]
         if not same:
             return ""
         pairs.append((state.name, same[0].name, der.name))
     positions = _compact_pattern(model, elements, [p for p, _, _ in pairs])
     velocities = _compact_pattern(model, elements, [v for _, v, _ in pairs])
     shown = ", ".join(f"{d} is an alias of {v}" for _, v, d in pairs[:3]) + (", ..." if len(pairs) > 3 else "")
-    return (f": {shown} (no declared state: its derivative link is missing), so --positions \"{positions}\" "
+    return (f" ({shown}: its own derivative link is missing?); pass --positions \"{positions}\" "
             f"--velocities \"{velocities}\"")
 
 
