@@ -476,18 +476,18 @@ def _partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where
                 f"({_few_pairs(names, positions, velocities)}); pass {options}")
     shown = ", ".join(names[k] for k in left[:6]) + (", ..." if len(left) > 6 else "")
     return (f"cannot tell positions from velocities: {where}; by the data {_few_pairs(names, positions, velocities)}"
-            f", but {shown} pair with none: neither positions nor velocities (an actuator lag, a filter or a controller state?), "
-            "which a reduced model of the mechanical states cannot follow; to record the mechanical states anyway, "
-            f"pass {options}")
+            f", but {shown} pair with none: neither positions nor velocities (an actuator lag, a filter or a "
+            "controller state?), which a reduced model of the mechanical states cannot follow; to record the "
+            f"mechanical states anyway, pass {options}")
 
 
 def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair | str | None:
     """Positions guessed by name (``x[*]`` recorded without velocities, or paired by name with ``xdot[*]``, in a
-    model that declares no states) of which the data make some the rates of others: a :class:`Repair` recording them as positions and velocities (and
-    accelerations) where that pairs them all, as a guessed split in halves is repaired; otherwise the problem
-    naming them; None where no position is another's rate.  Audit 75 F5: an FMI 3 model-exchange FMU whose
-    ``der(x)`` lost its ``derivative=`` was recorded silently with its 6 velocities as positions, and the ROM was
-    24-1000 % off; recorded as the data pair it, it is the exact model's."""
+    model that declares no states) of which the data make some the rates of others: a :class:`Repair` recording
+    them as positions and velocities (accelerations derived) where that pairs them all, as a guessed split in halves
+    is repaired; otherwise the problem naming them; None where no position is another's rate.  Audit 75 F5: an
+    FMI 3 model-exchange FMU whose ``der(x)`` lost its ``derivative=`` was recorded silently with its 6 velocities
+    as positions, and the ROM was 24-1000 % off; recorded as the data pair it, it is the exact model's (1e-9)."""
     if len(names) > _MAX_PAIRED or len(names) < 2 or x.shape[1] < 3:
         return None
     positions, velocities, accelerations, left = _chains(_rates_by_data(x, h), len(names))
