@@ -153,7 +153,8 @@ def _judged(rows: np.ndarray, rule: str, velocities: np.ndarray | None = None) -
     names = [f"x[{i}]" for i in range(1, n + 1)]
     selection = types.SimpleNamespace(how={"positions": rule}, guessed=False, velocities=[], linked=False,
                                       position_derivatives=[None] * n)
-    source = types.SimpleNamespace(selection=selection, n=n, position_names=names, velocity_names=[],
+    rates = [f"xdot[{i}]" for i in range(1, n + 1)] if velocities is not None else []
+    source = types.SimpleNamespace(selection=selection, n=n, position_names=names, velocity_names=rates,
                                    derived={"xdot": velocities is None, "xddot": True}, path="ss.fmu", interface="me")
     run = types.SimpleNamespace(x=rows, xdot=velocities, xddot=None, u=np.zeros((1, rows.shape[1])))
     return judge_run(source, run, DT * np.arange(rows.shape[1]))
