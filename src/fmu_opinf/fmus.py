@@ -34,6 +34,7 @@ from typing import Any
 from xml.sax.saxutils import quoteattr
 
 from ._interrupts import check_interrupt
+from ._stepping import STEPPINGS, stepping_annotation
 from .errors import FMUError
 
 __all__ = [
@@ -192,6 +193,14 @@ class SecondOrderFmuSpec:
         the input and that value.  Default: none.
     input_descriptions : list of str or None, optional
         The ``description`` of each input (None: the default one).
+    input_nominals : list of float, optional
+        The declared ``nominal`` of each input (its typical magnitude: a source FMU's, which the training pulse was
+        sized by), NaN where none; declared on the input variables (an FMI 3 array only where all its elements
+        share one), so that fmu-opinf or a master sizes its inputs like the source's.  Default: none.
+    stepping : {"newmark", "exact"}, default="newmark"
+        How the FMU steps (the kernel's Newmark, or the exact step map of an exported ROM of a continuous-time
+        source), declared in an fmu-opinf vendor annotation (:mod:`fmu_opinf._stepping`) so that ``fit`` picks the
+        integrator that reproduces it.
     initial_dependencies : list of list of int, optional
         The same for the outputs during initialization (``InitialUnknowns``); default none declared.  Declared only
         for an FMU without parameters (FMI also counts the parameters among the knowns at initialization).
@@ -230,6 +239,8 @@ class SecondOrderFmuSpec:
     initial_dependencies: list[list[int]] | None = None
     held_inputs: list[bool] | None = None
     input_descriptions: list[str | None] | None = None
+    input_nominals: list[float] | None = None
+    stepping: str = "newmark"
 
     def __post_init__(self) -> None:
         if self.fmi_version not in _API_SOURCES:
@@ -261,6 +272,9 @@ class SecondOrderFmuSpec:
             self.expose_states = self.n <= EXPOSE_STATES_LIMIT
         if self.step_multiple is not None and not (math.isfinite(self.step_multiple) and self.step_multiple > 0):
             raise FmuBuildError(f"step_multiple {self.step_multiple!r} must be a positive finite number")
+        if self.stepping not in STEPPINGS:
+            raise FmuBuildError(f"stepping {self.stepping!r} is unknown; use one of {', '.join(STEPPINGS)}")
+        self._check_nominals()
         self._check_ports()
         self._check_dependencies()
         self._check_ranges()
@@ -268,6 +282,16 @@ class SecondOrderFmuSpec:
         self._check_units()
         self._check_text()
         self._check_unique_names()
+
+    def _check_nominals(self) -> None:
+        """``input_nominals``: one per input, each a number above 0 or NaN (none declared)."""
+        values = self.input_nominals
+        if values is None:
+            return
+        if len(values) != self.m or not all(isinstance(v, (int, float)) and (math.isnan(v) or 0 < v < math.inf)
+                                            for v in values):
+            raise FmuBuildError(f"input_nominals {values!r} must be {self.m} numbers above 0 (NaN: none), one per "
+                                "input")
 
     def _check_text(self) -> None:
         """Names and the description end up in XML: refuse empty names and characters XML 1.0 cannot hold, not even
@@ -614,6 +638,7 @@ class _Variable:
     type: str = "Float64"
     minimum: float = -math.inf
     maximum: float = math.inf
+    nominal: float = math.nan
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -635,11 +660,12 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     output_display = _display_units(spec, output_units, spec.output_display_units)
     starts = spec.input_starts or [0.0] * spec.m
     described = [text or held for text in spec.input_descriptions or [None] * spec.m]
+    nominals = spec.input_nominals or [math.nan] * spec.m
     rows = [_Variable(name, vr, "input", description=text, start=float(start), unit=unit, display_unit=display,
-                      minimum=low, maximum=high)
-            for name, vr, text, unit, display, start, (low, high) in zip(spec.input_names, refs["u"], described,
-                                                                         input_units, input_display, starts,
-                                                                         _input_bounds(spec))]
+                      minimum=low, maximum=high, nominal=float(nominal))
+            for name, vr, text, unit, display, start, (low, high), nominal in zip(
+                spec.input_names, refs["u"], described, input_units, input_display, starts, _input_bounds(spec),
+                nominals)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
     outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
                for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
@@ -671,6 +697,7 @@ def _grouped(elements: list[_Variable], ports: list[dict[str, Any]] | None) -> l
         # (the bounds are the lead's, which _input_bounds made every element's)
         shared = {key: getattr(lead, key) if all(getattr(e, key) == getattr(lead, key) for e in group) else ""
                   for key in ("unit", "display_unit", "description")}
+        shared["nominal"] = lead.nominal if all(e.nominal == lead.nominal for e in group) else math.nan
         start = None if lead.start is None else (tuple(float(e.start) for e in group) if shape else lead.start)
         out.append(replace(lead, name=port["name"], start=start, shape=shape, type=port["type"], **shared))
     return out
@@ -726,14 +753,19 @@ def _range_attributes(variable: _Variable) -> str:
     return "".join(f' {key}="{float(value)!r}"' for key, value in bounds if math.isfinite(value))
 
 
+def _nominal_attribute(variable: _Variable) -> str:
+    """`` nominal="..."`` of a variable that declares one (a number above 0, written by ``repr``)."""
+    return f' nominal="{float(variable.nominal)!r}"' if 0 < variable.nominal < math.inf else ""
+
+
 def _variable2(variable: _Variable) -> str:
-    unit = _unit_attributes(variable) + _range_attributes(variable)
+    unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
     return f"    <ScalarVariable {variable.attributes()}>\n      <Real{unit}{start}/>\n    </ScalarVariable>\n"
 
 
 def _variable3(variable: _Variable) -> str:
-    unit = _unit_attributes(variable) + _range_attributes(variable)
+    unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
     values = variable.start if isinstance(variable.start, tuple) else (variable.start,)
     start = "" if variable.start is None else f' start="{" ".join(repr(float(v)) for v in values)}"'
     if not variable.shape:
@@ -914,14 +946,9 @@ def _fixed_step3(spec: SecondOrderFmuSpec) -> str:
 
 
 def _vendor_annotations(spec: SecondOrderFmuSpec) -> str:
-    """Tell importers (``fmu_opinf.source``) the constraint kind, which an FMU cannot otherwise express."""
-    if spec.constraint is None:
-        return ""
-    return ("  <VendorAnnotations>\n"
-            '    <Tool name="fmu-opinf">\n'
-            f'      <Constraint constraint="{spec.constraint}"/>\n'
-            "    </Tool>\n"
-            "  </VendorAnnotations>\n")
+    """Tell importers (``fmu_opinf.source``) the constraint kind, which an FMU cannot otherwise express, and how the
+    FMU steps (:mod:`fmu_opinf._stepping`): FMI 2.0's ``VendorAnnotations``."""
+    return stepping_annotation(spec.stepping, spec.fmi_version, spec.constraint)
 
 
 def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
@@ -961,6 +988,7 @@ def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
         f"{outputs}"
         f"{unknowns}"
         "  </ModelStructure>\n"
+        f"{stepping_annotation(spec.stepping, spec.fmi_version, spec.constraint)}"
         "</fmiModelDescription>\n"
     )
 
