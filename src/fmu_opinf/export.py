@@ -22,6 +22,10 @@ refuses another with a log line naming the input and the value (audit 69: they w
 values (snapshots recorded before 2026-12-06) exports without them, with one warning.  Optional extra outputs
 reconstruct chosen full-order positions through the basis (``x_i = x_ref,i + V[i, :] q``; for a ROM in
 modal coordinates ``V[i, :] (W_qq q + W_qv q')``, :attr:`fmu_opinf.rom.SecondOrderROM.coordinates`).
+Each input also declares the source's ``nominal`` where the training recorded one (snapshots ``input_nominal``), so
+that a ROM FMU trained by fmu-opinf gets the source's pulse size (audit 75, F7), and the FMU declares how it steps
+(``newmark``, or ``exact`` for a ROM of a continuous-time source) in an fmu-opinf vendor annotation, which ``fit``
+reads to pick the integrator for a recording of it (:mod:`fmu_opinf._stepping`; audit 75, F1).
 The binary links only libc and libm; the sources stay in the FMU's ``sources/``.
 ``ModelStructure`` declares each output's dependence on the inputs (FMI: an output without ``dependencies`` depends
 on every input, and a master sees algebraic loops that are not there; audit 69): exactly the inputs of its
@@ -485,7 +489,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     ranges = _declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)], input_starts)
     inputs = {"m": m, "input_names": input_names, "input_units": input_units, "input_starts": input_starts,
               "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
-              **_ports(provenance, input_names or [], output_names, names, fmi_version)}
+              "input_nominals": _recorded_input_nominals(provenance, m), **_ports(provenance, input_names or [], output_names, names, fmi_version)}
     held = _held_inputs(provenance, input_names, m)
     if held is not None:
         inputs, feedthrough = _keep_held_inputs(held, inputs, c_matrices, feedthrough, fmi_version)
@@ -511,6 +515,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         unit_definitions=_recorded_unit_definitions(provenance, set(input_units + output_units)),
         output_display_units=_recorded_units(provenance, "output_display_units", p) + [""] * len(names),
         step_multiple=dt if getattr(rom, "integrator", "newmark") == "exact" else None,
+        stepping=getattr(rom, "integrator", "newmark"),
         output_dependencies=dependencies,
         initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
         **inputs,
@@ -619,6 +624,7 @@ def _keep_held_inputs(held: HeldInputs, inputs: dict[str, Any], c_matrices: dict
         "input_units": spread(inputs["input_units"], "", held.units.get),
         "input_display_units": spread(inputs["input_display_units"], "", lambda name: ""),
         "input_ranges": spread(inputs["input_ranges"], (-math.inf, math.inf), lambda n: (held.values[n],) * 2),
+        "input_nominals": spread(inputs["input_nominals"], math.nan, lambda name: math.nan),
         "held_inputs": [name in held.values for name in held.order],
         "input_descriptions": [f"input held at {held.values[name]!r} in training: the ROM is valid at that value "
                                "only and refuses another" if name in held.values else None for name in held.order],
@@ -899,6 +905,20 @@ def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:
     except (TypeError, ValueError):
         return None
     return values if all(math.isfinite(v) for v in values) else None
+
+
+def _recorded_input_nominals(provenance: dict, count: int) -> list[float] | None:
+    """The ``nominal`` the training source declared for each input (snapshots ``input_nominal``), NaN where it
+    declared none, for the FMU to declare: fmu-opinf (or a master) then sizes the ROM FMU's inputs as the source's
+    (audit 75, F7: the ROM FMU was pulsed at 100 where the source declared 1000).  None where no input has one (a
+    ROM fitted before they were recorded).  The provenance is data read from a file: only a number above 0 counts."""
+    snapshots = provenance.get("snapshots")
+    values = snapshots.get("input_nominal") if isinstance(snapshots, dict) else None
+    if not isinstance(values, (list, tuple)) or len(values) != count:
+        return None
+    out = [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf else math.nan
+           for v in values]
+    return out if any(not math.isnan(v) for v in out) else None
 
 
 def _declared_input_ranges(provenance: dict, names: list[str],
