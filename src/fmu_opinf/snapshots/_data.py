@@ -392,24 +392,26 @@ def _check_step(t: Any, dt: Any, what: str) -> None:
 
 
 #: Per-input number attributes and what each entry must be: start values finite, declared bounds any number but
-#: NaN (infinite where the source declares none).
-_PER_INPUT_NUMBERS = {"input_starts": "finite number", "input_min": "number", "input_max": "number"}
+#: NaN (infinite where the source declares none), declared nominals finite and not negative (0 where none).
+_PER_INPUT_NUMBERS = {"input_starts": "finite number", "input_min": "number", "input_max": "number",
+                      "input_nominal": "finite number >= 0"}
 
 
 def _check_per_column(attrs: dict[str, Any], sizes: dict[str, Any], path: Path) -> None:
-    """One name per position, input and output, one finite start value and one declared bound (``input_min``,
-    ``input_max``, not NaN) per input (audit 55: a damaged file's extra output name went unseen and the report
+    """One name per position, input and output, one finite start value, one declared bound (``input_min``,
+    ``input_max``, not NaN) and, where recorded, one declared nominal (``input_nominal``, 0 for none) per input (audit 55: a damaged file's extra output name went unseen and the report
     labelled the outputs wrongly; NaN start values made the exported ROM FMU's inputs start at 0 without a
     word)."""
     for key, size in (("position_names", "n"), ("input_names", "m"), ("output_names", "p"), ("input_starts", "m"),
-                      ("input_min", "m"), ("input_max", "m")):
+                      ("input_min", "m"), ("input_max", "m"), ("input_nominal", "m")):
         values, count = attrs.get(key), sizes.get(size)
         if values is None or count is None:
             continue
         values = list(np.ravel(values)) if isinstance(values, np.ndarray) else values
         wrong = not isinstance(values, (list, tuple)) or len(values) != int(count)
         if not wrong and key in _PER_INPUT_NUMBERS:
-            wrong = not all(_is_number(v, finite=key == "input_starts") for v in values)
+            finite = key in ("input_starts", "input_nominal")
+            wrong = not all(_is_number(v, finite=finite) and (key != "input_nominal" or v >= 0) for v in values)
         if wrong:
             raise FileFormatError(f"{path}: its {key.replace('_', ' ')} do not give one "
                                   f"{_PER_INPUT_NUMBERS.get(key, 'name')} for each of its {count} "

@@ -204,6 +204,7 @@ class Source:
             "output_names": list(self.output_names),
         }
         desc.update(self.declared_input_ranges())
+        desc.update(self.declared_input_nominals())
         desc.update(self.provenance())
         return desc
 
@@ -221,6 +222,24 @@ class Source:
         if not (np.isfinite(low).any() or np.isfinite(high).any()):
             return {}
         return {"input_min": [float(v) for v in low], "input_max": [float(v) for v in high]}
+
+    def declared_input_nominals(self) -> dict[str, list[float]]:
+        """The file attribute ``input_nominal``: each input's declared ``nominal`` (:meth:`input_nominals`), 0 where
+        none is declared; none where no input declares one.
+
+        The fit carries it into the ROM's provenance and the exported ROM FMU declares it, so that the ROM FMU's
+        inputs are sized like the source's (audit 75, F7: the ROM FMU was pulsed at 100, the source at its declared
+        1000).  0 stands for "none" (a nominal is above 0), so the attribute stays a list of plain numbers.
+        """
+        if not self.m:
+            return {}
+        nominals = np.asarray(self.input_nominals(), dtype=float)
+        if nominals.shape != (self.m,):
+            return {}
+        declared = np.isfinite(nominals) & (nominals > 0)
+        if not declared.any():
+            return {}
+        return {"input_nominal": [float(v) if ok else 0.0 for v, ok in zip(nominals, declared)]}
 
     def input_starts(self) -> np.ndarray:
         """Values the inputs hold when not driven (``--input none``): zeros unless the source knows better."""
