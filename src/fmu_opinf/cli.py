@@ -286,6 +286,8 @@ def _run_fit(args: argparse.Namespace) -> None:
           f"{info.get('Mr_eig_min', float('nan')):.3g}, Dr {info.get('Dr_eig_min', float('nan')):.3g}, "
           f"Kr {info.get('Kr_eig_min', float('nan')):.3g}; stable={rom.is_stable(tol=_ROUNDING)}; extra terms "
           f"{', '.join(extra) or 'none'}")
+    if info.get("integrator_choice"):
+        print(info["integrator_choice"])
     if (info.get("least_squares_candidate") or {}).get("chosen"):
         print("kept the model started from the mechanical realization of least squares (modal coordinates): its "
               "training output error was below the SDP model's (fit_info['least_squares_candidate'])")

@@ -1170,7 +1170,10 @@ def _timed_description(side: Any, isolate: bool = True, provenance: dict | None 
     if provenance.get("fmi_interface") == "me":
         return (f"FMU {Path(str(side)).name} integrated by model exchange from Python {where} (per step: input "
                 f"set, {provenance.get('integrator', 'the ODE integrated')}, outputs read)")
-    again = "" if provenance.get("fmu_generation_tool", "fmu-opinf") == "fmu-opinf" else ", input set again"
+    from ._stepping import stepping_of
+
+    tool = provenance.get("fmu_generation_tool", "fmu-opinf")
+    again = ", input set again" if stepping_of(tool, provenance.get("fmu_stepping")) == "continuous" else ""
     return (f"FMU {Path(str(side)).name} stepped through FMI from Python {where} (per step: input set when "
             f"changed, one step{again}, outputs read)")
 

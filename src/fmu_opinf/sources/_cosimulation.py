@@ -25,6 +25,7 @@ from ._base import Source, StepError, check_constraint, inputs_without, nice_flo
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
+from .._stepping import fmu_declared_stepping, stepping_of
 from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_nominal,
                          declared_range, fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter,
                          read_description, real_outputs, start_value, unit_kind)
@@ -577,6 +578,7 @@ class FMUSource(Source):
             "fmu_sha256": self._sha256,
             "fmi_version": self.fmi_version,
             "fmu_generation_tool": self.md.generationTool or "",
+            "fmu_stepping": fmu_declared_stepping(self.path),  # how an fmu-opinf FMU steps (_stepping)
             "fmu_settings": self._settings_provenance(),
             "fmi_interface": self.interface,
             "tolerance": self.tolerance,
@@ -1005,7 +1007,7 @@ class FMUSource(Source):
         # Some generated FMUs update what they publish (e.g. their der(x)) only when an input is set, so after
         # doStep they return the values of the step before (shared/spec/real-fmus.md): set the input in effect
         # again after each step.  fmu-opinf's own FMUs publish at the end of doStep and are spared the call.
-        self._refresh = bool(self.m) and (self.md.generationTool or "") != "fmu-opinf"
+        self._refresh = bool(self.m) and stepping_of(self.md.generationTool or "", "") == "continuous"
         self._Uraw = self._raw_inputs(self._U)
         self._raw = np.zeros(max(self._read.nvalues + self._read.nvalues32, 1))
         self._raw32 = np.zeros(max(self._read.nvalues32, 1), dtype=np.float32)
