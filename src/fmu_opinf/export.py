@@ -489,7 +489,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     ranges = _declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)], input_starts)
     inputs = {"m": m, "input_names": input_names, "input_units": input_units, "input_starts": input_starts,
               "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
-              "input_nominals": _recorded_input_nominals(provenance, m), **_ports(provenance, input_names or [], output_names, names, fmi_version)}
+              "input_nominals": _recorded_input_nominals(provenance, m),
+              **_ports(provenance, input_names or [], output_names, names, fmi_version)}
     held = _held_inputs(provenance, input_names, m)
     if held is not None:
         inputs, feedthrough = _keep_held_inputs(held, inputs, c_matrices, feedthrough, fmi_version)

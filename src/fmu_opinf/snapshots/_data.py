@@ -399,9 +399,9 @@ _PER_INPUT_NUMBERS = {"input_starts": "finite number", "input_min": "number", "i
 
 def _check_per_column(attrs: dict[str, Any], sizes: dict[str, Any], path: Path) -> None:
     """One name per position, input and output, one finite start value, one declared bound (``input_min``,
-    ``input_max``, not NaN) and, where recorded, one declared nominal (``input_nominal``, 0 for none) per input (audit 55: a damaged file's extra output name went unseen and the report
-    labelled the outputs wrongly; NaN start values made the exported ROM FMU's inputs start at 0 without a
-    word)."""
+    ``input_max``, not NaN) and, where recorded, one declared nominal (``input_nominal``, 0 for none) per input
+    (audit 55: a damaged file's extra output name went unseen and the report labelled the outputs wrongly; NaN start
+    values made the exported ROM FMU's inputs start at 0 without a word)."""
     for key, size in (("position_names", "n"), ("input_names", "m"), ("output_names", "p"), ("input_starts", "m"),
                       ("input_min", "m"), ("input_max", "m"), ("input_nominal", "m")):
         values, count = attrs.get(key), sizes.get(size)
