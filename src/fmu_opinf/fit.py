@@ -1313,7 +1313,7 @@ def _integrator_choice(requested: str, attrs: dict) -> str | None:
     summary; None for any other source or a requested integrator): what the FMU declares, or that it declares
     nothing (written before 2026-12-07: an exact-step ROM FMU of then is taken for a Newmark one; audit 75, F1)."""
     stepping = recorded_stepping(attrs)
-    if requested != "auto" or stepping not in ("newmark", "exact", "unknown"):
+    if requested != "auto" or attrs.get("source_kind") != "fmu" or stepping not in ("newmark", "exact", "unknown"):
         return None
     if stepping == "unknown":
         return ("integrator newmark (auto): the training FMU is fmu-opinf's but does not declare how it steps "
