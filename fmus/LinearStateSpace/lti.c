@@ -100,6 +100,7 @@ void ltiReset(LtiInstance *inst) {
 
     inst->phase = PhaseInstantiated;
     inst->completedEventAsked = 0;
+    inst->terminated = 0;
     inst->nq = LTI_NQ_DEFAULT;
     inst->time = 0.0;
     inst->tolerance = DEFAULT_TOLERANCE;
@@ -625,6 +626,21 @@ int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime) {
     if (nextDefined) *nextDefined = pending;
     if (nextTime) *nextTime = pending ? LTI_TIME_EVENT_AT : 0.0;
     return statesChanged;
+}
+
+/* A model that ends its simulation at a time event, as Modelica's `when time >= T then terminate("...")` does: the
+   event iteration at T asks to terminate and logs the model's message; before T the event is announced. */
+int ltiTerminateEvent(LtiInstance *inst, int *nextDefined, double *nextTime) {
+    if (!LTI_ME_TERMINATE) return 0;
+    if (inst->time >= LTI_ME_TERMINATE_AT - 1e-12 * (1.0 + fabs(LTI_ME_TERMINATE_AT))) {
+        ltiLog(inst, LtiDiscard, "logEvents", "terminate() called at t=%g: end of the test track", inst->time);
+        return 1;
+    }
+    if (!*nextDefined || *nextTime > LTI_ME_TERMINATE_AT) {
+        *nextDefined = 1;
+        *nextTime = LTI_ME_TERMINATE_AT;
+    }
+    return 0;
 }
 
 /* End of initialization: the indicator's sign there is the reference of the first crossing. */

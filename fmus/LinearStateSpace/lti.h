@@ -87,6 +87,7 @@ struct LtiInstance {
     int indicatorAbove;  /* LTI_STATE_EVENT: indicator > 0 at the last event (or initialization) */
     double timeCompleted; /* LTI_COMPLETED_GAP: time of the last completed integrator step (or event) */
     int completedEventAsked; /* LTI_COMPLETED_EVENT: the event was asked for */
+    int terminated;      /* LTI_CS_TERMINATE (FMI 2): the model called terminate() in a doStep */
 };
 
 #define PAR_MASS_SCALE 0
@@ -101,8 +102,12 @@ extern const double LTI_CS_FIXED_STEP;  /* > 0: doStep refuses (error) any other
 extern const double LTI_CS_MAX_STEP;    /* > 0: doStep discards a longer communication step */
 extern const int LTI_CS_EARLY_RETURN;   /* 1: fmi3DoStep returns early at LTI_CS_EARLY_RETURN_AT, even unallowed */
 extern const double LTI_CS_EARLY_RETURN_AT;
-extern const int LTI_CS_TERMINATE;      /* 1: fmi3DoStep asks to terminate once its time reaches LTI_CS_TERMINATE_AT */
+extern const int LTI_CS_TERMINATE;      /* 1: fmi3DoStep asks to terminate once its time reaches LTI_CS_TERMINATE_AT;
+                                           fmi2DoStep stops there, returns fmi2Discard and answers fmi2Terminated */
 extern const double LTI_CS_TERMINATE_AT;
+extern const int LTI_ME_TERMINATE;      /* 1: model exchange: a time event at LTI_ME_TERMINATE_AT whose event
+                                           iteration asks to terminate (a Modelica `when time >= T then terminate()`) */
+extern const double LTI_ME_TERMINATE_AT;
 extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
 extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
 extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */
@@ -170,6 +175,8 @@ size_t ltiEventIndicatorCount(void);
 LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double values[], size_t n);
 /* Returns 1 if the continuous states changed (the time event's velocity jump), else 0. */
 int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
+/* LTI_ME_TERMINATE: whether the event iteration at the current time terminates (logged); else announce its event */
+int ltiTerminateEvent(LtiInstance *inst, int *nextDefined, double *nextTime);
 void ltiStartEvents(LtiInstance *inst);
 /* At the end of initialization: the steady start (LTI_STEADY_START), then the event bookkeeping. */
 void ltiExitInitialization(LtiInstance *inst);

@@ -245,7 +245,7 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *info) {
     CHECK(c, "fmi2NewDiscreteStates", PhaseEvent);
     statesChanged = ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
     info->newDiscreteStatesNeeded = fmi2False;
-    info->terminateSimulation = fmi2False;
+    info->terminateSimulation = ltiTerminateEvent(inst, &nextDefined, &nextTime) ? fmi2True : fmi2False;
     info->nominalsOfContinuousStatesChanged = fmi2False;
     info->valuesOfContinuousStatesChanged = statesChanged ? fmi2True : fmi2False;
     info->nextEventTimeDefined = nextDefined ? fmi2True : fmi2False;
@@ -336,8 +336,20 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
                       fmi2Real communicationStepSize, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
+    double end = currentCommunicationPoint + communicationStepSize, slack = 1e-12 * communicationStepSize;
     CHECK(c, "fmi2DoStep", PhaseStep);
     (void)noSetFMUStatePriorToCurrentPoint;
+    if (LTI_CS_TERMINATE && end >= LTI_CS_TERMINATE_AT - slack) {
+        /* the model calls terminate() at LTI_CS_TERMINATE_AT: the step stops there and is discarded (FMI 2.0
+           section 4.2.2); fmi2GetBooleanStatus(fmi2Terminated) says why, fmi2LastSuccessfulTime where */
+        double h = LTI_CS_TERMINATE_AT - currentCommunicationPoint;
+        LtiStatus status = ltiDoStep(inst, currentCommunicationPoint, h > 0.0 ? h : 0.0);
+        if (status > LtiWarning) return finish(inst, status);
+        inst->terminated = 1;
+        ltiLog(inst, LtiDiscard, "logStatusDiscard", "fmi2DoStep: the model called terminate() at t=%g",
+               inst->time);
+        return fmi2Discard;
+    }
     return finish(inst, ltiDoStep(inst, currentCommunicationPoint, communicationStepSize));
 }
 
@@ -363,7 +375,11 @@ fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Int
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    (void)s; (void)value;
+    if (LTI_CS_TERMINATE && s == fmi2Terminated) {   /* (other FMUs refuse the query, as many exporters' do) */
+        CHECK(c, "fmi2GetBooleanStatus", PHASE_ANY);
+        *value = inst->terminated ? fmi2True : fmi2False;
+        return fmi2OK;
+    }
     return unsupported(c, "fmi2GetBooleanStatus");
 }
 

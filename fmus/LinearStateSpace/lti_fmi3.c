@@ -463,12 +463,13 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
                                     fmi3Boolean *valuesOfContinuousStatesChanged,
                                     fmi3Boolean *nextEventTimeDefined,
                                     fmi3Float64 *nextEventTime) {
-    int nextDefined, statesChanged;
+    int nextDefined, statesChanged, terminate;
     double nextTime;
     CHECK(instance, "fmi3UpdateDiscreteStates", PhaseEvent);
     statesChanged = ltiUpdateDiscrete(inst, &nextDefined, &nextTime);
+    terminate = ltiTerminateEvent(inst, &nextDefined, &nextTime);
     if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (terminateSimulation) *terminateSimulation = terminate ? fmi3True : fmi3False;
     if (nominalsOfContinuousStatesChanged) *nominalsOfContinuousStatesChanged = fmi3False;
     if (valuesOfContinuousStatesChanged) *valuesOfContinuousStatesChanged = statesChanged ? fmi3True : fmi3False;
     if (nextEventTimeDefined) *nextEventTimeDefined = nextDefined ? fmi3True : fmi3False;

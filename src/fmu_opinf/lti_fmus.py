@@ -759,6 +759,7 @@ class _Options:
     cs_max_step: float | None = None
     cs_early_return_at: float | None = None
     cs_terminate_at: float | None = None
+    me_terminate_at: float | None = None
     position_limit: tuple[int, float] | None = None
     position_limit_status: str = "error"
     single_precision: bool | str = False
@@ -792,11 +793,11 @@ def _check_options(model, options: _Options) -> None:
         value = getattr(options, name)
         if value is not None and not (np.isfinite(value) and value > 0):
             raise FmuBuildError(f"{name}={value} must be a positive step")
-    for name in ("cs_early_return_at", "cs_terminate_at"):
-        value = getattr(options, name)
-        if value is not None and (options.fmi_version != "3.0" or "cs" not in options.interfaces
-                                  or not np.isfinite(value)):
-            raise FmuBuildError(f"{name} needs FMI 3.0 co-simulation and a finite time; pass fmi_version='3.0'")
+    value = options.cs_early_return_at
+    if value is not None and (options.fmi_version != "3.0" or "cs" not in options.interfaces
+                              or not np.isfinite(value)):
+        raise FmuBuildError(f"cs_early_return_at needs FMI 3.0 co-simulation and a finite time; pass fmi_version='3.0'")
+    _check_termination(options)
     if options.cs_method not in _CS_METHODS:
         raise FmuBuildError(f"cs_method {options.cs_method!r} is unknown; use 'accurate', 'euler' or 'rk4'")
     if options.naming not in ("modelica", "generic", "array"):
@@ -833,6 +834,18 @@ def _check_options(model, options: _Options) -> None:
     if options.steady_state_start and isinstance(model, MassChain):
         raise FmuBuildError("steady_state_start needs a fixed size; pass chain.model() instead of the MassChain "
                             "family")
+
+
+def _check_termination(options: _Options) -> None:
+    """``cs_terminate_at`` needs co-simulation, ``me_terminate_at`` model exchange; both a finite time > 0."""
+    for name, interface in (("cs_terminate_at", "cs"), ("me_terminate_at", "me")):
+        value = getattr(options, name)
+        if value is None:
+            continue
+        if interface not in options.interfaces:
+            raise FmuBuildError(f"{name} needs the interface {interface!r}; add it to interfaces")
+        if not (np.isfinite(value) and value > 0):
+            raise FmuBuildError(f"{name}={value} must be a finite time after the start, e.g. 30.0")
 
 
 def _check_position_limit(model, options: _Options) -> None:
@@ -1518,6 +1531,8 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const double LTI_CS_EARLY_RETURN_AT = {_number(options.cs_early_return_at or 0.0)};\n"
         f"const int LTI_CS_TERMINATE = {int(options.cs_terminate_at is not None)};\n"
         f"const double LTI_CS_TERMINATE_AT = {_number(options.cs_terminate_at or 0.0)};\n"
+        f"const int LTI_ME_TERMINATE = {int(options.me_terminate_at is not None)};\n"
+        f"const double LTI_ME_TERMINATE_AT = {_number(options.me_terminate_at or 0.0)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
         f"const size_t LTI_NQ_DEFAULT = {nq};\n"
@@ -1666,7 +1681,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
-                  position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
+                  me_terminate_at: float | None = None, position_limit: tuple[int, float] | None = None,
+                  position_limit_status: str = "error",
                   single_precision: bool | str = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
@@ -1781,7 +1797,15 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         contains this time stops there and returns ``earlyReturn = true`` with that ``lastSuccessfulTime``, although
         the importer did not allow early return (the FMU declares ``mightReturnEarlyFromDoStep="true"``).
     cs_terminate_at : float, optional
-        FMI 3 co-simulation: ``fmi3DoStep`` sets ``terminateSimulation`` once its time reaches this one.
+        Co-simulation of a model that ends its simulation at this time (a Simulink stop time, a Modelica
+        ``terminate()``): FMI 3 ``fmi3DoStep`` sets ``terminateSimulation`` once its time reaches this one; FMI 2
+        ``fmi2DoStep`` stops there, logs why and returns ``fmi2Discard``, and then
+        ``fmi2GetBooleanStatus(fmi2Terminated)`` answers true and ``fmi2GetRealStatus(fmi2LastSuccessfulTime)`` this
+        time (without the option the FMU refuses ``fmi2GetBooleanStatus``, as many exporters' FMUs do).
+    me_terminate_at : float, optional
+        Model exchange (FMI 2 and 3) of a model that calls ``terminate()`` at a time event, as Modelica's
+        ``when time >= T then terminate("...")``: the event is announced, and its event iteration logs the model's
+        message and sets ``terminateSimulation``.
     position_limit : (int, float), optional
         ``(dof, bound)``: every evaluation of the model asserts ``|x[dof]| <= bound`` (m), as a Modelica ``assert``
         on a variable's range does; beyond it the call returns an error and the instance stays in error (FMI 2.0
@@ -1831,6 +1855,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         cs_max_step=None if cs_max_step is None else float(cs_max_step),
         cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
         cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at),
+        me_terminate_at=None if me_terminate_at is None else float(me_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
         position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
     _check_options(model, options)
