@@ -73,8 +73,9 @@ def _fmi2_callbacks(target: Any) -> Any:
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
            "warn_other_communication_step", "TERMINATED", "terminated_at"]
 
-#: What the error of an FMU that asked to terminate the simulation (FMI 3 ``terminateSimulation``) says; its time
-#: relative to the run's start follows as ``--t-end below T`` (:func:`terminated_at`).
+#: What the error of an FMU that asked to terminate the simulation says (FMI 3 ``terminateSimulation``, FMI 2
+#: ``fmi2Discard`` with ``fmi2Terminated``, a model-exchange ``terminateSimulation``); its time relative to the run's
+#: start follows as ``--t-end below T`` (:func:`terminated_at`).
 TERMINATED = "asked to terminate the simulation"
 
 
@@ -189,6 +190,9 @@ def _give_fixed_step(source: Any, fixed: float, option: str = "--dt") -> str:
 
 #: The status ``fmi2Discard`` / ``fmi3Discard`` (the same value): the FMU could not complete the step.
 DISCARD = 2
+
+#: ``fmi2StatusKind`` values (FMI 2.0 section 4.2.3): where the FMU's last doStep ended, and whether it terminated.
+_FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3
 
 #: The words every failure of a discarded ``doStep`` says (the automatic window's step search looks for them: a
 #: pilot's step that the FMU discards is searched below like one where it overflows, audit 70 finding 9).
@@ -686,6 +690,7 @@ class FMUSource(Source):
         vp, dbl = ctypes.c_void_p, ctypes.c_double
         if self.fmi_version.startswith("2"):
             (self._c_step,) = self._bind(("fmi2DoStep", [vp, dbl, dbl, ctypes.c_int]))
+            self._c_status = self._bind_status()
         else:
             (self._c_step,) = self._bind(("fmi3DoStep", [vp, dbl, dbl, ctypes.c_bool, vp, vp, vp, vp]))
         # fmi3DoStep's out-arguments: eventHandlingNeeded, terminateSimulation, earlyReturn (one byte each), then
@@ -694,6 +699,16 @@ class FMUSource(Source):
         # hasEventMode handles its events inside fmi3DoStep (FMI 3.0, co-simulation without event mode).
         self._flags = np.zeros(2, dtype=np.float64)
         self._returned = memoryview(self._flags).cast("B")   # its bytes, read as ints after each step
+
+    def _bind_status(self) -> list[Any]:
+        """``fmi2GetBooleanStatus`` and ``fmi2GetRealStatus`` (asked only after a discarded step), or an empty list
+        where the binary lacks them (a discard is then read as a step too long)."""
+        vp = ctypes.c_void_p
+        try:
+            return self._bind(("fmi2GetBooleanStatus", [vp, ctypes.c_int, vp]),
+                              ("fmi2GetRealStatus", [vp, ctypes.c_int, vp]))
+        except AttributeError:
+            return []
 
     def _bind(self, *prototypes: tuple[str, list[Any]]) -> list[Any]:
         """Fresh function objects of the binary with the given argument types, returning int."""
@@ -817,6 +832,10 @@ class FMUSource(Source):
         take a step this long, e.g. its embedded solver's maximum step) says so and what to give instead; an
         error or fatal status is the FMU's error (:meth:`_fail_text`)."""
         t, h = self._t, self._h_list[i]
+        ended = self._fmi2_termination() if status == DISCARD else None
+        if ended is not None:
+            return self._fmi2_terminated_line(float(t[i - 1]), float(t[i]), ended)
+        stop = self._past_declared_stop(float(t[i - 1]), float(t[i]))
         if status != DISCARD:
             fixed = fixed_communication_step(self)
             hint = "" if fixed is None or _same_step(h, fixed) else (
@@ -826,21 +845,83 @@ class FMUSource(Source):
                         "declares no DefaultExperiment stepSize: a fixed-step FMU takes only multiples of its "
                         f"internal step (its log may name it); give --dt as such a multiple, e.g. {nice_floor(h):g}, "
                         "and --t-end")
-            return self._fail_text(f"in {what}", i) + hint
+            return self._fail_text(f"in {what}", i) + (stop or hint)
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
         return (f"{self.path.name} {DISCARDED} {h:g} in {what} at step {i} "
-                f"({self._at(t[i - 1])} -> {t[i]:g}{told}){self._discard_fix(h, log)}")
+                f"({self._at(t[i - 1])} -> {t[i]:g}{told}){stop}{self._discard_fix(h, log)}")
+
+    def _past_declared_stop(self, t0: float, t1: float) -> str:
+        """Where a failed step from FMU time ``t0`` to ``t1`` is the one that crosses the FMU's declared
+        ``DefaultExperiment/@stopTime``: that the model may end there and the ``--t-end`` that stays before it
+        (audit 75, F2: a Simulink-style FMU with a compiled-in stop time returned an error there, and the line
+        named no fix); else "".  Only a hint: a declared stopTime is often a tool's default (1 s), which
+        fmu-opinf otherwise ignores, so no run is cut at it without the user's --t-end."""
+        experiment = getattr(self.md, "defaultExperiment", None)
+        try:
+            stop = float(experiment.stopTime)
+        except (AttributeError, TypeError, ValueError):
+            return ""
+        slack = 1e-9 * max(abs(t1), 1.0)
+        if not (math.isfinite(stop) and t0 <= stop + slack < t1):
+            return ""
+        return (f"; the step passes its DefaultExperiment stopTime={stop:g}, where the model may end its "
+                f"simulation: give --t-end at or below {stop - self.start_time:.12g}")
+
+    def _fmi2_termination(self) -> float | None:
+        """After an FMI 2 ``fmi2Discard``: where the FMU ended its simulation, when it says it did
+        (``fmi2GetBooleanStatus(fmi2Terminated)`` true: a Modelica ``terminate()``, a Simulink stop time; FMI 2.0
+        section 4.2.3), from ``fmi2GetRealStatus(fmi2LastSuccessfulTime)`` (NaN where it refuses that); None where
+        it answers false or refuses the query, as many exporters' FMUs do: the discard then stays a step too long.
+        The FMU's last log line is kept (a refused query logs its own)."""
+        if not self.fmi_version.startswith("2") or not getattr(self, "_c_status", None):
+            return None
+        boolean, real = self._c_status
+        kept = list(getattr(self, "_log", []))
+        flag, last = ctypes.c_int(0), ctypes.c_double(math.nan)
+        try:
+            if boolean(self._comp, _FMI2_TERMINATED, ctypes.byref(flag)) > 1 or not flag.value:
+                return None
+            if real(self._comp, _FMI2_LAST_SUCCESSFUL_TIME, ctypes.byref(last)) > 1:
+                return math.nan
+            return float(last.value)
+        finally:
+            self._log = kept
+
+    def _fmi2_terminated_line(self, t0: float, t1: float, ended: float) -> str:
+        """The line for an ``fmi2DoStep`` from FMU time ``t0`` to ``t1`` that the FMU discarded because it ended its
+        simulation at FMU time ``ended`` (NaN: not said; the step's end is taken)."""
+        inside = math.isfinite(ended) and t0 - 1e-9 * max(abs(t0), 1.0) <= ended <= t1
+        at = ended if inside else t1
+        said = f"last successful time {ended:g}" if math.isfinite(ended) else "no last successful time"
+        return self._termination_line(f"in fmi2DoStep at {self._at(t0)} -> {t1:g} (fmi2Discard with "
+                                      f"fmi2Terminated true, {said})", at)
+
+    def _termination_line(self, where: str, at: float) -> str:
+        """The line for an FMU that asked to terminate the simulation at FMU time ``at`` (``where``: in which call,
+        from when): the time, the FMU's last log line, and the end of a run that works, which :func:`terminated_at`
+        reads back (the automatic window then ends before it, compare's default end too)."""
+        log = self._last_log()
+        told = f"; its log: {log}" if log else ""
+        return (f"{self.path.name} {TERMINATED} {where}{told}; end the run before it: --t-end below "
+                f"{at - self.start_time:.12g}")
+
+    def _terminated_at_run_end(self, i: int) -> bool:
+        """Whether the discarded ``fmi2DoStep`` to sample ``i`` is the run's last step and the FMU ended its
+        simulation at its end (or later): its samples are then complete, as a terminating FMI 3 step there is."""
+        t = self._t_list
+        if i != len(t) - 1:
+            return False
+        ended = self._fmi2_termination()
+        return ended is not None and ended >= t[i] - 1e-9 * max(abs(t[i]), 1.0)
 
     def _flag_failure(self, t: float, h: float) -> str:
         """The line for an ``fmi3DoStep`` from FMU time ``t`` over ``h`` that asked to terminate the simulation or
         returned early, which fmu-opinf never allows (it instantiates with earlyReturnAllowed=false)."""
+        if self._returned[1]:
+            return self._termination_line(f"in fmi3DoStep at {self._at(t)} -> {t + h:g}", t + h)
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
-        if self._returned[1]:
-            rel = t + h - self.start_time
-            return (f"{self.path.name} {TERMINATED} in fmi3DoStep at {self._at(t)} -> {t + h:g}{told}; end the run "
-                    f"before it: --t-end below {rel:.12g}")
         last = float(self._flags[1])
         fix = ("drive its model exchange (--interface me)" if offers_model_exchange(self) else
                "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
@@ -901,6 +982,9 @@ class FMUSource(Source):
         status = self._do_step(t, h)
         if self.fmi_version.startswith("3") and (self._returned[1] or self._returned[2]):
             raise StepError(self._flag_failure(t, h), -1, t)
+        ended = self._fmi2_termination() if status == DISCARD else None
+        if ended is not None:
+            raise StepError(self._fmi2_terminated_line(t, t + h, ended), -1, t)
         if status == DISCARD:
             raise StepError(f"{self.path.name} {DISCARDED} {h:g} at {self._at(t)}"
                             f"{self._discard_fix(h)}", -1, t)
@@ -936,9 +1020,10 @@ class FMUSource(Source):
                 if changed[i] and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
                 status = c_step(comp, t[i - 1], h[i], 1)
-                if status > 1:
-                    raise StepError(self._step_failure(status, "fmi2DoStep", i), i, t[i])
-                if refresh and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
+                if status > 1:   # a discard at the run's end by the model's termination keeps the samples
+                    if not (status == DISCARD and self._terminated_at_run_end(i)):
+                        raise StepError(self._step_failure(status, "fmi2DoStep", i), i, t[i])
+                elif refresh and c_set(comp, in_vr, m, ubase + i * ustride) > 1:
                     raise StepError(self._fail_text("setting the input", i), i, t[i])
             if c_get(comp, out_vr, nv, rbase + j * rstride) > 1:
                 raise StepError(self._fail_text("in fmi2GetReal", i), i, t[i])
