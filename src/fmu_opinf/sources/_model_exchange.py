@@ -39,8 +39,12 @@ as a safeguard, re-integrating from the last state before the crossing with the 
 ``1e-12`` of the interval plus a few ulps of t, and the event is handled just after it; a change of
 sign across a communication point (the inputs set there moved an indicator) is an event at that
 point.  A sample at an event time holds the values after the event, like a co-simulation ``doStep``
-that ends there.  A failure in event mode (the FMU asks to terminate, refuses a call, or its event
-iteration does not end) is a step error, like any other failure of a step.
+that ends there.  A failure in event mode (the FMU refuses a call, or its event
+iteration does not end) is a step error, like any other failure of a step.  A model that ends its simulation (it asks
+to terminate in an event iteration or in ``fmiCompletedIntegratorStep``, as Modelica's ``terminate()`` does) ends a
+run at the run's last point with its samples complete; before it, it is a step error that names the time, the FMU's
+log line and ``--t-end below`` it, which the automatic window and compare read like FMI 3 co-simulation's
+``terminateSimulation`` (audit 75, F3).
 FMUs without event indicators and without an announced time event take the plain path: no call more
 per step.  With indicators that never fire, a step of the test FMUs costs 17 us instead of 14 us (26 us
 before the start-of-interval check was limited to steps whose inputs changed; 2026-11-27).
@@ -62,6 +66,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
+import re
 import time
 from collections.abc import Iterator, Sequence
 from typing import Any, Callable
@@ -72,11 +77,16 @@ from .._interrupts import check_interrupt
 from ..errors import FMUError, InputSpecError
 from . import _compiled_rk, _integrators, _linear_hold
 from ._base import EventCount, StepError
-from ._cosimulation import DEFAULT_TOLERANCE, DISCARD, FMUSource
+from ._cosimulation import DEFAULT_TOLERANCE, DISCARD, TERMINATED, FMUSource
 from ._integrators import (_COMPILED_DOP853_TEXT, _IMPLICIT, _INTEGRATOR_TEXT, _INTEGRATORS, _Discarded,
                            _ExactStepRefused, _IntegrationError, _LeftInError)
 
 __all__ = ["ModelExchangeSource", "METHODS"]
+
+
+class _TerminationAsked(FMUError):
+    """The FMU asked to terminate the simulation in an event iteration (a Modelica ``terminate()`` at an event);
+    at initialization it is the error, during a run :meth:`ModelExchangeSource._handle_event` says where."""
 
 #: Integrators of :class:`ModelExchangeSource` (``"auto"`` is the default: ``"linear"`` for a stiff model that
 #: qualifies, else ``"dop853"``).
@@ -737,7 +747,7 @@ class ModelExchangeSource(FMUSource):
             needed, terminate, nominals_changed, _, next_defined, next_time = update()[:6]
             nominals = nominals or bool(nominals_changed)
             if terminate:
-                raise FMUError(f"{self.path.name} asked to terminate the simulation during an event iteration")
+                raise _TerminationAsked(f"{self.path.name} {TERMINATED} during an event iteration")
             if not needed:
                 self._t_next = float(next_time) if next_defined else math.inf
                 return nominals
@@ -860,7 +870,8 @@ class ModelExchangeSource(FMUSource):
                     raise _ReplayWithoutLooks(str(exc)) from None
                 raise StepError(f"{self.path.name}: {exc}", i, t1) from None
             except _IntegrationError as exc:
-                raise StepError(self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
+                raise StepError(self._terminated_inside(str(exc))
+                                or self._integration_failure(i, t0, t1, str(exc)), i, t1) from None
             self._set_states(self._x)
         if self._c_time(self._comp, t) > 1:
             raise StepError(self._integration_failure(i, t0, t1, "fmiSetTime failed"), i, t1)
@@ -1011,9 +1022,25 @@ class ModelExchangeSource(FMUSource):
         address = flags.ctypes.data
         if self._c_completed(self._comp, True, address, address + flags.itemsize) > 1:
             raise StepError(self._integration_failure(i, t1, t1, "fmiCompletedIntegratorStep failed"), i, t1)
-        if flags[1]:
-            raise StepError(f"{self.path.name} asked to terminate the simulation at {self._at(t1)}", i, t1)
-        return bool(flags[0])
+        if flags[1] and not self._at_run_end(i, t1):
+            raise StepError(self._termination_line(f"in fmiCompletedIntegratorStep at {self._at(t1)}", t1), i, t1)
+        return bool(flags[0]) and not flags[1]
+
+    def _terminated_inside(self, reason: str) -> str | None:
+        """The termination line where an integrator's ``reason`` is the FMU asking to terminate in a completed
+        integrator step inside an interval (:func:`._integrators._completed_inside`, the compiled DOP853), else None:
+        a model's end, not an integration failure."""
+        found = re.search(rf"{TERMINATED} in fmiCompletedIntegratorStep at t=([-+0-9.eE]+)", reason)
+        if found is None:
+            return None
+        t = float(found.group(1))
+        return self._termination_line(f"in fmiCompletedIntegratorStep at {self._at(t)}", t)
+
+    def _at_run_end(self, i: int, t: float) -> bool:
+        """Whether FMU time ``t`` of step ``i`` is the run's last sample: a termination asked there ends the run with
+        its samples complete (audit 75, F3: ``--t-end`` at a model's ``terminate()`` time failed)."""
+        times = self._t_list
+        return 0 < i == len(times) - 1 and abs(t - times[i]) <= _time_slack(times[i - 1], times[i])
 
     def _handle_event(self, i: int, t: float, set_inputs: Callable[[], None] | None = None) -> None:
         """Event mode at the FMU's current time ``t`` (of step ``i``): iterate, then read the (possibly changed)
@@ -1033,6 +1060,10 @@ class ModelExchangeSource(FMUSource):
                 set_inputs()
             nominals_changed = self._event_iteration()
             self._fmu.enterContinuousTimeMode()
+        except _TerminationAsked:
+            if self._at_run_end(i, t):   # the samples up to it are complete: the run ends there (in event mode)
+                return
+            raise StepError(self._termination_line(f"in its event iteration at {self._at(t)}", t), i, t) from None
         except FMUError as exc:
             raise StepError(f"{exc} (at {self._at(t)})", i, t) from None
         except FMICallException as exc:  # the FMU refused a call of the event iteration
