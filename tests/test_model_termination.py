@@ -38,11 +38,16 @@ KINDS = {"cs2": (dict(interfaces=("cs",), cs_terminate_at=TERMINATE), "in fmi2Do
          "me2": (dict(interfaces=("me",), me_terminate_at=TERMINATE), "in its event iteration at t=20",
                  "terminate() called at t=20: end of the test track"),
          "me3": (dict(fmi_version="3.0", interfaces=("me",), me_terminate_at=TERMINATE),
-                 "in its event iteration at t=20", "terminate() called at t=20: end of the test track")}
+                 "in its event iteration at t=20", "terminate() called at t=20: end of the test track"),
+         "completed": (dict(interfaces=("me",), completed_step_terminate_at=TERMINATE),
+                       "in fmiCompletedIntegratorStep at t=20", "terminate() called at t=20: the end stop is reached")}
+
+#: A stop checked in completed integrator steps that falls inside a communication interval (not at its end).
+INSIDE = 20.013
 
 #: Bounds of a recording's miss of the exact model, relative to the outputs' range (measured 1.0e-12 for the RK4
 #: substeps of the co-simulation; 2.6e-15 for model exchange at the window's dt 0.02, 4.8e-12 at --dt 0.05).
-RECORDED = {"cs2": 1e-11, "me2": 2e-11, "me3": 2e-11}
+RECORDED = {"cs2": 1e-11, "me2": 2e-11, "me3": 2e-11, "completed": 2e-11}
 
 
 def _chain() -> lti_fmus.LinearMechanicalModel:
@@ -52,12 +57,14 @@ def _chain() -> lti_fmus.LinearMechanicalModel:
 @pytest.fixture(scope="module")
 def fmus(request, tmp_path_factory) -> dict:
     def build(folder, item):
-        name, (options, _, _) = item
+        name, options = item
         built = lti_fmus.build_lti_fmu(_chain(), folder / f"{name}.fmu", identifier=f"Ends_{name}",
                                        stop_time=TERMINATE, **options)
         return name, built.path
 
-    return build_fmu_set(request, tmp_path_factory, "lti-termination", build, KINDS.items())
+    items = [(name, options) for name, (options, _, _) in KINDS.items()]
+    items.append(("inside", dict(interfaces=("me",), completed_step_terminate_at=INSIDE)))
+    return build_fmu_set(request, tmp_path_factory, "lti-termination", build, items)
 
 
 def _miss(run) -> float:
@@ -134,3 +141,20 @@ def test_a_declared_stop_time_crossed_by_a_failed_step_is_named_with_its_t_end(f
         assert "stopTime" not in source._step_failure(3, "fmi2DoStep", crossing - 2)
     finally:
         source.close()
+
+
+def test_a_stop_in_a_completed_step_inside_an_interval_is_the_models_end_not_an_integration_failure(fmus, tmp_path,
+                                                                                                    capsys):
+    """The integrator's own completed step (scipy's or the compiled DOP853 loop) asks to terminate: before, "model-
+    exchange integration failed ... try a looser --tolerance"."""
+    code = main(["snapshots", str(fmus["inside"]), "-o", str(tmp_path / "s.h5"), "-q", "--dt", "0.5",
+                 "--t-end", "50"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code != 0
+    assert "asked to terminate the simulation in fmiCompletedIntegratorStep at t=20.0" in err, err
+    assert "its log: terminate() called at t=20.0" in err and "tolerance" not in err, err
+    below = float(err.split("--t-end below ")[1].split(";")[0])
+    assert INSIDE < below < 20.5, err   # the completed step where it stopped, inside the interval 20 -> 20.5
+    run = Snapshots.load(tmp_path / "s.h5").runs[0]
+    assert not run.complete and run.t[-1] == pytest.approx(20.0, abs=1e-9)
+    assert _miss(run) < 2e-9   # measured 5.7e-10 at --dt 0.5

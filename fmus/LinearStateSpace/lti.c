@@ -643,6 +643,14 @@ int ltiTerminateEvent(LtiInstance *inst, int *nextDefined, double *nextTime) {
     return 0;
 }
 
+/* A model whose stop is checked in its accepted integrator steps: the first completed step at or after
+   LTI_COMPLETED_TERMINATE_AT asks to terminate, wherever the importer's integrator put it. */
+int ltiCompletedTerminate(LtiInstance *inst) {
+    if (!LTI_COMPLETED_TERMINATE || inst->time < LTI_COMPLETED_TERMINATE_AT) return 0;
+    ltiLog(inst, LtiDiscard, "logEvents", "terminate() called at t=%.9g: the end stop is reached", inst->time);
+    return 1;
+}
+
 /* End of initialization: the indicator's sign there is the reference of the first crossing. */
 LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time) {
     if (LTI_COMPLETED_GAP > 0.0 && (inst->phase & PhaseContinuous) &&

@@ -108,6 +108,10 @@ extern const double LTI_CS_TERMINATE_AT;
 extern const int LTI_ME_TERMINATE;      /* 1: model exchange: a time event at LTI_ME_TERMINATE_AT whose event
                                            iteration asks to terminate (a Modelica `when time >= T then terminate()`) */
 extern const double LTI_ME_TERMINATE_AT;
+/* LTI_COMPLETED_TERMINATE 1: model exchange: CompletedIntegratorStep asks to terminate once its time reaches
+   LTI_COMPLETED_TERMINATE_AT (a stop checked in accepted integrator steps) */
+extern const int LTI_COMPLETED_TERMINATE;
+extern const double LTI_COMPLETED_TERMINATE_AT;
 extern const size_t LTI_NQ_DEFAULT, LTI_NQ_MAX, LTI_NX_FIXED, LTI_NU, LTI_NY;
 extern const int LTI_X_FOLLOWS_Q;   /* 1: nx = nq (array family); else nx = LTI_NX_FIXED */
 extern const int LTI_INTERLEAVED;   /* 1: FMI state vector (q1, qd1, q2, qd2, ...) */
@@ -177,6 +181,8 @@ LtiStatus ltiEventIndicators(LtiInstance *inst, const char *function, double val
 int ltiUpdateDiscrete(LtiInstance *inst, int *nextDefined, double *nextTime);
 /* LTI_ME_TERMINATE: whether the event iteration at the current time terminates (logged); else announce its event */
 int ltiTerminateEvent(LtiInstance *inst, int *nextDefined, double *nextTime);
+/* LTI_COMPLETED_TERMINATE: whether the completed integrator step at the current time terminates (logged) */
+int ltiCompletedTerminate(LtiInstance *inst);
 void ltiStartEvents(LtiInstance *inst);
 /* At the end of initialization: the steady start (LTI_STEADY_START), then the event bookkeeping. */
 void ltiExitInitialization(LtiInstance *inst);

@@ -265,7 +265,7 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
     CHECK(c, "fmi2CompletedIntegratorStep", PhaseContinuous);
     (void)noSetFMUStatePriorToCurrentPoint;
     *enterEventMode = ltiCompletedStep(inst) ? fmi2True : fmi2False;
-    *terminateSimulation = fmi2False;
+    *terminateSimulation = ltiCompletedTerminate(inst) ? fmi2True : fmi2False;
     return fmi2OK;
 }
 

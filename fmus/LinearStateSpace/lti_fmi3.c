@@ -490,7 +490,7 @@ fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance,
     CHECK(instance, "fmi3CompletedIntegratorStep", PhaseContinuous);
     (void)noSetFMUStatePriorToCurrentPoint;
     *enterEventMode = ltiCompletedStep(inst) ? fmi3True : fmi3False;
-    *terminateSimulation = fmi3False;
+    *terminateSimulation = ltiCompletedTerminate(inst) ? fmi3True : fmi3False;
     return fmi3OK;
 }
 

@@ -760,13 +760,15 @@ class _Options:
     cs_early_return_at: float | None = None
     cs_terminate_at: float | None = None
     me_terminate_at: float | None = None
+    completed_step_terminate_at: float | None = None
     position_limit: tuple[int, float] | None = None
     position_limit_status: str = "error"
     single_precision: bool | str = False
 
     @property
     def needs_completed_steps(self) -> bool:
-        return self.completed_step_gap is not None or self.completed_step_event_at is not None
+        return (self.completed_step_gap is not None or self.completed_step_event_at is not None
+                or self.completed_step_terminate_at is not None)
 
 
 #: ``LTI_CS_METHOD`` of the C kernel for each ``cs_method``.
@@ -837,8 +839,10 @@ def _check_options(model, options: _Options) -> None:
 
 
 def _check_termination(options: _Options) -> None:
-    """``cs_terminate_at`` needs co-simulation, ``me_terminate_at`` model exchange; both a finite time > 0."""
-    for name, interface in (("cs_terminate_at", "cs"), ("me_terminate_at", "me")):
+    """``cs_terminate_at`` needs co-simulation, ``me_terminate_at`` and ``completed_step_terminate_at`` model
+    exchange; each a finite time > 0."""
+    for name, interface in (("cs_terminate_at", "cs"), ("me_terminate_at", "me"),
+                            ("completed_step_terminate_at", "me")):
         value = getattr(options, name)
         if value is None:
             continue
@@ -1533,6 +1537,8 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const double LTI_CS_TERMINATE_AT = {_number(options.cs_terminate_at or 0.0)};\n"
         f"const int LTI_ME_TERMINATE = {int(options.me_terminate_at is not None)};\n"
         f"const double LTI_ME_TERMINATE_AT = {_number(options.me_terminate_at or 0.0)};\n"
+        f"const int LTI_COMPLETED_TERMINATE = {int(options.completed_step_terminate_at is not None)};\n"
+        f"const double LTI_COMPLETED_TERMINATE_AT = {_number(options.completed_step_terminate_at or 0.0)};\n"
         f"const int LTI_HAS_ME = {int('me' in options.interfaces)};\n"
         f"const int LTI_HAS_CS = {int('cs' in options.interfaces)};\n"
         f"const size_t LTI_NQ_DEFAULT = {nq};\n"
@@ -1681,8 +1687,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   discrete_inputs: Sequence[int] = (), cs_fixed_step: float | None = None,
                   cs_fixed_step_enforced: bool = True, cs_max_step: float | None = None,
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
-                  me_terminate_at: float | None = None, position_limit: tuple[int, float] | None = None,
-                  position_limit_status: str = "error",
+                  me_terminate_at: float | None = None, completed_step_terminate_at: float | None = None,
+                  position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
                   single_precision: bool | str = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
@@ -1806,6 +1812,11 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Model exchange (FMI 2 and 3) of a model that calls ``terminate()`` at a time event, as Modelica's
         ``when time >= T then terminate("...")``: the event is announced, and its event iteration logs the model's
         message and sets ``terminateSimulation``.
+    completed_step_terminate_at : float, optional
+        Model exchange (FMI 2 and 3) of a model whose stop is checked in its accepted integrator steps: it needs
+        ``fmiCompletedIntegratorStep``, and the first completed step at or after this time logs the model's message
+        and sets ``terminateSimulation`` (inside a communication interval, wherever the importer's integrator put
+        that step).
     position_limit : (int, float), optional
         ``(dof, bound)``: every evaluation of the model asserts ``|x[dof]| <= bound`` (m), as a Modelica ``assert``
         on a variable's range does; beyond it the call returns an error and the instance stays in error (FMI 2.0
@@ -1856,6 +1867,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         cs_early_return_at=None if cs_early_return_at is None else float(cs_early_return_at),
         cs_terminate_at=None if cs_terminate_at is None else float(cs_terminate_at),
         me_terminate_at=None if me_terminate_at is None else float(me_terminate_at),
+        completed_step_terminate_at=None if completed_step_terminate_at is None else float(completed_step_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
         position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
     _check_options(model, options)
