@@ -694,14 +694,16 @@ def _past_termination(stopped: Any, t_end: float, end_given: bool,
     """The error of a source run that the FMU ended by terminating the simulation, where the run went to
     compare's default end (``end_from`` says which: four times the training's, an input table's last time, or
     before the termination the training recorded): the fix is compare's ``--t-end`` (audit 70, F5: the source's
-    advice said "record a shorter run")."""
-    from .sources import StepError, terminated_at
+    advice said "record a shorter run").  Likewise a step that failed where it passed the FMU's declared stopTime,
+    whose line names --t-end at or below it (audit 75, F2: a compiled-in stop time failed compare's default end)."""
+    from .sources import StepError, declared_stop_at, terminated_at
 
-    at = terminated_at(str(stopped))
-    if at is None or end_given:
+    at, stop = terminated_at(str(stopped)), declared_stop_at(str(stopped))
+    if end_given or (at is None and stop is None):
         return stopped
-    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {end_from}; give "
-                     f"compare --t-end below {at:g})", stopped.step, stopped.time)
+    fix = f"compare --t-end below {at:g}" if at is not None else f"compare --t-end at or below {stop:g}"
+    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {end_from}; give {fix})",
+                     stopped.step, stopped.time)
 
 
 def _recorded_termination(rom_info: dict[str, Any]) -> float | None:

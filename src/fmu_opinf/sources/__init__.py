@@ -36,8 +36,8 @@ from typing import Any
 from ..errors import InputSpecError
 from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
-from ._cosimulation import (DEFAULT_TOLERANCE, TERMINATED, FMUSource, fixed_communication_step, offers_model_exchange,
-                            terminated_at, warn_other_communication_step)
+from ._cosimulation import (DEFAULT_TOLERANCE, TERMINATED, FMUSource, declared_stop_at, fixed_communication_step,
+                            offers_model_exchange, terminated_at, warn_other_communication_step)
 from ._model_exchange import METHODS, ModelExchangeSource
 from ._resolve import Resolved, resolve_variables
 from ._settings import parse_assignments
@@ -57,6 +57,7 @@ __all__ = [
     "warn_other_communication_step",
     "TERMINATED",
     "terminated_at",
+    "declared_stop_at",
     "METHODS",
     "choose_interface",
     "open_source",

@@ -71,7 +71,7 @@ def _fmi2_callbacks(target: Any) -> Any:
 
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
-           "warn_other_communication_step", "TERMINATED", "terminated_at"]
+           "warn_other_communication_step", "TERMINATED", "terminated_at", "declared_stop_at"]
 
 #: What the error of an FMU that asked to terminate the simulation says (FMI 3 ``terminateSimulation``, FMI 2
 #: ``fmi2Discard`` with ``fmi2Terminated``, a model-exchange ``terminateSimulation``); its time relative to the run's
@@ -86,6 +86,18 @@ def terminated_at(text: str) -> float | None:
     if TERMINATED not in text:
         return None
     found = re.search(r"--t-end below ([-+0-9.eE]+)", text)
+    return float(found.group(1)) if found else None
+
+
+#: What the error of a step that failed where it passed the FMU's declared ``DefaultExperiment/@stopTime`` says
+#: before that time relative to the run's start (:meth:`FMUSource._past_declared_stop`, :func:`declared_stop_at`).
+PAST_STOP_TIME = "where the model may end its simulation: give --t-end at or below "
+
+
+def declared_stop_at(text: str) -> float | None:
+    """The declared stopTime (from the run's start) that the error ``text`` of a run names as the fix (a step that
+    failed where it passed it), or None for any other error (compare then names its own --t-end)."""
+    found = re.search(re.escape(PAST_STOP_TIME) + r"([-+0-9.eE]+)", text)
     return float(found.group(1)) if found else None
 
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
@@ -865,8 +877,7 @@ class FMUSource(Source):
         slack = 1e-9 * max(abs(t1), 1.0)
         if not (math.isfinite(stop) and t0 <= stop + slack < t1):
             return ""
-        return (f"; the step passes its DefaultExperiment stopTime={stop:g}, where the model may end its "
-                f"simulation: give --t-end at or below {stop - self.start_time:.12g}")
+        return f"; the step passes its DefaultExperiment stopTime={stop:g}, {PAST_STOP_TIME}{stop - self.start_time:.12g}"
 
     def _fmi2_termination(self) -> float | None:
         """After an FMI 2 ``fmi2Discard``: where the FMU ended its simulation, when it says it did
