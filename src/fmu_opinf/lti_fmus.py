@@ -798,7 +798,7 @@ def _check_options(model, options: _Options) -> None:
     value = options.cs_early_return_at
     if value is not None and (options.fmi_version != "3.0" or "cs" not in options.interfaces
                               or not np.isfinite(value)):
-        raise FmuBuildError(f"cs_early_return_at needs FMI 3.0 co-simulation and a finite time; pass fmi_version='3.0'")
+        raise FmuBuildError("cs_early_return_at needs FMI 3.0 co-simulation and a finite time; pass fmi_version='3.0'")
     _check_termination(options)
     if options.cs_method not in _CS_METHODS:
         raise FmuBuildError(f"cs_method {options.cs_method!r} is unknown; use 'accurate', 'euler' or 'rk4'")

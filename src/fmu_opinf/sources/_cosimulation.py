@@ -877,7 +877,8 @@ class FMUSource(Source):
         slack = 1e-9 * max(abs(t1), 1.0)
         if not (math.isfinite(stop) and t0 <= stop + slack < t1):
             return ""
-        return f"; the step passes its DefaultExperiment stopTime={stop:g}, {PAST_STOP_TIME}{stop - self.start_time:.12g}"
+        return (f"; the step passes its DefaultExperiment stopTime={stop:g}, "
+                f"{PAST_STOP_TIME}{stop - self.start_time:.12g}")
 
     def _fmi2_termination(self) -> float | None:
         """After an FMI 2 ``fmi2Discard``: where the FMU ended its simulation, when it says it did
