@@ -551,8 +551,30 @@ def test_ctrl_c_during_a_table_s_pilots_leaves_no_file_no_temporary_and_no_proce
     assert at_interrupt == [[]], at_interrupt   # the premise: still in the pilots, no row recorded yet
     assert proc.returncode == 130, err
     assert _not_warnings(err) == ["fmu-opinf: interrupted (Ctrl-C); no output file was written or replaced"], err
-    assert list(out.iterdir()) == []
+    assert not out.exists()   # the folder the command made, still empty, went with it (audit 76 F6)
     assert _left_behind(proc.pid) == []
+
+
+@pytest.mark.parametrize("existed", [False, True], ids=["made-by-the-table", "there-before"])
+def test_a_table_stopped_before_its_first_row_leaves_no_folder_it_made(tmp_path, monkeypatch, existed):
+    """A Ctrl-C (or a failure) before any row is written removes the output folder, and the parents, that the table
+    made, where they are still empty: "no output file was written" leaves nothing behind (audit 76 F6: an empty
+    folder stayed).  A folder that was there before is kept."""
+    from fmu_opinf import runs
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runs, "record_row", interrupted)
+    base = tmp_path / "results"
+    out = base / "nested" / "set"
+    if existed:
+        out.mkdir(parents=True)
+    table = [runs.RunRow(1, "a", "impulse:amplitude=100,t0=2,width=0.5")]
+    with pytest.raises(KeyboardInterrupt):
+        runs.record_runs(SOURCE, table, out, dt=0.1, t_end=1.0, quiet=True, g=4)
+    assert out.is_dir() == existed
+    assert base.exists() == existed
 
 
 def test_a_row_recorded_again_removes_the_temporaries_an_earlier_attempt_left(tmp_path):

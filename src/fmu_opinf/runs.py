@@ -804,49 +804,53 @@ def record_runs(
     rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)
     source_options = {k: v for k, v in source_options.items() if v is not None}
     validate_rows(rows, source_spec, source_options)
-    out_dir = _output_directory(output)
-    source_spec = _shared_spec(source_spec)
-    settings = {k: v for k, v in {"dt": _as_float(dt), "t_end": _as_float(t_end),
-                                  "auto_window": auto_window or None}.items() if v is not None}
-    from .snapshots._record import is_free_response
+    out_dir, made = _output_directory(output)
+    try:
+        source_spec = _shared_spec(source_spec)
+        settings = {k: v for k, v in {"dt": _as_float(dt), "t_end": _as_float(t_end),
+                                      "auto_window": auto_window or None}.items() if v is not None}
+        from .snapshots._record import is_free_response
 
-    forced = any(not is_free_response(row.input) for row in rows)
+        forced = any(not is_free_response(row.input) for row in rows)
 
-    def row_settings(row: RunRow) -> dict[str, Any]:
-        """A free-response row beside forced ones keeps the force inputs, held (only its own stamp changes)."""
-        return {**settings, "keep_inputs": True} if forced and is_free_response(row.input) else settings
+        def row_settings(row: RunRow) -> dict[str, Any]:
+            """A free-response row beside forced ones keeps the force inputs, held (only its own stamp changes)."""
+            return {**settings, "keep_inputs": True} if forced and is_free_response(row.input) else settings
 
-    show = progress or _progress_printer(quiet)
-    started = time.perf_counter()
-    outputs = {path: path for row in rows for path in (out_dir / f"{row.name}.h5", out_dir / f"{row.name}"
-                                                       f"{INCOMPLETE_SUFFIX}")}
-    shared = dt is None and len(rows) > 1   # rows at their own automatic steps would not fit together (audit 72)
+        show = progress or _progress_printer(quiet)
+        started = time.perf_counter()
+        outputs = {path: path for row in rows for path in (out_dir / f"{row.name}.h5", out_dir / f"{row.name}"
+                                                           f"{INCOMPLETE_SUFFIX}")}
+        shared = dt is None and len(rows) > 1   # rows at their own automatic steps would not fit together (audit 72)
 
-    def windows(map_rows: Callable[[list[RunRow], Callable, Callable], list]) -> dict[int, dict[str, Any]]:
-        if not shared:
-            return {row.number: row_settings(row) for row in rows}
-        found = {row.number: _recorded_window(source_spec, row, row_settings(row), source_options, out_dir)
-                 for row in rows}
-        missing = [row for row in rows if found[row.number] is None]   # rows done already: no pilots again
-        if missing:
-            found.update(zip([row.number for row in missing], map_rows(
-                missing, row_window, lambda row: (source_spec, row, row_settings(row), source_options, isolate))))
-        return _at_one_step(rows, [row_settings(row) for row in rows], [found[row.number] for row in rows], quiet)
+        def windows(map_rows: Callable[[list[RunRow], Callable, Callable], list]) -> dict[int, dict[str, Any]]:
+            if not shared:
+                return {row.number: row_settings(row) for row in rows}
+            found = {row.number: _recorded_window(source_spec, row, row_settings(row), source_options, out_dir)
+                     for row in rows}
+            missing = [row for row in rows if found[row.number] is None]   # rows done already: no pilots again
+            if missing:
+                found.update(zip([row.number for row in missing], map_rows(
+                    missing, row_window, lambda row: (source_spec, row, row_settings(row), source_options, isolate))))
+            return _at_one_step(rows, [row_settings(row) for row in rows], [found[row.number] for row in rows], quiet)
 
-    with _written_named_on_interrupt(outputs):
-        if scheduler is None:
-            chosen = windows(lambda some, function, arguments: [function(*arguments(row)) for row in some])
-            outcomes = []
-            for i, row in enumerate(rows):
-                outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate))
-                show(outcomes[-1], i + 1, len(rows))
-        else:
-            with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
-                chosen = windows(lambda some, function, arguments: _gather_rows(client, function, some, arguments))
-                outcomes = _map_rows(client, record_row, rows, show,
-                                     lambda row: (source_spec, row, str(out_dir), chosen[row.number],
-                                                  source_options, isolate))
-    return RunTableReport(outcomes, time.perf_counter() - started)
+        with _written_named_on_interrupt(outputs):
+            if scheduler is None:
+                chosen = windows(lambda some, function, arguments: [function(*arguments(row)) for row in some])
+                outcomes = []
+                for i, row in enumerate(rows):
+                    outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate))
+                    show(outcomes[-1], i + 1, len(rows))
+            else:
+                with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
+                    chosen = windows(lambda some, function, arguments: _gather_rows(client, function, some, arguments))
+                    outcomes = _map_rows(client, record_row, rows, show,
+                                         lambda row: (source_spec, row, str(out_dir), chosen[row.number],
+                                                      source_options, isolate))
+        return RunTableReport(outcomes, time.perf_counter() - started)
+    except BaseException:   # failed or interrupted: a folder this call made and left empty goes again
+        _remove_empty_folders(made)
+        raise
 
 
 def row_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_options: dict[str, Any],
@@ -1005,13 +1009,27 @@ def _shared_spec(source_spec: Any) -> str:
     return text if text.startswith("builtin:") else str(Path(text).resolve())
 
 
-def _output_directory(output: str | os.PathLike) -> Path:
+def _output_directory(output: str | os.PathLike) -> tuple[Path, list[Path]]:
+    """The run table's output folder, made where missing, and the folders this call made (deepest first), which
+    :func:`_remove_empty_folders` takes back if the table fails or is interrupted before writing into them."""
     out_dir = Path(output).resolve()
     if out_dir.suffix.lower() in (".h5", ".hdf5") or (out_dir.exists() and not out_dir.is_dir()):
         raise InputSpecError(f"-o {output}: a run table writes one file per run into a directory; give a "
                              "directory (fit reads it as one data set)")
+    made = [folder for folder in (out_dir, *out_dir.parents) if not folder.exists()]
     out_dir.mkdir(parents=True, exist_ok=True)
-    return out_dir
+    return out_dir, made
+
+
+def _remove_empty_folders(made: list[Path]) -> None:
+    """Remove the folders of ``made`` (deepest first) that are still empty: a table stopped before its first row
+    leaves no trace but what it says it wrote (audit 76, F6: an empty folder stayed after "no output file was
+    written")."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:   # not empty (a row was written, or someone else's file): kept, and so are its parents
+            return
 
 
 def _map_rows(client: Any, function: Callable, rows: Sequence[RunRow], show: Callable,
@@ -1141,38 +1159,42 @@ def compare_runs(
     table_inputs = source_input_names(source_spec, source_options)
     rom_inputs = _rom_side_info(_load_rom_side(rom))["input_names"]
     rows = [in_rom_order(row, table_inputs, rom_inputs) for row in rows]
-    out_dir = _output_directory(output)
-    rom, source_spec = str(Path(rom).resolve()), _shared_spec(source_spec)
-    metrics: dict[int, dict[str, Any]] = {}
+    out_dir, made = _output_directory(output)
+    try:
+        rom, source_spec = str(Path(rom).resolve()), _shared_spec(source_spec)
+        metrics: dict[int, dict[str, Any]] = {}
 
-    def task(row: RunRow) -> tuple:
-        return rom, source_spec, row, str(out_dir), dt, t_end, source_options
+        def task(row: RunRow) -> tuple:
+            return rom, source_spec, row, str(out_dir), dt, t_end, source_options
 
-    def unpack(pair: Any) -> RunOutcome:
-        outcome, values = pair
-        if values is not None:
-            metrics[outcome.number] = values
-        return outcome
+        def unpack(pair: Any) -> RunOutcome:
+            outcome, values = pair
+            if values is not None:
+                metrics[outcome.number] = values
+            return outcome
 
-    show = _progress_printer(quiet)
-    started = time.perf_counter()
-    if scheduler is None:
-        outcomes = []
-        for i, row in enumerate(rows):
-            outcomes.append(unpack(compare_row(*task(row))))
-            show(outcomes[-1], i + 1, len(rows))
-    else:
-        isolate = bool(source_options.get("isolate", True)) and _is_fmu(source_spec)
-        reports = {out_dir / row.name: out_dir / row.name / "index.html" for row in rows}
-        with _written_named_on_interrupt(reports), dask_client(scheduler, isolate=isolate) as client:
-            pairs = _map_rows(client, compare_row, rows, lambda *a: None, task)
-        outcomes = []
-        for i, pair in enumerate(pairs):
-            outcomes.append(unpack(pair) if isinstance(pair, tuple) else pair)
-            show(outcomes[-1], i + 1, len(rows))
-    table = summary_table([(row.name, metrics[row.number]) for row in rows if row.number in metrics])
-    _write_summary(out_dir, rows, outcomes, table)
-    return RunTableReport(outcomes, time.perf_counter() - started), table
+        show = _progress_printer(quiet)
+        started = time.perf_counter()
+        if scheduler is None:
+            outcomes = []
+            for i, row in enumerate(rows):
+                outcomes.append(unpack(compare_row(*task(row))))
+                show(outcomes[-1], i + 1, len(rows))
+        else:
+            isolate = bool(source_options.get("isolate", True)) and _is_fmu(source_spec)
+            reports = {out_dir / row.name: out_dir / row.name / "index.html" for row in rows}
+            with _written_named_on_interrupt(reports), dask_client(scheduler, isolate=isolate) as client:
+                pairs = _map_rows(client, compare_row, rows, lambda *a: None, task)
+            outcomes = []
+            for i, pair in enumerate(pairs):
+                outcomes.append(unpack(pair) if isinstance(pair, tuple) else pair)
+                show(outcomes[-1], i + 1, len(rows))
+        table = summary_table([(row.name, metrics[row.number]) for row in rows if row.number in metrics])
+        _write_summary(out_dir, rows, outcomes, table)
+        return RunTableReport(outcomes, time.perf_counter() - started), table
+    except BaseException:   # failed or interrupted: a folder this call made and left empty goes again
+        _remove_empty_folders(made)
+        raise
 
 
 def _write_summary(out_dir: Path, rows: Sequence[RunRow], outcomes: Sequence[RunOutcome], table: str) -> None:
