@@ -66,6 +66,26 @@ def test_an_exported_rom_fmu_declares_how_it_steps(integrator, version, tmp_path
     assert declared_stepping(root) == integrator
 
 
+@pytest.mark.parametrize("integrator", ["newmark", "exact"])
+def test_a_rom_fmu_written_before_the_annotation_is_read_by_its_description(integrator, tmp_path):
+    """A ROM FMU exported before 2026-12-07 has no annotation; its description names its integrator ("(r=2,
+    positions basis, exact integrator) learned by operator inference"), which is read instead (audit 76 F4: an old
+    exact ROM FMU was fitted with Newmark, 1e-5 of range off).  The same text in another tool's FMU, or another
+    text in an fmu-opinf FMU, declares nothing."""
+    from fmu_opinf._stepping import declared_stepping
+
+    root = _description(rom_fmu_spec(_rom(integrator), "Old", fmi_version="2.0"), tmp_path)
+    for annotations in list(root.iter("VendorAnnotations")):
+        root.remove(annotations)
+    assert "integrator) learned by operator inference" in root.get("description")
+    assert declared_stepping(root) == integrator
+    root.set("generationTool", "OtherTool 1.0")
+    assert declared_stepping(root) == ""
+    root.set("generationTool", "fmu-opinf")
+    root.set("description", "A model with an exact integrator")
+    assert declared_stepping(root) == ""
+
+
 def test_a_benchmark_fmu_declares_newmark_and_keeps_its_constraint_kind(tmp_path):
     """The benchmark FMUs step by the Newmark kernel: they say so on the element that declares their constraint
     kind, which the recorder still reads."""

@@ -16,14 +16,16 @@ Since 2026-12-07 the FMUs fmu-opinf writes declare how they step in a vendor ann
 (one element: FMI 2.0's schema allows one element in a ``Tool``; a benchmark FMU's constraint kind is another
 attribute of it, ``constraint="position|velocity"``, which :func:`fmu_opinf.sources.annotated_constraint` reads
 from any element there)
-and a recording keeps the declaration in its provenance (``fmu_stepping``).  An fmu-opinf FMU written before
-declares nothing: it is taken for a Newmark FMU, the rule before the declaration (right for the benchmark FMUs and
-Newmark ROM FMUs, not for an older exact ROM FMU, which the fit then says it cannot tell).
+and a recording keeps the declaration in its provenance (``fmu_stepping``).  A ROM FMU exported before says its
+integrator in its description (``... (r=6, positions basis, exact integrator) learned by operator inference from
+...``), which is read instead.  Any other fmu-opinf FMU written before declares nothing: it is taken for a Newmark
+FMU, the rule before the declaration (right for the benchmark FMUs), and the fit says it cannot tell.
 """
 
 from __future__ import annotations
 
 import functools
+import re
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -71,14 +73,31 @@ def recorded_stepping(provenance: dict[str, Any]) -> str:
 
 def declared_stepping(root: ET.Element) -> str:
     """The stepping an fmu-opinf vendor annotation of a model description declares, ``""`` if none (module
-    docstring); an unknown value counts as none."""
+    docstring); an unknown value counts as none.  A ROM FMU exported before the annotation says its integrator in
+    its description, which is read instead (:func:`_described_stepping`)."""
     for element in list(root.iter("Tool")) + list(root.iter("Annotation")):
         if TOOL not in (element.get("name"), element.get("type")):
             continue
         for child in element.iter():
             if child.get("stepping") in STEPPINGS:
                 return str(child.get("stepping"))
-    return ""
+    return _described_stepping(root)
+
+
+#: The start of the description ``fmu-opinf export`` gives a ROM FMU since 2026-11-26 (:func:`fmu_opinf.export`'s
+#: ``_description``): ``Reduced second-order model (r=6, positions basis, exact integrator) learned by ...``.
+_ROM_DESCRIPTION = re.compile(r"Reduced second-order model \(r=\d+, \w+ basis, (newmark|exact) integrator\) learned "
+                              r"by operator inference from ")
+
+
+def _described_stepping(root: ET.Element) -> str:
+    """The integrator an fmu-opinf ROM FMU written before the stepping annotation names in its description
+    (audit 76 F4: an exact ROM FMU of then was fitted with Newmark, 1e-5 of range off, while its description said
+    "exact integrator"); ``""`` for any other FMU.  Only one of :data:`STEPPINGS` is ever taken from the text."""
+    if root.get("generationTool") != TOOL:
+        return ""
+    found = _ROM_DESCRIPTION.match(root.get("description") or "")
+    return found.group(1) if found else ""
 
 
 def fmu_declared_stepping(path: str | Path) -> str:
