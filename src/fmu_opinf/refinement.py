@@ -460,9 +460,12 @@ def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int,
         def fun(p: np.ndarray) -> tuple[float, np.ndarray]:
             return tuple(v / value0 for v in problem.loss(p, r, m))
 
+    rejected = [0]
     with stop.bar:
-        result = minimize_lbfgs(fun, start, max_iterations=max_iterations, memory=100, ftol=1e-13, gtol=1e-12,
-                                callback=stop)
+        result = minimize_lbfgs(_finite_or_rejected(fun, rejected), start, max_iterations=max_iterations,
+                                memory=100, ftol=1e-13, gtol=1e-12, callback=stop)
+    if rejected[0]:
+        report["non_finite_trials"] = rejected[0]
     if problem.free_output_map:
         problem.loss(result.x, r, m)  # leaves problem.C at the map of the final iterate
     status = ("screened out" if stop.screened else "stagnated" if stop.stopped else "converged" if result.success
@@ -475,6 +478,35 @@ def _run_lbfgs(problem: _Trajectories, start: np.ndarray, value0: float, r: int,
     report.update(objective=objective, iterations=int(result.nit), evaluations=int(result.nfev),
                   status=status, history=np.asarray(history) * value0)
     return result.x
+
+
+#: What a trial point whose step map overflows raises on its way through the matrix exponential, its Frechet
+#: derivative or a solve (scipy refuses non-finite arrays with a ValueError naming "infs or NaNs"; a singular
+#: mass factor makes a solve raise LinAlgError).
+_NON_FINITE_ERRORS = (ValueError, FloatingPointError, np.linalg.LinAlgError)
+
+
+def _finite_or_rejected(fun: Callable[[np.ndarray], tuple[float, np.ndarray]],
+                        rejected: list[int]) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:
+    """``fun`` with a trial point whose objective or gradient is not finite turned into ``(inf, 0)``, counted in
+    ``rejected[0]``: the line search of :func:`fmu_opinf._lbfgs.minimize_lbfgs` takes an infinite value as no
+    decrease and shrinks the step, so L-BFGS only ever moves to finite points and ends at the best one it reached.
+    Audit 76 F1: on a first-order state vector recorded as 12 positions, a trial step of the order search's r = 12
+    fit overflowed the exact step's exponential and ``fit`` died in scipy's ``expm_frechet`` with a traceback."""
+    def guarded(p: np.ndarray) -> tuple[float, np.ndarray]:
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+                value, grad = fun(p)
+        except _NON_FINITE_ERRORS as error:
+            if isinstance(error, ValueError) and "inf" not in str(error).lower():
+                raise  # a wrong setting (gradient='modal' on a step map it cannot decompose), not an overflow
+            value, grad = np.inf, None
+        if grad is None or not np.isfinite(value) or not np.all(np.isfinite(grad)):
+            rejected[0] += 1
+            return float("inf"), np.zeros_like(p)
+        return value, grad
+
+    return guarded
 
 
 class _Stagnation:
@@ -670,11 +702,14 @@ def refine_output_error(
     cols = np.ones((3, r)) if columns is None else columns
     start = np.concatenate([(_psd_factor(A * s) / c).ravel() for A, s, c in zip((Mr, Dr, Kr), scales[:3], cols)]
                            + [(Br * scales[3]).ravel()])
-    value0 = problem.loss(start, r, m)[0]
+    start_rejected = [0]
+    value0 = _finite_or_rejected(lambda p: problem.loss(p, r, m), start_rejected)(start)[0]
     report = {"objective_start": value0, "objective": value0, "iterations": 0, "evaluations": 1,
               "status": "exact start", "coordinates": "modal" if whiten else "given",
               "output_map": "refitted" if refit_output_map else "fixed"}
-    if value0 > REPRODUCED:
+    if start_rejected[0]:   # the start itself overflows: nothing to refine from
+        report.update(status="kept start", non_finite_trials=1)
+    elif value0 > REPRODUCED:
         screened = None if screen is None else (tuple(int(i) for i in screen[0]),
                                                 _operator_test(screen[1], r, m, cols, scales, T_inv))
         with _helper_thread(spare_core) as problem.helper:
@@ -827,11 +862,11 @@ def output_errors(
     cuts = np.cumsum([0] + _run_lengths(run_lengths, k, dt))
     y = np.atleast_2d(y)
     C = np.hstack(output_map)
-    step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
     norms = np.array([float(np.dot(row, row)) for row in y])
     squared, variation = np.zeros((len(cuts) - 1, y.shape[0])), np.zeros((len(cuts) - 1, y.shape[0]))
     free, free_run = np.full(y.shape[0], np.nan), np.full(y.shape[0], -1)
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):   # an overflowing model is judged inf, said by its figure
+        step = _step(integrator)(Mr, Dr, Kr, Br, float(dt))
         for run, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
             z = propagate(step.Ad, step.Bd @ u[:, a:b], np.concatenate([x_r[:, a], xdot_r[:, a]]), _STRIDE)
             squared[run], variation[run] = _run_squares(C, z, y[:, a:b])
