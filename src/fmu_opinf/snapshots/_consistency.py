@@ -31,6 +31,7 @@ import numpy as np
 
 from ..errors import FMUError, FmuOpinfWarning
 from ..sources._variables import _DEPENDENCIES, _LOCAL_STEMS, _PATTERN_X
+from ._first_order import refuse_first_order_rates
 from ._isolation import source_label
 
 __all__ = ["MAX_REPAIRS", "STALE_REASON", "RateSums", "Repair", "check_rates", "confirmed_stale", "evaluation_sample",
@@ -639,6 +640,10 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
                           np.asarray(run.u[:, window]), sums, declared=structure)
     if isinstance(verdict, Repair) and verdict.reason == STALE_REASON and evaluate is not None:
         verdict = confirmed_stale(verdict, a, np.asarray(run.u[:, window]), t, lambda i: evaluate(rows, i))
+    repaired = repairs or str(selection.how.get("positions", "")).startswith("rate check on the data")
+    if verdict is None and strict and v is not None and (guessed or repaired):   # audit 76 F3: pdot of a pressure
+        refuse_first_order_rates(source_label(source), x, v, np.asarray(run.u[:, window]), names,
+                                 "paired by the data" if repaired else "paired by a guess")
     if verdict is None:
         if strict and getattr(source, "interface", None) == "cs":
             if v is not None:
