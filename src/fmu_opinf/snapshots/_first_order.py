@@ -107,9 +107,11 @@ def first_order_problem(rows: list[int], names: dict[str, list[str]], how: str) 
     states = ", ".join(positions[i] for i in rows[:6]) + (", ..." if len(rows) > 6 else "")
     verb = "is" if len(rows) == 1 else "are"
     kept = [i for i in range(len(positions)) if i not in set(rows)]
+    every = f'--positions "{",".join(positions)}" --velocities "{",".join(velocities)}"'
     advice = (f'to record the mechanical states, pass --positions "{",".join(positions[i] for i in kept)}" '
-              f'--velocities "{",".join(velocities[i] for i in kept)}"' if kept else
-              "pass --positions/--velocities naming the mechanical states")
+              f'--velocities "{",".join(velocities[i] for i in kept)}" (the ROM then lacks {states}\'s lag where it '
+              f"drives the masses); to keep {states} as a coordinate, approximated by a stiff mass, pass {every}"
+              if kept else "pass --positions/--velocities naming the mechanical states")
     return (f"{shown} (a mass's velocity is not: it carries the history of the forces): {states} {verb} a "
             "first-order state, neither positions nor velocities (an actuator lag, a filter or a controller state?), "
             f"which a reduced model of the mechanical states cannot follow; {advice} (a mass so damped that its "
