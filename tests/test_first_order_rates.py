@@ -93,7 +93,7 @@ def test_a_pressure_paired_by_name_with_its_rate_is_refused_naming_the_mechanica
     assert "p is a first-order state, neither positions nor velocities (an actuator lag" in message, message
     assert '--positions "q[1],q[2]" --velocities "qdot[1],qdot[2]" (the ROM then lacks p\'s lag' in message, message
     assert 'to keep p as a coordinate, approximated by a stiff mass, pass --positions "q[1],q[2],p" --velocities ' \
-           '"qdot[1],qdot[2],pdot"' in message, message   # audit 76 pres.fmu: masses alone 41-70 % off, with p 0.5-1.4 %
+           '"qdot[1],qdot[2],pdot"' in message, message   # audit 76 pres.fmu: masses alone 41-70 % off; with p 1.4 %
 
 
 def test_a_pairing_the_data_made_is_refused_the_same_way():

@@ -26,7 +26,11 @@ from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.fit import fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run, Snapshots
-from fmu_opinf.snapshots._rates import inputs_in_effect, newmark_velocities_and_accelerations, time_grid
+from fmu_opinf.snapshots._rates import (
+    inputs_in_effect,
+    newmark_velocities_and_accelerations,
+    time_grid,
+)
 
 DT = 0.05
 OVERFLOW = "array must not contain infs or NaNs"   # scipy's message for a non-finite matrix
@@ -70,8 +74,9 @@ def _refine(model: lti_fmus.LinearMechanicalModel, data: tuple[np.ndarray, ...],
 
 
 def test_overflowing_trial_steps_are_rejected_and_the_refinement_goes_on(monkeypatch):
-    """Two trial steps that overflow (evaluations 3 and 4: the first line search; 1 and 2 are the start) are rejected, counted, and the
-    refinement goes on from the finite start to the exact model's outputs; old code: the ValueError escaped."""
+    """Two trial steps that overflow (evaluations 3 and 4: the first line search; 1 and 2 are the start) are
+    rejected, counted, and the refinement goes on from the finite start to the exact model's outputs; old code:
+    the ValueError escaped."""
     model, data = _chain_data()
     _overflow_on_calls(monkeypatch, {3, 4})
     _, operators, report, recomputed = _refine(model, data)
@@ -96,7 +101,7 @@ def test_a_refinement_whose_every_trial_overflows_keeps_its_start(monkeypatch):
 def test_fit_says_in_its_stage_line_that_trial_steps_overflowed(monkeypatch, capsys):
     """``fit`` ends normally and its refinement line names the rejected trial steps (one line); the refinement
     still reaches the exact model's outputs (noisy accelerations make the SDP start 5.6e-2 off)."""
-    model, (v, x, u, y, a) = _chain_data()
+    _, (v, x, u, y, a) = _chain_data()
     t = time_grid(DT, 40.0)
     noisy = a + 0.05 * np.abs(a).max() * np.random.default_rng(0).standard_normal(a.shape)
     _overflow_on_calls(monkeypatch, {3})
@@ -147,7 +152,7 @@ def test_no_refine_warns_where_the_sdp_solution_misses_its_training_outputs_gros
 
 def test_no_refine_stays_quiet_on_a_mechanical_recording():
     """The same bar does not fire on exact data of a mechanical model fitted at its full order without refinement."""
-    model, (v, x, u, y, a) = _chain_data()
+    _, (v, x, u, y, a) = _chain_data()
     with warnings.catch_warnings():
         warnings.simplefilter("error", FmuOpinfWarning)
         fit_rom(Snapshots([Run(time_grid(DT, 40.0), u, x, v, a, y)], {"dt": DT}), r=3, refine=False, quiet=True)
