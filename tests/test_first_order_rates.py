@@ -174,3 +174,20 @@ def test_a_free_response_from_a_start_displacement_is_not_judged():
     model = lti_fmus.chain_model(5, inputs=(0,), x0=[0, 0, 0, 0, 0.05])
     x, v, u = _mechanical(model.M, model.D, model.K, model.B, "none", np.asarray(model.x0))
     assert np.ptp(x) > 0.01 and first_order_rates(x, v, u) == []
+
+
+def test_a_velocity_proportional_to_its_position_without_the_input_is_not_judged():
+    """Beside a forced mass, an uncoupled, heavily overdamped one (c = 1000) decays from a start displacement: its
+    velocity is ``-k / c`` times its position at every sample (its fast pole dies within a step), a first-order
+    look that needs no input, as an overdamped mode's; not refused (the guard :data:`INPUT_NEEDED`)."""
+    A = np.zeros((4, 4))
+    A[:2, 2:] = np.eye(2)
+    A[2:, :2], A[2:, 2:] = -100.0 * np.eye(2), -np.diag([0.02, 1000.0])
+    B = np.array([[0.0], [0.0], [1.0], [0.0]])
+    slow = (-1000.0 + np.sqrt(1000.0 ** 2 - 400.0)) / 2   # its slow pole, -0.1: started on that decay
+    z, u = _held_response(A, B, SPECS[0], np.array([0.0, 0.05, 0.0, 0.05 * slow]))
+    x, v = z[:2], z[2:]
+    assert np.ptp(x[1]) > 0.01   # it moves
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _judge(x, v, u, (["q[1]", "q[2]"], ["qdot[1]", "qdot[2]"])) is None

@@ -46,6 +46,8 @@ INPUT_NEEDED = 1e-2
 #: Rows whose velocity varies less than this fraction of the most varying velocity are not judged (numerically
 #: still).
 _QUIET = 1e-8
+#: Rows judged at a time (each block's temporaries: ``4 x _ROWS x k`` doubles, 33 MB at 4000 samples).
+_ROWS = 256
 
 
 def _orthonormal(columns: np.ndarray) -> np.ndarray:
@@ -88,9 +90,12 @@ def first_order_rates(x: np.ndarray, v: np.ndarray, u: np.ndarray | None) -> lis
     x, v = np.asarray(x, dtype=float), np.asarray(v, dtype=float)
     spread = np.ptp(v, axis=1)
     judged = spread > _QUIET * max(float(spread.max(initial=0.0)), 1e-300)
+    fit, alone = np.ones(len(x)), np.ones(len(x))
     with np.errstate(over="ignore", invalid="ignore"):
-        fit = _residuals(x, v, with_inputs)
-        alone = _residuals(x, v, constant)
+        for start in range(0, len(x), _ROWS):   # blocks of rows: 2000 positions x 4000 samples stay small
+            rows = slice(start, start + _ROWS)
+            fit[rows] = _residuals(x[rows], v[rows], with_inputs)
+            alone[rows] = _residuals(x[rows], v[rows], constant)
     found = judged & (fit <= FIRST_ORDER_FIT) & (alone >= INPUT_NEEDED)
     return [int(i) for i in np.flatnonzero(found)]
 
