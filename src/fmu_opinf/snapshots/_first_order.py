@@ -36,9 +36,10 @@ __all__ = ["FIRST_ORDER_FIT", "INPUT_NEEDED", "first_order_problem", "first_orde
 #: at the step (``m / c`` far below ``dt``) behaves like a first-order state at that step and would fit too: the bar
 #: sits far below what such a mass leaves at any step that resolves it (measured on exact ZOH data: one mass
 #: m = 1, k = 100 with damping c = 100 at dt = 0.05 leaves 2e-3 .. 6e-5 under a pulse, a step, a harmonic; c = 1000
-#: leaves 3e-8 .. 9e-6 at dt = 0.01 but round-off at dt = 0.05, where its fast pole decays by e^-50 within a step:
-#: at that step it is a first-order state, and the refusal says to record at a smaller --dt; a 50-mass chain, a
-#: free body, undamped and lightly damped masses leave 0.03 .. 1).
+#: leaves round-off at dt = 0.05, where its fast pole decays by e^-50 within a step, and still 3e-8 / 3e-7 at
+#: dt = 0.01 under a harmonic / a raised-cosine pulse (9e-6 / 3e-6 under a rectangular pulse / a step): at such
+#: steps it is a first-order state, and the refusal says to record at a smaller --dt; a 50-mass chain, a free
+#: body, undamped and lightly damped masses leave 0.03 .. 1).
 FIRST_ORDER_FIT = 1e-6
 #: ... provided its position and a constant alone miss it by at least this (the input is needed to explain it): the
 #: velocity of an overdamped or a single real mode can be proportional to its position where no input acts.
