@@ -62,6 +62,19 @@ _QUIET = 1e-8
 _SAMPLES = 4000
 #: Largest number of states paired by the data (the search compares every pair).
 _MAX_PAIRED = 2000
+#: A pair that the data find or confirm where nothing declares it must match as well as a true rate does at this
+#: step: within this many times the trapezoidal rule's own error there (:func:`step_explains`) ...
+_EXPLAINED_FACTOR = 3.0
+#: ... plus this (an FMU's integration tolerance).  :data:`MISMATCH` is far too loose to discover pairs: audit 76
+#: F1, ``x[7..12] = v + c x[1..6]`` matched within 0.016 (c = 0.05) .. 0.18 (c = 0.3) where the step explains
+#: 0.0005 .. 0.002, and was recorded as the velocities (ROM 4-69 % off); F2, wave-front positions of a 1000-mass
+#: chain "were the rates" of their neighbours within 0.013-0.07.
+_EXPLAINED_FLOOR = 5e-3
+#: A row whose average matches another's increments within this is near its rate (a rate plus a multiple of a
+#: position: 0.34 .. 0.6 at c = 1); two rows that do not move together stay above ``1 / sqrt(2)``.
+_NEAR = 0.65
+#: Rows whose peak is below this fraction of the largest are not excited enough in a recording to judge.
+_WEAK = 1e-3
 
 
 @dataclass(frozen=True)
@@ -337,9 +350,42 @@ def check_rates(x: np.ndarray, v: np.ndarray | None, a: np.ndarray | None, h: fl
             if not guessed:
                 return f"velocities do not match the positions: {where}"
             return _repair(x, v, h, names, derivative_names, where, float(mismatch[worst]))
+        if guessed and not declared:
+            near = _near_rates(x, v, h, names, derivative_names, mismatch)
+            if near is not None:
+                return near
     if a is not None and v is not None and (stale_rates(v, a, h, u) if sums is None else sums.stale(v, u)):
         return Repair(None, None, "", STALE_REASON)
     return None
+
+
+def _near_rates(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
+                derivative_names: list[str | None], mismatch: np.ndarray) -> Repair | str | None:
+    """A guessed pairing whose excited velocities match within :data:`MISMATCH` but not as well as true rates do at
+    this step (:func:`strict_bounds`): the positions' derivative variables as velocities, or the positions alone
+    (velocities derived) where the velocities are combinations of the positions and their rates, else the problem;
+    None where every pair passes.  Audit 76 F1: first-order states ``x[7..12] = v + 0.3 x[1..6]`` split in halves
+    were recorded as velocities without a word (mismatch 0.1-0.2, the step's own 0.001; ROM 4-11 % off)."""
+    weak = set(_weak_rows(x, list(range(x.shape[0]))))
+    off = [int(j) for j in np.flatnonzero(mismatch > strict_bounds(v)) if int(j) not in weak]
+    if not off:
+        return None
+    j = int(max(off, key=lambda k: mismatch[k]))
+    what = (f"{names['velocities'][j]} is near the rate of {names['positions'][j]} but not it (relative mismatch "
+            f"{mismatch[j]:.2g} where a rate leaves {step_explains(v[[j]])[0]:.1g} at this step)")
+    if np.any(_combination_misfit(x, v, h) > strict_bounds(v)):
+        return (f"the guessed pairing is wrong: {what}; pass --positions and --velocities naming the mechanical "
+                "states, or the positions alone with --positions (velocities derived)")
+    states = set(names["positions"]) | set(names["velocities"])
+    if all(derivative_names) and not set(derivative_names) & states:
+        return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
+                      f"the guessed pairing is wrong: {what}, a combination of the positions and their rates "
+                      "(velocities of another coordinate system, like v + c x); the positions' derivative variables "
+                      "are the velocities, accelerations derived from the data")
+    return Repair(list(names["positions"]), "", "",
+                  f"the guessed pairing is wrong: {what}, a combination of the positions and their rates "
+                  "(velocities of another coordinate system, like v + c x); the positions recorded alone, velocities "
+                  "and accelerations derived from the data")
 
 
 #: A declared velocity whose least-squares factor to its position's rate is off 1 by this factor or more (and which
@@ -417,21 +463,53 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
     return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
 
 
-def _rates_by_data(rows: np.ndarray, h: float) -> dict[int, int]:
-    """Row -> the row that is its rate by the data (its average over each step times ``h`` matches the row's
-    increments within :data:`MISMATCH`, trapezoidal rule), each row the rate of one row at most, the best matches
-    first; rows that hardly move (:data:`_QUIET`) take part in no pair (two constant rows match each other)."""
-    relative = _relative_matches(rows, h)
+def step_explains(rates: np.ndarray) -> np.ndarray:
+    """Per row taken as the rate of some position: the relative mismatch the trapezoidal rule leaves where it is
+    that rate, ``||second differences|| / (12 ||averages over a step||)`` (``(omega h)^2 / 12`` for a mode
+    ``omega``, and the same sum over modes), estimated from the row itself; ``inf`` for fewer than 3 samples.
+
+    Why: a true rate's mismatch is the rule's own error, which this matches within a few per cent on exact data
+    (audit 76's 6-mass chain: 0.0014 / 0.0014 at dt 0.02, 0.034 / 0.033 at dt 0.1), while a rate plus a multiple
+    of a position is off by far more at a step that resolves the motion."""
+    rates = np.asarray(rates, dtype=float)
+    if rates.shape[1] < 3:
+        return np.full(rates.shape[0], np.inf)
+    curvature = np.linalg.norm(np.diff(rates, n=2, axis=1), axis=1)
+    averages = np.linalg.norm(0.5 * (rates[:, :-1] + rates[:, 1:]), axis=1)
+    return curvature / (12.0 * np.maximum(averages, np.finfo(float).tiny))
+
+
+def strict_bounds(rates: np.ndarray) -> np.ndarray:
+    """Per row: the largest relative mismatch at which it is taken for a rate where nothing declares it
+    (:data:`_EXPLAINED_FACTOR` times :func:`step_explains` plus :data:`_EXPLAINED_FLOOR`, at most
+    :data:`MISMATCH`)."""
+    return np.minimum(MISMATCH, _EXPLAINED_FACTOR * step_explains(rates) + _EXPLAINED_FLOOR)
+
+
+def _moving(rows: np.ndarray, h: float) -> np.ndarray:
+    """Rows that move (their increments and averages above :data:`_QUIET` of the largest): two constant rows
+    match each other."""
     increments = np.linalg.norm(np.diff(rows, axis=1), axis=1)
     averages = np.linalg.norm(0.5 * h * (rows[:, :-1] + rows[:, 1:]), axis=1)
-    quiet = ((increments <= _QUIET * max(float(increments.max(initial=0.0)), np.finfo(float).tiny))
-             | (averages <= _QUIET * max(float(averages.max(initial=0.0)), np.finfo(float).tiny)))
+    return ((increments > _QUIET * max(float(increments.max(initial=0.0)), np.finfo(float).tiny))
+            & (averages > _QUIET * max(float(averages.max(initial=0.0)), np.finfo(float).tiny)))
+
+
+def _rates_by_data(rows: np.ndarray, h: float, near: float | None = None) -> dict[int, int]:
+    """Row -> the row that is its rate by the data (its average over each step times ``h`` matches the row's
+    increments within :func:`strict_bounds`, trapezoidal rule; or within ``near`` where given, to find near-rates),
+    each row the rate of one row at most, the best matches first; rows that hardly move (:data:`_QUIET`) take part
+    in no pair."""
+    relative = _relative_matches(rows, h)
+    quiet = ~_moving(rows, h)
     relative[quiet, :] = np.inf
     relative[:, quiet] = np.inf
+    bounds = strict_bounds(rows) if near is None else np.full(rows.shape[0], near)
+    relative[relative > bounds[None, :]] = np.inf
     rate: dict[int, int] = {}
     for flat in np.argsort(relative, axis=None):
         i, j = divmod(int(flat), relative.shape[1])
-        if relative[i, j] > MISMATCH:
+        if not np.isfinite(relative[i, j]):
             break
         if i not in rate and j not in rate.values():
             rate[i] = j
@@ -475,11 +553,34 @@ def _partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where
     if not left:
         return (f"cannot tell positions from velocities: {where}, but the data pair all states otherwise "
                 f"({_few_pairs(names, positions, velocities)}); pass {options}")
-    shown = ", ".join(names[k] for k in left[:6]) + (", ..." if len(left) > 6 else "")
+    weak = _weak_rows(rows, left)
+    if len(weak) == len(left):
+        return (f"cannot tell positions from velocities: {where}; by the data "
+                f"{_few_pairs(names, positions, velocities)}, but {_shown(names, weak)} are not excited in this recording (their peak below {_WEAK:g} of the "
+                "largest): excite them (an input or a start that moves them) or pass the pairing with --positions "
+                "and --velocities")
     return (f"cannot tell positions from velocities: {where}; by the data {_few_pairs(names, positions, velocities)}"
-            f", but {shown} pair with none: neither positions nor velocities (an actuator lag, a filter or a "
-            "controller state?), which a reduced model of the mechanical states cannot follow; to record the "
-            f"mechanical states anyway, pass {options}")
+            f", but {_shown(names, [k for k in left if k not in weak])} pair with none: neither positions nor "
+            "velocities (an actuator lag, a filter or a controller state?), which a reduced model of the mechanical "
+            f"states cannot follow{_not_excited(names, weak)}; to record the mechanical states anyway, pass {options}")
+
+
+def _not_excited(names: list[str], weak: list[int]) -> str:
+    """`` (and ... not excited in this recording)`` naming the weak rows, or nothing."""
+    return f" (and {_shown(names, weak)} are not excited in this recording)" if weak else ""
+
+
+def _shown(names: list[str], rows: list[int]) -> str:
+    """The first six of the rows' names."""
+    return ", ".join(names[k] for k in rows[:6]) + (", ..." if len(rows) > 6 else "")
+
+
+def _weak_rows(rows: np.ndarray, which: list[int]) -> list[int]:
+    """Of ``which``, the rows whose peak is below :data:`_WEAK` of the largest peak of all rows: not excited in the
+    recording (audit 76 F2: masses a wave had not reached were called controller states)."""
+    peaks = np.max(np.abs(rows), axis=1) if rows.shape[1] else np.zeros(rows.shape[0])
+    top = max(float(peaks.max(initial=0.0)), np.finfo(float).tiny)
+    return [k for k in which if peaks[k] < _WEAK * top]
 
 
 def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair | str | None:
@@ -493,17 +594,50 @@ def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair |
         return None
     positions, velocities, accelerations, left = _chains(_rates_by_data(x, h), len(names))
     if not positions:
-        return None
+        return _near_rates_among_positions(x, h, names)
     pairs = _few_pairs(names, positions, velocities)
     if left:
-        shown = ", ".join(names[k] for k in left[:6]) + (", ..." if len(left) > 6 else "")
-        return (f"velocities among the positions: {pairs} by the data, and {shown} pair with none; pass "
+        return (f"velocities among the positions: {pairs} by the data, and {_shown(names, left)} pair with none; pass "
                 f"{_options_text(names, positions, velocities, accelerations)} (the states left out, if dynamic, "
                 "the reduced model cannot follow), or the positions alone with --positions")
     return Repair([names[i] for i in positions], [names[j] for j in velocities],
                   ",".join(names[k] for k in accelerations) if accelerations else "",
                   f"velocities among the positions guessed by name (the FMU declares no states): {pairs} by the "
                   "data; recorded as positions and velocities")
+
+
+def _near_rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair | str | None:
+    """Where no position is another's rate, half of them near the rates of the other half (within :data:`_NEAR`:
+    a rate plus a multiple of its position, velocities of another coordinate system): the positions alone
+    (velocities and accelerations derived) where those rows are combinations of them and their rates to what the
+    step explains, else the problem naming them; None where they are not (audit 76 F1: at c = 1 nothing paired
+    and all 12 rows were recorded as positions, a ROM 2100 % off; the positions alone give 3e-6)."""
+    positions, near, _, left = _chains(_rates_by_data(x, h, near=_NEAR), len(names))
+    if not positions or left:
+        return None
+    misfit = _combination_misfit(x[positions], x[near], h)
+    bounds = strict_bounds(x[near])
+    offsets = "; ".join(f"{names[j]} near the rate of {names[i]} (relative mismatch "
+                        f"{_relative_matches(x[[i, j]], h)[0, 1]:.2g}, a rate leaves {step_explains(x[[j]])[0]:.1g})"
+                        for i, j in list(zip(positions, near))[:2])
+    if np.all(misfit <= bounds):
+        return Repair([names[i] for i in positions], "", "",
+                      f"{offsets}{'; ...' if len(positions) > 2 else ''}: no rates but combinations of the positions "
+                      "and their rates (velocities of another coordinate system, like v + c x); recorded: "
+                      f"{_shown(names, positions)} as the positions, velocities and accelerations derived")
+    return (f"positions that may hold velocities of another coordinate system: {offsets}, but no rate; pass "
+            f'--positions "{",".join(names[i] for i in positions)}" (velocities derived) if those are the '
+            "positions, or --positions and --velocities naming the mechanical states")
+
+
+def _combination_misfit(p: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """Per row of ``w``: how far its average over each step (times ``h``) is from the best combination of the
+    increments of ``p`` and of ``p``'s averages (times ``h``), relative to it (least squares)."""
+    targets = (0.5 * h) * (w[:, :-1] + w[:, 1:]).T
+    basis = np.hstack([np.diff(p, axis=1).T, (0.5 * h) * (p[:, :-1] + p[:, 1:]).T])
+    coefficients = np.linalg.lstsq(basis, targets, rcond=None)[0]
+    norms = np.maximum(np.linalg.norm(targets, axis=0), np.finfo(float).tiny)
+    return np.linalg.norm(basis @ coefficients - targets, axis=0) / norms
 
 
 def _not_rates(x: np.ndarray, v: np.ndarray, h: float) -> list[int]:
