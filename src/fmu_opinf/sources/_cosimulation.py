@@ -26,9 +26,9 @@ from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
 from .._stepping import fmu_declared_stepping, stepping_of
-from ._variables import (Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform, declared_nominal,
-                         declared_range, fmi3_ports, held_inputs_record, is_coefficient, looks_like_parameter,
-                         read_description, real_outputs, start_value, unit_kind)
+from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
+                         declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
+                         looks_like_parameter, read_description, real_outputs, start_value, unit_kind)
 
 #: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
 #: carry back to the logger.
@@ -459,6 +459,13 @@ class FMUSource(Source):
 
         return jsonable(dict(self._options["parameters"] or {}))
 
+    def _stem_pairs(self) -> str:
+        """The first pairs found by name, ``x / v / a`` each (the rule of :data:`_LOCAL_STEMS` by example)."""
+        groups = list(zip(self.position_names, self.velocity_names or [""] * len(self.position_names),
+                          self.acceleration_names or [""] * len(self.position_names)))
+        shown = ", ".join(" / ".join(name for name in group if name) for group in groups[:3])
+        return shown + (", ..." if len(groups) > 3 else "")
+
     def selection_text(self) -> str:
         """One line: what is recorded and how it was chosen (printed by the recorder)."""
         how = self.selection.how
@@ -466,7 +473,12 @@ class FMUSource(Source):
         for what, names in (("positions", self.position_names), ("velocities", self.velocity_names),
                             ("accelerations", self.acceleration_names)):
             shown = _few(names) if names else "none"
-            parts.append(f"{what} {shown} ({how.get(what, '')})")
+            rule = how.get(what, "")
+            if what != "positions" and rule and rule == how.get("positions"):
+                rule = "the same rule"   # audit 76 F5: a 200-character rule said once, not three times per line
+            elif rule == _LOCAL_STEMS:
+                rule = f"guessed: continuous local variables paired by name: {self._stem_pairs()}; no states declared"
+            parts.append(f"{what} {shown} ({rule})")
         parts.append(f"force inputs {_few(self.input_names) if self.input_names else 'none'}")
         if "outputs" in how:
             parts.append(f"outputs {_few(self.output_names)} ({how['outputs']})")
