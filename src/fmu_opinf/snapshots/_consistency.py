@@ -73,8 +73,11 @@ _EXPLAINED_FLOOR = 5e-3
 #: A row whose average matches another's increments within this is near its rate (a rate plus a multiple of a
 #: position: 0.34 .. 0.6 at c = 1); two rows that do not move together stay above ``1 / sqrt(2)``.
 _NEAR = 0.65
-#: Rows whose peak is below this fraction of the largest are not excited enough in a recording to judge.
-_WEAK = 1e-3
+#: Rows whose peak is below this fraction of the largest are not excited in a recording: they take part in no pair
+#: the data find and are named as such (the leading edge of a wave in a 200-mass chain, peaks 1.6e-7 and 2.4e-6 of
+#: the largest, matched as a rate within 0.074 where the step explains 0.035).  Small enough that the positions of
+#: modes up to 1e4 rad/s stay above it beside their velocities.
+_WEAK = 1e-4
 
 
 @dataclass(frozen=True)
@@ -499,9 +502,10 @@ def _rates_by_data(rows: np.ndarray, h: float, near: float | None = None) -> dic
     """Row -> the row that is its rate by the data (its average over each step times ``h`` matches the row's
     increments within :func:`strict_bounds`, trapezoidal rule; or within ``near`` where given, to find near-rates),
     each row the rate of one row at most, the best matches first; rows that hardly move (:data:`_QUIET`) take part
-    in no pair."""
+    in no pair, nor do rows not excited (:data:`_WEAK`)."""
     relative = _relative_matches(rows, h)
     quiet = ~_moving(rows, h)
+    quiet[_weak_rows(rows, list(range(rows.shape[0])))] = True
     relative[quiet, :] = np.inf
     relative[:, quiet] = np.inf
     bounds = strict_bounds(rows) if near is None else np.full(rows.shape[0], near)
@@ -553,12 +557,12 @@ def _partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where
     if not left:
         return (f"cannot tell positions from velocities: {where}, but the data pair all states otherwise "
                 f"({_few_pairs(names, positions, velocities)}); pass {options}")
-    weak = _weak_rows(rows, left)
+    weak = _not_excited_rows(rows, h, left)
     if len(weak) == len(left):
         return (f"cannot tell positions from velocities: {where}; by the data "
-                f"{_few_pairs(names, positions, velocities)}, but {_shown(names, weak)} are not excited in this recording (their peak below {_WEAK:g} of the "
-                "largest): excite them (an input or a start that moves them) or pass the pairing with --positions "
-                "and --velocities")
+                f"{_few_pairs(names, positions, velocities)}, but {_shown(names, weak)} are not excited in this "
+                f"recording (they or the rows they match peak below {_WEAK:g} of the largest): excite them (an input "
+                "or a start that moves them) or pass the pairing with --positions and --velocities")
     return (f"cannot tell positions from velocities: {where}; by the data {_few_pairs(names, positions, velocities)}"
             f", but {_shown(names, [k for k in left if k not in weak])} pair with none: neither positions nor "
             "velocities (an actuator lag, a filter or a controller state?), which a reduced model of the mechanical "
@@ -573,6 +577,16 @@ def _not_excited(names: list[str], weak: list[int]) -> str:
 def _shown(names: list[str], rows: list[int]) -> str:
     """The first six of the rows' names."""
     return ", ".join(names[k] for k in rows[:6]) + (", ..." if len(rows) > 6 else "")
+
+
+def _not_excited_rows(rows: np.ndarray, h: float, which: list[int]) -> list[int]:
+    """Of ``which``, the rows not excited in the recording (:func:`_weak_rows`) and those whose best match either
+    way (as a rate or as the row a rate belongs to) is such a row: the velocity of a mass at a wave's leading edge
+    is above :data:`_WEAK` before its position is."""
+    weak = set(_weak_rows(rows, list(range(rows.shape[0]))))
+    relative = _relative_matches(rows, h)
+    return [k for k in which if k in weak or int(np.argmin(relative[k])) in weak
+            or int(np.argmin(relative[:, k])) in weak]
 
 
 def _weak_rows(rows: np.ndarray, which: list[int]) -> list[int]:
