@@ -374,11 +374,12 @@ def _near_rates(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[st
     if not off:
         return None
     j = int(max(off, key=lambda k: mismatch[k]))
-    what = (f"{names['velocities'][j]} is near the rate of {names['positions'][j]} but not it (relative mismatch "
-            f"{mismatch[j]:.2g} where a rate leaves {step_explains(v[[j]])[0]:.1g} at this step)")
+    what = (f"{names['velocities'][j]} matches the increments of {names['positions'][j]} within {mismatch[j]:.2g}, "
+            f"where a velocity (a smooth rate) leaves {step_explains(v[[j]])[0]:.1g} at this step")
     if np.any(_combination_misfit(x, v, h) > strict_bounds(v)):
-        return (f"the guessed pairing is wrong: {what}; pass --positions and --velocities naming the mechanical "
-                "states, or the positions alone with --positions (velocities derived)")
+        return (f"the guessed pairing is wrong: {what} (a rate plus an offset, or a first-order state that jumps "
+                "with an input?); pass --positions and --velocities naming the mechanical states, or the positions "
+                "alone with --positions (velocities derived)")
     states = set(names["positions"]) | set(names["velocities"])
     if all(derivative_names) and not set(derivative_names) & states:
         return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
