@@ -53,7 +53,8 @@ def test_the_step_explains_the_trapezoidal_rules_own_error():
 @pytest.mark.parametrize("c", [0.02, 0.1, 0.3])
 def test_near_rates_among_positions_are_recorded_as_the_positions_alone(c):
     """Old code: c <= 0.1 (mismatch 0.02 .. 0.12) recorded ``x[4..6]`` as the velocities (they are no rates),
-    c = 0.3 (0.26 .. 0.33, above the old bar) all six rows as positions (None here); the rows ``v + c q`` are combinations of the positions and their rates, so the
+    c = 0.3 (0.26 .. 0.33, above the old bar) all six rows as positions (None here); the rows ``v + c q`` are
+    combinations of the positions and their rates, so the
     positions alone (velocities derived) are the exact model."""
     rows, _ = _offset_rows(c)
     names = [f"x[{i}]" for i in range(1, 7)]
@@ -72,7 +73,8 @@ def test_exact_rates_among_positions_still_pair():
 
 def test_halves_of_first_order_states_with_an_offset_take_the_derivative_variables():
     """ssoff.fmu: states split in halves (``derivative=`` links) whose velocity half is ``v + 0.3 q``: old code
-    accepted them without a word (mismatch within 0.25; here c = 0.1, 0.09 .. 0.12); the derivative variables are the true rates."""
+    accepted them without a word (mismatch within 0.25; here c = 0.1, 0.09 .. 0.12); the derivative variables are
+    the true rates."""
     rows, _ = _offset_rows(0.1)
     names = {"positions": ["x[1]", "x[2]", "x[3]"], "velocities": ["x[4]", "x[5]", "x[6]"]}
     derivatives = ["der(x)[1]", "der(x)[2]", "der(x)[3]"]
