@@ -54,8 +54,7 @@ def test_the_step_explains_the_trapezoidal_rules_own_error():
 def test_near_rates_among_positions_are_recorded_as_the_positions_alone(c):
     """Old code: c <= 0.1 (mismatch 0.02 .. 0.12) recorded ``x[4..6]`` as the velocities (they are no rates),
     c = 0.3 (0.26 .. 0.33, above the old bar) all six rows as positions (None here); the rows ``v + c q`` are
-    combinations of the positions and their rates, so the
-    positions alone (velocities derived) are the exact model."""
+    combinations of the positions and their rates, so the positions alone (velocities derived) are the exact model."""
     rows, _ = _offset_rows(c)
     names = [f"x[{i}]" for i in range(1, 7)]
     repair = rates_among_positions(rows, DT, names)
