@@ -135,3 +135,17 @@ def test_the_stem_label_names_the_pairs_once():
     text = source.selection_text()
     assert "paired by name: p / pdot / pddot" in text and text.count("the same rule") == 2, text
     assert "q, qdot, qddot" not in text, text
+
+
+def test_a_wrong_halves_guess_is_not_repaired_into_near_rates():
+    """States listed body by body (``q1, w1, q2 | w2, q3, w3``, ``w = v + 0.1 q``): the halves are wrong, and the
+    old code repaired them into the pairs ``(q_i, w_i)`` the data make within 0.25 (0.09 .. 0.12), recording
+    near-rates as velocities; no pairing of these rows is a true rate's, so none is recorded."""
+    rows, _ = _offset_rows(0.1)
+    order = [0, 3, 1, 4, 2, 5]
+    labels = ["q1", "w1", "q2", "w2", "q3", "w3"]
+    listed = rows[order]
+    verdict = check_rates(listed[:3], listed[3:], None, DT, {"positions": labels[:3], "velocities": labels[3:]},
+                          True, [None] * 3)
+    assert not isinstance(verdict, Repair), verdict
+    assert isinstance(verdict, str) and verdict.startswith("cannot tell positions from velocities"), verdict

@@ -437,7 +437,8 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
         n = len(names["positions"])
         if found is not None and sorted(found[0]) == [(i, n + i) for i in range(n)]:
             return None
-        if found is not None and found[1] <= max(MISMATCH, 0.5 * guessed_mismatch):
+        if (found is not None and found[1] <= max(MISMATCH, 0.5 * guessed_mismatch)
+                and _strictly_paired(np.vstack([x, v]), h, found[0])):
             pairs = found[0]
             return Repair([states[i] for i, _ in pairs], [states[j] for _, j in pairs], None,
                           f"the guessed pairing is wrong ({where}); positions and velocities paired by the data")
@@ -497,6 +498,18 @@ def _moving(rows: np.ndarray, h: float) -> np.ndarray:
     averages = np.linalg.norm(0.5 * h * (rows[:, :-1] + rows[:, 1:]), axis=1)
     return ((increments > _QUIET * max(float(increments.max(initial=0.0)), np.finfo(float).tiny))
             & (averages > _QUIET * max(float(averages.max(initial=0.0)), np.finfo(float).tiny)))
+
+
+def _strictly_paired(rows: np.ndarray, h: float, pairs: list[tuple[int, int]]) -> bool:
+    """Whether each excited ``(position, velocity)`` row pair matches as a true rate does (:func:`strict_bounds`):
+    a repair by the data is recorded without a further check of its pairing."""
+    weak = set(_weak_rows(rows, list(range(rows.shape[0]))))
+    kept = [(i, j) for i, j in pairs if i not in weak]
+    if not kept:
+        return True
+    positions, velocities = (list(side) for side in zip(*kept))
+    bounds = strict_bounds(rows[velocities])
+    return bool(np.all(rate_mismatch(rows[positions], rows[velocities], h) <= bounds))
 
 
 def _rates_by_data(rows: np.ndarray, h: float, near: float | None = None) -> dict[int, int]:
