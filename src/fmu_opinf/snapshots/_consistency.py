@@ -484,11 +484,11 @@ def step_explains(rates: np.ndarray) -> np.ndarray:
     return curvature / (12.0 * np.maximum(averages, np.finfo(float).tiny))
 
 
-def strict_bounds(rates: np.ndarray) -> np.ndarray:
+def strict_bounds(rates: np.ndarray, cap: float = MISMATCH) -> np.ndarray:
     """Per row: the largest relative mismatch at which it is taken for a rate where nothing declares it
-    (:data:`_EXPLAINED_FACTOR` times :func:`step_explains` plus :data:`_EXPLAINED_FLOOR`, at most
-    :data:`MISMATCH`)."""
-    return np.minimum(MISMATCH, _EXPLAINED_FACTOR * step_explains(rates) + _EXPLAINED_FLOOR)
+    (:data:`_EXPLAINED_FACTOR` times :func:`step_explains` plus :data:`_EXPLAINED_FLOOR`, at most ``cap``: a
+    repair may exceed :data:`MISMATCH` where a mode the step does not resolve raises every mismatch)."""
+    return np.minimum(cap, _EXPLAINED_FACTOR * step_explains(rates) + _EXPLAINED_FLOOR)
 
 
 def _moving(rows: np.ndarray, h: float) -> np.ndarray:
@@ -508,7 +508,7 @@ def _strictly_paired(rows: np.ndarray, h: float, pairs: list[tuple[int, int]]) -
     if not kept:
         return True
     positions, velocities = (list(side) for side in zip(*kept))
-    bounds = strict_bounds(rows[velocities])
+    bounds = strict_bounds(rows[velocities], cap=np.inf)
     return bool(np.all(rate_mismatch(rows[positions], rows[velocities], h) <= bounds))
 
 
