@@ -664,7 +664,8 @@ def refine_output_error(
         the start reproduced the data, objective at most :data:`REPRODUCED`), ``history``
         (objective after each L-BFGS iteration), ``output_map`` (``"fixed"`` or ``"refitted"``), ``refitted_map``
         (``(Cpr, Cvr)``, when refitted) and, when polishing, ``polish`` (objective and damping of each accepted
-        Levenberg-Marquardt step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and at the end);
+        Levenberg-Marquardt step); with ``equation_weight``, ``acceleration_residual`` (``sqrt(E)`` at the start and
+        at the end);
         ``non_finite_trials`` where trial points made the model overflow (rejected: the refinement ends at its best
         finite point; a start that overflows is kept, status ``"kept start"``).
     """
