@@ -75,8 +75,8 @@ def test_a_rom_fmu_written_before_the_annotation_is_read_by_its_description(inte
     from fmu_opinf._stepping import declared_stepping
 
     root = _description(rom_fmu_spec(_rom(integrator), "Old", fmi_version="2.0"), tmp_path)
-    for annotations in list(root.iter("VendorAnnotations")):
-        root.remove(annotations)
+    for vendor in list(root.iter("VendorAnnotations")):
+        root.remove(vendor)
     assert "integrator) learned by operator inference" in root.get("description")
     assert declared_stepping(root) == integrator
     root.set("generationTool", "OtherTool 1.0")
