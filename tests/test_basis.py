@@ -209,3 +209,14 @@ def test_fitting_without_dask_does_not_import_distributed(tmp_path):
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split()[-1] == "False"
+
+
+@pytest.mark.parametrize("status, active", [("running", True), ("connecting", False), ("closing", False)])
+def test_only_a_running_client_sends_the_pod_to_dask(monkeypatch, status, active):
+    """A default client that is connecting again or closing (its scheduler gone) does not count as active: a fit
+    would wait for it without end (2026-12-07, the fast test set hung once in such a POD)."""
+    distributed = pytest.importorskip("distributed")
+    from fmu_opinf import basis
+
+    monkeypatch.setattr(distributed, "default_client", lambda: type("Client", (), {"status": status})())
+    assert basis._client_active() is active

@@ -841,17 +841,19 @@ def _common_settings_first(parts: list, settings: list[dict]) -> list:
 
 
 def _client_active() -> bool:
-    """Whether a ``distributed`` client is active; without ``distributed`` imported none can be (its import alone
-    took 0.15-0.26 s of a 1 s ``fmu-opinf fit``)."""
+    """Whether a ``distributed`` client is active and connected (status ``"running"``); without ``distributed``
+    imported none can be (its import alone took 0.15-0.26 s of a 1 s ``fmu-opinf fit``).  A client that is
+    connecting again, or closing, would make a fit wait for a scheduler that may not come back (2026-12-07: the fast
+    test set once hung in a POD sent to such a client that an earlier test's cluster had left)."""
     if "distributed" not in sys.modules:
         return False
     try:
         from distributed import default_client
 
-        default_client()
+        client = default_client()
     except (ImportError, ValueError):
         return False
-    return True
+    return getattr(client, "status", "running") == "running"
 
 
 def open_snapshot_set(
