@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FMUError, FmuOpinfWarning
+from ..sources._base import few_names
 from ..sources._variables import _DEPENDENCIES, _LOCAL_STEMS, _PATTERN_X
 from ._first_order import refuse_first_order_rates
 from ._isolation import source_label
@@ -603,8 +604,8 @@ def _not_excited(names: list[str], weak: list[int]) -> str:
 
 
 def _shown(names: list[str], rows: list[int]) -> str:
-    """The first six of the rows' names."""
-    return ", ".join(names[k] for k in rows[:6]) + (", ..." if len(rows) > 6 else "")
+    """The first six of the rows' names (:func:`fmu_opinf.sources._base.few_names`)."""
+    return few_names([names[k] for k in rows])
 
 
 def _not_excited_rows(rows: np.ndarray, h: float, which: list[int]) -> list[int]:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import FMUError
+from ..sources._base import few_names
 
 __all__ = ["FIRST_ORDER_FIT", "INPUT_NEEDED", "first_order_problem", "first_order_rates", "refuse_first_order_rates"]
 
@@ -110,7 +111,7 @@ def first_order_problem(rows: list[int], names: dict[str, list[str]], how: str) 
     shown = "; ".join(f"{velocities[i]}, {how} as the velocity of {positions[i]}, is a function of "
                       f"{positions[i]} and the inputs at each sample" for i in rows[:3]) + ("; ..." if len(rows) > 3
                                                                                           else "")
-    states = ", ".join(positions[i] for i in rows[:6]) + (", ..." if len(rows) > 6 else "")
+    states = few_names([positions[i] for i in rows])
     verb = "is" if len(rows) == 1 else "are"
     kept = [i for i in range(len(positions)) if i not in set(rows)]
     every = f'--positions "{",".join(positions)}" --velocities "{",".join(velocities)}"'

@@ -35,6 +35,7 @@ from typing import Any
 
 from ..errors import InputSpecError
 from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
+from ._base import few_names as _few_names
 from ._builtin import BUILTIN_SYSTEMS, BuiltinSource
 from ._cosimulation import (DEFAULT_TOLERANCE, TERMINATED, FMUSource, declared_stop_at, fixed_communication_step,
                             offers_model_exchange, terminated_at, warn_other_communication_step)
@@ -336,13 +337,6 @@ def _warn_held_outputs(source: Source) -> None:
               "eq. 17's continuous output map cannot follow their steps, the fit bends the ROM's dynamics toward "
               f"them{' and throws the other outputs off' if others else ''}, and their jumps set the automatic "
               f"window's step; for a ROM of the continuous outputs record with {fix}")
-
-
-def _few_names(names: list[str]) -> str:
-    """Up to six names, comma separated (``...`` after them if there are more), each printable (a newline in a name
-    would break the one-line warning, as :func:`~fmu_opinf.sources._cosimulation._few` says)."""
-    shown = ["".join(c if c.isprintable() else repr(c)[1:-1] for c in name) for name in names[:6]]
-    return ", ".join(shown) + (", ..." if len(names) > 6 else "")
 
 
 def first_report(key: tuple[Any, ...]) -> bool:

@@ -15,8 +15,8 @@ import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
 
-__all__ = ["Source", "StepError", "EventCount", "match_names", "natural_key", "CONSTRAINTS", "check_constraint",
-           "inputs_without"]
+__all__ = ["Source", "StepError", "EventCount", "match_names", "natural_key", "few_names", "CONSTRAINTS",
+           "check_constraint", "inputs_without"]
 
 #: Constraint kinds a source may declare.
 CONSTRAINTS = ("position", "velocity", "none", "unknown")
@@ -47,6 +47,14 @@ class EventCount(NamedTuple):
     count: int
     first: float | None
     inert: int = 0
+
+
+def few_names(names: Sequence[str]) -> str:
+    """Up to six names, comma separated (``...`` after them if there are more), each printable: the list a one-line
+    message shows (a newline in a name would break the line, as :func:`~fmu_opinf.sources._cosimulation._few`
+    says)."""
+    shown = ["".join(c if c.isprintable() else repr(c)[1:-1] for c in str(name)) for name in list(names)[:6]]
+    return ", ".join(shown) + (", ..." if len(names) > 6 else "")
 
 
 def natural_key(name: str) -> list[Any]:

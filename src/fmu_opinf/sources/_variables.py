@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
-from ._base import CONSTRAINTS, match_names, natural_key, split_patterns
+from ._base import CONSTRAINTS, few_names, match_names, natural_key, split_patterns
 
 __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
@@ -945,7 +945,7 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
             return (*paired, _DEPENDENCIES)
         aliased = _aliased_rates(model, states, elements)
         if aliased:   # the states are positions whose velocities are no states: halves would pair positions
-            names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
+            names = few_names([s.name for s in states.states])
             raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states "
                            f"({names}): each derivative is an alias of a variable that is no declared state{aliased}")
         if not _units_contradict_halves(states) and not _dependencies_contradict_halves(model, states):
