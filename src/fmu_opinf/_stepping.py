@@ -24,15 +24,11 @@ FMU, the rule before the declaration (right for the benchmark FMUs), and the fit
 
 from __future__ import annotations
 
-import functools
 import re
-import zipfile
-from pathlib import Path
 from typing import Any
 from xml.etree import ElementTree as ET
 
-__all__ = ["STEPPINGS", "TOOL", "stepping_of", "recorded_stepping", "declared_stepping", "fmu_declared_stepping",
-           "stepping_annotation"]
+__all__ = ["STEPPINGS", "TOOL", "stepping_of", "recorded_stepping", "declared_stepping", "stepping_annotation"]
 
 #: The steppings an fmu-opinf FMU can declare (the ROM integrators, :data:`fmu_opinf.rom.INTEGRATORS`).
 STEPPINGS = ("newmark", "exact")
@@ -98,31 +94,6 @@ def _described_stepping(root: ET.Element) -> str:
         return ""
     found = _ROM_DESCRIPTION.match(root.get("description") or "")
     return found.group(1) if found else ""
-
-
-def fmu_declared_stepping(path: str | Path) -> str:
-    """:func:`declared_stepping` of an FMU file or extracted FMU folder, ``""`` where its description cannot be
-    read (the caller's own reading reports that); read once per file state."""
-    path = Path(path)
-    try:
-        state = path.stat()
-    except OSError:
-        return ""
-    return _declared_stepping_cached(str(path.resolve()), state.st_mtime_ns, state.st_size)
-
-
-@functools.lru_cache(maxsize=64)
-def _declared_stepping_cached(path: str, mtime_ns: int, size: int) -> str:
-    """:func:`fmu_declared_stepping` keyed by the file's state (a rewritten FMU is read again)."""
-    try:
-        if Path(path).is_dir():
-            root = ET.parse(Path(path) / "modelDescription.xml").getroot()
-        else:
-            with zipfile.ZipFile(path) as zf:
-                root = ET.fromstring(zf.read("modelDescription.xml"))
-    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile):
-        return ""
-    return declared_stepping(root)
 
 
 def stepping_annotation(stepping: str, fmi_version: str, constraint: str | None = None) -> str:

@@ -25,7 +25,7 @@ from ._base import Source, StepError, check_constraint, inputs_without, nice_flo
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
-from .._stepping import fmu_declared_stepping, stepping_of
+from .._stepping import stepping_of
 from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
                          declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
                          looks_like_parameter, read_description, real_outputs, start_value, unit_kind)
@@ -606,7 +606,7 @@ class FMUSource(Source):
             "fmu_sha256": self._sha256,
             "fmi_version": self.fmi_version,
             "fmu_generation_tool": self.md.generationTool or "",
-            "fmu_stepping": fmu_declared_stepping(self.path),  # how an fmu-opinf FMU steps (_stepping)
+            "fmu_stepping": self.model.declared_stepping,  # how an fmu-opinf FMU steps (_stepping)
             "fmu_settings": self._settings_provenance(),
             "fmi_interface": self.interface,
             "tolerance": self.tolerance,

@@ -24,6 +24,7 @@ from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
+from .._stepping import declared_stepping
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ._base import CONSTRAINTS, few_names, match_names, natural_key, split_patterns
 
@@ -490,6 +491,8 @@ class ModelInfo:
         self.fmi3 = self.fmi_version.startswith("3")
         #: an FMU that 'fmu-opinf export' wrote: its inputs are the ports of a ROM's force inputs
         self.exported_rom = root.get("generationTool") == "fmu-opinf"
+        #: how an fmu-opinf FMU declares it steps (:func:`fmu_opinf._stepping.declared_stepping`; "" if it does not)
+        self.declared_stepping = declared_stepping(root)
         node = root.find("ModelVariables")
         self._type_units = _type_attribute(root, "unit")
         self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max", "nominal")}
