@@ -18,7 +18,8 @@ import pytest
 from scipy.linalg import expm
 
 from fmu_opinf.errors import FMUError
-from fmu_opinf.snapshots._consistency import Repair, check_rates, judge_run
+from fmu_opinf.snapshots._consistency import check_rates, judge_run
+from fmu_opinf.snapshots._rate_tests import Repair
 from fmu_opinf.sources import resolve_variables
 from fmu_opinf.sources._variables import _PATTERN_X
 

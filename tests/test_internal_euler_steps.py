@@ -1,7 +1,7 @@
 """A co-simulation FMU that declares a fixed internal step (FMI 3 ``fixedInternalStepSize``) and takes several
 explicit Euler steps of it per communication step (audit 73 F4: a Simulink ode1-style FMI 3 export, 0.003 s inside,
 recorded at dt = 0.018).  The step check skips such FMUs (their results cannot depend on the communication step)
-and the Euler rule of :func:`fmu_opinf.snapshots._consistency._warn_if_euler_steps` fits one step per ``doStep``
+and the Euler rule of :func:`fmu_opinf.snapshots._integrator_checks.warn_if_euler_steps` fits one step per ``doStep``
 only: ``snapshots`` said nothing, and the default fit refined the ROM toward the integrator (1-18 % of range off the
 model, top mode 28 % underdamped), where the FMU's own derivatives give the model.
 

@@ -18,7 +18,8 @@ pytest.importorskip("fmpy")
 from fmu_opinf import lti_fmus  # noqa: E402
 from fmu_opinf.errors import FmuOpinfWarning  # noqa: E402
 from fmu_opinf.snapshots import record  # noqa: E402
-from fmu_opinf.snapshots._consistency import Repair, check_rates  # noqa: E402
+from fmu_opinf.snapshots._consistency import check_rates  # noqa: E402
+from fmu_opinf.snapshots._rate_tests import Repair  # noqa: E402
 from fmu_opinf.sources import ModelExchangeSource, open_source  # noqa: E402
 
 pytestmark = pytest.mark.fmu

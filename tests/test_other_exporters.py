@@ -1,6 +1,6 @@
 """Conventions of other exporters found by the 2026-11-26 audit: the recorder's rate check
-(fmu_opinf.snapshots._consistency: guessed position/velocity pairings and stale accelerations found from the data
-and repaired) and FMUs without outputs, against exact matrix-exponential responses (lti_fmus) and FMUs whose model
+(fmu_opinf.snapshots._consistency, _rate_tests and _pairing: guessed position/velocity pairings and stale
+accelerations found from the data and repaired) and FMUs without outputs, against exact matrix-exponential responses (lti_fmus) and FMUs whose model
 descriptions are rewritten as other exporters write them."""
 
 import re
@@ -12,7 +12,8 @@ import pytest
 from conftest import rewrite_description
 from fmu_opinf import lti_fmus
 from fmu_opinf.errors import FMUError, FmuOpinfWarning
-from fmu_opinf.snapshots._consistency import MISMATCH, Repair, check_rates, rate_mismatch, stale_rates
+from fmu_opinf.snapshots._consistency import check_rates
+from fmu_opinf.snapshots._rate_tests import MISMATCH, Repair, rate_mismatch, stale_rates
 
 H = 0.05
 
@@ -50,10 +51,10 @@ def _mismatch_definition(x, v):
 def test_rate_mismatch_in_blocks_is_its_definition_over_the_whole_run(exact):
     """The check sums squares block by block (600 x 4000 samples: 14 -> 9 ms); against the definition evaluated
     on whole arrays, with a last block of 1 sample and rows on either side of the quiet threshold."""
-    from fmu_opinf.snapshots import _consistency
+    from fmu_opinf.snapshots import _rate_tests
 
     x, v, _ = exact
-    k = 2 * _consistency._BLOCK + 2  # increments: two whole blocks and one of a single sample
+    k = 2 * _rate_tests._BLOCK + 2  # increments: two whole blocks and one of a single sample
     x, v = x[:, :k].copy(), v[::-1, :k].copy()
     x[4] *= 1e-9  # hardly moves: not judged (0)
     v[4] *= 1e-9
@@ -79,7 +80,7 @@ def test_a_shift_that_fits_half_the_increments_proves_no_staleness():
     second time with derived accelerations.  A stale FMU at a step that resolves the motion fits them shifted to
     ``(omega h)^2 / 12`` (0.008 at 20 samples per period; a noiseless stale sine at ``omega h = 1.3``:
     1.13 and 0.145)."""
-    from fmu_opinf.snapshots._consistency import stale_verdict
+    from fmu_opinf.snapshots._rate_tests import stale_verdict
 
     assert not stale_verdict(2.9, 0.55, 1.0)
     assert stale_verdict(1.13, 0.145, 1.0) and stale_verdict(0.3, 0.008, 1.0)
@@ -90,7 +91,7 @@ def test_rate_sums_fed_chunk_by_chunk_equal_the_checks_over_whole_arrays(exact, 
     """What the recorder feeds on a helper thread while it records: the same bits as the checks summed after the
     run, whatever the chunks (here of samples 0 .. 640), never reading a sample not yet recorded, also for some
     rows only and for stale data."""
-    from fmu_opinf.snapshots._consistency import RateSums
+    from fmu_opinf.snapshots._rate_tests import RateSums
 
     x, v, a = (z[:, :641] for z in exact)
     stale = np.hstack([a[:, :1], a[:, :-1]])

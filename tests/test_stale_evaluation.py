@@ -1,7 +1,7 @@
 """Stale accelerations confirmed by the FMU itself (audit 71 F6).
 
 The recorder calls accelerations stale where, shifted by one sample, they fit the velocities' increments better
-(:func:`fmu_opinf.snapshots._consistency.stale_rates`).  On an FE beam started by an impact, whose modes lie far
+(:func:`fmu_opinf.snapshots._rate_tests.stale_rates`).  On an FE beam started by an impact, whose modes lie far
 above pi/dt, that rule fired on exact current derivatives, and the recording was made a second time with
 accelerations taken from the data instead of the FMU's.  The verdict is now checked by one direct evaluation: the
 run again up to a sample and a step of 1e-6 of the run's past it, the FMU's accelerations read there, and compared
@@ -19,14 +19,8 @@ import pytest
 
 from fmu_opinf import lti_fmus
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.snapshots._consistency import (
-    STALE_REASON,
-    Repair,
-    evaluation_sample,
-    evaluation_verdict,
-    judge_run,
-    stale_rates,
-)
+from fmu_opinf.snapshots._consistency import STALE_REASON, judge_run
+from fmu_opinf.snapshots._rate_tests import Repair, evaluation_sample, evaluation_verdict, stale_rates
 from fmu_opinf.sources._variables import Selection
 
 #: The step and length of audit 71's recording of the impacted beam (the automatic window's choice).

@@ -16,7 +16,9 @@ import numpy as np
 import pytest
 from test_guessed_pairings import DT, _chain, _zoh
 
-from fmu_opinf.snapshots._consistency import Repair, check_rates, rates_among_positions
+from fmu_opinf.snapshots._consistency import check_rates
+from fmu_opinf.snapshots._pairing import rates_among_positions
+from fmu_opinf.snapshots._rate_tests import Repair
 from fmu_opinf.sources._cosimulation import FMUSource
 from fmu_opinf.sources._variables import _LOCAL_STEMS
 
@@ -41,7 +43,7 @@ def test_the_step_explains_the_trapezoidal_rules_own_error():
     """The estimate is the true rate's mismatch (the trapezoidal rule's error, computed from the exact states)
     within 10 % after the pulse (an input's edges raise the estimate, never lower it): the strict bar is built on
     it."""
-    from fmu_opinf.snapshots._consistency import step_explains  # new in audit 76's fix
+    from fmu_opinf.snapshots._pairing import step_explains  # new in audit 76's fix
 
     states = _zoh(*_soft_chain())[:, 40:]
     x, v = states[:3], states[3:]

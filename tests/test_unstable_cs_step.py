@@ -25,7 +25,7 @@ from fmu_opinf.cli import main
 from fmu_opinf.errors import DataError
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Snapshots
-from fmu_opinf.snapshots._consistency import rate_mismatch, stale_rates
+from fmu_opinf.snapshots._rate_tests import rate_mismatch, stale_rates
 from fmu_opinf.snapshots._window import pilot_step
 from fmu_opinf.sources import open_source
 

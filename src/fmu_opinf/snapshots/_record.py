@@ -35,7 +35,8 @@ from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplit
 from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, terminated_at, warn_once, warn_other_communication_step)
 from ..sources._base import nice_floor
-from ._consistency import RateSums, judge_run, live_rate_sums
+from ._consistency import judge_run, live_rate_sums
+from ._rate_tests import RateSums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
@@ -374,7 +375,7 @@ def _warn_events(source: Source, attrs: dict[str, Any]) -> None:
 @contextlib.contextmanager
 def _rate_feed(sink: _Sink, sums: RateSums | None) -> Iterator[Callable[[int], None]]:
     """``feed(count)``: sum the rate checks' blocks of the first ``count`` samples of ``sink`` on a helper thread
-    while the next ones are recorded (:class:`~._consistency.RateSums`; a no-op without ``sums``).  Leaving the
+    while the next ones are recorded (:class:`~._rate_tests.RateSums`; a no-op without ``sums``).  Leaving the
     context waits for the sums (recording the 600-mass chain's 4001 samples: 22 ms of checks after the run
     before); an error of the recording is raised, not one of the sums."""
     if sums is None:
