@@ -55,7 +55,11 @@ def test_a_refined_rom_that_reconstructs_poorly_is_warned_about_at_export(fits):
     # measured: the refined ROM 0.138 where the basis allows 0.021, the SDP solution 0.0225
     assert refined.fit_info["training_position_error"] > 5 * refined.fit_info["training_projection_error"]
     assert unrefined.fit_info["training_position_error"] < 1.2 * unrefined.fit_info["training_projection_error"]
-    with pytest.warns(FmuOpinfWarning, match="reconstructed positions miss its training positions by 0.14 .*--no-refine"):
+    # the figure the warning quotes is the stored one (checked against a replay above): the refined value itself
+    # moves with the machine's rounding (0.138 on one machine, 0.13 on another; _sdp.py on the refinement's spread)
+    quoted = f"{refined.fit_info['training_position_error']:.2g}"
+    with pytest.warns(FmuOpinfWarning, match=f"reconstructed positions miss its training positions by {quoted} .*"
+                                             "--no-refine"):
         export.rom_fmu_spec(refined, reconstruct=["x[1]"])
     with warnings.catch_warnings():
         warnings.simplefilter("error", FmuOpinfWarning)
