@@ -159,6 +159,9 @@ def test_report_figures_keep_every_label_inside_the_image(anchored_rom, tmp_path
     result.y_rom = np.vstack([result.y_rom[:1] * 1e5, result.y_rom[1:2]])
     result.output_names = ["chain.mass[600].flange_b.s", "sensor.v"]
     result.output_units = ["mm", "m/s"]
+    # two inputs' signals in the title (audit 77a F4: drawn on one line, cut off at both edges)
+    result.input_spec = ("harmonic:amplitude=12.4,omega=3.49,phase=1.7671,offset=0;"
+                         "harmonic:amplitude=12.4,omega=3.8,phase=0.2,offset=0")
     figures, save = [], matplotlib.figure.Figure.savefig
     monkeypatch.setattr(matplotlib.figure.Figure, "savefig",
                         lambda fig, *args, **kwargs: figures.append(fig) or save(fig, *args, **kwargs))
@@ -172,6 +175,10 @@ def test_report_figures_keep_every_label_inside_the_image(anchored_rom, tmp_path
         width, height = fig.get_size_inches()
         assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01, (drawn, fig.texts, fig.axes[0].get_title())
         assert drawn.x1 <= width + 0.01 and drawn.y1 <= height + 0.01, (drawn, fig.axes[0].get_title())
+        renderer = canvas.get_renderer()
+        axes_top = max(ax.get_window_extent(renderer).y1 for ax in fig.axes)
+        for text in fig.texts:   # a figure title (several lines) stays above the axes
+            assert text.get_window_extent(renderer).y0 >= axes_top, (text.get_text(), axes_top)
 
 
 def test_an_output_offset_does_not_hide_the_error_of_its_motion():

@@ -13,6 +13,7 @@ import html
 import json
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -66,11 +67,41 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), bbox_to_anchor=(0.5, 1.0), frameon=False)
     which = "" if len(shown) == p else f" ({len(shown)} of {p} outputs: the largest errors relative to their peak)"
-    fig.suptitle(plot_text(f"Outputs, input {comparison.input_spec}{which}"), y=1.0 - 0.3 / fig.get_figheight())
-    fixed_margins(fig, left=0.95, bottom=0.5, top=0.75)
+    lines = title_lines(f"Outputs, input {comparison.input_spec}{which}")
+    fig.suptitle("\n".join(plot_text(line) for line in lines), y=1.0 - 0.3 / fig.get_figheight())
+    fixed_margins(fig, left=0.95, bottom=0.5, top=0.75 + TITLE_LINE_INCHES * (len(lines) - 1))
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+#: Characters of a figure title's line (8 inch wide figure, 12 pt) and lines at most; the height of one more line.
+TITLE_WIDTH, TITLE_LINES, TITLE_LINE_INCHES = 80, 4, 0.22
+
+
+def title_lines(text: str, width: int = TITLE_WIDTH, most: int = TITLE_LINES) -> list[str]:
+    """``text`` broken into lines of at most ``width`` characters: after each ``;`` (one input's signal per line),
+    within that after a ``,`` or a space, and inside a longer word where nothing else helps; at most ``most`` lines,
+    the last ending in ``...`` where text is left out.  A compare of several inputs drew its whole input spec on one
+    line, cut off at both edges (audit 77a F4)."""
+    lines: list[str] = []
+    for part in re.split(r"(?<=;)", text):
+        line = ""
+        for piece in re.split(r"(?<=[, ])", part):
+            while len(line) + len(piece) > width:
+                if line:
+                    lines.append(line)
+                    line = ""
+                else:
+                    lines.append(piece[:width])
+                    piece = piece[width:]
+            line += piece
+        if line:
+            lines.append(line)
+    if len(lines) > most:
+        lines = lines[:most]
+        lines[-1] = lines[-1][: width - 3] + "..."
+    return [line.rstrip() for line in lines] or [""]
 
 
 def _figure_error(comparison: Comparison, path: Path) -> None:
