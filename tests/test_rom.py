@@ -834,7 +834,10 @@ def test_a_chain_under_a_constant_load_started_off_equilibrium_gets_the_order_it
     test_input = "harmonic:amplitude=3,omega=1.3;none;harmonic:amplitude=2,omega=0.7"
     reference = exact(test_input)[1].y
     error = np.abs(rom.simulate(test_input, dt, t_end).y - reference).max(axis=1) / np.ptp(reference, axis=1)
-    assert rom.r == n and error.max() < 1e-9, (rom.r, error)   # measured 2.1e-10 (r = 4: 0.11 .. 0.61)
+    # measured 2.1e-10 on the machine of 2026-12-06, 0.92e-9 .. 1.002e-9 on that of 2026-12-07 (same code; r = 4:
+    # 0.11 .. 0.61): the refinement ends at its iteration limit on the round-off floor (objective 5.8e-20 -> 6.4e-21),
+    # where the last digits follow the machine's rounding
+    assert rom.r == n and error.max() < 2.5e-9, (rom.r, error)
 
 
 def test_free_response_errors_measure_each_run_until_its_inputs_change():
