@@ -101,6 +101,9 @@ void ltiReset(LtiInstance *inst) {
     inst->phase = PhaseInstantiated;
     inst->completedEventAsked = 0;
     inst->terminated = 0;
+    inst->enabled = 0;
+    inst->stopDefined = 0;
+    inst->stopTime = 0.0;
     inst->nq = LTI_NQ_DEFAULT;
     inst->time = 0.0;
     inst->tolerance = DEFAULT_TOLERANCE;
@@ -208,7 +211,7 @@ static LtiStatus accelerations(LtiInstance *inst, const char *function, const do
         addProduct(qdd, inst->Kq, z, nq, nq, -inst->par[PAR_STIFFNESS_SCALE]);
     }
     addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);
-    addProduct(qdd, inst->Bq, inst->u, nq, LTI_NU, 1.0);
+    if (!LTI_ENABLE_INPUT || inst->enabled) addProduct(qdd, inst->Bq, inst->u, nq, LTI_NU, 1.0);
     if (inst->timeEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_TIME_EVENT_FQ[i];
     if (inst->stateEventOn) for (i = 0; i < nq; i++) qdd[i] += LTI_STATE_EVENT_FQ[i];
     for (i = 0; i < nq; i++) qdd[i] /= massScale;
@@ -692,7 +695,8 @@ void ltiExitInitialization(LtiInstance *inst) {
         size_t i, j, nq = inst->nq;
         for (i = 0; i < nq; i++) {
             double q = LTI_STEADY_Q0[i];
-            for (j = 0; j < LTI_NU; j++) q += LTI_STEADY_QU[i * LTI_NU + j] * inst->u[j];
+            if (!LTI_ENABLE_INPUT || inst->enabled)
+                for (j = 0; j < LTI_NU; j++) q += LTI_STEADY_QU[i * LTI_NU + j] * inst->u[j];
             inst->z[i] = q;
             inst->z[nq + i] = 0.0;
         }
@@ -702,4 +706,44 @@ void ltiExitInitialization(LtiInstance *inst) {
 
 void ltiStartEvents(LtiInstance *inst) {
     if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
+}
+
+LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        if (!LTI_ENABLE_INPUT || vr[i] != LTI_ENABLE_VR) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function,
+                   vr[i]);
+            return LtiError;
+        }
+        values[i] = inst->enabled;
+    }
+    return LtiOK;
+}
+
+LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                        const int values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        if (!LTI_ENABLE_INPUT || vr[i] != LTI_ENABLE_VR) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function,
+                   vr[i]);
+            return LtiError;
+        }
+        inst->enabled = values[i] != 0;
+        inst->upToDate = 0;
+    }
+    return LtiOK;
+}
+
+void ltiSetStopTime(LtiInstance *inst, int defined, double stopTime) {
+    inst->stopDefined = defined;
+    inst->stopTime = stopTime;
+}
+
+LtiStatus ltiCheckStopTime(LtiInstance *inst, const char *function, double time) {
+    if (!LTI_STRICT_STOP || !inst->stopDefined || time <= inst->stopTime) return LtiOK;
+    ltiLog(inst, LtiError, "logStatusError", "%s: t=%.17g passes the stop time %.17g", function, time,
+           inst->stopTime);
+    return LtiError;
 }

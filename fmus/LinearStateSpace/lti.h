@@ -88,6 +88,9 @@ struct LtiInstance {
     double timeCompleted; /* LTI_COMPLETED_GAP: time of the last completed integrator step (or event) */
     int completedEventAsked; /* LTI_COMPLETED_EVENT: the event was asked for */
     int terminated;      /* LTI_CS_TERMINATE (FMI 2): the model called terminate() in a doStep */
+    int enabled;         /* LTI_ENABLE_INPUT: the Boolean input that lets the forces act (start false) */
+    int stopDefined;     /* the stop time given to setupExperiment / enterInitializationMode, if any */
+    double stopTime;
 };
 
 #define PAR_MASS_SCALE 0
@@ -147,6 +150,11 @@ extern const double LTI_POSITION_LIMIT_BOUND;
 /* LTI_STEADY_START: initialization ends at the equilibrium q = LTI_STEADY_Q0 + LTI_STEADY_QU u (nq x nu,
    row-major), qd = 0, under the inputs set then (a Modelica steady-state initialization). */
 extern const int LTI_STEADY_START;
+/* LTI_ENABLE_INPUT: a Boolean input (value reference LTI_ENABLE_VR, start false) without which the force inputs do
+   not act (a drive's enable, a Simulink enabled subsystem).  LTI_STRICT_STOP: the stop time given to the FMU is
+   kept with no slack: a doStep whose end, or a SetTime, passes it returns an error (FMI: the run's final time). */
+extern const int LTI_ENABLE_INPUT, LTI_STRICT_STOP;
+extern const unsigned int LTI_ENABLE_VR;
 extern const double LTI_STEADY_Q0[], LTI_STEADY_QU[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
@@ -192,5 +200,12 @@ LtiStatus ltiSetTime(LtiInstance *inst, const char *function, double time);
 int ltiCompletedStep(LtiInstance *inst);
 void ltiEnterContinuousMode(LtiInstance *inst);
 LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
+/* LTI_ENABLE_INPUT: get / set the Boolean input (values 0 or 1); an error for any other value reference */
+LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]);
+LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                        const int values[]);
+/* Keep the stop time of the run; LTI_STRICT_STOP: an error (logged) where time passes it */
+void ltiSetStopTime(LtiInstance *inst, int defined, double stopTime);
+LtiStatus ltiCheckStopTime(LtiInstance *inst, const char *function, double time);
 
 #endif /* LTI_H */

@@ -97,8 +97,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined,
                                fmi2Real tolerance, fmi2Real startTime,
                                fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     CHECK(c, "fmi2SetupExperiment", PhaseInstantiated);
-    (void)stopTimeDefined;
-    (void)stopTime;
+    ltiSetStopTime(inst, stopTimeDefined, stopTime);
     if (toleranceDefined) inst->tolerance = tolerance;
     inst->time = startTime;
     return fmi2OK;
@@ -161,8 +160,9 @@ fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2GetBoolean", nvr);
+    if (!LTI_ENABLE_INPUT) return noVariables(c, "fmi2GetBoolean", nvr);
+    CHECK(c, "fmi2GetBoolean", PHASE_ANY);
+    return finish(inst, ltiGetBoolean(inst, "fmi2GetBoolean", vr, nvr, value));   /* (fmi2Boolean is int) */
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -179,8 +179,9 @@ fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2SetBoolean", nvr);
+    if (!LTI_ENABLE_INPUT) return noVariables(c, "fmi2SetBoolean", nvr);
+    CHECK(c, "fmi2SetBoolean", PHASE_BEFORE_INIT | PHASE_RUNNING);
+    return finish(inst, ltiSetBoolean(inst, "fmi2SetBoolean", vr, nvr, value));
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -271,6 +272,7 @@ fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStat
 
 fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
     CHECK(c, "fmi2SetTime", PhaseEvent | PhaseContinuous | PHASE_BEFORE_INIT);
+    if (ltiCheckStopTime(inst, "fmi2SetTime", time) != LtiOK) return finish(inst, LtiError);
     return finish(inst, ltiSetTime(inst, "fmi2SetTime", time));
 }
 
@@ -339,6 +341,7 @@ fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint,
     double end = currentCommunicationPoint + communicationStepSize, slack = 1e-12 * communicationStepSize;
     CHECK(c, "fmi2DoStep", PhaseStep);
     (void)noSetFMUStatePriorToCurrentPoint;
+    if (ltiCheckStopTime(inst, "fmi2DoStep", end) != LtiOK) return finish(inst, LtiError);
     if (LTI_CS_TERMINATE && end >= LTI_CS_TERMINATE_AT - slack) {
         /* the model calls terminate() at LTI_CS_TERMINATE_AT: the step stops there and is discarded (FMI 2.0
            section 4.2.2); fmi2GetBooleanStatus(fmi2Terminated) says why, fmi2LastSuccessfulTime where */

@@ -125,8 +125,7 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance instance, fmi3Boolean tolera
                                        fmi3Float64 tolerance, fmi3Float64 startTime,
                                        fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
     CHECK(instance, "fmi3EnterInitializationMode", PhaseInstantiated);
-    (void)stopTimeDefined;
-    (void)stopTime;
+    ltiSetStopTime(inst, stopTimeDefined, stopTime);
     if (toleranceDefined) inst->tolerance = tolerance;
     inst->time = startTime;
     inst->phase = PhaseInitialization;
@@ -259,7 +258,6 @@ NO_GETTER(fmi3GetUInt16, fmi3UInt16)
 NO_GETTER(fmi3GetInt32, fmi3Int32)
 NO_GETTER(fmi3GetUInt32, fmi3UInt32)
 NO_GETTER(fmi3GetInt64, fmi3Int64)
-NO_GETTER(fmi3GetBoolean, fmi3Boolean)
 NO_GETTER(fmi3GetString, fmi3String)
 NO_SETTER(fmi3SetInt8, fmi3Int8)
 NO_SETTER(fmi3SetUInt8, fmi3UInt8)
@@ -268,8 +266,38 @@ NO_SETTER(fmi3SetUInt16, fmi3UInt16)
 NO_SETTER(fmi3SetInt32, fmi3Int32)
 NO_SETTER(fmi3SetUInt32, fmi3UInt32)
 NO_SETTER(fmi3SetInt64, fmi3Int64)
-NO_SETTER(fmi3SetBoolean, fmi3Boolean)
 NO_SETTER(fmi3SetString, fmi3String)
+
+/* Booleans: the enable input of LTI_ENABLE_INPUT only (fmi3Boolean is a C bool: converted element by element) */
+fmi3Status fmi3GetBoolean(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, fmi3Boolean values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_ENABLE_INPUT) return noVariables(instance, "fmi3GetBoolean", nValueReferences);
+    CHECK(instance, "fmi3GetBoolean", PHASE_ANY);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        if (ltiGetBoolean(inst, "fmi3GetBoolean", valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+        values[i] = value ? fmi3True : fmi3False;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetBoolean(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                          size_t nValueReferences, const fmi3Boolean values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_ENABLE_INPUT) return noVariables(instance, "fmi3SetBoolean", nValueReferences);
+    CHECK(instance, "fmi3SetBoolean", PHASE_BEFORE_INIT | PHASE_RUNNING);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        value = values[i] ? 1 : 0;
+        if (ltiSetBoolean(inst, "fmi3SetBoolean", valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+    }
+    return fmi3OK;
+}
 
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                          size_t nValueReferences, size_t valueSizes[], fmi3Binary values[],
@@ -496,6 +524,7 @@ fmi3Status fmi3CompletedIntegratorStep(fmi3Instance instance,
 
 fmi3Status fmi3SetTime(fmi3Instance instance, fmi3Float64 time) {
     CHECK(instance, "fmi3SetTime", PhaseEvent | PhaseContinuous);
+    if (ltiCheckStopTime(inst, "fmi3SetTime", time) != LtiOK) return finish(inst, LtiError);
     return finish(inst, ltiSetTime(inst, "fmi3SetTime", time));
 }
 
@@ -578,6 +607,7 @@ fmi3Status fmi3DoStep(fmi3Instance instance, fmi3Float64 currentCommunicationPoi
                 LTI_CS_EARLY_RETURN_AT < end - slack;
     CHECK(instance, "fmi3DoStep", PhaseStep);
     (void)noSetFMUStatePriorToCurrentPoint;
+    if (ltiCheckStopTime(inst, "fmi3DoStep", end) != LtiOK) return finish(inst, LtiError);
     status = ltiDoStep(inst, currentCommunicationPoint,
                        early ? LTI_CS_EARLY_RETURN_AT - currentCommunicationPoint : communicationStepSize);
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;

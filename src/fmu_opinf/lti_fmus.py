@@ -764,6 +764,8 @@ class _Options:
     position_limit: tuple[int, float] | None = None
     position_limit_status: str = "error"
     single_precision: bool | str = False
+    enable_input: bool = False
+    strict_stop_time: bool = False
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -1255,6 +1257,10 @@ def _common_attributes(var: _Var) -> str:
 
 
 def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> str:
+    if var.type == "Boolean":
+        return (f"    <ScalarVariable {_common_attributes(var)}>\n"
+                f"      <Boolean start=\"{str(bool(var.start[0])).lower()}\"/>\n"
+                "    </ScalarVariable>\n")
     inner = _unit_attribute(var, declared)
     if var.start is not None:
         inner += f' start="{_number(var.start[0])}"'
@@ -1267,6 +1273,8 @@ def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> s
 
 def _variable3(var: _Var, vr_of: dict[str, int], declared: bool = False) -> str:
     attributes = _common_attributes(var)
+    if var.type == "Boolean":
+        return f'    <Boolean {attributes} start="{str(bool(var.start[0])).lower()}"/>\n'
     if var.type == "UInt64":
         attributes += f' start="{int(var.start[0])}" min="{var.minimum}" max="{var.maximum}"'
         return f"    <UInt64 {attributes}/>\n"
@@ -1560,6 +1568,9 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"{0 if options.position_limit is None else _POSITION_LIMIT_CODES[options.position_limit_status]};\n"
         f"const size_t LTI_POSITION_LIMIT_DOF = {limit[0]};\n"
         f"const double LTI_POSITION_LIMIT_BOUND = {_number(limit[1])};\n"
+        f"const int LTI_ENABLE_INPUT = {int(options.enable_input)};\n"
+        f"const unsigned int LTI_ENABLE_VR = {_enable_vr(layout)};\n"
+        f"const int LTI_STRICT_STOP = {int(options.strict_stop_time)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1627,8 +1638,33 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
     else:
         for var in layout.variables:
             var.dependencies = None
+    if options.enable_input:
+        _enable_input(layout, inputs)
     names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
+
+
+#: Name of the Boolean input of ``enable_input``.
+ENABLE_INPUT = "enable"
+
+
+def _enable_input(layout: _Layout, inputs: list[str]) -> None:
+    """Add the Boolean input ``enable`` (start false) without which the force inputs do not act; added last, with
+    the value reference after the C slot table (no slot: the kernel serves it in its Boolean get/set), and named
+    in the declared dependencies of every unknown that depends on a force input."""
+    forces = set(inputs) | {_array_name(u) for u in inputs}
+    for var in layout.variables:
+        deps = set(var.dependencies or ())
+        if forces & deps and not deps <= forces:   # (a force sensor, y = u, reports the force, enabled or not)
+            var.dependencies = var.dependencies + [ENABLE_INPUT]
+    layout.variables.append(_Var(ENABLE_INPUT, len(layout.slots), causality="input", variability="discrete",
+                                 start=[0.0], type="Boolean",
+                                 description="drive enable: the force inputs act only while it is true"))
+
+
+def _enable_vr(layout: _Layout) -> int:
+    """The value reference of the ``enable`` input (that of no slot where there is none)."""
+    return next((v.vr for v in layout.variables if v.type == "Boolean"), len(layout.slots))
 
 
 def _source_tree(layout: _Layout, options: _Options, model: LinearMechanicalModel,
@@ -1689,7 +1725,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   cs_early_return_at: float | None = None, cs_terminate_at: float | None = None,
                   me_terminate_at: float | None = None, completed_step_terminate_at: float | None = None,
                   position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
-                  single_precision: bool | str = False, reuse: bool = True) -> LtiFmu:
+                  single_precision: bool | str = False, enable_input: bool = False,
+                  strict_stop_time: bool = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1829,6 +1866,14 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         export for an embedded target may compute (the rounding noise is 6e-8 of their terms).  ``"partial"``:
         only the stiffness forces on the first half of the degrees of freedom are, from the positions rounded to
         ``float`` (one single-precision block beside double-precision ones, whose derivatives follow every move).
+    enable_input : bool, default=False
+        A Boolean input ``enable`` (start false, discrete) without which the force inputs do not act, as a drive's
+        enable or a Simulink enabled subsystem: the model rests until an importer sets it true.  It is not in
+        :attr:`LtiFmu.inputs` (the force inputs).
+    strict_stop_time : bool, default=False
+        Keep the stop time given to ``fmi2SetupExperiment`` / ``fmi3EnterInitializationMode`` with no slack, as
+        some generated FMUs do: a ``doStep`` whose end (``currentCommunicationPoint + communicationStepSize``), or
+        a model-exchange ``SetTime``, past it returns an error and logs why (audit 77a, F3).
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1869,7 +1914,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         me_terminate_at=None if me_terminate_at is None else float(me_terminate_at),
         completed_step_terminate_at=None if completed_step_terminate_at is None else float(completed_step_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
-        position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision))
+        position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision),
+        enable_input=bool(enable_input), strict_stop_time=bool(strict_stop_time))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
