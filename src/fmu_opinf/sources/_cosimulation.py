@@ -100,6 +100,27 @@ def declared_stop_at(text: str) -> float | None:
     found = re.search(re.escape(PAST_STOP_TIME) + r"([-+0-9.eE]+)", text)
     return float(found.group(1)) if found else None
 
+#: The stop time given to an FMU lies this share of the run's last step after its last sample (:func:`stop_time_given`).
+STOP_TIME_SLACK = 1e-6
+
+
+def stop_time_given(t: np.ndarray) -> float:
+    """The stopTime given to ``setupExperiment`` / ``enterInitializationMode`` for a run on the FMU times ``t``: its
+    last sample plus :data:`STOP_TIME_SLACK` of its last step (and 16 ulps).
+
+    Co-simulation steps from ``t[i - 1]`` by one uniform ``h`` (``FMUSource._steps``: FMUs with a fixed
+    communication step refuse a step that differs by an ulp), so the last step ends at ``t[-2] + h``, which may
+    pass ``t[-1]`` by a few ulps and by the 1e-9 h that the uniform step may differ from the grid's; model exchange
+    takes an event time within ``_time_slack`` (8 ulps and 1e-12 of the step) of ``t[-1]`` as its end.  An FMU that
+    enforces its stop time with no slack (``t + h > stopTime`` is an error, FMI: the run's final time) failed there
+    with ``stopTime = t[-1]`` (audit 77a, F3: ``56.98 + 0.02 = 57.000000000000007``).  The slack covers both and is
+    far below any step, so no FMU takes it for a longer run; it is the slack the Reference FMUs allow themselves
+    (``EPSILON = 1e-6`` of their step)."""
+    end = float(t[-1])
+    step = float(t[-1] - t[-2]) if len(t) > 1 else 0.0
+    return end + STOP_TIME_SLACK * abs(step) + 16 * math.ulp(end)
+
+
 #: Relative tolerance given to FMUs and to the model-exchange integrator when none is chosen.
 DEFAULT_TOLERANCE = 1e-10
 
@@ -768,7 +789,7 @@ class FMUSource(Source):
 
     def _initialize(self) -> None:
         fmu, t0 = self._fmu, float(self._t[0])
-        t_stop = float(self._t[-1])
+        t_stop = stop_time_given(self._t)
         tolerance = self.tolerance or None
         try:
             if self.fmi_version.startswith("2"):
