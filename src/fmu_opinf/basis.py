@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import json
 import os
 import sys
 import weakref
@@ -294,6 +295,24 @@ def cumulative_energy(sigma: np.ndarray) -> np.ndarray:
     if total <= 0:
         raise DataError("all snapshots are zero; excite the system with a non-zero input")
     return np.cumsum(sigma) / total
+
+
+def zero_snapshots_error(attrs: dict) -> str:
+    """The line for snapshots that are all zero, from their file's attributes: where the recording held inputs
+    (``held_input_values``, written by the FMU source), they are named with their values and the ``--set`` that
+    changes one (audit 77a, F2: a Boolean ``enable`` held at false; the line said only "excite the system with a
+    non-zero input", after a 100 N impulse)."""
+    from .sources._base import held_inputs_advice
+
+    held = attrs.get("held_input_values")
+    try:
+        held = json.loads(held) if isinstance(held, (str, bytes)) else held
+    except ValueError:
+        held = None
+    advice = held_inputs_advice(held) if isinstance(held, dict) else ""
+    if not advice:
+        return "all snapshots are zero; excite the system with a non-zero input"
+    return f"all snapshots are zero: nothing moved the model in the recording; {advice}, and record the snapshots again"
 
 
 def energy_order(sigma: np.ndarray, energy: float = DEFAULT_ENERGY) -> int:
@@ -554,6 +573,8 @@ class PODBasis:
         self.kind_ = resolve_kind(self.kind, attrs if attrs is not None else snapshot_attrs(data))
         name = _KINDS[self.kind_]
         sigma, vecs, rank, method = self._singular(runs, name, vectors=True)
+        if not float(np.sum(sigma)) > 0:
+            raise DataError(zero_snapshots_error(attrs if attrs is not None else snapshot_attrs(data)))
         self.svdvals_, self.rank_, self.method_ = sigma, rank, method
         self.energy_ = cumulative_energy(sigma)
         self.r_ = self._order(sigma, rank)

@@ -34,7 +34,7 @@ from ..errors import DataError, FMUError, FmuOpinfError, FmuOpinfWarning, InputS
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
 from ..sources import (EventCount, Source, StepError, at_start_time, fixed_communication_step, offers_model_exchange,
                        open_source, terminated_at, warn_once, warn_other_communication_step)
-from ..sources._base import nice_floor
+from ..sources._base import held_inputs_advice, nice_floor
 from ._consistency import judge_run, live_rate_sums
 from ._rate_tests import RateSums
 from ._data import Run, Snapshots
@@ -564,6 +564,8 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
             snaps.save(path, overwrite=overwrite)
         if failure is not None:
             raise incomplete_error(failure, run, Path(path) if path else None)
+        if _runs_still([run]):
+            _warn_still(source, path)
         return snaps
     summary = _record_file(source, [signal], [t], Path(path), quiet, isolate, overwrite, None)
     del summary
@@ -809,6 +811,7 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
     """Stream every signal's run (on its grid in ``grids``: one step, each run's own end) into one new file; stop
     at the first failing run (kept, incomplete)."""
     failure: StepError | None = None
+    still = False
     t = grids[0]
     summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window,
                             dt=float(t[1] - t[0]) if len(t) > 1 else None)
@@ -845,12 +848,50 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
         if failure is None:  # the input the first run started under, as recorded (Float32 inputs rounded)
             summary.initialization = initialization_of(source, t, first_input, first_position, isolate)
             write_attrs(f, {"initialization": summary.initialization})
+            still = _runs_still([runs[name] for name in runs])
         f.attrs["n_runs"] = len(summary.runs)
         write_attrs(f, _integrator_taken(source, recorded))
         write_attrs(f, current_recording_notes())   # (audit 70 F4: fit, compare and export repeat them)
     if failure is not None:
         raise failure
+    if still:
+        _warn_still(source, path)
     return summary
+
+
+def _runs_still(runs: Sequence[Any]) -> bool:
+    """Whether no recorded position or output moves in any run (each row within 1e-12 of its size of its first
+    value, as the automatic window's pilots judge, :func:`~._window._judged_pilot`): a recording the fit cannot
+    learn from.  ``runs``: :class:`Run` objects or run groups of a file, read in column blocks."""
+    for run in runs:
+        for name in ("x", "y"):
+            array = run[name] if isinstance(run, h5py.Group) else getattr(run, name)
+            rows, k = array.shape
+            if not rows or k < 2:
+                continue
+            low, high = np.full(rows, np.inf), np.full(rows, -np.inf)
+            step = max(1, (8 * 2**20) // (8 * rows))
+            for j0 in range(0, k, step):
+                block = np.asarray(array[:, j0:j0 + step], dtype=float)
+                np.minimum(low, block.min(axis=1), out=low)
+                np.maximum(high, block.max(axis=1), out=high)
+            size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)))), 1e-300)
+            if np.any(high - low > 1e-12 * size):
+                return False
+    return True
+
+
+def _warn_still(source: Source, path: Path | str | None) -> None:
+    """Warn that a recording on a given window stayed constant, naming the inputs held while it ran (audit 77a, F2:
+    a Boolean enable held at false made a file of constants without a word, and fit then said only "all snapshots
+    are zero")."""
+    from ._window import held_values
+
+    advice = held_inputs_advice(held_values(source)) or "give an input that reaches the outputs"
+    where = f" in {path}" if path is not None else ""
+    warnings.warn(f"{source_label(source)}: the positions and outputs recorded{where} stay constant in every run (the "
+                  f"model rests and nothing moves it), so the fit can learn nothing from them; {advice}",
+                  FmuOpinfWarning, stacklevel=3)
 
 
 @dataclasses.dataclass

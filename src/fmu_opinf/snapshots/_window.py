@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import DataError, InputSpecError
 from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
-from ..sources._base import nice_floor
+from ..sources._base import held_inputs_advice, nice_floor
 from ..sources._cosimulation import DISCARDED
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
@@ -1426,15 +1426,27 @@ def _motionless(source: Source, signal: Any, t: np.ndarray) -> str:
     """Why a pilot whose outputs stay constant cannot choose a window, and what to do (seventh audit, 2026-11-27:
     a model at rest at its equilibrium, its only input held as a parameter-like preload, went through twelve
     pilots to 'the output does not settle ... pass --dt and --t-end', which would record a constant)."""
-    held = list(getattr(source, "held_input_names", []) or [])
+    values = held_values(source)
+    real = [name for name, (kind, _, _) in values.items() if kind in ("Real", "Float64", "Float32")]
     what = (f"the outputs stay constant over t <= {t[-1]:g} (the model rests at an equilibrium and nothing "
             "moves it), so no window can be chosen and a recording would teach the fit nothing")
-    if isinstance(signal, NoInput) or not source.m:
-        fix = (f"drive an input: --inputs {held[0]} (it is held at its start value now)" if held
+    driven = source.m and not isinstance(signal, NoInput)
+    if not driven:
+        fix = (f"drive an input: --inputs {real[0]} (it is held at its start value now)" if real
                else "start the model away from its equilibrium (--set a start value) or give it an input")
+        values = {name: value for name, value in values.items() if name not in real}   # (--inputs names them)
     else:
         fix = "give an input that reaches the outputs (its amplitude, its channel)"
+    if values:   # audit 77a, F2: a Boolean enable held at false was never named
+        fix = f"{held_inputs_advice(values)}; or {fix}"
     return f"auto window: {what}; {fix}"
+
+
+def held_values(source: Source) -> dict[str, list]:
+    """The source's held inputs with their types and values (:meth:`FMUSource.held_input_values`); none for a
+    source that holds no inputs (the built-in models)."""
+    values = getattr(source, "held_input_values", None)
+    return values() if callable(values) else {}
 
 
 #: Outputs whose range is below this fraction of the largest one keep their size: a channel of round-off or

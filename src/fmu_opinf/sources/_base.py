@@ -57,6 +57,29 @@ def few_names(names: Sequence[str]) -> str:
     return ", ".join(shown) + (", ..." if len(names) > 6 else "")
 
 
+#: Types of held inputs that switch or select rather than push (audit 77a, F2: a drive's Boolean ``enable``).
+_SWITCH_TYPES = ("Boolean", "Integer", "Enumeration", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64",
+                 "UInt64")
+
+
+def held_inputs_advice(held: dict[str, Sequence[Any]]) -> str:
+    """The phrase of a one-line message that names the inputs held while the model did not move, with the values
+    they were held at, and the ``--set`` that changes one (audit 77a, F2: a Boolean ``enable`` held at its start
+    value false kept the force from acting, and the advice named neither).  ``held``: name -> (type, value as
+    text, whether ``--set`` gave it), :meth:`FMUSource.held_input_values`.  No input is guessed to be the one: they
+    are named as candidates, switches (Boolean, Integer, Enumeration) first.  "" where nothing was held."""
+    if not held:
+        return ""
+    order = sorted(held, key=lambda name: str(held[name][0]) not in _SWITCH_TYPES)
+    said = [f"{name} ({held[name][0]}, {'set to' if held[name][2] else 'held at its start value'} {held[name][1]})"
+            for name in order]
+    shown = few_names(said)
+    first, (kind, value, _) = order[0], held[order[0]]
+    example = {"true": "false", "false": "true"}.get(str(value).lower(), "VALUE") if kind == "Boolean" else "VALUE"
+    return (f"inputs held while it ran, one of which may keep the force from acting: {shown}; if one does, "
+            f"set it, e.g. --set {first}={example}")
+
+
 def natural_key(name: str) -> list[Any]:
     """Sort key ordering embedded numbers numerically (``x[2]`` before ``x[10]``)."""
     return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", name)]

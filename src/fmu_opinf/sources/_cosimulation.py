@@ -429,6 +429,7 @@ class FMUSource(Source):
         self.acceleration_names = [c.name for c in selection.accelerations]
         self.input_names = [e.name for e in forces]
         self.held_input_names = [e.name for e in held]
+        self._held_elements = list(held)
         #: the held inputs' values and the source's input order, for the exported ROM FMU (audit 69 F4)
         self.held_inputs = held_inputs_record(model.elements(structural), forces, held, self._settings)
         #: held inputs that look like parameters (default selection, looks_like_parameter): open_source warns
@@ -507,10 +508,28 @@ class FMUSource(Source):
             parts.append(f"held inputs {_few(self.held_input_names)}")
         return f"{self.path.name}: " + "; ".join(parts)
 
+    def held_input_values(self) -> dict[str, list[Any]]:
+        """Each held input, real or not: ``name -> [type, value as text, whether --set gave it]``, the value its
+        ``--set`` value where given, else its declared start value (what the advice of a run whose outputs did not
+        move names, :func:`~fmu_opinf.sources._base.held_inputs_advice`; audit 77a, F2)."""
+        given = {setting.var.name: setting.values for setting in self._settings}
+        values = {}
+        for element in getattr(self, "_held_elements", []):
+            var, chosen = element.var, given.get(element.var.name)
+            if chosen is not None:
+                value = chosen[element.offset] if element.offset < len(chosen) else chosen[0]
+            else:
+                parts = (var.start or "").split()
+                value = parts[element.offset] if element.offset < len(parts) else (parts[0] if parts else "0")
+            values[element.name] = [var.type, _value_text(var.type, value), chosen is not None]
+        return values
+
     def description(self) -> dict[str, Any]:
         desc = super().description()
         desc["variable_selection"] = dict(self.selection.how)
         desc["held_input_names"] = list(self.held_input_names)
+        if self.held_input_names:   # with their types and values, for the advice of a run that did not move
+            desc["held_input_values"] = self.held_input_values()
         desc["held_inputs"] = dict(self.held_inputs)
         if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
             desc["input_units"] = list(self.input_units)
@@ -1212,6 +1231,16 @@ def _unpack_error(path: Path, folder: str, exc: Exception) -> FMUError:
         return FMUError(f"{path.name} cannot be unpacked: {text}; repack the FMU with plain relative member names")
     return FMUError(f"{path.name} cannot be unpacked ({type(exc).__name__}: {text}); the file is damaged or "
                     "incomplete: copy or export the FMU again")
+
+
+def _value_text(kind: str, value: Any) -> str:
+    """A held input's value as a user writes it with --set: ``true``/``false`` for a Boolean, ``%g`` for numbers."""
+    if kind == "Boolean":
+        return "true" if str(value).strip().lower() in ("true", "1", "1.0") else "false"
+    try:
+        return f"{float(value):g}"
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def _few(names: list[str], limit: int = 4) -> str:
