@@ -128,3 +128,17 @@ def test_the_advice_offers_the_other_boolean_value_and_names_every_candidate():
                     "one does, set it, e.g. --set brake=false")
     assert held_inputs_advice({}) == ""
     assert zero_snapshots_error({}) == "all snapshots are zero; excite the system with a non-zero input"
+
+
+def test_only_runs_of_two_samples_or_more_can_be_found_still():
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._record import _runs_still
+
+    def run(x, y):
+        return SimpleNamespace(x=np.asarray(x, dtype=float), y=np.asarray(y, dtype=float))
+
+    assert _runs_still([run([[0.0, 0.0]], [[5.0, 5.0]])])
+    assert not _runs_still([run([[0.0]], [[5.0]])])   # one sample: nothing to judge
+    assert not _runs_still([run([[0.0, 0.0]], [[5.0, 5.0]]), run([[0.0, 1e-9]], [[5.0, 5.0]])])
+    assert not _runs_still([run([[0.0, 0.0]], [[5.0, 5.0 + 1e-10]])])

@@ -1914,7 +1914,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         me_terminate_at=None if me_terminate_at is None else float(me_terminate_at),
         completed_step_terminate_at=None if completed_step_terminate_at is None else float(completed_step_terminate_at),
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
-        position_limit_status=str(position_limit_status), single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision),
+        position_limit_status=str(position_limit_status),
+        single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision),
         enable_input=bool(enable_input), strict_stop_time=bool(strict_stop_time))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)

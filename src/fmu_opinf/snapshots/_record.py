@@ -862,13 +862,16 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
 def _runs_still(runs: Sequence[Any]) -> bool:
     """Whether no recorded position or output moves in any run (each row within 1e-12 of its size of its first
     value, as the automatic window's pilots judge, :func:`~._window._judged_pilot`): a recording the fit cannot
-    learn from.  ``runs``: :class:`Run` objects or run groups of a file, read in column blocks."""
+    learn from.  ``runs``: :class:`Run` objects or run groups of a file, read in column blocks.  Runs of one sample
+    show nothing either way: False where no run has two."""
+    seen = False
     for run in runs:
         for name in ("x", "y"):
             array = run[name] if isinstance(run, h5py.Group) else getattr(run, name)
             rows, k = array.shape
             if not rows or k < 2:
                 continue
+            seen = True
             low, high = np.full(rows, np.inf), np.full(rows, -np.inf)
             step = max(1, (8 * 2**20) // (8 * rows))
             for j0 in range(0, k, step):
@@ -878,7 +881,7 @@ def _runs_still(runs: Sequence[Any]) -> bool:
             size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)))), 1e-300)
             if np.any(high - low > 1e-12 * size):
                 return False
-    return True
+    return seen
 
 
 def _warn_still(source: Source, path: Path | str | None) -> None:
