@@ -37,7 +37,8 @@ def _chain(inputs=(-1,)) -> lti_fmus.LinearMechanicalModel:
 
 @pytest.fixture(scope="module")
 def fmus(request, tmp_path_factory) -> dict:
-    items = [("fmi2", dict()), ("fmi3", dict(fmi_version="3.0")), ("two", dict(model_inputs=(0, 1)))]
+    items = [("fmi2", dict()), ("fmi3", dict(fmi_version="3.0")), ("two", dict(model_inputs=(0, 1))),
+             ("sensor", dict(input_sensors=True))]
 
     def build(folder, item):
         name, options = item
@@ -76,6 +77,17 @@ def test_the_automatic_window_names_the_held_boolean_and_its_setting(kind, fmus,
     assert code == 2 and "Traceback" not in err, err
     assert line.startswith("fmu-opinf: error: auto window: the outputs stay constant"), line
     assert NAMED in line and FIX in line, line   # was: "give an input that reaches the outputs" alone
+
+
+def test_a_force_sensor_that_moves_while_the_positions_rest_does_not_choose_the_window(fmus, tmp_path, capsys):
+    """The sensor (y = u, direct feedthrough) shows the pulse although the Boolean keeps it from acting: the window
+    judges the positions (it was: the pulse's own spectrum, dt = 5e-08 to t_end = 2.3e-06, exit 0)."""
+    code = _snapshots(fmus["sensor"], tmp_path / "s.h5")
+    err = capsys.readouterr().err
+    assert code == 2, err
+    line = err.strip().splitlines()[-1]
+    assert line.startswith("fmu-opinf: error: auto window: the positions stay constant over t <= "), line
+    assert NAMED in line and FIX in line, line
 
 
 def test_a_real_input_held_by_choice_is_named_beside_the_boolean(fmus, tmp_path, capsys):

@@ -1286,6 +1286,8 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
             raise incomplete_error(failure, run, None)
+    if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):   # outputs that pass the input
+        raise DataError(_motionless(source, signal, t, "positions"))            # through move (y = u), nothing else
     y = np.asarray(run.y)
     if isinstance(baseline, IfMoving):
         y = baseline.net(source, signal, t, y, quiet, isolate, f"{label}: its drift without the pulse")
@@ -1422,13 +1424,23 @@ def _judged_pilot(source: Source, signal: Any, t: np.ndarray, y: np.ndarray, t_i
                   fade_estimate=_fade_estimate(t, envelope, fade))
 
 
-def _motionless(source: Source, signal: Any, t: np.ndarray) -> str:
+def _rows_still(x: np.ndarray) -> bool:
+    """Whether every row of a pilot's recorded positions or outputs ``x`` (rows, k) stays constant (within 1e-12 of
+    their size, as :func:`_judged_pilot` judges outputs).  Positions that stay while outputs move: the model did not
+    move, only outputs of direct feedthrough did (audit 77a, F2: with a force sensor y = u beside a Boolean enable
+    held at false, the window took the pulse's own spectrum for the model's and chose dt = 5e-8)."""
+    if x.ndim != 2 or not x.shape[0] or x.shape[1] < 2:
+        return False
+    return not np.any(np.ptp(x, axis=1) > 1e-12 * max(float(np.abs(x).max()), 1e-300))
+
+
+def _motionless(source: Source, signal: Any, t: np.ndarray, what: str = "outputs") -> str:
     """Why a pilot whose outputs stay constant cannot choose a window, and what to do (seventh audit, 2026-11-27:
     a model at rest at its equilibrium, its only input held as a parameter-like preload, went through twelve
     pilots to 'the output does not settle ... pass --dt and --t-end', which would record a constant)."""
     values = held_values(source)
     real = [name for name, (kind, _, _) in values.items() if kind in ("Real", "Float64", "Float32")]
-    what = (f"the outputs stay constant over t <= {t[-1]:g} (the model rests at an equilibrium and nothing "
+    what = (f"the {what} stay constant over t <= {t[-1]:g} (the model rests at an equilibrium and nothing "
             "moves it), so no window can be chosen and a recording would teach the fit nothing")
     driven = source.m and not isinstance(signal, NoInput)
     if not driven:
