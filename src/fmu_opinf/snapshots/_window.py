@@ -1286,8 +1286,9 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
             raise incomplete_error(failure, run, None)
-    if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):   # outputs that pass the input
-        raise DataError(_motionless(source, signal, t, "positions"))            # through move (y = u), nothing else
+    # only outputs that pass the input through (y = u) move: the model does not, and its spectrum is the pulse's
+    if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):
+        raise DataError(_motionless(source, signal, t, "positions"))
     y = np.asarray(run.y)
     if isinstance(baseline, IfMoving):
         y = baseline.net(source, signal, t, y, quiet, isolate, f"{label}: its drift without the pulse")
@@ -1435,9 +1436,11 @@ def _rows_still(x: np.ndarray) -> bool:
 
 
 def _motionless(source: Source, signal: Any, t: np.ndarray, what: str = "outputs") -> str:
-    """Why a pilot whose outputs stay constant cannot choose a window, and what to do (seventh audit, 2026-11-27:
-    a model at rest at its equilibrium, its only input held as a parameter-like preload, went through twelve
-    pilots to 'the output does not settle ... pass --dt and --t-end', which would record a constant)."""
+    """Why a pilot whose outputs (or positions: ``what``) stay constant cannot choose a window, and what to do
+    (seventh audit, 2026-11-27: a model at rest at its equilibrium, its only input held as a parameter-like preload,
+    went through twelve pilots to 'the output does not settle ... pass --dt and --t-end', which would record a
+    constant).  The inputs held while it ran are named with their values and the ``--set`` that changes one
+    (audit 77a, F2: a Boolean ``enable`` held at false was never named)."""
     values = held_values(source)
     real = [name for name, (kind, _, _) in values.items() if kind in ("Real", "Float64", "Float32")]
     what = (f"the {what} stay constant over t <= {t[-1]:g} (the model rests at an equilibrium and nothing "

@@ -100,6 +100,7 @@ def declared_stop_at(text: str) -> float | None:
     found = re.search(re.escape(PAST_STOP_TIME) + r"([-+0-9.eE]+)", text)
     return float(found.group(1)) if found else None
 
+
 #: The stop time given to an FMU lies this share of the run's last step after its last sample (:func:`stop_time_given`).
 STOP_TIME_SLACK = 1e-6
 
