@@ -878,6 +878,8 @@ def _runs_still(runs: Sequence[Any]) -> bool:
                 block = np.asarray(array[:, j0:j0 + step], dtype=float)
                 np.minimum(low, block.min(axis=1), out=low)
                 np.maximum(high, block.max(axis=1), out=high)
+                if np.any(high - low > 1e-6 * np.maximum(np.abs(low), np.abs(high)).max()):
+                    return False   # clearly moving: the rest of a long recording is not read
             size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)))), 1e-300)
             if np.any(high - low > 1e-12 * size):
                 return False
