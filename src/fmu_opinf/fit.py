@@ -45,6 +45,7 @@ import numpy as np
 
 from . import _threads
 from ._hdf5 import jsonable, tool_versions
+from ._linear_outputs import nonlinear_outputs
 from ._sdp_paths import FACTORED_ABOVE
 from ._stepping import recorded_stepping
 from .basis import PODBasis, as_runs, centred, column_blocks, project, read_columns, snapshot_attrs
@@ -257,6 +258,29 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
                   "nonlinearity changes it on its own: record a stretch without them)", FmuOpinfWarning, stacklevel=3)
 
 
+def _warn_nonlinear_outputs(linearity: dict) -> None:
+    """One warning naming the outputs that no linear model of the recorded states gives (:func:`_linearity`), why
+    that matters and the fix; said whether the fit left them out of its judgement or, all outputs being such,
+    could not."""
+    names = linearity["names"]
+    residuals = [linearity["residuals"][j] for j in linearity["outputs"]]
+    few = ", ".join(names[:6]) + (f" and {len(names) - 6} more" if len(names) > 6 else "")
+    verb, its, them = ("is", "its", "it") if len(names) == 1 else ("are", "their", "them")
+    share = f"{min(residuals):.2g}" + (f" .. {max(residuals):.2g}" if len(residuals) > 1 else "")
+    if linearity.get("left_out"):
+        done = (f"the output-error refinement, the least-squares candidate's choice and --terms auto judge the fit "
+                f"without {them}, and the ROM gives {them} by a linear least-squares fit from its states, inputs and "
+                "a constant (eq. 17)")
+    else:
+        done = ("every varying output is such, so the fit is judged on them all and its dynamics bend toward what a "
+                "linear model of them can give")
+    warnings.warn(f"{few} {verb} not linear in the recorded states (an energy, a length, an angle, or a state not "
+                  f"recorded): least squares from the recorded positions, velocities, inputs and a constant leaves "
+                  f"{share} of {its} variation; {done}; record without {them} (snapshots --outputs naming the "
+                  f"others) or keep {them} knowing that the ROM's {few} {verb} a linear fit", FmuOpinfWarning,
+                  stacklevel=3)
+
+
 #: Largest miss of the ROM's outputs at its start (``t = 0`` of the first training run) against the source's, as a
 #: fraction of each output's training range, that passes without a warning (audit 69 F3: a free-response model
 #: fitted at r = 10 started 5 % of an output's range off, because 5.8 % of its start velocity lay outside the basis).
@@ -288,6 +312,7 @@ def start_miss_warning(info: dict, names: Sequence[str] = ()) -> str | None:
     misses = info.get("start_output_miss") if isinstance(info, dict) else None
     if not isinstance(misses, list) or not misses or not all(isinstance(v, (int, float)) for v in misses):
         return None
+    misses = [0.0 if j in _left_out(info) else value for j, value in enumerate(misses)]   # (a linear fit of them)
     worst = int(np.argmax(misses))
     if not misses[worst] > START_OUTPUT_MISS:
         return None
@@ -618,6 +643,9 @@ def fit_rom(
         info["refinement_integrator"] = "forward-euler"
     if search:
         info["order_search"] = search
+    if fit.linearity.get("outputs"):
+        info["nonlinear_outputs"] = fit.linearity
+        _warn_nonlinear_outputs(fit.linearity)
     if (choice := _integrator_choice(integrator, attrs)) is not None:
         info["integrator_choice"] = choice
     dt_training = _training_dt(runs, attrs)
@@ -732,6 +760,7 @@ class _OrderFit:
     maps: tuple
     integrator: str
     info: dict
+    linearity: dict = dataclasses.field(default_factory=dict)
 
 
 def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, options: _FitOptions,
@@ -748,13 +777,16 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     euler_rates = o.refine_integrator == "forward-euler" and _derived_accelerations(attrs) is True
     data = _reduced_data(centred_runs, pod, o.lowpass, euler_rates=euler_rates)
     if decided is not None and decided.pod.wide_basis_.shape[1] == pod.wide_basis_.shape[1]:
-        chosen, term_info = decided.chosen, decided.term_info
+        chosen, term_info, linearity = decided.chosen, decided.term_info, decided.linearity
     else:
         decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(
             centred_runs, pod, o.lowpass, wide=True, outputs=data["y"], euler_rates=euler_rates)
         with _threads.single_threaded():  # least-squares residuals of reduced data: small kernels
+            linearity = _linearity(decision, pod, attrs)
             chosen, term_info = _choose_terms(decision, o.requested,
-                                              "f_" if euler_rates or any(_averaged(run) for run in runs) else "")
+                                              "f_" if euler_rates or any(_averaged(run) for run in runs) else "",
+                                              judged=_judged_rows(linearity, data["y"].shape[0]))
+    judged = _judged_rows(linearity, data["y"].shape[0])
     sdp = "f_" if "f_x" in data else ""
     u_fit = data[sdp + "u"]
     if chosen["fr"]:
@@ -765,22 +797,25 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     with _threads.single_threaded():
         Cpr, Cvr, Dur, y0 = fit_output_map(data["xdot"], data["x"], data["y"], data["u"],
                                            feedthrough=chosen["Dur"], offset=chosen["y0"])
+        _fit_left_out_fully(data, (Cpr, Cvr, Dur, y0), linearity)
     time_integrator = _integrator(o.integrator, attrs)
     refinement = _refinement(o.refine, o.refine_integrator or time_integrator, o.lowpass, runs, attrs, data,
                              (Cpr, Cvr, Dur, y0))
+    steering = _steering(refinement, judged)
     if refinement.get("refine"):
         starts = "the SDP solution" + (" and, where it exists, the mechanical realization of least squares"
                                        if o.least_squares_candidate else "")
         say(f"output-error refinement from {starts} (L-BFGS over PSD factors) ...")
     if o.refit_output_map and not refinement.get("refine"):
         raise _refit_without_refinement()
-    screened = _screen(data, u_fit, refinement) if screen and not o.refit_output_map else None
+    screened = _screen(data, u_fit, steering) if screen and not o.refit_output_map else None
     ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=o.method,
                         mass_trace=o.mass_trace, tol=o.tol, normalization=o.normalization, solver=o.solver,
                         refit_output_map=o.refit_output_map, least_squares_candidate=o.least_squares_candidate,
                         refine_iterations=o.refine_iterations, progress=o.progress,
-                        output_weighting=o.output_weighting, screen=screened, **refinement)
+                        output_weighting=o.output_weighting, screen=screened, **steering)
     if ops.output_map is not None:
+        ops.output_map = _whole_map(ops, (Cpr, Cvr), judged)
         Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and o.lowpass is None else 0)):
         ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
@@ -791,7 +826,8 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     simulated = refinement if refinement.get("refine") else _refinement(
         "auto", o.refine_integrator or time_integrator, o.lowpass, runs, attrs,
         {key: value for key, value in data.items() if not key.startswith("f_")}, (Cpr, Cvr, Dur, y0), warn=False)
-    unchecked = None if refinement.get("refine") else _training_output_error(ops, sampled_u, data, simulated,
+    unchecked = None if refinement.get("refine") else _training_output_error(ops, sampled_u, data,
+                                                                               _steering(simulated, judged),
                                                                                o.output_weighting)
     sdp_seconds = ops.info.get("sdp_wall_seconds", ops.info.get("total_seconds", 0))
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
@@ -808,8 +844,64 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
     if unchecked is not None:
         info["training_output_error"] = unchecked
-    info.update(_output_errors(ops, sampled_u, data, simulated, (Cpr, Cvr), _run_names(runs)))
-    return _OrderFit(pod, data, ops, chosen, term_info, (Cpr, Cvr, Dur, y0), time_integrator, info)
+    info.update(_output_errors(ops, sampled_u, data, simulated, (Cpr, Cvr), _run_names(runs), judged))
+    return _OrderFit(pod, data, ops, chosen, term_info, (Cpr, Cvr, Dur, y0), time_integrator, info, linearity)
+
+
+def _linearity(decision: dict[str, np.ndarray], pod: PODBasis, attrs: dict) -> dict:
+    """:func:`fmu_opinf._linear_outputs.nonlinear_outputs` on the data the extra terms are decided on, judged
+    against the projection error of that basis (none where it reaches the snapshot rank)."""
+    order = int(decision["x"].shape[0])
+    energy = np.asarray(pod.energy_, dtype=float)
+    spans_all = order >= pod.rank_ or order > energy.size or not energy.size
+    projection = 0.0 if spans_all else math.sqrt(max(0.0, 1.0 - float(energy[order - 1])))
+    p = decision["y"].shape[0]
+    names = _names(attrs.get("output_names"), p) or [f"y[{j + 1}]" for j in range(p)]
+    return nonlinear_outputs(decision, projection, names, held=_held_outputs(attrs))
+
+
+def _fit_left_out_fully(data: dict[str, np.ndarray], maps: tuple[np.ndarray, ...], linearity: dict) -> None:
+    """Give the outputs left out of the fit's judgement (:func:`_linearity`) the whole linear least squares the
+    detection measured them by, from the positions, velocities, inputs and a constant, in place in ``maps``
+    (``Cpr, Cvr, Dur, y0``): the extra terms were decided without them, and an energy has an offset that its
+    linear fit needs whether the others have one or not."""
+    rows = np.asarray(linearity.get("outputs") or [], dtype=int) if linearity.get("left_out") else None
+    if rows is None or not rows.size:
+        return
+    for whole, part in zip(maps, fit_output_map(data["xdot"], data["x"], data["y"][rows], data["u"],
+                                                feedthrough=True, offset=True)):
+        whole[rows] = part
+
+
+def _judged_rows(linearity: dict, p: int) -> np.ndarray:
+    """The rows of the outputs that steer the dynamics: all but those :func:`_linearity` leaves out."""
+    left_out = set(linearity.get("outputs") or []) if linearity.get("left_out") else set()
+    return np.array([j for j in range(p) if j not in left_out], dtype=int)
+
+
+def _steering(refinement: dict[str, Any], judged: np.ndarray) -> dict[str, Any]:
+    """The keywords of :func:`_refinement` restricted to the ``judged`` outputs: what the refinement, the
+    least-squares candidate's choice and the order search's screen weigh (audit 77a F1: an output not linear in
+    the state, weighed there, bent the dynamics of every output)."""
+    if not refinement.get("refine") or judged.size == refinement["y"].shape[0]:
+        return refinement
+    Cpr, Cvr = refinement["output_map"]
+    return dict(refinement, y=refinement["y"][judged], output_map=(Cpr[judged], Cvr[judged]))
+
+
+def _whole_map(ops: Any, maps: tuple[np.ndarray, np.ndarray], judged: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The output map of every output in the coordinates of ``ops``, where :func:`fmu_opinf.inference.fit_operators`
+    returned one of the ``judged`` outputs only (a refitted map, or the least-squares realization's): the others
+    keep eq. 17's map ``maps`` of the POD coordinates, taken to the model's (``[q; q'] = W z``: ``C W``)."""
+    Cp, Cv = ops.output_map
+    if Cp.shape[0] == maps[0].shape[0]:
+        return Cp, Cv
+    r = Cp.shape[1]
+    C = np.hstack(maps)
+    if ops.coordinates is not None:
+        C = C @ ops.coordinates
+    C[judged] = np.hstack([Cp, Cv])
+    return C[:, :r], C[:, r:]
 
 
 #: Largest order the order search of :func:`fit_rom` tries (with the snapshot rank): up to it the SDP is solved by
@@ -1188,7 +1280,8 @@ def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray],
 
 
 def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
-                   output_map: tuple[np.ndarray, np.ndarray], run_names: Sequence[str] = ()) -> dict[str, Any]:
+                   output_map: tuple[np.ndarray, np.ndarray], run_names: Sequence[str] = (),
+                   judged: np.ndarray | None = None) -> dict[str, Any]:
     """Each training output's relative squared error, each run's relative to that run's own variation (the worst
     run), over the whole runs and over their free responses (:func:`fmu_opinf.refinement.output_errors`, one
     simulation), as ``{"output_errors": [...], "free_response_errors": [...], "worst_output_error": e,
@@ -1196,7 +1289,8 @@ def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulat
     and ``i``, the larger of the two figures; None where an output was not judged; ``name`` from ``run_names``,
     else ``"run i"``), for the model fitted (in its modal coordinates, if any) with its output map; empty where the
     training runs cannot be simulated (``simulated``: the keywords of :func:`_refinement` on the sampled states).
-    ``u``: the sampled inputs (with the row of ones of ``fr``)."""
+    ``u``: the sampled inputs (with the row of ones of ``fr``); ``judged``: the rows the worst output is taken from
+    (default all; every output's errors are listed)."""
     from .refinement import output_errors
 
     if not simulated.get("refine"):
@@ -1214,6 +1308,8 @@ def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulat
     errors, free = found.whole, found.free_response
     result: dict[str, Any] = {"output_errors": _listed(errors), "free_response_errors": _listed(free)}
     combined = np.fmax(errors, free)
+    if judged is not None:   # (outputs left out of the fit's judgement: :func:`_linearity`)
+        combined[np.setdiff1d(np.arange(combined.size), judged)] = np.nan
     if not np.any(np.isfinite(combined) | np.isinf(combined)):
         return result
     worst = int(np.nanargmax(combined))
@@ -1369,17 +1465,20 @@ def _decision_order(runs: list) -> int:
 
 
 def _choose_terms(data: dict[str, np.ndarray], requested: dict[str, bool | None],
-                  sdp: str = "") -> tuple[dict, dict]:
+                  sdp: str = "", judged: np.ndarray | None = None) -> tuple[dict, dict]:
     """Decide which extra terms to fit (module docstring): forced ones as requested, the rest by the residual
     reduction each brings to its least-squares problem; the force offset is tested on the data the SDP fits
-    (prefix ``sdp``: ``"f_"`` for interval averages)."""
+    (prefix ``sdp``: ``"f_"`` for interval averages); ``Dur`` and ``y0`` on the ``judged`` outputs (default all):
+    an output not linear in the states leaves a residual that hides theirs (audit 77a F1: an energy output hid the
+    feedthrough of a force sensor, which was then 0.34 of its range off)."""
     k = data["u"].shape[1]
+    y = data["y"] if judged is None or judged.size == data["y"].shape[0] else data["y"][judged]
     ones = np.ones((1, k))
     sdp_ones = ones if data[sdp + "u"].shape[1] == k else np.ones((1, data[sdp + "u"].shape[1]))
     tests = {
         "fr": ([data[sdp + "xdot"], data[sdp + "x"], data[sdp + "u"]], sdp_ones, data[sdp + "xddot"]),
-        "Dur": ([data["x"], data["xdot"], ones], data["u"], data["y"]),
-        "y0": ([data["x"], data["xdot"], data["u"]], ones, data["y"]),
+        "Dur": ([data["x"], data["xdot"], ones], data["u"], y),
+        "y0": ([data["x"], data["xdot"], data["u"]], ones, y),
     }
     chosen, info, spaces = {}, {}, {}
     for name, (base, extra, target) in tests.items():
@@ -1436,6 +1535,15 @@ def _output_peak(y: Any) -> list[float] | None:
         return None
     rows = (np.asarray(y[i], dtype=float) for i in range(y.shape[0]))
     return [float(np.abs(row - row[0]).max()) for row in rows]
+
+
+def _left_out(info: dict) -> list[int]:
+    """The outputs the fit left out of its judgement as not linear in the states (``fit_info["nonlinear_outputs"]``,
+    :func:`_linearity`), 0-based; empty for a fit that left none out or an older one."""
+    found = info.get("nonlinear_outputs") if isinstance(info, dict) else None
+    if not isinstance(found, dict) or not found.get("left_out"):
+        return []
+    return [int(j) for j in found.get("outputs") or [] if isinstance(j, (int, np.integer))]
 
 
 def _held_outputs(attrs: dict) -> list[str]:

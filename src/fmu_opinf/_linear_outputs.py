@@ -1,0 +1,118 @@
+"""Outputs that no linear model of the recorded states can give (audit 77a, F1).
+
+A real FMU may record an output that is not linear in the state: an energy, a slanted cable's length
+``sqrt((L + x)^2 + h^2)``, an ``atan2`` angle.  Its model description looks like a linear sensor's, and the
+default selection records it.  Eq. (17) still gives it as well as a linear map can, but where the output-error
+refinement, the least-squares candidate's choice and the ``--terms auto`` decision weigh it beside the others, the
+learned dynamics bend toward it and every output goes off (audit 77a: linear outputs 0.9-8.7 % of their range off
+and a pole at 189 rad/s against a true 9.87, where ``--no-refine`` was exact to 3e-15).
+
+:func:`nonlinear_outputs` finds such outputs by least squares of each output from the reduced positions,
+velocities, inputs and a constant on the basis the extra terms are decided on (the snapshot rank or
+:data:`fmu_opinf.fit.TERM_DECISION_ORDER` modes): what is left of the output's variation is round-off for a linear
+output where that basis spans the snapshots, and the projection error's share where it does not (judged against
+:data:`PROJECTION_MARGIN` times that share).  The fit leaves them out of what steers the dynamics; the ROM still
+gives them by eq. (17).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["LINEAR_OUTPUT_RESIDUAL", "PROJECTION_MARGIN", "nonlinear_outputs", "output_linear_residuals"]
+
+#: Residual of an output's least-squares fit from ``[q; q'; u; 1]``, relative to the output's variation (its RMS
+#: about its mean), above which the output is taken for one that no linear model of the recorded states gives.
+#: Measured on audit 77a's FMUs (3-mass chain, exact hold step, the default recording's impulse, 1559-2851
+#: samples): the linear outputs x1, x3 and the force sensor y = u 3e-16 .. 8e-16 (constout, energy, cable alike),
+#: the cable length sqrt((2 + x3)^2 + 1) 0.47, the energy 15 x3^2 + v3^2 / 2 0.98.  1e-6 lies nine decades above
+#: the one (room for outputs computed in single precision, 6e-8) and five below the other (a cable's residual
+#: shrinks with the motion's amplitude: one hundredth of this one's still gives 5e-3).
+LINEAR_OUTPUT_RESIDUAL = 1e-6
+
+#: Factor on the basis' relative projection error of the snapshots (``sqrt(1 - E)`` at the basis' order) by which
+#: the bar is raised where that basis does not span them: a linear output misses by the share of the state outside
+#: the basis, which a small output (beside the larger motion the basis follows) can feel many times over.
+PROJECTION_MARGIN = 1e3
+
+#: Variation (peak to peak) relative to an output's magnitude below which it is taken for a constant (a parameter
+#: echoed as an output, round-off around it): no fit judges it.
+CONSTANT_OUTPUT = 1e-12
+
+
+def output_linear_residuals(x: np.ndarray, xdot: np.ndarray, u: np.ndarray, y: np.ndarray) -> list[float | None]:
+    """Each output's residual of its least-squares fit from ``[x; xdot; u; 1]``, relative to its variation.
+
+    Parameters
+    ----------
+    x, xdot : (r, k) ndarray
+        Reduced (or full) positions and velocities of all runs side by side.
+    u : (m, k) ndarray
+        Inputs at the same samples.
+    y : (p, k) ndarray
+        Outputs at the same samples.
+
+    Returns
+    -------
+    list of float or None
+        ``||y_j - fit_j|| / ||y_j - mean(y_j)||`` per output; None for a constant output
+        (:data:`CONSTANT_OUTPUT`), which no residual can judge.
+
+    Notes
+    -----
+    The columns are scaled to unit norm and the range is taken from an SVD cut at ``1e-12`` of the largest
+    singular value, so a rank-deficient set (positions under a constraint, an input that is zero) does not lend a
+    spurious direction to the fit.
+    """
+    k = y.shape[1]
+    A = np.vstack([x, xdot, u, np.ones((1, k))]).T
+    norms = np.linalg.norm(A, axis=0)
+    A = A[:, norms > 0] / norms[norms > 0]
+    U, s, _ = np.linalg.svd(A, full_matrices=False)
+    Q = U[:, s > 1e-12 * s[0]] if s.size else U[:, :0]
+    out: list[float | None] = []
+    for row in np.asarray(y, dtype=float):
+        variation = row - row.mean()
+        if not np.ptp(row) > CONSTANT_OUTPUT * max(float(np.abs(row).max()), 1e-300):
+            out.append(None)
+            continue
+        residual = row - Q @ (Q.T @ row)
+        out.append(float(np.linalg.norm(residual) / np.linalg.norm(variation)))
+    return out
+
+
+def nonlinear_outputs(data: dict[str, np.ndarray], projection_error: float, names: Sequence[str],
+                      held: Sequence[str] = ()) -> dict[str, Any]:
+    """The outputs that no linear model of the recorded states gives, as ``fit_info["nonlinear_outputs"]``.
+
+    Parameters
+    ----------
+    data : dict
+        Reduced data ``x, xdot, u, y`` on the basis the extra terms are decided on.
+    projection_error : float
+        That basis' relative projection error of the snapshots (``sqrt(1 - E)``), which raises the bar
+        (:data:`PROJECTION_MARGIN`).
+    names : sequence of str
+        The outputs' names (``y[j]`` where the snapshots have none).
+    held : sequence of str
+        Outputs held between samples: judged by their own warning (audit 73 F3), not here.
+
+    Returns
+    -------
+    dict
+        ``outputs`` (0-based indices of the outputs above the bar), ``names``, ``residuals`` (every output's,
+        None where constant or held), ``threshold`` and ``left_out``: whether the fit leaves ``outputs`` out of
+        what steers the dynamics (False where every varying output is among them: nothing would be left to judge
+        a fit by).
+    """
+    threshold = max(LINEAR_OUTPUT_RESIDUAL, PROJECTION_MARGIN * projection_error)
+    residuals = output_linear_residuals(data["x"], data["xdot"], data["u"], data["y"])
+    residuals = [None if name in held else value for name, value in zip(names, residuals)]
+    found = [j for j, value in enumerate(residuals) if value is not None and value > threshold]
+    judged = [j for j, value in enumerate(residuals) if value is not None]
+    return {"outputs": found, "names": [names[j] for j in found], "residuals": residuals,
+            "threshold": threshold if math.isfinite(threshold) else None,
+            "left_out": bool(found) and len(found) < len(judged)}
