@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, lti_fmus
-from fmu_opinf._linear_outputs import LINEAR_OUTPUT_RESIDUAL, nonlinear_outputs, output_linear_residuals
+from fmu_opinf._linear_outputs import (LINEAR_OUTPUT_RESIDUAL, PROJECTION_MARGIN, nonlinear_outputs,
+                                      output_linear_residuals)
 from fmu_opinf.errors import FmuOpinfWarning
-from fmu_opinf.fit import fit_rom
+from fmu_opinf.fit import _projection_error, fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run, Snapshots
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
@@ -110,8 +111,8 @@ def test_held_outputs_and_all_nonlinear_outputs():
     assert found["outputs"] == [0] and found["residuals"][1] is None and found["left_out"]
     alone = nonlinear_outputs(dict(data, y=data["y"][:2]), 0.0, ["E", "cube"])
     assert alone["outputs"] == [0, 1] and not alone["left_out"]
-    assert nonlinear_outputs(data, 1e-6, ["E", "cube", "x1"])["threshold"] == pytest.approx(1e-3)
-    assert LINEAR_OUTPUT_RESIDUAL < 1e-3
+    assert nonlinear_outputs(data, 1e-6, ["E", "cube", "x1"])["threshold"] == pytest.approx(PROJECTION_MARGIN * 1e-6)
+    assert nonlinear_outputs(data, 1e-12, ["E", "cube", "x1"])["threshold"] == LINEAR_OUTPUT_RESIDUAL
 
 
 def _metrics(relative: dict[str, float], fits: list[str] | None = None) -> dict:
@@ -135,3 +136,30 @@ def test_compare_names_every_output_that_is_off():
     assert compare.order_note(fitted) is None
     assert compare.order_note(dict(fitted, linear_fits=None)).startswith("y[3] is 0.3 of its range off")
     assert compare.linear_fit_note(metrics) is None
+
+
+def test_a_basis_that_does_not_span_the_snapshots_raises_the_bar():
+    """Where the basis the terms are decided on has fewer modes than the snapshots, a linear output misses by about
+    the projection error: the bar rises with it (:data:`PROJECTION_MARGIN`), so that a velocity or an acceleration
+    output is not taken for a nonlinear one.  The projection error is checked against ``||X - V V^T X|| / ||X||``
+    formed directly, the largest over positions, velocities and accelerations."""
+    model = lti_fmus.chain_model(12, acceleration_outputs=(0, 11))
+    t = time_grid(DT, 30.0)
+    u = inputs_in_effect(parse_signal(TRAINING, model.m), t, model.m)
+    ref = lti_fmus.zoh_response(model, t, u[:, 1:])
+    y = np.vstack([ref.y, 0.5 * np.sum(ref.v * (model.M @ ref.v), axis=0)])
+    run = Run(t=ref.t, u=u, x=ref.x, xdot=ref.v, xddot=ref.a, y=y, attrs={})
+    modes = np.linalg.svd(ref.x, full_matrices=False)[0]
+    for r in (10, 8, 6):
+        V = modes[:, :r]
+        data = {"x": V.T @ ref.x, "xdot": V.T @ ref.v, "xddot": V.T @ ref.a, "u": u, "y": y}
+        direct = max(np.linalg.norm(X - V @ (V.T @ X)) / np.linalg.norm(X) for X in (ref.x, ref.v, ref.a))
+        projection = _projection_error(data, [run])
+        assert projection == pytest.approx(direct, rel=1e-9)                  # 0.030 / 0.11 / 0.43
+        found = nonlinear_outputs(data, projection, ["x", "v", "a1", "a12", "E"])
+        assert found["threshold"] == pytest.approx(PROJECTION_MARGIN * direct, rel=1e-9)
+        assert not any(j in found["outputs"] for j in range(4))
+        assert max(found["residuals"][:4]) < 3 * projection                   # measured 2.6 / 1.3 / 0.7 times it
+    whole = {"x": ref.x, "xdot": ref.v, "xddot": ref.a, "u": u, "y": y}  # a basis that spans them: the full states
+    found = nonlinear_outputs(whole, 0.0, ["x", "v", "a1", "a12", "E"])
+    assert found["outputs"] == [4] and max(found["residuals"][:4]) < 1e-13  # measured 1.8e-15; E 0.84

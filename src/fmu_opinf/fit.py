@@ -782,7 +782,7 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
         decision = data if pod.wide_basis_ is pod.basis_ else _reduced_data(
             centred_runs, pod, o.lowpass, wide=True, outputs=data["y"], euler_rates=euler_rates)
         with _threads.single_threaded():  # least-squares residuals of reduced data: small kernels
-            linearity = _linearity(decision, pod, attrs)
+            linearity = _linearity(decision, pod, attrs, centred_runs)
             chosen, term_info = _choose_terms(decision, o.requested,
                                               "f_" if euler_rates or any(_averaged(run) for run in runs) else "",
                                               judged=_judged_rows(linearity, data["y"].shape[0]))
@@ -848,13 +848,11 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     return _OrderFit(pod, data, ops, chosen, term_info, (Cpr, Cvr, Dur, y0), time_integrator, info, linearity)
 
 
-def _linearity(decision: dict[str, np.ndarray], pod: PODBasis, attrs: dict) -> dict:
+def _linearity(decision: dict[str, np.ndarray], pod: PODBasis, attrs: dict, centred_runs: list) -> dict:
     """:func:`fmu_opinf._linear_outputs.nonlinear_outputs` on the data the extra terms are decided on, judged
     against the projection error of that basis (none where it reaches the snapshot rank)."""
     order = int(decision["x"].shape[0])
-    energy = np.asarray(pod.energy_, dtype=float)
-    spans_all = order >= pod.rank_ or order > energy.size or not energy.size
-    projection = 0.0 if spans_all else math.sqrt(max(0.0, 1.0 - float(energy[order - 1])))
+    projection = 0.0 if order >= pod.rank_ else _projection_error(decision, centred_runs)
     p = decision["y"].shape[0]
     names = _names(attrs.get("output_names"), p) or [f"y[{j + 1}]" for j in range(p)]
     return nonlinear_outputs(decision, projection, names, held=_held_outputs(attrs))
@@ -871,6 +869,25 @@ def _fit_left_out_fully(data: dict[str, np.ndarray], maps: tuple[np.ndarray, ...
     for whole, part in zip(maps, fit_output_map(data["xdot"], data["x"], data["y"][rows], data["u"],
                                                 feedthrough=True, offset=True)):
         whole[rows] = part
+
+
+def _projection_error(reduced: dict[str, np.ndarray], runs: list) -> float:
+    """The largest relative projection error of the positions, velocities and accelerations of ``runs`` on the
+    orthonormal basis of their ``reduced`` data (``1 - ||V^T X||^2 / ||X||^2``, rooted), one pass over the runs.
+    All three count: a linear output of accelerations (or of a stiff part's positions) lies in the high modes,
+    whose share of the accelerations can be far above their share of the positions that the POD energy measures."""
+    worst = 0.0
+    for name in ("x", "xdot", "xddot"):
+        full = 0.0
+        for i, run in enumerate(runs):
+            array = getattr(run, name)
+            for part in column_blocks(*array.shape):
+                block = read_columns(array, part.start, part.stop, f"{name} of run {i}")
+                full += float(np.sum(block * block))
+        kept = float(np.sum(reduced[name] ** 2))
+        if full > 0:
+            worst = max(worst, math.sqrt(max(0.0, 1.0 - kept / full)))
+    return worst
 
 
 def _judged_rows(linearity: dict, p: int) -> np.ndarray:
