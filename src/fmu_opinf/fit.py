@@ -26,7 +26,12 @@ residuals are those of the data on a POD basis of order :data:`TERM_DECISION_ORD
 the ROM's order, whose truncation error would hide the terms.  The data
 decide rather than the model description because a black-box FMU need not declare output dependencies (and
 declared dependencies do not say whether a constant offset exists).  ``terms="none"`` is the paper's model,
-``terms="all"`` fits every term.  ``fit_info["terms"]`` reports the decision and both residuals."""
+``terms="all"`` fits every term.  ``fit_info["terms"]`` reports the decision and both residuals.
+
+Outputs not linear in the state (an energy, a cable's length: :mod:`fmu_opinf._linear_outputs`) are found on the
+same basis and left out of what steers the dynamics: the ``Dur`` and ``y0`` decisions, the refinement, the
+least-squares candidate's choice and the order search's judgement (audit 77a F1); the ROM gives them by a linear
+least-squares fit with a constant, and ``fit_info["nonlinear_outputs"]`` names them."""
 
 from __future__ import annotations
 
