@@ -292,7 +292,7 @@ def test_judging_a_pilot_that_diverges_to_huge_finite_values_does_not_warn():
 
     t = np.round(np.arange(201) * 0.05, 12)
     y = np.vstack([np.exp(2.3 * t) * np.sin(30.0 * t), np.exp(2.3 * t) * np.cos(30.0 * t)]) * 1e200 / np.exp(23.0)
-    run = SimpleNamespace(t=t, y=y, k=t.size)
+    run = SimpleNamespace(t=t, x=y, y=y, k=t.size)   # (positions diverge with the outputs)
     source = SimpleNamespace(m=1, held_input_names=[])
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
