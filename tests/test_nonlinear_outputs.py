@@ -163,3 +163,20 @@ def test_a_basis_that_does_not_span_the_snapshots_raises_the_bar():
     whole = {"x": ref.x, "xdot": ref.v, "xddot": ref.a, "u": u, "y": y}  # a basis that spans them: the full states
     found = nonlinear_outputs(whole, 0.0, ["x", "v", "a1", "a12", "E"])
     assert found["outputs"] == [4] and max(found["residuals"][:4]) < 1e-13  # measured 1.8e-15; E 0.84
+
+
+def test_an_exported_rom_fmu_carries_its_linear_fits_to_compare():
+    """The exported FMU does not carry the fit's report: its provenance.json names the outputs the fit found not
+    linear in the states, and compare on the FMU reads them back (only names of the FMU's own outputs: a data file)."""
+    import json
+
+    from fmu_opinf import export
+
+    rom, _ = _fit(_snapshots())
+    provenance = json.loads(export.rom_fmu_spec(rom).extra_files["provenance.json"])
+    assert provenance["rom_fmu_linear_fits"] == ["E"]
+    info = {"provenance": provenance, "output_names": ["x1", "x3", "force", "E"]}
+    assert compare._carried_linear_fits(info) == ["E"]
+    tampered = dict(provenance, rom_fmu_linear_fits=["E", "x9", 3, {"E": 1}])
+    assert compare._carried_linear_fits(dict(info, provenance=tampered)) == ["E"]
+    assert compare._carried_linear_fits(dict(info, provenance=dict(provenance, rom_fmu_linear_fits="E"))) == []

@@ -677,7 +677,8 @@ class _Run:
             timed=_timed(source, rom_side, isolate, fom_prov),
             input_choice=f"chosen without --input: {why}" if why else "",
             order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
-            driven_alone=alone, beyond_training=beyond, linear_fits=_linear_fits(rom_side))
+            driven_alone=alone, beyond_training=beyond,
+            linear_fits=_carried_linear_fits(rom_info) if isinstance(rom_side, Path) else _linear_fits(rom_side))
 
 
 #: How many times the training's amplitude on an input a given test input must depart from the training's operating
@@ -804,6 +805,16 @@ def _linear_fits(rom_side: Any) -> list[str]:
     if not isinstance(found, dict) or not found.get("left_out"):
         return []
     return [str(name) for name in found.get("names") or []]
+
+
+def _carried_linear_fits(rom_info: dict[str, Any]) -> list[str]:
+    """:func:`_linear_fits` of the ROM an exported FMU was made from, as its provenance.json carries it
+    (``rom_fmu_linear_fits``).  A data file: only names of the FMU's own outputs are taken."""
+    carried = rom_info["provenance"].get("rom_fmu_linear_fits")
+    outputs = set(rom_info.get("output_names") or [])
+    if not isinstance(carried, list):
+        return []
+    return [name for name in carried if isinstance(name, str) and name in outputs][:1000]
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:

@@ -503,6 +503,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     provenance["rom_fmu_states"] = list(state_names)
     provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
     provenance["rom_fmu_order"] = _order_record(rom)
+    provenance["rom_fmu_linear_fits"] = _linear_fits_record(rom)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, p=p + len(names),
@@ -966,6 +967,14 @@ def _order_record(rom: SecondOrderROM) -> dict[str, Any]:
     from .compare import _order_chosen
 
     return _order_chosen(rom)
+
+
+def _linear_fits_record(rom: SecondOrderROM) -> list[str]:
+    """The outputs the fit found not linear in the states (:func:`fmu_opinf.compare._linear_fits`), for ``compare``
+    on the FMU: its note on them needs it, and the FMU does not carry the fit's report (audit 77a F1)."""
+    from .compare import _linear_fits
+
+    return _linear_fits(rom)
 
 
 def _position_unit(provenance: dict) -> str:
