@@ -708,14 +708,17 @@ void ltiStartEvents(LtiInstance *inst) {
     if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
 }
 
+/* Whether vr is the Boolean enable input; logs the error of the calling function where it is not. */
+static int isEnableInput(LtiInstance *inst, const char *function, unsigned int vr) {
+    if (LTI_ENABLE_INPUT && vr == LTI_ENABLE_VR) return 1;
+    ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function, vr);
+    return 0;
+}
+
 LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!LTI_ENABLE_INPUT || vr[i] != LTI_ENABLE_VR) {
-            ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function,
-                   vr[i]);
-            return LtiError;
-        }
+        if (!isEnableInput(inst, function, vr[i])) return LtiError;
         values[i] = inst->enabled;
     }
     return LtiOK;
@@ -725,11 +728,7 @@ LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned 
                         const int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!LTI_ENABLE_INPUT || vr[i] != LTI_ENABLE_VR) {
-            ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function,
-                   vr[i]);
-            return LtiError;
-        }
+        if (!isEnableInput(inst, function, vr[i])) return LtiError;
         inst->enabled = values[i] != 0;
         inst->upToDate = 0;
     }
