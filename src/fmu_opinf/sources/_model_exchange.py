@@ -466,19 +466,12 @@ class ModelExchangeSource(FMUSource):
         done = (t - start) / (end - start) if end > start else 0.0
         pace = f", about {_duration(self._integrator_seconds / done)} for the run at this pace" if done > 0 else ""
         steps = f", with steps of {h:.2g} s" if math.isfinite(h) else ""
-        cs = "record by co-simulation (--interface cs), " if self.md.coSimulation is not None else ""
-        if name in _IMPLICIT:   # (stiffness does not hold these back; the default integrator may do better)
-            causes, ways = "", f"{cs}record with --me-method auto, "
-        else:
-            causes, ways = "a stiff model holds it to its stability limit, and ", cs
         limit = _integrators._SLOW_RUN_INTEGRATOR_SECONDS
+        advice = _slow_run_advice(name, self.md.coSimulation is not None, self.nx, t1 - t0, h,
+                                 getattr(self, "_stiffness_measured", None))
         warn_once(self, ("slow run",), f"{name} has spent over {limit:g} s on this run and is "
                   f"at t={t - self.start_time:.9g} of {end - self.start_time:g}{pace}{steps} in a communication step "
-                  f"of {t1 - t0:.3g} s: {causes}derivatives that jump without event indicators (Coulomb friction "
-                  "sign(v), a relay, a table) or are rounded inside the FMU (single precision) make its steps "
-                  f"collapse: {ways}loosen --tolerance (1e-6 for single precision), or give the model event "
-                  "indicators or smooth friction; a linear model of many states that is none of these records "
-                  "faster by the exact hold step (--me-method linear)", stacklevel=2)
+                  f"of {t1 - t0:.3g} s: {advice}", stacklevel=2)
 
     def _probe_deltas(self) -> np.ndarray:
         """State moves for probing the Jacobian: a state's nominal value, or 1e-3 of a large start value (the
@@ -510,7 +503,10 @@ class ModelExchangeSource(FMUSource):
             rho = 0.0
         finally:
             self._end_probes()
-        return rho, fastest[0] if math.isfinite(fastest[0]) else 0.0
+        seconds = fastest[0] if math.isfinite(fastest[0]) else 0.0
+        if rho > 0.0:   # (kept for the slow-run warning, which cannot probe during a run)
+            self._stiffness_measured = (rho, seconds)
+        return rho, seconds
 
     def _identify_jacobian(self) -> _linear_hold.LinearHold | None:
         """The FMU's Jacobian at its start state (``n + 1`` derivative evaluations), None where it refuses."""
@@ -1161,6 +1157,61 @@ def _grid_steps(t: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------- events
+
+#: ``rho h`` (spectral radius times the communication step) below which an explicit integrator is not held back by
+#: stability: its steps are bounded by the communication step anyway (audit 77b F3: 0.016 on a 1198-state chain).
+_NOT_STIFF = 1.0
+#: Derivative evaluations per DOP853 step (12 stages, the last reused by the next step).
+_DOP853_CALLS = 12
+_JUMPS = ("derivatives that jump without event indicators (Coulomb friction sign(v), a relay, a table) or are rounded "
+          "inside the FMU (single precision) make its steps collapse: ")
+_JUMP_WAYS = ("loosen --tolerance (1e-6 for single precision), or give the model event indicators or smooth friction; "
+              "a linear model of many states that is none of these records faster by the exact hold step "
+              "(--me-method linear)")
+
+
+def _slow_run_advice(name: str, cosimulation: bool, nx: int, step: float, h: float,
+                     measured: tuple[float, float] | None) -> str:
+    """The causes and remedies a slow run's warning names, by what the stiffness probe measured.
+
+    Parameters
+    ----------
+    name : str
+        The integrator (``"DOP853"``, ``"BDF"`` ...).
+    cosimulation : bool
+        Whether the FMU offers co-simulation.
+    nx : int
+        Number of continuous states.
+    step : float
+        The communication step of the run.
+    h : float
+        The integrator's current step size (nan where unknown).
+    measured : tuple of float or None
+        ``(rho, seconds)``: the Jacobian's spectral radius estimate and the seconds one derivative call takes
+        (:meth:`ModelExchangeSource._stiffness`), None where not measured.
+
+    Returns
+    -------
+    str
+        Causes, then remedies.  Where ``rho step`` is small and the steps are near the communication step, the time
+        is the derivative's cost times the samples, so stiffness, friction and co-simulation are not named (audit 77b
+        F3: they were, for a chain of 1198 states at ``rho h`` = 0.016, and co-simulation took twice as long).
+    """
+    cs = "record by co-simulation (--interface cs), " if cosimulation else ""
+    if name in _IMPLICIT:   # (stiffness does not hold these back; the default integrator may do better)
+        return f"{_JUMPS}{cs}record with --me-method auto, {_JUMP_WAYS}"
+    if measured is None or not measured[0] * step < _NOT_STIFF:
+        return f"a stiff model holds it to its stability limit, and {_JUMPS}{cs}{_JUMP_WAYS}"
+    rho, seconds = measured
+    stiffness = f"the model is not stiff (spectral radius about {rho:.2g} 1/s, {rho * step:.2g} times the step)"
+    if math.isfinite(h) and h < step / 10:
+        return f"{stiffness}, but {_JUMPS}{cs}{_JUMP_WAYS}"
+    return (f"{stiffness} and its steps are near the communication step: the time is the FMU's derivative, "
+            f"{nx} states at {seconds * 1e3:.2g} ms per call, {_DOP853_CALLS} calls per {name} step, times the "
+            "samples; give --dt and --t-end (the automatic window's pilot runs, fine-step runs of the whole response, "
+            "are then skipped), or record a linear model by the exact hold step (--me-method linear); co-simulation "
+            "does not help (the FMU's own solver calls the same derivative)")
+
 
 def _duration(seconds: float) -> str:
     """``seconds`` in the unit a reader takes in at once: ``"40 s"``, ``"12 min"``, ``"3.5 h"``."""
