@@ -665,13 +665,15 @@ class Selection:
     def guessed(self) -> bool:
         """Whether positions and velocities were paired by a guess (not given, not linked by derivative aliases)."""
         rule = self.how.get("positions", "")
-        return bool(self.velocities) and (rule.startswith("from derivative links") and rule != _LINKS
+        return bool(self.velocities) and (rule.startswith("from derivative links")
+                                          and rule not in (_LINKS, _DUMMY_DERIVATIVES)
                                           or rule in (_LOCAL_HALVES, _LOCAL_STEMS))
 
     @property
     def linked(self) -> bool:
         """Whether each velocity is the position's derivative by the FMU's own declaration (derivative aliases)."""
-        return bool(self.velocities) and self.how.get("positions", "") == self.how.get("velocities", "") == _LINKS
+        rule = self.how.get("positions", "")
+        return bool(self.velocities) and rule == self.how.get("velocities", "") and rule in (_LINKS, _DUMMY_DERIVATIVES)
 
 
 _LINKS = "from derivative links"
@@ -796,12 +798,64 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
         raise FMUError("accelerations without velocities are not supported; pass --velocities too")
     derivatives = [states.der[c.name].name if c.name in states.der else None for c in pos]
     others = _other_states(states, pos + vel)
+    if others and positions is None and velocities is None and how.get("positions") == _LINKS:
+        computed = _computed_velocities(model, states, elements, others)
+        if computed and len(computed) == len(others):   # dummy derivatives: record them with the others
+            pos, vel = _with_computed_velocities(elements, pos, vel, computed)
+            derivatives = [states.der[c.name].name for c in pos]
+            acc, others = [], []
+            how.update(positions=_DUMMY_DERIVATIVES, velocities=_DUMMY_DERIVATIVES,
+                       accelerations="derived from the data (the computed velocities have no derivative in the FMU)")
+        elif computed:
+            raise _not_mechanical(model, [n for n in others if n not in computed],
+                                  "no derivative link pairs them with the others", states, computed)
     if others and positions is None and velocities is None:
         geared = _geared_positions(states, elements, pos, vel, others)
         if geared is not None and not _prescribed_motions(model, states, others):   # a base driven by its velocity
             raise _geared_refusal(model, elements, states, pos, vel, geared)
         raise _not_mechanical(model, others, "no derivative link pairs them with the others", states)
     return Selection(pos, vel, acc, how, derivatives, others, _followers(states, vel, others))
+
+
+#: The rule of a model whose exporter reduced a velocity constraint by dummy derivatives (audit 77b F1).
+_DUMMY_DERIVATIVES = ("from derivative links: every position is a state, and those whose derivative is an alias of a "
+                      "computed velocity (no state) are recorded with it: the exporter reduced a velocity constraint "
+                      "by dummy derivatives (record with --constraint velocity, so that fit takes the velocities' POD)")
+
+
+def _computed_velocities(model: ModelInfo, states: _States, elements: dict[str, Element],
+                         others: list[str]) -> dict[str, str]:
+    """Among the unpaired states ``others``, the positions whose derivative variable is an alias (the same value
+    reference and sign) of a real variable that is no state, with that variable: the computed velocity of a
+    position whose velocity state the exporter dropped (dummy derivatives of a velocity constraint ``G x' = 0``:
+    ``der(mass[1].s)`` shares the value reference of the local ``mass[1].v``).  Audit 77b F1: such positions were
+    refused as "an actuator lag, a filter or a controller state".  Not so where the state or the variable is in a
+    unit that is no length or velocity, where the derivative is an input (a prescribed motion), or where the model
+    structure makes the derivative depend on the state itself (a first-order lag)."""
+    inputs = {v.vr for v in model.variables if v.causality == "input" and v.type in ("Real", "Float64", "Float32")}
+    found: dict[str, str] = {}
+    for name in others:
+        state, der = elements.get(name), states.der.get(name)
+        if state is None or der is None or der.var.vr in inputs or _unit_kind(state) not in (None, 0):
+            continue
+        if state.var.name in (model.derivative_dependencies.get(der.var.name) or []):
+            continue
+        same = [e for e in elements.values() if e.name not in (der.name, name) and not e.alias and _is_signal(e)
+                and e.var.causality in ("local", "output") and (e.var.vr, e.offset) == (der.var.vr, der.offset)
+                and e.sign == der.sign and states.alias_state(e) is None and _unit_kind(e) in (None, 1)]
+        if same:
+            found[name] = same[0].name
+    return found
+
+
+def _with_computed_velocities(elements: dict[str, Element], pos: list[Column], vel: list[Column],
+                              computed: dict[str, str]) -> tuple[list[Column], list[Column]]:
+    """The linked positions and velocities with the positions of :func:`_computed_velocities` and their computed
+    velocities, all in the natural order of the positions' names."""
+    pairs = list(zip(pos, vel)) + [(Column(elements[p], elements[p].sign), Column(elements[v], elements[v].sign))
+                                   for p, v in computed.items()]
+    pairs.sort(key=lambda pair: natural_key(pair[0].name))
+    return [p for p, _ in pairs], [v for _, v in pairs]
 
 
 def _geared_positions(states: _States, elements: dict[str, Element], pos: list[Column], vel: list[Column],
@@ -898,7 +952,8 @@ def _other_states(states: _States, columns: list[Column]) -> list[str]:
     return [state.name for state in states.states if state.name not in covered]
 
 
-def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _States | None = None) -> FMUError:
+def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _States | None = None,
+                    computed: dict[str, str] | None = None) -> FMUError:
     """The error for continuous states that are neither positions nor velocities (sixth audit: an actuator lag
     ``der(F) = (u - F) / tau`` beside two masses was left out without a word, the ROM 23 % off).  A state whose
     derivative is an input is named as a prescribed motion (tenth audit: a base driven by its velocity was called
@@ -915,7 +970,17 @@ def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _Stat
     return FMUError(f"{model.label}: its continuous state(s) {shown} are neither positions nor velocities ({why}): "
                     "the model is not M x'' + D x' + K x = B u alone (an actuator lag, a filter or a controller "
                     "state?) and a reduced model of its mechanical states cannot follow them; pass --positions and "
-                    "--velocities to record the mechanical states anyway")
+                    f"--velocities to record the mechanical states anyway{_dummy_text(computed or {})}")
+
+
+def _dummy_text(computed: dict[str, str]) -> str:
+    """The part of a refusal that names the positions recorded with a computed velocity (dummy derivatives: the
+    exporter reduced a velocity constraint) and the option that says so to fit; "" where there are none."""
+    if not computed:
+        return ""
+    shown = ", ".join(f"der({p}) is the computed velocity {v}" for p, v in list(computed.items())[:3])
+    return (f" (besides, {shown}{', ...' if len(computed) > 3 else ''}: positions whose velocity the exporter made "
+            "no state, dummy derivatives of a velocity constraint; record those with --constraint velocity)")
 
 
 def _prescribed_motions(model: ModelInfo, states: _States, others: list[str]) -> dict[str, str]:
