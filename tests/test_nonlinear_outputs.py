@@ -180,3 +180,24 @@ def test_an_exported_rom_fmu_carries_its_linear_fits_to_compare():
     tampered = dict(provenance, rom_fmu_linear_fits=["E", "x9", 3, {"E": 1}])
     assert compare._carried_linear_fits(dict(info, provenance=tampered)) == ["E"]
     assert compare._carried_linear_fits(dict(info, provenance=dict(provenance, rom_fmu_linear_fits="E"))) == []
+
+
+def test_an_output_of_a_state_not_recorded_is_not_taken_for_a_nonlinear_one():
+    """An output that no linear map of the recorded states gives because a state was not recorded (mass 3's velocity
+    recorded in place of its position: the eighth audit's case) is no polynomial of them either: it is not left out,
+    so the fit's training-miss warning names it with its fix (--positions).  A cubed position and the cable length
+    are such polynomials to round-off or to the cable's Taylor terms."""
+    from fmu_opinf._linear_outputs import POLYNOMIAL_EXPLAINS
+
+    _, ref = _exact(_model(), TRAINING, 30.0)
+    u = np.zeros((1, ref.t.size))
+    swapped = ref.x.copy()
+    swapped[2] = ref.v[2]
+    missing = nonlinear_outputs({"x": swapped, "xdot": ref.v, "u": u, "y": np.vstack([ref.x[2], ref.x[0]])}, 0.0,
+                                ["x3", "x1"])
+    assert missing["outputs"] == [] and missing["residuals"][0] > 0.05                    # measured 0.11
+    assert missing["polynomial_residuals"][0] > 2 * POLYNOMIAL_EXPLAINS * missing["residuals"][0]   # 3.4e-2 of it
+    y = np.vstack([ref.x[2] ** 3, np.sqrt((2 + ref.x[2]) ** 2 + 1), ref.x[0]])
+    found = nonlinear_outputs({"x": ref.x, "xdot": ref.v, "u": u, "y": y}, 0.0, ["cube", "cable", "x1"])
+    assert found["outputs"] == [0, 1] and found["left_out"]
+    assert found["polynomial_residuals"][1] < 0.2 * POLYNOMIAL_EXPLAINS * found["residuals"][1]   # 1.5e-3 of it

@@ -279,9 +279,9 @@ def _warn_nonlinear_outputs(linearity: dict) -> None:
     else:
         done = ("every varying output is such, so the fit is judged on them all and its dynamics bend toward what a "
                 "linear model of them can give")
-    warnings.warn(f"{few} {verb} not linear in the recorded states (an energy, a length, an angle, or a state not "
-                  f"recorded): least squares from the recorded positions, velocities, inputs and a constant leaves "
-                  f"{share} of {its} variation; {done}; record without {them} (snapshots --outputs naming the "
+    warnings.warn(f"{few} {verb} not linear in the recorded states (an energy, a length, an angle: a polynomial of "
+                  f"them gives {them}): least squares from the recorded positions, velocities, inputs and a constant "
+                  f"leaves {share} of {its} variation; {done}; record without {them} (snapshots --outputs naming the "
                   f"others) or keep {them} knowing that the ROM's {few} {verb} a linear fit", FmuOpinfWarning,
                   stacklevel=3)
 
