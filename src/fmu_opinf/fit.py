@@ -423,8 +423,9 @@ def free_response_warning(info: dict, names: Sequence[str] = ()) -> str | None:
     name = names[worst] if worst < len(names) and names[worst] != f"y[{worst + 1}]" else ""
     name = f" ({name})" if name else ""
     return (f"the ROM's free response from the start values (inputs held, training run {own['run']}) misses the "
-            f"source's by up to {misses[worst]:.2g} of the range of output y[{worst + 1}]{name} there: the FMU moves on its own from its start, and the basis or the fit does not hold that motion; a "
-            "larger --r, or a training with a run without the pulse (snapshots --input none as a second --input)")
+            f"source's by up to {misses[worst]:.2g} of the range of output y[{worst + 1}]{name} there: "
+            "the FMU moves on its own from its start, and the basis or the fit does not hold that motion; a larger "
+            "--r, or a training with a run without the pulse (snapshots --input none as a second --input)")
 
 
 def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None,
