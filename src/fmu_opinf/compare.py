@@ -309,6 +309,7 @@ class Comparison:
     order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
     driven_alone: str = ""   # the input this comparison drove alone, "" for all (compare's runs of each_input_alone)
     each_input_alone: list["Comparison"] = field(default_factory=list)
+    free_response: "Comparison | None" = None   # inputs at their start values, where the FMU moves on its own
     beyond_training: dict[str, Any] = field(default_factory=dict)   # a given input far above the training's
     linear_fits: list[str] = field(default_factory=list)   # outputs the fit found not linear in the states
 
@@ -341,6 +342,7 @@ class Comparison:
             "order": dict(self.order) or None,
             "driven_alone": self.driven_alone or None,
             "each_input_alone": [alone.run_metrics() for alone in self.each_input_alone] or None,
+            "free_response": self.free_response.run_metrics() if self.free_response is not None else None,
             "input_beyond_training": dict(self.beyond_training) or None,
             "linear_fits": list(self.linear_fits) or None,
         })
@@ -350,7 +352,7 @@ class Comparison:
         """:meth:`metrics` without what a comparison of several runs says once for all (provenance, what the times
         measured): those of a run of one input alone."""
         return {key: value for key, value in self.metrics().items()
-                if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone")}
+                if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone", "free_response")}
 
 
 
@@ -615,9 +617,38 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     try:
         result = run.compared(signal, why)
         result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
+        if why and moves_on_its_own(rom_side):
+            result.free_response = run.compared("none", "", FREE_RESPONSE)
+            if not quiet:
+                print(free_response_line(result.free_response), file=sys.stderr)
     except StepError as stopped:
         raise _past_termination(stopped, float(t_end), end_given, end_from) from None
     return result
+
+
+#: How compare names its run of the free response (``driven_alone`` of :attr:`Comparison.free_response`).
+FREE_RESPONSE = "free response (none)"
+
+
+def moves_on_its_own(rom_side: Any) -> bool:
+    """Whether the ROM's training showed its source moving on its own from its start values, the inputs held
+    (``fit_info["own_motion"]``, :func:`fmu_opinf.fit.own_motion`): compare's default test, a harmonic sized to the
+    training, then hides the start transient (audit 77b, F2: eq. 19 said 6e-5 .. 8e-5 where the free response was
+    27-104 % of its range off), so the free response is compared as well.  False for an exported ROM FMU (its
+    provenance does not carry the fit's figures)."""
+    info = getattr(rom_side, "fit_info", None)
+    return isinstance(info, dict) and isinstance(info.get("own_motion"), dict) and int(getattr(rom_side, "m", 0)) > 0
+
+
+def free_response_line(free: "Comparison") -> str:
+    """One line on the free response's comparison: eq. (19) and the largest miss over an output's range there."""
+    per_output = free.metrics()["per_output"]
+    misses = {name: figures["relative_max_variation"] for name, figures in per_output.items()
+              if figures["relative_max_variation"] == figures["relative_max_variation"]}
+    worst = max(misses, key=misses.get) if misses else None
+    share = f"; largest miss {misses[worst]:.2g} of {worst}'s range there" if worst is not None else ""
+    return (f"the ROM's training shows the source moving on its own from its start values: its free response (input "
+            f"none) was compared as well: max eps_y {float(free.eps.max()):.3g}{share}")
 
 
 def _each_input_alone(spec: str, rom_info: dict[str, Any]) -> list[tuple[str, str]]:
