@@ -93,8 +93,13 @@ def test_an_anchored_slow_chain_under_a_constant_load_gets_the_window_of_the_cha
     assert _window_line(said.out) == _window_line(said_base.out)
     assert "the outputs move without the pulse (y[1] by " in said.err and "warning" not in said.err, said.err
     assert "move without the pulse" not in said_base.err, said_base.err
-    for run in Snapshots.load(tmp_path / "load.h5").runs:
-        assert ("width=50" in run.attrs["input_spec"]) == (ground == 0.005)
+    runs = Snapshots.load(tmp_path / "load.h5").runs
+    # the model's own motion as a run of its own beside the pulses' (audit 77b, F2); none for the chain at rest
+    assert [run.attrs["input_spec"] for run in runs].count("none") == 1
+    assert "recording a run without it as well" in said.err
+    assert all(run.attrs["input_spec"] != "none" for run in Snapshots.load(tmp_path / "base.h5").runs)
+    for run in runs:
+        assert ("width=50" in run.attrs["input_spec"]) == (ground == 0.005 and run.attrs["input_spec"] != "none")
         assert _worst_miss(run, _sagging(0.5, loaded, ground)) < EXACT
         assert _worst_miss(run, _sagging(0.0, base, ground)) > 0.01   # the sag is in the data (1.6 % of the range
         #                                                                 at 0.005)
