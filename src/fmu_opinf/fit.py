@@ -395,8 +395,7 @@ def start_miss_warning(info: dict, names: Sequence[str] = ()) -> str | None:
         return None
     name = names[worst] if worst < len(names) else ""
     name = f" ({name})" if name and name != f"y[{worst + 1}]" else ""
-    own = info.get("own_motion") or {}
-    scale = ("range of its own motion from the start values (inputs held)" if own.get("judges_start")
+    scale = ("range of its own motion from the start values (inputs held)" if info.get("own_motion")
              else "training range")
     return (f"the ROM's outputs at its start (t = 0) miss the source's by {misses[worst]:.2g} of the {scale} "
             f"of output y[{worst + 1}]{name}: part of the start state lies outside the basis, and the output map "
@@ -424,8 +423,8 @@ def free_response_warning(info: dict, names: Sequence[str] = ()) -> str | None:
     name = f" ({name})" if name else ""
     return (f"the ROM's free response from the start values (inputs held, training run {own['run']}) misses the "
             f"source's by up to {misses[worst]:.2g} of the range of output y[{worst + 1}]{name} there: "
-            "the FMU moves on its own from its start, and the basis or the fit does not hold that motion; a larger "
-            "--r, or a training with a run without the pulse (snapshots --input none as a second --input)")
+            "the FMU moves on its own from its start, and the basis does not hold that motion: a larger --r (up to "
+            "the snapshot rank) takes more of it in; compare --input none shows the ROM against the FMU")
 
 
 def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None,
@@ -779,7 +778,6 @@ def fit_rom(
         q0, qdot0 = state[:pod.r_], state[pod.r_:]
     own = own_motion(runs)
     if own is not None:
-        own["judges_start"] = True
         info["own_motion"] = own
     info["start_output_miss"] = start_output_miss(fit.maps, data, q0, qdot0,   # (the model's own coordinates)
                                                   None if own is None else own["spans"])
