@@ -50,6 +50,7 @@ import copy
 import json
 import os
 import sys
+import time
 import weakref
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -68,6 +69,7 @@ __all__ = [
     "energy_order",
     "svdvals",
     "resolve_kind",
+    "constraint_recorded",
     "as_runs",
     "project",
     "read_columns",
@@ -145,6 +147,16 @@ def resolve_kind(kind: str, attrs: dict | None = None) -> str:
         raise ValueError(f"basis={kind!r} is not known; use 'auto', 'positions' or 'velocities'")
     constraint = str((attrs or {}).get("constraint", "")).lower()
     return "velocities" if constraint.startswith("velocit") else "positions"
+
+
+def constraint_recorded(attrs: dict | None) -> bool:
+    """Whether the snapshot metadata record a constraint kind (``"position"``, ``"velocity"`` or ``"none"``).
+
+    A black-box FMU's recording records none; ``kind="auto"`` then takes the positions, and the fit also reports
+    the velocities' energy order (:meth:`PODBasis.order_from`), which a velocity-constrained model needs.
+    """
+    constraint = str((attrs or {}).get("constraint", "")).lower()
+    return constraint.startswith(("position", "velocit", "none"))
 
 
 def _n_cols(run: Any, name: str) -> tuple[int, int]:
@@ -612,6 +624,30 @@ class PODBasis:
         other = copy.copy(self)
         other._take(int(r))
         return other
+
+    def order_from(self, data: Any, kind: str) -> tuple[int, float]:
+        """The order this basis' rule (``r`` or ``energy``, eq. 18) gives on the ``kind`` snapshots, and the
+        seconds the singular values took (no vectors: one more pass over the data, or one ``svdvals``).
+
+        Parameters
+        ----------
+        data : Snapshots-like, list of runs, or run
+            The snapshot runs the basis was fitted on.
+        kind : {"positions", "velocities"}
+            The snapshots to take the order from.
+
+        Returns
+        -------
+        order : int
+            ``min(order, rank)`` of those snapshots; 0 where they are all zero.
+        seconds : float
+        """
+        start = time.perf_counter()
+        sigma, _, rank, _ = self._singular(as_runs(data), _KINDS[resolve_kind(kind)], vectors=False)
+        seconds = time.perf_counter() - start
+        if not float(np.sum(sigma)) > 0:
+            return 0, seconds
+        return (min(self._order(sigma, rank), rank) if self.r is None else min(int(self.r), rank)), seconds
 
     def _order(self, sigma: np.ndarray, rank: int) -> int:
         if self.r is None:
