@@ -143,3 +143,15 @@ def test_a_peak_within_the_bar_is_reported_and_not_warned():
     assert rom.fit_info["worst_peak_miss"] == pytest.approx(direct.max(), rel=1e-6)
     assert 1e-3 < rom.fit_info["worst_peak_miss"] < PEAK_MISS
     assert not [w for w in caught if "at the peak" in str(w.message)]
+
+
+def test_a_barely_moved_output_or_run_is_judged_as_the_rms_is():
+    """Hand-computed: output 0 moves 2.0 in run 0 and 1e-6 in run 1 (its range there floored at 1e-3 of 2.0);
+    output 1 never moves beyond round-off of the largest (not judged)."""
+    from fmu_opinf.fit import _worst_run_peaks
+
+    peaks = np.array([[0.02, 1e-20], [1e-4, 1e-20]])
+    spreads = np.array([[2.0, 1e-12], [1e-6, 1e-12]])
+    misses, where = _worst_run_peaks(peaks, spreads)
+    assert misses[0] == pytest.approx(1e-4 / 2e-3) and where[0] == 1
+    assert np.isnan(misses[1]) and where[1] == -1

@@ -1551,16 +1551,13 @@ def _peak_misses(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated
         if ops.output_map is None:
             C = C @ ops.coordinates
     y, cuts = np.atleast_2d(simulated["y"]), np.cumsum([0] + list(simulated["run_lengths"]))
-    misses, where = np.full(y.shape[0], np.nan), np.full(y.shape[0], -1)
+    peaks, spreads = np.zeros((len(cuts) - 1, y.shape[0])), np.zeros((len(cuts) - 1, y.shape[0]))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         step = _step(simulated["integrator"])(ops.Mr, ops.Dr, ops.Kr, ops.Br, float(simulated["dt"]))
         for run, (a, b) in enumerate(itertools.pairwise(cuts)):
-            rom = C @ propagate(step.Ad, step.Bd @ u[:, a:b], z[:, a], _STRIDE)
-            spread = np.ptp(y[:, a:b], axis=1)
-            miss = np.where(spread > 0, np.max(np.abs(rom - y[:, a:b]), axis=1) / spread, np.nan)
-            miss[~np.isfinite(miss) & (spread > 0)] = np.inf
-            worse = miss > np.nan_to_num(misses, nan=-1.0)
-            misses[worse], where[worse] = miss[worse], run
+            z_run = propagate(step.Ad, step.Bd @ u[:, a:b], z[:, a], _STRIDE)
+            peaks[run], spreads[run] = _run_peaks(C, z_run, y[:, a:b])
+        misses, where = _worst_run_peaks(peaks, spreads)
     result: dict[str, Any] = {"peak_output_misses": _listed(misses)}
     ranked = misses.copy()
     if judged is not None:
@@ -1571,6 +1568,34 @@ def _peak_misses(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated
     run = int(where[worst])
     return dict(result, worst_peak_miss=float(ranked[worst]), worst_peak_output=worst,
                 worst_peak_run_name=run_names[run] if run < len(run_names) else f"run {run}")
+
+
+def _worst_run_peaks(peaks: np.ndarray, spreads: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each output's worst run of ``peak / range`` (``(runs, p)``), and that run's index, judged as
+    :func:`fmu_opinf.refinement.output_errors` judges the RMS: a run's range floored at
+    :data:`~fmu_opinf.refinement.RUN_VARIATION_FLOOR` of the output's largest in any run, and NaN and -1 for an
+    output whose range is at or below :data:`~fmu_opinf.refinement.SILENT_OUTPUT` of the largest output's in
+    every run (a barely moved output's round-off is no miss)."""
+    from .refinement import RUN_VARIATION_FLOOR, SILENT_OUTPUT
+
+    largest = spreads.max(axis=0, initial=0.0)
+    judged = largest > SILENT_OUTPUT * largest.max(initial=0.0)
+    figures = peaks / np.maximum(spreads, RUN_VARIATION_FLOOR * largest)
+    misses, where = np.full(peaks.shape[1], np.nan), np.full(peaks.shape[1], -1)
+    misses[judged], where[judged] = figures[:, judged].max(axis=0), figures[:, judged].argmax(axis=0)
+    return misses, where
+
+
+def _run_peaks(C: np.ndarray, z: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One run's largest output errors ``max |C z - y|`` and ranges ``max y - min y``, each ``(p,)``, formed in
+    column blocks (no output-sized temporaries: a fit with 400 outputs holds them about once)."""
+    peak, low, high = np.zeros(y.shape[0]), np.full(y.shape[0], np.inf), np.full(y.shape[0], -np.inf)
+    for part in column_blocks(*y.shape):
+        block = y[:, part]
+        err = np.abs(C @ z[:, part] - block)
+        peak = np.fmax(peak, np.where(np.isnan(err), np.inf, err).max(axis=1))   # (NaN: an overflowing model)
+        low, high = np.minimum(low, block.min(axis=1)), np.maximum(high, block.max(axis=1))
+    return peak, high - low
 
 
 def _run_names(runs: list) -> list[str]:
