@@ -260,9 +260,10 @@ def _warn_if_velocities_keep_more(orders: dict[str, Any], r: int) -> None:
         return
     warnings.warn(f"no constraint kind recorded and the velocities' energy keeps r={velocities} modes where the fit "
                   f"took r={r} from the positions: a model with velocity constraints needs them (the paper's triple "
-                  "chain: 1.4 % of range off at 1 rad/s at r = 8, 6.8e-7 at r = 34), and compare's test below the "
+                  "chain: 1.4 % of range off at 1 rad/s at r = 8, 0.1 % at r = 34), and compare's test below the "
                   "ROM's highest natural frequency does not show it; fit with --basis velocities (velocity "
-                  f"constraints) or --r {velocities}, or record with --constraint", FmuOpinfWarning, stacklevel=3)
+                  f"constraints) or --r {velocities}, or record with --constraint velocity", FmuOpinfWarning,
+                  stacklevel=3)
 
 
 def _say_training_misses(info: dict, say: Callable[[str], None]) -> None:
