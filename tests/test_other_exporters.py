@@ -1,7 +1,7 @@
 """Conventions of other exporters found by the 2026-11-26 audit: the recorder's rate check
 (fmu_opinf.snapshots._consistency, _rate_tests and _pairing: guessed position/velocity pairings and stale
-accelerations found from the data and repaired) and FMUs without outputs, against exact matrix-exponential responses (lti_fmus) and FMUs whose model
-descriptions are rewritten as other exporters write them."""
+accelerations found from the data and repaired) and FMUs without outputs, against exact matrix-exponential
+responses (lti_fmus) and FMUs whose model descriptions are rewritten as other exporters write them."""
 
 import re
 from pathlib import Path
