@@ -543,7 +543,10 @@ step 2 reads its Schur complement from that factor instead of factoring again (t
 and an interior-point solve of a relaxation ends as soon as an iterate within 1e-2 of its optimum has a dropped block
 clearly indefinite (smallest eigenvalue below -1e-2 of the largest magnitude): that cone is then needed anyway
 (``Mr >= I`` at r = 35: the ``Mr``-only round 7 instead of 14 iterations).  Either way a result is returned only
-from a round whose dropped blocks are PSD.
+from a round whose dropped blocks are PSD, or (since 2026-12-07) indefinite only within 1e-6 of the largest block
+and then clipped to PSD where the certificate below holds for the full SDP: exact data whose optimum lies at a
+cone's apex (an undamped model, ``Dr = 0``) made the SDP with that cone degenerate, and neither the interior-point
+method nor Clarabel solved it beyond 1.5e-6 relative (``fmu_opinf._sdp_paths._certified_clip``).
 
 Solvers
 -------
