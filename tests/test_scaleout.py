@@ -405,6 +405,8 @@ def test_a_tls_scheduler_without_tls_settings_is_a_one_line_error():
 # Interrupts, lost workers and daemonic workers (audit 68, findings 1, 4 and 5)
 # ---------------------------------------------------------------------------------------------
 LONG_T_END = "1e5"  # a row of 1e6 steps: minutes, so a Ctrl-C finds it running
+#: CPU seconds of a process running the pilots before the pilot test interrupts it (its start and some pilots).
+PILOT_CPU = 2.5
 
 
 def _cli(arguments: list[str], tmp_path: Path) -> subprocess.Popen:
@@ -529,16 +531,31 @@ def test_ctrl_c_during_a_table_s_pilots_leaves_no_file_no_temporary_and_no_proce
     table.write_text('name,input\nlong1,"harmonic:amplitude=1,omega=0.7"\nlong2,"harmonic:amplitude=1,omega=0.5"\n')
     out = tmp_path / "set"
     cluster = ["--scheduler", scheduler] if scheduler else []
-    proc = _cli(["snapshots", SOURCE, "--runs", str(table), "-o", str(out), "--g", "40", "--t-end", LONG_T_END,
+    # 600 masses: pilots of about 7 s on the machine of 2026-12-07 (40 masses: 2 s, over before the check below held)
+    proc = _cli(["snapshots", SOURCE, "--runs", str(table), "-o", str(out), "--g", "600", "--t-end", LONG_T_END,
                  "-q", *cluster], tmp_path)
     workers = 2 if scheduler else 1   # the processes that run the pilots: the Dask workers, or the command
 
+    idle_since: dict[str, tuple[float, float]] = {}   # command -> (CPU seconds, when first seen at that figure)
+
     def ready() -> bool:
-        """The pilots (minutes at this t_end) have run for a while: each process that runs them has used 3 s of
-        CPU, more than its start (what a Ctrl-C does to a worker still starting is not what this test checks)."""
-        running = [cpu for _, cpu, command in _group(proc.pid)
+        """The pilots have run for a while (:data:`PILOT_CPU` in a process that runs them) and every process is past
+        its start (what a Ctrl-C does to a worker still starting is not what this test checks): it has used that
+        much CPU, or 1 s and then stayed idle for a quarter second (Dask may give both rows' pilots to one worker:
+        the other, started, waits; on the machine of 2026-12-07 a worker's start took 1.5-2 s of CPU and the pilots
+        2 s more, and the rows began before an idle worker reached the 3 s this test waited for)."""
+        import time
+
+        now = time.monotonic()
+        running = [(command, cpu) for _, cpu, command in _group(proc.pid)
                    if ("spawn_main" in command) == bool(scheduler) and "resource_tracker" not in command]
-        return out.is_dir() and len(running) >= workers and min(running) > 3.0
+        started = 0
+        for command, cpu in running:
+            seen, since = idle_since.get(command, (None, now))
+            idle_since[command] = (cpu, since if seen == cpu else now)
+            started += cpu > PILOT_CPU or (cpu > 1.0 and seen == cpu and now - since > 0.25)
+        return (out.is_dir() and len(running) >= workers and started == len(running)
+                and max(cpu for _, cpu in running) > PILOT_CPU)
 
     at_interrupt: list[list[str]] = []
 
