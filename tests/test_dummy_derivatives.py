@@ -312,3 +312,28 @@ def test_the_default_chain_records_it_and_the_rom_is_as_exact_as_galerkin(dd_fmu
     galerkin = _galerkin_miss(rom, model, TEST, 100.0)
     miss = miss_against_model(rom, model, TEST, 100.0)
     assert galerkin < 1e-11 and miss < 1e-11, (miss, galerkin)
+
+
+def _with_state(extra: list[str], derivative: str) -> str:
+    """:func:`three_masses` with one more state (index 14) and its derivative (index 16) appended."""
+    xml = three_masses().replace("</ModelVariables>", "".join(extra) + "</ModelVariables>")
+    return xml.replace("</Derivatives>", derivative + "</Derivatives>")
+
+
+@pytest.mark.parametrize("case", ["lag-rate-output", "lag-declared", "pi-integrator", "filter-in-m"])
+def test_a_state_whose_derivative_aliases_a_signal_not_named_as_a_velocity_is_refused(tmp_path, case):
+    """Audit 78 F2: an actuator lag whose der() aliases an output act.rate (dependencies undeclared, optional in
+    FMI 2), a PI integrator whose der() is the control error and a filter state in m whose der() is filt.dy in m/s
+    were recorded as positions with those variables as velocities (a spurious 9.9e3 rad/s mode).  A computed
+    velocity is named as the linked positions' velocities are (mass[2].s -> mass[2].v); these are refused, naming
+    the state."""
+    state, rate, causality, unit = {"lag-rate-output": ("act.F", "act.rate", "output", ""),
+                                    "lag-declared": ("act.F", "act.rate", "output", ""),
+                                    "pi-integrator": ("PI.I.y", "PI.I.u", "local", ""),
+                                    "filter-in-m": ("filt.y", "filt.dy", "local", "m")}[case]
+    units = (f' unit="{unit}"', f' unit="{unit}/s"') if unit else ("", "")
+    extra = [_sv(state, 10, body=f'<Real{units[0]} start="0"/>'), _sv(rate, 11, causality, f"<Real{units[1]}/>"),
+             _sv(f"der({state})", 11, body=f'<Real{units[1]} derivative="14"/>')]
+    derivative = '<Unknown index="16" dependencies="1 14"/>' if case == "lag-declared" else '<Unknown index="16"/>'
+    with pytest.raises(FMUError, match=rf"continuous state\(s\) {state.replace('.', '[.]')} are neither positions"):
+        resolve_variables(_write(tmp_path, _with_state(extra, derivative)))

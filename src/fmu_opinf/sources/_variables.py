@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import os
 import re
 import warnings
 import xml.etree.ElementTree as ET
@@ -799,7 +800,8 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     derivatives = [states.der[c.name].name if c.name in states.der else None for c in pos]
     others = _other_states(states, pos + vel)
     if others and positions is None and velocities is None and how.get("positions") == _LINKS:
-        computed = _computed_velocities(model, states, elements, others)
+        computed = _computed_velocities(model, states, elements, others,
+                                        _name_rewrites([(p.name, v.name) for p, v in zip(pos, vel)]))
         if computed and len(computed) == len(others):   # dummy derivatives: record them with the others
             pos, vel = _with_computed_velocities(elements, pos, vel, computed)
             derivatives = [states.der[c.name].name for c in pos]
@@ -823,8 +825,18 @@ _DUMMY_DERIVATIVES = ("from derivative links: every position is a state, and tho
                       "by dummy derivatives (record with --constraint velocity, so that fit takes the velocities' POD)")
 
 
+def _name_rewrites(pairs: list[tuple[str, str]]) -> set[tuple[str, str]]:
+    """How the names of linked positions become their velocities' names: the parts after their common prefix
+    (``mass[2].s`` -> ``mass[2].v``: ``("s", "v")``)."""
+    rewrites = set()
+    for position, velocity in pairs:
+        common = len(os.path.commonprefix([position, velocity]))
+        rewrites.add((position[common:], velocity[common:]))
+    return rewrites
+
+
 def _computed_velocities(model: ModelInfo, states: _States, elements: dict[str, Element],
-                         others: list[str]) -> dict[str, str]:
+                         others: list[str], rewrites: set[tuple[str, str]] | None = None) -> dict[str, str]:
     """Among the unpaired states ``others``, the positions whose derivative variable is an alias (the same value
     reference and sign) of a real variable that is no state, with that variable: the computed velocity of a
     position whose velocity state the exporter dropped (dummy derivatives of a velocity constraint ``G x' = 0``:
@@ -843,6 +855,9 @@ def _computed_velocities(model: ModelInfo, states: _States, elements: dict[str, 
         same = [e for e in elements.values() if e.name not in (der.name, name) and not e.alias and _is_signal(e)
                 and e.var.causality in ("local", "output") and (e.var.vr, e.offset) == (der.var.vr, der.offset)
                 and e.sign == der.sign and states.alias_state(e) is None and _unit_kind(e) in (None, 1)]
+        # named as the linked positions' velocities are (audit 78 F2: an actuator lag whose der() aliases an output
+        # act.rate, a PI integrator's control error and a filter's dy, undeclared dependencies, were taken)
+        same = [e for e in same if rewrites is None or _name_rewrites([(name, e.name)]) <= rewrites]
         if same:
             found[name] = same[0].name
     return found
