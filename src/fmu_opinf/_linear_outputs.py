@@ -125,7 +125,7 @@ def nonlinear_outputs(data: dict[str, np.ndarray], projection_error: float, name
     polynomial = _polynomial_residuals(data, above)
     found = [j for j in above if polynomial[j] <= POLYNOMIAL_EXPLAINS * residuals[j]]
     judged = [j for j, value in enumerate(residuals) if value is not None]
-    return {"outputs": found, "names": [names[j] for j in found], "residuals": residuals,
+    return {"outputs": found, "names": [names[j] for j in found], "residuals": residuals, "all_names": list(names),
             "polynomial_residuals": {int(j): polynomial[j] for j in above},
             "threshold": threshold if math.isfinite(threshold) else None,
             "left_out": bool(found) and len(found) < len(judged)}

@@ -297,9 +297,21 @@ def _in_run(name: str | None, runs: int | None) -> str:
     return f" of {name}" if name and runs is not None and runs > 1 else ""
 
 
+def _unexplained_outputs(linearity: dict) -> dict[str, Any]:
+    """The outputs that no linear map of the recorded states gives and that no polynomial of them explains either
+    (:func:`fmu_opinf._linear_outputs.nonlinear_outputs`: kept in the fit), with their linear residuals: a state that
+    was not recorded, or a nonlinearity that is no polynomial (a drag force ``v |v|``, a clipped sensor: audit 78
+    F1, 0.026 and 0.47 of the linear residual left by the polynomial, where a state not recorded leaves 0.034)."""
+    residuals, names = linearity.get("residuals") or [], linearity.get("all_names") or []
+    rows = [int(j) for j in (linearity.get("polynomial_residuals") or {}) if int(j) not in linearity["outputs"]]
+    if not rows or len(names) != len(residuals):
+        return {}
+    return {"names": [names[j] for j in rows], "residuals": [residuals[j] for j in rows]}
+
+
 def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool = True,
                                      tried: Sequence[int] = (), held: Sequence[str] = (),
-                                     unrefined: bool = False) -> None:
+                                     unrefined: bool = False, unexplained: dict | None = None) -> None:
     """One warning when the fitted ROM reproduces its own training outputs only to more than :data:`TRAINING_MISS`;
     ``unrefined`` (a fit asked not to refine, whose SDP solution may miss by 18 % RMS as the paper's does, but not
     by 2100 %, audit 76 F1): where the training objective (the mean over the outputs, not the worst output's worst
@@ -324,6 +336,13 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
     verb, its, it = ("is", "its", "it") if len(held) == 1 else ("are", "their", "them")
     sampled = (f"that no output is held between samples ({', '.join(held)} {verb}: eq. 17 cannot follow {its} "
                f"steps; record without {it}), " if held else "")
+    if unexplained and unexplained.get("names"):   # named first: least squares already showed them off
+        shown = ", ".join(f"{name} ({value:.2g})" for name, value in
+                          list(zip(unexplained["names"], unexplained["residuals"]))[:6])
+        sampled = (f"the outputs no linear map of the recorded states gives ({shown} of their variation left by "
+                   "least squares from the positions, velocities, inputs and a constant): a nonlinear output (a drag "
+                   "force, a clipped or saturated sensor: record without it, snapshots --outputs) or a state not "
+                   f"recorded (--positions), {sampled}")
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
                   f"({worst}training output error {objective:.2g}): check {sampled}that --positions names positions "
                   f"only (a velocity or a force among them cannot be fitted), that the order suffices ({order}; --r), "
@@ -826,6 +845,9 @@ def fit_rom(
     if fit.linearity.get("outputs"):
         info["nonlinear_outputs"] = fit.linearity
         _warn_nonlinear_outputs(fit.linearity)
+    unexplained = _unexplained_outputs(fit.linearity)
+    if unexplained:
+        info["unexplained_outputs"] = unexplained
     if (choice := _integrator_choice(integrator, attrs)) is not None:
         info["integrator_choice"] = choice
     dt_training = _training_dt(runs, attrs)
@@ -836,7 +858,7 @@ def fit_rom(
     # figure is in fit_info, the warning only for a gross miss (audit 76 F1: a ROM 2100-3200 % of range off its own
     # training outputs was written without a word)
     _warn_if_training_outputs_missed(info, pod.r_, tried=[entry["r"] for entry in search], held=_held_outputs(attrs),
-                                     unrefined=refine is False)
+                                     unrefined=refine is False, unexplained=unexplained)
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,
