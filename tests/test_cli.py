@@ -128,3 +128,29 @@ def test_build_fmus_replaces_fmus_in_a_given_folder_only_with_force(tmp_path, mo
         assert cli.main(["build-fmus", "-o", str(tmp_path / "new"), "--g", g]) == 2
         assert capsys.readouterr().err.strip().endswith("is invalid for AnchoredMSD; use an integer g >= 3")
     assert not (tmp_path / "new").exists()
+
+
+def test_an_undamped_rigid_body_mode_s_split_double_pole_is_a_zero_pole():
+    """Audit 78 F3: an undamped free-free ROM (M = diag(1, 2, 3), D = 0, K a Laplacian) has a defective double pole
+    at 0, which round-off splits into a pair of about sqrt(eps) of the scale; the fit printed 'damping ratios -1 .. 1'
+    and stable=False for a ROM exact to 4e-12.  Reference: the exact poles, 0 (double) and +-i omega from the
+    generalized eigenvalues of (K, M)."""
+    import numpy as np
+    import scipy.linalg
+
+    from fmu_opinf.cli import _ROUNDING, _ZERO_POLE, _pole_summary
+    from fmu_opinf.inference import _pole_info
+    from fmu_opinf.rom import SecondOrderROM
+
+    M, D = np.diag([1.0, 2.0, 3.0]), np.zeros((3, 3))
+    K = 30 * np.array([[1.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]])
+    rigid = np.ones(3) / np.sqrt(3.0)
+    K = K - 1e-14 * np.outer(rigid, rigid)   # round-off of a learned Kr (entries of 60: eps 60 = 1.3e-14)
+    rom = SecondOrderROM(M, D, K, np.ones((3, 1)), np.ones((1, 3)), np.zeros((1, 3)))
+    split = np.abs(rom.eigenvalues())
+    assert np.sort(split)[1] > 1e3 * _ROUNDING * split.max()      # the premise: round-off alone would not say zero
+    assert rom.is_stable(_ROUNDING, _ZERO_POLE) and not rom.is_stable(_ROUNDING)
+    omega = np.sqrt(scipy.linalg.eigh(K, M, eigvals_only=True)[1:])
+    line = _pole_summary(_pole_info(M, D, K)["poles"])
+    assert (f"natural frequencies {omega.min():.3g} .. {omega.max():.3g} rad/s, damping ratios 0 .. 0; 2 zero pole(s)"
+            in line), line

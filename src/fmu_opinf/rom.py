@@ -491,14 +491,17 @@ class SecondOrderROM:
         E = np.block([[eye, zero], [zero, self.Mr]])
         return scipy.linalg.eigvals(A, E)
 
-    def is_stable(self, tol: float = 0.0) -> bool:
+    def is_stable(self, tol: float = 0.0, zero: float = 0.0) -> bool:
         """True if every finite eigenvalue has real part ``<= tol`` times the largest magnitude (and none is
-        infinite).  With Mr SPD and Dr, Kr SPD the model is asymptotically stable."""
+        infinite); eigenvalues within ``zero`` times it of 0 count as zero poles (rigid-body motion, a drift that
+        does not grow: an undamped rigid-body mode's double pole at 0 comes out as a pair ``+-1e-9`` of the scale,
+        round-off of a defective eigenvalue, ``sqrt(eps)``).  With Mr SPD and Dr, Kr SPD the model is
+        asymptotically stable."""
         lam = self.eigenvalues()
         if not np.all(np.isfinite(lam)):
             return False
         scale = max(float(np.abs(lam).max()), np.finfo(float).tiny)
-        return bool(np.all(lam.real <= tol * scale))
+        return bool(np.all((lam.real <= tol * scale) | (np.abs(lam) <= zero * scale)))
 
     # --- files ---------------------------------------------------------------------------------------------
     def save(self, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
