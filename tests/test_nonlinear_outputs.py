@@ -212,7 +212,7 @@ def test_an_output_no_polynomial_explains_is_named_in_the_training_miss_warning(
     rom, said = _fit(_snapshots({"drag": 0.8 * ref.v[2] * np.abs(ref.v[2])}, energy=False))
     assert "nonlinear_outputs" not in rom.fit_info
     assert rom.fit_info["unexplained_outputs"]["names"] == ["drag"]
-    assert rom.fit_info["unexplained_outputs"]["residuals"][0] > 0.1                       # measured 0.37
+    assert rom.fit_info["unexplained_outputs"]["residuals"][0] > 0.1                       # measured 0.41
     missed = [line for line in said if "reproduces its own training outputs" in line]
     assert len(missed) == 1 and "drag (0." in missed[0] and "snapshots --outputs" in missed[0], said
     assert "--positions" in missed[0]
