@@ -859,3 +859,26 @@ def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
     for bad in ({**expected, "r": "2; rm -rf"}, {**expected, "chosen": "<script>"}, {**expected, "tried": [True]},
                 {**expected, "snapshot_rank": -1}, [expected], None):
         assert compare._carried_order({"rom_fmu_order": bad}) == {}, bad
+
+
+def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
+    """The exported FMU's provenance.json carried the fit's order, linear fits and own motion, but compare's reading of
+    the FMU kept only a few named keys and dropped them: the order note (audit 69 F6), the linear-fit note (77a F1)
+    and the free-response row (77b F2) never appeared for an FMU.  Read back from a built FMU file."""
+    from pathlib import Path
+
+    from fmu_opinf.export import export_fmu
+    from fmu_opinf.rom import SecondOrderROM
+
+    search = [{"r": 4, "judged": 0.97}, {"r": 16, "judged": 0.05}]
+    rom = SecondOrderROM(np.eye(2), 0.1 * np.eye(2), np.diag([1.0, 4.0]), np.ones((2, 1)), np.ones((2, 2)),
+                         np.zeros((2, 2)), dt=0.1, provenance={"fit_settings": {"r": None}},
+                         output_names=["x", "E"],
+                         fit_info={"snapshot_rank": 30, "order_search": search, "own_motion": {"spans": [1.0]},
+                                   "nonlinear_outputs": {"left_out": True, "names": ["E"]}})
+    path = export_fmu(rom, tmp_path / "rom.fmu")
+    provenance = compare._rom_side_info(Path(path))["provenance"]
+    assert provenance["rom_fmu_order"] == {"r": 2, "chosen": "search", "snapshot_rank": 30, "tried": [4, 16]}
+    assert provenance["rom_fmu_linear_fits"] == ["E"] and provenance["rom_fmu_moves_on_its_own"] is True
+    info = compare._rom_side_info(Path(path))
+    assert compare._carried_linear_fits(info) == ["E"] and compare.moves_on_its_own(Path(path), info)

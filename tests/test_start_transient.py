@@ -140,3 +140,24 @@ def test_a_model_at_rest_records_the_pulse_alone(fmus, tmp_path, capsys):
     rom = SecondOrderROM.load(rom_h5)
     assert "own_motion" not in rom.fit_info
     assert compare(rom, fmus["AtRest"], quiet=True).free_response is None
+
+
+def test_an_exported_rom_fmu_says_that_its_source_moves_on_its_own():
+    """compare on an exported ROM FMU had no fit_info to tell that the source moves on its own, and left out the
+    free-response row: the FMU's provenance.json now says so (exactly true; a data file), and compare reads it."""
+    import json
+    from pathlib import Path
+
+    from fmu_opinf import compare, export
+
+    run, _ = _exact_run(PULSE)
+    rom, _ = _fit([run], r=4, refine=False)
+    assert compare.moves_on_its_own(rom)    # the premise: the off-rest chain moves before its pulse
+    provenance = json.loads(export.rom_fmu_spec(rom).extra_files["provenance.json"])
+    assert provenance["rom_fmu_moves_on_its_own"] is True
+    fmu = Path("rom.fmu")
+    assert compare.moves_on_its_own(fmu, {"provenance": provenance, "m": 1})
+    for value in (False, "true", 1, None):
+        assert not compare.moves_on_its_own(fmu, {"provenance": dict(provenance, rom_fmu_moves_on_its_own=value),
+                                                  "m": 1})
+    assert not compare.moves_on_its_own(fmu, {"provenance": provenance, "m": 0})

@@ -617,7 +617,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     try:
         result = run.compared(signal, why)
         result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
-        if why and moves_on_its_own(rom_side):
+        if why and moves_on_its_own(rom_side, rom_info):
             result.free_response = run.compared("none", "", FREE_RESPONSE)
             if not quiet:
                 print(free_response_line(result.free_response), file=sys.stderr)
@@ -630,12 +630,15 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 FREE_RESPONSE = "free response (none)"
 
 
-def moves_on_its_own(rom_side: Any) -> bool:
+def moves_on_its_own(rom_side: Any, rom_info: dict[str, Any] | None = None) -> bool:
     """Whether the ROM's training showed its source moving on its own from its start values, the inputs held
     (``fit_info["own_motion"]``, :func:`fmu_opinf.fit.own_motion`): compare's default test, a harmonic sized to the
     training, then hides the start transient (audit 77b, F2: eq. 19 said 6e-5 .. 8e-5 where the free response was
-    27-104 % of its range off), so the free response is compared as well.  False for an exported ROM FMU (its
-    provenance does not carry the fit's figures)."""
+    27-104 % of its range off), so the free response is compared as well.  For an exported ROM FMU (``rom_side`` a
+    path) its provenance.json says so (``rom_fmu_moves_on_its_own``, exactly ``true``: a data file)."""
+    if isinstance(rom_side, Path):
+        info = rom_info or {}
+        return (info.get("provenance") or {}).get("rom_fmu_moves_on_its_own") is True and int(info.get("m", 0)) > 0
     info = getattr(rom_side, "fit_info", None)
     return isinstance(info, dict) and isinstance(info.get("own_motion"), dict) and int(getattr(rom_side, "m", 0)) > 0
 
@@ -1364,6 +1367,9 @@ def _rom_fmu_metadata(path: Path) -> dict[str, Any]:
         meta["training_runs"] = provenance.get("training_runs")   # (their output peaks: the check after the run)
         if isinstance(provenance.get("fit_settings"), dict):   # (how the fit read a warned recording: audit 71 F7)
             meta["fit_settings"] = provenance["fit_settings"]
+        # what the fit found, for the notes and rows of a compare on the FMU (each judged where it is read)
+        for key in ("rom_fmu_order", "rom_fmu_linear_fits", "rom_fmu_moves_on_its_own"):
+            meta[key] = provenance.get(key)
     return meta
 
 

@@ -504,6 +504,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
     provenance["rom_fmu_order"] = _order_record(rom)
     provenance["rom_fmu_linear_fits"] = _linear_fits_record(rom)
+    provenance["rom_fmu_moves_on_its_own"] = _moves_on_its_own_record(rom)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, p=p + len(names),
@@ -975,6 +976,14 @@ def _linear_fits_record(rom: SecondOrderROM) -> list[str]:
     from .compare import _linear_fits
 
     return _linear_fits(rom)
+
+
+def _moves_on_its_own_record(rom: SecondOrderROM) -> bool:
+    """Whether the ROM's training showed its source moving on its own (:func:`fmu_opinf.compare.moves_on_its_own`),
+    for ``compare`` on the FMU: its default comparison then adds the free response (audit 77b F2)."""
+    from .compare import moves_on_its_own
+
+    return moves_on_its_own(rom)
 
 
 def _position_unit(provenance: dict) -> str:
