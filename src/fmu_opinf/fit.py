@@ -1507,6 +1507,18 @@ def _training_output_error(ops: Any, u: np.ndarray, data: dict[str, np.ndarray],
                                   output_weighting=output_weighting)
 
 
+def _model_states(ops: Any, data: dict[str, np.ndarray], output_map: tuple[np.ndarray, np.ndarray]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The reduced data's states ``[x; xdot]`` in the fitted model's coordinates and its output map ``[Cp, Cv]``
+    there: the least-squares realization's states are ``W^-1 z``, and a map of the POD coordinates becomes ``C W``."""
+    z, C = np.vstack([data["x"], data["xdot"]]), np.hstack(output_map)
+    if ops.coordinates is not None:
+        z = np.linalg.solve(ops.coordinates, z)
+        if ops.output_map is None:
+            C = C @ ops.coordinates
+    return z, C
+
+
 def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated: dict[str, Any],
                    output_map: tuple[np.ndarray, np.ndarray], run_names: Sequence[str] = (),
                    judged: np.ndarray | None = None) -> dict[str, Any]:
@@ -1523,12 +1535,7 @@ def _output_errors(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulat
 
     if not simulated.get("refine"):
         return {}
-    z = np.vstack([data["x"], data["xdot"]])
-    C = np.hstack(output_map)
-    if ops.coordinates is not None:   # the least-squares realization: its states are W^-1 z
-        z = np.linalg.solve(ops.coordinates, z)
-        if ops.output_map is None:   # a map of the POD coordinates
-            C = C @ ops.coordinates
+    z, C = _model_states(ops, data, output_map)
     r = data["x"].shape[0]
     found = output_errors(ops.Mr, ops.Dr, ops.Kr, ops.Br, z[r:], z[:r], u, simulated["y"], simulated["dt"],
                           output_map=(C[:, :r], C[:, r:]), run_lengths=simulated["run_lengths"],
@@ -1568,11 +1575,7 @@ def _peak_misses(ops: Any, u: np.ndarray, data: dict[str, np.ndarray], simulated
 
     if not simulated.get("refine"):
         return {}
-    z, C = np.vstack([data["x"], data["xdot"]]), np.hstack(output_map)
-    if ops.coordinates is not None:   # the least-squares realization: its states are W^-1 z
-        z = np.linalg.solve(ops.coordinates, z)
-        if ops.output_map is None:
-            C = C @ ops.coordinates
+    z, C = _model_states(ops, data, output_map)
     y, cuts = np.atleast_2d(simulated["y"]), np.cumsum([0] + list(simulated["run_lengths"]))
     peaks, spreads = np.zeros((len(cuts) - 1, y.shape[0])), np.zeros((len(cuts) - 1, y.shape[0]))
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
