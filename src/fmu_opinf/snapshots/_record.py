@@ -860,10 +860,12 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
 
 
 def _runs_still(runs: Sequence[Any]) -> bool:
-    """Whether no recorded position or output moves in any run (each row within 1e-12 of its size of its first
-    value, as the automatic window's pilots judge, :func:`~._window._judged_pilot`): a recording the fit cannot
+    """Whether no recorded position or output moves in any run (:func:`~._window.spread_is_round_off`, as the
+    automatic window's pilots judge): a recording the fit cannot
     learn from.  ``runs``: :class:`Run` objects or run groups of a file, read in column blocks.  Runs of one sample
     show nothing either way: False where no run has two."""
+    from ._window import spread_is_round_off
+
     seen = False
     for run in runs:
         for name in ("x", "y"):
@@ -880,8 +882,7 @@ def _runs_still(runs: Sequence[Any]) -> bool:
                 np.maximum(high, block.max(axis=1), out=high)
                 if np.any(high - low > 1e-6 * np.maximum(np.abs(low), np.abs(high)).max()):
                     return False   # clearly moving: the rest of a long recording is not read
-            size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)))), 1e-300)
-            if np.any(high - low > 1e-12 * size):
+            if not spread_is_round_off(low, high):
                 return False
     return seen
 

@@ -1432,7 +1432,14 @@ def _rows_still(x: np.ndarray) -> bool:
     held at false, the window took the pulse's own spectrum for the model's and chose dt = 5e-8)."""
     if x.ndim != 2 or not x.shape[0] or x.shape[1] < 2:
         return False
-    return not np.any(np.ptp(x, axis=1) > 1e-12 * max(float(np.abs(x).max()), 1e-300))
+    return spread_is_round_off(x.min(axis=1), x.max(axis=1))
+
+
+def spread_is_round_off(low: np.ndarray, high: np.ndarray) -> bool:
+    """Whether rows that range over ``[low, high]`` all stay within 1e-12 of the largest magnitude among them: no
+    row moves (the pilots' rule for outputs, :func:`_judged_pilot`, and the recording's, ``_record._runs_still``)."""
+    size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)), initial=0.0)), 1e-300)
+    return not np.any(high - low > 1e-12 * size)
 
 
 def _motionless(source: Source, signal: Any, t: np.ndarray, what: str = "outputs") -> str:
