@@ -23,6 +23,7 @@ from conftest import build_fmu_set
 from fmu_opinf import lti_fmus, systems
 from fmu_opinf.cli import main
 from fmu_opinf.errors import FmuOpinfWarning
+from fmu_opinf.export import _warn_if_start_is_missed
 from fmu_opinf.fit import fit_rom
 from fmu_opinf.newmark import time_grid
 from fmu_opinf.rom import SecondOrderROM
@@ -101,6 +102,8 @@ def test_a_free_run_in_the_training_is_judged_and_a_miss_warned():
     assert reference.max() > 0.1                                                                    # measured 0.69
     np.testing.assert_allclose(rom.fit_info["own_motion"]["free_response_miss"], reference, rtol=1e-6)
     assert any("free response from the start values" in line for line in said), said
+    with pytest.warns(FmuOpinfWarning, match="free response from the start values"):   # export says it again
+        _warn_if_start_is_missed(rom)
 
 
 @pytest.mark.fmu

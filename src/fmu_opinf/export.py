@@ -760,14 +760,15 @@ def _warn_if_merged(provenance: dict) -> None:
 
 
 def _warn_if_start_is_missed(rom: Any) -> None:
-    """The fit's warning that the ROM's outputs at its start miss the source's
-    (:func:`fmu_opinf.fit.start_miss_warning`) again at export: the ROM FMU run with nothing connected shows that
-    miss first (audit 69 F3)."""
-    from .fit import start_miss_warning
+    """The fit's warnings that the ROM's outputs at its start (:func:`fmu_opinf.fit.start_miss_warning`) or its
+    free response from the start values (:func:`fmu_opinf.fit.free_response_warning`) miss the source's, again at
+    export: the ROM FMU run with nothing connected shows those misses first (audit 69 F3, audit 77b F2)."""
+    from .fit import free_response_warning, start_miss_warning
 
-    message = start_miss_warning(getattr(rom, "fit_info", None) or {}, list(getattr(rom, "output_names", None) or ()))
-    if message:
-        warnings.warn(message, FmuOpinfWarning, stacklevel=3)
+    info, names = getattr(rom, "fit_info", None) or {}, list(getattr(rom, "output_names", None) or ())
+    for message in (start_miss_warning(info, names), free_response_warning(info, names)):
+        if message:
+            warnings.warn(message, FmuOpinfWarning, stacklevel=3)
 
 
 def _steady_start_gain(matrices: dict[str, np.ndarray], provenance: dict) -> tuple[np.ndarray, np.ndarray] | None:
