@@ -1172,15 +1172,22 @@ def _source_tree(spec: SecondOrderFmuSpec) -> tuple[dict[str, bytes], str]:
     else:
         templates["modelDescription.xml"] = _model_description3(spec, _GUID_PLACEHOLDER)
         files["sources/buildDescription.xml"] = _build_description3(spec, sources).encode()
+    return files, stamp_guid(files, templates, _GUID_NAMESPACE)
+
+
+def stamp_guid(files: dict[str, bytes], templates: dict[str, str], namespace: uuid.UUID) -> str:
+    """The GUID of an FMU's contents (a UUID 5 in ``namespace`` of the files and of the templates before the GUID
+    is put in), written into ``files`` with each template's ``@GUID@`` placeholder replaced: the same sources give
+    the same GUID, so a rebuild of an unchanged FMU is recognised (``build_lti_fmu(reuse=True)``)."""
     digest = hashlib.sha256()
     for name in sorted(files):
         digest.update(name.encode() + b"\0" + files[name] + b"\0")
     for name in sorted(templates):
         digest.update(name.encode() + b"\0" + templates[name].encode() + b"\0")
-    guid = "{" + str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest())) + "}"
+    guid = "{" + str(uuid.uuid5(namespace, digest.hexdigest())) + "}"
     for name, text in templates.items():
         files[name] = text.replace(_GUID_PLACEHOLDER, guid).encode()
-    return files, guid
+    return guid
 
 
 # ------------------------------------------------------------------------ building
@@ -1409,9 +1416,14 @@ def build_second_order_fmu(spec: SecondOrderFmuSpec, path: str | os.PathLike,
     FmuBuildError
         If CMake or a C compiler is missing, or the compilation fails.
     """
-    path = Path(path)
-    cmake = _require_build_tools() if compile else None
     files, _ = _source_tree(spec)
+    return write_fmu(files, Path(path), compile)
+
+
+def write_fmu(files: dict[str, bytes], path: Path, compile: bool = True) -> Path:
+    """Write the FMU of ``files`` (archive names to contents) to ``path``, its binary compiled by FMPy's CMake
+    project unless ``compile`` is False, in a temporary folder; ``path`` is replaced atomically."""
+    cmake = _require_build_tools() if compile else None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as error:

@@ -47,11 +47,9 @@ FMU per convention with its model (:data:`CORPUS_NAMES`).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
 import re
-import tempfile
 import uuid
 import zipfile
 from concurrent.futures import ThreadPoolExecutor
@@ -67,11 +65,10 @@ from .errors import DimensionError
 from .fmus import (
     FmuBuildError,
     _c_sources_dir,
-    _compile,
     _fmi_header_dir,
-    _require_build_tools,
-    _write_zip,
     find_build_tools,
+    stamp_guid,
+    write_fmu,
 )
 
 __all__ = [
@@ -1683,15 +1680,7 @@ def _source_tree(layout: _Layout, options: _Options, model: LinearMechanicalMode
     else:
         templates["modelDescription.xml"] = _model_description3(layout, options)
         files["sources/buildDescription.xml"] = _build_description3(options, sources).encode()
-    digest = hashlib.sha256()
-    for name in sorted(files):
-        digest.update(name.encode() + b"\0" + files[name] + b"\0")
-    for name in sorted(templates):
-        digest.update(name.encode() + b"\0" + templates[name].encode() + b"\0")
-    guid = "{" + str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest())) + "}"
-    for name, text in templates.items():
-        files[name] = text.replace(_GUID_PLACEHOLDER, guid).encode()
-    return files, guid
+    return files, stamp_guid(files, templates, _GUID_NAMESPACE)
 
 
 def _existing_guid(path: Path) -> str | None:
@@ -1929,26 +1918,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                     state_event=state_event, **names)
     if reuse and path.is_file() and _existing_guid(path) == guid:
         return result
-    cmake = _require_build_tools()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise FmuBuildError(f"cannot create the output folder {path.parent}: "
-                            f"{error.strerror}; choose a writable path") from error
-    with tempfile.TemporaryDirectory(prefix="fmu-opinf-lti-") as tmp:
-        unzipdir = Path(tmp) / "fmu"
-        for name, content in files.items():
-            target = unzipdir / name
-            target.parent.mkdir(parents=True, exist_ok=True)
-            target.write_bytes(content)
-        build_dir = Path(tmp) / "build"
-        build_dir.mkdir()
-        _compile(unzipdir, build_dir, cmake)
-        try:
-            _write_zip(unzipdir, path)
-        except OSError as error:
-            raise FmuBuildError(f"cannot write {path}: {error.strerror}; choose a writable "
-                                "path") from error
+    write_fmu(files, path)
     return result
 
 
