@@ -437,3 +437,39 @@ def test_auto_normalization_keeps_the_one_that_solved_when_the_other_fails(rng, 
     failed = ("mass-eigenvalue", "trace")
     with pytest.raises(SolverError, match="failed on trace"):
         solve(R, r, m, "auto", 1e-9, False, "auto", "auto")
+
+
+def _free_response_gram(damping: float) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+    """Gram matrix ``G`` of exact free-response data ``[q''; q'; q]`` of a 3-mass chain with ``D = damping K`` (no
+    input; from the matrix exponential), and its true ``(M, D, K)`` scaled to ``trace(M) = 3``: the objective
+    ``trace(T G T^T)`` is zero there, so that point is the SDP's optimum, known without any solver."""
+    import scipy.linalg
+
+    M, K = np.diag([1.0, 2.0, 1.5]), np.array([[2.0, -1.0, 0.0], [-1.0, 2.0, -1.0], [0.0, -1.0, 1.0]])
+    D, minv = damping * K, np.linalg.inv(M)
+    step = scipy.linalg.expm(0.1 * np.block([[np.zeros((3, 3)), np.eye(3)], [-minv @ K, -minv @ D]]))
+    z = [np.array([0.3, -0.2, 0.5, 0.0, 0.1, -0.4])]
+    for _ in range(399):
+        z.append(step @ z[-1])
+    x, v = np.array(z).T[:3], np.array(z).T[3:]
+    data = np.vstack([-minv @ (D @ v + K @ x), v, x])
+    scale = 3.0 / np.trace(M)
+    return data @ data.T / x.shape[1], (scale * M, scale * D, scale * K)
+
+
+def test_the_clip_at_a_cone_apex_is_kept_only_where_it_is_the_optimum():
+    """The screening's clip of a dropped block indefinite within 1e-6 (``_sdp_paths._certified_clip``): an undamped
+    model's ``Dr`` at +-1e-15 (round-off of exact data) is clipped to PSD (its true ``Dr = 0`` is the optimum);
+    the same point on a damped model's data, where the optimum has ``D = 0.05 K``, is refused although it is as
+    close to PSD, and a block 1e-3 below zero is refused on the undamped data too (the cone is added instead)."""
+    from fmu_opinf._sdp_paths import _certified_clip
+
+    wobble = 1e-15 * np.array([[1.0, 0.3, 0.0], [0.3, -1.0, 0.2], [0.0, 0.2, 0.5]])
+    G, (M, D, K) = _free_response_gram(0.0)
+    clipped = _certified_clip((M, D + wobble, K), [1], {"G": G}, "trace", 3.0)
+    assert clipped is not None and np.linalg.eigvalsh(clipped[1])[0] > -1e-28   # PSD to round-off
+    assert np.abs(clipped[1]).max() < 2e-15 and clipped[0] is M and clipped[2] is K
+    assert _certified_clip((M, D - 1e-3 * np.eye(3), K), [1], {"G": G}, "trace", 3.0) is None
+    G_damped, (_, D_true, _) = _free_response_gram(0.05)
+    assert np.linalg.eigvalsh(D_true)[0] > 1e-3                     # the optimum is far from the apex
+    assert _certified_clip((M, wobble, K), [1], {"G": G_damped}, "trace", 3.0) is None
