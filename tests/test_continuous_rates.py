@@ -111,7 +111,7 @@ def _run(model, spec: str, accelerations: str) -> Run:
 
 def _test_error(model, run: Run, corrections: int | None = None, monkeypatch=None) -> float:
     if corrections is not None:
-        monkeypatch.setattr("fmu_opinf.fit.AVERAGE_CORRECTIONS", corrections)
+        monkeypatch.setattr("fmu_opinf.fit._order_fit.AVERAGE_CORRECTIONS", corrections)
     rom = fit_rom(run, r=5, integrator="exact")
     test = "harmonic:amplitude=1,omega=0.8"
     u, ref = _exact(model, test, 200.0)

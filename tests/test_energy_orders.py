@@ -148,7 +148,7 @@ def test_a_peak_within_the_bar_is_reported_and_not_warned():
 def test_a_barely_moved_output_or_run_is_judged_as_the_rms_is():
     """Hand-computed: output 0 moves 2.0 in run 0 and 1e-6 in run 1 (its range there floored at 1e-3 of 2.0);
     output 1 never moves beyond round-off of the largest (not judged)."""
-    from fmu_opinf.fit import _worst_run_peaks
+    from fmu_opinf.fit._training_errors import _worst_run_peaks
 
     peaks = np.array([[0.02, 1e-20], [1e-4, 1e-20]])
     spreads = np.array([[2.0, 1e-12], [1e-6, 1e-12]])

@@ -198,7 +198,7 @@ def test_the_default_fit_of_euler_substeps_is_the_model(tmp_path):
 
 def test_the_fit_keeps_the_sdp_for_euler_substeps_only_with_the_fmu_s_own_accelerations():
     """Accelerations derived from the samples follow the Euler steps too: then the verdict changes nothing."""
-    from fmu_opinf.fit import _recorded_euler_step
+    from fmu_opinf.fit._time_integrator import _recorded_euler_step
 
     assert _recorded_euler_step({"recording_verdicts": ["euler-substeps"], "derived_xddot": np.False_}) == \
         "euler-substeps"

@@ -13,7 +13,8 @@ from fmu_opinf import compare, lti_fmus
 from fmu_opinf._linear_outputs import (LINEAR_OUTPUT_RESIDUAL, PROJECTION_MARGIN, nonlinear_outputs,
                                       output_linear_residuals)
 from fmu_opinf.errors import FmuOpinfWarning
-from fmu_opinf.fit import _projection_error, fit_rom
+from fmu_opinf.fit import fit_rom
+from fmu_opinf.fit._order_fit import _projection_error
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run, Snapshots
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid

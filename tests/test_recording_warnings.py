@@ -141,7 +141,7 @@ def test_a_backward_rule_uses_the_sdp_only_with_the_fmu_s_own_accelerations():
     """Semi-implicit or implicit Euler (the data do not tell which), or any co-simulation whose outputs depend on the
     step: the FMU's own accelerations are the model's derivatives, so the SDP solution is kept; with accelerations
     derived from the samples nothing is changed."""
-    from fmu_opinf.fit import _recorded_euler_step
+    from fmu_opinf.fit._time_integrator import _recorded_euler_step
 
     assert _recorded_euler_step({"recording_verdicts": ["forward-euler"], "derived_xddot": True}) == "forward-euler"
     assert _recorded_euler_step({"recording_verdicts": ["backward-euler"], "derived_xddot": False}) == "backward-euler"

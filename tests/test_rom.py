@@ -424,7 +424,7 @@ def test_an_order_below_the_number_of_inputs_is_warned_about():
     import warnings
 
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.fit import _warn_if_order_below_inputs
+    from fmu_opinf.fit._training_checks import _warn_if_order_below_inputs
 
     with pytest.warns(FmuOpinfWarning, match=r"r=5 \(from the cumulative energy\) is below the 20 inputs, and the "
                                              r"snapshots have rank 20: .* fit with --r 20"):
@@ -622,7 +622,8 @@ def test_the_order_search_doubles_up_to_its_limit_and_keeps_the_closest_where_no
     from types import SimpleNamespace
 
     from fmu_opinf.errors import FmuOpinfWarning
-    from fmu_opinf.fit import ORDER_SEARCH_LIMIT, _grow_order, _search_orders, _warn_if_training_outputs_missed
+    from fmu_opinf.fit._order_search import ORDER_SEARCH_LIMIT, _grow_order, _search_orders
+    from fmu_opinf.fit._training_checks import _warn_if_training_outputs_missed
 
     assert _search_orders(2, 28) == [4, 8, 16, 28] and _search_orders(36, 151) == [ORDER_SEARCH_LIMIT] == [60]
     assert _search_orders(5, 5) == [] and _search_orders(61, 151) == []
@@ -714,7 +715,8 @@ def test_a_gross_training_miss_keeps_the_order_search_going_while_any_order_lowe
     :func:`fit_rom`'s (only their order and training output error count)."""
     from types import SimpleNamespace
 
-    from fmu_opinf.fit import GROSS_MISS, ORDER_HELPS, _grow_order
+    from fmu_opinf.fit import GROSS_MISS, ORDER_HELPS
+    from fmu_opinf.fit._order_search import _grow_order
 
     objectives = {4: 0.97, 8: 0.91, 16: 0.05, 30: 1e-20}   # audit 69's chain: 4 -> 8 lowers it 1.07-fold only
     assert objectives[8] * ORDER_HELPS > objectives[4] and objectives[8] > GROSS_MISS
@@ -746,7 +748,8 @@ def test_the_order_search_refines_in_full_only_what_it_keeps_or_relies_on():
     training output error and refinement status count)."""
     from types import SimpleNamespace
 
-    from fmu_opinf.fit import GROSS_MISS, SCREEN_CHECKPOINTS, _grow_order
+    from fmu_opinf.fit import GROSS_MISS, SCREEN_CHECKPOINTS
+    from fmu_opinf.fit._order_search import _grow_order
 
     full = {4: 0.97, 8: 0.91, 16: 0.5, 30: 1e-20}       # audit 69's chain, judged after a full refinement
     screened = {4: 2.0, 8: 1.5}                         # the same orders ended by the screen
@@ -983,7 +986,7 @@ def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_va
 
     from fmu_opinf import lti_fmus
     from fmu_opinf.basis import cumulative_energy
-    from fmu_opinf.fit import _grow_order
+    from fmu_opinf.fit._order_search import _grow_order
     from fmu_opinf.signals import parse_signal
     from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 

@@ -143,7 +143,7 @@ def test_fit_offers_only_a_smaller_r_at_an_fmus_fixed_step(fmus, tmp_path, capsy
     snaps = Snapshots.load(tmp_path / "s.h5")
     assert snaps.attrs["fixed_communication_step"] == FIXED and snaps.runs[0].t[1] == pytest.approx(FIXED)
 
-    from fmu_opinf.fit import _at_fixed_step
+    from fmu_opinf.fit._training_data import _at_fixed_step
 
     assert not _at_fixed_step({}, FIXED)   # a file written before says nothing: the advice stays as it was
 

@@ -115,15 +115,15 @@ def test_the_automatic_integrator_follows_what_the_training_fmu_declares(attrs, 
     """``fit(integrator="auto")`` and the snapshot stage's continuous-time rule answer alike: exact for another tool's
     FMU and for an fmu-opinf FMU that declares the exact step, Newmark for the rest (an undeclared fmu-opinf FMU:
     the rule before the declaration); fit's summary line says which and why for fmu-opinf FMUs only."""
-    from fmu_opinf import fit
+    from fmu_opinf.fit import _time_integrator
     from fmu_opinf.snapshots._rates import continuous_recording
 
-    assert fit._integrator("auto", attrs) == integrator
+    assert _time_integrator._integrator("auto", attrs) == integrator
     assert continuous_recording(attrs) is (integrator == "exact")
-    choice = fit._integrator_choice("auto", attrs)
+    choice = _time_integrator._integrator_choice("auto", attrs)
     assert (choice is None) if said is None else (choice.startswith(f"integrator {integrator} (auto)")
                                                   and said in choice)
-    assert fit._integrator_choice("newmark", attrs) is None     # a requested integrator needs no reason
+    assert _time_integrator._integrator_choice("newmark", attrs) is None     # a requested integrator needs no reason
 
 
 # ----------------------------------------------------------------------------------------------- F7, fast
