@@ -38,10 +38,10 @@ __all__ = ["LINEAR_OUTPUT_RESIDUAL", "PROJECTION_MARGIN", "nonlinear_outputs", "
 LINEAR_OUTPUT_RESIDUAL = 1e-6
 
 #: Factor on the basis' relative projection error of the snapshots (the largest of the positions', velocities' and
-#: accelerations', :func:`fmu_opinf.fit._projection_error`) by which the bar is raised where that basis does not
-#: span them: a linear output misses by about the share of the state outside the basis.  Measured on a 12-mass
-#: chain (``chain_model(12)``: outputs a position, a velocity, two accelerations; impulse, 1501 samples) on its
-#: leading 10 / 8 / 6 position modes: projection error 0.030 / 0.11 / 0.43 (the accelerations'), the linear
+#: accelerations', :func:`fmu_opinf.fit._order_fit._projection_error`) by which the bar is raised where that basis
+#: does not span them: a linear output misses by about the share of the state outside the basis.  Measured on a
+#: 12-mass chain (``chain_model(12)``: outputs a position, a velocity, two accelerations; impulse, 1501 samples) on
+#: its leading 10 / 8 / 6 position modes: projection error 0.030 / 0.11 / 0.43 (the accelerations'), the linear
 #: outputs at most 0.080 / 0.15 / 0.29 of their variation (2.6 / 1.3 / 0.7 times it), the kinetic energy 0.84 /
 #: 0.86 / 0.87 (not found there: the bar is above it); on an 80-mass chain (basis of 60 modes, snapshot rank 70):
 #: projection error 1.2e-6 (the largest of the three), the linear outputs 4e-15 .. 5.8e-14, the kinetic energy

@@ -370,9 +370,9 @@ def _start_at_model_start(model: SecondOrderROM, first: Any, attrs: dict, basis:
                           coordinates: np.ndarray | None, say: Callable[[str], None]) -> None:
     """Start ``model`` from the model's own start where its first training run ``first`` had run table ``start:``
     values (then every run had: :mod:`fmu_opinf.basis` puts a run without them first), else leave it at that run's
-    start; where the own start cannot be read, one warning says so and how to fix it (:mod:`._model_start`).  The
-    start stored with the run when it was recorded is taken; only a run recorded before it was stored has its FMU
-    initialized here."""
+    start; where the own start cannot be read, one warning says so and how to fix it
+    (:mod:`fmu_opinf._model_start`).  The start stored with the run when it was recorded is taken; only a run
+    recorded before it was stored has its FMU initialized here."""
     from .._model_start import own_start, row_start, stored_start
 
     starts = row_start(getattr(first, "attrs", None) or {})

@@ -30,8 +30,8 @@ _KEYS = ("fmu_name", "fmu_sha256", "fmu_guid", "fmi_interface", "fmu_settings", 
 
 _INTERFACES = {"me": "model exchange", "cs": "co-simulation"}
 
-#: The verdicts that change how ``fit`` treats a recording (:func:`fmu_opinf.fit._recorded_euler_step`) and what
-#: each says.
+#: The verdicts that change how ``fit`` treats a recording
+#: (:func:`fmu_opinf.fit._time_integrator._recorded_euler_step`) and what each says.
 _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps",
                   "backward-euler": "the FMU's semi-implicit Euler co-simulation steps",
                   "euler-substeps": "the FMU's explicit Euler steps of its fixed internal step",
