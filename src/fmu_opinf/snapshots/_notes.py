@@ -29,9 +29,11 @@ __all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", 
 #: end), depends on the step in another way, or returns its outputs one step late; or the model had events of its
 #: own during the recording (which a linear ROM cannot follow; no change to the fit); or the co-simulation takes
 #: several explicit Euler steps of its fixed internal step per communication step (``"euler-substeps"``), or follows
-#: a fixed internal step whose integrator the data cannot tell (``"internal-step"``; no change to the fit).
+#: a fixed internal step whose integrator the data cannot tell (``"internal-step"``; no change to the fit); or the
+#: response grows without bound once the inputs are held (``"unbounded-growth"``, :mod:`._growth`: a model unstable
+#: at its operating point, which a stable ROM cannot represent; no change to the fit).
 VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs", "internal-events", "euler-substeps",
-            "internal-step")
+            "internal-step", "unbounded-growth")
 
 _NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
                                                                                     default=None)

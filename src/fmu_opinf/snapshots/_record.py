@@ -41,6 +41,7 @@ from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
+from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
@@ -832,6 +833,8 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
 
             run, failure = record_run(source, signal, grids[index], factory, quiet, isolate)
             recorded.append(run.attrs)
+            if failure is None:   # (audit 79b, F4: a model unstable at its operating point; fit and export repeat it)
+                warn_if_grows(source, signal, run)
             if index == 0 and run.k == 0:
                 raise failure or StepError(f"{source_label(source)} recorded no sample in its first run", 0,
                                            float(t[0]))

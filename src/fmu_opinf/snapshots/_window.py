@@ -15,6 +15,7 @@ from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
 from ..sources._base import held_inputs_advice, nice_floor
 from ..sources._cosimulation import DISCARDED
+from ._growth import growth_error, unbounded_growth
 from ._isolation import source_label
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
@@ -1285,7 +1286,9 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     if run is None or not np.array_equal(np.asarray(run.t), t):
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, pilot=True)
         if failure is not None:
+            refuse_growth(source, run, t_input)   # (a run that overflowed: say why, where it grew first)
             raise incomplete_error(failure, run, None)
+    refuse_growth(source, run, t_input)
     # only outputs that pass the input through (y = u) move: the model does not, and its spectrum is the pulse's
     if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):
         raise DataError(_motionless(source, signal, t, "positions"))
@@ -1296,6 +1299,18 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
         y = y - _outputs_of(source, baseline, t, quiet, isolate, f"{label}: its drift without the pulse")
     with np.errstate(over="ignore", invalid="ignore"):
         return _judged_pilot(source, signal, t, y, t_input, energy, fade)
+
+
+def refuse_growth(source: Source, run: Any, t_input: float) -> None:
+    """Refuse a pilot ``run`` whose response grows without bound once the inputs are held at ``t_input``
+    (:func:`~._growth.unbounded_growth`): no window can wait for it, and no stable ROM follows it (audit 79b, F4:
+    judged 'faded' against its own huge end value, the default impulse was narrowed twice and the window stopped
+    after 28 s with advice on the pulse's width)."""
+    k = int(getattr(run, "k", len(run.t)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        growth = unbounded_growth(np.asarray(run.t)[:k], np.asarray(run.x)[:, :k], np.asarray(run.y)[:, :k], t_input)
+    if growth is not None:
+        raise growth_error(source, growth)
 
 
 def _outputs_of(source: Source, signal: Any, t: np.ndarray, quiet: bool, isolate: bool, label: str) -> np.ndarray:

@@ -1,0 +1,222 @@
+"""Responses that grow without bound once the inputs are held: a model linearized about an unstable equilibrium.
+
+An inverted pendulum or a buckled structure has a stiffness matrix with a negative eigenvalue, and its response to any
+disturbance grows like ``e^(sigma t)``.  fmu-opinf's ROMs are stable by construction (``Mr, Dr, Kr`` positive
+semidefinite, eq. 16) and cannot represent it.  Before this test, the automatic window judged such a response
+'faded' against its own huge end value, narrowed the training pulse twice and stopped after 28 s with advice
+about the pulse's width; with ``--dt`` and ``--t-end`` the chain fitted a stable ROM 2e3 times off (audit 79b, F4).
+
+The test (:func:`unbounded_growth`) splits the part of a run after the inputs stop changing into four equal
+quarters and takes the peak of ``||z(t) - z(t_s)||`` in each (``z``: positions, outputs; ``t_s``: the first
+sample with the inputs held).  The response grows exponentially where every quarter's peak exceeds the one before
+by :data:`GROWTH_RATIO` and the growth does not slow down (:data:`STEADY_GROWTH`).  A model whose ``M, D, K`` are
+positive semidefinite cannot pass: with the inputs held its energy does not increase, so a free body drifts
+linearly (``t``), or like ``t^2`` under a constant load, and a power ``t^n`` from rest gives quarter ratios
+``2^n, 1.5^n, 1.33^n``, whose logarithms fall to 0.42 of the first: the last ratio stays below 3 for ``n <= 3``
+and the growth slows for any ``n``.  Oscillations, beats and decays stay bounded.  A growth too slow to reach
+:data:`GROWTH_RATIO` per quarter within a run is not seen in it (a longer pilot sees it).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import DataError
+from ._isolation import source_label
+
+__all__ = ["GROWTH_RATIO", "STEADY_GROWTH", "Growth", "GrowsWithoutBound", "exponential_growth", "growth_error",
+           "growth_warning", "quarter_ratios", "unbounded_growth", "warn_if_grows"]
+
+#: Each quarter of the held part of a run must peak at least this many times higher than the one before.  A free
+#: body under a constant load (``t^2`` from rest) reaches 1.78 in the last quarter; ``e^(sigma t)`` reaches it where
+#: the held part lasts at least ``4 ln 3 = 4.4`` time constants ``1 / sigma``.
+GROWTH_RATIO = 3.0
+
+#: The growth over the last quarter (its logarithm) must be at least this share of the growth over each quarter
+#: before: an exponential keeps its rate (1), a power of time slows (``ln(4/3) / ln 2 = 0.42`` from rest).
+STEADY_GROWTH = 0.75
+
+#: Fewest samples per quarter of the held part that the test judges.
+QUARTER_SAMPLES = 8
+
+#: Columns read at once from a recording's datasets (:func:`warn_if_grows` on a file).
+BLOCK_COLUMNS = 65536
+
+
+@dataclasses.dataclass(frozen=True)
+class Growth:
+    """An exponential growth seen in a run.
+
+    Attributes
+    ----------
+    rate : float
+        ``sigma``, the growth rate of ``||z(t) - z(t_s)||`` over the last quarter of the held part, per time unit
+        (least-squares slope of the logarithm of its running maximum).
+    factor : float
+        The last quarter's peak over the first quarter's.
+    t_start, t_end : float
+        The held part judged.
+    what : str
+        ``"positions"`` or ``"outputs"``: the rows whose growth is reported.
+    """
+
+    rate: float
+    factor: float
+    t_start: float
+    t_end: float
+    what: str = "outputs"
+
+    def describe(self) -> str:
+        """``grows like e^(sigma t) with sigma = 2.66 per time unit (time constant 0.376; ...)``."""
+        return (f"grows like e^(sigma t) with sigma = {self.rate:.3g} per time unit (time constant 1/sigma = "
+                f"{1.0 / self.rate:.3g}; its {self.what} grew {self.factor:.2g} times from the first to the last "
+                f"quarter of t in [{self.t_start:.4g}, {self.t_end:.4g}], the inputs held)")
+
+
+class GrowsWithoutBound(DataError):
+    """The source's response grows without bound once its inputs are held (:func:`growth_error`); ``growth``: what
+    was measured."""
+
+    def __init__(self, message: str, growth: Growth) -> None:
+        super().__init__(message)
+        self.growth = growth
+
+
+def held_from(t: np.ndarray, t_input: float) -> int:
+    """The first sample of ``t`` whose step lies wholly after ``t_input`` (the inputs held from there on)."""
+    if len(t) < 2:
+        return len(t)
+    h = float(t[1] - t[0])
+    return int(np.searchsorted(t, t_input + h - 1e-9 * h, side="left"))
+
+
+def _deviation_norms(z: Any, start: int, stop: int, reference: np.ndarray) -> np.ndarray:
+    """``||z[:, j] - reference||_2`` for ``start <= j < stop``, read in column blocks (``z`` may be a dataset)."""
+    out = np.empty(max(stop - start, 0))
+    for j0 in range(start, stop, BLOCK_COLUMNS):
+        j1 = min(j0 + BLOCK_COLUMNS, stop)
+        block = np.asarray(z[:, j0:j1], dtype=float) - reference[:, None]
+        out[j0 - start:j1 - start] = np.sqrt(np.einsum("ij,ij->j", block, block))
+    return out
+
+
+def quarter_ratios(t: np.ndarray, z: Any, start: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Each quarter's peak of ``||z(t) - z(t_s)||`` over the peak of the quarter before (3 ratios), and the norms
+    themselves over the four quarters, for the rows ``z`` (rows, k) from sample ``start`` on; None where the held
+    part has fewer than :data:`QUARTER_SAMPLES` samples per quarter, is not finite, or a quarter stays at
+    ``z(t_s)``."""
+    k = min(len(t), z.shape[1]) if z.shape[0] else 0
+    quarter = (k - start) // 4
+    if quarter < QUARTER_SAMPLES:
+        return None
+    reference = np.asarray(z[:, start], dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = _deviation_norms(z, start, start + 4 * quarter, reference)
+        if not np.all(np.isfinite(norms)):
+            return None
+        peaks = norms.reshape(4, quarter).max(axis=1)
+    if not np.all(peaks > 0):
+        return None
+    return peaks[1:] / peaks[:-1], norms
+
+
+def exponential_growth(t: np.ndarray, z: Any, start: int, what: str = "outputs") -> Growth | None:
+    """The exponential growth of the rows ``z`` (rows, k) from sample ``start`` on, or None (module docstring).
+
+    Parameters
+    ----------
+    t : (k,) ndarray
+        Sample times.
+    z : (rows, k) array
+        Positions or outputs (an ndarray or an h5py dataset, read in blocks).
+    start : int
+        First sample with the inputs held.
+    what : str
+        What the rows are, for :attr:`Growth.what`.
+
+    Returns
+    -------
+    Growth or None
+    """
+    seen = quarter_ratios(t, z, start)
+    if seen is None:
+        return None
+    ratios, norms = seen
+    rates = np.log(ratios)
+    if not (np.all(rates >= math.log(GROWTH_RATIO)) and rates[-1] >= STEADY_GROWTH * rates[:-1].max()):
+        return None
+    quarter = norms.size // 4
+    tt = np.asarray(t[start:start + 4 * quarter], dtype=float)
+    last = slice(3 * quarter, 4 * quarter)
+    slope = np.polyfit(tt[last], np.log(np.maximum.accumulate(norms[last])), 1)[0]
+    return Growth(rate=float(slope), factor=float(np.prod(ratios)), t_start=float(tt[0]), t_end=float(tt[-1]),
+                  what=what)
+
+
+def unbounded_growth(t: np.ndarray, x: Any, y: Any, t_input: float) -> Growth | None:
+    """The exponential growth of a run after its inputs stop changing at ``t_input``, or None.
+
+    Both the positions ``x`` (where there are any) and the outputs ``y`` must grow (:func:`exponential_growth`):
+    an output far from the input (a chain's far end) can rise steeply for a while as the disturbance travels to it,
+    the positions of the masses the input pushed cannot.  The outputs' growth is reported (the positions' where
+    there are no outputs)."""
+    t = np.asarray(t, dtype=float)
+    start = held_from(t, t_input)
+    found = None
+    for z, what in ((y, "outputs"), (x, "positions")):   # the outputs first: few rows, and most runs stop there
+        if z is None or not z.shape[0]:
+            continue
+        growth = exponential_growth(t, z, start, what)
+        if growth is None:
+            return None
+        found = found or growth
+    return found
+
+
+def _why_and_fix(growth: Growth) -> str:
+    """The cause and the fix, shared by the error and the warning."""
+    return (f"the response {growth.describe()}, so the model is unstable at its operating point; fmu-opinf's ROMs "
+            "are stable by construction (Mr, Dr, Kr positive semidefinite) and cannot represent it; linearize the "
+            "model about a stable operating point, or export it with its stabilizing controller")
+
+
+def growth_error(source: Any, growth: Growth) -> GrowsWithoutBound:
+    """The one-line refusal of the automatic window where a pilot grows without bound."""
+    return GrowsWithoutBound(f"auto window: {source_label(source)}: {_why_and_fix(growth)}; no file was written",
+                             growth)
+
+
+def growth_warning(source: Any, growth: Growth) -> str:
+    """The one-line warning on a recording (a given ``--dt`` and ``--t-end``) that grows without bound."""
+    return f"{source_label(source)}: the recording is kept, but {_why_and_fix(growth)}"
+
+
+def warn_if_grows(source: Any, signal: Any, run: Any) -> Growth | None:
+    """Warn (and keep the warning with the file being recorded, :func:`~._notes.warn_recording`) where a recorded
+    ``run`` of ``signal`` grows without bound once its inputs are held; the growth, or None.  Inputs that never
+    settle (harmonic, chirp) are not judged."""
+    from ._notes import warn_recording
+    from ._window import input_activity
+
+    t = np.asarray(run.t, dtype=float)
+    t_input, _ = input_activity(signal, getattr(source, "m", 0))
+    if len(t) < 2 or (t_input == 0.0 and not _held_throughout(signal, t)):
+        return None
+    growth = unbounded_growth(t, run.x, run.y, t_input)
+    if growth is not None:
+        warn_recording(growth_warning(source, growth), "unbounded-growth", stacklevel=3)
+    return growth
+
+
+def _held_throughout(signal: Any, t: np.ndarray) -> bool:
+    """Whether ``signal`` is constant over ``t`` (a free response, held inputs); :func:`input_activity` gives
+    ``t_input = 0`` for it and for an input that never settles alike."""
+    try:
+        u = np.atleast_2d(np.asarray(signal.sample(t), dtype=float))
+    except Exception:  # a signal that cannot be sampled: not judged
+        return False
+    return bool(u.size == 0 or np.all(u == u[:, :1]))
