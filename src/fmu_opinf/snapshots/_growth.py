@@ -29,7 +29,7 @@ from ..errors import DataError
 from ._isolation import source_label
 
 __all__ = ["GROWTH_RATIO", "STEADY_GROWTH", "Growth", "GrowsWithoutBound", "exponential_growth", "growth_error",
-           "growth_warning", "quarter_ratios", "unbounded_growth", "warn_if_grows"]
+           "growth_rate", "growth_warning", "quarter_ratios", "unbounded_growth", "warn_if_grows"]
 
 #: Each quarter of the held part of a run must peak at least this many times higher than the one before.  A free
 #: body under a constant load (``t^2`` from rest) reaches 1.78 in the last quarter; ``e^(sigma t)`` reaches it where
@@ -54,8 +54,8 @@ class Growth:
     Attributes
     ----------
     rate : float
-        ``sigma``, the growth rate of ``||z(t) - z(t_s)||`` over the last quarter of the held part, per time unit
-        (least-squares slope of the logarithm of its running maximum).
+        ``sigma``, the growth rate of ``||z(t) - z(t_s)||`` over the second half of the held part, per time unit
+        (:func:`growth_rate`).
     factor : float
         The last quarter's peak over the first quarter's.
     t_start, t_end : float
@@ -149,12 +149,22 @@ def exponential_growth(t: np.ndarray, z: Any, start: int, what: str = "outputs")
     rates = np.log(ratios)
     if not (np.all(rates >= math.log(GROWTH_RATIO)) and rates[-1] >= STEADY_GROWTH * rates[:-1].max()):
         return None
-    quarter = norms.size // 4
-    tt = np.asarray(t[start:start + 4 * quarter], dtype=float)
-    last = slice(3 * quarter, 4 * quarter)
-    slope = np.polyfit(tt[last], np.log(np.maximum.accumulate(norms[last])), 1)[0]
-    return Growth(rate=float(slope), factor=float(np.prod(ratios)), t_start=float(tt[0]), t_end=float(tt[-1]),
-                  what=what)
+    tt = np.asarray(t[start:start + norms.size], dtype=float)
+    return Growth(rate=growth_rate(tt, norms), factor=float(np.prod(ratios)), t_start=float(tt[0]),
+                  t_end=float(tt[-1]), what=what)
+
+
+def growth_rate(t: np.ndarray, norms: np.ndarray) -> float:
+    """``sigma`` of ``norms ~ e^(sigma t)`` over the second half of ``t``: the least-squares slope of the logarithm
+    at the crests (the samples above both neighbours) where there are three or more, at every sample where the
+    growth is monotone.  A growing oscillation peaks at one phase of each period, so its crests lie on the exponential
+    (a fit to every sample, or to the running maximum, is off by up to 2 % on ``e^(1.3 t) sin 7t``)."""
+    half = slice(norms.size // 2, norms.size)
+    tt, nn = t[half], norms[half]
+    crest = np.nonzero((nn[1:-1] > nn[:-2]) & (nn[1:-1] >= nn[2:]))[0] + 1
+    if crest.size >= 3:
+        tt, nn = tt[crest], nn[crest]
+    return float(np.polyfit(tt, np.log(nn), 1)[0])
 
 
 def unbounded_growth(t: np.ndarray, x: Any, y: Any, t_input: float) -> Growth | None:
