@@ -95,12 +95,16 @@ def held_from(t: np.ndarray, t_input: float) -> int:
 
 
 def _deviation_norms(z: Any, start: int, stop: int, reference: np.ndarray) -> np.ndarray:
-    """``||z[:, j] - reference||_2`` for ``start <= j < stop``, read in column blocks (``z`` may be a dataset)."""
+    """``||z[:, j] - reference||_2`` for ``start <= j < stop``, read in column blocks (``z`` may be a dataset); each
+    column scaled by its largest entry first, so that a run that grew to 1e300 before it overflowed does not
+    overflow here."""
     out = np.empty(max(stop - start, 0))
     for j0 in range(start, stop, BLOCK_COLUMNS):
         j1 = min(j0 + BLOCK_COLUMNS, stop)
         block = np.asarray(z[:, j0:j1], dtype=float) - reference[:, None]
-        out[j0 - start:j1 - start] = np.sqrt(np.einsum("ij,ij->j", block, block))
+        largest = np.abs(block).max(axis=0)
+        scaled = block / np.where(largest > 0, largest, 1.0)
+        out[j0 - start:j1 - start] = largest * np.sqrt(np.einsum("ij,ij->j", scaled, scaled))
     return out
 
 
