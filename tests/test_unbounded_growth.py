@@ -77,7 +77,13 @@ def _sagging() -> lti_fmus.LinearMechanicalModel:
     return replace(lti_fmus.chain_model(3, force_offset=0.5), name="Sagging")
 
 
-MODELS = {"InvPend": (_inverted(), {"naming": "modelica"}),
+def _fast() -> lti_fmus.LinearMechanicalModel:
+    """One mass on a spring of -1e4 N/m: ``e^(99.95 t)``, which overflows within the first pilot (at t = 8.85)."""
+    return lti_fmus.LinearMechanicalModel(M=np.eye(1), D=0.1 * np.eye(1), K=np.array([[-1e4]]), B=np.ones((1, 1)),
+                                          Cp=np.eye(1), name="FastUnstable")
+
+
+MODELS = {"InvPend": (_inverted(), {"naming": "modelica"}), "FastUnstable": (_fast(), {}),
           "FreeBody": (_free_body(), {}), "Undamped": (_undamped(), {}), "OffRest": (_off_rest(), {}),
           "Sagging": (_sagging(), {}),
           "EulerStable": (replace(lti_fmus.chain_model(1, name="EulerStable"), K=np.array([[100.0]]),
@@ -163,10 +169,26 @@ def test_the_automatic_window_stops_at_once_on_a_growing_model(fmus, tmp_path, c
 
 
 @pytest.mark.fmu
+def test_a_pilot_that_overflows_is_said_to_grow_with_its_rate(fmus, tmp_path, capsys):
+    """A growth so fast that the first pilot's integration overflows (1e300 at t = 8.8): the samples before the
+    failure show it, and the line names the rate (within 1 % of the exact 99.95) instead of the integrator's
+    failure (before: 'model-exchange integration ... failed at step 177 ... the derivatives are not finite')."""
+    code = main(["snapshots", str(fmus["FastUnstable"]), "-o", str(tmp_path / "t.h5")])
+    err = capsys.readouterr().err
+    line = [line for line in err.splitlines() if line.startswith("fmu-opinf: error: ")]
+    assert code != 0 and len(line) == 1 and "Traceback" not in err, err
+    assert "auto window: FastUnstable.fmu: the response grows like e^(sigma t) with sigma = " in line[0], err
+    sigma = float(line[0].split("sigma = ")[1].split()[0])
+    assert abs(sigma - _sigma(_fast())) < 0.01 * _sigma(_fast()), (sigma, _sigma(_fast()))
+
+
+@pytest.mark.fmu
 def test_a_given_window_records_the_growth_with_a_warning_that_fit_repeats(fmus, tmp_path, capsys):
     """``--dt 0.01 --t-end 10`` (the audit's): the recording is kept, one warning line names the growth rate, the
     file keeps it (verdict ``unbounded-growth``) and ``fit`` repeats it; the ROM's provenance carries it for
-    ``compare`` and ``export`` (:func:`recorded_warning`).  Before: no word on the cause anywhere."""
+    ``compare`` and ``export`` (:func:`recorded_warning`).  ``compare`` repeats it, and where the source leaves its
+    training range it names the growth, not the test input's amplitude.  Before: no word on the cause anywhere, and
+    compare advised 'pass --input with a smaller amplitude' for a source 4.9e36 times past its training range."""
     out, rom = tmp_path / "t.h5", tmp_path / "rom.h5"
     assert main(["snapshots", str(fmus["InvPend"]), "-o", str(out), "--dt", "0.01", "--t-end", "10", "-q"]) == 0
     err = capsys.readouterr().err
@@ -181,6 +203,12 @@ def test_a_given_window_records_the_growth_with_a_warning_that_fit_repeats(fmus,
     assert "the training snapshots were recorded with this warning: " in err and "unstable at its operating" in err
     provenance = SecondOrderROM.load(rom).provenance["snapshots"]
     assert "e^(sigma t)" in (recorded_warning(provenance) or "")
+    main(["compare", str(rom), str(fmus["InvPend"]), "-o", str(tmp_path / "rep"), "-q"])
+    err = capsys.readouterr().err
+    assert "the training snapshots were recorded with this warning: " in err and "unstable at its operating" in err
+    assert "shares what the recording followed" not in err, err   # (the model's own behaviour, not the FMU's)
+    assert "pass --input with a smaller amplitude" not in err, err
+    assert "the source grows without bound once its inputs are held" in err, err
 
 
 def _run(fmu, model_name: str, dt: float, t_end: float, spec: str = PULSE):

@@ -937,6 +937,7 @@ def _past_training(y: np.ndarray, y_rom: np.ndarray, names: list[str], rom_info:
         return ""
     rom_ratio = float(np.abs(y_rom[worst] - y_rom[worst, 0]).max() / scale[worst])
     cause = ("the input's offsets take it there in the ROM too: a shorter --t-end keeps them nearer" if rom_ratio > 1.0
+             else _growth_cause() if _grew(rom_info)
              else "the ROM stays within it: it may miss a mode of the model there; pass --input with a smaller "
                   "amplitude or another frequency")
     text = (f"{Path(str(source)).name}'s {names[worst]} went to {ratios[worst]:.3g} times its largest departure in the "
@@ -947,6 +948,20 @@ def _past_training(y: np.ndarray, y_rom: np.ndarray, names: list[str], rom_info:
 
     warnings.warn(f"under the test input compare chose, {text}", FmuOpinfWarning, stacklevel=3)
     return f"; {text}"
+
+
+def _grew(rom_info: dict[str, Any]) -> bool:
+    """Whether ``snapshots`` found the ROM's training source growing without bound (verdict ``unbounded-growth``)."""
+    from .snapshots._notes import recorded_verdicts
+
+    return "unbounded-growth" in recorded_verdicts(rom_info["provenance"].get("snapshots"))
+
+
+def _growth_cause() -> str:
+    """Why the source left its training range where its recording grew without bound (audit 79b F4: compare advised
+    a smaller test amplitude for a source 4.9e36 times past it, which no amplitude would have kept in range)."""
+    return ("the source grows without bound once its inputs are held (snapshots warned: it is unstable at its "
+            "operating point), and no stable ROM follows it, whatever the test input")
 
 
 def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]) -> "Signal":
@@ -1031,6 +1046,11 @@ def _exact_names(names: Any) -> str | None:
     return joined if split_patterns(joined) == names else None
 
 
+#: Recording verdicts about the model itself, not about how the FMU integrated it: a comparison with the same FMU
+#: does not share them (its own events; a response that grows without bound, audit 79b F4).
+MODEL_VERDICTS = frozenset({"internal-events", "unbounded-growth"})
+
+
 def _warn_if_recording_warned(rom_info: dict[str, Any], interface: str | None) -> None:
     """The warning ``snapshots`` gave on the ROM's training recording, again (audit 70 F4: a recording that
     followed the FMU's integrator, compared against the same FMU at the same step: 7.6e-7 and no word, the ROM
@@ -1055,7 +1075,7 @@ def _warn_if_recording_warned(rom_info: dict[str, Any], interface: str | None) -
     elif modelled:
         message += ("; the ROM stands for the model (fitted through the FMU's Euler steps or from its derivatives), "
                     "and this comparison ran no co-simulation: the difference is the ROM's")
-    elif recorded_verdicts(rom_info["provenance"].get("snapshots")) != {"internal-events"}:
+    elif not (verdicts := recorded_verdicts(rom_info["provenance"].get("snapshots"))) or verdicts - MODEL_VERDICTS:
         message += "; a comparison with the same FMU shares what the recording followed"
     warnings.warn(message, FmuOpinfWarning, stacklevel=4)
 
