@@ -211,11 +211,14 @@ def growth_warning(source: Any, growth: Growth) -> str:
 
 def warn_if_grows(source: Any, signal: Any, run: Any) -> Growth | None:
     """Warn (and keep the warning with the file being recorded, :func:`~._notes.warn_recording`) where a recorded
-    ``run`` of ``signal`` grows without bound once its inputs are held; the growth, or None.  Inputs that never
+    ``run`` of ``signal`` grows without bound once its inputs are held; the growth, or None (also where an earlier
+    run of the same file was warned).  Inputs that never
     settle (harmonic, chirp) are not judged."""
-    from ._notes import warn_recording
+    from ._notes import current_recording_notes, warn_recording
     from ._window import input_activity
 
+    if "unbounded-growth" in current_recording_notes().get("recording_verdicts", []):
+        return None   # said once per file: one run's growth speaks for the model
     t = np.asarray(run.t, dtype=float)
     t_input, _ = input_activity(signal, getattr(source, "m", 0))
     if len(t) < 2 or (t_input == 0.0 and not _held_throughout(signal, t)):
