@@ -214,6 +214,17 @@ def test_a_given_window_records_the_growth_with_a_warning_that_fit_repeats(fmus,
     assert "the source grows without bound once its inputs are held" in err, err
 
 
+@pytest.mark.fmu
+def test_a_file_of_several_growing_runs_is_warned_once(fmus, tmp_path, capsys):
+    """Two runs on a given window (the impulse, a step), both growing: one warning line, one note in the file."""
+    out = tmp_path / "t.h5"
+    assert main(["snapshots", str(fmus["InvPend"]), "-o", str(out), "--dt", "0.01", "--t-end", "10", "-q",
+                 "--input", PULSE, "--input", "step:amplitude=1,t0=1"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("grows like e^(sigma t)") == 1, err
+    assert len(Snapshots.load(out).attrs["recording_warnings"]) == 1
+
+
 def _run(fmu, dt: float, t_end: float, spec: str = PULSE):
     """A run of ``spec`` on the FMU, in memory."""
     return record(str(fmu), spec, dt, t_end, quiet=True).runs[0]
