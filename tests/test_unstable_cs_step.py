@@ -281,21 +281,28 @@ def test_explicit_euler_diverging_at_both_pilot_steps_is_called_a_divergence(eul
     assert "it offers no model exchange: give --dt below 0.025 (e.g. 0.01) and --t-end" in message, message
 
 
-def test_judging_a_pilot_that_diverges_to_huge_finite_values_does_not_warn():
+def test_judging_a_pilot_that_diverges_to_huge_finite_values_does_not_warn(monkeypatch):
     """Audit 63, finding 8: the step check hands its first run to the window's analysis before judging whether it
     diverges; outputs near 1e200 (RK4 above its stability limit, still finite) overflowed in the envelope's norms,
     and 'fmu-opinf: warning: overflow encountered in dot' was printed three times.  The analysis runs without
-    NumPy's overflow warnings (here made errors) and still says what it sees."""
+    NumPy's overflow warnings (here made errors) and still says what it sees: since audit 79b (F4) the growth, at
+    its rate (a DataError, which the step check's hook drops: the step search then has its say), and without the
+    growth test the envelope's peak."""
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots._window import _analyse_pilot
+    from fmu_opinf.snapshots import _window
+    from fmu_opinf.snapshots._growth import GrowsWithoutBound
 
     t = np.round(np.arange(201) * 0.05, 12)
     y = np.vstack([np.exp(2.3 * t) * np.sin(30.0 * t), np.exp(2.3 * t) * np.cos(30.0 * t)]) * 1e200 / np.exp(23.0)
     run = SimpleNamespace(t=t, x=y, y=y, k=t.size)   # (positions diverge with the outputs)
     source = SimpleNamespace(m=1, held_input_names=[])
+    signal = parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        seen = _analyse_pilot(source, parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), t, 2.5, 0.99, 0.01,
-                              10.0, True, False, run=run)
+        with pytest.raises(GrowsWithoutBound) as grows:
+            _window._analyse_pilot(source, signal, t, 2.5, 0.99, 0.01, 10.0, True, False, run=run)
+        monkeypatch.setattr(_window, "refuse_growth", lambda *args: None)
+        seen = _window._analyse_pilot(source, signal, t, 2.5, 0.99, 0.01, 10.0, True, False, run=run)
+    assert abs(grows.value.growth.rate - 2.3) < 0.01 * 2.3, grows.value.growth
     assert seen.peak > 1e199
