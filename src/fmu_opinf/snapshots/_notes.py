@@ -31,9 +31,11 @@ __all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", 
 #: several explicit Euler steps of its fixed internal step per communication step (``"euler-substeps"``), or follows
 #: a fixed internal step whose integrator the data cannot tell (``"internal-step"``; no change to the fit); or the
 #: response grows without bound once the inputs are held (``"unbounded-growth"``, :mod:`._growth`: a model unstable
-#: at its operating point, which a stable ROM cannot represent; no change to the fit).
+#: at its operating point, which a stable ROM cannot represent; no change to the fit); or the model's response does
+#: not scale with the default training's amplitude at any amplitude tried (``"nonlinear"``, :mod:`._linearity`; no
+#: change to the fit).
 VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs", "internal-events", "euler-substeps",
-            "internal-step", "unbounded-growth")
+            "internal-step", "unbounded-growth", "nonlinear")
 
 _NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
                                                                                     default=None)

@@ -40,6 +40,7 @@ from ._rate_tests import RateSums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
+from ._linearity import Reference, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
@@ -1390,14 +1391,42 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     for the raised pulse.  A model at rest (the first pilot tells, from its samples before the pulse) costs no extra
     run and keeps its amplitudes."""
     amplitudes = default_amplitudes(source)
-    window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
-    if source.m == 0 or not baseline.may_move:
+    with watching_pilots() as pilot:
+        window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
+    if source.m == 0:
         return window, signals
     seen: dict[str, Any] = {}
-    raised = _raised_amplitudes(source, time_grid(window.dt, window.t_end), signals, amplitudes, thresholds, seen)
-    if raised is not None:
-        window, signals, _ = _impulse_window(source, thresholds, raised)
+    if baseline.may_move:
+        raised = _raised_amplitudes(source, time_grid(window.dt, window.t_end), signals, amplitudes, thresholds, seen)
+        if raised is not None:   # (sized by the model's own motion, not by the input's unit: not lowered again)
+            window, signals, _ = _impulse_window(source, thresholds, raised)
+            return window, _with_free_run(source, signals, seen, bool(thresholds.get("quiet", True)))
+    lowered = _linear_amplitudes(source, window, pilot, seen, amplitudes, thresholds)
+    if lowered is not None:
+        window, signals, _ = _impulse_window(source, thresholds, lowered)
+        if "motion_share" in seen:   # the pulse's effect is smaller by that factor
+            seen["motion_share"] *= abs(amplitudes[0] / lowered[0])
     return window, _with_free_run(source, signals, seen, bool(thresholds.get("quiet", True)))
+
+
+def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen: dict[str, Any],
+                       amplitudes: Sequence[float], thresholds: dict[str, Any]) -> list[float] | None:
+    """The default training's amplitudes lowered where the model's response does not scale with them
+    (:func:`~._linearity.linear_amplitudes`), judged on a run already made: the last pilot where the model rests
+    (its outputs without the pulse are those at its start), else the pulse's run of :func:`_raised_amplitudes`
+    beside its run without the pulse.  None where they stay (or no such run is at hand)."""
+    held = held_starts(source)
+    if "reference" in seen:
+        i, y = seen["reference"]
+        reference = Reference(seen["signals"][i], held, seen["t"], y, seen["free"])
+    elif pilot.get("y") is not None and pilot["y"].size:
+        keep = pilot["t"] <= window.t_end * (1.0 + 1e-12)   # (a run is causal: its start is the shorter run's)
+        t, y = pilot["t"][keep], pilot["y"][:, keep]
+        reference = Reference(pilot["signal"], held, t, y, y[:, :1])
+    else:
+        return None
+    return linear_amplitudes(source, reference, amplitudes, bool(thresholds.get("quiet", True)),
+                             bool(thresholds.get("isolate", False)))
 
 
 #: The model's own motion (each output's range in a run without the pulse), as a share of the pulse's effect on the
@@ -1451,9 +1480,12 @@ def _raised_amplitudes(source: Source, t: np.ndarray, signals: Sequence[Any], am
     if moving is None:
         return None   # at rest: the pulse is all there is
     motion = np.ptp(free, axis=1)
-    raised, said, effect = list(amplitudes), [], 0.0
+    raised, said, effect, strongest = list(amplitudes), [], 0.0, None
     for i, signal in enumerate(signals):
-        net = _outputs_of(source, signal, t, True, isolate, "a pilot of the default pulse") - free
+        y = _outputs_of(source, signal, t, True, isolate, "a pilot of the default pulse")
+        net = y - free
+        if strongest is None or float(np.abs(net).max(initial=0.0)) > effect:
+            strongest = (i, y)   # (the amplitude check's reference: :func:`_linear_amplitudes`)
         effect = max(effect, float(np.abs(net).max(initial=0.0)))
         share = _effect_share(net, motion)
         if not share < PULSE_EFFECT_SHARE:
@@ -1463,6 +1495,7 @@ def _raised_amplitudes(source: Source, t: np.ndarray, signals: Sequence[Any], am
         said.append(_raised_phrase(source.input_names[i], amplitudes[i], raised[i], wanted, share))
     if seen is not None:
         seen.update(motion=moving, motion_share=float(motion.max()) / effect if effect > 0 else math.inf)
+        seen.update(t=t, free=free, signals=list(signals), reference=strongest)
     if not said:
         return None
     _say_raised(source, said, any(a != b for a, b in zip(raised, amplitudes)), quiet)

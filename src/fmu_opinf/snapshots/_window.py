@@ -17,6 +17,7 @@ from ..sources._base import held_inputs_advice, nice_floor
 from ..sources._cosimulation import DISCARDED
 from ._growth import growth_error, unbounded_growth
 from ._isolation import source_label
+from ._linearity import note_pilot
 from ._rates import continuous_recording, time_grid
 from ._record import MemorySink, as_signal, incomplete_error, record_run
 
@@ -1293,6 +1294,7 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):
         raise DataError(_motionless(source, signal, t, "positions"))
     y = np.asarray(run.y)
+    note_pilot(signal, t, y)   # (the default training's amplitude check reuses the last one)
     if isinstance(baseline, IfMoving):
         y = baseline.net(source, signal, t, y, quiet, isolate, f"{label}: its drift without the pulse")
     elif baseline is not None:

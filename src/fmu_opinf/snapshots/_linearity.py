@@ -1,0 +1,209 @@
+"""Whether the default training's response scales with its amplitude, and the amplitude at which it does.
+
+The default training pulse is 100 in each input's unit whatever the model (:data:`._record.DEFAULT_TRAINING_INPUT`).
+An export that is linear only near its operating point (a hardening spring, an end stop, a pendulum, friction) then
+moves far outside that range: on a 100 N/m chain the pulse moved the masses by 1.4-2.2 m, and the ROM, fitted to
+that large response, was 3-100 % of range off on small inputs, silently at 15 % extra stiffness (audit 79b, F1-F3).
+A linear model's response net of its own motion scales with the amplitude; :func:`linear_amplitudes` compares the
+response to the default pulse with one to the same pulse at a tenth of it (:data:`DECADE`), reusing the pilot run of
+the automatic window (the one extra run is the smaller pulse's), lowers the amplitude by decades until two
+neighbours agree to :data:`LINEARITY_BAR`, and says so; down to :data:`LOWEST_SHARE` of the default with no
+agreement, it keeps the default and warns (:func:`~._notes.warn_recording`, kept in the file for ``fit``,
+``compare`` and ``export``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+import sys
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..signals import Signal
+from ..sources import Source
+
+__all__ = ["LINEARITY_BAR", "Reference", "linear_amplitudes", "mismatch", "note_pilot", "watching_pilots"]
+
+#: Largest mismatch (:func:`mismatch`) between the response to the default pulse and -10 times the response to a
+#: tenth of it the other way, both net of the model's own motion, that counts as linear.  Measured on linear FMUs:
+#: round-off (1e-16 .. 1e-13) for the default integrators, exact steps and explicit Euler co-simulation, 5.9e-7 in
+#: single precision, up to 5e-3 where model exchange integrates with BDF or LSODA at the pilots' tolerance 1e-6 on a
+#: chain moving on its own (gravity, a start off rest); the mildest nonlinearity of audit 79b (a hardening spring
+#: adding 15 % stiffness at the training's peak, its ROM 3-6 % off on small inputs, no warning) gives 0.06.
+LINEARITY_BAR = 1e-2
+
+#: Mismatch to which a model found not linear at the default amplitude is lowered (while its mismatch falls): the
+#: ROM of audit 79b's hardening springs is then 1e-5 .. 4e-4 of range off the exact linearization on small inputs.
+LOWERED_BAR = 1e-3
+
+#: Factor between the amplitudes compared, and by which the training amplitude is lowered per try.
+DECADE = 10.0
+
+#: Lowest training amplitude tried, as a share of the default one (three decades: 100 -> 0.1 in the input's unit).
+#: A model not linear at that amplitude (friction, a contact at its rest position) has no linear range the default
+#: training can find; it keeps the default amplitude, with a warning.
+LOWEST_SHARE = 1e-3
+
+#: Factor by which the mismatch must fall per decade of amplitude for the lowering to go on: a smooth nonlinearity's
+#: falls 10 (quadratic) or 100 (cubic) times; friction's (measured: 0.66, then 0.92), or an integrator's error
+#: (5e-3, then 1e-2), does not fall.
+FALLING = 2.0
+
+#: Outputs whose response to the larger pulse stays below this share of their own largest magnitude are not judged:
+#: the pulse hardly reaches them, and what is left is round-off (or the integrator's tolerance) of that magnitude.
+NEGLIGIBLE_RESPONSE = 1e-9
+
+_LAST_PILOT: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar("last_pilot", default=None)
+
+
+@contextlib.contextmanager
+def watching_pilots() -> Iterator[dict[str, Any]]:
+    """Within this context the automatic window's pilot runs are watched: the dict yielded holds the last one's
+    ``signal``, grid ``t`` and outputs ``y`` (:func:`note_pilot`), which the amplitude check reuses."""
+    token = _LAST_PILOT.set({})
+    try:
+        yield _LAST_PILOT.get()
+    finally:
+        _LAST_PILOT.reset(token)
+
+
+def note_pilot(signal: Any, t: np.ndarray, y: np.ndarray) -> None:
+    """Keep a pilot run's ``signal``, grid ``t`` and outputs ``y`` where :func:`watching_pilots` watches (the last
+    one replaces the one before)."""
+    kept = _LAST_PILOT.get()
+    if kept is not None:
+        kept.update(signal=signal, t=t, y=y)
+
+
+class Scaled(Signal):
+    """``signal`` with its departure from the held inputs ``held`` scaled by ``factor``: the same pulse, on top of
+    the same held values, at ``factor`` times its amplitude."""
+
+    def __init__(self, signal: Any, held: np.ndarray, factor: float) -> None:
+        self.base, self.factor = signal, float(factor)
+        self.held = np.asarray(held, dtype=float).reshape(-1, 1)
+        self.n_inputs = int(getattr(signal, "n_inputs", self.held.shape[0]))
+        self.spec = f"{getattr(signal, 'spec', repr(signal))} scaled by {self.factor:g}"
+        self.t_range = getattr(signal, "t_range", (-np.inf, np.inf))
+
+    def _values(self, t: np.ndarray) -> np.ndarray:
+        values = np.atleast_2d(np.asarray(self.base.sample(t), dtype=float))
+        return self.held + self.factor * (values - self.held)
+
+
+@dataclasses.dataclass
+class Reference:
+    """A run of the default training's pulse already made: its ``signal`` (on top of the held inputs ``held``) on
+    the grid ``t``, its outputs ``y`` and the outputs ``free`` of the model without the pulse on that grid (one
+    column where the model rests).  ``label`` names the runs on the progress bar."""
+
+    signal: Any
+    held: np.ndarray
+    t: np.ndarray
+    y: np.ndarray
+    free: np.ndarray
+    label: str = "amplitude check"
+
+
+def mismatch(big: np.ndarray, small: np.ndarray, free: np.ndarray, ratio: float) -> float:
+    """How far the response ``big`` to a pulse is from ``ratio`` times the response ``small`` to the same pulse
+    ``ratio`` times smaller, both net of the response ``free`` without the pulse: the largest over the outputs of
+    ``max |net_big - ratio net_small| / max |net_big|`` (0 for a linear model, up to round-off).  Outputs the pulse
+    hardly reaches (:data:`NEGLIGIBLE_RESPONSE`) are not judged."""
+    net_big, net_small = big - free, small - free
+    size = np.abs(net_big).max(axis=1)
+    judged = size > NEGLIGIBLE_RESPONSE * np.maximum(np.abs(big).max(axis=1), np.abs(free).max(axis=1))
+    if not np.any(judged):
+        return 0.0
+    off = np.abs(net_big - ratio * net_small).max(axis=1)
+    return float((off[judged] / size[judged]).max())
+
+
+def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence[float],
+                      quiet: bool, isolate: bool) -> list[float] | None:
+    """The default training's ``amplitudes`` lowered by decades (:data:`DECADE`) to the first at which the response
+    scales with the amplitude (:func:`mismatch` at most :data:`LINEARITY_BAR` against the next decade down), said
+    in one line; None where the response at ``amplitudes`` scales already (one run: the reference's pulse at a
+    tenth), or where it does not at the default and either no amplitude down to :data:`LOWEST_SHARE` of it does or
+    the mismatch does not fall as the amplitude does (:data:`FALLING`): then a warning says so, kept in the file.
+
+    The smaller pulse pushes the other way where the inputs' declared ranges allow (:func:`_opposite`): a model
+    whose response is positively homogeneous but not odd (a contact at its rest position, which one sign never
+    reaches) then fails the check too, and a linear model's response to ``-a`` is still ``-1`` times that to ``a``."""
+    from ._notes import warn_recording
+
+    sign = -1.0 if _opposite(source, amplitudes) else 1.0
+    big, big_factor, measured = reference.y, 1.0, []
+    while True:
+        small_factor = sign * big_factor / DECADE
+        small = _run_scaled(source, reference, small_factor, quiet, isolate)
+        measured.append(mismatch(big, small, reference.free, big_factor / small_factor))
+        if measured[-1] <= (LINEARITY_BAR if len(measured) == 1 else LOWERED_BAR):
+            break
+        falling = len(measured) == 1 or measured[-1] <= measured[-2] / FALLING
+        if not falling or abs(small_factor) < LOWEST_SHARE * (1.0 - 1e-9):
+            if measured[-1] <= LINEARITY_BAR:   # at the noise of the runs: this decade scales well enough
+                break
+            warn_recording(_not_linear(source, amplitudes, measured, sign), "nonlinear", stacklevel=4)
+            return None
+        big, big_factor = small, small_factor
+    if len(measured) == 1:
+        return None
+    lowered = [float(f"{amplitude * abs(big_factor):.3g}") for amplitude in amplitudes]
+    if not quiet:
+        print(_lowered_line(source, amplitudes, lowered, measured, sign), file=sys.stderr)
+    return lowered
+
+
+def _opposite(source: Source, amplitudes: Sequence[float]) -> bool:
+    """Whether every input's declared range allows the pulse a tenth as large the other way from its held value."""
+    from ._record import _within_range
+
+    return all(_within_range(source, i, -amplitude / DECADE) == -amplitude / DECADE
+               for i, amplitude in enumerate(amplitudes))
+
+
+def _run_scaled(source: Source, reference: Reference, factor: float, quiet: bool, isolate: bool) -> np.ndarray:
+    """The outputs of the reference's pulse at ``factor`` times its amplitude on the reference's grid (a pilot: at
+    the pilots' accuracy, as the reference was recorded)."""
+    from ._window import _outputs_of
+
+    signal = Scaled(reference.signal, reference.held, factor)
+    return _outputs_of(source, signal, reference.t, quiet, isolate, f"{reference.label} (pulse x {factor:g})")
+
+
+def _amplitudes_said(source: Source, amplitudes: Sequence[float]) -> str:
+    """``amplitudes`` with the input each drives (``"0.1 on F"``)."""
+    return ", ".join(f"{amplitude:g} on {name}" for amplitude, name in zip(amplitudes, source.input_names))
+
+
+def _compared(source: Source, amplitudes: Sequence[float], sign: float) -> str:
+    """What the check compares at the default ``amplitudes``, the smaller pulse ``sign`` times a tenth of them."""
+    smaller = [sign * amplitude / DECADE for amplitude in amplitudes]
+    return (f"the response to the default {_amplitudes_said(source, amplitudes)} and {sign * DECADE:g} times the "
+            f"response to {_amplitudes_said(source, smaller)} (net of the model's own motion; a linear model's agree to "
+            "round-off)")
+
+
+def _lowered_line(source: Source, amplitudes: Sequence[float], lowered: Sequence[float], measured: Sequence[float],
+                  sign: float) -> str:
+    """The line said where the training amplitude is lowered (:func:`linear_amplitudes`)."""
+    return (f"training amplitude {_amplitudes_said(source, lowered)}: {_compared(source, amplitudes, sign)} differ by "
+            f"{measured[0]:.2g}: the model is linear only near its start; recording at the largest amplitude, in decades "
+            f"down, whose response scales (to {measured[-1]:.2g}); give --input impulse:amplitude=... to choose another")
+
+
+def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[float], sign: float) -> str:
+    """The warning where the response does not scale at the default amplitudes and no lower decade cures it
+    (:func:`linear_amplitudes`); ``measured``: the mismatch at each decade tried, the default's first."""
+    from ._isolation import source_label
+
+    lower = ", ".join(f"{m:.2g}" for m in measured[1:])
+    return (f"{source_label(source)}: the response does not scale with the input: {_compared(source, amplitudes, sign)} "
+            f"differ by {measured[0]:.2g}{f', and by {lower} a decade lower each' if lower else ''} (friction, or a "
+            "contact at the rest position): the model is not linear, and a ROM fits it only near one amplitude; "
+            "recording at the default amplitude (give --input impulse:amplitude=... at the loads you mean)")
