@@ -185,16 +185,17 @@ def _compared(source: Source, amplitudes: Sequence[float], sign: float) -> str:
     """What the check compares at the default ``amplitudes``, the smaller pulse ``sign`` times a tenth of them."""
     smaller = [sign * amplitude / DECADE for amplitude in amplitudes]
     return (f"the response to the default {_amplitudes_said(source, amplitudes)} and {sign * DECADE:g} times the "
-            f"response to {_amplitudes_said(source, smaller)} (net of the model's own motion; a linear model's agree to "
-            "round-off)")
+            f"response to {_amplitudes_said(source, smaller)} (net of the model's own motion; a linear model's agree "
+            "to round-off)")
 
 
 def _lowered_line(source: Source, amplitudes: Sequence[float], lowered: Sequence[float], measured: Sequence[float],
                   sign: float) -> str:
     """The line said where the training amplitude is lowered (:func:`linear_amplitudes`)."""
-    return (f"training amplitude {_amplitudes_said(source, lowered)}: {_compared(source, amplitudes, sign)} differ by "
-            f"{measured[0]:.2g}: the model is linear only near its start; recording at the largest amplitude, in decades "
-            f"down, whose response scales (to {measured[-1]:.2g}); give --input impulse:amplitude=... to choose another")
+    return (f"training amplitude {_amplitudes_said(source, lowered)}: {_compared(source, amplitudes, sign)} differ "
+            f"by {measured[0]:.2g}: the model is linear only near its start; recording at the largest amplitude, in "
+            f"decades down, whose response scales (to {measured[-1]:.2g}); give --input impulse:amplitude=... to "
+            "choose another")
 
 
 def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[float], sign: float) -> str:
@@ -202,8 +203,8 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
     (:func:`linear_amplitudes`); ``measured``: the mismatch at each decade tried, the default's first."""
     from ._isolation import source_label
 
-    lower = ", ".join(f"{m:.2g}" for m in measured[1:])
-    return (f"{source_label(source)}: the response does not scale with the input: {_compared(source, amplitudes, sign)} "
-            f"differ by {measured[0]:.2g}{f', and by {lower} a decade lower each' if lower else ''} (friction, or a "
-            "contact at the rest position): the model is not linear, and a ROM fits it only near one amplitude; "
+    lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
+    return (f"{source_label(source)}: the response does not scale with the input: "
+            f"{_compared(source, amplitudes, sign)} differ by {measured[0]:.2g}{lower} (friction, or a contact at the "
+            "rest position): the model is not linear, and a ROM fits it only near one amplitude; "
             "recording at the default amplitude (give --input impulse:amplitude=... at the loads you mean)")
