@@ -5,8 +5,9 @@ An export that is linear only near its operating point (a hardening spring, an e
 moves far outside that range: on a 100 N/m chain the pulse moved the masses by 1.4-2.2 m, and the ROM, fitted to
 that large response, was 3-100 % of range off on small inputs, silently at 15 % extra stiffness (audit 79b, F1-F3).
 A linear model's response net of its own motion scales with the amplitude; :func:`linear_amplitudes` compares the
-response to the default pulse with one to the same pulse at a tenth of it (:data:`DECADE`), reusing the pilot run of
-the automatic window (the one extra run is the smaller pulse's), lowers the amplitude by decades until two
+response to the default pulse with one to the same pulse at a tenth of it the other way (:data:`DECADE`), reusing a
+run of the automatic window (the one extra run is the smaller pulse's; two or three more where the pilots integrate
+at a looser tolerance than the recording, :func:`accurate`), lowers the amplitude by decades until two
 neighbours agree to :data:`LINEARITY_BAR`, and says so; down to :data:`LOWEST_SHARE` of the default with no
 agreement, it keeps the default and warns (:func:`~._notes.warn_recording`, kept in the file for ``fit``,
 ``compare`` and ``export``).
@@ -26,14 +27,17 @@ import numpy as np
 from ..signals import Signal
 from ..sources import Source
 
-__all__ = ["LINEARITY_BAR", "Reference", "linear_amplitudes", "mismatch", "note_pilot", "watching_pilots"]
+__all__ = ["LINEARITY_BAR", "Reference", "accurate", "linear_amplitudes", "loosened_pilots", "mismatch", "note_pilot",
+           "watching_pilots"]
 
 #: Largest mismatch (:func:`mismatch`) between the response to the default pulse and -10 times the response to a
 #: tenth of it the other way, both net of the model's own motion, that counts as linear.  Measured on linear FMUs:
-#: round-off (1e-16 .. 1e-13) for the default integrators, exact steps and explicit Euler co-simulation, 5.9e-7 in
-#: single precision, up to 5e-3 where model exchange integrates with BDF or LSODA at the pilots' tolerance 1e-6 on a
-#: chain moving on its own (gravity, a start off rest); the mildest nonlinearity of audit 79b (a hardening spring
-#: adding 15 % stiffness at the training's peak, its ROM 3-6 % off on small inputs, no warning) gives 0.06.
+#: round-off (1e-16 .. 1e-13) for the default integrators, exact steps and RK4 or explicit-Euler co-simulation;
+#: 5.9e-7 in single precision; model exchange with BDF or LSODA 1e-7 .. 7e-7 (at the recording's tolerance,
+#: :func:`accurate`; at the pilots' 1e-6, on a chain moving on its own, 1.3e-3 .. 5e-3, and 0.2 on a chain sagging
+#: to 3.7e4 m).  The bar leaves room for an FMU's own integrator at a loose tolerance; the mildest nonlinearity of
+#: audit 79b (a hardening spring adding 15 % stiffness at the training's peak, its ROM 3-6 % off on small inputs,
+#: no warning) gives 0.06.
 LINEARITY_BAR = 1e-2
 
 #: Mismatch to which a model found not linear at the default amplitude is lowered (while its mismatch falls): the
@@ -99,7 +103,8 @@ class Scaled(Signal):
 class Reference:
     """A run of the default training's pulse already made: its ``signal`` (on top of the held inputs ``held``) on
     the grid ``t``, its outputs ``y`` and the outputs ``free`` of the model without the pulse on that grid (one
-    column where the model rests).  ``label`` names the runs on the progress bar."""
+    column where the model rests).  ``label`` names the runs on the progress bar; ``exact``: recorded at the
+    recording's accuracy rather than the pilots' (:func:`accurate`)."""
 
     signal: Any
     held: np.ndarray
@@ -107,6 +112,7 @@ class Reference:
     y: np.ndarray
     free: np.ndarray
     label: str = "amplitude check"
+    exact: bool = False
 
 
 def mismatch(big: np.ndarray, small: np.ndarray, free: np.ndarray, ratio: float) -> float:
@@ -167,13 +173,49 @@ def _opposite(source: Source, amplitudes: Sequence[float]) -> bool:
                for i, amplitude in enumerate(amplitudes))
 
 
+def loosened_pilots(source: Source) -> bool:
+    """Whether the pilot runs integrate at a looser tolerance than the recording (model exchange asked for less than
+    :data:`~fmu_opinf.sources._model_exchange.PILOT_TOLERANCE`).  Their error then scales with the outputs' size,
+    not with the pulse: on a 3-mass chain sagging to 3.7e4 m under its load, the pulse at 1e-6 and a tenth of it
+    the other way differed by 0.2 of the pulse's effect, then 0.4 a decade lower (a linear model)."""
+    from ..sources._model_exchange import PILOT_TOLERANCE, ModelExchangeSource
+
+    return isinstance(source, ModelExchangeSource) and float(source.tolerance) < PILOT_TOLERANCE
+
+
+def accurate(source: Source, reference: Reference, moving: bool, quiet: bool, isolate: bool) -> Reference:
+    """``reference`` recorded again at the recording's accuracy where the pilots' was looser
+    (:func:`loosened_pilots`): its pulse, and the run without it where the model ``moving`` moves on its own (two
+    runs more), so that the check compares the model, not the pilots' integration error."""
+    if not loosened_pilots(source):
+        return reference
+    y = _outputs(source, reference.signal, reference.t, quiet, isolate, f"{reference.label} (the pulse)")
+    free = (_outputs(source, Scaled(reference.signal, reference.held, 0.0), reference.t, quiet, isolate,
+                     f"{reference.label} (no pulse)") if moving else y[:, :1])
+    return dataclasses.replace(reference, y=y, free=free, exact=True)
+
+
 def _run_scaled(source: Source, reference: Reference, factor: float, quiet: bool, isolate: bool) -> np.ndarray:
-    """The outputs of the reference's pulse at ``factor`` times its amplitude on the reference's grid (a pilot: at
-    the pilots' accuracy, as the reference was recorded)."""
+    """The outputs of the reference's pulse at ``factor`` times its amplitude on the reference's grid, at the
+    accuracy the reference was recorded at (the pilots', or the recording's: :func:`accurate`)."""
+    signal = Scaled(reference.signal, reference.held, factor)
+    label = f"{reference.label} (pulse x {factor:g})"
+    if reference.exact:
+        return _outputs(source, signal, reference.t, quiet, isolate, label)
     from ._window import _outputs_of
 
-    signal = Scaled(reference.signal, reference.held, factor)
-    return _outputs_of(source, signal, reference.t, quiet, isolate, f"{reference.label} (pulse x {factor:g})")
+    return _outputs_of(source, signal, reference.t, quiet, isolate, label)
+
+
+def _outputs(source: Source, signal: Any, t: np.ndarray, quiet: bool, isolate: bool, label: str) -> np.ndarray:
+    """The outputs of a complete run of ``signal`` on the grid ``t`` at the recording's accuracy (a failure raises,
+    as a pilot's does; the model's events are not said, the recording says them)."""
+    from ._record import incomplete_error, record_run, MemorySink
+
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, say_events=False)
+    if failure is not None:
+        raise incomplete_error(failure, run, None)
+    return np.asarray(run.y)[:, :len(t)]
 
 
 def _amplitudes_said(source: Source, amplitudes: Sequence[float]) -> str:

@@ -40,7 +40,7 @@ from ._rate_tests import RateSums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
-from ._linearity import Reference, linear_amplitudes, watching_pilots
+from ._linearity import Reference, accurate, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
@@ -1414,7 +1414,8 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
     """The default training's amplitudes lowered where the model's response does not scale with them
     (:func:`~._linearity.linear_amplitudes`), judged on a run already made: the last pilot where the model rests
     (its outputs without the pulse are those at its start), else the pulse's run of :func:`_raised_amplitudes`
-    beside its run without the pulse.  None where they stay (or no such run is at hand)."""
+    beside its run without the pulse; both recorded again at the recording's accuracy where the pilots' is looser
+    (:func:`~._linearity.accurate`).  None where they stay (or no such run is at hand)."""
     held = held_starts(source)
     if "reference" in seen:
         i, y = seen["reference"]
@@ -1425,8 +1426,9 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
         reference = Reference(pilot["signal"], held, t, y, y[:, :1])
     else:
         return None
-    return linear_amplitudes(source, reference, amplitudes, bool(thresholds.get("quiet", True)),
-                             bool(thresholds.get("isolate", False)))
+    quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
+    reference = accurate(source, reference, "reference" in seen, quiet, isolate)
+    return linear_amplitudes(source, reference, amplitudes, quiet, isolate)
 
 
 #: The model's own motion (each output's range in a run without the pulse), as a share of the pulse's effect on the
