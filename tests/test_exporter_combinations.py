@@ -367,9 +367,11 @@ def test_the_window_runs_no_experiment_twice_and_checks_the_step_it_keeps(fmus, 
                             velocities="x6,x7,x8,x9,x10").window
     assert len(experiments) == len(set(experiments)), experiments
     # this FMU starts away from rest, so the default pulse's size is checked on the chosen grid, once without the
-    # pulse and once with it (audit 74 F1: a pulse lost in the model's own motion is raised); then no more runs
+    # pulse and once with it (audit 74 F1: a pulse lost in the model's own motion is raised), then once with the
+    # pulse at a tenth the other way (audit 79b: the response must scale with the amplitude); then no more runs
     sized = [e for e in experiments if e[1:] == pytest.approx((window.dt, window.t_end))]
-    assert [name for name, *_ in sized] == ["NoInput", "ParametricSignal"] and experiments[-2:] == sized, experiments
+    assert [name for name, *_ in sized] == ["NoInput", "ParametricSignal", "Scaled"] and experiments[-3:] == sized, \
+        experiments
     # the step check (2 runs), the pilots, and the check at the chosen step (2 runs) when it is the coarser
     assert len(experiments) - len(sized) == 2 + window.pilots - 1 + (2 if window.dt > experiments[0][1] else 0), \
         experiments
