@@ -1389,7 +1389,9 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     """The window and signals of the default training (:func:`_impulse_window`), its pulse raised where its effect
     on the outputs is lost in the model's own motion (:func:`_raised_amplitudes`): the window is then chosen again
     for the raised pulse.  A model at rest (the first pilot tells, from its samples before the pulse) costs no extra
-    run and keeps its amplitudes."""
+    run for that.  Where the pulse was not raised, its response must scale with its amplitude
+    (:func:`_linear_amplitudes`, one run more): where it does not, the amplitudes are lowered by decades and the
+    window chosen again for them (audit 79b, F1-F3)."""
     amplitudes = default_amplitudes(source)
     with watching_pilots() as pilot:
         window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
@@ -1415,7 +1417,7 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
     (:func:`~._linearity.linear_amplitudes`), judged on a run already made: the last pilot where the model rests
     (its outputs without the pulse are those at its start), else the pulse's run of :func:`_raised_amplitudes`
     beside its run without the pulse; both recorded again at the recording's accuracy where the pilots' is looser
-    (:func:`~._linearity.accurate`).  None where they stay (or no such run is at hand)."""
+    (:func:`~._linearity.accurate`).  None where they stay, no such run is at hand, or a run of the check fails."""
     held = held_starts(source)
     if "reference" in seen:
         i, y = seen["reference"]
@@ -1427,8 +1429,11 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
     else:
         return None
     quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
-    reference = accurate(source, reference, "reference" in seen, quiet, isolate)
-    return linear_amplitudes(source, reference, amplitudes, quiet, isolate)
+    try:
+        reference = accurate(source, reference, "reference" in seen, quiet, isolate)
+        return linear_amplitudes(source, reference, amplitudes, quiet, isolate)
+    except FmuOpinfError:   # a run of the check that fails says nothing: the amplitudes stay, as without it
+        return None
 
 
 #: The model's own motion (each output's range in a run without the pulse), as a share of the pulse's effect on the
