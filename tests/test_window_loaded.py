@@ -179,16 +179,21 @@ def test_the_first_pilot_tells_a_loaded_model_from_one_at_rest_at_no_extra_run(f
     pilot (10 s, 201 samples) moves before its pulse acts at 1.75 s, which it tells at no extra run; as the
     pilots judged as they are found a window, the net judgement is not armed and the window is chosen without a run
     without the pulse (a model that found its window before keeps it); only the pulse's size is then checked
-    against the load (audit 74 F1).  The chain without the load rests there: nothing more."""
+    against the load (audit 74 F1), then its scaling with the amplitude (audit 79b, one run).  The chain without the
+    load rests there: nothing more but that one run."""
     calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], _fixed_window)
     assert len(calls) == 1 and calls[0]["baseline"].moving.startswith("y[1] by "), calls
     assert not calls[0]["baseline"].armed   # a window found by the pilots as they are: kept, no run without pulse
     # then the default pulse's size is checked net of the load on the window's grid (snapshots._record.
-    # _raised_amplitudes): one run without the pulse and one per input; the pulse stands out here, nothing changes
-    assert runs == [("StackedSignal", 201), ("NoInput", 2001), ("StackedSignal", 2001), ("StackedSignal", 2001)]
+    # _raised_amplitudes): one run without the pulse and one per input; the pulse stands out here, nothing changes;
+    # then the response's scaling with the amplitude (snapshots._linearity: one run, the pulse at a tenth)
+    assert runs == [("StackedSignal", 201), ("NoInput", 2001), ("StackedSignal", 2001), ("StackedSignal", 2001),
+                    ("Scaled", 2001)], runs
     assert ended[0].dt == 0.05 and "amplitude=100," in ended[1][0].spec, ended
     calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["SagBase"], _fixed_window)
-    assert len(calls) == 1 and calls[0]["baseline"].moving is None and runs == [("StackedSignal", 201)], runs
+    # (at rest: no run for the pulse's size; the scaling check's one run reuses the first pilot, on its grid)
+    assert len(calls) == 1 and calls[0]["baseline"].moving is None and runs == [("StackedSignal", 201),
+                                                                                ("Scaled", 201)], runs
 
 
 def test_a_loaded_anchored_model_whose_window_is_not_found_even_net_of_the_load_is_refused_in_one_line(

@@ -6,11 +6,11 @@ moves far outside that range: on a 100 N/m chain the pulse moved the masses by 1
 that large response, was 3-100 % of range off on small inputs, silently at 15 % extra stiffness (audit 79b, F1-F3).
 A linear model's response net of its own motion scales with the amplitude; :func:`linear_amplitudes` compares the
 response to the default pulse with one to the same pulse at a tenth of it the other way (:data:`DECADE`), reusing a
-run of the automatic window (the one extra run is the smaller pulse's; two or three more where the pilots integrate
-at a looser tolerance than the recording, :func:`accurate`), lowers the amplitude by decades until two
-neighbours agree to :data:`LINEARITY_BAR`, and says so; down to :data:`LOWEST_SHARE` of the default with no
-agreement, it keeps the default and warns (:func:`~._notes.warn_recording`, kept in the file for ``fit``,
-``compare`` and ``export``).
+run of the automatic window (the one extra run is the smaller pulse's; two or three more where the pilots
+integrate at a looser tolerance than the recording and that makes the two differ, :func:`accurate`), lowers the
+amplitude by decades until two neighbours agree (:data:`LINEARITY_BAR`, :data:`LOWERED_BAR`), and says so; down to
+:data:`LOWEST_SHARE` of the default with no agreement, it keeps the default and warns
+(:func:`~._notes.warn_recording`, kept in the file for ``fit``, ``compare`` and ``export``).
 """
 
 from __future__ import annotations
@@ -130,7 +130,7 @@ def mismatch(big: np.ndarray, small: np.ndarray, free: np.ndarray, ratio: float)
 
 
 def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence[float],
-                      quiet: bool, isolate: bool) -> list[float] | None:
+                      quiet: bool, isolate: bool, moving: bool = False) -> list[float] | None:
     """The default training's ``amplitudes`` lowered by decades (:data:`DECADE`) to the first at which the response
     scales with the amplitude (:func:`mismatch` at most :data:`LINEARITY_BAR` against the next decade down), said
     in one line; None where the response at ``amplitudes`` scales already (one run: the reference's pulse at a
@@ -139,14 +139,25 @@ def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence
 
     The smaller pulse pushes the other way where the inputs' declared ranges allow (:func:`_opposite`): a model
     whose response is positively homogeneous but not odd (a contact at its rest position, which one sign never
-    reaches) then fails the check too, and a linear model's response to ``-a`` is still ``-1`` times that to ``a``."""
+    reaches) then fails the check too, and a linear model's response to ``-a`` is still ``-1`` times that to ``a``.
+
+    Where the reference is a pilot's run at a looser tolerance than the recording's (:func:`loosened_pilots`) and
+    the two differ by more than :data:`LINEARITY_BAR`, both are recorded again at the recording's accuracy
+    (:func:`accurate`; the model ``moving`` on its own: its run without the pulse too) and judged from there: a
+    linear model costs that only where the pilots' error exceeds the bar."""
     from ._notes import warn_recording
 
     sign = -1.0 if _opposite(source, amplitudes) else 1.0
+    small = _run_scaled(source, reference, sign / DECADE, quiet, isolate)
+    if mismatch(reference.y, small, reference.free, 1.0 / (sign / DECADE)) <= LINEARITY_BAR:
+        return None
+    if not reference.exact and loosened_pilots(source):
+        reference, small = accurate(source, reference, moving, quiet, isolate), None
     big, big_factor, measured = reference.y, 1.0, []
     while True:
         small_factor = sign * big_factor / DECADE
-        small = _run_scaled(source, reference, small_factor, quiet, isolate)
+        if small is None:
+            small = _run_scaled(source, reference, small_factor, quiet, isolate)
         measured.append(mismatch(big, small, reference.free, big_factor / small_factor))
         if measured[-1] <= (LINEARITY_BAR if len(measured) == 1 else LOWERED_BAR):
             break
@@ -156,7 +167,7 @@ def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence
                 break
             warn_recording(_not_linear(source, amplitudes, measured, sign), "nonlinear", stacklevel=4)
             return None
-        big, big_factor = small, small_factor
+        big, big_factor, small = small, small_factor, None
     if len(measured) == 1:
         return None
     lowered = [float(f"{amplitude * abs(big_factor):.3g}") for amplitude in amplitudes]
@@ -175,20 +186,21 @@ def _opposite(source: Source, amplitudes: Sequence[float]) -> bool:
 
 def loosened_pilots(source: Source) -> bool:
     """Whether the pilot runs integrate at a looser tolerance than the recording (model exchange asked for less than
-    :data:`~fmu_opinf.sources._model_exchange.PILOT_TOLERANCE`).  Their error then scales with the outputs' size,
+    :data:`~fmu_opinf.sources._model_exchange.PILOT_TOLERANCE`) with a tolerance-driven integrator (not the exact
+    zero-order-hold step the last run took, if it did).  Their error then scales with the outputs' size,
     not with the pulse: on a 3-mass chain sagging to 3.7e4 m under its load, the pulse at 1e-6 and a tenth of it
     the other way differed by 0.2 of the pulse's effect, then 0.4 a decade lower (a linear model)."""
     from ..sources._model_exchange import PILOT_TOLERANCE, ModelExchangeSource
 
-    return isinstance(source, ModelExchangeSource) and float(source.tolerance) < PILOT_TOLERANCE
+    if not isinstance(source, ModelExchangeSource) or not float(source.tolerance) < PILOT_TOLERANCE:
+        return False
+    return source.run_report().get("integrator_method") != "linear"   # (the exact step has no tolerance)
 
 
 def accurate(source: Source, reference: Reference, moving: bool, quiet: bool, isolate: bool) -> Reference:
-    """``reference`` recorded again at the recording's accuracy where the pilots' was looser
-    (:func:`loosened_pilots`): its pulse, and the run without it where the model ``moving`` moves on its own (two
-    runs more), so that the check compares the model, not the pilots' integration error."""
-    if not loosened_pilots(source):
-        return reference
+    """``reference`` recorded again at the recording's accuracy (the pilots' was looser, :func:`loosened_pilots`):
+    its pulse, and the run without it where the model ``moving`` moves on its own, so that the check compares the
+    model, not the pilots' integration error."""
     y = _outputs(source, reference.signal, reference.t, quiet, isolate, f"{reference.label} (the pulse)")
     free = (_outputs(source, Scaled(reference.signal, reference.held, 0.0), reference.t, quiet, isolate,
                      f"{reference.label} (no pulse)") if moving else y[:, :1])

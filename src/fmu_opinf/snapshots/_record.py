@@ -40,7 +40,7 @@ from ._rate_tests import RateSums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
-from ._linearity import Reference, accurate, linear_amplitudes, watching_pilots
+from ._linearity import Reference, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
@@ -1416,8 +1416,8 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
     """The default training's amplitudes lowered where the model's response does not scale with them
     (:func:`~._linearity.linear_amplitudes`), judged on a run already made: the last pilot where the model rests
     (its outputs without the pulse are those at its start), else the pulse's run of :func:`_raised_amplitudes`
-    beside its run without the pulse; both recorded again at the recording's accuracy where the pilots' is looser
-    (:func:`~._linearity.accurate`).  None where they stay, no such run is at hand, or a run of the check fails."""
+    beside its run without the pulse (recorded again at the recording's accuracy where the pilots' is looser and
+    their error fails the check, :func:`~._linearity.accurate`).  None where they stay, no such run is at hand, or a run of the check fails."""
     held = held_starts(source)
     if "reference" in seen:
         i, y = seen["reference"]
@@ -1430,8 +1430,7 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
         return None
     quiet, isolate = bool(thresholds.get("quiet", True)), bool(thresholds.get("isolate", False))
     try:
-        reference = accurate(source, reference, "reference" in seen, quiet, isolate)
-        return linear_amplitudes(source, reference, amplitudes, quiet, isolate)
+        return linear_amplitudes(source, reference, amplitudes, quiet, isolate, moving="reference" in seen)
     except FmuOpinfError:   # a run of the check that fails says nothing: the amplitudes stay, as without it
         return None
 
