@@ -1047,8 +1047,9 @@ def _exact_names(names: Any) -> str | None:
 
 
 #: Recording verdicts about the model itself, not about how the FMU integrated it: a comparison with the same FMU
-#: does not share them (its own events; a response that grows without bound, audit 79b F4).
-MODEL_VERDICTS = frozenset({"internal-events", "unbounded-growth"})
+#: does not share them (its own events; a response that grows without bound, audit 79b F4; a response that does not
+#: scale with the training's amplitude, audit 79b F1).
+MODEL_VERDICTS = frozenset({"internal-events", "unbounded-growth", "nonlinear"})
 
 
 def _warn_if_recording_warned(rom_info: dict[str, Any], interface: str | None) -> None:
