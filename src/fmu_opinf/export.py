@@ -54,6 +54,8 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from ._descriptions import input_descriptions as recorded_input_texts
+from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
@@ -454,7 +456,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
     if stop is not None and dt is not None:  # a whole number of steps: an importer's last step is not refused
         stop = dt * max(1, math.floor(stop / dt + 1e-9))
-    output_descriptions = ([f"ROM output {name}: Cpr q + Cvr q' + Dur u + y0" for name in output_names]
+    output_descriptions = (recorded_output_texts(provenance, output_names, "Cpr q + Cvr q' + Dur u + y0")
                            + [f"reconstructed full-order position {name}: " + _reconstruction_formula(rom)
                               for name in names])
     c_matrices = {
@@ -488,6 +490,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
     ranges = _declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)], input_starts)
     inputs = {"m": m, "input_names": input_names, "input_units": input_units, "input_starts": input_starts,
+              "input_descriptions": recorded_input_texts(provenance, m),
               "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
               "input_nominals": _recorded_input_nominals(provenance, m),
               **_ports(provenance, input_names or [], output_names, names, fmi_version)}
@@ -629,8 +632,9 @@ def _keep_held_inputs(held: HeldInputs, inputs: dict[str, Any], c_matrices: dict
         "input_ranges": spread(inputs["input_ranges"], (-math.inf, math.inf), lambda n: (held.values[n],) * 2),
         "input_nominals": spread(inputs["input_nominals"], math.nan, lambda name: math.nan),
         "held_inputs": [name in held.values for name in held.order],
-        "input_descriptions": [f"input held at {held.values[name]!r} in training: the ROM is valid at that value "
-                               "only and refuses another" if name in held.values else None for name in held.order],
+        "input_descriptions": spread(inputs.get("input_descriptions"), None, lambda name: (
+            f"input held at {held.values[name]!r} in training: the ROM is valid at that value only and refuses "
+            "another")),
     }
     if fmi_version == "3.0":
         fields["input_ports"] = _spread_ports(inputs.get("input_ports"), held)

@@ -453,6 +453,9 @@ class FMUSource(Source):
         self.single_precision_inputs = [e.var.type == "Float32" for e in forces]
         self.output_units = [e.var.unit or "" for e in out_elements]
         self.input_display_units = [e.var.display_unit or "" for e in forces]
+        #: the modelDescription's descriptions of the inputs and outputs (provenance: the ROM FMU repeats them)
+        self.input_descriptions = [e.var.description or "" for e in forces]
+        self.output_descriptions = [e.var.description or "" for e in out_elements]
         self.output_display_units = [e.var.display_unit or "" for e in out_elements]
         columns = selection.positions + selection.velocities + selection.accelerations + out_columns
         self._read = ReadPlan(model, columns, structural)
@@ -535,6 +538,9 @@ class FMUSource(Source):
         if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
             desc["input_units"] = list(self.input_units)
             desc["output_units"] = list(self.output_units)
+        if any(self.input_descriptions) or any(self.output_descriptions):   # (audit 79a, F4)
+            desc["input_descriptions"] = list(self.input_descriptions)
+            desc["output_descriptions"] = list(self.output_descriptions)
         if any(self.input_display_units) or any(self.output_display_units):
             desc["input_display_units"] = list(self.input_display_units)
             desc["output_display_units"] = list(self.output_display_units)

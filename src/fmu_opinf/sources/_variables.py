@@ -64,6 +64,7 @@ class Variable:
     display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
     clocks: str | None = None  # FMI 3 ``clocks``: value references of the clocks it ticks with (a clocked variable)
     nominal: str | None = None  # its own nominal, else its declared type's (FMI: its magnitude, default 1)
+    description: str | None = None  # its modelDescription text (the exported ROM FMU repeats it)
 
     @property
     def is_real(self) -> bool:
@@ -538,7 +539,7 @@ class ModelInfo:
                            max=self._bound(attrs, "max"), nominal=self._bound(attrs, "nominal"),
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
                            quantity=attrs.get("quantity") or self._type_quantities.get(attrs.get("declaredType", "")),
-                           display_unit=self._display_unit(attrs))
+                           display_unit=self._display_unit(attrs), description=sv.get("description"))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
             if var.derivative is not None:
@@ -565,7 +566,8 @@ class ModelInfo:
                                 nominal=self._bound(el.attrib, "nominal"),
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
                                 quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
-                                display_unit=self._display_unit(el.attrib), clocks=el.get("clocks")))
+                                display_unit=self._display_unit(el.attrib), clocks=el.get("clocks"),
+                                description=el.get("description")))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
                 if alias.get("name"):
