@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import ctypes
 import errno
-import itertools
 import math
 import multiprocessing.util
 import os
 import re
 import shutil
 import tempfile
-import weakref
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -22,6 +20,7 @@ from ..errors import DimensionError, FMUError, InputSpecError
 from ..fmus import BASE_UNITS
 from ..signals import pulse_amplitude
 from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
+from . import _fmu_log
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._settings import parse_assignments
@@ -30,44 +29,9 @@ from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_co
                          declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
                          looks_like_parameter, read_description, real_outputs, start_value, unit_kind)
 
-#: Keys of the FMI 2 instances of this process: each instance's ``componentEnvironment``, which its log messages
-#: carry back to the logger.
-_INSTANCES = itertools.count(1)
-#: The FMI 2 log messages' recipients by key (weak: a closed source is gone).
-_LOG_TARGETS: dict[int, Any] = {}
-_DISPATCH: list[Any] = []
-
-
 def _fmi2_callbacks(target: Any) -> Any:
-    """FMI 2 callbacks whose log messages reach ``target`` (a bound method), through fmpy's native logger proxy.
-
-    The proxy (which formats the variadic messages) keeps the logger it was last given in one process-wide slot,
-    which fmpy's default callbacks and ``fmpy.simulate_fmu(logger=...)`` use too.  A logger per source left that
-    slot pointing at freed memory once the source was gone, and the next FMU that logged through the proxy crashed
-    the process (found 2026-11-28: ``fmpy.simulate_fmu`` after a recording, the FMU logging an error); so does
-    ``simulate_fmu``'s own logger after it returns.  The slot is set, at every instantiation, to one dispatcher
-    that lives as long as the process; it finds the recipient by the ``componentEnvironment`` the FMU passes back,
-    and hands other instances' messages to fmpy's default printer.
-    """
-    from fmpy.fmi2 import defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, printLogMessage
-    from fmpy.logging import addLoggerProxy
-
-    if not _DISPATCH:
-        def dispatch(env: Any, name: bytes, status: int, category: bytes, message: bytes) -> None:
-            found = _LOG_TARGETS.get(env) if isinstance(env, int) else None
-            logger = found() if found is not None else None
-            (logger or printLogMessage)(env, name, status, category, message)
-
-        _DISPATCH.append(fmi2CallbackLoggerTYPE(dispatch))
-    key = next(_INSTANCES)
-    _LOG_TARGETS[key] = weakref.WeakMethod(target)
-    callbacks = fmi2CallbackFunctions()
-    callbacks.logger = _DISPATCH[0]
-    callbacks.allocateMemory = defaultCallbacks.allocateMemory
-    callbacks.freeMemory = defaultCallbacks.freeMemory
-    callbacks.componentEnvironment = key
-    addLoggerProxy(ctypes.byref(callbacks))   # the slot holds the dispatcher again; callbacks.logger is the proxy
-    return callbacks
+    """FMI 2 callbacks whose kept log messages reach ``target`` (:func:`._fmu_log.fmi2_callbacks`)."""
+    return _fmu_log.fmi2_callbacks(target)[0]
 
 
 __all__ = ["FMUSource", "DEFAULT_TOLERANCE", "check_tolerance", "fixed_communication_step", "offers_model_exchange",
@@ -796,16 +760,22 @@ class FMUSource(Source):
         if status >= 2:
             self._log = (self._log + [text.strip()])[-5:]
 
+    def quiet_messages(self) -> int:
+        """How many messages below Discard (OK, Warning) the FMU has logged so far, which fmu-opinf drops
+        (:mod:`._fmu_log`): an FMU that logs on every call despite ``loggingOn = false`` is slow for it."""
+        return _fmu_log.messages_of(getattr(self, "_log_key", None))
+
     def _last_log(self) -> str:
         return self._log[-1] if getattr(self, "_log", None) else ""
 
     def _instantiate(self) -> None:
         fmu = self._fmu
-        if self.fmi_version.startswith("2"):
-            self._callbacks = _fmi2_callbacks(self._logger)   # kept: the FMU holds a pointer to it
+        if self.fmi_version.startswith("2"):   # (callbacks kept: the FMU holds a pointer to them)
+            self._callbacks, self._log_key = _fmu_log.fmi2_callbacks(self._logger)
             fmu.instantiate(callbacks=self._callbacks)
         else:
-            fmu.instantiate(logMessage=lambda env, status, cat, msg: self._logger(env, status, msg))
+            log_message, self._log_key = _fmu_log.fmi3_logger(self._logger)
+            fmu.instantiate(logMessage=log_message)
         self._comp = fmu.component if isinstance(fmu.component, int) else fmu.component.value
 
     def _at(self, t: float) -> str:

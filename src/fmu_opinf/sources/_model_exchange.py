@@ -75,7 +75,7 @@ import numpy as np
 
 from .._interrupts import check_interrupt
 from ..errors import FMUError, InputSpecError
-from . import _compiled_rk, _integrators, _linear_hold
+from . import _compiled_rk, _fmu_log, _integrators, _linear_hold
 from ._base import EventCount, StepError
 from ._cosimulation import DEFAULT_TOLERANCE, DISCARD, TERMINATED, FMUSource
 from ._integrators import (_COMPILED_DOP853_TEXT, _IMPLICIT, _INTEGRATOR_TEXT, _INTEGRATORS, _Discarded,
@@ -341,6 +341,7 @@ class ModelExchangeSource(FMUSource):
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
         self._integrator_seconds = 0.0   # wall seconds the integrator took in this run (:meth:`_warn_slow_run`)
+        self._messages_at_start = self.quiet_messages()   # the FMU's dropped log messages before the run
         self._pieces_by_dop853 = 0   # pieces cut by events that _integrators._linear left to DOP853
         self._time_probed = False   # whether _integrators._linear probed the FMU's derivative at other times
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
@@ -467,8 +468,15 @@ class ModelExchangeSource(FMUSource):
         pace = f", about {_duration(self._integrator_seconds / done)} for the run at this pace" if done > 0 else ""
         steps = f", with steps of {h:.2g} s" if math.isfinite(h) else ""
         limit = _integrators._SLOW_RUN_INTEGRATOR_SECONDS
-        advice = _slow_run_advice(name, self.md.coSimulation is not None, self.nx, t1 - t0, h,
-                                 getattr(self, "_stiffness_measured", None))
+        logged = _fmu_log.messages_of(getattr(self, "_log_key", None)) - getattr(self, "_messages_at_start", 0)
+        advice = _fmu_log.logging_cause(
+            self.path.name, logged, self._integrator_seconds,
+            getattr(self, "_messages_per_call", None), "derivative call", _fmu_log.logging_switches(self.md))
+        if advice:   # (audit 79a, F3: the integrator and the model are not the cause; fewer samples only help)
+            advice += "--dt and --t-end shorten the run, but the integrator and the model are not what is slow"
+        else:
+            advice = _slow_run_advice(name, self.md.coSimulation is not None, self.nx, t1 - t0, h,
+                                      getattr(self, "_stiffness_measured", None))
         warn_once(self, ("slow run",), f"{name} has spent over {limit:g} s on this run and is "
                   f"at t={t - self.start_time:.9g} of {end - self.start_time:g}{pace}{steps} in a communication step "
                   f"of {t1 - t0:.3g} s: {advice}", stacklevel=2)
@@ -484,12 +492,13 @@ class ModelExchangeSource(FMUSource):
         loaded machine stretches some (their mean, over 2 ms in all, once tripled the estimate at 4000 states and
         made ``auto`` choose the slower integrator: audit of 2026-12-05)."""
         t, deltas = float(self._t[0]), self._probe_deltas()
-        fastest = [math.inf]
+        fastest, calls, messages = [math.inf], [0], self.quiet_messages()
 
         def timed(x: np.ndarray) -> np.ndarray:
             started = time.perf_counter()
             derivative = self._derivatives(t, x)
             fastest[0] = min(fastest[0], time.perf_counter() - started)
+            calls[0] += 1
             return derivative
 
         def product(v: np.ndarray) -> np.ndarray:
@@ -504,6 +513,8 @@ class ModelExchangeSource(FMUSource):
         finally:
             self._end_probes()
         seconds = fastest[0] if math.isfinite(fastest[0]) else 0.0
+        if calls[0]:   # (the log messages of a derivative call: the slow-run warning's first suspect)
+            self._messages_per_call = (self.quiet_messages() - messages) / calls[0]
         if rho > 0.0:   # (kept for the slow-run warning, which cannot probe during a run)
             self._stiffness_measured = (rho, seconds)
         return rho, seconds
