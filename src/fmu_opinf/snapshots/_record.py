@@ -44,6 +44,7 @@ from ._linearity import Reference, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
+from ._size import announce, note_pace
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
 
@@ -305,6 +306,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
+    note_pace(source, run.k, attrs["wall_seconds"])   # (what announce predicts the time from)
     if attrs.get("events") and say_events and not pilot:
         _warn_events(source, attrs)
     if failure is None:
@@ -818,6 +820,7 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
     summary = RecordSummary(path=path, n=source.n, m=source.m, p=source.p, window=window,
                             dt=float(t[1] - t[0]) if len(t) > 1 else None)
     with atomic(path, overwrite) as f:
+        announce(source, grids, path)   # (audit 79a, F2: the size and time up front)
         attrs = _file_attrs(source)
         attrs["dt"] = float(t[1] - t[0])
         attrs.update(fixed_step_attrs(source, attrs["dt"]))

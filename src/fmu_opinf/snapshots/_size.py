@@ -1,0 +1,135 @@
+"""What a recording will write and how long it will take, said before it starts (audit 79a, F2).
+
+A 300-output, 15-input FE export recorded for 13.5 min and wrote 813 MB without a word up front (with ``-q``:
+nothing at all for 14.5 min).  Before the first run is written, :func:`announce` predicts the file's size (runs x
+samples x recorded rows x 8 bytes, before compression) and, from the pace of the runs this source has already
+recorded in this process (the automatic window's pilots), the time; where either passes its bar it says so in one
+line with the options that cut them.  It also compares the predicted size with the free space, so that a recording
+that cannot fit stops before it starts rather than after minutes of recording (the writer's own check,
+:func:`fmu_opinf._hdf5.ensure_space`, runs block by block, late).
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+import weakref
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._hdf5 import SPACE_MARGIN, free_space
+from ..errors import FileFormatError, FmuOpinfWarning
+
+__all__ = ["LARGE_BYTES", "LONG_SECONDS", "SMALLEST_COMPRESSION", "announce", "note_pace", "predict",
+           "recorded_rows"]
+
+#: Predicted file size (before compression) from which the recording says so up front: ``fit`` loads the whole
+#: recording and builds data matrices of about its size several times (audit 79a, F1: 0.96 GB of memory for a
+#: 68 MB file), so a file past 1 GB is where fit outgrows a workstation's memory.
+LARGE_BYTES = 1e9
+#: Predicted recording time from which the recording says so up front: past 5 min, a user without the figure
+#: cannot tell a long recording from a hung one (the progress bar counts one run, not the recording).
+LONG_SECONDS = 300.0
+#: The smallest share of its raw size the gzip-compressed file is assumed to take (level 1 with shuffle; audit 79a's
+#: FE recording took 0.75 of it): a recording whose raw size times this does not fit the free space is refused up
+#: front; one that fits only compressed is warned about.
+SMALLEST_COMPRESSION = 0.5
+
+#: Samples and seconds of the runs recorded so far, per source (the pilots' pace).
+_PACE: "weakref.WeakKeyDictionary[Any, list[float]]" = weakref.WeakKeyDictionary()
+
+
+def note_pace(source: Any, samples: int, seconds: float) -> None:
+    """Add one recorded run (``samples`` samples in ``seconds`` of wall time) to ``source``'s pace."""
+    if samples <= 0 or not seconds >= 0:
+        return
+    try:
+        pace = _PACE.setdefault(source, [0.0, 0.0])
+    except TypeError:   # (a source that cannot be referenced weakly has no pace)
+        return
+    pace[0] += samples
+    pace[1] += seconds
+
+
+def recorded_rows(source: Any) -> int:
+    """Rows each sample of a run writes: time, the inputs, positions, velocities and accelerations, and outputs."""
+    return 3 * int(source.n) + int(source.p) + int(source.m) + 1
+
+
+def predict(source: Any, grids: Sequence[np.ndarray]) -> tuple[float, float | None]:
+    """The recording's size in bytes before compression and its time in seconds at the pace of the runs already
+    recorded with ``source`` (None where none was)."""
+    samples = float(sum(len(t) for t in grids))
+    nbytes = 8.0 * samples * recorded_rows(source)
+    pace = _PACE.get(source) if _weakly(source) else None
+    seconds = samples * pace[1] / pace[0] if pace and pace[0] > 0 else None
+    return nbytes, seconds
+
+
+def _weakly(source: Any) -> bool:
+    try:
+        weakref.ref(source)
+    except TypeError:
+        return False
+    return True
+
+
+def announce(source: Any, grids: Sequence[np.ndarray], path: Path) -> None:
+    """Before recording ``grids`` (one per run) into ``path``: refuse a recording that cannot fit the free space,
+    and say in one line (a warning, shown with ``-q`` too) what a large or long one will write and take, and what
+    cuts it."""
+    nbytes, seconds = predict(source, grids)
+    _check_space(path, nbytes)
+    long = seconds is not None and seconds > LONG_SECONDS
+    if nbytes <= LARGE_BYTES and not long:
+        return
+    warnings.warn(_line(source, grids, path, nbytes, seconds), FmuOpinfWarning, stacklevel=3)
+
+
+def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, seconds: float | None) -> str:
+    lengths = sorted({len(t) for t in grids})
+    samples = f"{lengths[0]}" if len(lengths) == 1 else f"{lengths[0]} to {lengths[-1]}"
+    rows = recorded_rows(source)
+    what = (f"{path.name}: {len(grids)} run(s) of {samples} samples x {rows} recorded rows (positions, velocities "
+            f"and accelerations of {source.n}, {source.p} outputs, {source.m} inputs, time) x 8 bytes = "
+            f"{_size(nbytes)} before compression")
+    if seconds is not None:
+        pace = _PACE[source]
+        what += (f", about {_duration(seconds)} at the {1e3 * pace[1] / pace[0]:.2g} ms per sample of the runs "
+                 "recorded so far")
+    cuts = ("to cut them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs (one run "
+            "each), --dt and --t-end for fewer samples")
+    return f"{what}; {cuts}"
+
+
+def _check_space(path: Path, nbytes: float) -> None:
+    """Refuse up front a recording that cannot fit even compressed (:data:`SMALLEST_COMPRESSION`)."""
+    free = free_space(path)
+    if free >= nbytes + SPACE_MARGIN:
+        return
+    if free < SMALLEST_COMPRESSION * nbytes + SPACE_MARGIN:
+        raise FileFormatError(f"cannot write {path}: the recording needs about {_size(nbytes)} before compression "
+                              f"(at least {_size(SMALLEST_COMPRESSION * nbytes)} compressed) and only "
+                              f"{_size(free)} are free; free space, choose another -o location, or record fewer "
+                              "rows (--outputs, --positions) or samples (--dt, --t-end)")
+    warnings.warn(f"{path.name}: the recording needs about {_size(nbytes)} before compression and {_size(free)} "
+                  "are free: it fits only if compression saves enough; free space or choose another -o location",
+                  FmuOpinfWarning, stacklevel=4)
+
+
+def _size(nbytes: float) -> str:
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{nbytes:.0f} bytes"
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.2g} h" if math.isfinite(seconds) else "an unknown time"

@@ -1,0 +1,86 @@
+"""Audit 79a, F2: a large or long recording says so before it starts, with its figures and what cuts them, and one
+that cannot fit the free space stops before it records (a 300-output FE export wrote 813 MB in 13.5 min, silent)."""
+
+from __future__ import annotations
+
+import re
+import warnings
+
+import pytest
+
+from fmu_opinf import snapshots
+from fmu_opinf.errors import FileFormatError, FmuOpinfWarning
+from fmu_opinf.snapshots import _size
+
+TRAIN = ["impulse:amplitude=100,t0=1,width=0.5", "chirp:amplitude=5,omega0=0.3,omega1=3,duration=10"]
+
+
+def _size_lines(caught) -> list[str]:
+    return [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)
+            and "recorded rows" in str(w.message)]
+
+
+def test_large_recording_says_its_size_up_front(tmp_path, monkeypatch):
+    """Above the bar (lowered here, not 1 GB recorded), one line with runs x samples x rows x 8 bytes, before the
+    first run is recorded, naming --outputs/--positions, --inputs and --dt/--t-end; the file is still written."""
+    monkeypatch.setattr(_size, "LARGE_BYTES", 1000.0)
+    first_run = []
+    recorded = snapshots._record.record_run
+
+    def record_run(*args, **kwargs):
+        first_run.append(len(_size_lines(caught)))
+        return recorded(*args, **kwargs)
+
+    monkeypatch.setattr(snapshots._record, "record_run", record_run)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        summary = snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0,
+                                           quiet=True)
+    lines = _size_lines(caught)
+    assert len(lines) == 1 and first_run[0] == 1   # said once, before the first run
+    n, m, p = summary.n, summary.m, summary.p
+    rows, samples = 3 * n + p + m + 1, 81
+    assert f"2 run(s) of {samples} samples x {rows} recorded rows" in lines[0]
+    size = 8 * 2 * samples * rows
+    assert f"= {size / 1e6:.3g} MB before compression" in lines[0]   # 2.34 MB: n = 600
+    for option in ("--outputs", "--positions", "--inputs", "--dt", "--t-end"):
+        assert option in lines[0]
+    assert "\n" not in lines[0] and (tmp_path / "s.h5").exists()
+
+
+def test_small_recording_says_nothing(tmp_path):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
+    assert _size_lines(caught) == []
+
+
+def test_long_recording_predicts_its_time_from_the_runs_before(tmp_path, monkeypatch):
+    """The time is the samples times the pace of the runs recorded with the same source before (the pilots):
+    here the pace is planted (1 s per sample), so 2 x 81 samples predict 162 s = 3 min."""
+    from fmu_opinf.sources import open_source
+
+    monkeypatch.setattr(_size, "LONG_SECONDS", 100.0)
+    source = open_source("builtin:anchored-msd")
+    _size.note_pace(source, 50, 50.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        snapshots.record_to_file(source, tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
+    lines = _size_lines(caught)
+    assert len(lines) == 1 and re.search(r"about 3 min at the 1e\+03 ms per sample", lines[0]), lines
+
+
+def test_recording_that_cannot_fit_stops_before_it_starts(tmp_path, monkeypatch, capsys):
+    """Free space below half the predicted size: a one-line error before any run is written, no file left behind."""
+    from fmu_opinf.cli import main
+
+    monkeypatch.setattr(_size, "free_space", lambda path: 1000.0)
+    runs = []
+    monkeypatch.setattr(snapshots._record, "_H5Sink", lambda *a, **k: runs.append(1))   # a run into the file
+    with pytest.raises(FileFormatError, match=r"needs about .* before compression .* and only 1 kB are free"):
+        snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
+    assert runs == [] and not (tmp_path / "s.h5").exists()
+    assert main(["snapshots", "builtin:anchored-msd", "-o", str(tmp_path / "c.h5"), "--dt", "0.5", "--t-end", "40",
+                 "-q"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--outputs" in err and "Traceback" not in err
