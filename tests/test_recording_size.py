@@ -55,19 +55,34 @@ def test_small_recording_says_nothing(tmp_path):
     assert _size_lines(caught) == []
 
 
-def test_long_recording_predicts_its_time_from_the_runs_before(tmp_path, monkeypatch):
-    """The time is the samples times the pace of the runs recorded with the same source before (the pilots):
-    here the pace is planted (1 s per sample), so 2 x 81 samples predict 162 s = 3 min."""
+@pytest.mark.parametrize("pilot, said", [(False, "about 3 min at 1e+03 ms per sample, the runs recorded so far"),
+                                         (True, "at least about 3 min at 1e+03 ms per sample, the pilot runs'")])
+def test_long_recording_predicts_its_time_from_the_runs_before(tmp_path, monkeypatch, pilot, said):
+    """The time is the samples times the pace of the runs recorded with the same source before (pilots: a lower
+    estimate, they run at a looser tolerance): here the pace is planted (1 s per sample), so 2 x 81 samples predict
+    162 s = 3 min."""
     from fmu_opinf.sources import open_source
 
     monkeypatch.setattr(_size, "LONG_SECONDS", 100.0)
     source = open_source("builtin:anchored-msd")
-    _size.note_pace(source, 50, 50.0)
+    _size.note_pace(source, 50, 50.0, pilot)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         snapshots.record_to_file(source, tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
     lines = _size_lines(caught)
-    assert len(lines) == 1 and re.search(r"about 3 min at the 1e\+03 ms per sample", lines[0]), lines
+    assert len(lines) == 1 and said in lines[0], lines
+    assert not [w for w in caught if "the first run took" in str(w.message)]   # (the real runs are fast)
+
+
+def test_a_long_recording_not_foreseen_is_said_after_its_first_run(tmp_path, monkeypatch):
+    """Without a pace before (--dt and --t-end: no pilots), the first run's pace predicts the rest: with the bar at
+    0 s, one line names the first run's time and the other run's."""
+    monkeypatch.setattr(_size, "LONG_SECONDS", 0.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
+    lines = [str(w.message) for w in caught if "the first run took" in str(w.message)]
+    assert len(lines) == 1 and re.search(r"ms per sample\): the other 1 run\(s\) take about \d+ s more", lines[0])
 
 
 def test_recording_that_cannot_fit_stops_before_it_starts(tmp_path, monkeypatch, capsys):

@@ -44,7 +44,7 @@ from ._linearity import Reference, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
-from ._size import announce, note_pace
+from ._size import after_first_run, announce, note_pace
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
 
@@ -306,7 +306,7 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
-    note_pace(source, run.k, attrs["wall_seconds"])   # (what announce predicts the time from)
+    note_pace(source, run.k, attrs["wall_seconds"], pilot)   # (what announce predicts the time from)
     if attrs.get("events") and say_events and not pilot:
         _warn_events(source, attrs)
     if failure is None:
@@ -843,6 +843,7 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
                 raise failure or StepError(f"{source_label(source)} recorded no sample in its first run", 0,
                                            float(t[0]))
             if index == 0:
+                after_first_run(source, grids, path, run.attrs["wall_seconds"])
                 first_input = np.asarray(run.u[:, 0], dtype=float) if source.m else np.zeros(0)
                 first_position = np.asarray(run.x0, dtype=float)
             if window is not None:

@@ -3,8 +3,10 @@
 A 300-output, 15-input FE export recorded for 13.5 min and wrote 813 MB without a word up front (with ``-q``:
 nothing at all for 14.5 min).  Before the first run is written, :func:`announce` predicts the file's size (runs x
 samples x recorded rows x 8 bytes, before compression) and, from the pace of the runs this source has already
-recorded in this process (the automatic window's pilots), the time; where either passes its bar it says so in one
-line with the options that cut them.  It also compares the predicted size with the free space, so that a recording
+recorded in this process (the automatic window's pilots: a lower estimate), the time; where either passes its
+bar it says so in one line with the options that cut them.  After the first run, whose pace is the recording's own,
+:func:`after_first_run` says the time of the rest where the line before did not, or said under half of it.
+It also compares the predicted size with the free space, so that a recording
 that cannot fit stops before it starts rather than after minutes of recording (the writer's own check,
 :func:`fmu_opinf._hdf5.ensure_space`, runs block by block, late).
 """
@@ -23,8 +25,8 @@ import numpy as np
 from .._hdf5 import SPACE_MARGIN, free_space
 from ..errors import FileFormatError, FmuOpinfWarning
 
-__all__ = ["LARGE_BYTES", "LONG_SECONDS", "SMALLEST_COMPRESSION", "announce", "note_pace", "predict",
-           "recorded_rows"]
+__all__ = ["LARGE_BYTES", "LONG_SECONDS", "SMALLEST_COMPRESSION", "after_first_run", "announce", "note_pace",
+           "predict", "recorded_rows"]
 
 #: Predicted file size (before compression) from which the recording says so up front: ``fit`` loads the whole
 #: recording and builds data matrices of about its size several times (audit 79a, F1: 0.96 GB of memory for a
@@ -38,20 +40,35 @@ LONG_SECONDS = 300.0
 #: front; one that fits only compressed is warned about.
 SMALLEST_COMPRESSION = 0.5
 
-#: Samples and seconds of the runs recorded so far, per source (the pilots' pace).
+#: Samples and seconds of the runs recorded so far, per source: ``[samples, seconds, pilot samples, pilot seconds]``.
 _PACE: "weakref.WeakKeyDictionary[Any, list[float]]" = weakref.WeakKeyDictionary()
+#: The time each recording's up-front line predicted, by file (None: no line), for :func:`after_first_run`.
+_SAID: dict[str, float | None] = {}
 
 
-def note_pace(source: Any, samples: int, seconds: float) -> None:
-    """Add one recorded run (``samples`` samples in ``seconds`` of wall time) to ``source``'s pace."""
+def note_pace(source: Any, samples: int, seconds: float, pilot: bool = False) -> None:
+    """Add one run (``samples`` samples in ``seconds`` of wall time; ``pilot``: a pilot of the automatic window) to
+    ``source``'s pace."""
     if samples <= 0 or not seconds >= 0:
         return
     try:
-        pace = _PACE.setdefault(source, [0.0, 0.0])
+        pace = _PACE.setdefault(source, [0.0, 0.0, 0.0, 0.0])
     except TypeError:   # (a source that cannot be referenced weakly has no pace)
         return
-    pace[0] += samples
-    pace[1] += seconds
+    pace[2 * pilot] += samples
+    pace[2 * pilot + 1] += seconds
+
+
+def _pace(source: Any) -> tuple[float, bool] | None:
+    """Seconds per sample of the runs recorded with ``source`` so far, and whether they were all pilots, whose
+    pace is a lower estimate: model exchange runs them at a looser tolerance (:meth:`pilot_accuracy`; audit 79a's
+    120-output FE export: 0.79 ms per sample in the pilots, 2.5 ms in the recording); None where none was."""
+    pace = _PACE.get(source) if _weakly(source) else None
+    if not pace:
+        return None
+    if pace[0] > 0:
+        return pace[1] / pace[0], False
+    return (pace[3] / pace[2], True) if pace[2] > 0 else None
 
 
 def recorded_rows(source: Any) -> int:
@@ -64,9 +81,8 @@ def predict(source: Any, grids: Sequence[np.ndarray]) -> tuple[float, float | No
     recorded with ``source`` (None where none was)."""
     samples = float(sum(len(t) for t in grids))
     nbytes = 8.0 * samples * recorded_rows(source)
-    pace = _PACE.get(source) if _weakly(source) else None
-    seconds = samples * pace[1] / pace[0] if pace and pace[0] > 0 else None
-    return nbytes, seconds
+    pace = _pace(source)
+    return nbytes, None if pace is None else samples * pace[0]
 
 
 def _weakly(source: Any) -> bool:
@@ -84,9 +100,27 @@ def announce(source: Any, grids: Sequence[np.ndarray], path: Path) -> None:
     nbytes, seconds = predict(source, grids)
     _check_space(path, nbytes)
     long = seconds is not None and seconds > LONG_SECONDS
+    _SAID[str(path)] = None
     if nbytes <= LARGE_BYTES and not long:
         return
+    _SAID[str(path)] = seconds if seconds is not None else math.inf
     warnings.warn(_line(source, grids, path, nbytes, seconds), FmuOpinfWarning, stacklevel=3)
+
+
+def after_first_run(source: Any, grids: Sequence[np.ndarray], path: Path, seconds: float) -> None:
+    """After the first run of a recording (``seconds`` of wall time): where the other runs, at its pace, take over
+    :data:`LONG_SECONDS` and the up-front line said no time, or under half of this, say how long in one line."""
+    said = _SAID.pop(str(path), None)
+    rest = sum(len(t) for t in grids[1:])
+    if not rest or not len(grids[0]):
+        return
+    remaining = seconds / len(grids[0]) * rest
+    if remaining <= LONG_SECONDS or (said is not None and said >= 0.5 * (seconds + remaining)):
+        return
+    warnings.warn(f"{path.name}: the first run took {_duration(seconds)} ({1e3 * seconds / len(grids[0]):.2g} ms "
+                  f"per sample): the other {len(grids) - 1} run(s) take about {_duration(remaining)} more; to cut "
+                  "them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs, --dt and "
+                  "--t-end for fewer samples", FmuOpinfWarning, stacklevel=3)
 
 
 def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, seconds: float | None) -> str:
@@ -96,10 +130,12 @@ def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, s
     what = (f"{path.name}: {len(grids)} run(s) of {samples} samples x {rows} recorded rows (positions, velocities "
             f"and accelerations of {source.n}, {source.p} outputs, {source.m} inputs, time) x 8 bytes = "
             f"{_size(nbytes)} before compression")
-    if seconds is not None:
-        pace = _PACE[source]
-        what += (f", about {_duration(seconds)} at the {1e3 * pace[1] / pace[0]:.2g} ms per sample of the runs "
-                 "recorded so far")
+    pace = _pace(source)
+    if seconds is not None and pace is not None:
+        runs = ("the pilot runs' (a lower estimate: they ran at a looser tolerance)" if pace[1]
+                else "the runs recorded so far")
+        least = "at least " if pace[1] else ""
+        what += f", {least}about {_duration(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
     cuts = ("to cut them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs (one run "
             "each), --dt and --t-end for fewer samples")
     return f"{what}; {cuts}"
