@@ -17,30 +17,33 @@ import pytest
 from fmu_opinf.errors import FmuOpinfWarning
 
 LINES = 100
-_CALL = "    return finish(inst, ltiDerivatives(inst, \"fmi2GetDerivatives\", derivatives));\n"
+_CALL = "    return finish(inst, ltiDerivatives(inst, \"{}\", derivatives));\n"
+_DERIVATIVES = {"2.0": "fmi2GetDerivatives", "3.0": "fmi3GetContinuousStateDerivatives"}
 _CHATTER = """    { int k; char msg[200];
       for (k = 0; k < %d; k++) { snprintf(msg, sizeof msg, "solver trace %%d at t=%%.17g: residual ok", k, inst->time);
         forwardLog(inst, LtiOK, "logAll", msg); } }
 """
 
 
-def _build(folder, lines: int):
-    """The audit's case-4 FMU (model exchange, FMI 2, sources only) with ``lines`` messages per derivative call."""
+def _build(folder, lines: int, version: str = "2.0"):
+    """The audit's case-4 FMU (model exchange, sources only) with ``lines`` messages per derivative call."""
     from fmu_opinf.fmus import find_build_tools
     from fmu_opinf.lti_fmus import build_lti_fmu, chain_model
 
     if find_build_tools() is None:
         pytest.skip("needs a C compiler")
     base = folder / "base.fmu"
-    build_lti_fmu(chain_model(5, inputs=(4,), name="Sampled"), base, naming="modelica", interfaces=("me",))
+    build_lti_fmu(chain_model(5, inputs=(4,), name="Sampled"), base, naming="modelica", interfaces=("me",),
+                  fmi_version=version)
     with zipfile.ZipFile(base) as z:
         files = {i.filename: z.read(i.filename) for i in z.infolist() if not i.filename.startswith("binaries/")}
-    c = files["sources/lti_fmi2.c"].decode()
-    assert _CALL in c
+    member, call = f"sources/lti_fmi{version[0]}.c", _CALL.format(_DERIVATIVES[version])
+    c = files[member].decode()
+    assert call in c
     if lines:
-        c = "#include <stdio.h>\n" + c.replace(_CALL, _CHATTER % lines + _CALL)
-    files["sources/lti_fmi2.c"] = c.encode()
-    path = folder / f"Chatty{lines}.fmu"
+        c = "#include <stdio.h>\n" + c.replace(call, _CHATTER % lines + call)
+    files[member] = c.encode()
+    path = folder / f"Chatty{lines}_{version[0]}.fmu"
     with zipfile.ZipFile(path, "w") as z:
         for name, data in files.items():
             z.writestr(name, data)
@@ -50,7 +53,8 @@ def _build(folder, lines: int):
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     folder = tmp_path_factory.mktemp("chatty")
-    return {lines: _build(folder, lines) for lines in (LINES, 0)}
+    return {(lines, version): _build(folder, lines, version) for lines, version in ((LINES, "2.0"), (0, "2.0"),
+                                                                                   (LINES, "3.0"))}
 
 
 def _open(path):
@@ -62,9 +66,10 @@ def _open(path):
 
 
 @pytest.mark.fmu
-def test_messages_are_counted_per_instance(fmus):
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_messages_are_counted_per_instance(fmus, version):
     """Each derivative call adds exactly 100 dropped messages to its own instance's count, none to another's."""
-    chatty, plain = _open(fmus[LINES]), _open(fmus[0])
+    chatty, plain = _open(fmus[LINES, version]), _open(fmus[0, "2.0"])
     try:
         t = np.arange(0.0, 1.0001, 0.1)
         for source in (chatty, plain):
@@ -94,18 +99,20 @@ def _slow_run_warning(path, monkeypatch) -> str:
 
 
 @pytest.mark.fmu
-def test_the_slow_run_warning_names_the_logging_first(fmus, monkeypatch):
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_the_slow_run_warning_names_the_logging_first(fmus, monkeypatch, version):
     """The warning names the count, 100 per derivative call, the estimated share and the exporter's debug build, and
     not --me-method linear.  Before: "the time is the FMU's derivative ... or --me-method linear"."""
-    text = _slow_run_warning(fmus[LINES], monkeypatch)
+    path = fmus[LINES, version]
+    text = _slow_run_warning(path, monkeypatch)
     after = text.split(" s: ", 1)[1]
-    assert after.startswith(f"{fmus[LINES].name} logged "), text
+    assert after.startswith(f"{path.name} logged "), text
     assert "(100 per derivative call) although fmu-opinf instantiates it with logging off" in text
-    assert "ask its exporter for a build without debug logging" in text and "logEvents" in text
+    assert "ask its exporter for a build without debug logging" in text
     assert "--me-method linear" not in text and "the time is the FMU's derivative" not in text
 
 
 @pytest.mark.fmu
 def test_the_same_fmu_without_logging_keeps_the_derivative_advice(fmus, monkeypatch):
-    text = _slow_run_warning(fmus[0], monkeypatch)
+    text = _slow_run_warning(fmus[0, "2.0"], monkeypatch)
     assert "logged" not in text and "debug logging" not in text

@@ -341,11 +341,11 @@ class ModelExchangeSource(FMUSource):
         self._nominal_step = math.nan   # the planned grid's step (_choose_integrator)
         self._stiffness_seen: tuple[float, float] | None = None   # (rho, seconds per evaluation) measured by auto
         self._integrator_seconds = 0.0   # wall seconds the integrator took in this run (:meth:`_warn_slow_run`)
-        self._messages_at_start = self.quiet_messages()   # the FMU's dropped log messages before the run
         self._pieces_by_dop853 = 0   # pieces cut by events that _integrators._linear left to DOP853
         self._time_probed = False   # whether _integrators._linear probed the FMU's derivative at other times
         self._f_end: tuple[np.ndarray, float, np.ndarray] | None = None   # (state, time, derivative) of _linear
         self._active = self._choose_integrator()
+        self._messages_at_start = self.quiet_messages()   # (after the probes: the run's messages follow)
 
     def _call_set(self, raw: np.ndarray, single: np.ndarray | None = None) -> int:
         self._f_end = None   # the derivative where the last step ended is that of the former input
