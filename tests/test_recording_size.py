@@ -56,10 +56,10 @@ def test_small_recording_says_nothing(tmp_path):
 
 
 @pytest.mark.parametrize("pilot, said", [(False, "about 3 min at 1e+03 ms per sample, the runs recorded so far"),
-                                         (True, "at least about 3 min at 1e+03 ms per sample, the pilot runs'")])
+                                         (True, "about 3 min at 1e+03 ms per sample, the pilot runs' (a rough guide")])
 def test_long_recording_predicts_its_time_from_the_runs_before(tmp_path, monkeypatch, pilot, said):
-    """The time is the samples times the pace of the runs recorded with the same source before (pilots: a lower
-    estimate, they run at a looser tolerance): here the pace is planted (1 s per sample), so 2 x 81 samples predict
+    """The time is the samples times the pace of the runs recorded with the same source before (pilots: a rough
+    guide, they run at a looser tolerance): here the pace is planted (1 s per sample), so 2 x 81 samples predict
     162 s = 3 min."""
     from fmu_opinf.sources import open_source
 

@@ -3,7 +3,7 @@
 A 300-output, 15-input FE export recorded for 13.5 min and wrote 813 MB without a word up front (with ``-q``:
 nothing at all for 14.5 min).  Before the first run is written, :func:`announce` predicts the file's size (runs x
 samples x recorded rows x 8 bytes, before compression) and, from the pace of the runs this source has already
-recorded in this process (the automatic window's pilots: a lower estimate), the time; where either passes its
+recorded in this process (the automatic window's pilots: a rough guide), the time; where either passes its
 bar it says so in one line with the options that cut them.  After the first run, whose pace is the recording's own,
 :func:`after_first_run` says the time of the rest where the line before did not, or said under half of it.
 It also compares the predicted size with the free space, so that a recording
@@ -61,8 +61,9 @@ def note_pace(source: Any, samples: int, seconds: float, pilot: bool = False) ->
 
 def _pace(source: Any) -> tuple[float, bool] | None:
     """Seconds per sample of the runs recorded with ``source`` so far, and whether they were all pilots, whose
-    pace is a lower estimate: model exchange runs them at a looser tolerance (:meth:`pilot_accuracy`; audit 79a's
-    120-output FE export: 0.79 ms per sample in the pilots, 2.5 ms in the recording); None where none was."""
+    pace is a rough guide: model exchange runs them at a looser tolerance (:meth:`pilot_accuracy`), on other grids
+    (audit 79a's FE chains: 0.79 ms per sample in the pilots and 2.5 ms in the recording at 120 outputs; 6.9 ms in
+    the pilots at 300 outputs, where the audit's recording took 4.2-6.3 ms); None where none was."""
     pace = _PACE.get(source) if _weakly(source) else None
     if not pace:
         return None
@@ -132,10 +133,9 @@ def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, s
             f"{_size(nbytes)} before compression")
     pace = _pace(source)
     if seconds is not None and pace is not None:
-        runs = ("the pilot runs' (a lower estimate: they ran at a looser tolerance)" if pace[1]
+        runs = ("the pilot runs' (a rough guide: model exchange runs them at a looser tolerance)" if pace[1]
                 else "the runs recorded so far")
-        least = "at least " if pace[1] else ""
-        what += f", {least}about {_duration(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
+        what += f", about {_duration(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
     cuts = ("to cut them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs (one run "
             "each), --dt and --t-end for fewer samples")
     return f"{what}; {cuts}"
