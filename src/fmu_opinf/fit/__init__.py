@@ -323,7 +323,8 @@ def fit_rom(
     # figure is in fit_info, the warning only for a gross miss (audit 76 F1: a ROM 2100-3200 % of range off its own
     # training outputs was written without a word)
     _warn_if_training_outputs_missed(info, pod.r_, tried=[entry["r"] for entry in search], held=_held_outputs(attrs),
-                                     unrefined=refine is False, unexplained=unexplained)
+                                     unrefined=refine is False, unexplained=unexplained, rank=pod.rank_,
+                                     search=search, attrs=attrs)
     settings = {"r": r, "energy": energy, "basis": basis, "method": method, "mass_trace": mass_trace, "tol": tol,
                 "normalization": normalization, "solver": solver, "lowpass": lowpass,
                 "terms": terms if isinstance(terms, str) else list(terms), "integrator": integrator, "refine": refine,

@@ -5,6 +5,7 @@ the training step's Nyquist frequency."""
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from typing import Any, Callable, Sequence
@@ -135,6 +136,53 @@ def _warn_if_peak_missed(info: dict, r: int) -> None:
                   FmuOpinfWarning, stacklevel=3)
 
 
+def training_miss_record(info: dict, names: Sequence[str] = (), unrefined: bool = False) -> dict[str, Any] | None:
+    """What fit warned about the ROM's miss of its own training outputs, for ``compare`` and ``export`` to repeat:
+    ``{"rms", "output", "run"}`` where :func:`_warn_if_training_outputs_missed` warned (the training miss above
+    :data:`TRAINING_MISS`; ``unrefined``: a fit with ``refine=False``, above :data:`GROSS_MISS`) and ``{"peak",
+    "peak_output", "peak_run"}`` where the worst peak miss exceeds :data:`PEAK_MISS` of its range; each output named
+    by ``names`` (else ``y[j]``), the relative RMS and the peak miss as shares; None where neither holds.  Audit 79a
+    F1: a ROM 0.36 RMS (0.22 of range at the peak) off its own training impulse was reported at 5e-3 by compare's
+    default test, harmonics 50-100 times slower than the impulse's band."""
+    if not isinstance(info, dict):
+        return None
+    objective, miss = _training_objective(info), _training_miss(info)
+    if unrefined:
+        miss = objective if objective is not None and objective > GROSS_MISS else None
+
+    def name(j: Any) -> str | None:
+        if not isinstance(j, (int, np.integer)) or isinstance(j, bool):
+            return None
+        return str(names[j]) if 0 <= j < len(names) else f"y[{int(j) + 1}]"
+
+    record: dict[str, Any] = {}
+    if miss is not None and miss > TRAINING_MISS:
+        record["rms"] = math.sqrt(miss)
+        if miss != objective:
+            record["output"], record["run"] = name(info.get("worst_output")), info.get("worst_run_name")
+    peak = info.get("worst_peak_miss")
+    if isinstance(peak, (int, float)) and peak > PEAK_MISS:
+        record.update(peak=float(peak), peak_output=name(info.get("worst_peak_output")),
+                      peak_run=info.get("worst_peak_run_name"))
+    return {key: value for key, value in record.items() if value is not None} or None
+
+
+def training_miss_text(record: dict[str, Any]) -> str:
+    """The figures of :func:`training_miss_record` in words: "0.36 relative RMS and 0.25 of its range at the peak
+    on y74 (run 0)" (a run named by its number alone: its input spec can be long)."""
+    def where(output: Any, run: Any) -> str:
+        run = str(run).split(" (")[0] if run else ""
+        return " ".join(filter(None, [str(output or ""), f"({run})" if run else ""]))
+
+    rms = f"{record['rms']:.2g} relative RMS" if "rms" in record else ""
+    peak = f"{record['peak']:.2g} of its range at the peak" if "peak" in record else ""
+    on, at = where(record.get("output"), record.get("run")), where(record.get("peak_output"), record.get("peak_run"))
+    if rms and peak and on == at:
+        return f"{rms} and {peak}" + (f" on {on}" if on else "")
+    parts = [text + (f" on {place}" if place else "") for text, place in ((rms, on), (peak, at)) if text]
+    return " and ".join(parts)
+
+
 def _unexplained_outputs(linearity: dict) -> dict[str, Any]:
     """The outputs that no linear map of the recorded states gives and that no polynomial of them explains either
     (:func:`fmu_opinf._linear_outputs.nonlinear_outputs`: kept in the fit), with their linear residuals: a state that
@@ -149,7 +197,9 @@ def _unexplained_outputs(linearity: dict) -> dict[str, Any]:
 
 def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool = True,
                                      tried: Sequence[int] = (), held: Sequence[str] = (),
-                                     unrefined: bool = False, unexplained: dict | None = None) -> None:
+                                     unrefined: bool = False, unexplained: dict | None = None,
+                                     rank: int | None = None, search: Sequence[dict] = (),
+                                     attrs: dict | None = None) -> None:
     """One warning when the fitted ROM reproduces its own training outputs only to more than :data:`TRAINING_MISS`;
     ``unrefined`` (a fit asked not to refine, whose SDP solution may miss by 18 % RMS as the paper's does, but not
     by 2100 %, audit 76 F1): where the training objective (the mean over the outputs, not the worst output's worst
@@ -157,37 +207,104 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
     one run by 39) exceeds :data:`GROSS_MISS`
     (eighth audit: a Simulink-style FMU recorded with a velocity among ``--positions`` fitted to 9.0e-3 with no
     word, and was 12.7 % off on that output); ``tried``: the orders the order search tried (:func:`_grow_order`),
-    named in it; ``held``: recorded outputs held between samples (the snapshot file's ``held_outputs``), named
-    first, as the likeliest cause (audit 73 F3: the warning listed every cause but a sampled output)."""
+    named in it.
+
+    The causes are ordered by what the data show (:func:`_miss_causes`): the order first where the search kept its
+    largest order below the snapshot rank ``rank`` and each larger order lowered the miss (``search``: the search's
+    entries; audit 79a F1: a 120-output chain kept r = 60, the search's limit, at 0.36 RMS after r = 40's 0.88,
+    and the first advice was about --positions and co-simulation); then ``held`` (recorded outputs held between
+    samples, the snapshot file's ``held_outputs``; audit 73 F3) and outputs no linear map of the states gives
+    (``unexplained``); the clauses the recording rules out (``attrs``: co-simulation for a model-exchange recording)
+    are left out."""
     objective, miss = _training_objective(info, judge_unrefined), _training_miss(info, judge_unrefined)
     if unrefined:
         miss = objective if objective is not None and objective > GROSS_MISS else None
     if miss is None or not miss > TRAINING_MISS:
         return
-    order = f"r={r}" + (f", the closest of r={', '.join(map(str, tried))} tried" if tried else "")
-    if unrefined:
-        order += "; the SDP solution unrefined (--no-refine): the refinement may reach them"
     worst = "" if miss == objective else (f"output y[{info['worst_output'] + 1}]"
                                            + (" in the free response from the start values"
                                               if info.get("worst_in_free_response") else "")
                                            + _in_run(info.get("worst_run_name"), info.get("n_runs")) + "; ")
-    verb, its, it = ("is", "its", "it") if len(held) == 1 else ("are", "their", "them")
-    sampled = (f"that no output is held between samples ({', '.join(held)} {verb}: eq. 17 cannot follow {its} "
-               f"steps; record without {it}), " if held else "")
-    if unexplained and unexplained.get("names"):   # named first: least squares already showed them off
+    causes = "; ".join(_miss_causes(r, tried, held, unrefined, unexplained, rank, search, attrs or {}))
+    warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
+                  f"({worst}training output error {objective:.2g}): {causes}", FmuOpinfWarning, stacklevel=3)
+
+
+def order_limited(r: int, rank: int | None, search: Sequence[dict]) -> bool:
+    """Whether the order search kept its largest order tried, below the snapshot rank ``rank``, and each order it
+    tried lowered the training miss (``search``: :func:`_grow_order`'s entries): larger orders are then the first
+    thing to try (audit 79a F1: r = 40 missed by 0.88 RMS, r = 60, the search's limit, by 0.36, of a rank above
+    60)."""
+    if rank is None or not r < rank or len(search) < 2 or any(entry.get("noise_floor") for entry in search):
+        return False
+    figures = [entry.get("judged") for entry in search]
+    if any(not isinstance(value, (int, float)) for value in figures) or r != max(entry["r"] for entry in search):
+        return False
+    return all(later < earlier for earlier, later in itertools.pairwise(figures))
+
+
+def order_advice(r: int, rank: int) -> str:
+    """The advice to fit a larger order, up to the snapshot rank ``rank``, with its cost above
+    :data:`fmu_opinf._sdp_paths.FACTORED_ABOVE`."""
+    from .._sdp_paths import FACTORED_ABOVE
+
+    suggested = min(2 * r, rank)
+    cost = (f"; above r = {FACTORED_ABOVE} the SDP is solved by the factored start and the fit takes minutes"
+            if suggested > FACTORED_ABOVE else "")
+    return f"fit with --r {suggested} (up to the snapshot rank {rank}; r= in Python){cost}"
+
+
+def _miss_causes(r: int, tried: Sequence[int], held: Sequence[str], unrefined: bool, unexplained: dict | None,
+                 rank: int | None, search: Sequence[dict], attrs: dict) -> list[str]:
+    """The clauses of :func:`_warn_if_training_outputs_missed`, likeliest first."""
+    order = f"r={r}" + (f", the closest of r={', '.join(map(str, tried))} tried" if tried else "")
+    if unrefined:
+        order += "; the SDP solution unrefined (--no-refine): the refinement may reach them"
+    first: list[str] = []
+    if order_limited(r, rank, search) and rank is not None:
+        figures = " -> ".join(f"{math.sqrt(entry['judged']):.2g}" for entry in search)
+        first.append(f"the order is too small: each larger order tried lowered the miss ({order}: {figures} relative "
+                     f"RMS), and the snapshots have rank {rank}: {order_advice(r, rank)}")
+    if unexplained and unexplained.get("names"):   # least squares already showed them off
         shown = ", ".join(f"{name} ({value:.2g})" for name, value in
                           list(zip(unexplained["names"], unexplained["residuals"]))[:6])
-        sampled = (f"the outputs no linear map of the recorded states gives ({shown} of their variation left by "
-                   "least squares from the positions, velocities, inputs and a constant): a nonlinear output (a drag "
-                   "force, a clipped or saturated sensor: record without it, snapshots --outputs) or a state not "
-                   f"recorded (--positions), {sampled}")
-    warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
-                  f"({worst}training output error {objective:.2g}): check {sampled}that --positions names positions "
-                  f"only (a velocity or a force among them cannot be fitted), that the order suffices ({order}; --r), "
-                  "that the outputs follow from the recorded positions and velocities, that the recording follows "
-                  "the model, not a co-simulation's integrator (--interface me), and that the model changes "
-                  "only with its inputs (an internal event, a force on a timer, a time-varying parameter or a "
-                  "nonlinearity changes it on its own: record a stretch without them)", FmuOpinfWarning, stacklevel=3)
+        first.append(f"check the outputs no linear map of the recorded states gives ({shown} of their variation left "
+                     "by least squares from the positions, velocities, inputs and a constant): a nonlinear output (a "
+                     "drag force, a clipped or saturated sensor: record without it, snapshots --outputs) or a state "
+                     "not recorded (--positions)")
+    verb, its, it = ("is", "its", "it") if len(held) == 1 else ("are", "their", "them")
+    if held:
+        first.append(f"check that no output is held between samples ({', '.join(held)} {verb}: eq. 17 cannot follow "
+                     f"{its} steps; record without {it})")
+    positions = "that --positions names positions only (a velocity or a force among them cannot be fitted)"
+    from_structure = "model structure" in str(_selection(attrs).get("positions", ""))
+    rest = [] if from_structure else [positions]
+    if not order_limited(r, rank, search):
+        rest.append(f"that the order suffices ({order}; --r)")
+    rest.append("that the outputs follow from the recorded positions and velocities")
+    if from_structure:   # (read from the FMU's model structure: a mistake there is less likely)
+        rest.append("that the positions read from the model structure are positions only (--positions)")
+    if str(attrs.get("fmi_interface", "")) != "me":   # (a model-exchange recording follows the model itself)
+        rest.append("that the recording follows the model, not a co-simulation's integrator (--interface me)")
+    rest.append("that the model changes only with its inputs (an internal event, a force on a timer or a "
+                "time-varying parameter changes it on its own: record a stretch without them) and is linear at "
+                "the training's amplitude (a nonlinear spring or damper law: train at a smaller amplitude, "
+                "snapshots --input impulse:amplitude=..., where the ROM is to serve small motions)")
+    return first + ["check " + ", ".join(rest[:-1]) + ", and " + rest[-1]]
+
+
+def _selection(attrs: dict) -> dict:
+    """The snapshot file's ``variable_selection`` (how the positions were found), {} where absent or unreadable."""
+    import json
+
+    found = attrs.get("variable_selection")
+    if isinstance(found, dict):
+        return found
+    try:
+        found = json.loads(found) if isinstance(found, (str, bytes)) else None
+    except ValueError:
+        return {}
+    return found if isinstance(found, dict) else {}
 
 
 def _warn_nonlinear_outputs(linearity: dict) -> None:
