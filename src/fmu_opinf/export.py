@@ -508,6 +508,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     provenance["rom_fmu_order"] = _order_record(rom)
     provenance["rom_fmu_linear_fits"] = _linear_fits_record(rom)
     provenance["rom_fmu_moves_on_its_own"] = _moves_on_its_own_record(rom)
+    provenance["rom_fmu_training_miss"] = _training_miss_record(rom)
     return SecondOrderFmuSpec(
         identifier=identifier, model_source=_model_source(c_matrices),
         n=r, p=p + len(names),
@@ -981,6 +982,14 @@ def _linear_fits_record(rom: SecondOrderROM) -> list[str]:
     from .compare import _linear_fits
 
     return _linear_fits(rom)
+
+
+def _training_miss_record(rom: SecondOrderROM) -> dict[str, Any] | None:
+    """What fit warned about the ROM's miss of its own training outputs (:func:`fmu_opinf.compare.
+    _training_miss_of`), for ``compare`` on the FMU to repeat it (audit 79a F1); None where fit did not warn."""
+    from .compare import _training_miss_of
+
+    return _training_miss_of(rom)
 
 
 def _moves_on_its_own_record(rom: SecondOrderROM) -> bool:
