@@ -190,3 +190,22 @@ def test_polynomial_values_agree_with_horner_at_conjugate_pairs_in_any_order():
         expected = np.array([[np.polyval(row[::-1], z) for z in at] for row in coefficients])
         np.testing.assert_allclose(_polynomial_values(coefficients, at), expected, rtol=1e-12,
                                    atol=1e-12 * np.abs(expected).max())
+
+
+def test_blocked_propagation_of_runs_of_any_length_equals_the_plain_loop(rng):
+    """:func:`propagate_runs` (blocks of 64 steps, runs of similar length side by side, each run's forcing and
+    states copied into and out of the blocked layout once) against the step-by-step loop, for lengths below,
+    at and past a block, not multiples of it, and a one-sample run."""
+    from fmu_opinf._output_gradient import _STRIDE, propagate_runs
+
+    A, _, _, _ = _damped_system(rng, r=5)
+    lengths = [1, 2, _STRIDE, _STRIDE + 1, 3 * _STRIDE - 7, 400, 397]
+    forcings = [rng.standard_normal((10, k)) for k in lengths]
+    starts = [rng.standard_normal(10) for _ in lengths]
+    for z, f, z0 in zip(propagate_runs(A, forcings, starts), forcings, starts):
+        plain = np.empty_like(f)
+        plain[:, 0] = z0
+        for i in range(1, f.shape[1]):
+            plain[:, i] = A @ plain[:, i - 1] + f[:, i]
+        assert z.shape == f.shape
+        assert np.max(np.abs(z - plain)) <= 1e-12 * np.max(np.abs(plain)), f.shape   # measured 1e-15 relative
