@@ -179,8 +179,9 @@ def _understated(relative: dict[str, float], figure: float) -> list[str]:
 
 
 def comparison_notes(metrics: dict[str, Any]) -> list[str]:
-    """The lines that say what eq. (19) hides (:func:`offset_note`, :func:`scale_note`) and what to try where the
-    ROM misses (:func:`order_note`)."""
+    """The lines that say what eq. (19) hides (:func:`training_miss_note`: the fit's own miss of its training
+    outputs, first; :func:`offset_note`, :func:`scale_note`) and what to try where the ROM misses
+    (:func:`order_note`)."""
     notes = (training_miss_note(metrics), offset_note(metrics), scale_note(metrics), linear_fit_note(metrics),
              order_note(metrics))
     return [note for note in notes if note]
@@ -188,9 +189,9 @@ def comparison_notes(metrics: dict[str, Any]) -> list[str]:
 
 def training_miss_note(metrics: dict[str, Any]) -> str | None:
     """A line, first of the notes, where fit warned that the ROM misses its own training outputs
-    (``metrics["training_miss"]``, :func:`fmu_opinf.fit.training_miss_record`), naming that miss beside this
-    comparison's figure, or None: a test input far from the training's (compare's default harmonics lie below the
-    ROM's band) need not show it (audit 79a F1: 5.0e-3 here, 0.22 of range on the training impulse itself)."""
+    (``metrics["training_miss"]``, :func:`fmu_opinf.fit._training_checks.training_miss_record`), naming that miss
+    beside this comparison's figure, or None: a test input far from the training's (compare's default harmonics lie
+    below the ROM's band) need not show it (audit 79a F1: 5.0e-3 here, 0.22 of range on the training impulse)."""
     from .fit._training_checks import training_miss_text
 
     record = metrics.get("training_miss") or {}
@@ -882,8 +883,8 @@ def _carried_linear_fits(rom_info: dict[str, Any]) -> list[str]:
 
 
 def _training_miss_of(rom_side: Any) -> dict[str, Any] | None:
-    """What fit warned about a ROM object's miss of its own training outputs (:func:`fmu_opinf.fit.
-    training_miss_record`, from its ``fit_info``), None where it did not warn or the ROM does not say."""
+    """What fit warned about a ROM object's miss of its own training outputs (from its ``fit_info``: :func:`fmu_opinf.
+    fit._training_checks.training_miss_record`), None where it did not warn or the ROM does not say."""
     from .fit._training_checks import training_miss_record
 
     info = getattr(rom_side, "fit_info", None)
