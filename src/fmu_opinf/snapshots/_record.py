@@ -1420,7 +1420,7 @@ def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen:
     """The default training's amplitudes lowered where the model's response does not scale with them
     (:func:`~._linearity.linear_amplitudes`), judged on a run already made: the last pilot where the model rests
     (its outputs without the pulse are those at its start), else the pulse's run of :func:`_raised_amplitudes`
-    beside its run without the pulse (recorded again at the recording's accuracy where the pilots' is looser and
+    beside its run without the pulse (recorded again at the check's tolerance where the source integrates to one and
     their error fails the check, :func:`~._linearity.accurate`).  None where they stay, no such run is at hand, or a
     run of the check fails."""
     held = held_starts(source)

@@ -306,6 +306,12 @@ class Source:
         its tolerance, :meth:`~._model_exchange.ModelExchangeSource.pilot_accuracy`).  Unchanged by default."""
         return contextlib.nullcontext()
 
+    def checked_accuracy(self, tolerance: float) -> contextlib.AbstractContextManager[None]:
+        """Within this context the source runs at the relative ``tolerance`` where it was asked for less: the
+        default training's amplitude check (:mod:`fmu_opinf.snapshots._linearity`) must see the model, not the
+        integration error of a run at a loose tolerance.  Unchanged by default (a source with exact steps)."""
+        return contextlib.nullcontext()
+
     def recipe(self) -> tuple[type, dict[str, Any]]:
         """Class and keywords that rebuild this source in another process."""
         raise NotImplementedError
