@@ -485,10 +485,11 @@ def _cli_env() -> dict:
     return env
 
 
-@pytest.mark.parametrize("limit, g, dt", [(20_000, 50, 0.1), (40 * 2**20, 2000, 0.01)],
-                         ids=["at-open", "while-streaming"])
+@pytest.mark.parametrize("limit, g, dt, said", [(20_000, 50, 0.1, "the disk is full"),
+                                                (40 * 2**20, 2000, 0.01, "the recording needs about 961 MB")],
+                         ids=["at-open", "before-streaming"])
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
-def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, dt):
+def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, dt, said):
     import resource
     import signal as _signal
     import subprocess
@@ -505,7 +506,7 @@ def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, d
                              "--force"], capture_output=True, text=True, preexec_fn=small_disk, env=_cli_env(),
                             timeout=120)
     err = result.stderr.strip().splitlines()
-    assert_one_line_error(result.returncode, err, "the disk is full")
+    assert_one_line_error(result.returncode, err, said)   # (a recording that cannot fit: refused before it starts)
     assert out.read_bytes() == b"previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
 
@@ -513,6 +514,12 @@ def test_disk_full_is_one_line_and_keeps_the_previous_file(tmp_path, limit, g, d
 # ------------------------------------------------------------------------------------------------------
 # item 2: Ctrl-C / SIGTERM during a streamed recording stop it, keep the previous file, leave no temp file
 # ------------------------------------------------------------------------------------------------------
+
+
+def _without_size_line(err: str) -> list[str]:
+    """The lines of ``err`` but the recording's up-front size warning (these runs record 2.9 GB before compression:
+    the warning is right, and the interruption must still be the one other line)."""
+    return [line for line in err.strip().splitlines() if not line.startswith("fmu-opinf: warning: s.h5: 1 run(s) of")]
 
 
 @pytest.fixture(scope="module")
@@ -570,7 +577,7 @@ def test_interrupted_streamed_recording_keeps_the_previous_file(anchored_fmu, tm
             proc.communicate()
     assert proc.returncode == 128 + signum, err
     assert elapsed < 5, elapsed
-    lines = err.strip().splitlines()
+    lines = _without_size_line(err)
     assert len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
     assert out.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5"]
@@ -726,7 +733,7 @@ def test_ctrl_c_during_start_up_is_one_line_and_writes_nothing(anchored_fmu, tmp
         pytest.skip(f"the interpreter alone takes {interpreter_start_seconds:.2f} s to start here")
     returncode, err = ctrl_c_after(["snapshots", str(anchored_fmu), "-o", str(tmp_path / "s.h5"), "--input", "step",
                                     "--dt", "0.01", "--t-end", "2000", "-q"], delay)
-    lines = err.strip().splitlines()
+    lines = _without_size_line(err)
     assert returncode == 130 and len(lines) == 1 and lines[0].startswith("fmu-opinf: interrupted"), err
     assert list(tmp_path.iterdir()) == []
 
