@@ -31,6 +31,7 @@ DEFAULT = "impulse:amplitude=100,t0=2,width=0.5"
 FORCES = {
     "hardening": "qdd[0] -= 1e4 * z[0] * z[0] * z[0];",    # k x + k3 x^3, k3 = 1e4 N/m^3
     "friction": "qdd[0] -= 5.0 * tanh(z[nq] / 0.01);",    # 5 N Coulomb friction, smoothed over 0.01 m/s
+    "softening": "qdd[0] += 30.0 * z[0] * z[0] * z[0];",   # k x - k3 x^3, k3 = 30 N/m^3: escapes beyond 2.6 m
 }
 _ANCHOR = "    addProduct(qdd, inst->Dq, z + nq, nq, nq, -1.0);\n"
 
@@ -180,3 +181,21 @@ def test_a_given_input_is_recorded_as_given_without_the_check(tmp_path, monkeypa
     made = _counting_checks(monkeypatch)
     record_to_file(fmu, tmp_path / "train.h5", DEFAULT, dt=0.02, t_end=20.0, quiet=True)
     assert made == [] and Snapshots.load(tmp_path / "train.h5").runs[0].attrs["input_spec"] == DEFAULT
+
+
+@pytest.mark.fmu
+def test_a_pilot_that_fails_under_the_default_pulse_names_a_smaller_pulse(tmp_path, monkeypatch):
+    """Audit 80 F2: a softening spring escapes under the default 100 N pulse and the first pilot's integration
+    fails; the advice named --dt and --t-end (then a looser tolerance, then the interface), while a smaller pulse
+    records it.  The error now names the smaller pulse, and that pulse records."""
+    from fmu_opinf.errors import FmuOpinfError
+
+    fmu = _nonlinear_fmu(tmp_path, monkeypatch, "softening")
+    with pytest.raises(FmuOpinfError) as caught:
+        record_to_file(fmu, tmp_path / "train.h5", None, quiet=True)
+    text = str(caught.value)
+    assert "default pulse (amplitude 100) may drive it out of its range" in text and "\n" not in text
+    assert text.endswith("e.g. --input 'impulse:amplitude=1,t0=2,width=0.5'; no file was written"), text
+    record_to_file(fmu, tmp_path / "small.h5", "impulse:amplitude=1,t0=2,width=0.5", dt=0.02, t_end=20.0,
+                   quiet=True)
+    assert not (tmp_path / "train.h5").exists() and (tmp_path / "small.h5").exists()

@@ -1397,8 +1397,11 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
     (:func:`_linear_amplitudes`, one run more): where it does not, the amplitudes are lowered by decades and the
     window chosen again for them (audit 79b, F1-F3)."""
     amplitudes = default_amplitudes(source)
-    with watching_pilots() as pilot:
-        window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
+    try:
+        with watching_pilots() as pilot:
+            window, signals, baseline = _impulse_window(source, thresholds, amplitudes)
+    except StepError as error:
+        raise _with_smaller_pulse_advice(error, source, amplitudes) from None
     if source.m == 0:
         return window, signals
     seen: dict[str, Any] = {}
@@ -1413,6 +1416,21 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         if "motion_share" in seen:   # the pulse's effect is smaller by that factor
             seen["motion_share"] *= abs(amplitudes[0] / lowered[0])
     return window, _with_free_run(source, signals, seen, bool(thresholds.get("quiet", True)))
+
+
+def _with_smaller_pulse_advice(error: StepError, source: Source, amplitudes: Sequence[float]) -> StepError:
+    """A pilot of the default pulse that failed, with the cause its integrator cannot tell: a model linear only near
+    rest, driven out of its range by the pulse of 100 in the input's unit, escapes (audit 80 F2: a softening spring;
+    the advice named --dt and --t-end, then a looser tolerance, then the interface, and a smaller pulse recorded)."""
+    if source.m == 0:
+        return error
+    text, tail = str(error), "; no file was written"
+    head, end = (text[:-len(tail)], tail) if text.endswith(tail) else (text, "")
+    smaller = DEFAULT_TRAINING_INPUT.replace("amplitude=100", f"amplitude={abs(amplitudes[0]) / 100:g}")
+    said = ", ".join(f"{a:g}" for a in amplitudes)
+    return StepError(f"{head}; if the model is linear only near rest, the default pulse (amplitude {said}) may "
+                     f"drive it out of its range: give a smaller one, e.g. --input '{smaller}'{end}", error.step,
+                     error.time)
 
 
 def _linear_amplitudes(source: Source, window: Any, pilot: dict[str, Any], seen: dict[str, Any],
