@@ -164,3 +164,29 @@ def test_an_exported_rom_fmu_says_that_its_source_moves_on_its_own():
         assert not compare.moves_on_its_own(fmu, {"provenance": dict(provenance, rom_fmu_moves_on_its_own=value),
                                                   "m": 1})
     assert not compare.moves_on_its_own(fmu, {"provenance": provenance, "m": 0})
+
+
+@pytest.mark.fmu
+@pytest.mark.slow   # 8 s: a recording, a fit and two runs of the FMU
+def test_a_source_whose_free_response_is_zero_is_compared_without_it(tmp_path, capsys):
+    """Audit 80 F4: a free body with a spring, trained on a step acting from t = 0, counts as moving on its own (no
+    held stretch before the input), and compare's free-response run of the FMU, zero throughout, stopped the whole
+    comparison with "the reference output is identically zero".  Now that run is left out in one line, and the
+    comparison's ROM outputs are the exact ones (zoh_response)."""
+    from fmu_opinf.compare import compare
+
+    K = 100.0 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    model = lti_fmus.LinearMechanicalModel(M=np.eye(2), D=0.02 * K, K=K, B=np.array([[0.0], [1.0]]), Cp=np.eye(2),
+                                           name="RigidStep")
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "rigid.fmu").path
+    t_h5, rom_h5 = tmp_path / "t.h5", tmp_path / "rom.h5"
+    assert main(["snapshots", str(fmu), "-o", str(t_h5), "--input", "step:amplitude=1,t0=0", "--dt", "0.01",
+                 "--t-end", "20", "-q"]) == 0
+    assert main(["fit", str(t_h5), "-o", str(rom_h5), "-q"]) == 0
+    capsys.readouterr()
+    result = compare(SecondOrderROM.load(rom_h5), fmu)
+    assert result.free_response is None
+    assert "free response (input none) stays at zero" in capsys.readouterr().err
+    t = result.t
+    exact = lti_fmus.zoh_response(model, t, parse_signal(result.input_spec, 1).sample(t)[:, :-1]).y
+    assert np.abs(result.y_rom - exact).max() / np.ptp(exact) < 1e-9

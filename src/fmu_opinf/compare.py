@@ -648,9 +648,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         result = run.compared(signal, why)
         result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
         if why and moves_on_its_own(rom_side, rom_info):
-            result.free_response = run.compared("none", "", FREE_RESPONSE)
-            if not quiet:
-                print(free_response_line(result.free_response), file=sys.stderr)
+            result.free_response = _free_response(run, quiet)
     except StepError as stopped:
         raise _past_termination(stopped, float(t_end), end_given, end_from) from None
     return result
@@ -658,6 +656,22 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
 
 #: How compare names its run of the free response (``driven_alone`` of :attr:`Comparison.free_response`).
 FREE_RESPONSE = "free response (none)"
+
+
+def _free_response(run: "_Run", quiet: bool) -> "Comparison | None":
+    """The comparison of the free response (input ``none``), said in one line; None, also said, where the source's
+    free response is zero throughout: it rests without input, and eq. (19) has no scale (audit 80 F4: a training
+    whose step acted from t = 0 counted as motion of its own, and the whole comparison stopped with "the reference
+    output is identically zero")."""
+    free = run.compared("none", "", FREE_RESPONSE)
+    if not np.any(free.y_fom):
+        if not quiet:
+            print("the source's free response (input none) stays at zero: it rests without input; not compared",
+                  file=sys.stderr)
+        return None
+    if not quiet:
+        print(free_response_line(free), file=sys.stderr)
+    return free
 
 
 def moves_on_its_own(rom_side: Any, rom_info: dict[str, Any] | None = None) -> bool:
