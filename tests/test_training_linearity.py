@@ -119,10 +119,11 @@ def test_friction_keeps_the_default_amplitude_with_a_warning_kept_in_the_file(tm
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "friction")
     made = _counting_checks(monkeypatch)
     with pytest.warns(FmuOpinfWarning, match=r"friction.fmu: the response does not scale with the input: .* differ "
-                      r"by 0\.\d+, and by 0\.\d+ a decade lower each \(friction, or a contact at the rest position\): "
+                      r"by 0\.\d+, and by 0\.\d+ a decade lower each \(friction, a contact at the rest position, or a "
+                      r"saturation below the smallest pulse tried\): "
                       "the model is not linear, and a ROM fits it only near one amplitude"):
         record_to_file(fmu, tmp_path / "train.h5", None, quiet=True)
-    assert made == [-0.1, -0.1, 0.01]   # (the first at the pilots' tolerance, then at the recording's)
+    assert made == [-0.1, -0.1, 0.01]   # (the first at the pilots' tolerance, then at the check's)
     snaps = Snapshots.load(tmp_path / "train.h5")
     assert snaps.runs[0].attrs["input_spec"] == DEFAULT
     assert recorded_verdicts(snaps.attrs) == {"nonlinear"}

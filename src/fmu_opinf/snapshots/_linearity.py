@@ -268,6 +268,6 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
 
     lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
     return (f"{source_label(source)}: the response does not scale with the input: "
-            f"{_compared(source, amplitudes, sign)} differ by {measured[0]:.2g}{lower} (friction, or a contact at the "
-            "rest position): the model is not linear, and a ROM fits it only near one amplitude; "
+            f"{_compared(source, amplitudes, sign)} differ by {measured[0]:.2g}{lower} (friction, a contact at the "
+            "rest position, or a saturation below the smallest pulse tried): the model is not linear, and a ROM fits it only near one amplitude; "
             "recording at the default amplitude (give --input impulse:amplitude=... at the loads you mean)")
