@@ -27,8 +27,8 @@ import numpy as np
 from ..signals import Signal
 from ..sources import Source
 
-__all__ = ["LINEARITY_BAR", "Reference", "accurate", "integrated_to_tolerance", "linear_amplitudes", "mismatch", "note_pilot",
-           "watching_pilots"]
+__all__ = ["CHECK_TOLERANCE", "LINEARITY_BAR", "Reference", "accurate", "integrated_to_tolerance", "linear_amplitudes",
+           "mismatch", "note_pilot", "watching_pilots"]
 
 #: Largest mismatch (:func:`mismatch`) between the response to the default pulse and -10 times the response to a
 #: tenth of it the other way, both net of the model's own motion, that counts as linear.  Measured on linear FMUs:
@@ -269,5 +269,6 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
     lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
     return (f"{source_label(source)}: the response does not scale with the input: "
             f"{_compared(source, amplitudes, sign)} differ by {measured[0]:.2g}{lower} (friction, a contact at the "
-            "rest position, or a saturation below the smallest pulse tried): the model is not linear, and a ROM fits it only near one amplitude; "
-            "recording at the default amplitude (give --input impulse:amplitude=... at the loads you mean)")
+            "rest position, or a saturation below the smallest pulse tried): the model is not linear, and a ROM fits "
+            "it only near one amplitude; recording at the default amplitude (give --input impulse:amplitude=... at the "
+            "loads you mean)")

@@ -191,8 +191,8 @@ def logging_cause(name: str, messages: int, seconds: float, per_call: float | No
     taken = ("nearly all of the run's time" if share > 0.9 else
              f"an estimated {100 * share:.0f} % of the run's time (more on a loaded machine)")
     return (f"{name} logged {messages:,} messages in this run{rate} although fmu-opinf instantiates it with logging "
-            f"off, and passing them to Python (about {cost / messages * 1e6:.2g} us each) takes {taken}: ask its exporter for a build without debug logging, "
-            f"or turn its logging off{advice}; ")
+            f"off, and passing them to Python (about {cost / messages * 1e6:.2g} us each) takes {taken}: ask its "
+            f"exporter for a build without debug logging, or turn its logging off{advice}; ")
 
 
 def logging_switches(md: Any) -> str:
