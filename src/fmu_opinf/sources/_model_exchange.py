@@ -190,15 +190,15 @@ class ModelExchangeSource(FMUSource):
             self.tolerance, self._pilot_of = asked, None
 
     def _shared_state(self) -> dict[str, Any]:
-        state = super()._shared_state()
-        if self._pilot_of is not None:   # (a pilot in a child process runs at the pilots' tolerance too)
-            state["pilot_tolerance"] = (self.tolerance, self._pilot_of)
+        state = super()._shared_state()   # (with the tolerance of the moment: a pilot's in a pilot)
+        if self._pilot_of is not None:   # (a pilot in a child process knows itself one, for its messages)
+            state["pilot_of"] = self._pilot_of
         return state
 
     def _borrow(self, state: dict[str, Any]) -> None:
         super()._borrow(state)
-        if "pilot_tolerance" in state:
-            self.tolerance, self._pilot_of = state["pilot_tolerance"]
+        if "pilot_of" in state:
+            self._pilot_of = state["pilot_of"]
 
     def _integrator_text(self, method: str) -> str:
         if method == "dop853" and _compiled_rk.available():
