@@ -8,6 +8,7 @@ gets a plain line then and every ``LOG_EVERY`` seconds after, and one when it en
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -76,3 +77,13 @@ class Progress:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def duration_text(seconds: float) -> str:
+    """``seconds`` in the unit a reader takes in at once: ``"40 s"``, ``"12 min"``, ``"3.5 h"`` (``"an unknown
+    time"`` where not finite)."""
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.2g} h" if math.isfinite(seconds) else "an unknown time"

@@ -44,7 +44,7 @@ from ._linearity import Reference, linear_amplitudes, watching_pilots
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
-from ._size import after_first_run, announce, note_pace
+from ._size import after_first_run, announce, note_pace, recorded_rows
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations, time_grid)
 
@@ -506,7 +506,7 @@ def incomplete_error(failure: StepError, run: Run, path: Path | None) -> StepErr
 
 
 def _run_bytes(source: Source, k: int) -> int:
-    return 8 * k * (3 * source.n + source.p + source.m + 1)
+    return 8 * k * recorded_rows(source)
 
 
 def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, path: str | os.PathLike | None = None,

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from .._hdf5 import SPACE_MARGIN, free_space
+from .._progress import duration_text
 from ..errors import FileFormatError, FmuOpinfWarning
 
 __all__ = ["LARGE_BYTES", "LONG_SECONDS", "SMALLEST_COMPRESSION", "after_first_run", "announce", "note_pace",
@@ -118,8 +119,8 @@ def after_first_run(source: Any, grids: Sequence[np.ndarray], path: Path, second
     remaining = seconds / len(grids[0]) * rest
     if remaining <= LONG_SECONDS or (said is not None and said >= 0.5 * (seconds + remaining)):
         return
-    warnings.warn(f"{path.name}: the first run took {_duration(seconds)} ({1e3 * seconds / len(grids[0]):.2g} ms "
-                  f"per sample): the other {len(grids) - 1} run(s) take about {_duration(remaining)} more; to cut "
+    warnings.warn(f"{path.name}: the first run took {duration_text(seconds)} ({1e3 * seconds / len(grids[0]):.2g} ms "
+                  f"per sample): the other {len(grids) - 1} run(s) take about {duration_text(remaining)} more; to cut "
                   "them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs, --dt and "
                   "--t-end for fewer samples", FmuOpinfWarning, stacklevel=3)
 
@@ -135,7 +136,7 @@ def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, s
     if seconds is not None and pace is not None:
         runs = ("the pilot runs' (a rough guide: model exchange runs them at a looser tolerance)" if pace[1]
                 else "the runs recorded so far")
-        what += f", about {_duration(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
+        what += f", about {duration_text(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
     cuts = ("to cut them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs (one run "
             "each), --dt and --t-end for fewer samples")
     return f"{what}; {cuts}"
@@ -161,11 +162,3 @@ def _size(nbytes: float) -> str:
         if nbytes >= scale:
             return f"{nbytes / scale:.3g} {unit}"
     return f"{nbytes:.0f} bytes"
-
-
-def _duration(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.2g} h" if math.isfinite(seconds) else "an unknown time"

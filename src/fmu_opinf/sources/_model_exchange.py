@@ -74,6 +74,7 @@ from typing import Any, Callable
 import numpy as np
 
 from .._interrupts import check_interrupt
+from .._progress import duration_text
 from ..errors import FMUError, InputSpecError
 from . import _compiled_rk, _fmu_log, _integrators, _linear_hold
 from ._base import EventCount, StepError
@@ -451,7 +452,7 @@ class ModelExchangeSource(FMUSource):
         memory = _EXPM_BYTES_PER_SQUARE * self.nx**2 / 2**30
         warn_once(self, ("stiff beyond the exact step",), f"a stiff model of {self.nx} states (spectral radius about "
                   f"{rho:.2g} 1/s, {rho_h:.3g} times the step): DOP853 is held to its stability limit and predicted to "
-                  f"take about {_duration(predicted)} for a run of {samples} steps, and the exact hold step takes at "
+                  f"take about {duration_text(predicted)} for a run of {samples} steps, and the exact hold step takes at "
                   f"most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step with "
                   f"--me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
 
@@ -465,7 +466,7 @@ class ModelExchangeSource(FMUSource):
 
         start, end = float(self._t[0]), float(self._t[-1])
         done = (t - start) / (end - start) if end > start else 0.0
-        pace = f", about {_duration(self._integrator_seconds / done)} for the run at this pace" if done > 0 else ""
+        pace = f", about {duration_text(self._integrator_seconds / done)} for the run at this pace" if done > 0 else ""
         steps = f", with steps of {h:.2g} s" if math.isfinite(h) else ""
         limit = _integrators._SLOW_RUN_INTEGRATOR_SECONDS
         logged = _fmu_log.messages_of(getattr(self, "_log_key", None)) - getattr(self, "_messages_at_start", 0)
@@ -1222,15 +1223,6 @@ def _slow_run_advice(name: str, cosimulation: bool, nx: int, step: float, h: flo
             "samples; give --dt and --t-end (the automatic window's pilot runs, fine-step runs of the whole response, "
             "are then skipped), or record a linear model by the exact hold step (--me-method linear); co-simulation "
             "does not help (the FMU's own solver calls the same derivative)")
-
-
-def _duration(seconds: float) -> str:
-    """``seconds`` in the unit a reader takes in at once: ``"40 s"``, ``"12 min"``, ``"3.5 h"``."""
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.2g} h"
 
 
 def _discrete_inputs(md: Any, input_names: list[str]) -> np.ndarray:
