@@ -189,4 +189,4 @@ def test_a_source_whose_free_response_is_zero_is_compared_without_it(tmp_path, c
     assert "free response (input none) stays at zero" in capsys.readouterr().err
     t = result.t
     exact = lti_fmus.zoh_response(model, t, parse_signal(result.input_spec, 1).sample(t)[:, :-1]).y
-    assert np.abs(result.y_rom - exact).max() / np.ptp(exact) < 1e-9
+    assert np.abs(result.y_rom - exact).max() / np.ptp(exact) < 2e-11   # measured 3.7e-12
