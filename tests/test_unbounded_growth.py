@@ -89,6 +89,7 @@ def _fast() -> lti_fmus.LinearMechanicalModel:
 MODELS = {"InvPend": (_inverted(), {"naming": "modelica"}), "FastUnstable": (_fast(), {}),
           "FreeBody": (_free_body(), {}), "Undamped": (_undamped(), {}), "OffRest": (_off_rest(), {}),
           "Sagging": (_sagging(), {}),
+          "InvPendEuler": (replace(_inverted(), name="InvPendEuler"), {"interfaces": ("cs",), "cs_method": "euler"}),
           "EulerStable": (replace(lti_fmus.chain_model(1, name="EulerStable"), K=np.array([[100.0]]),
                                   D=np.array([[2.0]])), {"interfaces": ("cs",), "cs_method": "euler"})}
 
@@ -212,6 +213,24 @@ def test_a_given_window_records_the_growth_with_a_warning_that_fit_repeats(fmus,
     assert "shares what the recording followed" not in err, err   # (the model's own behaviour, not the FMU's)
     assert "pass --input with a smaller amplitude" not in err, err
     assert "the source grows without bound once its inputs are held" in err, err
+
+
+@pytest.mark.fmu
+@pytest.mark.filterwarnings("ignore:InvPendEuler.fmu. the co-simulation takes one Euler step")
+def test_fit_repeats_the_growth_beside_the_euler_steps(fmus, tmp_path, capsys):
+    """The pendulum exported with one explicit Euler step per communication step: the file carries both verdicts,
+    the growth's warning first, and ``fit`` says the growth as well as how it fits the Euler steps.  Before, fit
+    spoke only of the Euler steps, and compare and export repeated the first warning kept: the Euler one."""
+    out, rom = tmp_path / "t.h5", tmp_path / "rom.h5"
+    assert main(["snapshots", str(fmus["InvPendEuler"]), "-o", str(out), "--dt", "0.01", "--t-end", "10", "-q"]) == 0
+    capsys.readouterr()
+    attrs = Snapshots.load(out).attrs
+    assert recorded_verdicts(attrs) == {"forward-euler", "unbounded-growth"}, attrs
+    assert "e^(sigma t)" in attrs["recording_warnings"][0]
+    assert main(["fit", str(out), "-o", str(rom), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "explicit Euler co-simulation steps" in err and "unstable at its operating" in err, err
+    assert "e^(sigma t)" in (recorded_warning(SecondOrderROM.load(rom).provenance["snapshots"]) or "")
 
 
 @pytest.mark.fmu

@@ -225,7 +225,7 @@ def fit_rom(
     runs = as_runs(snapshots)
     _check_complete(runs)
     from ..snapshots._merge import merge_warnings, mixed_steps
-    from ..snapshots._notes import recorded_warning
+    from ..snapshots._notes import WRONG_MODEL_VERDICTS, recorded_verdicts, recorded_warning
 
     attrs = snapshot_attrs(snapshots)
     say = log or ((lambda line: None) if quiet else _stderr)
@@ -251,7 +251,9 @@ def fit_rom(
                       "output-error refinement or order search: it stands for the model, not for the FMU's "
                       "co-simulation at that step, and below the snapshot rank its accuracy is not measured (--r up "
                       "to the rank fits the data exactly)", FmuOpinfWarning, stacklevel=2)
-    elif (recorded := recorded_warning(attrs)):
+    euler_said = recording_step == "forward-euler" or (euler_steps and not mixed)
+    wrong_model = bool(recorded_verdicts(attrs) & set(WRONG_MODEL_VERDICTS))   # said even beside the Euler warning
+    if (recorded := recorded_warning(attrs)) and (wrong_model or not euler_said):
         warnings.warn(f"{recorded}; the ROM learns what was recorded", FmuOpinfWarning, stacklevel=2)
     if refit_output_map and (refine is False or lowpass is not None):
         raise _refit_without_refinement()

@@ -21,8 +21,8 @@ from typing import Any, TypeVar
 
 from ..errors import FmuOpinfWarning
 
-__all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", "note_recording",
-           "recorded_verdicts", "recorded_warning", "warn_recording"]
+__all__ = ["VERDICTS", "WRONG_MODEL_VERDICTS", "collecting_recording_notes", "current_recording_notes",
+           "note_recording", "recorded_verdicts", "recorded_warning", "warn_recording"]
 
 #: What a recording warning says: the co-simulation takes one explicit Euler step per communication step (each
 #: position moves by the step times its velocity at the step's start), one semi-implicit or implicit one (at its
@@ -36,6 +36,11 @@ __all__ = ["VERDICTS", "collecting_recording_notes", "current_recording_notes", 
 #: change to the fit).
 VERDICTS = ("forward-euler", "backward-euler", "step-dependent", "late-outputs", "internal-events", "euler-substeps",
             "internal-step", "unbounded-growth", "nonlinear")
+
+#: Verdicts that make any linear ROM of the recording wrong, whatever the fit makes of the FMU's steps: a response
+#: that grows without bound, or one that does not scale with the amplitude.  Their warning comes first in a file's
+#: ``recording_warnings``, which ``fit``, ``compare`` and ``export`` repeat.
+WRONG_MODEL_VERDICTS = ("unbounded-growth", "nonlinear")
 
 _NOTES: contextvars.ContextVar[dict[str, list[str]] | None] = contextvars.ContextVar("recording_notes",
                                                                                     default=None)
@@ -78,7 +83,10 @@ def note_recording(message: str, verdict: str) -> None:
         raise ValueError(f"verdict={verdict!r} is not one of {VERDICTS}")
     notes = _NOTES.get()
     if notes is not None and message not in notes["recording_warnings"]:
-        notes["recording_warnings"].append(message)
+        # a later stage repeats the first warning: one about the model itself goes before those about the FMU's steps
+        first_of_its_kind = sum(1 for kept in notes["recording_verdicts"] if kept in WRONG_MODEL_VERDICTS)
+        notes["recording_warnings"].insert(first_of_its_kind if verdict in WRONG_MODEL_VERDICTS
+                                           else len(notes["recording_warnings"]), message)
         if verdict not in notes["recording_verdicts"]:
             notes["recording_verdicts"].append(verdict)
 
