@@ -15,6 +15,15 @@ linearly (``t``), or like ``t^2`` under a constant load, and a power ``t^n`` fro
 ``2^n, 1.5^n, 1.33^n``, whose logarithms fall to 0.42 of the first: the last ratio stays below 3 for ``n <= 3``
 and the growth slows for any ``n``.  Oscillations, beats and decays stay bounded.  A growth too slow to reach
 :data:`GROWTH_RATIO` per quarter within a run is not seen in it (a longer pilot sees it).
+
+The positions decide where the run has any, the outputs only where it has none: an unstable direction that the
+outputs barely show grows in the positions first, and the outputs follow it only once it has outgrown every other
+motion (audit 80, F3: ``y = x1 + 1e-3 x2`` with ``x2`` growing like ``e^(0.1 t)``; the positions grew 4.7 times per
+quarter over a held part of 62 s, the outputs fell, and they first passed the bar over 248 s).  An output far from the
+input (a chain's far end) can rise steeply for a while as the disturbance travels to it; the positions of the masses
+the input pushed cannot, so the outputs add no safeguard the positions lack.  A run whose positions still rise
+steadily at its end, below the bar (:func:`still_rising`), may hold such a growth that is too slow for it: the
+automatic window runs longer probes then (:func:`~._window.probe_growth`).
 """
 
 from __future__ import annotations
@@ -28,8 +37,9 @@ import numpy as np
 from ..errors import DataError
 from ._isolation import source_label
 
-__all__ = ["GROWTH_RATIO", "STEADY_GROWTH", "Growth", "GrowsWithoutBound", "exponential_growth", "growth_error",
-           "growth_rate", "growth_warning", "quarter_ratios", "unbounded_growth", "warn_if_grows"]
+__all__ = ["GROWTH_RATIO", "RISING", "STEADY_GROWTH", "Growth", "GrowsWithoutBound", "exponential_growth",
+           "growth_error", "growth_rate", "growth_warning", "held_ratios", "quarter_ratios", "still_rising",
+           "unbounded_growth", "warn_if_grows"]
 
 #: Each quarter of the held part of a run must peak at least this many times higher than the one before.  A free
 #: body under a constant load (``t^2`` from rest) reaches 1.78 in the last quarter; ``e^(sigma t)`` reaches it where
@@ -39,6 +49,16 @@ GROWTH_RATIO = 3.0
 #: The growth over the last quarter (its logarithm) must be at least this share of the growth over each quarter
 #: before: an exponential keeps its rate (1), a power of time slows (``ln(4/3) / ln 2 = 0.42`` from rest).
 STEADY_GROWTH = 0.75
+
+#: The last quarter's peak of the positions over the third's, from which a run that does not pass the test may still
+#: be rising at its end (:func:`still_rising`).  An undamped 5-mass chain's last ratio is 0.99 .. 1.03 over held
+#: parts of 15.6 to 496 s after the default pulse (1.06 in its outputs), a sagging chain's 0.88 .. 1.0.
+RISING = 1.1
+
+#: A run 4 times longer than one before it still rises where its last ratio is at least this many times that run's
+#: (:func:`still_rising`): a slow exponential's ratio grew from 1.17 to 1.37, 1.89 and 3.46 over held parts of 7.75,
+#: 31, 124 and 248 s (``sigma = 0.02``); a drift's stays at 1.33 (within 1 %).
+LONGER_RISE = 1.02
 
 #: Fewest samples per quarter of the held part that the test judges.
 QUARTER_SAMPLES = 8
@@ -171,24 +191,57 @@ def growth_rate(t: np.ndarray, norms: np.ndarray) -> float:
     return float(np.polyfit(tt, np.log(nn), 1)[0])
 
 
+def _judged_rows(x: Any, y: Any) -> tuple[Any, str] | None:
+    """The rows the test judges: the positions ``x`` where there are any, else the outputs ``y`` (module
+    docstring); None where there are neither."""
+    for z, what in ((x, "positions"), (y, "outputs")):
+        if z is not None and z.shape[0]:
+            return z, what
+    return None
+
+
 def unbounded_growth(t: np.ndarray, x: Any, y: Any, t_input: float) -> Growth | None:
     """The exponential growth of a run after its inputs stop changing at ``t_input``, or None.
 
-    Both the positions ``x`` (where there are any) and the outputs ``y`` must grow (:func:`exponential_growth`):
-    an output far from the input (a chain's far end) can rise steeply for a while as the disturbance travels to it,
-    the positions of the masses the input pushed cannot.  The outputs' growth is reported (the positions' where
-    there are no outputs)."""
+    The positions ``x`` must grow (:func:`exponential_growth`), or the outputs ``y`` where the run records no
+    positions (module docstring: the positions of a model with positive semidefinite ``M, D, K`` cannot grow so,
+    and an unstable direction shows in them before it shows in the outputs)."""
     t = np.asarray(t, dtype=float)
-    start = held_from(t, t_input)
-    found = None
-    for z, what in ((y, "outputs"), (x, "positions")):   # the outputs first: few rows, and most runs stop there
-        if z is None or not z.shape[0]:
-            continue
-        growth = exponential_growth(t, z, start, what)
-        if growth is None:
-            return None
-        found = found or growth
-    return found
+    rows = _judged_rows(x, y)
+    return None if rows is None else exponential_growth(t, rows[0], held_from(t, t_input), rows[1])
+
+
+def held_ratios(t: np.ndarray, x: Any, y: Any, t_input: float) -> np.ndarray | None:
+    """The quarter ratios (:func:`quarter_ratios`) of a run's positions (its outputs where it records none) once its
+    inputs are held from ``t_input``; None where the test cannot judge them."""
+    t = np.asarray(t, dtype=float)
+    rows = _judged_rows(x, y)
+    seen = None if rows is None else quarter_ratios(t, rows[0], held_from(t, t_input))
+    return None if seen is None else seen[0]
+
+
+def still_rising(ratios: np.ndarray | None, before: np.ndarray | None = None) -> bool:
+    """Whether a run whose :func:`held_ratios` are ``ratios`` still rises at its end: the last ratio at least
+    :data:`RISING`, and the growth over the last quarter at least :data:`STEADY_GROWTH` of that over the third (or
+    the third quarter no higher than the second); or, given the ratios ``before`` of a shorter run of the same input,
+    the last ratio at least :data:`RISING` and :data:`LONGER_RISE` times the shorter run's.
+
+    An exponential growth too slow to pass :func:`unbounded_growth` within the run looks so: its ratios stay equal
+    once any transient has died out, and rise while a decaying mode beside it dies out (the audit's hidden unstable
+    model, ``sigma = 0.1``: 0.81, 1.06, 1.22 over its first pilot's 7.75 s); they rise with the run's length too (to
+    the power 4 when the run is 4 times longer, once the growth dominates), a drift's stay 2, 1.5, 1.33 whatever the
+    length (after a pulse: the last growth 0.71 of the third's).  A decaying or oscillating response (last ratio
+    near or below 1) is not rising.  Measured on the default pulse, held parts of 7.75 to 496 s (REPORT of fix80f3):
+    a free body under a constant load reaches 0.72-0.75 of the third's growth and its ratios rise slowly with the
+    length (1.38 to 1.73 over 7.75 to 496 s, as its drift turns from ``t`` to ``t^2``), and an undamped 5-mass chain
+    rose 1.37 after 0.70 over 7.75 s (1.06 at most over longer parts): either may count as rising and costs the
+    automatic window a probe or more (:func:`~._window.probe_growth`), never a verdict.
+    """
+    if ratios is None or not ratios[2] >= RISING:
+        return False
+    if before is not None and ratios[2] >= LONGER_RISE * before[2]:
+        return True
+    return bool(ratios[1] <= 1.0 or math.log(ratios[2]) >= STEADY_GROWTH * math.log(ratios[1]))
 
 
 def _why_and_fix(growth: Growth) -> str:
