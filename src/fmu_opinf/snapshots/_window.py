@@ -15,7 +15,7 @@ from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
 from ..sources._base import held_inputs_advice, nice_floor
 from ..sources._cosimulation import DISCARDED
-from ._growth import growth_error, unbounded_growth
+from ._growth import growth_error, held_ratios, still_rising, unbounded_growth
 from ._isolation import source_label
 from ._linearity import note_pilot
 from ._rates import continuous_recording, time_grid
@@ -25,7 +25,7 @@ __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_s
            "slowest_frequency", "fade_time", "default_window",
            "needs_auto_window", "input_activity", "check_step_convergence", "pilot_step", "StableStep",
            "check_window_step", "warn_if_step_dependent", "accelerates_under_load",
-           "response_without_pulse", "drift_of", "largest_motion", "IfMoving"]
+           "response_without_pulse", "drift_of", "largest_motion", "IfMoving", "probe_growth"]
 
 
 #: A pulse this many times shorter than the fastest significant period only keeps the step small: once the next
@@ -166,6 +166,10 @@ class Window:
         The time, relative to the run's start, at which the FMU terminated the simulation in a pilot run (the window
         then ends before it, :attr:`t_limit`); 0 where it did not.  Kept so that ``compare``'s default end stops
         before it too (audit 71 F8: it ran on to four times the training's end and failed there).
+    growth_probe : float
+        The end of the longest growth probe run where the positions still rose steadily at the end of the pilot
+        that settled (:func:`probe_growth`; none grew exponentially, or the window would have been refused); 0
+        where none was run.
     """
 
     dt: float
@@ -189,6 +193,7 @@ class Window:
     t_limit: float = 0.0
     unstable_cause: str = ""
     terminates_at: float = 0.0
+    growth_probe: float = 0.0
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (stored as the ``auto_window`` attribute)."""
@@ -207,7 +212,14 @@ class Window:
             end = f"output below {self.fade:g} of its peak after t={self.t_fade:.4g}"
         return (f"dt={self.dt:g}, t_end={self.t_end:g} (fastest significant frequency {self.f_max:.4g} Hz, "
                 f"{self.points_per_period:g} points per period; {end}{self._stable_note()}; {self.pilots} pilot "
-                f"run(s), last dt={self.pilot_dt:g}, t_end={self.pilot_t_end:g})")
+                f"run(s), last dt={self.pilot_dt:g}, t_end={self.pilot_t_end:g}{self._probe_note()})")
+
+    def _probe_note(self) -> str:
+        """The growth probes (:func:`probe_growth`), where any ran."""
+        if not self.growth_probe:
+            return ""
+        return (f"; the positions still rose at the pilot's end: probed to t={self.growth_probe:g}, no exponential "
+                "growth")
 
     def _stable_note(self) -> str:
         """Why the step is at most :attr:`stable_dt` (empty where no step search was needed)."""
@@ -434,6 +446,7 @@ class _Pilot:
     f_min: float
     resolved_periods: float  # record length after the input died out, in periods of f_min
     fade_estimate: float  # fade-out time extrapolated from the envelope's decay (inf if not decaying)
+    held: np.ndarray | None = None  # the positions' quarter ratios once the inputs are held (_growth.held_ratios)
 
 
 def auto_window(
@@ -646,6 +659,9 @@ def auto_window(
         if window is not None:
             if alias is not None:   # the check run counts as a pilot
                 window = dataclasses.replace(window, pilots=window.pilots + 1)
+            if still_rising(seen.held):
+                window = probe_growth(source, signal, window, dt, T, seen.held, quiet=quiet, isolate=isolate,
+                                      max_steps=max_steps, t_limit=t_limit)
             if check_chosen_step:
                 check_window_step(source, signal, window, pilot_dt=pilot_dt, pilot_t_end=pilot_t_end, quiet=quiet,
                                   isolate=isolate, max_dt=max_dt, exact_dt=exact_dt)
@@ -1290,6 +1306,7 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
             refuse_growth(source, run, t_input)   # (a run that overflowed: say why, where it grew first)
             raise incomplete_error(failure, run, None)
     refuse_growth(source, run, t_input)
+    held = _held_ratios(run, t_input)
     # only outputs that pass the input through (y = u) move: the model does not, and its spectrum is the pulse's
     if _rows_still(np.asarray(run.x)) and not _rows_still(np.asarray(run.y)):
         raise DataError(_motionless(source, signal, t, "positions"))
@@ -1300,7 +1317,92 @@ def _analyse_pilot(source: Source, signal: Any, t: np.ndarray, t_input: float, e
     elif baseline is not None:
         y = y - _outputs_of(source, baseline, t, quiet, isolate, f"{label}: its drift without the pulse")
     with np.errstate(over="ignore", invalid="ignore"):
-        return _judged_pilot(source, signal, t, y, t_input, energy, fade)
+        return dataclasses.replace(_judged_pilot(source, signal, t, y, t_input, energy, fade), held=held)
+
+
+def _held_ratios(run: Any, t_input: float) -> np.ndarray | None:
+    """:func:`~._growth.held_ratios` on the recorded samples of a pilot ``run``."""
+    k = int(getattr(run, "k", len(run.t)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        return held_ratios(np.asarray(run.t)[:k], np.asarray(run.x)[:, :k], np.asarray(run.y)[:, :k], t_input)
+
+
+#: Each growth probe (:func:`probe_growth`) lasts this many times longer after the inputs are held than the run
+#: before it, and the longest ends :data:`PROBE_REACH` times the window's (or the pilot's, if longer) held part after
+#: the inputs are held.  An exponential growth's quarter ratios rise to the power 4 with each probe, a drift's stay
+#: (2, 1.5, 1.33 from a pulse).  Over the reach, a growth passes :func:`~._growth.unbounded_growth` where
+#: ``sigma >= 4 ln 3 / (16 S)`` (``S``: the window's held part), i.e. where it grows the response by 1.3 times or more
+#: over the window; slower ones are not seen.
+PROBE_FACTOR, PROBE_REACH = 4.0, 16.0
+
+
+def probe_growth(source: Source, signal: Any, window: Window, dt: float, T: float, held: np.ndarray | None = None,
+                 *, quiet: bool = True, isolate: bool = False, max_steps: int = 400_000,
+                 t_limit: float | None = None) -> Window:
+    """Run ever longer pilots of ``signal`` at the step ``dt`` where the pilot that settled on ``window`` (its end
+    ``T``) shows positions that still rise steadily (:func:`~._growth.still_rising`), and refuse the window where
+    one grows exponentially (:func:`refuse_growth`); ``window``, its probes counted, where none does.
+
+    A growth too slow to pass the growth test within the pilot is not seen there, and the window, cut on the outputs
+    alone, can end before it shows (audit 80, F3: an unstable direction at ``sigma = 0.1`` barely in the outputs,
+    a window of 17.9 s, quarter ratios 0.95, 1.49, 1.50 in the positions; the ROM, stable by construction, was
+    0.43-0.83 of range off the model over 60 s and nothing said so).  Each probe is :data:`PROBE_FACTOR` times
+    longer after the inputs are held than the run before, up to :data:`PROBE_REACH` times the window's held part.
+    The probes stop where the positions stop rising (steadily, or more than in the run before), where a probe would
+    exceed ``max_steps`` or ``t_limit``, or where one fails (a probe that cannot run says nothing: the window
+    stands, as after the alias check).  The window itself is kept: the probes only judge the growth.
+
+    Parameters
+    ----------
+    source : Source
+    signal : Signal
+        The pilots' input.
+    window : Window
+        The window the pilot settled on.
+    dt, T : float
+        The settled pilot's step and end.
+    held : (3,) ndarray, optional
+        The settled pilot's quarter ratios (:func:`~._growth.held_ratios`): a probe goes on where the next one's
+        last ratio rose above it (:func:`~._growth.still_rising`).
+    quiet, isolate : bool
+        As :func:`auto_window`'s.
+    max_steps : int, default=400000
+        Largest probe run.
+    t_limit : float, optional
+        The latest time a probe may run to (:func:`auto_window`'s).
+
+    Returns
+    -------
+    Window
+        ``window`` with the probes counted among its pilots and :attr:`Window.growth_probe` set.
+
+    Raises
+    ------
+    GrowsWithoutBound
+        A probe grows exponentially once the inputs are held.
+    """
+    t_input = window.t_input
+    reach = t_input + PROBE_REACH * (max(window.t_end, T) - t_input)
+    if t_limit is not None:
+        reach = min(reach, float(t_limit))
+    probes, end = 0, 0.0
+    while T < reach * (1.0 - 1e-9):
+        T = min(float(f"{t_input + PROBE_FACTOR * (T - t_input):.6g}"), reach)
+        t = time_grid(dt, T)
+        if len(t) > max_steps:
+            break
+        run, failure = record_run(source, signal, t, MemorySink, quiet, isolate,
+                                  f"auto window: growth probe (dt={dt:g}, t_end={T:g})", pilot=True)
+        probes += 1
+        refuse_growth(source, run, t_input)
+        end = float(t[min(int(getattr(run, "k", len(t))), len(t)) - 1])
+        now = _held_ratios(run, t_input)
+        if failure is not None or not still_rising(now, held):
+            break
+        held = now
+    if not probes:
+        return window
+    return dataclasses.replace(window, pilots=window.pilots + probes, growth_probe=end)
 
 
 def refuse_growth(source: Source, run: Any, t_input: float) -> None:
