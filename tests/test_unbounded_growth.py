@@ -24,8 +24,9 @@ from fmu_opinf import lti_fmus, systems
 from fmu_opinf.cli import main
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.snapshots import Snapshots, record
-from fmu_opinf.snapshots import _growth
-from fmu_opinf.snapshots._growth import GROWTH_RATIO, held_from, quarter_ratios, unbounded_growth
+from fmu_opinf.snapshots import _growth, _window
+from fmu_opinf.snapshots._growth import (GROWTH_RATIO, held_from, held_ratios, quarter_ratios, still_rising,
+                                         unbounded_growth)
 from fmu_opinf.snapshots._notes import recorded_verdicts, recorded_warning
 
 #: The default training's impulse (its pulse ends at t = 2.25).
@@ -86,7 +87,32 @@ def _fast() -> lti_fmus.LinearMechanicalModel:
                                           Cp=np.eye(1), name="FastUnstable")
 
 
+def _hidden(sigma: float, name: str) -> lti_fmus.LinearMechanicalModel:
+    """Audit 80, F3: a mass on a spring of 100 N/m (``zeta = 0.02``) beside a second mass on a spring of ``-sigma^2``
+    (undamped: it diverges like ``e^(sigma t)``), the force on both (1 and 0.01), one output ``x1 + 1e-3 x2``: the
+    unstable direction barely shows in the output."""
+    return lti_fmus.LinearMechanicalModel(M=np.eye(2), D=np.diag([0.4, 0.0]), K=np.diag([100.0, -sigma**2]),
+                                          B=np.array([[1.0], [0.01]]), Cp=np.array([[1.0, 1e-3]]), name=name)
+
+
+def _oscillator(zeta: float, name: str) -> lti_fmus.LinearMechanicalModel:
+    """One mass on a spring of 100 N/m (omega 10) with damping ratio ``zeta``."""
+    return lti_fmus.LinearMechanicalModel(M=np.eye(1), D=np.array([[20.0 * zeta]]), K=np.array([[100.0]]),
+                                          B=np.ones((1, 1)), Cp=np.eye(1), name=name)
+
+
+def _rigid() -> lti_fmus.LinearMechanicalModel:
+    """Audit 80's ``rigid`` case: two masses joined by a spring of 100 N/m, no ground (a rigid-body mode), the force
+    on the second, both positions out."""
+    K = 100.0 * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    return lti_fmus.LinearMechanicalModel(M=np.eye(2), D=0.02 * K, K=K, B=np.array([[0.0], [1.0]]), Cp=np.eye(2),
+                                          name="Rigid")
+
+
 MODELS = {"InvPend": (_inverted(), {"naming": "modelica"}), "FastUnstable": (_fast(), {}),
+          "Hidden": (_hidden(0.1, "Hidden"), {}), "HiddenSlow": (_hidden(0.02, "HiddenSlow"), {}),
+          "Oscillator": (_oscillator(0.0, "Oscillator"), {}), "Damped": (_oscillator(0.01, "Damped"), {}),
+          "Rigid": (_rigid(), {}),
           "FreeBody": (_free_body(), {}), "Undamped": (_undamped(), {}), "OffRest": (_off_rest(), {}),
           "Sagging": (_sagging(), {}),
           "InvPendEuler": (replace(_inverted(), name="InvPendEuler"), {"interfaces": ("cs",), "cs_method": "euler"}),
@@ -147,6 +173,40 @@ def test_only_the_part_after_the_input_is_judged():
     after = np.where(t < 5.0, 0.0, np.exp(1.5 * (t - 5.0)) - 1.0)
     assert _judge(t, after, 5.0) is not None and _judge(t, after) is None
     assert held_from(t, 5.0) == 501
+
+
+def test_a_slow_growth_still_rises_and_a_drift_does_not():
+    """:func:`still_rising` on the quarter ratios of closed forms held from t = 0 over 8 s: ``sinh(0.1 t)`` beside a
+    decaying oscillation (the audit's hidden growth, too slow for the bar within 8 s) rises; a drift after a pulse
+    (``t``), under a load (``t^2``), an undamped and a lightly damped oscillation, a sag to a new rest do not.  Over
+    a run 4 times longer, a slow exponential's last ratio rises above the shorter run's, a drift's does not."""
+    t = np.linspace(0.0, 8.0, 801)
+    decaying = 5.0 * np.exp(-0.2 * t) * np.sin(10.0 * t)
+    growing = np.vstack([decaying, 5.0 * np.sinh(0.1 * t)])
+    assert unbounded_growth(t, growing, None, 0.0) is None   # (below the bar in this run)
+    assert still_rising(held_ratios(t, growing, None, 0.0))
+    quiet = {"drift": 0.5 * t + 0.1 * np.sin(10.0 * t), "t^2": 0.5 * t**2 + 0.1 * np.sin(10.0 * t),
+             "undamped": np.sin(10.0 * t), "damped 0.01": np.exp(-0.1 * t) * np.sin(10.0 * t),
+             "sag": 1.0 - np.exp(-t / 3.0) * np.cos(0.5 * t)}
+    for name, x in quiet.items():
+        assert not still_rising(held_ratios(t, np.atleast_2d(x), None, 0.0)), name
+    longer = np.linspace(0.0, 32.0, 3201)
+    slow = [held_ratios(tt, np.atleast_2d(np.sinh(0.02 * tt)), None, 0.0) for tt in (t, longer)]
+    drift = [held_ratios(tt, np.atleast_2d(tt), None, 0.0) for tt in (t, longer)]
+    assert not still_rising(slow[0]) and still_rising(slow[1], slow[0])   # (ratios 1.334 -> 1.36)
+    assert not still_rising(drift[1], drift[0])
+
+
+def test_the_positions_decide_where_the_outputs_lag():
+    """Positions growing like ``e^(0.1 t)`` over 60 s (4.7 times per quarter) beside outputs that fall: a growth,
+    measured on the positions (the rate within 1 %); outputs growing so beside positions that do not (a far output's
+    steep rise): none."""
+    t = np.linspace(0.0, 60.0, 3001)
+    x = np.vstack([5.0 * np.exp(-0.2 * t) * np.sin(10.0 * t), 5.0 * np.sinh(0.1 * t)])
+    y = np.atleast_2d(x[0] + 1e-3 * x[1])
+    growth = unbounded_growth(t, x, y, 0.0)
+    assert growth is not None and growth.what == "positions" and abs(growth.rate - 0.1) < 1e-3, growth
+    assert unbounded_growth(t, np.atleast_2d(np.sin(t)), np.atleast_2d(np.exp(0.1 * t)), 0.0) is None
 
 
 # ------------------------------------------------------------------------------------------------ the FMUs
@@ -291,3 +351,89 @@ def test_a_free_body_pushed_by_the_default_pulse_gets_its_window(fmus, tmp_path,
     linearly for 100s of seconds)."""
     assert main(["snapshots", str(fmus["FreeBody"]), "-o", str(tmp_path / "t.h5"), "-q"]) == 0
     assert "grows like" not in capsys.readouterr().err
+
+
+def _error_line(err: str) -> str:
+    """The one error line of a refused ``snapshots``."""
+    lines = [line for line in err.splitlines() if line.startswith("fmu-opinf: error: ")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def _said_sigma(line: str) -> float:
+    return float(line.split("sigma = ")[1].split()[0])
+
+
+@pytest.mark.fmu
+def test_a_growth_the_outputs_barely_show_stops_the_automatic_window(fmus, tmp_path, capsys):
+    """Audit 80, F3: the default chain on the hidden unstable model.  Before, the window was cut after 17.9 s on
+    the outputs' oscillation, the growth test saw positions growing 1.49-1.50 times per quarter (below the bar 3)
+    and outputs falling, exit 0, and the fitted ROM was 0.43-0.83 of range off the model over 60 s.  Now the
+    pilot's positions still rise at its end, longer probes show the growth: one line naming the rate (within 2 % of
+    the exact 0.1), that the positions grew, and the fix; no file."""
+    out = tmp_path / "t.h5"
+    code = main(["snapshots", str(fmus["Hidden"]), "-o", str(out)])
+    err = capsys.readouterr().err
+    line = _error_line(err)
+    assert code != 0 and not out.exists(), err
+    assert "auto window: Hidden.fmu: the response grows like e^(sigma t) with sigma = " in line, line
+    assert "its positions grew" in line and "linearize the model about a stable operating point" in line, line
+    exact = _sigma(_hidden(0.1, "Hidden"))
+    assert abs(exact - 0.1) < 1e-12 and abs(_said_sigma(line) - exact) < 0.02 * exact, line
+
+
+@pytest.mark.fmu
+def test_a_growth_far_too_slow_for_the_window_is_probed_until_it_shows(fmus, tmp_path, capsys, monkeypatch):
+    """``sigma = 0.02``, hidden as above: the window the outputs settle on (without the probes) holds the inputs
+    for about 15.6 s, where ``4 ln 3 / 15.6 = 0.28`` per s would be needed to pass the bar, 14 times ``sigma``; the
+    ROM fitted on it was 6.6e-2 of range off the model over 60 s on a 0.01 N step.  The probes (4 and 16 times
+    longer, then to 16 times the window) show it: refused with the rate within 2 % of the exact 0.02."""
+    exact = _sigma(_hidden(0.02, "HiddenSlow"))
+    code = main(["snapshots", str(fmus["HiddenSlow"]), "-o", str(tmp_path / "t.h5")])
+    line = _error_line(capsys.readouterr().err)
+    assert code != 0 and "its positions grew" in line, line
+    assert abs(_said_sigma(line) - exact) < 0.02 * exact, (line, exact)
+    monkeypatch.setattr(_window, "still_rising", lambda ratios, before=None: False)   # the window without probes
+    window = _window.auto_window(str(fmus["HiddenSlow"]), PULSE)
+    assert 10.0 * exact < 4.0 * np.log(GROWTH_RATIO) / (window.t_end - window.t_input), window
+
+
+@pytest.mark.fmu
+def test_a_given_window_warns_where_the_positions_grow(fmus, tmp_path, capsys):
+    """``--dt 0.02 --t-end 60`` on the hidden unstable model: the recording is kept and warned once, with the rate
+    within 2 % of 0.1 (before: no word; the outputs fall over these 60 s, the positions grow 4.7 times per quarter);
+    on the window the automatic one chose before (``--t-end 17.86``) the positions rise 1.5 times per quarter,
+    below the bar, and nothing can be said (a given grid gets no probes)."""
+    out = tmp_path / "t.h5"
+    assert main(["snapshots", str(fmus["Hidden"]), "-o", str(out), "--dt", "0.02", "--t-end", "60", "-q"]) == 0
+    err = capsys.readouterr().err
+    warned = [line for line in err.splitlines() if "the recording is kept, but the response grows like" in line]
+    assert len(warned) == 1 and "its positions grew" in warned[0], err
+    assert abs(_said_sigma(warned[0]) - 0.1) < 0.02 * 0.1, warned[0]
+    assert recorded_verdicts(Snapshots.load(out).attrs) == {"unbounded-growth"}
+
+
+#: The stable models of the probes' test, none of whose pilots rises (REPORT: the settled pilot's quarter ratios of
+#: the positions 1.0, 1.0, 1.0 undamped; 0.89, 0.90, 0.91 at zeta 0.01; 2.0, 1.5, 1.33 for both free bodies).
+PROBED = ["Oscillator", "Damped", "Rigid", "FreeBody"]
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("name", PROBED)
+def test_stable_models_are_not_probed_and_not_called_growing_at_the_probes_reach(fmus, tmp_path, name, capsys,
+                                                                                   monkeypatch):
+    """The default chain on an undamped oscillator, one at ``zeta = 0.01``, audit 80's rigid pair and the drifting
+    free body: no probe (the pilot's positions do not rise steadily), and with probes forced to the reach (a too
+    eager trigger that calls every pilot rising) still no growth verdict: recorded, exit 0, the window's line
+    names the probes' end, :data:`~fmu_opinf.snapshots._window.PROBE_REACH` times the window's held part."""
+    out = tmp_path / "t.h5"
+    assert main(["snapshots", str(fmus[name]), "-o", str(out), "-q"]) == 0
+    assert "grows like" not in capsys.readouterr().err
+    window = Snapshots.load(out).attrs["auto_window"]
+    assert window.get("growth_probe", 0.0) == 0.0, window
+    monkeypatch.setattr(_window, "still_rising", lambda ratios, before=None: True)
+    assert main(["snapshots", str(fmus[name]), "-o", str(out), "--force", "-q"]) == 0
+    assert "grows like" not in capsys.readouterr().err
+    window = Snapshots.load(out).attrs["auto_window"]
+    reach = window["t_input"] + _window.PROBE_REACH * (max(window["t_end"], window["pilot_t_end"]) - window["t_input"])
+    assert window["growth_probe"] == pytest.approx(reach, rel=1e-3, abs=0.1), window
