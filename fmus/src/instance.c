@@ -27,6 +27,11 @@ static const double inputStarts[ARRAY_LENGTH(N_INPUTS)] = INPUT_STARTS;
 static const int inputHeld[ARRAY_LENGTH(N_INPUTS)] = INPUT_HELD;
 static const char *const inputNames[ARRAY_LENGTH(N_INPUTS)] = INPUT_NAMES;
 #endif
+#ifdef PARAMETERS_FIXED
+/* Parameters the model was made for at their start values only (an exported ROM's source parameters). */
+static const char *const parameterNames[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_NAMES;
+#define FIXED_PARAMETER_TOLERANCE 1e-12
+#endif
 #ifdef INPUT_MIN
 static const double inputMin[ARRAY_LENGTH(N_INPUTS)] = INPUT_MIN;
 static const double inputMax[ARRAY_LENGTH(N_INPUTS)] = INPUT_MAX;
@@ -405,6 +410,18 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
         return Error;
     }
 
+#ifdef PARAMETERS_FIXED
+    /* an exported ROM: made for the parameters' training values only (its source's, --set ones included) */
+    if (value != parameterDefaults[index] && !(fabs(value - parameterDefaults[index]) <=
+                                               FIXED_PARAMETER_TOLERANCE * fabs(parameterDefaults[index]))) {
+        logError(instance, "%s: parameter %s (value reference %u) was %.17g in training, the only value the model "
+                 "knows; %.17g refused: set it to %.17g or leave it, or record the snapshots and fit again with "
+                 "--set %s=VALUE", function, parameterNames[index], r, parameterDefaults[index], value,
+                 parameterDefaults[index], parameterNames[index]);
+        return Error;
+    }
+    return OK;   /* the trained value stays, bit-equal */
+#endif
     if (instance->current.parameters[index] != value) {
         instance->current.parameters[index] = value;
         instance->current.accelerationPending = 1;

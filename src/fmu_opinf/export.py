@@ -58,7 +58,7 @@ from ._descriptions import input_descriptions as recorded_input_texts
 from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
+from .fmus import Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -502,7 +502,11 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
             description += "; inputs held in training (refused at any other value): " + ", ".join(
                 f"{name} = {value!r}" for name, value in held.values.items())
         provenance["rom_fmu_driven_inputs"] = [held.order[i] for i in held.position]
-    state_names = rom_state_names(list(inputs["input_names"] or []) + output_names + names)
+    parameters = _source_parameters(provenance, set(inputs["input_names"] or []) | set(output_names) | set(names))
+    description += _parameters_text(provenance, parameters)
+    _warn_if_settings_not_declared(provenance, parameters, inputs["input_names"] or [])
+    state_names = rom_state_names(list(inputs["input_names"] or []) + output_names + names
+                                  + [par.name for par in parameters])
     provenance["rom_fmu_states"] = list(state_names)
     provenance["default_test_input"] = _default_test_input(rom, dt, t_train_end)
     provenance["rom_fmu_order"] = _order_record(rom)
@@ -525,8 +529,80 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         stepping=getattr(rom, "integrator", "newmark"),
         output_dependencies=dependencies,
         initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
+        parameters=parameters, fixed_parameters=True,
         **inputs,
     )
+
+
+# ------------------------------------------------------- source parameters (audit 81b F1)
+
+#: The source parameter types the ROM FMU declares (its variables are real): Integer and Boolean ones are left out.
+_REAL_PARAMETER_TYPES = ("Real", "Float64", "Float32")
+
+
+def _recorded_parameters(provenance: dict) -> dict[str, list[Any]] | None:
+    """The source's parameters as the training set them (snapshots ``source_parameters``), checked as data: equal
+    lengths, names strings, values finite numbers; None where none were recorded (files before 2026-12-07)."""
+    snapshots = provenance.get("snapshots")
+    record = snapshots.get("source_parameters") if isinstance(snapshots, dict) else None
+    keys = ("names", "types", "values", "units")
+    if not isinstance(record, dict) or not all(isinstance(record.get(k), list) for k in keys):
+        return None
+    names, types, values, units = (record[k] for k in keys)
+    if not (len(names) == len(types) == len(values) == len(units)
+            and all(isinstance(n, str) and isinstance(t, str) for n, t in zip(names, types))
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)):
+        return None
+    given = record.get("set") if isinstance(record.get("set"), list) else []
+    return {"names": names, "types": types, "values": [float(v) for v in values], "units": units, "set": given}
+
+
+def _source_parameters(provenance: dict, taken: set[str]) -> list[Parameter]:
+    """The source's real parameters, fixed at their training values, for the ROM FMU to declare (an importer that
+    sets them as it set the source's then runs, and another value is refused in one log line); one warning for
+    those it cannot declare (Integer, Boolean: the ROM FMU's variables are real; a name an input or output has)."""
+    record = _recorded_parameters(provenance)
+    if record is None:
+        return []
+    kept, left_out = [], []
+    units = _units(record["units"], len(record["names"]))
+    for name, kind, value, unit in zip(record["names"], record["types"], record["values"], units):
+        if kind not in _REAL_PARAMETER_TYPES or name in taken or not name.strip():
+            left_out.append(name)
+            continue
+        given = " (--set)" if name in record["set"] else ""
+        kept.append(Parameter(name, value, f"source parameter fixed at its training value{given}", unit))
+    if left_out:
+        warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (not real, or named like "
+                      "an input or output): an importer that sets them on the ROM FMU fails", FmuOpinfWarning,
+                      stacklevel=4)
+    return kept
+
+
+def _parameters_text(provenance: dict, parameters: list[Parameter]) -> str:
+    """The description's part on the source's parameters: the ``--set`` ones with their values, and how many are
+    declared fixed."""
+    record = _recorded_parameters(provenance)
+    if record is None or not parameters:
+        return ""
+    given = [f"{name}={value!r}" for name, value in zip(record["names"], record["values"]) if name in record["set"]]
+    text = f"; {len(parameters)} source parameter(s) declared fixed at their training values"
+    return text + (f" (trained with --set {', '.join(given)})" if given else "")
+
+
+def _warn_if_settings_not_declared(provenance: dict, parameters: list[Parameter], inputs: list[str]) -> None:
+    """One line where the training's ``--set`` named variables that the ROM FMU does not declare (start values of
+    states, ``mass[1].s``): the ROM FMU starts from the trained initial state and has no state start values."""
+    snapshots = provenance.get("snapshots")
+    settings = snapshots.get("fmu_settings") if isinstance(snapshots, dict) else None
+    if not isinstance(settings, dict):
+        return
+    declared = {par.name for par in parameters} | set(inputs)
+    missing = [str(name) for name in settings if str(name) not in declared]
+    if missing:
+        warnings.warn(f"the training set {_few(missing)} (--set), which the ROM FMU does not declare: it starts from "
+                      "the trained initial state and has no start values of states; record and fit again with "
+                      "another --set to change them", FmuOpinfWarning, stacklevel=4)
 
 
 # -------------------------------------------------------------- held inputs (audit 69 F4)

@@ -106,11 +106,14 @@ class Parameter:
         Start value.
     description : str, default=""
         One-line description for modelDescription.xml.
+    unit : str, default=""
+        Its unit (``""``: none), declared on the variable and in ``UnitDefinitions``.
     """
 
     name: str
     default: float
     description: str = ""
+    unit: str = ""
 
 
 @dataclass
@@ -137,6 +140,11 @@ class SecondOrderFmuSpec:
         What one state index is, for the variable descriptions.
     parameters : list of Parameter, default=()
         Scalar parameters passed to ``assembleSystem``.
+    fixed_parameters : bool, default=False
+        The model was made for the parameters' start values only (an exported ROM: its source's parameters at
+        their training values): each is declared, and the FMU accepts its start value (bit-equal or within a
+        relative 1e-12) and refuses another with a log line naming the parameter, its value and how to train at
+        another (``--set NAME=VALUE``).  No ``PAR_*`` macros are written (the names need not be C identifiers).
     defines : dict of str to int, default={}
         Extra integer macros for ``config.h`` (e.g. ``CHAIN_LENGTH``).
     description : str, default=""
@@ -218,6 +226,7 @@ class SecondOrderFmuSpec:
     state_names: tuple[str, str, str] = ("x", "v", "a")
     state_label: str = "degree of freedom"
     parameters: list[Parameter] = field(default_factory=list)
+    fixed_parameters: bool = False
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
     output_descriptions: list[str] | None = None
@@ -364,7 +373,8 @@ class SecondOrderFmuSpec:
         for what, kind, units, count in (("unit", "input", self.input_units, self.m),
                                          ("unit", "output", self.output_units, self.p),
                                          ("display unit", "input", self.input_display_units, self.m),
-                                         ("display unit", "output", self.output_display_units, self.p)):
+                                         ("display unit", "output", self.output_display_units, self.p),
+                                         ("unit", "parameter", [p.unit for p in self.parameters], len(self.parameters))):
             if units is None:
                 continue
             if len(units) != count:
@@ -671,7 +681,7 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
                for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
                                                         output_display)]
     rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
-    rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default)
+    rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
         kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
@@ -782,7 +792,8 @@ def _unit_definitions(spec: SecondOrderFmuSpec) -> str:
     """``UnitDefinitions`` naming every unit the variables use, with the source's ``BaseUnit`` and
     ``DisplayUnit`` elements where ``spec.unit_definitions`` has them (:func:`unit_definition`), so that
     importers can convert and check units; by name only otherwise."""
-    units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) if u})
+    units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) + [p.unit for p in spec.parameters]
+                    if u})
     if not units:
         return ""
     known = spec.unit_definitions or {}
@@ -888,8 +899,8 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
 
 def _initial_dependencies(spec: SecondOrderFmuSpec) -> list[list[int]] | None:
     """``spec.initial_dependencies`` where they can be declared: not with parameters, which FMI counts among the
-    knowns at initialization too."""
-    return None if spec.parameters else spec.initial_dependencies
+    knowns at initialization too, unless they are fixed at their one value (nothing depends on them)."""
+    return None if spec.parameters and not spec.fixed_parameters else spec.initial_dependencies
 
 
 def _dependency_attributes(keys: list[int]) -> str:
@@ -1039,13 +1050,15 @@ def _config_header(spec: SecondOrderFmuSpec) -> str:
         f"#define N_PARAMETERS {len(spec.parameters)}",
     ]
     lines += [f"#define {name} {int(value)}" for name, value in spec.defines.items()]
-    lines += [f"#define PAR_{p.name.upper()} {i}" for i, p in enumerate(spec.parameters)]
+    if not spec.fixed_parameters:
+        lines += [f"#define PAR_{p.name.upper()} {i}" for i, p in enumerate(spec.parameters)]
     defaults = ", ".join(repr(float(p.default)) for p in spec.parameters) or "0.0"
     lines += [f"#define PARAMETER_DEFAULTS {{ {defaults} }}"]
     if spec.input_starts is not None and spec.m:
         lines += [f"#define INPUT_STARTS {{ {', '.join(repr(float(v)) for v in spec.input_starts)} }}"]
     lines += _range_tables(spec)
     lines += _held_tables(spec)
+    lines += _fixed_parameter_tables(spec)
     lines += _port_tables(spec)
     lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
@@ -1073,6 +1086,15 @@ def _held_tables(spec: SecondOrderFmuSpec) -> list[str]:
     flags = ", ".join("1" if held else "0" for held in spec.held_inputs)
     names = ", ".join(c_string(name) for name in spec.input_names)
     return [f"#define INPUT_HELD {{ {flags} }}", f"#define INPUT_NAMES {{ {names} }}"]
+
+
+def _fixed_parameter_tables(spec: SecondOrderFmuSpec) -> list[str]:
+    """``config.h`` lines ``PARAMETERS_FIXED`` and ``PARAMETER_NAMES`` (C string literals, for the log line that
+    refuses another value) of an FMU made for its parameters' start values only; none otherwise."""
+    if not spec.fixed_parameters or not spec.parameters:
+        return []
+    return ["#define PARAMETERS_FIXED 1",
+            f"#define PARAMETER_NAMES {{ {', '.join(c_string(p.name) for p in spec.parameters)} }}"]
 
 
 #: Bytes written as themselves in a generated C string literal; every other byte (quotes, backslashes, ``?`` of a

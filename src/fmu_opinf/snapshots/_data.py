@@ -95,6 +95,24 @@ def shared_settings(settings: list[dict[str, Any]]) -> dict[str, Any]:
     return {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings[1:])}
 
 
+def shared_parameters(mine: Any, theirs: Any) -> dict[str, list[Any]] | None:
+    """``source_parameters`` of merged snapshots: the parameters both parts recorded at the same value and type (one
+    at different values is not a value the merged ROM was trained at: the exported ROM FMU leaves it out); None
+    where either part has none."""
+    if not isinstance(mine, dict) or not isinstance(theirs, dict):
+        return None
+    keys = ("names", "types", "values", "units", "quantities")
+    try:
+        other = {row[0]: row for row in zip(*(theirs[k] for k in keys))}
+        rows = [row for row in zip(*(mine[k] for k in keys)) if other.get(row[0]) == row]
+    except (KeyError, TypeError):
+        return None
+    shared: dict[str, list[Any]] = {k: [row[i] for row in rows] for i, k in enumerate(keys)}
+    given = set(mine.get("set") or []) | set(theirs.get("set") or [])
+    shared["set"] = [name for name in shared["names"] if name in given]
+    return shared
+
+
 def shared_held_inputs(mine: Any, theirs: Any) -> Any:
     """``held_inputs`` of merged snapshots: a held input whose value differs between the parts (a run table's
     per-row ``set:``) was not held at one value; it moves to ``"varied"``, which the exported ROM FMU leaves out
@@ -207,6 +225,10 @@ class Snapshots:
             shared = shared_held_inputs(self.attrs.pop("held_inputs"), attrs.get("held_inputs"))
             if shared is not None:
                 self.attrs["held_inputs"] = shared
+        if "source_parameters" in self.attrs:
+            shared = shared_parameters(self.attrs.pop("source_parameters"), attrs.get("source_parameters"))
+            if shared is not None:
+                self.attrs["source_parameters"] = shared
         mine = texts(self.attrs.get("recording_warnings"))   # any part's warning is repeated for the whole set
         joined = mine + [text for text in texts(attrs.get("recording_warnings")) if text not in mine]
         if joined:

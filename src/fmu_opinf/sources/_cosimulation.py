@@ -29,7 +29,8 @@ from ._settings import parse_assignments
 from .._stepping import stepping_of
 from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
                          declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
-                         looks_like_parameter, read_description, real_outputs, start_value, unit_kind)
+                         looks_like_parameter, port_aliases, read_description, real_outputs, source_parameters_record,
+                         start_value, unit_kind)
 
 def _fmi2_callbacks(target: Any) -> Any:
     """FMI 2 callbacks whose kept log messages reach ``target`` (:func:`._fmu_log.fmi2_callbacks`)."""
@@ -399,6 +400,10 @@ class FMUSource(Source):
         self._held_elements = list(held)
         #: the held inputs' values and the source's input order, for the exported ROM FMU (audit 69 F4)
         self.held_inputs = held_inputs_record(model.elements(structural), forces, held, self._settings)
+        #: the source's parameters at their training values, and the FMI 3 ``<Alias>`` names of the recorded inputs
+        #: and outputs: the exported ROM FMU declares both (audit 81b F1, F2)
+        self.source_parameters = source_parameters_record(model, self._settings)
+        self.port_aliases = port_aliases(model, forces, out_elements)
         #: held inputs that look like parameters (default selection, looks_like_parameter): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
@@ -501,6 +506,10 @@ class FMUSource(Source):
         if self.held_input_names:   # with their types and values, for the advice of a run that did not move
             desc["held_input_values"] = self.held_input_values()
         desc["held_inputs"] = dict(self.held_inputs)
+        if self.source_parameters["names"]:
+            desc["source_parameters"] = dict(self.source_parameters)
+        if self.port_aliases:
+            desc["port_aliases"] = dict(self.port_aliases)
         if any(self.input_units) or any(self.output_units):  # declared units (the exported ROM FMU keeps them)
             desc["input_units"] = list(self.input_units)
             desc["output_units"] = list(self.output_units)

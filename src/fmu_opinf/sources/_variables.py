@@ -1857,3 +1857,62 @@ def fmi3_ports(model: ModelInfo, elements: Sequence[Element], structural: dict[s
             ports.append({"name": element.name, "shape": [], "type": kind})
             i += 1
     return ports
+
+
+#: Types of the source parameters a snapshot file records (``source_parameters``): the numeric and Boolean ones.
+RECORDED_PARAMETER_TYPES = REAL_TYPES + ("Integer", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64",
+                                         "UInt64", "Boolean")
+
+
+def source_parameters_record(model: ModelInfo, settings: Sequence[Any]) -> dict[str, list[Any]]:
+    """The source's scalar parameters as the training set them (audit 81b F1), column-wise to stay compact for a model
+    with hundreds: ``{"names", "types", "values", "units", "quantities", "set"}``, each value the ``--set`` one where
+    given (``set``: the names given), else the declared start, a Boolean as 0 / 1.
+
+    Only ``causality="parameter"`` scalars of a numeric or Boolean type with a value are recorded (no arrays,
+    structural or calculated parameters, FMI 3 ``<Alias>`` names): the exported ROM FMU declares them, fixed at
+    these values.  ``settings`` are the typed ``--set`` values (:class:`fmu_opinf.sources._settings.Setting`).
+    """
+    given = {setting.var.name: setting.values for setting in settings}
+    record: dict[str, list[Any]] = {"names": [], "types": [], "values": [], "units": [], "quantities": [], "set": []}
+    for var in model.variables:
+        if var.causality != "parameter" or var.dims or var.type not in RECORDED_PARAMETER_TYPES:
+            continue
+        chosen = given.get(var.name)
+        value = _parameter_value(var, chosen[0] if chosen else var.start)
+        if value is None:
+            continue
+        for key, item in (("names", var.name), ("types", var.type), ("values", value), ("units", var.unit or ""),
+                          ("quantities", var.quantity or "")):
+            record[key].append(item)
+        if chosen:
+            record["set"].append(var.name)
+    return record
+
+
+def _parameter_value(var: Variable, value: Any) -> float | None:
+    """A parameter's value as a finite float (a Boolean 0 or 1), None where it has none."""
+    if var.type == "Boolean":
+        return 1.0 if str(value).strip().lower() in ("true", "1", "1.0") else 0.0
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return None
+    return number if math.isfinite(number) else None
+
+
+def port_aliases(model: ModelInfo, inputs: Sequence[Element], outputs: Sequence[Element]) -> dict[str, dict]:
+    """The FMI 3 ``<Alias>`` names of the recorded inputs and outputs that are scalar variables under their own names,
+    ``{"inputs": {name: [alias, ...]}, "outputs": {...}}`` (empty where there are none, as in every FMI 2 model):
+    the exported FMI 3 ROM FMU declares them as ``<Alias>`` of the same variable, so a system model wired to
+    ``sensor[1].y`` still connects (audit 81b F2)."""
+    found: dict[str, dict] = {}
+    for key, elements in (("inputs", inputs), ("outputs", outputs)):
+        names = {e.name for e in elements if not e.var.dims and not e.alias and e.name == e.var.name}
+        table: dict[str, list[str]] = {}
+        for alias, target in model.aliases.items():
+            if target in names:
+                table.setdefault(target, []).append(alias)
+        if table:
+            found[key] = table
+    return found
