@@ -530,6 +530,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_dependencies=dependencies,
         initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
         parameters=parameters, fixed_parameters=True,
+        port_aliases=_port_aliases(provenance, inputs, output_names, fmi_version),
         **inputs,
     )
 
@@ -976,6 +977,30 @@ def _recorded_ports(provenance: dict, key: str, names: list[str]) -> list[dict[s
         ports.append({"name": name, "shape": list(shape), "type": kind})
         expanded += element_names(name, shape)
     return ports if expanded == list(names) else None
+
+
+def _port_aliases(provenance: dict, inputs: dict[str, Any], output_names: list[str],
+                  fmi_version: str) -> dict[str, list[str]] | None:
+    """The source's FMI 3 ``<Alias>`` names of its scalar inputs and outputs (snapshots ``port_aliases``), for the FMI
+    3 ROM FMU to declare on the same variables (audit 81b F2), checked as data: lists of strings keyed by a scalar
+    port of the ROM FMU.  An FMI 2 export says in one line that it leaves them out (FMI 2 has no ``<Alias>``)."""
+    snapshots = provenance.get("snapshots")
+    recorded = snapshots.get("port_aliases") if isinstance(snapshots, dict) else None
+    if not isinstance(recorded, dict):
+        return None
+    scalars = set()
+    for ports, names in ((inputs.get("input_ports"), inputs["input_names"] or []),
+                         (inputs.get("output_ports"), output_names)):
+        scalars |= set(names) if ports is None else {port["name"] for port in ports if not port["shape"]}
+    found = {name: [str(a) for a in names] for table in recorded.values() if isinstance(table, dict)
+             for name, names in table.items()
+             if name in scalars and isinstance(names, list) and all(isinstance(a, str) for a in names)}
+    if found and fmi_version != "3.0":
+        shown = [a for names in found.values() for a in names]
+        warnings.warn(f"the source's FMI 3 alias names {_few(shown)} are not declared on the FMI 2 ROM FMU (FMI 2 has "
+                      "no <Alias>); export with --fmi-version 3.0 to keep them", FmuOpinfWarning, stacklevel=3)
+        return None
+    return found or None
 
 
 def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:

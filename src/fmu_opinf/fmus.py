@@ -140,6 +140,9 @@ class SecondOrderFmuSpec:
         What one state index is, for the variable descriptions.
     parameters : list of Parameter, default=()
         Scalar parameters passed to ``assembleSystem``.
+    port_aliases : dict of str to list of str, optional
+        FMI 3.0 only: further names (``<Alias>``) of scalar input and output variables, by variable name, e.g. a
+        source's ``{"y[1]": ["sensor[1].y"]}``; each designates the same variable (value reference).
     fixed_parameters : bool, default=False
         The model was made for the parameters' start values only (an exported ROM: its source's parameters at
         their training values): each is declared, and the FMU accepts its start value (bit-equal or within a
@@ -227,6 +230,7 @@ class SecondOrderFmuSpec:
     state_label: str = "degree of freedom"
     parameters: list[Parameter] = field(default_factory=list)
     fixed_parameters: bool = False
+    port_aliases: dict[str, list[str]] | None = None
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
     output_descriptions: list[str] | None = None
@@ -312,6 +316,7 @@ class SecondOrderFmuSpec:
         texts = [("input name", s) for s in self.input_names + self.port_names("input")]
         texts += [("output name", s) for s in self.output_names + self.port_names("output")]
         texts += [("parameter name", p.name) for p in self.parameters] + [("description", self.description)]
+        texts += [("alias name", a) for names in (self.port_aliases or {}).values() for a in names]
         texts += [("description", text) for text in self.output_descriptions or []]
         texts += [("description", text) for text in self.input_descriptions or [] if text is not None]
         if self.input_descriptions is not None and len(self.input_descriptions) != self.m:
@@ -389,8 +394,9 @@ class SecondOrderFmuSpec:
     def _check_ports(self) -> None:
         """Ports must cover the inputs and outputs exactly; FMI 2.0 has neither arrays nor Float32 (scalars)."""
         if self.fmi_version != "3.0":
-            self.input_ports = self.output_ports = None
+            self.input_ports = self.output_ports = self.port_aliases = None
             return
+        self._check_aliases()
         for kind, ports, count in (("input", self.input_ports, self.m), ("output", self.output_ports, self.p)):
             if ports is None:
                 continue
@@ -407,6 +413,18 @@ class SecondOrderFmuSpec:
                 raise FmuBuildError(f"the {kind} ports hold {sum(sizes)} values for {count} {kind}s; give ports "
                                     f"that hold each {kind} once")
 
+    def _check_aliases(self) -> None:
+        """``port_aliases``: lists of names, each list keyed by a scalar input or output variable."""
+        aliases = self.port_aliases or {}
+        scalars = set()
+        for ports, names in ((self.input_ports, self.input_names), (self.output_ports, self.output_names)):
+            scalars |= set(names) if ports is None else {port["name"] for port in ports if not port.get("shape")}
+        for name, names in aliases.items():
+            if name not in scalars or not isinstance(names, (list, tuple)) or not all(isinstance(a, str)
+                                                                                     for a in names):
+                raise FmuBuildError(f"port_aliases entry {name!r}: {names!r} is not a list of names of a scalar input "
+                                    "or output; give aliases of scalar ports only")
+
     def port_names(self, kind: str) -> list[str]:
         """Names of the variables that hold the inputs (``kind="input"``) or outputs: the ports' names in FMI 3.0,
         else the element names."""
@@ -416,7 +434,8 @@ class SecondOrderFmuSpec:
         return list(self.input_names if kind == "input" else self.output_names)
 
     def _check_unique_names(self) -> None:
-        names = (self.port_names("input") + self.port_names("output") + [p.name for p in self.parameters])
+        names = (self.port_names("input") + self.port_names("output") + [p.name for p in self.parameters]
+                 + [a for aliases in (self.port_aliases or {}).values() for a in aliases])
         if self.fmi_version == "3.0":
             names.append("time")
         states = tuple(f"{base}[" for base in self.state_names) if self.expose_states else ()
@@ -649,6 +668,7 @@ class _Variable:
     minimum: float = -math.inf
     maximum: float = math.inf
     nominal: float = math.nan
+    aliases: tuple[str, ...] = ()
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -671,13 +691,15 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     starts = spec.input_starts or [0.0] * spec.m
     described = [text or held for text in spec.input_descriptions or [None] * spec.m]
     nominals = spec.input_nominals or [math.nan] * spec.m
+    aliases = spec.port_aliases or {}
     rows = [_Variable(name, vr, "input", description=text, start=float(start), unit=unit, display_unit=display,
-                      minimum=low, maximum=high, nominal=float(nominal))
+                      minimum=low, maximum=high, nominal=float(nominal), aliases=tuple(aliases.get(name, ())))
             for name, vr, text, unit, display, start, (low, high), nominal in zip(
                 spec.input_names, refs["u"], described, input_units, input_display, starts, _input_bounds(spec),
                 nominals)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
-    outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display)
+    outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display,
+                         aliases=tuple(aliases.get(name, ())))
                for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
                                                         output_display)]
     rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
@@ -778,10 +800,11 @@ def _variable3(variable: _Variable) -> str:
     unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
     values = variable.start if isinstance(variable.start, tuple) else (variable.start,)
     start = "" if variable.start is None else f' start="{" ".join(repr(float(v)) for v in values)}"'
-    if not variable.shape:
-        return f"    <{variable.type} {variable.attributes()}{unit}{start}/>\n"
+    aliases = "".join(f"      <Alias name={quoteattr(name)}/>\n" for name in variable.aliases)
     dimensions = "".join(f'      <Dimension start="{int(size)}"/>\n' for size in variable.shape)
-    return f"    <{variable.type} {variable.attributes()}{unit}{start}>\n{dimensions}    </{variable.type}>\n"
+    if not aliases + dimensions:
+        return f"    <{variable.type} {variable.attributes()}{unit}{start}/>\n"
+    return f"    <{variable.type} {variable.attributes()}{unit}{start}>\n{aliases}{dimensions}    </{variable.type}>\n"
 
 
 #: SI base units of an FMI ``BaseUnit`` element, in the order of the standard.
