@@ -43,6 +43,7 @@ is refused, as are names with TAB, LF or CR, which FMI names cannot hold.
 
 from __future__ import annotations
 
+import decimal
 import json
 import math
 import os
@@ -456,6 +457,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     stop = float(t_train_end) if isinstance(t_train_end, (int, float)) and t_train_end > 0 else None
     if stop is not None and dt is not None:  # a whole number of steps: an importer's last step is not refused
         stop = dt * max(1, math.floor(stop / dt + 1e-9))
+    start = _recorded_start_time(provenance)
+    experiment = (start, None if stop is None else _round_time(start + stop, dt), dt)
     output_descriptions = (recorded_output_texts(provenance, output_names, "Cpr q + Cvr q' + Dur u + y0")
                            + [f"reconstructed full-order position {name}: " + _reconstruction_formula(rom)
                               for name in names])
@@ -518,7 +521,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         n=r, p=p + len(names),
         output_names=output_names + names, state_names=state_names,
         state_label="reduced coordinate", description=re.sub(r"[\x00-\x1f\x7f]", "?", description),
-        output_descriptions=output_descriptions, default_experiment=(0.0, stop, dt), expose_states=True,
+        output_descriptions=output_descriptions, default_experiment=experiment, expose_states=True,
         extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
                                                    default=str) + "\n"},
         fmi_version=fmi_version,
@@ -1001,6 +1004,27 @@ def _port_aliases(provenance: dict, inputs: dict[str, Any], output_names: list[s
                       "no <Alias>); export with --fmi-version 3.0 to keep them", FmuOpinfWarning, stacklevel=3)
         return None
     return found or None
+
+
+def _recorded_start_time(provenance: dict) -> float:
+    """The FMU time at which the training runs started (snapshots ``start_time``, the source's
+    ``DefaultExperiment/@startTime`` or ``--start-time``), 0 where none is recorded: the ROM FMU's default experiment
+    starts there, as the source's does (audit 81b F3)."""
+    snapshots = provenance.get("snapshots")
+    value = snapshots.get("start_time") if isinstance(snapshots, dict) else None
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+        return float(value)
+    return 0.0
+
+
+def _round_time(value: float, step: float | None) -> float:
+    """``value`` rounded to the decimals of ``step`` (0.03: two) and of the value's own tenth-of-a-step scale, so
+    that the XML says ``99.48``, not ``99.47999999999999`` (``repr`` of a product of steps; audit 81b F3)."""
+    if step is None:
+        return value
+    exponent = decimal.Decimal(repr(float(step))).normalize().as_tuple().exponent
+    decimals = max(0, -int(exponent)) if isinstance(exponent, int) else 0
+    return round(value, decimals) if decimals <= 15 else value
 
 
 def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:
