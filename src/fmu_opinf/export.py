@@ -603,7 +603,11 @@ def _warn_if_settings_not_declared(provenance: dict, parameters: list[Parameter]
         return
     declared = {par.name for par in parameters} | set(inputs)
     missing = [str(name) for name in settings if str(name) not in declared]
-    if missing:
+    if missing and _recorded_parameters(provenance) is None:
+        warnings.warn(f"the ROM file records no values of the source's parameters (snapshots recorded before "
+                      f"2026-12-07): the ROM FMU declares none, though the training set {_few(missing)} (--set); "
+                      "record the snapshots again and refit to declare them", FmuOpinfWarning, stacklevel=4)
+    elif missing:
         warnings.warn(f"the training set {_few(missing)} (--set), which the ROM FMU does not declare: it starts from "
                       "the trained initial state and has no start values of states; record and fit again with "
                       "another --set to change them", FmuOpinfWarning, stacklevel=4)
