@@ -496,6 +496,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
               "input_descriptions": recorded_input_texts(provenance, m),
               "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
               "input_nominals": _recorded_input_nominals(provenance, m),
+              "input_quantities": _recorded_quantities(provenance, "input_quantities", m),
               **_ports(provenance, input_names or [], output_names, names, fmi_version)}
     held = _held_inputs(provenance, input_names, m)
     if held is not None:
@@ -533,6 +534,9 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_dependencies=dependencies,
         initial_dependencies=dependencies if start_gain is None else None,   # (a steady start: y(0) follows u)
         parameters=parameters, fixed_parameters=True,
+        output_ranges=_recorded_output_ranges(provenance, p, len(names)),
+        output_nominals=_recorded_output_nominals(provenance, p, len(names)),
+        output_quantities=_recorded_quantities(provenance, "output_quantities", p) + [""] * len(names),
         port_aliases=_port_aliases(provenance, inputs, output_names, fmi_version),
         **inputs,
     )
@@ -716,6 +720,7 @@ def _keep_held_inputs(held: HeldInputs, inputs: dict[str, Any], c_matrices: dict
         "input_display_units": spread(inputs["input_display_units"], "", lambda name: ""),
         "input_ranges": spread(inputs["input_ranges"], (-math.inf, math.inf), lambda n: (held.values[n],) * 2),
         "input_nominals": spread(inputs["input_nominals"], math.nan, lambda name: math.nan),
+        "input_quantities": spread(inputs["input_quantities"], "", lambda name: ""),
         "held_inputs": [name in held.values for name in held.order],
         "input_descriptions": spread(inputs.get("input_descriptions"), None, lambda name: (
             f"input held at {held.values[name]!r} in training: the ROM is valid at that value only and refuses "
@@ -1029,6 +1034,44 @@ def _round_time(value: float, step: float | None) -> float:
     exponent = decimal.Decimal(repr(float(step))).normalize().as_tuple().exponent
     decimals = max(0, -int(exponent)) if isinstance(exponent, int) else 0
     return round(value, decimals) if decimals <= 15 else value
+
+
+def _recorded_output_ranges(provenance: dict, p: int, extra: int) -> list[tuple[float, float]] | None:
+    """The ``[min, max]`` the source declared for each output (snapshots ``output_min`` / ``output_max``), open for
+    ``extra`` reconstructed positions after them, for the ROM FMU to declare (audit 81b F4: a ROM output outside
+    them has left the source's range); None where no finite bound was recorded.  Read as the input ranges are
+    (:func:`fmu_opinf.rom.input_ranges`: only finite numbers are bounds, a crossed pair none)."""
+    from .rom import input_ranges
+
+    snapshots = provenance.get("snapshots")
+    snapshots = snapshots if isinstance(snapshots, dict) else {}
+    low, high = input_ranges({"snapshots": {"input_min": snapshots.get("output_min"),
+                                            "input_max": snapshots.get("output_max")}}, p)
+    if not (np.isfinite(low).any() or np.isfinite(high).any()):
+        return None
+    return [(float(a), float(b)) for a, b in zip(low, high)] + [(-math.inf, math.inf)] * extra
+
+
+def _recorded_output_nominals(provenance: dict, p: int, extra: int) -> list[float] | None:
+    """The ``nominal`` the source declared for each output (snapshots ``output_nominal``, 0 for none), NaN where
+    none and for the ``extra`` reconstructed positions; None where none were recorded."""
+    snapshots = provenance.get("snapshots")
+    values = snapshots.get("output_nominal") if isinstance(snapshots, dict) else None
+    if not isinstance(values, list) or len(values) != p:
+        return None
+    return [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < math.inf else math.nan
+            for v in values] + [math.nan] * extra
+
+
+def _recorded_quantities(provenance: dict, key: str, count: int) -> list[str]:
+    """The ``quantity`` of each input or output the source declared (its own or its declared type's, e.g. ``Force``;
+    snapshots ``input_quantities`` / ``output_quantities``), ``""`` where none or where the text is not a printable
+    one of at most 100 characters (data read from a file)."""
+    snapshots = provenance.get("snapshots")
+    values = snapshots.get(key) if isinstance(snapshots, dict) else None
+    if not isinstance(values, list) or len(values) != count:
+        return [""] * count
+    return [v if isinstance(v, str) and len(v) <= 100 and v.isprintable() else "" for v in values]
 
 
 def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:

@@ -143,6 +143,14 @@ class SecondOrderFmuSpec:
     port_aliases : dict of str to list of str, optional
         FMI 3.0 only: further names (``<Alias>``) of scalar input and output variables, by variable name, e.g. a
         source's ``{"y[1]": ["sensor[1].y"]}``; each designates the same variable (value reference).
+    output_ranges : list of (float, float), optional
+        Declared ``[min, max]`` of each output (``-inf`` / ``inf`` for an open side), e.g. the source's: declared
+        only (an FMI 3 array takes the widest of its elements'), never enforced.  Default: none.
+    output_nominals : list of float, optional
+        Declared ``nominal`` of each output, NaN where none.  Default: none.
+    input_quantities, output_quantities : list of str, optional
+        The ``quantity`` of each input and output (``""``: none), e.g. a source's ``Force``; at most 100 printable
+        characters.  Default: none.
     fixed_parameters : bool, default=False
         The model was made for the parameters' start values only (an exported ROM: its source's parameters at
         their training values): each is declared, and the FMU accepts its start value (bit-equal or within a
@@ -231,6 +239,10 @@ class SecondOrderFmuSpec:
     parameters: list[Parameter] = field(default_factory=list)
     fixed_parameters: bool = False
     port_aliases: dict[str, list[str]] | None = None
+    output_ranges: list[tuple[float, float]] | None = None
+    output_nominals: list[float] | None = None
+    input_quantities: list[str] | None = None
+    output_quantities: list[str] | None = None
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
     output_descriptions: list[str] | None = None
@@ -288,6 +300,7 @@ class SecondOrderFmuSpec:
         if self.stepping not in STEPPINGS:
             raise FmuBuildError(f"stepping {self.stepping!r} is unknown; use one of {', '.join(STEPPINGS)}")
         self._check_nominals()
+        self._check_output_attributes()
         self._check_ports()
         self._check_dependencies()
         self._check_ranges()
@@ -305,6 +318,25 @@ class SecondOrderFmuSpec:
                                             for v in values):
             raise FmuBuildError(f"input_nominals {values!r} must be {self.m} numbers above 0 (NaN: none), one per "
                                 "input")
+
+    def _check_output_attributes(self) -> None:
+        """``output_ranges`` and ``output_nominals``: one per output (low <= high, not NaN; a nominal above 0 or NaN),
+        ``input_quantities`` / ``output_quantities`` one printable text of at most 100 characters per variable."""
+        if self.output_ranges is not None and (len(self.output_ranges) != self.p or not all(
+                len(b) == 2 and not math.isnan(b[0]) and not math.isnan(b[1]) and b[0] <= b[1]
+                for b in self.output_ranges)):
+            raise FmuBuildError(f"output_ranges {self.output_ranges!r} must be {self.p} pairs (min, max), one per "
+                                "output")
+        values = self.output_nominals
+        if values is not None and (len(values) != self.p or not all(
+                isinstance(v, (int, float)) and (math.isnan(v) or 0 < v < math.inf) for v in values)):
+            raise FmuBuildError(f"output_nominals {values!r} must be {self.p} numbers above 0 (NaN: none)")
+        for kind, texts, count in (("input", self.input_quantities, self.m), ("output", self.output_quantities,
+                                                                              self.p)):
+            if texts is not None and (len(texts) != count or not all(
+                    isinstance(t, str) and len(t) <= 100 and (not t or t.isprintable()) for t in texts)):
+                raise FmuBuildError(f"{kind}_quantities {texts!r} must be {count} printable texts (at most 100 "
+                                    "characters, '' for none)")
 
     def _check_text(self) -> None:
         """Names and the description end up in XML: refuse empty names and characters XML 1.0 cannot hold, not even
@@ -669,6 +701,7 @@ class _Variable:
     maximum: float = math.inf
     nominal: float = math.nan
     aliases: tuple[str, ...] = ()
+    quantity: str = ""
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -692,16 +725,23 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     described = [text or held for text in spec.input_descriptions or [None] * spec.m]
     nominals = spec.input_nominals or [math.nan] * spec.m
     aliases = spec.port_aliases or {}
+    quantities = spec.input_quantities or [""] * spec.m
     rows = [_Variable(name, vr, "input", description=text, start=float(start), unit=unit, display_unit=display,
-                      minimum=low, maximum=high, nominal=float(nominal), aliases=tuple(aliases.get(name, ())))
-            for name, vr, text, unit, display, start, (low, high), nominal in zip(
+                      minimum=low, maximum=high, nominal=float(nominal), aliases=tuple(aliases.get(name, ())),
+                      quantity=quantity)
+            for name, vr, text, unit, display, start, (low, high), nominal, quantity in zip(
                 spec.input_names, refs["u"], described, input_units, input_display, starts, _input_bounds(spec),
-                nominals)]
+                nominals, quantities)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
+    ranges = spec.output_ranges or [(-math.inf, math.inf)] * spec.p
+    nominals = spec.output_nominals or [math.nan] * spec.p
+    quantities = spec.output_quantities or [""] * spec.p
     outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display,
-                         aliases=tuple(aliases.get(name, ())))
-               for name, vr, text, unit, display in zip(spec.output_names, refs["y"], described, output_units,
-                                                        output_display)]
+                         aliases=tuple(aliases.get(name, ())), minimum=float(low), maximum=float(high),
+                         nominal=float(nominal), quantity=quantity)
+               for name, vr, text, unit, display, (low, high), nominal, quantity in zip(
+                   spec.output_names, refs["y"], described, output_units, output_display, ranges, nominals,
+                   quantities)]
     rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit)
              for par, vr in zip(spec.parameters, refs["parameters"])]
@@ -726,9 +766,10 @@ def _grouped(elements: list[_Variable], ports: list[dict[str, Any]] | None) -> l
         group = elements[first:first + (math.prod(shape) if shape else 1)]
         first += len(group)
         lead = group[0]
-        # (the bounds are the lead's, which _input_bounds made every element's)
+        # (the widest bounds of the elements: an input's are already every element's, _input_bounds)
         shared = {key: getattr(lead, key) if all(getattr(e, key) == getattr(lead, key) for e in group) else ""
-                  for key in ("unit", "display_unit", "description")}
+                  for key in ("unit", "display_unit", "description", "quantity")}
+        shared.update(minimum=min(e.minimum for e in group), maximum=max(e.maximum for e in group))
         shared["nominal"] = lead.nominal if all(e.nominal == lead.nominal for e in group) else math.nan
         start = None if lead.start is None else (tuple(float(e.start) for e in group) if shape else lead.start)
         out.append(replace(lead, name=port["name"], start=start, shape=shape, type=port["type"], **shared))
@@ -775,7 +816,8 @@ def _experiment(spec: SecondOrderFmuSpec) -> str:
 
 
 def _unit_attributes(variable: _Variable) -> str:
-    unit = f" unit={quoteattr(variable.unit)}" if variable.unit else ""
+    unit = f" quantity={quoteattr(variable.quantity)}" if variable.quantity else ""
+    unit += f" unit={quoteattr(variable.unit)}" if variable.unit else ""
     return unit + (f" displayUnit={quoteattr(variable.display_unit)}" if variable.display_unit else "")
 
 
@@ -816,10 +858,10 @@ def _unit_definitions(spec: SecondOrderFmuSpec) -> str:
     ``DisplayUnit`` elements where ``spec.unit_definitions`` has them (:func:`unit_definition`), so that
     importers can convert and check units; by name only otherwise."""
     units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) + [p.unit for p in spec.parameters]
-                    if u})
+                    if u} | ({"s"} if spec.fmi_version == "3.0" else set()))   # (FMI 3: time in s)
     if not units:
         return ""
-    known = spec.unit_definitions or {}
+    known = {"s": {"base": {"s": 1}}, **(spec.unit_definitions or {})}
     rows = "".join(_unit_row(u, known.get(u)) for u in units)
     return f"  <UnitDefinitions>\n{rows}  </UnitDefinitions>\n"
 
@@ -987,7 +1029,7 @@ def _vendor_annotations(spec: SecondOrderFmuSpec) -> str:
 
 def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
     """FMI 3.0 modelDescription.xml (time is the independent variable, value reference 0)."""
-    time = _Variable("time", 0, "independent", description="simulation time")
+    time = _Variable("time", 0, "independent", description="simulation time", unit="s")
     variables_of = _variables(spec)
     variables = [_variable3(v) for v in [time] + variables_of]
     outputs = _unknowns3(spec, "Output", spec.output_dependencies)

@@ -404,6 +404,7 @@ class FMUSource(Source):
         #: and outputs: the exported ROM FMU declares both (audit 81b F1, F2)
         self.source_parameters = source_parameters_record(model, self._settings)
         self.port_aliases = port_aliases(model, forces, out_elements)
+        self._interface_elements = (list(forces), list(out_elements))
         #: held inputs that look like parameters (default selection, looks_like_parameter): open_source warns
         self.parameter_like_input_names = [e.name for e in resolved.parameter_like]
         #: those of them whose unit is none or not known (a force, perhaps: the warning offers to drive them)
@@ -499,6 +500,25 @@ class FMUSource(Source):
             values[element.name] = [var.type, _value_text(var.type, value), chosen is not None]
         return values
 
+    def declared_interface_attributes(self) -> dict[str, list[Any]]:
+        """The file attributes ``output_min``, ``output_max``, ``output_nominal`` (each only where any output declares
+        one: infinite / 0 where it does not) and ``input_quantities``, ``output_quantities`` (only where any is
+        declared): the exported ROM FMU declares them as the source did (audit 81b F4)."""
+        forces, outputs = getattr(self, "_interface_elements", ([], []))
+        desc: dict[str, list[Any]] = {}
+        ranges = [declared_range(e) for e in outputs]   # (a negated alias's own, as the value recorded)
+        if any(math.isfinite(v) for bounds in ranges for v in bounds):
+            desc["output_min"] = [float(low) for low, _ in ranges]
+            desc["output_max"] = [float(high) for _, high in ranges]
+        nominals = [declared_nominal(e) for e in outputs]
+        if any(not math.isnan(v) for v in nominals):
+            desc["output_nominal"] = [0.0 if math.isnan(v) else float(v) for v in nominals]
+        for key, elements in (("input_quantities", forces), ("output_quantities", outputs)):
+            quantities = [e.var.quantity or "" for e in elements]
+            if any(quantities):
+                desc[key] = quantities
+        return desc
+
     def description(self) -> dict[str, Any]:
         desc = super().description()
         desc["variable_selection"] = dict(self.selection.how)
@@ -519,6 +539,7 @@ class FMUSource(Source):
         if any(self.input_display_units) or any(self.output_display_units):
             desc["input_display_units"] = list(self.input_display_units)
             desc["output_display_units"] = list(self.output_display_units)
+        desc.update(self.declared_interface_attributes())
         starts = self.input_starts()
         if np.any(starts != 0):   # the exported ROM FMU's inputs start there too
             desc["input_starts"] = [float(v) for v in starts]
