@@ -10,6 +10,7 @@ and the source FMU's own model description, not the code under test.
 from __future__ import annotations
 
 import copy
+import re
 import warnings
 from pathlib import Path
 
@@ -21,6 +22,7 @@ fmpy = pytest.importorskip("fmpy")
 from fmpy import read_model_description, simulate_fmu  # noqa: E402
 from fmpy.validation import validate_fmu  # noqa: E402
 
+from conftest import rewrite_description  # noqa: E402
 from fmu_opinf import export, lti_fmus, snapshots  # noqa: E402
 from fmu_opinf.errors import FmuOpinfWarning  # noqa: E402
 from fmu_opinf.fit import fit_rom  # noqa: E402
@@ -190,3 +192,31 @@ def test_default_experiment_times_are_written_short():
     assert repr(0.03 * 3316) == "99.47999999999999"      # what the XML said before
     assert export._round_time(0.001 * 20001, 0.001) == 20.001
     assert export._round_time(7.5, None) == 7.5
+
+
+# ------------------------------------------------------------------------- interface attributes (F4)
+
+def _declare_output_range(text: str) -> str:
+    """The source with ``y[1]`` declared within [-1, 1], nominal 0.1 (as the audit's ``decl`` source)."""
+    return re.sub(r'(<ScalarVariable name="y\[1\]"[^>]*>\s*<Real declaredType="Modelica.Units.SI.Position")',
+                  r'\1 nominal="0.1" min="-1" max="1"', text, count=1)
+
+
+@pytest.mark.parametrize("version", ["2.0", "3.0"])
+def test_quantities_and_output_ranges_are_kept(tmp_path, version):
+    built = lti_fmus.build_lti_fmu(_model(), tmp_path / "Decl0.fmu", declared_types=True, output_units=True).path
+    source = rewrite_description(built, tmp_path / "Decl.fmu", _declare_output_range)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FmuOpinfWarning)
+        rom = fit_rom(snapshots.record(open_source(source), TRAINING, dt=0.05, t_end=30.0, quiet=True))
+        path = export.export_fmu(rom, tmp_path / f"DeclRom{version[0]}.fmu", fmi_version=version)
+    md = read_model_description(str(path))
+    declared = {v.name: v for v in md.modelVariables}
+    types = {t.name: t for t in read_model_description(str(source)).typeDefinitions}
+    assert declared["F[1]"].quantity == types["Modelica.Units.SI.Force"].quantity == "Force"
+    assert declared["y[1]"].quantity == types["Modelica.Units.SI.Position"].quantity
+    assert (float(declared["y[1]"].min), float(declared["y[1]"].max), float(declared["y[1]"].nominal)) == (-1, 1, 0.1)
+    assert declared["y[2]"].min is None and declared["y[2]"].nominal is None
+    if version == "3.0":
+        assert declared["time"].unit == "s"
+    assert validate_fmu(str(path)) == []
