@@ -578,8 +578,8 @@ def _source_parameters(provenance: dict, taken: set[str]) -> list[Parameter]:
         if kind not in _REAL_PARAMETER_TYPES or name in taken or not name.strip():
             left_out.append(name)
             continue
-        given = " (--set)" if name in record["set"] else ""
-        kept.append(Parameter(name, value, f"source parameter fixed at its training value{given}", unit))
+        given = "fixed at its --set value in training" if name in record["set"] else ""   # (compact: hundreds)
+        kept.append(Parameter(name, value, given, unit))
     if left_out:
         warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (not real, or named like "
                       "an input or output): an importer that sets them on the ROM FMU fails", FmuOpinfWarning,
