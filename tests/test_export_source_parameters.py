@@ -98,7 +98,7 @@ def test_the_trained_value_set_by_an_importer_runs_and_matches_the_exact_model(t
 def test_another_value_is_refused_in_one_line_naming_the_parameter(trained, version):
     lines = []
 
-    def logger(*args):   # FMI 2: (component, instance, status, category, message); FMI 3: (env, status, category, message)
+    def logger(*args):   # FMI 2: (component, instance, status, category, message); FMI 3: (env, status, ...)
         message = args[-1]
         lines.append(message.decode() if isinstance(message, bytes) else str(message))
 

@@ -411,7 +411,8 @@ class SecondOrderFmuSpec:
                                          ("unit", "output", self.output_units, self.p),
                                          ("display unit", "input", self.input_display_units, self.m),
                                          ("display unit", "output", self.output_display_units, self.p),
-                                         ("unit", "parameter", [p.unit for p in self.parameters], len(self.parameters))):
+                                         ("unit", "parameter", [par.unit for par in self.parameters],
+                                          len(self.parameters))):
             if units is None:
                 continue
             if len(units) != count:

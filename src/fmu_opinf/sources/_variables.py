@@ -33,7 +33,8 @@ __all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_pla
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
            "show_patterns", "is_held", "outputs_left_out", "held_outputs", "real_outputs", "nonzero_start",
            "looks_like_parameter", "is_coefficient", "unit_kind", "start_value", "is_pressure_about_start",
-           "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports", "held_inputs_record"]
+           "unit_dimension", "parameter_like_inputs", "element_names", "fmi3_ports", "held_inputs_record",
+           "source_parameters_record", "port_aliases", "RECORDED_PARAMETER_TYPES"]
 
 #: Floating-point types recorded, driven and set (FMI 3 ``Float32``: single-precision signals, read and written by
 #: ``fmi3GetFloat32`` / ``fmi3SetFloat32``, :class:`ReadPlan`).
