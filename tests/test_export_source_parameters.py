@@ -220,3 +220,16 @@ def test_quantities_and_output_ranges_are_kept(tmp_path, version):
     if version == "3.0":
         assert declared["time"].unit == "s"
     assert validate_fmu(str(path)) == []
+
+
+def test_merged_recordings_keep_the_parameters_every_part_recorded_at_one_value():
+    from fmu_opinf.snapshots._data import shared_parameters
+
+    def record(k: float, given: list[str]) -> dict:
+        return {"names": ["m", "k", "n"], "types": ["Real", "Real", "Integer"], "values": [1.0, k, 3.0],
+                "units": ["kg", "N/m", ""], "quantities": ["Mass", "", ""], "set": given}
+
+    shared = shared_parameters(record(2.0, ["k"]), record(3.0, ["k"]))
+    assert shared["names"] == ["m", "n"] and shared["values"] == [1.0, 3.0] and shared["set"] == []
+    assert shared_parameters(record(2.0, ["k"]), record(2.0, []))["set"] == ["k"]
+    assert shared_parameters(record(2.0, []), None) is None
