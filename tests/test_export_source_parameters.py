@@ -192,6 +192,7 @@ def test_default_experiment_times_are_written_short():
     assert repr(0.03 * 3316) == "99.47999999999999"      # what the XML said before
     assert export._round_time(0.001 * 20001, 0.001) == 20.001
     assert export._round_time(7.5, None) == 7.5
+    assert export._round_time(0.001 + 0.02 * 4974, 0.02, 0.001) == 99.481   # (a start at 1 ms)
 
 
 # ------------------------------------------------------------------------- interface attributes (F4)

@@ -458,7 +458,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
     if stop is not None and dt is not None:  # a whole number of steps: an importer's last step is not refused
         stop = dt * max(1, math.floor(stop / dt + 1e-9))
     start = _recorded_start_time(provenance)
-    experiment = (start, None if stop is None else _round_time(start + stop, dt), dt)
+    experiment = (start, None if stop is None else _round_time(start + stop, dt, start), dt)
     output_descriptions = (recorded_output_texts(provenance, output_names, "Cpr q + Cvr q' + Dur u + y0")
                            + [f"reconstructed full-order position {name}: " + _reconstruction_formula(rom)
                               for name in names])
@@ -1026,14 +1026,19 @@ def _recorded_start_time(provenance: dict) -> float:
     return 0.0
 
 
-def _round_time(value: float, step: float | None) -> float:
-    """``value`` rounded to the decimals of ``step`` (0.03: two) and of the value's own tenth-of-a-step scale, so
-    that the XML says ``99.48``, not ``99.47999999999999`` (``repr`` of a product of steps; audit 81b F3)."""
-    if step is None:
-        return value
-    exponent = decimal.Decimal(repr(float(step))).normalize().as_tuple().exponent
-    decimals = max(0, -int(exponent)) if isinstance(exponent, int) else 0
-    return round(value, decimals) if decimals <= 15 else value
+def _round_time(value: float, *steps: float | None) -> float:
+    """``value`` rounded to the most decimals any of ``steps`` has (0.03: two), so that the XML says ``99.48``, not
+    ``99.47999999999999`` (``repr`` of a product of steps; audit 81b F3); as it is where none has decimals to go by
+    or one has more than 15."""
+    places = [_decimals(step) for step in steps if step is not None]
+    decimals = max(places, default=None)
+    return round(value, decimals) if decimals is not None and 0 < decimals <= 15 else value
+
+
+def _decimals(value: float) -> int:
+    """The decimals of ``repr(value)`` (``0.03``: 2, ``2.0``: 0, ``1e-05``: 5)."""
+    exponent = decimal.Decimal(repr(float(value))).normalize().as_tuple().exponent
+    return max(0, -exponent) if isinstance(exponent, int) else 0
 
 
 def _recorded_output_ranges(provenance: dict, p: int, extra: int) -> list[tuple[float, float]] | None:
