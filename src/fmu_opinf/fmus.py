@@ -16,6 +16,8 @@ degrees of freedom.
 
 from __future__ import annotations
 
+import collections
+
 import hashlib
 import math
 import os
@@ -472,7 +474,8 @@ class SecondOrderFmuSpec:
         if self.fmi_version == "3.0":
             names.append("time")
         states = tuple(f"{base}[" for base in self.state_names) if self.expose_states else ()
-        clashes = sorted({name for name in names if names.count(name) > 1 or name.startswith(states)})
+        counts = collections.Counter(names)   # (a source with 60,000 parameters: list.count took 47 s)
+        clashes = sorted({name for name, count in counts.items() if count > 1 or name.startswith(states)})
         if clashes:
             raise FmuBuildError(f"variable name(s) {', '.join(clashes)} are used twice; give the "
                                 "inputs, outputs and parameters distinct names")
