@@ -17,7 +17,6 @@ degrees of freedom.
 from __future__ import annotations
 
 import collections
-
 import hashlib
 import math
 import os
