@@ -151,6 +151,26 @@ def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence
     small = _run_scaled(source, reference, sign / DECADE, quiet, isolate)
     if mismatch(reference.y, small, reference.free, 1.0 / (sign / DECADE)) <= LINEARITY_BAR:
         return None
+    measured, factor = _scaling_factor(source, reference, sign, small, moving, quiet, isolate)
+    if factor is None:
+        warn_recording(_not_linear(source, amplitudes, measured, sign), "nonlinear", stacklevel=4)
+        return None
+    if len(measured) == 1:
+        return None
+    lowered = [float(f"{amplitude * abs(factor):.3g}") for amplitude in amplitudes]
+    if not quiet:
+        print(_lowered_line(source, amplitudes, lowered, measured, sign), file=sys.stderr)
+    return lowered
+
+
+def _scaling_factor(source: Source, reference: Reference, sign: float, small: np.ndarray | None, moving: bool,
+                    quiet: bool, isolate: bool) -> tuple[list[float], float | None]:
+    """The mismatch measured at each decade tried (the reference's amplitude first) and the factor of the
+    reference's amplitude at which the response scales (:data:`LINEARITY_BAR` at the first decade,
+    :data:`LOWERED_BAR` below it), None where none down to :data:`LOWEST_SHARE` does or the mismatch stops falling
+    (:data:`FALLING`).  ``small``: the reference's pulse at ``sign`` times a tenth, already run at the reference's
+    accuracy; where the source integrates to a tolerance it is all recorded again at the check's (:func:`accurate`)
+    first, so that a linear model at a loose tolerance is judged on the model and not on its integration error."""
     if not reference.exact and integrated_to_tolerance(source):
         reference, small = accurate(source, reference, moving, quiet, isolate), None
     big, big_factor, measured = reference.y, 1.0, []
@@ -160,20 +180,12 @@ def linear_amplitudes(source: Source, reference: Reference, amplitudes: Sequence
             small = _run_scaled(source, reference, small_factor, quiet, isolate)
         measured.append(mismatch(big, small, reference.free, big_factor / small_factor))
         if measured[-1] <= (LINEARITY_BAR if len(measured) == 1 else LOWERED_BAR):
-            break
+            return measured, big_factor
         falling = len(measured) == 1 or measured[-1] <= measured[-2] / FALLING
         if not falling or abs(small_factor) < LOWEST_SHARE * (1.0 - 1e-9):
-            if measured[-1] <= LINEARITY_BAR:   # at the noise of the runs: this decade scales well enough
-                break
-            warn_recording(_not_linear(source, amplitudes, measured, sign), "nonlinear", stacklevel=4)
-            return None
+            # (at the noise of the runs, this decade scales well enough)
+            return measured, (big_factor if measured[-1] <= LINEARITY_BAR else None)
         big, big_factor, small = small, small_factor, None
-    if len(measured) == 1:
-        return None
-    lowered = [float(f"{amplitude * abs(big_factor):.3g}") for amplitude in amplitudes]
-    if not quiet:
-        print(_lowered_line(source, amplitudes, lowered, measured, sign), file=sys.stderr)
-    return lowered
 
 
 def _opposite(source: Source, amplitudes: Sequence[float]) -> bool:
@@ -272,3 +284,137 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
             "rest position, or a saturation below the smallest pulse tried): the model is not linear, and a ROM fits "
             "it only near one amplitude; recording at the default amplitude (give --input impulse:amplitude=... at the "
             "loads you mean)")
+
+
+def input_departures(source: Source, signal: Any, t: np.ndarray) -> np.ndarray:
+    """How far ``signal`` drives each input from the value the recordings hold it at (its start value,
+    :func:`~._record.held_starts`) on the grid ``t``: ``(m,)``, the largest ``|u - held|`` per input."""
+    from ._rates import inputs_in_effect
+    from ._record import held_starts
+
+    if not source.m:
+        return np.zeros(0)
+    u = inputs_in_effect(signal, t, source.m)
+    return np.abs(u - held_starts(source)[:, None]).max(axis=1, initial=0.0)
+
+
+def largest_runs(departures: Sequence[np.ndarray]) -> list[int]:
+    """The runs (indices into ``departures``, each :func:`input_departures`) that the check of given inputs
+    judges: on each input, the first run that drives it furthest.  A run no larger than another on every input
+    drives the model less far and costs no run of its own (an amplitude sweep: its largest run alone; one run per
+    input: each of them)."""
+    chosen: set[int] = set()
+    if not departures:
+        return []
+    sizes = np.vstack([np.asarray(d, dtype=float).reshape(-1) for d in departures])
+    for column in sizes.T:
+        if column.size and column.max() > 0:
+            chosen.add(int(np.argmax(column)))
+    return sorted(chosen)
+
+
+def check_given_input(source: Source, signal: Any, t: np.ndarray, y: np.ndarray, free: np.ndarray | None,
+                      quiet: bool, isolate: bool) -> None:
+    """Warn where the response recorded (outputs ``y`` of ``signal`` on the grid ``t``) does not scale with its
+    input, which stays as given (the user chose it: it is not lowered).
+
+    One run of the same input, its departure from the inputs' start values scaled by -1/10 (:data:`DECADE`; +1/10
+    where the inputs' declared ranges do not allow the other way), at the recording's accuracy: a linear model
+    resting under its start inputs matches -10 times it to round-off (:func:`mismatch`, :data:`LINEARITY_BAR`).
+    Where it does not, the model's own motion is taken out: ``free`` (a run of the recording without any input
+    departure, on the same grid), else one run with the inputs held.  Where it still does not, on a source
+    integrating to a tolerance, the runs are made again at :data:`CHECK_TOLERANCE` (:func:`accurate`: a linear
+    ME/CS FMU moving on its own at a loose tolerance is no false alarm), then the input is scaled down by decades
+    to the first factor at which the response scales (one run each, down to :data:`LOWEST_SHARE`), and the
+    ``nonlinear`` recording warning names the input, the figures and that factor (kept in the file: ``fit``,
+    ``compare`` and ``export`` repeat it).  A run of the check that fails says nothing: the recording stands."""
+    from ._notes import warn_recording
+    from ._window import largest_motion
+
+    held = _held(source)
+    departure = np.atleast_2d(np.asarray(signal.sample(t), dtype=float)) - held[:, None]
+    sign = -1.0 if _within_ranges(source, held, -departure / DECADE) else 1.0
+    exact = not integrated_to_tolerance(source)
+    label = "the input's linearity check"
+    small = _recorded_outputs(source, Scaled(signal, held, sign / DECADE), t, quiet, isolate,
+                              f"{label} (input x {sign / DECADE:g})")
+    rest = y[:, :1] if free is None else free
+    if mismatch(y, small, rest, sign * DECADE) <= LINEARITY_BAR:
+        return
+    if free is None:
+        free = _recorded_outputs(source, Scaled(signal, held, 0.0), t, quiet, isolate, f"{label} (no input)")
+        if mismatch(y, small, free, sign * DECADE) <= LINEARITY_BAR:
+            return
+    moving = largest_motion(source, t, free) is not None
+    reference = Reference(signal, held, t, y, free if moving else y[:, :1], label, exact)
+    measured, factor = _scaling_factor(source, reference, sign, small, moving, quiet, isolate)
+    if factor is not None and len(measured) == 1:
+        return   # (the two differed by the integrator's error at the recording's tolerance: a linear model)
+    warn_recording(_given_not_linear(source, signal, held, measured, factor, sign), "nonlinear", stacklevel=3)
+
+
+def _held(source: Source) -> np.ndarray:
+    """The inputs' start values as the recordings hold them (:func:`~._record.held_starts`)."""
+    from ._record import held_starts
+
+    return held_starts(source)
+
+
+def _within_ranges(source: Source, held: np.ndarray, departure: np.ndarray) -> bool:
+    """Whether ``held + departure`` stays within every input's declared range at every sample."""
+    low, high = (np.asarray(bound, dtype=float).reshape(-1, 1) for bound in source.input_ranges())
+    values = held[:, None] + departure
+    return bool(np.all((values >= low) & (values <= high)))
+
+
+def _recorded_outputs(source: Source, signal: Any, t: np.ndarray, quiet: bool, isolate: bool,
+                      label: str) -> np.ndarray:
+    """The outputs of a complete run of ``signal`` on the grid ``t`` at the recording's accuracy (a failure raises;
+    the model's events are not said, the recording says them)."""
+    from ._record import incomplete_error, record_run, MemorySink
+
+    run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, say_events=False)
+    if failure is not None:
+        raise incomplete_error(failure, run, None)
+    return np.asarray(run.y)[:, :len(t)]
+
+
+def _scaled_spec(signal: Any, held: np.ndarray, factor: float) -> str | None:
+    """The specification of ``signal`` at ``factor`` times its amplitude, where it can be written as one: every
+    part a parametric signal without an offset (or ``none``), on inputs held at 0; else None."""
+    from ..signals import NoInput, ParametricSignal, StackedSignal, _Broadcast, _make
+
+    base = signal.base if isinstance(signal, _Broadcast) else signal
+    parts = base.parts if isinstance(base, StackedSignal) else [base]
+    if np.any(held != 0.0) or not all(isinstance(p, NoInput) or (isinstance(p, ParametricSignal)
+                                      and not p.params.get("offset", 0.0)) for p in parts):
+        return None
+    specs = []
+    for part in parts:
+        if isinstance(part, NoInput):
+            specs.append("none")
+            continue
+        amplitude = float(f"{part.params['amplitude'] * factor:.3g}")
+        specs.append(_make(part.kind, **{**part.params, "amplitude": amplitude}).spec)
+    return ";".join(specs)
+
+
+def _given_not_linear(source: Source, signal: Any, held: np.ndarray, measured: Sequence[float],
+                      factor: float | None, sign: float) -> str:
+    """The warning where the response to a given input does not scale with it (:func:`check_given_input`)."""
+    from ._isolation import source_label
+
+    spec = getattr(signal, "spec", repr(signal))
+    head = (f"{source_label(source)}: the response to the input {spec} does not scale with it: it and "
+            f"{sign * DECADE:g} times the response to the same input scaled by {sign / DECADE:g} (net of the model's "
+            f"own motion; a linear model's agree to round-off) differ by {measured[0]:.2g}")
+    if factor is None:
+        lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
+        return (f"{head}{lower} (friction, a contact at the rest position, or a saturation below the smallest input "
+                "tried): the model is not linear, and a ROM fits it only near this amplitude; recorded as given (give "
+                "--input at the loads the ROM is meant for)")
+    smaller = _scaled_spec(signal, held, abs(factor))
+    example = f", e.g. --input '{smaller}'" if smaller else ""
+    return (f"{head}: the model is linear only near its start, and a ROM fitted to this recording fits that large "
+            f"response, not the model near its start; the response scales at {abs(factor):.3g} times this input "
+            f"(to {measured[-1]:.2g}): recorded as given; give a smaller input{example}")

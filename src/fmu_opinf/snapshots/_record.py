@@ -40,7 +40,8 @@ from ._rate_tests import RateSums
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION, atomic, create_dataset, write_file_attrs, write_initial_state
 from ._initialization import initialization_of
-from ._linearity import Reference, linear_amplitudes, watching_pilots
+from ._linearity import (Reference, check_given_input, input_departures, largest_runs, linear_amplitudes,
+                         watching_pilots)
 from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess, produce_isolated, source_label
 from ._growth import warn_if_grows
 from ._notes import collecting_recording_notes, current_recording_notes
@@ -811,9 +812,10 @@ def _undriven_held(signal: Any, source: Source) -> Any:
 
 
 def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndarray], path: Path, quiet: bool,
-                 isolate: bool, overwrite: bool, window: "Window | None") -> "RecordSummary":
+                 isolate: bool, overwrite: bool, window: "Window | None", check: bool = False) -> "RecordSummary":
     """Stream every signal's run (on its grid in ``grids``: one step, each run's own end) into one new file; stop
-    at the first failing run (kept, incomplete)."""
+    at the first failing run (kept, incomplete).  ``check``: whether the response to the inputs recorded must be
+    checked for scaling with them (:func:`_check_inputs_scale`, its warning kept in the file)."""
     failure: StepError | None = None
     still = False
     t = grids[0]
@@ -857,6 +859,8 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
             summary.initialization = initialization_of(source, t, first_input, first_position, isolate)
             write_attrs(f, {"initialization": summary.initialization})
             still = _runs_still([runs[name] for name in runs])
+            if check and not still:
+                _check_inputs_scale(source, signals, grids, [runs[name] for name in runs], quiet, isolate)
         f.attrs["n_runs"] = len(summary.runs)
         write_attrs(f, _integrator_taken(source, recorded))
         write_attrs(f, current_recording_notes())   # (audit 70 F4: fit, compare and export repeat them)
@@ -865,6 +869,23 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
     if still:
         _warn_still(source, path)
     return summary
+
+
+def _check_inputs_scale(source: Source, signals: Sequence[Any], grids: Sequence[np.ndarray], groups: Sequence[Any],
+                        quiet: bool, isolate: bool) -> None:
+    """Warn where the model's response to an input recorded does not scale with it
+    (:func:`~._linearity.check_given_input`): the inputs stay as given, the warning is kept in the file.  Only the
+    runs that drive some input furthest are judged (:func:`~._linearity.largest_runs`: one extra run each, where
+    the model rests); a run without any input departure on the same grid (``none``) is the model's own motion."""
+    departures = [input_departures(source, signal, t) for signal, t in zip(signals, grids)]
+    for index in largest_runs(departures):
+        t = grids[index]
+        free = next((np.asarray(groups[j]["y"][:, :len(t)]) for j, d in enumerate(departures)
+                     if not np.any(d) and len(grids[j]) == len(t) and np.array_equal(grids[j], t)), None)
+        try:
+            check_given_input(source, signals[index], t, np.asarray(groups[index]["y"]), free, quiet, isolate)
+        except FmuOpinfError:   # a run of the check that fails says nothing: the recording stands, as without it
+            continue
 
 
 def _runs_still(runs: Sequence[Any]) -> bool:
@@ -1005,6 +1026,7 @@ def record_to_file(
     isolate: bool = True,
     keep_inputs: bool = False,
     window: "Window | dict | None" = None,
+    check_linearity: bool = True,
     **size_options: Any,
 ) -> RecordSummary:
     """Command-line entry: record one run per input specification into ``output``.
@@ -1061,6 +1083,12 @@ def record_to_file(
         An automatic window chosen beforehand (:func:`recording_window`, with its step and end replaced as
         wanted; a dict: its ``as_dict()``): recorded at its ``dt`` and ``t_end`` as the automatic window, without
         pilot runs (a run table's rows at the table's one step, :func:`fmu_opinf.runs.record_runs`).
+    check_linearity : bool, default=True
+        After recording, check that the response scales with the inputs recorded (:func:`_check_inputs_scale`:
+        one extra run of the same input at -1/10 per run that drives some input furthest, more only where it
+        does not scale), and warn where it does not, naming the input and the amplitude at which it scales; the
+        inputs are recorded as given.  Not repeated where the default training's amplitude check ran on the
+        automatic window's pilots.  False skips it (a run of hours, a model known to be linear).
     **size_options
         Sizes of a builtin system (``g`` for anchored-msd; ``n1, alpha, beta, v`` for triple-chain).
 
@@ -1086,7 +1114,8 @@ def record_to_file(
         check_input_acts(signal, t)
     if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
-    summary = _record_file(source, signals, grids, Path(output), quiet, isolate, overwrite, window)
+    check = check_linearity and source.m > 0 and not plan.linearity_checked
+    summary = _record_file(source, signals, grids, Path(output), quiet, isolate, overwrite, window, check)
     ends = sorted({float(t[-1]) for t in grids})
     summary.window_end = ends[-1]
     summary.t_end_from = t_end_from if len(ends) == 1 else (
@@ -1114,6 +1143,7 @@ class _Plan:
     step_multiple: bool
     t_end_from: str | None
     isolate: bool
+    linearity_checked: bool = False   # the default training's amplitude check ran on the pilots
 
 
 def recording_window(source_spec: str | os.PathLike, signal: Any = None, dt: float | None = None,
@@ -1182,6 +1212,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
                                              "constraint", "parameters", "interface", "tolerance", "start_time"))
     points_per_period, fade = limits["points_per_period"], limits["fade"]
     preset = _preset_window(window)
+    outcome: dict[str, Any] = {}
 
     signal = _renamed(size_options, "input_spec", "signal", signal)
     window_energy = _renamed(size_options, "energy", "window_energy", limits["window_energy"])
@@ -1242,7 +1273,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
                           quiet=quiet, max_dt=bound, exact_dt=dt_given or fixed is not None,
                           t_limit=min(limits) if limits else None)
         window, signals, terminated = _window_before_termination(source, signals, representatives, by_default,
-                                                                 thresholds, t_end)
+                                                                 thresholds, t_end, outcome)
         if terminated is not None and t_end is None:
             t_end_from = f"before the FMU terminates the simulation at t={terminated:g}"
         if step_declared and dt > window.dt:
@@ -1262,23 +1293,26 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
     if by_default and source.m and window is None:   # a grid given or declared: no pilots told whether it rests
         signals = _sized_on_grid(source, signals, time_grid(dt, t_end), quiet, isolate)
     return _Plan(source, signals, representatives, window, dt, t_end, dt_given, fixed, step_declared, step_multiple,
-                 t_end_from, isolate)
+                 t_end_from, isolate, bool(outcome.get("checked")))
 
 
 def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
-                               thresholds: dict[str, Any],
-                               t_end: float | None) -> tuple[Any, list[Any], float | None]:
+                               thresholds: dict[str, Any], t_end: float | None,
+                               outcome: dict[str, Any] | None = None) -> tuple[Any, list[Any], float | None]:
     """The automatic window (and the default training's signals), with the time at which the FMU terminated the
     simulation in a pilot (None where it did not): the pilots are then run again, none past that time, and the
     window ends before it (audit 70, F5: a Simulink-style FMU that stops itself at t = 30 was refused whatever
     --t-end said, the pilots running on to their own horizon).  Said in a warning, since the recording ends there
     and not where the response would have faded.  Where the end ``t_end`` is set already (``--t-end``, an input
-    table's last time), a termination before it is the error, whose message names the --t-end that works."""
+    table's last time), a termination before it is the error, whose message names the --t-end that works.
+    ``outcome``: as for :func:`_default_training_window`."""
     from ._window import auto_window as choose_window, combine_windows
 
     def choose(limits: dict[str, Any]) -> tuple[Any, list[Any]]:
         if by_default and source.m:
-            return _default_training_window(source, limits)
+            if outcome is not None:
+                outcome.pop("checked", None)   # (this try's, not an earlier one's)
+            return _default_training_window(source, limits, outcome)
         return combine_windows([choose_window(source, signal, **limits) for signal in representatives]), signals
 
     try:
@@ -1389,13 +1423,16 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
 RESCALE, RESCALE_TRIES = 100.0, 3
 
 
-def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tuple[Any, list[Any]]:
+def _default_training_window(source: Source, thresholds: dict[str, Any],
+                             outcome: dict[str, Any] | None = None) -> tuple[Any, list[Any]]:
     """The window and signals of the default training (:func:`_impulse_window`), its pulse raised where its effect
     on the outputs is lost in the model's own motion (:func:`_raised_amplitudes`): the window is then chosen again
     for the raised pulse.  A model at rest (the first pilot tells, from its samples before the pulse) costs no extra
     run for that.  Where the pulse was not raised, its response must scale with its amplitude
     (:func:`_linear_amplitudes`, one run more): where it does not, the amplitudes are lowered by decades and the
-    window chosen again for them (audit 79b, F1-F3)."""
+    window chosen again for them (audit 79b, F1-F3).  ``outcome``, where given, receives ``checked``: whether that
+    check ran (not where the pulse was raised: the recording's own check judges it then,
+    :func:`_check_inputs_scale`)."""
     amplitudes = default_amplitudes(source)
     try:
         with watching_pilots() as pilot:
@@ -1410,6 +1447,8 @@ def _default_training_window(source: Source, thresholds: dict[str, Any]) -> tupl
         if raised is not None:   # (sized by the model's own motion, not by the input's unit: not lowered again)
             window, signals, _ = _impulse_window(source, thresholds, raised)
             return window, _with_free_run(source, signals, seen, bool(thresholds.get("quiet", True)))
+    if outcome is not None:
+        outcome["checked"] = True
     lowered = _linear_amplitudes(source, window, pilot, seen, amplitudes, thresholds)
     if lowered is not None:
         window, signals, _ = _impulse_window(source, thresholds, lowered)
