@@ -176,12 +176,13 @@ def test_a_linear_fmu_integrated_loosely_is_checked_again_at_a_tight_tolerance(t
 
 
 @pytest.mark.fmu
-def test_a_given_input_is_recorded_as_given_without_the_check(tmp_path, monkeypatch):
-    """The user chose the input: no check run, no lowering (the hardening spring at 100 N)."""
+def test_a_given_input_is_recorded_as_given_and_not_lowered(tmp_path, monkeypatch):
+    """The user chose the input: it is not lowered (the hardening spring at 100 N); the check of a given input only
+    warns (test_given_input_linearity.py)."""
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
-    made = _counting_checks(monkeypatch)
-    record_to_file(fmu, tmp_path / "train.h5", DEFAULT, dt=0.02, t_end=20.0, quiet=True)
-    assert made == [] and Snapshots.load(tmp_path / "train.h5").runs[0].attrs["input_spec"] == DEFAULT
+    with pytest.warns(FmuOpinfWarning, match="does not scale with it"):
+        record_to_file(fmu, tmp_path / "train.h5", DEFAULT, dt=0.02, t_end=20.0, quiet=True)
+    assert Snapshots.load(tmp_path / "train.h5").runs[0].attrs["input_spec"] == DEFAULT
 
 
 @pytest.mark.fmu

@@ -93,7 +93,7 @@ def _scaleout_dispatch(args: argparse.Namespace) -> bool:
     if args.verb == "snapshots":
         report = runs.record_runs(args.source, args.runs, args.output, scheduler=args.scheduler, dt=args.dt,
                                   t_end=args.t_end, auto_window=args.auto_window, isolate=not args.in_process,
-                                  quiet=args.quiet, **_source_options(args))
+                                  quiet=args.quiet, check_linearity=args.check_linearity, **_source_options(args))
         print(report.describe())
     else:
         report, table = runs.compare_runs(args.rom, args.source, args.runs, args.output, scheduler=args.scheduler,
@@ -146,6 +146,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "the slowest significant oscillation after the input died out if they do not fade by then")
     p.add_argument("--in-process", action="store_true",
                    help="run the FMU inside this process (faster start; a crashing FMU then ends the tool)")
+    p.add_argument("--no-linearity-check", dest="check_linearity", action="store_false",
+                   help="do not check that the response scales with the inputs recorded (by default one extra run "
+                        "of the largest input at -1/10 per input, or per --set/start group of a run table, and a "
+                        "warning naming a smaller input where the model is linear only near its start)")
     p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     _add_scaleout_options(p, "record")
@@ -263,7 +267,8 @@ def _run_snapshots(args: argparse.Namespace) -> None:
 
     summary = record_to_file(args.source, args.output, args.input_spec, dt=args.dt, t_end=args.t_end,
                              auto_window=args.auto_window, overwrite=args.force, quiet=args.quiet,
-                             isolate=not args.in_process, **_source_options(args))
+                             isolate=not args.in_process, check_linearity=args.check_linearity,
+                             **_source_options(args))
     print(f"wrote {summary.describe()}")
 
 

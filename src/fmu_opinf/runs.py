@@ -461,7 +461,8 @@ def _cpu_seconds() -> float:
 
 
 def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settings: dict[str, Any] | None = None,
-               source_options: dict[str, Any] | None = None, isolate: bool = True) -> RunOutcome:
+               source_options: dict[str, Any] | None = None, isolate: bool = True,
+               check_linearity: bool = True) -> RunOutcome:
     """Record one row into ``out_dir/NAME.h5`` (skipped when a complete file of the same row is there).
 
     The file is written as ``.NAME.partial.h5``, stamped with the row (attribute ``run_row``) and renamed into
@@ -481,6 +482,9 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
         Source keywords common to all rows (variable patterns, builtin sizes).
     isolate : bool, default=True
         Run an FMU in its own child process (a crashing binary then loses only its step).
+    check_linearity : bool, default=True
+        Check that the row's response scales with its input (``record_to_file(check_linearity=)``; not part of
+        the row's stamp: a row recorded without the check is not recorded again for it).
 
     Returns
     -------
@@ -500,7 +504,7 @@ def record_row(source_spec: Any, row: RunRow, out_dir: str | os.PathLike, settin
     started, cpu, error = time.perf_counter(), _cpu_seconds(), ""
     try:
         record_to_file(source_spec, partial, row.input, overwrite=True, quiet=True, isolate=isolate,
-                       **settings, **row_source_options(row, options))
+                       check_linearity=check_linearity, **settings, **row_source_options(row, options))
     except FmuOpinfError as exc:
         error = str(exc)
     try:
@@ -766,6 +770,7 @@ def record_runs(
     isolate: bool = True,
     quiet: bool = False,
     progress: Callable[[RunOutcome, int, int], None] | None = None,
+    check_linearity: bool = True,
     **source_options: Any,
 ) -> RunTableReport:
     """Record every row of a run table into its own snapshot file in ``output`` (a directory).
@@ -792,6 +797,10 @@ def record_runs(
         No progress lines on stderr.
     progress : callable, optional
         ``progress(outcome, done, total)`` after each row (default: a line on stderr unless quiet).
+    check_linearity : bool, default=True
+        Check that the response scales with the input (``record_to_file(check_linearity=)``) on the rows that
+        drive some input furthest among the rows of the same ``set:``/``start:`` values (:func:`_rows_to_check`:
+        one extra run each, not one per row); False: on none.
     **source_options
         Source keywords common to all rows (variable patterns, ``constraint``, builtin sizes such as ``g``).
 
@@ -818,6 +827,7 @@ def record_runs(
             return {**settings, "keep_inputs": True} if forced and is_free_response(row.input) else settings
 
         show = progress or _progress_printer(quiet)
+        checked = _rows_to_check(rows, source_spec, source_options, t_end) if check_linearity else set()
         started = time.perf_counter()
         outputs = {path: path for row in rows for path in (out_dir / f"{row.name}.h5", out_dir / f"{row.name}"
                                                            f"{INCOMPLETE_SUFFIX}")}
@@ -839,18 +849,71 @@ def record_runs(
                 chosen = windows(lambda some, function, arguments: [function(*arguments(row)) for row in some])
                 outcomes = []
                 for i, row in enumerate(rows):
-                    outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate))
+                    outcomes.append(record_row(source_spec, row, out_dir, chosen[row.number], source_options, isolate,
+                                               row.number in checked))
                     show(outcomes[-1], i + 1, len(rows))
             else:
                 with dask_client(scheduler, isolate=isolate and _is_fmu(source_spec)) as client:
                     chosen = windows(lambda some, function, arguments: _gather_rows(client, function, some, arguments))
                     outcomes = _map_rows(client, record_row, rows, show,
                                          lambda row: (source_spec, row, str(out_dir), chosen[row.number],
-                                                      source_options, isolate))
+                                                      source_options, isolate, row.number in checked))
         return RunTableReport(outcomes, time.perf_counter() - started)
     except BaseException:   # failed or interrupted: a folder this call made and left empty goes again
         _remove_empty_folders(made)
         raise
+
+
+#: Horizon over which a row's input is sampled to size it where neither the row's table nor ``t_end`` ends it (as
+#: :func:`fmu_opinf.snapshots._window.input_activity` samples an input), and the samples taken.
+SIZING_HORIZON, SIZING_SAMPLES = 1000.0, 200_001
+
+
+def _rows_to_check(rows: Sequence[RunRow], source_spec: Any, source_options: dict[str, Any],
+                   t_end: float | None) -> set[int]:
+    """The numbers of the rows whose response is checked for scaling with the input: among the rows of the same
+    ``set:`` and ``start:`` values (one model, one operating point), those that drive some input furthest from its
+    start value (:func:`fmu_opinf.snapshots._linearity.largest_runs`; each input sampled over its table, else to
+    ``t_end``, else :data:`SIZING_HORIZON`).  A model that scales at the largest input does at the smaller ones of
+    its group, so a table of many rows costs one extra run per input and group, not one per row.  A group whose
+    source or inputs cannot be read here is checked on every row (its rows then fail with their own message)."""
+    groups: dict[str, list[RunRow]] = {}
+    for row in rows:
+        groups.setdefault(json.dumps([row.set, row.start], sort_keys=True), []).append(row)
+    checked: set[int] = set()
+    for group in groups.values():
+        try:
+            departures = _row_departures(group, source_spec, source_options, t_end)
+        except FmuOpinfError:
+            checked.update(row.number for row in group)
+            continue
+        from .snapshots._linearity import largest_runs
+
+        checked.update(group[i].number for i in largest_runs(departures))
+    return checked
+
+
+def _row_departures(group: Sequence[RunRow], source_spec: Any, source_options: dict[str, Any],
+                    t_end: float | None) -> list[Any]:
+    """Each row's largest departure from the inputs' start values, per input (the source opened once, with the
+    group's start values)."""
+    import numpy as np
+
+    from .snapshots._linearity import input_departures
+    from .snapshots._record import as_signal
+    from .source import open_source
+
+    source = open_source(source_spec, **row_source_options(group[0], source_options))
+    try:
+        found = []
+        for row in group:
+            signal = as_signal(row.input, source.m, source)
+            own = float(getattr(signal, "t_range", (0.0, math.inf))[1])
+            end = own if math.isfinite(own) else (t_end or SIZING_HORIZON)
+            found.append(input_departures(source, signal, np.linspace(0.0, end, SIZING_SAMPLES)))
+        return found
+    finally:
+        getattr(source, "close", lambda: None)()
 
 
 def row_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_options: dict[str, Any],

@@ -414,7 +414,7 @@ def _given_not_linear(source: Source, signal: Any, held: np.ndarray, measured: S
                 "tried): the model is not linear, and a ROM fits it only near this amplitude; recorded as given (give "
                 "--input at the loads the ROM is meant for)")
     smaller = _scaled_spec(signal, held, abs(factor))
-    example = f", e.g. --input '{smaller}'" if smaller else ""
+    example = f", e.g. '{smaller}'" if smaller else ""
     return (f"{head}: the model is linear only near its start, and a ROM fitted to this recording fits that large "
             f"response, not the model near its start; the response scales at {abs(factor):.3g} times this input "
             f"(to {measured[-1]:.2g}): recorded as given; give a smaller input{example}")
