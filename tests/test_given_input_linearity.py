@@ -30,7 +30,7 @@ GRID = {"dt": 0.02, "t_end": 20.0}
 def _counting(monkeypatch) -> list[float]:
     """The input factors of the check's runs, as they are made (0: the run without the input)."""
     made: list[float] = []
-    recorded, scaled = _linearity._recorded_outputs, _linearity._run_scaled
+    recorded, scaled = getattr(_linearity, "_recorded_outputs", None), _linearity._run_scaled
 
     def at_recording(source, signal, t, quiet, isolate, label):
         made.append(signal.factor)
@@ -40,7 +40,8 @@ def _counting(monkeypatch) -> list[float]:
         made.append(factor)
         return scaled(source, reference, factor, quiet, isolate)
 
-    monkeypatch.setattr(_linearity, "_recorded_outputs", at_recording)
+    if recorded is not None:   # (None before the check of given inputs: then nothing counts, as nothing runs)
+        monkeypatch.setattr(_linearity, "_recorded_outputs", at_recording)
     monkeypatch.setattr(_linearity, "_run_scaled", lowered)
     return made
 
