@@ -11,6 +11,10 @@ integrate at a looser tolerance than the recording and that makes the two differ
 amplitude by decades until two neighbours agree (:data:`LINEARITY_BAR`, :data:`LOWERED_BAR`), and says so; down to
 :data:`LOWEST_SHARE` of the default with no agreement, it keeps the default and warns
 (:func:`~._notes.warn_recording`, kept in the file for ``fit``, ``compare`` and ``export``).
+
+Where the user chose the input (``--input``, a run table's rows), or the default training ran without this check (a
+grid given without pilots, a pulse raised for a model moving on its own), :func:`check_given_input` judges the run
+recorded the same way after recording, with one run of its input at -1/10, and only warns: the input stays as given.
 """
 
 from __future__ import annotations
