@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import lti_fmus
+from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.runs import record_runs
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Snapshots, record_to_file
@@ -146,3 +147,18 @@ def test_the_check_can_be_skipped(tmp_path, monkeypatch):
     made = _counting(monkeypatch)
     record_to_file(fmu, tmp_path / "big.h5", BIG, quiet=True, check_linearity=False, **GRID)
     assert made == [] and "recording_warnings" not in Snapshots.load(tmp_path / "big.h5").attrs
+
+
+@pytest.mark.fmu
+def test_the_default_pulse_on_a_given_grid_is_checked_too(tmp_path, monkeypatch):
+    """No --input but --dt and --t-end: no pilots, so the default training's own check never ran and the 100 N
+    pulse was recorded on the hardening spring without a word.  It is now checked after recording (the same
+    figures as a given 100 N impulse) and the warning names the 0.1 N pulse; the default pulse stays."""
+    fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
+    made = _counting(monkeypatch)
+    with pytest.warns(FmuOpinfWarning, match=r"does not scale with it: .* differ by 3\.1: .* e\.g\. "
+                                             r"'impulse:amplitude=0\.1,t0=2,width=0\.5'"):
+        record_to_file(fmu, tmp_path / "grid.h5", None, quiet=True, **GRID)
+    assert made == [-0.1, 0.0, -0.1, 0.01, -0.001, 0.0001], made
+    snaps = Snapshots.load(tmp_path / "grid.h5")
+    assert snaps.runs[0].attrs["input_spec"] == BIG and recorded_verdicts(snaps.attrs) == {"nonlinear"}
