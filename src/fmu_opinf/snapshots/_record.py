@@ -876,10 +876,18 @@ def _check_inputs_scale(source: Source, signals: Sequence[Any], grids: Sequence[
     """Warn where the model's response to an input recorded does not scale with it
     (:func:`~._linearity.check_given_input`): the inputs stay as given, the warning is kept in the file.  Only the
     runs that drive some input furthest are judged (:func:`~._linearity.largest_runs`: one extra run each, where
-    the model rests); a run without any input departure on the same grid (``none``) is the model's own motion."""
+    the model rests); a run without any input departure on the same grid (``none``) is the model's own motion.  A run
+    above :data:`STREAM_THRESHOLD` bytes is not judged (the check holds its runs in memory), said in one line."""
     departures = [input_departures(source, signal, t) for signal, t in zip(signals, grids)]
     for index in largest_runs(departures):
         t = grids[index]
+        size = _run_bytes(source, len(t))
+        if size > STREAM_THRESHOLD:
+            if not quiet:
+                print(f"run {index:04d} is not checked for a response that scales with its input: its "
+                      f"{size / 2**20:.0f} MiB exceed what the check holds in memory "
+                      f"({STREAM_THRESHOLD / 2**20:.0f} MiB); check a shorter run of the same input", file=sys.stderr)
+            continue
         free = next((np.asarray(groups[j]["y"][:, :len(t)]) for j, d in enumerate(departures)
                      if not np.any(d) and len(grids[j]) == len(t) and np.array_equal(grids[j], t)), None)
         try:
