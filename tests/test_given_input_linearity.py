@@ -156,7 +156,9 @@ def test_the_default_pulse_on_a_given_grid_is_checked_too(tmp_path, monkeypatch)
     figures as a given 100 N impulse) and the warning names the 0.1 N pulse; the default pulse stays."""
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
     made = _counting(monkeypatch)
-    with pytest.warns(FmuOpinfWarning, match=r"does not scale with it: .* differ by 3\.1: .* e\.g\. "
+    with pytest.warns(FmuOpinfWarning, match=r"the response to the default training input impulse:amplitude=100,"
+                                             r"t0=2,width=0\.5 does not scale with it: .* differ by 3\.1: .*\(not "
+                                             r"lowered where the grid is given .* e\.g\. "
                                              r"'impulse:amplitude=0\.1,t0=2,width=0\.5'"):
         record_to_file(fmu, tmp_path / "grid.h5", None, quiet=True, **GRID)
     assert made == [-0.1, 0.0, -0.1, 0.01, -0.001, 0.0001], made
@@ -174,3 +176,37 @@ def test_a_run_too_large_for_memory_is_not_checked_and_says_so(tmp_path, monkeyp
     monkeypatch.setattr(_record, "STREAM_THRESHOLD", 1000)
     record_to_file(fmu, tmp_path / "big.h5", BIG, quiet=False, **GRID)
     assert made == [] and "run 0000 is not checked for a response that scales with its input" in capsys.readouterr().err
+
+
+@pytest.mark.fmu
+@pytest.mark.slow   # 14 s: the automatic window's pilots, the sizing, the check at two tolerances and three decades
+def test_a_pulse_raised_for_a_loaded_hardening_spring_is_checked_and_warned(tmp_path, monkeypatch):
+    """The hardening spring under a constant load of 1e5 N (it swings by metres on its own): the 100 N pulse moved the
+    outputs by 8e-4 of that motion and was raised to 12000 N, where the default training's own check never ran.
+    The recording's check (net of the recorded run without the pulse) measures 0.62, then 0.079, 0.0083, 8.3e-4 a
+    decade lower each, and warns; the raised pulse stays (lowered, it would be lost in the motion again)."""
+    import shutil
+
+    from test_training_linearity import _ANCHOR, FORCES
+
+    sources = tmp_path / "src_loaded"
+    shutil.copytree(lti_fmus._lti_sources_dir(), sources)
+    text = (sources / "lti.c").read_text()
+    (sources / "lti.c").write_text(text.replace(_ANCHOR, _ANCHOR + "    " + FORCES["hardening"] + "\n", 1))
+    model = _two_masses()
+    model.f0 = np.array([1e5, 1e5])
+    monkeypatch.setattr(lti_fmus, "_lti_sources_dir", lambda: sources)
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "loaded.fmu", reuse=False)
+    monkeypatch.undo()
+    made = _counting(monkeypatch)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        record_to_file(str(fmu.path), tmp_path / "train.h5", None, quiet=True)
+    said = _scaling_warnings(seen)
+    raised = "impulse:amplitude=12000,t0=2,width=0.5"
+    assert len(said) == 1 and f"the response to the default training input {raised} does not scale" in said[0]
+    assert "differ by 0.62" in said[0] and "the response scales at 0.001 times this input" in said[0]
+    assert made == [-0.1, -0.1, 0.01, -0.001, 0.0001], made   # (the recorded run without the pulse: no run 0)
+    snaps = Snapshots.load(tmp_path / "train.h5")
+    assert [run.attrs["input_spec"] for run in snaps.runs] == [raised, "none"]
+    assert recorded_verdicts(snaps.attrs) == {"nonlinear"}

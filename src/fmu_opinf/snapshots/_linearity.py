@@ -318,7 +318,7 @@ def largest_runs(departures: Sequence[np.ndarray]) -> list[int]:
 
 
 def check_given_input(source: Source, signal: Any, t: np.ndarray, y: np.ndarray, free: np.ndarray | None,
-                      quiet: bool, isolate: bool) -> None:
+                      quiet: bool, isolate: bool, given: bool = True) -> None:
     """Warn where the response recorded (outputs ``y`` of ``signal`` on the grid ``t``) does not scale with its
     input, which stays as given (the user chose it: it is not lowered).
 
@@ -331,7 +331,9 @@ def check_given_input(source: Source, signal: Any, t: np.ndarray, y: np.ndarray,
     ME/CS FMU moving on its own at a loose tolerance is no false alarm), then the input is scaled down by decades
     to the first factor at which the response scales (one run each, down to :data:`LOWEST_SHARE`), and the
     ``nonlinear`` recording warning names the input, the figures and that factor (kept in the file: ``fit``,
-    ``compare`` and ``export`` repeat it).  A run of the check that fails says nothing: the recording stands."""
+    ``compare`` and ``export`` repeat it).  A run of the check that fails says nothing: the recording stands.
+    ``given``: the user chose the input (else it is the default training's, on a grid given without pilots or
+    raised for the model's own motion, where the default training's own check did not run), said so."""
     from ._notes import warn_recording
     from ._window import largest_motion
 
@@ -354,7 +356,8 @@ def check_given_input(source: Source, signal: Any, t: np.ndarray, y: np.ndarray,
     measured, factor = _scaling_factor(source, reference, sign, small, moving, quiet, isolate)
     if factor is not None and len(measured) == 1:
         return   # (the two differed by the integrator's error at the recording's tolerance: a linear model)
-    warn_recording(_given_not_linear(source, signal, held, measured, factor, sign), "nonlinear", stacklevel=3)
+    warn_recording(_given_not_linear(source, signal, held, measured, factor, sign, given), "nonlinear",
+                   stacklevel=3)
 
 
 def _held(source: Source) -> np.ndarray:
@@ -404,21 +407,25 @@ def _scaled_spec(signal: Any, held: np.ndarray, factor: float) -> str | None:
 
 
 def _given_not_linear(source: Source, signal: Any, held: np.ndarray, measured: Sequence[float],
-                      factor: float | None, sign: float) -> str:
-    """The warning where the response to a given input does not scale with it (:func:`check_given_input`)."""
+                      factor: float | None, sign: float, given: bool = True) -> str:
+    """The warning where the response to a given input does not scale with it (:func:`check_given_input`);
+    ``given``: the user's input (else the default training's)."""
     from ._isolation import source_label
 
     spec = getattr(signal, "spec", repr(signal))
-    head = (f"{source_label(source)}: the response to the input {spec} does not scale with it: it and "
+    what = "the input" if given else "the default training input"
+    recorded = ("recorded as given" if given else "recorded at the default training's amplitude (not lowered where "
+                "the grid is given or the pulse was raised for the model's own motion)")
+    head = (f"{source_label(source)}: the response to {what} {spec} does not scale with it: it and "
             f"{sign * DECADE:g} times the response to the same input scaled by {sign / DECADE:g} (net of the model's "
             f"own motion; a linear model's agree to round-off) differ by {measured[0]:.2g}")
     if factor is None:
         lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
         return (f"{head}{lower} (friction, a contact at the rest position, or a saturation below the smallest input "
-                "tried): the model is not linear, and a ROM fits it only near this amplitude; recorded as given (give "
+                f"tried): the model is not linear, and a ROM fits it only near this amplitude; {recorded} (give "
                 "--input at the loads the ROM is meant for)")
     smaller = _scaled_spec(signal, held, abs(factor))
     example = f", e.g. '{smaller}'" if smaller else ""
     return (f"{head}: the model is linear only near its start, and a ROM fitted to this recording fits that large "
             f"response, not the model near its start; the response scales at {abs(factor):.3g} times this input "
-            f"(to {measured[-1]:.2g}): recorded as given; give a smaller input{example}")
+            f"(to {measured[-1]:.2g}): {recorded}; give a smaller input{example}")

@@ -812,10 +812,11 @@ def _undriven_held(signal: Any, source: Source) -> Any:
 
 
 def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndarray], path: Path, quiet: bool,
-                 isolate: bool, overwrite: bool, window: "Window | None", check: bool = False) -> "RecordSummary":
+                 isolate: bool, overwrite: bool, window: "Window | None", check: str | None = None) -> "RecordSummary":
     """Stream every signal's run (on its grid in ``grids``: one step, each run's own end) into one new file; stop
-    at the first failing run (kept, incomplete).  ``check``: whether the response to the inputs recorded must be
-    checked for scaling with them (:func:`_check_inputs_scale`, its warning kept in the file)."""
+    at the first failing run (kept, incomplete).  ``check``: where the response to the inputs recorded must be
+    checked for scaling with them (:func:`_check_inputs_scale`, its warning kept in the file), whose inputs they
+    are: ``"given"`` (the user's) or ``"default"`` (the default training's); None: not checked."""
     failure: StepError | None = None
     still = False
     t = grids[0]
@@ -860,7 +861,8 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
             write_attrs(f, {"initialization": summary.initialization})
             still = _runs_still([runs[name] for name in runs])
             if check and not still:
-                _check_inputs_scale(source, signals, grids, [runs[name] for name in runs], quiet, isolate)
+                _check_inputs_scale(source, signals, grids, [runs[name] for name in runs], quiet, isolate,
+                                    check == "given")
         f.attrs["n_runs"] = len(summary.runs)
         write_attrs(f, _integrator_taken(source, recorded))
         write_attrs(f, current_recording_notes())   # (audit 70 F4: fit, compare and export repeat them)
@@ -872,12 +874,13 @@ def _record_file(source: Source, signals: Sequence[Any], grids: Sequence[np.ndar
 
 
 def _check_inputs_scale(source: Source, signals: Sequence[Any], grids: Sequence[np.ndarray], groups: Sequence[Any],
-                        quiet: bool, isolate: bool) -> None:
+                        quiet: bool, isolate: bool, given: bool = True) -> None:
     """Warn where the model's response to an input recorded does not scale with it
     (:func:`~._linearity.check_given_input`): the inputs stay as given, the warning is kept in the file.  Only the
     runs that drive some input furthest are judged (:func:`~._linearity.largest_runs`: one extra run each, where
     the model rests); a run without any input departure on the same grid (``none``) is the model's own motion.  A run
-    above :data:`STREAM_THRESHOLD` bytes is not judged (the check holds its runs in memory), said in one line."""
+    above :data:`STREAM_THRESHOLD` bytes is not judged (the check holds its runs in memory), said in one line.
+    ``given``: the inputs are the user's (else the default training's, named so in the warning)."""
     departures = [input_departures(source, signal, t) for signal, t in zip(signals, grids)]
     for index in largest_runs(departures):
         t = grids[index]
@@ -891,7 +894,8 @@ def _check_inputs_scale(source: Source, signals: Sequence[Any], grids: Sequence[
         free = next((np.asarray(groups[j]["y"][:, :len(t)]) for j, d in enumerate(departures)
                      if not np.any(d) and len(grids[j]) == len(t) and np.array_equal(grids[j], t)), None)
         try:
-            check_given_input(source, signals[index], t, np.asarray(groups[index]["y"]), free, quiet, isolate)
+            check_given_input(source, signals[index], t, np.asarray(groups[index]["y"]), free, quiet, isolate,
+                              given)
         except FmuOpinfError:   # a run of the check that fails says nothing: the recording stands, as without it
             continue
 
@@ -1122,7 +1126,8 @@ def record_to_file(
         check_input_acts(signal, t)
     if window is None or dt_given:  # the user's own step: the automatic window's step check becomes a warning
         warn_if_step_dependent(source, representatives[0], dt, t_end, quiet=quiet, isolate=isolate)
-    check = check_linearity and source.m > 0 and not plan.linearity_checked
+    check = None if not check_linearity or not source.m or plan.linearity_checked else (
+        "default" if plan.by_default else "given")
     summary = _record_file(source, signals, grids, Path(output), quiet, isolate, overwrite, window, check)
     ends = sorted({float(t[-1]) for t in grids})
     summary.window_end = ends[-1]
@@ -1152,6 +1157,7 @@ class _Plan:
     t_end_from: str | None
     isolate: bool
     linearity_checked: bool = False   # the default training's amplitude check ran on the pilots
+    by_default: bool = False   # the default training's inputs, not given ones
 
 
 def recording_window(source_spec: str | os.PathLike, signal: Any = None, dt: float | None = None,
@@ -1301,7 +1307,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
     if by_default and source.m and window is None:   # a grid given or declared: no pilots told whether it rests
         signals = _sized_on_grid(source, signals, time_grid(dt, t_end), quiet, isolate)
     return _Plan(source, signals, representatives, window, dt, t_end, dt_given, fixed, step_declared, step_multiple,
-                 t_end_from, isolate, bool(outcome.get("checked")))
+                 t_end_from, isolate, bool(outcome.get("checked")), by_default)
 
 
 def _window_before_termination(source: Source, signals: list[Any], representatives: list[Any], by_default: bool,
