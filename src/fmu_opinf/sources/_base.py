@@ -383,7 +383,19 @@ class Source:
 
     def __reduce__(self) -> tuple[Any, ...]:
         cls, kwargs = self.recipe()
-        return (_rebuild, (cls, kwargs, self._shared_state()))
+        handover = self._handover()
+        return (_rebuild, (cls, kwargs, self._shared_state()) + ((handover,) if handover is not None else ()))
+
+    def _handover(self) -> Any:
+        """What construction found, for a copy in another process to take instead of constructing again (None:
+        the copy is built from :meth:`recipe`); see :meth:`_from_handover`."""
+        return None
+
+    @classmethod
+    def _from_handover(cls, handover: Any) -> "Source | None":
+        """The copy :meth:`_handover` describes, or None where it no longer applies (the copy is then built from
+        :meth:`recipe`)."""
+        return None
 
     def _shared_state(self) -> dict[str, Any]:
         """Resources a copy in another process may borrow (not own), e.g. an unpacked FMU."""
@@ -396,8 +408,11 @@ class Source:
         return f"{type(self).__name__}(n={self.n}, m={self.m}, p={self.p}, constraint={self.constraint!r})"
 
 
-def _rebuild(cls: type, kwargs: dict[str, Any], state: dict[str, Any] | None = None) -> "Source":
-    source = cls(**kwargs)
+def _rebuild(cls: type, kwargs: dict[str, Any], state: dict[str, Any] | None = None,
+             handover: Any = None) -> "Source":
+    source = cls._from_handover(handover) if handover is not None else None
+    if source is None:
+        source = cls(**kwargs)
     source._borrow(state or {})
     return source
 

@@ -199,10 +199,11 @@ def logging_switches(md: Any) -> str:
     """Where the FMU's model description offers a way to turn its logging off: its declared log categories and
     its parameters whose name says log/debug/trace/verbose (each to be set with ``--set NAME=...``)."""
     categories = [getattr(c, "name", str(c)) for c in (getattr(md, "logCategories", None) or [])]
-    words = ("log", "debug", "trace", "verbose")
+    from ._variables import LOGGING_WORDS   # (a source's copy in a child process keeps these: slim_description)
+
     switches = [v.name for v in getattr(md, "modelVariables", [])
                 if v.causality in ("parameter", "structuralParameter")
-                and any(w in v.name.lower() for w in words)]
+                and any(w in v.name.lower() for w in LOGGING_WORDS)]
     parts = []
     if switches:
         shown = ", ".join(switches[:4]) + (", ..." if len(switches) > 4 else "")

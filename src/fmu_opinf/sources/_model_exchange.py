@@ -354,6 +354,7 @@ class ModelExchangeSource(FMUSource):
         return super()._call_set(raw, single)
 
     def start(self, t: np.ndarray, U: np.ndarray) -> None:
+        self._mark_built()
         self._run_grid = (t, U)
         self._probe_refusal, self._probe_left_in_error = None, False
         try:

@@ -29,7 +29,8 @@ from .._stepping import declared_stepping
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ._base import CONSTRAINTS, few_names, match_names, natural_key, split_patterns
 
-__all__ = ["REAL_TYPES", "read_description", "annotated_constraint", "binary_platform", "Variable", "Element",
+__all__ = ["REAL_TYPES", "read_description", "description_key", "slim_description", "annotated_constraint",
+           "binary_platform", "Variable", "Element",
            "Column", "ModelInfo", "Selection", "ReadPlan", "discover", "select_inputs", "select_outputs",
            "show_patterns", "is_held", "outputs_left_out", "held_outputs", "real_outputs", "nonzero_start",
            "looks_like_parameter", "is_coefficient", "unit_kind", "start_value", "is_pressure_about_start",
@@ -308,30 +309,51 @@ class Column:
         return self.element.name
 
 
-#: Parsed descriptions by file state (:func:`_file_state`), newest last: one process opens the same FMU many
-#: times (pilots, runs, compare's sources), and a large model's XML takes 0.1-0.2 s to parse.
-_DESCRIPTIONS: OrderedDict[tuple[str, int, int, int, int], Any] = OrderedDict()
+#: What this process has read of each model description, by file state (:func:`_file_state`), newest last: the
+#: fmpy description (``"md"``), the XML root (``"root"``), the :class:`ModelInfo` per label, the exporter's
+#: constraint annotation and fmpy's strict-reading verdict.  One command opens the same FMU many times (pilots,
+#: runs, compare's sources), and a large model's XML (10-50 MB from Modelica exporters) takes seconds to parse:
+#: audit 81a F1, a 17 MB description parsed about five times per source took 75 s instead of 2.5 s.
+_PARSED: OrderedDict[tuple[str, int, int, int, int], dict[str, Any]] = OrderedDict()
 _KEPT_DESCRIPTIONS = 8
+
+#: How often this process parsed a description, by what (``"md"``, ``"root"``): a test counts them.
+PARSE_COUNTS: dict[str, int] = {"md": 0, "root": 0}
+
+
+def description_key(path: Path) -> tuple[str, int, int, int, int] | None:
+    """The file state (:func:`_file_state`) that identifies the description of an FMU, extracted FMU or ``.xml``
+    file: a rewritten file has another, so it is read again."""
+    return _file_state(path / "modelDescription.xml" if path.is_dir() else path)
+
+
+def _cached(path: Path, what: str, make: Any) -> Any:
+    """``make()``, kept under ``what`` for this version of the description (computed once per process)."""
+    key = description_key(path)
+    if key is None:
+        return make()
+    entry = _PARSED.get(key)
+    if entry is not None and what in entry:
+        _PARSED.move_to_end(key)
+        return entry[what]
+    value = make()
+    entry = _PARSED.setdefault(key, {})
+    entry[what] = value
+    _PARSED.move_to_end(key)
+    while len(_PARSED) > _KEPT_DESCRIPTIONS:
+        _PARSED.popitem(last=False)
+    return value
 
 
 def read_description(path: Path) -> Any:
     """Parse the model description, turning every failure into a one-line :class:`FMUError`.
 
     The parsed description is kept per file state (:func:`_file_state`) and shared by later calls: callers treat
-    it as read-only.
+    it as read-only.  The one parse also gives fmpy's strict verdict (:func:`_schema_problem`).
     """
     if not path.exists():
         raise FMUError(f"fmu {path} does not exist; check the path")
-    key = _file_state(path / "modelDescription.xml" if path.is_dir() else path)
-    if key is not None and key in _DESCRIPTIONS:
-        _DESCRIPTIONS.move_to_end(key)
-        return _DESCRIPTIONS[key]
-    description = _parse_description(path)
-    if key is not None:
-        _DESCRIPTIONS[key] = description
-        while len(_DESCRIPTIONS) > _KEPT_DESCRIPTIONS:
-            _DESCRIPTIONS.popitem(last=False)
-    return description
+    return _cached(path, "md", lambda: _parse_description(path))
 
 
 def _file_state(path: Path) -> tuple[str, int, int, int, int] | None:
@@ -360,10 +382,33 @@ def _parse_description(path: Path) -> Any:
             if names.count("modelDescription.xml") > 1:   # (which one a reader takes is its own choice)
                 raise FMUError(f"{path} holds modelDescription.xml {names.count('modelDescription.xml')} times; "
                                "repack the FMU with one")
+    PARSE_COUNTS["md"] += 1
+    strict, problem = _strict_reading(path)
+    _cached(path, "schema", lambda: problem)
+    if strict is not None:
+        return strict
     try:
         return read_model_description(str(path), validate=False)
     except Exception as exc:  # fmpy raises plain Exception / lxml errors
         raise FMUError(f"{path}: cannot read modelDescription.xml ({_first_line(exc)})") from None
+
+
+def _strict_reading(path: Path) -> tuple[Any, str | None]:
+    """fmpy's strict reading (schema and model checks) of the description: ``(description, None)`` where it
+    passes, else ``(None, what it rejects)``.  Done once, as the first reading: a valid description (the common
+    case) is then parsed once, not once leniently and once more for the check."""
+    from fmpy import read_model_description
+
+    from ..fmus import SCHEMA_LOCK
+
+    try:
+        with SCHEMA_LOCK:
+            return read_model_description(str(path), validate=True), None
+    except Exception as exc:  # fmpy raises plain Exception ("Failed to validate ...:" then "- ERROR ..." lines)
+        problems = [line.strip()[2:] for line in str(exc).splitlines() if line.strip().startswith("- ")]
+        if not problems:
+            return None, _first_line(exc)
+        return None, problems[0] + (f" and {len(problems) - 1} more" if len(problems) > 1 else "")
 
 
 #: Descriptions already reported by :func:`warn_if_not_strict` in this process (resolved path, size, mtime).
@@ -399,21 +444,14 @@ def _schema_problem(path: Path) -> str | None:
     """What fmpy's strict reading (schema and model checks) rejects in a readable description, or None.
 
     Real exports fail it and work (spec: undefined units of old OpenModelica FMUs, ``Annotation/@order`` of
-    Dymola FMI 3 files, FMI 1 ``alias`` attributes): the caller warns and goes on.
+    Dymola FMI 3 files, FMI 1 ``alias`` attributes): the caller warns and goes on.  The verdict comes from the
+    one reading of the description (:func:`read_description`), kept per file state.
     """
-    from fmpy import read_model_description
-
-    from ..fmus import SCHEMA_LOCK
-
     try:
-        with SCHEMA_LOCK:
-            read_model_description(str(path), validate=True)
-    except Exception as exc:  # fmpy raises plain Exception ("Failed to validate ...:" then "- ERROR ..." lines)
-        problems = [line.strip()[2:] for line in str(exc).splitlines() if line.strip().startswith("- ")]
-        if not problems:
-            return _first_line(exc)
-        return problems[0] + (f" and {len(problems) - 1} more" if len(problems) > 1 else "")
-    return None
+        read_description(path)
+    except FMUError:
+        pass
+    return _cached(path, "schema", lambda: _strict_reading(path)[1])
 
 
 def annotated_constraint(path: Path) -> str | None:
@@ -422,16 +460,14 @@ def annotated_constraint(path: Path) -> str | None:
     Read from ``<VendorAnnotations><Tool name="fmu-opinf"><... constraint="position|velocity|none"/>``;
     FMUs from other tools do not say, so the kind is then "unknown" unless the user gives it.
     """
-    import xml.etree.ElementTree as ET
-
     try:
-        if path.is_dir():
-            root = ET.parse(path / "modelDescription.xml").getroot()
-        else:
-            with zipfile.ZipFile(path) as zf:
-                root = ET.fromstring(zf.read("modelDescription.xml"))
-    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile):
+        root = model_xml(path)
+    except FMUError:
         return None
+    return _cached(path, "constraint", lambda: _constraint_of(root))
+
+
+def _constraint_of(root: ET.Element) -> str | None:
     for tool in root.iter("Tool"):
         if tool.get("name") == "fmu-opinf":
             for element in tool.iter():
@@ -441,6 +477,23 @@ def annotated_constraint(path: Path) -> str | None:
     return None
 
 
+#: Words of the parameters that switch an FMU's logging (:func:`fmu_opinf.sources._fmu_log.logging_switches`).
+LOGGING_WORDS = ("log", "debug", "trace", "verbose")
+
+
+def slim_description(md: Any, names: Collection[str]) -> Any:
+    """A shallow copy of fmpy's description whose ``modelVariables`` are only those named in ``names`` and the
+    logging switches: what a source's copy in another process reads of them (discrete inputs, logging advice);
+    its other entries (interfaces, units, model structure) are the original's."""
+    keep = set(names)
+    import copy as _copy
+
+    copy = _copy.copy(md)   # (fmpy's classes have slots)
+    copy.modelVariables = [v for v in md.modelVariables if v.name in keep or (
+        v.causality in ("parameter", "structuralParameter") and any(w in v.name.lower() for w in LOGGING_WORDS))]
+    return copy
+
+
 def binary_platform(fmi_version: str) -> str:
     import fmpy
 
@@ -448,7 +501,13 @@ def binary_platform(fmi_version: str) -> str:
 
 
 def model_xml(path: Path) -> ET.Element:
-    """The root element of ``modelDescription.xml`` in an FMU, an extracted FMU or the XML file itself."""
+    """The root element of ``modelDescription.xml`` in an FMU, an extracted FMU or the XML file itself (parsed once
+    per file state and process, :func:`_cached`: callers treat it as read-only)."""
+    return _cached(path, "root", lambda: _parse_xml(path))
+
+
+def _parse_xml(path: Path) -> ET.Element:
+    PARSE_COUNTS["root"] += 1
     try:
         if path.is_dir():
             return ET.parse(path / "modelDescription.xml").getroot()
@@ -456,7 +515,7 @@ def model_xml(path: Path) -> ET.Element:
             return ET.parse(path).getroot()
         with zipfile.ZipFile(path) as zf:
             return ET.fromstring(zf.read("modelDescription.xml"))
-    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile) as exc:
+    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile, RuntimeError) as exc:
         raise FMUError(f"{path.name}: cannot read modelDescription.xml ({exc})") from None
 
 
@@ -517,7 +576,23 @@ class ModelInfo:
     def from_path(cls, path: str | Path) -> "ModelInfo":
         """Read the model description of an ``.fmu``, an extracted FMU directory or a ``.xml`` file."""
         path = Path(path)
-        return cls(model_xml(path), path.name)
+        return _cached(path, f"model:{path.name}", lambda: cls(model_xml(path), path.name))
+
+    def subset(self, names: Collection[str]) -> "ModelInfo":
+        """A copy that declares only the variables ``names`` (and the structural parameters their sizes name): what
+        a source built from this model needs once its variables are chosen (:meth:`FMUSource._handover`; a copy of
+        60,000 variables costs a child process as long to unpickle as to parse)."""
+        keep = set(names)
+        keep |= {d for v in self.variables if v.name in keep for d in v.dims if isinstance(d, str)}
+        copy = object.__new__(type(self))
+        copy.__dict__.update(self.__dict__)
+        copy.variables = [v for v in self.variables if v.name in keep]
+        copy.aliases = {alias: target for alias, target in self.aliases.items() if target in keep}
+        copy.by_name = {name: var for name, var in self.by_name.items() if var.name in keep}
+        copy.derivative_dependencies = {name: deps for name, deps in self.derivative_dependencies.items()
+                                        if name in keep}
+        copy._elements = {}
+        return copy
 
     # -- parsing ------------------------------------------------------------------------------
     def _display_unit(self, attrs: Any) -> str | None:
@@ -632,7 +707,18 @@ class ModelInfo:
         return tuple(d if isinstance(d, int) else self.structural_value(d, overrides or {}) for d in var.dims)
 
     def elements(self, overrides: dict[str, Any] | None = None) -> dict[str, Element]:
-        """Every scalar value by name; arrays expand to ``x[1] .. x[n]`` (``x[i,j]`` row-major)."""
+        """Every scalar value by name; arrays expand to ``x[1] .. x[n]`` (``x[i,j]`` row-major).
+
+        Kept per ``overrides`` (a fresh dict each call): choosing a source's variables asks three times, 0.25 s
+        each for 60,000 variables."""
+        key = repr(sorted((overrides or {}).items()))
+        kept = self.__dict__.setdefault("_elements", {})
+        if key not in kept:
+            kept.clear()   # (one setting at a time is all that is asked in a row)
+            kept[key] = self._expanded(overrides)
+        return dict(kept[key])
+
+    def _expanded(self, overrides: dict[str, Any] | None) -> dict[str, Element]:
         out: dict[str, Element] = {}
         named = [(var.name, var, False) for var in self.variables]
         named += [(alias, self.by_name[target], True) for alias, target in self.aliases.items()]
