@@ -386,6 +386,38 @@ def _run_build_fmus(args: argparse.Namespace) -> None:
         print(f"built {path}")
 
 
+#: The options that name files or folders the command reads or writes (``source`` is made absolute by the source).
+_PATH_OPTIONS = ("output", "runs", "figures", "snapshots", "rom")
+
+
+def _absolute_paths(args: argparse.Namespace) -> None:
+    """Turn the command's relative paths into absolute ones, now: an FMU that changes the working directory
+    (``chdir`` in its instantiate) would otherwise move a relative ``-o`` into its own folder (audit 81a, F2: with
+    ``--in-process`` the snapshot file landed there, and ``--force`` replaced a file of that name there).  Empty
+    names keep their meaning (``build-fmus -o ""`` is refused as such)."""
+    import os
+
+    for name in _PATH_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and value and value != "-":
+            setattr(args, name, os.path.abspath(value))
+    specs = getattr(args, "input_spec", None)
+    if isinstance(specs, str):
+        args.input_spec = _absolute_tables(specs)
+    elif isinstance(specs, list):
+        args.input_spec = [_absolute_tables(spec) if isinstance(spec, str) else spec for spec in specs]
+
+
+def _absolute_tables(spec: str) -> str:
+    """An input spec with its ``.csv`` tables (one per ';'-separated input, as the signal parser reads them) named
+    by absolute paths."""
+    import os
+
+    parts = spec.split(";")
+    return ";".join(os.path.abspath(part.strip()) if part.strip().lower().endswith(".csv") else part
+                    for part in parts)
+
+
 def _check_arguments(args: argparse.Namespace) -> None:
     """Validate option values and output locations before any work (one-line errors, exit code 2)."""
     from . import _validate as v
@@ -496,6 +528,7 @@ def _main(argv: Sequence[str] | None, finished: list[bool]) -> int:
             from .snapshots._isolation import _FORK_SERVER, use_fork_server
 
             args = build_parser().parse_args(argv)
+            _absolute_paths(args)
             verb = args.verb
             REPLACED.clear()
             warnings.showwarning = _one_line_warning

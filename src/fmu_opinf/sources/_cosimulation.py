@@ -241,6 +241,9 @@ def check_single_precision(fmu: str, names: list[str], single: np.ndarray, u: np
                                  "input down (e.g. its amplitude)")
 
 
+#: FMUs (file names) that changed the working directory in this process, said once (:meth:`FMUSource._keep_directory`).
+_MOVED_DIRECTORY: set[str] = set()
+
 #: Attributes of an :class:`FMUSource` that its copy in another process does not take (:meth:`FMUSource._handover`).
 _NOT_HANDED = frozenset({"_built_keys", "_slim"})
 
@@ -715,10 +718,12 @@ class FMUSource(Source):
         except BaseException:
             self.close()
             raise
+        finally:
+            self._keep_directory()
 
     def _open_binary(self) -> None:
         cls, kwargs = self._fmpy_class()
-        cwd = os.getcwd()
+        cwd = self._cwd = os.getcwd()
         try:
             self._fmu = cls(guid=self.md.guid, unzipDirectory=self._extracted(),
                             modelIdentifier=self.model_identifier, instanceName="fmu_opinf")
@@ -735,6 +740,29 @@ class FMUSource(Source):
         except Exception as exc:
             self._fmu = None
             raise FMUError(f"{self.path.name} failed to instantiate ({self._last_log() or exc})") from None
+        finally:
+            self._keep_directory()
+
+    def _keep_directory(self) -> None:
+        """Go back to the working directory the run started in if the FMU changed it (a ``chdir`` in its
+        instantiate or initialization: FMI's guide forbids it, some exports do it), so that the command's relative
+        paths keep their meaning; said once per FMU where the run is in this process (audit 81a, F2)."""
+        cwd = getattr(self, "_cwd", None)
+        try:
+            if cwd is None or os.getcwd() == cwd:
+                return
+        except OSError:   # (its folder was removed)
+            pass
+        os.chdir(cwd)
+        if multiprocessing.parent_process() is None and self.path.name not in _MOVED_DIRECTORY:
+            import warnings
+
+            from ..errors import FmuOpinfWarning
+
+            _MOVED_DIRECTORY.add(self.path.name)
+            warnings.warn(f"{self.path.name} changed the working directory while it ran; fmu-opinf changed it back "
+                          f"to {cwd} (files the FMU writes by relative names may land in either)", FmuOpinfWarning,
+                          stacklevel=2)
 
     def _shared_state(self) -> dict[str, Any]:
         # unpack here, so that a copy in a child process neither unpacks again nor leaves a
@@ -1279,6 +1307,7 @@ class FMUSource(Source):
                 fmu.freeInstance()
             except Exception:
                 pass
+            self._keep_directory()   # (also after its steps and its termination)
 
 
 def _check_room_to_unpack(path: Path, folder: str) -> None:
