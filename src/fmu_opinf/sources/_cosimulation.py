@@ -367,8 +367,28 @@ class FMUSource(Source):
             if has_c_sources(files) and not self.path.is_dir():
                 self._compile_sources(md, plat, have)
                 return
+            other = self._other_binary(md, plat, files)
+            if other:
+                raise FMUError(other)
             raise FMUError(f"{self.path.name} has no binary for this platform ({plat}; it has: "
                            f"{', '.join(have) or 'none'}); export or compile it for {plat}")
+
+    def _other_binary(self, md: Any, plat: str, files: list[str]) -> str:
+        """The message for an FMU whose other interface has a binary for this platform under another model
+        identifier (FMI allows one per interface), "" otherwise: the binary is there, only not for the interface
+        asked (audit 81a, F3: "no binary for this platform (linux64; it has: linux64)")."""
+        other = md.modelExchange if self.interface == "cs" else md.coSimulation
+        mine = self._interface_of(md)
+        if other is None or other.modelIdentifier == mine.modelIdentifier:
+            return ""
+        theirs = [f for f in files if f.startswith(f"binaries/{plat}/{other.modelIdentifier}.")]
+        if not theirs:
+            return ""
+        names = ("co-simulation", "model exchange") if self.interface == "cs" else ("model exchange", "co-simulation")
+        flag = "me" if self.interface == "cs" else "cs"
+        return (f"{self.path.name} has no {names[0]} binary for this platform (binaries/{plat}/"
+                f"{mine.modelIdentifier}.* is missing; it has {theirs[0].rsplit('/', 1)[-1]}, the {names[1]} binary): "
+                f"use --interface {flag} (or auto)")
 
     def _compile_sources(self, md: Any, plat: str, have: list[str]) -> None:
         """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install;
@@ -739,7 +759,9 @@ class FMUSource(Source):
             self._instantiate(**kwargs)
         except Exception as exc:
             self._fmu = None
-            raise FMUError(f"{self.path.name} failed to instantiate ({self._last_log() or exc})") from None
+            raise FMUError(f"{self.path.name} failed to instantiate ({self._last_log() or exc})"
+                           f"{_escaped_location_advice(self._extracted(), self.path.is_dir(), self.fmi_version)}"
+                           ) from None
         finally:
             self._keep_directory()
 
@@ -783,7 +805,7 @@ class FMUSource(Source):
         if self._unzipdir is None:
             from fmpy import extract
 
-            folder = tempfile.mkdtemp(prefix="fmu_opinf_")
+            folder = tempfile.mkdtemp(prefix="fmu_opinf_", dir=_unpack_parent(self.path))
             try:
                 _check_room_to_unpack(self.path, folder)
                 extract(str(self.path), unzipdir=folder)
@@ -1308,6 +1330,46 @@ class FMUSource(Source):
             except Exception:
                 pass
             self._keep_directory()   # (also after its steps and its termination)
+
+
+def _escaped(folder: str | Path) -> bool:
+    """Whether the ``file://`` URI of ``folder`` (an FMI 2 resource location) holds %-escapes: a space or a
+    character outside plain ASCII letters, digits and ``-._~/``."""
+    return "%" in Path(folder).absolute().as_uri()
+
+
+def _unpack_parent(path: Path) -> str | None:
+    """The folder to unpack an FMU into: the temporary folder, unless its path would reach the FMU's resource
+    location with %-escapes and ``/tmp`` or ``/var/tmp`` would not and has room (the FMUs of some exporters do not
+    decode them: audit 81a, F4); None is the temporary folder."""
+    default = tempfile.gettempdir()
+    if not _escaped(default):
+        return None
+    from .._hdf5 import SPACE_MARGIN, free_space
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            needed = sum(member.file_size for member in archive.infolist())
+    except (OSError, zipfile.BadZipFile):
+        return None
+    for candidate in ("/tmp", "/var/tmp"):
+        if (os.path.isdir(candidate) and os.access(candidate, os.W_OK | os.X_OK) and not _escaped(candidate)
+                and free_space(Path(candidate) / "member") > needed + SPACE_MARGIN):
+            return candidate
+    return None
+
+
+def _escaped_location_advice(folder: str, given: bool, fmi_version: str) -> str:
+    """The clause a failed instantiation gets where the FMU's FMI 2 resource location (a ``file://`` URI) holds
+    %-escapes (space or non-ASCII in ``folder``): FMUs that do not decode them (OpenModelica's before its fix, older
+    Reference-FMUs) cannot find their resources there (audit 81a, F4).  ``given``: the folder is the user's unpacked
+    FMU, not fmu-opinf's.  FMI 3 passes a plain path: nothing to add."""
+    if not fmi_version.startswith("2") or not _escaped(folder):
+        return ""
+    where = "unpack the FMU into a folder" if given else "set TMPDIR (where fmu-opinf unpacks it) to a folder"
+    return (f"; its resource location {Path(folder).absolute().as_uri()}/resources holds %-escapes for the spaces or "
+            f"non-ASCII letters of {folder}, which some exporters' FMUs do not decode: {where} whose path has "
+            "neither")
 
 
 def _check_room_to_unpack(path: Path, folder: str) -> None:
