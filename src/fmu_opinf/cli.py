@@ -14,6 +14,7 @@ code 2; anything else keeps its traceback (a bug to report).
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 from pathlib import Path
 from typing import Sequence
@@ -390,32 +391,47 @@ def _run_build_fmus(args: argparse.Namespace) -> None:
 _PATH_OPTIONS = ("output", "runs", "figures", "snapshots", "rom")
 
 
-def _absolute_paths(args: argparse.Namespace) -> None:
+def _absolute_paths(args: argparse.Namespace) -> dict[str, str]:
     """Turn the command's relative paths into absolute ones, now: an FMU that changes the working directory
     (``chdir`` in its instantiate) would otherwise move a relative ``-o`` into its own folder (audit 81a, F2: with
     ``--in-process`` the snapshot file landed there, and ``--force`` replaced a file of that name there).  Empty
-    names keep their meaning (``build-fmus -o ""`` is refused as such)."""
-    import os
-
+    names keep their meaning (``build-fmus -o ""`` is refused as such).  Returns absolute path -> the text given,
+    for the one-line messages (:func:`_as_given`)."""
+    given: dict[str, str] = {}
     for name in _PATH_OPTIONS:
         value = getattr(args, name, None)
         if isinstance(value, str) and value and value != "-":
-            setattr(args, name, os.path.abspath(value))
+            setattr(args, name, _absolute(value, given))
     specs = getattr(args, "input_spec", None)
     if isinstance(specs, str):
-        args.input_spec = _absolute_tables(specs)
+        args.input_spec = _absolute_tables(specs, given)
     elif isinstance(specs, list):
-        args.input_spec = [_absolute_tables(spec) if isinstance(spec, str) else spec for spec in specs]
+        args.input_spec = [_absolute_tables(spec, given) if isinstance(spec, str) else spec for spec in specs]
+    return given
 
 
-def _absolute_tables(spec: str) -> str:
-    """An input spec with its ``.csv`` tables (one per ';'-separated input, as the signal parser reads them) named
-    by absolute paths."""
+def _absolute(text: str, given: dict[str, str]) -> str:
     import os
 
-    parts = spec.split(";")
-    return ";".join(os.path.abspath(part.strip()) if part.strip().lower().endswith(".csv") else part
-                    for part in parts)
+    path = os.path.abspath(text)
+    if path != text:
+        given[path] = text
+    return path
+
+
+def _absolute_tables(spec: str, given: dict[str, str]) -> str:
+    """An input spec with its ``.csv`` tables (one per ';'-separated input, as the signal parser reads them) named
+    by absolute paths."""
+    return ";".join(_absolute(part.strip(), given) if part.strip().lower().endswith(".csv") else part
+                    for part in spec.split(";"))
+
+
+def _as_given(text: str, given: dict[str, str]) -> str:
+    """A message with the paths :func:`_absolute_paths` made absolute written as the user gave them (longest
+    first)."""
+    for path in sorted(given, key=len, reverse=True):
+        text = text.replace(path, given[path])
+    return text
 
 
 def _check_arguments(args: argparse.Namespace) -> None:
@@ -494,9 +510,11 @@ _VERBS = {"snapshots": _run_snapshots, "fit": _run_fit, "compare": _run_compare,
           "demo": _run_demo, "build-fmus": _run_build_fmus}
 
 
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
-    """Warnings on the command line are one line each, like errors (no source file or code line)."""
-    text = " ".join(str(message).split())
+def _one_line_warning(message, category, filename, lineno, file=None, line=None,  # noqa: ANN001
+                      given: dict[str, str] | None = None) -> None:
+    """Warnings on the command line are one line each, like errors (no source file or code line); paths made
+    absolute are written as given."""
+    text = _as_given(" ".join(str(message).split()), given or {})
     print(f"fmu-opinf: warning: {text}", file=file or sys.stderr)
 
 
@@ -521,6 +539,7 @@ def _main(argv: Sequence[str] | None, finished: list[bool]) -> int:
 
     previous = warnings.showwarning
     verb = None
+    given: dict[str, str] = {}   # absolute paths -> as given, for the messages
     try:
         with remembered_interrupts():  # a Ctrl-C swallowed in a finalizer is raised again at the next safe point
             # imported here, not at the top: numpy and fmpy take a while, and a Ctrl-C meanwhile is an interrupt
@@ -528,10 +547,10 @@ def _main(argv: Sequence[str] | None, finished: list[bool]) -> int:
             from .snapshots._isolation import _FORK_SERVER, use_fork_server
 
             args = build_parser().parse_args(argv)
-            _absolute_paths(args)
+            given.update(_absolute_paths(args))
             verb = args.verb
             REPLACED.clear()
-            warnings.showwarning = _one_line_warning
+            warnings.showwarning = functools.partial(_one_line_warning, given=given)
             before = _FORK_SERVER["enabled"]
             use_fork_server(True)
             try:
@@ -541,7 +560,7 @@ def _main(argv: Sequence[str] | None, finished: list[bool]) -> int:
             finally:
                 use_fork_server(before)  # a script calling main() keeps its own setting
     except (FmuOpinfError, FileExistsError) as exc:
-        print("fmu-opinf: error: " + " ".join(str(exc).split()), file=sys.stderr)  # one line, always
+        print("fmu-opinf: error: " + _as_given(" ".join(str(exc).split()), given), file=sys.stderr)  # one line
         return 2
     except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM (snapshots.Interrupted)
         signum = getattr(exc, "signum", 2)
