@@ -510,6 +510,7 @@ def _run_bytes(source: Source, k: int) -> int:
     return 8 * k * recorded_rows(source)
 
 
+@collecting_recording_notes
 def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, path: str | os.PathLike | None = None,
            quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float | None = None,
            stream: bool | None = None, start_time: float | None = None) -> Snapshots:
@@ -548,7 +549,9 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
     -------
     Snapshots
         One run.  If the run stopped early, the samples so far are stored (``complete=False``)
-        and :class:`~fmu_opinf.source.StepError` is raised afterwards.
+        and :class:`~fmu_opinf.source.StepError` is raised afterwards.  Its ``attrs`` (and the file's) keep the
+        recording's warnings as :func:`record_to_file` does (``recording_warnings``, ``recording_verdicts``), so
+        that fit, compare and export repeat them and fit handles, e.g., an FMU's Euler steps.
     """
     if t0 is not None and start_time is not None:
         raise InputSpecError("give either t0 (an absolute start of the grid) or start_time (the FMU time of t = 0)")
@@ -563,7 +566,7 @@ def record(source: Source | str, signal: Signal | str, dt: float, t_end: float, 
     if not streaming:
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
         attrs = {**_file_attrs(source), "dt": float(t[1] - t[0]), **fixed_step_attrs(source, float(t[1] - t[0])),
-                 **_integrator_taken(source, [run.attrs])}
+                 **_integrator_taken(source, [run.attrs]), **current_recording_notes()}   # (audit 81c F1)
         snaps = Snapshots([run], attrs)
         if path is not None:
             snaps.save(path, overwrite=overwrite)
