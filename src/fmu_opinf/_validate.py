@@ -10,22 +10,24 @@ check raises a one-line :class:`~fmu_opinf.errors.FileFormatError` (structure, t
 from __future__ import annotations
 
 import contextlib
+import difflib
 import errno
 import json
 import math
 import os
 import tempfile
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, Iterator
 
 import h5py
 import numpy as np
 
-from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError
+from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError, InputTypeError
 
 __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
-    "check_fraction", "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
+    "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "API_KEYWORDS", "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "read_failure", "RESTORE",
     "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",
@@ -73,16 +75,75 @@ def check_memory(nbytes: float, what: str, fix: str) -> None:
 # -- command-line values ---------------------------------------------------------------------------------
 
 
+def shown(option: str, value: Any) -> str:
+    """``--dt 0.1`` for a command-line option (``option`` starts with ``-``), ``dt=0.1`` for a Python keyword: the
+    checks below serve both (audit 81c F7: the functions raised built-in errors where the CLI said one line)."""
+    return f"{option} {value}" if option.startswith("-") else f"{option}={value!r}"
+
+
+def check_number(value: Any, option: str) -> None:
+    """A real number (None: not given): a string or another object given to a Python keyword is refused in one line
+    (an :class:`~fmu_opinf.errors.InputTypeError`, also a ``TypeError`` as Python's own was)."""
+    if value is None or (not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))):
+        return
+    try:
+        example = f", e.g. {shown(option, float(value))}"
+    except (TypeError, ValueError):
+        example = ""
+    raise InputTypeError(f"{shown(option, value)} is a {type(value).__name__}, not a number; give a number{example}")
+
+
 def check_positive(value: float | None, option: str) -> None:
     """A finite number > 0 (None: not given)."""
+    check_number(value, option)
     if value is not None and not (math.isfinite(value) and value > 0):
-        raise InputSpecError(f"{option} {value} must be a positive finite number")
+        raise InputSpecError(f"{shown(option, value)} must be a positive finite number")
 
 
 def check_fraction(value: float | None, option: str) -> None:
     """A number strictly between 0 and 1 (None: not given)."""
+    check_number(value, option)
+    example = f"{option} 0.9999" if option.startswith("-") else f"{option}=0.9999"
     if value is not None and not (0.0 < value < 1.0):
-        raise InputSpecError(f"{option} {value} must lie strictly between 0 and 1, e.g. {option} 0.9999")
+        raise InputSpecError(f"{shown(option, value)} must lie strictly between 0 and 1, e.g. {example}")
+
+
+def check_at_least(value: int | None, option: str, least: int) -> None:
+    """A number of at least ``least`` (None: not given)."""
+    check_number(value, option)
+    if value is not None and value < least:
+        raise InputSpecError(f"{shown(option, value)} must be at least {least}")
+
+
+def check_choice(value: Any, option: str, choices: Sequence[str]) -> None:
+    """One of ``choices`` (None: not given), refused in one line naming them and the closest one."""
+    if value is None or value in choices:
+        return
+    close = difflib.get_close_matches(str(value), list(choices), n=1)
+    hint = f" (did you mean {shown(option, close[0])}?)" if close else ""
+    raise InputSpecError(f"{shown(option, value)} is not known; use one of {', '.join(map(repr, choices))}{hint}")
+
+
+#: Command-line options whose Python keyword is another word (a user who knows the CLI types them).
+API_KEYWORDS = {"set": "parameters", "me_method": "method", "me-method": "method"}
+
+
+def check_keywords(given: Any, valid: Sequence[str], where: str, noun: str = "key") -> None:
+    """Refuse a key of ``given`` that ``where`` does not take, in one line naming it, the closest valid key
+    (``difflib``) or the Python keyword of a command-line word (``set`` is ``parameters``), and the valid keys.
+
+    A key that is dropped without a word compares or records another model than the one asked for (audit 81c F2:
+    ``source_options={"parameter": ...}`` ran the FMU at its training values and said the ROM fits)."""
+    unknown = [key for key in given if key not in valid]
+    if not unknown:
+        return
+    key = unknown[0]
+    if API_KEYWORDS.get(str(key)) in valid:
+        hint = f"the command line's --{key} is {API_KEYWORDS[str(key)]!r} in Python"
+    else:
+        close = difflib.get_close_matches(str(key), list(valid), n=1)
+        hint = f"did you mean {close[0]!r}?" if close else "it is not one of them"
+    raise InputSpecError(f"{where} takes no {noun} {key!r}; {hint} (valid: {', '.join(valid)})")
 
 
 def check_patterns(value: str | None, option: str) -> None:
@@ -177,8 +238,10 @@ def check_report_directory(path: str | os.PathLike) -> None:
     check_folder_entries(path)
 
 
-def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> None:
-    """Refuse an output path that is one of the inputs (``--force`` would destroy the input)."""
+def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str, option: str = "-o") -> None:
+    """Refuse an output path that is one of the inputs (``--force`` would destroy the input).  ``option``: how the
+    output was given (``-o``, or a Python keyword such as ``output``: the functions check too, audit 81c F3:
+    ``fit_rom_file("x.h5", "x.h5", overwrite=True)`` replaced its training data)."""
     out = Path(output)
     for item in inputs:
         if item is None or str(item).startswith("builtin:"):
@@ -189,7 +252,9 @@ def check_not_input(output: str | os.PathLike, inputs: list[Any], what: str) -> 
         same = (out.exists() and source.exists() and os.path.samefile(out, source)) or \
             out.absolute() == source.absolute()
         if same:
-            raise FileFormatError(f"{what} {out} is also an input of this command; choose another -o path")
+            fix = f"of this command; choose another {option} path" if option.startswith("-") else \
+                f"of this call; give {option}= another path"
+            raise FileFormatError(f"{what} {out} is also an input {fix}")
 
 
 # -- HDF5 structure --------------------------------------------------------------------------------------

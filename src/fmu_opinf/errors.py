@@ -9,6 +9,7 @@ Messages are one line: what is wrong, what was expected, and how to fix it.
 __all__ = [
     "FmuOpinfError",
     "InputSpecError",
+    "InputTypeError",
     "DimensionError",
     "NotFittedError",
     "FMUError",
@@ -26,6 +27,10 @@ class FmuOpinfError(Exception):
 
 class InputSpecError(FmuOpinfError, ValueError):
     """An input-signal specification or input table is malformed."""
+
+
+class InputTypeError(InputSpecError, TypeError):
+    """An argument of the wrong type (a string for a number); also a ``TypeError``, as Python's own was."""
 
 
 class DimensionError(FmuOpinfError, ValueError):
