@@ -61,7 +61,8 @@ import numpy as np
 import scipy.linalg
 
 from ._threads import SMALL_ENTRIES, single_threaded, threads_for, usable_cores
-from .errors import DataError, DimensionError, FileFormatError, NotFittedError
+from ._validate import check_choice
+from .errors import DataError, DimensionError, FileFormatError, InputSpecError, NotFittedError
 
 __all__ = [
     "PODBasis",
@@ -143,8 +144,7 @@ def resolve_kind(kind: str, attrs: dict | None = None) -> str:
     """
     if kind in _KINDS:
         return kind
-    if kind != "auto":
-        raise ValueError(f"basis={kind!r} is not known; use 'auto', 'positions' or 'velocities'")
+    check_choice(kind, "basis", ("auto", *_KINDS))   # (audit 81c F7: a built-in ValueError before)
     constraint = str((attrs or {}).get("constraint", "")).lower()
     return "velocities" if constraint.startswith("velocit") else "positions"
 
@@ -353,7 +353,7 @@ def energy_order(sigma: np.ndarray, energy: float = DEFAULT_ENERGY) -> int:
         The order ``r >= 1``.
     """
     if not 0 < energy < 1:
-        raise ValueError(f"energy threshold {energy} must lie in (0, 1), e.g. 0.99")
+        raise InputSpecError(f"energy threshold {energy} must lie in (0, 1), e.g. 0.99")
     tail = 1.0 - energy
     sigma = np.asarray(sigma, dtype=float)
     total = sigma.sum()

@@ -450,10 +450,8 @@ def _check_arguments(args: argparse.Namespace) -> None:
     for option in ("dt", "t_end", "lowpass", "timeout", "max_memory"):
         v.check_positive(getattr(args, option, None), "--" + option.replace("_", "-"))
     sizes = () if args.verb == "build-fmus" else (("g", 1), ("n1", 1))   # build-fmus names the FMUs' own bounds
-    for option, least in (("r", 1), *sizes, ("refine_iterations", 0)):
-        value = getattr(args, option, None)
-        if value is not None and value < least:
-            raise InputSpecError(f"--{option.replace('_', '-')} {value} must be at least {least}")
+    for option, least in (("r", 1), *sizes, ("refine_iterations", 0)):   # (the same checks as fit_rom's keywords)
+        v.check_at_least(getattr(args, option, None), "--" + option.replace("_", "-"), least)
     v.check_fraction(getattr(args, "energy", None), "--energy")
     if getattr(args, "method", None) is not None:
         args.method = _me_method(args.method)

@@ -660,6 +660,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from ._validate import check_at_least, check_choice
 from .errors import DataError, DimensionError, FmuOpinfWarning, InputSpecError
 from ._realization import first_order_matrix, mechanical_realization
 from ._background import Background, can_fork_here
@@ -788,6 +789,12 @@ def _symmetric_psd(mat: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------------------
 # Public entry points
 # ----------------------------------------------------------------------------------------------------------
+#: The ``method`` and ``solver`` choices of :func:`fit_operators` (and of :func:`fmu_opinf.fit.fit_rom`).
+METHODS = ("auto", "sdp")
+SOLVERS = ("auto", "ipm", "clarabel", "factored")
+NORMALIZATIONS = ("auto", "trace", "mass-eigenvalue")
+
+
 def fit_operators(
     xddot_r: np.ndarray,
     xdot_r: np.ndarray,
@@ -901,23 +908,20 @@ def fit_operators(
     OperatorFit
         ``Mr, Dr, Kr (r, r)``, ``Br (r, m)`` and the solver report ``info``.
     """
-    if method not in ("auto", "sdp"):
-        raise ValueError(f"method={method!r} is not known; use 'auto' or 'sdp'")
+    check_choice(method, "method", METHODS)
     check_output_weighting(output_weighting)
-    if solver not in ("auto", "ipm", "clarabel", "factored"):
-        raise ValueError(f"solver={solver!r} is not known; use 'auto', 'ipm', 'clarabel' or 'factored'")
+    check_choice(solver, "solver", SOLVERS)
     if solver == "factored" and normalization == "trace":
-        raise ValueError("solver='factored' solves eq. (16) normalized by Mr >= I; use normalization='auto' or "
-                         "'mass-eigenvalue'")
-    if normalization not in ("auto", "trace", "mass-eigenvalue"):
-        raise ValueError(f"normalization={normalization!r} is not known; use 'auto', 'trace' or 'mass-eigenvalue'")
+        raise InputSpecError("solver='factored' solves eq. (16) normalized by Mr >= I; use normalization='auto' or "
+                             "'mass-eigenvalue'")
+    check_choice(normalization, "normalization", NORMALIZATIONS)
     xddot_r, xdot_r, x_r, u = (np.asarray(a, dtype=float) for a in (xddot_r, xdot_r, x_r, u))
     r, m, k = _check_data(xddot_r, xdot_r, x_r, u)
     candidate = least_squares_candidate and refine is not False and dt is not None and y is not None
     refine = _refine_requested(refine, dt, y, k, integrator)
     target = float(r if mass_trace is None else mass_trace)
     if not target > 0:
-        raise ValueError(f"mass_trace={mass_trace} must be positive")
+        raise InputSpecError(f"mass_trace={mass_trace} must be positive")
     t0 = time.perf_counter()
     refitted_map = coordinates = None
     with single_threaded():  # module docstring, *Threads*; also holds the limit for the background thread
@@ -1199,8 +1203,7 @@ def _refine_iterations(requested: int | None, r: int) -> int:
     above, where the start is the factored solve (``_sdp_paths.FACTORED_ABOVE``), :data:`HIGH_ORDER_ITERATIONS`
     did as well as ``20 r`` or better."""
     if requested is not None:
-        if int(requested) < 0:
-            raise ValueError(f"refine_iterations={requested} must be >= 0")
+        check_at_least(requested, "refine_iterations", 0)
         return int(requested)
     if r <= 40:
         return 300
@@ -1210,9 +1213,9 @@ def _refine_iterations(requested: int | None, r: int) -> int:
 def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None, k: int, integrator: str) -> bool:
     """Whether to run the output-error refinement (``refine="auto"``: when ``dt`` and ``y`` are given)."""
     if refine not in ("auto", True, False):
-        raise ValueError(f"refine={refine!r} is not known; use 'auto', True or False")
+        raise InputSpecError(f"refine={refine!r} is not known; use 'auto', True or False")
     if integrator not in ("newmark", "exact", "forward-euler"):
-        raise ValueError(f"integrator={integrator!r} is not known; use 'newmark', 'exact' or 'forward-euler'")
+        raise InputSpecError(f"integrator={integrator!r} is not known; use 'newmark', 'exact' or 'forward-euler'")
     available = dt is not None and y is not None
     if refine is True and not available:
         raise ValueError("refine=True needs the training time step dt and the outputs y")

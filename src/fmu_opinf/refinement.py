@@ -956,9 +956,9 @@ def _output_map(output_map: tuple[np.ndarray, np.ndarray] | None, xdot_r: np.nda
 
 def check_output_weighting(output_weighting: str) -> None:
     """Refuse an ``output_weighting`` that is not one of :data:`OUTPUT_WEIGHTINGS`."""
-    if output_weighting not in OUTPUT_WEIGHTINGS:
-        raise ValueError(f"output_weighting={output_weighting!r} is not known; use one of "
-                         f"{', '.join(map(repr, OUTPUT_WEIGHTINGS))}")
+    from ._validate import check_choice
+
+    check_choice(output_weighting, "output_weighting", OUTPUT_WEIGHTINGS)
 
 
 def output_scales(y: np.ndarray, output_weighting: str = "per-output") -> np.ndarray:

@@ -112,8 +112,56 @@ __all__ = ["fit_rom", "fit_rom_file"]
 # ----------------------------------------------------------------------------------------------------------
 # The pipeline
 # ----------------------------------------------------------------------------------------------------------
+def _is_file_set(snapshots: Any) -> bool:
+    """Whether ``snapshots`` names snapshot files (a path, or a list of paths) rather than holding runs."""
+    if isinstance(snapshots, (str, os.PathLike)):
+        return True
+    return isinstance(snapshots, (list, tuple)) and bool(snapshots) and all(
+        isinstance(item, (str, os.PathLike)) for item in snapshots)
+
+
+def _reading_files(function: Callable[..., SecondOrderROM]) -> Callable[..., SecondOrderROM]:
+    """``function`` (:func:`fit_rom`) also on a snapshot file, a directory of them or a list of files, opened lazily
+    as ``fmu-opinf fit`` opens them (:func:`~fmu_opinf.basis.open_snapshot_set`).  ``fit_rom("train.h5")`` raised
+    ``AttributeError: 'str' object has no attribute 'x'`` where compare and export take paths (audit 81c F7)."""
+    @functools.wraps(function)
+    def fitting(snapshots: Any, *args: Any, **kwargs: Any) -> SecondOrderROM:
+        if not _is_file_set(snapshots):
+            return function(snapshots, *args, **kwargs)
+        from ..basis import open_snapshot_set
+
+        with open_snapshot_set(snapshots, max_memory=kwargs.get("max_memory", 1e9)) as snaps:
+            rom = function(snaps, *args, **kwargs)
+            _name_files(rom, snaps)
+        return rom
+    return fitting
+
+
+def _name_files(rom: SecondOrderROM, snaps: Any) -> None:
+    """The snapshot files' names (not their local paths) in the ROM's provenance."""
+    rom.provenance["snapshot_file"] = ", ".join(p.name for p in snaps.files)
+
+
+def _check_arguments(energy: float | None, basis: str, method: str, solver: str, refine_iterations: int | None,
+                     max_memory: float) -> None:
+    """The keywords of :func:`fit_rom` that the command line checks too, refused before any work in one line
+    (:mod:`fmu_opinf._validate`, shared with ``cli._check_arguments``; audit 81c F7: built-in ``ValueError`` s,
+    some after the POD)."""
+    from .._validate import check_at_least, check_choice, check_fraction, check_positive
+    from ..basis import _KINDS
+    from ..inference import METHODS, SOLVERS
+
+    check_fraction(energy, "energy")
+    check_choice(basis, "basis", ("auto", *_KINDS))
+    check_choice(method, "method", METHODS)
+    check_choice(solver, "solver", SOLVERS)
+    check_at_least(refine_iterations, "refine_iterations", 0)
+    check_positive(max_memory, "max_memory")
+
+
+@_reading_files
 def fit_rom(
-    snapshots: Snapshots | Sequence[Run] | Run,
+    snapshots: Snapshots | Sequence[Run] | Run | str | os.PathLike | Sequence[str | os.PathLike],
     r: int | None = None,
     energy: float | None = None,
     basis: str = "auto",
@@ -143,8 +191,9 @@ def fit_rom(
 
     Parameters
     ----------
-    snapshots : Snapshots, list of runs, or one run
-        Runs with ``t (k,)``, ``u (m, k)``, ``x, xdot, xddot (n, k)``, ``y (p, k)`` (ndarrays or h5py datasets)
+    snapshots : Snapshots, list of runs, one run, or path(s)
+        A snapshot file, a directory of them or a list of files (opened lazily, as :func:`fit_rom_file` does), or
+        runs with ``t (k,)``, ``u (m, k)``, ``x, xdot, xddot (n, k)``, ``y (p, k)`` (ndarrays or h5py datasets)
         and optionally ``x0, v0 (n,)``; ``snapshots.attrs`` (if any) supplies ``constraint``, ``input_names``,
         ``output_names``, ``dt``.  Runs may start from different initial states and mix forced and free
         responses.
@@ -221,6 +270,7 @@ def fit_rom(
     -------
     SecondOrderROM
     """
+    _check_arguments(energy, basis, method, solver, refine_iterations, max_memory)
     requested = _requested_terms(terms)
     runs = as_runs(snapshots)
     _check_complete(runs)
@@ -492,7 +542,7 @@ def fit_rom_file(
         raise FileExistsError(f"{output} exists; replace it with overwrite=True (command line: --force)")
     with open_snapshot_set(snapshots, max_memory=options.get("max_memory", 1e9)) as snaps:
         rom = fit_rom(snaps, r=r, energy=energy, basis=basis, quiet=quiet, **options)
-        rom.provenance["snapshot_file"] = ", ".join(p.name for p in snaps.files)  # no local paths
+        _name_files(rom, snaps)
         if figures is not None:
             from ..plots import pod_figures
 

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from .._stepping import recorded_stepping
-from .._validate import check_grid
+from .._validate import check_grid, check_number
 from ..errors import DimensionError, InputSpecError
 
 __all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations",
@@ -36,6 +36,8 @@ def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
     (k,) ndarray
         ``t0 + dt * arange(k)`` (no accumulated round-off).
     """
+    for value, name in ((dt, "dt"), (t_end, "t_end"), (t0, "t0")):   # (audit 81c F7: "'>' not supported ...")
+        check_number(value, name)
     if not (dt > 0 and math.isfinite(dt)):
         raise InputSpecError(f"step dt={dt} must be positive and finite")
     if not (t_end > t0 and math.isfinite(t_end)):
