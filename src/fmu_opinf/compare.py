@@ -566,6 +566,13 @@ def _builtin_outputs(spec: str, signal: Any, t: np.ndarray, quiet: bool,
     return y, seconds, {"source_kind": "builtin", "source": spec, "system_options": sizes}, names
 
 
+#: The keys of ``compare(source_options=...)``: an FMU source's (:func:`_source_outputs`, ``isolate`` and ``timeout``
+#: of its child process) and a builtin system's sizes (:func:`_builtin_outputs`).  Any other key is refused: one
+#: dropped without a word compared another model than the one asked for (audit 81c F2).
+SOURCE_OPTIONS = ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "start_time", "isolate",
+                  "timeout", "g", "n1", "alpha", "beta", "v")   # (the last five: sources.BUILTIN_SIZES)
+
+
 def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike,
             signal: "Signal | str | None" = None, dt: float | None = None, t_end: float | None = None, *,
             quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
@@ -592,7 +599,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).
     source_options : dict, optional
         Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
-        source.  For an FMU source, what is not given is taken from the ROM's training provenance: the force inputs
+        source: the keys of :data:`SOURCE_OPTIONS` (another key is refused in one line).  For an FMU source, what is not given is taken from the ROM's training provenance: the force inputs
         and outputs by their recorded names, the recorded ``--set`` values and the FMU time the training runs
         started at (``start_time``, 0 where none is recorded), so a comparison drives the FMU the way the training
         did.  A ROM side with extra outputs (an FMU exported with ``--reconstruct``) is
@@ -602,9 +609,11 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     -------
     Comparison
     """
+    from ._validate import check_keywords
     from .newmark import MAX_GRID_STEPS, time_grid
     from .sources import StepError
 
+    check_keywords(source_options or {}, SOURCE_OPTIONS, "compare's source_options")
     rom_side = _load_rom_side(rom)
     rom_info = _rom_side_info(rom_side)
     dt = float(dt if dt is not None else rom_info["dt"])
