@@ -33,6 +33,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from .._validate import check_keywords
 from ..errors import InputSpecError
 from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
 from ._base import few_names as _few_names
@@ -158,9 +159,12 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
             if key in options:
                 raise InputSpecError(f"--{_FLAG.get(key, key)} applies to fmu sources, not to {text}")
         return BuiltinSource(name=text.split(":", 1)[1], **options)
-    unknown = sorted(set(options) - set(_FMU_OPTIONS) - {"interface", "tolerance", "method"})
-    if unknown:
-        raise InputSpecError(f"--{unknown[0]} applies to builtin sources, not to the fmu {text}")
+    sizes = sorted(set(options) & set(BUILTIN_SIZES))
+    if sizes:
+        raise InputSpecError(f"--{sizes[0]} applies to builtin sources, not to the fmu {text}")
+    # (audit 81c F8: a misspelt keyword was said to apply to builtin sources)
+    check_keywords(options, _FMU_OPTIONS + ("interface", "tolerance", "method"),
+                   f"an fmu source ({os.path.basename(text)})", "keyword")
     interface = choose_interface(text, options.pop("interface", "auto"))
     if interface != "me" and "method" in options:
         raise InputSpecError(f"--me-method {options['method']} applies to model exchange, but {os.path.basename(text)} "
@@ -368,6 +372,8 @@ def warn_once(source: Source, about: tuple[Any, ...], text: str, stacklevel: int
 
 _FMU_OPTIONS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
                 "settings", "start_time")
+#: The size options of the builtin systems (:class:`BuiltinSource`), which an FMU source does not take.
+BUILTIN_SIZES = ("g", "n1", "alpha", "beta", "v")
 _FLAG = {"parameters": "set", "settings": "set", "method": "me-method", "start_time": "start-time"}
 
 
