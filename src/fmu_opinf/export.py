@@ -58,6 +58,7 @@ import numpy as np
 from ._descriptions import input_descriptions as recorded_input_texts
 from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
+from ._validate import check_not_input
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
 
@@ -1257,6 +1258,7 @@ def export_fmu(rom: SecondOrderROM | str | os.PathLike, path: str | os.PathLike,
         raise FMUError(f"fmi_version {fmi_version!r} is not supported; export with "
                        "fmi_version='2.0' or '3.0'")
     path = Path(path)
+    check_not_input(path, [rom], "output", "path")   # (a ROM FMU given as the ROM: audit 81c F3)
     check_output_name(path, overwrite)
     with single_threaded():   # dense kernels of a few hundred rows: two BLAS threads collapse under load
         spec = rom_fmu_spec(_load_rom(rom), _identifier(path), reconstruct, str(fmi_version), step)

@@ -71,6 +71,7 @@ import numpy as np
 
 from .._hdf5 import jsonable, tool_versions
 from .._sdp_paths import FACTORED_ABOVE
+from .._validate import check_not_input
 from ..basis import PODBasis, as_runs, snapshot_attrs
 from ..errors import FmuOpinfWarning
 from ..inference import _check_cutoff
@@ -538,6 +539,8 @@ def fit_rom_file(
     from ..basis import open_snapshot_set
 
     output = Path(output)
+    check_not_input(output, list(snapshots) if isinstance(snapshots, (list, tuple)) else [snapshots], "output",
+                    "output")   # (audit 81c F3: overwrite=True replaced the training data with the ROM)
     if output.exists() and not overwrite:
         raise FileExistsError(f"{output} exists; replace it with overwrite=True (command line: --force)")
     with open_snapshot_set(snapshots, max_memory=options.get("max_memory", 1e9)) as snaps:

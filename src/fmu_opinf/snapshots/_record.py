@@ -1112,8 +1112,11 @@ def record_to_file(
     RecordSummary
         ``str()`` gives the file name, :meth:`RecordSummary.describe` the runs and the window.
     """
+    from .._validate import check_not_input
     from ._window import warn_if_step_dependent
 
+    signals = signal if isinstance(signal, (list, tuple)) else [signal]
+    check_not_input(output, [source_spec, *signals], "output", "output")   # (audit 81c F3: it replaced the FMU)
     plan = _plan_recording(source_spec, signal, dt, t_end, auto_window, window, quiet, isolate, keep_inputs,
                            dict(positions=positions, velocities=velocities, accelerations=accelerations,
                                 inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
