@@ -27,7 +27,8 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError, I
 
 __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
-    "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "API_KEYWORDS", "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
+    "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "API_KEYWORDS",
+    "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "read_failure", "RESTORE",
     "SNAPSHOT_FILE_ATTRS", "SNAPSHOT_RUN_ATTRS", "ROM_ATTRS",

@@ -599,11 +599,11 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).
     source_options : dict, optional
         Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
-        source: the keys of :data:`SOURCE_OPTIONS` (another key is refused in one line).  For an FMU source, what is not given is taken from the ROM's training provenance: the force inputs
-        and outputs by their recorded names, the recorded ``--set`` values and the FMU time the training runs
-        started at (``start_time``, 0 where none is recorded), so a comparison drives the FMU the way the training
-        did.  A ROM side with extra outputs (an FMU exported with ``--reconstruct``) is
-        compared on the source's outputs, matched by name.
+        source: the keys of :data:`SOURCE_OPTIONS` (another key is refused in one line).  For an FMU source, what
+        is not given is taken from the ROM's training provenance: the force inputs and outputs by their recorded
+        names, the recorded ``--set`` values and the FMU time the training runs started at (``start_time``, 0 where
+        none is recorded), so a comparison drives the FMU the way the training did.  A ROM side with extra outputs
+        (an FMU exported with ``--reconstruct``) is compared on the source's outputs, matched by name.
 
     Returns
     -------
