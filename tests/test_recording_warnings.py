@@ -88,8 +88,9 @@ def test_euler_co_simulation_is_said_kept_and_fitted_as_the_model(fmus, tmp_path
     assert "includes the FMU's own integration error" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("to_file", [False, True], ids=["in-memory", "path"])
-def test_record_keeps_the_euler_warning_and_the_fit_uses_it(fmus, tmp_path, to_file):
+@pytest.mark.parametrize("to_file, stream", [(False, None), (True, None), (True, True)],
+                         ids=["in-memory", "path", "streamed"])
+def test_record_keeps_the_euler_warning_and_the_fit_uses_it(fmus, tmp_path, to_file, stream):
     """Audit 81c F1: ``snapshots.record`` (the README's API) warned of the Euler steps but kept nothing of it, in
     memory or in its ``path=`` file, so ``fit_rom`` fitted the Euler trajectory as the model: 0.51 / 0.42 of range off
     the exact model.  It now keeps the notes as ``record_to_file`` does, and the ROM stands for the model."""
@@ -97,7 +98,7 @@ def test_record_keeps_the_euler_warning_and_the_fit_uses_it(fmus, tmp_path, to_f
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", FmuOpinfWarning)
         snaps = record(fmus["Ode1Chain"], "impulse:amplitude=100,t0=2,width=0.5", dt=FIXED_STEP, t_end=60.0,
-                       path=path, quiet=True)
+                       path=path, quiet=True, stream=stream)
     assert sum("one Euler step per communication step" in str(w.message) for w in caught) == 1
     assert list(snaps.attrs["recording_verdicts"]) == ["forward-euler"]
     assert "one Euler step" in snaps.attrs["recording_warnings"][0]
