@@ -56,10 +56,11 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     shown = plotted_outputs(comparison)
     units = comparison.output_units or [""] * p
     fig, axes = plt.subplots(len(shown), 1, figsize=(8, 2.2 * len(shown) + 1.0), sharex=True, squeeze=False)
+    ylabels = {j: label_lines(comparison.output_names[j], units[j]) for j in shown}
     for j, ax in zip(shown, axes[:, 0]):
         ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
         ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
-        ax.set_ylabel(plot_text(comparison.output_names[j] + (f" [{units[j]}]" if units[j] else "")))
+        ax.set_ylabel("\n".join(plot_text(line) for line in ylabels[j]))
         _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("t [s]")
@@ -69,7 +70,9 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     which = "" if len(shown) == p else f" ({len(shown)} of {p} outputs: the largest errors relative to their peak)"
     lines = title_lines(f"Outputs, input {comparison.input_spec}{which}")
     fig.suptitle("\n".join(plot_text(line) for line in lines), y=1.0 - 0.3 / fig.get_figheight())
-    fixed_margins(fig, left=0.95, bottom=0.5, top=0.75 + TITLE_LINE_INCHES * (len(lines) - 1))
+    label_columns = max(len(label) for label in ylabels.values())
+    fixed_margins(fig, left=0.95 + LABEL_LINE_INCHES * (label_columns - 1), bottom=0.5,
+                  top=0.75 + TITLE_LINE_INCHES * (len(lines) - 1))
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -79,15 +82,15 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
 TITLE_WIDTH, TITLE_LINES, TITLE_LINE_INCHES = 80, 4, 0.22
 
 
-def title_lines(text: str, width: int = TITLE_WIDTH, most: int = TITLE_LINES) -> list[str]:
+def title_lines(text: str, width: int = TITLE_WIDTH, most: int = TITLE_LINES, breaks: str = ", ") -> list[str]:
     """``text`` broken into lines of at most ``width`` characters: after each ``;`` (one input's signal per line),
-    within that after a ``,`` or a space, and inside a longer word where nothing else helps; at most ``most`` lines,
-    the last ending in ``...`` where text is left out.  A compare of several inputs drew its whole input spec on one
-    line, cut off at both edges (audit 77a F4)."""
+    within that after one of the characters ``breaks`` (a ``,`` or a space), and inside a longer word where nothing
+    else helps; at most ``most`` lines, the last ending in ``...`` where text is left out.  A compare of several
+    inputs drew its whole input spec on one line, cut off at both edges (audit 77a F4)."""
     lines: list[str] = []
     for part in re.split(r"(?<=;)", text):
         line = ""
-        for piece in re.split(r"(?<=[, ])", part):
+        for piece in re.split(f"(?<=[{re.escape(breaks)}])", part):
             while len(line) + len(piece) > width:
                 if line:
                     lines.append(line)
@@ -102,6 +105,35 @@ def title_lines(text: str, width: int = TITLE_WIDTH, most: int = TITLE_LINES) ->
         lines = lines[:most]
         lines[-1] = lines[-1][: width - 3] + "..."
     return [line.rstrip() for line in lines] or [""]
+
+
+#: Characters of one line of an output panel's y-label (rotated along a panel of about 2 inches, at
+#: matplotlib's 10 points), the lines a name takes at most (its unit may take one more), and the width of one line.
+LABEL_WIDTH, LABEL_LINES, LABEL_LINE_INCHES = 22, 3, 0.18
+
+
+def label_lines(name: str, unit: str = "", width: int = LABEL_WIDTH, most: int = LABEL_LINES) -> list[str]:
+    """An output panel's y-label as lines: ``name`` broken after ``.``, ``_``, ``,``, ``]`` or a space, shortened
+    in its middle (``…``) where it needs more than ``most`` lines, so that its start and its last part (the
+    variable itself) both stay; ``[unit]`` on the last line, or on a line of its own, never cut.
+
+    A 97-character name on one rotated line ran off the figure's top with its unit, and shorter ones overlapped
+    the label of the panel above (audit 81c, F10).
+    """
+    unit_text = f"[{unit}]" if unit else ""
+    room = width * most - 2 * most   # a broken line is seldom full
+    if len(name) > room:
+        head = (room - 1) // 2
+        name = name[:head] + "…" + name[len(name) - (room - 1 - head):]
+    lines = title_lines(name, width, most + 1, breaks="._,] ")
+    if len(lines) > most:   # the breaks left a longer tail: cut the middle further
+        return label_lines(name[: len(name) // 2 - width // 2] + "…" + name[len(name) // 2 + width // 2:], unit,
+                           width, most)
+    if unit_text and len(lines[-1]) + 1 + len(unit_text) <= width:
+        lines[-1] += " " + unit_text
+    elif unit_text:
+        lines.append(unit_text)
+    return lines
 
 
 def _figure_error(comparison: Comparison, path: Path) -> None:
@@ -264,6 +296,9 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
         for caption, png in figures.items())
     notes = _html_table([(k, v) for k, v in metrics.get("notes", {}).items()]) if metrics.get("notes") else ""
     alone = _html_each_input_alone(metrics.get("each_input_alone") or [])
+    free = metrics.get("free_response")
+    alone += _html_free_response(free) if free else ""
+    headline[1:1] = _worst_run(metrics)
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{html.escape(comparison.title)}</title>
 <style>
@@ -291,15 +326,38 @@ def _html_each_input_alone(runs: list[dict[str, Any]]) -> str:
     output furthest off relative to its range, with the run's notes ("" where there are none)."""
     if not runs:
         return ""
-    rows = []
-    for run in runs:
-        worst = max(run["per_output"].items(), key=lambda item: _or_zero(item[1].get("relative_max_variation")))
-        text = (f"input {run['input']}; max eps_y {_fmt(run['max_error'])}; {worst[0]} off by "
-                f"{_fmt(worst[1].get('relative_max_variation', math.nan))} of its range")
-        rows.append((f"{run['driven_alone']} alone", "; ".join([text] + comparison_notes(run))))
+    rows = [(f"{run['driven_alone']} alone", _run_row(run)) for run in runs]
     return ("<h2>Each input alone</h2><p>The same harmonics, one input swinging at a time (the others at their "
             "operating point): together, the input that moves the outputs most hides the others' errors.</p>"
             + _html_table(rows))
+
+
+def _html_free_response(run: dict[str, Any]) -> str:
+    """The report's section on compare's run of the free response (``metrics["free_response"]``), which compare
+    ran and printed and the page left out (audit 81c, F9: a headline of 0.100 where the free response read 0.73)."""
+    return ("<h2>Free response</h2><p>The ROM's training showed the source moving on its own from its start values, "
+            "so the inputs were also held at their start values and the two models compared from there: the default "
+            "test input hides that start transient.</p>" + _html_table([("free response", _run_row(run))]))
+
+
+def _run_row(run: dict[str, Any]) -> str:
+    """One run's line: its input, eq. (19), the output furthest off relative to its range, and its notes."""
+    worst = max(run["per_output"].items(), key=lambda item: _or_zero(item[1].get("relative_max_variation")))
+    text = (f"input {run['input']}; max eps_y {_fmt(run['max_error'])}; {worst[0]} off by "
+            f"{_fmt(worst[1].get('relative_max_variation', math.nan))} of its range")
+    return "; ".join([text] + comparison_notes(run))
+
+
+def _worst_run(metrics: dict[str, Any]) -> list[tuple[str, str]]:
+    """The headline's row naming the further run (each input alone, the free response) whose eq. (19) is above the
+    test input's, with its figure: the page's first figure must not under-state what the comparison found."""
+    runs = [run for run in (metrics.get("each_input_alone") or []) + [metrics.get("free_response")] if run]
+    worst = max(runs, key=lambda run: _or_zero(run.get("max_error")), default=None)
+    if worst is None or not _or_zero(worst.get("max_error")) > _or_zero(metrics.get("max_error")):
+        return []
+    name = "free response" if worst is metrics.get("free_response") else f"{worst['driven_alone']} alone"
+    return [("worst max eps_y of all the runs compared (the line above: the test input alone)",
+             f"{_fmt(worst['max_error'])}, on the {name} (input {worst['input']}; see below)")]
 
 
 def _or_zero(value: Any) -> float:
