@@ -104,6 +104,31 @@ def _mark_order(ax: Any, r: int | None) -> None:
         ax.axvline(r, color="k", lw=0.8, ls="--", label=f"chosen order r = {r}")
 
 
+def _mark_energy_order(ax: Any, rule: tuple[int, float] | None, threshold: bool = False) -> None:
+    """Eq. 18's order (a dotted line) where the kept order differs from it, and with ``threshold`` the energy
+    threshold that gave it (audit 81c, F13: the figures showed r = 60 from the order search and neither eq. 18's
+    r = 24 nor the 0.95 behind it)."""
+    if rule is None:
+        return
+    order, level = rule
+    ax.axvline(order, color="0.45", lw=0.8, ls=":", label=f"eq. 18: r = {order} (first E_r >= {level:g})")
+    if threshold:
+        ax.axhline(level, color="0.45", lw=0.8, ls="-.", label=f"energy threshold {level:g}")
+
+
+def energy_rule(rom: Any) -> tuple[int, float] | None:
+    """``(order, threshold)`` of eq. 18 where the fit kept another order: the first order its order search tried
+    (``fit_info["order_search"]``; the search runs only without ``r`` and ``energy``, so at the default threshold
+    :data:`~fmu_opinf.basis.DEFAULT_ENERGY`), else None."""
+    from .basis import DEFAULT_ENERGY
+
+    search = (getattr(rom, "fit_info", None) or {}).get("order_search") or []
+    first = search[0].get("r") if search and isinstance(search[0], dict) else None
+    if first is None or int(first) == int(rom.r):
+        return None
+    return int(first), DEFAULT_ENERGY
+
+
 def _index_axis(ax: Any, count: int) -> None:
     """Both POD figures span the same index range 1..count, so they can be read side by side."""
     ax.set_xlabel("index i")
@@ -111,7 +136,8 @@ def _index_axis(ax: Any, count: int) -> None:
         ax.set_xlim(0, count + 1)
 
 
-def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
+def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None,
+                         rule: tuple[int, float] | None = None) -> Path:
     """Singular value decay on a log axis (Figs. 4a, 6a); values below ``1e-15 sigma_1`` (round-off) are omitted.
 
     Parameters
@@ -122,6 +148,8 @@ def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike,
         Image file to write (format from the suffix, e.g. ``.png``).
     r : int, optional
         Chosen order, marked by a vertical line.
+    rule : (int, float), optional
+        Eq. 18's order and threshold where the kept order differs (:func:`energy_rule`), marked by a dotted line.
 
     Returns
     -------
@@ -138,6 +166,7 @@ def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike,
         ax.semilogy(idx[shown], sigma[shown], "o", ms=3, fillstyle="none", label=_LABELS.get(kind, kind))
         count = max(count, sigma.size)
     _mark_order(ax, r)
+    _mark_energy_order(ax, rule)
     _index_axis(ax, count)
     _decade_ticks(ax.yaxis)
     ax.set_ylabel(r"$\sigma_i$")
@@ -146,8 +175,10 @@ def plot_singular_values(sigmas: dict[str, np.ndarray], path: str | os.PathLike,
     return _save(fig, path)
 
 
-def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None) -> Path:
-    """Cumulative energy ``E_i`` (eq. 18) with the chosen order marked (Figs. 4b, 6b).
+def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLike, r: int | None = None,
+                           rule: tuple[int, float] | None = None) -> Path:
+    """Cumulative energy ``E_i`` (eq. 18) with the chosen order marked (Figs. 4b, 6b), and eq. 18's order and
+    threshold where the order search kept another.
 
     Parameters
     ----------
@@ -157,6 +188,9 @@ def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLik
         Image file to write.
     r : int, optional
         Chosen order (vertical line).
+    rule : (int, float), optional
+        Eq. 18's order and threshold where they differ from ``r`` (:func:`energy_rule`): a dotted vertical line
+        and a horizontal one at the threshold.
 
     Returns
     -------
@@ -170,6 +204,7 @@ def plot_cumulative_energy(sigmas: dict[str, np.ndarray], path: str | os.PathLik
         ax.plot(np.arange(1, energy.size + 1), energy, "o", ms=3, fillstyle="none", label=_ELABELS.get(kind, kind))
         count = max(count, energy.size)
     _mark_order(ax, r)
+    _mark_energy_order(ax, rule, threshold=True)
     _index_axis(ax, count)
     ax.set_ylabel(r"$E_{\mathrm{cum}}$")
     ax.set_ylim(0, 1.05)
@@ -208,7 +243,8 @@ def pod_figures(snapshots: Any, rom: Any, out_dir: str | os.PathLike, max_memory
             sigmas[kind] = rom.singular_values
         else:
             sigmas[kind] = svdvals(snapshots, kind, max_memory=max_memory)
+    rule = energy_rule(rom)
     return {
-        "singular_values": plot_singular_values(sigmas, out_dir / "singular_values.png", rom.r),
-        "cumulative_energy": plot_cumulative_energy(sigmas, out_dir / "cumulative_energy.png", rom.r),
+        "singular_values": plot_singular_values(sigmas, out_dir / "singular_values.png", rom.r, rule),
+        "cumulative_energy": plot_cumulative_energy(sigmas, out_dir / "cumulative_energy.png", rom.r, rule),
     }
