@@ -342,9 +342,10 @@ def fit_rom(
     _warn_if_inputs_alike(fit.data["u"], _names(attrs.get("input_names"), fit.data["u"].shape[0])
                           or [f"u[{i + 1}]" for i in range(fit.data["u"].shape[0])])
     search: list[dict] = []
+    output_names = _names(attrs.get("output_names"), fit.data["y"].shape[0]) or []
     if searched:
         fit, search = _grow_order(first, fit_at, judge_unrefined=refine is not False, say=say,
-                                  refit=functools.partial(fit_at, screen=False))
+                                  refit=functools.partial(fit_at, screen=False), names=output_names)
     if r is None:
         origin = "from the order search" if fit.pod.r_ != first.pod.r_ else "from the cumulative energy"
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0], origin)
@@ -358,8 +359,8 @@ def fit_rom(
     if energy_orders:
         info["energy_orders"] = energy_orders
         _warn_if_velocities_keep_more(energy_orders, pod.r_)
-    _say_training_misses(info, say)
-    _warn_if_peak_missed(info, pod.r_)
+    _say_training_misses(info, say, output_names)
+    _warn_if_peak_missed(info, pod.r_, output_names)
     if fit.linearity.get("outputs"):
         info["nonlinear_outputs"] = fit.linearity
         _warn_nonlinear_outputs(fit.linearity)

@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from .._sdp_paths import FACTORED_ABOVE
-from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective
+from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective, output_name
 
 if TYPE_CHECKING:   # (annotations only: _order_fit imports this module's screen)
     from ._order_fit import _OrderFit
@@ -35,7 +35,8 @@ def _search_orders(start: int, rank: int) -> list[int]:
 
 def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unrefined: bool,
                 say: Callable[[str], None],
-                refit: Callable[[int], _OrderFit] | None = None) -> tuple[_OrderFit, list[dict]]:
+                refit: Callable[[int], _OrderFit] | None = None,
+                names: Sequence[str] | None = ()) -> tuple[_OrderFit, list[dict]]:
     """The order search: where the fit at the energy order (eq. 18) misses its own training outputs (the
     criterion of :func:`_warn_if_training_outputs_missed`) and the snapshots hold more modes, refit at the orders
     of :func:`_search_orders` and keep the first that reproduces them, else the one with the smallest training
@@ -105,7 +106,7 @@ def _grow_order(first: _OrderFit, fit_at: Callable[[int], _OrderFit], judge_unre
               for fit, objective in tried]
     if floor is not None and tried[-1][0].pod.r_ >= floor - 1:
         search[-1]["noise_floor"] = floor
-    say(_search_summary(search, kept.pod.r_))
+    say(_search_summary(search, kept.pod.r_, names))
     return kept, search
 
 
@@ -243,8 +244,9 @@ def _objective_of(tried: list[tuple[Any, float | None]], fit: Any) -> float | No
     return next(objective for candidate, objective in tried if candidate is fit)
 
 
-def _search_summary(search: list[dict], kept: int) -> str:
-    """The order search's stage line: each order tried with its training outputs' relative RMS error."""
+def _search_summary(search: list[dict], kept: int, names: Sequence[str] | None = ()) -> str:
+    """The order search's stage line: each order tried with its training outputs' relative RMS error, the worst
+    output named by ``names`` (the recorded output names)."""
     def rms(entry: dict) -> str:
         error = entry["judged"]
         return "not simulated" if error is None else f"{math.sqrt(error):.2g}"
@@ -254,7 +256,7 @@ def _search_summary(search: list[dict], kept: int) -> str:
                 "worst_output_error"):
             return ""
         run = entry.get("worst_run_name") if named else f"run {entry.get('worst_run')}"
-        return f" on y[{entry['worst_output'] + 1}]{_in_run(run, entry.get('n_runs'))}"
+        return f" on {output_name(entry['worst_output'], names)}{_in_run(run, entry.get('n_runs'))}"
 
     def screened(entry: dict) -> str:
         return f" after {entry['iterations']} refinement iterations" if entry.get("screened") else ""

@@ -17,7 +17,7 @@ from ..basis import PODBasis, constraint_recorded, read_columns
 from ..errors import FmuOpinfWarning
 from ..rom import SecondOrderROM
 from ._order_search import GROSS_MISS
-from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective
+from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective, output_name
 
 
 #: Smallest singular value of the training inputs (rows scaled to unit norm) relative to the largest below which
@@ -103,16 +103,16 @@ def _warn_if_velocities_keep_more(orders: dict[str, Any], r: int) -> None:
                   stacklevel=3)
 
 
-def _say_training_misses(info: dict, say: Callable[[str], None]) -> None:
+def _say_training_misses(info: dict, say: Callable[[str], None], names: Sequence[str] | None = ()) -> None:
     """The fit's line on its training outputs: the worst output's relative RMS error (the order search's figure)
-    and the worst output's peak miss relative to its range (:func:`_peak_misses`)."""
+    and the worst output's peak miss relative to its range (:func:`_peak_misses`), outputs named by ``names``."""
     peak = info.get("worst_peak_miss")
     if peak is None:
         return
     worst = info.get("worst_output_error")
-    rms = (f"worst relative RMS {math.sqrt(worst):.2g} (y[{info['worst_output'] + 1}]), "
+    rms = (f"worst relative RMS {math.sqrt(worst):.2g} ({output_name(info['worst_output'], names)}), "
            if isinstance(worst, (int, float)) and worst >= 0 else "")
-    say(f"training outputs: {rms}worst peak miss {peak:.2g} of range (y[{info['worst_peak_output'] + 1}]"
+    say(f"training outputs: {rms}worst peak miss {peak:.2g} of range ({output_name(info['worst_peak_output'], names)}"
         f"{_in_run(info.get('worst_peak_run_name'), info.get('n_runs'))})")
 
 
@@ -123,13 +123,13 @@ def _say_training_misses(info: dict, say: Callable[[str], None]) -> None:
 PEAK_MISS = 0.05
 
 
-def _warn_if_peak_missed(info: dict, r: int) -> None:
+def _warn_if_peak_missed(info: dict, r: int, names: Sequence[str] | None = ()) -> None:
     """One warning where the worst training output's peak miss exceeds :data:`PEAK_MISS` of its range while the
     RMS check (:func:`_warn_if_training_outputs_missed`) passes: a pulse like the training one is as far off."""
     peak, miss = info.get("worst_peak_miss"), _training_miss(info)
     if peak is None or not peak > PEAK_MISS or miss is None or miss > TRAINING_MISS:
         return
-    warnings.warn(f"the ROM misses its own training output y[{info['worst_peak_output'] + 1}]"
+    warnings.warn(f"the ROM misses its own training output {output_name(info['worst_peak_output'], names)}"
                   f"{_in_run(info.get('worst_peak_run_name'), info.get('n_runs'))} by {peak:.2g} of its range at "
                   f"the peak (relative RMS {math.sqrt(miss):.2g}): an input like the training one is as far off; "
                   f"a larger order holds the peak (--r above {r}; --basis velocities for velocity constraints)",
@@ -153,7 +153,7 @@ def training_miss_record(info: dict, names: Sequence[str] = (), unrefined: bool 
     def name(j: Any) -> str | None:
         if not isinstance(j, (int, np.integer)) or isinstance(j, bool):
             return None
-        return str(names[j]) if 0 <= j < len(names) else f"y[{int(j) + 1}]"
+        return output_name(j, names)
 
     record: dict[str, Any] = {}
     if miss is not None and miss > TRAINING_MISS:
@@ -221,13 +221,19 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
         miss = objective if objective is not None and objective > GROSS_MISS else None
     if miss is None or not miss > TRAINING_MISS:
         return
-    worst = "" if miss == objective else (f"output y[{info['worst_output'] + 1}]"
+    names = _recorded_names((attrs or {}).get("output_names"))
+    worst = "" if miss == objective else (f"output {output_name(info['worst_output'], names)}"
                                            + (" in the free response from the start values"
                                               if info.get("worst_in_free_response") else "")
                                            + _in_run(info.get("worst_run_name"), info.get("n_runs")) + "; ")
     causes = "; ".join(_miss_causes(r, tried, held, unrefined, unexplained, rank, search, attrs or {}))
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
                   f"({worst}training output error {objective:.2g}): {causes}", FmuOpinfWarning, stacklevel=3)
+
+
+def _recorded_names(names: Any) -> list[str]:
+    """The snapshot file's ``output_names`` as a list of strings (empty where it has none)."""
+    return [str(v) for v in np.atleast_1d(names)] if names is not None and np.size(names) else []
 
 
 def order_limited(r: int, rank: int | None, search: Sequence[dict]) -> bool:

@@ -21,6 +21,14 @@ from ..rom import SecondOrderROM
 TRAINING_MISS = 1e-3
 
 
+def output_name(j: Any, names: Sequence[str] | None = ()) -> str:
+    """Output ``j`` (from 0) by its recorded name, ``y[j+1]`` where the recording names none: compare and the report
+    use the FMU's names, and fit's lines said ``y[1]`` for an FMU whose first output is ``Antriebsstrang...``
+    (audit 81c, F11), wrong outright where an FMU's own outputs are named ``y[k]`` in another order."""
+    names = names or ()
+    return str(names[j]) if 0 <= int(j) < len(names) else f"y[{int(j) + 1}]"
+
+
 def _training_objective(info: dict, judge_unrefined: bool = True) -> float | None:
     """The training output error by which a fit is judged (the refinement's objective of the model kept; with
     ``judge_unrefined``, where no refinement could run, the SDP solution's simulated one); None where there is
