@@ -5,7 +5,6 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from fmu_opinf import plots
 from fmu_opinf.basis import DEFAULT_ENERGY, energy_order
@@ -50,5 +49,5 @@ def test_an_order_from_eq18_is_marked_once(monkeypatch, tmp_path):
     first = energy_order(SIGMA, DEFAULT_ENERGY)
     rom = SimpleNamespace(r=first, basis_kind="positions", singular_values=SIGMA,
                           fit_info={"order_search": [{"r": first}]})
-    singular, energy = _drawn(monkeypatch, tmp_path, rom)
+    _, energy = _drawn(monkeypatch, tmp_path, rom)
     assert _lines(energy.axes[0]) == ({first: f"chosen order r = {first}"}, {})

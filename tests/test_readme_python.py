@@ -23,7 +23,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 def _python_walkthrough() -> str:
     """The README's block after "Every step is also a Python function"."""
-    found = re.search(r"Every step is also a Python function:\s*```python\n(.*?)```", README.read_text(), re.S)
+    found = re.search(r"Every step is also a Python function:\s*```python\n(.*?)```", README.read_text(), re.DOTALL)
     assert found, "README.md lost its Python walkthrough"
     return found.group(1)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -62,10 +63,11 @@ def test_long_output_names_keep_their_labels_inside_the_figure_with_units(tmp_pa
     boxes = [ax.yaxis.label.get_window_extent(renderer) for ax in figure.axes]
     for box in boxes:
         assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 and box.y1 <= inside.y1
-    for upper, lower in zip(boxes, boxes[1:]):
+    for upper, lower in itertools.pairwise(boxes):
         assert lower.y1 < upper.y0   # no label reaches into the next one
     texts = [ax.get_ylabel() for ax in figure.axes]
-    assert [text.splitlines()[-1].endswith(unit) for text, unit in zip(texts, ["[rad]", "[m/s]", "[m/s2]"])] == [True] * 3
+    units = ["[rad]", "[m/s]", "[m/s2]"]
+    assert [text.splitlines()[-1].endswith(unit) for text, unit in zip(texts, units)] == [True] * 3
     assert texts[0].startswith("Antriebsstrang") and texts[0].replace("\n", "").count("80_Grad") == 1
 
 
