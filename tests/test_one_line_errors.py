@@ -36,7 +36,7 @@ def _one_line(done, *parts):
 @pytest.mark.parametrize("args, parts", [
     (["fit", "{s}", "-o", "r.h5", "--lowpass", "1e300"], ["lowpass cutoff 1e+300 rad/s must lie in", "--lowpass"]),
     (["fit", "{s}", "-o", "r.h5", "--terms", "foo"], ["terms ['foo'] are not known; use 'auto'"]),
-    (["fit", "{s}", "-o", "a" * 300 + ".h5"], ["-o names a path too long for the file system (303 characters)"]),
+    (["fit", "{s}", "-o", "a" * 300 + ".h5"], ["-o names a path too long for the file system (303 bytes in one name)"]),
     (["snapshots", "builtin:anchored-msd", "--g", "100000000000", "--dt", "0.1", "--t-end", "1", "-o", "s.h5"],
      ["the anchored chain with g=100000000000 needs", "give a smaller --g"]),
 ])

@@ -191,8 +191,16 @@ def check_name_length(path: str | os.PathLike, option: str) -> None:
         os.stat(path)
     except OSError as exc:
         if exc.errno == errno.ENAMETOOLONG:
-            raise FileFormatError(f"{option} names a path too long for the file system ({len(str(path))} "
-                                  "characters); choose a shorter one") from None
+            raise FileFormatError(f"{option} names a path too long for the file system ({_too_long(path)}); choose "
+                                  "a shorter one") from None
+
+
+def _too_long(path: str | os.PathLike) -> str:
+    """What makes ``path`` too long: its longest name (a file system takes 255 bytes in one, mostly), else its
+    length.  (The command line makes paths absolute; the length of the path as given is not the one refused.)"""
+    longest = max(Path(path).parts, key=lambda part: len(os.fsencode(part)), default="")
+    size = len(os.fsencode(longest))
+    return f"{size} bytes in one name" if size > 255 else f"{len(os.fsencode(os.fspath(path)))} bytes"
 
 
 def check_not_dangling(path: str | os.PathLike, option: str) -> None:
