@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from .signals import Signal
 
 __all__ = ["output_error", "error_metrics", "offset_note", "scale_note", "linear_fit_note", "Comparison", "compare",
-           "simulate_outputs"]
+           "simulate_outputs", "DisplayUnit"]
 
 
 def output_error(y_ref: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -277,6 +277,28 @@ def order_note(metrics: dict[str, Any]) -> str | None:
             "train with an input nearer this one (or add it as a training run)")
 
 
+@dataclass(frozen=True)
+class DisplayUnit:
+    """An output's declared ``displayUnit`` and its conversion from the output's unit, FMI's
+    ``DisplayUnit_value = factor * Unit_value + offset`` (FMI 2.0 section 2.2.2, ``fmi3Unit.xsd``).
+
+    The report plots and lists outputs in it, as a tool reading the FMU would show them (audit 81c, F10: a rad
+    output with displayUnit deg was drawn in rad); the error measures, ratios, do not depend on it.
+    """
+
+    name: str
+    factor: float
+    offset: float = 0.0
+
+    def values(self, y: np.ndarray) -> np.ndarray:
+        """``y`` (in the output's unit) in this display unit."""
+        return self.factor * np.asarray(y, dtype=float) + self.offset
+
+    def difference(self, dy: float) -> float:
+        """A difference ``dy`` of two values in the output's unit, in this display unit (the offset cancels)."""
+        return abs(self.factor) * dy
+
+
 @dataclass
 class Comparison:
     """Outputs of the full-order model and of the ROM on one input, with timings and provenance.
@@ -296,6 +318,9 @@ class Comparison:
         Last training snapshot time, marked on the error plot when known.
     output_units : list of str, optional
         Unit of each output where the FMU declares one ("" where not), for the figure labels.
+    output_display_units : list of DisplayUnit or None, optional
+        Each output's declared ``displayUnit`` where its unit's definition gives it (None where not): the outputs
+        figure and the page's absolute errors use it.
     input_choice : str
         Where ``compare`` chose the test input itself (none given): how and why, else "".
     driven_alone : str
@@ -330,6 +355,7 @@ class Comparison:
     t_train_end: float | None = None
     title: str = "ROM validation"
     output_units: list[str] | None = None
+    output_display_units: list[DisplayUnit | None] | None = None
     timed: dict[str, Any] = field(default_factory=dict)
     input_choice: str = ""   # why, where compare chose the test input itself (no --input)
     order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
@@ -759,6 +785,7 @@ class _Run:
         return Comparison(
             t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
             output_units=_declared_units(source, list(fom_outputs)),
+            output_display_units=_declared_display_units(source, list(fom_outputs)),
             input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
             fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
             timed=_timed(source, rom_side, isolate, fom_prov),
@@ -1368,30 +1395,65 @@ def _bundled_provenance(path: Path) -> Any:
         return None
 
 
-def _declared_units(source: Any, names: list[str]) -> list[str] | None:
-    """Units the source FMU declares for the named variables (its own or its type's), "" where none.
-
-    Names are element names as recorded: an element ``y[2]`` of an FMI 3 array ``y`` has the array's unit.
-    """
+def _declared_model(source: Any) -> Any:
+    """The source FMU's :class:`~fmu_opinf.sources._variables.ModelInfo`, None for another source or an unreadable
+    description (units are decoration: without them the figures are drawn in plain numbers)."""
     path = Path(str(source))
     if str(source).startswith("builtin:") or path.suffix.lower() != ".fmu" or not path.is_file():
         return None
     try:
         from .sources._variables import ModelInfo
 
-        variables = ModelInfo.from_path(path).by_name
+        return ModelInfo.from_path(path)
     except Exception:  # noqa: BLE001 - units are decoration: an unreadable description just has none
         return None
 
-    def unit(name: str) -> str:
-        var = variables.get(name)
-        if var is None and name.endswith("]") and "[" in name:  # an element of an array variable
-            array = variables.get(name[:name.rindex("[")])
-            var = array if array is not None and array.dims else None
-        value = getattr(var, "unit", None) or ""
-        return "".join(c for c in str(value) if c.isprintable())
 
-    return [unit(name) for name in names]
+def _declared_variable(variables: dict[str, Any], name: str) -> Any:
+    """The variable a recorded output name designates: itself, or the FMI 3 array ``y`` of an element ``y[2]``."""
+    var = variables.get(name)
+    if var is None and name.endswith("]") and "[" in name:  # an element of an array variable
+        array = variables.get(name[:name.rindex("[")])
+        var = array if array is not None and array.dims else None
+    return var
+
+
+def _printable(text: Any) -> str:
+    return "".join(c for c in str(text or "") if c.isprintable())
+
+
+def _declared_units(source: Any, names: list[str]) -> list[str] | None:
+    """Units the source FMU declares for the named variables (its own or its type's), "" where none.
+
+    Names are element names as recorded: an element ``y[2]`` of an FMI 3 array ``y`` has the array's unit.
+    """
+    model = _declared_model(source)
+    if model is None:
+        return None
+    return [_printable(getattr(_declared_variable(model.by_name, name), "unit", None)) for name in names]
+
+
+def _declared_display_units(source: Any, names: list[str]) -> list[DisplayUnit | None] | None:
+    """The ``displayUnit`` the source FMU declares for each named variable (its own or its type's) where its unit's
+    ``DisplayUnit`` definition gives the conversion, None where not (FMI: a display unit not defined is ignored).
+
+    A ``relativeQuantity`` variable (a temperature difference) ignores the offset, as FMI says.
+    """
+    model = _declared_model(source)
+    if model is None:
+        return None
+
+    def display(name: str) -> DisplayUnit | None:
+        var = _declared_variable(model.by_name, name)
+        defined = model.display_units.get(getattr(var, "unit", None) or "", {})
+        chosen = getattr(var, "display_unit", None) or ""
+        if chosen not in defined or not _printable(chosen):
+            return None
+        factor, offset = defined[chosen]
+        return DisplayUnit(_printable(chosen), factor, 0.0 if var.relative_quantity else offset)
+
+    found = [display(name) for name in names]
+    return found if any(found) else None
 
 
 def _matching_outputs(fom_names: list[str], rom_names: list[str], by_name: bool) -> list[int]:

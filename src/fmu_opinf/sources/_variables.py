@@ -66,6 +66,7 @@ class Variable:
     unit: str | None = None  # its own unit, else its declared type's
     quantity: str | None = None  # its own quantity, else its declared type's (FMI: e.g. "Force")
     display_unit: str | None = None  # its own displayUnit, else its declared type's where the unit is the type's
+    relative_quantity: bool = False  # FMI relativeQuantity (its own, else its type's): a display unit's offset is void
     clocks: str | None = None  # FMI 3 ``clocks``: value references of the clocks it ticks with (a clocked variable)
     nominal: str | None = None  # its own nominal, else its declared type's (FMI: its magnitude, default 1)
     description: str | None = None  # its modelDescription text (the exported ROM FMU repeats it)
@@ -272,6 +273,25 @@ def _defined_unit_dimensions(root: ET.Element) -> dict[str, dict[str, int]]:
         except ValueError:
             continue
         found[_normalized_unit(unit.get("name", ""))] = exponents
+    return found
+
+
+def _defined_display_units(root: ET.Element) -> dict[str, dict[str, tuple[float, float]]]:
+    """The ``(factor, offset)`` of each ``DisplayUnit`` that ``UnitDefinitions`` defines, by unit name, then display
+    unit name: FMI 2 and 3 define ``DisplayUnit_value = factor * Unit_value + offset`` (``fmi3Unit.xsd``; a ``deg``
+    of the unit ``rad`` has factor 57.29...).  Left out: an FMI 3 ``inverse="true"`` one (not linear), and one whose
+    factor is zero or whose numbers do not parse or are not finite (a plot in it would be meaningless)."""
+    found: dict[str, dict[str, tuple[float, float]]] = {}
+    for unit in root.iterfind("UnitDefinitions/Unit"):
+        for display in unit.iterfind("DisplayUnit"):
+            if display.get("inverse", "false").strip() in ("true", "1") or not display.get("name"):
+                continue
+            try:
+                factor, offset = float(display.get("factor", "1")), float(display.get("offset", "0"))
+            except ValueError:
+                continue
+            if math.isfinite(factor) and math.isfinite(offset) and factor != 0:
+                found.setdefault(unit.get("name", ""), {})[display.get("name", "")] = (factor, offset)
     return found
 
 
@@ -599,6 +619,9 @@ class ModelInfo:
         self._type_bounds = {key: _type_attribute(root, key) for key in ("min", "max", "nominal")}
         self._type_display_units = _type_attribute(root, "displayUnit")
         self._type_quantities = _type_attribute(root, "quantity")
+        self._type_relative = _type_attribute(root, "relativeQuantity")
+        #: the display units UnitDefinitions defines, by unit and display unit name (:func:`_defined_display_units`)
+        self.display_units = _defined_display_units(root)
         #: units the model defines (UnitDefinitions) with the base units of a force or a moment (:func:`unit_kind`)
         #: the units UnitDefinitions defines with base units: their dimensions, and those of a force or a moment
         self.unit_dimensions = _defined_unit_dimensions(root)
@@ -640,6 +663,11 @@ class ModelInfo:
             return attrs.get("displayUnit")
         return self._type_display_units.get(attrs.get("declaredType", ""))
 
+    def _relative_quantity(self, attrs: Any) -> bool:
+        """A variable's ``relativeQuantity``: its own, else its declared type's (default false)."""
+        value = attrs.get("relativeQuantity") or self._type_relative.get(attrs.get("declaredType", "")) or "false"
+        return value.strip() in ("true", "1")
+
     def _read2(self, node: ET.Element) -> list[Variable]:
         out = []
         for sv in node.findall("ScalarVariable"):
@@ -654,7 +682,8 @@ class ModelInfo:
                            max=self._bound(attrs, "max"), nominal=self._bound(attrs, "nominal"),
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
                            quantity=attrs.get("quantity") or self._type_quantities.get(attrs.get("declaredType", "")),
-                           display_unit=self._display_unit(attrs), description=sv.get("description"))
+                           display_unit=self._display_unit(attrs), description=sv.get("description"),
+                           relative_quantity=self._relative_quantity(attrs))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
             if var.derivative is not None:
@@ -682,7 +711,8 @@ class ModelInfo:
                                 unit=el.get("unit") or self._type_units.get(el.get("declaredType", "")),
                                 quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
                                 display_unit=self._display_unit(el.attrib), clocks=el.get("clocks"),
-                                description=el.get("description")))
+                                description=el.get("description"),
+                                relative_quantity=self._relative_quantity(el.attrib)))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
                 if alias.get("name"):
