@@ -54,12 +54,13 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
 
     p = comparison.y_fom.shape[0]
     shown = plotted_outputs(comparison)
-    units = comparison.output_units or [""] * p
+    units = _displayed_units(comparison)
     fig, axes = plt.subplots(len(shown), 1, figsize=(8, 2.2 * len(shown) + 1.0), sharex=True, squeeze=False)
     ylabels = {j: label_lines(comparison.output_names[j], units[j]) for j in shown}
     for j, ax in zip(shown, axes[:, 0]):
-        ax.plot(comparison.t, comparison.y_fom[j], "k-", lw=1.6, label="FOM")
-        ax.plot(comparison.t, comparison.y_rom[j], "C1--", lw=1.2, label=f"ROM (r={comparison.r})")
+        ax.plot(comparison.t, _displayed(comparison, j, comparison.y_fom[j]), "k-", lw=1.6, label="FOM")
+        ax.plot(comparison.t, _displayed(comparison, j, comparison.y_rom[j]), "C1--", lw=1.2,
+                label=f"ROM (r={comparison.r})")
         ax.set_ylabel("\n".join(plot_text(line) for line in ylabels[j]))
         _mark_training_end(ax, comparison.t_train_end, float(comparison.t[-1]))
         ax.grid(alpha=0.3)
@@ -76,6 +77,27 @@ def _figure_outputs(comparison: Comparison, path: Path) -> None:
     fig.subplots_adjust(hspace=0.12)
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _display_unit(comparison: Comparison, j: int) -> Any:
+    """Output ``j``'s declared display unit (:class:`~fmu_opinf.compare.DisplayUnit`), None where it has none."""
+    display = comparison.output_display_units or []
+    return display[j] if j < len(display) else None
+
+
+def _displayed_units(comparison: Comparison) -> list[str]:
+    """The unit each output is shown in: its declared ``displayUnit`` where its definition is known (FMI:
+    ``DisplayUnit_value = factor * Unit_value + offset``), else its unit, else ""."""
+    units = list(comparison.output_units or [])
+    units += [""] * (comparison.y_fom.shape[0] - len(units))
+    return [getattr(_display_unit(comparison, j), "name", None) or unit for j, unit in enumerate(units)]
+
+
+def _displayed(comparison: Comparison, j: int, y: np.ndarray) -> np.ndarray:
+    """Output ``j``'s values ``y`` in the unit :func:`_displayed_units` names (unchanged where it has no display
+    unit: the figure of such a model stays the same to the byte)."""
+    display = _display_unit(comparison, j)
+    return y if display is None else display.values(y)
 
 
 #: Characters of a figure title's line (8 inch wide figure, 12 pt) and lines at most; the height of one more line.
@@ -283,8 +305,8 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
                          f"max_t |y|) {_fmt(v['relative_max'])}; relative to its range (max_t |y - y_r| / "
                          f"(max_t y - min_t y)) {_fmt(v.get('relative_max_variation', math.nan))}; absolute max "
-                         f"{_fmt(v.get('absolute_max', math.nan))}")
-                  for name, v in metrics["per_output"].items()]
+                         f"{_absolute_max(comparison, j, v.get('absolute_max', math.nan))}")
+                  for j, (name, v) in enumerate(metrics["per_output"].items())]
     headline.insert(2, ("max over time of eps_y relative to the outputs' variation (time mean removed from the "
                         "scale)", _fmt(metrics.get("max_error_variation", math.nan))))
     headline[3:3] = [("note", note) for note in comparison_notes(metrics)]
@@ -319,6 +341,15 @@ eps_y(t) = |y(t) - y_rom(t)|^2 / max_t |y(t)|^2.</p>
 <h2>Provenance</h2>{_html_table(provenance)}
 </body></html>
 """
+
+
+def _absolute_max(comparison: Comparison, j: int, value: Any) -> str:
+    """Output ``j``'s max absolute error (``value``, in its unit as metrics.json keeps it) for the page: in its
+    declared display unit, named, where it has one (a deg output's error in deg, audit 81c F10); else as it is."""
+    display = _display_unit(comparison, j)
+    if display is None or not isinstance(value, float) or not math.isfinite(value):
+        return _fmt(value)
+    return f"{_fmt(display.difference(value))} {display.name}"
 
 
 def _html_each_input_alone(runs: list[dict[str, Any]]) -> str:
