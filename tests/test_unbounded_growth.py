@@ -22,6 +22,7 @@ from conftest import build_fmu_set
 
 from fmu_opinf import lti_fmus, systems
 from fmu_opinf.cli import main
+from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.snapshots import Snapshots, record
 from fmu_opinf.snapshots import _growth, _window
@@ -304,6 +305,26 @@ def test_a_file_of_several_growing_runs_is_warned_once(fmus, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("grows like e^(sigma t)") == 1, err
     assert len(Snapshots.load(out).attrs["recording_warnings"]) == 1
+
+
+@pytest.mark.fmu
+@pytest.mark.parametrize("where", ["memory", "path", "stream"])
+def test_record_on_a_given_grid_warns_of_the_growth_and_keeps_it(fmus, tmp_path, where):
+    """``snapshots.record(fmu, PULSE, 0.01, 10)``, the Python form of the test above: one warning naming the rate
+    (within 1 % of the pendulum's largest eigenvalue real part), the verdict in ``Snapshots.attrs`` and in the
+    file.  Before (open point of fix81c1), record's in-memory path (also with ``path=``) skipped the check that
+    ``record_to_file`` and a streamed ``record`` ran: no warning, no verdict, and fit did not repeat it."""
+    path = None if where == "memory" else tmp_path / "t.h5"
+    with pytest.warns(FmuOpinfWarning) as caught:
+        snaps = record(str(fmus["InvPend"]), PULSE, 0.01, 10.0, path=path, quiet=True, stream=where == "stream")
+    warned = [str(w.message) for w in caught if "the recording is kept, but the response grows like" in str(w.message)]
+    assert len(warned) == 1, [str(w.message) for w in caught]
+    sigma = float(warned[0].split("sigma = ")[1].split()[0])
+    assert abs(sigma - _sigma(_inverted())) < 0.01 * _sigma(_inverted()), sigma
+    assert recorded_verdicts(snaps.attrs) == {"unbounded-growth"}, snaps.attrs
+    assert "e^(sigma t)" in (recorded_warning(snaps.attrs) or "")
+    if path is not None:
+        assert recorded_verdicts(Snapshots.load(path).attrs) == {"unbounded-growth"}
 
 
 def _run(fmu, dt: float, t_end: float, spec: str = PULSE):

@@ -578,6 +578,8 @@ def record(source: Source | str, signal: Signal | str | None = None, dt: float |
     streaming = path is not None and (stream if stream is not None else _run_bytes(source, len(t)) > STREAM_THRESHOLD)
     if not streaming:
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate)
+        if failure is None:   # as _record_file does (a streamed run, record_to_file): the growth's verdict is kept
+            warn_if_grows(source, signal, run)
         attrs = {**_file_attrs(source), "dt": float(t[1] - t[0]), **fixed_step_attrs(source, float(t[1] - t[0])),
                  **_integrator_taken(source, [run.attrs]), **current_recording_notes()}   # (audit 81c F1)
         snaps = Snapshots([run], attrs)
