@@ -75,3 +75,36 @@ def test_short_labels_stay_one_line():
     from fmu_opinf.report import label_lines
 
     assert label_lines("y[1]", "m") == ["y[1] [m]"] and label_lines("y1") == ["y1"]
+
+
+@pytest.mark.fmu
+def test_the_report_is_not_written_into_compares_inputs(tmp_path):
+    """``write_report(result, folder)`` where the folder is compare's source (an unpacked FMU) or its ROM file:
+    refused in one line naming the keyword, nothing written.  The command line refused both (``check_not_input``);
+    before, the function wrote index.html, metrics.json and the two figures into the unpacked FMU, and called the
+    ROM file only "an existing file; choose another -o path"."""
+    import hashlib
+    import zipfile
+
+    from fmu_opinf import lti_fmus, report
+    from fmu_opinf.errors import FileFormatError
+    from fmu_opinf.fit import fit_rom
+    from fmu_opinf.snapshots import record
+
+    fmu = lti_fmus.build_lti_fmu(lti_fmus.chain_model(3, name="Chain3"), tmp_path / "Chain3.fmu").path
+    folder, rom_file = tmp_path / "Chain3", tmp_path / "rom.h5"
+    zipfile.ZipFile(fmu).extractall(folder)
+    fit_rom(record(str(folder), "impulse:amplitude=1,t0=2,width=0.5", 0.05, 30.0, quiet=True), r=3).save(rom_file)
+    result = compare.compare(rom_file, folder, "harmonic:amplitude=1,omega=0.9", dt=0.05, t_end=30.0, quiet=True)
+    files = {path: hashlib.sha256(path.read_bytes()).digest() for path in (*folder.rglob("*"), rom_file)
+             if path.is_file()}
+    for target in (folder, rom_file, str(rom_file.relative_to(tmp_path.parent).as_posix())):
+        with pytest.MonkeyPatch.context() as mp:
+            mp.chdir(tmp_path.parent)
+            with pytest.raises(FileFormatError) as refused:
+                report.write_report(result, target)
+        assert str(refused.value) == (f"report directory {target} is also an input of this call; give out_dir= "
+                                      "another path"), refused.value
+    assert {path: hashlib.sha256(path.read_bytes()).digest() for path in (*folder.rglob("*"), rom_file)
+            if path.is_file()} == files
+    assert report.write_report(result, tmp_path / "report").is_file()   # (another folder is written as before)

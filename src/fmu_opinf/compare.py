@@ -340,6 +340,9 @@ class Comparison:
         What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
         the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:
         both sides FMUs, stepped the same way in the same kind of process) and the ``clock``.
+    inputs : list of str
+        The paths ``compare`` was given (the ROM, the source, an input table), which
+        :func:`~fmu_opinf.report.write_report` refuses as the report folder, as the command line does.
     """
 
     t: np.ndarray
@@ -365,6 +368,7 @@ class Comparison:
     beyond_training: dict[str, Any] = field(default_factory=dict)   # a given input far above the training's
     linear_fits: list[str] = field(default_factory=list)   # outputs the fit found not linear in the states
     training_miss: dict[str, Any] = field(default_factory=dict)   # fit's warned miss of its training outputs
+    inputs: list[str] = field(default_factory=list)   # the files compare read: write_report does not write into them
 
     def __repr__(self) -> str:
         return (f"Comparison(input={self.input_spec!r}, r={self.r}, p={len(self.output_names)}, "
@@ -686,6 +690,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
             result.free_response = _free_response(run, quiet)
     except StepError as stopped:
         raise _past_termination(stopped, float(t_end), end_given, end_from) from None
+    result.inputs = [os.fspath(item) for item in (rom, source, signal) if isinstance(item, (str, os.PathLike))]
     return result
 
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ._hdf5 import atomic_path, jsonable, replace_together, write_error
+from ._validate import check_not_input
 from .compare import Comparison, comparison_notes
 from .errors import DataError, FileFormatError
 
@@ -222,7 +223,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
     ----------
     comparison : Comparison
     out_dir : path
-        Created if missing; must not be an existing file.
+        Created if missing; must not be an existing file, nor one of the comparison's inputs (``inputs``, the
+        source in ``fom_provenance``: an unpacked FMU folder is one).
     extra_figures : dict, optional
         Caption -> PNG path of further figures to embed (e.g. singular values from the fit).
     notes : dict, optional
@@ -234,6 +236,8 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
         The report's ``index.html``.
     """
     out_dir = Path(out_dir)
+    check_not_input(out_dir, [*comparison.inputs, comparison.fom_provenance.get("source")], "report directory",
+                    "out_dir")   # (the command line refused it, the function wrote into an unpacked FMU: audit 81c)
     created = not out_dir.exists()
     prepare_report_directory(out_dir)
     try:
