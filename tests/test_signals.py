@@ -107,16 +107,19 @@ def test_none_among_several_specs_leaves_that_input_undriven():
 def test_a_signal_for_a_model_without_inputs_is_refused_with_the_fix():
     """Audit 2026-11-27: on a model without inputs, ``compare --input harmonic:...`` was accepted (the signal
     broadcast to no channel) and the report named the free response after the harmonic; ``snapshots`` said 'give a
-    signal with 0 channels'.  Both now say to give ``--input none``."""
+    signal with 0 channels'.  Both now say to give ``--input none``, and its Python keyword (``signal='none'``: the
+    same check serves record and compare, audit 81c F8)."""
     from fmu_opinf.errors import DimensionError
     from fmu_opinf.signals import NoInput, parse_signal
 
     from fmu_opinf.snapshots import inputs_in_effect
 
-    with pytest.raises(DimensionError, match=r"the model has no inputs; give --input none"):
+    with pytest.raises(DimensionError, match=r"the model has no inputs; give --input none or signal='none' \(the "
+                                             r"free response"):
         parse_signal("harmonic:amplitude=1,omega=0.8", 0)
     assert isinstance(parse_signal("none", 0), NoInput)
-    with pytest.raises(DimensionError, match=r"has 1 channel\(s\) but the source has no inputs; give --input none"):
+    with pytest.raises(DimensionError, match=r"has 1 channel\(s\) but the source has no inputs; give --input none "
+                                             r"or signal='none' \(the free response"):
         inputs_in_effect(parse_signal("harmonic:amplitude=1,omega=0.8"), np.arange(5.0), 0)
 
 

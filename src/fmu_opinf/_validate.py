@@ -27,7 +27,8 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError, I
 
 __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
-    "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "API_KEYWORDS",
+    "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "either",
+    "API_KEYWORDS",
     "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "read_failure", "RESTORE",
@@ -80,6 +81,12 @@ def shown(option: str, value: Any) -> str:
     """``--dt 0.1`` for a command-line option (``option`` starts with ``-``), ``dt=0.1`` for a Python keyword: the
     checks below serve both (audit 81c F7: the functions raised built-in errors where the CLI said one line)."""
     return f"{option} {value}" if option.startswith("-") else f"{option}={value!r}"
+
+
+def either(option: str, keyword: str, value: Any) -> str:
+    """A fix said for both callers, e.g. ``--input none or signal='none'``: messages raised below the command line
+    and the functions alike named only the option to a Python caller (audit 81c F8)."""
+    return f"{shown(option, value)} or {shown(keyword, value)}"
 
 
 def check_number(value: Any, option: str) -> None:

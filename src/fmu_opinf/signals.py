@@ -31,6 +31,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from ._validate import either
 from .errors import DimensionError, FmuOpinfWarning, InputSpecError
 
 __all__ = [
@@ -334,8 +335,8 @@ def parse_signal(spec: str | Signal, n_inputs: int | None = None, input_names: S
     if n_inputs is None or signal.n_inputs == n_inputs:
         return signal
     if n_inputs == 0:  # broadcast to no channel it would vanish, and a report would name an input never applied
-        raise DimensionError(f"input {signal.spec!r} given, but the model has no inputs; give --input none (the free "
-                             "response from the start state)")
+        raise DimensionError(f"input {signal.spec!r} given, but the model has no inputs; give "
+                             f"{either('--input', 'signal', 'none')} (the free response from the start state)")
     if signal.n_inputs == 1:
         return _Broadcast(signal, n_inputs)
     raise DimensionError(f"input {signal.spec!r} has {signal.n_inputs} channels but the model has "

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from .._stepping import recorded_stepping
-from .._validate import check_grid, check_number
+from .._validate import check_grid, check_number, either
 from ..errors import DimensionError, InputSpecError
 
 __all__ = ["time_grid", "inputs_in_effect", "newmark_rates", "newmark_accelerations",
@@ -62,7 +62,8 @@ def inputs_in_effect(signal: Any, t: np.ndarray, m: int) -> np.ndarray:
     """
     sampled = np.atleast_2d(np.asarray(signal.sample(np.asarray(t)), dtype=float))
     if sampled.shape[0] != m:
-        fix = f"give a signal with {m} channels" if m else "give --input none (the free response from the start state)"
+        fix = (f"give a signal with {m} channels" if m else
+               f"give {either('--input', 'signal', 'none')} (the free response from the start state)")
         raise DimensionError(f"the input signal has {sampled.shape[0]} channel(s) but the source has "
                              f"{f'm={m} inputs' if m else 'no inputs'}; {fix}")
     if sampled.shape[1] != len(t):

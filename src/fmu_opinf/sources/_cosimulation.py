@@ -627,7 +627,7 @@ class FMUSource(Source):
     def _cause_of(self, U: np.ndarray, step: int, message: str) -> str:
         if "non-finite" in message and self.interface == "cs" and step > 0:   # (at step 0 no step was taken)
             other = ("drive its model exchange (--interface me)" if offers_model_exchange(self)
-                     else "pass a smaller --dt")
+                     else "pass a smaller step (--dt, or dt= in Python)")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
                     f"that is unstable at this step: {other}")
         outside = self._outside_range(U, step)
