@@ -90,8 +90,8 @@ def test_outputs_figure_and_table_use_the_display_unit(tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_compare_on_an_fmu_with_display_units_plots_them(tmp_path, monkeypatch):
     """The chain of audit 81c's p3.fmu (an angle in rad shown in deg, an acceleration in m/s2 shown in mm/s2):
-    snapshots and fit with defaults, compare on a harmonic; the report's plotted FOM lines are the exact response (matrix
-    exponential) times 180/pi and 1000, labelled deg and mm/s2; the speed, without display unit, as it is."""
+    snapshots and fit with defaults, compare on a harmonic; the report's plotted FOM lines are the exact response
+    (matrix exponential) times 180/pi and 1000, labelled deg and mm/s2; the speed, without display unit, as it is."""
     import matplotlib.pyplot as plt
     from conftest import rewrite_description
 
