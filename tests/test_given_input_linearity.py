@@ -59,6 +59,7 @@ def _scaling_warnings(seen) -> list[str]:
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 7 s on 2 cores
 def test_a_hardening_spring_under_a_given_100_n_impulse_warns_with_the_amplitude_that_scales(tmp_path, monkeypatch):
     """The recording is 92 % / 20 % of range off the exact linearization (the model is far from linear there); the
     check measures 3.1 at -1/10, then 0.9, 0.02, 2.1e-4 a decade lower each, and names 0.1 N.  The old code: no
@@ -82,6 +83,7 @@ def test_a_hardening_spring_under_a_given_100_n_impulse_warns_with_the_amplitude
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 3 s on 2 cores
 def test_the_same_spring_under_a_given_0_1_n_impulse_is_checked_and_recorded_without_a_warning(tmp_path, monkeypatch):
     """At 0.1 N the recording is within 2e-4 of range of the exact linearization: one check run, no warning."""
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
@@ -96,6 +98,7 @@ def test_the_same_spring_under_a_given_0_1_n_impulse_is_checked_and_recorded_wit
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 3.5-15 s on 2 cores (the re-check at 1e-9 of the loose tolerances)
 @pytest.mark.parametrize("options", [{}, {"tolerance": 1e-4, "method": "bdf"}, {"tolerance": 1e-4, "method": "lsoda"}],
                          ids=["default", "loose-bdf", "loose-lsoda"])
 def test_a_linear_fmu_with_offsets_and_start_values_under_a_given_input_gives_no_warning(tmp_path, monkeypatch,
@@ -122,6 +125,7 @@ def test_a_linear_fmu_with_offsets_and_start_values_under_a_given_input_gives_no
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 12 s on 2 cores
 def test_a_run_table_with_one_large_row_warns_once_and_checks_only_that_row(tmp_path, monkeypatch):
     """Three rows on the hardening spring (0.1 N, a 0.05 N harmonic, 100 N): only the 100 N row drives the input
     furthest, so only it is checked (one run at -1/10 and the decades below), and only its file keeps the warning."""
@@ -141,6 +145,7 @@ def test_a_run_table_with_one_large_row_warns_once_and_checks_only_that_row(tmp_
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 3 s on 2 cores
 def test_the_check_can_be_skipped(tmp_path, monkeypatch):
     """``check_linearity=False`` (``--no-linearity-check``): no run of the check, the input as given."""
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
@@ -150,6 +155,7 @@ def test_the_check_can_be_skipped(tmp_path, monkeypatch):
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 7 s on 2 cores
 def test_the_default_pulse_on_a_given_grid_is_checked_too(tmp_path, monkeypatch):
     """No --input but --dt and --t-end: no pilots, so the default training's own check never ran and the 100 N
     pulse was recorded on the hardening spring without a word.  It is now checked after recording (the same

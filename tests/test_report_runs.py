@@ -78,6 +78,7 @@ def test_short_labels_stay_one_line():
 
 
 @pytest.mark.fmu
+@pytest.mark.slow   # 2.2 s: a recording, a fit and a comparison
 def test_the_report_is_not_written_into_compares_inputs(tmp_path):
     """``write_report(result, folder)`` where the folder is compare's source (an unpacked FMU) or its ROM file:
     refused in one line naming the keyword, nothing written.  The command line refused both (``check_not_input``);

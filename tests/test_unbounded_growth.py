@@ -438,7 +438,7 @@ def test_a_given_window_warns_where_the_positions_grow(fmus, tmp_path, capsys):
 
 #: The stable models of the probes' test, none of whose pilots rises (REPORT: the settled pilot's quarter ratios of
 #: the positions 1.0, 1.0, 1.0 undamped; 0.89, 0.90, 0.91 at zeta 0.01; 2.0, 1.5, 1.33 for both free bodies).
-PROBED = ["Oscillator", "Damped", "Rigid", "FreeBody"]
+PROBED = ["Oscillator", "Damped", "Rigid", pytest.param("FreeBody", marks=pytest.mark.slow)]   # (3.5 s)
 
 
 @pytest.mark.fmu
