@@ -492,7 +492,8 @@ def test_an_isolated_run_ends_when_its_caller_is_killed_inside_a_long_sample(tmp
         # samples of 1e5 s, each about 5 minutes of DOP853 held to its stability limit
         record(open_source({str(path)!r}, method="dop853"), "step", 1e5, 1e6, quiet=True, isolate=True)
     """)
-    environment = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    # (its own temporary folder: the killed caller cannot remove the FMU it unpacked)
+    environment = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path), TMPDIR=str(tmp_path))
     caller = subprocess.Popen([sys.executable, "-c", script], env=environment)
     try:
         # tracker, server, run: the same three for half a second (a short-lived child, such as a compiler building

@@ -25,6 +25,7 @@ from ._base import Source, StepError, check_constraint, inputs_without, nice_flo
 from . import _fmu_log
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
+from ._unpack import make_unpack_folder
 from ._settings import parse_assignments
 from .._stepping import stepping_of
 from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
@@ -805,7 +806,7 @@ class FMUSource(Source):
         if self._unzipdir is None:
             from fmpy import extract
 
-            folder = tempfile.mkdtemp(prefix="fmu_opinf_", dir=_unpack_parent(self.path))
+            folder = make_unpack_folder(_unpack_parent(self.path))
             try:
                 _check_room_to_unpack(self.path, folder)
                 extract(str(self.path), unzipdir=folder)
