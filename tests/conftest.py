@@ -125,6 +125,14 @@ def relative(a, b):
 
 
 @pytest.fixture(scope="session")
+def toys(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The toy FMUs of tests/test_source.py (a fault switch, FMI 2 variants, FMI 3, no binary, another platform)."""
+    from test_source import build_toys
+
+    return build_toys(tmp_path_factory.mktemp("toys"))
+
+
+@pytest.fixture(scope="session")
 def anchored_impulse_run(anchored):
     """Anchored chain, impulse-like input, dt = 0.5 to t = 300 (the paper's training shape)."""
     return newmark.simulate(anchored, "impulse:amplitude=100,t0=2,width=0.5", 0.5, 300.0)

@@ -144,7 +144,6 @@ def test_levenberg_marquardt_polish_recovers_the_outputs_of_the_true_system():
     """From a perturbed structured start the polish drives the training output error to round-off level; the
     reference outputs come from fmu_opinf.newmark, not from the refinement's step map."""
     from fmu_opinf.inference import refine_output_error
-    from fmu_opinf.refinement import output_error_objective
 
     rng = np.random.default_rng(3)
     (M, D, K, B, Cp), runs = _two_runs(rng)

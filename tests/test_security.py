@@ -23,7 +23,6 @@ from fmu_opinf.errors import DataError, FileFormatError
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.snapshots import Snapshots, record
 from fmu_opinf.source import BuiltinSource
-from test_source import toys  # noqa: F401  (fixture: toy FMUs with a fault switch)
 
 SIGNAL = "impulse:amplitude=10,t0=1,width=0.5"
 

@@ -17,7 +17,7 @@ from fmu_opinf.signals import parse_signal
 from fmu_opinf.errors import DimensionError, FileFormatError, FMUError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 from fmu_opinf.snapshots import Snapshots, auto_window, newmark_rates, record, record_to_file, time_grid
 from fmu_opinf.source import BuiltinSource, FMUSource, StepError
-from test_source import SignalStub, toys  # noqa: F401  (toys is a fixture)
+from test_source import SignalStub
 
 ARRAYS = ("t", "u", "x", "xdot", "xddot", "y")
 
@@ -193,9 +193,9 @@ def test_fmu_without_rates_gets_derived_rates_marked_in_the_file(toys, tmp_path)
     signal = SignalStub(amplitude=1.0, t0=0.35)
     full = record(FMUSource(toys["full"]), signal, 0.05, 20.0, quiet=True).runs[0]
     derived = record(FMUSource(toys["positions-only"]), signal, 0.05, 20.0, path=tmp_path / "d.h5", quiet=True)
-    run, h = derived.runs[0], 0.05
+    run = derived.runs[0]
     np.testing.assert_array_equal(run.x, full.x)
-    x, v, a = run.x, run.xdot, run.xddot
+    v, a = run.xdot, run.xddot
     # against the rates the toy FMU integrates (it exposes them in its "full" variant)
     assert relative(v, full.xdot) < 1e-10
     assert relative(a, full.xddot) < 1e-6

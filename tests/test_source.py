@@ -321,11 +321,6 @@ def build_toys(directory: Path) -> dict[str, Path]:
     return out
 
 
-@pytest.fixture(scope="session")
-def toys(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    return build_toys(tmp_path_factory.mktemp("toys"))
-
-
 class SignalStub:
     """A one-channel step signal with a spec (the recorder only needs ``sample`` and ``spec``)."""
 

@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 from fmu_opinf.sources import _unpack
-from test_source import toys  # noqa: F401  (toys is a fixture)
 
 pytestmark = pytest.mark.skipif(not Path(f"/proc/{os.getpid()}/stat").exists(), reason="needs /proc (Linux)")
 
