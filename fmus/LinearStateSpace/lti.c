@@ -102,6 +102,8 @@ void ltiReset(LtiInstance *inst) {
     inst->completedEventAsked = 0;
     inst->terminated = 0;
     inst->enabled = 0;
+    inst->order = LTI_ORDER_START;
+    inst->cache = LTI_CACHE_START;
     inst->stopDefined = 0;
     inst->stopTime = 0.0;
     inst->nq = LTI_NQ_DEFAULT;
@@ -708,18 +710,21 @@ void ltiStartEvents(LtiInstance *inst) {
     if (LTI_STATE_EVENT) inst->indicatorAbove = indicator(inst, inst->z) > 0.0;
 }
 
-/* Whether vr is the Boolean enable input; logs the error of the calling function where it is not. */
-static int isEnableInput(LtiInstance *inst, const char *function, unsigned int vr) {
-    if (LTI_ENABLE_INPUT && vr == LTI_ENABLE_VR) return 1;
+/* The Boolean behind vr (the enable input or the Boolean parameter); logs the error of the calling function and
+   returns NULL where there is none. */
+static int *booleanOf(LtiInstance *inst, const char *function, unsigned int vr) {
+    if (LTI_ENABLE_INPUT && vr == LTI_ENABLE_VR) return &inst->enabled;
+    if (LTI_DISCRETE_PARAMETERS && vr == LTI_CACHE_VR) return &inst->cache;
     ltiLog(inst, LtiError, "logStatusError", "%s: no Boolean variable has value reference %u", function, vr);
-    return 0;
+    return NULL;
 }
 
 LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!isEnableInput(inst, function, vr[i])) return LtiError;
-        values[i] = inst->enabled;
+        int *target = booleanOf(inst, function, vr[i]);
+        if (!target) return LtiError;
+        values[i] = *target;
     }
     return LtiOK;
 }
@@ -728,9 +733,35 @@ LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned 
                         const int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!isEnableInput(inst, function, vr[i])) return LtiError;
-        inst->enabled = values[i] != 0;
+        int *target = booleanOf(inst, function, vr[i]);
+        if (!target) return LtiError;
+        *target = values[i] != 0;
         inst->upToDate = 0;
+    }
+    return LtiOK;
+}
+
+static int isOrderParameter(LtiInstance *inst, const char *function, unsigned int vr) {
+    if (LTI_DISCRETE_PARAMETERS && vr == LTI_ORDER_VR) return 1;
+    ltiLog(inst, LtiError, "logStatusError", "%s: no Integer variable has value reference %u", function, vr);
+    return 0;
+}
+
+LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        if (!isOrderParameter(inst, function, vr[i])) return LtiError;
+        values[i] = inst->order;
+    }
+    return LtiOK;
+}
+
+LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                        const int values[]) {
+    size_t i;
+    for (i = 0; i < nvr; i++) {
+        if (!isOrderParameter(inst, function, vr[i])) return LtiError;
+        inst->order = values[i];
     }
     return LtiOK;
 }

@@ -89,6 +89,8 @@ struct LtiInstance {
     int completedEventAsked; /* LTI_COMPLETED_EVENT: the event was asked for */
     int terminated;      /* LTI_CS_TERMINATE (FMI 2): the model called terminate() in a doStep */
     int enabled;         /* LTI_ENABLE_INPUT: the Boolean input that lets the forces act (start false) */
+    int order;           /* LTI_DISCRETE_PARAMETERS: the Integer parameter (no effect on the model) */
+    int cache;           /* LTI_DISCRETE_PARAMETERS: the Boolean parameter (no effect on the model) */
     int stopDefined;     /* the stop time given to setupExperiment / enterInitializationMode, if any */
     double stopTime;
 };
@@ -155,6 +157,10 @@ extern const int LTI_STEADY_START;
    kept with no slack: a doStep whose end, or a SetTime, passes it returns an error (FMI: the run's final time). */
 extern const int LTI_ENABLE_INPUT, LTI_STRICT_STOP;
 extern const unsigned int LTI_ENABLE_VR;
+/* LTI_DISCRETE_PARAMETERS: an Integer (FMI 3: Int32) parameter at LTI_ORDER_VR and a Boolean one at LTI_CACHE_VR,
+   settable before initialization and without effect on the model (an exporter's solver settings). */
+extern const int LTI_DISCRETE_PARAMETERS, LTI_ORDER_START, LTI_CACHE_START;
+extern const unsigned int LTI_ORDER_VR, LTI_CACHE_VR;
 extern const double LTI_STEADY_Q0[], LTI_STEADY_QU[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
@@ -203,6 +209,11 @@ LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
 /* LTI_ENABLE_INPUT: get / set the Boolean input (values 0 or 1); an error for any other value reference */
 LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]);
 LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+                        const int values[]);
+/* LTI_DISCRETE_PARAMETERS: get / set the Integer parameter; an error for any other value reference (setting it
+   also after initialization) */
+LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]);
+LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
                         const int values[]);
 /* Keep the stop time of the run; LTI_STRICT_STOP: an error (logged) where time passes it */
 void ltiSetStopTime(LtiInstance *inst, int defined, double stopTime);

@@ -154,13 +154,14 @@ static fmi2Status noVariables(fmi2Component c, const char *name, size_t nvr) {
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2GetInteger", nvr);
+    if (!LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2GetInteger", nvr);
+    CHECK(c, "fmi2GetInteger", PHASE_ANY);
+    return finish(inst, ltiGetInteger(inst, "fmi2GetInteger", vr, nvr, value));
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    if (!LTI_ENABLE_INPUT) return noVariables(c, "fmi2GetBoolean", nvr);
+    if (!LTI_ENABLE_INPUT && !LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2GetBoolean", nvr);
     CHECK(c, "fmi2GetBoolean", PHASE_ANY);
     return finish(inst, ltiGetBoolean(inst, "fmi2GetBoolean", vr, nvr, value));   /* (fmi2Boolean is int) */
 }
@@ -173,13 +174,14 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2SetInteger", nvr);
+    if (!LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2SetInteger", nvr);
+    CHECK(c, "fmi2SetInteger", PHASE_BEFORE_INIT);
+    return finish(inst, ltiSetInteger(inst, "fmi2SetInteger", vr, nvr, value));
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    if (!LTI_ENABLE_INPUT) return noVariables(c, "fmi2SetBoolean", nvr);
+    if (!LTI_ENABLE_INPUT && !LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2SetBoolean", nvr);
     CHECK(c, "fmi2SetBoolean", PHASE_BEFORE_INIT | PHASE_RUNNING);
     return finish(inst, ltiSetBoolean(inst, "fmi2SetBoolean", vr, nvr, value));
 }

@@ -255,7 +255,6 @@ NO_GETTER(fmi3GetInt8, fmi3Int8)
 NO_GETTER(fmi3GetUInt8, fmi3UInt8)
 NO_GETTER(fmi3GetInt16, fmi3Int16)
 NO_GETTER(fmi3GetUInt16, fmi3UInt16)
-NO_GETTER(fmi3GetInt32, fmi3Int32)
 NO_GETTER(fmi3GetUInt32, fmi3UInt32)
 NO_GETTER(fmi3GetInt64, fmi3Int64)
 NO_GETTER(fmi3GetString, fmi3String)
@@ -263,17 +262,47 @@ NO_SETTER(fmi3SetInt8, fmi3Int8)
 NO_SETTER(fmi3SetUInt8, fmi3UInt8)
 NO_SETTER(fmi3SetInt16, fmi3Int16)
 NO_SETTER(fmi3SetUInt16, fmi3UInt16)
-NO_SETTER(fmi3SetInt32, fmi3Int32)
 NO_SETTER(fmi3SetUInt32, fmi3UInt32)
 NO_SETTER(fmi3SetInt64, fmi3Int64)
 NO_SETTER(fmi3SetString, fmi3String)
+
+/* Int32: the parameter of LTI_DISCRETE_PARAMETERS only (fmi3Int32 is a C int32_t: converted element by element) */
+fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                        size_t nValueReferences, fmi3Int32 values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_DISCRETE_PARAMETERS) return noVariables(instance, "fmi3GetInt32", nValueReferences);
+    CHECK(instance, "fmi3GetInt32", PHASE_ANY);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        if (ltiGetInteger(inst, "fmi3GetInt32", valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+        values[i] = (fmi3Int32)value;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                        size_t nValueReferences, const fmi3Int32 values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_DISCRETE_PARAMETERS) return noVariables(instance, "fmi3SetInt32", nValueReferences);
+    CHECK(instance, "fmi3SetInt32", PHASE_BEFORE_INIT);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        value = (int)values[i];
+        if (ltiSetInteger(inst, "fmi3SetInt32", valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+    }
+    return fmi3OK;
+}
 
 /* Booleans: the enable input of LTI_ENABLE_INPUT only (fmi3Boolean is a C bool: converted element by element) */
 fmi3Status fmi3GetBoolean(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Boolean values[], size_t nValues) {
     size_t i;
     int value;
-    if (!LTI_ENABLE_INPUT) return noVariables(instance, "fmi3GetBoolean", nValueReferences);
+    if (!LTI_ENABLE_INPUT && !LTI_DISCRETE_PARAMETERS) return noVariables(instance, "fmi3GetBoolean", nValueReferences);
     CHECK(instance, "fmi3GetBoolean", PHASE_ANY);
     if (nValues < nValueReferences) return finish(inst, LtiError);
     for (i = 0; i < nValueReferences; i++) {
@@ -288,7 +317,7 @@ fmi3Status fmi3SetBoolean(fmi3Instance instance, const fmi3ValueReference valueR
                           size_t nValueReferences, const fmi3Boolean values[], size_t nValues) {
     size_t i;
     int value;
-    if (!LTI_ENABLE_INPUT) return noVariables(instance, "fmi3SetBoolean", nValueReferences);
+    if (!LTI_ENABLE_INPUT && !LTI_DISCRETE_PARAMETERS) return noVariables(instance, "fmi3SetBoolean", nValueReferences);
     CHECK(instance, "fmi3SetBoolean", PHASE_BEFORE_INIT | PHASE_RUNNING);
     if (nValues < nValueReferences) return finish(inst, LtiError);
     for (i = 0; i < nValueReferences; i++) {

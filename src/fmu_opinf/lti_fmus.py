@@ -763,6 +763,7 @@ class _Options:
     single_precision: bool | str = False
     enable_input: bool = False
     strict_stop_time: bool = False
+    discrete_parameters: bool = False
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -1254,6 +1255,10 @@ def _common_attributes(var: _Var) -> str:
 
 
 def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> str:
+    if var.type == "Integer":
+        return (f"    <ScalarVariable {_common_attributes(var)}>\n"
+                f"      <Integer start=\"{int(var.start[0])}\"/>\n"
+                "    </ScalarVariable>\n")
     if var.type == "Boolean":
         return (f"    <ScalarVariable {_common_attributes(var)}>\n"
                 f"      <Boolean start=\"{str(bool(var.start[0])).lower()}\"/>\n"
@@ -1272,6 +1277,8 @@ def _variable3(var: _Var, vr_of: dict[str, int], declared: bool = False) -> str:
     attributes = _common_attributes(var)
     if var.type == "Boolean":
         return f'    <Boolean {attributes} start="{str(bool(var.start[0])).lower()}"/>\n'
+    if var.type == "Int32":
+        return f'    <Int32 {attributes} start="{int(var.start[0])}"/>\n'
     if var.type == "UInt64":
         attributes += f' start="{int(var.start[0])}" min="{var.minimum}" max="{var.maximum}"'
         return f"    <UInt64 {attributes}/>\n"
@@ -1568,6 +1575,11 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const int LTI_ENABLE_INPUT = {int(options.enable_input)};\n"
         f"const unsigned int LTI_ENABLE_VR = {_enable_vr(layout)};\n"
         f"const int LTI_STRICT_STOP = {int(options.strict_stop_time)};\n"
+        f"const int LTI_DISCRETE_PARAMETERS = {int(options.discrete_parameters)};\n"
+        f"const unsigned int LTI_ORDER_VR = {_discrete_vr(layout, ORDER_PARAMETER)};\n"
+        f"const unsigned int LTI_CACHE_VR = {_discrete_vr(layout, CACHE_PARAMETER)};\n"
+        f"const int LTI_ORDER_START = {ORDER_START};\n"
+        f"const int LTI_CACHE_START = {int(CACHE_START)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1637,6 +1649,8 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
             var.dependencies = None
     if options.enable_input:
         _enable_input(layout, inputs)
+    if options.discrete_parameters:
+        _discrete_parameters(layout)
     names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
 
@@ -1659,9 +1673,32 @@ def _enable_input(layout: _Layout, inputs: list[str]) -> None:
                                  description="drive enable: the force inputs act only while it is true"))
 
 
+#: Names and start values of the parameters of ``discrete_parameters``.
+ORDER_PARAMETER, ORDER_START = "solverOrder", 4
+CACHE_PARAMETER, CACHE_START = "useCache", True
+
+
+def _discrete_parameters(layout: _Layout) -> None:
+    """Add an Integer (FMI 3: Int32) and a Boolean parameter without effect on the model, after every other variable
+    (value references after the C slot table and the enable input: the kernel serves them in its Integer and Boolean
+    get/set), as exporters declare solver settings."""
+    first = len(layout.slots) + 1   # (len(slots) is the enable input's, whether it is there or not)
+    layout.variables.append(_Var(ORDER_PARAMETER, first, causality="parameter", variability="fixed",
+                                 start=[float(ORDER_START)], type="Int32" if layout.fmi3 else "Integer",
+                                 description="order of the exporter's solver (no effect on the model)"))
+    layout.variables.append(_Var(CACHE_PARAMETER, first + 1, causality="parameter", variability="fixed",
+                                 start=[float(CACHE_START)], type="Boolean",
+                                 description="the exporter's cache switch (no effect on the model)"))
+
+
+def _discrete_vr(layout: _Layout, name: str) -> int:
+    """The value reference of a parameter of ``discrete_parameters`` (that of no variable where there is none)."""
+    return next((v.vr for v in layout.variables if v.name == name), len(layout.slots) + 3)
+
+
 def _enable_vr(layout: _Layout) -> int:
     """The value reference of the ``enable`` input (that of no slot where there is none)."""
-    return next((v.vr for v in layout.variables if v.type == "Boolean"), len(layout.slots))
+    return next((v.vr for v in layout.variables if v.name == ENABLE_INPUT and v.type == "Boolean"), len(layout.slots))
 
 
 def _source_tree(layout: _Layout, options: _Options, model: LinearMechanicalModel,
@@ -1715,7 +1752,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   me_terminate_at: float | None = None, completed_step_terminate_at: float | None = None,
                   position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
                   single_precision: bool | str = False, enable_input: bool = False,
-                  strict_stop_time: bool = False, reuse: bool = True) -> LtiFmu:
+                  strict_stop_time: bool = False, discrete_parameters: bool = False,
+                  reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1863,6 +1901,10 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Keep the stop time given to ``fmi2SetupExperiment`` / ``fmi3EnterInitializationMode`` with no slack, as
         some generated FMUs do: a ``doStep`` whose end (``currentCommunicationPoint + communicationStepSize``), or
         a model-exchange ``SetTime``, past it returns an error and logs why (audit 77a, F3).
+    discrete_parameters : bool, default=False
+        Two more parameters without effect on the model, as exporters declare solver settings: the Integer (FMI 3:
+        Int32) ``solverOrder`` (start 4) and the Boolean ``useCache`` (start true), set by ``fmi2SetInteger`` /
+        ``fmi3SetInt32`` and ``fmi2SetBoolean`` / ``fmi3SetBoolean``.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1905,7 +1947,8 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         position_limit=None if position_limit is None else (int(position_limit[0]), float(position_limit[1])),
         position_limit_status=str(position_limit_status),
         single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision),
-        enable_input=bool(enable_input), strict_stop_time=bool(strict_stop_time))
+        enable_input=bool(enable_input), strict_stop_time=bool(strict_stop_time),
+        discrete_parameters=bool(discrete_parameters))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
