@@ -29,6 +29,22 @@ typedef enum {
 #define STATE_AFTER_INIT (StepComplete | StepFailed | Terminated | ErrorState)
 #define STATE_ANY_LIVE   (Instantiated | InitializationMode | STATE_AFTER_INIT)
 
+/* The FMI type of a variable (of a parameter, in PARAMETER_KINDS of config.h; the codes are fmus.py's
+ * PARAMETER_KIND_CODES): each type has its own get/set functions, which refuse a variable of another type. */
+typedef enum {
+    KindFloat64 = 0,
+    KindFloat32 = 1,
+    KindInt8 = 2,
+    KindUInt8 = 3,
+    KindInt16 = 4,
+    KindUInt16 = 5,
+    KindInt32 = 6,   /* also FMI 2 Integer */
+    KindUInt32 = 7,
+    KindInt64 = 8,
+    KindUInt64 = 9,
+    KindBoolean = 10
+} VariableKind;
+
 typedef struct ModelInstance ModelInstance;
 
 /* Generic function pointer: holds the importer's logger of either FMI version. */
@@ -100,6 +116,12 @@ Status getFloat64(ModelInstance *instance, const char *function, const unsigned 
                   size_t nvr, double value[]);
 Status setFloat64(ModelInstance *instance, const char *function, const unsigned int vr[],
                   size_t nvr, const double value[]);
+/* Parameters of an integer or Boolean kind (values as doubles: integers exact up to 2^53, Booleans 0 or 1); every
+ * value reference must be a parameter of that kind. */
+Status getParameters(ModelInstance *instance, const char *function, VariableKind kind, const unsigned int vr[],
+                     size_t nvr, double value[]);
+Status setParameters(ModelInstance *instance, const char *function, VariableKind kind, const unsigned int vr[],
+                     size_t nvr, const double value[]);
 Status doStep(ModelInstance *instance, const char *function, double point, double h);
 
 Status getState(ModelInstance *instance, const char *function, void **state);

@@ -177,16 +177,68 @@ END:
     RETURN;
 }
 
+/* Integer and Boolean variables: the parameters of those types (an exported ROM's source parameters), held as
+ * doubles inside. */
+static fmi2Status getTyped(fmi2Component c, const char *name, VariableKind kind, const fmi2ValueReference vr[],
+                           size_t nvr, int value[]) {
+    double *buffer = NULL;
+    size_t i;
+    BEGIN(name, STATE_GET);
+    if (nvr == 0) {
+        goto END;
+    }
+    CALL(checkNotNull(instance, function, value, "value"));
+    buffer = (double *)instance->allocator.allocate(nvr, sizeof(double));
+    if (!buffer) {
+        logError(instance, "%s: out of memory", function);
+        status = Error;
+        goto END;
+    }
+    CALL(getParameters(instance, function, kind, vr, nvr, buffer));
+    for (i = 0; i < nvr; i++) {
+        value[i] = kind == KindBoolean ? (buffer[i] != 0.0 ? fmi2True : fmi2False) : (int)buffer[i];
+    }
+END:
+    if (buffer) {
+        instance->allocator.release(buffer);
+    }
+    RETURN;
+}
+
+static fmi2Status setTyped(fmi2Component c, const char *name, VariableKind kind, const fmi2ValueReference vr[],
+                           size_t nvr, const int value[]) {
+    double *buffer = NULL;
+    size_t i;
+    BEGIN(name, STATE_SET);
+    if (nvr == 0) {
+        goto END;
+    }
+    CALL(checkNotNull(instance, function, value, "value"));
+    buffer = (double *)instance->allocator.allocate(nvr, sizeof(double));
+    if (!buffer) {
+        logError(instance, "%s: out of memory", function);
+        status = Error;
+        goto END;
+    }
+    for (i = 0; i < nvr; i++) {
+        buffer[i] = kind == KindBoolean ? (value[i] != fmi2False ? 1.0 : 0.0) : (double)value[i];
+    }
+    CALL(setParameters(instance, function, kind, vr, nvr, buffer));
+END:
+    if (buffer) {
+        instance->allocator.release(buffer);
+    }
+    RETURN;
+}
+
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2GetInteger", nvr);
+    return getTyped(c, "fmi2GetInteger", KindInt32, vr, nvr, value);
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Boolean value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2GetBoolean", nvr);
+    return getTyped(c, "fmi2GetBoolean", KindBoolean, vr, nvr, value);
 }
 
 fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -197,14 +249,12 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2SetInteger", nvr);
+    return setTyped(c, "fmi2SetInteger", KindInt32, vr, nvr, value);
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Boolean value[]) {
-    (void)vr; (void)value;
-    return noVariables(c, "fmi2SetBoolean", nvr);
+    return setTyped(c, "fmi2SetBoolean", KindBoolean, vr, nvr, value);
 }
 
 fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

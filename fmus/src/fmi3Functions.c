@@ -392,25 +392,83 @@ END:
         return noVariables(instance, #name, nValueReferences); \
     }
 
-NO_GETTER(fmi3GetInt8, fmi3Int8)
-NO_GETTER(fmi3GetUInt8, fmi3UInt8)
-NO_GETTER(fmi3GetInt16, fmi3Int16)
-NO_GETTER(fmi3GetUInt16, fmi3UInt16)
-NO_GETTER(fmi3GetInt32, fmi3Int32)
-NO_GETTER(fmi3GetUInt32, fmi3UInt32)
-NO_GETTER(fmi3GetInt64, fmi3Int64)
-NO_GETTER(fmi3GetUInt64, fmi3UInt64)
-NO_GETTER(fmi3GetBoolean, fmi3Boolean)
+/* Integer and Boolean variables: the parameters of those types (an exported ROM's source parameters), scalars held
+ * as doubles inside: the buffer of a typed call's nValues values (one per value reference). */
+static Status typedCall(const ModelInstance *model, const char *function, const fmi3ValueReference valueReferences[],
+                        size_t nValueReferences, const void *values, size_t nValues, double **buffer) {
+    Status status = checkValues(model, function, values, nValues);
+
+    if (status == OK && nValueReferences > 0 && !valueReferences) {
+        logError(model, "%s: valueReferences is NULL", function);
+        status = Error;
+    }
+    if (status == OK && nValues != nValueReferences) {
+        logError(model, "%s: %lu values for %lu scalar variables", function, (unsigned long)nValues,
+                 (unsigned long)nValueReferences);
+        status = Error;
+    }
+    if (status == OK) {
+        *buffer = (double *)calloc(nValues > 0 ? nValues : 1, sizeof(double));
+        if (!*buffer) {
+            logError(model, "%s: out of memory", function);
+            status = Error;
+        }
+    }
+    return status;
+}
+
+#define TYPED_GETTER(name, type, kind) \
+    fmi3Status name(fmi3Instance instance, const fmi3ValueReference valueReferences[], \
+                    size_t nValueReferences, type values[], size_t nValues) { \
+        double *buffer = NULL; \
+        size_t i; \
+        BEGIN(#name, STATE_GET); \
+        CALL(typedCall(model, function, valueReferences, nValueReferences, values, nValues, &buffer)); \
+        CALL(getParameters(model, function, kind, valueReferences, nValues, buffer)); \
+        for (i = 0; i < nValues; i++) { \
+            values[i] = (type)buffer[i]; \
+        } \
+    END: \
+        free(buffer); \
+        RETURN; \
+    }
+
+#define TYPED_SETTER(name, type, kind) \
+    fmi3Status name(fmi3Instance instance, const fmi3ValueReference valueReferences[], \
+                    size_t nValueReferences, const type values[], size_t nValues) { \
+        double *buffer = NULL; \
+        size_t i; \
+        BEGIN(#name, STATE_SET); \
+        CALL(typedCall(model, function, valueReferences, nValueReferences, values, nValues, &buffer)); \
+        for (i = 0; i < nValues; i++) { \
+            buffer[i] = (double)values[i]; \
+        } \
+        CALL(setParameters(model, function, kind, valueReferences, nValues, buffer)); \
+    END: \
+        free(buffer); \
+        RETURN; \
+    }
+
+/* (an fmi3Boolean is a C bool: (type)buffer[i] is true for any value but 0, and (double)true is 1) */
+TYPED_GETTER(fmi3GetInt8, fmi3Int8, KindInt8)
+TYPED_GETTER(fmi3GetUInt8, fmi3UInt8, KindUInt8)
+TYPED_GETTER(fmi3GetInt16, fmi3Int16, KindInt16)
+TYPED_GETTER(fmi3GetUInt16, fmi3UInt16, KindUInt16)
+TYPED_GETTER(fmi3GetInt32, fmi3Int32, KindInt32)
+TYPED_GETTER(fmi3GetUInt32, fmi3UInt32, KindUInt32)
+TYPED_GETTER(fmi3GetInt64, fmi3Int64, KindInt64)
+TYPED_GETTER(fmi3GetUInt64, fmi3UInt64, KindUInt64)
+TYPED_GETTER(fmi3GetBoolean, fmi3Boolean, KindBoolean)
+TYPED_SETTER(fmi3SetInt8, fmi3Int8, KindInt8)
+TYPED_SETTER(fmi3SetUInt8, fmi3UInt8, KindUInt8)
+TYPED_SETTER(fmi3SetInt16, fmi3Int16, KindInt16)
+TYPED_SETTER(fmi3SetUInt16, fmi3UInt16, KindUInt16)
+TYPED_SETTER(fmi3SetInt32, fmi3Int32, KindInt32)
+TYPED_SETTER(fmi3SetUInt32, fmi3UInt32, KindUInt32)
+TYPED_SETTER(fmi3SetInt64, fmi3Int64, KindInt64)
+TYPED_SETTER(fmi3SetUInt64, fmi3UInt64, KindUInt64)
+TYPED_SETTER(fmi3SetBoolean, fmi3Boolean, KindBoolean)
 NO_GETTER(fmi3GetString, fmi3String)
-NO_SETTER(fmi3SetInt8, fmi3Int8)
-NO_SETTER(fmi3SetUInt8, fmi3UInt8)
-NO_SETTER(fmi3SetInt16, fmi3Int16)
-NO_SETTER(fmi3SetUInt16, fmi3UInt16)
-NO_SETTER(fmi3SetInt32, fmi3Int32)
-NO_SETTER(fmi3SetUInt32, fmi3UInt32)
-NO_SETTER(fmi3SetInt64, fmi3Int64)
-NO_SETTER(fmi3SetUInt64, fmi3UInt64)
-NO_SETTER(fmi3SetBoolean, fmi3Boolean)
 NO_SETTER(fmi3SetString, fmi3String)
 
 fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],

@@ -32,6 +32,15 @@ static const char *const inputNames[ARRAY_LENGTH(N_INPUTS)] = INPUT_NAMES;
 static const char *const parameterNames[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_NAMES;
 #define FIXED_PARAMETER_TOLERANCE 1e-12
 #endif
+#ifdef PARAMETER_KINDS
+/* The FMI type of each parameter (VariableKind); without the table every parameter is a Float64. */
+static const int parameterKinds[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_KINDS;
+#define PARAMETER_KIND(index) ((VariableKind)parameterKinds[index])
+#else
+#define PARAMETER_KIND(index) KindFloat64
+#endif
+static const char *const kindNames[] = {"Float64", "Float32", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32",
+                                        "Int64", "UInt64", "Boolean"};
 #ifdef INPUT_MIN
 static const double inputMin[ARRAY_LENGTH(N_INPUTS)] = INPUT_MIN;
 static const double inputMax[ARRAY_LENGTH(N_INPUTS)] = INPUT_MAX;
@@ -351,6 +360,19 @@ void resetInstance(ModelInstance *instance) {
 
 /* ------------------------------------------------------------ variables */
 
+/* A parameter of an integer or Boolean type is reached through its own functions only (FMI: the get/set function
+ * of a variable's type), not as a real. */
+static Status checkRealParameter(const ModelInstance *instance, const char *function, unsigned int r) {
+    VariableKind kind = PARAMETER_KIND(r - VR_PARAMETERS);
+
+    if (kind != KindFloat64 && kind != KindFloat32) {
+        logError(instance, "%s: value reference %u is a %s variable; use the %s get/set functions", function, r,
+                 kindNames[kind], kindNames[kind]);
+        return Error;
+    }
+    return OK;
+}
+
 Status getFloat64(ModelInstance *instance, const char *function, const unsigned int vr[],
                   size_t nvr, double value[]) {
     Status status = OK;
@@ -382,6 +404,7 @@ Status getFloat64(ModelInstance *instance, const char *function, const unsigned 
         } else if (r >= VR_OUTPUTS && r < VR_PARAMETERS) {
             value[i] = instance->y[r - VR_OUTPUTS];
         } else if (r >= VR_PARAMETERS && r < VR_POSITIONS) {
+            CALL(checkRealParameter(instance, function, r));
             value[i] = instance->current.parameters[r - VR_PARAMETERS];
         } else if (r >= VR_POSITIONS && r < VR_VELOCITIES) {
             value[i] = instance->current.x[r - VR_POSITIONS];
@@ -400,6 +423,17 @@ END:
     return status;
 }
 
+#ifdef PARAMETERS_FIXED
+/* A parameter's value as its log line shows it: true / false for a Boolean, else all digits of the double. */
+static void shownValue(VariableKind kind, double value, char text[32]) {
+    if (kind == KindBoolean) {
+        snprintf(text, 32, "%s", value != 0.0 ? "true" : "false");
+    } else {
+        snprintf(text, 32, "%.17g", value);
+    }
+}
+#endif
+
 static Status setParameter(ModelInstance *instance, const char *function, unsigned int r,
                            double value) {
     int index = (int)(r - VR_PARAMETERS);
@@ -412,12 +446,15 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
 
 #ifdef PARAMETERS_FIXED
     /* an exported ROM: made for the parameters' training values only (its source's, --set ones included) */
-    if (value != parameterDefaults[index] && !(fabs(value - parameterDefaults[index]) <=
-                                               FIXED_PARAMETER_TOLERANCE * fabs(parameterDefaults[index]))) {
-        logError(instance, "%s: parameter %s (value reference %u) was %.17g in training, the only value the model "
-                 "knows; %.17g refused: set it to %.17g or leave it, or record the snapshots and fit again with "
-                 "--set %s=VALUE", function, parameterNames[index], r, parameterDefaults[index], value,
-                 parameterDefaults[index], parameterNames[index]);
+    if (value != parameterDefaults[index] && (PARAMETER_KIND(index) > KindFloat32 || !(fabs(
+            value - parameterDefaults[index]) <= FIXED_PARAMETER_TOLERANCE * fabs(parameterDefaults[index])))) {
+        char trained[32], given[32];
+        shownValue(PARAMETER_KIND(index), parameterDefaults[index], trained);
+        shownValue(PARAMETER_KIND(index), value, given);
+        logError(instance, "%s: parameter %s (value reference %u) was %s in training, the only value the model "
+                 "knows; %s refused: set it to %s or leave it, or record the snapshots and fit again with "
+                 "--set %s=VALUE", function, parameterNames[index], r, trained, given, trained,
+                 parameterNames[index]);
         return Error;
     }
     return OK;   /* the trained value stays, bit-equal */
@@ -488,6 +525,7 @@ Status setFloat64(ModelInstance *instance, const char *function, const unsigned 
                 addFeedthroughChange(&instance->system, input, change, instance->y);
             }
         } else if (r >= VR_PARAMETERS && r < VR_POSITIONS) {
+            CALL(checkRealParameter(instance, function, r));
             CALL(setParameter(instance, function, r, value[i]));
         } else if (r == VR_TIME || (r >= VR_OUTPUTS && r < VR_END)) {
             logError(instance, "%s: variable with value reference %u cannot be set", function, r);
@@ -498,6 +536,59 @@ Status setFloat64(ModelInstance *instance, const char *function, const unsigned 
             status = Error;
             goto END;
         }
+    }
+
+END:
+    return status;
+}
+
+/* Whether r is a parameter of this kind; logs the error of the calling function where it is not. */
+static int isParameterOf(const ModelInstance *instance, const char *function, VariableKind kind, unsigned int r) {
+    if (r >= VR_PARAMETERS && r < VR_POSITIONS && PARAMETER_KIND(r - VR_PARAMETERS) == kind) {
+        return 1;
+    }
+    logError(instance, "%s: no %s variable has value reference %u", function, kindNames[kind], r);
+    return 0;
+}
+
+Status getParameters(ModelInstance *instance, const char *function, VariableKind kind, const unsigned int vr[],
+                     size_t nvr, double value[]) {
+    Status status = OK;
+    size_t i;
+
+    if (nvr == 0) {
+        return OK;
+    }
+    CALL(checkNotNull(instance, function, vr, "vr"));
+    CALL(checkNotNull(instance, function, value, "value"));
+    for (i = 0; i < nvr; i++) {
+        if (!isParameterOf(instance, function, kind, vr[i])) {
+            status = Error;
+            goto END;
+        }
+        value[i] = instance->current.parameters[vr[i] - VR_PARAMETERS];
+    }
+
+END:
+    return status;
+}
+
+Status setParameters(ModelInstance *instance, const char *function, VariableKind kind, const unsigned int vr[],
+                     size_t nvr, const double value[]) {
+    Status status = OK;
+    size_t i;
+
+    if (nvr == 0) {
+        return OK;
+    }
+    CALL(checkNotNull(instance, function, vr, "vr"));
+    CALL(checkNotNull(instance, function, value, "value"));
+    for (i = 0; i < nvr; i++) {
+        if (!isParameterOf(instance, function, kind, vr[i])) {
+            status = Error;
+            goto END;
+        }
+        CALL(setParameter(instance, function, vr[i], value[i]));
     }
 
 END:

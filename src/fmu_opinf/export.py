@@ -60,7 +60,8 @@ from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
 from ._validate import check_not_input
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools, is_unit_name, unit_definition
+from .fmus import (INTEGER_RANGES, Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools,
+                   is_unit_name, unit_definition)
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -507,7 +508,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
             description += "; inputs held in training (refused at any other value): " + ", ".join(
                 f"{name} = {value!r}" for name, value in held.values.items())
         provenance["rom_fmu_driven_inputs"] = [held.order[i] for i in held.position]
-    parameters = _source_parameters(provenance, set(inputs["input_names"] or []) | set(output_names) | set(names))
+    parameters = _source_parameters(provenance, set(inputs["input_names"] or []) | set(output_names) | set(names),
+                                    fmi_version)
     description += _parameters_text(provenance, parameters)
     _warn_if_settings_not_declared(provenance, parameters, inputs["input_names"] or [])
     state_names = rom_state_names(list(inputs["input_names"] or []) + output_names + names
@@ -545,7 +547,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
 
 # ------------------------------------------------------- source parameters (audit 81b F1)
 
-#: The source parameter types the ROM FMU declares (its variables are real): Integer and Boolean ones are left out.
+#: The source parameter types the ROM FMU declares as Float64 (its real variables).
 _REAL_PARAMETER_TYPES = ("Real", "Float64", "Float32")
 
 
@@ -566,26 +568,47 @@ def _recorded_parameters(provenance: dict) -> dict[str, list[Any]] | None:
     return {"names": names, "types": types, "values": [float(v) for v in values], "units": units, "set": given}
 
 
-def _source_parameters(provenance: dict, taken: set[str]) -> list[Parameter]:
-    """The source's real parameters, fixed at their training values, for the ROM FMU to declare (an importer that
-    sets them as it set the source's then runs, and another value is refused in one log line); one warning for
-    those it cannot declare (Integer, Boolean: the ROM FMU's variables are real; a name an input or output has)."""
+def _source_parameters(provenance: dict, taken: set[str], fmi_version: str) -> list[Parameter]:
+    """The source's parameters, fixed at their training values, for the ROM FMU to declare (an importer that sets them
+    as it set the source's then runs, and another value is refused in one log line): real ones as Float64, integer
+    and Boolean ones with their type (:func:`_parameter_type`); one warning for those it cannot declare (a value its
+    type cannot hold, a name an input or output has)."""
     record = _recorded_parameters(provenance)
     if record is None:
         return []
     kept, left_out = [], []
     units = _units(record["units"], len(record["names"]))
     for name, kind, value, unit in zip(record["names"], record["types"], record["values"], units):
-        if kind not in _REAL_PARAMETER_TYPES or name in taken or not name.strip():
+        declared = _parameter_type(kind, value, fmi_version)
+        if declared is None or name in taken or not name.strip():
             left_out.append(name)
             continue
         given = "fixed at its --set value in training" if name in record["set"] else ""   # (compact: hundreds)
-        kept.append(Parameter(name, value, given, unit))
+        kept.append(Parameter(name, value, given, unit if declared == "Float64" else "", declared))
     if left_out:
-        warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (not real, or named like "
-                      "an input or output): an importer that sets them on the ROM FMU fails", FmuOpinfWarning,
-                      stacklevel=4)
+        warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (a type or value it cannot "
+                      "declare, or named like an input or output): an importer that sets them on the ROM FMU fails",
+                      FmuOpinfWarning, stacklevel=4)
     return kept
+
+
+def _parameter_type(kind: str, value: float, fmi_version: str) -> str | None:
+    """The type the ROM FMU declares a source parameter of type ``kind`` with (FMI 2 ``Integer`` and FMI 3 ``Int32``
+    as ``Int32``; an FMI 3 integer type as itself on an FMI 3 ROM FMU, as ``Int32`` on an FMI 2 one), or None where
+    it cannot: an unknown type, or a value the type cannot hold (:data:`fmu_opinf.fmus.INTEGER_RANGES`: an Int64 beyond
+    2**53, an UInt32 beyond Int32 on FMI 2, a Boolean not 0 or 1)."""
+    if kind in _REAL_PARAMETER_TYPES:
+        return "Float64"
+    if kind == "Boolean":
+        declared = "Boolean"
+    elif kind == "Integer" or (kind in INTEGER_RANGES and fmi_version != "3.0"):
+        declared = "Int32"
+    elif kind in INTEGER_RANGES:
+        declared = kind
+    else:
+        return None
+    low, high = INTEGER_RANGES[declared]
+    return declared if value == int(value) and low <= value <= high else None
 
 
 def _parameters_text(provenance: dict, parameters: list[Parameter]) -> str:

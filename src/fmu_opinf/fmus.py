@@ -91,6 +91,16 @@ def is_unit_name(value: Any) -> bool:
                                     and c not in "\ufffe\uffff") for c in value)
 
 
+#: ``VariableKind`` of ``fmus/include/instance.h`` for each parameter type (config.h ``PARAMETER_KINDS``).
+PARAMETER_KIND_CODES = {"Float64": 0, "Int8": 2, "UInt8": 3, "Int16": 4, "UInt16": 5, "Int32": 6, "UInt32": 7,
+                        "Int64": 8, "UInt64": 9, "Boolean": 10}
+
+#: The values each integer parameter type holds (``Int64`` / ``UInt64``: those a double holds exactly, within 2**53).
+INTEGER_RANGES = {"Int8": (-2**7, 2**7 - 1), "UInt8": (0, 2**8 - 1), "Int16": (-2**15, 2**15 - 1),
+                  "UInt16": (0, 2**16 - 1), "Int32": (-2**31, 2**31 - 1), "UInt32": (0, 2**32 - 1),
+                  "Int64": (-2**53 + 1, 2**53 - 1), "UInt64": (0, 2**53 - 1), "Boolean": (0, 1)}
+
+
 class FmuBuildError(FMUError):
     """An FMU could not be generated or compiled (missing tools, compiler error)."""
 
@@ -108,13 +118,18 @@ class Parameter:
     description : str, default=""
         One-line description for modelDescription.xml.
     unit : str, default=""
-        Its unit (``""``: none), declared on the variable and in ``UnitDefinitions``.
+        Its unit (``""``: none), declared on the variable and in ``UnitDefinitions``; a real parameter's only.
+    type : str, default="Float64"
+        Its FMI 3 type: ``"Float64"``, an integer type (``"Int8"`` .. ``"UInt64"``; FMI 2 knows ``"Int32"`` only, its
+        ``Integer``) or ``"Boolean"`` (``default`` 0 or 1).  An integer's ``default`` is a whole number within its type
+        and within 2**53 (held as a double in the FMU); each type is reached through its own get/set functions.
     """
 
     name: str
     default: float
     description: str = ""
     unit: str = ""
+    type: str = "Float64"
 
 
 @dataclass
@@ -307,6 +322,7 @@ class SecondOrderFmuSpec:
         self._check_ranges()
         self._check_held()
         self._check_units()
+        self._check_parameter_types()
         self._check_text()
         self._check_unique_names()
 
@@ -406,6 +422,25 @@ class SecondOrderFmuSpec:
             if held and not bounds[0] == start == bounds[1]:
                 raise FmuBuildError(f"held input {name!r} must declare min = max = start ({start!r}), not range "
                                     f"{bounds!r}; give input_ranges with its held value on both sides")
+
+    def _check_parameter_types(self) -> None:
+        """Each parameter of a known type (FMI 2: Float64, Int32, Boolean), a finite number as its start (an integer
+        or Boolean one a whole number within :data:`INTEGER_RANGES`), a unit on real ones only."""
+        allowed = ("Float64", "Int32", "Boolean") if self.fmi_version == "2.0" else tuple(PARAMETER_KIND_CODES)
+        for par in self.parameters:
+            value = par.default
+            if (par.type not in allowed or not isinstance(value, (int, float)) or isinstance(value, bool)
+                    or not math.isfinite(value)):
+                raise FmuBuildError(f"parameter {par.name!r}: type {par.type!r} and start {value!r} are not one of "
+                                    f"{', '.join(allowed)} with a finite number; give such a type and start")
+            if par.type in INTEGER_RANGES and (value != int(value) or not INTEGER_RANGES[par.type][0] <= value
+                                               <= INTEGER_RANGES[par.type][1]):
+                low, high = INTEGER_RANGES[par.type]
+                raise FmuBuildError(f"parameter {par.name!r}: start {value!r} is not a whole number in [{low}, {high}]"
+                                    f" ({par.type}); give one")
+            if par.type != "Float64" and par.unit:
+                raise FmuBuildError(f"parameter {par.name!r}: a {par.type} variable has no unit ({par.unit!r}); give "
+                                    "none")
 
     def _check_units(self) -> None:
         for what, kind, units, count in (("unit", "input", self.input_units, self.m),
@@ -746,7 +781,8 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
                    spec.output_names, refs["y"], described, output_units, output_display, ranges, nominals,
                    quantities)]
     rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
-    rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit)
+    rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit,
+                       type=par.type)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
         kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
@@ -835,13 +871,26 @@ def _nominal_attribute(variable: _Variable) -> str:
     return f' nominal="{float(variable.nominal)!r}"' if 0 < variable.nominal < math.inf else ""
 
 
+def _typed_start(variable: _Variable) -> str:
+    """`` start="..."`` of an integer (a whole number) or Boolean (``true`` / ``false``) variable."""
+    if variable.type == "Boolean":
+        return f' start="{"true" if variable.start else "false"}"'
+    return f' start="{int(variable.start)}"'
+
+
 def _variable2(variable: _Variable) -> str:
+    if variable.type in INTEGER_RANGES:   # (FMI 2: Integer or Boolean parameters; no unit, range or nominal)
+        element = "Boolean" if variable.type == "Boolean" else "Integer"
+        return (f"    <ScalarVariable {variable.attributes()}>\n      <{element}{_typed_start(variable)}/>\n"
+                "    </ScalarVariable>\n")
     unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
     start = "" if variable.start is None else f' start="{float(variable.start)!r}"'
     return f"    <ScalarVariable {variable.attributes()}>\n      <Real{unit}{start}/>\n    </ScalarVariable>\n"
 
 
 def _variable3(variable: _Variable) -> str:
+    if variable.type in INTEGER_RANGES:   # (integer or Boolean parameters; no unit, range or nominal)
+        return f"    <{variable.type} {variable.attributes()}{_typed_start(variable)}/>\n"
     unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
     values = variable.start if isinstance(variable.start, tuple) else (variable.start,)
     start = "" if variable.start is None else f' start="{" ".join(repr(float(v)) for v in values)}"'
@@ -1127,6 +1176,7 @@ def _config_header(spec: SecondOrderFmuSpec) -> str:
     lines += _range_tables(spec)
     lines += _held_tables(spec)
     lines += _fixed_parameter_tables(spec)
+    lines += _parameter_kinds(spec)
     lines += _port_tables(spec)
     lines += ["", "#endif /* CONFIG_H */", ""]
     return "\n".join(lines)
@@ -1163,6 +1213,13 @@ def _fixed_parameter_tables(spec: SecondOrderFmuSpec) -> list[str]:
         return []
     return ["#define PARAMETERS_FIXED 1",
             f"#define PARAMETER_NAMES {{ {', '.join(c_string(p.name) for p in spec.parameters)} }}"]
+
+
+def _parameter_kinds(spec: SecondOrderFmuSpec) -> list[str]:
+    """``config.h`` line ``PARAMETER_KINDS`` (the ``VariableKind`` of each parameter) where one is not a Float64."""
+    if all(p.type == "Float64" for p in spec.parameters):
+        return []
+    return [f"#define PARAMETER_KINDS {{ {', '.join(str(PARAMETER_KIND_CODES[p.type]) for p in spec.parameters)} }}"]
 
 
 #: Bytes written as themselves in a generated C string literal; every other byte (quotes, backslashes, ``?`` of a
