@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionError, FMUError, InputSpecError
-from ..fmus import BASE_UNITS
 from ..signals import pulse_amplitude
 from ._base import Source, StepError, check_constraint, inputs_without, nice_floor
 from . import _fmu_log
@@ -200,25 +199,6 @@ _FMI2_LAST_SUCCESSFUL_TIME, _FMI2_TERMINATED = 2, 3
 #: The words every failure of a discarded ``doStep`` says (the automatic window's step search looks for them: a
 #: pilot's step that the FMU discards is searched below like one where it overflows, audit 70 finding 9).
 DISCARDED = "discarded the communication step"
-
-
-def _unit_definitions(md: Any, names: set[str]) -> dict[str, dict]:
-    """Base units (SI exponents, factor, offset) and display units of the named units, as the model
-    description defines them: the exported ROM FMU declares them again."""
-    found = {}
-    for unit in getattr(md, "unitDefinitions", None) or []:
-        if unit.name not in names:
-            continue
-        base = unit.baseUnit
-        entry: dict[str, Any] = {"base": None, "factor": 1.0, "offset": 0.0}  # None: no BaseUnit declared
-        if base is not None:
-            entry["base"] = {key: int(getattr(base, key, 0) or 0) for key in BASE_UNITS if getattr(base, key, 0)}
-            entry["factor"] = float(getattr(base, "factor", 1.0) or 1.0)
-            entry["offset"] = float(getattr(base, "offset", 0.0) or 0.0)
-        entry["display"] = [[d.name, float(d.factor or 1.0), float(d.offset or 0.0)]
-                            for d in getattr(unit, "displayUnits", None) or []]
-        found[unit.name] = entry
-    return found
 
 
 #: Largest finite single-precision number: an FMI 3 Float32 input beyond it would receive infinity.
@@ -576,7 +556,8 @@ class FMUSource(Source):
         if len(position_units) == 1 and "" not in position_units:   # reconstructed positions in the ROM FMU
             desc["position_unit"] = next(iter(position_units))
         used = set(self.input_units) | set(self.output_units) | position_units
-        definitions = _unit_definitions(self.md, used - {""})
+        known = self.model.unit_definitions   # (the XML reader compare's report reads display units with, too)
+        definitions = {name: known[name] for name in sorted(used - {""}) if name in known}
         if definitions:
             desc["unit_definitions"] = definitions
         if any(port["shape"] or port["type"] != "Float64" for ports in self.ports.values() for port in ports):

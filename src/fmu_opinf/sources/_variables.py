@@ -276,23 +276,66 @@ def _defined_unit_dimensions(root: ET.Element) -> dict[str, dict[str, int]]:
     return found
 
 
-def _defined_display_units(root: ET.Element) -> dict[str, dict[str, tuple[float, float]]]:
-    """The ``(factor, offset)`` of each ``DisplayUnit`` that ``UnitDefinitions`` defines, by unit name, then display
-    unit name: FMI 2 and 3 define ``DisplayUnit_value = factor * Unit_value + offset`` (``fmi3Unit.xsd``; a ``deg``
-    of the unit ``rad`` has factor 57.29...).  Left out: an FMI 3 ``inverse="true"`` one (not linear), and one whose
-    factor is zero or whose numbers do not parse or are not finite (a plot in it would be meaningless)."""
-    found: dict[str, dict[str, tuple[float, float]]] = {}
+#: SI base units of an FMI ``BaseUnit`` element (the exponents :func:`defined_units` reads), in the standard's order.
+_BASE_UNIT_KEYS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+
+
+def defined_units(root: ET.Element) -> dict[str, dict[str, Any]]:
+    """Each unit ``UnitDefinitions`` defines, by name, as the exported ROM FMU declares it again
+    (:func:`fmu_opinf.fmus.unit_definition`): ``{"base": {SI unit: exponent, zeros left out} or None (no BaseUnit),
+    "factor", "offset", "display": [[name, factor, offset], ...]}``.
+
+    The one reader of display units (``compare``'s report reads them through :func:`_defined_display_units`): FMI 2 and
+    3 define ``DisplayUnit_value = factor * Unit_value + offset`` (``fmi3Unit.xsd``; a ``deg`` of the unit ``rad`` has
+    factor 57.29...).  Left out: an FMI 3 ``inverse="true"`` display unit (``1 / (factor * value + offset)``, not
+    linear: declared as a linear one it would mislabel every value), one without a name, and one whose factor is zero
+    or whose numbers do not parse or are not finite; a unit whose ``BaseUnit`` does not parse is left out whole.
+    """
+    found: dict[str, dict[str, Any]] = {}
     for unit in root.iterfind("UnitDefinitions/Unit"):
-        for display in unit.iterfind("DisplayUnit"):
-            if display.get("inverse", "false").strip() in ("true", "1") or not display.get("name"):
-                continue
-            try:
-                factor, offset = float(display.get("factor", "1")), float(display.get("offset", "0"))
-            except ValueError:
-                continue
-            if math.isfinite(factor) and math.isfinite(offset) and factor != 0:
-                found.setdefault(unit.get("name", ""), {})[display.get("name", "")] = (factor, offset)
+        name = unit.get("name", "")
+        entry = _base_unit(unit.find("BaseUnit"))
+        if not name or entry is None:
+            continue
+        entry["display"] = [row for row in map(_linear_display_unit, unit.iterfind("DisplayUnit")) if row]
+        found[name] = entry
     return found
+
+
+def _base_unit(base: ET.Element | None) -> dict[str, Any] | None:
+    """``{"base", "factor", "offset"}`` of a ``BaseUnit`` element (``base`` None where there is none), None where its
+    numbers do not parse or are not finite."""
+    if base is None:
+        return {"base": None, "factor": 1.0, "offset": 0.0}
+    try:
+        exponents = {key: int(base.get(key, "0")) for key in _BASE_UNIT_KEYS}
+        factor, offset = float(base.get("factor", "1")), float(base.get("offset", "0"))
+    except ValueError:
+        return None
+    if not (math.isfinite(factor) and math.isfinite(offset)):
+        return None
+    return {"base": {key: value for key, value in exponents.items() if value}, "factor": factor, "offset": offset}
+
+
+def _linear_display_unit(display: ET.Element) -> list[Any] | None:
+    """``[name, factor, offset]`` of a linear ``DisplayUnit`` element, None for one that is not (see
+    :func:`defined_units`)."""
+    if display.get("inverse", "false").strip() in ("true", "1") or not display.get("name"):
+        return None
+    try:
+        factor, offset = float(display.get("factor", "1")), float(display.get("offset", "0"))
+    except ValueError:
+        return None
+    if not (math.isfinite(factor) and math.isfinite(offset) and factor != 0):
+        return None
+    return [display.get("name", ""), factor, offset]
+
+
+def _defined_display_units(units: dict[str, dict[str, Any]]) -> dict[str, dict[str, tuple[float, float]]]:
+    """The ``(factor, offset)`` of each linear display unit of :func:`defined_units`, by unit name, then display unit
+    name."""
+    return {name: {row[0]: (row[1], row[2]) for row in entry["display"]}
+            for name, entry in units.items() if entry["display"]}
 
 
 def _type_attribute(root: ET.Element, name: str) -> dict[str, str | None]:
@@ -620,8 +663,10 @@ class ModelInfo:
         self._type_display_units = _type_attribute(root, "displayUnit")
         self._type_quantities = _type_attribute(root, "quantity")
         self._type_relative = _type_attribute(root, "relativeQuantity")
+        #: the units UnitDefinitions defines, by name (:func:`defined_units`: base units, linear display units)
+        self.unit_definitions = defined_units(root)
         #: the display units UnitDefinitions defines, by unit and display unit name (:func:`_defined_display_units`)
-        self.display_units = _defined_display_units(root)
+        self.display_units = _defined_display_units(self.unit_definitions)
         #: units the model defines (UnitDefinitions) with the base units of a force or a moment (:func:`unit_kind`)
         #: the units UnitDefinitions defines with base units: their dimensions, and those of a force or a moment
         self.unit_dimensions = _defined_unit_dimensions(root)
