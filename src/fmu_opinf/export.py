@@ -61,7 +61,7 @@ from ._threads import single_threaded
 from ._validate import check_not_input
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import (INTEGER_RANGES, Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools,
-                   is_unit_name, unit_definition)
+                   is_type_name, is_unit_name, type_definition, unit_definition)
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -499,6 +499,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
               "input_display_units": _recorded_units(provenance, "input_display_units", m), "input_ranges": ranges,
               "input_nominals": _recorded_input_nominals(provenance, m),
               "input_quantities": _recorded_quantities(provenance, "input_quantities", m),
+              "input_declared_types": _recorded_declared_types(provenance, "input_declared_types", m),
               **_ports(provenance, input_names or [], output_names, names, fmi_version)}
     held = _held_inputs(provenance, input_names, m)
     if held is not None:
@@ -540,6 +541,8 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_ranges=_recorded_output_ranges(provenance, p, len(names)),
         output_nominals=_recorded_output_nominals(provenance, p, len(names)),
         output_quantities=_recorded_quantities(provenance, "output_quantities", p) + [""] * len(names),
+        output_declared_types=_recorded_declared_types(provenance, "output_declared_types", p) + [""] * len(names),
+        type_definitions=_recorded_type_definitions(provenance),
         port_aliases=_port_aliases(provenance, inputs, output_names, fmi_version),
         **inputs,
     )
@@ -745,6 +748,7 @@ def _keep_held_inputs(held: HeldInputs, inputs: dict[str, Any], c_matrices: dict
         "input_ranges": spread(inputs["input_ranges"], (-math.inf, math.inf), lambda n: (held.values[n],) * 2),
         "input_nominals": spread(inputs["input_nominals"], math.nan, lambda name: math.nan),
         "input_quantities": spread(inputs["input_quantities"], "", lambda name: ""),
+        "input_declared_types": spread(inputs["input_declared_types"], "", lambda name: ""),
         "held_inputs": [name in held.values for name in held.order],
         "input_descriptions": spread(inputs.get("input_descriptions"), None, lambda name: (
             f"input held at {held.values[name]!r} in training: the ROM is valid at that value only and refuses "
@@ -1101,6 +1105,28 @@ def _recorded_quantities(provenance: dict, key: str, count: int) -> list[str]:
     if not isinstance(values, list) or len(values) != count:
         return [""] * count
     return [v if isinstance(v, str) and len(v) <= 100 and v.isprintable() else "" for v in values]
+
+
+def _recorded_declared_types(provenance: dict, key: str, count: int) -> list[str]:
+    """The ``declaredType`` of each input or output of the source (snapshots ``input_declared_types`` /
+    ``output_declared_types``, e.g. ``Modelica.Units.SI.Force``), ``""`` where none or where the text is not a type
+    name :func:`fmu_opinf.fmus.is_type_name` allows (data read from a file)."""
+    snapshots = provenance.get("snapshots")
+    values = snapshots.get(key) if isinstance(snapshots, dict) else None
+    if not isinstance(values, list) or len(values) != count:
+        return [""] * count
+    return [v if is_type_name(v) else "" for v in values]
+
+
+def _recorded_type_definitions(provenance: dict) -> dict[str, dict[str, str]]:
+    """The source's real type definitions its ports name (snapshots ``type_definitions``), each checked again where
+    the FMU is written (:func:`fmu_opinf.fmus.type_definition`); entries that are not of the recorded form dropped."""
+    snapshots = provenance.get("snapshots")
+    recorded = snapshots.get("type_definitions") if isinstance(snapshots, dict) else None
+    if not isinstance(recorded, dict):
+        return {}
+    return {name: clean for name, value in recorded.items()
+            if is_type_name(name) and (clean := type_definition(value)) is not None}
 
 
 def _recorded_input_starts(provenance: dict, count: int) -> list[float] | None:

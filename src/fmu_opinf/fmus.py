@@ -101,6 +101,28 @@ INTEGER_RANGES = {"Int8": (-2**7, 2**7 - 1), "UInt8": (0, 2**8 - 1), "Int16": (-
                   "Int64": (-2**53 + 1, 2**53 - 1), "UInt64": (0, 2**53 - 1), "Boolean": (0, 1)}
 
 
+def is_type_name(value: Any) -> bool:
+    """Whether ``value`` may stand as a type definition's name in a generated model description: 1 to 200 printable
+    characters, no white space but blanks inside (``Modelica.Units.SI.Force``).  Type names come from the source
+    FMU's file; they are quoted in the XML besides."""
+    return (isinstance(value, str) and 1 <= len(value) <= 200 and value.isprintable() and value.strip() == value
+            and "\ufffe" not in value and "\uffff" not in value)
+
+
+def type_definition(value: Any) -> dict[str, str] | None:
+    """A real type definition recorded from a source FMU, checked as data: ``{"type": "Float64" or "Float32",
+    "quantity": printable text of at most 100 characters, "unit", "displayUnit": unit names or ""}``, or None when
+    anything in it is not of that form."""
+    if not isinstance(value, dict) or value.get("type") not in ("Float64", "Float32"):
+        return None
+    quantity, unit, display = (value.get(key, "") for key in ("quantity", "unit", "displayUnit"))
+    if not (isinstance(quantity, str) and len(quantity) <= 100 and (not quantity or quantity.isprintable())):
+        return None
+    if not all(isinstance(u, str) and (not u or is_unit_name(u)) for u in (unit, display)):
+        return None
+    return {"type": value["type"], "quantity": quantity, "unit": unit, "displayUnit": display}
+
+
 class FmuBuildError(FMUError):
     """An FMU could not be generated or compiled (missing tools, compiler error)."""
 
@@ -167,6 +189,15 @@ class SecondOrderFmuSpec:
     input_quantities, output_quantities : list of str, optional
         The ``quantity`` of each input and output (``""``: none), e.g. a source's ``Force``; at most 100 printable
         characters.  Default: none.
+    input_declared_types, output_declared_types : list of str, optional
+        The ``declaredType`` of each input and output (``""``: none), a name of ``type_definitions``, e.g. a source's
+        ``Modelica.Units.SI.Force``; the variable keeps its own unit, quantity and display unit besides.  Default:
+        none.
+    type_definitions : dict of str to dict, optional
+        The real type definitions the variables name (:func:`type_definition`), declared in ``TypeDefinitions``: the
+        type's ``quantity``, ``unit`` (declared in ``UnitDefinitions`` too) and ``displayUnit`` (where the unit's
+        definition has it).  An FMI 3 type is a ``Float64Type`` or ``Float32Type`` as the first variable naming it;
+        a variable of the other type does not name it.  Default: none.
     fixed_parameters : bool, default=False
         The model was made for the parameters' start values only (an exported ROM: its source's parameters at
         their training values): each is declared, and the FMU accepts its start value (bit-equal or within a
@@ -259,6 +290,9 @@ class SecondOrderFmuSpec:
     output_nominals: list[float] | None = None
     input_quantities: list[str] | None = None
     output_quantities: list[str] | None = None
+    input_declared_types: list[str] | None = None
+    output_declared_types: list[str] | None = None
+    type_definitions: dict[str, dict[str, str]] | None = None
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
     output_descriptions: list[str] | None = None
@@ -348,6 +382,16 @@ class SecondOrderFmuSpec:
         if values is not None and (len(values) != self.p or not all(
                 isinstance(v, (int, float)) and (math.isnan(v) or 0 < v < math.inf) for v in values)):
             raise FmuBuildError(f"output_nominals {values!r} must be {self.p} numbers above 0 (NaN: none)")
+        for kind, names, count in (("input", self.input_declared_types, self.m),
+                                   ("output", self.output_declared_types, self.p)):
+            if names is not None and (len(names) != count or not all(
+                    name == "" or (is_type_name(name) and name in (self.type_definitions or {})) for name in names)):
+                raise FmuBuildError(f"{kind}_declared_types {names!r} must be {count} names of type_definitions ('' "
+                                    "for none)")
+        for name, value in (self.type_definitions or {}).items():
+            if not is_type_name(name) or type_definition(value) is None:
+                raise FmuBuildError(f"type definition {name!r}: {value!r} is not a type name with a checked definition"
+                                    " (fmu_opinf.fmus.type_definition); give one")
         for kind, texts, count in (("input", self.input_quantities, self.m), ("output", self.output_quantities,
                                                                               self.p)):
             if texts is not None and (len(texts) != count or not all(
@@ -740,6 +784,7 @@ class _Variable:
     nominal: float = math.nan
     aliases: tuple[str, ...] = ()
     quantity: str = ""
+    declared_type: str = ""
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -764,23 +809,25 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
     nominals = spec.input_nominals or [math.nan] * spec.m
     aliases = spec.port_aliases or {}
     quantities = spec.input_quantities or [""] * spec.m
+    types = spec.input_declared_types or [""] * spec.m
     rows = [_Variable(name, vr, "input", description=text, start=float(start), unit=unit, display_unit=display,
                       minimum=low, maximum=high, nominal=float(nominal), aliases=tuple(aliases.get(name, ())),
-                      quantity=quantity)
-            for name, vr, text, unit, display, start, (low, high), nominal, quantity in zip(
+                      quantity=quantity, declared_type=declared)
+            for name, vr, text, unit, display, start, (low, high), nominal, quantity, declared in zip(
                 spec.input_names, refs["u"], described, input_units, input_display, starts, _input_bounds(spec),
-                nominals, quantities)]
+                nominals, quantities, types)]
     described = spec.output_descriptions or ["output y = Cp x + Cv v"] * spec.p
     ranges = spec.output_ranges or [(-math.inf, math.inf)] * spec.p
     nominals = spec.output_nominals or [math.nan] * spec.p
     quantities = spec.output_quantities or [""] * spec.p
+    types = spec.output_declared_types or [""] * spec.p
     outputs = [_Variable(name, vr, "output", description=text, unit=unit, display_unit=display,
                          aliases=tuple(aliases.get(name, ())), minimum=float(low), maximum=float(high),
-                         nominal=float(nominal), quantity=quantity)
-               for name, vr, text, unit, display, (low, high), nominal, quantity in zip(
+                         nominal=float(nominal), quantity=quantity, declared_type=declared)
+               for name, vr, text, unit, display, (low, high), nominal, quantity, declared in zip(
                    spec.output_names, refs["y"], described, output_units, output_display, ranges, nominals,
-                   quantities)]
-    rows = _grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports)
+                   quantities, types)]
+    rows = _typed(_grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports))
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit,
                        type=par.type)
              for par, vr in zip(spec.parameters, refs["parameters"])]
@@ -807,12 +854,29 @@ def _grouped(elements: list[_Variable], ports: list[dict[str, Any]] | None) -> l
         lead = group[0]
         # (the widest bounds of the elements: an input's are already every element's, _input_bounds)
         shared = {key: getattr(lead, key) if all(getattr(e, key) == getattr(lead, key) for e in group) else ""
-                  for key in ("unit", "display_unit", "description", "quantity")}
+                  for key in ("unit", "display_unit", "description", "quantity", "declared_type")}
         shared.update(minimum=min(e.minimum for e in group), maximum=max(e.maximum for e in group))
         shared["nominal"] = lead.nominal if all(e.nominal == lead.nominal for e in group) else math.nan
         start = None if lead.start is None else (tuple(float(e.start) for e in group) if shape else lead.start)
         out.append(replace(lead, name=port["name"], start=start, shape=shape, type=port["type"], **shared))
     return out
+
+
+def _typed(variables: list[_Variable]) -> list[_Variable]:
+    """The variables with a ``declared_type`` only where the type is of their own type (FMI 3: the first variable
+    naming a type makes it a ``Float64Type`` or ``Float32Type``, :func:`_type_kinds`)."""
+    kinds = _type_kinds(variables)
+    return [variable if kinds.get(variable.declared_type) in (None, variable.type) else
+            replace(variable, declared_type="") for variable in variables]
+
+
+def _type_kinds(variables: list[_Variable]) -> dict[str, str]:
+    """The FMI 3 type (``Float64``, ``Float32``) of each declared type the variables name: the first one's."""
+    kinds: dict[str, str] = {}
+    for variable in variables:
+        if variable.declared_type:
+            kinds.setdefault(variable.declared_type, variable.type)
+    return kinds
 
 
 def _input_bounds(spec: SecondOrderFmuSpec) -> list[tuple[float, float]]:
@@ -855,7 +919,8 @@ def _experiment(spec: SecondOrderFmuSpec) -> str:
 
 
 def _unit_attributes(variable: _Variable) -> str:
-    unit = f" quantity={quoteattr(variable.quantity)}" if variable.quantity else ""
+    unit = f" declaredType={quoteattr(variable.declared_type)}" if variable.declared_type else ""
+    unit += f" quantity={quoteattr(variable.quantity)}" if variable.quantity else ""
     unit += f" unit={quoteattr(variable.unit)}" if variable.unit else ""
     return unit + (f" displayUnit={quoteattr(variable.display_unit)}" if variable.display_unit else "")
 
@@ -910,12 +975,40 @@ def _unit_definitions(spec: SecondOrderFmuSpec) -> str:
     ``DisplayUnit`` elements where ``spec.unit_definitions`` has them (:func:`unit_definition`), so that
     importers can convert and check units; by name only otherwise."""
     units = sorted({u for u in (spec.input_units or []) + (spec.output_units or []) + [p.unit for p in spec.parameters]
-                    if u} | ({"s"} if spec.fmi_version == "3.0" else set()))   # (FMI 3: time in s)
+                    + [t["unit"] for t in _used_types(spec).values()] if u}
+                   | ({"s"} if spec.fmi_version == "3.0" else set()))   # (FMI 3: time in s)
     if not units:
         return ""
     known = {"s": {"base": {"s": 1}}, **(spec.unit_definitions or {})}
     rows = "".join(_unit_row(u, known.get(u)) for u in units)
     return f"  <UnitDefinitions>\n{rows}  </UnitDefinitions>\n"
+
+
+def _used_types(spec: SecondOrderFmuSpec) -> dict[str, dict[str, str]]:
+    """The type definitions the variables name (:func:`type_definition`), by name, with the FMI 3 type of the first
+    variable naming each and a display unit only where the unit's definition declares it."""
+    kinds = _type_kinds(_variables(spec))
+    out = {}
+    for name in sorted(kinds):
+        clean = dict(type_definition((spec.type_definitions or {})[name]) or {})
+        clean["type"] = kinds[name]
+        clean["displayUnit"] = _display_units(spec, [clean["unit"]], [clean["displayUnit"]])[0]
+        out[name] = clean
+    return out
+
+
+def _type_definitions(spec: SecondOrderFmuSpec) -> str:
+    """``TypeDefinitions`` of the real types the variables name (FMI 2 ``SimpleType`` with ``Real``, FMI 3
+    ``Float64Type`` / ``Float32Type``): quantity, unit and display unit."""
+    rows = []
+    for name, clean in _used_types(spec).items():
+        attributes = "".join(f" {key}={quoteattr(clean[key])}" for key in ("quantity", "unit", "displayUnit")
+                             if clean[key])
+        if spec.fmi_version == "3.0":
+            rows.append(f"    <{clean['type']}Type name={quoteattr(name)}{attributes}/>\n")
+        else:
+            rows.append(f"    <SimpleType name={quoteattr(name)}>\n      <Real{attributes}/>\n    </SimpleType>\n")
+    return f"  <TypeDefinitions>\n{''.join(rows)}  </TypeDefinitions>\n" if rows else ""
 
 
 def _unit_row(name: str, definition: Any) -> str:
@@ -993,6 +1086,7 @@ def _model_description(spec: SecondOrderFmuSpec, guid: str, sources: list[str]) 
         "    </SourceFiles>\n"
         "  </CoSimulation>\n"
         f"{_unit_definitions(spec)}"
+        f"{_type_definitions(spec)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi2Error"/>\n'
@@ -1104,6 +1198,7 @@ def _model_description3(spec: SecondOrderFmuSpec, guid: str) -> str:
         '    canReturnEarlyAfterIntermediateUpdate="false" hasEventMode="false"\n'
         '    providesEvaluateDiscreteStates="false"/>\n'
         f"{_unit_definitions(spec)}"
+        f"{_type_definitions(spec)}"
         "  <LogCategories>\n"
         '    <Category name="logEvents" description="assembly, factorizations, resets"/>\n'
         '    <Category name="logStatusError" description="calls that return fmi3Error"/>\n'

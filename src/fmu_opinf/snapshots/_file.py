@@ -30,7 +30,7 @@ INITIAL = ("x0", "v0")
 #: values (layout 2, since 2026-12-07: :mod:`fmu_opinf._model_start`); datasets ``model_start_x0``, ``model_start_v0``.
 MODEL_START = "model_start"
 _JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_selection", "versions", "auto_window",
-               "source_parameters", "port_aliases",
+               "source_parameters", "port_aliases", "type_definitions",
                "unit_definitions", "initialization", "fmi3_ports", "held_inputs", "merged_parts",
                MODEL_START)
 

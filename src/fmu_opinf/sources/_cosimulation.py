@@ -526,6 +526,12 @@ class FMUSource(Source):
             quantities = [e.var.quantity or "" for e in elements]
             if any(quantities):
                 desc[key] = quantities
+        known = getattr(self.model, "type_definitions", {})
+        for key, elements in (("input_declared_types", forces), ("output_declared_types", outputs)):
+            names = [e.var.declared_type if e.var.declared_type in known else "" for e in elements]
+            if any(names):
+                desc[key] = names
+                desc.setdefault("type_definitions", {}).update({name: dict(known[name]) for name in names if name})
         return desc
 
     def description(self) -> dict[str, Any]:

@@ -70,6 +70,7 @@ class Variable:
     clocks: str | None = None  # FMI 3 ``clocks``: value references of the clocks it ticks with (a clocked variable)
     nominal: str | None = None  # its own nominal, else its declared type's (FMI: its magnitude, default 1)
     description: str | None = None  # its modelDescription text (the exported ROM FMU repeats it)
+    declared_type: str | None = None  # the name of its type definition (``declaredType``), if any
 
     @property
     def is_real(self) -> bool:
@@ -336,6 +337,20 @@ def _defined_display_units(units: dict[str, dict[str, Any]]) -> dict[str, dict[s
     name."""
     return {name: {row[0]: (row[1], row[2]) for row in entry["display"]}
             for name, entry in units.items() if entry["display"]}
+
+
+def real_type_definitions(root: ET.Element) -> dict[str, dict[str, str]]:
+    """The real type definitions (FMI 2 ``SimpleType`` with a ``Real`` child, FMI 3 ``Float64Type`` / ``Float32Type``)
+    by name: ``{"type": "Float64" or "Float32", "quantity", "unit", "displayUnit"}`` (``""`` where not declared), for
+    the exported ROM FMU to declare the ones its ports name (fix82a; ``Modelica.Units.SI.Force``)."""
+    found = {}
+    for element in root.iterfind("TypeDefinitions/*"):
+        typed = element if element.tag in ("Float64Type", "Float32Type") else element.find("Real")
+        if typed is None or not element.get("name"):
+            continue
+        found[element.get("name", "")] = {"type": "Float32" if element.tag == "Float32Type" else "Float64",
+                                          **{key: typed.get(key) or "" for key in ("quantity", "unit", "displayUnit")}}
+    return found
 
 
 def _type_attribute(root: ET.Element, name: str) -> dict[str, str | None]:
@@ -663,6 +678,8 @@ class ModelInfo:
         self._type_display_units = _type_attribute(root, "displayUnit")
         self._type_quantities = _type_attribute(root, "quantity")
         self._type_relative = _type_attribute(root, "relativeQuantity")
+        #: the real type definitions, by name (:func:`real_type_definitions`)
+        self.type_definitions = real_type_definitions(root)
         #: the units UnitDefinitions defines, by name (:func:`defined_units`: base units, linear display units)
         self.unit_definitions = defined_units(root)
         #: the display units UnitDefinitions defines, by unit and display unit name (:func:`_defined_display_units`)
@@ -728,7 +745,7 @@ class ModelInfo:
                            unit=attrs.get("unit") or self._type_units.get(attrs.get("declaredType", "")),
                            quantity=attrs.get("quantity") or self._type_quantities.get(attrs.get("declaredType", "")),
                            display_unit=self._display_unit(attrs), description=sv.get("description"),
-                           relative_quantity=self._relative_quantity(attrs))
+                           relative_quantity=self._relative_quantity(attrs), declared_type=attrs.get("declaredType"))
             out.append(var)
         for var in out:  # FMI 2 derivative attributes are 1-based indices into ModelVariables
             if var.derivative is not None:
@@ -757,7 +774,8 @@ class ModelInfo:
                                 quantity=el.get("quantity") or self._type_quantities.get(el.get("declaredType", "")),
                                 display_unit=self._display_unit(el.attrib), clocks=el.get("clocks"),
                                 description=el.get("description"),
-                                relative_quantity=self._relative_quantity(el.attrib)))
+                                relative_quantity=self._relative_quantity(el.attrib),
+                                declared_type=el.get("declaredType")))
             dim_refs.append(refs)
             for alias in el.findall("Alias"):
                 if alias.get("name"):
