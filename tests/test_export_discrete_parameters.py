@@ -199,3 +199,43 @@ def test_fmi2_declares_integers_that_fit_its_32_bits(trained):
     kinds = {par.name: (par.type, par.default) for par in spec.parameters}
     assert kinds["i8"] == ("Int32", -5.0) and kinds["u16"] == ("Int32", 65535.0) and kinds["u64"] == ("Int32", 7.0)
     assert kinds["useCache"] == ("Boolean", 1.0) and kinds["stiffness_scale"] == ("Float64", 1.0)
+
+
+# ------------------------------------------------------------------------------ provenance.json (fix82a, item 4)
+
+def _bundled(path: Path) -> dict:
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(path) as archive:
+        return json.loads(archive.read("sources/provenance.json"))
+
+
+def test_provenance_json_summarizes_the_source_parameters_and_keeps_the_rest(trained):
+    import hashlib
+    import json
+
+    from fmu_opinf.compare import _bundled_provenance, _is_rom_fmu
+
+    bundled = _bundled(trained["fmu"])
+    record = trained["rom"].provenance["snapshots"]["source_parameters"]
+    digest = hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+    assert bundled["snapshots"]["source_parameters"] == {"count": 4, "set": {"solverOrder": 3.0}, "sha256": digest}
+    original = json.loads(json.dumps(trained["rom"].provenance, default=str))
+    for key in ("fit_date", "training_runs", "t_train_end"):   # (what compare reads, as before)
+        assert bundled.get(key) == original.get(key)
+    kept = {k: v for k, v in bundled["snapshots"].items() if k != "source_parameters"}
+    assert kept == {k: v for k, v in original["snapshots"].items() if k != "source_parameters"}
+    assert _is_rom_fmu(trained["fmu"]) and _bundled_provenance(trained["fmu"])["rom_fmu_states"] == ["q", "qdot",
+                                                                                                     "qddot"]
+
+
+def test_provenance_json_of_60000_parameters_is_small(trained):
+    """5,964,819 bytes before (the record indented, one line per value), 5,137 after."""
+    rom = _with_parameters(trained["rom"], [(f"plant.block[{i}].spring.c", "Real", 1.0 + i * 1e-3)
+                                            for i in range(60000)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FmuOpinfWarning)
+        spec = export.rom_fmu_spec(rom, "Many", fmi_version=trained["version"])
+    assert len(spec.extra_files["provenance.json"].encode()) < 10_000
+    assert len(spec.parameters) == 60004

@@ -527,8 +527,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_names=output_names + names, state_names=state_names,
         state_label="reduced coordinate", description=re.sub(r"[\x00-\x1f\x7f]", "?", description),
         output_descriptions=output_descriptions, default_experiment=experiment, expose_states=True,
-        extra_files={"provenance.json": json.dumps(provenance, indent=2, sort_keys=True,
-                                                   default=str) + "\n"},
+        extra_files={"provenance.json": _provenance_text(provenance)},
         fmi_version=fmi_version,
         output_units=output_units + [_position_unit(provenance)] * len(names),
         unit_definitions=_recorded_unit_definitions(provenance, set(input_units + output_units)),
@@ -549,6 +548,32 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
 
 
 # ------------------------------------------------------- source parameters (audit 81b F1)
+
+def _provenance_text(provenance: dict) -> str:
+    """The FMU's ``provenance.json``: indented, but with the source's parameters (snapshots ``source_parameters``, one
+    row per parameter, 5.2 MB of the file at 60,000 parameters) as a summary (:func:`_parameters_summary`).  The
+    ROM file keeps the record whole and the model description declares them; neither compare nor export reads them
+    back from the FMU."""
+    snapshots = provenance.get("snapshots")
+    if isinstance(snapshots, dict) and isinstance(snapshots.get("source_parameters"), dict):
+        provenance = {**provenance, "snapshots": {**snapshots, "source_parameters": _parameters_summary(
+            snapshots["source_parameters"])}}
+    return json.dumps(provenance, indent=2, sort_keys=True, default=str) + "\n"
+
+
+def _parameters_summary(record: dict) -> dict[str, Any]:
+    """``{"count", "set", "sha256"}`` of a recorded ``source_parameters``: how many, the ``--set`` ones with their
+    values, and the SHA-256 of the whole record as compact JSON (sorted keys), which tells two trainings apart."""
+    import hashlib
+
+    text = json.dumps(record, sort_keys=True, separators=(",", ":"), default=str)
+    names, values = record.get("names"), record.get("values")
+    given = record.get("set") if isinstance(record.get("set"), list) else []
+    pairs = ({name: value for name, value in zip(names, values) if isinstance(name, str)}
+             if isinstance(names, list) and isinstance(values, list) else {})
+    return {"count": len(names) if isinstance(names, list) else 0, "sha256": hashlib.sha256(text.encode()).hexdigest(),
+            "set": {str(name): pairs.get(name) for name in given if isinstance(name, str)}}
+
 
 #: The source parameter types the ROM FMU declares as Float64 (its real variables).
 _REAL_PARAMETER_TYPES = ("Real", "Float64", "Float32")
