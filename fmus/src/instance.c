@@ -39,8 +39,8 @@ static const int parameterKinds[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_KINDS;
 #else
 #define PARAMETER_KIND(index) KindFloat64
 #endif
-static const char *const kindNames[] = {"Float64", "Float32", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32",
-                                        "Int64", "UInt64", "Boolean"};
+static const char *const kindNames[] = {"Float64", "Float32", "Int8", "UInt8", "Int16", "UInt16",
+                                        "Int32 (FMI 2 Integer)", "UInt32", "Int64", "UInt64", "Boolean"};
 #ifdef INPUT_MIN
 static const double inputMin[ARRAY_LENGTH(N_INPUTS)] = INPUT_MIN;
 static const double inputMax[ARRAY_LENGTH(N_INPUTS)] = INPUT_MAX;
@@ -366,8 +366,8 @@ static Status checkRealParameter(const ModelInstance *instance, const char *func
     VariableKind kind = PARAMETER_KIND(r - VR_PARAMETERS);
 
     if (kind != KindFloat64 && kind != KindFloat32) {
-        logError(instance, "%s: value reference %u is a %s variable; use the %s get/set functions", function, r,
-                 kindNames[kind], kindNames[kind]);
+        logError(instance, "%s: value reference %u is a parameter of type %s; use the get/set functions of that "
+                 "type", function, r, kindNames[kind]);
         return Error;
     }
     return OK;
