@@ -280,3 +280,51 @@ def test_exact_step_refinement_beats_least_squares_on_continuous_time_data(ancho
     assert candidate["objective"] >= candidate["kept_objective"]  # the second start refined and fitted worse
     assert error <= 0.1 * ls_error  # measured 0.056
     assert error <= 0.05 * sdp_error  # measured 0.026
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Free bodies: zero poles (a support driven by an ideal acceleration source, audit base82 F1)
+# ----------------------------------------------------------------------------------------------------------
+def _model_with_free_body(rng, damped: bool, r=5, p=2):
+    """``_unit_mass_model``'s oscillators with the first one replaced by a free body: ``q'' = b u`` (undamped: a
+    double zero pole, defective) or ``q'' + 0.4 q' = b u`` (damped: poles 0 and -0.4), in coordinates ``q = T p``
+    that make ``D, K`` non-symmetric, as a least-squares fit of a support on an ``Accelerate`` source gives."""
+    omega, zeta = np.linspace(0.5, 3.0, r), np.linspace(0.02, 0.3, r)
+    d, k = 2 * zeta * omega, omega**2
+    d[0], k[0] = (0.4 if damped else 0.0), 0.0
+    T = np.eye(r) + 0.3 * rng.standard_normal((r, r))
+    T_inv = np.linalg.inv(T)
+    D, K = T @ np.diag(d) @ T_inv, T @ np.diag(k) @ T_inv
+    return D, K, rng.standard_normal((r, 1)), rng.standard_normal((p, r)), rng.standard_normal((p, r))
+
+
+@pytest.mark.parametrize("damped", [False, True])
+def test_a_free_body_is_realized_with_zero_stiffness(damped):
+    """The realization exists (it did not: the zero poles counted as unstable), has one pair with ``k = 0`` (and
+    ``d = 0`` when undamped), and the transfer function of the original model away from the pole at zero."""
+    rng = np.random.default_rng(11)
+    D, K, B, Cp, Cv = _model_with_free_body(rng, damped)
+    assert np.max(np.abs(_eigenvalues(D, K))) > 1e6 * np.min(np.abs(_eigenvalues(D, K)))  # zero up to round-off
+    real = mechanical_realization(D, K, B, Cp, Cv)
+    assert real is not None
+    free = real.k == 0.0
+    assert np.count_nonzero(free) == 1 and np.all(real.k[~free] > 0) and np.all(real.d[~free] > 0)
+    assert (real.d[free][0] > 0) if damped else (real.d[free][0] == 0.0)
+    A, Bf = _first_order(D, K, B)
+    C = np.hstack([Cp, Cv])
+    for s in (0.05j, 0.3j, 1.1j, 2.5j, 0.5 + 4j, 10j):
+        H = _transfer_first_order(A, Bf, C, s)
+        H_real = _transfer_second_order(real.d, real.k, real.B, real.Cp, real.Cv, s)
+        assert np.max(np.abs(H_real - H)) <= 1e-12 * np.max(np.abs(H))  # measured 2.7e-14 / 1.5e-14
+
+
+def test_two_free_bodies_are_not_realized():
+    """Two undamped free bodies share one Jordan structure that the realization does not split: refused (the fit
+    then keeps its SDP model), never a wrong realization."""
+    rng = np.random.default_rng(12)
+    D, K, B, Cp, Cv = _model_with_free_body(rng, False)
+    r = D.shape[0]
+    T = np.eye(r) + 0.3 * rng.standard_normal((r, r))
+    d, k = np.r_[0.0, 0.0, np.linspace(0.1, 0.3, r - 2)], np.r_[0.0, 0.0, np.linspace(1.0, 4.0, r - 2)]
+    D2, K2 = T @ np.diag(d) @ np.linalg.inv(T), T @ np.diag(k) @ np.linalg.inv(T)
+    assert mechanical_realization(D2, K2, B, Cp, Cv) is None
