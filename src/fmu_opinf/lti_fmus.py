@@ -83,6 +83,7 @@ __all__ = [
     "build_corpus",
     "corpus_models",
     "chain_model",
+    "support_chain_model",
     "CORPUS_NAMES",
     "find_build_tools",
     "FmuBuildError",
@@ -162,6 +163,11 @@ class LinearMechanicalModel:
         integrates the ODE of the independent positions and computes the others.
     name : str
         Model name; the default model identifier of its FMU.
+    ideal_sources : int, default=0
+        The last ``ideal_sources`` coordinates are ideal motion sources (Modelica
+        ``Translational.Sources.Position/Speed/Accelerate``, a shaker table): their rows are the source's own
+        filter and do not feel the structure, so ``D`` and ``K`` are symmetric only on the leading block and the
+        source rows have zeros in the structure's columns (:func:`support_chain_model`).
     """
 
     M: np.ndarray
@@ -178,6 +184,7 @@ class LinearMechanicalModel:
     G: np.ndarray | None = None
     constraint: str | None = None
     name: str = "LinearMechanics"
+    ideal_sources: int = 0
 
     def __post_init__(self) -> None:
         n = np.asarray(self.M).shape[0]
@@ -200,9 +207,7 @@ class LinearMechanicalModel:
         self.y0 = _vector(self.y0, p, "y0")
         self.x0 = _vector(self.x0, n, "x0")
         self.v0 = _vector(self.v0, n, "v0")
-        for label, matrix in (("M", self.M), ("D", self.D), ("K", self.K)):
-            if not np.allclose(matrix, matrix.T, rtol=1e-12, atol=1e-14 * np.abs(matrix).max()):
-                raise DimensionError(f"{label} is not symmetric; give a symmetric matrix")
+        self._check_symmetry(n)
         self._check_constraint()
         if not re.match(r"^[A-Za-z_][A-Za-z0-9_]*$", self.name):
             raise FmuBuildError(f"model name {self.name!r} is not a C identifier; use letters, "
@@ -211,6 +216,19 @@ class LinearMechanicalModel:
         if np.linalg.eigvalsh(reduced_mass).min() <= 0:
             raise DimensionError("M is not positive definite on the constraint manifold; give a "
                                  "positive definite mass matrix")
+
+    def _check_symmetry(self, n: int) -> None:
+        """M symmetric; D and K symmetric on the structure's block, the ideal sources' rows free of it."""
+        if not 0 <= self.ideal_sources <= n:
+            raise DimensionError(f"ideal_sources={self.ideal_sources} is not between 0 and n={n}; give the number of "
+                                 "trailing source coordinates")
+        s = n - self.ideal_sources
+        for label, matrix in (("M", self.M), ("D", self.D[:s, :s]), ("K", self.K[:s, :s])):
+            if not np.allclose(matrix, matrix.T, rtol=1e-12, atol=1e-14 * np.abs(matrix).max(initial=0.0)):
+                raise DimensionError(f"{label} is not symmetric; give a symmetric matrix")
+        if np.any(self.D[s:, :s]) or np.any(self.K[s:, :s]) or np.any(self.M[s:, :s]):
+            raise DimensionError("an ideal source's row depends on the structure; give zeros in the structure's "
+                                 "columns of the source rows (an ideal source does not feel its load)")
 
     def _check_constraint(self) -> None:
         if (self.G is None) != (self.constraint is None):
@@ -2036,6 +2054,55 @@ def chain_model(n: int = 5, *, inputs: Sequence[int] = (-1,), force_offset: floa
     return LinearMechanicalModel(M=M, D=0.05 * M + 0.01 * K, K=K, B=B,
                                  f0=force_offset * np.ones(n), Cp=Cp, Cv=Cv, Ca=Ca,
                                  y0=output_offset * np.ones(rows), x0=x0, v0=v0, name=name)
+
+
+def support_chain_model(n: int = 6, *, source: Literal["position", "speed", "accelerate"] = "position",
+                        f_crit: float = 50.0, name: str | None = None) -> LinearMechanicalModel:
+    """:func:`chain_model`'s chain (no force input) whose first spring and damper attach to a moving support, an
+    ideal motion source whose input is the support's motion (base excitation), as Modelica models it.
+
+    The support is coordinate ``n + 1`` (``ideal_sources=1``): it drives the chain and does not feel it.
+    ``"position"``: ``Translational.Sources.Position(exact=false)``, the critically damped filter
+    ``s'' + 2 w s' + w^2 s = w^2 s_ref`` (``w = 2 pi f_crit``, input in m); ``"speed"``: ``Speed(exact=false)``,
+    ``v' = w (v_ref - v)``, ``s' = v`` (input in m/s; the support's position is free: a rigid-body mode);
+    ``"accelerate"``: ``Accelerate``, ``s'' = a_ref`` (input in m/s2; an undamped free body).
+    Outputs: the last mass relative to the support, the first spring's elongation (mass 1 relative to the
+    support), the last mass's absolute acceleration.
+
+    Parameters
+    ----------
+    n : int, default=6
+        Number of masses.
+    source : {"position", "speed", "accelerate"}, default="position"
+        The motion source.
+    f_crit : float, default=50
+        The filter's critical frequency (Hz), Modelica's default; ignored for ``"accelerate"``.
+    name : str, optional
+        Model name; default ``Support_<source>``.
+
+    Returns
+    -------
+    LinearMechanicalModel
+    """
+    chain = chain_model(n, inputs=())
+    k0 = chain.K[0, 0] + (chain.K[0, 1] if n > 1 else 0.0)  # the first spring (to the wall in chain_model)
+    d0 = chain.D[0, 0] + (chain.D[0, 1] if n > 1 else 0.0) - 0.05 * chain.M[0, 0]
+    M, D, K = (np.zeros((n + 1, n + 1)) for _ in range(3))
+    M[:n, :n], D[:n, :n], K[:n, :n], M[n, n] = chain.M, chain.D, chain.K, 1.0
+    K[0, n], D[0, n] = -k0, -d0
+    w, B = 2.0 * np.pi * f_crit, np.zeros((n + 1, 1))
+    if source == "position":
+        D[n, n], K[n, n], B[n, 0] = 2.0 * w, w * w, w * w
+    elif source == "speed":
+        D[n, n], B[n, 0] = w, w
+    elif source == "accelerate":
+        B[n, 0] = 1.0
+    else:
+        raise DimensionError(f"source={source!r} is unknown; use 'position', 'speed' or 'accelerate'")
+    Cp, Ca = np.zeros((3, n + 1)), np.zeros((3, n + 1))
+    Cp[0, n - 1], Cp[0, n], Cp[1, 0], Cp[1, n], Ca[2, n - 1] = 1.0, -1.0, 1.0, -1.0, 1.0
+    return LinearMechanicalModel(M=M, D=D, K=K, B=B, Cp=Cp, Ca=Ca, ideal_sources=1,
+                                 name=name or f"Support_{source}")
 
 
 def corpus_models() -> dict[str, tuple[LinearMechanicalModel | MassChain, dict]]:
