@@ -18,6 +18,8 @@ from fmu_opinf.errors import DimensionError, FmuOpinfWarning
 from fmu_opinf.fit import fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Run
+from fmu_opinf.snapshots._consistency import settles_between_input_changes
+from fmu_opinf.snapshots._rate_tests import MISMATCH, rate_mismatch
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
 TRAINING = "impulse:amplitude=100,t0=2,width=0.5"
@@ -62,9 +64,10 @@ def test_full_order_fit_of_a_base_excited_chain_is_exact(source, t_end, bound):
     """Full order (r = 7 of 7): the ROM reproduces the exact response on inputs it has not seen.  Under
     ``Accelerate`` the support is an undamped free body; the fit's least-squares candidate has its double zero
     pole within round-off of zero (+-4e-9 i), on either side by chance; on the unstable side the fit kept the SDP
-    model, here 249 times the outputs' range off with a singular mass matrix (audit base82, F1).  Same under ``Speed`` (poles 0 and -314 /s).  The training windows are those the
-    automatic window chose for the FMUs of these models.  The fit says nothing: no warning about the SDP's solve
-    where the model kept is the least-squares realization (F5)."""
+    model, here 249 times the outputs' range off with a singular mass matrix (audit base82, F1).  Same under
+    ``Speed`` (poles 0 and -314 /s).  The training windows are those the automatic window chose for the FMUs of
+    these models.  The fit says nothing: no warning about the SDP's solve where the model kept is the
+    least-squares realization (F5)."""
     model = lti_fmus.support_chain_model(6, source=source)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -75,3 +78,43 @@ def test_full_order_fit_of_a_base_excited_chain_is_exact(source, t_end, bound):
     assert [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)] == []
     for spec in ("harmonic:amplitude=1,omega=5", "impulse:amplitude=1,t0=1,width=0.2", "step:amplitude=0.01,t0=1"):
         assert miss_against_model(rom, model, spec) < bound
+
+
+def _rates(model, spec: str, dt: float, t_end: float) -> tuple[float, bool]:
+    """The worst rate mismatch of the exact data and whether the fast motion settles between the input's changes."""
+    t = time_grid(dt, t_end)
+    u = inputs_in_effect(parse_signal(spec, model.m), t, model.m)
+    ref = lti_fmus.zoh_response(model, t, u[:, 1:])
+    return float(rate_mismatch(ref.x, ref.v, dt).max()), settles_between_input_changes(ref.x, ref.v, dt, u)
+
+
+def test_a_fast_filter_is_told_from_an_aliased_mode():
+    """Both miss the rate check at a coarse step; the Position filter (poles -314 /s, twice) rests between the
+    pulse's changes and after it, a lightly damped 100 rad/s mode at dt = 0.05 (beyond Nyquist) rings on."""
+    mismatch, settles = _rates(lti_fmus.support_chain_model(6, source="position"), TRAINING, DT, 30.0)
+    assert mismatch > MISMATCH and settles   # measured 0.93
+    fast = lti_fmus.LinearMechanicalModel(M=[[1.0]], D=[[2.0]], K=[[1e4]], B=[[1e4]], Cp=[[1.0]])  # zeta = 0.01
+    mismatch, settles = _rates(fast, TRAINING, 0.05, 30.0)
+    assert mismatch > MISMATCH and not settles
+    _, settles = _rates(fast, "harmonic:amplitude=1,omega=1", 0.05, 30.0)  # the input changes at every step
+    assert not settles
+
+
+@pytest.mark.slow  # builds an FMU (about 5 s)
+def test_recording_a_position_source_does_not_ask_for_a_smaller_step(tmp_path):
+    """The default recording of a chain on Modelica's Position(exact=false) source: the rate check's warning says
+    that the filter settles within the step's reach of each input change and that the fit is not spoiled (the ROM
+    is exact at this step: test_full_order_fit_of_a_base_excited_chain_is_exact), not 'record at a smaller --dt'
+    (which cost 10 times the samples for the same ROM, audit base82 F2)."""
+    from fmu_opinf.snapshots import record
+
+    if lti_fmus.find_build_tools() is None:
+        pytest.skip("CMake and a C compiler are needed to build FMUs")
+    fmu = lti_fmus.build_lti_fmu(lti_fmus.support_chain_model(6, source="position"), tmp_path / "support.fmu",
+                                 interfaces=("me",))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        record(fmu.path, quiet=True)
+    said = [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)]
+    assert len(said) == 1 and "a smaller --dt only shows that motion" in said[0], said
+    assert "record at a smaller --dt" not in said[0]
