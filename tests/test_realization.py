@@ -322,8 +322,8 @@ def test_two_free_bodies_are_not_realized():
     """Two undamped free bodies share one Jordan structure that the realization does not split: refused (the fit
     then keeps its SDP model), never a wrong realization."""
     rng = np.random.default_rng(12)
-    D, K, B, Cp, Cv = _model_with_free_body(rng, False)
-    r = D.shape[0]
+    _, _, B, Cp, Cv = _model_with_free_body(rng, False)
+    r = B.shape[0]
     T = np.eye(r) + 0.3 * rng.standard_normal((r, r))
     d, k = np.r_[0.0, 0.0, np.linspace(0.1, 0.3, r - 2)], np.r_[0.0, 0.0, np.linspace(1.0, 4.0, r - 2)]
     D2, K2 = T @ np.diag(d) @ np.linalg.inv(T), T @ np.diag(k) @ np.linalg.inv(T)
