@@ -284,7 +284,7 @@ def test_the_order_note_reads_the_fit_s_order_search():
 def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
     """Audit 2026-11-27: ``compare --set n=4`` of a ROM trained with ``n=3`` compared against another model without
     a word (eps_y 0.56), and any ``--set`` dropped every other training setting."""
-    from fmu_opinf.compare import _training_settings
+    from fmu_opinf.compare._training import _training_settings
     from fmu_opinf.errors import FmuOpinfWarning
 
     info = {"provenance": {"snapshots": {"source_kind": "fmu", "fmu_settings": {"n": "3", "x_start": "[0,1,0]"}}}}
@@ -301,7 +301,7 @@ def test_settings_other_than_the_training_s_are_merged_and_a_change_is_warned():
 def test_a_setting_the_training_left_at_its_start_value_is_warned_when_changed(tmp_path):
     """Tenth audit: ``compare --set gear=2`` of a ROM recorded with ``gear`` held at its start value 1 (no --set in
     the training) was 0.44 off without a word; the FMU's start value is what the training ran with."""
-    from fmu_opinf.compare import _training_settings
+    from fmu_opinf.compare._training import _training_settings
     from fmu_opinf.errors import FmuOpinfWarning
 
     (tmp_path / "modelDescription.xml").write_text(
@@ -371,7 +371,6 @@ def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
     import errno
     import os
 
-    from fmu_opinf import compare
     from fmu_opinf._hdf5 import replace_together
     from fmu_opinf.errors import FmuOpinfError
 
@@ -387,11 +386,11 @@ def test_a_report_is_replaced_whole_or_not_at_all(tmp_path, monkeypatch):
             raise OSError(errno.ENOSPC, "No space left on device")
         return handle
 
-    monkeypatch.setattr(compare.os, "fdopen", full_disk_at_the_page)
+    monkeypatch.setattr(os, "fdopen", full_disk_at_the_page)
     with pytest.raises(FmuOpinfError, match="disk is full"):
         replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == earlier
-    monkeypatch.setattr(compare.os, "fdopen", real_fdopen)
+    monkeypatch.setattr(os, "fdopen", real_fdopen)
     replace_together(tmp_path, {name: b"new " + data for name, data in earlier.items()})
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == {n: b"new " + d for n, d in earlier.items()}
 
@@ -843,6 +842,7 @@ def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
     """Audit 69, F6: ``compare`` on a ROM FMU gave no order note, since the FMU did not carry the fit's report.  The
     export writes :func:`compare._order_chosen` of the ROM into provenance.json, and compare takes it back only in
     that form (a data file)."""
+    from fmu_opinf.compare import _training
     from fmu_opinf.export import rom_fmu_spec
     from fmu_opinf.rom import SecondOrderROM
 
@@ -852,13 +852,13 @@ def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
                          fit_info={"snapshot_rank": 30, "order_search": search})
     carried = json.loads(rom_fmu_spec(rom, "Order").extra_files["provenance.json"])["rom_fmu_order"]
     expected = {"r": 2, "chosen": "search", "snapshot_rank": 30, "tried": [4, 8, 16]}
-    assert carried == expected and compare._carried_order({"rom_fmu_order": carried}) == expected
+    assert carried == expected and _training._carried_order({"rom_fmu_order": carried}) == expected
     off = {"per_output": {"y[1]": {"relative_max_variation": 0.2}}}
     assert "the fit's order search kept r=2 (tried r=4, 8, 16) on snapshots of rank 30" in compare.order_note(
-        {**off, "order": compare._carried_order({"rom_fmu_order": carried})})
+        {**off, "order": _training._carried_order({"rom_fmu_order": carried})})
     for bad in ({**expected, "r": "2; rm -rf"}, {**expected, "chosen": "<script>"}, {**expected, "tried": [True]},
                 {**expected, "snapshot_rank": -1}, [expected], None):
-        assert compare._carried_order({"rom_fmu_order": bad}) == {}, bad
+        assert _training._carried_order({"rom_fmu_order": bad}) == {}, bad
 
 
 def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
@@ -867,6 +867,7 @@ def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
     and the free-response row (77b F2) never appeared for an FMU.  Read back from a built FMU file."""
     from pathlib import Path
 
+    from fmu_opinf.compare import _training
     from fmu_opinf.export import export_fmu
     from fmu_opinf.rom import SecondOrderROM
 
@@ -881,4 +882,4 @@ def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
     assert provenance["rom_fmu_order"] == {"r": 2, "chosen": "search", "snapshot_rank": 30, "tried": [4, 16]}
     assert provenance["rom_fmu_linear_fits"] == ["E"] and provenance["rom_fmu_moves_on_its_own"] is True
     info = compare._rom_side_info(Path(path))
-    assert compare._carried_linear_fits(info) == ["E"] and compare.moves_on_its_own(Path(path), info)
+    assert _training._carried_linear_fits(info) == ["E"] and compare.moves_on_its_own(Path(path), info)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, snapshots
+from fmu_opinf.compare import _training
 from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.fit import fit_rom
 
@@ -23,14 +24,14 @@ def test_a_test_at_the_training_size_is_not_said_to_go_past_it():
     y = np.array([[0.0, 0.5, 1.0004, 0.2]])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert compare._past_training(y, 0.999 * y, ["y[1]"], _rom_info(1.0), "m.fmu") == ""
+        assert _training._past_training(y, 0.999 * y, ["y[1]"], _rom_info(1.0), "m.fmu") == ""
 
 
 def test_a_test_well_past_the_training_size_is_still_said():
     y = np.array([[0.0, 0.5, 1.2, 0.2]])
     with pytest.warns(FmuOpinfWarning, match=r"m.fmu's y\[1\] went to 1.2 times its largest departure in the "
                                              r"training; the ROM stays within it"):
-        said = compare._past_training(y, np.minimum(y, 1.0), ["y[1]"], _rom_info(1.0), "m.fmu")
+        said = _training._past_training(y, np.minimum(y, 1.0), ["y[1]"], _rom_info(1.0), "m.fmu")
     assert said.startswith("; m.fmu's y[1] went to 1.2 times")
 
 

@@ -142,7 +142,7 @@ def test_parameter_input_that_survives_zero_is_held_not_driven(fmus, tmp_path, c
 # ------------------------------------------------------------------------------------------------ units
 def test_units_of_fmi3_array_outputs_and_type_definitions(fmus):
     """The unit of an element ``y[2]`` is its array's (here from its declaredType), so the figures label it."""
-    from fmu_opinf.compare import _declared_units
+    from fmu_opinf.compare._declared import _declared_units
 
     fmu = fmus["array-outputs"]
     assert fmu.outputs == ["y[1]", "y[2]", "forceSensor.f"]

@@ -215,7 +215,7 @@ def test_compare_against_a_third_fmu_still_says_it_is_not_the_trained_one(tmp_pa
     import warnings
     import zipfile
 
-    from fmu_opinf.compare import _warn_if_another_fmu
+    from fmu_opinf.compare._training import _warn_if_another_fmu
 
     with _two_fmus(tmp_path) as snaps, pytest.warns(FmuOpinfWarning):
         rom = fit_rom(snaps, r=4, quiet=True, refine=False)

@@ -128,7 +128,7 @@ def test_a_declared_stop_time_crossed_by_a_failed_step_is_named_with_its_t_end(f
     """An error in the step that passes DefaultExperiment stopTime (a compiled-in stop time, audit 75's
     fixstop.fmu) names --t-end at or below it, and compare's own --t-end where compare ran to its default end; an
     error elsewhere does not.  (The builder's FMUs have no such error: the line is asked of a real source.)"""
-    from fmu_opinf import compare
+    from fmu_opinf.compare import _run
     from fmu_opinf.sources import StepError, open_source
 
     source = open_source(fmus["cs2"], interface="cs")
@@ -140,7 +140,7 @@ def test_a_declared_stop_time_crossed_by_a_failed_step_is_named_with_its_t_end(f
         assert line.endswith(f"; the step passes its DefaultExperiment stopTime={TERMINATE:g}, where the model may "
                              f"end its simulation: give --t-end at or below {TERMINATE:g}"), line
         # compare's default end (four times the training's) past it: the fix is compare's own --t-end
-        told = str(compare._past_termination(StepError(line, crossing, float(t[crossing])), 80.0, False))
+        told = str(_run._past_termination(StepError(line, crossing, float(t[crossing])), 80.0, False))
         assert told.endswith(f"(compare ran to its default t_end=80, four times the training's end; give compare "
                              f"--t-end at or below {TERMINATE:g})"), told
         assert "stopTime" not in source._step_failure(3, "fmi2DoStep", crossing + 2)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare, lti_fmus
+from fmu_opinf.compare import _training
 from fmu_opinf._linear_outputs import (LINEAR_OUTPUT_RESIDUAL, PROJECTION_MARGIN, nonlinear_outputs,
                                       output_linear_residuals)
 from fmu_opinf.errors import FmuOpinfWarning
@@ -177,10 +178,10 @@ def test_an_exported_rom_fmu_carries_its_linear_fits_to_compare():
     provenance = json.loads(export.rom_fmu_spec(rom).extra_files["provenance.json"])
     assert provenance["rom_fmu_linear_fits"] == ["E"]
     info = {"provenance": provenance, "output_names": ["x1", "x3", "force", "E"]}
-    assert compare._carried_linear_fits(info) == ["E"]
+    assert _training._carried_linear_fits(info) == ["E"]
     tampered = dict(provenance, rom_fmu_linear_fits=["E", "x9", 3, {"E": 1}])
-    assert compare._carried_linear_fits(dict(info, provenance=tampered)) == ["E"]
-    assert compare._carried_linear_fits(dict(info, provenance=dict(provenance, rom_fmu_linear_fits="E"))) == []
+    assert _training._carried_linear_fits(dict(info, provenance=tampered)) == ["E"]
+    assert _training._carried_linear_fits(dict(info, provenance=dict(provenance, rom_fmu_linear_fits="E"))) == []
 
 
 def test_an_output_of_a_state_not_recorded_is_not_taken_for_a_nonlinear_one():

@@ -182,7 +182,7 @@ def test_exporter_style_fmu_through_the_whole_chain(real_corpus, tmp_path, name)
 
 @pytest.mark.fmu
 def test_report_labels_carry_the_units_the_fmu_declares(real_corpus):
-    from fmu_opinf.compare import _declared_units
+    from fmu_opinf.compare._declared import _declared_units
 
     fmu = str(real_corpus["start-off-rest"].path)
     assert _declared_units(fmu, ["mass[1].s", "mass[2].v", "der(mass[1].v)", "y[1]"]) == ["m", "m/s", "m/s2", ""]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fmu_opinf import compare
+from fmu_opinf.compare import _declared
 
 T = np.linspace(0.0, 10.0, 201)
 
@@ -51,12 +52,12 @@ def test_declared_display_units_follow_fmi_conversion(tmp_path):
     """FMI: DisplayUnit_value = factor * Unit_value + offset; relativeQuantity voids the offset; an inverse display
     unit and an output without one get none."""
     fmu = _fmu(tmp_path)
-    display = compare._declared_display_units(fmu, ["phi", "v", "T", "dT", "pace"])
+    display = _declared._declared_display_units(fmu, ["phi", "v", "T", "dT", "pace"])
     assert [d.name if d else None for d in display] == ["deg", None, "degC", "degC", None]
     assert display[0].values(np.pi) == pytest.approx(180.0, rel=1e-15)
     assert display[2].values(300.0) == pytest.approx(26.85, rel=1e-13)     # 300 K is 26.85 degC
     assert display[3].values(10.0) == 10.0                                  # a difference of 10 K is 10 degC
-    assert compare._declared_display_units(fmu, ["v"]) is None              # none declared: the report is unchanged
+    assert _declared._declared_display_units(fmu, ["v"]) is None              # none declared: the report is unchanged
 
 
 def test_outputs_figure_and_table_use_the_display_unit(tmp_path, monkeypatch):
@@ -71,8 +72,8 @@ def test_outputs_figure_and_table_use_the_display_unit(tmp_path, monkeypatch):
     y_rom = np.vstack([0.99 * np.sin(T), 3.0 * np.cos(T)])
     result = compare.Comparison(t=T, y_fom=y, y_rom=y_rom, output_names=names, input_spec="none",
                                 fom_seconds=1.0, rom_seconds=0.1, r=2,
-                                output_units=compare._declared_units(_fmu(tmp_path), names),
-                                output_display_units=compare._declared_display_units(_fmu(tmp_path), names))
+                                output_units=_declared._declared_units(_fmu(tmp_path), names),
+                                output_display_units=_declared._declared_display_units(_fmu(tmp_path), names))
     page = compare.write_report(result, tmp_path / "report").read_text()
     figure = next(fig for fig in kept if len(fig.axes) == 2)
     angle, speed = figure.axes

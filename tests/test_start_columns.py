@@ -263,7 +263,7 @@ def test_start_values_of_states_are_no_settings_in_the_merge_warning():
 def test_compare_with_another_start_value_of_a_state_is_no_model_change():
     """``compare --runs`` rows with their own ``start:``: before, each warned "a ROM describes the model it was
     trained on"; a parameter given another value still warns."""
-    from fmu_opinf.compare import _training_settings
+    from fmu_opinf.compare._training import _training_settings
 
     trained = {"stiffness_scale": "1", "mass[4].s": "0.05"}   # (recorded with --set mass[4].s=0.05)
     info = {"provenance": {"snapshots": {"source_kind": "fmu", "fmu_settings": trained,

@@ -1,0 +1,320 @@
+"""Running a comparison (:func:`compare`): the grid and its end, both sides on one input, the default test input,
+each input alone and the free response."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ..errors import DimensionError, InputSpecError
+from ._comparison import Comparison
+from ._declared import _declared_display_units, _declared_units
+from ._sides import _fmu_path, _held_at_start_values, _load_rom_side, _matching_outputs, _rom_side_info, _source_start
+from ._simulate import simulate_outputs
+from ._timing import _timed
+from ._training import (_carried_linear_fits, _carried_order, _compared_interface, _linear_fits, _order_chosen,
+                        _past_training, _trained_input_names, _training_miss, _training_settings,
+                        _warn_beyond_training, _warn_if_another_fmu, _warn_if_merged, _warn_if_recording_warned,
+                        _warn_if_training_missed, input_beyond_training)
+
+if TYPE_CHECKING:
+    from ..rom import SecondOrderROM
+    from ..signals import Signal
+
+
+#: The keys of ``compare(source_options=...)``: an FMU source's (:func:`_source_outputs`, ``isolate`` and ``timeout``
+#: of its child process) and a builtin system's sizes (:func:`_builtin_outputs`).  Any other key is refused: one
+#: dropped without a word compared another model than the one asked for (audit 81c F2).
+SOURCE_OPTIONS = ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "start_time", "isolate",
+                  "timeout", "g", "n1", "alpha", "beta", "v")   # (the last five: sources.BUILTIN_SIZES)
+
+
+def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike,
+            signal: "Signal | str | None" = None, dt: float | None = None, t_end: float | None = None, *,
+            quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
+    """Simulate the full-order ``source`` and the ROM on the same input and grid.
+
+    Parameters
+    ----------
+    rom : SecondOrderROM, or path to a ROM ``.h5`` file or an exported ROM ``.fmu``
+    source : str or path
+        An FMU path or ``builtin:anchored-msd`` / ``builtin:triple-chain``; an exported ROM FMU
+        may also stand here (e.g. to compare a ROM with its own export).
+    signal : Signal or str, optional
+        Test input (see :mod:`fmu_opinf.signals`).  Default: for a ROM without inputs ``"none"`` (the free response
+        from the initial state; the source's inputs, if any, held at their start values), else a harmonic on
+        each input the training drove, at the training's amplitude and operating point and at a frequency between
+        the ROM's natural frequencies (:mod:`fmu_opinf._test_input`); with two driven inputs or more, the same
+        harmonics once more per input, it alone swinging (``each_input_alone`` of the result: one more run of the
+        source each; together, the input that moves the outputs most hid another's 11 % error).  Both sides start
+        from the source's initial state: the ROM from the source's positions and velocities after initialization,
+        projected on its basis (its stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be
+        read).
+    dt, t_end : float, optional
+        Grid; defaults: the ROM's training step and four times the training end time, cut before the time at which
+        the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).
+    source_options : dict, optional
+        Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
+        source: the keys of :data:`SOURCE_OPTIONS` (another key is refused in one line).  For an FMU source, what
+        is not given is taken from the ROM's training provenance: the force inputs and outputs by their recorded
+        names, the recorded ``--set`` values and the FMU time the training runs started at (``start_time``, 0 where
+        none is recorded), so a comparison drives the FMU the way the training did.  A ROM side with extra outputs
+        (an FMU exported with ``--reconstruct``) is compared on the source's outputs, matched by name.
+
+    Returns
+    -------
+    Comparison
+    """
+    from .._validate import check_keywords
+    from ..newmark import MAX_GRID_STEPS, time_grid
+    from ..sources import StepError
+
+    check_keywords(source_options or {}, SOURCE_OPTIONS, "compare's source_options")
+    rom_side = _load_rom_side(rom)
+    rom_info = _rom_side_info(rom_side)
+    dt = float(dt if dt is not None else rom_info["dt"])
+    end_given, end_from = t_end is not None, "the input table's last time"
+    if t_end is None:   # an input table's last time (audit 70, F3: four times the training ran past it)
+        t_end = _table_end(signal, rom_info)
+    if t_end is None:
+        end_from = "four times the training's end"
+        t_train = rom_info.get("t_train_end")
+        if not (t_train and math.isfinite(float(t_train)) and 0 < 4 * float(t_train) / dt <= MAX_GRID_STEPS):
+            raise DimensionError("no --t-end given and the ROM does not record a usable training end time "
+                                 f"({t_train}); pass --t-end")
+        t_end = dt * round(4 * float(t_train) / dt)
+        capped = _before_termination(rom_info, source, dt, float(t_end))
+        if capped is not None:
+            t_end, end_from = capped[0], "before the termination the training recorded"
+            if not quiet:
+                print(capped[1], file=sys.stderr)
+    t = time_grid(dt, float(t_end))
+    if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
+        raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
+    source_options = _training_settings(rom_info, source, source_options)
+    _warn_if_another_fmu(rom_info, source)
+    _warn_if_recording_warned(rom_info, _compared_interface(source, source_options))
+    _warn_if_merged(rom_info)
+    _warn_if_training_missed(rom_side, rom_info)
+    if rom_info["m"] == 0:
+        signal = signal or "none"
+        source_options.setdefault("inputs", "none")  # every source input held at its start value
+    why = ""
+    if not signal:
+        signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
+        if not quiet:
+            print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
+    alone = _each_input_alone(signal, rom_info) if why else []
+    if alone and not quiet:
+        print(f"then each of {', '.join(name for name, _ in alone)} alone ({len(alone)} more runs of the source: "
+              "together, the input that moves the outputs most hides the others' errors)", file=sys.stderr)
+    run = _Run(rom_side, rom_info, source, source_options, t, quiet)
+    try:
+        result = run.compared(signal, why)
+        result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
+        if why and moves_on_its_own(rom_side, rom_info):
+            result.free_response = _free_response(run, quiet)
+    except StepError as stopped:
+        raise _past_termination(stopped, float(t_end), end_given, end_from) from None
+    result.inputs = [os.fspath(item) for item in (rom, source, signal) if isinstance(item, (str, os.PathLike))]
+    return result
+
+
+#: How compare names its run of the free response (``driven_alone`` of :attr:`Comparison.free_response`).
+FREE_RESPONSE = "free response (none)"
+
+
+def _free_response(run: "_Run", quiet: bool) -> "Comparison | None":
+    """The comparison of the free response (input ``none``), said in one line; None, also said, where the source's
+    free response is zero throughout: it rests without input, and eq. (19) has no scale (audit 80 F4: a training
+    whose step acted from t = 0 counted as motion of its own, and the whole comparison stopped with "the reference
+    output is identically zero")."""
+    free = run.compared("none", "", FREE_RESPONSE)
+    if not np.any(free.y_fom):
+        if not quiet:
+            print("the source's free response (input none) stays at zero: it rests without input; not compared",
+                  file=sys.stderr)
+        return None
+    if not quiet:
+        print(free_response_line(free), file=sys.stderr)
+    return free
+
+
+def moves_on_its_own(rom_side: Any, rom_info: dict[str, Any] | None = None) -> bool:
+    """Whether the ROM's training showed its source moving on its own from its start values, the inputs held
+    (``fit_info["own_motion"]``, :func:`fmu_opinf.fit.own_motion`): compare's default test, a harmonic sized to the
+    training, then hides the start transient (audit 77b, F2: eq. 19 said 6e-5 .. 8e-5 where the free response was
+    27-104 % of its range off), so the free response is compared as well.  For an exported ROM FMU (``rom_side`` a
+    path) its provenance.json says so (``rom_fmu_moves_on_its_own``, exactly ``true``: a data file)."""
+    if isinstance(rom_side, Path):
+        info = rom_info or {}
+        return (info.get("provenance") or {}).get("rom_fmu_moves_on_its_own") is True and int(info.get("m", 0)) > 0
+    info = getattr(rom_side, "fit_info", None)
+    return isinstance(info, dict) and isinstance(info.get("own_motion"), dict) and int(getattr(rom_side, "m", 0)) > 0
+
+
+def free_response_line(free: "Comparison") -> str:
+    """One line on the free response's comparison: eq. (19) and the largest miss over an output's range there."""
+    per_output = free.metrics()["per_output"]
+    misses = {name: figures["relative_max_variation"] for name, figures in per_output.items()
+              if figures["relative_max_variation"] == figures["relative_max_variation"]}
+    worst = max(misses, key=misses.get) if misses else None
+    share = f"; largest miss {misses[worst]:.2g} of {worst}'s range there" if worst is not None else ""
+    return (f"the ROM's training shows the source moving on its own from its start values: its free response (input "
+            f"none) was compared as well: max eps_y {float(free.eps.max()):.3g}{share}")
+
+
+def _each_input_alone(spec: str, rom_info: dict[str, Any]) -> list[tuple[str, str]]:
+    """The chosen test input ``spec`` with each driven input swinging alone (:func:`fmu_opinf._test_input.
+    each_input_alone`); empty where fewer than two inputs swing."""
+    from .._test_input import each_input_alone
+
+    return each_input_alone(spec, int(rom_info["m"]), list(rom_info["input_names"] or []))
+
+
+@dataclass
+class _Run:
+    """One comparison's two sides, the grid and the source's options: :meth:`compared` runs both on an input."""
+
+    rom_side: Any
+    rom_info: dict[str, Any]
+    source: Any
+    source_options: dict[str, Any]
+    t: np.ndarray
+    quiet: bool
+
+    def compared(self, spec: Any, why: str, alone: str = "") -> Comparison:
+        """The source and the ROM on the input ``spec`` (``why``: how compare chose it, "" where given; ``alone``:
+        the input it drives alone, "" for all)."""
+        from ..rom import held_input_names
+        from ..signals import parse_signal
+        from ..snapshots._record import check_table_times
+
+        rom_side, rom_info, source, options, t = self.rom_side, self.rom_info, self.source, self.source_options, self.t
+        held = held_input_names(rom_info["provenance"])
+        signal = _held_at_start_values(parse_signal(spec, rom_info["m"], rom_info["input_names"], held), source,
+                                       options)
+        check_table_times([signal], float(options.get("start_time") or 0.0))
+        trained = _trained_input_names(rom_info)
+        by_name = {"signal_inputs": trained} if _fmu_path(source) and trained else {}
+        y_fom, fom_seconds, fom_prov, fom_outputs = simulate_outputs(source, signal, t, quiet=self.quiet, **options,
+                                                                     **by_name)
+        rows = _matching_outputs(list(fom_outputs), rom_info["output_names"], by_name=isinstance(rom_side, Path))
+        # an exported ROM FMU is driven (and timed) exactly as the source FMU: same process isolation
+        isolate = bool(options.get("isolate", True))
+        rom_options: dict[str, Any] = ({"isolate": isolate, **rom_info.get("fmu_options", {})}
+                                       if isinstance(rom_side, Path) else {})
+        if not isinstance(rom_side, Path):
+            rom_options["initial"] = _source_start(rom_side, source, signal, t, options)
+        y_rom, rom_seconds, _, _ = simulate_outputs(rom_side, signal, t, quiet=True, **rom_options)
+        y_rom = np.atleast_2d(y_rom)[rows]
+        if why:
+            why += _past_training(y_fom, y_rom, list(fom_outputs), rom_info, source)
+        beyond = {} if why or alone else input_beyond_training(signal, t, rom_info)
+        if beyond:
+            _warn_beyond_training(beyond, source)
+        return Comparison(
+            t=t, y_fom=y_fom, y_rom=np.atleast_2d(y_rom), output_names=list(fom_outputs),
+            output_units=_declared_units(source, list(fom_outputs)),
+            output_display_units=_declared_display_units(source, list(fom_outputs)),
+            input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
+            fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
+            timed=_timed(source, rom_side, isolate, fom_prov),
+            input_choice=f"chosen without --input: {why}" if why else "",
+            order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
+            driven_alone=alone, beyond_training=beyond,
+            linear_fits=_carried_linear_fits(rom_info) if isinstance(rom_side, Path) else _linear_fits(rom_side),
+            training_miss=_training_miss(rom_side, rom_info))
+
+
+def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
+    """The last time of an input table given as ``signal`` (None for any other input or none): the default end of
+    a comparison driven by it, since it cannot be sampled beyond."""
+    from ..rom import held_input_names
+    from ..signals import parse_signal
+    from ..snapshots._record import input_table_end
+
+    if signal is None:
+        return None
+    if isinstance(signal, str):
+        held = held_input_names(rom_info["provenance"])
+        signal = parse_signal(signal, rom_info["m"], rom_info["input_names"], held) if rom_info["m"] else None
+    return input_table_end([signal]) if signal is not None else None
+
+
+def _past_termination(stopped: Any, t_end: float, end_given: bool,
+                      end_from: str = "four times the training's end") -> Any:
+    """The error of a source run that the FMU ended by terminating the simulation, where the run went to
+    compare's default end (``end_from`` says which: four times the training's, an input table's last time, or
+    before the termination the training recorded): the fix is compare's ``--t-end`` (audit 70, F5: the source's
+    advice said "record a shorter run").  Likewise a step that failed where it passed the FMU's declared stopTime,
+    whose line names --t-end at or below it (audit 75, F2: a compiled-in stop time failed compare's default end)."""
+    from ..sources import StepError, declared_stop_at, terminated_at
+
+    at, stop = terminated_at(str(stopped)), declared_stop_at(str(stopped))
+    if end_given or (at is None and stop is None):
+        return stopped
+    fix = f"compare --t-end below {at:g}" if at is not None else f"compare --t-end at or below {stop:g}"
+    return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {end_from}; give {fix})",
+                     stopped.step, stopped.time)
+
+
+def _recorded_termination(rom_info: dict[str, Any]) -> float | None:
+    """The time (from the run's start) at which the training's FMU terminated the simulation in a pilot run of the
+    automatic window, as the snapshot provenance of a ROM (``.h5``) or of an exported ROM FMU records it
+    (``auto_window["terminates_at"]``); None where it records none (older files, FMUs that do not terminate)."""
+    snapshots = rom_info["provenance"].get("snapshots")
+    window = snapshots.get("auto_window") if isinstance(snapshots, dict) else None
+    if isinstance(window, str):   # (as a snapshot file's attribute: JSON text)
+        try:
+            window = json.loads(window)
+        except ValueError:
+            return None
+    at = window.get("terminates_at") if isinstance(window, dict) else None
+    try:
+        at = float(at) if at is not None else None
+    except (TypeError, ValueError):   # (a damaged file's)
+        return None
+    return at if at is not None and math.isfinite(at) and at > 0 else None
+
+
+def _before_termination(rom_info: dict[str, Any], source: Any, dt: float, t_end: float) -> tuple[float, str] | None:
+    """compare's default end ``t_end`` (four times the training's) cut to the last point of its grid before the time
+    at which the training found the source FMU terminating the simulation, and the line saying so; None where the
+    training found no termination, the source is no FMU, or ``t_end`` lies before it.
+
+    The training's recording ends there itself (its automatic window stops before the termination); compare ran on
+    to four times the training's end and failed with an error naming ``--t-end`` (audit 71 F8)."""
+    at = _recorded_termination(rom_info)
+    if at is None or not _fmu_path(source) or t_end < at * (1.0 - 1e-6):
+        return None
+    last = dt * math.floor(at * (1.0 - 1e-6) / dt * (1.0 + 1e-12) + 1e-9)   # the step ending at ``at`` is refused
+    if last < 2 * dt:
+        return None
+    last = float(f"{last:.12g}")
+    return last, (f"{Path(str(source)).name} terminated the simulation at t={at:g} in the training's recording: "
+                  f"comparing to t_end={last:g}, before it (not four times the training's end, {t_end:g}; --t-end "
+                  "chooses another end)")
+
+
+def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
+    """The test input without one given (:mod:`fmu_opinf._test_input`): chosen from the ROM, or the one an exported
+    ROM FMU carries for its training grid (a data file: taken only as a string, parsed like any --input)."""
+    from .._test_input import carried_for_grid, default_test_input
+
+    if not isinstance(rom_side, Path):
+        return default_test_input(rom_side, dt, t_end)
+    carried = rom_info["provenance"].get("default_test_input")
+    if not (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
+        raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
+                             "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+    spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
+    spec = carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
+    return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"
