@@ -40,16 +40,18 @@ class Comparison:
     driven_alone : str
         The input this comparison drove alone (the others held at their operating point), "" where it drove all.
     beyond_training : dict
-        Where a given test input departs from the training's operating point by over :data:`INPUT_SIZE_NOTE` times
-        the training's amplitude on some input: that ``input``, the ``ratio``, the ``given`` departure and the
-        ``trained`` amplitude (:func:`input_beyond_training`); empty otherwise.
+        Where a given test input departs from the training's operating point by over
+        :data:`~fmu_opinf.compare._training.INPUT_SIZE_NOTE` times the training's amplitude on some input: that
+        ``input``, the ``ratio``, the ``given`` departure and the ``trained`` amplitude
+        (:func:`~fmu_opinf.compare._training.input_beyond_training`); empty otherwise.
     each_input_alone : list of Comparison
         Where ``compare`` chose a test input driving two inputs or more: the same harmonics, one input swinging at a
         time (:func:`fmu_opinf._test_input.each_input_alone`), so that an input whose response the others' hide is
         judged on its own.
     linear_fits : list of str
         The outputs the fit found not linear in the recorded states and left out of what steers the ROM's dynamics
-        (``fit_info["nonlinear_outputs"]``): the ROM gives them by a linear least-squares fit (:func:`linear_fit_note`).
+        (``fit_info["nonlinear_outputs"]``): the ROM gives them by a linear least-squares fit
+        (:func:`~fmu_opinf.compare._metrics.linear_fit_note`).
     timed : dict
         What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
         the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:

@@ -60,9 +60,9 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         ``max_t ||y_ref - y||^2 / max_t ||y_ref - mean_t y_ref||^2``) and ``per_output``: for each output its
         relative L2 error, its max absolute error relative to the output's peak and relative to its variation
         (``relative_max_variation``, peak minus trough; NaN where the output is zero or constant, null in
-        metrics.json) and its max absolute error (``absolute_max``).  Eq. (19) is the paper's measure; the figures relative to the
-        variation show errors that a large static offset (``y0``, a static deflection) would hide (second audit,
-        2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
+        metrics.json) and its max absolute error (``absolute_max``).  Eq. (19) is the paper's measure; the figures
+        relative to the variation show errors that a large static offset (``y0``, a static deflection) would hide
+        (second audit, 2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
     """
     y_ref, y, unit = _in_reference_units(y_ref, y)
     eps = _eq19(y_ref, y)

@@ -29,9 +29,10 @@ if TYPE_CHECKING:
     from ..signals import Signal
 
 
-#: The keys of ``compare(source_options=...)``: an FMU source's (:func:`_source_outputs`, ``isolate`` and ``timeout``
-#: of its child process) and a builtin system's sizes (:func:`_builtin_outputs`).  Any other key is refused: one
-#: dropped without a word compared another model than the one asked for (audit 81c F2).
+#: The keys of ``compare(source_options=...)``: an FMU source's (:func:`~fmu_opinf.compare._simulate._source_outputs`,
+#: ``isolate`` and ``timeout`` of its child process) and a builtin system's sizes
+#: (:func:`~fmu_opinf.compare._simulate._builtin_outputs`).  Any other key is refused: one dropped without a word
+#: compared another model than the one asked for (audit 81c F2).
 SOURCE_OPTIONS = ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "start_time", "isolate",
                   "timeout", "g", "n1", "alpha", "beta", "v")   # (the last five: sources.BUILTIN_SIZES)
 

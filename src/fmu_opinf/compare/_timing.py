@@ -7,8 +7,8 @@ from typing import Any
 
 
 def _timed_description(side: Any, isolate: bool = True, provenance: dict | None = None) -> str:
-    """What :func:`simulate_outputs` times for a model (the loop only: no loading, compilation or set-up);
-    ``provenance`` of the run, if known, says how an FMU was driven."""
+    """What :func:`~fmu_opinf.compare._simulate.simulate_outputs` times for a model (the loop only: no loading,
+    compilation or set-up); ``provenance`` of the run, if known, says how an FMU was driven."""
     from ..rom import SecondOrderROM
 
     if isinstance(side, SecondOrderROM) or Path(str(side)).suffix.lower() in (".h5", ".hdf5"):

@@ -148,12 +148,12 @@ def _replay_hint(record: dict[str, Any], rom_info: dict[str, Any]) -> str:
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:
-    """How a ROM object's order was chosen (for :func:`order_note`): ``r``; ``"given"``, ``"energy"`` where the fit
-    took it from the POD energy (eq. 18) and judged it good enough, or ``"search"`` where its order search ran (and
-    grew it, or kept the energy's after trying larger ones); the snapshot rank that bounds it; the orders the search
-    tried (``fit_info["order_search"]``), and ``noise_floor`` where it stopped at one of the singular values
-    (:func:`fmu_opinf.fit._order_search._noise_floor`).  Empty for a ROM that does not say (an exported FMU carries it:
-    :func:`_carried_order`)."""
+    """How a ROM object's order was chosen (for :func:`~fmu_opinf.compare._metrics.order_note`): ``r``; ``"given"``,
+    ``"energy"`` where the fit took it from the POD energy (eq. 18) and judged it good enough, or ``"search"`` where
+    its order search ran (and grew it, or kept the energy's after trying larger ones); the snapshot rank that bounds
+    it; the orders the search tried (``fit_info["order_search"]``), and ``noise_floor`` where it stopped at one of the
+    singular values (:func:`fmu_opinf.fit._order_search._noise_floor`).  Empty for a ROM that does not say (an
+    exported FMU carries it: :func:`_carried_order`)."""
     info = getattr(rom_side, "fit_info", None) or {}
     settings = (getattr(rom_side, "provenance", None) or {}).get("fit_settings")
     rank = info.get("snapshot_rank")
