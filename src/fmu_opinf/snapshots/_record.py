@@ -510,11 +510,32 @@ def _run_bytes(source: Source, k: int) -> int:
     return 8 * k * recorded_rows(source)
 
 
+#: The keywords of :func:`record` and :func:`record_to_file` that choose what an FMU source records (its
+#: command-line options ``--positions``, ..., ``--set``, ``--interface``, ``--tolerance``): one meaning, one check.
+SOURCE_KEYWORDS = ("positions", "velocities", "accelerations", "inputs", "outputs", "constraint", "parameters",
+                   "interface", "tolerance")
+
+
+def open_recorded_source(spec: Source | str | os.PathLike, options: dict[str, Any]) -> Source:
+    """:func:`~fmu_opinf.sources.open_source` of ``spec`` with ``options`` (:data:`SOURCE_KEYWORDS`, sizes), for
+    :func:`record` and :func:`record_to_file` alike; an opened :class:`Source` with such an option given is refused
+    in one line: it would be recorded as opened, the option dropped without a word."""
+    given = [key for key, value in options.items() if value is not None and key != "start_time"]
+    if isinstance(spec, Source) and given:
+        raise InputSpecError(f"{given[0]}= applies where the source is given as a path or spec, but "
+                             f"{source_label(spec)} is an opened source, recorded as opened; give the source as its path or "
+                             f"spec, or open it with open_source(spec, {given[0]}=...)")
+    return open_source(spec, **options)
+
+
 @collecting_recording_notes
 def record(source: Source | str, signal: Signal | str | None = None, dt: float | None = None,
            t_end: float | None = None, path: str | os.PathLike | None = None,
            quiet: bool = False, *, overwrite: bool = False, isolate: bool = False, t0: float | None = None,
-           stream: bool | None = None, start_time: float | None = None) -> Snapshots:
+           stream: bool | None = None, start_time: float | None = None, positions: str | None = None,
+           velocities: str | None = None, accelerations: str | None = None, inputs: str | None = None,
+           outputs: str | None = None, constraint: str | None = None, parameters: dict[str, Any] | None = None,
+           interface: str | None = None, tolerance: float | None = None) -> Snapshots:
     """Record one run of ``source`` driven by ``signal`` on the grid ``t0, t0+dt, ..., <= t_end``; without
     ``signal``, ``dt`` or ``t_end``, record what ``fmu-opinf snapshots`` records (:func:`record_to_file`).
 
@@ -549,6 +570,12 @@ def record(source: Source | str, signal: Signal | str | None = None, dt: float |
     start_time : float, optional
         The FMU time of the run's ``t = 0`` (:class:`~fmu_opinf.sources.FMUSource`); default: the source's (an FMU's
         ``DefaultExperiment/@startTime``, else 0).  Not with ``t0``.
+    positions, velocities, accelerations, inputs, outputs : str, optional
+        Variable name patterns of an FMU given by its path (``fmu-opinf snapshots --positions`` ...; see
+        :class:`~fmu_opinf.source.FMUSource`), as in :func:`record_to_file`.
+    constraint, parameters, interface, tolerance : optional
+        As in :func:`record_to_file` (``parameters``: ``--set``'s start values, e.g. ``{"k": 1000.0}``).  Each of
+        these and the patterns needs ``source`` as a path or spec: an opened source is refused with them.
 
     Returns
     -------
@@ -559,16 +586,19 @@ def record(source: Source | str, signal: Signal | str | None = None, dt: float |
         recording's warnings as :func:`record_to_file` does (``recording_warnings``, ``recording_verdicts``), so
         that fit, compare and export repeat them and fit handles, e.g., an FMU's Euler steps.
     """
+    options = dict(positions=positions, velocities=velocities, accelerations=accelerations, inputs=inputs,
+                   outputs=outputs, constraint=constraint, parameters=parameters, interface=interface,
+                   tolerance=tolerance)   # (audit 81c F12: record() had none of record_to_file's)
     if signal is None or dt is None or t_end is None:
         return _record_like_cli(source, signal, dt, t_end, path, quiet=quiet, overwrite=overwrite, isolate=isolate,
-                                t0=t0, start_time=start_time)
+                                t0=t0, start_time=start_time, options=options)
     if path is not None and isinstance(source, (str, os.PathLike)):
         from .._validate import check_not_input
 
         check_not_input(path, [source, signal], "path", "path")   # (as record_to_file: overwrite=True kept no FMU)
     if t0 is not None and start_time is not None:
         raise InputSpecError("give either t0 (an absolute start of the grid) or start_time (the FMU time of t = 0)")
-    source = open_source(source)
+    source = open_recorded_source(source, options)
     if t0 is not None and source.kind == "fmu":
         start_time = 0.0   # the grid's times are the FMU's, as before start times existed
     source = at_start_time(source, start_time)
@@ -597,7 +627,7 @@ def record(source: Source | str, signal: Signal | str | None = None, dt: float |
 
 def _record_like_cli(source: Source | str, signal: Any, dt: float | None, t_end: float | None,
                      path: str | os.PathLike | None, *, quiet: bool, overwrite: bool, isolate: bool,
-                     t0: float | None, start_time: float | None) -> Snapshots:
+                     t0: float | None, start_time: float | None, options: dict[str, Any]) -> Snapshots:
     """:func:`record` where ``signal``, ``dt`` or ``t_end`` is left out: :func:`record_to_file`, the code of
     ``fmu-opinf snapshots``, into ``path`` (or a temporary file), read back into memory.
 
@@ -612,11 +642,12 @@ def _record_like_cli(source: Source | str, signal: Any, dt: float | None, t_end:
                              "start_time= for the FMU time of t = 0")
     if path is not None:
         record_to_file(source, path, signal, dt, t_end, start_time=start_time, overwrite=overwrite, quiet=quiet,
-                       isolate=isolate)
+                       isolate=isolate, **options)
         return Snapshots.load(path)
     with tempfile.TemporaryDirectory(prefix="fmu-opinf-record-") as folder:
         file = Path(folder) / "snapshots.h5"
-        record_to_file(source, file, signal, dt, t_end, start_time=start_time, quiet=quiet, isolate=isolate)
+        record_to_file(source, file, signal, dt, t_end, start_time=start_time, quiet=quiet, isolate=isolate,
+                       **options)
         snaps = Snapshots.load(file)
         snaps.path = None
         return snaps
@@ -1279,11 +1310,14 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
     signal = _renamed(size_options, "input_spec", "signal", signal)
     window_energy = _renamed(size_options, "energy", "window_energy", limits["window_energy"])
     specs = [signal] if isinstance(signal, (str, Signal)) else list(signal or [])
-    if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs:
+    if specs and all(is_free_response(s) for s in specs) and inputs is None and not keep_inputs \
+            and not isinstance(source_spec, Source):   # (an opened source is recorded as opened)
         inputs = "none"  # only free responses: no force inputs at all (m = 0), every input held
-    source = open_source(source_spec, positions=positions, velocities=velocities, accelerations=accelerations,
-                         inputs=inputs, outputs=outputs, constraint=constraint, parameters=parameters,
-                         interface=interface, tolerance=tolerance, start_time=start_time, **size_options)
+    source = open_recorded_source(source_spec, dict(positions=positions, velocities=velocities,
+                                                    accelerations=accelerations, inputs=inputs, outputs=outputs,
+                                                    constraint=constraint, parameters=parameters,
+                                                    interface=interface, tolerance=tolerance, start_time=start_time,
+                                                    **size_options))
     by_default = not specs
     if not specs:
         amplitudes = default_amplitudes(source)
