@@ -242,14 +242,17 @@ def check_writable(path: str | os.PathLike, what: str, directory: bool = False, 
     os.unlink(probe)
 
 
-def check_report_directory(path: str | os.PathLike) -> None:
+def check_report_directory(path: str | os.PathLike, option: str = "-o") -> None:
     """A report goes into a new or empty folder, or replaces an earlier report (one with ``metrics.json``);
-    a folder holding other files is refused rather than silently mixed with the report."""
+    a folder holding other files is refused rather than silently mixed with the report.  ``option``: how the
+    folder was given (``-o``, or the Python keyword ``out_dir``, whose fix also names ``overwrite=True``)."""
     from ._hdf5 import check_folder_entries
 
     path = Path(path)
     if path.is_dir() and any(path.iterdir()) and not (path / "metrics.json").is_file():
-        raise FileFormatError(f"report directory {path} exists and holds other files; choose a new -o path "
+        fix = f"choose a new {option} path" if option.startswith("-") else \
+            f"give {option}= a new path, or overwrite=True to write the report among them"
+        raise FileFormatError(f"report directory {path} exists and holds other files; {fix} "
                               "(an earlier report in it would be replaced)")
     check_folder_entries(path)
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ._hdf5 import atomic_path, jsonable, replace_together, write_error
-from ._validate import check_not_input
+from ._validate import check_not_input, check_report_directory
 from .compare import Comparison, comparison_notes
 from .errors import DataError, FileFormatError
 
@@ -192,11 +192,13 @@ def _mark_training_end(ax, t_train_end: float | None, t_last: float) -> None:
         ax.axvline(t_train_end, color="0.4", ls=":", lw=1.0, label="last training snapshot")
 
 
-def prepare_report_directory(out_dir: str | os.PathLike) -> None:
-    """Create the report directory, or fail with a one-line error if the path is an existing file."""
+def prepare_report_directory(out_dir: str | os.PathLike, option: str = "-o") -> None:
+    """Create the report directory, or fail with a one-line error if the path is an existing file (naming how it
+    was given: ``-o`` or a Python keyword, ``out_dir`` for :func:`write_report`)."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise FileFormatError(f"report directory {out_dir} is an existing file; choose another -o path")
+        fix = f"choose another {option} path" if option.startswith("-") else f"give {option}= another path"
+        raise FileFormatError(f"report directory {out_dir} is an existing file; {fix}")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -213,7 +215,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
 
 
 def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figures: dict[str, Path] | None = None,
-                 notes: dict[str, Any] | None = None) -> Path:
+                 notes: dict[str, Any] | None = None, *, overwrite: bool = False) -> Path:
     """Write ``metrics.json``, ``outputs.png``, ``error.png`` and ``index.html`` into ``out_dir``.
 
     An earlier report in ``out_dir`` is replaced as a whole: every file is written under a temporary name
@@ -224,11 +226,15 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
     comparison : Comparison
     out_dir : path
         Created if missing; must not be an existing file, nor one of the comparison's inputs (``inputs``, the
-        source in ``fom_provenance``: an unpacked FMU folder is one).
+        source in ``fom_provenance``: an unpacked FMU folder is one).  A folder holding other files than an
+        earlier report is refused, as ``fmu-opinf compare -o`` refuses it, unless ``overwrite``.
     extra_figures : dict, optional
         Caption -> PNG path of further figures to embed (e.g. singular values from the fit).
     notes : dict, optional
         Extra settings shown on the page and stored under ``notes`` in metrics.json.
+    overwrite : bool, default=False
+        Write the report into a folder that holds other files too (they are kept; the report's own files are
+        replaced).  An earlier report alone (a folder with ``metrics.json``) is replaced without it.
 
     Returns
     -------
@@ -238,8 +244,10 @@ def write_report(comparison: Comparison, out_dir: str | os.PathLike, extra_figur
     out_dir = Path(out_dir)
     check_not_input(out_dir, [*comparison.inputs, comparison.fom_provenance.get("source")], "report directory",
                     "out_dir")   # (the command line refused it, the function wrote into an unpacked FMU: audit 81c)
+    if not overwrite:   # (as the command line: the function mixed its files with a folder's others, audit 81c F12)
+        check_report_directory(out_dir, "out_dir")
     created = not out_dir.exists()
-    prepare_report_directory(out_dir)
+    prepare_report_directory(out_dir, "out_dir")
     try:
         return _write_report_files(comparison, out_dir, extra_figures, notes)
     except OSError as exc:  # e.g. disk full while rendering a figure
