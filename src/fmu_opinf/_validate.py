@@ -15,6 +15,7 @@ import errno
 import json
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from collections.abc import Sequence
@@ -28,7 +29,8 @@ from .errors import DataError, FileFormatError, FmuOpinfError, InputSpecError, I
 __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
     "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "either",
-    "API_KEYWORDS",
+    "API_KEYWORDS", "KEYWORD_OF", "ME", "DT_T_END", "POSITIONS_VELOCITIES", "setting_said", "options_said",
+    "patterns_said",
     "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "read_failure", "RESTORE",
@@ -83,10 +85,64 @@ def shown(option: str, value: Any) -> str:
     return f"{option} {value}" if option.startswith("-") else f"{option}={value!r}"
 
 
-def either(option: str, keyword: str, value: Any) -> str:
-    """A fix said for both callers, e.g. ``--input none or signal='none'``: messages raised below the command line
-    and the functions alike named only the option to a Python caller (audit 81c F8)."""
-    return f"{shown(option, value)} or {shown(keyword, value)}"
+#: The Python keyword of each command-line option a message names as a fix (README, "Python": the table of names).
+#: A keyword holding ``=`` is the keyword's value that a flag stands for (``--no-refine`` is ``refine=False``).
+KEYWORD_OF = {
+    "--input": "signal", "--dt": "dt", "--t-end": "t_end", "--start-time": "start_time", "--set": "parameters",
+    "--positions": "positions", "--velocities": "velocities", "--accelerations": "accelerations",
+    "--inputs": "inputs", "--outputs": "outputs", "--constraint": "constraint", "--interface": "interface",
+    "--tolerance": "tolerance", "--me-method": "method", "--auto-window": "auto_window=True",
+    "--no-linearity-check": "check_linearity=False", "--in-process": "isolate=False", "--force": "overwrite=True",
+    "--r": "r", "--energy": "energy", "--no-refine": "refine=False", "--terms": "terms",
+    "--refit-output-map": "refit_output_map=True", "--g": "g", "--n1": "n1", "--alpha": "alpha", "--beta": "beta",
+    "--v": "v",
+}
+
+_NO_VALUE = object()
+_BARE = re.compile(r"[A-Za-z0-9_.:+-]+")
+
+
+def either(option: str, keyword: str | None = None, value: Any = _NO_VALUE) -> str:
+    """A fix said for both callers, the option first: ``--input none or signal='none'``, ``--dt 0.02 or dt=0.02``,
+    ``--dt or dt=`` (no value), ``--no-refine or refine=False`` (a flag).  Messages raised below the command line
+    and the functions alike named only the option to a Python caller (audit 81c F8, F12); ``keyword`` defaults to
+    the option's in :data:`KEYWORD_OF`.  A string value the shell would split is quoted on the option's side."""
+    keyword = KEYWORD_OF[option] if keyword is None else keyword
+    if value is _NO_VALUE or "=" in keyword:
+        return f"{option} or {keyword}" if "=" in keyword else f"{option} or {keyword}="
+    said = (f"{value:g}" if isinstance(value, float) else value if not isinstance(value, str) or _BARE.fullmatch(value)
+            else f'"{value}"')
+    return f"{option} {said} or {shown(keyword, value)}"
+
+
+def options_said(*options: str) -> str:
+    """Several options a fix names, in both vocabularies: ``--dt and --t-end or dt= and t_end=``."""
+    keywords = [KEYWORD_OF[option] for option in options]
+    return (" and ".join(options) + " or "
+            + " and ".join(word if "=" in word else f"{word}=" for word in keywords))
+
+
+def patterns_said(**patterns: str) -> str:
+    """Variable patterns a fix names, in both vocabularies: ``--positions "x[1]" --velocities "v[1]" or
+    positions='x[1]', velocities='v[1]'`` (keywords of :func:`~fmu_opinf.snapshots.record` and ``record_to_file``)."""
+    options = " ".join(f'--{key} "{value}"' for key, value in patterns.items())
+    return options + " or " + ", ".join(f"{key}={value!r}" for key, value in patterns.items())
+
+
+#: The fix "drive its model exchange" in both vocabularies.
+ME = either("--interface", value="me")
+#: The step and end a fix names, in both vocabularies.
+DT_T_END = options_said("--dt", "--t-end")
+#: The variable patterns a fix names, in both vocabularies.
+POSITIONS_VELOCITIES = options_said("--positions", "--velocities")
+
+
+def setting_said(name: str, value: Any = _NO_VALUE) -> str:
+    """A start value as both callers give it: ``--set k=1000 or parameters['k']=1000`` (``--set k or
+    parameters['k']`` without a value): the command line's ``--set`` is the keyword ``parameters`` in Python."""
+    if value is _NO_VALUE:
+        return f"--set {name} or parameters[{name!r}]"
+    return f"--set {name}={value} or parameters[{name!r}]={value!r}"
 
 
 def check_number(value: Any, option: str) -> None:
@@ -178,7 +234,7 @@ def check_grid(dt: float, t_end: float, t0: float = 0.0, channels: int = 1) -> i
         samples = math.inf
     nbytes = 8.0 * samples * (1 + max(channels, 1))
     check_memory(nbytes, f"a grid of {samples:.3g} samples (dt={dt:g}, t_end={t_end:g})",
-                 "increase --dt or decrease --t-end")
+                 f"increase {either('--dt')} or decrease {either('--t-end')}")
     return int(samples)
 
 
