@@ -139,7 +139,7 @@ def test_an_fmu_source_names_a_misspelt_keyword_and_the_closest_one(fmu):
     _one_line(caught.value, "takes no keyword 'set'; the command line's --set is 'parameters' in Python")
     with pytest.raises(InputSpecError) as caught:   # a builtin size keeps its own line
         open_source(str(fmu), g=10)
-    _one_line(caught.value, "--g applies to builtin sources")
+    _one_line(caught.value, "--g or g= applies to builtin sources")
 
 
 # -- F3: no function writes over its own input ---------------------------------------------------------------

@@ -176,3 +176,64 @@ def test_fit_rom_prints_labelled_stage_lines_by_default(capsys):
     assert any(line.startswith("SDP: optimal via ") for line in lines), said
     fit_rom(snaps, r=3, refine=False, quiet=True)
     assert capsys.readouterr().err == ""
+
+
+# -- a fix raised below both callers names the option and the keyword -----------------------------------------
+
+
+def test_either_names_the_option_and_its_keyword():
+    """One style for every such fix (fixapi2's ``--input none or signal='none'``), the keyword from one table."""
+    from fmu_opinf._validate import DT_T_END, ME, either, patterns_said, setting_said
+
+    assert either("--input", "signal", "none") == "--input none or signal='none'"
+    assert either("--dt", value=0.02) == "--dt 0.02 or dt=0.02"
+    assert either("--dt") == "--dt or dt="
+    assert either("--no-refine") == "--no-refine or refine=False"
+    assert either("--in-process") == "--in-process or isolate=False"
+    assert either("--positions", value="mass[1].s") == "--positions \"mass[1].s\" or positions='mass[1].s'"
+    assert ME == "--interface me or interface='me'"
+    assert DT_T_END == "--dt and --t-end or dt= and t_end="
+    assert setting_said("k") == "--set k or parameters['k']"
+    assert setting_said("k", 2.0) == "--set k=2.0 or parameters['k']=2.0"
+    assert patterns_said(positions="a,b", velocities="c") == \
+        "--positions \"a,b\" --velocities \"c\" or positions='a,b', velocities='c'"
+
+
+def test_a_misnamed_parameter_is_named_in_both_vocabularies(fmu, tmp_path):
+    """Was ``--set stifness_scale: ... has no variable`` for ``parameters={"stifness_scale": 2}`` in Python."""
+    with pytest.raises(InputSpecError) as caught:
+        snapshots.record_to_file(str(fmu), tmp_path / "s.h5", STEP, dt=0.1, t_end=1.0, quiet=True,
+                                 parameters={"stifness_scale": 2.0})
+    _one_line(caught.value, "--set stifness_scale or parameters['stifness_scale']: VocabChain.fmu has no variable "
+                            "'stifness_scale' (did you mean stiffness_scale")
+
+
+def test_an_fmu_option_on_a_builtin_source_is_named_in_both_vocabularies():
+    """Was ``--outputs applies to fmu sources`` for ``record("builtin:...", outputs=...)``."""
+    with pytest.raises(InputSpecError) as caught:
+        snapshots.record("builtin:anchored-msd", STEP, 0.1, 1.0, quiet=True, outputs="y[1]")
+    _one_line(caught.value, "--outputs or outputs= applies to fmu sources, not to builtin:anchored-msd")
+    with pytest.raises(InputSpecError) as caught:
+        open_source("builtin:anchored-msd", parameters={"k": 1.0})
+    _one_line(caught.value, "--set or parameters= applies to fmu sources")
+
+
+def test_the_aliasing_warning_names_the_step_in_both_vocabularies():
+    """Was ``record with --dt 0.2 or below and --t-end 300`` (audit 81c F8) for a fit called from Python."""
+    from fmu_opinf.fit._training_checks import _warn_if_modes_above_nyquist
+
+    with pytest.warns(FmuOpinfWarning, match=r"above the 6.28 rad/s \(pi/dt\) .*; record with --dt 0.2 or dt=0.2 "
+                                             r"\(or a smaller step\) and --t-end 300 or t_end=300.0 \(this "
+                                             r"recording's end"):
+        _warn_if_modes_above_nyquist([(-0.1, 10.0)], 0.5, 300.0)
+
+
+def test_the_training_miss_advice_names_the_patterns_in_both_vocabularies():
+    """Was ``check that --positions names positions only`` (audit 81c F5) in a warning of fit_rom."""
+    from fmu_opinf.fit._training_checks import _miss_causes
+
+    causes = _miss_causes(3, [], [], True, None, None, [], {})
+    text = causes[-1]
+    assert "that --positions or positions= names positions only" in text, text
+    assert "the refinement may reach them; --r or r=)" in text and "(--interface me or interface='me')" in text
+    assert "the SDP solution unrefined (--no-refine or refine=False)" in text

@@ -566,8 +566,8 @@ def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines()[-1] == (
         f"fmu-opinf: error: no test input given, and the training input {str(table)!r} cannot be read here (input "
-        f"table {table} not found; give an existing .csv file); pass --input SPEC, e.g. "
-        "'harmonic:amplitude=1,omega=0.2'")
+        f"table {table} not found; give an existing .csv file); pass a test input, e.g. --input "
+        "\"harmonic:amplitude=1,omega=0.2\" or signal='harmonic:amplitude=1,omega=0.2'")
     assert not (tmp_path / "other").exists()
 
 

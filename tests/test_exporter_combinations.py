@@ -290,7 +290,8 @@ def test_explicit_euler_co_simulation_is_refused_in_one_line(fmus, tmp_path, cap
         assert "\n" not in err, err
         assert re.search(r"the co-simulation diverges at both communication steps the automatic window tried \(its "
                          r"outputs at dt=0\.05 grow to .* times the peak of those at dt=0\.025, which grow too .*"
-                         r"explicit steps per doStep.*it offers no model exchange: give --dt below 0\.025 \(e\.g\. "
+                         r"explicit steps per doStep.*it offers no model exchange: give --dt or dt= below 0\.025 "
+                         r"\(e\.g\. "
                          r"0\.01\) and --t-end.*no file was written", err), err
         assert not out.exists()
 
@@ -298,7 +299,7 @@ def test_explicit_euler_co_simulation_is_refused_in_one_line(fmus, tmp_path, cap
     both = rewrite_description(fmu, tmp_path / "both.fmu", with_model_exchange)
     assert main(["snapshots", str(both), "-o", str(out), "-q", "--interface", "cs", *GENERIC_STATES]) == 2
     err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "use its model exchange (--interface me)" in err, err
+    assert "\n" not in err and "use its model exchange (--interface me or interface='me')" in err, err
     assert not out.exists()
 
 
@@ -471,7 +472,8 @@ def test_step_check_keeps_the_fmu_error_of_parameters_exposed_as_inputs(fmus, tm
     assert "driven input(s) mass_scale, stiffness_scale start at non-zero values" in warning
     assert "division by zero" in err and "the inputs mass_scale were set to 0" in err
     # both parameters excluded (the audit of 2026-11-27 followed the former '--inputs F,stiffness_scale': 120 % off)
-    assert "(and stiffness_scale, which start at non-zero values too) with --inputs F and give their values" in err
+    assert "(and stiffness_scale, which start at non-zero values too) with --inputs F or inputs='F' and give their " \
+           "values with --set or parameters=" in err
     assert "communication step" not in err and "no file was written" in err
 
 

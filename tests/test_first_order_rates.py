@@ -91,9 +91,11 @@ def test_a_pressure_paired_by_name_with_its_rate_is_refused_naming_the_mechanica
     message = str(caught.value)
     assert message.startswith("pres.fmu: pdot, paired by a guess as the velocity of p, is a function of p"), message
     assert "p is a first-order state, neither positions nor velocities (an actuator lag" in message, message
-    assert '--positions "q[1],q[2]" --velocities "qdot[1],qdot[2]" (the ROM then lacks p\'s lag' in message, message
+    assert '--positions "q[1],q[2]" --velocities "qdot[1],qdot[2]" or positions=\'q[1],q[2]\', ' \
+           'velocities=\'qdot[1],qdot[2]\' (the ROM then lacks p\'s lag' in message, message
     assert 'to keep p as a coordinate, approximated by a stiff mass, pass --positions "q[1],q[2],p" --velocities ' \
-           '"qdot[1],qdot[2],pdot"' in message, message   # audit 76 pres.fmu: masses alone 41-70 % off; with p 1.4 %
+           '"qdot[1],qdot[2],pdot" or positions=\'q[1],q[2],p\', velocities=\'qdot[1],qdot[2],pdot\'' in message, \
+        message   # audit 76 pres.fmu: masses alone 41-70 % off; with p 1.4 %
 
 
 def test_a_pairing_the_data_made_is_refused_the_same_way():

@@ -145,7 +145,7 @@ def test_the_default_chain_runs_on_a_fixed_step_fmu(fmus, tmp_path, capsys):
                  "-q"]) == 2
     err = _last_line_error(capsys)
     assert re.search(r"differs from the fixed step 0\.02; it declares the fixed communication step 0\.02: leave --dt "
-                     r"out or give --dt 0\.02", err), err
+                     r"or dt= out or give --dt 0\.02 or dt=0\.02", err), err
     assert not (tmp_path / "r2").exists()
 
 
@@ -163,9 +163,9 @@ def test_another_dt_is_tried_with_a_warning_and_the_fmu_s_refusal_names_its_step
         assert main(["snapshots", str(fmus["fixed2"]), "-o", str(out), "-q", "--dt", dt, "--t-end", "5"]) == 2
         err = capsys.readouterr().err
         assert f"it declares one fixed communication step 0.02 (canHandleVariableCommunicationStepSize=false, " \
-               f"DefaultExperiment stepSize=0.02); running at --dt {dt} as asked" in err, err
-        assert "differs from the fixed step 0.02; it declares the fixed communication step 0.02: leave --dt out or " \
-               "give --dt 0.02" in err.strip().splitlines()[-1], err
+               f"DefaultExperiment stepSize=0.02); running at the step {dt} as asked" in err, err
+        assert "differs from the fixed step 0.02; it declares the fixed communication step 0.02: leave --dt or dt= " \
+               "out or give --dt 0.02 or dt=0.02" in err.strip().splitlines()[-1], err
         assert "Traceback" not in err and "(complete=False)" in err   # as for any step the FMU fails
         out.unlink()
     assert main(["snapshots", str(fmus["fixed_me"]), "-o", str(out), "-q", "--interface", "cs", "--dt", "0.01",
@@ -177,7 +177,7 @@ def test_another_dt_is_tried_with_a_warning_and_the_fmu_s_refusal_names_its_step
     assert Snapshots.load(out).runs[0].attrs["dt"] == 0.01 and "fixed" not in capsys.readouterr().err
     out.unlink()
     assert main(["snapshots", str(fmus["declared"]), "-o", str(out), "-q", "--dt", "0.01", "--t-end", "5"]) == 0
-    assert "running at --dt 0.01 as asked" in capsys.readouterr().err
+    assert "running at the step 0.01 as asked" in capsys.readouterr().err
     run = Snapshots.load(out).runs[0]
     assert run.attrs["dt"] == 0.01 and _relative(run.y, _exact(run)) < RECORDING
     out.unlink()
@@ -206,7 +206,8 @@ def test_a_discarded_step_is_said_with_its_fix(fmus, name, tmp_path, capsys):
     assert main(["snapshots", str(fmus[name]), "-o", str(out), "-q", "--dt", "0.05", "--t-end", "5"]) == 2
     err = _one_line_error(capsys)
     assert re.search(r"discarded the communication step 0\.05 in fmi[23]DoStep at step 1 \(t=0 -> 0\.05; its log: "
-                     r".*exceeds the maximum step size 0\.02.*\): give a smaller --dt, e\.g\. 0\.02", err), err
+                     r".*exceeds the maximum step size 0\.02.*\): give a smaller step, e\.g\. --dt 0\.02 or dt=0\.02",
+                     err), err
     assert "returned an error" not in err and not out.exists()
     assert main(["snapshots", str(fmus[name]), "-o", str(out), "-q"]) == 0
     run = Snapshots.load(out).runs[0]
@@ -215,7 +216,7 @@ def test_a_discarded_step_is_said_with_its_fix(fmus, name, tmp_path, capsys):
     # the example is the largest step below the discarded one that the FMU's log names, not half of it (tenth
     # audit: at 0.05 the advice was 0.02 beside a log naming 0.01; here 0.1 was advised 0.05, refused again)
     assert main(["snapshots", str(fmus[name]), "-o", str(out), "-q", "--dt", "0.1", "--t-end", "5"]) == 2
-    assert _one_line_error(capsys).endswith("give a smaller --dt, e.g. 0.02; no file was written")
+    assert _one_line_error(capsys).endswith("give a smaller step, e.g. --dt 0.02 or dt=0.02; no file was written")
 
 
 def test_a_given_dt_is_the_pilots_step(fmus, tmp_path):
@@ -247,8 +248,9 @@ def test_a_given_coarse_dt_is_recorded_and_said_to_be_coarse(fmus, tmp_path):
     from fmu_opinf.errors import FmuOpinfWarning
     from fmu_opinf.snapshots import record_to_file
 
-    with pytest.warns(FmuOpinfWarning, match=r"--dt 0\.1 gives [\d.]+ samples per period of the fastest significant "
-                                             r"frequency [\d.]+ Hz .*a smaller --dt resolves it, e\.g\. 0\.02"):
+    with pytest.warns(FmuOpinfWarning, match=r"the step dt=0\.1 gives [\d.]+ samples per period of the fastest "
+                                             r"significant frequency [\d.]+ Hz .*a smaller step resolves it, e\.g\. "
+                                             r"--dt 0\.02 or dt=0\.02"):
         summary = record_to_file(fmus["fixed_me"], tmp_path / "train.h5", None, dt=0.1, quiet=True)
     run = Snapshots.load(tmp_path / "train.h5").runs[0]
     assert summary.dt == 0.1 and summary.window.pilot_dt == 0.1 and run.attrs["fmi_interface"] == "me"
@@ -270,7 +272,7 @@ def test_a_given_dt_sets_the_pilots_step_also_on_a_declared_fixed_step_fmu(fmus,
         summary = record_to_file(str(fmus["declared"]), tmp_path / "a.h5", None, dt=0.1, quiet=True)
     said = " ".join(str(w.message) for w in caught)
     assert summary.window.pilot_dt == 0.1 and summary.dt == 0.1, summary.describe()
-    assert "running at --dt 0.1 as asked" in said and "fixed communication step 0.1" not in said, said
+    assert "running at the step 0.1 as asked" in said and "fixed communication step 0.1" not in said, said
     run = Snapshots.load(tmp_path / "a.h5").runs[0]
     assert _relative(run.y, _exact(run)) < RECORDING
 
@@ -286,5 +288,6 @@ def test_a_fixed_step_fmu_that_declares_no_step_is_told_to_give_dt(fmus, tmp_pat
     assert main(["snapshots", str(silent), "-o", str(tmp_path / "train.h5")]) == 2
     line = _last_line_error(capsys)
     assert re.search(r"returned an error in fmi2DoStep.*cannot vary its communication step .* declares no "
-                     r"DefaultExperiment stepSize.*give --dt as such a multiple, e\.g\. [0-9.e-]+, and --t-end", line)
+                     r"DefaultExperiment stepSize.*give --dt or dt= as such a multiple, e\.g\. [0-9.e-]+, and --t-end "
+                     r"or t_end=", line)
     assert not (tmp_path / "train.h5").exists()

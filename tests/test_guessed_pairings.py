@@ -130,7 +130,8 @@ def test_generic_names_of_a_controlled_structure_name_the_non_mechanical_states(
     verdict = check_rates(states[:5], states[5:], None, DT, names, True, [f"der_x{i}" for i in range(1, 6)])
     assert isinstance(verdict, str) and "pair no states" not in verdict, verdict
     assert "x5 is the rate of x1" in verdict and "x9, x10 pair with none" in verdict, verdict
-    assert verdict.endswith('--positions "x1,x2,x3,x4" --velocities "x5,x6,x7,x8"'), verdict
+    assert verdict.endswith('--positions "x1,x2,x3,x4" --velocities "x5,x6,x7,x8" or positions=\'x1,x2,x3,x4\', '
+                            'velocities=\'x5,x6,x7,x8\''), verdict
 
 
 def test_a_chain_of_rates_split_in_halves_is_named_with_its_accelerations():
@@ -144,8 +145,8 @@ def test_a_chain_of_rates_split_in_halves_is_named_with_its_accelerations():
     names = {"positions": labels[:3], "velocities": labels[3:]}
     verdict = check_rates(rows[:3], rows[3:], None, DT, names, True, [None] * 3)
     assert isinstance(verdict, str) and "pair no states" not in verdict, verdict
-    assert verdict.endswith('--positions "q1,q2" --velocities "qdot1,qdot2" --accelerations "qddot1,qddot2"'), \
-        verdict
+    assert verdict.endswith('--positions "q1,q2" --velocities "qdot1,qdot2" --accelerations "qddot1,qddot2" or '
+                            "positions='q1,q2', velocities='qdot1,qdot2', accelerations='qddot1,qddot2'"), verdict
 
 
 def _judged(rows: np.ndarray, rule: str, velocities: np.ndarray | None = None) -> Repair | None:

@@ -137,7 +137,7 @@ def test_the_advice_offers_the_other_boolean_value_and_names_every_candidate():
                                "mode": ["Enumeration", "1", False]})
     assert line == ("inputs held while it ran, one of which may keep the force from acting: brake (Boolean, held at "
                     "its start value true), mode (Enumeration, held at its start value 1), gain (Real, set to 2); if "
-                    "one does, set it, e.g. --set brake=false")
+                    "one does, set it, e.g. --set brake=false or parameters['brake']=false")
     assert held_inputs_advice({}) == ""
     assert zero_snapshots_error({}) == "all snapshots are zero; excite the system with a non-zero input"
 

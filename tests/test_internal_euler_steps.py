@@ -127,7 +127,7 @@ def test_explicit_euler_steps_inside_each_do_step_are_said(spec):
 
 def test_the_fix_named_for_an_fmu_with_model_exchange_is_model_exchange():
     _, said = _judged(_substeps("euler"), _source(model_exchange=True))
-    assert said[0].endswith("record by model exchange (--interface me)")
+    assert said[0].endswith("record by model exchange (--interface me or interface='me')")
 
 
 @pytest.mark.parametrize("method", ["exact", "rk4"])

@@ -481,7 +481,7 @@ def test_an_fmu_asking_to_terminate_in_an_event_iteration_is_a_one_line_step_err
 
     monkeypatch.setattr(ModelExchangeSource, "_after_initialization", terminating)
     with pytest.raises(StepError, match=r"asked to terminate the simulation in its event iteration at t=1\.1\S*; "
-                                        r"end the run before it: --t-end below 1\.1"):
+                                        r"end the run before it: --t-end or t_end= below 1\.1"):
         record(ModelExchangeSource(fmus[("2.0", "state")]), INPUT, DT, T_END, quiet=True)
 
 

@@ -120,7 +120,7 @@ def test_a_run_past_the_termination_names_the_time_the_log_and_the_fix(kind, fmu
     assert not run.complete and run.t[-1] == pytest.approx(TERMINATE - 0.05, abs=1e-9)
     assert _miss(run) < RECORDED[kind]
     assert f"asked to terminate the simulation {where}" in err, err
-    assert f"its log: {log}; end the run before it: --t-end below {TERMINATE:g}" in err, err
+    assert f"its log: {log}; end the run before it: --t-end or t_end= below {TERMINATE:g}" in err, err
     assert "smaller --dt" not in err and "discarded the communication step" not in err, err
 
 
@@ -138,7 +138,7 @@ def test_a_declared_stop_time_crossed_by_a_failed_step_is_named_with_its_t_end(f
         crossing = int(np.searchsorted(t, TERMINATE, side="right"))   # the step 20 -> 20.05
         line = source._step_failure(3, "fmi2DoStep", crossing)
         assert line.endswith(f"; the step passes its DefaultExperiment stopTime={TERMINATE:g}, where the model may "
-                             f"end its simulation: give --t-end at or below {TERMINATE:g}"), line
+                             f"end its simulation: give --t-end or t_end= at or below {TERMINATE:g}"), line
         # compare's default end (four times the training's) past it: the fix is compare's own --t-end
         told = str(_run._past_termination(StepError(line, crossing, float(t[crossing])), 80.0, False))
         assert told.endswith(f"(compare ran to its default t_end=80, four times the training's end; give compare "
@@ -159,7 +159,7 @@ def test_a_stop_in_a_completed_step_inside_an_interval_is_the_models_end_not_an_
     assert code != 0
     assert "asked to terminate the simulation in fmiCompletedIntegratorStep at t=20.0" in err, err
     assert "its log: terminate() called at t=20.0" in err and "tolerance" not in err, err
-    below = float(err.split("--t-end below ")[1].split(";")[0])
+    below = float(err.split("--t-end or t_end= below ")[1].split(";")[0])
     assert INSIDE < below < 20.5, err   # the completed step where it stopped, inside the interval 20 -> 20.5
     run = Snapshots.load(tmp_path / "s.h5").runs[0]
     assert not run.complete and run.t[-1] == pytest.approx(20.0, abs=1e-9)

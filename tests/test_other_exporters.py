@@ -355,7 +355,7 @@ def test_a_mismatch_of_states_the_fmu_links_blames_the_step_not_the_pairing():
     assert "v is not the rate of s" in linked and "the step dt=0.2 is too coarse" in linked
     assert "smaller --dt" in linked and "unless --velocities" not in linked
     for given in (("pattern", "pattern"), ("from derivative links", "pattern v")):
-        assert "unless --velocities name the positions' rates" in warning_for(*given)
+        assert "unless --velocities or velocities= name the positions' rates" in warning_for(*given)
 
 
 @pytest.mark.slow

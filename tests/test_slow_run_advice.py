@@ -46,7 +46,7 @@ def test_a_model_that_is_not_stiff_is_told_the_cost_of_its_derivative_and_not_co
     text = _warning(tmp_path, monkeypatch, AUDIT)
     assert "the model is not stiff (spectral radius about 0.32 1/s, 0.016 times the step)" in text, text
     assert "1198 states at 0.37 ms per call, 12 calls per DOP853 step" in text
-    assert "give --dt and --t-end" in text and "--me-method linear" in text
+    assert "give --dt and --t-end or dt= and t_end=" in text and "--me-method linear" in text
     assert "co-simulation does not help" in text
     assert "--interface cs" not in text and "stability limit" not in text and "Coulomb" not in text
 
@@ -55,7 +55,7 @@ def test_a_stiff_model_keeps_the_stiffness_advice(tmp_path, monkeypatch):
     """rho h = 10 (the audit's FE1000 case, where the warning was apt): the text is as before."""
     text = _warning(tmp_path, monkeypatch, (200.0, 3.7e-4), h=0.004)
     assert "a stiff model holds it to its stability limit" in text
-    assert "record by co-simulation (--interface cs)" in text and "Coulomb friction" in text
+    assert "record by co-simulation (--interface cs or interface='cs')" in text and "Coulomb friction" in text
     assert "not stiff" not in text and "ms per call" not in text
 
 

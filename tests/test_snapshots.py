@@ -243,7 +243,8 @@ def test_non_finite_values_name_their_variables_and_the_usual_causes(toys):
     row = np.array([0.0, 1.0, 0.0, np.nan, np.inf])
     failure = StepError(f"m.fmu produced non-finite values at step 0 (t=0){_non_finite_names(names, row)}", 0, 0.0)
     assert str(_with_hint(FMUSource(toys["full"]), failure, np.zeros((1, 1)))) == (
-        "m.fmu produced non-finite values at step 0 (t=0) in v2, acc; check the --set values and the inputs (a mass "
+        "m.fmu produced non-finite values at step 0 (t=0) in v2, acc; check the --set or parameters= values and the "
+        "inputs (a mass "
         "or a stiffness at 0, a parameter exposed as an input driven to 0)")
     assert _non_finite_names(names, np.full(5, np.nan)) == " in s1, s2, v1, v2 and 1 more"
 
@@ -673,8 +674,10 @@ def test_every_parameter_like_input_is_excluded_by_the_suggested_fix(tmp_path, m
             record(source, "step:amplitude=1;step:amplitude=0;step:amplitude=1", 0.05, 1.0, quiet=True)
     text = str(info.value)
     assert "inputs mass_scale were set to 0" in text and "(and stiffness_scale, which start at non-zero" in text
-    assert "exclude them" in text and "with --inputs F and give their values with --set" in text
-    with pytest.warns(FmuOpinfWarning, match=r"driven input\(s\) stiffness_scale .* record with --inputs F and"):
+    assert "exclude them" in text and "with --inputs F or inputs='F' and give their values with --set or " \
+                                      "parameters=" in text
+    with pytest.warns(FmuOpinfWarning, match=r"driven input\(s\) stiffness_scale .* record with --inputs F or "
+                                             r"inputs='F' and"):
         sources.open_source(path, inputs="F,stiffness_scale")
 
 

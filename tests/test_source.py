@@ -576,12 +576,12 @@ def test_binary_that_does_not_load(tmp_path, toys):
 def test_bad_builtin_specs():
     _one_line_error(InputSpecError, open_source, "builtin:pendulum", match="unknown builtin system")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", positions="x[*]",
-                    match="--positions applies to fmu sources")
+                    match="--positions or positions= applies to fmu sources")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", n1=10, match="bad option for builtin")
 
 
 def test_size_options_do_not_apply_to_fmus(toys):
-    _one_line_error(InputSpecError, open_source, str(toys["full"]), g=10, match="--g applies to builtin sources")
+    _one_line_error(InputSpecError, open_source, str(toys["full"]), g=10, match="--g or g= applies to builtin sources")
 
 
 def test_input_with_wrong_number_of_channels(toys):
@@ -631,7 +631,7 @@ def test_setting_errors_name_the_variable(toys):
     _one_line_error(InputSpecError, FMUSource, toys["full"], parameters={"fault": "1.5"},
                     match="fault is an Integer variable.*give an integer")
     _one_line_error(InputSpecError, open_source, "builtin:anchored-msd", parameters={"k": 1},
-                    match="--set applies to fmu sources")
+                    match="--set or parameters= applies to fmu sources")
 
 
 def test_inputs_none_holds_every_input(toys):

@@ -132,4 +132,4 @@ def test_start_time_of_a_builtin_source_is_refused_in_one_line(tmp_path, capsys)
     code = main(["snapshots", "builtin:anchored-msd", "--g", "4", "-o", str(tmp_path / "s.h5"), "--input", INPUT,
                  "--dt", "0.1", "--t-end", "1", "--start-time", "1", "-q"])
     err = capsys.readouterr().err.strip()
-    assert code == 2 and err.count("\n") == 0 and "--start-time applies to fmu sources" in err, err
+    assert code == 2 and err.count("\n") == 0 and "--start-time or start_time= applies to fmu sources" in err, err

@@ -469,7 +469,8 @@ def test_the_default_impulse_stays_within_an_input_s_declared_max(tmp_path, caps
     U = np.array([[0.0], [45.0], [80.0]])
     hint = source.failure_hint(U, 1)
     assert hint == ("; input F is 45 there, above its declared max 30: give an input within [-30, 30] (this one "
-                    "reaches 80 in magnitude; e.g. --input 'impulse:amplitude=30,t0=2,width=0.5')")
+                    "reaches 80 in magnitude; e.g. --input \"impulse:amplitude=30,t0=2,width=0.5\" or "
+                    "signal='impulse:amplitude=30,t0=2,width=0.5')")
 
 
 def test_an_input_that_may_only_pull_is_pulsed_downwards(tmp_path, capsys):
@@ -500,7 +501,8 @@ def test_an_input_that_may_only_pull_is_pulsed_downwards(tmp_path, capsys):
     assert np.abs(run.y - exact.y).max() < 2e-12 * np.abs(exact.y).max()   # measured 4.4e-13
     hint = open_source(str(fmu), interface="cs").failure_hint(np.array([[0.0], [45.0]]), 1)
     assert hint.endswith("within [-1000, 0] (this one reaches 45 in magnitude; e.g. --input "
-                         "'impulse:amplitude=-45,t0=2,width=0.5')"), hint
+                         "\"impulse:amplitude=-45,t0=2,width=0.5\" or "
+                         "signal='impulse:amplitude=-45,t0=2,width=0.5')"), hint
 
 
 def test_a_pressure_driven_about_its_start_is_pulsed_by_a_tenth_of_it():
@@ -560,7 +562,8 @@ def test_an_input_whose_start_lies_outside_its_declared_range_is_trained_from_th
     assert np.abs(runs[0].u[0] - reached).min() < 1e-12 and np.all(runs[1].u[0] == held)
     U = np.array([[held, 0.0], [held + 100.0, 0.0]])   # F[1] pulsed by 100 beyond the range, F[2] held
     hint = open_source(str(fmu), interface="cs").failure_hint(U, 1)
-    assert hint.endswith("e.g. --input 'impulse:amplitude=25,t0=2,width=0.5,offset=5;none')"), hint
+    assert hint.endswith("e.g. --input \"impulse:amplitude=25,t0=2,width=0.5,offset=5;none\" or "
+                         "signal='impulse:amplitude=25,t0=2,width=0.5,offset=5;none')"), hint
 
 
 @pytest.mark.slow  # 5 s on the 2-core machine of 2026-11-28 (2.7x slower than the README's)
@@ -704,7 +707,7 @@ def test_a_model_at_rest_with_its_only_input_held_is_told_to_drive_it(tmp_path, 
     assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("fmu-opinf: error: auto window: the outputs stay constant over t <= ")
-    assert err[-1].endswith("drive an input: --inputs F (it is held at its start value now)")
+    assert err[-1].endswith("drive an input: --inputs F or inputs='F' (it is held at its start value now)")
     assert not (tmp_path / "x.h5").exists()
     assert main(["snapshots", str(fmu), "-o", str(tmp_path / "x.h5"), "--inputs", "F", "-q"]) == 0
     in_newtons = rewrite_description(built.path, tmp_path / "preloaded.fmu", lambda text: text.replace(

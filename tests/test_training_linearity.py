@@ -101,7 +101,7 @@ def test_a_hardening_spring_is_trained_at_a_lowered_amplitude_and_its_rom_is_the
     # (the first at the pilots' tolerance, then again at the recording's: model exchange, DOP853)
     assert made == [-0.1, -0.1, 0.01, -0.001, 0.0001]
     assert "training amplitude 0.1 on F: the response to the default 100 on F and -10 times the response to -10 on F" \
-        in said and "give --input impulse:amplitude=... to choose another" in said
+        in said and "give --input or signal= impulse:amplitude=... to choose another" in said
     snaps = Snapshots.load(tmp_path / "train.h5")
     assert snaps.runs[0].attrs["input_spec"].startswith("impulse:amplitude=0.1,")
     assert "recording_warnings" not in snaps.attrs
@@ -197,7 +197,8 @@ def test_a_pilot_that_fails_under_the_default_pulse_names_a_smaller_pulse(tmp_pa
         record_to_file(fmu, tmp_path / "train.h5", None, quiet=True)
     text = str(caught.value)
     assert "default pulse (amplitude 100) may drive it out of its range" in text and "\n" not in text
-    assert text.endswith("e.g. --input 'impulse:amplitude=1,t0=2,width=0.5'; no file was written"), text
+    assert text.endswith("e.g. --input \"impulse:amplitude=1,t0=2,width=0.5\" or "
+                         "signal='impulse:amplitude=1,t0=2,width=0.5'; no file was written"), text
     record_to_file(fmu, tmp_path / "small.h5", "impulse:amplitude=1,t0=2,width=0.5", dt=0.02, t_end=20.0,
                    quiet=True)
     assert not (tmp_path / "train.h5").exists() and (tmp_path / "small.h5").exists()

@@ -72,9 +72,9 @@ def test_a_miss_at_the_search_limit_advises_the_order_first(monkeypatch):
     causes = missed[0].split("): ", 1)[1]
     assert causes.startswith("the order is too small: each larger order tried lowered the miss (r=13, the closest "
                              "of r=11, 13 tried: 0.14 -> 0.066 relative RMS), and the snapshots have rank 20: fit "
-                             "with --r 20 (up to the snapshot rank 20"), causes
+                             "with --r 20 or r=20 (up to the snapshot rank 20"), causes
     assert "order suffices" not in causes and "record a stretch without them) and is linear at the training's " \
-        "amplitude (a nonlinear spring or damper law: train at a smaller amplitude, snapshots --input " \
+        "amplitude (a nonlinear spring or damper law: train at a smaller amplitude, snapshots --input or signal= " \
         "impulse:amplitude=..." in causes, causes
     assert "a nonlinearity changes it on its own" not in causes
     before = _peak_miss(rom, PULSE, exact.y)   # measured 0.043 of range
@@ -113,13 +113,14 @@ def test_the_order_comes_first_only_where_each_larger_order_lowered_the_miss():
         _warn_if_training_outputs_missed(info, 40, tried=[40, 60], rank=120,
                                          search=_search((40, 0.13), (60, 0.2)), attrs={"fmi_interface": "cs"})
     limited, other = (str(caught[0].message).split("): ", 1)[1] for caught in (first, second))
-    assert limited.startswith("the order is too small") and "--r 120 (up to the snapshot rank 120" in limited
+    assert limited.startswith("the order is too small") and "--r 120 or r=120 (up to the snapshot rank 120" in limited
     assert "above r = 60 the SDP is solved by the factored start and the fit takes minutes" in limited
     # a model-exchange recording follows the model: no co-simulation clause; positions from the model structure
     # are named after the outputs' clause
     assert "co-simulation" not in limited and limited.index("outputs follow") < limited.index("model structure")
-    assert other.startswith("check that --positions names positions only") and "order suffices (r=40" in other
-    assert "co-simulation's integrator (--interface me)" in other
+    assert other.startswith("check that --positions or positions= names positions only") and \
+        "order suffices (r=40" in other
+    assert "co-simulation's integrator (--interface me or interface='me')" in other
 
 
 @pytest.mark.fmu

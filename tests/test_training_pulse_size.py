@@ -50,8 +50,8 @@ def test_a_pulse_lost_in_the_model_s_own_motion_is_raised_and_the_rom_follows_la
     record_to_file(str(fmu.path), tmp_path / "train.h5", None, dt=DT, t_end=T_END)
     said = capsys.readouterr().err
     assert (f"amplitude {expected:.3g} on F: the 100 pulse moved the outputs by {share:.1g} of the model's own motion "
-            "(net of a run without the pulse): recording with the larger pulse; give --input at the loads you mean"
-            in said)
+            "(net of a run without the pulse): recording with the larger pulse; give --input or signal= at the loads "
+            "you mean" in said)
     snaps = Snapshots.load(tmp_path / "train.h5")
     assert snaps.runs[0].attrs["input_spec"] == f"impulse:amplitude={expected:g},t0=2,width=0.5"
     rom = fit_rom(snaps)
@@ -92,5 +92,6 @@ def test_where_the_declared_range_allows_no_larger_pulse_a_warning_gives_the_fix
     with pytest.warns(FmuOpinfWarning, match=r"capped.fmu: amplitude 100 on F \(what its declared range allows; "
                                              r"6.8e\+03 wanted\): the 100 pulse moved the outputs by 0.001 of the "
                                              r"model's own motion \(net of a run without the pulse\), and the declared "
-                                             r"range allows no larger pulse: .*give --input at the loads you mean"):
+                                             r"range allows no larger pulse: .*give --input or signal= at the loads "
+                                             r"you mean"):
         record_to_file(str(fmu), tmp_path / "train.h5", None, dt=DT, t_end=T_END, quiet=True)

@@ -110,7 +110,7 @@ def test_every_step_tried_overflowing_names_a_smaller_one(fmu):
     assert "\n" not in message
     assert ("the co-simulation overflows or diverges at every communication step the automatic window tried, down "
             "to dt=0.02 (it produced non-finite values at dt=0.02") in message, message
-    assert "give --dt below 0.02 (e.g. 0.01) and --t-end" in message, message
+    assert "give --dt or dt= below 0.02 (e.g. 0.01) and --t-end" in message, message
 
 
 def test_a_diverging_run_prints_no_numpy_warning(fmu, tmp_path, capsys):
@@ -244,8 +244,8 @@ def test_a_search_ending_while_the_difference_still_falls_names_a_smaller_step(m
     assert checked == [0.05, 0.02, 0.01] and "\n" not in message, (checked, message)
     assert ("the co-simulation diverges at dt=0.05 (it produced non-finite values at dt=0.05) and converges at "
             "smaller steps, but not yet at the smallest the automatic window tried (its outputs at dt=0.01 and "
-            "dt=0.005 differ by 0.05 of their peak over t <= 10); give --dt below 0.01 (e.g. 0.005)") in message, \
-        message
+            "dt=0.005 differ by 0.05 of their peak over t <= 10); give --dt or dt= below 0.01 (e.g. 0.005)") \
+        in message, message
 
 
 #: One mass, omega = 10 rad/s, damping ratio 0.1: explicit Euler is stable below dt = 2 zeta / omega = 0.02.
@@ -278,7 +278,7 @@ def test_explicit_euler_diverging_at_both_pilot_steps_is_called_a_divergence(eul
     assert "\n" not in message and "depends on the communication step" not in message, message
     assert "the co-simulation diverges at both communication steps the automatic window tried" in message, message
     assert "which grow too once the input is constant" in message, message
-    assert "it offers no model exchange: give --dt below 0.025 (e.g. 0.01) and --t-end" in message, message
+    assert "it offers no model exchange: give --dt or dt= below 0.025 (e.g. 0.01) and --t-end" in message, message
 
 
 def test_judging_a_pilot_that_diverges_to_huge_finite_values_does_not_warn(monkeypatch):

@@ -355,7 +355,7 @@ def test_the_warning_about_a_coefficient_input_names_its_unit_not_its_start(tmp_
     (text,) = [str(w.message) for w in record]
     assert "extraDamping" in text and "the unit of a stiffness, a damping or a mass" in text
     assert "non-zero" not in text
-    assert ("record with --inputs F and give their values with --set" in text) == driven
+    assert ("record with --inputs F or inputs='F' and give their values with --set or parameters=" in text) == driven
     assert ("held at their start values, not driven; force inputs: F" in text) == (not driven)
 
 
@@ -376,7 +376,8 @@ def test_a_pressure_driven_about_its_start_is_said_to_be_driven_as_a_load(tmp_pa
         _warn_parameter_like(source)
     texts = [str(w.message) for w in record]
     assert any(text.startswith("Pressure.fmu: p (bar, start 1) is driven as a pressure load about its start") and
-               "hold it with --inputs F,scale and give its value with --set if it is a parameter" in text
+               "hold it with --inputs \"F,scale\" or inputs='F,scale' and give its value with --set or parameters= "
+               "if it is a parameter" in text
                for text in texts), texts
     assert any("the driven input(s) scale start at non-zero values" in text for text in texts), texts
     assert not any("input(s) p" in text or "input(s) p," in text for text in texts), texts
@@ -702,7 +703,7 @@ def test_wildcards_take_each_value_once_and_an_alias_named_with_its_variable_is_
     assert _names(resolve_variables(path, inputs="F*,f*").forces) == ["F"]
     outputs = _names(resolve_variables(path, outputs="y*,s*").outputs)
     assert outputs == ["y[1]", "y[2]"]
-    with pytest.raises(FMUError, match=r"--inputs names force and F, the same input .* name it once"):
+    with pytest.raises(FMUError, match=r"--inputs or inputs= names force and F, the same input .* name it once"):
         resolve_variables(path, inputs="F,force")
 
 

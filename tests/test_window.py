@@ -402,7 +402,8 @@ def test_a_model_without_inputs_that_never_settles_is_told_to_pass_the_window(tm
     model = lti_fmus.LinearMechanicalModel(M=M, D=0.01 * K, K=K, Cp=Cp, x0=[0, 0.01, 0, -0.01],
                                            v0=[0.1, 0, 0, 0.05], name="FreeFree")
     lti_fmus.build_lti_fmu(model, tmp_path / "freefree.fmu")
-    with pytest.raises(DataError, match=r"within 2 pilot runs .*; pass --dt and --t-end \(the model has no inputs"):
+    with pytest.raises(DataError, match=r"within 2 pilot runs .*; pass --dt and --t-end or dt= and t_end= \(the model "
+                                        r"has no inputs"):
         auto_window(open_source(tmp_path / "freefree.fmu"), "none", max_pilots=2, quiet=True)
 
 
@@ -452,7 +453,7 @@ def test_model_exchange_pilots_run_at_a_looser_tolerance_and_choose_the_same_win
     with source.pilot_accuracy():   # a pilot's failure names the pilot, and a way out other than the tolerance
         failure = source._integration_failure(3, 0.0, 0.1, "step too small")
     assert "tolerance 1e-06, in a pilot run of the automatic window" in failure, failure
-    assert "give --dt and --t-end" in failure and "--tolerance" not in failure, failure
+    assert "give --dt and --t-end or dt= and t_end=" in failure and "--tolerance" not in failure, failure
 
 
 class FailsBelowStep(Oscillator):

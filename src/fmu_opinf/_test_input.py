@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._validate import either
 from .errors import FmuOpinfError, InputSpecError
 
 if TYPE_CHECKING:
@@ -64,7 +65,7 @@ SMALLEST_SCALE = 0.25
 #: Steps of a simulation of the ROM this module makes at most (the training runs and the sizing run).
 MAX_STEPS = 1_000_000
 
-_FIX = "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'"
+_FIX = f"pass a test input, e.g. {either('--input', value='harmonic:amplitude=1,omega=0.2')}"
 
 
 def default_test_input(rom: "SecondOrderROM", dt: float, t_end: float) -> tuple[str, str]:

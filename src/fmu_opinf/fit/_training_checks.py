@@ -13,6 +13,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .. import _threads
+from .._validate import ME, either
 from ..basis import PODBasis, constraint_recorded, read_columns
 from ..errors import FmuOpinfWarning
 from ..rom import SecondOrderROM
@@ -44,9 +45,10 @@ def _warn_if_inputs_alike(u: np.ndarray, names: list[str]) -> None:
             return
         what = f"the training inputs {', '.join(names)} are linearly dependent (the same signal on several?)"
     warnings.warn(f"{what}: the ROM cannot tell their effects apart and will answer independent inputs wrongly; "
-                  "record runs that drive each input on its own (e.g. --input 'impulse:amplitude=100,t0=2,"
-                  "width=0.5;none' and --input 'none;impulse:amplitude=100,t0=2,width=0.5'), as the default "
-                  "training does", FmuOpinfWarning, stacklevel=3)
+                  "record runs that drive each input on its own (e.g. "
+                  f"{either('--input', value='impulse:amplitude=100,t0=2,width=0.5;none')} and "
+                  f"{either('--input', value='none;impulse:amplitude=100,t0=2,width=0.5')}, one run each), as the "
+                  "default training does", FmuOpinfWarning, stacklevel=3)
 
 
 def _warn_if_order_below_inputs(r: int, rank: int, m: int, origin: str = "from the cumulative energy") -> None:
@@ -58,7 +60,7 @@ def _warn_if_order_below_inputs(r: int, rank: int, m: int, origin: str = "from t
     if r < m and rank > r:
         warnings.warn(f"r={r} ({origin}) is below the {m} inputs, and the snapshots have rank {rank}: "
                       f"{r} reduced coordinates follow at most {r} independent load patterns; if the inputs act "
-                      f"independently, fit with --r {min(m, rank)} (r= in Python)", FmuOpinfWarning, stacklevel=4)
+                      f"independently, fit with {either('--r', value=min(m, rank))}", FmuOpinfWarning, stacklevel=4)
 
 
 #: Ratio of the velocities' energy order to the order fitted above which a fit whose data record no constraint kind
@@ -257,7 +259,7 @@ def order_advice(r: int, rank: int) -> str:
     suggested = min(2 * r, rank)
     cost = (f"; above r = {FACTORED_ABOVE} the SDP is solved by the factored start and the fit takes minutes"
             if suggested > FACTORED_ABOVE else "")
-    return f"fit with --r {suggested} (up to the snapshot rank {rank}; r= in Python){cost}"
+    return f"fit with {either('--r', value=suggested)} (up to the snapshot rank {rank}){cost}"
 
 
 def _miss_causes(r: int, tried: Sequence[int], held: Sequence[str], unrefined: bool, unexplained: dict | None,
@@ -265,7 +267,7 @@ def _miss_causes(r: int, tried: Sequence[int], held: Sequence[str], unrefined: b
     """The clauses of :func:`_warn_if_training_outputs_missed`, likeliest first."""
     order = f"r={r}" + (f", the closest of r={', '.join(map(str, tried))} tried" if tried else "")
     if unrefined:
-        order += "; the SDP solution unrefined (--no-refine): the refinement may reach them"
+        order += f"; the SDP solution unrefined ({either('--no-refine')}): the refinement may reach them"
     first: list[str] = []
     if order_limited(r, rank, search) and rank is not None:
         figures = " -> ".join(f"{math.sqrt(entry['judged']):.2g}" for entry in search)
@@ -276,26 +278,26 @@ def _miss_causes(r: int, tried: Sequence[int], held: Sequence[str], unrefined: b
                           list(zip(unexplained["names"], unexplained["residuals"]))[:6])
         first.append(f"check the outputs no linear map of the recorded states gives ({shown} of their variation left "
                      "by least squares from the positions, velocities, inputs and a constant): a nonlinear output (a "
-                     "drag force, a clipped or saturated sensor: record without it, snapshots --outputs) or a state "
-                     "not recorded (--positions)")
+                     f"drag force, a clipped or saturated sensor: record without it, snapshots {either('--outputs')}) "
+                     f"or a state not recorded ({either('--positions')})")
     verb, its, it = ("is", "its", "it") if len(held) == 1 else ("are", "their", "them")
     if held:
         first.append(f"check that no output is held between samples ({', '.join(held)} {verb}: eq. 17 cannot follow "
                      f"{its} steps; record without {it})")
-    positions = "that --positions names positions only (a velocity or a force among them cannot be fitted)"
+    positions = f"that {either('--positions')} names positions only (a velocity or a force among them cannot be fitted)"
     from_structure = "model structure" in str(_selection(attrs).get("positions", ""))
     rest = [] if from_structure else [positions]
     if not order_limited(r, rank, search):
-        rest.append(f"that the order suffices ({order}; --r)")
+        rest.append(f"that the order suffices ({order}; {either('--r')})")
     rest.append("that the outputs follow from the recorded positions and velocities")
     if from_structure:   # (read from the FMU's model structure: a mistake there is less likely)
-        rest.append("that the positions read from the model structure are positions only (--positions)")
+        rest.append(f"that the positions read from the model structure are positions only ({either('--positions')})")
     if str(attrs.get("fmi_interface", "")) != "me":   # (a model-exchange recording follows the model itself)
-        rest.append("that the recording follows the model, not a co-simulation's integrator (--interface me)")
+        rest.append(f"that the recording follows the model, not a co-simulation's integrator ({ME})")
     rest.append("that the model changes only with its inputs (an internal event, a force on a timer or a "
                 "time-varying parameter changes it on its own: record a stretch without them) and is linear at "
                 "the training's amplitude (a nonlinear spring or damper law: train at a smaller amplitude, "
-                "snapshots --input impulse:amplitude=..., where the ROM is to serve small motions)")
+                f"snapshots {either('--input')} impulse:amplitude=..., where the ROM is to serve small motions)")
     return first + ["check " + ", ".join(rest[:-1]) + ", and " + rest[-1]]
 
 
@@ -323,7 +325,7 @@ def _warn_nonlinear_outputs(linearity: dict) -> None:
     verb, its, them = ("is", "its", "it") if len(names) == 1 else ("are", "their", "them")
     share = f"{min(residuals):.2g}" + (f" .. {max(residuals):.2g}" if len(residuals) > 1 else "")
     if linearity.get("left_out"):
-        done = (f"the output-error refinement, the least-squares candidate's choice and --terms auto judge the fit "
+        done = (f"the output-error refinement, the least-squares candidate's choice and terms 'auto' judge the fit "
                 f"without {them}, and the ROM gives {them} by a linear least-squares fit from its states, inputs and "
                 "a constant (eq. 17)")
     else:
@@ -499,8 +501,9 @@ def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | N
                  f"training step dt={dt:g} resolves: the training samples cannot show whether its frequency and "
                  f"damping are right, and it can ring in outputs it reaches (accelerations, forces); ")
         fix = ("fit a smaller r (dt is the FMU's fixed communication step: it takes no finer one)" if fixed else
-               f"record with --dt {nice_floor(math.pi / omega):g} or below"
-               + (f" and --t-end {t_end:g} (this recording's end: at the finer step the automatic window's "
+               f"record with {either('--dt', value=float(f'{nice_floor(math.pi / omega):g}'))} (or a smaller step)"
+               + (f" and {either('--t-end', value=float(f'{t_end:g}'))} (this recording's end: at the finer step the "
+                  "automatic window's "
                   "pilots may not reach it)" if t_end else "") + ", or fit a smaller r")
         warnings.warn(found + fix, FmuOpinfWarning, stacklevel=3)
 

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import POSITIONS_VELOCITIES, either, patterns_said
 from ..errors import FMUError, FmuOpinfWarning
 from ..sources._variables import _DEPENDENCIES, _LOCAL_STEMS, _PATTERN_X
 from ._first_order import refuse_first_order_rates
@@ -174,8 +175,8 @@ def _near_rates(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[st
             f"where a velocity (a smooth rate) leaves {step_explains(v[[j]])[0]:.1g} at this step")
     if np.any(misfit[off] > bounds[off]):
         return (f"the guessed pairing is wrong: {what} (a rate plus an offset, or a first-order state that jumps "
-                "with an input?); pass --positions and --velocities naming the mechanical states, or the positions "
-                "alone with --positions (velocities derived)")
+                f"with an input?); pass {POSITIONS_VELOCITIES} naming the mechanical states, or the positions "
+                f"alone with {either('--positions')} (velocities derived)")
     states = set(names["positions"]) | set(names["velocities"])
     if all(derivative_names) and not set(derivative_names) & states:
         return Repair(list(names["positions"]), list(derivative_names), "",  # type: ignore[arg-type]
@@ -254,14 +255,14 @@ def _repair(x: np.ndarray, v: np.ndarray, h: float, names: dict[str, list[str]],
                 "are no combination of the positions' rates: the states are no positions and velocities (a state "
                 "space in other coordinates, or non-mechanical states), and fmu-opinf learns M x'' + D x' + K x = "
                 "B u from those; export the model with its mechanical states (positions and their velocities), or, "
-                "where some states are, pass --positions and --velocities naming them")
+                f"where some states are, pass {POSITIONS_VELOCITIES} naming them")
     if len(states) <= MAX_PAIRED:
         partly = partial_pairing_problem(np.vstack([x, v]), h, states, where)
         if partly is not None:
             return partly
     why = ("the data pair no states" if len(states) <= MAX_PAIRED else
            f"too many states ({len(states)}) to pair by the data")
-    return f"cannot tell positions from velocities: {where}, and {why}; pass --positions and --velocities"
+    return f"cannot tell positions from velocities: {where}, and {why}; pass {POSITIONS_VELOCITIES}"
 
 
 #: Repairs of one run at most: a pairing and then stale accelerations (a co-simulation FMU without inputs whose
@@ -344,14 +345,14 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
         cause = verdict.reason.split("; ")[0]
         message = (f"{cause}, also after {repairs} repairs" if repairs >= MAX_REPAIRS else
                    f"{cause}; too many positions ({source.n}) to pair by the data")
-        message += "; pass --positions and --velocities"
+        message += f"; pass {POSITIONS_VELOCITIES}"
     if guessed or repairs:
         raise FMUError(f"{source_label(source)}: {message}")
     if whole and v is not None and not structure:   # the data do not overrule the FMU's model structure
         pairing = pairing_the_data_show(x, v, float(t[1] - t[0]), names)
         if pairing is not None:  # the user's pairing is contradicted by one the data make at this very step
             raise FMUError(f"{source_label(source)}: {message}, but the data pair them at this step: pass "
-                           f'--positions "{",".join(pairing[0])}" --velocities "{",".join(pairing[1])}"')
+                           + patterns_said(positions=",".join(pairing[0]), velocities=",".join(pairing[1])))
     if (getattr(selection, "linked", False) or structure) and not isinstance(verdict, Repair):
         # the FMU itself declares each velocity the derivative of its position: the step is what fails
         declares = ("declares each velocity the derivative of its position" if not structure else
@@ -366,10 +367,10 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
             return None
         warnings.warn(f"{source_label(source)}: {message}, though the FMU {declares}: the step dt="
                       f"{float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above half the sampling "
-                      "rate); record at a smaller --dt", FmuOpinfWarning, stacklevel=3)
+                      f"rate); record at a smaller {either('--dt')}", FmuOpinfWarning, stacklevel=3)
         return None
-    warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless --velocities name "
-                  "the positions' rates", FmuOpinfWarning, stacklevel=3)
+    warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless {either('--velocities')} "
+                  "name the positions' rates", FmuOpinfWarning, stacklevel=3)
     return None
 
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import POSITIONS_VELOCITIES, either, patterns_said
 from ..errors import FMUError
 from ..sources._base import few_names
 
@@ -114,15 +115,16 @@ def first_order_problem(rows: list[int], names: dict[str, list[str]], how: str) 
     states = few_names([positions[i] for i in rows])
     verb = "is" if len(rows) == 1 else "are"
     kept = [i for i in range(len(positions)) if i not in set(rows)]
-    every = f'--positions "{",".join(positions)}" --velocities "{",".join(velocities)}"'
-    advice = (f'to record the mechanical states, pass --positions "{",".join(positions[i] for i in kept)}" '
-              f'--velocities "{",".join(velocities[i] for i in kept)}" (the ROM then lacks {states}\'s lag where it '
+    every = patterns_said(positions=",".join(positions), velocities=",".join(velocities))
+    mechanical = patterns_said(positions=",".join(positions[i] for i in kept),
+                               velocities=",".join(velocities[i] for i in kept))
+    advice = (f"to record the mechanical states, pass {mechanical} (the ROM then lacks {states}'s lag where it "
               f"drives the masses); to keep {states} as a coordinate, approximated by a stiff mass, pass {every}"
-              if kept else "pass --positions/--velocities naming the mechanical states")
+              if kept else f"pass {POSITIONS_VELOCITIES} naming the mechanical states")
     return (f"{shown} (a mass's velocity is not: it carries the history of the forces): {states} {verb} a "
             "first-order state, neither positions nor velocities (an actuator lag, a filter or a controller state?), "
             f"which a reduced model of the mechanical states cannot follow; {advice} (a mass so damped that its "
-            "velocity settles within one step looks the same: if that is one, record at a smaller --dt)")
+            f"velocity settles within one step looks the same: if that is one, record at a smaller {either('--dt')})")
 
 
 def refuse_first_order_rates(label: str, x: np.ndarray, v: np.ndarray, u: np.ndarray | None,

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import ME, either
 from ._isolation import source_label
 from ._rate_tests import _BLOCK, RateSums, _quiet_overflow
 
@@ -44,14 +45,14 @@ def warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, sum
     if not (euler <= EULER_EXACT and trapezoidal >= EULER_TRAPEZOIDAL_MISS):
         return
     if offers_model_exchange(source):
-        remedy = "record by model exchange (--interface me)"
+        remedy = f"record by model exchange ({ME})"
     elif fixed_communication_step(source) is not None:
         remedy = ("its communication step is fixed and it offers no model exchange: export it with a smaller step or "
                   "a higher-order solver")
     elif _fixed_internal_step(source) is not None:   # a smaller --dt takes the same internal steps (audit 73 F4)
         remedy = _FIXED_INTERNAL_REMEDY
     else:
-        remedy = "record at a smaller --dt (the error shrinks like dt; it offers no model exchange)"
+        remedy = f"record at a smaller {either('--dt')} (the error shrinks like dt; it offers no model exchange)"
     rule = "start" if forward <= backward else "end"
     warn_recording(f"{source_label(source)}: the co-simulation takes one Euler step per communication step (each "
                    f"position moves by dt={h:g} times its velocity at the {rule} of the step, to {euler:.1e}; an "
@@ -68,8 +69,8 @@ def warn_if_euler_steps(source: Any, x: np.ndarray, v: np.ndarray, h: float, sum
 INTERNAL_RULE_MARGIN = 0.1
 #: The fix for a co-simulation whose fixed internal step follows a low-order integrator and that offers no model
 #: exchange: no communication step changes its internal one.
-_FIXED_INTERNAL_REMEDY = ("its internal step is fixed (a smaller --dt takes the same steps) and it offers no model "
-                          "exchange: export it with a smaller fixedInternalStepSize or a higher-order solver")
+_FIXED_INTERNAL_REMEDY = (f"its internal step is fixed (a smaller {either('--dt')} takes the same steps) and it offers "
+                          "no model exchange: export it with a smaller fixedInternalStepSize or a higher-order solver")
 
 
 def _fixed_internal_step(source: Any) -> float | None:
@@ -163,7 +164,7 @@ def warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a: 
         return   # said for an earlier run
     label = f"{source_label(source)}: the co-simulation"
     where = f"{steps} steps of its fixedInternalStepSize={internal:g} per communication step dt={dt:g}"
-    remedy = "record by model exchange (--interface me)" if offers_model_exchange(source) else _FIXED_INTERNAL_REMEDY
+    remedy = f"record by model exchange ({ME})" if offers_model_exchange(source) else _FIXED_INTERNAL_REMEDY
     if euler <= INTERNAL_RULE_MARGIN * accurate:
         warn_recording(f"{label} takes {where} by explicit Euler (their rule fits the position increments to "
                        f"{euler:.1e}, an accurate integration's misses by {accurate:.1e}): the recording follows "
@@ -176,7 +177,8 @@ def warn_if_internal_steps(source: Any, x: np.ndarray, v: np.ndarray | None, a: 
            else f"the data cannot tell its integrator from an accurate one (explicit Euler's rule misses by "
                 f"{euler:.1e}, an accurate integration's by {accurate:.1e})")
     fix = (remedy if offers_model_exchange(source) or a is None else
-           f"fit with --no-refine (the SDP then fits the FMU's derivatives at the recorded states, not its steps), or "
+           f"fit with {either('--no-refine')} (the SDP then fits the FMU's derivatives at the recorded states, not its "
+           "steps), or "
            f"{remedy.split(': ', 1)[1]}")
     warn_recording(f"{label} integrates with {where} and the recording follows them; {why}: where that "
                    f"integrator is a low-order one (Euler), {fix}", "internal-step", stacklevel=4)

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import either
 from ..signals import Signal
 from ..sources import Source
 
@@ -273,8 +274,8 @@ def _lowered_line(source: Source, amplitudes: Sequence[float], lowered: Sequence
     """The line said where the training amplitude is lowered (:func:`linear_amplitudes`)."""
     return (f"training amplitude {_amplitudes_said(source, lowered)}: {_compared(source, amplitudes, sign)} differ "
             f"by {measured[0]:.2g}: the model is linear only near its start; recording at the largest amplitude, in "
-            f"decades down, whose response scales (to {measured[-1]:.2g}); give --input impulse:amplitude=... to "
-            "choose another")
+            f"decades down, whose response scales (to {measured[-1]:.2g}); give {either('--input')} "
+            "impulse:amplitude=... to choose another")
 
 
 def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[float], sign: float) -> str:
@@ -286,8 +287,8 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
     return (f"{source_label(source)}: the response does not scale with the input: "
             f"{_compared(source, amplitudes, sign)} differ by {measured[0]:.2g}{lower} (friction, a contact at the "
             "rest position, or a saturation below the smallest pulse tried): the model is not linear, and a ROM fits "
-            "it only near one amplitude; recording at the default amplitude (give --input impulse:amplitude=... at the "
-            "loads you mean)")
+            f"it only near one amplitude; recording at the default amplitude (give {either('--input')} "
+            "impulse:amplitude=... at the loads you mean)")
 
 
 def input_departures(source: Source, signal: Any, t: np.ndarray) -> np.ndarray:
@@ -425,7 +426,7 @@ def _given_not_linear(source: Source, signal: Any, held: np.ndarray, measured: S
         lower = f", and by {', '.join(f'{m:.2g}' for m in measured[1:])} a decade lower each" if measured[1:] else ""
         return (f"{head}{lower} (friction, a contact at the rest position, or a saturation below the smallest input "
                 f"tried): the model is not linear, and a ROM fits it only near this amplitude; {recorded} (give "
-                "--input at the loads the ROM is meant for)")
+                f"{either('--input')} at the loads the ROM is meant for)")
     smaller = _scaled_spec(signal, held, abs(factor))
     example = f", e.g. '{smaller}'" if smaller else ""
     return (f"{head}: the model is linear only near its start, and a ROM fitted to this recording fits that large "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._validate import POSITIONS_VELOCITIES, either, patterns_said
 from ..sources._base import few_names
 from ._rate_tests import _QUIET, MISMATCH, Repair, rate_mismatch
 
@@ -119,10 +120,12 @@ def _chains(rate: dict[int, int], n: int) -> tuple[list[int], list[int], list[in
 
 def _options_text(names: list[str], positions: list[int], velocities: list[int],
                   accelerations: list[int] | None) -> str:
-    """``--positions ... --velocities ... [--accelerations ...]`` naming the rows given."""
-    text = (f'--positions "{",".join(names[i] for i in positions)}" '
-            f'--velocities "{",".join(names[j] for j in velocities)}"')
-    return text + (f' --accelerations "{",".join(names[k] for k in accelerations)}"' if accelerations else "")
+    """``--positions ... --velocities ... [--accelerations ...]`` naming the rows given, or the keywords."""
+    patterns = {"positions": ",".join(names[i] for i in positions),
+                "velocities": ",".join(names[j] for j in velocities)}
+    if accelerations:
+        patterns["accelerations"] = ",".join(names[k] for k in accelerations)
+    return patterns_said(**patterns)
 
 
 def _few_pairs(names: list[str], positions: list[int], velocities: list[int]) -> str:
@@ -149,7 +152,7 @@ def partial_pairing_problem(rows: np.ndarray, h: float, names: list[str], where:
         return (f"cannot tell positions from velocities: {where}; by the data "
                 f"{_few_pairs(names, positions, velocities)}, but {_shown(names, weak)} are not excited in this "
                 f"recording (they or the rows they match peak below {_WEAK:g} of the largest): excite them (an input "
-                "or a start that moves them) or pass the pairing with --positions and --velocities")
+                f"or a start that moves them) or pass the pairing with {POSITIONS_VELOCITIES}")
     return (f"cannot tell positions from velocities: {where}; by the data {_few_pairs(names, positions, velocities)}"
             f", but {_shown(names, [k for k in left if k not in weak])} pair with none: neither positions nor "
             "velocities (an actuator lag, a filter or a controller state?), which a reduced model of the mechanical "
@@ -200,7 +203,7 @@ def rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Repair |
     if left:
         return (f"velocities among the positions: {pairs} by the data, and {_shown(names, left)} pair with none; pass "
                 f"{_options_text(names, positions, velocities, accelerations)} (the states left out, if dynamic, "
-                "the reduced model cannot follow), or the positions alone with --positions")
+                f"the reduced model cannot follow), or the positions alone with {either('--positions')}")
     return Repair([names[i] for i in positions], [names[j] for j in velocities],
                   ",".join(names[k] for k in accelerations) if accelerations else "",
                   f"velocities among the positions guessed by name (the FMU declares no states): {pairs} by the "
@@ -227,8 +230,8 @@ def _near_rates_among_positions(x: np.ndarray, h: float, names: list[str]) -> Re
                       "and their rates (velocities of another coordinate system, like v + c x); recorded: "
                       f"{_shown(names, positions)} as the positions, velocities and accelerations derived")
     return (f"positions that may hold velocities of another coordinate system: {offsets}, but no rate; pass "
-            f'--positions "{",".join(names[i] for i in positions)}" (velocities derived) if those are the '
-            "positions, or --positions and --velocities naming the mechanical states")
+            f'{patterns_said(positions=",".join(names[i] for i in positions))} (velocities derived) if those are the '
+            f"positions, or {POSITIONS_VELOCITIES} naming the mechanical states")
 
 
 def combination_misfit(p: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:

@@ -45,7 +45,7 @@ def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
     check_grid(dt, t_end, t0)  # e.g. an FMU's default step of 1e-300: one line instead of a MemoryError
     k = int(math.floor((t_end - t0) / dt * (1 + 1e-12) + 1e-9)) + 1
     if k < 2:
-        raise InputSpecError(f"step dt={dt} is longer than the time window {t_end - t0}; decrease --dt")
+        raise InputSpecError(f"step dt={dt} is longer than the time window {t_end - t0}; decrease {either('--dt')}")
     return t0 + dt * np.arange(k)
 
 
@@ -69,7 +69,7 @@ def inputs_in_effect(signal: Any, t: np.ndarray, m: int) -> np.ndarray:
     if sampled.shape[1] != len(t):
         raise DimensionError(f"signal.sample returned {sampled.shape[1]} samples for {len(t)} times")
     if not np.all(np.isfinite(sampled)):
-        raise InputSpecError("the input signal has non-finite values; check --input")
+        raise InputSpecError(f"the input signal has non-finite values; check {either('--input')}")
     held = np.empty_like(sampled)
     held[:, 0] = sampled[:, 0]
     held[:, 1:] = sampled[:, :-1]

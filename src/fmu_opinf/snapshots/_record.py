@@ -29,6 +29,7 @@ import h5py
 import numpy as np
 
 from .._hdf5 import ensure_space, tool_versions, write_attrs
+from .._validate import DT_T_END, ME, either
 from .._progress import Progress
 from ..errors import DataError, FMUError, FmuOpinfError, FmuOpinfWarning, InputSpecError
 from ..signals import NoInput, Signal, StackedSignal, parse_signal, pulse_amplitude
@@ -523,8 +524,8 @@ def open_recorded_source(spec: Source | str | os.PathLike, options: dict[str, An
     given = [key for key, value in options.items() if value is not None and key != "start_time"]
     if isinstance(spec, Source) and given:
         raise InputSpecError(f"{given[0]}= applies where the source is given as a path or spec, but "
-                             f"{source_label(spec)} is an opened source, recorded as opened; give the source as its path or "
-                             f"spec, or open it with open_source(spec, {given[0]}=...)")
+                             f"{source_label(spec)} is an opened source, recorded as opened; give the source as its "
+                             f"path or spec, or open it with open_source(spec, {given[0]}=...)")
     return open_source(spec, **options)
 
 
@@ -1376,7 +1377,8 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
             warnings.warn(f"{source_label(source)}: the FMU's DefaultExperiment stepSize={dt:g} is the step recorded, "
                           f"coarser than the automatic window's dt={window.dt:g} ({window.points_per_period:g} points "
                           f"per period of the fastest significant frequency {window.f_max:.4g} Hz); pass "
-                          f"--dt {window.dt:g} to resolve it", FmuOpinfWarning, stacklevel=2)
+                          f"{either('--dt', value=float(f'{window.dt:g}'))} to resolve it", FmuOpinfWarning,
+                          stacklevel=2)
         elif fixed is not None or dt_given:
             _warn_if_unresolved(source, window, dt, fixed is not None and not dt_given)
         if step_declared and fixed is None and (t_end or window.t_end) / dt > DECLARED_STEP_SAMPLES:
@@ -1471,8 +1473,8 @@ def _too_many_samples(source: Source, dt: float, t_end: float | None) -> bool:
     if end is None or end / dt <= DECLARED_STEP_SAMPLES:
         return False
     warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={dt:g} up to t={end:g} would make "
-                  f"{end / dt:.3g} samples per run; the automatic window chooses the step instead (pass --dt {dt:g} "
-                  "to keep it)", FmuOpinfWarning, stacklevel=3)
+                  f"{end / dt:.3g} samples per run; the automatic window chooses the step instead (pass "
+                  f"{either('--dt', value=float(f'{dt:g}'))} to keep it)", FmuOpinfWarning, stacklevel=3)
     return True
 
 
@@ -1489,8 +1491,8 @@ def _declared_step_multiple(source: Source, declared: float, window_dt: float, t
     why = (f"up to the window's end t={t_end:g} would make {t_end / declared:.3g} samples per run"
            if reason == "samples" else "bounds nothing in model exchange (the integrator chooses its own steps)")
     warnings.warn(f"{source_label(source)}: its DefaultExperiment stepSize={declared:g} {why}; recording at "
-                  f"dt={step:g}, the multiple of it within the automatic window's dt={window_dt:g} (pass --dt "
-                  f"{declared:g} to keep it)", FmuOpinfWarning, stacklevel=3)
+                  f"dt={step:g}, the multiple of it within the automatic window's dt={window_dt:g} (pass "
+                  f"{either('--dt', value=float(f'{declared:g}'))} to keep it)", FmuOpinfWarning, stacklevel=3)
     return step
 
 
@@ -1503,12 +1505,13 @@ def _warn_if_unresolved(source: Source, window: Any, dt: float, fixed: bool) -> 
         return
     if fixed:
         what = f"the FMU's fixed communication step {dt:g}"
-        fix = ("; its model exchange (--interface me) has no fixed step"
+        fix = (f"; its model exchange ({ME}) has no fixed step"
                if offers_model_exchange(source) else
                "; no other step is possible: compare the ROM on the modes it resolves")
     else:
-        what = f"--dt {dt:g}"
-        fix = f"; a smaller --dt resolves it, e.g. {nice_floor(1.0 / (window.points_per_period * window.f_max)):g}"
+        what = f"the step dt={dt:g}"
+        smaller = float(f"{nice_floor(1.0 / (window.points_per_period * window.f_max)):g}")
+        fix = f"; a smaller step resolves it, e.g. {either('--dt', value=smaller)}"
     warnings.warn(f"{source_label(source)}: {what} gives {points:.3g} samples per period of the fastest significant "
                   f"frequency {window.f_max:.4g} Hz seen at that step (the automatic window asks for "
                   f"{window.points_per_period:g}){fix}", FmuOpinfWarning, stacklevel=3)
@@ -1564,7 +1567,8 @@ def _with_smaller_pulse_advice(error: StepError, source: Source, amplitudes: Seq
     smaller = DEFAULT_TRAINING_INPUT.replace("amplitude=100", f"amplitude={abs(amplitudes[0]) / 100:g}")
     said = ", ".join(f"{a:g}" for a in amplitudes)
     return StepError(f"{head}; if the model is linear only near rest, the default pulse (amplitude {said}) may "
-                     f"drive it out of its range: give a smaller one, e.g. --input '{smaller}'{end}", error.step,
+                     f"drive it out of its range: give a smaller one, e.g. {either('--input', value=smaller)}{end}",
+                     error.step,
                      error.time)
 
 
@@ -1723,11 +1727,12 @@ def _say_raised(source: Source, said: list[str], raised: bool, quiet: bool) -> N
     larger pulse, a warning with the fix."""
     text = "; ".join(said)
     if raised and not quiet:
-        print(f"{text} (net of a run without the pulse): recording with the larger pulse; give --input at the loads "
-              "you mean to choose them", file=sys.stderr)
+        print(f"{text} (net of a run without the pulse): recording with the larger pulse; give "
+              f"{either('--input')} at the loads you mean to choose them", file=sys.stderr)
     elif not raised:
         warnings.warn(f"{source_label(source)}: {text} (net of a run without the pulse), and the declared range "
-                      "allows no larger pulse: the ROM may miss larger loads; give --input at the loads you mean",
+                      f"allows no larger pulse: the ROM may miss larger loads; give {either('--input')} at the loads "
+                      "you mean",
                       FmuOpinfWarning, stacklevel=4)
 
 
@@ -1863,7 +1868,8 @@ def _say_moving(baseline: Any, said: list[str], thresholds: dict[str, Any]) -> N
         said.append(baseline.moving)
         if not thresholds.get("quiet"):
             print(f"the outputs move without the pulse ({baseline.moving}: a constant load inside the model, a "
-                  "non-zero input start or a --set value): judging the response to the default impulse net of that "
+                  f"non-zero input start or a {either('--set')} value): judging the response to the default impulse "
+                  "net of that "
                   "motion", file=sys.stderr)
 
 
@@ -1886,9 +1892,9 @@ def _load_error(source: Source, still_moving_at: float, thresholds: dict[str, An
         return _accelerates_error(source, drift)
     size = (None if held is None else largest_motion(source, *held)) or f"over t <= {still_moving_at:g}"
     return (f"{source_label(source)}: the response to the constant load dominates (without the pulse the outputs "
-            f"move, {size}: a load inside the model, a non-zero input start or a --set value), and no widening of "
-            "the default impulse finds a window even net of it; give --dt and --t-end for the window to record (the "
-            "fit learns the constant force); no file was written")
+            f"move, {size}: a load inside the model, a non-zero input start or a {either('--set')} value), and no "
+            f"widening of the default impulse finds a window even net of it; give {DT_T_END} for the window to "
+            "record (the fit learns the constant force); no file was written")
 
 
 def _accelerates_error(source: Source, drift: str) -> str:
@@ -1896,7 +1902,7 @@ def _accelerates_error(source: Source, drift: str) -> str:
     own constant load (:func:`~fmu_opinf.snapshots._window.accelerates_under_load`: ``drift`` says how it grows)."""
     return (f"{source_label(source)}: the model accelerates under its own constant load (a free body under gravity "
             f"or thrust: {drift}), and no widening of the default impulse finds a window even net of that drift; "
-            "give --dt and --t-end for the window to record (the fit learns the constant force); no file was written")
+            f"give {DT_T_END} for the window to record (the fit learns the constant force); no file was written")
 
 
 def _held_at_bounds(source: Source) -> list[str]:
@@ -1919,8 +1925,8 @@ def _pushed_without_rest(pushing: list[str], slow: Any) -> str:
     recorded with a wider impulse (audit 65, finding 1: refused at the first try, it was called a free body)."""
     return (f"the default training holds {'; '.join(pushing)}: a constant force, and the response keeps moving "
             f"under it (a free body drifts; it still moved at t={slow.still_moving_at:g}), so no window can wait "
-            "for it to settle; give --dt and --t-end for the window to record (the fit learns the constant force), "
-            "or an --input per run")
+            f"for it to settle; give {DT_T_END} for the window to record (the fit learns the constant force), "
+            f"or an input per run ({either('--input')})")
 
 
 def _narrower_width(window: "Window", width: float | None, thresholds: dict[str, Any]) -> float | None:
@@ -2042,6 +2048,7 @@ def check_input_acts(signal: Any, t: np.ndarray) -> None:
             step = t[1] - t[0] if t.size > 1 else 0.0
             raise InputSpecError(
                 f"input {getattr(part, 'spec', repr(part))!r} is zero at every sample of the grid dt={step:g}, t_end={t[-1]:g}: it acts "
-                "outside the window or between two samples, so the FMU would never be driven; give --t-end past "
-                "its active part and a --dt that resolves it, or scale the input (t0, width) to the model's time "
+                "outside the window or between two samples, so the FMU would never be driven; give "
+                f"{either('--t-end')} past its active part and {either('--dt')} that resolves it, or scale the input "
+                "(t0, width) to the model's time "
                 "scale; no file was written")

@@ -24,6 +24,7 @@ import numpy as np
 
 from .._hdf5 import SPACE_MARGIN, free_space
 from .._progress import duration_text
+from .._validate import DT_T_END, either
 from ..errors import FileFormatError, FmuOpinfWarning
 
 __all__ = ["LARGE_BYTES", "LONG_SECONDS", "SMALLEST_COMPRESSION", "after_first_run", "announce", "note_pace",
@@ -137,8 +138,8 @@ def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, s
         runs = ("the pilot runs' (a rough guide: model exchange runs them at a looser tolerance)" if pace[1]
                 else "the runs recorded so far")
         what += f", about {duration_text(seconds)} at {1e3 * pace[0]:.2g} ms per sample, {runs}"
-    cuts = ("to cut them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs (one run "
-            "each), --dt and --t-end for fewer samples")
+    cuts = (f"to cut them: {either('--outputs')} or {either('--positions')} to record fewer rows, "
+            f"{either('--inputs')} to drive fewer inputs (one run each), {DT_T_END} for fewer samples")
     return f"{what}; {cuts}"
 
 

@@ -10,6 +10,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .._validate import DT_T_END, ME, either
 from ..errors import DataError, InputSpecError
 from ..signals import NoInput
 from ..sources import Source, fixed_communication_step, offers_model_exchange, open_source
@@ -98,8 +99,9 @@ def default_window(source: Source, dt: float | None, t_end: float | None) -> tup
     if t_end is None and experiment is not None and experiment.stopTime is not None:
         t_end = float(experiment.stopTime) - float(experiment.startTime or 0.0)  # runs start at t = 0
     if dt is None or t_end is None:
-        missing = " and ".join(n for n, v in (("--dt", dt), ("--t-end", t_end)) if v is None)
-        raise InputSpecError(f"no {missing} given and the source has no default; pass {missing} or --auto-window")
+        missing = " and ".join(either(n) for n, v in (("--dt", dt), ("--t-end", t_end)) if v is None)
+        raise InputSpecError(f"no {missing} given and the source has no default; pass {missing}, or "
+                             f"{either('--auto-window')}")
     return float(dt), float(t_end)
 
 
@@ -570,7 +572,7 @@ def auto_window(
     if not periods > 0:
         raise InputSpecError(f"periods={periods} must be positive")
     if source.p == 0:
-        raise DataError("the source has no outputs; auto window needs outputs to analyse (pass --outputs)")
+        raise DataError(f"the source has no outputs; auto window needs outputs to analyse (pass {either('--outputs')})")
     t_input, width = input_activity(signal, source.m)
     max_dt, exact_dt = _step_limit(source, max_dt, exact_dt)
     T, dt = _first_pilot(source, t_input, width, pilot_dt, pilot_t_end, max_dt, exact_dt)
@@ -675,12 +677,12 @@ def auto_window(
             raise PulseTooNarrow(f"auto window: the training pulse (width {width:g}) is far shorter than the model's "
                                  f"dynamics (fastest significant frequency {seen.f_max:.3g}, still moving at "
                                  f"t={t[-1]:g}): resolving it would take over {max_steps / 64:g} steps per pilot; give an input on the "
-                                 "model's time scale (a wider impulse, later t0), or --dt and --t-end", float(t[-1]))
+                                 f"model's time scale (a wider impulse, later t0), or {DT_T_END}", float(t[-1]))
         T = float(f"{T_next:.6g}") if t_limit is None else min(float(f"{T_next:.6g}"), float(t_limit))
-    fix = (f"pass --t-end (every pilot ran at the step dt={dt:g})" if exact_dt else
-           "pass --dt and --t-end, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
+    fix = (f"pass {either('--t-end')} (every pilot ran at the step dt={dt:g})" if exact_dt else
+           f"pass {DT_T_END}, or an input on the model's time scale (a wider impulse, later t0: a narrow pulse "
            "keeps the step small)" if source.m else
-           "pass --dt and --t-end (the model has no inputs: its free response from the start state is recorded)")
+           f"pass {DT_T_END} (the model has no inputs: its free response from the start state is recorded)")
     raise DataError(f"auto window: the output does not settle or is not resolved within {max_pilots} pilot runs "
                     f"of at most {max_steps} steps (last dt={dt:g}, t_end={T:g}); {fix}")
 
@@ -751,8 +753,8 @@ def _step_dependence_error(source: Source, check: _StepCheck, T: float, before: 
     """The one-line refusal of :func:`check_step_convergence` for what ``check`` found over ``t <= T`` (``before``:
     what coarser steps did, ahead of it)."""
     offers_me = offers_model_exchange(source)
-    remedy = ("use its model exchange (--interface me), or give --dt and --t-end" if offers_me else
-              "it offers no model exchange: give --dt and --t-end")
+    remedy = (f"use its model exchange ({ME}), or give {DT_T_END}" if offers_me else
+              f"it offers no model exchange: give {DT_T_END}")
     if check.late:
         return DataError(f"{source_label(source)}: its co-simulation outputs lag its states by one communication "
                          f"step ({check.found} over t <= {T:g}), so a recording's outputs are dt late; {remedy} to "
@@ -895,11 +897,12 @@ def _unconverged_error(source: Source, unstable: _StepCheck, check: _StepCheck, 
     """The one-line refusal of :func:`pilot_step` where the search ended (``tries``, ``max_steps``) at a step whose
     runs stay bounded and converge, but not yet within the threshold: the fix names a step below it."""
     step = check.dt
-    remedy = "use its model exchange (--interface me), or " if offers_model_exchange(source) else ""
+    remedy = f"use its model exchange ({ME}), or " if offers_model_exchange(source) else ""
     return DataError(f"{source_label(source)}: the co-simulation diverges at dt={unstable.dt:g} ({unstable.found}) "
                      f"and converges at smaller steps, but not yet at the smallest the automatic window tried "
-                     f"({check.found} over t <= {T:g}); {remedy}give --dt below {step:g} (e.g. "
-                     f"{nice_floor(step / 2.0):g}) and --t-end to record at a step of your choice; no file was written")
+                     f"({check.found} over t <= {T:g}); {remedy}give {either('--dt')} below {step:g} (e.g. "
+                     f"{nice_floor(step / 2.0):g}) and {either('--t-end')} to record at a step of your choice; no file "
+                     "was written")
 
 
 def _diverges_at_both_error(source: Source, check: _StepCheck, T: float) -> DataError:
@@ -908,11 +911,12 @@ def _diverges_at_both_error(source: Source, check: _StepCheck, T: float) -> Data
     (audit 63, finding 8: 'differ by 6.5e+21 of their peak' was called step dependence); the fix names a step
     below both."""
     step = check.dt / 2.0
-    remedy = ("use its model exchange (--interface me), or give --dt" if offers_model_exchange(source) else
-              "it offers no model exchange: give --dt")
+    remedy = (f"use its model exchange ({ME}), or give {either('--dt')}" if offers_model_exchange(source) else
+              f"it offers no model exchange: give {either('--dt')}")
     return DataError(f"{source_label(source)}: the co-simulation diverges at both communication steps the automatic "
                      f"window tried ({check.found} over t <= {T:g}; explicit steps per doStep?); {remedy} below "
-                     f"{step:g} (e.g. {nice_floor(step / 2.0):g}) and --t-end to record at a step where it stays "
+                     f"{step:g} (e.g. {nice_floor(step / 2.0):g}) and {either('--t-end')} to record at a step where "
+                     "it stays "
                      "bounded; no file was written")
 
 
@@ -920,11 +924,11 @@ def _unstable_error(source: Source, check: _StepCheck, T: float) -> DataError:
     """The one-line refusal of :func:`pilot_step` where every step tried overflowed or diverged, the last one as
     ``check`` found it: the fix names a step below it."""
     step = check.dt
-    remedy = "use its model exchange (--interface me), or " if offers_model_exchange(source) else ""
+    remedy = f"use its model exchange ({ME}), or " if offers_model_exchange(source) else ""
     return DataError(f"{source_label(source)}: the co-simulation overflows or diverges at every communication step "
                      f"the automatic window tried, down to dt={step:g} ({check.found} over t <= {T:g}); {remedy}give "
-                     f"--dt below {step:g} (e.g. {nice_floor(step / 2.0):g}) and --t-end to record at a step of your "
-                     "choice; no file was written")
+                     f"{either('--dt')} below {step:g} (e.g. {nice_floor(step / 2.0):g}) and {either('--t-end')} to "
+                     "record at a step of your choice; no file was written")
 
 
 class _StepCheck(NamedTuple):
@@ -1130,7 +1134,7 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     if internal is not None and not is_whole_multiple(dt, internal):
         warnings.warn(f"{source_label(source)}: dt={dt:g} is not a whole multiple of the step the FMU integrates with "
                       f"(fixedInternalStepSize={internal:g}): its communication points fall between its own steps; "
-                      f"give --dt as a multiple, e.g. {on_internal_steps(dt, internal):g}", FmuOpinfWarning,
+                      f"give {either('--dt')} as a multiple, e.g. {on_internal_steps(dt, internal):g}", FmuOpinfWarning,
                       stacklevel=3)
     T = min(t_end, max(20.0 * dt, STEP_CHECK_SHARE * t_end))
     found, _, late, *_ = _step_dependence(source, signal, dt, T, quiet, isolate, threshold)
@@ -1139,13 +1143,13 @@ def warn_if_step_dependent(source: Source, signal: Any, dt: float, t_end: float,
     if late:
         warn_recording(f"{source_label(source)}: the co-simulation's outputs lag by one communication step ({found} "
                        f"over t <= {T:g}): the recorded outputs are those of t - dt, and the ROM learns that lag; "
-                       f"{'record by model exchange (--interface me), or ' if offers_model_exchange(source) else ''}"
-                       "keep --dt small against the motion", "late-outputs", stacklevel=3)
+                       f"{f'record by model exchange ({ME}), or ' if offers_model_exchange(source) else ''}"
+                       f"keep {either('--dt')} small against the motion", "late-outputs", stacklevel=3)
         return
 
     offers_me = offers_model_exchange(source)
-    remedy = "record by model exchange (--interface me) or at a smaller --dt" if offers_me else \
-        "record at a smaller --dt (it offers no model exchange)"
+    remedy = f"record by model exchange ({ME}) or at a smaller {either('--dt')}" if offers_me else \
+        f"record at a smaller {either('--dt')} (it offers no model exchange)"
     warn_recording(f"{source_label(source)}: the co-simulation depends on the communication step ({found} over "
                    f"t <= {T:g}): the recording follows the FMU's integrator, not the model; {remedy}",
                    "step-dependent", stacklevel=3)
@@ -1573,8 +1577,9 @@ def _motionless(source: Source, signal: Any, t: np.ndarray, what: str = "outputs
             "moves it), so no window can be chosen and a recording would teach the fit nothing")
     driven = source.m and not isinstance(signal, NoInput)
     if not driven:
-        fix = (f"drive an input: --inputs {real[0]} (it is held at its start value now)" if real
-               else "start the model away from its equilibrium (--set a start value) or give it an input")
+        fix = (f"drive an input: {either('--inputs', value=real[0])} (it is held at its start value now)" if real
+               else f"start the model away from its equilibrium ({either('--set')} a start value) or give it an "
+                    "input")
         values = {name: value for name, value in values.items() if name not in real}   # (--inputs names them)
     else:
         fix = "give an input that reaches the outputs (its amplitude, its channel)"

@@ -33,7 +33,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from .._validate import check_keywords
+from .._validate import ME, check_keywords, either, patterns_said
 from ..errors import InputSpecError
 from ._base import EventCount, Source, StepError, inputs_without, match_names, natural_key
 from ._base import few_names as _few_names
@@ -102,7 +102,7 @@ def choose_interface(path: str | os.PathLike, interface: str | None = "auto") ->
 
     value = "auto" if interface is None else str(interface).lower()
     if value not in INTERFACES:
-        raise InputSpecError(f"--interface {interface!r} is not one of {', '.join(INTERFACES)}")
+        raise InputSpecError(f"{either('--interface', value=interface)} is not one of {', '.join(INTERFACES)}")
     if value != "auto":
         return value
     from pathlib import Path
@@ -157,19 +157,19 @@ def open_source(spec: str | os.PathLike | Source, **options: Any) -> Source:
         options.pop("tolerance", None)
         for key in _FMU_OPTIONS + ("method",):
             if key in options:
-                raise InputSpecError(f"--{_FLAG.get(key, key)} applies to fmu sources, not to {text}")
+                raise InputSpecError(f"{either('--' + _FLAG.get(key, key))} applies to fmu sources, not to {text}")
         return BuiltinSource(name=text.split(":", 1)[1], **options)
     sizes = sorted(set(options) & set(BUILTIN_SIZES))
     if sizes:
-        raise InputSpecError(f"--{sizes[0]} applies to builtin sources, not to the fmu {text}")
+        raise InputSpecError(f"{either('--' + sizes[0])} applies to builtin sources, not to the fmu {text}")
     # (audit 81c F8: a misspelt keyword was said to apply to builtin sources)
     check_keywords(options, _FMU_OPTIONS + ("interface", "tolerance", "method"),
                    f"an fmu source ({os.path.basename(text)})", "keyword")
     interface = choose_interface(text, options.pop("interface", "auto"))
     if interface != "me" and "method" in options:
-        raise InputSpecError(f"--me-method {options['method']} applies to model exchange, but {os.path.basename(text)} "
-                             "is driven through co-simulation; give --interface me (if it offers model exchange) "
-                             "or leave out --me-method")
+        raise InputSpecError(f"{either('--me-method', value=options['method'])} applies to model exchange, but "
+                             f"{os.path.basename(text)} is driven through co-simulation; give {ME} (if it offers "
+                             f"model exchange) or leave out {either('--me-method')}")
     source = ModelExchangeSource(text, **options) if interface == "me" else FMUSource(text, **options)
     warn_if_not_strict(Path(text))  # here, not in read_description: child processes rebuild sources silently
     if getattr(source, "compiled", None):
@@ -206,24 +206,26 @@ def _warn_parameter_like(source: Source) -> None:
         warn_once(source, ("pressures", tuple(names), tuple(forces)),
                   f"{shown} {'is' if len(names) == 1 else 'are'} driven as a pressure load about its start (the "
                   "default training pulses it by a tenth of the start, compare's default harmonic by at most half "
-                  f"of it); hold it with {inputs_without(forces, names)} and give its value with --set if it is a "
-                  "parameter (a modulus)")
+                  f"of it); hold it with {inputs_without(forces, names)} and give its value with {either('--set')} "
+                  "if it is a parameter (a modulus)")
         driven = [name for name in driven if name not in names]
     if driven:
         warn_once(source, ("driven", tuple(driven), tuple(forces)),
                    f"the driven input(s) {', '.join(driven)} start at non-zero values (the default training pulses "
-                   "them on top of those, an --input sets them to its own values): if they are parameters exposed "
+                   f"them on top of those, an input ({either('--input')}) sets them to its own values): if they are "
+                   "parameters exposed "
                    "as inputs, the recording is of a model that changes with them; "
-                   f"record with {inputs_without(forces, driven)} and give their values with --set")
+                   f"record with {inputs_without(forces, driven)} and give their values with {either('--set')}")
     if held:
         shown = _few_names(held)
         # (one in N/m, kg or 1 is a parameter: driving it is not offered)
         unknown = [name for name in getattr(source, "maybe_force_names", held) if name in held]
-        drive = f", or drive those that are forces with --inputs {','.join(forces + unknown)}" if unknown else ""
+        drive = (f", or drive those that are forces with {either('--inputs', value=','.join(forces + unknown))}"
+                 if unknown else "")
         warn_once(source, ("held", tuple(held), tuple(forces)),
                    f"input(s) {shown} start at non-zero values (parameters exposed as inputs?) and are held at them, "
                    f"not driven{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; "
-                   f"give their values with --set{drive}")
+                   f"give their values with {either('--set')}{drive}")
 
 
 def _driven_pressures(source: Source, driven: list[str], forces: list[str]) -> list[tuple[str, str, float]]:
@@ -249,12 +251,13 @@ def _warn_coefficients(source: Source, names: list[str], forces: list[str], driv
     if driven:
         text = (f"the driven input(s) {', '.join(driven)} are in the unit of a stiffness, a damping or a mass "
                 "(parameters exposed as inputs?): driven, they record a model that changes with them; record with "
-                f"{inputs_without(forces, driven)} and give their values with --set")
+                f"{inputs_without(forces, driven)} and give their values with {either('--set')}")
     else:
         text = (f"input(s) {shown} are in the unit of a stiffness, a damping or a mass (parameters exposed as "
                 "inputs?) and are held at their start values, not driven"
                 f"{'; force inputs: ' + ', '.join(forces) if forces else '; no force input is left'}; give their "
-                f"values with --set, or drive any that is a load with --inputs {','.join(forces + names)}")
+                f"values with {either('--set')}, or drive any that is a load with "
+                f"{either('--inputs', value=','.join(forces + names))}")
     warn_once(source, ("coefficients", tuple(names), tuple(forces)), text)
 
 
@@ -335,7 +338,8 @@ def _warn_held_outputs(source: Source) -> None:
     if not held:
         return
     others = [name for name in getattr(source, "output_names", []) if name not in held]
-    fix = f'--outputs "{",".join(others)}"' if others else "--outputs naming continuous outputs (or positions)"
+    fix = (patterns_said(outputs=",".join(others)) if others else
+           f"{either('--outputs')} naming continuous outputs (or positions)")
     warn_once(source, ("held outputs", tuple(held)),
               f"output(s) {_few_names(held)} are held between samples (discrete variability) but recorded as asked: "
               "eq. 17's continuous output map cannot follow their steps, the fit bends the ROM's dynamics toward "
@@ -394,7 +398,7 @@ def at_start_time(source: Source, start_time: float | None) -> Source:
     if start_time is None:
         return source
     if source.kind != "fmu":
-        raise InputSpecError(f"--start-time (start_time=) applies to fmu sources, not to {source!r}")
+        raise InputSpecError(f"{either('--start-time')} applies to fmu sources, not to {source!r}")
     if getattr(source, "start_time", None) == float(start_time):
         return source
     cls, kwargs = source.recipe()

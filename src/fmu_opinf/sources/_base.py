@@ -77,7 +77,7 @@ def held_inputs_advice(held: dict[str, Sequence[Any]]) -> str:
     first, (kind, value, _) = order[0], held[order[0]]
     example = {"true": "false", "false": "true"}.get(str(value).lower(), "VALUE") if kind == "Boolean" else "VALUE"
     return (f"inputs held while it ran, one of which may keep the force from acting: {shown}; if one does, "
-            f"set it, e.g. --set {first}={example}")
+            f"set it, e.g. --set {first}={example} or parameters[{first!r}]={example}")
 
 
 def natural_key(name: str) -> list[Any]:
@@ -425,9 +425,12 @@ def check_constraint(constraint: str | None, default: str) -> str:
 
 
 def inputs_without(inputs: list[str], excluded: list[str]) -> str:
-    """The ``--inputs`` option that drives ``inputs`` but ``excluded`` (``--input none`` when none is left)."""
+    """The ``--inputs`` option (and keyword) that drives ``inputs`` but ``excluded`` (``--input none`` when none is
+    left)."""
+    from .._validate import either
+
     rest = [name for name in inputs if name not in excluded]
-    return f"--inputs {','.join(rest)}" if rest else "--input none (or --inputs none)"
+    return either("--inputs", value=",".join(rest)) if rest else either("--input", value="none")
 
 
 def nice_floor(value: float) -> float:

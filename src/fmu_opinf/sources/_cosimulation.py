@@ -27,6 +27,7 @@ from ._resolve import resolve_variables
 from ._unpack import make_unpack_folder
 from ._settings import parse_assignments
 from .._stepping import stepping_of
+from .._validate import ME, either, setting_said
 from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
                          description_key, slim_description,
                          declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
@@ -53,13 +54,13 @@ def terminated_at(text: str) -> float | None:
     automatic window then ends before it (audit 70, F5: the pilots ran on past a Simulink-style stop time)."""
     if TERMINATED not in text:
         return None
-    found = re.search(r"--t-end below ([-+0-9.eE]+)", text)
+    found = re.search(r"--t-end (?:or t_end= )?below ([-+0-9.eE]+)", text)
     return float(found.group(1)) if found else None
 
 
 #: What the error of a step that failed where it passed the FMU's declared ``DefaultExperiment/@stopTime`` says
 #: before that time relative to the run's start (:meth:`FMUSource._past_declared_stop`, :func:`declared_stop_at`).
-PAST_STOP_TIME = "where the model may end its simulation: give --t-end at or below "
+PAST_STOP_TIME = f"where the model may end its simulation: give {either('--t-end')} at or below "
 
 
 def declared_stop_at(text: str) -> float | None:
@@ -103,7 +104,8 @@ def check_tolerance(tolerance: float | None) -> float:
         return DEFAULT_TOLERANCE
     value = float(tolerance)
     if not (0.0 <= value < 1.0):
-        raise InputSpecError(f"--tolerance {tolerance} must lie in [0, 1), e.g. 1e-10 (relative)")
+        raise InputSpecError(f"--tolerance {tolerance} must lie in [0, 1), e.g. {either('--tolerance', value=1e-10)} "
+                             "(relative)")
     return value
 
 
@@ -148,8 +150,8 @@ def warn_other_communication_step(source: Any, dt: float, option: str = "--dt") 
 
     warn_once(source, ("communication step", float(dt)),
               f"it declares one fixed communication step {fixed:g} (canHandleVariableCommunicationStepSize=false, "
-              f"DefaultExperiment stepSize={fixed:g}); running at {option} {dt:g} as asked: if its doStep refuses "
-              f"that, {_give_fixed_step(source, fixed, option)}")
+              f"DefaultExperiment stepSize={fixed:g}); running at the step {dt:g} as asked: if its doStep refuses "
+              f"that, {_give_fixed_step(source, fixed)}")
 
 
 def declared_start_time(md: Any) -> float:
@@ -168,7 +170,8 @@ def check_start_time(start_time: float | None, md: Any) -> float:
     except (TypeError, ValueError):
         value = math.nan
     if not math.isfinite(value):
-        raise InputSpecError(f"start time {start_time!r} is not a finite number; give e.g. --start-time 0")
+        raise InputSpecError(f"start time {start_time!r} is not a finite number; give e.g. "
+                             f"{either('--start-time', value=0.0)}")
     return value
 
 
@@ -182,11 +185,11 @@ def offers_model_exchange(source: Any) -> bool:
     return getattr(getattr(source, "md", None), "modelExchange", None) is not None
 
 
-def _give_fixed_step(source: Any, fixed: float, option: str = "--dt") -> str:
+def _give_fixed_step(source: Any, fixed: float) -> str:
     """The fix for a step other than the FMU's ``fixed`` communication step (said before the run and after a
-    refusal)."""
-    return (f"leave {option} out or give {option} {fixed:g}"
-            + (" (or drive its model exchange, --interface me, whose step is free)" if offers_model_exchange(source)
+    refusal), in both vocabularies (audit 81c F12)."""
+    return (f"leave {either('--dt')} out or give {either('--dt', value=float(f'{fixed:g}'))}"
+            + (f" (or drive its model exchange, {ME}, whose step is free)" if offers_model_exchange(source)
                else ""))
 
 
@@ -332,8 +335,8 @@ class FMUSource(Source):
         if self._interface_of(md) is None:
             other = "model exchange" if self.interface == "cs" else "co-simulation"
             mine = "co-simulation" if self.interface == "cs" else "model exchange"
-            raise FMUError(f"{self.path.name} offers no {mine}, only {other}; use --interface "
-                           f"{'me' if self.interface == 'cs' else 'cs'} (or auto)")
+            raise FMUError(f"{self.path.name} offers no {mine}, only {other}; use "
+                           f"{either('--interface', value='me' if self.interface == 'cs' else 'cs')} (or auto)")
         plat = binary_platform(version)
         binary = f"binaries/{plat}/{self._interface_of(md).modelIdentifier}"
         if self.path.is_dir():
@@ -369,7 +372,7 @@ class FMUSource(Source):
         flag = "me" if self.interface == "cs" else "cs"
         return (f"{self.path.name} has no {names[0]} binary for this platform (binaries/{plat}/"
                 f"{mine.modelIdentifier}.* is missing; it has {theirs[0].rsplit('/', 1)[-1]}, the {names[1]} binary): "
-                f"use --interface {flag} (or auto)")
+                f"use {either('--interface', value=flag)} (or auto)")
 
     def _compile_sources(self, md: Any, plat: str, have: list[str]) -> None:
         """Compile the FMU's C sources into the cache (once per machine), for :meth:`_extracted` to install;
@@ -608,14 +611,14 @@ class FMUSource(Source):
         """
         hint = self._cause_of(U, step, message)
         if not hint and "non-finite" in message:
-            hint = ("; check the --set values and the inputs (a mass or a stiffness at 0, a parameter exposed as an "
-                    "input driven to 0)")
+            hint = (f"; check the {either('--set')} values and the inputs (a mass or a stiffness at 0, a parameter "
+                    "exposed as an input driven to 0)")
         return hint
 
     def _cause_of(self, U: np.ndarray, step: int, message: str) -> str:
         if "non-finite" in message and self.interface == "cs" and step > 0:   # (at step 0 no step was taken)
-            other = ("drive its model exchange (--interface me)" if offers_model_exchange(self)
-                     else "pass a smaller step (--dt, or dt= in Python)")
+            other = (f"drive its model exchange ({ME})" if offers_model_exchange(self)
+                     else f"pass a smaller step ({either('--dt')})")
             return ("; the FMU's co-simulation may be an explicit step (e.g. one Euler step per communication step) "
                     f"that is unstable at this step: {other}")
         outside = self._outside_range(U, step)
@@ -635,7 +638,7 @@ class FMUSource(Source):
                  else "look like parameters")
         also = f" (and {', '.join(others)}, which {alike} too)" if others else ""
         return (f"; the inputs {', '.join(zeroed)} were set to 0 but have non-zero start values (parameters exposed "
-                f"as inputs?): exclude them{also} with {fix} and give their values with --set")
+                f"as inputs?): exclude them{also} with {fix} and give their values with {either('--set')}")
 
     def _outside_range(self, U: np.ndarray | None, step: int) -> str:
         """A hint naming the first input the run takes outside its declared range, with the fix; "" if none."""
@@ -648,7 +651,8 @@ class FMUSource(Source):
             bound = f"above its declared max {hi[j]:g}" if row[j] > hi[j] else f"below its declared min {lo[j]:g}"
             example = ";".join(_example_pulse(U[:, k], float(lo[k]), float(hi[k]), k == j) for k in range(self.m))
             return (f"; input {self.input_names[j]} is {row[j]:.6g} there, {bound}: give an input within "
-                    f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g} in magnitude; e.g. --input '{example}')")
+                    f"[{lo[j]:g}, {hi[j]:g}] (this one reaches {peak:.6g} in magnitude; e.g. "
+                    f"{either('--input', value=example)})")
         return ""
 
     def provenance(self) -> dict[str, Any]:
@@ -951,7 +955,7 @@ class FMUSource(Source):
         declared = declared_start_time(self.md)
         if declared == t0:
             return ""
-        return (f"; it declares DefaultExperiment startTime={declared:g}: leave out --start-time (start_time=) to "
+        return (f"; it declares DefaultExperiment startTime={declared:g}: leave out {either('--start-time')} to "
                 "start there, or give another")
 
     def _after_initialization(self) -> None:
@@ -973,7 +977,7 @@ class FMUSource(Source):
             try:
                 getattr(self._fmu, "set" + kind)([setting.var.vr], values)
             except Exception as exc:
-                raise FMUError(f"{self.path.name} refused --set {setting.var.name} "
+                raise FMUError(f"{self.path.name} refused {setting_said(setting.var.name)} "
                                f"({self._last_log() or str(exc).splitlines()[0]})") from None
 
     def _set_inputs(self, i: int) -> None:
@@ -1019,8 +1023,8 @@ class FMUSource(Source):
             if fixed is None and _constant_step_only(self):  # eighth audit: a Simulink-style FMU refused h=0.0125
                 hint = ("; it cannot vary its communication step (canHandleVariableCommunicationStepSize=false) and "
                         "declares no DefaultExperiment stepSize: a fixed-step FMU takes only multiples of its "
-                        f"internal step (its log may name it); give --dt as such a multiple, e.g. {nice_floor(h):g}, "
-                        "and --t-end")
+                        f"internal step (its log may name it); give {either('--dt')} as such a multiple, e.g. "
+                        f"{nice_floor(h):g}, and {either('--t-end')}")
             return self._fail_text(f"in {what}", i) + (stop or hint)
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
@@ -1079,7 +1083,7 @@ class FMUSource(Source):
         reads back (the automatic window then ends before it, compare's default end too)."""
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
-        return (f"{self.path.name} {TERMINATED} {where}{told}; end the run before it: --t-end below "
+        return (f"{self.path.name} {TERMINATED} {where}{told}; end the run before it: {either('--t-end')} below "
                 f"{at - self.start_time:.12g}")
 
     def _terminated_at_run_end(self, i: int) -> bool:
@@ -1099,7 +1103,7 @@ class FMUSource(Source):
         log = self._last_log()
         told = f"; its log: {log}" if log else ""
         last = float(self._flags[1])
-        fix = ("drive its model exchange (--interface me)" if offers_model_exchange(self) else
+        fix = (f"drive its model exchange ({ME})" if offers_model_exchange(self) else
                "it offers no model exchange: ask its exporter for an FMU that keeps to the standard")
         return (f"{self.path.name} returned early from fmi3DoStep at {self._at(t)} -> {t + h:g} (lastSuccessfulTime "
                 f"{last:.9g}), although early return was not allowed: the FMU breaks FMI 3.0 and its samples would "
@@ -1115,9 +1119,11 @@ class FMUSource(Source):
             return f": it declares the fixed communication step {fixed:g}: {_give_fixed_step(self, fixed)}"
         if fixed is not None:
             return ": the FMU rejects its own fixed communication step" + (
-                "; drive its model exchange (--interface me)" if offers_model_exchange(self) else "; it offers no model exchange to use instead")
+                f"; drive its model exchange ({ME})" if offers_model_exchange(self)
+                else "; it offers no model exchange to use instead")
         named = [value for value in _numbers(log) if 0 < value < h * (1 - 1e-9)]
-        return f": give a smaller --dt, e.g. {nice_floor(max(named)) if named else nice_floor(h / 2):g}"
+        smaller = float(f"{nice_floor(max(named)) if named else nice_floor(h / 2):g}")
+        return f": give a smaller step, e.g. {either('--dt', value=smaller)}"
 
     # -- stepping ---------------------------------------------------------------------------
     def read(self, out: np.ndarray) -> None:

@@ -207,7 +207,7 @@ def logging_switches(md: Any) -> str:
     parts = []
     if switches:
         shown = ", ".join(switches[:4]) + (", ..." if len(switches) > 4 else "")
-        parts.append(f" with --set (its parameters {shown})")
+        parts.append(f" with --set or parameters= (its parameters {shown})")
     if categories:
         shown = ", ".join(categories[:6]) + (", ..." if len(categories) > 6 else "")
         parts.append(f" (it declares the log categories {shown}; check which are debug ones)")

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 
 from .._interrupts import check_interrupt
+from .._validate import either
 from . import _compiled_rk, _linear_hold
 
 if TYPE_CHECKING:
@@ -234,7 +235,7 @@ def _linear(source: ModelExchangeSource, t0: float, t1: float, completed: bool,
         if t0 == source._t_list[0] and not source._x.any():
             raise _ExactStepRefused(reason) from None
         raise _IntegrationError(f"the FMU refused the exact zero-order-hold step ({reason}); record with "
-                                "--me-method dop853") from None
+                                f"{either('--me-method', value='dop853')}") from None
     if source._handover is not None:
         return _dop853(source, t0, t1, completed, one_step)
     if ratio > 1.0:

@@ -75,6 +75,7 @@ import numpy as np
 
 from .._interrupts import check_interrupt
 from .._progress import duration_text
+from .._validate import DT_T_END, either
 from ..errors import FMUError, InputSpecError
 from . import _compiled_rk, _fmu_log, _integrators, _linear_hold
 from ._base import EventCount, StepError
@@ -83,6 +84,9 @@ from ._integrators import (_COMPILED_DOP853_TEXT, _IMPLICIT, _INTEGRATOR_TEXT, _
                            _ExactStepRefused, _IntegrationError, _LeftInError)
 
 __all__ = ["ModelExchangeSource", "METHODS"]
+
+#: The fix "record by co-simulation" in both vocabularies.
+CS = either("--interface", value="cs")
 
 
 class _TerminationAsked(FMUError):
@@ -155,8 +159,8 @@ class ModelExchangeSource(FMUSource):
         if method not in METHODS:
             raise InputSpecError(f"integrator {method!r} is unknown; choose one of {', '.join(METHODS)}")
         if options.get("tolerance") == 0:
-            raise InputSpecError("--tolerance 0 is not allowed for model exchange (fmu-opinf's integrator needs "
-                                 f"one); give e.g. {DEFAULT_TOLERANCE:g}")
+            raise InputSpecError(f"{either('--tolerance', value=0)} is not allowed for model exchange (fmu-opinf's "
+                                 f"integrator needs one); give e.g. {either('--tolerance', value=DEFAULT_TOLERANCE)}")
         super().__init__(path, **options)
         self.method = method
         self._options["method"] = method
@@ -313,7 +317,7 @@ class ModelExchangeSource(FMUSource):
 
             warn_once(self, ("event indicators",), f"reading its {self.nz} event indicators failed, so its state "
                       "events are not located (a change of its discrete state then waits for the next communication "
-                      "point); check the results, or record with --interface cs", stacklevel=3)
+                      f"point); check the results, or record with {CS}", stacklevel=3)
             self.nz = 0
         self._floor = _floor(self._nominals())
         self._origin, self._x = self._x, np.zeros(self.nx)   # integrated: the deviation from the start state
@@ -381,7 +385,8 @@ class ModelExchangeSource(FMUSource):
             super().start(*self._run_grid)
         except (StepError, FMUError) as exc:
             raise FMUError(f"{self.path.name} refused a probe of its derivatives ({self._probe_refusal}) and could not "
-                           f"be started again after it ({exc}); record with --me-method dop853") from None
+                           f"be started again after it ({exc}); record with {either('--me-method', value='dop853')}"
+                           ) from None
 
     def _restart_without_exact_step(self, reason: str) -> None:
         """Start the run again and set the inputs of its first step again, after the FMU refused the exact step
@@ -448,7 +453,7 @@ class ModelExchangeSource(FMUSource):
             return
         from . import warn_once
 
-        cs = "record by co-simulation (--interface cs) if the FMU's own solver is implicit, " if (
+        cs = f"record by co-simulation ({CS}) if the FMU's own solver is implicit, " if (
             self.md.coSimulation is not None) else ""
         memory = _EXPM_BYTES_PER_SQUARE * self.nx**2 / 2**30
         warn_once(self, ("stiff beyond the exact step",), f"a stiff model of {self.nx} states (spectral radius about "
@@ -475,7 +480,7 @@ class ModelExchangeSource(FMUSource):
             self.path.name, logged, self._integrator_seconds,
             getattr(self, "_messages_per_call", None), "derivative call", _fmu_log.logging_switches(self.md))
         if advice:   # (audit 79a, F3: the integrator and the model are not the cause; fewer samples only help)
-            advice += "--dt and --t-end shorten the run, but the integrator and the model are not what is slow"
+            advice += f"{DT_T_END} shorten the run, but the integrator and the model are not what is slow"
         else:
             advice = _slow_run_advice(name, self.md.coSimulation is not None, self.nx, t1 - t0, h,
                                       getattr(self, "_stiffness_measured", None))
@@ -913,7 +918,7 @@ class ModelExchangeSource(FMUSource):
                 events += 1
             if t1 - t <= slack:
                 return
-        cs = "; or try --interface cs" if self.md.coSimulation is not None else ""
+        cs = f"; or try {CS}" if self.md.coSimulation is not None else ""
         if asked_events:
             raise StepError(f"{self.path.name}: it asked for an event in more than {asked_events} completed "
                             f"integrator steps between {self._at(t0)} and {t1:g}; check the model's "
@@ -1119,17 +1124,18 @@ class ModelExchangeSource(FMUSource):
         """One line: where and why the integration failed, the FMU's last error message, and what may help."""
         where = f"step {i} ({self._at(t0)} -> {t1:g})" if i >= 0 else f"{self._at(t0)} -> {t1:g}"
         log = self._last_log()
-        cs = " or --interface cs" if self.md.coSimulation is not None else ""
+        cs = f", or {CS}" if self.md.coSimulation is not None else ""
         in_pilot = self._pilot_of is not None
-        looser = ("give --dt and --t-end to record without the automatic window's pilot runs" if in_pilot else
-                  f"try a looser --tolerance{cs}")
+        looser = (f"give {DT_T_END} to record without the automatic window's pilot runs" if in_pilot else
+                  f"try a looser {either('--tolerance')}{cs}")
         if log:   # the FMU said why: the tolerance is only one possible cause
             hint = (f"the FMU reported: {log}; where that is a range the model asserts, the motion leaves it (a "
                     f"smaller input or another start state); if the tolerance is the cause, {looser}")
         elif "not finite" in reason:   # (audit 58: a damping exposed as an input, driven below 0, was blamed on
             # the tolerance alone)
             hint = ("the motion grew without bound, as an unstable model's does (a stiffness or a damping that is "
-                    "driven as an input or --set below 0: --inputs names the forces); if the tolerance is the cause, "
+                    f"driven as an input or set below 0 ({either('--set')}): {either('--inputs')} names the "
+                    "forces); if the tolerance is the cause, "
                     f"{looser}")
         else:
             hint = looser
@@ -1178,9 +1184,9 @@ _NOT_STIFF = 1.0
 _DOP853_CALLS = 12
 _JUMPS = ("derivatives that jump without event indicators (Coulomb friction sign(v), a relay, a table) or are rounded "
           "inside the FMU (single precision) make its steps collapse: ")
-_JUMP_WAYS = ("loosen --tolerance (1e-6 for single precision), or give the model event indicators or smooth friction; "
-              "a linear model of many states that is none of these records faster by the exact hold step "
-              "(--me-method linear)")
+_JUMP_WAYS = (f"loosen {either('--tolerance')} (1e-6 for single precision), or give the model event indicators or "
+              "smooth friction; a linear model of many states that is none of these records faster by the exact hold "
+              f"step ({either('--me-method', value='linear')})")
 
 
 def _slow_run_advice(name: str, cosimulation: bool, nx: int, step: float, h: float,
@@ -1210,9 +1216,9 @@ def _slow_run_advice(name: str, cosimulation: bool, nx: int, step: float, h: flo
         is the derivative's cost times the samples, so stiffness, friction and co-simulation are not named (audit 77b
         F3: they were, for a chain of 1198 states at ``rho h`` = 0.016, and co-simulation took twice as long).
     """
-    cs = "record by co-simulation (--interface cs), " if cosimulation else ""
+    cs = f"record by co-simulation ({CS}), " if cosimulation else ""
     if name in _IMPLICIT:   # (stiffness does not hold these back; the default integrator may do better)
-        return f"{_JUMPS}{cs}record with --me-method auto, {_JUMP_WAYS}"
+        return f"{_JUMPS}{cs}record with {either('--me-method', value='auto')}, {_JUMP_WAYS}"
     if measured is None or not measured[0] * step < _NOT_STIFF:
         return f"a stiff model holds it to its stability limit, and {_JUMPS}{cs}{_JUMP_WAYS}"
     rho, seconds = measured
@@ -1221,9 +1227,10 @@ def _slow_run_advice(name: str, cosimulation: bool, nx: int, step: float, h: flo
         return f"{stiffness}, but {_JUMPS}{cs}{_JUMP_WAYS}"
     return (f"{stiffness} and its steps are near the communication step: the time is the FMU's derivative, "
             f"{nx} states at {seconds * 1e3:.2g} ms per call, {_DOP853_CALLS} calls per {name} step, times the "
-            "samples; give --dt and --t-end (the automatic window's pilot runs, fine-step runs of the whole response, "
-            "are then skipped), or record a linear model by the exact hold step (--me-method linear); co-simulation "
-            "does not help (the FMU's own solver calls the same derivative)")
+            f"samples; give {DT_T_END} (the automatic window's pilot runs, fine-step runs of the whole "
+            "response, are then skipped), or record a linear model by the exact hold step "
+            f"({either('--me-method', value='linear')}); co-simulation does not help (the FMU's own solver calls the "
+            "same derivative)")
 
 
 def _discrete_inputs(md: Any, input_names: list[str]) -> np.ndarray:

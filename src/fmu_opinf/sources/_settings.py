@@ -15,6 +15,7 @@ import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
+from .._validate import setting_said
 from ..errors import InputSpecError
 from ._variables import ModelInfo, Variable
 
@@ -121,19 +122,19 @@ def _target(model: ModelInfo, name: str) -> tuple[Variable, tuple[int, ...] | No
         return model.by_name[match[1]], tuple(int(i) for i in match[2].split(","))
     close = difflib.get_close_matches(name, list(model.by_name), n=3)
     hint = f" (did you mean {', '.join(close)}?)" if close else ""
-    raise InputSpecError(f"--set {name}: {model.label} has no variable {name!r}{hint}; check the name")
+    raise InputSpecError(f"{setting_said(name)}: {model.label} has no variable {name!r}{hint}; check the name")
 
 
 def _check_settable(model: ModelInfo, name: str, var: Variable) -> None:
     if var.variability == "constant":
-        raise InputSpecError(f"--set {name}: {var.name} is a constant of {model.label} and cannot be set")
+        raise InputSpecError(f"{setting_said(name)}: {var.name} is a constant of {model.label} and cannot be set")
     if var.causality in ("calculatedParameter", "independent"):
-        raise InputSpecError(f"--set {name}: {var.name} is {_article(var.causality)} {var.causality} of "
+        raise InputSpecError(f"{setting_said(name)}: {var.name} is {_article(var.causality)} {var.causality} of "
                              f"{model.label} and cannot be set")
     if var.causality in ("parameter", "structuralParameter", "input"):
         return
     if var.initial == "calculated" or (var.initial is None and var.start is None):
-        raise InputSpecError(f"--set {name}: {var.name} has no start value in {model.label} (it is calculated) "
+        raise InputSpecError(f"{setting_said(name)}: {var.name} has no start value in {model.label} (it is calculated) "
                              "and cannot be set")
 
 
@@ -165,7 +166,7 @@ def _whole(model: ModelInfo, name: str, var: Variable, value: Any, shape: tuple[
         size *= s
     if items is None or len(items) != size:
         got = "a scalar" if items is None else f"{len(items)} values"
-        raise InputSpecError(f"--set {name}: {var.name} is an array of {size} values{_shape_said(shape)} in "
+        raise InputSpecError(f"{setting_said(name)}: {var.name} is an array of {size} values{_shape_said(shape)} in "
                              f"{model.label} but got {got}; write {_array_forms(name, shape, size)}")
     return [_typed(model, name, var, item) for item in items]
 
@@ -220,11 +221,11 @@ def _as_list(value: Any) -> list[Any] | None:
 def _flat_index(model: ModelInfo, name: str, index: tuple[int, ...], shape: tuple[int, ...]) -> int:
     if len(index) != len(shape):
         forms = ",".join("ijklmn"[:len(shape)])
-        raise InputSpecError(f"--set {name}: {name.split('[')[0]} has {len(shape)} dimension(s) "
+        raise InputSpecError(f"{setting_said(name)}: {name.split('[')[0]} has {len(shape)} dimension(s) "
                              f"({'x'.join(map(str, shape))}) in {model.label} but the index has {len(index)}; write "
                              f"{name.split('[')[0]}[{forms}]=v (indices start at 1)")
     if any(not 1 <= i <= s for i, s in zip(index, shape)):
-        raise InputSpecError(f"--set {name}: index out of range; {name.split('[')[0]} has shape "
+        raise InputSpecError(f"{setting_said(name)}: index out of range; {name.split('[')[0]} has shape "
                              f"{'x'.join(map(str, shape))} in {model.label} (indices start at 1)")
     flat = 0
     for i, s in zip(index, shape):
@@ -244,7 +245,7 @@ def _typed(model: ModelInfo, name: str, var: Variable, value: Any) -> Any:
         kind = ("a number" if var.type in _FLOAT_TYPES else "an integer" if var.type in _INTEGER_TYPES
                 else "true or false" if var.type == "Boolean" else "a string")
         several = " (one --set per variable if the value holds another NAME=VALUE)" if "=" in str(value) else ""
-        raise InputSpecError(f"--set {name}={value}: {var.name} is {_article(var.type)} {var.type} variable of "
+        raise InputSpecError(f"{setting_said(name, value)}: {var.name} is {_article(var.type)} {var.type} variable of "
                              f"{model.label}; "
                              f"give {kind}{several}") from None
     _check_bounds(model, name, var, typed)
@@ -288,5 +289,5 @@ def _check_bounds(model: ModelInfo, name: str, var: Variable, value: Any) -> Non
     if (low is not None and value < low) or (high is not None and value > high):
         bounds = f"[{var.min if low is not None else '-inf'}, {var.max if high is not None else 'inf'}]"
         what = "structural parameter" if var.causality == "structuralParameter" else "variable"
-        raise InputSpecError(f"--set {name}={value:g}: outside the bounds {bounds} of the {what} {var.name} in "
+        raise InputSpecError(f"{setting_said(name, value)}: outside the bounds {bounds} of the {what} {var.name} in "
                              f"{model.label}; give a value within them")

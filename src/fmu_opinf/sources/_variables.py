@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from .._stepping import declared_stepping
+from .._validate import either, options_said, patterns_said
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ._base import CONSTRAINTS, few_names, match_names, natural_key, split_patterns
 
@@ -832,7 +833,7 @@ class ModelInfo:
             return int(float(start))
         except (TypeError, ValueError):
             raise FMUError(f"{self.label}: structural parameter {name} has no start value; set it with "
-                           f"--set {name}=N") from None
+                           f"--set {name}=N or parameters[{name!r}]=N") from None
 
     def shape(self, var: Variable, overrides: dict[str, Any] | None = None) -> tuple[int, ...]:
         """Array shape of ``var`` (``()`` for a scalar), sizes from structural parameters and ``overrides``."""
@@ -1017,9 +1018,10 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
     for what, names in (("velocities", vel), ("accelerations", acc)):
         if names and len(names) != len(pos):
             raise FMUError(f"{len(pos)} positions but {len(names)} {what} in {model.label}; "
-                           f"give --positions/--{what} patterns that match the same number of variables")
+                           f"give {options_said('--positions', '--' + what)} patterns that match the same number of "
+                           "variables")
     if acc and not vel:
-        raise FMUError("accelerations without velocities are not supported; pass --velocities too")
+        raise FMUError(f"accelerations without velocities are not supported; pass {either('--velocities')} too")
     derivatives = [states.der[c.name].name if c.name in states.der else None for c in pos]
     others = _other_states(states, pos + vel)
     if others and positions is None and velocities is None and how.get("positions") == _LINKS:
@@ -1310,8 +1312,8 @@ def _aliased_rates(model: ModelInfo, states: _States, elements: dict[str, Elemen
     positions = _compact_pattern(model, elements, [p for p, _, _ in pairs])
     velocities = _compact_pattern(model, elements, [v for _, v, _ in pairs])
     shown = ", ".join(f"{d} is an alias of {v}" for _, v, d in pairs[:3]) + (", ..." if len(pairs) > 3 else "")
-    return (f" ({shown}: its own derivative link is missing?); pass --positions \"{positions}\" "
-            f"--velocities \"{velocities}\"")
+    return (f" ({shown}: its own derivative link is missing?); pass "
+            f"{patterns_said(positions=positions, velocities=velocities)}")
 
 
 def _distinct_locals(elements: dict[str, Element]) -> list[Column]:
@@ -1833,7 +1835,8 @@ def _refuse_twice(forces: list[Element], model: ModelInfo) -> None:
     seen: dict[tuple[str, int, int], str] = {}
     for e in forces:
         if _value_key(e) in seen:
-            raise FMUError(f"--inputs names {e.name} and {seen[_value_key(e)]}, the same input of {model.label} "
+            raise FMUError(f"{either('--inputs')} names {e.name} and {seen[_value_key(e)]}, the same input of "
+                           f"{model.label} "
                            "(an alias); name it once")
         seen[_value_key(e)] = e.name
 
