@@ -1013,7 +1013,7 @@ def test_the_order_search_tries_no_order_beyond_a_noise_floor_of_the_singular_va
             assert search[0]["noise_floor"] == 4, search
             assert said[-1].endswith("kept r=33; the singular values from s_4 on lie on a noise floor, so no order "
                                      "above r=33 was tried (it would fit the noise); with noisy snapshots a smaller "
-                                     "order, about --r 3, may follow other inputs better"), said
+                                     "order, about --r 3 or r=3, may follow other inputs better"), said
         else:   # clean: 1e14 from s_3 to the rank; the search goes on as before
             assert all("noise_floor" not in entry for entry in search) and "noise" not in said[-1], said
 

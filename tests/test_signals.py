@@ -168,7 +168,8 @@ def test_a_table_with_a_column_for_a_held_input_or_separated_otherwise_is_refuse
     the force input with its values; a table separated by semicolons was said to lack an input column."""
     with pytest.raises(InputSpecError, match=r"has a column for springScale, held at its start value, not driven "
                                              r"\(the driven inputs: F\); leave its column out, or record "
-                                             r"snapshots with --inputs F,springScale to drive it"):
+                                             r"snapshots with --inputs F,springScale or inputs='F,springScale' to "
+                                             r"drive it"):
         signals.parse_signal(_write(tmp_path, "time,springScale\n0,1\n1,2\n"), 1, ["F"], ["springScale"])
     with pytest.raises(InputSpecError, match="is separated by semicolons; write it with commas"):
         signals.parse_signal(_write(tmp_path, "time;F\n0;1\n1;2\n", "semi.csv"), 1, ["F"])
@@ -195,6 +196,7 @@ def test_inputs_that_differ_in_case_take_their_own_columns_and_a_held_one_is_nam
     table = signals.parse_signal(_write(tmp_path, "time,f [N],F [N]\n0,1,10\n1,2,20\n"), 2, ["F", "f"])
     assert np.array_equal(table.sample(np.array([0.0])), [[10], [1]])
     assert signals.parse_signal(_write(tmp_path, "time,F [N]\n0,1\n1,2\n", "F.csv"), 1, ["F"], ["f"]).names == ["F"]
-    with pytest.raises(InputSpecError, match=r"a column for springScale, .* --inputs F,springScale to drive it"):
+    with pytest.raises(InputSpecError, match=r"a column for springScale, .* --inputs F,springScale or "
+                                             r"inputs='F,springScale' to drive it"):
         signals.parse_signal(_write(tmp_path, "time,SPRINGSCALE [1]\n0,1\n1,2\n", "s.csv"), 1, ["F"],
                              ["springScale"])

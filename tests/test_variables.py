@@ -376,7 +376,7 @@ def test_a_pressure_driven_about_its_start_is_said_to_be_driven_as_a_load(tmp_pa
         _warn_parameter_like(source)
     texts = [str(w.message) for w in record]
     assert any(text.startswith("Pressure.fmu: p (bar, start 1) is driven as a pressure load about its start") and
-               "hold it with --inputs \"F,scale\" or inputs='F,scale' and give its value with --set or parameters= "
+               "hold it with --inputs F,scale or inputs='F,scale' and give its value with --set or parameters= "
                "if it is a parameter" in text
                for text in texts), texts
     assert any("the driven input(s) scale start at non-zero values" in text for text in texts), texts

@@ -95,11 +95,11 @@ KEYWORD_OF = {
     "--no-linearity-check": "check_linearity=False", "--in-process": "isolate=False", "--force": "overwrite=True",
     "--r": "r", "--energy": "energy", "--no-refine": "refine=False", "--terms": "terms",
     "--refit-output-map": "refit_output_map=True", "--g": "g", "--n1": "n1", "--alpha": "alpha", "--beta": "beta",
-    "--v": "v",
+    "--v": "v", "--integrator": "integrator", "--lowpass": "lowpass", "--timeout": "timeout",
 }
 
 _NO_VALUE = object()
-_BARE = re.compile(r"[A-Za-z0-9_.:+-]+")
+_BARE = re.compile(r"[A-Za-z0-9_.:+,-]+")   # (what a shell passes as one word: no brackets, quotes, ';', '=')
 
 
 def either(option: str, keyword: str | None = None, value: Any = _NO_VALUE) -> str:

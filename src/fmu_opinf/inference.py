@@ -660,7 +660,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
-from ._validate import check_at_least, check_choice
+from ._validate import check_at_least, check_choice, either
 from .errors import DataError, DimensionError, FmuOpinfWarning, InputSpecError
 from ._realization import first_order_matrix, mechanical_realization
 from ._background import Background, can_fork_here
@@ -1297,7 +1297,7 @@ def _residual_info(Mr, Dr, Kr, Br, xddot_r, xdot_r, x_r, u) -> dict[str, float]:
 def _check_cutoff(cutoff: float, dt: float) -> None:
     if not 0 < cutoff < np.pi / dt:
         raise InputSpecError(f"lowpass cutoff {cutoff:g} rad/s must lie in (0, pi/dt = {np.pi / dt:.4g}) rad/s; "
-                             "give a smaller --lowpass")
+                             f"give a smaller {either('--lowpass')}")
 
 
 def lowpass_filter(arrays: list[np.ndarray], dt: float, cutoff: float, order: int = 4) -> list[np.ndarray]:

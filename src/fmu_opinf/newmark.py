@@ -36,6 +36,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._progress import Progress
+from ._validate import either
 from .errors import DataError, DimensionError
 from .signals import Signal, parse_signal
 
@@ -262,11 +263,11 @@ def time_grid(dt: float, t_end: float, t0: float = 0.0) -> np.ndarray:
         raise DimensionError(f"end time must be finite and exceed the start time {t0}, got t_end={t_end}")
     if (t_end - t0) / dt > MAX_GRID_STEPS:
         raise DimensionError(f"t_end={t_end:g} at dt={dt:g} makes {(t_end - t0) / dt:.3g} steps, more than "
-                             f"{MAX_GRID_STEPS:.0e}; pass a shorter --t-end or a larger --dt")
+                             f"{MAX_GRID_STEPS:.0e}; pass a shorter {either('--t-end')} or a larger {either('--dt')}")
     steps = round((t_end - t0) / dt)
     if steps < 1 or abs(steps * dt - (t_end - t0)) > 1e-9 * max(1.0, abs(t_end)):
         raise DimensionError(f"t_end - t0 = {t_end - t0:g} is not a whole number of steps dt={dt:g}; "
-                             "adjust --t-end or --dt")
+                             f"adjust {either('--t-end')} or {either('--dt')}")
     return t0 + dt * np.arange(steps + 1)
 
 

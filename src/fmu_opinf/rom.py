@@ -39,7 +39,7 @@ import scipy.linalg
 from . import _threads
 from ._hdf5 import atomic_h5, checksummed, jsonable, read_attrs, unreadable_file, write_attrs
 from ._seal import check_seal
-from ._validate import check_rom_file, damaged_file_errors
+from ._validate import check_rom_file, damaged_file_errors, either
 from .errors import DataError, DimensionError, FileFormatError
 
 if TYPE_CHECKING:
@@ -307,7 +307,7 @@ class SecondOrderROM:
                                 f"{outside / max(np.linalg.norm(shifted), 1e-300):.1e}): they violate the constraint, "
                                 f"were never in the training data, or need more than the ROM's r={self.r} basis "
                                 "vectors (a start the training shared but the truncated basis misses); start from a "
-                                "consistent state, or fit with a larger r (--r, --energy)")
+                                f"consistent state, or fit with a larger r ({either('--r')}, {either('--energy')})")
             if ref is not None:
                 q0 = reduced
             else:

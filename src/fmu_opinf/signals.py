@@ -56,7 +56,7 @@ class Signal:
         if t.size and (t.min() < lo - tol or t.max() > hi + tol):
             raise InputSpecError(
                 f"input {self.spec!r} is defined on [{lo:g}, {hi:g}] but the simulation needs "
-                f"[{t.min():g}, {t.max():g}]; extend the table or shorten --t-end")
+                f"[{t.min():g}, {t.max():g}]; extend the table or shorten {either('--t-end')}")
         return self._values(t)
 
     def _values(self, t: np.ndarray) -> np.ndarray:
@@ -411,7 +411,8 @@ def _refuse_held_columns(table: TableSignal, names: list[str], held: list[str]) 
     if columns:
         raise InputSpecError(f"input table {table.spec} has a column for {', '.join(columns)}, held at its start "
                              f"value, not driven (the driven inputs: {', '.join(names) or 'none'}); leave its column "
-                             f"out, or record snapshots with --inputs {','.join(names + columns)} to drive it (and fit "
+                             f"out, or record snapshots with {either('--inputs', value=','.join(names + columns))} to "
+                             "drive it (and fit "
                              "again: a ROM has ports for the inputs it was trained on only)")
 
 

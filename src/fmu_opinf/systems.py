@@ -15,6 +15,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from ._validate import either
 from .errors import DimensionError, FmuOpinfError
 
 __all__ = ["SecondOrderSystem", "anchored_msd", "triple_chain", "builtin_system"]
@@ -145,7 +146,7 @@ def anchored_msd(g: int = 600, mass: float = 100.0, k1: float = 2.0, d1: float =
     """
     if g < 4:
         raise DimensionError(f"the anchored chain needs g >= 4 masses, got g={g}")
-    _check_size(g, f"the anchored chain with g={g}", "give a smaller --g")
+    _check_size(g, f"the anchored chain with g={g}", f"give a smaller {either('--g')}")
     link_k = np.full(g - 1, k1)
     link_d = np.full(g - 1, d1)
     ground_k = np.full(g, k2)
@@ -190,7 +191,7 @@ def triple_chain(n1: int = 100, alpha: float = 0.01, beta: float = 0.01, v: floa
     """
     if n1 < 2 or n1 % 2:
         raise DimensionError(f"the triple chain needs an even n1 >= 2, got n1={n1}")
-    _check_size(3 * n1 + 1, f"the triple chain with n1={n1}", "give a smaller --n1")
+    _check_size(3 * n1 + 1, f"the triple chain with n1={n1}", f"give a smaller {either('--n1')}")
     n = 3 * n1 + 1
     mass = np.concatenate([np.full(n1, mc) for mc in masses] + [np.array([m0])])
     block = sp.diags([-np.ones(n1 - 1), 2 * np.ones(n1), -np.ones(n1 - 1)], [-1, 0, 1])

@@ -71,7 +71,7 @@ import numpy as np
 
 from .._hdf5 import jsonable, tool_versions
 from .._sdp_paths import FACTORED_ABOVE
-from .._validate import check_not_input
+from .._validate import check_not_input, either
 from ..basis import PODBasis, as_runs, snapshot_attrs
 from ..errors import FmuOpinfWarning
 from ..inference import _check_cutoff
@@ -303,8 +303,8 @@ def fit_rom(
         warnings.warn(f"the training snapshots follow the FMU's {follows} (snapshots warned); their accelerations are "
                       "the FMU's derivatives at the recorded states, so the ROM is fitted to those (eq. 16) without "
                       "output-error refinement or order search: it stands for the model, not for the FMU's "
-                      "co-simulation at that step, and below the snapshot rank its accuracy is not measured (--r up "
-                      "to the rank fits the data exactly)", FmuOpinfWarning, stacklevel=2)
+                      "co-simulation at that step, and below the snapshot rank its accuracy is not measured "
+                      f"({either('--r')} up to the rank fits the data exactly)", FmuOpinfWarning, stacklevel=2)
     euler_said = recording_step == "forward-euler" or (euler_steps and not mixed)
     wrong_model = bool(recorded_verdicts(attrs) & set(WRONG_MODEL_VERDICTS))   # said even beside the Euler warning
     if (recorded := recorded_warning(attrs)) and (wrong_model or not euler_said):
@@ -326,7 +326,8 @@ def fit_rom(
     energy_orders = _energy_orders(pod, centred_runs, attrs, basis, r, say)
     if r is None and pod.r_ > FACTORED_ABOVE:
         say(f"r={pod.r_} from eq. (18) is above {FACTORED_ABOVE}: the SDP is solved without a certificate (factored "
-            "start) and the fit takes minutes (2000 positions, r=189: 8 min on 2 cores); --r sets a smaller order "
+            f"start) and the fit takes minutes (2000 positions, r=189: 8 min on 2 cores); {either('--r')} sets a "
+            "smaller order "
             "(faster, and less accurate where the response needs the modes)")
     options = _FitOptions(requested=requested, lowpass=lowpass, method=method, mass_trace=mass_trace, tol=tol,
                           normalization=normalization, solver=solver, integrator=integrator, refine=refine,

@@ -13,6 +13,7 @@ import numpy as np
 
 from .. import _threads
 from .._linear_outputs import nonlinear_outputs
+from .._validate import either
 from ..basis import PODBasis, column_blocks, read_columns
 from ..errors import FmuOpinfWarning, InputSpecError
 from ..inference import fit_operators, fit_output_map
@@ -226,7 +227,7 @@ AVERAGE_CORRECTIONS = 2
 
 
 def _refit_without_refinement() -> InputSpecError:
-    return InputSpecError("refit_output_map (--refit-output-map) needs the output-error refinement: no lowpass, one "
+    return InputSpecError(f"{either('--refit-output-map')} needs the output-error refinement: no lowpass, one "
                           "training time step, sampled states, refine not False; drop the option or enable the "
                           "refinement")
 
@@ -273,7 +274,7 @@ def _warn_different_steps(steps: set[float]) -> None:
     listed = ", ".join(f"{step:g}" for step in sorted(steps))
     warnings.warn(f"the training runs have different steps ({listed}): no output-error refinement, least-squares "
                   f"candidate, order search or training-miss check (the ROM is the SDP solution, unchecked); "
-                  f"record every run at one step (snapshots --dt)", FmuOpinfWarning, stacklevel=4)
+                  f"record every run at one step (snapshots {either('--dt')})", FmuOpinfWarning, stacklevel=4)
 
 
 def _refinement_summary(report: Any) -> str:

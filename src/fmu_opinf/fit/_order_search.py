@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from .._sdp_paths import FACTORED_ABOVE
+from .._validate import either
 from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective, output_name
 
 if TYPE_CHECKING:   # (annotations only: _order_fit imports this module's screen)
@@ -278,5 +279,6 @@ def _why_not_larger(last: dict) -> str:
     if floor is None:
         return f", larger orders lowered the error less than {ORDER_HELPS:g}-fold (squared)"
     return (f"; the singular values from s_{floor} on lie on a noise floor, so no order above r={last['r']} was "
-            f"tried (it would fit the noise); with noisy snapshots a smaller order, about --r {max(floor - 1, 1)}, "
+            f"tried (it would fit the noise); with noisy snapshots a smaller order, about "
+            f"{either('--r', value=max(floor - 1, 1))}, "
             "may follow other inputs better")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._stepping import recorded_stepping
+from .._validate import either
 from ..errors import InputSpecError
 from ..rom import INTEGRATORS
 
@@ -68,6 +69,6 @@ def _integrator_choice(requested: str, attrs: dict) -> str | None:
     if stepping == "unknown":
         return ("integrator newmark (auto): the training FMU is fmu-opinf's but does not declare how it steps "
                 "(written before 2026-12-07), taken for a Newmark FMU; an exported ROM of a continuous-time source "
-                "steps exactly: fit it with --integrator exact")
+                f"steps exactly: fit it with {either('--integrator', value='exact')}")
     how = "the exact hold step (a ROM of a continuous-time source)" if stepping == "exact" else "Newmark"
     return f"integrator {stepping} (auto): the training FMU is fmu-opinf's and declares that it steps by {how}"

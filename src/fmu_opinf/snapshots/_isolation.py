@@ -24,6 +24,7 @@ import numpy as np
 
 from .._forked import exit_with_parent
 from .._interrupts import _SIGNALS, check_interrupt, deferred_interrupts
+from .._validate import either
 from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError, first_report, said_key
 
@@ -198,7 +199,8 @@ def produce_isolated(source: Source, t: np.ndarray, U: np.ndarray, sink: _Sink,
             if message == ("timeout",):
                 i = i0 + int(count[0])
                 raise FMUError(f"{source_label(source)} did not finish within the timeout of {timeout:g} s "
-                               f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase --timeout "
+                               f"(step {i} of {k}, t={t[min(i, k - 1)]:g}); it was stopped, increase "
+                               f"{either('--timeout')} "
                                "or check the FMU")
             if message is not None and message[0] == "warning":  # no rows, no acknowledgement
                 # each child opens the FMU afresh and says what it finds; the user hears it once
