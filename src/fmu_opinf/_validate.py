@@ -95,7 +95,7 @@ KEYWORD_OF = {
     "--no-linearity-check": "check_linearity=False", "--in-process": "isolate=False", "--force": "overwrite=True",
     "--r": "r", "--energy": "energy", "--no-refine": "refine=False", "--terms": "terms",
     "--refit-output-map": "refit_output_map=True", "--g": "g", "--n1": "n1", "--alpha": "alpha", "--beta": "beta",
-    "--v": "v", "--integrator": "integrator", "--lowpass": "lowpass", "--timeout": "timeout",
+    "--v": "v", "--basis": "basis", "--integrator": "integrator", "--lowpass": "lowpass", "--timeout": "timeout",
 }
 
 _NO_VALUE = object()

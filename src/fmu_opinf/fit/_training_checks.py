@@ -100,9 +100,10 @@ def _warn_if_velocities_keep_more(orders: dict[str, Any], r: int) -> None:
     warnings.warn(f"no constraint kind recorded and the velocities' energy keeps r={velocities} modes where the fit "
                   f"took r={r} from the positions: a model with velocity constraints needs them (the paper's triple "
                   "chain: 1.4 % of range off at 1 rad/s at r = 8, 0.1 % at r = 34), and compare's test below the "
-                  "ROM's highest natural frequency does not show it; fit with --basis velocities (velocity "
-                  f"constraints) or --r {velocities}, or record with --constraint velocity", FmuOpinfWarning,
-                  stacklevel=3)
+                  "ROM's highest natural frequency does not show it; fit with "
+                  f"{either('--basis', value='velocities')} (velocity constraints) or "
+                  f"{either('--r', value=velocities)}, or record with {either('--constraint', value='velocity')}",
+                  FmuOpinfWarning, stacklevel=3)
 
 
 def _say_training_misses(info: dict, say: Callable[[str], None], names: Sequence[str] | None = ()) -> None:
@@ -134,7 +135,8 @@ def _warn_if_peak_missed(info: dict, r: int, names: Sequence[str] | None = ()) -
     warnings.warn(f"the ROM misses its own training output {output_name(info['worst_peak_output'], names)}"
                   f"{_in_run(info.get('worst_peak_run_name'), info.get('n_runs'))} by {peak:.2g} of its range at "
                   f"the peak (relative RMS {math.sqrt(miss):.2g}): an input like the training one is as far off; "
-                  f"a larger order holds the peak (--r above {r}; --basis velocities for velocity constraints)",
+                  f"a larger order holds the peak ({either('--r')} above {r}; "
+                  f"{either('--basis', value='velocities')} for velocity constraints)",
                   FmuOpinfWarning, stacklevel=3)
 
 
@@ -333,7 +335,8 @@ def _warn_nonlinear_outputs(linearity: dict) -> None:
                 "linear model of them can give")
     warnings.warn(f"{few} {verb} not linear in the recorded states (an energy, a length, an angle: a polynomial of "
                   f"them gives {them}): least squares from the recorded positions, velocities, inputs and a constant "
-                  f"leaves {share} of {its} variation; {done}; record without {them} (snapshots --outputs naming the "
+                  f"leaves {share} of {its} variation; {done}; record without {them} (snapshots {either('--outputs')} "
+                  "naming the "
                   f"others) or keep {them} knowing that the ROM's {few} {verb} a linear fit", FmuOpinfWarning,
                   stacklevel=3)
 
@@ -451,7 +454,7 @@ def start_miss_warning(info: dict, names: Sequence[str] = ()) -> str | None:
              else "training range")
     return (f"the ROM's outputs at its start (t = 0) miss the source's by {misses[worst]:.2g} of the {scale} "
             f"of output y[{worst + 1}]{name}: part of the start state lies outside the basis, and the output map "
-            "fits all snapshots alike; a larger --r takes more of the start state into the basis")
+            f"fits all snapshots alike; a larger {either('--r')} takes more of the start state into the basis")
 
 
 #: Largest miss of the ROM's free response from its start values (inputs held), as a share of each output's range
@@ -475,8 +478,9 @@ def free_response_warning(info: dict, names: Sequence[str] = ()) -> str | None:
     name = f" ({name})" if name else ""
     return (f"the ROM's free response from the start values (inputs held, training run {own['run']}) misses the "
             f"source's by up to {misses[worst]:.2g} of the range of output y[{worst + 1}]{name} there: "
-            "the FMU moves on its own from its start, and the basis does not hold that motion: a larger --r (up to "
-            "the snapshot rank) takes more of it in; compare --input none shows the ROM against the FMU")
+            "the FMU moves on its own from its start, and the basis does not hold that motion: a larger "
+            f"{either('--r')} (up to the snapshot rank) takes more of it in; compare "
+            f"{either('--input', value='none')} shows the ROM against the FMU")
 
 
 def _warn_if_modes_above_nyquist(poles: list, dt: float | None, t_end: float | None = None,

@@ -122,8 +122,8 @@ def after_first_run(source: Any, grids: Sequence[np.ndarray], path: Path, second
         return
     warnings.warn(f"{path.name}: the first run took {duration_text(seconds)} ({1e3 * seconds / len(grids[0]):.2g} ms "
                   f"per sample): the other {len(grids) - 1} run(s) take about {duration_text(remaining)} more; to cut "
-                  "them: --outputs or --positions to record fewer rows, --inputs to drive fewer inputs, --dt and "
-                  "--t-end for fewer samples", FmuOpinfWarning, stacklevel=3)
+                  f"them: {either('--outputs')} or {either('--positions')} to record fewer rows, {either('--inputs')} "
+                  f"to drive fewer inputs, {DT_T_END} for fewer samples", FmuOpinfWarning, stacklevel=3)
 
 
 def _line(source: Any, grids: Sequence[np.ndarray], path: Path, nbytes: float, seconds: float | None) -> str:
@@ -152,7 +152,7 @@ def _check_space(path: Path, nbytes: float) -> None:
         raise FileFormatError(f"cannot write {path}: the recording needs about {_size(nbytes)} before compression "
                               f"(at least {_size(SMALLEST_COMPRESSION * nbytes)} compressed) and only "
                               f"{_size(free)} are free; free space, choose another -o location, or record fewer "
-                              "rows (--outputs, --positions) or samples (--dt, --t-end)")
+                              f"rows ({either('--outputs')}, {either('--positions')}) or samples ({DT_T_END})")
     warnings.warn(f"{path.name}: the recording needs about {_size(nbytes)} before compression and {_size(free)} "
                   "are free: it fits only if compression saves enough; free space or choose another -o location",
                   FmuOpinfWarning, stacklevel=4)

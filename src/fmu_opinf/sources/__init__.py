@@ -323,7 +323,7 @@ def _warn_outputs_left_out(source: Source) -> None:
                      "recorded: the ROM's outputs are continuous maps of its state (eq. 17), which cannot follow a "
                      "staircase (fitted, one bends the ROM's dynamics and throws the continuous outputs off); record "
                      "them anyway with "
-                     f'--outputs "{insist}"')
+                     + patterns_said(outputs=insist))
     if other:
         parts.append(f"output(s) {_few_names(other)} are not real signals and are not recorded (the ROM and its "
                      "exported FMU have no port for them)")

@@ -460,7 +460,8 @@ class ModelExchangeSource(FMUSource):
                   f"{rho:.2g} 1/s, {rho_h:.3g} times the step): DOP853 is held to its stability limit and predicted to "
                   f"take about {duration_text(predicted)} for a run of {samples} steps, and the exact hold step takes "
                   f"at most {_linear_hold.MAX_STATES} states; {cs}reduce the model's states, or force the exact step "
-                  f"with --me-method linear if the machine has about {memory:.2g} GiB to spare", stacklevel=3)
+                  f"with {either('--me-method', value='linear')} if the machine has about {memory:.2g} GiB to spare",
+                  stacklevel=3)
 
     def _warn_slow_run(self, name: str, t0: float, t1: float, t: float, h: float) -> None:
         """Say once, while the integrator ``name`` is still at it, that it has spent over

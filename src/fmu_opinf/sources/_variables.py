@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from .._stepping import declared_stepping
-from .._validate import either, options_said, patterns_said
+from .._validate import POSITIONS_VELOCITIES, either, options_said, patterns_said
 from ..errors import FMUError, FmuOpinfWarning, InputSpecError
 from ._base import CONSTRAINTS, few_names, match_names, natural_key, split_patterns
 
@@ -1047,7 +1047,8 @@ def discover(model: ModelInfo, elements: dict[str, Element], positions: str | No
 #: The rule of a model whose exporter reduced a velocity constraint by dummy derivatives (audit 77b F1).
 _DUMMY_DERIVATIVES = ("from derivative links: every position is a state, and those whose derivative is an alias of a "
                       "computed velocity (no state) are recorded with it: the exporter reduced a velocity constraint "
-                      "by dummy derivatives (record with --constraint velocity, so that fit takes the velocities' POD)")
+                      f"by dummy derivatives (record with {either('--constraint', value='velocity')}, so that fit "
+                      "takes the velocities' POD)")
 
 
 def _name_rewrites(pairs: list[tuple[str, str]]) -> set[tuple[str, str]]:
@@ -1134,7 +1135,7 @@ def _geared_refusal(model: ModelInfo, elements: dict[str, Element], states: _Sta
     shown = ", ".join(f"{p} (velocity {v})" for p, v in list(geared.items())[:4]) + (", ..." if len(geared) > 4 else "")
     return FMUError(f"{model.label}: its continuous state(s) {shown} are positions whose derivatives are not velocity "
                     f"states ({_geared_kind(model, elements, states, geared)}); record them with the others: "
-                    f"--positions \"{positions}\" --velocities \"{velocities}\"")
+                    f"{patterns_said(positions=positions, velocities=velocities)}")
 
 
 def _geared_kind(model: ModelInfo, elements: dict[str, Element], states: _States, geared: dict[str, str]) -> str:
@@ -1206,11 +1207,11 @@ def _not_mechanical(model: ModelInfo, others: list[str], why: str, states: _Stat
                         f"({why}): {pairs}, a prescribed motion (a base driven by its velocity), which "
                         "M x'' + D x' + K x = B u cannot represent: the masses feel the motion's displacement, no "
                         "input of the FMU; a model whose input is the displacement (or a force) can be reduced, this "
-                        "one only approximately (pass --positions and --velocities to try)")
+                        f"one only approximately (pass {POSITIONS_VELOCITIES} to try)")
     return FMUError(f"{model.label}: its continuous state(s) {shown} are neither positions nor velocities ({why}): "
                     "the model is not M x'' + D x' + K x = B u alone (an actuator lag, a filter or a controller "
-                    "state?) and a reduced model of its mechanical states cannot follow them; pass --positions and "
-                    f"--velocities to record the mechanical states anyway{_dummy_text(computed or {})}")
+                    "state?) and a reduced model of its mechanical states cannot follow them; pass "
+                    f"{POSITIONS_VELOCITIES} to record the mechanical states anyway{_dummy_text(computed or {})}")
 
 
 def _dummy_text(computed: dict[str, str]) -> str:
@@ -1220,7 +1221,8 @@ def _dummy_text(computed: dict[str, str]) -> str:
         return ""
     shown = ", ".join(f"der({p}) is the computed velocity {v}" for p, v in list(computed.items())[:3])
     return (f" (besides, {shown}{', ...' if len(computed) > 3 else ''}: positions whose velocity the exporter made "
-            "no state, dummy derivatives of a velocity constraint; record those with --constraint velocity)")
+            f"no state, dummy derivatives of a velocity constraint; record those with "
+            f"{either('--constraint', value='velocity')})")
 
 
 def _prescribed_motions(model: ModelInfo, states: _States, others: list[str]) -> dict[str, str]:
@@ -1269,7 +1271,7 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
         names = ", ".join(s.name for s in states.states[:6]) + (", ..." if len(states.states) > 6 else "")
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its continuous states ({names}): "
                        "no derivative is an alias of a state, the model structure declares no dependency pairing "
-                       f"them, and they are not positions then velocities; pass --positions and --velocities"
+                       f"them, and they are not positions then velocities; pass {POSITIONS_VELOCITIES}"
                        f"{_patterns_by_units(states)}")
     pos = _named(elements, "x[*]")
     if pos:
@@ -1289,10 +1291,11 @@ def _default_positions(model: ModelInfo, states: _States, elements: dict[str, El
     found = f"its continuous local variables ({listed}) are an odd number" if locals_ else "it has no continuous local variables"
     outputs = [e.name for e in elements.values() if _is_signal(e) and e.var.causality == "output"]
     hint = (f"; where its outputs are the positions of every mass (a fixed-step code generator's model shows no "
-            f"more), --positions {','.join(outputs)}" if outputs and len(outputs) <= 20 else "")
+            f"more), {either('--positions', value=','.join(outputs))}" if outputs and len(outputs) <= 20 else "")
     raise FMUError(f"{model.label} declares no continuous states, has no x[*] variables and no local variables "
-                   f"with units of length and velocity, and {found}; pass --positions with the variables' names (and "
-                   f"--velocities where the FMU has them; otherwise they are derived from the positions){hint}")
+                   f"with units of length and velocity, and {found}; pass {either('--positions')} with the "
+                   f"variables' names (and {either('--velocities')} where the FMU has them; otherwise they are derived "
+                   f"from the positions){hint}")
 
 
 def _aliased_rates(model: ModelInfo, states: _States, elements: dict[str, Element]) -> str:
@@ -1419,8 +1422,9 @@ def _shared_velocity(model: ModelInfo, pairs: list, states: _States) -> FMUError
             first[velocity.name] = position.name
     kept = [p.name for p, (v, _) in pairs if first[v.name] == p.name]
     return FMUError(f"{model.label}: positions share a velocity state: {'; '.join(shared[:3])}; a rigid connection "
-                    "whose coordinates the FMU keeps both of. Record one position per velocity: --positions "
-                    f"\"{','.join(kept)}\" --velocities \"{','.join(first)}\" (the other positions differ from them "
+                    "whose coordinates the FMU keeps both of. Record one position per velocity: "
+                    + patterns_said(positions=",".join(kept), velocities=",".join(first))
+                    + " (the other positions differ from them "
                     "by constants, and are left out with a warning)")
 
 
@@ -1442,7 +1446,7 @@ def _linked(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
     if chained:
         shown = ", ".join(f"der({p.name})={v.name}" for p, (v, _) in pairs[:6])
         raise FMUError(f"{model.label}: the derivative links do not split the states into positions and "
-                       f"velocities ({shown}{', ...' if len(pairs) > 6 else ''}); pass --positions and --velocities")
+                       f"velocities ({shown}{', ...' if len(pairs) > 6 else ''}); pass {POSITIONS_VELOCITIES}")
     pos = [Column(p, p.sign) for p, _ in pairs]
     vel = [Column(v, rel * v.sign) for _, (v, rel) in pairs]
     return pos, vel, states.rate_columns(vel)
@@ -1599,7 +1603,7 @@ def _halves(model: ModelInfo, states: _States) -> tuple[list[Column], list[Colum
         names = ", ".join(s.name for s in ordered[:8]) + (", ..." if len(ordered) > 8 else "")
         raise FMUError(f"{model.label}: cannot tell positions from velocities among its {len(ordered)} continuous "
                        f"states ({names}): an odd number and no derivative is an alias of a state"
-                       f"{_neither_by_units(ordered)}; pass --positions and --velocities")
+                       f"{_neither_by_units(ordered)}; pass {POSITIONS_VELOCITIES}")
     half = len(ordered) // 2
     pos = [Column(s, s.sign) for s in ordered[:half]]
     vel = [Column(s, s.sign) for s in ordered[half:]]
@@ -1767,11 +1771,12 @@ def select_inputs(model: ModelInfo, elements: dict[str, Element], patterns: str 
         if not names:
             available = [e.name for e in inputs]
             raise FMUError(f"input {show_patterns(patterns)} is not a real variable of {model.label} "
-                           f"(its inputs: {', '.join(available) or 'none'}); pass --inputs with an input name")
+                           f"(its inputs: {', '.join(available) or 'none'}); pass {either('--inputs')} with an input "
+                           "name")
         bad = [n for n in names if elements[n].var.causality != "input"]
         if bad:
             raise FMUError(f"{bad[0]} has causality {elements[bad[0]].var.causality!r} in {model.label}, not "
-                           "'input'; pass --inputs with input variables")
+                           f"'input'; pass {either('--inputs')} with input variables")
         forces = [elements[n] for n in names]
         _refuse_twice(forces, model)
     chosen = {_value_key(e) for e in forces}   # an alias named in --inputs drives its variable
@@ -1874,7 +1879,7 @@ def select_outputs(model: ModelInfo, elements: dict[str, Element], patterns: str
     if not names:
         examples = ", ".join(sorted(reals, key=natural_key)[:6]) or "none"
         raise FMUError(f"outputs pattern {show_patterns(patterns)} matches no real variable of {model.label} "
-                       f"(variables: {examples}, ...); pass --outputs with a matching pattern")
+                       f"(variables: {examples}, ...); pass {either('--outputs')} with a matching pattern")
     return [elements[n] for n in names]
 
 
