@@ -460,7 +460,8 @@ def test_fmi3_state_arrays_without_dependencies_are_paired_by_their_units_variab
     assert "variable by variable in declaration order" in sel.how["positions"]
     crossed = _fmi3_state_arrays([("x", "m", 3), ("vb", "m/s", 0), ("xb", "m", 0), ("v", "m/s", 3)])
     with pytest.raises(FMUError, match=r"cannot tell positions from velocities .* pass --positions and --velocities "
-                                       r"in matching order \(by their units, positions x\[\*\],xb; velocities "
+                                       r"or positions= and velocities= in matching order \(by their units, "
+                                       r"positions x\[\*\],xb; velocities "
                                        r"vb,v\[\*\]\)"):   # (audit 59: no variable was named)
         resolve_variables(_write(tmp_path, crossed))
 
@@ -924,7 +925,8 @@ def test_a_position_whose_rate_is_no_velocity_state_gets_the_patterns_that_recor
     text = str(caught.value)
     assert text.startswith(f"modelDescription.xml: its continuous state(s) mass[3].s (velocity {rate}) are "
                            "positions whose derivatives are not velocity states (a velocity constraint or a gear")
-    assert text.endswith(f'record them with the others: --positions "mass[*].s" --velocities "{velocities}"')
+    assert text.endswith(f'record them with the others: --positions "mass[*].s" --velocities "{velocities}" or '
+                         f"positions='mass[*].s', velocities='{velocities}'")
     assert "lag" not in text and "\n" not in text
     selection = resolve_variables(path, positions="mass[*].s", velocities=velocities).selection
     assert _names(selection.positions) == ["mass[1].s", "mass[2].s", "mass[3].s"]
@@ -944,7 +946,8 @@ def test_a_position_whose_rate_depends_on_itself_is_named_a_lag(tmp_path, depend
         resolve_variables(path)
     text = str(caught.value)
     assert f"are positions whose derivatives are not velocity states {kind}; record them with the others" in text
-    assert text.endswith('--positions "mass[*].s" --velocities "mass[*].v"')
+    assert text.endswith('--positions "mass[*].s" --velocities "mass[*].v" or positions=\'mass[*].s\', '
+                         "velocities='mass[*].v'")
 
 
 def _unrecorded_warning(tmp_path, selection) -> str:
@@ -995,7 +998,7 @@ def test_a_model_that_shows_only_its_ports_gets_its_outputs_proposed_as_position
     exact (1.1e-11), but the error did not say so."""
     v = [_sv("In1", 0, "input", body='<Real start="0"/>'), _sv("Out1", 1, "output"), _sv("Out2", 2, "output")]
     with pytest.raises(FMUError, match=r"declares no continuous states.*where its outputs are the positions of "
-                                       r"every mass .*--positions Out1,Out2$"):
+                                       r"every mass .*--positions Out1,Out2 or positions='Out1,Out2'$"):
         resolve_variables(_write(tmp_path, _fmi2(v, [])))
 
 
