@@ -77,7 +77,8 @@ def mechanical_realization(D: np.ndarray, K: np.ndarray, B: np.ndarray, Cp: np.n
     -------
     MechanicalRealization or None
         None when no such realization exists or it would be ill-conditioned: an eigenvalue with a real part
-        >= 0 (zero poles of free bodies aside, module docstring), an input reaching a pole pair through two directions, or a nearly defective model.
+        >= 0 (zero poles of free bodies aside, module docstring), an input reaching a pole pair through two
+        directions, or a nearly defective model.
     """
     r, m = B.shape
     A = first_order_matrix(D, K)
