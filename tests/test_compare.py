@@ -258,11 +258,11 @@ def test_the_order_note_reads_the_fit_s_order_search():
     training outputs), compare said the order "came from the POD energy" and suggested ``fit --r 40``.  The note
     now says what the search kept and tried, never suggests an order it tried, suggests the next doubling where
     the search kept the largest order it tried, and a smaller order where it stopped at a noise floor.  ROM objects
-    stand in with only what :func:`compare._order_chosen` reads."""
+    stand in with only what :func:`compare._training._order_chosen` reads."""
     from types import SimpleNamespace
 
     def order_of(r, search):
-        return compare._order_chosen(SimpleNamespace(r=r, provenance={"fit_settings": {"r": None}},
+        return compare._training._order_chosen(SimpleNamespace(r=r, provenance={"fit_settings": {"r": None}},
                                                      fit_info={"snapshot_rank": 40, "order_search": search}))
 
     off = {"per_output": {"y[2]": {"relative_max_variation": 0.35}}}
@@ -840,7 +840,7 @@ def test_error_figures_of_outputs_near_the_top_of_the_floating_point_range_are_f
 
 def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
     """Audit 69, F6: ``compare`` on a ROM FMU gave no order note, since the FMU did not carry the fit's report.  The
-    export writes :func:`compare._order_chosen` of the ROM into provenance.json, and compare takes it back only in
+    export writes :func:`compare._training._order_chosen` of the ROM into provenance.json, and compare takes it back only in
     that form (a data file)."""
     from fmu_opinf.compare import _training
     from fmu_opinf.export import rom_fmu_spec
@@ -878,8 +878,8 @@ def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
                          fit_info={"snapshot_rank": 30, "order_search": search, "own_motion": {"spans": [1.0]},
                                    "nonlinear_outputs": {"left_out": True, "names": ["E"]}})
     path = export_fmu(rom, tmp_path / "rom.fmu")
-    provenance = compare._rom_side_info(Path(path))["provenance"]
+    provenance = compare._sides._rom_side_info(Path(path))["provenance"]
     assert provenance["rom_fmu_order"] == {"r": 2, "chosen": "search", "snapshot_rank": 30, "tried": [4, 16]}
     assert provenance["rom_fmu_linear_fits"] == ["E"] and provenance["rom_fmu_moves_on_its_own"] is True
-    info = compare._rom_side_info(Path(path))
+    info = compare._sides._rom_side_info(Path(path))
     assert _training._carried_linear_fits(info) == ["E"] and compare.moves_on_its_own(Path(path), info)

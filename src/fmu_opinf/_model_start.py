@@ -265,7 +265,7 @@ def _source_path(own: dict[str, Any], attrs: dict[str, Any]) -> Path | str:
 
 def _exact_names(names: Any) -> str | None:
     """Recorded variable names as one pattern of exact names (as ``compare`` opens the source with them)."""
-    from .compare import _exact_names as exact
+    from .compare._sides import _exact_names as exact
 
     listed = [str(n) for n in names] if isinstance(names, (list, tuple, np.ndarray)) else None
     return exact(listed)

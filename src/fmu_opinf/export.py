@@ -1221,25 +1221,26 @@ def _recorded_unit_definitions(provenance: dict, used: set[str] | None = None) -
 
 
 def _order_record(rom: SecondOrderROM) -> dict[str, Any]:
-    """How the ROM's order was chosen (:func:`fmu_opinf.compare._order_chosen`), for ``compare`` on the FMU: its
+    """How the ROM's order was chosen (:func:`fmu_opinf.compare._training._order_chosen`), for ``compare`` on the FMU: its
     order note needs it, and the FMU does not carry the fit's report (audit 69 F6)."""
-    from .compare import _order_chosen
+    from .compare._training import _order_chosen
 
     return _order_chosen(rom)
 
 
 def _linear_fits_record(rom: SecondOrderROM) -> list[str]:
-    """The outputs the fit found not linear in the states (:func:`fmu_opinf.compare._linear_fits`), for ``compare``
+    """The outputs the fit found not linear in the states (:func:`fmu_opinf.compare._training._linear_fits`), for ``compare``
     on the FMU: its note on them needs it, and the FMU does not carry the fit's report (audit 77a F1)."""
-    from .compare import _linear_fits
+    from .compare._training import _linear_fits
 
     return _linear_fits(rom)
 
 
 def _training_miss_record(rom: SecondOrderROM) -> dict[str, Any] | None:
-    """What fit warned about the ROM's miss of its own training outputs (:func:`fmu_opinf.compare.
-    _training_miss_of`), for ``compare`` on the FMU to repeat it (audit 79a F1); None where fit did not warn."""
-    from .compare import _training_miss_of
+    """What fit warned about the ROM's miss of its own training outputs
+    (:func:`fmu_opinf.compare._training._training_miss_of`), for ``compare`` on the FMU to repeat it (audit 79a F1);
+    None where fit did not warn."""
+    from .compare._training import _training_miss_of
 
     return _training_miss_of(rom)
 

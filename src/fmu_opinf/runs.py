@@ -1213,7 +1213,7 @@ def compare_runs(
     (RunTableReport, str)
         The outcomes and the plain-text summary table.
     """
-    from .compare import _load_rom_side, _rom_side_info
+    from .compare._sides import _load_rom_side, _rom_side_info
     from .report import summary_table
 
     rows = list(runs) if not isinstance(runs, (str, os.PathLike)) else read_run_table(runs)

@@ -30,9 +30,8 @@ Modules, one job each:
 :mod:`._timing`
     What each side's time measured.
 
-The public names of those modules are re-exported here, and the private helpers that other modules of the package
-import (:mod:`fmu_opinf.export`, :mod:`fmu_opinf.runs`, :mod:`fmu_opinf._model_start`).  Each module reads its own
-names, so a test that patches one patches it in the module that uses it (``fmu_opinf.compare._run._rom_side_info``
+The public names of those modules are re-exported here; other modules of the package import the private helpers
+they share from the module that defines them.  Each module reads its own names, so a test that patches one patches it in the module that uses it (``fmu_opinf.compare._run._rom_side_info``
 for :func:`compare`): a patch of ``fmu_opinf.compare.NAME`` changes a copy that the functions do not read.
 """
 
@@ -53,15 +52,6 @@ from ._sides import ROM_FMU_VARIABLES as ROM_FMU_VARIABLES
 from ._simulate import simulate_outputs as simulate_outputs
 from ._training import (INPUT_SIZE_NOTE as INPUT_SIZE_NOTE, MODEL_VERDICTS as MODEL_VERDICTS,
                         PAST_TRAINING_MARGIN as PAST_TRAINING_MARGIN, input_beyond_training as input_beyond_training)
-
-# the private helpers other modules of the package import from here (fmu_opinf.export, fmu_opinf.runs,
-# fmu_opinf._model_start)
-from ._sides import _exact_names as _exact_names
-from ._sides import _load_rom_side as _load_rom_side
-from ._sides import _rom_side_info as _rom_side_info
-from ._training import _linear_fits as _linear_fits
-from ._training import _order_chosen as _order_chosen
-from ._training import _training_miss_of as _training_miss_of
 
 __all__ = ["output_error", "error_metrics", "offset_note", "scale_note", "linear_fit_note", "Comparison", "compare",
            "simulate_outputs", "DisplayUnit"]
