@@ -215,7 +215,7 @@ def test_provenance_json_summarizes_the_source_parameters_and_keeps_the_rest(tra
     import hashlib
     import json
 
-    from fmu_opinf.compare import _bundled_provenance, _is_rom_fmu
+    from fmu_opinf.compare._declared import _bundled_provenance, _is_rom_fmu
 
     bundled = _bundled(trained["fmu"])
     record = trained["rom"].provenance["snapshots"]["source_parameters"]
