@@ -292,7 +292,7 @@ def _blocks(H: np.ndarray, rows: list[int], cols: list[int], ns: int) -> np.ndar
 def _solve_sdp_compressed(
     H: np.ndarray, r: int, trace: float, tol: float, verbose: bool, keep: tuple[int, ...] = (0, 1, 2),
     normalization: str = "trace", solver: str = "clarabel", G: np.ndarray | None = None, progress: bool = False,
-    factor: _OrderedFactor | None = None,
+    factor: _OrderedFactor | None = None, reduced: tuple | None = None,
 ) -> tuple[np.ndarray, dict]:
     """SDP over the upper-triangular entries with PSD cones on the blocks in ``keep`` (others eliminated).
 
@@ -301,13 +301,19 @@ def _solve_sdp_compressed(
     :mod:`fmu_opinf._sdp` and reports its certificate (``G`` needed); ``"auto"`` does the same and falls back to
     Clarabel when the certificate fails (inference module docstring, *Solvers*); ``"clarabel"`` goes through
     cvxpy.  ``progress``: a labelled progress bar of the interior-point iterations on a terminal.  ``factor``: the
-    screening's factor of ``H + a a^T``, for :func:`_reduced_quadratic`.
+    screening's factor of ``H + a a^T``, for :func:`_reduced_quadratic`; ``reduced``: that function's result for
+    ``keep``, where the caller has it already (:func:`_predicted_cones`).
     """
+    eliminated = time.perf_counter()  # the elimination counts as setup time, as it did inside either solver path
+    if len(keep) < 3 and reduced is None:
+        reduced = _reduced_quadratic(H, _mass_indicator(r), trace, keep, r, factor)
+    eliminated = time.perf_counter() - eliminated
     if solver in ("ipm", "auto"):
-        w, report = _solve_sdp_ipm(H, r, trace, tol, keep, normalization, G, progress, factor)
+        w, report = _solve_sdp_ipm(H, r, trace, tol, keep, normalization, G, progress, reduced)
+        report["setup_seconds"] += eliminated
         if report["status"] in ("optimal", _CONE_VIOLATED) or solver == "ipm":
             return w, report
-        w, fallback = _solve_sdp_compressed(H, r, trace, tol, verbose, keep, normalization, factor=factor)
+        w, fallback = _solve_sdp_compressed(H, r, trace, tol, verbose, keep, normalization, reduced=reduced)
         fallback["fallback"] = {key: report[key] for key in ("status", "gap", "iterations", "solve_seconds")}
         for key in ("setup_seconds", "solve_seconds"):
             fallback[key] += report[key]
@@ -321,7 +327,7 @@ def _solve_sdp_compressed(
     if len(keep) == 3:
         idx_a, S, lin = np.arange(3 * ns), H, None
     else:
-        idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, _mass_indicator(r), trace, keep, r, factor)
+        idx_a, idx_f, S, lin, recover = reduced
     w = cp.Variable(idx_a.size)
     mats = {b: cp.reshape(select @ w[j * ns : (j + 1) * ns], (r, r), order="F") for j, b in enumerate(keep)}
     constraints = [mat >> (np.eye(r) if (b == 0 and normalization == "mass-eigenvalue") else 0)
@@ -331,7 +337,7 @@ def _solve_sdp_compressed(
     objective = cp.quad_form(w, cp.psd_wrap(sp.csc_matrix(S) if len(keep) == 3 else S))
     if lin is not None:
         objective = objective + 2 * lin @ w
-    report = _run(cp.Problem(cp.Minimize(objective), constraints), t0, tol, verbose)
+    report = _run(cp.Problem(cp.Minimize(objective), constraints), t0 - eliminated, tol, verbose)
     full = np.empty(3 * ns)
     full[idx_a] = np.asarray(w.value)
     if len(keep) < 3:
@@ -355,9 +361,10 @@ _POLISH_ABOVE = 1e-7
 
 
 def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[int, ...], normalization: str,
-                   G: np.ndarray | None, progress: bool = False, factor: _OrderedFactor | None = None
+                   G: np.ndarray | None, progress: bool = False, reduced: tuple | None = None
                    ) -> tuple[np.ndarray, dict]:
-    """The SDP of :func:`_solve_sdp_compressed` by :func:`fmu_opinf._sdp.solve_ipm`, certified on ``G``."""
+    """The SDP of :func:`_solve_sdp_compressed` by :func:`fmu_opinf._sdp.solve_ipm`, certified on ``G``
+    (``reduced``: :func:`_reduced_quadratic`'s result for ``keep``, given whenever a block is eliminated)."""
     from ._sdp import ConeBlock, certificate, polish, solve_ipm
 
     t0 = time.perf_counter()  # wall time, like the Clarabel path's report
@@ -367,7 +374,7 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
         idx_a, S, lin = np.arange(3 * ns), H, np.zeros(3 * ns)
         recover = idx_f = None
     else:
-        idx_a, idx_f, S, lin, recover = _reduced_quadratic(H, a_full, trace, keep, r, factor)
+        idx_a, idx_f, S, lin, recover = reduced
     cones = [ConeBlock(j * ns, r, 1.0 if (b == 0 and normalization == "mass-eigenvalue") else 0.0)
              for j, b in enumerate(keep)]
     a = a_full[idx_a] if (0 in keep and normalization == "trace") else None
@@ -444,17 +451,23 @@ def _dropped_cone_violated(expand: Callable[[np.ndarray], np.ndarray], r: int,
         if looked or not measure <= _PROBE_MEASURE:
             return False
         looked = True  # one look: each costs a recovery of the dropped blocks (r = 35: 3 ms, 17 iterations)
-        mats = _unpack(expand(w_a), r)
-        # a block near the apex of its cone (all eigenvalues ~ 0: an undamped model's Dr) is judged against the
-        # others' size: its own ratio there is round-off, and it stopped every relaxation of such data
-        floor = _APEX * max(float(np.abs(np.linalg.eigvalsh(block)).max()) for block in mats)
-        for b in dropped:
-            eigs = np.linalg.eigvalsh(mats[b])
-            if eigs[0] < -_PROBE_MARGIN * max(float(np.abs(eigs).max()), floor, np.finfo(float).tiny):
-                return True
-        return False
+        return bool(_clearly_indefinite(_unpack(expand(w_a), r), dropped))
 
     return stop
+
+
+def _clearly_indefinite(mats: tuple, blocks: Any) -> list[int]:
+    """The blocks among ``blocks`` whose smallest eigenvalue is below ``-_PROBE_MARGIN`` times their largest
+    magnitude (:func:`_dropped_cone_violated`, :func:`_predicted_cones`)."""
+    # a block near the apex of its cone (all eigenvalues ~ 0: an undamped model's Dr) is judged against the
+    # others' size: its own ratio there is round-off, and it stopped every relaxation of such data
+    floor = _APEX * max(float(np.abs(np.linalg.eigvalsh(block)).max()) for block in mats)
+    out = []
+    for b in blocks:
+        eigs = np.linalg.eigvalsh(mats[b])
+        if eigs[0] < -_PROBE_MARGIN * max(float(np.abs(eigs).max()), floor, np.finfo(float).tiny):
+            out.append(b)
+    return out
 
 
 def _share_of_the_way(bar: Progress, tol: float) -> Callable[[int, float], None]:
@@ -780,19 +793,21 @@ def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full:
     """Eq. (16) normalized by ``Mr >= I`` (scaled units), with the same exact cone screening.
 
     The mass cone is always kept (it carries the normalization); the damping and stiffness blocks are eliminated
-    without their cones and added only if they come out indefinite (all three cones with ``full``).
+    without their cones and added only if they come out indefinite (all three cones with ``full``).  The first
+    round starts with the cones that :func:`_predicted_cones` reads from the ``Mr``-only relaxation's start.
     """
     spent = {"setup_seconds": 0.0, "solve_seconds": 0.0, "iterations": 0}
-    keep = (0, 1, 2) if full else (0,)
+    keep, reduced = ((0, 1, 2), None) if full else _predicted_cones(H, r)
     while True:
         try:
             w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, keep, normalization="mass-eigenvalue",
-                                            **(sdp or {}))
+                                            **(sdp or {}), reduced=reduced)
         except np.linalg.LinAlgError:  # a singular eliminated block (as in _fit_screened): keep every cone
             if len(keep) == 3:
                 raise
-            keep = (0, 1, 2)
+            keep, reduced = (0, 1, 2), None
             continue
+        reduced = None
         for key in spent:
             spent[key] += info.get(key, 0)
         mats = _unpack(w, r)
@@ -805,6 +820,35 @@ def _fit_mass_eigenvalue(H: np.ndarray, r: int, tol: float, verbose: bool, full:
                 info.update(status="optimal", clipped=[_BLOCKS[b] for b in bad])
             return (*(clipped or mats), info)
         keep = tuple(sorted(set(keep) | set(bad)))
+
+
+def _predicted_cones(H: np.ndarray, r: int) -> tuple[tuple[int, ...], tuple | None]:
+    """Cones of the first ``Mr >= I`` screening round, and :func:`_reduced_quadratic`'s result for them where it
+    was computed here (else None).
+
+    The ``Mr``-only relaxation starts at ``Mr = 2 I`` with ``Dr, Kr`` eliminated, i.e. at twice the least squares in
+    ``Dr, Kr`` with ``Mr = I``; where that start has ``Dr`` or ``Kr`` clearly indefinite (:func:`_clearly_indefinite`,
+    the probe's test), the relaxation is skipped and those cones are kept from the start.  The start is read from
+    the elimination of ``Kr`` alone (one Cholesky factorization of the ``Dr`` block of the reduced form), which the
+    round with the ``Mr, Dr`` cones uses as it is.  On the 23 ``Mr >= I`` problems of ``test_sdp``,
+    ``test_inference`` and ``test_accuracy`` and the triple chain at r = 10 .. 50, the blocks clearly indefinite
+    at the start were exactly the cones the screening ended with (2026-12-07); a wrong guess costs time, not
+    accuracy: a result is returned only from a round whose dropped blocks are PSD.
+    """
+    try:
+        reduced = _reduced_quadratic(H, _mass_indicator(r), float(r), (0, 1), r)
+        idx_a, idx_f, S, lin, recover = reduced
+        ns = r * (r + 1) // 2
+        mass = np.eye(r)[np.triu_indices(r)]
+        factor = scipy.linalg.cho_factor(S[ns:, ns:], lower=True, check_finite=False)
+    except np.linalg.LinAlgError:  # a singular block: the relaxation's own round decides, as before
+        return (0,), None
+    start = np.empty(3 * ns)
+    start[idx_a] = np.concatenate([mass, scipy.linalg.cho_solve(factor, -(S[ns:, :ns] @ mass + lin[ns:]),
+                                                                check_finite=False)])
+    start[idx_f] = recover(start[idx_a])
+    keep = (0, *_clearly_indefinite(_unpack(start, r), (1, 2)))
+    return keep, (reduced if keep == (0, 1) else None)
 
 
 def _indefinite(mats: tuple, blocks: Any) -> list[int]:
