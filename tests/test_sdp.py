@@ -192,11 +192,15 @@ def test_eliminated_blocks_solve_the_constrained_least_squares_problem(rng, keep
 
 
 def test_a_relaxation_with_a_violated_dropped_cone_is_ended_early_with_the_same_optimum(monkeypatch):
-    """The Mr >= I screening's first SDP keeps the mass cone only; where its damping comes out clearly indefinite
-    the interior-point method stops there (status ``stopped``, fewer iterations than a full solve) and the damping
-    cone is added: the result is still Clarabel's optimum of the full SDP, certified.  (Seed 1: the relaxation's
-    damping is clearly indefinite; with the fixture's seed it is only slightly so and the relaxation is solved.)"""
+    """Where the Mr >= I screening's first SDP keeps the mass cone only (here forced: the prediction of
+    ``_predicted_cones`` would skip that round) and its damping comes out clearly indefinite, the interior-point
+    method stops there (status ``stopped``, fewer iterations than a full solve) and the damping cone is added: the
+    result is still Clarabel's optimum of the full SDP, certified.  (Seed 1: the relaxation's damping is clearly
+    indefinite; with the fixture's seed it is only slightly so and the relaxation is solved.)"""
+    from fmu_opinf import _sdp_paths
+
     data = _damping_data(np.random.default_rng(1))
+    monkeypatch.setattr(_sdp_paths, "_predicted_cones", lambda H, r: ((0,), None))
     ends = []
     original = _sdp.solve_ipm
 
@@ -210,6 +214,62 @@ def test_a_relaxation_with_a_violated_dropped_cone_is_ended_early_with_the_same_
     assert fit.info["cones"] == ["Mr", "Dr"] and fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6
     assert [(cones, status) for cones, status, _ in ends] == [(1, "stopped"), (2, "optimal")]
     assert ends[0][2] < ends[1][2]
+    _, r, _, G = _scaled_problem(data)
+    reference = _clarabel_reference(G, r, "mass-eigenvalue")
+    assert abs(fit.info["sdp_objective"] - reference) <= 1e-6 * reference
+
+
+def _spy_on_ipm_cones(monkeypatch) -> list[int]:
+    """Record the number of cones of every interior-point solve (``fmu_opinf._sdp.solve_ipm``)."""
+    cones, original = [], _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        cones.append(len(args[2]))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
+    return cones
+
+
+def _mass_only_data(rng, noise=0.1):
+    """Exact operator data with noisy accelerations whose Mr >= I optimum needs the mass cone only (its
+    least-squares damping and stiffness are PSD)."""
+    _, (a, v, x, u) = exact_operator_data(rng)
+    return a + noise * rng.standard_normal(a.shape), v, x, u
+
+
+@pytest.mark.parametrize("data, rounds, kept", [(lambda: _damping_data(np.random.default_rng(1)), [2], ["Mr", "Dr"]),
+                                                (lambda: _damping_data(np.random.default_rng(20261123)), [2],
+                                                 ["Mr", "Dr"]),
+                                                (lambda: _mass_only_data(np.random.default_rng(5)), [1], ["Mr"])])
+def test_mass_eigenvalue_screening_starts_with_the_cones_its_relaxation_shows(monkeypatch, data, rounds, kept):
+    """The Mr >= I screening starts with the cones that the Mr-only relaxation's start (least squares in Dr, Kr
+    with Mr = I) shows clearly indefinite: both damping data need the damping cone (one solve with both cones,
+    where the relaxation was solved first before 2026-12-07: stopped early with seed 1, to its end with the
+    fixture's seed), the noisy exact data need the mass cone only (the relaxation alone).  Either way the result
+    is Clarabel's optimum of the full SDP, certified."""
+    data = data()
+    cones = _spy_on_ipm_cones(monkeypatch)
+    fit = fit_operators(*data, normalization="mass-eigenvalue", refine=False)
+    assert cones == rounds and fit.info["cones"] == kept
+    assert fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6
+    _, r, _, G = _scaled_problem(data)
+    reference = _clarabel_reference(G, r, "mass-eigenvalue")
+    assert abs(fit.info["sdp_objective"] - reference) <= 1e-6 * reference
+
+
+@pytest.mark.parametrize("guess", [(0, 1), (0, 1, 2)])
+def test_a_wrong_cone_prediction_costs_time_not_accuracy(monkeypatch, guess):
+    """These data's Mr >= I optimum needs the mass cone only; a prediction that keeps more cones solves a
+    tighter relaxation, still optimal for the full SDP (Clarabel's optimum, certified)."""
+    from fmu_opinf import _sdp_paths
+
+    data = _mass_only_data(np.random.default_rng(5))
+    original = _sdp_paths._predicted_cones
+    monkeypatch.setattr(_sdp_paths, "_predicted_cones", lambda H, r: (guess, original(H, r)[1]))
+    fit = fit_operators(*data, normalization="mass-eigenvalue", refine=False)
+    assert fit.info["cones"] == [_sdp_paths._BLOCKS[b] for b in guess]
+    assert fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6
     _, r, _, G = _scaled_problem(data)
     reference = _clarabel_reference(G, r, "mass-eigenvalue")
     assert abs(fit.info["sdp_objective"] - reference) <= 1e-6 * reference
