@@ -392,9 +392,10 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     dropped = [b for b in range(3) if b not in keep]
     # a diverging iterate may overflow on its way out: the certificate below judges the result, so no warnings
     with Progress(100, label, quiet=not progress) as bar, np.errstate(over="ignore", invalid="ignore"):
+        start = _least_squares_start(S, lin, r) if normalization == "mass-eigenvalue" and keep == (0, 1) else None
         result = solve_ipm(S, lin, cones, a=a, c=trace, constant=float(zero @ H @ zero), tol=tol,
                            callback=_share_of_the_way(bar, tol),
-                           stop=_dropped_cone_violated(expand, r, dropped) if dropped else None)
+                           stop=_dropped_cone_violated(expand, r, dropped) if dropped else None, start=start)
         if result.status in ("optimal", "floor", "stopped"):  # its own stopping test held: the whole way
             bar.update(100)
     t_solve = time.perf_counter() - t_solve
@@ -419,6 +420,40 @@ def _solve_sdp_ipm(H: np.ndarray, r: int, trace: float, tol: float, keep: tuple[
     return w, {"status": status, "solver": "IPM", "setup_seconds": seconds - t_solve,
                "solve_seconds": t_solve, "iterations": result.iterations, "tol": tol, "gap": gap,
                "ipm_status": result.status, "polished": polished}
+
+
+#: Margin of :func:`_least_squares_start`: ``Mr = (1 + margin) I`` and ``Dr``'s eigenvalues raised by ``margin``
+#: times their largest magnitude (triple chain, r = 20 / 35 / 50, iterations of the ``Mr, Dr`` round: margin 0.1 ->
+#: 11 / 14 / 19, 0.3 -> 12 / 14 / 16, 1 -> - / 17 / -; 17 / 18 / 18 from the default start; 2026-12-07).
+_START_MARGIN = 0.3
+
+
+def _least_squares_start(S: np.ndarray, lin: np.ndarray, r: int) -> np.ndarray | None:
+    """Interior start of the ``Mr >= I`` SDP with the ``Mr, Dr`` cones (``Kr`` eliminated, ``w^T S w + 2 lin^T w``
+    over the entries of ``Mr, Dr``): the least-squares ``Dr`` with ``Mr = I`` (the start that
+    :func:`_predicted_cones` reads) with its eigenvalues clipped at zero and raised by :data:`_START_MARGIN`
+    times their largest magnitude, and ``Mr = (1 + margin) I`` (None where the ``Dr`` block is singular).
+
+    The default start (``Mr = 2 I``, ``Dr = I``) has an objective about 200x the optimum on the triple chain, and
+    the first eight iterations mostly bring it down; from this one the round takes 12 / 14 / 16 instead of
+    17 / 18 / 18 iterations at r = 20 / 35 / 50, to the same certified optimum (objectives within 2e-10).
+    """
+    ns = r * (r + 1) // 2
+    iu = np.triu_indices(r)
+    mass = np.eye(r)[iu]
+    try:
+        factor = scipy.linalg.cho_factor(S[ns:, ns:], lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return None
+    damping = scipy.linalg.cho_solve(factor, -(S[ns:, :ns] @ mass + lin[ns:]), check_finite=False)
+    full = np.zeros((r, r))
+    full[iu] = damping
+    values, vectors = np.linalg.eigh(full + np.triu(full, 1).T)
+    top = float(np.abs(values).max())
+    if not np.isfinite(top) or top <= 0:
+        return None
+    raised = (vectors * (np.maximum(values, 0.0) + _START_MARGIN * top)) @ vectors.T
+    return np.concatenate([(1.0 + _START_MARGIN) * mass, 0.5 * (raised + raised.T)[iu]])
 
 
 #: Report status of a screened interior-point solve ended by :func:`_dropped_cone_violated`.
