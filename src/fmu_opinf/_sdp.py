@@ -40,22 +40,32 @@ tolerances tied to the gap 1.0e-8 above after 150 s, certificate gap 1.5e-3), r 
 path took 0.07 / 0.38 / 6.0 / 11.6 s at r = 20 / 35 / 50 / 70 in the same session.  One CG product costs
 0.3-0.4 / 0.5-0.6 / 0.9-1.1 / 1.8-2.0 ms at r = 35 / 50 / 70 / 100, so 5 s at r = 100 allow about 2,500 of them.
 Where ``Mr >= I`` spends its time (2026-12-07, triple chain r = 35, CPU, one BLAS thread, best of 5): 0.82 s
-against 0.29 s for the trace normalization.  Its screening solves the ``Mr``-only relaxation (7 iterations,
+against 0.29 s for the trace normalization.  Its screening solved the ``Mr``-only relaxation (7 iterations,
 0.06 s, stopped once ``Dr`` is clearly indefinite) and then the ``Mr, Dr`` SDP in 1260 unknowns (18 iterations,
 0.58 s: each a 1260-square ``dpotrf`` of 17.5 ms, the two Kronecker blocks 6.6 ms, the solves 2.2 ms); the two
-eliminations take 0.15 s, the certificate 2 ms, no polish.  The trace optimum needs the ``Dr`` cone only (630
-unknowns, 2.4 ms per factorization), so the gap is the second cone, not overhead.  Measured and not kept there:
+eliminations took 0.15 s, the certificate 2 ms, no polish.  The trace optimum needs the ``Dr`` cone only (630
+unknowns, 2.4 ms per factorization), so the gap is the second cone, not overhead.  Since the same day (in-process
+A/B against the previous code, interleaved, best of 10, machine load 5-10): 0.72 -> 0.47 s at r = 35, 0.09 ->
+0.05 s at r = 20, 5.2 -> 3.6 s at r = 50, by three changes: the ``Mr``-only round is skipped where its start
+shows ``Dr`` clearly indefinite (:func:`fmu_opinf._sdp_paths._predicted_cones`; same bits, 0.72 -> 0.62 s),
+the ``Mr, Dr`` round starts from the least-squares ``Dr`` (:func:`fmu_opinf._sdp_paths._least_squares_start`,
+a dual start centred on it; 18 -> 14 iterations, the solution moved by up to 1e-7 relative, objectives within
+2e-10, certified), and each cone's inverse Cholesky factor is computed once per iteration (same bits).
+Measured and not kept there:
 the dual start ``Z = eta I`` with the start's complementarity equal to its objective (1-3 fewer iterations;
 ``Mr >= I`` r = 35 / 50: 0.76 / 4.35 -> 0.67 / 3.86 s together with the next one, objectives within 3.2e-10),
 the ``Mr, Dr`` round's quadratic form read from the ``Mr`` round's elimination (r = 50: 0.45 -> 0.25 s, objectives
 equal to 1e-15): both move the ``Mr >= I`` solution (1e-6, resp. 1e-13 .. 1e-11 relative), and the default fit's
 output-error refinement turns that into a max eps_y up to 20 % different at r = 10 .. 40 (a 1e-13 congruence of
-today's solution does the same: r = 15 3.77e-7 -> 3.00e-7 / 3.11e-7), so only bit-identical changes keep the
-default fit's figures.  Also measured: a face polish after a looser stop (the faces are wide, 28 and 31 of 35
-eigenvalues: the polish costs 0.13 s, four iterations, while a stop at 1e-4 saves four and polishes to an objective
-1.3e-7 above the optimum), a primal start ``X = 0.1 I`` or ``10 I`` (1-2 more iterations).  Single-precision
-Cholesky factors the 1260-square matrix in 8.7 instead of 17.5 ms but was not tried: the Newton matrix is
-ill-conditioned and each solve would need float64 refinement products (about 2-3 ms each).
+today's solution does the same: r = 15 3.77e-7 -> 3.00e-7 / 3.11e-7).  Also measured: a face polish after a
+looser stop (the faces are wide, 28 and 31 of 35 eigenvalues: the polish costs 0.13 s, four iterations, while a
+stop at 1e-4 saves four and polishes to an objective 1.3e-7 above the optimum), a primal start ``X = 0.1 I`` or
+``10 I`` (1-2 more iterations).  Single-precision Cholesky (2026-12-07, r = 35, prototype outside the package):
+``spotrf`` of the 1260-square matrix 9.6 against 18.8 ms (``dpotrf``), a float32 solve 0.8 ms, a float64 residual
+(``dsymv``, the matrix in cache) 0.1 ms.  Refined to the float64 solve's residual, each solve took 3 residuals in
+the first nine iterations, 4-6 in the next eight and 8-10 in the last four, and in the final iteration's two solves
+refinement diverged (error 0.3-0.7 relative: ``cond * 6e-8 > 1``), so those need ``dpotrf`` anyway: at most
+2.5 ms saved per iteration early, a loss later (20 instead of 18 iterations without the fallback).  Not kept.
 
 Certificate
 -----------
@@ -208,7 +218,8 @@ _FLOOR_LEVEL = 1e3
 #: Dual start of :func:`solve_ipm` from a given primal start: ``Z_j = mu X_j^-1`` with ``mu`` this fraction of the
 #: start's objective per cone dimension (triple chain, ``Mr >= I``, ``Mr, Dr`` cones from the least-squares start of
 #: :func:`fmu_opinf._sdp_paths._least_squares_start`, r = 20 / 35 / 50: 0.03 -> 12 / - / 15, 0.1 -> 12 / 14 / 16,
-#: 0.3 -> 12 / 16 / 16, 1 -> - / 16 / - iterations; 17 / 18 / 18 from the default start).
+#: 0.3 -> 12 / - / 16, 1 -> - / 16 / -, 10 -> - / 17 / - iterations, "-" not measured; 17 / 18 / 18 from the
+#: default start; 2026-12-07).
 _START_CENTRING = 0.1
 
 
