@@ -866,9 +866,12 @@ def _predicted_cones(H: np.ndarray, r: int) -> tuple[tuple[int, ...], tuple | No
     the probe's test), the relaxation is skipped and those cones are kept from the start.  The start is read from
     the elimination of ``Kr`` alone (one Cholesky factorization of the ``Dr`` block of the reduced form), which the
     round with the ``Mr, Dr`` cones uses as it is.  On the 23 ``Mr >= I`` problems of ``test_sdp``,
-    ``test_inference`` and ``test_accuracy`` and the triple chain at r = 10 .. 50, the blocks clearly indefinite
-    at the start were exactly the cones the screening ended with (2026-12-07); a wrong guess costs time, not
-    accuracy: a result is returned only from a round whose dropped blocks are PSD.
+    ``test_inference`` and ``test_accuracy`` and the triple chain at r = 10 .. 50 (2026-12-07), the start's blocks
+    had the signs of the cones the screening ended with: 10 needed ``Mr`` only (the start's ``Dr, Kr`` PSD: the
+    relaxation is solved as before, the same bits, after this function's 2 factorizations), 13 ``Mr, Dr`` and
+    four all three cones (skipped round, same bits where the last round keeps its cones).  One of the latter had
+    ``Kr`` at -6.8e-3 of its magnitude, below the margin: it solved ``Mr, Dr`` first, one round more than before.  A
+    wrong guess costs time, not accuracy: a result is returned only from a round whose dropped blocks are PSD.
     """
     try:
         reduced = _reduced_quadratic(H, _mass_indicator(r), float(r), (0, 1), r)
