@@ -280,7 +280,7 @@ def test_least_squares_start_is_the_clipped_damping_of_least_squares_with_unit_m
     independent of the elimination), eigenvalues clipped at zero and raised by 0.3 of the largest magnitude."""
     from fmu_opinf import _sdp_paths
 
-    R, r, m, G = _scaled_problem(_damping_data(rng))
+    _, r, _, G = _scaled_problem(_damping_data(rng))
     W = np.linalg.cholesky(G + 1e-14 * np.eye(3 * r))
     D, K = cp.Variable((r, r), symmetric=True), cp.Variable((r, r), symmetric=True)
     cp.Problem(cp.Minimize(cp.sum_squares(cp.hstack([np.eye(r), D, K]) @ W))).solve(solver=cp.CLARABEL)
@@ -301,13 +301,16 @@ def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, mon
     from fmu_opinf import _sdp_paths
 
     data = _damping_data(rng)
-    fits, rounds = [], []
+    fits, rounds, original = [], [], _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        rounds.append(original(*args, **kwargs))
+        return rounds[-1]
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
     for start in (_sdp_paths._least_squares_start, lambda *args: None):
         monkeypatch.setattr(_sdp_paths, "_least_squares_start", start)
-        original = _sdp.solve_ipm
-        monkeypatch.setattr(_sdp, "solve_ipm", lambda *a, **k: rounds.append(original(*a, **k)) or rounds[-1])
         fits.append(fit_operators(*data, normalization="mass-eigenvalue", refine=False))
-        monkeypatch.setattr(_sdp, "solve_ipm", original)
     assert [result.iterations for result in rounds] == [9, 19]
     assert all(fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6 for fit in fits)
     assert fits[0].info["sdp_objective"] == pytest.approx(fits[1].info["sdp_objective"], rel=1e-9)
