@@ -49,7 +49,7 @@ A/B against the previous code, interleaved, best of 10, machine load 5-10): 0.72
 0.05 s at r = 20, 5.2 -> 3.6 s at r = 50, by three changes: the ``Mr``-only round is skipped where its start
 shows ``Dr`` clearly indefinite (:func:`fmu_opinf._sdp_paths._predicted_cones`; same bits, 0.72 -> 0.62 s),
 the ``Mr, Dr`` round starts from the least-squares ``Dr`` (:func:`fmu_opinf._sdp_paths._least_squares_start`,
-a dual start centred on it; 18 -> 14 iterations, the solution moved by up to 1e-7 relative, objectives within
+a dual start centred on it; 18 -> 14 iterations, the solution moved by 1e-7 (6e-7 at r = 50) relative, objectives within
 2e-10, certified), and each cone's inverse Cholesky factor is computed once per iteration (same bits).
 Measured and not kept there:
 the dual start ``Z = eta I`` with the start's complementarity equal to its objective (1-3 fewer iterations;

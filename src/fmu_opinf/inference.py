@@ -547,12 +547,14 @@ clearly indefinite (smallest eigenvalue below -1e-2 of the largest magnitude): t
 with ``Mr = I``) shows clearly indefinite by the same test, so where ``Dr`` is (the triple chain at every order
 measured) that round is skipped (r = 35: 0.72 -> 0.62 s CPU, same bits).  The ``Mr, Dr`` round then starts from
 that least-squares ``Dr``, made interior, instead of ``Mr = 2 I, Dr = I``: 12 / 14 / 16 instead of 17 / 18 / 18
-iterations at r = 20 / 35 / 50, the same certified optimum (objectives within 2e-10) at a point up to 1e-7 apart
-(``fmu_opinf._sdp``, module docstring, for the figures).  Either way a result is returned only
-from a round whose dropped blocks are PSD, or (since 2026-12-07) indefinite only within 1e-6 of the largest block
-and then clipped to PSD where the certificate below holds for the full SDP: exact data whose optimum lies at a
-cone's apex (an undamped model, ``Dr = 0``) made the SDP with that cone degenerate, and neither the interior-point
-method nor Clarabel solved it beyond 1.5e-6 relative (``fmu_opinf._sdp_paths._certified_clip``).
+iterations at r = 20 / 35 / 50, the same certified optimum (objectives within 2e-10) at a point 1e-7 .. 6e-7
+apart (``fmu_opinf._sdp``, module docstring, for the figures; the default fit's max eps_y on the triple chain
+r = 10 / 20 / 30 / 40 moved by -13 / -11 / +8 / +3 %, the refinement's usual sensitivity to its start).
+Either way a result is returned only from a round whose dropped blocks are PSD, or (since 2026-12-07) indefinite
+only within 1e-6 of the largest block and then clipped to PSD where the certificate below holds for the full SDP:
+exact data whose optimum lies at a cone's apex (an undamped model, ``Dr = 0``) made the SDP with that cone
+degenerate, and neither the interior-point method nor Clarabel solved it beyond 1.5e-6 relative
+(``fmu_opinf._sdp_paths._certified_clip``).
 
 Solvers
 -------
