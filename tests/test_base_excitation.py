@@ -118,3 +118,23 @@ def test_recording_a_position_source_does_not_ask_for_a_smaller_step(tmp_path):
     said = [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)]
     assert len(said) == 1 and "a smaller --dt only shows that motion" in said[0], said
     assert "record at a smaller --dt" not in said[0]
+
+
+@pytest.mark.slow  # 4-7 s on 2 cores
+def test_the_order_search_goes_on_while_a_reduced_chain_s_miss_still_falls():
+    """A 20-mass chain on an ``Accelerate`` support, relative outputs, trained by the default pulse in the window
+    the automatic window chose for its FMU (dt 0.05, t_end 173.85): eq. (18) gives r = 4, the search's misses fall
+    59 -> 11 -> 1.3 % RMS at r = 4, 8, 16.  r = 16 passes the 3 % check, but it was kept and was 6.3 % of an
+    output's range off on a 5 rad/s harmonic and 2.2 % on a pulse (audit base82, F3): the training's pulse shows the
+    truncation only in part.  A miss above CONVERGED that still falls STILL_FALLING-fold lets the search try the
+    next order, here the rank, r = 21 (measured 5.5e-13 / 1.3e-12 / 4.5e-11 of range on the three inputs).
+    Reference: the exact zero-order-hold response of the true matrices."""
+    model = lti_fmus.support_chain_model(20, source="accelerate")
+    t = time_grid(0.05, 173.85)
+    u = inputs_in_effect(parse_signal(TRAINING, 1), t, 1)
+    ref = lti_fmus.zoh_response(model, t, u[:, 1:])
+    run = Run(t=ref.t, u=u, x=ref.x, xdot=ref.v, xddot=ref.a, y=ref.y, attrs={"fit_rates": "pointwise"})
+    rom = fit_rom(run, integrator="exact")
+    assert [entry["r"] for entry in rom.fit_info["order_search"]] == [4, 8, 16, 21] and rom.r == 21
+    for spec in ("harmonic:amplitude=1,omega=5", "impulse:amplitude=1,t0=1,width=0.2", "step:amplitude=0.01,t0=1"):
+        assert miss_against_model(rom, model, spec) < 1e-9, spec   # (old: 6.3e-2, 2.2e-2, 3.9e-3)

@@ -90,11 +90,13 @@ from ._training_data import (_at_fixed_step, _CentredRun, _check_complete, _held
 from ._training_errors import _training_position_error
 
 # the public thresholds of the fit's modules, read as fmu_opinf.fit.NAME (package docstring)
+from ._order_search import CONVERGED as CONVERGED
 from ._order_search import GROSS_MISS as GROSS_MISS
 from ._order_search import NOISE_MARGIN as NOISE_MARGIN
 from ._order_search import NOISE_TAIL as NOISE_TAIL
 from ._order_search import ORDER_HELPS as ORDER_HELPS
 from ._order_search import SCREEN_CHECKPOINTS as SCREEN_CHECKPOINTS
+from ._order_search import STILL_FALLING as STILL_FALLING
 from ._terms import TERM_DECISION_ORDER as TERM_DECISION_ORDER
 from ._training_checks import FREE_RESPONSE_MISS as FREE_RESPONSE_MISS
 from ._training_checks import INPUT_DEPENDENCE as INPUT_DEPENDENCE
@@ -203,10 +205,11 @@ def fit_rom(
         ``energy`` is not given either and the ROM at that order misses its own training outputs (training output
         error above :data:`TRAINING_MISS`) while the snapshots hold more modes, grown: refits at twice the order,
         up to the snapshot rank and :data:`ORDER_SEARCH_LIMIT`, while each lowers the error (mean squared)
-        :data:`ORDER_HELPS`-fold, keep the first that reproduces them, else the closest where the order helped
-        (``fit_info["order_search"]``).  An order that still misses grossly at one of the refinement's
-        :data:`SCREEN_CHECKPOINTS` is not refined further unless the search keeps it or needs its full figure
-        (:func:`_grow_order`; its entry says ``"screened": True``).
+        :data:`ORDER_HELPS`-fold, keep the first that reproduces them (or a larger one: the search goes on while
+        the miss of one that reproduces them is above :data:`CONVERGED` and still falls :data:`STILL_FALLING`-fold),
+        else the closest where the order helped (``fit_info["order_search"]``).  An order that still misses
+        grossly at one of the refinement's :data:`SCREEN_CHECKPOINTS` is not refined further unless the search
+        keeps it or needs its full figure (:func:`_grow_order`; its entry says ``"screened": True``).
     energy : float, optional
         Saturation threshold of the cumulative energy: ``r`` is the smallest order with ``E_r >= energy``
         (eq. 18, :class:`fmu_opinf.basis.PODBasis`); default 0.95.
