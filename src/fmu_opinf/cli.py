@@ -342,8 +342,8 @@ def _run_compare(args: argparse.Namespace) -> None:
                      source_options=options)
     page = write_report(result, args.output)
     name = Path(str(args.rom)).name
-    free = [(f"{name}, {result.free_response.driven_alone}", result.free_response.run_metrics())
-            if result.free_response is not None else None]
+    free = [(f"{name}, {extra.driven_alone}", extra.run_metrics())
+            for extra in (result.free_response, result.training_band) if extra is not None]
     print(summary_table([(name, result.metrics())] + [(f"{name}, {alone.driven_alone} alone", alone.run_metrics())
                                                       for alone in result.each_input_alone] + [f for f in free if f]))
     print(f"report: {page}")

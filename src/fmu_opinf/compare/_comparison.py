@@ -48,6 +48,10 @@ class Comparison:
         Where ``compare`` chose a test input driving two inputs or more: the same harmonics, one input swinging at a
         time (:func:`fmu_opinf._test_input.each_input_alone`), so that an input whose response the others' hide is
         judged on its own.
+    training_band : Comparison or None
+        Where ``compare`` chose the test input of a reduced ROM and the training excited the outputs well above it:
+        a second default test near the top of that band (:func:`fmu_opinf._test_input.band_test_input`), where a
+        truncated order misses most (``driven_alone``: ``"top of the training band"``).
     linear_fits : list of str
         The outputs the fit found not linear in the recorded states and left out of what steers the ROM's dynamics
         (``fit_info["nonlinear_outputs"]``): the ROM gives them by a linear least-squares fit
@@ -81,6 +85,7 @@ class Comparison:
     driven_alone: str = ""   # the input this comparison drove alone, "" for all (compare's runs of each_input_alone)
     each_input_alone: list["Comparison"] = field(default_factory=list)
     free_response: "Comparison | None" = None   # inputs at their start values, where the FMU moves on its own
+    training_band: "Comparison | None" = None   # a second default test at the top of the band the training excited
     beyond_training: dict[str, Any] = field(default_factory=dict)   # a given input far above the training's
     linear_fits: list[str] = field(default_factory=list)   # outputs the fit found not linear in the states
     training_miss: dict[str, Any] = field(default_factory=dict)   # fit's warned miss of its training outputs
@@ -116,6 +121,7 @@ class Comparison:
             "driven_alone": self.driven_alone or None,
             "each_input_alone": [alone.run_metrics() for alone in self.each_input_alone] or None,
             "free_response": self.free_response.run_metrics() if self.free_response is not None else None,
+            "training_band": self.training_band.run_metrics() if self.training_band is not None else None,
             "input_beyond_training": dict(self.beyond_training) or None,
             "linear_fits": list(self.linear_fits) or None,
             "training_miss": dict(self.training_miss) or None,
@@ -127,4 +133,4 @@ class Comparison:
         measured): those of a run of one input alone."""
         return {key: value for key, value in self.metrics().items()
                 if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone", "free_response",
-                               "training_miss")}
+                               "training_band", "training_miss")}
