@@ -1,7 +1,7 @@
 """The order search of :func:`fmu_opinf.fit.fit_rom`: where the fit at the energy's order (eq. 18) misses its own
-training outputs, refits at doubled orders and keeps the first that reproduces them (:func:`_grow_order`), with
-the screen that ends the refinement of an order that still misses grossly, the noise floor above which no order is
-tried, and the search's stage line."""
+training outputs, refits at doubled orders and keeps the first that reproduces them, or a larger one while the
+miss still falls steeply (:func:`_grow_order`), with the screen that ends the refinement of an order that still
+misses grossly, the noise floor above which no order is tried, and the search's stage line."""
 
 from __future__ import annotations
 
