@@ -883,3 +883,14 @@ def test_compare_on_an_exported_rom_fmu_reads_what_the_fit_found(tmp_path):
     assert provenance["rom_fmu_linear_fits"] == ["E"] and provenance["rom_fmu_moves_on_its_own"] is True
     info = compare._sides._rom_side_info(Path(path))
     assert _training._carried_linear_fits(info) == ["E"] and compare.moves_on_its_own(Path(path), info)
+
+
+def test_summary_table_columns_stay_aligned_under_a_long_case_name():
+    """The band run's row ("ROM, top of the training band", 29 characters and more) pushed its figures one column
+    right of the header's under a fixed 28-character case column."""
+    metrics = {"r": 3, "max_error": 1e-3, "l2_error": 1e-2, "fom_seconds": 1.0, "rom_seconds": 0.1, "speedup": 10.0}
+    names = ["ROM", "ROM, top of the training band (2.67 rad/s)"]
+    lines = compare.summary_table([(name, metrics) for name in names]).splitlines()
+    header, rows = lines[0], lines[2:4]
+    ends = {line.index(" r ") + 2 if line is header else line.index(" 3 ") + 2 for line in [header, *rows]}
+    assert len(ends) == 1 and all(len(row) == len(header) for row in rows), lines[:4]

@@ -423,10 +423,12 @@ def _or_zero(value: Any) -> float:
 
 def summary_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     """A plain-text table of named metrics dicts (max eq. 19 error, L2 error, r, times, speed-up)."""
-    header = f"{'case':<28} {'r':>3} {'max eps_y':>10} {'L2 error':>10} {'FOM [s]':>9} {'ROM [s]':>9} {'speed-up':>9}"
+    width = max([28] + [len(name) for name, _ in rows])   # (a longer case name widens the column, not the row)
+    header = (f"{'case':<{width}} {'r':>3} {'max eps_y':>10} {'L2 error':>10} {'FOM [s]':>9} {'ROM [s]':>9} "
+              f"{'speed-up':>9}")
     lines = [header, "-" * len(header)]
     for name, m in rows:
-        lines.append(f"{name:<28} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
+        lines.append(f"{name:<{width}} {m['r']:>3} {m['max_error']:>10.2e} {m['l2_error']:>10.2e} "
                      f"{m['fom_seconds']:>9.3f} {m['rom_seconds']:>9.4f} {m['speedup']:>9.1f}")
     for name, m in rows:
         lines += [f"  {name}: {note}" for note in comparison_notes(m)]
