@@ -512,11 +512,16 @@ def _regularized_cholesky(build: Callable[[], np.ndarray]) -> np.ndarray:
 
 
 def _cho_solve(factor: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``N^-1 b`` from the factor of :func:`_regularized_cholesky`."""
-    x, info = scipy.linalg.lapack.dpotrs(factor, b, lower=True)
-    if info != 0:  # pragma: no cover - only for invalid arguments
-        raise ValueError(f"dpotrs failed (info {info})")
-    return x
+    """``N^-1 b`` from the factor of :func:`_regularized_cholesky` (``b`` a vector or its columns).
+
+    Two triangular matrix-vector solves (BLAS ``dtrsv``) per column: LAPACK ``dpotrs`` goes through the
+    matrix-matrix ``dtrsm``, which for one right-hand side took 0.8-0.9 ms against 0.3 ms at n = 1260 (2026-12-07,
+    one thread; the factor of 12.7 MB is read twice either way), the same solution to 1e-15 relative.
+    """
+    if b.ndim == 2:
+        return np.column_stack([_cho_solve(factor, column) for column in b.T])
+    forward = scipy.linalg.blas.dtrsv(factor, b, lower=1)
+    return scipy.linalg.blas.dtrsv(factor, forward, lower=1, trans=1, overwrite_x=1)
 
 
 def _sym(a: np.ndarray) -> np.ndarray:
