@@ -222,6 +222,16 @@ _FLOOR_LEVEL = 1e3
 #: default start; 2026-12-07).
 _START_CENTRING = 0.1
 
+#: Gondzio's multiple centrality correctors (Gondzio 1996, here in the scaled product of the HKM direction,
+#: :func:`_centrality_targets`): after Mehrotra's corrector, at most this many further solves with the same
+#: Cholesky factor, each aiming at a step :data:`_CORRECTOR_REACH` longer and kept only if the step grows by at least
+#: :data:`_CORRECTOR_GAIN` of that.
+_CORRECTORS = 3
+_CORRECTOR_REACH = 0.2
+_CORRECTOR_GAIN = 0.1
+#: Eigenvalues of the trial point's scaled product are pushed into this box times the target ``sigma mu``.
+_CORRECTOR_BOX = (0.1, 2.0)
+
 
 def _dual_at_floor(residual: float, previous: float, relative: float, tol: float) -> bool:
     """Whether the dual residual has stopped decreasing at its round-off level.
@@ -430,16 +440,18 @@ def _newton(S2: np.ndarray, w: np.ndarray, X: list, Z: list, cones: list[ConeBlo
             out[sl] += _adjoint(extra)
         return out
 
-    def direction(u: np.ndarray, target: float, second: list | None) -> tuple:
-        # u = N^-1 rhs; bordered system [N, -a; a^T, 0] [dw; dy] = [rhs; -primal] with v = N^-1 a
+    def direction(u: np.ndarray, target: float, second: list | None, centring: list | None = None) -> tuple:
+        # u = N^-1 rhs; bordered system [N, -a; a^T, 0] [dw; dy] = [rhs; -primal] with v = N^-1 a.  With
+        # ``centring`` (a corrector, :func:`_centrality_targets`) the change of the direction: no residuals, and
+        # dZ_j = E_j - sym(X^-1 dX Z)
         dw, dy = u, 0.0
         if a is not None:
-            dy = (-primal - float(a @ u)) / float(a @ v)
+            dy = (-(primal if centring is None else 0.0) - float(a @ u)) / float(a @ v)
             dw = u + v * dy
         dX = [_mat(dw[cone.start:cone.start + cone.k * (cone.k + 1) // 2], cone.k) for cone in cones]
         dZ = []
         for j, (Xi, Zj, dXj) in enumerate(zip(Xinv, Z, dX)):
-            dz = target * Xi - Zj - _sym(Xi @ dXj @ Zj)
+            dz = (centring[j] if centring is not None else target * Xi - Zj) - _sym(Xi @ dXj @ Zj)
             if second is not None:
                 dz = dz - _sym(Xi @ second[j])
             dZ.append(_sym(dz))
@@ -461,8 +473,51 @@ def _newton(S2: np.ndarray, w: np.ndarray, X: list, Z: list, cones: list[ConeBlo
     sigma = min(1.0, (mu_aff / mu) ** 3) if mu > 0 else 0.0
     second = [dXj @ dZj for dXj, dZj in zip(dX, dZ)]
     dw, dX, dZ, dy = direction(_cho_solve(factor, rhs(sigma * mu, second)), sigma * mu, second)
-    alpha = min(1.0, 0.99 * step_length(dX, dZ))
-    return alpha, dw, dZ, dy
+    alpha = step_length(dX, dZ)
+    if _CORRECTORS:
+        Lx = [np.linalg.cholesky(Xj) for Xj in X]
+        for _ in range(_CORRECTORS):
+            if alpha >= 1.0:
+                break
+            aim = min(1.0, alpha + _CORRECTOR_REACH)
+            E = _centrality_targets(Lx, Xf, X, Z, dX, dZ, aim, sigma * mu)
+            correction = direction(_cho_solve(factor, _corrector_rhs(dual.size, cones, E)), 0.0, None, E)
+            trial = (dw + correction[0], [p + q for p, q in zip(dX, correction[1])],
+                     [p + q for p, q in zip(dZ, correction[2])], dy + correction[3])
+            longer = step_length(trial[1], trial[2])
+            if longer < alpha + _CORRECTOR_GAIN * (aim - alpha):
+                break
+            (dw, dX, dZ, dy), alpha = trial, longer
+    return min(1.0, 0.99 * alpha), dw, dZ, dy
+
+
+def _centrality_targets(Lx: list, Xf: list, X: list, Z: list, dX: list, dZ: list, aim: float, mu: float
+                        ) -> list[np.ndarray]:
+    """Right-hand sides ``E_j`` (in the ``dZ`` equation) of one Gondzio centrality corrector for the step ``aim``.
+
+    In the scaling of the current ``X = L L^T`` the product ``X Z`` is ``L^T Z L`` (symmetric); at the trial point
+    ``X + aim dX, Z + aim dZ`` it is ``(L^-1 X_t L^-T)(L^T Z_t L)``, whose symmetric part has eigenvalues ``lambda``
+    (``Q`` its eigenvectors).  Those below ``0.1 mu`` are raised to it, those above ``10 mu`` lowered to it (by at
+    most ``10 mu``; ``mu`` the predictor-corrector's target, :data:`_CORRECTOR_BOX`); the change ``T = Q diag(delta)
+    Q^T`` of the scaled product is, back in the ``dZ`` equation ``X dZ + dX Z = L T L^-1``,
+    ``E_j = L^-T T L^-1``.
+    """
+    low, high = _CORRECTOR_BOX[0] * mu, _CORRECTOR_BOX[1] * mu
+    out = []
+    for L, Li, Xj, Zj, dXj, dZj in zip(Lx, Xf, X, Z, dX, dZ):
+        product = (Li @ (Xj + aim * dXj) @ Li.T) @ (L.T @ (Zj + aim * dZj) @ L)
+        values, vectors = np.linalg.eigh(_sym(product))
+        delta = np.where(values < low, low - values, np.where(values > high, np.maximum(high - values, -high), 0.0))
+        out.append(Li.T @ ((vectors * delta) @ vectors.T) @ Li)
+    return out
+
+
+def _corrector_rhs(n: int, cones: list[ConeBlock], E: list[np.ndarray]) -> np.ndarray:
+    """Newton right-hand side of a corrector: ``mat^*(E_j)`` on each cone block, zero elsewhere."""
+    out = np.zeros(n)
+    for cone, Ej in zip(cones, E):
+        out[cone.start:cone.start + cone.k * (cone.k + 1) // 2] = _adjoint(Ej)
+    return out
 
 
 def _newton_matrix(S2: np.ndarray, Xinv: list, Z: list, cones: list[ConeBlock], out: np.ndarray) -> np.ndarray:
