@@ -296,8 +296,9 @@ def test_least_squares_start_is_the_clipped_damping_of_least_squares_with_unit_m
 
 
 def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, monkeypatch):
-    """On the fixture's damping data the Mr, Dr round takes 9 iterations from the least-squares start against 19
-    from the default one (Mr = 2 I, Dr = I, Z = I); the two optima agree to 1e-9 and are certified."""
+    """On the fixture's damping data the Mr, Dr round takes 9 iterations from the least-squares start against 10
+    from the default one (Mr = 2 I, Dr = I, Z = I; 19 before the centrality correctors); the two optima agree to
+    1e-9 and are certified."""
     from fmu_opinf import _sdp_paths
 
     data = _damping_data(rng)
@@ -311,9 +312,90 @@ def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, mon
     for start in (_sdp_paths._least_squares_start, lambda *args: None):
         monkeypatch.setattr(_sdp_paths, "_least_squares_start", start)
         fits.append(fit_operators(*data, normalization="mass-eigenvalue", refine=False))
-    assert [result.iterations for result in rounds] == [9, 19]
+    assert [result.iterations for result in rounds] == [9, 10]
     assert all(fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6 for fit in fits)
     assert fits[0].info["sdp_objective"] == pytest.approx(fits[1].info["sdp_objective"], rel=1e-9)
+
+
+@pytest.mark.parametrize("data, normalization, iterations", [
+    (lambda rng: _damping_data(rng, r=12), "mass-eigenvalue", (10, 17)),
+    (lambda rng: _active_data(rng, r=10), "mass-eigenvalue", (13, 16)),
+    (lambda rng: _active_data(rng, r=8), "trace", (12, 14))])
+def test_centrality_correctors_save_iterations_and_keep_the_clarabel_optimum(rng, monkeypatch, data, normalization,
+                                                                            iterations):
+    """Gondzio's correctors reuse each iteration's Cholesky factor: fewer iterations (pinned, with and without them),
+    the same certified optimum, Clarabel's at tol 1e-10 to 1e-7 (here the interior-point rounds are all ``solve_ipm``
+    calls of the fit, the screening's included)."""
+    problem = data(rng)
+    counts, original = [], _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        result = original(*args, **kwargs)
+        counts[-1] += result.iterations
+        return result
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
+    fits = []
+    for correctors in (3, 0):
+        monkeypatch.setattr(_sdp, "_CORRECTORS", correctors)
+        counts.append(0)
+        fits.append(fit_operators(*problem, normalization=normalization, refine=False))
+    reference = fit_operators(*problem, normalization=normalization, refine=False, solver="clarabel", tol=1e-10)
+    assert tuple(counts) == iterations
+    assert all(fit.info["solver"] == "IPM" and fit.info["gap"] <= 1e-6 for fit in fits)
+    assert fits[0].info["sdp_objective"] == pytest.approx(fits[1].info["sdp_objective"], rel=1e-9)
+    assert fits[0].info["sdp_objective"] == pytest.approx(reference.info["sdp_objective"], rel=1e-7)
+
+
+def test_centrality_targets_move_the_scaled_trial_products_into_the_box(rng):
+    """``E = L^-T T L^-1`` with ``T`` the change that puts the eigenvalues of the symmetrized scaled product at the
+    trial point into ``[0.1, 2] mu`` (computed here from explicit inverses): ``L^T E L = T``, and the corrected
+    products lie in the box where no eigenvalue is more than ``4 mu`` above it."""
+    k, mu, aim = 6, 0.3, 0.9
+    X, Z, dX, dZ = spd(rng, k, 1.0), spd(rng, k, 1.0), rng.standard_normal((k, k)), rng.standard_normal((k, k))
+    dX, dZ = 0.3 * (dX + dX.T), 0.3 * (dZ + dZ.T)
+    L = np.linalg.cholesky(X)
+    Li = np.linalg.inv(L)
+    (E,) = _sdp._centrality_targets([L], [Li], [X], [Z], [dX], [dZ], aim, mu)
+    A, B = Li @ (X + aim * dX) @ Li.T, L.T @ (Z + aim * dZ) @ L
+    product = 0.5 * (A @ B + B @ A)
+    values = np.linalg.eigvalsh(product)
+    assert values[0] < 0.1 * mu and values[-1] > 2 * mu  # both sides of the box are exercised
+    T = L.T @ E @ L
+    np.testing.assert_allclose(T, T.T, atol=1e-12)
+    corrected = np.linalg.eigvalsh(product + T)
+    expected = np.sort(np.where(values < 0.1 * mu, 0.1 * mu, np.where(values > 2 * mu, np.maximum(2 * mu, values - 2 * mu), values)))
+    np.testing.assert_allclose(corrected, expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("columns", [None, 2])
+def test_cholesky_solve_matches_a_dense_solve(rng, columns):
+    n = 40
+    N = spd(rng, n, 1.0)
+    factor = _sdp._regularized_cholesky(lambda: N.copy())
+    b = rng.standard_normal(n if columns is None else (n, columns))
+    np.testing.assert_allclose(_sdp._cho_solve(factor, b), np.linalg.solve(N, b), rtol=1e-12, atol=1e-12)
+
+
+def test_an_iterate_that_followed_round_off_below_zero_is_not_certified(rng, monkeypatch):
+    """An interior-point result whose reduced objective is clearly negative (exact data: 100 iterations ran along
+    the round-off of the elimination, objective -0.2) is not accepted even where the certificate on G passes; the
+    default solver then falls back to Clarabel."""
+    from fmu_opinf import _sdp_paths
+
+    data = _damping_data(rng)
+    original = _sdp.solve_ipm
+
+    def negative(*args, **kwargs):
+        result = original(*args, **kwargs)
+        result.info["objective"] = -0.2
+        return result
+
+    monkeypatch.setattr(_sdp, "solve_ipm", negative)
+    fit = fit_operators(*data, normalization="mass-eigenvalue", refine=False)
+    assert fit.info["solver"] == "CLARABEL" and fit.info["fallback"]["status"] == "not_certified"
+    assert fit.info["fallback"]["gap"] <= 1e-6  # the certificate alone would have accepted it
+    assert _sdp_paths._ran_away(-1e-15, np.eye(3), 1, 1.0) is False
 
 
 def test_failed_certificate_falls_back_to_clarabel(rng, monkeypatch):
