@@ -177,11 +177,13 @@ def _add_kron_upper(out: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> None:
     start = 0
     for p in range(k):
         m = k - p
-        upper, diagonal = _upper_positions(m)
+        upper, lower, diagonal = _upper_positions(m)
         Yq, Zq = Y[p:, p:], Z[p:, p:]
-        M = Yq[:, :, None] * Z[p, p:] + Zq[:, None, :] * Y[p, p:, None]
-        M += M.transpose(0, 2, 1)
-        rows = M.reshape(m, m * m)[:, upper]
+        M = np.multiply(Yq[:, :, None], Z[p, p:])
+        M += Zq[:, None, :] * Y[p, p:, None]
+        M = M.reshape(m, m * m)
+        rows = M[:, upper]
+        rows += M[:, lower]  # M[q, s, t] + M[q, t, s], without forming M + M^T
         rows[:, diagonal] *= 0.5
         rows[0] *= 0.5
         out[start:start + m, start:] += rows
@@ -189,13 +191,13 @@ def _add_kron_upper(out: np.ndarray, Y: np.ndarray, Z: np.ndarray) -> None:
 
 
 @functools.lru_cache(maxsize=256)
-def _upper_positions(m: int) -> tuple[np.ndarray, np.ndarray]:
-    """Flat positions of the upper triangle (row-major) in an ``m x m`` array and the mask of its diagonal
-    entries (cached: :func:`_add_kron_upper` asks for every ``m <= k`` in every iteration)."""
+def _upper_positions(m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Flat positions of the upper triangle (row-major) in an ``m x m`` array, of the transposed entries, and the
+    mask of its diagonal entries (cached: :func:`_add_kron_upper` asks for every ``m <= k`` in every iteration)."""
     su, tu = np.triu_indices(m)
-    upper, diagonal = su * m + tu, su == tu
-    upper.flags.writeable = diagonal.flags.writeable = False  # shared by all callers
-    return upper, diagonal
+    upper, lower, diagonal = su * m + tu, tu * m + su, su == tu
+    upper.flags.writeable = lower.flags.writeable = diagonal.flags.writeable = False  # shared by all callers
+    return upper, lower, diagonal
 
 
 def _max_step(Li: np.ndarray, dX: np.ndarray) -> float:
