@@ -14,7 +14,10 @@ Method
 Infeasible primal-dual path following with the HKM search direction and Mehrotra's predictor-corrector: each
 iteration forms the upper triangle of the dense Newton matrix ``2 S + sum_j (Z_j (x)_s X_j^-1)`` (the symmetric
 Kronecker products computed entry by entry, ``O(k^4)``, in one reused buffer), factors it in place once by
-Cholesky (LAPACK ``dpotrf``, one BLAS thread) and solves with it twice.
+Cholesky (LAPACK ``dpotrf``, one BLAS thread) and solves with it two to five times: Mehrotra's predictor and
+corrector, then up to three of Gondzio's centrality correctors (:func:`_centrality_targets`), each kept only where it
+lengthens the step.  A solve (two BLAS ``dtrsv``) reads the factor once more, 0.3 ms at n = 1260 against 17-19 ms for
+the factorization.
 Clarabel solves the same problem through cvxpy, with cvxpy's compilation on top and a sparse LDL factorization
 of a matrix that is dense here (the screened quadratic form); this path avoids both, which is where its speed-up
 comes from (figures in ``benchmarks/bench_fit.py`` and the inference module docstring).
@@ -66,6 +69,24 @@ stop at 1e-4 saves four and polishes to an objective 1.3e-7 above the optimum), 
 the first nine iterations, 4-6 in the next eight and 8-10 in the last four, and in the final iteration's two solves
 refinement diverged (error 0.3-0.7 relative: ``cond * 6e-8 > 1``), so those need ``dpotrf`` anyway: at most
 2.5 ms saved per iteration early, a loss later (20 instead of 18 iterations without the fallback).  Not kept.
+Centrality correctors (2026-12-07, same A/B harness, CPU, one BLAS thread, best of 10 (r = 50: 2), load 2-3):
+``Mr >= I`` r = 20 / 35 / 50: 12 / 14 / 16 -> 10 / 11 / 13 iterations, 0.041 / 0.425 / 3.06 -> 0.043 / 0.361 / 2.54 s
+(r = 20 even: the correctors' small-matrix work costs what the two factorizations of 420 unknowns saved), objectives
+within 1.6e-10, certified (gap <= 1.2e-9); the trace normalization r = 20 / 35: 16 / 17 -> 15 / 16, 0.027 / 0.202 ->
+0.027 / 0.199 s.  In steps at r = 35 (then two correctors, box ``[0.1, 10]``): the correctors alone 0.447 -> 0.423 s,
+with the solves by ``dtrsv`` instead of ``dpotrs`` (0.9 -> 0.3 ms each, four to five per iteration) 0.457 -> 0.397 s.
+Of the 23 ``Mr >= I`` problems of the tests, 14 took fewer iterations (a round 17 -> 10 the most), 7 as many, two
+exact-data ones one more (23 -> 24); all certified, objectives within 5.3e-10 (the trace normalization: 2 fewer, 21
+as many, 11 of them without an SDP).  Measured and not kept there: two correctors (box ``[0.1, 10]``, aim +0.1: r = 35
+12 iterations), four or six (11 iterations as with three, with 33 correctors against 28 and more: each costs a solve
+and the eigenvalues of its trial point), an aim of +0.3 or +0.5 (same counts), a box ``[0.1, 5]`` or ``[0.3, 2]`` (12
+/ 11), the step factor 0.995 / 0.999 instead of 0.99 and Mehrotra's exponent 2 instead of 3 (1-5 more iterations),
+and with the correctors a start centred at 0.01 instead of 0.1 of the objective (:data:`_START_CENTRING`; triple
+chain r = 35 / 50 one iteration fewer, but 7 of the 13 ``Mr, Dr`` test problems 1-5 more).  Where the ``Mr >= I`` path
+spends its time now (r = 35, profile): 10 factorizations 0.17 s, Kronecker blocks 0.05 s, the ``Kr`` elimination 0.05
+s (a 630 x 1260 triangular solve 17 ms and a 1260-square ``dsyrk`` 21 ms: already the dense minimum), the copy of
+``2 S`` 0.02 s, correctors and step lengths (35-square eigenvalue problems) about 0.03 s; issue 16's 0.3 s needs
+about three iterations fewer again.
 
 Certificate
 -----------
