@@ -240,7 +240,8 @@ def test_a_rom_whose_energy_order_misses_the_test_gets_a_larger_order_suggested(
     assert metrics["order"] == {"r": 2, "chosen": "energy", "snapshot_rank": small.fit_info["snapshot_rank"],
                                 "tried": []}
     table = compare.summary_table([("small", metrics)])
-    assert "came from the POD energy (eq. 18) on snapshots of rank" in table and "(fit --r 4, then compare" in table
+    assert "came from the POD energy (eq. 18) on snapshots of rank" in table
+    assert "(fit --r 4 or r=4, then compare" in table
     given = fit_rom(snaps, r=2, refine=False)
     given_metrics = compare.compare(given, "builtin:anchored-msd", fast, dt=0.5, t_end=50.0, quiet=True).metrics()
     assert given_metrics["order"]["chosen"] == "given" and compare.order_note(given_metrics) is None
@@ -274,10 +275,10 @@ def test_the_order_note_reads_the_fit_s_order_search():
                     "to be kept; train with an input nearer this one (or add it as a training run)"), note
     grown = order_of(4, [{"r": 2}, {"r": 4}])   # kept the largest it tried: the next doubling is untried
     assert "search kept r=4 (tried r=2, 4)" in compare.order_note({**off, "order": grown})
-    assert "(fit --r 8, then compare again)" in compare.order_note({**off, "order": grown})
+    assert "(fit --r 8 or r=8, then compare again)" in compare.order_note({**off, "order": grown})
     floor = order_of(33, [{"r": 33, "noise_floor": 4}])
     assert floor["noise_floor"] == 4
-    assert "(fit --r 3, then compare again)" in compare.order_note({**off, "order": floor})
+    assert "(fit --r 3 or r=3, then compare again)" in compare.order_note({**off, "order": floor})
     assert order_of(3, [])["chosen"] == "energy"   # no search ran: the energy's order passed its training
 
 
@@ -512,7 +513,8 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
                                              r"training; the input's offsets take it there in the ROM too"):
         result = compare.compare(tmp_path / "rom.h5", fmu.path)
     said = capsys.readouterr().err
-    assert "where the offsets alone take the outputs, 1.2 times it over this comparison (a shorter --t-end" in said
+    assert ("where the offsets alone take the outputs, 1.2 times it over this comparison (a shorter --t-end or "
+            "t_end= keeps them nearer)") in said
     first, alone = said.rstrip().splitlines()[-2:]   # (then each input alone: tests/test_compare_each_input.py)
     assert first.endswith("its phase shifted to let it swing wider)")
     assert alone.startswith("then each of F[1], F[2] alone (2 more runs of the source")
@@ -520,7 +522,7 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     assert [part.kind for part in signal.parts] == ["harmonic", "harmonic"]
     assert [part.params["offset"] for part in signal.parts] == [0.0, 2.0]
     assert min(part.params["amplitude"] for part in signal.parts) >= 1.0   # measured 1.1 and 2.58 (of 3 and 7)
-    assert said.startswith("no --input given: comparing on harmonic:amplitude=")
+    assert said.startswith("no --input or signal= given: comparing on harmonic:amplitude=")
     assert "(a harmonic on each input the training drove, in the widest gap between the ROM's natural frequencies" \
            in said
     u = signal.sample(result.t)
@@ -560,7 +562,7 @@ def test_compare_without_an_input_after_a_table_training_names_the_fix(tmp_path)
     snaps = snapshots.record("builtin:anchored-msd", str(table), 0.5, 60.0, quiet=True)
     fit_rom(snaps, r=4).save(tmp_path / "rom.h5")
     done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(tmp_path / "report"))
-    assert done.returncode == 0 and "no --input given: comparing on harmonic:amplitude=" in done.stderr
+    assert done.returncode == 0 and "no --input or signal= given: comparing on harmonic:amplitude=" in done.stderr
     table.unlink()
     done = run_cli("compare", str(tmp_path / "rom.h5"), "builtin:anchored-msd", "-o", str(tmp_path / "other"))
     assert done.returncode == 2 and "Traceback" not in done.stderr

@@ -69,7 +69,7 @@ def test_the_order_advice_puts_training_nearer_first_for_an_input_far_above_the_
     metrics = {"order": {"r": 4, "chosen": "energy", "snapshot_rank": 30, "tried": []},
                "per_output": {"y[1]": {"relative_max_variation": 0.35}}}
     plain = compare.order_note(metrics)
-    assert "a larger order may follow this input (fit --r 8" in plain
+    assert "a larger order may follow this input (fit --r 8 or r=8" in plain
     metrics["input_beyond_training"] = {"input": "F", "ratio": 100.0, "given": 1e4, "trained": 100.0}
     note = compare.order_note(metrics)
     assert note.startswith("y[1] is 0.35 of its range off, and the ROM's order r=4 came from the POD energy")

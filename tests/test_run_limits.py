@@ -130,7 +130,7 @@ def test_compare_past_a_termination_names_compare_t_end(fmus, tmp_path, capsys):
     capsys.readouterr()
     code = main(["compare", str(tmp_path / "rom.h5"), str(fmus["term"]), "-o", str(tmp_path / "report"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert code != 0 and f"compare --t-end below {TERMINATE:g}" in err and "record" not in err, err
+    assert code != 0 and f"compare --t-end or t_end= below {TERMINATE:g}" in err and "record" not in err, err
 
 
 def test_fit_offers_only_a_smaller_r_at_an_fmus_fixed_step(fmus, tmp_path, capsys):
@@ -207,4 +207,4 @@ def test_compare_on_a_table_past_a_termination_names_the_table_as_its_end(fmus, 
                  "-o", str(tmp_path / "report"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert code != 0 and f"t_end={TABLE_END:g}, the input table's last time" in err, err
-    assert f"compare --t-end below {TERMINATE:g}" in err and "four times" not in err, err
+    assert f"compare --t-end or t_end= below {TERMINATE:g}" in err and "four times" not in err, err

@@ -748,7 +748,7 @@ def test_cli_set_and_input_none(toys, tmp_path, capsys):
     assert code == 2 and "is zero at every sample of the grid dt=0.1, t_end=1" in err[-1]
     assert not (tmp_path / "early.h5").exists()
     code = main(["snapshots", str(toys["full"]), "-o", str(tmp_path / "none.h5"), "--dt", "0.1", "--t-end", "3"])
-    assert code == 0 and "no --input given: recording the impulse training input" in capsys.readouterr().err
+    assert code == 0 and "no --input or signal= given: recording the impulse training input" in capsys.readouterr().err
     assert Snapshots.load(tmp_path / "none.h5").runs[0].attrs["input_spec"].startswith("impulse:amplitude=100")
 
 

@@ -341,7 +341,7 @@ def _sizing_phrase(scale: float | None, offsets: float) -> str:
     """How the amplitudes were sized (:func:`_scale_to_training_range`), for the line ``compare`` prints."""
     if scale is None:
         return "at the training amplitude (no training peak is known to size it by: a fit of today records them)"
-    longer = " over this comparison (a shorter --t-end keeps them nearer)" if abs(offsets) > 1 else ""
+    longer = f" over this comparison (a shorter {either('--t-end')} keeps them nearer)" if abs(offsets) > 1 else ""
     if offsets < 0:
         return (f"its response in the ROM within the training peak or where the offsets alone take the outputs, "
                 f"{-offsets:.2g} times it{longer}")

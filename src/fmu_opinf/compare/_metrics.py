@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import either
 from ..errors import DimensionError
 
 
@@ -184,8 +185,8 @@ def training_miss_note(metrics: dict[str, Any]) -> str | None:
     order = metrics.get("order") or {}
     fix = ""
     if isinstance(order.get("r"), int) and order.get("snapshot_rank", 0) > order["r"]:
-        fix = (f"; a larger order may reach them (fit --r up to the snapshot rank {order['snapshot_rank']}, see "
-               "fit's warning)")
+        fix = (f"; a larger order may reach them (fit {either('--r')} up to the snapshot rank "
+               f"{order['snapshot_rank']}, see fit's warning)")
     return (f"fit warned that this ROM misses its own training outputs by {training_miss_text(record)}: an input "
             f"like the training one is that far off, whatever this test shows{here}{fix}")
 
@@ -203,7 +204,7 @@ def linear_fit_note(metrics: dict[str, Any]) -> str | None:
     more = f" and {len(names) - MAX_NAMED} more" if len(names) > MAX_NAMED else ""
     return (f"{listed}{more} of {its} peak off {verb} {'a linear fit' if one else 'linear fits'}: the fit found "
             f"{them} not linear in the recorded states and left {them} out of what steers the ROM, so no order or "
-            f"training removes that error; record without {them} (snapshots --outputs) where not needed")
+            f"training removes that error; record without {them} (snapshots {either('--outputs')}) where not needed")
 
 
 #: Relative max error of the worst output (over its range) above which a comparison of a ROM whose order came from
@@ -242,15 +243,17 @@ def order_note(metrics: dict[str, Any]) -> str | None:
     beyond = metrics.get("input_beyond_training") or {}
     if beyond:   # (audit 74, F1: at 100 times the training's load, fit --r 8 still missed by 2-4 %)
         return (f"{opening}: this input is {beyond['ratio']:.3g} times the training's amplitude on {beyond['input']}, "
-                f"so train with an input nearer this one first (snapshots --input at these loads); a larger order "
-                f"(fit --r {min(2 * r, order['snapshot_rank'])}) fits only the responses the training had")
+                f"so train with an input nearer this one first (snapshots {either('--input')} at these loads); a "
+                f"larger order (fit {either('--r', value=min(2 * r, order['snapshot_rank']))}) fits only the "
+                "responses the training had")
     floor = order.get("noise_floor")
     if floor:
         return (f"{opening}: its singular values from s_{floor} on lie on a noise floor, so larger orders fit the "
-                f"noise; a smaller order may follow this input better (fit --r {max(int(floor) - 1, 1)}, then "
-                "compare again), and less noisy snapshots would")
+                f"noise; a smaller order may follow this input better (fit "
+                f"{either('--r', value=max(int(floor) - 1, 1))}, then compare again), and less noisy snapshots would")
     if not any(value > r for value in tried):   # (2 r, or the rank above r, was not tried)
-        return (f"{opening}: a larger order may follow this input (fit --r {min(2 * r, order['snapshot_rank'])}, "
-                "then compare again); if it does not, train with an input nearer this one")
+        return (f"{opening}: a larger order may follow this input (fit "
+                f"{either('--r', value=min(2 * r, order['snapshot_rank']))}, then compare again); if it does not, "
+                "train with an input nearer this one")
     return (f"{opening}: the larger orders it tried did not fit the training outputs enough better to be kept; "
             "train with an input nearer this one (or add it as a training run)")

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._validate import either, source_option_said
 from ..errors import DimensionError, InputSpecError
 from ._comparison import Comparison
 from ._declared import _declared_display_units, _declared_units
@@ -88,8 +89,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         end_from = "four times the training's end"
         t_train = rom_info.get("t_train_end")
         if not (t_train and math.isfinite(float(t_train)) and 0 < 4 * float(t_train) / dt <= MAX_GRID_STEPS):
-            raise DimensionError("no --t-end given and the ROM does not record a usable training end time "
-                                 f"({t_train}); pass --t-end")
+            raise DimensionError(f"no {either('--t-end')} given and the ROM does not record a usable training "
+                                 f"end time ({t_train}); pass {either('--t-end')}")
         t_end = dt * round(4 * float(t_train) / dt)
         capped = _before_termination(rom_info, source, dt, float(t_end))
         if capped is not None:
@@ -98,7 +99,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
                 print(capped[1], file=sys.stderr)
     t = time_grid(dt, float(t_end))
     if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
-        raise InputSpecError(f"--start-time applies to fmu sources, not to {source}")
+        raise InputSpecError(f"{source_option_said('--start-time')} applies to fmu sources, not to {source}")
     source_options = _training_settings(rom_info, source, source_options)
     _warn_if_another_fmu(rom_info, source)
     _warn_if_recording_warned(rom_info, _compared_interface(source, source_options))
@@ -111,7 +112,7 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     if not signal:
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
-            print(f"no --input given: comparing on {signal} ({why})", file=sys.stderr)
+            print(f"no {either('--input')} given: comparing on {signal} ({why})", file=sys.stderr)
     alone = _each_input_alone(signal, rom_info) if why else []
     if alone and not quiet:
         print(f"then each of {', '.join(name for name, _ in alone)} alone ({len(alone)} more runs of the source: "
@@ -330,7 +331,8 @@ def _past_termination(stopped: Any, t_end: float, end_given: bool,
     at, stop = terminated_at(str(stopped)), declared_stop_at(str(stopped))
     if end_given or (at is None and stop is None):
         return stopped
-    fix = f"compare --t-end below {at:g}" if at is not None else f"compare --t-end at or below {stop:g}"
+    fix = (f"compare {either('--t-end')} below {at:g}" if at is not None
+           else f"compare {either('--t-end')} at or below {stop:g}")
     return StepError(f"{stopped} (compare ran to its default t_end={t_end:g}, {end_from}; give {fix})",
                      stopped.step, stopped.time)
 
@@ -369,21 +371,21 @@ def _before_termination(rom_info: dict[str, Any], source: Any, dt: float, t_end:
         return None
     last = float(f"{last:.12g}")
     return last, (f"{Path(str(source)).name} terminated the simulation at t={at:g} in the training's recording: "
-                  f"comparing to t_end={last:g}, before it (not four times the training's end, {t_end:g}; --t-end "
-                  "chooses another end)")
+                  f"comparing to t_end={last:g}, before it (not four times the training's end, {t_end:g}; "
+                  f"{either('--t-end')} chooses another end)")
 
 
 def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_end: float) -> tuple[str, str]:
     """The test input without one given (:mod:`fmu_opinf._test_input`): chosen from the ROM, or the one an exported
     ROM FMU carries for its training grid (a data file: taken only as a string, parsed like any --input)."""
-    from .._test_input import carried_for_grid, default_test_input
+    from .._test_input import _FIX, carried_for_grid, default_test_input
 
     if not isinstance(rom_side, Path):
         return default_test_input(rom_side, dt, t_end)
     carried = rom_info["provenance"].get("default_test_input")
     if not (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
         raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
-                             "pass --input SPEC, e.g. 'harmonic:amplitude=1,omega=0.2'")
+                             f"{_FIX}")
     spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
     spec = carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
     return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"

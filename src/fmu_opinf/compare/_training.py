@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validate import either, values_said
 from ..errors import FmuOpinfError
 from ._declared import _declared_starts, _is_rom_fmu
 from ._sides import _exact_names
@@ -57,7 +58,7 @@ def _warn_beyond_training(beyond: dict[str, Any], source: Any) -> None:
     warnings.warn(f"the test input departs by {beyond['given']:.3g} on {beyond['input']}, {beyond['ratio']:.3g} "
                   f"times the training's amplitude there ({beyond['trained']:.3g}): the ROM of "
                   f"{Path(str(source)).name} learned only the responses to inputs that size; train with an input "
-                  "nearer this one (snapshots --input at these loads) before trusting or enlarging it",
+                  f"nearer this one (snapshots {either('--input')} at these loads) before trusting or enlarging it",
                   FmuOpinfWarning, stacklevel=3)
 
 
@@ -129,7 +130,8 @@ def _warn_if_training_missed(rom_side: Any, rom_info: dict[str, Any]) -> None:
     if record:
         warnings.warn(f"fit warned that this ROM misses its own training outputs by {training_miss_text(record)}: "
                       "an input like the training one is that far off, whatever the test below shows; see fit's "
-                      "warning for the causes (a larger --r first where its order search kept lowering the miss)"
+                      f"warning for the causes (a larger {either('--r')} first where its order search kept lowering "
+                      "the miss)"
                       + _replay_hint(record, rom_info), FmuOpinfWarning, stacklevel=3)
 
 
@@ -144,7 +146,8 @@ def _replay_hint(record: dict[str, Any], rom_info: dict[str, Any]) -> str:
     found = re.fullmatch(r"run \d+ \(([^()'\\]+)\)", str(name))
     if not found or not isinstance(end, (int, float)) or not math.isfinite(end) or end <= 0:
         return ""
-    return f"; compare --input '{found.group(1)}' --t-end {float(end):g} replays that training run"
+    replay = values_said(("--input", found.group(1)), ("--t-end", float(f"{end:g}")))
+    return f"; compare {replay} replays that training run"
 
 
 def _order_chosen(rom_side: Any) -> dict[str, Any]:
@@ -216,10 +219,10 @@ def _past_training(y: np.ndarray, y_rom: np.ndarray, names: list[str], rom_info:
     if not ratios[worst] > PAST_TRAINING_MARGIN:
         return ""
     rom_ratio = float(np.abs(y_rom[worst] - y_rom[worst, 0]).max() / scale[worst])
-    cause = ("the input's offsets take it there in the ROM too: a shorter --t-end keeps them nearer" if rom_ratio > 1.0
-             else _growth_cause() if _grew(rom_info)
-             else "the ROM stays within it: it may miss a mode of the model there; pass --input with a smaller "
-                  "amplitude or another frequency")
+    cause = (f"the input's offsets take it there in the ROM too: a shorter {either('--t-end')} keeps them nearer"
+             if rom_ratio > 1.0 else _growth_cause() if _grew(rom_info)
+             else f"the ROM stays within it: it may miss a mode of the model there; pass {either('--input')} with a "
+                  "smaller amplitude or another frequency")
     text = (f"{Path(str(source)).name}'s {names[worst]} went to {ratios[worst]:.3g} times its largest departure in the "
             f"training; {cause}")
     import warnings

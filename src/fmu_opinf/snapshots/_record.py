@@ -1332,7 +1332,7 @@ def _plan_recording(source_spec: Any, signal: Any, dt: float | None, t_end: floa
                     else f"the impulse training input {specs[0]}{lowered}" if source.m == 1
                     else f"one run per input, each driving that input alone with {_impulse_said(amplitudes)}"
                          f"{lowered} (the others held at their start values)")
-            print(f"no --input given: recording {what}", file=sys.stderr)
+            print(f"no {either('--input')} given: recording {what}", file=sys.stderr)
     signals = [as_signal(s, source.m, source) for s in specs]
     if not quiet and hasattr(source, "selection_text"):
         print(source.selection_text(), file=sys.stderr)
