@@ -115,7 +115,7 @@ def test_a_snapshot_file_of_no_layout_or_another_kind_is_named_as_such(tmp_path,
 def test_save_never_clobbers_and_overwrite_is_atomic(tmp_path):
     snaps = small_snapshots()
     path = snaps.save(tmp_path / "s.h5")
-    with pytest.raises(FileFormatError, match="exists; pass overwrite=True"):
+    with pytest.raises(FileFormatError, match="exists; pass --force or overwrite=True to replace it"):
         snaps.save(path)
     before = path.read_bytes()
     source = BuiltinSource("anchored-msd", g=12)

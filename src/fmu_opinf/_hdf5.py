@@ -23,6 +23,7 @@ import h5py
 import numpy as np
 
 from ._interrupts import check_interrupt
+from ._validate import either
 from .errors import FileFormatError
 
 __all__ = ["atomic_h5", "atomic_path", "output_target", "check_folder_entries", "replace_together", "REPLACED",
@@ -45,7 +46,7 @@ def atomic_h5(path: str | os.PathLike, overwrite: bool = False) -> Iterator[h5py
 
     path = Path(path)
     if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True (--force) to replace it")
+        raise FileExistsError(f"{path} exists; pass {either('--force')} to replace it")
     if path.is_dir():
         raise FileFormatError(f"{path} is a directory; give a file name ending in .h5")
     with atomic_path(path) as tmp:

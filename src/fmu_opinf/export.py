@@ -58,7 +58,7 @@ import numpy as np
 from ._descriptions import input_descriptions as recorded_input_texts
 from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
-from ._validate import check_not_input
+from ._validate import check_not_input, either
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
 from .fmus import (INTEGER_RANGES, Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools,
                    is_type_name, is_unit_name, type_definition, unit_definition)
@@ -244,6 +244,10 @@ _MODAL_CALLS = """
 """
 
 
+#: The fix of a step map that is not finite at the export's step, in both vocabularies.
+_SMALLER_STEP = f"choose a smaller {either('--step')}"
+
+
 def _modal_matrices(rom: Any, c_matrices: dict[str, np.ndarray], dt: float | None) -> dict[str, np.ndarray]:
     """The C kernel's modal step (``MatrixModal*`` in ``fmus/include/model.h``), or nothing if the step map
     has no modal form that reproduces it to 1e-12 (the kernel then keeps its Newmark solves / step map)."""
@@ -261,7 +265,7 @@ def _modal_matrices(rom: Any, c_matrices: dict[str, np.ndarray], dt: float | Non
         try:
             phi, gamma = rom.step_map(dt)
         except (ValueError, np.linalg.LinAlgError):
-            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
+            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; {_SMALLER_STEP}") from None
     else:
         M, D, K = (c_matrices[name] for name in ("reducedMass", "reducedDamping", "reducedStiffness"))
         try:
@@ -270,7 +274,7 @@ def _modal_matrices(rom: Any, c_matrices: dict[str, np.ndarray], dt: float | Non
             phi = gamma_new = gamma_old = np.full((1, 1), np.nan)
         gamma = gamma_new + gamma_old           # the kernel updates the acceleration for a new input first
     if not (np.isfinite(phi).all() and np.isfinite(gamma).all()):
-        raise DataError(f"the ROM's step map at dt={dt:g} is not finite; choose a smaller --step")
+        raise DataError(f"the ROM's step map at dt={dt:g} is not finite; {_SMALLER_STEP}")
     form = modal_form(phi, gamma)
     if form is None:
         return {}
@@ -490,7 +494,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         try:
             phi, gamma = rom.step_map(dt)
         except (ValueError, np.linalg.LinAlgError):
-            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; choose a smaller --step") from None
+            raise DataError(f"the ROM's exact step map at dt={dt:g} is not finite; {_SMALLER_STEP}") from None
         c_matrices.update(stepMap=phi, stepMapInput=gamma, stepMapSize=np.array([dt]))
     c_matrices.update(_modal_matrices(rom, c_matrices, dt))
     ranges = _declared_input_ranges(provenance, input_names or [f"u[{i}]" for i in range(1, m + 1)], input_starts)
@@ -611,7 +615,7 @@ def _source_parameters(provenance: dict, taken: set[str], fmi_version: str) -> l
         if declared is None or name in taken or not name.strip():
             left_out.append(name)
             continue
-        given = "fixed at its --set value in training" if name in record["set"] else ""   # (compact: hundreds)
+        given = "fixed at the value the training set" if name in record["set"] else ""   # (compact: hundreds)
         kept.append(Parameter(name, value, given, unit if declared == "Float64" else "", declared))
     if left_out:
         warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (a type or value it cannot "
@@ -641,13 +645,14 @@ def _parameter_type(kind: str, value: float, fmi_version: str) -> str | None:
 
 def _parameters_text(provenance: dict, parameters: list[Parameter]) -> str:
     """The description's part on the source's parameters: the ``--set`` ones with their values, and how many are
-    declared fixed."""
+    declared fixed.  Said as what the training did, in neither vocabulary: an importer's user reads it, who may
+    never run fmu-opinf, and the training may have been set from Python (``parameters=``) as well as by ``--set``."""
     record = _recorded_parameters(provenance)
     if record is None or not parameters:
         return ""
     given = [f"{name}={value!r}" for name, value in zip(record["names"], record["values"]) if name in record["set"]]
     text = f"; {len(parameters)} source parameter(s) declared fixed at their training values"
-    return text + (f" (trained with --set {', '.join(given)})" if given else "")
+    return text + (f" (the training set {', '.join(given)})" if given else "")
 
 
 def _warn_if_settings_not_declared(provenance: dict, parameters: list[Parameter], inputs: list[str]) -> None:
@@ -661,12 +666,13 @@ def _warn_if_settings_not_declared(provenance: dict, parameters: list[Parameter]
     missing = [str(name) for name in settings if str(name) not in declared]
     if missing and _recorded_parameters(provenance) is None:
         warnings.warn(f"the ROM file records no values of the source's parameters (snapshots recorded before "
-                      f"2026-12-07): the ROM FMU declares none, though the training set {_few(missing)} (--set); "
-                      "record the snapshots again and refit to declare them", FmuOpinfWarning, stacklevel=4)
+                      f"2026-12-07): the ROM FMU declares none, though the training set {_few(missing)} "
+                      f"({either('--set')}); record the snapshots again and refit to declare them", FmuOpinfWarning,
+                      stacklevel=4)
     elif missing:
-        warnings.warn(f"the training set {_few(missing)} (--set), which the ROM FMU does not declare: it starts from "
-                      "the trained initial state and has no start values of states; record and fit again with "
-                      "another --set to change them", FmuOpinfWarning, stacklevel=4)
+        warnings.warn(f"the training set {_few(missing)} ({either('--set')}), which the ROM FMU does not declare: it "
+                      "starts from the trained initial state and has no start values of states; record and fit again "
+                      f"with another {either('--set')} value to change them", FmuOpinfWarning, stacklevel=4)
 
 
 # -------------------------------------------------------------- held inputs (audit 69 F4)
@@ -1269,7 +1275,7 @@ def check_output_name(path: Path, overwrite: bool) -> None:
     if path.is_dir():
         raise FMUError(f"output path {path} is a directory; give a file name ending in .fmu")
     if path.exists() and not overwrite:
-        raise FMUError(f"{path} exists; replace it with overwrite=True (command line: --force)")
+        raise FMUError(f"{path} exists; pass {either('--force')} to replace it")
 
 
 def _prepare_output_folder(path: Path) -> None:

@@ -550,7 +550,7 @@ def fit_rom_file(
     check_not_input(output, list(snapshots) if isinstance(snapshots, (list, tuple)) else [snapshots], "output",
                     "output")   # (audit 81c F3: overwrite=True replaced the training data with the ROM)
     if output.exists() and not overwrite:
-        raise FileExistsError(f"{output} exists; replace it with overwrite=True (command line: --force)")
+        raise FileExistsError(f"{output} exists; pass {either('--force')} to replace it")
     with open_snapshot_set(snapshots, max_memory=options.get("max_memory", 1e9)) as snaps:
         rom = fit_rom(snaps, r=r, energy=energy, basis=basis, quiet=quiet, **options)
         _name_files(rom, snaps)

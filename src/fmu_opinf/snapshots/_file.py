@@ -12,6 +12,7 @@ import h5py
 import numpy as np
 
 from .._hdf5 import atomic_h5, checksummed, ensure_space, write_attrs
+from .._validate import either
 from ..errors import FileFormatError
 
 if TYPE_CHECKING:
@@ -39,7 +40,7 @@ _JSON_ATTRS = ("system_options", "fmu_parameters", "fmu_settings", "variable_sel
 def atomic(path: Path, overwrite: bool) -> Iterator[h5py.File]:
     """:func:`atomic_h5` with an existing file reported as a one-line :class:`FileFormatError`."""
     if path.exists() and not overwrite:
-        raise FileFormatError(f"{path} exists; pass overwrite=True (--force) to replace it")
+        raise FileFormatError(f"{path} exists; pass {either('--force')} to replace it")
     with atomic_h5(path, overwrite=overwrite) as f:
         yield f
 
