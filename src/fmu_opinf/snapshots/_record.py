@@ -520,12 +520,17 @@ SOURCE_KEYWORDS = ("positions", "velocities", "accelerations", "inputs", "output
 def open_recorded_source(spec: Source | str | os.PathLike, options: dict[str, Any]) -> Source:
     """:func:`~fmu_opinf.sources.open_source` of ``spec`` with ``options`` (:data:`SOURCE_KEYWORDS`, sizes), for
     :func:`record` and :func:`record_to_file` alike; an opened :class:`Source` with such an option given is refused
-    in one line: it would be recorded as opened, the option dropped without a word."""
+    in one line: it would be recorded as opened, the option dropped without a word.  ``start_time`` is applied to
+    an opened source (:func:`~fmu_opinf.sources.at_start_time`: a copy run from that FMU time; a builtin source is
+    refused), as :func:`record` on a given grid applies it: ``record_to_file`` recorded an opened FMU from its
+    declared start time and dropped ``start_time=`` without a word."""
     given = [key for key, value in options.items() if value is not None and key != "start_time"]
     if isinstance(spec, Source) and given:
         raise InputSpecError(f"{given[0]}= applies where the source is given as a path or spec, but "
                              f"{source_label(spec)} is an opened source, recorded as opened; give the source as its "
                              f"path or spec, or open it with open_source(spec, {given[0]}=...)")
+    if isinstance(spec, Source):
+        return at_start_time(spec, options.get("start_time"))
     return open_source(spec, **options)
 
 
