@@ -39,13 +39,18 @@ def fmu(request, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def comparison(tmp_path_factory):
-    """A comparison of a ROM of the anchored chain (g = 12, r = 3) with its source."""
+def anchored_rom(tmp_path_factory):
+    """The file of a ROM of the anchored chain (g = 12, r = 3)."""
     folder = tmp_path_factory.mktemp("vocab")
     snaps = snapshots.record(BuiltinSource("anchored-msd", g=12), TRAIN, 0.5, 40.0, quiet=True)
     rom = fit_rom(snaps, r=3, quiet=True)
-    rom.save(folder / "rom.h5")
-    return compare.compare(folder / "rom.h5", "builtin:anchored-msd", TEST, t_end=10.0, quiet=True,
+    return rom.save(folder / "rom.h5")
+
+
+@pytest.fixture(scope="module")
+def comparison(anchored_rom):
+    """A comparison of a ROM of the anchored chain (g = 12, r = 3) with its source."""
+    return compare.compare(anchored_rom, "builtin:anchored-msd", TEST, t_end=10.0, quiet=True,
                            source_options={"g": 12, "isolate": False})
 
 
@@ -237,3 +242,130 @@ def test_the_training_miss_advice_names_the_patterns_in_both_vocabularies():
     assert "that --positions or positions= names positions only" in text, text
     assert "the refinement may reach them; --r or r=)" in text and "(--interface me or interface='me')" in text
     assert "the SDP solution unrefined (--no-refine or refine=False)" in text
+
+
+# -- compare's fixes and progress line, export's and the overwrite escape, in both vocabularies (api83) ----------
+# (fix82b left them: compare.py and export.py were being edited then; each test fails on the code before)
+
+
+def test_the_new_sayings_name_the_option_and_its_keyword():
+    from fmu_opinf._validate import either, source_option_said, values_said
+
+    assert either("--step") == "--step or step="
+    assert either("--force") == "--force or overwrite=True"
+    assert values_said(("--input", "impulse:t0=2"), ("--t-end", 60.0)) == \
+        "--input \"impulse:t0=2\" --t-end 60 or signal='impulse:t0=2', t_end=60.0"
+    assert source_option_said("--start-time") == "--start-time or source_options['start_time']"
+    assert source_option_said("--inputs", "F1,F2") == "--inputs F1,F2 or source_options['inputs']='F1,F2'"
+
+
+def test_compares_order_advice_names_r_in_both_vocabularies():
+    """Was ``(fit --r 8, then compare again)``, ``snapshots --input at these loads``, ``fit --r up to the snapshot
+    rank``: fit_rom(r=) and record(signal=) for a Python caller."""
+    metrics = {"order": {"r": 4, "chosen": "energy", "snapshot_rank": 10, "tried": []},
+               "per_output": {"y": {"relative_max_variation": 0.05}}}
+    assert "(fit --r 8 or r=8, then compare again)" in compare.order_note(metrics)
+    floor = {**metrics, "order": {**metrics["order"], "noise_floor": 3}}
+    assert "(fit --r 2 or r=2, then compare again)" in compare.order_note(floor)
+    beyond = {**metrics, "input_beyond_training": {"ratio": 100.0, "input": "F"}}
+    note = compare.order_note(beyond)
+    assert "(snapshots --input or signal= at these loads)" in note and "(fit --r 8 or r=8) fits only" in note, note
+    missed = {**metrics, "training_miss": {"rms": 0.3, "output": "y", "run": "run 0"}}
+    assert "(fit --r or r= up to the snapshot rank 10, see fit's warning)" in compare.training_miss_note(missed)
+
+
+def test_compares_end_and_replay_fixes_name_t_end_in_both_vocabularies():
+    """Was ``give compare --t-end below 5`` and ``compare --input '...' --t-end 60 replays that training run``."""
+    from fmu_opinf.compare._run import _past_termination
+    from fmu_opinf.compare._training import _replay_hint
+    from fmu_opinf.sources import StepError
+    from fmu_opinf.sources._cosimulation import TERMINATED
+
+    stopped = StepError(f"m.fmu {TERMINATED} at t=5; record a shorter run (--t-end or t_end= below 5)", 10, 5.0)
+    said = str(_past_termination(stopped, 20.0, end_given=False))
+    assert said.endswith("(compare ran to its default t_end=20, four times the training's end; give compare "
+                         "--t-end or t_end= below 5)"), said
+    hint = _replay_hint({"run": f"run 0 ({TRAIN})"}, {"t_train_end": 60.0})
+    assert hint == f"; compare --input \"{TRAIN}\" --t-end 60 or signal='{TRAIN}', t_end=60.0 replays that training run"
+
+
+def test_compares_source_option_fixes_name_the_source_options_key(anchored_rom):
+    """compare takes a source's options in ``source_options``: ``--start-time applies to fmu sources`` told a Python
+    caller nothing, and ``start_time=`` (either's form) would be a TypeError there."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.compare._simulate import _in_source_order
+
+    with pytest.raises(InputSpecError) as caught:
+        compare.compare(anchored_rom, "builtin:anchored-msd", TEST, t_end=10.0, quiet=True,
+                        source_options={"g": 12, "start_time": 1.0})
+    _one_line(caught.value, "--start-time or source_options['start_time'] applies to fmu sources, not to builtin:")
+    source = SimpleNamespace(input_names=["F1", "F3"])
+    with pytest.raises(InputSpecError) as caught:
+        _in_source_order(np.zeros((2, 3)), ["F2", "F1"], source, "m.fmu")
+    _one_line(caught.value, "compare drives the ROM's inputs: leave out --inputs or source_options['inputs'], or give "
+                            "--inputs F2,F1 or source_options['inputs']='F2,F1'")
+
+
+def test_compares_test_input_fixes_and_progress_line_name_signal(anchored_rom, capsys):
+    """Was ``no --input given: comparing on ...`` (and ``snapshots``' twin ``no --input given: recording ...``),
+    ``pass --input SPEC``, ``pass --input with a smaller amplitude``, ``a shorter --t-end keeps them nearer``."""
+    from pathlib import Path
+
+    from fmu_opinf.compare._run import _default_test_input
+    from fmu_opinf.compare._training import _past_training
+
+    compare.compare(anchored_rom, "builtin:anchored-msd", t_end=10.0, source_options={"g": 12, "isolate": False})
+    assert capsys.readouterr().err.startswith("no --input or signal= given: comparing on harmonic:")
+    snapshots.record(BuiltinSource("anchored-msd", g=4), dt=0.5, t_end=5.0)
+    assert "no --input or signal= given: recording the impulse training input" in capsys.readouterr().err
+    with pytest.raises(InputSpecError) as caught:
+        _default_test_input(Path("old.fmu"), {"provenance": {}}, 0.5, 10.0)
+    _one_line(caught.value, "carries none (exported before 2026-12-06); pass a test input, e.g. --input "
+                            "\"harmonic:amplitude=1,omega=0.2\" or signal='harmonic:amplitude=1,omega=0.2'")
+    info = {"provenance": {"training_runs": [{"output_peak": [1.0]}], "snapshots": {}}}
+    y = np.array([[0.0, 2.0]])
+    with pytest.warns(FmuOpinfWarning, match=r"may miss a mode of the model there; pass --input or signal= with a "
+                                             r"smaller amplitude"):
+        _past_training(y, np.array([[0.0, 0.5]]), ["y"], info, "m.fmu")
+    with pytest.warns(FmuOpinfWarning, match=r"take it there in the ROM too: a shorter --t-end or t_end= keeps them"):
+        _past_training(y, np.array([[0.0, 3.0]]), ["y"], info, "m.fmu")
+
+
+def test_an_existing_output_names_force_and_overwrite_in_one_style(anchored_rom, tmp_path):
+    """Was ``pass overwrite=True (--force)`` (snapshot files, _hdf5) beside ``replace it with overwrite=True (command
+    line: --force)`` (fit_rom_file, export_fmu): one text, option first, as every other fix."""
+    from fmu_opinf import export
+    from fmu_opinf._hdf5 import atomic_h5
+    from fmu_opinf.errors import FMUError
+    from fmu_opinf.fit import fit_rom_file
+
+    fix = "exists; pass --force or overwrite=True to replace it"
+    taken = tmp_path / "taken.h5"
+    taken.write_bytes(b"")
+    with pytest.raises(FileExistsError, match=fix):
+        with atomic_h5(taken):
+            pass
+    snaps = snapshots.record(BuiltinSource("anchored-msd", g=4), TRAIN, 0.5, 10.0, quiet=True)
+    saved = snaps.save(tmp_path / "s.h5")
+    with pytest.raises(FileFormatError, match=fix):
+        snaps.save(saved)
+    with pytest.raises(FileExistsError, match=fix):
+        fit_rom_file(saved, taken, quiet=True)
+    (tmp_path / "rom.fmu").write_bytes(b"")
+    with pytest.raises(FMUError, match=fix):
+        export.export_fmu(anchored_rom, tmp_path / "rom.fmu")
+
+
+def test_exports_set_warnings_name_both_vocabularies():
+    """The training's ``--set`` values the ROM FMU cannot declare: was ``(--set)`` / ``another --set``."""
+    from fmu_opinf.export import _warn_if_settings_not_declared
+
+    snaps = {"fmu_settings": {"mass[1].s": 0.1}}
+    with pytest.warns(FmuOpinfWarning, match=r"the training set mass\[1\]\.s \(--set or parameters=\); record the "
+                                             r"snapshots again"):
+        _warn_if_settings_not_declared({"snapshots": snaps}, [], [])
+    recorded = {"names": ["k"], "types": ["Real"], "values": [1.0], "units": [""], "set": []}
+    with pytest.warns(FmuOpinfWarning, match=r"the training set mass\[1\]\.s \(--set or parameters=\), which the ROM "
+                                             r"FMU does not declare: .* with another --set or parameters= value"):
+        _warn_if_settings_not_declared({"snapshots": {**snaps, "source_parameters": recorded}}, [], [])
