@@ -538,7 +538,7 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
     assert "chosen without --input: a harmonic on each input" in page.read_text()
     assert result.metrics()["input_choice"].endswith("y[1] went to 1.13 times its largest departure in the training; "
                                                      "the input's offsets take it there in the ROM too: a shorter "
-                                                     "--t-end keeps them nearer")
+                                                     "--t-end or t_end= keeps them nearer")
     exported = export_fmu(fitted, tmp_path / "rom.fmu")
     with pytest.warns(FmuOpinfWarning, match=r"y\[1\] went to 1.13 times"):   # (audit 53: not said for an FMU)
         assert compare.compare(exported, fmu.path, quiet=True).input_spec == result.input_spec

@@ -142,7 +142,7 @@ def test_a_declared_stop_time_crossed_by_a_failed_step_is_named_with_its_t_end(f
         # compare's default end (four times the training's) past it: the fix is compare's own --t-end
         told = str(_run._past_termination(StepError(line, crossing, float(t[crossing])), 80.0, False))
         assert told.endswith(f"(compare ran to its default t_end=80, four times the training's end; give compare "
-                             f"--t-end at or below {TERMINATE:g})"), told
+                             f"--t-end or t_end= at or below {TERMINATE:g})"), told
         assert "stopTime" not in source._step_failure(3, "fmi2DoStep", crossing + 2)
         assert "stopTime" not in source._step_failure(3, "fmi2DoStep", crossing - 2)
     finally:
