@@ -369,3 +369,41 @@ def test_exports_set_warnings_name_both_vocabularies():
     with pytest.warns(FmuOpinfWarning, match=r"the training set mass\[1\]\.s \(--set or parameters=\), which the ROM "
                                              r"FMU does not declare: .* with another --set or parameters= value"):
         _warn_if_settings_not_declared({"snapshots": {**snaps, "source_parameters": recorded}}, [], [])
+
+
+def test_compares_warnings_and_grid_fix_name_both_vocabularies(anchored_rom, monkeypatch):
+    """Was ``(snapshots --input at these loads)``, ``(a larger --r first ...)``, ``record without it (snapshots
+    --outputs)`` and ``no --t-end given ...; pass --t-end``."""
+    from fmu_opinf.compare import _run, _training
+
+    with pytest.warns(FmuOpinfWarning, match=r"train with an input nearer this one \(snapshots --input or signal= at "
+                                             r"these loads\)"):
+        _training._warn_beyond_training({"given": 100.0, "input": "F", "ratio": 100.0, "trained": 1.0}, "m.fmu")
+    monkeypatch.setattr(_training, "_training_miss", lambda side, info: {"rms": 0.3, "output": "y", "run": "run 0"})
+    with pytest.warns(FmuOpinfWarning, match=r"\(a larger --r or r= first where its order search kept lowering"):
+        _training._warn_if_training_missed(None, {"t_train_end": None})
+    metrics = {"linear_fits": ["E"], "per_output": {"E": {"relative_max": 0.1}}}
+    assert "record without it (snapshots --outputs or outputs=) where not needed" in compare.linear_fit_note(metrics)
+    side_info = _run._rom_side_info
+    monkeypatch.setattr(_run, "_rom_side_info", lambda side: {**side_info(side), "t_train_end": None})
+    with pytest.raises(FmuOpinfError) as caught:
+        compare.compare(anchored_rom, "builtin:anchored-msd", TEST, quiet=True, source_options={"g": 12})
+    _one_line(caught.value, "no --t-end or t_end= given and the ROM does not record a usable training end time (None); "
+                            "pass --t-end or t_end=")
+
+
+def test_an_exact_step_map_that_is_not_finite_names_step_in_both_vocabularies(anchored_rom, tmp_path):
+    """Was ``choose a smaller --step`` (export_fmu(step=) in Python); the Newmark path: test_one_line_errors."""
+    from fmu_opinf import export
+    from fmu_opinf.errors import DataError
+    from fmu_opinf.rom import SecondOrderROM
+
+    def overflowing(dt: float) -> None:   # (where the matrix exponential fails; at dt=1e300 it returns inf)
+        raise np.linalg.LinAlgError("overflow")
+
+    model = SecondOrderROM.load(anchored_rom)
+    model.integrator, model.step_map = "exact", overflowing
+    with pytest.raises(DataError, match=r"the ROM's exact step map at dt=0.5 is not finite; choose a smaller "
+                                        r"--step or step=$"):
+        export.export_fmu(model, tmp_path / "x.fmu")
+    assert list(tmp_path.iterdir()) == []
