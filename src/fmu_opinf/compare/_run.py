@@ -385,7 +385,7 @@ def _default_test_input(rom_side: Any, rom_info: dict[str, Any], dt: float, t_en
     carried = rom_info["provenance"].get("default_test_input")
     if not (isinstance(carried, list) and len(carried) == 2 and all(isinstance(v, str) for v in carried)):
         raise InputSpecError(f"no test input given, and {rom_side.name} carries none (exported before 2026-12-06); "
-                             f"{_FIX}")
+                             + _FIX)
     spec, why = ("".join(c for c in text if c.isprintable()) for text in carried)   # (no terminal controls)
     spec = carried_for_grid(spec, rom_side.name, int(rom_info["m"]), dt, t_end)
     return spec, f"{why}; chosen at export for the FMU's own step and four times its training end"
