@@ -842,8 +842,8 @@ def test_error_figures_of_outputs_near_the_top_of_the_floating_point_range_are_f
 
 def test_an_exported_rom_fmu_carries_how_its_order_was_chosen():
     """Audit 69, F6: ``compare`` on a ROM FMU gave no order note, since the FMU did not carry the fit's report.  The
-    export writes :func:`compare._training._order_chosen` of the ROM into provenance.json, and compare takes it back only in
-    that form (a data file)."""
+    export writes :func:`compare._training._order_chosen` of the ROM into provenance.json, and compare takes it back
+    only in that form (a data file)."""
     from fmu_opinf.compare import _training
     from fmu_opinf.export import rom_fmu_spec
     from fmu_opinf.rom import SecondOrderROM

@@ -1227,16 +1227,16 @@ def _recorded_unit_definitions(provenance: dict, used: set[str] | None = None) -
 
 
 def _order_record(rom: SecondOrderROM) -> dict[str, Any]:
-    """How the ROM's order was chosen (:func:`fmu_opinf.compare._training._order_chosen`), for ``compare`` on the FMU: its
-    order note needs it, and the FMU does not carry the fit's report (audit 69 F6)."""
+    """How the ROM's order was chosen (:func:`fmu_opinf.compare._training._order_chosen`), for ``compare`` on the
+    FMU: its order note needs it, and the FMU does not carry the fit's report (audit 69 F6)."""
     from .compare._training import _order_chosen
 
     return _order_chosen(rom)
 
 
 def _linear_fits_record(rom: SecondOrderROM) -> list[str]:
-    """The outputs the fit found not linear in the states (:func:`fmu_opinf.compare._training._linear_fits`), for ``compare``
-    on the FMU: its note on them needs it, and the FMU does not carry the fit's report (audit 77a F1)."""
+    """The outputs the fit found not linear in the states (:func:`fmu_opinf.compare._training._linear_fits`), for
+    ``compare`` on the FMU: its note on them needs it, and the FMU does not carry the fit's report (audit 77a F1)."""
     from .compare._training import _linear_fits
 
     return _linear_fits(rom)

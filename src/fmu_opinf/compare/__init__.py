@@ -31,8 +31,9 @@ Modules, one job each:
     What each side's time measured.
 
 The public names of those modules are re-exported here; other modules of the package import the private helpers
-they share from the module that defines them.  Each module reads its own names, so a test that patches one patches it in the module that uses it (``fmu_opinf.compare._run._rom_side_info``
-for :func:`compare`): a patch of ``fmu_opinf.compare.NAME`` changes a copy that the functions do not read.
+they share from the module that defines them.  Each module reads its own names, so a test that patches one
+patches it in the module that uses it (``fmu_opinf.compare._run._rom_side_info`` for :func:`compare`): a patch of
+``fmu_opinf.compare.NAME`` changes a copy that the functions do not read.
 """
 
 from __future__ import annotations
