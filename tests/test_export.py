@@ -415,7 +415,7 @@ def test_source_variables_named_like_the_rom_states_get_other_state_names(rom, t
     finds the states of such an FMU through its provenance.json."""
     from fmpy import simulate_fmu
 
-    from fmu_opinf.compare import _rom_side_info
+    from fmu_opinf.compare._sides import _rom_side_info
     from fmu_opinf.rom import SecondOrderROM
 
     real = SecondOrderROM(rom.Mr, rom.Dr, rom.Kr, rom.Br, np.vstack([rom.Cpr, rom.Cpr]),

@@ -11,6 +11,7 @@ keeps 13 of a snapshot rank of 20.  References: the exact zero-order-hold respon
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -70,9 +71,10 @@ def test_a_miss_at_the_search_limit_advises_the_order_first(monkeypatch):
     search = rom.fit_info["order_search"]
     assert [entry["r"] for entry in search] == [11, 13] and rom.r == 13, search   # measured 0.14 -> 0.066 RMS
     causes = missed[0].split("): ", 1)[1]
-    assert causes.startswith("the order is too small: each larger order tried lowered the miss (r=13, the closest "
-                             "of r=11, 13 tried: 0.14 -> 0.066 relative RMS), and the snapshots have rank 20: fit "
-                             "with --r 20 or r=20 (up to the snapshot rank 20"), causes
+    # (the second figure follows the SDP's round-off path: 0.066 before the centrality correctors, 0.065 after)
+    assert re.match(r"the order is too small: each larger order tried lowered the miss \(r=13, the closest of "
+                    r"r=11, 13 tried: 0\.14 -> 0\.06[56] relative RMS\), and the snapshots have rank 20: fit with "
+                    r"--r 20 or r=20 \(up to the snapshot rank 20", causes), causes
     assert "order suffices" not in causes and "record a stretch without them) and is linear at the training's " \
         "amplitude (a nonlinear spring or damper law: train at a smaller amplitude, snapshots --input or signal= " \
         "impulse:amplitude=..." in causes, causes

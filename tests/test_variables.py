@@ -764,7 +764,7 @@ def test_default_outputs_keep_the_declared_port_order():
 def test_recorded_names_with_commas_become_one_exact_pattern_each():
     """compare pins the training's variables by their recorded names; names such as sensor[1,1] were given up
     (no pattern) because of their comma, though the patterns' splitting keeps them whole."""
-    from fmu_opinf.compare import _exact_names
+    from fmu_opinf.compare._sides import _exact_names
 
     assert _exact_names(["sensor[1,1]", "mass[2,1].s"]) == "sensor[1,1],mass[2,1].s"
     assert _exact_names(["a,b"]) is None and _exact_names(["x*"]) is None and _exact_names([]) is None
