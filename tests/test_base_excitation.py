@@ -174,6 +174,7 @@ def test_compare_tests_a_reduced_rom_at_the_top_of_its_training_band(tmp_path, c
     assert default_miss < 1e-2 and band_miss > 3 * default_miss, (default_miss, band_miss)
     said = capsys.readouterr().err
     assert "the training excited the outputs up to 4.66 rad/s" in said and "times worse than this test shows" in said
+    assert "(fit --r or r= up to the snapshot rank" in said, said
     assert band.metrics()["per_output"]  # and the run is in the metrics
     assert result.metrics()["training_band"]["input"] == band.input_spec
     from fmu_opinf.report import write_report

@@ -213,7 +213,7 @@ def training_band_line(default: Comparison, band: Comparison, top: float, rank: 
     if miss > BAND_WORSE * default_miss:
         line += (f": the ROM follows the top of its training band {miss / max(default_miss, 1e-300):.2g} times worse "
                  f"than this test shows; its order r={band.r} leaves out modes the training excited, a larger one "
-                 f"may follow them (fit --r up to the snapshot rank {rank})")
+                 f"may follow them (fit {either('--r')} up to the snapshot rank {rank})")
     return line
 
 
