@@ -76,6 +76,19 @@ def rate_mismatch(x: np.ndarray, v: np.ndarray, h: float) -> np.ndarray:
     return sums.mismatch()
 
 
+def rate_mismatch_over(x: np.ndarray, v: np.ndarray, h: float, steps: np.ndarray,
+                       floor: np.ndarray | None = None) -> np.ndarray:
+    """:func:`rate_mismatch` over the steps ``steps`` alone (step ``j`` from sample ``j`` to ``j + 1``, ascending),
+    each row's scale raised to at least ``floor`` (a row that rests on those steps is judged against the motion
+    the caller names, not against its own round-off)."""
+    sums = RateSums(x.shape[0], x.shape[1], h, mismatch=True, stale=False)
+    breaks = np.flatnonzero(np.diff(steps) != 1) + 1
+    for run in np.split(np.asarray(steps), breaks):   # (consecutive steps: one block of samples each)
+        if run.size:
+            sums._add_mismatch(x[:, run[0]:run[-1] + 2], v[:, run[0]:run[-1] + 2])
+    return sums.mismatch(floor)
+
+
 def _row_squares(a: np.ndarray) -> np.ndarray:
     """Sum of squares of each row."""
     return np.einsum("ij,ij->i", a, a)
@@ -213,10 +226,13 @@ class RateSums:
         self.shifted[c0:c1] = _column_squares(np.subtract(dv, sums[:, 1:], out=residual))
 
     @_quiet_overflow
-    def mismatch(self) -> np.ndarray:
-        """:func:`rate_mismatch` of the samples fed (all ``k`` of them)."""
+    def mismatch(self, floor: np.ndarray | None = None) -> np.ndarray:
+        """:func:`rate_mismatch` of the samples fed (all ``k`` of them); ``floor``: a least scale per row
+        (:func:`rate_mismatch_over`)."""
         squares = self.squares
         scale = np.sqrt(np.maximum(squares[0], squares[1]))
+        if floor is not None:
+            scale = np.maximum(scale, floor)
         residual = np.sqrt(squares[2:].min(axis=0))
         moving = scale > _QUIET * max(float(scale.max(initial=0.0)), np.finfo(float).tiny)
         return np.where(moving, residual / np.where(moving, scale, 1.0), 0.0)
