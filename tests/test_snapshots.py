@@ -236,7 +236,7 @@ def test_non_finite_values_name_their_variables_and_the_usual_causes(toys):
     causes."""
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots._record import _non_finite_names, _with_hint
+    from fmu_opinf.snapshots._run import _non_finite_names, _with_hint
 
     names = SimpleNamespace(layout={"x": slice(0, 2), "xdot": slice(2, 4), "xddot": slice(4, 4), "y": slice(4, 5)},
                             position_names=["s1", "s2"], velocity_names=["v1", "v2"], output_names=["acc"])
@@ -288,7 +288,7 @@ def test_runs_spanning_many_blocks(toys, tmp_path, monkeypatch, isolate, stream)
     """16-sample blocks: block boundaries, a failure in a later block, streaming and isolation."""
     signal = SignalStub(amplitude=1.0, t0=2.25)  # u(2.3) = 1 is in effect from the step ending at sample 24
     clean = record(FMUSource(toys["full"]), signal, 0.1, 6.0, quiet=True).runs[0]
-    monkeypatch.setattr(snapshots._record, "_BLOCK_BYTES", 1)
+    monkeypatch.setattr(snapshots._run, "_BLOCK_BYTES", 1)
     whole = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True,
                    isolate=isolate, path=tmp_path / "whole.h5", stream=stream)
     reference = record(FMUSource(toys["full"]), SignalStub(amplitude=0.2, t0=2.25), 0.1, 6.0, quiet=True).runs[0]
@@ -365,12 +365,12 @@ def test_a_builtin_source_is_recorded_in_this_process_even_when_isolation_is_ask
     """Isolation is for an FMU's binary; ``record_to_file`` of a builtin source ran it in a child process once its
     grid choice moved into ``_plan_recording`` (fix72b, reverted): a run table's builtin rows then went through the
     fork server, which under pytest-xdist stopped as the first row started, and the row failed without its file."""
-    from fmu_opinf.snapshots import _record
+    from fmu_opinf.snapshots import _run
 
     def no_child(*args, **kwargs):
         raise AssertionError("a builtin source was run in a child process")
 
-    monkeypatch.setattr(_record, "produce_isolated", no_child)
+    monkeypatch.setattr(_run, "produce_isolated", no_child)
     for dt in (0.1, None):   # a given step, and the automatic window's pilots
         path = tmp_path / f"b{dt}.h5"
         record_to_file("builtin:anchored-msd", path, "impulse:amplitude=100,t0=1,width=0.5", dt=dt, t_end=5.0,

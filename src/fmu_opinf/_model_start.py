@@ -164,7 +164,7 @@ def _initialized(path: Path, options: dict[str, Any], step: np.ndarray,
     """Positions and velocities (None where the source derives them) of the FMU ``path`` opened with ``options``
     after its initialization, or why they cannot be had."""
     from .signals import parse_signal
-    from .snapshots._record import MemorySink, record_run
+    from .snapshots._run import MemorySink, record_run
     from .source import open_source
 
     try:

@@ -63,7 +63,7 @@ def _source_start(rom: Any, source: Any, signal: Any, t: np.ndarray,
     if (str(source).startswith("builtin:") or Path(str(source)).suffix.lower() in (".h5", ".hdf5")
             or rom.basis is None):
         return None
-    from ..snapshots._record import MemorySink, record_run
+    from ..snapshots._run import MemorySink, record_run
     from ..source import open_source
 
     keep = {k: v for k, v in options.items()

@@ -15,7 +15,7 @@ increments cannot tell; audit 71 F6).
 (each position's increments matched with the state whose average over the step fits them), or the positions'
 derivative variables as velocities (when no other state is their rate) or accelerations derived from the data.
 :func:`judge_run` applies it to a recorded run of an FMU source (the recorder then records the run again with the
-repair, :func:`fmu_opinf.snapshots._record.record_run`), or turns what cannot be repaired into an error.
+repair, :func:`fmu_opinf.snapshots._run.record_run`), or turns what cannot be repaired into an error.
 
 The numbers behind the verdicts live beside it: :mod:`._rate_tests` (the mismatch and stale tests, summed while a run
 is recorded), :mod:`._pairing` (pairs found by the data where nothing declares them) and :mod:`._integrator_checks`

@@ -29,7 +29,7 @@ from ..errors import FMUError, FmuOpinfError, Interrupted
 from ..sources import Source, StepError, first_report, said_key
 
 if TYPE_CHECKING:
-    from ._record import _Sink
+    from ._run import _Sink
 
 __all__ = ["produce_inprocess", "produce_isolated", "source_label", "Interrupted", "deferred_interrupts",
            "check_interrupt", "use_fork_server"]

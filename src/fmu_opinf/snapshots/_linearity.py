@@ -247,7 +247,7 @@ def _run_scaled(source: Source, reference: Reference, factor: float, quiet: bool
 def _outputs(source: Source, signal: Any, t: np.ndarray, quiet: bool, isolate: bool, label: str) -> np.ndarray:
     """The outputs of a complete run of ``signal`` on the grid ``t`` at :func:`accurate`'s accuracy (a failure raises,
     as a pilot's does; the model's events are not said, the recording says them)."""
-    from ._record import incomplete_error, record_run, MemorySink
+    from ._run import incomplete_error, record_run, MemorySink
 
     with source.checked_accuracy(CHECK_TOLERANCE):
         run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, say_events=False)
@@ -381,7 +381,7 @@ def _recorded_outputs(source: Source, signal: Any, t: np.ndarray, quiet: bool, i
                       label: str) -> np.ndarray:
     """The outputs of a complete run of ``signal`` on the grid ``t`` at the recording's accuracy (a failure raises;
     the model's events are not said, the recording says them)."""
-    from ._record import incomplete_error, record_run, MemorySink
+    from ._run import incomplete_error, record_run, MemorySink
 
     run, failure = record_run(source, signal, t, MemorySink, quiet, isolate, label, say_events=False)
     if failure is not None:

@@ -20,7 +20,8 @@ from ._growth import growth_error, held_ratios, still_rising, unbounded_growth
 from ._isolation import source_label
 from ._linearity import note_pilot
 from ._rates import continuous_recording, time_grid
-from ._record import MemorySink, as_signal, incomplete_error, record_run
+from ._record import as_signal
+from ._run import MemorySink, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency",
            "slowest_frequency", "fade_time", "default_window",
