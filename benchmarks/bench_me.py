@@ -86,7 +86,7 @@ def _without_compiled_loop(active: bool):
 def time_recording(source, dt: float, steps: int) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Seconds per step of the recording loop; the run's t, u, y."""
     from fmu_opinf.snapshots import inputs_in_effect, time_grid
-    from fmu_opinf.snapshots._record import as_signal
+    from fmu_opinf.snapshots._inputs import as_signal
 
     t = time_grid(dt, dt * steps)
     signal = as_signal(IMPULSE, source.m, source)

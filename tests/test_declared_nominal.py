@@ -36,7 +36,7 @@ def _source(nominals, low, high, starts=None, units=None):
 def test_the_default_pulse_takes_the_declared_nominal_within_the_declared_range():
     """Nominal 1e5 in [-2e5, 2e5] -> 1e5; nominal 3e5 in the same range -> 2e5 (its max, from a start of 0);
     nominal 0.02 (a small force) -> 0.02; nominal 1, FMI's default written out -> 100 as without one."""
-    from fmu_opinf.snapshots._record import _lowered_amplitudes, default_amplitudes
+    from fmu_opinf.snapshots._inputs import _lowered_amplitudes, default_amplitudes
 
     source = _source([1e5, 3e5, 0.02, 1.0], [-2e5, -2e5, -math.inf, -math.inf], [2e5, 2e5, math.inf, math.inf])
     amplitudes = default_amplitudes(source)
@@ -50,7 +50,7 @@ def test_an_input_without_a_nominal_or_a_wide_range_keeps_the_old_amplitude():
     """Guard (passes on the old code too): no declaration -> 100; a range narrower than the pulse -> lowered as
     before ([-20, 20] -> 20, a pull in [-1000, 0] -> -100); a range written out as unbounded (1e300) -> 100; a
     source of the API that knows no nominals -> 100."""
-    from fmu_opinf.snapshots._record import _lowered_amplitudes, default_amplitudes
+    from fmu_opinf.snapshots._inputs import _lowered_amplitudes, default_amplitudes
 
     source = _source([math.nan] * 4, [-math.inf, -20, -1000, -1e300], [math.inf, 20, 0, 1e300])
     amplitudes = default_amplitudes(source)
@@ -63,7 +63,7 @@ def test_an_input_without_a_nominal_or_a_wide_range_keeps_the_old_amplitude():
 
 def test_a_range_far_wider_than_the_default_pulse_sizes_it_where_no_nominal_is_declared():
     """[-1000, 1000] -> 200 (a tenth of 2000); [-2e5, 2e5] -> 40000; [0, 5000] from a start of 0 -> 500."""
-    from fmu_opinf.snapshots._record import _lowered_amplitudes, default_amplitudes
+    from fmu_opinf.snapshots._inputs import _lowered_amplitudes, default_amplitudes
 
     source = _source([math.nan] * 3, [-1000, -2e5, 0], [1000, 2e5, 5000])
     amplitudes = default_amplitudes(source)
@@ -73,7 +73,7 @@ def test_a_range_far_wider_than_the_default_pulse_sizes_it_where_no_nominal_is_d
 
 
 def test_a_pressure_about_its_start_keeps_a_tenth_of_it_whatever_its_nominal():
-    from fmu_opinf.snapshots._record import default_amplitudes
+    from fmu_opinf.snapshots._inputs import default_amplitudes
 
     source = _source([1e5], [-math.inf], [math.inf], starts=[101325.0], units=["Pa"])
     assert default_amplitudes(source) == [10100.0]

@@ -332,7 +332,7 @@ def test_a_free_body_pushed_by_an_input_held_at_its_bound_gets_the_window_of_the
     2) the window sees the drift and judges the pulse response net of it: the pushed body gets the window of the
     same body without the range (held at its start 0, no push): the same step, its end within 1 %."""
     from fmu_opinf import lti_fmus
-    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.snapshots._default_training import _default_training_window
     from fmu_opinf.sources import open_source
 
     needs_build_tools()
@@ -359,7 +359,7 @@ def test_an_anchored_slow_model_pushed_at_a_bound_gets_a_wider_impulse(tmp_path)
     from dataclasses import replace
 
     from fmu_opinf import lti_fmus
-    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.snapshots._default_training import _default_training_window
 
     needs_build_tools()
     base = lti_fmus.chain_model(5, inputs=(0, 4), name="Slow")

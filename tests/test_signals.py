@@ -93,7 +93,7 @@ def test_bad_tables_give_one_line_errors(tmp_path, text, message):
 def test_none_among_several_specs_leaves_that_input_undriven():
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots._record import as_signal
+    from fmu_opinf.snapshots._inputs import as_signal
 
     t = np.array([0.0, 1.0, 2.0])
     parsed = signals.parse_signal("step:amplitude=2,t0=1;none", 2)

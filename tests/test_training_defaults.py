@@ -13,7 +13,7 @@ from fmu_opinf.errors import InputSpecError
 from fmu_opinf.rom import SecondOrderROM
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import DEFAULT_TRAINING_INPUT, Snapshots, Window
-from fmu_opinf.snapshots._record import check_input_acts, default_training_inputs
+from fmu_opinf.snapshots._inputs import check_input_acts, default_training_inputs
 from fmu_opinf.snapshots._window import follows_input, input_activity, needs_auto_window, quasi_static_pulse
 
 
@@ -84,7 +84,7 @@ def test_at_a_given_step_a_quasi_static_pulse_shrinks_to_ten_samples_of_it():
     (249.5 Hz); one period of it is under ten samples, and the 0.5 s pulse was kept (23-31 % off, 4-11 % where
     the shrink happened).  It now shrinks to ten samples of the step; at ``--dt 0.05`` ten samples are 0.5 s
     already, and at a chosen step one period of the fastest frequency is taken."""
-    from fmu_opinf.snapshots._record import _narrower_width
+    from fmu_opinf.snapshots._default_training import _narrower_width
 
     bar = Window(dt=0.002, t_end=3.7, f_max=249.5, t_fade=3.7, peak=1.0, pilot_dt=0.002, pilot_t_end=10.0,
                  pilots=1, points_per_period=20.0, energy=0.999, fade=0.01, t_input=2.25)
@@ -512,7 +512,7 @@ def test_a_pressure_driven_about_its_start_is_pulsed_by_a_tenth_of_it():
     pressure at 0, by 100.  Reference: the amplitudes written out by hand."""
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots._record import _lowered_amplitudes, default_amplitudes
+    from fmu_opinf.snapshots._inputs import _lowered_amplitudes, default_amplitudes
 
     inputs = [("F", "N", 10.0, np.inf), ("p_bar", "bar", 1.0, np.inf), ("p_amb", "Pa", 101325.0, np.inf),
               ("p_gauge", "psig", 0.0, np.inf), ("p_near", "Pa", 101325.0, 105000.0),

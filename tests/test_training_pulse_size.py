@@ -12,7 +12,7 @@ from fmu_opinf.errors import FmuOpinfWarning
 from fmu_opinf.fit import fit_rom
 from fmu_opinf.signals import parse_signal
 from fmu_opinf.snapshots import Snapshots, record_to_file
-from fmu_opinf.snapshots import _record
+from fmu_opinf.snapshots import _default_training
 
 DT, T_END = 0.05, 60.0
 LOADED = "harmonic:amplitude=1e4,omega=1.3"
@@ -75,7 +75,7 @@ def test_with_the_automatic_window_a_resting_model_runs_nothing_more(tmp_path, m
     def never(*args, **kwargs):
         raise AssertionError("the pulse was sized for a model at rest")
 
-    monkeypatch.setattr(_record, "_raised_amplitudes", never)
+    monkeypatch.setattr(_default_training, "_raised_amplitudes", never)
     fmu = lti_fmus.build_lti_fmu(lti_fmus.chain_model(4, name="Resting4"), tmp_path / "rest4.fmu", interfaces=("cs",))
     record_to_file(str(fmu.path), tmp_path / "auto.h5", None, quiet=True)
     assert Snapshots.load(tmp_path / "auto.h5").runs[0].attrs["input_spec"] == "impulse:amplitude=100,t0=2,width=0.5"

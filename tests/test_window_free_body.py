@@ -164,7 +164,7 @@ def test_a_drifting_body_whose_window_is_not_found_even_net_of_the_drift_is_refu
     try ran on the raw response too."""
     from fmu_opinf.errors import DataError
     from fmu_opinf.snapshots import _window
-    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.snapshots._default_training import _default_training_window
 
     calls, real_window = [], _window.auto_window
 

@@ -110,7 +110,7 @@ def test_the_unloaded_slow_chain_widens_the_impulse_its_window_would_step_over(f
     """The chain without the load: the pilots of the 0.5 s impulse settle on dt=5 (20 points per period of its
     160 s mode), which never samples the pulse; the default training widens the impulse to 50 s instead of handing
     over a window that the recording refuses.  Before: dt=5 with the 0.5 s pulse, then 'zero at every sample'."""
-    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.snapshots._default_training import _default_training_window
 
     source = open_source(fmus["SagBase"])
     try:
@@ -137,7 +137,7 @@ def _calls_of_auto_window(monkeypatch, fmu, answer) -> tuple[list, list, object]
     an error it raises); returns the calls' keywords, the runs made (the input's kind, the grid's length) and what
     the window ended in (the window, or the error)."""
     from fmu_opinf.snapshots import _window
-    from fmu_opinf.snapshots._record import _default_training_window
+    from fmu_opinf.snapshots._default_training import _default_training_window
 
     calls, runs = [], []
     real_window, real_run = _REAL_WINDOW, _REAL_RUN   # (not this test's stubs of an earlier call)
@@ -184,7 +184,7 @@ def test_the_first_pilot_tells_a_loaded_model_from_one_at_rest_at_no_extra_run(f
     calls, runs, ended = _calls_of_auto_window(monkeypatch, fmus["Sag"], _fixed_window)
     assert len(calls) == 1 and calls[0]["baseline"].moving.startswith("y[1] by "), calls
     assert not calls[0]["baseline"].armed   # a window found by the pilots as they are: kept, no run without pulse
-    # then the default pulse's size is checked net of the load on the window's grid (snapshots._record.
+    # then the default pulse's size is checked net of the load on the window's grid (snapshots._default_training.
     # _raised_amplitudes): one run without the pulse and one per input; the pulse stands out here, nothing changes;
     # then the response's scaling with the amplitude (snapshots._linearity: one run, the pulse at a tenth)
     assert runs == [("StackedSignal", 201), ("NoInput", 2001), ("StackedSignal", 2001), ("StackedSignal", 2001),

@@ -818,7 +818,7 @@ def record_runs(
         source_spec = _shared_spec(source_spec)
         settings = {k: v for k, v in {"dt": _as_float(dt), "t_end": _as_float(t_end),
                                       "auto_window": auto_window or None}.items() if v is not None}
-        from .snapshots._record import is_free_response
+        from .snapshots._inputs import is_free_response
 
         forced = any(not is_free_response(row.input) for row in rows)
 
@@ -900,7 +900,7 @@ def _row_departures(group: Sequence[RunRow], source_spec: Any, source_options: d
     import numpy as np
 
     from .snapshots._linearity import input_departures
-    from .snapshots._record import as_signal
+    from .snapshots._inputs import as_signal
     from .source import open_source
 
     source = open_source(source_spec, **row_source_options(group[0], source_options))

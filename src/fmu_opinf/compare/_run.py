@@ -265,7 +265,7 @@ class _Run:
         the input it drives alone, "" for all)."""
         from ..rom import held_input_names
         from ..signals import parse_signal
-        from ..snapshots._record import check_table_times
+        from ..snapshots._inputs import check_table_times
 
         rom_side, rom_info, source, options, t = self.rom_side, self.rom_info, self.source, self.source_options, self.t
         held = held_input_names(rom_info["provenance"])
@@ -309,7 +309,7 @@ def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
     a comparison driven by it, since it cannot be sampled beyond."""
     from ..rom import held_input_names
     from ..signals import parse_signal
-    from ..snapshots._record import input_table_end
+    from ..snapshots._inputs import input_table_end
 
     if signal is None:
         return None

@@ -38,7 +38,7 @@ def _held_at_start_values(signal: "Signal", source: Any, options: dict[str, Any]
     if (not any(isinstance(part, NoInput) and part.n_inputs for part in parts) or str(source).startswith("builtin:")
             or Path(str(source)).suffix.lower() in (".h5", ".hdf5")):
         return signal
-    from ..snapshots._record import as_signal
+    from ..snapshots._inputs import as_signal
     from ..source import open_source
 
     keep = {k: v for k, v in options.items() if k in ("inputs", "parameters", "interface", "start_time")}

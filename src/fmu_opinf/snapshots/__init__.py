@@ -21,10 +21,11 @@ from __future__ import annotations
 
 from ._data import Run, Snapshots
 from ._file import ARRAYS, FILE_KIND, LAYOUT_VERSION
+from ._inputs import DEFAULT_TRAINING_INPUT
 from ._isolation import use_fork_server
 from ._rates import (inputs_in_effect, newmark_accelerations, newmark_rates, newmark_velocities_and_accelerations,
                      time_grid)
-from ._record import DEFAULT_TRAINING_INPUT, RecordSummary, record, record_to_file
+from ._record import RecordSummary, record, record_to_file
 from ._run import STREAM_THRESHOLD
 from ._window import Window, auto_window, fade_time, input_activity, significant_frequency, slowest_frequency
 

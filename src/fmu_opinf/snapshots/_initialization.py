@@ -43,7 +43,8 @@ def initialization_of(source: Source, t: np.ndarray, first_input: np.ndarray, fi
     """
     if getattr(source, "kind", None) != "fmu" or not source.m or len(t) < 2:
         return None
-    from ._record import HeldInputs, _pilot_weights, default_amplitudes, held_starts
+    from ._default_training import _pilot_weights
+    from ._inputs import HeldInputs, default_amplitudes, held_starts
     from ._run import MemorySink, record_run
 
     starts = held_starts(source)

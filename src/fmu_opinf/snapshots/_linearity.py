@@ -1,6 +1,6 @@
 """Whether the default training's response scales with its amplitude, and the amplitude at which it does.
 
-The default training pulse is 100 in each input's unit whatever the model (:data:`._record.DEFAULT_TRAINING_INPUT`).
+The default training pulse is 100 in each input's unit whatever the model (:data:`._inputs.DEFAULT_TRAINING_INPUT`).
 An export that is linear only near its operating point (a hardening spring, an end stop, a pendulum, friction) then
 moves far outside that range: on a 100 N/m chain the pulse moved the masses by 1.4-2.2 m, and the ROM, fitted to
 that large response, was 3-100 % of range off on small inputs, silently at 15 % extra stiffness (audit 79b, F1-F3).
@@ -195,7 +195,7 @@ def _scaling_factor(source: Source, reference: Reference, sign: float, small: np
 
 def _opposite(source: Source, amplitudes: Sequence[float]) -> bool:
     """Whether every input's declared range allows the pulse a tenth as large the other way from its held value."""
-    from ._record import _within_range
+    from ._default_training import _within_range
 
     return all(_within_range(source, i, -amplitude / DECADE) == -amplitude / DECADE
                for i, amplitude in enumerate(amplitudes))
@@ -293,9 +293,9 @@ def _not_linear(source: Source, amplitudes: Sequence[float], measured: Sequence[
 
 def input_departures(source: Source, signal: Any, t: np.ndarray) -> np.ndarray:
     """How far ``signal`` drives each input from the value the recordings hold it at (its start value,
-    :func:`~._record.held_starts`) on the grid ``t``: ``(m,)``, the largest ``|u - held|`` per input."""
+    :func:`~._inputs.held_starts`) on the grid ``t``: ``(m,)``, the largest ``|u - held|`` per input."""
     from ._rates import inputs_in_effect
-    from ._record import held_starts
+    from ._inputs import held_starts
 
     if not source.m:
         return np.zeros(0)
@@ -364,8 +364,8 @@ def check_given_input(source: Source, signal: Any, t: np.ndarray, y: np.ndarray,
 
 
 def _held(source: Source) -> np.ndarray:
-    """The inputs' start values as the recordings hold them (:func:`~._record.held_starts`)."""
-    from ._record import held_starts
+    """The inputs' start values as the recordings hold them (:func:`~._inputs.held_starts`)."""
+    from ._inputs import held_starts
 
     return held_starts(source)
 

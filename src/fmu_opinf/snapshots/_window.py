@@ -17,10 +17,10 @@ from ..sources import Source, fixed_communication_step, offers_model_exchange, o
 from ..sources._base import held_inputs_advice, nice_floor
 from ..sources._cosimulation import DISCARDED
 from ._growth import growth_error, held_ratios, still_rising, unbounded_growth
+from ._inputs import as_signal
 from ._isolation import source_label
 from ._linearity import note_pilot
 from ._rates import continuous_recording, time_grid
-from ._record import as_signal
 from ._run import MemorySink, incomplete_error, record_run
 
 __all__ = ["Window", "auto_window", "combine_windows", "follows_input", "quasi_static_pulse", "significant_frequency",
