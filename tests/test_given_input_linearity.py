@@ -175,11 +175,11 @@ def test_the_default_pulse_on_a_given_grid_is_checked_too(tmp_path, monkeypatch)
 @pytest.mark.fmu
 def test_a_run_too_large_for_memory_is_not_checked_and_says_so(tmp_path, monkeypatch, capsys):
     """The check holds its runs in memory: above STREAM_THRESHOLD bytes a run is not checked, in one line."""
-    from fmu_opinf.snapshots import _record
+    from fmu_opinf.snapshots import _write
 
     fmu = _nonlinear_fmu(tmp_path, monkeypatch, "hardening")
     made = _counting(monkeypatch)
-    monkeypatch.setattr(_record, "STREAM_THRESHOLD", 1000)
+    monkeypatch.setattr(_write, "STREAM_THRESHOLD", 1000)
     record_to_file(fmu, tmp_path / "big.h5", BIG, quiet=False, **GRID)
     assert made == [] and "run 0000 is not checked for a response that scales with its input" in capsys.readouterr().err
 

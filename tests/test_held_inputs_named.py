@@ -145,7 +145,7 @@ def test_the_advice_offers_the_other_boolean_value_and_names_every_candidate():
 def test_only_runs_of_two_samples_or_more_can_be_found_still():
     from types import SimpleNamespace
 
-    from fmu_opinf.snapshots._record import _runs_still
+    from fmu_opinf.snapshots._write import _runs_still
 
     def run(x, y):
         return SimpleNamespace(x=np.asarray(x, dtype=float), y=np.asarray(y, dtype=float))

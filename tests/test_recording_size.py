@@ -25,13 +25,13 @@ def test_large_recording_says_its_size_up_front(tmp_path, monkeypatch):
     first run is recorded, naming --outputs/--positions, --inputs and --dt/--t-end; the file is still written."""
     monkeypatch.setattr(_size, "LARGE_BYTES", 1000.0)
     first_run = []
-    recorded = snapshots._record.record_run
+    recorded = snapshots._write.record_run
 
     def record_run(*args, **kwargs):
         first_run.append(len(_size_lines(caught)))
         return recorded(*args, **kwargs)
 
-    monkeypatch.setattr(snapshots._record, "record_run", record_run)
+    monkeypatch.setattr(snapshots._write, "record_run", record_run)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         summary = snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0,
@@ -91,7 +91,7 @@ def test_recording_that_cannot_fit_stops_before_it_starts(tmp_path, monkeypatch,
 
     monkeypatch.setattr(_size, "free_space", lambda path: 1000.0)
     runs = []
-    monkeypatch.setattr(snapshots._record, "_H5Sink", lambda *a, **k: runs.append(1))   # a run into the file
+    monkeypatch.setattr(snapshots._write, "_H5Sink", lambda *a, **k: runs.append(1))   # a run into the file
     with pytest.raises(FileFormatError, match=r"needs about .* before compression .* and only 1 kB are free"):
         snapshots.record_to_file("builtin:anchored-msd", tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
     assert runs == [] and not (tmp_path / "s.h5").exists()

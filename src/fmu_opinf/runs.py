@@ -938,7 +938,7 @@ def row_window(source_spec: Any, row: RunRow, settings: dict[str, Any], source_o
     tuple or None
         ``(dt, t_end, window)``; ``window`` None where no pilots chose the grid.
     """
-    from .snapshots._record import recording_window
+    from .snapshots._plan import recording_window
 
     try:
         dt, t_end, window = recording_window(source_spec, row.input, isolate=isolate, **settings,

@@ -1561,7 +1561,7 @@ def _rows_still(x: np.ndarray) -> bool:
 
 def spread_is_round_off(low: np.ndarray, high: np.ndarray) -> bool:
     """Whether rows that range over ``[low, high]`` all stay within 1e-12 of the largest magnitude among them: no
-    row moves (the pilots' rule for outputs, :func:`_judged_pilot`, and the recording's, ``_record._runs_still``)."""
+    row moves (the pilots' rule for outputs, :func:`_judged_pilot`, and the recording's, ``_write._runs_still``)."""
     size = max(float(np.max(np.maximum(np.abs(low), np.abs(high)), initial=0.0)), 1e-300)
     return not np.any(high - low > 1e-12 * size)
 
