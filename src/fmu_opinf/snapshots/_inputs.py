@@ -299,7 +299,8 @@ def check_table_times(signals: Sequence[Any], start_time: float) -> None:
 
 def runs_by_inputs_driven(signals: Sequence[Any]) -> list[Any]:
     """The first of the user's runs for each set of inputs that runs drive (the automatic window's pilots follow
-    each of them, :func:`~fmu_opinf.snapshots._window.combine_windows`); a free response, or a run that drives no input, only when every run is.
+    each of them, :func:`~fmu_opinf.snapshots._window.combine_windows`); a free response, or a run that drives no
+    input, only when every run is.
 
     A mode that only a later run's input reaches sets the step too: ``--input "impulse;none" --input
     "none;impulse"`` on two oscillators of 1 and 10 rad/s, one per input, gave dt = 0.2 from the first run
@@ -355,7 +356,8 @@ def check_input_acts(signal: Any, t: np.ndarray) -> None:
         if meant_to_act and not isinstance(part, NoInput) and rows.size and not np.any(rows):
             step = t[1] - t[0] if t.size > 1 else 0.0
             raise InputSpecError(
-                f"input {getattr(part, 'spec', repr(part))!r} is zero at every sample of the grid dt={step:g}, t_end={t[-1]:g}: it acts "
+                f"input {getattr(part, 'spec', repr(part))!r} is zero at every sample of the grid dt={step:g}, "
+                f"t_end={t[-1]:g}: it acts "
                 "outside the window or between two samples, so the FMU would never be driven; give "
                 f"{either('--t-end')} past its active part and {either('--dt')} that resolves it, or scale the input "
                 "(t0, width) to the model's time "

@@ -283,7 +283,7 @@ class Source:
 
     def input_nominals(self) -> np.ndarray:
         """The inputs' declared magnitudes (an FMU's ``nominal``), NaN where none is known: the default training
-        pulse is sized by them (:func:`fmu_opinf.snapshots._record.default_amplitudes`)."""
+        pulse is sized by them (:func:`fmu_opinf.snapshots._inputs.default_amplitudes`)."""
         return np.full(self.m, np.nan)
 
     def provenance(self) -> dict[str, Any]:

@@ -1170,7 +1170,7 @@ def _grid_steps(t: np.ndarray) -> np.ndarray:
     """The steps of the grid ``t`` that choose a run's integrator: all, but for a last step shorter than half the one
     before, which is then a piece of another length (:func:`~._integrators._exact_piece_pays`).  The recorder's
     direct evaluation of stale-looking accelerations runs a uniform grid up to a sample and one step of 1e-6 of it
-    past (:func:`fmu_opinf.snapshots._record._accelerations_after`): that grid took DOP853, 3 s for one step of a
+    past (:func:`fmu_opinf.snapshots._run._accelerations_after`): that grid took DOP853, 3 s for one step of a
     stiff FE beam that the exact step takes in milliseconds."""
     steps = np.diff(np.asarray(t, dtype=float))
     return steps[:-1] if steps.size > 1 and steps[-1] < 0.5 * steps[-2] else steps
