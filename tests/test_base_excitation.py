@@ -101,8 +101,34 @@ def test_a_fast_filter_is_told_from_an_aliased_mode():
     assert not settles
 
 
+def test_a_fast_filter_whose_derivative_variables_are_no_aliases_is_no_scaled_state():
+    """FMI 3 has no aliases by value reference: ``der(mass[i].s)`` is a variable of its own beside ``mass[i].v``.
+    The Position filter's velocity then missed its position's increments by the factor 0.074 at dt = 0.02, and the
+    rate check called it a scaled state (``mass[7].v is the rate of mass[7].s times 0.074``), recorded the
+    derivative variables again (the same values) and stopped the default recording of every FMI 3 export of a
+    Position(exact=false) source (audit84, F1).  The filter settles between the input's changes: the step's problem,
+    which the recording warns about and keeps (test_recording_a_position_source_does_not_ask_for_a_smaller_step).
+    Reference: the exact response of the true matrices; scaled velocity states are still repaired."""
+    from fmu_opinf.snapshots._consistency import Repair, check_rates
+
+    model = lti_fmus.support_chain_model(6, source="position")
+    t = time_grid(DT, 30.0)
+    u = inputs_in_effect(parse_signal(TRAINING, 1), t, 1)
+    ref = lti_fmus.zoh_response(model, t, u[:, 1:])
+    names = {"positions": [f"mass[{i}].s" for i in range(1, 8)], "velocities": [f"mass[{i}].v" for i in range(1, 8)]}
+    derivatives = [f"der(mass[{i}].s)" for i in range(1, 8)]
+    verdict = check_rates(ref.x, ref.v, ref.a, DT, names, False, derivatives, u, declared=True)
+    assert isinstance(verdict, str) and verdict.startswith("velocities do not match the positions"), verdict
+    # the chain's velocity states scaled by 1e4 (an exporter's nominals) ring on between the changes: repaired
+    scaled = ref.v.copy()
+    scaled[:6] *= 1e4
+    verdict = check_rates(ref.x, scaled, ref.a, DT, names, False, derivatives, u, declared=True)
+    assert isinstance(verdict, Repair) and "scaled states" in verdict.reason, verdict
+
+
 @pytest.mark.slow  # builds an FMU (about 5 s)
-def test_recording_a_position_source_does_not_ask_for_a_smaller_step(tmp_path):
+@pytest.mark.parametrize("fmi_version", ["2.0", "3.0"])
+def test_recording_a_position_source_does_not_ask_for_a_smaller_step(tmp_path, fmi_version):
     """The default recording of a chain on Modelica's Position(exact=false) source: the rate check's warning says
     that the filter settles within the step's reach of each input change and that the fit is not spoiled (the ROM
     is exact at this step: test_full_order_fit_of_a_base_excited_chain_is_exact), not 'record at a smaller --dt'
@@ -111,14 +137,18 @@ def test_recording_a_position_source_does_not_ask_for_a_smaller_step(tmp_path):
 
     if lti_fmus.find_build_tools() is None:
         pytest.skip("CMake and a C compiler are needed to build FMUs")
-    fmu = lti_fmus.build_lti_fmu(lti_fmus.support_chain_model(6, source="position"), tmp_path / "support.fmu",
-                                 interfaces=("me",))
+    model = lti_fmus.support_chain_model(6, source="position")
+    fmu = lti_fmus.build_lti_fmu(model, tmp_path / "support.fmu", interfaces=("me",), fmi_version=fmi_version)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        record(fmu.path, quiet=True)
+        snaps = record(fmu.path, quiet=True)
     said = [str(w.message) for w in caught if issubclass(w.category, FmuOpinfWarning)]
     assert len(said) == 1 and "a smaller --dt only shows that motion" in said[0], said
     assert "record at a smaller --dt" not in said[0]
+    # FMI 3 (audit84, F1): stopped with "scaled states"; the recording is the FMU's own, the exact response
+    run = snaps.runs[0]
+    ref = lti_fmus.zoh_response(model, run.t, run.u[:, 1:])
+    assert np.abs(run.xdot - ref.v).max() < 1e-6 * np.abs(ref.v).max()   # (not derived from the positions)
 
 
 @pytest.mark.slow  # 4-7 s on 2 cores
