@@ -84,3 +84,39 @@ def test_the_band_test_drives_each_input_alone_too(tmp_path, capsys):
     said = capsys.readouterr().err
     name, figures = max(band.metrics()["per_output"].items(), key=lambda item: item[1]["relative_max_variation"])
     assert f"largest miss {figures['relative_max_variation']:.2g} of {name}'s range there (u[2] alone)" in said, said
+
+
+@pytest.mark.parametrize("units, said", [
+    (["N", "kN", "m"], "driven inputs F[1] (N), F[2] (kN), F[3] (m)"),
+    (["N", "kN", "N.m"], "force inputs F[1], F[2], F[3]"),
+    (["", "", ""], "force inputs F[1], F[2], F[3]"),
+    (["N", "", "m/s2"], "driven inputs F[1] (N), F[2], F[3] (m/s2)"),
+])
+def test_the_selection_line_calls_a_motion_input_no_force(units, said):
+    """``snapshots`` printed 'force inputs F[1], F[2], F[3]' where F[3] is declared in m, a support's position
+    (audit84 F5): an input whose unit is a known dimension other than a force or torque makes the line name the
+    inputs with their units."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.sources._cosimulation import FMUSource
+
+    source = SimpleNamespace(input_names=["F[1]", "F[2]", "F[3]"], input_units=units, model=None)
+    assert FMUSource._inputs_said(source) == said
+
+
+def test_the_default_training_says_each_amplitude_in_its_unit_where_units_differ():
+    """The default pulse is 100 in each input's unit: beside an N force that is 100 kN and 100 m of support travel,
+    which the line did not say (it named only amplitudes other than 100; audit84 F5)."""
+    from types import SimpleNamespace
+
+    from fmu_opinf.snapshots._inputs import _lowered_amplitudes, default_amplitudes
+
+    inputs = [("F[1]", "N"), ("F[2]", "kN"), ("F[3]", "m")]
+    source = SimpleNamespace(input_names=[name for name, _ in inputs], input_units=[unit for _, unit in inputs],
+                             input_starts=lambda: np.zeros(3),
+                             input_ranges=lambda: (np.full(3, -np.inf), np.full(3, np.inf)))
+    amplitudes = default_amplitudes(source)
+    assert _lowered_amplitudes(source, amplitudes) == (" (amplitude 100 N on F[1], 100 kN on F[2], 100 m on F[3]: "
+                                                       "100 in the input's own unit)")
+    source.input_units = ["N", "N", "N"]   # one unit: "100" is what a reader pictures, nothing to add
+    assert _lowered_amplitudes(source, amplitudes) == ""

@@ -523,9 +523,11 @@ def test_a_pressure_driven_about_its_start_is_pulsed_by_a_tenth_of_it():
                              model=SimpleNamespace(unit_dimensions={"p_unit": {"kg": 1, "m": -1, "s": -2}}))
     amplitudes = default_amplitudes(source)
     assert amplitudes == [100.0, 0.1, 10100.0, 100.0, 3675.0, 0.2, 4.0]
-    assert _lowered_amplitudes(source, amplitudes) == (" (amplitude 3675 on p_near: what its declared range allows; "
-                                                       "0.1 on p_bar, 10100 on p_amb, 0.2 on p_def, 4 on p_neg: a "
-                                                       "tenth of its start, a pressure)")
+    # (the inputs' units differ: each amplitude is said with its unit, the default 100 too: audit84 F5)
+    assert _lowered_amplitudes(source, amplitudes) == (" (amplitude 3675 Pa on p_near: what its declared range "
+                                                       "allows; 0.1 bar on p_bar, 10100 Pa on p_amb, 0.2 p_unit on "
+                                                       "p_def, 4 kPa on p_neg: a tenth of its start, a pressure; "
+                                                       "100 N on F, 100 psig on p_gauge: 100 in the input's own unit)")
 
 
 @pytest.mark.slow  # 17 s each on the shared 2-core machine of 2026-12-06, beside another test run

@@ -238,18 +238,30 @@ def _impulse_said(amplitudes: Sequence[float]) -> str:
 def _lowered_amplitudes(source: Source, amplitudes: Sequence[float]) -> str:
     """What the default training says about amplitudes other than 100: changed to fit the inputs' declared ranges,
     or sized by a pressure's start, a declared nominal or a declared range (:func:`_sized_amplitudes`); "" if
-    none."""
+    none.  Where the inputs declare different units, every amplitude is said with its unit, the default 100 too:
+    100 kN beside 100 N, or 100 m of support travel, is not what a reader of "100" pictures (audit84 F5)."""
     why = {"lowered": "what its declared range allows", "pressure": "a tenth of its start, a pressure",
-           "nominal": "its declared nominal", "range": "a tenth of its declared range's width"}
+           "nominal": "its declared nominal", "range": "a tenth of its declared range's width",
+           "default": "100 in the input's own unit"}
+    units = _mixed_units(source)
     groups: dict[str, list[str]] = {key: [] for key in why}
-    for name, amplitude, (sized, origin) in zip(source.input_names, amplitudes, _sized_amplitudes(source)):
+    for name, amplitude, (sized, origin), unit in zip(source.input_names, amplitudes, _sized_amplitudes(source),
+                                                      units or [""] * len(amplitudes)):
+        said = f"{amplitude:g}{' ' + unit if unit else ''} on {name}"
         if amplitude != sized:
-            groups["lowered"].append(f"{amplitude:g} on {name}" + (f" (its declared nominal {sized:g})"
-                                                                  if origin == "nominal" else ""))
-        elif origin != "default":
-            groups[origin].append(f"{amplitude:g} on {name}")
+            groups["lowered"].append(said + (f" (its declared nominal {sized:g})" if origin == "nominal" else ""))
+        elif origin != "default" or units:
+            groups[origin].append(said)
     parts = [f"{', '.join(entries)}: {why[key]}" for key, entries in groups.items() if entries]
     return f" (amplitude {'; '.join(parts)})" if parts else ""
+
+
+def _mixed_units(source: Source) -> list[str] | None:
+    """The inputs' declared units where they differ from one input to another (printable), else None."""
+    units = [str(unit or "") for unit in (getattr(source, "input_units", None) or [])]
+    if len(units) != len(source.input_names) or len(set(units)) < 2:
+        return None
+    return ["".join(c for c in unit if c.isprintable()) for unit in units]
 
 
 def _undriven_held(signal: Any, source: Source) -> Any:

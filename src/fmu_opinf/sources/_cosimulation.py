@@ -28,11 +28,11 @@ from ._unpack import make_unpack_folder
 from ._settings import parse_assignments
 from .._stepping import stepping_of
 from .._validate import ME, either, setting_said
-from ._variables import (_LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint, binary_platform,
-                         description_key, slim_description,
+from ._variables import (_FORCE_DIMENSIONS, _LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint,
+                         binary_platform, description_key, slim_description,
                          declared_nominal, declared_range, fmi3_ports, held_inputs_record, is_coefficient,
                          looks_like_parameter, port_aliases, read_description, real_outputs, source_parameters_record,
-                         start_value, unit_kind)
+                         start_value, unit_dimension, unit_kind)
 
 def _fmi2_callbacks(target: Any) -> Any:
     """FMI 2 callbacks whose kept log messages reach ``target`` (:func:`._fmu_log.fmi2_callbacks`)."""
@@ -489,12 +489,24 @@ class FMUSource(Source):
             elif rule == _LOCAL_STEMS:
                 rule = f"guessed: continuous local variables paired by name: {self._stem_pairs()}; no states declared"
             parts.append(f"{what} {shown} ({rule})")
-        parts.append(f"force inputs {_few(self.input_names) if self.input_names else 'none'}")
+        parts.append(self._inputs_said())
         if "outputs" in how:
             parts.append(f"outputs {_few(self.output_names)} ({how['outputs']})")
         if self.held_input_names:
             parts.append(f"held inputs {_few(self.held_input_names)}")
         return f"{self.path.name}: " + "; ".join(parts)
+
+    def _inputs_said(self) -> str:
+        """``force inputs F[1], F[2]``; ``driven inputs F[1] (N), F[3] (m)`` with units where one declares a unit
+        that is no force or torque (a support's position, speed or acceleration: audit84 F5 read "force inputs"
+        beside an input in m)."""
+        if not self.input_names:
+            return "force inputs none"
+        units = list(self.input_units)
+        if not any(unit and unit_dimension(unit, self.model) not in (None, *_FORCE_DIMENSIONS) for unit in units):
+            return f"force inputs {_few(self.input_names)}"
+        return "driven inputs " + _few([f"{name} ({unit})" if unit else name
+                                        for name, unit in zip(self.input_names, units)])
 
     def held_input_values(self) -> dict[str, list[Any]]:
         """Each held input, real or not: ``name -> [type, value as text, whether --set gave it]``, the value its
