@@ -657,3 +657,61 @@ def test_the_clip_at_a_cone_apex_is_kept_only_where_it_is_the_optimum():
     G_damped, (_, D_true, _) = _free_response_gram(0.05)
     assert np.linalg.eigvalsh(D_true)[0] > 1e-3                     # the optimum is far from the apex
     assert _certified_clip((M, wobble, K), [1], {"G": G_damped}, "trace", 3.0) is None
+
+
+def _soft_stiffness_data(rng, r=6, k=300, noise=0.3, softest=1e-3):
+    """Rank-one damping and a stiffness with one soft mode (eigenvalue ``softest``): least squares makes the damping
+    clearly and the stiffness barely indefinite."""
+    M = spd(rng, r, 1.0)
+    Q, _ = np.linalg.qr(rng.standard_normal((r, r)))
+    K = (Q * np.r_[softest, np.linspace(0.5, 2.0, r - 1)]) @ Q.T
+    w, B = rng.standard_normal((r, 1)), rng.standard_normal((r, 1))
+    x, v, u = rng.standard_normal((r, k)), rng.standard_normal((r, k)), rng.standard_normal((1, k))
+    a = np.linalg.solve(M, B @ u - w @ (w.T @ v) - K @ x) + noise * rng.standard_normal((r, k))
+    return a, v, x, u
+
+
+@pytest.mark.parametrize("seed, softest, cones", [(7, 1e-3, ["Dr"]), (15, 1e-2, ["Dr", "Kr"])])
+def test_the_far_more_indefinite_blocks_cone_is_tried_alone_first_with_the_full_sdp_optimum(monkeypatch, seed,
+                                                                                           softest, cones):
+    """Trace normalization, least squares with Dr (ratio of eigenvalues -2.7e-2 / -1.6e-2) far more indefinite than
+    Kr (-7e-4 / -1.2e-3): the first interior-point round keeps the Dr cone alone.  Its relaxation's Kr is PSD in
+    the first case (one cone), indefinite in the second (a round with both cones follows); either way the certified
+    optimum of the full SDP (Clarabel at 1e-10 on the matrix form)."""
+    data = _soft_stiffness_data(np.random.default_rng(seed), softest=softest)
+    rounds, original = [], _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        rounds.append(len(args[2]))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
+    fit = fit_operators(*data, normalization="trace", refine=False)
+    assert rounds[0] == 1 and fit.info["cones"] == cones
+    assert fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6
+    _, r, _, G = _scaled_problem(data)
+    assert fit.info["sdp_objective"] == pytest.approx(_clarabel_reference(G, r, "trace"), rel=1e-7)
+
+
+def test_the_trace_rounds_start_from_least_squares_with_fewer_iterations_and_the_same_optimum(rng, monkeypatch):
+    """The trace normalization's screened round (the Dr cone) takes 8 iterations from the screening's least-squares
+    solution made interior against 12 from identity blocks with Z = I; the same certified optimum, Clarabel's."""
+    from fmu_opinf import _sdp_paths
+
+    data = _damping_data(rng)
+    fits, rounds, original = [], [], _sdp.solve_ipm
+
+    def spy(*args, **kwargs):
+        rounds.append(original(*args, **kwargs))
+        return rounds[-1]
+
+    monkeypatch.setattr(_sdp, "solve_ipm", spy)
+    for start in (_sdp_paths._trace_start, lambda *args: None):
+        monkeypatch.setattr(_sdp_paths, "_trace_start", start)
+        fits.append(fit_operators(*data, normalization="trace", refine=False))
+    assert [result.iterations for result in rounds] == [8, 12]
+    assert all(fit.info["cones"] == ["Dr"] for fit in fits)
+    assert all(fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6 for fit in fits)
+    assert fits[0].info["sdp_objective"] == pytest.approx(fits[1].info["sdp_objective"], rel=1e-9)
+    _, r, _, G = _scaled_problem(data)
+    assert fits[0].info["sdp_objective"] == pytest.approx(_clarabel_reference(G, r, "trace"), rel=1e-7)
