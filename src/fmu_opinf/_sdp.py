@@ -87,6 +87,22 @@ spends its time now (r = 35, profile): 10 factorizations 0.17 s, Kronecker block
 s (a 630 x 1260 triangular solve 17 ms and a 1260-square ``dsyrk`` 21 ms: already the dense minimum), the copy of
 ``2 S`` 0.02 s, correctors and step lengths (35-square eigenvalue problems) about 0.03 s; issue 16's 0.3 s needs
 about three iterations fewer again.
+The trace normalization (2026-12-07, in-process A/B, CPU, one BLAS thread, best of 5 / 3, load 5): its screened
+rounds start from the screening's least squares made interior (:func:`fmu_opinf._sdp_paths._trace_start`; r = 20 / 35
+15 / 16 -> 8 / 8 iterations, 0.041 / 0.231 -> 0.026 / 0.184 s), and where two blocks are indefinite and one is far
+more so, its cone is tried alone first (:func:`fmu_opinf._sdp_paths._first_cones`): at r = 50 the ``Dr, Kr`` round
+(2550 unknowns, 22 iterations of a 145 ms ``dpotrf``, 5.35 s) became a ``Dr`` round (1275 unknowns, 12 iterations,
+1.09 s) whose ``Kr`` is positive definite, at r = 55 the three-cone SDP (20 s) a ``Dr`` round (2.6-2.9 s); objectives
+within 1.5e-10 relative at r = 40 .. 55, certified.  Measured and not kept for ``Mr >= I`` at r = 35 (same day):
+a mass start from the trace-normalized least squares (its eigenvalues ``c lambda`` clipped below at ``1.3``, ``c`` =
+0.3 / 1 / 3, also with its ``Dr``): 10 / 11 iterations at r = 20 / 35 as now, 11-13 against 13 at r = 50, for one
+more factorization of the Newton matrix's size; the Kronecker blocks with ``np.take`` and preallocated products
+(2.00 -> 1.83 ms per 35-square cone, same bits: 3 ms of 0.36 s).  Not tried, estimated: shrinking the Newton
+system to the optimal face in the last iterations.  At the optimum (7 of 35 eigenvalues of ``Mr - I``, 4 of ``Dr``
+at the bound) only the directions inside the null spaces (``7 * 8 / 2 + 4 * 5 / 2 = 38`` of 1260 unknowns) have
+barrier terms ``~ 1 / mu`` that decide them alone; the mixed ones (``7 * 28 + 4 * 31 = 320``) carry terms of the
+size of ``S``, so an exact reduction keeps 1222 unknowns (9 % of a factorization saved), and one to the face alone
+(902 unknowns) is the face polish above.
 
 Certificate
 -----------

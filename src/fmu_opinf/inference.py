@@ -529,7 +529,8 @@ which is what limits the speed.
 2. if exactly one of ``Mr, Dr, Kr`` comes out indefinite, keep its cone only, eliminate the other two blocks
    (and the trace constraint, if the mass block is eliminated) by a Schur complement, and solve this SDP in a
    third of the unknowns;
-3. if a dropped block is still indefinite, or two blocks were indefinite to begin with, solve the full SDP.
+3. if a dropped block is still indefinite, or two blocks were indefinite to begin with, solve the full SDP (the
+   dense interior-point method instead adds the violated cones round by round, see below).
 
 Each round is a relaxation of eq. (16) (fewer constraints, same objective), so its optimum is a lower bound;
 once the dropped blocks are PSD it is feasible for eq. (16) and therefore optimal.  ``fit_info["method"]``
@@ -552,6 +553,16 @@ apart (``fmu_opinf._sdp``, module docstring, for the figures; the default fit's 
 r = 10 / 20 / 30 / 40 moved by -13 / -11 / +8 / +3 %, the refinement's usual sensitivity to its start).
 Gondzio's centrality correctors in the interior-point method (``fmu_opinf._sdp``) take the round to 10 / 11 / 13
 iterations (r = 35: 0.43 -> 0.36 s CPU), again the same certified optimum (objectives within 1.6e-10).
+The trace normalization's rounds (2026-12-07) start from the least-squares solution of step 1 restricted to the kept
+blocks, made interior (eigenvalues clipped at zero and raised by 0.03 of the largest magnitude): 15 / 16 -> 8 / 8
+iterations at r = 20 / 35.  And where step 1 finds two blocks indefinite, one of them ten times more clearly (ratio of
+smallest to largest-magnitude eigenvalue; the triple chain from r = 40 on: ``Dr`` -0.5 .. -1, ``Kr`` -2e-3 ..
+-4e-2), the interior-point path keeps that cone alone first and adds cones round by round as the ``Mr >= I``
+screening does: at r = 40 .. 50 the relaxation with the ``Dr`` cone alone has ``Kr`` positive definite, so the
+trace fit at r = 50 solves 1275 instead of 2550 unknowns (5.35 -> 1.09 s CPU, in-process A/B, best of 3), at r = 55
+instead of the three-cone SDP (20 -> 2.6-2.9 s); the same certified optimum (objectives within 1.5e-10 at
+r = 40 .. 55), the default fit's max eps_y at r = 10 / 20 / 30 / 40 unchanged to three digits
+(``benchmarks/bench_accuracy.py``).
 Either way a result is returned only from a round whose dropped blocks are PSD, or (since 2026-12-07) indefinite
 only within 1e-6 of the largest block and then clipped to PSD where the certificate below holds for the full SDP:
 exact data whose optimum lies at a cone's apex (an undamped model, ``Dr = 0``) made the SDP with that cone
