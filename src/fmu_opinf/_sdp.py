@@ -96,7 +96,9 @@ more so, its cone is tried alone first (:func:`fmu_opinf._sdp_paths._first_cones
 within 1.5e-10 relative at r = 40 .. 55, certified.  Measured and not kept for ``Mr >= I`` at r = 35 (same day):
 a mass start from the trace-normalized least squares (its eigenvalues ``c lambda`` clipped below at ``1.3``, ``c`` =
 0.3 / 1 / 3, also with its ``Dr``): 10 / 11 iterations at r = 20 / 35 as now, 11-13 against 13 at r = 50, for one
-more factorization of the Newton matrix's size; the Kronecker blocks with ``np.take`` and preallocated products
+more factorization of the Newton matrix's size; separate margins for the start's ``Mr`` and ``Dr``, ``Dr`` scaled to
+that ``Mr`` (``Mr = 1.1 / 1.3 / 2 I``, ``Dr`` margin 0.1 / 0.3, ``Dr`` times 1 .. 2): 10-11 / 11-13 / 12-14 iterations
+at r = 20 / 35 / 50 against 10 / 11 / 13; the Kronecker blocks with ``np.take`` and preallocated products
 (2.00 -> 1.83 ms per 35-square cone, same bits: 3 ms of 0.36 s).  Not tried, estimated: shrinking the Newton
 system to the optimal face in the last iterations.  At the optimum (7 of 35 eigenvalues of ``Mr - I``, 4 of ``Dr``
 at the bound) only the directions inside the null spaces (``7 * 8 / 2 + 4 * 5 / 2 = 38`` of 1260 unknowns) have
