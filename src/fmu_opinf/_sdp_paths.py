@@ -1048,27 +1048,29 @@ def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | 
     return (*_unpack(w, r), dict(info, method="sdp", cones=list(_BLOCKS)))
 
 
-#: :func:`_first_cones` tries one cone of two indefinite blocks where one block's eigenvalue ratio is at least this
-#: factor more negative than the other's.
+#: :func:`_first_cones` tries the cone of one of several indefinite blocks alone where that block's eigenvalue ratio
+#: is at least this factor more negative than every other's.
 _ONE_CONE_FIRST = 10.0
 
 
 def _first_cones(mats: tuple, bad: list[int], dense_ipm: bool) -> tuple[int, ...]:
     """Cones of the first screened round of :func:`_fit_screened` after the least-squares round found the blocks
-    ``bad`` indefinite: one indefinite block's cone; where two are, both (Clarabel then takes the full SDP, which
-    costs it no more), except that the dense interior-point method tries the cone of the clearly more indefinite
-    one alone first (ratio of smallest to largest-magnitude eigenvalue :data:`_ONE_CONE_FIRST` times more
-    negative).
+    ``bad`` indefinite: one indefinite block's cone; where two or three are, all three for Clarabel (the full SDP,
+    which costs it no more than two cones), and for the dense interior-point method the cone of the clearly most
+    indefinite block alone (ratio of smallest to largest-magnitude eigenvalue :data:`_ONE_CONE_FIRST` times more
+    negative than the next), else the cones of all of them.
 
-    Triple chain, 2026-12-07: from r = 40 on both ``Dr`` and ``Kr`` of least squares are indefinite, ``Dr`` far more
-    (ratios r = 40 / 45 / 50 / 55 / 60: -0.47 / -0.50 / -1.0 / -1.0 / -1.0 against -1.3e-2 / -3.7e-2 / -1.8e-3 /
-    -1.3e-2 / -3.4e-3), and with the ``Dr`` cone alone the relaxation's ``Kr`` comes out positive definite at
-    r = 40 .. 50 (at r = 50 its smallest eigenvalue 0.06 of 25): a round with 1275 unknowns instead of 2550 with
-    both cones, an eighth of each factorization (r = 50, trace normalization: 5.4-5.7 s -> 1.2 s CPU, the LS start
-    of :func:`_trace_start` included).  The test problems with two indefinite blocks have ratios within a factor
-    1.2 .. 8.5 of each other, and one cone alone was not enough in any of them (a round more: 3 .. 7 iterations
-    of the smaller problem), hence the factor.  A wrong guess costs one round (stopped early by
-    :func:`_dropped_cone_violated` where the dropped block becomes clearly indefinite), not accuracy.
+    Triple chain, 2026-12-07: from r = 40 on ``Dr`` and ``Kr`` of least squares are both indefinite (at r = 55 ``Mr``
+    too, -1.6e-5), ``Dr`` far more (ratios r = 40 / 45 / 50 / 55 / 60: -0.47 / -0.50 / -1.0 / -1.0 / -1.0 against
+    ``Kr``'s -1.3e-2 / -3.7e-2 / -1.8e-3 / -1.3e-2 / -3.4e-3), and with the ``Dr`` cone alone the relaxation's
+    other blocks come out positive definite at each of these orders (at r = 50 ``Kr``'s smallest eigenvalue 0.06 of
+    25): a round with 1275 unknowns instead of 2550 with two cones (an eighth of each factorization; r = 50, trace
+    normalization: 5.4-5.7 s -> 1.1-1.2 s CPU, the start of :func:`_trace_start` included) or 3825 with three
+    (r = 55: 20 s -> 2.2-2.9 s; r = 60, ``Dr, Kr`` before: 12.3 -> 3.2 s; one run each, objectives within 1e-10).
+    The test problems with two indefinite blocks have ratios within a factor 1.2 .. 8.5
+    of each other, and one cone alone was not enough in any of them (a round more: 3 .. 7 iterations of the smaller
+    problem), hence the factor.  A wrong guess costs one round (stopped early by :func:`_dropped_cone_violated` where
+    the dropped block becomes clearly indefinite), not accuracy.
     """
     if len(bad) == 1:
         return (bad[0],)
