@@ -9,7 +9,7 @@
 
 #include "instance.h"
 
-#define MESSAGE_LENGTH 512
+#define MESSAGE_LENGTH 1024
 #define STEP_SIZE_TOLERANCE 1e-12
 
 static const double parameterDefaults[ARRAY_LENGTH(N_PARAMETERS)] = PARAMETER_DEFAULTS;
@@ -453,8 +453,8 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
         shownValue(PARAMETER_KIND(index), value, given);
         logError(instance, "%s: parameter %s (value reference %u) was %s in training, the only value the model "
                  "knows; %s refused: set it to %s or leave it, or record the snapshots and fit again with "
-                 "--set %s=VALUE", function, parameterNames[index], r, trained, given, trained,
-                 parameterNames[index]);
+                 "--set %s=VALUE or parameters['%s']", function, parameterNames[index], r, trained, given, trained,
+                 parameterNames[index], parameterNames[index]);
         return Error;
     }
     return OK;   /* the trained value stays, bit-equal */
@@ -642,8 +642,8 @@ Status doStep(ModelInstance *instance, const char *function, double point, doubl
         double count = floor(h / mapStep + 0.5);
         if (count < 1.0 || count > 1e9 || fabs(h - count * mapStep) > count * stepRoundOff(point, h, mapStep)) {
             logError(instance, "%s: this model steps with multiples of h = %.17g only (its exact step map), got "
-                     "h = %.17g; use such a communication step, or export the ROM again with --step h", function,
-                     mapStep, h);
+                     "h = %.17g; use such a communication step, or export the ROM again with --step h or step=h",
+                     function, mapStep, h);
             return Error;
         }
         substeps = (long)count;

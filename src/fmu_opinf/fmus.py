@@ -202,7 +202,8 @@ class SecondOrderFmuSpec:
         The model was made for the parameters' start values only (an exported ROM: its source's parameters at
         their training values): each is declared, and the FMU accepts its start value (bit-equal or within a
         relative 1e-12) and refuses another with a log line naming the parameter, its value and how to train at
-        another (``--set NAME=VALUE``).  No ``PAR_*`` macros are written (the names need not be C identifiers).
+        another (``--set NAME=VALUE or parameters['NAME']``).  No ``PAR_*`` macros are written (the names need not
+        be C identifiers).
     defines : dict of str to int, default={}
         Extra integer macros for ``config.h`` (e.g. ``CHAIN_LENGTH``).
     description : str, default=""
