@@ -104,6 +104,8 @@ void ltiReset(LtiInstance *inst) {
     inst->enabled = 0;
     inst->order = LTI_ORDER_START;
     inst->cache = LTI_CACHE_START;
+    inst->method = LTI_METHOD_START;
+    inst->relTol = (float)LTI_TOLERANCE_START;
     inst->stopDefined = 0;
     inst->stopTime = 0.0;
     inst->nq = LTI_NQ_DEFAULT;
@@ -741,29 +743,45 @@ LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned 
     return LtiOK;
 }
 
-static int isOrderParameter(LtiInstance *inst, const char *function, unsigned int vr) {
-    if (LTI_DISCRETE_PARAMETERS && vr == LTI_ORDER_VR) return 1;
-    ltiLog(inst, LtiError, "logStatusError", "%s: no Integer variable has value reference %u", function, vr);
-    return 0;
+/* The integer behind vr of the kinds a function serves (LTI_INTEGER, LTI_ENUMERATION); logs the error of the
+   calling function and returns NULL where there is none. */
+static int *integerOf(LtiInstance *inst, const char *function, int kinds, unsigned int vr) {
+    if ((kinds & LTI_INTEGER) && LTI_DISCRETE_PARAMETERS && vr == LTI_ORDER_VR) return &inst->order;
+    if ((kinds & LTI_ENUMERATION) && LTI_TYPED_PARAMETERS && vr == LTI_METHOD_VR) return &inst->method;
+    ltiLog(inst, LtiError, "logStatusError", "%s: no %s variable has value reference %u", function,
+           kinds == LTI_ENUMERATION ? "Enumeration" : "Integer", vr);
+    return NULL;
 }
 
-LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]) {
+LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, int kinds, const unsigned int vr[], size_t nvr,
+                        int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!isOrderParameter(inst, function, vr[i])) return LtiError;
-        values[i] = inst->order;
+        int *source = integerOf(inst, function, kinds, vr[i]);
+        if (!source) return LtiError;
+        values[i] = *source;
     }
     return LtiOK;
 }
 
-LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, int kinds, const unsigned int vr[], size_t nvr,
                         const int values[]) {
     size_t i;
     for (i = 0; i < nvr; i++) {
-        if (!isOrderParameter(inst, function, vr[i])) return LtiError;
-        inst->order = values[i];
+        int *target = integerOf(inst, function, kinds, vr[i]);
+        if (!target) return LtiError;
+        if (target == &inst->method && (values[i] < 1 || values[i] > LTI_METHOD_ITEMS)) {
+            ltiLog(inst, LtiError, "logStatusError", "%s: %d is not the value of an item of the Enumeration at value "
+                   "reference %u (1 .. %d)", function, values[i], vr[i], LTI_METHOD_ITEMS);
+            return LtiError;
+        }
+        *target = values[i];
     }
     return LtiOK;
+}
+
+int ltiIsTolerance(unsigned int vr) {
+    return LTI_TYPED_PARAMETERS && vr == LTI_TOLERANCE_VR;
 }
 
 void ltiSetStopTime(LtiInstance *inst, int defined, double stopTime) {

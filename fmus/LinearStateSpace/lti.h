@@ -91,6 +91,8 @@ struct LtiInstance {
     int enabled;         /* LTI_ENABLE_INPUT: the Boolean input that lets the forces act (start false) */
     int order;           /* LTI_DISCRETE_PARAMETERS: the Integer parameter (no effect on the model) */
     int cache;           /* LTI_DISCRETE_PARAMETERS: the Boolean parameter (no effect on the model) */
+    int method;          /* LTI_TYPED_PARAMETERS: the Enumeration parameter (no effect on the model) */
+    float relTol;        /* LTI_TYPED_PARAMETERS, FMI 3: the Float32 parameter (no effect on the model) */
     int stopDefined;     /* the stop time given to setupExperiment / enterInitializationMode, if any */
     double stopTime;
 };
@@ -161,6 +163,12 @@ extern const unsigned int LTI_ENABLE_VR;
    settable before initialization and without effect on the model (an exporter's solver settings). */
 extern const int LTI_DISCRETE_PARAMETERS, LTI_ORDER_START, LTI_CACHE_START;
 extern const unsigned int LTI_ORDER_VR, LTI_CACHE_VR;
+/* LTI_TYPED_PARAMETERS: an Enumeration parameter at LTI_METHOD_VR (items 1 .. LTI_METHOD_ITEMS; FMI 2: Integer
+   functions, FMI 3: Int64 ones) and, FMI 3, a Float32 one at LTI_TOLERANCE_VR, settable before initialization and
+   without effect on the model (an exporter's solver choice and tolerance). */
+extern const int LTI_TYPED_PARAMETERS, LTI_METHOD_START, LTI_METHOD_ITEMS;
+extern const unsigned int LTI_METHOD_VR, LTI_TOLERANCE_VR;
+extern const double LTI_TOLERANCE_START;
 extern const double LTI_STEADY_Q0[], LTI_STEADY_QU[];
 /* Fills the matrices and start values for the current nq. */
 void ltiAssemble(LtiInstance *inst);
@@ -210,11 +218,17 @@ LtiStatus ltiFail(LtiInstance *inst, LtiStatus status);
 LtiStatus ltiGetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]);
 LtiStatus ltiSetBoolean(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
                         const int values[]);
-/* LTI_DISCRETE_PARAMETERS: get / set the Integer parameter; an error for any other value reference (setting it
-   also after initialization) */
-LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr, int values[]);
-LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, const unsigned int vr[], size_t nvr,
+/* LTI_DISCRETE_PARAMETERS / LTI_TYPED_PARAMETERS: get / set the Integer parameter (kinds LTI_INTEGER) or the
+   Enumeration one (LTI_ENUMERATION; FMI 2 serves both by its Integer functions); an error for any other value
+   reference, and for an Enumeration value none of its items has (setting them also after initialization) */
+#define LTI_INTEGER 1
+#define LTI_ENUMERATION 2
+LtiStatus ltiGetInteger(LtiInstance *inst, const char *function, int kinds, const unsigned int vr[], size_t nvr,
+                        int values[]);
+LtiStatus ltiSetInteger(LtiInstance *inst, const char *function, int kinds, const unsigned int vr[], size_t nvr,
                         const int values[]);
+/* LTI_TYPED_PARAMETERS, FMI 3: whether vr is the Float32 parameter's */
+int ltiIsTolerance(unsigned int vr);
 /* Keep the stop time of the run; LTI_STRICT_STOP: an error (logged) where time passes it */
 void ltiSetStopTime(LtiInstance *inst, int defined, double stopTime);
 LtiStatus ltiCheckStopTime(LtiInstance *inst, const char *function, double time);

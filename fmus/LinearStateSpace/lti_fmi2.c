@@ -154,9 +154,9 @@ static fmi2Status noVariables(fmi2Component c, const char *name, size_t nvr) {
 
 fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           fmi2Integer value[]) {
-    if (!LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2GetInteger", nvr);
+    if (!LTI_DISCRETE_PARAMETERS && !LTI_TYPED_PARAMETERS) return noVariables(c, "fmi2GetInteger", nvr);
     CHECK(c, "fmi2GetInteger", PHASE_ANY);
-    return finish(inst, ltiGetInteger(inst, "fmi2GetInteger", vr, nvr, value));
+    return finish(inst, ltiGetInteger(inst, "fmi2GetInteger", LTI_INTEGER | LTI_ENUMERATION, vr, nvr, value));
 }
 
 fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
@@ -174,9 +174,9 @@ fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t 
 
 fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                           const fmi2Integer value[]) {
-    if (!LTI_DISCRETE_PARAMETERS) return noVariables(c, "fmi2SetInteger", nvr);
+    if (!LTI_DISCRETE_PARAMETERS && !LTI_TYPED_PARAMETERS) return noVariables(c, "fmi2SetInteger", nvr);
     CHECK(c, "fmi2SetInteger", PHASE_BEFORE_INIT);
-    return finish(inst, ltiSetInteger(inst, "fmi2SetInteger", vr, nvr, value));
+    return finish(inst, ltiSetInteger(inst, "fmi2SetInteger", LTI_INTEGER | LTI_ENUMERATION, vr, nvr, value));
 }
 
 fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

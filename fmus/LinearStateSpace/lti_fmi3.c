@@ -189,6 +189,14 @@ static int scalarsOnly(LtiInstance *inst, const char *function, size_t nValueRef
     return 0;
 }
 
+/* How many of the next value references (at most a chunk) go to the state slots together: up to the Float32
+   parameter of LTI_TYPED_PARAMETERS, 0 where it is the first (served on its own) */
+static size_t float32Run(const fmi3ValueReference valueReferences[], size_t left) {
+    size_t count = 0;
+    while (count < left && count < FLOAT32_CHUNK && !ltiIsTolerance(valueReferences[count])) count++;
+    return count;
+}
+
 fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueReferences[],
                           size_t nValueReferences, fmi3Float32 values[], size_t nValues) {
     double chunk[FLOAT32_CHUNK];
@@ -196,8 +204,13 @@ fmi3Status fmi3GetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     CHECK(instance, "fmi3GetFloat32", PHASE_ANY);
     if (!scalarsOnly(inst, "fmi3GetFloat32", nValueReferences, nValues)) return finish(inst, LtiError);
     while (done < nValueReferences) {
-        size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
-        LtiStatus status = ltiGetReal(inst, "fmi3GetFloat32", valueReferences + done, count, chunk, count);
+        size_t count = float32Run(valueReferences + done, nValueReferences - done);
+        LtiStatus status;
+        if (count == 0) {   /* the Float32 parameter of LTI_TYPED_PARAMETERS */
+            values[done++] = inst->relTol;
+            continue;
+        }
+        status = ltiGetReal(inst, "fmi3GetFloat32", valueReferences + done, count, chunk, count);
         if (status != LtiOK) return finish(inst, status);
         for (size_t k = 0; k < count; k++) values[done + k] = (fmi3Float32)chunk[k];
         done += count;
@@ -212,9 +225,14 @@ fmi3Status fmi3SetFloat32(fmi3Instance instance, const fmi3ValueReference valueR
     CHECK(instance, "fmi3SetFloat32", PhaseInstantiated | PhaseInitialization | PHASE_RUNNING);
     if (!scalarsOnly(inst, "fmi3SetFloat32", nValueReferences, nValues)) return finish(inst, LtiError);
     while (done < nValueReferences) {
-        size_t count = nValueReferences - done < FLOAT32_CHUNK ? nValueReferences - done : FLOAT32_CHUNK;
+        size_t count = float32Run(valueReferences + done, nValueReferences - done);
+        LtiStatus status;
+        if (count == 0) {   /* the Float32 parameter of LTI_TYPED_PARAMETERS */
+            inst->relTol = values[done++];
+            continue;
+        }
         for (size_t k = 0; k < count; k++) chunk[k] = (double)values[done + k];
-        LtiStatus status = ltiSetReal(inst, "fmi3SetFloat32", valueReferences + done, count, chunk, count);
+        status = ltiSetReal(inst, "fmi3SetFloat32", valueReferences + done, count, chunk, count);
         if (status != LtiOK) return finish(inst, status);
         done += count;
     }
@@ -256,14 +274,12 @@ NO_GETTER(fmi3GetUInt8, fmi3UInt8)
 NO_GETTER(fmi3GetInt16, fmi3Int16)
 NO_GETTER(fmi3GetUInt16, fmi3UInt16)
 NO_GETTER(fmi3GetUInt32, fmi3UInt32)
-NO_GETTER(fmi3GetInt64, fmi3Int64)
 NO_GETTER(fmi3GetString, fmi3String)
 NO_SETTER(fmi3SetInt8, fmi3Int8)
 NO_SETTER(fmi3SetUInt8, fmi3UInt8)
 NO_SETTER(fmi3SetInt16, fmi3Int16)
 NO_SETTER(fmi3SetUInt16, fmi3UInt16)
 NO_SETTER(fmi3SetUInt32, fmi3UInt32)
-NO_SETTER(fmi3SetInt64, fmi3Int64)
 NO_SETTER(fmi3SetString, fmi3String)
 
 /* Int32: the parameter of LTI_DISCRETE_PARAMETERS only (fmi3Int32 is a C int32_t: converted element by element) */
@@ -275,7 +291,7 @@ fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference valueRef
     CHECK(instance, "fmi3GetInt32", PHASE_ANY);
     if (nValues < nValueReferences) return finish(inst, LtiError);
     for (i = 0; i < nValueReferences; i++) {
-        if (ltiGetInteger(inst, "fmi3GetInt32", valueReferences + i, 1, &value) != LtiOK)
+        if (ltiGetInteger(inst, "fmi3GetInt32", LTI_INTEGER, valueReferences + i, 1, &value) != LtiOK)
             return finish(inst, LtiError);
         values[i] = (fmi3Int32)value;
     }
@@ -291,7 +307,38 @@ fmi3Status fmi3SetInt32(fmi3Instance instance, const fmi3ValueReference valueRef
     if (nValues < nValueReferences) return finish(inst, LtiError);
     for (i = 0; i < nValueReferences; i++) {
         value = (int)values[i];
-        if (ltiSetInteger(inst, "fmi3SetInt32", valueReferences + i, 1, &value) != LtiOK)
+        if (ltiSetInteger(inst, "fmi3SetInt32", LTI_INTEGER, valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+    }
+    return fmi3OK;
+}
+
+/* Int64: the Enumeration parameter of LTI_TYPED_PARAMETERS only (FMI 3 gets and sets an Enumeration as an Int64) */
+fmi3Status fmi3GetInt64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                        size_t nValueReferences, fmi3Int64 values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_TYPED_PARAMETERS) return noVariables(instance, "fmi3GetInt64", nValueReferences);
+    CHECK(instance, "fmi3GetInt64", PHASE_ANY);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        if (ltiGetInteger(inst, "fmi3GetInt64", LTI_ENUMERATION, valueReferences + i, 1, &value) != LtiOK)
+            return finish(inst, LtiError);
+        values[i] = (fmi3Int64)value;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3SetInt64(fmi3Instance instance, const fmi3ValueReference valueReferences[],
+                        size_t nValueReferences, const fmi3Int64 values[], size_t nValues) {
+    size_t i;
+    int value;
+    if (!LTI_TYPED_PARAMETERS) return noVariables(instance, "fmi3SetInt64", nValueReferences);
+    CHECK(instance, "fmi3SetInt64", PHASE_BEFORE_INIT);
+    if (nValues < nValueReferences) return finish(inst, LtiError);
+    for (i = 0; i < nValueReferences; i++) {
+        value = values[i] < -2147483647 || values[i] > 2147483647 ? 0 : (int)values[i];   /* (0: no item's) */
+        if (ltiSetInteger(inst, "fmi3SetInt64", LTI_ENUMERATION, valueReferences + i, 1, &value) != LtiOK)
             return finish(inst, LtiError);
     }
     return fmi3OK;

@@ -633,6 +633,7 @@ class _Var:
     maximum: int | None = None
     aliases: list[str] = field(default_factory=list)   # FMI 3 <Alias> children
     dependencies: list[str] | None = None
+    enumeration: str | None = None   # an Enumeration's declaredType
 
 
 @dataclass
@@ -782,6 +783,7 @@ class _Options:
     enable_input: bool = False
     strict_stop_time: bool = False
     discrete_parameters: bool = False
+    typed_parameters: bool = False
 
     @property
     def needs_completed_steps(self) -> bool:
@@ -1224,8 +1226,6 @@ _QUANTITIES = {"s": "Time", "m": "Length", "m/s": "Velocity", "m/s2": "Accelerat
 
 def _type_definitions(layout: _Layout, declared: bool) -> str:
     used = sorted({v.unit for v in layout.variables if v.unit in _TYPE_NAMES}) if declared else []
-    if not used:
-        return ""
     if layout.fmi3:
         rows = "".join(f'    <Float64Type name="{_TYPE_NAMES[u]}" quantity="{_QUANTITIES[u]}" '
                        f'unit="{u}"/>\n' for u in used)
@@ -1233,7 +1233,20 @@ def _type_definitions(layout: _Layout, declared: bool) -> str:
         rows = "".join(f'    <SimpleType name="{_TYPE_NAMES[u]}">\n      <Real '
                        f'quantity="{_QUANTITIES[u]}" unit="{u}"/>\n    </SimpleType>\n'
                        for u in used)
-    return "  <TypeDefinitions>\n" + rows + "  </TypeDefinitions>\n"
+    if any(v.enumeration == METHOD_TYPE for v in layout.variables):
+        rows += _method_type(layout.fmi3)
+    return "  <TypeDefinitions>\n" + rows + "  </TypeDefinitions>\n" if rows else ""
+
+
+def _method_type(fmi3: bool) -> str:
+    """The Enumeration type of ``typed_parameters`` (FMI 2 ``SimpleType``, FMI 3 ``EnumerationType``)."""
+    indent = "" if fmi3 else "  "
+    items = "".join(f'{indent}      <Item name="{name}" value="{value}" description="{text}"/>\n'
+                    for name, value, text in METHOD_ITEMS)
+    if fmi3:
+        return f'    <EnumerationType name="{METHOD_TYPE}">\n{items}    </EnumerationType>\n'
+    return (f'    <SimpleType name="{METHOD_TYPE}">\n      <Enumeration>\n{items}      </Enumeration>\n'
+            "    </SimpleType>\n")
 
 
 def _unit_attribute(var: _Var, declared: bool) -> str:
@@ -1273,6 +1286,10 @@ def _common_attributes(var: _Var) -> str:
 
 
 def _variable2(var: _Var, index_of: dict[str, int], declared: bool = False) -> str:
+    if var.type == "Enumeration":
+        return (f"    <ScalarVariable {_common_attributes(var)}>\n"
+                f"      <Enumeration declaredType=\"{var.enumeration}\" start=\"{int(var.start[0])}\"/>\n"
+                "    </ScalarVariable>\n")
     if var.type == "Integer":
         return (f"    <ScalarVariable {_common_attributes(var)}>\n"
                 f"      <Integer start=\"{int(var.start[0])}\"/>\n"
@@ -1297,6 +1314,10 @@ def _variable3(var: _Var, vr_of: dict[str, int], declared: bool = False) -> str:
         return f'    <Boolean {attributes} start="{str(bool(var.start[0])).lower()}"/>\n'
     if var.type == "Int32":
         return f'    <Int32 {attributes} start="{int(var.start[0])}"/>\n'
+    if var.type == "Enumeration":
+        return f'    <Enumeration {attributes} declaredType="{var.enumeration}" start="{int(var.start[0])}"/>\n'
+    if var.type == "Float32" and var.causality == "parameter":
+        return f'    <Float32 {attributes} start="{_number(var.start[0])}"/>\n'
     if var.type == "UInt64":
         attributes += f' start="{int(var.start[0])}" min="{var.minimum}" max="{var.maximum}"'
         return f"    <UInt64 {attributes}/>\n"
@@ -1598,6 +1619,12 @@ def _model_source(layout: _Layout, options: _Options, model: LinearMechanicalMod
         f"const unsigned int LTI_CACHE_VR = {_discrete_vr(layout, CACHE_PARAMETER)};\n"
         f"const int LTI_ORDER_START = {ORDER_START};\n"
         f"const int LTI_CACHE_START = {int(CACHE_START)};\n"
+        f"const int LTI_TYPED_PARAMETERS = {int(options.typed_parameters)};\n"
+        f"const unsigned int LTI_METHOD_VR = {_discrete_vr(layout, METHOD_PARAMETER)};\n"
+        f"const unsigned int LTI_TOLERANCE_VR = {_discrete_vr(layout, TOLERANCE_PARAMETER)};\n"
+        f"const int LTI_METHOD_START = {METHOD_START};\n"
+        f"const int LTI_METHOD_ITEMS = {len(METHOD_ITEMS)};\n"
+        f"const double LTI_TOLERANCE_START = {_number(TOLERANCE_START)};\n"
         f"const size_t LTI_N_SLOTS = {len(layout.slots)};\n"
         f"const LtiSlot LTI_SLOTS[] = {{\n    {slots}\n}};\n\n"
         f"{assembly}")
@@ -1669,6 +1696,8 @@ def _layout(model: LinearMechanicalModel, coords: _Coordinates, chain: MassChain
         _enable_input(layout, inputs)
     if options.discrete_parameters:
         _discrete_parameters(layout)
+    if options.typed_parameters:
+        _typed_parameters(layout)
     names.update(inputs=inputs, parameter_inputs=parameter_inputs, outputs=outputs + sensors)
     return layout, names
 
@@ -1709,9 +1738,30 @@ def _discrete_parameters(layout: _Layout) -> None:
                                  description="the exporter's cache switch (no effect on the model)"))
 
 
+#: The parameters of ``typed_parameters``: an Enumeration (its type and items) and, FMI 3, a Float32.
+METHOD_PARAMETER, METHOD_TYPE, METHOD_START = "solverMethod", "Solvers.Method", 2
+METHOD_ITEMS = (("euler", 1, "explicit Euler"), ("rk4", 2, "classical Runge-Kutta"), ("dassl", 3, "DASSL"))
+TOLERANCE_PARAMETER, TOLERANCE_START = "relTol", 1e-4
+
+
+def _typed_parameters(layout: _Layout) -> None:
+    """Add an Enumeration parameter (type :data:`METHOD_TYPE`) and, FMI 3, a Float32 one, without effect on the model,
+    after every other variable (value references after those of ``discrete_parameters``, whether they are there or
+    not: the kernel serves them in its Integer / Int64 and Float32 get/set), as exporters declare solver settings."""
+    first = len(layout.slots) + 3
+    layout.variables.append(_Var(METHOD_PARAMETER, first, causality="parameter", variability="fixed",
+                                 start=[float(METHOD_START)], type="Enumeration", enumeration=METHOD_TYPE,
+                                 description="the exporter's solver (no effect on the model)"))
+    if layout.fmi3:
+        layout.variables.append(_Var(TOLERANCE_PARAMETER, first + 1, causality="parameter", variability="fixed",
+                                     start=[TOLERANCE_START], type="Float32",
+                                     description="the exporter's solver tolerance (no effect on the model)"))
+
+
 def _discrete_vr(layout: _Layout, name: str) -> int:
-    """The value reference of a parameter of ``discrete_parameters`` (that of no variable where there is none)."""
-    return next((v.vr for v in layout.variables if v.name == name), len(layout.slots) + 3)
+    """The value reference of a parameter of ``discrete_parameters`` or ``typed_parameters`` (that of no variable
+    where there is none)."""
+    return next((v.vr for v in layout.variables if v.name == name), len(layout.slots) + 5)
 
 
 def _enable_vr(layout: _Layout) -> int:
@@ -1771,7 +1821,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
                   position_limit: tuple[int, float] | None = None, position_limit_status: str = "error",
                   single_precision: bool | str = False, enable_input: bool = False,
                   strict_stop_time: bool = False, discrete_parameters: bool = False,
-                  reuse: bool = True) -> LtiFmu:
+                  typed_parameters: bool = False, reuse: bool = True) -> LtiFmu:
     """Generate and compile an FMU of a linear mechanical system in an exporter's style.
 
     Parameters
@@ -1923,6 +1973,11 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         Two more parameters without effect on the model, as exporters declare solver settings: the Integer (FMI 3:
         Int32) ``solverOrder`` (start 4) and the Boolean ``useCache`` (start true), set by ``fmi2SetInteger`` /
         ``fmi3SetInt32`` and ``fmi2SetBoolean`` / ``fmi3SetBoolean``.
+    typed_parameters : bool, default=False
+        More parameters without effect on the model, of the types exporters declare solver choices with: the
+        Enumeration ``solverMethod`` (type ``Solvers.Method``, items euler = 1, rk4 = 2, dassl = 3; start 2), set by
+        ``fmi2SetInteger`` / ``fmi3SetInt64`` and refused at a value no item has, and, FMI 3, the Float32 ``relTol``
+        (start 1e-4), set by ``fmi3SetFloat32``.
     reuse : bool, default=True
         Keep an existing file at ``path`` whose GUID (a hash of every generated file) matches.
 
@@ -1966,7 +2021,7 @@ def build_lti_fmu(model: LinearMechanicalModel | MassChain, path: str | os.PathL
         position_limit_status=str(position_limit_status),
         single_precision=single_precision if isinstance(single_precision, str) else bool(single_precision),
         enable_input=bool(enable_input), strict_stop_time=bool(strict_stop_time),
-        discrete_parameters=bool(discrete_parameters))
+        discrete_parameters=bool(discrete_parameters), typed_parameters=bool(typed_parameters))
     _check_options(model, options)
     coords = _coordinates(concrete, relative)
     layout, names = _layout(concrete, coords, chain, options)
