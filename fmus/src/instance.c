@@ -424,10 +424,26 @@ END:
 }
 
 #ifdef PARAMETERS_FIXED
-/* A parameter's value as its log line shows it: true / false for a Boolean, else all digits of the double. */
+/* Whether value is the parameter's trained one: bit-equal, a real one within a relative FIXED_PARAMETER_TOLERANCE,
+ * a Float32 one equal as a float (an importer sets the float nearest to the declared start, 6e-8 off the double). */
+static int isTrainedValue(int index, double value) {
+    double trained = parameterDefaults[index];
+
+    if (value == trained) {
+        return 1;
+    }
+    if (PARAMETER_KIND(index) == KindFloat32) {
+        return (float)value == (float)trained;
+    }
+    return PARAMETER_KIND(index) == KindFloat64 && fabs(value - trained) <= FIXED_PARAMETER_TOLERANCE * fabs(trained);
+}
+
+/* A parameter's value as its log line shows it: true / false for a Boolean, all digits of a float or a double. */
 static void shownValue(VariableKind kind, double value, char text[32]) {
     if (kind == KindBoolean) {
         snprintf(text, 32, "%s", value != 0.0 ? "true" : "false");
+    } else if (kind == KindFloat32) {
+        snprintf(text, 32, "%.9g", value);
     } else {
         snprintf(text, 32, "%.17g", value);
     }
@@ -446,8 +462,7 @@ static Status setParameter(ModelInstance *instance, const char *function, unsign
 
 #ifdef PARAMETERS_FIXED
     /* an exported ROM: made for the parameters' training values only (its source's, --set ones included) */
-    if (value != parameterDefaults[index] && (PARAMETER_KIND(index) > KindFloat32 || !(fabs(
-            value - parameterDefaults[index]) <= FIXED_PARAMETER_TOLERANCE * fabs(parameterDefaults[index])))) {
+    if (!isTrainedValue(index, value)) {
         char trained[32], given[32];
         shownValue(PARAMETER_KIND(index), parameterDefaults[index], trained);
         shownValue(PARAMETER_KIND(index), value, given);

@@ -60,8 +60,8 @@ from ._descriptions import output_descriptions as recorded_output_texts
 from ._threads import single_threaded
 from ._validate import check_not_input, either
 from .errors import DataError, DimensionError, FileFormatError, FMUError, FmuOpinfWarning
-from .fmus import (INTEGER_RANGES, Parameter, SecondOrderFmuSpec, build_second_order_fmu, find_build_tools,
-                   is_type_name, is_unit_name, type_definition, unit_definition)
+from .fmus import (INTEGER_RANGES, Parameter, SecondOrderFmuSpec, build_second_order_fmu, enumeration_items,
+                   find_build_tools, is_type_name, is_unit_name, type_definition, unit_definition)
 
 if TYPE_CHECKING:
     from .rom import SecondOrderROM
@@ -546,6 +546,7 @@ def rom_fmu_spec(rom: SecondOrderROM, identifier: str = "ROM",
         output_quantities=_recorded_quantities(provenance, "output_quantities", p) + [""] * len(names),
         output_declared_types=_recorded_declared_types(provenance, "output_declared_types", p) + [""] * len(names),
         type_definitions=_recorded_type_definitions(provenance),
+        enumeration_types=_enumeration_types(parameters, provenance, fmi_version),
         port_aliases=_port_aliases(provenance, inputs, output_names, fmi_version),
         **inputs,
     )
@@ -579,7 +580,7 @@ def _parameters_summary(record: dict) -> dict[str, Any]:
             "set": {str(name): pairs.get(name) for name in given if isinstance(name, str)}}
 
 
-#: The source parameter types the ROM FMU declares as Float64 (its real variables).
+#: The source parameter types the ROM FMU declares as real variables (Float64; a Float32 one as Float32 on FMI 3).
 _REAL_PARAMETER_TYPES = ("Real", "Float64", "Float32")
 
 
@@ -597,26 +598,33 @@ def _recorded_parameters(provenance: dict) -> dict[str, list[Any]] | None:
             and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)):
         return None
     given = record.get("set") if isinstance(record.get("set"), list) else []
-    return {"names": names, "types": types, "values": [float(v) for v in values], "units": units, "set": given}
+    enumerations = record.get("enumerations") if isinstance(record.get("enumerations"), dict) else {}
+    return {"names": names, "types": types, "values": [float(v) for v in values], "units": units, "set": given,
+            "enumerations": enumerations}
 
 
 def _source_parameters(provenance: dict, taken: set[str], fmi_version: str) -> list[Parameter]:
     """The source's parameters, fixed at their training values, for the ROM FMU to declare (an importer that sets them
-    as it set the source's then runs, and another value is refused in one log line): real ones as Float64, integer
-    and Boolean ones with their type (:func:`_parameter_type`); one warning for those it cannot declare (a value its
-    type cannot hold, a name an input or output has)."""
+    as it set the source's then runs, and another value is refused in one log line): real ones as Float64 (a Float32
+    one as Float32 on FMI 3), integer, Boolean and Enumeration ones with their type (:func:`_parameter_type`; an
+    Enumeration with its recorded type, :func:`_enumeration_of`); one warning for those it cannot declare (a value its
+    type cannot hold, an Enumeration without a checked type, a name an input or output has)."""
     record = _recorded_parameters(provenance)
     if record is None:
         return []
-    kept, left_out = [], []
+    kept, left_out, types = [], [], {}
     units = _units(record["units"], len(record["names"]))
     for name, kind, value, unit in zip(record["names"], record["types"], record["values"], units):
         declared = _parameter_type(kind, value, fmi_version)
+        enumeration = _enumeration_of(record["enumerations"].get(name), value, fmi_version)
+        if declared == "Enumeration" and (enumeration is None or types.setdefault(*enumeration) != enumeration[1]):
+            declared = None   # (no checked type recorded, a value none of its items has, a type name taken)
         if declared is None or name in taken or not name.strip():
             left_out.append(name)
             continue
         given = "fixed at the value the training set" if name in record["set"] else ""   # (compact: hundreds)
-        kept.append(Parameter(name, value, given, unit if declared == "Float64" else "", declared))
+        kept.append(Parameter(name, value, given, unit if declared in ("Float64", "Float32") else "", declared,
+                              enumeration[0] if declared == "Enumeration" else ""))
     if left_out:
         warnings.warn(f"the ROM FMU does not declare the source parameters {_few(left_out)} (a type or value it cannot "
                       "declare, or named like an input or output): an importer that sets them on the ROM FMU fails",
@@ -626,11 +634,16 @@ def _source_parameters(provenance: dict, taken: set[str], fmi_version: str) -> l
 
 def _parameter_type(kind: str, value: float, fmi_version: str) -> str | None:
     """The type the ROM FMU declares a source parameter of type ``kind`` with (FMI 2 ``Integer`` and FMI 3 ``Int32``
-    as ``Int32``; an FMI 3 integer type as itself on an FMI 3 ROM FMU, as ``Int32`` on an FMI 2 one), or None where
-    it cannot: an unknown type, or a value the type cannot hold (:data:`fmu_opinf.fmus.INTEGER_RANGES`: an Int64 beyond
-    2**53, an UInt32 beyond Int32 on FMI 2, a Boolean not 0 or 1)."""
+    as ``Int32``; an FMI 3 integer type as itself on an FMI 3 ROM FMU, as ``Int32`` on an FMI 2 one; a Float32 as
+    Float32 on FMI 3, as Float64 on FMI 2; an Enumeration as itself, :func:`_enumeration_of` checks its type), or None
+    where it cannot: an unknown type, or a value the type cannot hold (:data:`fmu_opinf.fmus.INTEGER_RANGES`: an Int64
+    beyond 2**53, an UInt32 beyond Int32 on FMI 2, a Boolean not 0 or 1)."""
+    if kind == "Float32" and fmi_version == "3.0":
+        return "Float32"
     if kind in _REAL_PARAMETER_TYPES:
         return "Float64"
+    if kind == "Enumeration":
+        return kind
     if kind == "Boolean":
         declared = "Boolean"
     elif kind == "Integer" or (kind in INTEGER_RANGES and fmi_version != "3.0"):
@@ -641,6 +654,28 @@ def _parameter_type(kind: str, value: float, fmi_version: str) -> str | None:
         return None
     low, high = INTEGER_RANGES[declared]
     return declared if value == int(value) and low <= value <= high else None
+
+
+def _enumeration_of(recorded: Any, value: float, fmi_version: str) -> tuple[str, list[tuple[str, int, str]]] | None:
+    """``(type name, items)`` of an Enumeration parameter as the snapshots recorded its type (``source_parameters``
+    ``enumerations``), checked as data (:func:`fmu_opinf.fmus.is_type_name`, :func:`fmu_opinf.fmus.enumeration_items`)
+    with ``value`` one of its items'; None otherwise (files before api84 record none)."""
+    if not isinstance(recorded, dict) or not is_type_name(recorded.get("type")):
+        return None
+    items = enumeration_items(recorded.get("items"), fmi_version)
+    if items is None or value not in [number for _, number, _ in items]:
+        return None
+    return recorded["type"], items
+
+
+def _enumeration_types(parameters: list[Parameter], provenance: dict, fmi_version: str) -> dict[str, list] | None:
+    """The Enumeration types the declared parameters name (:func:`_enumeration_of`), by name; None where none do."""
+    record = _recorded_parameters(provenance)
+    found = {}
+    for par in parameters:
+        if par.type == "Enumeration" and record is not None:
+            found[par.enumeration] = _enumeration_of(record["enumerations"].get(par.name), par.default, fmi_version)[1]
+    return found or None
 
 
 def _parameters_text(provenance: dict, parameters: list[Parameter]) -> str:
@@ -662,9 +697,10 @@ def _warn_if_settings_not_declared(provenance: dict, parameters: list[Parameter]
     settings = snapshots.get("fmu_settings") if isinstance(snapshots, dict) else None
     if not isinstance(settings, dict):
         return
-    declared = {par.name for par in parameters} | set(inputs)
-    missing = [str(name) for name in settings if str(name) not in declared]
-    if missing and _recorded_parameters(provenance) is None:
+    record = _recorded_parameters(provenance)
+    declared = {par.name for par in parameters} | set(inputs) | set(record["names"] if record else [])
+    missing = [str(name) for name in settings if str(name) not in declared]   # (a recorded one left out: said before)
+    if missing and record is None:
         warnings.warn(f"the ROM file records no values of the source's parameters (snapshots recorded before "
                       f"2026-12-07): the ROM FMU declares none, though the training set {_few(missing)} "
                       f"({either('--set')}); record the snapshots again and refit to declare them", FmuOpinfWarning,

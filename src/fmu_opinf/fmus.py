@@ -92,13 +92,43 @@ def is_unit_name(value: Any) -> bool:
 
 
 #: ``VariableKind`` of ``fmus/include/instance.h`` for each parameter type (config.h ``PARAMETER_KINDS``).
-PARAMETER_KIND_CODES = {"Float64": 0, "Int8": 2, "UInt8": 3, "Int16": 4, "UInt16": 5, "Int32": 6, "UInt32": 7,
-                        "Int64": 8, "UInt64": 9, "Boolean": 10}
+PARAMETER_KIND_CODES = {"Float64": 0, "Float32": 1, "Int8": 2, "UInt8": 3, "Int16": 4, "UInt16": 5, "Int32": 6,
+                        "UInt32": 7, "Int64": 8, "UInt64": 9, "Boolean": 10}
 
 #: The values each integer parameter type holds (``Int64`` / ``UInt64``: those a double holds exactly, within 2**53).
 INTEGER_RANGES = {"Int8": (-2**7, 2**7 - 1), "UInt8": (0, 2**8 - 1), "Int16": (-2**15, 2**15 - 1),
                   "UInt16": (0, 2**16 - 1), "Int32": (-2**31, 2**31 - 1), "UInt32": (0, 2**32 - 1),
                   "Int64": (-2**53 + 1, 2**53 - 1), "UInt64": (0, 2**53 - 1), "Boolean": (0, 1)}
+
+#: The values of an Enumeration's items on each FMI version (FMI 2: an Integer; FMI 3: an Int64, held as a double).
+ENUMERATION_RANGES = {"2.0": INTEGER_RANGES["Int32"], "3.0": INTEGER_RANGES["Int64"]}
+
+
+def enumeration_items(value: Any, fmi_version: str) -> list[tuple[str, int, str]] | None:
+    """An Enumeration type's items recorded from a source FMU, checked as data: ``[(name, value, description), ...]``,
+    at least one, names printable, unique and at most 200 characters, values whole numbers within
+    :data:`ENUMERATION_RANGES` of ``fmi_version``, descriptions printable texts of at most 200 characters; None
+    when anything is not of that form.  Names and descriptions come from the source FMU's file: they reach the XML
+    quoted, and the C not at all."""
+    if not isinstance(value, (list, tuple)) or not value:
+        return None
+    low, high = ENUMERATION_RANGES.get(fmi_version, (1, 0))
+    items = []
+    for item in value:
+        if not (isinstance(item, (list, tuple)) and len(item) == 3):
+            return None
+        name, number, text = item
+        if not (_is_item_text(name) and name and isinstance(number, (int, float)) and not isinstance(number, bool)
+                and math.isfinite(number) and number == int(number) and low <= number <= high and _is_item_text(text)):
+            return None
+        items.append((name, int(number), text))
+    return items if len({name for name, _, _ in items}) == len(items) else None
+
+
+def _is_item_text(value: Any) -> bool:
+    """An Enumeration item's name or description: printable text of at most 200 characters."""
+    return (isinstance(value, str) and len(value) <= 200 and value.isprintable() and "\ufffe" not in value
+            and "\uffff" not in value)
 
 
 def is_type_name(value: Any) -> bool:
@@ -143,8 +173,12 @@ class Parameter:
         Its unit (``""``: none), declared on the variable and in ``UnitDefinitions``; a real parameter's only.
     type : str, default="Float64"
         Its FMI 3 type: ``"Float64"``, an integer type (``"Int8"`` .. ``"UInt64"``; FMI 2 knows ``"Int32"`` only, its
-        ``Integer``) or ``"Boolean"`` (``default`` 0 or 1).  An integer's ``default`` is a whole number within its type
-        and within 2**53 (held as a double in the FMU); each type is reached through its own get/set functions.
+        ``Integer``) or ``"Boolean"`` (``default`` 0 or 1), ``"Float32"`` (FMI 3 only) or ``"Enumeration"``.  An
+        integer's ``default`` is a whole number within its type and within 2**53 (held as a double in the FMU); each
+        type is reached through its own get/set functions (an Enumeration through FMI 2's Integer ones, FMI 3's
+        Int64 ones, as the standard says).
+    enumeration : str, default=""
+        An Enumeration's type: a name of the spec's ``enumeration_types`` (``default`` the value of one of its items).
     """
 
     name: str
@@ -152,6 +186,7 @@ class Parameter:
     description: str = ""
     unit: str = ""
     type: str = "Float64"
+    enumeration: str = ""
 
 
 @dataclass
@@ -193,6 +228,10 @@ class SecondOrderFmuSpec:
         The ``declaredType`` of each input and output (``""``: none), a name of ``type_definitions``, e.g. a source's
         ``Modelica.Units.SI.Force``; the variable keeps its own unit, quantity and display unit besides.  Default:
         none.
+    enumeration_types : dict of str to list, optional
+        The Enumeration types the parameters name (``Parameter.enumeration``), each a list of items ``(name, value,
+        description)`` (:func:`enumeration_items`), declared in ``TypeDefinitions`` (FMI 2 ``SimpleType`` with
+        ``Enumeration``, FMI 3 ``EnumerationType``), e.g. a source's solver choice.  Default: none.
     type_definitions : dict of str to dict, optional
         The real type definitions the variables name (:func:`type_definition`), declared in ``TypeDefinitions``: the
         type's ``quantity``, ``unit`` (declared in ``UnitDefinitions`` too) and ``displayUnit`` (where the unit's
@@ -294,6 +333,7 @@ class SecondOrderFmuSpec:
     input_declared_types: list[str] | None = None
     output_declared_types: list[str] | None = None
     type_definitions: dict[str, dict[str, str]] | None = None
+    enumeration_types: dict[str, list[tuple[str, int, str]]] | None = None
     defines: dict[str, int] = field(default_factory=dict)
     description: str = ""
     output_descriptions: list[str] | None = None
@@ -470,8 +510,11 @@ class SecondOrderFmuSpec:
 
     def _check_parameter_types(self) -> None:
         """Each parameter of a known type (FMI 2: Float64, Int32, Boolean), a finite number as its start (an integer
-        or Boolean one a whole number within :data:`INTEGER_RANGES`), a unit on real ones only."""
+        or Boolean one a whole number within :data:`INTEGER_RANGES`, an Enumeration one an item's value of its type), a
+        unit on real ones only."""
         allowed = ("Float64", "Int32", "Boolean") if self.fmi_version == "2.0" else tuple(PARAMETER_KIND_CODES)
+        allowed += ("Enumeration",)
+        self._check_enumeration_types()
         for par in self.parameters:
             value = par.default
             if (par.type not in allowed or not isinstance(value, (int, float)) or isinstance(value, bool)
@@ -483,9 +526,21 @@ class SecondOrderFmuSpec:
                 low, high = INTEGER_RANGES[par.type]
                 raise FmuBuildError(f"parameter {par.name!r}: start {value!r} is not a whole number in [{low}, {high}]"
                                     f" ({par.type}); give one")
-            if par.type != "Float64" and par.unit:
+            if par.type not in ("Float64", "Float32") and par.unit:
                 raise FmuBuildError(f"parameter {par.name!r}: a {par.type} variable has no unit ({par.unit!r}); give "
                                     "none")
+            items = (self.enumeration_types or {}).get(par.enumeration) if par.type == "Enumeration" else None
+            if par.type == "Enumeration" and value not in [number for _, number, _ in items or []]:
+                raise FmuBuildError(f"parameter {par.name!r}: an Enumeration needs a type of enumeration_types "
+                                    f"({par.enumeration!r} is none) and the value of one of its items as start "
+                                    f"({value!r}); give both")
+
+    def _check_enumeration_types(self) -> None:
+        """``enumeration_types``: type names (:func:`is_type_name`) with checked items (:func:`enumeration_items`)."""
+        for name, items in (self.enumeration_types or {}).items():
+            if not is_type_name(name) or enumeration_items(items, self.fmi_version) != list(items):
+                raise FmuBuildError(f"enumeration type {name!r}: {items!r} is not a type name with checked items "
+                                    "(fmu_opinf.fmus.enumeration_items); give one")
 
     def _check_units(self) -> None:
         for what, kind, units, count in (("unit", "input", self.input_units, self.m),
@@ -786,6 +841,7 @@ class _Variable:
     aliases: tuple[str, ...] = ()
     quantity: str = ""
     declared_type: str = ""
+    enumeration: str = ""   # an Enumeration's type (its declaredType; apart from the real types of declared_type)
 
     def attributes(self) -> str:
         text = f'name={quoteattr(self.name)} valueReference="{self.vr}"'
@@ -830,7 +886,7 @@ def _variables(spec: SecondOrderFmuSpec) -> list[_Variable]:
                    quantities, types)]
     rows = _typed(_grouped(rows, spec.input_ports) + _grouped(outputs, spec.output_ports))
     rows += [_Variable(par.name, vr, "parameter", "fixed", par.description, "exact", par.default, unit=par.unit,
-                       type=par.type)
+                       type=par.type, enumeration=par.enumeration)
              for par, vr in zip(spec.parameters, refs["parameters"])]
     if spec.expose_states:
         kinds = zip(spec.state_names, ("position", "velocity", "acceleration"), ("x", "v", "a"))
@@ -945,6 +1001,9 @@ def _typed_start(variable: _Variable) -> str:
 
 
 def _variable2(variable: _Variable) -> str:
+    if variable.type == "Enumeration":
+        return (f"    <ScalarVariable {variable.attributes()}>\n      <Enumeration "
+                f"declaredType={quoteattr(variable.enumeration)}{_typed_start(variable)}/>\n    </ScalarVariable>\n")
     if variable.type in INTEGER_RANGES:   # (FMI 2: Integer or Boolean parameters; no unit, range or nominal)
         element = "Boolean" if variable.type == "Boolean" else "Integer"
         return (f"    <ScalarVariable {variable.attributes()}>\n      <{element}{_typed_start(variable)}/>\n"
@@ -955,6 +1014,9 @@ def _variable2(variable: _Variable) -> str:
 
 
 def _variable3(variable: _Variable) -> str:
+    if variable.type == "Enumeration":
+        return (f"    <Enumeration {variable.attributes()} declaredType={quoteattr(variable.enumeration)}"
+                f"{_typed_start(variable)}/>\n")
     if variable.type in INTEGER_RANGES:   # (integer or Boolean parameters; no unit, range or nominal)
         return f"    <{variable.type} {variable.attributes()}{_typed_start(variable)}/>\n"
     unit = _unit_attributes(variable) + _range_attributes(variable) + _nominal_attribute(variable)
@@ -1009,7 +1071,21 @@ def _type_definitions(spec: SecondOrderFmuSpec) -> str:
             rows.append(f"    <{clean['type']}Type name={quoteattr(name)}{attributes}/>\n")
         else:
             rows.append(f"    <SimpleType name={quoteattr(name)}>\n      <Real{attributes}/>\n    </SimpleType>\n")
+    rows += [_enumeration_type(spec, name) for name in sorted({p.enumeration for p in spec.parameters
+                                                                if p.type == "Enumeration"})]
     return f"  <TypeDefinitions>\n{''.join(rows)}  </TypeDefinitions>\n" if rows else ""
+
+
+def _enumeration_type(spec: SecondOrderFmuSpec, name: str) -> str:
+    """The type definition of an Enumeration a parameter names: FMI 2 ``SimpleType`` with ``Enumeration``, FMI 3
+    ``EnumerationType``, each with its ``Item`` elements (names and descriptions quoted as data)."""
+    items = "".join(f"{'  ' if spec.fmi_version == '2.0' else ''}      <Item name={quoteattr(item)} "
+                    f'value="{number}"' + (f" description={quoteattr(text)}" if text else "") + "/>\n"
+                    for item, number, text in (spec.enumeration_types or {})[name])
+    if spec.fmi_version == "3.0":
+        return f"    <EnumerationType name={quoteattr(name)}>\n{items}    </EnumerationType>\n"
+    return (f"    <SimpleType name={quoteattr(name)}>\n      <Enumeration>\n{items}      </Enumeration>\n"
+            "    </SimpleType>\n")
 
 
 def _unit_row(name: str, definition: Any) -> str:
@@ -1315,7 +1391,16 @@ def _parameter_kinds(spec: SecondOrderFmuSpec) -> list[str]:
     """``config.h`` line ``PARAMETER_KINDS`` (the ``VariableKind`` of each parameter) where one is not a Float64."""
     if all(p.type == "Float64" for p in spec.parameters):
         return []
-    return [f"#define PARAMETER_KINDS {{ {', '.join(str(PARAMETER_KIND_CODES[p.type]) for p in spec.parameters)} }}"]
+    codes = ", ".join(str(_kind_code(p.type, spec.fmi_version)) for p in spec.parameters)
+    return [f"#define PARAMETER_KINDS {{ {codes} }}"]
+
+
+def _kind_code(kind: str, fmi_version: str) -> int:
+    """The ``VariableKind`` of a parameter type: an Enumeration's is that of the functions that serve it (FMI 2:
+    Integer, the kernel's Int32; FMI 3: Int64)."""
+    if kind == "Enumeration":
+        return PARAMETER_KIND_CODES["Int32" if fmi_version == "2.0" else "Int64"]
+    return PARAMETER_KIND_CODES[kind]
 
 
 #: Bytes written as themselves in a generated C string literal; every other byte (quotes, backslashes, ``?`` of a
@@ -1364,7 +1449,7 @@ def _c_double(value: float) -> str:
 
 def _port_tables(spec: SecondOrderFmuSpec) -> list[str]:
     """``config.h`` lines for the FMI 3 layer: ``{first value reference, number of values}`` of each array variable
-    (``ARRAY_PORTS``) and of each Float32 variable (``FLOAT32_PORTS``)."""
+    (``ARRAY_PORTS``) and of each Float32 variable (``FLOAT32_PORTS``: ports and parameters)."""
     refs = value_references(spec)
     arrays, singles = [], []
     for ports, first_refs in ((spec.input_ports, refs["u"]), (spec.output_ports, refs["y"])):
@@ -1377,6 +1462,7 @@ def _port_tables(spec: SecondOrderFmuSpec) -> list[str]:
             if port["type"] == "Float32":
                 singles.append(entry)
             first += size
+    singles += [f"{{ {vr}u, 1u }}" for par, vr in zip(spec.parameters, refs["parameters"]) if par.type == "Float32"]
     lines = []
     for name, entries in (("ARRAY_PORTS", arrays), ("FLOAT32_PORTS", singles)):
         if entries:

@@ -354,6 +354,25 @@ def real_type_definitions(root: ET.Element) -> dict[str, dict[str, str]]:
     return found
 
 
+def enumeration_type_definitions(root: ET.Element) -> dict[str, list[list[Any]]]:
+    """The Enumeration type definitions (FMI 2 ``SimpleType`` with an ``Enumeration`` child, FMI 3
+    ``EnumerationType``) by name: their items ``[name, value, description]`` in order (``""`` where none is
+    described), for the exported ROM FMU to declare the Enumeration parameters it keeps (api84).  An item without a
+    whole-number value leaves its type out."""
+    found = {}
+    for element in root.iterfind("TypeDefinitions/*"):
+        listed = element if element.tag == "EnumerationType" else element.find("Enumeration")
+        if listed is None or not element.get("name"):
+            continue
+        try:
+            items = [[item.get("name", ""), int(item.get("value", "")), item.get("description") or ""]
+                     for item in listed.iterfind("Item")]
+        except ValueError:
+            continue
+        found[element.get("name", "")] = items
+    return found
+
+
 def _type_attribute(root: ET.Element, name: str) -> dict[str, str | None]:
     """An attribute (``unit``, ``displayUnit``) of each type definition, by type name: on the FMI 3 type element
     itself, on the FMI 2 one's ``<Real>`` child."""
@@ -681,6 +700,8 @@ class ModelInfo:
         self._type_relative = _type_attribute(root, "relativeQuantity")
         #: the real type definitions, by name (:func:`real_type_definitions`)
         self.type_definitions = real_type_definitions(root)
+        #: the Enumeration type definitions, by name (:func:`enumeration_type_definitions`)
+        self.enumeration_types = enumeration_type_definitions(root)
         #: the units UnitDefinitions defines, by name (:func:`defined_units`: base units, linear display units)
         self.unit_definitions = defined_units(root)
         #: the display units UnitDefinitions defines, by unit and display unit name (:func:`_defined_display_units`)
@@ -2088,24 +2109,31 @@ def fmi3_ports(model: ModelInfo, elements: Sequence[Element], structural: dict[s
     return ports
 
 
-#: Types of the source parameters a snapshot file records (``source_parameters``): the numeric and Boolean ones.
+#: Types of the source parameters a snapshot file records (``source_parameters``): the numeric, Boolean and Enumeration
+#: ones.
 RECORDED_PARAMETER_TYPES = REAL_TYPES + ("Integer", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64",
-                                         "UInt64", "Boolean")
+                                         "UInt64", "Boolean", "Enumeration")
 
 
 def source_parameters_record(model: ModelInfo, settings: Sequence[Any]) -> dict[str, list[Any]]:
     """The source's scalar parameters as the training set them (audit 81b F1), column-wise to stay compact for a model
     with hundreds: ``{"names", "types", "values", "units", "quantities", "set"}``, each value the ``--set`` one where
-    given (``set``: the names given), else the declared start, a Boolean as 0 / 1.
+    given (``set``: the names given), else the declared start, a Boolean as 0 / 1, an Enumeration as its item's value.
+    Where Enumeration parameters are recorded, ``"enumerations"`` holds the type of each, by parameter name:
+    ``{"type": its declaredType, "items": [[name, value, description], ...]}`` (api84; an Enumeration whose type the
+    model does not define is not recorded).
 
     Only ``causality="parameter"`` scalars of a numeric or Boolean type with a value are recorded (no arrays,
     structural or calculated parameters, FMI 3 ``<Alias>`` names): the exported ROM FMU declares them, fixed at
     these values.  ``settings`` are the typed ``--set`` values (:class:`fmu_opinf.sources._settings.Setting`).
     """
     given = {setting.var.name: setting.values for setting in settings}
-    record: dict[str, list[Any]] = {"names": [], "types": [], "values": [], "units": [], "quantities": [], "set": []}
+    record: dict[str, Any] = {"names": [], "types": [], "values": [], "units": [], "quantities": [], "set": []}
+    enumerations = getattr(model, "enumeration_types", {})   # (a ModelInfo cached before api84 has none)
     for var in model.variables:
         if var.causality != "parameter" or var.dims or var.type not in RECORDED_PARAMETER_TYPES:
+            continue
+        if var.type == "Enumeration" and var.declared_type not in enumerations:
             continue
         chosen = given.get(var.name)
         value = _parameter_value(var, chosen[0] if chosen else var.start)
@@ -2116,6 +2144,9 @@ def source_parameters_record(model: ModelInfo, settings: Sequence[Any]) -> dict[
             record[key].append(item)
         if chosen:
             record["set"].append(var.name)
+        if var.type == "Enumeration":
+            record.setdefault("enumerations", {})[var.name] = {"type": var.declared_type,
+                                                               "items": enumerations[var.declared_type]}
     return record
 
 
