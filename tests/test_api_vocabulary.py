@@ -289,9 +289,10 @@ def test_compares_end_and_replay_fixes_name_t_end_in_both_vocabularies():
     assert hint == f"; compare --input \"{TRAIN}\" --t-end 60 or signal='{TRAIN}', t_end=60.0 replays that training run"
 
 
-def test_compares_source_option_fixes_name_the_source_options_key(anchored_rom):
-    """compare takes a source's options in ``source_options``: ``--start-time applies to fmu sources`` told a Python
-    caller nothing, and ``start_time=`` (either's form) would be a TypeError there."""
+def test_compares_source_option_fixes_name_the_keyword(anchored_rom):
+    """compare takes a source's options as keywords (since api84; ``source_options`` still): ``--start-time applies
+    to fmu sources`` told a Python caller nothing; then ``source_options['start_time']``, now ``start_time=`` as
+    everywhere else."""
     from types import SimpleNamespace
 
     from fmu_opinf.compare._simulate import _in_source_order
@@ -299,12 +300,12 @@ def test_compares_source_option_fixes_name_the_source_options_key(anchored_rom):
     with pytest.raises(InputSpecError) as caught:
         compare.compare(anchored_rom, "builtin:anchored-msd", TEST, t_end=10.0, quiet=True,
                         source_options={"g": 12, "start_time": 1.0})
-    _one_line(caught.value, "--start-time or source_options['start_time'] applies to fmu sources, not to builtin:")
+    _one_line(caught.value, "--start-time or start_time= applies to fmu sources, not to builtin:")
     source = SimpleNamespace(input_names=["F1", "F3"])
     with pytest.raises(InputSpecError) as caught:
         _in_source_order(np.zeros((2, 3)), ["F2", "F1"], source, "m.fmu")
-    _one_line(caught.value, "compare drives the ROM's inputs: leave out --inputs or source_options['inputs'], or give "
-                            "--inputs F2,F1 or source_options['inputs']='F2,F1'")
+    _one_line(caught.value, "compare drives the ROM's inputs: leave out --inputs or inputs=, or give --inputs F2,F1 or "
+                            "inputs='F2,F1'")
 
 
 def test_compares_test_input_fixes_and_progress_line_name_signal(anchored_rom, capsys):

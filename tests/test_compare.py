@@ -533,9 +533,9 @@ def test_compare_without_an_input_drives_each_trained_input_with_a_harmonic(tmp_
         [np.abs(run.y - run.y[:, :1]).max(axis=1) for run in recorded.runs], axis=0).tolist()
     assert np.abs(exact - exact[:, :1]).max() <= 1.2 * trained   # measured 1.13 (the offsets' own reach: 1.18)
     assert result.metrics()["max_error"] < 1e-20   # the ROM is exact for these data (r = n)
-    assert result.metrics()["input_choice"].startswith("chosen without --input: a harmonic on each input")
+    assert result.metrics()["input_choice"].startswith("chosen without --input or signal=: a harmonic on each input")
     page = compare.write_report(result, tmp_path / "report")
-    assert "chosen without --input: a harmonic on each input" in page.read_text()
+    assert "chosen without --input or signal=: a harmonic on each input" in page.read_text()
     assert result.metrics()["input_choice"].endswith("y[1] went to 1.13 times its largest departure in the training; "
                                                      "the input's offsets take it there in the ROM too: a shorter "
                                                      "--t-end or t_end= keeps them nearer")

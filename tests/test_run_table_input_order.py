@@ -112,4 +112,4 @@ def test_compare_with_inputs_in_another_order_than_the_rom_s_drives_each_by_name
         compare(rom, str(fmu), f"{PULSE};none", DT, T_END, quiet=True,
                 source_options={"inputs": "F[1]", "isolate": False})
     assert "\n" not in str(refused.value)
-    assert "give --inputs \"F[2],F[1]\" or source_options['inputs']='F[2],F[1]'" in str(refused.value)
+    assert "give --inputs \"F[2],F[1]\" or inputs='F[2],F[1]'" in str(refused.value)

@@ -80,7 +80,7 @@ class Comparison:
     output_units: list[str] | None = None
     output_display_units: list[DisplayUnit | None] | None = None
     timed: dict[str, Any] = field(default_factory=dict)
-    input_choice: str = ""   # why, where compare chose the test input itself (no --input)
+    input_choice: str = ""   # why, where compare chose the test input itself (no --input or signal=)
     order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
     driven_alone: str = ""   # the input this comparison drove alone, "" for all (compare's runs of each_input_alone)
     each_input_alone: list["Comparison"] = field(default_factory=list)

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._validate import either, source_option_said
+from .._validate import either
 from ..errors import DimensionError, InputSpecError
 from ._comparison import Comparison
 from ._declared import _declared_display_units, _declared_units
@@ -30,17 +30,28 @@ if TYPE_CHECKING:
     from ..signals import Signal
 
 
-#: The keys of ``compare(source_options=...)``: an FMU source's (:func:`~fmu_opinf.compare._simulate._source_outputs`,
+#: The source's options :func:`compare` takes, as keywords (``inputs=``, ..., a builtin system's sizes ``g=``, ...)
+#: or as the keys of ``source_options``: an FMU source's (:func:`~fmu_opinf.compare._simulate._source_outputs`,
 #: ``isolate`` and ``timeout`` of its child process) and a builtin system's sizes
 #: (:func:`~fmu_opinf.compare._simulate._builtin_outputs`).  Any other key is refused: one dropped without a word
 #: compared another model than the one asked for (audit 81c F2).
 SOURCE_OPTIONS = ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "start_time", "isolate",
                   "timeout", "g", "n1", "alpha", "beta", "v")   # (the last five: sources.BUILTIN_SIZES)
 
+#: The options that choose how a source is opened: an opened source (a :class:`~fmu_opinf.sources.Source` given as
+#: ``source``) is compared as opened, so they are refused with it, as :func:`~fmu_opinf.snapshots.record` refuses
+#: its own.
+OPENING_OPTIONS = ("inputs", "outputs", "parameters", "interface", "tolerance", "method", "g", "n1", "alpha", "beta",
+                   "v")
+
 
 def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike,
             signal: "Signal | str | None" = None, dt: float | None = None, t_end: float | None = None, *,
-            quiet: bool = False, source_options: dict[str, Any] | None = None) -> Comparison:
+            quiet: bool = False, inputs: str | None = None, outputs: str | None = None,
+            parameters: dict[str, Any] | None = None, interface: str | None = None, tolerance: float | None = None,
+            method: str | None = None, start_time: float | None = None, isolate: bool | None = None,
+            timeout: float | None = None, source_options: dict[str, Any] | None = None,
+            **sizes: Any) -> Comparison:
     """Simulate the full-order ``source`` and the ROM on the same input and grid.
 
     Parameters
@@ -62,13 +73,24 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     dt, t_end : float, optional
         Grid; defaults: the ROM's training step and four times the training end time, cut before the time at which
         the training's recording found the source FMU terminating the simulation (said in a line unless ``quiet``).
+    inputs, outputs, parameters, interface, tolerance, method, start_time : optional
+        How the source FMU is driven, as :func:`~fmu_opinf.snapshots.record` and ``record_to_file`` take them (the
+        command line's ``--inputs``, ``--outputs``, ``--set``, ``--interface``, ``--tolerance``, ``--me-method``,
+        ``--start-time``).  What is not given is taken from the ROM's training provenance: the force inputs and
+        outputs by their recorded names, the recorded ``--set`` values and the FMU time the training runs started at
+        (``start_time``, 0 where none is recorded), so a comparison drives the FMU the way the training did.  A ROM
+        side with extra outputs (an FMU exported with ``--reconstruct``) is compared on the source's outputs, matched
+        by name.  With an opened source (a :class:`~fmu_opinf.sources.Source`, compared as opened) they are refused
+        but ``start_time``.
+    isolate, timeout : optional
+        Run the source FMU in a child process (default True; the command line's ``--in-process`` is
+        ``isolate=False``), and the seconds it may take per run (``--timeout``).
     source_options : dict, optional
-        Variable patterns, ``--set`` values (``parameters``), ``start_time`` or builtin size options for the
-        source: the keys of :data:`SOURCE_OPTIONS` (another key is refused in one line).  For an FMU source, what
-        is not given is taken from the ROM's training provenance: the force inputs and outputs by their recorded
-        names, the recorded ``--set`` values and the FMU time the training runs started at (``start_time``, 0 where
-        none is recorded), so a comparison drives the FMU the way the training did.  A ROM side with extra outputs
-        (an FMU exported with ``--reconstruct``) is compared on the source's outputs, matched by name.
+        The same options as a dict (the keys of :data:`SOURCE_OPTIONS`; another key is refused in one line), as
+        compare took them before it took keywords; a key given both ways must have the same value.
+    **sizes
+        A builtin system's size options (``g=``, ``n1=``, ``alpha=``, ``beta=``, ``v=``); another keyword is refused
+        in one line naming the closest one.
 
     Returns
     -------
@@ -78,7 +100,11 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     from ..newmark import MAX_GRID_STEPS, time_grid
     from ..sources import StepError
 
-    check_keywords(source_options or {}, SOURCE_OPTIONS, "compare's source_options")
+    given = {"inputs": inputs, "outputs": outputs, "parameters": parameters, "interface": interface,
+             "tolerance": tolerance, "method": method, "start_time": start_time, "isolate": isolate,
+             "timeout": timeout}
+    check_keywords(sizes, SOURCE_OPTIONS, "compare", "keyword")
+    source_options = _source_options(source, source_options, {**given, **sizes})
     rom_side = _load_rom_side(rom)
     rom_info = _rom_side_info(rom_side)
     dt = float(dt if dt is not None else rom_info["dt"])
@@ -98,8 +124,8 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
             if not quiet:
                 print(capped[1], file=sys.stderr)
     t = time_grid(dt, float(t_end))
-    if str(source).startswith("builtin:") and (source_options or {}).get("start_time") is not None:
-        raise InputSpecError(f"{source_option_said('--start-time')} applies to fmu sources, not to {source}")
+    if str(source).startswith("builtin:") and source_options.get("start_time") is not None:
+        raise InputSpecError(f"{either('--start-time')} applies to fmu sources, not to {source}")
     source_options = _training_settings(rom_info, source, source_options)
     _warn_if_another_fmu(rom_info, source)
     _warn_if_recording_warned(rom_info, _compared_interface(source, source_options))
@@ -129,6 +155,31 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         raise _past_termination(stopped, float(t_end), end_given, end_from) from None
     result.inputs = [os.fspath(item) for item in (rom, source, signal) if isinstance(item, (str, os.PathLike))]
     return result
+
+
+def _source_options(source: Any, dictionary: dict[str, Any] | None, keywords: dict[str, Any]) -> dict[str, Any]:
+    """The source's options of a :func:`compare` call: its keywords (None: not given) and its ``source_options``
+    (checked against :data:`SOURCE_OPTIONS`) together; a key given both ways with two values is refused in one line,
+    and so is an option that opens the source (:data:`OPENING_OPTIONS`) with an opened source, which is compared as
+    opened (:func:`~fmu_opinf.sources.open_source` returns it as is: the option would be dropped without a word)."""
+    from .._validate import check_keywords
+    from ..sources import Source
+
+    check_keywords(dictionary or {}, SOURCE_OPTIONS, "compare's source_options")
+    options = dict(dictionary or {})
+    for key, value in keywords.items():
+        if value is None:
+            continue
+        if options.get(key, value) != value:
+            raise InputSpecError(f"compare got {key}={value!r} and source_options[{key!r}]={options[key]!r}; give "
+                                 f"{key}= alone")
+        options[key] = value
+    opening = [key for key in OPENING_OPTIONS if options.get(key) is not None]
+    if isinstance(source, Source) and opening:
+        raise InputSpecError(f"{opening[0]}= applies where the source is given as a path or spec, but {source!r} is an "
+                             f"opened source, compared as opened; give the source as its path or spec, or open it "
+                             f"with open_source(spec, {opening[0]}=...)")
+    return options
 
 
 #: How compare names its run of the free response (``driven_alone`` of :attr:`Comparison.free_response`).
@@ -317,7 +368,7 @@ class _Run:
             input_spec=signal.spec, fom_seconds=fom_seconds, rom_seconds=rom_seconds, r=rom_info["r"],
             fom_provenance=fom_prov, rom_provenance=rom_info["provenance"], t_train_end=rom_info.get("t_train_end"),
             timed=_timed(source, rom_side, isolate, fom_prov),
-            input_choice=f"chosen without --input: {why}" if why else "",
+            input_choice=f"chosen without {either('--input')}: {why}" if why else "",
             order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
             driven_alone=alone, beyond_training=beyond,
             linear_fits=_carried_linear_fits(rom_info) if isinstance(rom_side, Path) else _linear_fits(rom_side),

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validate import source_option_said
+from .._validate import either
 from ..errors import DimensionError, InputSpecError
 
 
@@ -106,8 +106,7 @@ def _in_source_order(u: np.ndarray, signal_inputs: list[str] | None, source: Any
     if sorted(names) != sorted(signal_inputs):
         raise InputSpecError(f"the inputs of {name} selected here ({', '.join(names) or 'none'}) are not the ones the "
                              f"ROM was trained on ({', '.join(signal_inputs)}); compare drives the ROM's inputs: leave "
-                             f"out {source_option_said('--inputs')}, or give "
-                             f"{source_option_said('--inputs', ','.join(signal_inputs))}")
+                             f"out {either('--inputs')}, or give {either('--inputs', value=','.join(signal_inputs))}")
     return u[[list(signal_inputs).index(n) for n in names]]
 
 
