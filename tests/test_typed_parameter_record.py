@@ -19,8 +19,8 @@ from fmu_opinf.sources._variables import ModelInfo, source_parameters_record
 
 FMI2 = """<fmiModelDescription fmiVersion="2.0" modelName="m" guid="{x}">
 <TypeDefinitions>
- <SimpleType name="S.M"><Enumeration><Item name="a" value="1"/><Item name="b" value="2" description="bee"/></Enumeration>
- </SimpleType>
+ <SimpleType name="S.M"><Enumeration><Item name="a" value="1"/><Item name="b" value="2" description="bee"/>
+ </Enumeration></SimpleType>
  <SimpleType name="Bad"><Enumeration><Item name="x" value="one"/></Enumeration></SimpleType>
 </TypeDefinitions>
 <ModelVariables>
@@ -94,3 +94,20 @@ def test_items_that_cannot_be_declared_are_refused_by_the_spec(items):
         SecondOrderFmuSpec(identifier="T", model_source="", n=1, m=0, p=1, fixed_parameters=True,
                            parameters=[Parameter("e", 1.0, type="Enumeration", enumeration="T")],
                            enumeration_types={"T": items})
+
+
+def test_merged_parts_keep_the_enumeration_types_they_share():
+    """Merged snapshot parts kept the shared rows only, and dropped the record's types: the ROM FMU of merged parts
+    left the Enumeration out (measured before: 'does not declare the source parameters solverMethod')."""
+    import copy
+
+    from fmu_opinf.snapshots._data import shared_parameters
+
+    record = source_parameters_record(ModelInfo(ET.fromstring(FMI3), "m"), [])
+    shared = shared_parameters(record, copy.deepcopy(record))
+    assert shared["enumerations"] == record["enumerations"]
+    assert [p.type for p in export.rom_fmu_spec(_rom(shared), "Merged", fmi_version="3.0").parameters] == [
+        "Enumeration", "Float32"]
+    other = copy.deepcopy(record)
+    other["enumerations"]["sm"]["items"][1][0] = "c"          # (another model's type of the same name)
+    assert "enumerations" not in shared_parameters(record, other)

@@ -95,10 +95,10 @@ def shared_settings(settings: list[dict[str, Any]]) -> dict[str, Any]:
     return {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings[1:])}
 
 
-def shared_parameters(mine: Any, theirs: Any) -> dict[str, list[Any]] | None:
+def shared_parameters(mine: Any, theirs: Any) -> dict[str, Any] | None:
     """``source_parameters`` of merged snapshots: the parameters both parts recorded at the same value and type (one
     at different values is not a value the merged ROM was trained at: the exported ROM FMU leaves it out); None
-    where either part has none."""
+    where either part has none; the Enumeration types of the shared ones both recorded alike (``enumerations``)."""
     if not isinstance(mine, dict) or not isinstance(theirs, dict):
         return None
     keys = ("names", "types", "values", "units", "quantities")
@@ -107,10 +107,22 @@ def shared_parameters(mine: Any, theirs: Any) -> dict[str, list[Any]] | None:
         rows = [row for row in zip(*(mine[k] for k in keys)) if other.get(row[0]) == row]
     except (KeyError, TypeError):
         return None
-    shared: dict[str, list[Any]] = {k: [row[i] for row in rows] for i, k in enumerate(keys)}
+    shared: dict[str, Any] = {k: [row[i] for row in rows] for i, k in enumerate(keys)}
     given = set(mine.get("set") or []) | set(theirs.get("set") or [])
     shared["set"] = [name for name in shared["names"] if name in given]
+    types = _shared_enumerations(mine.get("enumerations"), theirs.get("enumerations"), shared["names"])
+    if types:
+        shared["enumerations"] = types
     return shared
+
+
+def _shared_enumerations(mine: Any, theirs: Any, names: list[str]) -> dict[str, Any]:
+    """The Enumeration types (``source_parameters`` ``enumerations``, api84) of the shared parameters ``names`` that
+    both parts recorded alike; one recorded differently is left out (the exported ROM FMU then leaves its parameter
+    out, with a warning)."""
+    if not isinstance(mine, dict) or not isinstance(theirs, dict):
+        return {}
+    return {name: mine[name] for name in names if name in mine and mine[name] == theirs.get(name)}
 
 
 def shared_held_inputs(mine: Any, theirs: Any) -> Any:
