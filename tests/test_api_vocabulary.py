@@ -249,14 +249,12 @@ def test_the_training_miss_advice_names_the_patterns_in_both_vocabularies():
 
 
 def test_the_new_sayings_name_the_option_and_its_keyword():
-    from fmu_opinf._validate import either, source_option_said, values_said
+    from fmu_opinf._validate import either, values_said
 
     assert either("--step") == "--step or step="
     assert either("--force") == "--force or overwrite=True"
     assert values_said(("--input", "impulse:t0=2"), ("--t-end", 60.0)) == \
         "--input \"impulse:t0=2\" --t-end 60 or signal='impulse:t0=2', t_end=60.0"
-    assert source_option_said("--start-time") == "--start-time or source_options['start_time']"
-    assert source_option_said("--inputs", "F1,F2") == "--inputs F1,F2 or source_options['inputs']='F1,F2'"
 
 
 def test_compares_order_advice_names_r_in_both_vocabularies():

@@ -30,7 +30,7 @@ __all__ = [
     "available_memory", "check_memory", "check_name_length", "check_not_dangling", "check_grid", "check_positive",
     "check_fraction", "check_number", "check_at_least", "check_choice", "check_keywords", "shown", "either",
     "API_KEYWORDS", "KEYWORD_OF", "ME", "DT_T_END", "POSITIONS_VELOCITIES", "setting_said", "options_said",
-    "patterns_said", "values_said", "source_option_said",
+    "patterns_said", "values_said",
     "check_patterns", "check_writable", "check_report_directory", "check_not_input", "reject_links",
     "check_array", "read_real", "check_attr_types", "check_rom_file", "damaged_file_errors", "check_snapshot_run",
     "read_failure", "RESTORE",
@@ -125,16 +125,6 @@ def values_said(*pairs: tuple[str, Any]) -> str:
     60 or signal='impulse:t0=2', t_end=60.0`` (one command, one call; :func:`either` said twice reads as two)."""
     options = " ".join(f"{option} {_on_command_line(value)}" for option, value in pairs)
     return options + " or " + ", ".join(shown(KEYWORD_OF[option], value) for option, value in pairs)
-
-
-def source_option_said(option: str, value: Any = _NO_VALUE) -> str:
-    """An option of compare's source as both callers give it: ``--start-time or source_options['start_time']``,
-    ``--inputs F1,F2 or source_options['inputs']='F1,F2'``: :func:`~fmu_opinf.compare.compare` takes the source's
-    options in the dict ``source_options``, not as keywords (``start_time=`` would be a TypeError there)."""
-    key = f"source_options[{KEYWORD_OF[option]!r}]"
-    if value is _NO_VALUE:
-        return f"{option} or {key}"
-    return f"{option} {_on_command_line(value)} or {key}={value!r}"
 
 
 def options_said(*options: str) -> str:
