@@ -509,7 +509,11 @@ def _trace_start(least_squares: np.ndarray | None, keep: tuple[int, ...], r: int
     default one (identity blocks, ``Z = I``) has an objective far above it.  Triple chain, 2026-12-07, iterations
     of the screened round (``Dr`` at r = 20 / 35, ``Dr, Kr`` at r = 50): margin 0.01 -> 8 / 8 / 14, 0.03 -> 8 / 8 / 13,
     0.1 -> 8 / 9 / 17, 0.3 -> - / - / 16, 1 -> - / - / 18; 15 / 16 / 22 from the default start ("-" not
-    measured), objectives within 3e-10 relative, certified.
+    measured), objectives within 3e-10 relative, certified.  Not for the full SDP (all three cones): on exact data
+    whose optimal face is degenerate, a path from this start ends on the face away from its centre (the refit of an
+    exact ROM FMU in tests/test_stepping_and_nominals.py: ``Mr`` collapsed to a mass ratio 3.9e-10, acceleration
+    residual 6e-8 against 7e-16 from the default start; the default fit then kept ``Mr >= I`` at 1.5e-12 of range
+    against 1e-14).
     """
     if least_squares is None:
         return None
@@ -1042,7 +1046,9 @@ def _fit_screened(H: np.ndarray, r: int, tol: float, verbose: bool, sdp: dict | 
             if not dense_ipm:  # inference docstring, *Solvers*: Clarabel takes the full SDP after one screened round
                 break
             keep = tuple(sorted(set(keep) | set(worse)))
-    w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, **(sdp or {}), least_squares=least_squares)
+    # (from the default start: an interior-point path from it ends at the centre of a degenerate optimal face; the
+    # least-squares start ended an exact recording's full SDP at a collapsed Mr, mass ratio 3.9e-10 against 0.26)
+    w, info = _solve_sdp_compressed(H, r, float(r), tol, verbose, **(sdp or {}))
     for key in spent:
         info[key] += spent[key]
     return (*_unpack(w, r), dict(info, method="sdp", cones=list(_BLOCKS)))

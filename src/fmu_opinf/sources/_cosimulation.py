@@ -502,7 +502,7 @@ class FMUSource(Source):
         beside an input in m)."""
         if not self.input_names:
             return "force inputs none"
-        units = list(self.input_units)
+        units = list(getattr(self, "input_units", None) or [])   # (a source opened without its units: none)
         if not any(unit and unit_dimension(unit, self.model) not in (None, *_FORCE_DIMENSIONS) for unit in units):
             return f"force inputs {_few(self.input_names)}"
         return "driven inputs " + _few([f"{name} ({unit})" if unit else name
