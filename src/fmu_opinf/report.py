@@ -372,7 +372,7 @@ def _html_each_input_alone(runs: list[dict[str, Any]]) -> str:
     if not runs:
         return ""
     rows = [(f"{run['driven_alone']} alone", _run_row(run)) for run in runs]
-    return ("<h2>Each input alone</h2><p>The same harmonics, one input swinging at a time (the others at their "
+    return ("<h2>Each input alone</h2><p>The same input, one input driven at a time (the others held at its "
             "operating point): together, the input that moves the outputs most hides the others' errors.</p>"
             + _html_table(rows))
 

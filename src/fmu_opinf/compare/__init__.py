@@ -17,6 +17,8 @@ Modules, one job each:
 :mod:`._run`
     :func:`compare`: the grid and its end, both sides on one input, the default test input, each input alone, the
     free response (:func:`moves_on_its_own`).
+:mod:`._alone`
+    Each input alone on a given test input that drives several alike, and the line where the joint run hides one.
 :mod:`._simulate`
     :func:`simulate_outputs`: one model's outputs on a grid (ROM, builtin system, FMU in or out of process).
 :mod:`._sides`

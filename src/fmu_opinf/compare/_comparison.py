@@ -47,7 +47,13 @@ class Comparison:
     each_input_alone : list of Comparison
         Where ``compare`` chose a test input driving two inputs or more: the same harmonics, one input swinging at a
         time (:func:`fmu_opinf._test_input.each_input_alone`), so that an input whose response the others' hide is
-        judged on its own.
+        judged on its own; likewise where the given test input is one spec driving up to
+        :data:`~fmu_opinf.compare._alone.ALONE_AT_MOST` inputs alike
+        (:func:`~fmu_opinf.compare._alone.given_each_input_alone`).
+    alone_note : str
+        The line saying that the run of all inputs together hides an input's error (its miss alone over
+        :data:`~fmu_opinf.compare._alone.HIDDEN_FACTOR` times the joint one's), or why a given input driving more
+        inputs alike was not run per input; "" otherwise.  ``metrics.json``: ``each_input_alone_note``.
     training_band : Comparison or None
         Where ``compare`` chose the test input of a reduced ROM and the training excited the outputs well above it:
         a second default test near the top of that band (:func:`fmu_opinf._test_input.band_test_input`), where a
@@ -84,6 +90,7 @@ class Comparison:
     order: dict[str, Any] = field(default_factory=dict)   # how the ROM's order was chosen (order_note)
     driven_alone: str = ""   # the input this comparison drove alone, "" for all (compare's runs of each_input_alone)
     each_input_alone: list["Comparison"] = field(default_factory=list)
+    alone_note: str = ""   # where the joint run hides an input's error, or why none was run alone (compare._alone)
     free_response: "Comparison | None" = None   # inputs at their start values, where the FMU moves on its own
     training_band: "Comparison | None" = None   # a second default test at the top of the band the training excited
     beyond_training: dict[str, Any] = field(default_factory=dict)   # a given input far above the training's
@@ -120,6 +127,7 @@ class Comparison:
             "order": dict(self.order) or None,
             "driven_alone": self.driven_alone or None,
             "each_input_alone": [alone.run_metrics() for alone in self.each_input_alone] or None,
+            "each_input_alone_note": self.alone_note or None,
             "free_response": self.free_response.run_metrics() if self.free_response is not None else None,
             "training_band": self.training_band.run_metrics() if self.training_band is not None else None,
             "input_beyond_training": dict(self.beyond_training) or None,
@@ -132,5 +140,5 @@ class Comparison:
         """:meth:`metrics` without what a comparison of several runs says once for all (provenance, what the times
         measured): those of a run of one input alone."""
         return {key: value for key, value in self.metrics().items()
-                if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone", "free_response",
-                               "training_band", "training_miss")}
+                if key not in ("fom", "rom", "speedup_timed", "t_train_end", "each_input_alone",
+                               "each_input_alone_note", "free_response", "training_band", "training_miss")}

@@ -160,10 +160,11 @@ def _understated(relative: dict[str, float], figure: float) -> list[str]:
 
 def comparison_notes(metrics: dict[str, Any]) -> list[str]:
     """The lines that say what eq. (19) hides (:func:`training_miss_note`: the fit's own miss of its training
-    outputs, first; :func:`offset_note`, :func:`scale_note`) and what to try where the ROM misses
-    (:func:`order_note`)."""
-    notes = (training_miss_note(metrics), offset_note(metrics), scale_note(metrics), linear_fit_note(metrics),
-             order_note(metrics))
+    outputs, first; where the joint run hides an input's error, compare's ``each_input_alone_note``;
+    :func:`offset_note`, :func:`scale_note`) and what to try where the ROM misses (:func:`order_note`)."""
+    alone = metrics.get("each_input_alone_note")
+    notes = (training_miss_note(metrics), alone if isinstance(alone, str) else None, offset_note(metrics),
+             scale_note(metrics), linear_fit_note(metrics), order_note(metrics))
     return [note for note in notes if note]
 
 

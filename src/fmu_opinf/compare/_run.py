@@ -15,6 +15,8 @@ import numpy as np
 
 from .._validate import either
 from ..errors import DimensionError, InputSpecError
+from ._alone import given_each_input_alone, hidden_input_line
+from ._alone import largest_miss as _largest_miss
 from ._comparison import Comparison
 from ._declared import _declared_display_units, _declared_units
 from ._sides import _fmu_path, _held_at_start_values, _load_rom_side, _matching_outputs, _rom_side_info, _source_start
@@ -66,7 +68,11 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         each input the training drove, at the training's amplitude and operating point and at a frequency between
         the ROM's natural frequencies (:mod:`fmu_opinf._test_input`); with two driven inputs or more, the same
         harmonics once more per input, it alone swinging (``each_input_alone`` of the result: one more run of the
-        source each; together, the input that moves the outputs most hid another's 11 % error).  Both sides start
+        source each; together, the input that moves the outputs most hid another's 11 % error).  A given spec that
+        drives two inputs or more alike (one harmonic, impulse, step or chirp for all) is likewise run with each
+        input alone, up to :data:`~fmu_opinf.compare._alone.ALONE_AT_MOST` inputs (above, a line says how to run
+        one; a ``;``-separated spec or a table is compared as given), and a line names an input the joint run hides
+        (:func:`~fmu_opinf.compare._alone.hidden_input_line`, ``alone_note`` of the result).  Both sides start
         from the source's initial state: the ROM from the source's positions and velocities after initialization,
         projected on its basis (its stored ``q0, qdot0`` for a builtin or ROM source, or where the state cannot be
         read).
@@ -139,7 +145,10 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
         signal, why = _default_test_input(rom_side, rom_info, dt, float(t_end))
         if not quiet:
             print(f"no {either('--input')} given: comparing on {signal} ({why})", file=sys.stderr)
-    alone = _each_input_alone(signal, rom_info) if why else []
+    alone, skipped = (_each_input_alone(signal, rom_info), "") if why else given_each_input_alone(
+        signal, int(rom_info["m"]), list(rom_info["input_names"] or []))
+    if skipped and not quiet:
+        print(skipped, file=sys.stderr)
     if alone and not quiet:
         print(f"then each of {', '.join(name for name, _ in alone)} alone ({len(alone)} more runs of the source: "
               "together, the input that moves the outputs most hides the others' errors)", file=sys.stderr)
@@ -147,6 +156,10 @@ def compare(rom: "SecondOrderROM | str | os.PathLike", source: str | os.PathLike
     try:
         result = run.compared(signal, why)
         result.each_input_alone = [run.compared(spec, "", name) for name, spec in alone]
+        hidden = hidden_input_line(result, result.each_input_alone)
+        if hidden and not quiet:
+            print(hidden, file=sys.stderr)
+        result.alone_note = hidden or skipped
         if why and moves_on_its_own(rom_side, rom_info):
             result.free_response = _free_response(run, quiet)
         if why and not isinstance(rom_side, Path):
@@ -257,16 +270,6 @@ def _alone_said(comparison: Comparison) -> str:
     """`` (F[1] alone)`` for a comparison that drove one input alone, else ""."""
     name = comparison.driven_alone.removeprefix(TRAINING_BAND).removeprefix(", ").removesuffix(" alone")
     return f" ({name} alone)" if name else ""
-
-
-def _largest_miss(comparison: Comparison) -> tuple[str | None, float]:
-    """The output with the largest miss over its range in ``comparison``, and that share (None, 0 where no output
-    moves)."""
-    per_output = comparison.metrics()["per_output"]
-    misses = {name: figures["relative_max_variation"] for name, figures in per_output.items()
-              if figures["relative_max_variation"] == figures["relative_max_variation"]}
-    worst = max(misses, key=misses.get) if misses else None
-    return worst, float(misses[worst]) if worst is not None else 0.0
 
 
 def training_band_line(default: Comparison, band: Comparison, top: float, rank: int) -> str:
