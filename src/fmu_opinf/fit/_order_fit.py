@@ -19,6 +19,7 @@ from ..errors import FmuOpinfWarning, InputSpecError
 from ..inference import fit_operators, fit_output_map
 from ..rom import TERMS
 from ._order_search import _screen
+from ._run_balance import run_weights, weighted_columns
 from ._terms import _choose_terms
 from ._time_integrator import _derived_accelerations, _integrator
 from ._training_data import (_averaged, _corrected_averages, _held_outputs, _names, _net_outputs, _reduced_data,
@@ -109,16 +110,22 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     if o.refit_output_map and not refinement.get("refine"):
         raise _refit_without_refinement()
     screened = _screen(data, u_fit, steering) if screen and not o.refit_output_map else None
-    ops = fit_operators(data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit, method=o.method,
-                        mass_trace=o.mass_trace, tol=o.tol, normalization=o.normalization, solver=o.solver,
-                        refit_output_map=o.refit_output_map, least_squares_candidate=o.least_squares_candidate,
-                        refine_iterations=o.refine_iterations, progress=o.progress,
-                        output_weighting=o.output_weighting, screen=screened, **steering)
+    lengths = [_run_length(run) for run in runs]
+    weights = run_weights(data["y"], data["u"], (Cpr, Cvr, Dur, y0), lengths, judged)
+    balanced = _balanced(steering, weights, lengths)
+    sdp_lengths = _sdp_lengths(runs, data, sdp)
+    ops = fit_operators(*(weighted_columns(a, weights, sdp_lengths) for a in
+                          (data[sdp + "xddot"], data[sdp + "xdot"], data[sdp + "x"], u_fit)),
+                        method=o.method, mass_trace=o.mass_trace, tol=o.tol, normalization=o.normalization,
+                        solver=o.solver, refit_output_map=o.refit_output_map,
+                        least_squares_candidate=o.least_squares_candidate, refine_iterations=o.refine_iterations,
+                        progress=o.progress, output_weighting=o.output_weighting, screen=screened, **balanced)
     if ops.output_map is not None:
         ops.output_map = _whole_map(ops, (Cpr, Cvr), judged)
         Cpr, Cvr = ops.output_map
     for count in range(1, 1 + (AVERAGE_CORRECTIONS if "f_h" in data and o.lowpass is None else 0)):
-        ops = fit_operators(data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit,
+        ops = fit_operators(*(weighted_columns(a, weights, sdp_lengths) for a in
+                              (data["f_xddot"], data["f_xdot"], _corrected_averages(ops, u_fit, data), u_fit)),
                             method=o.method, mass_trace=o.mass_trace, tol=o.tol, normalization=o.normalization,
                             solver=o.solver)
         ops.info["interval_average_corrections"] = count
@@ -144,9 +151,27 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
                 output_relative_residual=_output_residual((Cpr, Cvr, Dur, y0), data, ops.coordinates))
     if unchecked is not None:
         info["training_output_error"] = unchecked
+    if weights is not None:
+        info["run_weights"] = [float(w) for w in weights]
     info.update(_output_errors(ops, sampled_u, data, simulated, (Cpr, Cvr), _run_names(runs), judged))
     info.update(_peak_misses(ops, sampled_u, data, simulated, (Cpr, Cvr), _run_names(runs), judged))
     return _OrderFit(pod, data, ops, chosen, term_info, (Cpr, Cvr, Dur, y0), time_integrator, info, linearity)
+
+
+def _balanced(steering: dict[str, Any], weights: np.ndarray | None, lengths: list[int]) -> dict[str, Any]:
+    """The refinement's keywords (:func:`_steering`) with each run's output target times its weight
+    (:mod:`._run_balance`); as they are where there is no refinement or nothing to weigh."""
+    if weights is None or not steering.get("refine"):
+        return steering
+    return dict(steering, y=weighted_columns(steering["y"], weights, lengths))
+
+
+def _sdp_lengths(runs: list, data: dict[str, np.ndarray], sdp: str) -> list[int]:
+    """Columns of each run in the SDP's data: its samples, or one fewer where the run gives interval averages."""
+    lengths = [_run_length(run) for run in runs]
+    if "f_h" not in data or not sdp:
+        return lengths
+    return [k - 1 if _averaged(run) and k >= 2 else k for run, k in zip(runs, lengths)]
 
 
 def _linearity(decision: dict[str, np.ndarray], pod: PODBasis, attrs: dict, centred_runs: list) -> dict:
