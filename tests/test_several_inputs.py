@@ -19,6 +19,7 @@ from fmu_opinf.snapshots import Run
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
 
 TRAINING = "impulse:amplitude=100,t0=2,width=0.5"
+LATER = "impulse:amplitude=100,t0=40,width=0.5"   # (the same pulse later)
 
 
 def _force_and_support(n: int = 20) -> lti_fmus.LinearMechanicalModel:
@@ -31,10 +32,11 @@ def _force_and_support(n: int = 20) -> lti_fmus.LinearMechanicalModel:
                                           ideal_sources=1, name="ForceAndSupport")
 
 
-def _exact_runs(model, dt: float, t_end: float) -> list[Run]:
-    """The default training's runs, each input pulsed alone, as exact data."""
+def _exact_runs(model, dt: float, t_end: float, specs: tuple[str, ...] = (f"{TRAINING};none", f"none;{TRAINING}")
+                ) -> list[Run]:
+    """Exact data of runs of ``specs``: by default the default training's runs, each input pulsed alone."""
     runs = []
-    for spec in (f"{TRAINING};none", f"none;{TRAINING}"):
+    for spec in specs:
         t = time_grid(dt, t_end)
         u = inputs_in_effect(parse_signal(spec, model.m), t, model.m)
         ref = lti_fmus.zoh_response(model, t, u[:, 1:])
@@ -57,8 +59,9 @@ def test_the_band_test_drives_each_input_alone_too(tmp_path, capsys):
     """compare's second default test, at the top of the band the training excited, drove all inputs at once: the one
     that moves the outputs most hid the others' errors there (audit84 F2: an r = 14 ROM of a 20-mass chain read 0.036
     of an output's range on two forces in N and kN and a support motion together, 0.28 and 0.29 on the N force or
-    the support motion alone).  Here the r = 16 ROM of a chain driven by a force in kN and an ``Accelerate`` support
-    is 0.0084 of range off the exact model at the band on both, 0.136 on the support alone.  compare now runs each
+    the support motion alone).  Here the r = 16 ROM of a chain driven by a force in kN and an ``Accelerate`` support,
+    fitted on one run that pulses both, is 0.0069 of range off the exact model at the band on both, 0.23 on the
+    support alone.  compare now runs each
     input alone there too and keeps the run with the largest miss, set against the default test's worst run."""
     from fmu_opinf._test_input import band_test_input, each_input_alone
     from fmu_opinf.compare import compare
@@ -69,7 +72,10 @@ def test_the_band_test_drives_each_input_alone_too(tmp_path, capsys):
     dt, t_end = 0.05, 173.85   # the window the automatic window chose for the one-input chain
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FmuOpinfWarning)   # (an order given: the fit's own lines are not tested here)
-        rom = fit_rom(_exact_runs(model, dt, t_end), r=16, integrator="exact", quiet=True)
+        # one run pulsing both (the support later): the kN force's response hides the support's in the fit too
+        # (runs of each input alone are weighted by their sizes since test_run_balance, and the misses are alike)
+        rom = fit_rom(_exact_runs(model, dt, t_end, (f"{TRAINING};{LATER}",)), r=16, integrator="exact",
+                      quiet=True)
         fmu = lti_fmus.build_lti_fmu(model, tmp_path / "two_inputs.fmu", interfaces=("me",))
         result = compare(rom, fmu.path, t_end=60.0)
     band = result.training_band
@@ -77,7 +83,7 @@ def test_the_band_test_drives_each_input_alone_too(tmp_path, capsys):
     end = float(result.t[-1])
     joint = band_test_input(rom, dt, end, result.input_spec)[0]   # the band's input on both inputs
     alone = {name: _miss(rom, model, spec, end) for name, spec in each_input_alone(joint, 2, ["u1", "u2"])}
-    # the run kept is the worst input alone: measured 0.136 on u[2] alone, 0.0085 on u[1] alone, 0.0084 on both
+    # the run kept is the worst input alone: measured 0.23 on u[2] alone, 0.0070 on u[1] alone, 0.0069 on both
     kept = _miss(rom, model, band.input_spec, end)
     assert kept >= 0.9 * max(alone.values()) and kept > 3 * _miss(rom, model, joint, end), (kept, alone, joint)
     assert band.driven_alone == "top of the training band, u[2] alone"
