@@ -470,6 +470,27 @@ the input-output behaviour in the training band, they are not the physical modes
 too: the ``Mr >= I`` SDP alone at ``tol=1e-5`` gives the same refined error (r = 20 / 35: 1.2e-6 / 1.7e-7) in
 3.0 / 9.6 s instead of 3.2 / 14 s; the trace SDP alone is a bad start at r = 35 (2.3e-6).
 
+*Budget of multi-run fits* (refine85, 2026-12-07).  With the training runs weighted by their sizes
+(:mod:`fmu_opinf.fit._run_balance`), audit84's support chains (r = 7, two or three runs) stopped at the 300
+iterations while their objective still fell by a decade per 100 (accelerated support: 1.6e-6 at 300, 9.4e-9 at
+1000).  The objective is ill-conditioned, not badly scaled: its Hessian in the L-BFGS variables (central
+differences of the adjoint gradient) has a condition number of 7e7 at the start and 1.6e10 after 300 iterations,
+and 2.7e7 / 1.6e9 after scaling each variable by its diagonal; the start's modal coordinates (``whiten=True``)
+make it 1e13 and the descent slower (4.7e-6 at 300 against 3.0e-6); restarting L-BFGS every 100 iterations
+slows it too.  What helps is curvature: with 2 pairs per unknown instead of 100 (161 unknowns) the accelerated
+support reached 3e-12 in 1000 iterations instead of 9.4e-9.  So a fit on several runs with the default budget
+(:func:`_multi_run_budget`) keeps ``2 x`` its unknowns in pairs (100 .. 400) and goes on past the budget in blocks
+of a third of it while each block lowers the objective twice or more, up to four times the budget
+(:class:`fmu_opinf.refinement.Extension`).  audit84's training files, each input alone against the exact model:
+accelerated support 1.2e-3 -> 1.0e-5 (fit 2.2 -> 5.5 s, 900 iterations), the three other models unchanged (their
+objective falls less than twice per block at 300).  One run (the demo, the benchmarks) is not touched: a larger
+memory there made the triple chain's r = 12 / 20 fits less accurate (3.3e-8 -> 4.7e-8, 9.2e-7 -> 1.1e-6) and the
+r = 20 .. 40 refinements up to twice as slow, and the anchored chain's objective falls 2.3 times in its last 100
+iterations, which would extend it.  audit84's model B (support position, a force, a held parameter) is not helped:
+its objective falls 1.1 times per 100 iterations from 200 on, and lower objectives do not bring it closer to the
+exact model (1000 iterations with the larger memory: objective 1.5e-7, 2.4e-4 of range off; with 100 pairs:
+6.7e-7 and 4.8e-6): its training runs leave the 0.5 rad/s response undetermined to about 1e-3.
+
 Candidates measured for the equation-error fit and *not* kept (triple chain r = 10 / 20 / 35 unless stated;
 before the refinement existed, which supersedes them):
 
@@ -689,7 +710,8 @@ from .basis import column_blocks
 from ._threads import single_threaded
 from ._sdp_paths import (FACTORED_ABOVE, factored_start, fit_compressed, fit_factored, input_matrix,
                          solve_sdp_direct)
-from .refinement import check_output_weighting, newmark_step_map, output_error_objective, refine_output_error
+from .refinement import (Extension, check_output_weighting, newmark_step_map, output_error_objective,
+                         refine_output_error)
 
 __all__ = ["OperatorFit", "fit_operators", "fit_outputs", "fit_output_map", "term_residuals", "TERM_SIGNIFICANCE", "compressed_factor", "psd_report", "lowpass_filter",
            "model_poles", "pole_match", "refine_output_error", "newmark_step_map", "unit_mass_least_squares",
@@ -952,6 +974,7 @@ def fit_operators(
         second = second_start = None
         if candidate and refine and not refit_output_map and not _equation_weight(equation_weight, refit_output_map):
             second_start = {"max_iterations": _refine_iterations(refine_iterations, r), **_stall_stop(),
+                            **_multi_run_budget(refine_iterations, run_lengths, r, m),
                             "progress_label": "output-error refinement from the least-squares start"}
         sdp_side_by_side = _sdp_side_by_side(r, compressed, normalization, solver, refine, method)
 
@@ -978,7 +1001,8 @@ def fit_operators(
                 Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
                     Mr, Dr, Kr, Br, xdot_r, x_r, u, training[3], float(dt), output_map=output_map,
                     run_lengths=run_lengths, max_iterations=_refine_iterations(refine_iterations, r),
-                    **_stall_stop(), unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
+                    **_stall_stop(), **_multi_run_budget(refine_iterations, run_lengths, r, m),
+                    unit_scales=units, refit_output_map=refit_output_map, integrator=integrator, xddot_r=xddot_r,
                     equation_weight=_equation_weight(equation_weight, refit_output_map), progress=progress,
                     spare_core=second is None and r >= SIDE_BY_SIDE_FROM, output_weighting=output_weighting,
                     screen=screen if second_start is None or not _refinable(found) else None)
@@ -1229,6 +1253,26 @@ def _refine_iterations(requested: int | None, r: int) -> int:
     if r <= 40:
         return 300
     return 20 * r if r <= FACTORED_ABOVE else HIGH_ORDER_ITERATIONS
+
+
+#: Multi-run fits with the default budget (*Budget of multi-run fits* in the module docstring): L-BFGS keeps
+#: ``MULTI_RUN_MEMORY_PER_UNKNOWN`` correction pairs per unknown, between 100 and ``MULTI_RUN_MEMORY_CAP``, and goes
+#: on past the budget in blocks of a third of it while each block lowers the objective ``MULTI_RUN_BLOCK_FACTOR``
+#: times, up to ``MULTI_RUN_CAP_FACTOR`` times the budget.
+MULTI_RUN_MEMORY_PER_UNKNOWN, MULTI_RUN_MEMORY_CAP = 2, 400
+MULTI_RUN_BLOCK_FACTOR, MULTI_RUN_CAP_FACTOR = 2.0, 4
+
+
+def _multi_run_budget(requested: int | None, run_lengths: list[int] | None, r: int, m: int) -> dict[str, Any]:
+    """The refinement's L-BFGS memory and budget extension for a fit on several runs with the default budget
+    (none for one run, or where the user set ``refine_iterations``: that budget is kept as given)."""
+    if requested is not None or run_lengths is None or len(run_lengths) < 2:
+        return {}
+    budget = _refine_iterations(None, r)
+    unknowns = 3 * r * r + r * m
+    memory = max(100, min(MULTI_RUN_MEMORY_PER_UNKNOWN * unknowns, MULTI_RUN_MEMORY_CAP))
+    return {"memory": memory, "extension": Extension(max(budget // 3, 1), MULTI_RUN_BLOCK_FACTOR,
+                                                     MULTI_RUN_CAP_FACTOR * budget)}
 
 
 def _refine_requested(refine: bool | str, dt: float | None, y: np.ndarray | None, k: int, integrator: str) -> bool:
