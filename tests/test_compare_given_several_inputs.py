@@ -31,9 +31,9 @@ GIVEN = "harmonic:amplitude=1,omega=0.5"
 def test_a_given_input_on_two_inputs_is_also_run_on_each_alone(tmp_path, capsys):
     """A 20-mass chain with a force in kN on its last mass and an ``Accelerate`` support, its r = 16 ROM fitted on
     exact data (:func:`fit_rom_exact`): on ``harmonic:amplitude=1,omega=0.5`` for both the ROM is 0.0016 of range
-    off the exact model (the kN force's response dominates), on the support alone 0.082.  compare now runs each input alone as well, its rows
-    read what the exact model gives, and a line names the hidden input and the --input that shows it; likewise
-    for the exported ROM FMU on the command line."""
+    off the exact model (the kN force's response dominates), on the support alone 0.082.  compare now runs each
+    input alone as well, its rows read what the exact model gives, and a line names the hidden input and the
+    --input that shows it; likewise for the exported ROM FMU on the command line."""
     from fmu_opinf.compare import compare
     from fmu_opinf.export import export_fmu
 
