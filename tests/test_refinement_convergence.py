@@ -17,16 +17,9 @@ from fmu_opinf.fit import fit_rom
 from fmu_opinf.inference import _multi_run_budget
 from fmu_opinf.refinement import Extension, refine_output_error
 from fmu_opinf.signals import parse_signal
-from fmu_opinf.snapshots import Run
 from fmu_opinf.snapshots._rates import inputs_in_effect, time_grid
-
-PULSE = "impulse:amplitude=100,t0=2,width=0.5"
-DT, T_TRAIN = 0.02, 86.6   # audit84's automatic window for its support chain
-TEST = "harmonic:amplitude=1,omega=0.5"
-
-
-def _alone(signal: str, j: int, m: int) -> str:
-    return ";".join(signal if i == j else "none" for i in range(m))
+from test_run_balance import _exact_runs as _exact_training
+from test_run_balance import _misses_alone as _worst_miss_of_each_input_alone
 
 
 def _accelerated_support_with_two_forces(n: int = 6) -> lti_fmus.LinearMechanicalModel:
@@ -37,34 +30,6 @@ def _accelerated_support_with_two_forces(n: int = 6) -> lti_fmus.LinearMechanica
     B[2, 0], B[n - 1, 1], B[:, 2] = 1.0, 1000.0, support.B[:, 0]
     return lti_fmus.LinearMechanicalModel(M=support.M, D=support.D, K=support.K, B=B, Cp=support.Cp, Ca=support.Ca,
                                           ideal_sources=1, name="AcceleratedSupport")
-
-
-def _exact_training(model: lti_fmus.LinearMechanicalModel) -> list[Run]:
-    """The default training's runs (each input pulsed alone, 100 in its unit) as exact data."""
-    t = time_grid(DT, T_TRAIN)
-    runs = []
-    for j in range(model.m):
-        spec = _alone(PULSE, j, model.m)
-        u = inputs_in_effect(parse_signal(spec, model.m), t, model.m)
-        exact = lti_fmus.zoh_response(model, t, u[:, 1:])
-        runs.append(Run(t=exact.t, u=u, x=exact.x, xdot=exact.v, xddot=exact.a, y=exact.y,
-                        attrs={"fit_rates": "pointwise", "input_spec": spec, "dt": DT, "t0": 0.0,
-                               "t_end": T_TRAIN}))
-    return runs
-
-
-def _worst_miss_of_each_input_alone(rom, model: lti_fmus.LinearMechanicalModel, t_end: float = 100.0) -> np.ndarray:
-    """Per input driven alone by the test harmonic: the ROM's largest output error over that output's range
-    against the exact model, worst output."""
-    t = time_grid(DT, t_end)
-    misses = []
-    for j in range(model.m):
-        spec = _alone(TEST, j, model.m)
-        u = inputs_in_effect(parse_signal(spec, model.m), t, model.m)
-        reference = lti_fmus.zoh_response(model, t, u[:, 1:]).y
-        y = rom.simulate(spec, DT, t_end).y
-        misses.append(float(np.max(np.abs(y - reference).max(axis=1) / np.ptp(reference, axis=1))))
-    return np.array(misses)
 
 
 @pytest.mark.slow   # the refinement runs 600 iterations: about 5 s (10 s under load)
