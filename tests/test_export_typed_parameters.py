@@ -28,6 +28,7 @@ from fmu_opinf import export, lti_fmus, snapshots  # noqa: E402
 from fmu_opinf.errors import FmuOpinfWarning  # noqa: E402
 from fmu_opinf.fit import fit_rom  # noqa: E402
 from fmu_opinf.source import open_source  # noqa: E402
+from test_export_discrete_parameters import _miss  # noqa: E402  (the staircase run against the exact model)
 
 DT = 0.02
 TRAINING = "impulse:amplitude=100,t0=2,width=0.5;harmonic:amplitude=8,omega=1.3"
@@ -74,25 +75,6 @@ def trained(request, tmp_path_factory) -> dict:
             "warnings": [str(w.message) for w in caught]}
 
 
-def _staircase(t: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The inputs as fmpy's input table holding each value over its step (duplicate time points)."""
-    rows = []
-    for i in range(len(t) - 1):
-        rows += [(t[i], *u[:, i]), (t[i + 1], *u[:, i])]
-    return np.array(rows, dtype=[("time", float), ("F[1]", float), ("F[2]", float)])
-
-
-def _miss(path: Path, start_values: dict) -> np.ndarray:
-    """max |y - y_exact| / range(y_exact) per output over 20 s of a staircase input."""
-    t = np.arange(0.0, 20.0 + DT / 2, DT)
-    u = np.vstack([np.sin(0.8 * t), 2 * np.cos(0.5 * t)])
-    result = simulate_fmu(str(path), stop_time=20.0, output_interval=DT, input=_staircase(t, u),
-                          start_values=start_values)
-    exact = lti_fmus.zoh_response(_model(), t, u).y
-    y = np.vstack([result[name] for name in ("y[1]", "y[2]", "y[3]")])
-    return np.abs(y - exact).max(axis=1) / np.ptp(exact, axis=1)
-
-
 @pytest.mark.slow
 def test_enumeration_and_float32_parameters_are_declared_with_the_sources_types(trained):
     source, declared = _parameters(trained["source"]), _parameters(trained["fmu"])
@@ -110,8 +92,8 @@ def test_enumeration_and_float32_parameters_are_declared_with_the_sources_types(
 def test_an_importer_sets_the_trained_values_and_the_outputs_match_the_exact_model(trained):
     """fmpy sets the Enumeration by fmi2SetInteger / fmi3SetInt64 and the Float32 by fmi3SetFloat32 (its float of
     1e-3, 4.7e-11 off the double the ROM FMU was made for), as it set them on the source."""
-    assert _miss(trained["fmu"], TRAINED[trained["version"]]).max() < EXACT
-    assert _miss(trained["fmu"], {}).max() < EXACT
+    assert _miss(trained["fmu"], TRAINED[trained["version"]], _model()).max() < EXACT
+    assert _miss(trained["fmu"], {}, _model()).max() < EXACT
 
 
 def _refusals(path: Path, start_values: dict) -> list[str]:

@@ -295,13 +295,11 @@ def test_least_squares_start_is_the_clipped_damping_of_least_squares_with_unit_m
     np.testing.assert_allclose(_sdp._mat(start[ns:], r), expected, rtol=0, atol=1e-7 * np.abs(expected).max())
 
 
-def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, monkeypatch):
-    """On the fixture's damping data the Mr, Dr round takes 9 iterations from the least-squares start against 10
-    from the default one (Mr = 2 I, Dr = I, Z = I; 19 before the centrality correctors); the two optima agree to
-    1e-9 and are certified."""
+def _with_and_without_start(monkeypatch, start: str, data: tuple, normalization: str) -> tuple[list, list]:
+    """The fits of ``data`` with the interior-point start ``_sdp_paths.<start>`` and with the default start (the
+    function made to return None), and every :func:`_sdp.solve_ipm` result of both, in order."""
     from fmu_opinf import _sdp_paths
 
-    data = _damping_data(rng)
     fits, rounds, original = [], [], _sdp.solve_ipm
 
     def spy(*args, **kwargs):
@@ -309,9 +307,18 @@ def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, mon
         return rounds[-1]
 
     monkeypatch.setattr(_sdp, "solve_ipm", spy)
-    for start in (_sdp_paths._least_squares_start, lambda *args: None):
-        monkeypatch.setattr(_sdp_paths, "_least_squares_start", start)
-        fits.append(fit_operators(*data, normalization="mass-eigenvalue", refine=False))
+    for chosen in (getattr(_sdp_paths, start), lambda *args: None):
+        monkeypatch.setattr(_sdp_paths, start, chosen)
+        fits.append(fit_operators(*data, normalization=normalization, refine=False))
+    return fits, rounds
+
+
+def test_the_least_squares_start_saves_iterations_and_keeps_the_optimum(rng, monkeypatch):
+    """On the fixture's damping data the Mr, Dr round takes 9 iterations from the least-squares start against 10
+    from the default one (Mr = 2 I, Dr = I, Z = I; 19 before the centrality correctors); the two optima agree to
+    1e-9 and are certified."""
+    fits, rounds = _with_and_without_start(monkeypatch, "_least_squares_start", _damping_data(rng),
+                                           "mass-eigenvalue")
     assert [result.iterations for result in rounds] == [9, 10]
     assert all(fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6 for fit in fits)
     assert fits[0].info["sdp_objective"] == pytest.approx(fits[1].info["sdp_objective"], rel=1e-9)
@@ -696,19 +703,8 @@ def test_the_far_more_indefinite_blocks_cone_is_tried_alone_first_with_the_full_
 def test_the_trace_rounds_start_from_least_squares_with_fewer_iterations_and_the_same_optimum(rng, monkeypatch):
     """The trace normalization's screened round (the Dr cone) takes 8 iterations from the screening's least-squares
     solution made interior against 12 from identity blocks with Z = I; the same certified optimum, Clarabel's."""
-    from fmu_opinf import _sdp_paths
-
     data = _damping_data(rng)
-    fits, rounds, original = [], [], _sdp.solve_ipm
-
-    def spy(*args, **kwargs):
-        rounds.append(original(*args, **kwargs))
-        return rounds[-1]
-
-    monkeypatch.setattr(_sdp, "solve_ipm", spy)
-    for start in (_sdp_paths._trace_start, lambda *args: None):
-        monkeypatch.setattr(_sdp_paths, "_trace_start", start)
-        fits.append(fit_operators(*data, normalization="trace", refine=False))
+    fits, rounds = _with_and_without_start(monkeypatch, "_trace_start", data, "trace")
     assert [result.iterations for result in rounds] == [8, 12]
     assert all(fit.info["cones"] == ["Dr"] for fit in fits)
     assert all(fit.info["status"] == "optimal" and fit.info["gap"] <= 1e-6 for fit in fits)
