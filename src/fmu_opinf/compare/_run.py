@@ -17,6 +17,7 @@ from .._validate import either
 from ..errors import DimensionError, InputSpecError
 from ._alone import given_each_input_alone, hidden_input_line
 from ._alone import largest_miss as _largest_miss
+from ._alone import worst_of as _worst_of
 from ._comparison import Comparison
 from ._declared import _declared_display_units, _declared_units
 from ._sides import _fmu_path, _held_at_start_values, _load_rom_side, _matching_outputs, _rom_side_info, _source_start
@@ -256,14 +257,6 @@ def _training_band(run: "_Run", result: Comparison, chosen: str, quiet: bool) ->
         print(training_band_line(_worst_of([result] + list(result.each_input_alone)), band, top, int(rank)),
               file=sys.stderr)
     return band
-
-
-def _worst_of(comparisons: list[Comparison]) -> Comparison:
-    """The comparison with the largest miss over an output's range (:func:`_largest_miss`): of several inputs
-    driven together, the one that moves the outputs most hides the others' errors, at the band's top as at the
-    default test (audit84 F2: a 20-mass chain's r = 14 ROM read 0.036 of range there on two forces in N and kN and a
-    support motion together, 0.28 and 0.29 with the N force or the support motion alone)."""
-    return max(comparisons, key=lambda comparison: _largest_miss(comparison)[1])
 
 
 def _alone_said(comparison: Comparison) -> str:
