@@ -110,7 +110,7 @@ def test_outputs_and_parameters_do_what_the_command_line_options_do(tmp_path):
     exact = lti_fmus.zoh_response(model.scaled(stiffness_scale=1.5), result.t,
                                   parse_signal(TEST, 1).sample(result.t)).y[1]
     assert result.output_names == ["y[2]"]
-    assert np.abs(result.y_fom[0] - exact).max() < 1e-9 * np.ptp(exact)   # the FMU's RK4: measured 3.3e-11 (0.39 at
+    assert np.abs(result.y_fom[0] - exact).max() < 2e-10 * np.ptp(exact)   # the FMU's RK4: measured 3.3e-11 (0.39 at
     # the trained stiffness: the parameter reached the source)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FmuOpinfWarning)
