@@ -736,7 +736,7 @@ def test_cli_set_and_input_none(toys, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "positions x[1], x[2], x[3]" in err
     snaps = Snapshots.load(out)
-    assert snaps.attrs["fmu_settings"] == {"x[2]": "0.3", "k": "2"} and snaps.m == 0
+    assert snaps.attrs["fmu_settings"] == {"x[2]": 0.3, "k": 2.0} and snaps.m == 0  # typed, as from Python
     np.testing.assert_array_equal(snaps.runs[0].x0, [0.0, 0.3, 0.0])
     code = main(["snapshots", str(toys["no-input"]), "-o", str(tmp_path / "bad.h5"), "--dt", "0.1", "--t-end", "1",
                  "--set", "k=stiff"])
@@ -770,6 +770,29 @@ def test_a_run_table_rows_own_settings_do_not_become_the_data_sets():
     merged = Snapshots([run], {"fmu_settings": {**common, "mass[1].s": "0.3"}})
     merged.append(Snapshots([run], {"fmu_settings": dict(common)}))
     assert merged.attrs["fmu_settings"] == common
+
+
+def test_settings_given_as_text_and_as_numbers_are_one_setting_when_merged():
+    """A file recorded from the command line before 2026-12-08 keeps ``--set k1=2`` as the text ``"2"``, one recorded
+    from Python (or since) the number ``2.0``: merged, they were "recorded with different settings" (a false warning)
+    and the merged set lost ``k1``, so ``compare`` ran the FMU at its start value, not the trained one."""
+    from fmu_opinf.snapshots import Run
+    from fmu_opinf.snapshots._merge import merge_differences
+
+    k = 5
+    run = Run(t=np.arange(5.0), u=np.zeros((0, k)), x=np.ones((2, k)), xdot=np.zeros((2, k)),
+              xddot=np.zeros((2, k)), y=np.zeros((1, k)))
+    old = {"fmu_settings": {"k1": "2", "x0": "[1, 2.5]", "on": "True", "mode": " Fast"}}
+    new = {"fmu_settings": {"k1": 2.0, "x0": [1, 2.5], "on": True, "mode": "fast"}}
+    merged = Snapshots([run], old)
+    merged.append(Snapshots([run], new))
+    assert merged.attrs["fmu_settings"] == old["fmu_settings"]
+    assert len(merged.attrs["merged_parts"]["parts"]) == 2 and merge_differences(merged.attrs) is None
+    for changed in ({"k1": 2.5}, {"x0": [1, 2.4]}, {"on": False}, {"mode": "slow"}):
+        other = Snapshots([run], {"fmu_settings": {**new["fmu_settings"], **changed}})
+        other.append(Snapshots([run], old))
+        assert other.attrs["fmu_settings"].keys() == old["fmu_settings"].keys() - changed.keys()
+        assert f"different settings ({next(iter(changed))}: " in merge_differences(other.attrs)
 
 
 def test_a_non_inheritable_descriptor_in_place_of_stdout_is_not_handed_to_the_run(monkeypatch, tmp_path):

@@ -623,7 +623,9 @@ def test_settings_set_start_values_and_parameters(toys):
     np.testing.assert_array_equal(rows[0, 3:6], [0.0, 0.0, 0.0])
     # consistent initial acceleration of x'' + 0.1 K x' + K x = 0 with K = 4 * tridiag(-1, 2, -1)
     np.testing.assert_allclose(rows[0, 6:9], -4.0 * TOY_K @ np.array([0.5, 0.0, -0.25]), rtol=0, atol=1e-15)
-    assert source.provenance()["fmu_settings"] == {"x[1]": "0.5", "x[3]": -0.25, "k": "4"}
+    # recorded typed by the variables (Real): a "4" from the command line and a 4.0 from Python are one setting
+    assert source.provenance()["fmu_settings"] == {"x[1]": 0.5, "x[3]": -0.25, "k": 4.0}
+    assert all(type(value) is float for value in source.provenance()["fmu_settings"].values())
 
 
 def test_setting_errors_name_the_variable(toys):

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._validate import either, values_said
 from ..errors import FmuOpinfError
+from ..snapshots._merge import same_setting
 from ._declared import _declared_starts, _is_rom_fmu
 from ._sides import _exact_names
 
@@ -380,7 +381,7 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
                for name in given_settings if name in settings or name in starts}
     ports = set(snapshots.get("input_names") or [])   # (a ROM input's value is the test input's, not a setting)
     changed = {name: value for name, value in given_settings.items()
-               if name in trained and name not in ports and not _same_setting(value, trained[name][0])
+               if name in trained and name not in ports and not same_setting(value, trained[name][0])
                and not sets_initial_state(name, snapshots)}
     if changed:
         import warnings
@@ -393,14 +394,6 @@ def _training_settings(rom_info: dict[str, Any], source: Any, given: dict[str, A
                       + ": a ROM describes the model it was trained on", FmuOpinfWarning, stacklevel=3)
     options["parameters"] = {**settings, **given_settings}  # the training's other settings stay as trained
     return options
-
-
-def _same_setting(value: Any, trained: Any) -> bool:
-    """Whether a --set value equals the training's, as numbers where both are numbers."""
-    try:
-        return float(value) == float(trained)
-    except (TypeError, ValueError):
-        return str(value).strip().lower() == str(trained).strip().lower()
 
 
 def _trained_input_names(rom_info: dict[str, Any]) -> list[str] | None:

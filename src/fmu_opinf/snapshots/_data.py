@@ -18,7 +18,7 @@ from .._validate import (SNAPSHOT_FILE_ATTRS, SNAPSHOT_RUN_ATTRS, check_attr_typ
 from ..errors import DataError, DimensionError, FileFormatError
 from ._file import (ARRAYS, FILE_KIND, INITIAL, LAYOUT_VERSION, atomic, decode, read_model_start, write_file_attrs,
                     write_run)
-from ._merge import MERGED_PARTS, SOURCE_KEYS, merged_parts, merged_source, mixed_interfaces
+from ._merge import MERGED_PARTS, SOURCE_KEYS, merged_parts, merged_source, mixed_interfaces, same_setting
 from ._notes import VERDICTS, texts
 
 __all__ = ["Run", "Snapshots"]
@@ -91,8 +91,9 @@ def settings_of(attrs: dict[str, Any]) -> dict[str, Any]:
 
 
 def shared_settings(settings: list[dict[str, Any]]) -> dict[str, Any]:
-    """The settings (name and value) that all of ``settings`` have."""
-    return {key: value for key, value in settings[0].items() if all(s.get(key) == value for s in settings[1:])}
+    """The settings (name and value) that all of ``settings`` have (values compared by meaning: ``2`` = ``"2"``)."""
+    return {key: value for key, value in settings[0].items()
+            if all(key in s and same_setting(s[key], value) for s in settings[1:])}
 
 
 def shared_parameters(mine: Any, theirs: Any) -> dict[str, Any] | None:

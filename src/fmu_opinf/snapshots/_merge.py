@@ -14,12 +14,14 @@ recording verdicts of the merged set are those every part carries (:func:`part_v
 
 from __future__ import annotations
 
+import json
 from typing import Any
 
 from ._notes import VERDICTS, texts
 
 __all__ = ["MERGED_PARTS", "SOURCE_KEYS", "merge_differences", "merge_warnings", "merged_parts", "merged_source",
-           "mixed_interfaces", "mixed_steps", "part_summary", "part_verdicts", "repeated_merge_warning"]
+           "mixed_interfaces", "mixed_steps", "part_summary", "part_verdicts", "repeated_merge_warning", "same_setting",
+           "setting_key"]
 
 #: The attribute that holds the parts' summaries: ``{"parts": [summary, ...]}`` (JSON object, as the other dict
 #: attributes).
@@ -36,6 +38,36 @@ _STEP_VERDICTS = {"forward-euler": "the FMU's explicit Euler co-simulation steps
                   "backward-euler": "the FMU's semi-implicit Euler co-simulation steps",
                   "euler-substeps": "the FMU's explicit Euler steps of its fixed internal step",
                   "step-dependent": "a co-simulation that depends on its communication step"}
+
+
+def setting_key(value: Any) -> Any:
+    """A setting's value in a form that compares equal where the values mean the same: numbers as floats, arrays as
+    tuples of them, booleans and other text as lower-case text.
+
+    The command line gives every ``--set`` value as text (``"2"``, ``"[1,2]"``), Python as numbers (``2.0``), and files
+    recorded before 2026-12-08 kept the text: a merge of two such files, or ``compare`` against one, must see
+    ``k1=2`` and ``k1=2.0`` as one setting (before, the merge warned "different settings" and dropped it, and the
+    merged ROM was compared against the FMU at its start value).
+    """
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = json.loads(text) if text[:1] in "[-.0123456789" else text
+        except ValueError:
+            return text.lower()
+    if isinstance(value, (list, tuple)):
+        return tuple(setting_key(item) for item in value)
+    if isinstance(value, bool) or value is None:
+        return str(value).lower()
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return str(value).strip().lower()
+
+
+def same_setting(value: Any, other: Any) -> bool:
+    """Whether two values of one setting mean the same (:func:`setting_key`)."""
+    return setting_key(value) == setting_key(other)
 
 
 def part_summary(attrs: dict[str, Any], name: str) -> dict[str, Any]:
@@ -130,7 +162,7 @@ def _differing_settings(parts: list[dict[str, Any]], attrs: dict[str, Any]) -> s
 
     settings = [part.get("fmu_settings") if isinstance(part.get("fmu_settings"), dict) else {} for part in parts]
     names = sorted({name for setting in settings for name in setting if not sets_initial_state(name, attrs)})
-    differing = [name for name in names if len({repr(setting.get(name)) for setting in settings}) > 1]
+    differing = [name for name in names if len({repr(setting_key(setting.get(name))) for setting in settings}) > 1]
     if not differing:
         return None
     said = "; ".join(f"{name}: " + _listing([f"{part.get('file')} {setting.get(name, 'default')}"

@@ -25,7 +25,7 @@ from . import _fmu_log
 from ._compile import compile_sources, has_c_sources, install_binaries
 from ._resolve import resolve_variables
 from ._unpack import make_unpack_folder
-from ._settings import parse_assignments
+from ._settings import parse_assignments, typed_assignments
 from .._stepping import stepping_of
 from .._validate import ME, either, setting_said
 from ._variables import (_FORCE_DIMENSIONS, _LOCAL_STEMS, Column, ModelInfo, ReadPlan, annotated_constraint,
@@ -394,6 +394,7 @@ class FMUSource(Source):
         model = self.model
         resolved = resolve_variables(model, positions, velocities, accelerations, inputs, outputs, settings)
         self._settings, structural = resolved.settings, resolved.structural
+        self._typed_settings = typed_assignments(model, settings, structural)
         selection, forces, held, out_elements = resolved.selection, resolved.forces, resolved.held, resolved.outputs
         out_columns = [Column(e, e.sign) for e in out_elements]
         if not out_columns and outputs is None and selection.positions:
@@ -467,7 +468,7 @@ class FMUSource(Source):
     def _settings_provenance(self) -> dict[str, Any]:
         from .._hdf5 import jsonable
 
-        return jsonable(dict(self._options["parameters"] or {}))
+        return jsonable(self._typed_settings)
 
     def _stem_pairs(self) -> str:
         """The first pairs found by name, ``x / v / a`` each (the rule of :data:`_LOCAL_STEMS` by example)."""

@@ -19,7 +19,7 @@ from .._validate import setting_said
 from ..errors import InputSpecError
 from ._variables import ModelInfo, Variable
 
-__all__ = ["Setting", "parse_assignments", "resolve_settings"]
+__all__ = ["Setting", "parse_assignments", "resolve_settings", "typed_assignments"]
 
 _INTEGER_TYPES = ("Integer", "Enumeration", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64",
                   "UInt64")
@@ -112,6 +112,25 @@ def resolve_settings(model: ModelInfo, settings: Mapping[str, Any]) -> tuple[lis
         if setting.structural and not shape:
             structural[var.name] = int(setting.values[0])
     return list(merged.values()), structural
+
+
+def typed_assignments(model: ModelInfo, settings: Mapping[str, Any], structural: Mapping[str, int]) -> dict[str, Any]:
+    """``settings`` as given (``k``, ``x0``, ``x0[2]``), each value typed by its variable (a number for ``--set
+    k=2``'s ``"2"``, a list for a whole array): what the provenance records, alike from the command line and Python.
+
+    ``settings`` must have passed :func:`resolve_settings` (which raises the one-line errors); ``structural`` is
+    its second result (array sizes).
+    """
+    typed: dict[str, Any] = {}
+    for name, value in settings.items():
+        var, index = _target(model, name)
+        if index is not None:
+            typed[name] = _typed(model, name, var, value)
+            continue
+        shape = model.shape(var, structural)
+        values = _whole(model, name, var, value, shape)
+        typed[name] = values if shape else values[0]
+    return typed
 
 
 def _target(model: ModelInfo, name: str) -> tuple[Variable, tuple[int, ...] | None]:
