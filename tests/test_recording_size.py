@@ -99,3 +99,33 @@ def test_recording_that_cannot_fit_stops_before_it_starts(tmp_path, monkeypatch,
                  "-q"]) != 0
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--outputs" in err and "Traceback" not in err
+
+
+def _planted_line(tmp_path, monkeypatch, planted: list[tuple[int, float]], bar: float) -> list[str]:
+    """The up-front lines of a recording of 2 x 81 samples after runs of ``planted`` (samples, seconds)."""
+    from fmu_opinf.sources import open_source
+
+    monkeypatch.setattr(_size, "LONG_SECONDS", bar)
+    source = open_source("builtin:anchored-msd")
+    for samples, seconds in planted:
+        _size.note_pace(source, samples, seconds)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        snapshots.record_to_file(source, tmp_path / "s.h5", TRAIN, dt=0.5, t_end=40.0, quiet=True)
+    return _size_lines(caught)
+
+
+def test_a_short_check_run_alone_predicts_no_time(tmp_path, monkeypatch):
+    """A run of 4 samples is mostly its start: before 2026-12-08 its 1.2 s predicted "about 9 min at 6.8e+02 ms
+    per sample" for an 801-sample recording of 1.5 s (AnchoredMSD.fmu, n = 600).  Planted here: 4 samples in 10 s
+    would have said 2 x 81 samples x 2.5 s = 7 min; no pace, no line (after the first run the recording's own
+    pace speaks, :func:`test_a_long_recording_not_foreseen_is_said_after_its_first_run`)."""
+    assert _planted_line(tmp_path, monkeypatch, [(4, 10.0)], bar=100.0) == []
+
+
+def test_runs_of_two_lengths_give_a_start_and_a_pace(tmp_path, monkeypatch):
+    """Runs of 4 samples in 10 s and 400 in 20 s: 9.90 s per run and 25.3 ms per sample (the line through both),
+    so 2 runs of 81 samples take 2 x 9.90 + 162 x 0.0253 = 23.9 s, said as about 24 s (the time per sample alone,
+    30 s / 404 samples, said 12 s)."""
+    lines = _planted_line(tmp_path, monkeypatch, [(4, 10.0), (400, 20.0)], bar=20.0)
+    assert len(lines) == 1 and "about 24 s at 25 ms per sample and 10 s per run, the runs recorded so far" in lines[0]
