@@ -28,8 +28,8 @@ from .._progress import duration_text
 from .._validate import DT_T_END, either
 from ..errors import FileFormatError, FmuOpinfWarning
 
-__all__ = ["LARGE_BYTES", "LONG_SECONDS", "PACE_SAMPLES", "SMALLEST_COMPRESSION", "Pace", "after_first_run", "announce", "note_pace",
-           "predict", "recorded_rows"]
+__all__ = ["LARGE_BYTES", "LONG_SECONDS", "PACE_SAMPLES", "SMALLEST_COMPRESSION", "Pace", "after_first_run", "announce",
+           "note_pace", "predict", "recorded_rows"]
 
 #: Predicted file size (before compression) from which the recording says so up front: ``fit`` loads the whole
 #: recording and builds data matrices of about its size several times (audit 79a, F1: 0.96 GB of memory for a
