@@ -422,7 +422,8 @@ def fit_rom(
         model.fit_info["training_position_error"], model.fit_info["training_projection_error"] = checked
     _start_at_model_start(model, runs[0], attrs, pod.basis_, x_ref, ops.coordinates, say)
     if own is not None and own["whole_run"] and "start" not in model.fit_info:
-        own["free_response_miss"] = free_response_miss(model, runs[own["run"]], own["samples"])
+        own["free_response_miss"] = free_response_miss(model, runs[own["run"]], own["samples"],
+                                                       euler_steps=recording_step == "forward-euler")
         if (message := free_response_warning(model.fit_info, model.output_names or ())):
             warnings.warn(message, FmuOpinfWarning, stacklevel=2)
     return model
