@@ -502,13 +502,24 @@ def _provenance(attrs: dict, settings: dict, runs: list) -> dict:
     }
 
 
+#: Values of a run's outputs read at a time by :func:`_output_peak` from an unchunked dataset (32 MB).
+_PEAK_SLAB_VALUES = 1 << 22
+
+
 def _output_peak(y: Any) -> list[float] | None:
-    """Each output's largest departure from its start in a run's outputs ``y`` (p, k), one output at a time (an
-    array or an HDF5 dataset: no copy of the whole)."""
+    """Each output's largest departure from its start in a run's outputs ``y`` (p, k), an array or an HDF5 dataset
+    read in slabs of whole chunks of columns, each chunk read once (no copy of the whole; audit86 F3: one output at
+    a time decompressed every chunk once per output, 86 s of a 98 s fit of 300 outputs)."""
     if y is None or len(getattr(y, "shape", ())) != 2 or not y.shape[1]:
         return None
-    rows = (np.asarray(y[i], dtype=float) for i in range(y.shape[0]))
-    return [float(np.abs(row - row[0]).max()) for row in rows]
+    p, k = y.shape
+    chunks = getattr(y, "chunks", None)
+    width = int(chunks[1]) if chunks else max(1, _PEAK_SLAB_VALUES // max(p, 1))
+    first = np.asarray(y[:, :1], dtype=float)
+    peak = np.zeros(p)
+    for lo in range(0, k, width):
+        peak = np.maximum(peak, np.abs(np.asarray(y[:, lo:lo + width], dtype=float) - first).max(axis=1))
+    return [float(v) for v in peak]
 
 
 def fit_rom_file(
