@@ -423,7 +423,8 @@ def fit_rom(
     _start_at_model_start(model, runs[0], attrs, pod.basis_, x_ref, ops.coordinates, say)
     if own is not None and own["whole_run"] and "start" not in model.fit_info:
         own["free_response_miss"] = free_response_miss(model, runs[own["run"]], own["samples"],
-                                                       euler_steps=recording_step == "forward-euler")
+                                                       euler_steps=recording_step == "forward-euler",
+                                                       ranges=np.ptp(data["y"], axis=1))
         if (message := free_response_warning(model.fit_info, model.output_names or ())):
             warnings.warn(message, FmuOpinfWarning, stacklevel=2)
     return model

@@ -391,15 +391,18 @@ def own_motion(runs: Sequence[Any]) -> dict[str, Any] | None:
             "whole_run": samples == np.asarray(runs[index].u).shape[1]}
 
 
-def free_response_miss(model: SecondOrderROM, run: Any, samples: int,
-                       euler_steps: bool = False) -> list[float] | None:
+def free_response_miss(model: SecondOrderROM, run: Any, samples: int, euler_steps: bool = False,
+                       ranges: Sequence[float] | None = None) -> list[float] | None:
     """Each output's largest miss of the ROM's free response (from its start, under ``run``'s held inputs) against
     the recorded one over ``run``'s first ``samples`` samples, over the recorded range there (0 where an output does
-    not move); None where the run cannot be replayed (uneven steps).  ``euler_steps``: the recording follows one
-    explicit Euler step per sample (a co-simulation that takes one per communication step), and the ROM, which stands
-    for the model, is replayed with the same steps (:func:`euler_outputs`; audit86 F1: replayed exactly, a ROM 1e-13
-    off the model read 0.39 of an output's range off the FMU's Euler steps, and a larger r was advised at the
-    snapshot rank)."""
+    not move); None where the run cannot be replayed (uneven steps).  ``ranges``: each output's training range; an
+    output that moves there by no more than :data:`OWN_MOTION_SHARE` of it rests (round-off) and is judged against
+    it, as :func:`own_motion` judges motion (audit86 F4: a subsystem the free run leaves at rest, its output moving
+    by 4.5e-17 in relative coordinates, read 2.7e6 of that "range" off for a ROM 1.2e-10 off).  ``euler_steps``:
+    the recording follows one explicit Euler step per sample (a co-simulation that takes one per communication step),
+    and the ROM, which stands for the model, is replayed with the same steps (:func:`euler_outputs`; audit86 F1:
+    replayed exactly, a ROM 1e-13 off the model read 0.39 of an output's range off the FMU's Euler steps, and a
+    larger r was advised at the snapshot rank)."""
     from ..signals import TableSignal
 
     t = np.asarray(run.t, dtype=float)[:samples]
@@ -416,6 +419,9 @@ def free_response_miss(model: SecondOrderROM, run: Any, samples: int,
     recorded = np.asarray(run.y, dtype=float)[:, :samples]
     k = min(y.shape[1], samples)
     spans = np.ptp(recorded, axis=1)
+    if ranges is not None:
+        training = np.asarray(ranges, dtype=float)
+        spans = np.where(spans > OWN_MOTION_SHARE * training, spans, training)
     misses = np.abs(y[:, :k] - recorded[:, :k]).max(axis=1)
     return [float(miss / span) if span > 0 else 0.0 for miss, span in zip(misses, spans)]
 
