@@ -311,22 +311,28 @@ _ZERO_POLE = 1e-7
 
 
 def _pole_summary(poles: list) -> str:
-    """One line on the learned poles: natural frequencies and damping ratios (what a user checks against the
-    physics they know; the poles reproduce the input-output behaviour and need not be the full model's modes);
-    poles within :data:`_ZERO_POLE` of zero are counted as zero poles (rigid-body motion)."""
+    """One line on the learned poles: natural frequencies and damping ratios of the oscillating ones (what a user
+    checks against the physics they know; the poles reproduce the input-output behaviour and need not be the full
+    model's modes); poles within :data:`_ZERO_POLE` of zero are counted as zero poles (rigid-body motion), real
+    ones (an overdamped pair) by their decay rates (audit86 F6: a stiff ROM's two real poles were counted "in the
+    upper half plane" as a mode at 2.04e3 rad/s with damping ratio 1, 4 of them for r = 3)."""
     import numpy as np
 
     values = np.array([complex(re, im) for re, im in poles])
     zero = np.abs(values) <= _ZERO_POLE * max(float(np.abs(values).max(initial=0.0)), np.finfo(float).tiny)
     rigid = f"; {int(zero.sum())} zero pole(s) (rigid-body motion)" if zero.any() else ""
-    values = values[~zero]
+    real = values[~zero & (values.imag == 0)]
+    overdamped = (f"; {real.size} real pole(s) (overdamped), decay rates {-real.real.max():.3g} .. "
+                  f"{-real.real.min():.3g} 1/s" if real.size else "")
+    values = values[~zero & (values.imag != 0)]
     if values.size == 0:
-        return f"learned poles: none{rigid}"
+        return f"learned poles: none{rigid}" if not real.size else \
+            f"learned poles: none in the upper half plane{overdamped}{rigid} (fit_info['poles'])"
     omega = np.abs(values)
     zeta = -values.real / omega
     zeta[np.abs(values.real) <= _ROUNDING * omega.max()] = 0.0  # undamped, up to round-off
     return (f"learned poles: {values.size} in the upper half plane, natural frequencies {omega.min():.3g} .. "
-            f"{omega.max():.3g} rad/s, damping ratios {zeta.min():.3g} .. {zeta.max():.3g}{rigid} "
+            f"{omega.max():.3g} rad/s, damping ratios {zeta.min():.3g} .. {zeta.max():.3g}{overdamped}{rigid} "
             "(fit_info['poles'])")
 
 
