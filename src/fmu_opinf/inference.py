@@ -705,6 +705,7 @@ import scipy.linalg
 from ._validate import check_at_least, check_choice, either
 from .errors import DataError, DimensionError, FmuOpinfWarning, InputSpecError
 from ._realization import first_order_matrix, mechanical_realization
+from ._modal_form import modal_normal_form
 from ._background import Background, can_fork_here
 from .basis import column_blocks
 from ._threads import single_threaded
@@ -997,6 +998,7 @@ def fit_operators(
             if sdp_side_by_side:
                 second = start_second()
             if refine:
+                Mr, Dr, Kr, Br = _modal_start(R, scales, (Mr, Dr, Kr, Br), training, output_map, info)
                 units = [scales[key] for key in ("xddot", "xdot", "x", "u")]
                 Mr, Dr, Kr, Br, info["refinement"] = refine_output_error(
                     Mr, Dr, Kr, Br, xdot_r, x_r, u, training[3], float(dt), output_map=output_map,
@@ -1145,6 +1147,31 @@ def _least_squares_start(R: np.ndarray, scales: dict[str, float], m: int,
     operators = (np.eye(r), np.diag(realization.d), np.diag(realization.k), realization.B)
     found["proposal"] = (operators, (realization.Cp, realization.Cv), realization.W)
     return found
+
+
+#: The modal normal form (:mod:`fmu_opinf._modal_form`) starts the refinement where its training output error is
+#: at most this many times the SDP solution's: where both reproduce the data alike the form's start is the one that
+#: does not depend on the orientation of the POD basis.
+MODAL_START_MARGIN = 2.0
+
+
+def _modal_start(R: np.ndarray, scales: dict[str, float], sdp: tuple, training: tuple,
+                 output_map: tuple[np.ndarray, np.ndarray] | None, info: dict[str, Any]) -> tuple:
+    """The refinement's start: the SDP solution ``sdp`` ``(Mr, Dr, Kr, Br)``, or the modal normal form of the
+    unit-mass least-squares fit where the data are those of a modally damped model (there the SDP's flat set of
+    optima leaves its pick to round-off, :mod:`fmu_opinf._modal_form`) and the form's training output error is at
+    most :data:`MODAL_START_MARGIN` times the SDP solution's.  Records ``info["modal_start"]`` where a form exists."""
+    r, m = sdp[0].shape[0], sdp[3].shape[1]
+    form = modal_normal_form(*unit_mass_least_squares(R, scales, r, m))
+    if form is None:
+        return sdp
+    xdot_r, x_r, u, y, dt, run_lengths, integrator, output_weighting = training
+    measure = dict(output_map=output_map or fit_outputs(xdot_r, x_r, y), run_lengths=run_lengths,
+                   integrator=integrator, output_weighting=output_weighting)
+    objectives = [output_error_objective(*ops, xdot_r, x_r, u, y, dt, **measure) for ops in (sdp, form)]
+    chosen = bool(objectives[1] <= MODAL_START_MARGIN * objectives[0])
+    info["modal_start"] = {"objective": objectives[1], "sdp_objective": objectives[0], "chosen": chosen}
+    return form if chosen else sdp
 
 
 def _refinable(found: dict[str, Any]) -> bool:
