@@ -162,3 +162,12 @@ def test_the_sdp_start_is_kept_where_the_normal_form_reproduces_the_training_out
         info = {}
         kept = inference._modal_start(R, scales, start, training, (model.Cp, model.Cv), info)
         assert info["modal_start"]["chosen"] is taken and (kept is not start) is taken, info
+
+
+def test_the_fit_line_says_when_the_refinement_started_from_the_normal_form():
+    from fmu_opinf.fit._order_fit import _refinement_summary
+
+    report = {"objective_start": 1.1e-4, "objective": 9.6e-13, "iterations": 300, "seconds": 1.2}
+    said = "output-error refinement (from the modal normal form of the least-squares fit"
+    assert said in _refinement_summary(report, {"chosen": True})
+    assert "normal form" not in _refinement_summary(report, {"chosen": False}) + _refinement_summary(report)

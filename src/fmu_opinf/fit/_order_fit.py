@@ -139,7 +139,7 @@ def _fit_order(pod: PODBasis, centred_runs: list, runs: list, attrs: dict, optio
     sdp_seconds = ops.info.get("sdp_wall_seconds", ops.info.get("total_seconds", 0))
     say(f"SDP: {ops.info.get('status')} via {ops.info.get('method')} ({ops.info.get('normalization')} "
         f"normalization, {ops.info.get('solver')}) in {sdp_seconds:.2f}s"
-        + _refinement_summary(ops.info.get("refinement"))
+        + _refinement_summary(ops.info.get("refinement"), ops.info.get("modal_start"))
         + f"; whole fit {ops.info.get('total_seconds', 0):.2f}s")
     candidate = ops.info.get("least_squares_candidate")
     if candidate:
@@ -302,17 +302,19 @@ def _warn_different_steps(steps: set[float]) -> None:
                   f"record every run at one step (snapshots {either('--dt')})", FmuOpinfWarning, stacklevel=4)
 
 
-def _refinement_summary(report: Any) -> str:
+def _refinement_summary(report: Any, modal_start: Any = None) -> str:
     if not isinstance(report, dict) or "objective" not in report:
         return ""
+    start = (" (from the modal normal form of the least-squares fit: modally damped data, fmu_opinf._modal_form)"
+             if isinstance(modal_start, dict) and modal_start.get("chosen") else "")
     screened = (" (screened out: the order still misses its training outputs grossly)"
                 if report.get("status") == "screened out" else "")
     rejected = report.get("non_finite_trials")
     overflow = (f" ({rejected} trial step(s) made the model overflow and were rejected: kept the best finite point)"
                 if rejected else "")
-    return (f"; output-error refinement: training output error {report.get('objective_start', float('nan')):.2e} "
-            f"-> {report['objective']:.2e} in {report.get('iterations', 0)} iterations{screened}{overflow}, "
-            f"{report.get('seconds', 0):.1f}s")
+    return (f"; output-error refinement{start}: training output error "
+            f"{report.get('objective_start', float('nan')):.2e} -> {report['objective']:.2e} in "
+            f"{report.get('iterations', 0)} iterations{screened}{overflow}, {report.get('seconds', 0):.1f}s")
 
 
 def _candidate_summary(report: dict) -> str:
