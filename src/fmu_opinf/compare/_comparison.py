@@ -66,6 +66,10 @@ class Comparison:
         What each time measured (``fom``, ``rom``: one sentence each; a ROM file or object: its outputs alone,
         the reduced states are not formed), whether the speed-up compares like with like (``like_with_like``:
         both sides FMUs, stepped the same way in the same kind of process) and the ``clock``.
+    training_peaks : list of float or None
+        Each output's largest departure from its start over the ROM's training runs, as fit recorded it
+        (``provenance["training_runs"][*]["output_peak"]``), None where not recorded: an output that rests in this
+        run is judged against it (:func:`~fmu_opinf.compare._metrics.error_metrics`).
     inputs : list of str
         The paths ``compare`` was given (the ROM, the source, an input table), which
         :func:`~fmu_opinf.report.write_report` refuses as the report folder, as the command line does.
@@ -96,6 +100,7 @@ class Comparison:
     beyond_training: dict[str, Any] = field(default_factory=dict)   # a given input far above the training's
     linear_fits: list[str] = field(default_factory=list)   # outputs the fit found not linear in the states
     training_miss: dict[str, Any] = field(default_factory=dict)   # fit's warned miss of its training outputs
+    training_peaks: list[float] | None = None   # each output's training motion: the scale of one at rest here
     inputs: list[str] = field(default_factory=list)   # the files compare read: write_report does not write into them
 
     def __repr__(self) -> str:
@@ -109,7 +114,7 @@ class Comparison:
 
     def metrics(self) -> dict[str, Any]:
         """The content of ``metrics.json``."""
-        out = error_metrics(self.y_fom, self.y_rom, self.output_names)
+        out = error_metrics(self.y_fom, self.y_rom, self.output_names, self.training_peaks)
         out.update({
             "r": int(self.r),
             "fom_seconds": self.fom_seconds,

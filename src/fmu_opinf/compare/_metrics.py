@@ -50,8 +50,21 @@ def _in_reference_units(y_ref: Any, y: Any) -> tuple[np.ndarray, np.ndarray, flo
     return y_ref / unit, y / unit, unit
 
 
-def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | None = None) -> dict[str, Any]:
+def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | None = None,
+                  training_peaks: Any = None) -> dict[str, Any]:
     """All error figures of a comparison.
+
+    Parameters
+    ----------
+    y_ref, y : (p, k) ndarray
+        Reference (full-order) and approximate outputs on the same time grid.
+    output_names : list of str, optional
+    training_peaks : (p,) array_like, optional
+        Each output's largest departure from its start over the ROM's training runs
+        (``provenance["training_runs"][*]["output_peak"]``).  An output that moves here by no more than
+        :data:`~fmu_opinf.fit.OWN_MOTION_SHARE` of it rests (round-off) and its per-output figures are relative to
+        it (:func:`_output_figures`), as fit judges such an output (audit86 F4b: an output at rest in the free run,
+        moving by 4.5e-17, read 2.7e6 of its "range" off for a ROM 1.2e-10 off, 2e-11 of its training range).
 
     Returns
     -------
@@ -61,24 +74,17 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         ``max_t ||y_ref - y||^2 / max_t ||y_ref - mean_t y_ref||^2``) and ``per_output``: for each output its
         relative L2 error, its max absolute error relative to the output's peak and relative to its variation
         (``relative_max_variation``, peak minus trough; NaN where the output is zero or constant, null in
-        metrics.json) and its max absolute error (``absolute_max``).  Eq. (19) is the paper's measure; the figures
-        relative to the variation show errors that a large static offset (``y0``, a static deflection) would hide
-        (second audit, 2026-11-26: eq. 19 3.3e-5 where one output's motion was 22 % off).
+        metrics.json) and its max absolute error (``absolute_max``); ``scale`` is ``"training"`` for an output
+        judged against its training motion, ``"this run"`` otherwise; ``at_rest`` lists the outputs judged so (null
+        where none).  Eq. (19) is the paper's measure, unchanged; the figures relative to the variation show errors
+        that a large static offset (``y0``, a static deflection) would hide (second audit, 2026-11-26: eq. 19
+        3.3e-5 where one output's motion was 22 % off).
     """
     y_ref, y, unit = _in_reference_units(y_ref, y)
     eps = _eq19(y_ref, y)
     names = output_names or [f"y[{j + 1}]" for j in range(y_ref.shape[0])]
-    per_output = {}
-    for j, name in enumerate(names):
-        peak = np.abs(y_ref[j]).max()
-        diff = y_ref[j] - y[j]
-        span = float(y_ref[j].max() - y_ref[j].min())
-        per_output[name] = {
-            "relative_l2": float(np.linalg.norm(diff) / np.linalg.norm(y_ref[j])) if peak > 0 else math.nan,
-            "relative_max": float(np.abs(diff).max() / peak) if peak > 0 else math.nan,
-            "relative_max_variation": float(np.abs(diff).max() / span) if span > 0 else math.nan,
-            "absolute_max": float(np.abs(diff).max()) * unit,
-        }
+    floors = _training_floors(training_peaks, y_ref.shape[0], unit)
+    per_output = {name: _output_figures(y_ref[j], y[j], floors[j], unit) for j, name in enumerate(names)}
     moving = y_ref - y_ref.mean(axis=1, keepdims=True)
     scale = float(np.max(np.sum(moving**2, axis=0)))
     return {
@@ -86,7 +92,59 @@ def error_metrics(y_ref: np.ndarray, y: np.ndarray, output_names: list[str] | No
         "l2_error": float(np.linalg.norm(y_ref - y) / np.linalg.norm(y_ref)),
         "max_error_variation": float(np.max(np.sum((y_ref - y) ** 2, axis=0)) / scale) if scale > 0 else math.nan,
         "per_output": per_output,
+        "at_rest": [name for name, figures in per_output.items() if figures["scale"] == "training"] or None,
     }
+
+
+def _training_floors(training_peaks: Any, p: int, unit: float) -> np.ndarray:
+    """The training peaks in the reference's units, 0 where none is known (a ROM without them, a damaged file)."""
+    if training_peaks is None:
+        return np.zeros(p)
+    try:
+        peaks = np.asarray(training_peaks, dtype=float).reshape(p)
+    except (TypeError, ValueError):
+        return np.zeros(p)
+    return np.where(np.isfinite(peaks) & (peaks > 0), peaks, 0.0) / unit
+
+
+def _output_figures(y_ref: np.ndarray, y: np.ndarray, training: float, unit: float) -> dict[str, Any]:
+    """One output's figures (:func:`error_metrics`): relative to its peak, its norm and its range in this run, or,
+    where it rests here (its range at most :data:`~fmu_opinf.fit.OWN_MOTION_SHARE` of its training motion
+    ``training``), with that training motion as the floor of each scale."""
+    from ..fit._training_checks import OWN_MOTION_SHARE
+
+    diff = y_ref - y
+    miss = float(np.abs(diff).max())
+    peak, norm, span = float(np.abs(y_ref).max()), float(np.linalg.norm(y_ref)), float(y_ref.max() - y_ref.min())
+    rests = training > 0 and not span > OWN_MOTION_SHARE * training
+    if rests:
+        peak, norm, span = max(peak, training), max(norm, training * math.sqrt(y_ref.size)), training
+    return {
+        "relative_l2": float(np.linalg.norm(diff) / norm) if peak > 0 else math.nan,
+        "relative_max": miss / peak if peak > 0 else math.nan,
+        "relative_max_variation": miss / span if span > 0 else math.nan,
+        "absolute_max": miss * unit,
+        "scale": "training" if rests else "this run",
+    }
+
+
+def at_rest_note(metrics: dict[str, Any]) -> str | None:
+    """A line naming the outputs judged against their training motion (``metrics["at_rest"]``), or None: they rest
+    in this run, and their figures are relative to how far the training moved them, not to their round-off."""
+    names = [name for name in metrics.get("at_rest") or [] if name in (metrics.get("per_output") or {})]
+    if not names:
+        return None
+    listed = ", ".join(names[:MAX_NAMED]) + (f" and {len(names) - MAX_NAMED} more" if len(names) > MAX_NAMED else "")
+    verb, its = ("rests", "its") if len(names) == 1 else ("rest", "their")
+    return (f"{listed} {verb} in this run (moving by at most {_share()} of {its} training motion): {its} per-output "
+            f"figures are relative to {its} largest departure from {its} start over the training, not to {its} "
+            f"range here; eq. (19) is the paper's, unchanged")
+
+
+def _share() -> str:
+    from ..fit._training_checks import OWN_MOTION_SHARE
+
+    return f"{OWN_MOTION_SHARE:g}"
 
 
 #: Ratio of the error relative to the outputs' variation to eq. (19) from which a comparison says that an offset
@@ -161,10 +219,11 @@ def _understated(relative: dict[str, float], figure: float) -> list[str]:
 def comparison_notes(metrics: dict[str, Any]) -> list[str]:
     """The lines that say what eq. (19) hides (:func:`training_miss_note`: the fit's own miss of its training
     outputs, first; where the joint run hides an input's error, compare's ``each_input_alone_note``;
-    :func:`offset_note`, :func:`scale_note`) and what to try where the ROM misses (:func:`order_note`)."""
+    :func:`offset_note`, :func:`scale_note`, the outputs judged against their training motion, :func:`at_rest_note`)
+    and what to try where the ROM misses (:func:`order_note`)."""
     alone = metrics.get("each_input_alone_note")
     notes = (training_miss_note(metrics), alone if isinstance(alone, str) else None, offset_note(metrics),
-             scale_note(metrics), linear_fit_note(metrics), order_note(metrics))
+             scale_note(metrics), at_rest_note(metrics), linear_fit_note(metrics), order_note(metrics))
     return [note for note in notes if note]
 
 

@@ -298,12 +298,22 @@ def moves_on_its_own(rom_side: Any, rom_info: dict[str, Any] | None = None) -> b
 
 
 def free_response_line(free: "Comparison") -> str:
-    """One line on the free response's comparison: eq. (19) and the largest miss over an output's range there."""
-    per_output = free.metrics()["per_output"]
+    """One line on the free response's comparison: eq. (19) and the largest miss over an output's range there, or
+    over its training motion for an output that rests there (``at_rest``: audit86 F4b, round-off taken as a range
+    read 2.7e6 off)."""
+    metrics = free.metrics()
+    per_output = metrics["per_output"]
     misses = {name: figures["relative_max_variation"] for name, figures in per_output.items()
               if figures["relative_max_variation"] == figures["relative_max_variation"]}
     worst = max(misses, key=misses.get) if misses else None
-    share = f"; largest miss {misses[worst]:.2g} of {worst}'s range there" if worst is not None else ""
+    share = ""
+    if worst is not None:
+        over = "training motion (it rests there)" if per_output[worst]["scale"] == "training" else "range there"
+        share = f"; largest miss {misses[worst]:.2g} of {worst}'s {over}"
+    resting = [name for name in metrics["at_rest"] or [] if name != worst]
+    if resting:
+        listed = ", ".join(f"{name} {misses.get(name, math.nan):.2g}" for name in resting)
+        share += f"; resting there, judged against their training motion: {listed}"
     return (f"the ROM's training shows the source moving on its own from its start values: its free response (input "
             f"none) was compared as well: max eps_y {float(free.eps.max()):.3g}{share}")
 
@@ -368,7 +378,16 @@ class _Run:
             order=_carried_order(rom_info["provenance"]) if isinstance(rom_side, Path) else _order_chosen(rom_side),
             driven_alone=alone, beyond_training=beyond,
             linear_fits=_carried_linear_fits(rom_info) if isinstance(rom_side, Path) else _linear_fits(rom_side),
-            training_miss=_training_miss(rom_side, rom_info))
+            training_miss=_training_miss(rom_side, rom_info), training_peaks=_training_peaks(rom_info, rows))
+
+
+def _training_peaks(rom_info: dict[str, Any], rows: list[int]) -> list[float] | None:
+    """The training's output peaks (:func:`fmu_opinf._test_input.recorded_peaks`) of the ROM outputs ``rows`` that
+    the comparison holds, None where the ROM's provenance lacks them."""
+    from .._test_input import recorded_peaks
+
+    peaks = recorded_peaks(rom_info["provenance"], len(rom_info["output_names"]))
+    return None if peaks is None else [float(peaks[row]) for row in rows]
 
 
 def _table_end(signal: Any, rom_info: dict[str, Any]) -> float | None:
