@@ -28,7 +28,7 @@ import numpy as np
 
 from .._hdf5 import ensure_space, tool_versions, write_attrs
 from .._progress import Progress
-from ..errors import FMUError, FmuOpinfWarning
+from ..errors import FMUError, FmuOpinfError, FmuOpinfWarning
 from ..sources import EventCount, Source, StepError, warn_once
 from ._consistency import judge_run, live_rate_sums
 from ._data import Run
@@ -37,7 +37,7 @@ from ._isolation import check_interrupt, deferred_interrupts, produce_inprocess,
 from ._rate_tests import RateSums
 from ._rates import (continuous_accelerations, continuous_recording, inputs_in_effect, newmark_accelerations,
                      newmark_rates, newmark_velocities_and_accelerations)
-from ._size import note_pace, recorded_rows
+from ._size import note_pace, recorded_rows, tolerance_pace
 
 __all__ = ["record_run", "MemorySink", "incomplete_error", "derive_rates", "STREAM_THRESHOLD"]
 
@@ -247,7 +247,7 @@ def _as_received(source: Source, u: np.ndarray) -> np.ndarray:
 
 def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, quiet: bool,
                 isolate: bool, label: str = "recording", repairs: int = 0,
-                pilot: bool = False, say_events: bool = True) -> tuple[Run, StepError | None]:
+                pilot: bool = False, say_events: bool = True, timed: bool = True) -> tuple[Run, StepError | None]:
     """Drive one run into a sink; return the run and the error that ended it early (if any).
 
     ``label`` names the run on the progress bar (e.g. which pilot run of the automatic window it is).  A complete
@@ -258,7 +258,8 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
     :data:`~._consistency.MAX_REPAIRS` is an error; ``pilot``: a run of the automatic window,
     whose unrepairable problems are left to the recording, ``judge_run(strict=False)``).  The model's events are
     warned about (once per FMU and process) unless ``pilot`` or not ``say_events`` (a probe, like compare's of the
-    source's initial state).
+    source's initial state).  ``timed``: the run counts for the source's pace (:func:`~._size.note_pace`) and, where
+    slow, is timed at the FMU's own tolerance (:func:`~._size.tolerance_pace`); not for that probe itself.
     """
     u = _as_received(source, inputs_in_effect(signal, t, source.m))
     U = np.ascontiguousarray(u.T)
@@ -289,7 +290,11 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             producer.close()
     attrs = _run_attrs(source, signal, t, sink, failure, _time.perf_counter() - started, isolate)
     run = sink.finish(attrs)
-    note_pace(source, run.k, attrs["wall_seconds"], pilot)   # (what announce predicts the time from)
+    if timed:
+        note_pace(source, run.k, attrs["wall_seconds"], pilot)   # (what announce predicts the time from)
+        what = "its " + label.removeprefix("auto window: ") + ("" if failure is None else " (until it stopped)")
+        tolerance_pace(source, run.k, attrs["wall_seconds"], what,
+                       functools.partial(_at_own_tolerance, source, signal, t, isolate))
     if attrs.get("events") and say_events and not pilot:
         _warn_events(source, attrs)
     if failure is None:
@@ -304,6 +309,22 @@ def record_run(source: Source, signal: Any, t: np.ndarray, sink_factory: Any, qu
             source.reselect(repair.positions, repair.velocities, repair.accelerations, repair.reason)
             return record_run(source, signal, t, sink_factory, quiet, isolate, label, repairs + 1, pilot, say_events)
     return run, failure
+
+
+def _at_own_tolerance(source: Source, signal: Any, t: np.ndarray, isolate: bool, n: int) -> float | None:
+    """Wall seconds of a run of ``signal`` over the first ``n`` samples of ``t`` at the FMU's own tolerance
+    (``--tolerance 0``), None where it fails: the probe of :func:`~._size.tolerance_pace`."""
+    asked = source.tolerance
+    source.tolerance = 0.0
+    started = _time.perf_counter()
+    try:
+        _, failure = record_run(source, signal, t[:n], MemorySink, True, isolate, "tolerance probe", pilot=True,
+                                say_events=False, timed=False)
+    except FmuOpinfError:   # (a probe: never a reason for the recording to fail)
+        return None
+    finally:
+        source.tolerance = asked
+    return None if failure is not None else _time.perf_counter() - started
 
 
 #: The step, relative to the run's, that :func:`_accelerations_after` takes past a sample: the accelerations move by

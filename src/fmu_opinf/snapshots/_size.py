@@ -17,7 +17,7 @@ import dataclasses
 import math
 import warnings
 import weakref
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +25,12 @@ import numpy as np
 
 from .._hdf5 import SPACE_MARGIN, free_space
 from .._progress import duration_text
-from .._validate import DT_T_END, either
+from .._validate import DT_T_END, either, values_said
 from ..errors import FileFormatError, FmuOpinfWarning
 
-__all__ = ["LARGE_BYTES", "LONG_SECONDS", "PACE_SAMPLES", "SMALLEST_COMPRESSION", "Pace", "after_first_run", "announce",
-           "note_pace", "predict", "recorded_rows"]
+__all__ = ["LARGE_BYTES", "LONG_SECONDS", "PACE_SAMPLES", "PROBE_SHARE", "SLOW_RUN_SECONDS", "SMALLEST_COMPRESSION",
+           "TOLERANCE_BOUND", "Pace", "after_first_run", "announce", "note_pace", "predict", "recorded_rows",
+           "tolerance_pace"]
 
 #: Predicted file size (before compression) from which the recording says so up front: ``fit`` loads the whole
 #: recording and builds data matrices of about its size several times (audit 79a, F1: 0.96 GB of memory for a
@@ -204,3 +205,54 @@ def _size(nbytes: float) -> str:
         if nbytes >= scale:
             return f"{nbytes / scale:.3g} {unit}"
     return f"{nbytes:.0f} bytes"
+
+
+#: A run of a co-simulation FMU at a tolerance fmu-opinf passes it that takes longer than this (wall seconds) is
+#: timed again over its first samples at the FMU's own tolerance (:func:`tolerance_pace`): the step check's first run
+#: and the first pilots take seconds on a chain (audit86 F7: 183 s for the step check of an FMU whose RK4 substeps
+#: follow the tolerance, 1e-10 by default, then pilots projected at about 50 min, with progress lines only).
+SLOW_RUN_SECONDS = 10.0
+#: Share of the slow run's samples (at least :data:`PACE_SAMPLES`) that :func:`tolerance_pace` runs again: at most
+#: about a tenth of the slow run's time where the tolerance does not matter.
+PROBE_SHARE = 0.1
+#: Factor by which the run at the FMU's own tolerance must be faster per sample for :func:`tolerance_pace` to say
+#: that the tolerance passed holds the FMU back (audit86's ``stiff_cs``: 30 ms and 1 ms per 0.05 s step).
+TOLERANCE_BOUND = 4.0
+#: The sources :func:`tolerance_pace` has timed (once per source and process).
+_TIMED: "weakref.WeakSet[Any]" = weakref.WeakSet()
+
+
+def tolerance_pace(source: Any, samples: int, seconds: float, what: str,
+                   probe: Callable[[int], float | None]) -> str | None:
+    """After a run of ``source`` (``samples`` in ``seconds`` of wall time; ``what`` names it, e.g. the step check's
+    run): where the source is a co-simulation FMU given a tolerance (``--tolerance``, default 1e-10, passed to its
+    ``setupExperiment``; docs/real-fmus.md: on purpose) and the run took over :data:`SLOW_RUN_SECONDS`, time
+    ``probe(n)`` (the run's first ``n`` samples at the FMU's own tolerance, seconds or None where it failed), once per
+    source; where that is :data:`TOLERANCE_BOUND` times faster per sample, warn in one line naming the FMU, the
+    tolerance, both paces and the fixes, and return the line (None otherwise).
+
+    The probe's time includes the FMU's start, so it understates the gain: the line is said only where the gain is
+    plain.  An FMU whose embedded solver ignores the tolerance is not faster at its own and is not named."""
+    tolerance = getattr(source, "tolerance", None)
+    if (getattr(source, "interface", None) != "cs" or not isinstance(tolerance, float) or not tolerance > 0
+            or not seconds > SLOW_RUN_SECONDS or samples < 2 * PACE_SAMPLES or not _weakly(source)
+            or source in _TIMED):
+        return None
+    _TIMED.add(source)
+    n = max(PACE_SAMPLES, int(PROBE_SHARE * samples))
+    own = probe(n)
+    if own is None or not own > 0:
+        return None
+    asked, loose = seconds / samples, own / n
+    if not asked > TOLERANCE_BOUND * loose:
+        return None
+    from ._isolation import source_label
+
+    line = (f"{source_label(source)}: its co-simulation integrates at the tolerance fmu-opinf passes it "
+            f"({tolerance:g}, {either('--tolerance')}): {what} took {duration_text(seconds)} for {samples} steps, "
+            f"{1e3 * asked:.4g} ms per step, against {1e3 * loose:.2g} ms per step over its first {n} at the FMU's own "
+            f"tolerance; the automatic window's pilots and the recording go at that pace. Where a looser tolerance "
+            f"is accurate enough: {either('--tolerance', value=1e-6)} ({values_said(('--tolerance', 0))}: the FMU's "
+            f"own); or fewer steps: {DT_T_END}")
+    warnings.warn(line, FmuOpinfWarning, stacklevel=3)
+    return line
