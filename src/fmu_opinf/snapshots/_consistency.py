@@ -37,6 +37,7 @@ from ..sources._variables import _DEPENDENCIES, _LOCAL_STEMS, _PATTERN_X
 from ._first_order import refuse_first_order_rates
 from ._integrator_checks import warn_if_euler_steps, warn_if_internal_steps
 from ._isolation import source_label
+from ._notes import warn_recording
 from ._pairing import (
     MAX_PAIRED,
     combination_misfit,
@@ -370,9 +371,9 @@ def judge_run(source: Any, run: Any, t: np.ndarray, repairs: int = 0, strict: bo
                           "so the ROM is not spoiled; a smaller --dt only shows that motion",
                           FmuOpinfWarning, stacklevel=3)
             return None
-        warnings.warn(f"{source_label(source)}: {message}, though the FMU {declares}: the step dt="
-                      f"{float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above half the sampling "
-                      f"rate); record at a smaller {either('--dt')}", FmuOpinfWarning, stacklevel=3)
+        warn_recording(f"{source_label(source)}: {message}, though the FMU {declares}: the step dt="
+                       f"{float(t[1] - t[0]):g} is too coarse for the motion (a mode near or above half the sampling "
+                       f"rate); record at a smaller {either('--dt')}", "coarse-step", stacklevel=3)
         return None
     warnings.warn(f"{source_label(source)}: {message}; the fitted model will be wrong unless {either('--velocities')} "
                   "name the positions' rates", FmuOpinfWarning, stacklevel=3)
