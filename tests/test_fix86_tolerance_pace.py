@@ -91,7 +91,8 @@ def test_an_fmu_held_back_by_the_tolerance_passed_is_named_with_the_fix(fmus, mo
         assert fix in line, (fix, line)
     asked, own = (float(v) for v in re.findall(r"([0-9.e+-]+) ms per step", line))
     assert asked > _size.TOLERANCE_BOUND * own
-    assert asked == pytest.approx(1e3 * cpu / SAMPLES, rel=1.0)   # wall against CPU time: within a factor 2
+    # the run's own pace (wall, in this process: not below its CPU time; under load far above), not the probe's
+    assert asked >= 0.5 * 1e3 * cpu / SAMPLES, (asked, cpu)
     assert "\n" not in line
 
 
