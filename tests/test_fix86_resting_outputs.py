@@ -66,8 +66,9 @@ def free_run(tmp_path_factory):
 
 
 def test_an_output_at_rest_is_judged_against_its_training_motion(free_run):
-    """Measured: y[1] moves by ~1e-17 here; its miss 1.2e-10 absolute is 2e-11 of its training motion (before:
-    2.7e6 of its range, 5.3e6 of its peak).  The other outputs keep their scale of this run."""
+    """Measured: y[1] moves by 4.5e-17 here (its training peak 6.07); the exact ROM misses it by 2.2e-17, 3.7e-18 of
+    that peak (before: 0.50 of its "range", 1.0 of its peak; audit86's fitted ROM: 2.7e6 and 5.3e6).  The other
+    outputs keep their scale of this run."""
     result, peaks, model = free_run
     metrics = result.metrics()
     y1 = metrics["per_output"]["y[1]"]
@@ -77,14 +78,15 @@ def test_an_output_at_rest_is_judged_against_its_training_motion(free_run):
     # the independent figure: the FMU against the exact model, over the training peak
     t = result.t
     exact = lti_fmus.zoh_response(model, t, np.zeros((1, t.size - 1))).y
-    assert np.abs(result.y_fom[0] - exact[0]).max() / peaks[0] < 1e-9   # measured 2e-11
+    assert np.abs(result.y_fom[0] - exact[0]).max() / peaks[0] < 1e-16   # measured 3.7e-18
     assert y1["relative_max_variation"] == pytest.approx(y1["absolute_max"] / peaks[0], rel=1e-12)
     assert y1["relative_max"] == pytest.approx(y1["absolute_max"] / peaks[0], rel=1e-12)
-    assert y1["relative_max_variation"] < 1e-9 and y1["relative_l2"] < 1e-9   # measured 2e-11, 1.8e-12
+    assert y1["relative_max_variation"] < 1e-16 and y1["relative_l2"] < 1e-16   # measured 3.7e-18, 2.0e-18
 
 
 def test_the_free_response_line_and_notes_name_the_resting_output(free_run):
-    """Before: "largest miss 2.7e+06 of y[1]'s range there" and "y[1] is 5.3e+06 of its peak off" (scale_note)."""
+    """Before: "largest miss 0.5 of y[1]'s range there" and "y[1] is 1 of its peak off" (scale_note; audit86's
+    fitted ROM: 2.7e+06 and 5.3e+06)."""
     result, _, _ = free_run
     line = free_response_line(result)
     assert "e+0" not in line and "judged against their training motion: y[1]" in line, line
