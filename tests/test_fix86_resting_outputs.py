@@ -134,3 +134,18 @@ def test_training_peaks_missing_or_damaged_keep_the_run_s_scale():
     plain = error_metrics(y_ref, y)
     for peaks in (None, [1.0], ["a", None], [np.nan, -1.0]):
         assert error_metrics(y_ref, y, training_peaks=peaks)["per_output"] == plain["per_output"], peaks
+
+
+def test_the_report_says_which_scale_a_resting_output_is_judged_against(free_run):
+    """The HTML page's per-output row and a run's row name the training motion for y[1], the range for the others
+    (before: "relative to its range" for every output, beside a figure over the training motion)."""
+    from fmu_opinf.report import _html_page, _run_row
+
+    result, _, _ = free_run
+    metrics = result.metrics()
+    page = _html_page(result, metrics, {})
+    assert page.count("relative to its training motion (it rests in this run") == 1
+    assert page.count("relative to its range (max_t |y - y_r| / (max_t y - min_t y))") == 2
+    run = {"input": "none", "max_error": metrics["max_error"],
+           "per_output": {"y[1]": metrics["per_output"]["y[1]"]}}
+    assert _run_row(run).endswith("of its training motion (it rests there)")

@@ -315,8 +315,8 @@ def _html_page(comparison: Comparison, metrics: dict[str, Any], figures: dict[st
     settings = [("test input", metrics["input"] + chosen), ("step dt", metrics["dt"]), ("end time", metrics["t_end"]),
                 ("steps", metrics["steps"]), ("last training snapshot", metrics["t_train_end"])]
     per_output = [(name, f"relative L2 {_fmt(v['relative_l2'])}; relative max (not squared: max_t |y - y_r| / "
-                         f"max_t |y|) {_fmt(v['relative_max'])}; relative to its range (max_t |y - y_r| / "
-                         f"(max_t y - min_t y)) {_fmt(v.get('relative_max_variation', math.nan))}; absolute max "
+                         f"max_t |y|) {_fmt(v['relative_max'])}; {_range_said(v)} "
+                         f"{_fmt(v.get('relative_max_variation', math.nan))}; absolute max "
                          f"{_absolute_max(comparison, j, v.get('absolute_max', math.nan))}")
                   for j, (name, v) in enumerate(metrics["per_output"].items())]
     headline.insert(2, ("max over time of eps_y relative to the outputs' variation (time mean removed from the "
@@ -394,11 +394,20 @@ def _html_training_band(run: dict[str, Any]) -> str:
             + _html_table([("top of the training band", _run_row(run))]))
 
 
+def _range_said(figures: dict[str, Any]) -> str:
+    """What an output's ``relative_max_variation`` is relative to: its range in the run, or its training motion where
+    the run leaves it at rest (``scale`` "training", :mod:`fmu_opinf.compare._metrics`)."""
+    if figures.get("scale") == "training":
+        return "relative to its training motion (it rests in this run: max_t |y - y_r| / its training peak)"
+    return "relative to its range (max_t |y - y_r| / (max_t y - min_t y))"
+
+
 def _run_row(run: dict[str, Any]) -> str:
     """One run's line: its input, eq. (19), the output furthest off relative to its range, and its notes."""
     worst = max(run["per_output"].items(), key=lambda item: _or_zero(item[1].get("relative_max_variation")))
+    scale = "its training motion (it rests there)" if worst[1].get("scale") == "training" else "its range"
     text = (f"input {run['input']}; max eps_y {_fmt(run['max_error'])}; {worst[0]} off by "
-            f"{_fmt(worst[1].get('relative_max_variation', math.nan))} of its range")
+            f"{_fmt(worst[1].get('relative_max_variation', math.nan))} of {scale}")
     return "; ".join([text] + comparison_notes(run))
 
 
