@@ -58,6 +58,7 @@ least-squares fit with a constant, and ``fit_info["nonlinear_outputs"]`` names t
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import functools
 import os
@@ -77,7 +78,7 @@ from ..errors import FmuOpinfWarning
 from ..inference import _check_cutoff
 from ..rom import SecondOrderROM
 from ._order_fit import _FitOptions, _fit_order, _OrderFit, _refit_without_refinement
-from ._order_search import ORDER_SEARCH_LIMIT, _grow_order, _search_orders
+from ._order_search import ORDER_SEARCH_LIMIT, _condensed, _grow_order, _search_orders
 from ._terms import _decision_order, _requested_terms
 from ._time_integrator import _integrator_choice, _recorded_euler_step, _SDP_ONLY_STEPS
 from ._training_checks import (_energy_orders, _say_training_misses, _unexplained_outputs, _warn_if_inputs_alike,
@@ -344,6 +345,10 @@ def fit_rom(
         basis = pod if order == pod.r_ else pod.at_order(order)
         return _fit_order(basis, centred_runs, runs, attrs, options, say, decided=first, screen=screen)
 
+    def condensed_at(order: int) -> _OrderFit:   # (static condensation: the feedthrough carries the fast DOF)
+        with_feedthrough = dataclasses.replace(options, requested={**requested, "Dur": True})
+        return _fit_order(first.pod.at_order(order), centred_runs, runs, attrs, with_feedthrough, say)
+
     fit = first = _fit_order(pod, centred_runs, runs, attrs, options, say,
                              screen=searched and bool(_search_orders(pod.r_, pod.rank_)))
     _warn_if_inputs_alike(fit.data["u"], _names(attrs.get("input_names"), fit.data["u"].shape[0])
@@ -353,6 +358,8 @@ def fit_rom(
     if searched:
         fit, search = _grow_order(first, fit_at, judge_unrefined=refine is not False, say=say,
                                   refit=functools.partial(fit_at, screen=False), names=output_names)
+    fit = _condensed(fit, condensed_at if searched and refine is not False and requested["Dur"] is not False
+                     else None, judge_unrefined=refine is not False, say=say)
     if r is None:
         origin = "from the order search" if fit.pod.r_ != first.pod.r_ else "from the cumulative energy"
         _warn_if_order_below_inputs(fit.pod.r_, fit.pod.rank_, fit.data["u"].shape[0], origin)

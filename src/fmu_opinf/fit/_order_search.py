@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
+from .. import _threads
 from .._sdp_paths import FACTORED_ABOVE
 from .._validate import either
 from ._training_errors import TRAINING_MISS, _in_run, _training_miss, _training_objective, output_name
@@ -326,3 +327,71 @@ def _why_not_larger(last: dict) -> str:
             f"tried (it would fit the noise); with noisy snapshots a smaller order, about "
             f"{either('--r', value=max(floor - 1, 1))}, "
             "may follow other inputs better")
+
+
+#: Singular value of the row-scaled reduced positions and inputs ``[x; u]`` (each row scaled to unit norm), relative
+#: to the largest, below which a reduced coordinate counts as fixed by the others and the inputs at every sample
+#: (:func:`quasi_static_coordinates`).  Measured on audit86 F2's model (a 1e-4 kg mass on a 1e4 N/m spring, the
+#: force acting on it, sampled at dt = 0.1 s): 2.7e-12 of 1.41, the next singular value 1.0; exact data of models
+#: whose coordinates all move dynamically have none below.
+QUASI_STATIC_GAP = 1e-6
+
+
+def _small_singular_values(rows: np.ndarray) -> int:
+    """How many singular values of ``rows`` (each row scaled to unit norm, zero rows left out) lie below
+    :data:`QUASI_STATIC_GAP` of the largest; from the triangle of a QR factorization of the samples, whose size
+    is the number of rows."""
+    norms = np.linalg.norm(rows, axis=1)
+    scaled = rows[norms > 0] / norms[norms > 0, None]
+    if scaled.shape[0] == 0:
+        return 0
+    with _threads.single_threaded():
+        sigma = np.linalg.svd(np.linalg.qr(scaled.T, mode="r"), compute_uv=False)
+    return int(np.sum(sigma < QUASI_STATIC_GAP * sigma[0]))
+
+
+def quasi_static_coordinates(data: dict[str, np.ndarray]) -> int:
+    """How many reduced coordinates the reduced training data ``data`` (``x (r, k)``, ``u (m, k)``) show fixed by
+    the other coordinates and the inputs at every sample: a DOF much faster than the sampling, which the samples
+    see only in its static balance with the input.  Its mass and damping are then not in the data, and the SDP
+    (eq. 16) fits them from round-off (audit86 F2: 0.81 relative RMS off its own training outputs at r = 3, the
+    snapshot rank); statically condensed (one coordinate fewer, the input's direct share of the outputs as the
+    feedthrough ``Dur``), the fit reproduced them to 2.8e-5.  Counted as the small singular values of the
+    row-scaled ``[x; u]`` (:data:`QUASI_STATIC_GAP`) beyond those of ``x`` alone: a dependency that involves an
+    input."""
+    x, u = np.asarray(data["x"], dtype=float), np.asarray(data["u"], dtype=float)
+    if u.shape[0] == 0 or x.shape[0] == 0:
+        return 0
+    return max(0, _small_singular_values(np.vstack([x, u])) - _small_singular_values(x))
+
+
+def _condensed(fit: _OrderFit, refit: Callable[[int], _OrderFit] | None, judge_unrefined: bool,
+               say: Callable[[str], None]) -> _OrderFit:
+    """Where ``fit`` at the snapshot rank misses its training outputs grossly (:data:`GROSS_MISS`) and its data
+    show coordinates fixed statically by the others and the inputs (:func:`quasi_static_coordinates`), the record
+    ``fit.info["quasi_static"]`` for the warning, and with ``refit`` (fits at a given order with the feedthrough
+    ``Dur``) one fit with those coordinates fewer, kept where it misses its training outputs less, said in one line
+    (audit86 F2: 0.81 relative RMS at r = 3, 2.8e-5 at r = 2 with ``Dur``).  A fit that is fine is not touched."""
+    miss = _training_miss(fit.info, judge_unrefined)
+    if miss is None or not miss > GROSS_MISS or fit.pod.r_ < fit.pod.rank_:
+        return fit
+    count = quasi_static_coordinates(fit.data)
+    if not 0 < count < fit.pod.r_:
+        return fit
+    record: dict[str, Any] = {"coordinates": count, "r": fit.pod.r_ - count,
+                              "terms": [name for name, chosen in fit.chosen.items() if chosen]}
+    fit.info["quasi_static"] = record
+    if refit is None:
+        return fit
+    other = refit(fit.pod.r_ - count)
+    other_miss = _training_miss(other.info, judge_unrefined)
+    record["miss"] = other_miss
+    better = other_miss is not None and other_miss < miss
+    say(f"{count} reduced coordinate(s) fixed statically by the others and the inputs at every sample (a DOF faster "
+        f"than the sampling): refitted at r={fit.pod.r_ - count} with the feedthrough Dur, worst relative RMS "
+        f"{math.sqrt(other_miss) if other_miss is not None else float('nan'):.2g} against {math.sqrt(miss):.2g} at "
+        f"r={fit.pod.r_}; kept r={fit.pod.r_ - count if better else fit.pod.r_}")
+    if not better:
+        return fit
+    other.info["quasi_static"] = {**record, "kept": True, "replaced": {"r": fit.pod.r_, "miss": miss}}
+    return other

@@ -13,7 +13,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from .. import _threads
-from .._validate import ME, either
+from .._validate import ME, either, values_said
 from ..basis import PODBasis, constraint_recorded, read_columns
 from ..errors import FmuOpinfWarning
 from ..rom import SecondOrderROM
@@ -230,7 +230,9 @@ def _warn_if_training_outputs_missed(info: dict, r: int, judge_unrefined: bool =
                                            + (" in the free response from the start values"
                                               if info.get("worst_in_free_response") else "")
                                            + _in_run(info.get("worst_run_name"), info.get("n_runs")) + "; ")
-    causes = "; ".join(_miss_causes(r, tried, held, unrefined, unexplained, rank, search, attrs or {}))
+    quasi_static = info.get("quasi_static")
+    causes = "; ".join([_quasi_static_cause(r, quasi_static, attrs or {})] if quasi_static else
+                       _miss_causes(r, tried, held, unrefined, unexplained, rank, search, attrs or {}))
     warnings.warn(f"the ROM reproduces its own training outputs only to {math.sqrt(miss):.2g} relative RMS "
                   f"({worst}training output error {objective:.2g}): {causes}", FmuOpinfWarning, stacklevel=3)
 
@@ -262,6 +264,31 @@ def order_advice(r: int, rank: int) -> str:
     cost = (f"; above r = {FACTORED_ABOVE} the SDP is solved by the factored start and the fit takes minutes"
             if suggested > FACTORED_ABOVE else "")
     return f"fit with {either('--r', value=suggested)} (up to the snapshot rank {rank}){cost}"
+
+
+def quasi_static_advice(r: int, count: int, terms: Sequence[str] = ()) -> str:
+    """The fix for :func:`quasi_static_coordinates`' ``count`` coordinates at order ``r``, one command in both
+    vocabularies: ``count`` coordinates fewer, with the feedthrough ``Dur`` beside the ``terms`` already fitted."""
+    keep = ",".join([name for name in terms if name != "Dur"] + ["Dur"])
+    return values_said(("--r", r - count), ("--terms", keep))
+
+
+def _quasi_static_cause(r: int, record: dict, attrs: dict) -> str:
+    """The cause and fix of a gross training miss at the snapshot rank ``r`` whose data show coordinates fixed
+    statically (``record``: ``fit_info["quasi_static"]``, :func:`fmu_opinf.fit._order_search._condensed`): the
+    clauses of :func:`_miss_causes` (positions, order, nonlinearity) do not apply to exact data of a linear model
+    (audit86 F2: its equation residual was 6e-11)."""
+    count = int(record["coordinates"])
+    step = f" (dt={attrs['dt']:g})" if isinstance(attrs.get("dt"), (int, float)) else ""
+    tried = record.get("miss")
+    tried = (f"; the fit tried that and missed by {math.sqrt(tried):.2g} relative RMS, so check the recording too"
+             if isinstance(tried, (int, float)) else "")
+    return (f"{count} of the r={r} reduced coordinates {'is' if count == 1 else 'are'} fixed by the others and the "
+            f"inputs at every sample: a DOF much faster than the sampling{step}, which the data see only in its "
+            "static balance with the input, so its mass and damping are not in the data and eq. 16 fits them from "
+            f"round-off; condense it statically: fit with {quasi_static_advice(r, count, record.get('terms', ()))}"
+            f" (one coordinate fewer per such DOF, the input's direct share of the outputs as the feedthrough)"
+            f"{tried}")
 
 
 def _miss_causes(r: int, tried: Sequence[int], held: Sequence[str], unrefined: bool, unexplained: dict | None,
