@@ -115,7 +115,7 @@ def test_a_fit_that_is_fine_is_not_touched():
     rom = fit_rom(_snapshots(soft), log=lines.append)
     assert "quasi_static" not in rom.fit_info and rom.r == 3
     assert not [line for line in lines if "fixed statically" in line]
-    assert miss_against_model(rom, soft, DEFAULT_TRAINING_INPUT, T_END) < 1e-6
+    assert miss_against_model(rom, soft, DEFAULT_TRAINING_INPUT, T_END) < 1e-11   # (measured 1.4e-13)
 
 
 def test_a_fine_fit_with_a_static_coordinate_is_not_touched():
