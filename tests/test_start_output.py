@@ -75,12 +75,16 @@ def test_full_order_start_is_exact_and_silent(off_rest_run):
 
 
 @pytest.mark.slow
-def test_a_kept_mechanical_realization_is_judged_at_its_own_start():
+def test_a_kept_mechanical_realization_is_judged_at_its_own_start(monkeypatch):
     """Audit 71 F2: a 30-mass chain started by an impact on mass 15, whose velocity is an output; the default fit
-    keeps the refined mechanical realization of least squares (modal coordinates) at r = 30 = n.  The start's miss
+    kept the refined mechanical realization of least squares (modal coordinates) at r = 30 = n.  The start's miss
     was computed with POD's start velocity and the modal output map: 0.091 of the range and a warning on an exact
-    ROM (its own simulation: 4.7e-17)."""
+    ROM (its own simulation: 4.7e-17).  Since 2026-12-08 the chain's Rayleigh damping gives the refinement the
+    modal normal form as its start (:mod:`fmu_opinf._modal_form`) and the SDP's refined solution is kept: both are
+    judged at their own start, the realization with the normal form switched off."""
     from dataclasses import replace
+
+    from fmu_opinf import inference
 
     v0 = np.zeros(30)
     v0[14] = 1.0
@@ -91,7 +95,14 @@ def test_a_kept_mechanical_realization_is_judged_at_its_own_start():
     t = time_grid(DT, 60.0)
     u = inputs_in_effect(parse_signal("impulse:amplitude=100,t0=2,width=0.5", 1), t, 1)
     exact = lti_fmus.zoh_response(model, t, u[:, 1:])
-    rom, said = _fit(Run(t, u, exact.x, exact.v, exact.a, exact.y), None)
+    run = Run(t, u, exact.x, exact.v, exact.a, exact.y)
+    rom, said = _fit(run, None)
+    assert rom.fit_info["modal_start"]["chosen"] and rom.coordinates is None and rom.r == 30
+    assert said == []
+    assert max(rom.fit_info["start_output_miss"]) < 1e-13                          # measured 1.7e-15
+    assert np.max(_start_miss_of_simulation(rom, exact.y)) < 1e-13
+    monkeypatch.setattr(inference, "modal_normal_form", lambda *args: None)
+    rom, said = _fit(run, None)
     assert rom.coordinates is not None and rom.r == 30
     assert said == []
     assert max(rom.fit_info["start_output_miss"]) < 1e-13                          # measured 1.7e-15

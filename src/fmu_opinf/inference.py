@@ -1153,6 +1153,11 @@ def _least_squares_start(R: np.ndarray, scales: dict[str, float], m: int,
 #: at most this many times the SDP solution's: where both reproduce the data alike the form's start is the one that
 #: does not depend on the orientation of the POD basis.
 MODAL_START_MARGIN = 2.0
+#: Training output error (the refinement's objective, relative and squared) below which the SDP solution already
+#: reproduces the training to round-off and stays the start: a free response at full order (exact data) had 8.4e-24
+#: there, the form 7.2e-24, and from the form the refinement ended 15x higher (1.2e-25 against 8.2e-27 of the
+#: exact model); the flat-set picks the form is for start at 6e-14 .. 2e-5.
+MODAL_START_FLOOR = 1e-20
 
 
 def _modal_start(R: np.ndarray, scales: dict[str, float], sdp: tuple, training: tuple,
@@ -1160,7 +1165,8 @@ def _modal_start(R: np.ndarray, scales: dict[str, float], sdp: tuple, training: 
     """The refinement's start: the SDP solution ``sdp`` ``(Mr, Dr, Kr, Br)``, or the modal normal form of the
     unit-mass least-squares fit where the data are those of a modally damped model (there the SDP's flat set of
     optima leaves its pick to round-off, :mod:`fmu_opinf._modal_form`) and the form's training output error is at
-    most :data:`MODAL_START_MARGIN` times the SDP solution's.  Records ``info["modal_start"]`` where a form exists."""
+    most :data:`MODAL_START_MARGIN` times the SDP solution's, which is above :data:`MODAL_START_FLOOR`.  Records
+    ``info["modal_start"]`` where a form exists."""
     r, m = sdp[0].shape[0], sdp[3].shape[1]
     form = modal_normal_form(*unit_mass_least_squares(R, scales, r, m))
     if form is None:
@@ -1169,7 +1175,7 @@ def _modal_start(R: np.ndarray, scales: dict[str, float], sdp: tuple, training: 
     measure = dict(output_map=output_map or fit_outputs(xdot_r, x_r, y), run_lengths=run_lengths,
                    integrator=integrator, output_weighting=output_weighting)
     objectives = [output_error_objective(*ops, xdot_r, x_r, u, y, dt, **measure) for ops in (sdp, form)]
-    chosen = bool(objectives[1] <= MODAL_START_MARGIN * objectives[0])
+    chosen = bool(MODAL_START_FLOOR < objectives[0] and objectives[1] <= MODAL_START_MARGIN * objectives[0])
     info["modal_start"] = {"objective": objectives[1], "sdp_objective": objectives[0], "chosen": chosen}
     return form if chosen else sdp
 
