@@ -1118,10 +1118,15 @@ def input_matrix(R: np.ndarray, m: int, Ts: np.ndarray) -> np.ndarray:
 # Near-exact data: the optimum relative to itself (sdp86)
 # ----------------------------------------------------------------------------------------------------------
 #: A fit whose objective ``f`` is below this fraction of ``||G|| ||T||^2`` comes from near-exact data: there the
-#: certificate of :mod:`fmu_opinf._sdp` is absolute (its floor), so the interior-point or Clarabel solve may stop
-#: far above the optimum.  On the control model of ``tests/test_sdp_exact_data.py`` (r = 7) the solvers stopped at
-#: 2.4 .. 3e8 times the ``Mr >= I`` optimum, at a point that depended on the POD basis's orientation.
-_EXACT_DATA = 1e-9
+#: certificate of :mod:`fmu_opinf._sdp` is absolute (its floor 1e-9), so the interior-point or Clarabel solve may
+#: stop far above the optimum.  On the control model of ``tests/test_sdp_exact_data.py`` (r = 7) the solvers stopped
+#: at 2.4 .. 3e8 times the ``Mr >= I`` optimum, at a point that depended on the POD basis's orientation; their
+#: solutions had ratios 1.2e-25 .. 2.1e-13, the triple chain's (simulated data) 1.2e-7 / 6.4e-8 / 1.0e-8 / 9.0e-10
+#: at r = 10 / 20 / 35 / 50 (trace normalization).
+_EXACT_DATA = 1e-12
+#: Largest order polished: the subspace comes from the eigenvalues of the ``3 r (r + 1) / 2``-square ``H`` (r = 50:
+#: 17 s CPU of a 42 s fit when the test was the certificate's floor 1e-9 and the triple chain's r = 50 met it).
+_EXACT_MAX_ORDER = 30
 #: Eigenvalues of the Hessian ``H`` below this fraction of its largest span the subspace of the exact-data polish
 #: (control model: three at <= 1.2e-12, the next at 2.0e-6).
 _EXACT_SUBSPACE = 1e-8
@@ -1266,14 +1271,14 @@ def _interior_start(sub: _Subspace, c: np.ndarray, lower: np.ndarray, null: np.n
 
 def _polish_exact_data(mats: tuple, H: np.ndarray, root: np.ndarray, normalization: str, trace: float
                        ) -> tuple[tuple, dict] | None:
-    """On near-exact data (:func:`_near_exact`), the SDP's optimum solved relative to itself: a barrier method in the
-    low-curvature subspace of ``H`` (:func:`_low_subspace`), from the solver's point made interior, until the duality
-    bound is :data:`_EXACT_GAP` of the objective.  Returns the operators and a report when they have the smaller
-    objective (through ``root``), else None."""
-    f = _exact_objective(mats, root)
-    if not _near_exact(mats, root, f):
-        return None
+    """On near-exact data (:func:`_near_exact`, r <= :data:`_EXACT_MAX_ORDER`), the SDP's optimum solved relative
+    to itself: a barrier method in the low-curvature subspace of ``H`` (:func:`_low_subspace`), from the solver's
+    point made interior, until the duality bound is :data:`_EXACT_GAP` of the objective.  Returns the operators and
+    a report when they have the smaller objective (through ``root``), else None."""
     r = mats[0].shape[0]
+    f = _exact_objective(mats, root)
+    if r > _EXACT_MAX_ORDER or not _near_exact(mats, root, f):
+        return None
     iu = np.triu_indices(r)
     w = np.concatenate([m[iu] for m in mats])
     sub = _low_subspace(H, root, r, float(np.linalg.norm(w)))
