@@ -1245,9 +1245,13 @@ def _centre(sub: _Subspace, x: np.ndarray, lower: np.ndarray, t: float, linear: 
 
 def _scaled_solve(h: np.ndarray, g: np.ndarray) -> np.ndarray:
     """``h^-1 g`` for a positive definite ``h`` with its diagonal scaled to one (no truncation: the directions the
-    objective hardly sees are the ones that matter here)."""
+    objective hardly sees are the ones that matter here); the least-squares solution where ``h`` is singular."""
     d = 1.0 / np.sqrt(np.maximum(np.diag(h), np.finfo(float).tiny))
-    return d * np.linalg.solve(h * np.outer(d, d), d * g)
+    scaled = h * np.outer(d, d)
+    try:
+        return d * np.linalg.solve(scaled, d * g)
+    except np.linalg.LinAlgError:  # a direction no block and not the objective sees (test_rom's order search)
+        return d * np.linalg.lstsq(scaled, d * g, rcond=None)[0]
 
 
 def _interior_start(sub: _Subspace, c: np.ndarray, lower: np.ndarray, null: np.ndarray) -> np.ndarray | None:
