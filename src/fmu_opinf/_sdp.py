@@ -114,9 +114,7 @@ primal blocks.  For any feasible ``T'``,
 ``f(T') >= f(T) - sum_b <Z_b, T_b - L_b> + sum_b min(0, lambda_min(Z_b)) trace(T'_b - L_b)``; the reported gap
 is ``sum_b |<Z_b, T_b - L_b>| + max(0, -lambda_min(Z_b)) trace(T_b - L_b)`` (the bound with ``T'`` replaced
 by ``T``) relative to ``f``, or to ``1e-9 ||G|| ||T||^2`` when ``f`` is smaller (exact data, where ``f = 0``:
-the gap is then an absolute bound, ``f`` below ``1e-15 ||G|| ||T||^2`` at the certification level 1e-6).  So
-on exact data a certified point may lie decades above the optimum; below ``1e-12 ||G|| ||T||^2``
-:func:`fmu_opinf._sdp_paths._polish_exact_data` solves the problem again relative to its own optimum.
+the gap is then an absolute bound, ``f`` below ``1e-15 ||G|| ||T||^2`` at the certification level 1e-6).
 """
 
 from __future__ import annotations
