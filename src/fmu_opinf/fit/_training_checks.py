@@ -457,18 +457,16 @@ def euler_outputs(model: SecondOrderROM, signal: Any, dt: float, t_end: float) -
     """The ROM's outputs (p, k) stepped by one explicit Euler step of ``dt`` per sample from the start
     :meth:`~fmu_opinf.rom.SecondOrderROM.simulate` takes, inputs held over each step: what a co-simulation FMU that
     takes one such step per communication step records of the model the ROM stands for."""
+    from ..refinement import _ForwardEulerStep
+
     t, u, _, start = model._prepared_run(signal, dt, t_end)
     r = model.r
-    rates = np.linalg.solve(model.Mr, np.hstack([model.Kr, model.Dr, model.Br, model.fr[:, None]]))
-    step = np.eye(2 * r)
-    step[:r, r:] += dt * np.eye(r)
-    step[r:] -= dt * rates[:, :2 * r]
-    forcing = dt * rates[:, 2 * r:] @ np.vstack([u, np.ones((1, t.size))])   # column i + 1: the step into t_i+1
+    step = _ForwardEulerStep(model.Mr, model.Dr, model.Kr, np.hstack([model.Br, model.fr[:, None]]), dt)
+    forcing = step.Bd @ np.vstack([u, np.ones((1, t.size))])   # column i + 1: the step into t_i+1
     z = np.empty((2 * r, t.size))
     z[:, 0] = start[:2 * r]
     for i in range(t.size - 1):
-        z[:, i + 1] = step @ z[:, i]
-        z[r:, i + 1] += forcing[:, i + 1]
+        z[:, i + 1] = step.Ad @ z[:, i] + forcing[:, i + 1]
     return model.Cpr @ z[:r] + model.Cvr @ z[r:] + model.Dur @ u + model.y0[:, None]
 
 
